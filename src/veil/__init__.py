@@ -1,0 +1,23 @@
+"""veil: reflectance of objects seen through scattering media.
+
+Forward model (MODEL.md): :func:`apparent`, :func:`reflectance`; models and the paper's
+presets: :class:`TorranceSparrow`, :class:`HenyeyGreenstein`, ``BRDF1``, ``BRDF2``,
+``BTDF1``, ``BTDF2``, ``BTDF3``.
+"""
+
+from . import _jax  # noqa: F401  (float64 for JAX before anything else)
+from .apparent import apparent, reflectance
+from .models import (BRDF, BTDF, PRESETS, REGISTRY, HenyeyGreenstein, Model, Param,
+                     TorranceSparrow, preset)
+
+BRDF1 = PRESETS["BRDF1"]
+BRDF2 = PRESETS["BRDF2"]
+BTDF1 = PRESETS["BTDF1"]
+BTDF2 = PRESETS["BTDF2"]
+BTDF3 = PRESETS["BTDF3"]
+
+__version__ = "0.1.0"
+
+__all__ = ["apparent", "reflectance", "BRDF", "BTDF", "Model", "Param", "TorranceSparrow",
+           "HenyeyGreenstein", "PRESETS", "REGISTRY", "preset", "BRDF1", "BRDF2", "BTDF1",
+           "BTDF2", "BTDF3"]

@@ -1,0 +1,63 @@
+"""Angle conventions of MODEL.md section 1: directions, signed in-plane angles, goniometer.
+
+All public functions take and return degrees. The light sits at phi = 180 deg and the camera
+at phi = 0 deg in the paper's in-plane set-up; a negative in-plane angle means the other side.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ._jax import jnp
+
+
+def direction(theta_deg, phi_deg):
+    """Unit vector(s) for polar angle ``theta`` and azimuth ``phi`` (degrees), shape (..., 3)."""
+    t = jnp.deg2rad(jnp.asarray(theta_deg, dtype=float))
+    p = jnp.deg2rad(jnp.asarray(phi_deg, dtype=float))
+    st = jnp.sin(t)
+    return jnp.stack([st * jnp.cos(p), st * jnp.sin(p), jnp.cos(t)], axis=-1)
+
+
+def from_signed_inplane(theta_i, theta_r):
+    """Signed in-plane angles -> (theta_i, phi_i, theta_r, phi_r), degrees.
+
+    Light at phi = 180 deg and camera at phi = 0 deg for non-negative angles; a negative angle
+    means |angle| on the other side (phi + 180 deg).
+    """
+    ti = np.asarray(theta_i, dtype=float)
+    tr = np.asarray(theta_r, dtype=float)
+    phi_i = np.where(ti < 0, 0.0, 180.0)
+    phi_r = np.where(tr < 0, 180.0, 0.0)
+    return np.abs(ti), phi_i, np.abs(tr), phi_r
+
+
+def to_signed_inplane(theta_i, phi_i, theta_r, phi_r, tol=1e-6):
+    """Inverse of :func:`from_signed_inplane`; raises ``ValueError`` for out-of-plane rows."""
+    ti, pi_, tr, pr = (np.asarray(a, dtype=float) for a in (theta_i, phi_i, theta_r, phi_r))
+    pi_ = np.mod(pi_, 360.0)
+    pr = np.mod(pr, 360.0)
+
+    def side(theta, phi, positive_at):
+        on_pos = np.isclose(phi, positive_at, atol=tol) | (theta < tol)
+        on_neg = np.isclose(np.mod(phi + 180.0, 360.0), positive_at, atol=tol)
+        if not np.all(on_pos | on_neg):
+            bad = np.flatnonzero(~(on_pos | on_neg))
+            raise ValueError(f"rows {bad.tolist()} are not in the plane of incidence (phi not 0 or 180 deg)")
+        return np.where(on_pos, theta, -theta)
+
+    return side(ti, pi_, 180.0), side(tr, pr, 0.0)
+
+
+def from_goniometer(psi, rho):
+    """Goniometer (psi, rho) -> signed in-plane (theta_i, theta_r): psi/2 + rho, psi/2 - rho."""
+    psi = np.asarray(psi, dtype=float)
+    rho = np.asarray(rho, dtype=float)
+    return psi / 2.0 + rho, psi / 2.0 - rho
+
+
+def to_goniometer(theta_i, theta_r):
+    """Signed in-plane (theta_i, theta_r) -> goniometer (psi, rho)."""
+    ti = np.asarray(theta_i, dtype=float)
+    tr = np.asarray(theta_r, dtype=float)
+    return ti + tr, (ti - tr) / 2.0

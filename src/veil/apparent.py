@@ -1,0 +1,92 @@
+"""Public entry points of the forward model: ``apparent`` (MODEL.md eq. 1) and ``reflectance``.
+
+Angles are in degrees and broadcast like numpy arrays; results are numpy arrays.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ._jax import jnp
+from . import integrator
+from .angles import direction
+from .models import BRDF, BTDF, preset
+from .quadrature import Rule
+
+#: Quadrature levels. "default" meets 1e-3 relative error for the paper's presets at both
+#: angles < 80 deg (see docs/performance.md); the error estimate uses the "coarse" rule.
+RULES = {
+    "fast": Rule(8, 12, 6, 12, 91),
+    "default": Rule(),
+    "high": Rule().scaled(2.0),
+}
+COARSE = {name: rule.scaled(0.6) for name, rule in RULES.items()}
+
+
+def as_brdf(brdf) -> BRDF:
+    model = preset(brdf) if isinstance(brdf, str) else brdf
+    if not isinstance(model, BRDF):
+        raise TypeError(f"expected a BRDF (e.g. veil.BRDF1), got {brdf!r}")
+    return model
+
+
+def as_btdf(medium) -> BTDF:
+    model = preset(medium) if isinstance(medium, str) else medium
+    if not isinstance(model, BTDF):
+        raise TypeError(f"expected a BTDF medium (e.g. veil.BTDF1), got {medium!r}")
+    return model
+
+
+def check_angles(theta_i, theta_r, phi_i, phi_r):
+    """Broadcast and validate angles (degrees); raise ValueError naming the bad value."""
+    arrays = np.broadcast_arrays(*(np.asarray(a, dtype=float) for a in (theta_i, theta_r, phi_i, phi_r)))
+    for name, a in zip(("theta_i", "theta_r", "phi_i", "phi_r"), arrays):
+        bad = ~np.isfinite(a)
+        if bad.any():
+            raise ValueError(f"{name} = {a[bad].flat[0]!r} is not a finite number")
+        if name.startswith("theta"):
+            out = (a < 0) | (a >= 90)
+            if out.any():
+                raise ValueError(f"{name} = {a[out].flat[0]:g} deg is outside [0, 90)")
+    return arrays
+
+
+def reflectance(brdf, theta_i, theta_r, phi_i=180.0, phi_r=0.0) -> np.ndarray:
+    """The object's own BRDF f_r (MODEL.md sec. 2) at the given angles (degrees)."""
+    model = as_brdf(brdf)
+    ti, tr, pi_, pr = check_angles(theta_i, theta_r, phi_i, phi_r)
+    wi, wr = direction(ti, pi_), direction(tr, pr)
+    return np.asarray(type(model).evaluate(jnp.asarray(model.to_vector()), wi, wr))
+
+
+def apparent(brdf, medium, theta_i, theta_r, phi_i=180.0, phi_r=0.0, *,
+             accuracy: str = "default", return_error: bool = False):
+    """Apparent reflectance f(I, R) of ``brdf`` seen through ``medium`` (MODEL.md eq. 1).
+
+    Parameters
+    ----------
+    brdf, medium : model instances or preset names ("BRDF1", "BTDF2", ...). ``medium=None``
+        means a clear medium and returns :func:`reflectance`.
+    theta_i, theta_r, phi_i, phi_r : angles in degrees, numpy-broadcast. Polar angles in
+        [0, 90); defaults put light and camera in the plane of incidence on opposite sides.
+    accuracy : "fast", "default" or "high" quadrature.
+    return_error : also return an error estimate (absolute, conservative: the difference to
+        a coarser rule of the same family).
+    """
+    if accuracy not in RULES:
+        raise ValueError(f"accuracy = {accuracy!r}; expected one of {', '.join(RULES)}")
+    if medium is None:
+        value = reflectance(brdf, theta_i, theta_r, phi_i, phi_r)
+        return (value, np.zeros_like(value)) if return_error else value
+    b, m = as_brdf(brdf), as_btdf(medium)
+    ti, tr, pi_, pr = check_angles(theta_i, theta_r, phi_i, phi_r)
+    shape = ti.shape
+    wi = direction(ti.ravel(), pi_.ravel())
+    wr = direction(tr.ravel(), pr.ravel())
+    rules = (RULES[accuracy], COARSE[accuracy]) if return_error else (RULES[accuracy],)
+    fn = integrator.compiled(b, m, rules)
+    out = fn(jnp.asarray(b.to_vector()), jnp.asarray(m.to_vector()), wi, wr)
+    value = np.asarray(out[0]).reshape(shape)
+    if not return_error:
+        return value
+    return value, np.abs(value - np.asarray(out[1]).reshape(shape))

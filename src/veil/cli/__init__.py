@@ -1,0 +1,21 @@
+"""The ``veil`` command line. Each subcommand lives in its own module of this package and is
+registered on :data:`main` at the bottom of this file."""
+
+from __future__ import annotations
+
+import click
+
+from ._common import VeilGroup
+
+
+@click.group(cls=VeilGroup, context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(package_name="veil")
+def main():
+    """veil: reflectance of objects seen through scattering media.
+
+    Angles are in degrees everywhere. Models are given as preset names (BRDF1, BRDF2,
+    BTDF1, BTDF2, BTDF3) or as literal parameter lists (see each command's help).
+    """
+
+
+# Subcommands: one module each, registered here.

@@ -1,0 +1,77 @@
+"""The paper's medium: isotropic multiple scattering plus Henyey-Greenstein single scattering
+seen through Fresnel transmittance at the medium's faces (MODEL.md sec. 3, paper eq. 2-4)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from .. import fresnel, phase
+from .base import BTDF, Param
+
+VARIANTS = ("paper", "exit")
+
+
+@dataclass(frozen=True)
+class HenyeyGreenstein(BTDF):
+    """BTDF (T_d, T_t, g, eta): f_t = T_d + T_t p(g, gamma) x Fresnel transmittances.
+
+    Td       isotropic (multiple scattering) coefficient, relative units
+    Tt       single-scattering coefficient, relative units
+    g        Henyey-Greenstein asymmetry, in (-1, 1); near 1 is a narrow forward lobe
+    eta      relative refractive index of the medium's faces
+    variant  "paper": F_t(theta_I)^2 (MODEL.md decision 3, the default);
+             "exit": F_t(theta_I) F_t(theta_T), reciprocal.
+    """
+
+    Td: float
+    Tt: float
+    g: float
+    eta: float
+    variant: str = "paper"
+
+    NAME = "henyey-greenstein"
+    PARAMS = (
+        Param("Td", 0.0, math.inf, "isotropic multiple-scattering coefficient, relative units",
+              log_scale=True),
+        Param("Tt", 0.0, math.inf, "single-scattering coefficient, relative units",
+              log_scale=True),
+        Param("g", -1.0, 1.0, "Henyey-Greenstein asymmetry parameter", lower_open=True,
+              upper_open=True),
+        Param("eta", 0.0, 10.0, "relative refractive index of the medium", lower_open=True),
+    )
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.variant not in VARIANTS:
+            raise ValueError(f"HenyeyGreenstein.variant = {self.variant!r}; expected one of "
+                             f"{', '.join(VARIANTS)}")
+
+    @staticmethod
+    def iso(v):
+        return v[0]
+
+    @staticmethod
+    def lobe_weight(v):
+        return v[1]
+
+    def factor_first(self, v, cos_a):
+        t = fresnel.transmittance(cos_a, v[3])
+        return t * t if self.variant == "paper" else t
+
+    def factor_second(self, v, cos_b):
+        if self.variant == "paper":
+            return 1.0 + 0.0 * cos_b
+        return fresnel.transmittance(cos_b, v[3])
+
+    @staticmethod
+    def phase(v, one_minus_mu):
+        return phase.hg_pdf(v[2], one_minus_mu)
+
+    @staticmethod
+    def phase_cone_fraction(v, one_minus_mu):
+        return phase.hg_cone_fraction(v[2], one_minus_mu)
+
+    @staticmethod
+    def phase_inverse_cone_fraction(v, frac):
+        return phase.hg_inverse_cone_fraction(v[2], frac)

@@ -1,0 +1,96 @@
+"""Deterministic quadrature rules and the direction grids the integrator is built from.
+
+Every grid maps a unit square to directions with a known density, so that an integral over
+directions becomes a plain weighted sum with fixed nodes: smooth in the model parameters and
+bit-for-bit repeatable.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+
+from ._jax import jnp
+
+
+@lru_cache(maxsize=None)
+def gauss_legendre_unit(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Gauss-Legendre nodes and weights on [0, 1]."""
+    x, w = np.polynomial.legendre.leggauss(n)
+    return 0.5 * (x + 1.0), 0.5 * w
+
+
+@lru_cache(maxsize=None)
+def periodic_unit(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Midpoint (trapezoidal) rule for a periodic variable on [0, 1)."""
+    return (np.arange(n) + 0.5) / n, np.full(n, 1.0 / n)
+
+
+def product_unit(a, b):
+    """Tensor product of two 1D rules -> (u1, u2, w), flattened."""
+    (x1, w1), (x2, w2) = a, b
+    u1, u2 = np.meshgrid(x1, x2, indexing="ij")
+    return u1.ravel(), u2.ravel(), np.outer(w1, w2).ravel()
+
+
+def frame(center):
+    """Orthonormal frame (t1, t2) about unit vectors ``center`` (..., 3).
+
+    t1 points from ``center`` towards the horizon (down the polar angle), t2 horizontally.
+    """
+    cz = jnp.clip(center[..., 2], -1.0, 1.0)
+    rho = jnp.sqrt(center[..., 0] ** 2 + center[..., 1] ** 2)
+    safe = rho > 1e-12
+    cphi = jnp.where(safe, center[..., 0] / jnp.where(safe, rho, 1.0), 1.0)
+    sphi = jnp.where(safe, center[..., 1] / jnp.where(safe, rho, 1.0), 0.0)
+    t1 = jnp.stack([cz * cphi, cz * sphi, -rho], axis=-1)
+    t2 = jnp.stack([-sphi, cphi, jnp.zeros_like(cz)], axis=-1)
+    return t1, t2
+
+
+def horizon_one_minus_mu(center_z, cos_beta):
+    """1 - cos(gamma_max): angular distance from the centre to the horizon along azimuth beta.
+
+    For a centre at polar angle theta, the great circle leaving it at azimuth beta (beta = 0
+    towards the horizon) reaches z = 0 at tan(gamma_max) = cos(theta) / (sin(theta) cos(beta)).
+    """
+    st = jnp.sqrt(jnp.maximum(1.0 - center_z ** 2, 0.0))
+    x = st * cos_beta
+    r = jnp.sqrt(center_z ** 2 + x * x)
+    return 1.0 - x / r
+
+
+@dataclass(frozen=True)
+class Rule:
+    """Node counts of the integrator (see :mod:`veil.integrator`).
+
+    phase_radial, phase_azimuth  nodes of a phase-function grid (cone fraction x azimuth)
+    half_radial, half_azimuth    nodes of the BRDF lobe's half-vector grid
+    table                        polar angles of the directional-albedo tables (odd)
+    """
+
+    phase_radial: int = 10
+    phase_azimuth: int = 16
+    half_radial: int = 8
+    half_azimuth: int = 16
+    table: int = 181
+
+    def scaled(self, factor: float) -> "Rule":
+        def s(n, lo=2):
+            return max(lo, int(round(n * factor)))
+        t = s(self.table, 11)
+        return Rule(s(self.phase_radial), 2 * s(self.phase_azimuth / 2),
+                    s(self.half_radial), 2 * s(self.half_azimuth / 2), t + (t + 1) % 2)
+
+    @property
+    def points_per_config(self) -> int:
+        g = self.phase_radial * self.phase_azimuth
+        h = self.half_radial * self.half_azimuth
+        return 2 * g * h + g * g + 2 * g
+
+
+__all__ = ["Rule", "gauss_legendre_unit", "periodic_unit", "product_unit", "frame",
+           "horizon_one_minus_mu", "math"]
