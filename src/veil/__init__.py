@@ -7,6 +7,8 @@ presets: :class:`TorranceSparrow`, :class:`HenyeyGreenstein`, ``BRDF1``, ``BRDF2
 
 from . import _jax  # noqa: F401  (float64 for JAX before anything else)
 from .apparent import apparent, reflectance
+from .measurements import load_measurements, save_measurements, subtract_black
+from .simulate import simulate
 from .models import (BRDF, BTDF, PRESETS, REGISTRY, HenyeyGreenstein, Model, Param,
                      TorranceSparrow, preset)
 
@@ -20,4 +22,5 @@ __version__ = "0.1.0"
 
 __all__ = ["apparent", "reflectance", "BRDF", "BTDF", "Model", "Param", "TorranceSparrow",
            "HenyeyGreenstein", "PRESETS", "REGISTRY", "preset", "BRDF1", "BRDF2", "BTDF1",
-           "BTDF2", "BTDF3"]
+           "BTDF2", "BTDF3", "load_measurements", "save_measurements", "subtract_black",
+           "simulate"]

@@ -15,12 +15,16 @@ def reflectance(cos_theta, eta):
     c = jnp.clip(cos_theta, 0.0, 1.0)
     eta = jnp.asarray(eta, dtype=c.dtype)
     k = 1.0 - (1.0 - c * c) / (eta * eta)
-    tir = k <= 0.0
-    cos_t = jnp.sqrt(jnp.where(tir, 1.0, k))
-    rs = (c - eta * cos_t) / (c + eta * cos_t)
-    rp = (eta * c - cos_t) / (eta * c + cos_t)
+    tir = k < 0.0
+    # grazing incidence on a matched index (c = 0, k = 0) is 0/0: no interface, F = 0
+    matched = (k == 0.0) & (c == 0.0)
+    bad = tir | matched
+    cos_t = jnp.sqrt(jnp.where(bad, 1.0, k))
+    c_s = jnp.where(bad, 1.0, c)
+    rs = (c_s - eta * cos_t) / (c_s + eta * cos_t)
+    rp = (eta * c_s - cos_t) / (eta * c_s + cos_t)
     f = 0.5 * (rs * rs + rp * rp)
-    return jnp.where(tir, 1.0, f)
+    return jnp.where(tir, 1.0, jnp.where(matched, 0.0, f))
 
 
 def transmittance(cos_theta, eta):

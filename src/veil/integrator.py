@@ -2,22 +2,25 @@
 
     f(I, R) = Int Int f_t(I, I') f_r(I', R') f_t(R', R) dI' dR'
 
-With f_t = T_d + T_t a(.) b(.) p (see :class:`veil.models.base.BTDF`) and
-f_r = separable + lobe (see :class:`veil.models.base.BRDF`) the product expands into terms
-of very different difficulty, each integrated by the cheapest exact rule:
+With f_t = T_d + T_t a(.) b(.) p (:class:`veil.models.base.BTDF`) and
+f_r = separable + lobe (:class:`veil.models.base.BRDF`) the product expands into terms of
+very different difficulty, each integrated by the cheapest rule that is exact in the limit:
 
-  T_d^2     the constant C0 = Int Int f_r            (1D table over theta_I', once per call)
-  T_d T_t   a(I) Int b(I') p(I.I') A(I') dI'           (2D phase grid, tabulated albedo A)
-  T_t T_d   b(R) Int a(R') p(R'.R) B(R') dR'           (2D phase grid, tabulated albedo B)
+  T_d^2     C0 = Int Int f_r, a constant: albedo table over theta_I', once per call
+  T_d T_t   a(I) Int b(I') p(I.I') A(I') dI'     2D phase grid about I, tabulated albedo A
+  T_t T_d   b(R) Int a(R') p(R'.R) B(R') dR'     2D phase grid about R, tabulated albedo B
   T_t^2     separable part: products of two 2D phase-grid integrals
   T_t^2     lobe part: a 4D integral of three sharp factors, p(I.I'), the BRDF lobe and
-            p(R'.R), done as a deterministic multiple-importance quadrature: three product
-            grids (phase x half vector, half vector x phase, phase x phase) each evaluating
-            the integrand divided by the sum of the three grids' densities (balance rule).
+            p(R'.R), by deterministic multiple-importance quadrature: three product grids
+            (phase x half vector, half vector x phase, phase x phase), each evaluating the
+            integrand times a balance weight, q_k / sum_j q_j, built from the untruncated
+            densities of the three maps (any partition of unity is exact; this one makes the
+            integrand smooth and bounded in every grid's coordinates).
 
-Phase grids are polar about I or R in the phase function's cone fraction, clipped exactly at
-the horizon, so the heavy HG tails and the sharp core are both resolved with a few hundred
-nodes. The error estimate is the difference to the same computation with a coarser rule.
+Every grid is truncated exactly at the horizon (phase grids: per azimuth about I or R;
+half-vector grids: per azimuth so that the reflected direction stays above the horizon), so
+no integrand is cut by a discontinuity. For configurations in the plane of incidence the
+integrand is symmetric under y -> -y and only half of the azimuths are evaluated.
 """
 
 from __future__ import annotations
@@ -29,84 +32,104 @@ import numpy as np
 
 from ._jax import jax, jnp
 from .models.base import BRDF, BTDF
-from .quadrature import (Rule, frame, gauss_legendre_unit, horizon_one_minus_mu,
-                         periodic_unit, product_unit)
+from .quadrature import Rule, frame, gauss_legendre_unit, horizon_one_minus_mu, periodic_unit
 
 TWO_PI = 2.0 * math.pi
-_TINY = 1e-300
+HALF_PI = 0.5 * math.pi
+FACET_GRADING = 3
 
 
 # --------------------------------------------------------------------------------------
-# phase-function grids
+# grids
 # --------------------------------------------------------------------------------------
-def _phase_grid(medium: BTDF, vm, center, rule: Rule):
-    """Directions about ``center`` (3,) distributed as the phase lobe clipped to z > 0.
+def _azimuths(n: int, half: bool):
+    """Midpoint azimuth nodes in [0, 1) and weights; ``half`` keeps (0, 1/2) with double weight."""
+    v, w = periodic_unit(n)
+    if half:
+        keep = v < 0.5
+        return v[keep], 2.0 * w[keep]
+    return v, w
 
-    Returns (dirs (N, 3), weights (N,), unit weights (N,)): sum w f(d) = Int_{z>0} p f dd
-    and the unit weights are those of the unit square (for multiple importance).
+
+def _phase_grid(medium: BTDF, vm, center, n_r: int, n_a: int, half: bool):
+    """Directions about ``center`` (3,) distributed as the phase lobe truncated at z = 0.
+
+    Returns (d (N, 3), unit weights (N,), frac_max (N,), p (N,)). sum(unit * frac_max * f(d))
+    approximates Int_{z>0} p(center . d) f(d) dd; p is the phase density at each node.
     """
-    u, v, w = product_unit(gauss_legendre_unit(rule.phase_radial), periodic_unit(rule.phase_azimuth))
-    beta = TWO_PI * v
+    x, wx = gauss_legendre_unit(n_r)
+    v, wv = _azimuths(n_a, half)
+    u = jnp.asarray(np.repeat(x[None, :], len(v), 0).ravel())
+    beta = jnp.asarray(TWO_PI * np.repeat(v, n_r))
+    unit = jnp.asarray(np.outer(wv, wx).ravel())
     cb, sb = jnp.cos(beta), jnp.sin(beta)
     frac_max = medium.phase_cone_fraction(vm, horizon_one_minus_mu(center[2], cb))
     omm = medium.phase_inverse_cone_fraction(vm, u * frac_max)
-    mu = 1.0 - omm
     sg = jnp.sqrt(jnp.maximum(omm * (2.0 - omm), 0.0))
     t1, t2 = frame(center)
-    d = (mu[:, None] * center[None, :]
+    d = ((1.0 - omm)[:, None] * center[None, :]
          + sg[:, None] * (cb[:, None] * t1[None, :] + sb[:, None] * t2[None, :]))
-    return d, jnp.asarray(w) * frac_max, jnp.asarray(w)
+    return d, unit, frac_max, medium.phase(vm, omm)
 
 
-def _phase_grid_density(medium: BTDF, vm, center, d):
-    """Density per steradian of :func:`_phase_grid` (without weights) at directions d."""
-    t1, t2 = frame(center)
-    x1 = d @ t1
-    x2 = d @ t2
-    r = jnp.sqrt(x1 * x1 + x2 * x2)
-    cb = jnp.where(r > 1e-300, x1 / jnp.where(r > 1e-300, r, 1.0), 1.0)
-    frac_max = medium.phase_cone_fraction(vm, horizon_one_minus_mu(center[2], cb))
-    omm = 0.5 * jnp.sum((d - center) ** 2, axis=-1)
-    return jnp.where(d[..., 2] > 0, medium.phase(vm, omm) / frac_max, 0.0)
+def _half_grid(brdf: type[BRDF], vb, partner, n_r: int, n_a: int, half: bool):
+    """Half vectors distributed by the facet law, truncated per azimuth so that reflecting
+    each ``partner`` direction (P, 3) about them stays above the horizon.
 
-
-# --------------------------------------------------------------------------------------
-# half-vector grid and directional albedo tables of the BRDF lobe
-# --------------------------------------------------------------------------------------
-def _half_grid(brdf: type[BRDF], vb, rule: Rule):
-    u1, u2, w = product_unit(gauss_legendre_unit(rule.half_radial), periodic_unit(rule.half_azimuth))
-    h = brdf.half_vector_map(vb, jnp.asarray(u1), jnp.asarray(u2))
-    return h, jnp.asarray(w), brdf.half_vector_density(vb, h)
+    Returns (h (P, N, 3), alpha (P, N), unit weights (N,), y_max (P, N)) where y_max is the
+    facet cumulative at the truncation angle of that node's azimuth.
+    """
+    x, wx = gauss_legendre_unit(n_r)
+    v, wv = _azimuths(n_a, half)
+    u = jnp.asarray(np.repeat(x[None, :], len(v), 0).ravel())
+    phi = jnp.asarray(TWO_PI * np.repeat(v, n_r))
+    unit = jnp.asarray(np.outer(wv, wx).ravel())
+    cp, sp = jnp.cos(phi), jnp.sin(phi)
+    # reflected z = A cos(2 alpha - psi) with psi = atan2(sin(theta_P) cos(dphi), cos(theta_P))
+    xs = partner[:, None, 0] * cp[None, :] + partner[:, None, 1] * sp[None, :]
+    psi = jnp.arctan2(xs, jnp.maximum(partner[:, None, 2], 1e-300))
+    alpha_c = jnp.minimum(0.25 * math.pi + 0.5 * psi, HALF_PI)
+    y_max = brdf.facet_cdf(vb, alpha_c)
+    alpha = brdf.facet_inverse_cdf(vb, u[None, :] * y_max)
+    sa = jnp.sin(alpha)
+    h = jnp.stack([sa * cp[None, :], sa * sp[None, :], jnp.cos(alpha)], axis=-1)
+    return h, alpha, unit, y_max
 
 
 def _reflect(d, h):
     return 2.0 * jnp.sum(d * h, axis=-1, keepdims=True) * h - d
 
 
+def _half_distance(a, b):
+    """1 - a.b for unit vectors, without cancellation."""
+    return 0.5 * jnp.sum((a - b) ** 2, axis=-1)
+
+
+# --------------------------------------------------------------------------------------
+# albedo tables of the lobe (once per call)
+# --------------------------------------------------------------------------------------
 def _table_thetas(rule: Rule):
-    return np.linspace(0.0, 0.5 * math.pi, rule.table)
+    return np.linspace(0.0, HALF_PI, rule.table)
 
 
 def _lobe_albedo_tables(brdf, vb, rule: Rule):
     """A(theta) = Int lobe(I', R') dR' and B(theta) = Int lobe(I', R') dI' on a theta grid."""
-    h, wh, qh = _half_grid(brdf, vb, rule)
-    th = jnp.asarray(_table_thetas(rule))
-    # keep the end node just inside the hemisphere: the limit, not the value at z = 0
-    th = jnp.minimum(th, 0.5 * math.pi - 1e-7)
-    d = jnp.stack([jnp.sin(th), jnp.zeros_like(th), jnp.cos(th)], axis=-1)  # (K, 3)
-    other = _reflect(d[:, None, :], h[None, :, :])  # (K, NH, 3)
-    cos_dh = jnp.sum(d[:, None, :] * h[None, :, :], axis=-1)
-    jac = jnp.where(qh[None, :] > 0, 4.0 * cos_dh / jnp.where(qh > 0, qh, 1.0)[None, :], 0.0)
+    th = np.minimum(_table_thetas(rule), HALF_PI - 1e-7)  # the limit at the horizon
+    d = jnp.asarray(np.stack([np.sin(th), np.zeros_like(th), np.cos(th)], axis=-1))
+    h, alpha, unit, y_max = _half_grid(brdf, vb, d, rule.table_radial, rule.table_azimuth, True)
+    other = _reflect(d[:, None, :], h)
     din = jnp.broadcast_to(d[:, None, :], other.shape)
-    a_tab = jnp.sum(wh * jac * brdf.lobe(vb, din, other, jnp.broadcast_to(h, other.shape)), axis=-1)
-    b_tab = jnp.sum(wh * jac * brdf.lobe(vb, other, din, jnp.broadcast_to(h, other.shape)), axis=-1)
+    c = jnp.sum(din * h, axis=-1)
+    jac = unit[None, :] * 4.0 * c * y_max / brdf.facet_weight(vb, alpha)
+    a_tab = jnp.sum(jac * brdf.lobe(vb, din, other, h, alpha), axis=-1)
+    b_tab = jnp.sum(jac * brdf.lobe(vb, other, din, h, alpha), axis=-1)
     return a_tab, b_tab
 
 
 def _interp_table(table, theta, rule: Rule):
     """Cubic Hermite (Catmull-Rom) interpolation of a uniform theta table."""
     k = rule.table
-    step = 0.5 * math.pi / (k - 1)
+    step = HALF_PI / (k - 1)
     x = jnp.clip(theta / step, 0.0, k - 1 - 1e-9)
     i = jnp.floor(x).astype(int)
     t = x - i
@@ -132,70 +155,114 @@ def _hemisphere_integral(fn, n=64):
     return TWO_PI * jnp.sum(jnp.asarray(w) * fn(jnp.asarray(x)))
 
 
+def _shared(brdf, rule, vb):
+    """Per-call quantities that do not depend on the configuration."""
+    a_tab, b_tab = _lobe_albedo_tables(brdf, vb, rule)
+    n_sep = len(brdf.separable(vb, jnp.zeros(1), jnp.zeros(1)))
+    s_int = [_hemisphere_integral(lambda c, k=k: brdf.separable(vb, c, c)[k][0]) for k in range(n_sep)]
+    t_int = [_hemisphere_integral(lambda c, k=k: brdf.separable(vb, c, c)[k][1]) for k in range(n_sep)]
+    th = _table_thetas(rule)
+    sw = jnp.asarray(_simpson_weights(rule.table, th[1] - th[0]) * np.sin(th))
+    c0 = sum(s * t for s, t in zip(s_int, t_int)) + TWO_PI * jnp.sum(sw * a_tab)
+    h, alpha, uh = _facet_grid(brdf, vb, rule.half_radial, rule.half_azimuth)
+    qh = brdf.facet_weight(vb, alpha) / brdf.facet_cdf(vb, HALF_PI)
+    facets = (h[None], alpha[None], uh[None], qh[None])
+    return c0, a_tab, b_tab, s_int, t_int, facets
+
+
 # --------------------------------------------------------------------------------------
 # one configuration
 # --------------------------------------------------------------------------------------
-def _lobe_lobe(brdf, medium, vb, vm, wi, wr, gi, ui, gr, ur, h, wh):
-    """Int Int b(I') p(I.I') lobe(I', R') a(R') p(R'.R) dI' dR' by balanced MIS quadrature."""
+def _facet_grid(brdf: type[BRDF], vb, n_r: int, n_a: int):
+    """Half vectors by the untruncated facet law: (h (N, 3), alpha (N,), unit weights (N,))."""
+    x, wx = gauss_legendre_unit(n_r)
+    # u = 1 - (1 - t)^m: the Jacobian's (1 - t)^(m - 1) flattens the facet law's far tail,
+    # where alpha(u) ~ sqrt(-log(1 - u)) would make a Gauss rule in u converge slowly
+    m = FACET_GRADING
+    wx = wx * m * (1.0 - x) ** (m - 1)
+    x = 1.0 - (1.0 - x) ** m
+    v, wv = periodic_unit(n_a)
+    y_full = brdf.facet_cdf(vb, HALF_PI)
+    alpha = brdf.facet_inverse_cdf(vb, jnp.asarray(np.tile(x, n_a)) * y_full)
+    phi = jnp.asarray(TWO_PI * np.repeat(v, n_r))
+    sa = jnp.sin(alpha)
+    h = jnp.stack([sa * jnp.cos(phi), sa * jnp.sin(phi), jnp.cos(alpha)], axis=-1)
+    return h, alpha, jnp.asarray(np.outer(wv, wx).ravel())
 
-    def qi(d):
-        return _phase_grid_density(medium, vm, wi, d)
 
-    def qr(d):
-        return _phase_grid_density(medium, vm, wr, d)
+def _lobe_lobe(brdf, medium, vb, vm, wi, wr, rule: Rule, half: bool, facets):
+    """Int Int b(I') p(I.I') lobe(I', R') a(R') p(R'.R) dI' dR' (balanced MIS quadrature).
 
-    def value(i2, r2, hh):
-        cih = jnp.sum(i2 * hh, axis=-1)
-        ok = (i2[..., 2] > 0) & (r2[..., 2] > 0) & (cih > 0)
-        cih_s = jnp.where(ok, cih, 1.0)
-        qhh = brdf.half_vector_density(vb, hh)
-        qii, qrr = qi(i2), qr(r2)
-        dens = qii * qhh / (4.0 * cih_s) + qrr * qhh / (4.0 * cih_s) + qii * qrr
-        integrand = (medium.factor_second(vm, i2[..., 2])
-                     * medium.phase(vm, 0.5 * jnp.sum((i2 - wi) ** 2, axis=-1))
-                     * brdf.lobe(vb, i2, r2, hh)
-                     * medium.factor_first(vm, r2[..., 2])
-                     * medium.phase(vm, 0.5 * jnp.sum((r2 - wr) ** 2, axis=-1)))
-        good = ok & (dens > _TINY)
-        return jnp.where(good, integrand / jnp.where(good, dens, 1.0), 0.0)
+    The half-vector grid is not truncated here: where a reflected direction falls below the
+    horizon the integrand is zero, and it already tends to zero there (a(R') -> 0 with the
+    Fresnel transmittance, the lobe's shadowing term -> 0 as I' grazes).
+    """
+    n_r, n_a = rule.phase_radial, rule.phase_azimuth
+    gi, ui, fi, pi_ = _phase_grid(medium, vm, wi, n_r, n_a, half)   # I' about I
+    gr, ur, fr, pr = _phase_grid(medium, vm, wr, n_r, n_a, False)   # R' about R
+    bi = medium.factor_second(vm, gi[:, 2])
+    ar = medium.factor_first(vm, gr[:, 2])
+    if half:  # component B needs only half of the R' azimuths (C pairs half I' with all R')
+        grb, urb, frb, prb = _phase_grid(medium, vm, wr, n_r, n_a, True)
+        arb = medium.factor_first(vm, grb[:, 2])
+    else:
+        grb, urb, frb, prb, arb = gr, ur, fr, pr, ar
+    h, alpha, uh, qh = facets  # (1, NH, 3), (1, NH), (1, NH), (1, NH)
 
-    # component A: I' on the phase grid about I, H on the half-vector grid
-    ia = jnp.broadcast_to(gi[:, None, :], (gi.shape[0], h.shape[0], 3))
-    ha = jnp.broadcast_to(h[None, :, :], ia.shape)
-    ra = _reflect(ia, ha)
-    wa = ui[:, None] * wh[None, :]
-    total = jnp.sum(wa * value(ia, ra, ha))
-    # component B: R' on the phase grid about R, H on the half-vector grid
-    rb = jnp.broadcast_to(gr[:, None, :], (gr.shape[0], h.shape[0], 3))
-    hb = jnp.broadcast_to(h[None, :, :], rb.shape)
-    ib = _reflect(rb, hb)
-    wb = ur[:, None] * wh[None, :]
-    total = total + jnp.sum(wb * value(ib, rb, hb))
-    # component C: I' and R' on their phase grids
-    ic = jnp.broadcast_to(gi[:, None, :], (gi.shape[0], gr.shape[0], 3))
-    rc = jnp.broadcast_to(gr[None, :, :], ic.shape)
-    s = ic + rc
-    hc = s / jnp.maximum(jnp.linalg.norm(s, axis=-1, keepdims=True), 1e-300)
-    wc = ui[:, None] * ur[None, :]
-    total = total + jnp.sum(wc * value(ic, rc, hc))
+    def balanced(p_i, p_r, c, q_h, lobe):
+        """lobe p_i p_r / (q_A + q_B + q_C) with the untruncated densities."""
+        den = q_h * (p_i + p_r) / (4.0 * c) + p_i * p_r
+        ok = (c > 0) & (den > 0)
+        return jnp.where(ok, lobe * p_i * p_r / jnp.where(ok, den, 1.0), 0.0)
+
+    # A: I' on the phase grid about I, H on the facet grid, R' its mirror image
+    i2 = gi[:, None, :]
+    r2 = _reflect(i2, h)
+    c = jnp.sum(i2 * h, axis=-1)
+    p_r = medium.phase(vm, _half_distance(r2, wr))
+    val = balanced(pi_[:, None], p_r, c, qh, brdf.lobe(vb, i2, r2, h, alpha))
+    val = val * medium.factor_first(vm, r2[..., 2]) * bi[:, None]
+    total = jnp.sum((ui * fi * jnp.sum(uh * val, axis=-1)))
+
+    # B: R' on the phase grid about R, H on the facet grid, I' its mirror image
+    r2 = grb[:, None, :]
+    i2 = _reflect(r2, h)
+    c = jnp.sum(r2 * h, axis=-1)
+    p_i = medium.phase(vm, _half_distance(i2, wi))
+    val = balanced(p_i, prb[:, None], c, qh, brdf.lobe(vb, i2, r2, h, alpha))
+    val = val * arb[:, None] * medium.factor_second(vm, i2[..., 2])
+    total = total + jnp.sum(urb * frb * jnp.sum(uh * val, axis=-1))
+
+    # C: I' and R' on their phase grids, H their half vector
+    i2 = gi[:, None, :]
+    r2 = gr[None, :, :]
+    s = i2 + r2
+    hh = s / jnp.maximum(jnp.linalg.norm(s, axis=-1, keepdims=True), 1e-300)
+    alpha_c = jnp.arctan2(jnp.sqrt(hh[..., 0] ** 2 + hh[..., 1] ** 2), hh[..., 2])
+    c = jnp.sum(i2 * hh, axis=-1)
+    q_h = brdf.facet_weight(vb, alpha_c) / brdf.facet_cdf(vb, HALF_PI)
+    val = balanced(pi_[:, None], pr[None, :], c, q_h, brdf.lobe(vb, i2, r2, hh, alpha_c))
+    val = val * bi[:, None] * ar[None, :]
+    total = total + jnp.sum((ui * fi)[:, None] * (ur * fr)[None, :] * val)
     return total
 
 
-def _one_config(brdf, medium, rule, vb, vm, shared, wi, wr):
-    c0, a_tab, b_tab, s_int, t_int = shared
+def _one_config(brdf, medium, rule, half, vb, vm, shared, wi, wr):
+    c0, a_tab, b_tab, s_int, t_int, facets = shared
     td, tt = medium.iso(vm), medium.lobe_weight(vm)
     a_i = medium.factor_first(vm, wi[2])
     b_r = medium.factor_second(vm, wr[2])
 
-    gi, wgi, ui = _phase_grid(medium, vm, wi, rule)  # I' about I
-    gr, wgr, ur = _phase_grid(medium, vm, wr, rule)  # R' about R
-    ti = jnp.arccos(jnp.clip(gi[:, 2], -1.0, 1.0))
-    tr = jnp.arccos(jnp.clip(gr[:, 2], -1.0, 1.0))
+    # 2D terms on a dense phase grid
+    gi, ui, fi, _ = _phase_grid(medium, vm, wi, rule.dense_radial, rule.dense_azimuth, half)
+    gr, ur, fr, _ = _phase_grid(medium, vm, wr, rule.dense_radial, rule.dense_azimuth, half)
+    wgi, wgr = ui * fi, ur * fr
     bi = medium.factor_second(vm, gi[:, 2])
     ar = medium.factor_first(vm, gr[:, 2])
-
     seps_i = brdf.separable(vb, gi[:, 2], gi[:, 2])
     seps_r = brdf.separable(vb, gr[:, 2], gr[:, 2])
+    ti = jnp.arccos(jnp.clip(gi[:, 2], -1.0, 1.0))
+    tr = jnp.arccos(jnp.clip(gr[:, 2], -1.0, 1.0))
     # A(I') = sum_k s_k(I') Int t_k + A_lobe(I');  B(R') = sum_k t_k(R') Int s_k + B_lobe(R')
     alb_a = _interp_table(a_tab, ti, rule) + sum(s * tk for (s, _), tk in zip(seps_i, t_int))
     alb_b = _interp_table(b_tab, tr, rule) + sum(t * sk for (_, t), sk in zip(seps_r, s_int))
@@ -203,46 +270,33 @@ def _one_config(brdf, medium, rule, vb, vm, shared, wi, wr):
     term_ir = b_r * jnp.sum(wgr * ar * alb_b)
     sep = sum(jnp.sum(wgi * bi * s) * jnp.sum(wgr * ar * t)
               for (s, _), (_, t) in zip(seps_i, seps_r))
-    h, wh, _ = _half_grid(brdf, vb, rule)
-    lobe = _lobe_lobe(brdf, medium, vb, vm, wi, wr, gi, ui, gr, ur, h, wh)
+    lobe = _lobe_lobe(brdf, medium, vb, vm, wi, wr, rule, half, facets)
     return (td * td * c0 + td * tt * (term_li + term_ir)
             + tt * tt * a_i * b_r * (sep + lobe))
 
 
-def _shared(brdf, rule, vb):
-    """Per-call quantities that do not depend on the configuration."""
-    a_tab, b_tab = _lobe_albedo_tables(brdf, vb, rule)
-    seps = brdf.separable(vb, jnp.zeros(1), jnp.zeros(1))
-    s_int = [_hemisphere_integral(lambda c, k=k: brdf.separable(vb, c, c)[k][0]) for k in range(len(seps))]
-    t_int = [_hemisphere_integral(lambda c, k=k: brdf.separable(vb, c, c)[k][1]) for k in range(len(seps))]
-    th = _table_thetas(rule)
-    sw = jnp.asarray(_simpson_weights(rule.table, th[1] - th[0]) * np.sin(th))
-    c0 = sum(s * t for s, t in zip(s_int, t_int)) + TWO_PI * jnp.sum(sw * a_tab)
-    return c0, a_tab, b_tab, s_int, t_int
-
-
-def apparent_vectors(brdf_template, medium_template, rule, vb, vm, wi, wr, batch_size=16):
+def apparent_vectors(brdf_template, medium_template, rule, vb, vm, wi, wr, half=False,
+                     batch_size=None):
     """Apparent reflectance for parameter vectors and unit direction arrays (M, 3).
 
     Pure JAX: differentiable with respect to ``vb`` and ``vm``; jit it from the caller.
+    ``half=True`` is valid only when every configuration lies in the xz plane.
     """
     brdf = type(brdf_template)
     shared = _shared(brdf, rule, vb)
 
     def f(x):
-        return _one_config(brdf, medium_template, rule, vb, vm, shared, x[0], x[1])
+        return _one_config(brdf, medium_template, rule, half, vb, vm, shared, x[0], x[1])
 
+    if batch_size is None:  # keep the live intermediate arrays to a few hundred MB
+        batch_size = max(1, min(64, 1_500_000 // rule.points_per_config))
     return jax.lax.map(f, (wi, wr), batch_size=batch_size)
-
-
-def reflectance_vectors(brdf_template, vb, wi, wr):
-    return type(brdf_template).evaluate(vb, wi, wr)
 
 
 _TEMPLATES: dict = {}
 
 
-def compiled(brdf, medium, rules):
+def compiled(brdf, medium, rules, half=False):
     """A jitted function (vb, vm, wi, wr) -> tuple of values, one per rule in ``rules``.
 
     Cached by the models' structure (class and static options), never by parameter values.
@@ -250,15 +304,15 @@ def compiled(brdf, medium, rules):
     kb, km = brdf.structure(), medium.structure()
     _TEMPLATES.setdefault(kb, brdf)
     _TEMPLATES.setdefault(km, medium)
-    return _compiled(kb, km, tuple(rules))
+    return _compiled(kb, km, tuple(rules), bool(half))
 
 
 @lru_cache(maxsize=64)
-def _compiled(kb, km, rules):
+def _compiled(kb, km, rules, half):
     brdf_template, medium_template = _TEMPLATES[kb], _TEMPLATES[km]
 
     def fn(vb, vm, wi, wr):
-        return tuple(apparent_vectors(brdf_template, medium_template, r, vb, vm, wi, wr)
+        return tuple(apparent_vectors(brdf_template, medium_template, r, vb, vm, wi, wr, half)
                      for r in rules)
 
     return jax.jit(fn)

@@ -67,29 +67,38 @@ def horizon_one_minus_mu(center_z, cos_beta):
 class Rule:
     """Node counts of the integrator (see :mod:`veil.integrator`).
 
-    phase_radial, phase_azimuth  nodes of a phase-function grid (cone fraction x azimuth)
-    half_radial, half_azimuth    nodes of the BRDF lobe's half-vector grid
-    table                        polar angles of the directional-albedo tables (odd)
+    phase_radial, phase_azimuth  phase-function grids of the 4D lobe term
+    half_radial, half_azimuth    half-vector grids of the 4D lobe term
+    dense_radial, dense_azimuth  phase-function grids of the 2D terms
+    table, table_radial, table_azimuth  albedo tables: polar angles (odd), half-vector grid
     """
 
     phase_radial: int = 10
     phase_azimuth: int = 16
     half_radial: int = 8
     half_azimuth: int = 16
+    dense_radial: int = 24
+    dense_azimuth: int = 32
     table: int = 181
+    table_radial: int = 24
+    table_azimuth: int = 48
 
     def scaled(self, factor: float) -> "Rule":
         def s(n, lo=2):
             return max(lo, int(round(n * factor)))
+
+        def even(n):
+            return 2 * s(n / 2)
         t = s(self.table, 11)
-        return Rule(s(self.phase_radial), 2 * s(self.phase_azimuth / 2),
-                    s(self.half_radial), 2 * s(self.half_azimuth / 2), t + (t + 1) % 2)
+        return Rule(s(self.phase_radial), even(self.phase_azimuth), s(self.half_radial),
+                    even(self.half_azimuth), s(self.dense_radial), even(self.dense_azimuth),
+                    t + (t + 1) % 2, s(self.table_radial), even(self.table_azimuth))
 
     @property
     def points_per_config(self) -> int:
         g = self.phase_radial * self.phase_azimuth
         h = self.half_radial * self.half_azimuth
-        return 2 * g * h + g * g + 2 * g
+        return 2 * g * h + g * g + 2 * self.dense_radial * self.dense_azimuth
 
 
 __all__ = ["Rule", "gauss_legendre_unit", "periodic_unit", "product_unit", "frame",

@@ -19,3 +19,10 @@ def main():
 
 
 # Subcommands: one module each, registered here.
+from . import eval_cmd  # noqa: E402
+from . import ingest_cmd  # noqa: E402
+from . import simulate_cmd  # noqa: E402
+
+main.add_command(eval_cmd.eval_command)
+main.add_command(ingest_cmd.ingest_command)
+main.add_command(simulate_cmd.simulate_command)

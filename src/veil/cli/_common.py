@@ -2,9 +2,15 @@
 
 from __future__ import annotations
 
+import contextlib
+import math
+import os
+import re
 import sys
+import tempfile
 
 import click
+import numpy as np
 
 from ..models import HenyeyGreenstein, TorranceSparrow, preset
 
@@ -63,3 +69,139 @@ def _parse(text, cls, form, kind):
         return cls(*values)
     except (ValueError, TypeError) as exc:
         raise UserError(str(exc)) from None
+
+
+# -- CSV input -----------------------------------------------------------------------------
+
+#: How error messages count rows: as lines of the file, the header line being row 1.
+ROW_CONVENTION = "rows counted as lines of the file, header = row 1"
+
+
+def read_csv_table(path, required, *, unit="a number"):
+    """Read a CSV file with pandas, keeping every cell as text, and parse ``required`` columns.
+
+    Returns ``(table, numbers, rows)``: ``table`` is a DataFrame of strings with every column
+    of the file in file order (for passthrough; lines that are entirely blank are dropped),
+    ``numbers`` maps each required column to a float array (finite values only) and ``rows``
+    holds each kept row's number in the file (header = row 1). Any problem - unreadable,
+    empty, ragged, a required column missing or duplicated, an empty, non-numeric or
+    non-finite cell - raises :class:`UserError` naming the file, the row and the column.
+    ``unit`` words what a cell should hold, e.g. "an angle in degrees".
+    """
+    import pandas as pd  # heavy; only commands that read CSV pay for it
+
+    path = os.fspath(path)
+    try:
+        raw = pd.read_csv(path, header=None, dtype=str, keep_default_na=False,
+                          skip_blank_lines=False, skipinitialspace=True, encoding="utf-8")
+    except pd.errors.EmptyDataError:
+        raise UserError(f"{path}: the file is empty; expected a header line naming the columns "
+                        f"{', '.join(required)}, then one row per entry") from None
+    except pd.errors.ParserError as exc:
+        text = " ".join(str(exc).split())
+        m = re.search(r"Expected (\d+) fields in line (\d+), saw (\d+)", text)
+        if m:
+            raise UserError(f"{path}: row {m[2]} ({ROW_CONVENTION}) has {m[3]} fields but the "
+                            f"header (row 1) has {m[1]}") from None
+        raise UserError(f"{path}: not a well-formed CSV file ({text})") from None
+    except UnicodeDecodeError as exc:
+        raise UserError(f"{path}: not UTF-8 text ({exc.reason}); save the file as UTF-8") from None
+    header = [str(c) for c in raw.iloc[0].tolist()]
+    body = raw.iloc[1:]
+    missing = [c for c in required if c not in header]
+    if missing:
+        plural = "s" if len(missing) > 1 else ""
+        raise UserError(f"{path}: missing column{plural} {', '.join(map(repr, missing))} "
+                        f"(required: {', '.join(required)}); the header (row 1) has: "
+                        f"{', '.join(map(repr, header))}")
+    for c in required:
+        if header.count(c) > 1:
+            raise UserError(f"{path}: column {c!r} appears {header.count(c)} times in the "
+                            f"header (row 1); it must appear once")
+    blank = (body == "").all(axis=1).to_numpy()
+    body = body[~blank]
+    rows = body.index.to_numpy() + 1
+    if len(body) == 0:
+        raise UserError(f"{path}: no data rows after the header (row 1); expected one row per "
+                        f"entry with columns {', '.join(required)}")
+    table = pd.DataFrame(body.to_numpy(), columns=header)
+    numbers = {}
+    first_bad = None  # (row, column position, message): report the first in file order
+    for k, c in enumerate(required):
+        cells = body.iloc[:, header.index(c)].tolist()
+        values = np.empty(len(cells))
+        for j, cell in enumerate(cells):
+            text = cell.strip()
+            problem = None
+            if text == "":
+                problem = "empty cell"
+            else:
+                try:
+                    values[j] = float(text)
+                except ValueError:
+                    problem = f"{cell!r} is not a number"
+                else:
+                    if not math.isfinite(values[j]):
+                        problem = f"{cell!r} is not a finite number"
+            if problem is not None:
+                key = (int(rows[j]), header.index(c))
+                if first_bad is None or key < first_bad[:2]:
+                    first_bad = key + (f"{path}: row {rows[j]} ({ROW_CONVENTION}), column "
+                                       f"{c!r}: {problem}; expected {unit}",)
+                break
+        numbers[c] = values
+    if first_bad is not None:
+        raise UserError(first_bad[2])
+    return table, numbers, rows
+
+
+# -- output files --------------------------------------------------------------------------
+
+def check_output_path(output, inputs=()):
+    """Fail early (UserError) if ``output`` cannot be written or is one of the ``inputs``."""
+    output = os.fspath(output)
+    for inp in inputs:
+        if inp is None:
+            continue
+        inp = os.fspath(inp)
+        same = (os.path.exists(output) and os.path.exists(inp) and os.path.samefile(output, inp))
+        if same or os.path.abspath(output) == os.path.abspath(inp):
+            raise UserError(f"output {output} is the input file {inp}; veil never overwrites "
+                            f"an input: choose another output path")
+    if os.path.isdir(output):
+        raise UserError(f"output {output} is a directory; give a file name")
+    directory = os.path.dirname(os.path.abspath(output))
+    if not os.path.isdir(directory):
+        raise UserError(f"cannot write {output}: directory {directory} does not exist")
+    if not os.access(directory, os.W_OK):
+        raise UserError(f"cannot write {output}: directory {directory} is not writable")
+
+
+def write_atomic(path, text: str) -> None:
+    """Write ``text`` (UTF-8) to ``path`` atomically: a temporary file in the same directory,
+    flushed to disk, then renamed over ``path``. Readers see the old file or the new one,
+    never a partial one. A replaced file keeps its permissions; a new one gets the umask's."""
+    path = os.fspath(path)
+    directory = os.path.dirname(os.path.abspath(path))
+    try:
+        mode = os.stat(path).st_mode & 0o7777
+    except FileNotFoundError:
+        umask = os.umask(0)
+        os.umask(umask)
+        mode = 0o666 & ~umask
+    try:
+        fd, tmp = tempfile.mkstemp(dir=directory, prefix=f".{os.path.basename(path)}.",
+                                   suffix=".tmp")
+    except OSError as exc:
+        raise UserError(f"cannot write {path}: {exc.strerror}") from None
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8", newline="") as fh:
+            fh.write(text)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.chmod(tmp, mode)
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(tmp)
+        raise

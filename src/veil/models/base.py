@@ -102,9 +102,8 @@ class BRDF(Model):
     """A surface reflection model f_r(I, R) split for the integrator (MODEL.md sec. 5).
 
     f_r = sum_k s_k(cos theta_I) t_k(cos theta_R) + lobe(I, R). The separable part is
-    integrated as products of one-direction integrals; the lobe must supply a deterministic
-    map from the unit square to half vectors H and that map's density, which the integrator
-    uses as a quadrature change of variables.
+    integrated as products of one-direction integrals; the lobe declares the radial law of
+    its half vectors (``facet_*``), which the integrator uses as a change of variables.
     """
 
     KIND = "brdf"
@@ -115,18 +114,25 @@ class BRDF(Model):
         raise NotImplementedError
 
     @staticmethod
-    def lobe(v, wi, wo, h):  # pragma: no cover - interface
-        """The non-separable part at unit vectors wi, wo with half vector h (shape (..., 3))."""
+    def lobe(v, wi, wo, h, alpha=None):  # pragma: no cover - interface
+        """The non-separable part at unit vectors wi, wo with half vector h (shape (..., 3));
+        ``alpha`` (angle of h from the normal) may be passed when already known."""
+        raise NotImplementedError
+
+    # The lobe's half vectors are distributed about the normal by a radial law in alpha
+    # (angle of H from z), uniform in azimuth; the integrator truncates it at the horizon.
+    @staticmethod
+    def facet_cdf(v, alpha):  # pragma: no cover - interface
+        """Increasing cumulative of the radial law, 0 at alpha = 0 (any positive scale)."""
         raise NotImplementedError
 
     @staticmethod
-    def half_vector_map(v, u1, u2):  # pragma: no cover - interface
-        """Map (u1, u2) in the unit square to half vectors h (..., 3)."""
+    def facet_inverse_cdf(v, y):  # pragma: no cover - interface
         raise NotImplementedError
 
     @staticmethod
-    def half_vector_density(v, h):  # pragma: no cover - interface
-        """Density of :meth:`half_vector_map` per steradian of h."""
+    def facet_weight(v, alpha):  # pragma: no cover - interface
+        """d facet_cdf / d alpha / (2 pi sin alpha): density per steradian, cdf units."""
         raise NotImplementedError
 
     @classmethod

@@ -46,41 +46,37 @@ class TorranceSparrow(BRDF):
         return [(v[0] * jnp.maximum(cos_i, 0.0), jnp.ones_like(cos_r))]
 
     @staticmethod
-    def lobe(v, wi, wo, h):
+    def lobe(v, wi, wo, h, alpha=None):
         ps, n, eta = v[1], v[2], v[3]
         ci, co = wi[..., 2], wo[..., 2]
         hz = h[..., 2]
         ch = jnp.sum(wi * h, axis=-1)  # cos(theta_i'), the facet incidence angle
-        alpha = jnp.arctan2(jnp.sqrt(h[..., 0] ** 2 + h[..., 1] ** 2), hz)
+        if alpha is None:
+            alpha = jnp.arctan2(jnp.sqrt(h[..., 0] ** 2 + h[..., 1] ** 2), hz)
         d = jnp.exp(-(n * DEG * alpha) ** 2)
         ok = (ci > 0) & (co > 0) & (ch > 0)
         ch_s = jnp.where(ok, ch, 1.0)
         co_s = jnp.where(ok, co, 1.0)
-        g = jnp.minimum(1.0, jnp.minimum(2.0 * hz * co / ch_s, 2.0 * hz * ci / ch_s))
+        g = jnp.minimum(1.0, 2.0 * hz * jnp.minimum(co, ci) / ch_s)
         f = fresnel.reflectance(ch_s, eta)
         return jnp.where(ok, ps * f * g * d / co_s, 0.0)
 
-    # -- the half-vector map: alpha with density ~ alpha exp(-(c alpha)^2) on [0, pi/2] ----
+    # -- the facet (half-vector) distribution in alpha, for the integrator's maps ---------
+    # cumulative  C(alpha) = 1 - exp(-(c alpha)^2),  c = n * 180/pi
+    # weight      dC/dalpha / (2 pi sin alpha): density per steradian of H, in C's units
     @staticmethod
-    def _c_and_norm(v):
+    def facet_cdf(v, alpha):
         c = v[2] * DEG
-        z = -jnp.expm1(-(c * HALF_PI) ** 2)
-        return c, z
+        return -jnp.expm1(-(c * alpha) ** 2)
 
-    @classmethod
-    def half_vector_map(cls, v, u1, u2):
-        c, z = cls._c_and_norm(v)
-        alpha = jnp.sqrt(-jnp.log1p(-u1 * z)) / c
-        phi = 2.0 * math.pi * u2
-        sa = jnp.sin(alpha)
-        return jnp.stack([sa * jnp.cos(phi), sa * jnp.sin(phi), jnp.cos(alpha)], axis=-1)
+    @staticmethod
+    def facet_inverse_cdf(v, y):
+        c = v[2] * DEG
+        return jnp.sqrt(-jnp.log1p(-y)) / c
 
-    @classmethod
-    def half_vector_density(cls, v, h):
-        c, z = cls._c_and_norm(v)
-        sa = jnp.sqrt(h[..., 0] ** 2 + h[..., 1] ** 2)
-        alpha = jnp.arctan2(sa, h[..., 2])
-        # alpha / sin(alpha) -> 1 at alpha = 0
-        ratio = jnp.where(alpha > 1e-8, alpha / jnp.where(alpha > 1e-8, sa, 1.0), 1.0)
-        dens = c * c * ratio * jnp.exp(-(c * alpha) ** 2) / (math.pi * z)
-        return jnp.where((h[..., 2] > 0) & (alpha <= HALF_PI), dens, 0.0)
+    @staticmethod
+    def facet_weight(v, alpha):
+        c = v[2] * DEG
+        ratio = jnp.where(alpha > 1e-6, alpha / jnp.sin(jnp.where(alpha > 1e-6, alpha, 1.0)),
+                          1.0 + alpha * alpha / 6.0)
+        return c * c * ratio * jnp.exp(-(c * alpha) ** 2) / math.pi

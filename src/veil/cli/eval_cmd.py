@@ -1,0 +1,222 @@
+"""``veil eval``: the apparent reflectance (MODEL.md eq. 1) at one configuration or at every
+row of a CSV file, next to the object's own reflectance and an error estimate."""
+
+from __future__ import annotations
+
+import io
+import json
+import math
+
+import click
+import numpy as np
+
+from ..apparent import RULES, apparent, reflectance
+from ._common import (UserError, check_output_path, parse_brdf, parse_btdf, read_csv_table,
+                      write_atomic)
+
+ANGLES = ("theta_i", "phi_i", "theta_r", "phi_r")  # the --configs columns, degrees
+ADDED = ("apparent", "clear", "error")  # the columns veil eval adds
+DEFAULT_PHI_I = 180.0
+DEFAULT_PHI_R = 0.0
+
+BRDF_HELP = ("Object's reflection model (Torrance-Sparrow, MODEL.md sec. 2): a preset name, "
+             "BRDF1 or BRDF2, or the literal 'PD,PS,N,ETA' - PD, PS diffuse and specular "
+             "coefficients (relative units, >= 0), N smoothness (1/deg, > 0; larger is "
+             "smoother), ETA refractive index of the surface (dimensionless, > 0).")
+MEDIUM_HELP = ("Scattering medium (Henyey-Greenstein BTDF, MODEL.md sec. 3): a preset name, "
+               "BTDF1, BTDF2 or BTDF3, the literal 'TD,TT,G,ETA' - TD, TT isotropic and "
+               "single-scattering coefficients (relative units, >= 0), G asymmetry "
+               "(dimensionless, in (-1, 1)), ETA refractive index of the medium "
+               "(dimensionless, > 0) - or 'none' for a clear medium (apparent = clear).")
+
+
+def _check_option_angle(option: str, value: float, polar: bool) -> None:
+    if not math.isfinite(value):
+        raise UserError(f"{option} = {value!r} is not a finite number of degrees")
+    if polar and not 0.0 <= value < 90.0:
+        raise UserError(f"{option} = {value:g} deg is outside [0, 90): it is the polar angle "
+                        f"from the surface normal; for a direction on the other side of the "
+                        f"normal use the azimuth (phi + 180)")
+
+
+def _parse_models(brdf_text, medium_text, variant):
+    try:
+        brdf = parse_brdf(brdf_text)
+    except click.ClickException as exc:
+        raise UserError(f"--brdf {brdf_text!r}: {exc.message}") from None
+    try:
+        medium = parse_btdf(medium_text, variant)
+    except click.ClickException as exc:
+        raise UserError(f"--medium {medium_text!r}: {exc.message}") from None
+    return brdf, medium
+
+
+def _model_json(model):
+    if model is None:
+        return None
+    return {"model": model.NAME, **model.as_dict(), **model.options()}
+
+
+def _labelled(text, model):
+    """'BRDF1 = TorranceSparrow(...)' for a preset, just the model for a literal."""
+    return str(model) if "," in text else f"{text.strip().upper()} = {model}"
+
+
+def _format_table(brdf_text, medium_text, brdf, medium, angles, accuracy, value, clear, error):
+    ti, pi_, tr, pr = angles
+    medium_line = "none (clear medium)" if medium is None else _labelled(medium_text, medium)
+    if clear != 0.0:
+        ratio = f"{value / clear:.12g}"
+    else:
+        ratio = "undefined (clear = 0)"
+    rows = [
+        ("apparent", f"{value:.12g}", "f(I, R) seen through the medium (1/sr, relative units)"),
+        ("clear", f"{clear:.12g}", "object's own f_r(I, R), no medium (1/sr, relative units)"),
+        ("error", f"{error:.3g}", "estimated absolute error of apparent (same units)"),
+        ("ratio", ratio, "apparent / clear"),
+    ]
+    width = max(len(r[1]) for r in rows)
+    lines = [
+        f"object    {_labelled(brdf_text, brdf)}",
+        f"medium    {medium_line}",
+        f"light     theta_i = {ti:g} deg, phi_i = {pi_:g} deg",
+        f"camera    theta_r = {tr:g} deg, phi_r = {pr:g} deg",
+        f"accuracy  {accuracy}",
+        "",
+    ]
+    lines += [f"{name:<9} {text:<{width}}  {meaning}" for name, text, meaning in rows]
+    return "\n".join(lines) + "\n"
+
+
+def _emit(text: str, output) -> None:
+    if output is None:
+        click.echo(text, nl=False)
+    else:
+        write_atomic(output, text)
+
+
+@click.command("eval", short_help="Apparent reflectance through a medium at given angles "
+               "(degrees), one configuration or a CSV of them.")
+@click.option("--brdf", "brdf_text", required=True, metavar="MODEL", help=BRDF_HELP)
+@click.option("--medium", "medium_text", required=True, metavar="MODEL", help=MEDIUM_HELP)
+@click.option("--theta-i", type=float, metavar="DEG",
+              help="Polar angle of the light direction I from the surface normal, in degrees, "
+                   "in [0, 90). Required unless --configs is given.")
+@click.option("--theta-r", type=float, metavar="DEG",
+              help="Polar angle of the camera direction R from the surface normal, in degrees, "
+                   "in [0, 90). Required unless --configs is given.")
+@click.option("--phi-i", type=float, metavar="DEG",
+              help="Azimuth of the light direction I, in degrees. [default: 180, the light "
+                   "opposite the camera in the plane of incidence]")
+@click.option("--phi-r", type=float, metavar="DEG",
+              help="Azimuth of the camera direction R, in degrees. [default: 0]")
+@click.option("--configs", type=click.Path(exists=True, dir_okay=False, readable=True),
+              metavar="FILE.csv",
+              help="Evaluate every row of this CSV file instead of one configuration. Columns "
+                   "theta_i, phi_i, theta_r, phi_r (degrees) are required, other columns are "
+                   "copied unchanged. Output: the input's columns in the same row order plus "
+                   "apparent, clear and error (1/sr, relative units) as CSV.")
+@click.option("-o", "--output", type=click.Path(dir_okay=False), metavar="OUT",
+              help="Write the --configs CSV (or, with --json, the JSON object) to this file "
+                   "instead of standard output. Written atomically; never the --configs file.")
+@click.option("--variant", type=click.Choice(["paper", "exit"]), default="paper",
+              show_default=True,
+              help="Fresnel factor of the medium's BTDF (MODEL.md sec. 3): paper = "
+                   "F_t(theta_in)^2 as in the paper; exit = F_t(theta_in) F_t(theta_out), "
+                   "reciprocal.")
+@click.option("--accuracy", type=click.Choice(list(RULES)), default="default",
+              show_default=True,
+              help="Quadrature level: fast (coarse rule, quick previews), default (about 1e-3 "
+                   "relative error for the paper's presets at angles below 80 deg), high "
+                   "(twice as fine, slower). The error column estimates what is left.")
+@click.option("--json", "as_json", is_flag=True,
+              help="Print a JSON object instead of the table or CSV: the models, the lists "
+                   "theta_i, phi_i, theta_r, phi_r (degrees) and apparent, clear, error "
+                   "(1/sr, relative units), one entry per configuration in input order.")
+def eval_command(brdf_text, medium_text, theta_i, theta_r, phi_i, phi_r, configs, output,
+                 variant, accuracy, as_json):
+    """Apparent reflectance of an object seen through a scattering medium (MODEL.md eq. 1).
+
+    For one configuration give --theta-i and --theta-r (and optionally --phi-i, --phi-r);
+    the result is a short table: apparent (through the medium), clear (the object's own
+    f_r), error (estimated absolute error of apparent) and their ratio apparent/clear.
+    With --configs FILE.csv every row is evaluated and a CSV is written. All angles are in
+    degrees; reflectances are per steradian, on the relative scale of the model coefficients.
+
+    \b
+    Examples:
+      veil eval --brdf BRDF1 --medium BTDF2 --theta-i 45 --theta-r 50
+      veil eval --brdf 200,5e5,0.8,1.55 --medium none --theta-i 30 --theta-r 30 --json
+      veil eval --brdf BRDF2 --medium BTDF3 --configs angles.csv -o result.csv
+    """
+    single = {"--theta-i": theta_i, "--theta-r": theta_r, "--phi-i": phi_i, "--phi-r": phi_r}
+    if configs is not None:
+        given = [name for name, v in single.items() if v is not None]
+        if given:
+            raise UserError(f"{', '.join(given)} cannot be combined with --configs: the angles "
+                            f"come from the columns of {configs}")
+    else:
+        missing = [name for name in ("--theta-i", "--theta-r") if single[name] is None]
+        if missing:
+            raise UserError(f"missing {' and '.join(missing)} (degrees); give --theta-i and "
+                            f"--theta-r for one configuration, or --configs FILE.csv")
+        if output is not None and not as_json:
+            raise UserError("-o/--output writes the CSV of --configs or the object of --json; "
+                            "a single configuration's table goes to standard output (add "
+                            "--json to write it to a file)")
+    brdf, medium = _parse_models(brdf_text, medium_text, variant)
+    if output is not None:
+        check_output_path(output, [configs])
+
+    if configs is not None:
+        table, numbers, rows = read_csv_table(configs, ANGLES, unit="an angle in degrees")
+        clash = [c for c in ADDED if c in table.columns]
+        if clash:
+            raise UserError(f"{configs}: already has a column {clash[0]!r}, which veil eval "
+                            f"adds; rename or remove it")
+        for c in ("theta_i", "theta_r"):
+            bad = np.flatnonzero((numbers[c] < 0.0) | (numbers[c] >= 90.0))
+            if bad.size:
+                j = bad[0]
+                raise UserError(f"{configs}: row {rows[j]} (rows counted as lines of the file, "
+                                f"header = row 1), column {c!r}: {numbers[c][j]:g} deg is "
+                                f"outside [0, 90) (polar angle from the surface normal)")
+        ti, pi_, tr, pr = (numbers[c] for c in ANGLES)
+    else:
+        phi_i = DEFAULT_PHI_I if phi_i is None else phi_i
+        phi_r = DEFAULT_PHI_R if phi_r is None else phi_r
+        _check_option_angle("--theta-i", theta_i, polar=True)
+        _check_option_angle("--theta-r", theta_r, polar=True)
+        _check_option_angle("--phi-i", phi_i, polar=False)
+        _check_option_angle("--phi-r", phi_r, polar=False)
+        ti, pi_, tr, pr = (np.array([x]) for x in (theta_i, phi_i, theta_r, phi_r))
+
+    value, error = apparent(brdf, medium, ti, tr, pi_, pr, accuracy=accuracy,
+                            return_error=True)
+    clear = reflectance(brdf, ti, tr, pi_, pr)
+    value, error, clear = (np.asarray(a, dtype=float).reshape(-1) for a in (value, error, clear))
+
+    if as_json:
+        obj = {
+            "brdf": _model_json(brdf),
+            "medium": _model_json(medium),
+            "accuracy": accuracy,
+            "angle_unit": "deg",
+            "theta_i": ti.tolist(), "phi_i": pi_.tolist(),
+            "theta_r": tr.tolist(), "phi_r": pr.tolist(),
+            "apparent": value.tolist(), "clear": clear.tolist(), "error": error.tolist(),
+        }
+        _emit(json.dumps(obj, indent=2) + "\n", output)
+    elif configs is not None:
+        out = table.copy()
+        out["apparent"], out["clear"], out["error"] = value, clear, error
+        buf = io.StringIO()
+        out.to_csv(buf, index=False, lineterminator="\n")
+        _emit(buf.getvalue(), output)
+    else:
+        click.echo(_format_table(brdf_text, medium_text, brdf, medium,
+                                 (ti[0], pi_[0], tr[0], pr[0]), accuracy,
+                                 value[0], clear[0], error[0]), nl=False)
+    if output is not None:
+        click.echo(f"wrote {len(value)} configuration{'s' if len(value) != 1 else ''} to "
+                   f"{output}", err=True)

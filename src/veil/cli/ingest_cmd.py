@@ -1,0 +1,90 @@
+"""``veil ingest``: a folder of photos and a manifest of their geometry -> a measurement table."""
+
+from __future__ import annotations
+
+import warnings
+from pathlib import Path
+
+import click
+
+from ._common import UserError, check_output_path
+
+ROI_HELP = ("pixel coordinates X,Y,W,H: x to the right, y down, origin at the top-left pixel; "
+            "W, H in pixels")
+
+
+@click.command("ingest")
+@click.argument("photo_dir", type=click.Path(exists=True, file_okay=False))
+@click.option("--manifest", required=True, type=click.Path(exists=True, dir_okay=False),
+              help="CSV naming each photo (column 'file', relative to PHOTO_DIR) and its "
+                   "geometry (theta_i,phi_i,theta_r,phi_r or signed theta_i,theta_r or "
+                   "psi,rho; degrees). Other columns are copied to the output.")
+@click.option("--roi", required=True, help=f"Observed patch of the object: {ROI_HELP}.")
+@click.option("--black-roi", default=None,
+              help=f"Patch of black cloth in the same photos (adds black, black_sigma): "
+                   f"{ROI_HELP}.")
+@click.option("--dark", default=None, type=click.Path(exists=True, dir_okay=False),
+              help="Dark frame (same camera, format and size; lens capped), subtracted pixel "
+                   "by pixel.")
+@click.option("--channel", type=click.Choice(["gray", "r", "g", "b"]), default="gray",
+              show_default=True, help="Colour channel; gray = (R + G + B) / 3.")
+@click.option("--response", default=None, type=click.Path(exists=True, dir_okay=False),
+              help="Camera response curve: CSV with columns code,linear mapping code values to "
+                   "linear values (interpolated); needed for JPEG to be linear.")
+@click.option("--saturation", type=float, default=None,
+              help="Code value at or above which a pixel is saturated [default: the format's "
+                   "maximum: 255, 65535, the raw white level; float TIFF: not checked].")
+@click.option("--keep-saturated", is_flag=True,
+              help="Keep photos with saturated or clipped pixels in the ROIs (warned either way; "
+                   "default: exclude them).")
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
+              help="Measurement table to write (CSV).")
+def ingest_command(photo_dir, manifest, roi, black_roi, dark, channel, response, saturation,
+                   keep_saturated, output):
+    """Photos -> measurement table: the mean of an ROI in each photo.
+
+    Reads the photos of PHOTO_DIR that the manifest lists and writes one row per photo: the manifest's columns, value (mean over the ROI after dark-frame
+    subtraction), sigma (its standard error), black and black_sigma (with --black-roi),
+    saturated and clipped (pixel counts in the ROIs) and n_pixels. PNG, TIFF (integer or
+    float), JPEG and camera raw (linear, per colour channel, via LibRaw). Nothing in PHOTO_DIR
+    is modified. See docs/ingest.md.
+    """
+    from rich.console import Console
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
+
+    from .. import ingest as ingest_mod
+    from ..measurements import save_measurements
+
+    try:
+        rois = [ingest_mod.parse_roi(roi, "--roi")]
+        if black_roi is not None:
+            rois.append(ingest_mod.parse_roi(black_roi, "--black-roi"))
+    except ValueError as exc:
+        raise UserError(str(exc)) from None
+    check_output_path(output, [manifest, dark, response])
+    target = Path(output).resolve()
+    if target.exists() and target.is_relative_to(Path(photo_dir).resolve()):
+        raise UserError(f"output {output} is an existing file in PHOTO_DIR {photo_dir}; veil "
+                        f"never modifies PHOTO_DIR: choose another output path")
+    console = Console(stderr=True)
+
+    def show(message, category, filename, lineno, file=None, line=None):
+        console.print(f"Warning: {message}", style="yellow", markup=False, highlight=False,
+                      soft_wrap=True)
+
+    with warnings.catch_warnings(), Progress(
+            TextColumn("ingest"), BarColumn(), MofNCompleteColumn(),
+            TextColumn("{task.description}"), console=console, transient=True,
+            disable=not console.is_terminal) as bar:
+        warnings.simplefilter("always", ingest_mod.IngestWarning)
+        warnings.showwarning = show
+        task = bar.add_task("", total=None)
+
+        def progress(done, total, name):
+            bar.update(task, completed=done, total=total, description=name)
+
+        table = ingest_mod.ingest(photo_dir, manifest, rois[0], rois[1] if len(rois) > 1 else None,
+                                  dark, channel, response=response, saturation=saturation,
+                                  keep_saturated=keep_saturated, progress=progress)
+    save_measurements(table, output)
+    click.echo(f"{len(table)} measurement(s) written to {output}", err=True)

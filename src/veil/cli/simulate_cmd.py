@@ -1,0 +1,129 @@
+"""``veil simulate``: a simulated measurement session following the paper's protocol
+(MODEL.md sec. 1 and 7; table format and glow model in docs/measurements.md)."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import click
+
+from ..measurements import FORMS, save_measurements, to_form
+from ..protocol import protocol
+from ..simulate import GLOW_LEVEL, simulate
+from ._common import UserError, check_output_path, parse_brdf, parse_btdf
+
+
+def _parse_psi(text: str) -> tuple[float, ...]:
+    parts = [p.strip() for p in text.split(",")]
+    values = []
+    for p in parts:
+        try:
+            values.append(float(p))
+        except ValueError:
+            raise UserError(f"--psi {text!r}: {p!r} is not a number (expected comma-separated "
+                            f"angles in degrees, e.g. 30,60,90)") from None
+    return tuple(values)
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    if a.exists() and b.exists():
+        return os.path.samefile(a, b)
+    return a.resolve() == b.resolve()
+
+
+def _nonneg(name):
+    def check(ctx, param, value):
+        if value is not None and not value >= 0:
+            raise click.BadParameter(f"{value!r}: expected a number >= 0", param_hint=name)
+        return value
+    return check
+
+
+@click.command("simulate")
+@click.option("--brdf", required=True, metavar="MODEL",
+              help="The object: preset BRDF1 or BRDF2, or literal 'PD,PS,N,ETA' "
+                   "(Torrance-Sparrow, MODEL.md sec. 2; N in 1/deg).")
+@click.option("--medium", required=True, metavar="MODEL",
+              help="The medium: preset BTDF1, BTDF2 or BTDF3, literal 'TD,TT,G,ETA' "
+                   "(MODEL.md sec. 3), or 'none' for clear water.")
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False, path_type=Path),
+              help="CSV file to write the session to (written atomically).")
+@click.option("--black", "black_path", type=click.Path(dir_okay=False, path_type=Path),
+              help="Also write the black-cloth (medium-only glow) session, same "
+                   "configurations, to this CSV file.")
+@click.option("--psi", default="30,60,90", show_default=True, metavar="DEG,...",
+              help="Relative angles between light and camera, degrees, comma-separated.")
+@click.option("--noise", type=float, default=0.01, show_default=True, callback=_nonneg("--noise"),
+              help="Relative standard deviation of the Gaussian noise (0.01 = 1 % of each "
+                   "value); written to the sigma column.")
+@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True,
+              help="Seed of the noise generator (same seed, same files, bit for bit).")
+@click.option("--glow", type=float, default=GLOW_LEVEL, show_default=True,
+              callback=_nonneg("--glow"),
+              help="Medium glow level, a fraction of the object's signal at theta_i = 0, "
+                   "theta_r = 60 deg (docs/measurements.md); 0 for none.")
+@click.option("--variant", type=click.Choice(["paper", "exit"]), default="paper",
+              show_default=True,
+              help="Fresnel factor of the medium: paper = F_t(theta_in)^2, exit = "
+                   "F_t(theta_in) F_t(theta_out) (MODEL.md sec. 3).")
+@click.option("--form", type=click.Choice(list(FORMS)), default="goniometer", show_default=True,
+              help="Angle columns to write: goniometer = psi,rho plus the signed in-plane "
+                   "theta_i,theta_r they imply; inplane = signed theta_i,theta_r; full = "
+                   "theta_i,phi_i,theta_r,phi_r. All in degrees.")
+@click.option("--fine-step", type=float, default=1.0, show_default=True,
+              help="Rotation step near the mirror configuration, degrees.")
+@click.option("--window", type=float, default=10.0, show_default=True,
+              help="Half-width of the dense region around rho = 0, degrees.")
+@click.option("--coarse-step", type=float, default=5.0, show_default=True,
+              help="Rotation step outside the window, degrees.")
+@click.option("--limit", type=float, default=85.0, show_default=True,
+              help="Keep configurations with both |theta_i| and |theta_r| below this, degrees.")
+@click.option("--accuracy", type=click.Choice(["fast", "default", "high"]), default="default",
+              show_default=True, help="Quadrature level of the apparent reflectance.")
+def simulate_command(brdf, medium, output, black_path, psi, noise, seed, glow, variant, form,
+                     fine_step, window, coarse_step, limit, accuracy):
+    """Simulate a measurement session of the paper's protocol (MODEL.md sec. 7).
+
+    For each relative angle psi the object is rotated by rho (theta_i = psi/2 + rho,
+    theta_r = psi/2 - rho): every --fine-step degrees within --window of the mirror
+    configuration, every --coarse-step degrees beyond, while both |theta| < --limit.
+    Each value is the apparent reflectance plus the medium's glow, with relative
+    Gaussian noise. Example:
+
+    \b
+        veil simulate --brdf BRDF1 --medium BTDF2 -o meas.csv --black black.csv
+    """
+    model_b = parse_brdf(brdf)
+    model_m = parse_btdf(medium, variant)
+    psis = _parse_psi(psi)
+    if black_path is not None and _same_file(output, black_path):
+        raise UserError(f"--output and --black are the same file ({output}); give two files")
+    for path in (output, black_path):
+        if path is not None:
+            check_output_path(path)
+    try:
+        configs = protocol(psis, fine_step=fine_step, coarse_step=coarse_step, window=window,
+                           limit=limit)
+    except ValueError as exc:
+        raise UserError(str(exc)) from None
+
+    from rich.console import Console
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    what = "clear water" if model_m is None else medium.strip()
+    with Progress(TextColumn("[progress.description]{task.description}"), BarColumn(),
+                  MofNCompleteColumn(), TimeElapsedColumn(),
+                  console=Console(stderr=True), transient=True) as bar:
+        task = bar.add_task(f"{brdf.strip()} through {what}", total=len(configs))
+        result = simulate(model_b, model_m, psis, noise=noise, seed=seed,
+                          black=black_path is not None, fine_step=fine_step,
+                          coarse_step=coarse_step, window=window, limit=limit, glow=glow,
+                          accuracy=accuracy,
+                          progress=lambda done, total: bar.update(task, completed=done))
+    table, cloth = result if black_path is not None else (result, None)
+    save_measurements(to_form(table, form), output)
+    if cloth is not None:
+        save_measurements(to_form(cloth, form), black_path)
+    click.echo(f"wrote {len(table)} configurations to {output}"
+               + (f" and the black cloth to {black_path}" if cloth is not None else ""), err=True)

@@ -1,0 +1,613 @@
+"""From photographs to measurements: the mean of a region of interest in each photo.
+
+One photo is decoded at a time and only its regions of interest are kept. Formats: PNG and
+TIFF (8/16-bit integer, float TIFF), JPEG (not linear: warned unless a response curve is
+given) and camera raw through LibRaw (rawpy). Conventions, the raw path and the definition of
+``gray`` are in docs/ingest.md.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+PNG_SUFFIXES = frozenset({".png"})
+JPEG_SUFFIXES = frozenset({".jpg", ".jpeg", ".jpe"})
+TIFF_SUFFIXES = frozenset({".tif", ".tiff"})
+RAW_SUFFIXES = frozenset({
+    ".3fr", ".ari", ".arw", ".bay", ".cr2", ".cr3", ".crw", ".dcr", ".dng", ".erf", ".fff",
+    ".iiq", ".k25", ".kdc", ".mef", ".mos", ".mrw", ".nef", ".nrw", ".orf", ".pef", ".raf",
+    ".raw", ".rw2", ".rwl", ".sr2", ".srf", ".srw", ".x3f",
+})
+PHOTO_SUFFIXES = PNG_SUFFIXES | JPEG_SUFFIXES | TIFF_SUFFIXES | RAW_SUFFIXES
+CHANNELS = ("gray", "r", "g", "b")
+#: Columns :func:`ingest` adds to the manifest's (``black``, ``black_sigma`` only with a black ROI).
+ADDED_COLUMNS = ("value", "sigma", "black", "black_sigma", "saturated", "clipped", "n_pixels")
+
+
+class IngestWarning(UserWarning):
+    """Something in the photos that the user should know about but that does not stop ingest."""
+
+
+# -- regions of interest -------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class ROI:
+    """A rectangle in pixel coordinates: x to the right, y down, origin at the top-left pixel."""
+
+    x: int
+    y: int
+    w: int
+    h: int
+
+    def __str__(self):
+        return f"{self.x},{self.y},{self.w},{self.h}"
+
+    @property
+    def slices(self):
+        return slice(self.y, self.y + self.h), slice(self.x, self.x + self.w)
+
+    def overlaps(self, other: "ROI") -> bool:
+        return (self.x < other.x + other.w and other.x < self.x + self.w
+                and self.y < other.y + other.h and other.y < self.y + self.h)
+
+
+def parse_roi(value, name: str = "roi") -> ROI:
+    """``"X,Y,W,H"`` (or 4 numbers, or a :class:`ROI`) -> :class:`ROI`; integers, W, H >= 1."""
+    if isinstance(value, ROI):
+        return value
+    parts = [p.strip() for p in value.split(",")] if isinstance(value, str) else list(value)
+    form = "X,Y,W,H in pixels (x to the right, y down, origin top-left)"
+    if len(parts) != 4:
+        raise ValueError(f"{name} {value!r}: expected 4 integers {form}")
+    numbers = []
+    for label, part in zip("XYWH", parts):
+        try:
+            number = float(part)
+        except (TypeError, ValueError):
+            raise ValueError(f"{name} {value!r}: {label} = {part!r} is not an integer; "
+                             f"expected {form}") from None
+        if not number.is_integer():
+            raise ValueError(f"{name} {value!r}: {label} = {part!r} is not an integer; "
+                             f"expected {form}")
+        numbers.append(int(number))
+    x, y, w, h = numbers
+    if x < 0 or y < 0:
+        raise ValueError(f"{name} {value!r}: X and Y must be >= 0 (pixel coordinates, origin "
+                         f"at the top-left)")
+    if w < 1 or h < 1:
+        raise ValueError(f"{name} {value!r}: W and H must be >= 1 pixel")
+    return ROI(x, y, w, h)
+
+
+# -- response curve ------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class Response:
+    """A camera response curve: code value -> linear value, interpolated linearly."""
+
+    code: np.ndarray
+    linear: np.ndarray
+    source: str = "response curve"
+
+    def __call__(self, values: np.ndarray, where: str) -> np.ndarray:
+        lo, hi = float(np.min(values)), float(np.max(values))
+        if lo < self.code[0] or hi > self.code[-1]:
+            bad = lo if lo < self.code[0] else hi
+            raise ValueError(f"{where}: code value {bad:g} is outside the range of "
+                             f"{self.source}, [{self.code[0]:g}, {self.code[-1]:g}]; the curve "
+                             f"must cover every code value in the ROIs")
+        return np.interp(values, self.code, self.linear)
+
+
+def load_response(path) -> Response:
+    """Read a response CSV: columns ``code`` (strictly increasing) and ``linear``."""
+    path = os.fspath(path)
+    try:
+        raw = pd.read_csv(path, dtype=str, keep_default_na=False, skipinitialspace=True,
+                          skip_blank_lines=False)
+    except pd.errors.EmptyDataError:
+        raise ValueError(f"{path}: the response curve file is empty; expected a header "
+                         f"'code,linear' and one row per code value") from None
+    except (pd.errors.ParserError, UnicodeDecodeError) as exc:
+        raise ValueError(f"{path}: not a readable CSV file ({exc})") from None
+    raw.columns = [str(c).strip() for c in raw.columns]
+    missing = [c for c in ("code", "linear") if c not in raw.columns]
+    if missing:
+        raise ValueError(f"{path}: missing column(s) {', '.join(map(repr, missing))}; the "
+                         f"header has {', '.join(map(repr, raw.columns))}; expected "
+                         f"'code' (code value in the file) and 'linear' (linear value)")
+    kept = ~(raw == "").all(axis=1).to_numpy()  # blank lines
+    lines = np.flatnonzero(kept) + 2  # line numbers in the file, header = line 1
+    raw = raw[kept]
+    if len(raw) < 2:
+        raise ValueError(f"{path}: a response curve needs at least 2 rows, found {len(raw)}")
+    columns = {}
+    for col in ("code", "linear"):
+        values = np.empty(len(raw))
+        for j, cell in enumerate(raw[col].tolist()):
+            try:
+                values[j] = float(cell)
+            except ValueError:
+                values[j] = np.nan
+            if not math.isfinite(values[j]):
+                raise ValueError(f"line {lines[j]} of {path}, column {col!r}: "
+                                 f"{cell!r} is not a finite number")
+        columns[col] = values
+    code, linear = columns["code"], columns["linear"]
+    for j in range(1, len(code)):
+        if code[j] <= code[j - 1]:
+            raise ValueError(f"line {lines[j]} of {path}, column 'code': "
+                             f"{code[j]:g} does not exceed the previous row's {code[j - 1]:g}; "
+                             f"code values must be strictly increasing")
+        if linear[j] < linear[j - 1]:
+            raise ValueError(f"line {lines[j]} of {path}, column 'linear': "
+                             f"{linear[j]:g} is below the previous row's {linear[j - 1]:g}; a "
+                             f"response curve must not decrease")
+    return Response(code, linear, f"response curve {path}")
+
+
+# -- reading photos ------------------------------------------------------------------------
+
+@dataclass
+class _Patch:
+    """The code values of one ROI as stored in the file, plus what is needed to read them."""
+
+    values: np.ndarray  # (h, w, c) for images, (h, w) for a raw mosaic
+    cfa: np.ndarray | None = None  # raw mosaic: 0, 1, 2 = R, G, B per photosite
+    black: np.ndarray | None = None  # raw mosaic: black level per photosite
+
+
+@dataclass
+class _Photo:
+    """One decoded photo reduced to its ROIs."""
+
+    path: Path
+    kind: str  # "png", "jpeg", "tiff", "raw"
+    shape: tuple  # (height, width, channels); channels = 1 for a raw mosaic
+    saturation: float | None  # the format's maximum code value (None: float data)
+    floor: float | None  # code value of pixels clipped from below (None: float data)
+    patches: list
+
+    @property
+    def dtype(self) -> np.dtype:
+        return self.patches[0].values.dtype
+
+
+def _check_roi(roi: ROI, name: str, height: int, width: int, path: Path) -> None:
+    if roi.x + roi.w > width or roi.y + roi.h > height:
+        raise ValueError(f"{path}: {name} {roi} (x {roi.x}..{roi.x + roi.w - 1}, y "
+                         f"{roi.y}..{roi.y + roi.h - 1}) lies outside the image, which is "
+                         f"{width} x {height} pixels (x 0..{width - 1}, y 0..{height - 1})")
+
+
+def _int_limits(dtype: np.dtype):
+    if dtype.kind in "ui":
+        info = np.iinfo(dtype)
+        return float(info.max), float(info.min)
+    if dtype.kind == "f":
+        return None, None
+    raise ValueError(f"unsupported sample type {dtype}; expected unsigned/signed integer or "
+                     f"float samples")
+
+
+def _image_patches(path: Path, kind: str, image: np.ndarray, rois) -> _Photo:
+    """Crop ``rois`` out of an (H, W), (H, W, C) image; alpha channels are dropped."""
+    if image.ndim == 2:
+        image = image[:, :, None]
+    if image.ndim != 3 or image.shape[2] not in (1, 2, 3, 4):
+        raise ValueError(f"{path}: unsupported image layout {image.shape}; expected a gray or "
+                         f"RGB image (height x width [x channels])")
+    channels = 1 if image.shape[2] in (1, 2) else 3  # 2 = gray + alpha, 4 = RGB + alpha
+    height, width = image.shape[:2]
+    try:
+        saturation, floor = _int_limits(image.dtype)
+    except ValueError as exc:
+        raise ValueError(f"{path}: {exc}") from None
+    patches = []
+    for name, roi in rois:
+        _check_roi(roi, name, height, width, path)
+        rows, cols = roi.slices
+        patches.append(_Patch(np.array(image[rows, cols, :channels])))
+    return _Photo(path, kind, (height, width, channels), saturation, floor, patches)
+
+
+def _read_png_jpeg(path: Path, kind: str, rois) -> _Photo:
+    import imagecodecs
+
+    data = path.read_bytes()
+    try:
+        image = imagecodecs.png_decode(data) if kind == "png" else imagecodecs.jpeg8_decode(data)
+    except Exception as exc:  # imagecodecs raises its own error classes per codec
+        raise ValueError(f"{path}: cannot decode as {kind.upper()} ({exc})") from None
+    del data
+    return _image_patches(path, kind, image, rois)
+
+
+def _read_tiff(path: Path, rois) -> _Photo:
+    import tifffile
+
+    try:
+        with tifffile.TiffFile(path) as tif:
+            series = tif.series[0]
+            page = series.pages[0]
+            if page is not None and page.photometric == tifffile.PHOTOMETRIC.PALETTE:
+                raise ValueError(f"{path}: palette (indexed colour) TIFF; expected gray or RGB "
+                                 f"samples")
+            axes = series.axes
+            if axes not in ("YX", "YXS", "SYX"):
+                raise ValueError(f"{path}: TIFF holds an array with axes {axes!r} and shape "
+                                 f"{series.shape}; expected one gray or RGB image")
+            memmappable = page is not None and page.is_memmappable and len(tif.series) == 1
+            image = None if memmappable else series.asarray()
+        if memmappable:  # uncompressed: read only the ROIs' rows, read-only mapping
+            image = tifffile.memmap(path, mode="r")
+    except ValueError:
+        raise
+    except Exception as exc:  # tifffile raises TiffFileError and codec errors
+        raise ValueError(f"{path}: cannot read as TIFF ({exc})") from None
+    if axes == "SYX":
+        image = np.moveaxis(image, 0, -1)
+    return _image_patches(path, "tiff", image, rois)
+
+
+def _read_raw(path: Path, rois) -> _Photo:
+    import rawpy
+
+    try:
+        raw = rawpy.imread(os.fspath(path))
+    except (rawpy.LibRawError, OSError) as exc:
+        raise ValueError(f"{path}: cannot read as camera raw with LibRaw ({exc})") from None
+    with raw:
+        if raw.raw_type != rawpy.RawType.Flat:
+            raise ValueError(f"{path}: raw data are not a colour-filter mosaic (LibRaw raw "
+                             f"type {raw.raw_type.name}); convert it to a linear 16-bit TIFF")
+        desc = raw.color_desc.decode("ascii", "replace")
+        if any(c not in "RGB" for c in desc):
+            raise ValueError(f"{path}: colour filter colours {desc!r} are not R, G, B; only "
+                             f"RGB mosaics are supported")
+        colour_of_index = np.array(["RGB".index(c) for c in desc])
+        black_of_index = np.asarray(raw.black_level_per_channel, dtype=float)
+        mosaic = raw.raw_image_visible
+        indices = raw.raw_colors_visible
+        height, width = mosaic.shape
+        patches = []
+        for name, roi in rois:
+            _check_roi(roi, name, height, width, path)
+            rows, cols = roi.slices
+            index = np.array(indices[rows, cols])
+            patches.append(_Patch(np.array(mosaic[rows, cols]), colour_of_index[index],
+                                  black_of_index[index]))
+        saturation = float(raw.white_level)
+    return _Photo(path, "raw", (height, width, 1), saturation, 0.0, patches)
+
+
+def read_photo(path, rois) -> _Photo:
+    """Decode ``path`` and keep only ``rois`` (a list of ``(name, ROI)``) as code values."""
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such file")
+    try:
+        if suffix in PNG_SUFFIXES:
+            return _read_png_jpeg(path, "png", rois)
+        if suffix in JPEG_SUFFIXES:
+            return _read_png_jpeg(path, "jpeg", rois)
+        if suffix in TIFF_SUFFIXES:
+            return _read_tiff(path, rois)
+        if suffix in RAW_SUFFIXES:
+            return _read_raw(path, rois)
+    except PermissionError:
+        raise PermissionError(f"{path}: permission denied") from None
+    except OSError as exc:
+        raise ValueError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    raise ValueError(f"{path}: unsupported file type {suffix or '(no suffix)'!r}; supported: "
+                     f"PNG, TIFF, JPEG and camera raw ({', '.join(sorted(RAW_SUFFIXES))})")
+
+
+# -- statistics ----------------------------------------------------------------------------
+
+def _used(patch: _Patch, channel: str) -> np.ndarray:
+    """Boolean (h, w, c) or (h, w) mask of the samples ``channel`` reads."""
+    if patch.cfa is not None:
+        if channel == "gray":
+            return np.ones(patch.values.shape, dtype=bool)
+        return patch.cfa == "rgb".index(channel)
+    mask = np.zeros(patch.values.shape, dtype=bool)
+    if channel == "gray":
+        mask[...] = True
+    else:
+        mask[:, :, "rgb".index(channel)] = True
+    return mask
+
+
+def _clip_counts(patch: _Patch, channel: str, saturation, floor):
+    """(saturated, clipped) pixel counts: a pixel counts if any sample ``channel`` uses does."""
+    used = _used(patch, channel)
+    counts = []
+    for level, above in ((saturation, True), (floor, False)):
+        if level is None:
+            counts.append(0)
+            continue
+        hit = (patch.values >= level) if above else (patch.values <= level)
+        hit &= used
+        counts.append(int(np.count_nonzero(hit if hit.ndim == 2 else hit.any(axis=2))))
+    return counts[0], counts[1]
+
+
+def _linear(patch: _Patch, response: Response | None, where: str) -> np.ndarray:
+    values = patch.values.astype(np.float64)
+    if not np.all(np.isfinite(values)):
+        bad = int(np.count_nonzero(~np.isfinite(values)))
+        raise ValueError(f"{where}: {bad} non-finite sample(s) (NaN or infinity) in the ROI")
+    if response is not None:
+        values = response(values, where)
+    if patch.black is not None:
+        values -= patch.black
+    return values
+
+
+def _stats(groups):
+    """Mean of the groups' means and its standard error; total sample count."""
+    means = [g.mean() for g in groups]
+    variances = [g.var(ddof=1) / g.size for g in groups]
+    k = len(groups)
+    return (float(sum(means) / k), float(math.sqrt(sum(variances)) / k),
+            int(sum(g.size for g in groups)))
+
+
+def roi_statistics(patch: _Patch, channel: str, dark: _Patch | None = None,
+                   response: Response | None = None, where: str = "ROI"):
+    """``(value, sigma, n)`` of one ROI: mean of linear, dark-subtracted ``channel`` values.
+
+    ``gray`` is (R + G + B) / 3, the average of the three channels (for a raw mosaic the
+    average of the R, G and B photosites' means); ``sigma`` is the standard error of that mean.
+    """
+    values = _linear(patch, response, where)
+    if dark is not None:
+        values = values - _linear(dark, response, where + " (dark frame)")
+    if patch.cfa is not None:
+        colours = range(3) if channel == "gray" else ["rgb".index(channel)]
+        groups = [values[patch.cfa == c] for c in colours]
+    elif channel == "gray":
+        groups = [values.mean(axis=2).ravel()]
+    else:
+        groups = [values[:, :, "rgb".index(channel)].ravel()]
+    for c, g in zip(("R", "G", "B") if len(groups) == 3 else (channel.upper(),), groups):
+        if g.size < 2:
+            what = f"{c} photosites" if patch.cfa is not None else "pixels"
+            raise ValueError(f"{where}: only {g.size} {what} in the ROI; at least 2 are needed "
+                             f"for a standard error - make the ROI larger")
+    return _stats(groups)
+
+
+# -- the manifest --------------------------------------------------------------------------
+
+def read_manifest(manifest, photo_dir) -> tuple[pd.DataFrame, list[str], str]:
+    """The manifest (all its columns; angles as float), a name for each row, its own name.
+
+    Checks the ``file`` column (present, non-empty, unique, inside ``photo_dir``) and the
+    angle columns (one of the three forms of :mod:`veil.measurements`, no configuration twice).
+    Rows of a file are named by their line (header = line 1), as :mod:`veil.measurements` does.
+    """
+    from .measurements import ANGLE_COLUMNS, validate
+
+    if isinstance(manifest, pd.DataFrame):
+        name = "the manifest"
+        table = manifest.copy()
+        table.attrs = {"veil_name": name}
+        rows = [f"row {label!r} (index label) of {name}" for label in table.index]
+    else:
+        name = os.fspath(manifest)
+        try:
+            raw = pd.read_csv(name, skipinitialspace=True, keep_default_na=False,
+                              na_values=[""], dtype={"file": str}, skip_blank_lines=False)
+        except FileNotFoundError:
+            raise FileNotFoundError(f"manifest {name}: no such file") from None
+        except pd.errors.EmptyDataError:
+            raise ValueError(f"{name}: the manifest is empty; expected a header with 'file' and "
+                             f"angle columns, then one row per photo") from None
+        except (pd.errors.ParserError, UnicodeDecodeError) as exc:
+            raise ValueError(f"{name}: not a readable CSV file ({exc})") from None
+        raw.columns = [str(c).strip() for c in raw.columns]
+        kept = ~raw.isna().all(axis=1).to_numpy()  # blank lines
+        lines = (np.flatnonzero(kept) + 2).tolist()
+        table = raw[kept].reset_index(drop=True)
+        table.attrs = {"veil_source": name, "veil_lines": tuple(lines)}
+        rows = [f"line {line} of {name}" for line in lines]
+    if "file" not in table.columns:
+        raise ValueError(f"{name}: no column 'file'; the header has "
+                         f"{', '.join(map(repr, map(str, table.columns)))}; the manifest names "
+                         f"each photo (relative to PHOTO_DIR) in a column 'file'")
+    if len(table) == 0:
+        raise ValueError(f"{name}: no photos listed (no rows after the header)")
+    clash = [c for c in ADDED_COLUMNS if c in table.columns]
+    if clash:
+        raise ValueError(f"{name}: column(s) {', '.join(map(repr, clash))} would be "
+                         f"overwritten by ingest's results; rename or remove them")
+    seen = {}
+    root = Path(photo_dir).resolve()
+    files = []
+    for row, cell in zip(rows, table["file"].tolist()):
+        where = f"{row}, column 'file'"
+        if not isinstance(cell, str) or cell.strip() == "":
+            raise ValueError(f"{where}: empty; expected the photo's file name in PHOTO_DIR")
+        rel = Path(cell.strip())
+        if rel.is_absolute() or not (root / rel).resolve().is_relative_to(root):
+            raise ValueError(f"{where}: {cell!r} is not a path inside PHOTO_DIR ({photo_dir}); "
+                             f"give file names relative to PHOTO_DIR")
+        key = (root / rel).resolve()
+        if key in seen:
+            raise ValueError(f"{where}: {cell!r} is listed again (first on {seen[key]}); each "
+                             f"photo has one geometry")
+        seen[key] = row
+        files.append(cell.strip())
+    table["file"] = files
+    probe = table.assign(value=0.0)
+    probe.attrs = dict(table.attrs)
+    checked = validate(probe)  # angle forms, ranges, duplicate configurations
+    for column in ANGLE_COLUMNS:
+        if column in table.columns:
+            table[column] = checked[column].to_numpy()
+    return table.reset_index(drop=True), rows, name
+
+
+def _unlisted_photos(photo_dir: Path, listed: set, ignore: set) -> list[str]:
+    """Photo files in ``photo_dir`` (and the sub-folders the manifest uses) not in ``listed``."""
+    folders = {photo_dir.resolve()} | {p.parent for p in listed}
+    extra = []
+    for folder in sorted(folders):
+        for entry in sorted(folder.iterdir()):
+            if (entry.is_file() and entry.suffix.lower() in PHOTO_SUFFIXES
+                    and entry.resolve() not in listed and entry.resolve() not in ignore):
+                extra.append(os.path.relpath(entry, photo_dir))
+    return extra
+
+
+# -- ingest --------------------------------------------------------------------------------
+
+def _warn(message: str) -> None:
+    warnings.warn(message, IngestWarning, stacklevel=3)
+
+
+def ingest(photo_dir, manifest, roi, black_roi=None, dark=None, channel="gray", *,
+           response=None, saturation=None, keep_saturated=False, progress=None) -> pd.DataFrame:
+    """One measurement row per photo of ``manifest``: its columns plus the ROI statistics.
+
+    ``roi``/``black_roi``: ``"X,Y,W,H"`` or :class:`ROI`. ``dark``: a dark frame subtracted
+    pixel by pixel. ``channel``: ``gray``, ``r``, ``g`` or ``b``. ``response``: CSV path or
+    :class:`Response` mapping code values to linear values. ``saturation``: code value at or
+    above which a sample is saturated (default: the format's maximum). Photos with saturated or
+    clipped (minimum code value) pixels in the ROIs are dropped with a warning unless
+    ``keep_saturated``. ``progress(done, total, file)`` is called after each photo. Warnings
+    are :class:`IngestWarning`; user errors are ``ValueError`` / ``FileNotFoundError``.
+    """
+    photo_dir = Path(photo_dir)
+    if not photo_dir.is_dir():
+        raise FileNotFoundError(f"photo directory {photo_dir}: no such directory")
+    if channel not in CHANNELS:
+        raise ValueError(f"channel {channel!r}: expected one of {', '.join(CHANNELS)}")
+    rois = [("ROI", parse_roi(roi, "ROI"))]
+    if black_roi is not None:
+        rois.append(("black ROI", parse_roi(black_roi, "black ROI")))
+        if rois[0][1].overlaps(rois[1][1]):
+            _warn(f"the ROI {rois[0][1]} and the black ROI {rois[1][1]} overlap")
+    if saturation is not None:
+        saturation = float(saturation)
+        if not math.isfinite(saturation):
+            raise ValueError(f"saturation level {saturation!r} is not a finite number")
+    if response is not None and not isinstance(response, Response):
+        response = load_response(response)
+
+    table, rows, name = read_manifest(manifest, photo_dir)
+    paths = [photo_dir / f for f in table["file"]]
+    missing = [(row, f) for row, f, p in zip(rows, table["file"], paths) if not p.is_file()]
+    if missing:
+        shown = "; ".join(f"{f!r} ({row})" for row, f in missing[:10])
+        more = f" and {len(missing) - 10} more" if len(missing) > 10 else ""
+        raise FileNotFoundError(f"{name}: {len(missing)} photo(s) listed in the manifest are not "
+                                f"in {photo_dir}: {shown}{more}")
+    ignore = set()
+    if dark is not None:
+        ignore.add(Path(dark).resolve())
+    extra = _unlisted_photos(photo_dir, {p.resolve() for p in paths}, ignore)
+    if extra:
+        shown = ", ".join(extra[:10]) + (f" and {len(extra) - 10} more" if len(extra) > 10 else "")
+        _warn(f"{len(extra)} photo file(s) in {photo_dir} are not in {name} and are ignored: "
+              f"{shown}")
+
+    dark_photo = None
+    if dark is not None:
+        dark_photo = read_photo(dark, rois)
+        if dark_photo.kind == "raw" and response is not None:
+            raise ValueError(f"dark frame {dark}: camera raw is already linear; a response "
+                             f"curve applies to JPEG/PNG/TIFF code values only")
+        level = saturation if saturation is not None else dark_photo.saturation
+        hot = sum(_clip_counts(p, channel, level, None)[0] for p in dark_photo.patches)
+        if hot:
+            _warn(f"dark frame {dark}: {hot} saturated pixel(s) in the ROIs (level {level:g})")
+
+    warned = set()
+    results = []
+    keep = []
+    for i, (path, row_name) in enumerate(zip(paths, rows)):
+        photo = read_photo(path, rois)
+        where = f"{path} ({row_name})"
+        if photo.kind == "jpeg" and response is None and "jpeg" not in warned:
+            warned.add("jpeg")
+            _warn(f"{path}: JPEG code values are not linear in radiance (gamma/tone curve); "
+                  f"give a response curve (--response) to linearize them")
+        if photo.kind == "raw" and response is not None:
+            raise ValueError(f"{where}: camera raw is already linear; a response curve applies "
+                             f"to JPEG/PNG/TIFF code values only")
+        if photo.saturation is None and saturation is None and "float" not in warned:
+            warned.add("float")
+            _warn(f"{path}: float samples have no format maximum, so saturation is not "
+                  f"checked; give a saturation level (--saturation) if the data were clipped")
+        if channel != "gray" and photo.shape[2] == 1 and photo.kind != "raw":
+            raise ValueError(f"{where}: a single-channel (gray) image has no channel "
+                             f"{channel!r}; use channel gray")
+        if dark_photo is not None and ((dark_photo.kind == "raw") != (photo.kind == "raw")
+                                       or dark_photo.shape != photo.shape
+                                       or dark_photo.dtype != photo.dtype):
+            raise ValueError(f"{where}: the dark frame {dark} does not match the photo (dark "
+                             f"frame {_describe(dark_photo)}, photo {_describe(photo)})")
+        level = saturation if saturation is not None else photo.saturation
+        row = {}
+        n_saturated = n_clipped = 0
+        for k, ((roi_name, _), patch) in enumerate(zip(rois, photo.patches)):
+            sat, clip = _clip_counts(patch, channel, level, photo.floor)
+            n_saturated += sat
+            n_clipped += clip
+            dark_patch = dark_photo.patches[k] if dark_photo is not None else None
+            value, sigma, n = roi_statistics(patch, channel, dark_patch, response,
+                                             f"{where}, {roi_name}")
+            prefix = "value" if k == 0 else "black"
+            row[prefix] = value
+            row["sigma" if k == 0 else "black_sigma"] = sigma
+            if k == 0:
+                row["n_pixels"] = n
+        row["saturated"] = n_saturated
+        row["clipped"] = n_clipped
+        bad = n_saturated or n_clipped
+        if bad:
+            what = []
+            if n_saturated:
+                what.append(f"{n_saturated} saturated pixel(s) (code >= {level:g})")
+            if n_clipped:
+                what.append(f"{n_clipped} clipped pixel(s) (code <= {photo.floor:g})")
+            action = ("kept as asked" if keep_saturated else
+                      "excluded (--keep-saturated / keep_saturated=True keeps it)")
+            _warn(f"{where}: {' and '.join(what)} in the ROIs; {action}")
+        if keep_saturated or not bad:
+            keep.append(i)
+            results.append(row)
+        if progress is not None:
+            progress(i + 1, len(paths), str(table["file"].iloc[i]))
+        del photo
+
+    if not keep:
+        raise ValueError(f"all {len(paths)} photos were excluded for saturated or clipped "
+                         f"pixels in the ROIs; lower the exposure, move the ROIs, or keep them "
+                         f"with --keep-saturated")
+    out = table.iloc[keep].reset_index(drop=True)
+    added = pd.DataFrame(results)
+    order = ["value", "sigma"] + (["black", "black_sigma"] if black_roi is not None else [])
+    order += ["saturated", "clipped", "n_pixels"]
+    for col in order:
+        out[col] = added[col].to_numpy()
+    return out
+
+
+def _describe(photo: _Photo) -> str:
+    height, width, channels = photo.shape
+    kind = "raw mosaic" if photo.kind == "raw" else f"{channels}-channel {photo.kind}"
+    dtype = photo.dtype
+    depth = f"{dtype.itemsize * 8}-bit {'float' if dtype.kind == 'f' else 'integer'}"
+    return f"{width} x {height} {depth} {kind}"

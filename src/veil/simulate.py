@@ -1,0 +1,134 @@
+"""Simulated measurement sessions (MODEL.md sec. 7) following the paper's protocol.
+
+``simulate`` evaluates value = apparent(brdf, medium) + glow at the configurations of
+:func:`veil.protocol.protocol` and adds relative Gaussian noise: value_noisy = value (1 + noise z),
+z ~ N(0, 1) from ``numpy.random.default_rng(seed)``; ``sigma`` = noise * value.
+
+The medium's glow (what a black cloth measures: light scattered by the medium towards the
+camera without reaching the object) is not part of MODEL.md. veil's model, a choice of this
+module (docs/measurements.md):
+
+    glow(I, R) = glow_level * f_ref * s(I, R) / s(I0, R0)
+    s(I, R)    = iso + lobe_weight * p(gamma),   cos(gamma) = -I . R
+
+the medium's isotropic coefficient (T_d) plus single back-scattering by its phase lobe
+(T_t p(g, gamma)), gamma being the angle between the light's travel direction (-I) and the
+view direction R; no Fresnel factors (the paper's cylinder makes both crossings normal). The
+level is relative: ``f_ref`` is the object's noise-free apparent value at the off-peak
+reference configuration I0 = (0 deg, 180 deg), R0 = (60 deg, 0 deg) (psi = 60, rho = -30),
+so ``glow_level`` = 0.03 makes the glow 3 % of the object signal there. In a goniometer
+session I . R = cos(psi): the glow is constant within each psi. A clear medium has no glow.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Callable
+
+import numpy as np
+import pandas as pd
+
+from .angles import direction
+from .apparent import RULES, apparent, as_brdf, as_btdf, reflectance
+from .protocol import PSI, protocol
+
+#: Configurations per engine call: a fixed size, so the engine compiles once per model
+#: structure and accuracy whatever the number of configurations (the last call is padded).
+CHUNK = 64
+#: The glow's reference configuration (theta_i, phi_i, theta_r, phi_r), degrees.
+GLOW_REFERENCE = (0.0, 180.0, 60.0, 0.0)
+GLOW_LEVEL = 0.03
+
+
+def glow_shape(medium, theta_i, phi_i, theta_r, phi_r) -> np.ndarray:
+    """s(I, R) = iso + lobe_weight * p(gamma), cos(gamma) = -I . R (module docstring)."""
+    m = as_btdf(medium)
+    v = m.to_vector()
+    wi = np.asarray(direction(theta_i, phi_i))
+    wr = np.asarray(direction(theta_r, phi_r))
+    one_minus_mu = np.maximum(1.0 + np.sum(wi * wr, axis=-1), 0.0)  # 1 - cos(gamma)
+    return np.asarray(m.iso(v) + m.lobe_weight(v) * m.phase(v, one_minus_mu), dtype=float)
+
+
+def _evaluate(brdf, medium, angles, accuracy, progress):
+    """Noise-free apparent values at canonical angles, CHUNK at a time."""
+    ti, pi_, tr, pr = angles
+    n = len(ti)
+    if medium is None:
+        out = np.asarray(reflectance(brdf, ti, tr, pi_, pr), dtype=float)
+        if progress:
+            progress(n, n)
+        return out
+    out = np.empty(n)
+    for start in range(0, n, CHUNK):
+        stop = min(start + CHUNK, n)
+        idx = np.minimum(np.arange(start, start + CHUNK), stop - 1)  # pad with the last row
+        vals = apparent(brdf, medium, ti[idx], tr[idx], pi_[idx], pr[idx], accuracy=accuracy)
+        out[start:stop] = np.asarray(vals)[: stop - start]
+        if progress:
+            progress(stop, n)
+    return out
+
+
+def simulate(brdf, medium, psi=PSI, noise: float = 0.01, seed: int = 0, black: bool = False, *,
+             fine_step: float = 1.0, coarse_step: float = 5.0, window: float = 10.0,
+             limit: float = 85.0, glow: float = GLOW_LEVEL, accuracy: str = "default",
+             progress: Callable[[int, int], None] | None = None):
+    """Simulated goniometer session of ``brdf`` through ``medium`` (MODEL.md sec. 7).
+
+    brdf, medium : models or preset names; ``medium=None`` is clear water (no integral,
+        no glow).
+    psi, fine_step, coarse_step, window, limit : the protocol (:func:`veil.protocol.protocol`),
+        degrees.
+    noise : relative standard deviation of the Gaussian noise (>= 0); ``sigma`` = noise * value.
+    seed : seed of ``numpy.random.default_rng``; the object's noise is drawn first, then the
+        black cloth's, so the object table does not depend on ``black``.
+    black : also return the medium-only (black cloth) table, same configurations, own noise.
+    glow : glow level relative to the object's signal at the reference configuration
+        (module docstring); 0 switches the glow off.
+    accuracy : quadrature level of :func:`veil.apparent`.
+    progress : called as progress(done, total) while configurations are evaluated.
+
+    Returns a DataFrame with columns psi, rho, theta_i, phi_i, theta_r, phi_r, value, sigma
+    (or a pair (table, black_table) when ``black``).
+    """
+    brdf = as_brdf(brdf)
+    if medium is not None:
+        medium = as_btdf(medium)
+    for name, val in (("noise", noise), ("glow", glow)):
+        if isinstance(val, bool) or not isinstance(val, (int, float)) \
+                or not math.isfinite(val) or val < 0:
+            raise ValueError(f"{name} = {val!r}: expected a finite number >= 0 (relative)")
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise ValueError(f"seed = {seed!r}: expected an integer >= 0")
+    if accuracy not in RULES:
+        raise ValueError(f"accuracy = {accuracy!r}; expected one of {', '.join(RULES)}")
+    table = protocol(psi, fine_step=fine_step, coarse_step=coarse_step, window=window,
+                     limit=limit)
+    n = len(table)
+    angles = [np.append(table[c].to_numpy(), ref) for c, ref in
+              zip(("theta_i", "phi_i", "theta_r", "phi_r"), GLOW_REFERENCE)]
+    values = _evaluate(brdf, medium, angles, accuracy, progress and (
+        lambda done, total: progress(min(done, n), n)))
+    truth, f_ref = values[:n], values[n]
+    if medium is None or glow == 0:
+        glow_values = np.zeros(n)
+    else:
+        shape = glow_shape(medium, *(a[:n] for a in angles))
+        glow_values = glow * f_ref * shape / glow_shape(medium, *GLOW_REFERENCE)
+    rng = np.random.default_rng(seed)
+    z_object = rng.standard_normal(n)
+    z_black = rng.standard_normal(n)
+    exact = truth + glow_values
+    out = table.copy()
+    out["value"] = exact + noise * exact * z_object
+    out["sigma"] = noise * np.abs(exact)
+    if not black:
+        return out
+    cloth = table.copy()
+    cloth["value"] = glow_values + noise * glow_values * z_black
+    cloth["sigma"] = noise * glow_values
+    return out, cloth
+
+
+__all__ = ["simulate", "glow_shape", "CHUNK", "GLOW_REFERENCE", "GLOW_LEVEL"]
