@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from ._jax import jnp
-from . import integrator
+from .forward import Forward
 from .angles import direction
 from .models import BRDF, BTDF, preset
 from .quadrature import Rule
@@ -81,12 +81,9 @@ def apparent(brdf, medium, theta_i, theta_r, phi_i=180.0, phi_r=0.0, *,
     b, m = as_brdf(brdf), as_btdf(medium)
     ti, tr, pi_, pr = check_angles(theta_i, theta_r, phi_i, phi_r)
     shape = ti.shape
-    wi = direction(ti.ravel(), pi_.ravel())
-    wr = direction(tr.ravel(), pr.ravel())
-    rules = (RULES[accuracy], COARSE[accuracy]) if return_error else (RULES[accuracy],)
-    fn = integrator.compiled(b, m, rules)
-    out = fn(jnp.asarray(b.to_vector()), jnp.asarray(m.to_vector()), wi, wr)
-    value = np.asarray(out[0]).reshape(shape)
+    vb, vm = b.to_vector(), m.to_vector()
+    value = Forward(b, m, ti, tr, pi_, pr, RULES[accuracy])(vb, vm).reshape(shape)
     if not return_error:
         return value
-    return value, np.abs(value - np.asarray(out[1]).reshape(shape))
+    coarse = Forward(b, m, ti, tr, pi_, pr, COARSE[accuracy])(vb, vm).reshape(shape)
+    return value, np.abs(value - coarse)

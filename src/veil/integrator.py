@@ -96,6 +96,13 @@ def _half_grid(brdf: type[BRDF], vb, partner, n_r: int, n_a: int, half: bool):
     return h, alpha, unit, y_max
 
 
+def polar_angle(h):
+    """Angle of unit vectors h from the z axis, accurate near 0 and safe to differentiate."""
+    s2 = h[..., 0] ** 2 + h[..., 1] ** 2
+    pos = s2 > 0
+    return jnp.where(pos, jnp.arctan2(jnp.sqrt(jnp.where(pos, s2, 1.0)), h[..., 2]), 0.0)
+
+
 def _reflect(d, h):
     return 2.0 * jnp.sum(d * h, axis=-1, keepdims=True) * h - d
 
@@ -163,11 +170,12 @@ def _shared(brdf, rule, vb):
     t_int = [_hemisphere_integral(lambda c, k=k: brdf.separable(vb, c, c)[k][1]) for k in range(n_sep)]
     th = _table_thetas(rule)
     sw = jnp.asarray(_simpson_weights(rule.table, th[1] - th[0]) * np.sin(th))
-    c0 = sum(s * t for s, t in zip(s_int, t_int)) + TWO_PI * jnp.sum(sw * a_tab)
+    c0_sep = sum(s * t for s, t in zip(s_int, t_int))
+    c0_lobe = TWO_PI * jnp.sum(sw * a_tab)
     h, alpha, uh = _facet_grid(brdf, vb, rule.half_radial, rule.half_azimuth)
     qh = brdf.facet_weight(vb, alpha) / brdf.facet_cdf(vb, HALF_PI)
     facets = (h[None], alpha[None], uh[None], qh[None])
-    return c0, a_tab, b_tab, s_int, t_int, facets
+    return c0_sep, c0_lobe, a_tab, b_tab, s_int, t_int, facets
 
 
 # --------------------------------------------------------------------------------------
@@ -238,7 +246,7 @@ def _lobe_lobe(brdf, medium, vb, vm, wi, wr, rule: Rule, half: bool, facets):
     r2 = gr[None, :, :]
     s = i2 + r2
     hh = s / jnp.maximum(jnp.linalg.norm(s, axis=-1, keepdims=True), 1e-300)
-    alpha_c = jnp.arctan2(jnp.sqrt(hh[..., 0] ** 2 + hh[..., 1] ** 2), hh[..., 2])
+    alpha_c = polar_angle(hh)
     c = jnp.sum(i2 * hh, axis=-1)
     q_h = brdf.facet_weight(vb, alpha_c) / brdf.facet_cdf(vb, HALF_PI)
     val = balanced(pi_[:, None], pr[None, :], c, q_h, brdf.lobe(vb, i2, r2, hh, alpha_c))
@@ -248,49 +256,78 @@ def _lobe_lobe(brdf, medium, vb, vm, wi, wr, rule: Rule, half: bool, facets):
 
 
 def _one_config(brdf, medium, rule, half, vb, vm, shared, wi, wr):
-    c0, a_tab, b_tab, s_int, t_int, facets = shared
-    td, tt = medium.iso(vm), medium.lobe_weight(vm)
+    """Term matrix E (3, 2) of one configuration, scale parameters set to 1.
+
+    Rows: T_d^2, T_d T_t, T_t^2 terms; columns: separable and lobe parts of f_r.
+    """
+    c0_sep, c0_lobe, a_tab, b_tab, s_int, t_int, facets = shared
     a_i = medium.factor_first(vm, wi[2])
     b_r = medium.factor_second(vm, wr[2])
 
     # 2D terms on a dense phase grid
     gi, ui, fi, _ = _phase_grid(medium, vm, wi, rule.dense_radial, rule.dense_azimuth, half)
     gr, ur, fr, _ = _phase_grid(medium, vm, wr, rule.dense_radial, rule.dense_azimuth, half)
-    wgi, wgr = ui * fi, ur * fr
-    bi = medium.factor_second(vm, gi[:, 2])
-    ar = medium.factor_first(vm, gr[:, 2])
+    wgi = ui * fi * medium.factor_second(vm, gi[:, 2])
+    wgr = ur * fr * medium.factor_first(vm, gr[:, 2])
     seps_i = brdf.separable(vb, gi[:, 2], gi[:, 2])
     seps_r = brdf.separable(vb, gr[:, 2], gr[:, 2])
     ti = jnp.arccos(jnp.clip(gi[:, 2], -1.0, 1.0))
     tr = jnp.arccos(jnp.clip(gr[:, 2], -1.0, 1.0))
-    # A(I') = sum_k s_k(I') Int t_k + A_lobe(I');  B(R') = sum_k t_k(R') Int s_k + B_lobe(R')
-    alb_a = _interp_table(a_tab, ti, rule) + sum(s * tk for (s, _), tk in zip(seps_i, t_int))
-    alb_b = _interp_table(b_tab, tr, rule) + sum(t * sk for (_, t), sk in zip(seps_r, s_int))
-    term_li = a_i * jnp.sum(wgi * bi * alb_a)
-    term_ir = b_r * jnp.sum(wgr * ar * alb_b)
-    sep = sum(jnp.sum(wgi * bi * s) * jnp.sum(wgr * ar * t)
-              for (s, _), (_, t) in zip(seps_i, seps_r))
+    # albedos: A(I') = sum_k s_k(I') Int t_k + A_lobe(I'), B(R') = sum_k t_k(R') Int s_k + B_lobe
+    mixed_sep = (a_i * jnp.sum(wgi * sum(s * tk for (s, _), tk in zip(seps_i, t_int)))
+                 + b_r * jnp.sum(wgr * sum(t * sk for (_, t), sk in zip(seps_r, s_int))))
+    mixed_lobe = (a_i * jnp.sum(wgi * _interp_table(a_tab, ti, rule))
+                  + b_r * jnp.sum(wgr * _interp_table(b_tab, tr, rule)))
+    sep = sum(jnp.sum(wgi * s) * jnp.sum(wgr * t) for (s, _), (_, t) in zip(seps_i, seps_r))
     lobe = _lobe_lobe(brdf, medium, vb, vm, wi, wr, rule, half, facets)
-    return (td * td * c0 + td * tt * (term_li + term_ir)
-            + tt * tt * a_i * b_r * (sep + lobe))
+    ab = a_i * b_r
+    return jnp.stack([jnp.stack([c0_sep, c0_lobe]), jnp.stack([mixed_sep, mixed_lobe]),
+                      jnp.stack([ab * sep, ab * lobe])])
 
 
-def apparent_vectors(brdf_template, medium_template, rule, vb, vm, wi, wr, half=False,
-                     batch_size=None):
-    """Apparent reflectance for parameter vectors and unit direction arrays (M, 3).
+def _unit_scales(model, v):
+    for part in model.SCALES:
+        v = v.at[model.scale_index(part)].set(1.0)
+    return v
 
-    Pure JAX: differentiable with respect to ``vb`` and ``vm``; jit it from the caller.
+
+def combine_terms(brdf_cls, medium_cls, terms, vb, vm):
+    """Apparent reflectance from the term matrices (..., 3, 2) and the scale parameters."""
+    def scale(model, v, part):
+        i = model.scale_index(part)
+        return 1.0 if i is None else v[i]
+    td, tt = scale(medium_cls, vm, "iso"), scale(medium_cls, vm, "lobe")
+    ps, pl = scale(brdf_cls, vb, "separable"), scale(brdf_cls, vb, "lobe")
+    rows = jnp.stack([td * td, td * tt, tt * tt])
+    cols = jnp.stack([ps, pl])
+    return jnp.einsum("...mb,m,b->...", terms, rows, cols)
+
+
+def apparent_terms(brdf_template, medium_template, rule, vb, vm, wi, wr, half=False,
+                   batch_size=None):
+    """Term matrices (M, 3, 2) for unit direction arrays (M, 3); see :func:`_one_config`.
+
+    Pure JAX and differentiable in the non-scale parameters of ``vb`` and ``vm``.
     ``half=True`` is valid only when every configuration lies in the xz plane.
     """
     brdf = type(brdf_template)
-    shared = _shared(brdf, rule, vb)
+    vb1 = _unit_scales(brdf, jnp.asarray(vb))
+    vm1 = _unit_scales(type(medium_template), jnp.asarray(vm))
+    shared = _shared(brdf, rule, vb1)
 
     def f(x):
-        return _one_config(brdf, medium_template, rule, half, vb, vm, shared, x[0], x[1])
+        return _one_config(brdf, medium_template, rule, half, vb1, vm1, shared, x[0], x[1])
 
     if batch_size is None:  # keep the live intermediate arrays to a few hundred MB
         batch_size = max(1, min(64, 1_500_000 // rule.points_per_config))
     return jax.lax.map(f, (wi, wr), batch_size=batch_size)
+
+
+def apparent_vectors(brdf_template, medium_template, rule, vb, vm, wi, wr, half=False,
+                     batch_size=None):
+    """Apparent reflectance (M,) for parameter vectors and unit directions (M, 3)."""
+    terms = apparent_terms(brdf_template, medium_template, rule, vb, vm, wi, wr, half, batch_size)
+    return combine_terms(type(brdf_template), type(medium_template), terms, vb, vm)
 
 
 _TEMPLATES: dict = {}
@@ -305,6 +342,11 @@ def compiled(brdf, medium, rules, half=False):
     _TEMPLATES.setdefault(kb, brdf)
     _TEMPLATES.setdefault(km, medium)
     return _compiled(kb, km, tuple(rules), bool(half))
+
+
+def template(model):
+    """The cached template instance for a model's structure (static options only)."""
+    return _TEMPLATES.setdefault(model.structure(), model)
 
 
 @lru_cache(maxsize=64)

@@ -57,6 +57,15 @@ class Model:
     NAME: ClassVar[str]
     KIND: ClassVar[str]  # "brdf" or "btdf"
     PARAMS: ClassVar[tuple[Param, ...]]
+    #: Parameters that only scale one part of the model linearly, by part name
+    #: (BRDF parts: "separable", "lobe"; BTDF parts: "iso", "lobe"). The integrator computes
+    #: the parts with these set to 1, so fits get their derivatives for free.
+    SCALES: ClassVar[dict[str, str]] = {}
+
+    @classmethod
+    def scale_index(cls, part: str):
+        name = cls.SCALES.get(part)
+        return None if name is None else cls.param_names().index(name)
 
     def __post_init__(self) -> None:
         for p in self.PARAMS:

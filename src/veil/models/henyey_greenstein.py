@@ -31,6 +31,7 @@ class HenyeyGreenstein(BTDF):
     variant: str = "paper"
 
     NAME = "henyey-greenstein"
+    SCALES = {"iso": "Td", "lobe": "Tt"}
     PARAMS = (
         Param("Td", 0.0, math.inf, "isotropic multiple-scattering coefficient, relative units",
               log_scale=True),

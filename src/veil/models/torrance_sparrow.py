@@ -32,6 +32,7 @@ class TorranceSparrow(BRDF):
     eta: float
 
     NAME = "torrance-sparrow"
+    SCALES = {"separable": "Pd", "lobe": "Ps"}
     PARAMS = (
         Param("Pd", 0.0, math.inf, "diffuse coefficient, relative units", log_scale=True),
         Param("Ps", 0.0, math.inf, "specular coefficient, relative units", log_scale=True),
@@ -52,7 +53,8 @@ class TorranceSparrow(BRDF):
         hz = h[..., 2]
         ch = jnp.sum(wi * h, axis=-1)  # cos(theta_i'), the facet incidence angle
         if alpha is None:
-            alpha = jnp.arctan2(jnp.sqrt(h[..., 0] ** 2 + h[..., 1] ** 2), hz)
+            s2 = h[..., 0] ** 2 + h[..., 1] ** 2
+            alpha = jnp.where(s2 > 0, jnp.arctan2(jnp.sqrt(jnp.where(s2 > 0, s2, 1.0)), hz), 0.0)
         d = jnp.exp(-(n * DEG * alpha) ** 2)
         ok = (ci > 0) & (co > 0) & (ch > 0)
         ch_s = jnp.where(ok, ch, 1.0)

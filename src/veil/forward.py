@@ -1,0 +1,165 @@
+"""The apparent reflectance at a fixed set of configurations, as a function of parameters.
+
+This is what fits and renderers hold on to: the directions are converted, padded and split
+over the CPU devices once, and every evaluation (value, term matrices, Jacobians) reuses the
+compiled engine. Padding to a few bucket sizes keeps the number of compilations small.
+"""
+
+from __future__ import annotations
+
+import math
+from functools import lru_cache
+
+import numpy as np
+
+from ._jax import jax, jnp
+from . import integrator
+from .angles import direction
+from .models.base import BRDF, BTDF
+from .quadrature import Rule
+
+
+def _bucket(m: int, n_dev: int) -> int:
+    """Padded size: powers of two up to 64, then multiples of 64, divisible by n_dev."""
+    size = 8
+    while size < min(m, 64):
+        size *= 2
+    if m > 64:
+        size = 64 * math.ceil(m / 64)
+    return n_dev * math.ceil(size / n_dev)
+
+
+def _devices():
+    devs = jax.devices()
+    return devs if devs[0].platform == "cpu" else devs[:1]
+
+
+@lru_cache(maxsize=128)
+def _terms_fn(kb, km, rule: Rule, half: bool):
+    bt, mt = integrator._TEMPLATES[kb], integrator._TEMPLATES[km]
+
+    def fn(vb, vm, wi, wr):
+        return integrator.apparent_terms(bt, mt, rule, vb, vm, wi, wr, half)
+
+    return jax.jit(fn)
+
+
+@lru_cache(maxsize=128)
+def _terms_jac_fn(kb, km, rule: Rule, half: bool, nl_b: tuple, nl_m: tuple):
+    bt, mt = integrator._TEMPLATES[kb], integrator._TEMPLATES[km]
+    ib, im = jnp.asarray(nl_b, dtype=int), jnp.asarray(nl_m, dtype=int)
+
+    def fn(vb, vm, wi, wr):
+        def g(xb, xm):
+            return integrator.apparent_terms(bt, mt, rule, vb.at[ib].set(xb), vm.at[im].set(xm),
+                                             wi, wr, half)
+        xb, xm = vb[ib], vm[im]
+        return g(xb, xm), jax.jacfwd(g, argnums=(0, 1))(xb, xm)
+
+    return jax.jit(fn)
+
+
+class Forward:
+    """Apparent reflectance of ``brdf`` through ``medium`` at fixed configurations.
+
+    Parameters are passed as vectors in the models' declaration order (``model.to_vector()``);
+    the models given here fix only the code path (class and options such as the variant).
+    """
+
+    def __init__(self, brdf: BRDF, medium: BTDF, theta_i, theta_r, phi_i=180.0, phi_r=0.0,
+                 rule: Rule | None = None):
+        from .apparent import RULES, check_angles
+
+        self.brdf, self.medium = brdf, medium
+        self.rule = rule or RULES["default"]
+        ti, tr, pi_, pr = (a.ravel() for a in check_angles(theta_i, theta_r, phi_i, phi_r))
+        self.size = ti.size
+        if self.size == 0:
+            raise ValueError("no configurations to evaluate")
+        wi = np.asarray(direction(ti, pi_))
+        wr = np.asarray(direction(tr, pr))
+        # in the plane of incidence the integrand is symmetric under y -> -y
+        self.half = bool(np.all(np.abs(wi[:, 1]) < 1e-12) and np.all(np.abs(wr[:, 1]) < 1e-12))
+        self.devices = _devices()
+        n_dev = min(len(self.devices), max(1, self.size // 8))
+        self.devices = self.devices[:n_dev]
+        padded = _bucket(self.size, n_dev)
+        idx = np.minimum(np.arange(padded), self.size - 1)
+        chunks = np.array_split(idx, n_dev)
+        self._chunks = [(jax.device_put(wi[c], d), jax.device_put(wr[c], d))
+                        for c, d in zip(chunks, self.devices)]
+        self._kb = integrator.template(brdf).structure()
+        self._km = integrator.template(medium).structure()
+
+    # ----------------------------------------------------------------------------------
+    def _run(self, fn, vb, vm):
+        outs = []
+        for (wi, wr), dev in zip(self._chunks, self.devices):
+            outs.append(fn(jax.device_put(vb, dev), jax.device_put(vm, dev), wi, wr))
+        return outs
+
+    def terms(self, vb, vm) -> np.ndarray:
+        """Term matrices (M, 3, 2) with scale parameters set to 1 (see integrator)."""
+        fn = _terms_fn(self._kb, self._km, self.rule, self.half)
+        vb, vm = jnp.asarray(vb, dtype=float), jnp.asarray(vm, dtype=float)
+        outs = self._run(fn, vb, vm)
+        return np.concatenate([np.asarray(o) for o in outs])[: self.size]
+
+    def combine(self, terms, vb, vm) -> np.ndarray:
+        return np.asarray(integrator.combine_terms(type(self.brdf), type(self.medium),
+                                                   jnp.asarray(terms), jnp.asarray(vb, dtype=float),
+                                                   jnp.asarray(vm, dtype=float)))
+
+    def __call__(self, vb, vm) -> np.ndarray:
+        return self.combine(self.terms(vb, vm), vb, vm)
+
+    def value_and_jacobian(self, vb, vm, free_brdf=(), free_medium=()):
+        """Values (M,) and the Jacobian (M, len(free_brdf) + len(free_medium)).
+
+        ``free_*`` are parameter indices. Scale parameters (``Model.SCALES``) are
+        differentiated analytically from the term matrices; the others by forward-mode
+        automatic differentiation through the quadrature (exact for the discrete rule).
+        """
+        bcls, mcls = type(self.brdf), type(self.medium)
+        scale_b = {bcls.scale_index(p): p for p in bcls.SCALES}
+        scale_m = {mcls.scale_index(p): p for p in mcls.SCALES}
+        nl_b = tuple(i for i in free_brdf if i not in scale_b)
+        nl_m = tuple(i for i in free_medium if i not in scale_m)
+        vb = jnp.asarray(vb, dtype=float)
+        vm = jnp.asarray(vm, dtype=float)
+        fn = _terms_jac_fn(self._kb, self._km, self.rule, self.half, nl_b, nl_m)
+        outs = self._run(fn, vb, vm)
+        terms = np.concatenate([np.asarray(o[0]) for o in outs])[: self.size]
+        jb = np.concatenate([np.asarray(o[1][0]) for o in outs])[: self.size]  # (M,3,2,kb)
+        jm = np.concatenate([np.asarray(o[1][1]) for o in outs])[: self.size]
+        value = self.combine(terms, vb, vm)
+        td, tt, ps, pl = self._scales(vb, vm)
+        rows = np.array([td * td, td * tt, tt * tt])
+        cols = np.array([ps, pl])
+        columns = []
+        for i in free_brdf:
+            if i in scale_b:
+                part = 0 if scale_b[i] == "separable" else 1
+                columns.append(np.einsum("mk,m->k", terms[:, :, part].T, rows))
+            else:
+                k = nl_b.index(i)
+                columns.append(np.einsum("kmb,m,b->k", jb[..., k], rows, cols))
+        for i in free_medium:
+            if i in scale_m:
+                drows = (np.array([2 * td, tt, 0.0]) if scale_m[i] == "iso"
+                         else np.array([0.0, td, 2 * tt]))
+                columns.append(np.einsum("kmb,m,b->k", terms, drows, cols))
+            else:
+                k = nl_m.index(i)
+                columns.append(np.einsum("kmb,m,b->k", jm[..., k], rows, cols))
+        jac = np.stack(columns, axis=1) if columns else np.zeros((self.size, 0))
+        return value, jac
+
+    def _scales(self, vb, vm):
+        bcls, mcls = type(self.brdf), type(self.medium)
+
+        def get(cls, v, part):
+            i = cls.scale_index(part)
+            return 1.0 if i is None else float(v[i])
+        return (get(mcls, vm, "iso"), get(mcls, vm, "lobe"), get(bcls, vb, "separable"),
+                get(bcls, vb, "lobe"))
