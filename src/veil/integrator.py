@@ -103,13 +103,19 @@ def polar_angle(h):
     return jnp.where(pos, jnp.arctan2(jnp.sqrt(jnp.where(pos, s2, 1.0)), h[..., 2]), 0.0)
 
 
+def dot3(a, b):
+    """a . b over the last axis, written out (XLA fuses it; a reduction it would not)."""
+    return a[..., 0] * b[..., 0] + a[..., 1] * b[..., 1] + a[..., 2] * b[..., 2]
+
+
 def _reflect(d, h):
-    return 2.0 * jnp.sum(d * h, axis=-1, keepdims=True) * h - d
+    return 2.0 * dot3(d, h)[..., None] * h - d
 
 
 def _half_distance(a, b):
     """1 - a.b for unit vectors, without cancellation."""
-    return 0.5 * jnp.sum((a - b) ** 2, axis=-1)
+    return 0.5 * ((a[..., 0] - b[..., 0]) ** 2 + (a[..., 1] - b[..., 1]) ** 2
+                  + (a[..., 2] - b[..., 2]) ** 2)
 
 
 # --------------------------------------------------------------------------------------
@@ -218,7 +224,7 @@ def _lobe_lobe(brdf, medium, vb, vm, wi, wr, rule: Rule, half: bool, facets):
     h, alpha, uh, qh = facets  # (1, NH, 3), (1, NH), (1, NH), (1, NH)
 
     def balanced(p_i, p_r, c, q_h, lobe):
-        """lobe p_i p_r / (q_A + q_B + q_C) with the untruncated densities."""
+        """lobe p_i p_r / (q_A + q_B + q_C) with the untruncated densities (balance rule)."""
         den = q_h * (p_i + p_r) / (4.0 * c) + p_i * p_r
         ok = (c > 0) & (den > 0)
         return jnp.where(ok, lobe * p_i * p_r / jnp.where(ok, den, 1.0), 0.0)
@@ -226,7 +232,7 @@ def _lobe_lobe(brdf, medium, vb, vm, wi, wr, rule: Rule, half: bool, facets):
     # A: I' on the phase grid about I, H on the facet grid, R' its mirror image
     i2 = gi[:, None, :]
     r2 = _reflect(i2, h)
-    c = jnp.sum(i2 * h, axis=-1)
+    c = dot3(i2, h)
     p_r = medium.phase(vm, _half_distance(r2, wr))
     val = balanced(pi_[:, None], p_r, c, qh, brdf.lobe(vb, i2, r2, h, alpha))
     val = val * medium.factor_first(vm, r2[..., 2]) * bi[:, None]
@@ -235,7 +241,7 @@ def _lobe_lobe(brdf, medium, vb, vm, wi, wr, rule: Rule, half: bool, facets):
     # B: R' on the phase grid about R, H on the facet grid, I' its mirror image
     r2 = grb[:, None, :]
     i2 = _reflect(r2, h)
-    c = jnp.sum(r2 * h, axis=-1)
+    c = dot3(r2, h)
     p_i = medium.phase(vm, _half_distance(i2, wi))
     val = balanced(p_i, prb[:, None], c, qh, brdf.lobe(vb, i2, r2, h, alpha))
     val = val * arb[:, None] * medium.factor_second(vm, i2[..., 2])
@@ -245,9 +251,9 @@ def _lobe_lobe(brdf, medium, vb, vm, wi, wr, rule: Rule, half: bool, facets):
     i2 = gi[:, None, :]
     r2 = gr[None, :, :]
     s = i2 + r2
-    hh = s / jnp.maximum(jnp.linalg.norm(s, axis=-1, keepdims=True), 1e-300)
+    hh = s / jnp.sqrt(jnp.maximum(dot3(s, s), 1e-300))[..., None]
     alpha_c = polar_angle(hh)
-    c = jnp.sum(i2 * hh, axis=-1)
+    c = dot3(i2, hh)
     q_h = brdf.facet_weight(vb, alpha_c) / brdf.facet_cdf(vb, HALF_PI)
     val = balanced(pi_[:, None], pr[None, :], c, q_h, brdf.lobe(vb, i2, r2, hh, alpha_c))
     val = val * bi[:, None] * ar[None, :]

@@ -22,7 +22,11 @@ def main():
 from . import eval_cmd  # noqa: E402
 from . import ingest_cmd  # noqa: E402
 from . import simulate_cmd  # noqa: E402
+from . import render_cmd, plot_cmd, reproduce_cmd  # noqa: E402
 
 main.add_command(eval_cmd.eval_command)
 main.add_command(ingest_cmd.ingest_command)
 main.add_command(simulate_cmd.simulate_command)
+main.add_command(render_cmd.render_command)
+main.add_command(plot_cmd.plot_command)
+main.add_command(reproduce_cmd.reproduce_command)

@@ -1,0 +1,102 @@
+"""``veil plot lobe|transmission|curve``: single figures of the experiment with the user's
+parameters (docs/figures.md; :mod:`veil.figures`)."""
+
+from __future__ import annotations
+
+import click
+
+from ._common import UserError, parse_brdf, parse_btdf
+from .render_cmd import output_path
+
+FIGURE_SUFFIXES = (".png", ".pdf", ".svg")
+
+
+def _theta_i(value):
+    if not 0.0 <= value < 90.0:
+        raise UserError(f"--theta-i {value:g} deg is outside [0, 90)")
+    return value
+
+
+def _save(fig, output):
+    import matplotlib.pyplot as plt
+
+    from ..figures import save_figure
+
+    try:
+        save_figure(fig, output)
+    finally:
+        plt.close(fig)
+    click.echo(f"wrote {output}")
+
+
+@click.group("plot")
+def plot_command():
+    """Single figures: reflection lobe, transmission lobe, observed-value curve."""
+
+
+@plot_command.command("lobe")
+@click.option("--brdf", "brdfs", multiple=True, required=True,
+              help="Object (repeatable): preset or 'PD,PS,N,ETA'.")
+@click.option("--theta-i", type=float, default=45.0, show_default=True,
+              help="Incidence angle, degrees.")
+@click.option("-o", "--output", required=True, help="Output figure (.png, .pdf or .svg).")
+def lobe(brdfs, theta_i, output):
+    """Reflection lobe f_r (as the paper's fig. 9): in and out of the plane of incidence."""
+    from ..figures import fig9
+
+    models = [parse_brdf(b) for b in brdfs]
+    _theta_i(theta_i)
+    output_path(output, FIGURE_SUFFIXES, "output")
+    _save(fig9(models, theta_i), output)
+
+
+@plot_command.command("transmission")
+@click.option("--medium", "media", multiple=True, required=True,
+              help="Medium (repeatable): preset or 'TD,TT,G,ETA'.")
+@click.option("--variant", type=click.Choice(["paper", "exit"]), default="paper",
+              show_default=True, help="Fresnel factors of the medium (MODEL.md sec. 3).")
+@click.option("--theta-i", type=float, default=45.0, show_default=True,
+              help="Incidence angle, degrees.")
+@click.option("-o", "--output", required=True, help="Output figure (.png, .pdf or .svg).")
+def transmission(media, variant, theta_i, output):
+    """Transmission lobe f_t (as the paper's fig. 10) against the transmitted direction."""
+    from ..figures import fig10
+
+    models = [parse_btdf(m, variant) for m in media]
+    if any(m is None for m in models):
+        raise UserError("--medium none has no transmission lobe; give a preset or 'TD,TT,G,ETA'")
+    _theta_i(theta_i)
+    output_path(output, FIGURE_SUFFIXES, "output")
+    _save(fig10(models, theta_i), output)
+
+
+@plot_command.command("curve")
+@click.option("--brdf", "brdfs", multiple=True, required=True,
+              help="Object (repeatable): preset or 'PD,PS,N,ETA'.")
+@click.option("--medium", "media", multiple=True, default=("none",), show_default=True,
+              help="Medium (repeatable): preset, 'TD,TT,G,ETA' or 'none' (clear).")
+@click.option("--variant", type=click.Choice(["paper", "exit"]), default="paper",
+              show_default=True, help="Fresnel factors of the media (MODEL.md sec. 3).")
+@click.option("--theta-i", type=float, default=45.0, show_default=True,
+              help="Incidence angle, degrees.")
+@click.option("--scale", type=click.Choice(["log", "linear", "peak", "tt2"]), default="log",
+              show_default=True,
+              help="y axis: log or linear f; peak: each curve over its own peak; tt2: f / T_t^2.")
+@click.option("--accuracy", type=click.Choice(["fast", "default", "high"]), default="default",
+              show_default=True, help="Quadrature of the engine.")
+@click.option("-o", "--output", required=True, help="Output figure (.png, .pdf or .svg).")
+def curve(brdfs, media, variant, theta_i, scale, accuracy, output):
+    """Observed value against reflection angle in the plane of incidence (as fig. 11)."""
+    from ..figures import fig_curve, inplane_curve
+
+    b_models = [parse_brdf(b) for b in brdfs]
+    m_models = [parse_btdf(m, variant) for m in media]
+    _theta_i(theta_i)
+    output_path(output, FIGURE_SUFFIXES, "output")
+    curves = [inplane_curve(b, m, theta_i, accuracy=accuracy) for b in b_models for m in m_models]
+    for c in curves:
+        med = "clear" if c.medium is None else str(c.medium)
+        mt = c.metrics
+        click.echo(f"{c.brdf} / {med}: peak {mt.peak:.4g} at {mt.peak_angle:.2f} deg, "
+                   f"FWHM {mt.fwhm:.2f} deg, f(0 deg) {mt.off_peak:.4g}")
+    _save(fig_curve(curves, scale), output)

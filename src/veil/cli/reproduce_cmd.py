@@ -1,0 +1,133 @@
+"""``veil reproduce``: the paper's simulation experiment (sec. 5.1, figs. 9-12) from the
+presets of MODEL.md sec. 6, as figures, data and a report (docs/figures.md)."""
+
+from __future__ import annotations
+
+import os
+import time
+
+import click
+
+from ._common import UserError
+
+#: Figure files (without suffix) by figure.
+FIGURES = {"fig9": "fig09_reflection_lobes", "fig10": "fig10_transmission_lobes",
+           "fig11": "fig11_observed_values", "fig12": "fig12_spheres"}
+
+
+def _outdir(path):
+    path = os.path.abspath(path)
+    if os.path.exists(path) and not os.path.isdir(path):
+        raise UserError(f"output directory {path} exists and is not a directory")
+    parent = os.path.dirname(path)
+    if not os.path.isdir(parent):
+        raise UserError(f"cannot create {path}: directory {parent} does not exist")
+    os.makedirs(os.path.join(path, "spheres"), exist_ok=True)
+    if not os.access(path, os.W_OK):
+        raise UserError(f"output directory {path} is not writable")
+    return path
+
+
+def curves_csv(exp) -> str:
+    """The fig. 11 curves as CSV: theta_r, then one column per object/medium pair."""
+    keys = list(exp.curves)
+    theta = exp.curves[keys[0]].theta_r
+    lines = ["theta_r_deg," + ",".join(f"{b}/{m}" for b, m in keys)]
+    for k, t in enumerate(theta):
+        lines.append(f"{t:g}," + ",".join(f"{exp.curves[key].values[k]:.9g}" for key in keys))
+    return "\n".join(lines) + "\n"
+
+
+@click.command("reproduce", short_help="Regenerate the paper's simulation experiment (figs. 9-12, report).")
+@click.option("-o", "--output", "outdir", required=True,
+              help="Output directory (created if missing; files in it are replaced).")
+@click.option("--size", type=int, default=256, show_default=True,
+              help="Size of the rendered spheres (fig. 12), pixels.")
+@click.option("--accuracy", type=click.Choice(["fast", "default", "high"]), default="default",
+              show_default=True, help="Quadrature of the fig. 11 curves.")
+@click.option("--render-accuracy", type=click.Choice(["fast", "default", "high"]),
+              default="fast", show_default=True,
+              help="Quadrature of the fig. 12 sphere tables.")
+@click.option("--check", type=int, default=64, show_default=True,
+              help="Pixels per sphere evaluated directly to measure the interpolation error.")
+@click.option("--dpi", type=int, default=150, show_default=True,
+              help="Resolution of the PNG figures (dots per inch).")
+@click.option("--quiet", is_flag=True, help="No progress display.")
+def reproduce_command(outdir, size, accuracy, render_accuracy, check, dpi, quiet):
+    """Regenerate the paper's simulation experiment: figs. 9-12 (PNG and PDF), the fig. 11
+    curves (CSV), the fig. 12 spheres (PNG) and report.md / report.html."""
+    import io
+
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    from ..figures import (fig9, fig10, fig11, fig12, figure_bytes, run_experiment,
+                           write_bytes_atomic)
+    from ..render import png_bytes, tone_map
+    from ..report import write_report
+
+    if not 16 <= size <= 2048:
+        raise UserError(f"--size {size} must be between 16 and 2048 pixels")
+    if not 0 <= check <= 4096:
+        raise UserError(f"--check {check} must be between 0 and 4096 pixels")
+    if not 30 <= dpi <= 600:
+        raise UserError(f"--dpi {dpi} must be between 30 and 600")
+    outdir = _outdir(outdir)
+    t0 = time.perf_counter()
+
+    progress = task = None
+    if not quiet:
+        from rich.console import Console
+        from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+        progress = Progress(TextColumn("{task.description:<40}"), BarColumn(),
+                            TextColumn("{task.completed}/{task.total}"), TimeElapsedColumn(),
+                            console=Console(stderr=True), transient=True)
+        progress.start()
+        task = progress.add_task("starting", total=20)
+
+    def step(message, done, total):
+        if progress is not None:
+            progress.update(task, description=message, completed=done, total=total + 4)
+
+    try:
+        exp = run_experiment(size=size, accuracy=accuracy, render_accuracy=render_accuracy,
+                             check=check, progress=step)
+        files = {}
+        drawers = {"fig9": lambda: fig9(list(exp.brdfs.values()), exp.theta_i, list(exp.brdfs)),
+                   "fig10": lambda: fig10(list(exp.media.values()), exp.theta_i, list(exp.media)),
+                   "fig11": lambda: fig11(exp), "fig12": lambda: fig12(exp)}
+        n_steps = 2 * len(exp.curves)
+        for k, (key, draw) in enumerate(drawers.items()):
+            step(f"drawing {key}", n_steps + k, n_steps)
+            fig = draw()
+            try:
+                for fmt in ("png", "pdf"):
+                    name = f"{FIGURES[key]}.{fmt}"
+                    write_bytes_atomic(os.path.join(outdir, name), figure_bytes(fig, fmt, dpi))
+                files[key] = f"{FIGURES[key]}.png"
+            finally:
+                plt.close(fig)
+        for (b, m), st in exp.stats.items():
+            img = tone_map(exp.renders[(b, m)].image, st.exposure, "reinhard")
+            meta = {"veil:exposure": f"{st.exposure:.6g}", "veil:tone": "reinhard",
+                    "veil:brdf": str(exp.brdfs[b]),
+                    "veil:medium": "clear" if m == "clear" else str(exp.media[m])}
+            write_bytes_atomic(os.path.join(outdir, "spheres", f"{b}_{m}.png"), png_bytes(img, meta))
+            buf = io.BytesIO()
+            np.save(buf, exp.renders[(b, m)].image.astype(np.float32))
+            write_bytes_atomic(os.path.join(outdir, "spheres", f"{b}_{m}.npy"), buf.getvalue())
+        write_bytes_atomic(os.path.join(outdir, "fig11_curves.csv"), curves_csv(exp).encode())
+        md, page = write_report(exp, outdir, files)
+    finally:
+        if progress is not None:
+            progress.stop()
+
+    for (b, m), c in exp.curves.items():
+        mt = c.metrics
+        click.echo(f"{b:6s} {m:6s} peak {mt.peak:10.4g} at {mt.peak_angle:5.2f} deg  "
+                   f"FWHM {mt.fwhm:5.1f} deg  f(0 deg) {mt.off_peak:9.4g}")
+    worst = max((r.max_rel_error for r in exp.renders.values()), default=0.0)
+    click.echo(f"spheres: worst interpolation error {100 * worst:.2g} % (angles <= 80 deg)")
+    click.echo(f"wrote figures, spheres/, fig11_curves.csv, {os.path.basename(md)} and "
+               f"{os.path.basename(page)} to {outdir} in {time.perf_counter() - t0:.0f} s")
