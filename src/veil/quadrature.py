@@ -75,8 +75,8 @@ class Rule:
 
     phase_radial: int = 10
     phase_azimuth: int = 16
-    half_radial: int = 8
-    half_azimuth: int = 16
+    half_radial: int = 6
+    half_azimuth: int = 12
     dense_radial: int = 24
     dense_azimuth: int = 32
     table: int = 181

@@ -140,8 +140,9 @@ class BRDF(Model):
         raise NotImplementedError
 
     @staticmethod
-    def facet_weight(v, alpha):  # pragma: no cover - interface
-        """d facet_cdf / d alpha / (2 pi sin alpha): density per steradian, cdf units."""
+    def facet_weight(v, alpha, sin_alpha=None):  # pragma: no cover - interface
+        """d facet_cdf / d alpha / (2 pi sin alpha): density per steradian, cdf units
+        (``sin_alpha`` may be passed when known)."""
         raise NotImplementedError
 
     @classmethod

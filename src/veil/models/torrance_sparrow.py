@@ -77,8 +77,10 @@ class TorranceSparrow(BRDF):
         return jnp.sqrt(-jnp.log1p(-y)) / c
 
     @staticmethod
-    def facet_weight(v, alpha):
+    def facet_weight(v, alpha, sin_alpha=None):
         c = v[2] * DEG
-        ratio = jnp.where(alpha > 1e-6, alpha / jnp.sin(jnp.where(alpha > 1e-6, alpha, 1.0)),
-                          1.0 + alpha * alpha / 6.0)
+        if sin_alpha is None:
+            sin_alpha = jnp.sin(alpha)
+        big = alpha > 1e-6
+        ratio = jnp.where(big, alpha / jnp.where(big, sin_alpha, 1.0), 1.0 + alpha * alpha / 6.0)
         return c * c * ratio * jnp.exp(-(c * alpha) ** 2) / math.pi
