@@ -29,7 +29,7 @@ import time
 import numpy as np
 
 import veil  # noqa: F401  (sets up JAX: float64, one CPU device per core)
-from veil.apparent import RULES
+from veil.apparent import ERROR_FACTOR, FINER, RULES
 from veil.forward import Forward
 from veil.models import PRESETS
 
@@ -211,8 +211,13 @@ def main(argv=None):
         fwd(vb, vm)  # compile
         val, secs = timed(lambda: fwd(vb, vm))
         ref = Forward(b, m, ti, tr, rule=RULES["default"].scaled(3.0))(vb, vm)
-        err = np.max(np.abs(val / ref - 1.0))
-        rows.append([bn, mn, len(cfg), secs, len(cfg) / secs, err])
+        actual = np.abs(val / ref - 1.0)
+        err = np.max(actual)
+        finer = Forward(b, m, ti, tr, rule=FINER["default"])(vb, vm)
+        estimate = ERROR_FACTOR * np.abs(val - finer) / np.abs(val)
+        cover = np.mean(estimate >= actual)
+        ratio = np.median(estimate / np.maximum(actual, 1e-15))
+        rows.append([bn, mn, len(cfg), secs, len(cfg) / secs, err, estimate.max(), cover, ratio])
         print(f"engine  {bn} x {mn}: {len(cfg) / secs:8.0f} configurations/s, "
               f"max relative error {err:.1e}", flush=True)
 
@@ -231,10 +236,15 @@ def main(argv=None):
     print()
     print("| pair | configurations | seconds | configurations/s | max relative error | speed-up over baseline |")
     print("|---|---:|---:|---:|---:|---:|")
-    for bn, mn, n, secs, rate, err in rows:
+    for bn, mn, n, secs, rate, err, *_ in rows:
         print(f"| {bn} x {mn} | {n} | {secs:.3f} | {rate:.0f} | {err:.1e} | {rate / mc_rate:.0f}x |")
     print(f"| baseline MC, BRDF1 x BTDF1 | {len(sel)} | {mc_secs:.1f} | {mc_rate:.3f} | "
           f"{np.max(np.abs(mc / ref_sel - 1)):.1e} | 1x |")
+    print("\nerror estimate (return_error=True) against the actual error:")
+    print("| pair | max estimate | share of configurations covered | median estimate / actual |")
+    print("|---|---:|---:|---:|")
+    for bn, mn, _, _, _, _, est, cover, ratio in rows:
+        print(f"| {bn} x {mn} | {est:.1e} | {cover:.0%} | {ratio:.1f} |")
     print(f"\nbaseline: {n_needed:,} samples per configuration (pilot relative standard error "
           f"{np.max(rel):.2e} at {pilot_n:,}; target 5e-4); "
           f"engine/baseline speed ratio on BRDF1 x BTDF1: {eng_rate / mc_rate:.0f}")

@@ -23,8 +23,8 @@ RULES = {
     "high": Rule().scaled(2.0),
 }
 #: The error estimate is twice the difference to a rule with 1.3 times the nodes per
-#: dimension: measured against a converged reference it covers the actual error at nearly
-#: every configuration and overstates it about twofold (docs/performance.md).
+#: dimension: measured against a converged reference it covers the actual error at
+#: most configurations and overstates it about twofold (docs/performance.md).
 FINER = {name: rule.scaled(1.3) for name, rule in RULES.items()}
 ERROR_FACTOR = 2.0
 
