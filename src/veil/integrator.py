@@ -26,7 +26,6 @@ integrand is symmetric under y -> -y and only half of the azimuths are evaluated
 from __future__ import annotations
 
 import math
-from functools import lru_cache
 
 import numpy as np
 
@@ -383,38 +382,9 @@ def apparent_terms(brdf_template, medium_template, rule, vb, vm, wi, wr, half=Fa
     return jax.lax.map(f, (wi, wr), batch_size=batch_size)
 
 
-def apparent_vectors(brdf_template, medium_template, rule, vb, vm, wi, wr, half=False,
-                     batch_size=None):
-    """Apparent reflectance (M,) for parameter vectors and unit directions (M, 3)."""
-    terms = apparent_terms(brdf_template, medium_template, rule, vb, vm, wi, wr, half, batch_size)
-    return combine_terms(type(brdf_template), type(medium_template), terms, vb, vm)
-
-
 _TEMPLATES: dict = {}
-
-
-def compiled(brdf, medium, rules, half=False):
-    """A jitted function (vb, vm, wi, wr) -> tuple of values, one per rule in ``rules``.
-
-    Cached by the models' structure (class and static options), never by parameter values.
-    """
-    kb, km = brdf.structure(), medium.structure()
-    _TEMPLATES.setdefault(kb, brdf)
-    _TEMPLATES.setdefault(km, medium)
-    return _compiled(kb, km, tuple(rules), bool(half))
 
 
 def template(model):
     """The cached template instance for a model's structure (static options only)."""
     return _TEMPLATES.setdefault(model.structure(), model)
-
-
-@lru_cache(maxsize=64)
-def _compiled(kb, km, rules, half):
-    brdf_template, medium_template = _TEMPLATES[kb], _TEMPLATES[km]
-
-    def fn(vb, vm, wi, wr):
-        return tuple(apparent_vectors(brdf_template, medium_template, r, vb, vm, wi, wr, half)
-                     for r in rules)
-
-    return jax.jit(fn)

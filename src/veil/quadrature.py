@@ -29,13 +29,6 @@ def periodic_unit(n: int) -> tuple[np.ndarray, np.ndarray]:
     return (np.arange(n) + 0.5) / n, np.full(n, 1.0 / n)
 
 
-def product_unit(a, b):
-    """Tensor product of two 1D rules -> (u1, u2, w), flattened."""
-    (x1, w1), (x2, w2) = a, b
-    u1, u2 = np.meshgrid(x1, x2, indexing="ij")
-    return u1.ravel(), u2.ravel(), np.outer(w1, w2).ravel()
-
-
 def frame(center):
     """Orthonormal frame (t1, t2) about unit vectors ``center`` (..., 3).
 
@@ -101,5 +94,4 @@ class Rule:
         return 2 * g * h + g * g + 2 * self.dense_radial * self.dense_azimuth
 
 
-__all__ = ["Rule", "gauss_legendre_unit", "periodic_unit", "product_unit", "frame",
-           "horizon_one_minus_mu", "math"]
+__all__ = ["Rule", "gauss_legendre_unit", "periodic_unit", "frame", "horizon_one_minus_mu"]
