@@ -35,12 +35,13 @@ def from_signed_inplane(theta_i, theta_r):
 def to_signed_inplane(theta_i, phi_i, theta_r, phi_r, tol=1e-6):
     """Inverse of :func:`from_signed_inplane`; raises ``ValueError`` for out-of-plane rows."""
     ti, pi_, tr, pr = (np.asarray(a, dtype=float) for a in (theta_i, phi_i, theta_r, phi_r))
-    pi_ = np.mod(pi_, 360.0)
-    pr = np.mod(pr, 360.0)
+
+    def distance(phi, target):  # angular distance in degrees, wrap-around safe
+        return np.abs(np.mod(phi - target + 180.0, 360.0) - 180.0)
 
     def side(theta, phi, positive_at):
-        on_pos = np.isclose(phi, positive_at, atol=tol) | (theta < tol)
-        on_neg = np.isclose(np.mod(phi + 180.0, 360.0), positive_at, atol=tol)
+        on_pos = (distance(phi, positive_at) <= tol) | (theta < tol)
+        on_neg = distance(phi, positive_at + 180.0) <= tol
         if not np.all(on_pos | on_neg):
             bad = np.flatnonzero(~(on_pos | on_neg))
             raise ValueError(f"rows {bad.tolist()} are not in the plane of incidence (phi not 0 or 180 deg)")

@@ -8,6 +8,7 @@ compiled engine. Padding to a few bucket sizes keeps the number of compilations 
 from __future__ import annotations
 
 import math
+import operator
 from functools import lru_cache
 
 import numpy as np
@@ -71,7 +72,10 @@ class Forward:
         from .apparent import RULES, check_angles
 
         self.brdf, self.medium = brdf, medium
-        self.rule = rule or RULES["default"]
+        self.rule = RULES["default"] if rule is None else rule
+        if not isinstance(self.rule, Rule):
+            raise TypeError(f"rule must be a veil.quadrature.Rule, got {rule!r} (for a named "
+                            "accuracy use veil.apparent.RULES[name])")
         ti, tr, pi_, pr = (a.ravel() for a in check_angles(theta_i, theta_r, phi_i, phi_r))
         self.size = ti.size
         if self.size == 0:
@@ -98,10 +102,30 @@ class Forward:
             outs.append(fn(jax.device_put(vb, dev), jax.device_put(vm, dev), wi, wr))
         return outs
 
+    def _vectors(self, vb, vm):
+        out = []
+        for name, v, cls in (("brdf", vb, type(self.brdf)), ("medium", vm, type(self.medium))):
+            v = np.asarray(v, dtype=float)
+            if v.shape != (len(cls.PARAMS),):
+                raise ValueError(f"{name} parameter vector has shape {v.shape}; expected "
+                                 f"({len(cls.PARAMS)},) for {', '.join(cls.param_names())}")
+            if not np.all(np.isfinite(v)):
+                raise ValueError(f"{name} parameter vector {v.tolist()} has a non-finite value")
+            out.append(jnp.asarray(v))
+        return out
+
+    def _indices(self, indices, cls):
+        n = len(cls.PARAMS)
+        try:
+            return tuple(range(n)[operator.index(i)] for i in indices)
+        except (IndexError, TypeError):
+            raise IndexError(f"parameter indices {tuple(indices)!r} are not all integers in "
+                             f"[-{n}, {n}) for {', '.join(cls.param_names())}") from None
+
     def terms(self, vb, vm) -> np.ndarray:
         """Term matrices (M, 3, 2) with scale parameters set to 1 (see integrator)."""
         fn = _terms_fn(self._kb, self._km, self.rule, self.half)
-        vb, vm = jnp.asarray(vb, dtype=float), jnp.asarray(vm, dtype=float)
+        vb, vm = self._vectors(vb, vm)
         outs = self._run(fn, vb, vm)
         return np.concatenate([np.asarray(o) for o in outs])[: self.size]
 
@@ -121,12 +145,13 @@ class Forward:
         automatic differentiation through the quadrature (exact for the discrete rule).
         """
         bcls, mcls = type(self.brdf), type(self.medium)
+        free_brdf = self._indices(free_brdf, bcls)
+        free_medium = self._indices(free_medium, mcls)
         scale_b = {bcls.scale_index(p): p for p in bcls.SCALES}
         scale_m = {mcls.scale_index(p): p for p in mcls.SCALES}
         nl_b = tuple(i for i in free_brdf if i not in scale_b)
         nl_m = tuple(i for i in free_medium if i not in scale_m)
-        vb = jnp.asarray(vb, dtype=float)
-        vm = jnp.asarray(vm, dtype=float)
+        vb, vm = self._vectors(vb, vm)
         fn = _terms_jac_fn(self._kb, self._km, self.rule, self.half, nl_b, nl_m)
         outs = self._run(fn, vb, vm)
         terms = np.concatenate([np.asarray(o[0]) for o in outs])[: self.size]

@@ -17,9 +17,12 @@ very different difficulty, each integrated by the cheapest rule that is exact in
             densities of the three maps (any partition of unity is exact; this one makes the
             integrand smooth and bounded in every grid's coordinates).
 
-Every grid is truncated exactly at the horizon (phase grids: per azimuth about I or R;
-half-vector grids: per azimuth so that the reflected direction stays above the horizon), so
-no integrand is cut by a discontinuity. For configurations in the plane of incidence the
+Phase grids are truncated exactly at the horizon (per azimuth about I or R), and so are the
+half-vector grids of the albedo tables (per azimuth, so that the reflected direction stays
+above the horizon). The 4D term's half-vector grid is not truncated: where a reflected
+direction falls below the horizon its integrand is set to zero, which is a discontinuity
+only for an index-matched medium (eta_u = 1); otherwise the Fresnel transmittance and the
+shadowing term already take the integrand to zero there. For configurations in the plane of incidence the
 integrand is symmetric under y -> -y and only half of the azimuths are evaluated.
 """
 

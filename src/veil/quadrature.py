@@ -76,6 +76,19 @@ class Rule:
     table_radial: int = 24
     table_azimuth: int = 48
 
+    def __post_init__(self) -> None:
+        for name in ("phase_radial", "phase_azimuth", "half_radial", "half_azimuth",
+                     "dense_radial", "dense_azimuth", "table_radial", "table_azimuth"):
+            n = getattr(self, name)
+            if not isinstance(n, int) or n < 2:
+                raise ValueError(f"Rule.{name} = {n!r}; expected an integer >= 2")
+            if name.endswith("azimuth") and n % 2:
+                raise ValueError(f"Rule.{name} = {n}; azimuth counts must be even (the "
+                                 "in-plane symmetry pairs azimuths beta and -beta)")
+        if not isinstance(self.table, int) or self.table < 3 or self.table % 2 == 0:
+            raise ValueError(f"Rule.table = {self.table!r}; expected an odd integer >= 3 "
+                             "(Simpson's rule)")
+
     def scaled(self, factor: float) -> "Rule":
         def s(n, lo=2):
             return max(lo, int(round(n * factor)))

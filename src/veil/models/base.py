@@ -88,7 +88,11 @@ class Model:
                 if f.name not in names}
 
     def with_vector(self, vector) -> "Model":
-        values = dict(zip(self.param_names(), (float(x) for x in np.asarray(vector, float))))
+        vector = np.asarray(vector, float)
+        if vector.shape != (len(self.PARAMS),):
+            raise ValueError(f"{type(self).__name__} vector has shape {vector.shape}; expected "
+                             f"({len(self.PARAMS)},) for {', '.join(self.param_names())}")
+        values = dict(zip(self.param_names(), (float(x) for x in vector)))
         return dataclasses.replace(self, **values)
 
     def replace(self, **changes) -> "Model":
