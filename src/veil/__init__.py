@@ -9,6 +9,9 @@ from . import _jax  # noqa: F401  (float64 for JAX before anything else)
 from .apparent import apparent, reflectance
 from .measurements import load_measurements, save_measurements, subtract_black
 from .simulate import simulate
+from .fitting import FitResult, fit_medium, fit_reference, fit_target
+from .pipeline import run_pipeline
+from .joint import fit_joint
 from .models import (BRDF, BTDF, PRESETS, REGISTRY, HenyeyGreenstein, Model, Param,
                      TorranceSparrow, preset)
 
@@ -23,4 +26,5 @@ __version__ = "0.1.0"
 __all__ = ["apparent", "reflectance", "BRDF", "BTDF", "Model", "Param", "TorranceSparrow",
            "HenyeyGreenstein", "PRESETS", "REGISTRY", "preset", "BRDF1", "BRDF2", "BTDF1",
            "BTDF2", "BTDF3", "load_measurements", "save_measurements", "subtract_black",
-           "simulate"]
+           "simulate", "fit_reference", "fit_medium", "fit_target", "FitResult", "run_pipeline",
+           "fit_joint"]

@@ -1,0 +1,84 @@
+"""Benchmark of the joint fit (veil.fit_joint, docs/ambiguity.md; docs/performance.md "Joint fit").
+
+Three media sessions of about 120 configurations each (the paper's protocol, psi 30/60/90,
+with a 12 deg dense window): BRDF1 through BTDF1, BTDF2 and BTDF3, 1 % noise; the target's
+four parameters, each medium's Td, Tt, g and a shared eta_u are fitted (the scale fixed by
+Td of the first medium). "cold" is a fresh process (imports, engine compilation, data, fit);
+"warm" a second fit in a process that has compiled everything. Target: at most 30 s.
+
+    .venv/bin/python benchmarks/bench_joint.py
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import time
+
+PROTOCOL = dict(psi=(30, 60, 90), window=12.0)
+MEDIA = ("BTDF1", "BTDF2", "BTDF3")
+
+
+def sessions():
+    import veil
+
+    return {m: veil.simulate(veil.BRDF1, m, noise=0.01, seed=k, glow=0.0, accuracy="default",
+                             **PROTOCOL)
+            for k, m in enumerate(MEDIA)}
+
+
+def one_fit(tables, accuracy):
+    import veil
+
+    t0 = time.perf_counter()
+    r = veil.fit_joint(tables, fixed={"Td[BTDF1]": 1e-3}, accuracy=accuracy)
+    seconds = time.perf_counter() - t0
+    return {"seconds": seconds, "converged": r.converged, "n": r.params["n"],
+            "n_se": r.stderr["n"], "nfev": r.stats["nfev"], "njev": r.stats["njev"],
+            "starts": r.stats["starts"], "points": r.n_points, "free": len(r.free),
+            "chi2": r.chi2_reduced}
+
+
+def cold(accuracy):
+    """Fresh process: import, simulate (not timed), fit (timed with its compilations)."""
+    t0 = time.perf_counter()
+    import veil  # noqa: F401
+    t_import = time.perf_counter() - t0
+    tables = sessions()
+    out = one_fit(tables, accuracy)
+    out["import"] = t_import
+    print(json.dumps(out))
+
+
+def main():
+    if len(sys.argv) == 3 and sys.argv[1] == "--cold":
+        cold(sys.argv[2])
+        return
+    env = dict(os.environ)
+    rows = []
+    for accuracy in ("fast", "default"):
+        proc = subprocess.run([sys.executable, __file__, "--cold", accuracy], env=env,
+                              capture_output=True, text=True, check=True)
+        c = json.loads(proc.stdout.strip().splitlines()[-1])
+        rows.append(("cold", accuracy, c))
+    tables = sessions()
+    for accuracy in ("fast", "default"):
+        one_fit(tables, accuracy)  # warm-up: every compilation of this accuracy
+        rows.append(("warm", accuracy, one_fit(tables, accuracy)))
+    sizes = "+".join(str(len(t)) for t in tables.values())
+    print(f"joint fit benchmark: BRDF1 through {', '.join(MEDIA)}, {sizes} configurations, "
+          f"1 % noise, {os.cpu_count()} cores")
+    print()
+    print("| run | accuracy | points | free params | starts | function / Jacobian evals "
+          "| seconds | n +/- stderr | converged |")
+    print("|---|---|---:|---:|---:|---:|---:|---|---|")
+    for kind, accuracy, r in rows:
+        print(f"| {kind} | {accuracy} | {r['points']} | {r['free']} | {r['starts']} "
+              f"| {r['nfev']} / {r['njev']} | {r['seconds']:.1f} "
+              f"| {r['n']:.4f} +/- {r['n_se']:.4f} | {'yes' if r['converged'] else 'NO'} |")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,157 @@
+"""``veil design``: recommend a measurement plan (MODEL.md sec. 1, 7; docs/ambiguity.md).
+
+Ranks goniometer configurations (psi, rho) under candidate medium conditions by how much
+they shrink the target's parameter uncertainty (greedy D_s-optimal selection on the Fisher
+information, :mod:`veil.design`), prints the plan and the conditions, and writes the plan as
+CSV (angles in degrees, each row's medium in medium_* columns). Exit status 2 for input
+mistakes.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from ._common import UserError, check_output_path, parse_brdf, parse_btdf
+
+
+def _floats(text, option):
+    values = []
+    for part in text.split(","):
+        part = part.strip()
+        try:
+            values.append(float(part))
+        except ValueError:
+            raise UserError(f"{option} {text!r}: {part!r} is not a number") from None
+    return tuple(values)
+
+
+def _se(name, value) -> str:
+    """Relative for log parameters (Ps/Pd, n), absolute for the index eta; "*" marks a value
+    at the level of the design's weak prior (the plan does not identify the parameter)."""
+    from ..design import PRIOR_SD_LOG, PRIOR_SD_PLAIN
+
+    prior = PRIOR_SD_PLAIN if name == "eta" else PRIOR_SD_LOG
+    mark = " *" if value > 0.3 * prior else ""
+    return (f"{value:.3g}" if name == "eta" else f"{100 * value:.3g} %") + mark
+
+
+@click.command("design")
+@click.option("--brdf", required=True, metavar="MODEL",
+              help="The expected target: preset (BRDF1, BRDF2) or literal 'PD,PS,N,ETA'.")
+@click.option("--medium", "media", required=True, multiple=True, metavar="MODEL",
+              help="A candidate medium: preset (BTDF1..3) or literal 'TD,TT,G,ETA'; repeat for "
+                   "several (e.g. concentrations).")
+@click.option("--factors", default=None, metavar="C,...",
+              help="Concentration factors scaling Td and Tt of every --medium (e.g. 0.5,1,2).")
+@click.option("--size", type=click.IntRange(min=1), default=60, show_default=True,
+              help="Number of measurements in the plan.")
+@click.option("--psi", default="30,45,60,75,90,105,120", show_default=True, metavar="DEG,...",
+              help="Candidate relative angles between light and camera, degrees.")
+@click.option("--fine-step", type=float, default=1.0, show_default=True,
+              help="Candidate rotation step near the mirror configuration, degrees.")
+@click.option("--window", type=float, default=10.0, show_default=True,
+              help="Half-width of the dense region around rho = 0, degrees.")
+@click.option("--coarse-step", type=float, default=5.0, show_default=True,
+              help="Candidate rotation step outside the window, degrees.")
+@click.option("--limit", type=float, default=85.0, show_default=True,
+              help="Keep configurations with both |theta| below this, degrees.")
+@click.option("--noise", type=click.FloatRange(min=0), default=0.01, show_default=True,
+              help="Relative noise of a measurement (0.01 = 1 %).")
+@click.option("--noise-floor", type=click.FloatRange(min=0), default=0.0, show_default=True,
+              help="Absolute noise floor, in value units (added in quadrature).")
+@click.option("--known-medium", is_flag=True,
+              help="Treat the media as exactly known (two-step view); default: their Td, Tt "
+                   "(and g, eta_u) are estimated too, as in 'veil fit joint'.")
+@click.option("--interest", default="Ps/Pd,n,eta", show_default=True, metavar="NAMES",
+              help="Target parameters whose uncertainty the plan should shrink.")
+@click.option("--variant", type=click.Choice(["paper", "exit"]), default="paper",
+              show_default=True, help="Fresnel factor of the media (MODEL.md sec. 3).")
+@click.option("--accuracy", type=click.Choice(["fast", "default", "high"]), default="fast",
+              show_default=True, help="Quadrature of the Jacobians.")
+@click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path),
+              help="CSV file for the plan (written atomically).")
+def design_command(brdf, media, factors, size, psi, fine_step, window, coarse_step, limit,
+                   noise, noise_floor, known_medium, interest, variant, accuracy, output):
+    """Recommend which configurations and media to measure.
+
+    \b
+        veil design --brdf BRDF1 --medium BTDF1 --medium BTDF2 --medium BTDF3 --size 60 \\
+            -o plan.csv
+    """
+    from rich.console import Console
+    from rich.markup import escape
+    from rich.table import Table
+
+    from ..design import design
+    from ..measurements import atomic_write_text
+
+    model_b = parse_brdf(brdf)
+    models = []
+    for text in media:
+        m = parse_btdf(text, variant)
+        if m is None:
+            raise UserError("--medium none: the design compares scattering media; give a "
+                            "preset or literal")
+        models.append(m)
+    labels = [t.strip().upper() if "," not in t else t.strip() for t in media]
+    if len(set(labels)) != len(labels):
+        raise UserError("a --medium is given twice")
+    if output is not None:
+        check_output_path(output)
+    named = dict(zip(labels, models))
+    facs = _floats(factors, "--factors") if factors else None
+    if facs is not None:
+        from ..design import condition_medium
+
+        named = {f"{label} x{f:g}": condition_medium(m, f)
+                 for label, m in named.items() for f in facs}
+        if len(named) != len(labels) * len(facs):
+            raise UserError(f"--factors {factors!r}: a factor is repeated")
+    from .fit_cmd import _echo_warnings
+    with _echo_warnings():
+        result = design(model_b, list(named.values()), size, psi=_floats(psi, "--psi"),
+                        noise=noise, floor=noise_floor,
+                        mode="known" if known_medium else "joint",
+                        interest=[t.strip() for t in interest.split(",") if t.strip()],
+                        accuracy=accuracy, fine_step=fine_step, coarse_step=coarse_step,
+                        window=window, limit=limit)
+    plan, info = result["plan"], result["information"]
+    mapping = dict(zip(info.conditions, named))
+    plan["condition"] = [mapping[c] for c in plan["condition"]]
+    console = Console()
+    table = Table(title=f"Plan of {len(plan)} measurements (greedy D_s-optimal, best first)",
+                  title_justify="left")
+    for col in ("step", "condition", "psi", "rho", "theta_i", "theta_r", "gain"):
+        table.add_column(col, justify="left" if col == "condition" else "right")
+    for row in plan.itertuples():
+        ti = row.theta_i if row.phi_i == 180.0 else -row.theta_i
+        tr = row.theta_r if row.phi_r == 0.0 else -row.theta_r
+        table.add_row(str(row.step), escape(row.condition), f"{row.psi:g}", f"{row.rho:g}", f"{ti:g}",
+                      f"{tr:g}", f"{row.gain:.3g}")
+    console.print(table)
+    names = [info.names[k] for k in info.interest]
+    ctab = Table(title="Conditions (predicted stderr of the interest parameters, plan of the "
+                       "same size from one condition alone)",
+                 title_justify="left")
+    ctab.add_column("condition")
+    ctab.add_column("in plan", justify="right")
+    for n in names:
+        ctab.add_column(escape(f"{n} alone"), justify="right")
+    for row in result["conditions"].to_dict("records"):
+        ctab.add_row(escape(mapping[row["condition"]]), str(row["in_plan"]),
+                     *[_se(n, row[f"alone_se_{n}"]) for n in names])
+    console.print(ctab)
+    se = result["stderr"]
+    console.print("predicted stderr with the plan: "
+                  + ", ".join(f"{n} {_se(n, se[n])}" for n in names)
+                  + " (relative; eta absolute)")
+    if "*" in "".join(_se(n, se[n]) for n in names) or any(
+            "*" in _se(n, r[f"alone_se_{n}"]) for r in result["conditions"].to_dict("records")
+            for n in names):
+        console.print("* at the level of the weak prior: not identified by such a plan "
+                      "(more measurements, or other media)")
+    if output is not None:
+        atomic_write_text(output, plan.to_csv(index=False, lineterminator="\n"))
+        click.echo(f"wrote {output}", err=True)

@@ -1,0 +1,176 @@
+"""``veil diagnose``: identifiability of a fit (MODEL.md sec. 7; docs/ambiguity.md).
+
+Prints the parameters that are poorly determined (relative standard error above a threshold,
+flat profile likelihood) and the pairs that trade off; with ``-o DIR`` writes
+``diagnostics.json`` and ``diagnostics.png`` there. Exit status 0 (also when something is
+flagged), 2 for input mistakes.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import click
+
+from ._common import UserError, check_output_path
+
+IN_FILE = click.Path(exists=True, dir_okay=False, path_type=Path)
+
+
+def _load_other(text, kind, variant="paper"):
+    from ..fitting import FitResult
+    from ._common import parse_brdf, parse_btdf
+
+    if os.path.exists(text) or text.lower().endswith(".json"):
+        return FitResult.from_json(text)
+    try:
+        model = parse_brdf(text) if kind == "brdf" else parse_btdf(text, variant)
+    except click.ClickException as exc:
+        option = "--reference" if kind == "brdf" else "--medium"
+        raise UserError(f"{option} {text!r} is not an existing JSON file and {exc.message}"
+                        ) from None
+    if model is None:
+        raise UserError("--medium none: a target fit's medium scatters; give its fit result")
+    return model
+
+
+def _print(diag, console) -> None:
+    from rich.markup import escape as e
+    from rich.table import Table
+
+    table = Table(title="Identifiability", title_justify="left")
+    for col in ("parameter", "value", "stderr", "relative", "profile 1-sigma", "flag"):
+        table.add_column(col, justify="left" if col in ("parameter", "flag") else "right")
+    flagged = {}
+    for n, reason in diag.poorly_determined:
+        flagged.setdefault(n, []).append(reason)
+    for n in diag.names:
+        prof = diag.profiles.get(n)
+        interval = "-"
+        if prof is not None:
+            lo, hi = prof.interval
+            interval = (f"[{'<' + format(prof.values[0], '.4g') if lo is None else format(lo, '.4g')}, "
+                        f"{'>' + format(prof.values[-1], '.4g') if hi is None else format(hi, '.4g')}]")
+        rel = diag.relative[n]
+        table.add_row(e(n), f"{diag.values[n]:.5g}", f"{diag.stderr[n]:.3g}",
+                      "-" if rel == float("inf") else f"{100 * rel:.3g} %", interval,
+                      "POOR" if n in flagged else "")
+    console.print(table)
+    console.print(f"condition number of the weighted Jacobian: {diag.condition['values']:.4g} "
+                  f"(columns x values), {diag.condition['stderr']:.4g} (columns x stderr)")
+    weak = ", ".join(f"{c:+.2f} {e(n)}" for n, c in diag.weakest.items() if abs(c) >= 0.1)
+    console.print(f"weakest direction (relative units): {weak}")
+    if diag.poorly_determined:
+        console.print("[bold]Poorly determined:[/bold]")
+        for n, reason in diag.poorly_determined:
+            console.print(f"  {e(n)}: {e(reason)}")
+    if diag.tradeoffs:
+        console.print(f"[bold]Trade-offs (|r| > {diag.thresholds['max_correlation']:g}):[/bold]")
+        for a, b, r in diag.tradeoffs:
+            console.print(f"  {e(a)} <-> {e(b)}: r = {r:+.3f}")
+    if diag.ok:
+        console.print("No parameter poorly determined, no trade-off above the thresholds.")
+    for note in diag.notes:
+        console.print(f"note: {e(note)}")
+
+
+@click.command("diagnose")
+@click.argument("result_path", metavar="RESULT.json", type=IN_FILE)
+@click.option("--data", "data", multiple=True, required=True, metavar="TABLE",
+              help="The fit's measurement table. For a joint result: each session as "
+                   "LABEL=PATH (target) or ref:LABEL=PATH (reference), repeated.")
+@click.option("--black", type=IN_FILE, help="Black-cloth table subtracted in the fit (step results).")
+@click.option("--medium", metavar="MEDIUM",
+              help="For a target fit: the medium's fit result (JSON; its uncertainty is "
+                   "included) or a model (held exact). Default: the medium in RESULT, exact.")
+@click.option("--reference", metavar="REF",
+              help="For a medium fit: the reference's fit result (JSON; its uncertainty is "
+                   "included) or a model. Default: the reference in RESULT, exact.")
+@click.option("--profile", is_flag=True, help="Compute profile likelihoods (refits; slower).")
+@click.option("--profile-param", "profile_params", multiple=True, metavar="NAME",
+              help="Profile only this parameter (repeatable; implies --profile).")
+@click.option("--points", type=click.IntRange(min=3), default=9, show_default=True,
+              help="Grid points of each profile.")
+@click.option("--max-relative", type=click.FloatRange(min=0, min_open=True), default=0.25,
+              show_default=True, help="Relative standard error above which a parameter is "
+                                      "poorly determined (for g: relative to 1 - |g|).")
+@click.option("--max-correlation", type=click.FloatRange(0, 1, min_open=True), default=0.9,
+              show_default=True, help="|correlation| above which a pair trades off.")
+@click.option("-o", "--outdir", type=click.Path(file_okay=False, path_type=Path),
+              help="Directory for diagnostics.json and diagnostics.png (created).")
+def diagnose_command(result_path, data, black, medium, reference, profile, profile_params,
+                     points, max_relative, max_correlation, outdir):
+    """Which parameters of a fit are poorly determined, and which trade off.
+
+    \b
+        veil diagnose target.json --data target_medium.csv --black black.csv \\
+            --medium medium.json --profile -o diag
+    """
+    from rich.console import Console
+
+    from ..diagnostics import diagnose, plot
+    from ..joint import JointResult, Session, load_result
+    from ..measurements import load_measurements
+
+    result = load_result(result_path)
+    inputs = [result_path, black]
+    if isinstance(result, JointResult):
+        if black is not None or medium is not None or reference is not None:
+            raise UserError("a joint result takes only --data LABEL=PATH / ref:LABEL=PATH "
+                            "(black cloth already subtracted; media and reference are in it)")
+        sessions = []
+        for item in data:
+            head, sep, path = item.partition("=")
+            if not sep or not head.strip() or not path.strip():
+                raise UserError(f"--data {item!r}: a joint result needs LABEL=PATH or "
+                                f"ref:LABEL=PATH for each session")
+            obj, label = ("reference", head[4:]) if head.startswith("ref:") else ("target", head)
+            path = path.strip()
+            if not os.path.isfile(path):
+                raise UserError(f"--data {item!r}: file {path} does not exist")
+            sessions.append(Session(load_measurements(path), label.strip(), obj,
+                                    name=f"{obj} in {label.strip()} ({path})"))
+            inputs.append(path)
+        table = sessions
+    else:
+        if len(data) != 1:
+            raise UserError(f"--data given {len(data)} times: a {result.step} fit has one table")
+        table = data[0]
+        if not os.path.isfile(table):
+            raise UserError(f"--data {table}: file does not exist")
+        inputs.append(table)
+    med = _load_other(medium, "btdf", result.variant or "paper") if medium else None
+    ref = _load_other(reference, "brdf") if reference else None
+    for text in (medium, reference):
+        if text and os.path.exists(text):
+            inputs.append(text)
+    files = {}
+    if outdir is not None:
+        if outdir.exists() and not outdir.is_dir():
+            raise UserError(f"--outdir {outdir} exists and is not a directory")
+        if not outdir.exists() and not outdir.parent.exists():
+            raise UserError(f"cannot create {outdir}: directory {outdir.parent} does not exist")
+        files = {"json": outdir / "diagnostics.json", "png": outdir / "diagnostics.png"}
+        if outdir.exists():
+            for path in files.values():
+                check_output_path(path, inputs)
+    prof = list(profile_params) if profile_params else bool(profile)
+    from .fit_cmd import _echo_warnings, fit_progress
+    with _echo_warnings(), fit_progress("diagnose") as progress:
+        diag = diagnose(result, table, medium=med, reference=ref,
+                        black=None if black is None else os.fspath(black), profile=prof,
+                        points=points, max_relative=max_relative,
+                        max_correlation=max_correlation, progress=progress)
+    _print(diag, Console())
+    if files:
+        from ..measurements import atomic_write_text
+
+        outdir.mkdir(exist_ok=True)
+        atomic_write_text(files["json"], json.dumps(diag.to_dict(), indent=2,
+                                                     allow_nan=False) + "\n")
+        plot(diag, files["png"])
+        for path in files.values():
+            click.echo(f"wrote {path}", err=True)
+

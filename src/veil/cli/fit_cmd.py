@@ -1,0 +1,322 @@
+"""``veil fit``: the two-step estimation of MODEL.md sec. 7 from measurement tables.
+
+Subcommands ``reference`` (step 0), ``medium`` (step 1), ``target`` (step 2) and ``pipeline``
+(all of them, with figures and report.md). Exit status 0 when every fit converged, 1 when a
+fit did not (its result is still written, with ``"converged": false``), 2 for mistakes in
+the input. Result format: docs/fitting.md.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import os
+import warnings
+from pathlib import Path
+
+import click
+
+from ..fitting import FitResult, fit_medium, fit_reference, fit_target
+from ..models import HenyeyGreenstein, TorranceSparrow
+from ._common import UserError, check_output_path, parse_brdf, parse_btdf
+
+IN_FILE = click.Path(exists=True, dir_okay=False, path_type=Path)
+OUT_FILE = click.Path(dir_okay=False, path_type=Path)
+STEPS = ("reference", "medium", "target")
+
+
+# --------------------------------------------------------------------------------------
+# options shared by the subcommands
+# --------------------------------------------------------------------------------------
+def _fix_option(help_text):
+    return click.option("--fix", "fix", multiple=True, metavar="NAME=VALUE", help=help_text)
+
+
+_variant_option = click.option(
+    "--variant", type=click.Choice(["paper", "exit"]), default="paper", show_default=True,
+    help="Fresnel factor of the medium: paper = F_t(theta_in)^2, exit = "
+         "F_t(theta_in) F_t(theta_out) (MODEL.md sec. 3).")
+_accuracy_option = click.option(
+    "--accuracy", type=click.Choice(["fast", "default", "high"]), default="default",
+    show_default=True,
+    help="Quadrature of the reported result; iterations run at 'fast' and are polished at "
+         "this accuracy.")
+_black_option = click.option(
+    "--black", "black", type=IN_FILE,
+    help="Black-cloth session in the medium (same configurations), subtracted first.")
+_max_nfev_option = click.option(
+    "--max-nfev", type=click.IntRange(min=1), default=None,
+    help="Limit on function evaluations of each least-squares run (default: scipy's).")
+
+
+def parse_fix(items, cls, option="--fix") -> dict:
+    """``NAME=VALUE`` strings -> {name: value}, names checked against ``cls``'s parameters."""
+    fixed = {}
+    names = cls.param_names()
+    for item in items:
+        name, sep, text = item.partition("=")
+        name = name.strip()
+        if not sep or not name:
+            raise UserError(f"{option} {item!r}: expected NAME=VALUE, e.g. eta=1.5 "
+                            f"(parameters of {cls.NAME}: {', '.join(names)})")
+        if name not in names:
+            raise UserError(f"{option} {item!r}: {cls.NAME} has no parameter {name!r}; "
+                            f"its parameters are {', '.join(names)}")
+        try:
+            value = float(text)
+        except ValueError:
+            raise UserError(f"{option} {item!r}: {text.strip()!r} is not a number") from None
+        if not math.isfinite(value):
+            raise UserError(f"{option} {item!r}: {text.strip()!r} is not a finite number")
+        if name in fixed:
+            raise UserError(f"{option}: {name} is fixed twice")
+        param = cls.PARAMS[names.index(name)]
+        try:
+            param.check(value, cls.__name__)
+        except ValueError as exc:
+            raise UserError(f"{option} {item!r}: {exc}") from None
+        fixed[name] = value
+    return fixed
+
+
+def _parse_step_fix(items) -> dict:
+    """``STEP.NAME=VALUE`` strings of ``fit pipeline`` -> {step: {name: value}}."""
+    by_step = {}
+    classes = {"reference": TorranceSparrow, "medium": HenyeyGreenstein,
+               "target": TorranceSparrow}
+    for item in items:
+        head, sep, _ = item.partition("=")
+        step, dot, name = head.partition(".")
+        if not sep or not dot or step.strip() not in classes:
+            raise UserError(f"--fix {item!r}: expected STEP.NAME=VALUE with STEP one of "
+                            f"{', '.join(STEPS)}, e.g. medium.eta=1.33")
+        step = step.strip()
+        by_step.setdefault(step, []).append(f"{name}={item.partition('=')[2]}")
+    return {step: parse_fix(entries, classes[step], f"--fix ({step})")
+            for step, entries in by_step.items()}
+
+
+def _load_reference(text: str):
+    """A fit result JSON file, or a BRDF preset / literal."""
+    if os.path.exists(text) or text.lower().endswith(".json"):
+        return FitResult.from_json(text)
+    try:
+        return parse_brdf(text)
+    except click.ClickException as exc:
+        raise UserError(f"--reference {text!r} is not an existing JSON file and {exc.message}"
+                        ) from None
+
+
+def _load_medium(text: str, variant):
+    if os.path.exists(text) or text.lower().endswith(".json"):
+        return FitResult.from_json(text)
+    try:
+        model = parse_btdf(text, variant or "paper")
+    except click.ClickException as exc:
+        raise UserError(f"--medium {text!r} is not an existing JSON file and {exc.message}"
+                        ) from None
+    if model is None:
+        raise UserError("--medium none: step 2 needs a scattering medium; for a target in a "
+                        "clear medium use 'veil fit reference'")
+    return model
+
+
+# --------------------------------------------------------------------------------------
+# progress and output
+# --------------------------------------------------------------------------------------
+@contextlib.contextmanager
+def fit_progress(title: str):
+    """A rich progress display on stderr; yields the ``progress(stage, done, total)`` callback."""
+    from rich.console import Console
+    from rich.progress import BarColumn, Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
+
+    with Progress(SpinnerColumn(), TextColumn("{task.description}"), BarColumn(),
+                  TextColumn("{task.fields[count]}"), TimeElapsedColumn(),
+                  console=Console(stderr=True), transient=True) as bar:
+        task = bar.add_task(title, total=None, count="")
+
+        def progress(stage, done, total):
+            if done is None:
+                count = ""
+            else:
+                count = f"{done}/{total}" if total else f"{done} evaluations"
+            bar.update(task, description=f"{title}: {stage}", completed=done or 0, total=total,
+                       count=count)
+
+        yield progress
+
+
+@contextlib.contextmanager
+def _echo_warnings():
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        yield
+    for w in caught:
+        click.echo(f"Warning: {w.message}", err=True)
+
+
+def _finish(ctx, results, written):
+    for path in written:
+        click.echo(f"wrote {path}", err=True)
+    failed = [r for r in results if r is not None and not r.converged]
+    if failed:
+        click.echo("Error: a fit did not converge (its result was written with "
+                   "\"converged\": false): " + "; ".join(r.message for r in failed), err=True)
+        ctx.exit(1)
+
+
+# --------------------------------------------------------------------------------------
+# commands
+# --------------------------------------------------------------------------------------
+@click.group("fit")
+def fit_command():
+    """Estimate f_r and f_t from measurement tables (MODEL.md sec. 7, docs/fitting.md).
+
+    \b
+        veil fit reference clear.csv -o reference.json
+        veil fit medium ref_medium.csv --reference reference.json --black black.csv -o medium.json
+        veil fit target target_medium.csv --medium medium.json --black black.csv -o target.json
+        veil fit pipeline --reference-clear clear.csv --reference-medium ref_medium.csv \\
+            --target-medium target_medium.csv --black black.csv -o fit-out
+
+    Exit status 1 when a fit did not converge (the result is written anyway), 2 for input
+    mistakes.
+    """
+
+
+@fit_command.command("reference")
+@click.argument("table", type=IN_FILE)
+@click.option("-o", "--output", required=True, type=OUT_FILE,
+              help="JSON file for the fitted f_r (written atomically).")
+@_fix_option("Hold a Torrance-Sparrow parameter (Pd, Ps, n, eta) at VALUE; repeatable.")
+@_black_option
+@_max_nfev_option
+@click.pass_context
+def reference_command(ctx, table, output, fix, black, max_nfev):
+    """Step 0: fit the reference's f_r (Torrance-Sparrow) to clear-medium data, directly."""
+    fixed = parse_fix(fix, TorranceSparrow)
+    check_output_path(output, [table, black])
+    with _echo_warnings(), fit_progress("step 0, reference") as progress:
+        result = fit_reference(table, fixed=fixed, black=black, max_nfev=max_nfev,
+                               progress=progress)
+    result.to_json(output)
+    click.echo(result.report())
+    _finish(ctx, [result], [output])
+
+
+@fit_command.command("medium")
+@click.argument("table", type=IN_FILE)
+@click.option("--reference", "reference", required=True, metavar="REF",
+              help="The reference's f_r: a JSON file from 'veil fit reference', a preset "
+                   "(BRDF1, BRDF2) or a literal 'PD,PS,N,ETA'.")
+@click.option("-o", "--output", required=True, type=OUT_FILE,
+              help="JSON file for the fitted medium (written atomically).")
+@_fix_option("Hold a medium parameter (Td, Tt, g, eta) at VALUE; repeatable.")
+@_black_option
+@_variant_option
+@_accuracy_option
+@_max_nfev_option
+@click.pass_context
+def medium_command(ctx, table, reference, output, fix, black, variant, accuracy, max_nfev):
+    """Step 1: fit the medium (Td, Tt, g, eta) to the reference measured in it."""
+    fixed = parse_fix(fix, HenyeyGreenstein)
+    ref = _load_reference(reference)
+    inputs = [table, black] + ([reference] if os.path.exists(reference) else [])
+    check_output_path(output, inputs)
+    with _echo_warnings(), fit_progress("step 1, medium") as progress:
+        result = fit_medium(table, ref, fixed=fixed, black=black, variant=variant,
+                            accuracy=accuracy, max_nfev=max_nfev, progress=progress)
+    result.to_json(output)
+    click.echo(result.report())
+    _finish(ctx, [result], [output])
+
+
+@fit_command.command("target")
+@click.argument("table", type=IN_FILE)
+@click.option("--medium", "medium", required=True, metavar="MEDIUM",
+              help="The medium's f_t: a JSON file from 'veil fit medium', a preset (BTDF1, "
+                   "BTDF2, BTDF3) or a literal 'TD,TT,G,ETA'.")
+@click.option("-o", "--output", required=True, type=OUT_FILE,
+              help="JSON file for the fitted target f_r (written atomically).")
+@_fix_option("Hold a Torrance-Sparrow parameter (Pd, Ps, n, eta) at VALUE; repeatable.")
+@_black_option
+@click.option("--variant", type=click.Choice(["paper", "exit"]), default=None,
+              help="Fresnel variant of a preset or literal --medium (default paper); a JSON "
+                   "medium keeps its own.")
+@_accuracy_option
+@_max_nfev_option
+@click.pass_context
+def target_command(ctx, table, medium, output, fix, black, variant, accuracy, max_nfev):
+    """Step 2: fit the target's f_r (Torrance-Sparrow) through the fitted medium."""
+    fixed = parse_fix(fix, TorranceSparrow)
+    med = _load_medium(medium, variant)
+    if isinstance(med, FitResult) and variant is not None and med.variant != variant:
+        raise UserError(f"--variant {variant} but {medium} was fitted with variant "
+                        f"{med.variant}; leave --variant out to use the medium's")
+    inputs = [table, black] + ([medium] if os.path.exists(medium) else [])
+    check_output_path(output, inputs)
+    with _echo_warnings(), fit_progress("step 2, target") as progress:
+        result = fit_target(table, med, fixed=fixed, black=black, accuracy=accuracy,
+                            max_nfev=max_nfev, progress=progress)
+    result.to_json(output)
+    click.echo(result.report())
+    _finish(ctx, [result], [output])
+
+
+def print_pipeline(result) -> None:
+    """The fit reports of a :class:`veil.pipeline.PipelineResult` and its comparison."""
+    for r in (result.reference, result.medium, result.target, result.direct):
+        if r is not None:
+            click.echo(r.report())
+            click.echo("")
+    if result.comparison is not None:
+        c = result.comparison
+        click.echo("[[Estimated target f_r against the direct fit]]")
+        for name, row in c["params"].items():
+            z = "n/a" if row["z"] is None else f"{row['z']:+.2f}"
+            click.echo(f"    {name:<4}: estimated {row['estimated']:.6g}, direct "
+                       f"{row['direct']:.6g}, difference {row['difference']:+.3g} "
+                       f"({z} combined stderr)")
+        click.echo(f"    rms f_r difference over {c['n_configurations']} protocol "
+                   f"configurations: {c['rms_fr_difference']:.4g} "
+                   f"({100 * c['rms_fr_relative']:.3g} % rms relative)")
+
+
+@fit_command.command("pipeline")
+@click.option("--reference-clear", required=True, type=IN_FILE,
+              help="Reference object in a clear medium (step 0).")
+@click.option("--reference-medium", required=True, type=IN_FILE,
+              help="Reference object in the scattering medium (step 1).")
+@click.option("--target-medium", required=True, type=IN_FILE,
+              help="Target object in the scattering medium (step 2).")
+@_black_option
+@click.option("--target-clear", type=IN_FILE,
+              help="Target object in a clear medium: fitted directly and compared with the "
+                   "estimate.")
+@click.option("-o", "--outdir", required=True, type=click.Path(file_okay=False, path_type=Path),
+              help="Directory for the JSON results, figures and report.md (created).")
+@_fix_option("Hold a parameter of one step: STEP.NAME=VALUE, STEP reference, medium or "
+             "target (e.g. medium.eta=1.33); repeatable. Target values also hold in the "
+             "direct fit.")
+@_variant_option
+@_accuracy_option
+@_max_nfev_option
+@click.pass_context
+def pipeline_command(ctx, reference_clear, reference_medium, target_medium, black, target_clear,
+                     outdir, fix, variant, accuracy, max_nfev):
+    """Steps 0-2 in one go, with figures (data against fitted curves) and report.md."""
+    from ..pipeline import run_pipeline
+
+    fixed = _parse_step_fix(fix)
+    if outdir.exists() and not outdir.is_dir():
+        raise UserError(f"--outdir {outdir} exists and is not a directory")
+    if not outdir.parent.exists() and not outdir.exists():
+        raise UserError(f"cannot create {outdir}: directory {outdir.parent} does not exist")
+    with _echo_warnings(), fit_progress("pipeline") as progress:
+        result = run_pipeline(reference_clear, reference_medium, target_medium, black=black,
+                              target_clear=target_clear, outdir=outdir, variant=variant,
+                              accuracy=accuracy, fixed=fixed, max_nfev=max_nfev,
+                              progress=progress)
+    print_pipeline(result)
+    fits = [result.reference, result.medium, result.target, result.direct]
+    _finish(ctx, fits, list(result.files.values()))

@@ -1,0 +1,172 @@
+"""``veil fit joint``: one fit over several sessions and media (MODEL.md sec. 7; docs/ambiguity.md).
+
+Registered on the ``fit`` group from :mod:`veil.cli`. Exit status 0 when the fit converged,
+1 when it did not (the result is written anyway, ``"converged": false``), 2 for input
+mistakes.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from pathlib import Path
+
+import click
+
+from ..joint import SHAREABLE, Session, fit_joint
+from ._common import UserError, check_output_path
+
+OUT_FILE = click.Path(dir_okay=False, path_type=Path)
+
+
+def parse_sessions(items, option: str) -> list[tuple[str, str]]:
+    """``LABEL=PATH`` strings -> [(label, path)]; the file must exist."""
+    out = []
+    for item in items:
+        label, sep, path = item.partition("=")
+        label, path = label.strip(), path.strip()
+        if not sep or not label or not path:
+            raise UserError(f"{option} {item!r}: expected LABEL=PATH, e.g. low=target_low.csv "
+                            f"(LABEL names the medium; 'none' is clear water)")
+        if not os.path.exists(path):
+            raise UserError(f"{option} {item!r}: file {path} does not exist")
+        if os.path.isdir(path):
+            raise UserError(f"{option} {item!r}: {path} is a directory, not a CSV file")
+        out.append((label, path))
+    return out
+
+
+def parse_black(items) -> dict:
+    blacks = {}
+    for label, path in parse_sessions(items, "--black"):
+        if label.lower() in ("none", "clear"):
+            raise UserError(f"--black {label}={path}: clear water has no black-cloth session")
+        if label in blacks:
+            raise UserError(f"--black: medium {label!r} given twice")
+        blacks[label] = path
+    return blacks
+
+
+def load_sessions(target_items, reference_items, black_items) -> tuple[list[Session], list]:
+    """Sessions (black cloth subtracted per medium) and every input path."""
+    from ..measurements import load_measurements, subtract_black
+
+    targets = parse_sessions(target_items, "--session")
+    refs = parse_sessions(reference_items, "--reference-session")
+    blacks = parse_black(black_items)
+    labels = {label for label, _ in targets + refs}
+    unused = [label for label in blacks if label not in labels]
+    if unused:
+        raise UserError(f"--black given for medium {', '.join(map(repr, unused))} but no session "
+                        f"is in that medium")
+    sessions, inputs = [], []
+    for obj, items in (("target", targets), ("reference", refs)):
+        for label, path in items:
+            table = load_measurements(path)
+            if label in blacks:
+                table = subtract_black(table, load_measurements(blacks[label]))
+            sessions.append(Session(table, label, obj, name=f"{obj} in {label} ({path})"))
+            inputs.append(path)
+    return sessions, inputs + list(blacks.values())
+
+
+def parse_joint_fix(items) -> dict:
+    fixed = {}
+    for item in items:
+        name, sep, text = item.partition("=")
+        name = name.strip()
+        if not sep or not name:
+            raise UserError(f"--fix {item!r}: expected NAME=VALUE, e.g. 'Td[low]=1e-3' or eta=1.5")
+        try:
+            value = float(text)
+        except ValueError:
+            raise UserError(f"--fix {item!r}: {text.strip()!r} is not a number") from None
+        if not math.isfinite(value):
+            raise UserError(f"--fix {item!r}: {text.strip()!r} is not a finite number")
+        if name in fixed:
+            raise UserError(f"--fix: {name} is fixed twice")
+        fixed[name] = value
+    return fixed
+
+
+def _names(text, option):
+    if text is None:
+        return None
+    names = [t.strip() for t in text.split(",") if t.strip()]
+    if not names:
+        raise UserError(f"{option} {text!r}: expected a comma-separated list of "
+                        f"{', '.join(SHAREABLE)}")
+    return names
+
+
+@click.command("joint")
+@click.option("--session", "sessions", multiple=True, metavar="LABEL=PATH",
+              help="The target measured in medium LABEL (e.g. low=target_low.csv); repeat for "
+                   "each medium. LABEL 'none' is clear water.")
+@click.option("--reference-session", "reference_sessions", multiple=True, metavar="LABEL=PATH",
+              help="The reference object measured in medium LABEL ('none' = clear water); "
+                   "repeatable.")
+@click.option("--black", "blacks", multiple=True, metavar="LABEL=PATH",
+              help="Black-cloth session of medium LABEL, subtracted from every session in "
+                   "that medium; repeatable.")
+@click.option("--reference", "reference", metavar="REF",
+              help="The reference's f_r, held fixed: a JSON file from 'veil fit reference', a "
+                   "preset or a literal 'PD,PS,N,ETA'. Without it a clear-water reference "
+                   "session makes the reference's parameters free.")
+@click.option("--shared", default=None, metavar="NAMES",
+              help="Medium parameters shared by all media (subset of g,eta_u). Default: eta_u "
+                   "shared, g per medium.")
+@click.option("--per-medium", default=None, metavar="NAMES",
+              help="Medium parameters free per medium (subset of g,eta_u); Td and Tt always are.")
+@click.option("--fix", "fix", multiple=True, metavar="NAME=VALUE",
+              help="Hold a parameter, named as in the result: Pd, Ps, n, eta (target), "
+                   "ref.Pd..., 'Td[LABEL]', 'g[LABEL]' or g / eta_u when shared; repeatable.")
+@click.option("-o", "--output", required=True, type=OUT_FILE,
+              help="JSON file for the joint result (written atomically).")
+@click.option("--variant", type=click.Choice(["paper", "exit"]), default="paper",
+              show_default=True, help="Fresnel factor of the media (MODEL.md sec. 3).")
+@click.option("--accuracy", type=click.Choice(["fast", "default", "high"]), default="default",
+              show_default=True,
+              help="Quadrature of the reported result; iterations run at 'fast' and are "
+                   "polished at this accuracy.")
+@click.option("--max-nfev", type=click.IntRange(min=1), default=None,
+              help="Limit on function evaluations of each least-squares run.")
+@click.pass_context
+def joint_command(ctx, sessions, reference_sessions, blacks, reference, shared, per_medium, fix,
+                  output, variant, accuracy, max_nfev):
+    """Fit the target (and the reference) over several media at once (MODEL.md sec. 7).
+
+    The object's parameters are shared by all its sessions, each medium has its own Td and
+    Tt, g and eta_u are shared or per medium as declared. Example, three concentrations
+    plus the reference:
+
+    \b
+        veil fit joint --session low=t_low.csv --session mid=t_mid.csv \\
+            --session high=t_high.csv --reference-session none=ref_water.csv \\
+            --reference-session low=r_low.csv --reference-session mid=r_mid.csv \\
+            --reference-session high=r_high.csv -o joint.json
+
+    Without reference sessions fix one scale (e.g. --fix 'Td[low]=1e-3'): the data only
+    determine Pd, Ps and Td, Tt up to a common factor.
+    """
+    from .fit_cmd import _echo_warnings, _finish, _load_reference, fit_progress
+
+    if not sessions:
+        raise UserError("no --session given: a joint fit needs the target measured in at "
+                        "least one medium (--session LABEL=PATH)")
+    fixed = parse_joint_fix(fix)
+    loaded, inputs = load_sessions(sessions, reference_sessions, blacks)
+    ref = None
+    if reference is not None:
+        ref = _load_reference(reference)
+        if os.path.exists(reference):
+            inputs.append(reference)
+    check_output_path(output, inputs)
+    with _echo_warnings(), fit_progress("joint fit") as progress:
+        result = fit_joint(loaded, reference=ref, shared=_names(shared, "--shared"),
+                           per_medium=_names(per_medium, "--per-medium"), fixed=fixed or None,
+                           variant=variant, accuracy=accuracy, max_nfev=max_nfev,
+                           progress=progress)
+    result.to_json(output)
+    click.echo(result.report())
+    _finish(ctx, [result], [output])

@@ -1,0 +1,368 @@
+"""Acquisition design: which configurations and media to measure (MODEL.md sec. 1, 7).
+
+The Fisher information of a measurement plan at given parameters is J^T W J, J the
+Jacobian of the apparent reflectance (MODEL.md eq. 1) with respect to the parameters and
+W = 1 / sigma^2 with sigma^2 = (noise f)^2 + floor^2 (relative noise as the simulator's,
+optionally an absolute floor). A plan is chosen greedily: each step adds the candidate - a
+goniometer configuration (psi, rho) under one medium condition - that most increases
+log det of the information about the parameters of interest (D_s-optimality: the other
+parameters are nuisances, profiled out through the Schur complement).
+
+Conditions are media: given models (e.g. the paper's BTDF1-3, thin to thick, MODEL.md sec. 6)
+and/or concentration factors c scaling T_d and T_t of each. Note that a common factor on
+T_d and T_t multiplies the apparent value by c^2 (MODEL.md sec. 5): under purely relative
+noise it carries no information of its own; it matters through an absolute noise floor.
+
+Parameters of interest are the target's shape parameters Ps/Pd, n and eta (MODEL.md sec. 2:
+only ratios of Pd and Ps mean anything); Pd is a nuisance. With ``mode="joint"`` (default)
+each condition's T_d and T_t are nuisances, and so are g and eta_u - shared when all
+conditions have the same value, else per condition - as in :func:`veil.fit_joint`; with
+``mode="known"`` the media are taken as exactly known (the two-step view).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pandas as pd
+
+from .apparent import as_brdf, as_btdf
+from .joint import SessionModel
+from .protocol import protocol
+
+DEFAULT_PSI = (30.0, 45.0, 60.0, 75.0, 90.0, 105.0, 120.0)
+INTEREST = ("Ps/Pd", "n", "eta")
+MODES = ("joint", "known")
+#: Weak Gaussian prior (standard deviation in fit coordinates: log units for scale
+#: parameters, plain for g and the indices). It only makes the first greedy steps well
+#: defined; an interest parameter whose predicted stderr is close to it is not identified.
+PRIOR_SD_LOG = 10.0
+PRIOR_SD_PLAIN = 1.0
+
+PLAN_COLUMNS = ("step", "condition", "psi", "rho", "theta_i", "phi_i", "theta_r", "phi_r",
+                "medium_Td", "medium_Tt", "medium_g", "medium_eta", "gain")
+
+
+def _floats(name, values, positive=True):
+    out = []
+    for v in np.atleast_1d(values):
+        try:
+            x = float(v)
+        except (TypeError, ValueError):
+            raise ValueError(f"{name}: {v!r} is not a number") from None
+        if not math.isfinite(x) or (positive and x <= 0):
+            raise ValueError(f"{name}: {v!r} must be a finite number{' > 0' if positive else ''}")
+        out.append(x)
+    if not out:
+        raise ValueError(f"{name} is empty")
+    if len(set(out)) != len(out):
+        raise ValueError(f"{name} = {out}: a value is repeated")
+    return tuple(out)
+
+
+def condition_medium(medium, factor: float):
+    """The medium at concentration factor ``factor``: T_d and T_t scaled (module docstring)."""
+    m = as_btdf(medium)
+    return m.replace(Td=m.Td * factor, Tt=m.Tt * factor)
+
+
+def conditions(media, factors=None) -> dict:
+    """Medium conditions {label: HenyeyGreenstein}: each medium (model or preset name) at each
+    concentration factor (default: as given). Labels: the preset name or "medium k", with
+    " x<factor>" when factors are given."""
+    if isinstance(media, (str,)) or not isinstance(media, (list, tuple)):
+        media = [media]
+    if not media:
+        raise ValueError("no medium given: the design needs at least one medium condition")
+    out = {}
+    for k, m in enumerate(media):
+        model = as_btdf(m)
+        base = m.upper() if isinstance(m, str) else (f"medium {k + 1}" if len(media) > 1
+                                                     else "medium")
+        if factors is None:
+            label = base
+            if label in out:
+                raise ValueError(f"medium {label} is given twice")
+            out[label] = model
+            continue
+        for f in _floats("factors", factors):
+            label = f"{base} x{f:g}"
+            if label in out:
+                raise ValueError(f"condition {label} is given twice")
+            out[label] = condition_medium(model, f)
+    return out
+
+
+def candidates(conds: dict, psi=DEFAULT_PSI, *, fine_step: float = 1.0,
+               coarse_step: float = 5.0, window: float = 10.0, limit: float = 85.0) -> pd.DataFrame:
+    """Candidate measurements: every protocol configuration (:func:`veil.protocol.protocol`)
+    under every condition. Columns condition, psi, rho, theta_i, phi_i, theta_r, phi_r
+    (degrees)."""
+    psi = _floats("psi", psi)
+    configs = protocol(psi, fine_step=fine_step, coarse_step=coarse_step, window=window,
+                       limit=limit)
+    blocks = []
+    for label in conds:
+        block = configs.copy()
+        block.insert(0, "condition", label)
+        blocks.append(block)
+    return pd.concat(blocks, ignore_index=True)
+
+
+class Information:
+    """Per-candidate information rows of a design problem (module docstring).
+
+    ``rows[k]`` is d f_k / d theta / sigma_k over the parameters ``names`` in fit
+    coordinates (log for scale parameters, including the ratio Ps/Pd); the information of
+    a plan is the sum of rows[k] rows[k]^T plus the weak prior ``prior`` (precisions).
+    ``interest`` indexes the parameters of interest.
+    """
+
+    def __init__(self, brdf, conds: dict, table: pd.DataFrame, *, noise: float = 0.01,
+                 floor: float = 0.0, mode: str = "joint", interest=INTEREST,
+                 accuracy: str = "fast"):
+        if mode not in MODES:
+            raise ValueError(f"medium mode {mode!r}; expected one of {', '.join(MODES)}")
+        for name, v in (("noise", noise), ("noise floor", floor)):
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) \
+                    or v < 0:
+                raise ValueError(f"{name} = {v!r}: expected a finite number >= 0")
+        if noise == 0 and floor == 0:
+            raise ValueError("noise and noise floor are both 0: the information would be "
+                             "infinite; give a relative noise (e.g. 0.01) or a floor")
+        interest = tuple(interest)
+        unknown = [p for p in interest if p not in INTEREST]
+        if unknown or not interest:
+            raise ValueError(f"parameters of interest {list(interest)}: choose among "
+                             f"{', '.join(INTEREST)}")
+        self.brdf = as_brdf(brdf)
+        self.conditions = dict(conds)
+        self.table = table.reset_index(drop=True)
+        missing = set(self.table["condition"]) - set(self.conditions)
+        if missing:
+            raise ValueError(f"candidates name unknown condition(s) {', '.join(sorted(missing))}")
+        self.noise, self.floor, self.mode = float(noise), float(floor), mode
+        labels = list(self.conditions)
+        media = list(self.conditions.values())
+        names = ["Ps/Pd", "n", "eta", "Pd"]
+        col = {}
+        if mode == "joint":
+            shared = {p: len({getattr(m, p) for m in media}) == 1 for p in ("g", "eta")}
+            for label in labels:
+                for p in ("Td", "Tt", "g", "eta"):
+                    if p in ("g", "eta") and shared[p]:
+                        continue
+                    col[(label, p)] = len(names)
+                    names.append(f"{p if p != 'eta' else 'eta_u'}[{label}]")
+            for p in ("g", "eta"):
+                if shared[p]:
+                    idx = len(names)
+                    names.append(p if p == "g" else "eta_u")
+                    for label in labels:
+                        col[(label, p)] = idx
+        self.names = names
+        self.interest = [names.index(p) for p in interest]
+        self.nuisance = [k for k in range(len(names)) if k not in self.interest]
+        self.prior = np.array([1.0 / PRIOR_SD_PLAIN ** 2 if n.split("[")[0] in ("eta", "g", "eta_u")
+                               else 1.0 / PRIOR_SD_LOG ** 2 for n in names])
+        vb = self.brdf.to_vector()
+        rows = np.zeros((len(self.table), len(names)))
+        values = np.zeros(len(self.table))
+        angles_all = [self.table[c].to_numpy(dtype=float)
+                      for c in ("theta_i", "phi_i", "theta_r", "phi_r")]
+        cond = self.table["condition"].to_numpy()
+        for label, medium in self.conditions.items():
+            sel = np.flatnonzero(cond == label)
+            if sel.size == 0:
+                continue
+            vm = medium.to_vector()
+            model = SessionModel(self.brdf, medium, [a[sel] for a in angles_all], accuracy)
+            val, jb, jm = model.jacobian(vb, vm)
+            sigma = np.sqrt((self.noise * val) ** 2 + self.floor ** 2)
+            if np.any(sigma <= 0):
+                raise ValueError("the model is 0 at some candidate configuration and there is "
+                                 "no noise floor: give --noise-floor")
+            # fit coordinates: log(Ps/Pd), log n, eta_b, log Pd; log Td, log Tt, g, eta_u
+            r = np.zeros((sel.size, len(names)))
+            r[:, 0] = jb[:, 1] * vb[1]
+            r[:, 1] = jb[:, 2] * vb[2]
+            r[:, 2] = jb[:, 3]
+            r[:, 3] = jb[:, 0] * vb[0] + jb[:, 1] * vb[1]
+            if mode == "joint":
+                r[:, col[(label, "Td")]] += jm[:, 0] * vm[0]
+                r[:, col[(label, "Tt")]] += jm[:, 1] * vm[1]
+                r[:, col[(label, "g")]] += jm[:, 2]
+                r[:, col[(label, "eta")]] += jm[:, 3]
+            rows[sel] = r / sigma[:, None]
+            values[sel] = val
+        self.rows = rows
+        self.values = values
+    # ----------------------------------------------------------------------------------
+    def matrix(self, selected=()) -> np.ndarray:
+        """Information of the candidates ``selected`` (indices), prior included."""
+        sel = np.asarray(list(selected), dtype=int)
+        r = self.rows[sel]
+        return np.diag(self.prior) + r.T @ r
+
+    def criterion(self, m: np.ndarray) -> float:
+        """log det of the interest block of the inverse, negated (D_s): larger is better."""
+        nu = self.nuisance
+        s = m[np.ix_(self.interest, self.interest)]
+        if nu:
+            s = s - m[np.ix_(self.interest, nu)] @ np.linalg.solve(
+                m[np.ix_(nu, nu)], m[np.ix_(nu, self.interest)])
+        sign, logdet = np.linalg.slogdet(s)
+        return float(logdet) if sign > 0 else -np.inf
+
+    def gains(self, m: np.ndarray) -> np.ndarray:
+        """Increase of :meth:`criterion` from adding each candidate once to information m."""
+        full = np.einsum("kp,pq,kq->k", self.rows, np.linalg.inv(m), self.rows)
+        g = np.log1p(full)
+        nu = self.nuisance
+        if nu:
+            rn = self.rows[:, nu]
+            part = np.einsum("kp,pq,kq->k", rn, np.linalg.inv(m[np.ix_(nu, nu)]), rn)
+            g = g - np.log1p(part)
+        return g
+
+    def stderr(self, m: np.ndarray) -> dict[str, float]:
+        """Predicted standard errors (fit coordinates: relative for log parameters)."""
+        cov = np.linalg.inv(m)
+        return {n: float(math.sqrt(max(cov[k, k], 0.0))) for k, n in enumerate(self.names)}
+
+
+def greedy(info: Information, size: int, base=(), allowed=None) -> tuple[np.ndarray, np.ndarray]:
+    """Greedy D_s-optimal selection of ``size`` distinct candidates on top of ``base``
+    (indices already measured), among ``allowed`` (boolean mask; default all).
+
+    Returns (indices in order, gain of each step). Ties go to the lowest index, so the
+    plan is deterministic.
+    """
+    if isinstance(size, bool) or not isinstance(size, (int, np.integer)) or size < 1:
+        raise ValueError(f"size = {size!r}: expected a positive integer")
+    base = [int(k) for k in base]
+    available = (np.ones(len(info.rows), dtype=bool) if allowed is None
+                 else np.asarray(allowed, dtype=bool).copy())
+    available[base] = False
+    if size > available.sum():
+        raise ValueError(f"size = {size} but only {int(available.sum())} candidate "
+                         f"configurations are available")
+    m = info.matrix(base)
+    chosen, gains = [], []
+    for _ in range(size):
+        g = info.gains(m)
+        g[~available] = -np.inf
+        k = int(np.argmax(g))
+        chosen.append(k)
+        gains.append(float(g[k]))
+        available[k] = False
+        m = m + np.outer(info.rows[k], info.rows[k])
+    return np.array(chosen, dtype=int), np.array(gains)
+
+
+def rank(info: Information, base=()) -> pd.DataFrame:
+    """Every candidate not in ``base`` with the gain of adding it alone to the plan ``base``
+    (indices), best first (ties: lowest index): the candidates table plus columns ``index``
+    and ``gain``."""
+    base = [int(k) for k in base]
+    g = info.gains(info.matrix(base))
+    out = info.table.copy()
+    out.insert(0, "index", np.arange(len(out)))
+    out["gain"] = g
+    out = out.drop(index=base)
+    return out.sort_values(["gain", "index"], ascending=[False, True],
+                           kind="mergesort").reset_index(drop=True)
+
+
+def plan_table(info: Information, chosen, gains) -> pd.DataFrame:
+    """The plan as a table (columns :data:`PLAN_COLUMNS`); angles in degrees, the medium
+    parameters of each row's condition in the medium_* columns."""
+    rows = info.table.iloc[np.asarray(chosen, dtype=int)].reset_index(drop=True)
+    out = pd.DataFrame({"step": np.arange(1, len(rows) + 1),
+                        "condition": rows["condition"].to_numpy()})
+    for c in ("psi", "rho", "theta_i", "phi_i", "theta_r", "phi_r"):
+        out[c] = rows[c].to_numpy(dtype=float)
+    meds = [info.conditions[label] for label in out["condition"]]
+    out["medium_Td"] = [m.Td for m in meds]
+    out["medium_Tt"] = [m.Tt for m in meds]
+    out["medium_g"] = [m.g for m in meds]
+    out["medium_eta"] = [m.eta for m in meds]
+    out["gain"] = np.asarray(gains, dtype=float)
+    return out
+
+
+def design(brdf, media, size: int = 60, *, factors=None, psi=DEFAULT_PSI,
+           noise: float = 0.01, floor: float = 0.0, mode: str = "joint", interest=INTEREST,
+           accuracy: str = "fast", fine_step: float = 1.0, coarse_step: float = 5.0,
+           window: float = 10.0, limit: float = 85.0):
+    """Recommend a measurement plan of ``size`` configurations (module docstring).
+
+    brdf : the target (model or preset) at which the information is evaluated.
+    media, factors : the candidate conditions (:func:`conditions`).
+    Returns a dict: ``plan`` (DataFrame, :func:`plan_table`), ``stderr`` (predicted standard
+    errors of every parameter after the plan, fit coordinates: relative for log
+    parameters), ``conditions`` (DataFrame: per condition, the plan rows using it and the
+    predicted stderr of the interest parameters with a plan of the same size from that
+    condition alone), ``information`` (the :class:`Information`) and ``criterion``.
+    """
+    conds = conditions(media, factors)
+    table = candidates(conds, psi, fine_step=fine_step, coarse_step=coarse_step,
+                       window=window, limit=limit)
+    info = Information(brdf, conds, table, noise=noise, floor=floor, mode=mode,
+                       interest=interest, accuracy=accuracy)
+    chosen, gains = greedy(info, size)
+    plan = plan_table(info, chosen, gains)
+    m = info.matrix(chosen)
+    interest_names = [info.names[k] for k in info.interest]
+    rows = []
+    cond = table["condition"].to_numpy()
+    for label in conds:
+        k = min(size, int(np.sum(cond == label)))
+        pick, _ = greedy(info, k, allowed=cond == label)
+        se = info.stderr(info.matrix(pick))
+        row = {"condition": label, "in_plan": int(np.sum(cond[chosen] == label)),
+               "alone_size": k}
+        row.update({f"alone_se_{n}": se[n] for n in interest_names})
+        rows.append(row)
+    return {"plan": plan, "stderr": info.stderr(m), "conditions": pd.DataFrame(rows),
+            "information": info, "criterion": info.criterion(m)}
+
+
+def simulate_plan(plan: pd.DataFrame, brdf, *, noise: float = 0.01, seed: int = 0,
+                  accuracy: str = "default", variant: str = "paper") -> dict:
+    """Simulated measurement tables of a plan, one per condition {label: table} (no glow):
+    value = apparent reflectance through the row's medium (medium_* columns) times
+    (1 + noise z), z ~ N(0, 1) from ``numpy.random.default_rng(seed)`` in plan order;
+    sigma = noise * value. A plan written by ``veil design`` can so be simulated and
+    fitted with :func:`veil.fit_joint`.
+    """
+    from .models import HenyeyGreenstein
+
+    need = [c for c in PLAN_COLUMNS if c not in ("step", "gain")]
+    missing = [c for c in need if c not in plan.columns]
+    if missing:
+        raise ValueError(f"the plan lacks column(s) {', '.join(missing)} (written by veil design)")
+    b = as_brdf(brdf)
+    rng = np.random.default_rng(seed)
+    z = rng.standard_normal(len(plan))
+    out = {}
+    cond = plan["condition"].astype(str).to_numpy()
+    for label in dict.fromkeys(cond):
+        sel = np.flatnonzero(cond == label)
+        first = plan.iloc[sel[0]]
+        med = HenyeyGreenstein(float(first["medium_Td"]), float(first["medium_Tt"]),
+                               float(first["medium_g"]), float(first["medium_eta"]),
+                               variant=variant)
+        sub = plan.iloc[sel]
+        angles = [sub[c].to_numpy(dtype=float) for c in ("theta_i", "phi_i", "theta_r", "phi_r")]
+        val = SessionModel(b, med, angles, accuracy).values(b.to_vector(), med.to_vector())
+        table = sub[["psi", "rho", "theta_i", "phi_i", "theta_r", "phi_r"]].reset_index(drop=True)
+        table["value"] = val * (1.0 + noise * z[sel])
+        table["sigma"] = noise * np.abs(val)
+        out[label] = table
+    return out
+
+
+__all__ = ["conditions", "candidates", "condition_medium", "Information", "greedy", "rank",
+           "plan_table", "design", "simulate_plan", "DEFAULT_PSI", "INTEREST", "PLAN_COLUMNS"]

@@ -1,0 +1,487 @@
+"""Identifiability diagnostics of a fit (MODEL.md sec. 7, the paper's sec. 5.2.4 failure).
+
+A fit can converge, pass its chi-square and still be meaningless: a smooth object through a
+strongly scattering medium and a rough one through a weak medium fit the same data. For any
+fit result (a step of :mod:`veil.fitting` or a joint fit) and its data this module reports
+
+- the correlation matrix and the parameters that trade off (|r| > ``max_correlation``);
+- the condition number of the weighted Jacobian with columns scaled by the parameter values
+  (relative sensitivities) and by the standard errors (= sqrt of the correlation matrix's
+  condition number), and the weakest direction (the combination the data barely constrain);
+- relative standard errors (stderr / |value|; for g: stderr / (1 - |g|), the lobe's width
+  scale) above ``max_relative``;
+- optionally profile likelihoods: one parameter held on a grid, all others refitted; the
+  rise of chi-square, Delta chi^2, against the held value. A profile that stays below 1
+  over the grid's range is flat: the data do not determine that parameter.
+
+With the previous step's result (``medium=`` for a target fit, ``reference=`` for a medium
+fit) its parameters become free but tied to that result by a Gaussian prior from its
+covariance: the diagnostics then include what the previous step left uncertain, which is
+where the paper's failure hides. Without it the given model is taken as exact.
+"""
+
+from __future__ import annotations
+
+import io
+import math
+import os
+import tempfile
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .fitting import FitError, FitResult, ITERATION_ACCURACY
+from .joint import (BRDF_NAMES, MEDIUM_NAMES, JointResult, build, covariance, session_problem,
+                    solve)
+from .models import BRDF, BTDF, HenyeyGreenstein, model_class
+
+#: Default thresholds.
+MAX_RELATIVE = 0.25
+MAX_CORRELATION = 0.9
+FLAT = 1.0            # Delta chi^2 below which a profile end counts as flat
+#: Largest half-width of a profile grid in fit coordinates (log units for scale parameters,
+#: atanh units for g, plain for indices); otherwise 3 standard errors.
+MAX_SPAN = {"log": math.log(4.0), "atanh": 1.0, "plain": 0.5}
+PROFILE_POINTS = 9
+
+
+@dataclass
+class Profile:
+    """Profile likelihood of one parameter: held ``values`` (natural), ``delta_chi2`` (in
+    noise units; the reduced chi-square scales it for unweighted data), the 1-sigma
+    ``interval`` where Delta chi^2 <= 1 (None on a side that never reaches 1), ``flat`` sides
+    ("lower"/"upper") that stay below :data:`FLAT`, and whether every refit ``converged``."""
+
+    name: str
+    estimate: float
+    values: list
+    delta_chi2: list
+    interval: tuple
+    flat: list
+    converged: bool
+
+    def to_dict(self) -> dict:
+        return {"name": self.name, "estimate": self.estimate, "values": self.values,
+                "delta_chi2": self.delta_chi2, "interval": list(self.interval),
+                "flat": self.flat, "converged": self.converged}
+
+
+@dataclass
+class Diagnosis:
+    """The diagnostics of one fit (module docstring); :meth:`report` prints them."""
+
+    names: list
+    values: dict
+    stderr: dict
+    relative: dict
+    correlation: np.ndarray
+    condition: dict
+    weakest: dict
+    profiles: dict = field(default_factory=dict)
+    poorly_determined: list = field(default_factory=list)
+    tradeoffs: list = field(default_factory=list)
+    notes: list = field(default_factory=list)
+    thresholds: dict = field(default_factory=dict)
+
+    @property
+    def ok(self) -> bool:
+        return not self.poorly_determined and not self.tradeoffs
+
+    def to_dict(self) -> dict:
+        """JSON-ready (non-finite numbers become None)."""
+        return _finite({"parameters": self.names, "values": self.values, "stderr": self.stderr,
+                "relative_stderr": self.relative,
+                "correlation": {a: {b: float(self.correlation[i, j])
+                                    for j, b in enumerate(self.names)}
+                                for i, a in enumerate(self.names)},
+                "condition": self.condition, "weakest_direction": self.weakest,
+                "profiles": {k: p.to_dict() for k, p in self.profiles.items()},
+                "poorly_determined": [{"parameter": n, "reason": r}
+                                      for n, r in self.poorly_determined],
+                "tradeoffs": [{"a": a, "b": b, "correlation": r} for a, b, r in self.tradeoffs],
+                "notes": self.notes, "thresholds": self.thresholds, "ok": self.ok})
+
+    def report(self) -> str:
+        lines = ["[[Identifiability]]"]
+        for n in self.names:
+            se, rel = self.stderr[n], self.relative[n]
+            prof = self.profiles.get(n)
+            extra = ""
+            if prof is not None:
+                lo, hi = prof.interval
+                extra = (f"  profile 1-sigma [{_f(lo)}, {_f(hi)}]"
+                         + (f" FLAT ({', '.join(prof.flat)})" if prof.flat else ""))
+            lines.append(f"    {n:<10} {_f(self.values[n])} +/- {_f(se)} "
+                         f"(relative {_pct(rel)}){extra}")
+        lines.append(f"    condition number (columns x values) = {_f(self.condition['values'])}")
+        lines.append(f"    condition number (columns x stderr) = {_f(self.condition['stderr'])}")
+        w = ", ".join(f"{c:+.2f} {n}" for n, c in self.weakest.items() if abs(c) >= 0.1)
+        lines.append(f"    weakest direction (relative units): {w}")
+        if self.poorly_determined:
+            lines.append("[[Poorly determined]]")
+            lines += [f"    {n}: {r}" for n, r in self.poorly_determined]
+        if self.tradeoffs:
+            lines.append("[[Trade-offs]]")
+            lines += [f"    {a} <-> {b}: r = {r:+.3f}" for a, b, r in self.tradeoffs]
+        if self.ok:
+            lines.append("    no parameter poorly determined, no trade-off above the thresholds")
+        for note in self.notes:
+            lines.append(f"    note: {note}")
+        return "\n".join(lines)
+
+
+def _finite(obj):
+    if isinstance(obj, dict):
+        return {k: _finite(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_finite(v) for v in obj]
+    if isinstance(obj, (float, np.floating)):
+        return float(obj) if math.isfinite(obj) else None
+    return obj
+
+
+def _f(x) -> str:
+    if x is None or (isinstance(x, float) and not math.isfinite(x)):
+        return "-"
+    return f"{x:.4g}"
+
+
+def _pct(x) -> str:
+    return "-" if x is None or not math.isfinite(x) else f"{100 * x:.3g} %"
+
+
+def relative_error(name: str, value: float, stderr) -> float:
+    """stderr / |value|; for g (HG asymmetry) stderr / (1 - |g|), the scale of the lobe."""
+    if stderr is None:
+        return math.inf
+    base = name.split("[")[0].split(".")[-1]
+    if base == "g":
+        return stderr / max(1.0 - abs(value), 1e-12)
+    return stderr / abs(value) if value != 0 else math.inf
+
+
+# --------------------------------------------------------------------------------------
+# the problem behind a result
+# --------------------------------------------------------------------------------------
+def _as_model(obj, kind):
+    if obj is None:
+        return None, None
+    if isinstance(obj, FitResult):
+        return obj.as_model(), obj
+    if kind == "brdf" and isinstance(obj, BRDF) or kind == "btdf" and isinstance(obj, BTDF):
+        return obj, None
+    raise TypeError(f"expected a FitResult or a {kind.upper()} model, got {type(obj).__name__}")
+
+
+def _given(result: FitResult):
+    g = result.given
+    if not g:
+        return None
+    cls = model_class(g["model"])
+    model = cls(**g["params"])
+    if "variant" in g and "variant" in model.options():
+        model = model.replace(variant=g["variant"])
+    return model
+
+
+def problem_for(result: FitResult, data, *, medium=None, reference=None, black=None):
+    """The least-squares problem a result solved, at its estimate: (problem, notes).
+
+    data : the table of a step result (DataFrame or path), or for a joint result its sessions
+        (a list as for :func:`veil.fit_joint`).
+    medium / reference : the previous step (FitResult: its parameters join as free with a
+        Gaussian prior from its covariance; a model: held exact). Default: the result's
+        ``given`` model, exact.
+    """
+    notes = []
+    if isinstance(result, JointResult):
+        layout = result.layout
+        ref = None
+        if layout.get("reference_given"):
+            if not result.given:
+                raise FitError("the joint result held the reference fixed but does not say "
+                               "which (key 'given')")
+            ref = _given(result)
+        ref_names = set(layout["objects"].get("reference", {}).values()) if ref else set()
+        fixed = {k: v for k, v in result.fixed.items() if k not in ref_names}
+        problem, _ = build(data, reference=ref, shared=layout.get("shared", []),
+                           per_medium=[p for p in ("g", "eta_u")
+                                       if p not in layout.get("shared", [])],
+                           fixed=fixed, variant=result.variant or "paper")
+        if problem.names != list(result.params):
+            raise FitError("the sessions given do not make up the joint fit's parameters "
+                           f"({', '.join(result.params)}); give the same sessions (media "
+                           f"labels and objects) as the fit")
+        problem.values = np.array([result.params[n] for n in problem.names])
+        return problem, notes
+    step = result.step
+    model = result.as_model()
+    if step in ("reference", "direct"):
+        if medium is not None or reference is not None:
+            raise FitError(f"a {step} fit (clear water) has no medium or reference to include")
+        return session_problem(data, model, None, free=list(result.free), black=black,
+                               what=f"{step} (clear medium)"), notes
+    if step == "target":
+        if reference is not None:
+            raise FitError("a target fit (step 2) takes --medium, not --reference")
+        other, other_result = _as_model(medium, "btdf")
+        if other is None:
+            other = _given(result)
+            if other is None:
+                raise FitError("the target result does not name its medium: give medium=")
+            notes.append("the medium is taken as exact (give the medium's fit result to "
+                         "include its uncertainty)")
+        problem = session_problem(data, model, other, free=list(result.free), black=black,
+                                  what="target (in the medium)")
+        if other_result is not None:
+            _add_prior(problem, other_result, MEDIUM_NAMES, "medium")
+    elif step == "medium":
+        if medium is not None:
+            raise FitError("a medium fit (step 1) takes --reference, not --medium")
+        other, other_result = _as_model(reference, "brdf")
+        if other is None:
+            other = _given(result)
+            if other is None:
+                raise FitError("the medium result does not name its reference: give reference=")
+            notes.append("the reference's f_r is taken as exact (give the reference's fit "
+                         "result to include its uncertainty)")
+        free = [MEDIUM_NAMES[HenyeyGreenstein.param_names().index(n)] for n in result.free]
+        problem = session_problem(data, other, model, free=free, black=black,
+                                  what="reference (in the medium)")
+        if other_result is not None:
+            _add_prior(problem, other_result, BRDF_NAMES, "reference")
+    else:
+        raise FitError(f"cannot diagnose a result of step {step!r}")
+    if problem.n_points != result.n_points:
+        raise FitError(f"the data have {problem.n_points} points but the fit used "
+                       f"{result.n_points}: give the table (and black cloth) of that fit")
+    return problem, notes
+
+
+def _add_prior(problem, other: FitResult, names, what):
+    found = other.covariance(total=True)
+    if found is None:
+        raise FitError(f"the {what} result has no uncertainties: it cannot be included")
+    onames, cov = found
+    cls = model_class(other.model)
+    mapped = [names[cls.param_names().index(n)] for n in onames]
+    for n in mapped:
+        problem.free[problem.index(n)] = True
+    problem.set_prior(mapped, [other.params[n] for n in onames], cov)
+
+
+# --------------------------------------------------------------------------------------
+# the diagnostics
+# --------------------------------------------------------------------------------------
+def diagnose(result: FitResult, data, *, medium=None, reference=None, black=None,
+             profile=False, points: int = PROFILE_POINTS, max_relative: float = MAX_RELATIVE,
+             max_correlation: float = MAX_CORRELATION, accuracy: str = ITERATION_ACCURACY,
+             progress=None) -> Diagnosis:
+    """Diagnostics of ``result`` on its ``data`` (module docstring; arguments as
+    :func:`problem_for`). ``profile``: False, True (every free parameter) or a list of names.
+    Names are the problem's: a medium's index is ``eta_u`` (the BRDF has ``eta``)."""
+    if not isinstance(result, FitResult):
+        raise TypeError(f"expected a FitResult, got {type(result).__name__}")
+    for name, v, lo, hi in (("max_relative", max_relative, 0, math.inf),
+                            ("max_correlation", max_correlation, 0, 1)):
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not (lo < v <= hi):
+            raise FitError(f"{name} = {v!r}; expected a number in ({lo}, {hi}]")
+    if isinstance(points, bool) or not isinstance(points, int) or points < 3:
+        raise FitError(f"points = {points!r}; expected an integer >= 3")
+    problem, notes = problem_for(result, data, medium=medium, reference=reference, black=black)
+    x = problem.values.copy()
+    names = problem.free_names
+    if problem.prior is not None:
+        # the previous step's parameters are now free: the optimum moves (a little)
+        sol = solve(problem, x, accuracy=accuracy)
+        moved = [f"{n} {_f(x[problem.index(n)])} -> {_f(sol.x[problem.index(n)])}"
+                 for n in names if not math.isclose(x[problem.index(n)], sol.x[problem.index(n)],
+                                                    rel_tol=1e-3, abs_tol=1e-12)]
+        x = sol.x
+        if moved:
+            notes.append("with the previous step's parameters free under its uncertainty the "
+                         "optimum moves: " + ", ".join(moved))
+    cov = covariance(problem, x, accuracy)
+    if cov is None:
+        raise FitError("the Jacobian is singular at the estimate: at least one combination of "
+                       "the parameters is not determined at all (fix one of them)")
+    se = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    corr = cov / np.outer(se, se)
+    _, full = problem.value_and_jacobian(x, accuracy)
+    jw = np.concatenate([full * problem.w[:, None], problem.prior_rows(x)[1]])[:, problem.free]
+    vals = x[problem.free]
+    cond_values = _cond(jw * np.where(vals != 0, np.abs(vals), 1.0)[None, :])
+    cond_stderr = _cond(jw * se[None, :])
+    # weakest direction in relative units (columns scaled by stderr -> unit correlation)
+    _, s, vt = np.linalg.svd(jw * se[None, :], full_matrices=False)
+    weak = vt[-1] / np.max(np.abs(vt[-1]))
+    weak = weak * np.sign(weak[np.argmax(np.abs(weak))])
+    values = {n: float(v) for n, v in zip(names, vals)}
+    stderr = {n: float(v) for n, v in zip(names, se)}
+    relative = {n: relative_error(n, values[n], stderr[n]) for n in names}
+    diag = Diagnosis(names=names, values=values, stderr=stderr, relative=relative,
+                     correlation=corr, condition={"values": cond_values, "stderr": cond_stderr},
+                     weakest={n: float(c) for n, c in zip(names, weak)}, notes=notes,
+                     thresholds={"max_relative": max_relative,
+                                 "max_correlation": max_correlation, "flat": FLAT})
+    if profile:
+        which = names if profile is True else list(profile)
+        unknown = [n for n in which if n not in names]
+        if unknown:
+            raise FitError(f"cannot profile {', '.join(map(repr, unknown))}: the free "
+                           f"parameters are {', '.join(names)}")
+        chi2_scale = 1.0
+        if not problem.weighted:
+            dof = problem.n_points - len(names)
+            res = (problem.y - problem.model_values(x, accuracy)) * problem.w
+            chi2_scale = max(float(res @ res) / dof, 1e-300)
+        for k, n in enumerate(which):
+            diag.profiles[n] = profile_likelihood(problem, x, n, stderr[n], points=points,
+                                                  scale=chi2_scale, accuracy=accuracy)
+            if progress:
+                progress("profiles", k + 1, len(which))
+    for n in names:
+        if relative[n] > max_relative:
+            diag.poorly_determined.append(
+                (n, f"relative standard error {_pct(relative[n])} > {_pct(max_relative)}"))
+        prof = diag.profiles.get(n)
+        if prof is not None and prof.flat:
+            diag.poorly_determined.append(
+                (n, f"flat profile ({' and '.join(prof.flat)} side: Delta chi^2 < {FLAT:g} "
+                    f"out to {_f(prof.values[0] if 'lower' in prof.flat else prof.values[-1])})"))
+    for i, a in enumerate(names):
+        for j in range(i + 1, len(names)):
+            if abs(corr[i, j]) > max_correlation:
+                diag.tradeoffs.append((a, names[j], float(corr[i, j])))
+    diag.tradeoffs.sort(key=lambda t: -abs(t[2]))
+    return diag
+
+
+def _cond(a: np.ndarray) -> float:
+    s = np.linalg.svd(a, compute_uv=False)
+    return float(s[0] / s[-1]) if s[-1] > 0 else math.inf
+
+
+def profile_likelihood(problem, x, name: str, stderr: float, *, points: int = PROFILE_POINTS,
+                       scale: float = 1.0, accuracy: str = ITERATION_ACCURACY,
+                       max_nfev: int = 30) -> Profile:
+    """Hold ``name`` on a grid about its estimate and refit the rest (warm starts walking
+    outward); Delta chi^2 = (chi^2 - chi^2_min) / ``scale``. The grid spans 3 standard errors
+    each side in fit coordinates, at most :data:`MAX_SPAN`."""
+    from .joint import _bounds, _to_u, _to_x
+
+    k = problem.index(name)
+    p = problem.params[k]
+    u_hat = _to_u(p, x[k])
+    _, dxdu = _to_x(p, u_hat)
+    se_u = stderr / dxdu if dxdu > 0 and math.isfinite(stderr) else math.inf
+    span = min(3.0 * se_u, MAX_SPAN[p.coordinate])
+    lo, hi = _bounds(p, u_hat)
+    half = points // 2
+    offsets = np.linspace(-span, span, 2 * half + 1)
+    grid_u = np.clip(u_hat + offsets, lo, hi)
+    base_cost = _cost(problem, x, accuracy)
+    chi2 = np.empty(grid_u.size)
+    chi2[half] = 0.0
+    converged = True
+    for direction in (1, -1):
+        start = x.copy()
+        for j in range(half + direction, half + direction * (half + 1), direction):
+            v, _ = _to_x(p, grid_u[j])
+            sub = problem.with_fixed({name: v})
+            start[k] = v
+            sol = solve(sub, start, accuracy=accuracy, max_nfev=max_nfev)
+            converged &= sol.status > 0
+            start = sol.x
+            chi2[j] = max(2.0 * (sol.cost - base_cost), 0.0) / scale
+    values = [float(_to_x(p, u)[0]) for u in grid_u]
+    flat = []
+    if chi2[0] < FLAT:
+        flat.append("lower")
+    if chi2[-1] < FLAT:
+        flat.append("upper")
+    interval = (_crossing(values[: half + 1][::-1], chi2[: half + 1][::-1]),
+                _crossing(values[half:], chi2[half:]))
+    return Profile(name=name, estimate=float(x[k]), values=values,
+                   delta_chi2=[float(c) for c in chi2], interval=interval, flat=flat,
+                   converged=bool(converged))
+
+
+def _cost(problem, x, accuracy) -> float:
+    val = problem.model_values(x, accuracy)
+    r = np.concatenate([(val - problem.y) * problem.w, problem.prior_rows(x)[0]])
+    return 0.5 * float(r @ r)
+
+
+def _crossing(values, chi2):
+    """First value (walking outward from the estimate) where Delta chi^2 reaches 1,
+    interpolating sqrt(Delta chi^2) (linear in the value for a quadratic profile)."""
+    for j in range(1, len(values)):
+        if chi2[j] >= 1.0:
+            a, b = math.sqrt(chi2[j - 1]), math.sqrt(chi2[j])
+            t = (1.0 - a) / (b - a) if b > a else 1.0
+            return float(values[j - 1] + t * (values[j] - values[j - 1]))
+    return None
+
+
+# --------------------------------------------------------------------------------------
+# the figure
+# --------------------------------------------------------------------------------------
+def plot(diag: Diagnosis, path) -> None:
+    """PNG: the correlation matrix and each profile (Delta chi^2 against the held value,
+    with the quadratic expected from the standard error); written atomically."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    n_prof = len(diag.profiles)
+    cols = 1 + n_prof
+    fig, axes = plt.subplots(1, cols, figsize=(4.2 * cols, 3.8), squeeze=False)
+    ax = axes[0, 0]
+    im = ax.imshow(diag.correlation, vmin=-1, vmax=1, cmap="RdBu_r")
+    ax.set_xticks(range(len(diag.names)), diag.names, rotation=60, fontsize=7)
+    ax.set_yticks(range(len(diag.names)), diag.names, fontsize=7)
+    ax.set_title("correlation")
+    fig.colorbar(im, ax=ax, fraction=0.046)
+    for a_idx, (name, prof) in enumerate(diag.profiles.items(), start=1):
+        ax = axes[0, a_idx]
+        v = np.array(prof.values)
+        ax.plot(v, prof.delta_chi2, "o-", label="profile")
+        se = diag.stderr[name]
+        fine = np.linspace(v.min(), v.max(), 200)
+        ax.plot(fine, ((fine - prof.estimate) / se) ** 2, "--", color="gray",
+                label="quadratic (stderr)")
+        ax.axhline(1.0, color="k", lw=0.8)
+        ax.set_ylim(0, max(10.0, min(50.0, max(prof.delta_chi2) * 1.1)))
+        ax.set_xlabel(name)
+        ax.set_ylabel("Delta chi^2")
+        ax.set_title(f"profile of {name}" + (" (flat)" if prof.flat else ""))
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=110)
+    plt.close(fig)
+    _write_bytes(path, buf.getvalue())
+
+
+def _write_bytes(path, data: bytes) -> None:
+    path = os.fspath(path)
+    directory = os.path.dirname(os.path.abspath(path))
+    fd, tmp = tempfile.mkstemp(dir=directory, prefix=f".{os.path.basename(path)}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+            fh.flush()
+            os.fsync(fh.fileno())
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+__all__ = ["diagnose", "Diagnosis", "Profile", "profile_likelihood", "problem_for", "plot",
+           "relative_error", "MAX_RELATIVE", "MAX_CORRELATION"]

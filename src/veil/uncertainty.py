@@ -1,0 +1,281 @@
+"""Honest uncertainty through the two-step pipeline (MODEL.md sec. 7).
+
+Step 2 fits the target with the medium of step 1 held fixed, and step 1 the medium with the
+reference of step 0 held fixed; each step's own standard errors say nothing of what the
+previous step left uncertain - the paper's failure (MODEL.md sec. 7) hides there. The fits
+of :mod:`veil.fitting` add the given model's covariance to first order (``stderr_total``);
+this module splits that total into a per-step budget, can compute step 0's part from the
+reference's own data, and checks the linearization by sampling.
+
+The target's estimate solves J_t^T W r(theta_t, theta_m) = 0, so a change d theta_m of the medium moves it by
+
+    d theta_t = -A d theta_m,   A = (J_t^T W J_t)^-1 J_t^T W J_m   (= J_t^+ J_m, weighted)
+
+with J_t, J_m the Jacobians of the target session's model w.r.t. the target's and the
+medium's free parameters and W the fit's weights (1/sigma^2). Hence
+
+    Cov_t,total = Cov_t (step 2's own noise) + A Cov_m A^T (step 1)
+                                             + A B Cov_ref B^T A^T (step 0)
+
+where B is the same sensitivity of step 1 (the reference in the medium) to the reference's
+f_r. The three parts come from independent data sets, so their variances add up exactly to
+the total: :func:`propagate` reports them per parameter (the "budget").
+:func:`sample_propagation` checks the linearization by refitting the target over media drawn
+from step 1's distribution. All in natural units (the FitResult's).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+from .fitting import FitError, FitResult, ITERATION_ACCURACY
+from .joint import MEDIUM_NAMES, session_problem, solve
+from .models import HenyeyGreenstein, TorranceSparrow
+
+#: Parts of the error budget, in pipeline order.
+PARTS = ("step2", "step1", "step0")
+
+
+def covariance_of(result: FitResult, total: bool = False) -> tuple[list[str], np.ndarray]:
+    """(free names, covariance in natural units) of a result: its own (``total=False``) or
+    including what its given model left uncertain (``total=True``, when the fit propagated
+    it); raises FitError when the uncertainties were not determined."""
+    if not isinstance(result, FitResult):
+        raise TypeError(f"expected a FitResult, got {type(result).__name__}")
+    found = result.covariance(total=total)
+    if found is None:
+        missing = [n for n in result.free if result.stderr.get(n) is None]
+        raise FitError(f"the {result.model} fit ({result.step or 'result'}) has no standard "
+                       f"error for {', '.join(missing) or 'its parameters'} (Jacobian "
+                       f"singular): its uncertainty cannot be propagated")
+    names, cov = found
+    return list(names), np.asarray(cov, dtype=float)
+
+
+def sensitivity(problem, x, theta, nuisance, accuracy: str = ITERATION_ACCURACY) -> np.ndarray:
+    """A = (J_t^T W J_t)^-1 J_t^T W J_n at natural parameters ``x``: the estimate of the
+    ``theta`` parameters moves by -A d nuisance (module docstring). Shape (len(theta),
+    len(nuisance)); columns are scaled internally for conditioning."""
+    _, full = problem.value_and_jacobian(x, accuracy)
+    w = problem.w[:, None]
+    jt = full[:, [problem.index(n) for n in theta]] * w
+    jn = full[:, [problem.index(n) for n in nuisance]] * w
+    scale = np.linalg.norm(jt, axis=0)
+    if np.any(scale == 0):
+        dead = [n for n, s in zip(theta, scale) if s == 0]
+        raise FitError(f"the data do not depend on {', '.join(dead)}: cannot propagate")
+    sol, *_ = np.linalg.lstsq(jt / scale, jn, rcond=None)
+    return sol / scale[:, None]
+
+
+def _medium_map(names) -> list[str]:
+    """Step-1 result names (Td, Tt, g, eta) -> session-problem names (Td, Tt, g, eta_u)."""
+    return [MEDIUM_NAMES[HenyeyGreenstein.param_names().index(n)] for n in names]
+
+
+def _check_pair(target_result, medium_result, reference_result):
+    """Results of the right steps, chained (the target fitted through this medium...)."""
+    if not isinstance(target_result, FitResult) or target_result.model != TorranceSparrow.NAME \
+            or target_result.step != "target":
+        raise FitError("target_result must be a step-2 fit (veil fit target, model "
+                       "torrance-sparrow, step 'target')")
+    if not isinstance(medium_result, FitResult) or medium_result.model != HenyeyGreenstein.NAME:
+        raise FitError("medium_result must be a step-1 fit (veil fit medium, model "
+                       "henyey-greenstein)")
+    given = target_result.given or {}
+    if given.get("params"):
+        for k, v in medium_result.params.items():
+            g = given["params"].get(k)
+            if g is None or not math.isclose(float(g), v, rel_tol=1e-9, abs_tol=1e-15):
+                raise FitError(f"the target was fitted through a different medium ({k} = {g} "
+                               f"in the target result, {v} in the medium result): propagate "
+                               f"with the medium result the target fit used")
+    if reference_result is not None:
+        if not isinstance(reference_result, FitResult) \
+                or reference_result.model != TorranceSparrow.NAME:
+            raise FitError("reference_result must be a step-0 fit (veil fit reference)")
+        given = medium_result.given or {}
+        for k, v in reference_result.params.items():
+            g = (given.get("params") or {}).get(k)
+            if g is not None and not math.isclose(float(g), v, rel_tol=1e-9, abs_tol=1e-15):
+                raise FitError(f"the medium was fitted with a different reference ({k} = {g} "
+                               f"in the medium result, {v} in the reference result)")
+
+
+def medium_parts(medium_result: FitResult, reference_result: FitResult | None = None,
+                 reference_table=None, *, black=None, accuracy: str = ITERATION_ACCURACY):
+    """The medium's covariance split into step 1's own part and step 0's (MODEL.md sec. 7).
+
+    Returns (names, {"step1": Cov, "step0": Cov}). Step 0's part is computed from the
+    reference's result and its in-medium table (step 1's data) when both are given, else
+    taken from the medium result's total covariance (``stderr_total``, which
+    :func:`veil.fit_medium` fills when the reference came from a fit); without either there
+    is no "step0" entry.
+    """
+    names, cov1 = covariance_of(medium_result)
+    parts = {"step1": cov1}
+    if (reference_result is None) != (reference_table is None):
+        raise FitError("give both reference_result (step 0) and reference_table (the reference "
+                       "in the medium, step 1's data) to propagate step 0, or neither")
+    if reference_result is not None:
+        ref_names, cov0 = covariance_of(reference_result)
+        problem = session_problem(reference_table, reference_result.as_model(),
+                                  medium_result.as_model(), free=_medium_map(names),
+                                  black=black, what="reference (in the medium)")
+        if problem.n_points != medium_result.n_points:
+            raise FitError(f"the reference table has {problem.n_points} points but the medium "
+                           f"fit used {medium_result.n_points}: give the table (and black "
+                           f"cloth) of that fit")
+        b = sensitivity(problem, problem.values, _medium_map(names), list(ref_names), accuracy)
+        parts["step0"] = b @ cov0 @ b.T
+    elif medium_result.stderr_total is not None:
+        names_t, cov_t = covariance_of(medium_result, total=True)
+        if names_t != names:
+            raise FitError("the medium result's total and own uncertainties cover different "
+                           "parameters")
+        parts["step0"] = cov_t - cov1
+    return names, parts
+
+
+def propagate(target_result: FitResult, medium_result: FitResult, table, *,
+              reference_result: FitResult | None = None, reference_table=None, black=None,
+              reference_black=None, accuracy: str = ITERATION_ACCURACY) -> FitResult:
+    """The target's result with total uncertainties and their budget (module docstring).
+
+    target_result, medium_result : the step-2 and step-1 FitResults (the target fitted
+        through this medium).
+    table : the target session the step-2 fit used (DataFrame or CSV path; ``black`` the
+        black cloth subtracted there, if any).
+    reference_result, reference_table : optionally step 0's result and step 1's data (the
+        reference in the medium; ``reference_black``): step 0's part computed explicitly;
+        otherwise it comes from the medium result's total covariance when present.
+    accuracy : quadrature of the sensitivities (the fits' covariances use "fast" too).
+
+    Returns a new FitResult: ``stderr``/``correlation`` stay step 2's own;
+    ``stderr_total``/``correlation_total`` are the totals; ``stats["budget"]`` maps each free
+    parameter to its variance from "step2" (own noise), "step1", "step0" (when known) and
+    "total" (their sum); ``stats["sensitivity"]`` holds d target / d medium.
+    """
+    _check_pair(target_result, medium_result, reference_result)
+    theta, cov2 = covariance_of(target_result)
+    m_names, m_parts = medium_parts(medium_result, reference_result, reference_table,
+                                    black=reference_black, accuracy=accuracy)
+    problem = session_problem(table, target_result.as_model(), medium_result.as_model(),
+                              free=theta, black=black, what="target (in the medium)")
+    if problem.n_points != target_result.n_points:
+        raise FitError(f"the table has {problem.n_points} points but the target fit used "
+                       f"{target_result.n_points}: give the table (and black cloth) of that fit")
+    a = sensitivity(problem, problem.values, theta, _medium_map(m_names), accuracy)
+    parts = {"step2": cov2}
+    for part, cov_m in m_parts.items():
+        parts[part] = a @ cov_m @ a.T
+    total = sum(parts.values())
+    se = np.sqrt(np.maximum(np.diag(total), 0.0))
+    budget = {}
+    for j, n in enumerate(theta):
+        entry = {part: float(parts[part][j, j]) for part in PARTS if part in parts}
+        entry["total"] = float(total[j, j])
+        budget[n] = entry
+    corr = {}
+    for i, na in enumerate(theta):
+        corr[na] = {nb: (float(total[i, j] / (se[i] * se[j])) if se[i] * se[j] > 0 else None)
+                    for j, nb in enumerate(theta)}
+    stderr_total = {n: None for n in target_result.params}
+    stderr_total.update({n: float(s) for n, s in zip(theta, se)})
+    sens = {n: {m: float(-a[j, k]) for k, m in enumerate(m_names)} for j, n in enumerate(theta)}
+    what = "the medium's (step 1)" + (" and the reference's (step 0)" if "step0" in parts else "")
+    message = (target_result.message + f"; total standard errors include {what} "
+               f"uncertainty, propagated by linearization")
+    stats = dict(target_result.stats, budget=budget, sensitivity=sens)
+    return dataclasses.replace(target_result, stderr_total=stderr_total,
+                               correlation_total=corr, message=message, stats=stats)
+
+
+def budget_table(result: FitResult) -> list[dict]:
+    """Rows (parameter, value, total stderr, % of the variance from each step) of a result
+    returned by :func:`propagate`."""
+    budget = result.stats.get("budget")
+    if not budget:
+        raise FitError("this result carries no uncertainty budget (see veil.uncertainty."
+                       "propagate)")
+    rows = []
+    for n, entry in budget.items():
+        total = entry["total"]
+        row = {"parameter": n, "value": result.params[n], "stderr": math.sqrt(total),
+               "stderr_step2": math.sqrt(entry["step2"])}
+        for part in PARTS:
+            if part in entry:
+                row[f"{part}_%"] = 100.0 * entry[part] / total if total > 0 else 0.0
+        rows.append(row)
+    return rows
+
+
+def _draw(rng, mean, cov, names, n_draws):
+    """Medium parameter draws from N(mean, cov), redrawing those outside the model's bounds."""
+    chol = np.linalg.cholesky(cov + 1e-300 * np.eye(len(names)))
+    specs = [HenyeyGreenstein.PARAMS[HenyeyGreenstein.param_names().index(n)] for n in names]
+    out = []
+    tries = 0
+    while len(out) < n_draws:
+        tries += 1
+        if tries > 100 * n_draws:
+            raise FitError("the medium's distribution lies mostly outside the parameter "
+                           "bounds: draws cannot be made")
+        d = mean + chol @ rng.standard_normal(len(names))
+        try:
+            for s, v in zip(specs, d):
+                s.check(float(v), "medium")
+        except ValueError:
+            continue
+        out.append(d)
+    return np.array(out)
+
+
+def sample_propagation(target_result: FitResult, medium_result: FitResult, table, *,
+                       n_draws: int = 100, seed: int = 0, black=None,
+                       accuracy: str = ITERATION_ACCURACY, max_nfev: int | None = 50) -> dict:
+    """Step 1's contribution by sampling: refit the target with the medium drawn from step 1's
+    distribution (normal, natural units), each refit warm-started from the target fitted with
+    the nominal medium by the same machinery (so the two differ only by the draw).
+
+    Returns a dict with ``names`` (target parameters), ``medium_names``, ``draws``
+    (n_draws, k), ``shifts`` (refit minus nominal refit, (n_draws, p)), ``linear`` (the
+    linearization's prediction -A d theta_m for each draw), ``covariance`` (of the shifts),
+    ``linear_covariance`` (A Cov_m A^T) and ``converged`` (per draw).
+    """
+    if isinstance(n_draws, bool) or not isinstance(n_draws, int) or n_draws < 2:
+        raise FitError(f"n_draws = {n_draws!r}; expected an integer >= 2")
+    _check_pair(target_result, medium_result, None)
+    theta = list(target_result.free)
+    m_names, cov_m = covariance_of(medium_result)
+    medium = medium_result.as_model()
+    base = session_problem(table, target_result.as_model(), medium, free=theta, black=black,
+                           what="target (in the medium)")
+    nominal = solve(base, base.values, max_nfev=max_nfev)
+    x0 = nominal.x
+    a = sensitivity(base, x0, theta, _medium_map(m_names), accuracy)
+    rng = np.random.default_rng(seed)
+    mean = np.array([medium_result.params[n] for n in m_names])
+    draws = _draw(rng, mean, cov_m, m_names, n_draws)
+    it = [base.index(n) for n in theta]
+    im = [base.index(n) for n in _medium_map(m_names)]
+    shifts, conv = [], []
+    for d in draws:
+        sub = base.with_fixed(dict(zip(_medium_map(m_names), d)))
+        start = x0.copy()
+        start[im] = d
+        sol = solve(sub, start, max_nfev=max_nfev)
+        shifts.append(sol.x[it] - x0[it])
+        conv.append(sol.status > 0)
+    shifts = np.array(shifts)
+    linear = -(draws - mean) @ a.T
+    return {"names": theta, "medium_names": m_names, "draws": draws, "shifts": shifts,
+            "linear": linear, "covariance": np.cov(shifts, rowvar=False),
+            "linear_covariance": a @ cov_m @ a.T, "converged": np.array(conv)}
+
+
+__all__ = ["propagate", "sample_propagation", "medium_parts", "covariance_of", "sensitivity",
+           "budget_table", "PARTS"]

@@ -1,0 +1,185 @@
+"""The whole estimation (MODEL.md sec. 7): veil.run_pipeline, ``veil fit pipeline``, ``veil demo``.
+
+Recovery: the paper's set-up (reference BRDF2, target BRDF1) in each of the three media, full
+protocol, "default" accuracy, one black cloth for both sessions; every parameter within three
+of its reported total standard errors (step 1 and 2 include the earlier steps' uncertainty).
+File, CLI and determinism tests use one relative angle and the "fast" rule. Sessions come
+from test_fitting.session (simulated once per process).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+import veil
+from test_fitting import assert_recovered, copy, session
+from veil.cli import main
+from veil.cli.demo_cmd import matched_glow
+from veil.fitting import FitError, FitResult
+from veil.measurements import save_measurements
+from veil.pipeline import FILES, run_pipeline
+from veil.protocol import protocol
+
+SMALL = (90.0,)
+PNG = b"\x89PNG\r\n\x1a\n"
+
+
+def sessions(medium: str, psi=None, accuracy="default"):
+    """Reference BRDF2 (clear, medium + black), target BRDF1 (medium with the same glow,
+    clear): independent noise for every session."""
+    kw = {} if psi is None else {"psi": psi}
+    ref_clear, _ = session("BRDF2", None, **kw, accuracy=accuracy)
+    ref_medium, black = session("BRDF2", medium, **kw, accuracy=accuracy)
+    glow = matched_glow(veil.BRDF2, veil.BRDF1, veil.preset(medium), accuracy)
+    tgt_medium, _ = session("BRDF1", medium, **kw, seed=1, glow=glow, accuracy=accuracy)
+    tgt_clear, _ = session("BRDF1", None, **kw, seed=3, accuracy=accuracy)
+    return {"reference_clear": copy(ref_clear), "reference_medium": copy(ref_medium),
+            "target_medium": copy(tgt_medium), "black": copy(black),
+            "target_clear": copy(tgt_clear)}
+
+
+@pytest.mark.parametrize("medium", ["BTDF1", "BTDF2", "BTDF3"])
+def test_pipeline_recovers_every_step(medium, tmp_path):
+    s = sessions(medium)
+    with_direct = medium == "BTDF2"
+    stages = []
+    result = run_pipeline(s["reference_clear"], s["reference_medium"], s["target_medium"],
+                          black=s["black"],
+                          target_clear=s["target_clear"] if with_direct else None,
+                          outdir=tmp_path, figures=with_direct,
+                          progress=lambda stage, done, total: stages.append(stage))
+    assert_recovered(result.reference, veil.BRDF2)
+    assert_recovered(result.medium, veil.preset(medium), total=True)
+    assert_recovered(result.target, veil.BRDF1, total=True)
+    assert result.converged
+    # the earlier steps' uncertainty is part of the later ones'
+    for fit in (result.medium, result.target):
+        assert all(fit.stderr_total[n] >= fit.stderr[n] for n in fit.free)
+    assert result.target.stderr_total["n"] > 1.2 * result.target.stderr["n"]
+    assert {st.split(":")[0] for st in stages} >= {"step 0, reference", "step 1, medium",
+                                                   "step 2, target"}
+    for key in ("reference", "medium", "target"):
+        assert FitResult.from_json(tmp_path / FILES[key]) == getattr(result, key)
+    if not with_direct:
+        return
+    # the target measured directly agrees with the estimate
+    c = result.comparison
+    assert set(c["params"]) == {"Pd", "Ps", "n", "eta"}
+    for name, row in c["params"].items():
+        assert abs(row["z"]) < 3, (name, row)
+        se = result.target.stderr_total[name]
+        assert row["stderr_combined"] == pytest.approx(
+            np.hypot(se, result.direct.stderr[name]), rel=1e-12)
+    configs = protocol()
+    args = (configs["theta_i"], configs["theta_r"], configs["phi_i"], configs["phi_r"])
+    est = veil.reflectance(result.target.as_model(), *args)
+    ref = veil.reflectance(result.direct.as_model(), *args)
+    assert c["n_configurations"] == len(configs) == 111
+    assert c["rms_fr_relative"] == pytest.approx(np.sqrt(np.mean((est / ref - 1) ** 2)),
+                                                 rel=1e-9)
+    assert c["rms_fr_relative"] < 0.1
+    assert_recovered(result.direct, veil.BRDF1)
+    for key in ("reference_fig", "medium_fig", "target_fig", "direct_fig"):
+        data = (tmp_path / FILES[key]).read_bytes()
+        assert data.startswith(PNG) and len(data) > 20_000
+    report = (tmp_path / "report.md").read_text()
+    for text in ("## Step 0", "## Step 1", "## Step 2", "| Td |", "![", "target.png",
+                 "The target measured directly", "black-cloth session was subtracted"):
+        assert text in report
+    assert f"| g | {result.medium.params['g']:.6g} |" in report
+
+
+def small_files(directory):
+    s = sessions("BTDF1", psi=SMALL, accuracy="fast")
+    paths = {}
+    for role, table in s.items():
+        paths[role] = directory / f"{role}.csv"
+        save_measurements(table, paths[role])
+    return paths
+
+
+def test_outputs_are_deterministic_and_inputs_safe(tmp_path):
+    paths = small_files(tmp_path)
+    outs = []
+    for k in range(2):
+        out = tmp_path / f"out{k}"
+        run_pipeline(paths["reference_clear"], paths["reference_medium"],
+                     paths["target_medium"], black=paths["black"],
+                     target_clear=paths["target_clear"], outdir=out, accuracy="fast",
+                     fixed={"medium": {"eta": 1.3}})
+        outs.append(out)
+    names = sorted(os.listdir(outs[0]))
+    assert names == sorted(FILES.values())
+    for name in names:
+        assert (outs[0] / name).read_bytes() == (outs[1] / name).read_bytes(), name
+    assert json.loads((outs[0] / "medium.json").read_text())["params"]["eta"] == 1.3
+    # an input where an output would go
+    (tmp_path / "clash").mkdir()
+    (tmp_path / "clash" / "target.json").write_bytes(paths["target_medium"].read_bytes())
+    before = (tmp_path / "clash" / "target.json").read_bytes()
+    with pytest.raises(FitError, match="would be overwritten"):
+        run_pipeline(paths["reference_clear"], paths["reference_medium"],
+                     tmp_path / "clash" / "target.json", black=paths["black"],
+                     outdir=tmp_path / "clash", accuracy="fast")
+    assert (tmp_path / "clash" / "target.json").read_bytes() == before
+    with pytest.raises(FitError, match="expected a dict by step"):
+        run_pipeline(paths["reference_clear"], paths["reference_medium"],
+                     paths["target_medium"], outdir=tmp_path / "x", fixed={"eta": 1.3})
+    assert not (tmp_path / "x").exists()
+
+
+def invoke(args):
+    result = CliRunner().invoke(main, [str(a) for a in args])
+    assert "Traceback" not in result.output
+    if result.exception is not None and not isinstance(result.exception, SystemExit):
+        raise result.exception
+    return result
+
+
+def test_cli_pipeline(tmp_path):
+    p = small_files(tmp_path)
+    base = ["fit", "pipeline", "--reference-clear", p["reference_clear"], "--reference-medium",
+            p["reference_medium"], "--target-medium", p["target_medium"], "--black",
+            p["black"], "--accuracy", "fast"]
+    r = invoke(base + ["-o", tmp_path / "out", "--target-clear", p["target_clear"],
+                       "--fix", "medium.eta=1.3", "--fix", "target.eta=1.55"])
+    assert r.exit_code == 0, r.output
+    assert "[[Estimated target f_r against the direct fit]]" in r.stdout
+    med = FitResult.from_json(tmp_path / "out" / "medium.json")
+    tgt = FitResult.from_json(tmp_path / "out" / "target.json")
+    direct = FitResult.from_json(tmp_path / "out" / "target_direct.json")
+    assert med.params["eta"] == 1.3 and tgt.params["eta"] == 1.55 == direct.params["eta"]
+    r = invoke(base + ["-o", tmp_path / "nc", "--max-nfev", "1"])
+    assert r.exit_code == 1 and "did not converge" in r.output
+    assert json.loads((tmp_path / "nc" / "medium.json").read_text())["converged"] is False
+    for args, message in ((["--fix", "eta=1.3"], "expected STEP.NAME=VALUE"),
+                          (["--fix", "medium.n=1"], "has no parameter 'n'"),
+                          (["--variant", "both"], "Invalid value for '--variant'")):
+        r = invoke(base + ["-o", tmp_path / "bad"] + args)
+        assert r.exit_code == 2 and message in r.output, r.output
+        assert not (tmp_path / "bad").exists()
+    (tmp_path / "file").write_text("x")
+    r = invoke(base + ["-o", tmp_path / "file"])
+    assert r.exit_code == 2
+
+
+def test_demo(tmp_path):
+    out = tmp_path / "demo"
+    r = invoke(["demo", "-o", out, "--accuracy", "fast"])
+    assert r.exit_code == 0, r.output
+    for name in ("reference_clear", "reference_medium", "black", "target_medium",
+                 "target_clear"):
+        assert (out / "data" / f"{name}.csv").exists()
+    assert (out / "report.md").exists() and (out / "target.png").exists()
+    assert "recovered parameters against the truth" in r.stdout
+    tgt = FitResult.from_json(out / "target.json")
+    row = [line for line in r.stdout.splitlines() if "2 target" in line and " n " in line]
+    assert row and f"{tgt.params['n']:.6g}" in row[0]
+    (tmp_path / "plain").write_text("")
+    r = invoke(["demo", "-o", tmp_path / "plain"])
+    assert r.exit_code == 2

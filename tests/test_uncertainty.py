@@ -1,0 +1,114 @@
+"""Uncertainty through the pipeline (veil.uncertainty, MODEL.md sec. 7).
+
+The two-step fits run on small sessions (55 configurations, one engine chunk) at the "fast"
+quadrature; the point is the propagation arithmetic, checked against its definition, the
+fits' own first-order totals and a sampling of step 1's distribution. The noise is 0.3 %, so
+that the medium's spread moves the target by a few per cent, where a first-order
+propagation should hold (at 1 % noise Ps moves by up to 90 % and the linearization visibly
+underestimates the tail: docs/ambiguity.md).
+"""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+import veil
+from veil.fitting import FitError, fit_medium, fit_reference, fit_target
+from veil.uncertainty import PARTS, budget_table, propagate, sample_propagation
+
+SMALL = dict(psi=(30, 60, 90), fine_step=2, coarse_step=10, glow=0.0, accuracy="fast")
+
+
+@pytest.fixture(scope="module")
+def steps():
+    ref_clear = veil.simulate(veil.BRDF2, None, noise=0.003, seed=11, **SMALL)
+    ref_medium = veil.simulate(veil.BRDF2, veil.BTDF3, noise=0.003, seed=12, **SMALL)
+    target = veil.simulate(veil.BRDF1, veil.BTDF3, noise=0.003, seed=13, **SMALL)
+    r0 = fit_reference(ref_clear)
+    r1 = fit_medium(ref_medium, r0, accuracy="fast")
+    r2 = fit_target(target, r1, accuracy="fast")
+    assert r0.converged and r1.converged and r2.converged
+    return {"r0": r0, "r1": r1, "r2": r2, "ref_medium": ref_medium, "target": target}
+
+
+def test_budget_adds_up_and_matches_the_fits_own_total(steps):
+    r2 = steps["r2"]
+    p = propagate(r2, steps["r1"], steps["target"])
+    budget = p.stats["budget"]
+    assert set(budget) == set(r2.free)
+    for name, entry in budget.items():
+        assert set(entry) == set(PARTS) | {"total"}
+        assert all(entry[k] >= 0 for k in PARTS)
+        assert entry["total"] == pytest.approx(sum(entry[k] for k in PARTS), rel=1e-12)
+        assert p.stderr_total[name] == pytest.approx(np.sqrt(entry["total"]), rel=1e-12)
+        assert entry["step2"] == pytest.approx(r2.stderr[name] ** 2, rel=1e-12)
+        assert p.stderr_total[name] > r2.stderr[name]
+        # veil.fitting chains the same first-order propagation inside fit_target
+        assert p.stderr_total[name] == pytest.approx(r2.stderr_total[name], rel=1e-4)
+    # through a strongly scattering medium step 1 is a large part of n's budget
+    rows = {row["parameter"]: row for row in budget_table(p)}
+    assert rows["n"]["step1_%"] > 20
+    assert sum(rows["n"][f"{k}_%"] for k in PARTS) == pytest.approx(100.0)
+    assert p.stderr == r2.stderr and p.params == r2.params
+    assert "propagated by linearization" in p.message
+
+
+def test_explicit_step0_equals_the_chained_one(steps):
+    implicit = propagate(steps["r2"], steps["r1"], steps["target"])
+    explicit = propagate(steps["r2"], steps["r1"], steps["target"],
+                         reference_result=steps["r0"], reference_table=steps["ref_medium"])
+    for name, entry in explicit.stats["budget"].items():
+        assert entry["step0"] > 0
+        assert entry["step0"] == pytest.approx(implicit.stats["budget"][name]["step0"], rel=1e-4)
+    # without step 0's information there is no step-0 entry
+    bare = dataclasses.replace(steps["r1"], stderr_total=None, correlation_total=None)
+    target = dataclasses.replace(steps["r2"], given=None)
+    alone = propagate(target, bare, steps["target"])
+    assert all("step0" not in e for e in alone.stats["budget"].values())
+
+
+def test_linearization_agrees_with_sampling(steps):
+    s = sample_propagation(steps["r2"], steps["r1"], steps["target"], n_draws=12, seed=3)
+    assert s["converged"].all()
+    assert s["shifts"].shape == s["linear"].shape == (12, 4)
+    names = s["names"]
+    for k, name in enumerate(names):
+        shift, lin = s["shifts"][:, k], s["linear"][:, k]
+        # draw by draw, the refit moves as the linearization predicts
+        assert np.corrcoef(shift, lin)[0, 1] > 0.98, name
+        assert np.sum(shift ** 2) / np.sum(lin ** 2) == pytest.approx(1.0, abs=0.1), name
+        assert np.std(shift) > 0
+    # the sampled covariance equals the linear one over the same draws ...
+    lin_cov = np.cov(s["linear"], rowvar=False)
+    sd = np.sqrt(np.diag(lin_cov))
+    assert np.allclose(s["covariance"] / np.outer(sd, sd), lin_cov / np.outer(sd, sd),
+                       atol=0.1)
+    # ... and the population one is propagate()'s step-1 part
+    p = propagate(steps["r2"], steps["r1"], steps["target"])
+    for k, name in enumerate(names):
+        assert s["linear_covariance"][k, k] == pytest.approx(
+            p.stats["budget"][name]["step1"], rel=1e-3)
+
+
+def test_bad_input(steps):
+    r0, r1, r2, target = steps["r0"], steps["r1"], steps["r2"], steps["target"]
+    with pytest.raises(FitError, match="step-2 fit"):
+        propagate(r1, r1, target)
+    with pytest.raises(FitError, match="step-1 fit"):
+        propagate(r2, r0, target)
+    other = dataclasses.replace(r1, params={**r1.params, "Tt": r1.params["Tt"] * 1.1})
+    with pytest.raises(FitError, match="different medium"):
+        propagate(r2, other, target)
+    with pytest.raises(FitError, match="give both reference_result"):
+        propagate(r2, r1, target, reference_result=r0)
+    with pytest.raises(FitError, match="the target fit used 55"):
+        propagate(r2, r1, target.iloc[:40])
+    undetermined = dataclasses.replace(r1, stderr={k: None for k in r1.stderr},
+                                       stderr_total=None)
+    with pytest.raises(FitError, match="no standard error"):
+        propagate(dataclasses.replace(r2, given=None), undetermined, target)
+    with pytest.raises(FitError, match="n_draws"):
+        sample_propagation(r2, r1, target, n_draws=1)
+    with pytest.raises(FitError, match="no uncertainty budget"):
+        budget_table(r2)
