@@ -129,8 +129,9 @@ def summary_table(result):
               show_default=True, help="Quadrature of the simulation and of the fit results.")
 @click.pass_context
 def demo_command(ctx, outdir, seed, noise, accuracy):
-    """Simulate the paper's acquisition (reference BRDF2 in water and in BTDF2 with a black
-    cloth, target BRDF1 in BTDF2 and in water) and estimate everything back.
+    """The paper's simulation experiment (figs. 9-12, as `veil reproduce`), then a simulated
+    acquisition (reference BRDF2 in water and in BTDF2 with a black cloth, target BRDF1 in
+    BTDF2 and in water) estimated end to end.
 
     \b
         veil demo -o demo-out
@@ -144,6 +145,14 @@ def demo_command(ctx, outdir, seed, noise, accuracy):
     if not outdir.exists() and not outdir.parent.exists():
         raise UserError(f"cannot create {outdir}: directory {outdir.parent} does not exist")
     outdir.mkdir(exist_ok=True)
+    # 1. the paper's simulation experiment (sec. 5.1): figs. 9-12 and report
+    from .reproduce_cmd import reproduce_command
+
+    click.echo("The paper's simulation experiment (figs. 9-12) -> "
+               f"{os.path.join(outdir, 'paper-figures')}")
+    ctx.invoke(reproduce_command, outdir=str(outdir / "paper-figures"))
+    # 2. a simulated acquisition and the whole two-step estimation (sec. 5.2 / MODEL.md sec. 7)
+    click.echo("A simulated acquisition, estimated end to end")
     with fit_progress("demo") as progress:
         paths = simulate_sessions(outdir, seed, noise, accuracy, progress)
         result = fit_sessions(paths, outdir, accuracy, progress)
