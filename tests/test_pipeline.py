@@ -13,6 +13,7 @@ import json
 import os
 
 import numpy as np
+import pandas as pd
 import pytest
 from click.testing import CliRunner
 
@@ -20,9 +21,9 @@ import veil
 from test_fitting import assert_recovered, copy, session
 from veil.cli import main
 from veil.cli.demo_cmd import matched_glow
-from veil.fitting import FitError, FitResult
+from veil.fitting import FitError, FitResult, fit_reference, prepare
 from veil.measurements import save_measurements
-from veil.pipeline import FILES, run_pipeline
+from veil.pipeline import FILES, fit_figure, run_pipeline
 from veil.protocol import protocol
 
 SMALL = (90.0,)
@@ -133,6 +134,25 @@ def test_outputs_are_deterministic_and_inputs_safe(tmp_path):
     assert not (tmp_path / "x").exists()
 
 
+def test_figure_of_out_of_plane_data():
+    """Rows off the plane of incidence have no psi curve: model against data instead."""
+    rng = np.random.default_rng(4)
+    ti = rng.uniform(5, 80, 60)
+    pi_ = rng.uniform(0, 360, 60)
+    # half of them within a few degrees of the mirror direction, where the peak is
+    near = np.arange(60) < 30
+    tr = np.where(near, np.clip(ti + rng.uniform(-2, 2, 60), 1, 85), rng.uniform(5, 80, 60))
+    pr = np.where(near, pi_ + 180 + rng.uniform(-3, 3, 60), rng.uniform(0, 360, 60)) % 360
+    value = veil.reflectance(veil.BRDF1, ti, tr, pi_, pr)
+    table = pd.DataFrame({"theta_i": ti, "phi_i": pi_, "theta_r": tr, "phi_r": pr,
+                          "value": value * (1 + 0.01 * rng.standard_normal(60)),
+                          "sigma": 0.01 * value})
+    result = fit_reference(table)
+    assert_recovered(result, veil.BRDF1)
+    png = fit_figure(prepare(table), result, None)
+    assert png.startswith(PNG) and png == fit_figure(prepare(table), result, None)
+
+
 def invoke(args):
     result = CliRunner().invoke(main, [str(a) for a in args])
     assert "Traceback" not in result.output
@@ -168,18 +188,25 @@ def test_cli_pipeline(tmp_path):
     assert r.exit_code == 2
 
 
-def test_demo(tmp_path):
-    out = tmp_path / "demo"
-    r = invoke(["demo", "-o", out, "--accuracy", "fast"])
-    assert r.exit_code == 0, r.output
-    for name in ("reference_clear", "reference_medium", "black", "target_medium",
-                 "target_clear"):
-        assert (out / "data" / f"{name}.csv").exists()
-    assert (out / "report.md").exists() and (out / "target.png").exists()
-    assert "recovered parameters against the truth" in r.stdout
-    tgt = FitResult.from_json(out / "target.json")
-    row = [line for line in r.stdout.splitlines() if "2 target" in line and " n " in line]
-    assert row and f"{tgt.params['n']:.6g}" in row[0]
+def test_demo_acquisition(tmp_path):
+    """veil demo's simulated acquisition and estimation (its functions, at "fast"; the
+    command also runs the paper's figures, tested with veil reproduce)."""
+    from rich.console import Console
+
+    from veil.cli.demo_cmd import fit_sessions, simulate_sessions, summary_table
+
+    paths = simulate_sessions(tmp_path, seed=0, noise=0.01, accuracy="fast")
+    assert sorted(p.name for p in paths.values()) == sorted(
+        f"{name}.csv" for name in ("reference_clear", "reference_medium", "black",
+                                   "target_medium", "target_clear"))
+    result = fit_sessions(paths, tmp_path, "fast")
+    assert result.converged and (tmp_path / "report.md").exists()
+    assert "| Pd | " in (tmp_path / "report.md").read_text()  # with the true values
+    console = Console(width=100, record=True)
+    console.print(summary_table(result))
+    text = console.export_text()
+    row = [line for line in text.splitlines() if "2 target BRDF1" in line and " n " in line]
+    assert row and f"{result.target.params['n']:.6g}" in row[0] and "0.8" in row[0]
     (tmp_path / "plain").write_text("")
     r = invoke(["demo", "-o", tmp_path / "plain"])
-    assert r.exit_code == 2
+    assert r.exit_code == 2 and "is a file" in r.output

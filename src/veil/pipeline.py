@@ -255,9 +255,11 @@ def fit_figure(data, result: FitResult, other: Model | None, extra: FitResult | 
     accuracy = result.accuracy or "default"
     if gonio is None:
         model = model_values(result, other, data.angles, accuracy)
-        lo = max(min(np.min(y[y > 0]) if np.any(y > 0) else 1e-12, np.min(model)), 1e-300)
-        ax.loglog(np.abs(model), np.abs(y), "o", ms=3, color=COLORS[0])
-        hi = max(np.max(np.abs(y)), np.max(np.abs(model)))
+        ax.plot(model, y, "o", ms=3, color=COLORS[0])
+        lo, hi = min(np.min(y), np.min(model)), max(np.max(y), np.max(model))
+        if lo > 0:
+            ax.set_xscale("log")
+            ax.set_yscale("log")
         ax.plot([lo, hi], [lo, hi], "-", color="0.5", lw=1)
         ax.set_xlabel("fitted model value [relative units, 1/sr]")
         ax.set_ylabel("measured value [relative units, 1/sr]")
