@@ -24,12 +24,11 @@ from __future__ import annotations
 
 import io
 import math
-import os
-import tempfile
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from ._io import write_bytes_atomic
 from .fitting import FitError, FitResult, ITERATION_ACCURACY
 from .joint import (BRDF_NAMES, MEDIUM_NAMES, JointResult, build, covariance, session_problem,
                     solve)
@@ -461,26 +460,7 @@ def plot(diag: Diagnosis, path) -> None:
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=110)
     plt.close(fig)
-    _write_bytes(path, buf.getvalue())
-
-
-def _write_bytes(path, data: bytes) -> None:
-    path = os.fspath(path)
-    directory = os.path.dirname(os.path.abspath(path))
-    fd, tmp = tempfile.mkstemp(dir=directory, prefix=f".{os.path.basename(path)}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-            fh.flush()
-            os.fsync(fh.fileno())
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    write_bytes_atomic(path, buf.getvalue())
 
 
 __all__ = ["diagnose", "Diagnosis", "Profile", "profile_likelihood", "problem_for", "plot",

@@ -15,11 +15,11 @@ from __future__ import annotations
 import io
 import math
 import os
-import tempfile
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from ._io import write_bytes_atomic
 from .apparent import RULES, as_brdf, as_btdf, reflectance
 from .angles import direction
 from .models import PRESETS
@@ -40,24 +40,6 @@ STYLE = {"font.size": 10, "axes.titlesize": 10.5, "axes.labelsize": 10, "legend.
 # --------------------------------------------------------------------------------------
 # files
 # --------------------------------------------------------------------------------------
-def write_bytes_atomic(path, data: bytes) -> None:
-    """Write ``data`` to ``path`` via a temporary file in the same directory + os.replace."""
-    path = os.fspath(path)
-    directory = os.path.dirname(os.path.abspath(path))
-    fd, tmp = tempfile.mkstemp(dir=directory, prefix=f".{os.path.basename(path)}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-
-
 def figure_format(path) -> str:
     """The format of ``path`` from its suffix; ValueError for anything but png/pdf/svg."""
     ext = os.path.splitext(os.fspath(path))[1].lower().lstrip(".")

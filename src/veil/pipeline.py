@@ -19,11 +19,11 @@ from __future__ import annotations
 import io
 import math
 import os
-import tempfile
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from ._io import write_bytes_atomic
 from .angles import to_goniometer, to_signed_inplane
 from .fitting import (FitError, FitResult, fit_direct, fit_medium, fit_reference, fit_target,
                       model_values, prepare)
@@ -57,24 +57,6 @@ class PipelineResult:
     def converged(self) -> bool:
         fits = [self.reference, self.medium, self.target] + ([self.direct] if self.direct else [])
         return all(f.converged for f in fits)
-
-
-def _write_bytes_atomic(path: str, data: bytes) -> None:
-    directory = os.path.dirname(os.path.abspath(path))
-    fd, tmp = tempfile.mkstemp(dir=directory, prefix=f".{os.path.basename(path)}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-            fh.flush()
-            os.fsync(fh.fileno())
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
 
 
 def _check_fixed(fixed) -> dict:
@@ -174,7 +156,7 @@ def run_pipeline(reference_clear, reference_medium, target_medium, black=None, t
             figs["direct_fig"] = (data["target_clear"], direct, None, tgt)
         for key, (d, result, other, extra) in figs.items():
             path = os.path.join(outdir, FILES[key])
-            _write_bytes_atomic(path, fit_figure(d, result, other, extra))
+            write_bytes_atomic(path, fit_figure(d, result, other, extra))
             files[key] = path
     report = report_markdown(ref, med, tgt, direct, comparison, truth,
                              {k: os.path.basename(v) for k, v in files.items()}, inputs)
