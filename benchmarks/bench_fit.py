@@ -2,12 +2,14 @@
 
 The paper's protocol (psi = 30, 60, 90 deg; 111 configurations a session): reference BRDF2
 in clear water and in BTDF1 with a black cloth, target BRDF1 in BTDF1; 1 % noise. The
-sessions are simulated first (not timed); then the pipeline runs in a fresh process, twice:
-"cold" (JAX compiles the engine in that process) and "warm" (everything compiled). With
-``--cache`` it also runs two fresh processes sharing a persistent JAX compilation cache
-(JAX_COMPILATION_CACHE_DIR): the first fills it, the second shows a cold start with it.
+sessions are simulated first (not timed). Then three measurements, all with a persistent JAX
+compilation cache in a new temporary directory (VEIL_CACHE_DIR; veil keeps one by default):
+"first run" is a fresh process with the cache empty (JAX compiles the engine: what the very
+first pipeline on a machine pays), "fresh process" a second process that finds the
+executables in the cache (every later `veil fit pipeline`), "warm" a second pipeline in the
+first process (everything compiled and traced).
 
-    .venv/bin/python benchmarks/bench_fit.py [--cache]
+    .venv/bin/python benchmarks/bench_fit.py
 
 Per step: wall seconds, process CPU seconds (both cores), least-squares runs, function and
 Jacobian evaluations, and engine calls by quadrature ("values/Jacobians", each over the
@@ -114,8 +116,6 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--child", help=argparse.SUPPRESS)
     parser.add_argument("--runs", type=int, default=2, help=argparse.SUPPRESS)
-    parser.add_argument("--cache", action="store_true",
-                        help="also measure with a persistent JAX compilation cache")
     args = parser.parse_args()
     if args.child:
         child(args.child, args.runs)
@@ -129,19 +129,14 @@ def main() -> None:
               f"target {TARGET} in {MEDIUM}; paper's protocol, 1 % noise; sessions simulated "
               f"in {time.perf_counter() - t0:.1f} s (not timed below); "
               f"{os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.1f} at start\n")
-        records = run_child(directory, 2)
-        print(table("cold (fresh process, JAX compiles)", records[0]) + "\n")
-        print(table("warm (same process, second run)", records[1]) + "\n")
-        if args.cache:
-            with tempfile.TemporaryDirectory(prefix="bench-fit-jax-cache-") as cache:
-                env = {"JAX_COMPILATION_CACHE_DIR": cache,
-                       "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS": "0",
-                       "JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES": "0"}
-                first = run_child(directory, 1, env)[0]
-                second = run_child(directory, 1, env)[0]
-            print(table("fresh process filling a persistent JAX compilation cache", first)
-                  + "\n")
-            print(table("fresh process with the persistent cache filled", second) + "\n")
+        with tempfile.TemporaryDirectory(prefix="bench-fit-jax-cache-") as cache:
+            env = {"VEIL_CACHE_DIR": cache}
+            records = run_child(directory, 2, env)
+            fresh = run_child(directory, 1, env)[0]
+        print(table("first run (fresh process, empty compilation cache: JAX compiles)",
+                    records[0]) + "\n")
+        print(table("fresh process (compilation cache filled by the first run)", fresh) + "\n")
+        print(table("warm (the first process, second run)", records[1]) + "\n")
         truth = {"step 0, reference": REFERENCE, "step 1, medium": MEDIUM,
                  "step 2, target": TARGET}
         import veil

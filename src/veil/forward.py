@@ -14,10 +14,13 @@ from functools import lru_cache
 import numpy as np
 
 from ._jax import jax, jnp
+from jax.sharding import Mesh, NamedSharding, PartitionSpec as P
 from . import integrator
 from .angles import direction
 from .models.base import BRDF, BTDF
 from .quadrature import Rule
+
+_AXIS = "configurations"
 
 
 def _bucket(m: int, n_dev: int) -> int:
@@ -35,29 +38,48 @@ def _devices():
     return devs if devs[0].platform == "cpu" else devs[:1]
 
 
+@lru_cache(maxsize=16)
+def _mesh(n_dev: int) -> Mesh:
+    """A one-axis mesh over the first ``n_dev`` devices; configurations are split along it."""
+    return Mesh(np.array(_devices()[:n_dev]), (_AXIS,))
+
+
+def _sharded(fn, mesh: Mesh):
+    """``fn(vb, vm, wi, wr)`` compiled once for every device of ``mesh``: the parameters are
+    replicated, the configurations (leading axis of ``wi``, ``wr`` and of every output) are
+    split. One SPMD program, so one compilation however many devices run it."""
+    return jax.jit(jax.shard_map(fn, mesh=mesh, in_specs=(P(), P(), P(_AXIS), P(_AXIS)),
+                                 out_specs=P(_AXIS)))
+
+
 @lru_cache(maxsize=128)
-def _terms_fn(kb, km, rule: Rule, half: bool):
+def _terms_fn(kb, km, rule: Rule, half: bool, mesh: Mesh):
     bt, mt = integrator._TEMPLATES[kb], integrator._TEMPLATES[km]
 
     def fn(vb, vm, wi, wr):
         return integrator.apparent_terms(bt, mt, rule, vb, vm, wi, wr, half)
 
-    return jax.jit(fn)
+    return _sharded(fn, mesh)
 
 
 @lru_cache(maxsize=128)
-def _terms_jac_fn(kb, km, rule: Rule, half: bool, nl_b: tuple, nl_m: tuple):
+def _terms_jac_fn(kb, km, rule: Rule, half: bool, nl_b: tuple, nl_m: tuple, mesh: Mesh):
+    """Terms (M, 3, 2) and their derivatives (M, 3, 2, len(nl_b) + len(nl_m)) with respect
+    to the listed parameters, by forward mode: one linearization, its tangent map applied
+    to each basis vector (faster to compile and to run than jacfwd's batched tangents)."""
     bt, mt = integrator._TEMPLATES[kb], integrator._TEMPLATES[km]
-    ib, im = jnp.asarray(nl_b, dtype=int), jnp.asarray(nl_m, dtype=int)
+    ib, im = np.asarray(nl_b, dtype=int), np.asarray(nl_m, dtype=int)
+    nb = len(nl_b)
 
     def fn(vb, vm, wi, wr):
-        def g(xb, xm):
-            return integrator.apparent_terms(bt, mt, rule, vb.at[ib].set(xb), vm.at[im].set(xm),
-                                             wi, wr, half)
-        xb, xm = vb[ib], vm[im]
-        return g(xb, xm), jax.jacfwd(g, argnums=(0, 1))(xb, xm)
+        def g(x):
+            return integrator.apparent_terms(bt, mt, rule, vb.at[ib].set(x[:nb]),
+                                             vm.at[im].set(x[nb:]), wi, wr, half)
+        x = jnp.concatenate([vb[ib], vm[im]])
+        terms, tangent = jax.linearize(g, x)
+        return terms, jax.vmap(tangent, out_axes=-1)(jnp.eye(x.size, dtype=x.dtype))
 
-    return jax.jit(fn)
+    return _sharded(fn, mesh)
 
 
 class Forward:
@@ -84,23 +106,19 @@ class Forward:
         wr = np.asarray(direction(tr, pr))
         # in the plane of incidence the integrand is symmetric under y -> -y
         self.half = bool(np.all(np.abs(wi[:, 1]) < 1e-12) and np.all(np.abs(wr[:, 1]) < 1e-12))
-        self.devices = _devices()
-        n_dev = min(len(self.devices), max(1, self.size // 8))
-        self.devices = self.devices[:n_dev]
+        n_dev = min(len(_devices()), max(1, self.size // 8))
+        self._mesh = _mesh(n_dev)
+        self.devices = list(self._mesh.devices.flat)
         padded = _bucket(self.size, n_dev)
         idx = np.minimum(np.arange(padded), self.size - 1)
-        chunks = np.array_split(idx, n_dev)
-        self._chunks = [(jax.device_put(wi[c], d), jax.device_put(wr[c], d))
-                        for c, d in zip(chunks, self.devices)]
+        split = NamedSharding(self._mesh, P(_AXIS))
+        self._wi, self._wr = jax.device_put(wi[idx], split), jax.device_put(wr[idx], split)
         self._kb = integrator.template(brdf).structure()
         self._km = integrator.template(medium).structure()
 
     # ----------------------------------------------------------------------------------
     def _run(self, fn, vb, vm):
-        outs = []
-        for (wi, wr), dev in zip(self._chunks, self.devices):
-            outs.append(fn(jax.device_put(vb, dev), jax.device_put(vm, dev), wi, wr))
-        return outs
+        return fn(vb, vm, self._wi, self._wr)
 
     def _vectors(self, vb, vm):
         out = []
@@ -124,10 +142,9 @@ class Forward:
 
     def terms(self, vb, vm) -> np.ndarray:
         """Term matrices (M, 3, 2) with scale parameters set to 1 (see integrator)."""
-        fn = _terms_fn(self._kb, self._km, self.rule, self.half)
+        fn = _terms_fn(self._kb, self._km, self.rule, self.half, self._mesh)
         vb, vm = self._vectors(vb, vm)
-        outs = self._run(fn, vb, vm)
-        return np.concatenate([np.asarray(o) for o in outs])[: self.size]
+        return np.asarray(self._run(fn, vb, vm))[: self.size]
 
     def combine(self, terms, vb, vm) -> np.ndarray:
         return np.asarray(integrator.combine_terms(type(self.brdf), type(self.medium),
@@ -152,11 +169,16 @@ class Forward:
         nl_b = tuple(i for i in free_brdf if i not in scale_b)
         nl_m = tuple(i for i in free_medium if i not in scale_m)
         vb, vm = self._vectors(vb, vm)
-        fn = _terms_jac_fn(self._kb, self._km, self.rule, self.half, nl_b, nl_m)
-        outs = self._run(fn, vb, vm)
-        terms = np.concatenate([np.asarray(o[0]) for o in outs])[: self.size]
-        jb = np.concatenate([np.asarray(o[1][0]) for o in outs])[: self.size]  # (M,3,2,kb)
-        jm = np.concatenate([np.asarray(o[1][1]) for o in outs])[: self.size]
+        if nl_b or nl_m:
+            fn = _terms_jac_fn(self._kb, self._km, self.rule, self.half, nl_b, nl_m,
+                               self._mesh)
+            terms, jac_nl = self._run(fn, vb, vm)
+            terms = np.asarray(terms)[: self.size]
+            jac_nl = np.asarray(jac_nl)[: self.size]  # (M, 3, 2, len(nl_b) + len(nl_m))
+        else:  # only scale parameters free: the term matrices are all it takes
+            terms = self.terms(vb, vm)
+            jac_nl = np.zeros(terms.shape + (0,))
+        jb, jm = jac_nl[..., : len(nl_b)], jac_nl[..., len(nl_b):]
         value = self.combine(terms, vb, vm)
         td, tt, ps, pl = self._scales(vb, vm)
         rows = np.array([td * td, td * tt, tt * tt])
