@@ -106,3 +106,32 @@ def test_one_executable_for_all_devices():
     single = Forward(b, m, th[:7], th[:7], 180.0, 10.0, rule=rule)  # below 8 a device: one
     assert len(single.devices) == 1
     np.testing.assert_allclose(single(b.to_vector(), m.to_vector()), value[:7], rtol=1e-13)
+
+
+def test_prepare_compiles_in_the_background_once():
+    """prepare() starts the compilations; a call made before they finish waits for them
+    instead of compiling the same program again, and the values are unchanged."""
+    b, m = veil.preset("BRDF1"), veil.preset("BTDF3")
+    th = np.linspace(10.0, 70.0, 20)
+    rule = RULES["fast"].scaled(0.93)  # a rule no other test compiles
+    f = Forward(b, m, th, th, 180.0, 0.0, rule=rule)
+    compiles = []
+
+    def listen(name, secs, **kw):
+        if name == BACKEND_COMPILE:
+            compiles.append(kw.get("fun_name"))
+
+    jax.monitoring.register_event_duration_secs_listener(listen)
+    try:
+        futures = f.prepare(values=True, jacobian=((2,), (2,)))
+        assert len(futures) == 2
+        value, jac = f.value_and_jacobian(b.to_vector(), m.to_vector(), (2,), (2,))
+        terms = f.terms(b.to_vector(), m.to_vector())
+        for fut in futures:
+            fut.result()
+        assert f.prepare(values=True, jacobian=((2,), (2,)))[0] is futures[0]
+    finally:
+        jax.monitoring.unregister_event_duration_listener(listen)
+    assert compiles.count("jit(fn)") == 2, compiles  # terms and Jacobian, once each
+    np.testing.assert_array_equal(f.combine(terms, b.to_vector(), m.to_vector()), value)
+    assert jac.shape == (20, 2) and np.all(np.isfinite(jac))

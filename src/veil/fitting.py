@@ -538,6 +538,11 @@ class _Engine:
         self.values_calls = 0
         self.jacobian_calls = 0
 
+    def prepare(self, values: bool = True, jacobian: bool = False) -> None:
+        """Compile in the background what :meth:`values`/:meth:`terms` and
+        :meth:`value_and_jacobian` will need (every chunk shares one compilation)."""
+        self.parts[0][0].prepare(values, (self.all_b, self.all_m) if jacobian else None)
+
     def terms(self, vb, vm) -> np.ndarray:
         self.values_calls += 1
         return np.concatenate([f.terms(vb, vm)[:n] for f, n in self.parts])
@@ -1026,6 +1031,12 @@ def _through_medium(step, cls, space, data, brdf, medium, accuracy, max_nfev, pr
     fitting_medium = step == "medium"
     iter_rule = RULES[ITERATION_ACCURACY]
     fast = _Engine(brdf, medium, data.angles, iter_rule)
+    polish = accuracy != ITERATION_ACCURACY
+    # everything this fit will compile, compiled side by side while the grid starts
+    fast.prepare(values=True, jacobian=True)
+    if polish:
+        final = _Engine(brdf, medium, data.angles, RULES[accuracy])
+        final.prepare(values=True)
     template = medium if fitting_medium else brdf
     base = template.to_vector()
     for n, v in space.fixed.items():
@@ -1067,7 +1078,6 @@ def _through_medium(step, cls, space, data, brdf, medium, accuracy, max_nfev, pr
     def fast_jac(x):
         return full_jac(x)[:, cut]
 
-    polish = accuracy != ITERATION_ACCURACY
     tol = _TOL_ITER if polish else _TOL_FINAL
     best, runs, starts = _multi_start(step, space, data, scored, fast_values, fast_jac,
                                       max_nfev, progress, tol, every=False)
@@ -1075,7 +1085,6 @@ def _through_medium(step, cls, space, data, brdf, medium, accuracy, max_nfev, pr
     run_stats = [_run_stats(r[0], r[1]) for r in runs]
     notes = []
     if polish:
-        final = _Engine(brdf, medium, data.angles, RULES[accuracy])
         if lsq.status <= 0:
             notes.append(f"iterations at {ITERATION_ACCURACY!r} accuracy stopped early "
                          f"({lsq.message})")

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import math
 import operator
+import threading
+from concurrent.futures import Future, ThreadPoolExecutor
 from functools import lru_cache
 
 import numpy as np
@@ -82,6 +84,24 @@ def _terms_jac_fn(kb, km, rule: Rule, half: bool, nl_b: tuple, nl_m: tuple, mesh
     return _sharded(fn, mesh)
 
 
+# Background compilation (Forward.prepare): the first call of each compiled function, run
+# in a worker thread (JAX makes a concurrent call of the same function wait for that
+# compilation rather than compile it twice).
+_PREPARED: dict = {}
+_PREPARED_LOCK = threading.Lock()
+_POOL: list = []
+
+
+def _submit(fn, *args) -> Future:
+    with _PREPARED_LOCK:
+        if fn not in _PREPARED:
+            if not _POOL:
+                _POOL.append(ThreadPoolExecutor(max_workers=4,
+                                                thread_name_prefix="veil-compile"))
+            _PREPARED[fn] = _POOL[0].submit(fn, *args)
+        return _PREPARED[fn]
+
+
 class Forward:
     """Apparent reflectance of ``brdf`` through ``medium`` at fixed configurations.
 
@@ -119,6 +139,34 @@ class Forward:
     # ----------------------------------------------------------------------------------
     def _run(self, fn, vb, vm):
         return fn(vb, vm, self._wi, self._wr)
+
+    def prepare(self, values: bool = True, jacobian=None) -> list[Future]:
+        """Start compiling in the background what later calls will need: the term matrices
+        (``values``, for ``terms`` and ``__call__``) and, with ``jacobian=(free_brdf,
+        free_medium)``, ``value_and_jacobian`` for those indices. Compilations run in
+        parallel on worker threads; a call that needs one still being compiled waits for
+        it. Returns the futures (each resolves to the warm-up call's output)."""
+        fns = []
+        if values:
+            fns.append(_terms_fn(self._kb, self._km, self.rule, self.half, self._mesh))
+        if jacobian is not None:
+            fn = self._jacobian_fn(*jacobian)[0]
+            if fn is not None:
+                fns.append(fn)
+        vb, vm = self._vectors(self.brdf.to_vector(), self.medium.to_vector())
+        return [_submit(fn, vb, vm, self._wi, self._wr) for fn in fns]
+
+    def _jacobian_fn(self, free_brdf, free_medium):
+        bcls, mcls = type(self.brdf), type(self.medium)
+        free_brdf = self._indices(free_brdf, bcls)
+        free_medium = self._indices(free_medium, mcls)
+        scale_b = {bcls.scale_index(p): p for p in bcls.SCALES}
+        scale_m = {mcls.scale_index(p): p for p in mcls.SCALES}
+        nl_b = tuple(i for i in free_brdf if i not in scale_b)
+        nl_m = tuple(i for i in free_medium if i not in scale_m)
+        fn = (_terms_jac_fn(self._kb, self._km, self.rule, self.half, nl_b, nl_m, self._mesh)
+              if nl_b or nl_m else None)
+        return fn, free_brdf, free_medium, scale_b, scale_m, nl_b, nl_m
 
     def _vectors(self, vb, vm):
         out = []
@@ -161,17 +209,10 @@ class Forward:
         differentiated analytically from the term matrices; the others by forward-mode
         automatic differentiation through the quadrature (exact for the discrete rule).
         """
-        bcls, mcls = type(self.brdf), type(self.medium)
-        free_brdf = self._indices(free_brdf, bcls)
-        free_medium = self._indices(free_medium, mcls)
-        scale_b = {bcls.scale_index(p): p for p in bcls.SCALES}
-        scale_m = {mcls.scale_index(p): p for p in mcls.SCALES}
-        nl_b = tuple(i for i in free_brdf if i not in scale_b)
-        nl_m = tuple(i for i in free_medium if i not in scale_m)
+        fn, free_brdf, free_medium, scale_b, scale_m, nl_b, nl_m = self._jacobian_fn(
+            free_brdf, free_medium)
         vb, vm = self._vectors(vb, vm)
-        if nl_b or nl_m:
-            fn = _terms_jac_fn(self._kb, self._km, self.rule, self.half, nl_b, nl_m,
-                               self._mesh)
+        if fn is not None:
             terms, jac_nl = self._run(fn, vb, vm)
             terms = np.asarray(terms)[: self.size]
             jac_nl = np.asarray(jac_nl)[: self.size]  # (M, 3, 2, len(nl_b) + len(nl_m))

@@ -92,6 +92,11 @@ class SessionModel:
         else:
             self._engine = _Engine(brdf, medium, angles, rule)
 
+    def prepare(self, values: bool = True, jacobian: bool = False) -> None:
+        """Compile in the background what later calls will need (see Forward.prepare)."""
+        if self.medium is not None:
+            self._engine.prepare(values, jacobian)
+
     def values(self, vb, vm=None) -> np.ndarray:
         if self.medium is None:
             return self._direct.values(np.asarray(vb, dtype=float))
@@ -1141,8 +1146,12 @@ def fit_joint(sessions, *, reference=None, shared=None, per_medium=None, fixed=N
         start = {k: (v.as_model() if isinstance(v, FitResult) else v) for k, v in start.items()}
     problem, layout = build(sessions, reference=reference, shared=shared,
                             per_medium=per_medium, fixed=fixed, variant=variant)
-    starts = _start_points(problem, layout, start, progress)
     polish = accuracy != ITERATION_ACCURACY
+    for block in problem.blocks:  # compile side by side what the fit will need
+        block.model(ITERATION_ACCURACY).prepare(values=True, jacobian=True)
+        if polish:
+            block.model(accuracy).prepare(values=True)
+    starts = _start_points(problem, layout, start, progress)
     runs = []
     skipped = 0
     for s, x0 in enumerate(starts):
