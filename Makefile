@@ -5,6 +5,8 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.veil-installed
 JOBS   ?= 2
+# compiled engine code (JAX's persistent compilation cache) stays in the checkout too
+export VEIL_CACHE_DIR ?= $(CURDIR)/.veil-cache
 
 .PHONY: demo test bench venv clean
 
@@ -26,4 +28,4 @@ bench: $(STAMP)
 	$(PY) benchmarks/bench_apparent.py
 
 clean:
-	rm -rf $(VENV) demo-out .pytest_cache
+	rm -rf $(VENV) demo-out .pytest_cache .veil-cache
