@@ -29,9 +29,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ._io import write_bytes_atomic
-from .fitting import FitError, FitResult, ITERATION_ACCURACY
+from .fit_result import FitError, FitResult
 from .joint import (BRDF_NAMES, MEDIUM_NAMES, JointResult, build, covariance, session_problem,
                     solve)
+from .least_squares import ITERATION_ACCURACY
 from .models import BRDF, BTDF, HenyeyGreenstein, model_class
 
 #: Default thresholds.
@@ -367,15 +368,13 @@ def profile_likelihood(problem, x, name: str, stderr: float, *, points: int = PR
     """Hold ``name`` on a grid about its estimate and refit the rest (warm starts walking
     outward); Delta chi^2 = (chi^2 - chi^2_min) / ``scale``. The grid spans 3 standard errors
     each side in fit coordinates, at most :data:`MAX_SPAN`."""
-    from .joint import _bounds, _to_u, _to_x
-
     k = problem.index(name)
     p = problem.params[k]
-    u_hat = _to_u(p, x[k])
-    _, dxdu = _to_x(p, u_hat)
+    u_hat = p.to_u(x[k])
+    _, dxdu = p.to_x(u_hat)
     se_u = stderr / dxdu if dxdu > 0 and math.isfinite(stderr) else math.inf
     span = min(3.0 * se_u, MAX_SPAN[p.coordinate])
-    lo, hi = _bounds(p, u_hat)
+    lo, hi = p.bounds(u_hat)
     half = points // 2
     offsets = np.linspace(-span, span, 2 * half + 1)
     grid_u = np.clip(u_hat + offsets, lo, hi)
@@ -386,14 +385,14 @@ def profile_likelihood(problem, x, name: str, stderr: float, *, points: int = PR
     for direction in (1, -1):
         start = x.copy()
         for j in range(half + direction, half + direction * (half + 1), direction):
-            v, _ = _to_x(p, grid_u[j])
+            v, _ = p.to_x(grid_u[j])
             sub = problem.with_fixed({name: v})
             start[k] = v
             sol = solve(sub, start, accuracy=accuracy, max_nfev=max_nfev)
             converged &= sol.status > 0
             start = sol.x
             chi2[j] = max(2.0 * (sol.cost - base_cost), 0.0) / scale
-    values = [float(_to_x(p, u)[0]) for u in grid_u]
+    values = [float(p.to_x(u)[0]) for u in grid_u]
     flat = []
     if chi2[0] < FLAT:
         flat.append("lower")

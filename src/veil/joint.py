@@ -31,15 +31,19 @@ import numpy as np
 import pandas as pd
 from scipy.optimize import least_squares
 
+from . import coordinates
 from .angles import direction
 from .apparent import RULES
-from .fitting import (FitError, FitResult, ITERATION_ACCURACY, LOG_RANGE, OPEN_MARGIN,
-                      START_GRIDS, _Direct, _Engine, _TOL_FINAL, _TOL_ITER, _as_brdf_model,
-                      _brdf_scales, _covariance, _medium_scales, _model_dict, fit_reference,
-                      prepare)
+from .evaluation import ApparentModel, DirectModel
+from .fit_data import FitData, prepare
+from .fit_result import FitError, FitResult, from_json_float
+from .fitting import fit_reference
+from .given_model import as_brdf_model, model_dict
+from .least_squares import ITERATION_ACCURACY, TOL_FINAL, TOL_ITER, covariance_from_jacobian
 from .measurements import atomic_write_text
 from .models import BRDF, BTDF, HenyeyGreenstein, TorranceSparrow
 from .models.base import Param
+from .start_values import START_GRIDS, brdf_scales, medium_scales
 
 #: Labels meaning clear water (no medium: the session measures f_r directly).
 CLEAR = ("none", "clear")
@@ -75,7 +79,7 @@ def _rule(accuracy):
 class SessionModel:
     """Model values of one session at fixed configurations (MODEL.md sec. 2, 5), with the
     Jacobian w.r.t. every parameter of both models; ``medium=None`` is clear water (f_r
-    directly). Built on :mod:`veil.fitting`'s chunked engines (one compilation per accuracy).
+    directly). Built on :mod:`veil.evaluation`'s chunked models (one compilation per accuracy).
     """
 
     def __init__(self, brdf: BRDF, medium: BTDF | None, angles, rule="fast"):
@@ -88,9 +92,9 @@ class SessionModel:
         self.nb = len(type(brdf).PARAMS)
         self.nm = 0 if medium is None else len(type(medium).PARAMS)
         if medium is None:
-            self._direct = _Direct(type(brdf), angles)
+            self._direct = DirectModel(type(brdf), angles)
         else:
-            self._engine = _Engine(brdf, medium, angles, rule)
+            self._engine = ApparentModel(brdf, medium, angles, rule)
 
     def prepare(self, values: bool = True, jacobian: bool = False) -> None:
         """Compile in the background what later calls will need (see Forward.prepare)."""
@@ -195,53 +199,24 @@ class GlobalParam:
 
     @property
     def coordinate(self) -> str:
-        """Fit coordinate, as in :mod:`veil.fitting`: log, atanh (open finite interval) or plain."""
-        p = self.spec
-        if p.log_scale:
-            return "log"
-        if p.lower_open and p.upper_open and math.isfinite(p.lower) and math.isfinite(p.upper):
-            return "atanh"
-        return "plain"
+        """Fit coordinate (:mod:`veil.coordinates`): log, atanh (open finite interval) or plain."""
+        return coordinates.coordinate(self.spec)
 
     @property
     def is_scale(self) -> bool:
         return self.spec.name in ("Pd", "Ps", "Td", "Tt")
 
+    def to_u(self, x: float) -> float:
+        """Internal coordinate of the natural value ``x``."""
+        return coordinates.to_u(self.spec, x, self.coordinate)
 
-def _to_u(p: GlobalParam, x: float) -> float:
-    s = p.spec
-    if p.coordinate == "log":
-        return math.log(x)
-    if p.coordinate == "atanh":
-        mid, half = (s.upper + s.lower) / 2, (s.upper - s.lower) / 2
-        return math.atanh(min(max((x - mid) / half, -1 + OPEN_MARGIN), 1 - OPEN_MARGIN))
-    return float(x)
+    def to_x(self, u: float) -> tuple[float, float]:
+        """Natural value and d value / d u."""
+        return coordinates.to_x(self.spec, u, self.coordinate)
 
-
-def _to_x(p: GlobalParam, u: float) -> tuple[float, float]:
-    """Natural value and d value / d u."""
-    s = p.spec
-    if p.coordinate == "log":
-        x = math.exp(u)
-        return x, x
-    if p.coordinate == "atanh":
-        mid, half = (s.upper + s.lower) / 2, (s.upper - s.lower) / 2
-        t = math.tanh(u)
-        return mid + half * t, half * (1 - t * t)
-    return float(u), 1.0
-
-
-def _bounds(p: GlobalParam, u0: float) -> tuple[float, float]:
-    s = p.spec
-    if p.coordinate == "log":
-        return (math.log(s.lower) if s.lower > 0 else u0 - LOG_RANGE,
-                math.log(s.upper) if math.isfinite(s.upper) else u0 + LOG_RANGE)
-    if p.coordinate == "atanh":
-        edge = math.atanh(1 - OPEN_MARGIN)
-        return -edge, edge
-    width = (s.upper - s.lower) if math.isfinite(s.upper - s.lower) else 1.0
-    return (s.lower + OPEN_MARGIN * width if s.lower_open else s.lower,
-            s.upper - OPEN_MARGIN * width if s.upper_open else s.upper)
+    def bounds(self, u0: float) -> tuple[float, float]:
+        """Search interval in internal coordinates (``u0`` the start)."""
+        return coordinates.bounds(self.spec, u0, self.coordinate)
 
 
 @dataclass
@@ -250,7 +225,7 @@ class Block:
     and medium vector ``im`` (None in clear water), and its engines (fast, final)."""
 
     session: Session
-    data: object  # fitting._Data
+    data: FitData
     ib: np.ndarray
     im: np.ndarray | None
     brdf: BRDF
@@ -325,17 +300,17 @@ class Problem:
 
     # -- coordinates ---------------------------------------------------------------------
     def to_u(self, x) -> np.ndarray:
-        return np.array([_to_u(self.params[k], x[k]) for k in self.free_index])
+        return np.array([self.params[k].to_u(x[k]) for k in self.free_index])
 
     def to_x(self, u, base=None) -> tuple[np.ndarray, np.ndarray]:
         x = (self.values if base is None else np.asarray(base, dtype=float)).copy()
         d = np.empty(len(u))
         for j, k in enumerate(self.free_index):
-            x[k], d[j] = _to_x(self.params[k], u[j])
+            x[k], d[j] = self.params[k].to_x(u[j])
         return x, d
 
     def bounds(self, u0) -> tuple[np.ndarray, np.ndarray]:
-        pairs = [_bounds(self.params[k], u0[j]) for j, k in enumerate(self.free_index)]
+        pairs = [self.params[k].bounds(u0[j]) for j, k in enumerate(self.free_index)]
         return np.array([a for a, _ in pairs]), np.array([b for _, b in pairs])
 
     # -- evaluation ----------------------------------------------------------------------
@@ -413,7 +388,7 @@ def solve(problem: Problem, x0, *, accuracy: str = ITERATION_ACCURACY, tol=None,
           max_nfev=None, jac_accuracy: str = ITERATION_ACCURACY, on_eval=None) -> Solution:
     """Weighted least squares (scipy "trf", x_scale="jac") from natural start ``x0``;
     values at ``accuracy``, Jacobians at ``jac_accuracy`` (as :mod:`veil.fitting`'s polish)."""
-    tol = tol or _TOL_FINAL
+    tol = tol or TOL_FINAL
     u0 = problem.to_u(x0)
     lo, hi = problem.bounds(u0)
     u0 = np.clip(u0, lo, hi)
@@ -456,7 +431,7 @@ def covariance(problem: Problem, x, accuracy: str = ITERATION_ACCURACY):
     scale = np.linalg.norm(jw, axis=0)
     if np.any(scale == 0) or not np.all(np.isfinite(scale)):
         return None
-    cov = _covariance(jw / scale, np.ones(int(problem.free.sum())))
+    cov = covariance_from_jacobian(jw / scale, np.ones(int(problem.free.sum())))
     if cov is not None:
         cov = cov / np.outer(scale, scale)
     if cov is not None and not problem.weighted:
@@ -511,8 +486,6 @@ class JointResult(FitResult):
 
     @classmethod
     def from_dict(cls, data: dict, source: str = "the joint fit result") -> "JointResult":
-        from .fitting import _from_json_float
-
         if not isinstance(data, dict) or data.get("model") != "joint":
             raise FitError(f"{source}: not a joint fit result (expected key 'model' = 'joint')")
         required = ("params", "stderr", "correlation", "chi2_reduced", "rms_relative",
@@ -541,12 +514,12 @@ class JointResult(FitResult):
         try:
             result = cls(
                 model="joint", params={k: float(v) for k, v in params.items()},
-                stderr={k: _from_json_float(data["stderr"].get(k)) for k in params},
-                correlation={a: {b: _from_json_float(r) for b, r in row.items()}
+                stderr={k: from_json_float(data["stderr"].get(k)) for k in params},
+                correlation={a: {b: from_json_float(r) for b, r in row.items()}
                              for a, row in (data["correlation"] or {}).items()},
-                residuals=tuple(_from_json_float(r) for r in data.get("residuals") or ()),
-                chi2_reduced=_from_json_float(data["chi2_reduced"]),
-                rms_relative=_from_json_float(data["rms_relative"]),
+                residuals=tuple(from_json_float(r) for r in data.get("residuals") or ()),
+                chi2_reduced=from_json_float(data["chi2_reduced"]),
+                rms_relative=from_json_float(data["rms_relative"]),
                 n_points=int(data["n_points"]), converged=data["converged"],
                 message=str(data["message"]), variant=data["variant"],
                 fixed={k: float(v) for k, v in (data.get("fixed") or {}).items()},
@@ -811,7 +784,7 @@ def build(sessions, *, reference=None, shared=None, per_medium=None, fixed=None,
     ref_sessions = [s for s in sessions if s.object == "reference"]
     reference_model = None
     if reference is not None:
-        reference_model = _as_brdf_model(reference)
+        reference_model = as_brdf_model(reference)
         if not ref_sessions:
             raise FitError("reference= given but no session of the reference object: the "
                            "reference's f_r only matters through its sessions (object "
@@ -1009,8 +982,8 @@ def _start_points(problem: Problem, layout: dict, start: dict | None, progress):
             basis = np.einsum("mkb,b->mk", terms, np.array([vb[0], vb[1]]))
             fx = {p: vm[i] for p, i in (("Td", 0), ("Tt", 1))
                   if fixed_mask[idx_of[names[p]]]}
-            vm, cost = _medium_scales(basis, vm, HenyeyGreenstein, fx, b.data.y[idx],
-                                      b.data.w[idx])
+            vm, cost = medium_scales(basis, vm, HenyeyGreenstein, fx, b.data.y[idx],
+                                     b.data.w[idx])
             if best is None or cost < best[0]:
                 best = (cost, vm)
         for p, i in _MEDIUM_NAMES.items():
@@ -1080,7 +1053,7 @@ def _target_point(problem, x, tblocks, known_media, media, idx_of, cache):
             ws.append(b.data.w[idx])
         basis, y, w = np.concatenate(cols), np.concatenate(ys), np.concatenate(ws)
         vb = x[tblocks[0].ib].copy()
-        vb, _ = _brdf_scales(basis, vb, TorranceSparrow, c_fixed, y, w)
+        vb, _ = brdf_scales(basis, vb, TorranceSparrow, c_fixed, y, w)
         for p, i in (("Pd", 0), ("Ps", 1)):
             if not fixed_mask[idx_of[tnames[p]]]:
                 x[idx_of[tnames[p]]] = vb[i]
@@ -1103,8 +1076,8 @@ def _target_point(problem, x, tblocks, known_media, media, idx_of, cache):
                 vm[2] = g
                 fx = {p: vm[i] for p, i in (("Td", 0), ("Tt", 1))
                       if fixed_mask[idx_of[names[p]]]}
-                vm, c = _medium_scales(basis_m, vm, HenyeyGreenstein, fx, b.data.y[idx],
-                                       b.data.w[idx])
+                vm, c = medium_scales(basis_m, vm, HenyeyGreenstein, fx, b.data.y[idx],
+                                      b.data.w[idx])
                 if best is None or c < best[0]:
                     best = (c, g, vm)
             c, g, vm = best
@@ -1165,7 +1138,7 @@ def fit_joint(sessions, *, reference=None, shared=None, per_medium=None, fixed=N
             if progress:
                 progress(f"start {s + 1}/{len(starts)}: iteration", counter["n"], None)
 
-        runs.append(solve(problem, x0, tol=_TOL_ITER if polish else _TOL_FINAL,
+        runs.append(solve(problem, x0, tol=TOL_ITER if polish else TOL_FINAL,
                           max_nfev=max_nfev, on_eval=tick))
     best = min(range(len(runs)), key=lambda r: (runs[r].cost, r))
     sol = runs[best]
@@ -1183,7 +1156,7 @@ def fit_joint(sessions, *, reference=None, shared=None, per_medium=None, fixed=N
             if progress:
                 progress(f"polish at {accuracy!r}: iteration", counter["n"], None)
 
-        sol = solve(problem, sol.x, accuracy=accuracy, tol=_TOL_FINAL, max_nfev=max_nfev,
+        sol = solve(problem, sol.x, accuracy=accuracy, tol=TOL_FINAL, max_nfev=max_nfev,
                     on_eval=tick_polish)
         run_stats.append({"nfev": sol.nfev, "njev": sol.njev, "status": sol.status,
                           "cost": sol.cost, "polish": True})
@@ -1195,7 +1168,7 @@ def fit_joint(sessions, *, reference=None, shared=None, per_medium=None, fixed=N
              "nfev": sum(r["nfev"] for r in run_stats),
              "njev": sum(r["njev"] for r in run_stats), "runs": run_stats,
              "configurations": problem.n_points}
-    given = _model_dict(_as_brdf_model(reference)) if reference is not None else None
+    given = model_dict(as_brdf_model(reference)) if reference is not None else None
     return _result(problem, layout, sol, values, notes, variant, accuracy, given, stats)
 
 

@@ -55,7 +55,7 @@ class LikelyRadiansWarning(UserWarning):
 # --------------------------------------------------------------------------------------
 # naming rows in messages
 # --------------------------------------------------------------------------------------
-class _Rows:
+class RowNames:
     """Names row ``k`` (position) of a table: "line 7 of f.csv" or "row 5 (index label) of ..."."""
 
     def __init__(self, table: pd.DataFrame):
@@ -117,7 +117,7 @@ def _form(columns, what: str) -> dict:
     return forms
 
 
-def _numbers(table: pd.DataFrame, column: str, rows: _Rows) -> np.ndarray:
+def _numbers(table: pd.DataFrame, column: str, rows: RowNames) -> np.ndarray:
     """Column as float64, raising for empty, non-numeric, NaN or infinite cells."""
     series = table[column]
     if pd.api.types.is_bool_dtype(series.dtype):
@@ -163,7 +163,7 @@ def _range_error(rows, positions, describe, expected) -> MeasurementError:
     return MeasurementError(f"{listed}{more} ({expected})")
 
 
-def _angles_from(cols: dict, forms: dict, rows: _Rows):
+def _angles_from(cols: dict, forms: dict, rows: RowNames):
     """Canonical (theta_i, phi_i, theta_r, phi_r) of every form present, range-checked."""
     result = {}
     if forms["full"]:
@@ -222,7 +222,7 @@ def _separation(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.maximum(ang(a[..., :3], b[..., :3]), ang(a[..., 3:], b[..., 3:]))
 
 
-def _check_agreement(found: dict, rows: _Rows) -> tuple:
+def _check_agreement(found: dict, rows: RowNames) -> tuple:
     names = [f for f in FORMS if f in found]
     primary = found[names[0]]
     if len(names) > 1:
@@ -263,7 +263,7 @@ def _check_columns(table: pd.DataFrame, what: str) -> None:
         raise MeasurementError(f"{what} has no rows: expected one observation a row")
 
 
-def _parse_angles(table: pd.DataFrame, rows: _Rows, warn: bool = True):
+def _parse_angles(table: pd.DataFrame, rows: RowNames, warn: bool = True):
     forms = _form(table.columns, rows.what)
     cols = {c: _numbers(table, c, rows) for c in ANGLE_COLUMNS if c in table.columns}
     if warn:
@@ -271,7 +271,7 @@ def _parse_angles(table: pd.DataFrame, rows: _Rows, warn: bool = True):
     return cols, _check_agreement(_angles_from(cols, forms, rows), rows)
 
 
-def _duplicates(angles, rows: _Rows) -> None:
+def _duplicates(angles, rows: RowNames) -> None:
     from scipy.spatial import cKDTree
 
     vec = _vectors(angles)
@@ -300,10 +300,10 @@ def _duplicates(angles, rows: _Rows) -> None:
             + "; ".join(listed) + more + "; average repeated measurements into one row")
 
 
-def _validated(table: pd.DataFrame, rows: _Rows | None = None) -> tuple[pd.DataFrame, tuple]:
+def _validated(table: pd.DataFrame, rows: RowNames | None = None) -> tuple[pd.DataFrame, tuple]:
     """Checked copy of ``table`` (known columns float64) and its canonical angles."""
     _check_type(table)
-    rows = rows or _Rows(table)
+    rows = rows or RowNames(table)
     _check_columns(table, rows.what)
     if "value" not in table.columns:
         raise MeasurementError(f"{rows.what} has no 'value' column (the measured values); "
@@ -344,7 +344,7 @@ def canonical_angles(table: pd.DataFrame) -> pd.DataFrame:
     replaced by the polar angle and azimuth they mean). Only the angle columns are checked.
     """
     _check_type(table)
-    rows = _Rows(table)
+    rows = RowNames(table)
     _check_columns(table, rows.what)
     _, angles = _parse_angles(table, rows)
     out = pd.DataFrame({name: a for name, a in zip(CANONICAL, angles)}, index=table.index)
@@ -365,7 +365,7 @@ def to_form(table: pd.DataFrame, form: str) -> pd.DataFrame:
     if form not in FORMS:
         raise ValueError(f"form = {form!r}; expected one of {', '.join(FORMS)}")
     canon = canonical_angles(table)
-    rows = _Rows(table)
+    rows = RowNames(table)
     angles = tuple(canon[c].to_numpy() for c in CANONICAL)
     if form == "full":
         head = {c: a for c, a in zip(CANONICAL, angles)}
@@ -465,7 +465,7 @@ def load_measurements(path) -> pd.DataFrame:
     table = pd.DataFrame(data)
     table.attrs["veil_source"] = name
     table.attrs["veil_lines"] = tuple(lines)
-    out, _ = _validated(table, _Rows(table))
+    out, _ = _validated(table, RowNames(table))
     return out
 
 
@@ -537,12 +537,12 @@ def subtract_black(table: pd.DataFrame, black: pd.DataFrame, tol: float = 0.05) 
         raise ValueError(f"tol = {tol!r}: expected a finite tolerance >= 0 in degrees")
     _check_type(table)
     _check_type(black)
-    rows_t = _Rows(table)
+    rows_t = RowNames(table)
     checked, angles = _validated(table, rows_t)
     if "veil_source" not in black.attrs:
         black = black.copy()
         black.attrs["veil_name"] = "the black-cloth table"
-    rows_b = _Rows(black)
+    rows_b = RowNames(black)
     black_checked, black_angles = _validated(black, rows_b)
 
     from scipy.spatial import cKDTree

@@ -31,8 +31,9 @@ import math
 
 import numpy as np
 
-from .fitting import FitError, FitResult, ITERATION_ACCURACY
+from .fit_result import FitError, FitResult
 from .joint import MEDIUM_NAMES, session_problem, solve
+from .least_squares import ITERATION_ACCURACY
 from .models import HenyeyGreenstein, TorranceSparrow
 
 #: Parts of the error budget, in pipeline order.

@@ -96,7 +96,7 @@ def _parse_step_fix(items) -> dict:
             for step, entries in by_step.items()}
 
 
-def _load_reference(text: str):
+def load_reference(text: str):
     """A fit result JSON file, or a BRDF preset / literal."""
     if os.path.exists(text) or text.lower().endswith(".json"):
         return FitResult.from_json(text)
@@ -147,7 +147,8 @@ def fit_progress(title: str):
 
 
 @contextlib.contextmanager
-def _echo_warnings():
+def echo_warnings():
+    """Collect the warnings of the block and print them to stderr as "Warning: ..." after it."""
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         yield
@@ -155,7 +156,8 @@ def _echo_warnings():
         click.echo(f"Warning: {w.message}", err=True)
 
 
-def _finish(ctx, results, written):
+def finish_fits(ctx, results, written):
+    """Report the ``written`` files on stderr; exit status 1 if a result did not converge."""
     for path in written:
         click.echo(f"wrote {path}", err=True)
     failed = [r for r in results if r is not None and not r.converged]
@@ -196,12 +198,12 @@ def reference_command(ctx, table, output, fix, black, max_nfev):
     """Step 0: fit the reference's f_r (Torrance-Sparrow) to clear-medium data, directly."""
     fixed = parse_fix(fix, TorranceSparrow)
     check_output_path(output, [table, black])
-    with _echo_warnings(), fit_progress("step 0, reference") as progress:
+    with echo_warnings(), fit_progress("step 0, reference") as progress:
         result = fit_reference(table, fixed=fixed, black=black, max_nfev=max_nfev,
                                progress=progress)
     result.to_json(output)
     click.echo(result.report())
-    _finish(ctx, [result], [output])
+    finish_fits(ctx, [result], [output])
 
 
 @fit_command.command("medium")
@@ -220,15 +222,15 @@ def reference_command(ctx, table, output, fix, black, max_nfev):
 def medium_command(ctx, table, reference, output, fix, black, variant, accuracy, max_nfev):
     """Step 1: fit the medium (Td, Tt, g, eta) to the reference measured in it."""
     fixed = parse_fix(fix, HenyeyGreenstein)
-    ref = _load_reference(reference)
+    ref = load_reference(reference)
     inputs = [table, black] + ([reference] if os.path.exists(reference) else [])
     check_output_path(output, inputs)
-    with _echo_warnings(), fit_progress("step 1, medium") as progress:
+    with echo_warnings(), fit_progress("step 1, medium") as progress:
         result = fit_medium(table, ref, fixed=fixed, black=black, variant=variant,
                             accuracy=accuracy, max_nfev=max_nfev, progress=progress)
     result.to_json(output)
     click.echo(result.report())
-    _finish(ctx, [result], [output])
+    finish_fits(ctx, [result], [output])
 
 
 @fit_command.command("target")
@@ -255,12 +257,12 @@ def target_command(ctx, table, medium, output, fix, black, variant, accuracy, ma
                         f"{med.variant}; leave --variant out to use the medium's")
     inputs = [table, black] + ([medium] if os.path.exists(medium) else [])
     check_output_path(output, inputs)
-    with _echo_warnings(), fit_progress("step 2, target") as progress:
+    with echo_warnings(), fit_progress("step 2, target") as progress:
         result = fit_target(table, med, fixed=fixed, black=black, accuracy=accuracy,
                             max_nfev=max_nfev, progress=progress)
     result.to_json(output)
     click.echo(result.report())
-    _finish(ctx, [result], [output])
+    finish_fits(ctx, [result], [output])
 
 
 def print_pipeline(result) -> None:
@@ -312,11 +314,11 @@ def pipeline_command(ctx, reference_clear, reference_medium, target_medium, blac
         raise UserError(f"--outdir {outdir} exists and is not a directory")
     if not outdir.parent.exists() and not outdir.exists():
         raise UserError(f"cannot create {outdir}: directory {outdir.parent} does not exist")
-    with _echo_warnings(), fit_progress("pipeline") as progress:
+    with echo_warnings(), fit_progress("pipeline") as progress:
         result = run_pipeline(reference_clear, reference_medium, target_medium, black=black,
                               target_clear=target_clear, outdir=outdir, variant=variant,
                               accuracy=accuracy, fixed=fixed, max_nfev=max_nfev,
                               progress=progress)
     print_pipeline(result)
     fits = [result.reference, result.medium, result.target, result.direct]
-    _finish(ctx, fits, list(result.files.values()))
+    finish_fits(ctx, fits, list(result.files.values()))

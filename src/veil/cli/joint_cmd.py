@@ -149,7 +149,7 @@ def joint_command(ctx, sessions, reference_sessions, blacks, reference, shared, 
     Without reference sessions fix one scale (e.g. --fix 'Td[low]=1e-3'): the data only
     determine Pd, Ps and Td, Tt up to a common factor.
     """
-    from .fit_cmd import _echo_warnings, _finish, _load_reference, fit_progress
+    from .fit_cmd import echo_warnings, finish_fits, fit_progress, load_reference
 
     if not sessions:
         raise UserError("no --session given: a joint fit needs the target measured in at "
@@ -158,15 +158,15 @@ def joint_command(ctx, sessions, reference_sessions, blacks, reference, shared, 
     loaded, inputs = load_sessions(sessions, reference_sessions, blacks)
     ref = None
     if reference is not None:
-        ref = _load_reference(reference)
+        ref = load_reference(reference)
         if os.path.exists(reference):
             inputs.append(reference)
     check_output_path(output, inputs)
-    with _echo_warnings(), fit_progress("joint fit") as progress:
+    with echo_warnings(), fit_progress("joint fit") as progress:
         result = fit_joint(loaded, reference=ref, shared=_names(shared, "--shared"),
                            per_medium=_names(per_medium, "--per-medium"), fixed=fixed or None,
                            variant=variant, accuracy=accuracy, max_nfev=max_nfev,
                            progress=progress)
     result.to_json(output)
     click.echo(result.report())
-    _finish(ctx, [result], [output])
+    finish_fits(ctx, [result], [output])

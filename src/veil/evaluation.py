@@ -1,0 +1,106 @@
+"""Model values and Jacobians at a session's fixed configurations, padded to CHUNK (the
+shape of :func:`veil.simulate`, so fits and simulations share one compilation per accuracy):
+:class:`ApparentModel` through a medium (MODEL.md sec. 5), :class:`DirectModel` f_r alone
+(MODEL.md sec. 2)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ._jax import jax, jnp
+from .angles import direction
+from .forward import Forward
+from .models import BRDF, BTDF
+from .simulate import CHUNK
+
+
+def _padded(angles, start: int, size: int):
+    """Configurations start..start+CHUNK, padded with the last one (one shape, one compile)."""
+    idx = np.minimum(np.arange(start, start + CHUNK), size - 1)
+    return tuple(a[idx] for a in angles)
+
+
+class ApparentModel:
+    """Apparent reflectance at the data's configurations, CHUNK at a time (the same shape as
+    :func:`veil.simulate`, so both share one compilation per accuracy)."""
+
+    def __init__(self, brdf: BRDF, medium: BTDF, angles, rule):
+        self.size = len(angles[0])
+        self.parts = []
+        for start in range(0, self.size, CHUNK):
+            ti, pi_, tr, pr = _padded(angles, start, self.size)
+            self.parts.append((Forward(brdf, medium, ti, tr, pi_, pr, rule),
+                               min(CHUNK, self.size - start)))
+        nb, nm = len(brdf.PARAMS), len(medium.PARAMS)
+        # every parameter of both models: one compiled Jacobian serves steps 1 and 2 and any
+        # choice of fixed parameters
+        self.all_b, self.all_m = tuple(range(nb)), tuple(range(nm))
+        self.values_calls = 0
+        self.jacobian_calls = 0
+
+    def prepare(self, values: bool = True, jacobian: bool = False) -> None:
+        """Compile in the background what :meth:`values`/:meth:`terms` and
+        :meth:`value_and_jacobian` will need (every chunk shares one compilation)."""
+        self.parts[0][0].prepare(values, (self.all_b, self.all_m) if jacobian else None)
+
+    def terms(self, vb, vm) -> np.ndarray:
+        self.values_calls += 1
+        return np.concatenate([f.terms(vb, vm)[:n] for f, n in self.parts])
+
+    def values(self, vb, vm) -> np.ndarray:
+        self.values_calls += 1
+        return np.concatenate([f(vb, vm)[:n] for f, n in self.parts])
+
+    def value_and_jacobian(self, vb, vm):
+        """Values (M,) and d value / d (every BRDF parameter, every medium parameter)."""
+        self.jacobian_calls += 1
+        vals, jacs = [], []
+        for f, n in self.parts:
+            v, j = f.value_and_jacobian(vb, vm, free_brdf=self.all_b, free_medium=self.all_m)
+            vals.append(v[:n])
+            jacs.append(j[:n])
+        return np.concatenate(vals), np.concatenate(jacs)
+
+
+_DIRECT_FNS: dict = {}
+
+
+def _direct_fns(cls):
+    """Jitted f_r(v, wi, wr) and its Jacobian in v for a BRDF class (MODEL.md sec. 2)."""
+    if cls not in _DIRECT_FNS:
+        def f(v, wi, wr):
+            return cls.evaluate(v, wi, wr)
+        _DIRECT_FNS[cls] = (jax.jit(f), jax.jit(jax.jacfwd(f)))
+    return _DIRECT_FNS[cls]
+
+
+class DirectModel:
+    """f_r at the data's configurations, padded to a multiple of CHUNK (one compile)."""
+
+    def __init__(self, cls, angles):
+        self.cls = cls
+        self.size = len(angles[0])
+        total = CHUNK * math.ceil(self.size / CHUNK)
+        idx = np.minimum(np.arange(total), self.size - 1)
+        ti, pi_, tr, pr = (a[idx] for a in angles)
+        self.wi = jnp.asarray(np.asarray(direction(ti, pi_)))
+        self.wr = jnp.asarray(np.asarray(direction(tr, pr)))
+        self.values_calls = 0
+        self.jacobian_calls = 0
+
+    def values(self, v) -> np.ndarray:
+        self.values_calls += 1
+        f, _ = _direct_fns(self.cls)
+        return np.asarray(f(jnp.asarray(v, dtype=float), self.wi, self.wr))[: self.size]
+
+    def value_and_jacobian(self, v):
+        self.jacobian_calls += 1
+        f, jf = _direct_fns(self.cls)
+        vj = jnp.asarray(v, dtype=float)
+        return (np.asarray(f(vj, self.wi, self.wr))[: self.size],
+                np.asarray(jf(vj, self.wi, self.wr))[: self.size])
+
+
+__all__ = ["ApparentModel", "DirectModel"]
