@@ -33,15 +33,12 @@ REFERENCE, MEDIUM, TARGET = "BRDF2", "BTDF1", "BRDF1"
 
 def simulate_sessions(directory: str) -> None:
     import veil
-    from veil.cli.demo_cmd import matched_glow
-
     ref, med, tgt = veil.preset(REFERENCE), veil.preset(MEDIUM), veil.preset(TARGET)
     veil.save_measurements(veil.simulate(ref, None, seed=0), f"{directory}/reference_clear.csv")
     table, black = veil.simulate(ref, med, seed=1, black=True)
     veil.save_measurements(table, f"{directory}/reference_medium.csv")
     veil.save_measurements(black, f"{directory}/black.csv")
-    level = matched_glow(ref, tgt, med)
-    veil.save_measurements(veil.simulate(tgt, med, seed=2, glow=level),
+    veil.save_measurements(veil.simulate(tgt, med, seed=2),
                            f"{directory}/target_medium.csv")
 
 

@@ -18,17 +18,17 @@ import pytest
 import veil
 from veil._jax import jax
 from veil.apparent import RULES
-from veil.forward import Forward
+from veil.forward import Forward, _mesh, _terms_fn, wait_for_compilations
 
 BACKEND_COMPILE = "/jax/core/compile/backend_compile_duration"
 
 
-def _child(script: str, env: dict) -> str:
+def _child(script: str, env: dict, cwd=None) -> str:
     full_env = {k: v for k, v in os.environ.items()
                 if k not in ("VEIL_CACHE_DIR", "JAX_COMPILATION_CACHE_DIR", "XDG_CACHE_HOME")}
     full_env.update(env)
     proc = subprocess.run([sys.executable, "-c", textwrap.dedent(script)], env=full_env,
-                          capture_output=True, text=True, timeout=600)
+                          capture_output=True, text=True, timeout=600, cwd=cwd)
     assert proc.returncode == 0, proc.stderr[-3000:]
     return proc.stdout.strip().splitlines()[-1]
 
@@ -36,6 +36,7 @@ def _child(script: str, env: dict) -> str:
 @pytest.mark.parametrize("env, expected", [
     ({"VEIL_CACHE_DIR": "off"}, "None"),
     ({"VEIL_CACHE_DIR": "0"}, "None"),
+    ({"VEIL_CACHE_DIR": ""}, "None"),
     ({"VEIL_CACHE_DIR": "{tmp}/mine"}, "{tmp}/mine"),
     ({"XDG_CACHE_HOME": "{tmp}/xdg"}, "{tmp}/xdg/veil/jax"),
     ({"JAX_COMPILATION_CACHE_DIR": "{tmp}/jaxown", "VEIL_CACHE_DIR": "{tmp}/ignored"},
@@ -52,13 +53,40 @@ def test_cache_directory_settings(tmp_path, env, expected):
     assert out == f"{expected} {expected}"
 
 
+def test_relative_cache_directory_is_made_absolute(tmp_path):
+    out = _child("""
+        import os
+        import veil
+        from veil._jax import jax
+        print(jax.config.jax_compilation_cache_dir, os.path.isdir("rel/cache"))
+    """, {"VEIL_CACHE_DIR": "rel/cache", "PWD": str(tmp_path)}, cwd=tmp_path)
+    assert out == f"{tmp_path}/rel/cache True"
+
+
+def test_unwritable_cache_directory_warns_and_runs_without(tmp_path):
+    blocker = tmp_path / "a-file"
+    blocker.write_text("not a directory")
+    out = _child("""
+        import warnings
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            import veil
+        from veil._jax import jax
+        value = veil.apparent("BRDF1", "BTDF2", 30.0, 40.0, accuracy="fast")
+        messages = [str(w.message) for w in caught if "veil" in str(w.message)]
+        print(len(messages), "VEIL_CACHE_DIR" in messages[0], jax.config.jax_compilation_cache_dir,
+              float(value) > 0)
+    """, {"VEIL_CACHE_DIR": str(blocker / "cache")})
+    assert out == "1 True None True"
+
+
 _HASH_SCRIPT = """
     import hashlib
     import numpy as np
     import veil
     from veil._jax import jax
     from veil.apparent import RULES
-    from veil.forward import Forward
+    from veil.forward import Forward, _mesh, _terms_fn, wait_for_compilations
     events = []
     jax.monitoring.register_event_listener(lambda name, **kw: events.append(name))
     b, m = veil.preset("BRDF1"), veil.preset("BTDF2")
@@ -91,6 +119,7 @@ def test_one_executable_for_all_devices():
     rule = RULES["fast"].scaled(1.07)  # a rule no other test compiles
     f = Forward(b, m, th, th, 180.0, 10.0, rule=rule)
     assert len(f.devices) == len(jax.devices())
+    wait_for_compilations()  # nothing from earlier tests compiling in the background
     compiles = []
 
     def listen(name, secs, **kw):
@@ -115,6 +144,7 @@ def test_prepare_compiles_in_the_background_once():
     th = np.linspace(10.0, 70.0, 20)
     rule = RULES["fast"].scaled(0.93)  # a rule no other test compiles
     f = Forward(b, m, th, th, 180.0, 0.0, rule=rule)
+    wait_for_compilations()  # nothing from earlier tests compiling in the background
     compiles = []
 
     def listen(name, secs, **kw):
@@ -130,8 +160,69 @@ def test_prepare_compiles_in_the_background_once():
         for fut in futures:
             fut.result()
         assert f.prepare(values=True, jacobian=((2,), (2,)))[0] is futures[0]
+        assert all(fut.result() is None for fut in futures)
     finally:
         jax.monitoring.unregister_event_duration_listener(listen)
     assert compiles.count("jit(fn)") == 2, compiles  # terms and Jacobian, once each
     np.testing.assert_array_equal(f.combine(terms, b.to_vector(), m.to_vector()), value)
     assert jac.shape == (20, 2) and np.all(np.isfinite(jac))
+
+
+def test_prepare_distinguishes_input_shapes():
+    """Two Forwards on one mesh with different padded sizes need two compilations."""
+    b, m = veil.preset("BRDF2"), veil.preset("BTDF1")
+    rule = RULES["fast"]
+    small = Forward(b, m, np.linspace(10, 60, 20), np.linspace(10, 60, 20), rule=rule)
+    large = Forward(b, m, np.linspace(10, 60, 40), np.linspace(10, 60, 40), rule=rule)
+    assert small._mesh is large._mesh and small._wi.shape != large._wi.shape
+    f_small = small.prepare(values=True)[0]
+    f_large = large.prepare(values=True)[0]
+    assert f_small is not f_large
+    wait_for_compilations()
+    assert f_small.done() and f_large.done()
+
+
+@pytest.mark.parametrize("size", [17, 130])
+def test_split_over_devices_equals_one_device(size):
+    """Every configuration, including the second device's share and the padding's
+    neighbours, matches the same program run on one device."""
+    if len(jax.devices()) < 2:
+        pytest.skip("needs two CPU devices")
+    b, m = veil.preset("BRDF1"), veil.preset("BTDF2")
+    rng = np.random.default_rng(size)
+    ti, tr = rng.uniform(0, 80, size), rng.uniform(0, 80, size)
+    pi_, pr = rng.uniform(0, 360, size), rng.uniform(0, 360, size)
+    rule = RULES["fast"]
+    f = Forward(b, m, ti, tr, pi_, pr, rule=rule)
+    assert len(f.devices) == 2
+    split = f.terms(b.to_vector(), m.to_vector())
+    one = _terms_fn(f._kb, f._km, rule, f.half, _mesh(1))
+    whole = np.asarray(one(b.to_vector(), m.to_vector(), np.asarray(f._wi), np.asarray(f._wr)))
+    np.testing.assert_allclose(split, whole[:size], rtol=1e-12, atol=0)
+
+
+def test_jacobian_matches_central_differences():
+    """Every parameter of both models, in scrambled and negative index order, in and out of
+    the plane of incidence: the exact Jacobian agrees with central differences."""
+    b, m = veil.preset("BRDF1"), veil.preset("BTDF2")
+    ti = np.array([0.0, 20.0, 45.0, 60.0, 30.0, 70.0])
+    tr = np.array([30.0, 25.0, 45.0, 10.0, 50.0, 65.0])
+    phi_r = np.array([0.0, 0.0, 0.0, 40.0, 200.0, 90.0])
+    f = Forward(b, m, ti, tr, 180.0, phi_r, rule=RULES["fast"])
+    vb, vm = b.to_vector(), m.to_vector()
+    free_b, free_m = (3, 0, -2, 1), (-1, 2, 0, 1)
+    value, jac = f.value_and_jacobian(vb, vm, free_b, free_m)
+    np.testing.assert_allclose(value, f(vb, vm), rtol=1e-13)
+    columns = [("b", i % 4) for i in free_b] + [("m", i % 4) for i in free_m]
+    for k, (which, i) in enumerate(columns):
+        x = vb if which == "b" else vm
+        h = 1e-5 * abs(x[i])
+        up, down = x.copy(), x.copy()
+        up[i] += h
+        down[i] -= h
+        pair = [(up, vm), (down, vm)] if which == "b" else [(vb, up), (vb, down)]
+        fd = (f(*pair[0]) - f(*pair[1])) / (2 * h)
+        scale = np.max(np.abs(fd))
+        assert scale > 0
+        np.testing.assert_allclose(jac[:, k], fd, rtol=0, atol=1e-6 * scale,
+                                   err_msg=f"column {k}: {which} parameter {i}")

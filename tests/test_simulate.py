@@ -17,7 +17,7 @@ from click.testing import CliRunner
 import veil
 from veil.cli import main
 from veil.measurements import canonical_angles, load_measurements, subtract_black
-from veil.simulate import CHUNK, simulate
+from veil.simulate import CHUNK, glow_scale, simulate
 
 FAST = {"accuracy": "fast"}
 
@@ -92,16 +92,28 @@ def test_glow_model():
         g = black.loc[black["psi"] == psi, "value"].to_numpy()
         np.testing.assert_allclose(g, g[0], rtol=1e-12)  # constant within a psi: I.R = cos psi
         level[psi] = g[0]
-    ref = (black["psi"] == 60) & (black["rho"] == -30)
-    object_only = table.loc[ref, "value"].iloc[0] - black.loc[ref, "value"].iloc[0]
-    assert level[60.0] == pytest.approx(0.05 * object_only, rel=1e-10)
+    # the scale is the standard object's (BRDF2's) signal through the medium there
+    standard = simulate(veil.BRDF2, veil.BTDF2, psi=(60,), noise=0.0, glow=0.0, **FAST)
+    at_ref = standard.loc[standard["rho"] == -30, "value"].iloc[0]
+    assert level[60.0] == pytest.approx(0.05 * at_ref, rel=1e-10)
+    assert glow_scale(veil.BTDF2, FAST["accuracy"]) == pytest.approx(at_ref, rel=1e-12)
     m = veil.BTDF2
     for psi in (30.0, 90.0):
         assert level[psi] / level[60.0] == pytest.approx(
             hg_glow_shape(m, psi) / hg_glow_shape(m, 60.0), rel=1e-10)
-    # a few percent of the object signal off the peak
-    off_peak = np.median(table.loc[table["rho"].abs() >= 15, "value"].to_numpy())
-    assert 0.01 < black["value"].max() / off_peak < 0.1
+    # a few percent of the standard object's signal off the peak
+    off_peak = np.median(standard.loc[standard["rho"].abs() >= 15, "value"].to_numpy())
+    assert 0.01 < level[60.0] / off_peak < 0.1
+
+
+def test_glow_depends_on_the_medium_only():
+    """One black cloth serves every object in a medium, as in the lab."""
+    kw = dict(psi=(30, 90), noise=0.0, black=True, **FAST)
+    _, black1 = simulate(veil.BRDF1, veil.BTDF3, **kw)
+    _, black2 = simulate(veil.BRDF2, veil.BTDF3, **kw)
+    _, other = simulate(veil.BRDF1, veil.BTDF1, **kw)
+    pd.testing.assert_frame_equal(black1, black2, check_exact=True)
+    assert not np.allclose(black1["value"], other["value"], rtol=1e-3)
 
 
 def test_black_subtraction_recovers_apparent():

@@ -9,13 +9,16 @@
   and its Jacobian takes seconds, a cached executable loads in milliseconds, so only the
   first process on a machine pays. Kept in ``$VEIL_CACHE_DIR`` or
   ``$XDG_CACHE_HOME/veil/jax`` (``~/.cache/veil/jax``), at most 1 GiB, least recently used
-  entries evicted. ``VEIL_CACHE_DIR=off`` disables it; a cache directory configured for JAX
-  itself (``JAX_COMPILATION_CACHE_DIR``) is left alone. It applies to every JAX compilation
-  in the process.
+  entries evicted. ``VEIL_CACHE_DIR=off`` (or empty, 0, no, false, none) disables it, and so
+  does a directory that cannot be written (with a warning); a cache directory configured
+  for JAX itself (``JAX_COMPILATION_CACHE_DIR``) is left alone. It applies to every JAX
+  compilation in the process that takes at least 0.5 s.
 """
 
 import os
 import sys
+import tempfile
+import warnings
 
 if "jax" not in sys.modules:
     _flags = os.environ.get("XLA_FLAGS", "")
@@ -45,11 +48,32 @@ def cache_directory() -> str | None:
     return os.path.join(base, "veil", "jax")
 
 
+def _writable(path: str) -> str | None:
+    """Why ``path`` cannot hold the cache (None when it can): created if missing, probed
+    with a temporary file (JAX also writes lock and access-time files to read an entry)."""
+    try:
+        os.makedirs(path, exist_ok=True)
+        fd, probe = tempfile.mkstemp(dir=path, prefix=".veil-probe-")
+        os.close(fd)
+        os.remove(probe)
+    except OSError as exc:
+        return f"{type(exc).__name__}: {exc}"
+    return None
+
+
 def _enable_cache() -> None:
     if jax.config.jax_compilation_cache_dir:
         return  # the user configured JAX's cache: theirs to manage
     path = cache_directory()
     if path is None:
+        return
+    path = os.path.abspath(path)
+    problem = _writable(path)
+    if problem is not None:
+        warnings.warn(f"veil: the compilation cache directory {path} is not writable "
+                      f"({problem}); running without a persistent cache, so every process "
+                      f"compiles the engine again. Set VEIL_CACHE_DIR to a writable directory, "
+                      f"or VEIL_CACHE_DIR=off to silence this.", RuntimeWarning, stacklevel=2)
         return
     jax.config.update("jax_compilation_cache_dir", path)
     if "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS" not in os.environ:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 import operator
+import os
 import threading
 from concurrent.futures import Future, ThreadPoolExecutor
 from functools import lru_cache
@@ -84,22 +85,42 @@ def _terms_jac_fn(kb, km, rule: Rule, half: bool, nl_b: tuple, nl_m: tuple, mesh
     return _sharded(fn, mesh)
 
 
-# Background compilation (Forward.prepare): the first call of each compiled function, run
-# in a worker thread (JAX makes a concurrent call of the same function wait for that
-# compilation rather than compile it twice).
+# Background compilation (Forward.prepare): the first call of each compiled function and
+# input shape, run in a worker thread (JAX makes a concurrent call of the same function wait
+# for that compilation rather than compile it twice). A running compilation cannot be
+# interrupted: a process that exits meanwhile waits for it.
 _PREPARED: dict = {}
 _PREPARED_LOCK = threading.Lock()
 _POOL: list = []
 
 
+def _warm(fn, *args) -> None:
+    jax.block_until_ready(fn(*args))
+
+
 def _submit(fn, *args) -> Future:
+    key = (fn, tuple(a.shape for a in args))
     with _PREPARED_LOCK:
-        if fn not in _PREPARED:
-            if not _POOL:
-                _POOL.append(ThreadPoolExecutor(max_workers=4,
-                                                thread_name_prefix="veil-compile"))
-            _PREPARED[fn] = _POOL[0].submit(fn, *args)
-        return _PREPARED[fn]
+        known = _PREPARED.get(key)
+        if known is not None and not (known.done() and known.exception() is not None):
+            return known
+        if not _POOL:
+            _POOL.append(ThreadPoolExecutor(max_workers=max(2, os.cpu_count() or 1),
+                                            thread_name_prefix="veil-compile"))
+        if len(_PREPARED) > 256:  # forget finished ones (the compiled code stays in JAX)
+            for k in [k for k, f in _PREPARED.items() if f.done()]:
+                del _PREPARED[k]
+        _PREPARED[key] = _POOL[0].submit(_warm, fn, *args)
+        return _PREPARED[key]
+
+
+def wait_for_compilations() -> None:
+    """Block until every compilation started by :meth:`Forward.prepare` has finished
+    (errors are not raised here; the call that needs the program raises them)."""
+    with _PREPARED_LOCK:
+        pending = list(_PREPARED.values())
+    for future in pending:
+        future.exception()
 
 
 class Forward:
@@ -145,7 +166,7 @@ class Forward:
         (``values``, for ``terms`` and ``__call__``) and, with ``jacobian=(free_brdf,
         free_medium)``, ``value_and_jacobian`` for those indices. Compilations run in
         parallel on worker threads; a call that needs one still being compiled waits for
-        it. Returns the futures (each resolves to the warm-up call's output)."""
+        it. Returns the futures (None when done; an exception if the compilation failed)."""
         fns = []
         if values:
             fns.append(_terms_fn(self._kb, self._km, self.rule, self.half, self._mesh))

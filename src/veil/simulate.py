@@ -8,16 +8,20 @@ The medium's glow (what a black cloth measures: light scattered by the medium to
 camera without reaching the object) is not part of MODEL.md. veil's model, a choice of this
 module (docs/measurements.md):
 
-    glow(I, R) = glow_level * f_ref * s(I, R) / s(I0, R0)
+    glow(I, R) = glow_level * f_std * s(I, R) / s(I0, R0)
     s(I, R)    = iso + lobe_weight * p(gamma),   cos(gamma) = -I . R
 
 the medium's isotropic coefficient (T_d) plus single back-scattering by its phase lobe
 (T_t p(g, gamma)), gamma being the angle between the light's travel direction (-I) and the
 view direction R; no Fresnel factors (the paper's cylinder makes both crossings normal). The
-level is relative: ``f_ref`` is the object's noise-free apparent value at the off-peak
-reference configuration I0 = (0 deg, 180 deg), R0 = (60 deg, 0 deg) (psi = 60, rho = -30),
-so ``glow_level`` = 0.03 makes the glow 3 % of the object signal there. In a goniometer
-session I . R = cos(psi): the glow is constant within each psi. A clear medium has no glow.
+glow depends on the medium (and the light) only, as a real black cloth's does: ``f_std`` is
+the noise-free apparent value of a fixed standard object, the paper's reference object
+(BRDF2, :data:`GLOW_STANDARD`), through the same medium at the off-peak reference
+configuration I0 = (0 deg, 180 deg), R0 = (60 deg, 0 deg) (psi = 60, rho = -30). So
+``glow_level`` = 0.03 makes the glow 3 % of the reference object's signal there, and every
+object simulated in one medium gets the same glow: one black cloth serves them all. In a
+goniometer session I . R = cos(psi): the glow is constant within each psi. A clear medium
+has no glow.
 """
 
 from __future__ import annotations
@@ -38,6 +42,9 @@ CHUNK = 64
 #: The glow's reference configuration (theta_i, phi_i, theta_r, phi_r), degrees.
 GLOW_REFERENCE = (0.0, 180.0, 60.0, 0.0)
 GLOW_LEVEL = 0.03
+#: The standard object whose signal through the medium sets the glow's scale (the paper's
+#: reference object, table 2).
+GLOW_STANDARD = "BRDF2"
 
 
 def glow_shape(medium, theta_i, phi_i, theta_r, phi_r) -> np.ndarray:
@@ -48,6 +55,17 @@ def glow_shape(medium, theta_i, phi_i, theta_r, phi_r) -> np.ndarray:
     wr = np.asarray(direction(theta_r, phi_r))
     one_minus_mu = np.maximum(1.0 + np.sum(wi * wr, axis=-1), 0.0)  # 1 - cos(gamma)
     return np.asarray(m.iso(v) + m.lobe_weight(v) * m.phase(v, one_minus_mu), dtype=float)
+
+
+def glow_scale(medium, accuracy: str = "default") -> float:
+    """f_std: the standard object's (:data:`GLOW_STANDARD`) noise-free apparent value
+    through ``medium`` at :data:`GLOW_REFERENCE` (module docstring), evaluated as simulate
+    evaluates (one CHUNK-sized call, so it shares simulate's compilation)."""
+    from .models import PRESETS
+
+    angles = [np.full(1, a) for a in GLOW_REFERENCE]
+    return float(_evaluate(PRESETS[GLOW_STANDARD], as_btdf(medium), angles, accuracy,
+                           None)[0])
 
 
 def _evaluate(brdf, medium, angles, accuracy, progress):
@@ -84,8 +102,9 @@ def simulate(brdf, medium, psi=PSI, noise: float = 0.01, seed: int = 0, black: b
     seed : seed of ``numpy.random.default_rng``; the object's noise is drawn first, then the
         black cloth's, so the object table does not depend on ``black``.
     black : also return the medium-only (black cloth) table, same configurations, own noise.
-    glow : glow level relative to the object's signal at the reference configuration
-        (module docstring); 0 switches the glow off.
+    glow : glow level, a fraction of the standard object's (BRDF2's) signal through the
+        same medium at the reference configuration (module docstring): the same glow for
+        every object in a medium; 0 switches the glow off.
     accuracy : quadrature level of :func:`veil.apparent`.
     progress : called as progress(done, total) while configurations are evaluated.
 
@@ -106,16 +125,14 @@ def simulate(brdf, medium, psi=PSI, noise: float = 0.01, seed: int = 0, black: b
     table = protocol(psi, fine_step=fine_step, coarse_step=coarse_step, window=window,
                      limit=limit)
     n = len(table)
-    angles = [np.append(table[c].to_numpy(), ref) for c, ref in
-              zip(("theta_i", "phi_i", "theta_r", "phi_r"), GLOW_REFERENCE)]
-    values = _evaluate(brdf, medium, angles, accuracy, progress and (
-        lambda done, total: progress(min(done, n), n)))
-    truth, f_ref = values[:n], values[n]
+    angles = [table[c].to_numpy() for c in ("theta_i", "phi_i", "theta_r", "phi_r")]
+    truth = _evaluate(brdf, medium, angles, accuracy, progress)
     if medium is None or glow == 0:
         glow_values = np.zeros(n)
     else:
-        shape = glow_shape(medium, *(a[:n] for a in angles))
-        glow_values = glow * f_ref * shape / glow_shape(medium, *GLOW_REFERENCE)
+        shape = glow_shape(medium, *angles)
+        glow_values = glow * glow_scale(medium, accuracy) * shape \
+            / glow_shape(medium, *GLOW_REFERENCE)
     rng = np.random.default_rng(seed)
     z_object = rng.standard_normal(n)
     z_black = rng.standard_normal(n)
@@ -131,4 +148,5 @@ def simulate(brdf, medium, psi=PSI, noise: float = 0.01, seed: int = 0, black: b
     return out, cloth
 
 
-__all__ = ["simulate", "glow_shape", "CHUNK", "GLOW_REFERENCE", "GLOW_LEVEL"]
+__all__ = ["simulate", "glow_shape", "glow_scale", "CHUNK", "GLOW_REFERENCE", "GLOW_LEVEL",
+           "GLOW_STANDARD"]

@@ -30,30 +30,12 @@ SESSIONS = {"reference_clear": "reference_clear.csv", "reference_medium": "refer
             "target_clear": "target_clear.csv"}
 
 
-def _glow_at_reference(brdf, medium, accuracy) -> float:
-    """The object's noise-free apparent value at the glow's reference configuration
-    (veil.simulate), evaluated in a CHUNK-sized call like simulate's."""
-    from ..apparent import apparent
-
-    ti, pi_, tr, pr = (np.full(CHUNK, a) for a in GLOW_REFERENCE)
-    return float(apparent(brdf, medium, ti, tr, pi_, pr, accuracy=accuracy)[0])
-
-
-def matched_glow(reference, target, medium, accuracy="default") -> float:
-    """``glow`` level for simulating ``target`` in ``medium`` so that its glow equals, in
-    absolute terms, that of ``reference`` simulated with the default level: veil.simulate
-    scales the glow with the object's own signal, while one black cloth must serve both."""
-    return GLOW_LEVEL * _glow_at_reference(reference, medium, accuracy) \
-        / _glow_at_reference(target, medium, accuracy)
-
-
 def simulate_sessions(outdir: Path, seed: int, noise: float, accuracy: str, progress=None):
     """Simulate the four sessions into OUTDIR/data; returns {role: path}.
 
     Seeds: seed, seed+1, seed+2, seed+3 for reference clear, reference in the medium (and
-    its black cloth), target in the medium, target clear. The glow of the target session is
-    set so that it equals the reference session's in absolute terms (veil.simulate scales the
-    glow with the object's signal; one black cloth serves both sessions, as in the lab).
+    its black cloth), target in the medium, target clear. veil.simulate's glow depends on
+    the medium only, so the one black cloth serves both sessions, as in the lab.
     """
     ref, med, tgt = (PRESETS[SETUP[k]] for k in ("reference", "medium", "target"))
     data = outdir / "data"
@@ -72,9 +54,8 @@ def simulate_sessions(outdir: Path, seed: int, noise: float, accuracy: str, prog
     save_measurements(table, paths["reference_medium"])
     save_measurements(black, paths["black"])
     step(f"target in {SETUP['medium']}")
-    level = matched_glow(ref, tgt, med, accuracy)
-    save_measurements(simulate(tgt, med, noise=noise, seed=seed + 2, glow=level,
-                               accuracy=accuracy), paths["target_medium"])
+    save_measurements(simulate(tgt, med, noise=noise, seed=seed + 2, accuracy=accuracy),
+                      paths["target_medium"])
     step("target, clear water")
     save_measurements(simulate(tgt, None, noise=noise, seed=seed + 3, accuracy=accuracy),
                       paths["target_clear"])

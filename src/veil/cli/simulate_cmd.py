@@ -61,8 +61,9 @@ def _nonneg(name):
               help="Seed of the noise generator (same seed, same files, bit for bit).")
 @click.option("--glow", type=float, default=GLOW_LEVEL, show_default=True,
               callback=_nonneg("--glow"),
-              help="Medium glow level, a fraction of the object's signal at theta_i = 0, "
-                   "theta_r = 60 deg (docs/measurements.md); 0 for none.")
+              help="Medium glow level, a fraction of the reference object's (BRDF2's) "
+                   "signal through the same medium at theta_i = 0, theta_r = 60 deg: the same "
+                   "glow for every object in a medium (docs/measurements.md); 0 for none.")
 @click.option("--variant", type=click.Choice(["paper", "exit"]), default="paper",
               show_default=True,
               help="Fresnel factor of the medium: paper = F_t(theta_in)^2, exit = "
