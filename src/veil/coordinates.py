@@ -6,12 +6,16 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
 from .models import Param
 
 #: Internal search range (natural-log units) of log-scale parameters without a finite bound.
 LOG_RANGE = 40.0
 #: Open bounds are kept this fraction of the interval's width away.
 OPEN_MARGIN = 1e-6
+#: A solution within this fraction of its search interval's width of an end is at the edge.
+EDGE = 1e-6
 
 
 def coordinate(p: Param) -> str:
@@ -62,4 +66,14 @@ def bounds(p: Param, u0: float, kind: str | None = None) -> tuple[float, float]:
             p.upper - OPEN_MARGIN * width if p.upper_open else p.upper)
 
 
-__all__ = ["LOG_RANGE", "OPEN_MARGIN", "coordinate", "to_u", "to_x", "bounds"]
+def at_bound(u: np.ndarray, bounds, names) -> list[str]:
+    """The ``names`` of the internal coordinates ``u`` within :data:`EDGE` of the width of
+    their search interval (``bounds`` = (lower ends, upper ends)) from either end."""
+    lo, hi = bounds
+    span = np.maximum(hi - lo, 1e-300)
+    near = (u - lo <= EDGE * span) | (hi - u <= EDGE * span)
+    return [n for n, hit in zip(names, near) if hit]
+
+
+__all__ = ["LOG_RANGE", "OPEN_MARGIN", "EDGE", "coordinate", "to_u", "to_x", "bounds",
+           "at_bound"]

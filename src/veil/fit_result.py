@@ -203,23 +203,7 @@ class FitResult:
     @classmethod
     def from_json(cls, path) -> "FitResult":
         """Read a result written by :meth:`to_json`; errors name the file and the key."""
-        name = os.fspath(path)
-        try:
-            with open(name, encoding="utf-8") as fh:
-                text = fh.read()
-        except FileNotFoundError:
-            raise FileNotFoundError(f"fit result {name} does not exist") from None
-        except IsADirectoryError:
-            raise IsADirectoryError(f"fit result {name} is a directory, not a JSON file") from None
-        except UnicodeDecodeError as exc:
-            raise FitError(f"{name} is not UTF-8 text ({exc.reason}); expected a JSON fit "
-                           f"result") from None
-        try:
-            data = json.loads(text)
-        except json.JSONDecodeError as exc:
-            raise FitError(f"{name}: not valid JSON at line {exc.lineno}, column {exc.colno}: "
-                           f"{exc.msg}") from None
-        return cls.from_dict(data, name)
+        return cls.from_dict(read_json(path), os.fspath(path))
 
     # -- text ------------------------------------------------------------------------------
     def report(self, min_correlation: float = 0.1) -> str:
@@ -237,8 +221,8 @@ class FitResult:
                     else "  (UNWEIGHTED: no sigma column; errors scaled by reduced chi-square)"),
                  f"    free parameters    = {len(free)}"
                  + (f"  (fixed: {', '.join(self.fixed)})" if self.fixed else ""),
-                 f"    reduced chi-square = {_num(self.chi2_reduced, 5)}",
-                 f"    rms relative resid = {_num(100 * self.rms_relative, 4)} %",
+                 f"    reduced chi-square = {format_number(self.chi2_reduced, 5)}",
+                 f"    rms relative resid = {format_number(100 * self.rms_relative, 4)} %",
                  f"    converged          = {'yes' if self.converged else 'NO'} ({self.message})"]
         if self.accuracy:
             lines.append(f"    accuracy           = {self.accuracy}")
@@ -248,7 +232,7 @@ class FitResult:
                          + (f" over {self.stats.get('starts', 1)} start(s)"
                             if self.stats.get("starts") else ""))
         if self.given:
-            gp = ", ".join(f"{k}={_num(v)}" for k, v in self.given.get("params", {}).items())
+            gp = ", ".join(f"{k}={format_number(v)}" for k, v in self.given.get("params", {}).items())
             lines.append(f"    given (fixed) model = {self.given.get('model')}({gp})")
         lines.append("[[Variables]]")
         width = max(len(n) for n in self.params)
@@ -256,38 +240,67 @@ class FitResult:
             v = self.params[p.name]
             unit = f" {p.unit}" if p.unit else ""
             if p.name in self.fixed:
-                lines.append(f"    {p.name:<{width}}: {_num(v)}{unit} (fixed)")
+                lines.append(f"    {p.name:<{width}}: {format_number(v)}{unit} (fixed)")
                 continue
             se = self.stderr.get(p.name)
             if se is None or not math.isfinite(se):
-                lines.append(f"    {p.name:<{width}}: {_num(v)}{unit} +/- (not determined)")
+                lines.append(f"    {p.name:<{width}}: {format_number(v)}{unit} +/- (not determined)")
             else:
                 rel = f" ({100 * se / abs(v):.2f}%)" if v != 0 else ""
                 total = ""
                 if self.stderr_total is not None and self.stderr_total.get(p.name) is not None:
                     total = (f"; with the given model's uncertainty +/- "
-                             f"{_num(self.stderr_total[p.name], 3)}")
-                lines.append(f"    {p.name:<{width}}: {_num(v)}{unit} +/- {_num(se, 3)}{rel}"
+                             f"{format_number(self.stderr_total[p.name], 3)}")
+                lines.append(f"    {p.name:<{width}}: {format_number(v)}{unit} +/- {format_number(se, 3)}{rel}"
                              f"{total}")
+        lines += self._correlation_lines(min_correlation)
+        return "\n".join(lines)
+
+    def _correlation_lines(self, min_correlation: float, most: int | None = None) -> list[str]:
+        """The report's [[Correlations]] section: pairs of free parameters with |r| >=
+        ``min_correlation``, strongest first (the ``most`` strongest; all when None)."""
         pairs = []
-        for a, b in itertools.combinations(free, 2):
+        for a, b in itertools.combinations(self.free, 2):
             r = self.correlation.get(a, {}).get(b)
             if r is not None and math.isfinite(r) and abs(r) >= min_correlation:
                 pairs.append((abs(r), a, b, r))
-        if pairs:
-            lines.append(f"[[Correlations]] (unreported correlations are < {min_correlation})")
-            for _, a, b, r in sorted(pairs, key=lambda t: -t[0]):
-                lines.append(f"    C({a}, {b}) = {r:+.4f}")
-        return "\n".join(lines)
+        if not pairs:
+            return []
+        lines = [f"[[Correlations]] (unreported correlations are < {min_correlation})"]
+        for _, a, b, r in sorted(pairs, key=lambda t: -t[0])[:most]:
+            lines.append(f"    C({a}, {b}) = {r:+.4f}")
+        return lines
 
     def __str__(self) -> str:
         return self.report()
 
 
-def _num(x, digits=6) -> str:
+def format_number(x, digits=6, missing="n/a") -> str:
+    """``x`` to ``digits`` significant digits; ``missing`` for None or a non-finite float."""
     if x is None or (isinstance(x, float) and not math.isfinite(x)):
-        return "n/a"
+        return missing
     return f"{x:.{digits}g}"
+
+
+def read_json(path):
+    """The JSON data of a result file; errors name the file (a missing file, a directory, not
+    UTF-8, not JSON)."""
+    name = os.fspath(path)
+    try:
+        with open(name, encoding="utf-8") as fh:
+            text = fh.read()
+    except FileNotFoundError:
+        raise FileNotFoundError(f"fit result {name} does not exist") from None
+    except IsADirectoryError:
+        raise IsADirectoryError(f"fit result {name} is a directory, not a JSON file") from None
+    except UnicodeDecodeError as exc:
+        raise FitError(f"{name} is not UTF-8 text ({exc.reason}); expected a JSON fit "
+                       f"result") from None
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise FitError(f"{name}: not valid JSON at line {exc.lineno}, column {exc.colno}: "
+                       f"{exc.msg}") from None
 
 
 def json_float(x):
@@ -307,4 +320,5 @@ def from_json_float(x):
     return float(x)
 
 
-__all__ = ["FitError", "FitResult", "FORMAT", "STEPS", "json_float", "from_json_float"]
+__all__ = ["FitError", "FitResult", "FORMAT", "STEPS", "json_float", "from_json_float",
+           "read_json", "format_number"]

@@ -19,8 +19,9 @@ residuals and chi-square are those of the requested accuracy.
 
 Shared with :mod:`veil.joint`: the result (:mod:`veil.fit_result`), the data
 (:mod:`veil.fit_data`), model evaluation (:mod:`veil.evaluation`), internal coordinates
-(:mod:`veil.coordinates`), starting values (:mod:`veil.start_values`), tolerances and
-covariances (:mod:`veil.least_squares`) and the given models (:mod:`veil.given_model`).
+(:mod:`veil.coordinates`), starting values (:mod:`veil.start_values`), tolerances, option
+checks, goodness of fit and covariances (:mod:`veil.least_squares`) and the given models
+(:mod:`veil.given_model`).
 """
 
 from __future__ import annotations
@@ -37,8 +38,10 @@ from .evaluation import ApparentModel, DirectModel
 from .fit_data import FitData, prepare
 from .fit_result import FORMAT, STEPS, FitError, FitResult  # noqa: F401
 from .given_model import as_brdf_model, as_medium_model, check_variant, model_dict
-from .least_squares import (ITERATION_ACCURACY, TOL_FINAL, TOL_ITER, TOL_POLISH,
-                            covariance_from_jacobian, uncertainties)
+from .least_squares import (ITERATION_ACCURACY, SINGULAR_NOTE, TOL_FINAL, TOL_ITER, TOL_POLISH,
+                            check_accuracy, check_fixed, check_max_nfev, convincing,
+                            covariance_from_jacobian, edge_note, goodness, outcome,
+                            stopped_early_note, ticker, uncertainties)
 from .models import BRDF, HenyeyGreenstein, Model, TorranceSparrow
 from .start_values import START_GRIDS, brdf_scales, grid_points, medium_scales, pick_starts
 
@@ -67,13 +70,7 @@ class _Space:
             raise FitError(f"cannot fix {', '.join(map(repr, unknown))} in the {what} fit: "
                            f"{cls.NAME} has parameters {', '.join(self.names)}")
         for k, v in fixed.items():
-            if isinstance(v, bool) or not isinstance(v, (int, float, np.floating, np.integer)):
-                raise FitError(f"fixed {k} = {v!r} is not a number")
-            param = cls.PARAMS[self.names.index(k)]
-            try:
-                param.check(float(v), cls.__name__)
-            except (ValueError, TypeError) as exc:
-                raise FitError(f"fixed {exc}") from None
+            check_fixed(k, v, cls.PARAMS[self.names.index(k)], cls.__name__)
         self.fixed = {k: float(fixed[k]) for k in self.names if k in fixed}
         self.free = [i for i, n in enumerate(self.names) if n not in self.fixed]
         if not self.free:
@@ -99,10 +96,7 @@ class _Space:
         return np.array([lo for lo, _ in pairs]), np.array([hi for _, hi in pairs])
 
     def at_bound(self, u: np.ndarray, u0_bounds) -> list[str]:
-        lo, hi = u0_bounds
-        span = np.maximum(hi - lo, 1e-300)
-        near = (u - lo <= 1e-6 * span) | (hi - u <= 1e-6 * span)
-        return [self.names[i] for i, hit in zip(self.free, near) if hit]
+        return coordinates.at_bound(u, u0_bounds, [self.names[i] for i in self.free])
 
 
 # --------------------------------------------------------------------------------------
@@ -149,14 +143,9 @@ def _finish(step, cls, space: _Space, x, data: FitData, model_values, jac_x, lsq
 
     ``propagate`` = (d values / d given parameters (M, kg), their covariance (kg, kg)) adds
     the given model's uncertainty to first order: d x / d theta = -J^+ J_theta."""
-    y, w = data.y, data.w
+    w = data.w
     k = len(space.free)
-    dof = data.size - k
-    res = (y - model_values) * w
-    chi2 = float(res @ res) / dof
-    nonzero = model_values != 0
-    rel = (y[nonzero] - model_values[nonzero]) / model_values[nonzero]
-    rms_rel = float(np.sqrt(np.mean(rel ** 2))) if rel.size else float("nan")
+    res, chi2, rms_rel = goodness(data.y, w, model_values, k)
     jw = jac_x[:, space.free] * w[:, None]
     cov = covariance_from_jacobian(jw, np.ones(k))
     notes = list(message_extra)
@@ -166,7 +155,7 @@ def _finish(step, cls, space: _Space, x, data: FitData, model_values, jac_x, lsq
     stderr, corr = {n: None for n in names}, {}
     stderr_total = corr_total = None
     if cov is None:
-        notes.append("Jacobian singular at the solution: uncertainties not determined")
+        notes.append(SINGULAR_NOTE)
     else:
         stderr, corr = uncertainties(cov, names, space.free)
         if propagate is not None:
@@ -174,10 +163,7 @@ def _finish(step, cls, space: _Space, x, data: FitData, model_values, jac_x, lsq
             sens = -np.linalg.lstsq(jw, jg * w[:, None], rcond=None)[0]
             stderr_total, corr_total = uncertainties(cov + sens @ cov_g @ sens.T, names,
                                                       space.free)
-    converged = bool(lsq.status > 0)
-    message = lsq.message if not notes else lsq.message + "; " + "; ".join(notes)
-    if not converged:
-        message = "did not converge: " + message
+    converged, message = outcome(lsq.status, lsq.message, notes)
     return FitResult(model=cls.NAME, params={n: float(x[i]) for i, n in enumerate(names)},
                      stderr=stderr, correlation=corr, residuals=tuple(float(r) for r in res),
                      chi2_reduced=chi2, rms_relative=rms_rel, n_points=data.size,
@@ -196,17 +182,6 @@ def _check_size(data: FitData, space: _Space, what: str) -> None:
                        f"--fix NAME=VALUE, or measure more configurations)")
 
 
-def _check_accuracy(accuracy: str) -> None:
-    if accuracy not in RULES:
-        raise FitError(f"accuracy = {accuracy!r}; expected one of {', '.join(RULES)}")
-
-
-def _check_max_nfev(max_nfev) -> None:
-    if max_nfev is not None and (isinstance(max_nfev, bool) or not isinstance(max_nfev, int)
-                                 or max_nfev < 1):
-        raise FitError(f"max_nfev = {max_nfev!r}; expected a positive integer or None")
-
-
 def _emit(progress, stage, done, total):
     if progress is not None:
         progress(stage, done, total)
@@ -214,9 +189,8 @@ def _emit(progress, stage, done, total):
 
 def _convincing(lsq, space, bounds, data) -> bool:
     """A weighted fit that converged inside its search range with reduced chi-square <= 2."""
-    dof = data.size - len(space.free)
-    return (lsq.status > 0 and data.sigma is not None and 2 * lsq.cost / dof <= 2.0
-            and not space.at_bound(lsq.x, bounds))
+    return convincing(lsq.status, lsq.cost, data.size - len(space.free),
+                      data.sigma is not None, space.at_bound(lsq.x, bounds))
 
 
 def _multi_start(step, space, data, scored, values_fn, jac_fn, max_nfev, progress, tol,
@@ -230,12 +204,7 @@ def _multi_start(step, space, data, scored, values_fn, jac_fn, max_nfev, progres
             break
         u0 = space.to_u(x0)
         bounds = space.bounds(u0)
-        counter = {"n": 0}
-
-        def tick(s=s, counter=counter):
-            counter["n"] += 1
-            _emit(progress, f"start {s + 1}/{len(starts)}: iteration", counter["n"], None)
-
+        tick = ticker(progress, f"start {s + 1}/{len(starts)}: iteration")
         obj = _Objective(space, x0, data, values_fn, jac_fn, tick)
         lsq = _run_lsq(obj, u0, bounds, tol, max_nfev)
         runs.append((lsq, obj, bounds))
@@ -272,7 +241,7 @@ def fit_direct(table, *, fixed=None, black=None, max_nfev=None, progress=None,
                step: str = "direct") -> FitResult:
     """f_r fitted to clear-medium data (MODEL.md sec. 2); ``step`` labels the result
     ("reference" for step 0, "direct" for a target measured without the medium)."""
-    _check_max_nfev(max_nfev)
+    check_max_nfev(max_nfev)
     cls = TorranceSparrow
     what = "reference" if step == "reference" else "target"
     space = _Space(cls, _as_fixed(fixed), f"{what} (clear medium)")
@@ -312,8 +281,7 @@ def fit_direct(table, *, fixed=None, black=None, max_nfev=None, progress=None,
 
 def _bound_notes(space, u, bounds) -> list[str]:
     hit = space.at_bound(u, bounds)
-    return [f"{', '.join(hit)} at the edge of the search range (uncertainty unreliable)"] \
-        if hit else []
+    return [edge_note(hit)] if hit else []
 
 
 def _run_stats(lsq, obj) -> dict:
@@ -385,13 +353,8 @@ def _through_medium(step, cls, space, data, brdf, medium, accuracy, max_nfev, pr
     notes = []
     if polish:
         if lsq.status <= 0:
-            notes.append(f"iterations at {ITERATION_ACCURACY!r} accuracy stopped early "
-                         f"({lsq.message})")
-        counter = {"n": 0}
-
-        def tick():
-            counter["n"] += 1
-            _emit(progress, f"polish at {accuracy!r}: iteration", counter["n"], None)
+            notes.append(stopped_early_note(lsq.message))
+        tick = ticker(progress, f"polish at {accuracy!r}: iteration")
 
         def final_values(x):
             return final.values(*split(x))
@@ -455,9 +418,9 @@ def fit_medium(table, reference, *, fixed=None, black=None, variant: str = "pape
         run at "fast" and are polished at this accuracy.
     Other arguments as :func:`fit_reference`.
     """
-    _check_accuracy(accuracy)
+    check_accuracy(accuracy)
     check_variant(variant)
-    _check_max_nfev(max_nfev)
+    check_max_nfev(max_nfev)
     brdf = as_brdf_model(reference)
     cls = HenyeyGreenstein
     space = _Space(cls, _as_fixed(fixed), "medium")
@@ -477,10 +440,10 @@ def fit_target(table, medium, *, fixed=None, black=None, variant: str | None = N
     variant : None uses the medium's; a different value is an error.
     Other arguments as :func:`fit_medium`.
     """
-    _check_accuracy(accuracy)
+    check_accuracy(accuracy)
     if variant is not None:
         check_variant(variant)
-    _check_max_nfev(max_nfev)
+    check_max_nfev(max_nfev)
     model_m = as_medium_model(medium, variant)
     cls = TorranceSparrow
     space = _Space(cls, _as_fixed(fixed), "target")

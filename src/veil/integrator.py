@@ -273,7 +273,6 @@ def _lobe_lobe(brdf, medium, vb, vm, wi, wr, rule: Rule, half: bool):
         arb = medium.factor_first(vm, grb[:, 2])
     else:
         grb, urb, frb, prb, arb = gr, ur, fr, pr, ar
-    y_full = brdf.facet_cdf(vb, HALF_PI)
 
     def balanced(p_i, p_r, c, q_h, lobe):
         """lobe p_i p_r / (q_A + q_B + q_C) with the untruncated densities (balance rule)."""

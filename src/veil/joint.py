@@ -21,8 +21,7 @@ machinery of :mod:`veil.uncertainty`, :mod:`veil.diagnostics` and :mod:`veil.des
 
 from __future__ import annotations
 
-import itertools
-import json
+import functools
 import math
 import os
 from dataclasses import dataclass, field
@@ -36,11 +35,14 @@ from .angles import direction
 from .apparent import RULES
 from .evaluation import ApparentModel, DirectModel
 from .fit_data import FitData, prepare
-from .fit_result import FitError, FitResult, from_json_float
+from .fit_result import FitError, FitResult, format_number, from_json_float, read_json
 from .fitting import fit_reference
-from .given_model import as_brdf_model, model_dict
-from .least_squares import ITERATION_ACCURACY, TOL_FINAL, TOL_ITER, covariance_from_jacobian
-from .measurements import atomic_write_text
+from .given_model import as_brdf_model, check_variant, model_dict
+from .least_squares import CONVINCING  # noqa: F401
+from .least_squares import (ITERATION_ACCURACY, SINGULAR_NOTE, TOL_FINAL, TOL_ITER,
+                            check_accuracy, check_fixed, check_max_nfev, convincing,
+                            covariance_from_jacobian, edge_note, goodness, outcome,
+                            stopped_early_note, ticker, uncertainties)
 from .models import BRDF, BTDF, HenyeyGreenstein, TorranceSparrow
 from .models.base import Param
 from .start_values import START_GRIDS, brdf_scales, medium_scales
@@ -64,16 +66,9 @@ GRID_SUBSAMPLE = 64
 #: Least-squares runs from the best distinct starting points.
 STARTS = 2
 FORMAT = "veil.joint/1"
-#: Reduced chi-square up to which a converged weighted fit makes further starts unnecessary
-#: (veil.fitting's rule).
-CONVINCING = 2.0
+# CONVINCING (veil.least_squares): reduced chi-square up to which a converged weighted fit
+# makes further starts unnecessary (veil.fitting's rule); it stays importable from here.
 _MEDIUM_NAMES = {"Td": 0, "Tt": 1, "g": 2, "eta_u": 3}
-
-
-def _rule(accuracy):
-    if accuracy not in RULES:
-        raise FitError(f"accuracy = {accuracy!r}; expected one of {', '.join(RULES)}")
-    return RULES[accuracy]
 
 
 class SessionModel:
@@ -83,7 +78,9 @@ class SessionModel:
     """
 
     def __init__(self, brdf: BRDF, medium: BTDF | None, angles, rule="fast"):
-        rule = _rule(rule) if isinstance(rule, str) else rule
+        if isinstance(rule, str):
+            check_accuracy(rule)
+            rule = RULES[rule]
         angles = tuple(np.asarray(a, dtype=float).ravel() for a in angles)
         self.size = angles[0].size
         if self.size == 0:
@@ -414,9 +411,7 @@ def solve(problem: Problem, x0, *, accuracy: str = ITERATION_ACCURACY, tol=None,
     lsq = least_squares(fun, u0, jac=jac, bounds=(lo, hi), method="trf", x_scale="jac",
                         max_nfev=max_nfev, **tol)
     x, _ = problem.to_x(lsq.x, base)
-    span = np.maximum(hi - lo, 1e-300)
-    near = (lsq.x - lo <= 1e-6 * span) | (hi - lsq.x <= 1e-6 * span)
-    hit = [problem.free_names[j] for j in np.flatnonzero(near)]
+    hit = coordinates.at_bound(lsq.x, (lo, hi), problem.free_names)
     return Solution(x=x, cost=float(lsq.cost), status=int(lsq.status), message=lsq.message,
                     nfev=counts["f"], njev=counts["j"], at_bound=hit)
 
@@ -480,10 +475,6 @@ class JointResult(FitResult):
         out["layout"] = self.layout
         return out
 
-    def to_json(self, path) -> None:
-        text = json.dumps(self.to_dict(), indent=2, allow_nan=False) + "\n"
-        atomic_write_text(path, text)
-
     @classmethod
     def from_dict(cls, data: dict, source: str = "the joint fit result") -> "JointResult":
         if not isinstance(data, dict) or data.get("model") != "joint":
@@ -534,10 +525,6 @@ class JointResult(FitResult):
             raise FitError(f"{source}: {exc}") from None
         return result
 
-    @classmethod
-    def from_json(cls, path) -> "JointResult":
-        return cls.from_dict(_read_json(path), os.fspath(path))
-
     # -- text ------------------------------------------------------------------------------
     def report(self, min_correlation: float = 0.1) -> str:
         free = self.free
@@ -570,46 +557,17 @@ class JointResult(FitResult):
             else:
                 rel = f" ({100 * se / abs(v):.2f}%)" if v != 0 else ""
                 lines.append(f"    {name:<{width}}: {_fmt(v)} +/- {_fmt(se, 3)}{rel}")
-        pairs = []
-        for a, b in itertools.combinations(free, 2):
-            r = self.correlation.get(a, {}).get(b)
-            if r is not None and math.isfinite(r) and abs(r) >= min_correlation:
-                pairs.append((abs(r), a, b, r))
-        if pairs:
-            lines.append(f"[[Correlations]] (unreported correlations are < {min_correlation})")
-            for _, a, b, r in sorted(pairs, key=lambda t: -t[0])[:20]:
-                lines.append(f"    C({a}, {b}) = {r:+.4f}")
+        lines += self._correlation_lines(min_correlation, most=20)
         return "\n".join(lines)
 
 
-def _fmt(x, digits=6) -> str:
-    if x is None or (isinstance(x, float) and not math.isfinite(x)):
-        return "nan"
-    return f"{x:.{digits}g}"
-
-
-def _read_json(path) -> dict:
-    name = os.fspath(path)
-    try:
-        with open(name, encoding="utf-8") as fh:
-            text = fh.read()
-    except FileNotFoundError:
-        raise FileNotFoundError(f"fit result {name} does not exist") from None
-    except IsADirectoryError:
-        raise IsADirectoryError(f"fit result {name} is a directory, not a JSON file") from None
-    except UnicodeDecodeError as exc:
-        raise FitError(f"{name} is not UTF-8 text ({exc.reason}); expected a JSON fit "
-                       f"result") from None
-    try:
-        return json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise FitError(f"{name}: not valid JSON at line {exc.lineno}, column {exc.colno}: "
-                       f"{exc.msg}") from None
+#: Numbers in the joint report: as the step reports', "nan" where they print "n/a".
+_fmt = functools.partial(format_number, missing="nan")
 
 
 def load_result(path) -> FitResult:
     """Read any veil fit result (a step of :mod:`veil.fitting` or a joint fit) from JSON."""
-    data = _read_json(path)
+    data = read_json(path)
     if isinstance(data, dict) and data.get("model") == "joint":
         return JointResult.from_dict(data, os.fspath(path))
     return FitResult.from_dict(data, os.fspath(path))
@@ -756,10 +714,7 @@ def _anchor_check(sessions, fixed_names, reference_given, params) -> None:
 def build(sessions, *, reference=None, shared=None, per_medium=None, fixed=None,
           variant: str = "paper") -> tuple[Problem, dict]:
     """The stacked :class:`Problem` of a joint fit and its layout (see :func:`fit_joint`)."""
-    from .models.henyey_greenstein import VARIANTS
-
-    if variant not in VARIANTS:
-        raise FitError(f"variant = {variant!r}; expected one of {', '.join(VARIANTS)}")
+    check_variant(variant)
     sessions = as_sessions(sessions)
     shared_names = _declarations(shared, per_medium)
     if not any(s.object == "target" for s in sessions):
@@ -840,12 +795,7 @@ def build(sessions, *, reference=None, shared=None, per_medium=None, fixed=None,
                 hint = f" ({k} is free per medium here: fix {k}[label] for each medium)"
             raise FitError(f"cannot fix {k!r}: the joint fit's parameters are "
                            f"{', '.join(names)}{hint}")
-        if isinstance(v, bool) or not isinstance(v, (int, float, np.floating, np.integer)):
-            raise FitError(f"fixed {k} = {v!r} is not a number")
-        try:
-            params[index[k]].spec.check(float(v), k)
-        except (ValueError, TypeError) as exc:
-            raise FitError(f"fixed {exc}") from None
+        check_fixed(k, v, params[index[k]].spec, k)
     values = np.array([p.spec.lower + 1.0 if math.isfinite(p.spec.lower) else 1.0
                        for p in params])
     free = np.ones(len(params), dtype=bool)
@@ -1109,10 +1059,8 @@ def fit_joint(sessions, *, reference=None, shared=None, per_medium=None, fixed=N
     start : optional starting models {object or medium label: TorranceSparrow/HenyeyGreenstein}.
     variant, accuracy, max_nfev, progress : as :func:`veil.fitting.fit_medium`.
     """
-    _rule(accuracy)
-    if max_nfev is not None and (isinstance(max_nfev, bool) or not isinstance(max_nfev, int)
-                                 or max_nfev < 1):
-        raise FitError(f"max_nfev = {max_nfev!r}; expected a positive integer or None")
+    check_accuracy(accuracy)
+    check_max_nfev(max_nfev)
     if start is not None:
         if not isinstance(start, dict):
             raise FitError("start: expected a dict {object or medium label: model}")
@@ -1131,13 +1079,8 @@ def fit_joint(sessions, *, reference=None, shared=None, per_medium=None, fixed=N
         if runs and any(_convincing(problem, r) for r in runs):
             skipped = len(starts) - s
             break
-        counter = {"n": 0}
-
-        def tick(s=s, counter=counter):
-            counter["n"] += 1
-            if progress:
-                progress(f"start {s + 1}/{len(starts)}: iteration", counter["n"], None)
-
+        # progress or None: a progress that tests false reports nothing (as `if progress:`)
+        tick = ticker(progress or None, f"start {s + 1}/{len(starts)}: iteration")
         runs.append(solve(problem, x0, tol=TOL_ITER if polish else TOL_FINAL,
                           max_nfev=max_nfev, on_eval=tick))
     best = min(range(len(runs)), key=lambda r: (runs[r].cost, r))
@@ -1147,23 +1090,15 @@ def fit_joint(sessions, *, reference=None, shared=None, per_medium=None, fixed=N
     notes = []
     if polish:
         if sol.status <= 0:
-            notes.append(f"iterations at {ITERATION_ACCURACY!r} accuracy stopped early "
-                         f"({sol.message})")
-        counter = {"n": 0}
-
-        def tick_polish():
-            counter["n"] += 1
-            if progress:
-                progress(f"polish at {accuracy!r}: iteration", counter["n"], None)
-
+            notes.append(stopped_early_note(sol.message))
+        tick_polish = ticker(progress or None, f"polish at {accuracy!r}: iteration")
         sol = solve(problem, sol.x, accuracy=accuracy, tol=TOL_FINAL, max_nfev=max_nfev,
                     on_eval=tick_polish)
         run_stats.append({"nfev": sol.nfev, "njev": sol.njev, "status": sol.status,
                           "cost": sol.cost, "polish": True})
     values = problem.model_values(sol.x, accuracy)
     if sol.at_bound:
-        notes.append(f"{', '.join(sol.at_bound)} at the edge of the search range "
-                     f"(uncertainty unreliable)")
+        notes.append(edge_note(sol.at_bound))
     stats = {"starts": len(runs), "starts_skipped": skipped, "best_start": best + 1,
              "nfev": sum(r["nfev"] for r in run_stats),
              "njev": sum(r["njev"] for r in run_stats), "runs": run_stats,
@@ -1176,39 +1111,24 @@ def _convincing(problem: Problem, sol: Solution) -> bool:
     """As veil.fitting's multi-start: a weighted fit that converged inside its search range
     with reduced chi-square <= CONVINCING; further starts are then skipped (a second minimum
     of similar cost is what veil.diagnostics' profiles look for)."""
-    if not problem.weighted or sol.status <= 0 or sol.at_bound:
-        return False
-    dof = problem.n_points - int(problem.free.sum())
-    return 2.0 * sol.cost / dof <= CONVINCING
+    return convincing(sol.status, sol.cost, problem.n_points - int(problem.free.sum()),
+                      problem.weighted, sol.at_bound)
 
 
 def _result(problem: Problem, layout, sol: Solution, values, notes, variant, accuracy, given,
             stats) -> JointResult:
     """Assemble the JointResult (the FitResult conventions of veil.fitting)."""
-    y, w = problem.y, problem.w
-    k = int(problem.free.sum())
-    res = (y - values) * w
-    chi2 = float(res @ res) / (problem.n_points - k)
-    nz = values != 0
-    rel = (y[nz] - values[nz]) / values[nz]
-    rms_rel = float(np.sqrt(np.mean(rel ** 2))) if rel.size else float("nan")
+    y = problem.y
+    res, chi2, rms_rel = goodness(y, problem.w, values, int(problem.free.sum()))
     cov = covariance(problem, sol.x)
     notes = list(notes)
     names = problem.names
     stderr = {n: None for n in names}
     corr: dict = {}
     if cov is None:
-        notes.append("Jacobian singular at the solution: uncertainties not determined")
+        notes.append(SINGULAR_NOTE)
     else:
-        se = np.sqrt(np.maximum(np.diag(cov), 0.0))
-        free_names = problem.free_names
-        for j, n in enumerate(free_names):
-            stderr[n] = float(se[j])
-        for a, na in enumerate(free_names):
-            corr[na] = {}
-            for b, nb in enumerate(free_names):
-                den = se[a] * se[b]
-                corr[na][nb] = float(cov[a, b] / den) if den > 0 else None
+        stderr, corr = uncertainties(cov, names, problem.free_index)
     sessions = []
     for b, sl in zip(problem.blocks, problem.slices()):
         r = res[sl]
@@ -1220,10 +1140,7 @@ def _result(problem: Problem, layout, sol: Solution, values, notes, variant, acc
                          "chi2": float(r @ r) / b.size,
                          "rms_relative": float(np.sqrt(np.mean(relb ** 2))) if relb.size else None})
     layout = dict(layout, sessions=sessions)
-    converged = sol.status > 0
-    message = sol.message if not notes else sol.message + "; " + "; ".join(notes)
-    if not converged:
-        message = "did not converge: " + message
+    converged, message = outcome(sol.status, sol.message, notes)
     fixed = {n: float(sol.x[k]) for k, n in enumerate(names) if not problem.free[k]}
     return JointResult(model="joint", params={n: float(v) for n, v in zip(names, sol.x)},
                        stderr=stderr, correlation=corr, residuals=tuple(float(r) for r in res),

@@ -7,7 +7,6 @@ bit-for-bit repeatable.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from functools import lru_cache
 

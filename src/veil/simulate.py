@@ -30,7 +30,6 @@ import math
 from typing import Callable
 
 import numpy as np
-import pandas as pd
 
 from .angles import direction
 from .apparent import RULES, apparent, as_brdf, as_btdf, reflectance

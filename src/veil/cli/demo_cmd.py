@@ -15,11 +15,10 @@ import os
 from pathlib import Path
 
 import click
-import numpy as np
 
 from ..measurements import save_measurements
 from ..models import PRESETS
-from ..simulate import CHUNK, GLOW_LEVEL, GLOW_REFERENCE, simulate
+from ..simulate import simulate
 from ._common import UserError
 
 #: The demo's set-up: which preset plays which role.
