@@ -179,6 +179,27 @@ def test_csv_round_trip(tmp_path):
     assert dst.read_text() == again.stdout
 
 
+def test_csv_in_plane_and_goniometer_forms(tmp_path):
+    """The three angle forms of measurement tables (MODEL.md sec. 1) give the same values
+    as the four angles they mean; the input's columns pass through unchanged."""
+    forms = {
+        "full": "theta_i,phi_i,theta_r,phi_r\n45,180,15,0\n15,0,75,0\n",
+        "inplane": "theta_i,theta_r\n45,15\n-15,75\n",
+        "goniometer": "psi,rho,id\n60,15,a\n60,-45,b\n",
+    }
+    values = {}
+    for name, text in forms.items():
+        src = tmp_path / f"{name}.csv"
+        src.write_text(text)
+        result = run(BASE + ["--configs", str(src)])
+        assert result.exit_code == 0, result.output
+        rows = list(csv.reader(io.StringIO(result.stdout)))
+        assert rows[0] == text.splitlines()[0].split(",") + ["apparent", "clear", "error"]
+        values[name] = np.array([[float(x) for x in r[-3:]] for r in rows[1:]])
+    np.testing.assert_array_equal(values["inplane"], values["full"])
+    np.testing.assert_allclose(values["goniometer"], values["full"], rtol=1e-12)
+
+
 def test_csv_json(tmp_path):
     src = tmp_path / "configs.csv"
     src.write_text(CSV_TEXT)
@@ -234,7 +255,10 @@ ROWS = "(rows counted as lines of the file, header = row 1)"
 
 @pytest.mark.parametrize("text, expected", [
     ("theta_i,phi_i,theta_r\n10,180,10\n", ["missing column 'phi_r'"]),
-    ("theta_i,theta_r\n10,10\n", ["missing columns 'phi_i', 'phi_r'"]),
+    ("theta_i,phi_r\n10,0\n", ["missing columns 'phi_i', 'theta_r'"]),
+    ("theta_i,theta_r\n10,abc\n", ["line 2 of", "column 'theta_r'", "'abc' is not a number"]),
+    ("psi,theta_r\n60,10\n", ["'psi' but not 'rho'"]),
+    ("x,y\n1,2\n", ["no angle columns", "psi,rho (goniometer)"]),
     ("theta_i,phi_i,theta_r,phi_r\n10,180,10,0\n10,abc,10,0\n",
      ["row 3", ROWS, "column 'phi_i'", "'abc' is not a number"]),
     ("theta_i,phi_i,theta_r,phi_r\n10,180,10,0\n\n10,180,,0\n",

@@ -77,7 +77,7 @@ def _parse(text, cls, form, kind):
 ROW_CONVENTION = "rows counted as lines of the file, header = row 1"
 
 
-def read_csv_table(path, required, *, unit="a number"):
+def read_csv_table(path, required, *, unit="a number", expected=None):
     """Read a CSV file with pandas, keeping every cell as text, and parse ``required`` columns.
 
     Returns ``(table, numbers, rows)``: ``table`` is a DataFrame of strings with every column
@@ -86,7 +86,8 @@ def read_csv_table(path, required, *, unit="a number"):
     holds each kept row's number in the file (header = row 1). Any problem - unreadable,
     empty, ragged, a required column missing or duplicated, an empty, non-numeric or
     non-finite cell - raises :class:`UserError` naming the file, the row and the column.
-    ``unit`` words what a cell should hold, e.g. "an angle in degrees".
+    ``unit`` words what a cell should hold, e.g. "an angle in degrees"; ``expected`` the
+    columns a file should have, for messages (default: ``required``).
     """
     import pandas as pd  # heavy; only commands that read CSV pay for it
 
@@ -96,7 +97,7 @@ def read_csv_table(path, required, *, unit="a number"):
                           skip_blank_lines=False, skipinitialspace=True, encoding="utf-8")
     except pd.errors.EmptyDataError:
         raise UserError(f"{path}: the file is empty; expected a header line naming the columns "
-                        f"{', '.join(required)}, then one row per entry") from None
+                        f"{expected or ', '.join(required)}, then one row per entry") from None
     except pd.errors.ParserError as exc:
         text = " ".join(str(exc).split())
         m = re.search(r"Expected (\d+) fields in line (\d+), saw (\d+)", text)
@@ -123,7 +124,7 @@ def read_csv_table(path, required, *, unit="a number"):
     rows = body.index.to_numpy() + 1
     if len(body) == 0:
         raise UserError(f"{path}: no data rows after the header (row 1); expected one row per "
-                        f"entry with columns {', '.join(required)}")
+                        f"entry with columns {expected or ', '.join(required)}")
     table = pd.DataFrame(body.to_numpy(), columns=header)
     numbers = {}
     first_bad = None  # (row, column position, message): report the first in file order

@@ -16,6 +16,8 @@ from ._common import (UserError, check_output_path, parse_brdf, parse_btdf, read
 
 ANGLES = ("theta_i", "phi_i", "theta_r", "phi_r")  # the --configs columns, degrees
 ADDED = ("apparent", "clear", "error")  # the columns veil eval adds
+FORMS_TEXT = ("theta_i, phi_i, theta_r, phi_r (or signed in-plane theta_i, theta_r, or "
+              "goniometer psi, rho)")
 DEFAULT_PHI_I = 180.0
 DEFAULT_PHI_R = 0.0
 
@@ -88,6 +90,36 @@ def _format_table(brdf_text, medium_text, brdf, medium, angles, accuracy, value,
     return "\n".join(lines) + "\n"
 
 
+def _read_configs(configs):
+    """Angles (degrees, canonical) and the table of strings of a --configs file, in any of
+    the three angle forms of measurement tables (MODEL.md sec. 1): the four angles, signed
+    in-plane theta_i, theta_r, or goniometer psi, rho."""
+    table, _, rows = read_csv_table(configs, (), unit="an angle in degrees", expected=FORMS_TEXT)
+    clash = [c for c in ADDED if c in table.columns]
+    if clash:
+        raise UserError(f"{configs}: already has a column {clash[0]!r}, which veil eval "
+                        f"adds; rename or remove it")
+    if any(c in table.columns for c in ("phi_i", "phi_r")):  # the four-angle form
+        table, numbers, rows = read_csv_table(configs, ANGLES, unit="an angle in degrees")
+        for c in ("theta_i", "theta_r"):
+            bad = np.flatnonzero((numbers[c] < 0.0) | (numbers[c] >= 90.0))
+            if bad.size:
+                j = bad[0]
+                raise UserError(f"{configs}: row {rows[j]} (rows counted as lines of the file, "
+                                f"header = row 1), column {c!r}: {numbers[c][j]:g} deg is "
+                                f"outside [0, 90) (polar angle from the surface normal)")
+        return (*(numbers[c] for c in ANGLES), table)
+    from ..measurements import MeasurementError, canonical_angles
+
+    named = table.copy()
+    named.attrs = {"veil_source": str(configs), "veil_lines": [int(r) for r in rows]}
+    try:
+        canonical = canonical_angles(named)
+    except MeasurementError as exc:
+        raise UserError(str(exc)) from None
+    return (*(canonical[c].to_numpy(dtype=float) for c in ANGLES), table)
+
+
 def _emit(text: str, output) -> None:
     if output is None:
         click.echo(text, nl=False)
@@ -112,10 +144,11 @@ def _emit(text: str, output) -> None:
               help="Azimuth of the camera direction R, in degrees. [default: 0]")
 @click.option("--configs", type=click.Path(exists=True, dir_okay=False, readable=True),
               metavar="FILE.csv",
-              help="Evaluate every row of this CSV file instead of one configuration. Columns "
-                   "theta_i, phi_i, theta_r, phi_r (degrees) are required, other columns are "
-                   "copied unchanged. Output: the input's columns in the same row order plus "
-                   "apparent, clear and error (1/sr, relative units) as CSV.")
+              help="Evaluate every row of this CSV file instead of one configuration. Angles "
+                   "in degrees in any form of a measurement table: theta_i, phi_i, theta_r, "
+                   "phi_r; signed in-plane theta_i, theta_r; or goniometer psi, rho. Other "
+                   "columns are copied unchanged. Output: the input's columns in the same row "
+                   "order plus apparent, clear and error (1/sr, relative units) as CSV.")
 @click.option("-o", "--output", type=click.Path(dir_okay=False), metavar="OUT",
               help="Write the --configs CSV (or, with --json, the JSON object) to this file "
                    "instead of standard output. Written atomically; never the --configs file.")
@@ -169,19 +202,7 @@ def eval_command(brdf_text, medium_text, theta_i, theta_r, phi_i, phi_r, configs
         check_output_path(output, [configs])
 
     if configs is not None:
-        table, numbers, rows = read_csv_table(configs, ANGLES, unit="an angle in degrees")
-        clash = [c for c in ADDED if c in table.columns]
-        if clash:
-            raise UserError(f"{configs}: already has a column {clash[0]!r}, which veil eval "
-                            f"adds; rename or remove it")
-        for c in ("theta_i", "theta_r"):
-            bad = np.flatnonzero((numbers[c] < 0.0) | (numbers[c] >= 90.0))
-            if bad.size:
-                j = bad[0]
-                raise UserError(f"{configs}: row {rows[j]} (rows counted as lines of the file, "
-                                f"header = row 1), column {c!r}: {numbers[c][j]:g} deg is "
-                                f"outside [0, 90) (polar angle from the surface normal)")
-        ti, pi_, tr, pr = (numbers[c] for c in ANGLES)
+        ti, pi_, tr, pr, table = _read_configs(configs)
     else:
         phi_i = DEFAULT_PHI_I if phi_i is None else phi_i
         phi_r = DEFAULT_PHI_R if phi_r is None else phi_r
