@@ -121,6 +121,14 @@ def test_contradictory_sharing_declarations_are_rejected():
         build(s, fixed={"Td[a]": 1e-3, "g": 0.9})
 
 
+def test_fixed_must_be_a_dict():
+    """As in the step fits: a list of pairs or a string is a FitError, not silently used."""
+    s = _sessions_from(joint_tables_small())
+    for fixed in ([("Td[a]", 1e-3)], "Td[a]=1e-3"):
+        with pytest.raises(FitError, match="expected a dict"):
+            build(s, fixed=fixed)
+
+
 def test_medium_session_without_target_session_is_rejected():
     t = joint_tables_small()
     with pytest.raises(FitError, match="no session of the target"):

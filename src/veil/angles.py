@@ -11,6 +11,21 @@ import numpy as np
 from ._jax import jnp
 
 
+
+def check_angles(theta_i, theta_r, phi_i, phi_r):
+    """Broadcast and validate angles (degrees); raise ValueError naming the bad value."""
+    arrays = np.broadcast_arrays(*(np.asarray(a, dtype=float) for a in (theta_i, theta_r, phi_i, phi_r)))
+    for name, a in zip(("theta_i", "theta_r", "phi_i", "phi_r"), arrays):
+        bad = ~np.isfinite(a)
+        if bad.any():
+            raise ValueError(f"{name} = {a[bad].flat[0]!r} is not a finite number")
+        if name.startswith("theta"):
+            out = (a < 0) | (a >= 90)
+            if out.any():
+                raise ValueError(f"{name} = {a[out].flat[0]:g} deg is outside [0, 90)")
+    return arrays
+
+
 def direction(theta_deg, phi_deg):
     """Unit vector(s) for polar angle ``theta`` and azimuth ``phi`` (degrees), shape (..., 3)."""
     t = jnp.deg2rad(jnp.asarray(theta_deg, dtype=float))

@@ -11,22 +11,9 @@ from functools import lru_cache
 
 from ._jax import jax, jnp
 from .forward import Forward
-from .angles import direction
+from .angles import check_angles, direction  # noqa: F401  (check_angles re-exported)
 from .models import BRDF, BTDF, preset
-from .quadrature import Rule
-
-#: Quadrature levels. "default" meets 1e-3 relative error for the paper's presets at both
-#: angles < 80 deg (see docs/performance.md).
-RULES = {
-    "fast": Rule().scaled(0.6),
-    "default": Rule(),
-    "high": Rule().scaled(2.0),
-}
-#: The error estimate is twice the difference to a rule with 1.3 times the nodes per
-#: dimension: measured against a converged reference it covers the actual error at
-#: most configurations and overstates it about twofold (docs/performance.md).
-FINER = {name: rule.scaled(1.3) for name, rule in RULES.items()}
-ERROR_FACTOR = 2.0
+from .quadrature import ERROR_FACTOR, FINER, RULES, Rule  # noqa: F401  (re-exported)
 
 
 def as_brdf(brdf) -> BRDF:
@@ -41,20 +28,6 @@ def as_btdf(medium) -> BTDF:
     if not isinstance(model, BTDF):
         raise TypeError(f"expected a BTDF medium (e.g. veil.BTDF1), got {medium!r}")
     return model
-
-
-def check_angles(theta_i, theta_r, phi_i, phi_r):
-    """Broadcast and validate angles (degrees); raise ValueError naming the bad value."""
-    arrays = np.broadcast_arrays(*(np.asarray(a, dtype=float) for a in (theta_i, theta_r, phi_i, phi_r)))
-    for name, a in zip(("theta_i", "theta_r", "phi_i", "phi_r"), arrays):
-        bad = ~np.isfinite(a)
-        if bad.any():
-            raise ValueError(f"{name} = {a[bad].flat[0]!r} is not a finite number")
-        if name.startswith("theta"):
-            out = (a < 0) | (a >= 90)
-            if out.any():
-                raise ValueError(f"{name} = {a[out].flat[0]:g} deg is outside [0, 90)")
-    return arrays
 
 
 def reflectance(brdf, theta_i, theta_r, phi_i=180.0, phi_r=0.0) -> np.ndarray:

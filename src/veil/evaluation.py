@@ -46,10 +46,13 @@ class ApparentModel:
         self.parts[0][0].prepare(values, (self.all_b, self.all_m) if jacobian else None)
 
     def terms(self, vb, vm) -> np.ndarray:
+        """Term matrices (M, 3, 2) with the scale parameters set to 1 (rows T_d^2, T_d T_t,
+        T_t^2; columns the BRDF's separable and lobe parts; veil.integrator)."""
         self.values_calls += 1
         return np.concatenate([f.terms(vb, vm)[:n] for f, n in self.parts])
 
     def values(self, vb, vm) -> np.ndarray:
+        """Apparent reflectance (M,) at parameter vectors ``vb``, ``vm`` (MODEL.md eq. 1)."""
         self.values_calls += 1
         return np.concatenate([f(vb, vm)[:n] for f, n in self.parts])
 
@@ -77,7 +80,8 @@ def _direct_fns(cls):
 
 
 class DirectModel:
-    """f_r at the data's configurations, padded to a multiple of CHUNK (one compile)."""
+    """f_r at the data's configurations (MODEL.md sec. 2), padded to a multiple of CHUNK
+    (one compilation per padded length)."""
 
     def __init__(self, cls, angles):
         self.cls = cls
@@ -91,11 +95,13 @@ class DirectModel:
         self.jacobian_calls = 0
 
     def values(self, v) -> np.ndarray:
+        """f_r (M,) at the BRDF parameter vector ``v``."""
         self.values_calls += 1
         f, _ = _direct_fns(self.cls)
         return np.asarray(f(jnp.asarray(v, dtype=float), self.wi, self.wr))[: self.size]
 
     def value_and_jacobian(self, v):
+        """f_r (M,) and its Jacobian (M, len(v)) with respect to ``v``."""
         self.jacobian_calls += 1
         f, jf = _direct_fns(self.cls)
         vj = jnp.asarray(v, dtype=float)

@@ -13,6 +13,7 @@ import numpy as np
 
 from .measurements import atomic_write_text
 from .models import REGISTRY, Model, model_class
+from .models.henyey_greenstein import VARIANTS
 
 #: The steps of the two-step method (MODEL.md sec. 7); results may also say "direct".
 STEPS = ("reference", "medium", "target")
@@ -69,6 +70,7 @@ class FitResult:
 
     @property
     def free(self) -> tuple[str, ...]:
+        """Names of the parameters the fit varied (those not held fixed)."""
         return tuple(n for n in self.params if n not in self.fixed)
 
     def covariance(self, total: bool = True):
@@ -91,6 +93,7 @@ class FitResult:
 
     # -- files -----------------------------------------------------------------------------
     def to_dict(self) -> dict:
+        """The result as a JSON-ready dict (the keys of docs/fitting.md; NaN as null)."""
         return {
             "format": FORMAT,
             "model": self.model,
@@ -150,7 +153,6 @@ class FitResult:
             if isinstance(v, bool) or not isinstance(v, (int, float)):
                 raise FitError(f"{source}: params.{k} = {v!r} is not a number")
         variant = data["variant"]
-        from .models.henyey_greenstein import VARIANTS
         if variant is not None and variant not in VARIANTS:
             raise FitError(f"{source}: key 'variant' = {variant!r}; expected one of "
                            f"{', '.join(VARIANTS)} or null")
@@ -253,10 +255,10 @@ class FitResult:
                              f"{format_number(self.stderr_total[p.name], 3)}")
                 lines.append(f"    {p.name:<{width}}: {format_number(v)}{unit} +/- {format_number(se, 3)}{rel}"
                              f"{total}")
-        lines += self._correlation_lines(min_correlation)
+        lines += self.correlation_lines(min_correlation)
         return "\n".join(lines)
 
-    def _correlation_lines(self, min_correlation: float, most: int | None = None) -> list[str]:
+    def correlation_lines(self, min_correlation: float, most: int | None = None) -> list[str]:
         """The report's [[Correlations]] section: pairs of free parameters with |r| >=
         ``min_correlation``, strongest first (the ``most`` strongest; all when None)."""
         pairs = []

@@ -26,8 +26,6 @@ checks, goodness of fit and covariances (:mod:`veil.least_squares`) and the give
 
 from __future__ import annotations
 
-from typing import Callable
-
 import numpy as np
 from scipy.optimize import least_squares
 
@@ -39,9 +37,10 @@ from .fit_data import FitData, prepare
 from .fit_result import FORMAT, STEPS, FitError, FitResult  # noqa: F401
 from .given_model import as_brdf_model, as_medium_model, check_variant, model_dict
 from .least_squares import (ITERATION_ACCURACY, SINGULAR_NOTE, TOL_FINAL, TOL_ITER, TOL_POLISH,
-                            check_accuracy, check_fixed, check_max_nfev, convincing,
+                            as_fixed, check_accuracy, check_fixed, check_max_nfev, convincing,
                             covariance_from_jacobian, edge_note, goodness, outcome,
                             stopped_early_note, ticker, uncertainties)
+from .measurements import MeasurementError  # noqa: F401  (raised by the fits; importable here)
 from .models import BRDF, HenyeyGreenstein, Model, TorranceSparrow
 from .start_values import START_GRIDS, brdf_scales, grid_points, medium_scales, pick_starts
 
@@ -50,9 +49,6 @@ from .start_values import START_GRIDS, brdf_scales, grid_points, medium_scales, 
 
 #: Least-squares runs started from the best distinct grid points, by step.
 STARTS = {"reference": 3, "medium": 2, "target": 2}
-
-#: Signature of the ``progress`` callbacks: progress(stage, done, total or None).
-Progress = Callable[[str, "int | None", "int | None"], None]
 
 
 # --------------------------------------------------------------------------------------
@@ -215,14 +211,6 @@ def _multi_start(step, space, data, scored, values_fn, jac_fn, max_nfev, progres
 # --------------------------------------------------------------------------------------
 # step 0: the reference's f_r in a clear medium
 # --------------------------------------------------------------------------------------
-def _as_fixed(fixed) -> dict:
-    if fixed is None:
-        return {}
-    if not isinstance(fixed, dict):
-        raise FitError(f"fixed = {fixed!r}; expected a dict such as {{'eta': 1.5}}")
-    return dict(fixed)
-
-
 def fit_reference(table, *, fixed=None, black=None, max_nfev=None,
                   progress=None) -> FitResult:
     """Step 0 (MODEL.md sec. 7): fit Torrance-Sparrow f_r to clear-medium data, directly.
@@ -244,7 +232,7 @@ def fit_direct(table, *, fixed=None, black=None, max_nfev=None, progress=None,
     check_max_nfev(max_nfev)
     cls = TorranceSparrow
     what = "reference" if step == "reference" else "target"
-    space = _Space(cls, _as_fixed(fixed), f"{what} (clear medium)")
+    space = _Space(cls, as_fixed(fixed), f"{what} (clear medium)")
     data = prepare(table, black, f"{what} (clear medium)")
     _check_size(data, space, f"{what} (clear medium)")
     direct = DirectModel(cls, data.angles)
@@ -423,7 +411,7 @@ def fit_medium(table, reference, *, fixed=None, black=None, variant: str = "pape
     check_max_nfev(max_nfev)
     brdf = as_brdf_model(reference)
     cls = HenyeyGreenstein
-    space = _Space(cls, _as_fixed(fixed), "medium")
+    space = _Space(cls, as_fixed(fixed), "medium")
     data = prepare(table, black, "reference (in the medium)")
     _check_size(data, space, "medium")
     template = HenyeyGreenstein(1.0, 1.0, 0.9, 1.33, variant=variant)
@@ -446,7 +434,7 @@ def fit_target(table, medium, *, fixed=None, black=None, variant: str | None = N
     check_max_nfev(max_nfev)
     model_m = as_medium_model(medium, variant)
     cls = TorranceSparrow
-    space = _Space(cls, _as_fixed(fixed), "target")
+    space = _Space(cls, as_fixed(fixed), "target")
     data = prepare(table, black, "target (in the medium)")
     _check_size(data, space, "target")
     template = TorranceSparrow(1.0, 1.0, 0.5, 1.5)

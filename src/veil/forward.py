@@ -19,9 +19,9 @@ import numpy as np
 from ._jax import jax, jnp
 from jax.sharding import Mesh, NamedSharding, PartitionSpec as P
 from . import integrator
-from .angles import direction
+from .angles import check_angles, direction
 from .models.base import BRDF, BTDF
-from .quadrature import Rule
+from .quadrature import RULES, Rule
 
 _AXIS = "configurations"
 
@@ -57,7 +57,7 @@ def _sharded(fn, mesh: Mesh):
 
 @lru_cache(maxsize=128)
 def _terms_fn(kb, km, rule: Rule, half: bool, mesh: Mesh):
-    bt, mt = integrator._TEMPLATES[kb], integrator._TEMPLATES[km]
+    bt, mt = integrator.template_for(kb), integrator.template_for(km)
 
     def fn(vb, vm, wi, wr):
         return integrator.apparent_terms(bt, mt, rule, vb, vm, wi, wr, half)
@@ -70,7 +70,7 @@ def _terms_jac_fn(kb, km, rule: Rule, half: bool, nl_b: tuple, nl_m: tuple, mesh
     """Terms (M, 3, 2) and their derivatives (M, 3, 2, len(nl_b) + len(nl_m)) with respect
     to the listed parameters, by forward mode: one linearization, its tangent map applied
     to each basis vector (faster to compile and to run than jacfwd's batched tangents)."""
-    bt, mt = integrator._TEMPLATES[kb], integrator._TEMPLATES[km]
+    bt, mt = integrator.template_for(kb), integrator.template_for(km)
     ib, im = np.asarray(nl_b, dtype=int), np.asarray(nl_m, dtype=int)
     nb = len(nl_b)
 
@@ -132,8 +132,6 @@ class Forward:
 
     def __init__(self, brdf: BRDF, medium: BTDF, theta_i, theta_r, phi_i=180.0, phi_r=0.0,
                  rule: Rule | None = None):
-        from .apparent import RULES, check_angles
-
         self.brdf, self.medium = brdf, medium
         self.rule = RULES["default"] if rule is None else rule
         if not isinstance(self.rule, Rule):

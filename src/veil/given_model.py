@@ -8,6 +8,7 @@ import warnings
 
 from .fit_result import FitError, FitResult
 from .models import BRDF, BTDF, Model, model_class
+from .models.henyey_greenstein import VARIANTS
 
 
 def as_brdf_model(reference) -> BRDF:
@@ -58,7 +59,6 @@ def as_medium_model(medium, variant) -> BTDF:
 
 def check_variant(variant) -> None:
     """A FitError unless ``variant`` is a Fresnel variant of the medium (MODEL.md sec. 3)."""
-    from .models.henyey_greenstein import VARIANTS
     if variant not in VARIANTS:
         raise FitError(f"variant = {variant!r}; expected one of {', '.join(VARIANTS)}")
 

@@ -390,3 +390,8 @@ _TEMPLATES: dict = {}
 def template(model):
     """The cached template instance for a model's structure (static options only)."""
     return _TEMPLATES.setdefault(model.structure(), model)
+
+
+def template_for(structure):
+    """The template instance registered for a model structure (see :func:`template`)."""
+    return _TEMPLATES[structure]

@@ -40,7 +40,7 @@ from .fitting import fit_reference
 from .given_model import as_brdf_model, check_variant, model_dict
 from .least_squares import CONVINCING  # noqa: F401
 from .least_squares import (ITERATION_ACCURACY, SINGULAR_NOTE, TOL_FINAL, TOL_ITER,
-                            check_accuracy, check_fixed, check_max_nfev, convincing,
+                            as_fixed, check_accuracy, check_fixed, check_max_nfev, convincing,
                             covariance_from_jacobian, edge_note, goodness, outcome,
                             stopped_early_note, ticker, uncertainties)
 from .models import BRDF, BTDF, HenyeyGreenstein, TorranceSparrow
@@ -384,7 +384,9 @@ class Solution:
 def solve(problem: Problem, x0, *, accuracy: str = ITERATION_ACCURACY, tol=None,
           max_nfev=None, jac_accuracy: str = ITERATION_ACCURACY, on_eval=None) -> Solution:
     """Weighted least squares (scipy "trf", x_scale="jac") from natural start ``x0``;
-    values at ``accuracy``, Jacobians at ``jac_accuracy`` (as :mod:`veil.fitting`'s polish)."""
+    values at ``accuracy``, Jacobians at ``jac_accuracy``, recomputed at every iterate
+    (:mod:`veil.fitting`'s polish instead freezes the fast Jacobian); ``tol`` defaults to
+    TOL_FINAL."""
     tol = tol or TOL_FINAL
     u0 = problem.to_u(x0)
     lo, hi = problem.bounds(u0)
@@ -466,6 +468,7 @@ class JointResult(FitResult):
         return HenyeyGreenstein(**vals, variant=self.variant or "paper")
 
     def as_model(self):
+        """The target's BRDF (what :meth:`FitResult.as_model` gives for a step-2 fit)."""
         return self.brdf("target")
 
     # -- files -----------------------------------------------------------------------------
@@ -557,7 +560,7 @@ class JointResult(FitResult):
             else:
                 rel = f" ({100 * se / abs(v):.2f}%)" if v != 0 else ""
                 lines.append(f"    {name:<{width}}: {_fmt(v)} +/- {_fmt(se, 3)}{rel}")
-        lines += self._correlation_lines(min_correlation, most=20)
+        lines += self.correlation_lines(min_correlation, most=20)
         return "\n".join(lines)
 
 
@@ -785,9 +788,7 @@ def build(sessions, *, reference=None, shared=None, per_medium=None, fixed=None,
     names = [p.name for p in params]
     index = {n: k for k, n in enumerate(names)}
 
-    fixed = dict(fixed or {})
-    if not isinstance(fixed, dict):
-        raise FitError(f"fixed = {fixed!r}; expected a dict such as {{'eta': 1.5}}")
+    fixed = as_fixed(fixed)
     for k, v in fixed.items():
         if k not in index:
             hint = ""

@@ -42,6 +42,16 @@ def check_max_nfev(max_nfev) -> None:
         raise FitError(f"max_nfev = {max_nfev!r}; expected a positive integer or None")
 
 
+def as_fixed(fixed) -> dict:
+    """The ``fixed=`` argument of the fits as a new dict ({} for None); a FitError for
+    anything but a dict."""
+    if fixed is None:
+        return {}
+    if not isinstance(fixed, dict):
+        raise FitError(f"fixed = {fixed!r}; expected a dict such as {{'eta': 1.5}}")
+    return dict(fixed)
+
+
 def check_fixed(name: str, value, param, owner: str) -> None:
     """A FitError unless ``value``, the fixed value of parameter ``name``, is a number inside
     the bounds of ``param`` (a :class:`veil.models.Param`; ``owner`` names it in the error)."""

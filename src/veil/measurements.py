@@ -76,6 +76,7 @@ class RowNames:
         return f"row {self.labels[k]!r} (index label) of {self.what}"
 
     def many(self, positions) -> str:
+        """Names of rows at ``positions``, the first few and a count of the rest."""
         positions = list(positions)
         text = "; ".join(self(k) for k in positions[:_MAX_LISTED])
         if len(positions) > _MAX_LISTED:
