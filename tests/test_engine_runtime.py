@@ -7,6 +7,7 @@ nor disturb the user's cache.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import subprocess
 import sys
@@ -21,6 +22,24 @@ from veil.apparent import RULES
 from veil.forward import Forward, _mesh, _terms_fn, wait_for_compilations
 
 BACKEND_COMPILE = "/jax/core/compile/backend_compile_duration"
+
+
+@contextlib.contextmanager
+def compilations():
+    """The names of the programs XLA compiles (or loads from the cache) inside the block,
+    once the background compilations of earlier tests have finished."""
+    wait_for_compilations()
+    names = []
+
+    def listen(name, secs, **kw):
+        if name == BACKEND_COMPILE:
+            names.append(kw.get("fun_name"))
+
+    jax.monitoring.register_event_duration_secs_listener(listen)
+    try:
+        yield names
+    finally:
+        jax.monitoring.unregister_event_duration_listener(listen)
 
 
 def _child(script: str, env: dict, cwd=None) -> str:
@@ -119,18 +138,8 @@ def test_one_executable_for_all_devices():
     rule = RULES["fast"].scaled(1.07)  # a rule no other test compiles
     f = Forward(b, m, th, th, 180.0, 10.0, rule=rule)
     assert len(f.devices) == len(jax.devices())
-    wait_for_compilations()  # nothing from earlier tests compiling in the background
-    compiles = []
-
-    def listen(name, secs, **kw):
-        if name == BACKEND_COMPILE:
-            compiles.append(kw.get("fun_name"))
-
-    jax.monitoring.register_event_duration_secs_listener(listen)
-    try:
+    with compilations() as compiles:
         value = f(b.to_vector(), m.to_vector())
-    finally:
-        jax.monitoring.unregister_event_duration_listener(listen)
     assert compiles.count("jit(fn)") == 1, compiles
     single = Forward(b, m, th[:7], th[:7], 180.0, 10.0, rule=rule)  # below 8 a device: one
     assert len(single.devices) == 1
@@ -144,15 +153,7 @@ def test_prepare_compiles_in_the_background_once():
     th = np.linspace(10.0, 70.0, 20)
     rule = RULES["fast"].scaled(0.93)  # a rule no other test compiles
     f = Forward(b, m, th, th, 180.0, 0.0, rule=rule)
-    wait_for_compilations()  # nothing from earlier tests compiling in the background
-    compiles = []
-
-    def listen(name, secs, **kw):
-        if name == BACKEND_COMPILE:
-            compiles.append(kw.get("fun_name"))
-
-    jax.monitoring.register_event_duration_secs_listener(listen)
-    try:
+    with compilations() as compiles:
         futures = f.prepare(values=True, jacobian=((2,), (2,)))
         assert len(futures) == 2
         value, jac = f.value_and_jacobian(b.to_vector(), m.to_vector(), (2,), (2,))
@@ -161,8 +162,6 @@ def test_prepare_compiles_in_the_background_once():
             fut.result()
         assert f.prepare(values=True, jacobian=((2,), (2,)))[0] is futures[0]
         assert all(fut.result() is None for fut in futures)
-    finally:
-        jax.monitoring.unregister_event_duration_listener(listen)
     assert compiles.count("jit(fn)") == 2, compiles  # terms and Jacobian, once each
     np.testing.assert_array_equal(f.combine(terms, b.to_vector(), m.to_vector()), value)
     assert jac.shape == (20, 2) and np.all(np.isfinite(jac))

@@ -27,6 +27,7 @@ has no glow.
 from __future__ import annotations
 
 import math
+from functools import lru_cache
 from typing import Callable
 
 import numpy as np
@@ -56,6 +57,7 @@ def glow_shape(medium, theta_i, phi_i, theta_r, phi_r) -> np.ndarray:
     return np.asarray(m.iso(v) + m.lobe_weight(v) * m.phase(v, one_minus_mu), dtype=float)
 
 
+@lru_cache(maxsize=64)
 def glow_scale(medium, accuracy: str = "default") -> float:
     """f_std: the standard object's (:data:`GLOW_STANDARD`) noise-free apparent value
     through ``medium`` at :data:`GLOW_REFERENCE` (module docstring), evaluated as simulate

@@ -87,7 +87,8 @@ def read_csv_table(path, required, *, unit="a number", expected=None):
     empty, ragged, a required column missing or duplicated, an empty, non-numeric or
     non-finite cell - raises :class:`UserError` naming the file, the row and the column.
     ``unit`` words what a cell should hold, e.g. "an angle in degrees"; ``expected`` the
-    columns a file should have, for messages (default: ``required``).
+    columns a file should have, for messages (default: ``required``). ``required`` may be a
+    function of the header (list of column names) returning the columns to parse.
     """
     import pandas as pd  # heavy; only commands that read CSV pay for it
 
@@ -108,6 +109,8 @@ def read_csv_table(path, required, *, unit="a number", expected=None):
     except UnicodeDecodeError as exc:
         raise UserError(f"{path}: not UTF-8 text ({exc.reason}); save the file as UTF-8") from None
     header = [str(c) for c in raw.iloc[0].tolist()]
+    if callable(required):
+        required = tuple(required(header))
     body = raw.iloc[1:]
     missing = [c for c in required if c not in header]
     if missing:
@@ -169,13 +172,19 @@ def check_output_path(output, inputs=()):
         if same or os.path.abspath(output) == os.path.abspath(inp):
             raise UserError(f"output {output} is the input file {inp}; veil never overwrites "
                             f"an input: choose another output path")
-    if os.path.isdir(output):
-        raise UserError(f"output {output} is a directory; give a file name")
-    directory = os.path.dirname(os.path.abspath(output))
+    check_file_target(output, f"output {output}", output)
+
+
+def check_file_target(path, named: str, written: str) -> None:
+    """UserError unless ``path`` names a file in an existing, writable directory; messages
+    call it ``named`` ("<named> is a directory") and ``written`` ("cannot write <written>")."""
+    if os.path.isdir(path):
+        raise UserError(f"{named} is a directory; give a file name")
+    directory = os.path.dirname(os.path.abspath(path))
     if not os.path.isdir(directory):
-        raise UserError(f"cannot write {output}: directory {directory} does not exist")
+        raise UserError(f"cannot write {written}: directory {directory} does not exist")
     if not os.access(directory, os.W_OK):
-        raise UserError(f"cannot write {output}: directory {directory} is not writable")
+        raise UserError(f"cannot write {written}: directory {directory} is not writable")
 
 
 def write_atomic(path, text: str) -> None:

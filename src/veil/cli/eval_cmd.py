@@ -94,13 +94,16 @@ def _read_configs(configs):
     """Angles (degrees, canonical) and the table of strings of a --configs file, in any of
     the three angle forms of measurement tables (MODEL.md sec. 1): the four angles, signed
     in-plane theta_i, theta_r, or goniometer psi, rho."""
-    table, _, rows = read_csv_table(configs, (), unit="an angle in degrees", expected=FORMS_TEXT)
+    def four_angles(header):  # the four-angle form is parsed here, the others below
+        return ANGLES if any(c in header for c in ("phi_i", "phi_r")) else ()
+
+    table, numbers, rows = read_csv_table(configs, four_angles, unit="an angle in degrees",
+                                          expected=FORMS_TEXT)
     clash = [c for c in ADDED if c in table.columns]
     if clash:
         raise UserError(f"{configs}: already has a column {clash[0]!r}, which veil eval "
                         f"adds; rename or remove it")
-    if any(c in table.columns for c in ("phi_i", "phi_r")):  # the four-angle form
-        table, numbers, rows = read_csv_table(configs, ANGLES, unit="an angle in degrees")
+    if numbers:
         for c in ("theta_i", "theta_r"):
             bad = np.flatnonzero((numbers[c] < 0.0) | (numbers[c] >= 90.0))
             if bad.size:

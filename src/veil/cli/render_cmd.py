@@ -9,20 +9,14 @@ import os
 import click
 import numpy as np
 
-from ._common import UserError, parse_brdf, parse_btdf
+from ._common import UserError, check_file_target, parse_brdf, parse_btdf
 
 
 def output_path(path: str, suffixes: tuple, what: str) -> str:
     """Check that ``path`` can be written as ``what`` (suffix and directory); UserError if not."""
     if not path.lower().endswith(suffixes):
         raise UserError(f"{what} {path!r} must end in {' or '.join(suffixes)}")
-    if os.path.isdir(path):
-        raise UserError(f"{what} {path!r} is a directory; give a file name")
-    directory = os.path.dirname(os.path.abspath(path))
-    if not os.path.isdir(directory):
-        raise UserError(f"cannot write {what} {path!r}: directory {directory} does not exist")
-    if not os.access(directory, os.W_OK):
-        raise UserError(f"cannot write {what} {path!r}: directory {directory} is not writable")
+    check_file_target(path, f"{what} {path!r}", f"{what} {path!r}")
     return path
 
 
