@@ -122,3 +122,22 @@ def test_cli_diagnose(fits, tmp_path):
         r = runner.invoke(main, args)
         assert r.exit_code == 2, (args, r.output)
         assert message in r.output and "Traceback" not in r.output
+
+
+def test_plot_lays_profiles_out_in_a_grid(tmp_path):
+    """Eight profiles and the correlation matrix: three rows of at most four panels, not one
+    unreadable strip."""
+    import matplotlib.image as mpimg
+    from veil.diagnostics import Diagnosis, Profile, plot
+
+    names = [f"p{k}" for k in range(8)]
+    values = np.linspace(-1.0, 1.0, 7)
+    profiles = {n: Profile(n, 0.0, values.tolist(), (values ** 2).tolist(), (-1.0, 1.0), [],
+                           True) for n in names}
+    diag = Diagnosis(names=names, values={n: 0.0 for n in names},
+                     stderr={n: 1.0 for n in names}, relative={n: None for n in names},
+                     correlation=np.eye(8), condition={}, weakest={}, profiles=profiles)
+    path = tmp_path / "d.png"
+    plot(diag, path)
+    height, width = mpimg.imread(path).shape[:2]
+    assert 1.1 < width / height < 1.8  # 4 columns x 3 rows of 4.2 x 3.8 in panels

@@ -432,17 +432,20 @@ def plot(diag: Diagnosis, path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    n_prof = len(diag.profiles)
-    cols = 1 + n_prof
-    fig, axes = plt.subplots(1, cols, figsize=(4.2 * cols, 3.8), squeeze=False)
-    ax = axes[0, 0]
+    panels = 1 + len(diag.profiles)
+    cols = min(panels, 4)  # a grid, at most four panels a row
+    rows = -(-panels // cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(4.2 * cols, 3.8 * rows), squeeze=False)
+    axes = axes.ravel()
+    for ax in axes[panels:]:
+        ax.set_visible(False)
+    ax = axes[0]
     im = ax.imshow(diag.correlation, vmin=-1, vmax=1, cmap="RdBu_r")
     ax.set_xticks(range(len(diag.names)), diag.names, rotation=60, fontsize=7)
     ax.set_yticks(range(len(diag.names)), diag.names, fontsize=7)
     ax.set_title("correlation")
     fig.colorbar(im, ax=ax, fraction=0.046)
-    for a_idx, (name, prof) in enumerate(diag.profiles.items(), start=1):
-        ax = axes[0, a_idx]
+    for ax, (name, prof) in zip(axes[1:], diag.profiles.items()):
         v = np.array(prof.values)
         ax.plot(v, prof.delta_chi2, "o-", label="profile")
         se = diag.stderr[name]
@@ -452,6 +455,7 @@ def plot(diag: Diagnosis, path) -> None:
         ax.axhline(1.0, color="k", lw=0.8)
         ax.set_ylim(0, max(10.0, min(50.0, max(prof.delta_chi2) * 1.1)))
         ax.set_xlabel(name)
+        ax.locator_params(axis="x", nbins=4)
         ax.set_ylabel("Delta chi^2")
         ax.set_title(f"profile of {name}" + (" (flat)" if prof.flat else ""))
         ax.legend(fontsize=7)
