@@ -2,7 +2,7 @@
 
 Both run here, in one process, on the same configurations:
 
-* veil's engine (deterministic multiple-importance quadrature, ``veil.apparent``), at the
+* veil's engine (deterministic multiple-importance quadrature, ``veil.engine.apparent``), at the
   "default" rule, timed after compilation;
 * a baseline written for this benchmark: multiple-importance-sampled Monte Carlo of MODEL.md
   eq. (1) in numpy (one-sample balance heuristic over five strategies: phase lobes about I
@@ -29,8 +29,8 @@ import time
 import numpy as np
 
 import veil  # noqa: F401  (sets up JAX: float64, one CPU device per core)
-from veil.apparent import ERROR_FACTOR, FINER, RULES
-from veil.forward import Forward
+from veil.engine.apparent import ERROR_FACTOR, FINER, RULES
+from veil.engine.forward import Forward
 from veil.models import PRESETS
 
 DEG = 180.0 / math.pi

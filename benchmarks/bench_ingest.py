@@ -1,4 +1,4 @@
-"""Benchmark ``veil.ingest``: time per photo and peak memory on 24-megapixel photos.
+"""Benchmark ``veil.data.ingest``: time per photo and peak memory on 24-megapixel photos.
 
 Writes N synthetic 6000 x 4000 photos per format into a temporary directory (16-bit RGB TIFF,
 uncompressed and deflate; 16-bit RGB PNG; a 16-bit DNG colour-filter mosaic read by LibRaw),
@@ -97,7 +97,7 @@ def worker(folder, manifest, roi, black_roi, trace):
     import rawpy  # noqa: F401
     import tifffile  # noqa: F401
 
-    from veil.ingest import ingest, read_manifest
+    from veil.data.ingest import ingest, read_manifest
 
     t0 = time.perf_counter()
     read_manifest(manifest, folder)  # once per run: checks the manifest, starts JAX (angles)

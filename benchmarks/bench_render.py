@@ -1,4 +1,4 @@
-"""Benchmark ``veil.render``: time to render spheres and the interpolation error.
+"""Benchmark ``veil.viz.render``: time to render spheres and the interpolation error.
 
 Two measurements:
 
@@ -48,7 +48,7 @@ def main() -> None:
     print(f"cold: veil render --brdf BRDF1 --medium BTDF3 --size 256 (fresh process): "
           f"{cold(256):.1f} s", flush=True)
 
-    from veil.render import render
+    from veil.viz.render import render
 
     t0 = time.perf_counter()
     render("BRDF1", "BTDF3", 45.0, 0.0, 16, accuracy=args.accuracy, check=0)

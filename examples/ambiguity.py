@@ -24,12 +24,12 @@ import time
 import numpy as np
 
 import veil
-from veil.diagnostics import diagnose
-from veil.fitting import fit_medium, fit_reference, fit_target
-from veil.joint import Session, fit_joint
-from veil.measurements import atomic_write_text, subtract_black
+from veil.analysis.diagnostics import diagnose
+from veil.fitting.steps import fit_medium, fit_reference, fit_target
+from veil.fitting.joint import Session, fit_joint
+from veil.data.measurements import atomic_write_text, subtract_black
 from veil.models import HenyeyGreenstein, TorranceSparrow
-from veil.uncertainty import budget_table, propagate
+from veil.analysis.uncertainty import budget_table, propagate
 
 TARGET = TorranceSparrow(Pd=4.57e2, Ps=1.58e6, n=0.8, eta=1.5)     # smooth PVC-like plate
 REFERENCE = TorranceSparrow(Pd=2.91e3, Ps=1.34e6, n=0.8, eta=1.5)  # white acrylic
@@ -60,7 +60,7 @@ def simulate_all(protocol_kw, accuracy):
 
 def worst_medium(r1, r2, target_table, distance):
     """The medium at Mahalanobis ``distance`` from step 1's estimate (its total covariance)
-    in the direction that lowers the target's n the most (linearized, veil.uncertainty)."""
+    in the direction that lowers the target's n the most (linearized, veil.analysis.uncertainty)."""
     p = propagate(r2, r1, target_table)
     names, cov = r1.covariance(total=True)
     a = np.array([p.stats["sensitivity"]["n"][m] for m in names])  # d n / d medium

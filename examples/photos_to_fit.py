@@ -7,7 +7,7 @@ patch and a black cloth beside it, both seen through the medium. This example
    deg) a 16-bit TIFF whose object patch has the radiance veil predicts for BRDF1 seen
    through BTDF2 plus the medium's own glow, and whose black-cloth patch has the glow alone,
    with a camera offset, photon-like noise and a dark frame;
-2. ingests the folder (``veil.ingest.ingest``: ROI means, standard errors, saturation check);
+2. ingests the folder (``veil.data.ingest.ingest``: ROI means, standard errors, saturation check);
 3. subtracts the black cloth and fits the target's Torrance-Sparrow parameters with the
    medium known (step 2 of MODEL.md sec. 7), and prints them beside the truth.
 
@@ -25,8 +25,8 @@ import pandas as pd
 import tifffile
 
 import veil
-from veil.ingest import ingest
-from veil.measurements import subtract_black
+from veil.data.ingest import ingest
+from veil.data.measurements import subtract_black
 
 GAIN = 2000.0      # camera code values per unit of apparent reflectance
 OFFSET = 400.0     # camera black level (code values), removed by the dark frame

@@ -1,7 +1,7 @@
 """Independent brute-force reference for the apparent reflectance (MODEL.md sec. 5, paper eq. 1).
 
 Written from MODEL.md alone, in numpy/scipy, sharing no code with veil's engine
-(``veil.integrator``, ``veil.quadrature``) nor with its model code. It is a checker: slow,
+(``veil.engine.integrator``, ``veil.engine.quadrature``) nor with its model code. It is a checker: slow,
 simple, and every piece can be verified against another.
 
 Method. With f_t(A, B) = T_d + T_t a(A_z) b(B_z) p(A . B) (MODEL.md sec. 3; a = F_t^2, b = 1

@@ -1,4 +1,4 @@
-"""veil.apparent (MODEL.md sec. 5, paper eq. 1) against the independent reference in
+"""veil.engine.apparent (MODEL.md sec. 5, paper eq. 1) against the independent reference in
 tests/reference.py, closed forms, and checks of the reference itself.
 
 Tolerance: 1e-3 relative (veil's documented accuracy for accuracy="default") plus three
@@ -39,7 +39,7 @@ CONFIGS = {
 
 @functools.lru_cache(maxsize=None)
 def _veil(brdf, medium, return_error=False):
-    """veil.apparent at every CONFIG for one preset pair, one vectorized call."""
+    """veil.engine.apparent at every CONFIG for one preset pair, one vectorized call."""
     ti, pi_, tr, pr = (np.array(c) for c in zip(*CONFIGS.values()))
     out = veil.apparent(brdf, medium, ti, tr, pi_, pr, return_error=return_error)
     if return_error:

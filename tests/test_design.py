@@ -1,4 +1,4 @@
-"""Acquisition design (veil.design, veil design; MODEL.md sec. 1, 7).
+"""Acquisition design (veil.analysis.design, veil design; MODEL.md sec. 1, 7).
 
 Coarse candidate grids (fine step 2 deg, coarse step 10 deg) at the "fast" quadrature.
 """
@@ -10,9 +10,9 @@ from click.testing import CliRunner
 
 import veil
 from veil.cli import main
-from veil.design import (PLAN_COLUMNS, Information, candidates, conditions, design, greedy,
+from veil.analysis.design import (PLAN_COLUMNS, Information, candidates, conditions, design, greedy,
                          rank, simulate_plan)
-from veil.measurements import validate
+from veil.data.measurements import validate
 
 COARSE = dict(fine_step=2.0, coarse_step=10.0)
 
@@ -82,14 +82,14 @@ def test_common_concentration_factor_carries_no_information_under_relative_noise
 
 def test_plan_can_be_simulated(info_known):
     chosen, gains = greedy(info_known, 6)
-    from veil.design import plan_table
+    from veil.analysis.design import plan_table
 
     plan = plan_table(info_known, chosen, gains)
     tables = simulate_plan(plan, veil.BRDF1, noise=0.0, accuracy="fast")
     assert list(tables) == ["BTDF1"]
     t = validate(tables["BTDF1"])
     assert len(t) == 6
-    # veil.apparent on 64 configurations (padded): the engine's compiled chunk size
+    # veil.engine.apparent on 64 configurations (padded): the engine's compiled chunk size
     idx = np.minimum(np.arange(64), 5)
     cols = [t[c].to_numpy()[idx] for c in ("theta_i", "theta_r", "phi_i", "phi_r")]
     expected = veil.apparent(veil.BRDF1, veil.BTDF1, *cols, accuracy="fast")[:6]

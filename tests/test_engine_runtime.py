@@ -18,8 +18,8 @@ import pytest
 
 import veil
 from veil._jax import jax
-from veil.apparent import RULES
-from veil.forward import Forward, _mesh, _terms_fn, wait_for_compilations
+from veil.engine.apparent import RULES
+from veil.engine.forward import Forward, _mesh, _terms_fn, wait_for_compilations
 
 BACKEND_COMPILE = "/jax/core/compile/backend_compile_duration"
 
@@ -104,8 +104,8 @@ _HASH_SCRIPT = """
     import numpy as np
     import veil
     from veil._jax import jax
-    from veil.apparent import RULES
-    from veil.forward import Forward, _mesh, _terms_fn, wait_for_compilations
+    from veil.engine.apparent import RULES
+    from veil.engine.forward import Forward, _mesh, _terms_fn, wait_for_compilations
     events = []
     jax.monitoring.register_event_listener(lambda name, **kw: events.append(name))
     b, m = veil.preset("BRDF1"), veil.preset("BTDF2")

@@ -4,7 +4,7 @@ Recovery runs on the paper's full protocol (111 configurations) at the "default"
 every preset pair; the other tests use one relative angle (psi = 90 deg, 31 configurations)
 and the "fast" rule where accuracy is not the point. Sessions are simulated once per
 process (``session``); the engine compiles once per accuracy for 64-configuration chunks,
-shared with veil.simulate.
+shared with veil.data.simulate.
 """
 
 from __future__ import annotations
@@ -19,9 +19,9 @@ from click.testing import CliRunner
 
 import veil
 from veil.cli import main
-from veil.fitting import FitError, FitResult, fit_medium, fit_reference, fit_target
-from veil.measurements import MeasurementError, save_measurements, subtract_black
-from veil.protocol import PSI
+from veil.fitting.steps import FitError, FitResult, fit_medium, fit_reference, fit_target
+from veil.data.measurements import MeasurementError, save_measurements, subtract_black
+from veil.data.protocol import PSI
 
 PAIRS = [(b, m) for b in ("BRDF1", "BRDF2") for m in ("BTDF1", "BTDF2", "BTDF3")]
 SMALL = (90.0,)
@@ -36,7 +36,7 @@ JSON_KEYS = {"model", "params", "stderr", "correlation", "chi2_reduced", "rms_re
 def session(brdf: str, medium: str | None, psi=PSI, seed: int = 0,
             glow: float | None = None, accuracy: str = "default"):
     """(table, black) of ``brdf`` seen through ``medium`` (None: clear water), 1 % noise."""
-    from veil.simulate import GLOW_LEVEL
+    from veil.data.simulate import GLOW_LEVEL
 
     b = veil.preset(brdf)
     if medium is None:
@@ -107,7 +107,7 @@ def test_result_is_at_the_requested_accuracy():
     data = subtract_black(table, black)
     angles = tuple(data[c].to_numpy() for c in ("theta_i", "phi_i", "theta_r", "phi_r"))
     for acc, tol in (("default", 1e-12), ("fast", None)):
-        model = veil.fitting.model_values(result, veil.BRDF1, angles, acc)
+        model = veil.fitting.steps.model_values(result, veil.BRDF1, angles, acc)
         res = (data["value"].to_numpy() - model) / data["sigma"].to_numpy()
         if tol is not None:
             np.testing.assert_allclose(res, result.residuals, rtol=0, atol=tol)

@@ -1,4 +1,4 @@
-"""Joint estimation over several media (veil.joint, MODEL.md sec. 7; docs/ambiguity.md).
+"""Joint estimation over several media (veil.fitting.joint, MODEL.md sec. 7; docs/ambiguity.md).
 
 Small sessions (55 configurations: one engine chunk) at the "fast" quadrature keep the
 compilations and fits short; accuracy is not the point here.
@@ -13,8 +13,8 @@ from click.testing import CliRunner
 
 import veil
 from veil.cli import main
-from veil.fitting import FitError, FitResult
-from veil.joint import JointResult, Session, build, fit_joint, load_result
+from veil.fitting.steps import FitError, FitResult
+from veil.fitting.joint import JointResult, Session, build, fit_joint, load_result
 
 SMALL = dict(psi=(30, 60, 90), fine_step=2, coarse_step=10, glow=0.0, accuracy="fast")
 MEDIA = {"low": veil.BTDF1, "mid": veil.BTDF2, "high": veil.BTDF3}
@@ -92,7 +92,7 @@ def test_json_round_trip_and_loader(joint, tmp_path):
 # bad input (no fit needed)
 # ------------------------------------------------------------------------------------------
 def joint_tables_small():
-    t = veil.protocol.protocol((30, 60), fine_step=5, coarse_step=20)
+    t = veil.data.protocol.protocol((30, 60), fine_step=5, coarse_step=20)
     t = t.assign(value=1.0 + 0.01 * np.arange(len(t)), sigma=0.01)
     return t
 
@@ -103,7 +103,7 @@ def _sessions_from(t):
 
 def test_sessions_that_share_no_configuration_are_rejected():
     a = joint_tables_small()
-    b = veil.protocol.protocol((120,), fine_step=5, coarse_step=20)
+    b = veil.data.protocol.protocol((120,), fine_step=5, coarse_step=20)
     b = b.assign(value=1.0, sigma=0.01)
     with pytest.raises(FitError, match="shares no configuration"):
         build([Session(a, "a"), Session(b, "b")], fixed={"Td[a]": 1e-3})

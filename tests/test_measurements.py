@@ -13,7 +13,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import veil
-from veil.measurements import (LikelyRadiansWarning, MeasurementError, canonical_angles,
+from veil.data.measurements import (LikelyRadiansWarning, MeasurementError, canonical_angles,
                                load_measurements, save_measurements, subtract_black, to_form,
                                validate)
 

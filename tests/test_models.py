@@ -11,7 +11,8 @@ from hypothesis import strategies as st
 from scipy import integrate, optimize
 
 import veil
-from veil import angles, fresnel, phase
+from veil.engine import angles
+from veil.models import fresnel, phase
 
 from reference import (PRESETS, reference_btdf, reference_fresnel, reference_fresnel_sintan,
                        reference_hg, reference_reflectance)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from veil.protocol import protocol, rho_values
+from veil.data.protocol import protocol, rho_values
 
 
 def test_psi30_rho_list_by_hand():

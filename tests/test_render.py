@@ -1,4 +1,4 @@
-"""Rendered spheres (veil.render, `veil render`): geometry, symmetry, the medium's effect on
+"""Rendered spheres (veil.viz.render, `veil render`): geometry, symmetry, the medium's effect on
 the highlight, the interpolation error, tone mapping and command-line errors."""
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ from PIL import Image
 
 import veil
 from veil.cli import main
-from veil.render import (VIEW, auto_exposure, clipping, render, render_sphere, srgb_encode,
+from veil.viz.render import (VIEW, auto_exposure, clipping, render, render_sphere, srgb_encode,
                          tone_map)
 
 

@@ -1,4 +1,4 @@
-"""Uncertainty through the pipeline (veil.uncertainty, MODEL.md sec. 7).
+"""Uncertainty through the pipeline (veil.analysis.uncertainty, MODEL.md sec. 7).
 
 The two-step fits run on small sessions (55 configurations, one engine chunk) at the "fast"
 quadrature; the point is the propagation arithmetic, checked against its definition, the
@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 
 import veil
-from veil.fitting import FitError, fit_medium, fit_reference, fit_target
-from veil.uncertainty import PARTS, budget_table, propagate, sample_propagation
+from veil.fitting.steps import FitError, fit_medium, fit_reference, fit_target
+from veil.analysis.uncertainty import PARTS, budget_table, propagate, sample_propagation
 
 SMALL = dict(psi=(30, 60, 90), fine_step=2, coarse_step=10, glow=0.0, accuracy="fast")
 
@@ -44,7 +44,7 @@ def test_budget_adds_up_and_matches_the_fits_own_total(steps):
         assert p.stderr_total[name] == pytest.approx(np.sqrt(entry["total"]), rel=1e-12)
         assert entry["step2"] == pytest.approx(r2.stderr[name] ** 2, rel=1e-12)
         assert p.stderr_total[name] > r2.stderr[name]
-        # veil.fitting chains the same first-order propagation inside fit_target
+        # veil.fitting.steps chains the same first-order propagation inside fit_target
         assert p.stderr_total[name] == pytest.approx(r2.stderr_total[name], rel=1e-4)
     # through a strongly scattering medium step 1 is a large part of n's budget
     rows = {row["parameter"]: row for row in budget_table(p)}

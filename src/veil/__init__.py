@@ -6,12 +6,12 @@ presets: :class:`TorranceSparrow`, :class:`HenyeyGreenstein`, ``BRDF1``, ``BRDF2
 """
 
 from . import _jax  # noqa: F401  (float64 for JAX before anything else)
-from .apparent import apparent, reflectance
-from .measurements import load_measurements, save_measurements, subtract_black
-from .simulate import simulate
-from .fitting import FitResult, fit_medium, fit_reference, fit_target
+from .engine.apparent import apparent, reflectance
+from .data.measurements import load_measurements, save_measurements, subtract_black
+from .data.simulate import simulate
+from .fitting.steps import FitResult, fit_medium, fit_reference, fit_target
 from .pipeline import run_pipeline
-from .joint import fit_joint
+from .fitting.joint import fit_joint
 from .models import (BRDF, BTDF, PRESETS, REGISTRY, HenyeyGreenstein, Model, Param,
                      TorranceSparrow, preset)
 

@@ -23,13 +23,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ._io import write_bytes_atomic
-from .angles import to_goniometer, to_signed_inplane
-from .fitting import (FitError, FitResult, fit_direct, fit_medium, fit_reference, fit_target,
+from .io import write_bytes_atomic
+from .engine.angles import to_goniometer, to_signed_inplane
+from .fitting.steps import (FitError, FitResult, fit_direct, fit_medium, fit_reference, fit_target,
                       model_values, prepare)
-from .measurements import atomic_write_text
+from .data.measurements import atomic_write_text
 from .models import PRESETS, Model
-from .protocol import protocol
+from .data.protocol import protocol
 
 #: Output files, by role.
 FILES = {"reference": "reference.json", "medium": "medium.json", "target": "target.json",
@@ -255,7 +255,7 @@ def fit_figure(data, result: FitResult, other: Model | None, extra: FitResult | 
             curves.append((k, p, sel, tr_c, ti_c))
         all_ti = np.concatenate([c[4] for c in curves])
         all_tr = np.concatenate([c[3] for c in curves])
-        from .angles import from_signed_inplane
+        from .engine.angles import from_signed_inplane
         angles_c = from_signed_inplane(all_ti, all_tr)
         angles_c = (angles_c[0], angles_c[1], angles_c[2], angles_c[3])
         fitted = model_values(result, other, angles_c, accuracy)

@@ -16,9 +16,9 @@ from pathlib import Path
 
 import click
 
-from ..measurements import save_measurements
+from ..data.measurements import save_measurements
 from ..models import PRESETS
-from ..simulate import simulate
+from ..data.simulate import simulate
 from ._common import UserError
 
 #: The demo's set-up: which preset plays which role.

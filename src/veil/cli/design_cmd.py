@@ -30,7 +30,7 @@ def _floats(text, option):
 def _se(name, value) -> str:
     """Relative for log parameters (Ps/Pd, n), absolute for the index eta; "*" marks a value
     at the level of the design's weak prior (the plan does not identify the parameter)."""
-    from ..design import PRIOR_SD_LOG, PRIOR_SD_PLAIN
+    from ..analysis.design import PRIOR_SD_LOG, PRIOR_SD_PLAIN
 
     prior = PRIOR_SD_PLAIN if name == "eta" else PRIOR_SD_LOG
     mark = " *" if value > 0.3 * prior else ""
@@ -84,8 +84,8 @@ def design_command(brdf, media, factors, size, psi, fine_step, window, coarse_st
     from rich.markup import escape
     from rich.table import Table
 
-    from ..design import design
-    from ..measurements import atomic_write_text
+    from ..analysis.design import design
+    from ..data.measurements import atomic_write_text
 
     model_b = parse_brdf(brdf)
     models = []
@@ -103,7 +103,7 @@ def design_command(brdf, media, factors, size, psi, fine_step, window, coarse_st
     named = dict(zip(labels, models))
     facs = _floats(factors, "--factors") if factors else None
     if facs is not None:
-        from ..design import condition_medium
+        from ..analysis.design import condition_medium
 
         named = {f"{label} x{f:g}": condition_medium(m, f)
                  for label, m in named.items() for f in facs}

@@ -20,7 +20,7 @@ IN_FILE = click.Path(exists=True, dir_okay=False, path_type=Path)
 
 
 def _load_other(text, kind, variant="paper"):
-    from ..fitting import FitResult
+    from ..fitting.steps import FitResult
     from ._common import parse_brdf, parse_btdf
 
     if os.path.exists(text) or text.lower().endswith(".json"):
@@ -110,9 +110,9 @@ def diagnose_command(result_path, data, black, medium, reference, profile, profi
     """
     from rich.console import Console
 
-    from ..diagnostics import diagnose, plot
-    from ..joint import JointResult, Session, load_result
-    from ..measurements import load_measurements
+    from ..analysis.diagnostics import diagnose, plot
+    from ..fitting.joint import JointResult, Session, load_result
+    from ..data.measurements import load_measurements
 
     result = load_result(result_path)
     inputs = [result_path, black]
@@ -165,7 +165,7 @@ def diagnose_command(result_path, data, black, medium, reference, profile, profi
                         max_correlation=max_correlation, progress=progress)
     _print(diag, Console())
     if files:
-        from ..measurements import atomic_write_text
+        from ..data.measurements import atomic_write_text
 
         outdir.mkdir(exist_ok=True)
         atomic_write_text(files["json"], json.dumps(diag.to_dict(), indent=2,

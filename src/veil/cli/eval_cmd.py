@@ -10,7 +10,7 @@ import math
 import click
 import numpy as np
 
-from ..apparent import RULES, apparent, reflectance
+from ..engine.apparent import RULES, apparent, reflectance
 from ._common import (UserError, check_output_path, parse_brdf, parse_btdf, read_csv_table,
                       write_atomic)
 
@@ -112,7 +112,7 @@ def _read_configs(configs):
                                 f"header = row 1), column {c!r}: {numbers[c][j]:g} deg is "
                                 f"outside [0, 90) (polar angle from the surface normal)")
         return (*(numbers[c] for c in ANGLES), table)
-    from ..measurements import MeasurementError, canonical_angles
+    from ..data.measurements import MeasurementError, canonical_angles
 
     named = table.copy()
     named.attrs = {"veil_source": str(configs), "veil_lines": [int(r) for r in rows]}

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import click
 
-from ..fitting import FitResult, fit_medium, fit_reference, fit_target
+from ..fitting.steps import FitResult, fit_medium, fit_reference, fit_target
 from ..models import HenyeyGreenstein, TorranceSparrow
 from ._common import UserError, check_output_path, parse_brdf, parse_btdf
 

@@ -52,8 +52,8 @@ def ingest_command(photo_dir, manifest, roi, black_roi, dark, channel, response,
     from rich.console import Console
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
 
-    from .. import ingest as ingest_mod
-    from ..measurements import save_measurements
+    from ..data import ingest as ingest_mod
+    from ..data.measurements import save_measurements
 
     try:
         rois = [ingest_mod.parse_roi(roi, "--roi")]

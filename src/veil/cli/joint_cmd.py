@@ -13,7 +13,7 @@ from pathlib import Path
 
 import click
 
-from ..joint import SHAREABLE, Session, fit_joint
+from ..fitting.joint import SHAREABLE, Session, fit_joint
 from ._common import UserError, check_output_path
 
 OUT_FILE = click.Path(dir_okay=False, path_type=Path)
@@ -49,7 +49,7 @@ def parse_black(items) -> dict:
 
 def load_sessions(target_items, reference_items, black_items) -> tuple[list[Session], list]:
     """Sessions (black cloth subtracted per medium) and every input path."""
-    from ..measurements import load_measurements, subtract_black
+    from ..data.measurements import load_measurements, subtract_black
 
     targets = parse_sessions(target_items, "--session")
     refs = parse_sessions(reference_items, "--reference-session")

@@ -20,7 +20,7 @@ def _theta_i(value):
 def _save(fig, output):
     import matplotlib.pyplot as plt
 
-    from ..figures import save_figure
+    from ..viz.figures import save_figure
 
     try:
         save_figure(fig, output)
@@ -42,7 +42,7 @@ def plot_command():
 @click.option("-o", "--output", required=True, help="Output figure (.png, .pdf or .svg).")
 def lobe(brdfs, theta_i, output):
     """Reflection lobe f_r (as the paper's fig. 9): in and out of the plane of incidence."""
-    from ..figures import fig9
+    from ..viz.figures import fig9
 
     models = [parse_brdf(b) for b in brdfs]
     _theta_i(theta_i)
@@ -60,7 +60,7 @@ def lobe(brdfs, theta_i, output):
 @click.option("-o", "--output", required=True, help="Output figure (.png, .pdf or .svg).")
 def transmission(media, variant, theta_i, output):
     """Transmission lobe f_t (as the paper's fig. 10) against the transmitted direction."""
-    from ..figures import fig10
+    from ..viz.figures import fig10
 
     models = [parse_btdf(m, variant) for m in media]
     if any(m is None for m in models):
@@ -87,7 +87,7 @@ def transmission(media, variant, theta_i, output):
 @click.option("-o", "--output", required=True, help="Output figure (.png, .pdf or .svg).")
 def curve(brdfs, media, variant, theta_i, scale, accuracy, output):
     """Observed value against reflection angle in the plane of incidence (as fig. 11)."""
-    from ..figures import fig_curve, inplane_curve
+    from ..viz.figures import fig_curve, inplane_curve
 
     b_models = [parse_brdf(b) for b in brdfs]
     m_models = [parse_btdf(m, variant) for m in media]

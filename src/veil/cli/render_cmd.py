@@ -56,8 +56,8 @@ def render_command(brdf, medium, variant, light_theta, light_phi, size, exposure
     the medium. Prints the exposure used, how many pixels clip and the measured
     interpolation error.
     """
-    from ..figures import write_bytes_atomic
-    from ..render import clipping, png_bytes, render, tone_map, auto_exposure
+    from ..viz.figures import write_bytes_atomic
+    from ..viz.render import clipping, png_bytes, render, tone_map, auto_exposure
 
     b = parse_brdf(brdf)
     m = parse_btdf(medium, variant)

@@ -61,10 +61,10 @@ def reproduce_command(outdir, size, accuracy, render_accuracy, check, dpi, quiet
     import matplotlib.pyplot as plt
     import numpy as np
 
-    from ..figures import (fig9, fig10, fig11, fig12, figure_bytes, run_experiment,
+    from ..viz.figures import (fig9, fig10, fig11, fig12, figure_bytes, run_experiment,
                            write_bytes_atomic)
-    from ..render import png_bytes, tone_map
-    from ..report import write_report
+    from ..viz.render import png_bytes, tone_map
+    from ..viz.reports import write_report
 
     if not 16 <= size <= 2048:
         raise UserError(f"--size {size} must be between 16 and 2048 pixels")

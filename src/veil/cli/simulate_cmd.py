@@ -8,9 +8,9 @@ from pathlib import Path
 
 import click
 
-from ..measurements import FORMS, save_measurements, to_form
-from ..protocol import protocol
-from ..simulate import GLOW_LEVEL, simulate
+from ..data.measurements import FORMS, save_measurements, to_form
+from ..data.protocol import protocol
+from ..data.simulate import GLOW_LEVEL, simulate
 from ._common import UserError, check_output_path, parse_brdf, parse_btdf
 
 

@@ -6,7 +6,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from .. import fresnel, phase
+from . import fresnel
+from . import phase
 from .base import BTDF, Param
 
 VARIANTS = ("paper", "exit")

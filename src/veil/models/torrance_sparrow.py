@@ -10,7 +10,7 @@ import math
 from dataclasses import dataclass
 
 from .._jax import jnp
-from .. import fresnel
+from . import fresnel
 from .base import BRDF, Param
 
 DEG = 180.0 / math.pi

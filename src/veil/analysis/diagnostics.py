@@ -28,12 +28,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ._io import write_bytes_atomic
-from .fit_result import FitError, FitResult
-from .joint import (BRDF_NAMES, MEDIUM_NAMES, JointResult, build, covariance, session_problem,
+from ..io import write_bytes_atomic
+from ..fitting.result import FitError, FitResult
+from ..fitting.joint import (BRDF_NAMES, MEDIUM_NAMES, JointResult, build, covariance, session_problem,
                     solve)
-from .least_squares import ITERATION_ACCURACY
-from .models import BRDF, BTDF, HenyeyGreenstein, model_class
+from ..fitting.solver import ITERATION_ACCURACY
+from ..models import BRDF, BTDF, HenyeyGreenstein, model_class
 
 #: Default thresholds.
 MAX_RELATIVE = 0.25

@@ -16,11 +16,11 @@ from functools import lru_cache
 
 import numpy as np
 
-from ._jax import jax, jnp
+from .._jax import jax, jnp
 from jax.sharding import Mesh, NamedSharding, PartitionSpec as P
 from . import integrator
 from .angles import check_angles, direction
-from .models.base import BRDF, BTDF
+from ..models.base import BRDF, BTDF
 from .quadrature import RULES, Rule
 
 _AXIS = "configurations"

@@ -32,8 +32,8 @@ from typing import Callable
 
 import numpy as np
 
-from .angles import direction
-from .apparent import RULES, apparent, as_brdf, as_btdf, reflectance
+from ..engine.angles import direction
+from ..engine.apparent import RULES, apparent, as_brdf, as_btdf, reflectance
 from .protocol import PSI, protocol
 
 #: Configurations per engine call: a fixed size, so the engine compiles once per model
@@ -62,7 +62,7 @@ def glow_scale(medium, accuracy: str = "default") -> float:
     """f_std: the standard object's (:data:`GLOW_STANDARD`) noise-free apparent value
     through ``medium`` at :data:`GLOW_REFERENCE` (module docstring), evaluated as simulate
     evaluates (one CHUNK-sized call, so it shares simulate's compilation)."""
-    from .models import PRESETS
+    from ..models import PRESETS
 
     angles = [np.full(1, a) for a in GLOW_REFERENCE]
     return float(_evaluate(PRESETS[GLOW_STANDARD], as_btdf(medium), angles, accuracy,

@@ -9,11 +9,11 @@ import math
 
 import numpy as np
 
-from ._jax import jax, jnp
+from .._jax import jax, jnp
 from .angles import direction
 from .forward import Forward
-from .models import BRDF, BTDF
-from .simulate import CHUNK
+from ..models import BRDF, BTDF
+from ..data.simulate import CHUNK
 
 
 def _padded(angles, start: int, size: int):

@@ -8,7 +8,7 @@ import math
 
 import numpy as np
 
-from .models import Param
+from ..models import Param
 
 #: Internal search range (natural-log units) of log-scale parameters without a finite bound.
 LOG_RANGE = 40.0

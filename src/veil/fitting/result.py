@@ -11,9 +11,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .measurements import atomic_write_text
-from .models import REGISTRY, Model, model_class
-from .models.henyey_greenstein import VARIANTS
+from ..data.measurements import atomic_write_text
+from ..models import REGISTRY, Model, model_class
+from ..models.henyey_greenstein import VARIANTS
 
 #: The steps of the two-step method (MODEL.md sec. 7); results may also say "direct".
 STEPS = ("reference", "medium", "target")

@@ -31,10 +31,10 @@ import math
 
 import numpy as np
 
-from .fit_result import FitError, FitResult
-from .joint import MEDIUM_NAMES, session_problem, solve
-from .least_squares import ITERATION_ACCURACY
-from .models import HenyeyGreenstein, TorranceSparrow
+from ..fitting.result import FitError, FitResult
+from ..fitting.joint import MEDIUM_NAMES, session_problem, solve
+from ..fitting.solver import ITERATION_ACCURACY
+from ..models import HenyeyGreenstein, TorranceSparrow
 
 #: Parts of the error budget, in pipeline order.
 PARTS = ("step2", "step1", "step0")

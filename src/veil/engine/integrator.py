@@ -32,8 +32,8 @@ import math
 
 import numpy as np
 
-from ._jax import jax, jnp
-from .models.base import BRDF, BTDF
+from .._jax import jax, jnp
+from ..models.base import BRDF, BTDF
 from .quadrature import Rule, frame, gauss_legendre_unit, horizon_one_minus_mu, periodic_unit
 
 TWO_PI = 2.0 * math.pi

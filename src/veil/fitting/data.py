@@ -9,7 +9,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from .measurements import (CANONICAL, MeasurementError, RowNames, canonical_angles,
+from ..data.measurements import (CANONICAL, MeasurementError, RowNames, canonical_angles,
                            load_measurements, subtract_black, validate)
 
 

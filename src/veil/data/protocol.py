@@ -14,7 +14,7 @@ import math
 import numpy as np
 import pandas as pd
 
-from .angles import from_goniometer, from_signed_inplane
+from ..engine.angles import from_goniometer, from_signed_inplane
 
 PSI = (30.0, 60.0, 90.0)
 

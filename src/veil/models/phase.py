@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import math
 
-from ._jax import jnp
+from .._jax import jnp
 
 _FOUR_PI = 4.0 * math.pi
 

@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.interpolate import RectBivariateSpline
 
-from .apparent import RULES, apparent, as_brdf, as_btdf, reflectance
+from ..engine.apparent import RULES, apparent, as_brdf, as_btdf, reflectance
 
 #: Half width of the view in sphere radii (orthographic camera; a 5 % margin around the rim).
 VIEW = 1.05

@@ -30,18 +30,18 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from . import coordinates
-from .apparent import RULES
+from ..engine.apparent import RULES
 from .coordinates import LOG_RANGE, OPEN_MARGIN  # noqa: F401
-from .evaluation import ApparentModel, DirectModel
-from .fit_data import FitData, prepare
-from .fit_result import FORMAT, STEPS, FitError, FitResult  # noqa: F401
-from .given_model import as_brdf_model, as_medium_model, check_variant, model_dict
-from .least_squares import (ITERATION_ACCURACY, SINGULAR_NOTE, TOL_FINAL, TOL_ITER, TOL_POLISH,
+from ..engine.evaluator import ApparentModel, DirectModel
+from .data import FitData, prepare
+from .result import FORMAT, STEPS, FitError, FitResult  # noqa: F401
+from .given import as_brdf_model, as_medium_model, check_variant, model_dict
+from .solver import (ITERATION_ACCURACY, SINGULAR_NOTE, TOL_FINAL, TOL_ITER, TOL_POLISH,
                             as_fixed, check_accuracy, check_fixed, check_max_nfev, convincing,
                             covariance_from_jacobian, edge_note, goodness, outcome,
                             stopped_early_note, ticker, uncertainties)
-from .measurements import MeasurementError  # noqa: F401  (raised by the fits; importable here)
-from .models import BRDF, HenyeyGreenstein, Model, TorranceSparrow
+from ..data.measurements import MeasurementError  # noqa: F401  (raised by the fits; importable here)
+from ..models import BRDF, HenyeyGreenstein, Model, TorranceSparrow
 from .start_values import START_GRIDS, brdf_scales, grid_points, medium_scales, pick_starts
 
 # LOG_RANGE, OPEN_MARGIN (veil.coordinates) and FORMAT (veil.fit_result) stay importable from

@@ -27,9 +27,9 @@ import math
 import numpy as np
 import pandas as pd
 
-from .apparent import as_brdf, as_btdf
-from .joint import SessionModel
-from .protocol import protocol
+from ..engine.apparent import as_brdf, as_btdf
+from ..fitting.joint import SessionModel
+from ..data.protocol import protocol
 
 DEFAULT_PSI = (30.0, 45.0, 60.0, 75.0, 90.0, 105.0, 120.0)
 INTEREST = ("Ps/Pd", "n", "eta")
@@ -337,7 +337,7 @@ def simulate_plan(plan: pd.DataFrame, brdf, *, noise: float = 0.01, seed: int = 
     sigma = noise * value. A plan written by ``veil design`` can so be simulated and
     fitted with :func:`veil.fit_joint`.
     """
-    from .models import HenyeyGreenstein
+    from ..models import HenyeyGreenstein
 
     need = [c for c in PLAN_COLUMNS if c not in ("step", "gain")]
     missing = [c for c in need if c not in plan.columns]

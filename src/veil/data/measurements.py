@@ -27,8 +27,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from ._io import write_bytes_atomic
-from .angles import direction, from_goniometer, from_signed_inplane, to_goniometer, to_signed_inplane
+from ..io import write_bytes_atomic
+from ..engine.angles import direction, from_goniometer, from_signed_inplane, to_goniometer, to_signed_inplane
 
 #: Angle columns, in the order :func:`canonical_angles` writes them.
 CANONICAL = ("theta_i", "phi_i", "theta_r", "phi_r")

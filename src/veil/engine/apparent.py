@@ -9,10 +9,10 @@ import numpy as np
 
 from functools import lru_cache
 
-from ._jax import jax, jnp
+from .._jax import jax, jnp
 from .forward import Forward
 from .angles import check_angles, direction  # noqa: F401  (check_angles re-exported)
-from .models import BRDF, BTDF, preset
+from ..models import BRDF, BTDF, preset
 from .quadrature import ERROR_FACTOR, FINER, RULES, Rule  # noqa: F401  (re-exported)
 
 

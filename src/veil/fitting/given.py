@@ -6,9 +6,9 @@ from __future__ import annotations
 
 import warnings
 
-from .fit_result import FitError, FitResult
-from .models import BRDF, BTDF, Model, model_class
-from .models.henyey_greenstein import VARIANTS
+from .result import FitError, FitResult
+from ..models import BRDF, BTDF, Model, model_class
+from ..models.henyey_greenstein import VARIANTS
 
 
 def as_brdf_model(reference) -> BRDF:

@@ -12,7 +12,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from ._jax import jnp
+from .._jax import jnp
 
 
 @lru_cache(maxsize=None)

@@ -31,20 +31,20 @@ import pandas as pd
 from scipy.optimize import least_squares
 
 from . import coordinates
-from .angles import direction
-from .apparent import RULES
-from .evaluation import ApparentModel, DirectModel
-from .fit_data import FitData, prepare
-from .fit_result import FitError, FitResult, format_number, from_json_float, read_json
-from .fitting import fit_reference
-from .given_model import as_brdf_model, check_variant, model_dict
-from .least_squares import CONVINCING  # noqa: F401
-from .least_squares import (ITERATION_ACCURACY, SINGULAR_NOTE, TOL_FINAL, TOL_ITER,
+from ..engine.angles import direction
+from ..engine.apparent import RULES
+from ..engine.evaluator import ApparentModel, DirectModel
+from .data import FitData, prepare
+from .result import FitError, FitResult, format_number, from_json_float, read_json
+from .steps import fit_reference
+from .given import as_brdf_model, check_variant, model_dict
+from .solver import CONVINCING  # noqa: F401
+from .solver import (ITERATION_ACCURACY, SINGULAR_NOTE, TOL_FINAL, TOL_ITER,
                             as_fixed, check_accuracy, check_fixed, check_max_nfev, convincing,
                             covariance_from_jacobian, edge_note, goodness, outcome,
                             stopped_early_note, ticker, uncertainties)
-from .models import BRDF, BTDF, HenyeyGreenstein, TorranceSparrow
-from .models.base import Param
+from ..models import BRDF, BTDF, HenyeyGreenstein, TorranceSparrow
+from ..models.base import Param
 from .start_values import START_GRIDS, brdf_scales, medium_scales
 
 #: Labels meaning clear water (no medium: the session measures f_r directly).

@@ -19,10 +19,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ._io import write_bytes_atomic
-from .apparent import RULES, as_brdf, as_btdf, reflectance
-from .angles import direction
-from .models import PRESETS
+from ..io import write_bytes_atomic
+from ..engine.apparent import RULES, as_brdf, as_btdf, reflectance
+from ..engine.angles import direction
+from ..models import PRESETS
 from .render import (Rendering, auto_exposure, clipping, evaluate, highlight_pixel, render,
                      tone_map)
 

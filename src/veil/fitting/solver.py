@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .apparent import RULES
-from .fit_result import FitError
+from ..engine.apparent import RULES
+from .result import FitError
 
 #: Quadrature of the iterations through a medium; the polish uses the requested accuracy.
 ITERATION_ACCURACY = "fast"

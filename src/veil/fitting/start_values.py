@@ -11,8 +11,8 @@ import math
 import numpy as np
 from scipy.optimize import nnls
 
-from .fit_result import FitError
-from .models import HenyeyGreenstein, TorranceSparrow
+from .result import FitError
+from ..models import HenyeyGreenstein, TorranceSparrow
 
 #: Grids of starting values over the nonlinear parameters, by model class and step.
 START_GRIDS = {

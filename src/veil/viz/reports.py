@@ -16,10 +16,10 @@ import re
 
 import numpy as np
 
-from . import __version__
+from .. import __version__
 from .figures import Experiment, curve_metrics, lobe_data, transmission_data
-from .fresnel import transmittance
-from .phase import hg_pdf
+from ..models.fresnel import transmittance
+from ..models.phase import hg_pdf
 from .render import ERROR_ANGLE, MID_GREY, VIEW
 
 

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._jax import jnp
+from .._jax import jnp
 
 
 
