@@ -322,7 +322,7 @@ def _vn(mu, alpha, distribution, kind, eta=1.0, smith="exact", n=32, check=False
     return vals
 
 
-def rough_transmittance(mu, alpha, eta, distribution="beckmann", smith="exact", n=32, check=False):
+def rough_transmittance(mu, alpha, eta, distribution="beckmann", smith="exact", n=48, check=False):
     """t(mu): Int over visible normals of (1 - F(v.m)) G1(w_t, m), from outside (MODEL.md 8.2).
 
     mu is clamped to >= 1e-6. ``check=True`` returns (value at 2n nodes, |2n - n| difference).
@@ -330,7 +330,7 @@ def rough_transmittance(mu, alpha, eta, distribution="beckmann", smith="exact", 
     return _vn(mu, alpha, distribution, "T", eta, smith, n, check)
 
 
-def rough_reflectance(mu, alpha, eta, distribution="beckmann", smith="exact", n=32, check=False):
+def rough_reflectance(mu, alpha, eta, distribution="beckmann", smith="exact", n=48, check=False):
     """R(mu): Int over visible normals of F(v.m, eta) G1(w_r, m) [w_r above] (eta < 1: inside)."""
     return _vn(mu, alpha, distribution, "R", eta, smith, n, check)
 
@@ -365,7 +365,7 @@ def internal_reflectance(alpha, eta, distribution="beckmann", smith="exact", rul
     total = 0.0
     for lo, hi in zip(brk[:-1], brk[1:]):
         mu = lo + (hi - lo) * tq
-        total += float(np.sum((hi - lo) * wq * 2.0 * mu * rough_reflectance(mu, alpha, ieta, distribution, smith, n=24)))
+        total += float(np.sum((hi - lo) * wq * 2.0 * mu * rough_reflectance(mu, alpha, ieta, distribution, smith, n=32)))
     return total
 
 
@@ -984,32 +984,62 @@ def forward_series_apparent(brdf_fn, tau, omega, g, eta_u, theta_i, theta_r, phi
     return scale * t["value"], scale * t["stderr"]
 
 
+def plate_weight_lit(Rp, R, light, tau, path_length, plate_half_width, n=32):
+    """J_v with the illumination-path variation across the plate (vectorized over Rp (..., 3)).
+
+    (1/R_c) Int_0^S e^{-beta s} e^{-sigma_t (l(Q(s)) - R_c)} ds, Q(s) = s v, l(Q) the path of
+    the parallel beam along -light from the cylinder wall to Q. S is the closed form's (equal to
+    the bisection of :func:`plate_weight_direct`, see the tests). Used to size what the closed
+    form neglects on the direct-illumination x view-lobe term (docs/physics.md).
+    """
+    Rp, R, Ld = np.asarray(Rp, float), np.asarray(R, float), np.asarray(light, float)
+    Rc = float(path_length)
+    sig = tau / Rc
+    mup = Rp[..., 2]
+    ok = mup > 0
+    ratio = R[..., 2] / np.where(ok, mup, 1.0)
+    v = R - ratio[..., None] * Rp
+    vm = np.maximum(np.abs(v[..., 0]), np.abs(v[..., 1]))
+    with np.errstate(divide="ignore"):
+        S = np.minimum(Rc, np.where(vm > 0, float(plate_half_width) / np.where(vm > 0, vm, 1.0), np.inf))
+    beta = sig * (ratio - 1.0)
+    t, w = _gl01(n)
+    s = S[..., None] * t
+    qx = s * v[..., 0][..., None]
+    a2 = Ld[0] ** 2 + Ld[2] ** 2
+    b = qx * Ld[0]
+    li = (-b + np.sqrt(b * b - a2 * (qx * qx - Rc * Rc))) / a2
+    f = np.exp(-beta[..., None] * s - sig * (li - Rc))
+    return np.where(ok, S * np.sum(w * f, axis=-1) / Rc, 0.0)
+
+
 def jv_table(thetas_r=(0.0, 30.0, 60.0, 80.0), offsets=(-20.0, -5.0, 5.0, 20.0), taus=(0.5, 1.0, 2.0),
-             path_length=15.0, plate_half_width=2.5, theta_light=45.0, phi_rp=0.0):
+             path_length=15.0, plate_half_width=2.5, theta_light=45.0, out_of_plane=False):
     """Rows comparing J_v's closed form with direct integration (docs/physics.md, table J).
 
-    For each theta_r (camera in-plane at phi = 0), each R' at theta_r + offset in the same plane
-    (negative: the other side of the normal; phi_rp = 90 puts R' out of plane at |offset|) and
-    each tau: (theta_r, theta_R', tau, J closed form, J direct, J direct with the illumination
-    path from a light at theta_light (phi = 180), J infinite plate).
+    Camera in-plane at theta_r (phi = 0). R' at theta_r + offset in the same plane (negative:
+    past the normal), or (out_of_plane=True) R turned by |offset| about the in-plane axis
+    perpendicular to it (R' = cos d R + sin d y). Rows: (theta_r, offset, tau, J closed form,
+    J direct, J direct with the illumination path from a light at theta_light (phi = 180),
+    J infinite plate).
     """
     rows = []
     for tr in thetas_r:
         R = direction(tr, 0.0)
         L = direction(theta_light, 180.0)
         for off in offsets:
-            tp = tr + off
-            if phi_rp == 0.0:
-                Rp = direction(abs(tp), 0.0 if tp >= 0 else 180.0)
+            if out_of_plane:
+                d = abs(off) * DEG
+                Rp = math.cos(d) * R + math.sin(d) * np.array([0.0, 1.0, 0.0])
             else:
-                Rp = direction(abs(off), phi_rp)
-                tp = abs(off)
-            if abs(tp) >= 90.0:
-                continue
+                tp = tr + off
+                if abs(tp) >= 90.0:
+                    continue
+                Rp = direction(abs(tp), 0.0 if tp >= 0 else 180.0)
             for tau in taus:
                 jc = float(plate_weight(Rp, R, tau, path_length, plate_half_width))
                 jd = plate_weight_direct(Rp, R, tau, path_length, plate_half_width)
                 jl = plate_weight_direct(Rp, R, tau, path_length, plate_half_width, light=L)
                 ji = float(plate_weight(Rp, R, tau, path_length, None))
-                rows.append((tr, tp, tau, jc, jd, jl, ji))
+                rows.append((tr, off, tau, jc, jd, jl, ji))
     return rows
