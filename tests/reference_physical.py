@@ -222,12 +222,6 @@ def smith_g1(v, m, alpha, distribution="beckmann", smith="exact"):
     return np.where(_dot(v, m) * vz > 0, g, 0.0)
 
 
-def _lambda_exact(a, distribution):
-    """Smith's Lambda (exact), G1 = 1 / (1 + Lambda)."""
-    g = _g1_of_a(a, distribution, "exact")
-    return 1.0 / g - 1.0
-
-
 # ----------------------------------------------------------------------------------------
 # Integrals over visible normals (rough interface tables)
 # ----------------------------------------------------------------------------------------
