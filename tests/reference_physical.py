@@ -48,6 +48,9 @@ Medium forward-series (MODEL.md 8.1)
     plate_weight(Rp, R, tau, path_length, plate_half_width)      J_v, MODEL.md's closed form
     plate_weight_direct(Rp, R, tau, path_length, plate_half_width, light=None)
                                                                  J_v by direct integration
+    plate_weight_lit(Rp, R, light, tau, path_length, plate_half_width)
+                                  J_v with the illumination path across the plate (vectorized)
+    jv_table(...)                 the rows of docs/physics.md's J_v table
     forward_series_terms(brdf_fn, tau, omega, g, eta_u, theta_i, theta_r, phi_i=180, phi_r=0,
                          variant="paper", path_length=None, plate_half_width=None,
                          n_qmc=2**14, n_rep=8, seed=0, rtol=1e-7) -> dict
