@@ -27,6 +27,7 @@ import math
 import numpy as np
 import pandas as pd
 
+from ..errors import InputError
 from ..engine.apparent import as_brdf, as_btdf
 from ..fitting.joint import SessionModel
 from ..data.protocol import protocol
@@ -50,14 +51,14 @@ def _floats(name, values, positive=True):
         try:
             x = float(v)
         except (TypeError, ValueError):
-            raise ValueError(f"{name}: {v!r} is not a number") from None
+            raise InputError(f"{name}: {v!r} is not a number") from None
         if not math.isfinite(x) or (positive and x <= 0):
-            raise ValueError(f"{name}: {v!r} must be a finite number{' > 0' if positive else ''}")
+            raise InputError(f"{name}: {v!r} must be a finite number{' > 0' if positive else ''}")
         out.append(x)
     if not out:
-        raise ValueError(f"{name} is empty")
+        raise InputError(f"{name} is empty")
     if len(set(out)) != len(out):
-        raise ValueError(f"{name} = {out}: a value is repeated")
+        raise InputError(f"{name} = {out}: a value is repeated")
     return tuple(out)
 
 
@@ -74,7 +75,7 @@ def conditions(media, factors=None) -> dict:
     if isinstance(media, (str,)) or not isinstance(media, (list, tuple)):
         media = [media]
     if not media:
-        raise ValueError("no medium given: the design needs at least one medium condition")
+        raise InputError("no medium given: the design needs at least one medium condition")
     out = {}
     for k, m in enumerate(media):
         model = as_btdf(m)
@@ -83,13 +84,13 @@ def conditions(media, factors=None) -> dict:
         if factors is None:
             label = base
             if label in out:
-                raise ValueError(f"medium {label} is given twice")
+                raise InputError(f"medium {label} is given twice")
             out[label] = model
             continue
         for f in _floats("factors", factors):
             label = f"{base} x{f:g}"
             if label in out:
-                raise ValueError(f"condition {label} is given twice")
+                raise InputError(f"condition {label} is given twice")
             out[label] = condition_medium(model, f)
     return out
 
@@ -123,25 +124,25 @@ class Information:
                  floor: float = 0.0, mode: str = "joint", interest=INTEREST,
                  accuracy: str = "fast"):
         if mode not in MODES:
-            raise ValueError(f"medium mode {mode!r}; expected one of {', '.join(MODES)}")
+            raise InputError(f"medium mode {mode!r}; expected one of {', '.join(MODES)}")
         for name, v in (("noise", noise), ("noise floor", floor)):
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) \
                     or v < 0:
-                raise ValueError(f"{name} = {v!r}: expected a finite number >= 0")
+                raise InputError(f"{name} = {v!r}: expected a finite number >= 0")
         if noise == 0 and floor == 0:
-            raise ValueError("noise and noise floor are both 0: the information would be "
+            raise InputError("noise and noise floor are both 0: the information would be "
                              "infinite; give a relative noise (e.g. 0.01) or a floor")
         interest = tuple(interest)
         unknown = [p for p in interest if p not in INTEREST]
         if unknown or not interest:
-            raise ValueError(f"parameters of interest {list(interest)}: choose among "
+            raise InputError(f"parameters of interest {list(interest)}: choose among "
                              f"{', '.join(INTEREST)}")
         self.brdf = as_brdf(brdf)
         self.conditions = dict(conds)
         self.table = table.reset_index(drop=True)
         missing = set(self.table["condition"]) - set(self.conditions)
         if missing:
-            raise ValueError(f"candidates name unknown condition(s) {', '.join(sorted(missing))}")
+            raise InputError(f"candidates name unknown condition(s) {', '.join(sorted(missing))}")
         self.noise, self.floor, self.mode = float(noise), float(floor), mode
         labels = list(self.conditions)
         media = list(self.conditions.values())
@@ -181,7 +182,7 @@ class Information:
             val, jb, jm = model.jacobian(vb, vm)
             sigma = np.sqrt((self.noise * val) ** 2 + self.floor ** 2)
             if np.any(sigma <= 0):
-                raise ValueError("the model is 0 at some candidate configuration and there is "
+                raise InputError("the model is 0 at some candidate configuration and there is "
                                  "no noise floor: give --noise-floor")
             # fit coordinates: log(Ps/Pd), log n, eta_b, log Pd; log Td, log Tt, g, eta_u
             r = np.zeros((sel.size, len(names)))
@@ -240,13 +241,13 @@ def greedy(info: Information, size: int, base=(), allowed=None) -> tuple[np.ndar
     plan is deterministic.
     """
     if isinstance(size, bool) or not isinstance(size, (int, np.integer)) or size < 1:
-        raise ValueError(f"size = {size!r}: expected a positive integer")
+        raise InputError(f"size = {size!r}: expected a positive integer")
     base = [int(k) for k in base]
     available = (np.ones(len(info.rows), dtype=bool) if allowed is None
                  else np.asarray(allowed, dtype=bool).copy())
     available[base] = False
     if size > available.sum():
-        raise ValueError(f"size = {size} but only {int(available.sum())} candidate "
+        raise InputError(f"size = {size} but only {int(available.sum())} candidate "
                          f"configurations are available")
     m = info.matrix(base)
     chosen, gains = [], []
@@ -342,7 +343,7 @@ def simulate_plan(plan: pd.DataFrame, brdf, *, noise: float = 0.01, seed: int = 
     need = [c for c in PLAN_COLUMNS if c not in ("step", "gain")]
     missing = [c for c in need if c not in plan.columns]
     if missing:
-        raise ValueError(f"the plan lacks column(s) {', '.join(missing)} (written by veil design)")
+        raise InputError(f"the plan lacks column(s) {', '.join(missing)} (written by veil design)")
     b = as_brdf(brdf)
     rng = np.random.default_rng(seed)
     z = rng.standard_normal(len(plan))

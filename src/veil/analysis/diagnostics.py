@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..errors import InputTypeError
 from ..io import write_bytes_atomic
 from ..fitting.result import FitError, FitResult
 from ..fitting.joint import (BRDF_NAMES, MEDIUM_NAMES, JointResult, build, covariance, session_problem,
@@ -170,7 +171,7 @@ def _as_model(obj, kind):
         return obj.as_model(), obj
     if kind == "brdf" and isinstance(obj, BRDF) or kind == "btdf" and isinstance(obj, BTDF):
         return obj, None
-    raise TypeError(f"expected a FitResult or a {kind.upper()} model, got {type(obj).__name__}")
+    raise InputTypeError(f"expected a FitResult or a {kind.upper()} model, got {type(obj).__name__}")
 
 
 def _given(result: FitResult):
@@ -281,7 +282,7 @@ def diagnose(result: FitResult, data, *, medium=None, reference=None, black=None
     :func:`problem_for`). ``profile``: False, True (every free parameter) or a list of names.
     Names are the problem's: a medium's index is ``eta_u`` (the BRDF has ``eta``)."""
     if not isinstance(result, FitResult):
-        raise TypeError(f"expected a FitResult, got {type(result).__name__}")
+        raise InputTypeError(f"expected a FitResult, got {type(result).__name__}")
     for name, v, lo, hi in (("max_relative", max_relative, 0, math.inf),
                             ("max_correlation", max_correlation, 0, 1)):
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not (lo < v <= hi):

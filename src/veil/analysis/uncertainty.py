@@ -31,6 +31,7 @@ import math
 
 import numpy as np
 
+from ..errors import InputTypeError
 from ..fitting.result import FitError, FitResult
 from ..fitting.joint import MEDIUM_NAMES, session_problem, solve
 from ..fitting.solver import ITERATION_ACCURACY
@@ -45,7 +46,7 @@ def covariance_of(result: FitResult, total: bool = False) -> tuple[list[str], np
     including what its given model left uncertain (``total=True``, when the fit propagated
     it); raises FitError when the uncertainties were not determined."""
     if not isinstance(result, FitResult):
-        raise TypeError(f"expected a FitResult, got {type(result).__name__}")
+        raise InputTypeError(f"expected a FitResult, got {type(result).__name__}")
     found = result.covariance(total=total)
     if found is None:
         missing = [n for n in result.free if result.stderr.get(n) is None]

@@ -10,12 +10,17 @@ from ._common import VeilGroup
 
 @click.group(cls=VeilGroup, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(package_name="veil")
-def main():
+@click.option("--debug", is_flag=True, help="Print the full traceback of an internal error.")
+@click.pass_context
+def main(ctx, debug):
     """veil: reflectance of objects seen through scattering media.
 
     Angles are in degrees everywhere. Models are given as preset names (BRDF1, BRDF2,
     BTDF1, BTDF2, BTDF3) or as literal parameter lists (see each command's help).
+    Exit status: 0 done, 1 a fit did not converge, 2 a mistake in the input, 3 a bug in
+    veil, 130/143 interrupted (docs/errors.md).
     """
+    ctx.ensure_object(dict)["debug"] = debug
 
 
 # Subcommands: one module each, registered here.

@@ -16,22 +16,63 @@ from ..models import HenyeyGreenstein, TorranceSparrow, preset
 
 
 class UserError(click.ClickException):
-    """A mistake in the user's input: printed without traceback, exit status 2."""
+    """A mistake in the user's input found by the command line itself: printed without
+    traceback, exit status 2 (veil's own :class:`veil.errors.InputError` gets the same)."""
 
     exit_code = 2
 
 
+#: Exit statuses (docs/errors.md): 0 done; 1 done, but a fit did not converge or the data do
+#: not determine it; 2 a mistake in the input; 3 a bug in veil; 130 / 143 interrupted.
+EXIT_INPUT = 2
+EXIT_BUG = 3
+
+
+def report_bug(exc: BaseException, debug: bool) -> None:
+    """Exit status 3 for an exception that is not the user's mistake: one line of apology
+    and where the traceback was written (all of it on stderr with ``--debug``)."""
+    import traceback
+
+    text = "".join(traceback.format_exception(exc))
+    if debug:
+        click.echo(text, err=True, nl=False)
+    where = None
+    try:
+        fd, where = tempfile.mkstemp(prefix="veil-crash-", suffix=".txt")
+        with os.fdopen(fd, "w", encoding="utf-8") as fh:
+            fh.write(f"veil {' '.join(sys.argv[1:])}\n\n{text}")
+    except OSError:
+        where = None
+    click.echo(f"veil: internal error, sorry - this is a bug in veil, not a mistake in your "
+               f"input ({type(exc).__name__}: {exc}). "
+               + (f"The traceback is in {where}; " if where else "")
+               + "rerun with --debug to print it, and please report it.", err=True)
+    sys.exit(EXIT_BUG)
+
+
 class VeilGroup(click.Group):
-    """Turns ValueError/TypeError/OSError raised by veil on user input into exit status 2."""
+    """Exit statuses of every command: a :class:`veil.errors.InputError` (or an operating
+    system error naming a file) is the user's mistake, printed as "Error: ..." with status 2;
+    any other exception is a bug in veil (status 3, :func:`report_bug`)."""
 
     def invoke(self, ctx):
+        from ..errors import InputError
+
         try:
             return super().invoke(ctx)
-        except (ValueError, TypeError, FileNotFoundError, IsADirectoryError, PermissionError) as exc:
-            if isinstance(exc, click.ClickException):
-                raise
+        except (click.ClickException, click.exceptions.Exit, click.exceptions.Abort,
+                KeyboardInterrupt, SystemExit):
+            raise
+        except InputError as exc:
             click.echo(f"Error: {exc}", err=True)
-            sys.exit(2)
+            sys.exit(EXIT_INPUT)
+        except OSError as exc:
+            if exc.filename is None:
+                report_bug(exc, ctx.obj.get("debug", False) if ctx.obj else False)
+            click.echo(f"Error: {exc.filename}: {exc.strerror or exc}", err=True)
+            sys.exit(EXIT_INPUT)
+        except Exception as exc:  # noqa: BLE001 - anything else is a bug in veil
+            report_bug(exc, bool(ctx.obj and ctx.obj.get("debug")))
 
 
 def parse_brdf(text: str):

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+from ..errors import InputError, MissingFileError, UnwritableError
 
 PNG_SUFFIXES = frozenset({".png"})
 JPEG_SUFFIXES = frozenset({".jpg", ".jpeg", ".jpe"})
@@ -65,24 +66,24 @@ def parse_roi(value, name: str = "roi") -> ROI:
     parts = [p.strip() for p in value.split(",")] if isinstance(value, str) else list(value)
     form = "X,Y,W,H in pixels (x to the right, y down, origin top-left)"
     if len(parts) != 4:
-        raise ValueError(f"{name} {value!r}: expected 4 integers {form}")
+        raise InputError(f"{name} {value!r}: expected 4 integers {form}")
     numbers = []
     for label, part in zip("XYWH", parts):
         try:
             number = float(part)
         except (TypeError, ValueError):
-            raise ValueError(f"{name} {value!r}: {label} = {part!r} is not an integer; "
+            raise InputError(f"{name} {value!r}: {label} = {part!r} is not an integer; "
                              f"expected {form}") from None
         if not number.is_integer():
-            raise ValueError(f"{name} {value!r}: {label} = {part!r} is not an integer; "
+            raise InputError(f"{name} {value!r}: {label} = {part!r} is not an integer; "
                              f"expected {form}")
         numbers.append(int(number))
     x, y, w, h = numbers
     if x < 0 or y < 0:
-        raise ValueError(f"{name} {value!r}: X and Y must be >= 0 (pixel coordinates, origin "
+        raise InputError(f"{name} {value!r}: X and Y must be >= 0 (pixel coordinates, origin "
                          f"at the top-left)")
     if w < 1 or h < 1:
-        raise ValueError(f"{name} {value!r}: W and H must be >= 1 pixel")
+        raise InputError(f"{name} {value!r}: W and H must be >= 1 pixel")
     return ROI(x, y, w, h)
 
 
@@ -100,7 +101,7 @@ class Response:
         lo, hi = float(np.min(values)), float(np.max(values))
         if lo < self.code[0] or hi > self.code[-1]:
             bad = lo if lo < self.code[0] else hi
-            raise ValueError(f"{where}: code value {bad:g} is outside the range of "
+            raise InputError(f"{where}: code value {bad:g} is outside the range of "
                              f"{self.source}, [{self.code[0]:g}, {self.code[-1]:g}]; the curve "
                              f"must cover every code value in the ROIs")
         return np.interp(values, self.code, self.linear)
@@ -113,21 +114,21 @@ def load_response(path) -> Response:
         raw = pd.read_csv(path, dtype=str, keep_default_na=False, skipinitialspace=True,
                           skip_blank_lines=False)
     except pd.errors.EmptyDataError:
-        raise ValueError(f"{path}: the response curve file is empty; expected a header "
+        raise InputError(f"{path}: the response curve file is empty; expected a header "
                          f"'code,linear' and one row per code value") from None
     except (pd.errors.ParserError, UnicodeDecodeError) as exc:
-        raise ValueError(f"{path}: not a readable CSV file ({exc})") from None
+        raise InputError(f"{path}: not a readable CSV file ({exc})") from None
     raw.columns = [str(c).strip() for c in raw.columns]
     missing = [c for c in ("code", "linear") if c not in raw.columns]
     if missing:
-        raise ValueError(f"{path}: missing column(s) {', '.join(map(repr, missing))}; the "
+        raise InputError(f"{path}: missing column(s) {', '.join(map(repr, missing))}; the "
                          f"header has {', '.join(map(repr, raw.columns))}; expected "
                          f"'code' (code value in the file) and 'linear' (linear value)")
     kept = ~(raw == "").all(axis=1).to_numpy()  # blank lines
     lines = np.flatnonzero(kept) + 2  # line numbers in the file, header = line 1
     raw = raw[kept]
     if len(raw) < 2:
-        raise ValueError(f"{path}: a response curve needs at least 2 rows, found {len(raw)}")
+        raise InputError(f"{path}: a response curve needs at least 2 rows, found {len(raw)}")
     columns = {}
     for col in ("code", "linear"):
         values = np.empty(len(raw))
@@ -137,17 +138,17 @@ def load_response(path) -> Response:
             except ValueError:
                 values[j] = np.nan
             if not math.isfinite(values[j]):
-                raise ValueError(f"line {lines[j]} of {path}, column {col!r}: "
+                raise InputError(f"line {lines[j]} of {path}, column {col!r}: "
                                  f"{cell!r} is not a finite number")
         columns[col] = values
     code, linear = columns["code"], columns["linear"]
     for j in range(1, len(code)):
         if code[j] <= code[j - 1]:
-            raise ValueError(f"line {lines[j]} of {path}, column 'code': "
+            raise InputError(f"line {lines[j]} of {path}, column 'code': "
                              f"{code[j]:g} does not exceed the previous row's {code[j - 1]:g}; "
                              f"code values must be strictly increasing")
         if linear[j] < linear[j - 1]:
-            raise ValueError(f"line {lines[j]} of {path}, column 'linear': "
+            raise InputError(f"line {lines[j]} of {path}, column 'linear': "
                              f"{linear[j]:g} is below the previous row's {linear[j - 1]:g}; a "
                              f"response curve must not decrease")
     return Response(code, linear, f"response curve {path}")
@@ -182,7 +183,7 @@ class _Photo:
 
 def _check_roi(roi: ROI, name: str, height: int, width: int, path: Path) -> None:
     if roi.x + roi.w > width or roi.y + roi.h > height:
-        raise ValueError(f"{path}: {name} {roi} (x {roi.x}..{roi.x + roi.w - 1}, y "
+        raise InputError(f"{path}: {name} {roi} (x {roi.x}..{roi.x + roi.w - 1}, y "
                          f"{roi.y}..{roi.y + roi.h - 1}) lies outside the image, which is "
                          f"{width} x {height} pixels (x 0..{width - 1}, y 0..{height - 1})")
 
@@ -193,7 +194,7 @@ def _int_limits(dtype: np.dtype):
         return float(info.max), float(info.min)
     if dtype.kind == "f":
         return None, None
-    raise ValueError(f"unsupported sample type {dtype}; expected unsigned/signed integer or "
+    raise InputError(f"unsupported sample type {dtype}; expected unsigned/signed integer or "
                      f"float samples")
 
 
@@ -202,14 +203,14 @@ def _image_patches(path: Path, kind: str, image: np.ndarray, rois) -> _Photo:
     if image.ndim == 2:
         image = image[:, :, None]
     if image.ndim != 3 or image.shape[2] not in (1, 2, 3, 4):
-        raise ValueError(f"{path}: unsupported image layout {image.shape}; expected a gray or "
+        raise InputError(f"{path}: unsupported image layout {image.shape}; expected a gray or "
                          f"RGB image (height x width [x channels])")
     channels = 1 if image.shape[2] in (1, 2) else 3  # 2 = gray + alpha, 4 = RGB + alpha
     height, width = image.shape[:2]
     try:
         saturation, floor = _int_limits(image.dtype)
     except ValueError as exc:
-        raise ValueError(f"{path}: {exc}") from None
+        raise InputError(f"{path}: {exc}") from None
     patches = []
     for name, roi in rois:
         _check_roi(roi, name, height, width, path)
@@ -225,7 +226,7 @@ def _read_png_jpeg(path: Path, kind: str, rois) -> _Photo:
     try:
         image = imagecodecs.png_decode(data) if kind == "png" else imagecodecs.jpeg8_decode(data)
     except Exception as exc:  # imagecodecs raises its own error classes per codec
-        raise ValueError(f"{path}: cannot decode as {kind.upper()} ({exc})") from None
+        raise InputError(f"{path}: cannot decode as {kind.upper()} ({exc})") from None
     del data
     return _image_patches(path, kind, image, rois)
 
@@ -238,11 +239,11 @@ def _read_tiff(path: Path, rois) -> _Photo:
             series = tif.series[0]
             page = series.pages[0]
             if page is not None and page.photometric == tifffile.PHOTOMETRIC.PALETTE:
-                raise ValueError(f"{path}: palette (indexed colour) TIFF; expected gray or RGB "
+                raise InputError(f"{path}: palette (indexed colour) TIFF; expected gray or RGB "
                                  f"samples")
             axes = series.axes
             if axes not in ("YX", "YXS", "SYX"):
-                raise ValueError(f"{path}: TIFF holds an array with axes {axes!r} and shape "
+                raise InputError(f"{path}: TIFF holds an array with axes {axes!r} and shape "
                                  f"{series.shape}; expected one gray or RGB image")
             memmappable = page is not None and page.is_memmappable and len(tif.series) == 1
             image = None if memmappable else series.asarray()
@@ -251,7 +252,7 @@ def _read_tiff(path: Path, rois) -> _Photo:
     except ValueError:
         raise
     except Exception as exc:  # tifffile raises TiffFileError and codec errors
-        raise ValueError(f"{path}: cannot read as TIFF ({exc})") from None
+        raise InputError(f"{path}: cannot read as TIFF ({exc})") from None
     if axes == "SYX":
         image = np.moveaxis(image, 0, -1)
     return _image_patches(path, "tiff", image, rois)
@@ -263,14 +264,14 @@ def _read_raw(path: Path, rois) -> _Photo:
     try:
         raw = rawpy.imread(os.fspath(path))
     except (rawpy.LibRawError, OSError) as exc:
-        raise ValueError(f"{path}: cannot read as camera raw with LibRaw ({exc})") from None
+        raise InputError(f"{path}: cannot read as camera raw with LibRaw ({exc})") from None
     with raw:
         if raw.raw_type != rawpy.RawType.Flat:
-            raise ValueError(f"{path}: raw data are not a colour-filter mosaic (LibRaw raw "
+            raise InputError(f"{path}: raw data are not a colour-filter mosaic (LibRaw raw "
                              f"type {raw.raw_type.name}); convert it to a linear 16-bit TIFF")
         desc = raw.color_desc.decode("ascii", "replace")
         if any(c not in "RGB" for c in desc):
-            raise ValueError(f"{path}: colour filter colours {desc!r} are not R, G, B; only "
+            raise InputError(f"{path}: colour filter colours {desc!r} are not R, G, B; only "
                              f"RGB mosaics are supported")
         colour_of_index = np.array(["RGB".index(c) for c in desc])
         black_of_index = np.asarray(raw.black_level_per_channel, dtype=float)
@@ -293,7 +294,7 @@ def read_photo(path, rois) -> _Photo:
     path = Path(path)
     suffix = path.suffix.lower()
     if not path.is_file():
-        raise FileNotFoundError(f"{path}: no such file")
+        raise MissingFileError(f"{path}: no such file")
     try:
         if suffix in PNG_SUFFIXES:
             return _read_png_jpeg(path, "png", rois)
@@ -304,10 +305,10 @@ def read_photo(path, rois) -> _Photo:
         if suffix in RAW_SUFFIXES:
             return _read_raw(path, rois)
     except PermissionError:
-        raise PermissionError(f"{path}: permission denied") from None
+        raise UnwritableError(f"{path}: permission denied") from None
     except OSError as exc:
-        raise ValueError(f"{path}: cannot read ({exc.strerror or exc})") from None
-    raise ValueError(f"{path}: unsupported file type {suffix or '(no suffix)'!r}; supported: "
+        raise InputError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    raise InputError(f"{path}: unsupported file type {suffix or '(no suffix)'!r}; supported: "
                      f"PNG, TIFF, JPEG and camera raw ({', '.join(sorted(RAW_SUFFIXES))})")
 
 
@@ -345,7 +346,7 @@ def _linear(patch: _Patch, response: Response | None, where: str) -> np.ndarray:
     values = patch.values.astype(np.float64)
     if not np.all(np.isfinite(values)):
         bad = int(np.count_nonzero(~np.isfinite(values)))
-        raise ValueError(f"{where}: {bad} non-finite sample(s) (NaN or infinity) in the ROI")
+        raise InputError(f"{where}: {bad} non-finite sample(s) (NaN or infinity) in the ROI")
     if response is not None:
         values = response(values, where)
     if patch.black is not None:
@@ -382,7 +383,7 @@ def roi_statistics(patch: _Patch, channel: str, dark: _Patch | None = None,
     for c, g in zip(("R", "G", "B") if len(groups) == 3 else (channel.upper(),), groups):
         if g.size < 2:
             what = f"{c} photosites" if patch.cfa is not None else "pixels"
-            raise ValueError(f"{where}: only {g.size} {what} in the ROI; at least 2 are needed "
+            raise InputError(f"{where}: only {g.size} {what} in the ROI; at least 2 are needed "
                              f"for a standard error - make the ROI larger")
     return _stats(groups)
 
@@ -409,12 +410,12 @@ def read_manifest(manifest, photo_dir) -> tuple[pd.DataFrame, list[str], str]:
             raw = pd.read_csv(name, skipinitialspace=True, keep_default_na=False,
                               na_values=[""], dtype={"file": str}, skip_blank_lines=False)
         except FileNotFoundError:
-            raise FileNotFoundError(f"manifest {name}: no such file") from None
+            raise MissingFileError(f"manifest {name}: no such file") from None
         except pd.errors.EmptyDataError:
-            raise ValueError(f"{name}: the manifest is empty; expected a header with 'file' and "
+            raise InputError(f"{name}: the manifest is empty; expected a header with 'file' and "
                              f"angle columns, then one row per photo") from None
         except (pd.errors.ParserError, UnicodeDecodeError) as exc:
-            raise ValueError(f"{name}: not a readable CSV file ({exc})") from None
+            raise InputError(f"{name}: not a readable CSV file ({exc})") from None
         raw.columns = [str(c).strip() for c in raw.columns]
         kept = ~raw.isna().all(axis=1).to_numpy()  # blank lines
         lines = (np.flatnonzero(kept) + 2).tolist()
@@ -422,14 +423,14 @@ def read_manifest(manifest, photo_dir) -> tuple[pd.DataFrame, list[str], str]:
         table.attrs = {"veil_source": name, "veil_lines": tuple(lines)}
         rows = [f"line {line} of {name}" for line in lines]
     if "file" not in table.columns:
-        raise ValueError(f"{name}: no column 'file'; the header has "
+        raise InputError(f"{name}: no column 'file'; the header has "
                          f"{', '.join(map(repr, map(str, table.columns)))}; the manifest names "
                          f"each photo (relative to PHOTO_DIR) in a column 'file'")
     if len(table) == 0:
-        raise ValueError(f"{name}: no photos listed (no rows after the header)")
+        raise InputError(f"{name}: no photos listed (no rows after the header)")
     clash = [c for c in ADDED_COLUMNS if c in table.columns]
     if clash:
-        raise ValueError(f"{name}: column(s) {', '.join(map(repr, clash))} would be "
+        raise InputError(f"{name}: column(s) {', '.join(map(repr, clash))} would be "
                          f"overwritten by ingest's results; rename or remove them")
     seen = {}
     root = Path(photo_dir).resolve()
@@ -437,14 +438,14 @@ def read_manifest(manifest, photo_dir) -> tuple[pd.DataFrame, list[str], str]:
     for row, cell in zip(rows, table["file"].tolist()):
         where = f"{row}, column 'file'"
         if not isinstance(cell, str) or cell.strip() == "":
-            raise ValueError(f"{where}: empty; expected the photo's file name in PHOTO_DIR")
+            raise InputError(f"{where}: empty; expected the photo's file name in PHOTO_DIR")
         rel = Path(cell.strip())
         if rel.is_absolute() or not (root / rel).resolve().is_relative_to(root):
-            raise ValueError(f"{where}: {cell!r} is not a path inside PHOTO_DIR ({photo_dir}); "
+            raise InputError(f"{where}: {cell!r} is not a path inside PHOTO_DIR ({photo_dir}); "
                              f"give file names relative to PHOTO_DIR")
         key = (root / rel).resolve()
         if key in seen:
-            raise ValueError(f"{where}: {cell!r} is listed again (first on {seen[key]}); each "
+            raise InputError(f"{where}: {cell!r} is listed again (first on {seen[key]}); each "
                              f"photo has one geometry")
         seen[key] = row
         files.append(cell.strip())
@@ -490,9 +491,9 @@ def ingest(photo_dir, manifest, roi, black_roi=None, dark=None, channel="gray", 
     """
     photo_dir = Path(photo_dir)
     if not photo_dir.is_dir():
-        raise FileNotFoundError(f"photo directory {photo_dir}: no such directory")
+        raise MissingFileError(f"photo directory {photo_dir}: no such directory")
     if channel not in CHANNELS:
-        raise ValueError(f"channel {channel!r}: expected one of {', '.join(CHANNELS)}")
+        raise InputError(f"channel {channel!r}: expected one of {', '.join(CHANNELS)}")
     rois = [("ROI", parse_roi(roi, "ROI"))]
     if black_roi is not None:
         rois.append(("black ROI", parse_roi(black_roi, "black ROI")))
@@ -501,7 +502,7 @@ def ingest(photo_dir, manifest, roi, black_roi=None, dark=None, channel="gray", 
     if saturation is not None:
         saturation = float(saturation)
         if not math.isfinite(saturation):
-            raise ValueError(f"saturation level {saturation!r} is not a finite number")
+            raise InputError(f"saturation level {saturation!r} is not a finite number")
     if response is not None and not isinstance(response, Response):
         response = load_response(response)
 
@@ -511,7 +512,7 @@ def ingest(photo_dir, manifest, roi, black_roi=None, dark=None, channel="gray", 
     if missing:
         shown = "; ".join(f"{f!r} ({row})" for row, f in missing[:10])
         more = f" and {len(missing) - 10} more" if len(missing) > 10 else ""
-        raise FileNotFoundError(f"{name}: {len(missing)} photo(s) listed in the manifest are not "
+        raise MissingFileError(f"{name}: {len(missing)} photo(s) listed in the manifest are not "
                                 f"in {photo_dir}: {shown}{more}")
     ignore = set()
     if dark is not None:
@@ -526,7 +527,7 @@ def ingest(photo_dir, manifest, roi, black_roi=None, dark=None, channel="gray", 
     if dark is not None:
         dark_photo = read_photo(dark, rois)
         if dark_photo.kind == "raw" and response is not None:
-            raise ValueError(f"dark frame {dark}: camera raw is already linear; a response "
+            raise InputError(f"dark frame {dark}: camera raw is already linear; a response "
                              f"curve applies to JPEG/PNG/TIFF code values only")
         level = saturation if saturation is not None else dark_photo.saturation
         hot = sum(_clip_counts(p, channel, level, None)[0] for p in dark_photo.patches)
@@ -544,19 +545,19 @@ def ingest(photo_dir, manifest, roi, black_roi=None, dark=None, channel="gray", 
             _warn(f"{path}: JPEG code values are not linear in radiance (gamma/tone curve); "
                   f"give a response curve (--response) to linearize them")
         if photo.kind == "raw" and response is not None:
-            raise ValueError(f"{where}: camera raw is already linear; a response curve applies "
+            raise InputError(f"{where}: camera raw is already linear; a response curve applies "
                              f"to JPEG/PNG/TIFF code values only")
         if photo.saturation is None and saturation is None and "float" not in warned:
             warned.add("float")
             _warn(f"{path}: float samples have no format maximum, so saturation is not "
                   f"checked; give a saturation level (--saturation) if the data were clipped")
         if channel != "gray" and photo.shape[2] == 1 and photo.kind != "raw":
-            raise ValueError(f"{where}: a single-channel (gray) image has no channel "
+            raise InputError(f"{where}: a single-channel (gray) image has no channel "
                              f"{channel!r}; use channel gray")
         if dark_photo is not None and ((dark_photo.kind == "raw") != (photo.kind == "raw")
                                        or dark_photo.shape != photo.shape
                                        or dark_photo.dtype != photo.dtype):
-            raise ValueError(f"{where}: the dark frame {dark} does not match the photo (dark "
+            raise InputError(f"{where}: the dark frame {dark} does not match the photo (dark "
                              f"frame {_describe(dark_photo)}, photo {_describe(photo)})")
         level = saturation if saturation is not None else photo.saturation
         row = {}
@@ -593,7 +594,7 @@ def ingest(photo_dir, manifest, roi, black_roi=None, dark=None, channel="gray", 
         del photo
 
     if not keep:
-        raise ValueError(f"all {len(paths)} photos were excluded for saturated or clipped "
+        raise InputError(f"all {len(paths)} photos were excluded for saturated or clipped "
                          f"pixels in the ROIs; lower the exposure, move the ROIs, or keep them "
                          f"with --keep-saturated")
     out = table.iloc[keep].reset_index(drop=True)

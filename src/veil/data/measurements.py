@@ -27,6 +27,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from ..errors import (InputError, InputTypeError, MeasurementError, MissingFileError,
+                      NotAFileError)
 from ..io import write_bytes_atomic
 from ..engine.angles import direction, from_goniometer, from_signed_inplane, to_goniometer, to_signed_inplane
 
@@ -42,10 +44,6 @@ SAME_TOL = 1e-6
 _RADIAN_LIMITS = {"theta_i": 1.6, "theta_r": 1.6, "rho": 1.6, "psi": 3.2, "phi_i": 6.3,
                   "phi_r": 6.3}
 _MAX_LISTED = 10
-
-
-class MeasurementError(ValueError):
-    """A measurement table that cannot be used; the message names the file, row and column."""
 
 
 class LikelyRadiansWarning(UserWarning):
@@ -253,7 +251,7 @@ def _warn_radians(cols: dict, what: str) -> None:
 
 def _check_type(table) -> None:
     if not isinstance(table, pd.DataFrame):
-        raise TypeError(f"expected a pandas DataFrame measurement table, got {type(table).__name__}")
+        raise InputTypeError(f"expected a pandas DataFrame measurement table, got {type(table).__name__}")
 
 
 def _check_columns(table: pd.DataFrame, what: str) -> None:
@@ -364,7 +362,7 @@ def to_form(table: pd.DataFrame, form: str) -> pd.DataFrame:
     In-plane and goniometer forms need every row in the plane of incidence.
     """
     if form not in FORMS:
-        raise ValueError(f"form = {form!r}; expected one of {', '.join(FORMS)}")
+        raise InputError(f"form = {form!r}; expected one of {', '.join(FORMS)}")
     canon = canonical_angles(table)
     rows = RowNames(table)
     angles = tuple(canon[c].to_numpy() for c in CANONICAL)
@@ -414,9 +412,9 @@ def load_measurements(path) -> pd.DataFrame:
     try:
         raw = path.read_bytes()
     except FileNotFoundError:
-        raise FileNotFoundError(f"measurement file {name} does not exist") from None
+        raise MissingFileError(f"measurement file {name} does not exist") from None
     except IsADirectoryError:
-        raise IsADirectoryError(f"measurement file {name} is a directory, not a CSV file") from None
+        raise NotAFileError(f"measurement file {name} is a directory, not a CSV file") from None
     try:
         text = raw.decode("utf-8-sig")
     except UnicodeDecodeError as exc:
@@ -517,7 +515,7 @@ def atomic_write_text(path, text: str) -> None:
     """Write ``text`` (UTF-8) to ``path`` through a temporary file in the same directory."""
     path = Path(path)
     if path.is_dir():
-        raise IsADirectoryError(f"cannot write {path}: it is a directory")
+        raise NotAFileError(f"cannot write {path}: it is a directory")
     write_bytes_atomic(path, text.encode("utf-8"))
 
 
@@ -535,7 +533,7 @@ def subtract_black(table: pd.DataFrame, black: pd.DataFrame, tol: float = 0.05) 
     than one match (tolerance too large).
     """
     if not (isinstance(tol, (int, float)) and math.isfinite(tol) and tol >= 0):
-        raise ValueError(f"tol = {tol!r}: expected a finite tolerance >= 0 in degrees")
+        raise InputError(f"tol = {tol!r}: expected a finite tolerance >= 0 in degrees")
     _check_type(table)
     _check_type(black)
     rows_t = RowNames(table)

@@ -14,6 +14,7 @@ import math
 import numpy as np
 import pandas as pd
 
+from ..errors import InputError
 from ..engine.angles import from_goniometer, from_signed_inplane
 
 PSI = (30.0, 60.0, 90.0)
@@ -23,9 +24,9 @@ def _positive(name: str, value, allow_zero: bool = False) -> float:
     try:
         v = float(value)
     except (TypeError, ValueError):
-        raise ValueError(f"{name} = {value!r} is not a number (degrees)") from None
+        raise InputError(f"{name} = {value!r} is not a number (degrees)") from None
     if not math.isfinite(v) or v < 0 or (v == 0 and not allow_zero):
-        raise ValueError(f"{name} = {value!r} deg: expected a finite number "
+        raise InputError(f"{name} = {value!r} deg: expected a finite number "
                          f"{'>= 0' if allow_zero else '> 0'}")
     return v
 
@@ -38,12 +39,12 @@ def rho_values(psi: float, fine_step: float = 1.0, coarse_step: float = 5.0,
     window = _positive("window", window, allow_zero=True)
     limit = _positive("limit", limit)
     if limit > 90:
-        raise ValueError(f"limit = {limit:g} deg: polar angles must stay below 90 deg")
+        raise InputError(f"limit = {limit:g} deg: polar angles must stay below 90 deg")
     psi = float(psi)
     if not (math.isfinite(psi) and 0 < psi < 180):
-        raise ValueError(f"psi = {psi:g} deg: expected a relative angle in (0, 180) deg")
+        raise InputError(f"psi = {psi:g} deg: expected a relative angle in (0, 180) deg")
     if psi / 2 >= limit:
-        raise ValueError(f"psi = {psi:g} deg gives no configuration with both |theta| < "
+        raise InputError(f"psi = {psi:g} deg gives no configuration with both |theta| < "
                          f"{limit:g} deg (the mirror configuration has theta = psi/2)")
     reach = limit - psi / 2  # both |theta| < limit  <=>  |rho| < reach
     n_fine = int(math.floor(window / fine_step + 1e-9))
@@ -71,11 +72,11 @@ def protocol(psi=PSI, fine_step: float = 1.0, coarse_step: float = 5.0, window: 
         try:
             psis.append(float(p))
         except (TypeError, ValueError):
-            raise ValueError(f"psi = {p!r} is not a number (degrees)") from None
+            raise InputError(f"psi = {p!r} is not a number (degrees)") from None
     if not psis:
-        raise ValueError("psi is empty: give at least one relative angle (degrees)")
+        raise InputError("psi is empty: give at least one relative angle (degrees)")
     if len(set(psis)) != len(psis):
-        raise ValueError(f"psi = {psis}: a relative angle is repeated")
+        raise InputError(f"psi = {psis}: a relative angle is repeated")
     blocks = []
     for p in psis:
         rho = rho_values(p, fine_step, coarse_step, window, limit)

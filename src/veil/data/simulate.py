@@ -32,6 +32,7 @@ from typing import Callable
 
 import numpy as np
 
+from ..errors import InputError
 from ..engine.angles import direction
 from ..engine.apparent import RULES, apparent, as_brdf, as_btdf, reflectance
 from .protocol import PSI, protocol
@@ -118,11 +119,11 @@ def simulate(brdf, medium, psi=PSI, noise: float = 0.01, seed: int = 0, black: b
     for name, val in (("noise", noise), ("glow", glow)):
         if isinstance(val, bool) or not isinstance(val, (int, float)) \
                 or not math.isfinite(val) or val < 0:
-            raise ValueError(f"{name} = {val!r}: expected a finite number >= 0 (relative)")
+            raise InputError(f"{name} = {val!r}: expected a finite number >= 0 (relative)")
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
-        raise ValueError(f"seed = {seed!r}: expected an integer >= 0")
+        raise InputError(f"seed = {seed!r}: expected an integer >= 0")
     if accuracy not in RULES:
-        raise ValueError(f"accuracy = {accuracy!r}; expected one of {', '.join(RULES)}")
+        raise InputError(f"accuracy = {accuracy!r}; expected one of {', '.join(RULES)}")
     table = protocol(psi, fine_step=fine_step, coarse_step=coarse_step, window=window,
                      limit=limit)
     n = len(table)

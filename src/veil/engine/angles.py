@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..errors import InputError
 from .._jax import jnp
 
 
@@ -18,11 +19,11 @@ def check_angles(theta_i, theta_r, phi_i, phi_r):
     for name, a in zip(("theta_i", "theta_r", "phi_i", "phi_r"), arrays):
         bad = ~np.isfinite(a)
         if bad.any():
-            raise ValueError(f"{name} = {a[bad].flat[0]!r} is not a finite number")
+            raise InputError(f"{name} = {a[bad].flat[0]!r} is not a finite number")
         if name.startswith("theta"):
             out = (a < 0) | (a >= 90)
             if out.any():
-                raise ValueError(f"{name} = {a[out].flat[0]:g} deg is outside [0, 90)")
+                raise InputError(f"{name} = {a[out].flat[0]:g} deg is outside [0, 90)")
     return arrays
 
 
@@ -59,7 +60,7 @@ def to_signed_inplane(theta_i, phi_i, theta_r, phi_r, tol=1e-6):
         on_neg = distance(phi, positive_at + 180.0) <= tol
         if not np.all(on_pos | on_neg):
             bad = np.flatnonzero(~(on_pos | on_neg))
-            raise ValueError(f"rows {bad.tolist()} are not in the plane of incidence (phi not 0 or 180 deg)")
+            raise InputError(f"rows {bad.tolist()} are not in the plane of incidence (phi not 0 or 180 deg)")
         return np.where(on_pos, theta, -theta)
 
     return side(ti, pi_, 180.0), side(tr, pr, 0.0)

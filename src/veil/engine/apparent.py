@@ -9,6 +9,7 @@ import numpy as np
 
 from functools import lru_cache
 
+from ..errors import InputError, InputTypeError
 from .._jax import jax, jnp
 from .forward import Forward
 from .angles import check_angles, direction  # noqa: F401  (check_angles re-exported)
@@ -19,14 +20,14 @@ from .quadrature import ERROR_FACTOR, FINER, RULES, Rule  # noqa: F401  (re-expo
 def as_brdf(brdf) -> BRDF:
     model = preset(brdf) if isinstance(brdf, str) else brdf
     if not isinstance(model, BRDF):
-        raise TypeError(f"expected a BRDF (e.g. veil.BRDF1), got {brdf!r}")
+        raise InputTypeError(f"expected a BRDF (e.g. veil.BRDF1), got {brdf!r}")
     return model
 
 
 def as_btdf(medium) -> BTDF:
     model = preset(medium) if isinstance(medium, str) else medium
     if not isinstance(model, BTDF):
-        raise TypeError(f"expected a BTDF medium (e.g. veil.BTDF1), got {medium!r}")
+        raise InputTypeError(f"expected a BTDF medium (e.g. veil.BTDF1), got {medium!r}")
     return model
 
 
@@ -59,7 +60,7 @@ def apparent(brdf, medium, theta_i, theta_r, phi_i=180.0, phi_r=0.0, *,
         evaluation itself).
     """
     if accuracy not in RULES:
-        raise ValueError(f"accuracy = {accuracy!r}; expected one of {', '.join(RULES)}")
+        raise InputError(f"accuracy = {accuracy!r}; expected one of {', '.join(RULES)}")
     if medium is None:
         value = reflectance(brdf, theta_i, theta_r, phi_i, phi_r)
         return (value, np.zeros_like(value)) if return_error else value

@@ -16,6 +16,7 @@ from functools import lru_cache
 
 import numpy as np
 
+from ..errors import InputError, InputTypeError
 from .._jax import jax, jnp
 from jax.sharding import Mesh, NamedSharding, PartitionSpec as P
 from . import integrator
@@ -135,12 +136,12 @@ class Forward:
         self.brdf, self.medium = brdf, medium
         self.rule = RULES["default"] if rule is None else rule
         if not isinstance(self.rule, Rule):
-            raise TypeError(f"rule must be a veil.quadrature.Rule, got {rule!r} (for a named "
+            raise InputTypeError(f"rule must be a veil.quadrature.Rule, got {rule!r} (for a named "
                             "accuracy use veil.apparent.RULES[name])")
         ti, tr, pi_, pr = (a.ravel() for a in check_angles(theta_i, theta_r, phi_i, phi_r))
         self.size = ti.size
         if self.size == 0:
-            raise ValueError("no configurations to evaluate")
+            raise InputError("no configurations to evaluate")
         wi = np.asarray(direction(ti, pi_))
         wr = np.asarray(direction(tr, pr))
         # in the plane of incidence the integrand is symmetric under y -> -y
@@ -192,10 +193,10 @@ class Forward:
         for name, v, cls in (("brdf", vb, type(self.brdf)), ("medium", vm, type(self.medium))):
             v = np.asarray(v, dtype=float)
             if v.shape != (len(cls.PARAMS),):
-                raise ValueError(f"{name} parameter vector has shape {v.shape}; expected "
+                raise InputError(f"{name} parameter vector has shape {v.shape}; expected "
                                  f"({len(cls.PARAMS)},) for {', '.join(cls.param_names())}")
             if not np.all(np.isfinite(v)):
-                raise ValueError(f"{name} parameter vector {v.tolist()} has a non-finite value")
+                raise InputError(f"{name} parameter vector {v.tolist()} has a non-finite value")
             out.append(jnp.asarray(v))
         return out
 

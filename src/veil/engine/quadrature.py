@@ -12,6 +12,7 @@ from functools import lru_cache
 
 import numpy as np
 
+from ..errors import InputError
 from .._jax import jnp
 
 
@@ -80,12 +81,12 @@ class Rule:
                      "dense_radial", "dense_azimuth", "table_radial", "table_azimuth"):
             n = getattr(self, name)
             if not isinstance(n, int) or n < 2:
-                raise ValueError(f"Rule.{name} = {n!r}; expected an integer >= 2")
+                raise InputError(f"Rule.{name} = {n!r}; expected an integer >= 2")
             if name.endswith("azimuth") and n % 2:
-                raise ValueError(f"Rule.{name} = {n}; azimuth counts must be even (the "
+                raise InputError(f"Rule.{name} = {n}; azimuth counts must be even (the "
                                  "in-plane symmetry pairs azimuths beta and -beta)")
         if not isinstance(self.table, int) or self.table < 3 or self.table % 2 == 0:
-            raise ValueError(f"Rule.table = {self.table!r}; expected an odd integer >= 3 "
+            raise InputError(f"Rule.table = {self.table!r}; expected an odd integer >= 3 "
                              "(Simpson's rule)")
 
     def scaled(self, factor: float) -> "Rule":

@@ -9,6 +9,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
+from ..errors import InputTypeError
 from ..data.measurements import (CANONICAL, MeasurementError, RowNames, canonical_angles,
                            load_measurements, subtract_black, validate)
 
@@ -36,7 +37,7 @@ def _load(table, what: str) -> pd.DataFrame:
     if isinstance(table, (str, os.PathLike)):
         return load_measurements(table)
     if not isinstance(table, pd.DataFrame):
-        raise TypeError(f"{what}: expected a measurement table (pandas DataFrame) or a CSV "
+        raise InputTypeError(f"{what}: expected a measurement table (pandas DataFrame) or a CSV "
                         f"path, got {type(table).__name__}")
     if "veil_source" not in table.attrs and "veil_name" not in table.attrs:
         table = table.copy()

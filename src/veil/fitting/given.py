@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import warnings
 
+from ..errors import InputTypeError
 from .result import FitError, FitResult
 from ..models import BRDF, BTDF, Model, model_class
 from ..models.henyey_greenstein import VARIANTS
@@ -27,7 +28,7 @@ def as_brdf_model(reference) -> BRDF:
     if isinstance(reference, BTDF):
         raise FitError(f"the reference must be a BRDF (TorranceSparrow); got the medium "
                        f"{reference}")
-    raise TypeError(f"reference: expected a FitResult of step 0 or a TorranceSparrow, got "
+    raise InputTypeError(f"reference: expected a FitResult of step 0 or a TorranceSparrow, got "
                     f"{type(reference).__name__}")
 
 
@@ -48,7 +49,7 @@ def as_medium_model(medium, variant) -> BTDF:
     elif isinstance(medium, BRDF):
         raise FitError(f"the medium must be a BTDF (HenyeyGreenstein); got the BRDF {medium}")
     else:
-        raise TypeError(f"medium: expected a FitResult of step 1 or a HenyeyGreenstein, got "
+        raise InputTypeError(f"medium: expected a FitResult of step 1 or a HenyeyGreenstein, got "
                         f"{type(medium).__name__}")
     if variant is not None and model.options().get("variant") != variant:
         raise FitError(f"variant = {variant!r} but the medium was fitted with variant "

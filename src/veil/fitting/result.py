@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..errors import FitError, InputError, MissingFileError, NotAFileError
 from ..data.measurements import atomic_write_text
 from ..models import REGISTRY, Model, model_class
 from ..models.henyey_greenstein import VARIANTS
@@ -19,10 +20,6 @@ from ..models.henyey_greenstein import VARIANTS
 STEPS = ("reference", "medium", "target")
 #: Value of the "format" key of a result file.
 FORMAT = "veil.fit/1"
-
-
-class FitError(ValueError):
-    """A fit that cannot be set up (bad data, bad options, bad reference); says what to fix."""
 
 
 @dataclass(frozen=True)
@@ -160,7 +157,7 @@ class FitResult:
             model = mcls(**{k: float(v) for k, v in params.items()})
             if "variant" in model.options():
                 if variant is None:
-                    raise ValueError(f"model {name} needs a variant ({', '.join(VARIANTS)})")
+                    raise InputError(f"model {name} needs a variant ({', '.join(VARIANTS)})")
                 model.replace(variant=variant)
         except (ValueError, TypeError) as exc:
             raise FitError(f"{source}: {exc}") from None
@@ -292,9 +289,9 @@ def read_json(path):
         with open(name, encoding="utf-8") as fh:
             text = fh.read()
     except FileNotFoundError:
-        raise FileNotFoundError(f"fit result {name} does not exist") from None
+        raise MissingFileError(f"fit result {name} does not exist") from None
     except IsADirectoryError:
-        raise IsADirectoryError(f"fit result {name} is a directory, not a JSON file") from None
+        raise NotAFileError(f"fit result {name} is a directory, not a JSON file") from None
     except UnicodeDecodeError as exc:
         raise FitError(f"{name} is not UTF-8 text ({exc.reason}); expected a JSON fit "
                        f"result") from None

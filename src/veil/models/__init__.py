@@ -6,6 +6,7 @@ one line in ``REGISTRY``.
 
 from __future__ import annotations
 
+from ..errors import InputError
 from .base import BRDF, BTDF, Model, Param
 from .henyey_greenstein import HenyeyGreenstein
 from .torrance_sparrow import TorranceSparrow
@@ -29,14 +30,14 @@ def model_class(name: str) -> type[Model]:
     try:
         return REGISTRY[name]
     except KeyError:
-        raise ValueError(f"unknown model {name!r}; known: {', '.join(sorted(REGISTRY))}") from None
+        raise InputError(f"unknown model {name!r}; known: {', '.join(sorted(REGISTRY))}") from None
 
 
 def preset(name: str) -> Model:
     try:
         return PRESETS[name.upper()]
     except KeyError:
-        raise ValueError(f"unknown preset {name!r}; known: {', '.join(PRESETS)}") from None
+        raise InputError(f"unknown preset {name!r}; known: {', '.join(PRESETS)}") from None
 
 
 __all__ = ["BRDF", "BTDF", "Model", "Param", "TorranceSparrow", "HenyeyGreenstein",

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 from typing import ClassVar
 
 import numpy as np
+from ..errors import InputError, InputTypeError, ParameterError
 
 
 @dataclass(frozen=True)
@@ -35,14 +36,14 @@ class Param:
 
     def check(self, value: float, owner: str) -> None:
         if not isinstance(value, (int, float, np.floating, np.integer)) or isinstance(value, bool):
-            raise TypeError(f"{owner}.{self.name} must be a number, got {value!r}")
+            raise InputTypeError(f"{owner}.{self.name} must be a number, got {value!r}")
         v = float(value)
         if not math.isfinite(v):
-            raise ValueError(f"{owner}.{self.name} = {v!r} is not a finite number")
+            raise ParameterError(f"{owner}.{self.name} = {v!r} is not a finite number")
         lo_bad = v <= self.lower if self.lower_open else v < self.lower
         hi_bad = v >= self.upper if self.upper_open else v > self.upper
         if lo_bad or hi_bad:
-            raise ValueError(f"{owner}.{self.name} = {v:g} is outside {self.interval()}"
+            raise ParameterError(f"{owner}.{self.name} = {v:g} is outside {self.interval()}"
                              f" ({self.doc})")
 
     def interval(self) -> str:
@@ -90,7 +91,7 @@ class Model:
     def with_vector(self, vector) -> "Model":
         vector = np.asarray(vector, float)
         if vector.shape != (len(self.PARAMS),):
-            raise ValueError(f"{type(self).__name__} vector has shape {vector.shape}; expected "
+            raise InputError(f"{type(self).__name__} vector has shape {vector.shape}; expected "
                              f"({len(self.PARAMS)},) for {', '.join(self.param_names())}")
         values = dict(zip(self.param_names(), (float(x) for x in vector)))
         return dataclasses.replace(self, **values)

@@ -6,6 +6,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from ..errors import InputError
 from . import fresnel
 from . import phase
 from .base import BTDF, Param
@@ -46,7 +47,7 @@ class HenyeyGreenstein(BTDF):
     def __post_init__(self) -> None:
         super().__post_init__()
         if self.variant not in VARIANTS:
-            raise ValueError(f"HenyeyGreenstein.variant = {self.variant!r}; expected one of "
+            raise InputError(f"HenyeyGreenstein.variant = {self.variant!r}; expected one of "
                              f"{', '.join(VARIANTS)}")
 
     @staticmethod

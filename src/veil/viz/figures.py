@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..errors import InputError
 from ..io import write_bytes_atomic
 from ..engine.apparent import RULES, as_brdf, as_btdf, reflectance
 from ..engine.angles import direction
@@ -44,7 +45,7 @@ def figure_format(path) -> str:
     """The format of ``path`` from its suffix; ValueError for anything but png/pdf/svg."""
     ext = os.path.splitext(os.fspath(path))[1].lower().lstrip(".")
     if ext not in FORMATS:
-        raise ValueError(f"cannot tell the figure format of {os.fspath(path)!r}: use a file "
+        raise InputError(f"cannot tell the figure format of {os.fspath(path)!r}: use a file "
                          f"name ending in {', '.join('.' + f for f in FORMATS)}")
     return ext
 
@@ -210,7 +211,7 @@ def run_experiment(brdfs=("BRDF1", "BRDF2"), media=("BTDF1", "BTDF2", "BTDF3"), 
     """
     for name, acc in (("accuracy", accuracy), ("render_accuracy", render_accuracy)):
         if acc not in RULES:
-            raise ValueError(f"{name} = {acc!r}; expected one of {', '.join(RULES)}")
+            raise InputError(f"{name} = {acc!r}; expected one of {', '.join(RULES)}")
     exp = Experiment({b if isinstance(b, str) else _name(b): as_brdf(b) for b in brdfs},
                      {m if isinstance(m, str) else _name(m): as_btdf(m) for m in media},
                      float(theta_i), float(light_theta), int(size), accuracy, render_accuracy)
@@ -456,7 +457,7 @@ def draw_curves(ax, curves, scale="log", title=None, with_brdf=True):
     weight T_t, so this takes out the media's different strengths; clear medium as is).
     """
     if scale not in SCALES:
-        raise ValueError(f"scale = {scale!r}; expected one of {', '.join(SCALES)}")
+        raise InputError(f"scale = {scale!r}; expected one of {', '.join(SCALES)}")
     k_medium = 0
     for curve in curves:
         if curve.medium is None:

@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.interpolate import RectBivariateSpline
 
+from ..errors import InputError
 from ..engine.apparent import RULES, apparent, as_brdf, as_btdf, reflectance
 
 #: Half width of the view in sphere radii (orthographic camera; a 5 % margin around the rim).
@@ -257,17 +258,17 @@ class Rendering:
 def _check_args(size, light_theta, light_phi, samples, accuracy):
     for name, v in (("light_theta", light_theta), ("light_phi", light_phi)):
         if not isinstance(v, (int, float, np.integer, np.floating)) or not math.isfinite(v):
-            raise ValueError(f"{name} = {v!r} is not a finite number (degrees)")
+            raise InputError(f"{name} = {v!r} is not a finite number (degrees)")
     if not 0.0 <= light_theta <= MAX_LIGHT_THETA:
-        raise ValueError(f"light_theta = {light_theta:g} deg is outside [0, {MAX_LIGHT_THETA:g}]"
+        raise InputError(f"light_theta = {light_theta:g} deg is outside [0, {MAX_LIGHT_THETA:g}]"
                          f" (a light further behind the sphere lights only a thin crescent at "
                          f"grazing angles, where the table is not reliable)")
     if not isinstance(size, (int, np.integer)) or isinstance(size, bool) or not 8 <= size <= 4096:
-        raise ValueError(f"size = {size!r} must be an integer in [8, 4096] pixels")
+        raise InputError(f"size = {size!r} must be an integer in [8, 4096] pixels")
     if not isinstance(samples, (int, np.integer)) or isinstance(samples, bool) or not 1 <= samples <= 8:
-        raise ValueError(f"samples = {samples!r} must be an integer in [1, 8] per pixel axis")
+        raise InputError(f"samples = {samples!r} must be an integer in [1, 8] per pixel axis")
     if accuracy not in RULES:
-        raise ValueError(f"accuracy = {accuracy!r}; expected one of {', '.join(RULES)}")
+        raise InputError(f"accuracy = {accuracy!r}; expected one of {', '.join(RULES)}")
 
 
 def _check_pixels(values, lit, count, rng_seed=20110901):
@@ -300,9 +301,9 @@ def render(brdf, medium=None, light_theta=45.0, light_phi=0.0, size=256, *, accu
     b = as_brdf(brdf)
     m = None if medium is None else as_btdf(medium)
     if not (isinstance(check, (int, np.integer)) and 0 <= check <= 4096):
-        raise ValueError(f"check = {check!r} must be an integer in [0, 4096] pixels")
+        raise InputError(f"check = {check!r} must be an integer in [0, 4096] pixels")
     if not (isinstance(density, (int, float)) and 0.25 <= density <= 8):
-        raise ValueError(f"density = {density!r} must be in [0.25, 8]")
+        raise InputError(f"density = {density!r} must be in [0.25, 8]")
     t0 = time.perf_counter()
     density = density * auto_density(float(light_theta))
     light = light_direction(float(light_theta), float(light_phi))
@@ -421,9 +422,9 @@ def tone_map(linear, exposure, tone="clip") -> np.ndarray:
     """
     if not (isinstance(exposure, (int, float, np.floating)) and math.isfinite(exposure)
             and exposure > 0):
-        raise ValueError(f"exposure = {exposure!r} must be a positive number")
+        raise InputError(f"exposure = {exposure!r} must be a positive number")
     if tone not in TONES:
-        raise ValueError(f"tone = {tone!r}; expected one of {', '.join(TONES)}")
+        raise InputError(f"tone = {tone!r}; expected one of {', '.join(TONES)}")
     x = exposure * np.asarray(linear, dtype=float)
     if tone == "reinhard":
         x = x / (1.0 + x)
