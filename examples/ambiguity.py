@@ -25,8 +25,8 @@ import numpy as np
 
 import veil
 from veil.analysis.diagnostics import diagnose
-from veil.fitting.steps import fit_medium, fit_reference, fit_target
-from veil.fitting.joint import Session, fit_joint
+from veil.fitting import fit_medium, fit_reference, fit_target
+from veil.fitting import Session, fit_joint
 from veil.data.measurements import atomic_write_text, subtract_black
 from veil.models import HenyeyGreenstein, TorranceSparrow
 from veil.analysis.uncertainty import budget_table, propagate

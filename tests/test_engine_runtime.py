@@ -89,9 +89,9 @@ def test_unwritable_cache_directory_warns_and_runs_without(tmp_path):
         import warnings
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
-            import veil
+            import veil  # JAX is set up on first use, not at import (fast start)
+            value = veil.apparent("BRDF1", "BTDF2", 30.0, 40.0, accuracy="fast")
         from veil._jax import jax
-        value = veil.apparent("BRDF1", "BTDF2", 30.0, 40.0, accuracy="fast")
         messages = [str(w.message) for w in caught if "veil" in str(w.message)]
         print(len(messages), "VEIL_CACHE_DIR" in messages[0], jax.config.jax_compilation_cache_dir,
               float(value) > 0)

@@ -19,7 +19,7 @@ from click.testing import CliRunner
 
 import veil
 from veil.cli import main
-from veil.fitting.steps import FitError, FitResult, fit_medium, fit_reference, fit_target
+from veil.fitting import FitError, FitResult, fit_medium, fit_reference, fit_target
 from veil.data.measurements import MeasurementError, save_measurements, subtract_black
 from veil.data.protocol import PSI
 

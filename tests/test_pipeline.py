@@ -20,7 +20,7 @@ from click.testing import CliRunner
 import veil
 from test_fitting import assert_recovered, copy, session
 from veil.cli import main
-from veil.fitting.steps import FitError, FitResult, fit_reference, prepare
+from veil.fitting import FitError, FitResult, fit_reference, prepare
 from veil.data.measurements import save_measurements
 from veil.pipeline import FILES, fit_figure, run_pipeline
 from veil.data.protocol import protocol
@@ -164,8 +164,11 @@ def test_cli_pipeline(tmp_path):
     base = ["fit", "pipeline", "--reference-clear", p["reference_clear"], "--reference-medium",
             p["reference_medium"], "--target-medium", p["target_medium"], "--black",
             p["black"], "--accuracy", "fast"]
+    # one psi: the reference's Ps and eta are exactly degenerate (Ps F(psi/2, eta)), a fit
+    # that is "not determined" (exit 1): its eta is held as the target's
     r = invoke(base + ["-o", tmp_path / "out", "--target-clear", p["target_clear"],
-                       "--fix", "medium.eta=1.3", "--fix", "target.eta=1.55"])
+                       "--fix", "medium.eta=1.3", "--fix", "target.eta=1.55",
+                       "--fix", "reference.eta=1.55"])
     assert r.exit_code == 0, r.output
     assert "[[Estimated target f_r against the direct fit]]" in r.stdout
     med = FitResult.from_json(tmp_path / "out" / "medium.json")

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 import veil
-from veil.fitting.steps import FitError, fit_medium, fit_reference, fit_target
+from veil.fitting import FitError, fit_medium, fit_reference, fit_target
 from veil.analysis.uncertainty import PARTS, budget_table, propagate, sample_propagation
 
 SMALL = dict(psi=(30, 60, 90), fine_step=2, coarse_step=10, glow=0.0, accuracy="fast")

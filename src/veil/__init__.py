@@ -1,30 +1,54 @@
 """veil: reflectance of objects seen through scattering media.
 
-Forward model (MODEL.md): :func:`apparent`, :func:`reflectance`; models and the paper's
-presets: :class:`TorranceSparrow`, :class:`HenyeyGreenstein`, ``BRDF1``, ``BRDF2``,
-``BTDF1``, ``BTDF2``, ``BTDF3``.
+Forward model (MODEL.md): :func:`apparent`, :func:`reflectance`; the registered model
+families (``veil.TorranceSparrow``, ``veil.HenyeyGreenstein``, ... by class name, listed in
+``veil.REGISTRY``) and the paper's presets ``BRDF1``, ``BRDF2``, ``BTDF1``, ``BTDF2``,
+``BTDF3``; measurement tables, simulation, the fits of the two-step method, the joint fit
+and the pipeline. Names are imported on first use, so ``import veil`` is cheap.
 """
 
-from . import _jax  # noqa: F401  (float64 for JAX before anything else)
-from .engine.apparent import apparent, reflectance
-from .data.measurements import load_measurements, save_measurements, subtract_black
-from .data.simulate import simulate
-from .fitting.steps import FitResult, fit_medium, fit_reference, fit_target
-from .pipeline import run_pipeline
-from .fitting.joint import fit_joint
-from .models import (BRDF, BTDF, PRESETS, REGISTRY, HenyeyGreenstein, Model, Param,
-                     TorranceSparrow, preset)
+from __future__ import annotations
 
-BRDF1 = PRESETS["BRDF1"]
-BRDF2 = PRESETS["BRDF2"]
-BTDF1 = PRESETS["BTDF1"]
-BTDF2 = PRESETS["BTDF2"]
-BTDF3 = PRESETS["BTDF3"]
+import importlib
 
 __version__ = "0.1.0"
 
-__all__ = ["apparent", "reflectance", "BRDF", "BTDF", "Model", "Param", "TorranceSparrow",
-           "HenyeyGreenstein", "PRESETS", "REGISTRY", "preset", "BRDF1", "BRDF2", "BTDF1",
-           "BTDF2", "BTDF3", "load_measurements", "save_measurements", "subtract_black",
-           "simulate", "fit_reference", "fit_medium", "fit_target", "FitResult", "run_pipeline",
-           "fit_joint"]
+#: Public name -> the module that defines it.
+_API = {
+    "apparent": "engine.apparent", "reflectance": "engine.apparent",
+    "load_measurements": "data.measurements", "save_measurements": "data.measurements",
+    "subtract_black": "data.measurements", "simulate": "data.simulate",
+    "fit_reference": "fitting.steps", "fit_medium": "fitting.steps",
+    "fit_target": "fitting.steps", "FitResult": "fitting.result",
+    "run_pipeline": "pipeline", "fit_joint": "fitting.joint",
+    "BRDF": "models", "BTDF": "models", "Medium": "models", "Model": "models",
+    "Param": "models", "PRESETS": "models", "REGISTRY": "models", "preset": "models",
+    "register": "models",
+}
+_PRESETS = ("BRDF1", "BRDF2", "BTDF1", "BTDF2", "BTDF3")
+
+
+def __getattr__(name: str):
+    if name == "__all__":  # ``from veil import *``: the API and every registered family
+        return sorted(set(_API) | set(_PRESETS) | {"__version__"}
+                      | {c.__name__ for c in importlib.import_module(".models", __name__)
+                         .REGISTRY.values()})
+    if name in _API:
+        value = getattr(importlib.import_module(f".{_API[name]}", __name__), name)
+    elif name in _PRESETS:
+        value = importlib.import_module(".models", __name__).PRESETS[name]
+    else:
+        models = importlib.import_module(".models", __name__)
+        found = [c for c in models.REGISTRY.values() if c.__name__ == name]
+        if not found:
+            raise AttributeError(f"module 'veil' has no attribute {name!r}")
+        value = found[0]
+    globals()[name] = value
+    return value
+
+
+def __dir__():
+    from .models import REGISTRY
+
+    return sorted(set(globals()) | set(_API) | set(_PRESETS)
+                  | {c.__name__ for c in REGISTRY.values()})

@@ -9,15 +9,20 @@ log det of the information about the parameters of interest (D_s-optimality: the
 parameters are nuisances, profiled out through the Schur complement).
 
 Conditions are media: given models (e.g. the paper's BTDF1-3, thin to thick, MODEL.md sec. 6)
-and/or concentration factors c scaling T_d and T_t of each. Note that a common factor on
-T_d and T_t multiplies the apparent value by c^2 (MODEL.md sec. 5): under purely relative
-noise it carries no information of its own; it matters through an absolute noise floor.
+and/or concentration factors c of each (the medium model says what a concentration does:
+the paper's scales T_d and T_t; :meth:`veil.models.Medium.concentrated`). Note that a common
+factor on the paper medium's T_d and T_t multiplies the apparent value by c^2 (MODEL.md
+sec. 5): under purely relative noise it carries no information of its own; it matters
+through an absolute noise floor.
 
-Parameters of interest are the target's shape parameters Ps/Pd, n and eta (MODEL.md sec. 2:
-only ratios of Pd and Ps mean anything); Pd is a nuisance. With ``mode="joint"`` (default)
-each condition's T_d and T_t are nuisances, and so are g and eta_u - shared when all
-conditions have the same value, else per condition - as in :func:`veil.fit_joint`; with
-``mode="known"`` the media are taken as exactly known (the two-step view).
+Parameters are taken in fit coordinates (log for scale parameters). Of the target's BRDF
+only ratios of its scales mean anything (MODEL.md sec. 2): its first scale is the level (a
+nuisance), the others enter as ratios to it (the paper's Ps/Pd), and the ratios and the
+BRDF's other parameters (the paper's n and eta) are the parameters of interest. With
+``mode="joint"`` (default) every medium parameter is a nuisance - per condition, or shared
+when the model declares it shareable and all conditions have the same value, as in
+:func:`veil.fit_joint`; with ``mode="known"`` the media are taken as exactly known (the
+two-step view).
 """
 
 from __future__ import annotations
@@ -27,13 +32,13 @@ import math
 import numpy as np
 import pandas as pd
 
-from ..errors import InputError
-from ..engine.apparent import as_brdf, as_btdf
-from ..fitting.joint import SessionModel
 from ..data.protocol import protocol
+from ..engine.apparent import as_brdf, as_btdf
+from ..errors import InputError
+from ..fitting.problem import SessionModel
+from ..models import default_class, model_class
 
 DEFAULT_PSI = (30.0, 45.0, 60.0, 75.0, 90.0, 105.0, 120.0)
-INTEREST = ("Ps/Pd", "n", "eta")
 MODES = ("joint", "known")
 #: Weak Gaussian prior (standard deviation in fit coordinates: log units for scale
 #: parameters, plain for g and the indices). It only makes the first greedy steps well
@@ -41,8 +46,27 @@ MODES = ("joint", "known")
 PRIOR_SD_LOG = 10.0
 PRIOR_SD_PLAIN = 1.0
 
-PLAN_COLUMNS = ("step", "condition", "psi", "rho", "theta_i", "phi_i", "theta_r", "phi_r",
-                "medium_Td", "medium_Tt", "medium_g", "medium_eta", "gain")
+ANGLE_COLUMNS = ("psi", "rho", "theta_i", "phi_i", "theta_r", "phi_r")
+
+
+def interest_names(brdf_cls) -> tuple[str, ...]:
+    """The BRDF's parameters of interest: ratios of its scales to the first (the level),
+    then its other parameters (module docstring)."""
+    scales = brdf_cls.scale_names()
+    ratios = tuple(f"{s}/{scales[0]}" for s in scales[1:])
+    return ratios + tuple(p.name for p in brdf_cls.PARAMS if p.name not in scales)
+
+
+def plan_columns(medium_cls) -> tuple[str, ...]:
+    """Columns of a plan: step, condition, the angles, medium_<parameter> of the row's
+    condition, gain."""
+    return (("step", "condition") + ANGLE_COLUMNS
+            + tuple(f"medium_{p.name}" for p in medium_cls.PARAMS) + ("gain",))
+
+
+#: Interest and plan columns of the paper's models.
+INTEREST = interest_names(default_class("brdf"))
+PLAN_COLUMNS = plan_columns(default_class("medium"))
 
 
 def _floats(name, values, positive=True):
@@ -63,13 +87,12 @@ def _floats(name, values, positive=True):
 
 
 def condition_medium(medium, factor: float):
-    """The medium at concentration factor ``factor``: T_d and T_t scaled (module docstring)."""
-    m = as_btdf(medium)
-    return m.replace(Td=m.Td * factor, Tt=m.Tt * factor)
+    """The medium at concentration factor ``factor`` (module docstring)."""
+    return as_btdf(medium).concentrated(factor)
 
 
 def conditions(media, factors=None) -> dict:
-    """Medium conditions {label: HenyeyGreenstein}: each medium (model or preset name) at each
+    """Medium conditions {label: medium model}: each medium (model or preset name) at each
     concentration factor (default: as given). Labels: the preset name or "medium k", with
     " x<factor>" when factors are given."""
     if isinstance(media, (str,)) or not isinstance(media, (list, tuple)):
@@ -121,7 +144,7 @@ class Information:
     """
 
     def __init__(self, brdf, conds: dict, table: pd.DataFrame, *, noise: float = 0.01,
-                 floor: float = 0.0, mode: str = "joint", interest=INTEREST,
+                 floor: float = 0.0, mode: str = "joint", interest=None,
                  accuracy: str = "fast"):
         if mode not in MODES:
             raise InputError(f"medium mode {mode!r}; expected one of {', '.join(MODES)}")
@@ -132,41 +155,58 @@ class Information:
         if noise == 0 and floor == 0:
             raise InputError("noise and noise floor are both 0: the information would be "
                              "infinite; give a relative noise (e.g. 0.01) or a floor")
-        interest = tuple(interest)
-        unknown = [p for p in interest if p not in INTEREST]
+        self.brdf = as_brdf(brdf)
+        bcls = type(self.brdf)
+        possible = interest_names(bcls)
+        interest = possible if interest is None else tuple(interest)
+        unknown = [p for p in interest if p not in possible]
         if unknown or not interest:
             raise InputError(f"parameters of interest {list(interest)}: choose among "
-                             f"{', '.join(INTEREST)}")
-        self.brdf = as_brdf(brdf)
+                             f"{', '.join(possible) or '(none: ' + bcls.NAME + ' has no shape parameter)'}")
         self.conditions = dict(conds)
         self.table = table.reset_index(drop=True)
         missing = set(self.table["condition"]) - set(self.conditions)
         if missing:
             raise InputError(f"candidates name unknown condition(s) {', '.join(sorted(missing))}")
+        classes = {type(m) for m in self.conditions.values()}
+        if len(classes) > 1:
+            raise InputError("the conditions mix medium models "
+                             f"({', '.join(sorted(c.NAME for c in classes))}); use one")
         self.noise, self.floor, self.mode = float(noise), float(floor), mode
         labels = list(self.conditions)
         media = list(self.conditions.values())
-        names = ["Ps/Pd", "n", "eta", "Pd"]
+        mcls = type(media[0])
+        scales = bcls.scale_names()
+        level = bcls.index(scales[0]) if scales else None
+        # BRDF columns: ratios, other parameters, the level (a nuisance) last
+        specs = [(f"{s}/{scales[0]}", bcls.index(s), True, "ratio") for s in scales[1:]]
+        specs += [(p.name, i, p.log_scale, "own") for i, p in enumerate(bcls.PARAMS)
+                  if p.name not in scales]
+        names = [s[0] for s in specs] + ([scales[0]] if scales else [])
+        prior_log = [s[2] for s in specs] + ([True] if scales else [])
         col = {}
         if mode == "joint":
-            shared = {p: len({getattr(m, p) for m in media}) == 1 for p in ("g", "eta")}
+            shared = {p.name: p.share is not None and len({getattr(m, p.name) for m in media}) == 1
+                      for p in mcls.PARAMS}
             for label in labels:
-                for p in ("Td", "Tt", "g", "eta"):
-                    if p in ("g", "eta") and shared[p]:
+                for p in mcls.PARAMS:
+                    if shared[p.name]:
                         continue
-                    col[(label, p)] = len(names)
-                    names.append(f"{p if p != 'eta' else 'eta_u'}[{label}]")
-            for p in ("g", "eta"):
-                if shared[p]:
+                    col[(label, p.name)] = len(names)
+                    names.append(f"{p.key}[{label}]")
+                    prior_log.append(p.log_scale)
+            for p in mcls.PARAMS:
+                if shared[p.name]:
                     idx = len(names)
-                    names.append(p if p == "g" else "eta_u")
+                    names.append(p.key)
+                    prior_log.append(p.log_scale)
                     for label in labels:
-                        col[(label, p)] = idx
+                        col[(label, p.name)] = idx
         self.names = names
         self.interest = [names.index(p) for p in interest]
         self.nuisance = [k for k in range(len(names)) if k not in self.interest]
-        self.prior = np.array([1.0 / PRIOR_SD_PLAIN ** 2 if n.split("[")[0] in ("eta", "g", "eta_u")
-                               else 1.0 / PRIOR_SD_LOG ** 2 for n in names])
+        self.prior = np.array([1.0 / PRIOR_SD_LOG ** 2 if lg else 1.0 / PRIOR_SD_PLAIN ** 2
+                               for lg in prior_log])
         vb = self.brdf.to_vector()
         rows = np.zeros((len(self.table), len(names)))
         values = np.zeros(len(self.table))
@@ -184,17 +224,16 @@ class Information:
             if np.any(sigma <= 0):
                 raise InputError("the model is 0 at some candidate configuration and there is "
                                  "no noise floor: give --noise-floor")
-            # fit coordinates: log(Ps/Pd), log n, eta_b, log Pd; log Td, log Tt, g, eta_u
+            # fit coordinates: log for log-scale parameters; a ratio s_j / s_1 moves s_j only,
+            # the level s_1 moves every scale together
             r = np.zeros((sel.size, len(names)))
-            r[:, 0] = jb[:, 1] * vb[1]
-            r[:, 1] = jb[:, 2] * vb[2]
-            r[:, 2] = jb[:, 3]
-            r[:, 3] = jb[:, 0] * vb[0] + jb[:, 1] * vb[1]
+            for k, (_, i, log, _kind) in enumerate(specs):
+                r[:, k] = jb[:, i] * (vb[i] if log else 1.0)
+            if level is not None:
+                r[:, len(specs)] = sum(jb[:, bcls.index(s)] * vb[bcls.index(s)] for s in scales)
             if mode == "joint":
-                r[:, col[(label, "Td")]] += jm[:, 0] * vm[0]
-                r[:, col[(label, "Tt")]] += jm[:, 1] * vm[1]
-                r[:, col[(label, "g")]] += jm[:, 2]
-                r[:, col[(label, "eta")]] += jm[:, 3]
+                for i, p in enumerate(mcls.PARAMS):
+                    r[:, col[(label, p.name)]] += jm[:, i] * (vm[i] if p.log_scale else 1.0)
             rows[sel] = r / sigma[:, None]
             values[sel] = val
         self.rows = rows
@@ -277,7 +316,7 @@ def rank(info: Information, base=()) -> pd.DataFrame:
 
 
 def plan_table(info: Information, chosen, gains) -> pd.DataFrame:
-    """The plan as a table (columns :data:`PLAN_COLUMNS`); angles in degrees, the medium
+    """The plan as a table (columns :func:`plan_columns`); angles in degrees, the medium
     parameters of each row's condition in the medium_* columns."""
     rows = info.table.iloc[np.asarray(chosen, dtype=int)].reset_index(drop=True)
     out = pd.DataFrame({"step": np.arange(1, len(rows) + 1),
@@ -285,16 +324,14 @@ def plan_table(info: Information, chosen, gains) -> pd.DataFrame:
     for c in ("psi", "rho", "theta_i", "phi_i", "theta_r", "phi_r"):
         out[c] = rows[c].to_numpy(dtype=float)
     meds = [info.conditions[label] for label in out["condition"]]
-    out["medium_Td"] = [m.Td for m in meds]
-    out["medium_Tt"] = [m.Tt for m in meds]
-    out["medium_g"] = [m.g for m in meds]
-    out["medium_eta"] = [m.eta for m in meds]
+    for p in type(meds[0]).PARAMS:
+        out[f"medium_{p.name}"] = [getattr(m, p.name) for m in meds]
     out["gain"] = np.asarray(gains, dtype=float)
     return out
 
 
 def design(brdf, media, size: int = 60, *, factors=None, psi=DEFAULT_PSI,
-           noise: float = 0.01, floor: float = 0.0, mode: str = "joint", interest=INTEREST,
+           noise: float = 0.01, floor: float = 0.0, mode: str = "joint", interest=None,
            accuracy: str = "fast", fine_step: float = 1.0, coarse_step: float = 5.0,
            window: float = 10.0, limit: float = 85.0):
     """Recommend a measurement plan of ``size`` configurations (module docstring).
@@ -331,19 +368,27 @@ def design(brdf, media, size: int = 60, *, factors=None, psi=DEFAULT_PSI,
 
 
 def simulate_plan(plan: pd.DataFrame, brdf, *, noise: float = 0.01, seed: int = 0,
-                  accuracy: str = "default", variant: str = "paper") -> dict:
+                  accuracy: str = "default", variant: str | None = None, medium_model=None,
+                  options=None) -> dict:
     """Simulated measurement tables of a plan, one per condition {label: table} (no glow):
-    value = apparent reflectance through the row's medium (medium_* columns) times
-    (1 + noise z), z ~ N(0, 1) from ``numpy.random.default_rng(seed)`` in plan order;
-    sigma = noise * value. A plan written by ``veil design`` can so be simulated and
-    fitted with :func:`veil.fit_joint`.
+    value = apparent reflectance through the row's medium (medium_* columns; the medium
+    family ``medium_model``, default the paper's, with ``options``; ``variant`` the Fresnel
+    variant shortcut) times (1 + noise z), z ~ N(0, 1) from
+    ``numpy.random.default_rng(seed)`` in plan order; sigma = noise * value. A plan written
+    by ``veil design`` can so be simulated and fitted with :func:`veil.fit_joint`.
     """
-    from ..models import HenyeyGreenstein
+    from ..models.base import VARIANT_OPTION
 
-    need = [c for c in PLAN_COLUMNS if c not in ("step", "gain")]
+    mcls = default_class("medium") if medium_model is None else model_class(medium_model,
+                                                                            "medium")
+    options = dict(options or {})
+    if variant is not None:
+        options[VARIANT_OPTION] = variant
+    need = [c for c in plan_columns(mcls) if c not in ("step", "gain")]
     missing = [c for c in need if c not in plan.columns]
     if missing:
-        raise InputError(f"the plan lacks column(s) {', '.join(missing)} (written by veil design)")
+        raise InputError(f"the plan lacks column(s) {', '.join(missing)} (written by veil design "
+                         f"for the {mcls.NAME} medium)")
     b = as_brdf(brdf)
     rng = np.random.default_rng(seed)
     z = rng.standard_normal(len(plan))
@@ -352,13 +397,12 @@ def simulate_plan(plan: pd.DataFrame, brdf, *, noise: float = 0.01, seed: int = 
     for label in dict.fromkeys(cond):
         sel = np.flatnonzero(cond == label)
         first = plan.iloc[sel[0]]
-        med = HenyeyGreenstein(float(first["medium_Td"]), float(first["medium_Tt"]),
-                               float(first["medium_g"]), float(first["medium_eta"]),
-                               variant=variant)
+        med = mcls.from_params({p.name: float(first[f"medium_{p.name}"]) for p in mcls.PARAMS},
+                               options)
         sub = plan.iloc[sel]
         angles = [sub[c].to_numpy(dtype=float) for c in ("theta_i", "phi_i", "theta_r", "phi_r")]
         val = SessionModel(b, med, angles, accuracy).values(b.to_vector(), med.to_vector())
-        table = sub[["psi", "rho", "theta_i", "phi_i", "theta_r", "phi_r"]].reset_index(drop=True)
+        table = sub[list(ANGLE_COLUMNS)].reset_index(drop=True)
         table["value"] = val * (1.0 + noise * z[sel])
         table["sigma"] = noise * np.abs(val)
         out[label] = table
@@ -366,4 +410,5 @@ def simulate_plan(plan: pd.DataFrame, brdf, *, noise: float = 0.01, seed: int = 
 
 
 __all__ = ["conditions", "candidates", "condition_medium", "Information", "greedy", "rank",
-           "plan_table", "design", "simulate_plan", "DEFAULT_PSI", "INTEREST", "PLAN_COLUMNS"]
+           "plan_table", "design", "simulate_plan", "DEFAULT_PSI", "INTEREST", "PLAN_COLUMNS",
+           "interest_names", "plan_columns"]

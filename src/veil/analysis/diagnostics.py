@@ -22,19 +22,19 @@ where the paper's failure hides. Without it the given model is taken as exact.
 
 from __future__ import annotations
 
-import io
 import math
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from ..errors import InputTypeError
-from ..io import write_bytes_atomic
-from ..fitting.result import FitError, FitResult
-from ..fitting.joint import (BRDF_NAMES, MEDIUM_NAMES, JointResult, build, covariance, session_problem,
-                    solve)
-from ..fitting.solver import ITERATION_ACCURACY
-from ..models import BRDF, BTDF, HenyeyGreenstein, model_class
+from ..errors import FitError
+from ..fitting.joint import build, shareable
+from ..fitting.problem import ITERATION_ACCURACY, session_problem
+from ..fitting.result import FitResult, JointResult
+from ..fitting.solver import covariance, solve
+from ..models import REGISTRY, Model
+from ..numbers import format_number, format_percent
 
 #: Default thresholds.
 MAX_RELATIVE = 0.25
@@ -142,23 +142,25 @@ def _finite(obj):
 
 
 def _f(x) -> str:
-    if x is None or (isinstance(x, float) and not math.isfinite(x)):
-        return "-"
-    return f"{x:.4g}"
+    return format_number(x, 4, "-")
 
 
-def _pct(x) -> str:
-    return "-" if x is None or not math.isfinite(x) else f"{100 * x:.3g} %"
+_pct = format_percent
 
 
-def relative_error(name: str, value: float, stderr) -> float:
-    """stderr / |value|; for g (HG asymmetry) stderr / (1 - |g|), the scale of the lobe."""
-    if stderr is None:
-        return math.inf
-    base = name.split("[")[0].split(".")[-1]
-    if base == "g":
-        return stderr / max(1.0 - abs(value), 1e-12)
-    return stderr / abs(value) if value != 0 else math.inf
+def relative_error(name: str, value: float, stderr, spec=None) -> float:
+    """stderr relative to the value, or to the distance to the nearer bound for parameters
+    whose declaration says so (g: 1 - |g|, the lobe's width scale). ``spec`` is the declared
+    parameter; without it the name (``g``, ``g[low]``, ``ref.n``) is looked up among the
+    registered models."""
+    if spec is None:
+        base = name.split("[")[0].split(".")[-1]
+        spec = next((p for cls in REGISTRY.values() for p in cls.PARAMS if p.key == base), None)
+    if spec is None:
+        if stderr is None:
+            return math.inf
+        return stderr / abs(value) if value != 0 else math.inf
+    return spec.relative_error(value, stderr)
 
 
 # --------------------------------------------------------------------------------------
@@ -167,22 +169,16 @@ def relative_error(name: str, value: float, stderr) -> float:
 def _as_model(obj, kind):
     if obj is None:
         return None, None
+    if isinstance(obj, JointResult):
+        raise FitError(f"expected a {kind} fit result or model, got a joint fit result")
     if isinstance(obj, FitResult):
+        if obj.kind != kind:
+            raise FitError(f"expected a {kind} fit result, got a {obj.model} ({obj.kind}) "
+                           f"result")
         return obj.as_model(), obj
-    if kind == "brdf" and isinstance(obj, BRDF) or kind == "btdf" and isinstance(obj, BTDF):
+    if isinstance(obj, Model) and obj.KIND == kind:
         return obj, None
-    raise InputTypeError(f"expected a FitResult or a {kind.upper()} model, got {type(obj).__name__}")
-
-
-def _given(result: FitResult):
-    g = result.given
-    if not g:
-        return None
-    cls = model_class(g["model"])
-    model = cls(**g["params"])
-    if "variant" in g and "variant" in model.options():
-        model = model.replace(variant=g["variant"])
-    return model
+    raise FitError(f"expected a FitResult or a {kind} model, got {type(obj).__name__}")
 
 
 def problem_for(result: FitResult, data, *, medium=None, reference=None, black=None):
@@ -202,13 +198,16 @@ def problem_for(result: FitResult, data, *, medium=None, reference=None, black=N
             if not result.given:
                 raise FitError("the joint result held the reference fixed but does not say "
                                "which (key 'given')")
-            ref = _given(result)
+            ref = result.given_model()
         ref_names = set(layout["objects"].get("reference", {}).values()) if ref else set()
         fixed = {k: v for k, v in result.fixed.items() if k not in ref_names}
+        mcls = result._family("medium")
         problem, _ = build(data, reference=ref, shared=layout.get("shared", []),
-                           per_medium=[p for p in ("g", "eta_u")
+                           per_medium=[p for p in shareable(mcls)
                                        if p not in layout.get("shared", [])],
-                           fixed=fixed, variant=result.variant or "paper")
+                           fixed=fixed, brdf_model=result._family("brdf").NAME,
+                           medium_model=mcls.NAME, brdf_options=result._options("brdf"),
+                           medium_options=result._options("medium"))
         if problem.names != list(result.params):
             raise FitError("the sessions given do not make up the joint fit's parameters "
                            f"({', '.join(result.params)}); give the same sessions (media "
@@ -217,40 +216,40 @@ def problem_for(result: FitResult, data, *, medium=None, reference=None, black=N
         return problem, notes
     step = result.step
     model = result.as_model()
+    free = [result.model_class.param(n).key for n in result.free]
     if step in ("reference", "direct"):
         if medium is not None or reference is not None:
             raise FitError(f"a {step} fit (clear water) has no medium or reference to include")
-        return session_problem(data, model, None, free=list(result.free), black=black,
+        return session_problem(data, model, None, free=free, black=black,
                                what=f"{step} (clear medium)"), notes
     if step == "target":
         if reference is not None:
             raise FitError("a target fit (step 2) takes --medium, not --reference")
-        other, other_result = _as_model(medium, "btdf")
+        other, other_result = _as_model(medium, "medium")
         if other is None:
-            other = _given(result)
+            other = result.given_model()
             if other is None:
                 raise FitError("the target result does not name its medium: give medium=")
             notes.append("the medium is taken as exact (give the medium's fit result to "
                          "include its uncertainty)")
-        problem = session_problem(data, model, other, free=list(result.free), black=black,
+        problem = session_problem(data, model, other, free=free, black=black,
                                   what="target (in the medium)")
         if other_result is not None:
-            _add_prior(problem, other_result, MEDIUM_NAMES, "medium")
+            _add_prior(problem, other_result, "medium")
     elif step == "medium":
         if medium is not None:
             raise FitError("a medium fit (step 1) takes --reference, not --medium")
         other, other_result = _as_model(reference, "brdf")
         if other is None:
-            other = _given(result)
+            other = result.given_model()
             if other is None:
                 raise FitError("the medium result does not name its reference: give reference=")
             notes.append("the reference's f_r is taken as exact (give the reference's fit "
                          "result to include its uncertainty)")
-        free = [MEDIUM_NAMES[HenyeyGreenstein.param_names().index(n)] for n in result.free]
         problem = session_problem(data, other, model, free=free, black=black,
                                   what="reference (in the medium)")
         if other_result is not None:
-            _add_prior(problem, other_result, BRDF_NAMES, "reference")
+            _add_prior(problem, other_result, "reference")
     else:
         raise FitError(f"cannot diagnose a result of step {step!r}")
     if problem.n_points != result.n_points:
@@ -259,13 +258,13 @@ def problem_for(result: FitResult, data, *, medium=None, reference=None, black=N
     return problem, notes
 
 
-def _add_prior(problem, other: FitResult, names, what):
+def _add_prior(problem, other: FitResult, what):
     found = other.covariance(total=True)
     if found is None:
         raise FitError(f"the {what} result has no uncertainties: it cannot be included")
     onames, cov = found
-    cls = model_class(other.model)
-    mapped = [names[cls.param_names().index(n)] for n in onames]
+    cls = other.model_class
+    mapped = [cls.param(n).key for n in onames]
     for n in mapped:
         problem.free[problem.index(n)] = True
     problem.set_prior(mapped, [other.params[n] for n in onames], cov)
@@ -319,7 +318,8 @@ def diagnose(result: FitResult, data, *, medium=None, reference=None, black=None
     weak = weak * np.sign(weak[np.argmax(np.abs(weak))])
     values = {n: float(v) for n, v in zip(names, vals)}
     stderr = {n: float(v) for n, v in zip(names, se)}
-    relative = {n: relative_error(n, values[n], stderr[n]) for n in names}
+    relative = {n: relative_error(n, values[n], stderr[n], problem.params[problem.index(n)].spec)
+                for n in names}
     diag = Diagnosis(names=names, values=values, stderr=stderr, relative=relative,
                      correlation=corr, condition={"values": cond_values, "stderr": cond_stderr},
                      weakest={n: float(c) for n, c in zip(names, weak)}, notes=notes,
@@ -423,49 +423,5 @@ def _crossing(values, chi2):
     return None
 
 
-# --------------------------------------------------------------------------------------
-# the figure
-# --------------------------------------------------------------------------------------
-def plot(diag: Diagnosis, path) -> None:
-    """PNG: the correlation matrix and each profile (Delta chi^2 against the held value,
-    with the quadratic expected from the standard error); written atomically."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    panels = 1 + len(diag.profiles)
-    cols = min(panels, 4)  # a grid, at most four panels a row
-    rows = -(-panels // cols)
-    fig, axes = plt.subplots(rows, cols, figsize=(4.2 * cols, 3.8 * rows), squeeze=False)
-    axes = axes.ravel()
-    for ax in axes[panels:]:
-        ax.set_visible(False)
-    ax = axes[0]
-    im = ax.imshow(diag.correlation, vmin=-1, vmax=1, cmap="RdBu_r")
-    ax.set_xticks(range(len(diag.names)), diag.names, rotation=60, fontsize=7)
-    ax.set_yticks(range(len(diag.names)), diag.names, fontsize=7)
-    ax.set_title("correlation")
-    fig.colorbar(im, ax=ax, fraction=0.046)
-    for ax, (name, prof) in zip(axes[1:], diag.profiles.items()):
-        v = np.array(prof.values)
-        ax.plot(v, prof.delta_chi2, "o-", label="profile")
-        se = diag.stderr[name]
-        fine = np.linspace(v.min(), v.max(), 200)
-        ax.plot(fine, ((fine - prof.estimate) / se) ** 2, "--", color="gray",
-                label="quadratic (stderr)")
-        ax.axhline(1.0, color="k", lw=0.8)
-        ax.set_ylim(0, max(10.0, min(50.0, max(prof.delta_chi2) * 1.1)))
-        ax.set_xlabel(name)
-        ax.locator_params(axis="x", nbins=4)
-        ax.set_ylabel("Delta chi^2")
-        ax.set_title(f"profile of {name}" + (" (flat)" if prof.flat else ""))
-        ax.legend(fontsize=7)
-    fig.tight_layout()
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=110)
-    plt.close(fig)
-    write_bytes_atomic(path, buf.getvalue())
-
-
-__all__ = ["diagnose", "Diagnosis", "Profile", "profile_likelihood", "problem_for", "plot",
+__all__ = ["diagnose", "Diagnosis", "Profile", "profile_likelihood", "problem_for", 
            "relative_error", "MAX_RELATIVE", "MAX_CORRELATION"]

@@ -31,11 +31,10 @@ import math
 
 import numpy as np
 
-from ..errors import InputTypeError
-from ..fitting.result import FitError, FitResult
-from ..fitting.joint import MEDIUM_NAMES, session_problem, solve
-from ..fitting.solver import ITERATION_ACCURACY
-from ..models import HenyeyGreenstein, TorranceSparrow
+from ..errors import FitError, InputTypeError
+from ..fitting.problem import ITERATION_ACCURACY, session_problem
+from ..fitting.result import FitResult, JointResult
+from ..fitting.solver import solve
 
 #: Parts of the error budget, in pipeline order.
 PARTS = ("step2", "step1", "step0")
@@ -73,22 +72,26 @@ def sensitivity(problem, x, theta, nuisance, accuracy: str = ITERATION_ACCURACY)
     return sol / scale[:, None]
 
 
-def _medium_map(names) -> list[str]:
-    """Step-1 result names (Td, Tt, g, eta) -> session-problem names (Td, Tt, g, eta_u)."""
-    return [MEDIUM_NAMES[HenyeyGreenstein.param_names().index(n)] for n in names]
+def _medium_map(medium_result: FitResult, names) -> list[str]:
+    """A medium result's parameter names -> its names in a session's problem (aliases)."""
+    cls = medium_result.model_class
+    return [cls.param(n).key for n in names]
 
 
 def _check_pair(target_result, medium_result, reference_result):
     """Results of the right steps, chained (the target fitted through this medium...)."""
-    if not isinstance(target_result, FitResult) or target_result.model != TorranceSparrow.NAME \
-            or target_result.step != "target":
-        raise FitError("target_result must be a step-2 fit (veil fit target, model "
-                       "torrance-sparrow, step 'target')")
-    if not isinstance(medium_result, FitResult) or medium_result.model != HenyeyGreenstein.NAME:
-        raise FitError("medium_result must be a step-1 fit (veil fit medium, model "
-                       "henyey-greenstein)")
+    if not isinstance(target_result, FitResult) or isinstance(target_result, JointResult) \
+            or target_result.kind != "brdf" or target_result.step != "target":
+        raise FitError("target_result must be a step-2 fit (veil fit target: a BRDF fitted "
+                       "through a medium, step 'target')")
+    if not isinstance(medium_result, FitResult) or isinstance(medium_result, JointResult) \
+            or medium_result.kind != "medium":
+        raise FitError("medium_result must be a step-1 fit (veil fit medium: a medium model)")
     given = target_result.given or {}
     if given.get("params"):
+        if given.get("model") != medium_result.model:
+            raise FitError(f"the target was fitted through a {given.get('model')} medium, not "
+                           f"the {medium_result.model} of the medium result")
         for k, v in medium_result.params.items():
             g = given["params"].get(k)
             if g is None or not math.isclose(float(g), v, rel_tol=1e-9, abs_tol=1e-15):
@@ -97,7 +100,7 @@ def _check_pair(target_result, medium_result, reference_result):
                                f"with the medium result the target fit used")
     if reference_result is not None:
         if not isinstance(reference_result, FitResult) \
-                or reference_result.model != TorranceSparrow.NAME:
+                or isinstance(reference_result, JointResult) or reference_result.kind != "brdf":
             raise FitError("reference_result must be a step-0 fit (veil fit reference)")
         given = medium_result.given or {}
         for k, v in reference_result.params.items():
@@ -125,13 +128,14 @@ def medium_parts(medium_result: FitResult, reference_result: FitResult | None = 
     if reference_result is not None:
         ref_names, cov0 = covariance_of(reference_result)
         problem = session_problem(reference_table, reference_result.as_model(),
-                                  medium_result.as_model(), free=_medium_map(names),
+                                  medium_result.as_model(), free=_medium_map(medium_result, names),
                                   black=black, what="reference (in the medium)")
         if problem.n_points != medium_result.n_points:
             raise FitError(f"the reference table has {problem.n_points} points but the medium "
                            f"fit used {medium_result.n_points}: give the table (and black "
                            f"cloth) of that fit")
-        b = sensitivity(problem, problem.values, _medium_map(names), list(ref_names), accuracy)
+        b = sensitivity(problem, problem.values, _medium_map(medium_result, names),
+                        list(ref_names), accuracy)
         parts["step0"] = b @ cov0 @ b.T
     elif medium_result.stderr_total is not None:
         names_t, cov_t = covariance_of(medium_result, total=True)
@@ -170,7 +174,8 @@ def propagate(target_result: FitResult, medium_result: FitResult, table, *,
     if problem.n_points != target_result.n_points:
         raise FitError(f"the table has {problem.n_points} points but the target fit used "
                        f"{target_result.n_points}: give the table (and black cloth) of that fit")
-    a = sensitivity(problem, problem.values, theta, _medium_map(m_names), accuracy)
+    a = sensitivity(problem, problem.values, theta, _medium_map(medium_result, m_names),
+                    accuracy)
     parts = {"step2": cov2}
     for part, cov_m in m_parts.items():
         parts[part] = a @ cov_m @ a.T
@@ -215,10 +220,10 @@ def budget_table(result: FitResult) -> list[dict]:
     return rows
 
 
-def _draw(rng, mean, cov, names, n_draws):
+def _draw(rng, mean, cov, names, n_draws, cls):
     """Medium parameter draws from N(mean, cov), redrawing those outside the model's bounds."""
     chol = np.linalg.cholesky(cov + 1e-300 * np.eye(len(names)))
-    specs = [HenyeyGreenstein.PARAMS[HenyeyGreenstein.param_names().index(n)] for n in names]
+    specs = [cls.param(n) for n in names]
     out = []
     tries = 0
     while len(out) < n_draws:
@@ -258,15 +263,16 @@ def sample_propagation(target_result: FitResult, medium_result: FitResult, table
                            what="target (in the medium)")
     nominal = solve(base, base.values, max_nfev=max_nfev)
     x0 = nominal.x
-    a = sensitivity(base, x0, theta, _medium_map(m_names), accuracy)
+    mapped = _medium_map(medium_result, m_names)
+    a = sensitivity(base, x0, theta, mapped, accuracy)
     rng = np.random.default_rng(seed)
     mean = np.array([medium_result.params[n] for n in m_names])
-    draws = _draw(rng, mean, cov_m, m_names, n_draws)
+    draws = _draw(rng, mean, cov_m, m_names, n_draws, medium_result.model_class)
     it = [base.index(n) for n in theta]
-    im = [base.index(n) for n in _medium_map(m_names)]
+    im = [base.index(n) for n in mapped]
     shifts, conv = [], []
     for d in draws:
-        sub = base.with_fixed(dict(zip(_medium_map(m_names), d)))
+        sub = base.with_fixed(dict(zip(mapped, d)))
         start = x0.copy()
         start[im] = d
         sol = solve(sub, start, max_nfev=max_nfev)

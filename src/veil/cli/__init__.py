@@ -16,7 +16,8 @@ def main(ctx, debug):
     """veil: reflectance of objects seen through scattering media.
 
     Angles are in degrees everywhere. Models are given as preset names (BRDF1, BRDF2,
-    BTDF1, BTDF2, BTDF3) or as literal parameter lists (see each command's help).
+    BTDF1, BTDF2, BTDF3) or as literal parameter lists of the families chosen with
+    --brdf-model / --medium-model ('veil models' lists them).
     Exit status: 0 done, 1 a fit did not converge, 2 a mistake in the input, 3 a bug in
     veil, 130/143 interrupted (docs/errors.md).
     """
@@ -30,6 +31,7 @@ from . import simulate_cmd  # noqa: E402
 from . import render_cmd, plot_cmd, reproduce_cmd  # noqa: E402
 from . import fit_cmd, demo_cmd  # noqa: E402
 from . import joint_cmd, diagnose_cmd, design_cmd  # noqa: E402
+from . import models_cmd  # noqa: E402
 
 main.add_command(eval_cmd.eval_command)
 main.add_command(ingest_cmd.ingest_command)
@@ -42,3 +44,4 @@ fit_cmd.fit_command.add_command(joint_cmd.joint_command)
 main.add_command(diagnose_cmd.diagnose_command)
 main.add_command(design_cmd.design_command)
 main.add_command(demo_cmd.demo_command)
+main.add_command(models_cmd.models_command)

@@ -3,16 +3,16 @@
 from __future__ import annotations
 
 import contextlib
+import functools
 import math
 import os
 import re
 import sys
 import tempfile
+from dataclasses import dataclass
 
 import click
 import numpy as np
-
-from ..models import HenyeyGreenstein, TorranceSparrow, preset
 
 
 class UserError(click.ClickException):
@@ -75,41 +75,203 @@ class VeilGroup(click.Group):
             report_bug(exc, bool(ctx.obj and ctx.obj.get("debug")))
 
 
-def parse_brdf(text: str):
-    """Preset name (BRDF1, BRDF2) or literal 'PD,PS,N,ETA'."""
-    return _parse(text, TorranceSparrow, "PD,PS,N,ETA", "BRDF")
+# -- models ----------------------------------------------------------------------------------
 
+@dataclass(frozen=True)
+class ModelChoice:
+    """The model families and options a command was given (``--brdf-model``,
+    ``--medium-model`` and the options the families declare, e.g. ``--variant``); parses
+    preset names and literal parameter lists into models of those families."""
 
-def parse_btdf(text: str, variant: str = "paper"):
-    """Preset name (BTDF1..3) or literal 'TD,TT,G,ETA'; 'none' means a clear medium."""
-    if text.strip().lower() == "none":
-        return None
-    model = _parse(text, HenyeyGreenstein, "TD,TT,G,ETA", "BTDF")
-    return model.replace(variant=variant)
+    brdf: type
+    medium: type
+    brdf_options: dict
+    medium_options: dict
+    explicit: frozenset = frozenset()
 
+    def parse(self, text: str, kind: str, option: str):
+        """A preset name or a literal list of the family's parameters (in declared order);
+        for a medium, "none" means clear water (None)."""
+        from ..models import PRESETS
 
-def _parse(text, cls, form, kind):
-    parts = [p.strip() for p in text.split(",")]
-    if len(parts) == 1:
+        cls = self.brdf if kind == "brdf" else self.medium
+        options = self.brdf_options if kind == "brdf" else self.medium_options
+        text = text.strip()
+        if kind == "medium" and text.lower() == "none":
+            return None
+        parts = [s.strip() for s in text.split(",")]
+        if len(parts) == 1 and not (len(cls.PARAMS) == 1 and _is_number(text)):
+            model = PRESETS.get(text.upper())
+            word = "BRDF" if kind == "brdf" else "BTDF"
+            if model is not None and model.KIND != kind:
+                raise UserError(f"{option}: {text!r} is not a {word} preset (it is a "
+                                f"{model.KIND} model)")
+            if model is None:
+                known = [k for k, m in PRESETS.items() if m.KIND == kind]
+                raise UserError(f"{option}: {word} {text!r} is neither a preset name "
+                                f"({', '.join(known)}) nor a literal {cls.literal_form()} "
+                                f"({cls.NAME}; see veil models)")
+            if type(model) is not cls:
+                if f"{kind}-model" in self.explicit:
+                    raise UserError(f"{option} {text}: the preset is a {model.NAME} model, not "
+                                    f"{cls.NAME} (--{kind}-model)")
+                cls = type(model)
+            try:
+                return model.replace(**{k: v for k, v in options.items()
+                                        if k in cls.option_names()})
+            except (ValueError, TypeError) as exc:
+                raise UserError(f"{option} {text}: {exc}") from None
+        if len(parts) != len(cls.PARAMS):
+            raise UserError(f"{option} literal {text!r} must have {len(cls.PARAMS)} numbers: "
+                            f"{cls.literal_form()} ({cls.NAME})")
+        values = {}
+        for prm, s in zip(cls.PARAMS, parts):
+            try:
+                values[prm.name] = float(s)
+            except ValueError:
+                raise UserError(f"{option}: parameter {prm.name} = {s!r} is not a number (form "
+                                f"{cls.literal_form()})") from None
         try:
-            model = preset(parts[0])
-        except ValueError:
-            raise UserError(f"{kind} {text!r} is neither a preset name nor a literal {form}") from None
-        if not isinstance(model, cls):
-            raise UserError(f"{text!r} is not a {kind} preset")
-        return model
-    if len(parts) != len(cls.PARAMS):
-        raise UserError(f"{kind} literal {text!r} must have {len(cls.PARAMS)} numbers: {form}")
-    values = []
-    for p, s in zip(cls.PARAMS, parts):
-        try:
-            values.append(float(s))
-        except ValueError:
-            raise UserError(f"{kind} parameter {p.name} = {s!r} is not a number (form {form})") from None
+            return cls.from_params(values, options)
+        except (ValueError, TypeError) as exc:
+            raise UserError(f"{option} {text!r}: {exc}") from None
+
+    def brdf_model(self, text: str, option: str = "--brdf"):
+        return self.parse(text, "brdf", option)
+
+    def medium_model(self, text: str, option: str = "--medium"):
+        return self.parse(text, "medium", option)
+
+
+def _is_number(text: str) -> bool:
     try:
-        return cls(*values)
-    except (ValueError, TypeError) as exc:
-        raise UserError(str(exc)) from None
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
+def _option_flag(name: str) -> str:
+    return "--" + name.replace("_", "-")
+
+
+def model_options(kinds=("brdf", "medium")):
+    """Click options for the model families of ``kinds`` and every option the registered
+    families of those kinds declare; the command receives them as ``models``
+    (a :class:`ModelChoice`)."""
+    from ..errors import InputError
+    from ..models import DEFAULTS, names, registry
+
+    def known(kind):
+        """The registered names; without the plugins when they cannot be loaded (the
+        command then fails with that error when it looks a model up)."""
+        try:
+            return names(kind)
+        except InputError:
+            return sorted(n for n, c in registry.REGISTRY.items() if c.KIND == kind)
+
+    def decorate(fn):
+        declared: dict = {}
+        for kind in kinds:
+            for name in known(kind):
+                for opt in registry.REGISTRY[name].OPTIONS:
+                    declared.setdefault(opt.name, []).append((kind, name, opt))
+
+        @functools.wraps(fn)
+        def wrapper(*args, **kwargs):
+            chosen = {}
+            explicit = set()
+            for kind in kinds:
+                value = kwargs.pop(f"{kind}_model", None)
+                if value is not None:
+                    explicit.add(f"{kind}-model")
+                chosen[kind] = registry.model_class(value or DEFAULTS[kind], kind)
+            opts = {"brdf": {}, "medium": {}}
+            for oname in declared:
+                value = kwargs.pop(oname, None)
+                if value is None:
+                    continue
+                targets = [k for k in kinds if oname in chosen[k].option_names()]
+                if not targets:
+                    users = sorted({n for _, n, _ in declared[oname]})
+                    raise UserError(f"{_option_flag(oname)} applies to the model(s) "
+                                    f"{', '.join(users)}, not to "
+                                    f"{' / '.join(chosen[k].NAME for k in kinds)}")
+                for k in targets:
+                    opt = next(o for o in chosen[k].OPTIONS if o.name == oname)
+                    opts[k][oname] = _convert(value, opt)
+            kwargs["models"] = ModelChoice(chosen.get("brdf", registry.default_class("brdf")),
+                                           chosen.get("medium", registry.default_class("medium")),
+                                           opts["brdf"], opts["medium"], frozenset(explicit))
+            return fn(*args, **kwargs)
+
+        for oname, users in reversed(list(declared.items())):
+            choices = sorted({str(c) for _, _, o in users for c in o.choices})
+            docs = "; ".join(f"{n}: {o.doc}" for _, n, o in users)
+            wrapper = click.option(_option_flag(oname), oname, default=None,
+                                   type=click.Choice(choices) if choices else str,
+                                   help=f"Option of the model ({docs}); default: the model's "
+                                        f"({', '.join(str(o.default) for _, _, o in users)}).")(wrapper)
+        for kind in reversed(kinds):
+            word = "BRDF family of the objects" if kind == "brdf" else "medium model"
+            wrapper = click.option(f"--{kind}-model", f"{kind}_model", default=None,
+                                   type=click.Choice(known(kind)), metavar="NAME",
+                                   help=f"The {word} (default {DEFAULTS[kind]}, the paper's; "
+                                        f"'veil models' lists them: "
+                                        f"{', '.join(known(kind))}).")(wrapper)
+        return wrapper
+
+    return decorate
+
+
+def _convert(value: str, opt):
+    """A command-line option value in the type of the option's default."""
+    kind = type(opt.default)
+    if kind is bool:
+        return str(value).lower() in ("1", "true", "yes", "on")
+    if kind in (int, float):
+        try:
+            return kind(value)
+        except ValueError:
+            raise UserError(f"{_option_flag(opt.name)} {value!r}: expected a number") from None
+    return value
+
+
+def parse_fix(items, cls, option="--fix") -> dict:
+    """``NAME=VALUE`` strings -> {name: value}, names and values checked against ``cls``'s
+    declared parameters."""
+    fixed = {}
+    names = cls.param_names()
+    for item in items:
+        name, sep, text = item.partition("=")
+        name = name.strip()
+        if not sep or not name:
+            raise UserError(f"{option} {item!r}: expected NAME=VALUE, e.g. {names[-1]}=1.5 "
+                            f"(parameters of {cls.NAME}: {', '.join(names)})")
+        if name not in names:
+            raise UserError(f"{option} {item!r}: {cls.NAME} has no parameter {name!r}; "
+                            f"its parameters are {', '.join(names)}")
+        try:
+            value = float(text)
+        except ValueError:
+            raise UserError(f"{option} {item!r}: {text.strip()!r} is not a number") from None
+        if not math.isfinite(value):
+            raise UserError(f"{option} {item!r}: {text.strip()!r} is not a finite number")
+        if name in fixed:
+            raise UserError(f"{option}: {name} is fixed twice")
+        try:
+            cls.param(name).check(value, cls.__name__)
+        except ValueError as exc:
+            raise UserError(f"{option} {item!r}: {exc}") from None
+        fixed[name] = value
+    return fixed
+
+
+def load_result_file(path, kind: str, option: str):
+    """A fit result holding a model of ``kind`` (a clear error for the other kind)."""
+    from ..fitting.result import load_model_result
+
+    return load_model_result(path, kind, option)
 
 
 # -- CSV input -----------------------------------------------------------------------------

@@ -9,11 +9,12 @@ mistakes.
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import click
 
-from ._common import UserError, check_output_path, parse_brdf, parse_btdf
+from ._common import UserError, check_output_path, model_options
 
 
 def _floats(text, option):
@@ -27,24 +28,29 @@ def _floats(text, option):
     return tuple(values)
 
 
-def _se(name, value) -> str:
-    """Relative for log parameters (Ps/Pd, n), absolute for the index eta; "*" marks a value
-    at the level of the design's weak prior (the plan does not identify the parameter)."""
+def _se(info, name, value) -> str:
+    """Relative for parameters fitted as logarithms (e.g. Ps/Pd, n), absolute for the others
+    (e.g. eta); "*" marks a value at the level of the design's weak prior (the plan does not
+    identify the parameter)."""
     from ..analysis.design import PRIOR_SD_LOG, PRIOR_SD_PLAIN
 
-    prior = PRIOR_SD_PLAIN if name == "eta" else PRIOR_SD_LOG
+    plain = info.prior[info.names.index(name)] == 1.0 / PRIOR_SD_PLAIN ** 2
+    prior = PRIOR_SD_PLAIN if plain else PRIOR_SD_LOG
     mark = " *" if value > 0.3 * prior else ""
-    return (f"{value:.3g}" if name == "eta" else f"{100 * value:.3g} %") + mark
+    return (f"{value:.3g}" if plain else f"{100 * value:.3g} %") + mark
 
 
 @click.command("design")
 @click.option("--brdf", required=True, metavar="MODEL",
-              help="The expected target: preset (BRDF1, BRDF2) or literal 'PD,PS,N,ETA'.")
+              help="The expected target: preset (BRDF1, BRDF2) or a literal list of the "
+                   "--brdf-model's parameters ('PD,PS,N,ETA' for the paper's).")
 @click.option("--medium", "media", required=True, multiple=True, metavar="MODEL",
-              help="A candidate medium: preset (BTDF1..3) or literal 'TD,TT,G,ETA'; repeat for "
+              help="A candidate medium: preset (BTDF1..3) or a literal list of the "
+                   "--medium-model's parameters ('TD,TT,G,ETA' for the paper's); repeat for "
                    "several (e.g. concentrations).")
 @click.option("--factors", default=None, metavar="C,...",
-              help="Concentration factors scaling Td and Tt of every --medium (e.g. 0.5,1,2).")
+              help="Concentration factors of every --medium (e.g. 0.5,1,2; the paper's medium "
+                   "scales Td and Tt).")
 @click.option("--size", type=click.IntRange(min=1), default=60, show_default=True,
               help="Number of measurements in the plan.")
 @click.option("--psi", default="30,45,60,75,90,105,120", show_default=True, metavar="DEG,...",
@@ -62,18 +68,19 @@ def _se(name, value) -> str:
 @click.option("--noise-floor", type=click.FloatRange(min=0), default=0.0, show_default=True,
               help="Absolute noise floor, in value units (added in quadrature).")
 @click.option("--known-medium", is_flag=True,
-              help="Treat the media as exactly known (two-step view); default: their Td, Tt "
-                   "(and g, eta_u) are estimated too, as in 'veil fit joint'.")
-@click.option("--interest", default="Ps/Pd,n,eta", show_default=True, metavar="NAMES",
-              help="Target parameters whose uncertainty the plan should shrink.")
-@click.option("--variant", type=click.Choice(["paper", "exit"]), default="paper",
-              show_default=True, help="Fresnel factor of the media (MODEL.md sec. 3).")
+              help="Treat the media as exactly known (two-step view); default: their "
+                   "parameters are estimated too, as in 'veil fit joint'.")
+@click.option("--interest", default=None, metavar="NAMES",
+              help="Target parameters whose uncertainty the plan should shrink (default: the "
+                   "ratios of the BRDF's scales and its other parameters, Ps/Pd,n,eta for the "
+                   "paper's).")
 @click.option("--accuracy", type=click.Choice(["fast", "default", "high"]), default="fast",
               show_default=True, help="Quadrature of the Jacobians.")
 @click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path),
               help="CSV file for the plan (written atomically).")
+@model_options()
 def design_command(brdf, media, factors, size, psi, fine_step, window, coarse_step, limit,
-                   noise, noise_floor, known_medium, interest, variant, accuracy, output):
+                   noise, noise_floor, known_medium, interest, accuracy, output, models):
     """Recommend which configurations and media to measure.
 
     \b
@@ -87,22 +94,26 @@ def design_command(brdf, media, factors, size, psi, fine_step, window, coarse_st
     from ..analysis.design import design
     from ..data.measurements import atomic_write_text
 
-    model_b = parse_brdf(brdf)
-    models = []
+    model_b = models.brdf_model(brdf)
+    chosen = []
     for text in media:
-        m = parse_btdf(text, variant)
+        m = models.medium_model(text)
         if m is None:
             raise UserError("--medium none: the design compares scattering media; give a "
                             "preset or literal")
-        models.append(m)
+        chosen.append(m)
     labels = [t.strip().upper() if "," not in t else t.strip() for t in media]
     if len(set(labels)) != len(labels):
         raise UserError("a --medium is given twice")
     if output is not None:
         check_output_path(output)
-    named = dict(zip(labels, models))
+    named = dict(zip(labels, chosen))
     facs = _floats(factors, "--factors") if factors else None
     if facs is not None:
+        bad = [f for f in facs if not (math.isfinite(f) and f > 0)]
+        if bad:
+            raise UserError(f"--factors {factors!r}: {bad[0]:g} is not a concentration factor; "
+                            f"expected finite numbers > 0 (e.g. 0.5,1,2)")
         from ..analysis.design import condition_medium
 
         named = {f"{label} x{f:g}": condition_medium(m, f)
@@ -114,7 +125,8 @@ def design_command(brdf, media, factors, size, psi, fine_step, window, coarse_st
         result = design(model_b, list(named.values()), size, psi=_floats(psi, "--psi"),
                         noise=noise, floor=noise_floor,
                         mode="known" if known_medium else "joint",
-                        interest=[t.strip() for t in interest.split(",") if t.strip()],
+                        interest=None if interest is None else
+                        [t.strip() for t in interest.split(",") if t.strip()],
                         accuracy=accuracy, fine_step=fine_step, coarse_step=coarse_step,
                         window=window, limit=limit)
     plan, info = result["plan"], result["information"]
@@ -141,14 +153,15 @@ def design_command(brdf, media, factors, size, psi, fine_step, window, coarse_st
         ctab.add_column(escape(f"{n} alone"), justify="right")
     for row in result["conditions"].to_dict("records"):
         ctab.add_row(escape(mapping[row["condition"]]), str(row["in_plan"]),
-                     *[_se(n, row[f"alone_se_{n}"]) for n in names])
+                     *[_se(info, n, row[f"alone_se_{n}"]) for n in names])
     console.print(ctab)
     se = result["stderr"]
     console.print("predicted stderr with the plan: "
-                  + ", ".join(f"{n} {_se(n, se[n])}" for n in names)
-                  + " (relative; eta absolute)")
-    if "*" in "".join(_se(n, se[n]) for n in names) or any(
-            "*" in _se(n, r[f"alone_se_{n}"]) for r in result["conditions"].to_dict("records")
+                  + ", ".join(f"{n} {_se(info, n, se[n])}" for n in names)
+                  + " (relative for parameters fitted as logarithms, else absolute)")
+    if "*" in "".join(_se(info, n, se[n]) for n in names) or any(
+            "*" in _se(info, n, r[f"alone_se_{n}"])
+            for r in result["conditions"].to_dict("records")
             for n in names):
         console.print("* at the level of the weak prior: not identified by such a plan "
                       "(more measurements, or other media)")

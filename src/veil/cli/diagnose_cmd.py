@@ -14,21 +14,28 @@ from pathlib import Path
 
 import click
 
-from ._common import UserError, check_output_path
+from ._common import ModelChoice, UserError, check_output_path, model_options
 
 IN_FILE = click.Path(exists=True, dir_okay=False, path_type=Path)
 
 
-def _load_other(text, kind, variant="paper"):
-    from ..fitting.steps import FitResult
-    from ._common import parse_brdf, parse_btdf
+def _load_other(text, kind, result, models):
+    """--medium / --reference: a fit result of that kind, or a preset / literal of the family
+    the result was fitted with (its given model's), else of --brdf-model / --medium-model."""
+    from ..fitting import load_result
 
+    option = "--medium" if kind == "medium" else "--reference"
     if os.path.exists(text) or text.lower().endswith(".json"):
-        return FitResult.from_json(text)
+        return load_result(text)  # diagnose checks that it fits the result's step
+    given = result.given_model() if result.given else None
+    if given is not None and given.KIND == kind:
+        models = ModelChoice(type(given) if kind == "brdf" else models.brdf,
+                             type(given) if kind == "medium" else models.medium,
+                             given.options() if kind == "brdf" else models.brdf_options,
+                             given.options() if kind == "medium" else models.medium_options)
     try:
-        model = parse_brdf(text) if kind == "brdf" else parse_btdf(text, variant)
+        model = models.parse(text, kind, option)
     except click.ClickException as exc:
-        option = "--reference" if kind == "brdf" else "--medium"
         raise UserError(f"{option} {text!r} is not an existing JSON file and {exc.message}"
                         ) from None
     if model is None:
@@ -100,8 +107,9 @@ def _print(diag, console) -> None:
               show_default=True, help="|correlation| above which a pair trades off.")
 @click.option("-o", "--outdir", type=click.Path(file_okay=False, path_type=Path),
               help="Directory for diagnostics.json and diagnostics.png (created).")
+@model_options()
 def diagnose_command(result_path, data, black, medium, reference, profile, profile_params,
-                     points, max_relative, max_correlation, outdir):
+                     points, max_relative, max_correlation, outdir, models):
     """Which parameters of a fit are poorly determined, and which trade off.
 
     \b
@@ -110,9 +118,10 @@ def diagnose_command(result_path, data, black, medium, reference, profile, profi
     """
     from rich.console import Console
 
-    from ..analysis.diagnostics import diagnose, plot
-    from ..fitting.joint import JointResult, Session, load_result
+    from ..analysis.diagnostics import diagnose
     from ..data.measurements import load_measurements
+    from ..fitting import JointResult, Session, load_result
+    from ..viz.fit_figures import diagnosis_figure
 
     result = load_result(result_path)
     inputs = [result_path, black]
@@ -141,8 +150,8 @@ def diagnose_command(result_path, data, black, medium, reference, profile, profi
         if not os.path.isfile(table):
             raise UserError(f"--data {table}: file does not exist")
         inputs.append(table)
-    med = _load_other(medium, "btdf", result.variant or "paper") if medium else None
-    ref = _load_other(reference, "brdf") if reference else None
+    med = _load_other(medium, "medium", result, models) if medium else None
+    ref = _load_other(reference, "brdf", result, models) if reference else None
     for text in (medium, reference):
         if text and os.path.exists(text):
             inputs.append(text)
@@ -170,7 +179,7 @@ def diagnose_command(result_path, data, black, medium, reference, profile, profi
         outdir.mkdir(exist_ok=True)
         atomic_write_text(files["json"], json.dumps(diag.to_dict(), indent=2,
                                                      allow_nan=False) + "\n")
-        plot(diag, files["png"])
+        diagnosis_figure(diag, files["png"])
         for path in files.values():
             click.echo(f"wrote {path}", err=True)
 

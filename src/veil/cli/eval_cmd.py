@@ -11,7 +11,7 @@ import click
 import numpy as np
 
 from ..engine.apparent import RULES, apparent, reflectance
-from ._common import (UserError, check_output_path, parse_brdf, parse_btdf, read_csv_table,
+from ._common import (UserError, check_output_path, model_options, read_csv_table,
                       write_atomic)
 
 ANGLES = ("theta_i", "phi_i", "theta_r", "phi_r")  # the --configs columns, degrees
@@ -21,15 +21,17 @@ FORMS_TEXT = ("theta_i, phi_i, theta_r, phi_r (or signed in-plane theta_i, theta
 DEFAULT_PHI_I = 180.0
 DEFAULT_PHI_R = 0.0
 
-BRDF_HELP = ("Object's reflection model (Torrance-Sparrow, MODEL.md sec. 2): a preset name, "
-             "BRDF1 or BRDF2, or the literal 'PD,PS,N,ETA' - PD, PS diffuse and specular "
-             "coefficients (relative units, >= 0), N smoothness (1/deg, > 0; larger is "
-             "smoother), ETA refractive index of the surface (dimensionless, > 0).")
-MEDIUM_HELP = ("Scattering medium (Henyey-Greenstein BTDF, MODEL.md sec. 3): a preset name, "
-               "BTDF1, BTDF2 or BTDF3, the literal 'TD,TT,G,ETA' - TD, TT isotropic and "
-               "single-scattering coefficients (relative units, >= 0), G asymmetry "
-               "(dimensionless, in (-1, 1)), ETA refractive index of the medium "
-               "(dimensionless, > 0) - or 'none' for a clear medium (apparent = clear).")
+BRDF_HELP = ("Object's reflection model, of the --brdf-model family: a preset name, BRDF1 or "
+             "BRDF2, or a literal list of the family's parameters in declared order - for the "
+             "paper's Torrance-Sparrow (MODEL.md sec. 2) 'PD,PS,N,ETA': PD, PS diffuse and "
+             "specular coefficients (relative units, >= 0), N smoothness (1/deg, > 0; larger "
+             "is smoother), ETA refractive index of the surface (> 0). 'veil models' lists "
+             "every family's parameters.")
+MEDIUM_HELP = ("Scattering medium, of the --medium-model family: a preset name, BTDF1, BTDF2 "
+               "or BTDF3, a literal list of its parameters - for the paper's medium (MODEL.md "
+               "sec. 3) 'TD,TT,G,ETA': TD, TT isotropic and single-scattering coefficients "
+               "(relative units, >= 0), G asymmetry (in (-1, 1)), ETA refractive index of the "
+               "medium (> 0) - or 'none' for a clear medium (apparent = clear).")
 
 
 def _check_option_angle(option: str, value: float, polar: bool) -> None:
@@ -41,16 +43,8 @@ def _check_option_angle(option: str, value: float, polar: bool) -> None:
                         f"normal use the azimuth (phi + 180)")
 
 
-def _parse_models(brdf_text, medium_text, variant):
-    try:
-        brdf = parse_brdf(brdf_text)
-    except click.ClickException as exc:
-        raise UserError(f"--brdf {brdf_text!r}: {exc.message}") from None
-    try:
-        medium = parse_btdf(medium_text, variant)
-    except click.ClickException as exc:
-        raise UserError(f"--medium {medium_text!r}: {exc.message}") from None
-    return brdf, medium
+def _parse_models(brdf_text, medium_text, models):
+    return models.brdf_model(brdf_text, "--brdf"), models.medium_model(medium_text, "--medium")
 
 
 def _model_json(model):
@@ -155,11 +149,6 @@ def _emit(text: str, output) -> None:
 @click.option("-o", "--output", type=click.Path(dir_okay=False), metavar="OUT",
               help="Write the --configs CSV (or, with --json, the JSON object) to this file "
                    "instead of standard output. Written atomically; never the --configs file.")
-@click.option("--variant", type=click.Choice(["paper", "exit"]), default="paper",
-              show_default=True,
-              help="Fresnel factor of the medium's BTDF (MODEL.md sec. 3): paper = "
-                   "F_t(theta_in)^2 as in the paper; exit = F_t(theta_in) F_t(theta_out), "
-                   "reciprocal.")
 @click.option("--accuracy", type=click.Choice(list(RULES)), default="default",
               show_default=True,
               help="Quadrature level: fast (coarse rule, quick previews), default (about 1e-3 "
@@ -169,8 +158,9 @@ def _emit(text: str, output) -> None:
               help="Print a JSON object instead of the table or CSV: the models, the lists "
                    "theta_i, phi_i, theta_r, phi_r (degrees) and apparent, clear, error "
                    "(1/sr, relative units), one entry per configuration in input order.")
+@model_options()
 def eval_command(brdf_text, medium_text, theta_i, theta_r, phi_i, phi_r, configs, output,
-                 variant, accuracy, as_json):
+                 accuracy, as_json, models):
     """Apparent reflectance of an object seen through a scattering medium (MODEL.md eq. 1).
 
     For one configuration give --theta-i and --theta-r (and optionally --phi-i, --phi-r);
@@ -200,7 +190,7 @@ def eval_command(brdf_text, medium_text, theta_i, theta_r, phi_i, phi_r, configs
             raise UserError("-o/--output writes the CSV of --configs or the object of --json; "
                             "a single configuration's table goes to standard output (add "
                             "--json to write it to a file)")
-    brdf, medium = _parse_models(brdf_text, medium_text, variant)
+    brdf, medium = _parse_models(brdf_text, medium_text, models)
     if output is not None:
         check_output_path(output, [configs])
 

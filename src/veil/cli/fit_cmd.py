@@ -16,9 +16,9 @@ from pathlib import Path
 
 import click
 
-from ..fitting.steps import FitResult, fit_medium, fit_reference, fit_target
-from ..models import HenyeyGreenstein, TorranceSparrow
-from ._common import UserError, check_output_path, parse_brdf, parse_btdf
+from ..fitting import fit_medium, fit_reference, fit_target
+from ._common import (UserError, check_output_path, load_result_file, model_options,
+                      parse_fix)
 
 IN_FILE = click.Path(exists=True, dir_okay=False, path_type=Path)
 OUT_FILE = click.Path(dir_okay=False, path_type=Path)
@@ -32,10 +32,6 @@ def _fix_option(help_text):
     return click.option("--fix", "fix", multiple=True, metavar="NAME=VALUE", help=help_text)
 
 
-_variant_option = click.option(
-    "--variant", type=click.Choice(["paper", "exit"]), default="paper", show_default=True,
-    help="Fresnel factor of the medium: paper = F_t(theta_in)^2, exit = "
-         "F_t(theta_in) F_t(theta_out) (MODEL.md sec. 3).")
 _accuracy_option = click.option(
     "--accuracy", type=click.Choice(["fast", "default", "high"]), default="default",
     show_default=True,
@@ -49,74 +45,49 @@ _max_nfev_option = click.option(
     help="Limit on function evaluations of each least-squares run (default: scipy's).")
 
 
-def parse_fix(items, cls, option="--fix") -> dict:
-    """``NAME=VALUE`` strings -> {name: value}, names checked against ``cls``'s parameters."""
-    fixed = {}
-    names = cls.param_names()
-    for item in items:
-        name, sep, text = item.partition("=")
-        name = name.strip()
-        if not sep or not name:
-            raise UserError(f"{option} {item!r}: expected NAME=VALUE, e.g. eta=1.5 "
-                            f"(parameters of {cls.NAME}: {', '.join(names)})")
-        if name not in names:
-            raise UserError(f"{option} {item!r}: {cls.NAME} has no parameter {name!r}; "
-                            f"its parameters are {', '.join(names)}")
-        try:
-            value = float(text)
-        except ValueError:
-            raise UserError(f"{option} {item!r}: {text.strip()!r} is not a number") from None
-        if not math.isfinite(value):
-            raise UserError(f"{option} {item!r}: {text.strip()!r} is not a finite number")
-        if name in fixed:
-            raise UserError(f"{option}: {name} is fixed twice")
-        param = cls.PARAMS[names.index(name)]
-        try:
-            param.check(value, cls.__name__)
-        except ValueError as exc:
-            raise UserError(f"{option} {item!r}: {exc}") from None
-        fixed[name] = value
-    return fixed
-
-
-def _parse_step_fix(items) -> dict:
+def _parse_step_fix(items, models) -> dict:
     """``STEP.NAME=VALUE`` strings of ``fit pipeline`` -> {step: {name: value}}."""
     by_step = {}
-    classes = {"reference": TorranceSparrow, "medium": HenyeyGreenstein,
-               "target": TorranceSparrow}
+    classes = {"reference": models.brdf, "medium": models.medium, "target": models.brdf}
     for item in items:
         head, sep, _ = item.partition("=")
         step, dot, name = head.partition(".")
         if not sep or not dot or step.strip() not in classes:
             raise UserError(f"--fix {item!r}: expected STEP.NAME=VALUE with STEP one of "
-                            f"{', '.join(STEPS)}, e.g. medium.eta=1.33")
+                            f"{', '.join(STEPS)}, e.g. medium.{models.medium.param_names()[-1]}"
+                            f"=1.33")
         step = step.strip()
         by_step.setdefault(step, []).append(f"{name}={item.partition('=')[2]}")
     return {step: parse_fix(entries, classes[step], f"--fix ({step})")
             for step, entries in by_step.items()}
 
 
-def load_reference(text: str):
-    """A fit result JSON file, or a BRDF preset / literal."""
-    if os.path.exists(text) or text.lower().endswith(".json"):
-        return FitResult.from_json(text)
+def _is_file(text: str) -> bool:
+    return os.path.exists(text) or text.lower().endswith(".json")
+
+
+def load_reference(text: str, models, option: str = "--reference"):
+    """A BRDF fit result (JSON file), or a BRDF preset / literal of the chosen family."""
+    if _is_file(text):
+        return load_result_file(text, "brdf", option)
     try:
-        return parse_brdf(text)
+        return models.brdf_model(text, option)
     except click.ClickException as exc:
-        raise UserError(f"--reference {text!r} is not an existing JSON file and {exc.message}"
+        raise UserError(f"{option} {text!r} is not an existing JSON file and {exc.message}"
                         ) from None
 
 
-def _load_medium(text: str, variant):
-    if os.path.exists(text) or text.lower().endswith(".json"):
-        return FitResult.from_json(text)
+def load_medium(text: str, models, option: str = "--medium"):
+    """A medium fit result (JSON file), or a medium preset / literal of the chosen model."""
+    if _is_file(text):
+        return load_result_file(text, "medium", option)
     try:
-        model = parse_btdf(text, variant or "paper")
+        model = models.medium_model(text, option)
     except click.ClickException as exc:
-        raise UserError(f"--medium {text!r} is not an existing JSON file and {exc.message}"
+        raise UserError(f"{option} {text!r} is not an existing JSON file and {exc.message}"
                         ) from None
     if model is None:
-        raise UserError("--medium none: step 2 needs a scattering medium; for a target in a "
+        raise UserError(f"{option} none: this needs a scattering medium; for a target in a "
                         "clear medium use 'veil fit reference'")
     return model
 
@@ -190,17 +161,21 @@ def fit_command():
 @click.argument("table", type=IN_FILE)
 @click.option("-o", "--output", required=True, type=OUT_FILE,
               help="JSON file for the fitted f_r (written atomically).")
-@_fix_option("Hold a Torrance-Sparrow parameter (Pd, Ps, n, eta) at VALUE; repeatable.")
+@_fix_option("Hold a parameter of the BRDF (e.g. eta=1.5; 'veil models' lists them) at "
+             "VALUE; repeatable.")
 @_black_option
 @_max_nfev_option
+@model_options(("brdf",))
 @click.pass_context
-def reference_command(ctx, table, output, fix, black, max_nfev):
-    """Step 0: fit the reference's f_r (Torrance-Sparrow) to clear-medium data, directly."""
-    fixed = parse_fix(fix, TorranceSparrow)
+def reference_command(ctx, table, output, fix, black, max_nfev, models):
+    """Step 0: fit the reference's f_r (default Torrance-Sparrow) to clear-medium data,
+    directly."""
+    fixed = parse_fix(fix, models.brdf)
     check_output_path(output, [table, black])
     with echo_warnings(), fit_progress("step 0, reference") as progress:
         result = fit_reference(table, fixed=fixed, black=black, max_nfev=max_nfev,
-                               progress=progress)
+                               progress=progress, brdf_model=models.brdf.NAME,
+                               options=models.brdf_options)
     result.to_json(output)
     click.echo(result.report())
     finish_fits(ctx, [result], [output])
@@ -210,24 +185,28 @@ def reference_command(ctx, table, output, fix, black, max_nfev):
 @click.argument("table", type=IN_FILE)
 @click.option("--reference", "reference", required=True, metavar="REF",
               help="The reference's f_r: a JSON file from 'veil fit reference', a preset "
-                   "(BRDF1, BRDF2) or a literal 'PD,PS,N,ETA'.")
+                   "(BRDF1, BRDF2) or a literal list of the BRDF's parameters (PD,PS,N,ETA "
+                   "for the paper's).")
 @click.option("-o", "--output", required=True, type=OUT_FILE,
               help="JSON file for the fitted medium (written atomically).")
-@_fix_option("Hold a medium parameter (Td, Tt, g, eta) at VALUE; repeatable.")
+@_fix_option("Hold a parameter of the medium (e.g. g=0.9; 'veil models' lists them) at VALUE; "
+             "repeatable.")
 @_black_option
-@_variant_option
 @_accuracy_option
 @_max_nfev_option
+@model_options()
 @click.pass_context
-def medium_command(ctx, table, reference, output, fix, black, variant, accuracy, max_nfev):
-    """Step 1: fit the medium (Td, Tt, g, eta) to the reference measured in it."""
-    fixed = parse_fix(fix, HenyeyGreenstein)
-    ref = load_reference(reference)
+def medium_command(ctx, table, reference, output, fix, black, accuracy, max_nfev, models):
+    """Step 1: fit the medium (default the paper's Td, Tt, g, eta) to the reference measured
+    in it."""
+    fixed = parse_fix(fix, models.medium)
+    ref = load_reference(reference, models)
     inputs = [table, black] + ([reference] if os.path.exists(reference) else [])
     check_output_path(output, inputs)
     with echo_warnings(), fit_progress("step 1, medium") as progress:
-        result = fit_medium(table, ref, fixed=fixed, black=black, variant=variant,
-                            accuracy=accuracy, max_nfev=max_nfev, progress=progress)
+        result = fit_medium(table, ref, fixed=fixed, black=black, accuracy=accuracy,
+                            max_nfev=max_nfev, progress=progress,
+                            medium_model=models.medium.NAME, options=models.medium_options)
     result.to_json(output)
     click.echo(result.report())
     finish_fits(ctx, [result], [output])
@@ -237,29 +216,36 @@ def medium_command(ctx, table, reference, output, fix, black, variant, accuracy,
 @click.argument("table", type=IN_FILE)
 @click.option("--medium", "medium", required=True, metavar="MEDIUM",
               help="The medium's f_t: a JSON file from 'veil fit medium', a preset (BTDF1, "
-                   "BTDF2, BTDF3) or a literal 'TD,TT,G,ETA'.")
+                   "BTDF2, BTDF3) or a literal list of the medium's parameters (TD,TT,G,ETA "
+                   "for the paper's).")
 @click.option("-o", "--output", required=True, type=OUT_FILE,
               help="JSON file for the fitted target f_r (written atomically).")
-@_fix_option("Hold a Torrance-Sparrow parameter (Pd, Ps, n, eta) at VALUE; repeatable.")
+@_fix_option("Hold a parameter of the BRDF (e.g. eta=1.5; 'veil models' lists them) at "
+             "VALUE; repeatable.")
 @_black_option
-@click.option("--variant", type=click.Choice(["paper", "exit"]), default=None,
-              help="Fresnel variant of a preset or literal --medium (default paper); a JSON "
-                   "medium keeps its own.")
 @_accuracy_option
 @_max_nfev_option
+@model_options()
 @click.pass_context
-def target_command(ctx, table, medium, output, fix, black, variant, accuracy, max_nfev):
-    """Step 2: fit the target's f_r (Torrance-Sparrow) through the fitted medium."""
-    fixed = parse_fix(fix, TorranceSparrow)
-    med = _load_medium(medium, variant)
-    if isinstance(med, FitResult) and variant is not None and med.variant != variant:
-        raise UserError(f"--variant {variant} but {medium} was fitted with variant "
-                        f"{med.variant}; leave --variant out to use the medium's")
+def target_command(ctx, table, medium, output, fix, black, accuracy, max_nfev, models):
+    """Step 2: fit the target's f_r (default Torrance-Sparrow) through the fitted medium.
+    A JSON --medium keeps its own model and options (a contradicting option is an error)."""
+    fixed = parse_fix(fix, models.brdf)
+    med = load_medium(medium, models)
+    given = med.as_model() if hasattr(med, "as_model") else med
+    if "medium-model" in models.explicit and type(given) is not models.medium:
+        raise UserError(f"--medium-model {models.medium.NAME} but {medium} is a "
+                        f"{given.NAME} medium")
+    for k, v in models.medium_options.items():
+        if given.options().get(k) != v:
+            raise UserError(f"--{k} {v} but {medium} has {k} {given.options().get(k)}; "
+                            f"leave --{k} out to use the medium's")
     inputs = [table, black] + ([medium] if os.path.exists(medium) else [])
     check_output_path(output, inputs)
     with echo_warnings(), fit_progress("step 2, target") as progress:
         result = fit_target(table, med, fixed=fixed, black=black, accuracy=accuracy,
-                            max_nfev=max_nfev, progress=progress)
+                            max_nfev=max_nfev, progress=progress,
+                            brdf_model=models.brdf.NAME, options=models.brdf_options)
     result.to_json(output)
     click.echo(result.report())
     finish_fits(ctx, [result], [output])
@@ -300,25 +286,28 @@ def print_pipeline(result) -> None:
 @_fix_option("Hold a parameter of one step: STEP.NAME=VALUE, STEP reference, medium or "
              "target (e.g. medium.eta=1.33); repeatable. Target values also hold in the "
              "direct fit.")
-@_variant_option
 @_accuracy_option
 @_max_nfev_option
+@model_options()
 @click.pass_context
 def pipeline_command(ctx, reference_clear, reference_medium, target_medium, black, target_clear,
-                     outdir, fix, variant, accuracy, max_nfev):
+                     outdir, fix, accuracy, max_nfev, models):
     """Steps 0-2 in one go, with figures (data against fitted curves) and report.md."""
     from ..pipeline import run_pipeline
 
-    fixed = _parse_step_fix(fix)
+    fixed = _parse_step_fix(fix, models)
     if outdir.exists() and not outdir.is_dir():
         raise UserError(f"--outdir {outdir} exists and is not a directory")
     if not outdir.parent.exists() and not outdir.exists():
         raise UserError(f"cannot create {outdir}: directory {outdir.parent} does not exist")
     with echo_warnings(), fit_progress("pipeline") as progress:
         result = run_pipeline(reference_clear, reference_medium, target_medium, black=black,
-                              target_clear=target_clear, outdir=outdir, variant=variant,
+                              target_clear=target_clear, outdir=outdir,
                               accuracy=accuracy, fixed=fixed, max_nfev=max_nfev,
-                              progress=progress)
+                              progress=progress, brdf_model=models.brdf.NAME,
+                              medium_model=models.medium.NAME,
+                              brdf_options=models.brdf_options,
+                              medium_options=models.medium_options)
     print_pipeline(result)
     fits = [result.reference, result.medium, result.target, result.direct]
     finish_fits(ctx, fits, list(result.files.values()))

@@ -13,8 +13,8 @@ from pathlib import Path
 
 import click
 
-from ..fitting.joint import SHAREABLE, Session, fit_joint
-from ._common import UserError, check_output_path
+from ..fitting.joint import Session, fit_joint
+from ._common import UserError, check_output_path, model_options
 
 OUT_FILE = click.Path(dir_okay=False, path_type=Path)
 
@@ -94,8 +94,8 @@ def _names(text, option):
         return None
     names = [t.strip() for t in text.split(",") if t.strip()]
     if not names:
-        raise UserError(f"{option} {text!r}: expected a comma-separated list of "
-                        f"{', '.join(SHAREABLE)}")
+        raise UserError(f"{option} {text!r}: expected a comma-separated list of parameter "
+                        f"names (the medium's shareable ones, e.g. g,eta_u)")
     return names
 
 
@@ -111,20 +111,21 @@ def _names(text, option):
                    "that medium; repeatable.")
 @click.option("--reference", "reference", metavar="REF",
               help="The reference's f_r, held fixed: a JSON file from 'veil fit reference', a "
-                   "preset or a literal 'PD,PS,N,ETA'. Without it a clear-water reference "
-                   "session makes the reference's parameters free.")
+                   "preset or a literal list of the BRDF's parameters. Without it a "
+                   "clear-water reference session makes the reference's parameters free.")
 @click.option("--shared", default=None, metavar="NAMES",
-              help="Medium parameters shared by all media (subset of g,eta_u). Default: eta_u "
-                   "shared, g per medium.")
+              help="Medium parameters shared by all media (among those the medium model "
+                   "declares shareable; the paper's: g, eta_u). Default: as the model declares "
+                   "(the paper's: eta_u shared, g per medium).")
 @click.option("--per-medium", default=None, metavar="NAMES",
-              help="Medium parameters free per medium (subset of g,eta_u); Td and Tt always are.")
+              help="Medium parameters free per medium (among the shareable ones); scale "
+                   "parameters (the paper's Td and Tt) always are.")
 @click.option("--fix", "fix", multiple=True, metavar="NAME=VALUE",
-              help="Hold a parameter, named as in the result: Pd, Ps, n, eta (target), "
-                   "ref.Pd..., 'Td[LABEL]', 'g[LABEL]' or g / eta_u when shared; repeatable.")
+              help="Hold a parameter, named as in the result: the target's (Pd, Ps, n, eta for "
+                   "the paper's), ref.NAME for the reference, 'NAME[LABEL]' per medium (e.g. "
+                   "'Td[low]') or NAME when shared (e.g. eta_u); repeatable.")
 @click.option("-o", "--output", required=True, type=OUT_FILE,
               help="JSON file for the joint result (written atomically).")
-@click.option("--variant", type=click.Choice(["paper", "exit"]), default="paper",
-              show_default=True, help="Fresnel factor of the media (MODEL.md sec. 3).")
 @click.option("--accuracy", type=click.Choice(["fast", "default", "high"]), default="default",
               show_default=True,
               help="Quadrature of the reported result; iterations run at 'fast' and are "
@@ -132,8 +133,9 @@ def _names(text, option):
 @click.option("--max-nfev", type=click.IntRange(min=1), default=None,
               help="Limit on function evaluations of each least-squares run.")
 @click.pass_context
+@model_options()
 def joint_command(ctx, sessions, reference_sessions, blacks, reference, shared, per_medium, fix,
-                  output, variant, accuracy, max_nfev):
+                  output, accuracy, max_nfev, models):
     """Fit the target (and the reference) over several media at once (MODEL.md sec. 7).
 
     The object's parameters are shared by all its sessions, each medium has its own Td and
@@ -158,15 +160,17 @@ def joint_command(ctx, sessions, reference_sessions, blacks, reference, shared, 
     loaded, inputs = load_sessions(sessions, reference_sessions, blacks)
     ref = None
     if reference is not None:
-        ref = load_reference(reference)
+        ref = load_reference(reference, models)
         if os.path.exists(reference):
             inputs.append(reference)
     check_output_path(output, inputs)
     with echo_warnings(), fit_progress("joint fit") as progress:
         result = fit_joint(loaded, reference=ref, shared=_names(shared, "--shared"),
                            per_medium=_names(per_medium, "--per-medium"), fixed=fixed or None,
-                           variant=variant, accuracy=accuracy, max_nfev=max_nfev,
-                           progress=progress)
+                           accuracy=accuracy, max_nfev=max_nfev, progress=progress,
+                           brdf_model=models.brdf.NAME, medium_model=models.medium.NAME,
+                           brdf_options=models.brdf_options,
+                           medium_options=models.medium_options)
     result.to_json(output)
     click.echo(result.report())
     finish_fits(ctx, [result], [output])

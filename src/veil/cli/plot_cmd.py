@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import click
 
-from ._common import UserError, parse_brdf, parse_btdf
+from ._common import UserError, model_options
 from .render_cmd import output_path
 
 FIGURE_SUFFIXES = (".png", ".pdf", ".svg")
@@ -40,11 +40,12 @@ def plot_command():
 @click.option("--theta-i", type=float, default=45.0, show_default=True,
               help="Incidence angle, degrees.")
 @click.option("-o", "--output", required=True, help="Output figure (.png, .pdf or .svg).")
-def lobe(brdfs, theta_i, output):
+@model_options(("brdf",))
+def lobe(brdfs, theta_i, output, models):
     """Reflection lobe f_r (as the paper's fig. 9): in and out of the plane of incidence."""
     from ..viz.figures import fig9
 
-    models = [parse_brdf(b) for b in brdfs]
+    models = [models.brdf_model(b) for b in brdfs]
     _theta_i(theta_i)
     output_path(output, FIGURE_SUFFIXES, "output")
     _save(fig9(models, theta_i), output)
@@ -53,16 +54,15 @@ def lobe(brdfs, theta_i, output):
 @plot_command.command("transmission")
 @click.option("--medium", "media", multiple=True, required=True,
               help="Medium (repeatable): preset or 'TD,TT,G,ETA'.")
-@click.option("--variant", type=click.Choice(["paper", "exit"]), default="paper",
-              show_default=True, help="Fresnel factors of the medium (MODEL.md sec. 3).")
 @click.option("--theta-i", type=float, default=45.0, show_default=True,
               help="Incidence angle, degrees.")
 @click.option("-o", "--output", required=True, help="Output figure (.png, .pdf or .svg).")
-def transmission(media, variant, theta_i, output):
+@model_options(("medium",))
+def transmission(media, theta_i, output, models):
     """Transmission lobe f_t (as the paper's fig. 10) against the transmitted direction."""
     from ..viz.figures import fig10
 
-    models = [parse_btdf(m, variant) for m in media]
+    models = [models.medium_model(m) for m in media]
     if any(m is None for m in models):
         raise UserError("--medium none has no transmission lobe; give a preset or 'TD,TT,G,ETA'")
     _theta_i(theta_i)
@@ -75,8 +75,6 @@ def transmission(media, variant, theta_i, output):
               help="Object (repeatable): preset or 'PD,PS,N,ETA'.")
 @click.option("--medium", "media", multiple=True, default=("none",), show_default=True,
               help="Medium (repeatable): preset, 'TD,TT,G,ETA' or 'none' (clear).")
-@click.option("--variant", type=click.Choice(["paper", "exit"]), default="paper",
-              show_default=True, help="Fresnel factors of the media (MODEL.md sec. 3).")
 @click.option("--theta-i", type=float, default=45.0, show_default=True,
               help="Incidence angle, degrees.")
 @click.option("--scale", type=click.Choice(["log", "linear", "peak", "tt2"]), default="log",
@@ -85,12 +83,13 @@ def transmission(media, variant, theta_i, output):
 @click.option("--accuracy", type=click.Choice(["fast", "default", "high"]), default="default",
               show_default=True, help="Quadrature of the engine.")
 @click.option("-o", "--output", required=True, help="Output figure (.png, .pdf or .svg).")
-def curve(brdfs, media, variant, theta_i, scale, accuracy, output):
+@model_options()
+def curve(brdfs, media, theta_i, scale, accuracy, output, models):
     """Observed value against reflection angle in the plane of incidence (as fig. 11)."""
     from ..viz.figures import fig_curve, inplane_curve
 
-    b_models = [parse_brdf(b) for b in brdfs]
-    m_models = [parse_btdf(m, variant) for m in media]
+    b_models = [models.brdf_model(b) for b in brdfs]
+    m_models = [models.medium_model(m) for m in media]
     _theta_i(theta_i)
     output_path(output, FIGURE_SUFFIXES, "output")
     curves = [inplane_curve(b, m, theta_i, accuracy=accuracy) for b in b_models for m in m_models]

@@ -9,7 +9,7 @@ import os
 import click
 import numpy as np
 
-from ._common import UserError, check_file_target, parse_brdf, parse_btdf
+from ._common import UserError, check_file_target, model_options
 
 
 def output_path(path: str, suffixes: tuple, what: str) -> str:
@@ -24,8 +24,6 @@ def output_path(path: str, suffixes: tuple, what: str) -> str:
 @click.option("--brdf", required=True, help="Object: preset (BRDF1, BRDF2) or 'PD,PS,N,ETA'.")
 @click.option("--medium", default="none", show_default=True,
               help="Medium: preset (BTDF1..3), 'TD,TT,G,ETA', or 'none' for the true BRDF.")
-@click.option("--variant", type=click.Choice(["paper", "exit"]), default="paper",
-              show_default=True, help="Fresnel factors of the medium (MODEL.md sec. 3).")
 @click.option("--light-theta", type=float, default=45.0, show_default=True,
               help="Light's polar angle from the viewing direction, degrees, in [0, 120].")
 @click.option("--light-phi", type=float, default=0.0, show_default=True,
@@ -47,8 +45,9 @@ def output_path(path: str, suffixes: tuple, what: str) -> str:
               help="Also save the linear float values (float32) to this .npy file.")
 @click.option("-o", "--output", required=True, help="Output PNG (8-bit greyscale, sRGB).")
 @click.option("--quiet", is_flag=True, help="No progress display.")
-def render_command(brdf, medium, variant, light_theta, light_phi, size, exposure, tone, samples,
-                   accuracy, check, linear_path, output, quiet):
+@model_options()
+def render_command(brdf, medium, light_theta, light_phi, size, exposure, tone, samples,
+                   accuracy, check, linear_path, output, quiet, models):
     """Render a unit sphere lit by a distant point light, seen by an orthographic camera.
 
     Pixel value = f(I, R) cos(theta_i) at each visible, lit point with the sphere's local
@@ -59,8 +58,8 @@ def render_command(brdf, medium, variant, light_theta, light_phi, size, exposure
     from ..viz.figures import write_bytes_atomic
     from ..viz.render import clipping, png_bytes, render, tone_map, auto_exposure
 
-    b = parse_brdf(brdf)
-    m = parse_btdf(medium, variant)
+    b = models.brdf_model(brdf)
+    m = models.medium_model(medium)
     output_path(output, (".png",), "output")
     if linear_path is not None:
         output_path(linear_path, (".npy",), "--linear file")

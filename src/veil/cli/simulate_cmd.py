@@ -11,7 +11,7 @@ import click
 from ..data.measurements import FORMS, save_measurements, to_form
 from ..data.protocol import protocol
 from ..data.simulate import GLOW_LEVEL, simulate
-from ._common import UserError, check_output_path, parse_brdf, parse_btdf
+from ._common import UserError, check_output_path, model_options
 
 
 def _parse_psi(text: str) -> tuple[float, ...]:
@@ -42,11 +42,13 @@ def _nonneg(name):
 
 @click.command("simulate")
 @click.option("--brdf", required=True, metavar="MODEL",
-              help="The object: preset BRDF1 or BRDF2, or literal 'PD,PS,N,ETA' "
-                   "(Torrance-Sparrow, MODEL.md sec. 2; N in 1/deg).")
+              help="The object: preset BRDF1 or BRDF2, or a literal list of the --brdf-model's "
+                   "parameters ('PD,PS,N,ETA' for the paper's Torrance-Sparrow, MODEL.md sec. 2; "
+                   "N in 1/deg).")
 @click.option("--medium", required=True, metavar="MODEL",
-              help="The medium: preset BTDF1, BTDF2 or BTDF3, literal 'TD,TT,G,ETA' "
-                   "(MODEL.md sec. 3), or 'none' for clear water.")
+              help="The medium: preset BTDF1, BTDF2 or BTDF3, a literal list of the "
+                   "--medium-model's parameters ('TD,TT,G,ETA' for the paper's, MODEL.md sec. 3), "
+                   "or 'none' for clear water.")
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False, path_type=Path),
               help="CSV file to write the session to (written atomically).")
 @click.option("--black", "black_path", type=click.Path(dir_okay=False, path_type=Path),
@@ -64,10 +66,6 @@ def _nonneg(name):
               help="Medium glow level, a fraction of the reference object's (BRDF2's) "
                    "signal through the same medium at theta_i = 0, theta_r = 60 deg: the same "
                    "glow for every object in a medium (docs/measurements.md); 0 for none.")
-@click.option("--variant", type=click.Choice(["paper", "exit"]), default="paper",
-              show_default=True,
-              help="Fresnel factor of the medium: paper = F_t(theta_in)^2, exit = "
-                   "F_t(theta_in) F_t(theta_out) (MODEL.md sec. 3).")
 @click.option("--form", type=click.Choice(list(FORMS)), default="goniometer", show_default=True,
               help="Angle columns to write: goniometer = psi,rho plus the signed in-plane "
                    "theta_i,theta_r they imply; inplane = signed theta_i,theta_r; full = "
@@ -82,8 +80,9 @@ def _nonneg(name):
               help="Keep configurations with both |theta_i| and |theta_r| below this, degrees.")
 @click.option("--accuracy", type=click.Choice(["fast", "default", "high"]), default="default",
               show_default=True, help="Quadrature level of the apparent reflectance.")
-def simulate_command(brdf, medium, output, black_path, psi, noise, seed, glow, variant, form,
-                     fine_step, window, coarse_step, limit, accuracy):
+@model_options()
+def simulate_command(brdf, medium, output, black_path, psi, noise, seed, glow, form,
+                     fine_step, window, coarse_step, limit, accuracy, models):
     """Simulate a measurement session of the paper's protocol (MODEL.md sec. 7).
 
     For each relative angle psi the object is rotated by rho (theta_i = psi/2 + rho,
@@ -95,8 +94,8 @@ def simulate_command(brdf, medium, output, black_path, psi, noise, seed, glow, v
     \b
         veil simulate --brdf BRDF1 --medium BTDF2 -o meas.csv --black black.csv
     """
-    model_b = parse_brdf(brdf)
-    model_m = parse_btdf(medium, variant)
+    model_b = models.brdf_model(brdf)
+    model_m = models.medium_model(medium)
     psis = _parse_psi(psi)
     if black_path is not None and _same_file(output, black_path):
         raise UserError(f"--output and --black are the same file ({output}); give two files")

@@ -229,7 +229,10 @@ def _hemisphere_integral(fn, n=64):
 
 def _shared(brdf, rule, vb):
     """Per-call quantities that do not depend on the configuration."""
-    a_tab, b_tab = _lobe_albedo_tables(brdf, vb, rule)
+    if brdf.HAS_LOBE:
+        a_tab, b_tab = _lobe_albedo_tables(brdf, vb, rule)
+    else:
+        a_tab = b_tab = jnp.zeros(rule.table)
     n_sep = len(brdf.separable(vb, jnp.zeros(1), jnp.zeros(1)))
     s_int = [_hemisphere_integral(lambda c, k=k: brdf.separable(vb, c, c)[k][0]) for k in range(n_sep)]
     t_int = [_hemisphere_integral(lambda c, k=k: brdf.separable(vb, c, c)[k][1]) for k in range(n_sep)]
@@ -322,6 +325,10 @@ def _one_config(brdf, medium, rule, half, vb, vm, shared, wi, wr):
     Rows: T_d^2, T_d T_t, T_t^2 terms; columns: separable and lobe parts of f_r.
     """
     c0_sep, c0_lobe, a_tab, b_tab, s_int, t_int = shared
+    if not medium.HAS_LOBE:  # isotropic only: the first row is all there is
+        zero = 0.0 * c0_sep
+        return jnp.stack([jnp.stack([c0_sep, c0_lobe]), jnp.stack([zero, zero]),
+                          jnp.stack([zero, zero])])
     a_i = medium.factor_first(vm, wi[2])
     b_r = medium.factor_second(vm, wr[2])
 
@@ -332,18 +339,27 @@ def _one_config(brdf, medium, rule, half, vb, vm, shared, wi, wr):
     wgr = ur * fr * medium.factor_first(vm, gr[:, 2])
     seps_i = brdf.separable(vb, gi[:, 2], gi[:, 2])
     seps_r = brdf.separable(vb, gr[:, 2], gr[:, 2])
-    ti = jnp.arccos(jnp.clip(gi[:, 2], -1.0, 1.0))
-    tr = jnp.arccos(jnp.clip(gr[:, 2], -1.0, 1.0))
     # albedos: A(I') = sum_k s_k(I') Int t_k + A_lobe(I'), B(R') = sum_k t_k(R') Int s_k + B_lobe
     mixed_sep = (a_i * jnp.sum(wgi * sum(s * tk for (s, _), tk in zip(seps_i, t_int)))
                  + b_r * jnp.sum(wgr * sum(t * sk for (_, t), sk in zip(seps_r, s_int))))
-    mixed_lobe = (a_i * jnp.sum(wgi * _interp_table(a_tab, ti, rule))
-                  + b_r * jnp.sum(wgr * _interp_table(b_tab, tr, rule)))
     sep = sum(jnp.sum(wgi * s) * jnp.sum(wgr * t) for (s, _), (_, t) in zip(seps_i, seps_r))
-    lobe = _lobe_lobe(brdf, medium, vb, vm, wi, wr, rule, half)
+    if brdf.HAS_LOBE:
+        ti = jnp.arccos(jnp.clip(gi[:, 2], -1.0, 1.0))
+        tr = jnp.arccos(jnp.clip(gr[:, 2], -1.0, 1.0))
+        mixed_lobe = (a_i * jnp.sum(wgi * _interp_table(a_tab, ti, rule))
+                      + b_r * jnp.sum(wgr * _interp_table(b_tab, tr, rule)))
+        lobe = _lobe_lobe(brdf, medium, vb, vm, wi, wr, rule, half)
+    else:
+        mixed_lobe = lobe = 0.0 * sep
     ab = a_i * b_r
     return jnp.stack([jnp.stack([c0_sep, c0_lobe]), jnp.stack([mixed_sep, mixed_lobe]),
                       jnp.stack([ab * sep, ab * lobe])])
+
+
+#: The parts of a BRDF (columns of a term matrix) and of a medium (rows are products of two
+#: medium parts: iso iso, iso lobe, lobe lobe), as models name them in ``SCALES``.
+BRDF_PARTS = ("separable", "lobe")
+MEDIUM_PARTS = ("iso", "lobe")
 
 
 def _unit_scales(model, v):
@@ -352,15 +368,28 @@ def _unit_scales(model, v):
     return v
 
 
+def _scale(model, v, part):
+    i = model.scale_index(part)
+    return 1.0 if i is None else v[i]
+
+
+def row_scales(medium_cls, vm):
+    """The medium's row weights (iso^2, iso lobe, lobe^2) from its scale parameters (1 for
+    a part without one); numpy in, numpy out."""
+    td, tt = (float(_scale(medium_cls, vm, part)) for part in MEDIUM_PARTS)
+    return np.array([td * td, td * tt, tt * tt])
+
+
+def column_scales(brdf_cls, vb):
+    """The BRDF's column weights (separable, lobe) from its scale parameters."""
+    return np.array([float(_scale(brdf_cls, vb, part)) for part in BRDF_PARTS])
+
+
 def combine_terms(brdf_cls, medium_cls, terms, vb, vm):
     """Apparent reflectance from the term matrices (..., 3, 2) and the scale parameters."""
-    def scale(model, v, part):
-        i = model.scale_index(part)
-        return 1.0 if i is None else v[i]
-    td, tt = scale(medium_cls, vm, "iso"), scale(medium_cls, vm, "lobe")
-    ps, pl = scale(brdf_cls, vb, "separable"), scale(brdf_cls, vb, "lobe")
+    td, tt = (_scale(medium_cls, vm, part) for part in MEDIUM_PARTS)
     rows = jnp.stack([td * td, td * tt, tt * tt])
-    cols = jnp.stack([ps, pl])
+    cols = jnp.stack([_scale(brdf_cls, vb, part) for part in BRDF_PARTS])
     return jnp.einsum("...mb,m,b->...", terms, rows, cols)
 
 

@@ -1,5 +1,11 @@
-"""The result of a fit (MODEL.md sec. 7): :class:`FitResult`, its JSON file (key by key in
-docs/fitting.md) and its text report; :class:`FitError` for fits that cannot be set up."""
+"""The result of a fit (MODEL.md sec. 7): :class:`FitResult` (one model: a step of the
+two-step method) and :class:`JointResult` (several models: a joint fit), and their JSON file,
+key by key in docs/fitting.md. The text report is :mod:`veil.fitting.report`.
+
+Result files carry ``"format": "veil.fit/2"``; files of the earlier formats ("veil.fit/1",
+"veil.joint/1") are read as well, and any other format is refused with a clear message
+(a file from a newer veil).
+"""
 
 from __future__ import annotations
 
@@ -11,15 +17,17 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..errors import FitError, InputError, MissingFileError, NotAFileError
-from ..data.measurements import atomic_write_text
-from ..models import REGISTRY, Model, model_class
-from ..models.henyey_greenstein import VARIANTS
+from ..errors import FitError, MissingFileError, NotAFileError
+from ..io import write_bytes_atomic
+from ..models import REGISTRY, Model, default_class, model_class
+from ..models.base import VARIANT_OPTION
+from ..numbers import from_json_float, json_float
 
 #: The steps of the two-step method (MODEL.md sec. 7); results may also say "direct".
 STEPS = ("reference", "medium", "target")
-#: Value of the "format" key of a result file.
-FORMAT = "veil.fit/1"
+#: Value of the "format" key of a result file, and the formats this veil reads.
+FORMAT = "veil.fit/2"
+READABLE = ("veil.fit/1", "veil.joint/1", FORMAT)
 
 
 @dataclass(frozen=True)
@@ -30,10 +38,14 @@ class FitResult:
     ``stderr`` is None for fixed parameters or when the Jacobian is singular. ``residuals``
     are (value - model) / sigma when ``weighted``, else value - model. ``chi2_reduced`` is
     sum(residuals^2) / (n_points - free parameters); ``rms_relative`` the rms of
-    (value - model) / model. ``given`` is the model held fixed (the reference BRDF for the
-    medium step, the medium for the target step). ``stderr`` and ``correlation`` treat it as
-    exact; ``stderr_total`` and ``correlation_total`` add its own uncertainty when it came
-    from a fit (first-order propagation, docs/fitting.md), else they are None.
+    (value - model) / model; ``aic`` and ``bic`` the information criteria of the weighted
+    fit. ``converged`` is False when the iterations did not converge or the data do not
+    determine the model (``determined`` False; ``message`` says which parameters and why).
+    ``options`` are the fitted model's options; ``variant`` the Fresnel variant of the
+    medium involved (fitted or given), kept as its own key. ``given`` is the model held fixed
+    (the reference BRDF for the medium step, the medium for the target step). ``stderr`` and
+    ``correlation`` treat it as exact; ``stderr_total`` and ``correlation_total`` add its own
+    uncertainty when it came from a fit (first-order propagation, docs/fitting.md).
     """
 
     model: str
@@ -55,20 +67,47 @@ class FitResult:
     stderr_total: dict | None = None
     correlation_total: dict | None = None
     stats: dict = field(default_factory=dict)
+    options: dict = field(default_factory=dict)
+    determined: bool = True
 
     # -- models ----------------------------------------------------------------------------
+    @property
+    def model_class(self) -> type[Model]:
+        return model_class(self.model)
+
+    @property
+    def kind(self) -> str:
+        """"brdf" or "medium": the kind of the fitted model."""
+        return self.model_class.KIND
+
     def as_model(self) -> Model:
-        """The fitted model instance (TorranceSparrow or HenyeyGreenstein with its variant)."""
-        cls = model_class(self.model)
-        model = cls(**self.params)
-        if self.variant is not None and "variant" in model.options():
-            model = model.replace(variant=self.variant)
-        return model
+        """The fitted model instance (with its options)."""
+        return self.model_class.from_params(self.params, self.options)
+
+    def given_model(self) -> Model | None:
+        """The model the fit held fixed (``given``), or None."""
+        return model_from_entry(self.given, "the result's 'given' entry") if self.given else None
 
     @property
     def free(self) -> tuple[str, ...]:
         """Names of the parameters the fit varied (those not held fixed)."""
         return tuple(n for n in self.params if n not in self.fixed)
+
+    @property
+    def n_free(self) -> int:
+        return len(self.free)
+
+    @property
+    def aic(self) -> float | None:
+        """Akaike's criterion chi^2 + 2 k of a weighted fit (None when unweighted)."""
+        chi2 = self.chi2_reduced * max(self.n_points - self.n_free, 1)
+        return chi2 + 2 * self.n_free if self.weighted else None
+
+    @property
+    def bic(self) -> float | None:
+        """The Bayesian criterion chi^2 + k ln N of a weighted fit (None when unweighted)."""
+        chi2 = self.chi2_reduced * max(self.n_points - self.n_free, 1)
+        return chi2 + self.n_free * math.log(max(self.n_points, 1)) if self.weighted else None
 
     def covariance(self, total: bool = True):
         """(free names, covariance matrix) from the standard errors and correlations;
@@ -97,14 +136,17 @@ class FitResult:
             "step": self.step,
             "params": {k: float(v) for k, v in self.params.items()},
             "stderr": {k: json_float(v) for k, v in self.stderr.items()},
-            "correlation": {a: {b: json_float(r) for b, r in row.items()}
-                            for a, row in self.correlation.items()},
+            "correlation": _json_matrix(self.correlation),
             "chi2_reduced": json_float(self.chi2_reduced),
             "rms_relative": json_float(self.rms_relative),
+            "aic": json_float(self.aic),
+            "bic": json_float(self.bic),
             "n_points": int(self.n_points),
             "converged": bool(self.converged),
+            "determined": bool(self.determined),
             "message": self.message,
             "variant": self.variant,
+            "options": dict(self.options),
             "fixed": {k: float(v) for k, v in self.fixed.items()},
             "weighted": bool(self.weighted),
             "accuracy": self.accuracy,
@@ -112,8 +154,7 @@ class FitResult:
             "stderr_total": None if self.stderr_total is None else
             {k: json_float(v) for k, v in self.stderr_total.items()},
             "correlation_total": None if self.correlation_total is None else
-            {a: {b: json_float(r) for b, r in row.items()}
-             for a, row in self.correlation_total.items()},
+            _json_matrix(self.correlation_total),
             "stats": self.stats,
             "residuals": [json_float(r) for r in self.residuals],
         }
@@ -121,7 +162,9 @@ class FitResult:
     def to_json(self, path) -> None:
         """Write the result as JSON (keys in docs/fitting.md), atomically."""
         text = json.dumps(self.to_dict(), indent=2, allow_nan=False) + "\n"
-        atomic_write_text(path, text)
+        if os.path.isdir(path):
+            raise NotAFileError(f"cannot write {os.fspath(path)}: it is a directory")
+        write_bytes_atomic(path, text.encode("utf-8"))
 
     @classmethod
     def from_dict(cls, data: dict, source: str = "the fit result") -> "FitResult":
@@ -129,6 +172,7 @@ class FitResult:
         if not isinstance(data, dict):
             raise FitError(f"{source}: expected a JSON object with keys model, params, ...; "
                            f"got {type(data).__name__}")
+        _check_format(data, source)
         required = ("model", "params", "stderr", "correlation", "chi2_reduced", "rms_relative",
                     "n_points", "converged", "message", "variant")
         missing = [k for k in required if k not in data]
@@ -150,17 +194,24 @@ class FitResult:
             if isinstance(v, bool) or not isinstance(v, (int, float)):
                 raise FitError(f"{source}: params.{k} = {v!r} is not a number")
         variant = data["variant"]
-        if variant is not None and variant not in VARIANTS:
+        known = sorted({str(choice) for family in REGISTRY.values() for o in family.OPTIONS
+                        if o.name == VARIANT_OPTION for choice in o.choices})
+        if variant is not None and variant not in known:
             raise FitError(f"{source}: key 'variant' = {variant!r}; expected one of "
-                           f"{', '.join(VARIANTS)} or null")
+                           f"{', '.join(known)} or null")
+        options = data.get("options")
+        if options is None:  # files of format veil.fit/1 keep the variant only
+            options = {VARIANT_OPTION: variant} if VARIANT_OPTION in mcls.option_names() \
+                and variant is not None else {}
+        if not isinstance(options, dict):
+            raise FitError(f"{source}: key 'options' must be an object; got {options!r}")
         try:
-            model = mcls(**{k: float(v) for k, v in params.items()})
-            if "variant" in model.options():
-                if variant is None:
-                    raise InputError(f"model {name} needs a variant ({', '.join(VARIANTS)})")
-                model.replace(variant=variant)
+            model = mcls.from_params({k: float(v) for k, v in params.items()}, options)
         except (ValueError, TypeError) as exc:
             raise FitError(f"{source}: {exc}") from None
+        given = data.get("given")
+        if given is not None:
+            model_from_entry(given, f"{source}: key 'given'")
         stderr = data["stderr"]
         if not isinstance(stderr, dict) or set(stderr) - set(names):
             raise FitError(f"{source}: key 'stderr' must map parameter names ({', '.join(names)})"
@@ -173,31 +224,25 @@ class FitResult:
         if step is not None and step not in STEPS + ("direct",):
             raise FitError(f"{source}: key 'step' = {step!r}; expected one of "
                            f"{', '.join(STEPS)}, direct or null")
-        for key in ("n_points",):
-            if isinstance(data[key], bool) or not isinstance(data[key], int) or data[key] < 0:
-                raise FitError(f"{source}: key {key!r} = {data[key]!r}; expected an integer >= 0")
-        if not isinstance(data["converged"], bool):
-            raise FitError(f"{source}: key 'converged' = {data['converged']!r}; expected "
-                           f"true or false")
+        _check_common(data, source)
         return cls(
             model=name, params={k: float(v) for k, v in params.items()},
-            stderr={k: from_json_float(stderr.get(k)) for k in names},
-            correlation={a: {b: from_json_float(r) for b, r in row.items()}
-                         for a, row in (data["correlation"] or {}).items()},
-            residuals=tuple(from_json_float(r) for r in data.get("residuals") or ()),
-            chi2_reduced=from_json_float(data["chi2_reduced"]),
-            rms_relative=from_json_float(data["rms_relative"]),
+            stderr={k: from_json_float(stderr.get(k), source) for k in names},
+            correlation=_read_matrix(data["correlation"], source),
+            residuals=tuple(from_json_float(r, source) for r in data.get("residuals") or ()),
+            chi2_reduced=from_json_float(data["chi2_reduced"], source),
+            rms_relative=from_json_float(data["rms_relative"], source),
             n_points=int(data["n_points"]), converged=data["converged"],
             message=str(data["message"]), variant=variant,
             fixed={k: float(v) for k, v in fixed.items()}, step=step,
             weighted=bool(data.get("weighted", True)), accuracy=data.get("accuracy"),
-            given=data.get("given"),
+            given=given,
             stderr_total=None if data.get("stderr_total") is None else
-            {k: from_json_float(data["stderr_total"].get(k)) for k in names},
+            {k: from_json_float(data["stderr_total"].get(k), source) for k in names},
             correlation_total=None if data.get("correlation_total") is None else
-            {a: {b: from_json_float(r) for b, r in row.items()}
-             for a, row in data["correlation_total"].items()},
-            stats=data.get("stats") or {})
+            _read_matrix(data["correlation_total"], source),
+            stats=data.get("stats") or {}, options=model.options(),
+            determined=bool(data.get("determined", True)))
 
     @classmethod
     def from_json(cls, path) -> "FitResult":
@@ -207,53 +252,9 @@ class FitResult:
     # -- text ------------------------------------------------------------------------------
     def report(self, min_correlation: float = 0.1) -> str:
         """A readable fit report (like lmfit's): statistics, variables, correlations."""
-        mcls = model_class(self.model)
-        what = {"reference": "step 0, reference object in a clear medium (f_r directly)",
-                "medium": "step 1, medium through the reference object (f_r fixed)",
-                "target": "step 2, target object through the medium (f_t fixed)",
-                "direct": "target object in a clear medium (f_r directly)"}.get(self.step, "")
-        free = self.free
-        lines = [f"[[Fit: {self.model}" + (f", variant {self.variant}" if self.variant else "")
-                 + (f" - {what}" if what else "") + "]]",
-                 f"    data points        = {self.n_points}"
-                 + ("  (weighted by sigma)" if self.weighted
-                    else "  (UNWEIGHTED: no sigma column; errors scaled by reduced chi-square)"),
-                 f"    free parameters    = {len(free)}"
-                 + (f"  (fixed: {', '.join(self.fixed)})" if self.fixed else ""),
-                 f"    reduced chi-square = {format_number(self.chi2_reduced, 5)}",
-                 f"    rms relative resid = {format_number(100 * self.rms_relative, 4)} %",
-                 f"    converged          = {'yes' if self.converged else 'NO'} ({self.message})"]
-        if self.accuracy:
-            lines.append(f"    accuracy           = {self.accuracy}")
-        if self.stats:
-            lines.append(f"    evaluations        = {self.stats.get('nfev', 0)} function, "
-                         f"{self.stats.get('njev', 0)} Jacobian"
-                         + (f" over {self.stats.get('starts', 1)} start(s)"
-                            if self.stats.get("starts") else ""))
-        if self.given:
-            gp = ", ".join(f"{k}={format_number(v)}" for k, v in self.given.get("params", {}).items())
-            lines.append(f"    given (fixed) model = {self.given.get('model')}({gp})")
-        lines.append("[[Variables]]")
-        width = max(len(n) for n in self.params)
-        for p in mcls.PARAMS:
-            v = self.params[p.name]
-            unit = f" {p.unit}" if p.unit else ""
-            if p.name in self.fixed:
-                lines.append(f"    {p.name:<{width}}: {format_number(v)}{unit} (fixed)")
-                continue
-            se = self.stderr.get(p.name)
-            if se is None or not math.isfinite(se):
-                lines.append(f"    {p.name:<{width}}: {format_number(v)}{unit} +/- (not determined)")
-            else:
-                rel = f" ({100 * se / abs(v):.2f}%)" if v != 0 else ""
-                total = ""
-                if self.stderr_total is not None and self.stderr_total.get(p.name) is not None:
-                    total = (f"; with the given model's uncertainty +/- "
-                             f"{format_number(self.stderr_total[p.name], 3)}")
-                lines.append(f"    {p.name:<{width}}: {format_number(v)}{unit} +/- {format_number(se, 3)}{rel}"
-                             f"{total}")
-        lines += self.correlation_lines(min_correlation)
-        return "\n".join(lines)
+        from .report import fit_report
+
+        return fit_report(self, min_correlation)
 
     def correlation_lines(self, min_correlation: float, most: int | None = None) -> list[str]:
         """The report's [[Correlations]] section: pairs of free parameters with |r| >=
@@ -274,11 +275,161 @@ class FitResult:
         return self.report()
 
 
-def format_number(x, digits=6, missing="n/a") -> str:
-    """``x`` to ``digits`` significant digits; ``missing`` for None or a non-finite float."""
-    if x is None or (isinstance(x, float) and not math.isfinite(x)):
-        return missing
-    return f"{x:.{digits}g}"
+@dataclass(frozen=True)
+class JointResult(FitResult):
+    """A joint fit (MODEL.md sec. 7): a :class:`FitResult` whose ``params`` span several
+    models and whose ``layout`` says which: ``models`` {"brdf": family, "medium": family}
+    and their ``options``, ``objects`` {object: {model parameter: result name}}, ``media``
+    {label: {model parameter (alias): result name}}, ``shared``, ``sessions`` (name,
+    object, medium, n_points, chi2, rms_relative each)."""
+
+    layout: dict = field(default_factory=dict)
+
+    # -- models ----------------------------------------------------------------------------
+    def _family(self, kind: str):
+        name = (self.layout.get("models") or {}).get(kind)
+        return default_class(kind) if name is None else model_class(name, kind)
+
+    def _options(self, kind: str) -> dict:
+        opts = (self.layout.get("options") or {}).get(kind)
+        if opts is not None:
+            return dict(opts)
+        cls = self._family(kind)
+        if VARIANT_OPTION in cls.option_names() and self.variant is not None:
+            return {VARIANT_OPTION: self.variant}  # veil.joint/1 files
+        return {}
+
+    def brdf(self, obj: str = "target") -> Model:
+        names = self.layout["objects"].get(obj)
+        if names is None:
+            raise FitError(f"the joint fit has no object {obj!r}; it has "
+                           f"{', '.join(self.layout['objects'])}")
+        cls = self._family("brdf")
+        return cls.from_params({p.name: self.params[names[p.key]] for p in cls.PARAMS},
+                               self._options("brdf"))
+
+    def medium(self, label: str) -> Model:
+        names = self.layout["media"].get(label)
+        if names is None:
+            raise FitError(f"the joint fit has no medium {label!r}; it has "
+                           f"{', '.join(self.layout['media']) or 'none'}")
+        cls = self._family("medium")
+        return cls.from_params({p.name: self.params[names[p.key]] for p in cls.PARAMS},
+                               self._options("medium"))
+
+    def as_model(self):
+        """The target's BRDF (what :meth:`FitResult.as_model` gives for a step-2 fit)."""
+        return self.brdf("target")
+
+    @property
+    def model_class(self) -> type[Model]:
+        return self._family("brdf")
+
+    # -- files -----------------------------------------------------------------------------
+    def to_dict(self) -> dict:
+        out = super().to_dict()
+        out["layout"] = self.layout
+        return out
+
+    @classmethod
+    def from_dict(cls, data: dict, source: str = "the joint fit result") -> "JointResult":
+        if not isinstance(data, dict) or data.get("model") != "joint":
+            raise FitError(f"{source}: not a joint fit result (expected key 'model' = 'joint')")
+        _check_format(data, source)
+        required = ("params", "stderr", "correlation", "chi2_reduced", "rms_relative",
+                    "n_points", "converged", "message", "variant", "layout")
+        missing = [k for k in required if k not in data]
+        if missing:
+            raise FitError(f"{source}: missing key(s) {', '.join(missing)}; is this a joint "
+                           f"fit result written by veil (veil fit joint -o FILE.json)?")
+        layout = data["layout"]
+        if not isinstance(layout, dict) or not {"objects", "media"} <= set(layout):
+            raise FitError(f"{source}: key 'layout' must hold 'objects' and 'media'")
+        params = data["params"]
+        if not isinstance(params, dict):
+            raise FitError(f"{source}: key 'params' must map names to numbers")
+        named = [n for names in layout["objects"].values() for n in names.values()]
+        named += [n for names in layout["media"].values() for n in names.values()]
+        absent = [n for n in dict.fromkeys(named) if n not in params]
+        if absent:
+            raise FitError(f"{source}: layout names parameter(s) {', '.join(absent)} missing "
+                           f"from 'params'")
+        for k, v in params.items():
+            if isinstance(v, bool) or not isinstance(v, (int, float)):
+                raise FitError(f"{source}: params.{k} = {v!r} is not a number")
+        _check_common(data, source)
+        try:
+            result = cls(
+                model="joint", params={k: float(v) for k, v in params.items()},
+                stderr={k: from_json_float(data["stderr"].get(k), source) for k in params},
+                correlation=_read_matrix(data["correlation"], source),
+                residuals=tuple(from_json_float(r, source) for r in data.get("residuals") or ()),
+                chi2_reduced=from_json_float(data["chi2_reduced"], source),
+                rms_relative=from_json_float(data["rms_relative"], source),
+                n_points=int(data["n_points"]), converged=data["converged"],
+                message=str(data["message"]), variant=data["variant"],
+                fixed={k: float(v) for k, v in (data.get("fixed") or {}).items()},
+                step="joint", weighted=bool(data.get("weighted", True)),
+                accuracy=data.get("accuracy"), given=data.get("given"),
+                stats=data.get("stats") or {}, determined=bool(data.get("determined", True)),
+                layout=layout)
+            for obj in layout["objects"]:
+                result.brdf(obj)
+            for label in layout["media"]:
+                result.medium(label)
+        except (ValueError, TypeError, KeyError, AttributeError) as exc:
+            raise FitError(f"{source}: {exc}") from None
+        return result
+
+
+# --------------------------------------------------------------------------------------
+# reading
+# --------------------------------------------------------------------------------------
+def model_entry(model: Model) -> dict:
+    """{"model": name, "params": {...}, options...}: how a result file names a model (its
+    "given" key)."""
+    return {"model": model.NAME, "params": model.as_dict(), **model.options()}
+
+
+def model_from_entry(entry, where: str) -> Model:
+    """The model of a :func:`model_entry` dict; a FitError naming ``where`` otherwise."""
+    if not isinstance(entry, dict) or "model" not in entry or "params" not in entry:
+        raise FitError(f"{where}: expected an object with keys 'model' and 'params'")
+    try:
+        cls = model_class(entry["model"])
+        options = {k: entry[k] for k in cls.option_names() if k in entry}
+        return cls.from_params(entry["params"], options)
+    except (ValueError, TypeError) as exc:
+        raise FitError(f"{where}: {exc}") from None
+
+
+def _check_format(data: dict, source: str) -> None:
+    fmt = data.get("format")
+    if fmt is not None and fmt not in READABLE:
+        raise FitError(f"{source}: key 'format' = {fmt!r}: this veil reads result files of "
+                       f"format {', '.join(READABLE)}; the file was written by another "
+                       f"(newer?) version of veil")
+
+
+def _check_common(data: dict, source: str) -> None:
+    n = data["n_points"]
+    if isinstance(n, bool) or not isinstance(n, int) or n < 0:
+        raise FitError(f"{source}: key 'n_points' = {n!r}; expected an integer >= 0")
+    if not isinstance(data["converged"], bool):
+        raise FitError(f"{source}: key 'converged' = {data['converged']!r}; expected "
+                       f"true or false")
+
+
+def _json_matrix(rows: dict) -> dict:
+    return {a: {b: json_float(r) for b, r in row.items()} for a, row in rows.items()}
+
+
+def _read_matrix(rows, source: str) -> dict:
+    if rows is None:
+        return {}
+    if not isinstance(rows, dict) or not all(isinstance(r, dict) for r in rows.values()):
+        raise FitError(f"{source}: a correlation matrix must map names to objects of numbers")
+    return {a: {b: from_json_float(r, source) for b, r in row.items()} for a, row in rows.items()}
 
 
 def read_json(path):
@@ -302,22 +453,33 @@ def read_json(path):
                        f"{exc.msg}") from None
 
 
-def json_float(x):
-    """A number for a JSON file: float, or None (null) when missing or not finite."""
-    if x is None:
-        return None
-    x = float(x)
-    return x if math.isfinite(x) else None
+def load_result(path) -> FitResult:
+    """Read any veil fit result (a step or a joint fit) from JSON."""
+    data = read_json(path)
+    if isinstance(data, dict) and data.get("model") == "joint":
+        return JointResult.from_dict(data, os.fspath(path))
+    return FitResult.from_dict(data, os.fspath(path))
 
 
-def from_json_float(x):
-    """A number read from a result file: float or None; anything else is a FitError."""
-    if x is None:
-        return None
-    if isinstance(x, bool) or not isinstance(x, (int, float)):
-        raise FitError(f"expected a number or null in a fit result, got {x!r}")
-    return float(x)
+#: How errors name the fit result a role needs, by kind.
+RESULTS = {"brdf": "a BRDF fit (step 0, 'veil fit reference')",
+           "medium": "a medium fit (step 1, 'veil fit medium')"}
 
 
-__all__ = ["FitError", "FitResult", "FORMAT", "STEPS", "json_float", "from_json_float",
-           "read_json", "format_number"]
+def load_model_result(path, kind: str, option: str) -> FitResult:
+    """A result file that must hold a model of ``kind`` ("brdf" or "medium"): a clear
+    FitError naming ``option`` when it holds the other kind or a joint fit."""
+    result = load_result(path)
+    role = option.lstrip("-").replace("-", " ")
+    if isinstance(result, JointResult):
+        raise FitError(f"{option} {os.fspath(path)}: the {role} must be {RESULTS[kind]}; got a "
+                       f"joint fit result")
+    if result.kind != kind:
+        raise FitError(f"{option} {os.fspath(path)}: the {role} must be {RESULTS[kind]}; got a "
+                       f"{result.model} result" + (f" of step {result.step!r}" if result.step
+                                                   else ""))
+    return result
+
+
+__all__ = ["FitResult", "JointResult", "FORMAT", "READABLE", "STEPS", "RESULTS", "model_entry",
+           "model_from_entry", "read_json", "load_result", "load_model_result"]

@@ -1,40 +1,55 @@
-"""Settings, checks and results shared by the least-squares fits (docs/fitting.md): the
-iteration quadrature, scipy's termination tolerances, the checks of the fit options
-(accuracy, max_nfev, fixed values), progress while iterating, when a start is convincing,
-the goodness of fit, the covariance, standard errors and correlations from the weighted
-Jacobian at the solution, and the notes of a result's message."""
+"""The one least-squares solver of veil (docs/fitting.md): every fit - a step of the
+two-step method, a joint fit, a profile or refit of the diagnostics - is a
+:class:`veil.fitting.problem.Problem` solved here.
+
+- :func:`solve`: scipy's trust-region-reflective least squares ("trf", x_scale="jac") in the
+  problem's internal coordinates (log, atanh or plain, :mod:`veil.fitting.coordinates`),
+  with the exact Jacobian of the engine;
+- :func:`run`: several starts (the next only while the fits so far are not convincing),
+  iterations at the "fast" quadrature, then a polish at the requested one with the fast
+  Jacobian frozen at the fast solution (a chord method: it differs from the polish rule's
+  Jacobian by that rule's ~0.3 % error, so the polish converges to the optimum of the
+  requested rule);
+- :func:`covariance`: (J^T W J)^-1 of the free parameters from the fast Jacobian at the
+  solution, columns equilibrated first (natural units span many decades), scaled by the
+  reduced chi-square for unweighted data;
+- :func:`summarize`: goodness of fit, standard errors and correlations, and the notes of a
+  result: parameters at the edge of their search range, a singular Jacobian, data that
+  cannot determine the model (which then never reads "converged").
+"""
 
 from __future__ import annotations
 
+import math
+from dataclasses import dataclass, field
+
 import numpy as np
+from scipy.optimize import least_squares
 
-from ..engine.apparent import RULES
-from .result import FitError
+from ..errors import FitError
+from . import coordinates
+from .problem import ITERATION_ACCURACY, Problem
 
-#: Quadrature of the iterations through a medium; the polish uses the requested accuracy.
-ITERATION_ACCURACY = "fast"
 #: Termination of scipy's least_squares. A relative cost change below 1e-6 at the optimum
 #: (cost ~ n_points / 2 for a good weighted fit) leaves every parameter within about 1 % of
 #: its standard error of the optimum: enough for the iterations before a polish and for the
-#: polish itself (whose fast-rule Jacobian makes finer steps a matter of chance). Direct
-#: fits of f_r are cheap and use the tight tolerances.
+#: polish itself (whose fast-rule Jacobian makes finer steps a matter of chance). Fits of f_r
+#: alone (clear water) are cheap and use the tight tolerances.
 TOL_ITER = {"ftol": 1e-6, "xtol": 1e-6, "gtol": 1e-8}
 TOL_POLISH = TOL_ITER
 TOL_FINAL = {"ftol": 1e-8, "xtol": 1e-8, "gtol": 1e-8}
 #: Reduced chi-square up to which a converged weighted fit inside its search range makes
 #: further starts unnecessary.
 CONVINCING = 2.0
+#: A singular value below this fraction of the largest makes the Jacobian singular.
+SINGULAR = 1e-10
+#: Note of a result whose Jacobian is singular at the solution.
+SINGULAR_NOTE = "Jacobian singular at the solution: uncertainties not determined"
 
 
 # --------------------------------------------------------------------------------------
 # options
 # --------------------------------------------------------------------------------------
-def check_accuracy(accuracy) -> None:
-    """A FitError unless ``accuracy`` names a quadrature rule ("fast", "default", "high")."""
-    if accuracy not in RULES:
-        raise FitError(f"accuracy = {accuracy!r}; expected one of {', '.join(RULES)}")
-
-
 def check_max_nfev(max_nfev) -> None:
     """A FitError unless ``max_nfev`` is a positive integer or None."""
     if max_nfev is not None and (isinstance(max_nfev, bool) or not isinstance(max_nfev, int)
@@ -63,52 +78,209 @@ def check_fixed(name: str, value, param, owner: str) -> None:
         raise FitError(f"fixed {exc}") from None
 
 
-# --------------------------------------------------------------------------------------
-# iterating
-# --------------------------------------------------------------------------------------
 def ticker(progress, stage: str):
     """A callback for each evaluation of a least-squares run: calls progress(stage, n, None)
-    at the n-th call (nothing when ``progress`` is None)."""
+    at the n-th call (nothing when ``progress`` is None or false)."""
     count = 0
 
     def tick():
         nonlocal count
         count += 1
-        if progress is not None:
+        if progress:
             progress(stage, count, None)
 
     return tick
 
 
-def convincing(status: int, cost: float, dof: int, weighted: bool, at_edge) -> bool:
-    """A weighted fit that converged (``status`` > 0) with no parameter at the edge of its
-    search range (``at_edge``) and reduced chi-square 2 ``cost`` / ``dof`` <= CONVINCING."""
-    return (status > 0 and weighted and 2 * cost / dof <= CONVINCING and not at_edge)
+# --------------------------------------------------------------------------------------
+# one run
+# --------------------------------------------------------------------------------------
+@dataclass
+class Solution:
+    """A least-squares solution of a :class:`Problem` (natural ``x``, full vector)."""
+
+    x: np.ndarray
+    cost: float
+    status: int
+    message: str
+    nfev: int
+    njev: int
+    at_bound: list
+    at_lower: list = field(default_factory=list)
+
+    def stats(self, **extra) -> dict:
+        return {"nfev": self.nfev, "njev": self.njev, "status": self.status,
+                "cost": self.cost, **extra}
+
+
+def solve(problem: Problem, x0, *, accuracy: str = ITERATION_ACCURACY, tol=None,
+          max_nfev=None, jacobian_at=None, on_eval=None) -> Solution:
+    """Weighted least squares from natural start ``x0``: values at ``accuracy``, Jacobians
+    at the "fast" quadrature, recomputed at every iterate, or frozen at the natural
+    parameters ``jacobian_at`` (the polish's chord method); ``tol`` defaults to TOL_FINAL."""
+    tol = tol or TOL_FINAL
+    u0 = problem.to_u(x0)
+    lo, hi = problem.bounds(u0)
+    u0 = np.clip(u0, lo, hi)
+    base = problem.values  # fixed parameters keep their values
+    counts = {"f": 0, "j": 0}
+    last: dict = {}
+
+    def fun(u):
+        counts["f"] += 1
+        x, _ = problem.to_x(u, base)
+        if on_eval:
+            on_eval()
+        val = problem.model_values(x, accuracy)
+        last.clear()
+        last[x.tobytes()] = val
+        return np.concatenate([(val - problem.y) * problem.w, problem.prior_rows(x)[0]])
+
+    def jac(u):
+        counts["j"] += 1
+        x, d = problem.to_x(u, base)
+        at = x if jacobian_at is None else jacobian_at
+        _, full = problem.value_and_jacobian(at, ITERATION_ACCURACY)
+        full = np.concatenate([full * problem.w[:, None], problem.prior_rows(x)[1]])
+        return full[:, problem.free] * d[None, :]
+
+    lsq = least_squares(fun, u0, jac=jac, bounds=(lo, hi), method="trf", x_scale="jac",
+                        max_nfev=max_nfev, **tol)
+    x, _ = problem.to_x(lsq.x, base)
+    problem.remember(x, accuracy, last.get(x.tobytes()))
+    hit = coordinates.at_bound(lsq.x, (lo, hi), problem.free_names)
+    low = [n for n, u, a, b in zip(problem.free_names, lsq.x, lo, hi)
+           if u - a <= coordinates.EDGE * max(b - a, 1e-300)]
+    return Solution(x=x, cost=float(lsq.cost), status=int(lsq.status), message=lsq.message,
+                    nfev=counts["f"], njev=counts["j"], at_bound=hit, at_lower=low)
+
+
+def convincing(problem: Problem, sol: Solution) -> bool:
+    """A weighted fit that converged inside its search range with reduced chi-square <=
+    CONVINCING: further starts are unnecessary (a second minimum of similar cost is what
+    veil.analysis.diagnostics' profiles look for)."""
+    dof = problem.n_points - problem.n_free
+    return (sol.status > 0 and problem.weighted and dof > 0
+            and 2 * sol.cost / dof <= CONVINCING and not sol.at_bound)
 
 
 # --------------------------------------------------------------------------------------
-# the solution
+# several starts and the polish
+# --------------------------------------------------------------------------------------
+@dataclass
+class Outcome:
+    """What :func:`run` found: the ``solution``, the model ``values`` there at the requested
+    accuracy, the ``notes`` of its message and the ``stats`` of every run."""
+
+    solution: Solution
+    values: np.ndarray
+    accuracy: str
+    notes: list = field(default_factory=list)
+    stats: dict = field(default_factory=dict)
+
+
+def run(problem: Problem, starts, *, accuracy: str = "default", max_nfev=None, progress=None,
+        every: bool = False) -> Outcome:
+    """Least squares from each natural start vector (best first): all of them when
+    ``every``, else the next only while the fits so far are not convincing; the best is
+    polished at ``accuracy`` when the problem has a medium (module docstring)."""
+    through_medium = any(b.medium is not None for b in problem.blocks)
+    polish = through_medium and accuracy != ITERATION_ACCURACY
+    runs, skipped = [], 0
+    for s, x0 in enumerate(starts):
+        if runs and not every and any(convincing(problem, r) for r in runs):
+            skipped = len(starts) - s
+            break
+        tick = ticker(progress, f"start {s + 1}/{len(starts)}: iteration")
+        runs.append(solve(problem, x0, tol=TOL_ITER if polish else TOL_FINAL,
+                          max_nfev=max_nfev, on_eval=tick))
+    if not runs:
+        raise FitError("no starting point: the starting grid gave no finite cost")
+    best = min(range(len(runs)), key=lambda r: (runs[r].cost, r))
+    sol = runs[best]
+    run_stats = [r.stats() for r in runs]
+    notes = []
+    final_accuracy = accuracy if through_medium else None
+    if polish:
+        if sol.status <= 0:
+            notes.append(f"iterations at {ITERATION_ACCURACY!r} accuracy stopped early "
+                         f"({sol.message})")
+        tick = ticker(progress, f"polish at {accuracy!r}: iteration")
+        sol = solve(problem, sol.x, accuracy=accuracy, tol=TOL_POLISH, max_nfev=max_nfev,
+                    jacobian_at=sol.x if sol.status > 0 else None, on_eval=tick)
+        run_stats.append(sol.stats(polish=True))
+    values = problem.model_values(sol.x, accuracy if through_medium else ITERATION_ACCURACY)
+    stats = {"starts": len(runs), "starts_skipped": skipped, "best_start": best + 1,
+             "nfev": sum(r["nfev"] for r in run_stats),
+             "njev": sum(r["njev"] for r in run_stats), "runs": run_stats,
+             "configurations": problem.n_points}
+    if through_medium:
+        stats["engine_calls"] = problem.engine_calls()
+    return Outcome(sol, values, final_accuracy, notes, stats)
+
+
+# --------------------------------------------------------------------------------------
+# the solution's statistics
 # --------------------------------------------------------------------------------------
 def goodness(y: np.ndarray, w: np.ndarray, values: np.ndarray, n_free: int):
     """(residuals (y - values) * w, reduced chi-square sum(residuals^2) / (points - n_free),
     rms of the relative residuals (y - values) / values over nonzero values, nan if none)."""
     res = (y - values) * w
-    chi2 = float(res @ res) / (y.size - n_free)
+    chi2 = float(res @ res) / max(y.size - n_free, 1)
     nonzero = values != 0
     rel = (y[nonzero] - values[nonzero]) / values[nonzero]
     rms_rel = float(np.sqrt(np.mean(rel ** 2))) if rel.size else float("nan")
     return res, chi2, rms_rel
 
 
-def covariance_from_jacobian(jac_u: np.ndarray, d: np.ndarray):
-    """Covariance of the free parameters (x units) from the weighted internal Jacobian
-    ``jac_u`` (points x free parameters) and dx/du ``d``: (J^T J)^-1 scaled by d d^T; None
-    when J is singular (smallest singular value <= 1e-10 of the largest)."""
-    _, s, vt = np.linalg.svd(jac_u, full_matrices=False)
-    if s.size == 0 or s[-1] <= s[0] * 1e-10 or not np.all(np.isfinite(s)):
+def weighted_jacobian(problem: Problem, x, accuracy: str = ITERATION_ACCURACY) -> np.ndarray:
+    """d residuals / d free natural parameters (with prior rows)."""
+    _, full = problem.value_and_jacobian(x, accuracy)
+    return np.concatenate([full * problem.w[:, None], problem.prior_rows(x)[1]])[:, problem.free]
+
+
+def _equilibrated_svd(jw: np.ndarray):
+    """(column scales, singular values, V^T) of the weighted Jacobian with unit columns;
+    None when a column is zero or not finite."""
+    scale = np.linalg.norm(jw, axis=0)
+    if scale.size == 0 or np.any(scale == 0) or not np.all(np.isfinite(jw)):
         return None
-    cov_u = (vt.T / s ** 2) @ vt
-    return cov_u * np.outer(d, d)
+    _, s, vt = np.linalg.svd(jw / scale, full_matrices=False)
+    return scale, s, vt
+
+
+def covariance(problem: Problem, x, accuracy: str = ITERATION_ACCURACY):
+    """Covariance (natural units) of the free parameters at ``x`` (module docstring); None
+    when the Jacobian is singular."""
+    found = _equilibrated_svd(weighted_jacobian(problem, x, accuracy))
+    if found is None:
+        return None
+    scale, s, vt = found
+    if s[-1] <= s[0] * SINGULAR or not np.all(np.isfinite(s)):
+        return None
+    cov = ((vt.T / s ** 2) @ vt) / np.outer(scale, scale)
+    if not problem.weighted:
+        val = problem.model_values(x, accuracy)
+        res = (problem.y - val) * problem.w
+        cov = cov * float(res @ res) / max(problem.n_points - problem.n_free, 1)
+    return cov
+
+
+def undetermined_parameters(problem: Problem, x, accuracy: str = ITERATION_ACCURACY) -> list:
+    """Free parameters the data do not determine at ``x``: those the data do not depend on
+    at all, and those that take part in a direction of the (equilibrated) Jacobian's null
+    space."""
+    jw = weighted_jacobian(problem, x, accuracy)
+    names = problem.free_names
+    dead = [n for n, c in zip(names, np.linalg.norm(jw, axis=0)) if not c > 0]
+    if dead:
+        return dead
+    found = _equilibrated_svd(jw)
+    if found is None:
+        return list(names)
+    _, s, vt = found
+    weak = vt[s <= s[0] * SINGULAR] if np.all(np.isfinite(s)) else vt
+    return [n for j, n in enumerate(names) if np.any(np.abs(weak[:, j]) > 0.1)]
 
 
 def uncertainties(cov, names, free):
@@ -127,34 +299,73 @@ def uncertainties(cov, names, free):
     return stderr, corr
 
 
-# --------------------------------------------------------------------------------------
-# the message
-# --------------------------------------------------------------------------------------
-#: Note of a result whose Jacobian is singular at the solution.
-SINGULAR_NOTE = "Jacobian singular at the solution: uncertainties not determined"
+@dataclass
+class Summary:
+    """Goodness of fit and uncertainties of an :class:`Outcome` (names: the problem's)."""
+
+    residuals: np.ndarray
+    chi2_reduced: float
+    rms_relative: float
+    covariance: np.ndarray | None
+    stderr: dict
+    correlation: dict
+    converged: bool
+    message: str
+    determined: bool
+    undetermined: list
 
 
-def stopped_early_note(message: str) -> str:
-    """Note of a polished result whose iterations did not converge (scipy's ``message``)."""
-    return f"iterations at {ITERATION_ACCURACY!r} accuracy stopped early ({message})"
-
-
-def edge_note(names) -> str:
-    """Note of a result with parameters ``names`` at the edge of their search range."""
-    return f"{', '.join(names)} at the edge of the search range (uncertainty unreliable)"
-
-
-def outcome(status: int, message: str, notes) -> tuple[bool, str]:
-    """(converged, message) of a result: scipy's ``status`` > 0, and its ``message`` with the
-    ``notes`` appended, prefixed "did not converge: " unless converged."""
-    converged = bool(status > 0)
-    message = message if not notes else message + "; " + "; ".join(notes)
-    if not converged:
+def summarize(problem: Problem, outcome: Outcome, extra_notes=()) -> Summary:
+    """The statistics and the message of a solution (module docstring). A fit whose data
+    cannot determine its parameters - no positive value, a singular Jacobian, a scale at
+    the floor of its search range - is "not determined" and never reads "converged"."""
+    sol = outcome.solution
+    res, chi2, rms_rel = goodness(problem.y, problem.w, outcome.values, problem.n_free)
+    notes = list(outcome.notes) + list(extra_notes)
+    if sol.at_bound:
+        notes.append(f"{', '.join(sol.at_bound)} at the edge of the search range "
+                     f"(uncertainty unreliable)")
+    cov = covariance(problem, sol.x)
+    stderr, corr = {n: None for n in problem.names}, {}
+    if cov is None:
+        notes.append(SINGULAR_NOTE)
+    else:
+        stderr, corr = uncertainties(cov, problem.names, problem.free_index)
+    why = _undetermined(problem, sol, cov)
+    converged = sol.status > 0 and not why
+    message = sol.message if not notes else sol.message + "; " + "; ".join(notes)
+    if why:
+        message = "not determined: " + "; ".join(why) + "; " + message
+    elif not converged:
         message = "did not converge: " + message
-    return converged, message
+    undetermined = sorted({n for reason in why for n in problem.free_names if n in reason},
+                          key=problem.free_names.index)
+    return Summary(res, chi2, rms_rel, cov, stderr, corr, converged, message, not why,
+                   undetermined)
 
 
-__all__ = ["ITERATION_ACCURACY", "TOL_ITER", "TOL_POLISH", "TOL_FINAL", "CONVINCING",
-           "check_accuracy", "check_max_nfev", "check_fixed", "ticker", "convincing",
-           "goodness", "covariance_from_jacobian", "uncertainties", "SINGULAR_NOTE",
-           "stopped_early_note", "edge_note", "outcome"]
+def _undetermined(problem: Problem, sol: Solution, cov) -> list[str]:
+    """Reasons why the data cannot determine the fit (empty when they can)."""
+    why = []
+    for b, sl in zip(problem.blocks, problem.slices()):
+        y = problem.y[sl]
+        if not np.any(y > 0):
+            why.append(f"session {b.session.name!r} has no positive value (all "
+                       f"{'zero' if np.all(y == 0) else 'zero or negative'}"
+                       f"{' after black-cloth subtraction' if b.medium is not None else ''}): "
+                       f"it carries no signal to fit {', '.join(problem.free_names)}")
+    if cov is None:
+        which = undetermined_parameters(problem, sol.x)
+        why.append(f"the data do not constrain {', '.join(which) or 'a combination of the free parameters'} "
+                   f"(Jacobian of rank below the {problem.n_free} free parameters)")
+    floor = [n for n in sol.at_lower if problem.params[problem.index(n)].scale]
+    if floor:
+        why.append(f"{', '.join(floor)} at the floor of the search range (the data ask for "
+                   f"a vanishing scale)")
+    return why
+
+
+__all__ = ["TOL_ITER", "TOL_POLISH", "TOL_FINAL", "CONVINCING", "SINGULAR_NOTE",
+           "check_max_nfev", "as_fixed", "check_fixed", "ticker", "Solution", "solve",
+           "convincing", "Outcome", "run", "goodness", "weighted_jacobian", "covariance",
+           "undetermined_parameters", "uncertainties", "Summary", "summarize"]

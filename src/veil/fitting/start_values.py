@@ -1,7 +1,14 @@
-"""Starting values of the fits (docs/fitting.md): a coarse grid over the nonlinear
-parameters (n, eta or g, eta_u) with the scale parameters solved exactly at each grid point
-- the apparent value is linear in P_d, P_s (non-negative least squares) and quadratic in
-T_d, T_t (a scan over T_t/T_d, or the roots of a cubic) - and the best distinct points."""
+"""Starting values of the fits (docs/fitting.md), from the models' declarations: a coarse
+grid over the nonlinear parameters (each model's ``START`` grid for its role in the fit)
+with the scale parameters solved exactly at each grid point - the apparent value is linear
+in the BRDF's scales (non-negative least squares) and quadratic in the medium's (a scan over
+their ratio, or the roots of a cubic) - and the best distinct points.
+
+:func:`step_starts` serves a fit with one unknown model (a step of the two-step method);
+:func:`joint_starts` a joint fit, model by model: objects measured in clear water first,
+then media seen through a known object, then the target with the media seen only through
+it.
+"""
 
 from __future__ import annotations
 
@@ -11,20 +18,17 @@ import math
 import numpy as np
 from scipy.optimize import nnls
 
-from .result import FitError
-from ..models import HenyeyGreenstein, TorranceSparrow
+from ..engine.integrator import BRDF_PARTS, MEDIUM_PARTS, column_scales
+from ..errors import FitError
+from .problem import ITERATION_ACCURACY, Block, Problem, SessionModel
 
-#: Grids of starting values over the nonlinear parameters, by model class and step.
-START_GRIDS = {
-    (TorranceSparrow, "reference"): {"n": tuple(np.round(np.geomspace(0.03, 5.0, 16), 4)),
-                                     "eta": (1.2, 1.5, 2.0)},
-    (TorranceSparrow, "target"): {"n": (0.08, 0.13, 0.2, 0.3, 0.45, 0.65, 0.9, 1.3, 2.0),
-                                  "eta": (1.5,)},
-    (HenyeyGreenstein, "medium"): {"g": (0.5, 0.7, 0.8, 0.88, 0.93, 0.96, 0.98, 0.99, 0.995),
-                                   "eta": (1.33,)},
-}
+#: Configurations per session used for the joint fit's starting grid (evenly spaced).
+GRID_SUBSAMPLE = 64
 
 
+# --------------------------------------------------------------------------------------
+# the scales, exactly
+# --------------------------------------------------------------------------------------
 def weighted_nnls(columns: np.ndarray, rhs: np.ndarray, w: np.ndarray) -> np.ndarray:
     """Coefficients >= 0 minimizing sum(w^2 (columns @ coef - rhs)^2) (columns equilibrated)."""
     a = columns * w[:, None]
@@ -44,17 +48,20 @@ def _floor(value: float, column: np.ndarray, y: np.ndarray, w: np.ndarray) -> fl
     return 1e-3 * alone if alone > 0 else 1e-12
 
 
-def brdf_scales(basis: np.ndarray, x: np.ndarray, cls, fixed: dict, y, w):
-    """Best (P_d, P_s) >= 0 for the separable and lobe basis columns (M, 2); fixed ones kept."""
-    idx = [cls.scale_index("separable"), cls.scale_index("lobe")]
+def brdf_scales(basis: np.ndarray, x: np.ndarray, cls, fixed, y, w):
+    """Best BRDF scales >= 0 for the part columns ``basis`` (M, parts) at vector ``x``; the
+    scales named in ``fixed`` (and parts without a scale, weight 1) are kept."""
     x = np.array(x, dtype=float)
-    free = [k for k, i in enumerate(idx) if cls.param_names()[i] not in fixed]
-    rhs = y - sum(basis[:, k] * x[idx[k]] for k in range(2) if k not in free)
+    idx = [cls.scale_index(part) for part in BRDF_PARTS]
+    names = cls.param_names()
+    free = [k for k, i in enumerate(idx) if i is not None and names[i] not in fixed]
+    weight = [1.0 if i is None else x[i] for i in idx]
+    rhs = y - sum(basis[:, k] * weight[k] for k in range(len(idx)) if k not in free)
     if free:
         coef = weighted_nnls(basis[:, free], rhs, w)
         for c, k in zip(coef, free):
-            x[idx[k]] = c
-    model = basis @ x[idx]
+            x[idx[k]] = weight[k] = c
+    model = basis @ np.array(weight)
     cost = float(np.sum(((model - y) * w) ** 2))
     for k in free:
         x[idx[k]] = _floor(x[idx[k]], basis[:, k], y, w)
@@ -67,8 +74,11 @@ def quadratic_scale(a, b, c, y, w) -> float:
     coeffs = [2 * a @ a, 3 * a @ b, b @ b + 2 * a @ r, b @ r]
     cands = [0.0]
     if any(abs(co) > 0 for co in coeffs):
-        roots = np.roots(coeffs) if coeffs[0] != 0 else np.roots(coeffs[1:])
-        cands += [float(z.real) for z in roots if abs(z.imag) <= 1e-9 * (1 + abs(z)) and z.real > 0]
+        lead = next(k for k, co in enumerate(coeffs) if co != 0)
+        if lead < 3:
+            roots = np.roots(coeffs[lead:])
+            cands += [float(z.real) for z in roots
+                      if abs(z.imag) <= 1e-9 * (1 + abs(z)) and z.real > 0]
     costs = [float(np.sum((a * t * t + b * t + r) ** 2)) for t in cands]
     return cands[int(np.argmin(costs))]
 
@@ -76,13 +86,18 @@ def quadratic_scale(a, b, c, y, w) -> float:
 _RATIOS = np.concatenate([[0.0], np.logspace(-6, 8, 561)])
 
 
-def medium_scales(basis: np.ndarray, x: np.ndarray, cls, fixed: dict, y, w):
-    """Best (T_d, T_t) >= 0 for basis columns (M, 3) of T_d^2, T_d T_t, T_t^2; fixed kept."""
-    i_d, i_t = cls.scale_index("iso"), cls.scale_index("lobe")
+def medium_scales(basis: np.ndarray, x: np.ndarray, cls, fixed, y, w):
+    """Best medium scales >= 0 for the row columns ``basis`` (M, 3) of iso^2, iso lobe,
+    lobe^2 at vector ``x``; the scales named in ``fixed`` (and parts without a scale,
+    weight 1) are kept."""
     names = cls.param_names()
+    i_d, i_t = (cls.scale_index(part) for part in MEDIUM_PARTS)
     x = np.array(x, dtype=float)
     a0, a1, a2 = basis[:, 0], basis[:, 1], basis[:, 2]
-    free_d, free_t = names[i_d] not in fixed, names[i_t] not in fixed
+    free_d = i_d is not None and names[i_d] not in fixed
+    free_t = i_t is not None and names[i_t] not in fixed
+    d = 1.0 if i_d is None else x[i_d]
+    t = 1.0 if i_t is None else x[i_t]
     if free_d and free_t:
         # value = T_d^2 (a0 + r a1 + r^2 a2) with r = T_t / T_d: exact in T_d^2 per ratio
         cols = np.concatenate([(a0[None, :] + _RATIOS[:, None] * a1[None, :]
@@ -93,42 +108,40 @@ def medium_scales(basis: np.ndarray, x: np.ndarray, cls, fixed: dict, y, w):
         costs = np.sum((s[:, None] * cols - yw) ** 2, axis=1)
         k = int(np.argmin(costs))
         if k == len(_RATIOS):  # T_d = 0
-            x[i_d], x[i_t] = 0.0, math.sqrt(s[k])
+            d, t = 0.0, math.sqrt(s[k])
         else:
-            x[i_d] = math.sqrt(s[k])
-            x[i_t] = _RATIOS[k] * x[i_d]
+            d = math.sqrt(s[k])
+            t = _RATIOS[k] * d
     elif free_d:
-        t = x[i_t]
-        x[i_d] = quadratic_scale(a0, t * a1, t * t * a2, y, w)
+        d = quadratic_scale(a0, t * a1, t * t * a2, y, w)
     elif free_t:
-        d = x[i_d]
-        x[i_t] = quadratic_scale(a2, d * a1, d * d * a0, y, w)
-    model = basis @ np.array([x[i_d] ** 2, x[i_d] * x[i_t], x[i_t] ** 2])
+        t = quadratic_scale(a2, d * a1, d * d * a0, y, w)
+    model = basis @ np.array([d * d, d * t, t * t])
     cost = float(np.sum(((model - y) * w) ** 2))
-    if free_d and x[i_d] <= 0:
-        x[i_d] = 1e-3 * x[i_t] if x[i_t] > 0 else 1e-12
-    if free_t and x[i_t] <= 0:
-        x[i_t] = 1e-3 * x[i_d] if x[i_d] > 0 else 1e-12
+    if free_d:
+        x[i_d] = d if d > 0 else (1e-3 * t if t > 0 else 1e-12)
+    if free_t:
+        x[i_t] = t if t > 0 else (1e-3 * d if d > 0 else 1e-12)
     return x, cost
 
 
-def grid_points(cls, step: str, free, base: np.ndarray):
+# --------------------------------------------------------------------------------------
+# grids
+# --------------------------------------------------------------------------------------
+def grid_points(cls, role: str, free, base: np.ndarray):
     """Grid over the free nonlinear parameters (``free``: indices into ``cls.PARAMS``) of
-    START_GRIDS[cls, step], the others as in ``base``: list of (index tuple, vector)."""
-    grid = START_GRIDS.get((cls, step), {})
-    scales = set(cls.SCALES.values())
+    the model's starting grid for ``role``, the others as in ``base``: a list of (index
+    tuple, vector). A free nonlinear parameter without a grid starts at ``base``."""
+    grid = cls.start_grid(role)
+    scales = set(cls.scale_names())
     names = cls.param_names()
     axes = []
     for i in free:
         name = names[i]
-        if name in scales:
+        if name in scales or name not in grid:
             continue
-        values = grid.get(name)
-        if values is None:
-            raise FitError(f"no starting grid for parameter {name} of {cls.NAME}")
         p = cls.PARAMS[i]
-        values = [v for v in values if p.lower < v < p.upper]
-        axes.append((i, values))
+        axes.append((i, [v for v in grid[name] if p.contains(v)]))
     points = []
     for combo in itertools.product(*[range(len(v)) for _, v in axes]):
         x = np.array(base, dtype=float)
@@ -153,5 +166,238 @@ def pick_starts(scored, count: int):
     return chosen
 
 
-__all__ = ["START_GRIDS", "weighted_nnls", "brdf_scales", "quadratic_scale", "medium_scales",
-           "grid_points", "pick_starts"]
+def _rows(block: Block, vm) -> np.ndarray:
+    return block.model(ITERATION_ACCURACY).row_weights(vm)
+
+
+def _fixed_names(problem: Problem, block: Block, kind: str) -> set:
+    """Model parameter names of ``block``'s ``kind`` model that the problem holds fixed."""
+    idx = block.ib if kind == "brdf" else block.im
+    model = block.brdf if kind == "brdf" else block.medium
+    return {type(model).PARAMS[j].name for j, k in enumerate(idx) if not problem.free[k]}
+
+
+def step_starts(problem: Problem, kind: str, role: str, count: int, progress=None):
+    """Starting vectors (natural, best first) of a one-session problem whose ``kind`` model
+    is free: the model's grid for ``role``, scales exact at each point. Returns (starts,
+    number of grid points)."""
+    block = problem.blocks[0]
+    model = block.brdf if kind == "brdf" else block.medium
+    cls = type(model)
+    idx = block.ib if kind == "brdf" else block.im
+    free = [j for j, k in enumerate(idx) if problem.free[k]]
+    fixed = _fixed_names(problem, block, kind)
+    points = grid_points(cls, role, free, problem.values[idx])
+    engine = block.model(ITERATION_ACCURACY)
+    y, w = block.data.y, block.data.w
+    scored = []
+    for k, (combo, v) in enumerate(points):
+        x = problem.values.copy()
+        x[idx] = v
+        vb, vm = problem.split(block, x)
+        terms = engine.terms(vb, vm)
+        if kind == "medium":
+            basis = np.einsum("mkb,b->mk", terms, column_scales_of(block, vb))
+            v, cost = medium_scales(basis, v, cls, fixed, y, w)
+        else:
+            basis = np.einsum("mkb,k->mb", terms, _rows(block, vm))
+            v, cost = brdf_scales(basis, v, cls, fixed, y, w)
+        x[idx] = v
+        scored.append((cost, combo, x))
+        if progress:
+            progress("starting grid", k + 1, len(points))
+    return [x for _, _, x in pick_starts(scored, count)], len(points)
+
+
+def column_scales_of(block: Block, vb) -> np.ndarray:
+    """The BRDF part weights of ``block``'s BRDF at ``vb``."""
+    return column_scales(type(block.brdf), vb)
+
+
+# --------------------------------------------------------------------------------------
+# the joint fit
+# --------------------------------------------------------------------------------------
+def _subsample(block: Block) -> np.ndarray:
+    m = block.size
+    if m <= GRID_SUBSAMPLE:
+        return np.arange(m)
+    return np.unique(np.round(np.linspace(0, m - 1, GRID_SUBSAMPLE)).astype(int))
+
+
+class _GridEngines:
+    """Engines at the "fast" quadrature on each block's subsampled configurations, and their
+    term matrices by the models' vectors with the scales at 1 (the terms do not depend on
+    the scales)."""
+
+    def __init__(self):
+        self.engines: dict = {}
+        self.terms_cache: dict = {}
+
+    def __call__(self, block: Block):
+        key = id(block)
+        if key not in self.engines:
+            idx = _subsample(block)
+            angles = tuple(a[idx] for a in block.data.angles)
+            self.engines[key] = (SessionModel(block.brdf, block.medium, angles,
+                                              ITERATION_ACCURACY), idx)
+        return self.engines[key]
+
+    def terms(self, block: Block, vb, vm) -> np.ndarray:
+        vb1, vm1 = _unit(block.brdf, vb), _unit(block.medium, vm)
+        key = (id(block), vb1.tobytes(), vm1.tobytes())
+        if key not in self.terms_cache:
+            self.terms_cache[key] = self(block)[0].terms(vb1, vm1)
+        return self.terms_cache[key]
+
+
+def _unit(model, v) -> np.ndarray:
+    v = np.array(v, dtype=float)
+    for name in type(model).scale_names():
+        v[type(model).index(name)] = 1.0
+    return v
+
+
+def joint_starts(problem: Problem, layout: dict, start: dict | None, count: int,
+                 direct_fit, progress=None):
+    """Starting vectors (natural, best first) of a joint fit (module docstring).
+
+    ``layout`` maps objects and media to their parameter names (veil.fitting.joint);
+    ``start`` optional models {object or medium label: model}; ``direct_fit(block, fixed)``
+    returns the fitted BRDF vector of an object from its clear-water block."""
+    x = problem.values.copy()
+    fixed_mask = ~problem.free
+    idx_of = {n: k for k, n in enumerate(problem.names)}
+    objects, media = layout["objects"], layout["media"]
+    blocks = problem.blocks
+
+    def set_(name, value):
+        k = idx_of[name]
+        if not fixed_mask[k]:
+            x[k] = value
+
+    known_media, known_objects = set(), set()
+    if layout.get("reference_given"):
+        known_objects.add("reference")
+    for key, model in dict(start or {}).items():
+        names = objects.get(key) or media.get(key)
+        if names is None:
+            raise FitError(f"start: {key!r} is neither an object ({', '.join(objects)}) nor a "
+                           f"medium ({', '.join(media)}) of the joint fit")
+        for p, v in model.as_dict().items():
+            if p in names:
+                set_(names[p], v)
+        (known_objects if key in objects else known_media).add(key)
+    # objects with a clear session: f_r directly (step 0)
+    for obj, names in objects.items():
+        if obj in known_objects:
+            continue
+        clear = [b for b in blocks if b.session.object == obj and b.session.clear]
+        if clear:
+            fixed = {p: problem.values[idx_of[n]] for p, n in names.items()
+                     if fixed_mask[idx_of[n]]}
+            vb = direct_fit(clear[0], fixed)
+            for j, k in enumerate(clear[0].ib):
+                if not fixed_mask[k]:
+                    x[k] = vb[j]
+            known_objects.add(obj)
+    if progress:
+        progress("starting values: objects in clear water", 1, 1)
+    engines = _GridEngines()
+    # media seen through a known object: the medium's grid, scales exact
+    for label in media:
+        if label in known_media:
+            continue
+        through = [b for b in blocks if b.session.medium == label
+                   and b.session.object in known_objects]
+        if through:
+            cost, vm = _best_medium(problem, through[0], x, engines)
+            _set_block(x, through[0].im, vm, fixed_mask)
+            known_media.add(label)
+    if progress:
+        progress("starting values: media", 1, 1)
+    # the target (and media seen only through it): its grid, alternating scales
+    if "target" in known_objects:
+        return [x]
+    tblocks = [b for b in blocks if b.session.object == "target" and not b.session.clear]
+    cls = type(tblocks[0].brdf)
+    ib = tblocks[0].ib
+    free = [j for j, k in enumerate(ib) if not fixed_mask[k]]
+    points = grid_points(cls, "target", free, x[ib])
+    scored = []
+    for k, (combo, vb) in enumerate(points):
+        xt = x.copy()
+        _set_block(xt, ib, vb, fixed_mask)
+        cost, xt = _target_point(problem, xt, tblocks, known_media, engines)
+        scored.append((cost, combo, xt))
+        if progress:
+            progress("starting grid", k + 1, len(points))
+    chosen = pick_starts(scored, count)
+    return [xt for _, _, xt in chosen] or [x]
+
+
+def _set_block(x, idx, v, fixed_mask) -> None:
+    for j, k in enumerate(idx):
+        if not fixed_mask[k]:
+            x[k] = v[j]
+
+
+def _best_medium(problem: Problem, block: Block, x, engines):
+    """(cost, medium vector) of ``block``'s medium over its grid with exact scales, the BRDF
+    at ``x``."""
+    _, idx = engines(block)
+    cls = type(block.medium)
+    free = [j for j, k in enumerate(block.im) if problem.free[k]]
+    fixed = _fixed_names(problem, block, "medium")
+    vb = x[block.ib]
+    best = None
+    for combo, vm in grid_points(cls, "medium", free, x[block.im]):
+        terms = engines.terms(block, vb, vm)
+        basis = np.einsum("mkb,b->mk", terms, column_scales_of(block, vb))
+        vm, cost = medium_scales(basis, vm, cls, fixed, block.data.y[idx], block.data.w[idx])
+        if best is None or cost < best[0]:
+            best = (cost, vm)
+    return best
+
+
+def _target_point(problem: Problem, x, tblocks, known_media, engines):
+    """Exact scales of the target and of the unknown media at one grid point of the target:
+    alternately the target's scales pooled over its sessions given the media, and each
+    unknown medium over its grid given the target. Returns (cost, x)."""
+    fixed_mask = ~problem.free
+    cls = type(tblocks[0].brdf)
+    fixed_b = _fixed_names(problem, tblocks[0], "brdf")
+    # unknown media start from the middle of their grid
+    for b in tblocks:
+        if b.session.medium not in known_media:
+            points = grid_points(type(b.medium), "medium",
+                                 [j for j, k in enumerate(b.im) if problem.free[k]], x[b.im])
+            _set_block(x, b.im, points[len(points) // 2][1], fixed_mask)
+    cost = np.inf
+    for _ in range(3):
+        cols, ys, ws = [], [], []
+        for b in tblocks:
+            _, idx = engines(b)
+            terms = engines.terms(b, x[b.ib], x[b.im])
+            cols.append(np.einsum("mkb,k->mb", terms, _rows(b, x[b.im])))
+            ys.append(b.data.y[idx])
+            ws.append(b.data.w[idx])
+        basis, y, w = np.concatenate(cols), np.concatenate(ys), np.concatenate(ws)
+        vb, _ = brdf_scales(basis, x[tblocks[0].ib], cls, fixed_b, y, w)
+        _set_block(x, tblocks[0].ib, vb, fixed_mask)
+        cost = 0.0
+        for b in tblocks:
+            _, idx = engines(b)
+            if b.session.medium in known_media:
+                terms = engines.terms(b, x[b.ib], x[b.im])
+                model = np.einsum("mkb,k,b->m", terms, _rows(b, x[b.im]),
+                                  column_scales_of(b, x[b.ib]))
+                cost += float(np.sum(((model - b.data.y[idx]) * b.data.w[idx]) ** 2))
+                continue
+            c, vm = _best_medium(problem, b, x, engines)
+            _set_block(x, b.im, vm, fixed_mask)
+            cost += c
+    return cost, x
+
+
+__all__ = ["GRID_SUBSAMPLE", "weighted_nnls", "brdf_scales", "quadratic_scale",
+           "medium_scales", "grid_points", "pick_starts", "step_starts", "joint_starts"]

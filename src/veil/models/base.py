@@ -1,13 +1,24 @@
-"""What every model declares: its parameters, their bounds, and how to become a vector.
+"""What every model declares, and what everything above ``models/`` reads from it.
 
 A model is a frozen dataclass whose float fields are its parameters (in declaration order)
-and whose other fields (for example the BTDF's Fresnel ``variant``) are static options. The
-class lists each parameter as a :class:`Param` in ``PARAMS``; construction validates every
-value against those bounds, so an invalid parameter set cannot exist.
+and whose other fields are static options (for example the medium's Fresnel ``variant``).
+The class declares
 
-The integrator and the fits never touch instances inside JAX code: they work on the
-parameter *vector* (``to_vector``) and call the class's static functions, so one compiled
-function serves every parameter value.
+- ``NAME`` (registry key), ``KIND`` ("brdf" or "medium"), ``LABEL`` (one line for people);
+- ``PARAMS``: one :class:`Param` per parameter - bounds, unit, meaning, the fit coordinate
+  (``log_scale``), a neutral starting value, the name it takes next to another model's
+  parameters (``alias``), whether media of a joint fit may share it (``share``) and how its
+  relative uncertainty is judged (``error_scale``);
+- ``OPTIONS``: one :class:`Option` per option (default and allowed values);
+- ``SCALES``: the parameters that scale one part of the model linearly (the engine computes
+  the parts with them set to 1, and the fits solve them exactly for starting values);
+- ``START``: grids of starting values over the other parameters, by fit role ("reference",
+  "target" for a BRDF; "medium" for a medium).
+
+Construction validates every value, so an invalid model cannot exist. The engine and the
+fits never touch instances inside JAX code: they work on the parameter *vector*
+(:meth:`Model.to_vector`) and the class's static functions, so one compiled function serves
+every parameter value.
 """
 
 from __future__ import annotations
@@ -18,12 +29,34 @@ from dataclasses import dataclass
 from typing import ClassVar
 
 import numpy as np
-from ..errors import InputError, InputTypeError, ParameterError
+
+from ..errors import InputTypeError, ParameterError
+
+KINDS = ("brdf", "medium")
+#: Fit roles whose starting grids a model declares, by kind.
+ROLES = {"brdf": ("reference", "target"), "medium": ("medium",)}
+SHARING = (None, "shared", "per-medium")
+#: The option that result files also keep under their own top-level key "variant" (the
+#: medium's Fresnel variant, MODEL.md sec. 3), and commands offer as ``--variant``.
+VARIANT_OPTION = "variant"
+ERROR_SCALES = ("value", "bound")
 
 
 @dataclass(frozen=True)
 class Param:
-    """One declared parameter: name, physical bounds, unit and a one-line meaning."""
+    """One declared parameter (module docstring).
+
+    name, lower, upper, doc, unit : the parameter and its physical bounds (open or closed).
+    log_scale : a positive scale factor, fitted as its logarithm.
+    start : a neutral value where fits start when no grid or data says otherwise.
+    alias : its name next to the other model's parameters, when the plain name would clash
+        (the paper medium's index ``eta`` is ``eta_u`` beside the BRDF's ``eta``).
+    share : in a joint fit over several media, None = always one value per medium,
+        "shared" = one value for all media unless declared otherwise, "per-medium" = one per
+        medium unless declared shared.
+    error_scale : a relative uncertainty is stderr / |value| ("value") or stderr / the
+        distance to the nearer bound ("bound": g's lobe width scales with 1 - |g|).
+    """
 
     name: str
     lower: float
@@ -32,7 +65,23 @@ class Param:
     unit: str = ""
     lower_open: bool = False
     upper_open: bool = False
-    log_scale: bool = False  # positive scale factors: fits work on their logarithm
+    log_scale: bool = False
+    start: float | None = None
+    alias: str | None = None
+    share: str | None = None
+    error_scale: str = "value"
+
+    def __post_init__(self) -> None:
+        if self.share not in SHARING:
+            raise ValueError(f"Param {self.name}: share = {self.share!r}; expected one of "
+                             f"{SHARING}")
+        if self.error_scale not in ERROR_SCALES:
+            raise ValueError(f"Param {self.name}: error_scale = {self.error_scale!r}")
+
+    @property
+    def key(self) -> str:
+        """The parameter's name next to the other model's (``alias`` or ``name``)."""
+        return self.alias or self.name
 
     def check(self, value: float, owner: str) -> None:
         if not isinstance(value, (int, float, np.floating, np.integer)) or isinstance(value, bool):
@@ -40,59 +89,168 @@ class Param:
         v = float(value)
         if not math.isfinite(v):
             raise ParameterError(f"{owner}.{self.name} = {v!r} is not a finite number")
+        if not self.contains(v):
+            raise ParameterError(f"{owner}.{self.name} = {v:g} is outside {self.interval()}"
+                                 f" ({self.doc})")
+
+    def contains(self, v: float) -> bool:
         lo_bad = v <= self.lower if self.lower_open else v < self.lower
         hi_bad = v >= self.upper if self.upper_open else v > self.upper
-        if lo_bad or hi_bad:
-            raise ParameterError(f"{owner}.{self.name} = {v:g} is outside {self.interval()}"
-                             f" ({self.doc})")
+        return not (lo_bad or hi_bad)
 
     def interval(self) -> str:
         lo = "(" if self.lower_open else "["
         hi = ")" if self.upper_open else "]"
         return f"{lo}{self.lower:g}, {self.upper:g}{hi}"
 
+    def relative_error(self, value: float, stderr) -> float:
+        """stderr relative to the value or to the distance to the nearer bound
+        (``error_scale``); inf when undetermined."""
+        if stderr is None or not math.isfinite(stderr):
+            return math.inf
+        if self.error_scale == "bound":
+            room = min(value - self.lower, self.upper - value)
+            return stderr / max(room, 1e-12)
+        return stderr / abs(value) if value != 0 else math.inf
+
+
+@dataclass(frozen=True)
+class Option:
+    """One declared option: its name, default, allowed values (empty: any of the default's
+    type) and a one-line meaning."""
+
+    name: str
+    default: object
+    doc: str
+    choices: tuple = ()
+
+    def check(self, value, owner: str) -> None:
+        if self.choices and value not in self.choices:
+            raise ParameterError(f"{owner}.{self.name} = {value!r}; expected one of "
+                                 f"{', '.join(map(str, self.choices))} ({self.doc})")
+        if not self.choices and not isinstance(value, type(self.default)):
+            raise InputTypeError(f"{owner}.{self.name} = {value!r}; expected a "
+                                 f"{type(self.default).__name__} ({self.doc})")
+
 
 class Model:
-    """Base of every model dataclass. Subclasses set ``NAME``, ``KIND`` and ``PARAMS``."""
+    """Base of every model dataclass (module docstring)."""
 
     NAME: ClassVar[str]
-    KIND: ClassVar[str]  # "brdf" or "btdf"
+    KIND: ClassVar[str]
+    LABEL: ClassVar[str] = ""
     PARAMS: ClassVar[tuple[Param, ...]]
+    OPTIONS: ClassVar[tuple[Option, ...]] = ()
     #: Parameters that only scale one part of the model linearly, by part name
-    #: (BRDF parts: "separable", "lobe"; BTDF parts: "iso", "lobe"). The integrator computes
-    #: the parts with these set to 1, so fits get their derivatives for free.
+    #: (BRDF parts: "separable", "lobe"; medium parts: "iso", "lobe").
     SCALES: ClassVar[dict[str, str]] = {}
+    #: Starting grids {role: {parameter: values}} over the parameters that are not scales.
+    START: ClassVar[dict[str, dict[str, tuple]]] = {}
+
+    def __post_init__(self) -> None:
+        owner = type(self).__name__
+        for p in self.PARAMS:
+            value = getattr(self, p.name)
+            p.check(value, owner)
+            object.__setattr__(self, p.name, float(value))
+        for o in self.OPTIONS:
+            o.check(getattr(self, o.name), owner)
+
+    # -- the declaration -------------------------------------------------------------------
+    @classmethod
+    def param_names(cls) -> tuple[str, ...]:
+        return tuple(p.name for p in cls.PARAMS)
+
+    @classmethod
+    def param(cls, name: str) -> Param:
+        """The declared parameter ``name`` (its own name or its alias)."""
+        for p in cls.PARAMS:
+            if name in (p.name, p.alias):
+                return p
+        raise ParameterError(f"{cls.NAME} has no parameter {name!r}; its parameters are "
+                             f"{', '.join(cls.param_names())}")
+
+    @classmethod
+    def index(cls, name: str) -> int:
+        return cls.PARAMS.index(cls.param(name))
+
+    @classmethod
+    def keys(cls) -> tuple[str, ...]:
+        """Parameter names next to another model's (aliases where declared)."""
+        return tuple(p.key for p in cls.PARAMS)
 
     @classmethod
     def scale_index(cls, part: str):
         name = cls.SCALES.get(part)
         return None if name is None else cls.param_names().index(name)
 
-    def __post_init__(self) -> None:
-        for p in self.PARAMS:
-            value = getattr(self, p.name)
-            p.check(value, type(self).__name__)
-            object.__setattr__(self, p.name, float(value))
-
-    # -- vectors -------------------------------------------------------------------------
     @classmethod
-    def param_names(cls) -> tuple[str, ...]:
-        return tuple(p.name for p in cls.PARAMS)
+    def scale_names(cls) -> tuple[str, ...]:
+        return tuple(cls.SCALES.values())
 
+    @classmethod
+    def option_names(cls) -> tuple[str, ...]:
+        return tuple(o.name for o in cls.OPTIONS)
+
+    @classmethod
+    def default_options(cls) -> dict:
+        return {o.name: o.default for o in cls.OPTIONS}
+
+    @classmethod
+    def start_grid(cls, role: str) -> dict:
+        """{parameter: values} of the starting grid of a fit in ``role`` (may be empty)."""
+        return dict(cls.START.get(role, {}))
+
+    @classmethod
+    def template(cls, **options) -> "Model":
+        """An instance at the declared starting values: it fixes the code path (class and
+        options) of an engine whose parameters are passed as vectors."""
+        return cls.from_params({p.name: p.start for p in cls.PARAMS}, options)
+
+    @classmethod
+    def from_params(cls, params: dict, options: dict | None = None) -> "Model":
+        """An instance from {name: value} (every parameter) and options (defaults for the
+        rest); unknown or missing names are a ParameterError naming the declared ones."""
+        names = cls.param_names()
+        missing = [n for n in names if n not in params]
+        unknown = [n for n in params if n not in names]
+        if missing or unknown:
+            raise ParameterError(f"{cls.NAME} takes parameters {', '.join(names)}"
+                                 + (f"; missing {', '.join(missing)}" if missing else "")
+                                 + (f"; unknown {', '.join(unknown)}" if unknown else ""))
+        options = dict(options or {})
+        bad = [k for k in options if k not in cls.option_names()]
+        if bad:
+            raise ParameterError(f"{cls.NAME} has no option {bad[0]!r}"
+                                 + (f"; its options are {', '.join(cls.option_names())}"
+                                    if cls.OPTIONS else "; it takes no options"))
+        return cls(**{n: params[n] for n in names}, **{**cls.default_options(), **options})
+
+    @classmethod
+    def literal_form(cls) -> str:
+        """How a literal parameter list is written, e.g. ``PD,PS,N,ETA``."""
+        return ",".join(n.upper() for n in cls.param_names())
+
+    @classmethod
+    def describe(cls) -> list[tuple[str, str, str, str]]:
+        """(name, bounds, unit, meaning) of each parameter, for listings."""
+        return [(p.name + (f" ({p.alias})" if p.alias else ""), p.interval(), p.unit, p.doc)
+                for p in cls.PARAMS]
+
+    # -- an instance -----------------------------------------------------------------------
     def to_vector(self) -> np.ndarray:
         return np.array([getattr(self, p.name) for p in self.PARAMS], dtype=float)
 
     def options(self) -> dict:
         """Static (non-parameter) fields, e.g. ``{"variant": "paper"}``."""
-        names = set(self.param_names())
-        return {f.name: getattr(self, f.name) for f in dataclasses.fields(self)
-                if f.name not in names}
+        return {o.name: getattr(self, o.name) for o in self.OPTIONS}
 
     def with_vector(self, vector) -> "Model":
         vector = np.asarray(vector, float)
         if vector.shape != (len(self.PARAMS),):
-            raise InputError(f"{type(self).__name__} vector has shape {vector.shape}; expected "
-                             f"({len(self.PARAMS)},) for {', '.join(self.param_names())}")
+            raise ParameterError(f"{type(self).__name__} vector has shape {vector.shape}; "
+                                 f"expected ({len(self.PARAMS)},) for "
+                                 f"{', '.join(self.param_names())}")
         values = dict(zip(self.param_names(), (float(x) for x in vector)))
         return dataclasses.replace(self, **values)
 
@@ -118,9 +276,12 @@ class BRDF(Model):
     f_r = sum_k s_k(cos theta_I) t_k(cos theta_R) + lobe(I, R). The separable part is
     integrated as products of one-direction integrals; the lobe declares the radial law of
     its half vectors (``facet_*``), which the integrator uses as a change of variables.
+    A model without a lobe sets ``HAS_LOBE = False`` and need not define the lobe's
+    functions.
     """
 
     KIND = "brdf"
+    HAS_LOBE: ClassVar[bool] = True
 
     @staticmethod
     def separable(v, cos_i, cos_r):  # pragma: no cover - interface
@@ -156,23 +317,27 @@ class BRDF(Model):
         from .._jax import jnp
 
         ci, co = wi[..., 2], wo[..., 2]
-        s = wi + wo
-        h = s / jnp.linalg.norm(s, axis=-1, keepdims=True)
-        total = cls.lobe(v, wi, wo, h)
+        total = 0.0 * ci
+        if cls.HAS_LOBE:
+            s = wi + wo
+            h = s / jnp.linalg.norm(s, axis=-1, keepdims=True)
+            total = cls.lobe(v, wi, wo, h)
         for a, b in cls.separable(v, ci, co):
             total = total + a * b
         return jnp.where((ci > 0) & (co > 0), total, 0.0)
 
 
-class BTDF(Model):
-    """A medium transmission model f_t(A, B) = iso + weight a(A) b(B) p(A . B).
+class Medium(Model):
+    """A medium's transmission f_t(A, B) = iso + weight a(A) b(B) p(A . B) (MODEL.md sec. 3).
 
     ``iso`` is direction independent (multiple scattering), the lobe is a rotationally
-    symmetric phase function about the unscattered direction with Fresnel factors a and b
-    that depend only on the polar angles of the first and second argument.
+    symmetric phase function about the unscattered direction with factors a and b (Fresnel
+    transmittances) that depend only on the polar angles of the first and second argument.
+    A medium without a lobe sets ``HAS_LOBE = False``.
     """
 
-    KIND = "btdf"
+    KIND = "medium"
+    HAS_LOBE: ClassVar[bool] = True
 
     @staticmethod
     def iso(v):  # pragma: no cover - interface
@@ -200,11 +365,30 @@ class BTDF(Model):
     def phase_inverse_cone_fraction(v, frac):  # pragma: no cover - interface
         raise NotImplementedError
 
+    def concentrated(self, factor: float) -> "Medium":
+        """The medium at ``factor`` times its concentration (acquisition design, more or less
+        of the scattering substance): by default every scale parameter times ``factor``."""
+        return self.replace(**{n: getattr(self, n) * factor for n in self.scale_names()})
+
+    def kernel(self, v, one_minus_mu):
+        """The scattering kernel without boundary factors, iso + weight p, at deflection
+        1 - cos(gamma): what a black cloth sees of the medium (veil.data.simulate)."""
+        value = self.iso(v) + 0.0 * one_minus_mu
+        if self.HAS_LOBE:
+            value = value + self.lobe_weight(v) * self.phase(v, one_minus_mu)
+        return value
+
     def evaluate(self, v, wa, wb):
         """Full f_t(wa, wb) for unit vectors (MODEL.md sec. 3)."""
         from .._jax import jnp
 
-        one_minus_mu = jnp.maximum(1.0 - jnp.sum(wa * wb, axis=-1), 0.0)
-        lobe = (self.lobe_weight(v) * self.factor_first(v, wa[..., 2])
-                * self.factor_second(v, wb[..., 2]) * self.phase(v, one_minus_mu))
-        return self.iso(v) + lobe
+        value = self.iso(v) + 0.0 * wa[..., 2]
+        if self.HAS_LOBE:
+            one_minus_mu = jnp.maximum(1.0 - jnp.sum(wa * wb, axis=-1), 0.0)
+            value = value + (self.lobe_weight(v) * self.factor_first(v, wa[..., 2])
+                             * self.factor_second(v, wb[..., 2]) * self.phase(v, one_minus_mu))
+        return value
+
+
+#: The former name of :class:`Medium` (a medium's BTDF), kept as the public ``veil.BTDF``.
+BTDF = Medium

@@ -6,16 +6,15 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from ..errors import InputError
 from . import fresnel
 from . import phase
-from .base import BTDF, Param
+from .base import Medium, Option, Param
 
 VARIANTS = ("paper", "exit")
 
 
 @dataclass(frozen=True)
-class HenyeyGreenstein(BTDF):
+class HenyeyGreenstein(Medium):
     """BTDF (T_d, T_t, g, eta): f_t = T_d + T_t p(g, gamma) x Fresnel transmittances.
 
     Td       isotropic (multiple scattering) coefficient, relative units
@@ -33,22 +32,23 @@ class HenyeyGreenstein(BTDF):
     variant: str = "paper"
 
     NAME = "henyey-greenstein"
+    LABEL = "the paper's medium: isotropic + Henyey-Greenstein single scattering (sec. 3)"
     SCALES = {"iso": "Td", "lobe": "Tt"}
     PARAMS = (
         Param("Td", 0.0, math.inf, "isotropic multiple-scattering coefficient, relative units",
-              log_scale=True),
+              log_scale=True, start=1e-3),
         Param("Tt", 0.0, math.inf, "single-scattering coefficient, relative units",
-              log_scale=True),
+              log_scale=True, start=0.1),
         Param("g", -1.0, 1.0, "Henyey-Greenstein asymmetry parameter", lower_open=True,
-              upper_open=True),
-        Param("eta", 0.0, 10.0, "relative refractive index of the medium", lower_open=True),
+              upper_open=True, start=0.9, share="per-medium", error_scale="bound"),
+        Param("eta", 0.0, 10.0, "relative refractive index of the medium", lower_open=True,
+              start=1.33, alias="eta_u", share="shared"),
     )
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        if self.variant not in VARIANTS:
-            raise InputError(f"HenyeyGreenstein.variant = {self.variant!r}; expected one of "
-                             f"{', '.join(VARIANTS)}")
+    OPTIONS = (Option("variant", "paper", "Fresnel factor: paper = F_t(theta_in)^2, exit = "
+                      "F_t(theta_in) F_t(theta_out) (MODEL.md sec. 3)", VARIANTS),)
+    #: Starting grid of a medium fit (step 1): g from broad to narrow lobes, water's index.
+    START = {"medium": {"g": (0.5, 0.7, 0.8, 0.88, 0.93, 0.96, 0.98, 0.99, 0.995),
+                        "eta": (1.33,)}}
 
     @staticmethod
     def iso(v):

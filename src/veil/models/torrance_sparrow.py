@@ -9,6 +9,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numpy as np
+
 from .._jax import jnp
 from . import fresnel
 from .base import BRDF, Param
@@ -32,14 +34,25 @@ class TorranceSparrow(BRDF):
     eta: float
 
     NAME = "torrance-sparrow"
+    LABEL = "Torrance-Sparrow, the paper's surface (MODEL.md sec. 2)"
     SCALES = {"separable": "Pd", "lobe": "Ps"}
     PARAMS = (
-        Param("Pd", 0.0, math.inf, "diffuse coefficient, relative units", log_scale=True),
-        Param("Ps", 0.0, math.inf, "specular coefficient, relative units", log_scale=True),
+        Param("Pd", 0.0, math.inf, "diffuse coefficient, relative units", log_scale=True,
+              start=1.0),
+        Param("Ps", 0.0, math.inf, "specular coefficient, relative units", log_scale=True,
+              start=1.0),
         Param("n", 0.0, 50.0, "smoothness, 1/deg in exp(-(n alpha_deg)^2)", unit="1/deg",
-              lower_open=True, log_scale=True),
-        Param("eta", 0.0, 10.0, "relative refractive index of the surface", lower_open=True),
+              lower_open=True, log_scale=True, start=0.5),
+        Param("eta", 0.0, 10.0, "relative refractive index of the surface", lower_open=True,
+              start=1.5),
     )
+    #: Starting grids: a clear-water fit (step 0) searches n widely and three indices; a
+    #: fit through a medium (step 2) searches n only (the index barely shows there).
+    START = {
+        "reference": {"n": tuple(np.round(np.geomspace(0.03, 5.0, 16), 4)),
+                      "eta": (1.2, 1.5, 2.0)},
+        "target": {"n": (0.08, 0.13, 0.2, 0.3, 0.45, 0.65, 0.9, 1.3, 2.0), "eta": (1.5,)},
+    }
 
     # -- the split used by the integrator ------------------------------------------------
     @staticmethod

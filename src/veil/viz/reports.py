@@ -17,20 +17,17 @@ import re
 import numpy as np
 
 from .. import __version__
+from ..numbers import format_number
 from .figures import Experiment, curve_metrics, lobe_data, transmission_data
 from ..models.fresnel import transmittance
 from ..models.phase import hg_pdf
+from ..models import PRESETS
 from .render import ERROR_ANGLE, MID_GREY, VIEW
 
 
-def _fmt(x, digits=3) -> str:
-    if x is None or (isinstance(x, float) and math.isnan(x)):
-        return "n/a"
-    if x == 0:
-        return "0"
-    if abs(x) >= 1e5 or abs(x) < 1e-3:
-        return f"{x:.{digits - 1}e}"
-    return f"{x:.{digits}g}"
+def _num(x) -> str:
+    """Numbers of the reproduce report: three significant digits."""
+    return format_number(x, 3)
 
 
 def _deg(x) -> str:
@@ -63,7 +60,7 @@ def build_blocks(exp: Experiment, files: dict) -> list:
 
     # parameters
     blocks.append(("h2", "Parameters"))
-    rows = [[n, _fmt(b.Pd), _fmt(b.Ps), f"{b.n:g}", f"{b.eta:g}",
+    rows = [[n, _num(b.Pd), _num(b.Ps), f"{b.n:g}", f"{b.eta:g}",
              _deg(math.sqrt(math.log(2)) / b.n)] for n, b in exp.brdfs.items()]
     blocks.append(("table", ["object", "P_d", "P_s", "n [1/deg]", "eta_b",
                              "facet HWHM sqrt(ln 2)/n"], rows))
@@ -71,8 +68,8 @@ def build_blocks(exp: Experiment, files: dict) -> list:
     for n in media:
         m = exp.media[n]
         peak = m.Tt * float(hg_pdf(m.g, 0.0))
-        rows.append([n, _fmt(m.Td), f"{m.Tt:g}", f"{m.g:g}", f"{m.eta:g}", m.variant,
-                     _fmt(peak)])
+        rows.append([n, _num(m.Td), f"{m.Tt:g}", f"{m.g:g}", f"{m.eta:g}", m.variant,
+                     _num(peak)])
     blocks.append(("table", ["medium", "T_d", "T_t", "g", "eta_u", "Fresnel variant",
                              "forward peak T_t p(g, 0) [1/sr]"], rows))
     blocks.append(("p", f"Incidence for figs. 9-11: theta_i = {exp.theta_i:g}°, light and camera "
@@ -86,9 +83,9 @@ def build_blocks(exp: Experiment, files: dict) -> list:
     for n, b in exp.brdfs.items():
         t_in, f_in, _, _ = lobe_data(b, exp.theta_i)
         cm = curve_metrics(t_in, f_in)
-        widths.append(f"{n}: peak {_fmt(cm.peak)} /sr at theta_r = {cm.peak_angle:.1f}°, full "
+        widths.append(f"{n}: peak {_num(cm.peak)} /sr at theta_r = {cm.peak_angle:.1f}°, full "
                       f"width at half maximum {cm.fwhm:.2f}°, diffuse level "
-                      f"{_fmt(float(np.interp(0.0, t_in, f_in)))} /sr")
+                      f"{_num(float(np.interp(0.0, t_in, f_in)))} /sr")
     blocks.append(("img", files["fig9"], "fig. 9",
                    f"Fig. 9. f_r of the objects for {exp.theta_i:g}° incidence. (a) In the plane "
                    "of incidence against the signed reflection angle, (b) out of the plane, "
@@ -102,9 +99,9 @@ def build_blocks(exp: Experiment, files: dict) -> list:
     for n in media:
         beta, f_in, _, _ = transmission_data(exp.media[n], exp.theta_i)
         cm = curve_metrics(beta, f_in)
-        items.append(f"{n} (g = {exp.media[n].g:g}): peak {_fmt(cm.peak)} /sr, half width at "
+        items.append(f"{n} (g = {exp.media[n].g:g}): peak {_num(cm.peak)} /sr, half width at "
                      f"half maximum {cm.fwhm / 2:.2f}°, isotropic floor T_d = "
-                     f"{_fmt(exp.media[n].Td)} /sr")
+                     f"{_num(exp.media[n].Td)} /sr")
     blocks.append(("img", files["fig10"], "fig. 10",
                    f"Fig. 10. f_t(I, T) of the media for {exp.theta_i:g}° incidence against the "
                    "travel direction -T of the transmitted light: (a) in the plane of incidence "
@@ -134,10 +131,10 @@ def build_blocks(exp: Experiment, files: dict) -> list:
         for m in ["clear"] + media:
             cm = exp.curves[(b, m)].metrics
             tt2 = 1.0 if m == "clear" else exp.media[m].Tt ** 2
-            rows.append([b, m, _fmt(cm.peak), f"{cm.peak_angle:.2f}°",
+            rows.append([b, m, _num(cm.peak), f"{cm.peak_angle:.2f}°",
                          f"{cm.fwhm:.1f}°" if not math.isnan(cm.fwhm) else "n/a",
-                         _fmt(cm.off_peak), _fmt(cm.peak / tt2), _fmt(cm.off_peak / tt2),
-                         _fmt(cm.peak / cm.off_peak)])
+                         _num(cm.off_peak), _num(cm.peak / tt2), _num(cm.off_peak / tt2),
+                         _num(cm.peak / cm.off_peak)])
     blocks.append(("table", head, rows))
     blocks.append(("p", "FWHM: full width at half maximum of the whole curve (diffuse part "
                         "included), from linear interpolation between samples 0.25° apart near the "
@@ -165,7 +162,7 @@ def build_blocks(exp: Experiment, files: dict) -> list:
             err = ("exact (f_r)" if not r.table_nodes else f"{100 * r.max_rel_error:.2g} %")
             err2 = ("-" if not r.table_nodes else
                     f"{100 * r.max_rel_error_all:.2g} % / {100 * r.max_peak_error:.2g} %")
-            rows.append([b, m, _fmt(st.peak), _fmt(st.median), _fmt(st.contrast),
+            rows.append([b, m, _num(st.peak), _num(st.median), _num(st.contrast),
                          str(st.half_area), f"({st.peak_pixel[0]}, {st.peak_pixel[1]})",
                          f"({st.mirror_pixel[0]:.1f}, {st.mirror_pixel[1]:.1f})",
                          str(r.table_nodes) if r.table_nodes else "-", err, err2])
@@ -199,12 +196,12 @@ def _observations(exp: Experiment, media: list) -> list:
         names = ", ".join(media)
         items.append(
             f"{b}, specular peak as g falls ({names}): in absolute terms it {_trend(peaks)} "
-            f"({', '.join(_fmt(p) for p in peaks)} /sr; clear {_fmt(clear.peak)}), because T_t "
+            f"({', '.join(_num(p) for p in peaks)} /sr; clear {_num(clear.peak)}), because T_t "
             f"grows from {exp.media[media[0]].Tt:g} to {exp.media[media[-1]].Tt:g}. Relative to "
-            f"the medium's strength, peak / T_t² {_trend(norm)} ({', '.join(_fmt(p) for p in norm)}; "
-            f"clear {_fmt(clear.peak)}), and relative to the diffuse level, peak / f(0°) "
-            f"{_trend(contrast)} ({', '.join(_fmt(c) for c in contrast)}; clear "
-            f"{_fmt(clear.peak / clear.off_peak)}). The paper's \"weaker\" holds in these "
+            f"the medium's strength, peak / T_t² {_trend(norm)} ({', '.join(_num(p) for p in norm)}; "
+            f"clear {_num(clear.peak)}), and relative to the diffuse level, peak / f(0°) "
+            f"{_trend(contrast)} ({', '.join(_num(c) for c in contrast)}; clear "
+            f"{_num(clear.peak / clear.off_peak)}). The paper's \"weaker\" holds in these "
             f"relative senses.")
         items.append(
             f"{b}, width: the full width at half maximum {_trend([clear.fwhm] + fwhm)} from "
@@ -219,7 +216,7 @@ def _observations(exp: Experiment, media: list) -> list:
                                     zip(media, ratio, near) if not ok))
         items.append(
             f"{b}, diffuse part (f at theta_r = 0°, 45° from the mirror direction, over T_t²): "
-            f"{', '.join(_fmt(o) for o in off)} against {_fmt(clear.off_peak)} /sr in a clear "
+            f"{', '.join(_num(o) for o in off)} against {_num(clear.off_peak)} /sr in a clear "
             f"medium, i.e. {verdict}.")
     # what the isotropic (T_d) terms add off the peak
     for b in exp.brdfs:
@@ -234,12 +231,12 @@ def _observations(exp: Experiment, media: list) -> list:
             # F_t(theta_R')^2 ~ F_t(0)^2 on the way out towards the camera at 0 deg
             fres.append((float(transmittance(math.cos(math.radians(exp.theta_i)), med.eta))
                          * float(transmittance(1.0, med.eta))) ** 2)
-            parts.append(f"{m} {_fmt(single / med.Tt ** 2)} ({100 * (1 - single / full):.0f} % "
+            parts.append(f"{m} {_num(single / med.Tt ** 2)} ({100 * (1 - single / full):.0f} % "
                          f"of the full f(0°) comes from the T_d terms)")
         worst = max(abs(1 - r) for r in ratios)
         items.append(
             f"{b}, off the peak with the isotropic term switched off (T_d = 0), f(0°) / T_t² is "
-            f"{'; '.join(parts)}, against {_fmt(clear.off_peak)} in a clear medium: ratios "
+            f"{'; '.join(parts)}, against {_num(clear.off_peak)} in a clear medium: ratios "
             f"{', '.join(f'{r:.3f}' for r in ratios)} (the Fresnel transmittance of the "
             f"medium's faces alone, F_t({exp.theta_i:g}°)² F_t(0°)², gives "
             f"{', '.join(sorted(set(f'{x:.3f}' for x in fres)))}). Without T_d the diffuse part "
@@ -255,7 +252,7 @@ def _observations(exp: Experiment, media: list) -> list:
         items.append(
             f"{b} spheres (fig. 12, clear then {', '.join(media)}): the area at or above half "
             f"the peak {_trend(areas)} ({', '.join(map(str, areas))} pixels) and the peak over "
-            f"the median lit pixel {_trend(con)} ({', '.join(_fmt(c) for c in con)}): the "
+            f"the median lit pixel {_trend(con)} ({', '.join(_num(c) for c in con)}): the "
             f"highlight grows wider and weaker as g falls. The brightest pixel is at most "
             f"{off:.1f} pixels from where the mirror direction puts it.")
     return items
@@ -340,4 +337,101 @@ def write_report(exp: Experiment, directory, files: dict) -> tuple[str, str]:
     return md, page
 
 
-__all__ = ["build_blocks", "to_markdown", "to_html", "write_report"]
+
+
+
+# --------------------------------------------------------------------------------------
+# report.md of the pipeline
+# --------------------------------------------------------------------------------------
+def _truth_model(truth, key):
+    if not truth or truth.get(key) is None:
+        return None
+    model = truth[key]
+    return PRESETS[model.upper()] if isinstance(model, str) else model
+
+
+def _param_table(result: FitResult, truth_model) -> list[str]:
+    head = "| parameter | value | stderr | stderr incl. given model |"
+    rule = "|---|---:|---:|---:|"
+    if truth_model is not None:
+        head += " true | (value - true) / stderr |"
+        rule += "---:|---:|"
+    lines = [head, rule]
+    for name, value in result.params.items():
+        if name in result.fixed:
+            se, tot = "fixed", "fixed"
+        else:
+            se = format_number(result.stderr.get(name), 3)
+            tot = format_number((result.stderr_total or {}).get(name), 3) \
+                if result.stderr_total is not None else "-"
+        line = f"| {name} | {format_number(value, 6)} | {se} | {tot} |"
+        if truth_model is not None:
+            true = getattr(truth_model, name)
+            s = (result.stderr_total or result.stderr).get(name)
+            z = (value - true) / s if s else None
+            line += f" {format_number(true, 6)} | {format_number(z, 3)} |"
+        lines.append(line)
+    return lines
+
+
+def _stats_lines(result: FitResult) -> list[str]:
+    weight = "weighted by sigma" if result.weighted else \
+        "unweighted (no sigma column): standard errors scaled by the reduced chi-square"
+    lines = [f"- {result.n_points} points, {weight}; reduced chi-square "
+             f"{format_number(result.chi2_reduced, 4)}, rms relative residual "
+             f"{format_number(100 * result.rms_relative, 3)} %",
+             f"- converged: {'yes' if result.converged else '**NO**'} ({result.message})"]
+    if result.accuracy:
+        lines.append(f"- quadrature accuracy of the result: {result.accuracy}")
+    if result.variant:
+        lines.append(f"- medium Fresnel variant: {result.variant} (MODEL.md sec. 3)")
+    return lines
+
+
+def pipeline_report(ref, med, tgt, direct, comparison, truth, figures, inputs) -> str:
+    """report.md: the parameter tables per step (value +- stderr), statistics, figures."""
+    out = ["# veil fit: two-step estimation (MODEL.md sec. 7)", ""]
+    listed = [f"- {k.replace('_', ' ')}: `{os.fspath(v)}`" for k, v in inputs.items()
+              if isinstance(v, (str, os.PathLike))]
+    if listed:
+        out += ["Inputs:", ""] + listed + [""]
+    if inputs.get("black") is not None:
+        out += ["The black-cloth session was subtracted from both sessions in the medium.", ""]
+    out += ["Uncertainties are one standard error from the Jacobian at the solution. "
+            "\"stderr\" holds the model given to the step (the reference f_r in step 1, the "
+            "medium in step 2) exact; \"stderr incl. given model\" adds that model's own "
+            "uncertainty to first order (docs/fitting.md).", ""]
+    sections = [("Step 0: reference object in a clear medium (f_r directly)", ref, "reference",
+                 "reference_fig"),
+                ("Step 1: the medium, through the reference object (f_r fixed)", med, "medium",
+                 "medium_fig"),
+                ("Step 2: the target object, through the medium (f_t fixed)", tgt, "target",
+                 "target_fig")]
+    for title, result, key, fig in sections:
+        out += [f"## {title}", "", f"Model: {result.model}.", ""]
+        out += _param_table(result, _truth_model(truth, key)) + [""]
+        out += _stats_lines(result) + [""]
+        if fig in figures:
+            out += [f"![{title}]({figures[fig]})", ""]
+    if direct is not None and comparison is not None:
+        out += ["## The target measured directly, against the estimate", "",
+                "The target's clear-medium data fitted directly (no medium); the estimate of "
+                "step 2 against it. z = difference / sqrt(stderr_est^2 + stderr_direct^2), "
+                "with the estimate's stderr including the given model's.", "",
+                "| parameter | estimated (step 2) | direct | difference | z |",
+                "|---|---:|---:|---:|---:|"]
+        for name, row in comparison["params"].items():
+            out.append(f"| {name} | {format_number(row['estimated'], 6)} | {format_number(row['direct'], 6)} | "
+                       f"{format_number(row['difference'], 3)} | {format_number(row['z'], 3)} |")
+        out += ["", f"Over the {comparison['n_configurations']} configurations of the paper's "
+                    f"protocol (psi = 30, 60, 90 deg): rms of f_r(estimated) - f_r(direct) = "
+                    f"{format_number(comparison['rms_fr_difference'], 4)} (relative units), rms relative "
+                    f"difference {format_number(100 * comparison['rms_fr_relative'], 3)} %, largest "
+                    f"{format_number(100 * comparison['max_fr_relative'], 3)} %.", ""]
+        out += _stats_lines(direct) + [""]
+        if "direct_fig" in figures:
+            out += [f"![direct fit]({figures['direct_fig']})", ""]
+    return "\n".join(out)
+
+
+__all__ = ["build_blocks", "to_markdown", "to_html", "write_report", "pipeline_report"]

@@ -1,0 +1,107 @@
+"""The text report of a fit result (like lmfit's): one layout for a step fit and a joint fit
+- a header, the statistics, the sessions of a joint fit, the variables with their standard
+errors, and the strongest correlations."""
+
+from __future__ import annotations
+
+import math
+
+from ..numbers import format_number
+from .result import FitResult, JointResult
+
+#: What each step of MODEL.md sec. 7 estimates, for the report's header.
+STEP_WORDS = {"reference": "step 0, reference object in a clear medium (f_r directly)",
+              "medium": "step 1, medium through the reference object (f_r fixed)",
+              "target": "step 2, target object through the medium (f_t fixed)",
+              "direct": "target object in a clear medium (f_r directly)"}
+
+
+def _header(result: FitResult) -> str:
+    if isinstance(result, JointResult):
+        models = result.layout.get("models") or {}
+        family = f", models {models['brdf']} / {models['medium']}" if models else ""
+        return (f"[[Joint fit: {len(result.layout.get('sessions', []))} sessions, "
+                f"{len(result.layout['media'])} media, variant {result.variant}{family}]]")
+    what = STEP_WORDS.get(result.step, "")
+    opts = ", ".join(f"{k} {v}" for k, v in result.options.items())
+    return (f"[[Fit: {result.model}" + (f", variant {result.variant}" if result.variant else "")
+            + (f" ({opts})" if opts and not result.variant else "")
+            + (f" - {what}" if what else "") + "]]")
+
+
+def _statistics(result: FitResult) -> list[str]:
+    free = result.free
+    lines = [f"    data points        = {result.n_points}"
+             + ("  (weighted by sigma)" if result.weighted
+                else "  (UNWEIGHTED: no sigma column; errors scaled by reduced chi-square)"),
+             f"    free parameters    = {len(free)}"
+             + (f"  (fixed: {', '.join(result.fixed)})" if result.fixed else "")]
+    if isinstance(result, JointResult):
+        lines.append(f"    shared by the media = {', '.join(result.layout.get('shared', [])) or '-'}")
+    lines += [f"    reduced chi-square = {format_number(result.chi2_reduced, 5)}",
+              f"    rms relative resid = {format_number(100 * result.rms_relative, 4)} %"]
+    if result.aic is not None:
+        lines.append(f"    AIC, BIC           = {format_number(result.aic, 6)}, "
+                     f"{format_number(result.bic, 6)}")
+    lines.append(f"    converged          = {'yes' if result.converged else 'NO'} "
+                 f"({result.message})")
+    if result.accuracy:
+        lines.append(f"    accuracy           = {result.accuracy}")
+    stats = result.stats
+    if stats and not isinstance(result, JointResult):
+        lines.append(f"    evaluations        = {stats.get('nfev', 0)} function, "
+                     f"{stats.get('njev', 0)} Jacobian"
+                     + (f" over {stats.get('starts', 1)} start(s)" if stats.get("starts") else ""))
+    if result.given:
+        gp = ", ".join(f"{k}={format_number(v)}" for k, v in result.given.get("params", {}).items())
+        lines.append(f"    given (fixed) model = {result.given.get('model')}({gp})")
+    return lines
+
+
+def _sessions(result: FitResult) -> list[str]:
+    if not isinstance(result, JointResult):
+        return []
+    lines = ["[[Sessions]]"]
+    for s in result.layout.get("sessions", []):
+        rms = s.get("rms_relative")
+        lines.append(f"    {s['name']}: {s['n_points']} points, chi2/N "
+                     f"{format_number(s['chi2'], 4)}, rms rel "
+                     f"{format_number(None if rms is None else 100 * rms, 3)} %")
+    return lines
+
+
+def _variables(result: FitResult) -> list[str]:
+    lines = ["[[Variables]]"]
+    width = max(len(n) for n in result.params)
+    units = {}
+    if not isinstance(result, JointResult):
+        units = {p.name: f" {p.unit}" if p.unit else "" for p in result.model_class.PARAMS}
+    for name, v in result.params.items():
+        unit = units.get(name, "")
+        if name in result.fixed:
+            lines.append(f"    {name:<{width}}: {format_number(v)}{unit} (fixed)")
+            continue
+        se = result.stderr.get(name)
+        if se is None or not math.isfinite(se):
+            lines.append(f"    {name:<{width}}: {format_number(v)}{unit} +/- (not determined)")
+            continue
+        rel = f" ({100 * se / abs(v):.2f}%)" if v != 0 else ""
+        total = ""
+        if result.stderr_total is not None and result.stderr_total.get(name) is not None:
+            total = (f"; with the given model's uncertainty +/- "
+                     f"{format_number(result.stderr_total[name], 3)}")
+        lines.append(f"    {name:<{width}}: {format_number(v)}{unit} +/- "
+                     f"{format_number(se, 3)}{rel}{total}")
+    return lines
+
+
+def fit_report(result: FitResult, min_correlation: float = 0.1) -> str:
+    """The report of any fit result (module docstring); correlations of at least
+    ``min_correlation`` (the 20 strongest of a joint fit)."""
+    most = 20 if isinstance(result, JointResult) else None
+    lines = [_header(result)] + _statistics(result) + _sessions(result) + _variables(result)
+    lines += result.correlation_lines(min_correlation, most=most)
+    return "\n".join(lines)
+
+
+__all__ = ["fit_report", "STEP_WORDS"]

@@ -1,0 +1,149 @@
+"""The registry: every model family veil knows, by name, and the paper's presets.
+
+Adding a family is one module (a frozen dataclass declaring itself, see
+:mod:`veil.models.base`) and one line in :data:`FAMILIES` below; everything else - the
+engine, the fits, the joint fit, result files, the command line's ``--brdf-model`` /
+``--medium-model`` and ``veil models`` - reads the declaration. Families outside veil
+register themselves with :func:`register`, from a module named in the environment variable
+``VEIL_PLUGINS`` (comma-separated module names, imported at the first lookup) or an entry
+point of group ``veil.models``.
+"""
+
+from __future__ import annotations
+
+import importlib
+import os
+
+from ..errors import InputError, InputTypeError
+from .base import KINDS, ROLES, Model
+from .henyey_greenstein import HenyeyGreenstein
+from .torrance_sparrow import TorranceSparrow
+
+#: The families veil ships, one line each.
+FAMILIES = (
+    TorranceSparrow,
+    HenyeyGreenstein,
+)
+#: The paper's models: the default family of each kind.
+DEFAULTS = {"brdf": TorranceSparrow.NAME, "medium": HenyeyGreenstein.NAME}
+
+REGISTRY: dict[str, type[Model]] = {}
+_plugins_loaded = False
+_plugin_error: InputError | None = None
+
+
+def register(cls: type[Model]) -> type[Model]:
+    """Add a model family to the registry (usable as a class decorator); its declaration is
+    checked here, so a family with an inconsistent declaration never runs."""
+    name = getattr(cls, "NAME", None)
+    if not isinstance(name, str) or not name or name != name.strip().lower():
+        raise ValueError(f"{cls.__name__}.NAME = {name!r}: a registered model needs a "
+                         f"lower-case name")
+    if getattr(cls, "KIND", None) not in KINDS:
+        raise ValueError(f"{cls.__name__}.KIND = {getattr(cls, 'KIND', None)!r}; expected one "
+                         f"of {KINDS}")
+    if REGISTRY.get(name, cls) is not cls:
+        raise ValueError(f"a model named {name!r} is already registered "
+                         f"({REGISTRY[name].__name__})")
+    names = cls.param_names()
+    if not names or len(set(names)) != len(names):
+        raise ValueError(f"{cls.__name__}.PARAMS must name each parameter once")
+    keys = cls.keys()
+    if len(set(keys)) != len(keys):
+        raise ValueError(f"{cls.__name__}: parameter aliases clash")
+    for part, pname in cls.SCALES.items():
+        if pname not in names:
+            raise ValueError(f"{cls.__name__}.SCALES[{part!r}] = {pname!r} is not a parameter")
+    for role, grid in cls.START.items():
+        if role not in ROLES[cls.KIND]:
+            raise ValueError(f"{cls.__name__}.START has role {role!r}; a {cls.KIND} fit has "
+                             f"roles {ROLES[cls.KIND]}")
+        for pname in grid:
+            if pname not in names or pname in cls.SCALES.values():
+                raise ValueError(f"{cls.__name__}.START[{role!r}] lists {pname!r}, which is "
+                                 f"not a parameter other than a scale")
+    for p in cls.PARAMS:
+        if p.start is None or not p.contains(p.start):
+            raise ValueError(f"{cls.__name__}: parameter {p.name} needs a start value inside "
+                             f"{p.interval()}")
+    cls.template()  # the declared options and starting values make a valid model
+    REGISTRY[name] = cls
+    return cls
+
+
+for _cls in FAMILIES:
+    register(_cls)
+
+
+def _load_plugins() -> None:
+    """Import the modules of ``VEIL_PLUGINS`` and the ``veil.models`` entry points once; a
+    module that cannot be imported makes every later lookup fail with the same error."""
+    global _plugins_loaded, _plugin_error
+    if _plugin_error is not None:
+        raise _plugin_error
+    if _plugins_loaded:
+        return
+    _plugins_loaded = True
+    for module in filter(None, (m.strip() for m in os.environ.get("VEIL_PLUGINS", "").split(","))):
+        try:
+            importlib.import_module(module)
+        except ImportError as exc:
+            _plugin_error = InputError(f"VEIL_PLUGINS names module {module!r}, which cannot be "
+                                       f"imported ({exc})")
+            raise _plugin_error from None
+    from importlib.metadata import entry_points
+
+    for ep in entry_points(group="veil.models"):
+        ep.load()
+
+
+def names(kind: str | None = None) -> list[str]:
+    """Registered family names (of one kind): BRDFs first, the paper's first of each kind."""
+    _load_plugins()
+    found = [n for n, c in REGISTRY.items() if kind is None or c.KIND == kind]
+    return sorted(found, key=lambda n: (KINDS.index(REGISTRY[n].KIND),
+                                        n not in DEFAULTS.values(), n))
+
+
+def model_class(name: str, kind: str | None = None) -> type[Model]:
+    """The family registered as ``name`` (of ``kind`` when given); an InputError listing the
+    known ones otherwise."""
+    _load_plugins()
+    what = {"brdf": "BRDF model", "medium": "medium model", None: "model"}[kind]
+    if not isinstance(name, str):
+        raise InputTypeError(f"{what} name: expected a string, got {name!r}")
+    cls = REGISTRY.get(name.strip().lower())
+    if cls is None or (kind is not None and cls.KIND != kind):
+        hint = ""
+        if cls is not None:
+            hint = f" ({name!r} is a {cls.KIND} model)"
+        raise InputError(f"unknown {what} {name!r}{hint}; known: {', '.join(names(kind))}")
+    return cls
+
+
+def default_class(kind: str) -> type[Model]:
+    """The paper's model of ``kind`` ("brdf" or "medium")."""
+    return REGISTRY[DEFAULTS[kind]]
+
+
+#: The paper's simulated objects (Table 2) and media (Table 3), MODEL.md sec. 6.
+PRESETS: dict[str, Model] = {
+    "BRDF1": TorranceSparrow(Pd=2.00e2, Ps=5.00e5, n=0.80, eta=1.55),
+    "BRDF2": TorranceSparrow(Pd=1.00e3, Ps=5.00e5, n=0.50, eta=1.55),
+    "BTDF1": HenyeyGreenstein(Td=1.00e-3, Tt=0.01, g=0.98, eta=1.3),
+    "BTDF2": HenyeyGreenstein(Td=1.00e-3, Tt=0.13, g=0.93, eta=1.3),
+    "BTDF3": HenyeyGreenstein(Td=1.00e-3, Tt=0.38, g=0.88, eta=1.3),
+}
+
+
+def preset(name: str, kind: str | None = None) -> Model:
+    """A preset model by name (case-insensitive), of ``kind`` when given."""
+    model = PRESETS.get(name.upper()) if isinstance(name, str) else None
+    if model is None or (kind is not None and model.KIND != kind):
+        known = [k for k, m in PRESETS.items() if kind is None or m.KIND == kind]
+        raise InputError(f"unknown preset {name!r}; known: {', '.join(known)}")
+    return model
+
+
+__all__ = ["REGISTRY", "FAMILIES", "DEFAULTS", "PRESETS", "register", "names", "model_class",
+           "default_class", "preset"]

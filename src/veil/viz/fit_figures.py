@@ -1,0 +1,167 @@
+"""Figures of fits: the data with the fitted curves of a step (:func:`fit_figure`, used by
+the pipeline and ``veil fit``), and the identifiability diagnostics (:func:`diagnosis_figure`:
+the correlation matrix and the profile likelihoods, ``veil diagnose``)."""
+
+from __future__ import annotations
+
+import io
+import math
+
+import numpy as np
+
+from ..engine.angles import from_signed_inplane, to_goniometer, to_signed_inplane
+from ..fitting import FitResult, model_values
+from ..io import write_bytes_atomic
+from ..models import Model
+
+#: A curve gets a logarithmic axis when its peak exceeds its median by this factor.
+LOG_RATIO = 30.0
+COLORS = ("#1f77b4", "#d62728", "#2ca02c", "#ff7f0e", "#6a3d9a", "#8c564b")
+
+
+# --------------------------------------------------------------------------------------
+# figures
+# --------------------------------------------------------------------------------------
+def _goniometer(data):
+    """(psi, rho, signed theta_r) of in-plane data, or None if a row is out of the plane."""
+    try:
+        ti, tr = to_signed_inplane(*data.angles)
+    except ValueError:
+        return None
+    psi, rho = to_goniometer(ti, tr)
+    return np.round(psi, 6), rho, tr
+
+
+def _curve_rho(rho_min, rho_max):
+    fine = np.arange(-12.0, 12.0 + 1e-9, 0.5)
+    coarse = np.arange(math.floor(rho_min), math.ceil(rho_max) + 1e-9, 2.0)
+    rho = np.union1d(fine, coarse)
+    return rho[(rho >= rho_min - 1e-9) & (rho <= rho_max + 1e-9)]
+
+
+def fit_figure(data, result: FitResult, other: Model | None, extra: FitResult | None = None,
+               dpi: int = 120) -> bytes:
+    """PNG: data (markers, sigma bars) and fitted curves against theta_r, one colour per psi.
+
+    ``other`` is the model held fixed (None for f_r alone); ``extra`` adds a dashed f_r curve
+    (the through-medium estimate on the direct fit's figure). Out-of-plane data are drawn as
+    model against data instead.
+    """
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(7.0, 4.6), dpi=dpi)
+    ax = fig.add_subplot()
+    titles = {"reference": "Step 0: reference object, clear medium (f_r)",
+              "medium": "Step 1: reference object through the medium (f_t fitted)",
+              "target": "Step 2: target object through the medium (f_r fitted)",
+              "direct": "Target object, clear medium: direct fit and estimate"}
+    gonio = _goniometer(data)
+    y = data.y
+    accuracy = result.accuracy or "default"
+    if gonio is None:
+        model = model_values(result, other, data.angles, accuracy)
+        ax.plot(model, y, "o", ms=3, color=COLORS[0])
+        lo, hi = min(np.min(y), np.min(model)), max(np.max(y), np.max(model))
+        if lo > 0:
+            ax.set_xscale("log")
+            ax.set_yscale("log")
+        ax.plot([lo, hi], [lo, hi], "-", color="0.5", lw=1)
+        ax.set_xlabel("fitted model value [relative units, 1/sr]")
+        ax.set_ylabel("measured value [relative units, 1/sr]")
+    else:
+        psi, rho, tr = gonio
+        curves = []
+        for k, p in enumerate(np.unique(psi)):
+            sel = psi == p
+            r = _curve_rho(rho[sel].min(), rho[sel].max())
+            ti_c, tr_c = p / 2 + r, p / 2 - r
+            curves.append((k, p, sel, tr_c, ti_c))
+        all_ti = np.concatenate([c[4] for c in curves])
+        all_tr = np.concatenate([c[3] for c in curves])
+        angles_c = from_signed_inplane(all_ti, all_tr)
+        angles_c = (angles_c[0], angles_c[1], angles_c[2], angles_c[3])
+        fitted = model_values(result, other, angles_c, accuracy)
+        dashed = model_values(extra, None, angles_c) if extra is not None else None
+        from matplotlib.lines import Line2D
+
+        start = 0
+        handles = []
+        for k, p, sel, tr_c, _ in curves:
+            color = COLORS[k % len(COLORS)]
+            n = len(tr_c)
+            order = np.argsort(tr[sel])
+            yerr = data.sigma[sel][order] if data.sigma is not None else None
+            ax.errorbar(tr[sel][order], y[sel][order], yerr=yerr, fmt="o", ms=3, color=color,
+                        elinewidth=0.8, capsize=0)
+            ax.plot(tr_c, fitted[start:start + n], "-", color=color, lw=1.2)
+            if dashed is not None:
+                ax.plot(tr_c, dashed[start:start + n], "--", color=color, lw=1.0)
+            handles.append(Line2D([], [], color=color, marker="o", ms=3, lw=1.2,
+                                  label=f"psi = {p:g}°"))
+            start += n
+        positive = y[y > 0]
+        if positive.size and np.max(positive) > LOG_RATIO * np.median(positive):
+            ax.set_yscale("log")
+            ax.set_ylim(bottom=max(np.min(positive) * 0.5, np.max(positive) * 1e-6))
+        ax.set_xlabel("reflection angle theta_r [deg] (signed, in the plane of incidence)")
+        ax.set_ylabel("observed value [relative units, 1/sr]")
+        handles += [Line2D([], [], color="0.3", marker="o", ms=3, lw=0,
+                           label="data" + (" (+- sigma)" if data.sigma is not None else "")),
+                    Line2D([], [], color="0.3", lw=1.2, label="fitted model")]
+        if dashed is not None:
+            handles.append(Line2D([], [], color="0.3", lw=1.0, ls="--",
+                                  label="f_r estimated through the medium (step 2)"))
+        ax.legend(handles=handles, fontsize=7.5, loc="best", framealpha=0.8)
+    ax.set_title(titles.get(result.step, result.model), fontsize=10)
+    ax.grid(True, which="major", alpha=0.3)
+    fig.tight_layout()
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", metadata={"Software": None})
+    return buf.getvalue()
+
+
+# --------------------------------------------------------------------------------------
+# the figure
+# --------------------------------------------------------------------------------------
+def diagnosis_figure(diag, path) -> None:
+    """PNG: the correlation matrix and each profile (Delta chi^2 against the held value,
+    with the quadratic expected from the standard error); written atomically."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    panels = 1 + len(diag.profiles)
+    cols = min(panels, 4)  # a grid, at most four panels a row
+    rows = -(-panels // cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(4.2 * cols, 3.8 * rows), squeeze=False)
+    axes = axes.ravel()
+    for ax in axes[panels:]:
+        ax.set_visible(False)
+    ax = axes[0]
+    im = ax.imshow(diag.correlation, vmin=-1, vmax=1, cmap="RdBu_r")
+    ax.set_xticks(range(len(diag.names)), diag.names, rotation=60, fontsize=7)
+    ax.set_yticks(range(len(diag.names)), diag.names, fontsize=7)
+    ax.set_title("correlation")
+    fig.colorbar(im, ax=ax, fraction=0.046)
+    for ax, (name, prof) in zip(axes[1:], diag.profiles.items()):
+        v = np.array(prof.values)
+        ax.plot(v, prof.delta_chi2, "o-", label="profile")
+        se = diag.stderr[name]
+        fine = np.linspace(v.min(), v.max(), 200)
+        ax.plot(fine, ((fine - prof.estimate) / se) ** 2, "--", color="gray",
+                label="quadratic (stderr)")
+        ax.axhline(1.0, color="k", lw=0.8)
+        ax.set_ylim(0, max(10.0, min(50.0, max(prof.delta_chi2) * 1.1)))
+        ax.set_xlabel(name)
+        ax.locator_params(axis="x", nbins=4)
+        ax.set_ylabel("Delta chi^2")
+        ax.set_title(f"profile of {name}" + (" (flat)" if prof.flat else ""))
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=110)
+    plt.close(fig)
+    write_bytes_atomic(path, buf.getvalue())
+
+
+__all__ = ["fit_figure", "diagnosis_figure", "LOG_RATIO", "COLORS"]

@@ -1,0 +1,377 @@
+"""The contract every registered model family passes (docs/architecture.md, "Adding a model").
+
+For each family: its parameter vector round-trips; its bounds reject what they must; its
+sampling maps and their inverses agree and its weights are the derivatives of its
+cumulatives; the parts the engine integrates sum to the model's value computed
+independently (the formulas below, written from MODEL.md, not from veil); the engine's exact
+Jacobian agrees with central differences; and the engine agrees with a brute-force
+integral at a few configurations. Adding a family is its module, a registry line, and an
+entry in INDEPENDENT (and BRUTE_FORCE) here.
+
+The test-only families of tests/plugins/veil_test_models.py prove that the registry is
+real: they run through every command without a line of veil changed.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import sys
+
+import numpy as np
+import pytest
+
+sys.path.insert(0, os.path.join(os.path.dirname(__file__), "plugins"))
+import veil_test_models  # noqa: E402,F401  (registers the test-only families)
+
+import reference as ref  # noqa: E402
+from veil.engine.forward import Forward  # noqa: E402
+from veil.engine.quadrature import RULES  # noqa: E402
+from veil.models import REGISTRY, default_class  # noqa: E402
+
+FAMILIES = sorted(REGISTRY)
+
+
+# --------------------------------------------------------------------------------------
+# independent values, from MODEL.md (and the test models' docstrings)
+# --------------------------------------------------------------------------------------
+def _angles(w):
+    theta = np.degrees(np.arccos(np.clip(w[..., 2], -1, 1)))
+    phi = np.degrees(np.arctan2(w[..., 1], w[..., 0]))
+    return theta, phi
+
+
+def _ts(model, wi, wo):
+    ti, pi_ = _angles(wi)
+    tr, pr = _angles(wo)
+    return ref.reference_reflectance(tuple(model.to_vector()), ti, pi_, tr, pr)
+
+
+def _hg(model, wa, wb):
+    ta, pa = _angles(wa)
+    tb, pb = _angles(wb)
+    return ref.reference_btdf(tuple(model.to_vector()), ta, pa, tb, pb, model.variant)
+
+
+def _lambert(model, wi, wo):
+    ok = (wi[..., 2] > 0) & (wo[..., 2] > 0)
+    return np.where(ok, model.rho * wi[..., 2] / math.pi, 0.0)
+
+
+def _fisher_phase(kappa, one_minus_mu):
+    return kappa * np.exp(-kappa * one_minus_mu) / (2 * math.pi * -np.expm1(-2 * kappa))
+
+
+def _fisher(model, wa, wb):
+    x = 1.0 - np.sum(wa * wb, axis=-1)
+    return model.Td + model.Tt * _fisher_phase(model.kappa, x)
+
+
+INDEPENDENT = {"torrance-sparrow": _ts, "henyey-greenstein": _hg,
+               "lambertian-test": _lambert, "fisher-test": _fisher}
+
+
+def _instance(name):
+    """A non-trivial instance of the family: its preset if it has one, else its template
+    with the scales moved off 1."""
+    cls = REGISTRY[name]
+    for model in veil_presets():
+        if type(model) is cls:
+            return model
+    model = cls.template()
+    return model.replace(**{n: getattr(model, n) * 3.0 for n in cls.scale_names()})
+
+
+def veil_presets():
+    from veil.models import PRESETS
+
+    return list(PRESETS.values())
+
+
+def _directions(n, seed, upper=True):
+    rng = np.random.default_rng(seed)
+    v = rng.standard_normal((n, 3))
+    v /= np.linalg.norm(v, axis=1, keepdims=True)
+    if upper:
+        v[:, 2] = np.abs(v[:, 2]) + 1e-3
+        v /= np.linalg.norm(v, axis=1, keepdims=True)
+    return v
+
+
+def test_every_family_has_an_independent_value():
+    missing = [n for n in FAMILIES if n not in INDEPENDENT]
+    assert not missing, f"add an independent formula for {missing} to INDEPENDENT"
+
+
+# --------------------------------------------------------------------------------------
+# declarations
+# --------------------------------------------------------------------------------------
+@pytest.mark.parametrize("name", FAMILIES)
+def test_vector_and_dict_round_trip(name):
+    model = _instance(name)
+    cls = type(model)
+    assert model.with_vector(model.to_vector()) == model
+    assert cls.from_params(model.as_dict(), model.options()) == model
+    assert list(model.as_dict()) == list(cls.param_names())
+    assert model.to_vector().shape == (len(cls.PARAMS),)
+    assert cls.template().structure() == cls.template().structure()
+    for p in cls.PARAMS:
+        assert cls.param(p.key) is p and cls.index(p.name) == cls.PARAMS.index(p)
+
+
+@pytest.mark.parametrize("name", FAMILIES)
+def test_bounds_reject_outside_values(name):
+    from veil.errors import ParameterError
+
+    cls = REGISTRY[name]
+    model = cls.template()
+    for p in cls.PARAMS:
+        for bound, is_open, step in ((p.lower, p.lower_open, -1), (p.upper, p.upper_open, 1)):
+            if not math.isfinite(bound):
+                continue
+            outside = bound + step * max(abs(bound), 1.0) * 1e-3
+            with pytest.raises(ParameterError, match=p.name):
+                model.replace(**{p.name: outside})
+            if is_open:
+                with pytest.raises(ParameterError):
+                    model.replace(**{p.name: bound})
+            else:
+                model.replace(**{p.name: bound})  # a closed bound is allowed
+        with pytest.raises(ParameterError):
+            model.replace(**{p.name: math.nan})
+
+
+@pytest.mark.parametrize("name", FAMILIES)
+def test_starting_grids_lie_inside_the_bounds(name):
+    cls = REGISTRY[name]
+    for role, grid in cls.START.items():
+        for pname, values in grid.items():
+            p = cls.param(pname)
+            inside = [v for v in values if p.contains(v)]
+            assert inside, f"{name} START[{role}][{pname}] has no value inside {p.interval()}"
+
+
+# --------------------------------------------------------------------------------------
+# sampling maps and weights
+# --------------------------------------------------------------------------------------
+@pytest.mark.parametrize("name", [n for n in FAMILIES
+                                  if REGISTRY[n].KIND == "brdf" and REGISTRY[n].HAS_LOBE])
+def test_facet_maps_invert_and_weights_are_densities(name):
+    model = _instance(name)
+    v = np.asarray(model.to_vector())
+    cls = type(model)
+    top = float(cls.facet_cdf(v, math.pi / 2))
+    y = np.linspace(0.01, 0.99, 41) * top
+    alpha = np.asarray(cls.facet_inverse_cdf(v, y))
+    assert np.allclose(np.asarray(cls.facet_cdf(v, alpha)), y, rtol=1e-9, atol=1e-12 * top)
+    a = np.linspace(0.02, 1.4, 30)
+    h = 1e-6
+    numeric = (np.asarray(cls.facet_cdf(v, a + h)) - np.asarray(cls.facet_cdf(v, a - h))) / (2 * h)
+    weight = np.asarray(cls.facet_weight(v, a)) * 2 * math.pi * np.sin(a)
+    assert np.allclose(weight, numeric, rtol=1e-5, atol=1e-9 * np.max(np.abs(numeric)))
+
+
+@pytest.mark.parametrize("name", [n for n in FAMILIES
+                                  if REGISTRY[n].KIND == "medium" and REGISTRY[n].HAS_LOBE])
+def test_phase_maps_invert_and_integrate_to_one(name):
+    model = _instance(name)
+    v = np.asarray(model.to_vector())
+    frac = np.linspace(0.01, 0.99, 41)
+    omm = np.asarray(model.phase_inverse_cone_fraction(v, frac))
+    assert np.allclose(np.asarray(model.phase_cone_fraction(v, omm)), frac, rtol=1e-9, atol=1e-12)
+    assert float(model.phase_cone_fraction(v, 2.0)) == pytest.approx(1.0, rel=1e-12)
+    assert float(model.phase_cone_fraction(v, 0.0)) == pytest.approx(0.0, abs=1e-15)
+    # d (cone fraction) / d (1 - cos gamma) = 2 pi p: the solid angle of a cone is 2 pi (1 - cos)
+    x = np.concatenate([np.geomspace(1e-6, 1e-2, 20), np.linspace(0.02, 1.9, 20)])
+    h = 1e-7 * np.maximum(x, 1e-4)
+    numeric = (np.asarray(model.phase_cone_fraction(v, x + h))
+               - np.asarray(model.phase_cone_fraction(v, x - h))) / (2 * h)
+    assert np.allclose(2 * math.pi * np.asarray(model.phase(v, x)), numeric, rtol=1e-5)
+
+
+# --------------------------------------------------------------------------------------
+# the engine's decomposition sums to the model's value
+# --------------------------------------------------------------------------------------
+@pytest.mark.parametrize("name", FAMILIES)
+def test_parts_sum_to_the_independent_value(name):
+    model = _instance(name)
+    v = np.asarray(model.to_vector())
+    wa, wb = _directions(400, 1), _directions(400, 2)
+    if model.KIND == "medium":  # f_t also between nearby directions, where the lobe lives
+        near = wa + 0.05 * _directions(400, 3, upper=False)
+        near /= np.linalg.norm(near, axis=1, keepdims=True)
+        wa, wb = np.concatenate([wa, wa]), np.concatenate([wb, near])
+        wb[:, 2] = np.abs(wb[:, 2])
+    got = np.asarray(model.evaluate(v, wa, wb))
+    want = INDEPENDENT[name](model, wa, wb)
+    assert np.allclose(got, want, rtol=1e-9, atol=1e-12 * np.max(np.abs(want)))
+
+
+# --------------------------------------------------------------------------------------
+# the engine: exact Jacobians and a brute-force integral
+# --------------------------------------------------------------------------------------
+def _pair(name):
+    """The family paired with the paper's model of the other kind."""
+    model = _instance(name)
+    other = default_class("medium" if model.KIND == "brdf" else "brdf")
+    partner = _instance(other.NAME)
+    return (model, partner) if model.KIND == "brdf" else (partner, model)
+
+
+@pytest.mark.parametrize("name", FAMILIES)
+def test_engine_jacobian_matches_central_differences(name):
+    brdf, medium = _pair(name)
+    ti = np.array([10.0, 30.0, 45.0, 60.0])
+    tr = np.array([40.0, 25.0, 47.0, 20.0])
+    fwd = Forward(brdf, medium, ti, tr, rule=RULES["fast"])
+    vb, vm = brdf.to_vector(), medium.to_vector()
+    nb, nm = len(vb), len(vm)
+    value, jac = fwd.value_and_jacobian(vb, vm, tuple(range(nb)), tuple(range(nm)))
+    assert np.allclose(value, fwd(vb, vm), rtol=1e-12)
+    for k in range(nb + nm):
+        x = np.concatenate([vb, vm])
+        h = 1e-5 * max(abs(x[k]), 1e-3)
+        up, down = x.copy(), x.copy()
+        up[k] += h
+        down[k] -= h
+        numeric = (fwd(up[:nb], up[nb:]) - fwd(down[:nb], down[nb:])) / (2 * h)
+        scale = np.max(np.abs(numeric)) + 1e-300
+        assert np.allclose(jac[:, k], numeric, rtol=1e-4, atol=1e-6 * scale), (name, k)
+
+
+def _sphere_integral(fn, center, density_cone, n_r=1200, n_a=256):
+    """Int over the upper hemisphere of fn(d) (d unit vectors), in coordinates about
+    ``center``: u = the lobe's cone fraction (``density_cone`` maps u to 1 - cos), beta the
+    azimuth; a plain midpoint rule (the check is slow and simple on purpose)."""
+    u = (np.arange(n_r) + 0.5) / n_r
+    beta = 2 * math.pi * (np.arange(n_a) + 0.5) / n_a
+    omm, jac = density_cone(u)
+    c = np.asarray(center, dtype=float)
+    t1 = np.cross(c, [0.0, 1.0, 0.0] if abs(c[1]) < 0.9 else [1.0, 0.0, 0.0])
+    t1 /= np.linalg.norm(t1)
+    t2 = np.cross(c, t1)
+    s = np.sqrt(np.maximum(omm * (2 - omm), 0))
+    d = ((1 - omm)[:, None, None] * c + s[:, None, None]
+         * (np.cos(beta)[None, :, None] * t1 + np.sin(beta)[None, :, None] * t2))
+    val = np.where(d[..., 2] > 0, fn(d), 0.0)
+    return float(np.sum(val * jac[:, None]) / (n_r * n_a) * 2 * math.pi)
+
+
+def _lambertian_through(brdf, medium, wi, wr):
+    """f = rho/pi [Int f_t(I, I') cos I' dI'] [Int f_t(R', R) dR'] for a Lambertian surface:
+    the isotropic part of f_t in closed form (pi iso, 2 pi iso), the lobe's by a hemisphere
+    integral about its axis."""
+    iso = float(medium.iso(medium.to_vector()))
+    medium = medium.replace(**{medium.SCALES["iso"]: 0.0})
+    v = np.asarray(medium.to_vector())
+
+    def cone(u):  # u -> 1 - cos, with d(1 - cos)/du; cone fraction of the lobe
+        omm = np.asarray(medium.phase_inverse_cone_fraction(v, u))
+        dens = 2 * math.pi * np.asarray(medium.phase(v, omm))
+        return omm, 1.0 / dens
+
+    def ft(a, b):
+        return np.asarray(medium.evaluate(v, np.broadcast_to(a, b.shape), b))
+
+    a = math.pi * iso + _sphere_integral(lambda d: ft(wi, d) * d[..., 2], wi, cone)
+    b = 2 * math.pi * iso + _sphere_integral(lambda d: np.asarray(medium.evaluate(
+        v, d, np.broadcast_to(wr, d.shape))), wr, cone)
+    return brdf.rho / math.pi * a * b
+
+
+@pytest.mark.parametrize("pair", ["lambertian-test:henyey-greenstein",
+                                  "lambertian-test:fisher-test",
+                                  "torrance-sparrow:fisher-test"])
+def test_engine_matches_a_brute_force_integral(pair):
+    bname, mname = pair.split(":")
+    brdf, medium = _instance(bname), _instance(mname)
+    ti, tr = np.array([20.0, 50.0]), np.array([35.0, 10.0])
+    got = Forward(brdf, medium, ti, tr, rule=RULES["default"])(brdf.to_vector(),
+                                                                 medium.to_vector())
+    if bname == "lambertian-test":
+        from veil.engine.angles import direction
+
+        wi, wr = np.asarray(direction(ti, 180.0)), np.asarray(direction(tr, 0.0))
+        want = np.array([_lambertian_through(brdf, medium, a, b) for a, b in zip(wi, wr)])
+        assert np.allclose(got, want, rtol=2e-3)
+    else:
+        # the paper's BRDF through the test medium: Monte Carlo with importance sampling of
+        # both lobes and of the facet law, balance heuristic (tests/reference.py's method)
+        want, se = _mc_apparent(brdf, medium, ti, tr)
+        assert np.all(np.abs(got - want) <= 4 * se + 2e-3 * want), (got, want, se)
+
+
+def _mc_apparent(brdf, medium, ti, tr, n=1 << 17, seed=7):
+    """eq. (1) by Monte Carlo with three strategies combined by the balance heuristic: I' and
+    R' from the medium's lobes (mixed with uniform directions for the isotropic part); I'
+    from its lobe and R' its mirror about a half vector from the facet law; and the reverse.
+    The value uses only the models' ``evaluate`` (checked above against MODEL.md); the
+    sampling maps only move samples. Returns (values, standard errors)."""
+    from veil.engine.angles import direction
+
+    rng = np.random.default_rng(seed)
+    vm = np.asarray(medium.to_vector())
+    vb = np.asarray(brdf.to_vector())
+    top = float(brdf.facet_cdf(vb, math.pi / 2))
+
+    def frame(c):
+        t1 = np.cross(c, [0.0, 1.0, 0.0])
+        t1 /= np.linalg.norm(t1)
+        return t1, np.cross(c, t1)
+
+    def from_axis(c, omm, beta):
+        t1, t2 = frame(c)
+        s = np.sqrt(np.maximum(omm * (2 - omm), 0))
+        return (1 - omm)[:, None] * c + s[:, None] * (np.cos(beta)[:, None] * t1
+                                                      + np.sin(beta)[:, None] * t2)
+
+    def q(c, d):  # mixture density: half lobe about c, half uniform on the sphere
+        return 0.5 * np.asarray(medium.phase(vm, 1.0 - d @ c)) + 0.5 / (4 * math.pi)
+
+    def draw(c, k):
+        lobe = rng.random(k) < 0.5
+        omm = np.where(lobe, np.asarray(medium.phase_inverse_cone_fraction(vm, rng.random(k))),
+                       2.0 * rng.random(k))
+        return from_axis(c, omm, 2 * math.pi * rng.random(k))
+
+    def facet(k):
+        alpha = np.asarray(brdf.facet_inverse_cdf(vb, rng.random(k) * top))
+        phi = 2 * math.pi * rng.random(k)
+        h = np.stack([np.sin(alpha) * np.cos(phi), np.sin(alpha) * np.sin(phi),
+                      np.cos(alpha)], axis=1)
+        return h
+
+    def f_h(h):
+        alpha = np.arccos(np.clip(h[:, 2], -1, 1))
+        return np.asarray(brdf.facet_weight(vb, alpha)) / top
+
+    def reflect(d, h):
+        return 2 * np.sum(d * h, axis=1)[:, None] * h - d
+
+    out, err = [], []
+    for a, b in zip(np.asarray(direction(ti, 180.0)), np.asarray(direction(tr, 0.0))):
+        samples = []
+        i_a, r_a = draw(a, n), draw(b, n)
+        i_b = draw(a, n)
+        h_b = facet(n)
+        r_b = reflect(i_b, h_b)
+        r_c = draw(b, n)
+        h_c = facet(n)
+        i_c = reflect(r_c, h_c)
+        for i2, r2 in ((i_a, r_a), (i_b, r_b), (i_c, r_c)):
+            s = i2 + r2
+            h = s / np.linalg.norm(s, axis=1, keepdims=True)
+            c = np.abs(np.sum(i2 * h, axis=1))
+            fh = np.where(h[:, 2] > 0, f_h(h), 0.0)
+            pa = q(a, i2) * q(b, r2)
+            pb = q(a, i2) * fh / (4 * c)
+            pc = q(b, r2) * fh / (4 * c)
+            ok = (i2[:, 2] > 0) & (r2[:, 2] > 0)
+            fti = np.asarray(medium.evaluate(vm, np.broadcast_to(a, i2.shape), i2))
+            ftr = np.asarray(medium.evaluate(vm, r2, np.broadcast_to(b, r2.shape)))
+            fr = np.asarray(brdf.evaluate(vb, i2, r2))
+            samples.append(np.where(ok, fti * fr * ftr / (pa + pb + pc), 0.0))
+        x = np.concatenate(samples) * 3  # each strategy holds a third of the samples
+        out.append(x.mean())
+        err.append(x.std() / math.sqrt(x.size))
+    return np.array(out), np.array(err)

@@ -1,0 +1,133 @@
+"""The registry is real: two families that exist only in the tests (tests/plugins) go through
+veil eval, the three fits, the joint fit and veil diagnose, chosen by name, with no line of
+veil changed for them; a subprocess finds them through VEIL_PLUGINS."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+PLUGINS = os.path.join(os.path.dirname(__file__), "plugins")
+sys.path.insert(0, PLUGINS)
+import veil_test_models  # noqa: E402
+
+import veil  # noqa: E402
+from veil.cli import main  # noqa: E402
+from veil.fitting import FitResult, load_result  # noqa: E402
+
+FAST = ["--accuracy", "fast"]
+KW = dict(psi=(30, 60, 90), fine_step=2, coarse_step=10, glow=0.0, accuracy="fast")
+LAMBERT = veil_test_models.LambertianTest(rho=0.6)
+FISHER = veil_test_models.FisherTest(Td=2e-3, Tt=0.2, kappa=150.0)
+FISHER_2 = veil_test_models.FisherTest(Td=4e-3, Tt=0.35, kappa=60.0)
+
+
+def invoke(args):
+    return CliRunner().invoke(main, [str(a) for a in args], catch_exceptions=False)
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory):
+    d = tmp_path_factory.mktemp("plugins")
+    ref_clear = veil.simulate(veil.BRDF2, None, seed=1, **KW)
+    ref_medium, black = veil.simulate(veil.BRDF2, FISHER, seed=2, black=True, **KW)
+    target = veil.simulate(LAMBERT, FISHER, seed=3, **KW)
+    target_2 = veil.simulate(LAMBERT, FISHER_2, seed=4, **KW)
+    target_clear = veil.simulate(LAMBERT, None, seed=5, **KW)
+    out = {}
+    for name, table in (("ref_clear", ref_clear), ("ref_medium", ref_medium),
+                        ("black", black), ("target", target), ("target_2", target_2),
+                        ("target_clear", target_clear)):
+        out[name] = d / f"{name}.csv"
+        veil.save_measurements(table, out[name])
+    out["dir"] = d
+    return out
+
+
+def test_eval_with_test_models_matches_the_api():
+    r = invoke(["eval", "--brdf-model", "lambertian-test", "--medium-model", "fisher-test",
+                "--brdf", "0.6", "--medium", "2e-3,0.2,150", "--theta-i", "30",
+                "--theta-r", "40", "--json"])
+    assert r.exit_code == 0, r.output
+    got = json.loads(r.output)
+    assert got["brdf"]["model"] == "lambertian-test" and got["medium"]["model"] == "fisher-test"
+    want = veil.apparent(LAMBERT, FISHER, 30.0, 40.0)
+    assert got["apparent"][0] == pytest.approx(float(want), rel=1e-12)
+
+
+def test_three_steps_joint_and_diagnose_with_test_models(files):
+    d = files["dir"]
+    # step 0: the paper's reference in clear water
+    r = invoke(["fit", "reference", files["ref_clear"], "-o", d / "ref.json"])
+    assert r.exit_code == 0, r.output
+    # step 1: the test medium through it
+    r = invoke(["fit", "medium", files["ref_medium"], "--reference", d / "ref.json", "--black",
+                files["black"], "--medium-model", "fisher-test", "-o", d / "med.json"] + FAST)
+    assert r.exit_code == 0, r.output
+    med = FitResult.from_json(d / "med.json")
+    assert med.model == "fisher-test" and med.kind == "medium" and med.converged
+    assert list(med.params) == ["Td", "Tt", "kappa"]
+    for name, true in FISHER.as_dict().items():
+        assert abs(med.params[name] - true) < 4 * med.stderr_total[name], (name, med.params)
+    # step 2: the test BRDF through the fitted test medium
+    r = invoke(["fit", "target", files["target"], "--medium", d / "med.json",
+                "--brdf-model", "lambertian-test", "-o", d / "tgt.json"] + FAST)
+    assert r.exit_code == 0, r.output
+    tgt = FitResult.from_json(d / "tgt.json")
+    assert tgt.model == "lambertian-test" and tgt.given["model"] == "fisher-test"
+    assert abs(tgt.params["rho"] - LAMBERT.rho) < 4 * tgt.stderr_total["rho"]
+    # diagnose the target fit, the medium's uncertainty included
+    r = invoke(["diagnose", d / "tgt.json", "--data", files["target"], "--medium",
+                d / "med.json", "-o", d / "diag"])
+    assert r.exit_code == 0, r.output
+    diag = json.loads((d / "diag" / "diagnostics.json").read_text())
+    assert "rho" in diag["parameters"] and "kappa" in diag["parameters"]
+    # the joint fit: the test BRDF under two test media, the scale pinned by a clear session
+    r = invoke(["fit", "joint", "--brdf-model", "lambertian-test", "--medium-model",
+                "fisher-test", "--session", f"one={files['target']}", "--session",
+                f"two={files['target_2']}", "--session", f"none={files['target_clear']}",
+                "--fix", "kappa[one]=150", "--fix", "kappa[two]=60", "-o",
+                d / "joint.json"] + FAST)
+    assert r.exit_code in (0, 1), r.output
+    joint = load_result(d / "joint.json")
+    assert joint.layout["models"] == {"brdf": "lambertian-test", "medium": "fisher-test"}
+    assert joint.brdf("target") == veil_test_models.LambertianTest(rho=joint.params["rho"])
+    assert set(joint.params) == {"rho", "Td[one]", "Tt[one]", "kappa[one]", "Td[two]",
+                                 "Tt[two]", "kappa[two]"}
+    assert joint.params["rho"] == pytest.approx(LAMBERT.rho, rel=0.05)
+    r = invoke(["diagnose", d / "joint.json", "--data", f"one={files['target']}", "--data",
+                f"two={files['target_2']}", "--data", f"none={files['target_clear']}"])
+    assert r.exit_code == 0, r.output
+
+
+def test_wrong_kinds_and_unknown_names(files):
+    d = files["dir"]
+    r = invoke(["eval", "--brdf-model", "fisher-test", "--brdf", "1", "--medium", "none",
+                "--theta-i", "1", "--theta-r", "1"])
+    assert r.exit_code == 2 and "Invalid value for '--brdf-model'" in r.output
+    r = invoke(["fit", "reference", files["ref_clear"], "--brdf-model", "phong", "-o",
+                d / "x.json"])
+    assert r.exit_code == 2 and "lambertian-test" in r.output  # the known ones are listed
+
+
+def test_a_subprocess_finds_the_plugins_through_the_environment(tmp_path):
+    env = dict(os.environ, VEIL_PLUGINS="veil_test_models",
+               PYTHONPATH=os.pathsep.join([PLUGINS, os.environ.get("PYTHONPATH", "")]))
+    out = subprocess.run([sys.executable, "-m", "veil.cli", "models", "--json"], env=env,
+                         capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    names = {e["name"]: e for e in json.loads(out.stdout)}
+    assert {"lambertian-test", "fisher-test", "torrance-sparrow",
+            "henyey-greenstein"} <= set(names)
+    assert [p["name"] for p in names["fisher-test"]["parameters"]] == ["Td", "Tt", "kappa"]
+    bad = subprocess.run([sys.executable, "-m", "veil.cli", "models"],
+                         env=dict(env, VEIL_PLUGINS="no_such_module"), capture_output=True,
+                         text=True, timeout=120)
+    assert bad.returncode == 2 and "VEIL_PLUGINS names module 'no_such_module'" in bad.stderr
+    assert np.isfinite(1.0)
