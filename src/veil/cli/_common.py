@@ -151,6 +151,29 @@ def _is_number(text: str) -> bool:
     return True
 
 
+class ModelName(click.ParamType):
+    """A registered family of one kind, looked up when the command line is parsed (so that
+    families registered after the command was built are accepted too)."""
+
+    name = "NAME"
+
+    def __init__(self, kind: str):
+        self.kind = kind
+
+    def convert(self, value, param, ctx):
+        from ..errors import InputError
+        from ..models import names
+
+        try:
+            known = names(self.kind)
+        except InputError as exc:
+            self.fail(str(exc), param, ctx)
+        if value not in known:
+            self.fail(f"{value!r} is not a registered {self.kind} model; known: "
+                      f"{', '.join(known)} ('veil models' lists them)", param, ctx)
+        return value
+
+
 def _option_flag(name: str) -> str:
     return "--" + name.replace("_", "-")
 
@@ -215,7 +238,7 @@ def model_options(kinds=("brdf", "medium")):
         for kind in reversed(kinds):
             word = "BRDF family of the objects" if kind == "brdf" else "medium model"
             wrapper = click.option(f"--{kind}-model", f"{kind}_model", default=None,
-                                   type=click.Choice(known(kind)), metavar="NAME",
+                                   type=ModelName(kind), metavar="NAME",
                                    help=f"The {word} (default {DEFAULTS[kind]}, the paper's; "
                                         f"'veil models' lists them: "
                                         f"{', '.join(known(kind))}).")(wrapper)

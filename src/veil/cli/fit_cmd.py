@@ -9,7 +9,6 @@ the input. Result format: docs/fitting.md.
 from __future__ import annotations
 
 import contextlib
-import math
 import os
 import warnings
 from pathlib import Path

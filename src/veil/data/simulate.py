@@ -34,12 +34,9 @@ import numpy as np
 
 from ..errors import InputError
 from ..engine.angles import direction
-from ..engine.apparent import RULES, apparent, as_brdf, as_btdf, reflectance
+from ..engine.apparent import RULES, as_brdf, as_btdf
+from ..engine.evaluator import CHUNK, evaluate
 from .protocol import PSI, protocol
-
-#: Configurations per engine call: a fixed size, so the engine compiles once per model
-#: structure and accuracy whatever the number of configurations (the last call is padded).
-CHUNK = 64
 #: The glow's reference configuration (theta_i, phi_i, theta_r, phi_r), degrees.
 GLOW_REFERENCE = (0.0, 180.0, 60.0, 0.0)
 GLOW_LEVEL = 0.03
@@ -71,23 +68,9 @@ def glow_scale(medium, accuracy: str = "default") -> float:
 
 
 def _evaluate(brdf, medium, angles, accuracy, progress):
-    """Noise-free apparent values at canonical angles, CHUNK at a time."""
+    """Noise-free apparent values at canonical angles (the engine's chunked evaluator)."""
     ti, pi_, tr, pr = angles
-    n = len(ti)
-    if medium is None:
-        out = np.asarray(reflectance(brdf, ti, tr, pi_, pr), dtype=float)
-        if progress:
-            progress(n, n)
-        return out
-    out = np.empty(n)
-    for start in range(0, n, CHUNK):
-        stop = min(start + CHUNK, n)
-        idx = np.minimum(np.arange(start, start + CHUNK), stop - 1)  # pad with the last row
-        vals = apparent(brdf, medium, ti[idx], tr[idx], pi_[idx], pr[idx], accuracy=accuracy)
-        out[start:stop] = np.asarray(vals)[: stop - start]
-        if progress:
-            progress(stop, n)
-    return out
+    return evaluate(brdf, medium, ti, pi_, tr, pr, accuracy=accuracy, progress=progress)
 
 
 def simulate(brdf, medium, psi=PSI, noise: float = 0.01, seed: int = 0, black: bool = False, *,

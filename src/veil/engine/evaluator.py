@@ -1,7 +1,12 @@
-"""Model values and Jacobians at a session's fixed configurations, padded to CHUNK (the
-shape of :func:`veil.simulate`, so fits and simulations share one compilation per accuracy):
-:class:`ApparentModel` through a medium (MODEL.md sec. 5), :class:`DirectModel` f_r alone
-(MODEL.md sec. 2)."""
+"""The one chunked evaluator of the engine: configurations go to the engine in chunks of a
+fixed size, the last one padded with its last row, so that the engine compiles once per
+model structure, accuracy and chunk size whatever the number of configurations.
+
+- :func:`evaluate`: the apparent reflectance (MODEL.md sec. 5), or f_r alone without a
+  medium, at any number of configurations, with progress (simulations, renders, ``veil
+  eval``);
+- :class:`ApparentModel` and :class:`DirectModel`: values and Jacobians at a session's fixed
+  configurations, as a function of the parameter vectors (the fits)."""
 
 from __future__ import annotations
 
@@ -13,13 +18,39 @@ from .._jax import jax, jnp
 from .angles import direction
 from .forward import Forward
 from ..models import BRDF, BTDF
-from ..data.simulate import CHUNK
+from .apparent import apparent, reflectance
+
+#: Configurations per engine call of fits and simulations (they share one compilation).
+CHUNK = 64
 
 
-def _padded(angles, start: int, size: int):
-    """Configurations start..start+CHUNK, padded with the last one (one shape, one compile)."""
-    idx = np.minimum(np.arange(start, start + CHUNK), size - 1)
-    return tuple(a[idx] for a in angles)
+def chunks(size: int, chunk: int = CHUNK):
+    """(start, stop, indices padded to ``chunk`` with the last row) covering ``size`` rows."""
+    for start in range(0, size, chunk):
+        stop = min(start + chunk, size)
+        yield start, stop, np.minimum(np.arange(start, start + chunk), stop - 1)
+
+
+def evaluate(brdf, medium, theta_i, phi_i, theta_r, phi_r, *, accuracy: str = "default",
+             chunk: int = CHUNK, progress=None) -> np.ndarray:
+    """Apparent reflectance (MODEL.md eq. 1; f_r alone when ``medium`` is None) at flat
+    arrays of angles (degrees), ``chunk`` configurations per engine call;
+    ``progress(done, total)`` after each chunk."""
+    ti, pi_, tr, pr = (np.ravel(np.asarray(a, dtype=float))
+                       for a in np.broadcast_arrays(theta_i, phi_i, theta_r, phi_r))
+    n = ti.size
+    if medium is None:
+        out = np.asarray(reflectance(brdf, ti, tr, pi_, pr), dtype=float)
+        if progress:
+            progress(n, n)
+        return out
+    out = np.empty(n)
+    for start, stop, idx in chunks(n, chunk):
+        vals = apparent(brdf, medium, ti[idx], tr[idx], pi_[idx], pr[idx], accuracy=accuracy)
+        out[start:stop] = np.asarray(vals)[: stop - start]
+        if progress:
+            progress(stop, n)
+    return out
 
 
 class ApparentModel:
@@ -29,10 +60,9 @@ class ApparentModel:
     def __init__(self, brdf: BRDF, medium: BTDF, angles, rule):
         self.size = len(angles[0])
         self.parts = []
-        for start in range(0, self.size, CHUNK):
-            ti, pi_, tr, pr = _padded(angles, start, self.size)
-            self.parts.append((Forward(brdf, medium, ti, tr, pi_, pr, rule),
-                               min(CHUNK, self.size - start)))
+        for start, stop, idx in chunks(self.size):
+            ti, pi_, tr, pr = (a[idx] for a in angles)
+            self.parts.append((Forward(brdf, medium, ti, tr, pi_, pr, rule), stop - start))
         nb, nm = len(brdf.PARAMS), len(medium.PARAMS)
         # every parameter of both models: one compiled Jacobian serves steps 1 and 2 and any
         # choice of fixed parameters

@@ -20,7 +20,6 @@ two-step method, a joint fit, a profile or refit of the diagnostics - is a
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 
 import numpy as np

@@ -238,6 +238,13 @@ class Model:
                 for p in cls.PARAMS]
 
     # -- an instance -----------------------------------------------------------------------
+    def shape_values(self) -> dict:
+        """The parameters that tell two models of the family apart in a legend: neither
+        scales nor shared by media (the paper's medium: g)."""
+        scales = set(self.scale_names())
+        return {p.name: getattr(self, p.name) for p in self.PARAMS
+                if p.name not in scales and p.share != "shared"}
+
     def to_vector(self) -> np.ndarray:
         return np.array([getattr(self, p.name) for p in self.PARAMS], dtype=float)
 
@@ -311,6 +318,16 @@ class BRDF(Model):
         (``sin_alpha`` may be passed when known)."""
         raise NotImplementedError
 
+    def facet_half_angle(self) -> float:
+        """The angle (deg) of the cone about the normal that holds half of the lobe's half
+        vectors (sqrt(ln 2)/n for the paper's Torrance-Sparrow: its facet HWHM); inf without
+        a lobe."""
+        if not self.HAS_LOBE:
+            return math.inf
+        v = self.to_vector()
+        top = float(self.facet_cdf(v, 0.5 * math.pi))
+        return math.degrees(float(self.facet_inverse_cdf(v, 0.5 * top)))
+
     @classmethod
     def evaluate(cls, v, wi, wo):
         """Full f_r(wi, wo), zero unless both directions are in the upper hemisphere."""
@@ -369,6 +386,29 @@ class Medium(Model):
         """The medium at ``factor`` times its concentration (acquisition design, more or less
         of the scattering substance): by default every scale parameter times ``factor``."""
         return self.replace(**{n: getattr(self, n) * factor for n in self.scale_names()})
+
+    def without_iso(self) -> "Medium":
+        """The medium with its isotropic part switched off (its scale at 0)."""
+        name = self.SCALES.get("iso")
+        return self if name is None else self.replace(**{name: 0.0})
+
+    def lobe_scale(self) -> float:
+        """The weight of the scattered lobe (the paper's T_t; 0 without a lobe)."""
+        return float(self.lobe_weight(self.to_vector())) if self.HAS_LOBE else 0.0
+
+    def lobe_half_width(self) -> float:
+        """Half width at half maximum (deg) of the phase lobe (inf without a lobe)."""
+        if not self.HAS_LOBE:
+            return math.inf
+        v = self.to_vector()
+        half = 0.5 * float(self.phase(v, 0.0))
+        lo, hi = 0.0, 2.0  # 1 - cos(gamma): the phase falls from lo to beyond hi
+        if float(self.phase(v, hi)) >= half:
+            return 180.0
+        for _ in range(200):
+            mid = 0.5 * (lo + hi)
+            lo, hi = (mid, hi) if float(self.phase(v, mid)) > half else (lo, mid)
+        return math.degrees(math.acos(1.0 - 0.5 * (lo + hi)))
 
     def kernel(self, v, one_minus_mu):
         """The scattering kernel without boundary factors, iso + weight p, at deflection

@@ -74,8 +74,9 @@ def _style():
 
 
 def _name(model) -> str:
-    """Preset name if the model is one (plus a non-default Fresnel variant), else its values."""
-    extra = "".join(f", {v}" for k, v in model.options().items() if v != "paper")
+    """Preset name if the model is one (plus its non-default options), else its values."""
+    defaults = model.default_options()
+    extra = "".join(f", {v}" for k, v in model.options().items() if v != defaults[k])
     for key, value in PRESETS.items():
         if type(value) is type(model) and value.replace(**model.options()) == model:
             return key + extra
@@ -187,8 +188,8 @@ def sphere_stats(rendering: Rendering) -> SphereStats:
 class Experiment:
     """Everything section 5.1 of the paper shows, for the given objects and media."""
 
-    brdfs: dict  # name -> TorranceSparrow
-    media: dict  # name -> HenyeyGreenstein
+    brdfs: dict  # name -> BRDF model
+    media: dict  # name -> medium model
     theta_i: float
     light_theta: float
     size: int
@@ -225,7 +226,7 @@ def run_experiment(brdfs=("BRDF1", "BRDF2"), media=("BTDF1", "BTDF2", "BTDF3"), 
         exp.curves[key] = inplane_curve(b, m, theta_i, accuracy=accuracy)
         if m is not None:
             off = exp.curves[key].metrics.off_angle
-            exp.single_only[key] = float(evaluate(b, m.replace(Td=0.0), theta_i, off, 180.0,
+            exp.single_only[key] = float(evaluate(b, m.without_iso(), theta_i, off, 180.0,
                                                   accuracy=accuracy)[0])
         done += 1
     for key in keys:
@@ -393,8 +394,9 @@ def fig10(media=("BTDF1", "BTDF2", "BTDF3"), theta_i=45.0, labels=None):
         for k, (m, (beta, f_in, s, f_out)) in enumerate(zip(media, data)):
             model = as_btdf(m)
             name = labels[k] if labels else _name(model)
-            if f"g={model.g:.3g}" not in name:
-                name = f"{name} (g = {model.g:g})"
+            shape = model.shape_values()
+            if not all(f"{k}={v:.3g}" in name for k, v in shape.items()):
+                name = f"{name} ({_values(shape)})"
             c = MEDIUM_COLORS[k % len(MEDIUM_COLORS)]
             (line,) = ax1.plot(np.radians(beta), _log_radius(f_in, lo), color=c, lw=1.4, label=name)
             handles.append(line)
@@ -446,7 +448,11 @@ def _medium_label(curve: Curve, with_brdf=True) -> str:
     head = f"{_name(curve.brdf)}, " if with_brdf else ""
     if curve.medium is None:
         return f"{head}clear medium"
-    return f"{head}{_name(curve.medium)} (g = {curve.medium.g:g})"
+    return f"{head}{_name(curve.medium)} ({_values(curve.medium.shape_values())})"
+
+
+def _values(values: dict) -> str:
+    return ", ".join(f"{k} = {v:g}" for k, v in values.items())
 
 
 def draw_curves(ax, curves, scale="log", title=None, with_brdf=True):
@@ -469,7 +475,7 @@ def draw_curves(ax, curves, scale="log", title=None, with_brdf=True):
         if scale == "peak":
             y = y / curve.metrics.peak
         elif scale == "tt2" and curve.medium is not None:
-            y = y / curve.medium.Tt ** 2
+            y = y / curve.medium.lobe_scale() ** 2
         ax.plot(curve.theta_r, y, color=color, lw=lw, label=_medium_label(curve, with_brdf))
     if scale in ("log", "tt2"):
         ax.set_yscale("log")

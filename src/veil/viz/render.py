@@ -29,7 +29,8 @@ import numpy as np
 from scipy.interpolate import RectBivariateSpline
 
 from ..errors import InputError
-from ..engine.apparent import RULES, apparent, as_brdf, as_btdf, reflectance
+from ..engine.apparent import RULES, as_brdf, as_btdf
+from ..engine.evaluator import evaluate as chunked
 
 #: Half width of the view in sphere radii (orthographic camera; a 5 % margin around the rim).
 VIEW = 1.05
@@ -54,31 +55,21 @@ ERROR_ANGLE = 80.0
 # engine access
 # --------------------------------------------------------------------------------------
 def evaluate(brdf, medium, theta_i, theta_r, dphi, *, accuracy="fast", progress=None):
-    """f at flat arrays of (theta_i, theta_r, phi_r - phi_i) in degrees (MODEL.md sec. 5).
+    """f at flat arrays of (theta_i, theta_r, phi_r - phi_i) in degrees (MODEL.md sec. 5),
+    through the engine's chunked evaluator in chunks of :data:`CHUNK` configurations.
+    ``progress(k)`` is called after each chunk with the number of configurations it did.
+    ``medium=None`` is f_r."""
+    ti, tr, dp = (np.ravel(np.asarray(a, dtype=float))
+                  for a in np.broadcast_arrays(theta_i, theta_r, dphi))
+    last = [0]
 
-    Calls the engine in fixed chunks of :data:`CHUNK` configurations (padding the last one)
-    so that it compiles once per model structure and accuracy. ``progress(k)`` is called
-    after each chunk with the number of configurations done. ``medium=None`` is f_r.
-    """
-    ti, tr, dp = (np.ravel(np.asarray(a, dtype=float)) for a in np.broadcast_arrays(theta_i, theta_r, dphi))
-    if medium is None:
-        out = reflectance(brdf, ti, tr, 0.0, dp)
+    def step(done, total):
         if progress:
-            progress(ti.size)
-        return np.asarray(out, dtype=float)
-    out = np.empty(ti.size)
-    for start in range(0, ti.size, CHUNK):
-        stop = min(ti.size, start + CHUNK)
-        k = stop - start
+            progress(done - last[0])
+        last[0] = done
 
-        def pad(a, fill):
-            return np.concatenate([a[start:stop], np.full(CHUNK - k, fill)])
-
-        out[start:stop] = apparent(brdf, medium, pad(ti, 45.0), pad(tr, 45.0), 0.0,
-                                   pad(dp, 180.0), accuracy=accuracy)[:k]
-        if progress:
-            progress(k)
-    return out
+    return chunked(brdf, medium, ti, 0.0, tr, dp, accuracy=accuracy, chunk=CHUNK,
+                   progress=step)
 
 
 # --------------------------------------------------------------------------------------
@@ -148,15 +139,15 @@ def highlight_pixel(size, light_theta, light_phi=0.0):
 def peak_width(brdf, medium) -> float:
     """Rough half width (deg) of the apparent specular peak in u = angle(N, H).
 
-    Facet HWHM sqrt(ln 2)/n (MODEL.md sec. 2) combined with two HG lobes of HWHM
-    (1 - g) sqrt((2^(2/3) - 1)/g) each (rotating N by d moves the mirror direction by 2 d).
+    The facet law's half-mass angle (sqrt(ln 2)/n for Torrance-Sparrow, MODEL.md sec. 2)
+    combined with two phase lobes of their half width at half maximum each (rotating N by
+    d moves the mirror direction by 2 d); 60 deg where a model has no lobe.
     """
-    facet = math.sqrt(math.log(2.0)) / brdf.n
+    facet = min(brdf.facet_half_angle(), 60.0)
     if medium is None:
         return facet
-    g = max(medium.g, 0.05)
-    hg = math.degrees((1.0 - g) * math.sqrt((2.0 ** (2.0 / 3.0) - 1.0) / g))
-    return math.sqrt(facet ** 2 + 0.5 * min(hg, 60.0) ** 2)
+    lobe = min(medium.lobe_half_width(), 60.0)
+    return math.sqrt(facet ** 2 + 0.5 * lobe ** 2)
 
 
 def u_nodes(width: float, density: float = 1.0) -> np.ndarray:

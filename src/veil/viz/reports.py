@@ -17,10 +17,9 @@ import re
 import numpy as np
 
 from .. import __version__
+from ..fitting.result import FitResult
 from ..numbers import format_number
 from .figures import Experiment, curve_metrics, lobe_data, transmission_data
-from ..models.fresnel import transmittance
-from ..models.phase import hg_pdf
 from ..models import PRESETS
 from .render import ERROR_ANGLE, MID_GREY, VIEW
 
@@ -32,6 +31,10 @@ def _num(x) -> str:
 
 def _deg(x) -> str:
     return "n/a" if math.isnan(x) else f"{x:.1f}°"
+
+
+def _iso(medium) -> float:
+    return float(medium.iso(medium.to_vector()))
 
 
 def _trend(values) -> str:
@@ -49,7 +52,7 @@ def _trend(values) -> str:
 def build_blocks(exp: Experiment, files: dict) -> list:
     """The report as blocks: ("h1"|"h2"|"p", text), ("ul", items), ("table", head, rows),
     ("img", file name, alt text, caption). ``files`` maps "fig9".."fig12" to PNG names."""
-    media = sorted(exp.media, key=lambda m: -exp.media[m].g)  # g falling
+    media = sorted(exp.media, key=lambda m: exp.media[m].lobe_half_width())  # broadening
     blocks = [("h1", "The paper's simulation experiment, reproduced"),
               ("p", "Baba, Mukaigawa and Yagi, \"BRDF Estimation Considering Scatterings of "
                     "Illumination and Reflection\", section 5.1 (figs. 9-12), recomputed from the "
@@ -60,18 +63,23 @@ def build_blocks(exp: Experiment, files: dict) -> list:
 
     # parameters
     blocks.append(("h2", "Parameters"))
-    rows = [[n, _num(b.Pd), _num(b.Ps), f"{b.n:g}", f"{b.eta:g}",
-             _deg(math.sqrt(math.log(2)) / b.n)] for n, b in exp.brdfs.items()]
-    blocks.append(("table", ["object", "P_d", "P_s", "n [1/deg]", "eta_b",
-                             "facet HWHM sqrt(ln 2)/n"], rows))
-    rows = []
-    for n in media:
-        m = exp.media[n]
-        peak = m.Tt * float(hg_pdf(m.g, 0.0))
-        rows.append([n, _num(m.Td), f"{m.Tt:g}", f"{m.g:g}", f"{m.eta:g}", m.variant,
-                     _num(peak)])
-    blocks.append(("table", ["medium", "T_d", "T_t", "g", "eta_u", "Fresnel variant",
-                             "forward peak T_t p(g, 0) [1/sr]"], rows))
+    for kind, models in (("object", exp.brdfs), ("medium", exp.media)):
+        for family in dict.fromkeys(type(m) for m in models.values()):
+            names = [n for n, m in models.items() if type(m) is family]
+            if kind == "medium":
+                names = [n for n in media if n in names]
+            head = [kind] + [p.name + (f" [{p.unit}]" if p.unit else "") for p in family.PARAMS]
+            head += list(family.option_names())
+            head.append("facet half-mass angle" if kind == "object" else
+                        "forward peak of the lobe [1/sr]")
+            rows = []
+            for n in names:
+                m = models[n]
+                extra = (_deg(m.facet_half_angle()) if kind == "object" else
+                         _num(m.lobe_scale() * float(m.phase(m.to_vector(), 0.0))))
+                rows.append([n] + [_num(v) for v in m.as_dict().values()]
+                            + [str(v) for v in m.options().values()] + [extra])
+            blocks.append(("table", head, rows))
     blocks.append(("p", f"Incidence for figs. 9-11: theta_i = {exp.theta_i:g}°, light and camera "
                         "in the plane of incidence on opposite sides of the normal (MODEL.md "
                         f"sec. 1). Fig. 12: distant point light at {exp.light_theta:g}° from the "
@@ -99,9 +107,11 @@ def build_blocks(exp: Experiment, files: dict) -> list:
     for n in media:
         beta, f_in, _, _ = transmission_data(exp.media[n], exp.theta_i)
         cm = curve_metrics(beta, f_in)
-        items.append(f"{n} (g = {exp.media[n].g:g}): peak {_num(cm.peak)} /sr, half width at "
-                     f"half maximum {cm.fwhm / 2:.2f}°, isotropic floor T_d = "
-                     f"{_num(exp.media[n].Td)} /sr")
+        med = exp.media[n]
+        shape = ", ".join(f"{k} = {v:g}" for k, v in med.shape_values().items())
+        items.append(f"{n} ({shape}): peak {_num(cm.peak)} /sr, half width at "
+                     f"half maximum {cm.fwhm / 2:.2f}°, isotropic floor "
+                     f"{_num(float(med.iso(med.to_vector())))} /sr")
     blocks.append(("img", files["fig10"], "fig. 10",
                    f"Fig. 10. f_t(I, T) of the media for {exp.theta_i:g}° incidence against the "
                    "travel direction -T of the transmitted light: (a) in the plane of incidence "
@@ -130,7 +140,7 @@ def build_blocks(exp: Experiment, files: dict) -> list:
     for b in exp.brdfs:
         for m in ["clear"] + media:
             cm = exp.curves[(b, m)].metrics
-            tt2 = 1.0 if m == "clear" else exp.media[m].Tt ** 2
+            tt2 = 1.0 if m == "clear" else exp.media[m].lobe_scale() ** 2
             rows.append([b, m, _num(cm.peak), f"{cm.peak_angle:.2f}°",
                          f"{cm.fwhm:.1f}°" if not math.isnan(cm.fwhm) else "n/a",
                          _num(cm.off_peak), _num(cm.peak / tt2), _num(cm.off_peak / tt2),
@@ -187,7 +197,7 @@ def _observations(exp: Experiment, media: list) -> list:
     for b in exp.brdfs:
         clear = exp.curves[(b, "clear")].metrics
         ms = [exp.curves[(b, m)].metrics for m in media]
-        tt2 = [exp.media[m].Tt ** 2 for m in media]
+        tt2 = [exp.media[m].lobe_scale() ** 2 for m in media]
         peaks = [c.peak for c in ms]
         norm = [c.peak / t for c, t in zip(ms, tt2)]
         contrast = [c.peak / c.off_peak for c in ms]
@@ -197,7 +207,8 @@ def _observations(exp: Experiment, media: list) -> list:
         items.append(
             f"{b}, specular peak as g falls ({names}): in absolute terms it {_trend(peaks)} "
             f"({', '.join(_num(p) for p in peaks)} /sr; clear {_num(clear.peak)}), because T_t "
-            f"grows from {exp.media[media[0]].Tt:g} to {exp.media[media[-1]].Tt:g}. Relative to "
+            f"grows from {exp.media[media[0]].lobe_scale():g} to "
+            f"{exp.media[media[-1]].lobe_scale():g}. Relative to "
             f"the medium's strength, peak / T_t² {_trend(norm)} ({', '.join(_num(p) for p in norm)}; "
             f"clear {_num(clear.peak)}), and relative to the diffuse level, peak / f(0°) "
             f"{_trend(contrast)} ({', '.join(_num(c) for c in contrast)}; clear "
@@ -226,12 +237,15 @@ def _observations(exp: Experiment, media: list) -> list:
             med = exp.media[m]
             full = exp.curves[(b, m)].metrics.off_peak
             single = exp.single_only[(b, m)]
-            ratios.append(single / med.Tt ** 2 / clear.off_peak)
-            # Fresnel transmittance of the paper variant: F_t(theta_i)^2 on the way in,
-            # F_t(theta_R')^2 ~ F_t(0)^2 on the way out towards the camera at 0 deg
-            fres.append((float(transmittance(math.cos(math.radians(exp.theta_i)), med.eta))
-                         * float(transmittance(1.0, med.eta))) ** 2)
-            parts.append(f"{m} {_num(single / med.Tt ** 2)} ({100 * (1 - single / full):.0f} % "
+            tt2 = med.lobe_scale() ** 2
+            ratios.append(single / tt2 / clear.off_peak)
+            # the lobe's boundary factors (Fresnel transmittances) on the way in at theta_i
+            # and on the way out towards the camera at 0 deg: a(I) b(I) a(R) b(R)
+            v = med.to_vector()
+            ci = math.cos(math.radians(exp.theta_i))
+            fres.append(float(med.factor_first(v, ci) * med.factor_second(v, ci)
+                              * med.factor_first(v, 1.0) * med.factor_second(v, 1.0)))
+            parts.append(f"{m} {_num(single / tt2)} ({100 * (1 - single / full):.0f} % "
                          f"of the full f(0°) comes from the T_d terms)")
         worst = max(abs(1 - r) for r in ratios)
         items.append(
@@ -242,7 +256,8 @@ def _observations(exp: Experiment, media: list) -> list:
             f"{', '.join(sorted(set(f'{x:.3f}' for x in fres)))}). Without T_d the diffuse part "
             f"stays within {100 * worst:.0f} % of the clear medium's for every medium; where the "
             f"full value departs further, the medium's multiple scattering T_d is the cause "
-            f"(T_d / T_t = {', '.join(f'{exp.media[m].Td / exp.media[m].Tt:.2g}' for m in media)}).")
+            f"(T_d / T_t = "
+            f"{', '.join(f'{_iso(exp.media[m]) / exp.media[m].lobe_scale():.2g}' for m in media)}).")
     for b in exp.brdfs:
         areas = [exp.stats[(b, k)].half_area for k in ["clear"] + media]
         con = [exp.stats[(b, k)].contrast for k in ["clear"] + media]

@@ -1,0 +1,83 @@
+"""The package's folders are its architecture (docs/architecture.md): data flows one way,
+models -> engine -> data -> fitting -> analysis -> viz -> pipeline -> cli, and a module
+imports only from its own layer or below (the top-level facade ``veil/__init__.py``, which
+imports lazily, excepted). Outside ``models/`` no code names a model class."""
+
+from __future__ import annotations
+
+import ast
+import pathlib
+import re
+
+import pytest
+
+ROOT = pathlib.Path(__file__).resolve().parents[1] / "src" / "veil"
+#: Layers, lowest first; a module's layer is its first package below veil.
+LAYERS = [("_jax", "errors", "io", "numbers"), ("models",), ("engine",), ("data",),
+          ("fitting",), ("analysis",), ("viz",), ("pipeline",), ("cli",)]
+RANK = {name: k for k, names in enumerate(LAYERS) for name in names}
+
+
+def _modules():
+    return sorted(p for p in ROOT.rglob("*.py") if p.name != "__init__.py" or p.parent != ROOT)
+
+
+def _layer(parts) -> str:
+    return parts[0].removesuffix(".py")
+
+
+def _imports(path: pathlib.Path):
+    """(line, imported module parts relative to veil) of every import of veil's own modules."""
+    tree = ast.parse(path.read_text())
+    package = list(path.relative_to(ROOT).parent.parts)
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package[: len(package) - (node.level - 1)]
+                target = base + (node.module.split(".") if node.module else [])
+                if not target:  # from . import name (the veil package itself)
+                    yield node.lineno, [a.name for a in node.names][:1]
+                    continue
+                if not node.module:  # from . import sibling
+                    for a in node.names:
+                        yield node.lineno, target + [a.name]
+                    continue
+                yield node.lineno, target
+            elif node.module and node.module.split(".")[0] == "veil":
+                yield node.lineno, node.module.split(".")[1:]
+        elif isinstance(node, ast.Import):
+            for a in node.names:
+                if a.name.split(".")[0] == "veil":
+                    yield node.lineno, a.name.split(".")[1:]
+
+
+@pytest.mark.parametrize("path", _modules(), ids=lambda p: str(p.relative_to(ROOT)))
+def test_imports_only_go_down(path):
+    rel = path.relative_to(ROOT).parts
+    own = RANK[_layer(rel)]
+    for line, target in _imports(path):
+        if not target or target[0] == "__version__":
+            continue
+        assert RANK[_layer(target)] <= own, (
+            f"{'/'.join(rel)}:{line} imports veil.{'.'.join(target)}, a layer above "
+            f"{_layer(rel)} ({' -> '.join(n[0] for n in LAYERS)})")
+
+
+def test_no_model_class_named_outside_models():
+    from veil.models import REGISTRY
+
+    names = {c.__name__ for c in REGISTRY.values()}
+    pattern = re.compile(r"\b(" + "|".join(sorted(names)) + r")\b")
+    found = []
+    for path in _modules():
+        if path.relative_to(ROOT).parts[0] == "models":
+            continue
+        code = ast.parse(path.read_text())
+        for node in ast.walk(code):
+            if isinstance(node, ast.Name) and pattern.fullmatch(node.id):
+                found.append(f"{path.relative_to(ROOT)}:{node.lineno} {node.id}")
+            if isinstance(node, ast.Attribute) and pattern.fullmatch(node.attr):
+                found.append(f"{path.relative_to(ROOT)}:{node.lineno} .{node.attr}")
+            if isinstance(node, ast.alias) and pattern.fullmatch(node.name.split(".")[-1]):
+                found.append(f"{path.relative_to(ROOT)}: import {node.name}")
+    assert not found, found
