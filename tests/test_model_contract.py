@@ -172,7 +172,7 @@ def test_facet_maps_invert_and_weights_are_densities(name):
 
 
 @pytest.mark.parametrize("name", [n for n in FAMILIES
-                                  if REGISTRY[n].KIND == "medium" and REGISTRY[n].HAS_LOBE])
+                                  if REGISTRY[n].KIND == "medium" and REGISTRY[n].has("lobe")])
 def test_phase_maps_invert_and_integrate_to_one(name):
     model = _instance(name)
     v = np.asarray(model.to_vector())

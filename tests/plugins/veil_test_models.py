@@ -34,7 +34,7 @@ class LambertianTest(BRDF):
     PARAMS = (Param("rho", 0.0, math.inf, "albedo, relative units", log_scale=True, start=1.0),)
 
     @staticmethod
-    def separable(v, cos_i, cos_r):
+    def separable(v, cos_i, cos_r, aux=None):
         return [(v[0] * jnp.maximum(cos_i, 0.0) / math.pi, jnp.ones_like(cos_r))]
 
 

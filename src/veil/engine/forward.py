@@ -182,6 +182,8 @@ class Forward:
         free_medium = self._indices(free_medium, mcls)
         scale_b = {bcls.scale_index(p): p for p in bcls.SCALES}
         scale_m = {mcls.scale_index(p): p for p in mcls.SCALES}
+        if mcls.GAIN is not None:
+            scale_m[mcls.param_names().index(mcls.GAIN)] = "gain"
         nl_b = tuple(i for i in free_brdf if i not in scale_b)
         nl_m = tuple(i for i in free_medium if i not in scale_m)
         fn = (_terms_jac_fn(self._kb, self._km, self.rule, self.half, nl_b, nl_m, self._mesh)
@@ -209,7 +211,7 @@ class Forward:
                              f"[-{n}, {n}) for {', '.join(cls.param_names())}") from None
 
     def terms(self, vb, vm) -> np.ndarray:
-        """Term matrices (M, 3, 2) with scale parameters set to 1 (see integrator)."""
+        """Term matrices (M, rows, 2) with scale parameters set to 1 (see integrator)."""
         fn = _terms_fn(self._kb, self._km, self.rule, self.half, self._mesh)
         vb, vm = self._vectors(vb, vm)
         return np.asarray(self._run(fn, vb, vm))[: self.size]
@@ -235,39 +237,29 @@ class Forward:
         if fn is not None:
             terms, jac_nl = self._run(fn, vb, vm)
             terms = np.asarray(terms)[: self.size]
-            jac_nl = np.asarray(jac_nl)[: self.size]  # (M, 3, 2, len(nl_b) + len(nl_m))
+            jac_nl = np.asarray(jac_nl)[: self.size]  # (M, rows, 2, len(nl_b) + len(nl_m))
         else:  # only scale parameters free: the term matrices are all it takes
             terms = self.terms(vb, vm)
             jac_nl = np.zeros(terms.shape + (0,))
         jb, jm = jac_nl[..., : len(nl_b)], jac_nl[..., len(nl_b):]
         value = self.combine(terms, vb, vm)
-        td, tt, ps, pl = self._scales(vb, vm)
-        rows = np.array([td * td, td * tt, tt * tt])
-        cols = np.array([ps, pl])
+        bcls, mcls = type(self.brdf), type(self.medium)
+        rows = integrator.row_scales(mcls, vm)
+        cols = integrator.column_scales(bcls, vb)
         columns = []
         for i in free_brdf:
             if i in scale_b:
-                part = 0 if scale_b[i] == "separable" else 1
+                part = integrator.BRDF_PARTS.index(scale_b[i])
                 columns.append(np.einsum("mk,m->k", terms[:, :, part].T, rows))
             else:
                 k = nl_b.index(i)
                 columns.append(np.einsum("kmb,m,b->k", jb[..., k], rows, cols))
         for i in free_medium:
             if i in scale_m:
-                drows = (np.array([2 * td, tt, 0.0]) if scale_m[i] == "iso"
-                         else np.array([0.0, td, 2 * tt]))
+                drows = integrator.row_scale_derivative(mcls, vm, i)
                 columns.append(np.einsum("kmb,m,b->k", terms, drows, cols))
             else:
                 k = nl_m.index(i)
                 columns.append(np.einsum("kmb,m,b->k", jm[..., k], rows, cols))
         jac = np.stack(columns, axis=1) if columns else np.zeros((self.size, 0))
         return value, jac
-
-    def _scales(self, vb, vm):
-        bcls, mcls = type(self.brdf), type(self.medium)
-
-        def get(cls, v, part):
-            i = cls.scale_index(part)
-            return 1.0 if i is None else float(v[i])
-        return (get(mcls, vm, "iso"), get(mcls, vm, "lobe"), get(bcls, vb, "separable"),
-                get(bcls, vb, "lobe"))

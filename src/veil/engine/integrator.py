@@ -228,32 +228,38 @@ def _hemisphere_integral(fn, n=64):
 
 
 def _shared(brdf, rule, vb):
-    """Per-call quantities that do not depend on the configuration."""
+    """Per-call quantities that do not depend on the configuration: the BRDF's own tables
+    (``prepare``), the albedo tables of its lobe and the hemisphere integrals of its
+    separable factors."""
+    aux = brdf.prepare(vb)
     if brdf.HAS_LOBE:
         a_tab, b_tab = _lobe_albedo_tables(brdf, vb, rule)
     else:
         a_tab = b_tab = jnp.zeros(rule.table)
-    n_sep = len(brdf.separable(vb, jnp.zeros(1), jnp.zeros(1)))
-    s_int = [_hemisphere_integral(lambda c, k=k: brdf.separable(vb, c, c)[k][0]) for k in range(n_sep)]
-    t_int = [_hemisphere_integral(lambda c, k=k: brdf.separable(vb, c, c)[k][1]) for k in range(n_sep)]
+    n_sep = len(brdf.separable(vb, jnp.zeros(1), jnp.zeros(1), aux))
+    s_int = [_hemisphere_integral(lambda c, k=k: brdf.separable(vb, c, c, aux)[k][0])
+             for k in range(n_sep)]
+    t_int = [_hemisphere_integral(lambda c, k=k: brdf.separable(vb, c, c, aux)[k][1])
+             for k in range(n_sep)]
     th = _table_thetas(rule)
     v = np.linspace(0.0, 1.0, rule.table)
     sw = jnp.asarray(_simpson_weights(rule.table, v[1]) * np.sin(th) * math.pi * (1.0 - v))
-    c0_sep = sum(s * t for s, t in zip(s_int, t_int))
+    c0_sep = sum(s * t for s, t in zip(s_int, t_int)) + 0.0 * jnp.sum(a_tab)
     c0_lobe = TWO_PI * jnp.sum(sw * a_tab)
-    return c0_sep, c0_lobe, a_tab, b_tab, s_int, t_int
+    return c0_sep, c0_lobe, a_tab, b_tab, s_int, t_int, aux
 
 
 # --------------------------------------------------------------------------------------
 # one configuration
 # --------------------------------------------------------------------------------------
-def _facet_grid(brdf: type[BRDF], vb, n_r: int, n_a: int):
+def _facet_grid(brdf: type[BRDF], vb, n_r: int, n_a: int, half: bool = False):
     """Half vectors by the untruncated facet law, shaped (1, N, 3), with alpha, unit weights
-    and density per steradian (1, N)."""
+    and density per steradian (1, N); ``half`` keeps the azimuths in (0, pi) with double
+    weight (for integrands symmetric under y -> -y)."""
     x, wx = _graded_unit(n_r, FACET_GRADING)
-    v, wv = periodic_unit(n_a)
+    v, wv = _azimuths(n_a, half)
     y_full = brdf.facet_cdf(vb, HALF_PI)
-    alpha = brdf.facet_inverse_cdf(vb, jnp.asarray(np.tile(x, n_a)) * y_full)
+    alpha = brdf.facet_inverse_cdf(vb, jnp.asarray(np.tile(x, len(v))) * y_full)
     phi = jnp.asarray(TWO_PI * np.repeat(v, n_r))
     sa, ca = sincos(alpha)
     h = jnp.stack([sa * jnp.cos(phi), sa * jnp.sin(phi), ca], axis=-1)
@@ -262,18 +268,24 @@ def _facet_grid(brdf: type[BRDF], vb, n_r: int, n_a: int):
     return h[None], alpha[None], unit[None], qh[None]
 
 
-def _lobe_lobe(brdf, medium, vb, vm, wi, wr, rule: Rule, half: bool):
-    """Int Int b(I') p(I.I') lobe(I', R') a(R') p(R'.R) dI' dR' (balanced MIS quadrature).
+def _view_weight(medium, vm, r_prime, wr):
+    """The medium's weight of its view-side lobe at R' (..., 3) for the camera at R, or 1."""
+    if not medium.has_view_weight():
+        return 1.0
+    return medium.view_weight(vm, r_prime, wr)
 
-    """
+
+def _lobe_lobe(brdf, medium, vb, vm, wi, wr, rule: Rule, half: bool):
+    """Int Int b(I') p(I.I') lobe(I', R') a(R') J(R') p(R'.R) dI' dR' (balanced MIS
+    quadrature), J the view-side weight of the medium (1 without one)."""
     n_r, n_a = rule.phase_radial, rule.phase_azimuth
     gi, ui, fi, pi_ = _phase_grid(medium, vm, wi, n_r, n_a, half, PHASE_GRADING)   # I' about I
     gr, ur, fr, pr = _phase_grid(medium, vm, wr, n_r, n_a, False, PHASE_GRADING)   # R' about R
     bi = medium.factor_second(vm, gi[:, 2])
-    ar = medium.factor_first(vm, gr[:, 2])
+    ar = medium.factor_first(vm, gr[:, 2]) * _view_weight(medium, vm, gr, wr)
     if half:  # component B needs only half of the R' azimuths (C pairs half I' with all R')
         grb, urb, frb, prb = _phase_grid(medium, vm, wr, n_r, n_a, True, PHASE_GRADING)
-        arb = medium.factor_first(vm, grb[:, 2])
+        arb = medium.factor_first(vm, grb[:, 2]) * _view_weight(medium, vm, grb, wr)
     else:
         grb, urb, frb, prb, arb = gr, ur, fr, pr, ar
 
@@ -292,6 +304,8 @@ def _lobe_lobe(brdf, medium, vb, vm, wi, wr, rule: Rule, half: bool):
     p_r = medium.phase(vm, _half_distance(r2, wr))
     val = balanced(pi_[:, None], p_r, c, qh, brdf.lobe(vb, i2, r2, h, alpha))
     val = val * medium.factor_first(vm, r2[..., 2]) * bi[:, None]
+    if medium.has_view_weight():
+        val = val * medium.view_weight(vm, r2, wr)
     total = jnp.sum(ui * fi * jnp.sum(uh * val, axis=-1))
 
     # B: R' on the phase grid about R, H on the facet grid, I' = refl(R')
@@ -319,52 +333,154 @@ def _lobe_lobe(brdf, medium, vb, vm, wi, wr, rule: Rule, half: bool):
     return total
 
 
+def _lobe_one_side(brdf, medium, vb, vm, fixed, center, rule: Rule, half: bool, view: bool):
+    """The BRDF's lobe against the phase lobe on one side, the other direction fixed:
+
+        view:     Int lobe(F, R') a(R') J(R') p(R'.C) dR'    (F = I, C = R)
+        not view: Int p(C.I') b(I') lobe(I', F) dI'          (F = R, C = I)
+
+    by balanced MIS over two grids: the phase grid about C, and half vectors from the facet
+    law with the free direction the mirror of F."""
+    g, u, f, p = _phase_grid(medium, vm, center, rule.dense_radial, rule.dense_azimuth, half)
+    factor = (medium.factor_first if view else medium.factor_second)
+
+    def lobe(free, h=None, alpha=None):
+        if h is None:
+            s = free + fixed
+            h = s / jnp.sqrt(jnp.maximum(dot3(s, s), 1e-300))[..., None]
+        return brdf.lobe(vb, fixed, free, h, alpha) if view else \
+            brdf.lobe(vb, free, fixed, h, alpha)
+
+    def weight(free):
+        w = factor(vm, free[..., 2])
+        if view and medium.has_view_weight():
+            w = w * medium.view_weight(vm, free, center)
+        return w
+
+    y_full = brdf.facet_cdf(vb, HALF_PI)
+    # the phase grid: density of the free direction p, of the facet strategy q_h / (4 c)
+    s = g + fixed
+    hg = s / jnp.sqrt(jnp.maximum(dot3(s, s), 1e-300))[..., None]
+    c = dot3(g, hg)
+    s2 = hg[..., 0] ** 2 + hg[..., 1] ** 2
+    sin_h = jnp.where(s2 > 0, jnp.sqrt(jnp.where(s2 > 0, s2, 1.0)), 0.0)
+    alpha_h = polar_angle(sin_h, hg[..., 2])
+    q = jnp.where(hg[..., 2] > 0, brdf.facet_weight(vb, alpha_h, sin_h) / y_full, 0.0)
+    q_free = q / (4.0 * jnp.maximum(c, 1e-300))
+    ok = (c > 0) & (p + q_free > 0)
+    w_phase = jnp.where(ok, p / jnp.where(ok, p + q_free, 1.0), 0.0)
+    total = jnp.sum(u * f * w_phase * lobe(g, hg, alpha_h) * weight(g))
+    # the facet grid: H by the facet law, free = mirror of the fixed direction
+    h, alpha, uh, qh = _facet_grid(brdf, vb, rule.dense_radial, rule.dense_azimuth, half)
+    free = _reflect(fixed, h[0])
+    c = dot3(fixed, h[0])
+    p_free = medium.phase(vm, _half_distance(free, center))
+    den = p_free + qh[0] / (4.0 * jnp.maximum(c, 1e-300))
+    ok = (c > 0) & (free[..., 2] > 0) & (den > 0)
+    val = jnp.where(ok, lobe(free, h[0], alpha[0]) * weight(free) * p_free
+                    / jnp.where(ok, den, 1.0), 0.0)
+    return total + jnp.sum(uh[0] * val)
+
+
+def pairs(medium_cls) -> list[tuple[str, str]]:
+    """The medium's rows: unordered pairs of its components (light side, view side), in
+    the order of ``COMPONENTS``; a row collects both orders of a mixed pair."""
+    comps = medium_cls.COMPONENTS
+    return [(a, b) for i, a in enumerate(comps) for b in comps[i:]]
+
+
 def _one_config(brdf, medium, rule, half, vb, vm, shared, wi, wr):
-    """Term matrix E (3, 2) of one configuration, scale parameters set to 1.
+    """Term matrix E (rows, 2) of one configuration with the scale parameters set to 1.
 
-    Rows: T_d^2, T_d T_t, T_t^2 terms; columns: separable and lobe parts of f_r.
+    Rows: the medium's component pairs (:func:`pairs`: for the paper's medium T_d^2,
+    T_d T_t, T_t^2), each with its components' weights; columns: the separable and lobe
+    parts of f_r.
     """
-    c0_sep, c0_lobe, a_tab, b_tab, s_int, t_int = shared
-    if not medium.HAS_LOBE:  # isotropic only: the first row is all there is
-        zero = 0.0 * c0_sep
-        return jnp.stack([jnp.stack([c0_sep, c0_lobe]), jnp.stack([zero, zero]),
-                          jnp.stack([zero, zero])])
-    a_i = medium.factor_first(vm, wi[2])
-    b_r = medium.factor_second(vm, wr[2])
+    c0_sep, c0_lobe, a_tab, b_tab, s_int, t_int, aux = shared
+    zero = 0.0 * c0_sep
+    comps = medium.COMPONENTS
+    a_i = medium.factor_first(vm, wi[2])      # a(I): the light's way into the medium
+    b_i = medium.factor_second(vm, wi[2])     # b(I): the unscattered beam leaving it
+    a_r = medium.factor_first(vm, wr[2])      # a(R): the unscattered view ray entering
+    b_r = medium.factor_second(vm, wr[2])     # b(R): leaving towards the camera
+    rows = {}
 
-    # 2D terms on a dense phase grid
-    gi, ui, fi, _ = _phase_grid(medium, vm, wi, rule.dense_radial, rule.dense_azimuth, half)
-    gr, ur, fr, _ = _phase_grid(medium, vm, wr, rule.dense_radial, rule.dense_azimuth, half)
-    wgi = ui * fi * medium.factor_second(vm, gi[:, 2])
-    wgr = ur * fr * medium.factor_first(vm, gr[:, 2])
-    seps_i = brdf.separable(vb, gi[:, 2], gi[:, 2])
-    seps_r = brdf.separable(vb, gr[:, 2], gr[:, 2])
-    # albedos: A(I') = sum_k s_k(I') Int t_k + A_lobe(I'), B(R') = sum_k t_k(R') Int s_k + B_lobe
-    mixed_sep = (a_i * jnp.sum(wgi * sum(s * tk for (s, _), tk in zip(seps_i, t_int)))
-                 + b_r * jnp.sum(wgr * sum(t * sk for (_, t), sk in zip(seps_r, s_int))))
-    sep = sum(jnp.sum(wgi * s) * jnp.sum(wgr * t) for (s, _), (_, t) in zip(seps_i, seps_r))
-    if brdf.HAS_LOBE:
+    def albedo(theta, table):
+        return _interp_table(table, theta, rule) if brdf.HAS_LOBE else zero
+
+    if "iso" in comps:
+        rows[("iso", "iso")] = (c0_sep, c0_lobe)
+    if "lobe" in comps:
+        # 2D terms on a dense phase grid about I (I') and about R (R')
+        gi, ui, fi, _ = _phase_grid(medium, vm, wi, rule.dense_radial, rule.dense_azimuth, half)
+        gr, ur, fr, _ = _phase_grid(medium, vm, wr, rule.dense_radial, rule.dense_azimuth, half)
+        wgi = ui * fi * medium.factor_second(vm, gi[:, 2])
+        wgr = ur * fr * medium.factor_first(vm, gr[:, 2]) * _view_weight(medium, vm, gr, wr)
+        seps_i = brdf.separable(vb, gi[:, 2], gi[:, 2], aux)
+        seps_r = brdf.separable(vb, gr[:, 2], gr[:, 2], aux)
         ti = jnp.arccos(jnp.clip(gi[:, 2], -1.0, 1.0))
         tr = jnp.arccos(jnp.clip(gr[:, 2], -1.0, 1.0))
-        mixed_lobe = (a_i * jnp.sum(wgi * _interp_table(a_tab, ti, rule))
-                      + b_r * jnp.sum(wgr * _interp_table(b_tab, tr, rule)))
-        lobe = _lobe_lobe(brdf, medium, vb, vm, wi, wr, rule, half)
-    else:
-        mixed_lobe = lobe = 0.0 * sep
-    ab = a_i * b_r
-    return jnp.stack([jnp.stack([c0_sep, c0_lobe]), jnp.stack([mixed_sep, mixed_lobe]),
-                      jnp.stack([ab * sep, ab * lobe])])
+        if "iso" in comps:
+            # light lobe x view iso: a(I) Int b(I') p A(I'); light iso x view lobe: b(R) Int a J p B
+            mixed_sep = (a_i * jnp.sum(wgi * sum(s * tk for (s, _), tk in zip(seps_i, t_int)))
+                         + b_r * jnp.sum(wgr * sum(t * sk for (_, t), sk in zip(seps_r, s_int))))
+            mixed_lobe = (a_i * jnp.sum(wgi * albedo(ti, a_tab))
+                          + b_r * jnp.sum(wgr * albedo(tr, b_tab)))
+            rows[("iso", "lobe")] = (mixed_sep, mixed_lobe)
+        sep = sum(jnp.sum(wgi * s) * jnp.sum(wgr * t) for (s, _), (_, t) in zip(seps_i, seps_r))
+        lobe = (_lobe_lobe(brdf, medium, vb, vm, wi, wr, rule, half) if brdf.HAS_LOBE
+                else zero)
+        rows[("lobe", "lobe")] = (a_i * b_r * sep, a_i * b_r * lobe)
+    if "delta" in comps:
+        dl, dv = a_i * b_i, a_r * b_r
+        seps = brdf.separable(vb, wi[2], wr[2], aux)
+        f_sep = sum(s * t for s, t in seps) + zero
+        if brdf.HAS_LOBE:
+            s = wi + wr
+            f_lobe = brdf.lobe(vb, wi, wr, s / jnp.sqrt(dot3(s, s)))
+        else:
+            f_lobe = zero
+        rows[("delta", "delta")] = (dl * dv * f_sep, dl * dv * f_lobe)
+        if "iso" in comps:  # the unscattered beam on one side, the iso part on the other
+            sep_i, sep_r = brdf.separable(vb, wi[2], wi[2], aux), brdf.separable(vb, wr[2], wr[2], aux)
+            iso_sep = (dl * sum(s * tk for (s, _), tk in zip(sep_i, t_int))
+                       + dv * sum(t * sk for (_, t), sk in zip(sep_r, s_int)))
+            iso_lobe = (dl * albedo(jnp.arccos(jnp.clip(wi[2], -1.0, 1.0)), a_tab)
+                        + dv * albedo(jnp.arccos(jnp.clip(wr[2], -1.0, 1.0)), b_tab))
+            rows[("delta", "iso")] = (iso_sep + zero, iso_lobe + zero)
+        if "lobe" in comps:  # the unscattered beam on one side, the lobe on the other
+            sep_fixed_i = brdf.separable(vb, wi[2], wi[2], aux)
+            sep_fixed_r = brdf.separable(vb, wr[2], wr[2], aux)
+            d_sep = (dl * b_r * sum(s * jnp.sum(wgr * t)
+                                    for (s, _), (_, t) in zip(sep_fixed_i, seps_r))
+                     + dv * a_i * sum(t * jnp.sum(wgi * s)
+                                      for (_, t), (s, _) in zip(sep_fixed_r, seps_i)))
+            if brdf.HAS_LOBE:
+                d_lobe = (dl * b_r * _lobe_one_side(brdf, medium, vb, vm, wi, wr, rule, half,
+                                                    True)
+                          + dv * a_i * _lobe_one_side(brdf, medium, vb, vm, wr, wi, rule, half,
+                                                      False))
+            else:
+                d_lobe = zero
+            rows[("delta", "lobe")] = (d_sep + zero, d_lobe + zero)
+    out = []
+    for a, b in pairs(medium):
+        sep_v, lobe_v = rows[(a, b)] if (a, b) in rows else rows[(b, a)]
+        w = medium.weight(vm, a) * medium.weight(vm, b)
+        out.append(jnp.stack([w * sep_v, w * lobe_v]))
+    return jnp.stack(out)
 
 
-#: The parts of a BRDF (columns of a term matrix) and of a medium (rows are products of two
-#: medium parts: iso iso, iso lobe, lobe lobe), as models name them in ``SCALES``.
+#: The parts of a BRDF (columns of a term matrix), as models name them in ``SCALES``.
 BRDF_PARTS = ("separable", "lobe")
-MEDIUM_PARTS = ("iso", "lobe")
 
 
 def _unit_scales(model, v):
     for part in model.SCALES:
         v = v.at[model.scale_index(part)].set(1.0)
+    gain = getattr(model, "GAIN", None)
+    if gain is not None:
+        v = v.at[model.param_names().index(gain)].set(1.0)
     return v
 
 
@@ -373,11 +489,33 @@ def _scale(model, v, part):
     return 1.0 if i is None else v[i]
 
 
+def _gain(medium_cls, vm):
+    return 1.0 if medium_cls.GAIN is None else vm[medium_cls.param_names().index(medium_cls.GAIN)]
+
+
 def row_scales(medium_cls, vm):
-    """The medium's row weights (iso^2, iso lobe, lobe^2) from its scale parameters (1 for
-    a part without one); numpy in, numpy out."""
-    td, tt = (float(_scale(medium_cls, vm, part)) for part in MEDIUM_PARTS)
-    return np.array([td * td, td * tt, tt * tt])
+    """The rows' weights from the medium's scale parameters: s_a s_b for each component pair
+    (:func:`pairs`; a component without a scale counts 1), times the gain; numpy."""
+    vm = np.asarray(vm, dtype=float)
+    s = {c: float(_scale(medium_cls, vm, c)) for c in medium_cls.COMPONENTS}
+    gain = float(_gain(medium_cls, vm))
+    return np.array([s[a] * s[b] * gain for a, b in pairs(medium_cls)])
+
+
+def row_scale_derivative(medium_cls, vm, index: int) -> np.ndarray:
+    """d row_scales / d parameter ``index`` of the medium (a scale or the gain)."""
+    vm = np.asarray(vm, dtype=float)
+    s = {c: float(_scale(medium_cls, vm, c)) for c in medium_cls.COMPONENTS}
+    gain = float(_gain(medium_cls, vm))
+    names = medium_cls.param_names()
+    if medium_cls.GAIN is not None and names[index] == medium_cls.GAIN:
+        return np.array([s[a] * s[b] for a, b in pairs(medium_cls)])
+    comp = [c for c, n in medium_cls.SCALES.items() if n == names[index]]
+    if not comp:
+        raise ValueError(f"{names[index]} is not a scale of {medium_cls.NAME}")
+    c = comp[0]
+    return np.array([gain * ((s[b] if a == c else 0.0) + (s[a] if b == c else 0.0))
+                     for a, b in pairs(medium_cls)])
 
 
 def column_scales(brdf_cls, vb):
@@ -386,16 +524,17 @@ def column_scales(brdf_cls, vb):
 
 
 def combine_terms(brdf_cls, medium_cls, terms, vb, vm):
-    """Apparent reflectance from the term matrices (..., 3, 2) and the scale parameters."""
-    td, tt = (_scale(medium_cls, vm, part) for part in MEDIUM_PARTS)
-    rows = jnp.stack([td * td, td * tt, tt * tt])
-    cols = jnp.stack([_scale(brdf_cls, vb, part) for part in BRDF_PARTS])
+    """Apparent reflectance from the term matrices (..., rows, 2) and the scale parameters."""
+    s = {c: _scale(medium_cls, vm, c) for c in medium_cls.COMPONENTS}
+    rows = jnp.stack([s[a] * s[b] * jnp.ones(()) for a, b in pairs(medium_cls)])
+    rows = rows * _gain(medium_cls, vm)
+    cols = jnp.stack([_scale(brdf_cls, vb, part) * jnp.ones(()) for part in BRDF_PARTS])
     return jnp.einsum("...mb,m,b->...", terms, rows, cols)
 
 
 def apparent_terms(brdf_template, medium_template, rule, vb, vm, wi, wr, half=False,
                    batch_size=None):
-    """Term matrices (M, 3, 2) for unit direction arrays (M, 3); see :func:`_one_config`.
+    """Term matrices (M, rows, 2) for unit direction arrays (M, 3); see :func:`_one_config`.
 
     Pure JAX and differentiable in the non-scale parameters of ``vb`` and ``vm``.
     ``half=True`` is valid only when every configuration lies in the xz plane.

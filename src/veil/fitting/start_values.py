@@ -18,7 +18,7 @@ import math
 import numpy as np
 from scipy.optimize import nnls
 
-from ..engine.integrator import BRDF_PARTS, MEDIUM_PARTS, column_scales
+from ..engine.integrator import BRDF_PARTS, column_scales, pairs
 from ..errors import FitError
 from .problem import ITERATION_ACCURACY, Block, Problem, SessionModel
 
@@ -87,41 +87,64 @@ _RATIOS = np.concatenate([[0.0], np.logspace(-6, 8, 561)])
 
 
 def medium_scales(basis: np.ndarray, x: np.ndarray, cls, fixed, y, w):
-    """Best medium scales >= 0 for the row columns ``basis`` (M, 3) of iso^2, iso lobe,
-    lobe^2 at vector ``x``; the scales named in ``fixed`` (and parts without a scale,
-    weight 1) are kept."""
+    """Best medium scales >= 0 for the row columns ``basis`` (M, rows) at vector ``x``: rows
+    are products s_a s_b of the components' scales (veil.engine.integrator.pairs; 1 for a
+    component without one) times the gain. Two free component scales (the paper's T_d,
+    T_t) by a scan over their ratio, one by the roots of a cubic, the gain linearly; the
+    scales named in ``fixed`` are kept."""
     names = cls.param_names()
-    i_d, i_t = (cls.scale_index(part) for part in MEDIUM_PARTS)
     x = np.array(x, dtype=float)
-    a0, a1, a2 = basis[:, 0], basis[:, 1], basis[:, 2]
-    free_d = i_d is not None and names[i_d] not in fixed
-    free_t = i_t is not None and names[i_t] not in fixed
-    d = 1.0 if i_d is None else x[i_d]
-    t = 1.0 if i_t is None else x[i_t]
-    if free_d and free_t:
-        # value = T_d^2 (a0 + r a1 + r^2 a2) with r = T_t / T_d: exact in T_d^2 per ratio
+    prs = pairs(cls)
+    idx = {c: cls.scale_index(c) for c in cls.COMPONENTS}
+    s = {c: (1.0 if i is None else x[i]) for c, i in idx.items()}
+    free = [c for c, i in idx.items() if i is not None and names[i] not in fixed]
+    gi = None if cls.GAIN is None else names.index(cls.GAIN)
+    gain = 1.0 if gi is None else x[gi]
+    gain_free = gi is not None and names[gi] not in fixed
+    if len(free) > 2:
+        raise FitError(f"{cls.NAME}: starting values for more than two scaled components are "
+                       f"not implemented")
+    if len(free) == 2:
+        # value = s1^2 (c11 + r c12 + r^2 c22) with r = s2 / s1: exact in s1^2 per ratio
+        c1, c2 = free
+        col = {pr: basis[:, k] * gain for k, pr in enumerate(prs)}
+        a0, a1, a2 = col[(c1, c1)], col[(c1, c2)], col[(c2, c2)]
+        rest = sum(col[pr] * s[pr[0]] * s[pr[1]] for pr in prs
+                   if c1 not in pr and c2 not in pr) if len(prs) > 3 else 0.0
+        target = y - rest
         cols = np.concatenate([(a0[None, :] + _RATIOS[:, None] * a1[None, :]
                                 + _RATIOS[:, None] ** 2 * a2[None, :]), a2[None, :]]) * w
-        yw = y * w
+        yw = target * w
         num, den = cols @ yw, np.einsum("km,km->k", cols, cols)
-        s = np.where(den > 0, np.maximum(num, 0.0) / np.where(den > 0, den, 1.0), 0.0)
-        costs = np.sum((s[:, None] * cols - yw) ** 2, axis=1)
+        sq = np.where(den > 0, np.maximum(num, 0.0) / np.where(den > 0, den, 1.0), 0.0)
+        costs = np.sum((sq[:, None] * cols - yw) ** 2, axis=1)
         k = int(np.argmin(costs))
-        if k == len(_RATIOS):  # T_d = 0
-            d, t = 0.0, math.sqrt(s[k])
+        if k == len(_RATIOS):
+            s[c1], s[c2] = 0.0, math.sqrt(sq[k])
         else:
-            d = math.sqrt(s[k])
-            t = _RATIOS[k] * d
-    elif free_d:
-        d = quadratic_scale(a0, t * a1, t * t * a2, y, w)
-    elif free_t:
-        t = quadratic_scale(a2, d * a1, d * d * a0, y, w)
-    model = basis @ np.array([d * d, d * t, t * t])
+            s[c1] = math.sqrt(sq[k])
+            s[c2] = _RATIOS[k] * s[c1]
+    elif len(free) == 1:
+        (c,) = free
+        coef = [np.zeros_like(y), np.zeros_like(y), np.zeros_like(y)]
+        for k, (a, b) in enumerate(prs):
+            e = (a == c) + (b == c)
+            other = (1.0 if a == c else s[a]) * (1.0 if b == c else s[b])
+            coef[e] = coef[e] + basis[:, k] * gain * other
+        s[c] = quadratic_scale(coef[2], coef[1], coef[0], y, w)
+    unit = basis @ np.array([s[a] * s[b] for a, b in prs])
+    if gain_free:
+        a, b = unit * w, y * w
+        gain = max(float(a @ b) / float(a @ a), 0.0) if float(a @ a) > 0 else 0.0
+    model = unit * gain
     cost = float(np.sum(((model - y) * w) ** 2))
-    if free_d:
-        x[i_d] = d if d > 0 else (1e-3 * t if t > 0 else 1e-12)
-    if free_t:
-        x[i_t] = t if t > 0 else (1e-3 * d if d > 0 else 1e-12)
+    for c in free:
+        if s[c] <= 0:
+            others = [s[o] for o in free if o != c and s[o] > 0]
+            s[c] = 1e-3 * others[0] if others else 1e-12
+        x[idx[c]] = s[c]
+    if gain_free:
+        x[gi] = gain if gain > 0 else 1e-12
     return x, cost
 
 

@@ -291,8 +291,15 @@ class BRDF(Model):
     HAS_LOBE: ClassVar[bool] = True
 
     @staticmethod
-    def separable(v, cos_i, cos_r):  # pragma: no cover - interface
-        """List of (s_k(cos_i), t_k(cos_r)) pairs (arrays broadcast against the inputs)."""
+    def prepare(v):
+        """Tables the model needs at parameter vector ``v`` (computed once per engine call and
+        passed to :meth:`separable` as ``aux``); None by default."""
+        return None
+
+    @staticmethod
+    def separable(v, cos_i, cos_r, aux=None):  # pragma: no cover - interface
+        """List of (s_k(cos_i), t_k(cos_r)) pairs (arrays broadcast against the inputs);
+        ``aux`` is what :meth:`prepare` returned."""
         raise NotImplementedError
 
     @staticmethod
@@ -339,22 +346,44 @@ class BRDF(Model):
             s = wi + wo
             h = s / jnp.linalg.norm(s, axis=-1, keepdims=True)
             total = cls.lobe(v, wi, wo, h)
-        for a, b in cls.separable(v, ci, co):
+        for a, b in cls.separable(v, ci, co, cls.prepare(v)):
             total = total + a * b
         return jnp.where((ci > 0) & (co > 0), total, 0.0)
 
 
 class Medium(Model):
-    """A medium's transmission f_t(A, B) = iso + weight a(A) b(B) p(A . B) (MODEL.md sec. 3).
+    """A medium's transmission f_t(A, B) from direction A on the source side to B on the
+    object side (MODEL.md sec. 3, 8.1), a sum of components:
 
-    ``iso`` is direction independent (multiple scattering), the lobe is a rotationally
-    symmetric phase function about the unscattered direction with factors a and b (Fresnel
-    transmittances) that depend only on the polar angles of the first and second argument.
-    A medium without a lobe sets ``HAS_LOBE = False``.
+    - "delta": the unscattered beam, weight(v) delta(A, B) a(A) b(B);
+    - "iso": direction-independent (multiple) scattering, weight(v), no boundary factors;
+    - "lobe": scattered light, weight(v) a(A) b(B) p(A . B) with p a normalized,
+      rotationally symmetric phase function about the unscattered direction;
+
+    ``COMPONENTS`` lists the medium's in that order (the paper's: iso and lobe). a and b
+    (``factor_first``, ``factor_second``) are the boundary (Fresnel) factors, functions of
+    the polar angles of the first and second argument. ``SCALES`` names the parameters that
+    scale a component's weight linearly and ``GAIN`` one that scales the whole apparent
+    value; the engine computes everything with them at 1. ``view_weight`` (None: 1) weights
+    the lobe on the view side, f_t(R', R), by a function of R' and R (a finite plate).
     """
 
     KIND = "medium"
-    HAS_LOBE: ClassVar[bool] = True
+    COMPONENTS: ClassVar[tuple[str, ...]] = ("iso", "lobe")
+    GAIN: ClassVar[str | None] = None
+
+    @classmethod
+    def has(cls, component: str) -> bool:
+        return component in cls.COMPONENTS
+
+    def weight(self, v, component: str):
+        """The weight of ``component`` at parameter vector ``v``."""
+        return {"delta": self.delta_weight, "iso": self.iso,
+                "lobe": self.lobe_weight}[component](v)
+
+    @staticmethod
+    def delta_weight(v):  # pragma: no cover - interface
+        raise NotImplementedError
 
     @staticmethod
     def iso(v):  # pragma: no cover - interface
@@ -382,6 +411,14 @@ class Medium(Model):
     def phase_inverse_cone_fraction(v, frac):  # pragma: no cover - interface
         raise NotImplementedError
 
+    #: Whether ``view_weight`` weights the view-side lobe (a static property of the options).
+    def has_view_weight(self) -> bool:
+        return False
+
+    def view_weight(self, v, r_prime, r):
+        """Weight of the view-side lobe f_t(R', R) at unit vectors R' (..., 3), R (3,)."""
+        return 1.0 + 0.0 * r_prime[..., 2]
+
     def concentrated(self, factor: float) -> "Medium":
         """The medium at ``factor`` times its concentration (acquisition design, more or less
         of the scattering substance): by default every scale parameter times ``factor``."""
@@ -392,13 +429,17 @@ class Medium(Model):
         name = self.SCALES.get("iso")
         return self if name is None else self.replace(**{name: 0.0})
 
+    def iso_scale(self) -> float:
+        """The weight of the isotropic part (the paper's T_d; 0 without one)."""
+        return float(self.iso(self.to_vector())) if self.has("iso") else 0.0
+
     def lobe_scale(self) -> float:
         """The weight of the scattered lobe (the paper's T_t; 0 without a lobe)."""
-        return float(self.lobe_weight(self.to_vector())) if self.HAS_LOBE else 0.0
+        return float(self.lobe_weight(self.to_vector())) if self.has("lobe") else 0.0
 
     def lobe_half_width(self) -> float:
         """Half width at half maximum (deg) of the phase lobe (inf without a lobe)."""
-        if not self.HAS_LOBE:
+        if not self.has("lobe"):
             return math.inf
         v = self.to_vector()
         half = 0.5 * float(self.phase(v, 0.0))
@@ -413,17 +454,22 @@ class Medium(Model):
     def kernel(self, v, one_minus_mu):
         """The scattering kernel without boundary factors, iso + weight p, at deflection
         1 - cos(gamma): what a black cloth sees of the medium (veil.data.simulate)."""
-        value = self.iso(v) + 0.0 * one_minus_mu
-        if self.HAS_LOBE:
+        value = 0.0 * one_minus_mu
+        if self.has("iso"):
+            value = value + self.iso(v)
+        if self.has("lobe"):
             value = value + self.lobe_weight(v) * self.phase(v, one_minus_mu)
         return value
 
     def evaluate(self, v, wa, wb):
-        """Full f_t(wa, wb) for unit vectors (MODEL.md sec. 3)."""
+        """f_t(wa, wb) for unit vectors without its delta component (a distribution, not a
+        function): the iso part plus the lobe with its boundary factors."""
         from .._jax import jnp
 
-        value = self.iso(v) + 0.0 * wa[..., 2]
-        if self.HAS_LOBE:
+        value = 0.0 * wa[..., 2]
+        if self.has("iso"):
+            value = value + self.iso(v)
+        if self.has("lobe"):
             one_minus_mu = jnp.maximum(1.0 - jnp.sum(wa * wb, axis=-1), 0.0)
             value = value + (self.lobe_weight(v) * self.factor_first(v, wa[..., 2])
                              * self.factor_second(v, wb[..., 2]) * self.phase(v, one_minus_mu))

@@ -56,7 +56,7 @@ class TorranceSparrow(BRDF):
 
     # -- the split used by the integrator ------------------------------------------------
     @staticmethod
-    def separable(v, cos_i, cos_r):
+    def separable(v, cos_i, cos_r, aux=None):
         return [(v[0] * jnp.maximum(cos_i, 0.0), jnp.ones_like(cos_r))]
 
     @staticmethod
