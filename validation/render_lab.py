@@ -58,6 +58,11 @@ PLATES = {
     "ggx": {"type": "roughplastic", "distribution": "ggx", "alpha": 0.15,
             "diffuse_reflectance": 0.3, "specular_reflectance": 1.0,
             "int_ior": ACRYLIC_IOR, "ext_ior": WATER_IOR, "nonlinear": False},
+    # a smooth, dark plastic whose specular peak stands out of the diffuse floor (facet
+    # half-width at half maximum about 1.4 deg, like the paper's BRDF1), a second reference
+    "smooth": {"type": "roughplastic", "distribution": "beckmann", "alpha": 0.03,
+               "diffuse_reflectance": 0.1, "specular_reflectance": 1.0,
+               "int_ior": ACRYLIC_IOR, "ext_ior": WATER_IOR, "nonlinear": False},
     # black cloth: a perfectly black diffuse plate (reflectance 0)
     "black": {"type": "diffuse", "reflectance": 0.0},
 }
@@ -71,14 +76,18 @@ MEDIA = {
 
 # Samples: passes x spp_per_pass per configuration.  Clear water is deterministic (the
 # meter ray hits the plate, next-event estimation towards a delta light), so few samples.
+# In the media the noise near the peak is dominated by light scattered on the illumination
+# side (a diffusely sampled bounce must fall into the narrow HG lobe of the light), worst
+# for the thinnest, most forward medium, so every medium gets the same budget.
 PASSES = 8
-SPP_PER_PASS = {"water": 64, "m01": 8192, "m05": 24576, "m10": 49152, "m15": 98304}
+SPP_PER_PASS = {"water": 64, "m01": 65536, "m05": 65536, "m10": 65536, "m15": 65536}
 
 
 def _sessions():
-    """name -> dict(object, medium, half_width, r_c). Order = rendering order."""
+    """name -> dict(object, medium, half_width, r_c), in rendering order (priority order:
+    the required sessions first, the optional ones last)."""
     s = {}
-    for obj in ("ref", "target", "ggx", "black"):
+    for obj in ("ref", "target", "ggx", "smooth", "black"):
         s[f"water_{obj}"] = dict(object=obj, medium="water", half_width=HALF_WIDTH, r_c=R_C)
     for med in ("m01", "m05", "m10"):
         for obj in ("ref", "target", "ggx", "black"):
@@ -89,7 +98,9 @@ def _sessions():
         s[f"m10_{obj}_w10"] = dict(object=obj, medium="m10", half_width=5.0, r_c=R_C)
     for obj in ("ref", "target", "black"):
         s[f"m10_{obj}_r10"] = dict(object=obj, medium="m10", half_width=HALF_WIDTH, r_c=10.0)
-    for obj in ("ref", "target", "ggx", "black"):
+    for med in ("m05", "m10", "m01"):
+        s[f"{med}_smooth"] = dict(object="smooth", medium=med, half_width=HALF_WIDTH, r_c=R_C)
+    for obj in ("ref", "target", "smooth", "black", "ggx"):
         s[f"m15_{obj}"] = dict(object=obj, medium="m15", half_width=HALF_WIDTH, r_c=R_C)
     return s
 
@@ -359,7 +370,7 @@ def read_table(path):
 def check_bsdf(out):
     """(1) clear-water renders against bsdf.eval (which includes cos theta_o = cos theta_i)."""
     res = {}
-    for obj in ("ref", "target", "ggx"):
+    for obj in ("ref", "target", "ggx", "smooth"):
         path = os.path.join(out, f"water_{obj}.csv")
         if not os.path.exists(path):
             continue
@@ -394,9 +405,9 @@ def check_black_water(out):
 FAR = [(90.0, -35.0), (90.0, 35.0), (60.0, -50.0), (30.0, 65.0), (30.0, -65.0), (60.0, 50.0)]
 
 
-def check_unscattered(out, log, spp):
-    """(3) medium / clear-water ratios far from the peak, and the same with albedo 0."""
-    res = {"configs": [], "absorber_only": []}
+def check_unscattered_tables(out):
+    """medium / clear-water ratios of the reference far from the peak."""
+    configs = []
     w = read_table(os.path.join(out, "water_ref.csv")) if os.path.exists(
         os.path.join(out, "water_ref.csv")) else None
     for med in ("m01", "m05", "m10", "m15"):
@@ -411,11 +422,17 @@ def check_unscattered(out, log, spp):
             if len(ii) == 0 or len(jj) == 0:
                 continue
             i, j = int(ii[0]), int(jj[0])
-            res["configs"].append({"medium": med, "psi": psi, "rho": rho,
+            configs.append({"medium": med, "psi": psi, "rho": rho,
                                    "theta_i": t["theta_i"][i], "theta_r": t["theta_r"][i],
                                    "ratio": t["value"][i] / w["value"][j],
                                    "ratio_sigma": t["sigma"][i] / w["value"][j],
                                    "exp_minus_2tau": math.exp(-2 * tau)})
+    return configs
+
+
+def check_unscattered(out, log, spp):
+    """(3) medium / clear-water ratios far from the peak, and the same with albedo 0."""
+    res = {"configs": check_unscattered_tables(out), "absorber_only": []}
     # the same medium with albedo 0 (pure absorber): only the unscattered beam survives
     r = Renderer("ref", "m01", HALF_WIDTH, R_C, albedo=0.0)
     rw = Renderer("ref", "water", HALF_WIDTH, R_C)
@@ -524,6 +541,8 @@ def main(argv=None):
     ap.add_argument("--jobs", type=int, default=None, help="Dr.Jit worker threads (default: all cores)")
     ap.add_argument("--checks", action="store_true", help="run the sanity checks on the tables in --out "
                     "(and a few extra renders) and write checks.json there")
+    ap.add_argument("--summary", action="store_true", help="only the checks computed from the tables "
+                    "(no rendering); merged into an existing checks.json")
     ap.add_argument("--list", action="store_true", help="list the sessions and exit")
     a = ap.parse_args(argv)
 
@@ -548,17 +567,25 @@ def main(argv=None):
     os.makedirs(out, exist_ok=True)
     write_atomic(os.path.join(out, "truth.json"), json.dumps(truth(a.variant), indent=1) + "\n")
 
-    if a.checks:
+    if a.checks or a.summary:
         spp = 1024 if a.quick else 131072
         log(f"checks on {out}")
-        res = {"bsdf_eval_vs_clear_water": check_bsdf(out),
-               "black_cloth_clear_water": check_black_water(out),
-               "peak_relative_sigma": peak_precision(out),
-               "black_over_object": black_fraction(out)}
+        path = os.path.join(out, "checks.json")
+        res = {}
+        if a.summary and os.path.exists(path):
+            with open(path) as f:
+                res = json.load(f)
+        res.update({"bsdf_eval_vs_clear_water": check_bsdf(out),
+                    "black_cloth_clear_water": check_black_water(out),
+                    "peak_relative_sigma": peak_precision(out),
+                    "black_over_object": black_fraction(out)})
         log(json.dumps(res["bsdf_eval_vs_clear_water"]))
-        res["radiancemeter_vs_direct"] = check_meter(log, spp // 4)
-        res["unscattered"] = check_unscattered(out, log, spp // 4)
-        res["max_depth"] = check_depth(log, spp)
+        if a.checks:
+            res["radiancemeter_vs_direct"] = check_meter(log, spp // 4)
+            res["unscattered"] = check_unscattered(out, log, spp // 4)
+            res["max_depth"] = check_depth(log, spp)
+        elif "unscattered" in res:
+            res["unscattered"]["configs"] = check_unscattered_tables(out)
         write_atomic(os.path.join(out, "checks.json"), json.dumps(res, indent=1) + "\n")
         log("wrote " + os.path.join(out, "checks.json"))
         return 0
