@@ -28,7 +28,7 @@ from veil.analysis.diagnostics import diagnose
 from veil.fitting import fit_medium, fit_reference, fit_target
 from veil.fitting import Session, fit_joint
 from veil.data.measurements import atomic_write_text, subtract_black
-from veil.models import HenyeyGreenstein, TorranceSparrow
+from veil import HenyeyGreenstein, TorranceSparrow
 from veil.analysis.uncertainty import budget_table, propagate
 
 TARGET = TorranceSparrow(Pd=4.57e2, Ps=1.58e6, n=0.8, eta=1.5)     # smooth PVC-like plate

@@ -81,3 +81,47 @@ def test_no_model_class_named_outside_models():
             if isinstance(node, ast.alias) and pattern.fullmatch(node.name.split(".")[-1]):
                 found.append(f"{path.relative_to(ROOT)}: import {node.name}")
     assert not found, found
+
+
+def _names_and_literals():
+    """Parameter names and option values of veil's own families. Left out: single letters
+    (g is also a colour channel and a loop variable) and the measurement tables' own
+    vocabulary (rho is the goniometer's rotation as well as an albedo)."""
+    from veil.data.measurements import KNOWN_COLUMNS
+    from veil.models.registry import FAMILIES
+
+    params = {p.name for c in FAMILIES for p in c.PARAMS if len(p.name) > 1}
+    params |= {p.alias for c in FAMILIES for p in c.PARAMS if p.alias}
+    params -= set(KNOWN_COLUMNS)
+    choices = {str(v) for c in FAMILIES for o in c.OPTIONS for v in o.choices}
+    return params, choices
+
+
+def _docstring_nodes(tree):
+    out = set()
+    for node in ast.walk(tree):
+        if isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef)):
+            body = getattr(node, "body", [])
+            if body and isinstance(body[0], ast.Expr) and isinstance(body[0].value, ast.Constant):
+                out.add(id(body[0].value))
+    return out
+
+
+def test_no_parameter_name_or_option_value_outside_models():
+    """Code outside models/ reads parameters and options from the declarations: no string
+    constant equal to a parameter's name or an option's value, no attribute access by a
+    parameter's name (help texts and messages may mention them inside longer strings)."""
+    params, choices = _names_and_literals()
+    found = []
+    for path in _modules():
+        if path.relative_to(ROOT).parts[0] == "models":
+            continue
+        tree = ast.parse(path.read_text())
+        docs = _docstring_nodes(tree)
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Constant) and isinstance(node.value, str) \
+                    and id(node) not in docs and node.value in params | choices:
+                found.append(f"{path.relative_to(ROOT)}:{node.lineno} {node.value!r}")
+            if isinstance(node, ast.Attribute) and node.attr in params:
+                found.append(f"{path.relative_to(ROOT)}:{node.lineno} .{node.attr}")
+    assert not found, found

@@ -9,7 +9,6 @@ import os
 import subprocess
 import sys
 
-import numpy as np
 import pytest
 from click.testing import CliRunner
 
@@ -94,8 +93,9 @@ def test_three_steps_joint_and_diagnose_with_test_models(files):
                 f"two={files['target_2']}", "--session", f"none={files['target_clear']}",
                 "--fix", "kappa[one]=150", "--fix", "kappa[two]=60", "-o",
                 d / "joint.json"] + FAST)
-    assert r.exit_code in (0, 1), r.output
+    assert r.exit_code == 0, r.output
     joint = load_result(d / "joint.json")
+    assert joint.converged and joint.determined
     assert joint.layout["models"] == {"brdf": "lambertian-test", "medium": "fisher-test"}
     assert joint.brdf("target") == veil_test_models.LambertianTest(rho=joint.params["rho"])
     assert set(joint.params) == {"rho", "Td[one]", "Tt[one]", "kappa[one]", "Td[two]",
@@ -130,4 +130,3 @@ def test_a_subprocess_finds_the_plugins_through_the_environment(tmp_path):
                          env=dict(env, VEIL_PLUGINS="no_such_module"), capture_output=True,
                          text=True, timeout=120)
     assert bad.returncode == 2 and "VEIL_PLUGINS names module 'no_such_module'" in bad.stderr
-    assert np.isfinite(1.0)

@@ -30,25 +30,24 @@ _PRESETS = ("BRDF1", "BRDF2", "BTDF1", "BTDF2", "BTDF3")
 
 def __getattr__(name: str):
     if name == "__all__":  # ``from veil import *``: the API and every registered family
-        return sorted(set(_API) | set(_PRESETS) | {"__version__"}
-                      | {c.__name__ for c in importlib.import_module(".models", __name__)
-                         .REGISTRY.values()})
+        return sorted(set(_API) | set(_PRESETS) | {"__version__"} | set(_families()))
     if name in _API:
         value = getattr(importlib.import_module(f".{_API[name]}", __name__), name)
     elif name in _PRESETS:
         value = importlib.import_module(".models", __name__).PRESETS[name]
     else:
-        models = importlib.import_module(".models", __name__)
-        found = [c for c in models.REGISTRY.values() if c.__name__ == name]
-        if not found:
+        value = _families().get(name)
+        if value is None:
             raise AttributeError(f"module 'veil' has no attribute {name!r}")
-        value = found[0]
     globals()[name] = value
     return value
 
 
-def __dir__():
-    from .models import REGISTRY
+def _families() -> dict:
+    """The registered families by class name (plugins included)."""
+    models = importlib.import_module(".models", __name__)
+    return {c.__name__: c for c in map(models.model_class, models.names())}
 
-    return sorted(set(globals()) | set(_API) | set(_PRESETS)
-                  | {c.__name__ for c in REGISTRY.values()})
+
+def __dir__():
+    return sorted(set(globals()) | set(_API) | set(_PRESETS) | set(_families()))

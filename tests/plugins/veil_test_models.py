@@ -73,16 +73,16 @@ class FisherTest(Medium):
         return 1.0 + 0.0 * cos_b
 
     @staticmethod
-    def phase(v, one_minus_mu):
+    def phase(v, one_minus_mu, aux=None):
         k = v[2]
         return k * jnp.exp(-k * one_minus_mu) / (2.0 * math.pi * -jnp.expm1(-2.0 * k))
 
     @staticmethod
-    def phase_cone_fraction(v, one_minus_mu):
+    def phase_cone_fraction(v, one_minus_mu, aux=None):
         k = v[2]
         return jnp.expm1(-k * one_minus_mu) / jnp.expm1(-2.0 * k)
 
     @staticmethod
-    def phase_inverse_cone_fraction(v, frac):
+    def phase_inverse_cone_fraction(v, frac, aux=None):
         k = v[2]
         return -jnp.log1p(frac * jnp.expm1(-2.0 * k)) / k

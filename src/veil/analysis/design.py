@@ -158,11 +158,15 @@ class Information:
         self.brdf = as_brdf(brdf)
         bcls = type(self.brdf)
         possible = interest_names(bcls)
+        if not possible:
+            raise InputError(f"the BRDF family {bcls.NAME} has one scale and no other "
+                             f"parameter: only its level, which no plan can separate from the "
+                             f"media's, could be estimated; there is nothing to design for")
         interest = possible if interest is None else tuple(interest)
         unknown = [p for p in interest if p not in possible]
         if unknown or not interest:
             raise InputError(f"parameters of interest {list(interest)}: choose among "
-                             f"{', '.join(possible) or '(none: ' + bcls.NAME + ' has no shape parameter)'}")
+                             f"{', '.join(possible)}")
         self.conditions = dict(conds)
         self.table = table.reset_index(drop=True)
         missing = set(self.table["condition"]) - set(self.conditions)

@@ -9,10 +9,13 @@ import os
 import re
 import sys
 import tempfile
+import warnings
 from dataclasses import dataclass
 
 import click
 import numpy as np
+
+from ..errors import InputError
 
 
 class UserError(click.ClickException):
@@ -56,8 +59,6 @@ class VeilGroup(click.Group):
     any other exception is a bug in veil (status 3, :func:`report_bug`)."""
 
     def invoke(self, ctx):
-        from ..errors import InputError
-
         try:
             return super().invoke(ctx)
         except (click.ClickException, click.exceptions.Exit, click.exceptions.Abort,
@@ -119,7 +120,7 @@ class ModelChoice:
             try:
                 return model.replace(**{k: v for k, v in options.items()
                                         if k in cls.option_names()})
-            except (ValueError, TypeError) as exc:
+            except InputError as exc:
                 raise UserError(f"{option} {text}: {exc}") from None
         if len(parts) != len(cls.PARAMS):
             raise UserError(f"{option} literal {text!r} must have {len(cls.PARAMS)} numbers: "
@@ -133,7 +134,7 @@ class ModelChoice:
                                 f"{cls.literal_form()})") from None
         try:
             return cls.from_params(values, options)
-        except (ValueError, TypeError) as exc:
+        except InputError as exc:
             raise UserError(f"{option} {text!r}: {exc}") from None
 
     def brdf_model(self, text: str, option: str = "--brdf"):
@@ -161,17 +162,17 @@ class ModelName(click.ParamType):
         self.kind = kind
 
     def convert(self, value, param, ctx):
-        from ..errors import InputError
         from ..models import names
 
         try:
             known = names(self.kind)
         except InputError as exc:
             self.fail(str(exc), param, ctx)
-        if value not in known:
+        name = str(value).strip().lower()
+        if name not in known:
             self.fail(f"{value!r} is not a registered {self.kind} model; known: "
                       f"{', '.join(known)} ('veil models' lists them)", param, ctx)
-        return value
+        return name
 
 
 def _option_flag(name: str) -> str:
@@ -182,7 +183,6 @@ def model_options(kinds=("brdf", "medium")):
     """Click options for the model families of ``kinds`` and every option the registered
     families of those kinds declare; the command receives them as ``models``
     (a :class:`ModelChoice`)."""
-    from ..errors import InputError
     from ..models import DEFAULTS, names, registry
 
     def known(kind):
@@ -295,6 +295,83 @@ def load_result_file(path, kind: str, option: str):
     from ..fitting.result import load_model_result
 
     return load_model_result(path, kind, option)
+
+
+# -- loading the given models --------------------------------------------------------------
+
+def _is_file(text: str) -> bool:
+    return os.path.exists(text) or text.lower().endswith(".json")
+
+
+def load_reference(text: str, models, option: str = "--reference"):
+    """A BRDF fit result (JSON file), or a BRDF preset / literal of the chosen family."""
+    if _is_file(text):
+        return load_result_file(text, "brdf", option)
+    try:
+        return models.brdf_model(text, option)
+    except click.ClickException as exc:
+        raise UserError(f"{option} {text!r} is not an existing JSON file and {exc.message}"
+                        ) from None
+
+
+def load_medium(text: str, models, option: str = "--medium"):
+    """A medium fit result (JSON file), or a medium preset / literal of the chosen model."""
+    if _is_file(text):
+        return load_result_file(text, "medium", option)
+    try:
+        model = models.medium_model(text, option)
+    except click.ClickException as exc:
+        raise UserError(f"{option} {text!r} is not an existing JSON file and {exc.message}"
+                        ) from None
+    if model is None:
+        raise UserError(f"{option} none: this needs a scattering medium; for a target in a "
+                        "clear medium use 'veil fit reference'")
+    return model
+
+
+# -- progress, warnings and the exit status of fits ---------------------------------------
+
+@contextlib.contextmanager
+def fit_progress(title: str):
+    """A rich progress display on stderr; yields the ``progress(stage, done, total)`` callback."""
+    from rich.console import Console
+    from rich.progress import BarColumn, Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
+
+    with Progress(SpinnerColumn(), TextColumn("{task.description}"), BarColumn(),
+                  TextColumn("{task.fields[count]}"), TimeElapsedColumn(),
+                  console=Console(stderr=True), transient=True) as bar:
+        task = bar.add_task(title, total=None, count="")
+
+        def progress(stage, done, total):
+            if done is None:
+                count = ""
+            else:
+                count = f"{done}/{total}" if total else f"{done} evaluations"
+            bar.update(task, description=f"{title}: {stage}", completed=done or 0, total=total,
+                       count=count)
+
+        yield progress
+
+
+@contextlib.contextmanager
+def echo_warnings():
+    """Collect the warnings of the block and print them to stderr as "Warning: ..." after it."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        yield
+    for w in caught:
+        click.echo(f"Warning: {w.message}", err=True)
+
+
+def finish_fits(ctx, results, written):
+    """Report the ``written`` files on stderr; exit status 1 if a result did not converge."""
+    for path in written:
+        click.echo(f"wrote {path}", err=True)
+    failed = [r for r in results if r is not None and not r.converged]
+    if failed:
+        click.echo("Error: a fit did not converge (its result was written with "
+                   "\"converged\": false): " + "; ".join(r.message for r in failed), err=True)
+        ctx.exit(1)
 
 
 # -- CSV input -----------------------------------------------------------------------------

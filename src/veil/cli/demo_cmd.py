@@ -118,7 +118,7 @@ def demo_command(ctx, outdir, seed, noise, accuracy):
     """
     from rich.console import Console
 
-    from .fit_cmd import fit_progress
+    from ._common import fit_progress
 
     if outdir.exists() and not outdir.is_dir():
         raise UserError(f"--outdir {outdir} exists and is not a directory")

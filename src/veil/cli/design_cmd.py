@@ -120,7 +120,7 @@ def design_command(brdf, media, factors, size, psi, fine_step, window, coarse_st
                  for label, m in named.items() for f in facs}
         if len(named) != len(labels) * len(facs):
             raise UserError(f"--factors {factors!r}: a factor is repeated")
-    from .fit_cmd import echo_warnings
+    from ._common import echo_warnings
     with echo_warnings():
         result = design(model_b, list(named.values()), size, psi=_floats(psi, "--psi"),
                         noise=noise, floor=noise_floor,

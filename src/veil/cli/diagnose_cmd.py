@@ -166,7 +166,7 @@ def diagnose_command(result_path, data, black, medium, reference, profile, profi
             for path in files.values():
                 check_output_path(path, inputs)
     prof = list(profile_params) if profile_params else bool(profile)
-    from .fit_cmd import echo_warnings, fit_progress
+    from ._common import echo_warnings, fit_progress
     with echo_warnings(), fit_progress("diagnose") as progress:
         diag = diagnose(result, table, medium=med, reference=ref,
                         black=None if black is None else os.fspath(black), profile=prof,

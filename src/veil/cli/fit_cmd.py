@@ -8,16 +8,14 @@ the input. Result format: docs/fitting.md.
 
 from __future__ import annotations
 
-import contextlib
 import os
-import warnings
 from pathlib import Path
 
 import click
 
 from ..fitting import fit_medium, fit_reference, fit_target
-from ._common import (UserError, check_output_path, load_result_file, model_options,
-                      parse_fix)
+from ._common import (UserError, check_output_path, echo_warnings, finish_fits, fit_progress,
+                      load_medium, load_reference, model_options, parse_fix)
 
 IN_FILE = click.Path(exists=True, dir_okay=False, path_type=Path)
 OUT_FILE = click.Path(dir_okay=False, path_type=Path)
@@ -59,82 +57,6 @@ def _parse_step_fix(items, models) -> dict:
         by_step.setdefault(step, []).append(f"{name}={item.partition('=')[2]}")
     return {step: parse_fix(entries, classes[step], f"--fix ({step})")
             for step, entries in by_step.items()}
-
-
-def _is_file(text: str) -> bool:
-    return os.path.exists(text) or text.lower().endswith(".json")
-
-
-def load_reference(text: str, models, option: str = "--reference"):
-    """A BRDF fit result (JSON file), or a BRDF preset / literal of the chosen family."""
-    if _is_file(text):
-        return load_result_file(text, "brdf", option)
-    try:
-        return models.brdf_model(text, option)
-    except click.ClickException as exc:
-        raise UserError(f"{option} {text!r} is not an existing JSON file and {exc.message}"
-                        ) from None
-
-
-def load_medium(text: str, models, option: str = "--medium"):
-    """A medium fit result (JSON file), or a medium preset / literal of the chosen model."""
-    if _is_file(text):
-        return load_result_file(text, "medium", option)
-    try:
-        model = models.medium_model(text, option)
-    except click.ClickException as exc:
-        raise UserError(f"{option} {text!r} is not an existing JSON file and {exc.message}"
-                        ) from None
-    if model is None:
-        raise UserError(f"{option} none: this needs a scattering medium; for a target in a "
-                        "clear medium use 'veil fit reference'")
-    return model
-
-
-# --------------------------------------------------------------------------------------
-# progress and output
-# --------------------------------------------------------------------------------------
-@contextlib.contextmanager
-def fit_progress(title: str):
-    """A rich progress display on stderr; yields the ``progress(stage, done, total)`` callback."""
-    from rich.console import Console
-    from rich.progress import BarColumn, Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
-
-    with Progress(SpinnerColumn(), TextColumn("{task.description}"), BarColumn(),
-                  TextColumn("{task.fields[count]}"), TimeElapsedColumn(),
-                  console=Console(stderr=True), transient=True) as bar:
-        task = bar.add_task(title, total=None, count="")
-
-        def progress(stage, done, total):
-            if done is None:
-                count = ""
-            else:
-                count = f"{done}/{total}" if total else f"{done} evaluations"
-            bar.update(task, description=f"{title}: {stage}", completed=done or 0, total=total,
-                       count=count)
-
-        yield progress
-
-
-@contextlib.contextmanager
-def echo_warnings():
-    """Collect the warnings of the block and print them to stderr as "Warning: ..." after it."""
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        yield
-    for w in caught:
-        click.echo(f"Warning: {w.message}", err=True)
-
-
-def finish_fits(ctx, results, written):
-    """Report the ``written`` files on stderr; exit status 1 if a result did not converge."""
-    for path in written:
-        click.echo(f"wrote {path}", err=True)
-    failed = [r for r in results if r is not None and not r.converged]
-    if failed:
-        click.echo("Error: a fit did not converge (its result was written with "
-                   "\"converged\": false): " + "; ".join(r.message for r in failed), err=True)
-        ctx.exit(1)
 
 
 # --------------------------------------------------------------------------------------

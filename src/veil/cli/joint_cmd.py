@@ -151,7 +151,7 @@ def joint_command(ctx, sessions, reference_sessions, blacks, reference, shared, 
     Without reference sessions fix one scale (e.g. --fix 'Td[low]=1e-3'): the data only
     determine Pd, Ps and Td, Tt up to a common factor.
     """
-    from .fit_cmd import echo_warnings, finish_fits, fit_progress, load_reference
+    from ._common import echo_warnings, finish_fits, fit_progress, load_reference
 
     if not sessions:
         raise UserError("no --session given: a joint fit needs the target measured in at "

@@ -46,13 +46,14 @@ GLOW_STANDARD = "BRDF2"
 
 
 def glow_shape(medium, theta_i, phi_i, theta_r, phi_r) -> np.ndarray:
-    """s(I, R) = iso + lobe_weight * p(gamma), cos(gamma) = -I . R (module docstring)."""
+    """s(I, R) = iso + lobe_weight * p(gamma), cos(gamma) = -I . R (module docstring): the
+    medium's scattering kernel (:meth:`veil.models.Medium.kernel`)."""
     m = as_btdf(medium)
     v = m.to_vector()
     wi = np.asarray(direction(theta_i, phi_i))
     wr = np.asarray(direction(theta_r, phi_r))
     one_minus_mu = np.maximum(1.0 + np.sum(wi * wr, axis=-1), 0.0)  # 1 - cos(gamma)
-    return np.asarray(m.iso(v) + m.lobe_weight(v) * m.phase(v, one_minus_mu), dtype=float)
+    return np.asarray(m.kernel(v, one_minus_mu), dtype=float)
 
 
 @lru_cache(maxsize=64)

@@ -54,7 +54,8 @@ def _azimuths(n: int, half: bool):
     return v, w
 
 
-def _phase_grid(medium: BTDF, vm, center, n_r: int, n_a: int, half: bool, grading: int = 1):
+def _phase_grid(medium: BTDF, vm, maux, center, n_r: int, n_a: int, half: bool,
+                grading: int = 1):
     """Directions about ``center`` (3,) distributed as the phase lobe truncated at z = 0.
 
     Returns (d (N, 3), unit weights (N,), frac_max (N,), p (N,)). sum(unit * frac_max * f(d))
@@ -69,13 +70,16 @@ def _phase_grid(medium: BTDF, vm, center, n_r: int, n_a: int, half: bool, gradin
     beta = jnp.asarray(TWO_PI * np.repeat(v, n_r))
     unit = jnp.asarray(np.outer(wv, wx).ravel())
     cb, sb = jnp.cos(beta), jnp.sin(beta)
-    frac_max = medium.phase_cone_fraction(vm, horizon_one_minus_mu(center[2], cb))
-    omm = medium.phase_inverse_cone_fraction(vm, u * frac_max)
+    # the horizon depends on the azimuth only: one cone fraction per azimuth
+    cos_az = jnp.asarray(np.cos(TWO_PI * v))
+    frac_max = jnp.repeat(medium.phase_cone_fraction(
+        vm, horizon_one_minus_mu(center[2], cos_az), maux), n_r)
+    omm = medium.phase_inverse_cone_fraction(vm, u * frac_max, maux)
     sg = jnp.sqrt(jnp.maximum(omm * (2.0 - omm), 0.0))
     t1, t2 = frame(center)
     d = ((1.0 - omm)[:, None] * center[None, :]
          + sg[:, None] * (cb[:, None] * t1[None, :] + sb[:, None] * t2[None, :]))
-    return d, unit, frac_max, medium.phase(vm, omm)
+    return d, unit, frac_max, medium.phase(vm, omm, maux)
 
 
 def _half_grid(brdf: type[BRDF], vb, partner, n_r: int, n_a: int, half: bool):
@@ -275,16 +279,16 @@ def _view_weight(medium, vm, r_prime, wr):
     return medium.view_weight(vm, r_prime, wr)
 
 
-def _lobe_lobe(brdf, medium, vb, vm, wi, wr, rule: Rule, half: bool):
+def _lobe_lobe(brdf, medium, vb, vm, maux, wi, wr, rule: Rule, half: bool):
     """Int Int b(I') p(I.I') lobe(I', R') a(R') J(R') p(R'.R) dI' dR' (balanced MIS
     quadrature), J the view-side weight of the medium (1 without one)."""
     n_r, n_a = rule.phase_radial, rule.phase_azimuth
-    gi, ui, fi, pi_ = _phase_grid(medium, vm, wi, n_r, n_a, half, PHASE_GRADING)   # I' about I
-    gr, ur, fr, pr = _phase_grid(medium, vm, wr, n_r, n_a, False, PHASE_GRADING)   # R' about R
+    gi, ui, fi, pi_ = _phase_grid(medium, vm, maux, wi, n_r, n_a, half, PHASE_GRADING)   # I' about I
+    gr, ur, fr, pr = _phase_grid(medium, vm, maux, wr, n_r, n_a, False, PHASE_GRADING)   # R' about R
     bi = medium.factor_second(vm, gi[:, 2])
     ar = medium.factor_first(vm, gr[:, 2]) * _view_weight(medium, vm, gr, wr)
     if half:  # component B needs only half of the R' azimuths (C pairs half I' with all R')
-        grb, urb, frb, prb = _phase_grid(medium, vm, wr, n_r, n_a, True, PHASE_GRADING)
+        grb, urb, frb, prb = _phase_grid(medium, vm, maux, wr, n_r, n_a, True, PHASE_GRADING)
         arb = medium.factor_first(vm, grb[:, 2]) * _view_weight(medium, vm, grb, wr)
     else:
         grb, urb, frb, prb, arb = gr, ur, fr, pr, ar
@@ -301,7 +305,7 @@ def _lobe_lobe(brdf, medium, vb, vm, wi, wr, rule: Rule, half: bool):
     i2 = gi[:, None, :]
     r2 = _reflect(i2, h)
     c = dot3(i2, h)
-    p_r = medium.phase(vm, _half_distance(r2, wr))
+    p_r = medium.phase(vm, _half_distance(r2, wr), maux)
     val = balanced(pi_[:, None], p_r, c, qh, brdf.lobe(vb, i2, r2, h, alpha))
     val = val * medium.factor_first(vm, r2[..., 2]) * bi[:, None]
     if medium.has_view_weight():
@@ -312,7 +316,7 @@ def _lobe_lobe(brdf, medium, vb, vm, wi, wr, rule: Rule, half: bool):
     r2 = grb[:, None, :]
     i2 = _reflect(r2, h)
     c = dot3(r2, h)
-    p_i = medium.phase(vm, _half_distance(i2, wi))
+    p_i = medium.phase(vm, _half_distance(i2, wi), maux)
     val = balanced(p_i, prb[:, None], c, qh, brdf.lobe(vb, i2, r2, h, alpha))
     val = val * arb[:, None] * medium.factor_second(vm, i2[..., 2])
     total = total + jnp.sum(urb * frb * jnp.sum(uh * val, axis=-1))
@@ -333,7 +337,8 @@ def _lobe_lobe(brdf, medium, vb, vm, wi, wr, rule: Rule, half: bool):
     return total
 
 
-def _lobe_one_side(brdf, medium, vb, vm, fixed, center, rule: Rule, half: bool, view: bool):
+def _lobe_one_side(brdf, medium, vb, vm, maux, fixed, center, rule: Rule, half: bool,
+                   view: bool):
     """The BRDF's lobe against the phase lobe on one side, the other direction fixed:
 
         view:     Int lobe(F, R') a(R') J(R') p(R'.C) dR'    (F = I, C = R)
@@ -341,7 +346,7 @@ def _lobe_one_side(brdf, medium, vb, vm, fixed, center, rule: Rule, half: bool, 
 
     by balanced MIS over two grids: the phase grid about C, and half vectors from the facet
     law with the free direction the mirror of F."""
-    g, u, f, p = _phase_grid(medium, vm, center, rule.dense_radial, rule.dense_azimuth, half)
+    g, u, f, p = _phase_grid(medium, vm, maux, center, rule.dense_radial, rule.dense_azimuth, half)
     factor = (medium.factor_first if view else medium.factor_second)
 
     def lobe(free, h=None, alpha=None):
@@ -374,7 +379,7 @@ def _lobe_one_side(brdf, medium, vb, vm, fixed, center, rule: Rule, half: bool, 
     h, alpha, uh, qh = _facet_grid(brdf, vb, rule.dense_radial, rule.dense_azimuth, half)
     free = _reflect(fixed, h[0])
     c = dot3(fixed, h[0])
-    p_free = medium.phase(vm, _half_distance(free, center))
+    p_free = medium.phase(vm, _half_distance(free, center), maux)
     den = p_free + qh[0] / (4.0 * jnp.maximum(c, 1e-300))
     ok = (c > 0) & (free[..., 2] > 0) & (den > 0)
     val = jnp.where(ok, lobe(free, h[0], alpha[0]) * weight(free) * p_free
@@ -389,7 +394,7 @@ def pairs(medium_cls) -> list[tuple[str, str]]:
     return [(a, b) for i, a in enumerate(comps) for b in comps[i:]]
 
 
-def _one_config(brdf, medium, rule, half, vb, vm, shared, wi, wr):
+def _one_config(brdf, medium, rule, half, vb, vm, shared, maux, wi, wr):
     """Term matrix E (rows, 2) of one configuration with the scale parameters set to 1.
 
     Rows: the medium's component pairs (:func:`pairs`: for the paper's medium T_d^2,
@@ -412,8 +417,8 @@ def _one_config(brdf, medium, rule, half, vb, vm, shared, wi, wr):
         rows[("iso", "iso")] = (c0_sep, c0_lobe)
     if "lobe" in comps:
         # 2D terms on a dense phase grid about I (I') and about R (R')
-        gi, ui, fi, _ = _phase_grid(medium, vm, wi, rule.dense_radial, rule.dense_azimuth, half)
-        gr, ur, fr, _ = _phase_grid(medium, vm, wr, rule.dense_radial, rule.dense_azimuth, half)
+        gi, ui, fi, _ = _phase_grid(medium, vm, maux, wi, rule.dense_radial, rule.dense_azimuth, half)
+        gr, ur, fr, _ = _phase_grid(medium, vm, maux, wr, rule.dense_radial, rule.dense_azimuth, half)
         wgi = ui * fi * medium.factor_second(vm, gi[:, 2])
         wgr = ur * fr * medium.factor_first(vm, gr[:, 2]) * _view_weight(medium, vm, gr, wr)
         seps_i = brdf.separable(vb, gi[:, 2], gi[:, 2], aux)
@@ -428,7 +433,7 @@ def _one_config(brdf, medium, rule, half, vb, vm, shared, wi, wr):
                           + b_r * jnp.sum(wgr * albedo(tr, b_tab)))
             rows[("iso", "lobe")] = (mixed_sep, mixed_lobe)
         sep = sum(jnp.sum(wgi * s) * jnp.sum(wgr * t) for (s, _), (_, t) in zip(seps_i, seps_r))
-        lobe = (_lobe_lobe(brdf, medium, vb, vm, wi, wr, rule, half) if brdf.HAS_LOBE
+        lobe = (_lobe_lobe(brdf, medium, vb, vm, maux, wi, wr, rule, half) if brdf.HAS_LOBE
                 else zero)
         rows[("lobe", "lobe")] = (a_i * b_r * sep, a_i * b_r * lobe)
     if "delta" in comps:
@@ -456,9 +461,9 @@ def _one_config(brdf, medium, rule, half, vb, vm, shared, wi, wr):
                      + dv * a_i * sum(t * jnp.sum(wgi * s)
                                       for (_, t), (s, _) in zip(sep_fixed_r, seps_i)))
             if brdf.HAS_LOBE:
-                d_lobe = (dl * b_r * _lobe_one_side(brdf, medium, vb, vm, wi, wr, rule, half,
+                d_lobe = (dl * b_r * _lobe_one_side(brdf, medium, vb, vm, maux, wi, wr, rule, half,
                                                     True)
-                          + dv * a_i * _lobe_one_side(brdf, medium, vb, vm, wr, wi, rule, half,
+                          + dv * a_i * _lobe_one_side(brdf, medium, vb, vm, maux, wr, wi, rule, half,
                                                       False))
             else:
                 d_lobe = zero
@@ -543,9 +548,11 @@ def apparent_terms(brdf_template, medium_template, rule, vb, vm, wi, wr, half=Fa
     vb1 = _unit_scales(brdf, jnp.asarray(vb))
     vm1 = _unit_scales(type(medium_template), jnp.asarray(vm))
     shared = _shared(brdf, rule, vb1)
+    maux = medium_template.prepare(vm1)
 
     def f(x):
-        return _one_config(brdf, medium_template, rule, half, vb1, vm1, shared, x[0], x[1])
+        return _one_config(brdf, medium_template, rule, half, vb1, vm1, shared, maux, x[0],
+                           x[1])
 
     if batch_size is None:  # keep the live intermediate arrays to a few hundred MB
         batch_size = max(1, min(64, 1_500_000 // rule.points_per_config))

@@ -22,7 +22,7 @@ import math
 import numpy as np
 
 from ..engine.angles import direction
-from ..errors import FitError
+from ..errors import FitError, InputError
 from ..models import Model, default_class, model_class
 from ..models.base import VARIANT_OPTION
 from .data import prepare
@@ -159,19 +159,20 @@ def _anchor_check(sessions, fixed_names, reference_given, params, brdf_cls, medi
         if p.name in fixed_names and p.scale:
             key = ("obj", p.owner) if p.kind == "brdf" else ("med", p.owner)
             anchored.add(find(key))
-    if not brdf_cls.SCALES or not medium_cls.SCALES:
+    if not brdf_cls.SCALES or not (medium_cls.SCALES or medium_cls.GAIN):
         return  # a model without scales pins the overall scale itself
     roots = {find(("obj", s.object)) for s in sessions}
     for r in roots:
         if r not in anchored:
             members = sorted(f"{a[0] == 'obj' and 'object' or 'medium'} {a[1]}"
                              for a in parent if find(a) == r)
-            scale_m = next(iter(medium_cls.scale_names()))
+            scale_m = next(iter(medium_cls.scale_names() or (medium_cls.GAIN,)))
             raise FitError(
                 f"the overall scale is not determined for {', '.join(members)}: the apparent "
                 f"value is proportional to the object's scales "
                 f"({', '.join(brdf_cls.scale_names())}) times the medium's "
-                f"({', '.join(medium_cls.scale_names())}), so scaling the media up and "
+                f"({', '.join(medium_cls.scale_names() or (medium_cls.GAIN,))}), so scaling "
+                f"the media up and "
                 f"the object down fits equally well (MODEL.md sec. 2-3). Add the reference "
                 f"measured in clear water (object 'reference', medium 'none') and in the "
                 f"media, give reference=, or fix one scale, e.g. "
@@ -180,7 +181,7 @@ def _anchor_check(sessions, fixed_names, reference_given, params, brdf_cls, medi
 
 def build(sessions, *, reference=None, shared=None, per_medium=None, fixed=None,
           variant: str | None = None, brdf_model=None, medium_model=None, brdf_options=None,
-          medium_options=None) -> tuple[Problem, dict]:
+          medium_options=None, free=None) -> tuple[Problem, dict]:
     """The stacked :class:`Problem` of a joint fit and its layout (see :func:`fit_joint`)."""
     bcls = default_class("brdf") if brdf_model is None else model_class(brdf_model, "brdf")
     mcls = default_class("medium") if medium_model is None else model_class(medium_model,
@@ -191,7 +192,7 @@ def build(sessions, *, reference=None, shared=None, per_medium=None, fixed=None,
     try:
         template_b = bcls.template(**dict(brdf_options or {}))
         template_m = mcls.template(**medium_options)
-    except (ValueError, TypeError) as exc:
+    except InputError as exc:
         raise FitError(str(exc)) from None
     sessions = as_sessions(sessions)
     shared_names = _declarations(mcls, bcls, shared, per_medium)
@@ -271,7 +272,15 @@ def build(sessions, *, reference=None, shared=None, per_medium=None, fixed=None,
                            f"{', '.join(names)}{hint}")
         check_fixed(k, v, params[index[k]].spec, k)
     values = np.array([p.spec.start for p in params], dtype=float)
-    free = np.ones(len(params), dtype=bool)
+    freed = list(free or ())
+    unknown = [n for n in freed if n not in index]
+    if unknown:
+        raise FitError(f"cannot free {', '.join(map(repr, unknown))}: the joint fit's "
+                       f"parameters are {', '.join(names)}")
+    clash = [n for n in freed if n in fixed]
+    if clash:
+        raise FitError(f"{', '.join(clash)} both fixed and freed")
+    free = np.array([not p.spec.held or p.name in freed for p in params], dtype=bool)
     if reference_model is not None:
         for pname, gname in objects_layout["reference"].items():
             if gname in fixed:
@@ -284,7 +293,8 @@ def build(sessions, *, reference=None, shared=None, per_medium=None, fixed=None,
         free[index[k]] = False
     if not free.any():
         raise FitError("every parameter of the joint fit is fixed: nothing to fit")
-    _anchor_check(sessions, set(fixed), reference_model is not None, params, bcls, mcls)
+    held = {p.name for p, f in zip(params, free) if not f}
+    _anchor_check(sessions, held, reference_model is not None, params, bcls, mcls)
 
     blocks = []
     for s, d in zip(sessions, datas):
@@ -322,7 +332,7 @@ def _direct_fit(problem: Problem):
 def fit_joint(sessions, *, reference=None, shared=None, per_medium=None, fixed=None,
               start=None, variant: str | None = None, accuracy: str = "default",
               max_nfev=None, progress=None, brdf_model=None, medium_model=None,
-              brdf_options=None, medium_options=None) -> JointResult:
+              brdf_options=None, medium_options=None, free=None) -> JointResult:
     """Fit several sessions of one target under several media at once (module docstring).
 
     sessions : list of :class:`Session` (table, medium label, object "target"/"reference")
@@ -334,6 +344,8 @@ def fit_joint(sessions, *, reference=None, shared=None, per_medium=None, fixed=N
         (default as the model declares: for the paper's medium eta_u shared, g per medium);
         a name in both is an error. Scale parameters are always per medium.
     fixed : {parameter name: value}, names as in the result (e.g. "eta", "Td[low]", "g").
+    free : names (as in the result) of parameters the families hold by default
+        (``Param.held``, e.g. the physical medium's ``s[label]``) to fit too.
     start : optional starting models {object or medium label: model}.
     brdf_model, medium_model, brdf_options, medium_options : the families (registered
         names, default the paper's) and their options; ``variant`` is the shortcut for the
@@ -352,7 +364,8 @@ def fit_joint(sessions, *, reference=None, shared=None, per_medium=None, fixed=N
     problem, layout = build(sessions, reference=reference, shared=shared,
                             per_medium=per_medium, fixed=fixed, variant=variant,
                             brdf_model=brdf_model, medium_model=medium_model,
-                            brdf_options=brdf_options, medium_options=medium_options)
+                            brdf_options=brdf_options, medium_options=medium_options,
+                            free=free)
     for block in problem.blocks:  # compile side by side what the fit will need
         block.model(ITERATION_ACCURACY).prepare(values=True, jacobian=True)
         if accuracy != ITERATION_ACCURACY:

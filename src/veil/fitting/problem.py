@@ -162,7 +162,7 @@ class Slot:
     """One parameter of a problem: its result ``name``, the model parameter it is (``spec``,
     at ``index`` in the model's vector), the kind of model (``kind`` brdf/medium) and its
     owner (an object name or medium label, "*" when shared by the media); ``scale`` when it
-    only scales a part of its model linearly."""
+    only scales a part of its model, or all of it (a gain), linearly."""
 
     name: str
     kind: str
@@ -189,7 +189,7 @@ class Slot:
 def model_slots(model, kind: str, owner: str, name=lambda p: p.key) -> list[Slot]:
     """Slots of every parameter of ``model`` (class or instance), named by ``name(param)``."""
     cls = model if isinstance(model, type) else type(model)
-    scales = set(cls.scale_names())
+    scales = set(cls.scale_names()) | {getattr(cls, "GAIN", None)} - {None}
     return [Slot(name(p), kind, owner, i, p, p.name in scales) for i, p in enumerate(cls.PARAMS)]
 
 
@@ -368,14 +368,6 @@ class Problem:
         if not out.free.any():
             raise FitError("every parameter is fixed: nothing to fit")
         return out
-
-    def model_of(self, block: Block, kind: str, x=None):
-        """The model instance of ``block``'s BRDF or medium at natural parameters ``x``
-        (default: the problem's values)."""
-        x = self.values if x is None else np.asarray(x, dtype=float)
-        template = block.brdf if kind == "brdf" else block.medium
-        idx = block.ib if kind == "brdf" else block.im
-        return template.with_vector(x[idx])
 
 
 def session_problem(table, brdf: BRDF, medium: Medium | None = None, *, free=(), black=None,

@@ -20,8 +20,9 @@ def _header(result: FitResult) -> str:
     if isinstance(result, JointResult):
         models = result.layout.get("models") or {}
         family = f", models {models['brdf']} / {models['medium']}" if models else ""
+        variant = f", variant {result.variant}" if result.variant else ""
         return (f"[[Joint fit: {len(result.layout.get('sessions', []))} sessions, "
-                f"{len(result.layout['media'])} media, variant {result.variant}{family}]]")
+                f"{len(result.layout['media'])} media{variant}{family}]]")
     what = STEP_WORDS.get(result.step, "")
     opts = ", ".join(f"{k} {v}" for k, v in result.options.items())
     return (f"[[Fit: {result.model}" + (f", variant {result.variant}" if result.variant else "")

@@ -17,9 +17,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..errors import FitError, MissingFileError, NotAFileError
+from ..errors import FitError, InputError, MissingFileError, NotAFileError
 from ..io import write_bytes_atomic
-from ..models import REGISTRY, Model, default_class, model_class
+from ..models import Model, default_class, model_class
+from ..models import names as family_names
 from ..models.base import VARIANT_OPTION
 from ..numbers import from_json_float, json_float
 
@@ -180,10 +181,13 @@ class FitResult:
             raise FitError(f"{source}: missing key(s) {', '.join(missing)}; is this a fit "
                            f"result written by veil (veil fit ... -o FILE.json)?")
         name = data["model"]
-        if name not in REGISTRY:
+        if not isinstance(name, str):
+            raise FitError(f"{source}: key 'model' = {name!r}; expected a model name")
+        try:
+            mcls = model_class(name)
+        except InputError:
             raise FitError(f"{source}: key 'model' = {name!r} is not a known model "
-                           f"({', '.join(sorted(REGISTRY))})")
-        mcls = REGISTRY[name]
+                           f"({', '.join(family_names())})") from None
         names = mcls.param_names()
         params = data["params"]
         if not isinstance(params, dict) or list(params) != list(names):
@@ -194,8 +198,9 @@ class FitResult:
             if isinstance(v, bool) or not isinstance(v, (int, float)):
                 raise FitError(f"{source}: params.{k} = {v!r} is not a number")
         variant = data["variant"]
-        known = sorted({str(choice) for family in REGISTRY.values() for o in family.OPTIONS
-                        if o.name == VARIANT_OPTION for choice in o.choices})
+        known = sorted({str(choice) for family in map(model_class, family_names())
+                        for o in family.OPTIONS if o.name == VARIANT_OPTION
+                        for choice in o.choices})
         if variant is not None and variant not in known:
             raise FitError(f"{source}: key 'variant' = {variant!r}; expected one of "
                            f"{', '.join(known)} or null")
@@ -207,7 +212,7 @@ class FitResult:
             raise FitError(f"{source}: key 'options' must be an object; got {options!r}")
         try:
             model = mcls.from_params({k: float(v) for k, v in params.items()}, options)
-        except (ValueError, TypeError) as exc:
+        except InputError as exc:
             raise FitError(f"{source}: {exc}") from None
         given = data.get("given")
         if given is not None:
@@ -225,11 +230,14 @@ class FitResult:
             raise FitError(f"{source}: key 'step' = {step!r}; expected one of "
                            f"{', '.join(STEPS)}, direct or null")
         _check_common(data, source)
+        for key in ("stderr_total", "correlation_total"):
+            if data.get(key) is not None and not isinstance(data[key], dict):
+                raise FitError(f"{source}: key {key!r} must be an object or null")
         return cls(
             model=name, params={k: float(v) for k, v in params.items()},
             stderr={k: from_json_float(stderr.get(k), source) for k in names},
             correlation=_read_matrix(data["correlation"], source),
-            residuals=tuple(from_json_float(r, source) for r in data.get("residuals") or ()),
+            residuals=_read_residuals(data, source),
             chi2_reduced=from_json_float(data["chi2_reduced"], source),
             rms_relative=from_json_float(data["rms_relative"], source),
             n_points=int(data["n_points"]), converged=data["converged"],
@@ -241,7 +249,7 @@ class FitResult:
             {k: from_json_float(data["stderr_total"].get(k), source) for k in names},
             correlation_total=None if data.get("correlation_total") is None else
             _read_matrix(data["correlation_total"], source),
-            stats=data.get("stats") or {}, options=model.options(),
+            stats=_read_stats(data, source), options=model.options(),
             determined=bool(data.get("determined", True)))
 
     @classmethod
@@ -345,6 +353,16 @@ class JointResult(FitResult):
         layout = data["layout"]
         if not isinstance(layout, dict) or not {"objects", "media"} <= set(layout):
             raise FitError(f"{source}: key 'layout' must hold 'objects' and 'media'")
+        for part in ("objects", "media"):
+            entries = layout[part]
+            if not isinstance(entries, dict) or not all(
+                    isinstance(m, dict) and all(isinstance(v, str) for v in m.values())
+                    for m in entries.values()):
+                raise FitError(f"{source}: layout.{part} must map each {part[:-1]} to an "
+                               f"object of parameter names")
+        for part in ("models", "options"):
+            if layout.get(part) is not None and not isinstance(layout[part], dict):
+                raise FitError(f"{source}: layout.{part} must be an object")
         params = data["params"]
         if not isinstance(params, dict):
             raise FitError(f"{source}: key 'params' must map names to numbers")
@@ -358,12 +376,14 @@ class JointResult(FitResult):
             if isinstance(v, bool) or not isinstance(v, (int, float)):
                 raise FitError(f"{source}: params.{k} = {v!r} is not a number")
         _check_common(data, source)
+        if not isinstance(data["stderr"], dict):
+            raise FitError(f"{source}: key 'stderr' must map names to numbers or null")
         try:
             result = cls(
                 model="joint", params={k: float(v) for k, v in params.items()},
                 stderr={k: from_json_float(data["stderr"].get(k), source) for k in params},
                 correlation=_read_matrix(data["correlation"], source),
-                residuals=tuple(from_json_float(r, source) for r in data.get("residuals") or ()),
+                residuals=_read_residuals(data, source),
                 chi2_reduced=from_json_float(data["chi2_reduced"], source),
                 rms_relative=from_json_float(data["rms_relative"], source),
                 n_points=int(data["n_points"]), converged=data["converged"],
@@ -371,14 +391,17 @@ class JointResult(FitResult):
                 fixed={k: float(v) for k, v in (data.get("fixed") or {}).items()},
                 step="joint", weighted=bool(data.get("weighted", True)),
                 accuracy=data.get("accuracy"), given=data.get("given"),
-                stats=data.get("stats") or {}, determined=bool(data.get("determined", True)),
-                layout=layout)
+                stats=_read_stats(data, source),
+                determined=bool(data.get("determined", True)), layout=layout)
             for obj in layout["objects"]:
                 result.brdf(obj)
             for label in layout["media"]:
                 result.medium(label)
-        except (ValueError, TypeError, KeyError, AttributeError) as exc:
+        except InputError as exc:
             raise FitError(f"{source}: {exc}") from None
+        except KeyError as exc:
+            raise FitError(f"{source}: the layout names parameter {exc} that the model "
+                           f"does not have") from None
         return result
 
 
@@ -395,11 +418,13 @@ def model_from_entry(entry, where: str) -> Model:
     """The model of a :func:`model_entry` dict; a FitError naming ``where`` otherwise."""
     if not isinstance(entry, dict) or "model" not in entry or "params" not in entry:
         raise FitError(f"{where}: expected an object with keys 'model' and 'params'")
+    if not isinstance(entry["model"], str) or not isinstance(entry["params"], dict):
+        raise FitError(f"{where}: 'model' must be a name and 'params' an object")
     try:
         cls = model_class(entry["model"])
         options = {k: entry[k] for k in cls.option_names() if k in entry}
         return cls.from_params(entry["params"], options)
-    except (ValueError, TypeError) as exc:
+    except InputError as exc:
         raise FitError(f"{where}: {exc}") from None
 
 
@@ -418,6 +443,20 @@ def _check_common(data: dict, source: str) -> None:
     if not isinstance(data["converged"], bool):
         raise FitError(f"{source}: key 'converged' = {data['converged']!r}; expected "
                        f"true or false")
+
+
+def _read_residuals(data: dict, source: str) -> tuple:
+    res = data.get("residuals") or ()
+    if not isinstance(res, list):
+        raise FitError(f"{source}: key 'residuals' must be a list of numbers")
+    return tuple(from_json_float(r, source) for r in res)
+
+
+def _read_stats(data: dict, source: str) -> dict:
+    stats = data.get("stats") or {}
+    if not isinstance(stats, dict):
+        raise FitError(f"{source}: key 'stats' must be an object")
+    return stats
 
 
 def _json_matrix(rows: dict) -> dict:

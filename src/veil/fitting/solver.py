@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import least_squares
 
-from ..errors import FitError
+from ..errors import FitError, InputError
 from . import coordinates
 from .problem import ITERATION_ACCURACY, Problem
 
@@ -73,7 +73,7 @@ def check_fixed(name: str, value, param, owner: str) -> None:
         raise FitError(f"fixed {name} = {value!r} is not a number")
     try:
         param.check(float(value), owner)
-    except (ValueError, TypeError) as exc:
+    except InputError as exc:
         raise FitError(f"fixed {exc}") from None
 
 
@@ -248,9 +248,10 @@ def _equilibrated_svd(jw: np.ndarray):
     return scale, s, vt
 
 
-def covariance(problem: Problem, x, accuracy: str = ITERATION_ACCURACY):
+def covariance(problem: Problem, x, accuracy: str = ITERATION_ACCURACY, values=None):
     """Covariance (natural units) of the free parameters at ``x`` (module docstring); None
-    when the Jacobian is singular."""
+    when the Jacobian is singular. Unweighted data scale it by the reduced chi-square of
+    ``values`` (the reported model values; by default the model at ``accuracy``)."""
     found = _equilibrated_svd(weighted_jacobian(problem, x, accuracy))
     if found is None:
         return None
@@ -259,7 +260,7 @@ def covariance(problem: Problem, x, accuracy: str = ITERATION_ACCURACY):
         return None
     cov = ((vt.T / s ** 2) @ vt) / np.outer(scale, scale)
     if not problem.weighted:
-        val = problem.model_values(x, accuracy)
+        val = problem.model_values(x, accuracy) if values is None else values
         res = (problem.y - val) * problem.w
         cov = cov * float(res @ res) / max(problem.n_points - problem.n_free, 1)
     return cov
@@ -300,7 +301,9 @@ def uncertainties(cov, names, free):
 
 @dataclass
 class Summary:
-    """Goodness of fit and uncertainties of an :class:`Outcome` (names: the problem's)."""
+    """Goodness of fit and uncertainties of an :class:`Outcome` (names: the problem's).
+    ``undetermined`` names the free parameters the data cannot determine (empty when they
+    can); their uncertainties are then None."""
 
     residuals: np.ndarray
     chi2_reduced: float
@@ -317,35 +320,37 @@ class Summary:
 def summarize(problem: Problem, outcome: Outcome, extra_notes=()) -> Summary:
     """The statistics and the message of a solution (module docstring). A fit whose data
     cannot determine its parameters - no positive value, a singular Jacobian, a scale at
-    the floor of its search range - is "not determined" and never reads "converged"."""
+    the floor of its search range - is "not determined", never reads "converged", and
+    reports no uncertainties."""
     sol = outcome.solution
     res, chi2, rms_rel = goodness(problem.y, problem.w, outcome.values, problem.n_free)
+    cov = covariance(problem, sol.x, values=outcome.values)
+    why, which = _undetermined(problem, sol, cov)
     notes = list(outcome.notes) + list(extra_notes)
-    if sol.at_bound:
-        notes.append(f"{', '.join(sol.at_bound)} at the edge of the search range "
+    edge = [n for n in sol.at_bound if n not in which]
+    if edge:
+        notes.append(f"{', '.join(edge)} at the edge of the search range "
                      f"(uncertainty unreliable)")
-    cov = covariance(problem, sol.x)
     stderr, corr = {n: None for n in problem.names}, {}
-    if cov is None:
+    if why:
+        cov = None
+    elif cov is None:
         notes.append(SINGULAR_NOTE)
     else:
         stderr, corr = uncertainties(cov, problem.names, problem.free_index)
-    why = _undetermined(problem, sol, cov)
     converged = sol.status > 0 and not why
     message = sol.message if not notes else sol.message + "; " + "; ".join(notes)
     if why:
         message = "not determined: " + "; ".join(why) + "; " + message
     elif not converged:
         message = "did not converge: " + message
-    undetermined = sorted({n for reason in why for n in problem.free_names if n in reason},
-                          key=problem.free_names.index)
-    return Summary(res, chi2, rms_rel, cov, stderr, corr, converged, message, not why,
-                   undetermined)
+    return Summary(res, chi2, rms_rel, cov, stderr, corr, converged, message, not why, which)
 
 
-def _undetermined(problem: Problem, sol: Solution, cov) -> list[str]:
-    """Reasons why the data cannot determine the fit (empty when they can)."""
-    why = []
+def _undetermined(problem: Problem, sol: Solution, cov) -> tuple[list[str], list[str]]:
+    """(reasons why the data cannot determine the fit, the free parameters concerned); both
+    empty when they can."""
+    why, which = [], []
     for b, sl in zip(problem.blocks, problem.slices()):
         y = problem.y[sl]
         if not np.any(y > 0):
@@ -353,15 +358,20 @@ def _undetermined(problem: Problem, sol: Solution, cov) -> list[str]:
                        f"{'zero' if np.all(y == 0) else 'zero or negative'}"
                        f"{' after black-cloth subtraction' if b.medium is not None else ''}): "
                        f"it carries no signal to fit {', '.join(problem.free_names)}")
+            which += problem.free_names
     if cov is None:
-        which = undetermined_parameters(problem, sol.x)
-        why.append(f"the data do not constrain {', '.join(which) or 'a combination of the free parameters'} "
-                   f"(Jacobian of rank below the {problem.n_free} free parameters)")
+        found = undetermined_parameters(problem, sol.x)
+        why.append(f"the data do not constrain "
+                   f"{', '.join(found) or 'a combination of the free parameters'} (the "
+                   f"Jacobian's rank is below the {problem.n_free} free parameters, so their "
+                   f"uncertainties are not determined)")
+        which += found
     floor = [n for n in sol.at_lower if problem.params[problem.index(n)].scale]
     if floor:
         why.append(f"{', '.join(floor)} at the floor of the search range (the data ask for "
                    f"a vanishing scale)")
-    return why
+        which += floor
+    return why, [n for n in problem.free_names if n in which]
 
 
 __all__ = ["TOL_ITER", "TOL_POLISH", "TOL_FINAL", "CONVINCING", "SINGULAR_NOTE",

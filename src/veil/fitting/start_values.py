@@ -274,9 +274,13 @@ class _GridEngines:
 
 
 def _unit(model, v) -> np.ndarray:
+    """``v`` with the model's scales (and gain) at 1: the term matrices do not depend on
+    them."""
     v = np.array(v, dtype=float)
-    for name in type(model).scale_names():
-        v[type(model).index(name)] = 1.0
+    cls = type(model)
+    for name in cls.scale_names() + ((getattr(cls, "GAIN", None),) if getattr(cls, "GAIN", None)
+                                     else ()):
+        v[cls.index(name)] = 1.0
     return v
 
 
@@ -302,14 +306,20 @@ def joint_starts(problem: Problem, layout: dict, start: dict | None, count: int,
     if layout.get("reference_given"):
         known_objects.add("reference")
     for key, model in dict(start or {}).items():
-        names = objects.get(key) or media.get(key)
-        if names is None:
+        kind = "brdf" if key in objects else "medium" if key in media else None
+        if kind is None:
             raise FitError(f"start: {key!r} is neither an object ({', '.join(objects)}) nor a "
                            f"medium ({', '.join(media)}) of the joint fit")
-        for p, v in model.as_dict().items():
-            if p in names:
-                set_(names[p], v)
-        (known_objects if key in objects else known_media).add(key)
+        block = next(b for b in blocks if (b.session.object == key if kind == "brdf"
+                                           else b.session.medium == key))
+        family = type(block.brdf if kind == "brdf" else block.medium)
+        if type(model) is not family:
+            raise FitError(f"start[{key!r}] is a {model.NAME} model; the joint fit's "
+                           f"{'objects' if kind == 'brdf' else 'media'} are {family.NAME}")
+        names = (objects if kind == "brdf" else media)[key]
+        for p in family.PARAMS:
+            set_(names[p.key], getattr(model, p.name))
+        (known_objects if kind == "brdf" else known_media).add(key)
     # objects with a clear session: f_r directly (step 0)
     for obj, names in objects.items():
         if obj in known_objects:

@@ -22,7 +22,7 @@ import numpy as np
 
 from ..engine.evaluator import ApparentModel, DirectModel
 from ..engine.quadrature import RULES
-from ..errors import FitError
+from ..errors import FitError, InputError
 from ..models import Model, default_class, model_class
 from ..models.base import VARIANT_OPTION
 from .data import FitData, prepare
@@ -48,7 +48,7 @@ def _template(cls, options: dict) -> Model:
     """The family's model at its starting values with ``options`` (a FitError otherwise)."""
     try:
         return cls.template(**options)
-    except (ValueError, TypeError) as exc:
+    except InputError as exc:
         raise FitError(str(exc)) from None
 
 
@@ -72,12 +72,27 @@ def _fixed_slots(problem: Problem, cls, fixed: dict, what: str) -> dict:
     return out
 
 
+def _freed(cls, free, what: str) -> set:
+    """Names of held parameters (``Param.held``) that ``free`` asks to fit."""
+    free = set(free or ())
+    unknown = [n for n in free if n not in cls.param_names()]
+    if unknown:
+        raise FitError(f"cannot free {', '.join(map(repr, unknown))} in the {what} fit: "
+                       f"{cls.NAME} has parameters {', '.join(cls.param_names())}")
+    return free
+
+
 def _step(step: str, data: FitData, fitted: Model, given: Model | None, given_result,
-          fixed: dict, accuracy: str, max_nfev, progress) -> FitResult:
-    """One step: the ``fitted`` model's parameters free (but ``fixed``), ``given`` held."""
+          fixed: dict, accuracy: str, max_nfev, progress, freed=()) -> FitResult:
+    """One step: the ``fitted`` model's parameters free (but ``fixed``, and the held ones not
+    ``freed``), ``given`` held."""
     cls = type(fitted)
     brdf, medium = (given, fitted) if cls.KIND == "medium" else (fitted, given)
-    free = [p.key for p in cls.PARAMS if p.name not in fixed]
+    clash = [n for n in freed if n in fixed]
+    if clash:
+        raise FitError(f"{', '.join(clash)} both fixed and freed")
+    free = [p.key for p in cls.PARAMS
+            if p.name not in fixed and (not p.held or p.name in freed)]
     what = {"reference": "reference (clear medium)", "direct": "target (clear medium)",
             "medium": "medium", "target": "target"}[step]
     if not free:
@@ -122,7 +137,9 @@ def _step(step: str, data: FitData, fitted: Model, given: Model | None, given_re
                      residuals=tuple(float(r) for r in summary.residuals),
                      chi2_reduced=summary.chi2_reduced, rms_relative=summary.rms_relative,
                      n_points=data.size, converged=summary.converged, message=summary.message,
-                     variant=variant, fixed={n: float(fixed[n]) for n in names if n in fixed},
+                     variant=variant,
+                     fixed={n: float(x[problem.index(cls.param(n).key)]) for n in names
+                            if cls.param(n).key not in free},
                      step=step, weighted=data.sigma is not None, accuracy=outcome.accuracy,
                      given=None if given is None else model_entry(given),
                      stderr_total=stderr_total, correlation_total=corr_total, stats=stats,
@@ -148,7 +165,7 @@ def _propagated(problem: Problem, x, cov, given_result: FitResult, given_cls):
 # the steps
 # --------------------------------------------------------------------------------------
 def fit_reference(table, *, fixed=None, black=None, max_nfev=None, progress=None,
-                  brdf_model=None, options=None) -> FitResult:
+                  brdf_model=None, options=None, free=None) -> FitResult:
     """Step 0 (MODEL.md sec. 7): fit the reference's f_r to clear-medium data, directly.
 
     table : measurement table (DataFrame or CSV path, docs/measurements.md).
@@ -158,13 +175,14 @@ def fit_reference(table, *, fixed=None, black=None, max_nfev=None, progress=None
     progress : called as progress(stage, done, total) while fitting.
     brdf_model, options : the BRDF family (a registered name; default the paper's
         Torrance-Sparrow) and its options.
+    free : names of parameters the family holds by default (``Param.held``) to fit too.
     """
     return fit_direct(table, fixed=fixed, black=black, max_nfev=max_nfev, progress=progress,
-                      step="reference", brdf_model=brdf_model, options=options)
+                      step="reference", brdf_model=brdf_model, options=options, free=free)
 
 
 def fit_direct(table, *, fixed=None, black=None, max_nfev=None, progress=None,
-               step: str = "direct", brdf_model=None, options=None) -> FitResult:
+               step: str = "direct", brdf_model=None, options=None, free=None) -> FitResult:
     """f_r fitted to clear-medium data (MODEL.md sec. 2); ``step`` labels the result
     ("reference" for step 0, "direct" for a target measured without the medium)."""
     check_max_nfev(max_nfev)
@@ -175,12 +193,12 @@ def fit_direct(table, *, fixed=None, black=None, max_nfev=None, progress=None,
     what = "reference" if step == "reference" else "target"
     data = prepare(table, black, f"{what} (clear medium)")
     return _step(step, data, fitted, None, None, as_fixed(fixed), ITERATION_ACCURACY,
-                 max_nfev, progress)
+                 max_nfev, progress, _freed(cls, free, what))
 
 
 def fit_medium(table, reference, *, fixed=None, black=None, variant: str | None = None,
                accuracy: str = "default", max_nfev=None, progress=None, medium_model=None,
-               options=None) -> FitResult:
+               options=None, free=None) -> FitResult:
     """Step 1 (MODEL.md sec. 7): fit the medium, the reference's f_r fixed.
 
     table : the reference object measured in the medium (DataFrame or CSV path).
@@ -188,6 +206,8 @@ def fit_medium(table, reference, *, fixed=None, black=None, variant: str | None 
     medium_model, options : the medium family (default the paper's Henyey-Greenstein
         medium) and its options; ``variant`` is the shortcut for the Fresnel variant
         ("paper" or "exit", MODEL.md sec. 3).
+    free : names of parameters the family holds by default to fit too (the physical
+        medium's intensity factor ``s``).
     accuracy : quadrature of the reported result ("fast", "default", "high"); iterations
         run at "fast" and are polished at this accuracy.
     Other arguments as :func:`fit_reference`.
@@ -200,12 +220,12 @@ def fit_medium(table, reference, *, fixed=None, black=None, variant: str | None 
     data = prepare(table, black, "reference (in the medium)")
     return _step("medium", data, fitted, brdf,
                  reference if isinstance(reference, FitResult) else None, as_fixed(fixed),
-                 accuracy, max_nfev, progress)
+                 accuracy, max_nfev, progress, _freed(cls, free, "medium"))
 
 
 def fit_target(table, medium, *, fixed=None, black=None, variant: str | None = None,
                accuracy: str = "default", max_nfev=None, progress=None, brdf_model=None,
-               options=None) -> FitResult:
+               options=None, free=None) -> FitResult:
     """Step 2 (MODEL.md sec. 7): fit the target's f_r, the medium fixed.
 
     table : the target object measured in the medium (DataFrame or CSV path).
@@ -223,7 +243,7 @@ def fit_target(table, medium, *, fixed=None, black=None, variant: str | None = N
     data = prepare(table, black, "target (in the medium)")
     return _step("target", data, fitted, model_m,
                  medium if isinstance(medium, FitResult) else None, as_fixed(fixed),
-                 accuracy, max_nfev, progress)
+                 accuracy, max_nfev, progress, _freed(cls, free, "target"))
 
 
 def model_values(result_or_model, other, angles, accuracy: str = "default") -> np.ndarray:

@@ -56,6 +56,7 @@ class Param:
         medium unless declared shared.
     error_scale : a relative uncertainty is stderr / |value| ("value") or stderr / the
         distance to the nearer bound ("bound": g's lobe width scales with 1 - |g|).
+    held : fits hold it at ``start`` unless asked to free it (``free=``, ``--free``).
     """
 
     name: str
@@ -70,6 +71,7 @@ class Param:
     alias: str | None = None
     share: str | None = None
     error_scale: str = "value"
+    held: bool = False
 
     def __post_init__(self) -> None:
         if self.share not in SHARING:
@@ -231,12 +233,6 @@ class Model:
         """How a literal parameter list is written, e.g. ``PD,PS,N,ETA``."""
         return ",".join(n.upper() for n in cls.param_names())
 
-    @classmethod
-    def describe(cls) -> list[tuple[str, str, str, str]]:
-        """(name, bounds, unit, meaning) of each parameter, for listings."""
-        return [(p.name + (f" ({p.alias})" if p.alias else ""), p.interval(), p.unit, p.doc)
-                for p in cls.PARAMS]
-
     # -- an instance -----------------------------------------------------------------------
     def shape_values(self) -> dict:
         """The parameters that tell two models of the family apart in a legend: neither
@@ -371,6 +367,8 @@ class Medium(Model):
     KIND = "medium"
     COMPONENTS: ClassVar[tuple[str, ...]] = ("iso", "lobe")
     GAIN: ClassVar[str | None] = None
+    #: Relative accuracy of the phase functions when they are tabulated (0: closed forms).
+    TABLE_ACCURACY: ClassVar[float] = 0.0
 
     @classmethod
     def has(cls, component: str) -> bool:
@@ -400,15 +398,21 @@ class Medium(Model):
         raise NotImplementedError
 
     @staticmethod
-    def phase(v, one_minus_mu):  # pragma: no cover - interface
+    def prepare(v):
+        """Tables the lobe needs at parameter vector ``v``, computed once per engine call and
+        passed to the phase functions as ``aux``; None by default."""
+        return None
+
+    @staticmethod
+    def phase(v, one_minus_mu, aux=None):  # pragma: no cover - interface
         raise NotImplementedError
 
     @staticmethod
-    def phase_cone_fraction(v, one_minus_mu):  # pragma: no cover - interface
+    def phase_cone_fraction(v, one_minus_mu, aux=None):  # pragma: no cover - interface
         raise NotImplementedError
 
     @staticmethod
-    def phase_inverse_cone_fraction(v, frac):  # pragma: no cover - interface
+    def phase_inverse_cone_fraction(v, frac, aux=None):  # pragma: no cover - interface
         raise NotImplementedError
 
     #: Whether ``view_weight`` weights the view-side lobe (a static property of the options).

@@ -68,13 +68,13 @@ class HenyeyGreenstein(Medium):
         return fresnel.transmittance(cos_b, v[3])
 
     @staticmethod
-    def phase(v, one_minus_mu):
+    def phase(v, one_minus_mu, aux=None):
         return phase.hg_pdf(v[2], one_minus_mu)
 
     @staticmethod
-    def phase_cone_fraction(v, one_minus_mu):
+    def phase_cone_fraction(v, one_minus_mu, aux=None):
         return phase.hg_cone_fraction(v[2], one_minus_mu)
 
     @staticmethod
-    def phase_inverse_cone_fraction(v, frac):
+    def phase_inverse_cone_fraction(v, frac, aux=None):
         return phase.hg_inverse_cone_fraction(v[2], frac)

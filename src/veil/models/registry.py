@@ -16,6 +16,7 @@ import os
 
 from ..errors import InputError, InputTypeError
 from .base import KINDS, ROLES, Model
+from .forward_series import ForwardSeries
 from .henyey_greenstein import HenyeyGreenstein
 from .torrance_sparrow import TorranceSparrow
 
@@ -23,6 +24,7 @@ from .torrance_sparrow import TorranceSparrow
 FAMILIES = (
     TorranceSparrow,
     HenyeyGreenstein,
+    ForwardSeries,
 )
 #: The paper's models: the default family of each kind.
 DEFAULTS = {"brdf": TorranceSparrow.NAME, "medium": HenyeyGreenstein.NAME}
@@ -66,9 +68,46 @@ def register(cls: type[Model]) -> type[Model]:
         if p.start is None or not p.contains(p.start):
             raise ValueError(f"{cls.__name__}: parameter {p.name} needs a start value inside "
                              f"{p.interval()}")
+    missing = [m for m in _interface(cls) if _abstract(cls, m)]
+    if missing:
+        raise ValueError(f"{cls.__name__} declares {cls.KIND} parts whose functions it does not "
+                         f"define: {', '.join(missing)}")
     cls.template()  # the declared options and starting values make a valid model
     REGISTRY[name] = cls
     return cls
+
+
+def _interface(cls) -> list[str]:
+    """The functions the engine calls for what the family declares."""
+    if cls.KIND == "brdf":
+        needed = ["prepare", "separable"]
+        if cls.HAS_LOBE:
+            needed += ["lobe", "facet_cdf", "facet_inverse_cdf", "facet_weight"]
+        return needed
+    needed = ["factor_first", "factor_second", "prepare"]
+    for comp, fn in (("delta", "delta_weight"), ("iso", "iso"), ("lobe", "lobe_weight")):
+        if comp in cls.COMPONENTS:
+            needed.append(fn)
+    if "lobe" in cls.COMPONENTS:
+        needed += ["phase", "phase_cone_fraction", "phase_inverse_cone_fraction"]
+    bad = [c for c in cls.COMPONENTS if c not in ("delta", "iso", "lobe")]
+    if bad or list(cls.COMPONENTS) != sorted(cls.COMPONENTS, key=("delta", "iso", "lobe").index):
+        raise ValueError(f"{cls.__name__}.COMPONENTS = {cls.COMPONENTS!r}: expected some of "
+                         f"delta, iso, lobe in that order")
+    return needed
+
+
+def _abstract(cls, name: str) -> bool:
+    """Whether ``name`` is still the interface's stub (raises NotImplementedError)."""
+    from .base import BRDF, Medium
+
+    base = BRDF if cls.KIND == "brdf" else Medium
+    own = getattr(cls, name)
+    stub = base.__dict__.get(name)
+    if stub is None:
+        return False
+    target = stub.__func__ if isinstance(stub, staticmethod) else stub
+    return getattr(own, "__func__", own) is target and name not in ("prepare",)
 
 
 for _cls in FAMILIES:
@@ -87,14 +126,19 @@ def _load_plugins() -> None:
     for module in filter(None, (m.strip() for m in os.environ.get("VEIL_PLUGINS", "").split(","))):
         try:
             importlib.import_module(module)
-        except ImportError as exc:
+        except Exception as exc:  # noqa: BLE001 - any failure of a plugin is the plugin's
             _plugin_error = InputError(f"VEIL_PLUGINS names module {module!r}, which cannot be "
-                                       f"imported ({exc})")
+                                       f"imported ({type(exc).__name__}: {exc})")
             raise _plugin_error from None
     from importlib.metadata import entry_points
 
     for ep in entry_points(group="veil.models"):
-        ep.load()
+        try:
+            ep.load()
+        except Exception as exc:  # noqa: BLE001
+            _plugin_error = InputError(f"the veil.models entry point {ep.name!r} ({ep.value}) "
+                                       f"cannot be loaded ({type(exc).__name__}: {exc})")
+            raise _plugin_error from None
 
 
 def names(kind: str | None = None) -> list[str]:

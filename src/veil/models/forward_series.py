@@ -1,0 +1,197 @@
+"""The physical medium ``forward-series`` (MODEL.md sec. 8.1): the unscattered beam plus the
+orders of forward scattering along one pass of optical depth tau,
+
+    f_t(I, T) = e^{-tau} [ delta(I, T) + sum_{k>=1} (omega tau)^k / k! p(g^k; I.T) ] a(I) b(T),
+
+p the Henyey-Greenstein phase function (sec. 3), a and b the Fresnel factors of sec. 3 at the
+boundary index eta_u (eta_u = 1: no boundary). The k-fold spherical convolution of p(g) is
+p(g^k) (its Legendre moments are g^l), so the series is exact for forward scattering along a
+path of fixed optical depth when the path-length differences of scattered light are
+neglected (docs/physics.md sec. 4).
+
+The engine sees two components: the delta with weight e^{-tau}, and the scattered lobe with
+weight e^{-tau} (e^{omega tau} - 1) and the normalized phase function
+sum_k c_k p(g^k), c_k = (omega tau)^k / k! / (e^{omega tau} - 1), summed over ORDERS orders
+(the weight left beyond them is below 1e-6 of the lobe's for tau up to the bound). Its cone
+fraction is tabulated once per engine call with its exact slopes and read by cubic Hermite
+interpolation; the density is the interpolant's derivative, so that the engine's sampling
+and weights are consistent (veil.models.phase, mixture_*).
+
+Set-up geometry (options, from the apparatus, not fitted; one length unit): with the path
+length R_c of one pass (``path_length``) and the plate's width 2a (``plate_width``) the
+scattered light on the view side is weighted by J_v(R', R) = (1 - e^{-beta S})/(beta R_c),
+beta = sigma_t (mu_R/mu_R' - 1), sigma_t = tau/R_c, S = min(R_c, a / max(|v_x|, |v_y|)),
+v = R - (mu_R/mu_R') R': the fraction of the scattering depths along the camera's ray whose
+light left the plate (exact for single scattering, docs/physics.md sec. 5). Without a plate
+width the plate is infinite (S = R_c); without a path length J_v = 1 (the series alone).
+
+An overall intensity factor s (held at 1 unless a fit frees it) covers medium sessions whose
+exposure differs from the clear-water session's.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from .._jax import jnp
+from . import fresnel, phase
+from .base import Medium, Option, Param
+
+VARIANTS = ("paper", "exit")
+#: Orders of scattering summed; with tau <= TAU_MAX the weight beyond them is below 1e-6 of
+#: the scattered lobe's.
+ORDERS = 14
+TAU_MAX = 3.0
+
+
+def _mixture(v):
+    """(c_k, g^k) of the normalized scattered lobe, k = 1..ORDERS: c_k = x^k / k! / (e^x - 1)
+    with x = omega tau, written as x^(k-1)/k! (a running product) times x / (e^x - 1), so
+    that x = 0 gives the single-scattering lobe exactly."""
+    tau, omega, g = v[0], v[1], v[2]
+    x = omega * tau
+    k = jnp.arange(1, ORDERS + 1, dtype=float)
+    s = jnp.cumprod(jnp.concatenate([jnp.ones(1), x / k[1:]]))
+    r = jnp.where(x > 1e-300, x / jnp.expm1(jnp.where(x > 1e-300, x, 1.0)), 1.0)
+    return s * r, jnp.cumprod(jnp.full(ORDERS, g))
+
+
+@dataclass(frozen=True)
+class ForwardSeries(Medium):
+    """Medium (tau, omega, g, eta_u, s): the unscattered beam plus the orders of forward
+    scattering (module docstring).
+
+    tau      optical depth of one pass through the medium
+    omega    single-scattering albedo
+    g        Henyey-Greenstein asymmetry of one scattering event
+    eta_u    index of the medium's boundary (1: no boundary, no Fresnel factors; held at 1
+             unless a fit frees it: f_t is not differentiable in eta_u at 1, where total
+             internal reflection sets in on one side)
+    s        overall intensity factor (held at 1 unless freed)
+    variant  Fresnel factors as the paper's medium ("paper" or "exit", MODEL.md sec. 3)
+    path_length, plate_width  set-up geometry in one length unit (0: not given)
+    """
+
+    tau: float
+    omega: float
+    g: float
+    eta_u: float = 1.0
+    s: float = 1.0
+    variant: str = "paper"
+    path_length: float = 0.0
+    plate_width: float = 0.0
+
+    NAME = "forward-series"
+    LABEL = "unscattered beam + orders of forward scattering, physical (MODEL.md sec. 8.1)"
+    COMPONENTS = ("delta", "lobe")
+    GAIN = "s"
+    TABLE_ACCURACY = 1e-5
+    PARAMS = (
+        Param("tau", 0.0, TAU_MAX, "optical depth of one pass through the medium", start=0.5,
+              share="per-medium"),
+        Param("omega", 0.0, 1.0, "single-scattering albedo", start=0.99, share="shared"),
+        Param("g", -1.0, 1.0, "Henyey-Greenstein asymmetry of one scattering event",
+              lower_open=True, upper_open=True, start=0.9, share="per-medium",
+              error_scale="bound"),
+        Param("eta_u", 0.0, 10.0, "index of the medium's boundary (1: none; held at 1 "
+              "unless freed: an index-matched set-up has none)", lower_open=True, start=1.0,
+              share="shared", held=True),
+        Param("s", 0.0, math.inf, "overall intensity factor (exposure)", log_scale=True,
+              start=1.0, held=True),
+    )
+    OPTIONS = (
+        Option("variant", "paper", "Fresnel factor: paper = F_t(theta_in)^2, exit = "
+               "F_t(theta_in) F_t(theta_out) (MODEL.md sec. 3)", VARIANTS),
+        Option("path_length", 0.0, "path length of one pass, R_c (0: not given; then J_v = 1)"),
+        Option("plate_width", 0.0, "width 2a of the square plate in the unit of path_length "
+               "(0: infinite)"),
+    )
+    START = {"medium": {"tau": (0.05, 0.15, 0.3, 0.5, 0.8, 1.2, 1.8),
+                        "g": (0.8, 0.88, 0.93, 0.96, 0.98),
+                        "omega": (0.99,), "eta_u": (1.33,)}}
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        for name in ("path_length", "plate_width"):
+            value = getattr(self, name)
+            if isinstance(value, int) and not isinstance(value, bool):
+                object.__setattr__(self, name, float(value))
+            if not math.isfinite(getattr(self, name)) or getattr(self, name) < 0:
+                from ..errors import ParameterError
+
+                raise ParameterError(f"ForwardSeries.{name} = {value!r}: expected a length "
+                                     f">= 0 (0: not given)")
+        if self.plate_width > 0 and self.path_length <= 0:
+            from ..errors import ParameterError
+
+            raise ParameterError("ForwardSeries.plate_width needs path_length: the plate's "
+                                 "weighting compares its width with the path length")
+
+    # -- components ----------------------------------------------------------------------
+    @staticmethod
+    def delta_weight(v):
+        return jnp.exp(-v[0])
+
+    @staticmethod
+    def lobe_weight(v):
+        return jnp.exp(-v[0]) * jnp.expm1(v[1] * v[0])
+
+    def factor_first(self, v, cos_a):
+        t = fresnel.transmittance(cos_a, v[3])
+        return t * t if self.variant == "paper" else t
+
+    def factor_second(self, v, cos_b):
+        if self.variant == "paper":
+            return 1.0 + 0.0 * cos_b
+        return fresnel.transmittance(cos_b, v[3])
+
+    # -- the normalized scattered lobe, tabulated once per engine call --------------------
+    @staticmethod
+    def prepare(v):
+        return phase.mixture_table(*_mixture(v))
+
+    @staticmethod
+    def phase(v, one_minus_mu, aux=None):
+        return phase.mixture_pdf(ForwardSeries.prepare(v) if aux is None else aux, one_minus_mu)
+
+    @staticmethod
+    def phase_cone_fraction(v, one_minus_mu, aux=None):
+        return phase.mixture_cone_fraction(ForwardSeries.prepare(v) if aux is None else aux,
+                                           one_minus_mu)
+
+    @staticmethod
+    def phase_inverse_cone_fraction(v, frac, aux=None):
+        return phase.mixture_inverse_cone_fraction(
+            ForwardSeries.prepare(v) if aux is None else aux, frac)
+
+    # -- the finite plate ----------------------------------------------------------------
+    def has_view_weight(self) -> bool:
+        return self.path_length > 0
+
+    def view_weight(self, v, r_prime, r):
+        """J_v(R', R) (module docstring); 1 without a path length."""
+        if not self.has_view_weight():
+            return 1.0 + 0.0 * r_prime[..., 2]
+        rc = self.path_length
+        sigma_t = v[0] / rc
+        mu_p = jnp.maximum(r_prime[..., 2], 1e-12)
+        ratio = r[2] / mu_p
+        beta = sigma_t * (ratio - 1.0)
+        if self.plate_width > 0:
+            a = 0.5 * self.plate_width
+            vx = r[0] - ratio * r_prime[..., 0]
+            vy = r[1] - ratio * r_prime[..., 1]
+            m = jnp.maximum(jnp.abs(vx), jnp.abs(vy))
+            depth = jnp.minimum(rc, a / jnp.maximum(m, a / rc))
+        else:
+            depth = rc + 0.0 * beta
+        x = beta * depth
+        small = jnp.abs(x) < 1e-6
+        xs = jnp.where(small, 1.0, x)
+        frac = jnp.where(small, 1.0 - 0.5 * x + x * x / 6.0, -jnp.expm1(-xs) / xs)
+        return depth / rc * frac
+
+    def concentrated(self, factor: float) -> "ForwardSeries":
+        """More or less of the scattering substance: the optical depth times ``factor``."""
+        return self.replace(tau=self.tau * factor)
