@@ -29,7 +29,7 @@ import pandas as pd
 
 from ..errors import (InputError, InputTypeError, MeasurementError, MissingFileError,
                       NotAFileError)
-from ..io import write_bytes_atomic
+from ..io import write_text_atomic
 from ..engine.angles import direction, from_goniometer, from_signed_inplane, to_goniometer, to_signed_inplane
 
 #: Angle columns, in the order :func:`canonical_angles` writes them.
@@ -512,11 +512,8 @@ def save_measurements(table: pd.DataFrame, path) -> None:
 
 
 def atomic_write_text(path, text: str) -> None:
-    """Write ``text`` (UTF-8) to ``path`` through a temporary file in the same directory."""
-    path = Path(path)
-    if path.is_dir():
-        raise NotAFileError(f"cannot write {path}: it is a directory")
-    write_bytes_atomic(path, text.encode("utf-8"))
+    """Write ``text`` (UTF-8) to ``path`` atomically: :func:`veil.io.write_text_atomic`."""
+    write_text_atomic(path, text)
 
 
 # --------------------------------------------------------------------------------------
