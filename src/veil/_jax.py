@@ -20,6 +20,35 @@ import sys
 import tempfile
 import warnings
 
+
+def _started_as_command_line() -> bool:
+    """Whether this process is the ``veil`` console script (its main file is named veil)."""
+    main_file = getattr(sys.modules.get("__main__"), "__file__", None) or ""
+    name = os.path.basename(main_file).lower()
+    return name in ("veil", "veil.exe", "veil-script.py")
+
+
+def _guard_start_up() -> None:
+    """Ctrl-C or SIGTERM while the command line imports veil and JAX (2-3 s; nothing has
+    been written yet): exit at once with status 130 or 143 and one line, instead of a
+    traceback, or a KeyboardInterrupt lost in a garbage-collection callback. The command
+    line's :mod:`veil.cli.interrupts` replaces these handlers when it starts."""
+    import signal
+
+    what = {signal.SIGINT: "interrupted (Ctrl-C)", signal.SIGTERM: "terminated (SIGTERM)"}
+
+    def stop(signum, frame):
+        os.write(2, f"veil: {what[signum]} while starting; nothing was written.\n".encode())
+        os._exit(128 + signum)
+
+    for s in what:
+        if signal.getsignal(s) is not signal.SIG_IGN:
+            signal.signal(s, stop)
+
+
+if _started_as_command_line() and "veil.cli.interrupts" not in sys.modules:
+    _guard_start_up()
+
 if "jax" not in sys.modules:
     _flags = os.environ.get("XLA_FLAGS", "")
     if "xla_force_host_platform_device_count" not in _flags:
