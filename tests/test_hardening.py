@@ -361,3 +361,163 @@ def test_interrupt_while_an_output_folder_is_written(tmp_path, sig, status):
     line = _one_line(err)
     assert "nothing was written" in line and "as the earlier run left it" in line
     assert tree(out) == {"f0.txt": b"old"} and not leftovers(tmp_path)
+
+
+# --------------------------------------------------------------------------------------
+# item 5: no NaN or inf leaves veil
+# --------------------------------------------------------------------------------------
+from hypothesis import HealthCheck, given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+GRAZING = 90.0 - 1e-9
+N_CONFIGS = 8  # one shape, so the engine compiles once per code path (in-plane or not)
+
+
+def _box(lo, hi, *, open_lo=False, open_hi=False, extremes=()):
+    """Floats over a parameter's whole interval, with its extreme values tried first."""
+    return st.one_of(st.sampled_from(extremes), st.floats(lo, hi, exclude_min=open_lo,
+                                                          exclude_max=open_hi)) \
+        if extremes else st.floats(lo, hi, exclude_min=open_lo, exclude_max=open_hi)
+
+
+ONE = 1.0 - 2.0 ** -53  # the largest float below 1
+SCALE = _box(0.0, 1e300, extremes=(0.0, 1e-300, 1.0, 1e300))
+BRDF_BOX = st.tuples(SCALE, SCALE, _box(0.0, 50.0, open_lo=True, extremes=(1e-300, 1e-3, 50.0)),
+                     _box(0.0, 10.0, open_lo=True, extremes=(1e-300, 1.0, 10.0)))
+BTDF_BOX = st.tuples(SCALE, SCALE, _box(-1.0, 1.0, open_lo=True, open_hi=True,
+                                        extremes=(-ONE, -0.999999999, 0.0, 0.999999999, ONE)),
+                     _box(0.0, 10.0, open_lo=True, extremes=(1e-300, 1.0, 10.0)))
+POLAR = _box(0.0, GRAZING, extremes=(0.0, 89.9999999, GRAZING))
+ANGLES = st.lists(st.tuples(POLAR, POLAR, st.floats(0.0, 360.0)), min_size=N_CONFIGS,
+                  max_size=N_CONFIGS)
+
+
+@settings(max_examples=40, deadline=None, derandomize=True,
+          suppress_health_check=[HealthCheck.too_slow])
+@given(BRDF_BOX, BTDF_BOX, ANGLES, st.sampled_from(["paper", "exit"]))
+def test_apparent_is_finite_over_the_whole_parameter_box(brdf, medium, angles, variant):
+    """Both paper models over their whole parameter box (scale coefficients up to 1e300),
+    angles up to 90 deg - 1e-9, in the plane of incidence and out of it: the value, the
+    clear f_r and the error estimate are finite and >= 0; or, when the result is beyond
+    float64, an InputError names the scale parameters; or, for a smoothness n so small
+    that the facet law underflows, an InputError says so."""
+    b = veil.TorranceSparrow(*brdf)
+    m = veil.HenyeyGreenstein(*medium, variant=variant)
+    ti, tr, dphi = (np.array(a) for a in zip(*angles))
+    for phi_r in (0.0 * dphi, dphi):  # in-plane (the integrator's half grids), and not
+        try:
+            value, error = veil.apparent(b, m, ti, tr, 180.0, phi_r, accuracy="fast",
+                                         return_error=True)
+            clear = veil.reflectance(b, ti, tr, 180.0, phi_r)
+        except InputError as exc:
+            if "overflows float64" in str(exc):  # names the scale coefficients
+                assert "Pd = " in str(exc) and "Ps = " in str(exc), exc
+                assert max(brdf[0], brdf[1], medium[0], medium[1]) > 1e100, exc
+            else:  # a facet law flatter than float64 holds (n below about 1e-140 / deg)
+                assert "facet distribution is too wide" in str(exc) and brdf[2] < 1e-100, exc
+            continue
+        for a in (value, error, clear):
+            assert np.all(np.isfinite(a)) and np.all(a >= 0), (a, ti, tr, phi_r)
+
+
+def test_the_grazing_extreme_g_case_of_the_issue_is_finite():
+    b, m = veil.BRDF1, veil.HenyeyGreenstein(0.001, 0.13, -0.999999999, 1.3)
+    value, error = veil.apparent(b, m, 89.9999999, 89.9999999, return_error=True)
+    assert np.isfinite(value) and np.isfinite(error) and value > 0
+    # continuous with a less extreme medium at the same angles
+    near = veil.apparent(b, veil.HenyeyGreenstein(0.001, 0.13, -0.99999, 1.3), 89.9999999,
+                         89.9999999)
+    assert value == pytest.approx(near, rel=1e-3)
+
+
+def test_fresnel_of_a_matched_index_is_zero_up_to_grazing():
+    from veil.models import fresnel
+
+    c = np.array([1.0, 0.5, 1e-7, 1e-9, 1e-12, 0.0])
+    assert np.all(np.asarray(fresnel.reflectance(c, 1.0)) == 0.0)
+    f = np.asarray(fresnel.reflectance(c, 1e-200))  # a vanishing index reflects everything
+    assert np.all(np.isfinite(f)) and np.allclose(f, 1.0)
+
+
+def test_overflow_is_a_clear_input_error_and_json_is_always_json():
+    with pytest.raises(InputError, match=r"overflows float64.*Td = 1e\+300, Tt = 1e\+300"):
+        veil.apparent(veil.BRDF1, veil.HenyeyGreenstein(1e300, 1e300, 0.9, 1.3), 30, 30)
+    r = invoke(["eval", "--brdf", "BRDF1", "--medium", "1e300,1e300,0.9,1.3",
+                "--theta-i", "30", "--theta-r", "30"])
+    assert r.exit_code == 2 and "overflows float64" in r.output and "Td = 1e+300" in r.output
+    assert "inf" not in r.output.replace("float64", "")
+    r = invoke(["eval", "--brdf", "BRDF1", "--medium", "0.001,0.13,-0.999999999,1.3",
+                "--theta-i", "89.9999999", "--theta-r", "89.9999999", "--json"])
+    assert r.exit_code == 0, r.output
+    obj = json.loads(r.output, parse_constant=lambda c: pytest.fail(f"{c} in JSON"))
+    assert all(np.isfinite(obj[k][0]) for k in ("apparent", "clear", "error"))
+
+
+# --------------------------------------------------------------------------------------
+# items 6 and 7: veil eval --configs, radians warning
+# --------------------------------------------------------------------------------------
+def test_eval_configs_rejects_disagreeing_angle_forms_as_veil_fit_does(tmp_path):
+    bad = tmp_path / "both.csv"
+    bad.write_text("theta_i,phi_i,theta_r,phi_r,psi,rho,value\n45,180,50,0,95,-2.5,1\n"
+                   "30,180,30,0,10,0,1\n")
+    r = invoke(["eval", "--brdf", "BRDF1", "--medium", "none", "--configs", bad])
+    assert r.exit_code == 2 and "ambiguous angles" in r.output and "line 3" in r.output
+    r = invoke(["fit", "reference", bad, "-o", tmp_path / "r.json"])
+    assert r.exit_code == 2 and "ambiguous angles" in r.output
+    good = tmp_path / "agree.csv"
+    good.write_text("theta_i,phi_i,theta_r,phi_r,psi,rho\n45,180,50,0,95,-2.5\n")
+    r = invoke(["eval", "--brdf", "BRDF1", "--medium", "none", "--configs", good])
+    assert r.exit_code == 0 and r.output.count("\n") == 2
+
+
+def test_eval_configs_runs_in_chunks_with_progress(monkeypatch):
+    from veil.cli import eval_cmd
+
+    monkeypatch.setattr(eval_cmd, "CHUNK", 8)
+    rng = np.random.default_rng(1)
+    ti, tr = rng.uniform(0, 80, 20), rng.uniform(0, 80, 20)
+    pi_, pr = np.full(20, 180.0), rng.uniform(0, 360, 20)
+    calls = []
+    value, error = eval_cmd.evaluate_configs(veil.BRDF1, veil.BTDF2, ti, tr, pi_, pr, "fast",
+                                             lambda done, total, s: calls.append((done, total)))
+    assert calls == [(8, 20), (16, 20), (20, 20)]
+    whole, whole_err = veil.apparent(veil.BRDF1, veil.BTDF2, ti, tr, pi_, pr, accuracy="fast",
+                                     return_error=True)
+    np.testing.assert_allclose(value, whole, rtol=1e-12)
+    np.testing.assert_allclose(error, whole_err, rtol=1e-9, atol=1e-12 * whole.max())
+    bar = eval_cmd._Progress()
+    bar(8, 20, 10.0)  # two more chunks of 10 s: worth a bar
+    assert bar.bar is not None
+    bar.stop()
+    quick = eval_cmd._Progress()
+    quick(8, 20, 0.1)
+    assert quick.bar is None
+
+
+def test_radians_warning_is_printed_once_per_table(tmp_path):
+    table = tmp_path / "rad.csv"
+    table.write_text("theta_i,phi_i,theta_r,phi_r,value\n" + "".join(
+        f"{a},3.14159,{b},0,{1 + a * b}\n" for a in (0.2, 0.4, 0.6, 0.8, 1.0)
+        for b in (0.1, 0.3, 0.5, 0.7)))
+    r = invoke(["fit", "reference", table, "-o", tmp_path / "r.json"])
+    assert r.output.count("written in radians?") == 1, r.output
+
+
+def test_corrupt_tiffs_name_the_photo_and_what_was_expected(tmp_path):
+    import tifffile
+
+    from veil.data.ingest import ROI, read_photo
+
+    good = tmp_path / "good.tif"
+    tifffile.imwrite(good, np.arange(64 * 64, dtype=np.uint16).reshape(64, 64))
+    short = tmp_path / "short.tif"
+    short.write_bytes(good.read_bytes()[:-2000])  # the pixel data cut short: mmap too long
+    junk = tmp_path / "junk.tif"
+    junk.write_bytes(b"this is not a TIFF file at all" * 10)
+    rois = [("roi", ROI(4, 4, 8, 8))]
+    assert read_photo(good, rois).patches
+    for path in (short, junk):
+        with pytest.raises(InputError) as info:
+            read_photo(path, rois)
+        text = str(info.value)
+        assert text.startswith(str(path)) and "expected a complete TIFF file" in text, text

@@ -227,6 +227,18 @@ def output_folder(path, owned=None):
 # --------------------------------------------------------------------------------------
 # what an interrupted process leaves behind (called by veil.cli.interrupts)
 # --------------------------------------------------------------------------------------
+def register_temporary(path, kind: str = "folder") -> None:
+    """Have an interrupted command line remove ``path`` (a "folder" or a "file")."""
+    with COMMIT:
+        _temporaries[os.path.abspath(os.fspath(path))] = kind
+
+
+def forget_temporary(path) -> None:
+    """Undo :func:`register_temporary`."""
+    with COMMIT:
+        _temporaries.pop(os.path.abspath(os.fspath(path)), None)
+
+
 def written() -> list[str]:
     """Complete outputs this process has written so far (files and folders, absolute
     paths), leaving out those inside temporaries that will be removed."""
@@ -275,4 +287,4 @@ def abandon() -> str:
 
 
 __all__ = ["write_bytes_atomic", "write_text_atomic", "output_folder", "check_output_folder",
-           "COMMIT", "written", "abandon"]
+           "COMMIT", "written", "abandon", "register_temporary", "forget_temporary"]

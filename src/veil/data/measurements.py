@@ -240,13 +240,15 @@ def _check_agreement(found: dict, rows: RowNames) -> tuple:
     return primary
 
 
-def _warn_radians(cols: dict, what: str) -> None:
+def _warn_radians(cols: dict, what: str) -> bool:
     present = [c for c in _RADIAN_LIMITS if c in cols]
     if present and all(np.all(np.abs(cols[c]) < _RADIAN_LIMITS[c]) for c in present):
         warnings.warn(
             f"every angle in {what} is small (|theta|, |rho| < 1.6, |psi| < 3.2, |phi| < 6.3): "
             f"were they written in radians? veil reads angles in degrees (MODEL.md sec. 1)",
-            LikelyRadiansWarning, stacklevel=2)
+            LikelyRadiansWarning, stacklevel=3)
+        return True
+    return False
 
 
 def _check_type(table) -> None:
@@ -262,11 +264,19 @@ def _check_columns(table: pd.DataFrame, what: str) -> None:
         raise MeasurementError(f"{what} has no rows: expected one observation a row")
 
 
+#: Key of a table's attrs recording which angles the radians warning was given for.
+_RADIANS_WARNED = "veil_radians_warned"
+
+
 def _parse_angles(table: pd.DataFrame, rows: RowNames, warn: bool = True):
     forms = _form(table.columns, rows.what)
     cols = {c: _numbers(table, c, rows) for c in ANGLE_COLUMNS if c in table.columns}
     if warn:
-        _warn_radians(cols, rows.what)
+        # once per table: loading, validating and converting the same angles (as a fit
+        # does) warn one time; the mark travels with the table's copies in attrs
+        key = hash(tuple((c, v.tobytes()) for c, v in sorted(cols.items())))
+        if table.attrs.get(_RADIANS_WARNED) != key and _warn_radians(cols, rows.what):
+            table.attrs[_RADIANS_WARNED] = key
     return cols, _check_agreement(_angles_from(cols, forms, rows), rows)
 
 
