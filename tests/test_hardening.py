@@ -521,3 +521,39 @@ def test_corrupt_tiffs_name_the_photo_and_what_was_expected(tmp_path):
             read_photo(path, rois)
         text = str(info.value)
         assert text.startswith(str(path)) and "expected a complete TIFF file" in text, text
+
+
+CACHE_SCRIPT = """
+    import numpy as np
+    import veil
+    from veil._jax import jax, jnp
+    events = []
+    jax.monitoring.register_event_listener(lambda name, **kw: events.append(name))
+    jax.jit(lambda x: jnp.sin(x) * 2.0 + 1.0)(np.arange(5.0)).block_until_ready()
+    print(events.count("/jax/compilation_cache/cache_hits"), jax.config.jax_compilation_cache_dir)
+"""
+
+
+def _python(script, env):
+    full = {k: v for k, v in os.environ.items()
+            if k not in ("VEIL_CACHE_DIR", "JAX_COMPILATION_CACHE_DIR", "XDG_CACHE_HOME")}
+    full.update(env)
+    proc = subprocess.run([sys.executable, "-W", "always", "-c", textwrap.dedent(script)],
+                          env=full, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    return proc.stdout.split(), proc.stderr
+
+
+def test_read_only_cache_directory_is_read_with_one_line_saying_so(tmp_path):
+    cache = tmp_path / "cache"
+    env = {"VEIL_CACHE_DIR": str(cache), "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS": "0"}
+    (hits, where), _ = _python(CACHE_SCRIPT, env)
+    assert hits == "0" and where == str(cache)
+    entries = sorted(p.name for p in cache.iterdir())
+    with read_only(cache):
+        (hits, where), err = _python(CACHE_SCRIPT, env)
+        assert int(hits) >= 1 and where != str(cache)  # read through a temporary view
+        notes = [line for line in err.splitlines() if "read-only" in line]
+        assert len(notes) == 1 and str(cache) in notes[0] and "reading its" in notes[0]
+        assert sorted(p.name for p in cache.iterdir()) == entries  # untouched
+    assert not os.path.exists(where)  # the view is removed at exit
