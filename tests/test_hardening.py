@@ -557,3 +557,44 @@ def test_read_only_cache_directory_is_read_with_one_line_saying_so(tmp_path):
         assert len(notes) == 1 and str(cache) in notes[0] and "reading its" in notes[0]
         assert sorted(p.name for p in cache.iterdir()) == entries  # untouched
     assert not os.path.exists(where)  # the view is removed at exit
+
+
+# --------------------------------------------------------------------------------------
+# item 3: memory of veil render
+# --------------------------------------------------------------------------------------
+def test_render_works_in_bands_of_bounded_memory(monkeypatch):
+    import tracemalloc
+
+    from veil.viz import render as r
+
+    whole = r.render("BRDF1", "BTDF3", 50.0, 20.0, 96, samples=8, check=16)
+    monkeypatch.setattr(r, "PIXEL_CHUNK", 8192)
+    tracemalloc.start()
+    try:
+        banded = r.render("BRDF1", "BTDF3", 50.0, 20.0, 96, samples=8, check=16)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    np.testing.assert_array_equal(banded.image, whole.image)
+    assert banded.max_rel_error == whole.max_rel_error and banded.checked == whole.checked
+    # 96 x 96 pixels x 64 samples = 590k samples: unbanded, 24 bytes of normals alone each
+    print(f"peak traced memory of the banded render: {peak / 1e6:.1f} MB")
+    assert peak < 8e6, peak
+    # 4096 px with 8 x 8 samples: bounded by the image, not by the 1.07e9 samples
+    assert r.memory_estimate(4096, 8) < 2 << 30
+    assert r.memory_estimate(4096, 8) - r.memory_estimate(4096, 1) < 200 << 20
+
+
+def test_render_refuses_what_would_not_fit_in_memory(monkeypatch, tmp_path):
+    from veil.viz import render as r
+
+    monkeypatch.setattr(r, "available_memory", lambda: 300 << 20)
+    out = tmp_path / "big.png"
+    res = invoke(["render", "--brdf", "BRDF1", "--medium", "BTDF3", "--size", "4096",
+                  "--samples", "8", "-o", out])
+    assert res.exit_code == 2, res.output
+    assert "GiB of memory" in res.output and "0.29 GiB available" in res.output
+    assert "lower --size" in res.output and not out.exists()
+    with pytest.raises(InputError, match="lower size"):
+        r.render("BRDF1", None, 45.0, size=4096)
+    assert r.available_memory() is None or r.available_memory() > 0
