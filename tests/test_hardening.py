@@ -166,6 +166,22 @@ def test_output_folder_rerun_replaces_veils_files_together_and_keeps_the_users(t
     assert not leftovers(tmp_path)
 
 
+def test_nested_output_folders_as_veil_demo_writes_them(tmp_path):
+    """demo: a folder holding reproduce's folder and the pipeline's files, all one
+    transaction; afterwards only the final folder is listed as written."""
+    out = tmp_path / "demo"
+    with vio.output_folder(out, owned=["paper-figures", "data", "report.md"]) as folder:
+        with vio.output_folder(folder / "paper-figures") as figures:
+            _write(figures, {"fig.png": "f"})
+        _write(folder, {"data/a.csv": "a"})
+        with vio.output_folder(folder, owned=["report.md"]) as same:
+            _write(same, {"report.md": "r"})
+        assert not out.exists()
+    assert tree(out) == {"paper-figures/fig.png": b"f", "data/a.csv": b"a", "report.md": b"r"}
+    assert str(out) in vio.written() and not leftovers(tmp_path)
+    assert not [w for w in vio.written() if ".veil-partial-" in w]
+
+
 def test_output_folder_in_a_read_only_place_says_not_writable(tmp_path):
     parent = tmp_path / "p"
     parent.mkdir()

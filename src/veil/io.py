@@ -211,8 +211,8 @@ def output_folder(path, owned=None):
             _temporaries.pop(staging, None)
             if backup is not None:
                 _temporaries[backup] = "folder"
-            prefix = staging + os.sep
-            _written[:] = [w for w in _written if not w.startswith(prefix)]
+            prefix = staging + os.sep  # what was recorded inside the staging folder moved
+            _written[:] = [w for w in _written if w != staging and not w.startswith(prefix)]
             _record(path)
         if backup is not None:
             shutil.rmtree(backup, ignore_errors=True)
@@ -243,7 +243,8 @@ def written() -> list[str]:
     """Complete outputs this process has written so far (files and folders, absolute
     paths), leaving out those inside temporaries that will be removed."""
     temps = [t + os.sep for t, kind in _temporaries.items() if kind == "folder"]
-    return [w for w in _written if not any(w.startswith(t) for t in temps)]
+    return [w for w in _written
+            if os.path.lexists(w) and not any(w.startswith(t) for t in temps)]
 
 
 def abandon() -> str:
