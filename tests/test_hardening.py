@@ -219,15 +219,41 @@ def test_read_only_output_folder_is_a_clear_error_in_pipeline_reproduce_and_demo
 # --------------------------------------------------------------------------------------
 # item 1: interrupts, with real signals on real processes
 # --------------------------------------------------------------------------------------
-def _default_sigint():
-    signal.signal(signal.SIGINT, signal.SIG_DFL)
+# The child gets the default SIGINT disposition back (a test worker may ignore SIGINT, and
+# an ignored signal stays ignored across exec) from a small launcher that then execs the
+# command: a preexec_fn would run Python in a child forked from a multithreaded (JAX) parent.
+LAUNCH = ("import os, signal, sys; signal.signal(signal.SIGINT, signal.SIG_DFL); "
+          "os.execv(sys.argv[1], sys.argv[1:])")
 
 
 def start(args, cwd, env=None):
     full = dict(os.environ)
     full.update(env or {})
-    return subprocess.Popen(args, cwd=cwd, env=full, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, preexec_fn=_default_sigint)
+    args = [str(a) for a in args]
+    return subprocess.Popen([sys.executable, "-c", LAUNCH, *args], cwd=cwd, env=full,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+
+
+def _caught(pid) -> int:
+    with open(f"/proc/{pid}/status") as fh:
+        for line in fh:
+            if line.startswith("SigCgt:"):
+                return int(line.split()[1], 16)
+    return 0
+
+
+def wait_until_importing(proc, timeout=60.0) -> float:
+    """Wait until veil's start-up guard is in place (the process catches SIGTERM, which
+    Python alone does not): veil is importing itself and JAX. Returns the seconds waited."""
+    t0 = time.perf_counter()
+    while time.perf_counter() - t0 < timeout:
+        if proc.poll() is not None:
+            raise AssertionError(f"veil ended early: {proc.communicate()}")
+        with contextlib.suppress(OSError):
+            if _caught(proc.pid) & (1 << (signal.SIGTERM - 1)):
+                return time.perf_counter() - t0
+        time.sleep(0.005)
+    raise AssertionError("veil did not start within the timeout")
 
 
 def _pipes(pid) -> int:
@@ -291,7 +317,8 @@ def test_ctrl_c_while_starting_and_sigterm_while_compiling_stop_veil_eval(tmp_pa
             "-o", tmp_path / "out.csv"]
     env = {"VEIL_CACHE_DIR": "off"}  # the engine compiles, however warm the test cache is
     proc = start(args, tmp_path, env)
-    time.sleep(0.3)  # importing veil and JAX
+    wait_until_importing(proc)  # about 0.1 s after the start on a quiet machine
+    time.sleep(0.2)  # importing veil and JAX
     code, _, err = stop(proc, signal.SIGINT)
     assert code == 130 and "nothing was written" in _one_line(err)
     proc = start(args, tmp_path, env)
@@ -322,7 +349,7 @@ def test_ctrl_c_during_fit_pipeline_leaves_the_earlier_results_as_they_were(tmp_
     args = [VEIL, "fit", "pipeline", "--reference-clear", table, "--reference-medium", table,
             "--target-medium", table, "--accuracy", "fast", "-o", out]
     proc = start(args, tmp_path)
-    time.sleep(0.3)
+    wait_until_importing(proc)
     code, _, err = stop(proc, signal.SIGINT)
     assert code == 130 and "nothing was written" in _one_line(err)
     proc = start(args, tmp_path)
@@ -413,8 +440,8 @@ ANGLES = st.lists(st.tuples(POLAR, POLAR, st.floats(0.0, 360.0)), min_size=N_CON
 @given(BRDF_BOX, BTDF_BOX, ANGLES, st.sampled_from(["paper", "exit"]))
 def test_apparent_is_finite_over_the_whole_parameter_box(brdf, medium, angles, variant):
     """Both paper models over their whole parameter box (scale coefficients up to 1e300),
-    angles up to 90 deg - 1e-9, in the plane of incidence and out of it: the value, the
-    clear f_r and the error estimate are finite and >= 0; or, when the result is beyond
+    angles up to 90 deg - 1e-9, in the plane of incidence and out of it: the value and the
+    clear f_r are finite and >= 0; or, when the result is beyond
     float64, an InputError names the scale parameters; or, for a smoothness n so small
     that the facet law underflows, an InputError says so."""
     b = veil.TorranceSparrow(*brdf)
@@ -422,8 +449,9 @@ def test_apparent_is_finite_over_the_whole_parameter_box(brdf, medium, angles, v
     ti, tr, dphi = (np.array(a) for a in zip(*angles))
     for phi_r in (0.0 * dphi, dphi):  # in-plane (the integrator's half grids), and not
         try:
-            value, error = veil.apparent(b, m, ti, tr, 180.0, phi_r, accuracy="fast",
-                                         return_error=True)
+            # (the error estimate is the same engine at a finer rule: checked below and in
+            # the CLI test, not here, to keep to one compilation per code path)
+            value = veil.apparent(b, m, ti, tr, 180.0, phi_r, accuracy="fast")
             clear = veil.reflectance(b, ti, tr, 180.0, phi_r)
         except InputError as exc:
             if "overflows float64" in str(exc):  # names the scale coefficients
@@ -432,7 +460,7 @@ def test_apparent_is_finite_over_the_whole_parameter_box(brdf, medium, angles, v
             else:  # a facet law flatter than float64 holds (n below about 1e-140 / deg)
                 assert "facet distribution is too wide" in str(exc) and brdf[2] < 1e-100, exc
             continue
-        for a in (value, error, clear):
+        for a in (value, clear):
             assert np.all(np.isfinite(a)) and np.all(a >= 0), (a, ti, tr, phi_r)
 
 

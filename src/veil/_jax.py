@@ -20,8 +20,6 @@
 
 import os
 import sys
-import tempfile
-import warnings
 
 
 def _started_as_command_line() -> bool:
@@ -35,8 +33,13 @@ def _guard_start_up() -> None:
     """Ctrl-C or SIGTERM while the command line imports veil and JAX (2-3 s; nothing has
     been written yet): exit at once with status 130 or 143 and one line, instead of a
     traceback, or a KeyboardInterrupt lost in a garbage-collection callback. The command
-    line's :mod:`veil.cli.interrupts` replaces these handlers when it starts."""
-    import signal
+    line's :mod:`veil.cli.interrupts` replaces these handlers when it starts. (Before this
+    runs, in the first few hundredths of a second of Python's own start-up, Ctrl-C is
+    still Python's KeyboardInterrupt.)"""
+    try:  # the C module, loaded with Python itself (``signal`` imports enum: 20 ms)
+        import _signal as signal
+    except ImportError:
+        import signal
 
     what = {signal.SIGINT: "interrupted (Ctrl-C)", signal.SIGTERM: "terminated (SIGTERM)"}
 
@@ -45,12 +48,16 @@ def _guard_start_up() -> None:
         os._exit(128 + signum)
 
     for s in what:
-        if signal.getsignal(s) is not signal.SIG_IGN:
+        if signal.getsignal(s) != signal.SIG_IGN:
             signal.signal(s, stop)
 
 
+# first, before anything slow is imported (os, sys and _signal come with Python itself)
 if _started_as_command_line() and "veil.cli.interrupts" not in sys.modules:
     _guard_start_up()
+
+import tempfile  # noqa: E402
+import warnings  # noqa: E402
 
 if "jax" not in sys.modules:
     _flags = os.environ.get("XLA_FLAGS", "")

@@ -252,10 +252,9 @@ def _read_tiff(path: Path, rois) -> _Photo:
     except InputError:
         raise
     except Exception as exc:  # noqa: BLE001 - TiffFileError, codec errors, a short file's mmap
-        raise InputError(f"{path}: cannot read this photo as a TIFF image "
-                         f"({type(exc).__name__}: {exc}); expected a complete TIFF file "
-                         f"holding one gray or RGB image (is it truncated, or not a TIFF?)"
-                         ) from None
+        raise InputError(f"{path}: cannot read as TIFF ({type(exc).__name__}: {exc}); "
+                         f"expected a complete TIFF file holding one gray or RGB image (is "
+                         f"the photo truncated, or not a TIFF?)") from None
     if axes == "SYX":
         image = np.moveaxis(image, 0, -1)
     return _image_patches(path, "tiff", image, rois)

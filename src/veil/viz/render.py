@@ -291,13 +291,17 @@ def _check_args(size, light_theta, light_phi, samples, accuracy):
 #: Subpixels shaded at a time: the image is rendered in bands of pixel rows holding at most
 #: this many samples, so the working memory does not grow with --samples or --size.
 PIXEL_CHUNK = 1 << 19
-#: Measured bytes per subpixel of a band (normals, angles, masks, table look-up).
-BAND_BYTES_PER_SUBPIXEL = 260
-#: Measured bytes per image pixel of the whole command (the linear image, its mask, the
-#: exposure and tone mapping of ``veil render``, the PNG and the float32 copy).
-BYTES_PER_PIXEL = 56
-#: What a process running the engine holds besides (Python, JAX, numpy, the compiled engine).
-BASE_BYTES = 600 << 20
+#: Bytes per subpixel of a band (normals, angles, masks, table look-up): about 60 measured,
+#: twice that for the estimate.
+BAND_BYTES_PER_SUBPIXEL = 120
+#: Bytes per image pixel of the whole command (the linear image, its mask, the exposure,
+#: clipping count and tone mapping of ``veil render``, the PNG): about 30 measured.
+BYTES_PER_PIXEL = 36
+#: What a process running the engine holds besides (Python, JAX, numpy, the compiled
+#: engine): 404 MiB measured for a 256 px render.
+BASE_BYTES = 480 << 20
+# Measured peaks of `veil render --brdf BRDF1 --medium BTDF3` (/usr/bin/time, max RSS):
+# 256 px 0.41 GB, 4096 px 0.92 GB with 1 or with 8 x 8 samples; estimates 0.49, 1.17 GB.
 
 
 def memory_estimate(size: int, samples: int = 1) -> int:
