@@ -19,9 +19,7 @@ from __future__ import annotations
 
 import argparse
 import csv
-import os
 import sys
-import tempfile
 import time
 from pathlib import Path
 
@@ -51,23 +49,18 @@ def read_configs(path):
 
 
 def write_atomic(path, rows):
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
-    umask = os.umask(0)
-    os.umask(umask)
-    os.chmod(tmp, 0o666 & ~umask)  # mkstemp creates 0600; give the usual permissions
-    try:
-        with os.fdopen(fd, "w", newline="") as fh:
-            w = csv.writer(fh)
-            w.writerow(COLUMNS)
-            for r in rows:
-                w.writerow([r[0], r[1]] + [repr(float(x)) for x in r[2:]])
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    """The reference table as CSV, written through veil's atomic writer."""
+    import io as _io
+
+    from veil.io import write_text_atomic
+
+    buf = _io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(COLUMNS)
+    for r in rows:
+        w.writerow([r[0], r[1]] + [repr(float(x)) for x in r[2:]])
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    write_text_atomic(path, buf.getvalue())
 
 
 def main(argv=None):

@@ -27,7 +27,8 @@ import veil
 from veil.analysis.diagnostics import diagnose
 from veil.fitting import fit_medium, fit_reference, fit_target
 from veil.fitting import Session, fit_joint
-from veil.data.measurements import atomic_write_text, subtract_black
+from veil.data.measurements import subtract_black
+from veil.io import write_text_atomic
 from veil import HenyeyGreenstein, TorranceSparrow
 from veil.analysis.uncertainty import budget_table, propagate
 
@@ -174,7 +175,7 @@ def main(argv=None):
           f"{len(tgt)} configurations per session; accuracy {accuracy}")
     print(table)
     if args.table:
-        atomic_write_text(args.table, table + "\n")
+        write_text_atomic(args.table, table + "\n")
     return 0
 
 

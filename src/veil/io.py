@@ -1,31 +1,291 @@
-"""Atomic file output: write to a temporary file in the target's directory, then replace."""
+"""Every file and folder veil writes, written as a transaction (docs/errors.md).
+
+- :func:`write_bytes_atomic`, :func:`write_text_atomic`: one file, through a temporary file
+  in the same directory, synced, then renamed over the target. Readers see the old file or
+  the new one, never half of one. A replaced file keeps its permissions; a new one gets
+  those the umask gives.
+- :func:`output_folder`: a folder of outputs (a pipeline's results, the paper's figures),
+  written into a temporary folder and moved into place at the end. An interrupted or failed
+  run leaves the earlier complete folder as it was, or nothing; never a mix of old and new
+  files.
+
+Temporaries are registered while they exist, so that the command line's interrupt handler
+(:mod:`veil.cli.interrupts`) can remove them before the process exits
+(:func:`abandon`), and commits (the final renames) hold :data:`COMMIT`, which that handler
+takes first: an interrupt lands before a commit or after it, never inside one.
+"""
 
 from __future__ import annotations
 
+import contextlib
 import os
+import shutil
 import tempfile
+import threading
+from pathlib import Path
+
+from .errors import NotAFileError, UnwritableError
+
+#: Held while outputs are renamed into place; the interrupt handler acquires it (and never
+#: releases it) before it removes the temporaries and exits.
+COMMIT = threading.RLock()
+
+_temporaries: dict[str, str] = {}   # path -> "file" | "folder", removed on interrupt
+_folders: dict[str, bool] = {}      # output folders being written -> whether one existed
+_written: list[str] = []            # complete outputs of this process, in order
+_STAGING = ".veil-partial-"
+_BACKUP = ".veil-replaced-"
+
+
+def _umask_mode(bits: int = 0o666) -> int:
+    umask = os.umask(0)
+    os.umask(umask)
+    return bits & ~umask
+
+
+def _unwritable(path: str, exc: OSError) -> UnwritableError:
+    directory = os.path.dirname(os.path.abspath(path))
+    reason = exc.strerror or str(exc)
+    if not os.path.isdir(directory):
+        return UnwritableError(f"cannot write {path}: directory {directory} does not exist")
+    return UnwritableError(f"cannot write {path}: directory {directory} is not writable "
+                           f"({reason})")
+
+
+def _record(path: str) -> None:
+    with COMMIT:
+        path = os.path.abspath(path)
+        if path in _written:
+            _written.remove(path)
+        _written.append(path)
 
 
 def write_bytes_atomic(path, data: bytes) -> None:
     """Write ``data`` to ``path`` so that readers see the old file or the new, never half.
 
-    The temporary file lives in the same directory (same filesystem, so ``os.replace`` is
-    atomic), is synced before the rename, gets the permissions a new file would get under
-    the current umask, and is removed if anything fails.
+    The temporary file lives in the same directory (same filesystem, so the rename is
+    atomic), is synced before the rename and removed if anything fails or the process is
+    interrupted. A replaced file keeps its permission bits; a new file gets 0666 minus the
+    umask. Raises :class:`veil.errors.UnwritableError` when the directory cannot be written
+    and :class:`veil.errors.NotAFileError` when ``path`` is a directory.
     """
     path = os.fspath(path)
+    if os.path.isdir(path):
+        raise NotAFileError(f"cannot write {path}: it is a directory")
     directory = os.path.dirname(os.path.abspath(path))
-    fd, tmp = tempfile.mkstemp(dir=directory, prefix=f".{os.path.basename(path)}.", suffix=".tmp")
+    try:
+        mode = os.stat(path).st_mode & 0o7777
+    except OSError:
+        mode = _umask_mode()
+    with COMMIT:  # no temporary is created once an interrupt is being handled
+        try:
+            fd, tmp = tempfile.mkstemp(dir=directory, prefix=f".{os.path.basename(path)}.",
+                                       suffix=".tmp")
+        except OSError as exc:
+            raise _unwritable(path, exc) from None
+        _temporaries[tmp] = "file"
     try:
         with os.fdopen(fd, "wb") as fh:
             fh.write(data)
             fh.flush()
             os.fsync(fh.fileno())
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)
-        os.replace(tmp, path)
+        os.chmod(tmp, mode)
+        with COMMIT:
+            os.replace(tmp, path)
+            _temporaries.pop(tmp, None)
+            _record(path)
     except BaseException:
-        if os.path.exists(tmp):
+        with contextlib.suppress(OSError):
             os.unlink(tmp)
+        _temporaries.pop(tmp, None)
         raise
+
+
+def write_text_atomic(path, text: str) -> None:
+    """:func:`write_bytes_atomic` of ``text`` encoded as UTF-8 (newlines as given)."""
+    write_bytes_atomic(path, text.encode("utf-8"))
+
+
+def check_output_folder(path) -> str:
+    """The absolute path of an output folder that can be written (created if missing), or
+    :class:`veil.errors.UnwritableError` saying why not."""
+    path = os.path.abspath(os.fspath(path))
+    if os.path.exists(path):
+        if not os.path.isdir(path):
+            raise UnwritableError(f"output directory {path} exists and is not a directory")
+        if not os.access(path, os.W_OK | os.X_OK):
+            raise UnwritableError(f"output directory {path} is not writable")
+        return path
+    parent = os.path.dirname(path)
+    if not os.path.isdir(parent):
+        raise UnwritableError(f"cannot create the output directory {path}: directory "
+                              f"{parent} does not exist")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise UnwritableError(f"cannot create the output directory {path}: directory "
+                              f"{parent} is not writable")
+    return path
+
+
+def _make_staging(path: str, existed: bool) -> str:
+    """A temporary folder on the same filesystem as ``path``: inside it when it exists (its
+    entries are then renamed one by one), beside it otherwise (renamed as a whole)."""
+    where, prefix = (path, _STAGING) if existed else \
+        (os.path.dirname(path), f".{os.path.basename(path)}{_STAGING}")
+    with COMMIT:
+        try:
+            staging = tempfile.mkdtemp(dir=where, prefix=prefix)
+        except OSError as exc:
+            raise UnwritableError(f"cannot write into the output directory {path} "
+                                  f"({exc.strerror or exc})") from None
+        _temporaries[staging] = "folder"
+    os.chmod(staging, _umask_mode(0o777))
+    return staging
+
+
+def _merge(staging: str, path: str, owned) -> str:
+    """Move every entry of ``staging`` into ``path`` (replacing entries of the same name)
+    and move the ``owned`` names this run did not write out of it. Returns the folder
+    holding what was replaced (to delete); on error puts everything back and raises."""
+    backup = tempfile.mkdtemp(dir=path, prefix=_BACKUP)
+    new = sorted(os.listdir(staging))
+    stale = sorted(set(owned or ()) - set(new))
+    done = []  # (name, whether an old entry was moved to the backup)
+    try:
+        for name in new:
+            target = os.path.join(path, name)
+            had = os.path.lexists(target)
+            if had:
+                os.rename(target, os.path.join(backup, name))
+            done.append((name, had))
+            os.rename(os.path.join(staging, name), target)
+        for name in stale:
+            target = os.path.join(path, name)
+            if os.path.lexists(target):
+                os.rename(target, os.path.join(backup, name))
+                done.append((name, None))
+    except BaseException:
+        for name, had in reversed(done):
+            target = os.path.join(path, name)
+            with contextlib.suppress(OSError):
+                if had is not None:
+                    if os.path.lexists(target):
+                        os.rename(target, os.path.join(staging, name))
+                if had is not False:
+                    os.rename(os.path.join(backup, name), target)
+        with contextlib.suppress(OSError):
+            os.rmdir(backup)
+        raise
+    return backup
+
+
+@contextlib.contextmanager
+def output_folder(path, owned=None):
+    """Write a folder of outputs as one transaction; yields the folder to write into.
+
+    Everything is written into a temporary folder (a hidden sibling when ``path`` does not
+    exist yet, a hidden subfolder otherwise) and moved into ``path`` when the block ends
+    without an exception: the whole folder is renamed into place, or, into an existing
+    folder, each new entry replaces the entry of the same name, and entries named in
+    ``owned`` that this run did not write (left from an earlier run with other options) are
+    removed. Other entries of an existing folder are left alone. The moves happen while
+    holding :data:`COMMIT`, so an interrupt handled by the command line lands before them
+    or after them. If the block raises (or the process is interrupted), the temporary folder
+    is deleted and ``path`` is as it was: the earlier complete result, or nothing.
+
+    Raises :class:`veil.errors.UnwritableError` if ``path`` cannot be created or written.
+    """
+    path = check_output_folder(path)
+    existed = os.path.isdir(path)
+    staging = _make_staging(path, existed)
+    outer = _folders.get(path)
+    _folders[path] = existed if outer is None else outer
+    try:
+        yield Path(staging)
+        with COMMIT:
+            if not os.path.isdir(path):
+                os.rename(staging, path)
+                backup = None
+            else:  # the folder exists (or appeared meanwhile): entry by entry
+                backup = _merge(staging, path, owned)
+                os.rmdir(staging)
+            _temporaries.pop(staging, None)
+            if backup is not None:
+                _temporaries[backup] = "folder"
+            prefix = staging + os.sep  # what was recorded inside the staging folder moved
+            _written[:] = [w for w in _written if w != staging and not w.startswith(prefix)]
+            _record(path)
+        if backup is not None:
+            shutil.rmtree(backup, ignore_errors=True)
+            _temporaries.pop(backup, None)
+    finally:
+        if _temporaries.pop(staging, None) is not None:
+            shutil.rmtree(staging, ignore_errors=True)
+        if outer is None:
+            _folders.pop(path, None)
+
+
+# --------------------------------------------------------------------------------------
+# what an interrupted process leaves behind (called by veil.cli.interrupts)
+# --------------------------------------------------------------------------------------
+def register_temporary(path, kind: str = "folder") -> None:
+    """Have an interrupted command line remove ``path`` (a "folder" or a "file")."""
+    with COMMIT:
+        _temporaries[os.path.abspath(os.fspath(path))] = kind
+
+
+def forget_temporary(path) -> None:
+    """Undo :func:`register_temporary`."""
+    with COMMIT:
+        _temporaries.pop(os.path.abspath(os.fspath(path)), None)
+
+
+def written() -> list[str]:
+    """Complete outputs this process has written so far (files and folders, absolute
+    paths), leaving out those inside temporaries that will be removed."""
+    temps = [t + os.sep for t, kind in _temporaries.items() if kind == "folder"]
+    return [w for w in _written
+            if os.path.lexists(w) and not any(w.startswith(t) for t in temps)]
+
+
+def abandon() -> str:
+    """Remove every registered temporary and say what is left, as a sentence fragment
+    ("nothing was written", "complete: a.png, b.json", "results/ is as it was").
+
+    For the interrupt handler, which calls it holding :data:`COMMIT`, just before the
+    process exits; the process must not write anything afterwards.
+    """
+    done = written()
+    temps = [t + os.sep for t, kind in _temporaries.items() if kind == "folder"]
+    kept = [p for p, existed in _folders.items()
+            if existed and not any(p.startswith(t) for t in temps)]
+    for tmp, kind in list(_temporaries.items()):
+        with contextlib.suppress(OSError):
+            if kind == "folder":
+                shutil.rmtree(tmp, ignore_errors=True)
+            else:
+                os.unlink(tmp)
+    _temporaries.clear()
+    cwd = os.getcwd() if os.path.isdir(os.curdir) else None
+
+    def show(p):
+        rel = os.path.relpath(p, cwd) if cwd else p
+        name = rel if not rel.startswith(os.pardir) else p
+        return name + (os.sep if os.path.isdir(p) else "")
+
+    parts = []
+    if done:
+        names = [show(p) for p in done]
+        more = f" and {len(names) - 4} more" if len(names) > 5 else ""
+        parts.append("complete: " + ", ".join(names[:4] if more else names) + more)
+    else:
+        parts.append("nothing was written")
+    kept = [p for p in kept if not any(p == d or p.startswith(d + os.sep) for d in done)]
+    if kept:
+        parts.append(", ".join(show(p) for p in kept)
+                     + (" is" if len(kept) == 1 else " are") + " as the earlier run left "
+                     + ("it" if len(kept) == 1 else "them"))
+    return "; ".join(parts)
+
+
+__all__ = ["write_bytes_atomic", "write_text_atomic", "output_folder", "check_output_folder",
+           "COMMIT", "written", "abandon", "register_temporary", "forget_temporary"]

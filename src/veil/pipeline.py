@@ -1,7 +1,9 @@
 """The whole estimation of MODEL.md sec. 7 in one call: steps 0-2, result files, figures, report.
 
 :func:`run_pipeline` fits the reference's f_r in a clear medium (step 0), the medium through
-the reference (step 1) and the target through the medium (step 2), and writes into ``outdir``:
+the reference (step 1) and the target through the medium (step 2), and writes into ``outdir``
+(as one transaction, :func:`veil.io.output_folder`: a rerun replaces these files together,
+an interrupted or failed run leaves the folder as it was):
 
 - ``reference.json``, ``medium.json``, ``target.json``: :class:`veil.fitting.FitResult` files;
 - ``reference.png``, ``medium.png``, ``target.png``: data against the fitted curves, value
@@ -22,12 +24,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .data.measurements import atomic_write_text
+from .io import check_output_folder, output_folder, write_bytes_atomic, write_text_atomic
 from .data.protocol import protocol
 from .errors import FitError
 from .fitting import (FitResult, fit_direct, fit_medium, fit_reference, fit_target,
                       model_values, prepare)
-from .io import write_bytes_atomic
 from .viz.fit_figures import fit_figure
 from .viz.reports import pipeline_report
 
@@ -73,9 +74,13 @@ def _same(a, b) -> bool:
     return os.path.abspath(a) == os.path.abspath(b)
 
 
+def _inside(path, folder) -> bool:
+    path, folder = os.path.abspath(os.fspath(path)), os.path.abspath(os.fspath(folder))
+    return path.startswith(folder + os.sep)
+
+
 def _check_outputs(outdir: str, inputs: dict) -> None:
-    if os.path.exists(outdir) and not os.path.isdir(outdir):
-        raise FitError(f"output directory {outdir} exists and is not a directory")
+    check_output_folder(outdir)
     for role, name in FILES.items():
         out = os.path.join(outdir, name)
         for what, inp in inputs.items():
@@ -125,7 +130,6 @@ def run_pipeline(reference_clear, reference_medium, target_medium, black=None, t
             "target_medium": prepare(target_medium, black, "target (in the medium)")}
     if target_clear is not None:
         data["target_clear"] = prepare(target_clear, None, "target (clear medium)")
-    os.makedirs(outdir, exist_ok=True)
 
     brdf = {"brdf_model": brdf_model, "options": brdf_options}
     ref = fit_reference(data["reference_clear"].table, fixed=fixed.get("reference"),
@@ -143,29 +147,31 @@ def run_pipeline(reference_clear, reference_medium, target_medium, black=None, t
                             max_nfev=max_nfev, progress=stage("target, clear medium"), **brdf)
         comparison = compare(tgt, direct)
 
-    files = {}
-    for key, result in (("reference", ref), ("medium", med), ("target", tgt), ("direct", direct)):
-        if result is not None:
-            path = os.path.join(outdir, FILES[key])
-            result.to_json(path)
-            files[key] = path
-    if figures:
-        if progress is not None:
-            progress("figures", None, None)
-        figs = {"reference_fig": (data["reference_clear"], ref, None, None),
-                "medium_fig": (data["reference_medium"], med, ref.as_model(), None),
-                "target_fig": (data["target_medium"], tgt, med.as_model(), None)}
-        if direct is not None:
-            figs["direct_fig"] = (data["target_clear"], direct, None, tgt)
-        for key, (d, result, other, extra) in figs.items():
-            path = os.path.join(outdir, FILES[key])
-            write_bytes_atomic(path, fit_figure(d, result, other, extra))
-            files[key] = path
-    report = pipeline_report(ref, med, tgt, direct, comparison, truth,
-                             {k: os.path.basename(v) for k, v in files.items()}, inputs)
-    path = os.path.join(outdir, FILES["report"])
-    atomic_write_text(path, report)
-    files["report"] = path
+    names = {}
+    with output_folder(outdir, owned=FILES.values()) as folder:
+        for key, result in (("reference", ref), ("medium", med), ("target", tgt),
+                            ("direct", direct)):
+            if result is not None:
+                result.to_json(folder / FILES[key])
+                names[key] = FILES[key]
+        if figures:
+            if progress is not None:
+                progress("figures", None, None)
+            figs = {"reference_fig": (data["reference_clear"], ref, None, None),
+                    "medium_fig": (data["reference_medium"], med, ref.as_model(), None),
+                    "target_fig": (data["target_medium"], tgt, med.as_model(), None)}
+            if direct is not None:
+                figs["direct_fig"] = (data["target_clear"], direct, None, tgt)
+            for key, (d, result, other, extra) in figs.items():
+                write_bytes_atomic(folder / FILES[key], fit_figure(d, result, other, extra))
+                names[key] = FILES[key]
+        # inputs inside the output folder are named relative to it (links from report.md)
+        shown = {k: (os.path.relpath(v, outdir) if isinstance(v, (str, os.PathLike))
+                     and _inside(v, outdir) else v) for k, v in inputs.items()}
+        report = pipeline_report(ref, med, tgt, direct, comparison, truth, names, shown)
+        write_text_atomic(folder / FILES["report"], report)
+        names["report"] = FILES["report"]
+    files = {key: os.path.join(outdir, name) for key, name in names.items()}
     return PipelineResult(ref, med, tgt, direct, comparison, files)
 
 

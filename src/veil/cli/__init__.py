@@ -5,10 +5,22 @@ from __future__ import annotations
 
 import click
 
+from . import interrupts
 from ._common import VeilGroup
 
 
-@click.group(cls=VeilGroup, context_settings={"help_option_names": ["-h", "--help"]})
+class CommandLine(VeilGroup):
+    """:class:`VeilGroup` that, run as the ``veil`` program (arguments from ``sys.argv``),
+    first installs the Ctrl-C / SIGTERM handling of :mod:`veil.cli.interrupts`. Tests that
+    call ``main.main([...])`` or click's CliRunner pass the arguments and get none of it."""
+
+    def main(self, args=None, *more, **options):
+        if args is None:
+            interrupts.install()
+        return super().main(args, *more, **options)
+
+
+@click.group(cls=CommandLine, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(package_name="veil")
 @click.option("--debug", is_flag=True, help="Print the full traceback of an internal error.")
 @click.pass_context

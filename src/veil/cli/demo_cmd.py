@@ -19,7 +19,6 @@ import click
 from ..data.measurements import save_measurements
 from ..models import PRESETS
 from ..data.simulate import simulate
-from ._common import UserError
 
 #: The demo's set-up: which preset plays which role.
 SETUP = {"reference": "BRDF2", "medium": "BTDF2", "target": "BRDF1"}
@@ -100,7 +99,8 @@ def summary_table(result):
 @click.command("demo")
 @click.option("-o", "--outdir", required=True, type=click.Path(file_okay=False, path_type=Path),
               help="Directory for the simulated sessions (data/), the fit results, figures "
-                   "and report.md (created).")
+                   "and report.md (created). Written as a whole at the end; an interrupted "
+                   "run leaves it as it was.")
 @click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True,
               help="Seed of the first session's noise (the others use seed+1, +2, +3).")
 @click.option("--noise", type=click.FloatRange(min=0.0, min_open=True), default=0.01,
@@ -118,24 +118,24 @@ def demo_command(ctx, outdir, seed, noise, accuracy):
     """
     from rich.console import Console
 
+    from ..io import check_output_folder, output_folder
+    from ..pipeline import FILES
     from ._common import fit_progress
+    from .reproduce_cmd import reproduce
 
-    if outdir.exists() and not outdir.is_dir():
-        raise UserError(f"--outdir {outdir} exists and is not a directory")
-    if not outdir.exists() and not outdir.parent.exists():
-        raise UserError(f"cannot create {outdir}: directory {outdir.parent} does not exist")
-    outdir.mkdir(exist_ok=True)
-    # 1. the paper's simulation experiment (sec. 5.1): figs. 9-12 and report
-    from .reproduce_cmd import reproduce_command
-
-    click.echo("The paper's simulation experiment (figs. 9-12) -> "
-               f"{os.path.join(outdir, 'paper-figures')}")
-    ctx.invoke(reproduce_command, outdir=str(outdir / "paper-figures"))
-    # 2. a simulated acquisition and the whole two-step estimation (sec. 5.2 / MODEL.md sec. 7)
-    click.echo("A simulated acquisition, estimated end to end")
-    with fit_progress("demo") as progress:
-        paths = simulate_sessions(outdir, seed, noise, accuracy, progress)
-        result = fit_sessions(paths, outdir, accuracy, progress)
+    check_output_folder(outdir)
+    owned = ("paper-figures", "data", *FILES.values())
+    with output_folder(outdir, owned=owned) as folder:
+        # 1. the paper's simulation experiment (sec. 5.1): figs. 9-12 and report
+        shown = os.path.join(outdir, "paper-figures")
+        click.echo(f"The paper's simulation experiment (figs. 9-12) -> {shown}")
+        reproduce(folder / "paper-figures", shown=shown)
+        # 2. a simulated acquisition and the whole two-step estimation (sec. 5.2 / MODEL.md
+        #    sec. 7)
+        click.echo("A simulated acquisition, estimated end to end")
+        with fit_progress("demo") as progress:
+            paths = simulate_sessions(folder, seed, noise, accuracy, progress)
+            result = fit_sessions(paths, folder, accuracy, progress)
     console = Console()
     console.print(summary_table(result))
     if result.comparison is not None:

@@ -92,7 +92,7 @@ def design_command(brdf, media, factors, size, psi, fine_step, window, coarse_st
     from rich.table import Table
 
     from ..analysis.design import design
-    from ..data.measurements import atomic_write_text
+    from ..io import write_text_atomic
 
     model_b = models.brdf_model(brdf)
     chosen = []
@@ -166,5 +166,5 @@ def design_command(brdf, media, factors, size, psi, fine_step, window, coarse_st
         console.print("* at the level of the weak prior: not identified by such a plan "
                       "(more measurements, or other media)")
     if output is not None:
-        atomic_write_text(output, plan.to_csv(index=False, lineterminator="\n"))
+        write_text_atomic(output, plan.to_csv(index=False, lineterminator="\n"))
         click.echo(f"wrote {output}", err=True)

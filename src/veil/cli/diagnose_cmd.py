@@ -106,7 +106,8 @@ def _print(diag, console) -> None:
 @click.option("--max-correlation", type=click.FloatRange(0, 1, min_open=True), default=0.9,
               show_default=True, help="|correlation| above which a pair trades off.")
 @click.option("-o", "--outdir", type=click.Path(file_okay=False, path_type=Path),
-              help="Directory for diagnostics.json and diagnostics.png (created).")
+              help="Directory for diagnostics.json and diagnostics.png (created; both are "
+                   "replaced together, other files in it are left alone).")
 @model_options()
 def diagnose_command(result_path, data, black, medium, reference, profile, profile_params,
                      points, max_relative, max_correlation, outdir, models):
@@ -157,10 +158,9 @@ def diagnose_command(result_path, data, black, medium, reference, profile, profi
             inputs.append(text)
     files = {}
     if outdir is not None:
-        if outdir.exists() and not outdir.is_dir():
-            raise UserError(f"--outdir {outdir} exists and is not a directory")
-        if not outdir.exists() and not outdir.parent.exists():
-            raise UserError(f"cannot create {outdir}: directory {outdir.parent} does not exist")
+        from ..io import check_output_folder
+
+        check_output_folder(outdir)
         files = {"json": outdir / "diagnostics.json", "png": outdir / "diagnostics.png"}
         if outdir.exists():
             for path in files.values():
@@ -174,12 +174,13 @@ def diagnose_command(result_path, data, black, medium, reference, profile, profi
                         max_correlation=max_correlation, progress=progress)
     _print(diag, Console())
     if files:
-        from ..data.measurements import atomic_write_text
+        from ..io import output_folder, write_text_atomic
 
-        outdir.mkdir(exist_ok=True)
-        atomic_write_text(files["json"], json.dumps(diag.to_dict(), indent=2,
-                                                     allow_nan=False) + "\n")
-        diagnosis_figure(diag, files["png"])
+        names = {key: path.name for key, path in files.items()}
+        with output_folder(outdir, owned=names.values()) as folder:
+            write_text_atomic(folder / names["json"],
+                              json.dumps(diag.to_dict(), indent=2, allow_nan=False) + "\n")
+            diagnosis_figure(diag, folder / names["png"])
         for path in files.values():
             click.echo(f"wrote {path}", err=True)
 

@@ -6,13 +6,14 @@ from __future__ import annotations
 import io
 import json
 import math
+import time
 
 import click
 import numpy as np
 
 from ..engine.apparent import RULES, apparent, reflectance
-from ._common import (UserError, check_output_path, model_options, read_csv_table,
-                      write_atomic)
+from ..io import write_text_atomic
+from ._common import UserError, check_output_path, model_options, read_csv_table
 
 ANGLES = ("theta_i", "phi_i", "theta_r", "phi_r")  # the --configs columns, degrees
 ADDED = ("apparent", "clear", "error")  # the columns veil eval adds
@@ -61,10 +62,14 @@ def _labelled(text, model):
 def _format_table(brdf_text, medium_text, brdf, medium, angles, accuracy, value, clear, error):
     ti, pi_, tr, pr = angles
     medium_line = "none (clear medium)" if medium is None else _labelled(medium_text, medium)
-    if clear != 0.0:
-        ratio = f"{value / clear:.12g}"
-    else:
+    with np.errstate(over="ignore"):
+        quotient = np.float64(value) / np.float64(clear) if clear != 0.0 else None
+    if quotient is None:
         ratio = "undefined (clear = 0)"
+    elif not np.isfinite(quotient):
+        ratio = "beyond float64 (above 1.8e308)"
+    else:
+        ratio = f"{quotient:.12g}"
     rows = [
         ("apparent", f"{value:.12g}", "f(I, R) seen through the medium (1/sr, relative units)"),
         ("clear", f"{clear:.12g}", "object's own f_r(I, R), no medium (1/sr, relative units)"),
@@ -97,6 +102,17 @@ def _read_configs(configs):
     if clash:
         raise UserError(f"{configs}: already has a column {clash[0]!r}, which veil eval "
                         f"adds; rename or remove it")
+    from ..data.measurements import MeasurementError, canonical_angles
+
+    named = table.copy()
+    named.attrs = {"veil_source": str(configs), "veil_lines": [int(r) for r in rows]}
+    if numbers and any(c in table.columns for c in ("psi", "rho")):
+        # a second angle form beside the four angles: the check veil fit makes (both forms
+        # complete and giving the same configurations, or "ambiguous angles")
+        try:
+            canonical_angles(named)
+        except MeasurementError as exc:
+            raise UserError(str(exc)) from None
     if numbers:
         for c in ("theta_i", "theta_r"):
             bad = np.flatnonzero((numbers[c] < 0.0) | (numbers[c] >= 90.0))
@@ -106,10 +122,6 @@ def _read_configs(configs):
                                 f"header = row 1), column {c!r}: {numbers[c][j]:g} deg is "
                                 f"outside [0, 90) (polar angle from the surface normal)")
         return (*(numbers[c] for c in ANGLES), table)
-    from ..data.measurements import MeasurementError, canonical_angles
-
-    named = table.copy()
-    named.attrs = {"veil_source": str(configs), "veil_lines": [int(r) for r in rows]}
     try:
         canonical = canonical_angles(named)
     except MeasurementError as exc:
@@ -117,11 +129,66 @@ def _read_configs(configs):
     return (*(canonical[c].to_numpy(dtype=float) for c in ANGLES), table)
 
 
+#: Configurations per engine call of ``--configs``: every call has this shape (the last one
+#: padded), so the engine compiles once, and progress is shown between calls.
+CHUNK = 512
+#: Show a progress bar when the remaining calls would take longer than this (seconds).
+PROGRESS_AFTER = 3.0
+
+
+def evaluate_configs(brdf, medium, ti, tr, pi_, pr, accuracy, progress=None):
+    """apparent() with its error estimate at every configuration: in one call up to CHUNK
+    configurations, else CHUNK at a time; ``progress(done, total, seconds_per_chunk)`` is
+    called after each chunk."""
+    n = len(ti)
+    if n <= CHUNK:
+        return apparent(brdf, medium, ti, tr, pi_, pr, accuracy=accuracy, return_error=True)
+    value, error = np.empty(n), np.empty(n)
+    for start in range(0, n, CHUNK):
+        t0 = time.perf_counter()
+        idx = np.minimum(np.arange(start, start + CHUNK), n - 1)
+        k = min(CHUNK, n - start)
+        v, e = apparent(brdf, medium, ti[idx], tr[idx], pi_[idx], pr[idx], accuracy=accuracy,
+                        return_error=True)
+        value[start:start + k], error[start:start + k] = v[:k], e[:k]
+        if progress is not None:
+            progress(start + k, n, time.perf_counter() - t0)
+    return value, error
+
+
+class _Progress:
+    """A rich progress bar on stderr, started only once the rest would take PROGRESS_AFTER
+    seconds or more (estimated from the chunk just done)."""
+
+    def __init__(self):
+        self.bar = None
+
+    def __call__(self, done, total, seconds):
+        if self.bar is None:
+            if done >= total or seconds * (total - done) / CHUNK < PROGRESS_AFTER:
+                return
+            from rich.console import Console
+            from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TextColumn,
+                                       TimeElapsedColumn, TimeRemainingColumn)
+
+            self.bar = Progress(TextColumn("veil eval: configurations"), BarColumn(),
+                                MofNCompleteColumn(), TimeElapsedColumn(),
+                                TimeRemainingColumn(), console=Console(stderr=True),
+                                transient=True)
+            self.bar.start()
+            self.task = self.bar.add_task("", total=total)
+        self.bar.update(self.task, completed=done)
+
+    def stop(self):
+        if self.bar is not None:
+            self.bar.stop()
+
+
 def _emit(text: str, output) -> None:
     if output is None:
         click.echo(text, nl=False)
     else:
-        write_atomic(output, text)
+        write_text_atomic(output, text)
 
 
 @click.command("eval", short_help="Apparent reflectance through a medium at given angles "
@@ -205,8 +272,11 @@ def eval_command(brdf_text, medium_text, theta_i, theta_r, phi_i, phi_r, configs
         _check_option_angle("--phi-r", phi_r, polar=False)
         ti, pi_, tr, pr = (np.array([x]) for x in (theta_i, phi_i, theta_r, phi_r))
 
-    value, error = apparent(brdf, medium, ti, tr, pi_, pr, accuracy=accuracy,
-                            return_error=True)
+    progress = _Progress()
+    try:
+        value, error = evaluate_configs(brdf, medium, ti, tr, pi_, pr, accuracy, progress)
+    finally:
+        progress.stop()
     clear = reflectance(brdf, ti, tr, pi_, pr)
     value, error, clear = (np.asarray(a, dtype=float).reshape(-1) for a in (value, error, clear))
 
@@ -220,7 +290,7 @@ def eval_command(brdf_text, medium_text, theta_i, theta_r, phi_i, phi_r, configs
             "theta_r": tr.tolist(), "phi_r": pr.tolist(),
             "apparent": value.tolist(), "clear": clear.tolist(), "error": error.tolist(),
         }
-        _emit(json.dumps(obj, indent=2) + "\n", output)
+        _emit(json.dumps(obj, indent=2, allow_nan=False) + "\n", output)
     elif configs is not None:
         out = table.copy()
         out["apparent"], out["clear"], out["error"] = value, clear, error

@@ -28,7 +28,9 @@ def output_path(path: str, suffixes: tuple, what: str) -> str:
               help="Light's polar angle from the viewing direction, degrees, in [0, 120].")
 @click.option("--light-phi", type=float, default=0.0, show_default=True,
               help="Light's azimuth, degrees (0: from the right, 90: from the top).")
-@click.option("--size", type=int, default=256, show_default=True, help="Image size in pixels.")
+@click.option("--size", type=int, default=256, show_default=True,
+              help="Image size in pixels, 8 to 4096 (memory grows with its square: about "
+                   "0.9 GB at 4096).")
 @click.option("--exposure", type=float, default=None,
               help="Scale from linear value to display (1 = white). Default: automatic, the "
                    "median lit pixel maps to 0.18.")
@@ -36,7 +38,8 @@ def output_path(path: str, suffixes: tuple, what: str) -> str:
               show_default=True,
               help="clip: linear, clipped at white; reinhard: x/(1+x), never clips.")
 @click.option("--samples", type=int, default=1, show_default=True,
-              help="k x k samples per pixel (1: the pixel centre).")
+              help="k x k samples per pixel, 1 to 8 (1: the pixel centre); the time grows "
+                   "with k^2, the memory does not.")
 @click.option("--accuracy", type=click.Choice(["fast", "default", "high"]), default="fast",
               show_default=True, help="Quadrature of the engine.")
 @click.option("--check", type=int, default=64, show_default=True,
@@ -55,8 +58,8 @@ def render_command(brdf, medium, light_theta, light_phi, size, exposure, tone, s
     the medium. Prints the exposure used, how many pixels clip and the measured
     interpolation error.
     """
-    from ..viz.figures import write_bytes_atomic
-    from ..viz.render import clipping, png_bytes, render, tone_map, auto_exposure
+    from ..io import write_bytes_atomic
+    from ..viz.render import auto_exposure, check_memory, clipping, png_bytes, render, tone_map
 
     b = models.brdf_model(brdf)
     m = models.medium_model(medium)
@@ -67,6 +70,8 @@ def render_command(brdf, medium, light_theta, light_phi, size, exposure, tone, s
             raise UserError("--linear and -o name the same file")
     if exposure is not None and not (np.isfinite(exposure) and exposure > 0):
         raise UserError(f"--exposure {exposure:g} must be a positive number")
+    if 8 <= size <= 4096 and 1 <= samples <= 8:  # render() words the range errors
+        check_memory(size, samples, names=("--size", "--samples"))
 
     result = render(b, m, light_theta, light_phi, size, accuracy=accuracy, samples=samples,
                     check=check, progress=not quiet)

@@ -15,17 +15,9 @@ FIGURES = {"fig9": "fig09_reflection_lobes", "fig10": "fig10_transmission_lobes"
            "fig11": "fig11_observed_values", "fig12": "fig12_spheres"}
 
 
-def _outdir(path):
-    path = os.path.abspath(path)
-    if os.path.exists(path) and not os.path.isdir(path):
-        raise UserError(f"output directory {path} exists and is not a directory")
-    parent = os.path.dirname(path)
-    if not os.path.isdir(parent):
-        raise UserError(f"cannot create {path}: directory {parent} does not exist")
-    os.makedirs(os.path.join(path, "spheres"), exist_ok=True)
-    if not os.access(path, os.W_OK):
-        raise UserError(f"output directory {path} is not writable")
-    return path
+#: Every entry ``veil reproduce`` writes at the top of its folder (a rerun replaces them all).
+OWNED = tuple(f"{name}.{fmt}" for name in FIGURES.values() for fmt in ("png", "pdf")) + \
+    ("spheres", "fig11_curves.csv", "report.md", "report.html")
 
 
 def curves_csv(exp) -> str:
@@ -40,7 +32,9 @@ def curves_csv(exp) -> str:
 
 @click.command("reproduce", short_help="Regenerate the paper's simulation experiment (figs. 9-12, report).")
 @click.option("-o", "--output", "outdir", required=True,
-              help="Output directory (created if missing; files in it are replaced).")
+              help="Output directory (created if missing). Written as a whole at the end: "
+                   "veil's files in it are replaced together, other files are left alone; "
+                   "an interrupted run leaves it as it was.")
 @click.option("--size", type=int, default=256, show_default=True,
               help="Size of the rendered spheres (fig. 12), pixels.")
 @click.option("--accuracy", type=click.Choice(["fast", "default", "high"]), default="default",
@@ -56,13 +50,21 @@ def curves_csv(exp) -> str:
 def reproduce_command(outdir, size, accuracy, render_accuracy, check, dpi, quiet):
     """Regenerate the paper's simulation experiment: figs. 9-12 (PNG and PDF), the fig. 11
     curves (CSV), the fig. 12 spheres (PNG) and report.md / report.html."""
+    reproduce(outdir, size=size, accuracy=accuracy, render_accuracy=render_accuracy,
+              check=check, dpi=dpi, quiet=quiet)
+
+
+def reproduce(outdir, *, size=256, accuracy="default", render_accuracy="fast", check=64,
+              dpi=150, quiet=False, shown=None) -> None:
+    """The work of ``veil reproduce`` (options as there); messages name the folder
+    ``shown`` (default ``outdir``)."""
     import io
 
     import matplotlib.pyplot as plt
     import numpy as np
 
-    from ..viz.figures import (fig9, fig10, fig11, fig12, figure_bytes, run_experiment,
-                           write_bytes_atomic)
+    from ..io import check_output_folder, output_folder, write_bytes_atomic
+    from ..viz.figures import fig9, fig10, fig11, fig12, figure_bytes, run_experiment
     from ..viz.render import png_bytes, tone_map
     from ..viz.reports import write_report
 
@@ -72,7 +74,7 @@ def reproduce_command(outdir, size, accuracy, render_accuracy, check, dpi, quiet
         raise UserError(f"--check {check} must be between 0 and 4096 pixels")
     if not 30 <= dpi <= 600:
         raise UserError(f"--dpi {dpi} must be between 30 and 600")
-    outdir = _outdir(outdir)
+    outdir = check_output_folder(outdir)
     t0 = time.perf_counter()
 
     progress = task = None
@@ -93,32 +95,34 @@ def reproduce_command(outdir, size, accuracy, render_accuracy, check, dpi, quiet
     try:
         exp = run_experiment(size=size, accuracy=accuracy, render_accuracy=render_accuracy,
                              check=check, progress=step)
-        files = {}
         drawers = {"fig9": lambda: fig9(list(exp.brdfs.values()), exp.theta_i, list(exp.brdfs)),
                    "fig10": lambda: fig10(list(exp.media.values()), exp.theta_i, list(exp.media)),
                    "fig11": lambda: fig11(exp), "fig12": lambda: fig12(exp)}
         n_steps = 2 * len(exp.curves)
-        for k, (key, draw) in enumerate(drawers.items()):
-            step(f"drawing {key}", n_steps + k, n_steps)
-            fig = draw()
-            try:
-                for fmt in ("png", "pdf"):
-                    name = f"{FIGURES[key]}.{fmt}"
-                    write_bytes_atomic(os.path.join(outdir, name), figure_bytes(fig, fmt, dpi))
-                files[key] = f"{FIGURES[key]}.png"
-            finally:
-                plt.close(fig)
-        for (b, m), st in exp.stats.items():
-            img = tone_map(exp.renders[(b, m)].image, st.exposure, "reinhard")
-            meta = {"veil:exposure": f"{st.exposure:.6g}", "veil:tone": "reinhard",
-                    "veil:brdf": str(exp.brdfs[b]),
-                    "veil:medium": "clear" if m == "clear" else str(exp.media[m])}
-            write_bytes_atomic(os.path.join(outdir, "spheres", f"{b}_{m}.png"), png_bytes(img, meta))
-            buf = io.BytesIO()
-            np.save(buf, exp.renders[(b, m)].image.astype(np.float32))
-            write_bytes_atomic(os.path.join(outdir, "spheres", f"{b}_{m}.npy"), buf.getvalue())
-        write_bytes_atomic(os.path.join(outdir, "fig11_curves.csv"), curves_csv(exp).encode())
-        md, page = write_report(exp, outdir, files)
+        with output_folder(outdir, owned=OWNED) as folder:
+            files = {}
+            for k, (key, draw) in enumerate(drawers.items()):
+                step(f"drawing {key}", n_steps + k, n_steps)
+                fig = draw()
+                try:
+                    for fmt in ("png", "pdf"):
+                        name = f"{FIGURES[key]}.{fmt}"
+                        write_bytes_atomic(folder / name, figure_bytes(fig, fmt, dpi))
+                    files[key] = f"{FIGURES[key]}.png"
+                finally:
+                    plt.close(fig)
+            (folder / "spheres").mkdir()
+            for (b, m), st in exp.stats.items():
+                img = tone_map(exp.renders[(b, m)].image, st.exposure, "reinhard")
+                meta = {"veil:exposure": f"{st.exposure:.6g}", "veil:tone": "reinhard",
+                        "veil:brdf": str(exp.brdfs[b]),
+                        "veil:medium": "clear" if m == "clear" else str(exp.media[m])}
+                write_bytes_atomic(folder / "spheres" / f"{b}_{m}.png", png_bytes(img, meta))
+                buf = io.BytesIO()
+                np.save(buf, exp.renders[(b, m)].image.astype(np.float32))
+                write_bytes_atomic(folder / "spheres" / f"{b}_{m}.npy", buf.getvalue())
+            write_bytes_atomic(folder / "fig11_curves.csv", curves_csv(exp).encode())
+            md, page = write_report(exp, folder, files)
     finally:
         if progress is not None:
             progress.stop()
@@ -130,4 +134,5 @@ def reproduce_command(outdir, size, accuracy, render_accuracy, check, dpi, quiet
     worst = max((r.max_rel_error for r in exp.renders.values()), default=0.0)
     click.echo(f"spheres: worst interpolation error {100 * worst:.2g} % (angles <= 80 deg)")
     click.echo(f"wrote figures, spheres/, fig11_curves.csv, {os.path.basename(md)} and "
-               f"{os.path.basename(page)} to {outdir} in {time.perf_counter() - t0:.0f} s")
+               f"{os.path.basename(page)} to {shown or outdir} in "
+               f"{time.perf_counter() - t0:.0f} s")

@@ -249,10 +249,12 @@ def _read_tiff(path: Path, rois) -> _Photo:
             image = None if memmappable else series.asarray()
         if memmappable:  # uncompressed: read only the ROIs' rows, read-only mapping
             image = tifffile.memmap(path, mode="r")
-    except ValueError:
+    except InputError:
         raise
-    except Exception as exc:  # tifffile raises TiffFileError and codec errors
-        raise InputError(f"{path}: cannot read as TIFF ({exc})") from None
+    except Exception as exc:  # noqa: BLE001 - TiffFileError, codec errors, a short file's mmap
+        raise InputError(f"{path}: cannot read as TIFF ({type(exc).__name__}: {exc}); "
+                         f"expected a complete TIFF file holding one gray or RGB image (is "
+                         f"the photo truncated, or not a TIFF?)") from None
     if axes == "SYX":
         image = np.moveaxis(image, 0, -1)
     return _image_patches(path, "tiff", image, rois)

@@ -29,7 +29,7 @@ import pandas as pd
 
 from ..errors import (InputError, InputTypeError, MeasurementError, MissingFileError,
                       NotAFileError)
-from ..io import write_bytes_atomic
+from ..io import write_text_atomic
 from ..engine.angles import direction, from_goniometer, from_signed_inplane, to_goniometer, to_signed_inplane
 
 #: Angle columns, in the order :func:`canonical_angles` writes them.
@@ -240,13 +240,15 @@ def _check_agreement(found: dict, rows: RowNames) -> tuple:
     return primary
 
 
-def _warn_radians(cols: dict, what: str) -> None:
+def _warn_radians(cols: dict, what: str) -> bool:
     present = [c for c in _RADIAN_LIMITS if c in cols]
     if present and all(np.all(np.abs(cols[c]) < _RADIAN_LIMITS[c]) for c in present):
         warnings.warn(
             f"every angle in {what} is small (|theta|, |rho| < 1.6, |psi| < 3.2, |phi| < 6.3): "
             f"were they written in radians? veil reads angles in degrees (MODEL.md sec. 1)",
-            LikelyRadiansWarning, stacklevel=2)
+            LikelyRadiansWarning, stacklevel=3)
+        return True
+    return False
 
 
 def _check_type(table) -> None:
@@ -262,11 +264,19 @@ def _check_columns(table: pd.DataFrame, what: str) -> None:
         raise MeasurementError(f"{what} has no rows: expected one observation a row")
 
 
+#: Key of a table's attrs recording which angles the radians warning was given for.
+_RADIANS_WARNED = "veil_radians_warned"
+
+
 def _parse_angles(table: pd.DataFrame, rows: RowNames, warn: bool = True):
     forms = _form(table.columns, rows.what)
     cols = {c: _numbers(table, c, rows) for c in ANGLE_COLUMNS if c in table.columns}
     if warn:
-        _warn_radians(cols, rows.what)
+        # once per table: loading, validating and converting the same angles (as a fit
+        # does) warn one time; the mark travels with the table's copies in attrs
+        key = hash(tuple((c, v.tobytes()) for c, v in sorted(cols.items())))
+        if table.attrs.get(_RADIANS_WARNED) != key and _warn_radians(cols, rows.what):
+            table.attrs[_RADIANS_WARNED] = key
     return cols, _check_agreement(_angles_from(cols, forms, rows), rows)
 
 
@@ -508,15 +518,7 @@ def save_measurements(table: pd.DataFrame, path) -> None:
         elif pd.api.types.is_float_dtype(frame[c].dtype):
             frame[c] = ["" if math.isnan(x) else repr(float(x)) for x in frame[c].to_numpy(dtype=float)]
     text = frame.to_csv(index=False, lineterminator="\n")
-    atomic_write_text(path, text)
-
-
-def atomic_write_text(path, text: str) -> None:
-    """Write ``text`` (UTF-8) to ``path`` through a temporary file in the same directory."""
-    path = Path(path)
-    if path.is_dir():
-        raise NotAFileError(f"cannot write {path}: it is a directory")
-    write_bytes_atomic(path, text.encode("utf-8"))
+    write_text_atomic(path, text)
 
 
 # --------------------------------------------------------------------------------------
@@ -582,5 +584,5 @@ def subtract_black(table: pd.DataFrame, black: pd.DataFrame, tol: float = 0.05) 
 
 
 __all__ = ["load_measurements", "save_measurements", "canonical_angles", "subtract_black",
-           "validate", "to_form", "atomic_write_text", "MeasurementError",
+           "validate", "to_form", "MeasurementError",
            "LikelyRadiansWarning", "CANONICAL", "FORMS"]

@@ -9,7 +9,7 @@ import numpy as np
 
 from functools import lru_cache
 
-from ..errors import InputError, InputTypeError
+from ..errors import InputError, InputTypeError, ParameterError
 from .._jax import jax, jnp
 from .forward import Forward
 from .angles import check_angles, direction  # noqa: F401  (check_angles re-exported)
@@ -31,12 +31,70 @@ def as_btdf(medium) -> BTDF:
     return model
 
 
+def overflow_error(what: str, models, vectors=None) -> InputError:
+    """The InputError for a result that does not fit in a float64 (above 1.8e308): it names
+    the models' scale parameters (``Model.SCALES``; the result is linear in each) and their
+    values; ``vectors`` gives parameter values other than the models' own."""
+    named = []
+    for k, model in enumerate(models):
+        if model is None:
+            continue
+        values = model.to_vector() if vectors is None else np.asarray(vectors[k], dtype=float)
+        names = model.param_names()
+        named += [f"{name} = {values[names.index(name)]:.4g}" for name in model.SCALES.values()]
+    return InputError(f"{what} overflows float64 (it would exceed 1.8e308) with "
+                      f"{', '.join(named)}: these coefficients scale it linearly (relative "
+                      f"units); give them smaller values")
+
+
+def check_finite(values, what: str, models, vectors=None, terms=None) -> np.ndarray:
+    """``values`` if every one is finite. Otherwise an :func:`overflow_error` (the scale
+    parameters multiply finite ``terms`` into something beyond float64) or, when the engine's
+    own ``terms`` are not finite, a FloatingPointError: that is a bug in veil."""
+    values = np.asarray(values)
+    if terms is not None and not np.all(np.isfinite(terms)):
+        _check_facets(models, vectors)
+        raise FloatingPointError(f"the engine computed a non-finite term for {what} with "
+                                 f"{', '.join(str(m) for m in models if m is not None)}")
+    if not np.all(np.isfinite(values)):
+        if terms is None and np.any(np.isnan(values)):
+            raise FloatingPointError(f"{what} is NaN with "
+                                     f"{', '.join(str(m) for m in models if m is not None)}")
+        raise overflow_error(what, models, vectors)
+    return values
+
+
+#: Smallest facet cumulative over the hemisphere the engine integrates: below it the facet
+#: law's density underflows float64 and its grids degenerate.
+MIN_FACET_MASS = 1e-280
+
+
+def _check_facets(models, vectors=None) -> None:
+    """ParameterError for a BRDF whose facet distribution is too wide to represent (its
+    cumulative over the hemisphere underflows): for Torrance-Sparrow a smoothness n below
+    about 1e-140 / deg, whose facet law is flat to 1e-280 and so no different from n =
+    1e-100 in any digit."""
+    for k, model in enumerate(models):
+        cdf = getattr(model, "facet_cdf", None)
+        if model is None or cdf is None:
+            continue
+        v = model.to_vector() if vectors is None else np.asarray(vectors[k], dtype=float)
+        mass = float(cdf(jnp.asarray(v, dtype=float), 0.5 * np.pi))
+        if not mass >= MIN_FACET_MASS:
+            raise ParameterError(f"{model if vectors is None else type(model).__name__}: its "
+                                 f"facet distribution is too wide for float64 (cumulative "
+                                 f"{mass:.3g} over the hemisphere, below {MIN_FACET_MASS:g}); "
+                                 f"a facet law this flat gives the same values as a smoothness "
+                                 f"of 1e-100, so give a larger smoothness")
+
+
 def reflectance(brdf, theta_i, theta_r, phi_i=180.0, phi_r=0.0) -> np.ndarray:
     """The object's own BRDF f_r (MODEL.md sec. 2) at the given angles (degrees)."""
     model = as_brdf(brdf)
     ti, tr, pi_, pr = check_angles(theta_i, theta_r, phi_i, phi_r)
     wi, wr = direction(ti, pi_), direction(tr, pr)
-    return np.asarray(_evaluate_fn(type(model))(jnp.asarray(model.to_vector()), wi, wr))
+    value = np.asarray(_evaluate_fn(type(model))(jnp.asarray(model.to_vector()), wi, wr))
+    return check_finite(value, "the reflectance f_r", [model])
 
 
 @lru_cache(maxsize=None)
@@ -68,8 +126,16 @@ def apparent(brdf, medium, theta_i, theta_r, phi_i=180.0, phi_r=0.0, *,
     ti, tr, pi_, pr = check_angles(theta_i, theta_r, phi_i, phi_r)
     shape = ti.shape
     vb, vm = b.to_vector(), m.to_vector()
-    value = Forward(b, m, ti, tr, pi_, pr, RULES[accuracy])(vb, vm).reshape(shape)
+
+    def evaluate(rule):
+        forward = Forward(b, m, ti, tr, pi_, pr, rule)
+        terms = forward.terms(vb, vm)
+        value = forward.combine(terms, vb, vm).reshape(shape)
+        return check_finite(value, "the apparent reflectance", [b, m], terms=terms)
+
+    value = evaluate(RULES[accuracy])
     if not return_error:
         return value
-    finer = Forward(b, m, ti, tr, pi_, pr, FINER[accuracy])(vb, vm).reshape(shape)
-    return value, np.asarray(ERROR_FACTOR * np.abs(value - finer))
+    finer = evaluate(FINER[accuracy])
+    error = ERROR_FACTOR * np.abs(value - finer)
+    return value, check_finite(error, "the error estimate of the apparent reflectance", [b, m])

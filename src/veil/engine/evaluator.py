@@ -16,6 +16,7 @@ import numpy as np
 
 from .._jax import jax, jnp
 from .angles import direction
+from .apparent import check_finite
 from .forward import Forward
 from ..models import BRDF, BTDF
 from .apparent import apparent, reflectance
@@ -58,6 +59,7 @@ class ApparentModel:
     :func:`veil.simulate`, so both share one compilation per accuracy)."""
 
     def __init__(self, brdf: BRDF, medium: BTDF, angles, rule):
+        self.models = (brdf, medium)
         self.size = len(angles[0])
         self.parts = []
         for start, stop, idx in chunks(self.size):
@@ -79,12 +81,15 @@ class ApparentModel:
         """Term matrices (M, 3, 2) with the scale parameters set to 1 (rows T_d^2, T_d T_t,
         T_t^2; columns the BRDF's separable and lobe parts; veil.integrator)."""
         self.values_calls += 1
-        return np.concatenate([f.terms(vb, vm)[:n] for f, n in self.parts])
+        terms = np.concatenate([f.terms(vb, vm)[:n] for f, n in self.parts])
+        return check_finite(terms, "the apparent reflectance", self.models, [vb, vm], terms)
 
     def values(self, vb, vm) -> np.ndarray:
         """Apparent reflectance (M,) at parameter vectors ``vb``, ``vm`` (MODEL.md eq. 1)."""
         self.values_calls += 1
-        return np.concatenate([f(vb, vm)[:n] for f, n in self.parts])
+        terms = np.concatenate([f.terms(vb, vm)[:n] for f, n in self.parts])
+        values = self.parts[0][0].combine(terms, vb, vm)
+        return check_finite(values, "the apparent reflectance", self.models, [vb, vm], terms)
 
     def value_and_jacobian(self, vb, vm):
         """Values (M,) and d value / d (every BRDF parameter, every medium parameter)."""
@@ -94,7 +99,9 @@ class ApparentModel:
             v, j = f.value_and_jacobian(vb, vm, free_brdf=self.all_b, free_medium=self.all_m)
             vals.append(v[:n])
             jacs.append(j[:n])
-        return np.concatenate(vals), np.concatenate(jacs)
+        values = check_finite(np.concatenate(vals), "the apparent reflectance", self.models,
+                              [vb, vm])
+        return values, np.concatenate(jacs)
 
 
 _DIRECT_FNS: dict = {}
@@ -128,14 +135,16 @@ class DirectModel:
         """f_r (M,) at the BRDF parameter vector ``v``."""
         self.values_calls += 1
         f, _ = _direct_fns(self.cls)
-        return np.asarray(f(jnp.asarray(v, dtype=float), self.wi, self.wr))[: self.size]
+        values = np.asarray(f(jnp.asarray(v, dtype=float), self.wi, self.wr))[: self.size]
+        return check_finite(values, "the reflectance f_r", [self.cls], [v])
 
     def value_and_jacobian(self, v):
         """f_r (M,) and its Jacobian (M, len(v)) with respect to ``v``."""
         self.jacobian_calls += 1
         f, jf = _direct_fns(self.cls)
         vj = jnp.asarray(v, dtype=float)
-        return (np.asarray(f(vj, self.wi, self.wr))[: self.size],
+        values = np.asarray(f(vj, self.wi, self.wr))[: self.size]
+        return (check_finite(values, "the reflectance f_r", [self.cls], [v]),
                 np.asarray(jf(vj, self.wi, self.wr))[: self.size])
 
 

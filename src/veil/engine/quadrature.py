@@ -49,11 +49,19 @@ def horizon_one_minus_mu(center_z, cos_beta):
 
     For a centre at polar angle theta, the great circle leaving it at azimuth beta (beta = 0
     towards the horizon) reaches z = 0 at tan(gamma_max) = cos(theta) / (sin(theta) cos(beta)).
+    With x = sin(theta) cos(beta) and r = sqrt(cos(theta)^2 + x^2), 1 - cos(gamma_max) =
+    1 - x / r, written as cos(theta)^2 / (r (r + x)) where x > 0: near the horizon
+    (cos(theta) -> 0) the distance is tiny and 1 - x / r would round it to 0. Finite for
+    every centre, including one on the horizon (then 0 or 2).
     """
-    st = jnp.sqrt(jnp.maximum(1.0 - center_z ** 2, 0.0))
+    z = jnp.maximum(center_z, 0.0)
+    st = jnp.sqrt(jnp.maximum(1.0 - z * z, 0.0))
     x = st * cos_beta
-    r = jnp.sqrt(center_z ** 2 + x * x)
-    return 1.0 - x / r
+    r = jnp.sqrt(z * z + x * x)
+    ok = r > 0.0
+    r_s = jnp.where(ok, r, 1.0)
+    near = z * z / (r_s * (r_s + jnp.abs(x)))  # 1 - |x| / r
+    return jnp.where(ok, jnp.where(x > 0.0, near, 2.0 - near), 1.0)
 
 
 @dataclass(frozen=True)

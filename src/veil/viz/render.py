@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import io
 import math
+import os
 import time
 from dataclasses import dataclass, field
 
@@ -110,19 +111,32 @@ def local_angles(normal, light):
             np.degrees(np.arccos(np.clip(cos_d, -1, 1))))
 
 
-def sphere_normals(size, samples=1):
+def sphere_normals(size, samples=1, rows=None):
     """Normals (size*s, size*s, 3) at (sub)pixel centres and the mask of the disk.
 
     The image spans x, y in [-VIEW, VIEW] (x to the right, y up, row 0 at the top); the unit
-    sphere's rim leaves a margin of (VIEW - 1) radii.
+    sphere's rim leaves a margin of (VIEW - 1) radii. ``rows=(first, stop)`` gives only the
+    subpixel rows of pixel rows first..stop-1, shape ((stop - first)*s, size*s, 3).
     """
     m = size * samples
     c = ((np.arange(m) + 0.5) / m * 2.0 - 1.0) * VIEW
-    x, y = np.meshgrid(c, -c)
+    r = c if rows is None else c[rows[0] * samples: rows[1] * samples]
+    x, y = np.meshgrid(c, -r)
     r2 = x * x + y * y
     inside = r2 < 1.0
     z = np.sqrt(np.where(inside, 1.0 - r2, 0.0))
     return np.stack([x, y, z], axis=-1), inside
+
+
+def pixel_normals(size, flat_index):
+    """Normals (n, 3) at the centres of the pixels with flat indices ``flat_index`` (row-major
+    in a size x size image) and whether each is on the disk."""
+    row, col = np.divmod(np.asarray(flat_index), size)
+    c = lambda k: ((k + 0.5) / size * 2.0 - 1.0) * VIEW  # noqa: E731
+    x, y = c(col), -c(row)
+    r2 = x * x + y * y
+    inside = r2 < 1.0
+    return np.stack([x, y, np.sqrt(np.where(inside, 1.0 - r2, 0.0))], axis=-1), inside
 
 
 def highlight_pixel(size, light_theta, light_phi=0.0):
@@ -262,6 +276,60 @@ def _check_args(size, light_theta, light_phi, samples, accuracy):
         raise InputError(f"accuracy = {accuracy!r}; expected one of {', '.join(RULES)}")
 
 
+# --------------------------------------------------------------------------------------
+# memory
+# --------------------------------------------------------------------------------------
+#: Subpixels shaded at a time: the image is rendered in bands of pixel rows holding at most
+#: this many samples, so the working memory does not grow with --samples or --size.
+PIXEL_CHUNK = 1 << 19
+#: Bytes per subpixel of a band (normals, angles, masks, table look-up): about 60 measured,
+#: twice that for the estimate.
+BAND_BYTES_PER_SUBPIXEL = 120
+#: Bytes per image pixel of the whole command (the linear image, its mask, the exposure,
+#: clipping count and tone mapping of ``veil render``, the PNG): about 30 measured.
+BYTES_PER_PIXEL = 36
+#: What a process running the engine holds besides (Python, JAX, numpy, the compiled
+#: engine): 404 MiB measured for a 256 px render.
+BASE_BYTES = 480 << 20
+# Measured peaks of `veil render --brdf BRDF1 --medium BTDF3` (/usr/bin/time, max RSS):
+# 256 px 0.41 GB, 4096 px 0.92 GB with 1 or with 8 x 8 samples; estimates 0.49, 1.17 GB.
+
+
+def memory_estimate(size: int, samples: int = 1) -> int:
+    """Bytes :func:`render` (and ``veil render``) need at most for a ``size`` image with
+    ``samples`` x ``samples`` samples per pixel: the image itself plus one band."""
+    per_row = size * samples * samples
+    band = min(size, max(1, PIXEL_CHUNK // per_row)) * per_row
+    return BASE_BYTES + BYTES_PER_PIXEL * size * size + BAND_BYTES_PER_SUBPIXEL * band
+
+
+def available_memory() -> int | None:
+    """Bytes the machine can give this process now (MemAvailable of /proc/meminfo, else the
+    free physical pages), or None when unknown."""
+    try:
+        with open("/proc/meminfo", encoding="ascii") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (ValueError, OSError, AttributeError):
+        return None
+
+
+def check_memory(size: int, samples: int, names=("size", "samples")) -> None:
+    """InputError when :func:`memory_estimate` exceeds :func:`available_memory`; the message
+    gives the estimate and the options (``names``) to lower."""
+    need, have = memory_estimate(size, samples), available_memory()
+    if have is not None and need > have:
+        raise InputError(f"rendering {size} x {size} pixels with {samples} x {samples} samples "
+                         f"needs about {need / 2**30:.2f} GiB of memory, more than the "
+                         f"{have / 2**30:.2f} GiB available: lower {names[0]} (the memory "
+                         f"grows with its square) or {names[1]}")
+
+
 def _check_pixels(values, lit, count, rng_seed=20110901):
     """Deterministic pixel sample: half among the brightest 10 % of lit pixels, half uniform."""
     idx = np.flatnonzero(lit)
@@ -276,6 +344,31 @@ def _check_pixels(values, lit, count, rng_seed=20110901):
     return np.unique(np.concatenate(pick))[:max(count, 1)]
 
 
+def _uw(normal, frame):
+    """Polar coordinates (u, w) in degrees of normals about H (see :class:`ApparentTable`)."""
+    h, e1, e2 = frame
+    u = np.degrees(np.arccos(np.clip(normal @ h, -1.0, 1.0)))
+    return u, np.degrees(np.arctan2(normal @ e2, normal @ e1))
+
+
+def _shade(b, table, frame, light, normal, inside, padded=None):
+    """f and the lit mask at ``normal`` (..., 3): the table's interpolation, or f_r directly
+    (evaluated on ``padded`` configurations, so that every band has one shape)."""
+    cos_i = normal @ light
+    lit = inside & (cos_i > 0.0)
+    f = np.zeros(lit.shape)
+    if table is None:
+        ti, tr, dp = local_angles(normal[lit], light)
+        n = ti.size
+        if padded and n:
+            ti, tr, dp = (np.concatenate([a, np.full(padded - n, 45.0)]) for a in (ti, tr, dp))
+        f[lit] = evaluate(b, None, ti, tr, dp)[:n] if n else 0.0
+    else:
+        u, w = _uw(normal[lit], frame)
+        f[lit] = table(u, w)
+    return f, lit, cos_i
+
+
 def render(brdf, medium=None, light_theta=45.0, light_phi=0.0, size=256, *, accuracy="fast",
            samples=1, check=64, density=1.0, progress=False) -> Rendering:
     """Render the sphere (module docstring) and measure the interpolation error.
@@ -283,10 +376,15 @@ def render(brdf, medium=None, light_theta=45.0, light_phi=0.0, size=256, *, accu
     brdf, medium : models or preset names; ``medium=None`` renders the true f_r directly.
     light_theta, light_phi : light direction in degrees (polar angle from the view axis).
     size : image width and height in pixels; samples : k x k samples per pixel (1: centre).
-    check : pixels re-evaluated with the engine directly to measure the interpolation error.
+    check : pixels re-evaluated with the engine directly at their centres to measure the
+        interpolation error.
     density : table refinement factor (1 is the default grid). Lights more than 60 deg from
         the view get up to twice the density (:func:`auto_density`): the lit, visible part of
         the table shrinks towards grazing angles there.
+
+    The image is shaded in bands of at most :data:`PIXEL_CHUNK` samples, so memory grows
+    with the image (:func:`memory_estimate`), not with the samples; a size that would not
+    fit in the available memory is an InputError saying how much it needs.
     """
     _check_args(size, light_theta, light_phi, samples, accuracy)
     b = as_brdf(brdf)
@@ -295,45 +393,56 @@ def render(brdf, medium=None, light_theta=45.0, light_phi=0.0, size=256, *, accu
         raise InputError(f"check = {check!r} must be an integer in [0, 4096] pixels")
     if not (isinstance(density, (int, float)) and 0.25 <= density <= 8):
         raise InputError(f"density = {density!r} must be in [0.25, 8]")
+    check_memory(size, samples)
     t0 = time.perf_counter()
     density = density * auto_density(float(light_theta))
     light = light_direction(float(light_theta), float(light_phi))
-    normal, inside = sphere_normals(size, samples)
-    ti, tr, dp = local_angles(normal, light)
-    cos_i = normal @ light
-    lit = inside & (cos_i > 0.0)
+    frame = half_vector_frame(light)
+    per_row = size * samples * samples
+    rows = max(1, PIXEL_CHUNK // per_row)  # pixel rows per band
+    bands = range(0, size, rows)
 
     with _Progress(progress, f"rendering {size}x{size}") as bar:
-        if m is None:
-            f = np.zeros(lit.shape)
-            f[lit] = evaluate(b, None, ti[lit], tr[lit], dp[lit])
-            table = None
-        else:
-            h, e1, e2 = half_vector_frame(light)
-            u = np.degrees(np.arccos(np.clip(normal @ h, -1.0, 1.0)))
-            w = np.degrees(np.arctan2(normal @ e2, normal @ e1))
+        table = None
+        if m is not None:
             n_table = len(u_nodes(peak_width(b, m), density)) * max(5, int(round((W_NODES - 1) * density)) + 1)
-            bar.start(n_table + (check if check else 0))
+            bar.start(n_table + (check if check else 0), len(bands))
             table = build_table(b, m, light, accuracy=accuracy, density=density, progress=bar.advance)
-            f = np.zeros(lit.shape)
-            f[lit] = table(u[lit], w[lit])
-        linear = np.where(lit, f * np.where(lit, cos_i, 0.0), 0.0)
-        image = linear.reshape(size, samples, size, samples).mean(axis=(1, 3)) if samples > 1 else linear
+        else:
+            bar.start(0, len(bands))
+        image = np.zeros((size, size))
+        lit_px = np.zeros((size, size), dtype=bool)  # pixel centres on the lit disk
+        peak = 0.0  # largest linear sample value
+        for first in bands:
+            stop = min(size, first + rows)
+            normal, inside = sphere_normals(size, samples, (first, stop))
+            f, lit, cos_i = _shade(b, table, frame, light, normal, inside, padded=rows * per_row)
+            linear = np.where(lit, f * np.where(lit, cos_i, 0.0), 0.0)
+            peak = max(peak, float(linear.max()))
+            if samples > 1:
+                image[first:stop] = linear.reshape(stop - first, samples, size, samples).mean(axis=(1, 3))
+                centres, on_disk = pixel_normals(size, np.arange(first * size, stop * size))
+                lit_px[first:stop] = (on_disk & (centres @ light > 0.0)).reshape(stop - first, size)
+            else:
+                image[first:stop], lit_px[first:stop] = linear, lit
+            del normal, inside, f, lit, cos_i, linear
+            bar.band()
 
         max_rel = max_rel_all = max_peak = 0.0
         checked = 0
         if table is not None and check:
-            pick = _check_pixels(linear, lit, check)
+            pick = _check_pixels(image, lit_px, check)
             checked = pick.size
-            direct = evaluate(b, m, ti.ravel()[pick], tr.ravel()[pick], dp.ravel()[pick],
-                              accuracy=accuracy, progress=bar.advance)
-            interp = f.ravel()[pick]
+            normal, _ = pixel_normals(size, pick)
+            ti, tr, dp = local_angles(normal, light)
+            direct = evaluate(b, m, ti, tr, dp, accuracy=accuracy, progress=bar.advance)
+            interp = table(*_uw(normal, frame))
             rel = np.abs(interp - direct) / direct
-            inner = np.maximum(ti.ravel()[pick], tr.ravel()[pick]) <= ERROR_ANGLE
+            inner = np.maximum(ti, tr) <= ERROR_ANGLE
             max_rel = float(rel[inner].max()) if inner.any() else 0.0
             max_rel_all = float(rel.max())
-            diff = np.abs(interp - direct) * cos_i.ravel()[pick]
-            max_peak = float(np.max(diff) / max(linear.max(), 1e-300))
+            diff = np.abs(interp - direct) * (normal @ light)
+            max_peak = float(np.max(diff) / max(peak, 1e-300))
     return Rendering(image=image, brdf=b, medium=m, light_theta=float(light_theta),
                      light_phi=float(light_phi), accuracy=accuracy, samples=int(samples),
                      table_nodes=0 if table is None else table.nodes, checked=checked,
@@ -353,11 +462,12 @@ def render_sphere(brdf, medium=None, light_theta=45.0, light_phi=0.0, size=256, 
 
 
 class _Progress:
-    """A rich progress bar on stderr when ``enabled``; a no-op otherwise."""
+    """A rich progress bar on stderr when ``enabled``; a no-op otherwise. It counts engine
+    evaluations (the table, the checked pixels) and the bands of the image."""
 
     def __init__(self, enabled, label):
         self.enabled, self.label = enabled, label
-        self._p = self._task = None
+        self._p = self._task = self._bands = None
 
     def __enter__(self):
         if self.enabled:
@@ -370,13 +480,21 @@ class _Progress:
             self._p.__enter__()
         return self
 
-    def start(self, total):
+    def start(self, total, bands=0):
         if self._p is not None:
-            self._task = self._p.add_task(f"{self.label}: engine evaluations", total=total)
+            if total:
+                self._task = self._p.add_task(f"{self.label}: engine evaluations", total=total)
+            if bands > 1:
+                self._bands = self._p.add_task(f"{self.label}: bands of pixel rows",
+                                               total=bands)
 
     def advance(self, k):
         if self._p is not None and self._task is not None:
             self._p.advance(self._task, k)
+
+    def band(self):
+        if self._p is not None and self._bands is not None:
+            self._p.advance(self._bands, 1)
 
     def __exit__(self, *exc):
         if self._p is not None:
@@ -416,10 +534,15 @@ def tone_map(linear, exposure, tone="clip") -> np.ndarray:
         raise InputError(f"exposure = {exposure!r} must be a positive number")
     if tone not in TONES:
         raise InputError(f"tone = {tone!r}; expected one of {', '.join(TONES)}")
-    x = exposure * np.asarray(linear, dtype=float)
-    if tone == "reinhard":
-        x = x / (1.0 + x)
-    return np.round(255.0 * srgb_encode(x)).astype(np.uint8)
+    linear = np.asarray(linear, dtype=float)
+    out = np.empty(linear.shape, dtype=np.uint8)
+    flat_in, flat_out = linear.reshape(-1), out.reshape(-1)
+    for start in range(0, flat_in.size, PIXEL_CHUNK):  # a few temporaries of a band each
+        x = exposure * flat_in[start:start + PIXEL_CHUNK]
+        if tone == "reinhard":
+            x = x / (1.0 + x)
+        flat_out[start:start + PIXEL_CHUNK] = np.round(255.0 * srgb_encode(x))
+    return out
 
 
 def clipping(linear, exposure, tone="clip"):
@@ -450,4 +573,4 @@ def png_bytes(image_u8, text=None) -> bytes:
 __all__ = ["render", "render_sphere", "Rendering", "evaluate", "auto_exposure", "tone_map",
            "clipping", "srgb_encode", "highlight_pixel", "build_table", "ApparentTable",
            "local_angles", "light_direction", "half_vector_frame", "sphere_normals", "png_bytes",
-           "TONES"]
+           "TONES", "memory_estimate", "available_memory", "check_memory", "pixel_normals"]
