@@ -36,7 +36,9 @@ def __getattr__(name: str):
     elif name in _PRESETS:
         value = importlib.import_module(".models", __name__).PRESETS[name]
     else:
-        value = _families().get(name)
+        # Family classes are CamelCase; anything else (a submodule being imported, a dunder
+        # probed by a tool) is not looked up, so that no import loads the models or plugins.
+        value = _families().get(name) if name[:1].isupper() else None
         if value is None:
             raise AttributeError(f"module 'veil' has no attribute {name!r}")
     globals()[name] = value
