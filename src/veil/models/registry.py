@@ -17,12 +17,16 @@ import os
 from ..errors import InputError, InputTypeError
 from .base import KINDS, ROLES, Model
 from .henyey_greenstein import HenyeyGreenstein
+from .rough_conductor import RoughConductor
+from .rough_plastic import RoughPlastic
 from .torrance_sparrow import TorranceSparrow
 
 #: The families veil ships, one line each.
 FAMILIES = (
     TorranceSparrow,
     HenyeyGreenstein,
+    RoughPlastic,
+    RoughConductor,
 )
 #: The paper's models: the default family of each kind.
 DEFAULTS = {"brdf": TorranceSparrow.NAME, "medium": HenyeyGreenstein.NAME}
