@@ -42,7 +42,7 @@ def conductor_reflectance(cos_theta, n, k):
     c2 = c * c
     s2 = 1.0 - c2
     x = n * n - k * k - s2
-    ab2 = jnp.sqrt(x * x + 4.0 * n * n * k * k)
+    ab2 = _safe_sqrt(x * x + 4.0 * n * n * k * k)
     a = _safe_sqrt(0.5 * (ab2 + x))
     num_s = ab2 + c2 - 2.0 * a * c
     den_s = ab2 + c2 + 2.0 * a * c
