@@ -242,3 +242,10 @@ def test_options_the_engine_cannot_reach_are_refused(name, change):
         model.replace(**change)
     with pytest.raises(ParameterError, match="expected one of"):
         model.replace(distribution="phong")
+
+
+def test_schlick_alternative_matches_the_reference():
+    c = np.linspace(0.0, 1.0, 51)
+    for f0 in (0.04, 0.5, 0.95):
+        assert np.allclose(np.asarray(rc.schlick_reflectance(jnp.asarray(c), f0)),
+                           phys.fresnel_schlick(c, f0), rtol=1e-14)

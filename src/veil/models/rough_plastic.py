@@ -312,7 +312,8 @@ def internal_reflectance(alpha, eta, distribution="beckmann", n_radial=F_RADIAL,
 
 
 def _table_map(alpha):
-    """(L, x scale): x = asinh(gamma / alpha) / L in [0, 1] for elevation gamma."""
+    """L = asinh(pi / (2 alpha)): the table coordinate of elevation gamma is
+    x = asinh(gamma / alpha) / L in [0, 1]."""
     return jnp.arcsinh(HALF_PI / alpha)
 
 
