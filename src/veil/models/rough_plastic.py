@@ -38,6 +38,10 @@ from .base import BRDF, Option, Param
 DISTRIBUTIONS = ("beckmann", "ggx")
 HALF_PI = 0.5 * math.pi
 SQRT_PI = math.sqrt(math.pi)
+#: Beckmann's D is set to 0 where tan^2 theta_H / alpha^2 > 200 (exp(-200) = 1.4e-87 of its
+#: peak): the tail's values would make subnormal numbers in the engine's products, which the
+#: CPU computes about twice as slowly (measured: 576 -> 820 configurations per second).
+BECKMANN_CUT = 200.0
 
 # --------------------------------------------------------------------------------------
 # microfacet pieces (shared with rough_conductor)
@@ -61,25 +65,22 @@ def smith_g1(wz, wxy2, alpha, distribution="beckmann"):
     sin^2 theta = ``wxy2``, for a facet it sees the front of (the caller checks the side).
 
     Beckmann: G1 = 2 / (1 + erf(a) + exp(-a^2) / (a sqrt(pi))), a = 1 / (alpha tan theta)
-    (exactly 1 for a >= 8, where 1 - G1 < 1e-28; 2 sqrt(pi) a / (1 + sqrt(pi) a) for
-    a < 1e-8); GGX: G1 = 2 / (1 + sqrt(1 + alpha^2 tan^2 theta)). Zero at grazing (wz = 0).
+    (exactly 1 for a >= 8, where 1 - G1 < 1e-28); GGX: G1 = 2 / (1 + sqrt(1 + alpha^2
+    tan^2 theta)). Zero at grazing (wz = 0) up to 4e-30.
     """
     if distribution == "ggx":
         # 2 / (1 + sqrt(1 + alpha^2 tan^2)) multiplied through by cos theta: finite at wz = 0
         den = wz + jnp.sqrt(wz * wz + alpha * alpha * wxy2)
         ok = den > 0
         return jnp.where(ok, 2.0 * wz / jnp.where(ok, den, 1.0), 1.0)
-    from jax.scipy.special import erf
+    from jax.scipy.special import erfc
 
     s = alpha * _safe_sqrt(wxy2)                       # alpha sin theta
-    big = wz >= 8.0 * s                                # a >= 8 (includes normal incidence)
-    a = wz / jnp.where(big, 1.0, s)
-    small = a < 1e-8
-    a_m = jnp.where(big | small, 1.0, a)
-    g = 2.0 / (1.0 + erf(a_m) + jnp.exp(-a_m * a_m) / (a_m * SQRT_PI))
-    a_s = jnp.where(small, a, 0.0)
-    g_small = 2.0 * SQRT_PI * a_s / (1.0 + SQRT_PI * a_s)
-    return jnp.where(big, 1.0, jnp.where(small, g_small, g))
+    # a = cos / (alpha sin), held at 8 (1 - G1 < 1e-28 beyond: G1 = 1 exactly, also at the
+    # normal) and at 1e-30 (G1 = 2 sqrt(pi) a to double precision, finite derivatives)
+    a = jnp.maximum(wz / jnp.maximum(s, 0.125 * wz), 1e-30)
+    # 1 + erf(a) as 2 - erfc(a): the same value, and XLA's erfc is 4x faster on [0, 8]
+    return 2.0 / (2.0 - erfc(a) + jnp.exp(-a * a) / (a * SQRT_PI))
 
 
 def ndf(hz, hxy2, alpha, distribution="beckmann"):
@@ -93,7 +94,9 @@ def ndf(hz, hxy2, alpha, distribution="beckmann"):
         d = a2 / (math.pi * (a2 * hz * hz + hxy2) ** 2)
     else:
         h2 = hz * hz
-        d = jnp.exp(-jnp.minimum(hxy2 / (a2 * h2), 1e4)) / (math.pi * a2 * h2 * h2)
+        x = hxy2 / (a2 * h2)                          # tan^2 / alpha^2
+        ok = ok & (x < BECKMANN_CUT)
+        d = jnp.exp(-jnp.where(ok, x, 0.0)) / (math.pi * a2 * h2 * h2)
     return jnp.where(ok, d, 0.0)
 
 
@@ -121,12 +124,14 @@ def facet_inverse_cdf(alpha, y, distribution="beckmann"):
 def facet_weight(alpha, theta, sin_theta=None, distribution="beckmann"):
     """D(H) cos theta_H = d facet_cdf / d theta / (2 pi sin theta)."""
     s = jnp.sin(theta) if sin_theta is None else sin_theta
-    c = jnp.cos(theta)
+    # cos from sin: no second transcendental call (the engine passes sin); exact enough
+    # where the weight matters (relative error of cos ~1e-16 / cos^2)
+    c = jnp.cos(theta) if sin_theta is None else _safe_sqrt(1.0 - s * s)
     a2 = alpha * alpha
     if distribution == "ggx":
         return a2 * c / (math.pi * (a2 * c * c + s * s) ** 2)
-    x = _safe_div(s * s, a2 * c * c, 1e4)            # tan^2 / alpha^2
-    near = x < 700.0                                 # beyond, D cos < 1e-300: zero
+    x = s * s / (a2 * jnp.maximum(c * c, 1e-200))    # tan^2 / alpha^2 (a _safe_div here
+    near = x < BECKMANN_CUT                          # makes the engine 30 % slower)
     cs = jnp.where(near, c, 1.0)
     return jnp.where(near, jnp.exp(-jnp.where(near, x, 0.0)) / (math.pi * a2 * cs * cs * cs), 0.0)
 
