@@ -18,6 +18,8 @@ from ..errors import InputError, InputTypeError
 from .base import KINDS, ROLES, Model
 from .forward_series import ForwardSeries
 from .henyey_greenstein import HenyeyGreenstein
+from .rough_conductor import RoughConductor
+from .rough_plastic import RoughPlastic
 from .torrance_sparrow import TorranceSparrow
 
 #: The families veil ships, one line each.
@@ -25,6 +27,8 @@ FAMILIES = (
     TorranceSparrow,
     HenyeyGreenstein,
     ForwardSeries,
+    RoughPlastic,
+    RoughConductor,
 )
 #: The paper's models: the default family of each kind.
 DEFAULTS = {"brdf": TorranceSparrow.NAME, "medium": HenyeyGreenstein.NAME}
