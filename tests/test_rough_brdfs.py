@@ -234,15 +234,36 @@ def test_facet_law_is_normalized_and_its_inverse_reaches_the_horizon(dist):
 
 
 # --------------------------------------------------------------------------------------
-# options the engine cannot see yet
+# options reach the engine; the one that cannot is refused
 # --------------------------------------------------------------------------------------
-@pytest.mark.parametrize("name, change", [("rough-plastic", {"distribution": "ggx"}),
-                                          ("rough-plastic", {"nonlinear": True}),
-                                          ("rough-conductor", {"distribution": "ggx"})])
-def test_options_the_engine_cannot_reach_are_refused(name, change):
-    model = REGISTRY[name].template()
-    with pytest.raises(ParameterError, match="engine"):
-        model.replace(**change)
+@pytest.mark.parametrize("name", ["rough-plastic", "rough-conductor"])
+def test_the_distribution_option_reaches_veil_reflectance(name):
+    """veil.reflectance (the engine's jitted f_r) with GGX equals the reference's GGX, and
+    differs from Beckmann's by far more than the tolerance."""
+    import veil
+
+    model = REGISTRY[name].template().replace(alpha=0.2)
+    ti, tr = np.array([10.0, 30.0, 60.0]), np.array([40.0, 30.0, 20.0])
+    wi = np.stack([-np.sin(np.radians(ti)), 0 * ti, np.cos(np.radians(ti))], axis=1)
+    wo = np.stack([np.sin(np.radians(tr)), 0 * tr, np.cos(np.radians(tr))], axis=1)
+    for dist in ("beckmann", "ggx"):
+        m = model.replace(distribution=dist)
+        got = veil.reflectance(m, ti, tr)
+        if name == "rough-plastic":
+            want = phys.rough_plastic_vec(wi, wo, m.rho, m.alpha, m.eta, m.ks, dist, False,
+                                          smith="exact", tables="exact")
+        else:
+            want = phys.rough_conductor_vec(wi, wo, m.alpha, m.ks, n=m.n, k=m.k,
+                                            distribution=dist, smith="exact")
+        assert np.allclose(got, want, rtol=5e-5), (dist, got, want)
+    other = veil.reflectance(model.replace(distribution="beckmann"), ti, tr)
+    assert np.max(np.abs(got / other - 1)) > 0.05
+
+
+def test_the_nonlinear_diffuse_is_refused_with_the_reason():
+    model = REGISTRY["rough-plastic"].template()
+    with pytest.raises(ParameterError, match="linearly"):
+        model.replace(nonlinear=True)
     with pytest.raises(ParameterError, match="expected one of"):
         model.replace(distribution="phong")
 

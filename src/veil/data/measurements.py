@@ -74,12 +74,25 @@ class RowNames:
         return f"row {self.labels[k]!r} (index label) of {self.what}"
 
     def many(self, positions) -> str:
-        """Names of rows at ``positions``, the first few and a count of the rest."""
+        """Names of rows at ``positions``: "lines 2-5, 9 of f.csv" (runs of consecutive
+        lines joined, the first few runs and a count of the rest)."""
         positions = list(positions)
-        text = "; ".join(self(k) for k in positions[:_MAX_LISTED])
-        if len(positions) > _MAX_LISTED:
-            text += f"; and {len(positions) - _MAX_LISTED} more"
-        return text
+        if self.lines is None:
+            text = "; ".join(self(k) for k in positions[:_MAX_LISTED])
+            if len(positions) > _MAX_LISTED:
+                text += f"; and {len(positions) - _MAX_LISTED} more"
+            return text
+        runs: list[list[int]] = []
+        for line in (self.lines[k] for k in positions):
+            if runs and line == runs[-1][1] + 1:
+                runs[-1][1] = line
+            else:
+                runs.append([line, line])
+        named = [f"{a}" if a == b else f"{a}-{b}" for a, b in runs[:_MAX_LISTED]]
+        rest = sum(b - a + 1 for a, b in runs[_MAX_LISTED:])
+        word = "line" if len(positions) == 1 else "lines"
+        return (f"{word} {', '.join(named)}" + (f" and {rest} more" if rest else "")
+                + f" of {self.what}")
 
 
 def _fmt(x: float) -> str:

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from functools import lru_cache
 
 from ..errors import InputError, InputTypeError, ParameterError
 from .._jax import jax, jnp
@@ -93,13 +92,19 @@ def reflectance(brdf, theta_i, theta_r, phi_i=180.0, phi_r=0.0) -> np.ndarray:
     model = as_brdf(brdf)
     ti, tr, pi_, pr = check_angles(theta_i, theta_r, phi_i, phi_r)
     wi, wr = direction(ti, pi_), direction(tr, pr)
-    value = np.asarray(_evaluate_fn(type(model))(jnp.asarray(model.to_vector()), wi, wr))
+    value = np.asarray(_evaluate_fn(model)(jnp.asarray(model.to_vector()), wi, wr))
     return check_finite(value, "the reflectance f_r", [model])
 
 
-@lru_cache(maxsize=None)
-def _evaluate_fn(cls):
-    return jax.jit(cls.evaluate)
+_EVALUATE_FNS: dict = {}
+
+
+def _evaluate_fn(model):
+    """The jitted f_r of the model's structure (class and options)."""
+    key = model.structure()
+    if key not in _EVALUATE_FNS:
+        _EVALUATE_FNS[key] = jax.jit(model.evaluate)
+    return _EVALUATE_FNS[key]
 
 
 def apparent(brdf, medium, theta_i, theta_r, phi_i=180.0, phi_r=0.0, *,

@@ -107,21 +107,23 @@ class ApparentModel:
 _DIRECT_FNS: dict = {}
 
 
-def _direct_fns(cls):
-    """Jitted f_r(v, wi, wr) and its Jacobian in v for a BRDF class (MODEL.md sec. 2)."""
-    if cls not in _DIRECT_FNS:
+def _direct_fns(model):
+    """Jitted f_r(v, wi, wr) and its Jacobian in v for a BRDF's structure (class and
+    options; MODEL.md sec. 2)."""
+    key = model.structure()
+    if key not in _DIRECT_FNS:
         def f(v, wi, wr):
-            return cls.evaluate(v, wi, wr)
-        _DIRECT_FNS[cls] = (jax.jit(f), jax.jit(jax.jacfwd(f)))
-    return _DIRECT_FNS[cls]
+            return model.evaluate(v, wi, wr)
+        _DIRECT_FNS[key] = (jax.jit(f), jax.jit(jax.jacfwd(f)))
+    return _DIRECT_FNS[key]
 
 
 class DirectModel:
     """f_r at the data's configurations (MODEL.md sec. 2), padded to a multiple of CHUNK
     (one compilation per padded length)."""
 
-    def __init__(self, cls, angles):
-        self.cls = cls
+    def __init__(self, model, angles):
+        self.model = model  # a BRDF instance: its options select the code path
         self.size = len(angles[0])
         total = CHUNK * math.ceil(self.size / CHUNK)
         idx = np.minimum(np.arange(total), self.size - 1)
@@ -134,17 +136,17 @@ class DirectModel:
     def values(self, v) -> np.ndarray:
         """f_r (M,) at the BRDF parameter vector ``v``."""
         self.values_calls += 1
-        f, _ = _direct_fns(self.cls)
+        f, _ = _direct_fns(self.model)
         values = np.asarray(f(jnp.asarray(v, dtype=float), self.wi, self.wr))[: self.size]
-        return check_finite(values, "the reflectance f_r", [self.cls], [v])
+        return check_finite(values, "the reflectance f_r", [self.model], [v])
 
     def value_and_jacobian(self, v):
         """f_r (M,) and its Jacobian (M, len(v)) with respect to ``v``."""
         self.jacobian_calls += 1
-        f, jf = _direct_fns(self.cls)
+        f, jf = _direct_fns(self.model)
         vj = jnp.asarray(v, dtype=float)
         values = np.asarray(f(vj, self.wi, self.wr))[: self.size]
-        return (check_finite(values, "the reflectance f_r", [self.cls], [v]),
+        return (check_finite(values, "the reflectance f_r", [self.model], [v]),
                 np.asarray(jf(vj, self.wi, self.wr))[: self.size])
 
 

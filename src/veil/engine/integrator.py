@@ -544,8 +544,8 @@ def apparent_terms(brdf_template, medium_template, rule, vb, vm, wi, wr, half=Fa
     Pure JAX and differentiable in the non-scale parameters of ``vb`` and ``vm``.
     ``half=True`` is valid only when every configuration lies in the xz plane.
     """
-    brdf = type(brdf_template)
-    vb1 = _unit_scales(brdf, jnp.asarray(vb))
+    brdf = brdf_template  # its functions read its options (e.g. a microfacet distribution)
+    vb1 = _unit_scales(type(brdf), jnp.asarray(vb))
     vm1 = _unit_scales(type(medium_template), jnp.asarray(vm))
     shared = _shared(brdf, rule, vb1)
     maux = medium_template.prepare(vm1)

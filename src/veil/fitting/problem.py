@@ -58,7 +58,7 @@ class SessionModel:
         self.nb = len(type(brdf).PARAMS)
         self.nm = 0 if medium is None else len(type(medium).PARAMS)
         if medium is None:
-            self._direct = DirectModel(type(brdf), angles)
+            self._direct = DirectModel(brdf, angles)
         else:
             self._engine = ApparentModel(brdf, medium, angles, rule)
 

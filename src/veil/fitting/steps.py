@@ -253,7 +253,7 @@ def model_values(result_or_model, other, angles, accuracy: str = "default") -> n
         else result_or_model
     angles = tuple(np.asarray(a, dtype=float) for a in angles)
     if other is None:
-        return DirectModel(type(model), angles).values(model.to_vector())
+        return DirectModel(model, angles).values(model.to_vector())
     if isinstance(other, FitResult):
         other = other.as_model()
     brdf, medium = (model, other) if model.KIND == "brdf" else (other, model)

@@ -331,18 +331,18 @@ class BRDF(Model):
         top = float(self.facet_cdf(v, 0.5 * math.pi))
         return math.degrees(float(self.facet_inverse_cdf(v, 0.5 * top)))
 
-    @classmethod
-    def evaluate(cls, v, wi, wo):
-        """Full f_r(wi, wo), zero unless both directions are in the upper hemisphere."""
+    def evaluate(self, v, wi, wo):
+        """Full f_r(wi, wo) at parameter vector ``v`` with this instance's options, zero
+        unless both directions are in the upper hemisphere."""
         from .._jax import jnp
 
         ci, co = wi[..., 2], wo[..., 2]
         total = 0.0 * ci
-        if cls.HAS_LOBE:
+        if self.HAS_LOBE:
             s = wi + wo
             h = s / jnp.linalg.norm(s, axis=-1, keepdims=True)
-            total = cls.lobe(v, wi, wo, h)
-        for a, b in cls.separable(v, ci, co, cls.prepare(v)):
+            total = self.lobe(v, wi, wo, h)
+        for a, b in self.separable(v, ci, co, self.prepare(v)):
             total = total + a * b
         return jnp.where((ci > 0) & (co > 0), total, 0.0)
 

@@ -28,7 +28,7 @@ from dataclasses import dataclass
 from .._jax import jnp
 from .base import BRDF, Option, Param
 from .rough_plastic import (DISTRIBUTIONS, _safe_sqrt, facet_cdf, facet_inverse_cdf,
-                            facet_weight, microfacet_lobe, refuse_unsupported_options)
+                            facet_weight, microfacet_lobe)
 
 
 def conductor_reflectance(cos_theta, n, k):
@@ -68,7 +68,7 @@ def rough_conductor(v, wi, wo, distribution="beckmann"):
     """f_r(I, R) of MODEL.md sec. 8.3 at v = (alpha, n, k, ks), unit vectors wi = I, wo = R."""
     s = wi + wo
     h = s / jnp.sqrt(jnp.maximum(jnp.sum(s * s, axis=-1, keepdims=True), 1e-300))
-    return RoughConductor._lobe(v, wi, wo, h, distribution)
+    return RoughConductor.template(distribution=distribution)._lobe(v, wi, wo, h)
 
 
 @dataclass(frozen=True)
@@ -78,8 +78,7 @@ class RoughConductor(BRDF):
     alpha  RMS slope of the facets (Beckmann or GGX)
     n, k   complex refractive index n + i k of the metal relative to the surrounding medium
     ks     scale of the lobe (relative units)
-    distribution  "beckmann" (default) or "ggx" (only the default reaches veil's engine
-                  today; see veil.models.rough_plastic.refuse_unsupported_options)
+    distribution  "beckmann" (default) or "ggx"
     """
 
     alpha: float
@@ -112,33 +111,25 @@ class RoughConductor(BRDF):
     }
     HAS_LOBE = True
 
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        refuse_unsupported_options(self, {})
-
-    @staticmethod
-    def _lobe(v, wi, wo, h, distribution="beckmann"):
+    def _lobe(self, v, wi, wo, h):
         n, k = v[1], v[2]
         return v[3] * microfacet_lobe(v[0], wi, wo, h,
-                                      lambda c: conductor_reflectance(c, n, k), distribution)
+                                      lambda c: conductor_reflectance(c, n, k), self.distribution)
 
-    # -- the split used by the integrator: no separable part -----------------------------
+    # -- the split used by the integrator: no separable part (methods of the instance:
+    # they read the distribution option) -----------------------------------------------
     @staticmethod
     def separable(v, cos_i, cos_r, aux=None):
         return []
 
-    @staticmethod
-    def lobe(v, wi, wo, h, alpha=None):
-        return RoughConductor._lobe(v, wi, wo, h)
+    def lobe(self, v, wi, wo, h, alpha=None):
+        return self._lobe(v, wi, wo, h)
 
-    @staticmethod
-    def facet_cdf(v, alpha):
-        return facet_cdf(v[0], alpha)
+    def facet_cdf(self, v, alpha):
+        return facet_cdf(v[0], alpha, self.distribution)
 
-    @staticmethod
-    def facet_inverse_cdf(v, y):
-        return facet_inverse_cdf(v[0], y)
+    def facet_inverse_cdf(self, v, y):
+        return facet_inverse_cdf(v[0], y, self.distribution)
 
-    @staticmethod
-    def facet_weight(v, alpha, sin_alpha=None):
-        return facet_weight(v[0], alpha, sin_alpha)
+    def facet_weight(self, v, alpha, sin_alpha=None):
+        return facet_weight(v[0], alpha, sin_alpha, self.distribution)

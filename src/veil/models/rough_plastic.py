@@ -385,8 +385,8 @@ class RoughPlastic(BRDF):
     distribution  "beckmann" (default) or "ggx"
     nonlinear     False: rho_eff = rho / (1 - F_int); True: rho / (1 - rho F_int)
 
-    The engine calls the family's functions on the class, so today they evaluate the
-    default options; other values are refused at construction (see __post_init__).
+    ``nonlinear = True`` is refused at construction: rho would not be a linear scale of the
+    diffuse part, as SCALES declares (the engine solves for the scales linearly).
     """
 
     rho: float
@@ -425,48 +425,34 @@ class RoughPlastic(BRDF):
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        refuse_unsupported_options(self, {"nonlinear": "rho would not be a linear scale of "
-                                          "the diffuse part, as SCALES declares"})
+        if self.nonlinear:
+            raise ParameterError(
+                f"{type(self).__name__}.nonlinear = True is not available: rho / (1 - rho "
+                f"F_int) would make rho a non-linear parameter, and the engine solves for the "
+                f"declared scale (rho) linearly; use nonlinear = False (rho / (1 - F_int))")
 
-    # -- the split used by the integrator ------------------------------------------------
-    @staticmethod
-    def prepare(v):
-        return interface_tables(v[1], v[2])
+    # -- the split used by the integrator (methods of the instance: they read the
+    # distribution option; the engine passes the model's template) ------------------------
+    def prepare(self, v):
+        return interface_tables(v[1], v[2], self.distribution)
 
-    @staticmethod
-    def separable(v, cos_i, cos_r, aux=None):
-        tables = interface_tables(v[1], v[2]) if aux is None else aux
+    def separable(self, v, cos_i, cos_r, aux=None):
+        tables = self.prepare(v) if aux is None else aux
         return [diffuse_factors(v, tables, cos_i, cos_r)]
 
-    @staticmethod
-    def lobe(v, wi, wo, h, alpha=None):
+    def lobe(self, v, wi, wo, h, alpha=None):
         eta = v[2]
-        return v[3] * microfacet_lobe(v[1], wi, wo, h, lambda c: fresnel.reflectance(c, eta))
+        return v[3] * microfacet_lobe(v[1], wi, wo, h, lambda c: fresnel.reflectance(c, eta),
+                                      self.distribution)
 
     # -- the facet law: H distributed as D(H) cos theta_H --------------------------------
-    @staticmethod
-    def facet_cdf(v, alpha):
-        return facet_cdf(v[1], alpha)
+    def facet_cdf(self, v, alpha):
+        return facet_cdf(v[1], alpha, self.distribution)
 
-    @staticmethod
-    def facet_inverse_cdf(v, y):
-        return facet_inverse_cdf(v[1], y)
+    def facet_inverse_cdf(self, v, y):
+        return facet_inverse_cdf(v[1], y, self.distribution)
 
-    @staticmethod
-    def facet_weight(v, alpha, sin_alpha=None):
-        return facet_weight(v[1], alpha, sin_alpha)
+    def facet_weight(self, v, alpha, sin_alpha=None):
+        return facet_weight(v[1], alpha, sin_alpha, self.distribution)
 
 
-def refuse_unsupported_options(model, reasons: dict) -> None:
-    """Refuse option values other than the defaults: veil's engine and fits call a BRDF's
-    functions on its class (veil.engine.integrator.apparent_terms uses
-    ``type(brdf_template)``, fits use ``DirectModel(type(brdf))``), so an option of a BRDF
-    cannot reach them, and a non-default value would be silently ignored."""
-    for o in model.OPTIONS:
-        value = getattr(model, o.name)
-        if value != o.default:
-            extra = f"; and {reasons[o.name]}" if o.name in reasons else ""
-            raise ParameterError(
-                f"{type(model).__name__}.{o.name} = {value!r} is not available yet: veil's "
-                f"engine evaluates a BRDF through its class, so only the default "
-                f"{o.name} = {o.default!r} reaches it{extra} (docs/rough_plastic.md)")

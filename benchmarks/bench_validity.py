@@ -1,0 +1,195 @@
+"""Validity on path-traced data: the paper's models against the physical ones (issue 12).
+
+The two-step method (MODEL.md sec. 7) on the Mitsuba 3 renders of the paper's lab set-up in
+validation/data (validation/README.md): the reference plate in clear water (step 0) and in
+the medium (step 1), the target in the medium (step 2), the black cloth subtracted; the
+target's clear-water session is fitted directly and is also the truth (it is the renderer's
+own value of the plate seen without the medium). One table per medium:
+
+- est-vs-direct: relative RMS of the estimate's clear-water curve against the direct fit's,
+  over the paper's protocol (what the paper's method promises: the object as if the medium
+  were not there);
+- est-vs-truth: relative RMS of the estimate's curve against the rendered clear-water values;
+- max |z|: the largest difference estimate - direct of a target parameter in units of the
+  combined standard error (<= 2: the reported uncertainty covers the difference);
+- tau, g: the medium's recovered optical depth per pass and asymmetry against the truth
+  (the paper's medium has no optical depth; its g is shown for comparison);
+- s: seconds of the whole pipeline.
+
+Run:  .venv/bin/python benchmarks/bench_validity.py [--media m01,m05,m10] [--targets target]
+      [--models paper,physical] [--joint] [--figure docs/validity.png] [--json out.json]
+The clear-water tables have sigma = 0 (deterministic renders, validation/README.md); they are
+fitted unweighted.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import sys
+import tempfile
+import time
+
+import numpy as np
+import pandas as pd
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+DATA = os.path.join(HERE, "..", "validation", "data")
+
+#: The two model sets compared: the paper's and the physical ones of MODEL.md sec. 8.
+MODELS = {
+    "paper": dict(brdf_model="torrance-sparrow", medium_model="henyey-greenstein"),
+    "physical": dict(brdf_model="rough-plastic", medium_model="forward-series"),
+}
+
+
+def table(name: str, unweighted: bool = False) -> pd.DataFrame:
+    t = pd.read_csv(os.path.join(DATA, f"{name}.csv"))
+    if unweighted:
+        t = t.drop(columns=["sigma"])
+    t.attrs["veil_name"] = f"validation/data/{name}.csv"
+    return t
+
+
+def sessions_of(truth: dict, medium: str, target: str):
+    """File stems of one case: medium 'm10' or 'm10_w10' (a geometry variant)."""
+    base, _, geom = medium.partition("_")
+    suffix = f"_{geom}" if geom else ""
+    return {"reference_clear": "water_ref", "reference_medium": f"{base}_ref{suffix}",
+            "target_medium": f"{base}_{target}{suffix}", "black": f"{base}_black{suffix}",
+            "target_clear": f"water_{target}", "session": f"{base}_{target}{suffix}"}
+
+
+def run_case(truth: dict, medium: str, target: str, models: str, outdir: str) -> dict:
+    from veil import run_pipeline
+    from veil.data.measurements import canonical_angles
+    from veil.fitting import model_values
+
+    names = sessions_of(truth, medium, target)
+    sess = truth["sessions"][names["session"]]
+    kw = dict(MODELS[models])
+    if models == "physical":
+        kw["medium_options"] = {"path_length": sess["path_length_cm"],
+                                "plate_width": sess["plate_width_cm"]}
+    t0 = time.perf_counter()
+    res = run_pipeline(table(names["reference_clear"], True), table(names["reference_medium"]),
+                       table(names["target_medium"]), black=table(names["black"]),
+                       target_clear=table(names["target_clear"], True), outdir=outdir,
+                       figures=False, **kw)
+    seconds = time.perf_counter() - t0
+    clear = table(names["target_clear"], True)
+    canon = canonical_angles(clear)
+    angles = tuple(canon[c].to_numpy(dtype=float) for c in ("theta_i", "phi_i", "theta_r",
+                                                              "phi_r"))
+    est = model_values(res.target, None, angles)
+    rendered = clear["value"].to_numpy(dtype=float)
+    zs = [abs(r["z"]) for r in res.comparison["params"].values() if r["z"] is not None]
+    med = res.medium.params
+    true_medium = truth["media"][medium.partition("_")[0]]
+    return {
+        "medium": medium, "target": target, "models": models,
+        "est_vs_direct": res.comparison["rms_fr_relative"],
+        "est_vs_truth": float(np.sqrt(np.mean(((est - rendered) / rendered) ** 2))),
+        "direct_vs_truth": float(np.sqrt(np.mean(
+            ((model_values(res.direct, None, angles) - rendered) / rendered) ** 2))),
+        "max_z": max(zs) if zs else math.nan,
+        "tau": med.get("tau", math.nan), "tau_true": true_medium["tau"],
+        "g": med.get("g", math.nan), "g_true": true_medium["g"],
+        "converged": res.converged, "seconds": seconds,
+        "curves": {"angles": [a.tolist() for a in angles], "estimate": est.tolist(),
+                   "truth": rendered.tolist()},
+    }
+
+
+def print_table(rows: list[dict]) -> None:
+    from rich.console import Console
+    from rich.table import Table
+
+    for medium in dict.fromkeys(r["medium"] for r in rows):
+        t = Table(title=f"medium {medium}")
+        for col in ("target", "models", "est-vs-direct", "est-vs-truth", "direct-vs-truth",
+                    "max |z|", "tau (true)", "g (true)", "conv.", "s"):
+            t.add_column(col, justify="right")
+        for r in (r for r in rows if r["medium"] == medium):
+            t.add_row(r["target"], r["models"], f"{100 * r['est_vs_direct']:.2f} %",
+                      f"{100 * r['est_vs_truth']:.2f} %", f"{100 * r['direct_vs_truth']:.2f} %",
+                      f"{r['max_z']:.2f}",
+                      "-" if math.isnan(r["tau"]) else f"{r['tau']:.4f} ({r['tau_true']:g})",
+                      f"{r['g']:.4f} ({r['g_true']:g})", "yes" if r["converged"] else "NO",
+                      f"{r['seconds']:.1f}")
+        Console(width=160).print(t)
+
+
+def figure(rows: list[dict], path: str) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    media = list(dict.fromkeys(r["medium"] for r in rows))
+    fig, axes = plt.subplots(1, len(media), figsize=(4.2 * len(media), 3.6), squeeze=False)
+    for ax, medium in zip(axes[0], media):
+        first = True
+        for r in (r for r in rows if r["medium"] == medium):
+            ti, _, tr, _ = (np.asarray(a) for a in r["curves"]["angles"])
+            psi = np.round(np.abs(ti) + np.abs(tr))  # in-plane: psi = |theta_i| + |theta_r|
+            sel = np.isclose(psi, 60.0)
+            order = np.argsort(ti[sel])
+            x = ti[sel][order]
+            if first:
+                ax.plot(x, np.asarray(r["curves"]["truth"])[sel][order], "k.", ms=3,
+                        label="truth (path traced, clear water)")
+                first = False
+            ax.plot(x, np.asarray(r["curves"]["estimate"])[sel][order],
+                    "-" if r["models"] == "physical" else "--",
+                    label=f"{r['models']} estimate ({r['target']}): "
+                          f"{100 * r['est_vs_truth']:.1f} % RMS")
+        ax.set_yscale("log")
+        ax.set_title(f"{medium}, psi = 60 deg")
+        ax.set_xlabel("theta_i (deg)")
+        ax.legend(fontsize=6)
+    axes[0][0].set_ylabel("value (1/sr)")
+    fig.tight_layout()
+    from veil.io import write_bytes_atomic
+    import io
+
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=110)
+    write_bytes_atomic(path, buf.getvalue())
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--media", default="m01,m05,m10")
+    ap.add_argument("--targets", default="target")
+    ap.add_argument("--models", default="paper,physical")
+    ap.add_argument("--figure", default=None)
+    ap.add_argument("--json", default=None)
+    args = ap.parse_args(argv)
+    with open(os.path.join(DATA, "truth.json")) as f:
+        truth = json.load(f)
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for medium in args.media.split(","):
+            for target in args.targets.split(","):
+                for models in args.models.split(","):
+                    out = os.path.join(tmp, f"{medium}-{target}-{models}")
+                    r = run_case(truth, medium, target, models, out)
+                    print(f"{medium} {target} {models}: est-vs-direct "
+                          f"{100 * r['est_vs_direct']:.2f} %, {r['seconds']:.1f} s",
+                          file=sys.stderr, flush=True)
+                    rows.append(r)
+    print_table(rows)
+    if args.figure:
+        figure(rows, args.figure)
+    if args.json:
+        from veil.io import write_text_atomic
+
+        write_text_atomic(args.json, json.dumps(rows, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
