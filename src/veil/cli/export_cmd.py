@@ -14,7 +14,9 @@ from ._common import UserError, check_output_path
 IN_FILE = click.Path(exists=True, dir_okay=False, path_type=Path)
 TARGETS = ("mitsuba", "pbrt", "csv")
 #: Samples per configuration of a --verify render through a medium (clear scenes need 1).
-MEDIUM_SPP = 256
+MEDIUM_SPP = 4096
+#: Independent passes of a render through a medium (their spread is its standard error).
+PASSES = 4
 
 
 def _positive(name):
@@ -186,7 +188,7 @@ def _verify(done, brdf, medium, psis, spp, setting, accuracy) -> None:
                         f"{exported.NAME} export does not give")
     predicted = apparent(material.model, exported, *configs.T, accuracy=accuracy)
     check = verify(done.text, done.scale, predicted, configs, spp or MEDIUM_SPP,
-                   medium={"path_length": geometry["path_length"],
+                   passes=PASSES, medium={"path_length": geometry["path_length"],
                            "half_width": geometry["plate_half_width"], "max_depth": 64})
     click.echo(check.sentence())
     click.echo("(through a medium the two differ by the model's own approximations as well: "

@@ -57,6 +57,7 @@ class Verification:
     configs: np.ndarray
     spp: int
     medium: bool
+    stderr: np.ndarray | None = None
 
     @property
     def used(self) -> np.ndarray:
@@ -75,12 +76,23 @@ class Verification:
     def max_relative(self) -> float:
         return float(np.max(np.abs(self.relative)))
 
+    @property
+    def rms_noise(self) -> float | None:
+        """RMS of the renders' relative Monte Carlo standard errors (None: deterministic)."""
+        if self.stderr is None:
+            return None
+        used = self.used
+        return float(np.sqrt(np.mean((self.stderr[used] / self.predicted[used]) ** 2)))
+
     def sentence(self) -> str:
         what = "path-traced through the medium" if self.medium else "rendered"
         left = len(self.predicted) - int(np.sum(self.used))
+        noise = self.rms_noise
         return (f"Mitsuba {VARIANT} {what} at {len(self.predicted)} configurations ({self.spp} "
                 f"spp): RMS relative difference from veil {100 * self.rms_relative:.3g} % "
                 f"(largest {100 * self.max_relative:.3g} %)"
+                + (f", of which Monte Carlo noise (RMS relative standard error) "
+                   f"{100 * noise:.3g} %" if noise is not None else "")
                 + (f"; {left} configurations where veil's value is below {NEGLIGIBLE:g} of "
                    f"its largest left out" if left else ""))
 
@@ -150,14 +162,23 @@ def render(fragment: str, configs, spp: int = 1, medium: dict | None = None,
 
 
 def verify(fragment: str, scale: float, predicted, configs, spp: int = 1,
-           medium: dict | None = None, seed: int = 0) -> Verification:
-    """:func:`render` times the exported intensity ``scale`` against ``predicted``."""
+           medium: dict | None = None, seed: int = 0, passes: int = 1) -> Verification:
+    """:func:`render` times the exported intensity ``scale`` against ``predicted``; with
+    ``passes`` > 1 the ``spp`` are split into independent passes whose spread gives each
+    render's standard error."""
     configs = np.asarray(configs, dtype=float)
     predicted = np.asarray(predicted, dtype=float)
     if not np.max(predicted) > 0:
         raise InputError("veil predicts no light at any configuration: nothing to compare")
-    rendered = scale * render(fragment, configs, spp, medium, seed)
-    return Verification(rendered, predicted, configs, spp, medium is not None)
+    if passes <= 1:
+        rendered = scale * render(fragment, configs, spp, medium, seed)
+        return Verification(rendered, predicted, configs, spp, medium is not None)
+    per = max(1, spp // passes)
+    runs = np.array([scale * render(fragment, configs, per, medium, seed + 100003 * k)
+                     for k in range(passes)])
+    stderr = runs.std(axis=0, ddof=1) / np.sqrt(passes)
+    return Verification(runs.mean(axis=0), predicted, configs, per * passes, medium is not None,
+                        stderr)
 
 
 __all__ = ["VARIANT", "load_mitsuba", "render", "verify", "Verification"]
