@@ -78,23 +78,53 @@ def fit_command():
     """
 
 
+_merl_option = click.option(
+    "--merl", "merl", type=IN_FILE,
+    help="A measured BRDF in the MERL binary format instead of a table: sampled at the "
+         "--sampling configurations (docs/interop.md).")
+_channel_option = click.option(
+    "--channel", type=click.Choice(["r", "g", "b"]), default="g", show_default=True,
+    help="Colour channel of the --merl file.")
+_sampling_option = click.option(
+    "--sampling", type=click.Choice(["protocol", "inplane"]), default="protocol",
+    show_default=True,
+    help="Where the --merl BRDF is sampled: the paper's protocol (psi 30, 60, 90 deg) or every "
+         "in-plane configuration on a 5-degree grid.")
+
+
+def merl_table(merl, channel, sampling):
+    """The measurement table of a MERL file's f_r (relative sigma of 1 %)."""
+    from ..data.merl import measurement_table, read_merl
+
+    return measurement_table(read_merl(merl), channel, sampling)
+
+
 @fit_command.command("reference")
-@click.argument("table", type=IN_FILE)
+@click.argument("table", type=IN_FILE, required=False)
 @click.option("-o", "--output", required=True, type=OUT_FILE,
               help="JSON file for the fitted f_r (written atomically).")
 @_fix_option("Hold a parameter of the BRDF (e.g. eta=1.5; 'veil models' lists them) at "
              "VALUE; repeatable.")
 @_black_option
 @_max_nfev_option
+@_merl_option
+@_channel_option
+@_sampling_option
 @model_options(("brdf",))
 @click.pass_context
-def reference_command(ctx, table, output, fix, black, max_nfev, models):
+def reference_command(ctx, table, output, fix, black, max_nfev, merl, channel, sampling,
+                      models):
     """Step 0: fit the reference's f_r (default Torrance-Sparrow) to clear-medium data,
-    directly."""
+    directly: a measurement TABLE, or a measured BRDF (--merl FILE --channel g)."""
     fixed = parse_fix(fix, models.brdf)
-    check_output_path(output, [table, black])
+    if (table is None) == (merl is None):
+        raise UserError("give a measurement TABLE or --merl FILE (one of the two)")
+    if merl is not None and black is not None:
+        raise UserError("--black applies to a measurement table, not to --merl")
+    check_output_path(output, [table, black, merl])
+    data = table if merl is None else merl_table(merl, channel, sampling)
     with echo_warnings(), fit_progress("step 0, reference") as progress:
-        result = fit_reference(table, fixed=fixed, black=black, max_nfev=max_nfev,
+        result = fit_reference(data, fixed=fixed, black=black, max_nfev=max_nfev,
                                progress=progress, brdf_model=models.brdf.NAME,
                                options=models.brdf_options)
     result.to_json(output)

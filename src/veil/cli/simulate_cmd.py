@@ -40,8 +40,22 @@ def _nonneg(name):
     return check
 
 
+def _merl_model(merl, channel, models):
+    """The --brdf-model family fitted to a MERL file's f_r (every in-plane configuration);
+    prints the fit's RMS relative difference."""
+    from ..data.merl import measurement_table, read_merl
+    from ..fitting import fit_reference
+
+    table = measurement_table(read_merl(merl), channel, "inplane")
+    result = fit_reference(table, brdf_model=models.brdf.NAME, options=models.brdf_options)
+    click.echo(f"{merl}: channel {channel} represented by {result.as_model()} (RMS relative "
+               f"difference {100 * result.rms_relative:.3g} % over {result.n_points} in-plane "
+               f"configurations)", err=True)
+    return result.as_model()
+
+
 @click.command("simulate")
-@click.option("--brdf", required=True, metavar="MODEL",
+@click.option("--brdf", default=None, metavar="MODEL",
               help="The object: preset BRDF1 or BRDF2, or a literal list of the --brdf-model's "
                    "parameters ('PD,PS,N,ETA' for the paper's Torrance-Sparrow, MODEL.md sec. 2; "
                    "N in 1/deg).")
@@ -80,9 +94,16 @@ def _nonneg(name):
               help="Keep configurations with both |theta_i| and |theta_r| below this, degrees.")
 @click.option("--accuracy", type=click.Choice(["fast", "default", "high"]), default="default",
               show_default=True, help="Quadrature level of the apparent reflectance.")
+@click.option("--merl", "merl", type=click.Path(exists=True, dir_okay=False, path_type=Path),
+              help="A measured BRDF (MERL binary file) instead of --brdf: the --brdf-model "
+                   "family is fitted to it (every in-plane configuration, --channel) and "
+                   "simulated through the medium; the fit's RMS difference is printed "
+                   "(docs/interop.md).")
+@click.option("--channel", type=click.Choice(["r", "g", "b"]), default="g", show_default=True,
+              help="Colour channel of the --merl file.")
 @model_options()
 def simulate_command(brdf, medium, output, black_path, psi, noise, seed, glow, form,
-                     fine_step, window, coarse_step, limit, accuracy, models):
+                     fine_step, window, coarse_step, limit, accuracy, merl, channel, models):
     """Simulate a measurement session of the paper's protocol (MODEL.md sec. 7).
 
     For each relative angle psi the object is rotated by rho (theta_i = psi/2 + rho,
@@ -94,8 +115,14 @@ def simulate_command(brdf, medium, output, black_path, psi, noise, seed, glow, f
     \b
         veil simulate --brdf BRDF1 --medium BTDF2 -o meas.csv --black black.csv
     """
-    model_b = models.brdf_model(brdf)
+    if (brdf is None) == (merl is None):
+        raise UserError("give the object as --brdf MODEL or --merl FILE (one of the two)")
     model_m = models.medium_model(medium)
+    if merl is not None:
+        model_b = _merl_model(merl, channel, models)
+        brdf = f"{model_b.NAME} fitted to {merl.name}"
+    else:
+        model_b = models.brdf_model(brdf)
     psis = _parse_psi(psi)
     if black_path is not None and _same_file(output, black_path):
         raise UserError(f"--output and --black are the same file ({output}); give two files")

@@ -37,6 +37,7 @@ from dataclasses import dataclass
 from .._jax import jnp
 from . import fresnel, phase
 from .base import Medium, Option, Param
+from .renderers import Plugin, Unsupported, Value, float_value
 
 VARIANTS = ("paper", "exit")
 #: Orders of scattering summed; with tau <= TAU_MAX the weight beyond them is below 1e-6 of
@@ -55,6 +56,66 @@ def _mixture(v):
     s = jnp.cumprod(jnp.concatenate([jnp.ones(1), x / k[1:]]))
     r = jnp.where(x > 1e-300, x / jnp.expm1(jnp.where(x > 1e-300, x, 1.0)), 1.0)
     return s * r, jnp.cumprod(jnp.full(ORDERS, g))
+
+
+# -- renderers (veil.models.renderers, docs/interop.md) --------------------------------------
+def _geometry(model, setting):
+    """(model with the setting's path length, sigma_t, scene geometry)."""
+    length = setting.path_length if setting.path_length is not None else model.path_length
+    if not length or length <= 0:
+        raise Unsupported(f"{ForwardSeries.NAME}: a renderer's medium needs an extinction "
+                          f"coefficient sigma_t = tau / (path length of one pass), and this "
+                          f"medium has no path_length; give the length in scene units "
+                          f"(veil export --path-length L)")
+    if length != model.path_length:
+        width = model.plate_width if model.plate_width <= length * 2 else 0.0
+        model = model.replace(path_length=float(length), plate_width=width)
+    half = 0.5 * model.plate_width if model.plate_width > 0 else length
+    return model, model.tau / length, {"path_length": length, "plate_half_width": half}
+
+
+def _medium_lost(model, renderer: str) -> list:
+    lost = ["the series neglects path-length differences of scattered light (docs/physics.md "
+            "sec. 4); the renderer path-traces the actual geometry, so the medium must fill "
+            "the set-up's geometry (a cylinder of radius path_length about the plate) for the "
+            "two to agree"]
+    if model.eta_u != 1.0:
+        lost.append(f"the boundary (eta_u = {model.eta_u:.6g}) is exported as a dielectric "
+                    f"interface; veil's Fresnel factors ({model.variant} variant, MODEL.md "
+                    f"sec. 3) only approximate its refraction")
+    if model.s != 1.0:
+        lost.append(f"the intensity factor s = {model.s:.6g} is not part of the medium: "
+                    f"multiply the render by it")
+    return lost
+
+
+def _series_mitsuba(model, setting) -> Plugin:
+    model, sigma_t, geometry = _geometry(model, setting)
+    extra = ()
+    if model.eta_u != 1.0:
+        extra = (Plugin("bsdf", "dielectric", (float_value("int_ior", model.eta_u),
+                                                float_value("ext_ior", 1.0))),)
+    return Plugin("medium", "homogeneous", (
+        float_value("sigma_t", sigma_t),
+        float_value("albedo", model.omega),
+    ), children=(Plugin("phase", "hg", (float_value("g", model.g),)),),
+        lost=tuple(_medium_lost(model, "Mitsuba")), scale=model.s, extra=extra,
+        geometry=geometry, model=model)
+
+
+def _series_pbrt(model, setting) -> Plugin:
+    model, sigma_t, geometry = _geometry(model, setting)
+    lost = _medium_lost(model, "pbrt")
+    if model.eta_u != 1.0:
+        lost[1] = (f"the boundary (eta_u = {model.eta_u:.6g}) needs a dielectric interface "
+                   f"shape in the pbrt scene (Material \"dielectric\" \"float eta\" "
+                   f"{model.eta_u:.6g}); it is not written here")
+    return Plugin("medium", "homogeneous", (
+        Value("sigma_a", "rgb", (1.0 - model.omega) * sigma_t),
+        Value("sigma_s", "rgb", model.omega * sigma_t),
+        float_value("scale", 1.0),
+        float_value("g", model.g),
+    ), lost=tuple(lost), scale=model.s, geometry=geometry, model=model)
 
 
 @dataclass(frozen=True)
@@ -110,6 +171,8 @@ class ForwardSeries(Medium):
     START = {"medium": {"tau": (0.05, 0.15, 0.3, 0.5, 0.8, 1.2, 1.8),
                         "g": (0.8, 0.88, 0.93, 0.96, 0.98),
                         "omega": (0.99,), "eta_u": (1.33,)}}
+    #: The renderers' own plugins for it (veil.models.renderers).
+    RENDERERS = {"mitsuba": _series_mitsuba, "pbrt": _series_pbrt}
 
     def __post_init__(self) -> None:
         super().__post_init__()

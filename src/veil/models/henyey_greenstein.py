@@ -9,8 +9,18 @@ from dataclasses import dataclass
 from . import fresnel
 from . import phase
 from .base import Medium, Option, Param
+from .renderers import Unsupported
 
 VARIANTS = ("paper", "exit")
+
+
+def _no_renderer(model, setting):
+    raise Unsupported(
+        f"the paper's medium ({HenyeyGreenstein.NAME}) has no counterpart in a renderer: its "
+        f"f_t = Td + Tt p(g) has no unscattered beam and its Td, Tt are relative units, not "
+        f"an extinction coefficient and an albedo, so no homogeneous medium reproduces it. "
+        f"Fit the physical medium to the same data instead (veil fit medium "
+        f"--medium-model forward-series ...) and export that")
 
 
 @dataclass(frozen=True)
@@ -49,6 +59,8 @@ class HenyeyGreenstein(Medium):
     #: Starting grid of a medium fit (step 1): g from broad to narrow lobes, water's index.
     START = {"medium": {"g": (0.5, 0.7, 0.8, 0.88, 0.93, 0.96, 0.98, 0.99, 0.995),
                         "eta": (1.33,)}}
+    #: No renderer has this medium (veil.models.renderers): a clear refusal for each.
+    RENDERERS = {"mitsuba": _no_renderer, "pbrt": _no_renderer}
 
     @staticmethod
     def iso(v):

@@ -27,8 +27,9 @@ from dataclasses import dataclass
 
 from .._jax import jnp
 from .base import BRDF, Option, Param
+from .renderers import Plugin, Unsupported, Value, float_value
 from .rough_plastic import (DISTRIBUTIONS, _safe_sqrt, facet_cdf, facet_inverse_cdf,
-                            facet_weight, microfacet_lobe)
+                            facet_weight, microfacet_lobe, relative_scales)
 
 
 def conductor_reflectance(cos_theta, n, k):
@@ -70,6 +71,41 @@ def rough_conductor(v, wi, wo, distribution="beckmann"):
     h = s / jnp.sqrt(jnp.maximum(jnp.sum(s * s, axis=-1, keepdims=True), 1e-300))
     return RoughConductor.template(distribution=distribution)._lobe(v, wi, wo, h)
 
+# -- renderers (veil.models.renderers, docs/interop.md) --------------------------------------
+def _conductor_mitsuba(model, setting) -> Plugin:
+    scale, _, ks, lost = relative_scales(
+        model, setting, "ks / scale = {ks} != 1 has no physical counterpart: it becomes "
+        "Mitsuba's specular_reflectance, a non-physical factor", diffuse=False)
+    if model.distribution == "beckmann":
+        lost.append("Mitsuba's Beckmann G1 is Walter et al.'s rational approximation (up to "
+                    "0.35 % per factor, 0.5 % on f_r; docs/physics.md sec. 3)")
+    lost.append("eta and k are relative to the medium around the surface, as veil's n and k "
+                "(Mitsuba's roughconductor has no exterior index)")
+    return Plugin("bsdf", "roughconductor", (
+        Value("distribution", "string", model.distribution),
+        float_value("alpha", model.alpha),
+        float_value("eta", model.n),
+        float_value("k", model.k),
+        float_value("specular_reflectance", ks),
+    ), lost=tuple(lost), scale=scale)
+
+
+def _conductor_pbrt(model, setting) -> Plugin:
+    if model.distribution != "ggx":
+        raise Unsupported(f"pbrt-v4 has only the Trowbridge-Reitz (GGX) microfacet "
+                          f"distribution; this {RoughConductor.NAME} result uses "
+                          f"{model.distribution} (export it to Mitsuba, which has both)")
+    scale, _, ks, lost = relative_scales(
+        model, setting, "ks / scale = {ks} is lost: pbrt's conductor has no specular factor "
+        "(the render has ks / scale = 1)", diffuse=False)
+    lost.append("eta and k are relative to the medium around the surface (constant spectra)")
+    return Plugin("material", "conductor", (
+        Value("eta", "spectrum", model.n),
+        Value("k", "spectrum", model.k),
+        float_value("roughness", model.alpha),
+        Value("remaproughness", "boolean", False),
+    ), lost=tuple(lost), scale=scale)
+
 
 @dataclass(frozen=True)
 class RoughConductor(BRDF):
@@ -110,6 +146,8 @@ class RoughConductor(BRDF):
                    "k": (3.0,)},
     }
     HAS_LOBE = True
+    #: The renderers' own plugins for it (veil.models.renderers).
+    RENDERERS = {"mitsuba": _conductor_mitsuba, "pbrt": _conductor_pbrt}
 
     def _lobe(self, v, wi, wo, h):
         n, k = v[1], v[2]

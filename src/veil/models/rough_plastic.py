@@ -34,6 +34,7 @@ from .._jax import jnp
 from ..errors import ParameterError
 from . import fresnel
 from .base import BRDF, Option, Param
+from .renderers import Plugin, Unsupported, Value, float_value, intensity_scale
 
 DISTRIBUTIONS = ("beckmann", "ggx")
 HALF_PI = 0.5 * math.pi
@@ -370,6 +371,73 @@ def rough_plastic(v, wi, wo, distribution="beckmann", nonlinear=False):
     return jnp.where((wi[..., 2] > 0) & (wo[..., 2] > 0), spec + a * b, 0.0)
 
 
+
+# --------------------------------------------------------------------------------------
+# renderers (veil.models.renderers, docs/interop.md)
+# --------------------------------------------------------------------------------------
+#: What Mitsuba 3.9's roughplastic computes differently (docs/physics.md sec. 2, measured).
+MITSUBA_PLASTIC_LOST = (
+    "Mitsuba's Beckmann G1 is Walter et al.'s rational approximation (up to 0.35 % per "
+    "factor; GGX's is exact in both)",
+    "Mitsuba estimates F_int by a 64-node rectangle rule that is 1.3-1.6 % low, so its "
+    "diffuse part is up to 2.2 % lower (rho_eff = rho / (1 - F_int)); it reads t(mu) "
+    "linearly from a 64-node table",
+)
+
+
+def relative_scales(model, setting, ks_lost: str, diffuse: bool = True):
+    """(scale, rho / scale, ks / scale, notes): the intensity scale (default: ks, so that
+    the interface is physical) divided out of the relative scales; ``ks_lost`` says what
+    becomes of ks / scale != 1 ({ks} is replaced by its value)."""
+    scale = intensity_scale(setting, model.ks if model.ks > 0 else 1.0)
+    rho = model.rho / scale if diffuse else 0.0
+    ks = model.ks / scale
+    names = "rho and ks are" if diffuse else "ks is"
+    lost = [f"veil's {names} relative (light x camera gain): divided by the intensity "
+            f"scale {scale:.6g}; a render under unit irradiance times {scale:.6g} is "
+            f"veil's value"]
+    if abs(ks - 1.0) > 1e-12:
+        lost.append(ks_lost.format(ks=f"{ks:.6g}"))
+    if rho > 1.0:
+        lost.append(f"rho / scale = {rho:.6g} > 1 is not a physical albedo (the renderer "
+                    f"takes it as given)")
+    return scale, rho, ks, lost
+
+
+def _plastic_mitsuba(model, setting) -> Plugin:
+    scale, rho, ks, lost = relative_scales(
+        model, setting, "ks / scale = {ks} != 1 has no physical counterpart: it becomes "
+        "Mitsuba's specular_reflectance, a non-physical factor on the specular part")
+    return Plugin("bsdf", "roughplastic", (
+        Value("distribution", "string", model.distribution),
+        float_value("alpha", model.alpha),
+        float_value("int_ior", model.eta * setting.ext_ior),
+        float_value("ext_ior", setting.ext_ior),
+        float_value("diffuse_reflectance", rho),
+        float_value("specular_reflectance", ks),
+        Value("nonlinear", "boolean", bool(model.nonlinear)),
+    ), lost=tuple(lost) + MITSUBA_PLASTIC_LOST, scale=scale)
+
+
+def _plastic_pbrt(model, setting) -> Plugin:
+    if model.distribution != "ggx":
+        raise Unsupported(f"pbrt-v4 has only the Trowbridge-Reitz (GGX) microfacet "
+                          f"distribution; this {RoughPlastic.NAME} result uses "
+                          f"{model.distribution} (export it to Mitsuba, which has both)")
+    scale, rho, ks, lost = relative_scales(
+        model, setting, "ks / scale = {ks} is lost: pbrt's coateddiffuse has no specular "
+        "factor (the render has ks / scale = 1)")
+    lost.append("coateddiffuse is pbrt's closest material, not the same model: it simulates "
+                "the light between coat and base stochastically (thickness 0.01, no "
+                "absorption), where veil's f_r uses rho / (1 - F_int) "
+                + ("(nonlinear: rho / (1 - rho F_int))" if model.nonlinear else ""))
+    return Plugin("material", "coateddiffuse", (
+        Value("reflectance", "rgb", rho),
+        float_value("roughness", model.alpha),
+        Value("remaproughness", "boolean", False),
+        float_value("eta", model.eta),
+    ), lost=tuple(lost), scale=scale)
+
 # --------------------------------------------------------------------------------------
 # the family
 # --------------------------------------------------------------------------------------
@@ -422,6 +490,8 @@ class RoughPlastic(BRDF):
                       "eta": (1.05, 1.12, 1.3, 1.5)},
         "target": {"alpha": tuple(np.round(np.geomspace(0.02, 0.6, 10), 4)), "eta": (1.12,)},
     }
+    #: The renderers' own plugins for it (veil.models.renderers).
+    RENDERERS = {"mitsuba": _plastic_mitsuba, "pbrt": _plastic_pbrt}
 
     def __post_init__(self) -> None:
         super().__post_init__()

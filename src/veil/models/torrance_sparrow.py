@@ -53,6 +53,11 @@ class TorranceSparrow(BRDF):
                       "eta": (1.2, 1.5, 2.0)},
         "target": {"n": (0.08, 0.13, 0.2, 0.3, 0.45, 0.65, 0.9, 1.3, 2.0), "eta": (1.5,)},
     }
+    #: No renderer has the V-groove Torrance-Sparrow model: the exporter fits this family to
+    #: it and exports that, with the RMS difference (veil.models.renderers).
+    #: (pbrt-v4 has only GGX microfacets.)
+    PROXIES = {"mitsuba": ("rough-plastic", {}),
+               "pbrt": ("rough-plastic", {"distribution": "ggx"})}
 
     # -- the split used by the integrator ------------------------------------------------
     @staticmethod

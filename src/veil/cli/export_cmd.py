@@ -1,0 +1,195 @@
+"""``veil export``: fitted models into renderers (Mitsuba 3 XML or dict, pbrt-v4), checked by
+rendering with Mitsuba (``--verify``), or their predicted curves as a tidy CSV
+(docs/interop.md). Heavy imports (JAX, the engine, Mitsuba) stay inside the command."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import click
+
+from ._common import UserError, check_output_path
+
+IN_FILE = click.Path(exists=True, dir_okay=False, path_type=Path)
+TARGETS = ("mitsuba", "pbrt", "csv")
+#: Samples per configuration of a --verify render through a medium (clear scenes need 1).
+MEDIUM_SPP = 4096
+#: Independent passes of a render through a medium (their spread is its standard error).
+PASSES = 4
+
+
+def _positive(name):
+    def check(ctx, param, value):
+        if value is not None and not (math.isfinite(value) and value > 0):
+            raise click.BadParameter(f"{value!r}: expected a finite number > 0",
+                                     param_hint=name)
+        return value
+    return check
+
+
+def _psi(text: str) -> tuple:
+    values = []
+    for part in text.split(","):
+        try:
+            values.append(float(part))
+        except ValueError:
+            raise UserError(f"--psi {text!r}: {part.strip()!r} is not a number (expected "
+                            f"comma-separated angles in degrees, e.g. 30,60,90)") from None
+    return tuple(values)
+
+
+def _models(result_path, other_path):
+    """(brdf, medium, source text) from one or two result files (one of each kind at most);
+    a target result brings the medium it was fitted through, a medium result its
+    reference BRDF."""
+    from ..fitting.result import load_result
+
+    results = [load_result(result_path)]
+    if other_path is not None:
+        results.append(load_result(other_path))
+    brdf = medium = None
+    for path, result in zip((result_path, other_path), results):
+        model = result.as_model()
+        if model.KIND == "brdf":
+            if brdf is not None:
+                raise UserError(f"{path}: a second BRDF result; give one BRDF and one medium")
+            brdf = model
+        else:
+            if medium is not None:
+                raise UserError(f"{path}: a second medium result; give one BRDF and one medium")
+            medium = model
+    if other_path is None:
+        given = results[0].given_model() if hasattr(results[0], "given_model") else None
+        if given is not None and given.KIND == "brdf" and brdf is None:
+            brdf = given
+        elif given is not None and given.KIND == "medium" and medium is None:
+            medium = given
+    source = str(result_path) + (f" and {other_path}" if other_path is not None else "")
+    return brdf, medium, source
+
+
+@click.command("export")
+@click.argument("result", type=IN_FILE)
+@click.argument("medium_result", metavar="[MEDIUM]", required=False, type=IN_FILE)
+@click.option("--to", "target", required=True, type=click.Choice(TARGETS),
+              help="mitsuba: a Mitsuba 3 scene fragment; pbrt: a pbrt-v4 material and medium "
+                   "block; csv: the predicted curves as a tidy table.")
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False, path_type=Path),
+              help="File to write (atomically).")
+@click.option("--format", "fmt", type=click.Choice(["xml", "dict"]), default=None,
+              help="Mitsuba only: XML (default) or the equivalent Python dict "
+                   "(mitsuba.load_dict), written as Python source defining 'scene'.")
+@click.option("--scale", type=float, default=None, callback=_positive("--scale"),
+              help="Intensity scale divided out of the BRDF's relative scales (veil's values "
+                   "are products with the light and the camera gain). Default: the family's "
+                   "choice (rough-plastic, rough-conductor: ks, so that the interface is "
+                   "physical). The file says which scale was used.")
+@click.option("--ext-ior", type=float, default=1.0, show_default=True,
+              callback=_positive("--ext-ior"),
+              help="Index of the medium around the surface in the renderer's scene (plugins "
+                   "that take absolute indices get veil's relative index times this).")
+@click.option("--path-length", type=float, default=None, callback=_positive("--path-length"),
+              help="Length of one pass through the medium in scene units: sigma_t = tau / "
+                   "length (default: the medium's own path_length option).")
+@click.option("--verify", is_flag=True,
+              help="Render the export with Mitsuba 3 (pip install 'veil[mitsuba]') at the "
+                   "configurations of the paper's protocol and print the RMS difference "
+                   "from veil's prediction.")
+@click.option("--psi", default="30,60,90", show_default=True, metavar="DEG,...",
+              help="Relative angles of the configurations of --verify and of --to csv.")
+@click.option("--spp", type=click.IntRange(min=1), default=None,
+              help=f"Samples per configuration of --verify (default 1 for a surface, "
+                   f"{MEDIUM_SPP} through a medium).")
+@click.option("--accuracy", type=click.Choice(["fast", "default", "high"]), default="default",
+              show_default=True, help="Quadrature of veil's apparent values (csv, --verify).")
+def export_command(result, medium_result, target, output, fmt, scale, ext_ior, path_length,
+                   verify, psi, spp, accuracy):
+    """Write fitted models for a renderer, or their predicted curves as CSV.
+
+    RESULT is a fit result (JSON); the optional MEDIUM a second one of the other kind (a
+    target result brings its medium along, a medium result its reference BRDF). Each model
+    family maps onto the renderer's own plugin where there is one (rough-plastic ->
+    roughplastic, rough-conductor -> roughconductor, forward-series -> homogeneous medium
+    with a Henyey-Greenstein phase function); the paper's Torrance-Sparrow BRDF becomes the
+    closest rough-plastic, fitted to it (RMS difference printed and written into the
+    file). What each conversion loses is written into the file as comments.
+
+    \b
+        veil export target.json medium.json --to mitsuba -o material.xml --verify
+        veil export target.json --to pbrt -o material.pbrt
+        veil export target.json medium.json --to csv -o curves.csv
+    """
+    from ..models.renderers import Setting
+
+    psis = _psi(psi)
+    check_output_path(output, [result, medium_result])
+    if fmt is not None and target != "mitsuba":
+        raise UserError(f"--format {fmt} applies to --to mitsuba only")
+    if verify and target != "mitsuba":
+        raise UserError(f"--verify renders with Mitsuba; it applies to --to mitsuba, not "
+                        f"--to {target}")
+    if verify:
+        from ..interop.verify import load_mitsuba
+
+        load_mitsuba()  # a missing Mitsuba is an error before any work
+    brdf, medium, source = _models(result, medium_result)
+    from ..io import write_text_atomic
+
+    if target == "csv":
+        from ..interop.curves import curves, to_csv_text
+
+        frame = curves(brdf, medium, psis, accuracy)
+        write_text_atomic(output, to_csv_text(frame))
+        click.echo(f"wrote {len(frame)} rows ({len(frame) // (2 if medium is not None else 1)} "
+                   f"configurations, {'with and without the medium' if medium is not None else 'no medium'}) "
+                   f"to {output}", err=True)
+        return
+    from ..interop.export import export
+
+    setting = Setting(scale=scale, ext_ior=ext_ior, path_length=path_length)
+    done = export([brdf, medium], target, fmt, setting, source)
+    write_text_atomic(output, done.text)
+    for item in done.items:
+        if item.closest is not None:
+            click.echo(item.closest.sentence())
+    click.echo(f"wrote {target} {done.format} to {output} "
+               f"({', '.join(i.plugin.type for i in done.items)}); what the conversion loses "
+               f"is written in it as comments", err=True)
+    if verify:
+        _verify(done, brdf, medium, psis, spp, setting, accuracy)
+
+
+def _verify(done, brdf, medium, psis, spp, setting, accuracy) -> None:
+    from ..data.protocol import protocol
+    from ..engine.apparent import apparent, reflectance
+    from ..interop.verify import verify
+
+    table = protocol(psis, fine_step=2.0, coarse_step=10.0)
+    configs = table[["theta_i", "theta_r", "phi_i", "phi_r"]].to_numpy()
+    material = done.item("brdf")
+    if material is None:
+        raise UserError("--verify renders a plate: give a BRDF result too (or a medium result "
+                        "that names its reference BRDF)")
+    if medium is None:
+        predicted = reflectance(material.model, *configs.T)
+        check = verify(done.text, done.scale, predicted, configs, spp or 1)
+        click.echo(check.sentence())
+        if material.closest is not None:
+            source = reflectance(material.source, *configs.T)
+            ratio = check.rendered[check.used] / source[check.used] - 1
+            click.echo(f"against the {material.source.NAME} result itself: RMS relative "
+                       f"difference {100 * float((ratio ** 2).mean() ** 0.5):.3g} %")
+        return
+    item = done.item("medium")
+    exported, geometry = item.model, item.plugin.geometry
+    if not geometry:
+        raise UserError(f"--verify through a medium needs the scene geometry, which the "
+                        f"{exported.NAME} export does not give")
+    predicted = apparent(material.model, exported, *configs.T, accuracy=accuracy)
+    check = verify(done.text, done.scale, predicted, configs, spp or MEDIUM_SPP,
+                   passes=PASSES, medium={"path_length": geometry["path_length"],
+                           "half_width": geometry["plate_half_width"], "max_depth": 64})
+    click.echo(check.sentence())
+    click.echo("(through a medium the two differ by the model's own approximations as well: "
+               "docs/interop.md)")

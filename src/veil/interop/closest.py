@@ -1,0 +1,73 @@
+"""The closest model of another family: a registered BRDF family fitted to a model's f_r
+(docs/interop.md). The exporter uses it for a family that a renderer does not have (the
+paper's Torrance-Sparrow -> the renderer's microfacet plastic) and reports the RMS
+difference; the fit is veil's own (:func:`veil.fitting.fit_direct`) on noise-free values."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+from ..data.protocol import protocol
+from ..engine.apparent import reflectance
+from ..errors import InputError
+from ..fitting import fit_direct
+from ..models import BRDF, Model, model_class
+
+#: Relative angles (deg) of the in-plane configurations a closest fit compares: the paper's
+#: protocol (dense near the mirror direction) at more light-camera angles.
+CLOSEST_PSI = (10.0, 30.0, 60.0, 90.0, 120.0)
+#: Relative weight of every configuration in the fit (sigma = this x value): a relative
+#: least-squares fit, the peak and the diffuse floor counted alike.
+RELATIVE_SIGMA = 0.01
+
+
+@dataclass(frozen=True)
+class Closest:
+    """``model`` of family ``family`` fitted to ``source``; ``rms_relative`` is the RMS of
+    (model - source) / source over ``n`` configurations, ``max_relative`` the largest."""
+
+    source: Model
+    model: Model
+    rms_relative: float
+    max_relative: float
+    n: int
+    converged: bool
+
+    def sentence(self) -> str:
+        return (f"{self.model.NAME} fitted to the {self.source.NAME} result: RMS relative "
+                f"difference in f_r {100 * self.rms_relative:.3g} % (largest "
+                f"{100 * self.max_relative:.3g} %) over {self.n} in-plane configurations "
+                f"(psi {', '.join(f'{p:g}' for p in CLOSEST_PSI)} deg)")
+
+
+def configurations() -> pd.DataFrame:
+    return protocol(CLOSEST_PSI)
+
+
+def closest(source: Model, family: str, options: dict | None = None) -> Closest:
+    """The model of ``family`` (with ``options``) closest to the BRDF ``source`` in relative
+    least squares over :func:`configurations`."""
+    if not isinstance(source, BRDF):
+        raise InputError(f"a closest fit needs a BRDF; {source.NAME} is a {source.KIND} model")
+    cls = model_class(family, "brdf")
+    table = configurations()
+    angles = [table[c].to_numpy() for c in ("theta_i", "theta_r", "phi_i", "phi_r")]
+    values = reflectance(source, *angles)
+    if not np.all(values > 0):
+        raise InputError(f"{source}: f_r is not positive at every configuration, so the "
+                         f"relative difference of a closest fit is undefined")
+    data = table[["theta_i", "phi_i", "theta_r", "phi_r"]].copy()
+    data["value"] = values
+    data["sigma"] = RELATIVE_SIGMA * values
+    result = fit_direct(data, brdf_model=cls.NAME, options=dict(options or {}))
+    model = result.as_model()
+    fitted = reflectance(model, *angles)
+    rel = fitted / values - 1.0
+    return Closest(source, model, float(np.sqrt(np.mean(rel ** 2))),
+                   float(np.max(np.abs(rel))), len(values), bool(result.converged))
+
+
+__all__ = ["Closest", "closest", "configurations", "CLOSEST_PSI"]
