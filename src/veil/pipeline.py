@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import math
 import os
+import time
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -30,7 +31,7 @@ from .errors import FitError
 from .fitting import (FitResult, fit_direct, fit_medium, fit_reference, fit_target,
                       model_values, prepare)
 from .viz.fit_figures import fit_figure
-from .viz.reports import pipeline_report
+from .viz.reports import comparison_report, pipeline_report
 
 #: Output files, by role.
 FILES = {"reference": "reference.json", "medium": "medium.json", "target": "target.json",
@@ -57,11 +58,11 @@ class PipelineResult:
         return all(f.converged for f in fits)
 
 
-def _check_fixed(fixed) -> dict:
+def _check_fixed(fixed, what: str = "fixed") -> dict:
     if fixed is None:
         return {}
     if not isinstance(fixed, dict) or set(fixed) - set(STEP_KEYS):
-        raise FitError(f"fixed = {fixed!r}; expected a dict by step, e.g. "
+        raise FitError(f"{what} = {fixed!r}; expected a dict by step, e.g. "
                        f"{{'medium': {{'eta': 1.33}}, 'target': {{'eta': 1.5}}}} (steps "
                        f"{', '.join(STEP_KEYS)})")
     return fixed
@@ -94,7 +95,7 @@ def run_pipeline(reference_clear, reference_medium, target_medium, black=None, t
                  outdir="veil-fit", *, variant: str | None = None, accuracy: str = "default",
                  fixed=None, max_nfev=None, progress=None, truth=None,
                  figures: bool = True, brdf_model=None, medium_model=None, brdf_options=None,
-                 medium_options=None) -> PipelineResult:
+                 medium_options=None, free=None) -> PipelineResult:
     """Steps 0-2 of MODEL.md sec. 7 with files, figures and report.md in ``outdir``.
 
     reference_clear, reference_medium, target_medium : sessions (DataFrames or CSV paths):
@@ -105,6 +106,8 @@ def run_pipeline(reference_clear, reference_medium, target_medium, black=None, t
         the f_r difference over the protocol's configurations).
     fixed : parameters held per step, e.g. ``{"medium": {"eta": 1.33}}``; the target's also
         apply to the direct fit.
+    free : parameters the families hold by default (``Param.held``) to fit too, per step,
+        e.g. ``{"medium": ["s"]}``; the target's also apply to the direct fit.
     truth : optional true models {"reference": ..., "medium": ..., "target": ...} (simulated
         data) listed beside the estimates in report.md.
     brdf_model, medium_model, brdf_options, medium_options : the families of the objects and
@@ -112,6 +115,7 @@ def run_pipeline(reference_clear, reference_medium, target_medium, black=None, t
     Other arguments as :func:`veil.fit_medium`. Returns a :class:`PipelineResult`.
     """
     fixed = _check_fixed(fixed)
+    free = _check_fixed(free, "free")
     outdir = os.fspath(outdir)
     inputs = {"reference_clear": reference_clear, "reference_medium": reference_medium,
               "target_medium": target_medium, "black": black, "target_clear": target_clear}
@@ -133,18 +137,20 @@ def run_pipeline(reference_clear, reference_medium, target_medium, black=None, t
 
     brdf = {"brdf_model": brdf_model, "options": brdf_options}
     ref = fit_reference(data["reference_clear"].table, fixed=fixed.get("reference"),
-                        max_nfev=max_nfev, progress=stage("step 0, reference"), **brdf)
+                        max_nfev=max_nfev, progress=stage("step 0, reference"),
+                        free=free.get("reference"), **brdf)
     med = fit_medium(data["reference_medium"].table, ref, fixed=fixed.get("medium"),
                      variant=variant, accuracy=accuracy, max_nfev=max_nfev,
                      progress=stage("step 1, medium"), medium_model=medium_model,
-                     options=medium_options)
+                     options=medium_options, free=free.get("medium"))
     tgt = fit_target(data["target_medium"].table, med, fixed=fixed.get("target"),
                      accuracy=accuracy, max_nfev=max_nfev, progress=stage("step 2, target"),
-                     **brdf)
+                     free=free.get("target"), **brdf)
     direct = comparison = None
     if target_clear is not None:
         direct = fit_direct(data["target_clear"].table, fixed=fixed.get("target"),
-                            max_nfev=max_nfev, progress=stage("target, clear medium"), **brdf)
+                            max_nfev=max_nfev, progress=stage("target, clear medium"),
+                            free=free.get("target"), **brdf)
         comparison = compare(tgt, direct)
 
     names = {}
@@ -205,4 +211,119 @@ def compare(estimated: FitResult, direct: FitResult) -> dict:
             "max_fr_relative": float(np.max(np.abs(diff / f_dir)))}
 
 
-__all__ = ["run_pipeline", "PipelineResult", "compare", "fit_figure", "FILES"]
+# --------------------------------------------------------------------------------------
+# model sets side by side
+# --------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class ComparisonResult:
+    """``run_pipeline`` once per model set on the same data (``veil fit pipeline --compare``)."""
+
+    results: dict
+    seconds: dict
+    difference: dict
+    files: dict = field(default_factory=dict)
+
+    @property
+    def converged(self) -> bool:
+        return all(r.converged for r in self.results.values())
+
+
+def _for_family(cls, per_step: dict, step: str, what: str, used: set) -> dict | list | None:
+    """The entries of ``per_step[step]`` that name parameters of ``cls`` (a fixed dict or a
+    free list); records which were used."""
+    entries = per_step.get(step)
+    if not entries:
+        return None
+    names = cls.param_names()
+    if isinstance(entries, dict):
+        kept = {k: v for k, v in entries.items() if k in names}
+    else:
+        kept = [k for k in entries if k in names]
+    used.update((step, k) for k in kept)
+    return kept
+
+
+def compare_models(reference_clear, reference_medium, target_medium, black=None,
+                   target_clear=None, outdir="veil-compare", *, sets=None,
+                   accuracy: str = "default", fixed=None, free=None, max_nfev=None,
+                   progress=None, brdf_options=None, medium_options=None,
+                   figures: bool = True) -> ComparisonResult:
+    """:func:`run_pipeline` with each named model set (default the paper's and the physical
+    ones, :data:`veil.models.MODEL_SETS`) on the same sessions, each into ``outdir/<set>/``,
+    and ``outdir/comparison.md``: goodness of fit (chi-square, AIC, BIC) step by step side by
+    side, each estimate against the direct fit, and the sets' estimates against each other.
+
+    Options, ``fixed`` and ``free`` entries apply to the sets whose families declare them;
+    one that no set's family declares is an error. The folder is written as one transaction.
+    """
+    from .models import MODEL_SETS, model_class
+
+    sets = dict(MODEL_SETS) if sets is None else dict(sets)
+    if len(sets) < 2:
+        raise FitError(f"sets = {list(sets)}: a comparison needs at least two model sets")
+    fixed, free = _check_fixed(fixed), _check_fixed(free, "free")
+    used_fix, used_free, used_opts = set(), set(), set()
+    plans = {}
+    for name, chosen in sets.items():
+        brdf, medium = model_class(chosen["brdf"], "brdf"), model_class(chosen["medium"], "medium")
+        b_opts = {k: v for k, v in (brdf_options or {}).items() if k in brdf.option_names()}
+        m_opts = {k: v for k, v in (medium_options or {}).items() if k in medium.option_names()}
+        used_opts.update(b_opts, m_opts)
+        plans[name] = dict(
+            brdf_model=brdf.NAME, medium_model=medium.NAME, brdf_options=b_opts,
+            medium_options=m_opts,
+            fixed={step: f for step in STEP_KEYS if (f := _for_family(
+                medium if step == "medium" else brdf, fixed, step, "fixed", used_fix))},
+            free={step: f for step in STEP_KEYS if (f := _for_family(
+                medium if step == "medium" else brdf, free, step, "free", used_free))})
+    for what, per_step, used in (("fixed", fixed, used_fix), ("free", free, used_free)):
+        unused = [f"{step}.{k}" for step, entries in per_step.items() for k in entries
+                  if (step, k) not in used]
+        if unused:
+            raise FitError(f"{what} {', '.join(unused)}: no compared model has such a "
+                           f"parameter ({', '.join(sets)})")
+    unused = sorted(set(brdf_options or {}) | set(medium_options or {}) - used_opts)
+    if unused:
+        raise FitError(f"option(s) {', '.join(unused)}: no compared model declares them")
+    outdir = os.fspath(outdir)
+    inputs = [reference_clear, reference_medium, target_medium, black, target_clear]
+    for inp in inputs:
+        if isinstance(inp, (str, os.PathLike)) and _inside(inp, outdir):
+            raise FitError(f"input {os.fspath(inp)} lies inside the output folder {outdir}; "
+                           f"veil never overwrites an input: choose another output directory")
+    results, seconds = {}, {}
+    with output_folder(outdir, owned=list(sets) + ["comparison.md"]) as folder:
+        for name, plan in plans.items():
+            if progress is not None:
+                progress(f"model set '{name}'", None, None)
+            inner = None if progress is None else (
+                lambda what, done, total, name=name: progress(f"{name}: {what}", done, total))
+            t0 = time.perf_counter()
+            results[name] = run_pipeline(reference_clear, reference_medium, target_medium,
+                                         black=black, target_clear=target_clear,
+                                         outdir=folder / name, accuracy=accuracy,
+                                         max_nfev=max_nfev, progress=inner, figures=figures,
+                                         **plan)
+            seconds[name] = time.perf_counter() - t0
+        names = list(results)
+        first = names[0]
+        configs = protocol()
+        angles = tuple(configs[c].to_numpy() for c in ("theta_i", "phi_i", "theta_r", "phi_r"))
+        base = model_values(results[first].target, None, angles)
+        diffs = [(model_values(results[n].target, None, angles) - base) / base
+                 for n in names[1:]]
+        rel = np.concatenate(diffs)
+        difference = {"against": first, "n": len(configs),
+                      "rms": float(np.sqrt(np.mean(rel ** 2))), "max": float(np.max(np.abs(rel)))}
+        write_text_atomic(folder / "comparison.md",
+                          comparison_report(results, seconds, difference))
+    # the sets' files were written in the staging folder, now moved to outdir
+    files = {"comparison": os.path.join(outdir, "comparison.md")}
+    for name, r in results.items():
+        files.update({f"{name}/{key}": os.path.join(outdir, name, os.path.basename(path))
+                      for key, path in r.files.items()})
+    return ComparisonResult(results, seconds, difference, files)
+
+
+__all__ = ["run_pipeline", "PipelineResult", "compare", "compare_models", "ComparisonResult",
+           "fit_figure", "FILES"]

@@ -215,6 +215,12 @@ def model_options(kinds=("brdf", "medium")):
                 if value is None:
                     continue
                 targets = [k for k in kinds if oname in chosen[k].option_names()]
+                if not targets and kwargs.get("compare"):
+                    # fit pipeline --compare: the option goes to the compared families that
+                    # declare it (veil.pipeline.compare_models)
+                    for kind, _, opt in declared[oname]:
+                        opts[kind][oname] = _convert(value, opt)
+                    continue
                 if not targets:
                     users = sorted({n for _, n, _ in declared[oname]})
                     raise UserError(f"{_option_flag(oname)} applies to the model(s) "
@@ -231,8 +237,10 @@ def model_options(kinds=("brdf", "medium")):
         for oname, users in reversed(list(declared.items())):
             choices = sorted({str(c) for _, _, o in users for c in o.choices})
             docs = "; ".join(f"{n}: {o.doc}" for _, n, o in users)
-            wrapper = click.option(_option_flag(oname), oname, default=None,
-                                   type=click.Choice(choices) if choices else str,
+            numeric = all(isinstance(o.default, (int, float)) and not isinstance(o.default, bool)
+                          for _, _, o in users)
+            kind = click.Choice(choices) if choices else (click.FLOAT if numeric else str)
+            wrapper = click.option(_option_flag(oname), oname, default=None, type=kind,
                                    help=f"Option of the model ({docs}); default: the model's "
                                         f"({', '.join(str(o.default) for _, _, o in users)}).")(wrapper)
         for kind in reversed(kinds):

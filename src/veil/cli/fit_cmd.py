@@ -42,6 +42,33 @@ _max_nfev_option = click.option(
     help="Limit on function evaluations of each least-squares run (default: scipy's).")
 
 
+def _free_option(help_text):
+    return click.option("--free", "free", multiple=True, metavar="NAME", help=help_text)
+
+
+def _parse_free(items, cls, option="--free") -> list:
+    """Names of parameters held by default (``Param.held``) to fit too."""
+    names = cls.param_names()
+    out = []
+    for item in items:
+        name = item.strip()
+        if name not in names:
+            raise UserError(f"{option} {item!r}: {cls.NAME} has no parameter {name!r}; its "
+                            f"parameters are {', '.join(names)}")
+        if name in out:
+            raise UserError(f"{option}: {name} is freed twice")
+        out.append(name)
+    return out
+
+
+def _parse_step_free(items, models) -> dict:
+    """``STEP.NAME`` strings of ``fit pipeline --free`` -> {step: [name, ...]}, checked
+    against the chosen families."""
+    classes = {"reference": models.brdf, "medium": models.medium, "target": models.brdf}
+    return {step: _parse_free(names, classes[step], f"--free ({step})")
+            for step, names in _step_entries(items, "--free").items()}
+
+
 def _parse_step_fix(items, models) -> dict:
     """``STEP.NAME=VALUE`` strings of ``fit pipeline`` -> {step: {name: value}}."""
     by_step = {}
@@ -142,22 +169,27 @@ def reference_command(ctx, table, output, fix, black, max_nfev, merl, channel, s
               help="JSON file for the fitted medium (written atomically).")
 @_fix_option("Hold a parameter of the medium (e.g. g=0.9; 'veil models' lists them) at VALUE; "
              "repeatable.")
+@_free_option("Fit a parameter the medium model holds by default (held ones are marked in "
+              "'veil models', e.g. forward-series' s, the exposure factor); repeatable.")
 @_black_option
 @_accuracy_option
 @_max_nfev_option
 @model_options()
 @click.pass_context
-def medium_command(ctx, table, reference, output, fix, black, accuracy, max_nfev, models):
+def medium_command(ctx, table, reference, output, fix, free, black, accuracy, max_nfev,
+                   models):
     """Step 1: fit the medium (default the paper's Td, Tt, g, eta) to the reference measured
     in it."""
     fixed = parse_fix(fix, models.medium)
+    freed = _parse_free(free, models.medium)
     ref = load_reference(reference, models)
     inputs = [table, black] + ([reference] if os.path.exists(reference) else [])
     check_output_path(output, inputs)
     with echo_warnings(), fit_progress("step 1, medium") as progress:
         result = fit_medium(table, ref, fixed=fixed, black=black, accuracy=accuracy,
                             max_nfev=max_nfev, progress=progress,
-                            medium_model=models.medium.NAME, options=models.medium_options)
+                            medium_model=models.medium.NAME, options=models.medium_options,
+                            free=freed)
     result.to_json(output)
     click.echo(result.report())
     finish_fits(ctx, [result], [output])
@@ -173,15 +205,18 @@ def medium_command(ctx, table, reference, output, fix, black, accuracy, max_nfev
               help="JSON file for the fitted target f_r (written atomically).")
 @_fix_option("Hold a parameter of the BRDF (e.g. eta=1.5; 'veil models' lists them) at "
              "VALUE; repeatable.")
+@_free_option("Fit a parameter the BRDF family holds by default (marked held in 'veil "
+              "models'); repeatable.")
 @_black_option
 @_accuracy_option
 @_max_nfev_option
 @model_options()
 @click.pass_context
-def target_command(ctx, table, medium, output, fix, black, accuracy, max_nfev, models):
+def target_command(ctx, table, medium, output, fix, free, black, accuracy, max_nfev, models):
     """Step 2: fit the target's f_r (default Torrance-Sparrow) through the fitted medium.
     A JSON --medium keeps its own model and options (a contradicting option is an error)."""
     fixed = parse_fix(fix, models.brdf)
+    freed = _parse_free(free, models.brdf)
     med = load_medium(medium, models)
     given = med.as_model() if hasattr(med, "as_model") else med
     if "medium-model" in models.explicit and type(given) is not models.medium:
@@ -196,7 +231,8 @@ def target_command(ctx, table, medium, output, fix, black, accuracy, max_nfev, m
     with echo_warnings(), fit_progress("step 2, target") as progress:
         result = fit_target(table, med, fixed=fixed, black=black, accuracy=accuracy,
                             max_nfev=max_nfev, progress=progress,
-                            brdf_model=models.brdf.NAME, options=models.brdf_options)
+                            brdf_model=models.brdf.NAME, options=models.brdf_options,
+                            free=freed)
     result.to_json(output)
     click.echo(result.report())
     finish_fits(ctx, [result], [output])
@@ -237,16 +273,33 @@ def print_pipeline(result) -> None:
 @_fix_option("Hold a parameter of one step: STEP.NAME=VALUE, STEP reference, medium or "
              "target (e.g. medium.eta=1.33); repeatable. Target values also hold in the "
              "direct fit.")
+@click.option("--free", "free", multiple=True, metavar="STEP.NAME",
+              help="Fit a parameter the family holds by default in one step (e.g. medium.s, "
+                   "the forward-series exposure factor); repeatable.")
+@click.option("--compare", is_flag=True,
+              help="Fit the paper's models and the physical ones (rough-plastic, "
+                   "forward-series; 'veil models') to the same data, each into OUTDIR/<set>/, "
+                   "and report goodness of fit (chi-square, AIC, BIC) and the estimates side "
+                   "by side in OUTDIR/comparison.md. Options, --fix and --free apply to the "
+                   "models that declare them.")
 @_accuracy_option
 @_max_nfev_option
 @model_options()
 @click.pass_context
 def pipeline_command(ctx, reference_clear, reference_medium, target_medium, black, target_clear,
-                     outdir, fix, accuracy, max_nfev, models):
+                     outdir, fix, free, compare, accuracy, max_nfev, models):
     """Steps 0-2 in one go, with figures (data against fitted curves) and report.md."""
-    from ..pipeline import run_pipeline
+    from ..pipeline import compare_models, run_pipeline
 
+    if compare:
+        if models.explicit:
+            raise UserError(f"--compare fits the paper's and the physical model sets; leave "
+                            f"{' and '.join('--' + e for e in sorted(models.explicit))} out")
+        return _compare(ctx, compare_models, reference_clear, reference_medium,
+                        target_medium, black, target_clear, outdir, fix, free, accuracy,
+                        max_nfev, models)
     fixed = _parse_step_fix(fix, models)
+    freed = _parse_step_free(free, models)
     if outdir.exists() and not outdir.is_dir():
         raise UserError(f"--outdir {outdir} exists and is not a directory")
     if not outdir.parent.exists() and not outdir.exists():
@@ -258,7 +311,53 @@ def pipeline_command(ctx, reference_clear, reference_medium, target_medium, blac
                               progress=progress, brdf_model=models.brdf.NAME,
                               medium_model=models.medium.NAME,
                               brdf_options=models.brdf_options,
-                              medium_options=models.medium_options)
+                              medium_options=models.medium_options, free=freed)
     print_pipeline(result)
     fits = [result.reference, result.medium, result.target, result.direct]
+    finish_fits(ctx, fits, list(result.files.values()))
+
+
+def _step_entries(items, option: str) -> dict:
+    """``STEP.NAME[=VALUE]`` strings -> {step: [NAME[=VALUE], ...]} (names unchecked)."""
+    by_step: dict = {}
+    for item in items:
+        step, dot, rest = item.partition(".")
+        if not dot or step.strip() not in STEPS or not rest.strip():
+            raise UserError(f"{option} {item!r}: expected STEP.NAME with STEP one of "
+                            f"{', '.join(STEPS)}")
+        by_step.setdefault(step.strip(), []).append(rest.strip())
+    return by_step
+
+
+def _compare(ctx, compare_models, reference_clear, reference_medium, target_medium, black,
+             target_clear, outdir, fix, free, accuracy, max_nfev, models):
+    """``fit pipeline --compare``: every model set on the same data (pipeline.compare_models)."""
+    import math
+
+    fixed = {}
+    for step, entries in _step_entries(fix, "--fix").items():
+        for entry in entries:
+            name, sep, text = entry.partition("=")
+            try:
+                value = float(text)
+            except ValueError:
+                value = math.nan
+            if not sep or not math.isfinite(value):
+                raise UserError(f"--fix {step}.{entry!r}: expected STEP.NAME=VALUE with a "
+                                f"finite number")
+            fixed.setdefault(step, {})[name.strip()] = value
+    freed = _step_entries(free, "--free")
+    with echo_warnings(), fit_progress("compare") as progress:
+        result = compare_models(reference_clear, reference_medium, target_medium, black=black,
+                                target_clear=target_clear, outdir=outdir, accuracy=accuracy,
+                                fixed=fixed, free=freed, max_nfev=max_nfev, progress=progress,
+                                brdf_options=models.brdf_options,
+                                medium_options=models.medium_options)
+    for name, r in result.results.items():
+        click.echo(f"==== model set '{name}' ====")
+        print_pipeline(r)
+    with open(result.files["comparison"], encoding="utf-8") as f:
+        click.echo(f.read())
+    fits = [f for r in result.results.values()
+            for f in (r.reference, r.medium, r.target, r.direct)]
     finish_fits(ctx, fits, list(result.files.values()))

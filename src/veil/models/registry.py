@@ -32,6 +32,10 @@ FAMILIES = (
 )
 #: The paper's models: the default family of each kind.
 DEFAULTS = {"brdf": TorranceSparrow.NAME, "medium": HenyeyGreenstein.NAME}
+#: Named sets of models compared by ``veil fit pipeline --compare``: the paper's and the
+#: physical models of MODEL.md sec. 8.
+MODEL_SETS = {"paper": dict(DEFAULTS),
+              "physical": {"brdf": RoughPlastic.NAME, "medium": ForwardSeries.NAME}}
 
 REGISTRY: dict[str, type[Model]] = {}
 _plugins_loaded = False
@@ -193,5 +197,5 @@ def preset(name: str, kind: str | None = None) -> Model:
     return model
 
 
-__all__ = ["REGISTRY", "FAMILIES", "DEFAULTS", "PRESETS", "register", "names", "model_class",
+__all__ = ["REGISTRY", "FAMILIES", "DEFAULTS", "MODEL_SETS", "PRESETS", "register", "names", "model_class",
            "default_class", "preset"]
