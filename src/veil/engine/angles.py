@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import InputError
-from .._jax import jnp
+from .._lazyjax import jnp
 
 
 
