@@ -124,3 +124,21 @@ def test_every_command_of_the_table_loads():
     for name in COMMANDS:
         if " " not in name:
             assert f"  {name} " in r.output
+
+
+def test_ingest_imports_no_jax(tmp_path):
+    """veil ingest does no numerics of the engine: photographs in, a table out, no JAX."""
+    from test_ingest import ROI_TEXT, write_manifest, write_png
+
+    import numpy as np
+
+    photos = tmp_path / "photos"
+    photos.mkdir()
+    write_png(photos / "a.png", np.full((64, 96), 500, np.uint16))
+    write_png(photos / "b.png", np.full((64, 96), 700, np.uint16))
+    manifest = write_manifest(tmp_path / "m.csv", ["a.png", "b.png"])
+    result, out, err = probe("ingest", photos, "--manifest", manifest, "--roi", ROI_TEXT,
+                             "-o", tmp_path / "out.csv")
+    assert result["code"] == 0, err
+    assert (tmp_path / "out.csv").exists()
+    assert not {"jax", "jaxlib", "veil._jax", "veil.engine.forward"} & set(result["loaded"])

@@ -28,6 +28,7 @@ COMMANDS = {
     "design": "design_cmd:design_command",
     "demo": "demo_cmd:demo_command",
     "models": "models_cmd:models_command",
+    "warmup": "warmup_cmd:warmup_command",
 }
 
 

@@ -35,6 +35,15 @@ def direction(theta_deg, phi_deg):
     return jnp.stack([st * jnp.cos(p), st * jnp.sin(p), jnp.cos(t)], axis=-1)
 
 
+def direction_numpy(theta_deg, phi_deg) -> np.ndarray:
+    """:func:`direction` in numpy (for checks of tables that need no JAX, e.g. ``veil
+    ingest``; equal to it within a few units in the last place)."""
+    t = np.deg2rad(np.asarray(theta_deg, dtype=float))
+    p = np.deg2rad(np.asarray(phi_deg, dtype=float))
+    st = np.sin(t)
+    return np.stack([st * np.cos(p), st * np.sin(p), np.cos(t)], axis=-1)
+
+
 def from_signed_inplane(theta_i, theta_r):
     """Signed in-plane angles -> (theta_i, phi_i, theta_r, phi_r), degrees.
 
