@@ -8,7 +8,7 @@ JOBS   ?= 2
 # compiled engine code (JAX's persistent compilation cache) stays in the checkout too
 export VEIL_CACHE_DIR ?= $(CURDIR)/.veil-cache
 
-.PHONY: demo test bench venv clean
+.PHONY: demo test bench warmup venv clean
 
 venv: $(STAMP)
 
@@ -23,6 +23,10 @@ test: $(STAMP)
 
 demo: $(STAMP)
 	$(VENV)/bin/veil demo -o demo-out
+
+# compile and store the engine programs ahead of time (veil warmup; docs/performance.md)
+warmup: $(STAMP)
+	$(VENV)/bin/veil warmup
 
 bench: $(STAMP)
 	$(PY) benchmarks/bench_apparent.py

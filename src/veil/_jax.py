@@ -174,7 +174,13 @@ def _guard_cache_writes() -> None:
     lru_cache.LRUCache.put = guarded_put
 
 
+#: Set when the cache directory was found unwritable (and a line said so): the program store
+#: next to it (veil.engine.programs) then says nothing more about it.
+CACHE_UNWRITABLE = False
+
+
 def _enable_cache() -> None:
+    global CACHE_UNWRITABLE
     if jax.config.jax_compilation_cache_dir:
         return  # the user configured JAX's cache: theirs to manage
     path = cache_directory()
@@ -183,6 +189,7 @@ def _enable_cache() -> None:
     path = os.path.abspath(path)
     problem = _writable(path)
     if problem is not None:
+        CACHE_UNWRITABLE = True
         view = _read_only_view(path)
         if view is None:
             _notice(f"the compilation cache directory {path} is not writable ({problem}); "

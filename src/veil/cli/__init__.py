@@ -1,5 +1,9 @@
-"""The ``veil`` command line. Each subcommand lives in its own module of this package and is
-registered on :data:`main` at the bottom of this file."""
+"""The ``veil`` command line.
+
+Each command lives in its own module of this package, named in :data:`COMMANDS` and imported
+only when that command runs or shows its help: ``veil --help``, a command's ``--help``, an
+argument error and the commands that do no numerics never import JAX or the engine
+(docs/architecture.md "Adding a command"; tests/test_cli_startup.py)."""
 
 from __future__ import annotations
 
@@ -7,6 +11,26 @@ import click
 
 from . import interrupts
 from ._common import VeilGroup
+
+#: Every command: its name (a subcommand of a group as "group name") -> "module:attribute"
+#: in this package. A command module imports only click and ``._common`` at its top; what a
+#: command computes with is imported inside its function.
+COMMANDS = {
+    "eval": "eval_cmd:eval_command",
+    "ingest": "ingest_cmd:ingest_command",
+    "simulate": "simulate_cmd:simulate_command",
+    "render": "render_cmd:render_command",
+    "plot": "plot_cmd:plot_command",
+    "reproduce": "reproduce_cmd:reproduce_command",
+    "fit": "fit_cmd:fit_command",
+    "fit joint": "joint_cmd:joint_command",
+    "diagnose": "diagnose_cmd:diagnose_command",
+    "design": "design_cmd:design_command",
+    "demo": "demo_cmd:demo_command",
+    "models": "models_cmd:models_command",
+    "warmup": "warmup_cmd:warmup_command",
+    "export": "export_cmd:export_command",
+}
 
 
 class CommandLine(VeilGroup):
@@ -20,7 +44,8 @@ class CommandLine(VeilGroup):
         return super().main(args, *more, **options)
 
 
-@click.group(cls=CommandLine, context_settings={"help_option_names": ["-h", "--help"]})
+@click.group(cls=CommandLine, lazy=COMMANDS,
+             context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(package_name="veil")
 @click.option("--debug", is_flag=True, help="Print the full traceback of an internal error.")
 @click.pass_context
@@ -34,28 +59,3 @@ def main(ctx, debug):
     veil, 130/143 interrupted (docs/errors.md).
     """
     ctx.ensure_object(dict)["debug"] = debug
-
-
-# Subcommands: one module each, registered here.
-from . import eval_cmd  # noqa: E402
-from . import ingest_cmd  # noqa: E402
-from . import simulate_cmd  # noqa: E402
-from . import render_cmd, plot_cmd, reproduce_cmd  # noqa: E402
-from . import fit_cmd, demo_cmd  # noqa: E402
-from . import joint_cmd, diagnose_cmd, design_cmd  # noqa: E402
-from . import models_cmd  # noqa: E402
-from . import export_cmd  # noqa: E402
-
-main.add_command(eval_cmd.eval_command)
-main.add_command(ingest_cmd.ingest_command)
-main.add_command(simulate_cmd.simulate_command)
-main.add_command(render_cmd.render_command)
-main.add_command(plot_cmd.plot_command)
-main.add_command(reproduce_cmd.reproduce_command)
-main.add_command(fit_cmd.fit_command)
-fit_cmd.fit_command.add_command(joint_cmd.joint_command)
-main.add_command(diagnose_cmd.diagnose_command)
-main.add_command(design_cmd.design_command)
-main.add_command(demo_cmd.demo_command)
-main.add_command(models_cmd.models_command)
-main.add_command(export_cmd.export_command)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import importlib
 import math
 import os
 import re
@@ -13,7 +14,6 @@ import warnings
 from dataclasses import dataclass
 
 import click
-import numpy as np
 
 from ..errors import InputError
 
@@ -53,7 +53,41 @@ def report_bug(exc: BaseException, debug: bool) -> None:
     sys.exit(EXIT_BUG)
 
 
-class VeilGroup(click.Group):
+class LazyGroup(click.Group):
+    """A group whose commands are imported when they are used (run, or their help shown):
+    ``lazy`` maps a command's name to ``"module:attribute"`` in :mod:`veil.cli`; a name
+    ``"group sub"`` is the subcommand ``sub`` of the group ``group`` (itself a LazyGroup, or
+    given it eagerly). Commands added with :meth:`add_command` work as in any group."""
+
+    def __init__(self, *args, lazy=None, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.lazy = dict(lazy or {})
+
+    def list_commands(self, ctx):
+        return sorted(set(self.commands) | {n for n in self.lazy if " " not in n})
+
+    def get_command(self, ctx, name):
+        if name not in self.commands and name in self.lazy:
+            self.add_command(self._load(name), name)
+        return self.commands.get(name)
+
+    def _load(self, name: str) -> click.Command:
+        module, _, attribute = self.lazy[name].partition(":")
+        command = getattr(importlib.import_module(f"veil.cli.{module}"), attribute)
+        subcommands = {k[len(name) + 1:]: v for k, v in self.lazy.items()
+                       if k.startswith(name + " ")}
+        if subcommands:
+            if isinstance(command, LazyGroup):
+                command.lazy.update(subcommands)
+            else:
+                loader = LazyGroup(lazy=subcommands)
+                for sub in subcommands:
+                    if " " not in sub:
+                        command.add_command(loader.get_command(None, sub), sub)
+        return command
+
+
+class VeilGroup(LazyGroup):
     """Exit statuses of every command: a :class:`veil.errors.InputError` (or an operating
     system error naming a file) is the user's mistake, printed as "Error: ..." with status 2;
     any other exception is a bug in veil (status 3, :func:`report_bug`)."""
@@ -74,6 +108,15 @@ class VeilGroup(click.Group):
             sys.exit(EXIT_INPUT)
         except Exception as exc:  # noqa: BLE001 - anything else is a bug in veil
             report_bug(exc, bool(ctx.obj and ctx.obj.get("debug")))
+
+
+#: The engine's named accuracies (veil.engine.quadrature.RULES, which imports JAX; the
+#: command line names them without it - tests/test_cli_startup.py checks they agree).
+ACCURACIES = ("fast", "default", "high")
+#: The angle forms of measurement tables (veil.data.measurements.FORMS) and the default
+#: glow of simulated sessions (veil.data.simulate.GLOW_LEVEL), likewise.
+TABLE_FORMS = ("full", "inplane", "goniometer")
+GLOW_LEVEL = 0.03
 
 
 # -- models ----------------------------------------------------------------------------------
@@ -401,6 +444,7 @@ def read_csv_table(path, required, *, unit="a number", expected=None):
     columns a file should have, for messages (default: ``required``). ``required`` may be a
     function of the header (list of column names) returning the columns to parse.
     """
+    import numpy as np
     import pandas as pd  # heavy; only commands that read CSV pay for it
 
     path = os.fspath(path)

@@ -16,9 +16,8 @@ from pathlib import Path
 
 import click
 
-from ..data.measurements import save_measurements
 from ..models import PRESETS
-from ..data.simulate import simulate
+
 
 #: The demo's set-up: which preset plays which role.
 SETUP = {"reference": "BRDF2", "medium": "BTDF2", "target": "BRDF1"}
@@ -35,6 +34,9 @@ def simulate_sessions(outdir: Path, seed: int, noise: float, accuracy: str, prog
     its black cloth), target in the medium, target clear. veil.simulate's glow depends on
     the medium only, so the one black cloth serves both sessions, as in the lab.
     """
+    from ..data.measurements import save_measurements
+    from ..data.simulate import simulate
+
     ref, med, tgt = (PRESETS[SETUP[k]] for k in ("reference", "medium", "target"))
     data = outdir / "data"
     data.mkdir(parents=True, exist_ok=True)

@@ -11,9 +11,9 @@ import time
 import click
 import numpy as np
 
-from ..engine.apparent import RULES, apparent, reflectance
 from ..io import write_text_atomic
-from ._common import UserError, check_output_path, model_options, read_csv_table
+from ._common import (ACCURACIES, UserError, check_output_path, model_options,
+                      read_csv_table)
 
 ANGLES = ("theta_i", "phi_i", "theta_r", "phi_r")  # the --configs columns, degrees
 ADDED = ("apparent", "clear", "error")  # the columns veil eval adds
@@ -140,6 +140,8 @@ def evaluate_configs(brdf, medium, ti, tr, pi_, pr, accuracy, progress=None):
     """apparent() with its error estimate at every configuration: in one call up to CHUNK
     configurations, else CHUNK at a time; ``progress(done, total, seconds_per_chunk)`` is
     called after each chunk."""
+    from ..engine.apparent import apparent
+
     n = len(ti)
     if n <= CHUNK:
         return apparent(brdf, medium, ti, tr, pi_, pr, accuracy=accuracy, return_error=True)
@@ -216,7 +218,7 @@ def _emit(text: str, output) -> None:
 @click.option("-o", "--output", type=click.Path(dir_okay=False), metavar="OUT",
               help="Write the --configs CSV (or, with --json, the JSON object) to this file "
                    "instead of standard output. Written atomically; never the --configs file.")
-@click.option("--accuracy", type=click.Choice(list(RULES)), default="default",
+@click.option("--accuracy", type=click.Choice(list(ACCURACIES)), default="default",
               show_default=True,
               help="Quadrature level: fast (coarse rule, quick previews), default (about 1e-3 "
                    "relative error for the paper's presets at angles below 80 deg), high "
@@ -277,6 +279,8 @@ def eval_command(brdf_text, medium_text, theta_i, theta_r, phi_i, phi_r, configs
         value, error = evaluate_configs(brdf, medium, ti, tr, pi_, pr, accuracy, progress)
     finally:
         progress.stop()
+    from ..engine.apparent import reflectance
+
     clear = reflectance(brdf, ti, tr, pi_, pr)
     value, error, clear = (np.asarray(a, dtype=float).reshape(-1) for a in (value, error, clear))
 

@@ -13,9 +13,8 @@ from pathlib import Path
 
 import click
 
-from ..fitting import fit_medium, fit_reference, fit_target
-from ._common import (UserError, check_output_path, echo_warnings, finish_fits, fit_progress,
-                      load_medium, load_reference, model_options, parse_fix)
+from ._common import (LazyGroup, UserError, check_output_path, echo_warnings, finish_fits,
+                      fit_progress, load_medium, load_reference, model_options, parse_fix)
 
 IN_FILE = click.Path(exists=True, dir_okay=False, path_type=Path)
 OUT_FILE = click.Path(dir_okay=False, path_type=Path)
@@ -89,7 +88,7 @@ def _parse_step_fix(items, models) -> dict:
 # --------------------------------------------------------------------------------------
 # commands
 # --------------------------------------------------------------------------------------
-@click.group("fit")
+@click.group("fit", cls=LazyGroup)
 def fit_command():
     """Estimate f_r and f_t from measurement tables (MODEL.md sec. 7, docs/fitting.md).
 
@@ -151,6 +150,8 @@ def reference_command(ctx, table, output, fix, black, max_nfev, merl, channel, s
     check_output_path(output, [table, black, merl])
     data = table if merl is None else merl_table(merl, channel, sampling)
     with echo_warnings(), fit_progress("step 0, reference") as progress:
+        from ..fitting import fit_reference
+
         result = fit_reference(data, fixed=fixed, black=black, max_nfev=max_nfev,
                                progress=progress, brdf_model=models.brdf.NAME,
                                options=models.brdf_options)
@@ -186,6 +187,8 @@ def medium_command(ctx, table, reference, output, fix, free, black, accuracy, ma
     inputs = [table, black] + ([reference] if os.path.exists(reference) else [])
     check_output_path(output, inputs)
     with echo_warnings(), fit_progress("step 1, medium") as progress:
+        from ..fitting import fit_medium
+
         result = fit_medium(table, ref, fixed=fixed, black=black, accuracy=accuracy,
                             max_nfev=max_nfev, progress=progress,
                             medium_model=models.medium.NAME, options=models.medium_options,
@@ -229,6 +232,8 @@ def target_command(ctx, table, medium, output, fix, free, black, accuracy, max_n
     inputs = [table, black] + ([medium] if os.path.exists(medium) else [])
     check_output_path(output, inputs)
     with echo_warnings(), fit_progress("step 2, target") as progress:
+        from ..fitting import fit_target
+
         result = fit_target(table, med, fixed=fixed, black=black, accuracy=accuracy,
                             max_nfev=max_nfev, progress=progress,
                             brdf_model=models.brdf.NAME, options=models.brdf_options,

@@ -13,7 +13,6 @@ from pathlib import Path
 
 import click
 
-from ..fitting.joint import Session, fit_joint
 from ._common import UserError, check_output_path, model_options
 
 OUT_FILE = click.Path(dir_okay=False, path_type=Path)
@@ -47,9 +46,10 @@ def parse_black(items) -> dict:
     return blacks
 
 
-def load_sessions(target_items, reference_items, black_items) -> tuple[list[Session], list]:
+def load_sessions(target_items, reference_items, black_items) -> tuple[list, list]:
     """Sessions (black cloth subtracted per medium) and every input path."""
     from ..data.measurements import load_measurements, subtract_black
+    from ..fitting.joint import Session
 
     targets = parse_sessions(target_items, "--session")
     refs = parse_sessions(reference_items, "--reference-session")
@@ -165,6 +165,8 @@ def joint_command(ctx, sessions, reference_sessions, blacks, reference, shared, 
             inputs.append(reference)
     check_output_path(output, inputs)
     with echo_warnings(), fit_progress("joint fit") as progress:
+        from ..fitting.joint import fit_joint
+
         result = fit_joint(loaded, reference=ref, shared=_names(shared, "--shared"),
                            per_medium=_names(per_medium, "--per-medium"), fixed=fixed or None,
                            accuracy=accuracy, max_nfev=max_nfev, progress=progress,

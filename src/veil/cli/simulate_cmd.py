@@ -8,10 +8,7 @@ from pathlib import Path
 
 import click
 
-from ..data.measurements import FORMS, save_measurements, to_form
-from ..data.protocol import protocol
-from ..data.simulate import GLOW_LEVEL, simulate
-from ._common import UserError, check_output_path, model_options
+from ._common import GLOW_LEVEL, TABLE_FORMS, UserError, check_output_path, model_options
 
 
 def _parse_psi(text: str) -> tuple[float, ...]:
@@ -80,7 +77,7 @@ def _merl_model(merl, channel, models):
               help="Medium glow level, a fraction of the reference object's (BRDF2's) "
                    "signal through the same medium at theta_i = 0, theta_r = 60 deg: the same "
                    "glow for every object in a medium (docs/measurements.md); 0 for none.")
-@click.option("--form", type=click.Choice(list(FORMS)), default="goniometer", show_default=True,
+@click.option("--form", type=click.Choice(list(TABLE_FORMS)), default="goniometer", show_default=True,
               help="Angle columns to write: goniometer = psi,rho plus the signed in-plane "
                    "theta_i,theta_r they imply; inplane = signed theta_i,theta_r; full = "
                    "theta_i,phi_i,theta_r,phi_r. All in degrees.")
@@ -129,6 +126,10 @@ def simulate_command(brdf, medium, output, black_path, psi, noise, seed, glow, f
     for path in (output, black_path):
         if path is not None:
             check_output_path(path)
+    from ..data.measurements import save_measurements, to_form
+    from ..data.protocol import protocol
+    from ..data.simulate import simulate
+
     try:
         configs = protocol(psis, fine_step=fine_step, coarse_step=coarse_step, window=window,
                            limit=limit)

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import InputError
-from .._jax import jnp
+from .._lazyjax import jnp
 
 
 
@@ -33,6 +33,15 @@ def direction(theta_deg, phi_deg):
     p = jnp.deg2rad(jnp.asarray(phi_deg, dtype=float))
     st = jnp.sin(t)
     return jnp.stack([st * jnp.cos(p), st * jnp.sin(p), jnp.cos(t)], axis=-1)
+
+
+def direction_numpy(theta_deg, phi_deg) -> np.ndarray:
+    """:func:`direction` in numpy (for checks of tables that need no JAX, e.g. ``veil
+    ingest``; equal to it within a few units in the last place)."""
+    t = np.deg2rad(np.asarray(theta_deg, dtype=float))
+    p = np.deg2rad(np.asarray(phi_deg, dtype=float))
+    st = np.sin(t)
+    return np.stack([st * np.cos(p), st * np.sin(p), np.cos(t)], axis=-1)
 
 
 def from_signed_inplane(theta_i, theta_r):

@@ -20,6 +20,7 @@ from ..errors import InputError, InputTypeError
 from .._jax import jax, jnp
 from jax.sharding import Mesh, NamedSharding, PartitionSpec as P
 from . import integrator
+from .programs import Program
 from .angles import check_angles, direction
 from ..models.base import BRDF, BTDF
 from .quadrature import RULES, Rule
@@ -63,7 +64,8 @@ def _terms_fn(kb, km, rule: Rule, half: bool, mesh: Mesh):
     def fn(vb, vm, wi, wr):
         return integrator.apparent_terms(bt, mt, rule, vb, vm, wi, wr, half)
 
-    return _sharded(fn, mesh)
+    return Program(_sharded(fn, mesh), _identity("terms", kb, km, rule, half, mesh),
+                   (kb[0], km[0]))
 
 
 @lru_cache(maxsize=128)
@@ -83,7 +85,18 @@ def _terms_jac_fn(kb, km, rule: Rule, half: bool, nl_b: tuple, nl_m: tuple, mesh
         terms, tangent = jax.linearize(g, x)
         return terms, jax.vmap(tangent, out_axes=-1)(jnp.eye(x.size, dtype=x.dtype))
 
-    return _sharded(fn, mesh)
+    return Program(_sharded(fn, mesh),
+                   _identity(f"terms+jacobian {nl_b} {nl_m}", kb, km, rule, half, mesh),
+                   (kb[0], km[0]))
+
+
+def _identity(what: str, kb, km, rule: Rule, half: bool, mesh: Mesh) -> str:
+    """What a compiled engine function is, for the program store (veil.engine.programs)."""
+    def structure(k):
+        return " ".join([f"{k[0].__module__}.{k[0].__qualname__}"] + [repr(o) for o in k[1:]])
+
+    return (f"{what} | {structure(kb)} | {structure(km)} | {rule!r} | half={half} | "
+            f"{mesh.devices.size} {_devices()[0].platform} devices")
 
 
 # Background compilation (Forward.prepare): the first call of each compiled function and

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from .._jax import jnp
+from .._lazyjax import jnp
 
 
 def reflectance(cos_theta, eta):

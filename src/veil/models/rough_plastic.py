@@ -30,7 +30,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from .._jax import jnp
+from .._lazyjax import jnp
 from ..errors import ParameterError
 from . import fresnel
 from .base import BRDF, Option, Param
@@ -74,6 +74,7 @@ def smith_g1(wz, wxy2, alpha, distribution="beckmann"):
         den = wz + jnp.sqrt(wz * wz + alpha * alpha * wxy2)
         ok = den > 0
         return jnp.where(ok, 2.0 * wz / jnp.where(ok, den, 1.0), 1.0)
+    from .._jax import jax as _  # noqa: F401 - JAX set up by veil before its submodule
     from jax.scipy.special import erfc
 
     s = alpha * _safe_sqrt(wxy2)                       # alpha sin theta

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._jax import jnp
+from .._lazyjax import jnp
 from . import fresnel
 from .base import BRDF, Param
 

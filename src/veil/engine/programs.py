@@ -1,0 +1,292 @@
+"""Engine programs kept on disk, so that a new process starts without tracing (issue 16).
+
+Tracing and lowering the engine's functions (the integrator written in ``jax.numpy``) takes
+1-5 s per function, rule and chunk size in every process, even when JAX's persistent
+compilation cache then finds the compiled executable. A :class:`Program` wraps one jitted
+engine function: the first time it is called with arguments of a given shape it looks for
+its lowered form, serialized with :mod:`jax.export` (StableHLO, a documented and versioned
+format), in the program store; found, it is deserialized in milliseconds and compiled -
+which JAX's compilation cache turns into loading the executable; not found, the function is
+exported (traced and lowered once), stored, and used the same way. Every process therefore
+runs the same program, whether it built it or loaded it: the numbers are identical.
+
+The store is the folder ``programs`` next to the compilation cache: ``$VEIL_CACHE_DIR/programs``
+or ``$XDG_CACHE_HOME/veil/programs`` (``~/.cache/veil/programs``); ``VEIL_CACHE_DIR=off``
+disables both. An entry is one file, named by a hash of what the program is (function,
+model structures, rule, shapes, devices), holding a header and the serialized program:
+
+- the header records the environment the entry was made in - veil's version, the source
+  code of the engine and of the models involved, JAX, jaxlib, numpy and Python versions, the
+  CPU (architecture and feature flags) and the device count - and a checksum of the
+  program. An entry whose environment differs from this process's (another veil or JAX
+  version, changed code, another CPU) or that fails any check (truncated, checksum,
+  undecodable, shapes other than the call's) is never used: it is built again and
+  replaced, with one line saying so;
+- writes are atomic (a temporary file renamed into place under :data:`veil.io.COMMIT`, so an
+  interrupt never leaves half an entry); a store that cannot be written is read, and
+  programs it lacks are built in memory for this process only (one line says so).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import platform
+import sys
+import tempfile
+import threading
+from functools import lru_cache
+
+import numpy as np
+
+from .. import __version__
+from .. import _jax
+from .._jax import CACHE_OFF, _notice, jax
+
+#: First line of every entry; a new layout gets a new number.
+FORMAT = b"veil.program/1\n"
+SUFFIX = ".program"
+
+_MESSAGES: set = set()
+_MESSAGES_LOCK = threading.Lock()
+
+
+def _say_once(key, message: str) -> None:
+    with _MESSAGES_LOCK:
+        if key in _MESSAGES:
+            return
+        _MESSAGES.add(key)
+    _notice(message)
+
+
+def directory() -> str | None:
+    """The program store's folder, or None when it is disabled (``VEIL_CACHE_DIR=off``)."""
+    setting = os.environ.get("VEIL_CACHE_DIR")
+    if setting is not None:
+        if setting.strip().lower() in CACHE_OFF:
+            return None
+        return os.path.join(os.path.abspath(os.path.expanduser(setting)), "programs")
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return os.path.join(base, "veil", "programs")
+
+
+def _cpu() -> str:
+    """The processor: architecture and, on Linux, the model name and feature flags (what an
+    executable built for it may use)."""
+    described = [platform.machine(), platform.processor()]
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8", errors="replace") as fh:
+            for line in fh:
+                key, _, value = line.partition(":")
+                if key.strip() in ("flags", "Features", "model name", "vendor_id"):
+                    described.append(f"{key.strip()}={' '.join(sorted(value.split()))}")
+                elif not line.strip() and len(described) > 2:
+                    break  # the first processor is enough
+    except OSError:
+        pass
+    return hashlib.sha256("\n".join(described).encode()).hexdigest()[:16]
+
+
+@lru_cache(maxsize=None)
+def _source_digest(files: tuple) -> str:
+    digest = hashlib.sha256()
+    for name in files:
+        digest.update(name.encode())
+        try:
+            with open(name, "rb") as fh:
+                digest.update(fh.read())
+        except OSError:
+            digest.update(b"<unreadable>")
+    return digest.hexdigest()[:16]
+
+
+def _veil_sources() -> tuple:
+    """The files whose code a program is made of: veil's engine and models."""
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    files = [os.path.join(root, name) for name in ("_jax.py", "_lazyjax.py")]
+    for folder in ("engine", "models"):
+        path = os.path.join(root, folder)
+        files += sorted(os.path.join(path, f) for f in os.listdir(path) if f.endswith(".py"))
+    return tuple(files)
+
+
+def code_digest(classes=()) -> str:
+    """A digest of the source code a program is traced from: veil's engine and models, and
+    the modules of ``classes`` (model families outside veil, e.g. plugins)."""
+    files = list(_veil_sources())
+    for cls in classes:
+        module = sys.modules.get(getattr(cls, "__module__", ""), None)
+        path = getattr(module, "__file__", None)
+        if path and os.path.abspath(path) not in files:
+            files.append(os.path.abspath(path))
+    return _source_digest(tuple(files))
+
+
+@lru_cache(maxsize=1)
+def _environment_base() -> dict:
+    import jaxlib
+
+    return {"veil": __version__, "jax": jax.__version__,
+            "jaxlib": getattr(jaxlib, "__version__", "?"), "numpy": np.__version__,
+            "python": platform.python_version(), "cpu": _cpu(),
+            "platform": jax.default_backend(), "devices": len(jax.devices())}
+
+
+def environment(classes=()) -> dict:
+    """What an entry must have been made with to be used in this process."""
+    return {**_environment_base(), "code": code_digest(classes)}
+
+
+def _signature(args) -> tuple:
+    return tuple((tuple(np.shape(a)), str(getattr(a, "dtype", np.asarray(a).dtype)))
+                 for a in args)
+
+
+def _path(identity: str) -> str | None:
+    folder = directory()
+    if folder is None:
+        return None
+    return os.path.join(folder, hashlib.sha256(identity.encode()).hexdigest()[:40] + SUFFIX)
+
+
+def read(identity: str, env: dict, signature: tuple):
+    """The stored program for ``identity`` (a ``jax.export.Exported``), or None when there is
+    none or it cannot be trusted (then one line says why and that it is built again)."""
+    path = _path(identity)
+    if path is None:
+        return None
+    try:
+        with open(path, "rb") as fh:
+            blob = fh.read()
+    except (FileNotFoundError, NotADirectoryError):  # nothing stored
+        return None
+    except OSError as exc:
+        _say_once(("unreadable", path), f"cannot read the stored engine program {path} "
+                  f"({type(exc).__name__}: {exc}); building it again")
+        return None
+
+    def damaged(why):
+        _say_once(("damaged", path), f"the stored engine program {path} is damaged ({why}); "
+                  f"building it again")
+        return None
+
+    if not blob.startswith(FORMAT):
+        return damaged("not a veil program file, or another format")
+    head, newline, payload = blob[len(FORMAT):].partition(b"\n")
+    try:
+        header = json.loads(head.decode("utf-8"))
+        stored_env, stored_identity = header["environment"], header["identity"]
+        checksum, size = header["sha256"], header["size"]
+    except (ValueError, KeyError, TypeError, UnicodeDecodeError):
+        return damaged("unreadable header")
+    if not newline or len(payload) != size or hashlib.sha256(payload).hexdigest() != checksum:
+        return damaged("truncated or altered: its checksum does not match")
+    if stored_identity != identity:
+        return damaged("it holds another program")
+    if stored_env != env:
+        changed = sorted(k for k in set(env) | set(stored_env)
+                         if env.get(k) != stored_env.get(k))
+        what = ", ".join(f"{k} {stored_env.get(k)} -> {env.get(k)}" for k in changed)
+        _say_once(("stale", tuple(changed)), f"stored engine programs in {os.path.dirname(path)} "
+                  f"were made by another veil, JAX, code or CPU ({what}); building them again")
+        return None
+    try:
+        exported = jax.export.deserialize(bytearray(payload))
+    except Exception as exc:  # noqa: BLE001 - whatever the decoder raises: not trusted
+        return damaged(f"{type(exc).__name__}: {exc}")
+    shapes = tuple((tuple(a.shape), str(a.dtype)) for a in exported.in_avals)
+    if shapes != signature:
+        return damaged("its inputs are not the call's")
+    return exported
+
+
+def write(identity: str, env: dict, payload: bytes) -> bool:
+    """Store a serialized program atomically; False (and one line, once) when the store
+    cannot be written."""
+    from ..io import COMMIT, forget_temporary, register_temporary
+
+    path = _path(identity)
+    if path is None:
+        return False
+    header = json.dumps({"identity": identity, "environment": env, "size": len(payload),
+                         "sha256": hashlib.sha256(payload).hexdigest()}, sort_keys=True)
+    folder = os.path.dirname(path)
+    tmp = None
+    try:
+        os.makedirs(folder, exist_ok=True)
+        with COMMIT:  # no temporary is created once an interrupt is being handled
+            fd, tmp = tempfile.mkstemp(dir=folder, prefix=".program-", suffix=".tmp")
+            register_temporary(tmp, "file")
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(FORMAT + header.encode("utf-8") + b"\n" + bytes(payload))
+        with COMMIT:
+            os.replace(tmp, path)
+            forget_temporary(tmp)
+        return True
+    except OSError as exc:
+        if tmp is not None:
+            try:
+                os.unlink(tmp)
+            except OSError:
+                pass
+            forget_temporary(tmp)
+        if _jax.CACHE_UNWRITABLE:  # the cache directory's line has said it
+            return False
+        _say_once(("unwritable", folder), f"cannot store engine programs in {folder} "
+                  f"({type(exc).__name__}: {exc}); using what it holds and tracing the rest "
+                  f"in every process")
+        return False
+
+
+class Program:
+    """A jitted engine function ``fn`` whose lowered form, per argument shape, is kept in
+    the program store. ``identity`` names what the function computes (its name, the model
+    structures, rule and devices it was made for); ``classes`` are the model families it
+    traces, whose source code the entries are keyed on. Called like ``fn``; thread-safe
+    (background compilations, :meth:`veil.engine.forward.Forward.prepare`)."""
+
+    def __init__(self, fn, identity: str, classes=()):
+        self.fn = fn
+        self.identity = identity
+        self.classes = tuple(classes)
+        self._ready: dict = {}
+        self._lock = threading.Lock()
+
+    def __repr__(self) -> str:
+        return f"Program({self.identity})"
+
+    def callable_for(self, *args):
+        """The function this program runs for ``args`` (loading or building it first)."""
+        signature = _signature(args)
+        ready = self._ready.get(signature)
+        if ready is None:
+            with self._lock:
+                ready = self._ready.get(signature)
+                if ready is None:
+                    ready = self._ready[signature] = self._build(signature, args)
+        return ready
+
+    def __call__(self, *args):
+        return self.callable_for(*args)(*args)
+
+    def _build(self, signature, args):
+        if directory() is None:
+            return self.fn
+        identity = f"{self.identity} | inputs {signature}"
+        env = environment(self.classes)
+        exported = read(identity, env, signature)
+        if exported is None:
+            exported = jax.export.export(self.fn)(*args)
+            write(identity, env, exported.serialize())
+        call = exported.call
+
+        def run(*args):
+            return call(*args)
+
+        # named as the function it stands for (compilation logs and events show jit(fn))
+        run.__name__ = run.__qualname__ = getattr(self.fn, "__name__", "program")
+        return jax.jit(run)
+
+
+__all__ = ["Program", "directory", "environment", "code_digest", "read", "write", "FORMAT"]

@@ -1,0 +1,105 @@
+"""Ahead-of-time preparation of the engine programs a machine needs (``veil warmup``).
+
+Each task runs the very code path a command takes - the fits' chunked evaluator
+(:class:`~veil.engine.evaluator.ApparentModel`, 64 in-plane configurations a chunk, values
+and the Jacobian in every parameter at the iteration accuracy, values at the reported
+one), ``veil eval`` of one configuration (:func:`~veil.engine.apparent.apparent` with its
+error estimate) and the object's own f_r (step 0 of the fits) - so that what it stores in
+the program store (:mod:`veil.engine.programs`) and JAX's compilation cache is exactly what
+those commands look up later. Out-of-plane configurations and other chunk sizes are
+compiled on first use, as before.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+from ..models import DEFAULTS, model_class, names
+from .apparent import apparent, reflectance
+from .evaluator import CHUNK, ApparentModel, DirectModel
+from .quadrature import RULES
+
+#: The accuracy the fits iterate at (veil.fitting.problem.ITERATION_ACCURACY).
+ITERATION = "fast"
+
+
+@dataclass(frozen=True)
+class Task:
+    label: str
+    run: Callable[[], None]
+
+
+def _angles(size: int):
+    """``size`` in-plane configurations (the paper's protocol is in the plane of incidence)."""
+    ti = np.linspace(5.0, 75.0, size)
+    tr = np.linspace(70.0, 10.0, size)
+    return ti, np.full(size, 180.0), tr, np.zeros(size)
+
+
+def _fits(brdf, medium, accuracy: str, jacobian: bool):
+    def run():
+        model = ApparentModel(brdf, medium, _angles(CHUNK), RULES[accuracy])
+        model.prepare(values=True, jacobian=jacobian)
+        vb, vm = brdf.to_vector(), medium.to_vector()
+        model.terms(vb, vm)
+        if jacobian:
+            model.value_and_jacobian(vb, vm)
+    return run
+
+
+def _eval(brdf, medium, accuracy: str):
+    def run():
+        apparent(brdf, medium, 45.0, 50.0, accuracy=accuracy, return_error=True)
+        reflectance(brdf, 45.0, 50.0)
+    return run
+
+
+def _direct(brdf):
+    def run():
+        model = DirectModel(type(brdf), _angles(CHUNK))
+        model.value_and_jacobian(brdf.to_vector())
+    return run
+
+
+def families(selected=None) -> tuple[list[str], list[str]]:
+    """(BRDF families, medium families) to prepare: ``selected`` names (a kind not named
+    gets its default, the paper's), ``["all"]`` every registered family; None the paper's
+    pair. Unknown names raise an InputError listing the known ones."""
+    if not selected:
+        return [DEFAULTS["brdf"]], [DEFAULTS["medium"]]
+    if [s.strip().lower() for s in selected] == ["all"]:
+        return names("brdf"), names("medium")
+    chosen = {"brdf": [], "medium": []}
+    for name in selected:
+        cls = model_class(name)
+        if cls.NAME not in chosen[cls.KIND]:
+            chosen[cls.KIND].append(cls.NAME)
+    return (chosen["brdf"] or [DEFAULTS["brdf"]], chosen["medium"] or [DEFAULTS["medium"]])
+
+
+def tasks(selected=None, accuracies=("fast", "default")) -> list[Task]:
+    """Everything to prepare for the families ``selected`` (see :func:`families`) at the
+    reported ``accuracies`` (the fits iterate at "fast" whatever they report)."""
+    brdfs, media = families(selected)
+    out = []
+    for bname in brdfs:
+        brdf = model_class(bname, "brdf").template()
+        out.append(Task(f"{bname}: f_r and its Jacobian (fit step 0)", _direct(brdf)))
+        for mname in media:
+            medium = model_class(mname, "medium").template()
+            pair = f"{bname} x {mname}"
+            out.append(Task(f"{pair}: fit iterations ({ITERATION}, values and Jacobian)",
+                            _fits(brdf, medium, ITERATION, True)))
+            for acc in accuracies:
+                if acc != ITERATION:
+                    out.append(Task(f"{pair}: fit results and simulations ({acc})",
+                                    _fits(brdf, medium, acc, False)))
+                out.append(Task(f"{pair}: veil eval ({acc}, with its error estimate)",
+                                _eval(brdf, medium, acc)))
+    return out
+
+
+__all__ = ["Task", "tasks", "families", "ITERATION"]

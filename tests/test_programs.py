@@ -1,0 +1,117 @@
+"""The program store (veil.engine.programs, issue 16): engine programs kept on disk are used
+only when they can be trusted; a damaged, foreign or stale entry is built again with one line
+saying so, an unwritable store keeps working, and the numbers never change."""
+
+from __future__ import annotations
+
+import json
+import os
+import warnings
+
+import numpy as np
+import pytest
+
+import veil
+from veil.engine import forward, programs
+from veil.engine.quadrature import RULES
+
+
+@pytest.fixture(scope="module")
+def engine_call():
+    """An engine program (term matrices, 'fast', 8 in-plane configurations) and its inputs."""
+    fw = forward.Forward(veil.BRDF1, veil.BTDF2, np.linspace(10, 70, 8), np.linspace(5, 60, 8),
+                         180.0, 0.0, RULES["fast"])
+    program = forward._terms_fn(fw._kb, fw._km, fw.rule, fw.half, fw._mesh)
+    args = (*fw._vectors(veil.BRDF1.to_vector(), veil.BTDF2.to_vector()), fw._wi, fw._wr)
+    return program, args
+
+
+def fresh(program):
+    """The same program as a new process sees it (nothing built or loaded yet)."""
+    return programs.Program(program.fn, program.identity, program.classes)
+
+
+def run(program, args, expect=None):
+    """Values of a fresh copy of ``program``; the veil warnings it gave."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        values = np.asarray(fresh(program)(*args))
+    said = [str(w.message) for w in caught if str(w.message).startswith("veil:")]
+    if expect is None:
+        assert said == []
+    else:
+        assert len(said) == 1 and expect in said[0], said
+    return values
+
+
+def entries(folder):
+    return sorted(p for p in os.listdir(folder) if p.endswith(programs.SUFFIX))
+
+
+def test_stored_program_is_used_and_gives_the_same_numbers(tmp_path, monkeypatch, engine_call):
+    program, args = engine_call
+    monkeypatch.setenv("VEIL_CACHE_DIR", str(tmp_path))
+    first = run(program, args)                       # built and stored
+    store = tmp_path / "programs"
+    [name] = entries(store)
+    built = os.path.getmtime(store / name)
+    again = run(program, args)                       # read back
+    assert os.path.getmtime(store / name) == built
+    np.testing.assert_array_equal(first, again)
+    monkeypatch.setenv("VEIL_CACHE_DIR", "off")      # no store: the plain jitted function
+    np.testing.assert_array_equal(first, run(program, args))
+
+
+def _rewrite(path, edit):
+    blob = path.read_bytes()
+    head, _, payload = blob[len(programs.FORMAT):].partition(b"\n")
+    header = json.loads(head)
+    header, payload = edit(header, payload)
+    path.write_bytes(programs.FORMAT + json.dumps(header).encode() + b"\n" + payload)
+
+
+@pytest.mark.parametrize("damage, message", [
+    (lambda h, p: (h, p[:-100]), "is damaged (truncated or altered"),
+    (lambda h, p: (h, p[:50] + bytes([p[50] ^ 1]) + p[51:]), "is damaged (truncated or altered"),
+    (lambda h, p: ({**h, "sha256": __import__("hashlib").sha256(b"x" + p[1:]).hexdigest()},
+                   b"x" + p[1:]), "is damaged"),
+    (lambda h, p: ({**h, "identity": "something else"}, p), "holds another program"),
+    (lambda h, p: ({**h, "environment": {**h["environment"], "cpu": "0123456789abcdef"}}, p),
+     "made by another veil, JAX, code or CPU (cpu 0123456789abcdef ->"),
+    (lambda h, p: ({**h, "environment": {**h["environment"], "jax": "0.0.1"}}, p),
+     "(jax 0.0.1 ->"),
+    (lambda h, p: ({**h, "environment": {**h["environment"], "code": "0" * 16}}, p),
+     "(code 0000000000000000 ->"),
+], ids=["truncated", "bit flipped", "undecodable", "another program", "other CPU",
+        "other JAX", "changed code"])
+def test_untrusted_entry_is_rebuilt_with_one_line(tmp_path, monkeypatch, engine_call, damage,
+                                                  message):
+    program, args = engine_call
+    monkeypatch.setenv("VEIL_CACHE_DIR", str(tmp_path))
+    monkeypatch.setattr(programs, "_MESSAGES", set())
+    good = run(program, args)
+    [name] = entries(tmp_path / "programs")
+    _rewrite(tmp_path / "programs" / name, damage)
+    np.testing.assert_array_equal(good, run(program, args, expect=message))
+    np.testing.assert_array_equal(good, run(program, args))   # replaced by a good entry
+
+
+def test_garbage_file_is_rebuilt(tmp_path, monkeypatch, engine_call):
+    program, args = engine_call
+    monkeypatch.setenv("VEIL_CACHE_DIR", str(tmp_path))
+    monkeypatch.setattr(programs, "_MESSAGES", set())
+    good = run(program, args)
+    [name] = entries(tmp_path / "programs")
+    (tmp_path / "programs" / name).write_bytes(b"\x00garbage")
+    np.testing.assert_array_equal(good, run(program, args, expect="not a veil program file"))
+
+
+def test_unwritable_store_keeps_working(tmp_path, monkeypatch, engine_call):
+    program, args = engine_call
+    blocker = tmp_path / "a-file"
+    blocker.write_text("not a folder")
+    monkeypatch.setenv("VEIL_CACHE_DIR", str(blocker))   # programs/ cannot be made under it
+    monkeypatch.setattr(programs, "_MESSAGES", set())
+    values = run(program, args, expect="cannot store engine programs")
+    monkeypatch.setenv("VEIL_CACHE_DIR", str(tmp_path))
+    np.testing.assert_array_equal(values, run(program, args))
