@@ -98,8 +98,8 @@ def run_case(truth: dict, medium: str, target: str, models: str, outdir: str) ->
         "tau": med.get("tau", math.nan), "tau_true": true_medium["tau"],
         "g": med.get("g", math.nan), "g_true": true_medium["g"],
         "converged": res.converged, "seconds": seconds,
-        "curves": {"angles": [a.tolist() for a in angles], "estimate": est.tolist(),
-                   "truth": rendered.tolist()},
+        "curves": {"psi": clear["psi"].tolist(), "rho": clear["rho"].tolist(),
+                   "estimate": est.tolist(), "truth": rendered.tolist()},
     }
 
 
@@ -133,11 +133,10 @@ def figure(rows: list[dict], path: str) -> None:
     for ax, medium in zip(axes[0], media):
         first = True
         for r in (r for r in rows if r["medium"] == medium):
-            ti, _, tr, _ = (np.asarray(a) for a in r["curves"]["angles"])
-            psi = np.round(np.abs(ti) + np.abs(tr))  # in-plane: psi = |theta_i| + |theta_r|
+            psi, rho = np.asarray(r["curves"]["psi"]), np.asarray(r["curves"]["rho"])
             sel = np.isclose(psi, 60.0)
-            order = np.argsort(ti[sel])
-            x = ti[sel][order]
+            order = np.argsort(rho[sel])
+            x = rho[sel][order]
             if first:
                 ax.plot(x, np.asarray(r["curves"]["truth"])[sel][order], "k.", ms=3,
                         label="truth (path traced, clear water)")
@@ -148,7 +147,7 @@ def figure(rows: list[dict], path: str) -> None:
                           f"{100 * r['est_vs_truth']:.1f} % RMS")
         ax.set_yscale("log")
         ax.set_title(f"{medium}, psi = 60 deg")
-        ax.set_xlabel("theta_i (deg)")
+        ax.set_xlabel("plate rotation rho (deg)")
         ax.legend(fontsize=6)
     axes[0][0].set_ylabel("value (1/sr)")
     fig.tight_layout()
@@ -167,7 +166,16 @@ def main(argv=None) -> int:
     ap.add_argument("--models", default="paper,physical")
     ap.add_argument("--figure", default=None)
     ap.add_argument("--json", default=None)
+    ap.add_argument("--replot", default=None, metavar="JSON",
+                    help="draw --figure from the rows of an earlier --json run, fit nothing")
     args = ap.parse_args(argv)
+    if args.replot:
+        with open(args.replot) as f:
+            rows = json.load(f)
+        print_table(rows)
+        if args.figure:
+            figure(rows, args.figure)
+        return 0
     with open(os.path.join(DATA, "truth.json")) as f:
         truth = json.load(f)
     rows = []
