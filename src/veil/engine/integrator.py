@@ -74,12 +74,12 @@ def _phase_grid(medium: BTDF, vm, maux, center, n_r: int, n_a: int, half: bool,
     cos_az = jnp.asarray(np.cos(TWO_PI * v))
     frac_max = jnp.repeat(medium.phase_cone_fraction(
         vm, horizon_one_minus_mu(center[2], cos_az), maux), n_r)
-    omm = medium.phase_inverse_cone_fraction(vm, u * frac_max, maux)
+    omm, p = medium.phase_sample(vm, u * frac_max, maux)
     sg = jnp.sqrt(jnp.maximum(omm * (2.0 - omm), 0.0))
     t1, t2 = frame(center)
     d = ((1.0 - omm)[:, None] * center[None, :]
          + sg[:, None] * (cb[:, None] * t1[None, :] + sb[:, None] * t2[None, :]))
-    return d, unit, frac_max, medium.phase(vm, omm, maux)
+    return d, unit, frac_max, p
 
 
 def _half_grid(brdf: type[BRDF], vb, partner, n_r: int, n_a: int, half: bool):
@@ -338,15 +338,16 @@ def _lobe_lobe(brdf, medium, vb, vm, maux, wi, wr, rule: Rule, half: bool):
 
 
 def _lobe_one_side(brdf, medium, vb, vm, maux, fixed, center, rule: Rule, half: bool,
-                   view: bool):
+                   view: bool, grid):
     """The BRDF's lobe against the phase lobe on one side, the other direction fixed:
 
         view:     Int lobe(F, R') a(R') J(R') p(R'.C) dR'    (F = I, C = R)
         not view: Int p(C.I') b(I') lobe(I', F) dI'          (F = R, C = I)
 
     by balanced MIS over two grids: the phase grid about C, and half vectors from the facet
-    law with the free direction the mirror of F."""
-    g, u, f, p = _phase_grid(medium, vm, maux, center, rule.dense_radial, rule.dense_azimuth, half)
+    law with the free direction the mirror of F. ``grid`` is the dense phase grid about C
+    (:func:`_phase_grid`), shared with the other 2D terms."""
+    g, u, f, p = grid
     factor = (medium.factor_first if view else medium.factor_second)
 
     def lobe(free, h=None, alpha=None):
@@ -417,8 +418,10 @@ def _one_config(brdf, medium, rule, half, vb, vm, shared, maux, wi, wr):
         rows[("iso", "iso")] = (c0_sep, c0_lobe)
     if "lobe" in comps:
         # 2D terms on a dense phase grid about I (I') and about R (R')
-        gi, ui, fi, _ = _phase_grid(medium, vm, maux, wi, rule.dense_radial, rule.dense_azimuth, half)
-        gr, ur, fr, _ = _phase_grid(medium, vm, maux, wr, rule.dense_radial, rule.dense_azimuth, half)
+        grid_i = _phase_grid(medium, vm, maux, wi, rule.dense_radial, rule.dense_azimuth, half)
+        grid_r = _phase_grid(medium, vm, maux, wr, rule.dense_radial, rule.dense_azimuth, half)
+        gi, ui, fi, _ = grid_i
+        gr, ur, fr, _ = grid_r
         wgi = ui * fi * medium.factor_second(vm, gi[:, 2])
         wgr = ur * fr * medium.factor_first(vm, gr[:, 2]) * _view_weight(medium, vm, gr, wr)
         seps_i = brdf.separable(vb, gi[:, 2], gi[:, 2], aux)
@@ -462,9 +465,9 @@ def _one_config(brdf, medium, rule, half, vb, vm, shared, maux, wi, wr):
                                       for (_, t), (s, _) in zip(sep_fixed_r, seps_i)))
             if brdf.HAS_LOBE:
                 d_lobe = (dl * b_r * _lobe_one_side(brdf, medium, vb, vm, maux, wi, wr, rule, half,
-                                                    True)
+                                                    True, grid_r)
                           + dv * a_i * _lobe_one_side(brdf, medium, vb, vm, maux, wr, wi, rule, half,
-                                                      False))
+                                                      False, grid_i))
             else:
                 d_lobe = zero
             rows[("delta", "lobe")] = (d_sep + zero, d_lobe + zero)

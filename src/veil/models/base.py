@@ -415,6 +415,13 @@ class Medium(Model):
     def phase_inverse_cone_fraction(v, frac, aux=None):  # pragma: no cover - interface
         raise NotImplementedError
 
+    def phase_sample(self, v, frac, aux=None):
+        """(1 - cos, p) at the cone holding ``frac`` of the phase function: the sampling map
+        and the density at its nodes together (a tabulated phase function reads both from
+        one table row); by default ``phase_inverse_cone_fraction`` then ``phase``."""
+        omm = self.phase_inverse_cone_fraction(v, frac, aux)
+        return omm, self.phase(v, omm, aux)
+
     #: Whether ``view_weight`` weights the view-side lobe (a static property of the options).
     def has_view_weight(self) -> bool:
         return False

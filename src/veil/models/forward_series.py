@@ -13,9 +13,9 @@ The engine sees two components: the delta with weight e^{-tau}, and the scattere
 weight e^{-tau} (e^{omega tau} - 1) and the normalized phase function
 sum_k c_k p(g^k), c_k = (omega tau)^k / k! / (e^{omega tau} - 1), summed over ORDERS orders
 (the weight left beyond them is below 1e-6 of the lobe's for tau up to the bound). Its cone
-fraction is tabulated once per engine call with its exact slopes and read by cubic Hermite
-interpolation; the density is the interpolant's derivative, so that the engine's sampling
-and weights are consistent (veil.models.phase, mixture_*).
+density, cone fraction and the inverse of the cone fraction are tabulated once per engine
+call with their exact slopes and read by cubic Hermite interpolation, one table row per
+lookup (veil.models.phase, mixture_*; relative accuracy TABLE_ACCURACY).
 
 Set-up geometry (options, from the apparatus, not fitted; one length unit): with the path
 length R_c of one pass (``path_length``) and the plate's width 2a (``plate_width``) the
@@ -227,6 +227,10 @@ class ForwardSeries(Medium):
     def phase_inverse_cone_fraction(v, frac, aux=None):
         return phase.mixture_inverse_cone_fraction(
             ForwardSeries.prepare(v) if aux is None else aux, frac)
+
+    def phase_sample(self, v, frac, aux=None):
+        return phase.mixture_inverse_with_pdf(ForwardSeries.prepare(v) if aux is None else aux,
+                                              frac)
 
     # -- the finite plate ----------------------------------------------------------------
     def has_view_weight(self) -> bool:
