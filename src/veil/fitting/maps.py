@@ -32,6 +32,7 @@ from __future__ import annotations
 import hashlib
 import itertools
 import math
+import threading
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -408,6 +409,10 @@ def _nnls_small(g, b, yy, q, jnp):
 
 
 _SOLVERS: dict = {}
+#: One solver call at a time per process: concurrent first calls of a jitted function from
+#: several threads (dask's threaded scheduler) were seen to deadlock, and XLA already uses
+#: every core inside one call.
+_CALL_LOCK = threading.Lock()
 
 
 def _solver(q: int, d: int, sizes: tuple, weighted: bool):
@@ -482,7 +487,7 @@ def _solver(q: int, d: int, sizes: tuple, weighted: bool):
             cov = cov * chi2
         se = jnp.sqrt(jnp.maximum(jnp.diag(cov), 0.0))
         # the undamped Gauss-Newton step from the solution, in standard errors
-        gn = cov @ (jw.T @ r) / (1.0 if not weighted else 1.0)
+        gn = cov @ (jw.T @ r)
         if not weighted:
             gn = gn / jnp.where(chi2 > 0, chi2, 1.0)
         proj = project(p + gn) - p
@@ -561,15 +566,16 @@ def solve_pixels(tables: MapTables, y: np.ndarray, valid: np.ndarray,
     for start in range(0, n_pix, BATCH):
         stop = min(start + BATCH, n_pix)
         idx = np.minimum(np.arange(start, start + BATCH), stop - 1)  # fixed shape
-        p, se, chi2, npts, rank_ok, step = fn(values, coef, jnp.asarray(y[idx]),
-                                              jnp.asarray(w2[idx]))
+        with _CALL_LOCK:
+            p, se, chi2, npts, rank_ok, step = (np.asarray(a) for a in fn(
+                values, coef, jnp.asarray(y[idx]), jnp.asarray(w2[idx])))
         k = stop - start
-        out_p[start:stop] = np.asarray(p)[:k]
-        out_se[start:stop] = np.asarray(se)[:k]
-        out_chi2[start:stop] = np.asarray(chi2)[:k]
-        out_np[start:stop] = np.asarray(npts)[:k]
-        out_rank[start:stop] = np.asarray(rank_ok)[:k]
-        out_step[start:stop] = np.asarray(step)[:k]
+        out_p[start:stop] = p[:k]
+        out_se[start:stop] = se[:k]
+        out_chi2[start:stop] = chi2[:k]
+        out_np[start:stop] = npts[:k]
+        out_rank[start:stop] = rank_ok[:k]
+        out_step[start:stop] = step[:k]
     # status, worst first
     status = np.full(n_pix, CONVERGED, dtype=np.uint8)
     status[out_step > STEP_TOL] = NOT_CONVERGED
