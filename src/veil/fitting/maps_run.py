@@ -27,7 +27,8 @@ import shutil
 import struct
 import time
 import warnings
-from dataclasses import dataclass
+import itertools
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -405,12 +406,13 @@ def _run_local(tasks, progress, workers):
 def _run_distributed(client, tasks, progress):
     from distributed import as_completed
 
-    futures = client.compute(tasks)
     out = []
-    for k, future in enumerate(as_completed(futures), 1):
-        out.append(future.result())
-        if progress is not None:
-            progress("solving tiles", k, len(futures))
+    with client.as_current():
+        futures = client.compute(tasks)
+        for k, future in enumerate(as_completed(futures), 1):
+            out.append(future.result())
+            if progress is not None:
+                progress("solving tiles", k, len(futures))
     return out
 
 
@@ -430,6 +432,51 @@ class MapsRun:
     tables: str
     seconds: dict
     summary: dict
+    notes: list = field(default_factory=list)
+
+
+class MapsWarning(UserWarning):
+    """Something about a map the user should know that does not stop it."""
+
+
+def geometry_notes(tables: MapTables, brdf_cls, medium_model, shape, geometry) -> list:
+    """The angular spread across the field implied by a camera at ``distance`` with
+    ``pitch`` (plate size of a pixel, same units) against the narrowest lobe (the medium's
+    phase lobe, the BRDF's facet lobe at the ends of the table); warns when the spread
+    exceeds a fifth of it: distant light and camera are then a poor approximation."""
+    distance, pitch = (float(g) for g in geometry)
+    if not (distance > 0 and pitch > 0 and math.isfinite(distance) and math.isfinite(pitch)):
+        raise InputError(f"camera distance {distance:g} and pixel pitch {pitch:g} must be "
+                         f"positive numbers")
+    h, w = shape
+    half = 0.5 * math.hypot(h, w) * pitch
+    spread = 2 * math.degrees(math.atan(half / distance))
+    widths = {"the medium's phase lobe": medium_model.lobe_half_width()}
+    corners = itertools.product(*[(a.lo, a.hi) for a in tables.axes]) if tables.axes else [()]
+    brdf_widths = []
+    for corner in corners:
+        v = tables.base.copy()
+        for a, value in zip(tables.axes, corner):
+            v[a.index] = value
+        try:
+            model = brdf_cls.from_params(dict(zip(tables.names, v)), tables.options)
+            brdf_widths.append(model.facet_half_angle())
+        except (ValueError, TypeError):
+            continue
+    if brdf_widths:
+        widths["the BRDF's facet lobe (smoothest end of the table)"] = min(brdf_widths)
+    which, narrow = min(widths.items(), key=lambda kv: kv[1])
+    notes = [f"geometry: the field ({w} x {h} pixels of {pitch:g} at distance {distance:g}) "
+             f"spans {spread:.3g} deg of view direction; narrowest lobe: {which}, "
+             f"{narrow:.3g} deg half width"]
+    if math.isfinite(narrow) and spread > narrow / 5:
+        message = (f"the view direction changes by {spread:.3g} deg across the field, more "
+                   f"than a fifth of {which} ({narrow:.3g} deg): the distant-camera "
+                   f"approximation (every pixel at the manifest's angles) is poor; map a "
+                   f"smaller ROI or move the camera further away")
+        warnings.warn(message, MapsWarning, stacklevel=3)
+        notes.append("warning: " + message)
+    return notes
 
 
 def summarize_maps(store) -> dict:
@@ -475,7 +522,7 @@ def fit_maps(photo_dir, manifest, medium, output, *, brdf_model=None, options=No
              fixed=None, free=None, grid=None, roi=None, mask=None, black_photos=None,
              black_frame=None, channel="gray", saturation=None, noise=None,
              tile: int = DEFAULT_TILE, accuracy: str = "default", scheduler=None,
-             workers: int = 2, progress=None, log=None) -> MapsRun:
+             workers: int = 2, progress=None, log=None, geometry=None) -> MapsRun:
     """Per-pixel step 2 (docs/maps.md): the target's BRDF at every pixel of the photos
     listed in ``manifest`` (as ``veil ingest`` reads it) through ``medium`` (a step-1
     result or a medium model), written to the Zarr store ``output``.
@@ -492,6 +539,8 @@ def fit_maps(photo_dir, manifest, medium, output, *, brdf_model=None, options=No
         absolute): sigma = sqrt((relative * value)^2 + absolute^2) per sample.
     tile : tile size in pixels (memory is bounded by it). scheduler : a dask.distributed
         address (default ``$VEIL_DASK_SCHEDULER``; none: local threads, ``workers``).
+    geometry : (camera distance, pixel pitch on the plate), same units: report the angular
+        spread across the field and warn when it exceeds a fifth of the narrowest lobe.
     progress(stage, done, total), log(message) : reports.
     """
     from ..models import default_class, model_class
@@ -537,6 +586,8 @@ def fit_maps(photo_dir, manifest, medium, output, *, brdf_model=None, options=No
                               if progress else None)
         seconds["tables"] = time.perf_counter() - t0
         say(f"tables: {tables.describe()} in {seconds['tables']:.1f} s")
+        notes = (geometry_notes(tables, cls, medium_model, (acq.roi.h, acq.roi.w), geometry)
+                 if geometry is not None else [])
         fingerprint = hashlib.sha256((acq.fingerprint() + tables.fingerprint()
                                       + repr((noise, tile))).encode()).hexdigest()
         shape = (acq.roi.h, acq.roi.w)
@@ -563,7 +614,7 @@ def fit_maps(photo_dir, manifest, medium, output, *, brdf_model=None, options=No
         if is_complete(output):
             say(f"{output} is complete (all {len(tiles)} tiles); nothing to compute")
             return MapsRun(output, len(tiles), 0, len(tiles), {}, tables.describe(), seconds,
-                           summarize_maps(output))
+                           summarize_maps(output), notes)
         t0 = time.perf_counter()
         if not (_marker_dir(output) / "staged").is_file():
             with warnings.catch_warnings():
@@ -586,7 +637,7 @@ def fit_maps(photo_dir, manifest, medium, output, *, brdf_model=None, options=No
         write_text_atomic(output / "summary.json", json.dumps(summary, indent=2) + "\n")
         shutil.rmtree(output / "stack", ignore_errors=True)
         return MapsRun(output, len(tiles), len(todo), reused, counts, tables.describe(),
-                       seconds, summary)
+                       seconds, summary, notes)
     finally:
         if client is not None:
             client.close()
@@ -637,5 +688,5 @@ def open_maps(store) -> dict:
     return out
 
 
-__all__ = ["fit_maps", "open_maps", "summarize_maps", "load_acquisition", "MapsRun",
+__all__ = ["fit_maps", "open_maps", "MapsWarning", "geometry_notes", "summarize_maps", "load_acquisition", "MapsRun",
            "connect", "is_complete", "SCHEDULER_ENV", "FORMAT"]
