@@ -61,8 +61,7 @@ def maps_figure(store, path, *, dpi: int = 110) -> Path:
     aspect = h / max(w, 1)
     fig, axes = plt.subplots(rows, cols, figsize=(4.2 * cols, 3.6 * rows * max(aspect, 0.4)),
                              squeeze=False)
-    cmap = matplotlib.colormaps["viridis"].copy()
-    cmap.set_bad("0.75")
+    cmap = matplotlib.colormaps["viridis"].with_extremes(bad="0.75")
     for ax, (title, image, label, log) in zip(axes.flat, panels):
         finite = np.isfinite(image)
         norm = None
