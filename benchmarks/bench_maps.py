@@ -54,9 +54,8 @@ def synthetic(tables, n, seed=0):
     basis = np.stack([np.asarray(_interp(jnp.asarray(tables.coef),
                                          jnp.asarray([u[k] for u in us]), d)[0])
                       for k in range(64)])[np.arange(n) % 64]
-    # scales around the size that makes each column carry a similar share of the signal
-    size = np.median(np.abs(basis[..., q:q + 1]).sum(1) + 1e-300) / \
-        np.maximum(np.median(np.abs(basis[..., :q]).sum(1), axis=0), 1e-300)
+    # scales that make each free column carry a similar share of the signal
+    size = 1.0 / np.maximum(np.median(np.abs(basis[..., :q]).sum(1), axis=0), 1e-300)
     s = size * np.exp(rng.uniform(-0.5, 0.5, (n, q)))
     y = np.einsum("nmk,nk->nm", basis[..., :q], s) + basis[..., q]
     return y * (1 + 0.01 * rng.standard_normal(y.shape))

@@ -220,6 +220,12 @@ def load_acquisition(photo_dir, manifest, *, roi=None, mask=None, black_photos=N
         more = f" and {len(missing) - 10} more" if len(missing) > 10 else ""
         raise MissingFileError(f"{name}: {len(missing)} photo(s) listed in the manifest are not "
                                f"in {photo_dir}: {shown}{more}")
+    jpeg = [(row, f) for row, f in zip(rows, table["file"])
+            if Path(f).suffix.lower() in (".jpg", ".jpeg", ".jpe")]
+    if jpeg:
+        raise InputError(f"{name}: {jpeg[0][1]!r} ({jpeg[0][0]}) is a JPEG; JPEG code values "
+                         f"are not linear in radiance, and per-pixel maps need linear photos "
+                         f"(PNG, TIFF or camera raw)")
     blacks = None
     if black_photos is not None:
         bdir = Path(black_photos)
