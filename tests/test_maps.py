@@ -171,8 +171,9 @@ def test_command_maps_outputs_and_resume(stack, tmp_path, monkeypatch):
     assert not (out / "stack").exists()
 
     # a rerun of a complete store computes nothing
-    again = run(*fit_args(root, manifest, out))
+    again = run(*fit_args(root, manifest, out, "--camera-distance", 100, "--pixel-pitch", 1))
     assert again.exit_code == 0 and "nothing to compute" in again.output
+    assert "spans" in again.output and "distant-camera approximation" in again.output
 
     # an interrupted run resumes with the missing tiles only, to the same bits
     import veil.fitting.maps_run as mr

@@ -129,8 +129,9 @@ def fit_maps_command(ctx, photo_dir, manifest, medium, output, black_photos, bla
                        noise=_noise(noise), tile=tile, accuracy=accuracy,
                        scheduler=scheduler, workers=workers, progress=progress, log=log,
                        geometry=(camera_distance, pixel_pitch) if camera_distance else None)
-    for line in run.notes:
-        click.echo(line, err=True)
+    for line in run.notes:  # the warnings among them were printed as warnings already
+        if not line.startswith("warning: "):
+            click.echo(line, err=True)
     s = run.summary
     click.echo(f"{run.store}: {s['pixels']} pixels, {s['converged']} converged "
                f"({100 * s['converged'] / max(s['pixels'], 1):.1f} %); tiles: "
