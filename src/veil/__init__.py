@@ -21,6 +21,7 @@ _API = {
     "fit_reference": "fitting.steps", "fit_medium": "fitting.steps",
     "fit_target": "fitting.steps", "FitResult": "fitting.result",
     "run_pipeline": "pipeline", "fit_joint": "fitting.joint",
+    "fit_maps": "fitting.maps_run", "open_maps": "fitting.maps_run",
     "BRDF": "models", "BTDF": "models", "Medium": "models", "Model": "models",
     "Param": "models", "PRESETS": "models", "REGISTRY": "models", "preset": "models",
     "register": "models",

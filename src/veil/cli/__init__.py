@@ -30,6 +30,8 @@ COMMANDS = {
     "models": "models_cmd:models_command",
     "warmup": "warmup_cmd:warmup_command",
     "export": "export_cmd:export_command",
+    "fit maps": "maps_cmd:fit_maps_command",
+    "maps": "maps_cmd:maps_command",
 }
 
 

@@ -1,0 +1,241 @@
+"""Benchmark of the reflectance maps (docs/maps.md, docs/performance.md "Reflectance maps").
+
+    .venv/bin/python benchmarks/bench_maps.py [--pixels 20000] [--size 200] [--rss-size 1000]
+
+1. tables and the per-pixel solve for a Torrance-Sparrow and a rough-plastic target through
+   the paper's BTDF2, at the paper's 111 configurations, the index fixed: seconds for the
+   tables, pixels/s of the solve (synthetic pixels: the tables' own values with 1 % noise);
+2. the full least-squares fit through the engine (veil.fit_target) on a few pixels
+   rendered by the engine: seconds per pixel, and the fast solve's distance from it in
+   standard errors (both at the "fast" quadrature, where both use exact Jacobians);
+3. a map of SIZE x SIZE pixels from 111 float32 TIFFs, end to end: locally (threads) and on
+   a dask.distributed LocalCluster of two worker processes; equal bit for bit?
+4. peak RSS of a map of RSS_SIZE^2 pixels from 10 and from 50 photos (a fresh process each).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE.parent / "tests"))
+
+
+def protocol_configs():
+    import veil
+    table = veil.simulate(veil.BRDF1, veil.BTDF2, noise=0.0, seed=0)
+    return table[["theta_i", "phi_i", "theta_r", "phi_r"]].reset_index(drop=True)
+
+
+def angles_of(configs):
+    return tuple(configs[c].to_numpy(dtype=float)
+                 for c in ("theta_i", "phi_i", "theta_r", "phi_r"))
+
+
+def synthetic(tables, n, seed=0):
+    """Pixels from the tables' own spline at random nonlinear values and scales, 1 % noise."""
+    import jax.numpy as jnp
+    from veil.fitting.maps import _interp
+
+    rng = np.random.default_rng(seed)
+    d = len(tables.axes)
+    q = len(tables.free_scales)
+    us = [rng.uniform(0.15 * (a.count - 1), 0.85 * (a.count - 1), 64) for a in tables.axes]
+    basis = np.stack([np.asarray(_interp(jnp.asarray(tables.coef),
+                                         jnp.asarray([u[k] for u in us]), d)[0])
+                      for k in range(64)])[np.arange(n) % 64]
+    # scales that make each free column carry a similar share of the signal
+    size = 1.0 / np.maximum(np.median(np.abs(basis[..., :q]).sum(1), axis=0), 1e-300)
+    s = size * np.exp(rng.uniform(-0.5, 0.5, (n, q)))
+    y = np.einsum("nmk,nk->nm", basis[..., :q], s) + basis[..., q]
+    return y * (1 + 0.01 * rng.standard_normal(y.shape))
+
+
+def bench_solve(family, fixed, n_pixels, configs):
+    import veil
+    from veil.fitting.maps import build_tables, solve_pixels
+    from veil.models import model_class
+
+    cls = model_class(family, "brdf")
+    t0 = time.perf_counter()
+    tables = build_tables(cls, veil.BTDF2, angles_of(configs), fixed=fixed)
+    t_tables = time.perf_counter() - t0
+    y = synthetic(tables, n_pixels)
+    valid = np.ones_like(y, dtype=bool)
+    solve_pixels(tables, y[:8], valid[:8])  # compile
+    t0 = time.perf_counter()
+    fits = solve_pixels(tables, y, valid)
+    t_solve = time.perf_counter() - t0
+    return tables, t_tables, t_solve, fits
+
+
+def bench_full(configs, n=2):
+    import veil
+    from maps_helpers import render
+    from veil.fitting.maps import build_tables, solve_pixels
+
+    brdf, medium = veil.BRDF1, veil.BTDF2
+    names = type(brdf).param_names()
+    fixed = {names[3]: float(brdf.to_vector()[3])}
+    rng = np.random.default_rng(5)
+    truth = []
+    for _ in range(n):
+        v = brdf.to_vector().copy()
+        v[2] *= np.exp(rng.uniform(-0.4, 0.4))
+        truth.append(v)
+    y = render(brdf, medium, configs, np.array(truth))
+    y = y * (1 + 0.01 * rng.standard_normal(y.shape))
+    tables = build_tables(type(brdf), medium, angles_of(configs), fixed=fixed, accuracy="fast")
+    fast = solve_pixels(tables, y, np.ones_like(y, dtype=bool))
+    worst, seconds = 0.0, []
+    for k in range(n):
+        t0 = time.perf_counter()
+        full = veil.fit_target(configs.assign(value=y[k]), medium, fixed=fixed,
+                               accuracy="fast")
+        seconds.append(time.perf_counter() - t0)
+        for i, name in enumerate(names):
+            if name not in fixed:
+                worst = max(worst, abs(fast.params[i, k] - full.params[name])
+                            / full.stderr[name])
+    return float(np.median(seconds)), worst
+
+
+def bench_map(size, configs, root):
+    import veil
+    from distributed import LocalCluster
+    from maps_helpers import write_stack
+    from veil.fitting.maps_run import fit_maps, open_maps
+
+    brdf, medium = veil.BRDF1, veil.BTDF2
+    names = type(brdf).param_names()
+    v = brdf.to_vector()
+    pm = np.repeat(v[:, None, None], size, 1).repeat(size, 2).copy()
+    pm[2] *= np.round(np.exp(np.linspace(-0.4, 0.4, size)), 2)[None, :]
+    pm[0, : size // 2] *= 1.5
+    manifest = write_stack(root / "photos", brdf, medium, configs, pm, noise=0.01)
+    fixed = {names[3]: float(v[3])}
+    out = {}
+    t0 = time.perf_counter()
+    run = fit_maps(root / "photos", manifest, medium, root / "local.zarr", fixed=fixed)
+    out["local"] = (time.perf_counter() - t0, run)
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                      dashboard_address=None) as cluster:
+        t0 = time.perf_counter()
+        run = fit_maps(root / "photos", manifest, medium, root / "cluster.zarr", fixed=fixed,
+                       scheduler=cluster.scheduler_address)
+        out["cluster"] = (time.perf_counter() - t0, run)
+    a, b = open_maps(root / "local.zarr"), open_maps(root / "cluster.zarr")
+    equal = all(np.array_equal(a[k], b[k]) for k in ("params", "stderr", "chi2_reduced",
+                                                       "status", "n_points"))
+    return out, equal
+
+
+RSS_CHILD = r"""
+import resource, sys, time
+sys.path.insert(0, sys.argv[1])
+import numpy as np, tifffile, veil
+from veil.fitting.maps_run import fit_maps
+root, photos, size = sys.argv[2], int(sys.argv[3]), int(sys.argv[4])
+import pathlib, pandas as pd
+root = pathlib.Path(root)
+names = type(veil.BRDF1).param_names()
+t0 = time.perf_counter()
+run = fit_maps(root / "photos", root / "manifest.csv", veil.BTDF2, root / f"rss{photos}.zarr",
+               fixed={names[3]: 1.55})
+print(time.perf_counter() - t0, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+      run.seconds.get("tables", 0), run.seconds.get("staging", 0), run.seconds.get("solve", 0))
+"""
+
+
+def bench_rss(size, photos, configs, root):
+    """Peak RSS (MiB) and seconds of a map of size^2 pixels from ``photos`` photos: the
+    same image (a plate of BRDF1 values, noise) at ``photos`` configurations."""
+    import tifffile
+    from maps_helpers import render
+    import veil
+
+    folder = root / f"rss{photos}"
+    (folder / "photos").mkdir(parents=True)
+    cfg = configs.iloc[np.linspace(0, len(configs) - 1, photos).round().astype(int)]
+    cfg = cfg.drop_duplicates().reset_index(drop=True)
+    values = render(veil.BRDF1, veil.BTDF2, cfg, veil.BRDF1.to_vector()[None, :])[0]
+    rng = np.random.default_rng(0)
+    files = []
+    for k, value in enumerate(values):
+        img = (value * (1 + 0.01 * rng.standard_normal((size, size)))).astype(np.float32)
+        name = f"p{k:03d}.tif"
+        tifffile.imwrite(folder / "photos" / name, img)
+        files.append(name)
+    cfg.assign(file=files)[["file", "theta_i", "phi_i", "theta_r", "phi_r"]].to_csv(
+        folder / "manifest.csv", index=False)
+    out = subprocess.run([sys.executable, "-c", RSS_CHILD, str(HERE.parent / "tests"),
+                          str(folder), str(len(files)), str(size)],
+                         capture_output=True, text=True, check=True)
+    total, rss, t_tab, t_stage, t_solve = map(float, out.stdout.split()[-5:])
+    return len(files), total, rss, t_tab, t_stage, t_solve
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--pixels", type=int, default=20000)
+    ap.add_argument("--size", type=int, default=200)
+    ap.add_argument("--rss-size", type=int, default=1000)
+    ap.add_argument("--skip-rss", action="store_true")
+    args = ap.parse_args()
+    import veil
+    from veil.models import model_class
+
+    configs = protocol_configs()
+    print(f"# bench_maps: {platform.node()}, {os.cpu_count()} cores, load average "
+          f"{os.getloadavg()[0]:.1f}, {len(configs)} configurations\n")
+    print("| target | free | tables (s) | pixels | solve (s) | pixels/s | converged |")
+    print("|---|---|---:|---:|---:|---:|---:|")
+    for family in ("torrance-sparrow", "rough-plastic"):
+        cls = model_class(family, "brdf")
+        index = [p.name for p in cls.PARAMS if not p.log_scale and p.name not in
+                 cls.scale_names()][0]
+        fixed = {index: float(cls.param(index).start)}
+        tables, t_tab, t_solve, fits = bench_solve(family, fixed, args.pixels, configs)
+        print(f"| {family} | {', '.join(tables.free_names)} | {t_tab:.1f} | {args.pixels} | "
+              f"{t_solve:.2f} | {args.pixels / t_solve:,.0f} | "
+              f"{100 * np.mean(fits.status == 0):.1f} % |", flush=True)
+    per_pixel, worst = bench_full(configs)
+    print(f"\nfull fit through the engine (veil.fit_target, fast quadrature): {per_pixel:.1f} s "
+          f"per pixel ({1 / per_pixel:.2f} pixels/s); fast solve within {worst:.3f} standard "
+          f"errors of it", flush=True)
+    with tempfile.TemporaryDirectory() as tmp:
+        runs, equal = bench_map(args.size, configs, Path(tmp))
+        print(f"\n| map {args.size} x {args.size} from {len(configs)} photos | seconds | "
+              f"tables | staging | solve | solve pixels/s |")
+        print("|---|---:|---:|---:|---:|---:|")
+        for where, (sec, run) in runs.items():
+            s = run.seconds
+            print(f"| {where} | {sec:.1f} | {s.get('tables', 0):.1f} | "
+                  f"{s.get('staging', 0):.1f} | {s.get('solve', 0):.1f} | "
+                  f"{args.size ** 2 / max(s.get('solve', 1e-9), 1e-9):,.0f} |")
+        print(f"\nlocal and LocalCluster maps equal bit for bit: {equal}", flush=True)
+        if not args.skip_rss:
+            print(f"\n| photos of {args.rss_size} x {args.rss_size} | seconds | peak RSS (MiB) |"
+                  f" tables | staging | solve |")
+            print("|---:|---:|---:|---:|---:|---:|")
+            for photos in (10, 50):
+                n, total, rss, t_tab, t_stage, t_solve = bench_rss(args.rss_size, photos,
+                                                                   configs, Path(tmp))
+                print(f"| {n} | {total:.1f} | {rss:.0f} | {t_tab:.1f} | {t_stage:.1f} | "
+                      f"{t_solve:.1f} |", flush=True)
+    print(f"\nbenchmark process peak RSS {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f}"
+          f" MiB; load average at the end {os.getloadavg()[0]:.1f}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,698 @@
+"""Reflectance maps from a photo stack, streamed through Dask into a Zarr store
+(docs/maps.md): :func:`fit_maps`.
+
+1. The manifest and the photos are checked as ``veil ingest`` checks them (the same reader,
+   :mod:`veil.data.ingest`); photo sizes are read from the headers before anything is
+   written, and a scheduler address is connected to first.
+2. The tables (:func:`veil.fitting.maps.build_tables`) are built once, on the client.
+3. The photos are staged one at a time into the store (``stack/values``, float32, one chunk
+   per photo and tile; saturated, clipped and masked samples as NaN; dark frame or black
+   photos subtracted), so memory holds one photo whatever the stack's size.
+4. The staged stack is a dask array in tiles (all photos of a tile together); one task per
+   tile solves its pixels (:func:`veil.fitting.maps.solve_pixels`) against the shared
+   tables and writes its chunks of the maps, then a marker: a tile with its marker is
+   complete. A rerun with the same inputs computes only the tiles without one.
+5. When every tile is there the store is marked complete (``.veil/complete``), its summary
+   written, and the staged stack removed. A store without the marker is partial: readers
+   refuse it, a rerun resumes it.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import os
+import shutil
+import struct
+import time
+import warnings
+import itertools
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..data.ingest import (CHANNELS, ROI, IngestWarning, _linear, parse_roi,
+                           read_manifest, read_photo)
+from ..errors import FitError, InputError, MissingFileError
+from ..io import write_bytes_atomic, write_text_atomic
+from .maps import (CONVERGED, MASKED, STATUS, MapTables, build_tables, solve_pixels)
+
+FORMAT = "veil.maps/1"
+MAPS = ("params", "stderr", "chi2_reduced", "n_points", "status")
+DEFAULT_TILE = 128
+SCHEDULER_ENV = "VEIL_DASK_SCHEDULER"
+CONNECT_TIMEOUT = 5.0
+
+
+# --------------------------------------------------------------------------------------
+# photos
+# --------------------------------------------------------------------------------------
+def _png_size(path: Path):
+    with open(path, "rb") as fh:
+        head = fh.read(33)
+    if len(head) < 24 or head[:8] != b"\x89PNG\r\n\x1a\n" or head[12:16] != b"IHDR":
+        raise InputError(f"{path}: not a PNG file (no PNG header)")
+    width, height = struct.unpack(">II", head[16:24])
+    return int(height), int(width)
+
+
+def probe_size(path) -> tuple[int, int]:
+    """(height, width) of a photo from its header (PNG, TIFF) or by decoding it; for camera
+    raw the size of the half-resolution superpixel image."""
+    path = Path(path)
+    if not path.is_file():
+        raise MissingFileError(f"{path}: no such file")
+    suffix = path.suffix.lower()
+    if suffix == ".png":
+        return _png_size(path)
+    if suffix in (".tif", ".tiff"):
+        import tifffile
+        try:
+            with tifffile.TiffFile(path) as tif:
+                series = tif.series[0]
+                shape, axes = series.shape, series.axes
+        except Exception as exc:  # noqa: BLE001 - tifffile raises many kinds
+            raise InputError(f"{path}: cannot read as TIFF ({type(exc).__name__}: {exc})"
+                             ) from None
+        return int(shape[axes.index("Y")]), int(shape[axes.index("X")])
+    photo = read_photo(path, [])
+    h, w = photo.shape[:2]
+    return (h // 2, w // 2) if photo.kind == "raw" else (h, w)
+
+
+def _pixels(photo, channel: str, level, where: str):
+    """(linear values (h, w), unusable (h, w)) of a photo read with one ROI: ``channel`` per
+    pixel, unusable where a used sample is at or above ``level`` or at the format's floor.
+    Camera raw: 2 x 2 colour-filter blocks as superpixels (gray: mean of R, G, B)."""
+    patch = photo.patches[0]
+    values = _linear(patch, None, where)
+    raw = patch.values
+    if patch.cfa is not None:
+        h, w = values.shape
+        h2, w2 = h // 2, w // 2
+        vb = values[:2 * h2, :2 * w2].reshape(h2, 2, w2, 2)
+        cb = patch.cfa[:2 * h2, :2 * w2].reshape(h2, 2, w2, 2)
+        rb = raw[:2 * h2, :2 * w2].reshape(h2, 2, w2, 2)
+        colours = range(3) if channel == "gray" else ["rgb".index(channel)]
+        means, bad = [], np.zeros((h2, w2), dtype=bool)
+        for c in colours:
+            sel = cb == c
+            count = sel.sum(axis=(1, 3))
+            if np.any(count == 0):
+                raise InputError(f"{where}: a 2 x 2 block of the colour filter has no "
+                                 f"{'RGB'[c]} photosite; expected a Bayer mosaic")
+            means.append((vb * sel).sum(axis=(1, 3)) / count)
+            if level is not None:
+                bad |= ((rb >= level) & sel).any(axis=(1, 3))
+            if photo.floor is not None:
+                bad |= ((rb <= photo.floor) & sel).any(axis=(1, 3))
+        return sum(means) / len(means), bad
+    if channel == "gray":
+        out = values.mean(axis=2)
+        used = raw
+    else:
+        k = "rgb".index(channel)
+        out = values[:, :, k]
+        used = raw[:, :, k:k + 1]
+    bad = np.zeros(out.shape, dtype=bool)
+    if level is not None:
+        bad |= (used >= level).any(axis=2)
+    if photo.floor is not None:
+        bad |= (used <= photo.floor).any(axis=2)
+    return out, bad
+
+
+def _read_pixels(path, roi: ROI, channel, saturation, where):
+    """Linear per-pixel values and the unusable samples of ``roi`` of one photo (for raw
+    the ROI is in superpixels)."""
+    path = Path(path)
+    if path.suffix.lower() in (".jpg", ".jpeg", ".jpe"):
+        raise InputError(f"{where}: JPEG code values are not linear in radiance; per-pixel "
+                         f"maps need linear photos (PNG, TIFF or camera raw)")
+    scale = 2 if path.suffix.lower() in _raw_suffixes() else 1
+    full = ROI(roi.x * scale, roi.y * scale, roi.w * scale, roi.h * scale)
+    photo = read_photo(path, [("ROI", full)])
+    if channel != "gray" and photo.shape[2] == 1 and photo.kind != "raw":
+        raise InputError(f"{where}: a single-channel (gray) image has no channel "
+                         f"{channel!r}; use channel gray")
+    level = saturation if saturation is not None else photo.saturation
+    return _pixels(photo, channel, level, where)
+
+
+def _raw_suffixes():
+    from ..data.ingest import RAW_SUFFIXES
+    return RAW_SUFFIXES
+
+
+def read_mask(path, shape, roi: ROI) -> np.ndarray:
+    """Boolean mask (ROI) from an image of the photos' size: nonzero = fit the pixel."""
+    path = Path(path)
+    size = probe_size(path) if path.suffix.lower() not in _raw_suffixes() else None
+    if size != tuple(shape):
+        got = "camera raw" if size is None else f"{size[1]} x {size[0]}"
+        raise InputError(f"mask {path}: {got} pixels; expected the photos' size "
+                         f"{shape[1]} x {shape[0]} (nonzero = fit the pixel)")
+    photo = read_photo(path, [("ROI", roi)])
+    values = photo.patches[0].values
+    return np.asarray(values != 0).any(axis=-1) if values.ndim == 3 else values != 0
+
+
+# --------------------------------------------------------------------------------------
+# the acquisition
+# --------------------------------------------------------------------------------------
+@dataclass
+class Acquisition:
+    """What the maps are fitted from: photos in manifest order, their configurations,
+    what is subtracted, the region and the mask."""
+
+    paths: list
+    blacks: list | None
+    dark: Path | None
+    angles: tuple
+    shape: tuple  # (height, width) of every photo
+    roi: ROI
+    mask: np.ndarray | None
+    channel: str
+    saturation: float | None
+    rows: list
+    name: str
+
+    def fingerprint(self) -> str:
+        h = hashlib.sha256()
+        files = list(self.paths) + list(self.blacks or []) + ([self.dark] if self.dark else [])
+        for p in files:
+            st = os.stat(p)
+            h.update(f"{os.path.abspath(p)}|{st.st_size}|{st.st_mtime_ns}\n".encode())
+        for a in self.angles:
+            h.update(np.ascontiguousarray(a, dtype=float).tobytes())
+        h.update(repr((self.shape, str(self.roi), self.channel, self.saturation)).encode())
+        if self.mask is not None:
+            h.update(np.packbits(self.mask).tobytes())
+        return h.hexdigest()
+
+
+def load_acquisition(photo_dir, manifest, *, roi=None, mask=None, black_photos=None,
+                     black_frame=None, channel="gray", saturation=None) -> Acquisition:
+    """Check the inputs of :func:`fit_maps` and read what is cheap (no photo decoded but the
+    mask and raw headers)."""
+    from ..data.measurements import canonical_angles
+    from .data import CANONICAL
+
+    photo_dir = Path(photo_dir)
+    if not photo_dir.is_dir():
+        raise MissingFileError(f"photo directory {photo_dir}: no such directory")
+    if channel not in CHANNELS:
+        raise InputError(f"channel {channel!r}: expected one of {', '.join(CHANNELS)}")
+    if black_photos is not None and black_frame is not None:
+        raise InputError("give black photos (one per manifest row) or one black frame, not "
+                         "both")
+    if saturation is not None:
+        saturation = float(saturation)
+        if not math.isfinite(saturation):
+            raise InputError(f"saturation level {saturation!r} is not a finite number")
+    table, rows, name = read_manifest(manifest, photo_dir)
+    paths = [photo_dir / f for f in table["file"]]
+    missing = [(row, f) for row, f, p in zip(rows, table["file"], paths) if not p.is_file()]
+    if missing:
+        shown = "; ".join(f"{f!r} ({row})" for row, f in missing[:10])
+        more = f" and {len(missing) - 10} more" if len(missing) > 10 else ""
+        raise MissingFileError(f"{name}: {len(missing)} photo(s) listed in the manifest are not "
+                               f"in {photo_dir}: {shown}{more}")
+    jpeg = [(row, f) for row, f in zip(rows, table["file"])
+            if Path(f).suffix.lower() in (".jpg", ".jpeg", ".jpe")]
+    if jpeg:
+        raise InputError(f"{name}: {jpeg[0][1]!r} ({jpeg[0][0]}) is a JPEG; JPEG code values "
+                         f"are not linear in radiance, and per-pixel maps need linear photos "
+                         f"(PNG, TIFF or camera raw)")
+    blacks = None
+    if black_photos is not None:
+        bdir = Path(black_photos)
+        if not bdir.is_dir():
+            raise MissingFileError(f"black photo directory {bdir}: no such directory")
+        blacks = [bdir / f for f in table["file"]]
+        gone = [(row, f) for row, f, p in zip(rows, table["file"], blacks) if not p.is_file()]
+        if gone:
+            shown = "; ".join(f"{f!r} ({row})" for row, f in gone[:10])
+            raise MissingFileError(f"black photos: {len(gone)} photo(s) of {name} have no "
+                                   f"black photo of the same name in {bdir}: {shown}")
+    dark = None
+    if black_frame is not None:
+        dark = Path(black_frame)
+        if not dark.is_file():
+            raise MissingFileError(f"black frame {dark}: no such file")
+    canon = canonical_angles(table.assign(value=0.0))
+    angles = tuple(canon[c].to_numpy(dtype=float) for c in CANONICAL)
+    shape = None
+    first = None
+    for p, row in zip(list(paths) + list(blacks or []) + ([dark] if dark else []),
+                      list(rows) + [f"black photo of {r}" for r in (rows if blacks else [])]
+                      + (["the black frame"] if dark else [])):
+        size = probe_size(p)
+        if shape is None:
+            shape, first = size, p
+        elif size != shape:
+            raise InputError(f"{p} ({row}): {size[1]} x {size[0]} pixels, but {first} is "
+                             f"{shape[1]} x {shape[0]}; every photo of a map must have the "
+                             f"same size")
+    if roi is None:
+        roi = ROI(0, 0, shape[1], shape[0])
+    else:
+        roi = parse_roi(roi, "ROI")
+        if roi.x + roi.w > shape[1] or roi.y + roi.h > shape[0]:
+            raise InputError(f"ROI {roi} lies outside the photos, which are {shape[1]} x "
+                             f"{shape[0]} pixels")
+    mask_arr = read_mask(mask, shape, roi) if mask is not None else None
+    if mask_arr is not None and not mask_arr.any():
+        raise InputError(f"mask {mask}: no nonzero pixel inside the ROI {roi}; nothing to fit")
+    if len(paths) < 2:
+        raise InputError(f"{name}: {len(paths)} photo; a map needs more photos than free "
+                         f"parameters")
+    return Acquisition(paths, blacks, dark, angles, shape, roi, mask_arr, channel, saturation,
+                       rows, name)
+
+
+# --------------------------------------------------------------------------------------
+# the store
+# --------------------------------------------------------------------------------------
+def _marker_dir(store) -> Path:
+    return Path(store) / ".veil"
+
+
+def _tile_marker(store, iy, ix) -> Path:
+    return _marker_dir(store) / "tiles" / f"{iy}_{ix}"
+
+
+def is_complete(store) -> bool:
+    return (_marker_dir(store) / "complete").is_file()
+
+
+def _store_info(store):
+    """The store's veil attributes, or None when ``store`` is not a veil maps store."""
+    import zarr
+    try:
+        group = zarr.open_group(os.fspath(store), mode="r")
+    except Exception:  # noqa: BLE001 - zarr raises several kinds for a non-store
+        return None
+    info = dict(group.attrs).get("veil_maps")
+    return info if isinstance(info, dict) and info.get("format") == FORMAT else None
+
+
+def _tiles(shape, tile):
+    h, w = shape
+    return [(iy, ix) for iy in range(math.ceil(h / tile)) for ix in range(math.ceil(w / tile))]
+
+
+def _create_store(store, info, tables: MapTables, shape, tile, n_photos):
+    import zarr
+
+    group = zarr.open_group(os.fspath(store), mode="w")
+    n_par = len(tables.names)
+    h, w = shape
+    for name, lead, dtype in (("params", (n_par,), "float64"), ("stderr", (n_par,), "float64"),
+                              ("chi2_reduced", (), "float64"), ("n_points", (), "int32"),
+                              ("status", (), "uint8")):
+        group.create_array(name, shape=lead + (h, w), chunks=lead + (tile, tile), dtype=dtype,
+                           fill_value=MASKED if name == "status" else 0)
+    group.create_array("stack/values", shape=(n_photos, h, w), chunks=(1, tile, tile),
+                       dtype="float32", fill_value=float("nan"))
+    group.attrs["veil_maps"] = info
+    (_marker_dir(store) / "tiles").mkdir(parents=True, exist_ok=True)
+    return group
+
+
+def _stage(store, acq: Acquisition, progress=None):
+    """Photos (minus dark frame or black photos) into ``stack/values``, one at a time."""
+    import zarr
+
+    arr = zarr.open_array(os.fspath(Path(store) / "stack" / "values"), mode="r+")
+    roi = acq.roi
+    dark = None
+    if acq.dark is not None:
+        dark = _read_pixels(acq.dark, roi, acq.channel, acq.saturation,
+                            f"black frame {acq.dark}")
+    for k, (path, row) in enumerate(zip(acq.paths, acq.rows)):
+        where = f"{path} ({row})"
+        values, bad = _read_pixels(path, roi, acq.channel, acq.saturation, where)
+        if not np.all(np.isfinite(values)):
+            raise InputError(f"{where}: non-finite samples (NaN or infinity)")
+        if dark is not None:
+            values = values - dark[0]
+            bad = bad | dark[1]
+        if acq.blacks is not None:
+            bv, bb = _read_pixels(acq.blacks[k], roi, acq.channel, acq.saturation,
+                                  f"black photo {acq.blacks[k]} ({row})")
+            values = values - bv
+            bad = bad | bb
+        if acq.mask is not None:
+            bad = bad | ~acq.mask
+        arr[k] = np.where(bad, np.nan, values).astype(np.float32)
+        if progress is not None:
+            progress("staging photos", k + 1, len(acq.paths))
+    write_bytes_atomic(_marker_dir(store) / "staged", b"staged\n")
+
+
+def _solve_tile(block, tables: MapTables, store, iy, ix, tile, noise):
+    """One tile: (photos, th, tw) values -> its chunks of the maps, then its marker."""
+    import zarr
+
+    block = np.asarray(block, dtype=np.float64)
+    m, th, tw = block.shape
+    y = block.reshape(m, th * tw).T
+    valid = np.isfinite(y)
+    res = solve_pixels(tables, np.where(valid, y, 0.0), valid, noise)
+    group = zarr.open_group(os.fspath(store), mode="r+")
+    ys, xs = slice(iy * tile, iy * tile + th), slice(ix * tile, ix * tile + tw)
+    n_par = res.params.shape[0]
+    group["params"][:, ys, xs] = res.params.reshape(n_par, th, tw)
+    group["stderr"][:, ys, xs] = res.stderr.reshape(n_par, th, tw)
+    group["chi2_reduced"][ys, xs] = res.chi2.reshape(th, tw)
+    group["n_points"][ys, xs] = res.n_points.reshape(th, tw)
+    group["status"][ys, xs] = res.status.reshape(th, tw)
+    write_bytes_atomic(_tile_marker(store, iy, ix), b"done\n")
+    return np.bincount(res.status, minlength=len(STATUS))
+
+
+# --------------------------------------------------------------------------------------
+# scheduling
+# --------------------------------------------------------------------------------------
+def connect(address, timeout: float = CONNECT_TIMEOUT):
+    """A dask.distributed client for ``address``; an InputError within ``timeout`` seconds
+    when no scheduler answers there."""
+    from distributed import Client
+
+    try:
+        return Client(address, timeout=timeout, set_as_default=False)
+    except (OSError, TimeoutError, ValueError) as exc:
+        raise InputError(f"dask scheduler {address!r}: cannot connect within {timeout:g} s "
+                         f"({type(exc).__name__}: {exc}); nothing was written. Start the "
+                         f"scheduler, correct --scheduler / ${SCHEDULER_ENV}, or leave both "
+                         f"out to run locally") from None
+
+
+def _run_local(tasks, progress, workers):
+    import dask
+    from dask.callbacks import Callback
+
+    keys = {t.key for t in tasks}
+    done = [0]
+
+    class Ticker(Callback):
+        def _posttask(self, key, result, dsk, state, id):
+            if key in keys:
+                done[0] += 1
+                if progress is not None:
+                    progress("solving tiles", done[0], len(tasks))
+
+    with Ticker():
+        return list(dask.compute(*tasks, scheduler="threads", num_workers=workers))
+
+
+def _run_distributed(client, tasks, progress):
+    from distributed import as_completed
+
+    out = []
+    with client.as_current():
+        futures = client.compute(tasks)
+        for k, future in enumerate(as_completed(futures), 1):
+            out.append(future.result())
+            if progress is not None:
+                progress("solving tiles", k, len(futures))
+    return out
+
+
+# --------------------------------------------------------------------------------------
+# the result
+# --------------------------------------------------------------------------------------
+@dataclass
+class MapsRun:
+    """What :func:`fit_maps` did: the store, the tiles computed now and before, the status
+    counts over the map, the tables' description, the time of each stage, warnings."""
+
+    store: Path
+    tiles_total: int
+    tiles_computed: int
+    tiles_reused: int
+    counts: dict
+    tables: str
+    seconds: dict
+    summary: dict
+    notes: list = field(default_factory=list)
+
+
+class MapsWarning(UserWarning):
+    """Something about a map the user should know that does not stop it."""
+
+
+def geometry_notes(tables: MapTables, brdf_cls, medium_model, shape, geometry) -> list:
+    """The angular spread across the field implied by a camera at ``distance`` with
+    ``pitch`` (plate size of a pixel, same units) against the narrowest lobe (the medium's
+    phase lobe, the BRDF's facet lobe at the ends of the table); warns when the spread
+    exceeds a fifth of it: distant light and camera are then a poor approximation."""
+    distance, pitch = (float(g) for g in geometry)
+    if not (distance > 0 and pitch > 0 and math.isfinite(distance) and math.isfinite(pitch)):
+        raise InputError(f"camera distance {distance:g} and pixel pitch {pitch:g} must be "
+                         f"positive numbers")
+    h, w = shape
+    half = 0.5 * math.hypot(h, w) * pitch
+    spread = 2 * math.degrees(math.atan(half / distance))
+    widths = {"the medium's phase lobe": medium_model.lobe_half_width()}
+    corners = itertools.product(*[(a.lo, a.hi) for a in tables.axes]) if tables.axes else [()]
+    brdf_widths = []
+    for corner in corners:
+        v = tables.base.copy()
+        for a, value in zip(tables.axes, corner):
+            v[a.index] = value
+        try:
+            model = brdf_cls.from_params(dict(zip(tables.names, v)), tables.options)
+            brdf_widths.append(model.facet_half_angle())
+        except (ValueError, TypeError):
+            continue
+    if brdf_widths:
+        widths["the BRDF's facet lobe (smoothest end of the table)"] = min(brdf_widths)
+    which, narrow = min(widths.items(), key=lambda kv: kv[1])
+    notes = [f"geometry: the field ({w} x {h} pixels of {pitch:g} at distance {distance:g}) "
+             f"spans {spread:.3g} deg of view direction; narrowest lobe: {which}, "
+             f"{narrow:.3g} deg half width"]
+    if math.isfinite(narrow) and spread > narrow / 5:
+        message = (f"the view direction changes by {spread:.3g} deg across the field, more "
+                   f"than a fifth of {which} ({narrow:.3g} deg): the distant-camera "
+                   f"approximation (every pixel at the manifest's angles) is poor; map a "
+                   f"smaller ROI or move the camera further away")
+        warnings.warn(message, MapsWarning, stacklevel=3)
+        notes.append("warning: " + message)
+    return notes
+
+
+def summarize_maps(store) -> dict:
+    """Medians and percentiles of each map over the converged pixels, and the fraction of
+    pixels by status."""
+    import zarr
+
+    group = zarr.open_group(os.fspath(store), mode="r")
+    info = dict(group.attrs)["veil_maps"]
+    status = np.asarray(group["status"][:])
+    ok = status == CONVERGED
+    total = int(status.size)
+    counts = {STATUS[k].split(" (")[0]: int(np.count_nonzero(status == k)) for k in STATUS}
+    out = {"pixels": total, "converged": int(np.count_nonzero(ok)),
+           "status_counts": counts,
+           "undetermined_fraction": float(np.count_nonzero(status == 3) / total),
+           "not_converged_fraction": float(np.count_nonzero(~ok) / total),
+           "params": {}}
+    params = group["params"]
+    stderr = group["stderr"]
+    free = set(info["free"])
+    for k, name in enumerate(info["params"]):
+        entry = {"free": name in free}
+        if name in free and ok.any():
+            v = np.asarray(params[k])[ok]
+            se = np.asarray(stderr[k])[ok]
+            pct = np.percentile(v, [5, 25, 50, 75, 95])
+            entry.update(median=float(pct[2]), p05=float(pct[0]), p25=float(pct[1]),
+                         p75=float(pct[3]), p95=float(pct[4]),
+                         median_stderr=float(np.median(se)))
+        elif name not in free:
+            entry["value"] = float(info["fixed_values"][name])
+        out["params"][name] = entry
+    if ok.any():
+        chi2 = np.asarray(group["chi2_reduced"][:])[ok]
+        pct = np.percentile(chi2, [5, 50, 95])
+        out["chi2_reduced"] = {"p05": float(pct[0]), "median": float(pct[1]),
+                               "p95": float(pct[2])}
+    return out
+
+
+def fit_maps(photo_dir, manifest, medium, output, *, brdf_model=None, options=None,
+             fixed=None, free=None, grid=None, roi=None, mask=None, black_photos=None,
+             black_frame=None, channel="gray", saturation=None, noise=None,
+             tile: int = DEFAULT_TILE, accuracy: str = "default", scheduler=None,
+             workers: int = 2, progress=None, log=None, geometry=None) -> MapsRun:
+    """Per-pixel step 2 (docs/maps.md): the target's BRDF at every pixel of the photos
+    listed in ``manifest`` (as ``veil ingest`` reads it) through ``medium`` (a step-1
+    result or a medium model), written to the Zarr store ``output``.
+
+    brdf_model, options, fixed, free : the BRDF family and its options, parameters held
+        at values, held parameters to fit (as :func:`veil.fit_target`).
+    grid : {name: (lo, hi, count)} or ``NAME=LO:HI[:COUNT]`` strings: a nonlinear
+        parameter's tabulated range (default: the range of the model's starting grids).
+    roi, mask : the region (``X,Y,W,H``) and an image of the photos' size whose nonzero
+        pixels are fitted. black_photos : a folder with a black-cloth photo of each
+        manifest row (same name), subtracted pixel by pixel; black_frame : one frame
+        subtracted from every photo (a dark frame). channel, saturation : as ``veil ingest``.
+    noise : None (unweighted fit, standard errors from the residuals) or (relative,
+        absolute): sigma = sqrt((relative * value)^2 + absolute^2) per sample.
+    tile : tile size in pixels (memory is bounded by it). scheduler : a dask.distributed
+        address (default ``$VEIL_DASK_SCHEDULER``; none: local threads, ``workers``).
+    geometry : (camera distance, pixel pitch on the plate), same units: report the angular
+        spread across the field and warn when it exceeds a fifth of the narrowest lobe.
+    progress(stage, done, total), log(message) : reports.
+    """
+    from ..models import default_class, model_class
+    from .given import as_given
+    from .maps import parse_grid
+    from .problem import check_accuracy
+
+    check_accuracy(accuracy)
+    say = log or (lambda message: None)
+    tile = int(tile)
+    if not 8 <= tile <= 4096:
+        raise InputError(f"tile size {tile}: expected 8 to 4096 pixels")
+    if noise is not None:
+        rel, ab = (tuple(noise) + (0.0,))[:2] if not isinstance(noise, (int, float)) \
+            else (float(noise), 0.0)
+        if not (math.isfinite(rel) and math.isfinite(ab) and rel >= 0 and ab >= 0
+                and rel + ab > 0):
+            raise InputError(f"noise {noise!r}: expected RELATIVE[,ABSOLUTE] >= 0, not both 0")
+        noise = (float(rel), float(ab))
+    medium_model = as_given(medium, "medium", "the medium")
+    cls = default_class("brdf") if brdf_model is None else model_class(brdf_model, "brdf")
+    grid_spec = parse_grid(grid, cls) if isinstance(grid, (list, tuple)) else dict(grid or {})
+    output = Path(output)
+    acq = load_acquisition(photo_dir, manifest, roi=roi, mask=mask, black_photos=black_photos,
+                           black_frame=black_frame, channel=channel, saturation=saturation)
+    address = scheduler or os.environ.get(SCHEDULER_ENV) or None
+    client = connect(address) if address else None
+    seconds = {}
+    try:
+        existing = None
+        if output.exists():
+            existing = _store_info(output)
+            if existing is None:
+                raise InputError(f"{output} exists and is not a veil maps store; give a new "
+                                 f"path, or remove it")
+        if not output.parent.exists():
+            raise InputError(f"cannot write {output}: directory {output.parent} does not "
+                             f"exist")
+        t0 = time.perf_counter()
+        tables = build_tables(cls, medium_model, acq.angles, fixed=fixed, options=options,
+                              free=free, grid=grid_spec, accuracy=accuracy,
+                              progress=(lambda d, t: progress("tables", d, t))
+                              if progress else None)
+        seconds["tables"] = time.perf_counter() - t0
+        say(f"tables: {tables.describe()} in {seconds['tables']:.1f} s")
+        notes = (geometry_notes(tables, cls, medium_model, (acq.roi.h, acq.roi.w), geometry)
+                 if geometry is not None else [])
+        fingerprint = hashlib.sha256((acq.fingerprint() + tables.fingerprint()
+                                      + repr((noise, tile))).encode()).hexdigest()
+        shape = (acq.roi.h, acq.roi.w)
+        info = {"format": FORMAT, "fingerprint": fingerprint, "model": tables.model,
+                "options": tables.options, "params": list(tables.names),
+                "free": list(tables.free_names),
+                "fixed_values": {n: float(tables.base[i]) for i, n in enumerate(tables.names)
+                                 if n not in tables.free_names},
+                "units": {p.name: p.unit for p in cls.PARAMS},
+                "medium": tables.medium, "accuracy": accuracy, "roi": str(acq.roi),
+                "shape": list(shape), "tile": tile, "photos": len(acq.paths),
+                "channel": channel, "noise": list(noise) if noise else None,
+                "weighted": noise is not None, "status_codes": {str(k): v for k, v in
+                                                                STATUS.items()},
+                "grid": [a.describe() for a in tables.axes], "manifest": acq.name}
+        if existing is not None and existing.get("fingerprint") != fingerprint:
+            raise InputError(f"{output} holds maps of another acquisition or other settings "
+                             f"(its photos, manifest, medium, model, fixed parameters, grid, "
+                             f"ROI, mask, noise or tile size differ); give a new output path "
+                             f"to start afresh, or the same inputs to resume it")
+        tiles = _tiles(shape, tile)
+        if existing is None:
+            _create_store(output, info, tables, shape, tile, len(acq.paths))
+        if is_complete(output):
+            say(f"{output} is complete (all {len(tiles)} tiles); nothing to compute")
+            return MapsRun(output, len(tiles), 0, len(tiles), {}, tables.describe(), seconds,
+                           summarize_maps(output), notes)
+        t0 = time.perf_counter()
+        if not (_marker_dir(output) / "staged").is_file():
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", IngestWarning)
+                _stage(output, acq, progress)
+        seconds["staging"] = time.perf_counter() - t0
+        todo = [t for t in tiles if not _tile_marker(output, *t).is_file()]
+        reused = len(tiles) - len(todo)
+        if reused:
+            say(f"resuming {output}: {reused} of {len(tiles)} tiles already done, computing "
+                f"the {len(todo)} missing")
+        t0 = time.perf_counter()
+        counts = _compute(output, tables, todo, tile, noise, client, progress, workers)
+        seconds["solve"] = time.perf_counter() - t0
+        missing = [t for t in tiles if not _tile_marker(output, *t).is_file()]
+        if missing:
+            raise RuntimeError(f"{len(missing)} tiles have no marker after the run")
+        write_bytes_atomic(_marker_dir(output) / "complete", b"complete\n")
+        summary = summarize_maps(output)
+        write_text_atomic(output / "summary.json", json.dumps(summary, indent=2) + "\n")
+        shutil.rmtree(output / "stack", ignore_errors=True)
+        return MapsRun(output, len(tiles), len(todo), reused, counts, tables.describe(),
+                       seconds, summary, notes)
+    finally:
+        if client is not None:
+            client.close()
+
+
+def _compute(store, tables, todo, tile, noise, client, progress, workers):
+    import dask
+    import dask.array as da
+    import zarr
+
+    if not todo:
+        return {}
+    arr = zarr.open_array(os.fspath(Path(store) / "stack" / "values"), mode="r")
+    stack = da.from_array(arr, chunks=(arr.shape[0], tile, tile))  # all photos of a tile
+    blocks = stack.to_delayed()
+    if client is None:  # compile the solver once, here, before the threads start
+        solve_pixels(tables, np.zeros((1, tables.n_configs)),
+                     np.ones((1, tables.n_configs), dtype=bool), noise)
+    if client is not None:
+        [shared] = client.scatter([tables], broadcast=True, hash=False)
+    else:
+        shared = dask.delayed(tables, pure=True)
+    solve = dask.delayed(_solve_tile, pure=False)
+    tasks = [solve(blocks[0, iy, ix], shared, os.fspath(store), iy, ix, tile, noise,
+                   dask_key_name=f"veil-maps-tile-{iy}-{ix}") for iy, ix in todo]
+    results = (_run_distributed(client, tasks, progress) if client is not None
+               else _run_local(tasks, progress, workers))
+    total = np.sum(results, axis=0)
+    return {STATUS[k].split(" (")[0]: int(total[k]) for k in STATUS}
+
+
+def open_maps(store) -> dict:
+    """The maps of a complete store as numpy arrays plus its attributes."""
+    import zarr
+
+    store = Path(store)
+    if not store.exists():
+        raise MissingFileError(f"{store}: no such maps store")
+    info = _store_info(store)
+    if info is None:
+        raise InputError(f"{store} is not a veil maps store (made by 'veil fit maps')")
+    if not is_complete(store):
+        raise InputError(f"{store} is a partial maps store (an interrupted run); rerun "
+                         f"'veil fit maps' with the same inputs to finish it")
+    group = zarr.open_group(os.fspath(store), mode="r")
+    out = {name: np.asarray(group[name][:]) for name in MAPS}
+    out["info"] = info
+    return out
+
+
+__all__ = ["fit_maps", "open_maps", "MapsWarning", "geometry_notes", "summarize_maps", "load_acquisition", "MapsRun",
+           "connect", "is_complete", "SCHEDULER_ENV", "FORMAT"]

@@ -1,0 +1,164 @@
+"""Reflectance maps for people (docs/maps.md): a figure with one panel per fitted parameter,
+its standard error and the reduced chi-square (colour bars, units, unconverged pixels
+grey), export of every map as float32 TIFF and OpenEXR, and the JSON summary."""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+from ..fitting.maps import CONVERGED, STATUS
+from ..fitting.maps import FEW_POINTS as STATUS_FEW, MASKED as STATUS_MASKED
+from ..fitting.maps_run import open_maps, summarize_maps
+from ..io import write_bytes_atomic, write_text_atomic
+
+FORMATS = ("tiff", "exr")
+
+
+def _panels(maps):
+    """(title, image, colour-bar label, log scale) of each panel."""
+    info = maps["info"]
+    ok = maps["status"] == CONVERGED
+    units = info.get("units", {})
+    out = []
+    for k, name in enumerate(info["params"]):
+        if name not in info["free"]:
+            continue
+        unit = units.get(name) or "relative units"
+        value = np.where(ok, maps["params"][k], np.nan)
+        err = np.where(ok, maps["stderr"][k], np.nan)
+        positive = np.nanmin(value) > 0 if ok.any() else False
+        spread = np.nanmax(value) / np.nanmin(value) if positive else 1.0
+        out.append((name, value, f"{name} [{unit}]", bool(positive and spread > 30)))
+        out.append((f"stderr of {name}", err, f"[{unit}]", False))
+    fitted = (maps["status"] != STATUS_MASKED) & (maps["status"] != STATUS_FEW)
+    chi = np.where(fitted, maps["chi2_reduced"], np.nan)
+    label = "reduced chi-square" if info.get("weighted") else \
+        "residual variance [value^2] (unweighted)"
+    out.append(("reduced chi-square" if info.get("weighted") else "residual variance",
+                chi, label, False))
+    return out
+
+
+def maps_figure(store, path, *, dpi: int = 110) -> Path:
+    """One figure of a complete maps store: every free parameter, its standard error, the
+    reduced chi-square and the status map; written atomically as PNG/PDF/SVG."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.colors import BoundaryNorm, ListedColormap, LogNorm
+
+    maps = open_maps(store)
+    panels = _panels(maps)
+    n = len(panels) + 1
+    cols = min(4, n)
+    rows = -(-n // cols)
+    h, w = maps["status"].shape
+    aspect = h / max(w, 1)
+    fig, axes = plt.subplots(rows, cols, figsize=(4.2 * cols, 3.6 * rows * max(aspect, 0.4)),
+                             squeeze=False)
+    cmap = matplotlib.colormaps["viridis"].with_extremes(bad="0.75")
+    for ax, (title, image, label, log) in zip(axes.flat, panels):
+        finite = np.isfinite(image)
+        norm = None
+        if finite.any():
+            lo, hi = np.percentile(image[finite], [1, 99])
+            if log:
+                norm = LogNorm(max(lo, 1e-300), max(hi, lo * 1.0001))
+            elif hi > lo:
+                norm = matplotlib.colors.Normalize(lo, hi)
+        im = ax.imshow(np.ma.masked_invalid(image), cmap=cmap, norm=norm,
+                       interpolation="nearest")
+        fig.colorbar(im, ax=ax, label=label, shrink=0.85)
+        ax.set_title(title)
+        ax.set_xticks([])
+        ax.set_yticks([])
+    ax = axes.flat[len(panels)]
+    colours = ["#2ca02c", "#d9d9d9", "#ff7f0e", "#d62728", "#9467bd", "#8c564b"]
+    im = ax.imshow(maps["status"], cmap=ListedColormap(colours),
+                   norm=BoundaryNorm(np.arange(len(STATUS) + 1) - 0.5, len(STATUS)),
+                   interpolation="nearest")
+    bar = fig.colorbar(im, ax=ax, ticks=list(STATUS), shrink=0.85)
+    bar.ax.set_yticklabels([STATUS[k].split(" (")[0] for k in STATUS], fontsize=7)
+    ax.set_title("status (grey in the other panels: not converged)")
+    ax.set_xticks([])
+    ax.set_yticks([])
+    for ax in list(axes.flat)[n:]:
+        ax.axis("off")
+    info = maps["info"]
+    fig.suptitle(f"{info['model']} through {info['medium']['model']}: {h} x {w} pixels, "
+                 f"{info['photos']} photos", fontsize=11)
+    fig.tight_layout()
+    path = Path(path)
+    fmt = path.suffix.lower().lstrip(".") or "png"
+    import io
+    buf = io.BytesIO()
+    fig.savefig(buf, format=fmt, dpi=dpi)
+    plt.close(fig)
+    write_bytes_atomic(path, buf.getvalue())
+    return path
+
+
+def _exr_bytes(image: np.ndarray) -> bytes:
+    import tempfile
+
+    import OpenEXR
+
+    with tempfile.TemporaryDirectory() as tmp:
+        name = os.path.join(tmp, "map.exr")
+        header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+        with OpenEXR.File(header, {"Y": np.ascontiguousarray(image, dtype=np.float32)}) as f:
+            f.write(name)
+        with open(name, "rb") as fh:
+            return fh.read()
+
+
+def _tiff_bytes(image: np.ndarray) -> bytes:
+    import io
+
+    import tifffile
+
+    buf = io.BytesIO()
+    tifffile.imwrite(buf, np.ascontiguousarray(image, dtype=np.float32))
+    return buf.getvalue()
+
+
+def export_maps(store, folder, formats=FORMATS) -> list[Path]:
+    """Every map of a complete store as float32 images (``formats``: tiff, exr) in
+    ``folder``: NAME, NAME_stderr for each free parameter, chi2_reduced, status (0 =
+    converged; docs/maps.md), plus summary.json. Unconverged pixels hold 0 in the value
+    maps; the status map says which."""
+    bad = [f for f in formats if f not in FORMATS]
+    if bad:
+        raise InputError(f"export format {bad[0]!r}: expected {', '.join(FORMATS)}")
+    maps = open_maps(store)
+    info = maps["info"]
+    folder = Path(folder)
+    if folder.exists() and not folder.is_dir():
+        raise InputError(f"{folder} exists and is not a directory")
+    folder.mkdir(parents=True, exist_ok=True)
+    ok = maps["status"] == CONVERGED
+    images = {}
+    for k, name in enumerate(info["params"]):
+        if name in info["free"]:
+            images[name] = np.where(ok, maps["params"][k], 0.0)
+            images[f"{name}_stderr"] = np.where(ok, maps["stderr"][k], 0.0)
+    images["chi2_reduced"] = maps["chi2_reduced"]
+    images["status"] = maps["status"].astype(np.float32)
+    written = []
+    for name, image in images.items():
+        for fmt in formats:
+            path = folder / f"{name}.{'tif' if fmt == 'tiff' else 'exr'}"
+            write_bytes_atomic(path, _tiff_bytes(image) if fmt == "tiff" else _exr_bytes(image))
+            written.append(path)
+    path = folder / "summary.json"
+    write_text_atomic(path, json.dumps(summarize_maps(store), indent=2) + "\n")
+    written.append(path)
+    return written
+
+
+__all__ = ["maps_figure", "export_maps", "FORMATS"]

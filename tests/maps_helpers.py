@@ -1,0 +1,55 @@
+"""Simulated photo stacks for the reflectance-map tests (docs/maps.md): per-pixel parameter
+maps of a BRDF family seen through a medium, rendered by the engine (one evaluation per
+distinct parameter vector), written as float32 TIFFs with a manifest."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import tifffile
+
+from veil.engine.evaluator import ApparentModel
+from veil.engine.quadrature import RULES
+
+
+def configurations(count: int = 24) -> pd.DataFrame:
+    """``count`` in-plane configurations spread over the paper's protocol (psi = 30, 60,
+    90 deg), denser near the mirror direction."""
+    import veil
+
+    table = veil.simulate(veil.BRDF1, veil.BTDF2, noise=0.0, seed=0)
+    idx = np.unique(np.linspace(0, len(table) - 1, count).round().astype(int))
+    return table.iloc[idx][["theta_i", "phi_i", "theta_r", "phi_r"]].reset_index(drop=True)
+
+
+def render(brdf, medium, configs: pd.DataFrame, vectors: np.ndarray) -> np.ndarray:
+    """Apparent values (P, M) of the BRDF vectors (P, n_params) at the configurations."""
+    angles = tuple(configs[c].to_numpy(dtype=float)
+                   for c in ("theta_i", "phi_i", "theta_r", "phi_r"))
+    engine = ApparentModel(brdf, medium, angles, RULES["default"])
+    uniq, inverse = np.unique(vectors, axis=0, return_inverse=True)
+    values = np.stack([engine.values(v, medium.to_vector()) for v in uniq])
+    return values[inverse.ravel()]
+
+
+def write_stack(folder, brdf, medium, configs, param_maps: np.ndarray, noise=0.01, seed=0,
+                suffix=".tif") -> Path:
+    """Photos (one per configuration) of a plate whose BRDF vector at each pixel is
+    ``param_maps`` (n_params, H, W); relative Gaussian noise. Returns the manifest path."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    n, h, w = param_maps.shape
+    values = render(brdf, medium, configs, param_maps.reshape(n, -1).T)  # (H*W, M)
+    rng = np.random.default_rng(seed)
+    values = values * (1 + noise * rng.standard_normal(values.shape))
+    names = []
+    for k in range(len(configs)):
+        name = f"photo_{k:03d}{suffix}"
+        tifffile.imwrite(folder / name, values[:, k].reshape(h, w).astype(np.float32))
+        names.append(name)
+    manifest = configs.assign(file=names)[["file", "theta_i", "phi_i", "theta_r", "phi_r"]]
+    path = folder / "manifest.csv"
+    manifest.to_csv(path, index=False)
+    return path
