@@ -44,6 +44,7 @@ from . import render_cmd, plot_cmd, reproduce_cmd  # noqa: E402
 from . import fit_cmd, demo_cmd  # noqa: E402
 from . import joint_cmd, diagnose_cmd, design_cmd  # noqa: E402
 from . import models_cmd  # noqa: E402
+from . import explore_cmd  # noqa: E402
 
 main.add_command(eval_cmd.eval_command)
 main.add_command(ingest_cmd.ingest_command)
@@ -57,3 +58,4 @@ main.add_command(diagnose_cmd.diagnose_command)
 main.add_command(design_cmd.design_command)
 main.add_command(demo_cmd.demo_command)
 main.add_command(models_cmd.models_command)
+main.add_command(explore_cmd.explore_command)
