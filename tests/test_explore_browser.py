@@ -13,7 +13,6 @@ import os
 import pathlib
 import queue
 import re
-import shutil
 import subprocess
 import sys
 import threading
@@ -244,7 +243,6 @@ def test_slider_moves_the_plotted_curve_as_the_engine_says(tmp_path):
     _need_browser()
     from selenium.webdriver.common.action_chains import ActionChains
 
-    import veil
     from veil.viz import explore as ex
 
     t0 = time.monotonic()
@@ -257,6 +255,7 @@ def test_slider_moves_the_plotted_curve_as_the_engine_says(tmp_path):
         url = server.wait_url()
         phases["serving"] = time.monotonic() - t0
         driver = _browser()
+        driver.set_page_load_timeout(300)
         driver.get(url)
         _wait(lambda: (_source(driver, "veil-curve-medium") or {}).get("y"), 60,
               "the page's first curve")
@@ -286,7 +285,7 @@ def test_slider_moves_the_plotted_curve_as_the_engine_says(tmp_path):
 
         # the sphere follows when the slider rests: live accuracy first, then refined
         _wait(lambda: (_source(driver, "veil-sphere") or {}).get("accuracy") ==
-              [ex.REFINED_ACCURACY], 60, "the refined sphere")
+              [ex.REFINED_ACCURACY], 180, "the refined sphere")
         phases["refined"] = time.monotonic() - t0
 
         # share: the written state is the page's
@@ -313,9 +312,6 @@ def test_static_page_switches_precomputed_states(tmp_path):
     """The --static page works without a server: its slider switches between embedded
     states, and each state's curve is the engine's at that parameter value."""
     _need_browser()
-    import veil
-    from veil.viz import explore as ex
-
     from click.testing import CliRunner
 
     from veil.cli import main

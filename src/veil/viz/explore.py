@@ -40,6 +40,9 @@ REFINED_ACCURACY = "default"
 MAX_ANGLE = 89.0
 #: Decades a log slider spans on each side of its value when a bound is open-ended.
 LOG_SPAN = 3.0
+#: Configurations of every curve's engine (a curve has at most 287 points; the rest repeat
+#: its last): one compiled program for both axes and every angle.
+CURVE_SIZE = 320
 #: Steps of a slider over its range.
 SLIDER_STEPS = 400
 
@@ -62,7 +65,10 @@ class SliderSpec:
     unit: str
 
     def to_slider(self, value: float) -> float:
-        """The slider position of a parameter value (clipped to the range)."""
+        """The slider position of a parameter value (clipped to the range; a log slider's
+        left end for 0)."""
+        if self.log and not value > 0:
+            return self.start
         x = math.log10(value) if self.log else float(value)
         return min(max(x, self.start), self.end)
 
@@ -285,8 +291,14 @@ class Curves:
                     curve, float(theta_i), float(psi), accuracy)
         self.x, self.xlabel = curve_axis(curve, theta_i, psi)
         self.angles = curve_angles(curve, theta_i, psi, self.x)
-        ti, pi_, tr, pr = self.angles
         self.accuracy = accuracy
+        # every curve has CURVE_SIZE configurations (the last repeated): one compilation
+        # serves both axes and every angle
+        n = self.x.size
+        if n > CURVE_SIZE:
+            raise AssertionError(f"a curve of {n} points exceeds CURVE_SIZE = {CURVE_SIZE}")
+        idx = np.minimum(np.arange(CURVE_SIZE), n - 1)
+        ti, pi_, tr, pr = (a[idx] for a in self.angles)
         self.forward = None if medium is None else Forward(brdf, medium, ti, tr, pi_, pr,
                                                            RULES[accuracy])
 
@@ -311,7 +323,7 @@ class Curves:
         from ..engine.apparent import check_finite
 
         vb, vm = brdf.to_vector(), medium.to_vector()
-        terms = self.forward.terms(vb, vm)
+        terms = self.forward.terms(vb, vm)[: self.x.size]
         values = self.forward.combine(terms, vb, vm)
         return check_finite(values, "the apparent reflectance", [brdf, medium], terms=terms)
 
@@ -407,14 +419,40 @@ def warm_up(state: "State", workers: int = 3):
     return live, later
 
 
+#: Largest render table of the live sphere (engine configurations): sharp lobes get a
+#: coarser table while the sliders move, the refined render has the full one.
+LIVE_TABLE_NODES = 1024
+#: Table densities tried, in order, for the live sphere.
+LIVE_DENSITIES = (1.0, 0.85, 0.7, 0.55)
+
+
+def table_density(brdf, medium, light_theta: float, accuracy: str) -> float:
+    """The render table's density: 1 (render's own) for the refined sphere and whenever the
+    table has at most :data:`LIVE_TABLE_NODES` nodes; for a live sphere of a sharper lobe
+    the first of :data:`LIVE_DENSITIES` that keeps it under that."""
+    from .render import W_NODES, auto_density, peak_width, u_nodes
+
+    if accuracy != LIVE_ACCURACY or medium is None:
+        return 1.0
+    width = peak_width(brdf, medium)
+    for density in LIVE_DENSITIES:
+        d = density * auto_density(float(light_theta))
+        nodes = len(u_nodes(width, d)) * max(5, int(round((W_NODES - 1) * d)) + 1)
+        if nodes <= LIVE_TABLE_NODES:
+            return density
+    return LIVE_DENSITIES[-1]
+
+
 def sphere(brdf, medium, light_theta: float, size: int = 96, accuracy: str = LIVE_ACCURACY):
     """(RGBA uint32 image (size, size) for a plot, linear image): the lit sphere of
-    :func:`veil.viz.render.render` (the render table at ``accuracy``), tone-mapped by its
-    automatic exposure; rows from the bottom, as plots want them."""
+    :func:`veil.viz.render.render` (the render table at ``accuracy``, coarser for sharp
+    lobes at the live accuracy: :func:`table_density`), tone-mapped by its automatic
+    exposure; rows from the bottom, as plots want them."""
     from .render import auto_exposure, render, tone_map
 
-    rendering = render(brdf, medium, light_theta=min(float(light_theta), 89.0), size=size,
-                       accuracy=accuracy, check=0)
+    theta = min(float(light_theta), 89.0)
+    rendering = render(brdf, medium, light_theta=theta, size=size, accuracy=accuracy,
+                       check=0, density=table_density(brdf, medium, theta, accuracy))
     linear = rendering.image
     grey = tone_map(linear, auto_exposure(linear))
     grey = np.asarray(grey)

@@ -9,7 +9,6 @@ read the plotted numbers back from the browser (``Bokeh.documents[0].get_model_b
 
 from __future__ import annotations
 
-import math
 import os
 import threading
 import time
@@ -259,7 +258,7 @@ class Controls:
         self.page, self.kind = page, kind
         names = ex.families(kind)
         options = names + ([NONE] if kind == "medium" else [])
-        self.family = pn.widgets.Select(name=f"{'BRDF' if kind == 'brdf' else 'medium'} model",
+        self.family = pn.widgets.Select(label=f"{'BRDF' if kind == 'brdf' else 'medium'} model",
                                         options=options,
                                         value=NONE if model is None else model.NAME)
         self.family.param.watch(self._on_family, "value")
@@ -277,7 +276,7 @@ class Controls:
             return
         cls = type(model)
         presets = ex.presets_of(cls)
-        self.preset = pn.widgets.Select(name="preset", options=[CUSTOM] + list(presets),
+        self.preset = pn.widgets.Select(label="preset", options=[CUSTOM] + list(presets),
                                         value=next((k for k, m in presets.items() if m == model),
                                                    CUSTOM))
         self.preset.param.watch(self._on_preset, "value")
@@ -285,20 +284,20 @@ class Controls:
         for opt in cls.OPTIONS:
             value = getattr(model, opt.name)
             if opt.choices:
-                w = pn.widgets.Select(name=opt.name, options={str(c): c for c in opt.choices},
+                w = pn.widgets.Select(label=opt.name, options={str(c): c for c in opt.choices},
                                       value=value)
             elif isinstance(opt.default, bool):
-                w = pn.widgets.Checkbox(name=opt.name, value=value)
+                w = pn.widgets.Checkbox(label=opt.name, value=value)
             elif isinstance(opt.default, (int, float)):
-                w = pn.widgets.FloatInput(name=opt.name, value=float(value))
+                w = pn.widgets.FloatInput(label=opt.name, value=float(value))
             else:
-                w = pn.widgets.TextInput(name=opt.name, value=str(value))
+                w = pn.widgets.TextInput(label=opt.name, value=str(value))
             w.param.watch(self._on_option, "value")
             self.option_widgets[opt.name] = w
             items.append(w)
         for p in cls.PARAMS:
             spec = ex.slider_spec(cls, p.name, getattr(model, p.name))
-            s = pn.widgets.FloatSlider(name=spec.label, start=spec.start, end=spec.end,
+            s = pn.widgets.FloatSlider(label=spec.label, start=spec.start, end=spec.end,
                                        step=spec.step, value=spec.to_slider(getattr(model, p.name)),
                                        format="0[.]0000", sizing_mode="stretch_width")
             s.param.watch(self._on_slider, "value")
@@ -315,9 +314,9 @@ class Controls:
             return ""
         return ", ".join(f"{k} = {v:.4g}" for k, v in m.as_dict().items())
 
-    def _set(self, model):
+    def _set(self, model, sphere: bool = False):
         self.model = model
-        self.page.model_changed(self.kind, model)
+        self.page.model_changed(self.kind, model, sphere)
 
     def _on_family(self, event):
         if event.new == NONE:
@@ -328,7 +327,7 @@ class Controls:
             model = next(iter(found.values())) if found else cls.template()
         self.model = model
         self._build()
-        self._set(model)
+        self._set(model, sphere=True)
 
     def _on_preset(self, event):
         if event.new == CUSTOM or self.page.updating:
@@ -339,7 +338,7 @@ class Controls:
             for name, (s, spec) in self.sliders.items():
                 s.value = spec.to_slider(getattr(model, name))
         self.readout.object = self._readout()
-        self._set(model)
+        self._set(model, sphere=True)
 
     def _on_option(self, event):
         options = {k: w.value for k, w in self.option_widgets.items()}
@@ -348,7 +347,7 @@ class Controls:
         except InputError as exc:
             self.page.say(f"**{exc}**")
             return
-        self._set(model)
+        self._set(model, sphere=True)
 
     def _on_slider(self, event):
         if self.page.updating:
@@ -387,17 +386,17 @@ class ExplorePage:
         self.status = pn.pane.Markdown("", sizing_mode="stretch_width")
         self.brdf = Controls(self, "brdf", state.brdf)
         self.medium = Controls(self, "medium", state.medium)
-        self.theta_i = pn.widgets.FloatSlider(name="incidence theta_i (deg)", start=0.0,
+        self.theta_i = pn.widgets.FloatSlider(label="incidence theta_i (deg)", start=0.0,
                                               end=ex.MAX_ANGLE - 1.0, step=0.5,
                                               value=state.theta_i)
-        self.psi = pn.widgets.FloatSlider(name="psi, light-camera angle (deg)", start=0.0,
+        self.psi = pn.widgets.FloatSlider(label="psi, light-camera angle (deg)", start=0.0,
                                           end=2 * ex.MAX_ANGLE - 2.0, step=0.5, value=state.psi)
-        self.curve = pn.widgets.RadioButtonGroup(name="curve", options=list(ex.CURVES),
+        self.curve = pn.widgets.RadioButtonGroup(label="curve", options=list(ex.CURVES),
                                                  value=state.curve)
         for w in (self.theta_i, self.psi, self.curve):
             w.param.watch(self._on_angles, "value")
         self.theta_i.param.watch(self.on_rest, "value_throttled")
-        self.share = pn.widgets.Button(name="share: write this state", button_type="primary")
+        self.share = pn.widgets.Button(label="share: write this state", color="primary")
         self.share.on_click(self.on_share)
         self.redraw(sphere=False)
         self._sphere_now()
@@ -435,14 +434,18 @@ class ExplorePage:
     def say(self, text: str) -> None:
         self.status.object = text
 
-    def model_changed(self, kind: str, model) -> None:
+    def model_changed(self, kind: str, model, sphere: bool = False) -> None:
+        """A model changed: redraw the curves now, the sphere when asked (family, preset,
+        option; a slider asks when it rests, :meth:`on_rest`)."""
         self.state = self.state.with_model(model, kind)
-        self.redraw(transmission=(kind == "medium"))
+        self.redraw(transmission=(kind == "medium"), sphere=sphere)
 
     def _on_angles(self, event):
         self.state = ex.State(**{**self.state.__dict__, "theta_i": float(self.theta_i.value),
                                  "psi": float(self.psi.value), "curve": self.curve.value})
-        self.redraw(transmission=True, sphere=event.obj is not self.theta_i)
+        # psi and the curve's axis do not change the sphere; theta_i (its light) does,
+        # when that slider rests
+        self.redraw(transmission=True, sphere=False)
 
     def on_rest(self, event=None):
         """Sliders at rest: render the sphere (live accuracy, then refined)."""
@@ -503,7 +506,8 @@ class ExplorePage:
                 try:
                     image, dt = self._render(state, accuracy)
                 except Exception as exc:  # noqa: BLE001 - shown on the page
-                    self.doc.add_next_tick_callback(lambda: self.say(f"**sphere: {exc}**"))
+                    message = f"**sphere: {exc}**"
+                    self.doc.add_next_tick_callback(lambda: self.say(message))
                     return
                 if gen != self._sphere_gen:
                     return
@@ -570,19 +574,19 @@ def static_page(state: ex.State, param: str, points: int, fit_views=(), progress
         frames[v]["_fit"] = [(dict(p.src_now.data), dict(p.src_res.data)) for p in views.fit]
         if progress:
             progress(k + 1, len(values))
-    slider = pn.widgets.DiscreteSlider(name=f"{kind} {name}", options=values,
+    slider = pn.widgets.DiscreteSlider(label=f"{kind} {name}", options=values,
                                        value=values[int(np.argmin(
                                            [abs(x - getattr(model, name)) for x in values]))])
 
-    def show(event):
-        frame = frames[event.new]
+    def apply(value):
+        frame = frames[value]
         for key, src in views.src.items():
             src.data = frame[key]
         for p, (now, res) in zip(views.fit, frame["_fit"]):
             p.src_now.data, p.src_res.data = now, res
 
-    slider.param.watch(show, "value")
-    show(type("E", (), {"new": slider.value})())
+    slider.param.watch(lambda event: apply(event.new), "value")
+    apply(slider.value)
     other = "; ".join(f"{m.NAME}: " + ", ".join(f"{k} = {v:.4g}" for k, v in m.as_dict().items())
                       for m in (state.brdf, state.medium) if m is not None)
     header = pn.pane.Markdown(
