@@ -32,6 +32,12 @@ from veil.viz import explore as ex
 from veil.viz.explore_page import ExplorePage
 
 CURVES_TARGET = 0.300
+VERBOSE = bool(os.environ.get("VEIL_BENCH_VERBOSE"))
+
+
+def log(text):
+    if VERBOSE:
+        print(text, file=sys.stderr, flush=True)
 SPHERE_TARGET = 2.0
 POSITIONS = (0.2, 0.35, 0.5, 0.65, 0.8)
 
@@ -85,7 +91,7 @@ def _fit_view():
     return ex.FitView(result, table, source="simulated target fit")
 
 
-def browser(repeats: int = 5):
+def browser(repeats: int = 3):
     from selenium import webdriver
     from selenium.webdriver.chrome.service import Service
 
@@ -117,48 +123,75 @@ def browser(repeats: int = 5):
                 "Bokeh.documents[0].get_model_by_name('veil-sphere'))"):
             time.sleep(0.2)
         time.sleep(2.0)
-        # move a slider in the page (the browser sends it as a user's move would) and time,
-        # in the browser's clock, until the curve's data and then the sphere's have changed
+        # curves: the slider's value set in the page (what the browser sends while a slider
+        # is dragged), timed in the browser's clock until the curve's new data has arrived;
+        # sphere: the slider's handle dragged and released (ActionChains), timed until the
+        # sphere's new image has arrived (this includes WebDriver's own round trips)
         driver.execute_script("""
 const doc = Bokeh.documents[0];
 for (const name of ['veil-curve-medium', 'veil-sphere']) {
-  const m = doc.get_model_by_name(name);
-  m.properties.data.change.connect(() => { window['t_' + name] = performance.now(); });
+  doc.get_model_by_name(name).properties.data.change.connect(
+    () => { window['t_' + name] = performance.now(); });
 }""")
         move = """
-const doc = Bokeh.documents[0];
-const slider = [...doc.all_models].find(m => m.title === arguments[0]);
-if (!slider) return 'no slider ' + arguments[0];
+const slider = [...Bokeh.documents[0].all_models].filter(m => m.title === arguments[0])
+  [arguments[2]];
 window['t_veil-curve-medium'] = null; window['t_veil-sphere'] = null;
 window.t0 = performance.now();
-slider.value = arguments[1];
-slider.value_throttled = arguments[1];  // released, as a drag ends
-return null;"""
-        read = ("return [window['t_veil-curve-medium'], window['t_veil-sphere'], window.t0];")
+if (arguments[1] !== null) slider.value = arguments[1];"""
+        read = "return [window['t_veil-curve-medium'], window['t_veil-sphere'], window.t0];"
 
-        def timed(label, value):
-            error = driver.execute_script(move, label, value)
-            if error:
-                raise SystemExit(error)
-            end = time.monotonic() + 60
+        def wait(k, timeout=60.0):
+            end = time.monotonic() + timeout
             while time.monotonic() < end:
-                tc, ts, t0 = driver.execute_script(read)
-                if tc is not None and ts is not None:
-                    return tc - t0, ts - t0
+                got = driver.execute_script(read)
+                if got[k] is not None:
+                    return got[k] - got[2]
                 time.sleep(0.01)
-            return (None if tc is None else tc - t0), None
+            return None
+
+        from selenium.webdriver.common.action_chains import ActionChains
+
+        handles = driver.execute_script("""
+function* walk(node) {
+  yield node;
+  if (node.shadowRoot) for (const k of node.shadowRoot.children) yield* walk(k);
+  for (const k of node.children) yield* walk(k);
+}
+const out = [];
+for (const el of walk(document.body)) {
+  if (!el.shadowRoot) continue;
+  const t = el.shadowRoot.querySelector('.bk-slider-title');
+  const h = el.shadowRoot.querySelector('.noUi-handle');
+  if (t && h) out.push([t.textContent.split(':')[0].trim(), h]);
+}
+return out;""")
         rows = []
+        seen = {}
         state = ex.State.default()
         for kind in ("brdf", "medium"):
             model = getattr(state, kind)
             for p in model.PARAMS:
                 spec = ex.slider_spec(type(model), p.name, getattr(model, p.name))
-                times = []
+                nth = seen.get(spec.label, 0)
+                seen[spec.label] = nth + 1
+                handle = [h for label, h in handles if label == spec.label][nth]
+                curves, spheres = [], []
                 for k in range(repeats):
                     f = POSITIONS[k % len(POSITIONS)]
-                    times.append(timed(spec.label, spec.start + f * (spec.end - spec.start)))
-                    time.sleep(0.5)
-                rows.append((model.NAME, spec.label, times))
+                    log(f"{spec.label} #{nth}: move {k}")
+                    driver.execute_script(move, spec.label,
+                                          spec.start + f * (spec.end - spec.start), nth)
+                    curves.append(wait(0))
+                    log(f"  curves {curves[-1]}")
+                    time.sleep(0.3)
+                    driver.execute_script(move, spec.label, None, nth)
+                    ActionChains(driver).click_and_hold(handle).move_by_offset(
+                        15 if k % 2 else -15, 0).release().perform()
+                    spheres.append(wait(1))
+                    log(f"  sphere {spheres[-1]}")
+                    time.sleep(0.3)
+                rows.append((model.NAME, spec.label, list(zip(curves, spheres))))
         print(f"\nIn headless Chromium: slider set in the page, until the new data is in the "
               f"page ({repeats} moves each)\n")
         print("| model | slider | curves median (ms) | curves max (ms) | sphere median (s) "
@@ -169,7 +202,7 @@ return null;"""
             s = [t[1] / 1e3 for t in times if t[1] is not None]
             print(f"| {family} | {label} | {statistics.median(c):.0f} | {max(c):.0f} | "
                   f"{statistics.median(s):.2f} | {max(s):.2f} |")
-        print(f"\n(the sphere waits {0.25:g} s for the slider to rest before rendering)")
+        print("\n(the sphere waits 0.25 s for the slider to rest before it renders)")
     finally:
         driver.quit()
         proc.terminate()

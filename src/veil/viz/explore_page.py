@@ -42,8 +42,11 @@ COLORS = ("#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#ff7f0e", "#8c564b", "#e3
           "#17becf")
 #: Sphere image size (pixels) of the page.
 SPHERE_SIZE = 96
-#: Seconds the sliders must rest before the sphere is rendered again.
+#: Seconds the sliders must rest before the sphere is rendered again, and then before it
+#: is refined (the refined render takes several seconds of both cores: it waits for a
+#: pause, and a move during the wait cancels it).
 SPHERE_DELAY = 0.25
+REFINE_DELAY = 1.5
 
 
 def _state_columns(state: ex.State) -> dict:
@@ -381,7 +384,9 @@ class ExplorePage:
         self.views = Views(fit_views)
         self.doc = pn.state.curdoc if background else None
         self._sphere_gen = 0
-        self._pool = ThreadPoolExecutor(max_workers=1) if background else None
+        self._pools = ({a: ThreadPoolExecutor(max_workers=1, thread_name_prefix=f"sphere-{a}")
+                        for a in (ex.LIVE_ACCURACY, ex.REFINED_ACCURACY)}
+                       if background else None)
         self._lock = threading.Lock()
         self.status = pn.pane.Markdown("", sizing_mode="stretch_width")
         self.brdf = Controls(self, "brdf", state.brdf)
@@ -489,36 +494,43 @@ class ExplorePage:
         self.timings["sphere"] = dt
 
     def schedule_sphere(self):
-        """Render the sphere at the live accuracy after the sliders rested
-        :data:`SPHERE_DELAY` s, then at the refined accuracy; a newer state cancels both."""
+        """Render the sphere at the live accuracy once the sliders rested
+        :data:`SPHERE_DELAY` s, then at the refined accuracy after :data:`REFINE_DELAY` s
+        more. The waits are timers of the server's loop and a newer state cancels what has
+        not started; live and refined renders run on workers of their own, so a live one
+        never waits for a refined one (a stale result is dropped)."""
         self._sphere_gen += 1
         gen = self._sphere_gen
-        if self._pool is None or self.doc is None:
+        if self._pools is None or self.doc is None:
             self._sphere_now()
             return
         state = self.state
 
-        def work():
-            time.sleep(SPHERE_DELAY)
-            for accuracy in (ex.LIVE_ACCURACY, ex.REFINED_ACCURACY):
+        def render(accuracy):
+            if gen != self._sphere_gen:
+                return
+            try:
+                image, dt = self._render(state, accuracy)
+            except Exception as exc:  # noqa: BLE001 - shown on the page
+                message = f"**sphere: {exc}**"
+                self.doc.add_next_tick_callback(lambda: self.say(message))
+                return
+
+            def show():
                 if gen != self._sphere_gen:
                     return
-                try:
-                    image, dt = self._render(state, accuracy)
-                except Exception as exc:  # noqa: BLE001 - shown on the page
-                    message = f"**sphere: {exc}**"
-                    self.doc.add_next_tick_callback(lambda: self.say(message))
-                    return
-                if gen != self._sphere_gen:
-                    return
+                self.views.draw_sphere(image, accuracy)
+                self.timings[f"sphere {accuracy}"] = dt
+                if accuracy == ex.LIVE_ACCURACY:
+                    self.doc.add_timeout_callback(lambda: start(ex.REFINED_ACCURACY),
+                                                  int(1e3 * REFINE_DELAY))
+            self.doc.add_next_tick_callback(show)
 
-                def show(image=image, accuracy=accuracy, dt=dt):
-                    if gen == self._sphere_gen:
-                        self.views.draw_sphere(image, accuracy)
-                        self.timings[f"sphere {accuracy}"] = dt
-                self.doc.add_next_tick_callback(show)
+        def start(accuracy):
+            if gen == self._sphere_gen:
+                self._pools[accuracy].submit(render, accuracy)
 
-        self._pool.submit(work)
+        self.doc.add_timeout_callback(lambda: start(ex.LIVE_ACCURACY), int(1e3 * SPHERE_DELAY))
 
     def on_share(self, event=None):
         """Write the state as JSON into the share folder; ``veil explore FILE`` reopens it."""
