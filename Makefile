@@ -8,7 +8,7 @@ JOBS   ?= 2
 # compiled engine code (JAX's persistent compilation cache) stays in the checkout too
 export VEIL_CACHE_DIR ?= $(CURDIR)/.veil-cache
 
-.PHONY: demo test bench warmup venv clean
+.PHONY: demo test bench bench-explore browser-deps warmup venv clean
 
 venv: $(STAMP)
 
@@ -31,5 +31,20 @@ warmup: $(STAMP)
 bench: $(STAMP)
 	$(PY) benchmarks/bench_apparent.py
 
+bench-explore: $(STAMP)
+	$(PY) benchmarks/bench_explore.py --browser
+
+# What the browser test of `veil explore` needs (tests/test_explore_browser.py): Debian's
+# Chromium and its driver, installed as root when missing (CI runs as root).
+browser-deps:
+	@if command -v chromium >/dev/null 2>&1 && command -v chromedriver >/dev/null 2>&1; then \
+		echo "chromium and chromedriver: present"; \
+	elif [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \
+		apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq \
+			chromium chromium-driver >/dev/null; \
+	else \
+		echo "the browser test needs chromium and chromium-driver (apt-get install -y chromium chromium-driver as root); it is skipped without them outside CI"; \
+	fi
+
 clean:
-	rm -rf $(VENV) demo-out .pytest_cache .veil-cache
+	rm -rf $(VENV) demo-out .pytest_cache .veil-cache test-artifacts

@@ -32,6 +32,7 @@ COMMANDS = {
     "export": "export_cmd:export_command",
     "fit maps": "maps_cmd:fit_maps_command",
     "maps": "maps_cmd:maps_command",
+    "explore": "explore_cmd:explore_command",
 }
 
 
