@@ -292,3 +292,22 @@ def test_bad_input_exits_2(stack, tmp_path):
     second = run(*fit_args(root, manifest, other, "--roi", "0,0,4,5"))
     assert second.exit_code == 2 and "another acquisition" in second.output
     assert sorted(p.name for p in other.rglob("*")) == before
+
+
+def test_any_registered_family_even_without_a_nonlinear_parameter(monkeypatch):
+    """The tables and the solver read only the declarations: a plugin family with one
+    scale and no nonlinear parameter (no table axis), through a plugin medium."""
+    monkeypatch.syspath_prepend(str(Path(__file__).parent / "plugins"))
+    import veil_test_models  # registers the two families
+
+    brdf_cls = veil_test_models.LambertianTest
+    medium = veil_test_models.FisherTest(Td=2e-3, Tt=0.2, kappa=150.0)
+    configs = configurations(12)
+    tables = build_tables(brdf_cls, medium, angles_of(configs))
+    assert tables.axes == [] and tables.free_names == brdf_cls.param_names()
+    truth = np.array([2.0, 0.5])
+    y = tables.values[:, 0][None, :] * truth[:, None]
+    y = y * (1 + 0.01 * np.random.default_rng(0).standard_normal(y.shape))
+    fits = solve_pixels(tables, y, np.ones_like(y, dtype=bool))
+    assert np.all(fits.status == CONVERGED)
+    assert np.all(np.abs(fits.params[0] - truth) < 4 * fits.stderr[0])
