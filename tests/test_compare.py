@@ -77,8 +77,8 @@ def test_compare_on_path_traced_data_prefers_the_physical_models(tmp_path):
     > 5 %; the physical estimate is within 2 % of the direct fit and covered by its
     uncertainty; every number in comparison.md comes from the fits written beside it."""
     out_dir = tmp_path / "cmp"
-    out = _run(_pipeline_args(tmp_path) + ["--compare", "--path-length", "15",
-                                           "--plate-width", "5", "-o", out_dir])
+    out = _run(_pipeline_args(tmp_path) + ["--compare", "--accuracy", "fast", "--path-length",
+                                           "15", "--plate-width", "5", "-o", out_dir])
     assert out.exit_code in (0, 1), out.output
     results = {s: {k: json.loads((out_dir / s / f"{k}.json").read_text())
                    for k in ("reference", "medium", "target", "target_direct")}
