@@ -384,6 +384,7 @@ class ExplorePage:
         self.views = Views(fit_views)
         self.doc = pn.state.curdoc if background else None
         self._sphere_gen = 0
+        self._pending, self._scheduled = (False, False), False
         self._pools = ({a: ThreadPoolExecutor(max_workers=1, thread_name_prefix=f"sphere-{a}")
                         for a in (ex.LIVE_ACCURACY, ex.REFINED_ACCURACY)}
                        if background else None)
@@ -443,20 +444,39 @@ class ExplorePage:
         """A model changed: redraw the curves now, the sphere when asked (family, preset,
         option; a slider asks when it rests, :meth:`on_rest`)."""
         self.state = self.state.with_model(model, kind)
-        self.redraw(transmission=(kind == "medium"), sphere=sphere)
+        self.request_redraw(transmission=(kind == "medium"), sphere=sphere)
 
     def _on_angles(self, event):
         self.state = ex.State(**{**self.state.__dict__, "theta_i": float(self.theta_i.value),
                                  "psi": float(self.psi.value), "curve": self.curve.value})
         # psi and the curve's axis do not change the sphere; theta_i (its light) does,
         # when that slider rests
-        self.redraw(transmission=True, sphere=False)
+        self.request_redraw(transmission=True, sphere=False)
 
     def on_rest(self, event=None):
         """Sliders at rest: render the sphere (live accuracy, then refined)."""
         self.schedule_sphere()
 
     # -- drawing ---------------------------------------------------------------------------
+    def request_redraw(self, transmission=True, sphere=False):
+        """Redraw for the latest state: at once without a server; on the server at the
+        loop's next turn, so that the values a dragged slider sends in a burst cost one
+        redraw, not one each."""
+        self._sphere_gen += 1  # the state changed: a pending or running sphere is stale
+        if self.doc is None:
+            self.redraw(transmission, sphere)
+            return
+        self._pending = (self._pending[0] or transmission, self._pending[1] or sphere)
+        if not self._scheduled:
+            self._scheduled = True
+            self.doc.add_next_tick_callback(self._flush)
+
+    def _flush(self):
+        self._scheduled = False
+        transmission, sphere = self._pending
+        self._pending = (False, False)
+        self.redraw(transmission, sphere)
+
     def redraw(self, transmission=True, sphere=False):
         t0 = time.perf_counter()
         s = self.state
