@@ -272,11 +272,23 @@ def _facet_grid(brdf: type[BRDF], vb, n_r: int, n_a: int, half: bool = False):
     return h[None], alpha[None], unit[None], qh[None]
 
 
+def _apart(fn, vm, *args):
+    """fn(*args) computed apart from the surrounding expression (not fused into it): a
+    conditional on a value known only at run time keeps its branch a computation of its own
+    (taken whenever the medium's parameters are finite; otherwise the result is NaN, as it
+    would be anyway)."""
+    return jax.lax.cond(jnp.all(jnp.isfinite(vm)), fn,
+                        lambda *a: jax.tree.map(lambda z: jnp.full_like(z, jnp.nan), fn(*a)),
+                        *args)
+
+
 def _view_weight(medium, vm, r_prime, wr):
     """The medium's weight of its view-side lobe at R' (..., 3) for the camera at R, or 1."""
     if not medium.has_view_weight():
         return 1.0
-    return medium.view_weight(vm, r_prime, wr)
+    # apart: XLA would fuse it into the consumers of the grid's weights, the 4D products,
+    # and evaluate it again at every node of them
+    return _apart(lambda a, b: medium.view_weight(vm, a, b), vm, r_prime, wr)
 
 
 def _lobe_lobe(brdf, medium, vb, vm, maux, wi, wr, rule: Rule, half: bool):

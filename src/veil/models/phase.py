@@ -55,20 +55,25 @@ def hg_inverse_cone_fraction(g, frac):
 # --------------------------------------------------------------------------------------
 # mixtures of Henyey-Greenstein lobes, tabulated once per engine call
 # --------------------------------------------------------------------------------------
-# A mixture sum_k c_k p(g_k) (veil.models.forward_series) is tabulated on two grids and read
-# by cubic Hermite interpolation with the exact slopes at the nodes. A lookup is one gather
-# of one table row (the cubic coefficients of two quantities together: XLA does not
-# vectorize gathers, so their number, not the flops, sets the cost) and a few multiply-adds:
+# A mixture sum_k c_k p(g_k) (veil.models.forward_series) is tabulated once per engine call
+# (the tables are rebuilt for every call, so they must be cheap: 1.7 ms, against 17 ms for
+# the former 8192-node cubic tables with Newton-solved inverse):
 # - by x = (1 - cos)^(1/4) (spreads lobes of any width over the table without a logarithm
-#   per lookup): the cone fraction F and the density p, one row for both;
-# - by y = (F / F_total)^(1/4), for sampling: x and p at the cone that holds the fraction,
-#   one row for both (a phase grid gets its nodes and their densities from one gather).
-# x(y) is solved by Newton steps on the exact F, differentiable in the parameters (the last
-# step by the implicit function theorem); every slope is exact (dp/d(1 - cos) in closed
-# form, dx/dy = F_total y^3 / (2 pi p x^3)). The tables are cheap to build (a few hundred
-# nodes), which matters: they are rebuilt for every engine call.
-# With MIXTURE_NODES intervals the interpolation error is below 2e-6 relative for g up to
-# 0.995 and tau up to 3 (tests/test_model_contract.py, test_mixture_tables_*).
+#   per lookup), MIXTURE_NODES cubic Hermite intervals with the exact slopes, one row of
+#   coefficients for G = F / (1 - cos) (F itself grows as x^4 at the peak, which no cubic
+#   fits) and p together: the cone fraction F and the density p from one gather;
+# - by the sampling coordinate t, F / F_total = 1 - (1 - t^4)^4, the same for x and p at the
+#   cone holding a fraction (a phase grid gets its nodes and their densities from one
+#   gather); x(t) is solved by Newton steps on the exact F, differentiable in the
+#   parameters (the last step by the implicit function theorem); every slope is exact
+#   (dp/d(1 - cos) in closed form, dx/dt from dF/dx = 2 pi p 4 x^3);
+# - the density alone, for the engine's many point evaluations (the 4D term evaluates it
+#   at every reflected direction), on PDF_NODES intervals in x, linear: two scalar gathers.
+# Lookups in the engine's large products run apart from them (_apart): XLA does not
+# vectorize gathers, and a fusion that holds one loses its vector code altogether.
+# With these node counts the interpolation error is below 2e-6 relative for g from -0.5 to
+# 0.995 and tau up to 3 (tests/test_model_contract.py,
+# test_forward_series_phase_tables_hold_their_accuracy_over_the_parameter_range).
 MIXTURE_NODES = 512
 PDF_NODES = 8192
 _X_MAX = 2.0 ** 0.25
@@ -194,9 +199,11 @@ def _apart(fn, table, x):
     """fn(table, x) as a computation of its own: XLA's CPU backend emits a fusion that holds
     a gather as a scalar loop, so a table lookup fused into the engine's large elementwise
     products would take all of them out of vector code (measured: half the engine's speed).
-    A conditional on a value known only at run time (the table's total, always positive)
-    keeps its branch out of the surrounding fusions; the other branch is never taken."""
-    return jax.lax.cond(table[2] > 0, fn, lambda t, y: jax.tree.map(jnp.zeros_like, fn(t, y)),
+    A conditional on a value known only at run time (the table's total, positive for every
+    valid parameter vector) keeps its branch out of the surrounding fusions; the other branch
+    gives NaN (a NaN table would give NaN anyway)."""
+    return jax.lax.cond(table[2] > 0, fn,
+                        lambda t, y: jax.tree.map(lambda z: jnp.full_like(z, jnp.nan), fn(t, y)),
                         table, x)
 
 
