@@ -392,6 +392,21 @@ def roi_statistics(patch: _Patch, channel: str, dark: _Patch | None = None,
 
 # -- the manifest --------------------------------------------------------------------------
 
+def manifest_photos(manifest, photo_dir):
+    """The manifest read (:func:`read_manifest`) and the paths of its photos:
+    (table, row names, manifest name, paths); MissingFileError naming the rows whose photo is
+    not in ``photo_dir``."""
+    table, rows, name = read_manifest(manifest, photo_dir)
+    paths = [photo_dir / f for f in table["file"]]
+    missing = [(row, f) for row, f, p in zip(rows, table["file"], paths) if not p.is_file()]
+    if missing:
+        shown = "; ".join(f"{f!r} ({row})" for row, f in missing[:10])
+        more = f" and {len(missing) - 10} more" if len(missing) > 10 else ""
+        raise MissingFileError(f"{name}: {len(missing)} photo(s) listed in the manifest are not "
+                               f"in {photo_dir}: {shown}{more}")
+    return table, rows, name, paths
+
+
 def read_manifest(manifest, photo_dir) -> tuple[pd.DataFrame, list[str], str]:
     """The manifest (all its columns; angles as float), a name for each row, its own name.
 
@@ -508,14 +523,7 @@ def ingest(photo_dir, manifest, roi, black_roi=None, dark=None, channel="gray", 
     if response is not None and not isinstance(response, Response):
         response = load_response(response)
 
-    table, rows, name = read_manifest(manifest, photo_dir)
-    paths = [photo_dir / f for f in table["file"]]
-    missing = [(row, f) for row, f, p in zip(rows, table["file"], paths) if not p.is_file()]
-    if missing:
-        shown = "; ".join(f"{f!r} ({row})" for row, f in missing[:10])
-        more = f" and {len(missing) - 10} more" if len(missing) > 10 else ""
-        raise MissingFileError(f"{name}: {len(missing)} photo(s) listed in the manifest are not "
-                                f"in {photo_dir}: {shown}{more}")
+    table, rows, name, paths = manifest_photos(manifest, photo_dir)
     ignore = set()
     if dark is not None:
         ignore.add(Path(dark).resolve())

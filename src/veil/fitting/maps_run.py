@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from ..data.ingest import (CHANNELS, ROI, IngestWarning, _linear, parse_roi,
-                           read_manifest, read_photo)
+                           manifest_photos, read_photo)
 from ..errors import FitError, InputError, MissingFileError
 from ..io import write_bytes_atomic, write_text_atomic
 from .maps import (CONVERGED, MASKED, STATUS, MapTables, build_tables, solve_pixels)
@@ -212,14 +212,7 @@ def load_acquisition(photo_dir, manifest, *, roi=None, mask=None, black_photos=N
         saturation = float(saturation)
         if not math.isfinite(saturation):
             raise InputError(f"saturation level {saturation!r} is not a finite number")
-    table, rows, name = read_manifest(manifest, photo_dir)
-    paths = [photo_dir / f for f in table["file"]]
-    missing = [(row, f) for row, f, p in zip(rows, table["file"], paths) if not p.is_file()]
-    if missing:
-        shown = "; ".join(f"{f!r} ({row})" for row, f in missing[:10])
-        more = f" and {len(missing) - 10} more" if len(missing) > 10 else ""
-        raise MissingFileError(f"{name}: {len(missing)} photo(s) listed in the manifest are not "
-                               f"in {photo_dir}: {shown}{more}")
+    table, rows, name, paths = manifest_photos(manifest, photo_dir)
     jpeg = [(row, f) for row, f in zip(rows, table["file"])
             if Path(f).suffix.lower() in (".jpg", ".jpeg", ".jpe")]
     if jpeg:

@@ -201,13 +201,10 @@ class ForwardSeries(Medium):
         return jnp.exp(-v[0]) * jnp.expm1(v[1] * v[0])
 
     def factor_first(self, v, cos_a):
-        t = fresnel.transmittance(cos_a, v[3])
-        return t * t if self.variant == "paper" else t
+        return fresnel.boundary_first(cos_a, v[3], self.variant)
 
     def factor_second(self, v, cos_b):
-        if self.variant == "paper":
-            return 1.0 + 0.0 * cos_b
-        return fresnel.transmittance(cos_b, v[3])
+        return fresnel.boundary_second(cos_b, v[3], self.variant)
 
     # -- the normalized scattered lobe, tabulated once per engine call --------------------
     @staticmethod

@@ -36,3 +36,16 @@ def reflectance(cos_theta, eta):
 def transmittance(cos_theta, eta):
     """Fresnel transmittance F_t = 1 - F (MODEL.md sec. 4)."""
     return 1.0 - reflectance(cos_theta, eta)
+
+def boundary_first(cos_a, eta, variant: str):
+    """The boundary factor a(A) of a medium's transmission (MODEL.md sec. 3): F_t^2 for the
+    paper's variant, F_t for "exit"."""
+    t = transmittance(cos_a, eta)
+    return t * t if variant == "paper" else t
+
+
+def boundary_second(cos_b, eta, variant: str):
+    """The boundary factor b(B) (MODEL.md sec. 3): 1 for the paper's variant, F_t for "exit"."""
+    if variant == "paper":
+        return 1.0 + 0.0 * cos_b
+    return transmittance(cos_b, eta)
