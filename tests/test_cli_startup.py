@@ -1,5 +1,5 @@
 """Fast start (issue 16): help, version, argument errors and the commands that do no numerics
-never import JAX or the engine. Each case runs in a fresh interpreter, since this test
+never import numpy, JAX or the engine. Each case runs in a fresh interpreter, since this test
 process has long imported JAX. (Speed itself is measured in benchmarks/bench_startup.py.)"""
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ import sys
 
 import pytest
 
-HEAVY = ("jax", "jaxlib", "veil._jax", "veil.engine.forward", "veil.engine.integrator",
+HEAVY = ("numpy", "jax", "jaxlib", "veil._jax", "veil.engine.forward", "veil.engine.integrator",
          "scipy", "pandas", "matplotlib")
 
 #: Run the command line in-process and report which heavy modules it imported.

@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 import veil
+from veil.errors import InputTypeError
 from veil.fitting import FitError, fit_medium, fit_reference, fit_target
 from veil.analysis.uncertainty import PARTS, budget_table, propagate, sample_propagation
 
@@ -112,3 +113,50 @@ def test_bad_input(steps):
         sample_propagation(r2, r1, target, n_draws=1)
     with pytest.raises(FitError, match="no uncertainty budget"):
         budget_table(r2)
+
+
+def test_curve_stderr_is_the_total_covariance_through_central_differences(steps):
+    """se of f_r per configuration = sqrt(J C J^T), with J by central differences of
+    veil.reflectance (an independent path) over the free parameters only, C the total
+    covariance; a sampled check: the spread of f_r over parameters drawn from C agrees."""
+    from veil.analysis.uncertainty import curve_stderr
+
+    r2 = steps["r2"]
+    ti = np.array([10.0, 30.0, 45.0, 60.0, 20.0])
+    tr = np.array([10.0, 32.0, 44.0, 20.0, 70.0])
+    angles = (ti, np.full(5, 180.0), tr, np.zeros(5))
+    values, se = curve_stderr(r2, angles)
+    names, cov = r2.covariance(total=True)
+    assert set(names) == set(r2.free) and len(names) >= 3
+
+    def f_r(params):
+        model = type(r2.as_model()).from_params(params, r2.options)
+        return veil.reflectance(model, ti, tr)
+
+    assert np.allclose(values, f_r(r2.params), rtol=1e-12)
+    jac = []
+    for n in names:
+        h = 1e-5 * max(abs(r2.params[n]), 1.0)
+        up, down = dict(r2.params), dict(r2.params)
+        up[n] += h
+        down[n] -= h
+        jac.append((f_r(up) - f_r(down)) / (2 * h))
+    jac = np.array(jac).T
+    expected = np.sqrt(np.einsum("ij,jk,ik->i", jac, cov, jac))
+    assert np.allclose(se, expected, rtol=1e-4)
+    # the own covariance (without step 1) gives a smaller band here: the total is used
+    own = dataclasses.replace(r2, stderr_total=None, correlation_total=None)
+    assert np.all(curve_stderr(own, angles)[1] < se)
+
+    rng = np.random.default_rng(0)
+    draws = rng.multivariate_normal([r2.params[n] for n in names], cov, size=400)
+    curves = np.array([f_r({**r2.params, **dict(zip(names, d))}) for d in draws])
+    assert np.allclose(curves.std(axis=0), se, rtol=0.2)
+
+
+def test_curve_stderr_refuses_a_medium(steps):
+    from veil.analysis.uncertainty import curve_stderr
+
+    with pytest.raises(InputTypeError, match="BRDF result"):
+        curve_stderr(steps["r1"], (np.array([10.0]), np.array([180.0]), np.array([10.0]),
+                                   np.array([0.0])))

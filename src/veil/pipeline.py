@@ -30,6 +30,7 @@ from .data.protocol import protocol
 from .errors import FitError
 from .fitting import (FitResult, fit_direct, fit_medium, fit_reference, fit_target,
                       model_values, prepare)
+from .analysis.uncertainty import curve_stderr
 from .viz.fit_figures import fit_figure
 from .viz.reports import comparison_report, pipeline_report
 
@@ -189,7 +190,12 @@ def compare(estimated: FitResult, direct: FitResult) -> dict:
 
     Per parameter: difference and difference / sqrt(se_est^2 + se_direct^2) (the estimate's
     total standard error when it has one); and the rms of f_r_est - f_r_direct over the
-    configurations of the paper's protocol (absolute and relative to f_r_direct).
+    configurations of the paper's protocol (absolute and relative to f_r_direct). The curves
+    are compared in units of their own standard error too (the covariances propagated
+    through f_r's Jacobian at each configuration): ``fr_max_z`` the largest |difference| /
+    se, ``fr_within_2se`` the share of configurations within two standard errors (None
+    when an uncertainty is undetermined). Correlated parameters can differ by many of their
+    own standard errors while the curves agree: the curves are what the estimate is for.
     """
     rows = {}
     se_est = estimated.stderr_total or estimated.stderr
@@ -202,13 +208,22 @@ def compare(estimated: FitResult, direct: FitResult) -> dict:
                       "z": (value - ref) / combined if combined > 0 else None}
     configs = protocol()
     angles = tuple(configs[c].to_numpy() for c in ("theta_i", "phi_i", "theta_r", "phi_r"))
-    f_est = model_values(estimated, None, angles)
-    f_dir = model_values(direct, None, angles)
+    f_est, se_f_est = curve_stderr(estimated, angles)
+    f_dir, se_f_dir = curve_stderr(direct, angles)
     diff = f_est - f_dir
-    return {"params": rows, "n_configurations": len(configs),
-            "rms_fr_difference": float(np.sqrt(np.mean(diff ** 2))),
-            "rms_fr_relative": float(np.sqrt(np.mean((diff / f_dir) ** 2))),
-            "max_fr_relative": float(np.max(np.abs(diff / f_dir)))}
+    out = {"params": rows, "n_configurations": len(configs),
+           "rms_fr_difference": float(np.sqrt(np.mean(diff ** 2))),
+           "rms_fr_relative": float(np.sqrt(np.mean((diff / f_dir) ** 2))),
+           "max_fr_relative": float(np.max(np.abs(diff / f_dir))),
+           "fr_max_z": None, "fr_within_2se": None}
+    if se_f_est is not None:
+        se = np.hypot(se_f_est, 0.0 if se_f_dir is None else se_f_dir)
+        if np.all(se > 0):
+            z = np.abs(diff) / se
+            out["fr_max_z"] = float(np.max(z))
+            out["fr_within_2se"] = float(np.mean(z <= 2.0))
+    return out
+
 
 
 # --------------------------------------------------------------------------------------

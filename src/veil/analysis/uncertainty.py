@@ -32,6 +32,7 @@ import math
 import numpy as np
 
 from ..errors import FitError, InputTypeError
+from ..engine.evaluator import DirectModel
 from ..fitting.problem import ITERATION_ACCURACY, session_problem
 from ..fitting.result import FitResult, JointResult
 from ..fitting.solver import solve
@@ -241,6 +242,26 @@ def _draw(rng, mean, cov, names, n_draws, cls):
     return np.array(out)
 
 
+def curve_stderr(result: FitResult, angles) -> tuple[np.ndarray, np.ndarray | None]:
+    """f_r of a fitted BRDF at canonical ``angles`` and its standard error per configuration,
+    the result's covariance (the total one when it has it) through f_r's exact Jacobian:
+    se_k^2 = J_k Cov J_k^T. The error is None when the covariance is undetermined."""
+    model = result.as_model()
+    if model.KIND != "brdf":
+        raise InputTypeError(f"expected a BRDF result, got a {model.KIND} result "
+                             f"({result.model})")
+    angles = tuple(np.asarray(a, dtype=float) for a in angles)
+    values, jac = DirectModel(model, angles).value_and_jacobian(model.to_vector())
+    found = result.covariance(total=True)
+    if found is None:
+        return values, None
+    names, cov = found
+    order = type(model).param_names()
+    j = jac[:, [order.index(n) for n in names]]
+    var = np.einsum("ij,jk,ik->i", j, cov, j)
+    return values, np.sqrt(np.maximum(var, 0.0))
+
+
 def sample_propagation(target_result: FitResult, medium_result: FitResult, table, *,
                        n_draws: int = 100, seed: int = 0, black=None,
                        accuracy: str = ITERATION_ACCURACY, max_nfev: int | None = 50) -> dict:
@@ -285,5 +306,6 @@ def sample_propagation(target_result: FitResult, medium_result: FitResult, table
             "linear_covariance": a @ cov_m @ a.T, "converged": np.array(conv)}
 
 
-__all__ = ["propagate", "sample_propagation", "medium_parts", "covariance_of", "sensitivity",
+__all__ = ["propagate", "sample_propagation", "curve_stderr", "medium_parts", "covariance_of",
+           "sensitivity",
            "budget_table", "PARTS"]

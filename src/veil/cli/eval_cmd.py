@@ -9,7 +9,7 @@ import math
 import time
 
 import click
-import numpy as np
+from .._lazy import np
 
 from ..io import write_text_atomic
 from ._common import (ACCURACIES, UserError, check_output_path, model_options,

@@ -7,7 +7,7 @@ import io
 import os
 
 import click
-import numpy as np
+from .._lazy import np
 
 from ._common import UserError, check_file_target, model_options
 

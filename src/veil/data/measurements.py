@@ -30,7 +30,7 @@ import pandas as pd
 from ..errors import (InputError, InputTypeError, MeasurementError, MissingFileError,
                       NotAFileError)
 from ..io import write_text_atomic
-from ..engine.angles import direction_numpy, from_goniometer, from_signed_inplane, to_goniometer, to_signed_inplane
+from ..engine.angles import direction, from_goniometer, from_signed_inplane, to_goniometer, to_signed_inplane
 
 #: Angle columns, in the order :func:`canonical_angles` writes them.
 CANONICAL = ("theta_i", "phi_i", "theta_r", "phi_r")
@@ -224,7 +224,7 @@ def _wrap(phi: np.ndarray) -> np.ndarray:
 def _vectors(angles) -> np.ndarray:
     """(n, 6) array of the unit vectors I and R of canonical angles."""
     ti, pi_, tr, pr = angles
-    return np.concatenate([direction_numpy(ti, pi_), direction_numpy(tr, pr)], axis=1)
+    return np.concatenate([direction(ti, pi_), direction(tr, pr)], axis=1)
 
 
 def _separation(a: np.ndarray, b: np.ndarray) -> np.ndarray:

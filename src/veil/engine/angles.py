@@ -9,7 +9,6 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import InputError
-from .._lazyjax import jnp
 
 
 
@@ -27,17 +26,12 @@ def check_angles(theta_i, theta_r, phi_i, phi_r):
     return arrays
 
 
-def direction(theta_deg, phi_deg):
-    """Unit vector(s) for polar angle ``theta`` and azimuth ``phi`` (degrees), shape (..., 3)."""
-    t = jnp.deg2rad(jnp.asarray(theta_deg, dtype=float))
-    p = jnp.deg2rad(jnp.asarray(phi_deg, dtype=float))
-    st = jnp.sin(t)
-    return jnp.stack([st * jnp.cos(p), st * jnp.sin(p), jnp.cos(t)], axis=-1)
+def direction(theta_deg, phi_deg) -> np.ndarray:
+    """Unit vector(s) for polar angle ``theta`` and azimuth ``phi`` (degrees), shape (..., 3).
 
-
-def direction_numpy(theta_deg, phi_deg) -> np.ndarray:
-    """:func:`direction` in numpy (for checks of tables that need no JAX, e.g. ``veil
-    ingest``; equal to it within a few units in the last place)."""
+    In numpy: the engine's inputs are made on the host, and each eager JAX operation would
+    cost a compilation or a cache lookup in a fresh process (start-up, docs/performance.md).
+    """
     t = np.deg2rad(np.asarray(theta_deg, dtype=float))
     p = np.deg2rad(np.asarray(phi_deg, dtype=float))
     st = np.sin(t)

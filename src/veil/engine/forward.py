@@ -230,9 +230,12 @@ class Forward:
         return np.asarray(self._run(fn, vb, vm))[: self.size]
 
     def combine(self, terms, vb, vm) -> np.ndarray:
-        return np.asarray(integrator.combine_terms(type(self.brdf), type(self.medium),
-                                                   jnp.asarray(terms), jnp.asarray(vb, dtype=float),
-                                                   jnp.asarray(vm, dtype=float)))
+        """The apparent reflectance from the term matrices and the scale parameters, on the
+        host (as :func:`veil.engine.integrator.combine_terms`; no eager JAX operation, each
+        of which costs a compilation or a cache lookup in a fresh process)."""
+        rows = integrator.row_scales(type(self.medium), vm)
+        cols = integrator.column_scales(type(self.brdf), vb)
+        return np.einsum("...mb,m,b->...", np.asarray(terms), rows, cols)
 
     def __call__(self, vb, vm) -> np.ndarray:
         return self.combine(self.terms(vb, vm), vb, vm)

@@ -104,7 +104,7 @@ def _source_digest(files: tuple) -> str:
 def _veil_sources() -> tuple:
     """The files whose code a program is made of: veil's engine and models."""
     root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-    files = [os.path.join(root, name) for name in ("_jax.py", "_lazyjax.py")]
+    files = [os.path.join(root, name) for name in ("_jax.py", "_lazy.py")]
     for folder in ("engine", "models"):
         path = os.path.join(root, folder)
         files += sorted(os.path.join(path, f) for f in os.listdir(path) if f.endswith(".py"))

@@ -25,10 +25,11 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import numbers
 from dataclasses import dataclass
 from typing import ClassVar
 
-import numpy as np
+from .._lazy import np
 
 from ..errors import InputTypeError, ParameterError
 
@@ -40,6 +41,13 @@ SHARING = (None, "shared", "per-medium")
 #: medium's Fresnel variant, MODEL.md sec. 3), and commands offer as ``--variant``.
 VARIANT_OPTION = "variant"
 ERROR_SCALES = ("value", "bound")
+
+
+def geometric_grid(lower: float, upper: float, n: int, digits: int = 4) -> tuple:
+    """``n`` values from ``lower`` to ``upper`` in geometric progression, rounded to
+    ``digits`` decimals: a starting grid for a scale-like parameter (plain Python, so that
+    declarations import without numpy)."""
+    return tuple(round(lower * (upper / lower) ** (k / (n - 1)), digits) for k in range(n))
 
 
 @dataclass(frozen=True)
@@ -86,7 +94,7 @@ class Param:
         return self.alias or self.name
 
     def check(self, value: float, owner: str) -> None:
-        if not isinstance(value, (int, float, np.floating, np.integer)) or isinstance(value, bool):
+        if not isinstance(value, numbers.Real) or isinstance(value, bool):
             raise InputTypeError(f"{owner}.{self.name} must be a number, got {value!r}")
         v = float(value)
         if not math.isfinite(v):

@@ -34,7 +34,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from .._lazyjax import jnp
+from .._lazy import jnp
 from . import fresnel, phase
 from .base import Medium, Option, Param
 from .renderers import Plugin, Unsupported, Value, float_value

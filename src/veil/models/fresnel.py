@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from .._lazyjax import jnp
+from .._lazy import jnp
 
 
 def reflectance(cos_theta, eta):

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import math
 
-from .._lazyjax import jax, jnp
+from .._lazy import jax, jnp
 
 _FOUR_PI = 4.0 * math.pi
 

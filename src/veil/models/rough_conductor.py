@@ -25,7 +25,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from .._lazyjax import jnp
+from .._lazy import jnp
 from .base import BRDF, Option, Param
 from .renderers import Plugin, Unsupported, Value, float_value
 from .rough_plastic import (DISTRIBUTIONS, _safe_sqrt, facet_cdf, facet_inverse_cdf,

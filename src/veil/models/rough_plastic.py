@@ -28,12 +28,11 @@ import math
 from dataclasses import dataclass
 from functools import lru_cache
 
-import numpy as np
 
-from .._lazyjax import jnp
+from .._lazy import jnp, np
 from ..errors import ParameterError
 from . import fresnel
-from .base import BRDF, Option, Param
+from .base import BRDF, Option, Param, geometric_grid
 from .renderers import Plugin, Unsupported, Value, float_value, intensity_scale
 
 DISTRIBUTIONS = ("beckmann", "ggx")
@@ -442,6 +441,10 @@ def _plastic_pbrt(model, setting) -> Plugin:
 # --------------------------------------------------------------------------------------
 # the family
 # --------------------------------------------------------------------------------------
+#: Ten roughness values from 0.02 to 0.6, geometrically spaced.
+_ALPHA_GRID = geometric_grid(0.02, 0.6, 10)
+
+
 @dataclass(frozen=True)
 class RoughPlastic(BRDF):
     """Rough plastic (rho, alpha, eta, ks): a dielectric microfacet coat over a Lambertian
@@ -487,9 +490,8 @@ class RoughPlastic(BRDF):
     #: Starting grids: a clear-water fit (step 0) searches the roughness widely and four
     #: indices; a fit through a medium (step 2) the roughness at a plastic's index in water.
     START = {
-        "reference": {"alpha": tuple(np.round(np.geomspace(0.02, 0.6, 10), 4)),
-                      "eta": (1.05, 1.12, 1.3, 1.5)},
-        "target": {"alpha": tuple(np.round(np.geomspace(0.02, 0.6, 10), 4)), "eta": (1.12,)},
+        "reference": {"alpha": _ALPHA_GRID, "eta": (1.05, 1.12, 1.3, 1.5)},
+        "target": {"alpha": _ALPHA_GRID, "eta": (1.12,)},
     }
     #: The renderers' own plugins for it (veil.models.renderers).
     RENDERERS = {"mitsuba": _plastic_mitsuba, "pbrt": _plastic_pbrt}

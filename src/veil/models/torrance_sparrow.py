@@ -9,11 +9,10 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-import numpy as np
 
-from .._lazyjax import jnp
+from .._lazy import jnp, np
 from . import fresnel
-from .base import BRDF, Param
+from .base import BRDF, Param, geometric_grid
 
 DEG = 180.0 / math.pi
 HALF_PI = 0.5 * math.pi
@@ -49,7 +48,7 @@ class TorranceSparrow(BRDF):
     #: Starting grids: a clear-water fit (step 0) searches n widely and three indices; a
     #: fit through a medium (step 2) searches n only (the index barely shows there).
     START = {
-        "reference": {"n": tuple(np.round(np.geomspace(0.03, 5.0, 16), 4)),
+        "reference": {"n": geometric_grid(0.03, 5.0, 16),
                       "eta": (1.2, 1.5, 2.0)},
         "target": {"n": (0.08, 0.13, 0.2, 0.3, 0.45, 0.65, 0.9, 1.3, 2.0), "eta": (1.5,)},
     }

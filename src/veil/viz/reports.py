@@ -443,6 +443,12 @@ def pipeline_report(ref, med, tgt, direct, comparison, truth, figures, inputs) -
                     f"{format_number(comparison['rms_fr_difference'], 4)} (relative units), rms relative "
                     f"difference {format_number(100 * comparison['rms_fr_relative'], 3)} %, largest "
                     f"{format_number(100 * comparison['max_fr_relative'], 3)} %.", ""]
+        if comparison.get("fr_max_z") is not None:
+            out += [f"In units of the curves' own standard error (both fits' covariances "
+                    f"through f_r's Jacobian, per configuration): largest |difference| / se "
+                    f"{format_number(comparison['fr_max_z'], 3)}, "
+                    f"{format_number(100 * comparison['fr_within_2se'], 3)} % of the "
+                    f"configurations within two standard errors.", ""]
         out += _stats_lines(direct) + [""]
         if "direct_fig" in figures:
             out += [f"![direct fit]({figures['direct_fig']})", ""]
@@ -488,6 +494,9 @@ def comparison_report(results: dict, seconds: dict, difference: dict) -> str:
             c = results[n].comparison
             zs = [abs(row["z"]) for row in c["params"].values() if row["z"] is not None]
             zs_text = f"; largest |difference| / combined stderr {max(zs):.2f}" if zs else ""
+            if c.get("fr_max_z") is not None:
+                zs_text += (f"; curves: largest |difference| / se {c['fr_max_z']:.2f}, "
+                            f"{format_percent(c['fr_within_2se'])} within 2 se")
             lines.append(f"- {n}: {format_percent(c['rms_fr_relative'])} rms relative "
                          f"(largest {format_percent(c['max_fr_relative'])}){zs_text}")
         lines.append("")
