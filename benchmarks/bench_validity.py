@@ -12,9 +12,16 @@ own value of the plate seen without the medium). One table per medium:
 - est-vs-truth: relative RMS of the estimate's curve against the rendered clear-water values;
 - max |z|: the largest difference estimate - direct of a target parameter in units of the
   combined standard error (<= 2: the reported uncertainty covers the difference);
+- curves |z|, within 2 se: the same for the f_r curves, configuration by configuration
+  (both fits' covariances through f_r's Jacobian): the largest, and the share of the
+  protocol's configurations within two standard errors;
 - tau, g: the medium's recovered optical depth per pass and asymmetry against the truth
   (the paper's medium has no optical depth; its g is shown for comparison);
 - s: seconds of the whole pipeline.
+
+With --joint, each medium and model set also gets a row "(joint)": steps 1 and 2 as one
+joint fit (veil.fit_joint) of the reference and the target in the medium, the reference's
+f_r of step 0 held (no direct fit is compared there: the columns against it are empty).
 
 Run:  .venv/bin/python benchmarks/bench_validity.py [--media m01,m05,m10] [--targets target]
       [--models paper,physical] [--joint] [--figure docs/validity.png] [--json out.json]
@@ -95,12 +102,77 @@ def run_case(truth: dict, medium: str, target: str, models: str, outdir: str) ->
         "direct_vs_truth": float(np.sqrt(np.mean(
             ((model_values(res.direct, None, angles) - rendered) / rendered) ** 2))),
         "max_z": max(zs) if zs else math.nan,
+        "fr_max_z": _nan(res.comparison["fr_max_z"]),
+        "fr_within_2se": _nan(res.comparison["fr_within_2se"]),
+        "tau_stderr": _nan((res.medium.stderr_total or res.medium.stderr).get("tau")),
+        "chi2_medium": res.medium.chi2_reduced, "chi2_target": res.target.chi2_reduced,
         "tau": med.get("tau", math.nan), "tau_true": true_medium["tau"],
         "g": med.get("g", math.nan), "g_true": true_medium["g"],
         "converged": res.converged, "seconds": seconds,
         "curves": {"psi": clear["psi"].tolist(), "rho": clear["rho"].tolist(),
                    "estimate": est.tolist(), "truth": rendered.tolist()},
     }
+
+
+def run_joint(truth: dict, medium: str, target: str, models: str) -> dict:
+    """Steps 1 and 2 as one joint fit (veil.fit_joint): the reference and the target in the
+    medium, one medium for both, the reference's f_r from step 0 held; the target's
+    estimate against the truth as in :func:`run_case`."""
+    from veil import fit_joint
+    from veil.data.measurements import canonical_angles
+    from veil.fitting import fit_reference, model_values, prepare
+
+    names = sessions_of(truth, medium, target)
+    sess = truth["sessions"][names["session"]]
+    kw = dict(MODELS[models])
+    if models == "physical":
+        kw["medium_options"] = {"path_length": sess["path_length_cm"],
+                                "plate_width": sess["plate_width_cm"]}
+    black = table(names["black"])
+    t0 = time.perf_counter()
+    ref = fit_reference(table(names["reference_clear"], True), brdf_model=kw["brdf_model"])
+    label = medium.partition("_")[0]
+    sessions = [(prepare(table(names["reference_medium"]), black, "reference").table, label,
+                 "reference"),
+                (prepare(table(names["target_medium"]), black, "target").table, label,
+                 "target")]
+    res = fit_joint(sessions, reference=ref, **kw)
+    seconds = time.perf_counter() - t0
+    clear = table(names["target_clear"], True)
+    canon = canonical_angles(clear)
+    angles = tuple(canon[c].to_numpy(dtype=float) for c in ("theta_i", "phi_i", "theta_r",
+                                                              "phi_r"))
+    est = model_values(res.brdf("target"), None, angles)
+    rendered = clear["value"].to_numpy(dtype=float)
+    med = res.medium(label).as_dict()
+    true_medium = truth["media"][label]
+    tau_name = (res.layout.get("media") or {}).get(label, {}).get("tau")
+    return {
+        "medium": medium, "target": target, "models": models + " (joint)",
+        "est_vs_direct": math.nan,
+        "est_vs_truth": float(np.sqrt(np.mean(((est - rendered) / rendered) ** 2))),
+        "direct_vs_truth": math.nan, "max_z": math.nan, "fr_max_z": math.nan,
+        "fr_within_2se": math.nan,
+        "tau": med.get("tau", math.nan), "tau_true": true_medium["tau"],
+        "tau_stderr": _nan(res.stderr.get(tau_name)) if tau_name else math.nan,
+        "g": med.get("g", math.nan), "g_true": true_medium["g"],
+        "chi2_medium": res.chi2_reduced, "chi2_target": res.chi2_reduced,
+        "converged": res.converged, "seconds": seconds,
+        "curves": {"psi": clear["psi"].tolist(), "rho": clear["rho"].tolist(),
+                   "estimate": est.tolist(), "truth": rendered.tolist()},
+    }
+
+
+def _nan(x) -> float:
+    return math.nan if x is None else float(x)
+
+
+def _pct(x: float, digits: int = 2) -> str:
+    return "-" if math.isnan(x) else f"{100 * x:.{digits}f} %"
+
+
+def _num(x: float) -> str:
+    return "-" if math.isnan(x) else f"{x:.2f}"
 
 
 def print_table(rows: list[dict]) -> None:
@@ -110,13 +182,16 @@ def print_table(rows: list[dict]) -> None:
     for medium in dict.fromkeys(r["medium"] for r in rows):
         t = Table(title=f"medium {medium}")
         for col in ("target", "models", "est-vs-direct", "est-vs-truth", "direct-vs-truth",
-                    "max |z|", "tau (true)", "g (true)", "conv.", "s"):
+                    "max |z|", "curves |z|", "within 2 se", "tau (true)", "g (true)",
+                    "conv.", "s"):
             t.add_column(col, justify="right")
         for r in (r for r in rows if r["medium"] == medium):
-            t.add_row(r["target"], r["models"], f"{100 * r['est_vs_direct']:.2f} %",
-                      f"{100 * r['est_vs_truth']:.2f} %", f"{100 * r['direct_vs_truth']:.2f} %",
-                      f"{r['max_z']:.2f}",
-                      "-" if math.isnan(r["tau"]) else f"{r['tau']:.4f} ({r['tau_true']:g})",
+            t.add_row(r["target"], r["models"], _pct(r["est_vs_direct"]),
+                      _pct(r["est_vs_truth"]), _pct(r["direct_vs_truth"]),
+                      _num(r["max_z"]), _num(r.get("fr_max_z", math.nan)),
+                      _pct(r.get("fr_within_2se", math.nan), 0),
+                      "-" if math.isnan(r["tau"]) else
+                      f"{r['tau']:.4f} ± {r.get('tau_stderr', math.nan):.3f} ({r['tau_true']:g})",
                       f"{r['g']:.4f} ({r['g_true']:g})", "yes" if r["converged"] else "NO",
                       f"{r['seconds']:.1f}")
         Console(width=160).print(t)
@@ -166,6 +241,8 @@ def main(argv=None) -> int:
     ap.add_argument("--models", default="paper,physical")
     ap.add_argument("--figure", default=None)
     ap.add_argument("--json", default=None)
+    ap.add_argument("--joint", action="store_true",
+                    help="also steps 1 and 2 as one joint fit per medium and model set")
     ap.add_argument("--replot", default=None, metavar="JSON",
                     help="draw --figure from the rows of an earlier --json run, fit nothing")
     args = ap.parse_args(argv)
@@ -189,6 +266,12 @@ def main(argv=None) -> int:
                           f"{100 * r['est_vs_direct']:.2f} %, {r['seconds']:.1f} s",
                           file=sys.stderr, flush=True)
                     rows.append(r)
+                    if args.joint:
+                        r = run_joint(truth, medium, target, models)
+                        print(f"{medium} {target} {models} joint: est-vs-truth "
+                              f"{100 * r['est_vs_truth']:.2f} %, {r['seconds']:.1f} s",
+                              file=sys.stderr, flush=True)
+                        rows.append(r)
     print_table(rows)
     if args.figure:
         figure(rows, args.figure)

@@ -82,6 +82,18 @@ def test_pipeline_recovers_every_step(medium, tmp_path):
     assert c["rms_fr_relative"] == pytest.approx(np.sqrt(np.mean((est / ref - 1) ** 2)),
                                                  rel=1e-9)
     assert c["rms_fr_relative"] < 0.1
+    # the curves in units of their standard error: simulated data from the true models, so
+    # the estimate's band covers the direct fit nearly everywhere
+    from veil.analysis.uncertainty import curve_stderr
+
+    angles = tuple(configs[k].to_numpy() for k in ("theta_i", "phi_i", "theta_r", "phi_r"))
+    se_est, se_dir = curve_stderr(result.target, angles)[1], curve_stderr(result.direct,
+                                                                          angles)[1]
+    z = np.abs(est - ref) / np.hypot(se_est, se_dir)
+    assert c["fr_max_z"] == pytest.approx(z.max(), rel=1e-9)
+    assert c["fr_within_2se"] == pytest.approx(np.mean(z <= 2), abs=1e-12)
+    assert c["fr_within_2se"] > 0.9 and c["fr_max_z"] < 3
+    assert "within two standard errors" in (tmp_path / "report.md").read_text()
     assert_recovered(result.direct, veil.BRDF1)
     for key in ("reference_fig", "medium_fig", "target_fig", "direct_fig"):
         data = (tmp_path / FILES[key]).read_bytes()
