@@ -37,7 +37,7 @@ from ..data.ingest import (CHANNELS, ROI, IngestWarning, _linear, parse_roi,
                            manifest_photos, read_photo)
 from ..errors import FitError, InputError, MissingFileError
 from ..io import write_bytes_atomic, write_text_atomic
-from .maps import (CONVERGED, MASKED, STATUS, MapTables, build_tables, solve_pixels)
+from .maps import (CONVERGED, MASKED, STATUS, MapTables, build_tables, solve_pixels, warm_up)
 
 FORMAT = "veil.maps/1"
 MAPS = ("params", "stderr", "chi2_reduced", "n_points", "status")
@@ -652,9 +652,8 @@ def _compute(store, tables, todo, tile, noise, client, progress, workers):
     arr = zarr.open_array(os.fspath(Path(store) / "stack" / "values"), mode="r")
     stack = da.from_array(arr, chunks=(arr.shape[0], tile, tile))  # all photos of a tile
     blocks = stack.to_delayed()
-    if client is None:  # compile the solver once, here, before the threads start
-        solve_pixels(tables, np.zeros((1, tables.n_configs)),
-                     np.ones((1, tables.n_configs), dtype=bool), noise)
+    if client is None:  # compile the solver once per device, here, before the threads start
+        warm_up(tables, noise)
     if client is not None:
         [shared] = client.scatter([tables], broadcast=True, hash=False)
     else:
