@@ -121,7 +121,8 @@ def test_flags_dark_saturated_and_edge_pixels_are_never_converged():
 def test_iterations_stop_per_pixel_and_a_stopped_pixel_is_frozen(monkeypatch):
     """Each pixel stops when its Gauss-Newton step is below LM_TOL standard errors and is
     then frozen: its result does not depend on the other pixels of its batch (their order,
-    a dark or a saturated neighbour), nor on how many more iterations the batch may run."""
+    a dark or a saturated neighbour, being alone), on whether its last iterations ran in a
+    batch of slow pixels, nor on how many more iterations the batch may run."""
     import veil.fitting.maps as maps
 
     configs = configurations(16)
@@ -155,6 +156,12 @@ def test_iterations_stop_per_pixel_and_a_stopped_pixel_is_frozen(monkeypatch):
     same(fits, solve_pixels(tables, y[order], valid[order]), order)
     for k in np.argsort(fits.iterations[:12])[[0, 5, -1]]:  # alone: a batch of one pixel
         same(fits, solve_pixels(tables, y[k:k + 1], valid[k:k + 1]), np.array([k]))
+    # slow pixels finish in batches of their own: the same bits as in one pass
+    # (with a first pass of 1 iteration most pixels finish in the second)
+    assert np.sum(fits.iterations > 1) >= 10
+    monkeypatch.setattr(maps, "FIRST_ITERATIONS", 1)
+    monkeypatch.setattr(maps, "_SOLVERS", {})
+    same(fits, solve_pixels(tables, y, valid), np.arange(len(y)))
     monkeypatch.setattr(maps, "ITERATIONS", 2 * maps.ITERATIONS)
     monkeypatch.setattr(maps, "_SOLVERS", {})
     same(fits, solve_pixels(tables, y, valid), np.arange(len(y)))

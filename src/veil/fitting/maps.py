@@ -58,6 +58,10 @@ STEP_TOL = 1e-2
 #: frozen) once its Gauss-Newton step over the parameters not held at a bound is below
 #: :data:`LM_TOL` standard errors, and a batch once all its pixels have stopped.
 ITERATIONS = 20
+#: Iterations in a batch's first call: the pixels still running then (a few per cent) are
+#: gathered from all batches of the call into full batches of their own for the rest, so
+#: that a few slow pixels do not hold up the whole batch.
+FIRST_ITERATIONS = 4
 #: Stopping tolerance of the iterations, in standard errors (half of :data:`STEP_TOL`, so
 #: that a stopped pixel passes the final convergence test).
 LM_TOL = 5e-3
@@ -472,17 +476,27 @@ def _solver(q: int, d: int, sizes: tuple, weighted: bool):
     lo = jnp.zeros(n)
     hi_all = jnp.concatenate([jnp.full(q, jnp.inf), hi]) if d else jnp.full(q, jnp.inf)
 
-    def one_pixel(coef, u0, s0, y, w2):
-        w = jnp.sqrt(w2)
+    def model(coef, p):
+        s, u = p[:q], p[q:]
+        b, db = _interp(coef, u, d)
+        val = b[:, :q] @ s + b[:, q]
+        jac_s = b[:, :q]
+        jac_u = (jnp.einsum("amk,k->ma", db[..., :q], s) + db[..., q].T
+                 if d else jnp.zeros((b.shape[0], 0)))
+        return val, jnp.concatenate([jac_s, jac_u], axis=1)
 
-        def model(p):
-            s, u = p[:q], p[q:]
-            b, db = _interp(coef, u, d)
-            val = b[:, :q] @ s + b[:, q]
-            jac_s = b[:, :q]
-            jac_u = (jnp.einsum("amk,k->ma", db[..., :q], s) + db[..., q].T
-                     if d else jnp.zeros((b.shape[0], 0)))
-            return val, jnp.concatenate([jac_s, jac_u], axis=1)
+    def initial(coef, u0, s0, y, w2):
+        """The iterations' state at the best node: (iterations, p, lambda, cost, value,
+        Jacobian, stopped)."""
+        p0 = jnp.concatenate([s0, u0])
+        v0, j0 = model(coef, p0)
+        r0 = (y - v0) * jnp.sqrt(w2)
+        return (jnp.asarray(0), p0, jnp.asarray(1e-4), r0 @ r0, v0, j0, jnp.asarray(False))
+
+    def one_pixel(coef, y, w2, state, limit):
+        """Iterations from ``state`` until the pixel stops or has had ``limit``, then its
+        statistics: (results, state)."""
+        w = jnp.sqrt(w2)
 
         def refit(p):
             """(p with its scales replaced by their non-negative least-squares optimum at
@@ -546,19 +560,15 @@ def _solver(q: int, d: int, sizes: tuple, weighted: bool):
                     jnp.where(better, tjac, jac), now)
 
         def running(state):
-            return (state[0] < ITERATIONS) & ~state[-1]
+            return (state[0] < limit) & ~state[-1]
 
-        p0 = jnp.concatenate([s0, u0])
-        v0, j0 = model(p0)
-        r0 = (y - v0) * w
         yy = (y * w) @ (y * w)
         npts = jnp.sum(w2 > 0)
         dof = jnp.maximum(npts - n, 1)
         # under vmap the loop runs while any pixel of the batch runs; a frozen pixel's
         # state is selected unchanged (and the body leaves it unchanged too)
-        iters, p, lam, cost, val, jac, _ = jax.lax.while_loop(
-            running, lm, (jnp.asarray(0), p0, jnp.asarray(1e-4), r0 @ r0, v0, j0,
-                          jnp.asarray(False)))
+        state = jax.lax.while_loop(running, lm, state)
+        iters, p, lam, cost, val, jac, _ = state
         r = (y - val) * w
         jw = jac * w[:, None]
         colnorm = jnp.sqrt(jnp.sum(jw * jw, axis=0))
@@ -583,7 +593,7 @@ def _solver(q: int, d: int, sizes: tuple, weighted: bool):
             gn = gn / jnp.where(chi2 > 0, chi2, 1.0)
         proj = project(p + gn) - p
         step_se = jnp.max(jnp.abs(proj) / jnp.where(se > 0, se, 1.0)) if n else 0.0
-        return p, se, chi2, npts, rank_ok, step_se, iters
+        return (p, se, chi2, npts, rank_ok, step_se, iters), state
 
     def batch(values, coef, y, w2):
         # 1. every node: the scales by exact NNLS, from the weighted normal equations
@@ -606,22 +616,60 @@ def _solver(q: int, d: int, sizes: tuple, weighted: bool):
             u0 = jnp.stack(jnp.unravel_index(best, sizes), axis=1).astype(float)
         else:
             u0 = jnp.zeros((y.shape[0], 0))
-        # 3. Levenberg-Marquardt on the spline
-        return jax.vmap(one_pixel, in_axes=(None, 0, 0, 0, 0))(coef, u0, s0, y, w2)
+        # 3. Levenberg-Marquardt on the spline, FIRST_ITERATIONS at most
+        state = jax.vmap(initial, in_axes=(None, 0, 0, 0, 0))(coef, u0, s0, y, w2)
+        return jax.vmap(one_pixel, in_axes=(None, 0, 0, 0, None))(
+            coef, y, w2, state, min(FIRST_ITERATIONS, ITERATIONS))
 
-    fn = jax.jit(batch)
-    _SOLVERS[key] = fn
-    return fn
+    def resume(coef, y, w2, state):
+        # the pixels still running after FIRST_ITERATIONS, gathered from several batches
+        return jax.vmap(one_pixel, in_axes=(None, 0, 0, 0, None))(coef, y, w2, state,
+                                                                  ITERATIONS)
+
+    fns = (jax.jit(batch), jax.jit(resume))
+    _SOLVERS[key] = fns
+    return fns
+
+
+def _dispatch(tables, count, call, done):
+    """``count`` items in batches of BATCH (the last padded by repeating its last item):
+    ``call(indices, device, (values, coef) on the device)`` for each batch, round the CPU
+    devices (one core each, veil._jax) without waiting, at most IN_FLIGHT per device
+    pending; ``done(start, stop, result)`` in order. Every batch is the same computation
+    on BATCH items whichever device runs it."""
+    from .._jax import jax
+
+    devices = jax.devices()
+    on_device = {}
+    pending = []
+    for b, start in enumerate(range(0, count, BATCH)):
+        stop = min(start + BATCH, count)
+        idx = np.minimum(np.arange(start, start + BATCH), stop - 1)
+        dev = devices[b % len(devices)]
+        if dev not in on_device:
+            on_device[dev] = (jax.device_put(tables.values, dev),
+                              jax.device_put(tables.coef, dev))
+        pending.append((start, stop, call(idx, dev, on_device[dev])))
+        if len(pending) >= IN_FLIGHT * len(devices):
+            done(*pending.pop(0))
+    while pending:
+        done(*pending.pop(0))
 
 
 def warm_up(tables: MapTables, noise=None) -> None:
-    """Compile the solver of ``tables`` on every CPU device (a batch of dark pixels each,
+    """Compile both parts of the solver of ``tables`` on every CPU device (on dark pixels,
     which stop at once), so that no later call waits for a compilation."""
     from .._jax import jax
 
-    n = BATCH * len(jax.devices())
-    solve_pixels(tables, np.zeros((n, tables.n_configs)),
-                 np.ones((n, tables.n_configs), dtype=bool), noise)
+    first, rest = _solver(len(tables.free_scales), len(tables.axes),
+                          tuple(a.count for a in tables.axes), noise is not None)
+    y = np.zeros((BATCH, tables.n_configs))
+    with _CALL_LOCK:
+        for dev in jax.devices():
+            values, coef = (jax.device_put(a, dev) for a in (tables.values, tables.coef))
+            y_dev, w2_dev = jax.device_put(y, dev), jax.device_put(np.ones_like(y), dev)
+            _, state = first(values, coef, y_dev, w2_dev)
+            jax.block_until_ready(rest(coef, y_dev, w2_dev, state))
 
 
 @dataclass
@@ -661,7 +709,7 @@ def solve_pixels(tables: MapTables, y: np.ndarray, valid: np.ndarray,
         w2 = np.where(valid & (sigma2 > 0), 1.0 / np.where(sigma2 > 0, sigma2, 1.0), 0.0)
     q, d = len(tables.free_scales), len(tables.axes)
     sizes = tuple(a.count for a in tables.axes)
-    fn = _solver(q, d, sizes, noise is not None)
+    first, rest = _solver(q, d, sizes, noise is not None)
     n = q + d
     out_p = np.zeros((n_pix, n))
     out_se = np.zeros((n_pix, n))
@@ -670,39 +718,37 @@ def solve_pixels(tables: MapTables, y: np.ndarray, valid: np.ndarray,
     out_rank = np.zeros(n_pix, dtype=bool)
     out_step = np.zeros(n_pix)
     out_it = np.zeros(n_pix, dtype=np.int32)
-    # batches go round the CPU devices (one core each, veil._jax): dispatched without
-    # waiting, collected in order, at most IN_FLIGHT per device pending; every batch is the
-    # same computation on 512 pixels whichever device runs it
-    devices = jax.devices()
-    tables_on = {}
-    pending = []
+    slow_pixels, slow_states = [], []
 
-    def collect():
-        start, stop, result = pending.pop(0)
+    def store(where, outs):
+        p, se, chi2, npts, rank_ok, step, iters = outs
+        out_p[where], out_se[where], out_chi2[where] = p, se, chi2
+        out_np[where], out_rank[where], out_step[where], out_it[where] = (npts, rank_ok,
+                                                                          step, iters)
+
+    def first_done(start, stop, result):
+        outs, state = result
         k = stop - start
-        p, se, chi2, npts, rank_ok, step, iters = (np.asarray(a)[:k] for a in result)
-        out_p[start:stop] = p
-        out_se[start:stop] = se
-        out_chi2[start:stop] = chi2
-        out_np[start:stop] = npts
-        out_rank[start:stop] = rank_ok
-        out_step[start:stop] = step
-        out_it[start:stop] = iters
+        store(slice(start, stop), [np.asarray(a)[:k] for a in outs])
+        state = [np.asarray(a)[:k] for a in state]
+        slow = ~state[-1] & (state[0] >= FIRST_ITERATIONS)
+        if slow.any():
+            slow_pixels.append(np.arange(start, stop)[slow])
+            slow_states.append([a[slow] for a in state])
 
     with _CALL_LOCK:
-        for b, start in enumerate(range(0, n_pix, BATCH)):
-            stop = min(start + BATCH, n_pix)
-            idx = np.minimum(np.arange(start, start + BATCH), stop - 1)  # fixed shape
-            dev = devices[b % len(devices)]
-            if dev not in tables_on:
-                tables_on[dev] = (jax.device_put(tables.values, dev),
-                                  jax.device_put(tables.coef, dev))
-            pending.append((start, stop, fn(*tables_on[dev], jax.device_put(y[idx], dev),
-                                           jax.device_put(w2[idx], dev))))
-            if len(pending) >= IN_FLIGHT * len(devices):
-                collect()
-        while pending:
-            collect()
+        _dispatch(tables, n_pix, lambda idx, dev, tab: first(*tab, jax.device_put(y[idx], dev),
+                                                            jax.device_put(w2[idx], dev)),
+                  first_done)
+        if slow_pixels:  # the rest of the iterations for the slow pixels of every batch
+            where = np.concatenate(slow_pixels)
+            states = [np.concatenate(parts) for parts in zip(*slow_states)]
+            _dispatch(tables, len(where),
+                      lambda idx, dev, tab: rest(tab[1], jax.device_put(y[where[idx]], dev),
+                                                 jax.device_put(w2[where[idx]], dev),
+                                                 tuple(jax.device_put(a[idx], dev) for a in states)),
+                      lambda start, stop, result: store(
+                          where[start:stop], [np.asarray(a)[:stop - start] for a in result[0]]))
     # status, worst first
     status = np.full(n_pix, CONVERGED, dtype=np.uint8)
     status[out_step > STEP_TOL] = NOT_CONVERGED
