@@ -123,7 +123,7 @@ def test_iterations_stop_per_pixel_and_a_stopped_pixel_is_frozen(monkeypatch):
     then frozen: its result does not depend on the other pixels of its batch (their order,
     a dark or a saturated neighbour, being alone), on whether its last iterations ran in a
     batch of slow pixels, nor on how many more iterations the batch may run."""
-    import veil.fitting.maps as maps
+    from veil.fitting import maps
 
     configs = configurations(16)
     tables = build_tables(type(BRDF), MEDIUM, angles_of(configs), fixed=FIX,

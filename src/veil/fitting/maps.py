@@ -534,7 +534,7 @@ def _solver(q: int, d: int, sizes: tuple, weighted: bool):
 
         def lm(state):
             # one evaluation of the spline (value and Jacobian) per iteration
-            it, p, lam, cost, val, jac, done = state
+            it, p, lam, cost, val, jac, _ = state
             r = (y - val) * w
             jw = jac * w[:, None]
             a = jw.T @ jw
@@ -568,7 +568,7 @@ def _solver(q: int, d: int, sizes: tuple, weighted: bool):
         # under vmap the loop runs while any pixel of the batch runs; a frozen pixel's
         # state is selected unchanged (and the body leaves it unchanged too)
         state = jax.lax.while_loop(running, lm, state)
-        iters, p, lam, cost, val, jac, _ = state
+        iters, p, _, _, val, jac, _ = state
         r = (y - val) * w
         jw = jac * w[:, None]
         colnorm = jnp.sqrt(jnp.sum(jw * jw, axis=0))
