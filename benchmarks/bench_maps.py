@@ -1,6 +1,7 @@
 """Benchmark of the reflectance maps (docs/maps.md, docs/performance.md "Reflectance maps").
 
     .venv/bin/python benchmarks/bench_maps.py [--pixels 20000] [--size 200] [--rss-size 1000]
+    .venv/bin/python benchmarks/bench_maps.py --solve-only [--repeat 3] [--tables-cache DIR]
 
 1. tables and the per-pixel solve for a Torrance-Sparrow and a rough-plastic target through
    the paper's BTDF2, at the paper's 111 configurations, the index fixed: seconds for the
@@ -11,12 +12,20 @@
 3. a map of SIZE x SIZE pixels from 111 float32 TIFFs, end to end: locally (threads) and on
    a dask.distributed LocalCluster of two worker processes; equal bit for bit?
 4. peak RSS of a map of RSS_SIZE^2 pixels from 10 and from 50 photos (a fresh process each).
+
+--solve-only runs part 1 alone: the solve ``--repeat`` times (the median run is reported,
+with its wall and CPU seconds: CPU is the process's time over all its threads).
+--tables-cache DIR keeps the tables of part 1 in DIR (pickles, keyed by family and
+configurations) so that several runs, e.g. of two versions of the solver, share them.
 """
 
 from __future__ import annotations
 
 import argparse
+import math
+import hashlib
 import os
+import pickle
 import platform
 import resource
 import subprocess
@@ -61,22 +70,40 @@ def synthetic(tables, n, seed=0):
     return y * (1 + 0.01 * rng.standard_normal(y.shape))
 
 
-def bench_solve(family, fixed, n_pixels, configs):
+def bench_solve(family, fixed, n_pixels, configs, repeat=1, cache=None):
+    """Tables (or the cached ones: seconds then NaN) and the solve of ``n_pixels``
+    synthetic pixels, ``repeat`` times: (tables, table seconds, [(wall, cpu) per run],
+    fits of the last run)."""
     import veil
     from veil.fitting.maps import build_tables, solve_pixels
     from veil.models import model_class
 
     cls = model_class(family, "brdf")
-    t0 = time.perf_counter()
-    tables = build_tables(cls, veil.BTDF2, angles_of(configs), fixed=fixed)
-    t_tables = time.perf_counter() - t0
+    path = None
+    if cache is not None:
+        key = hashlib.sha256(repr((family, sorted(fixed.items()))).encode()
+                             + b"".join(a.tobytes() for a in angles_of(configs))).hexdigest()
+        path = Path(cache) / f"tables-{family}-{key[:16]}.pkl"
+    if path is not None and path.is_file():
+        tables, t_tables = pickle.loads(path.read_bytes()), float("nan")
+    else:
+        t0 = time.perf_counter()
+        tables = build_tables(cls, veil.BTDF2, angles_of(configs), fixed=fixed)
+        t_tables = time.perf_counter() - t0
+        if path is not None:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            path.write_bytes(pickle.dumps(tables))
     y = synthetic(tables, n_pixels)
     valid = np.ones_like(y, dtype=bool)
-    solve_pixels(tables, y[:8], valid[:8])  # compile
-    t0 = time.perf_counter()
-    fits = solve_pixels(tables, y, valid)
-    t_solve = time.perf_counter() - t0
-    return tables, t_tables, t_solve, fits
+    import jax
+    warm = min(len(y), 512 * len(jax.devices()))  # compile on every device
+    solve_pixels(tables, y[:warm], valid[:warm])
+    runs = []
+    for _ in range(repeat):
+        w0, c0 = time.perf_counter(), time.process_time()
+        fits = solve_pixels(tables, y, valid)
+        runs.append((time.perf_counter() - w0, time.process_time() - c0))
+    return tables, t_tables, runs, fits
 
 
 def bench_full(configs, n=2):
@@ -191,6 +218,12 @@ def main():
     ap.add_argument("--size", type=int, default=200)
     ap.add_argument("--rss-size", type=int, default=1000)
     ap.add_argument("--skip-rss", action="store_true")
+    ap.add_argument("--solve-only", action="store_true",
+                    help="only part 1 (tables and the per-pixel solve)")
+    ap.add_argument("--repeat", type=int, default=1,
+                    help="solves per family in part 1; the median is reported")
+    ap.add_argument("--tables-cache", default=None, metavar="DIR",
+                    help="keep part 1's tables in DIR and reuse them")
     args = ap.parse_args()
     import veil
     from veil.models import model_class
@@ -198,17 +231,25 @@ def main():
     configs = protocol_configs()
     print(f"# bench_maps: {platform.node()}, {os.cpu_count()} cores, load average "
           f"{os.getloadavg()[0]:.1f}, {len(configs)} configurations\n")
-    print("| target | free | tables (s) | pixels | solve (s) | pixels/s | converged |")
-    print("|---|---|---:|---:|---:|---:|---:|")
+    print("| target | free | tables (s) | pixels | solve (s) | CPU (s) | pixels/s | converged |")
+    print("|---|---|---:|---:|---:|---:|---:|---:|")
     for family in ("torrance-sparrow", "rough-plastic"):
         cls = model_class(family, "brdf")
         index = [p.name for p in cls.PARAMS if not p.log_scale and p.name not in
                  cls.scale_names()][0]
         fixed = {index: float(cls.param(index).start)}
-        tables, t_tab, t_solve, fits = bench_solve(family, fixed, args.pixels, configs)
-        print(f"| {family} | {', '.join(tables.free_names)} | {t_tab:.1f} | {args.pixels} | "
-              f"{t_solve:.2f} | {args.pixels / t_solve:,.0f} | "
+        tables, t_tab, runs, fits = bench_solve(family, fixed, args.pixels, configs,
+                                                args.repeat, args.tables_cache)
+        t_solve, t_cpu = sorted(runs)[len(runs) // 2]
+        tab = "cached" if math.isnan(t_tab) else f"{t_tab:.1f}"
+        print(f"| {family} | {', '.join(tables.free_names)} | {tab} | {args.pixels} | "
+              f"{t_solve:.2f} | {t_cpu:.2f} | {args.pixels / t_solve:,.0f} | "
               f"{100 * np.mean(fits.status == 0):.1f} % |", flush=True)
+    if args.solve_only:
+        print(f"\nsolve runs (wall s, CPU s): "
+              + "; ".join(f"{w:.2f}, {c:.2f}" for w, c in runs)
+              + f"\nload average at the end {os.getloadavg()[0]:.1f}")
+        return
     per_pixel, worst = bench_full(configs)
     print(f"\nfull fit through the engine (veil.fit_target, fast quadrature): {per_pixel:.1f} s "
           f"per pixel ({1 / per_pixel:.2f} pixels/s); fast solve within {worst:.3f} standard "

@@ -96,8 +96,10 @@ def fit_maps_command(ctx, photo_dir, manifest, medium, output, black_photos, bla
         veil maps show maps.zarr -o maps.png
         veil maps export maps.zarr -o maps/
 
-    Exit status 0 when the map is complete, 2 for input mistakes; a rerun after an
-    interruption computes only the missing tiles.
+    Exit status 0 when every pixel (inside the ROI and the mask) converged, 1 when the
+    store is complete but some pixels were not fitted (their number by status is printed;
+    the status map flags them), 2 for input mistakes; a rerun after an interruption
+    computes only the missing tiles.
     """
     from ..fitting.maps import parse_grid
     from ..fitting.maps_run import fit_maps
@@ -137,15 +139,24 @@ def fit_maps_command(ctx, photo_dir, manifest, medium, output, black_photos, bla
                f"({100 * s['converged'] / max(s['pixels'], 1):.1f} %); tiles: "
                f"{run.tiles_computed} computed, {run.tiles_reused} reused of "
                f"{run.tiles_total}")
-    for name, count in s["status_counts"].items():
-        if count and name != "converged":
-            click.echo(f"    {name}: {count} pixels", err=True)
+    if s.get("outside_mask"):
+        click.echo(f"    outside the mask (status 1, not fitted): {s['outside_mask']} pixels",
+                   err=True)
     for name, entry in s["params"].items():
         if "median" in entry:
             click.echo(f"    {name}: median {entry['median']:.6g} (5-95 %: {entry['p05']:.4g}"
                        f" .. {entry['p95']:.4g}), median stderr {entry['median_stderr']:.3g}")
     for stage, sec in run.seconds.items():
         click.echo(f"    {stage}: {sec:.1f} s", err=True)
+    if s["failed"]:
+        # the convention of every fit (docs/errors.md): results written, exit status 1
+        fitted = s["pixels"] - s.get("outside_mask", 0)
+        click.echo(f"Error: {s['failed']} of {fitted} pixels were not fitted (the maps were "
+                   f"written; their status map says why, and their values and standard "
+                   f"errors are not estimates): "
+                   + "; ".join(f"status {name} - {count} pixels"
+                               for name, count in s["failed_by_status"].items()), err=True)
+        ctx.exit(1)
 
 
 @click.group("maps")

@@ -54,13 +54,24 @@ CONVERGED, MASKED, FEW_POINTS, UNDETERMINED, EDGE, NOT_CONVERGED = range(6)
 #: Convergence: the last undamped step, in standard errors, below this in every parameter
 #: (the full fit's own tolerance leaves it within about 1 % of a standard error).
 STEP_TOL = 1e-2
-#: Levenberg-Marquardt iterations from the best node.
+#: Levenberg-Marquardt iterations from the best node, at most: a pixel stops (its state
+#: frozen) once its Gauss-Newton step over the parameters not held at a bound is below
+#: :data:`LM_TOL` standard errors, and a batch once all its pixels have stopped.
 ITERATIONS = 20
+#: Iterations in a batch's first call: the pixels still running then (a few per cent) are
+#: gathered from all batches of the call into full batches of their own for the rest, so
+#: that a few slow pixels do not hold up the whole batch.
+FIRST_ITERATIONS = 4
+#: Stopping tolerance of the iterations, in standard errors (half of :data:`STEP_TOL`, so
+#: that a stopped pixel passes the final convergence test).
+LM_TOL = 5e-3
 #: Grid nodes per nonlinear axis by the number of axes (``grid=`` overrides).
 NODES = {1: 48, 2: 24, 3: 12}
 #: Pixels per solver call: every call has this shape, so results do not depend on how
 #: pixels are grouped into tiles or workers (bit for bit).
 BATCH = 512
+#: Batches dispatched to a device and not yet collected, at most.
+IN_FLIGHT = 2
 #: Equilibrated condition number above which the Jacobian counts as rank-deficient.
 SINGULAR = 1e-10
 
@@ -462,49 +473,102 @@ def _solver(q: int, d: int, sizes: tuple, weighted: bool):
 
     n = q + d
     hi = jnp.asarray([float(k - 1) for k in sizes])
+    lo = jnp.zeros(n)
+    hi_all = jnp.concatenate([jnp.full(q, jnp.inf), hi]) if d else jnp.full(q, jnp.inf)
 
-    def one_pixel(coef, u0, s0, y, w2):
+    def model(coef, p):
+        s, u = p[:q], p[q:]
+        b, db = _interp(coef, u, d)
+        val = b[:, :q] @ s + b[:, q]
+        jac_s = b[:, :q]
+        jac_u = (jnp.einsum("amk,k->ma", db[..., :q], s) + db[..., q].T
+                 if d else jnp.zeros((b.shape[0], 0)))
+        return val, jnp.concatenate([jac_s, jac_u], axis=1)
+
+    def initial(coef, u0, s0, y, w2):
+        """The iterations' state at the best node: (iterations, p, lambda, cost, value,
+        Jacobian, stopped)."""
+        p0 = jnp.concatenate([s0, u0])
+        v0, j0 = model(coef, p0)
+        r0 = (y - v0) * jnp.sqrt(w2)
+        return (jnp.asarray(0), p0, jnp.asarray(1e-4), r0 @ r0, v0, j0, jnp.asarray(False))
+
+    def one_pixel(coef, y, w2, state, limit):
+        """Iterations from ``state`` until the pixel stops or has had ``limit``, then its
+        statistics: (results, state)."""
         w = jnp.sqrt(w2)
 
-        def model(p):
-            s, u = p[:q], p[q:]
+        def refit(p):
+            """(p with its scales replaced by their non-negative least-squares optimum at
+            its nonlinear parameters, value, Jacobian): the model is linear in the scales,
+            so every trial point of the iterations lies on the valley floor s*(theta)
+            (variable projection), where a curved valley between a scale and a roughness
+            would otherwise make the steps creep."""
+            u = p[q:]
             b, db = _interp(coef, u, d)
+            bw = b[:, :q] * w[:, None]
+            rw = (y - b[:, q]) * w
+            s, _ = _nnls_small(bw.T @ bw, bw.T @ rw, rw @ rw, q, jnp)
+            p = jnp.concatenate([s, u])
             val = b[:, :q] @ s + b[:, q]
-            jac_s = b[:, :q]
             jac_u = (jnp.einsum("amk,k->ma", db[..., :q], s) + db[..., q].T
                      if d else jnp.zeros((b.shape[0], 0)))
-            return val, jnp.concatenate([jac_s, jac_u], axis=1)
+            return p, val, jnp.concatenate([b[:, :q], jac_u], axis=1)
 
         def project(p):
             s = jnp.maximum(p[:q], 0.0)
             u = jnp.clip(p[q:], 0.0, hi) if d else p[q:]
             return jnp.concatenate([s, u])
 
-        def lm(_, state):
+        def reduced_gn(p, a, g):
+            """Predicted cost decrease of the undamped Gauss-Newton step over the
+            parameters not held at a bound (a parameter is held when it sits on its bound
+            and the gradient pushes it out): an upper bound on (step / standard error)^2
+            of every such parameter, times the residual variance when unweighted."""
+            held = ((p <= lo) & (g < 0)) | ((p >= hi_all) & (g > 0))
+            pair = held[:, None] | held[None, :]
+            ar = jnp.where(pair, jnp.eye(n), a)
+            gr = jnp.where(held, 0.0, g)
+            low, piv = _ldl(ar, jnp)
+            return gr @ _ldl_solve(low, piv, gr, jnp)
+
+        def lm(state):
             # one evaluation of the spline (value and Jacobian) per iteration
-            p, lam, cost, val, jac = state
+            it, p, lam, cost, val, jac, _ = state
             r = (y - val) * w
             jw = jac * w[:, None]
             a = jw.T @ jw
             g = jw.T @ r
+            # converged at p: the reduced Gauss-Newton step is below LM_TOL standard
+            # errors in every free parameter; the pixel is then frozen
+            s2 = cost / dof if not weighted else 1.0
+            dec = reduced_gn(p, a, g)
+            now = (dec <= LM_TOL ** 2 * s2 + 1e-24 * yy) & jnp.isfinite(dec)
             diag = jnp.diag(a)
             scale = jnp.where(diag > 0, diag, 1.0)
             low, piv = _ldl(a + lam * jnp.diag(scale), jnp)
             step = _ldl_solve(low, piv, g, jnp)
-            trial = project(p + jnp.where(jnp.isfinite(step), step, 0.0))
-            tval, tjac = model(trial)
+            trial, tval, tjac = refit(
+                project(p + jnp.where(jnp.isfinite(step), step, 0.0)))
             tr = (y - tval) * w
             tcost = tr @ tr
-            better = tcost < cost
-            lam = jnp.where(better, jnp.maximum(lam * 0.2, 1e-12), jnp.minimum(lam * 10, 1e12))
-            return (jnp.where(better, trial, p), lam, jnp.where(better, tcost, cost),
-                    jnp.where(better, tval, val), jnp.where(better, tjac, jac))
+            better = (tcost < cost) & ~now
+            lam = jnp.where(now, lam, jnp.where(better, jnp.maximum(lam * 0.2, 1e-12),
+                                                 jnp.minimum(lam * 10, 1e12)))
+            return (it + jnp.where(now, 0, 1), jnp.where(better, trial, p), lam,
+                    jnp.where(better, tcost, cost), jnp.where(better, tval, val),
+                    jnp.where(better, tjac, jac), now)
 
-        p0 = jnp.concatenate([s0, u0])
-        v0, j0 = model(p0)
-        r0 = (y - v0) * w
-        p, lam, cost, val, jac = jax.lax.fori_loop(
-            0, ITERATIONS, lm, (p0, jnp.asarray(1e-4), r0 @ r0, v0, j0))
+        def running(state):
+            return (state[0] < limit) & ~state[-1]
+
+        yy = (y * w) @ (y * w)
+        npts = jnp.sum(w2 > 0)
+        dof = jnp.maximum(npts - n, 1)
+        # under vmap the loop runs while any pixel of the batch runs; a frozen pixel's
+        # state is selected unchanged (and the body leaves it unchanged too)
+        state = jax.lax.while_loop(running, lm, state)
+        iters, p, _, _, val, jac, _ = state
         r = (y - val) * w
         jw = jac * w[:, None]
         colnorm = jnp.sqrt(jnp.sum(jw * jw, axis=0))
@@ -519,8 +583,6 @@ def _solver(q: int, d: int, sizes: tuple, weighted: bool):
         ainv = jnp.stack([_ldl_solve(low, piv, eye[i], jnp) for i in range(n)], axis=1)
         cov = ainv / jnp.outer(jnp.where(colnorm > 0, colnorm, 1.0),
                                jnp.where(colnorm > 0, colnorm, 1.0))
-        npts = jnp.sum(w2 > 0)
-        dof = jnp.maximum(npts - n, 1)
         chi2 = (r @ r) / dof
         if not weighted:
             cov = cov * chi2
@@ -531,7 +593,7 @@ def _solver(q: int, d: int, sizes: tuple, weighted: bool):
             gn = gn / jnp.where(chi2 > 0, chi2, 1.0)
         proj = project(p + gn) - p
         step_se = jnp.max(jnp.abs(proj) / jnp.where(se > 0, se, 1.0)) if n else 0.0
-        return p, se, chi2, npts, rank_ok, step_se
+        return (p, se, chi2, npts, rank_ok, step_se, iters), state
 
     def batch(values, coef, y, w2):
         # 1. every node: the scales by exact NNLS, from the weighted normal equations
@@ -554,25 +616,75 @@ def _solver(q: int, d: int, sizes: tuple, weighted: bool):
             u0 = jnp.stack(jnp.unravel_index(best, sizes), axis=1).astype(float)
         else:
             u0 = jnp.zeros((y.shape[0], 0))
-        # 3. Levenberg-Marquardt on the spline
-        return jax.vmap(one_pixel, in_axes=(None, 0, 0, 0, 0))(coef, u0, s0, y, w2)
+        # 3. Levenberg-Marquardt on the spline, FIRST_ITERATIONS at most
+        state = jax.vmap(initial, in_axes=(None, 0, 0, 0, 0))(coef, u0, s0, y, w2)
+        return jax.vmap(one_pixel, in_axes=(None, 0, 0, 0, None))(
+            coef, y, w2, state, min(FIRST_ITERATIONS, ITERATIONS))
 
-    fn = jax.jit(batch)
-    _SOLVERS[key] = fn
-    return fn
+    def resume(coef, y, w2, state):
+        # the pixels still running after FIRST_ITERATIONS, gathered from several batches
+        return jax.vmap(one_pixel, in_axes=(None, 0, 0, 0, None))(coef, y, w2, state,
+                                                                  ITERATIONS)
+
+    fns = (jax.jit(batch), jax.jit(resume))
+    _SOLVERS[key] = fns
+    return fns
+
+
+def _dispatch(tables, count, call, done):
+    """``count`` items in batches of BATCH (the last padded by repeating its last item):
+    ``call(indices, device, (values, coef) on the device)`` for each batch, round the CPU
+    devices (one core each, veil._jax) without waiting, at most IN_FLIGHT per device
+    pending; ``done(start, stop, result)`` in order. Every batch is the same computation
+    on BATCH items whichever device runs it."""
+    from .._jax import jax
+
+    devices = jax.devices()
+    on_device = {}
+    pending = []
+    for b, start in enumerate(range(0, count, BATCH)):
+        stop = min(start + BATCH, count)
+        idx = np.minimum(np.arange(start, start + BATCH), stop - 1)
+        dev = devices[b % len(devices)]
+        if dev not in on_device:
+            on_device[dev] = (jax.device_put(tables.values, dev),
+                              jax.device_put(tables.coef, dev))
+        pending.append((start, stop, call(idx, dev, on_device[dev])))
+        if len(pending) >= IN_FLIGHT * len(devices):
+            done(*pending.pop(0))
+    while pending:
+        done(*pending.pop(0))
+
+
+def warm_up(tables: MapTables, noise=None) -> None:
+    """Compile both parts of the solver of ``tables`` on every CPU device (on dark pixels,
+    which stop at once), so that no later call waits for a compilation."""
+    from .._jax import jax
+
+    first, rest = _solver(len(tables.free_scales), len(tables.axes),
+                          tuple(a.count for a in tables.axes), noise is not None)
+    y = np.zeros((BATCH, tables.n_configs))
+    with _CALL_LOCK:
+        for dev in jax.devices():
+            values, coef = (jax.device_put(a, dev) for a in (tables.values, tables.coef))
+            y_dev, w2_dev = jax.device_put(y, dev), jax.device_put(np.ones_like(y), dev)
+            _, state = first(values, coef, y_dev, w2_dev)
+            jax.block_until_ready(rest(coef, y_dev, w2_dev, state))
 
 
 @dataclass
 class PixelFits:
     """Per-pixel results (flat arrays over pixels): ``params`` (P, N) every BRDF parameter,
     ``stderr`` (P, N) (0 where fixed or not reported), ``chi2`` (N,), ``n_points`` (N,),
-    ``status`` (N,) uint8 (:data:`STATUS`)."""
+    ``status`` (N,) uint8 (:data:`STATUS`), ``iterations`` (N,) Levenberg-Marquardt
+    iterations the pixel took (at most :data:`ITERATIONS`)."""
 
     params: np.ndarray
     stderr: np.ndarray
     chi2: np.ndarray
     n_points: np.ndarray
     status: np.ndarray
+    iterations: np.ndarray
 
 
 def solve_pixels(tables: MapTables, y: np.ndarray, valid: np.ndarray,
@@ -580,7 +692,7 @@ def solve_pixels(tables: MapTables, y: np.ndarray, valid: np.ndarray,
     """Fit every pixel: ``y`` (N, M) values, ``valid`` (N, M) usable samples (saturated,
     clipped and masked ones False), ``noise`` None (unweighted) or (relative, absolute):
     sigma = sqrt((relative * value)^2 + absolute^2)."""
-    from .._jax import jnp
+    from .._jax import jax
 
     y = np.asarray(y, dtype=float)
     valid = np.asarray(valid, dtype=bool) & np.isfinite(y)
@@ -597,9 +709,7 @@ def solve_pixels(tables: MapTables, y: np.ndarray, valid: np.ndarray,
         w2 = np.where(valid & (sigma2 > 0), 1.0 / np.where(sigma2 > 0, sigma2, 1.0), 0.0)
     q, d = len(tables.free_scales), len(tables.axes)
     sizes = tuple(a.count for a in tables.axes)
-    fn = _solver(q, d, sizes, noise is not None)
-    values = jnp.asarray(tables.values)
-    coef = jnp.asarray(tables.coef)
+    first, rest = _solver(q, d, sizes, noise is not None)
     n = q + d
     out_p = np.zeros((n_pix, n))
     out_se = np.zeros((n_pix, n))
@@ -607,19 +717,38 @@ def solve_pixels(tables: MapTables, y: np.ndarray, valid: np.ndarray,
     out_np = np.zeros(n_pix, dtype=np.int64)
     out_rank = np.zeros(n_pix, dtype=bool)
     out_step = np.zeros(n_pix)
-    for start in range(0, n_pix, BATCH):
-        stop = min(start + BATCH, n_pix)
-        idx = np.minimum(np.arange(start, start + BATCH), stop - 1)  # fixed shape
-        with _CALL_LOCK:
-            p, se, chi2, npts, rank_ok, step = (np.asarray(a) for a in fn(
-                values, coef, jnp.asarray(y[idx]), jnp.asarray(w2[idx])))
+    out_it = np.zeros(n_pix, dtype=np.int32)
+    slow_pixels, slow_states = [], []
+
+    def store(where, outs):
+        p, se, chi2, npts, rank_ok, step, iters = outs
+        out_p[where], out_se[where], out_chi2[where] = p, se, chi2
+        out_np[where], out_rank[where], out_step[where], out_it[where] = (npts, rank_ok,
+                                                                          step, iters)
+
+    def first_done(start, stop, result):
+        outs, state = result
         k = stop - start
-        out_p[start:stop] = p[:k]
-        out_se[start:stop] = se[:k]
-        out_chi2[start:stop] = chi2[:k]
-        out_np[start:stop] = npts[:k]
-        out_rank[start:stop] = rank_ok[:k]
-        out_step[start:stop] = step[:k]
+        store(slice(start, stop), [np.asarray(a)[:k] for a in outs])
+        state = [np.asarray(a)[:k] for a in state]
+        slow = ~state[-1] & (state[0] >= FIRST_ITERATIONS)
+        if slow.any():
+            slow_pixels.append(np.arange(start, stop)[slow])
+            slow_states.append([a[slow] for a in state])
+
+    with _CALL_LOCK:
+        _dispatch(tables, n_pix, lambda idx, dev, tab: first(*tab, jax.device_put(y[idx], dev),
+                                                            jax.device_put(w2[idx], dev)),
+                  first_done)
+        if slow_pixels:  # the rest of the iterations for the slow pixels of every batch
+            where = np.concatenate(slow_pixels)
+            states = [np.concatenate(parts) for parts in zip(*slow_states)]
+            _dispatch(tables, len(where),
+                      lambda idx, dev, tab: rest(tab[1], jax.device_put(y[where[idx]], dev),
+                                                 jax.device_put(w2[where[idx]], dev),
+                                                 tuple(jax.device_put(a[idx], dev) for a in states)),
+                      lambda start, stop, result: store(
+                          where[start:stop], [np.asarray(a)[:stop - start] for a in result[0]]))
     # status, worst first
     status = np.full(n_pix, CONVERGED, dtype=np.uint8)
     status[out_step > STEP_TOL] = NOT_CONVERGED
@@ -654,8 +783,8 @@ def solve_pixels(tables: MapTables, y: np.ndarray, valid: np.ndarray,
     stderr = np.where((reported & good_numbers)[None, :], stderr, 0.0)
     chi2 = np.where(np.isfinite(out_chi2) & (status != MASKED) & (status != FEW_POINTS),
                     out_chi2, 0.0)
-    return PixelFits(params, stderr, chi2, out_np.astype(np.int32), status)
+    return PixelFits(params, stderr, chi2, out_np.astype(np.int32), status, out_it)
 
 
-__all__ = ["STATUS", "Axis", "MapTables", "build_tables", "solve_pixels", "PixelFits",
+__all__ = ["STATUS", "Axis", "MapTables", "build_tables", "solve_pixels", "warm_up", "PixelFits",
            "parse_grid", "make_axes"]

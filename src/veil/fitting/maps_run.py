@@ -37,7 +37,7 @@ from ..data.ingest import (CHANNELS, ROI, IngestWarning, _linear, parse_roi,
                            manifest_photos, read_photo)
 from ..errors import FitError, InputError, MissingFileError
 from ..io import write_bytes_atomic, write_text_atomic
-from .maps import (CONVERGED, MASKED, STATUS, MapTables, build_tables, solve_pixels)
+from .maps import (CONVERGED, MASKED, STATUS, MapTables, build_tables, solve_pixels, warm_up)
 
 FORMAT = "veil.maps/1"
 MAPS = ("params", "stderr", "chi2_reduced", "n_points", "status")
@@ -478,9 +478,15 @@ def geometry_notes(tables: MapTables, brdf_cls, medium_model, shape, geometry) -
     return notes
 
 
+#: What status 1 means for a pixel inside the mask.
+FAILED_MASKED = "no usable photo (saturated or clipped in every photo)"
+
+
 def summarize_maps(store) -> dict:
-    """Medians and percentiles of each map over the converged pixels, and the fraction of
-    pixels by status."""
+    """Medians and percentiles of each map over the converged pixels, the count and
+    fraction of pixels by status, and the pixels that were to be fitted but were not:
+    ``failed`` (their number) and ``failed_by_status`` ({"CODE: meaning": count}), every
+    status but 0 except the pixels outside the mask (``outside_mask``)."""
     import zarr
 
     group = zarr.open_group(os.fspath(store), mode="r")
@@ -489,8 +495,18 @@ def summarize_maps(store) -> dict:
     ok = status == CONVERGED
     total = int(status.size)
     counts = {STATUS[k].split(" (")[0]: int(np.count_nonzero(status == k)) for k in STATUS}
+    # pixels the user left out (outside --mask) are status 1 without having failed
+    outside = int(info.get("outside_mask", 0))
+    failed = {}
+    for k in STATUS:
+        if k == CONVERGED:
+            continue
+        n = int(np.count_nonzero(status == k)) - (outside if k == MASKED else 0)
+        if n > 0:
+            failed[f"{k}: " + (FAILED_MASKED if k == MASKED else STATUS[k].split(" (")[0])] = n
     out = {"pixels": total, "converged": int(np.count_nonzero(ok)),
-           "status_counts": counts,
+           "status_counts": counts, "outside_mask": outside,
+           "failed": int(sum(failed.values())), "failed_by_status": failed,
            "undetermined_fraction": float(np.count_nonzero(status == 3) / total),
            "not_converged_fraction": float(np.count_nonzero(~ok) / total),
            "params": {}}
@@ -601,7 +617,9 @@ def fit_maps(photo_dir, manifest, medium, output, *, brdf_model=None, options=No
                 "channel": channel, "noise": list(noise) if noise else None,
                 "weighted": noise is not None, "status_codes": {str(k): v for k, v in
                                                                 STATUS.items()},
-                "grid": [a.describe() for a in tables.axes], "manifest": acq.name}
+                "grid": [a.describe() for a in tables.axes], "manifest": acq.name,
+                "outside_mask": int(np.count_nonzero(~acq.mask)) if acq.mask is not None
+                else 0}
         if existing is not None and existing.get("fingerprint") != fingerprint:
             raise InputError(f"{output} holds maps of another acquisition or other settings "
                              f"(its photos, manifest, medium, model, fixed parameters, grid, "
@@ -652,9 +670,8 @@ def _compute(store, tables, todo, tile, noise, client, progress, workers):
     arr = zarr.open_array(os.fspath(Path(store) / "stack" / "values"), mode="r")
     stack = da.from_array(arr, chunks=(arr.shape[0], tile, tile))  # all photos of a tile
     blocks = stack.to_delayed()
-    if client is None:  # compile the solver once, here, before the threads start
-        solve_pixels(tables, np.zeros((1, tables.n_configs)),
-                     np.ones((1, tables.n_configs), dtype=bool), noise)
+    if client is None:  # compile the solver once per device, here, before the threads start
+        warm_up(tables, noise)
     if client is not None:
         [shared] = client.scatter([tables], broadcast=True, hash=False)
     else:
