@@ -78,7 +78,8 @@ def test_compare_on_path_traced_data_prefers_the_physical_models(tmp_path):
     uncertainty; every number in comparison.md comes from the fits written beside it."""
     out_dir = tmp_path / "cmp"
     out = _run(_pipeline_args(tmp_path) + ["--compare", "--accuracy", "fast", "--path-length",
-                                           "15", "--plate-width", "5", "-o", out_dir])
+                                           "15", "--plate-width", "5", "--no-figures",
+                                           "-o", out_dir])
     assert out.exit_code in (0, 1), out.output
     results = {s: {k: json.loads((out_dir / s / f"{k}.json").read_text())
                    for k in ("reference", "medium", "target", "target_direct")}
@@ -91,6 +92,7 @@ def test_compare_on_path_traced_data_prefers_the_physical_models(tmp_path):
     assert results["paper"]["reference"]["rms_relative"] > 0.03
     text = (out_dir / "comparison.md").read_text()
     assert "| reference |" in text and "AIC" in text
+    assert not list(out_dir.rglob("*.png"))  # --no-figures
     phys = results["physical"]
     assert phys["medium"]["converged"] and phys["target"]["converged"]
     # the estimate against the direct fit: in the report and within the target

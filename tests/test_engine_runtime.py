@@ -117,16 +117,31 @@ _HASH_SCRIPT = """
 """
 
 
+_OFF_SCRIPT = """
+    import numpy as np
+    import veil
+    from veil._jax import jax
+    events = []
+    jax.monitoring.register_event_listener(lambda name, **kw: events.append(name))
+    value = veil.reflectance("BRDF1", np.linspace(0.0, 80.0, 24), 30.0)
+    assert np.all(np.isfinite(value))
+    print(events.count("/jax/compilation_cache/cache_hits"), jax.config.jax_compilation_cache_dir)
+"""
+
+
 def test_persistent_cache_fills_loads_and_changes_nothing(tmp_path):
     cache = tmp_path / "cache"
     first = _child(_HASH_SCRIPT, {"VEIL_CACHE_DIR": str(cache)}).split()
     entries = [p.name for p in cache.iterdir() if p.name.endswith("-cache")]
     assert entries, "the first process wrote nothing to the compilation cache"
     second = _child(_HASH_SCRIPT, {"VEIL_CACHE_DIR": str(cache)}).split()
-    uncached = _child(_HASH_SCRIPT, {"VEIL_CACHE_DIR": "off"}).split()
-    assert first[1] == "0" and int(second[1]) >= 1 and uncached[1] == "0"
+    assert first[1] == "0" and int(second[1]) >= 1
     # the same executable, loaded or compiled: bit for bit the same values and Jacobian
-    assert first[0] == second[0] == uncached[0]
+    assert first[0] == second[0]
+    # with the cache off nothing is looked up (a small program: f_r alone, not the engine,
+    # whose third compilation would cost about a minute of the suite)
+    uncached = _child(_OFF_SCRIPT, {"VEIL_CACHE_DIR": "off"}).split()
+    assert uncached == ["0", "None"]
 
 
 def test_one_executable_for_all_devices():

@@ -187,9 +187,10 @@ def test_cli_pipeline(tmp_path):
     tgt = FitResult.from_json(tmp_path / "out" / "target.json")
     direct = FitResult.from_json(tmp_path / "out" / "target_direct.json")
     assert med.params["eta"] == 1.3 and tgt.params["eta"] == 1.55 == direct.params["eta"]
-    r = invoke(base + ["-o", tmp_path / "nc", "--max-nfev", "1"])
+    r = invoke(base + ["-o", tmp_path / "nc", "--max-nfev", "1", "--no-figures"])
     assert r.exit_code == 1 and "did not converge" in r.output
     assert json.loads((tmp_path / "nc" / "medium.json").read_text())["converged"] is False
+    assert (tmp_path / "nc" / "report.md").exists() and not list((tmp_path / "nc").glob("*.png"))
     for args, message in ((["--fix", "eta=1.3"], "expected STEP.NAME=VALUE"),
                           (["--fix", "medium.n=1"], "has no parameter 'n'"),
                           (["--variant", "both"], "Invalid value for '--variant'")):

@@ -287,12 +287,15 @@ def print_pipeline(result) -> None:
                    "and report goodness of fit (chi-square, AIC, BIC) and the estimates side "
                    "by side in OUTDIR/comparison.md. Options, --fix and --free apply to the "
                    "models that declare them.")
+@click.option("--figures/--no-figures", default=True, show_default=True,
+              help="Draw the data against the fitted curves (the PNGs); --no-figures writes "
+                   "the results and report.md only, faster.")
 @_accuracy_option
 @_max_nfev_option
 @model_options()
 @click.pass_context
 def pipeline_command(ctx, reference_clear, reference_medium, target_medium, black, target_clear,
-                     outdir, fix, free, compare, accuracy, max_nfev, models):
+                     outdir, fix, free, compare, figures, accuracy, max_nfev, models):
     """Steps 0-2 in one go, with figures (data against fitted curves) and report.md."""
     from ..pipeline import compare_models, run_pipeline
 
@@ -302,7 +305,7 @@ def pipeline_command(ctx, reference_clear, reference_medium, target_medium, blac
                             f"{' and '.join('--' + e for e in sorted(models.explicit))} out")
         return _compare(ctx, compare_models, reference_clear, reference_medium,
                         target_medium, black, target_clear, outdir, fix, free, accuracy,
-                        max_nfev, models)
+                        max_nfev, models, figures)
     fixed = _parse_step_fix(fix, models)
     freed = _parse_step_free(free, models)
     if outdir.exists() and not outdir.is_dir():
@@ -316,7 +319,8 @@ def pipeline_command(ctx, reference_clear, reference_medium, target_medium, blac
                               progress=progress, brdf_model=models.brdf.NAME,
                               medium_model=models.medium.NAME,
                               brdf_options=models.brdf_options,
-                              medium_options=models.medium_options, free=freed)
+                              medium_options=models.medium_options, free=freed,
+                              figures=figures)
     print_pipeline(result)
     fits = [result.reference, result.medium, result.target, result.direct]
     finish_fits(ctx, fits, list(result.files.values()))
@@ -335,7 +339,7 @@ def _step_entries(items, option: str) -> dict:
 
 
 def _compare(ctx, compare_models, reference_clear, reference_medium, target_medium, black,
-             target_clear, outdir, fix, free, accuracy, max_nfev, models):
+             target_clear, outdir, fix, free, accuracy, max_nfev, models, figures):
     """``fit pipeline --compare``: every model set on the same data (pipeline.compare_models)."""
     import math
 
@@ -357,7 +361,7 @@ def _compare(ctx, compare_models, reference_clear, reference_medium, target_medi
                                 target_clear=target_clear, outdir=outdir, accuracy=accuracy,
                                 fixed=fixed, free=freed, max_nfev=max_nfev, progress=progress,
                                 brdf_options=models.brdf_options,
-                                medium_options=models.medium_options)
+                                medium_options=models.medium_options, figures=figures)
     for name, r in result.results.items():
         click.echo(f"==== model set '{name}' ====")
         print_pipeline(r)
