@@ -406,6 +406,11 @@ class ExplorePage:
         self.share.on_click(self.on_share)
         self.redraw(sphere=False)
         self._sphere_now()
+        if background:
+            # once the browser has the page, send it the same curves again: the first
+            # update a browser applies is its slowest (measured 310-370 ms against 110-135
+            # for later ones, docs/explore.md), so it should not be the user's first move
+            pn.state.onload(lambda: self.redraw(transmission=False, sphere=False))
 
     # -- layout ----------------------------------------------------------------------------
     def layout(self):
