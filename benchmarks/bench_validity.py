@@ -69,38 +69,60 @@ def sessions_of(truth: dict, medium: str, target: str):
             "target_clear": f"water_{target}", "session": f"{base}_{target}{suffix}"}
 
 
-def run_case(truth: dict, medium: str, target: str, models: str, outdir: str) -> dict:
-    from veil import run_pipeline
-    from veil.data.measurements import canonical_angles
-    from veil.fitting import model_values
-
+def _case(truth: dict, medium: str, target: str, models: str):
+    """(file stems, the pipeline's model keywords) of one case: the physical medium gets the
+    session's geometry as its options."""
     names = sessions_of(truth, medium, target)
     sess = truth["sessions"][names["session"]]
     kw = dict(MODELS[models])
     if models == "physical":
         kw["medium_options"] = {"path_length": sess["path_length_cm"],
                                 "plate_width": sess["plate_width_cm"]}
+    return names, kw
+
+
+def _against_truth(names: dict, brdf) -> tuple:
+    """(angles of the clear-water session, its table, the estimate's f_r there, the
+    rendered truth, RMS relative estimate - truth) for a fitted BRDF (result or model)."""
+    from veil.data.measurements import canonical_angles
+    from veil.fitting import model_values
+
+    clear = table(names["target_clear"], True)
+    canon = canonical_angles(clear)
+    angles = tuple(canon[c].to_numpy(dtype=float) for c in ("theta_i", "phi_i", "theta_r",
+                                                              "phi_r"))
+    est = model_values(brdf, None, angles)
+    rendered = clear["value"].to_numpy(dtype=float)
+    rms = float(np.sqrt(np.mean(((est - rendered) / rendered) ** 2)))
+    return angles, clear, est, rendered, rms
+
+
+def _curves(clear, est, rendered) -> dict:
+    return {"psi": clear["psi"].tolist(), "rho": clear["rho"].tolist(),
+            "estimate": est.tolist(), "truth": rendered.tolist()}
+
+
+def run_case(truth: dict, medium: str, target: str, models: str, outdir: str) -> dict:
+    from veil import run_pipeline
+    from veil.fitting import model_values
+
+    names, kw = _case(truth, medium, target, models)
     t0 = time.perf_counter()
     res = run_pipeline(table(names["reference_clear"], True), table(names["reference_medium"]),
                        table(names["target_medium"]), black=table(names["black"]),
                        target_clear=table(names["target_clear"], True), outdir=outdir,
                        figures=False, **kw)
     seconds = time.perf_counter() - t0
-    clear = table(names["target_clear"], True)
-    canon = canonical_angles(clear)
-    angles = tuple(canon[c].to_numpy(dtype=float) for c in ("theta_i", "phi_i", "theta_r",
-                                                              "phi_r"))
-    est = model_values(res.target, None, angles)
-    rendered = clear["value"].to_numpy(dtype=float)
+    angles, clear, est, rendered, est_vs_truth = _against_truth(names, res.target)
+    direct = model_values(res.direct, None, angles)
     zs = [abs(r["z"]) for r in res.comparison["params"].values() if r["z"] is not None]
     med = res.medium.params
     true_medium = truth["media"][medium.partition("_")[0]]
     return {
         "medium": medium, "target": target, "models": models,
         "est_vs_direct": res.comparison["rms_fr_relative"],
-        "est_vs_truth": float(np.sqrt(np.mean(((est - rendered) / rendered) ** 2))),
-        "direct_vs_truth": float(np.sqrt(np.mean(
-            ((model_values(res.direct, None, angles) - rendered) / rendered) ** 2))),
+        "est_vs_truth": est_vs_truth,
+        "direct_vs_truth": float(np.sqrt(np.mean(((direct - rendered) / rendered) ** 2))),
         "max_z": max(zs) if zs else math.nan,
         "fr_max_z": _nan(res.comparison["fr_max_z"]),
         "fr_within_2se": _nan(res.comparison["fr_within_2se"]),
@@ -109,8 +131,7 @@ def run_case(truth: dict, medium: str, target: str, models: str, outdir: str) ->
         "tau": med.get("tau", math.nan), "tau_true": true_medium["tau"],
         "g": med.get("g", math.nan), "g_true": true_medium["g"],
         "converged": res.converged, "seconds": seconds,
-        "curves": {"psi": clear["psi"].tolist(), "rho": clear["rho"].tolist(),
-                   "estimate": est.tolist(), "truth": rendered.tolist()},
+        "curves": _curves(clear, est, rendered),
     }
 
 
@@ -119,15 +140,9 @@ def run_joint(truth: dict, medium: str, target: str, models: str) -> dict:
     medium, one medium for both, the reference's f_r from step 0 held; the target's
     estimate against the truth as in :func:`run_case`."""
     from veil import fit_joint
-    from veil.data.measurements import canonical_angles
-    from veil.fitting import fit_reference, model_values, prepare
+    from veil.fitting import fit_reference, prepare
 
-    names = sessions_of(truth, medium, target)
-    sess = truth["sessions"][names["session"]]
-    kw = dict(MODELS[models])
-    if models == "physical":
-        kw["medium_options"] = {"path_length": sess["path_length_cm"],
-                                "plate_width": sess["plate_width_cm"]}
+    names, kw = _case(truth, medium, target, models)
     black = table(names["black"])
     t0 = time.perf_counter()
     ref = fit_reference(table(names["reference_clear"], True), brdf_model=kw["brdf_model"])
@@ -138,19 +153,13 @@ def run_joint(truth: dict, medium: str, target: str, models: str) -> dict:
                  "target")]
     res = fit_joint(sessions, reference=ref, **kw)
     seconds = time.perf_counter() - t0
-    clear = table(names["target_clear"], True)
-    canon = canonical_angles(clear)
-    angles = tuple(canon[c].to_numpy(dtype=float) for c in ("theta_i", "phi_i", "theta_r",
-                                                              "phi_r"))
-    est = model_values(res.brdf("target"), None, angles)
-    rendered = clear["value"].to_numpy(dtype=float)
+    _, clear, est, rendered, est_vs_truth = _against_truth(names, res.brdf("target"))
     med = res.medium(label).as_dict()
     true_medium = truth["media"][label]
     tau_name = (res.layout.get("media") or {}).get(label, {}).get("tau")
     return {
         "medium": medium, "target": target, "models": models + " (joint)",
-        "est_vs_direct": math.nan,
-        "est_vs_truth": float(np.sqrt(np.mean(((est - rendered) / rendered) ** 2))),
+        "est_vs_direct": math.nan, "est_vs_truth": est_vs_truth,
         "direct_vs_truth": math.nan, "max_z": math.nan, "fr_max_z": math.nan,
         "fr_within_2se": math.nan,
         "tau": med.get("tau", math.nan), "tau_true": true_medium["tau"],
@@ -158,8 +167,7 @@ def run_joint(truth: dict, medium: str, target: str, models: str) -> dict:
         "g": med.get("g", math.nan), "g_true": true_medium["g"],
         "chi2_medium": res.chi2_reduced, "chi2_target": res.chi2_reduced,
         "converged": res.converged, "seconds": seconds,
-        "curves": {"psi": clear["psi"].tolist(), "rho": clear["rho"].tolist(),
-                   "estimate": est.tolist(), "truth": rendered.tolist()},
+        "curves": _curves(clear, est, rendered),
     }
 
 

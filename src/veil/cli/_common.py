@@ -25,6 +25,18 @@ class UserError(click.ClickException):
     exit_code = 2
 
 
+def parse_psi(text: str) -> tuple[float, ...]:
+    """``--psi 30,60,90``: the light-camera angles in degrees."""
+    values = []
+    for part in text.split(","):
+        try:
+            values.append(float(part))
+        except ValueError:
+            raise UserError(f"--psi {text!r}: {part.strip()!r} is not a number (expected "
+                            f"comma-separated angles in degrees, e.g. 30,60,90)") from None
+    return tuple(values)
+
+
 #: Exit statuses (docs/errors.md): 0 done; 1 done, but a fit did not converge or the data do
 #: not determine it; 2 a mistake in the input; 3 a bug in veil; 130 / 143 interrupted.
 EXIT_INPUT = 2

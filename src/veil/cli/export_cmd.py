@@ -9,7 +9,7 @@ from pathlib import Path
 
 import click
 
-from ._common import UserError, check_output_path
+from ._common import UserError, check_output_path, parse_psi
 
 IN_FILE = click.Path(exists=True, dir_okay=False, path_type=Path)
 TARGETS = ("mitsuba", "pbrt", "csv")
@@ -26,17 +26,6 @@ def _positive(name):
                                      param_hint=name)
         return value
     return check
-
-
-def _psi(text: str) -> tuple:
-    values = []
-    for part in text.split(","):
-        try:
-            values.append(float(part))
-        except ValueError:
-            raise UserError(f"--psi {text!r}: {part.strip()!r} is not a number (expected "
-                            f"comma-separated angles in degrees, e.g. 30,60,90)") from None
-    return tuple(values)
 
 
 def _models(result_path, other_path):
@@ -122,7 +111,7 @@ def export_command(result, medium_result, target, output, fmt, scale, ext_ior, p
     """
     from ..models.renderers import Setting
 
-    psis = _psi(psi)
+    psis = parse_psi(psi)
     check_output_path(output, [result, medium_result])
     if fmt is not None and target != "mitsuba":
         raise UserError(f"--format {fmt} applies to --to mitsuba only")

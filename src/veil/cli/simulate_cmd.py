@@ -8,19 +8,8 @@ from pathlib import Path
 
 import click
 
-from ._common import GLOW_LEVEL, TABLE_FORMS, UserError, check_output_path, model_options
-
-
-def _parse_psi(text: str) -> tuple[float, ...]:
-    parts = [p.strip() for p in text.split(",")]
-    values = []
-    for p in parts:
-        try:
-            values.append(float(p))
-        except ValueError:
-            raise UserError(f"--psi {text!r}: {p!r} is not a number (expected comma-separated "
-                            f"angles in degrees, e.g. 30,60,90)") from None
-    return tuple(values)
+from ._common import (GLOW_LEVEL, TABLE_FORMS, UserError, check_output_path, model_options,
+                      parse_psi)
 
 
 def _same_file(a: Path, b: Path) -> bool:
@@ -120,7 +109,7 @@ def simulate_command(brdf, medium, output, black_path, psi, noise, seed, glow, f
         brdf = f"{model_b.NAME} fitted to {merl.name}"
     else:
         model_b = models.brdf_model(brdf)
-    psis = _parse_psi(psi)
+    psis = parse_psi(psi)
     if black_path is not None and _same_file(output, black_path):
         raise UserError(f"--output and --black are the same file ({output}); give two files")
     for path in (output, black_path):

@@ -28,8 +28,8 @@ from dataclasses import dataclass
 from .._lazy import jnp
 from .base import BRDF, Option, Param
 from .renderers import Plugin, Unsupported, Value, float_value
-from .rough_plastic import (DISTRIBUTIONS, _safe_sqrt, facet_cdf, facet_inverse_cdf,
-                            facet_weight, microfacet_lobe, relative_scales)
+from .rough_plastic import (DISTRIBUTIONS, MicrofacetFacets, _safe_sqrt, microfacet_lobe,
+                            relative_scales)
 
 
 def conductor_reflectance(cos_theta, n, k):
@@ -108,7 +108,7 @@ def _conductor_pbrt(model, setting) -> Plugin:
 
 
 @dataclass(frozen=True)
-class RoughConductor(BRDF):
+class RoughConductor(MicrofacetFacets, BRDF):
     """Rough conductor (alpha, n, k, ks): metallic microfacets (MODEL.md sec. 8.3).
 
     alpha  RMS slope of the facets (Beckmann or GGX)
@@ -163,11 +163,3 @@ class RoughConductor(BRDF):
     def lobe(self, v, wi, wo, h, alpha=None):
         return self._lobe(v, wi, wo, h)
 
-    def facet_cdf(self, v, alpha):
-        return facet_cdf(v[0], alpha, self.distribution)
-
-    def facet_inverse_cdf(self, v, y):
-        return facet_inverse_cdf(v[0], y, self.distribution)
-
-    def facet_weight(self, v, alpha, sin_alpha=None):
-        return facet_weight(v[0], alpha, sin_alpha, self.distribution)

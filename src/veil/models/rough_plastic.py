@@ -441,12 +441,29 @@ def _plastic_pbrt(model, setting) -> Plugin:
 # --------------------------------------------------------------------------------------
 # the family
 # --------------------------------------------------------------------------------------
+class MicrofacetFacets:
+    """The engine's facet law of a microfacet family (H distributed as D(H) cos theta_H):
+    its ``distribution`` option and the roughness at ``ROUGHNESS_INDEX`` of the parameter
+    vector."""
+
+    ROUGHNESS_INDEX = 0
+
+    def facet_cdf(self, v, alpha):
+        return facet_cdf(v[self.ROUGHNESS_INDEX], alpha, self.distribution)
+
+    def facet_inverse_cdf(self, v, y):
+        return facet_inverse_cdf(v[self.ROUGHNESS_INDEX], y, self.distribution)
+
+    def facet_weight(self, v, alpha, sin_alpha=None):
+        return facet_weight(v[self.ROUGHNESS_INDEX], alpha, sin_alpha, self.distribution)
+
+
 #: Ten roughness values from 0.02 to 0.6, geometrically spaced.
 _ALPHA_GRID = geometric_grid(0.02, 0.6, 10)
 
 
 @dataclass(frozen=True)
-class RoughPlastic(BRDF):
+class RoughPlastic(MicrofacetFacets, BRDF):
     """Rough plastic (rho, alpha, eta, ks): a dielectric microfacet coat over a Lambertian
     base (MODEL.md sec. 8.2).
 
@@ -469,6 +486,7 @@ class RoughPlastic(BRDF):
     nonlinear: bool = False
 
     NAME = "rough-plastic"
+    ROUGHNESS_INDEX = 1  # alpha
     LABEL = "rough plastic: dielectric microfacet coat over a Lambertian base (sec. 8.2)"
     SCALES = {"separable": "rho", "lobe": "ks"}
     PARAMS = (
@@ -518,14 +536,5 @@ class RoughPlastic(BRDF):
         return v[3] * microfacet_lobe(v[1], wi, wo, h, lambda c: fresnel.reflectance(c, eta),
                                       self.distribution)
 
-    # -- the facet law: H distributed as D(H) cos theta_H --------------------------------
-    def facet_cdf(self, v, alpha):
-        return facet_cdf(v[1], alpha, self.distribution)
-
-    def facet_inverse_cdf(self, v, y):
-        return facet_inverse_cdf(v[1], y, self.distribution)
-
-    def facet_weight(self, v, alpha, sin_alpha=None):
-        return facet_weight(v[1], alpha, sin_alpha, self.distribution)
 
 
