@@ -108,12 +108,15 @@ _HASH_SCRIPT = """
     from veil.engine.forward import Forward, _mesh, _terms_fn, wait_for_compilations
     events = []
     jax.monitoring.register_event_listener(lambda name, **kw: events.append(name))
+    jax.monitoring.register_event_duration_secs_listener(
+        lambda name, secs, **kw: events.append(name))
     b, m = veil.preset("BRDF1"), veil.preset("BTDF2")
     th = np.linspace(0.0, 80.0, 24)
     f = Forward(b, m, th, th[::-1], 0.0, 30.0, rule=RULES["fast"])
     v, j = f.value_and_jacobian(b.to_vector(), m.to_vector(), range(4), range(4))
     digest = hashlib.sha256(v.tobytes() + j.tobytes()).hexdigest()
-    print(digest, events.count("/jax/compilation_cache/cache_hits"))
+    print(digest, events.count("/jax/compilation_cache/cache_hits"),
+          events.count("/jax/core/compile/backend_compile_duration"))
 """
 
 
@@ -132,12 +135,21 @@ _OFF_SCRIPT = """
 def test_persistent_cache_fills_loads_and_changes_nothing(tmp_path):
     cache = tmp_path / "cache"
     first = _child(_HASH_SCRIPT, {"VEIL_CACHE_DIR": str(cache)}).split()
-    entries = [p.name for p in cache.iterdir() if p.name.endswith("-cache")]
-    assert entries, "the first process wrote nothing to the compilation cache"
+    assert list((cache / "programs").iterdir()), "the first process stored no program"
+    assert first[1] == "0" and int(first[2]) >= 1          # compiled, nothing found
+    # a second process loads the stored executables: no compilation, no cache lookup
     second = _child(_HASH_SCRIPT, {"VEIL_CACHE_DIR": str(cache)}).split()
-    assert first[1] == "0" and int(second[1]) >= 1
+    assert second[1:] == ["0", "0"]
+    # the engine's executables live in the program store, none in JAX's cache (one that
+    # JAX loaded from there could not be stored again): without the store they are built
+    for entry in (cache / "programs").iterdir():
+        entry.unlink()
+    third = _child(_HASH_SCRIPT, {"VEIL_CACHE_DIR": str(cache)}).split()
+    assert third[1] == "0" and int(third[2]) >= 1
+    fourth = _child(_HASH_SCRIPT, {"VEIL_CACHE_DIR": str(cache)}).split()
+    assert fourth[1:] == ["0", "0"]                       # ... and stored again
     # the same executable, loaded or compiled: bit for bit the same values and Jacobian
-    assert first[0] == second[0]
+    assert first[0] == second[0] == third[0] == fourth[0]
     # with the cache off nothing is looked up (a small program: f_r alone, not the engine,
     # whose third compilation would cost about a minute of the suite)
     uncached = _child(_OFF_SCRIPT, {"VEIL_CACHE_DIR": "off"}).split()

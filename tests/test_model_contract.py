@@ -260,15 +260,20 @@ def _pair(name):
 
 @pytest.mark.parametrize("name", FAMILIES)
 def test_engine_jacobian_matches_central_differences(name):
+    """In every parameter of the family (its partner, a paper model, has its own case: the
+    Jacobian in the partner's parameters too would double the compilation)."""
     brdf, medium = _pair(name)
     ti = np.array([10.0, 30.0, 45.0, 60.0])
     tr = np.array([40.0, 25.0, 47.0, 20.0])
     fwd = Forward(brdf, medium, ti, tr, rule=RULES["fast"])
     vb, vm = brdf.to_vector(), medium.to_vector()
     nb, nm = len(vb), len(vm)
-    value, jac = fwd.value_and_jacobian(vb, vm, tuple(range(nb)), tuple(range(nm)))
+    own_b = _instance(name).KIND == "brdf"
+    free_b, free_m = (tuple(range(nb)), ()) if own_b else ((), tuple(range(nm)))
+    value, jac = fwd.value_and_jacobian(vb, vm, free_b, free_m)
     assert np.allclose(value, fwd(vb, vm), rtol=1e-12)
-    for k in range(nb + nm):
+    assert jac.shape == (len(ti), len(free_b) + len(free_m))
+    for col, k in enumerate(list(free_b) + [nb + i for i in free_m]):
         x = np.concatenate([vb, vm])
         h = 1e-5 * max(abs(x[k]), 1e-3)
         up, down = x.copy(), x.copy()
@@ -276,7 +281,7 @@ def test_engine_jacobian_matches_central_differences(name):
         down[k] -= h
         numeric = (fwd(up[:nb], up[nb:]) - fwd(down[:nb], down[nb:])) / (2 * h)
         scale = np.max(np.abs(numeric)) + 1e-300
-        assert np.allclose(jac[:, k], numeric, rtol=1e-4, atol=1e-6 * scale), (name, k)
+        assert np.allclose(jac[:, col], numeric, rtol=1e-4, atol=1e-6 * scale), (name, k)
 
 
 def _sphere_integral(fn, center, density_cone, n_r=1200, n_a=256):

@@ -10,7 +10,8 @@ import numpy as np
 
 from ..errors import InputError, InputTypeError, ParameterError
 from .._jax import jax, jnp
-from .forward import Forward
+from .forward import Forward, _bucket
+from .programs import Program, structure_name
 from .angles import check_angles, direction  # noqa: F401  (check_angles re-exported)
 from ..models import BRDF, BTDF, preset
 from .quadrature import ERROR_FACTOR, FINER, RULES, Rule  # noqa: F401  (re-exported)
@@ -91,20 +92,33 @@ def reflectance(brdf, theta_i, theta_r, phi_i=180.0, phi_r=0.0) -> np.ndarray:
     """The object's own BRDF f_r (MODEL.md sec. 2) at the given angles (degrees)."""
     model = as_brdf(brdf)
     ti, tr, pi_, pr = check_angles(theta_i, theta_r, phi_i, phi_r)
-    wi, wr = direction(ti, pi_), direction(tr, pr)
-    value = np.asarray(_evaluate_fn(model)(jnp.asarray(model.to_vector()), wi, wr))
-    return check_finite(value, "the reflectance f_r", [model])
+    shape = np.broadcast(ti, tr, pi_, pr).shape
+    ti, tr, pi_, pr = (np.broadcast_to(a, shape).ravel() for a in (ti, tr, pi_, pr))
+    if ti.size == 0:
+        return np.zeros(shape)
+    idx = np.minimum(np.arange(_bucket(ti.size, 1)), ti.size - 1)  # few distinct programs
+    wi, wr = direction(ti[idx], pi_[idx]), direction(tr[idx], pr[idx])
+    f, _ = direct_programs(model)
+    value = np.asarray(f(np.asarray(model.to_vector(), dtype=float), wi, wr))[: ti.size]
+    return check_finite(value.reshape(shape), "the reflectance f_r", [model])
 
 
-_EVALUATE_FNS: dict = {}
+_DIRECT_FNS: dict = {}
 
 
-def _evaluate_fn(model):
-    """The jitted f_r of the model's structure (class and options)."""
+def direct_programs(model) -> tuple:
+    """f_r(v, wi, wr) and its Jacobian in v (MODEL.md sec. 2) for a BRDF's structure (class
+    and options), as stored engine programs (:class:`veil.engine.programs.Program`)."""
     key = model.structure()
-    if key not in _EVALUATE_FNS:
-        _EVALUATE_FNS[key] = jax.jit(model.evaluate)
-    return _EVALUATE_FNS[key]
+    if key not in _DIRECT_FNS:
+        def f(v, wi, wr):
+            return model.evaluate(v, wi, wr)
+
+        name = structure_name(key)
+        _DIRECT_FNS[key] = (Program(jax.jit(f), f"f_r | {name}", (type(model),)),
+                            Program(jax.jit(jax.jacfwd(f)), f"f_r jacobian | {name}",
+                                    (type(model),)))
+    return _DIRECT_FNS[key]
 
 
 def apparent(brdf, medium, theta_i, theta_r, phi_i=180.0, phi_r=0.0, *,

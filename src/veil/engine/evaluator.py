@@ -14,12 +14,11 @@ import math
 
 import numpy as np
 
-from .._jax import jax, jnp
 from .angles import direction
 from .apparent import check_finite
 from .forward import Forward
 from ..models import BRDF, BTDF
-from .apparent import apparent, reflectance
+from .apparent import apparent, direct_programs, reflectance
 
 #: Configurations per engine call of fits and simulations (they share one compilation).
 CHUNK = 64
@@ -104,20 +103,6 @@ class ApparentModel:
         return values, np.concatenate(jacs)
 
 
-_DIRECT_FNS: dict = {}
-
-
-def _direct_fns(model):
-    """Jitted f_r(v, wi, wr) and its Jacobian in v for a BRDF's structure (class and
-    options; MODEL.md sec. 2)."""
-    key = model.structure()
-    if key not in _DIRECT_FNS:
-        def f(v, wi, wr):
-            return model.evaluate(v, wi, wr)
-        _DIRECT_FNS[key] = (jax.jit(f), jax.jit(jax.jacfwd(f)))
-    return _DIRECT_FNS[key]
-
-
 class DirectModel:
     """f_r at the data's configurations (MODEL.md sec. 2), padded to a multiple of CHUNK
     (one compilation per padded length)."""
@@ -128,23 +113,23 @@ class DirectModel:
         total = CHUNK * math.ceil(self.size / CHUNK)
         idx = np.minimum(np.arange(total), self.size - 1)
         ti, pi_, tr, pr = (a[idx] for a in angles)
-        self.wi = jnp.asarray(np.asarray(direction(ti, pi_)))
-        self.wr = jnp.asarray(np.asarray(direction(tr, pr)))
+        self.wi = np.asarray(direction(ti, pi_))
+        self.wr = np.asarray(direction(tr, pr))
         self.values_calls = 0
         self.jacobian_calls = 0
 
     def values(self, v) -> np.ndarray:
         """f_r (M,) at the BRDF parameter vector ``v``."""
         self.values_calls += 1
-        f, _ = _direct_fns(self.model)
-        values = np.asarray(f(jnp.asarray(v, dtype=float), self.wi, self.wr))[: self.size]
+        f, _ = direct_programs(self.model)
+        values = np.asarray(f(np.asarray(v, dtype=float), self.wi, self.wr))[: self.size]
         return check_finite(values, "the reflectance f_r", [self.model], [v])
 
     def value_and_jacobian(self, v):
         """f_r (M,) and its Jacobian (M, len(v)) with respect to ``v``."""
         self.jacobian_calls += 1
-        f, jf = _direct_fns(self.model)
-        vj = jnp.asarray(v, dtype=float)
+        f, jf = direct_programs(self.model)
+        vj = np.asarray(v, dtype=float)
         values = np.asarray(f(vj, self.wi, self.wr))[: self.size]
         return (check_finite(values, "the reflectance f_r", [self.model], [v]),
                 np.asarray(jf(vj, self.wi, self.wr))[: self.size])

@@ -20,7 +20,7 @@ from ..errors import InputError, InputTypeError
 from .._jax import jax, jnp
 from jax.sharding import Mesh, NamedSharding, PartitionSpec as P
 from . import integrator
-from .programs import Program
+from .programs import Program, structure_name
 from .angles import check_angles, direction
 from ..models.base import BRDF, BTDF
 from .quadrature import RULES, Rule
@@ -92,10 +92,7 @@ def _terms_jac_fn(kb, km, rule: Rule, half: bool, nl_b: tuple, nl_m: tuple, mesh
 
 def _identity(what: str, kb, km, rule: Rule, half: bool, mesh: Mesh) -> str:
     """What a compiled engine function is, for the program store (veil.engine.programs)."""
-    def structure(k):
-        return " ".join([f"{k[0].__module__}.{k[0].__qualname__}"] + [repr(o) for o in k[1:]])
-
-    return (f"{what} | {structure(kb)} | {structure(km)} | {rule!r} | half={half} | "
+    return (f"{what} | {structure_name(kb)} | {structure_name(km)} | {rule!r} | half={half} | "
             f"{mesh.devices.size} {_devices()[0].platform} devices")
 
 
@@ -212,7 +209,7 @@ class Forward:
                                  f"({len(cls.PARAMS)},) for {', '.join(cls.param_names())}")
             if not np.all(np.isfinite(v)):
                 raise InputError(f"{name} parameter vector {v.tolist()} has a non-finite value")
-            out.append(jnp.asarray(v))
+            out.append(v)  # numpy: jnp.asarray would compile a program in a new process
         return out
 
     def _indices(self, indices, cls):

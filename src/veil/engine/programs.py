@@ -1,27 +1,30 @@
 """Engine programs kept on disk, so that a new process starts without tracing (issue 16).
 
 Tracing and lowering the engine's functions (the integrator written in ``jax.numpy``) takes
-1-5 s per function, rule and chunk size in every process, even when JAX's persistent
-compilation cache then finds the compiled executable. A :class:`Program` wraps one jitted
-engine function: the first time it is called with arguments of a given shape it looks for
-its lowered form, serialized with :mod:`jax.export` (StableHLO, a documented and versioned
-format), in the program store; found, it is deserialized in milliseconds and compiled -
-which JAX's compilation cache turns into loading the executable; not found, the function is
-exported (traced and lowered once), stored, and used the same way. Every process therefore
-runs the same program, whether it built it or loaded it: the numbers are identical.
+1-5 s per function, rule and chunk size in every process, and even a lowered program kept
+on disk (:mod:`jax.export`) costs 0.5-1 s to bring back: its module is parsed, lowered again
+inside a wrapper and looked up in JAX's compilation cache. A :class:`Program` wraps one
+jitted engine function: the first time it is called with arguments of a given shape it
+looks for its compiled executable in the program store; found, the executable is loaded
+(:mod:`jax.experimental.serialize_executable`) and run as it is, with no tracing, lowering
+or compilation; not found, the function is compiled (afresh: :func:`compile_afresh`), the
+executable stored, and used the same way. Every process therefore runs the
+same executable, whether it built it or loaded it: the numbers are identical.
 
 The store is the folder ``programs`` next to the compilation cache: ``$VEIL_CACHE_DIR/programs``
 or ``$XDG_CACHE_HOME/veil/programs`` (``~/.cache/veil/programs``); ``VEIL_CACHE_DIR=off``
 disables both. An entry is one file, named by a hash of what the program is (function,
-model structures, rule, shapes, devices), holding a header and the serialized program:
+model structures, rule, shapes, devices), holding a header and the serialized executable:
 
 - the header records the environment the entry was made in - veil's version, the source
   code of the engine and of the models involved, JAX, jaxlib, numpy and Python versions, the
   CPU (architecture and feature flags) and the device count - and a checksum of the
-  program. An entry whose environment differs from this process's (another veil or JAX
+  executable. An entry whose environment differs from this process's (another veil or JAX
   version, changed code, another CPU) or that fails any check (truncated, checksum,
   undecodable, shapes other than the call's) is never used: it is built again and
-  replaced, with one line saying so;
+  replaced, with one line saying so. Executables are machine code: like JAX's own
+  compilation cache, the store must be the user's own folder (the checksum guards against
+  damage, not against someone who can write there);
 - writes are atomic (a temporary file renamed into place under :data:`veil.io.COMMIT`, so an
   interrupt never leaves half an entry); a store that cannot be written is read, and
   programs it lacks are built in memory for this process only (one line says so).
@@ -32,6 +35,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import pickle
 import platform
 import sys
 import tempfile
@@ -45,7 +49,7 @@ from .. import _jax
 from .._jax import CACHE_OFF, _notice, jax
 
 #: First line of every entry; a new layout gets a new number.
-FORMAT = b"veil.program/1\n"
+FORMAT = b"veil.program/2\n"
 SUFFIX = ".program"
 
 _MESSAGES: set = set()
@@ -138,6 +142,12 @@ def environment(classes=()) -> dict:
     return {**_environment_base(), "code": code_digest(classes)}
 
 
+def structure_name(structure: tuple) -> str:
+    """A model structure (class and options, ``Model.structure()``) as text for an identity."""
+    cls, options = structure[0], structure[1:]
+    return " ".join([f"{cls.__module__}.{cls.__qualname__}"] + [repr(o) for o in options])
+
+
 def _signature(args) -> tuple:
     return tuple((tuple(np.shape(a)), str(getattr(a, "dtype", np.asarray(a).dtype)))
                  for a in args)
@@ -151,8 +161,9 @@ def _path(identity: str) -> str | None:
 
 
 def read(identity: str, env: dict, signature: tuple):
-    """The stored program for ``identity`` (a ``jax.export.Exported``), or None when there is
-    none or it cannot be trusted (then one line says why and that it is built again)."""
+    """The stored program for ``identity``, loaded and ready to run (a
+    ``jax.stages.Compiled``), or None when there is none or it cannot be trusted (then one
+    line says why and that it is built again)."""
     path = _path(identity)
     if path is None:
         return None
@@ -192,13 +203,60 @@ def read(identity: str, env: dict, signature: tuple):
                   f"were made by another veil, JAX, code or CPU ({what}); building them again")
         return None
     try:
-        exported = jax.export.deserialize(bytearray(payload))
+        from jax.experimental import serialize_executable
+
+        executable, in_tree, out_tree, device_ids = pickle.loads(payload)
+        by_id = {d.id: d for d in jax.devices()}
+        compiled = serialize_executable.deserialize_and_load(
+            executable, in_tree, out_tree, execution_devices=[by_id[i] for i in device_ids])
     except Exception as exc:  # noqa: BLE001 - whatever the decoder raises: not trusted
         return damaged(f"{type(exc).__name__}: {exc}")
-    shapes = tuple((tuple(a.shape), str(a.dtype)) for a in exported.in_avals)
-    if shapes != signature:
+    if _compiled_signature(compiled) != signature:
         return damaged("its inputs are not the call's")
-    return exported
+    return compiled
+
+
+def _compiled_signature(compiled) -> tuple:
+    args = jax.tree_util.tree_leaves(compiled.args_info[0])
+    return tuple((tuple(a.shape), str(a.dtype)) for a in args)
+
+
+def _devices_of(args) -> list:
+    """The devices a program runs on: the mesh of its split arguments (one device else)."""
+    for a in args:
+        mesh = getattr(getattr(a, "sharding", None), "mesh", None)
+        if mesh is not None:
+            return list(mesh.devices.flat)
+    return jax.devices()[:1]
+
+
+#: A compile option at its default value that gives the store's compilations their own key
+#: in JAX's compilation cache (so they never find an entry made elsewhere).
+_OWN_KEY = {"xla_embed_ir_in_executable": False}
+
+
+def compile_afresh(fn, args):
+    """``fn`` (jitted) compiled for ``args``, never through JAX's compilation cache: an
+    executable JAX loaded from its cache cannot be serialized again (on jaxlib 0.10.2 the
+    copy fails in the next process, "Function ... not found"), so the engine's executables
+    live in the program store and none in JAX's cache (nothing is written there, and the
+    compile key is the store's own)."""
+    from jax._src import config as jax_config
+
+    with jax_config.persistent_cache_min_compile_time_secs(float("inf")):  # this thread only
+        return fn.lower(*args).compile(_OWN_KEY)
+
+
+def serialize(compiled, devices) -> bytes | None:
+    """A compiled program as bytes for the store (None if this backend cannot)."""
+    from jax.experimental import serialize_executable
+
+    try:
+        executable, in_tree, out_tree = serialize_executable.serialize(compiled)
+    except (ValueError, NotImplementedError):
+        return None
+    return pickle.dumps((executable, in_tree, out_tree, [d.id for d in devices]),
+                        protocol=pickle.HIGHEST_PROTOCOL)
 
 
 def write(identity: str, env: dict, payload: bytes) -> bool:
@@ -275,18 +333,14 @@ class Program:
             return self.fn
         identity = f"{self.identity} | inputs {signature}"
         env = environment(self.classes)
-        exported = read(identity, env, signature)
-        if exported is None:
-            exported = jax.export.export(self.fn)(*args)
-            write(identity, env, exported.serialize())
-        call = exported.call
-
-        def run(*args):
-            return call(*args)
-
-        # named as the function it stands for (compilation logs and events show jit(fn))
-        run.__name__ = run.__qualname__ = getattr(self.fn, "__name__", "program")
-        return jax.jit(run)
+        compiled = read(identity, env, signature)
+        if compiled is None:
+            compiled = compile_afresh(self.fn, args)
+            payload = serialize(compiled, _devices_of(args))
+            if payload is not None:
+                write(identity, env, payload)
+        return compiled
 
 
-__all__ = ["Program", "directory", "environment", "code_digest", "read", "write", "FORMAT"]
+__all__ = ["Program", "directory", "environment", "code_digest", "read", "write",
+           "serialize", "structure_name", "FORMAT"]
