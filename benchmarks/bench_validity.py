@@ -24,7 +24,7 @@ joint fit (veil.fit_joint) of the reference and the target in the medium, the re
 f_r of step 0 held (no direct fit is compared there: the columns against it are empty).
 
 Run:  .venv/bin/python benchmarks/bench_validity.py [--media m01,m05,m10] [--targets target]
-      [--models paper,physical] [--joint] [--figure docs/validity.png] [--json out.json]
+      [--models paper,physical] [--orders poisson|cylinder] [--joint] [--figure docs/validity.png] [--json out.json]
 The clear-water tables have sigma = 0 (deterministic renders, validation/README.md); they are
 fitted unweighted.
 """
@@ -69,6 +69,10 @@ def sessions_of(truth: dict, medium: str, target: str):
             "target_clear": f"water_{target}", "session": f"{base}_{target}{suffix}"}
 
 
+#: The physical medium's order weights (forward-series option ``orders``; --orders).
+ORDERS = "poisson"
+
+
 def _case(truth: dict, medium: str, target: str, models: str):
     """(file stems, the pipeline's model keywords) of one case: the physical medium gets the
     session's geometry as its options."""
@@ -78,6 +82,8 @@ def _case(truth: dict, medium: str, target: str, models: str):
     if models == "physical":
         kw["medium_options"] = {"path_length": sess["path_length_cm"],
                                 "plate_width": sess["plate_width_cm"]}
+        if ORDERS != "poisson":
+            kw["medium_options"]["orders"] = ORDERS
     return names, kw
 
 
@@ -253,7 +259,11 @@ def main(argv=None) -> int:
                     help="also steps 1 and 2 as one joint fit per medium and model set")
     ap.add_argument("--replot", default=None, metavar="JSON",
                     help="draw --figure from the rows of an earlier --json run, fit nothing")
+    ap.add_argument("--orders", default="poisson", choices=("poisson", "cylinder"),
+                    help="the physical medium's order weights (forward-series option orders)")
     args = ap.parse_args(argv)
+    global ORDERS
+    ORDERS = args.orders
     if args.replot:
         with open(args.replot) as f:
             rows = json.load(f)
