@@ -19,7 +19,7 @@ $(STAMP): pyproject.toml
 	@touch $(STAMP)
 
 test: $(STAMP)
-	$(PY) -m pytest -n $(JOBS) -q --durations=30
+	$(PY) -m pytest -n $(JOBS) --dist worksteal -q --durations=30
 
 demo: $(STAMP)
 	$(VENV)/bin/veil demo -o demo-out
