@@ -13,7 +13,6 @@ Mitsuba 3 is an optional dependency (``pip install 'veil[mitsuba]'``); the varia
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np

@@ -10,7 +10,7 @@ import math
 from dataclasses import dataclass
 
 
-from .._lazy import jnp, np
+from .._lazy import jnp
 from . import fresnel
 from .base import BRDF, Param, geometric_grid
 
