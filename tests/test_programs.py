@@ -96,6 +96,18 @@ def test_untrusted_entry_is_rebuilt_with_one_line(tmp_path, monkeypatch, engine_
     np.testing.assert_array_equal(good, run(program, args))   # replaced by a good entry
 
 
+def test_entry_of_another_layout_is_rebuilt_with_one_line(tmp_path, monkeypatch, engine_call):
+    program, args = engine_call
+    monkeypatch.setenv("VEIL_CACHE_DIR", str(tmp_path))
+    monkeypatch.setattr(programs, "_MESSAGES", set())
+    good = run(program, args)
+    [name] = entries(tmp_path / "programs")
+    path = tmp_path / "programs" / name
+    path.write_bytes(b"veil.program/1\n" + path.read_bytes()[len(programs.FORMAT):])
+    np.testing.assert_array_equal(good, run(program, args, expect="store layout 1, this veil's 2"))
+    np.testing.assert_array_equal(good, run(program, args))
+
+
 def test_garbage_file_is_rebuilt(tmp_path, monkeypatch, engine_call):
     program, args = engine_call
     monkeypatch.setenv("VEIL_CACHE_DIR", str(tmp_path))

@@ -183,7 +183,13 @@ def read(identity: str, env: dict, signature: tuple):
         return None
 
     if not blob.startswith(FORMAT):
-        return damaged("not a veil program file, or another format")
+        if blob.startswith(b"veil.program/"):
+            layout = blob[len(b"veil.program/"):].split(b"\n", 1)[0].decode("ascii", "replace")
+            _say_once(("layout", layout), f"stored engine programs in {os.path.dirname(path)} "
+                      f"were made by another veil (store layout {layout}, this veil's "
+                      f"{FORMAT.decode().strip().rsplit('/', 1)[1]}); building them again")
+            return None
+        return damaged("not a veil program file")
     head, newline, payload = blob[len(FORMAT):].partition(b"\n")
     try:
         header = json.loads(head.decode("utf-8"))
