@@ -167,6 +167,20 @@ def test_near_camera_recovered_with_the_option_and_biased_without(near_photos, t
     summary = json.loads((out / "summary.json").read_text())
     assert summary["geometry"] == geo
 
+    # a region off the centre: its pixels keep their place in the photo (optical centre of
+    # the full photo), so they get the full map's values (other field nodes, same angles)
+    part = tmp_path / "roi.zarr"
+    result = run(*fit_args(root, manifest, part, "--near-field", "--camera-distance",
+                           DISTANCE, "--pixel-pitch", PITCH, "--roi", "9,2,7,6"))
+    assert result.exit_code == 0, result.output
+    sub = open_maps(part)
+    assert sub["info"]["geometry"]["optical_centre"] == [W / 2, H / 2]
+    full = maps["params"][:, 2:8, 9:16]
+    se = maps["stderr"][:, 2:8, 9:16]
+    free = [NAMES.index(n) for n in maps["info"]["free"]]
+    diff = np.abs(sub["params"][free] - full[free]) / se[free]
+    assert diff.max() < 0.1, diff.max()
+
     # the distant approximation (every pixel at the manifest's angles): biased
     far = tmp_path / "far.zarr"
     result = run(*fit_args(root, manifest, far, "--camera-distance", DISTANCE,

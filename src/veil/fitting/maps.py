@@ -248,12 +248,10 @@ class MapTables:
     angles: tuple = field(repr=False, default=())
     #: near-field tables (docs/maps.md "Geometry"): the field grid (a
     #: :class:`veil.fitting.maps_near.FieldGrid`), None for distant light and camera. Then
-    #: ``values`` and ``coef`` have two leading axes more (the grid's x and y nodes) and
-    #: ``field_values`` holds the B-spline coefficients along those two axes only (node
-    #: values along the nonlinear ones); ``field_error`` the largest interpolation error
-    #: measured against exact per-pixel columns (relative to each column's maximum).
+    #: ``values`` and ``coef`` have two leading axes more (the grid's x and y nodes);
+    #: ``field_error`` is the largest interpolation error measured against exact per-pixel
+    #: columns (relative to each column's maximum).
     near: object = None
-    field_values: np.ndarray = field(repr=False, default=None)
     field_error: float = float("nan")
 
     @property
@@ -266,10 +264,8 @@ class MapTables:
 
     @property
     def solver_arrays(self) -> tuple:
-        """(node-stage values, spline coefficients) the solver runs on."""
-        if self.near is None:
-            return self.values, self.coef
-        return self.field_values, self.coef
+        """(node values, spline coefficients) the solver runs on."""
+        return self.values, self.coef
 
     def field_coords(self, x, y) -> np.ndarray:
         """(N, 2) field-grid coordinates of pixels (x, y) of the full photo (near field)."""
@@ -511,7 +507,7 @@ def _build_near(brdf_cls, medium, angles, template, names, base, free_scales, ax
                     "options": medium.options()}
     return MapTables(brdf_cls.NAME, dict(template.options()), names, base, free_scales, axes,
                      values, coef, dict(fixed), medium_entry, accuracy, angles, near=fgrid,
-                     field_values=field_values, field_error=error)
+                     field_error=error)
 
 
 # --------------------------------------------------------------------------------------
@@ -819,16 +815,13 @@ def _solver(q: int, d: int, sizes: tuple, weighted: bool, near: bool = False):
             u0 = jnp.zeros((y.shape[0], 0))
         return s0, u0
 
-    def near_nodes(field_values, fu, y, w2):
-        """Near-field tables, one pixel: its node values (the field spline at its position),
-        the scales by exact NNLS at every node, the best node: (s0, u0)."""
-        ix = jnp.clip(jnp.floor(fu[0]), 0, field_values.shape[0] - 4).astype(jnp.int64)
-        iy = jnp.clip(jnp.floor(fu[1]), 0, field_values.shape[1] - 4).astype(jnp.int64)
-        wx, _ = _weights(fu[0] - ix, jnp)
-        wy, _ = _weights(fu[1] - iy, jnp)
-        block = jax.lax.dynamic_slice(field_values, (ix, iy) + (0,) * (field_values.ndim - 2),
-                                      (4, 4) + field_values.shape[2:])
-        nodes = jnp.einsum("ab...,a,b->...", block, wx, wy)
+    def near_nodes(values, fu, y, w2):
+        """Near-field tables, one pixel: the scales by exact NNLS at every node of the
+        nearest field node's columns, the best node: (s0, u0) - a starting point; the
+        iterations then use the pixel's own interpolated columns."""
+        ix = jnp.clip(jnp.round(fu[0]), 0, values.shape[0] - 1).astype(jnp.int64)
+        iy = jnp.clip(jnp.round(fu[1]), 0, values.shape[1] - 1).astype(jnp.int64)
+        nodes = values[ix, iy]
         nodes = nodes.reshape((-1,) + nodes.shape[d:])  # (N, M, q + 1)
         bq, c = nodes[..., :q], nodes[..., q]
         wy_ = w2 * y

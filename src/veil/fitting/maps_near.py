@@ -163,11 +163,12 @@ class FieldGrid:
 
 
 def field_grid(geometry: NearGeometry, angles, roi, lobe_deg: float,
-               fraction: float = STEP_FRACTION) -> FieldGrid:
+               fraction: float | None = None) -> FieldGrid:
     """The regular grid of plate points over ``roi`` (pixel centres) whose neighbouring
-    nodes differ in view direction by at most ``fraction`` x ``lobe_deg`` at every
-    configuration (the rate of change measured on a 9 x 9 probe of the field, 10 % margin);
-    at least :data:`MIN_NODES` per axis."""
+    nodes differ in view direction by at most ``fraction`` (default :data:`STEP_FRACTION`)
+    x ``lobe_deg`` at every configuration (the rate of change measured on a 9 x 9 probe of
+    the field, 10 % margin); at least :data:`MIN_NODES` per axis."""
+    fraction = STEP_FRACTION if fraction is None else float(fraction)
     geometry.check_field(angles, roi)
     x0, x1 = float(roi.x), float(roi.x + roi.w - 1)
     y0, y1 = float(roi.y), float(roi.y + roi.h - 1)
