@@ -249,3 +249,27 @@ def test_bad_geometry_exits_2(near_photos, tmp_path):
     assert "larger than the plate allows" in text and "theta_r 80" in text
     # distant geometry checks its numbers too
     assert "positive finite number" in bad("--camera-distance", 0, "--pixel-pitch", 1)
+
+
+def test_near_field_family_without_a_nonlinear_parameter(monkeypatch):
+    """No table axis but the two field axes: a plugin family with one scale through a
+    plugin medium, pixels rendered at their exact angles, recovered."""
+    monkeypatch.syspath_prepend(str(Path(__file__).parent / "plugins"))
+    import veil_test_models
+
+    brdf_cls = veil_test_models.LambertianTest
+    medium = veil_test_models.FisherTest(Td=2e-3, Tt=0.2, kappa=150.0)
+    configs = configurations(12)
+    g = NearGeometry(DISTANCE, PITCH, (H, W))
+    tables = build_tables(brdf_cls, medium, angles_of(configs), near=g,
+                          roi=ROI(0, 0, W, H), accuracy="fast")
+    assert tables.axes == [] and tables.near.shape == (4, 4)
+    xs, ys = np.array([0, 15, 7, 2]), np.array([0, 15, 3, 12])
+    truth = np.array([2.0, 0.5, 1.0, 3.0])
+    exact = np.stack([build_tables(brdf_cls, medium, g.angles(angles_of(configs), x, y),
+                                   accuracy="fast").values[:, 0] for x, y in zip(xs, ys)])
+    y = exact * truth[:, None]
+    y = y * (1 + 0.01 * np.random.default_rng(0).standard_normal(y.shape))
+    fits = solve_pixels(tables, y, np.ones_like(y, dtype=bool), pixels=(xs, ys))
+    assert np.all(fits.status == CONVERGED)
+    assert np.all(np.abs(fits.params[0] - truth) < 4 * fits.stderr[0])

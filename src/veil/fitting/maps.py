@@ -432,8 +432,7 @@ def _to_coef(values, axes_first: int, count: int):
 
 def _field_block(field_values, fu):
     """Node values (K_1, ..., K_d, M, q + 1) at field-grid coordinates ``fu`` (2,) from the
-    field coefficients (numpy; the solver's node stage does the same in JAX)."""
-    block = field_values
+    field coefficients (numpy; for the tables' own check of the interpolation)."""
     ws = []
     for a in range(2):
         k = field_values.shape[a] - 2
@@ -843,7 +842,7 @@ def _solver(q: int, d: int, sizes: tuple, weighted: bool, near: bool = False):
             s0, u0 = jax.lax.map(
                 lambda args: jax.vmap(near_nodes, in_axes=(None, 0, 0, 0))(values, *args),
                 (group(fu), group(y), group(w2)))
-            s0, u0 = s0.reshape((-1,) + s0.shape[2:]), u0.reshape((-1,) + u0.shape[2:])
+            s0, u0 = (a.reshape((y.shape[0],) + a.shape[2:]) for a in (s0, u0))
         else:
             s0, u0 = node_stage(values, y, w2)
             fu = jnp.zeros((y.shape[0], 0))
