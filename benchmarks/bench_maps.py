@@ -2,6 +2,7 @@
 
     .venv/bin/python benchmarks/bench_maps.py [--pixels 20000] [--size 200] [--rss-size 1000]
     .venv/bin/python benchmarks/bench_maps.py --solve-only [--repeat 3] [--tables-cache DIR]
+    .venv/bin/python benchmarks/bench_maps.py --near 1000,0.5 [--near-size 200] [--pixels N]
 
 1. tables and the per-pixel solve for a Torrance-Sparrow and a rough-plastic target through
    the paper's BTDF2, at the paper's 111 configurations, the index fixed: seconds for the
@@ -17,6 +18,15 @@
 with its wall and CPU seconds: CPU is the process's time over all its threads).
 --tables-cache DIR keeps the tables of part 1 in DIR (pickles, keyed by family and
 configurations) so that several runs, e.g. of two versions of the solver, share them.
+
+--near D,P runs the near-field comparison alone (docs/maps.md "Geometry"): a photo of
+NEAR_SIZE x NEAR_SIZE pixels of pitch P seen by a camera at distance D, Torrance-Sparrow
+through BTDF2 at the 111 configurations, index fixed, tables at --near-accuracy (default
+"fast"): the distant and the near-field tables (seconds, field grid), the interpolation
+error of the near-field columns against exact per-pixel tables at a few pixels, and the
+solve's pixels/s with and without (synthetic pixels from each set of tables, 1 % noise).
+--step-fraction F sets the field grid's step (a fraction of the apparent lobe; default
+veil.fitting.maps_near.STEP_FRACTION).
 """
 
 from __future__ import annotations
@@ -104,6 +114,98 @@ def bench_solve(family, fixed, n_pixels, configs, repeat=1, cache=None):
         fits = solve_pixels(tables, y, valid)
         runs.append((time.perf_counter() - w0, time.process_time() - c0))
     return tables, t_tables, runs, fits
+
+
+def bench_near(distance, pitch, size, n_pixels, configs, accuracy="fast", fraction=None):
+    """Distant against near-field tables and solve (see the module's docstring)."""
+    import jax
+    import jax.numpy as jnp
+    import veil
+    from veil.data.ingest import ROI
+    from veil.fitting import maps_near
+    from veil.fitting.maps import _interp_near, build_tables, solve_pixels
+    from veil.fitting.maps_near import NearGeometry
+
+    if fraction is not None:
+        maps_near.STEP_FRACTION = fraction
+    cls = type(veil.BRDF1)
+    names = cls.param_names()
+    kw = dict(fixed={names[3]: 1.5}, accuracy=accuracy)
+    angles = angles_of(configs)
+    geometry = NearGeometry(distance, pitch, (size, size))
+    rows = {}
+    t0 = time.perf_counter()
+    far = build_tables(cls, veil.BTDF2, angles, **kw)
+    rows["distant"] = [far, time.perf_counter() - t0]
+    t0 = time.perf_counter()
+    near = build_tables(cls, veil.BTDF2, angles, near=geometry, roi=ROI(0, 0, size, size),
+                        **kw)
+    rows["near-field"] = [near, time.perf_counter() - t0]
+    spread = 2 * math.degrees(math.atan(0.5 * math.hypot(size, size) * pitch / distance))
+    print(f"near field: {size} x {size} pixels of {pitch:g} at {distance:g}: spread "
+          f"{spread:.3g} deg; {near.near.describe()}; built-in check "
+          f"{near.field_error:.2g}", flush=True)
+    # interpolation error against exact per-pixel tables (the columns at every table node)
+    rng = np.random.default_rng(2)
+    pixels = [(0, 0), (size - 1, size - 1), (size - 1, 0)] + [
+        tuple(int(v) for v in rng.integers(0, size, 2)) for _ in range(2)]
+    worst, t_exact = [], time.perf_counter()
+    for x, y in pixels:
+        exact = build_tables(cls, veil.BTDF2, geometry.angles(angles, x, y), **kw)
+        fu = jnp.asarray(near.field_coords(x, y)[0])
+        err = 0.0
+        for j in range(near.axes[0].count):
+            got = np.asarray(_interp_near(jnp.asarray(near.coef), fu, jnp.asarray([float(j)]),
+                                          1)[0])
+            want = exact.values[j]
+            scale = np.max(np.abs(want), axis=0)
+            scale = np.where(scale > 0, scale, 1.0)
+            err = max(err, float(np.max(np.abs(got - want) / scale)))
+        worst.append(err)
+    print(f"interpolation error against exact per-pixel tables at pixels {pixels}: "
+          + ", ".join(f"{e:.2g}" for e in worst) + f" of a column's maximum (exact tables "
+          f"{(time.perf_counter() - t_exact) / len(pixels):.1f} s per pixel)", flush=True)
+    print(f"\n| geometry | field nodes | tables (s) | pixels | solve (s) | pixels/s | converged |")
+    print("|---|---:|---:|---:|---:|---:|---:|")
+    for kind, (tables, t_tab) in rows.items():
+        xs = rng.integers(0, size, n_pixels)
+        ys = rng.integers(0, size, n_pixels)
+        y = synthetic_at(tables, xs, ys, n_pixels)
+        valid = np.ones_like(y, dtype=bool)
+        pix = (xs, ys) if tables.near is not None else None
+        warm = min(len(y), 512 * len(jax.devices()))
+        solve_pixels(tables, y[:warm], valid[:warm],
+                     pixels=None if pix is None else (xs[:warm], ys[:warm]))
+        w0 = time.perf_counter()
+        fits = solve_pixels(tables, y, valid, pixels=pix)
+        t_solve = time.perf_counter() - w0
+        nodes = "1" if tables.near is None else " x ".join(map(str, tables.near.shape))
+        print(f"| {kind} | {nodes} | {t_tab:.1f} | {n_pixels} | {t_solve:.2f} | "
+              f"{n_pixels / t_solve:,.0f} | {100 * np.mean(fits.status == 0):.1f} % |",
+              flush=True)
+
+
+def synthetic_at(tables, xs, ys, n, seed=0):
+    """Pixels (at xs, ys for near-field tables) from the tables' own spline at random
+    nonlinear values and scales, 1 % noise."""
+    import jax.numpy as jnp
+    from veil.fitting.maps import _interp, _interp_near
+
+    if tables.near is None:
+        return synthetic(tables, n, seed)
+    rng = np.random.default_rng(seed)
+    d, q = len(tables.axes), len(tables.free_scales)
+    fu = tables.field_coords(xs, ys)
+    coef = jnp.asarray(tables.coef)
+    us = np.stack([rng.uniform(0.15 * (a.count - 1), 0.85 * (a.count - 1), n)
+                   for a in tables.axes], axis=1)
+    import jax
+    f = jax.jit(jax.vmap(lambda a, b: _interp_near(coef, a, b, d)[0]))
+    basis = np.asarray(f(jnp.asarray(fu), jnp.asarray(us)))
+    size = 1.0 / np.maximum(np.median(np.abs(basis[..., :q]).sum(1), axis=0), 1e-300)
+    s = size * np.exp(rng.uniform(-0.5, 0.5, (n, q)))
+    y = np.einsum("nmk,nk->nm", basis[..., :q], s) + basis[..., q]
+    return y * (1 + 0.01 * rng.standard_normal(y.shape))
 
 
 def bench_full(configs, n=2):
@@ -224,6 +326,11 @@ def main():
                     help="solves per family in part 1; the median is reported")
     ap.add_argument("--tables-cache", default=None, metavar="DIR",
                     help="keep part 1's tables in DIR and reuse them")
+    ap.add_argument("--near", default=None, metavar="D,P",
+                    help="only the near-field comparison: camera distance D, pixel pitch P")
+    ap.add_argument("--near-size", type=int, default=200)
+    ap.add_argument("--near-accuracy", default="fast")
+    ap.add_argument("--step-fraction", type=float, default=None)
     args = ap.parse_args()
     import veil
     from veil.models import model_class
@@ -231,6 +338,12 @@ def main():
     configs = protocol_configs()
     print(f"# bench_maps: {platform.node()}, {os.cpu_count()} cores, load average "
           f"{os.getloadavg()[0]:.1f}, {len(configs)} configurations\n")
+    if args.near:
+        distance, pitch = (float(v) for v in args.near.split(","))
+        bench_near(distance, pitch, args.near_size, args.pixels, configs, args.near_accuracy,
+                   args.step_fraction)
+        print(f"\nload average at the end {os.getloadavg()[0]:.1f}")
+        return
     print("| target | free | tables (s) | pixels | solve (s) | CPU (s) | pixels/s | converged |")
     print("|---|---|---:|---:|---:|---:|---:|---:|")
     for family in ("torrance-sparrow", "rough-plastic"):

@@ -53,3 +53,44 @@ def write_stack(folder, brdf, medium, configs, param_maps: np.ndarray, noise=0.0
     path = folder / "manifest.csv"
     manifest.to_csv(path, index=False)
     return path
+
+
+def render_near(brdf, medium, configs: pd.DataFrame, param_maps: np.ndarray, geometry,
+                accuracy: str = "fast") -> np.ndarray:
+    """Apparent values (H*W, M) of a plate seen by a near camera (``geometry``, a
+    veil.fitting.maps_near.NearGeometry of the full photo ``param_maps`` is): every pixel at
+    its own exact angles (collimated light, pinhole camera; docs/maps.md "Geometry"), one
+    engine evaluation per distinct parameter vector over its pixels."""
+    n, h, w = param_maps.shape
+    angles = tuple(configs[c].to_numpy(dtype=float)
+                   for c in ("theta_i", "phi_i", "theta_r", "phi_r"))
+    yy, xx = np.mgrid[0:h, 0:w]
+    pix = geometry.angles(angles, xx.ravel(), yy.ravel())  # each (H*W, M)
+    vectors = param_maps.reshape(n, -1).T
+    uniq, inverse = np.unique(vectors, axis=0, return_inverse=True)
+    inverse = inverse.ravel()
+    out = np.empty(pix[0].shape)
+    for k, v in enumerate(uniq):
+        rows = np.flatnonzero(inverse == k)
+        sel = tuple(a[rows].ravel() for a in pix)
+        engine = ApparentModel(brdf, medium, sel, RULES[accuracy])
+        out[rows] = engine.values(v, medium.to_vector()).reshape(len(rows), -1)
+    return out
+
+
+def write_photos(folder, configs, values: np.ndarray, shape, noise=0.01, seed=0) -> Path:
+    """Float32 TIFFs of ``values`` (H*W, M) with relative Gaussian noise, and the manifest."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    h, w = shape
+    rng = np.random.default_rng(seed)
+    values = values * (1 + noise * rng.standard_normal(values.shape))
+    names = []
+    for k in range(len(configs)):
+        name = f"photo_{k:03d}.tif"
+        tifffile.imwrite(folder / name, values[:, k].reshape(h, w).astype(np.float32))
+        names.append(name)
+    manifest = configs.assign(file=names)[["file", "theta_i", "phi_i", "theta_r", "phi_r"]]
+    path = folder / "manifest.csv"
+    manifest.to_csv(path, index=False)
+    return path

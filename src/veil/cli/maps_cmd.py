@@ -77,15 +77,21 @@ def _noise(text):
 @click.option("--workers", type=click.IntRange(1, 256), default=2, show_default=True,
               help="Local threads (without a scheduler).")
 @click.option("--camera-distance", type=float, default=None,
-              help="Camera distance to the plate, in the units of --pixel-pitch: with it the "
-                   "angular spread across the field is reported and checked.")
+              help="Camera distance to the plate centre, in the units of --pixel-pitch: with "
+                   "it the angular spread across the field is reported and checked (distant "
+                   "geometry), or used for per-pixel angles (--near-field).")
 @click.option("--pixel-pitch", type=float, default=None,
               help="Size of one pixel on the plate (same units as --camera-distance).")
+@click.option("--near-field", is_flag=True, default=False,
+              help="Per-pixel angles: a pinhole camera at --camera-distance from the plate "
+                   "centre, pixels --pixel-pitch apart on the plate, collimated light "
+                   "(docs/maps.md \"Geometry\") [default: distant light and camera, every "
+                   "pixel at the manifest's angles].")
 @model_options()
 @click.pass_context
 def fit_maps_command(ctx, photo_dir, manifest, medium, output, black_photos, black_frame, roi,
                      mask, channel, saturation, noise, fix, free, grid, accuracy, tile,
-                     scheduler, workers, camera_distance, pixel_pitch, models):
+                     scheduler, workers, camera_distance, pixel_pitch, near_field, models):
     """Per-pixel step 2: the target's BRDF at every pixel of a photo stack, through the
     fitted medium, with standard errors, reduced chi-square and a status per pixel, into a
     Zarr store (docs/maps.md).
@@ -108,6 +114,10 @@ def fit_maps_command(ctx, photo_dir, manifest, medium, output, black_photos, bla
         raise UserError("give --black-photos or --black-frame, not both")
     if (camera_distance is None) != (pixel_pitch is None):
         raise UserError("--camera-distance and --pixel-pitch go together")
+    if near_field and camera_distance is None:
+        raise UserError("--near-field needs --camera-distance D and --pixel-pitch P (the "
+                        "camera's distance from the plate centre and a pixel's size on the "
+                        "plate, same units)")
     fixed = parse_fix(fix, models.brdf)
     med = load_medium(medium, models)
     given = med.as_model() if hasattr(med, "as_model") else med
@@ -130,7 +140,8 @@ def fit_maps_command(ctx, photo_dir, manifest, medium, output, black_photos, bla
                        black_frame=black_frame, channel=channel, saturation=saturation,
                        noise=_noise(noise), tile=tile, accuracy=accuracy,
                        scheduler=scheduler, workers=workers, progress=progress, log=log,
-                       geometry=(camera_distance, pixel_pitch) if camera_distance else None)
+                       geometry=((camera_distance, pixel_pitch) if camera_distance is not None
+                                 else None), near_field=near_field)
     for line in run.notes:  # the warnings among them were printed as warnings already
         if not line.startswith("warning: "):
             click.echo(line, err=True)

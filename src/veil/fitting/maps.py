@@ -74,6 +74,9 @@ BATCH = 512
 IN_FLIGHT = 2
 #: Equilibrated condition number above which the Jacobian counts as rank-deficient.
 SINGULAR = 1e-10
+#: Near-field tables: pixels whose node values the node stage holds at once (a divisor of
+#: BATCH; their node values are NEAR_GROUP x nodes x configurations x columns).
+NEAR_GROUP = 32
 
 
 # --------------------------------------------------------------------------------------
@@ -243,6 +246,13 @@ class MapTables:
     medium: dict
     accuracy: str
     angles: tuple = field(repr=False, default=())
+    #: near-field tables (docs/maps.md "Geometry"): the field grid (a
+    #: :class:`veil.fitting.maps_near.FieldGrid`), None for distant light and camera. Then
+    #: ``values`` and ``coef`` have two leading axes more (the grid's x and y nodes);
+    #: ``field_error`` is the largest interpolation error measured against exact per-pixel
+    #: columns (relative to each column's maximum).
+    near: object = None
+    field_error: float = float("nan")
 
     @property
     def n_free(self) -> int:
@@ -251,6 +261,16 @@ class MapTables:
     @property
     def n_configs(self) -> int:
         return self.values.shape[-2]
+
+    @property
+    def solver_arrays(self) -> tuple:
+        """(node values, spline coefficients) the solver runs on."""
+        return self.values, self.coef
+
+    def field_coords(self, x, y) -> np.ndarray:
+        """(N, 2) field-grid coordinates of pixels (x, y) of the full photo (near field)."""
+        fx, fy = self.near.coords(np.ravel(x), np.ravel(y))
+        return np.stack([fx, fy], axis=1)
 
     @property
     def free_names(self) -> tuple:
@@ -265,32 +285,46 @@ class MapTables:
                        sorted(self.fixed.items()), self.medium, self.accuracy)).encode())
         for a in self.angles:
             h.update(np.ascontiguousarray(a, dtype=float).tobytes())
+        if self.near is not None:  # (distant tables hash as they always did)
+            h.update(repr(self.near.as_dict()).encode())
         h.update(np.ascontiguousarray(self.values).tobytes())
         return h.hexdigest()
 
     def describe(self) -> str:
         grid = "; ".join(a.describe() for a in self.axes) or "no nonlinear parameter"
         nodes = int(np.prod([a.count for a in self.axes])) if self.axes else 1
-        return (f"{self.model}: free {', '.join(self.free_names)}; table {grid}; {nodes} "
+        text = (f"{self.model}: free {', '.join(self.free_names)}; table {grid}; {nodes} "
                 f"node(s) x {self.n_configs} configurations ({self.accuracy} quadrature)")
+        if self.near is not None:
+            text += (f"; {self.near.describe()}, interpolation error "
+                     f"{self.field_error:.2g} of a column's maximum")
+        return text
 
-    def basis(self, node_values: dict) -> np.ndarray:
+    def basis(self, node_values: dict, pixel=None) -> np.ndarray:
         """(M, q + 1) columns at physical values of the nonlinear parameters, by the
-        spline (numpy; for checks)."""
+        spline (numpy; for checks); near-field tables at ``pixel`` (x, y) of the photo."""
         jnp = _jnp()
         u = np.array([(a.coord(node_values[a.name]) - a.coord(a.lo)) / a.step
                       for a in self.axes])
-        b, _ = _interp(jnp.asarray(self.coef), jnp.asarray(u), len(self.axes))
+        if self.near is None:
+            b, _ = _interp(jnp.asarray(self.coef), jnp.asarray(u), len(self.axes))
+        else:
+            fu = self.field_coords(*pixel)[0]
+            b, _ = _interp_near(jnp.asarray(self.coef), jnp.asarray(fu), jnp.asarray(u),
+                                len(self.axes))
         return np.asarray(b)
 
 
 def build_tables(brdf_cls, medium, angles, *, fixed=None, options=None, free=None,
-                 grid=None, accuracy: str = "default", progress=None) -> MapTables:
+                 grid=None, accuracy: str = "default", progress=None, near=None,
+                 roi=None) -> MapTables:
     """The tables of a per-pixel target fit: ``brdf_cls`` through ``medium`` (a medium
     model) at ``angles`` (theta_i, phi_i, theta_r, phi_r arrays, degrees). ``fixed``,
     ``free`` (held parameters to fit) and ``options`` as :func:`veil.fit_target`;
     ``grid`` {name: (lo, hi, count)} overrides a nonlinear axis; ``progress(done, total)``
-    after each node."""
+    after each node. ``near`` (a :class:`veil.fitting.maps_near.NearGeometry`) with
+    ``roi`` (x, y, w, h of the photo): near-field tables over a grid of plate points
+    (:func:`veil.fitting.maps_near.field_grid`, docs/maps.md "Geometry")."""
     from ..engine.evaluator import ApparentModel
     from ..engine.quadrature import RULES
     from .solver import check_fixed
@@ -327,6 +361,10 @@ def build_tables(brdf_cls, medium, angles, *, fixed=None, options=None, free=Non
         if i is not None:
             known_weight[k] = 0.0 if i in free_scales else base[i]
     angles = tuple(np.ascontiguousarray(a, dtype=float) for a in angles)
+    if near is not None:
+        return _build_near(brdf_cls, medium, angles, template, names, base, free_scales,
+                           axes, free_parts, known_weight, fixed, accuracy, progress, near,
+                           roi)
     engine = ApparentModel(template, medium, angles, RULES[accuracy])
     vm = medium.to_vector()
     rows = row_scales(type(medium), vm)
@@ -354,6 +392,121 @@ def build_tables(brdf_cls, medium, angles, *, fixed=None, options=None, free=Non
     return MapTables(brdf_cls.NAME, dict(template.options()), names, base, free_scales, axes,
                      values, np.ascontiguousarray(coef), dict(fixed), medium_entry, accuracy,
                      angles)
+
+
+def smoothest_facet(brdf_cls, names, base, axes, options) -> float:
+    """The BRDF's facet half angle (deg) at the smoothest corner of the table (inf when the
+    family has no facet lobe)."""
+    corners = itertools.product(*[(a.lo, a.hi) for a in axes]) if axes else [()]
+    widths = []
+    for corner in corners:
+        v = np.array(base, dtype=float)
+        for a, value in zip(axes, corner):
+            v[a.index] = value
+        try:
+            model = brdf_cls.from_params(dict(zip(names, v)), options)
+            widths.append(model.facet_half_angle())
+        except (ValueError, TypeError):
+            continue
+    return min(widths) if widths else float("inf")
+
+
+def _columns(engine, vb, vm, rows, free_parts, known_weight, q):
+    """(M, q + 1) basis columns of the engine's configurations at BRDF vector ``vb``."""
+    terms = engine.terms(vb, vm)  # (M, rows, parts), scales at 1
+    cols = np.einsum("mrb,r->mb", terms, rows)
+    out = np.empty(cols.shape[:1] + (q + 1,))
+    for c, k in enumerate(free_parts):
+        out[:, c] = cols[:, k]
+    out[:, q] = cols @ known_weight
+    return out
+
+
+def _to_coef(values, axes_first: int, count: int):
+    """B-spline coefficients along axes ``axes_first .. axes_first + count - 1``."""
+    for ax in range(axes_first, axes_first + count):
+        inv = _bspline_inverse(values.shape[ax])
+        values = np.moveaxis(np.tensordot(inv, values, axes=([1], [ax])), 0, ax)
+    return values
+
+
+def _field_block(field_values, fu):
+    """Node values (K_1, ..., K_d, M, q + 1) at field-grid coordinates ``fu`` (2,) from the
+    field coefficients (numpy; for the tables' own check of the interpolation)."""
+    ws = []
+    for a in range(2):
+        k = field_values.shape[a] - 2
+        i = int(np.clip(np.floor(fu[a]), 0, k - 2))
+        w, _ = _weights(fu[a] - i, np)
+        ws.append((i, w))
+    (ix, wx), (iy, wy) = ws
+    block = field_values[ix:ix + 4, iy:iy + 4]
+    return np.einsum("ab...,a,b->...", block, wx, wy)
+
+
+#: Field-grid check points of the interpolation error (fractions of the grid's cells):
+#: the centres of two opposite corner cells, farthest from the nodes in both axes.
+FIELD_CHECKS = ((0.5, 0.5), (-0.5, -0.5))
+
+
+def _build_near(brdf_cls, medium, angles, template, names, base, free_scales, axes,
+                free_parts, known_weight, fixed, accuracy, progress, near, roi):
+    """Near-field tables: the columns at every node of a grid of plate points and of the
+    nonlinear axes, with the pixel's own angles (docs/maps.md "Geometry"); the field
+    interpolation checked against exact columns at :data:`FIELD_CHECKS`."""
+    from ..engine.evaluator import ApparentModel
+    from ..engine.quadrature import RULES
+    from .maps_near import apparent_lobe, field_grid
+
+    if roi is None:
+        raise FitError("near-field tables need the region of the photo (roi)")
+    lobe = apparent_lobe(smoothest_facet(brdf_cls, names, base, axes, template.options()),
+                         medium.lobe_half_width())
+    fgrid = field_grid(near, angles, roi, lobe)
+    kx, ky = fgrid.shape
+    m = len(angles[0])
+    node_angles = tuple(np.ascontiguousarray(a.reshape(-1)) for a in fgrid.node_angles(angles))
+    # the check pixels: cell centres of two opposite corner cells
+    checks = []
+    for fx, fy in FIELD_CHECKS:
+        gx = fx if fx >= 0 else kx - 1 + fx
+        gy = fy if fy >= 0 else ky - 1 + fy
+        x = fgrid.xs[0] + gx * (fgrid.xs[-1] - fgrid.xs[0]) / (kx - 1)
+        y = fgrid.ys[0] + gy * (fgrid.ys[-1] - fgrid.ys[0]) / (ky - 1)
+        checks.append(((gx, gy), near.angles(angles, x, y)))
+    all_angles = tuple(np.concatenate([node_angles[j]] + [c[1][j] for c in checks])
+                       for j in range(4))
+    engine = ApparentModel(template, medium, all_angles, RULES[accuracy])
+    vm = medium.to_vector()
+    rows = row_scales(type(medium), vm)
+    shape = tuple(a.count for a in axes)
+    q = len(free_scales)
+    values = np.empty((kx, ky) + shape + (m, q + 1))
+    exact = np.empty((len(checks),) + shape + (m, q + 1))
+    total = int(np.prod(shape)) if shape else 1
+    for done, combo in enumerate(itertools.product(*[range(k) for k in shape])):
+        vb = base.copy()
+        for a, j in zip(axes, combo):
+            vb[a.index] = a.nodes()[j]
+        cols = _columns(engine, vb, vm, rows, free_parts, known_weight, q)
+        values[(slice(None), slice(None)) + combo] = cols[:kx * ky * m].reshape(kx, ky, m,
+                                                                             q + 1)
+        exact[(slice(None),) + combo] = cols[kx * ky * m:].reshape(len(checks), m, q + 1)
+        if progress is not None:
+            progress(done + 1, total)
+    field_values = np.ascontiguousarray(_to_coef(values, 0, 2))
+    coef = np.ascontiguousarray(_to_coef(field_values, 2, len(axes)))
+    error = 0.0
+    for k, ((gx, gy), _) in enumerate(checks):
+        approx = _field_block(field_values, (gx, gy))
+        scale = np.max(np.abs(exact[k]), axis=-2, keepdims=True)
+        scale = np.where(scale > 0, scale, 1.0)
+        error = max(error, float(np.max(np.abs(approx - exact[k]) / scale)))
+    medium_entry = {"model": type(medium).NAME, "params": medium.as_dict(),
+                    "options": medium.options()}
+    return MapTables(brdf_cls.NAME, dict(template.options()), names, base, free_scales, axes,
+                     values, coef, dict(fixed), medium_entry, accuracy, angles, near=fgrid,
+                     field_error=error)
 
 
 # --------------------------------------------------------------------------------------
@@ -392,6 +545,39 @@ def _interp(coef, u, d):
     derivs = []
     for a in range(d):
         factors = [dws[b] if b == a else ws[b] for b in range(d)]
+        derivs.append(jnp.einsum(spec + ",".join(letters) + "->...", block, *factors))
+    return value, jnp.stack(derivs)
+
+
+def _interp_near(coef, fu, u, d):
+    """Near-field tables: basis (M, q + 1) at field-grid coordinates ``fu`` (2,) and grid
+    coordinates ``u`` (d,), and its derivatives (d, M, q + 1) along the nonlinear axes
+    (the pixel's position is not fitted)."""
+    from .._jax import jax, jnp
+
+    axes = d + 2
+    pos = jnp.concatenate([fu, u])
+    sizes = coef.shape[:axes]
+    cells, ws, dws = [], [], []
+    for a in range(axes):
+        k = sizes[a] - 2
+        i = jnp.clip(jnp.floor(pos[a]), 0, k - 2).astype(jnp.int64)
+        w, dw = _weights(pos[a] - i, jnp)
+        cells.append(i)
+        ws.append(w)
+        dws.append(dw)
+    start = tuple(cells) + (0,) * (coef.ndim - axes)
+    block = jax.lax.dynamic_slice(coef, start, (4,) * axes + coef.shape[axes:])
+    # the field axes first: a (4,) * d block of the pixel's own coefficients
+    block = jnp.einsum("ab...,a,b->...", block, ws[0], ws[1])
+    if d == 0:
+        return block, jnp.zeros((0,) + block.shape)
+    letters = "abc"[:d]
+    spec = f"{letters}...,"
+    value = jnp.einsum(spec + ",".join(letters) + "->...", block, *ws[2:])
+    derivs = []
+    for a in range(d):
+        factors = [dws[2 + b] if b == a else ws[2 + b] for b in range(d)]
         derivs.append(jnp.einsum(spec + ",".join(letters) + "->...", block, *factors))
     return value, jnp.stack(derivs)
 
@@ -464,36 +650,45 @@ _SOLVERS: dict = {}
 _CALL_LOCK = threading.Lock()
 
 
-def _solver(q: int, d: int, sizes: tuple, weighted: bool):
-    """The jitted batch solver for q scales, d axes of ``sizes`` nodes."""
-    key = (q, d, sizes, weighted)
+def _solver(q: int, d: int, sizes: tuple, weighted: bool, near: bool = False):
+    """The jitted batch solver for q scales, d axes of ``sizes`` nodes; ``near``: tables
+    with two field axes first, each pixel at its own field coordinates (docs/maps.md
+    "Geometry")."""
+    key = (q, d, sizes, weighted) + ((True,) if near else ())
     if key in _SOLVERS:
         return _SOLVERS[key]
     from .._jax import jax, jnp
+
+    if near:
+        def interp(coef, fu, u):
+            return _interp_near(coef, fu, u, d)
+    else:
+        def interp(coef, fu, u):
+            return _interp(coef, u, d)
 
     n = q + d
     hi = jnp.asarray([float(k - 1) for k in sizes])
     lo = jnp.zeros(n)
     hi_all = jnp.concatenate([jnp.full(q, jnp.inf), hi]) if d else jnp.full(q, jnp.inf)
 
-    def model(coef, p):
+    def model(coef, fu, p):
         s, u = p[:q], p[q:]
-        b, db = _interp(coef, u, d)
+        b, db = interp(coef, fu, u)
         val = b[:, :q] @ s + b[:, q]
         jac_s = b[:, :q]
         jac_u = (jnp.einsum("amk,k->ma", db[..., :q], s) + db[..., q].T
                  if d else jnp.zeros((b.shape[0], 0)))
         return val, jnp.concatenate([jac_s, jac_u], axis=1)
 
-    def initial(coef, u0, s0, y, w2):
+    def initial(coef, fu, u0, s0, y, w2):
         """The iterations' state at the best node: (iterations, p, lambda, cost, value,
         Jacobian, stopped)."""
         p0 = jnp.concatenate([s0, u0])
-        v0, j0 = model(coef, p0)
+        v0, j0 = model(coef, fu, p0)
         r0 = (y - v0) * jnp.sqrt(w2)
         return (jnp.asarray(0), p0, jnp.asarray(1e-4), r0 @ r0, v0, j0, jnp.asarray(False))
 
-    def one_pixel(coef, y, w2, state, limit):
+    def one_pixel(coef, fu, y, w2, state, limit):
         """Iterations from ``state`` until the pixel stops or has had ``limit``, then its
         statistics: (results, state)."""
         w = jnp.sqrt(w2)
@@ -505,7 +700,7 @@ def _solver(q: int, d: int, sizes: tuple, weighted: bool):
             (variable projection), where a curved valley between a scale and a roughness
             would otherwise make the steps creep."""
             u = p[q:]
-            b, db = _interp(coef, u, d)
+            b, db = interp(coef, fu, u)
             bw = b[:, :q] * w[:, None]
             rw = (y - b[:, q]) * w
             s, _ = _nnls_small(bw.T @ bw, bw.T @ rw, rw @ rw, q, jnp)
@@ -595,8 +790,9 @@ def _solver(q: int, d: int, sizes: tuple, weighted: bool):
         step_se = jnp.max(jnp.abs(proj) / jnp.where(se > 0, se, 1.0)) if n else 0.0
         return (p, se, chi2, npts, rank_ok, step_se, iters), state
 
-    def batch(values, coef, y, w2):
-        # 1. every node: the scales by exact NNLS, from the weighted normal equations
+    def node_stage(values, y, w2):
+        """Distant tables: the scales by exact NNLS at every node, the best node:
+        (s0, u0)."""
         nodes = values.reshape((-1,) + values.shape[d:])  # (N, M, q + 1)
         n_nodes, m = nodes.shape[0], nodes.shape[1]
         bq, c = nodes[..., :q], nodes[..., q]
@@ -616,15 +812,51 @@ def _solver(q: int, d: int, sizes: tuple, weighted: bool):
             u0 = jnp.stack(jnp.unravel_index(best, sizes), axis=1).astype(float)
         else:
             u0 = jnp.zeros((y.shape[0], 0))
-        # 3. Levenberg-Marquardt on the spline, FIRST_ITERATIONS at most
-        state = jax.vmap(initial, in_axes=(None, 0, 0, 0, 0))(coef, u0, s0, y, w2)
-        return jax.vmap(one_pixel, in_axes=(None, 0, 0, 0, None))(
-            coef, y, w2, state, min(FIRST_ITERATIONS, ITERATIONS))
+        return s0, u0
 
-    def resume(coef, y, w2, state):
+    def near_nodes(values, fu, y, w2):
+        """Near-field tables, one pixel: the scales by exact NNLS at every node of the
+        nearest field node's columns, the best node: (s0, u0) - a starting point; the
+        iterations then use the pixel's own interpolated columns."""
+        ix = jnp.clip(jnp.round(fu[0]), 0, values.shape[0] - 1).astype(jnp.int64)
+        iy = jnp.clip(jnp.round(fu[1]), 0, values.shape[1] - 1).astype(jnp.int64)
+        nodes = values[ix, iy]
+        nodes = nodes.reshape((-1,) + nodes.shape[d:])  # (N, M, q + 1)
+        bq, c = nodes[..., :q], nodes[..., q]
+        wy_ = w2 * y
+        gram = jnp.einsum("nmi,m,nmj->nij", bq, w2, bq)
+        rhs = jnp.einsum("nmi,m->ni", bq, wy_) - jnp.einsum("nmi,nm->ni", bq, w2 * c)
+        yy = wy_ @ y - 2 * c @ wy_ + (c * c) @ w2
+        s_all, cost = _nnls_small(gram, rhs, yy, q, jnp)
+        best = jnp.argmin(cost)
+        s0 = s_all[best]
+        u0 = (jnp.stack(jnp.unravel_index(best, sizes)).astype(float) if d
+              else jnp.zeros((0,)))
+        return s0, u0
+
+    def batch(values, coef, y, w2, fu=None):
+        # 1. every node: the scales by exact NNLS, from the weighted normal equations;
+        # 2. the best node
+        if near:  # per pixel, NEAR_GROUP pixels at a time (memory: their node values)
+            group = lambda a: a.reshape((-1, NEAR_GROUP) + a.shape[1:])  # noqa: E731
+            s0, u0 = jax.lax.map(
+                lambda args: jax.vmap(near_nodes, in_axes=(None, 0, 0, 0))(values, *args),
+                (group(fu), group(y), group(w2)))
+            s0, u0 = (a.reshape((y.shape[0],) + a.shape[2:]) for a in (s0, u0))
+        else:
+            s0, u0 = node_stage(values, y, w2)
+            fu = jnp.zeros((y.shape[0], 0))
+        # 3. Levenberg-Marquardt on the spline, FIRST_ITERATIONS at most
+        state = jax.vmap(initial, in_axes=(None, 0, 0, 0, 0, 0))(coef, fu, u0, s0, y, w2)
+        return jax.vmap(one_pixel, in_axes=(None, 0, 0, 0, 0, None))(
+            coef, fu, y, w2, state, min(FIRST_ITERATIONS, ITERATIONS))
+
+    def resume(coef, y, w2, state, fu=None):
         # the pixels still running after FIRST_ITERATIONS, gathered from several batches
-        return jax.vmap(one_pixel, in_axes=(None, 0, 0, 0, None))(coef, y, w2, state,
-                                                                  ITERATIONS)
+        if fu is None:
+            fu = jnp.zeros((y.shape[0], 0))
+        return jax.vmap(one_pixel, in_axes=(None, 0, 0, 0, 0, None))(coef, fu, y, w2, state,
+                                                                     ITERATIONS)
 
     fns = (jax.jit(batch), jax.jit(resume))
     _SOLVERS[key] = fns
@@ -647,8 +879,7 @@ def _dispatch(tables, count, call, done):
         idx = np.minimum(np.arange(start, start + BATCH), stop - 1)
         dev = devices[b % len(devices)]
         if dev not in on_device:
-            on_device[dev] = (jax.device_put(tables.values, dev),
-                              jax.device_put(tables.coef, dev))
+            on_device[dev] = tuple(jax.device_put(a, dev) for a in tables.solver_arrays)
         pending.append((start, stop, call(idx, dev, on_device[dev])))
         if len(pending) >= IN_FLIGHT * len(devices):
             done(*pending.pop(0))
@@ -661,15 +892,18 @@ def warm_up(tables: MapTables, noise=None) -> None:
     which stop at once), so that no later call waits for a compilation."""
     from .._jax import jax
 
+    near = tables.near is not None
     first, rest = _solver(len(tables.free_scales), len(tables.axes),
-                          tuple(a.count for a in tables.axes), noise is not None)
+                          tuple(a.count for a in tables.axes), noise is not None, near)
     y = np.zeros((BATCH, tables.n_configs))
+    extra = (np.zeros((BATCH, 2)),) if near else ()
     with _CALL_LOCK:
         for dev in jax.devices():
-            values, coef = (jax.device_put(a, dev) for a in (tables.values, tables.coef))
+            values, coef = (jax.device_put(a, dev) for a in tables.solver_arrays)
             y_dev, w2_dev = jax.device_put(y, dev), jax.device_put(np.ones_like(y), dev)
-            _, state = first(values, coef, y_dev, w2_dev)
-            jax.block_until_ready(rest(coef, y_dev, w2_dev, state))
+            fu = tuple(jax.device_put(a, dev) for a in extra)
+            _, state = first(values, coef, y_dev, w2_dev, *fu)
+            jax.block_until_ready(rest(coef, y_dev, w2_dev, state, *fu))
 
 
 @dataclass
@@ -688,12 +922,20 @@ class PixelFits:
 
 
 def solve_pixels(tables: MapTables, y: np.ndarray, valid: np.ndarray,
-                 noise=None) -> PixelFits:
+                 noise=None, pixels=None) -> PixelFits:
     """Fit every pixel: ``y`` (N, M) values, ``valid`` (N, M) usable samples (saturated,
     clipped and masked ones False), ``noise`` None (unweighted) or (relative, absolute):
-    sigma = sqrt((relative * value)^2 + absolute^2)."""
+    sigma = sqrt((relative * value)^2 + absolute^2). Near-field tables need ``pixels``
+    (x (N,), y (N,)): each pixel's position in the full photo."""
     from .._jax import jax
 
+    near = tables.near is not None
+    if near:
+        if pixels is None:
+            raise FitError("near-field tables: give each pixel's position (pixels=(x, y))")
+        fu = tables.field_coords(*pixels)
+        if len(fu) != len(y):
+            raise FitError(f"{len(fu)} pixel positions for {len(y)} pixels")
     y = np.asarray(y, dtype=float)
     valid = np.asarray(valid, dtype=bool) & np.isfinite(y)
     n_pix, m = y.shape
@@ -709,7 +951,7 @@ def solve_pixels(tables: MapTables, y: np.ndarray, valid: np.ndarray,
         w2 = np.where(valid & (sigma2 > 0), 1.0 / np.where(sigma2 > 0, sigma2, 1.0), 0.0)
     q, d = len(tables.free_scales), len(tables.axes)
     sizes = tuple(a.count for a in tables.axes)
-    first, rest = _solver(q, d, sizes, noise is not None)
+    first, rest = _solver(q, d, sizes, noise is not None, near)
     n = q + d
     out_p = np.zeros((n_pix, n))
     out_se = np.zeros((n_pix, n))
@@ -736,9 +978,13 @@ def solve_pixels(tables: MapTables, y: np.ndarray, valid: np.ndarray,
             slow_pixels.append(np.arange(start, stop)[slow])
             slow_states.append([a[slow] for a in state])
 
+    def at(idx, dev):  # near field: the pixels' field coordinates (none otherwise)
+        return (jax.device_put(fu[idx], dev),) if near else ()
+
     with _CALL_LOCK:
         _dispatch(tables, n_pix, lambda idx, dev, tab: first(*tab, jax.device_put(y[idx], dev),
-                                                            jax.device_put(w2[idx], dev)),
+                                                            jax.device_put(w2[idx], dev),
+                                                            *at(idx, dev)),
                   first_done)
         if slow_pixels:  # the rest of the iterations for the slow pixels of every batch
             where = np.concatenate(slow_pixels)
@@ -746,7 +992,8 @@ def solve_pixels(tables: MapTables, y: np.ndarray, valid: np.ndarray,
             _dispatch(tables, len(where),
                       lambda idx, dev, tab: rest(tab[1], jax.device_put(y[where[idx]], dev),
                                                  jax.device_put(w2[where[idx]], dev),
-                                                 tuple(jax.device_put(a[idx], dev) for a in states)),
+                                                 tuple(jax.device_put(a[idx], dev) for a in states),
+                                                 *at(where[idx], dev)),
                       lambda start, stop, result: store(
                           where[start:stop], [np.asarray(a)[:stop - start] for a in result[0]]))
     # status, worst first

@@ -38,6 +38,7 @@ from ..data.ingest import (CHANNELS, ROI, IngestWarning, _linear, parse_roi,
 from ..errors import FitError, InputError, MissingFileError
 from ..io import write_bytes_atomic, write_text_atomic
 from .maps import (CONVERGED, MASKED, STATUS, MapTables, build_tables, solve_pixels, warm_up)
+from .maps_near import NearGeometry
 
 FORMAT = "veil.maps/1"
 MAPS = ("params", "stderr", "chi2_reduced", "n_points", "status")
@@ -354,7 +355,12 @@ def _solve_tile(block, tables: MapTables, store, iy, ix, tile, noise):
     m, th, tw = block.shape
     y = block.reshape(m, th * tw).T
     valid = np.isfinite(y)
-    res = solve_pixels(tables, np.where(valid, y, 0.0), valid, noise)
+    pixels = None
+    if tables.near is not None:  # the tile's pixels in the full photo
+        x0, y0 = tables.near.roi[:2]
+        rows, cols = np.mgrid[0:th, 0:tw]
+        pixels = ((x0 + ix * tile + cols).ravel(), (y0 + iy * tile + rows).ravel())
+    res = solve_pixels(tables, np.where(valid, y, 0.0), valid, noise, pixels=pixels)
     group = zarr.open_group(os.fspath(store), mode="r+")
     ys, xs = slice(iy * tile, iy * tile + th), slice(ix * tile, ix * tile + tw)
     n_par = res.params.shape[0]
@@ -473,9 +479,54 @@ def geometry_notes(tables: MapTables, brdf_cls, medium_model, shape, geometry) -
                    f"than a fifth of {which} ({narrow:.3g} deg): the distant-camera "
                    f"approximation (every pixel at the manifest's angles) is poor; map a "
                    f"smaller ROI or move the camera further away")
+        message += " (or map with per-pixel angles: --near-field)"
         warnings.warn(message, MapsWarning, stacklevel=3)
         notes.append("warning: " + message)
     return notes
+
+
+def _number(value) -> float:
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        raise InputError(f"camera distance / pixel pitch {value!r}: expected a positive "
+                         f"finite number") from None
+
+
+def field_spread(shape, distance, pitch) -> float:
+    """Spread of view directions across a field of ``shape`` (h, w) pixels (deg):
+    2 atan(diagonal / 2 D)."""
+    h, w = shape
+    return 2 * math.degrees(math.atan(0.5 * math.hypot(h, w) * pitch / distance))
+
+
+def near_notes(tables: MapTables, shape) -> list:
+    """What the near-field tables did: the spread, the field grid, the interpolation error
+    measured against exact per-pixel columns; the distant-camera warning does not apply."""
+    grid = tables.near
+    g = grid.geometry
+    h, w = shape
+    spread = field_spread(shape, g.distance, g.pitch)
+    return [f"geometry: near field - every pixel at its own angles (camera at {g.distance:g} "
+            f"from the plate centre, pixel pitch {g.pitch:g}, optical centre "
+            f"({g.centre[0]:g}, {g.centre[1]:g}) px); the field ({w} x {h} pixels) spans "
+            f"{spread:.3g} deg of view direction; {grid.describe()}; interpolation error "
+            f"against exact per-pixel columns {tables.field_error:.2g} of a column's maximum; "
+            f"the distant-camera warning does not apply"]
+
+
+def geometry_record(tables: MapTables, geometry) -> dict:
+    """The geometry of a map for its attributes and summary.json."""
+    if tables.near is not None:
+        g = tables.near.geometry
+        return {"kind": "near-field", **tables.near.as_dict(),
+                "spread_deg": field_spread((tables.near.roi[3], tables.near.roi[2]),
+                                            g.distance, g.pitch),
+                "interpolation_error": tables.field_error}
+    out = {"kind": "distant"}
+    if geometry is not None:
+        out.update(camera_distance=float(geometry[0]), pixel_pitch=float(geometry[1]))
+    return out
 
 
 #: What status 1 means for a pixel inside the mask.
@@ -508,6 +559,7 @@ def summarize_maps(store) -> dict:
            "status_counts": counts, "outside_mask": outside,
            "failed": int(sum(failed.values())), "failed_by_status": failed,
            "undetermined_fraction": float(np.count_nonzero(status == 3) / total),
+           "geometry": info.get("geometry", {"kind": "distant"}),
            "not_converged_fraction": float(np.count_nonzero(~ok) / total),
            "params": {}}
     params = group["params"]
@@ -537,7 +589,8 @@ def fit_maps(photo_dir, manifest, medium, output, *, brdf_model=None, options=No
              fixed=None, free=None, grid=None, roi=None, mask=None, black_photos=None,
              black_frame=None, channel="gray", saturation=None, noise=None,
              tile: int = DEFAULT_TILE, accuracy: str = "default", scheduler=None,
-             workers: int = 2, progress=None, log=None, geometry=None) -> MapsRun:
+             workers: int = 2, progress=None, log=None, geometry=None,
+             near_field: bool = False) -> MapsRun:
     """Per-pixel step 2 (docs/maps.md): the target's BRDF at every pixel of the photos
     listed in ``manifest`` (as ``veil ingest`` reads it) through ``medium`` (a step-1
     result or a medium model), written to the Zarr store ``output``.
@@ -556,6 +609,9 @@ def fit_maps(photo_dir, manifest, medium, output, *, brdf_model=None, options=No
         address (default ``$VEIL_DASK_SCHEDULER``; none: local threads, ``workers``).
     geometry : (camera distance, pixel pitch on the plate), same units: report the angular
         spread across the field and warn when it exceeds a fifth of the narrowest lobe.
+    near_field : with ``geometry``, per-pixel angles (a pinhole camera at that distance
+        from the plate centre, collimated light; docs/maps.md "Geometry") instead of the
+        manifest's angles at every pixel.
     progress(stage, done, total), log(message) : reports.
     """
     from ..models import default_class, model_class
@@ -581,6 +637,16 @@ def fit_maps(photo_dir, manifest, medium, output, *, brdf_model=None, options=No
     output = Path(output)
     acq = load_acquisition(photo_dir, manifest, roi=roi, mask=mask, black_photos=black_photos,
                            black_frame=black_frame, channel=channel, saturation=saturation)
+    near = None
+    if near_field and geometry is None:
+        raise InputError("near-field geometry needs the camera distance and the pixel "
+                         "pitch (--camera-distance D --pixel-pitch P)")
+    if geometry is not None:  # checked before anything is computed
+        near = NearGeometry(*(_number(g) for g in geometry), tuple(acq.shape))
+        if near_field:
+            near.check_field(acq.angles, acq.roi)
+        else:
+            near = None
     address = scheduler or os.environ.get(SCHEDULER_ENV) or None
     client = connect(address) if address else None
     seconds = {}
@@ -598,11 +664,14 @@ def fit_maps(photo_dir, manifest, medium, output, *, brdf_model=None, options=No
         tables = build_tables(cls, medium_model, acq.angles, fixed=fixed, options=options,
                               free=free, grid=grid_spec, accuracy=accuracy,
                               progress=(lambda d, t: progress("tables", d, t))
-                              if progress else None)
+                              if progress else None, near=near, roi=acq.roi)
         seconds["tables"] = time.perf_counter() - t0
         say(f"tables: {tables.describe()} in {seconds['tables']:.1f} s")
-        notes = (geometry_notes(tables, cls, medium_model, (acq.roi.h, acq.roi.w), geometry)
-                 if geometry is not None else [])
+        if near is not None:
+            notes = near_notes(tables, (acq.roi.h, acq.roi.w))
+        else:
+            notes = (geometry_notes(tables, cls, medium_model, (acq.roi.h, acq.roi.w),
+                                    geometry) if geometry is not None else [])
         fingerprint = hashlib.sha256((acq.fingerprint() + tables.fingerprint()
                                       + repr((noise, tile))).encode()).hexdigest()
         shape = (acq.roi.h, acq.roi.w)
@@ -619,7 +688,8 @@ def fit_maps(photo_dir, manifest, medium, output, *, brdf_model=None, options=No
                                                                 STATUS.items()},
                 "grid": [a.describe() for a in tables.axes], "manifest": acq.name,
                 "outside_mask": int(np.count_nonzero(~acq.mask)) if acq.mask is not None
-                else 0}
+                else 0,
+                "geometry": geometry_record(tables, geometry)}
         if existing is not None and existing.get("fingerprint") != fingerprint:
             raise InputError(f"{output} holds maps of another acquisition or other settings "
                              f"(its photos, manifest, medium, model, fixed parameters, grid, "
