@@ -12,7 +12,8 @@
    standard errors (both at the "fast" quadrature, where both use exact Jacobians);
 3. a map of SIZE x SIZE pixels from 111 float32 TIFFs, end to end: locally (threads) and on
    a dask.distributed LocalCluster of two worker processes; equal bit for bit?
-4. peak RSS of a map of RSS_SIZE^2 pixels from 10 and from 50 photos (a fresh process each).
+4. peak RSS of a map of RSS_SIZE^2 pixels from 10 and from 50 photos (a fresh process each;
+   --rss-only runs just this part, --rss-photos chooses the photo counts).
 
 --solve-only runs part 1 alone: the solve ``--repeat`` times (the median run is reported,
 with its wall and CPU seconds: CPU is the process's time over all its threads).
@@ -314,12 +315,26 @@ def bench_rss(size, photos, configs, root):
     return len(files), total, rss, t_tab, t_stage, t_solve
 
 
+def _rss_table(args, configs, root):
+    print(f"\n| photos of {args.rss_size} x {args.rss_size} | seconds | peak RSS (MiB) |"
+          f" tables | staging | solve | solve pixels/s |")
+    print("|---:|---:|---:|---:|---:|---:|---:|")
+    for photos in (int(n) for n in args.rss_photos.split(",")):
+        n, total, rss, t_tab, t_stage, t_solve = bench_rss(args.rss_size, photos, configs, root)
+        print(f"| {n} | {total:.1f} | {rss:.0f} | {t_tab:.1f} | {t_stage:.1f} | "
+              f"{t_solve:.1f} | {args.rss_size ** 2 / t_solve:,.0f} |", flush=True)
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--pixels", type=int, default=20000)
     ap.add_argument("--size", type=int, default=200)
     ap.add_argument("--rss-size", type=int, default=1000)
     ap.add_argument("--skip-rss", action="store_true")
+    ap.add_argument("--rss-only", action="store_true",
+                    help="only the megapixel maps of part 4 (end to end, fresh processes)")
+    ap.add_argument("--rss-photos", default="10,50", metavar="N,N",
+                    help="photo counts of part 4 (default 10,50)")
     ap.add_argument("--solve-only", action="store_true",
                     help="only part 1 (tables and the per-pixel solve)")
     ap.add_argument("--repeat", type=int, default=1,
@@ -342,6 +357,11 @@ def main():
         distance, pitch = (float(v) for v in args.near.split(","))
         bench_near(distance, pitch, args.near_size, args.pixels, configs, args.near_accuracy,
                    args.step_fraction)
+        print(f"\nload average at the end {os.getloadavg()[0]:.1f}")
+        return
+    if args.rss_only:
+        with tempfile.TemporaryDirectory() as tmp:
+            _rss_table(args, configs, Path(tmp))
         print(f"\nload average at the end {os.getloadavg()[0]:.1f}")
         return
     print("| target | free | tables (s) | pixels | solve (s) | CPU (s) | pixels/s | converged |")
@@ -379,14 +399,7 @@ def main():
                   f"{args.size ** 2 / max(s.get('solve', 1e-9), 1e-9):,.0f} |")
         print(f"\nlocal and LocalCluster maps equal bit for bit: {equal}", flush=True)
         if not args.skip_rss:
-            print(f"\n| photos of {args.rss_size} x {args.rss_size} | seconds | peak RSS (MiB) |"
-                  f" tables | staging | solve |")
-            print("|---:|---:|---:|---:|---:|---:|")
-            for photos in (10, 50):
-                n, total, rss, t_tab, t_stage, t_solve = bench_rss(args.rss_size, photos,
-                                                                   configs, Path(tmp))
-                print(f"| {n} | {total:.1f} | {rss:.0f} | {t_tab:.1f} | {t_stage:.1f} | "
-                      f"{t_solve:.1f} |", flush=True)
+            _rss_table(args, configs, Path(tmp))
     print(f"\nbenchmark process peak RSS {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f}"
           f" MiB; load average at the end {os.getloadavg()[0]:.1f}")
 
