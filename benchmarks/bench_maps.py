@@ -39,6 +39,7 @@ import os
 import pickle
 import platform
 import resource
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -166,7 +167,7 @@ def bench_near(distance, pitch, size, n_pixels, configs, accuracy="fast", fracti
     print(f"interpolation error against exact per-pixel tables at pixels {pixels}: "
           + ", ".join(f"{e:.2g}" for e in worst) + f" of a column's maximum (exact tables "
           f"{(time.perf_counter() - t_exact) / len(pixels):.1f} s per pixel)", flush=True)
-    print(f"\n| geometry | field nodes | tables (s) | pixels | solve (s) | pixels/s | converged |")
+    print("\n| geometry | field nodes | tables (s) | pixels | solve (s) | pixels/s | converged |")
     print("|---|---:|---:|---:|---:|---:|---:|")
     for kind, (tables, t_tab) in rows.items():
         xs = rng.integers(0, size, n_pixels)
@@ -190,7 +191,7 @@ def synthetic_at(tables, xs, ys, n, seed=0):
     """Pixels (at xs, ys for near-field tables) from the tables' own spline at random
     nonlinear values and scales, 1 % noise."""
     import jax.numpy as jnp
-    from veil.fitting.maps import _interp, _interp_near
+    from veil.fitting.maps import _interp_near
 
     if tables.near is None:
         return synthetic(tables, n, seed)
@@ -275,21 +276,22 @@ import resource, sys, time
 sys.path.insert(0, sys.argv[1])
 import numpy as np, tifffile, veil
 from veil.fitting.maps_run import fit_maps
-root, photos, size = sys.argv[2], int(sys.argv[3]), int(sys.argv[4])
+root, photos, roi = sys.argv[2], int(sys.argv[3]), (sys.argv[4] or None)
 import pathlib, pandas as pd
 root = pathlib.Path(root)
 names = type(veil.BRDF1).param_names()
 t0 = time.perf_counter()
 run = fit_maps(root / "photos", root / "manifest.csv", veil.BTDF2, root / f"rss{photos}.zarr",
-               fixed={names[3]: 1.55})
+               fixed={names[3]: 1.55}, roi=roi)
 print(time.perf_counter() - t0, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
       run.seconds.get("tables", 0), run.seconds.get("staging", 0), run.seconds.get("solve", 0))
 """
 
 
-def bench_rss(size, photos, configs, root):
-    """Peak RSS (MiB) and seconds of a map of size^2 pixels from ``photos`` photos: the
-    same image (a plate of BRDF1 values, noise) at ``photos`` configurations."""
+def bench_rss(shape, photos, configs, root, roi=None):
+    """Peak RSS (MiB) and seconds of a map from ``photos`` photos of ``shape`` (rows,
+    columns), all of it or its ``roi`` ("X,Y,W,H"): the same image (a plate of BRDF1
+    values, noise) at ``photos`` configurations."""
     import tifffile
     from maps_helpers import render
     import veil
@@ -302,34 +304,45 @@ def bench_rss(size, photos, configs, root):
     rng = np.random.default_rng(0)
     files = []
     for k, value in enumerate(values):
-        img = (value * (1 + 0.01 * rng.standard_normal((size, size)))).astype(np.float32)
+        img = (value * (1 + 0.01 * rng.standard_normal(shape, dtype=np.float32))).astype(np.float32)
         name = f"p{k:03d}.tif"
         tifffile.imwrite(folder / "photos" / name, img)
         files.append(name)
     cfg.assign(file=files)[["file", "theta_i", "phi_i", "theta_r", "phi_r"]].to_csv(
         folder / "manifest.csv", index=False)
     out = subprocess.run([sys.executable, "-c", RSS_CHILD, str(HERE.parent / "tests"),
-                          str(folder), str(len(files)), str(size)],
+                          str(folder), str(len(files)), roi or ""],
                          capture_output=True, text=True, check=True)
     total, rss, t_tab, t_stage, t_solve = map(float, out.stdout.split()[-5:])
     return len(files), total, rss, t_tab, t_stage, t_solve
 
 
 def _rss_table(args, configs, root):
-    print(f"\n| photos of {args.rss_size} x {args.rss_size} | seconds | peak RSS (MiB) |"
+    rows, cols = ((int(v) for v in args.rss_size.split("x")) if "x" in args.rss_size
+                  else (int(args.rss_size),) * 2)
+    pixels = rows * cols
+    if args.rss_roi:
+        pixels = int(np.prod([int(v) for v in args.rss_roi.split(",")[2:]]))
+    where = f" (ROI {args.rss_roi})" if args.rss_roi else ""
+    print(f"\n| photos of {cols} x {rows}{where} | seconds | peak RSS (MiB) |"
           f" tables | staging | solve | solve pixels/s |")
     print("|---:|---:|---:|---:|---:|---:|---:|")
     for photos in (int(n) for n in args.rss_photos.split(",")):
-        n, total, rss, t_tab, t_stage, t_solve = bench_rss(args.rss_size, photos, configs, root)
+        n, total, rss, t_tab, t_stage, t_solve = bench_rss((rows, cols), photos, configs, root,
+                                                           args.rss_roi)
         print(f"| {n} | {total:.1f} | {rss:.0f} | {t_tab:.1f} | {t_stage:.1f} | "
-              f"{t_solve:.1f} | {args.rss_size ** 2 / t_solve:,.0f} |", flush=True)
+              f"{t_solve:.1f} | {pixels / t_solve:,.0f} |", flush=True)
+        shutil.rmtree(root / f"rss{photos}", ignore_errors=True)
 
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--pixels", type=int, default=20000)
     ap.add_argument("--size", type=int, default=200)
-    ap.add_argument("--rss-size", type=int, default=1000)
+    ap.add_argument("--rss-size", default="1000", metavar="N|ROWSxCOLS",
+                    help="photo size of part 4 (default 1000: 1000 x 1000)")
+    ap.add_argument("--rss-roi", default=None, metavar="X,Y,W,H",
+                    help="map only this region of part 4's photos (all of each is staged)")
     ap.add_argument("--skip-rss", action="store_true")
     ap.add_argument("--rss-only", action="store_true",
                     help="only the megapixel maps of part 4 (end to end, fresh processes)")
@@ -347,7 +360,7 @@ def main():
     ap.add_argument("--near-accuracy", default="fast")
     ap.add_argument("--step-fraction", type=float, default=None)
     args = ap.parse_args()
-    import veil
+    import veil  # noqa: F401  (JAX set up by veil before the models)
     from veil.models import model_class
 
     configs = protocol_configs()
@@ -379,7 +392,7 @@ def main():
               f"{t_solve:.2f} | {t_cpu:.2f} | {args.pixels / t_solve:,.0f} | "
               f"{100 * np.mean(fits.status == 0):.1f} % |", flush=True)
     if args.solve_only:
-        print(f"\nsolve runs (wall s, CPU s): "
+        print("\nsolve runs (wall s, CPU s): "
               + "; ".join(f"{w:.2f}, {c:.2f}" for w, c in runs)
               + f"\nload average at the end {os.getloadavg()[0]:.1f}")
         return
