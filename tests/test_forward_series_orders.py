@@ -168,7 +168,7 @@ def test_landing_factors_against_monte_carlo_of_the_cylinder():
     """Per order, the view side of the lab set-up (R_c 15, a 2.5, tau 1, g 0.88) at
     theta_r = 80 deg: the seeded Monte Carlo's paths of orders 2 and 3 land on the plate at
     0.70 and 0.52 of what J_v predicts; lambda_k reproduces that within 8 % (a Gaussian drift of
-    HG's variance 1 - g^j, the first guess, is 35 % off, and J_v alone 30-48 %)."""
+    HG's variance 1 - g^j, the first guess, is 35 % off at order 2, and J_v alone 30-48 %)."""
     sys.path.insert(0, os.path.join(HERE, "..", "validation"))
     import mc_orders
 

@@ -25,12 +25,16 @@ v = R - (mu_R/mu_R') R': the fraction of the scattering depths along the camera'
 light left the plate (exact for single scattering, docs/physics.md sec. 5). Without a plate
 width the plate is infinite (S = R_c); without a path length J_v = 1 (the series alone).
 
-Order weights (option ``orders``): "poisson" (default) as above; "cylinder" weights the
-lobe's order k by the path factor M_k(tau, g) of the light side in the lab's cylinder
+Order weights (option ``orders``): "poisson" (default) as above; "light" weights the lobe's
+order k by the path factor M_k(tau, g) of the light side in the lab's cylinder
 (docs/physics.md sec. 8, ``path_factors``) and the view weight by the ratio that keeps the
-view side the Poisson series times J_v. Measured: right on the light side against a Monte
-Carlo, but alone it moves the fitted tau further from the truth at tau = 1 (1.121 -> 1.162):
-the view side's correction is missing. Experimental; not for use alone.
+view side the Poisson series times J_v; "view" keeps the lobe Poisson and weights the view
+side's order k by the landing factor lambda_k(g; R_c, a, theta_r) (``landing_factors``: a
+path that wandered lands where its whole lateral drift puts it, not where its last direction
+back-projects); "cylinder" does both. Measured (docs/validity.md): "light" alone moves the
+fitted tau at tau = 1 from 1.121 to 1.162; "cylinder" brings it to 1.050 (5 cm plate),
+1.038 (10 cm plate), 1.034 (R_c 10 cm), the estimate vs truth better there (0.21 -> 0.19 %,
+0.94 -> 0.76 %, 0.61 -> 0.46 %), 0.08 -> 0.14 % at tau = 0.5. Experimental (default off).
 
 An overall intensity factor s (held at 1 unless a fit frees it) covers medium sessions whose
 exposure differs from the clear-water session's.
