@@ -274,14 +274,19 @@ def eval_command(brdf_text, medium_text, theta_i, theta_r, phi_i, phi_r, configs
         _check_option_angle("--phi-r", phi_r, polar=False)
         ti, pi_, tr, pr = (np.array([x]) for x in (theta_i, phi_i, theta_r, phi_r))
 
-    progress = _Progress()
-    try:
-        value, error = evaluate_configs(brdf, medium, ti, tr, pi_, pr, accuracy, progress)
-    finally:
-        progress.stop()
+    from concurrent.futures import ThreadPoolExecutor
+
     from ..engine.apparent import reflectance
 
-    clear = reflectance(brdf, ti, tr, pi_, pr)
+    progress = _Progress()
+    # the object's own f_r on a worker thread: its program loads while the engine's do
+    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="veil-clear") as pool:
+        clear_future = pool.submit(reflectance, brdf, ti, tr, pi_, pr)
+        try:
+            value, error = evaluate_configs(brdf, medium, ti, tr, pi_, pr, accuracy, progress)
+        finally:
+            progress.stop()
+        clear = clear_future.result()
     value, error, clear = (np.asarray(a, dtype=float).reshape(-1) for a in (value, error, clear))
 
     if as_json:

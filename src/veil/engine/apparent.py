@@ -146,15 +146,18 @@ def apparent(brdf, medium, theta_i, theta_r, phi_i=180.0, phi_r=0.0, *,
     shape = ti.shape
     vb, vm = b.to_vector(), m.to_vector()
 
-    def evaluate(rule):
-        forward = Forward(b, m, ti, tr, pi_, pr, rule)
+    def evaluate(forward):
         terms = forward.terms(vb, vm)
         value = forward.combine(terms, vb, vm).reshape(shape)
         return check_finite(value, "the apparent reflectance", [b, m], terms=terms)
 
-    value = evaluate(RULES[accuracy])
+    fine = None
+    if return_error:  # its program loads (or compiles) on a worker thread meanwhile
+        fine = Forward(b, m, ti, tr, pi_, pr, FINER[accuracy])
+        fine.prepare(values=True)
+    value = evaluate(Forward(b, m, ti, tr, pi_, pr, RULES[accuracy]))
     if not return_error:
         return value
-    finer = evaluate(FINER[accuracy])
+    finer = evaluate(fine)
     error = ERROR_FACTOR * np.abs(value - finer)
     return value, check_finite(error, "the error estimate of the apparent reflectance", [b, m])
