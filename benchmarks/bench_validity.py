@@ -24,7 +24,7 @@ joint fit (veil.fit_joint) of the reference and the target in the medium, the re
 f_r of step 0 held (no direct fit is compared there: the columns against it are empty).
 
 Run:  .venv/bin/python benchmarks/bench_validity.py [--media m01,m05,m10] [--targets target]
-      [--models paper,physical] [--orders poisson|cylinder|light|view] [--joint] [--figure docs/validity.png] [--json out.json]
+      [--models paper,physical] [--orders poisson|cylinder|light-side|view-side] [--joint] [--figure docs/validity.png] [--json out.json]
 The clear-water tables have sigma = 0 (deterministic renders, validation/README.md); they are
 fitted unweighted.
 """
@@ -260,7 +260,7 @@ def main(argv=None) -> int:
     ap.add_argument("--replot", default=None, metavar="JSON",
                     help="draw --figure from the rows of an earlier --json run, fit nothing")
     ap.add_argument("--orders", default="poisson",
-                    choices=("poisson", "cylinder", "light", "view"),
+                    choices=("poisson", "cylinder", "light-side", "view-side"),
                     help="the physical medium's order weights (forward-series option orders)")
     args = ap.parse_args(argv)
     global ORDERS

@@ -1,6 +1,6 @@
 """The forward series' order weights (MODEL.md 8.1, docs/physics.md sec. 8): the default
-("poisson") is the series as written, bit for bit; "light" multiplies the light side's order
-k by the path factor M_k(tau, g), "view" the view side's by the landing factor lambda_k,
+("poisson") is the series as written, bit for bit; "light-side" multiplies the light side's order
+k by the path factor M_k(tau, g), "view-side" the view side's by the landing factor lambda_k,
 "cylinder" both; each checked against its derivation and against a seeded Monte Carlo of the
 lab set-up (validation/mc_orders.py)."""
 import math
@@ -69,7 +69,7 @@ def test_path_factors_are_the_derived_terms(tau, g):
 
 def test_light_orders_keep_the_view_side_and_weight_the_light_side():
     m0 = ForwardSeries(tau=1.0, omega=0.99, g=0.88, path_length=15.0, plate_width=5.0)
-    m1 = m0.replace(orders="light")
+    m1 = m0.replace(orders="light-side")
     v = _vector(m0)
     x = 0.99
     k = np.arange(1, ORDERS + 1)
@@ -143,7 +143,7 @@ def test_landing_factors_are_their_derivation():
 
 
 def test_view_orders_weight_the_view_side_only():
-    """orders="view": the lobe is the Poisson series', the view side sum_k w_k lambda_k
+    """orders="view-side": the lobe is the Poisson series', the view side sum_k w_k lambda_k
     p(g^k) J_v; "cylinder": the lobe the light side's (M_k), the view side the same."""
     m0 = ForwardSeries(tau=1.0, omega=0.99, g=0.88, path_length=15.0, plate_width=5.0)
     v = _vector(m0)
@@ -157,11 +157,11 @@ def test_view_orders_weight_the_view_side_only():
     hg = (1 - 0.88 ** (2 * k)) / (4 * np.pi * (1 + 0.88 ** (2 * k) - 2 * 0.88 ** k
                                                 * (1 - omm[:, None])) ** 1.5)
     want = math.exp(-1.0) * (w * lam * hg).sum(axis=1) * np.asarray(m0.view_weight(v, rp, r))
-    for orders in ("view", "cylinder"):
+    for orders in ("view-side", "cylinder"):
         m = m0.replace(orders=orders)
         got = m.lobe_weight(v) * m.phase(v, omm) * m.view_weight(v, rp, r)
         assert np.allclose(np.asarray(got), want, rtol=3 * ForwardSeries.TABLE_ACCURACY)
-    assert float(m0.replace(orders="view").lobe_weight(v)) == float(m0.lobe_weight(v))
+    assert float(m0.replace(orders="view-side").lobe_weight(v)) == float(m0.lobe_weight(v))
 
 
 def test_landing_factors_against_monte_carlo_of_the_cylinder():

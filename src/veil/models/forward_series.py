@@ -25,13 +25,13 @@ v = R - (mu_R/mu_R') R': the fraction of the scattering depths along the camera'
 light left the plate (exact for single scattering, docs/physics.md sec. 5). Without a plate
 width the plate is infinite (S = R_c); without a path length J_v = 1 (the series alone).
 
-Order weights (option ``orders``): "poisson" (default) as above; "light" weights the lobe's
+Order weights (option ``orders``): "poisson" (default) as above; "light-side" weights the lobe's
 order k by the path factor M_k(tau, g) of the light side in the lab's cylinder
 (docs/physics.md sec. 8, ``path_factors``) and the view weight by the ratio that keeps the
-view side the Poisson series times J_v; "view" keeps the lobe Poisson and weights the view
+view side the Poisson series times J_v; "view-side" keeps the lobe Poisson and weights the view
 side's order k by the landing factor lambda_k(g; R_c, a, theta_r) (``landing_factors``: a
 path that wandered lands where its whole lateral drift puts it, not where its last direction
-back-projects); "cylinder" does both. Measured (docs/validity.md): "light" alone moves the
+back-projects); "cylinder" does both. Measured (docs/validity.md): "light-side" alone moves the
 fitted tau at tau = 1 from 1.121 to 1.162; "cylinder" brings it to 1.050 (5 cm plate),
 1.038 (10 cm plate), 1.034 (R_c 10 cm), the estimate vs truth better there (0.21 -> 0.19 %,
 0.94 -> 0.76 %, 0.61 -> 0.46 %), 0.08 -> 0.14 % at tau = 0.5. Experimental (default off).
@@ -51,11 +51,11 @@ from .base import Medium, Option, Param
 from .renderers import Plugin, Unsupported, Value, float_value
 
 VARIANTS = ("paper", "exit")
-#: Weights of the orders: "poisson" (MODEL.md 8.1 as written); "light" (the light side's orders
+#: Weights of the orders: "poisson" (MODEL.md 8.1 as written); "light-side" (the light side's orders
 #: with the cylinder's path factors M_k, docs/physics.md sec. 8, the view side Poisson x J_v);
-#: "view" (the light side Poisson, the view side's orders with the landing factors lambda_k);
+#: "view-side" (the light side Poisson, the view side's orders with the landing factors lambda_k);
 #: "cylinder" (both).
-ORDER_WEIGHTS = ("poisson", "cylinder", "light", "view")
+ORDER_WEIGHTS = ("poisson", "cylinder", "light-side", "view-side")
 #: Probabilists' Gauss-Hermite rule for the landing factors' mean over the path's depths.
 _HERMITE = 12
 #: Orders of scattering summed; with tau <= TAU_MAX the weight beyond them is below 1e-6 of
@@ -318,7 +318,7 @@ class ForwardSeries(Medium):
         return jnp.exp(-v[0])
 
     def lobe_weight(self, v):
-        if self.orders in ("cylinder", "light"):
+        if self.orders in ("cylinder", "light-side"):
             return jnp.exp(-v[0]) * v[1] * v[0] * _path_mixture(v)[2]
         return jnp.exp(-v[0]) * jnp.expm1(v[1] * v[0])
 
@@ -331,8 +331,8 @@ class ForwardSeries(Medium):
     # -- the normalized scattered lobe, tabulated once per engine call --------------------
     def mixture(self, v):
         """(c_k, g_k) of the normalized scattered lobe (module docstring; with
-        ``orders="cylinder"`` or "light" the light side's weights)."""
-        if self.orders in ("cylinder", "light"):
+        ``orders="cylinder"`` or "light-side" the light side's weights)."""
+        if self.orders in ("cylinder", "light-side"):
             return _path_mixture(v)[:2]
         return _mixture(v)
 
@@ -355,14 +355,14 @@ class ForwardSeries(Medium):
 
     # -- the finite plate ----------------------------------------------------------------
     def has_view_weight(self) -> bool:
-        return self.path_length > 0 or self.orders in ("cylinder", "light")
+        return self.path_length > 0 or self.orders in ("cylinder", "light-side")
 
     def view_weight(self, v, r_prime, r):
         """J_v(R', R) (module docstring); 1 without a path length. With other ``orders`` than
         "poisson", times sum_k x^k/k! V_k p(g^k) / sum_k x^k/k! M_k p(g^k) at R'.R: M_k the
-        weights the lobe carries (1 unless the light side's path factors are in it, "light",
+        weights the lobe carries (1 unless the light side's path factors are in it, "light-side",
         "cylinder"), V_k those the view side should have (the landing factors lambda_k of
-        ``landing_factors`` with "view" and "cylinder", else 1)."""
+        ``landing_factors`` with "view-side" and "cylinder", else 1)."""
         jv = self._plate_weight(v, r_prime, r)
         if self.orders == "poisson":
             return jv
@@ -372,9 +372,9 @@ class ForwardSeries(Medium):
         gk = jnp.cumprod(jnp.full(ORDERS, g))
         omm = 0.5 * jnp.sum((r_prime - r) ** 2, axis=-1)    # 1 - R'.R without cancellation
         p = phase.hg_pdf(gk, omm[..., None])
-        lobe = s * path_factors(tau, g) if self.orders in ("cylinder", "light") else s
+        lobe = s * path_factors(tau, g) if self.orders in ("cylinder", "light-side") else s
         view = s
-        if self.orders in ("cylinder", "view") and self.plate_width > 0:
+        if self.orders in ("cylinder", "view-side") and self.plate_width > 0:
             view = s * landing_factors(g, self.path_length, 0.5 * self.plate_width, r[2])
         return jv * jnp.sum(view * p, axis=-1) / jnp.sum(lobe * p, axis=-1)
 
