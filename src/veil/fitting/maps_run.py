@@ -35,7 +35,7 @@ import numpy as np
 
 from ..data.ingest import (CHANNELS, ROI, IngestWarning, _linear, parse_roi,
                            manifest_photos, read_photo)
-from ..errors import FitError, InputError, MissingFileError
+from ..errors import InputError, MissingFileError
 from ..io import write_bytes_atomic, write_text_atomic
 from .maps import (CONVERGED, MASKED, STATUS, MapTables, build_tables, solve_pixels, warm_up)
 from .maps_near import NearGeometry
