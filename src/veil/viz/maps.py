@@ -90,8 +90,11 @@ def maps_figure(store, path, *, dpi: int = 110) -> Path:
     for ax in list(axes.flat)[n:]:
         ax.axis("off")
     info = maps["info"]
+    geometry = info.get("geometry") or {}
+    camera = (f", near-field camera at {geometry['camera_distance']:g} (pixel "
+              f"{geometry['pixel_pitch']:g})" if geometry.get("kind") == "near-field" else "")
     fig.suptitle(f"{info['model']} through {info['medium']['model']}: {h} x {w} pixels, "
-                 f"{info['photos']} photos", fontsize=11)
+                 f"{info['photos']} photos{camera}", fontsize=11)
     fig.tight_layout()
     path = Path(path)
     fmt = path.suffix.lower().lstrip(".") or "png"
