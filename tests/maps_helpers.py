@@ -38,21 +38,9 @@ def write_stack(folder, brdf, medium, configs, param_maps: np.ndarray, noise=0.0
                 suffix=".tif") -> Path:
     """Photos (one per configuration) of a plate whose BRDF vector at each pixel is
     ``param_maps`` (n_params, H, W); relative Gaussian noise. Returns the manifest path."""
-    folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
     n, h, w = param_maps.shape
     values = render(brdf, medium, configs, param_maps.reshape(n, -1).T)  # (H*W, M)
-    rng = np.random.default_rng(seed)
-    values = values * (1 + noise * rng.standard_normal(values.shape))
-    names = []
-    for k in range(len(configs)):
-        name = f"photo_{k:03d}{suffix}"
-        tifffile.imwrite(folder / name, values[:, k].reshape(h, w).astype(np.float32))
-        names.append(name)
-    manifest = configs.assign(file=names)[["file", "theta_i", "phi_i", "theta_r", "phi_r"]]
-    path = folder / "manifest.csv"
-    manifest.to_csv(path, index=False)
-    return path
+    return write_photos(folder, configs, values, (h, w), noise, seed, suffix)
 
 
 def render_near(brdf, medium, configs: pd.DataFrame, param_maps: np.ndarray, geometry,
@@ -78,7 +66,8 @@ def render_near(brdf, medium, configs: pd.DataFrame, param_maps: np.ndarray, geo
     return out
 
 
-def write_photos(folder, configs, values: np.ndarray, shape, noise=0.01, seed=0) -> Path:
+def write_photos(folder, configs, values: np.ndarray, shape, noise=0.01, seed=0,
+                 suffix=".tif") -> Path:
     """Float32 TIFFs of ``values`` (H*W, M) with relative Gaussian noise, and the manifest."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
@@ -87,7 +76,7 @@ def write_photos(folder, configs, values: np.ndarray, shape, noise=0.01, seed=0)
     values = values * (1 + noise * rng.standard_normal(values.shape))
     names = []
     for k in range(len(configs)):
-        name = f"photo_{k:03d}.tif"
+        name = f"photo_{k:03d}{suffix}"
         tifffile.imwrite(folder / name, values[:, k].reshape(h, w).astype(np.float32))
         names.append(name)
     manifest = configs.assign(file=names)[["file", "theta_i", "phi_i", "theta_r", "phi_r"]]

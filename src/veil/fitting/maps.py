@@ -514,7 +514,7 @@ def _build_near(brdf_cls, medium, angles, template, names, base, free_scales, ax
 # --------------------------------------------------------------------------------------
 def _interp(coef, u, d):
     """Basis (M, q + 1) and its derivatives (d, M, q + 1) at grid coordinates ``u`` (d,)."""
-    from .._jax import jax, jnp
+    from .._jax import jnp
 
     if d == 0:
         return coef, jnp.zeros((0,) + coef.shape)
@@ -528,24 +528,36 @@ def _interp(coef, u, d):
                               jnp.where(outer, -0.5 * (2 - x) ** 2, 0.0))
         both = jnp.tensordot(jnp.stack([w, dw]), coef, axes=([1], [0]))
         return both[0], both[1:]
-    sizes = coef.shape[:d]
+    block, ws, dws = _spline_block(coef, u, d)
+    return _contract(block, ws, dws, d)
+
+
+def _spline_block(coef, pos, axes):
+    """The (4,) * axes block of cubic B-spline coefficients around grid coordinates ``pos``
+    (axes,) and the weights and their slopes along each of those axes."""
+    from .._jax import jax, jnp
+
+    sizes = coef.shape[:axes]
     cells, ws, dws = [], [], []
-    for a in range(d):
-        k = sizes[a] - 2
-        i = jnp.clip(jnp.floor(u[a]), 0, k - 2).astype(jnp.int64)
-        w, dw = _weights(u[a] - i, jnp)
+    for a in range(axes):
+        i = jnp.clip(jnp.floor(pos[a]), 0, sizes[a] - 4).astype(jnp.int64)
+        w, dw = _weights(pos[a] - i, jnp)
         cells.append(i)
         ws.append(w)
         dws.append(dw)
-    start = tuple(cells) + (0,) * (coef.ndim - d)
-    block = jax.lax.dynamic_slice(coef, start, (4,) * d + coef.shape[d:])
+    start = tuple(cells) + (0,) * (coef.ndim - axes)
+    return jax.lax.dynamic_slice(coef, start, (4,) * axes + coef.shape[axes:]), ws, dws
+
+
+def _contract(block, ws, dws, d):
+    """Value and derivatives (d, ...) of a (4,) * d block with its axes' weights."""
+    from .._jax import jnp
+
     letters = "abc"[:d]
-    spec = f"{letters}...,"
-    value = jnp.einsum(spec + ",".join(letters) + "->...", block, *ws)
-    derivs = []
-    for a in range(d):
-        factors = [dws[b] if b == a else ws[b] for b in range(d)]
-        derivs.append(jnp.einsum(spec + ",".join(letters) + "->...", block, *factors))
+    spec = f"{letters}...," + ",".join(letters) + "->..."
+    value = jnp.einsum(spec, block, *ws)
+    derivs = [jnp.einsum(spec, block, *[dws[b] if b == a else ws[b] for b in range(d)])
+              for a in range(d)]
     return value, jnp.stack(derivs)
 
 
@@ -553,33 +565,14 @@ def _interp_near(coef, fu, u, d):
     """Near-field tables: basis (M, q + 1) at field-grid coordinates ``fu`` (2,) and grid
     coordinates ``u`` (d,), and its derivatives (d, M, q + 1) along the nonlinear axes
     (the pixel's position is not fitted)."""
-    from .._jax import jax, jnp
+    from .._jax import jnp
 
-    axes = d + 2
-    pos = jnp.concatenate([fu, u])
-    sizes = coef.shape[:axes]
-    cells, ws, dws = [], [], []
-    for a in range(axes):
-        k = sizes[a] - 2
-        i = jnp.clip(jnp.floor(pos[a]), 0, k - 2).astype(jnp.int64)
-        w, dw = _weights(pos[a] - i, jnp)
-        cells.append(i)
-        ws.append(w)
-        dws.append(dw)
-    start = tuple(cells) + (0,) * (coef.ndim - axes)
-    block = jax.lax.dynamic_slice(coef, start, (4,) * axes + coef.shape[axes:])
+    block, ws, dws = _spline_block(coef, jnp.concatenate([fu, u]), d + 2)
     # the field axes first: a (4,) * d block of the pixel's own coefficients
     block = jnp.einsum("ab...,a,b->...", block, ws[0], ws[1])
     if d == 0:
         return block, jnp.zeros((0,) + block.shape)
-    letters = "abc"[:d]
-    spec = f"{letters}...,"
-    value = jnp.einsum(spec + ",".join(letters) + "->...", block, *ws[2:])
-    derivs = []
-    for a in range(d):
-        factors = [dws[2 + b] if b == a else ws[2 + b] for b in range(d)]
-        derivs.append(jnp.einsum(spec + ",".join(letters) + "->...", block, *factors))
-    return value, jnp.stack(derivs)
+    return _contract(block, ws[2:], dws[2:], d)
 
 
 def _nnls_small(g, b, yy, q, jnp):
