@@ -156,8 +156,9 @@ def test_persistent_cache_fills_loads_and_changes_nothing(tmp_path):
     assert uncached == ["0", "None"]
 
 
-def test_one_executable_for_all_devices():
+def test_one_executable_for_all_devices(tmp_path, monkeypatch):
     """A Forward spread over every CPU device compiles one program, not one per device."""
+    monkeypatch.setenv("VEIL_CACHE_DIR", str(tmp_path))  # an empty program store: compiles
     if len(jax.devices()) < 2:
         pytest.skip("needs two CPU devices")
     b, m = veil.preset("BRDF2"), veil.preset("BTDF3")
@@ -173,21 +174,22 @@ def test_one_executable_for_all_devices():
     np.testing.assert_allclose(single(b.to_vector(), m.to_vector()), value[:7], rtol=1e-13)
 
 
-def test_prepare_compiles_in_the_background_once():
+def test_prepare_compiles_in_the_background_once(tmp_path, monkeypatch):
     """prepare() starts the compilations; a call made before they finish waits for them
     instead of compiling the same program again, and the values are unchanged."""
+    monkeypatch.setenv("VEIL_CACHE_DIR", str(tmp_path))  # an empty program store: compiles
     b, m = veil.preset("BRDF1"), veil.preset("BTDF3")
     th = np.linspace(10.0, 70.0, 20)
     rule = RULES["fast"].scaled(0.93)  # a rule no other test compiles
     f = Forward(b, m, th, th, 180.0, 0.0, rule=rule)
     with compilations() as compiles:
-        futures = f.prepare(values=True, jacobian=((2,), (2,)))
+        futures = f.prepare(values=True, jacobians=[((2,), (2,))])
         assert len(futures) == 2
         value, jac = f.value_and_jacobian(b.to_vector(), m.to_vector(), (2,), (2,))
         terms = f.terms(b.to_vector(), m.to_vector())
         for fut in futures:
             fut.result()
-        assert f.prepare(values=True, jacobian=((2,), (2,)))[0] is futures[0]
+        assert f.prepare(values=True, jacobians=[((2,), (2,))])[0] is futures[0]
         assert all(fut.result() is None for fut in futures)
     assert compiles.count("jit(fn)") == 2, compiles  # terms and Jacobian, once each
     np.testing.assert_array_equal(f.combine(terms, b.to_vector(), m.to_vector()), value)

@@ -115,6 +115,52 @@ def test_result_is_at_the_requested_accuracy():
             assert np.max(np.abs(res - np.array(result.residuals))) > 0.01
 
 
+def test_steps_differentiate_only_the_models_they_need(monkeypatch):
+    """Step 1 iterates with the medium's derivatives alone and step 2 with the object's;
+    the given model's derivatives are taken once, for the propagated covariance. The
+    partial Jacobians equal the full one's columns, the rest is NaN until asked for."""
+    from veil.engine.evaluator import ApparentModel
+    from veil.fitting import session_problem
+
+    calls = []
+    original = ApparentModel.value_and_jacobian
+
+    def spy(self, vb, vm, wrt=("brdf", "medium")):
+        calls.append(tuple(wrt))
+        return original(self, vb, vm, wrt)
+
+    monkeypatch.setattr(ApparentModel, "value_and_jacobian", spy)
+    table, black = session("BRDF1", "BTDF1", psi=SMALL)
+    ref = fit_reference(session("BRDF1", None)[0])
+    med = fit_medium(copy(table), ref, black=copy(black), **FAST)
+    assert calls.count(("medium",)) >= 3 and calls.count(("brdf",)) == 1, calls
+    assert ("brdf", "medium") not in calls
+    calls.clear()
+    fit_target(copy(table), med, black=copy(black), **FAST)
+    assert calls.count(("brdf",)) >= 3 and calls.count(("medium",)) == 1, calls
+    assert ("brdf", "medium") not in calls
+
+    monkeypatch.setattr(ApparentModel, "value_and_jacobian", original)
+    problem = session_problem(subtract_black(table, black), veil.BRDF1, veil.BTDF1,
+                              free=["g", "eta_u"])
+    x = problem.values * (1 + 1e-3)
+    full = session_problem(subtract_black(table, black), veil.BRDF1, veil.BTDF1,
+                           free=["g", "eta_u"]).value_and_jacobian(x)[1]
+    medium_cols = [problem.index(k) for k in ("Td", "Tt", "g", "eta_u")]
+    brdf_cols = [problem.index(k) for k in ("Pd", "Ps", "n", "eta")]
+    _, part = problem.value_and_jacobian(x, columns=problem.free)
+    assert np.all(np.isnan(part[:, brdf_cols]))
+    np.testing.assert_allclose(part[:, medium_cols], full[:, medium_cols], rtol=1e-9,
+                               atol=1e-12 * np.max(np.abs(full)))
+    engine = problem.blocks[0].model("fast")._engine
+    before = engine.jacobian_calls
+    _, both = problem.value_and_jacobian(x, columns=brdf_cols)  # adds the BRDF's alone
+    assert engine.jacobian_calls == before + 1
+    np.testing.assert_allclose(both, full, rtol=1e-9, atol=1e-12 * np.max(np.abs(full)))
+    problem.value_and_jacobian(x, columns=medium_cols + brdf_cols)  # both known: no call
+    assert engine.jacobian_calls == before + 1
+
+
 # -- the result object ----------------------------------------------------------------------
 
 def test_json_round_trip_and_keys(tmp_path):

@@ -307,7 +307,7 @@ def diagnose(result: FitResult, data, *, medium=None, reference=None, black=None
                        "the parameters is not determined at all (fix one of them)")
     se = np.sqrt(np.maximum(np.diag(cov), 0.0))
     corr = cov / np.outer(se, se)
-    _, full = problem.value_and_jacobian(x, accuracy)
+    _, full = problem.value_and_jacobian(x, accuracy, problem.free)
     jw = np.concatenate([full * problem.w[:, None], problem.prior_rows(x)[1]])[:, problem.free]
     vals = x[problem.free]
     cond_values = _cond(jw * np.where(vals != 0, np.abs(vals), 1.0)[None, :])

@@ -61,10 +61,11 @@ def sensitivity(problem, x, theta, nuisance, accuracy: str = ITERATION_ACCURACY)
     """A = (J_t^T W J_t)^-1 J_t^T W J_n at natural parameters ``x``: the estimate of the
     ``theta`` parameters moves by -A d nuisance (module docstring). Shape (len(theta),
     len(nuisance)); columns are scaled internally for conditioning."""
-    _, full = problem.value_and_jacobian(x, accuracy)
+    it, iu = [problem.index(n) for n in theta], [problem.index(n) for n in nuisance]
+    _, full = problem.value_and_jacobian(x, accuracy, it + iu)
     w = problem.w[:, None]
-    jt = full[:, [problem.index(n) for n in theta]] * w
-    jn = full[:, [problem.index(n) for n in nuisance]] * w
+    jt = full[:, it] * w
+    jn = full[:, iu] * w
     scale = np.linalg.norm(jt, axis=0)
     if np.any(scale == 0):
         dead = [n for n, s in zip(theta, scale) if s == 0]

@@ -22,6 +22,8 @@ from .apparent import apparent, direct_programs, reflectance
 
 #: Configurations per engine call of fits and simulations (they share one compilation).
 CHUNK = 64
+#: The models a Jacobian can be taken with respect to (ApparentModel.value_and_jacobian).
+WRT = ("brdf", "medium")
 
 
 def chunks(size: int, chunk: int = CHUNK):
@@ -64,17 +66,25 @@ class ApparentModel:
         for start, stop, idx in chunks(self.size):
             ti, pi_, tr, pr = (a[idx] for a in angles)
             self.parts.append((Forward(brdf, medium, ti, tr, pi_, pr, rule), stop - start))
-        nb, nm = len(brdf.PARAMS), len(medium.PARAMS)
-        # every parameter of both models: one compiled Jacobian serves steps 1 and 2 and any
-        # choice of fixed parameters
-        self.all_b, self.all_m = tuple(range(nb)), tuple(range(nm))
+        self.all_b = tuple(range(len(brdf.PARAMS)))
+        self.all_m = tuple(range(len(medium.PARAMS)))
         self.values_calls = 0
         self.jacobian_calls = 0
 
-    def prepare(self, values: bool = True, jacobian: bool = False) -> None:
-        """Compile in the background what :meth:`values`/:meth:`terms` and
-        :meth:`value_and_jacobian` will need (every chunk shares one compilation)."""
-        self.parts[0][0].prepare(values, (self.all_b, self.all_m) if jacobian else None)
+    def prepare(self, values: bool = True, jacobians=()) -> None:
+        """Compile (or load) in the background what :meth:`values`/:meth:`terms` and
+        :meth:`value_and_jacobian` with each ``wrt`` of ``jacobians`` will need (every chunk
+        shares one compilation)."""
+        self.parts[0][0].prepare(values, [self._free(wrt) for wrt in jacobians])
+
+    def _free(self, wrt) -> tuple:
+        """(BRDF indices, medium indices) differentiated for ``wrt``, a subset of WRT: every
+        parameter of each named model, none of the other (one compiled Jacobian per subset,
+        whichever of its parameters a fit holds)."""
+        unknown = set(wrt) - set(WRT)
+        if unknown:
+            raise ValueError(f"wrt = {tuple(wrt)!r}; expected a subset of {WRT}")
+        return (self.all_b if "brdf" in wrt else (), self.all_m if "medium" in wrt else ())
 
     def terms(self, vb, vm) -> np.ndarray:
         """Term matrices (M, 3, 2) with the scale parameters set to 1 (rows T_d^2, T_d T_t,
@@ -90,14 +100,21 @@ class ApparentModel:
         values = self.parts[0][0].combine(terms, vb, vm)
         return check_finite(values, "the apparent reflectance", self.models, [vb, vm], terms)
 
-    def value_and_jacobian(self, vb, vm):
-        """Values (M,) and d value / d (every BRDF parameter, every medium parameter)."""
+    def value_and_jacobian(self, vb, vm, wrt=WRT):
+        """Values (M,) and d value / d (every BRDF parameter, every medium parameter), the
+        columns of a model not in ``wrt`` NaN (not computed: a fit of one model's parameters
+        runs the smaller program of its own derivatives)."""
         self.jacobian_calls += 1
+        free_b, free_m = self._free(wrt)
+        nb = len(self.all_b)
+        cols = list(free_b) + [nb + i for i in free_m]
         vals, jacs = [], []
         for f, n in self.parts:
-            v, j = f.value_and_jacobian(vb, vm, free_brdf=self.all_b, free_medium=self.all_m)
+            v, j = f.value_and_jacobian(vb, vm, free_brdf=free_b, free_medium=free_m)
+            full = np.full((n, nb + len(self.all_m)), np.nan)
+            full[:, cols] = j[:n]
             vals.append(v[:n])
-            jacs.append(j[:n])
+            jacs.append(full)
         values = check_finite(np.concatenate(vals), "the apparent reflectance", self.models,
                               [vb, vm])
         return values, np.concatenate(jacs)

@@ -170,18 +170,19 @@ class Forward:
     def _run(self, fn, vb, vm):
         return fn(vb, vm, self._wi, self._wr)
 
-    def prepare(self, values: bool = True, jacobian=None) -> list[Future]:
-        """Start compiling in the background what later calls will need: the term matrices
-        (``values``, for ``terms`` and ``__call__``) and, with ``jacobian=(free_brdf,
-        free_medium)``, ``value_and_jacobian`` for those indices. Compilations run in
-        parallel on worker threads; a call that needs one still being compiled waits for
-        it. Returns the futures (None when done; an exception if the compilation failed)."""
+    def prepare(self, values: bool = True, jacobians=()) -> list[Future]:
+        """Start compiling (or loading) in the background what later calls will need: the
+        term matrices (``values``, for ``terms`` and ``__call__``) and, for each
+        ``(free_brdf, free_medium)`` of ``jacobians``, ``value_and_jacobian`` for those
+        indices. Compilations run in parallel on worker threads; a call that needs one still
+        being compiled waits for it. Returns the futures (None when done; an exception if
+        the compilation failed)."""
         fns = []
         if values:
             fns.append(_terms_fn(self._kb, self._km, self.rule, self.half, self._mesh))
-        if jacobian is not None:
-            fn = self._jacobian_fn(*jacobian)[0]
-            if fn is not None:
+        for free in jacobians:
+            fn = self._jacobian_fn(*free)[0]
+            if fn is not None and fn not in fns:
                 fns.append(fn)
         vb, vm = self._vectors(self.brdf.to_vector(), self.medium.to_vector())
         return [_submit(fn, vb, vm, self._wi, self._wr) for fn in fns]

@@ -2,8 +2,8 @@
 
 Each task runs the very code path a command takes - the fits' chunked evaluator
 (:class:`~veil.engine.evaluator.ApparentModel`, 64 in-plane configurations a chunk, values
-and the Jacobian in every parameter at the iteration accuracy, values at the reported
-one), ``veil eval`` of one configuration (:func:`~veil.engine.apparent.apparent` with its
+and the three Jacobians of the fits at the iteration accuracy - in the medium's parameters
+(step 1), the object's (step 2), both (joint fits) - values at the reported one), ``veil eval`` of one configuration (:func:`~veil.engine.apparent.apparent` with its
 error estimate) and the object's own f_r (step 0 of the fits) - so that what it stores in
 the program store (:mod:`veil.engine.programs`) and JAX's compilation cache is exactly what
 those commands look up later. Out-of-plane configurations and other chunk sizes are
@@ -19,7 +19,7 @@ import numpy as np
 
 from ..models import DEFAULTS, model_class, names
 from .apparent import apparent, reflectance
-from .evaluator import CHUNK, ApparentModel, DirectModel
+from .evaluator import CHUNK, WRT, ApparentModel, DirectModel
 from .quadrature import RULES
 
 #: The accuracy the fits iterate at (veil.fitting.problem.ITERATION_ACCURACY).
@@ -39,14 +39,19 @@ def _angles(size: int):
     return ti, np.full(size, 180.0), tr, np.zeros(size)
 
 
+#: The Jacobians the fits take: step 1 (the medium's parameters), step 2 (the object's),
+#: joint fits (both).
+JACOBIANS = (("medium",), ("brdf",), WRT)
+
+
 def _fits(brdf, medium, accuracy: str, jacobian: bool):
     def run():
         model = ApparentModel(brdf, medium, _angles(CHUNK), RULES[accuracy])
-        model.prepare(values=True, jacobian=jacobian)
+        model.prepare(values=True, jacobians=JACOBIANS if jacobian else ())
         vb, vm = brdf.to_vector(), medium.to_vector()
         model.terms(vb, vm)
-        if jacobian:
-            model.value_and_jacobian(vb, vm)
+        for wrt in JACOBIANS if jacobian else ():
+            model.value_and_jacobian(vb, vm, wrt)
     return run
 
 

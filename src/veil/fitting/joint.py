@@ -366,8 +366,9 @@ def fit_joint(sessions, *, reference=None, shared=None, per_medium=None, fixed=N
                             brdf_model=brdf_model, medium_model=medium_model,
                             brdf_options=brdf_options, medium_options=medium_options,
                             free=free)
-    for block in problem.blocks:  # compile side by side what the fit will need
-        block.model(ITERATION_ACCURACY).prepare(values=True, jacobian=True)
+    for block, wrt in zip(problem.blocks, problem.wrt(problem.free)):
+        # compile (or load) side by side what the fit will need
+        block.model(ITERATION_ACCURACY).prepare(values=True, jacobians=[wrt])
         if accuracy != ITERATION_ACCURACY:
             block.model(accuracy).prepare(values=True)
     starts = joint_starts(problem, layout, start, STARTS, _direct_fit(problem), progress)

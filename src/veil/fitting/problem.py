@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..engine.evaluator import ApparentModel, DirectModel
+from ..engine.evaluator import WRT, ApparentModel, DirectModel
 from ..engine.integrator import BRDF_PARTS, row_scales
 from ..engine.quadrature import RULES
 from ..errors import FitError
@@ -68,10 +68,11 @@ class SessionModel:
         e = self._direct if self.medium is None else self._engine
         return e.values_calls, e.jacobian_calls
 
-    def prepare(self, values: bool = True, jacobian: bool = False) -> None:
-        """Compile in the background what later calls will need (see Forward.prepare)."""
+    def prepare(self, values: bool = True, jacobians=()) -> None:
+        """Compile (or load) in the background what later calls will need: values, and
+        Jacobians with respect to each ``wrt`` of ``jacobians`` (see Forward.prepare)."""
         if self.medium is not None:
-            self._engine.prepare(values, jacobian)
+            self._engine.prepare(values, jacobians)
 
     def values(self, vb, vm=None) -> np.ndarray:
         if self.medium is None:
@@ -108,13 +109,14 @@ class SessionModel:
             cols.append(self._direct.values(v))
         return np.stack(cols, axis=1)[:, None, :]
 
-    def jacobian(self, vb, vm=None):
-        """Values (M,), d/d vb (M, nb) and d/d vm (M, nm)."""
+    def jacobian(self, vb, vm=None, wrt=WRT):
+        """Values (M,), d/d vb (M, nb) and d/d vm (M, nm); through a medium, the derivatives
+        of a model not in ``wrt`` are NaN (not computed)."""
         vb = np.asarray(vb, dtype=float)
         if self.medium is None:
             val, jac = self._direct.value_and_jacobian(vb)
             return val, jac, np.zeros((self.size, 0))
-        val, jac = self._engine.value_and_jacobian(vb, np.asarray(vm, dtype=float))
+        val, jac = self._engine.value_and_jacobian(vb, np.asarray(vm, dtype=float), wrt)
         return val, jac[:, : self.nb], jac[:, self.nb:]
 
     def row_weights(self, vm) -> np.ndarray:
@@ -316,24 +318,60 @@ class Problem:
         if values is not None:
             self._last = ((np.asarray(x, dtype=float).tobytes(), accuracy), values)
 
-    def value_and_jacobian(self, x, accuracy=ITERATION_ACCURACY):
-        """Model values (N,) and d values / d (every global parameter) (N, P), unweighted."""
-        x = np.asarray(x, dtype=float)
-        key = (x.tobytes(), accuracy)
-        if key in self._cache:
-            return self._cache[key]
-        vals, rows = [], []
+    def wrt(self, columns) -> tuple:
+        """Per block, the models (WRT) whose derivatives the global ``columns`` need (None:
+        every parameter)."""
+        wanted = None if columns is None else {int(c) for c in np.ravel(columns)}
+        out = []
         for b in self.blocks:
-            val, jb, jm = b.model(accuracy).jacobian(*self.split(b, x))
-            full = np.zeros((b.size, len(self.params)))
-            np.add.at(full.T, b.ib, jb.T)
-            if b.im is not None:
-                np.add.at(full.T, b.im, jm.T)
+            kinds = [kind for kind, idx in (("brdf", b.ib), ("medium", b.im))
+                     if idx is not None and (wanted is None or wanted & {int(i) for i in idx})]
+            out.append(tuple(kinds))
+        return tuple(out)
+
+    def value_and_jacobian(self, x, accuracy=ITERATION_ACCURACY, columns=None):
+        """Model values (N,) and d values / d (global parameters) (N, P), unweighted.
+
+        ``columns``: the global parameter indices (or a boolean mask) the caller reads; the
+        engine then differentiates only the models they belong to (a step-2 fit needs no
+        derivative in the medium's parameters) and the other columns are NaN. None: all."""
+        x = np.asarray(x, dtype=float)
+        if columns is not None and np.asarray(columns).dtype == bool:
+            columns = np.flatnonzero(columns)
+        key = (x.tobytes(), accuracy)
+        wrt = self.wrt(columns)
+        cached = self._cache.get(key)
+        if cached is not None and all(set(w) <= set(h) for w, h in zip(wrt, cached[2])):
+            return cached[0], cached[1]
+        have = cached[2] if cached is not None else tuple(() for _ in self.blocks)
+        vals, rows, done = [], [], []
+        start = 0
+        for b, want, had in zip(self.blocks, wrt, have):
+            missing = tuple(k for k in WRT if k in want and k not in had)
+            if cached is not None:
+                full = cached[1][start:start + b.size].copy()
+            else:  # another block's parameters: 0; this one's not differentiated: NaN
+                full = np.zeros((b.size, len(self.params)))
+                for kind, idx in (("brdf", b.ib), ("medium", b.im)):
+                    if b.medium is not None and kind not in want:
+                        full[:, idx] = np.nan
+            if missing or cached is None:
+                val, jb, jm = b.model(accuracy).jacobian(*self.split(b, x), wrt=missing)
+                parts = [(b.ib, jb)] if "brdf" in missing or b.medium is None else []
+                parts += [(b.im, jm)] if "medium" in missing else []
+                for idx, _ in parts:
+                    full[:, idx] = 0.0
+                for idx, jac in parts:
+                    np.add.at(full.T, idx, jac.T)
+            if cached is not None:
+                val = cached[0][start:start + b.size]  # the first call's values are kept
             vals.append(val)
             rows.append(full)
-        out = (np.concatenate(vals), np.concatenate(rows))
+            done.append(tuple(k for k in WRT if k in want or k in had))
+            start += b.size
+        out = (np.concatenate(vals), np.concatenate(rows), tuple(done))
         self._cache = {key: out}
-        return out
+        return out[0], out[1]
 
     def engine_calls(self) -> dict:
         """{accuracy: [value evaluations, Jacobian evaluations]} summed over the sessions."""

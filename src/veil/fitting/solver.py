@@ -139,7 +139,7 @@ def solve(problem: Problem, x0, *, accuracy: str = ITERATION_ACCURACY, tol=None,
         counts["j"] += 1
         x, d = problem.to_x(u, base)
         at = x if jacobian_at is None else jacobian_at
-        _, full = problem.value_and_jacobian(at, ITERATION_ACCURACY)
+        _, full = problem.value_and_jacobian(at, ITERATION_ACCURACY, problem.free)
         full = np.concatenate([full * problem.w[:, None], problem.prior_rows(x)[1]])
         return full[:, problem.free] * d[None, :]
 
@@ -234,7 +234,7 @@ def goodness(y: np.ndarray, w: np.ndarray, values: np.ndarray, n_free: int):
 
 def weighted_jacobian(problem: Problem, x, accuracy: str = ITERATION_ACCURACY) -> np.ndarray:
     """d residuals / d free natural parameters (with prior rows)."""
-    _, full = problem.value_and_jacobian(x, accuracy)
+    _, full = problem.value_and_jacobian(x, accuracy, problem.free)
     return np.concatenate([full * problem.w[:, None], problem.prior_rows(x)[1]])[:, problem.free]
 
 

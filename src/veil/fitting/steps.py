@@ -27,7 +27,8 @@ from ..models import Model, default_class, model_class
 from ..models.base import VARIANT_OPTION
 from .data import FitData, prepare
 from .given import as_given, check_options
-from .problem import ITERATION_ACCURACY, Problem, check_accuracy, session_problem
+from .problem import (ITERATION_ACCURACY, Problem, SessionModel, check_accuracy,
+                      session_problem)
 from .result import FitResult, model_entry
 from .solver import (as_fixed, check_fixed, check_max_nfev, run, summarize,
                      uncertainties)
@@ -107,8 +108,11 @@ def _step(step: str, data: FitData, fitted: Model, given: Model | None, given_re
                        f"than free parameters (fix some with fixed=... / --fix NAME=VALUE, "
                        f"or measure more configurations)")
     block = problem.blocks[0]
-    if medium is not None:  # everything this fit will compile, side by side
-        block.model(ITERATION_ACCURACY).prepare(values=True, jacobian=True)
+    if medium is not None:  # everything this fit will compile (or load), side by side:
+        # derivatives in the fitted model's parameters, and in the given model's to
+        # propagate its covariance
+        wrt = [(cls.KIND,)] + ([(type(given).KIND,)] if given_result is not None else [])
+        block.model(ITERATION_ACCURACY).prepare(values=True, jacobians=wrt)
         if accuracy != ITERATION_ACCURACY:
             block.model(accuracy).prepare(values=True)
     starts, n_grid = step_starts(problem, cls.KIND, ROLE[step], STARTS[step], progress)
@@ -153,10 +157,11 @@ def _propagated(problem: Problem, x, cov, given_result: FitResult, given_cls):
     if found is None:
         return None
     gnames, gcov = found
-    _, full = problem.value_and_jacobian(x, ITERATION_ACCURACY)
+    cols = [problem.index(given_cls.param(n).key) for n in gnames]
+    _, full = problem.value_and_jacobian(x, ITERATION_ACCURACY,
+                                         list(problem.free_index) + cols)
     w = problem.w[:, None]
     jw = full[:, problem.free] * w
-    cols = [problem.index(given_cls.param(n).key) for n in gnames]
     sens = -np.linalg.lstsq(jw, full[:, cols] * w, rcond=None)[0]
     return cov + sens @ gcov @ sens.T
 
@@ -223,6 +228,25 @@ def fit_medium(table, reference, *, fixed=None, black=None, variant: str | None 
                  accuracy, max_nfev, progress, _freed(cls, free, "medium"))
 
 
+def preload(data: FitData, *, accuracy: str = "default", variant: str | None = None,
+            brdf_model=None, brdf_options=None, medium_model=None,
+            medium_options=None) -> None:
+    """Start loading (or compiling) in the background the engine programs that steps 1 and
+    2 take on sessions with ``data``'s kind of configurations (in the plane of incidence or
+    not), so that the loading overlaps what comes first (step 0; ``run_pipeline``). Options
+    that the steps would reject are left to them to report."""
+    try:
+        check_accuracy(accuracy)
+        brdf = _template(_family(brdf_model, "brdf"), dict(brdf_options or {}))
+        medium = _template(_family(medium_model, "medium"), _options(medium_options, variant))
+    except (FitError, InputError):
+        return
+    jacobians = [("medium",), ("brdf",)]
+    SessionModel(brdf, medium, data.angles, ITERATION_ACCURACY).prepare(True, jacobians)
+    if accuracy != ITERATION_ACCURACY:
+        SessionModel(brdf, medium, data.angles, accuracy).prepare(True)
+
+
 def fit_target(table, medium, *, fixed=None, black=None, variant: str | None = None,
                accuracy: str = "default", max_nfev=None, progress=None, brdf_model=None,
                options=None, free=None) -> FitResult:
@@ -261,5 +285,5 @@ def model_values(result_or_model, other, angles, accuracy: str = "default") -> n
     return engine.values(brdf.to_vector(), medium.to_vector())
 
 
-__all__ = ["fit_reference", "fit_direct", "fit_medium", "fit_target", "model_values",
+__all__ = ["fit_reference", "fit_direct", "fit_medium", "fit_target", "model_values", "preload",
            "STARTS", "ROLE"]

@@ -11,11 +11,17 @@ import numpy as np
 
 from ..engine.angles import from_signed_inplane, to_goniometer, to_signed_inplane
 from ..fitting import FitResult, model_values
+from ..fitting.problem import ITERATION_ACCURACY
 from ..io import write_bytes_atomic
 from ..models import Model
 
 #: A curve gets a logarithmic axis when its peak exceeds its median by this factor.
 LOG_RATIO = 30.0
+#: Quadrature of the drawn curves (a few hundred configurations a figure): the fits'
+#: iteration rule. It differs from "default" by at most 0.3 % of a curve's maximum for the
+#: paper's presets (a pixel at most on these figures) at a tenth of the cost; the fits'
+#: numbers stay at the requested accuracy.
+CURVE_ACCURACY = ITERATION_ACCURACY
 COLORS = ("#1f77b4", "#d62728", "#2ca02c", "#ff7f0e", "#6a3d9a", "#8c564b")
 
 
@@ -80,7 +86,7 @@ def fit_figure(data, result: FitResult, other: Model | None, extra: FitResult | 
         all_tr = np.concatenate([c[3] for c in curves])
         angles_c = from_signed_inplane(all_ti, all_tr)
         angles_c = (angles_c[0], angles_c[1], angles_c[2], angles_c[3])
-        fitted = model_values(result, other, angles_c, accuracy)
+        fitted = model_values(result, other, angles_c, CURVE_ACCURACY)
         dashed = model_values(extra, None, angles_c) if extra is not None else None
         from matplotlib.lines import Line2D
 
