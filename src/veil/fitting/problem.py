@@ -43,7 +43,7 @@ def check_accuracy(accuracy) -> None:
 
 class SessionModel:
     """Model values of one session at fixed configurations (MODEL.md sec. 2, 5), with the
-    Jacobian w.r.t. every parameter of both models; ``medium=None`` is clear water (f_r
+    Jacobian w.r.t. every parameter of either model or both; ``medium=None`` is clear water (f_r
     directly). Built on :mod:`veil.engine.evaluator` (one compilation per accuracy)."""
 
     def __init__(self, brdf: BRDF, medium: Medium | None, angles, rule=ITERATION_ACCURACY):
