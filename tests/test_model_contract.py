@@ -27,6 +27,7 @@ import veil_test_models  # noqa: E402,F401  (registers the test-only families)
 import reference as ref  # noqa: E402
 import reference_physical as rphys  # noqa: E402
 from veil.engine.forward import Forward  # noqa: E402
+from veil.engine.evaluator import CHUNK  # noqa: E402
 from veil.engine.quadrature import RULES  # noqa: E402
 from veil.models import REGISTRY, default_class  # noqa: E402
 
@@ -263,8 +264,10 @@ def test_engine_jacobian_matches_central_differences(name):
     """In every parameter of the family (its partner, a paper model, has its own case: the
     Jacobian in the partner's parameters too would double the compilation)."""
     brdf, medium = _pair(name)
-    ti = np.array([10.0, 30.0, 45.0, 60.0])
-    tr = np.array([40.0, 25.0, 47.0, 20.0])
+    # the fits' chunk (64 configurations in the plane of incidence, "fast"): the program is
+    # the one step 1 (a medium family) or step 2 (a BRDF family) iterates with, compiled
+    # once for the suite whichever test comes first
+    ti, tr = np.linspace(5.0, 75.0, CHUNK), np.linspace(70.0, 10.0, CHUNK)
     fwd = Forward(brdf, medium, ti, tr, rule=RULES["fast"])
     vb, vm = brdf.to_vector(), medium.to_vector()
     nb, nm = len(vb), len(vm)
