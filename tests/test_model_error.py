@@ -1,10 +1,11 @@
 """The model-discrepancy term (veil.fitting.model_error; docs/validity.md, docs/fitting.md).
 
-The statistics on synthetic residuals (no fit); a fit whose model family is deliberately
-wrong (a GGX rough plastic simulated, veil's Beckmann rough plastic fitted, 0.5 % noise)
-where the term must make the reported uncertainty cover the truth and the noise alone does
-not; a well-specified fit, unchanged bit for bit; the result file; bad input. Fits are of f_r
-alone (clear water: no engine compilation), a few seconds each.
+The statistics on synthetic residuals (no fit); fits whose model is deliberately wrong - a
+GGX rough plastic simulated and veil's Beckmann rough plastic fitted (clear water), the
+paper's medium simulated with one Fresnel variant and steps 1-2 fitted with the other - where
+the term must make the reported uncertainty cover the truth and the noise alone does not;
+well-specified fits, unchanged bit for bit; the result file; bad input. Through a medium one
+relative angle (31 configurations) at the "fast" rule, as tests/test_fitting.py.
 """
 
 from __future__ import annotations
@@ -125,6 +126,35 @@ def test_wrong_family_is_covered_only_with_the_term():
     assert me.noise_only(fits["correlated"]).stderr == fits["off"].stderr
 
 
+def test_mismatched_medium_is_covered_only_with_the_term():
+    """The paper's medium simulated with the Fresnel variant "exit", fitted with "paper"
+    (MODEL.md sec. 3), psi = 90 deg, the "fast" rule: steps 1 and 2 share the medium
+    model's error. The target's estimated curve against its true f_r: a minority within two
+    standard errors with the noise alone, all with the correlated term that step 2 takes
+    from step 1."""
+    medium = model_class("henyey-greenstein")(**veil.BTDF2.as_dict(), variant="exit")
+    ref, ref_black = veil.simulate(veil.BRDF2, medium, psi=(90.0,), seed=0, black=True,
+                                   accuracy="fast")
+    tgt, tgt_black = veil.simulate(veil.BRDF1, medium, psi=(90.0,), seed=1, black=True,
+                                   accuracy="fast")
+    angles = tuple(tgt[c].to_numpy() for c in ANGLES)
+    truth = model_values(veil.BRDF1, None, angles)
+    cover = {}
+    for kind in ("off", "independent", "correlated"):
+        med = veil.fit_medium(ref.copy(), veil.BRDF2, black=ref_black.copy(), variant="paper",
+                              accuracy="fast", model_error=kind)
+        est = veil.fit_target(tgt.copy(), med, black=tgt_black.copy(), accuracy="fast",
+                              model_error=kind)
+        cover[kind] = _coverage(est, angles, truth)
+        if kind == "correlated":
+            assert med.model_error.sigma > 0 and med.model_error.length > 0
+            assert est.model_error.sigma >= med.model_error.sigma
+            assert est.model_error.source in ("given medium", "own residuals")
+    assert cover["off"] < 0.5
+    assert cover["correlated"] >= 0.9
+    assert cover["off"] <= cover["independent"] <= cover["correlated"]
+
+
 def test_well_specified_fit_is_unchanged_bit_for_bit():
     truth = model_class("rough-plastic")(rho=0.2, alpha=0.2, eta=1.1178, ks=1.0)
     table = veil.simulate(truth, None, seed=4, noise=0.01)
@@ -137,6 +167,18 @@ def test_well_specified_fit_is_unchanged_bit_for_bit():
         a, b = on.to_dict(), off.to_dict()
         assert a.pop("model_error")["sigma"] == 0.0 and a == b
         assert "model_error" not in b           # files without the term keep their bytes
+
+
+def test_well_specified_medium_fit_is_unchanged_bit_for_bit():
+    """Step 1 of the paper's simulated protocol (BRDF2 in BTDF2, psi = 90 deg): chi-square
+    about 1, no term, the result of ``model_error="off"`` exactly."""
+    ref, black = veil.simulate(veil.BRDF2, veil.BTDF2, psi=(90.0,), seed=0, black=True,
+                               accuracy="fast")
+    off = veil.fit_medium(ref.copy(), veil.BRDF2, black=black.copy(), accuracy="fast",
+                          model_error="off")
+    on = veil.fit_medium(ref.copy(), veil.BRDF2, black=black.copy(), accuracy="fast")
+    assert on.model_error.sigma == 0.0 and on.chi2_reduced < on.model_error.chi2_threshold
+    assert dataclasses.replace(on, model_error=None) == off
 
 
 def test_unweighted_fit_has_no_term():
