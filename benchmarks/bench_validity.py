@@ -17,14 +17,19 @@ own value of the plate seen without the medium). One table per medium:
   protocol's configurations within two standard errors;
 - tau, g: the medium's recovered optical depth per pass and asymmetry against the truth
   (the paper's medium has no optical depth; its g is shown for comparison);
-- s: seconds of the whole pipeline.
+- s: seconds of the whole pipeline;
+- model error (--model-error, default independent): the relative model error sigma of step 1
+  and the one step 2 used (veil.fitting.model_error); "before" the curves' max |z| and share
+  within 2 se without it (the uncertainties of the data's noise alone, the same fits), and
+  the median over the configurations of the curves' standard error with it / without it.
 
 With --joint, each medium and model set also gets a row "(joint)": steps 1 and 2 as one
 joint fit (veil.fit_joint) of the reference and the target in the medium, the reference's
 f_r of step 0 held (no direct fit is compared there: the columns against it are empty).
 
 Run:  .venv/bin/python benchmarks/bench_validity.py [--media m01,m05,m10] [--targets target]
-      [--models paper,physical] [--orders poisson|cylinder|light-side|view-side] [--joint] [--figure docs/validity.png] [--json out.json]
+      [--models paper,physical] [--orders poisson|cylinder|light-side|view-side] [--joint]
+      [--model-error off|independent|correlated] [--figure docs/validity.png] [--json out.json]
 The clear-water tables have sigma = 0 (deterministic renders, validation/README.md); they are
 fitted unweighted.
 """
@@ -108,17 +113,32 @@ def _curves(clear, est, rendered) -> dict:
             "estimate": est.tolist(), "truth": rendered.tolist()}
 
 
+#: The fits' model-discrepancy term (--model-error).
+MODEL_ERROR = "independent"
+
+
 def run_case(truth: dict, medium: str, target: str, models: str, outdir: str) -> dict:
     from veil import run_pipeline
+    from veil.analysis.uncertainty import curve_stderr
+    from veil.data.protocol import protocol
     from veil.fitting import model_values
+    from veil.fitting.model_error import noise_only
+    from veil.pipeline import compare
 
     names, kw = _case(truth, medium, target, models)
     t0 = time.perf_counter()
     res = run_pipeline(table(names["reference_clear"], True), table(names["reference_medium"]),
                        table(names["target_medium"]), black=table(names["black"]),
                        target_clear=table(names["target_clear"], True), outdir=outdir,
-                       figures=False, **kw)
+                       figures=False, model_error=MODEL_ERROR, **kw)
     seconds = time.perf_counter() - t0
+    before = compare(noise_only(res.target), res.direct)
+    configs = protocol()
+    proto = tuple(configs[c].to_numpy() for c in ("theta_i", "phi_i", "theta_r", "phi_r"))
+    _, se_new = curve_stderr(res.target, proto)
+    _, se_old = curve_stderr(noise_only(res.target), proto)
+    ratio = math.nan if se_new is None or se_old is None else float(np.median(se_new / se_old))
+    me_m, me_t = res.medium.model_error, res.target.model_error
     angles, clear, est, rendered, est_vs_truth = _against_truth(names, res.target)
     direct = model_values(res.direct, None, angles)
     zs = [abs(r["z"]) for r in res.comparison["params"].values() if r["z"] is not None]
@@ -137,6 +157,11 @@ def run_case(truth: dict, medium: str, target: str, models: str, outdir: str) ->
         "tau": med.get("tau", math.nan), "tau_true": true_medium["tau"],
         "g": med.get("g", math.nan), "g_true": true_medium["g"],
         "converged": res.converged, "seconds": seconds,
+        "fr_max_z_before": _nan(before["fr_max_z"]),
+        "fr_within_2se_before": _nan(before["fr_within_2se"]), "se_ratio": ratio,
+        "sigma_medium": math.nan if me_m is None else me_m.sigma,
+        "sigma_target": math.nan if me_t is None else me_t.sigma,
+        "length_target": math.nan if me_t is None else me_t.length,
         "curves": _curves(clear, est, rendered),
     }
 
@@ -209,6 +234,23 @@ def print_table(rows: list[dict]) -> None:
                       f"{r['g']:.4f} ({r['g_true']:g})", "yes" if r["converged"] else "NO",
                       f"{r['seconds']:.1f}")
         Console(width=160).print(t)
+    covered = [r for r in rows if "se_ratio" in r]
+    if covered:
+        from rich.console import Console
+        from rich.table import Table
+
+        t = Table(title=f"model-discrepancy term ({MODEL_ERROR}): curves before -> after")
+        for col in ("session", "models", "est-vs-direct", "sigma step 1", "sigma step 2",
+                    "ell", "max |z| before", "after", "within 2 se before", "after",
+                    "median se ratio"):
+            t.add_column(col, justify="right")
+        for r in covered:
+            t.add_row(f"{r['medium']} {r['target']}", r["models"], _pct(r["est_vs_direct"]),
+                      _pct(r["sigma_medium"]), _pct(r["sigma_target"]),
+                      _num(r["length_target"]), _num(r["fr_max_z_before"]),
+                      _num(r["fr_max_z"]), _pct(r["fr_within_2se_before"], 0),
+                      _pct(r["fr_within_2se"], 0), _num(r["se_ratio"]))
+        Console(width=160).print(t)
 
 
 def figure(rows: list[dict], path: str) -> None:
@@ -262,9 +304,13 @@ def main(argv=None) -> int:
     ap.add_argument("--orders", default="poisson",
                     choices=("poisson", "cylinder", "light-side", "view-side"),
                     help="the physical medium's order weights (forward-series option orders)")
+    ap.add_argument("--model-error", default="independent",
+                    choices=("off", "independent", "correlated"),
+                    help="the fits' model-discrepancy term (veil.fitting.model_error)")
     args = ap.parse_args(argv)
-    global ORDERS
+    global ORDERS, MODEL_ERROR
     ORDERS = args.orders
+    MODEL_ERROR = args.model_error
     if args.replot:
         with open(args.replot) as f:
             rows = json.load(f)

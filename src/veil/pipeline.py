@@ -97,7 +97,7 @@ def run_pipeline(reference_clear, reference_medium, target_medium, black=None, t
                  outdir="veil-fit", *, variant: str | None = None, accuracy: str = "default",
                  fixed=None, max_nfev=None, progress=None, truth=None,
                  figures: bool = True, brdf_model=None, medium_model=None, brdf_options=None,
-                 medium_options=None, free=None) -> PipelineResult:
+                 medium_options=None, free=None, model_error=None) -> PipelineResult:
     """Steps 0-2 of MODEL.md sec. 7 with files, figures and report.md in ``outdir``.
 
     reference_clear, reference_medium, target_medium : sessions (DataFrames or CSV paths):
@@ -114,8 +114,14 @@ def run_pipeline(reference_clear, reference_medium, target_medium, black=None, t
         data) listed beside the estimates in report.md.
     brdf_model, medium_model, brdf_options, medium_options : the families of the objects and
         of the medium (registered names; default the paper's) and their options.
+    model_error : the model-discrepancy term of every weighted step ("off", "independent",
+        the default, or "correlated"; :mod:`veil.fitting.model_error`): step 2 uses step 1's
+        when larger than its own.
     Other arguments as :func:`veil.fit_medium`. Returns a :class:`PipelineResult`.
     """
+    from .fitting.model_error import check_kind
+
+    model_error = check_kind(model_error)
     fixed = _check_fixed(fixed)
     free = _check_fixed(free, "free")
     outdir = os.fspath(outdir)
@@ -141,14 +147,15 @@ def run_pipeline(reference_clear, reference_medium, target_medium, black=None, t
     preload(data["reference_medium"], accuracy=accuracy, variant=variant,
             brdf_model=brdf_model, brdf_options=brdf_options, medium_model=medium_model,
             medium_options=medium_options)
-    brdf = {"brdf_model": brdf_model, "options": brdf_options}
+    brdf = {"brdf_model": brdf_model, "options": brdf_options, "model_error": model_error}
     ref = fit_reference(data["reference_clear"].table, fixed=fixed.get("reference"),
                         max_nfev=max_nfev, progress=stage("step 0, reference"),
                         free=free.get("reference"), **brdf)
     med = fit_medium(data["reference_medium"].table, ref, fixed=fixed.get("medium"),
                      variant=variant, accuracy=accuracy, max_nfev=max_nfev,
                      progress=stage("step 1, medium"), medium_model=medium_model,
-                     options=medium_options, free=free.get("medium"))
+                     options=medium_options, free=free.get("medium"),
+                     model_error=model_error)
     tgt = fit_target(data["target_medium"].table, med, fixed=fixed.get("target"),
                      accuracy=accuracy, max_nfev=max_nfev, progress=stage("step 2, target"),
                      free=free.get("target"), **brdf)
@@ -267,7 +274,7 @@ def compare_models(reference_clear, reference_medium, target_medium, black=None,
                    target_clear=None, outdir="veil-compare", *, sets=None,
                    accuracy: str = "default", fixed=None, free=None, max_nfev=None,
                    progress=None, brdf_options=None, medium_options=None,
-                   figures: bool = True) -> ComparisonResult:
+                   figures: bool = True, model_error=None) -> ComparisonResult:
     """:func:`run_pipeline` with each named model set (default the paper's and the physical
     ones, :data:`veil.models.MODEL_SETS`) on the same sessions, each into ``outdir/<set>/``,
     and ``outdir/comparison.md``: goodness of fit (chi-square, AIC, BIC) step by step side by
@@ -323,7 +330,7 @@ def compare_models(reference_clear, reference_medium, target_medium, black=None,
                                          black=black, target_clear=target_clear,
                                          outdir=folder / name, accuracy=accuracy,
                                          max_nfev=max_nfev, progress=inner, figures=figures,
-                                         **plan)
+                                         model_error=model_error, **plan)
             seconds[name] = time.perf_counter() - t0
         names = list(results)
         first = names[0]

@@ -41,6 +41,16 @@ _max_nfev_option = click.option(
     help="Limit on function evaluations of each least-squares run (default: scipy's).")
 
 
+_model_error_option = click.option(
+    "--model-error", "model_error", type=click.Choice(["off", "independent", "correlated"]),
+    default="independent", show_default=True,
+    help="The model-discrepancy term of a weighted fit whose reduced chi-square exceeds "
+         "1 + 2 sqrt(2/dof): a relative model error estimated from the residuals and added "
+         "to the covariance (the estimates are not moved); 'correlated' lets the likelihood "
+         "choose a correlation length over the angles (docs/validity.md). Step 2 uses step "
+         "1's when larger.")
+
+
 def _free_option(help_text):
     return click.option("--free", "free", multiple=True, metavar="NAME", help=help_text)
 
@@ -136,10 +146,11 @@ def merl_table(merl, channel, sampling):
 @_merl_option
 @_channel_option
 @_sampling_option
+@_model_error_option
 @model_options(("brdf",))
 @click.pass_context
 def reference_command(ctx, table, output, fix, black, max_nfev, merl, channel, sampling,
-                      models):
+                      model_error, models):
     """Step 0: fit the reference's f_r (default Torrance-Sparrow) to clear-medium data,
     directly: a measurement TABLE, or a measured BRDF (--merl FILE --channel g)."""
     fixed = parse_fix(fix, models.brdf)
@@ -154,7 +165,7 @@ def reference_command(ctx, table, output, fix, black, max_nfev, merl, channel, s
 
         result = fit_reference(data, fixed=fixed, black=black, max_nfev=max_nfev,
                                progress=progress, brdf_model=models.brdf.NAME,
-                               options=models.brdf_options)
+                               options=models.brdf_options, model_error=model_error)
     result.to_json(output)
     click.echo(result.report())
     finish_fits(ctx, [result], [output])
@@ -175,10 +186,11 @@ def reference_command(ctx, table, output, fix, black, max_nfev, merl, channel, s
 @_black_option
 @_accuracy_option
 @_max_nfev_option
+@_model_error_option
 @model_options()
 @click.pass_context
 def medium_command(ctx, table, reference, output, fix, free, black, accuracy, max_nfev,
-                   models):
+                   model_error, models):
     """Step 1: fit the medium (default the paper's Td, Tt, g, eta) to the reference measured
     in it."""
     fixed = parse_fix(fix, models.medium)
@@ -192,7 +204,7 @@ def medium_command(ctx, table, reference, output, fix, free, black, accuracy, ma
         result = fit_medium(table, ref, fixed=fixed, black=black, accuracy=accuracy,
                             max_nfev=max_nfev, progress=progress,
                             medium_model=models.medium.NAME, options=models.medium_options,
-                            free=freed)
+                            free=freed, model_error=model_error)
     result.to_json(output)
     click.echo(result.report())
     finish_fits(ctx, [result], [output])
@@ -213,9 +225,11 @@ def medium_command(ctx, table, reference, output, fix, free, black, accuracy, ma
 @_black_option
 @_accuracy_option
 @_max_nfev_option
+@_model_error_option
 @model_options()
 @click.pass_context
-def target_command(ctx, table, medium, output, fix, free, black, accuracy, max_nfev, models):
+def target_command(ctx, table, medium, output, fix, free, black, accuracy, max_nfev,
+                   model_error, models):
     """Step 2: fit the target's f_r (default Torrance-Sparrow) through the fitted medium.
     A JSON --medium keeps its own model and options (a contradicting option is an error)."""
     fixed = parse_fix(fix, models.brdf)
@@ -237,7 +251,7 @@ def target_command(ctx, table, medium, output, fix, free, black, accuracy, max_n
         result = fit_target(table, med, fixed=fixed, black=black, accuracy=accuracy,
                             max_nfev=max_nfev, progress=progress,
                             brdf_model=models.brdf.NAME, options=models.brdf_options,
-                            free=freed)
+                            free=freed, model_error=model_error)
     result.to_json(output)
     click.echo(result.report())
     finish_fits(ctx, [result], [output])
@@ -292,10 +306,12 @@ def print_pipeline(result) -> None:
                    "the results and report.md only, faster.")
 @_accuracy_option
 @_max_nfev_option
+@_model_error_option
 @model_options()
 @click.pass_context
 def pipeline_command(ctx, reference_clear, reference_medium, target_medium, black, target_clear,
-                     outdir, fix, free, compare, figures, accuracy, max_nfev, models):
+                     outdir, fix, free, compare, figures, accuracy, max_nfev, model_error,
+                     models):
     """Steps 0-2 in one go, with figures (data against fitted curves) and report.md."""
     from ..pipeline import compare_models, run_pipeline
 
@@ -305,7 +321,7 @@ def pipeline_command(ctx, reference_clear, reference_medium, target_medium, blac
                             f"{' and '.join('--' + e for e in sorted(models.explicit))} out")
         return _compare(ctx, compare_models, reference_clear, reference_medium,
                         target_medium, black, target_clear, outdir, fix, free, accuracy,
-                        max_nfev, models, figures)
+                        max_nfev, models, figures, model_error)
     fixed = _parse_step_fix(fix, models)
     freed = _parse_step_free(free, models)
     if outdir.exists() and not outdir.is_dir():
@@ -320,7 +336,7 @@ def pipeline_command(ctx, reference_clear, reference_medium, target_medium, blac
                               medium_model=models.medium.NAME,
                               brdf_options=models.brdf_options,
                               medium_options=models.medium_options, free=freed,
-                              figures=figures)
+                              figures=figures, model_error=model_error)
     print_pipeline(result)
     fits = [result.reference, result.medium, result.target, result.direct]
     finish_fits(ctx, fits, list(result.files.values()))
@@ -339,7 +355,8 @@ def _step_entries(items, option: str) -> dict:
 
 
 def _compare(ctx, compare_models, reference_clear, reference_medium, target_medium, black,
-             target_clear, outdir, fix, free, accuracy, max_nfev, models, figures):
+             target_clear, outdir, fix, free, accuracy, max_nfev, models, figures,
+             model_error="independent"):
     """``fit pipeline --compare``: every model set on the same data (pipeline.compare_models)."""
     import math
 
@@ -361,7 +378,8 @@ def _compare(ctx, compare_models, reference_clear, reference_medium, target_medi
                                 target_clear=target_clear, outdir=outdir, accuracy=accuracy,
                                 fixed=fixed, free=freed, max_nfev=max_nfev, progress=progress,
                                 brdf_options=models.brdf_options,
-                                medium_options=models.medium_options, figures=figures)
+                                medium_options=models.medium_options, figures=figures,
+                                model_error=model_error)
     for name, r in result.results.items():
         click.echo(f"==== model set '{name}' ====")
         print_pipeline(r)

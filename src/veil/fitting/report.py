@@ -53,6 +53,15 @@ def _statistics(result: FitResult) -> list[str]:
         lines.append(f"    evaluations        = {stats.get('nfev', 0)} function, "
                      f"{stats.get('njev', 0)} Jacobian"
                      + (f" over {stats.get('starts', 1)} start(s)" if stats.get("starts") else ""))
+    me = getattr(result, "model_error", None)
+    if me is not None:
+        lines.append(
+            f"    model error        = {format_number(100 * me.sigma, 3)} % relative"
+            + (f", correlation length {format_number(me.length, 3)} deg" if me.length else "")
+            + f" ({me.source}; chi-square limit {format_number(me.chi2_threshold, 4)}; in the "
+            f"standard errors)" if me.sigma > 0 else
+            f"    model error        = none (reduced chi-square <= "
+            f"{format_number(me.chi2_threshold, 4)})")
     if result.given:
         gp = ", ".join(f"{k}={format_number(v)}" for k, v in result.given.get("params", {}).items())
         lines.append(f"    given (fixed) model = {result.given.get('model')}({gp})")

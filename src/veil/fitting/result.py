@@ -9,6 +9,7 @@ Result files carry ``"format": "veil.fit/2"``; files of the earlier formats ("ve
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import json
 import math
@@ -23,6 +24,7 @@ from ..models import Model, default_class, model_class
 from ..models import names as family_names
 from ..models.base import VARIANT_OPTION
 from ..numbers import from_json_float, json_float
+from .model_error import ModelError
 
 #: The steps of the two-step method (MODEL.md sec. 7); results may also say "direct".
 STEPS = ("reference", "medium", "target")
@@ -47,6 +49,10 @@ class FitResult:
     (the reference BRDF for the medium step, the medium for the target step). ``stderr`` and
     ``correlation`` treat it as exact; ``stderr_total`` and ``correlation_total`` add its own
     uncertainty when it came from a fit (first-order propagation, docs/fitting.md).
+    ``model_error`` is the model-discrepancy term of a weighted fit
+    (:class:`veil.fitting.model_error.ModelError`: the relative model error the residuals
+    show beyond the noise, included in ``stderr`` and ``stderr_total``); None when the fit
+    did not estimate one (unweighted data, or ``model_error=False``).
     """
 
     model: str
@@ -70,6 +76,7 @@ class FitResult:
     stats: dict = field(default_factory=dict)
     options: dict = field(default_factory=dict)
     determined: bool = True
+    model_error: ModelError | None = None
 
     # -- models ----------------------------------------------------------------------------
     @property
@@ -158,6 +165,8 @@ class FitResult:
             _json_matrix(self.correlation_total),
             "stats": self.stats,
             "residuals": [json_float(r) for r in self.residuals],
+            # only when estimated: results without the term keep their earlier bytes
+            **({} if self.model_error is None else {"model_error": _json_term(self.model_error)}),
         }
 
     def to_json(self, path) -> None:
@@ -250,7 +259,8 @@ class FitResult:
             correlation_total=None if data.get("correlation_total") is None else
             _read_matrix(data["correlation_total"], source),
             stats=_read_stats(data, source), options=model.options(),
-            determined=bool(data.get("determined", True)))
+            determined=bool(data.get("determined", True)),
+            model_error=_read_term(data.get("model_error"), names, source))
 
     @classmethod
     def from_json(cls, path) -> "FitResult":
@@ -457,6 +467,42 @@ def _read_stats(data: dict, source: str) -> dict:
     if not isinstance(stats, dict):
         raise FitError(f"{source}: key 'stats' must be an object")
     return stats
+
+
+def _json_term(term: ModelError) -> dict:
+    out = term.to_dict()
+    noise = out["noise_only"]
+    if noise is not None:
+        out["noise_only"] = {
+            k: None if v is None else (_json_matrix(v) if k.startswith("correlation") else
+                                       {n: json_float(x) for n, x in v.items()})
+            for k, v in noise.items()}
+    return out
+
+
+def _read_term(data, names, source: str) -> ModelError | None:
+    """The ``model_error`` entry of a result file (absent in files of earlier veils)."""
+    if data is None:
+        return None
+    term = ModelError.from_dict(data, source)
+    noise = term.noise_only
+    if noise is None:
+        return term
+    keys = ("stderr", "correlation", "stderr_total", "correlation_total")
+    if set(noise) - set(keys) or not isinstance(noise.get("stderr"), dict):
+        raise FitError(f"{source}: model_error.noise_only must hold {', '.join(keys)}")
+    read = {}
+    for k in keys:
+        v = noise.get(k)
+        if v is None:
+            read[k] = None
+        elif k.startswith("correlation"):
+            read[k] = _read_matrix(v, source)
+        elif not isinstance(v, dict):
+            raise FitError(f"{source}: model_error.noise_only.{k} must be an object or null")
+        else:
+            read[k] = {n: from_json_float(v.get(n), source) for n in names}
+    return dataclasses.replace(term, noise_only=read)
 
 
 def _json_matrix(rows: dict) -> dict:

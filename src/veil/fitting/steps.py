@@ -13,10 +13,15 @@ sum(((model - value) / sigma)^2) (plain squared error without a sigma column). S
 values never come from the caller: the model's starting grid with the scale parameters
 solved exactly at each point gives several starts; the best fit among them wins
 (:mod:`veil.fitting.start_values`). A fit that propagates its given model's covariance
-(when that came from a fit) reports ``stderr_total``.
+(when that came from a fit) reports ``stderr_total``. A weighted fit whose residuals exceed
+the noise (reduced chi-square above the test's limit) adds a relative model error to its
+covariance (``model_error=``: "independent" by default, "correlated", or "off";
+:mod:`veil.fitting.model_error`).
 """
 
 from __future__ import annotations
+
+import dataclasses
 
 import numpy as np
 
@@ -27,11 +32,12 @@ from ..models import Model, default_class, model_class
 from ..models.base import VARIANT_OPTION
 from .data import FitData, prepare
 from .given import as_given, check_options
+from . import model_error as discrepancy
 from .problem import (ITERATION_ACCURACY, Problem, SessionModel, check_accuracy,
                       session_problem)
 from .result import FitResult, model_entry
 from .solver import (as_fixed, check_fixed, check_max_nfev, run, summarize,
-                     uncertainties)
+                     uncertainties, weighted_jacobian)
 from .start_values import step_starts
 
 #: Least-squares runs started from the best distinct grid points, by step.
@@ -39,6 +45,7 @@ STARTS = {"reference": 3, "direct": 3, "medium": 2, "target": 2}
 #: The fit role (starting grid of the model's declaration) of each step.
 ROLE = {"reference": "reference", "direct": "reference", "medium": "medium",
         "target": "target"}
+check_model_error = discrepancy.check_kind
 
 
 def _family(name, kind: str):
@@ -84,9 +91,11 @@ def _freed(cls, free, what: str) -> set:
 
 
 def _step(step: str, data: FitData, fitted: Model, given: Model | None, given_result,
-          fixed: dict, accuracy: str, max_nfev, progress, freed=()) -> FitResult:
+          fixed: dict, accuracy: str, max_nfev, progress, freed=(),
+          model_error: str = "off") -> FitResult:
     """One step: the ``fitted`` model's parameters free (but ``fixed``, and the held ones not
-    ``freed``), ``given`` held."""
+    ``freed``), ``given`` held; unless ``model_error`` is "off" a weighted fit estimates the
+    model-discrepancy term of that kind (:mod:`veil.fitting.model_error`)."""
     cls = type(fitted)
     brdf, medium = (given, fitted) if cls.KIND == "medium" else (fitted, given)
     clash = [n for n in freed if n in fixed]
@@ -122,16 +131,41 @@ def _step(step: str, data: FitData, fitted: Model, given: Model | None, given_re
     x = outcome.solution.x
     own = {p.key: p.name for p in cls.PARAMS}           # slot name -> model's own name
     names = [own[k] for k in cls.keys()]
+
+    def named(cov):
+        """(stderr, correlation) in the model's own names of a free covariance."""
+        se, corr = uncertainties(cov, problem.names, problem.free_index)
+        return ({own[k]: se[k] for k in cls.keys()},
+                {own[a]: {own[b]: r for b, r in row.items()} for a, row in corr.items()})
+
+    def total_of(cov, given_res):
+        """(stderr_total, correlation_total) with ``given_res``'s covariance added, or
+        (None, None)."""
+        if given_res is None or cov is None:
+            return None, None
+        total = _propagated(problem, x, cov, given_res, type(given))
+        return (None, None) if total is None else named(total)
+
     stderr = {own[k]: summary.stderr[k] for k in cls.keys()}
     corr = {own[a]: {own[b]: r for b, r in row.items()} for a, row in summary.correlation.items()}
-    stderr_total = corr_total = None
-    if given_result is not None and summary.covariance is not None:
-        total = _propagated(problem, x, summary.covariance, given_result, type(given))
-        if total is not None:
-            se_t, corr_t = uncertainties(total, problem.names, problem.free_index)
-            stderr_total = {own[k]: se_t[k] for k in cls.keys()}
-            corr_total = {own[a]: {own[b]: r for b, r in row.items()}
-                          for a, row in corr_t.items()}
+    stderr_total, corr_total = total_of(summary.covariance, given_result)
+    term = None
+    if model_error != "off" and data.sigma is not None and summary.covariance is not None:
+        term = discrepancy.step_term(summary.residuals, outcome.values, problem.w,
+                                     data.size - problem.n_free, data.angles,
+                                     discrepancy.given_term(given_result), model_error)
+        if term.sigma > 0:
+            noise = {"stderr": stderr, "correlation": corr, "stderr_total": None,
+                     "correlation_total": None}
+            if given_result is not None:
+                noise["stderr_total"], noise["correlation_total"] = total_of(
+                    summary.covariance, discrepancy.noise_only(given_result))
+            corr_d = discrepancy.correlation(discrepancy.distances(data.angles), term.length)
+            cov = discrepancy.sandwich(summary.covariance, weighted_jacobian(problem, x),
+                                       outcome.values * problem.w, term.sigma, corr_d)
+            stderr, corr = named(cov)
+            stderr_total, corr_total = total_of(cov, given_result)
+            term = dataclasses.replace(term, noise_only=noise)
     media = [m for m in (medium,) if m is not None]
     variant = media[0].options().get(VARIANT_OPTION) if media else None
     stats = dict(outcome.stats, grid_points=n_grid)
@@ -147,7 +181,8 @@ def _step(step: str, data: FitData, fitted: Model, given: Model | None, given_re
                      step=step, weighted=data.sigma is not None, accuracy=outcome.accuracy,
                      given=None if given is None else model_entry(given),
                      stderr_total=stderr_total, correlation_total=corr_total, stats=stats,
-                     options=fitted.options(), determined=summary.determined)
+                     options=fitted.options(), determined=summary.determined,
+                     model_error=term)
 
 
 def _propagated(problem: Problem, x, cov, given_result: FitResult, given_cls):
@@ -170,7 +205,7 @@ def _propagated(problem: Problem, x, cov, given_result: FitResult, given_cls):
 # the steps
 # --------------------------------------------------------------------------------------
 def fit_reference(table, *, fixed=None, black=None, max_nfev=None, progress=None,
-                  brdf_model=None, options=None, free=None) -> FitResult:
+                  brdf_model=None, options=None, free=None, model_error=None) -> FitResult:
     """Step 0 (MODEL.md sec. 7): fit the reference's f_r to clear-medium data, directly.
 
     table : measurement table (DataFrame or CSV path, docs/measurements.md).
@@ -181,16 +216,21 @@ def fit_reference(table, *, fixed=None, black=None, max_nfev=None, progress=None
     brdf_model, options : the BRDF family (a registered name; default the paper's
         Torrance-Sparrow) and its options.
     free : names of parameters the family holds by default (``Param.held``) to fit too.
+    model_error : the model-discrepancy term of a weighted fit: "off", "independent" (the
+        default, None) or "correlated" (:mod:`veil.fitting.model_error`).
     """
     return fit_direct(table, fixed=fixed, black=black, max_nfev=max_nfev, progress=progress,
-                      step="reference", brdf_model=brdf_model, options=options, free=free)
+                      step="reference", brdf_model=brdf_model, options=options, free=free,
+                      model_error=model_error)
 
 
 def fit_direct(table, *, fixed=None, black=None, max_nfev=None, progress=None,
-               step: str = "direct", brdf_model=None, options=None, free=None) -> FitResult:
+               step: str = "direct", brdf_model=None, options=None, free=None,
+               model_error=None) -> FitResult:
     """f_r fitted to clear-medium data (MODEL.md sec. 2); ``step`` labels the result
     ("reference" for step 0, "direct" for a target measured without the medium)."""
     check_max_nfev(max_nfev)
+    model_error = check_model_error(model_error)
     if step not in ("reference", "direct"):
         raise FitError(f"step = {step!r}; a clear-water fit is step 'reference' or 'direct'")
     cls = _family(brdf_model, "brdf")
@@ -198,12 +238,12 @@ def fit_direct(table, *, fixed=None, black=None, max_nfev=None, progress=None,
     what = "reference" if step == "reference" else "target"
     data = prepare(table, black, f"{what} (clear medium)")
     return _step(step, data, fitted, None, None, as_fixed(fixed), ITERATION_ACCURACY,
-                 max_nfev, progress, _freed(cls, free, what))
+                 max_nfev, progress, _freed(cls, free, what), model_error)
 
 
 def fit_medium(table, reference, *, fixed=None, black=None, variant: str | None = None,
                accuracy: str = "default", max_nfev=None, progress=None, medium_model=None,
-               options=None, free=None) -> FitResult:
+               options=None, free=None, model_error=None) -> FitResult:
     """Step 1 (MODEL.md sec. 7): fit the medium, the reference's f_r fixed.
 
     table : the reference object measured in the medium (DataFrame or CSV path).
@@ -215,17 +255,20 @@ def fit_medium(table, reference, *, fixed=None, black=None, variant: str | None 
         medium's intensity factor ``s``).
     accuracy : quadrature of the reported result ("fast", "default", "high"); iterations
         run at "fast" and are polished at this accuracy.
+    model_error : as :func:`fit_reference`; a step-1 term is also used by step 2 (the
+        same medium model on the target's data).
     Other arguments as :func:`fit_reference`.
     """
     check_accuracy(accuracy)
     check_max_nfev(max_nfev)
+    model_error = check_model_error(model_error)
     brdf = as_given(reference, "brdf", "the reference")
     cls = _family(medium_model, "medium")
     fitted = _template(cls, _options(options, variant))
     data = prepare(table, black, "reference (in the medium)")
     return _step("medium", data, fitted, brdf,
                  reference if isinstance(reference, FitResult) else None, as_fixed(fixed),
-                 accuracy, max_nfev, progress, _freed(cls, free, "medium"))
+                 accuracy, max_nfev, progress, _freed(cls, free, "medium"), model_error)
 
 
 def preload(data: FitData, *, accuracy: str = "default", variant: str | None = None,
@@ -249,7 +292,7 @@ def preload(data: FitData, *, accuracy: str = "default", variant: str | None = N
 
 def fit_target(table, medium, *, fixed=None, black=None, variant: str | None = None,
                accuracy: str = "default", max_nfev=None, progress=None, brdf_model=None,
-               options=None, free=None) -> FitResult:
+               options=None, free=None, model_error=None) -> FitResult:
     """Step 2 (MODEL.md sec. 7): fit the target's f_r, the medium fixed.
 
     table : the target object measured in the medium (DataFrame or CSV path).
@@ -260,6 +303,7 @@ def fit_target(table, medium, *, fixed=None, black=None, variant: str | None = N
     """
     check_accuracy(accuracy)
     check_max_nfev(max_nfev)
+    model_error = check_model_error(model_error)
     model_m = as_given(medium, "medium", "the medium")
     check_options(model_m, _options(None, variant), "the medium")
     cls = _family(brdf_model, "brdf")
@@ -267,7 +311,7 @@ def fit_target(table, medium, *, fixed=None, black=None, variant: str | None = N
     data = prepare(table, black, "target (in the medium)")
     return _step("target", data, fitted, model_m,
                  medium if isinstance(medium, FitResult) else None, as_fixed(fixed),
-                 accuracy, max_nfev, progress, _freed(cls, free, "target"))
+                 accuracy, max_nfev, progress, _freed(cls, free, "target"), model_error)
 
 
 def model_values(result_or_model, other, angles, accuracy: str = "default") -> np.ndarray:
@@ -286,4 +330,4 @@ def model_values(result_or_model, other, angles, accuracy: str = "default") -> n
 
 
 __all__ = ["fit_reference", "fit_direct", "fit_medium", "fit_target", "model_values", "preload",
-           "STARTS", "ROLE"]
+           "STARTS", "ROLE", "check_model_error"]

@@ -400,6 +400,17 @@ def _stats_lines(result: FitResult) -> list[str]:
         lines.append(f"- quadrature accuracy of the result: {result.accuracy}")
     if result.variant:
         lines.append(f"- medium Fresnel variant: {result.variant} (MODEL.md sec. 3)")
+    term = getattr(result, "model_error", None)
+    if term is not None and term.sigma > 0:
+        length = (f", correlated over {format_number(term.length, 3)} deg" if term.length
+                  else ", independent between configurations")
+        lines.append(f"- model error: {format_number(100 * term.sigma, 3)} % of the model's "
+                     f"value{length} (from the {term.source}; reduced chi-square above "
+                     f"{format_number(term.chi2_threshold, 4)}), included in the standard "
+                     f"errors (docs/validity.md)")
+    elif term is not None:
+        lines.append(f"- model error: none shown by the residuals (reduced chi-square <= "
+                     f"{format_number(term.chi2_threshold, 4)})")
     return lines
 
 

@@ -1,0 +1,248 @@
+"""The model-discrepancy term of a weighted fit (MODEL.md secs. 7-8; docs/validity.md).
+
+A weighted fit's standard errors count the data's noise only (docs/fitting.md). When the
+model itself misses the data - the forward-series medium against path tracing, a GGX plate
+fitted as Beckmann - its reduced chi-square is above 1 by more than the chi-square's own
+spread, and the standard errors are too small. This module estimates that miss and adds it
+to the covariance:
+
+- **The model error is relative and smooth.** The model's value f_i is off by f_i d_i, d a
+  Gaussian process over the configurations (a model discrepancy in the sense of Kennedy
+  and O'Hagan, 2001): mean 0, standard deviation s, correlation
+  exp(-D_ij / ell) with D_ij the angle between the two configurations' incident directions
+  plus that between their reflected ones (degrees), ell = 0 meaning independent. A
+  forward model's error is a smooth function of the angles: independent errors would
+  average out over the configurations, and a systematic error does not.
+- **s and ell from the residuals, when they show an error.** The chi-square test first:
+  below ``1 + Z sqrt(2 / dof)`` (dof = points - free parameters, Z = :data:`CHI2_Z`) the data
+  do not show a model error, s = 0 and the fit is unchanged bit for bit. Above, (s, ell)
+  maximize the Gaussian likelihood of the weighted residuals r_i = (y_i - f_i) / sigma_i
+  under their covariance I + s^2 A R(ell) A, A = diag(f_i / sigma_i), ell over the grid
+  :data:`LENGTHS` and s continuous (the model with ell = 0 is the "excess variance" of a
+  fit).
+- **The estimate is not moved.** The weights stay 1/sigma^2; the covariance of that
+  estimator under the larger variance is the sandwich
+      Cov = C J_w^T (I + s^2 A R A) J_w C = C + s^2 (A J_w C)^T R (A J_w C),
+  C = (J^T W J)^-1, J_w = W^(1/2) J the weighted Jacobian of the free parameters
+  (docs/fitting.md).
+- **Step 2 inherits step 1's.** Step 1 fits the medium through the reference, whose f_r
+  is known from step 0: its excess measures how far the medium model misses data of that
+  set-up. The target is seen through the same medium with the same model, so step 2 uses
+  the given medium's (s, ell) when its s is the larger, its own otherwise (its own residuals
+  can show less, its f_r absorbing part of the miss). The given model's covariance, its
+  term included, is then propagated as before (``stderr_total``).
+
+The result carries the term as ``model_error`` (:meth:`ModelError.to_dict`): s, where it came
+from, the chi-square threshold, and the uncertainties without it (``noise_only``), which
+:func:`noise_only` restores.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import minimize_scalar
+
+from ..errors import FitError
+
+#: The chi-square test's level: a model error is estimated only when the reduced chi-square
+#: exceeds 1 by more than CHI2_Z of its own standard deviations sqrt(2 / dof) (2: about
+#: 2.3 % of well-specified fits, one-sided).
+CHI2_Z = 2.0
+#: Correlation lengths ell (degrees of D, the module docstring's distance) the likelihood
+#: chooses from; 0 is independent errors.
+LENGTHS = (0.0, 2.5, 5.0, 10.0, 20.0, 40.0, 80.0)
+#: The kinds of term a fit can estimate (``model_error=``, ``--model-error``): none, an
+#: independent error (ell = 0), or ell chosen by the likelihood among :data:`LENGTHS`.
+KINDS = ("off", "independent", "correlated")
+#: The fits' default kind: independent (docs/validity.md: the correlated term covers more
+#: of the path-traced sessions but multiplies the standard errors by 4-9 where the
+#: independent one already covers them).
+DEFAULT = "independent"
+#: Where a step's term came from (``ModelError.source``).
+SOURCES = ("none", "own residuals", "given medium")
+
+
+def chi2_threshold(dof: int) -> float:
+    """The reduced chi-square above which a fit's residuals show a model error."""
+    return 1.0 + CHI2_Z * math.sqrt(2.0 / max(int(dof), 1))
+
+
+def _unit(theta, phi) -> np.ndarray:
+    t, p = np.radians(theta), np.radians(phi)
+    return np.stack([np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), np.cos(t)], axis=-1)
+
+
+def distances(angles) -> np.ndarray:
+    """D_ij (degrees): the angle between configurations i and j's incident directions plus
+    that between their reflected ones, from canonical ``angles`` (theta_i, phi_i, theta_r,
+    phi_r in degrees)."""
+    ti, pi, tr, pr = (np.asarray(a, dtype=float) for a in angles)
+    out = np.zeros((ti.size, ti.size))
+    for u in (_unit(ti, pi), _unit(tr, pr)):
+        out += np.degrees(np.arccos(np.clip(u @ u.T, -1.0, 1.0)))
+    return out
+
+
+def correlation(dist: np.ndarray, length: float) -> np.ndarray:
+    """exp(-D / ell), the identity for ell = 0."""
+    if length == 0.0:
+        return np.eye(len(dist))
+    return np.exp(-np.asarray(dist) / length)
+
+
+def _nll(r, a, corr, t) -> float:
+    """Minus the log-likelihood (up to a constant) of weighted residuals ``r`` under
+    I + t A R A."""
+    cov = np.eye(r.size) + t * (a[:, None] * corr * a[None, :])
+    chol = np.linalg.cholesky(cov)
+    z = np.linalg.solve(chol, r)
+    return float(np.sum(np.log(np.diag(chol))) + 0.5 * z @ z)
+
+
+def check_kind(kind) -> str:
+    """``kind`` as one of :data:`KINDS` (None: :data:`DEFAULT`; True and False mean
+    "independent" and "off"); a FitError otherwise."""
+    if kind is None:
+        return DEFAULT
+    if isinstance(kind, bool):
+        return "independent" if kind else "off"
+    if kind not in KINDS:
+        raise FitError(f"model_error = {kind!r}; expected one of {', '.join(KINDS)}")
+    return kind
+
+
+def estimate(residuals, scaled_values, dof: int, dist,
+             lengths=LENGTHS) -> tuple[float, float]:
+    """(s, ell) of the module docstring: (0, 0) when the reduced chi-square is not above
+    :func:`chi2_threshold`, else the maximum of the likelihood over ell in ``lengths``
+    and s. ``residuals`` r_i = (y - f) / sigma, ``scaled_values`` a_i = f / sigma, ``dist``
+    the configurations' distances (:func:`distances`). A FitError when no relative error
+    can explain an excess (every a_i = 0)."""
+    r = np.asarray(residuals, dtype=float)
+    a = np.asarray(scaled_values, dtype=float)
+    dof = int(dof)
+    if dof < 1 or r.size == 0 or not np.all(np.isfinite(r)) or not np.all(np.isfinite(a)):
+        return 0.0, 0.0
+    if float(r @ r) / dof <= chi2_threshold(dof):
+        return 0.0, 0.0
+    if not np.any(a != 0):
+        raise FitError("the residuals exceed the noise where the model is zero: no relative "
+                       "model error explains them")
+    # s^2 a^2 of the order of the excess per point: search log s around it, wide
+    guess = math.sqrt(max(float(r @ r) / dof - 1.0, 1e-6) / float(np.mean(a ** 2)))
+    best = None
+    for length in lengths:
+        corr = correlation(dist, length)
+        found = minimize_scalar(lambda u: _nll(r, a, corr, math.exp(2 * u)),
+                                bounds=(math.log(guess) - 6.0, math.log(guess) + 6.0),
+                                method="bounded", options={"xatol": 1e-6})
+        if best is None or found.fun < best[0]:
+            best = (float(found.fun), math.exp(float(found.x)), length)
+    return best[1], best[2]
+
+
+def sandwich(cov: np.ndarray, weighted_jacobian: np.ndarray, scaled_values, sigma: float,
+             corr: np.ndarray | None = None) -> np.ndarray:
+    """C + s^2 (A J_w C)^T R (A J_w C) (module docstring): the covariance of the weighted
+    estimate with the relative model error ``sigma`` (correlation ``corr``, None:
+    independent) beside the noise. ``cov`` is C (free parameters, natural units),
+    ``weighted_jacobian`` J_w (points x free parameters), ``scaled_values`` a = f / sigma."""
+    cov = np.asarray(cov, dtype=float)
+    if sigma == 0.0:
+        return cov
+    m = (np.asarray(weighted_jacobian, dtype=float)
+         * np.asarray(scaled_values, dtype=float)[:, None]) @ cov
+    rm = m if corr is None else np.asarray(corr, dtype=float) @ m
+    extra = m.T @ rm
+    return cov + sigma ** 2 * 0.5 * (extra + extra.T)
+
+
+@dataclass(frozen=True)
+class ModelError:
+    """One fit's model-discrepancy term: ``sigma`` the relative model error used (0: none)
+    and ``length`` its correlation length ell (degrees), ``own`` the s its own residuals
+    show, ``given`` the given medium's (step 2; None otherwise), ``source`` which of them is
+    used (:data:`SOURCES`), ``chi2_threshold`` the test's limit on the reduced chi-square,
+    ``noise_only`` the uncertainties without the term (keys stderr, correlation,
+    stderr_total, correlation_total; None when sigma = 0)."""
+
+    sigma: float
+    length: float
+    own: float
+    given: float | None
+    source: str
+    chi2_threshold: float
+    noise_only: dict | None = None
+
+    def to_dict(self) -> dict:
+        return {"sigma": self.sigma, "length": self.length, "own": self.own,
+                "given": self.given, "source": self.source,
+                "chi2_threshold": self.chi2_threshold, "noise_only": self.noise_only}
+
+    @classmethod
+    def from_dict(cls, data, source: str = "the fit result") -> "ModelError":
+        """Check and convert the ``model_error`` entry of a result file."""
+        keys = ("sigma", "length", "own", "given", "source", "chi2_threshold")
+        if not isinstance(data, dict) or any(k not in data for k in keys):
+            raise FitError(f"{source}: key 'model_error' must be null or an object with keys "
+                           f"{', '.join(keys)}, noise_only; got {data!r}")
+        for k in ("sigma", "length", "own", "chi2_threshold") + (
+                ("given",) if data["given"] is not None else ()):
+            v = data[k]
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) \
+                    or v < 0:
+                raise FitError(f"{source}: model_error.{k} = {v!r}; expected a number >= 0")
+        if data["source"] not in SOURCES:
+            raise FitError(f"{source}: model_error.source = {data['source']!r}; expected one "
+                           f"of {', '.join(SOURCES)}")
+        noise = data.get("noise_only")
+        if noise is not None and not isinstance(noise, dict):
+            raise FitError(f"{source}: model_error.noise_only must be an object or null")
+        return cls(float(data["sigma"]), float(data["length"]), float(data["own"]),
+                   None if data["given"] is None else float(data["given"]), data["source"],
+                   float(data["chi2_threshold"]), noise)
+
+
+def step_term(residuals, values, weights, dof: int, angles, given=None,
+              kind: str = DEFAULT) -> ModelError:
+    """The term of one step (module docstring): its own (s, ell) from ``residuals``
+    (weighted), the model ``values``, the ``weights`` 1/sigma and the configurations'
+    canonical ``angles``, ell = 0 unless ``kind`` is "correlated"; ``given`` the given
+    medium's term (step 2), None otherwise."""
+    lengths = LENGTHS if check_kind(kind) == "correlated" else (0.0,)
+    own, length = estimate(residuals, np.asarray(values) * np.asarray(weights), dof,
+                           distances(angles), lengths)
+    sigma, source = own, "own residuals" if own > 0 else "none"
+    if given is not None and given.sigma > own:
+        sigma, length, source = given.sigma, given.length, "given medium"
+    return ModelError(float(sigma), float(length), float(own),
+                      None if given is None else float(given.sigma), source,
+                      chi2_threshold(dof))
+
+
+def given_term(given_result) -> ModelError | None:
+    """The model-discrepancy term of a given medium's fit (a FitResult of step 1), else
+    None."""
+    if getattr(given_result, "kind", None) != "medium":
+        return None
+    return getattr(given_result, "model_error", None)
+
+
+def noise_only(result):
+    """The result as without the model-discrepancy term: its uncertainties counting the
+    data's noise only (the same object when it has no active term)."""
+    me = result.model_error
+    if me is None or me.noise_only is None:
+        return result
+    n = me.noise_only
+    return dataclasses.replace(result, stderr=n["stderr"], correlation=n["correlation"],
+                               stderr_total=n.get("stderr_total"),
+                               correlation_total=n.get("correlation_total"), model_error=None)
+
+
+__all__ = ["CHI2_Z", "LENGTHS", "KINDS", "DEFAULT", "SOURCES", "check_kind", "chi2_threshold", "distances", "correlation",
+           "estimate", "sandwich", "ModelError", "step_term", "given_term", "noise_only"]
