@@ -132,7 +132,7 @@ def run_case(truth: dict, medium: str, target: str, models: str, outdir: str) ->
                        target_clear=table(names["target_clear"], True), outdir=outdir,
                        figures=False, model_error=MODEL_ERROR, **kw)
     seconds = time.perf_counter() - t0
-    before = compare(noise_only(res.target), res.direct)
+    before = compare(noise_only(res.target), noise_only(res.direct))
     configs = protocol()
     proto = tuple(configs[c].to_numpy() for c in ("theta_i", "phi_i", "theta_r", "phi_r"))
     _, se_new = curve_stderr(res.target, proto)

@@ -181,6 +181,51 @@ def test_well_specified_medium_fit_is_unchanged_bit_for_bit():
     assert dataclasses.replace(on, model_error=None) == off
 
 
+def test_a_given_fit_s_term_is_kept_apart_when_this_fit_shows_none():
+    """Step 1 on data its model fits (no term of its own) with a reference whose result
+    carries a term: the propagated total includes the reference's term, the noise-only
+    uncertainties (``noise_only``) and ``model_error="off"`` exclude it, and both equal the
+    fit with the reference's noise-only result."""
+    clear = veil.simulate(veil.BRDF2, None, seed=2)
+    ref_off = veil.fit_reference(clear, model_error="off")
+    noise = {"stderr": ref_off.stderr, "correlation": ref_off.correlation,
+             "stderr_total": None, "correlation_total": None}
+    ref_term = dataclasses.replace(
+        ref_off, stderr={k: 3.0 * v for k, v in ref_off.stderr.items()},
+        model_error=me.ModelError(0.05, 0.0, 0.05, None, "own residuals", 1.3, noise))
+    table, black = veil.simulate(veil.BRDF2, veil.BTDF2, psi=(90.0,), seed=0, black=True,
+                                 accuracy="fast")
+    fits = {name: veil.fit_medium(table.copy(), ref, black=black.copy(), accuracy="fast",
+                                  model_error=kind)
+            for name, ref, kind in (("term", ref_term, None), ("off", ref_term, "off"),
+                                    ("plain", ref_off, None))}
+    term = fits["term"].model_error
+    assert term.sigma == 0.0 and term.noise_only is not None
+    plain = fits["plain"].stderr_total
+    assert me.noise_only(fits["term"]).stderr_total == plain == fits["off"].stderr_total
+    assert all(fits["term"].stderr_total[k] > plain[k] for k in plain)
+    assert fits["plain"].model_error.noise_only is None
+
+
+def test_sandwich_is_the_covariance_of_the_weighted_estimate():
+    """C J_w^T (I + s^2 A R A) J_w C written out, for a random Jacobian, values and a
+    correlation matrix; and the independent likelihood's closed form equals the general
+    one at R = I."""
+    rng = np.random.default_rng(7)
+    jw = rng.standard_normal((30, 3))
+    a = rng.uniform(5.0, 50.0, 30)
+    dist = np.abs(np.subtract.outer(np.arange(30.0), np.arange(30.0))) * 3.0
+    corr = me.correlation(dist, 10.0)
+    c = np.linalg.inv(jw.T @ jw)
+    want = c @ jw.T @ (np.eye(30) + 0.02 ** 2 * (a[:, None] * corr * a[None, :])) @ jw @ c
+    np.testing.assert_allclose(me.sandwich(c, jw, a, 0.02, corr), want, rtol=1e-12)
+    want_indep = c @ jw.T @ (np.eye(30) + 0.02 ** 2 * np.diag(a * a)) @ jw @ c
+    np.testing.assert_allclose(me.sandwich(c, jw, a, 0.02), want_indep, rtol=1e-12)
+    r = rng.standard_normal(30)
+    general = me._nll(r, a, np.eye(30), 1e-4)
+    assert abs(me._nll_independent(r, a, 1e-4) - general) < 1e-9 * abs(general)
+
+
 def test_unweighted_fit_has_no_term():
     table, _, _ = _ggx_plate()
     result = fit_direct(table.drop(columns=["sigma"]), brdf_model="rough-plastic")

@@ -14,12 +14,17 @@ The target's estimate solves J_t^T W r(theta_t, theta_m) = 0, so a change d thet
 with J_t, J_m the Jacobians of the target session's model w.r.t. the target's and the
 medium's free parameters and W the fit's weights (1/sigma^2). Hence
 
-    Cov_t,total = Cov_t (step 2's own noise) + A Cov_m A^T (step 1)
-                                             + A B Cov_ref B^T A^T (step 0)
+    Cov_t,total = Cov_t (step 2's own) + A Cov_m A^T (step 1)
+                                       + A B Cov_ref B^T A^T (step 0)
 
 where B is the same sensitivity of step 1 (the reference in the medium) to the reference's
-f_r. The three parts come from independent data sets, so their variances add up exactly to
-the total: :func:`propagate` reports them per parameter (the "budget").
+f_r. The three parts' noise comes from independent data sets, so those variances add up
+exactly to the total: :func:`propagate` reports them per parameter (the "budget"). A
+model-discrepancy term (:mod:`veil.fitting.model_error`) enters each step's own part; the
+one that step 2 inherits from step 1 is the same error of the medium model in both, and
+its cross term between the parts is not counted (it mostly cancels: the medium absorbs the
+error in step 1 and gives it back in step 2), which makes the total cautious then
+(docs/validity.md).
 :func:`sample_propagation` checks the linearization by refitting the target over media drawn
 from step 1's distribution. All in natural units (the FitResult's).
 """
@@ -164,7 +169,8 @@ def propagate(target_result: FitResult, medium_result: FitResult, table, *,
 
     Returns a new FitResult: ``stderr``/``correlation`` stay step 2's own;
     ``stderr_total``/``correlation_total`` are the totals; ``stats["budget"]`` maps each free
-    parameter to its variance from "step2" (own noise), "step1", "step0" (when known) and
+    parameter to its variance from "step2" (its own: noise, and the model error when it has
+    a term), "step1", "step0" (when known) and
     "total" (their sum); ``stats["sensitivity"]`` holds d target / d medium.
     """
     _check_pair(target_result, medium_result, reference_result)

@@ -115,13 +115,20 @@ def check_kind(kind) -> str:
     return kind
 
 
+def _nll_independent(r, a, t) -> float:
+    """:func:`_nll` for R = I, in closed form (no N x N matrix)."""
+    v = 1.0 + t * a * a
+    return float(0.5 * np.sum(np.log(v) + r * r / v))
+
+
 def estimate(residuals, scaled_values, dof: int, dist,
              lengths=LENGTHS) -> tuple[float, float]:
     """(s, ell) of the module docstring: (0, 0) when the reduced chi-square is not above
     :func:`chi2_threshold`, else the maximum of the likelihood over ell in ``lengths``
     and s. ``residuals`` r_i = (y - f) / sigma, ``scaled_values`` a_i = f / sigma, ``dist``
-    the configurations' distances (:func:`distances`). A FitError when no relative error
-    can explain an excess (every a_i = 0)."""
+    the configurations' distances (:func:`distances`; a callable returning them is called
+    only when a length ell > 0 is tried). A FitError when no relative error can explain an
+    excess (every a_i = 0)."""
     r = np.asarray(residuals, dtype=float)
     a = np.asarray(scaled_values, dtype=float)
     dof = int(dof)
@@ -136,8 +143,17 @@ def estimate(residuals, scaled_values, dof: int, dist,
     guess = math.sqrt(max(float(r @ r) / dof - 1.0, 1e-6) / float(np.mean(a ** 2)))
     best = None
     for length in lengths:
-        corr = correlation(dist, length)
-        found = minimize_scalar(lambda u: _nll(r, a, corr, math.exp(2 * u)),
+        if length == 0.0:
+            def nll(u):
+                return _nll_independent(r, a, math.exp(2 * u))
+        else:
+            if callable(dist):
+                dist = dist()
+            corr = correlation(dist, length)
+
+            def nll(u, corr=corr):
+                return _nll(r, a, corr, math.exp(2 * u))
+        found = minimize_scalar(nll,
                                 bounds=(math.log(guess) - 6.0, math.log(guess) + 6.0),
                                 method="bounded", options={"xatol": 1e-6})
         if best is None or found.fun < best[0]:
@@ -167,8 +183,9 @@ class ModelError:
     and ``length`` its correlation length ell (degrees), ``own`` the s its own residuals
     show, ``given`` the given medium's (step 2; None otherwise), ``source`` which of them is
     used (:data:`SOURCES`), ``chi2_threshold`` the test's limit on the reduced chi-square,
-    ``noise_only`` the uncertainties without the term (keys stderr, correlation,
-    stderr_total, correlation_total; None when sigma = 0)."""
+    ``noise_only`` the uncertainties without any term, this fit's or one its given fit
+    carried into ``stderr_total`` (keys stderr, correlation, stderr_total,
+    correlation_total; None when no term entered)."""
 
     sigma: float
     length: float
@@ -215,7 +232,7 @@ def step_term(residuals, values, weights, dof: int, angles, given=None,
     medium's term (step 2), None otherwise."""
     lengths = LENGTHS if check_kind(kind) == "correlated" else (0.0,)
     own, length = estimate(residuals, np.asarray(values) * np.asarray(weights), dof,
-                           distances(angles), lengths)
+                           lambda: distances(angles), lengths)
     sigma, source = own, "own residuals" if own > 0 else "none"
     if given is not None and given.sigma > own:
         sigma, length, source = given.sigma, given.length, "given medium"

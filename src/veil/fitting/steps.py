@@ -148,23 +148,29 @@ def _step(step: str, data: FitData, fitted: Model, given: Model | None, given_re
 
     stderr = {own[k]: summary.stderr[k] for k in cls.keys()}
     corr = {own[a]: {own[b]: r for b, r in row.items()} for a, row in summary.correlation.items()}
-    stderr_total, corr_total = total_of(summary.covariance, given_result)
+    # the given fit without any model-discrepancy term (its own or inherited): "off" reports
+    # the noise alone, and every fit keeps its noise-only uncertainties when a term entered
+    given_noise = None if given_result is None else discrepancy.noise_only(given_result)
+    stderr_total, corr_total = total_of(summary.covariance,
+                                        given_noise if model_error == "off" else given_result)
     term = None
     if model_error != "off" and data.sigma is not None and summary.covariance is not None:
         term = discrepancy.step_term(summary.residuals, outcome.values, problem.w,
                                      data.size - problem.n_free, data.angles,
                                      discrepancy.given_term(given_result), model_error)
-        if term.sigma > 0:
+        if term.sigma > 0 or given_noise is not given_result:
             noise = {"stderr": stderr, "correlation": corr, "stderr_total": None,
                      "correlation_total": None}
             if given_result is not None:
                 noise["stderr_total"], noise["correlation_total"] = total_of(
-                    summary.covariance, discrepancy.noise_only(given_result))
-            corr_d = discrepancy.correlation(discrepancy.distances(data.angles), term.length)
-            cov = discrepancy.sandwich(summary.covariance, weighted_jacobian(problem, x),
-                                       outcome.values * problem.w, term.sigma, corr_d)
-            stderr, corr = named(cov)
-            stderr_total, corr_total = total_of(cov, given_result)
+                    summary.covariance, given_noise)
+            if term.sigma > 0:
+                corr_d = (None if term.length == 0.0 else discrepancy.correlation(
+                    discrepancy.distances(data.angles), term.length))
+                cov = discrepancy.sandwich(summary.covariance, weighted_jacobian(problem, x),
+                                           outcome.values * problem.w, term.sigma, corr_d)
+                stderr, corr = named(cov)
+                stderr_total, corr_total = total_of(cov, given_result)
             term = dataclasses.replace(term, noise_only=noise)
     media = [m for m in (medium,) if m is not None]
     variant = media[0].options().get(VARIANT_OPTION) if media else None

@@ -404,10 +404,12 @@ def _stats_lines(result: FitResult) -> list[str]:
     if term is not None and term.sigma > 0:
         length = (f", correlated over {format_number(term.length, 3)} deg" if term.length
                   else ", independent between configurations")
+        where = ("shown by this fit's residuals: reduced chi-square above "
+                 f"{format_number(term.chi2_threshold, 4)}" if term.source == "own residuals"
+                 else "inherited from the medium's fit, whose residuals showed it")
         lines.append(f"- model error: {format_number(100 * term.sigma, 3)} % of the model's "
-                     f"value{length} (from the {term.source}; reduced chi-square above "
-                     f"{format_number(term.chi2_threshold, 4)}), included in the standard "
-                     f"errors (docs/validity.md)")
+                     f"value{length} ({where}), included in the standard errors "
+                     f"(docs/validity.md)")
     elif term is not None:
         lines.append(f"- model error: none shown by the residuals (reduced chi-square <= "
                      f"{format_number(term.chi2_threshold, 4)})")
