@@ -120,7 +120,8 @@ def _step(step: str, data: FitData, fitted: Model, given: Model | None, given_re
     if medium is not None:  # everything this fit will compile (or load), side by side:
         # derivatives in the fitted model's parameters, and in the given model's to
         # propagate its covariance
-        wrt = [(cls.KIND,)] + ([(type(given).KIND,)] if given_result is not None else [])
+        propagates = given_result is not None and given_result.covariance(total=True) is not None
+        wrt = [(cls.KIND,)] + ([(type(given).KIND,)] if propagates else [])
         block.model(ITERATION_ACCURACY).prepare(values=True, jacobians=wrt)
         if accuracy != ITERATION_ACCURACY:
             block.model(accuracy).prepare(values=True)
