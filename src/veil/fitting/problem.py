@@ -334,7 +334,9 @@ class Problem:
 
         ``columns``: the global parameter indices (or a boolean mask) the caller reads; the
         engine then differentiates only the models they belong to (a step-2 fit needs no
-        derivative in the medium's parameters) and the other columns are NaN. None: all."""
+        derivative in the medium's parameters). Columns of a session's model that was not
+        differentiated are NaN in its rows (another session's parameters are 0 there);
+        columns computed at the same point by an earlier call are kept. None: all."""
         x = np.asarray(x, dtype=float)
         if columns is not None and np.asarray(columns).dtype == bool:
             columns = np.flatnonzero(columns)

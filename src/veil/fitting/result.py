@@ -52,7 +52,8 @@ class FitResult:
     ``model_error`` is the model-discrepancy term of a weighted fit
     (:class:`veil.fitting.model_error.ModelError`: the relative model error the residuals
     show beyond the noise, included in ``stderr`` and ``stderr_total``); None when the fit
-    did not estimate one (unweighted data, or ``model_error=False``).
+    did not estimate one (unweighted data, an undetermined covariance, or
+    ``model_error="off"``).
     """
 
     model: str
