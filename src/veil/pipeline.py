@@ -30,7 +30,6 @@ from .data.protocol import protocol
 from .errors import FitError
 from .fitting import (FitResult, fit_direct, fit_medium, fit_reference, fit_target,
                       model_values, prepare)
-from .fitting.steps import preload
 from .analysis.uncertainty import curve_stderr
 from .viz.fit_figures import fit_figure
 from .viz.reports import comparison_report, pipeline_report
@@ -143,10 +142,6 @@ def run_pipeline(reference_clear, reference_medium, target_medium, black=None, t
     if target_clear is not None:
         data["target_clear"] = prepare(target_clear, None, "target (clear medium)")
 
-    # the engine programs of steps 1 and 2 load while step 0 runs
-    preload(data["reference_medium"], accuracy=accuracy, variant=variant,
-            brdf_model=brdf_model, brdf_options=brdf_options, medium_model=medium_model,
-            medium_options=medium_options)
     brdf = {"brdf_model": brdf_model, "options": brdf_options, "model_error": model_error}
     ref = fit_reference(data["reference_clear"].table, fixed=fixed.get("reference"),
                         max_nfev=max_nfev, progress=stage("step 0, reference"),

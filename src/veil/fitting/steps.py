@@ -33,8 +33,7 @@ from ..models.base import VARIANT_OPTION
 from .data import FitData, prepare
 from .given import as_given, check_options
 from . import model_error as discrepancy
-from .problem import (ITERATION_ACCURACY, Problem, SessionModel, check_accuracy,
-                      session_problem)
+from .problem import ITERATION_ACCURACY, Problem, check_accuracy, session_problem
 from .result import FitResult, model_entry
 from .solver import (as_fixed, check_fixed, check_max_nfev, run, summarize,
                      uncertainties, weighted_jacobian)
@@ -278,25 +277,6 @@ def fit_medium(table, reference, *, fixed=None, black=None, variant: str | None 
                  accuracy, max_nfev, progress, _freed(cls, free, "medium"), model_error)
 
 
-def preload(data: FitData, *, accuracy: str = "default", variant: str | None = None,
-            brdf_model=None, brdf_options=None, medium_model=None,
-            medium_options=None) -> None:
-    """Start loading (or compiling) in the background the engine programs that steps 1 and
-    2 take on sessions with ``data``'s kind of configurations (in the plane of incidence or
-    not), so that the loading overlaps what comes first (step 0; ``run_pipeline``). Options
-    that the steps would reject are left to them to report."""
-    try:
-        check_accuracy(accuracy)
-        brdf = _template(_family(brdf_model, "brdf"), dict(brdf_options or {}))
-        medium = _template(_family(medium_model, "medium"), _options(medium_options, variant))
-    except (FitError, InputError):
-        return
-    jacobians = [("medium",), ("brdf",)]
-    SessionModel(brdf, medium, data.angles, ITERATION_ACCURACY).prepare(True, jacobians)
-    if accuracy != ITERATION_ACCURACY:
-        SessionModel(brdf, medium, data.angles, accuracy).prepare(True)
-
-
 def fit_target(table, medium, *, fixed=None, black=None, variant: str | None = None,
                accuracy: str = "default", max_nfev=None, progress=None, brdf_model=None,
                options=None, free=None, model_error=None) -> FitResult:
@@ -336,5 +316,5 @@ def model_values(result_or_model, other, angles, accuracy: str = "default") -> n
     return engine.values(brdf.to_vector(), medium.to_vector())
 
 
-__all__ = ["fit_reference", "fit_direct", "fit_medium", "fit_target", "model_values", "preload",
+__all__ = ["fit_reference", "fit_direct", "fit_medium", "fit_target", "model_values",
            "STARTS", "ROLE", "check_model_error"]
