@@ -260,6 +260,15 @@ def test_bad_kind():
     assert me.check_kind(False) == "off"
 
 
+def test_cli_offers_the_declared_kinds():
+    """The command line's --model-error (kept free of the fitting import, so that help stays
+    fast) lists the module's kinds and default."""
+    from veil.cli.fit_cmd import pipeline_command
+
+    option = next(p for p in pipeline_command.params if p.name == "model_error")
+    assert tuple(option.type.choices) == me.KINDS and option.default == me.DEFAULT
+
+
 def test_cli_bad_kind_exits_2(tmp_path):
     path = tmp_path / "t.csv"
     _ggx_plate()[0].to_csv(path, index=False)

@@ -30,6 +30,7 @@ from .data.protocol import protocol
 from .errors import FitError
 from .fitting import (FitResult, fit_direct, fit_medium, fit_reference, fit_target,
                       model_values, prepare)
+from .fitting.model_error import check_kind
 from .analysis.uncertainty import curve_stderr
 from .viz.fit_figures import fit_figure
 from .viz.reports import comparison_report, pipeline_report
@@ -118,8 +119,6 @@ def run_pipeline(reference_clear, reference_medium, target_medium, black=None, t
         when larger than its own.
     Other arguments as :func:`veil.fit_medium`. Returns a :class:`PipelineResult`.
     """
-    from .fitting.model_error import check_kind
-
     model_error = check_kind(model_error)
     fixed = _check_fixed(fixed)
     free = _check_fixed(free, "free")

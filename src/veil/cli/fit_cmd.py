@@ -41,6 +41,8 @@ _max_nfev_option = click.option(
     help="Limit on function evaluations of each least-squares run (default: scipy's).")
 
 
+# the kinds and default of veil.fitting.model_error (KINDS, DEFAULT; not imported: help
+# stays free of the fitting stack; tests/test_model_error.py checks they agree)
 _model_error_option = click.option(
     "--model-error", "model_error", type=click.Choice(["off", "independent", "correlated"]),
     default="independent", show_default=True,

@@ -349,24 +349,23 @@ class Problem:
         vals, rows, done = [], [], []
         start = 0
         for b, want, had in zip(self.blocks, wrt, have):
+            rows_b = slice(start, start + b.size)
             missing = tuple(k for k in WRT if k in want and k not in had)
-            if cached is not None:
-                full = cached[1][start:start + b.size].copy()
+            if cached is not None:  # the first call's values are kept
+                val, full = cached[0][rows_b], cached[1][rows_b].copy()
             else:  # another block's parameters: 0; this one's not differentiated: NaN
-                full = np.zeros((b.size, len(self.params)))
+                val, full = None, np.zeros((b.size, len(self.params)))
                 for kind, idx in (("brdf", b.ib), ("medium", b.im)):
                     if b.medium is not None and kind not in want:
                         full[:, idx] = np.nan
-            if missing or cached is None:
-                val, jb, jm = b.model(accuracy).jacobian(*self.split(b, x), wrt=missing)
-                parts = [(b.ib, jb)] if "brdf" in missing or b.medium is None else []
-                parts += [(b.im, jm)] if "medium" in missing else []
-                for idx, _ in parts:
-                    full[:, idx] = 0.0
-                for idx, jac in parts:
-                    np.add.at(full.T, idx, jac.T)
-            if cached is not None:
-                val = cached[0][start:start + b.size]  # the first call's values are kept
+            if missing or val is None:
+                new, jb, jm = b.model(accuracy).jacobian(*self.split(b, x), wrt=missing)
+                val = new if val is None else val
+                # a block's BRDF and medium slots are distinct: one kind at a time
+                for kind, idx, jac in (("brdf", b.ib, jb), ("medium", b.im, jm)):
+                    if kind in missing or (kind == "brdf" and b.medium is None):
+                        full[:, idx] = 0.0
+                        np.add.at(full.T, idx, jac.T)
             vals.append(val)
             rows.append(full)
             done.append(tuple(k for k in WRT if k in want or k in had))

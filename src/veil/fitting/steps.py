@@ -44,7 +44,6 @@ STARTS = {"reference": 3, "direct": 3, "medium": 2, "target": 2}
 #: The fit role (starting grid of the model's declaration) of each step.
 ROLE = {"reference": "reference", "direct": "reference", "medium": "medium",
         "target": "target"}
-check_model_error = discrepancy.check_kind
 
 
 def _family(name, kind: str):
@@ -159,11 +158,11 @@ def _step(step: str, data: FitData, fitted: Model, given: Model | None, given_re
                                      data.size - problem.n_free, data.angles,
                                      discrepancy.given_term(given_result), model_error)
         if term.sigma > 0 or given_noise is not given_result:
-            noise = {"stderr": stderr, "correlation": corr, "stderr_total": None,
-                     "correlation_total": None}
-            if given_result is not None:
-                noise["stderr_total"], noise["correlation_total"] = total_of(
-                    summary.covariance, given_noise)
+            # without an inherited term the total above is already the noise-only one
+            noise_total = ((stderr_total, corr_total) if given_noise is given_result
+                           else total_of(summary.covariance, given_noise))
+            noise = {"stderr": stderr, "correlation": corr, "stderr_total": noise_total[0],
+                     "correlation_total": noise_total[1]}
             if term.sigma > 0:
                 corr_d = (None if term.length == 0.0 else discrepancy.correlation(
                     discrepancy.distances(data.angles), term.length))
@@ -236,7 +235,7 @@ def fit_direct(table, *, fixed=None, black=None, max_nfev=None, progress=None,
     """f_r fitted to clear-medium data (MODEL.md sec. 2); ``step`` labels the result
     ("reference" for step 0, "direct" for a target measured without the medium)."""
     check_max_nfev(max_nfev)
-    model_error = check_model_error(model_error)
+    model_error = discrepancy.check_kind(model_error)
     if step not in ("reference", "direct"):
         raise FitError(f"step = {step!r}; a clear-water fit is step 'reference' or 'direct'")
     cls = _family(brdf_model, "brdf")
@@ -267,7 +266,7 @@ def fit_medium(table, reference, *, fixed=None, black=None, variant: str | None 
     """
     check_accuracy(accuracy)
     check_max_nfev(max_nfev)
-    model_error = check_model_error(model_error)
+    model_error = discrepancy.check_kind(model_error)
     brdf = as_given(reference, "brdf", "the reference")
     cls = _family(medium_model, "medium")
     fitted = _template(cls, _options(options, variant))
@@ -290,7 +289,7 @@ def fit_target(table, medium, *, fixed=None, black=None, variant: str | None = N
     """
     check_accuracy(accuracy)
     check_max_nfev(max_nfev)
-    model_error = check_model_error(model_error)
+    model_error = discrepancy.check_kind(model_error)
     model_m = as_given(medium, "medium", "the medium")
     check_options(model_m, _options(None, variant), "the medium")
     cls = _family(brdf_model, "brdf")
@@ -317,4 +316,4 @@ def model_values(result_or_model, other, angles, accuracy: str = "default") -> n
 
 
 __all__ = ["fit_reference", "fit_direct", "fit_medium", "fit_target", "model_values",
-           "STARTS", "ROLE", "check_model_error"]
+           "STARTS", "ROLE"]
