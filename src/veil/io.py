@@ -95,7 +95,10 @@ def write_bytes_atomic(path, data: bytes) -> None:
             _temporaries.pop(tmp, None)
             _record(path)
     except BaseException:
-        with contextlib.suppress(OSError):
+        # under COMMIT: an interrupt being handled (it holds COMMIT until the process exits,
+        # having removed the temporaries and the partial folder) ends the process with its
+        # status here, not an error of the write it pulled the folder from under
+        with COMMIT, contextlib.suppress(OSError):
             os.unlink(tmp)
         _temporaries.pop(tmp, None)
         raise
