@@ -168,10 +168,15 @@ def run_case(truth: dict, medium: str, target: str, models: str, outdir: str) ->
 
 def run_joint(truth: dict, medium: str, target: str, models: str) -> dict:
     """Steps 1 and 2 as one joint fit (veil.fit_joint): the reference and the target in the
-    medium, one medium for both, the reference's f_r from step 0 held; the target's
-    estimate against the truth as in :func:`run_case`."""
+    medium, one medium for both, the reference's f_r from step 0 held (its covariance
+    propagated); the target's estimate against the truth and the direct fit as in
+    :func:`run_case`, the model-discrepancy term the joint fit's own."""
     from veil import fit_joint
-    from veil.fitting import fit_reference, prepare
+    from veil.analysis.uncertainty import curve_stderr
+    from veil.data.protocol import protocol
+    from veil.fitting import fit_direct, fit_reference, prepare
+    from veil.fitting.model_error import noise_only
+    from veil.pipeline import compare
 
     names, kw = _case(truth, medium, target, models)
     black = table(names["black"])
@@ -182,19 +187,35 @@ def run_joint(truth: dict, medium: str, target: str, models: str) -> dict:
                  "reference"),
                 (prepare(table(names["target_medium"]), black, "target").table, label,
                  "target")]
-    res = fit_joint(sessions, reference=ref, **kw)
+    res = fit_joint(sessions, reference=ref, model_error=MODEL_ERROR, **kw)
     seconds = time.perf_counter() - t0
+    direct = fit_direct(table(names["target_clear"], True), brdf_model=kw["brdf_model"])
+    after, before = compare(res, direct), compare(noise_only(res), noise_only(direct))
+    configs = protocol()
+    proto = tuple(configs[c].to_numpy() for c in ("theta_i", "phi_i", "theta_r", "phi_r"))
+    _, se_new = curve_stderr(res, proto)
+    _, se_old = curve_stderr(noise_only(res), proto)
+    ratio = math.nan if se_new is None or se_old is None else float(np.median(se_new / se_old))
     _, clear, est, rendered, est_vs_truth = _against_truth(names, res.brdf("target"))
     med = res.medium(label).as_dict()
     true_medium = truth["media"][label]
     tau_name = (res.layout.get("media") or {}).get(label, {}).get("tau")
+    zs = [abs(r["z"]) for r in after["params"].values() if r["z"] is not None]
+    me_j = res.model_error
     return {
         "medium": medium, "target": target, "models": models + " (joint)",
-        "est_vs_direct": math.nan, "est_vs_truth": est_vs_truth,
-        "direct_vs_truth": math.nan, "max_z": math.nan, "fr_max_z": math.nan,
-        "fr_within_2se": math.nan,
+        "est_vs_direct": after["rms_fr_relative"], "est_vs_truth": est_vs_truth,
+        "direct_vs_truth": _against_truth(names, direct)[4],
+        "max_z": max(zs) if zs else math.nan, "fr_max_z": _nan(after["fr_max_z"]),
+        "fr_within_2se": _nan(after["fr_within_2se"]),
+        "fr_max_z_before": _nan(before["fr_max_z"]),
+        "fr_within_2se_before": _nan(before["fr_within_2se"]), "se_ratio": ratio,
+        "sigma_medium": math.nan if me_j is None else me_j.sigma,
+        "sigma_target": math.nan if me_j is None else me_j.sigma,
+        "length_target": math.nan if me_j is None else me_j.length,
         "tau": med.get("tau", math.nan), "tau_true": true_medium["tau"],
-        "tau_stderr": _nan(res.stderr.get(tau_name)) if tau_name else math.nan,
+        "tau_stderr": _nan((res.stderr_total or res.stderr).get(tau_name))
+        if tau_name else math.nan,
         "g": med.get("g", math.nan), "g_true": true_medium["g"],
         "chi2_medium": res.chi2_reduced, "chi2_target": res.chi2_reduced,
         "converged": res.converged, "seconds": seconds,

@@ -155,6 +155,46 @@ def test_mismatched_medium_is_covered_only_with_the_term():
     assert cover["off"] <= cover["independent"] <= cover["correlated"]
 
 
+def test_joint_fit_gets_its_own_term_and_the_reference_s_covariance():
+    """The joint fit of steps 1 and 2 (reference and target in the medium, the reference's
+    step-0 result held) on the mismatched medium of the test above: the term estimated over
+    both sessions, the estimates those of ``model_error="off"`` exactly, the reference's
+    covariance propagated into ``stderr_total``, and the target's curve against its truth
+    covered only with the term."""
+    medium = model_class("henyey-greenstein")(**veil.BTDF2.as_dict(), variant="exit")
+    ref, ref_black = veil.simulate(veil.BRDF2, medium, psi=(90.0,), seed=0, black=True,
+                                   accuracy="fast")
+    tgt, tgt_black = veil.simulate(veil.BRDF1, medium, psi=(90.0,), seed=1, black=True,
+                                   accuracy="fast")
+    step0 = veil.fit_reference(veil.simulate(veil.BRDF2, None, seed=2))
+    sessions = [(veil.fitting.prepare(ref, ref_black, "reference").table, "m", "reference"),
+                (veil.fitting.prepare(tgt, tgt_black, "target").table, "m", "target")]
+    angles = tuple(tgt[c].to_numpy() for c in ANGLES)
+    truth = model_values(veil.BRDF1, None, angles)
+    fits = {kind: veil.fit_joint(sessions, reference=step0, variant="paper", accuracy="fast",
+                                 model_error=kind)
+            for kind in ("off", "independent", "correlated")}
+    off = fits["off"]
+    assert off.model_error is None and off.stderr_total is not None
+    assert all(off.stderr_total[n] > off.stderr[n] for n in off.free)
+    for kind in ("independent", "correlated"):
+        on = fits[kind]
+        assert on.params == off.params                    # the estimates do not move
+        assert on.model_error.source == "own residuals" and on.model_error.sigma > 0
+        assert on.model_error.given is None
+        assert me.noise_only(on).stderr == off.stderr
+        assert me.noise_only(on).stderr_total == off.stderr_total
+        assert all(on.stderr_total[n] > off.stderr_total[n] for n in off.free)
+    assert fits["correlated"].model_error.length > 0
+    cover = {kind: _coverage(r, angles, truth) for kind, r in fits.items()}
+    assert cover["off"] < 0.5 and cover["correlated"] >= 0.9
+    assert cover["off"] <= cover["independent"] <= cover["correlated"]
+    back = veil.fitting.JointResult.from_dict(json.loads(json.dumps(
+        fits["correlated"].to_dict())))
+    assert back.model_error == fits["correlated"].model_error
+    assert back.stderr_total == fits["correlated"].stderr_total
+
+
 def test_well_specified_fit_is_unchanged_bit_for_bit():
     truth = model_class("rough-plastic")(rho=0.2, alpha=0.2, eta=1.1178, ks=1.0)
     table = veil.simulate(truth, None, seed=4, noise=0.01)
@@ -264,9 +304,11 @@ def test_cli_offers_the_declared_kinds():
     """The command line's --model-error (kept free of the fitting import, so that help stays
     fast) lists the module's kinds and default."""
     from veil.cli.fit_cmd import pipeline_command
+    from veil.cli.joint_cmd import joint_command
 
-    option = next(p for p in pipeline_command.params if p.name == "model_error")
-    assert tuple(option.type.choices) == me.KINDS and option.default == me.DEFAULT
+    for command in (pipeline_command, joint_command):
+        option = next(p for p in command.params if p.name == "model_error")
+        assert tuple(option.type.choices) == me.KINDS and option.default == me.DEFAULT
 
 
 def test_cli_bad_kind_exits_2(tmp_path):

@@ -192,7 +192,8 @@ def run_pipeline(reference_clear, reference_medium, target_medium, black=None, t
 # comparison with the directly measured target
 # --------------------------------------------------------------------------------------
 def compare(estimated: FitResult, direct: FitResult) -> dict:
-    """Estimated (through the medium) against direct f_r of the same object.
+    """Estimated (through the medium; a step-2 or a joint fit) against direct f_r of the same
+    object.
 
     Per parameter: difference and difference / sqrt(se_est^2 + se_direct^2) (the estimate's
     total standard error when it has one); and the rms of f_r_est - f_r_direct over the
@@ -205,9 +206,12 @@ def compare(estimated: FitResult, direct: FitResult) -> dict:
     """
     rows = {}
     se_est = estimated.stderr_total or estimated.stderr
-    for name, value in estimated.params.items():
-        ref = direct.params[name]
-        a, b = se_est.get(name), direct.stderr.get(name)
+    # a joint fit's target parameters by their result names
+    named = (getattr(estimated, "layout", None) or {}).get("objects", {}).get("target")
+    for name, ref in direct.params.items():
+        key = name if named is None else named[name]
+        value = estimated.params[key]
+        a, b = se_est.get(key), direct.stderr.get(name)
         combined = math.hypot(a or 0.0, b or 0.0)
         rows[name] = {"estimated": value, "direct": ref, "difference": value - ref,
                       "stderr_combined": combined if combined > 0 else None,

@@ -252,7 +252,8 @@ def _draw(rng, mean, cov, names, n_draws, cls):
 def curve_stderr(result: FitResult, angles) -> tuple[np.ndarray, np.ndarray | None]:
     """f_r of a fitted BRDF at canonical ``angles`` and its standard error per configuration,
     the result's covariance (the total one when it has it) through f_r's exact Jacobian:
-    se_k^2 = J_k Cov J_k^T. The error is None when the covariance is undetermined."""
+    se_k^2 = J_k Cov J_k^T (of a joint fit, the target's f_r and the block of its
+    parameters). The error is None when the covariance is undetermined."""
     model = result.as_model()
     if model.KIND != "brdf":
         raise InputTypeError(f"expected a BRDF result, got a {model.KIND} result "
@@ -263,6 +264,11 @@ def curve_stderr(result: FitResult, angles) -> tuple[np.ndarray, np.ndarray | No
     if found is None:
         return values, None
     names, cov = found
+    # a joint fit: the target's parameters (its result names) out of all it fitted
+    own = {r: p for p, r in (getattr(result, "layout", None) or {}).get(
+        "objects", {}).get("target", {p: p for p in names}).items()}
+    keep = [k for k, n in enumerate(names) if n in own]
+    names, cov = [own[names[k]] for k in keep], cov[np.ix_(keep, keep)]
     order = type(model).param_names()
     j = jac[:, [order.index(n) for n in names]]
     var = np.einsum("ij,jk,ik->i", j, cov, j)

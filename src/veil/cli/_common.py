@@ -234,6 +234,18 @@ def _option_flag(name: str) -> str:
     return "--" + name.replace("_", "-")
 
 
+# the kinds and default of veil.fitting.model_error (KINDS, DEFAULT; not imported: help
+# stays free of the fitting stack; tests/test_model_error.py checks they agree)
+model_error_option = click.option(
+    "--model-error", "model_error", type=click.Choice(["off", "independent", "correlated"]),
+    default="independent", show_default=True,
+    help="The model-discrepancy term of a weighted fit whose reduced chi-square exceeds "
+         "1 + 2 sqrt(2/dof): a relative model error estimated from the residuals and added "
+         "to the covariance (the estimates are not moved); 'correlated' lets the likelihood "
+         "choose a correlation length over the angles (docs/validity.md). Step 2 uses step "
+         "1's when larger; a joint fit estimates its own over all its sessions.")
+
+
 def model_options(kinds=("brdf", "medium")):
     """Click options for the model families of ``kinds`` and every option the registered
     families of those kinds declare; the command receives them as ``models``

@@ -14,7 +14,8 @@ from pathlib import Path
 import click
 
 from ._common import (LazyGroup, UserError, check_output_path, echo_warnings, finish_fits,
-                      fit_progress, load_medium, load_reference, model_options, parse_fix)
+                      fit_progress, load_medium, load_reference, model_error_option,
+                      model_options, parse_fix)
 
 IN_FILE = click.Path(exists=True, dir_okay=False, path_type=Path)
 OUT_FILE = click.Path(dir_okay=False, path_type=Path)
@@ -39,18 +40,6 @@ _black_option = click.option(
 _max_nfev_option = click.option(
     "--max-nfev", type=click.IntRange(min=1), default=None,
     help="Limit on function evaluations of each least-squares run (default: scipy's).")
-
-
-# the kinds and default of veil.fitting.model_error (KINDS, DEFAULT; not imported: help
-# stays free of the fitting stack; tests/test_model_error.py checks they agree)
-_model_error_option = click.option(
-    "--model-error", "model_error", type=click.Choice(["off", "independent", "correlated"]),
-    default="independent", show_default=True,
-    help="The model-discrepancy term of a weighted fit whose reduced chi-square exceeds "
-         "1 + 2 sqrt(2/dof): a relative model error estimated from the residuals and added "
-         "to the covariance (the estimates are not moved); 'correlated' lets the likelihood "
-         "choose a correlation length over the angles (docs/validity.md). Step 2 uses step "
-         "1's when larger.")
 
 
 def _free_option(help_text):
@@ -148,7 +137,7 @@ def merl_table(merl, channel, sampling):
 @_merl_option
 @_channel_option
 @_sampling_option
-@_model_error_option
+@model_error_option
 @model_options(("brdf",))
 @click.pass_context
 def reference_command(ctx, table, output, fix, black, max_nfev, merl, channel, sampling,
@@ -188,7 +177,7 @@ def reference_command(ctx, table, output, fix, black, max_nfev, merl, channel, s
 @_black_option
 @_accuracy_option
 @_max_nfev_option
-@_model_error_option
+@model_error_option
 @model_options()
 @click.pass_context
 def medium_command(ctx, table, reference, output, fix, free, black, accuracy, max_nfev,
@@ -227,7 +216,7 @@ def medium_command(ctx, table, reference, output, fix, free, black, accuracy, ma
 @_black_option
 @_accuracy_option
 @_max_nfev_option
-@_model_error_option
+@model_error_option
 @model_options()
 @click.pass_context
 def target_command(ctx, table, medium, output, fix, free, black, accuracy, max_nfev,
@@ -308,7 +297,7 @@ def print_pipeline(result) -> None:
                    "the results and report.md only, faster.")
 @_accuracy_option
 @_max_nfev_option
-@_model_error_option
+@model_error_option
 @model_options()
 @click.pass_context
 def pipeline_command(ctx, reference_clear, reference_medium, target_medium, black, target_clear,

@@ -29,8 +29,10 @@ from .data import prepare
 from .given import as_given
 from .problem import (ITERATION_ACCURACY, OBJECTS, Block, Problem, Session, check_accuracy,
                       model_slots)
+from . import model_error as discrepancy
+from .reported import Reported, reported
 from .result import FitResult, JointResult, load_result, model_entry
-from .solver import as_fixed, check_fixed, check_max_nfev, run, summarize
+from .solver import as_fixed, check_fixed, check_max_nfev, run, summarize, uncertainties
 from .start_values import joint_starts, step_starts
 
 #: Two configurations closer than this (deg, for both I and R) are the same one when
@@ -332,7 +334,8 @@ def _direct_fit(problem: Problem):
 def fit_joint(sessions, *, reference=None, shared=None, per_medium=None, fixed=None,
               start=None, variant: str | None = None, accuracy: str = "default",
               max_nfev=None, progress=None, brdf_model=None, medium_model=None,
-              brdf_options=None, medium_options=None, free=None) -> JointResult:
+              brdf_options=None, medium_options=None, free=None,
+              model_error=None) -> JointResult:
     """Fit several sessions of one target under several media at once (module docstring).
 
     sessions : list of :class:`Session` (table, medium label, object "target"/"reference")
@@ -350,9 +353,14 @@ def fit_joint(sessions, *, reference=None, shared=None, per_medium=None, fixed=N
     brdf_model, medium_model, brdf_options, medium_options : the families (registered
         names, default the paper's) and their options; ``variant`` is the shortcut for the
         medium's Fresnel variant.
-    accuracy, max_nfev, progress : as :func:`veil.fitting.steps.fit_medium`.
+    accuracy, max_nfev, progress, model_error : as :func:`veil.fitting.steps.fit_medium`.
+        A weighted joint fit whose residuals exceed the noise gets the model-discrepancy
+        term over all its sessions (:mod:`veil.fitting.model_error`; nothing is inherited),
+        and a reference given as a fit result has its covariance propagated into
+        ``stderr_total`` (:mod:`veil.fitting.reported`).
     """
     check_accuracy(accuracy)
+    model_error = discrepancy.check_kind(model_error)
     check_max_nfev(max_nfev)
     if start is not None:
         if not isinstance(start, dict):
@@ -366,7 +374,12 @@ def fit_joint(sessions, *, reference=None, shared=None, per_medium=None, fixed=N
                             brdf_model=brdf_model, medium_model=medium_model,
                             brdf_options=brdf_options, medium_options=medium_options,
                             free=free)
-    for block, wrt in zip(problem.blocks, problem.wrt(problem.free)):
+    given_result = reference if isinstance(reference, FitResult) and \
+        reference.covariance(total=True) is not None else None
+    index = {n: k for k, n in enumerate(problem.names)}
+    ref_names = layout["objects"].get("reference", {})
+    ref_cols = [] if given_result is None else [index[ref_names[n]] for n in given_result.free]
+    for block, wrt in zip(problem.blocks, problem.wrt(list(problem.free_index) + ref_cols)):
         # compile (or load) side by side what the fit will need
         block.model(ITERATION_ACCURACY).prepare(values=True, jacobians=[wrt])
         if accuracy != ITERATION_ACCURACY:
@@ -376,10 +389,18 @@ def fit_joint(sessions, *, reference=None, shared=None, per_medium=None, fixed=N
     summary = summarize(problem, outcome)
     given = model_entry(as_given(reference, "brdf", "the reference")) \
         if reference is not None else None
-    return _result(problem, layout, outcome, summary, accuracy, given)
+    angles = tuple(np.concatenate(parts) for parts in
+                   zip(*(b.data.angles for b in problem.blocks)))
+    rep = reported(problem, outcome.solution.x, summary.covariance, outcome.values,
+                   (summary.stderr, summary.correlation),
+                   named=lambda cov: uncertainties(cov, problem.names, problem.free_index),
+                   weighted=problem.weighted, angles=angles, kind=model_error,
+                   given_result=given_result, given_column=lambda n: index[ref_names[n]])
+    return _result(problem, layout, outcome, summary, accuracy, given, rep)
 
 
-def _result(problem: Problem, layout, outcome, summary, accuracy, given) -> JointResult:
+def _result(problem: Problem, layout, outcome, summary, accuracy, given,
+            rep: Reported) -> JointResult:
     """Assemble the JointResult from the solver's outcome and summary."""
     y, values = problem.y, outcome.values
     res = summary.residuals
@@ -399,7 +420,9 @@ def _result(problem: Problem, layout, outcome, summary, accuracy, given) -> Join
     fixed = {n: float(x[k]) for k, n in enumerate(names) if not problem.free[k]}
     variant = layout["options"]["medium"].get(VARIANT_OPTION)
     return JointResult(model="joint", params={n: float(v) for n, v in zip(names, x)},
-                       stderr=summary.stderr, correlation=summary.correlation,
+                       stderr=rep.stderr, correlation=rep.correlation,
+                       stderr_total=rep.stderr_total, correlation_total=rep.correlation_total,
+                       model_error=rep.model_error,
                        residuals=tuple(float(r) for r in res),
                        chi2_reduced=summary.chi2_reduced, rms_relative=summary.rms_relative,
                        n_points=problem.n_points, converged=summary.converged,

@@ -389,6 +389,9 @@ class JointResult(FitResult):
         _check_common(data, source)
         if not isinstance(data["stderr"], dict):
             raise FitError(f"{source}: key 'stderr' must map names to numbers or null")
+        for key in ("stderr_total", "correlation_total"):
+            if data.get(key) is not None and not isinstance(data[key], dict):
+                raise FitError(f"{source}: key {key!r} must be an object or null")
         try:
             result = cls(
                 model="joint", params={k: float(v) for k, v in params.items()},
@@ -403,7 +406,12 @@ class JointResult(FitResult):
                 step="joint", weighted=bool(data.get("weighted", True)),
                 accuracy=data.get("accuracy"), given=data.get("given"),
                 stats=_read_stats(data, source),
-                determined=bool(data.get("determined", True)), layout=layout)
+                determined=bool(data.get("determined", True)), layout=layout,
+                stderr_total=None if data.get("stderr_total") is None else
+                {k: from_json_float(data["stderr_total"].get(k), source) for k in params},
+                correlation_total=None if data.get("correlation_total") is None else
+                _read_matrix(data["correlation_total"], source),
+                model_error=_read_term(data.get("model_error"), list(params), source))
             for obj in layout["objects"]:
                 result.brdf(obj)
             for label in layout["media"]:

@@ -21,8 +21,6 @@ covariance (``model_error=``: "independent" by default, "correlated", or "off";
 
 from __future__ import annotations
 
-import dataclasses
-
 import numpy as np
 
 from ..engine.evaluator import ApparentModel, DirectModel
@@ -34,9 +32,10 @@ from .data import FitData, prepare
 from .given import as_given, check_options
 from . import model_error as discrepancy
 from .problem import ITERATION_ACCURACY, Problem, check_accuracy, session_problem
+from .reported import reported
 from .result import FitResult, model_entry
 from .solver import (as_fixed, check_fixed, check_max_nfev, run, summarize,
-                     uncertainties, weighted_jacobian)
+                     uncertainties)
 from .start_values import step_starts
 
 #: Least-squares runs started from the best distinct grid points, by step.
@@ -137,46 +136,20 @@ def _step(step: str, data: FitData, fitted: Model, given: Model | None, given_re
         return ({own[k]: se[k] for k in cls.keys()},
                 {own[a]: {own[b]: r for b, r in row.items()} for a, row in corr.items()})
 
-    def total_of(cov, given_res):
-        """(stderr_total, correlation_total) with ``given_res``'s covariance added, or
-        (None, None)."""
-        if given_res is None or cov is None:
-            return None, None
-        total = _propagated(problem, x, cov, given_res, type(given))
-        return (None, None) if total is None else named(total)
-
-    stderr = {own[k]: summary.stderr[k] for k in cls.keys()}
-    corr = {own[a]: {own[b]: r for b, r in row.items()} for a, row in summary.correlation.items()}
-    # the given fit without any model-discrepancy term (its own or inherited): "off" reports
-    # the noise alone, and every fit keeps its noise-only uncertainties when a term entered
-    given_noise = None if given_result is None else discrepancy.noise_only(given_result)
-    stderr_total, corr_total = total_of(summary.covariance,
-                                        given_noise if model_error == "off" else given_result)
-    term = None
-    if model_error != "off" and data.sigma is not None and summary.covariance is not None:
-        term = discrepancy.step_term(summary.residuals, outcome.values, problem.w,
-                                     data.size - problem.n_free, data.angles,
-                                     discrepancy.given_term(given_result), model_error)
-        if term.sigma > 0 or given_noise is not given_result:
-            # without an inherited term the total above is already the noise-only one
-            noise_total = ((stderr_total, corr_total) if given_noise is given_result
-                           else total_of(summary.covariance, given_noise))
-            noise = {"stderr": stderr, "correlation": corr, "stderr_total": noise_total[0],
-                     "correlation_total": noise_total[1]}
-            if term.sigma > 0:
-                corr_d = (None if term.length == 0.0 else discrepancy.correlation(
-                    discrepancy.distances(data.angles), term.length))
-                cov = discrepancy.sandwich(summary.covariance, weighted_jacobian(problem, x),
-                                           outcome.values * problem.w, term.sigma, corr_d)
-                stderr, corr = named(cov)
-                stderr_total, corr_total = total_of(cov, given_result)
-            term = dataclasses.replace(term, noise_only=noise)
+    rep = reported(problem, x, summary.covariance, outcome.values,
+                   ({own[k]: summary.stderr[k] for k in cls.keys()},
+                    {own[a]: {own[b]: r for b, r in row.items()}
+                     for a, row in summary.correlation.items()}),
+                   named=named, weighted=data.sigma is not None, angles=data.angles,
+                   kind=model_error, given_result=given_result,
+                   given_column=None if given is None
+                   else lambda n: problem.index(type(given).param(n).key))
     media = [m for m in (medium,) if m is not None]
     variant = media[0].options().get(VARIANT_OPTION) if media else None
     stats = dict(outcome.stats, grid_points=n_grid)
     return FitResult(model=cls.NAME,
                      params={own[k]: float(x[problem.index(k)]) for k in cls.keys()},
-                     stderr=stderr, correlation=corr,
+                     stderr=rep.stderr, correlation=rep.correlation,
                      residuals=tuple(float(r) for r in summary.residuals),
                      chi2_reduced=summary.chi2_reduced, rms_relative=summary.rms_relative,
                      n_points=data.size, converged=summary.converged, message=summary.message,
@@ -185,25 +158,10 @@ def _step(step: str, data: FitData, fitted: Model, given: Model | None, given_re
                             if cls.param(n).key not in free},
                      step=step, weighted=data.sigma is not None, accuracy=outcome.accuracy,
                      given=None if given is None else model_entry(given),
-                     stderr_total=stderr_total, correlation_total=corr_total, stats=stats,
+                     stderr_total=rep.stderr_total, correlation_total=rep.correlation_total,
+                     stats=stats,
                      options=fitted.options(), determined=summary.determined,
-                     model_error=term)
-
-
-def _propagated(problem: Problem, x, cov, given_result: FitResult, given_cls):
-    """The free parameters' covariance with the given model's added to first order:
-    d x / d theta = -J^+ J_theta (weighted), Cov + S Cov_theta S^T."""
-    found = given_result.covariance(total=True)
-    if found is None:
-        return None
-    gnames, gcov = found
-    cols = [problem.index(given_cls.param(n).key) for n in gnames]
-    _, full = problem.value_and_jacobian(x, ITERATION_ACCURACY,
-                                         list(problem.free_index) + cols)
-    w = problem.w[:, None]
-    jw = full[:, problem.free] * w
-    sens = -np.linalg.lstsq(jw, full[:, cols] * w, rcond=None)[0]
-    return cov + sens @ gcov @ sens.T
+                     model_error=rep.model_error)
 
 
 # --------------------------------------------------------------------------------------
