@@ -127,3 +127,23 @@ def test_unwritable_store_keeps_working(tmp_path, monkeypatch, engine_call):
     values = run(program, args, expect="cannot store engine programs")
     monkeypatch.setenv("VEIL_CACHE_DIR", str(tmp_path))
     np.testing.assert_array_equal(values, run(program, args))
+
+
+def test_code_digest_follows_the_code_not_where_it_lives(tmp_path, monkeypatch):
+    """The same engine and models in another checkout (another path) give the same digest,
+    so their stored programs are found; a changed byte in a model gives another."""
+    here = programs.code_digest()
+    root = os.path.dirname(os.path.dirname(os.path.abspath(programs.__file__)))
+    copy = tmp_path / "elsewhere" / "veil"
+    for name, path in programs._veil_sources():
+        target = copy / name
+        target.parent.mkdir(parents=True, exist_ok=True)
+        target.write_bytes(open(path, "rb").read())
+    assert all(p.startswith(root) for _, p in programs._veil_sources())
+    monkeypatch.setattr(programs, "__file__", str(copy / "engine" / "programs.py"))
+    assert all(p.startswith(str(copy)) for _, p in programs._veil_sources())
+    assert programs.code_digest() == here
+    model = copy / "models" / "henyey_greenstein.py"
+    model.write_bytes(model.read_bytes() + b"\n")
+    programs._source_digest.cache_clear()     # a process reads its code once
+    assert programs.code_digest() != here

@@ -94,11 +94,14 @@ def _cpu() -> str:
 
 @lru_cache(maxsize=None)
 def _source_digest(files: tuple) -> str:
+    """A digest of ``files`` ((name, path) pairs): each name and its file's bytes. Names,
+    not paths, so that the same code in another checkout or environment finds its
+    programs."""
     digest = hashlib.sha256()
-    for name in files:
+    for name, path in files:
         digest.update(name.encode())
         try:
-            with open(name, "rb") as fh:
+            with open(path, "rb") as fh:
                 digest.update(fh.read())
         except OSError:
             digest.update(b"<unreadable>")
@@ -106,24 +109,29 @@ def _source_digest(files: tuple) -> str:
 
 
 def _veil_sources() -> tuple:
-    """The files whose code a program is made of: veil's engine and models."""
+    """The files whose code a program is made of: veil's engine and models, as (name
+    relative to the package, path) pairs."""
     root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-    files = [os.path.join(root, name) for name in ("_jax.py", "_lazy.py")]
+    names = ["_jax.py", "_lazy.py"]
     for folder in ("engine", "models"):
-        path = os.path.join(root, folder)
-        files += sorted(os.path.join(path, f) for f in os.listdir(path) if f.endswith(".py"))
-    return tuple(files)
+        names += sorted(f"{folder}/{f}" for f in os.listdir(os.path.join(root, folder))
+                        if f.endswith(".py"))
+    return tuple((name, os.path.join(root, *name.split("/"))) for name in names)
 
 
 def code_digest(classes=()) -> str:
     """A digest of the source code a program is traced from: veil's engine and models, and
-    the modules of ``classes`` (model families outside veil, e.g. plugins)."""
+    the modules of ``classes`` (model families outside veil, e.g. plugins, by module
+    name)."""
     files = list(_veil_sources())
+    paths = {path for _, path in files}
     for cls in classes:
-        module = sys.modules.get(getattr(cls, "__module__", ""), None)
+        name = getattr(cls, "__module__", "")
+        module = sys.modules.get(name, None)
         path = getattr(module, "__file__", None)
-        if path and os.path.abspath(path) not in files:
-            files.append(os.path.abspath(path))
+        if path and os.path.abspath(path) not in paths:
+            paths.add(os.path.abspath(path))
+            files.append((name, os.path.abspath(path)))
     return _source_digest(tuple(files))
 
 
