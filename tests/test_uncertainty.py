@@ -71,7 +71,7 @@ def test_explicit_step0_equals_the_chained_one(steps):
 
 def test_linearization_agrees_with_sampling(steps):
     s = sample_propagation(steps["r2"], steps["r1"], steps["target"], n_draws=12, seed=3)
-    assert s["converged"].all()
+    assert s["converged"].all() and s["redrawn"] == 0   # a medium far inside its bounds
     assert s["shifts"].shape == s["linear"].shape == (12, 4)
     names = s["names"]
     for k, name in enumerate(names):
@@ -160,3 +160,23 @@ def test_curve_stderr_refuses_a_medium(steps):
     with pytest.raises(InputTypeError, match="BRDF result"):
         curve_stderr(steps["r1"], (np.array([10.0]), np.array([180.0]), np.array([10.0]),
                                    np.array([0.0])))
+
+
+def test_draws_outside_the_bounds_are_redrawn_and_counted():
+    """A forward-series medium with tau's standard error above its value (the thin medium
+    of docs/validity.md): every draw inside the bounds, the redrawn ones counted."""
+    from veil.analysis.uncertainty import _draw
+    from veil.models import model_class
+
+    cls = model_class("forward-series")
+    names = ["tau", "omega", "g"]
+    mean = np.array([0.108, 0.99, 0.98])
+    cov = np.diag([0.18, 0.004, 0.01]) ** 2
+    draws, redrawn = _draw(np.random.default_rng(0), mean, cov, names, 200, cls)
+    assert draws.shape == (200, 3)
+    assert np.all(draws[:, 0] >= 0) and np.all(draws[:, 1] <= 1) and np.all(draws[:, 2] < 1)
+    # P(tau < 0) = 0.27, P(omega > 1) = 0.006, P(g >= 1) = 0.023: a draw is rejected with
+    # probability 0.29, about 0.41 redrawn per kept (82 expected, sd about 11)
+    assert 50 < redrawn < 120
+    again, n = _draw(np.random.default_rng(0), mean, cov, names, 200, cls)
+    assert n == redrawn and np.array_equal(again, draws)

@@ -229,7 +229,8 @@ def budget_table(result: FitResult) -> list[dict]:
 
 
 def _draw(rng, mean, cov, names, n_draws, cls):
-    """Medium parameter draws from N(mean, cov), redrawing those outside the model's bounds."""
+    """Medium parameter draws from N(mean, cov), redrawing those outside the model's bounds:
+    (draws, how many were redrawn)."""
     chol = np.linalg.cholesky(cov + 1e-300 * np.eye(len(names)))
     specs = [cls.param(n) for n in names]
     out = []
@@ -246,7 +247,7 @@ def _draw(rng, mean, cov, names, n_draws, cls):
         except ValueError:
             continue
         out.append(d)
-    return np.array(out)
+    return np.array(out), tries - n_draws
 
 
 def curve_stderr(result: FitResult, angles) -> tuple[np.ndarray, np.ndarray | None]:
@@ -285,7 +286,10 @@ def sample_propagation(target_result: FitResult, medium_result: FitResult, table
     Returns a dict with ``names`` (target parameters), ``medium_names``, ``draws``
     (n_draws, k), ``shifts`` (refit minus nominal refit, (n_draws, p)), ``linear`` (the
     linearization's prediction -A d theta_m for each draw), ``covariance`` (of the shifts),
-    ``linear_covariance`` (A Cov_m A^T) and ``converged`` (per draw).
+    ``linear_covariance`` (A Cov_m A^T), ``converged`` (per draw) and ``redrawn`` (draws
+    outside the model's bounds, drawn again: when many, the draws are a truncated normal,
+    narrower than step 1's, and ``covariance`` is not the linear one's counterpart;
+    docs/validity.md, "Step 1's uncertainty at m01").
     """
     if isinstance(n_draws, bool) or not isinstance(n_draws, int) or n_draws < 2:
         raise FitError(f"n_draws = {n_draws!r}; expected an integer >= 2")
@@ -301,7 +305,7 @@ def sample_propagation(target_result: FitResult, medium_result: FitResult, table
     a = sensitivity(base, x0, theta, mapped, accuracy)
     rng = np.random.default_rng(seed)
     mean = np.array([medium_result.params[n] for n in m_names])
-    draws = _draw(rng, mean, cov_m, m_names, n_draws, medium_result.model_class)
+    draws, redrawn = _draw(rng, mean, cov_m, m_names, n_draws, medium_result.model_class)
     it = [base.index(n) for n in theta]
     im = [base.index(n) for n in mapped]
     shifts, conv = [], []
@@ -316,7 +320,8 @@ def sample_propagation(target_result: FitResult, medium_result: FitResult, table
     linear = -(draws - mean) @ a.T
     return {"names": theta, "medium_names": m_names, "draws": draws, "shifts": shifts,
             "linear": linear, "covariance": np.cov(shifts, rowvar=False),
-            "linear_covariance": a @ cov_m @ a.T, "converged": np.array(conv)}
+            "linear_covariance": a @ cov_m @ a.T, "converged": np.array(conv),
+            "redrawn": redrawn}
 
 
 __all__ = ["propagate", "sample_propagation", "curve_stderr", "medium_parts", "covariance_of",
