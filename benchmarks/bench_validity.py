@@ -117,13 +117,40 @@ def _curves(clear, est, rendered) -> dict:
 MODEL_ERROR = "independent"
 
 
-def run_case(truth: dict, medium: str, target: str, models: str, outdir: str) -> dict:
-    from veil import run_pipeline
+def _against_direct(names: dict, estimate, direct, medium_term, target_term) -> dict:
+    """The columns of an estimate (a step-2 or joint result) against the direct fit and the
+    truth: RMS differences, |z| of parameters and curves with the model-discrepancy terms
+    (``medium_term`` of step 1, ``target_term`` the estimate's) and without them
+    ("before"), the median ratio of the curves' standard errors, the curves drawn."""
     from veil.analysis.uncertainty import curve_stderr
     from veil.data.protocol import protocol
-    from veil.fitting import model_values
     from veil.fitting.model_error import noise_only
     from veil.pipeline import compare
+
+    after, before = compare(estimate, direct), compare(noise_only(estimate), noise_only(direct))
+    configs = protocol()
+    proto = tuple(configs[c].to_numpy() for c in ("theta_i", "phi_i", "theta_r", "phi_r"))
+    _, se_new = curve_stderr(estimate, proto)
+    _, se_old = curve_stderr(noise_only(estimate), proto)
+    ratio = math.nan if se_new is None or se_old is None else float(np.median(se_new / se_old))
+    _, clear, est, rendered, est_vs_truth = _against_truth(names, estimate.as_model())
+    zs = [abs(r["z"]) for r in after["params"].values() if r["z"] is not None]
+    return {
+        "est_vs_direct": after["rms_fr_relative"], "est_vs_truth": est_vs_truth,
+        "direct_vs_truth": _against_truth(names, direct)[4],
+        "max_z": max(zs) if zs else math.nan, "fr_max_z": _nan(after["fr_max_z"]),
+        "fr_within_2se": _nan(after["fr_within_2se"]),
+        "fr_max_z_before": _nan(before["fr_max_z"]),
+        "fr_within_2se_before": _nan(before["fr_within_2se"]), "se_ratio": ratio,
+        "sigma_medium": math.nan if medium_term is None else medium_term.sigma,
+        "sigma_target": math.nan if target_term is None else target_term.sigma,
+        "length_target": math.nan if target_term is None else target_term.length,
+        "curves": _curves(clear, est, rendered),
+    }
+
+
+def run_case(truth: dict, medium: str, target: str, models: str, outdir: str) -> dict:
+    from veil import run_pipeline
 
     names, kw = _case(truth, medium, target, models)
     t0 = time.perf_counter()
@@ -132,37 +159,17 @@ def run_case(truth: dict, medium: str, target: str, models: str, outdir: str) ->
                        target_clear=table(names["target_clear"], True), outdir=outdir,
                        figures=False, model_error=MODEL_ERROR, **kw)
     seconds = time.perf_counter() - t0
-    before = compare(noise_only(res.target), noise_only(res.direct))
-    configs = protocol()
-    proto = tuple(configs[c].to_numpy() for c in ("theta_i", "phi_i", "theta_r", "phi_r"))
-    _, se_new = curve_stderr(res.target, proto)
-    _, se_old = curve_stderr(noise_only(res.target), proto)
-    ratio = math.nan if se_new is None or se_old is None else float(np.median(se_new / se_old))
-    me_m, me_t = res.medium.model_error, res.target.model_error
-    angles, clear, est, rendered, est_vs_truth = _against_truth(names, res.target)
-    direct = model_values(res.direct, None, angles)
-    zs = [abs(r["z"]) for r in res.comparison["params"].values() if r["z"] is not None]
     med = res.medium.params
     true_medium = truth["media"][medium.partition("_")[0]]
     return {
         "medium": medium, "target": target, "models": models,
-        "est_vs_direct": res.comparison["rms_fr_relative"],
-        "est_vs_truth": est_vs_truth,
-        "direct_vs_truth": float(np.sqrt(np.mean(((direct - rendered) / rendered) ** 2))),
-        "max_z": max(zs) if zs else math.nan,
-        "fr_max_z": _nan(res.comparison["fr_max_z"]),
-        "fr_within_2se": _nan(res.comparison["fr_within_2se"]),
+        **_against_direct(names, res.target, res.direct, res.medium.model_error,
+                          res.target.model_error),
         "tau_stderr": _nan((res.medium.stderr_total or res.medium.stderr).get("tau")),
         "chi2_medium": res.medium.chi2_reduced, "chi2_target": res.target.chi2_reduced,
         "tau": med.get("tau", math.nan), "tau_true": true_medium["tau"],
         "g": med.get("g", math.nan), "g_true": true_medium["g"],
         "converged": res.converged, "seconds": seconds,
-        "fr_max_z_before": _nan(before["fr_max_z"]),
-        "fr_within_2se_before": _nan(before["fr_within_2se"]), "se_ratio": ratio,
-        "sigma_medium": math.nan if me_m is None else me_m.sigma,
-        "sigma_target": math.nan if me_t is None else me_t.sigma,
-        "length_target": math.nan if me_t is None else me_t.length,
-        "curves": _curves(clear, est, rendered),
     }
 
 
@@ -172,11 +179,7 @@ def run_joint(truth: dict, medium: str, target: str, models: str) -> dict:
     propagated); the target's estimate against the truth and the direct fit as in
     :func:`run_case`, the model-discrepancy term the joint fit's own."""
     from veil import fit_joint
-    from veil.analysis.uncertainty import curve_stderr
-    from veil.data.protocol import protocol
     from veil.fitting import fit_direct, fit_reference, prepare
-    from veil.fitting.model_error import noise_only
-    from veil.pipeline import compare
 
     names, kw = _case(truth, medium, target, models)
     black = table(names["black"])
@@ -190,36 +193,18 @@ def run_joint(truth: dict, medium: str, target: str, models: str) -> dict:
     res = fit_joint(sessions, reference=ref, model_error=MODEL_ERROR, **kw)
     seconds = time.perf_counter() - t0
     direct = fit_direct(table(names["target_clear"], True), brdf_model=kw["brdf_model"])
-    after, before = compare(res, direct), compare(noise_only(res), noise_only(direct))
-    configs = protocol()
-    proto = tuple(configs[c].to_numpy() for c in ("theta_i", "phi_i", "theta_r", "phi_r"))
-    _, se_new = curve_stderr(res, proto)
-    _, se_old = curve_stderr(noise_only(res), proto)
-    ratio = math.nan if se_new is None or se_old is None else float(np.median(se_new / se_old))
-    _, clear, est, rendered, est_vs_truth = _against_truth(names, res.brdf("target"))
     med = res.medium(label).as_dict()
     true_medium = truth["media"][label]
     tau_name = (res.layout.get("media") or {}).get(label, {}).get("tau")
-    zs = [abs(r["z"]) for r in after["params"].values() if r["z"] is not None]
-    me_j = res.model_error
     return {
         "medium": medium, "target": target, "models": models + " (joint)",
-        "est_vs_direct": after["rms_fr_relative"], "est_vs_truth": est_vs_truth,
-        "direct_vs_truth": _against_truth(names, direct)[4],
-        "max_z": max(zs) if zs else math.nan, "fr_max_z": _nan(after["fr_max_z"]),
-        "fr_within_2se": _nan(after["fr_within_2se"]),
-        "fr_max_z_before": _nan(before["fr_max_z"]),
-        "fr_within_2se_before": _nan(before["fr_within_2se"]), "se_ratio": ratio,
-        "sigma_medium": math.nan if me_j is None else me_j.sigma,
-        "sigma_target": math.nan if me_j is None else me_j.sigma,
-        "length_target": math.nan if me_j is None else me_j.length,
+        **_against_direct(names, res, direct, res.model_error, res.model_error),
         "tau": med.get("tau", math.nan), "tau_true": true_medium["tau"],
         "tau_stderr": _nan((res.stderr_total or res.stderr).get(tau_name))
         if tau_name else math.nan,
         "g": med.get("g", math.nan), "g_true": true_medium["g"],
         "chi2_medium": res.chi2_reduced, "chi2_target": res.chi2_reduced,
         "converged": res.converged, "seconds": seconds,
-        "curves": _curves(clear, est, rendered),
     }
 
 

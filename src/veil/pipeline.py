@@ -206,10 +206,9 @@ def compare(estimated: FitResult, direct: FitResult) -> dict:
     """
     rows = {}
     se_est = estimated.stderr_total or estimated.stderr
-    # a joint fit's target parameters by their result names
-    named = (getattr(estimated, "layout", None) or {}).get("objects", {}).get("target")
+    named = estimated.target_names()        # a joint fit's by their result names
     for name, ref in direct.params.items():
-        key = name if named is None else named[name]
+        key = named[name]
         value = estimated.params[key]
         a, b = se_est.get(key), direct.stderr.get(name)
         combined = math.hypot(a or 0.0, b or 0.0)

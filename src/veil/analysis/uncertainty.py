@@ -265,9 +265,8 @@ def curve_stderr(result: FitResult, angles) -> tuple[np.ndarray, np.ndarray | No
     if found is None:
         return values, None
     names, cov = found
-    # a joint fit: the target's parameters (its result names) out of all it fitted
-    own = {r: p for p, r in (getattr(result, "layout", None) or {}).get(
-        "objects", {}).get("target", {p: p for p in names}).items()}
+    # a joint fit: the target's parameters (by their result names) out of all it fitted
+    own = {r: p for p, r in result.target_names().items()}
     keep = [k for k, n in enumerate(names) if n in own]
     names, cov = [own[names[k]] for k in keep], cov[np.ix_(keep, keep)]
     order = type(model).param_names()

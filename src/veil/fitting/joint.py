@@ -32,7 +32,7 @@ from .problem import (ITERATION_ACCURACY, OBJECTS, Block, Problem, Session, chec
 from . import model_error as discrepancy
 from .reported import Reported, reported
 from .result import FitResult, JointResult, load_result, model_entry
-from .solver import as_fixed, check_fixed, check_max_nfev, run, summarize, uncertainties
+from .solver import as_fixed, check_fixed, check_max_nfev, run, summarize
 from .start_values import joint_starts, step_starts
 
 #: Two configurations closer than this (deg, for both I and R) are the same one when
@@ -389,12 +389,7 @@ def fit_joint(sessions, *, reference=None, shared=None, per_medium=None, fixed=N
     summary = summarize(problem, outcome)
     given = model_entry(as_given(reference, "brdf", "the reference")) \
         if reference is not None else None
-    angles = tuple(np.concatenate(parts) for parts in
-                   zip(*(b.data.angles for b in problem.blocks)))
-    rep = reported(problem, outcome.solution.x, summary.covariance, outcome.values,
-                   (summary.stderr, summary.correlation),
-                   named=lambda cov: uncertainties(cov, problem.names, problem.free_index),
-                   weighted=problem.weighted, angles=angles, kind=model_error,
+    rep = reported(problem, outcome.solution.x, summary, outcome.values, kind=model_error,
                    given_result=given_result, given_column=lambda n: index[ref_names[n]])
     return _result(problem, layout, outcome, summary, accuracy, given, rep)
 

@@ -237,6 +237,9 @@ class Problem:
         self.n_points = int(sum(b.size for b in self.blocks))
         self.y = np.concatenate([b.data.y for b in self.blocks])
         self.w = np.concatenate([b.data.w for b in self.blocks])
+        #: canonical angles (theta_i, phi_i, theta_r, phi_r) of all points, in row order
+        self.angles = tuple(np.concatenate(parts)
+                            for parts in zip(*(b.data.angles for b in self.blocks)))
         self._cache: dict = {}
         self._last = None
         self.prior = None

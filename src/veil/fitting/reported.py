@@ -19,7 +19,7 @@ import numpy as np
 
 from . import model_error as discrepancy
 from .problem import ITERATION_ACCURACY, Problem
-from .solver import weighted_jacobian
+from .solver import uncertainties, weighted_jacobian
 
 
 @dataclass(frozen=True)
@@ -52,17 +52,24 @@ def propagated(problem: Problem, x, cov, given_result, column: Callable[[str], i
     return cov + sens @ gcov @ sens.T
 
 
-def reported(problem: Problem, x, cov, values, noise: tuple[dict, dict], *,
-             named: Callable, weighted: bool, angles, kind: str, given_result=None,
-             given_column: Callable[[str], int] | None = None) -> Reported:
-    """The uncertainties of a fit at natural ``x`` with the noise's covariance ``cov`` (free
-    parameters; None when undetermined), model ``values`` and ``noise`` = (stderr,
-    correlation) of the summary; ``named(cov)`` gives (stderr, correlation) in the result's
-    names. ``given_result`` (with ``given_column``) is a given model's fit, propagated into
-    the totals; a step-1 medium also passes its model error on (step 2 inherits it).
-    ``kind`` is the model-discrepancy term's (:data:`veil.fitting.model_error.KINDS`),
-    estimated for a ``weighted`` fit only; ``angles`` are the points' canonical angles."""
-    stderr, corr = noise
+def _same(stderr, correlation):
+    return stderr, correlation
+
+
+def reported(problem: Problem, x, summary, values, *, kind: str, rename: Callable = _same,
+             given_result=None, given_column: Callable[[str], int] | None = None) -> Reported:
+    """The uncertainties of a fit at natural ``x``: the solver's ``summary`` (the noise's
+    covariance of the free parameters, None when undetermined) and the model ``values``;
+    ``rename(stderr, correlation)`` puts the problem's names into the result's.
+    ``given_result`` (with ``given_column``) is a given model's fit, propagated into the
+    totals; a step-1 medium also passes its model error on (step 2 inherits it). ``kind`` is
+    the model-discrepancy term's (:data:`veil.fitting.model_error.KINDS`), estimated for a
+    weighted problem only."""
+    cov = summary.covariance
+    stderr, corr = rename(summary.stderr, summary.correlation)
+
+    def named(c):
+        return rename(*uncertainties(c, problem.names, problem.free_index))
 
     def total_of(c, given_res):
         if given_res is None or c is None:
@@ -75,9 +82,9 @@ def reported(problem: Problem, x, cov, values, noise: tuple[dict, dict], *,
     given_noise = None if given_result is None else discrepancy.noise_only(given_result)
     stderr_total, corr_total = total_of(cov, given_noise if kind == "off" else given_result)
     term = None
-    if kind != "off" and weighted and cov is not None:
-        term = discrepancy.step_term((problem.y - values) * problem.w, values, problem.w,
-                                     problem.n_points - problem.n_free, angles,
+    if kind != "off" and problem.weighted and cov is not None:
+        term = discrepancy.step_term(summary.residuals, values, problem.w,
+                                     problem.n_points - problem.n_free, problem.angles,
                                      discrepancy.given_term(given_result), kind)
         if term.sigma > 0 or given_noise is not given_result:
             # without an inherited term the total above is already the noise-only one
@@ -87,7 +94,7 @@ def reported(problem: Problem, x, cov, values, noise: tuple[dict, dict], *,
                           "stderr_total": noise_total[0], "correlation_total": noise_total[1]}
             if term.sigma > 0:
                 corr_d = (None if term.length == 0.0 else discrepancy.correlation(
-                    discrepancy.distances(angles), term.length))
+                    discrepancy.distances(problem.angles), term.length))
                 cov = discrepancy.sandwich(cov, weighted_jacobian(problem, x),
                                            values * problem.w, term.sigma, corr_d)
                 stderr, corr = named(cov)

@@ -102,6 +102,11 @@ class FitResult:
         """Names of the parameters the fit varied (those not held fixed)."""
         return tuple(n for n in self.params if n not in self.fixed)
 
+    def target_names(self) -> dict:
+        """{a parameter of the fitted object's model: its name in ``params``}: the same names
+        here; a joint fit's target's from its layout."""
+        return {n: n for n in self.params}
+
     @property
     def n_free(self) -> int:
         return len(self.free)
@@ -339,6 +344,9 @@ class JointResult(FitResult):
     def as_model(self):
         """The target's BRDF (what :meth:`FitResult.as_model` gives for a step-2 fit)."""
         return self.brdf("target")
+
+    def target_names(self) -> dict:
+        return dict(self.layout["objects"]["target"])
 
     @property
     def model_class(self) -> type[Model]:

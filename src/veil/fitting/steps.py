@@ -34,8 +34,7 @@ from . import model_error as discrepancy
 from .problem import ITERATION_ACCURACY, Problem, check_accuracy, session_problem
 from .reported import reported
 from .result import FitResult, model_entry
-from .solver import (as_fixed, check_fixed, check_max_nfev, run, summarize,
-                     uncertainties)
+from .solver import as_fixed, check_fixed, check_max_nfev, run, summarize
 from .start_values import step_starts
 
 #: Least-squares runs started from the best distinct grid points, by step.
@@ -130,18 +129,13 @@ def _step(step: str, data: FitData, fitted: Model, given: Model | None, given_re
     own = {p.key: p.name for p in cls.PARAMS}           # slot name -> model's own name
     names = [own[k] for k in cls.keys()]
 
-    def named(cov):
-        """(stderr, correlation) in the model's own names of a free covariance."""
-        se, corr = uncertainties(cov, problem.names, problem.free_index)
+    def rename(se, corr):
+        """(stderr, correlation) in the model's own names."""
         return ({own[k]: se[k] for k in cls.keys()},
                 {own[a]: {own[b]: r for b, r in row.items()} for a, row in corr.items()})
 
-    rep = reported(problem, x, summary.covariance, outcome.values,
-                   ({own[k]: summary.stderr[k] for k in cls.keys()},
-                    {own[a]: {own[b]: r for b, r in row.items()}
-                     for a, row in summary.correlation.items()}),
-                   named=named, weighted=data.sigma is not None, angles=data.angles,
-                   kind=model_error, given_result=given_result,
+    rep = reported(problem, x, summary, outcome.values, kind=model_error, rename=rename,
+                   given_result=given_result,
                    given_column=None if given is None
                    else lambda n: problem.index(type(given).param(n).key))
     media = [m for m in (medium,) if m is not None]
