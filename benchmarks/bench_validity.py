@@ -29,7 +29,8 @@ f_r of step 0 held (no direct fit is compared there: the columns against it are 
 
 Run:  .venv/bin/python benchmarks/bench_validity.py [--media m01,m05,m10] [--targets target]
       [--models paper,physical] [--orders poisson|cylinder|light-side|view-side] [--joint]
-      [--model-error off|independent|correlated] [--figure docs/validity.png] [--json out.json]
+      [--model-error off|independent|correlated] [--propagation auto|linear|sigma-points]
+      [--figure docs/validity.png] [--json out.json]
 The clear-water tables have sigma = 0 (deterministic renders, validation/README.md); they are
 fitted unweighted.
 """
@@ -76,6 +77,8 @@ def sessions_of(truth: dict, medium: str, target: str):
 
 #: The physical medium's order weights (forward-series option ``orders``; --orders).
 ORDERS = "poisson"
+#: How step 1's covariance enters step 2's (--propagation).
+PROPAGATION = "auto"
 
 
 def _case(truth: dict, medium: str, target: str, models: str):
@@ -157,7 +160,7 @@ def run_case(truth: dict, medium: str, target: str, models: str, outdir: str) ->
     res = run_pipeline(table(names["reference_clear"], True), table(names["reference_medium"]),
                        table(names["target_medium"]), black=table(names["black"]),
                        target_clear=table(names["target_clear"], True), outdir=outdir,
-                       figures=False, model_error=MODEL_ERROR, **kw)
+                       figures=False, model_error=MODEL_ERROR, propagation=PROPAGATION, **kw)
     seconds = time.perf_counter() - t0
     med = res.medium.params
     true_medium = truth["media"][medium.partition("_")[0]]
@@ -170,6 +173,7 @@ def run_case(truth: dict, medium: str, target: str, models: str, outdir: str) ->
         "tau": med.get("tau", math.nan), "tau_true": true_medium["tau"],
         "g": med.get("g", math.nan), "g_true": true_medium["g"],
         "converged": res.converged, "seconds": seconds,
+        "propagation": (res.target.stats.get("propagation") or {}).get("method", "-"),
     }
 
 
@@ -247,13 +251,14 @@ def print_table(rows: list[dict]) -> None:
 
         t = Table(title=f"model-discrepancy term ({MODEL_ERROR}): curves before -> after")
         for col in ("session", "models", "est-vs-direct", "sigma step 1", "sigma step 2",
-                    "ell", "max |z| before", "after", "within 2 se before", "after",
-                    "median se ratio"):
+                    "ell", "propagation", "max |z| before", "after", "within 2 se before",
+                    "after", "median se ratio"):
             t.add_column(col, justify="right")
         for r in covered:
             t.add_row(f"{r['medium']} {r['target']}", r["models"], _pct(r["est_vs_direct"]),
                       _pct(r["sigma_medium"]), _pct(r["sigma_target"]),
-                      _num(r["length_target"]), _num(r["fr_max_z_before"]),
+                      _num(r["length_target"]), r.get("propagation", "-"),
+                      _num(r["fr_max_z_before"]),
                       _num(r["fr_max_z"]), _pct(r["fr_within_2se_before"], 0),
                       _pct(r["fr_within_2se"], 0), _num(r["se_ratio"]))
         Console(width=160).print(t)
@@ -313,10 +318,13 @@ def main(argv=None) -> int:
     ap.add_argument("--model-error", default="independent",
                     choices=("off", "independent", "correlated"),
                     help="the fits' model-discrepancy term (veil.fitting.model_error)")
+    ap.add_argument("--propagation", default="auto", choices=("auto", "linear", "sigma-points"),
+                    help="how step 1's covariance enters step 2's (veil.fitting.propagation)")
     args = ap.parse_args(argv)
-    global ORDERS, MODEL_ERROR
+    global ORDERS, MODEL_ERROR, PROPAGATION
     ORDERS = args.orders
     MODEL_ERROR = args.model_error
+    PROPAGATION = args.propagation
     if args.replot:
         with open(args.replot) as f:
             rows = json.load(f)

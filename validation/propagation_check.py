@@ -1,7 +1,8 @@
 """Is step 1's uncertainty, propagated into step 2 to first order, what leaves m01 uncovered?
 
 Step 2's ``stderr_total`` adds step 1's covariance linearized, A Cov_m A^T
-(veil.fitting.reported.propagated). At m01 (true tau 0.1) step 1 leaves tau at about its own
+(veil.fitting.propagation.linear_part; the pipeline now uses sigma points there,
+veil.fitting.propagation). At m01 (true tau 0.1) step 1 leaves tau at about its own
 size in standard error, so the linearization may be far off. This script runs the physical
 pipeline on a path-traced session as benchmarks/bench_validity.py does (target plate, model
 error "independent"), then refits the target with the medium drawn from step 1's

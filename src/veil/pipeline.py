@@ -31,6 +31,7 @@ from .errors import FitError
 from .fitting import (FitResult, fit_direct, fit_medium, fit_reference, fit_target,
                       model_values, prepare)
 from .fitting.model_error import check_kind
+from .fitting.propagation import check_method
 from .analysis.uncertainty import curve_stderr
 from .viz.fit_figures import fit_figure
 from .viz.reports import comparison_report, pipeline_report
@@ -97,7 +98,8 @@ def run_pipeline(reference_clear, reference_medium, target_medium, black=None, t
                  outdir="veil-fit", *, variant: str | None = None, accuracy: str = "default",
                  fixed=None, max_nfev=None, progress=None, truth=None,
                  figures: bool = True, brdf_model=None, medium_model=None, brdf_options=None,
-                 medium_options=None, free=None, model_error=None) -> PipelineResult:
+                 medium_options=None, free=None, model_error=None,
+                 propagation=None) -> PipelineResult:
     """Steps 0-2 of MODEL.md sec. 7 with files, figures and report.md in ``outdir``.
 
     reference_clear, reference_medium, target_medium : sessions (DataFrames or CSV paths):
@@ -117,9 +119,12 @@ def run_pipeline(reference_clear, reference_medium, target_medium, black=None, t
     model_error : the model-discrepancy term of every weighted step ("off", "independent",
         the default, or "correlated"; :mod:`veil.fitting.model_error`): step 2 uses step 1's
         when larger than its own.
+    propagation : how each step's given covariance enters its ``stderr_total`` ("auto", the
+        default, "linear" or "sigma-points"; :mod:`veil.fitting.propagation`).
     Other arguments as :func:`veil.fit_medium`. Returns a :class:`PipelineResult`.
     """
     model_error = check_kind(model_error)
+    propagation = check_method(propagation)
     fixed = _check_fixed(fixed)
     free = _check_fixed(free, "free")
     outdir = os.fspath(outdir)
@@ -142,17 +147,18 @@ def run_pipeline(reference_clear, reference_medium, target_medium, black=None, t
         data["target_clear"] = prepare(target_clear, None, "target (clear medium)")
 
     brdf = {"brdf_model": brdf_model, "options": brdf_options, "model_error": model_error}
+    chained = {"model_error": model_error, "propagation": propagation}
     ref = fit_reference(data["reference_clear"].table, fixed=fixed.get("reference"),
                         max_nfev=max_nfev, progress=stage("step 0, reference"),
                         free=free.get("reference"), **brdf)
     med = fit_medium(data["reference_medium"].table, ref, fixed=fixed.get("medium"),
                      variant=variant, accuracy=accuracy, max_nfev=max_nfev,
                      progress=stage("step 1, medium"), medium_model=medium_model,
-                     options=medium_options, free=free.get("medium"),
-                     model_error=model_error)
+                     options=medium_options, free=free.get("medium"), **chained)
     tgt = fit_target(data["target_medium"].table, med, fixed=fixed.get("target"),
                      accuracy=accuracy, max_nfev=max_nfev, progress=stage("step 2, target"),
-                     free=free.get("target"), **brdf)
+                     free=free.get("target"), brdf_model=brdf_model, options=brdf_options,
+                     **chained)
     direct = comparison = None
     if target_clear is not None:
         direct = fit_direct(data["target_clear"].table, fixed=fixed.get("target"),
@@ -271,7 +277,8 @@ def compare_models(reference_clear, reference_medium, target_medium, black=None,
                    target_clear=None, outdir="veil-compare", *, sets=None,
                    accuracy: str = "default", fixed=None, free=None, max_nfev=None,
                    progress=None, brdf_options=None, medium_options=None,
-                   figures: bool = True, model_error=None) -> ComparisonResult:
+                   figures: bool = True, model_error=None,
+                   propagation=None) -> ComparisonResult:
     """:func:`run_pipeline` with each named model set (default the paper's and the physical
     ones, :data:`veil.models.MODEL_SETS`) on the same sessions, each into ``outdir/<set>/``,
     and ``outdir/comparison.md``: goodness of fit (chi-square, AIC, BIC) step by step side by
@@ -327,7 +334,8 @@ def compare_models(reference_clear, reference_medium, target_medium, black=None,
                                          black=black, target_clear=target_clear,
                                          outdir=folder / name, accuracy=accuracy,
                                          max_nfev=max_nfev, progress=inner, figures=figures,
-                                         model_error=model_error, **plan)
+                                         model_error=model_error,
+                                         propagation=propagation, **plan)
             seconds[name] = time.perf_counter() - t0
         names = list(results)
         first = names[0]

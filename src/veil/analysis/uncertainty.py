@@ -26,7 +26,10 @@ its cross term between the parts is not counted (it mostly cancels: the medium a
 error in step 1 and gives it back in step 2), which makes the total cautious then
 (docs/validity.md).
 :func:`sample_propagation` checks the linearization by refitting the target over media drawn
-from step 1's distribution. All in natural units (the FitResult's).
+from step 1's distribution. Where step 1 leaves the medium uncertain by a large part of its
+scale the fits propagate through sigma points instead (:mod:`veil.fitting.propagation`), and
+:func:`propagate` follows the method the target's fit used. All in natural units (the
+FitResult's).
 """
 
 from __future__ import annotations
@@ -39,6 +42,7 @@ import numpy as np
 from ..errors import FitError, InputTypeError
 from ..engine.evaluator import DirectModel
 from ..fitting.problem import ITERATION_ACCURACY, session_problem
+from ..fitting.propagation import sigma_part
 from ..fitting.result import FitResult, JointResult
 from ..fitting.solver import solve
 
@@ -155,7 +159,8 @@ def medium_parts(medium_result: FitResult, reference_result: FitResult | None = 
 
 def propagate(target_result: FitResult, medium_result: FitResult, table, *,
               reference_result: FitResult | None = None, reference_table=None, black=None,
-              reference_black=None, accuracy: str = ITERATION_ACCURACY) -> FitResult:
+              reference_black=None, accuracy: str = ITERATION_ACCURACY,
+              method: str | None = None) -> FitResult:
     """The target's result with total uncertainties and their budget (module docstring).
 
     target_result, medium_result : the step-2 and step-1 FitResults (the target fitted
@@ -166,6 +171,10 @@ def propagate(target_result: FitResult, medium_result: FitResult, table, *,
         reference in the medium; ``reference_black``): step 0's part computed explicitly;
         otherwise it comes from the medium result's total covariance when present.
     accuracy : quadrature of the sensitivities (the fits' covariances use "fast" too).
+    method : "linear" or "sigma-points" (:mod:`veil.fitting.propagation`); None: the one
+        the step-2 fit used (linear for a result that does not say). Through sigma points,
+        step 1's part is that of its own covariance and step 0's what adding step 0's
+        covariance adds (the parts of a nonlinear response do not add up otherwise).
 
     Returns a new FitResult: ``stderr``/``correlation`` stay step 2's own;
     ``stderr_total``/``correlation_total`` are the totals; ``stats["budget"]`` maps each free
@@ -174,6 +183,10 @@ def propagate(target_result: FitResult, medium_result: FitResult, table, *,
     "total" (their sum); ``stats["sensitivity"]`` holds d target / d medium.
     """
     _check_pair(target_result, medium_result, reference_result)
+    if method is None:
+        method = (target_result.stats.get("propagation") or {}).get("method", "linear")
+    if method not in ("linear", "sigma-points"):
+        raise FitError(f"method = {method!r}; expected 'linear' or 'sigma-points'")
     theta, cov2 = covariance_of(target_result)
     m_names, m_parts = medium_parts(medium_result, reference_result, reference_table,
                                     black=reference_black, accuracy=accuracy)
@@ -182,11 +195,23 @@ def propagate(target_result: FitResult, medium_result: FitResult, table, *,
     if problem.n_points != target_result.n_points:
         raise FitError(f"the table has {problem.n_points} points but the target fit used "
                        f"{target_result.n_points}: give the table (and black cloth) of that fit")
-    a = sensitivity(problem, problem.values, theta, _medium_map(medium_result, m_names),
-                    accuracy)
+    mapped = _medium_map(medium_result, m_names)
+    a = sensitivity(problem, problem.values, theta, mapped, accuracy)
     parts = {"step2": cov2}
-    for part, cov_m in m_parts.items():
-        parts[part] = a @ cov_m @ a.T
+    if method == "linear":
+        for part, cov_m in m_parts.items():
+            parts[part] = a @ cov_m @ a.T
+    else:
+        cols = [problem.index(n) for n in mapped]
+        specs = [medium_result.model_class.param(n) for n in m_names]
+        spread = {}
+        for part, cov_m in (("step1", m_parts["step1"]),
+                            ("step0", m_parts["step1"] + m_parts.get("step0", 0.0))):
+            if part in m_parts:
+                spread[part] = sigma_part(problem, problem.values, cols, specs, cov_m).covariance
+        parts["step1"] = spread["step1"]
+        if "step0" in spread:
+            parts["step0"] = spread["step0"] - spread["step1"]
     total = sum(parts.values())
     se = np.sqrt(np.maximum(np.diag(total), 0.0))
     budget = {}
@@ -202,8 +227,9 @@ def propagate(target_result: FitResult, medium_result: FitResult, table, *,
     stderr_total.update({n: float(s) for n, s in zip(theta, se)})
     sens = {n: {m: float(-a[j, k]) for k, m in enumerate(m_names)} for j, n in enumerate(theta)}
     what = "the medium's (step 1)" + (" and the reference's (step 0)" if "step0" in parts else "")
+    how = "by linearization" if method == "linear" else "through sigma-point refits"
     message = (target_result.message + f"; total standard errors include {what} "
-               f"uncertainty, propagated by linearization")
+               f"uncertainty, propagated {how}")
     stats = dict(target_result.stats, budget=budget, sensitivity=sens)
     return dataclasses.replace(target_result, stderr_total=stderr_total,
                                correlation_total=corr, message=message, stats=stats)

@@ -246,6 +246,18 @@ model_error_option = click.option(
          "1's when larger; a joint fit estimates its own over all its sessions.")
 
 
+# the methods of veil.fitting.propagation (METHODS; not imported, as above;
+# tests/test_propagation.py checks they agree)
+propagation_option = click.option(
+    "--propagation", "propagation", type=click.Choice(["auto", "linear", "sigma-points"]),
+    default="auto", show_default=True,
+    help="How the previous step's uncertainty enters this one's total standard errors: "
+         "'linear' (first order), 'sigma-points' (the fit repeated at 2n points of the "
+         "given fit's covariance, in coordinates where it is relative), 'auto' the latter "
+         "where a given parameter is uncertain by more than 0.25 of its scale (tau at "
+         "optical depth 0.1; docs/fitting.md).")
+
+
 def model_options(kinds=("brdf", "medium")):
     """Click options for the model families of ``kinds`` and every option the registered
     families of those kinds declare; the command receives them as ``models``

@@ -15,6 +15,7 @@ import click
 
 from ._common import (LazyGroup, UserError, check_output_path, echo_warnings, finish_fits,
                       fit_progress, load_medium, load_reference, model_error_option,
+                      propagation_option,
                       model_options, parse_fix)
 
 IN_FILE = click.Path(exists=True, dir_okay=False, path_type=Path)
@@ -178,10 +179,11 @@ def reference_command(ctx, table, output, fix, black, max_nfev, merl, channel, s
 @_accuracy_option
 @_max_nfev_option
 @model_error_option
+@propagation_option
 @model_options()
 @click.pass_context
 def medium_command(ctx, table, reference, output, fix, free, black, accuracy, max_nfev,
-                   model_error, models):
+                   model_error, propagation, models):
     """Step 1: fit the medium (default the paper's Td, Tt, g, eta) to the reference measured
     in it."""
     fixed = parse_fix(fix, models.medium)
@@ -195,7 +197,7 @@ def medium_command(ctx, table, reference, output, fix, free, black, accuracy, ma
         result = fit_medium(table, ref, fixed=fixed, black=black, accuracy=accuracy,
                             max_nfev=max_nfev, progress=progress,
                             medium_model=models.medium.NAME, options=models.medium_options,
-                            free=freed, model_error=model_error)
+                            free=freed, model_error=model_error, propagation=propagation)
     result.to_json(output)
     click.echo(result.report())
     finish_fits(ctx, [result], [output])
@@ -217,10 +219,11 @@ def medium_command(ctx, table, reference, output, fix, free, black, accuracy, ma
 @_accuracy_option
 @_max_nfev_option
 @model_error_option
+@propagation_option
 @model_options()
 @click.pass_context
 def target_command(ctx, table, medium, output, fix, free, black, accuracy, max_nfev,
-                   model_error, models):
+                   model_error, propagation, models):
     """Step 2: fit the target's f_r (default Torrance-Sparrow) through the fitted medium.
     A JSON --medium keeps its own model and options (a contradicting option is an error)."""
     fixed = parse_fix(fix, models.brdf)
@@ -242,7 +245,7 @@ def target_command(ctx, table, medium, output, fix, free, black, accuracy, max_n
         result = fit_target(table, med, fixed=fixed, black=black, accuracy=accuracy,
                             max_nfev=max_nfev, progress=progress,
                             brdf_model=models.brdf.NAME, options=models.brdf_options,
-                            free=freed, model_error=model_error)
+                            free=freed, model_error=model_error, propagation=propagation)
     result.to_json(output)
     click.echo(result.report())
     finish_fits(ctx, [result], [output])
@@ -298,11 +301,12 @@ def print_pipeline(result) -> None:
 @_accuracy_option
 @_max_nfev_option
 @model_error_option
+@propagation_option
 @model_options()
 @click.pass_context
 def pipeline_command(ctx, reference_clear, reference_medium, target_medium, black, target_clear,
                      outdir, fix, free, compare, figures, accuracy, max_nfev, model_error,
-                     models):
+                     propagation, models):
     """Steps 0-2 in one go, with figures (data against fitted curves) and report.md."""
     from ..pipeline import compare_models, run_pipeline
 
@@ -312,7 +316,7 @@ def pipeline_command(ctx, reference_clear, reference_medium, target_medium, blac
                             f"{' and '.join('--' + e for e in sorted(models.explicit))} out")
         return _compare(ctx, compare_models, reference_clear, reference_medium,
                         target_medium, black, target_clear, outdir, fix, free, accuracy,
-                        max_nfev, models, figures, model_error)
+                        max_nfev, models, figures, model_error, propagation)
     fixed = _parse_step_fix(fix, models)
     freed = _parse_step_free(free, models)
     if outdir.exists() and not outdir.is_dir():
@@ -327,7 +331,8 @@ def pipeline_command(ctx, reference_clear, reference_medium, target_medium, blac
                               medium_model=models.medium.NAME,
                               brdf_options=models.brdf_options,
                               medium_options=models.medium_options, free=freed,
-                              figures=figures, model_error=model_error)
+                              figures=figures, model_error=model_error,
+                              propagation=propagation)
     print_pipeline(result)
     fits = [result.reference, result.medium, result.target, result.direct]
     finish_fits(ctx, fits, list(result.files.values()))
@@ -347,7 +352,7 @@ def _step_entries(items, option: str) -> dict:
 
 def _compare(ctx, compare_models, reference_clear, reference_medium, target_medium, black,
              target_clear, outdir, fix, free, accuracy, max_nfev, models, figures,
-             model_error="independent"):
+             model_error="independent", propagation="auto"):
     """``fit pipeline --compare``: every model set on the same data (pipeline.compare_models)."""
     import math
 
@@ -370,7 +375,7 @@ def _compare(ctx, compare_models, reference_clear, reference_medium, target_medi
                                 fixed=fixed, free=freed, max_nfev=max_nfev, progress=progress,
                                 brdf_options=models.brdf_options,
                                 medium_options=models.medium_options, figures=figures,
-                                model_error=model_error)
+                                model_error=model_error, propagation=propagation)
     for name, r in result.results.items():
         click.echo(f"==== model set '{name}' ====")
         print_pipeline(r)

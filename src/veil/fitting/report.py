@@ -53,6 +53,12 @@ def _statistics(result: FitResult) -> list[str]:
         lines.append(f"    evaluations        = {stats.get('nfev', 0)} function, "
                      f"{stats.get('njev', 0)} Jacobian"
                      + (f" over {stats.get('starts', 1)} start(s)" if stats.get("starts") else ""))
+    how = (stats or {}).get("propagation")
+    if how and result.stderr_total is not None:
+        lines.append("    given model's unc. = " + (
+            "first order (linear)" if how.get("method") == "linear" else
+            f"sigma points: {how.get('refits')} refits at {how.get('points')} points, "
+            f"{how.get('converged')} converged"))
     me = getattr(result, "model_error", None)
     if me is not None:
         lines.append(

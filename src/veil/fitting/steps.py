@@ -32,6 +32,7 @@ from .data import FitData, prepare
 from .given import as_given, check_options
 from . import model_error as discrepancy
 from .problem import ITERATION_ACCURACY, Problem, check_accuracy, session_problem
+from .propagation import check_method, describe
 from .reported import reported
 from .result import FitResult, model_entry
 from .solver import as_fixed, check_fixed, check_max_nfev, run, summarize
@@ -88,10 +89,11 @@ def _freed(cls, free, what: str) -> set:
 
 def _step(step: str, data: FitData, fitted: Model, given: Model | None, given_result,
           fixed: dict, accuracy: str, max_nfev, progress, freed=(),
-          model_error: str = "off") -> FitResult:
+          model_error: str = "off", propagation: str = "auto") -> FitResult:
     """One step: the ``fitted`` model's parameters free (but ``fixed``, and the held ones not
     ``freed``), ``given`` held; unless ``model_error`` is "off" a weighted fit estimates the
-    model-discrepancy term of that kind (:mod:`veil.fitting.model_error`)."""
+    model-discrepancy term of that kind (:mod:`veil.fitting.model_error`); ``propagation``
+    is how a given fit's covariance enters (:mod:`veil.fitting.propagation`)."""
     cls = type(fitted)
     brdf, medium = (given, fitted) if cls.KIND == "medium" else (fitted, given)
     clash = [n for n in freed if n in fixed]
@@ -137,16 +139,22 @@ def _step(step: str, data: FitData, fitted: Model, given: Model | None, given_re
     rep = reported(problem, x, summary, outcome.values, kind=model_error, rename=rename,
                    given_result=given_result,
                    given_column=None if given is None
-                   else lambda n: problem.index(type(given).param(n).key))
+                   else lambda n: problem.index(type(given).param(n).key),
+                   propagation=propagation)
     media = [m for m in (medium,) if m is not None]
     variant = media[0].options().get(VARIANT_OPTION) if media else None
     stats = dict(outcome.stats, grid_points=n_grid)
+    message = summary.message
+    if rep.propagation is not None:
+        stats["propagation"] = rep.propagation
+        note = describe(rep.propagation, given_result)
+        message += f"; {note}" if note else ""
     return FitResult(model=cls.NAME,
                      params={own[k]: float(x[problem.index(k)]) for k in cls.keys()},
                      stderr=rep.stderr, correlation=rep.correlation,
                      residuals=tuple(float(r) for r in summary.residuals),
                      chi2_reduced=summary.chi2_reduced, rms_relative=summary.rms_relative,
-                     n_points=data.size, converged=summary.converged, message=summary.message,
+                     n_points=data.size, converged=summary.converged, message=message,
                      variant=variant,
                      fixed={n: float(x[problem.index(cls.param(n).key)]) for n in names
                             if cls.param(n).key not in free},
@@ -200,7 +208,7 @@ def fit_direct(table, *, fixed=None, black=None, max_nfev=None, progress=None,
 
 def fit_medium(table, reference, *, fixed=None, black=None, variant: str | None = None,
                accuracy: str = "default", max_nfev=None, progress=None, medium_model=None,
-               options=None, free=None, model_error=None) -> FitResult:
+               options=None, free=None, model_error=None, propagation=None) -> FitResult:
     """Step 1 (MODEL.md sec. 7): fit the medium, the reference's f_r fixed.
 
     table : the reference object measured in the medium (DataFrame or CSV path).
@@ -214,34 +222,41 @@ def fit_medium(table, reference, *, fixed=None, black=None, variant: str | None 
         run at "fast" and are polished at this accuracy.
     model_error : as :func:`fit_reference`; a step-1 term is also used by step 2 (the
         same medium model on the target's data).
+    propagation : how the given fit's covariance enters ``stderr_total``: "auto" (the
+        default, None), "linear" or "sigma-points" (:mod:`veil.fitting.propagation`).
     Other arguments as :func:`fit_reference`.
     """
     check_accuracy(accuracy)
     check_max_nfev(max_nfev)
     model_error = discrepancy.check_kind(model_error)
+    propagation = check_method(propagation)
     brdf = as_given(reference, "brdf", "the reference")
     cls = _family(medium_model, "medium")
     fitted = _template(cls, _options(options, variant))
     data = prepare(table, black, "reference (in the medium)")
     return _step("medium", data, fitted, brdf,
                  reference if isinstance(reference, FitResult) else None, as_fixed(fixed),
-                 accuracy, max_nfev, progress, _freed(cls, free, "medium"), model_error)
+                 accuracy, max_nfev, progress, _freed(cls, free, "medium"), model_error,
+                 propagation)
 
 
 def fit_target(table, medium, *, fixed=None, black=None, variant: str | None = None,
                accuracy: str = "default", max_nfev=None, progress=None, brdf_model=None,
-               options=None, free=None, model_error=None) -> FitResult:
+               options=None, free=None, model_error=None, propagation=None) -> FitResult:
     """Step 2 (MODEL.md sec. 7): fit the target's f_r, the medium fixed.
 
     table : the target object measured in the medium (DataFrame or CSV path).
     medium : the step-1 :class:`FitResult` or a medium model.
     variant : None uses the medium's; a different value is an error.
     brdf_model, options : the target's BRDF family (default Torrance-Sparrow) and options.
-    Other arguments as :func:`fit_medium`.
+    Other arguments as :func:`fit_medium` (``propagation``: step 1's covariance into
+    ``stderr_total``; "auto" uses sigma points where step 1 left a parameter uncertain by
+    more than a quarter of its scale, as tau at optical depth 0.1).
     """
     check_accuracy(accuracy)
     check_max_nfev(max_nfev)
     model_error = discrepancy.check_kind(model_error)
+    propagation = check_method(propagation)
     model_m = as_given(medium, "medium", "the medium")
     check_options(model_m, _options(None, variant), "the medium")
     cls = _family(brdf_model, "brdf")
@@ -249,7 +264,8 @@ def fit_target(table, medium, *, fixed=None, black=None, variant: str | None = N
     data = prepare(table, black, "target (in the medium)")
     return _step("target", data, fitted, model_m,
                  medium if isinstance(medium, FitResult) else None, as_fixed(fixed),
-                 accuracy, max_nfev, progress, _freed(cls, free, "target"), model_error)
+                 accuracy, max_nfev, progress, _freed(cls, free, "target"), model_error,
+                 propagation)
 
 
 def model_values(result_or_model, other, angles, accuracy: str = "default") -> np.ndarray:

@@ -1,0 +1,281 @@
+"""How a given model's covariance reaches the fit that held it fixed (MODEL.md sec. 7;
+docs/fitting.md, "Propagation"): step 1's medium into step 2's target, step 0's reference
+into step 1's medium.
+
+- **linear**: the estimate x solves J_w^T r_w(x, theta) = 0, so it moves by
+  d x = S d theta, S = -J_w^+ J_w,theta (weighted), and the total is Cov + S Cov_theta S^T.
+- **sigma points**: where the given parameters are uncertain by a large part of their own
+  scale (:meth:`veil.models.Param.relative_error` above :data:`RELATIVE_LIMIT`; at optical
+  depth 0.1 step 1 leaves tau at 0.11 +- 0.18) the first order is far off (docs/validity.md,
+  "Step 1's uncertainty at m01"). The fit is then repeated with the given model at the 2n
+  points u0 +- sqrt(n lambda_k) e_k of its covariance (eigenpairs lambda_k, e_k) in the
+  coordinates u in which that uncertainty is relative - the logarithm of the value, or of
+  the distance to the nearer bound (``error_scale``) - mapped back inside the bounds, and
+  the second moment of the refitted estimates about the estimate at u0 (each point weighing
+  1/2n) takes the place of S Cov_theta S^T. For a linear response it is S Cov_theta S^T
+  exactly; it keeps the response's curvature and its asymmetry (a mean shift counts as
+  error).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+from ..errors import FitError
+from ..models import Param
+from .coordinates import OPEN_MARGIN
+from .problem import ITERATION_ACCURACY, Problem
+from .solver import TOL_ITER, solve
+
+#: The propagation methods: "auto" picks "sigma-points" when a given parameter's relative
+#: uncertainty exceeds RELATIVE_LIMIT, else "linear".
+METHODS = ("auto", "linear", "sigma-points")
+#: Relative uncertainty (stderr over the value or over the room to the nearer bound) of a
+#: given parameter above which "auto" propagates through sigma points.
+RELATIVE_LIMIT = 0.25
+#: Function evaluations allowed to each refit at a sigma point.
+REFIT_NFEV = 50
+
+
+def check_method(method) -> str:
+    """The propagation method (None: "auto"); a FitError for anything else."""
+    method = "auto" if method is None else method
+    if method not in METHODS:
+        raise FitError(f"propagation = {method!r}; expected one of {', '.join(METHODS)}")
+    return method
+
+
+@dataclass(frozen=True)
+class Axis:
+    """The coordinate u of one given parameter in which its uncertainty is relative:
+    "log" (u = ln x), "upper" (u = -ln(upper - x)), "lower" (u = ln(x - lower)) or "plain"."""
+
+    kind: str
+    spec: Param
+
+    @classmethod
+    def of(cls, spec: Param, value: float) -> "Axis":
+        lo, hi = spec.lower, spec.upper
+        if spec.error_scale == "bound" and math.isfinite(lo) and math.isfinite(hi):
+            kind = "upper" if hi - value <= value - lo else "lower"
+            if min(hi - value, value - lo) <= 0:
+                kind = "plain"
+        elif (spec.log_scale or lo >= 0) and value > 0:
+            kind = "log"
+        else:
+            kind = "plain"
+        return cls(kind, spec)
+
+    def to_u(self, x: float) -> float:
+        if self.kind == "log":
+            return math.log(x)
+        if self.kind == "upper":
+            return -math.log(self.spec.upper - x)
+        if self.kind == "lower":
+            return math.log(x - self.spec.lower)
+        return float(x)
+
+    def du_dx(self, x: float) -> float:
+        if self.kind == "log":
+            return 1.0 / x
+        if self.kind == "upper":
+            return 1.0 / (self.spec.upper - x)
+        if self.kind == "lower":
+            return 1.0 / (x - self.spec.lower)
+        return 1.0
+
+    def to_x(self, u: float) -> float:
+        """The natural value of ``u`` (possibly outside the bounds: :meth:`inside`)."""
+        s = self.spec
+        if self.kind == "log":
+            return math.exp(min(u, 700.0))
+        if self.kind == "upper":
+            return s.upper - math.exp(min(-u, 700.0))
+        if self.kind == "lower":
+            return s.lower + math.exp(min(u, 700.0))
+        return float(u)
+
+    def inside(self, x: float) -> bool:
+        """``x`` within the bounds, an open bound kept
+        :data:`veil.fitting.coordinates.OPEN_MARGIN` of the interval's width away."""
+        s = self.spec
+        width = s.upper - s.lower
+        margin = OPEN_MARGIN * (width if math.isfinite(width) else 0.0)
+        lo_ok = x > s.lower + margin if s.lower_open else x >= s.lower
+        hi_ok = x < s.upper - margin if s.upper_open else x <= s.upper
+        return bool(lo_ok and hi_ok)
+
+
+def relative_uncertainty(specs, values, cov) -> dict:
+    """{name: stderr relative to its scale} of the given parameters (``Param.relative_error``;
+    None where that is not finite)."""
+    se = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    out = {}
+    for p, v, s in zip(specs, values, se):
+        r = p.relative_error(float(v), float(s))
+        out[p.name] = r if math.isfinite(r) else None
+    return out
+
+
+def choose(method: str, relative: dict) -> str:
+    """The method "auto" resolves to for these relative uncertainties (None: not finite)."""
+    if method != "auto":
+        return method
+    worst = max((math.inf if r is None else r for r in relative.values()), default=0.0)
+    return "sigma-points" if worst > RELATIVE_LIMIT else "linear"
+
+
+def describe(how: dict, given_result) -> str:
+    """One line for a result's message on how the given fit's covariance entered; empty for
+    the first order, which every total has unless said."""
+    if how.get("method") != "sigma-points":
+        return ""
+    rel = {n: r for n, r in how["relative_uncertainty"].items()}
+    worst = max(rel, key=lambda n: math.inf if rel[n] is None else rel[n])
+    size = "undetermined" if rel[worst] is None else f"{rel[worst]:.2f} of its scale"
+    step = given_result.step or "given"
+    return (f"the {step} fit's covariance propagated through {how['refits']} refits at "
+            f"{how['points']} sigma points ({how['converged']} converged; {worst} uncertain "
+            f"by {size}, limit {how['limit']:g})")
+
+
+def _reach(axes, u0, step) -> float:
+    """The largest t in [0, 1] with u0 + t step inside every parameter's bounds (bisection;
+    each coordinate is monotone in t and the bounds are intervals)."""
+    def ok(t):
+        return all(a.inside(a.to_x(float(v))) for a, v in zip(axes, u0 + t * step))
+
+    if ok(1.0):
+        return 1.0
+    lo, hi = 0.0, 1.0
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if ok(mid) else (lo, mid)
+    return lo
+
+
+def sigma_points(specs, values, cov) -> tuple[np.ndarray, np.ndarray]:
+    """(points, reach): the 2n given-parameter vectors (natural units) at u0 +- sqrt(n
+    lambda_k) e_k (module docstring), the + and - point of each direction side by side, and
+    the fraction of its step each keeps to stay inside the bounds (1: all of it; a point
+    that would leave them is pulled back along its direction, e.g. omega fitted at its bound
+    1). Directions with lambda_k = 0 are left out."""
+    values = np.asarray(values, dtype=float)
+    axes = [Axis.of(p, float(v)) for p, v in zip(specs, values)]
+    d = np.array([a.du_dx(float(v)) for a, v in zip(axes, values)])
+    cov_u = cov * np.outer(d, d)
+    lam, vec = np.linalg.eigh(cov_u)
+    n = len(values)
+    u0 = np.array([a.to_u(float(v)) for a, v in zip(axes, values)])
+    points, reach = [], []
+    for k in range(n):
+        if lam[k] <= 0:
+            continue
+        for sign in (1.0, -1.0):
+            step = sign * math.sqrt(n * lam[k]) * vec[:, k]
+            t = _reach(axes, u0, step)
+            points.append([a.to_x(float(v)) for a, v in zip(axes, u0 + t * step)])
+            reach.append(t)
+    return np.array(points).reshape(-1, n), np.array(reach)
+
+
+def linear_part(problem: Problem, x, cols: list[int], cov_given) -> np.ndarray:
+    """S Cov_theta S^T (module docstring) for the given parameters in problem columns
+    ``cols``."""
+    _, full = problem.value_and_jacobian(x, ITERATION_ACCURACY,
+                                         list(problem.free_index) + list(cols))
+    w = problem.w[:, None]
+    jw = full[:, problem.free] * w
+    sens = -np.linalg.lstsq(jw, full[:, cols] * w, rcond=None)[0]
+    return sens @ cov_given @ sens.T
+
+
+@dataclass(frozen=True)
+class Refits:
+    """The sigma-point part (module docstring) and what it took: the points (natural units of
+    the given parameters), the refitted free parameters' shifts from the estimate at u0 (one
+    row per point), how many refits were made and how many of them converged."""
+
+    covariance: np.ndarray
+    points: np.ndarray
+    shifts: np.ndarray
+    converged: int
+    refits: int
+
+
+def sigma_part(problem: Problem, x, cols: list[int], specs, cov_given,
+               max_nfev: int = REFIT_NFEV) -> Refits:
+    """The fit repeated at the given model's sigma points (module docstring), from ``x`` at
+    the iteration quadrature, the free parameters' Jacobian taken once at each start (a
+    chord method: the point's medium is exact, the shifts are small; the same to 0.5 % of
+    the standard errors as fresh Jacobians at m01 and m05, at half the time). The shifts
+    are taken from a refit at the given values themselves made the same way, so that they
+    hold the given model's change alone. A point that had to be pulled back inside the
+    bounds counts as the mirror of its twin when the twin is whole (the linear response's
+    moment is kept), else its shift is scaled up by the fraction kept."""
+    names = [problem.names[c] for c in cols]
+    values = np.array([x[c] for c in cols])
+    points, reach = sigma_points(specs, values, cov_given)
+    free = problem.free_index
+    nominal = solve(problem.with_fixed({}), x, tol=TOL_ITER, max_nfev=max_nfev,
+                    jacobian_at=x)
+    shifts = np.zeros((len(points), len(free)))
+    done = np.zeros(len(points), dtype=bool)
+    converged = 0
+    for i, point in enumerate(points):
+        twin = i + 1 if i % 2 == 0 else i - 1
+        if reach[i] < 1.0 and reach[twin] == 1.0:
+            continue                                   # mirrored below
+        if reach[i] == 0.0:
+            continue                                   # no room either way: no spread
+        sub = problem.with_fixed(dict(zip(names, point)))
+        start = nominal.x.copy()
+        start[cols] = point
+        sol = solve(sub, start, tol=TOL_ITER, max_nfev=max_nfev, jacobian_at=start)
+        if not np.all(np.isfinite(sol.x)):
+            raise FitError(f"the refit at the given model's sigma point "
+                           f"{dict(zip(names, point))} gave non-finite parameters")
+        shifts[i] = (sol.x[free] - nominal.x[free]) / reach[i]
+        done[i] = True
+        converged += int(sol.status > 0)
+    for i in range(len(points)):
+        twin = i + 1 if i % 2 == 0 else i - 1
+        if not done[i] and done[twin] and reach[twin] == 1.0:
+            shifts[i] = -shifts[twin]
+    cov = shifts.T @ shifts / max(len(points), 1)
+    return Refits(cov, points, shifts, converged, int(done.sum()))
+
+
+def propagated(problem: Problem, x, given_result, column: Callable[[str], int],
+               method: str = "auto"):
+    """(part, how): the covariance that ``given_result``'s (total) covariance adds to the free
+    parameters of the fit at natural ``x``, linearly or through sigma points (``method``;
+    "auto" chooses by the given parameters' relative uncertainty); ``column`` maps a name of
+    the given result to its index in the problem. ``how`` records the method, the relative
+    uncertainties and, for sigma points, the refits. (None, None) when the given result has
+    no covariance."""
+    found = given_result.covariance(total=True)
+    if found is None:
+        return None, None
+    gnames, gcov = found
+    gcov = np.asarray(gcov, dtype=float)
+    cols = [column(n) for n in gnames]
+    cls = given_result.model_class
+    specs = [cls.param(n) for n in gnames]
+    relative = relative_uncertainty(specs, [x[c] for c in cols], gcov)
+    chosen = choose(method, relative)
+    how = {"method": chosen, "relative_uncertainty": relative, "limit": RELATIVE_LIMIT}
+    if chosen == "linear":
+        return linear_part(problem, x, cols, gcov), how
+    refits = sigma_part(problem, x, cols, specs, gcov)
+    how.update(points=len(refits.points), refits=refits.refits, converged=refits.converged)
+    return refits.covariance, how
+
+
+__all__ = ["METHODS", "RELATIVE_LIMIT", "REFIT_NFEV", "check_method", "Axis",
+           "relative_uncertainty", "choose", "describe", "sigma_points", "linear_part", "Refits",
+           "sigma_part", "propagated"]

@@ -1,0 +1,195 @@
+"""How a given fit's covariance enters the next step's (veil.fitting.propagation).
+
+The sigma points are checked against their definition (their second moment in the relative
+coordinates is the covariance there; they never leave the bounds), the refits against the
+first order where that holds (a well-determined medium: the two must agree, and a wrong
+spread of the points or a wrong weight would miss by a factor), and "auto" against its rule.
+The evidence that sigma points cover where the first order does not is the path-traced
+m01 session (docs/validity.md, benchmarks/bench_validity.py --propagation).
+"""
+
+import dataclasses
+import json
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings, strategies as st
+
+import veil
+from veil.analysis.uncertainty import propagate
+from veil.fitting import FitError, fit_medium, fit_reference, fit_target
+from veil.fitting.propagation import (RELATIVE_LIMIT, Axis, check_method, choose,
+                                      relative_uncertainty, sigma_points)
+from veil.fitting.result import FitResult
+from veil.models import model_class
+
+SMALL = dict(psi=(30, 60, 90), fine_step=2, coarse_step=10, glow=0.0, accuracy="fast")
+FS = model_class("forward-series", "medium")
+HG = model_class("henyey-greenstein", "medium")
+
+
+def test_axes_follow_the_declared_error_scale():
+    tau, omega, g = FS.param("tau"), FS.param("omega"), FS.param("g")
+    assert Axis.of(tau, 0.1).kind == "log"            # stderr / value
+    assert Axis.of(g, 0.95).kind == "upper"           # stderr / (1 - g)
+    assert Axis.of(g, -0.9).kind == "lower"
+    assert Axis.of(omega, 1.0).kind == "log"
+    assert Axis.of(HG.param("Td"), 1e-3).kind == "log"  # log_scale
+    for axis, x in ((Axis.of(tau, 0.1), 0.37), (Axis.of(g, 0.95), 0.999),
+                    (Axis.of(g, -0.9), -0.2)):
+        assert axis.to_x(axis.to_u(x)) == pytest.approx(x, rel=1e-12)
+        h = 1e-6
+        fd = (axis.to_u(x + h) - axis.to_u(x - h)) / (2 * h)
+        assert axis.du_dx(x) == pytest.approx(fd, rel=1e-5)
+    # back inside the bounds: omega's closed bound 1, g's open one kept a margin away
+    assert not Axis.of(omega, 1.0).inside(Axis.of(omega, 1.0).to_x(0.3))
+    assert Axis.of(omega, 1.0).inside(1.0)
+    assert Axis.of(g, -0.9).inside(Axis.of(g, -0.9).to_x(-5.0))
+    assert not Axis.of(g, -0.9).inside(-1.0)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.lists(st.floats(-0.9, 0.9), min_size=3, max_size=3),
+       st.lists(st.floats(0.01, 0.3), min_size=3, max_size=3))
+def test_sigma_points_carry_the_covariance_in_relative_coordinates(corr, rel):
+    """Points far inside the bounds: their second moment about u0 is the covariance in u,
+    D Cov D^T with D = du/dx, and they come in pairs symmetric about u0."""
+    specs = [FS.param("tau"), FS.param("g"), HG.param("Tt")]
+    values = np.array([0.5, 0.9, 0.1])
+    c = np.eye(3)
+    c[0, 1] = c[1, 0] = corr[0] * 0.5
+    c[0, 2] = c[2, 0] = corr[1] * 0.5
+    c[1, 2] = c[2, 1] = corr[2] * 0.5
+    scale = np.array([rel[0] * 0.5, rel[1] * 0.1, rel[2] * 0.1]) / 3
+    cov = c * np.outer(scale, scale)
+    pts, reach = sigma_points(specs, values, cov)
+    assert pts.shape == (6, 3) and np.all(reach == 1.0)
+    axes = [Axis.of(p, v) for p, v in zip(specs, values)]
+    u = np.array([[a.to_u(x) for a, x in zip(axes, row)] for row in pts])
+    u0 = np.array([a.to_u(v) for a, v in zip(axes, values)])
+    d = np.array([a.du_dx(v) for a, v in zip(axes, values)])
+    moment = (u - u0).T @ (u - u0) / len(u)
+    assert np.allclose(moment, cov * np.outer(d, d), rtol=1e-9, atol=1e-15)
+    assert np.allclose(u[0::2] - u0, -(u[1::2] - u0), rtol=1e-9, atol=1e-15)
+
+
+def test_sigma_points_stay_inside_the_bounds():
+    """tau 0.1 +- 0.2 (m01's step 1): the points spread over decades of tau, never below 0;
+    omega at its bound 1 stays at most 1; g never reaches 1."""
+    specs = [FS.param("tau"), FS.param("omega"), FS.param("g")]
+    values = np.array([0.1, 1.0, 0.98])
+    cov = np.diag([0.2, 0.01, 0.01]) ** 2
+    cov[0, 2] = cov[2, 0] = 0.5 * 0.2 * 0.01
+    pts, reach = sigma_points(specs, values, cov)
+    assert np.all(pts[:, 0] > 0) and np.all(pts[:, 1] <= 1.0) and np.all(pts[:, 2] < 1.0)
+    # the directions that raise omega above 1 are pulled back to it, their twins whole
+    short = np.flatnonzero(reach < 1.0)
+    assert len(short) >= 1 and np.allclose(pts[short, 1], 1.0)
+    assert all(reach[k + 1 if k % 2 == 0 else k - 1] == 1.0 for k in short)
+    assert pts[:, 0].max() / pts[:, 0].min() > 100
+    assert all(FS.param(n).contains(float(v)) for row in pts
+               for n, v in zip(("tau", "omega", "g"), row))
+
+
+def test_auto_chooses_by_the_relative_uncertainty():
+    specs = [FS.param("tau"), FS.param("g")]
+    small = relative_uncertainty(specs, [0.5, 0.9], np.diag([0.02, 0.01]) ** 2)
+    assert small["tau"] == pytest.approx(0.04) and small["g"] == pytest.approx(0.1)
+    assert choose("auto", small) == "linear"
+    large = relative_uncertainty(specs, [0.1, 0.9], np.diag([0.18, 0.01]) ** 2)
+    assert large["tau"] == pytest.approx(1.8) and choose("auto", large) == "sigma-points"
+    at_limit = {"tau": RELATIVE_LIMIT}
+    assert choose("auto", at_limit) == "linear"
+    assert choose("auto", {"tau": None}) == "sigma-points"      # undetermined
+    assert choose("linear", large) == "linear"
+    assert check_method(None) == "auto"
+    with pytest.raises(FitError, match="propagation = 'cubic'; expected one of auto"):
+        check_method("cubic")
+
+
+@pytest.fixture(scope="module")
+def chain():
+    """The paper's chain on small sessions at 0.3 % noise: the medium well determined."""
+    ref_clear = veil.simulate(veil.BRDF2, None, noise=0.003, seed=11, **SMALL)
+    ref_medium = veil.simulate(veil.BRDF2, veil.BTDF3, noise=0.003, seed=12, **SMALL)
+    target = veil.simulate(veil.BRDF1, veil.BTDF3, noise=0.003, seed=13, **SMALL)
+    r0 = fit_reference(ref_clear)
+    r1 = fit_medium(ref_medium, r0, accuracy="fast")
+    return {"r1": r1, "target": target}
+
+
+def test_sigma_points_agree_with_the_first_order_where_it_holds(chain):
+    r1, target = chain["r1"], chain["target"]
+    auto = fit_target(target, r1, accuracy="fast")
+    assert auto.stats["propagation"]["method"] == "linear"
+    assert max(auto.stats["propagation"]["relative_uncertainty"].values()) <= RELATIVE_LIMIT
+    forced = fit_target(target, r1, accuracy="fast", propagation="sigma-points")
+    assert forced.params == auto.params and forced.stderr == auto.stderr
+    how = forced.stats["propagation"]
+    assert how["method"] == "sigma-points" and how["points"] == 2 * len(r1.free)
+    assert how["converged"] == how["refits"] == how["points"]
+    assert f"through {how['refits']} refits at {how['points']} sigma points" in forced.message
+    for name in auto.free:
+        own, lin, sig = auto.stderr[name], auto.stderr_total[name], forced.stderr_total[name]
+        # the medium's share of the variance, each way: within 15 % of each other (points
+        # at +-1 sd instead of +-sqrt(n) sd, or weights 1/n, would miss by 3x or 2x)
+        assert (sig ** 2 - own ** 2) == pytest.approx(lin ** 2 - own ** 2, rel=0.15), name
+    # the analysis budget follows the fit's method and reproduces its total
+    p = propagate(forced, r1, target)
+    assert "through sigma-point refits" in p.message
+    for name in forced.free:
+        assert p.stderr_total[name] == pytest.approx(forced.stderr_total[name], rel=1e-6)
+    # the record survives JSON
+    back = FitResult.from_dict(json.loads(json.dumps(forced.to_dict())))
+    assert back.stats["propagation"]["method"] == "sigma-points"
+    assert back.stderr_total == forced.stderr_total
+
+
+def test_an_uncertain_medium_goes_through_sigma_points(chain):
+    """A medium result whose Tt is uncertain by half its value: "auto" refits at the sigma
+    points, and the target's totals differ from the first order's."""
+    r1, target = chain["r1"], chain["target"]
+    names, cov = r1.covariance(total=False)
+    k = names.index("Tt")
+    factor = 0.5 * r1.params["Tt"] / math.sqrt(cov[k, k])
+    wide = dataclasses.replace(
+        r1, stderr={n: (None if s is None else s * factor) for n, s in r1.stderr.items()},
+        stderr_total=None, correlation_total=None)
+    auto = fit_target(target, wide, accuracy="fast")
+    lin = fit_target(target, wide, accuracy="fast", propagation="linear")
+    assert auto.stats["propagation"]["method"] == "sigma-points"
+    assert auto.stats["propagation"]["relative_uncertainty"]["Tt"] == pytest.approx(0.5)
+    assert lin.stats["propagation"]["method"] == "linear"
+    assert auto.params == lin.params
+    ratios = [auto.stderr_total[n] / lin.stderr_total[n] for n in auto.free]
+    assert all(np.isfinite(ratios)) and max(abs(r - 1) for r in ratios) > 0.02
+
+
+def test_command_line_propagation(chain, tmp_path):
+    """`veil fit target --propagation`: the choices are the module's, a bad one exits 2
+    naming the option, and sigma points are recorded in the JSON and the report."""
+    from click.testing import CliRunner
+
+    from veil.cli import main
+    from veil.cli.fit_cmd import medium_command, pipeline_command, target_command
+    from veil.fitting.propagation import METHODS
+
+    for command in (medium_command, target_command, pipeline_command):
+        option = next(p for p in command.params if p.name == "propagation")
+        assert tuple(option.type.choices) == METHODS and option.default == "auto"
+    table, medium = tmp_path / "target.csv", tmp_path / "medium.json"
+    chain["target"].to_csv(table, index=False)
+    chain["r1"].to_json(medium)
+    base = ["fit", "target", str(table), "--medium", str(medium), "--accuracy", "fast"]
+    bad = CliRunner().invoke(main, base + ["-o", str(tmp_path / "x.json"),
+                                           "--propagation", "cubic"])
+    assert bad.exit_code == 2 and "--propagation" in bad.output
+    assert not (tmp_path / "x.json").exists()
+    out = tmp_path / "t.json"
+    run = CliRunner().invoke(main, base + ["-o", str(out), "--propagation", "sigma-points"])
+    assert run.exit_code == 0, run.output
+    k = 2 * len(chain["r1"].free)
+    assert f"sigma points: {k} refits at {k} points, {k} converged" in run.output
+    saved = json.loads(out.read_text())
+    assert saved["stats"]["propagation"]["method"] == "sigma-points"
