@@ -64,7 +64,7 @@ def _pipeline(truth: dict, medium: str):
                            black=bv.table(names["black"]),
                            target_clear=bv.table(names["target_clear"], True),
                            outdir=os.path.join(tmp, "out"), figures=False,
-                           model_error="independent", **kw)
+                           model_error="independent", propagation="linear", **kw)
     return names, res
 
 
