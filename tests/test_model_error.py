@@ -19,7 +19,7 @@ import pytest
 from click.testing import CliRunner
 
 import veil
-from veil.analysis.uncertainty import curve_stderr
+from veil.analysis.uncertainty import curve_stderr, propagate
 from veil.cli import main
 from veil.fitting import FitError, FitResult, fit_direct, model_values
 from veil.fitting import model_error as me
@@ -150,9 +150,53 @@ def test_mismatched_medium_is_covered_only_with_the_term():
             assert med.model_error.sigma > 0 and med.model_error.length > 0
             assert est.model_error.sigma >= med.model_error.sigma
             assert est.model_error.source in ("given medium", "own residuals")
+            # step 1 keeps what step 2 needs for the error the two share ...
+            term = med.model_error
+            assert set(term.influence) == set(med.free)
+            assert {len(r) for r in term.influence.values()} == {len(ref)}
+            assert len(term.angles) == 4 and len(term.angles[0]) == len(ref)
+            back = FitResult.from_dict(json.loads(json.dumps(med.to_dict())))
+            assert back.model_error == term
+            # ... whose cross term is negative here: the medium absorbed in step 1 the
+            # error it gives back in step 2 (without it the totals are larger)
+            alone = dataclasses.replace(med, model_error=dataclasses.replace(
+                term, influence=None, angles=None))
+            apart = veil.fit_target(tgt.copy(), alone, black=tgt_black.copy(),
+                                    accuracy="fast", model_error=kind)
+            assert apart.params == est.params and apart.stderr == est.stderr
+            assert all(est.stderr_total[n] < apart.stderr_total[n] for n in est.free)
+            # the budget of veil.analysis.uncertainty counts it as its own part
+            budget = propagate(est, med, tgt.copy(), black=tgt_black.copy())
+            for n in est.free:
+                entry = budget.stats["budget"][n]
+                assert entry["shared"] < 0
+                assert budget.stderr_total[n] == pytest.approx(est.stderr_total[n], rel=0.02)
     assert cover["off"] < 0.5
     assert cover["correlated"] >= 0.9
     assert cover["off"] <= cover["independent"] <= cover["correlated"]
+
+
+def test_shared_term_is_the_kernel_over_both_sessions_written_out():
+    """s^2 (G_2 R_21 G_1^T S^T + transpose) is the off-diagonal part of the covariance of
+    G_2 d_2 + S G_1 d_1 with d one process over the configurations of both sessions (the
+    kernel built over their union), for random influences and sensitivity; none for an
+    independent term or a fit without influence."""
+    rng = np.random.default_rng(3)
+    a1, a2 = _angles(20), _angles(15)
+    a2 = (a2[0], a2[1], a2[2] + 10.0, a2[3])
+    g1, g2, sens = (rng.standard_normal((3, 20)), rng.standard_normal((4, 15)),
+                    rng.standard_normal((4, 3)))
+    given = me.ModelError(0.01, 20.0, 0.01, None, "own residuals", 1.5,
+                          influence={n: tuple(r) for n, r in zip("abc", g1)}, angles=a1)
+    union = tuple(np.concatenate([x, y]) for x, y in zip(a2, a1))
+    k = me.correlation(me.distances(union), 20.0)
+    m = np.hstack([g2, sens @ g1])
+    full = 0.01 ** 2 * m @ k @ m.T
+    own = 0.01 ** 2 * (g2 @ k[:15, :15] @ g2.T + sens @ g1 @ k[15:, 15:] @ g1.T @ sens.T)
+    got = me.shared(g2, a2, given, ["a", "b", "c"], sens)
+    np.testing.assert_allclose(got, full - own, rtol=1e-10, atol=1e-14)
+    assert me.shared(g2, a2, dataclasses.replace(given, length=0.0), "abc", sens) is None
+    assert me.shared(g2, a2, dataclasses.replace(given, influence=None), "abc", sens) is None
 
 
 def test_joint_fit_gets_its_own_term_and_the_reference_s_covariance():

@@ -46,8 +46,11 @@ from ..fitting.propagation import sigma_part
 from ..fitting.result import FitResult, JointResult
 from ..fitting.solver import solve
 
-#: Parts of the error budget, in pipeline order.
+#: Parts of the error budget, in pipeline order; a correlated model error that step 2 shares
+#: with step 1 adds their cross term as the part "shared" (docs/fitting.md; it can be
+#: negative: the medium absorbed in step 1 what it gives back in step 2).
 PARTS = ("step2", "step1", "step0")
+SHARED = "shared"
 
 
 def covariance_of(result: FitResult, total: bool = False) -> tuple[list[str], np.ndarray]:
@@ -179,8 +182,9 @@ def propagate(target_result: FitResult, medium_result: FitResult, table, *,
     Returns a new FitResult: ``stderr``/``correlation`` stay step 2's own;
     ``stderr_total``/``correlation_total`` are the totals; ``stats["budget"]`` maps each free
     parameter to its variance from "step2" (its own: noise, and the model error when it has
-    a term), "step1", "step0" (when known) and
-    "total" (their sum); ``stats["sensitivity"]`` holds d target / d medium.
+    a term), "step1", "step0" (when known), "shared" (when step 2 shares step 1's
+    correlated model error: their cross term, possibly negative) and "total" (their sum);
+    ``stats["sensitivity"]`` holds d target / d medium.
     """
     _check_pair(target_result, medium_result, reference_result)
     if method is None:
@@ -212,11 +216,15 @@ def propagate(target_result: FitResult, medium_result: FitResult, table, *,
         parts["step1"] = spread["step1"]
         if "step0" in spread:
             parts["step0"] = spread["step0"] - spread["step1"]
+    cross = _shared_part(problem, target_result, medium_result, m_names, -a)
+    if cross is not None:
+        parts[SHARED] = cross
     total = sum(parts.values())
     se = np.sqrt(np.maximum(np.diag(total), 0.0))
     budget = {}
     for j, n in enumerate(theta):
-        entry = {part: float(parts[part][j, j]) for part in PARTS if part in parts}
+        entry = {part: float(parts[part][j, j]) for part in PARTS + (SHARED,)
+                 if part in parts}
         entry["total"] = float(total[j, j])
         budget[n] = entry
     corr = {}
@@ -235,6 +243,24 @@ def propagate(target_result: FitResult, medium_result: FitResult, table, *,
                                correlation_total=corr, message=message, stats=stats)
 
 
+def _shared_part(problem, target_result, medium_result, m_names, sens):
+    """The cross term of the correlated model error steps 1 and 2 share
+    (:func:`veil.fitting.model_error.shared`) at the target's estimate, None without one."""
+    from ..fitting.model_error import influence, noise_only, shared
+    from ..fitting.solver import weighted_jacobian
+
+    term = medium_result.model_error
+    if term is None or term.influence is None or term.length == 0.0 or term.sigma == 0.0:
+        return None
+    if target_result.model_error is None or target_result.model_error.sigma == 0.0:
+        return None
+    theta, cov_noise = covariance_of(noise_only(target_result))
+    x = problem.values
+    values = problem.model_values(x, ITERATION_ACCURACY)
+    g2 = influence(cov_noise, weighted_jacobian(problem, x), values * problem.w)
+    return shared(g2, problem.angles, term, list(m_names), sens)
+
+
 def budget_table(result: FitResult) -> list[dict]:
     """Rows (parameter, value, total stderr, % of the variance from each step) of a result
     returned by :func:`propagate`."""
@@ -247,7 +273,7 @@ def budget_table(result: FitResult) -> list[dict]:
         total = entry["total"]
         row = {"parameter": n, "value": result.params[n], "stderr": math.sqrt(total),
                "stderr_step2": math.sqrt(entry["step2"])}
-        for part in PARTS:
+        for part in PARTS + (SHARED,):
             if part in entry:
                 row[f"{part}_%"] = 100.0 * entry[part] / total if total > 0 else 0.0
         rows.append(row)
@@ -351,4 +377,4 @@ def sample_propagation(target_result: FitResult, medium_result: FitResult, table
 
 __all__ = ["propagate", "sample_propagation", "curve_stderr", "medium_parts", "covariance_of",
            "sensitivity",
-           "budget_table", "PARTS"]
+           "budget_table", "PARTS", "SHARED"]

@@ -76,14 +76,16 @@ def _unit(theta, phi) -> np.ndarray:
     return np.stack([np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), np.cos(t)], axis=-1)
 
 
-def distances(angles) -> np.ndarray:
+def distances(angles, other=None) -> np.ndarray:
     """D_ij (degrees): the angle between configurations i and j's incident directions plus
     that between their reflected ones, from canonical ``angles`` (theta_i, phi_i, theta_r,
-    phi_r in degrees)."""
+    phi_r in degrees); j over ``other``'s configurations when given (else ``angles``')."""
     ti, pi, tr, pr = (np.asarray(a, dtype=float) for a in angles)
-    out = np.zeros((ti.size, ti.size))
-    for u in (_unit(ti, pi), _unit(tr, pr)):
-        out += np.degrees(np.arccos(np.clip(u @ u.T, -1.0, 1.0)))
+    tj, pj, trj, prj = (ti, pi, tr, pr) if other is None else (
+        np.asarray(a, dtype=float) for a in other)
+    out = np.zeros((ti.size, tj.size))
+    for u, v in ((_unit(ti, pi), _unit(tj, pj)), (_unit(tr, pr), _unit(trj, prj))):
+        out += np.degrees(np.arccos(np.clip(u @ v.T, -1.0, 1.0)))
     return out
 
 
@@ -185,7 +187,10 @@ class ModelError:
     used (:data:`SOURCES`), ``chi2_threshold`` the test's limit on the reduced chi-square,
     ``noise_only`` the uncertainties without any term, this fit's or one its given fit
     carried into ``stderr_total`` (keys stderr, correlation, stderr_total,
-    correlation_total; None when no term entered)."""
+    correlation_total; None when no term entered). A medium's correlated term also keeps
+    ``influence``, {parameter: d estimate / d_i for each configuration i, per unit s} (G =
+    C J_w^T A of the module docstring's sandwich), and its configurations' canonical
+    ``angles``: step 2 needs them for the error the two steps share (:func:`shared`)."""
 
     sigma: float
     length: float
@@ -194,11 +199,17 @@ class ModelError:
     source: str
     chi2_threshold: float
     noise_only: dict | None = None
+    influence: dict | None = None
+    angles: tuple | None = None
 
     def to_dict(self) -> dict:
-        return {"sigma": self.sigma, "length": self.length, "own": self.own,
-                "given": self.given, "source": self.source,
-                "chi2_threshold": self.chi2_threshold, "noise_only": self.noise_only}
+        out = {"sigma": self.sigma, "length": self.length, "own": self.own,
+               "given": self.given, "source": self.source,
+               "chi2_threshold": self.chi2_threshold, "noise_only": self.noise_only}
+        if self.influence is not None:
+            out["influence"] = {k: [float(v) for v in row] for k, row in self.influence.items()}
+            out["angles"] = [[float(v) for v in a] for a in self.angles]
+        return out
 
     @classmethod
     def from_dict(cls, data, source: str = "the fit result") -> "ModelError":
@@ -219,9 +230,39 @@ class ModelError:
         noise = data.get("noise_only")
         if noise is not None and not isinstance(noise, dict):
             raise FitError(f"{source}: model_error.noise_only must be an object or null")
+        influence, angles = data.get("influence"), data.get("angles")
+        if (influence is None) != (angles is None):
+            raise FitError(f"{source}: model_error.influence and model_error.angles come "
+                           f"together")
+        if influence is not None:
+            influence, angles = _read_influence(influence, angles, source)
         return cls(float(data["sigma"]), float(data["length"]), float(data["own"]),
                    None if data["given"] is None else float(data["given"]), data["source"],
-                   float(data["chi2_threshold"]), noise)
+                   float(data["chi2_threshold"]), noise, influence, angles)
+
+
+def _read_influence(influence, angles, source: str):
+    """A result file's model_error.influence ({name: N numbers}) and angles (4 lists of N
+    canonical angles), checked: finite numbers, one length."""
+    def numbers(row, where):
+        if not isinstance(row, list) or not row or any(
+                isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v)
+                for v in row):
+            raise FitError(f"{source}: {where} must be a non-empty list of finite numbers")
+        return tuple(float(v) for v in row)
+
+    if not isinstance(influence, dict) or not influence:
+        raise FitError(f"{source}: model_error.influence must be an object of lists")
+    if not isinstance(angles, list) or len(angles) != 4:
+        raise FitError(f"{source}: model_error.angles must be 4 lists (theta_i, phi_i, "
+                       f"theta_r, phi_r)")
+    rows = {k: numbers(v, f"model_error.influence.{k}") for k, v in influence.items()}
+    cols = tuple(numbers(a, "model_error.angles") for a in angles)
+    sizes = {len(r) for r in rows.values()} | {len(a) for a in cols}
+    if len(sizes) != 1:
+        raise FitError(f"{source}: model_error.influence and angles have different lengths "
+                       f"({sorted(sizes)})")
+    return rows, cols
 
 
 def step_term(residuals, values, weights, dof: int, angles, given=None,
@@ -239,6 +280,29 @@ def step_term(residuals, values, weights, dof: int, angles, given=None,
     return ModelError(float(sigma), float(length), float(own),
                       None if given is None else float(given.sigma), source,
                       chi2_threshold(dof))
+
+
+def influence(cov, weighted_jacobian, scaled_values) -> np.ndarray:
+    """G = C J_w^T A (free parameters x points): the estimate's change per unit relative
+    error at each configuration (module docstring)."""
+    return (np.asarray(cov, dtype=float) @ np.asarray(weighted_jacobian, dtype=float).T
+            * np.asarray(scaled_values, dtype=float)[None, :])
+
+
+def shared(own_influence, angles, given: ModelError, given_names, sensitivity) -> np.ndarray:
+    """The covariance that the error a step shares with its given medium's fit adds to its
+    total: step 2's estimate moves by G_2 d_2 + S G_1 d_1 (S = d estimate / d medium, first
+    order), and d_1, d_2 are one process over the configurations of both sessions with the
+    given fit's s and ell, so beside the two steps' own parts it has the cross term
+    s^2 (G_2 R_21 G_1^T S^T + its transpose), R_21 = exp(-D(step 2's, step 1's) / ell). It
+    is negative where the medium absorbed in step 1 the error it gives back in step 2.
+    Zero for an independent term (ell = 0: no configuration of one session is another's)."""
+    if given is None or given.sigma == 0.0 or given.length == 0.0 or given.influence is None:
+        return None
+    g1 = np.array([given.influence[n] for n in given_names], dtype=float)
+    r21 = correlation(distances(angles, given.angles), given.length)
+    cross = own_influence @ r21 @ g1.T @ np.asarray(sensitivity, dtype=float).T
+    return given.sigma ** 2 * (cross + cross.T)
 
 
 def given_term(given_result) -> ModelError | None:
@@ -262,4 +326,5 @@ def noise_only(result):
 
 
 __all__ = ["CHI2_Z", "LENGTHS", "KINDS", "DEFAULT", "SOURCES", "check_kind", "chi2_threshold", "distances", "correlation",
-           "estimate", "sandwich", "ModelError", "step_term", "given_term", "noise_only"]
+           "estimate", "sandwich", "ModelError", "step_term", "given_term", "noise_only",
+           "influence", "shared"]

@@ -183,14 +183,20 @@ def sigma_points(specs, values, cov) -> tuple[np.ndarray, np.ndarray]:
     return np.array(points).reshape(-1, n), np.array(reach)
 
 
-def linear_part(problem: Problem, x, cols: list[int], cov_given) -> np.ndarray:
-    """S Cov_theta S^T (module docstring) for the given parameters in problem columns
-    ``cols``."""
+def sensitivity(problem: Problem, x, cols: list[int]) -> np.ndarray:
+    """S = d x / d theta = -J_w^+ J_w,theta (free parameters x the given parameters in
+    problem columns ``cols``; module docstring)."""
     _, full = problem.value_and_jacobian(x, ITERATION_ACCURACY,
                                          list(problem.free_index) + list(cols))
     w = problem.w[:, None]
     jw = full[:, problem.free] * w
-    sens = -np.linalg.lstsq(jw, full[:, cols] * w, rcond=None)[0]
+    return -np.linalg.lstsq(jw, full[:, cols] * w, rcond=None)[0]
+
+
+def linear_part(problem: Problem, x, cols: list[int], cov_given) -> np.ndarray:
+    """S Cov_theta S^T (module docstring) for the given parameters in problem columns
+    ``cols``."""
+    sens = sensitivity(problem, x, cols)
     return sens @ cov_given @ sens.T
 
 
@@ -277,5 +283,5 @@ def propagated(problem: Problem, x, given_result, column: Callable[[str], int],
 
 
 __all__ = ["METHODS", "RELATIVE_LIMIT", "REFIT_NFEV", "check_method", "Axis",
-           "relative_uncertainty", "choose", "describe", "sigma_points", "linear_part", "Refits",
+           "relative_uncertainty", "choose", "describe", "sigma_points", "sensitivity", "linear_part", "Refits",
            "sigma_part", "propagated"]

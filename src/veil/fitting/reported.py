@@ -19,7 +19,7 @@ import numpy as np
 
 from . import model_error as discrepancy
 from .problem import Problem
-from .propagation import propagated
+from .propagation import propagated, sensitivity
 from .solver import uncertainties, weighted_jacobian
 
 
@@ -42,9 +42,23 @@ def _same(stderr, correlation):
     return stderr, correlation
 
 
+def _shared(problem: Problem, x, own_influence, given_result, given_column):
+    """The cross term of the error a step shares with its given medium's fit
+    (:func:`veil.fitting.model_error.shared`), None when there is none."""
+    given = discrepancy.given_term(given_result)
+    if given is None or given.influence is None or given.length == 0.0 or given.sigma == 0.0:
+        return None
+    found = given_result.covariance(total=True)
+    if found is None:
+        return None
+    names = list(found[0])
+    sens = sensitivity(problem, x, [given_column(n) for n in names])
+    return discrepancy.shared(own_influence, problem.angles, given, names, sens)
+
+
 def reported(problem: Problem, x, summary, values, *, kind: str, rename: Callable = _same,
              given_result=None, given_column: Callable[[str], int] | None = None,
-             propagation: str = "auto") -> Reported:
+             propagation: str = "auto", keep_influence: bool = False) -> Reported:
     """The uncertainties of a fit at natural ``x``: the solver's ``summary`` (the noise's
     covariance of the free parameters, None when undetermined) and the model ``values``;
     ``rename(stderr, correlation)`` puts the problem's names into the result's.
@@ -52,16 +66,25 @@ def reported(problem: Problem, x, summary, values, *, kind: str, rename: Callabl
     totals; a step-1 medium also passes its model error on (step 2 inherits it). ``kind`` is
     the model-discrepancy term's (:data:`veil.fitting.model_error.KINDS`), estimated for a
     weighted problem only. ``propagation`` is the method of
-    :func:`veil.fitting.propagation.propagated`."""
+    :func:`veil.fitting.propagation.propagated`. A correlated term of a fit with
+    ``keep_influence`` (step 1) keeps its influence on the estimate and its configurations;
+    given such a fit, step 2's total adds the error the two share
+    (:func:`veil.fitting.model_error.shared`)."""
     cov = summary.covariance
     stderr, corr = rename(summary.stderr, summary.correlation)
 
     def named(c):
         return rename(*uncertainties(c, problem.names, problem.free_index))
 
+    def named_rows(m):
+        """{result name: row} of a (free parameters x ...) matrix."""
+        keys = dict.fromkeys(problem.names)
+        keys.update(zip(problem.free_names, m))
+        return {k: v for k, v in rename(keys, {})[0].items() if v is not None}
+
     hows, parts = [], {}
 
-    def total_of(c, given_res):
+    def total_of(c, given_res, extra=None):
         if given_res is None or c is None:
             return None, None
         # the given model's part depends on its covariance alone: made once per given fit
@@ -69,7 +92,8 @@ def reported(problem: Problem, x, summary, values, *, kind: str, rename: Callabl
             parts[id(given_res)] = propagated(problem, x, given_res, given_column, propagation)
         part, how = parts[id(given_res)]
         hows.append(how)
-        return (None, None) if part is None else named(c + part)
+        return (None, None) if part is None else named(c + part + (
+            0.0 if extra is None else extra))
 
     # the given fit without any model-discrepancy term (its own or inherited): "off" reports
     # the noise alone, and every fit keeps its noise-only uncertainties when a term entered
@@ -89,10 +113,17 @@ def reported(problem: Problem, x, summary, values, *, kind: str, rename: Callabl
             if term.sigma > 0:
                 corr_d = (None if term.length == 0.0 else discrepancy.correlation(
                     discrepancy.distances(problem.angles), term.length))
-                cov = discrepancy.sandwich(cov, weighted_jacobian(problem, x),
-                                           values * problem.w, term.sigma, corr_d)
+                jw, scaled = weighted_jacobian(problem, x), values * problem.w
+                g = discrepancy.influence(cov, jw, scaled)
+                cross = _shared(problem, x, g, given_result, given_column)
+                cov = discrepancy.sandwich(cov, jw, scaled, term.sigma, corr_d)
                 stderr, corr = named(cov)
-                stderr_total, corr_total = total_of(cov, given_result)
+                stderr_total, corr_total = total_of(cov, given_result, cross)
+                if keep_influence and term.length > 0:
+                    rows = {k: tuple(float(v) for v in row)
+                            for k, row in named_rows(g).items()}
+                    term = dataclasses.replace(term, influence=rows, angles=tuple(
+                        tuple(float(v) for v in a) for a in problem.angles))
             term = dataclasses.replace(term, noise_only=noise_only)
     # the last propagation made is the one behind stderr_total
     return Reported(stderr, corr, stderr_total, corr_total, term, hows[-1] if hows else None)

@@ -140,7 +140,7 @@ def _step(step: str, data: FitData, fitted: Model, given: Model | None, given_re
                    given_result=given_result,
                    given_column=None if given is None
                    else lambda n: problem.index(type(given).param(n).key),
-                   propagation=propagation)
+                   propagation=propagation, keep_influence=cls.KIND == "medium")
     media = [m for m in (medium,) if m is not None]
     variant = media[0].options().get(VARIANT_OPTION) if media else None
     stats = dict(outcome.stats, grid_points=n_grid)
