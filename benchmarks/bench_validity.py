@@ -18,7 +18,7 @@ own value of the plate seen without the medium). One table per medium:
 - tau, g: the medium's recovered optical depth per pass and asymmetry against the truth
   (the paper's medium has no optical depth; its g is shown for comparison);
 - s: seconds of the whole pipeline;
-- model error (--model-error, default independent): the relative model error sigma of step 1
+- model error (--model-error, default correlated): the relative model error sigma of step 1
   and the one step 2 used (veil.fitting.model_error); "before" the curves' max |z| and share
   within 2 se without it (the uncertainties of the data's noise alone, the same fits), and
   the median over the configurations of the curves' standard error with it / without it.
@@ -117,7 +117,7 @@ def _curves(clear, est, rendered) -> dict:
 
 
 #: The fits' model-discrepancy term (--model-error).
-MODEL_ERROR = "independent"
+MODEL_ERROR = "correlated"
 
 
 def _against_direct(names: dict, estimate, direct, medium_term, target_term) -> dict:
@@ -315,7 +315,7 @@ def main(argv=None) -> int:
     ap.add_argument("--orders", default="poisson",
                     choices=("poisson", "cylinder", "light-side", "view-side"),
                     help="the physical medium's order weights (forward-series option orders)")
-    ap.add_argument("--model-error", default="independent",
+    ap.add_argument("--model-error", default="correlated",
                     choices=("off", "independent", "correlated"),
                     help="the fits' model-discrepancy term (veil.fitting.model_error)")
     ap.add_argument("--propagation", default="auto", choices=("auto", "linear", "sigma-points"),

@@ -308,6 +308,14 @@ def test_sandwich_is_the_covariance_of_the_weighted_estimate():
     r = rng.standard_normal(30)
     general = me._nll(r, a, np.eye(30), 1e-4)
     assert abs(me._nll_independent(r, a, 1e-4) - general) < 1e-9 * abs(general)
+    # the estimate's likelihood (one eigendecomposition per length) is the Cholesky one's:
+    # residuals drawn with s = 0.03, ell = 10; s recovered as the Cholesky form's minimum
+    draw = np.linalg.cholesky(np.eye(30) + 0.03 ** 2 * (a[:, None] * corr * a[None, :]))
+    r = draw @ rng.standard_normal(30) + 0.0
+    s_hat, ell = me.estimate(r, a, 27, dist, lengths=(10.0,))
+    grid = np.exp(np.linspace(np.log(s_hat) - 0.01, np.log(s_hat) + 0.01, 5))
+    values = [me._nll(r, a, corr, s * s) for s in grid]
+    assert ell == 10.0 and int(np.argmin(values)) == 2
 
 
 def test_unweighted_fit_has_no_term():
@@ -320,7 +328,7 @@ def test_unweighted_fit_has_no_term():
 
 def test_result_file_round_trip(tmp_path):
     table, _, _ = _ggx_plate()
-    result = fit_direct(table.copy(), brdf_model="rough-plastic")   # default: independent
+    result = fit_direct(table.copy(), brdf_model="rough-plastic", model_error="independent")
     assert result.model_error.sigma > 0 and result.model_error.length == 0.0
     path = tmp_path / "r.json"
     result.to_json(path)
@@ -340,7 +348,7 @@ def test_result_file_round_trip(tmp_path):
 def test_bad_kind():
     with pytest.raises(FitError, match="model_error = 'yes'"):
         fit_direct(_ggx_plate()[0].copy(), brdf_model="rough-plastic", model_error="yes")
-    assert me.check_kind(None) == me.DEFAULT == "independent"
+    assert me.check_kind(None) == me.DEFAULT == "correlated"
     assert me.check_kind(False) == "off"
 
 

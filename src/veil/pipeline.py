@@ -116,9 +116,9 @@ def run_pipeline(reference_clear, reference_medium, target_medium, black=None, t
         data) listed beside the estimates in report.md.
     brdf_model, medium_model, brdf_options, medium_options : the families of the objects and
         of the medium (registered names; default the paper's) and their options.
-    model_error : the model-discrepancy term of every weighted step ("off", "independent",
-        the default, or "correlated"; :mod:`veil.fitting.model_error`): step 2 uses step 1's
-        when larger than its own.
+    model_error : the model-discrepancy term of every weighted step ("off", "independent"
+        or "correlated", the default; :mod:`veil.fitting.model_error`): step 2 uses step 1's
+        when larger than its own and counts the error the two share.
     propagation : how each step's given covariance enters its ``stderr_total`` ("auto", the
         default, "linear" or "sigma-points"; :mod:`veil.fitting.propagation`).
     Other arguments as :func:`veil.fit_medium`. Returns a :class:`PipelineResult`.

@@ -238,12 +238,13 @@ def _option_flag(name: str) -> str:
 # stays free of the fitting stack; tests/test_model_error.py checks they agree)
 model_error_option = click.option(
     "--model-error", "model_error", type=click.Choice(["off", "independent", "correlated"]),
-    default="independent", show_default=True,
+    default="correlated", show_default=True,
     help="The model-discrepancy term of a weighted fit whose reduced chi-square exceeds "
          "1 + 2 sqrt(2/dof): a relative model error estimated from the residuals and added "
          "to the covariance (the estimates are not moved); 'correlated' lets the likelihood "
-         "choose a correlation length over the angles (docs/validity.md). Step 2 uses step "
-         "1's when larger; a joint fit estimates its own over all its sessions.")
+         "choose a correlation length over the angles (docs/validity.md), 'independent' "
+         "takes none. Step 2 uses step 1's when larger and counts the error the two share; "
+         "a joint fit estimates its own over all its sessions.")
 
 
 # the methods of veil.fitting.propagation (METHODS; not imported, as above;

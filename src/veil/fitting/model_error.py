@@ -31,6 +31,11 @@ to the covariance:
   the given medium's (s, ell) when its s is the larger, its own otherwise (its own residuals
   can show less, its f_r absorbing part of the miss). The given model's covariance, its
   term included, is then propagated as before (``stderr_total``).
+- **The error the two steps share is counted once.** With a correlation length the same
+  process reaches both sessions: the medium absorbs in step 1 part of the error it gives
+  back in step 2, and adding the two parts alone overstates the total 3-6 times
+  (docs/validity.md). Step 1 keeps its influence G_1 = C J_w^T A on the medium and its
+  configurations; step 2 adds the cross term of :func:`shared`.
 
 The result carries the term as ``model_error`` (:meth:`ModelError.to_dict`): s, where it came
 from, the chi-square threshold, and the uncertainties without it (``noise_only``), which
@@ -58,10 +63,10 @@ LENGTHS = (0.0, 2.5, 5.0, 10.0, 20.0, 40.0, 80.0)
 #: The kinds of term a fit can estimate (``model_error=``, ``--model-error``): none, an
 #: independent error (ell = 0), or ell chosen by the likelihood among :data:`LENGTHS`.
 KINDS = ("off", "independent", "correlated")
-#: The fits' default kind: independent (docs/validity.md: the correlated term covers more
-#: of the path-traced sessions but multiplies the standard errors by 4-9 where the
-#: independent one already covers them).
-DEFAULT = "independent"
+#: The fits' default kind: correlated (docs/validity.md: with the error steps 1 and 2 share
+#: counted, :func:`shared`, it covers every path-traced session at 1.5-5 times the noise's
+#: standard errors; the independent one leaves four of ten short).
+DEFAULT = "correlated"
 #: Where a step's term came from (``ModelError.source``).
 SOURCES = ("none", "own residuals", "given medium")
 
@@ -151,10 +156,15 @@ def estimate(residuals, scaled_values, dof: int, dist,
         else:
             if callable(dist):
                 dist = dist()
-            corr = correlation(dist, length)
+            # I + t B with B = A R A = Q diag(lam) Q^T: log det and the quadratic form for
+            # every t from one eigendecomposition (O(N) per t instead of a Cholesky)
+            lam, q = np.linalg.eigh(a[:, None] * correlation(dist, length) * a[None, :])
+            lam = np.maximum(lam, 0.0)
+            rq2 = (q.T @ r) ** 2
 
-            def nll(u, corr=corr):
-                return _nll(r, a, corr, math.exp(2 * u))
+            def nll(u, lam=lam, rq2=rq2):
+                v = 1.0 + math.exp(2 * u) * lam
+                return float(0.5 * np.sum(np.log(v) + rq2 / v))
         found = minimize_scalar(nll,
                                 bounds=(math.log(guess) - 6.0, math.log(guess) + 6.0),
                                 method="bounded", options={"xatol": 1e-6})

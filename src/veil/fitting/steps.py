@@ -15,7 +15,7 @@ solved exactly at each point gives several starts; the best fit among them wins
 (:mod:`veil.fitting.start_values`). A fit that propagates its given model's covariance
 (when that came from a fit) reports ``stderr_total``. A weighted fit whose residuals exceed
 the noise (reduced chi-square above the test's limit) adds a relative model error to its
-covariance (``model_error=``: "independent" by default, "correlated", or "off";
+covariance (``model_error=``: "correlated" by default, "independent", or "off";
 :mod:`veil.fitting.model_error`).
 """
 
@@ -181,8 +181,8 @@ def fit_reference(table, *, fixed=None, black=None, max_nfev=None, progress=None
     brdf_model, options : the BRDF family (a registered name; default the paper's
         Torrance-Sparrow) and its options.
     free : names of parameters the family holds by default (``Param.held``) to fit too.
-    model_error : the model-discrepancy term of a weighted fit: "off", "independent" (the
-        default, None) or "correlated" (:mod:`veil.fitting.model_error`).
+    model_error : the model-discrepancy term of a weighted fit: "off", "independent" or
+        "correlated" (the default, None; :mod:`veil.fitting.model_error`).
     """
     return fit_direct(table, fixed=fixed, black=black, max_nfev=max_nfev, progress=progress,
                       step="reference", brdf_model=brdf_model, options=options, free=free,
