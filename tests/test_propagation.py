@@ -11,6 +11,7 @@ m01 session (docs/validity.md, benchmarks/bench_validity.py --propagation).
 import dataclasses
 import json
 import math
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -193,3 +194,60 @@ def test_command_line_propagation(chain, tmp_path):
     assert f"sigma points: {k} refits at {k} points, {k} converged" in run.output
     saved = json.loads(out.read_text())
     assert saved["stats"]["propagation"]["method"] == "sigma-points"
+
+
+class _LinearInU:
+    """A stand-in for a fit whose estimate moves linearly in the given parameters' relative
+    coordinates u (sigma_part's refits replaced by x_free = x0 + M (u - u0)): the sigma-point
+    moment must then be M Cov_u M^T exactly, whatever the covariance's rank and whether
+    points had to be pulled back inside the bounds."""
+
+    def __init__(self, names, values, free, axes, u0, m):
+        self.names, self.values, self.free = list(names), np.array(values, float), np.array(free)
+        self.axes, self.u0, self.m = axes, u0, m
+
+    @property
+    def free_index(self):
+        return np.flatnonzero(self.free)
+
+    def with_fixed(self, fixed):
+        out = _LinearInU(self.names, self.values, self.free, self.axes, self.u0, self.m)
+        for n, v in fixed.items():
+            out.values[self.names.index(n)] = v
+            out.free[self.names.index(n)] = False
+        return out
+
+    def solve(self, problem, x0, **_):
+        x = np.array(x0, dtype=float)
+        given = [k for k in range(len(self.names)) if not self.free[k]]
+        u = np.array([a.to_u(x[k]) for a, k in zip(self.axes, given)])
+        x[self.free_index] = 1.0 + self.m @ (u - self.u0)
+        return SimpleNamespace(x=x, status=1, cost=0.0)
+
+
+@pytest.mark.parametrize("case", ["inside", "singular", "at the bound"])
+def test_sigma_part_reproduces_a_response_linear_in_u(case, monkeypatch):
+    import veil.fitting.propagation as prop
+
+    specs = [FS.param("tau"), FS.param("omega"), FS.param("g")]
+    values = np.array([0.5, 1.0 if case == "at the bound" else 0.9, 0.9])
+    se = np.array([0.05, 0.02, 0.01])
+    corr = np.array([[1.0, 0.6, -0.3], [0.6, 1.0, 0.2], [-0.3, 0.2, 1.0]])
+    if case == "singular":
+        corr = np.array([[1.0, 1.0, 0.0], [1.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
+    cov = corr * np.outer(se, se)
+    axes = [Axis.of(p, v) for p, v in zip(specs, values)]
+    u0 = np.array([a.to_u(v) for a, v in zip(axes, values)])
+    d = np.array([a.du_dx(v) for a, v in zip(axes, values)])
+    m = np.array([[1.0, -2.0, 0.5], [0.3, 0.0, 4.0]])
+    names = ["rho", "ks", "tau", "omega", "g"]
+    fake = _LinearInU(names, [1.0, 1.0, *values], [True, True, False, False, False], axes,
+                      u0, m)
+    monkeypatch.setattr(prop, "solve", fake.solve)
+    out = prop.sigma_part(fake, fake.values, [2, 3, 4], specs, cov)
+    want = m @ (cov * np.outer(d, d)) @ m.T
+    np.testing.assert_allclose(out.covariance, want, rtol=1e-9, atol=1e-15)
+    if case == "at the bound":      # omega cannot rise above 1: mirrored, not refitted
+        assert out.refits < len(out.points) and np.all(out.points[:, 1] <= 1.0)
+    if case == "singular":          # one direction carries no spread: four points, not six
+        assert len(out.points) == 4

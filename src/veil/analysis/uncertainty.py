@@ -3,7 +3,8 @@
 Step 2 fits the target with the medium of step 1 held fixed, and step 1 the medium with the
 reference of step 0 held fixed; each step's own standard errors say nothing of what the
 previous step left uncertain - the paper's failure (MODEL.md sec. 7) hides there. The fits
-of :mod:`veil.fitting` add the given model's covariance to first order (``stderr_total``);
+of :mod:`veil.fitting` add the given model's covariance (``stderr_total``; to first order,
+or through sigma points where it is large, :mod:`veil.fitting.propagation`);
 this module splits that total into a per-step budget, can compute step 0's part from the
 reference's own data, and checks the linearization by sampling.
 
@@ -20,11 +21,10 @@ medium's free parameters and W the fit's weights (1/sigma^2). Hence
 where B is the same sensitivity of step 1 (the reference in the medium) to the reference's
 f_r. The three parts' noise comes from independent data sets, so those variances add up
 exactly to the total: :func:`propagate` reports them per parameter (the "budget"). A
-model-discrepancy term (:mod:`veil.fitting.model_error`) enters each step's own part; the
-one that step 2 inherits from step 1 is the same error of the medium model in both, and
-its cross term between the parts is not counted (it mostly cancels: the medium absorbs the
-error in step 1 and gives it back in step 2), which makes the total cautious then
-(docs/validity.md).
+model-discrepancy term (:mod:`veil.fitting.model_error`) enters each step's own part; a
+correlated one that step 2 shares with step 1 also has a cross term between the two parts
+(it mostly cancels: the medium absorbs the error in step 1 and gives it back in step 2),
+counted as the budget's part "shared" (:func:`veil.fitting.model_error.shared`).
 :func:`sample_propagation` checks the linearization by refitting the target over media drawn
 from step 1's distribution. Where step 1 leaves the medium uncertain by a large part of its
 scale the fits propagate through sigma points instead (:mod:`veil.fitting.propagation`), and
@@ -254,6 +254,8 @@ def _shared_part(problem, target_result, medium_result, m_names, sens):
         return None
     if target_result.model_error is None or target_result.model_error.sigma == 0.0:
         return None
+    if (target_result.stats.get("propagation") or {}).get("method", "linear") != "linear":
+        return None       # as the fit: no first-order cross term beside sigma points
     theta, cov_noise = covariance_of(noise_only(target_result))
     x = problem.values
     values = problem.model_values(x, ITERATION_ACCURACY)

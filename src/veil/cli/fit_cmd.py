@@ -352,7 +352,7 @@ def _step_entries(items, option: str) -> dict:
 
 def _compare(ctx, compare_models, reference_clear, reference_medium, target_medium, black,
              target_clear, outdir, fix, free, accuracy, max_nfev, models, figures,
-             model_error="independent", propagation="auto"):
+             model_error="correlated", propagation="auto"):
     """``fit pipeline --compare``: every model set on the same data (pipeline.compare_models)."""
     import math
 

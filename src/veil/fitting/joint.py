@@ -357,7 +357,8 @@ def fit_joint(sessions, *, reference=None, shared=None, per_medium=None, fixed=N
         A weighted joint fit whose residuals exceed the noise gets the model-discrepancy
         term over all its sessions (:mod:`veil.fitting.model_error`; nothing is inherited),
         and a reference given as a fit result has its covariance propagated into
-        ``stderr_total`` (:mod:`veil.fitting.reported`).
+        ``stderr_total`` to first order (:mod:`veil.fitting.reported`; a joint fit has no
+        sigma points).
     """
     check_accuracy(accuracy)
     model_error = discrepancy.check_kind(model_error)
@@ -390,7 +391,8 @@ def fit_joint(sessions, *, reference=None, shared=None, per_medium=None, fixed=N
     given = model_entry(as_given(reference, "brdf", "the reference")) \
         if reference is not None else None
     rep = reported(problem, outcome.solution.x, summary, outcome.values, kind=model_error,
-                   given_result=given_result, given_column=lambda n: index[ref_names[n]])
+                   given_result=given_result, given_column=lambda n: index[ref_names[n]],
+                   propagation="linear")   # the reference's covariance, to first order
     return _result(problem, layout, outcome, summary, accuracy, given, rep)
 
 

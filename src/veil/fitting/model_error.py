@@ -122,6 +122,20 @@ def check_kind(kind) -> str:
     return kind
 
 
+def _spectrum(r, a, corr):
+    """(lam, (Q^T r)^2) of B = A R A = Q diag(lam) Q^T: the likelihood under I + t B for
+    every t from one eigendecomposition (O(N) per t instead of a Cholesky)."""
+    lam, q = np.linalg.eigh(a[:, None] * np.asarray(corr) * a[None, :])
+    return np.maximum(lam, 0.0), (q.T @ r) ** 2
+
+
+def _nll_spectrum(spectrum, t) -> float:
+    """:func:`_nll` from :func:`_spectrum`."""
+    lam, rq2 = spectrum
+    v = 1.0 + t * lam
+    return float(0.5 * np.sum(np.log(v) + rq2 / v))
+
+
 def _nll_independent(r, a, t) -> float:
     """:func:`_nll` for R = I, in closed form (no N x N matrix)."""
     v = 1.0 + t * a * a
@@ -156,15 +170,10 @@ def estimate(residuals, scaled_values, dof: int, dist,
         else:
             if callable(dist):
                 dist = dist()
-            # I + t B with B = A R A = Q diag(lam) Q^T: log det and the quadratic form for
-            # every t from one eigendecomposition (O(N) per t instead of a Cholesky)
-            lam, q = np.linalg.eigh(a[:, None] * correlation(dist, length) * a[None, :])
-            lam = np.maximum(lam, 0.0)
-            rq2 = (q.T @ r) ** 2
+            spectrum = _spectrum(r, a, correlation(dist, length))
 
-            def nll(u, lam=lam, rq2=rq2):
-                v = 1.0 + math.exp(2 * u) * lam
-                return float(0.5 * np.sum(np.log(v) + rq2 / v))
+            def nll(u, spectrum=spectrum):
+                return _nll_spectrum(spectrum, math.exp(2 * u))
         found = minimize_scalar(nll,
                                 bounds=(math.log(guess) - 6.0, math.log(guess) + 6.0),
                                 method="bounded", options={"xatol": 1e-6})
@@ -306,9 +315,15 @@ def shared(own_influence, angles, given: ModelError, given_names, sensitivity) -
     given fit's s and ell, so beside the two steps' own parts it has the cross term
     s^2 (G_2 R_21 G_1^T S^T + its transpose), R_21 = exp(-D(step 2's, step 1's) / ell). It
     is negative where the medium absorbed in step 1 the error it gives back in step 2.
-    Zero for an independent term (ell = 0: no configuration of one session is another's)."""
+    None when the given term has no length (ell = 0: the two sessions' errors independent)
+    or no influence. Step 2's own part must then be that of the shared process plus what its
+    own s exceeds it by (veil.fitting.reported), so that the two are one covariance."""
     if given is None or given.sigma == 0.0 or given.length == 0.0 or given.influence is None:
         return None
+    missing = [n for n in given_names if n not in given.influence]
+    if missing:
+        raise FitError(f"the medium result's model_error.influence has no row for "
+                       f"{', '.join(missing)} (it has {', '.join(given.influence)})")
     g1 = np.array([given.influence[n] for n in given_names], dtype=float)
     r21 = correlation(distances(angles, given.angles), given.length)
     cross = own_influence @ r21 @ g1.T @ np.asarray(sensitivity, dtype=float).T

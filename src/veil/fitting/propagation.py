@@ -12,9 +12,9 @@ into step 1's medium.
   coordinates u in which that uncertainty is relative - the logarithm of the value, or of
   the distance to the nearer bound (``error_scale``) - mapped back inside the bounds, and
   the second moment of the refitted estimates about the estimate at u0 (each point weighing
-  1/2n) takes the place of S Cov_theta S^T. For a linear response it is S Cov_theta S^T
-  exactly; it keeps the response's curvature and its asymmetry (a mean shift counts as
-  error).
+  1/2n) takes the place of S Cov_theta S^T. For a response linear in u it is the first
+  order's exactly; it keeps the response's curvature and its asymmetry (a mean shift counts
+  as error).
 """
 
 from __future__ import annotations
@@ -37,6 +37,11 @@ METHODS = ("auto", "linear", "sigma-points")
 #: Relative uncertainty (stderr over the value or over the room to the nearer bound) of a
 #: given parameter above which "auto" propagates through sigma points.
 RELATIVE_LIMIT = 0.25
+#: Eigenvalues of the given covariance (in u) below this fraction of the largest carry no
+#: spread worth a refit; a point pulled back to less than MIN_REACH of its step is dropped
+#: (dividing its shift by the fraction kept would magnify the refit's tolerance).
+NEGLIGIBLE = 1e-12
+MIN_REACH = 0.1
 #: Function evaluations allowed to each refit at a sigma point.
 REFIT_NFEV = 50
 
@@ -132,6 +137,8 @@ def choose(method: str, relative: dict) -> str:
 def describe(how: dict, given_result) -> str:
     """One line for a result's message on how the given fit's covariance entered; empty for
     the first order, which every total has unless said."""
+    if how.get("fallback"):
+        return how["fallback"]
     if how.get("method") != "sigma-points":
         return ""
     rel = {n: r for n, r in how["relative_uncertainty"].items()}
@@ -163,7 +170,8 @@ def sigma_points(specs, values, cov) -> tuple[np.ndarray, np.ndarray]:
     lambda_k) e_k (module docstring), the + and - point of each direction side by side, and
     the fraction of its step each keeps to stay inside the bounds (1: all of it; a point
     that would leave them is pulled back along its direction, e.g. omega fitted at its bound
-    1). Directions with lambda_k = 0 are left out."""
+    1). Directions with a negligible lambda_k (:data:`NEGLIGIBLE`) are left out: they carry
+    no spread, and the moment still weighs each point 1/2n with n the full dimension."""
     values = np.asarray(values, dtype=float)
     axes = [Axis.of(p, float(v)) for p, v in zip(specs, values)]
     d = np.array([a.du_dx(float(v)) for a, v in zip(axes, values)])
@@ -173,7 +181,7 @@ def sigma_points(specs, values, cov) -> tuple[np.ndarray, np.ndarray]:
     u0 = np.array([a.to_u(float(v)) for a, v in zip(axes, values)])
     points, reach = [], []
     for k in range(n):
-        if lam[k] <= 0:
+        if lam[k] <= NEGLIGIBLE * max(float(lam.max()), 0.0):
             continue
         for sign in (1.0, -1.0):
             step = sign * math.sqrt(n * lam[k]) * vec[:, k]
@@ -222,7 +230,9 @@ def sigma_part(problem: Problem, x, cols: list[int], specs, cov_given,
     are taken from a refit at the given values themselves made the same way, so that they
     hold the given model's change alone. A point that had to be pulled back inside the
     bounds counts as the mirror of its twin when the twin is whole (the linear response's
-    moment is kept), else its shift is scaled up by the fraction kept."""
+    moment is kept); when both were pulled back each shift is scaled up by the fraction
+    kept, and one kept below :data:`MIN_REACH` is replaced by its twin's mirror (both: the
+    direction counts as without spread)."""
     names = [problem.names[c] for c in cols]
     values = np.array([x[c] for c in cols])
     points, reach = sigma_points(specs, values, cov_given)
@@ -236,23 +246,24 @@ def sigma_part(problem: Problem, x, cols: list[int], specs, cov_given,
         twin = i + 1 if i % 2 == 0 else i - 1
         if reach[i] < 1.0 and reach[twin] == 1.0:
             continue                                   # mirrored below
-        if reach[i] == 0.0:
+        if reach[i] < MIN_REACH:
             continue                                   # no room either way: no spread
         sub = problem.with_fixed(dict(zip(names, point)))
         start = nominal.x.copy()
         start[cols] = point
         sol = solve(sub, start, tol=TOL_ITER, max_nfev=max_nfev, jacobian_at=start)
-        if not np.all(np.isfinite(sol.x)):
+        if not np.all(np.isfinite(sol.x)) or not np.isfinite(sol.cost):
             raise FitError(f"the refit at the given model's sigma point "
-                           f"{dict(zip(names, point))} gave non-finite parameters")
+                           f"{dict(zip(names, point))} gave non-finite values")
         shifts[i] = (sol.x[free] - nominal.x[free]) / reach[i]
         done[i] = True
         converged += int(sol.status > 0)
     for i in range(len(points)):
         twin = i + 1 if i % 2 == 0 else i - 1
-        if not done[i] and done[twin] and reach[twin] == 1.0:
+        if not done[i] and done[twin]:
             shifts[i] = -shifts[twin]
-    cov = shifts.T @ shifts / max(len(points), 1)
+    # each point weighs 1/2n, n the given parameters (directions without spread have none)
+    cov = shifts.T @ shifts / (2 * len(values))
     return Refits(cov, points, shifts, converged, int(done.sum()))
 
 
@@ -277,11 +288,15 @@ def propagated(problem: Problem, x, given_result, column: Callable[[str], int],
     how = {"method": chosen, "relative_uncertainty": relative, "limit": RELATIVE_LIMIT}
     if chosen == "linear":
         return linear_part(problem, x, cols, gcov), how
-    refits = sigma_part(problem, x, cols, specs, gcov)
+    try:
+        refits = sigma_part(problem, x, cols, specs, gcov)
+    except FitError as exc:   # a refit that failed: the first order, said so
+        how.update(method="linear", fallback=f"sigma points failed ({exc}); first order used")
+        return linear_part(problem, x, cols, gcov), how
     how.update(points=len(refits.points), refits=refits.refits, converged=refits.converged)
     return refits.covariance, how
 
 
-__all__ = ["METHODS", "RELATIVE_LIMIT", "REFIT_NFEV", "check_method", "Axis",
+__all__ = ["METHODS", "RELATIVE_LIMIT", "NEGLIGIBLE", "MIN_REACH", "REFIT_NFEV", "check_method", "Axis",
            "relative_uncertainty", "choose", "describe", "sigma_points", "sensitivity", "linear_part", "Refits",
            "sigma_part", "propagated"]

@@ -42,18 +42,26 @@ def _same(stderr, correlation):
     return stderr, correlation
 
 
-def _shared(problem: Problem, x, own_influence, given_result, given_column):
-    """The cross term of the error a step shares with its given medium's fit
-    (:func:`veil.fitting.model_error.shared`), None when there is none."""
+def _shared(problem: Problem, x, own_influence, given_result, given_column, term, how):
+    """(this step's error correlation, the cross term) for the error a step shares with its
+    given medium's correlated term (:func:`veil.fitting.model_error.shared`): this step's
+    error is the shared process plus what its own s exceeds it by, with its own length, so
+    that the two sessions' errors have a covariance that is a covariance. None when there
+    is nothing shared, or when the given covariance entered through sigma points (the cross
+    term is first order; it is then left out, which errs on the cautious side)."""
     given = discrepancy.given_term(given_result)
     if given is None or given.influence is None or given.length == 0.0 or given.sigma == 0.0:
         return None
-    found = given_result.covariance(total=True)
-    if found is None:
+    if how is None or how.get("method") != "linear":
         return None
-    names = list(found[0])
+    names = list(given_result.covariance(total=True)[0])
     sens = sensitivity(problem, x, [given_column(n) for n in names])
-    return discrepancy.shared(own_influence, problem.angles, given, names, sens)
+    cross = discrepancy.shared(own_influence, problem.angles, given, names, sens)
+    dist = discrepancy.distances(problem.angles)
+    extra = max(term.sigma ** 2 - given.sigma ** 2, 0.0)
+    corr = (given.sigma ** 2 * discrepancy.correlation(dist, given.length)
+            + extra * discrepancy.correlation(dist, term.length)) / term.sigma ** 2
+    return corr, cross
 
 
 def reported(problem: Problem, x, summary, values, *, kind: str, rename: Callable = _same,
@@ -82,23 +90,25 @@ def reported(problem: Problem, x, summary, values, *, kind: str, rename: Callabl
         keys.update(zip(problem.free_names, m))
         return {k: v for k, v in rename(keys, {})[0].items() if v is not None}
 
-    hows, parts = [], {}
+    parts = {}
 
     def total_of(c, given_res, extra=None):
+        """(stderr, correlation, how) of ``c`` with ``given_res``'s part (and ``extra``)."""
         if given_res is None or c is None:
-            return None, None
+            return None, None, None
         # the given model's part depends on its covariance alone: made once per given fit
         if id(given_res) not in parts:
             parts[id(given_res)] = propagated(problem, x, given_res, given_column, propagation)
         part, how = parts[id(given_res)]
-        hows.append(how)
-        return (None, None) if part is None else named(c + part + (
-            0.0 if extra is None else extra))
+        if part is None:
+            return None, None, how
+        return (*named(c + part + (0.0 if extra is None else extra)), how)
 
     # the given fit without any model-discrepancy term (its own or inherited): "off" reports
     # the noise alone, and every fit keeps its noise-only uncertainties when a term entered
     given_noise = None if given_result is None else discrepancy.noise_only(given_result)
-    stderr_total, corr_total = total_of(cov, given_noise if kind == "off" else given_result)
+    stderr_total, corr_total, how = total_of(cov, given_noise if kind == "off"
+                                             else given_result)
     term = None
     if kind != "off" and problem.weighted and cov is not None:
         term = discrepancy.step_term(summary.residuals, values, problem.w,
@@ -107,7 +117,7 @@ def reported(problem: Problem, x, summary, values, *, kind: str, rename: Callabl
         if term.sigma > 0 or given_noise is not given_result:
             # without an inherited term the total above is already the noise-only one
             noise_total = ((stderr_total, corr_total) if given_noise is given_result
-                           else total_of(cov, given_noise))
+                           else total_of(cov, given_noise)[:2])
             noise_only = {"stderr": stderr, "correlation": corr,
                           "stderr_total": noise_total[0], "correlation_total": noise_total[1]}
             if term.sigma > 0:
@@ -115,18 +125,20 @@ def reported(problem: Problem, x, summary, values, *, kind: str, rename: Callabl
                     discrepancy.distances(problem.angles), term.length))
                 jw, scaled = weighted_jacobian(problem, x), values * problem.w
                 g = discrepancy.influence(cov, jw, scaled)
-                cross = _shared(problem, x, g, given_result, given_column)
+                shared = _shared(problem, x, g, given_result, given_column, term, how)
+                if shared is not None:    # the sum of the shared process and step 2's own
+                    corr_d, cross = shared
                 cov = discrepancy.sandwich(cov, jw, scaled, term.sigma, corr_d)
                 stderr, corr = named(cov)
-                stderr_total, corr_total = total_of(cov, given_result, cross)
+                stderr_total, corr_total, how = total_of(
+                    cov, given_result, None if shared is None else cross)
                 if keep_influence and term.length > 0:
                     rows = {k: tuple(float(v) for v in row)
                             for k, row in named_rows(g).items()}
                     term = dataclasses.replace(term, influence=rows, angles=tuple(
                         tuple(float(v) for v in a) for a in problem.angles))
             term = dataclasses.replace(term, noise_only=noise_only)
-    # the last propagation made is the one behind stderr_total
-    return Reported(stderr, corr, stderr_total, corr_total, term, hows[-1] if hows else None)
+    return Reported(stderr, corr, stderr_total, corr_total, term, how)
 
 
 __all__ = ["Reported", "reported"]

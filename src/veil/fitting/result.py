@@ -48,7 +48,8 @@ class FitResult:
     medium involved (fitted or given), kept as its own key. ``given`` is the model held fixed
     (the reference BRDF for the medium step, the medium for the target step). ``stderr`` and
     ``correlation`` treat it as exact; ``stderr_total`` and ``correlation_total`` add its own
-    uncertainty when it came from a fit (first-order propagation, docs/fitting.md).
+    uncertainty when it came from a fit (to first order, or through sigma points where it is
+    large: ``stats["propagation"]`` says which; docs/fitting.md).
     ``model_error`` is the model-discrepancy term of a weighted fit
     (:class:`veil.fitting.model_error.ModelError`: the relative model error the residuals
     show beyond the noise, included in ``stderr`` and ``stderr_total``); None when the fit

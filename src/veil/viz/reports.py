@@ -428,7 +428,8 @@ def pipeline_report(ref, med, tgt, direct, comparison, truth, figures, inputs) -
     out += ["Uncertainties are one standard error from the Jacobian at the solution. "
             "\"stderr\" holds the model given to the step (the reference f_r in step 1, the "
             "medium in step 2) exact; \"stderr incl. given model\" adds that model's own "
-            "uncertainty to first order (docs/fitting.md).", ""]
+            "uncertainty (to first order, or through refits at sigma points where it is large; "
+            "each fit's report says which; docs/fitting.md).", ""]
     sections = [("Step 0: reference object in a clear medium (f_r directly)", ref, "reference",
                  "reference_fig"),
                 ("Step 1: the medium, through the reference object (f_r fixed)", med, "medium",
