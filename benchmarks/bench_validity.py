@@ -209,6 +209,7 @@ def run_joint(truth: dict, medium: str, target: str, models: str) -> dict:
         "g": med.get("g", math.nan), "g_true": true_medium["g"],
         "chi2_medium": res.chi2_reduced, "chi2_target": res.chi2_reduced,
         "converged": res.converged, "seconds": seconds,
+        "propagation": (res.stats.get("propagation") or {}).get("method", "-"),
     }
 
 

@@ -117,7 +117,7 @@ def chain():
     target = veil.simulate(veil.BRDF1, veil.BTDF3, noise=0.003, seed=13, **SMALL)
     r0 = fit_reference(ref_clear)
     r1 = fit_medium(ref_medium, r0, accuracy="fast")
-    return {"r1": r1, "target": target}
+    return {"r0": r0, "r1": r1, "target": target, "ref_medium": ref_medium}
 
 
 def test_sigma_points_agree_with_the_first_order_where_it_holds(chain):
@@ -251,3 +251,32 @@ def test_sigma_part_reproduces_a_response_linear_in_u(case, monkeypatch):
         assert out.refits < len(out.points) and np.all(out.points[:, 1] <= 1.0)
     if case == "singular":          # one direction carries no spread: four points, not six
         assert len(out.points) == 4
+
+
+def test_joint_fit_carries_the_media_through_sigma_points(chain):
+    """A joint fit estimates the medium with the target: forced sigma points agree with the
+    first order where the medium is well determined (the conditional covariance plus the
+    refits' spread), change only the objects' block of the totals, and are recorded; the
+    command line offers the option."""
+    from veil.cli.joint_cmd import joint_command
+    from veil.fitting.propagation import METHODS
+
+    option = next(p for p in joint_command.params if p.name == "propagation")
+    assert tuple(option.type.choices) == METHODS
+    sessions = [(chain["ref_medium"], "m", "reference"), (chain["target"], "m", "target")]
+    lin = veil.fit_joint(sessions, reference=chain["r0"], accuracy="fast",
+                         propagation="linear")
+    sig = veil.fit_joint(sessions, reference=chain["r0"], accuracy="fast",
+                         propagation="sigma-points")
+    assert lin.stats["propagation"]["method"] == "linear"
+    how = sig.stats["propagation"]
+    assert how["method"] == "sigma-points" and how["points"] == 8 and how["converged"] == 8
+    assert sig.params == lin.params and sig.stderr == lin.stderr
+    media = [n for n in lin.free if n in set(lin.layout["media"]["m"].values())]
+    objects = [n for n in lin.free if n not in media]
+    assert media and objects
+    for n in media:
+        assert sig.stderr_total[n] == lin.stderr_total[n]
+    for n in objects:
+        assert sig.stderr_total[n] == pytest.approx(lin.stderr_total[n], rel=0.1), n
+    assert "refits at 8 sigma points" in sig.message

@@ -252,11 +252,11 @@ model_error_option = click.option(
 propagation_option = click.option(
     "--propagation", "propagation", type=click.Choice(["auto", "linear", "sigma-points"]),
     default="auto", show_default=True,
-    help="How the previous step's uncertainty enters this one's total standard errors: "
-         "'linear' (first order), 'sigma-points' (the fit repeated at 2n points of the "
-         "given fit's covariance, in coordinates where it is relative), 'auto' the latter "
-         "where a given parameter is uncertain by more than 0.25 of its scale (tau at "
-         "optical depth 0.1; docs/fitting.md).")
+    help="How the previous step's uncertainty (a joint fit: the media's) enters the total "
+         "standard errors: 'linear' (first order), 'sigma-points' (the fit repeated at 2n "
+         "points of that covariance, in coordinates where it is relative), 'auto' the latter "
+         "where a parameter is uncertain by more than 0.25 of its scale (tau at optical "
+         "depth 0.1; docs/fitting.md).")
 
 
 def model_options(kinds=("brdf", "medium")):

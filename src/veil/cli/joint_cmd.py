@@ -13,7 +13,8 @@ from pathlib import Path
 
 import click
 
-from ._common import UserError, check_output_path, model_error_option, model_options
+from ._common import (UserError, check_output_path, model_error_option, model_options,
+                      propagation_option)
 
 OUT_FILE = click.Path(dir_okay=False, path_type=Path)
 
@@ -133,10 +134,11 @@ def _names(text, option):
 @click.option("--max-nfev", type=click.IntRange(min=1), default=None,
               help="Limit on function evaluations of each least-squares run.")
 @model_error_option
+@propagation_option
 @click.pass_context
 @model_options()
 def joint_command(ctx, sessions, reference_sessions, blacks, reference, shared, per_medium, fix,
-                  output, accuracy, max_nfev, model_error, models):
+                  output, accuracy, max_nfev, model_error, propagation, models):
     """Fit the target (and the reference) over several media at once (MODEL.md sec. 7).
 
     The object's parameters are shared by all its sessions, each medium has its own Td and
@@ -173,7 +175,8 @@ def joint_command(ctx, sessions, reference_sessions, blacks, reference, shared, 
                            accuracy=accuracy, max_nfev=max_nfev, progress=progress,
                            brdf_model=models.brdf.NAME, medium_model=models.medium.NAME,
                            brdf_options=models.brdf_options,
-                           medium_options=models.medium_options, model_error=model_error)
+                           medium_options=models.medium_options, model_error=model_error,
+                           propagation=propagation)
     result.to_json(output)
     click.echo(result.report())
     finish_fits(ctx, [result], [output])

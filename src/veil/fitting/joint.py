@@ -17,6 +17,7 @@ plain (``eta_u``; a medium's parameter takes its declared alias).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -30,9 +31,10 @@ from .given import as_given
 from .problem import (ITERATION_ACCURACY, OBJECTS, Block, Problem, Session, check_accuracy,
                       model_slots)
 from . import model_error as discrepancy
+from .propagation import check_method, describe, media_part
 from .reported import Reported, reported
 from .result import FitResult, JointResult, load_result, model_entry
-from .solver import as_fixed, check_fixed, check_max_nfev, run, summarize
+from .solver import as_fixed, check_fixed, check_max_nfev, run, summarize, uncertainties
 from .start_values import joint_starts, step_starts
 
 #: Two configurations closer than this (deg, for both I and R) are the same one when
@@ -335,7 +337,7 @@ def fit_joint(sessions, *, reference=None, shared=None, per_medium=None, fixed=N
               start=None, variant: str | None = None, accuracy: str = "default",
               max_nfev=None, progress=None, brdf_model=None, medium_model=None,
               brdf_options=None, medium_options=None, free=None,
-              model_error=None) -> JointResult:
+              model_error=None, propagation=None) -> JointResult:
     """Fit several sessions of one target under several media at once (module docstring).
 
     sessions : list of :class:`Session` (table, medium label, object "target"/"reference")
@@ -357,11 +359,15 @@ def fit_joint(sessions, *, reference=None, shared=None, per_medium=None, fixed=N
         A weighted joint fit whose residuals exceed the noise gets the model-discrepancy
         term over all its sessions (:mod:`veil.fitting.model_error`; nothing is inherited),
         and a reference given as a fit result has its covariance propagated into
-        ``stderr_total`` to first order (:mod:`veil.fitting.reported`; a joint fit has no
-        sigma points).
+        ``stderr_total`` to first order (:mod:`veil.fitting.reported`).
+    propagation : how the media's uncertainty reaches the objects' ``stderr_total``: "auto"
+        (the default, None: through refits at sigma points where a medium parameter is
+        uncertain by more than a quarter of its scale, as tau at optical depth 0.1), "linear"
+        or "sigma-points" (:func:`veil.fitting.propagation.media_part`).
     """
     check_accuracy(accuracy)
     model_error = discrepancy.check_kind(model_error)
+    propagation = check_method(propagation)
     check_max_nfev(max_nfev)
     if start is not None:
         if not isinstance(start, dict):
@@ -393,7 +399,42 @@ def fit_joint(sessions, *, reference=None, shared=None, per_medium=None, fixed=N
     rep = reported(problem, outcome.solution.x, summary, outcome.values, kind=model_error,
                    given_result=given_result, given_column=lambda n: index[ref_names[n]],
                    propagation="linear")   # the reference's covariance, to first order
+    rep = _media_beyond_first_order(problem, outcome.solution.x, rep, propagation)
     return _result(problem, layout, outcome, summary, accuracy, given, rep)
+
+
+def _media_beyond_first_order(problem: Problem, x, rep: Reported, method: str) -> Reported:
+    """``rep`` with the objects' block of its total covariance (its own without a total)
+    carrying the media's uncertainty through sigma points where :func:`media_part` says so;
+    the media's block and the cross terms stay. When the result would not be a covariance
+    (the sigma points' spread below the first order's in some direction) the first order is
+    kept and the record says so."""
+    use_total = rep.stderr_total is not None
+    se, corr = ((rep.stderr_total, rep.correlation_total) if use_total
+                else (rep.stderr, rep.correlation))
+    names = problem.free_names
+    if any(se.get(n) is None for n in names):
+        return rep
+    s = np.array([se[n] for n in names])
+    r = np.array([[1.0 if a == b else (corr.get(a, {}).get(b) or 0.0) for b in names]
+                  for a in names])
+    cov = r * np.outer(s, s)
+    cols_o, delta, how = media_part(problem, x, cov, method)
+    if how is None:
+        return rep
+    if delta is not None:
+        pos = {int(k): j for j, k in enumerate(problem.free_index)}
+        jo = [pos[k] for k in cols_o]
+        total = cov.copy()
+        total[np.ix_(jo, jo)] += delta
+        d = np.sqrt(np.maximum(np.diag(total), 0.0))
+        if np.all(d > 0) and np.linalg.eigvalsh(total / np.outer(d, d)).min() > -1e-10:
+            st, ct = uncertainties(total, problem.names, problem.free_index)
+            return dataclasses.replace(rep, stderr_total=st, correlation_total=ct,
+                                       propagation=how)
+        how = dict(how, method="linear", fallback="the sigma points' spread is below the "
+                   "first order's in some direction: first order kept")
+    return dataclasses.replace(rep, propagation=how)
 
 
 def _result(problem: Problem, layout, outcome, summary, accuracy, given,
@@ -415,6 +456,11 @@ def _result(problem: Problem, layout, outcome, summary, accuracy, given,
     x = outcome.solution.x
     names = problem.names
     fixed = {n: float(x[k]) for k, n in enumerate(names) if not problem.free[k]}
+    stats, message = outcome.stats, summary.message
+    if rep.propagation is not None:
+        stats = dict(stats, propagation=rep.propagation)
+        note = describe(rep.propagation, "the media's uncertainty")
+        message += f"; {note}" if note else ""
     variant = layout["options"]["medium"].get(VARIANT_OPTION)
     return JointResult(model="joint", params={n: float(v) for n, v in zip(names, x)},
                        stderr=rep.stderr, correlation=rep.correlation,
@@ -423,9 +469,9 @@ def _result(problem: Problem, layout, outcome, summary, accuracy, given,
                        residuals=tuple(float(r) for r in res),
                        chi2_reduced=summary.chi2_reduced, rms_relative=summary.rms_relative,
                        n_points=problem.n_points, converged=summary.converged,
-                       message=summary.message, variant=variant, fixed=fixed, step="joint",
+                       message=message, variant=variant, fixed=fixed, step="joint",
                        weighted=problem.weighted, accuracy=accuracy, given=given,
-                       stats=outcome.stats, determined=summary.determined, layout=layout)
+                       stats=stats, determined=summary.determined, layout=layout)
 
 
 __all__ = ["fit_joint", "Session", "JointResult", "load_result", "build", "as_sessions",

@@ -134,9 +134,9 @@ def choose(method: str, relative: dict) -> str:
     return "sigma-points" if worst > RELATIVE_LIMIT else "linear"
 
 
-def describe(how: dict, given_result) -> str:
-    """One line for a result's message on how the given fit's covariance entered; empty for
-    the first order, which every total has unless said."""
+def describe(how: dict, what: str) -> str:
+    """One line for a result's message on how ``what`` (e.g. "the medium fit's covariance")
+    entered; empty for the first order, which every total has unless said."""
     if how.get("fallback"):
         return how["fallback"]
     if how.get("method") != "sigma-points":
@@ -144,8 +144,7 @@ def describe(how: dict, given_result) -> str:
     rel = {n: r for n, r in how["relative_uncertainty"].items()}
     worst = max(rel, key=lambda n: math.inf if rel[n] is None else rel[n])
     size = "undetermined" if rel[worst] is None else f"{rel[worst]:.2f} of its scale"
-    step = given_result.step or "given"
-    return (f"the {step} fit's covariance propagated through {how['refits']} refits at "
+    return (f"{what} propagated through {how['refits']} refits at "
             f"{how['points']} sigma points ({how['converged']} converged; {worst} uncertain "
             f"by {size}, limit {how['limit']:g})")
 
@@ -297,6 +296,42 @@ def propagated(problem: Problem, x, given_result, column: Callable[[str], int],
     return refits.covariance, how
 
 
+def media_part(problem: Problem, x, cov, method: str = "auto"):
+    """A joint fit's counterpart of sigma points (it estimates the media with the objects):
+    the objects' covariance is the conditional one plus the spread of their estimate over
+    the media, E[Cov(o | m)] + Cov(E[o | m]); the first order's second part, A C_mm A^T,
+    is replaced by refits of the objects at the sigma points of the media's block C_mm of
+    ``cov`` (free parameters, problem order). Returns (object columns, delta = sigma part -
+    A C_mm A^T, how); delta is None when "auto" (``method``) keeps the first order or
+    there is nothing to do (no media or no objects free); how None then too when nothing."""
+    free = [int(k) for k in problem.free_index]
+    cols_m = [k for k in free if problem.params[k].kind == "medium"]
+    cols_o = [k for k in free if problem.params[k].kind != "medium"]
+    if not cols_m or not cols_o or cov is None:
+        return cols_o, None, None
+    pos = {k: j for j, k in enumerate(free)}
+    jm = [pos[k] for k in cols_m]
+    cmm = np.asarray(cov, dtype=float)[np.ix_(jm, jm)]
+    specs = [problem.params[k].spec for k in cols_m]
+    se = np.sqrt(np.maximum(np.diag(cmm), 0.0))
+    relative = {}
+    for k, p, s in zip(cols_m, specs, se):
+        r = p.relative_error(float(x[k]), float(s))
+        relative[problem.names[k]] = r if math.isfinite(r) else None
+    chosen = choose(method, relative)
+    how = {"method": chosen, "relative_uncertainty": relative, "limit": RELATIVE_LIMIT}
+    if chosen == "linear":
+        return cols_o, None, how
+    cond = problem.with_fixed({problem.names[k]: float(x[k]) for k in cols_m})
+    try:
+        refits = sigma_part(cond, x, cols_m, specs, cmm)
+    except FitError as exc:
+        how.update(method="linear", fallback=f"sigma points failed ({exc}); first order used")
+        return cols_o, None, how
+    how.update(points=len(refits.points), refits=refits.refits, converged=refits.converged)
+    return cols_o, refits.covariance - linear_part(cond, x, cols_m, cmm), how
+
+
 __all__ = ["METHODS", "RELATIVE_LIMIT", "NEGLIGIBLE", "MIN_REACH", "REFIT_NFEV", "check_method", "Axis",
            "relative_uncertainty", "choose", "describe", "sigma_points", "sensitivity", "linear_part", "Refits",
-           "sigma_part", "propagated"]
+           "sigma_part", "propagated", "media_part"]

@@ -55,7 +55,7 @@ def _statistics(result: FitResult) -> list[str]:
                      + (f" over {stats.get('starts', 1)} start(s)" if stats.get("starts") else ""))
     how = (stats or {}).get("propagation")
     if how and result.stderr_total is not None:
-        lines.append("    given model's unc. = " + (
+        lines.append("    propagation        = " + (
             "first order (linear)" if how.get("method") == "linear" else
             f"sigma points: {how.get('refits')} refits at {how.get('points')} points, "
             f"{how.get('converged')} converged"))

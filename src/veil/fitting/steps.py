@@ -147,7 +147,8 @@ def _step(step: str, data: FitData, fitted: Model, given: Model | None, given_re
     message = summary.message
     if rep.propagation is not None:
         stats["propagation"] = rep.propagation
-        note = describe(rep.propagation, given_result)
+        note = describe(rep.propagation,
+                        f"the {given_result.step or 'given'} fit's covariance")
         message += f"; {note}" if note else ""
     return FitResult(model=cls.NAME,
                      params={own[k]: float(x[problem.index(k)]) for k in cls.keys()},
