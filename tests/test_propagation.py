@@ -20,7 +20,7 @@ from hypothesis import given, settings, strategies as st
 import veil
 from veil.analysis.uncertainty import propagate
 from veil.fitting import FitError, fit_medium, fit_reference, fit_target
-from veil.fitting.propagation import (RELATIVE_LIMIT, Axis, check_method, choose,
+from veil.fitting.propagation import (RELATIVE_LIMIT, Axis, check_method, choose, how_of,
                                       relative_uncertainty, sigma_points)
 from veil.fitting.result import FitResult
 from veil.models import model_class
@@ -102,7 +102,11 @@ def test_auto_chooses_by_the_relative_uncertainty():
     assert large["tau"] == pytest.approx(1.8) and choose("auto", large) == "sigma-points"
     at_limit = {"tau": RELATIVE_LIMIT}
     assert choose("auto", at_limit) == "linear"
-    assert choose("auto", {"tau": None}) == "sigma-points"      # undetermined
+    # beyond RELATIVE_MAX (or not finite) the parameter is not determined: first order, noted
+    assert choose("auto", {"tau": 3.5}) == "linear" == choose("auto", {"tau": None})
+    assert choose("auto", {"tau": 2.9}) == "sigma-points"
+    assert "not determined" in how_of("auto", {"tau": None, "g": 0.1})["fallback"]
+    assert "fallback" not in how_of("auto", large) and "fallback" not in how_of("linear", {"tau": None})
     assert choose("linear", large) == "linear"
     assert check_method(None) == "auto"
     with pytest.raises(FitError, match="propagation = 'cubic'; expected one of auto"):
@@ -155,7 +159,7 @@ def test_an_uncertain_medium_goes_through_sigma_points(chain):
     k = names.index("Tt")
     factor = 0.5 * r1.params["Tt"] / math.sqrt(cov[k, k])
     wide = dataclasses.replace(
-        r1, stderr={n: (None if s is None else s * factor) for n, s in r1.stderr.items()},
+        r1, stderr={n: (s * factor if n == "Tt" else s) for n, s in r1.stderr.items()},
         stderr_total=None, correlation_total=None)
     auto = fit_target(target, wide, accuracy="fast")
     lin = fit_target(target, wide, accuracy="fast", propagation="linear")
@@ -280,3 +284,21 @@ def test_joint_fit_carries_the_media_through_sigma_points(chain):
     for n in objects:
         assert sig.stderr_total[n] == pytest.approx(lin.stderr_total[n], rel=0.1), n
     assert "refits at 8 sigma points" in sig.message
+
+
+def test_an_undetermined_medium_keeps_the_first_order_and_says_so(chain):
+    """Td uncertain by 400 times its value (the paper's medium at optical depth 0.1): "auto"
+    keeps the first order with a note; forced sigma points far out (Td ~ 1e300) do not
+    crash the fit: the refits fail, the first order is used, and the message says so."""
+    r1, target = chain["r1"], chain["target"]
+    se = dict(r1.stderr, Td=400.0 * r1.params["Td"])
+    wide = dataclasses.replace(r1, stderr=se, stderr_total=None, correlation_total=None)
+    auto = fit_target(target, wide, accuracy="fast")
+    how = auto.stats["propagation"]
+    assert how["method"] == "linear" and "Td uncertain by 400 of its scale" in how["fallback"]
+    assert how["fallback"] in auto.message
+    forced = fit_target(target, wide, accuracy="fast", propagation="sigma-points")
+    assert forced.params == auto.params
+    assert all(np.isfinite(v) for v in forced.stderr_total.values() if v is not None)
+    note = forced.stats["propagation"].get("fallback", "")
+    assert forced.stats["propagation"]["method"] == "sigma-points" or "failed" in note

@@ -256,7 +256,8 @@ propagation_option = click.option(
          "standard errors: 'linear' (first order), 'sigma-points' (the fit repeated at 2n "
          "points of that covariance, in coordinates where it is relative), 'auto' the latter "
          "where a parameter is uncertain by more than 0.25 of its scale (tau at optical "
-         "depth 0.1; docs/fitting.md).")
+         "depth 0.1) and at most 3 (beyond, it is not determined: first order, noted; "
+         "docs/fitting.md).")
 
 
 def model_options(kinds=("brdf", "medium")):

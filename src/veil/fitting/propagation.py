@@ -25,7 +25,7 @@ from typing import Callable
 
 import numpy as np
 
-from ..errors import FitError
+from ..errors import FitError, InputError
 from ..models import Param
 from .coordinates import OPEN_MARGIN
 from .problem import ITERATION_ACCURACY, Problem
@@ -37,6 +37,9 @@ METHODS = ("auto", "linear", "sigma-points")
 #: Relative uncertainty (stderr over the value or over the room to the nearer bound) of a
 #: given parameter above which "auto" propagates through sigma points.
 RELATIVE_LIMIT = 0.25
+#: ... and up to which: beyond, the parameter is not determined and the first order is kept
+#: with a note (sigma points e^(sqrt(n) RELATIVE_MAX) times apart are not a spread to refit).
+RELATIVE_MAX = 3.0
 #: Eigenvalues of the given covariance (in u) below this fraction of the largest carry no
 #: spread worth a refit; a point pulled back to less than MIN_REACH of its step is dropped
 #: (dividing its shift by the fraction kept would magnify the refit's tolerance).
@@ -126,12 +129,32 @@ def relative_uncertainty(specs, values, cov) -> dict:
     return out
 
 
+def _worst(relative: dict) -> float:
+    return max((math.inf if r is None else r for r in relative.values()), default=0.0)
+
+
 def choose(method: str, relative: dict) -> str:
-    """The method "auto" resolves to for these relative uncertainties (None: not finite)."""
+    """The method "auto" resolves to for these relative uncertainties (None: not finite):
+    sigma points above :data:`RELATIVE_LIMIT` up to :data:`RELATIVE_MAX`, else the first
+    order (beyond RELATIVE_MAX a parameter is not determined: points e^(sqrt(n) r) times
+    its value apart say nothing a fit can use; :func:`how_of` notes it)."""
     if method != "auto":
         return method
-    worst = max((math.inf if r is None else r for r in relative.values()), default=0.0)
-    return "sigma-points" if worst > RELATIVE_LIMIT else "linear"
+    return "sigma-points" if RELATIVE_LIMIT < _worst(relative) <= RELATIVE_MAX else "linear"
+
+
+def how_of(method: str, relative: dict) -> dict:
+    """The record of a propagation: the chosen method, the relative uncertainties, the
+    limit, and a note when "auto" kept the first order for an undetermined parameter."""
+    chosen = choose(method, relative)
+    how = {"method": chosen, "relative_uncertainty": relative, "limit": RELATIVE_LIMIT}
+    if method == "auto" and _worst(relative) > RELATIVE_MAX:
+        worst = max(relative, key=lambda n: math.inf if relative[n] is None else relative[n])
+        size = "not determined" if relative[worst] is None else \
+            f"uncertain by {relative[worst]:.3g} of its scale"
+        how["fallback"] = (f"{worst} {size} (over {RELATIVE_MAX:g}): its uncertainty "
+                           f"propagated to first order, which is then only indicative")
+    return how
 
 
 def describe(how: dict, what: str) -> str:
@@ -283,13 +306,12 @@ def propagated(problem: Problem, x, given_result, column: Callable[[str], int],
     cls = given_result.model_class
     specs = [cls.param(n) for n in gnames]
     relative = relative_uncertainty(specs, [x[c] for c in cols], gcov)
-    chosen = choose(method, relative)
-    how = {"method": chosen, "relative_uncertainty": relative, "limit": RELATIVE_LIMIT}
-    if chosen == "linear":
+    how = how_of(method, relative)
+    if how["method"] == "linear":
         return linear_part(problem, x, cols, gcov), how
     try:
         refits = sigma_part(problem, x, cols, specs, gcov)
-    except FitError as exc:   # a refit that failed: the first order, said so
+    except (FitError, InputError) as exc:   # a refit that failed: the first order, said so
         how.update(method="linear", fallback=f"sigma points failed ({exc}); first order used")
         return linear_part(problem, x, cols, gcov), how
     how.update(points=len(refits.points), refits=refits.refits, converged=refits.converged)
@@ -318,20 +340,19 @@ def media_part(problem: Problem, x, cov, method: str = "auto"):
     for k, p, s in zip(cols_m, specs, se):
         r = p.relative_error(float(x[k]), float(s))
         relative[problem.names[k]] = r if math.isfinite(r) else None
-    chosen = choose(method, relative)
-    how = {"method": chosen, "relative_uncertainty": relative, "limit": RELATIVE_LIMIT}
-    if chosen == "linear":
+    how = how_of(method, relative)
+    if how["method"] == "linear":
         return cols_o, None, how
     cond = problem.with_fixed({problem.names[k]: float(x[k]) for k in cols_m})
     try:
         refits = sigma_part(cond, x, cols_m, specs, cmm)
-    except FitError as exc:
+    except (FitError, InputError) as exc:
         how.update(method="linear", fallback=f"sigma points failed ({exc}); first order used")
         return cols_o, None, how
     how.update(points=len(refits.points), refits=refits.refits, converged=refits.converged)
     return cols_o, refits.covariance - linear_part(cond, x, cols_m, cmm), how
 
 
-__all__ = ["METHODS", "RELATIVE_LIMIT", "NEGLIGIBLE", "MIN_REACH", "REFIT_NFEV", "check_method", "Axis",
+__all__ = ["METHODS", "RELATIVE_LIMIT", "RELATIVE_MAX", "how_of", "NEGLIGIBLE", "MIN_REACH", "REFIT_NFEV", "check_method", "Axis",
            "relative_uncertainty", "choose", "describe", "sigma_points", "sensitivity", "linear_part", "Refits",
            "sigma_part", "propagated", "media_part"]
