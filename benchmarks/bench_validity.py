@@ -194,7 +194,8 @@ def run_joint(truth: dict, medium: str, target: str, models: str) -> dict:
                  "reference"),
                 (prepare(table(names["target_medium"]), black, "target").table, label,
                  "target")]
-    res = fit_joint(sessions, reference=ref, model_error=MODEL_ERROR, **kw)
+    res = fit_joint(sessions, reference=ref, model_error=MODEL_ERROR, propagation=PROPAGATION,
+                    **kw)
     seconds = time.perf_counter() - t0
     direct = fit_direct(table(names["target_clear"], True), brdf_model=kw["brdf_model"])
     med = res.medium(label).as_dict()

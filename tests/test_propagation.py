@@ -283,7 +283,17 @@ def test_joint_fit_carries_the_media_through_sigma_points(chain):
         assert sig.stderr_total[n] == lin.stderr_total[n]
     for n in objects:
         assert sig.stderr_total[n] == pytest.approx(lin.stderr_total[n], rel=0.1), n
+    # applied (not only computed), to the objects alone
+    assert any(sig.stderr_total[n] != lin.stderr_total[n] for n in objects)
     assert "refits at 8 sigma points" in sig.message
+    assert sig.stats["propagation_reference"]["method"] == "linear"   # the reference's
+    # a reference given as a model has no covariance: the total is the media's alone
+    alone = veil.fit_joint(sessions, reference=veil.BRDF2, accuracy="fast",
+                           propagation="sigma-points")
+    assert lin.stderr_total is not None and alone.stderr_total is not None
+    assert "propagation_reference" not in alone.stats
+    report = alone.report()
+    assert "; total +/-" in report and "sigma points: 8 refits at 8 points" in report
 
 
 def test_an_undetermined_medium_keeps_the_first_order_and_says_so(chain):
@@ -300,5 +310,12 @@ def test_an_undetermined_medium_keeps_the_first_order_and_says_so(chain):
     forced = fit_target(target, wide, accuracy="fast", propagation="sigma-points")
     assert forced.params == auto.params
     assert all(np.isfinite(v) for v in forced.stderr_total.values() if v is not None)
-    note = forced.stats["propagation"].get("fallback", "")
-    assert forced.stats["propagation"]["method"] == "sigma-points" or "failed" in note
+    note = forced.stats["propagation"]["fallback"]      # the refits at Td ~ 1e300 overflow
+    assert forced.stats["propagation"]["method"] == "linear"
+    assert note.startswith("sigma points failed") and "overflows" in note
+    assert note in forced.message
+    assert forced.stderr_total == lin_of(target, wide)
+
+
+def lin_of(target, medium):
+    return fit_target(target, medium, accuracy="fast", propagation="linear").stderr_total

@@ -362,8 +362,10 @@ def fit_joint(sessions, *, reference=None, shared=None, per_medium=None, fixed=N
         ``stderr_total`` to first order (:mod:`veil.fitting.reported`).
     propagation : how the media's uncertainty reaches the objects' ``stderr_total``: "auto"
         (the default, None: through refits at sigma points where a medium parameter is
-        uncertain by more than a quarter of its scale, as tau at optical depth 0.1), "linear"
-        or "sigma-points" (:func:`veil.fitting.propagation.media_part`).
+        uncertain by more than a quarter of its scale, as tau at optical depth 0.1, and at
+        most 3 times it), "linear" or "sigma-points"
+        (:func:`veil.fitting.propagation.media_part`). ``stats["propagation"]`` records
+        it, ``stats["propagation_reference"]`` how the reference's covariance entered.
     """
     check_accuracy(accuracy)
     model_error = discrepancy.check_kind(model_error)
@@ -422,18 +424,24 @@ def _media_beyond_first_order(problem: Problem, x, rep: Reported, method: str) -
     cols_o, delta, how = media_part(problem, x, cov, method)
     if how is None:
         return rep
+    if rep.propagation is not None:
+        how = dict(how, reference=rep.propagation)
     if delta is not None:
         pos = {int(k): j for j, k in enumerate(problem.free_index)}
         jo = [pos[k] for k in cols_o]
         total = cov.copy()
         total[np.ix_(jo, jo)] += delta
         d = np.sqrt(np.maximum(np.diag(total), 0.0))
-        if np.all(d > 0) and np.linalg.eigvalsh(total / np.outer(d, d)).min() > -1e-10:
+        if not np.all(d > 0):
+            how = dict(how, method="linear", fallback="a parameter's variance vanished with "
+                       "the sigma points: first order kept")
+        elif np.linalg.eigvalsh(total / np.outer(d, d)).min() > -1e-10:
             st, ct = uncertainties(total, problem.names, problem.free_index)
             return dataclasses.replace(rep, stderr_total=st, correlation_total=ct,
                                        propagation=how)
-        how = dict(how, method="linear", fallback="the sigma points' spread is below the "
-                   "first order's in some direction: first order kept")
+        else:
+            how = dict(how, method="linear", fallback="the sigma points' spread is below the "
+                       "first order's in some direction: first order kept")
     return dataclasses.replace(rep, propagation=how)
 
 
@@ -458,7 +466,11 @@ def _result(problem: Problem, layout, outcome, summary, accuracy, given,
     fixed = {n: float(x[k]) for k, n in enumerate(names) if not problem.free[k]}
     stats, message = outcome.stats, summary.message
     if rep.propagation is not None:
-        stats = dict(stats, propagation=rep.propagation)
+        how = dict(rep.propagation)
+        reference = how.pop("reference", None)
+        stats = dict(stats, propagation=how)
+        if reference is not None:
+            stats["propagation_reference"] = reference
         note = describe(rep.propagation, "the media's uncertainty")
         message += f"; {note}" if note else ""
     variant = layout["options"]["medium"].get(VARIANT_OPTION)

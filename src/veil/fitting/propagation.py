@@ -14,7 +14,13 @@ into step 1's medium.
   the second moment of the refitted estimates about the estimate at u0 (each point weighing
   1/2n) takes the place of S Cov_theta S^T. For a response linear in u it is the first
   order's exactly; it keeps the response's curvature and its asymmetry (a mean shift counts
-  as error).
+  as error). Up to :data:`RELATIVE_MAX`: beyond, a parameter is not determined and the first
+  order is kept with a note. The rule looks at the worst given parameter: all of them go
+  through sigma points, or none (in a joint fit over several media too).
+- **a joint fit** (:func:`media_part`) estimates the media with the objects: the first
+  order's share of the media in the objects' covariance, A C_mm A^T, is replaced by the
+  spread of the objects' estimate over refits with the media held at the sigma points of
+  the fit's own media block.
 """
 
 from __future__ import annotations
@@ -31,8 +37,8 @@ from .coordinates import OPEN_MARGIN
 from .problem import ITERATION_ACCURACY, Problem
 from .solver import TOL_ITER, solve
 
-#: The propagation methods: "auto" picks "sigma-points" when a given parameter's relative
-#: uncertainty exceeds RELATIVE_LIMIT, else "linear".
+#: The propagation methods: "auto" picks "sigma-points" when the worst given parameter's
+#: relative uncertainty exceeds RELATIVE_LIMIT and not RELATIVE_MAX, else "linear".
 METHODS = ("auto", "linear", "sigma-points")
 #: Relative uncertainty (stderr over the value or over the room to the nearer bound) of a
 #: given parameter above which "auto" propagates through sigma points.
@@ -320,10 +326,11 @@ def propagated(problem: Problem, x, given_result, column: Callable[[str], int],
 
 def media_part(problem: Problem, x, cov, method: str = "auto"):
     """A joint fit's counterpart of sigma points (it estimates the media with the objects):
-    the objects' covariance is the conditional one plus the spread of their estimate over
-    the media, E[Cov(o | m)] + Cov(E[o | m]); the first order's second part, A C_mm A^T,
-    is replaced by refits of the objects at the sigma points of the media's block C_mm of
-    ``cov`` (free parameters, problem order). Returns (object columns, delta = sigma part -
+    by the law of total covariance, E[Cov(o | m)] + Cov(E[o | m]), the media's share of the
+    objects' covariance is to first order A C_mm A^T; it is replaced by the spread of the
+    objects' estimate over refits at the sigma points of the media's block C_mm of ``cov``
+    (free parameters, problem order; the rest of ``cov`` - a model-discrepancy sandwich, a
+    reference's propagated part - kept as it is). Returns (object columns, delta = sigma part -
     A C_mm A^T, how); delta is None when "auto" (``method``) keeps the first order or
     there is nothing to do (no media or no objects free); how None then too when nothing."""
     free = [int(k) for k in problem.free_index]

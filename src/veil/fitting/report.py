@@ -104,8 +104,11 @@ def _variables(result: FitResult) -> list[str]:
         rel = f" ({100 * se / abs(v):.2f}%)" if v != 0 else ""
         total = ""
         if result.stderr_total is not None and result.stderr_total.get(name) is not None:
-            total = (f"; with the given model's uncertainty +/- "
-                     f"{format_number(result.stderr_total[name], 3)}")
+            # a joint fit's total: the reference's and, where the propagation line says
+            # sigma points, the media's beyond first order
+            what = ("total" if isinstance(result, JointResult)
+                    else "with the given model's uncertainty")
+            total = f"; {what} +/- {format_number(result.stderr_total[name], 3)}"
         lines.append(f"    {name:<{width}}: {format_number(v)}{unit} +/- "
                      f"{format_number(se, 3)}{rel}{total}")
     return lines

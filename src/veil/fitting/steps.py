@@ -252,7 +252,8 @@ def fit_target(table, medium, *, fixed=None, black=None, variant: str | None = N
     brdf_model, options : the target's BRDF family (default Torrance-Sparrow) and options.
     Other arguments as :func:`fit_medium` (``propagation``: step 1's covariance into
     ``stderr_total``; "auto" uses sigma points where step 1 left a parameter uncertain by
-    more than a quarter of its scale, as tau at optical depth 0.1).
+    more than a quarter of its scale, as tau at optical depth 0.1, and at most 3 times it:
+    beyond, the first order with a note).
     """
     check_accuracy(accuracy)
     check_max_nfev(max_nfev)
