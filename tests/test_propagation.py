@@ -11,6 +11,8 @@ m01 session (docs/validity.md, benchmarks/bench_validity.py --propagation).
 import dataclasses
 import json
 import math
+import sys
+from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
@@ -19,13 +21,15 @@ from hypothesis import given, settings, strategies as st
 
 import veil
 from veil.analysis.uncertainty import propagate
-from veil.fitting import FitError, fit_medium, fit_reference, fit_target
+from veil.fitting import FitError, fit_target
 from veil.fitting.propagation import (RELATIVE_LIMIT, Axis, check_method, choose, how_of,
                                       relative_uncertainty, sigma_points)
 from veil.fitting.result import FitResult
 from veil.models import model_class
 
-SMALL = dict(psi=(30, 60, 90), fine_step=2, coarse_step=10, glow=0.0, accuracy="fast")
+sys.path.insert(0, str(Path(__file__).parent))
+from chain_helpers import small_chain  # noqa: E402
+
 FS = model_class("forward-series", "medium")
 HG = model_class("henyey-greenstein", "medium")
 
@@ -116,12 +120,7 @@ def test_auto_chooses_by_the_relative_uncertainty():
 @pytest.fixture(scope="module")
 def chain():
     """The paper's chain on small sessions at 0.3 % noise: the medium well determined."""
-    ref_clear = veil.simulate(veil.BRDF2, None, noise=0.003, seed=11, **SMALL)
-    ref_medium = veil.simulate(veil.BRDF2, veil.BTDF3, noise=0.003, seed=12, **SMALL)
-    target = veil.simulate(veil.BRDF1, veil.BTDF3, noise=0.003, seed=13, **SMALL)
-    r0 = fit_reference(ref_clear)
-    r1 = fit_medium(ref_medium, r0, accuracy="fast")
-    return {"r0": r0, "r1": r1, "target": target, "ref_medium": ref_medium}
+    return small_chain()
 
 
 def test_sigma_points_agree_with_the_first_order_where_it_holds(chain):

@@ -9,28 +9,28 @@ underestimates the tail: docs/ambiguity.md).
 """
 
 import dataclasses
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 import veil
 from veil.errors import InputTypeError
-from veil.fitting import FitError, fit_medium, fit_reference, fit_target
+from veil.fitting import FitError, fit_target
 from veil.analysis.uncertainty import PARTS, budget_table, propagate, sample_propagation
 
-SMALL = dict(psi=(30, 60, 90), fine_step=2, coarse_step=10, glow=0.0, accuracy="fast")
+sys.path.insert(0, str(Path(__file__).parent))
+from chain_helpers import small_chain  # noqa: E402
+
 
 
 @pytest.fixture(scope="module")
 def steps():
-    ref_clear = veil.simulate(veil.BRDF2, None, noise=0.003, seed=11, **SMALL)
-    ref_medium = veil.simulate(veil.BRDF2, veil.BTDF3, noise=0.003, seed=12, **SMALL)
-    target = veil.simulate(veil.BRDF1, veil.BTDF3, noise=0.003, seed=13, **SMALL)
-    r0 = fit_reference(ref_clear)
-    r1 = fit_medium(ref_medium, r0, accuracy="fast")
-    r2 = fit_target(target, r1, accuracy="fast")
-    assert r0.converged and r1.converged and r2.converged
-    return {"r0": r0, "r1": r1, "r2": r2, "ref_medium": ref_medium, "target": target}
+    chain = small_chain()
+    r2 = fit_target(chain["target"], chain["r1"], accuracy="fast")
+    assert chain["r0"].converged and chain["r1"].converged and r2.converged
+    return dict(chain, r2=r2)
 
 
 def test_budget_adds_up_and_matches_the_fits_own_total(steps):

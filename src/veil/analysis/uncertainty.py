@@ -256,7 +256,7 @@ def _shared_part(problem, target_result, medium_result, m_names, sens):
         return None
     if (target_result.stats.get("propagation") or {}).get("method", "linear") != "linear":
         return None       # as the fit: no first-order cross term beside sigma points
-    theta, cov_noise = covariance_of(noise_only(target_result))
+    _, cov_noise = covariance_of(noise_only(target_result))
     x = problem.values
     values = problem.model_values(x, ITERATION_ACCURACY)
     g2 = influence(cov_noise, weighted_jacobian(problem, x), values * problem.w)

@@ -15,8 +15,6 @@ import dataclasses
 from dataclasses import dataclass
 from typing import Callable
 
-import numpy as np
-
 from . import model_error as discrepancy
 from .problem import Problem
 from .propagation import propagated, sensitivity
