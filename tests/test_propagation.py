@@ -144,6 +144,11 @@ def test_sigma_points_agree_with_the_first_order_where_it_holds(chain):
     assert "through sigma-point refits" in p.message
     for name in forced.free:
         assert p.stderr_total[name] == pytest.approx(forced.stderr_total[name], rel=1e-6)
+    # report.md says which way each step's total came
+    from veil.viz.reports import _stats_lines
+    assert (f"through {how['refits']} refits at {how['points']} sigma points"
+            in "\n".join(_stats_lines(forced)))
+    assert "\"stderr incl. given model\": to first order" in "\n".join(_stats_lines(auto))
     # the record survives JSON
     back = FitResult.from_dict(json.loads(json.dumps(forced.to_dict())))
     assert back.stats["propagation"]["method"] == "sigma-points"

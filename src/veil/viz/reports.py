@@ -400,6 +400,12 @@ def _stats_lines(result: FitResult) -> list[str]:
         lines.append(f"- quadrature accuracy of the result: {result.accuracy}")
     if result.variant:
         lines.append(f"- medium Fresnel variant: {result.variant} (MODEL.md sec. 3)")
+    how = (result.stats or {}).get("propagation")
+    if how and result.stderr_total is not None:
+        lines.append("- the given model's uncertainty in \"stderr incl. given model\": " + (
+            f"through {how.get('refits')} refits at {how.get('points')} sigma points "
+            f"({how.get('converged')} converged)" if how.get("method") == "sigma-points"
+            else "to first order" + (f" ({how['fallback']})" if how.get("fallback") else "")))
     term = getattr(result, "model_error", None)
     if term is not None and term.sigma > 0:
         length = (f", correlated over {format_number(term.length, 3)} deg" if term.length
@@ -429,7 +435,7 @@ def pipeline_report(ref, med, tgt, direct, comparison, truth, figures, inputs) -
             "\"stderr\" holds the model given to the step (the reference f_r in step 1, the "
             "medium in step 2) exact; \"stderr incl. given model\" adds that model's own "
             "uncertainty (to first order, or through refits at sigma points where it is large; "
-            "each fit's report says which; docs/fitting.md).", ""]
+            "each step below says which; docs/fitting.md).", ""]
     sections = [("Step 0: reference object in a clear medium (f_r directly)", ref, "reference",
                  "reference_fig"),
                 ("Step 1: the medium, through the reference object (f_r fixed)", med, "medium",
