@@ -34,7 +34,8 @@ from . import model_error as discrepancy
 from .propagation import check_method, describe, media_part
 from .reported import Reported, reported
 from .result import FitResult, JointResult, load_result, model_entry
-from .solver import as_fixed, check_fixed, check_max_nfev, run, summarize, uncertainties
+from .solver import (as_fixed, check_fixed, check_max_nfev, covariance_matrix, run, summarize,
+                     uncertainties)
 from .start_values import joint_starts, step_starts
 
 #: Two configurations closer than this (deg, for both I and R) are the same one when
@@ -414,13 +415,9 @@ def _media_beyond_first_order(problem: Problem, x, rep: Reported, method: str) -
     use_total = rep.stderr_total is not None
     se, corr = ((rep.stderr_total, rep.correlation_total) if use_total
                 else (rep.stderr, rep.correlation))
-    names = problem.free_names
-    if any(se.get(n) is None for n in names):
+    cov = covariance_matrix(se, corr, problem.free_names)
+    if cov is None:
         return rep
-    s = np.array([se[n] for n in names])
-    r = np.array([[1.0 if a == b else (corr.get(a, {}).get(b) or 0.0) for b in names]
-                  for a in names])
-    cov = r * np.outer(s, s)
     cols_o, delta, how = media_part(problem, x, cov, method)
     if how is None:
         return rep

@@ -124,14 +124,15 @@ class Axis:
         return bool(lo_ok and hi_ok)
 
 
-def relative_uncertainty(specs, values, cov) -> dict:
+def relative_uncertainty(specs, values, cov, names=None) -> dict:
     """{name: stderr relative to its scale} of the given parameters (``Param.relative_error``;
-    None where that is not finite)."""
+    None where that is not finite), keyed by ``names`` (default the parameters' own)."""
     se = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    names = [p.name for p in specs] if names is None else names
     out = {}
-    for p, v, s in zip(specs, values, se):
+    for n, p, v, s in zip(names, specs, values, se):
         r = p.relative_error(float(v), float(s))
-        out[p.name] = r if math.isfinite(r) else None
+        out[n] = r if math.isfinite(r) else None
     return out
 
 
@@ -170,7 +171,7 @@ def describe(how: dict, what: str) -> str:
         return how["fallback"]
     if how.get("method") != "sigma-points":
         return ""
-    rel = {n: r for n, r in how["relative_uncertainty"].items()}
+    rel = how["relative_uncertainty"]
     worst = max(rel, key=lambda n: math.inf if rel[n] is None else rel[n])
     size = "undetermined" if rel[worst] is None else f"{rel[worst]:.2f} of its scale"
     return (f"{what} propagated through {how['refits']} refits at "
@@ -271,7 +272,7 @@ def sigma_part(problem: Problem, x, cols: list[int], specs, cov_given,
     done = np.zeros(len(points), dtype=bool)
     converged = 0
     for i, point in enumerate(points):
-        twin = i + 1 if i % 2 == 0 else i - 1
+        twin = i ^ 1                                   # the other point of its pair
         if reach[i] < 1.0 and reach[twin] == 1.0:
             continue                                   # mirrored below
         if reach[i] < MIN_REACH:
@@ -287,12 +288,23 @@ def sigma_part(problem: Problem, x, cols: list[int], specs, cov_given,
         done[i] = True
         converged += int(sol.status > 0)
     for i in range(len(points)):
-        twin = i + 1 if i % 2 == 0 else i - 1
-        if not done[i] and done[twin]:
-            shifts[i] = -shifts[twin]
+        if not done[i] and done[i ^ 1]:
+            shifts[i] = -shifts[i ^ 1]
     # each point weighs 1/2n, n the given parameters (directions without spread have none)
     cov = shifts.T @ shifts / (2 * len(values))
     return Refits(cov, points, shifts, converged, int(done.sum()))
+
+
+def _refitted(problem: Problem, x, cols, specs, cov, how: dict):
+    """:func:`sigma_part` with ``how`` updated by what it took; None (and ``how`` saying
+    so, the method the first order) when a refit failed."""
+    try:
+        refits = sigma_part(problem, x, cols, specs, cov)
+    except InputError as exc:          # FitError too: a refit that failed
+        how.update(method="linear", fallback=f"sigma points failed ({exc}); first order used")
+        return None
+    how.update(points=len(refits.points), refits=refits.refits, converged=refits.converged)
+    return refits
 
 
 def propagated(problem: Problem, x, given_result, column: Callable[[str], int],
@@ -313,14 +325,10 @@ def propagated(problem: Problem, x, given_result, column: Callable[[str], int],
     specs = [cls.param(n) for n in gnames]
     relative = relative_uncertainty(specs, [x[c] for c in cols], gcov)
     how = how_of(method, relative)
-    if how["method"] == "linear":
+    refits = None if how["method"] == "linear" else _refitted(problem, x, cols, specs, gcov,
+                                                               how)
+    if refits is None:
         return linear_part(problem, x, cols, gcov), how
-    try:
-        refits = sigma_part(problem, x, cols, specs, gcov)
-    except (FitError, InputError) as exc:   # a refit that failed: the first order, said so
-        how.update(method="linear", fallback=f"sigma points failed ({exc}); first order used")
-        return linear_part(problem, x, cols, gcov), how
-    how.update(points=len(refits.points), refits=refits.refits, converged=refits.converged)
     return refits.covariance, how
 
 
@@ -342,21 +350,14 @@ def media_part(problem: Problem, x, cov, method: str = "auto"):
     jm = [pos[k] for k in cols_m]
     cmm = np.asarray(cov, dtype=float)[np.ix_(jm, jm)]
     specs = [problem.params[k].spec for k in cols_m]
-    se = np.sqrt(np.maximum(np.diag(cmm), 0.0))
-    relative = {}
-    for k, p, s in zip(cols_m, specs, se):
-        r = p.relative_error(float(x[k]), float(s))
-        relative[problem.names[k]] = r if math.isfinite(r) else None
+    relative = relative_uncertainty(specs, x[cols_m], cmm, [problem.names[k] for k in cols_m])
     how = how_of(method, relative)
     if how["method"] == "linear":
         return cols_o, None, how
     cond = problem.with_fixed({problem.names[k]: float(x[k]) for k in cols_m})
-    try:
-        refits = sigma_part(cond, x, cols_m, specs, cmm)
-    except (FitError, InputError) as exc:
-        how.update(method="linear", fallback=f"sigma points failed ({exc}); first order used")
+    refits = _refitted(cond, x, cols_m, specs, cmm, how)
+    if refits is None:
         return cols_o, None, how
-    how.update(points=len(refits.points), refits=refits.refits, converged=refits.converged)
     return cols_o, refits.covariance - linear_part(cond, x, cols_m, cmm), how
 
 

@@ -40,13 +40,14 @@ def _same(stderr, correlation):
     return stderr, correlation
 
 
-def _shared(problem: Problem, x, own_influence, given_result, given_column, term, how):
+def _shared(problem: Problem, x, own_influence, given_result, given_column, term, how, dist):
     """(this step's error correlation, the cross term) for the error a step shares with its
     given medium's correlated term (:func:`veil.fitting.model_error.shared`): this step's
     error is the shared process plus what its own s exceeds it by, with its own length, so
     that the two sessions' errors have a covariance that is a covariance. None when there
     is nothing shared, or when the given covariance entered through sigma points (the cross
-    term is first order; it is then left out, which errs on the cautious side)."""
+    term is first order; it is then left out, which errs on the cautious side). ``dist``
+    holds the configurations' distances (:func:`veil.fitting.model_error.distances`)."""
     given = discrepancy.given_term(given_result)
     if given is None or given.influence is None or given.length == 0.0 or given.sigma == 0.0:
         return None
@@ -55,7 +56,6 @@ def _shared(problem: Problem, x, own_influence, given_result, given_column, term
     names = list(given_result.covariance(total=True)[0])
     sens = sensitivity(problem, x, [given_column(n) for n in names])
     cross = discrepancy.shared(own_influence, problem.angles, given, names, sens)
-    dist = discrepancy.distances(problem.angles)
     extra = max(term.sigma ** 2 - given.sigma ** 2, 0.0)
     corr = (given.sigma ** 2 * discrepancy.correlation(dist, given.length)
             + extra * discrepancy.correlation(dist, term.length)) / term.sigma ** 2
@@ -119,11 +119,15 @@ def reported(problem: Problem, x, summary, values, *, kind: str, rename: Callabl
             noise_only = {"stderr": stderr, "correlation": corr,
                           "stderr_total": noise_total[0], "correlation_total": noise_total[1]}
             if term.sigma > 0:
-                corr_d = (None if term.length == 0.0 else discrepancy.correlation(
-                    discrepancy.distances(problem.angles), term.length))
+                given = discrepancy.given_term(given_result)
+                dist = (discrepancy.distances(problem.angles)
+                        if term.length > 0 or (given is not None and given.length > 0)
+                        else None)
+                corr_d = (None if term.length == 0.0
+                          else discrepancy.correlation(dist, term.length))
                 jw, scaled = weighted_jacobian(problem, x), values * problem.w
                 g = discrepancy.influence(cov, jw, scaled)
-                shared = _shared(problem, x, g, given_result, given_column, term, how)
+                shared = _shared(problem, x, g, given_result, given_column, term, how, dist)
                 if shared is not None:    # the sum of the shared process and step 2's own
                     corr_d, cross = shared
                 cov = discrepancy.sandwich(cov, jw, scaled, term.sigma, corr_d)

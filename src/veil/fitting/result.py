@@ -16,8 +16,6 @@ import math
 import os
 from dataclasses import dataclass, field
 
-import numpy as np
-
 from ..errors import FitError, InputError, MissingFileError, NotAFileError
 from ..io import write_bytes_atomic
 from ..models import Model, default_class, model_class
@@ -25,6 +23,7 @@ from ..models import names as family_names
 from ..models.base import VARIANT_OPTION
 from ..numbers import from_json_float, json_float
 from .model_error import ModelError
+from .solver import covariance_matrix
 
 #: The steps of the two-step method (MODEL.md sec. 7); results may also say "direct".
 STEPS = ("reference", "medium", "target")
@@ -131,16 +130,8 @@ class FitResult:
         if total and self.stderr_total is not None:
             se, corr = self.stderr_total, self.correlation_total or {}
         names = self.free
-        if not names or any(se.get(n) is None for n in names):
-            return None
-        s = np.array([se[n] for n in names])
-        r = np.eye(len(names))
-        for a, na in enumerate(names):
-            for b, nb in enumerate(names):
-                if a != b:
-                    v = corr.get(na, {}).get(nb)
-                    r[a, b] = 0.0 if v is None else v
-        return names, r * np.outer(s, s)
+        cov = covariance_matrix(se, corr, names)
+        return None if cov is None else (names, cov)
 
     # -- files -----------------------------------------------------------------------------
     def to_dict(self) -> dict:

@@ -299,6 +299,22 @@ def uncertainties(cov, names, free):
     return stderr, corr
 
 
+def covariance_matrix(stderr: dict, correlation: dict, names) -> np.ndarray | None:
+    """The covariance of ``names`` from standard errors and correlations as
+    :func:`uncertainties` writes them (a missing or None correlation is 0); None when a
+    standard error is missing."""
+    if not names or any(stderr.get(n) is None for n in names):
+        return None
+    s = np.array([stderr[n] for n in names], dtype=float)
+    r = np.eye(len(names))
+    for a, na in enumerate(names):
+        for b, nb in enumerate(names):
+            if a != b:
+                v = (correlation or {}).get(na, {}).get(nb)
+                r[a, b] = 0.0 if v is None else v
+    return r * np.outer(s, s)
+
+
 @dataclass
 class Summary:
     """Goodness of fit and uncertainties of an :class:`Outcome` (names: the problem's).
