@@ -19,9 +19,12 @@ own value of the plate seen without the medium). One table per medium:
   (the paper's medium has no optical depth; its g is shown for comparison);
 - s: seconds of the whole pipeline;
 - model error (--model-error, default correlated): the relative model error sigma of step 1
-  and the one step 2 used (veil.fitting.model_error); "before" the curves' max |z| and share
+  and the one step 2 used (veil.fitting.model_error), rho how far step 2's error is step
+  1's (model_error.session_correlation; "-" where nothing is shared); "before" the curves' max |z| and share
   within 2 se without it (the uncertainties of the data's noise alone, the same fits), and
-  the median over the configurations of the curves' standard error with it / without it.
+  the median over the configurations of the curves' standard error with it / without it;
+  "truth within 2 se": the share of the clear-water session's configurations where the
+  estimate's curve is within two of its own standard errors of the rendered value.
 
 With --joint, each medium and model set also gets a row "(joint)": steps 1 and 2 as one
 joint fit (veil.fit_joint) of the reference and the target in the medium, the reference's
@@ -136,7 +139,10 @@ def _against_direct(names: dict, estimate, direct, medium_term, target_term) -> 
     _, se_new = curve_stderr(estimate, proto)
     _, se_old = curve_stderr(noise_only(estimate), proto)
     ratio = math.nan if se_new is None or se_old is None else float(np.median(se_new / se_old))
-    _, clear, est, rendered, est_vs_truth = _against_truth(names, estimate.as_model())
+    angles, clear, est, rendered, est_vs_truth = _against_truth(names, estimate.as_model())
+    _, se_truth = curve_stderr(estimate, angles)
+    truth_within = (math.nan if se_truth is None
+                    else float(np.mean(np.abs(est - rendered) <= 2.0 * se_truth)))
     zs = [abs(r["z"]) for r in after["params"].values() if r["z"] is not None]
     return {
         "est_vs_direct": after["rms_fr_relative"], "est_vs_truth": est_vs_truth,
@@ -145,9 +151,12 @@ def _against_direct(names: dict, estimate, direct, medium_term, target_term) -> 
         "fr_within_2se": _nan(after["fr_within_2se"]),
         "fr_max_z_before": _nan(before["fr_max_z"]),
         "fr_within_2se_before": _nan(before["fr_within_2se"]), "se_ratio": ratio,
+        "truth_within_2se": truth_within,
         "sigma_medium": math.nan if medium_term is None else medium_term.sigma,
         "sigma_target": math.nan if target_term is None else target_term.sigma,
         "length_target": math.nan if target_term is None else target_term.length,
+        "rho": math.nan if target_term is None or target_term.rho is None
+        else target_term.rho,
         "curves": _curves(clear, est, rendered),
     }
 
@@ -253,16 +262,18 @@ def print_table(rows: list[dict]) -> None:
 
         t = Table(title=f"model-discrepancy term ({MODEL_ERROR}): curves before -> after")
         for col in ("session", "models", "est-vs-direct", "sigma step 1", "sigma step 2",
-                    "ell", "propagation", "max |z| before", "after", "within 2 se before",
-                    "after", "median se ratio"):
+                    "ell", "rho", "propagation", "max |z| before", "after", "within 2 se before",
+                    "after", "median se ratio", "truth within 2 se"):
             t.add_column(col, justify="right")
         for r in covered:
             t.add_row(f"{r['medium']} {r['target']}", r["models"], _pct(r["est_vs_direct"]),
                       _pct(r["sigma_medium"]), _pct(r["sigma_target"]),
-                      _num(r["length_target"]), r.get("propagation", "-"),
+                      _num(r["length_target"]), _num(r.get("rho", math.nan)),
+                      r.get("propagation", "-"),
                       _num(r["fr_max_z_before"]),
                       _num(r["fr_max_z"]), _pct(r["fr_within_2se_before"], 0),
-                      _pct(r["fr_within_2se"], 0), _num(r["se_ratio"]))
+                      _pct(r["fr_within_2se"], 0), _num(r["se_ratio"]),
+                      _pct(r.get("truth_within_2se", math.nan), 0))
         Console(width=160).print(t)
 
 

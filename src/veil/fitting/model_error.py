@@ -19,7 +19,8 @@ to the covariance:
   maximize the Gaussian likelihood of the weighted residuals r_i = (y_i - f_i) / sigma_i
   under their covariance I + s^2 A R(ell) A, A = diag(f_i / sigma_i), ell over the grid
   :data:`LENGTHS` and s continuous (the model with ell = 0 is the "excess variance" of a
-  fit).
+  fit); restricted to the residuals' components outside the fit's Jacobian (REML,
+  :func:`estimate`), since the fit absorbs the rest.
 - **The estimate is not moved.** The weights stay 1/sigma^2; the covariance of that
   estimator under the larger variance is the sandwich
       Cov = C J_w^T (I + s^2 A R A) J_w C = C + s^2 (A J_w C)^T R (A J_w C),
@@ -34,8 +35,9 @@ to the covariance:
 - **The error the two steps share is counted once.** With a correlation length the same
   process reaches both sessions: the medium absorbs in step 1 part of the error it gives
   back in step 2, and adding the two parts alone overstates the total 3-6 times
-  (docs/validity.md). Step 1 keeps its influence G_1 = C J_w^T A on the medium and its
-  configurations; step 2 adds the cross term of :func:`shared`.
+  (docs/validity.md). Step 1 keeps its influence G_1 = C J_w^T A on the medium, its
+  configurations and residuals; step 2 adds the cross term of :func:`shared`, scaled by how
+  far its error is step 1's (:func:`session_correlation`: the two objects differ).
 
 The result carries the term as ``model_error`` (:meth:`ModelError.to_dict`): s, where it came
 from, the chi-square threshold, and the uncertainties without it (``noise_only``), which
@@ -122,10 +124,14 @@ def check_kind(kind) -> str:
     return kind
 
 
-def _spectrum(r, a, corr):
+def _spectrum(r, a, corr, basis=None):
     """(lam, (Q^T r)^2) of B = A R A = Q diag(lam) Q^T: the likelihood under I + t B for
-    every t from one eigendecomposition (O(N) per t instead of a Cholesky)."""
-    lam, q = np.linalg.eigh(a[:, None] * np.asarray(corr) * a[None, :])
+    every t from one eigendecomposition (O(N) per t instead of a Cholesky). With a
+    ``basis`` P of the residuals' space (:func:`_complement`), of P^T B P and P^T r."""
+    b = a[:, None] * np.asarray(corr) * a[None, :]
+    if basis is not None:
+        b, r = basis.T @ b @ basis, basis.T @ r
+    lam, q = np.linalg.eigh(0.5 * (b + b.T))
     return np.maximum(lam, 0.0), (q.T @ r) ** 2
 
 
@@ -142,13 +148,29 @@ def _nll_independent(r, a, t) -> float:
     return float(0.5 * np.sum(np.log(v) + r * r / v))
 
 
+def _complement(weighted_jacobian, n: int) -> np.ndarray | None:
+    """An orthonormal basis (n x (n - p)) of the complement of the weighted Jacobian's
+    columns (its first ``n`` rows, the data's): the directions the fit leaves in its
+    residuals. None without a Jacobian."""
+    if weighted_jacobian is None:
+        return None
+    jw = np.asarray(weighted_jacobian, dtype=float)[:n]
+    u, s, _ = np.linalg.svd(jw, full_matrices=True)
+    rank = int(np.sum(s > s[0] * 1e-12)) if s.size and s[0] > 0 else 0
+    return u[:, rank:]
+
+
 def estimate(residuals, scaled_values, dof: int, dist,
-             lengths=LENGTHS) -> tuple[float, float]:
+             lengths=LENGTHS, weighted_jacobian=None) -> tuple[float, float]:
     """(s, ell) of the module docstring: (0, 0) when the reduced chi-square is not above
     :func:`chi2_threshold`, else the maximum of the likelihood over ell in ``lengths``
     and s. ``residuals`` r_i = (y - f) / sigma, ``scaled_values`` a_i = f / sigma, ``dist``
     the configurations' distances (:func:`distances`; a callable returning them is called
-    only when a length ell > 0 is tried). A FitError when no relative error can explain an
+    only when a length ell > 0 is tried). With the fit's ``weighted_jacobian`` J_w (free
+    parameters' columns) the likelihood is the restricted one (REML): that of the residuals'
+    components outside J_w's columns, Q^T r ~ N(0, I + s^2 Q^T A R A Q), since the fit
+    absorbs the rest of the error into its parameters - most of a smooth one, which the
+    residuals alone would under-estimate. A FitError when no relative error can explain an
     excess (every a_i = 0)."""
     r = np.asarray(residuals, dtype=float)
     a = np.asarray(scaled_values, dtype=float)
@@ -162,15 +184,17 @@ def estimate(residuals, scaled_values, dof: int, dist,
                        "model error explains them")
     # s^2 a^2 of the order of the excess per point: search log s around it, wide
     guess = math.sqrt(max(float(r @ r) / dof - 1.0, 1e-6) / float(np.mean(a ** 2)))
+    basis = _complement(weighted_jacobian, r.size)
     best = None
     for length in lengths:
-        if length == 0.0:
+        if length == 0.0 and basis is None:
             def nll(u):
                 return _nll_independent(r, a, math.exp(2 * u))
         else:
-            if callable(dist):
+            if length > 0.0 and callable(dist):
                 dist = dist()
-            spectrum = _spectrum(r, a, correlation(dist, length))
+            corr = np.eye(r.size) if length == 0.0 else correlation(dist, length)
+            spectrum = _spectrum(r, a, corr, basis)
 
             def nll(u, spectrum=spectrum):
                 return _nll_spectrum(spectrum, math.exp(2 * u))
@@ -209,7 +233,10 @@ class ModelError:
     correlation_total; None when no term entered). A medium's correlated term also keeps
     ``influence``, {parameter: d estimate / d_i for each configuration i, per unit s} (G =
     C J_w^T A of the module docstring's sandwich), and its configurations' canonical
-    ``angles``: step 2 needs them for the error the two steps share (:func:`shared`)."""
+    ``angles``, with its weighted ``residuals`` and scaled values a = f / sigma (``scaled``):
+    step 2 needs them for the error the two steps share (:func:`shared`) and how far it is
+    shared (:func:`session_correlation`). Step 2's term keeps that correlation as ``rho``
+    (None when nothing is shared)."""
 
     sigma: float
     length: float
@@ -220,6 +247,9 @@ class ModelError:
     noise_only: dict | None = None
     influence: dict | None = None
     angles: tuple | None = None
+    residuals: tuple | None = None
+    scaled: tuple | None = None
+    rho: float | None = None
 
     def to_dict(self) -> dict:
         out = {"sigma": self.sigma, "length": self.length, "own": self.own,
@@ -228,6 +258,11 @@ class ModelError:
         if self.influence is not None:
             out["influence"] = {k: [float(v) for v in row] for k, row in self.influence.items()}
             out["angles"] = [[float(v) for v in a] for a in self.angles]
+            if self.residuals is not None:
+                out["residuals"] = [float(v) for v in self.residuals]
+                out["scaled"] = [float(v) for v in self.scaled]
+        if self.rho is not None:
+            out["rho"] = float(self.rho)
         return out
 
     @classmethod
@@ -250,19 +285,31 @@ class ModelError:
         if noise is not None and not isinstance(noise, dict):
             raise FitError(f"{source}: model_error.noise_only must be an object or null")
         influence, angles = data.get("influence"), data.get("angles")
-        if (influence is None) != (angles is None):
+        residuals, scaled = data.get("residuals"), data.get("scaled")
+        if (influence is None) != (angles is None) or (residuals is None) != (scaled is None) \
+                or (residuals is not None and influence is None):
             raise FitError(f"{source}: model_error.influence and model_error.angles come "
-                           f"together")
+                           f"together, and residuals and scaled only with them")
         if influence is not None:
             influence, angles = _read_influence(influence, angles, source)
+        if residuals is not None:
+            rows, _ = _read_influence({"residuals": residuals, "scaled": scaled},
+                                      [list(a) for a in angles], source, key="")
+            residuals, scaled = rows["residuals"], rows["scaled"]
+        rho = data.get("rho")
+        if rho is not None and (isinstance(rho, bool) or not isinstance(rho, (int, float))
+                                or not 0.0 <= rho <= 1.0):
+            raise FitError(f"{source}: model_error.rho = {rho!r}; expected a number in [0, 1]")
         return cls(float(data["sigma"]), float(data["length"]), float(data["own"]),
                    None if data["given"] is None else float(data["given"]), data["source"],
-                   float(data["chi2_threshold"]), noise, influence, angles)
+                   float(data["chi2_threshold"]), noise, influence, angles, residuals, scaled,
+                   None if rho is None else float(rho))
 
 
-def _read_influence(influence, angles, source: str):
-    """A result file's model_error.influence ({name: N numbers}) and angles (4 lists of N
-    canonical angles), checked: finite numbers, one length."""
+def _read_influence(influence, angles, source: str, key: str = "influence"):
+    """A result file's model_error.influence ({name: N numbers}; ``key`` names the entry in
+    messages, "" for top-level lists) and angles (4 lists of N canonical angles), checked:
+    finite numbers, one length."""
     def numbers(row, where):
         if not isinstance(row, list) or not row or any(
                 isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v)
@@ -275,24 +322,26 @@ def _read_influence(influence, angles, source: str):
     if not isinstance(angles, list) or len(angles) != 4:
         raise FitError(f"{source}: model_error.angles must be 4 lists (theta_i, phi_i, "
                        f"theta_r, phi_r)")
-    rows = {k: numbers(v, f"model_error.influence.{k}") for k, v in influence.items()}
+    rows = {k: numbers(v, f"model_error.{key + '.' if key else ''}{k}")
+            for k, v in influence.items()}
     cols = tuple(numbers(a, "model_error.angles") for a in angles)
     sizes = {len(r) for r in rows.values()} | {len(a) for a in cols}
     if len(sizes) != 1:
-        raise FitError(f"{source}: model_error.influence and angles have different lengths "
-                       f"({sorted(sizes)})")
+        raise FitError(f"{source}: model_error.{key or ', '.join(rows)} and angles have "
+                       f"different lengths ({sorted(sizes)})")
     return rows, cols
 
 
 def step_term(residuals, values, weights, dof: int, angles, given=None,
-              kind: str = DEFAULT) -> ModelError:
+              kind: str = DEFAULT, weighted_jacobian=None) -> ModelError:
     """The term of one step (module docstring): its own (s, ell) from ``residuals``
     (weighted), the model ``values``, the ``weights`` 1/sigma and the configurations'
     canonical ``angles``, ell = 0 unless ``kind`` is "correlated"; ``given`` the given
-    medium's term (step 2), None otherwise."""
+    medium's term (step 2), None otherwise; ``weighted_jacobian`` the fit's J_w for the
+    restricted likelihood (:func:`estimate`)."""
     lengths = LENGTHS if check_kind(kind) == "correlated" else (0.0,)
     own, length = estimate(residuals, np.asarray(values) * np.asarray(weights), dof,
-                           lambda: distances(angles), lengths)
+                           lambda: distances(angles), lengths, weighted_jacobian)
     sigma, source = own, "own residuals" if own > 0 else "none"
     if given is not None and given.sigma > own:
         sigma, length, source = given.sigma, given.length, "given medium"
@@ -308,14 +357,69 @@ def influence(cov, weighted_jacobian, scaled_values) -> np.ndarray:
             * np.asarray(scaled_values, dtype=float)[None, :])
 
 
-def shared(own_influence, angles, given: ModelError, given_names, sensitivity) -> np.ndarray:
+def session_correlation(residuals, scaled_values, weighted_jacobian, angles, own_cov,
+                        given: ModelError) -> float | None:
+    """rho in [0, 1]: how far step 2's model error is the one its given medium's fit showed
+    (1: one process over both sessions, :func:`shared`; 0: independent), by the restricted
+    likelihood of both fits' residuals at once. The stacked components outside each fit's
+    Jacobian, z = (Q_1^T r_1, Q_2^T r_2), are normal with covariance I + [[B_11, rho B_12],
+    [rho B_21, B_22]], B_ij = Q_i^T A_i K_ij A_j Q_j: K_11 = s_1^2 R(ell_1) over step 1's
+    configurations, K_22 = ``own_cov`` (step 2's error covariance over its own, the shared
+    process plus its excess), K_12 = s_1^2 R_12(ell_1). Q_1 spans the complement of step 1's
+    Jacobian, recovered from its influence G_1 = C J_w^T A (rows span J_w's columns once A is
+    divided out). The reference and the target are different objects: where the medium
+    model's miss depends on the object's lobe (a wide plate's view side), the two errors
+    are not one. None when the given term lacks its residuals (result files of earlier
+    veils: the error is then counted as one process, rho = 1) or a scaled value is 0."""
+    if given is None or given.residuals is None or given.influence is None \
+            or given.length == 0.0 or given.sigma == 0.0:
+        return None
+    a1 = np.asarray(given.scaled, dtype=float)
+    r1 = np.asarray(given.residuals, dtype=float)
+    if np.any(a1 == 0.0):
+        return None
+    g1 = np.array(list(given.influence.values()), dtype=float)
+    q1 = _complement((g1 / a1[None, :]).T, a1.size)
+    a2 = np.asarray(scaled_values, dtype=float)
+    q2 = _complement(weighted_jacobian, a2.size)
+    s1 = given.sigma ** 2
+    k11 = s1 * correlation(distances(given.angles), given.length)
+    k12 = s1 * correlation(distances(given.angles, angles), given.length)
+    m1, m2 = a1[:, None] * q1, a2[:, None] * q2
+    b11 = m1.T @ k11 @ m1
+    b22 = m2.T @ np.asarray(own_cov, dtype=float) @ m2
+    b12 = m1.T @ k12 @ m2
+    z = np.concatenate([q1.T @ r1, q2.T @ np.asarray(residuals, dtype=float)])
+    n1 = b11.shape[0]
+    base = np.eye(z.size)
+    base[:n1, :n1] += 0.5 * (b11 + b11.T)
+    base[n1:, n1:] += 0.5 * (b22 + b22.T)
+
+    def nll(rho):
+        cov = base.copy()
+        cov[:n1, n1:] += rho * b12
+        cov[n1:, :n1] += rho * b12.T
+        chol = np.linalg.cholesky(cov)
+        w = np.linalg.solve(chol, z)
+        return float(np.sum(np.log(np.diag(chol))) + 0.5 * w @ w)
+
+    found = minimize_scalar(nll, bounds=(0.0, 1.0), method="bounded",
+                            options={"xatol": 1e-4})
+    # the bounded search never evaluates its ends: they are candidates of their own
+    best = min(((nll(0.0), 0.0), (float(found.fun), float(found.x)), (nll(1.0), 1.0)))
+    return best[1]
+
+
+def shared(own_influence, angles, given: ModelError, given_names, sensitivity,
+           rho: float = 1.0) -> np.ndarray:
     """The covariance that the error a step shares with its given medium's fit adds to its
     total: step 2's estimate moves by G_2 d_2 + S G_1 d_1 (S = d estimate / d medium, first
     order), and d_1, d_2 are one process over the configurations of both sessions with the
     given fit's s and ell, so beside the two steps' own parts it has the cross term
     s^2 (G_2 R_21 G_1^T S^T + its transpose), R_21 = exp(-D(step 2's, step 1's) / ell). It
     is negative where the medium absorbed in step 1 the error it gives back in step 2.
-    None when the given term has no length (ell = 0: the two sessions' errors independent)
+    ``rho`` scales it: the part of step 2's error that is step 1's
+    (:func:`session_correlation`). None when the given term has no length (ell = 0: the two sessions' errors independent)
     or no influence. Step 2's own part must then be that of the shared process plus what its
     own s exceeds it by (veil.fitting.reported), so that the two are one covariance."""
     if given is None or given.sigma == 0.0 or given.length == 0.0 or given.influence is None:
@@ -327,7 +431,7 @@ def shared(own_influence, angles, given: ModelError, given_names, sensitivity) -
     g1 = np.array([given.influence[n] for n in given_names], dtype=float)
     r21 = correlation(distances(angles, given.angles), given.length)
     cross = own_influence @ r21 @ g1.T @ np.asarray(sensitivity, dtype=float).T
-    return given.sigma ** 2 * (cross + cross.T)
+    return rho * given.sigma ** 2 * (cross + cross.T)
 
 
 def given_term(given_result) -> ModelError | None:
@@ -352,4 +456,4 @@ def noise_only(result):
 
 __all__ = ["CHI2_Z", "LENGTHS", "KINDS", "DEFAULT", "SOURCES", "check_kind", "chi2_threshold", "distances", "correlation",
            "estimate", "sandwich", "ModelError", "step_term", "given_term", "noise_only",
-           "influence", "shared"]
+           "influence", "shared", "session_correlation"]

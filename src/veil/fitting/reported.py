@@ -40,26 +40,36 @@ def _same(stderr, correlation):
     return stderr, correlation
 
 
-def _shared(problem: Problem, x, own_influence, given_result, given_column, term, how, dist):
-    """(this step's error correlation, the cross term) for the error a step shares with its
-    given medium's correlated term (:func:`veil.fitting.model_error.shared`): this step's
-    error is the shared process plus what its own s exceeds it by, with its own length, so
-    that the two sessions' errors have a covariance that is a covariance. None when there
-    is nothing shared, or when the given covariance entered through sigma points (the cross
-    term is first order; it is then left out, which errs on the cautious side). ``dist``
-    holds the configurations' distances (:func:`veil.fitting.model_error.distances`)."""
+def _shared(problem: Problem, x, own_influence, given_result, given_column, term, how, dist,
+            residuals, scaled, jw):
+    """(this step's error correlation, the cross term, rho) for the error a step shares with
+    its given medium's correlated term (:func:`veil.fitting.model_error.shared`): this
+    step's error is the shared process plus what its own s exceeds it by, with its own
+    length, so that the two sessions' errors have a covariance that is a covariance; the
+    cross term is scaled by how far the two are one (rho,
+    :func:`veil.fitting.model_error.session_correlation` from both fits' ``residuals``,
+    ``scaled`` values and Jacobians; None, counted as 1, for a given result without its
+    residuals). None when there is nothing shared, or when the given covariance entered
+    through sigma points (the cross term is first order; it is then left out, which errs on
+    the cautious side). ``dist`` holds the configurations' distances
+    (:func:`veil.fitting.model_error.distances`)."""
     given = discrepancy.given_term(given_result)
     if given is None or given.influence is None or given.length == 0.0 or given.sigma == 0.0:
         return None
     if how is None or how.get("method") != "linear":
         return None
+    extra = max(term.sigma ** 2 - given.sigma ** 2, 0.0)
+    corr = discrepancy.correlation(dist, given.length)
+    if extra > 0.0:
+        corr = (given.sigma ** 2 * corr
+                + extra * discrepancy.correlation(dist, term.length)) / term.sigma ** 2
+    rho = discrepancy.session_correlation(residuals, scaled, jw, problem.angles,
+                                          term.sigma ** 2 * corr, given)
     names = list(given_result.covariance(total=True)[0])
     sens = sensitivity(problem, x, [given_column(n) for n in names])
-    cross = discrepancy.shared(own_influence, problem.angles, given, names, sens)
-    extra = max(term.sigma ** 2 - given.sigma ** 2, 0.0)
-    corr = (given.sigma ** 2 * discrepancy.correlation(dist, given.length)
-            + extra * discrepancy.correlation(dist, term.length)) / term.sigma ** 2
-    return corr, cross
+    cross = discrepancy.shared(own_influence, problem.angles, given, names, sens,
+                               1.0 if rho is None else rho)
+    return corr, cross, rho
 
 
 def reported(problem: Problem, x, summary, values, *, kind: str, rename: Callable = _same,
@@ -109,9 +119,10 @@ def reported(problem: Problem, x, summary, values, *, kind: str, rename: Callabl
                                              else given_result)
     term = None
     if kind != "off" and problem.weighted and cov is not None:
+        jw = weighted_jacobian(problem, x)
         term = discrepancy.step_term(summary.residuals, values, problem.w,
                                      problem.n_points - problem.n_free, problem.angles,
-                                     discrepancy.given_term(given_result), kind)
+                                     discrepancy.given_term(given_result), kind, jw)
         if term.sigma > 0 or given_noise is not given_result:
             # without an inherited term the total above is already the noise-only one
             noise_total = ((stderr_total, corr_total) if given_noise is given_result
@@ -125,11 +136,13 @@ def reported(problem: Problem, x, summary, values, *, kind: str, rename: Callabl
                         else None)
                 corr_d = (None if term.length == 0.0
                           else discrepancy.correlation(dist, term.length))
-                jw, scaled = weighted_jacobian(problem, x), values * problem.w
+                scaled = values * problem.w
                 g = discrepancy.influence(cov, jw, scaled)
-                shared = _shared(problem, x, g, given_result, given_column, term, how, dist)
+                shared = _shared(problem, x, g, given_result, given_column, term, how, dist,
+                                 summary.residuals, scaled, jw)
                 if shared is not None:    # the sum of the shared process and step 2's own
-                    corr_d, cross = shared
+                    corr_d, cross, rho = shared
+                    term = dataclasses.replace(term, rho=rho)
                 cov = discrepancy.sandwich(cov, jw, scaled, term.sigma, corr_d)
                 stderr, corr = named(cov)
                 stderr_total, corr_total, how = total_of(
@@ -137,8 +150,11 @@ def reported(problem: Problem, x, summary, values, *, kind: str, rename: Callabl
                 if keep_influence and term.length > 0:
                     rows = {k: tuple(float(v) for v in row)
                             for k, row in named_rows(g).items()}
-                    term = dataclasses.replace(term, influence=rows, angles=tuple(
-                        tuple(float(v) for v in a) for a in problem.angles))
+                    term = dataclasses.replace(
+                        term, influence=rows,
+                        angles=tuple(tuple(float(v) for v in a) for a in problem.angles),
+                        residuals=tuple(float(v) for v in summary.residuals),
+                        scaled=tuple(float(v) for v in scaled))
             term = dataclasses.replace(term, noise_only=noise_only)
     return Reported(stderr, corr, stderr_total, corr_total, term, how)
 
