@@ -20,7 +20,8 @@ own value of the plate seen without the medium). One table per medium:
 - s: seconds of the whole pipeline;
 - model error (--model-error, default correlated): the relative model error sigma of step 1
   and the one step 2 used (veil.fitting.model_error), rho how far step 2's error is step
-  1's (model_error.session_correlation; "-" where nothing is shared); "before" the curves' max |z| and share
+  1's (model_error.session_correlation; "-" where nothing is shared); "before" the curves'
+  max |z| and share
   within 2 se without it (the uncertainties of the data's noise alone, the same fits), and
   the median over the configurations of the curves' standard error with it / without it;
   "truth within 2 se": the share of the clear-water session's configurations where the
@@ -155,8 +156,8 @@ def _against_direct(names: dict, estimate, direct, medium_term, target_term) -> 
         "sigma_medium": math.nan if medium_term is None else medium_term.sigma,
         "sigma_target": math.nan if target_term is None else target_term.sigma,
         "length_target": math.nan if target_term is None else target_term.length,
-        "rho": math.nan if target_term is None or target_term.rho is None
-        else target_term.rho,
+        "rho": math.nan if target_term is None or target_term.session_correlation is None
+        else target_term.session_correlation,
         "curves": _curves(clear, est, rendered),
     }
 

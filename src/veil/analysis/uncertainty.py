@@ -260,8 +260,9 @@ def _shared_part(problem, target_result, medium_result, m_names, sens):
     x = problem.values
     values = problem.model_values(x, ITERATION_ACCURACY)
     g2 = influence(cov_noise, weighted_jacobian(problem, x), values * problem.w)
-    rho = target_result.model_error.rho
-    return shared(g2, problem.angles, term, list(m_names), sens, 1.0 if rho is None else rho)
+    share = target_result.model_error.session_correlation
+    return shared(g2, problem.angles, term, list(m_names), sens,
+                  1.0 if share is None else share)
 
 
 def budget_table(result: FitResult) -> list[dict]:

@@ -51,6 +51,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.linalg import solve_triangular
 from scipy.optimize import minimize_scalar
 
 from ..errors import FitError
@@ -155,9 +156,10 @@ def _complement(weighted_jacobian, n: int) -> np.ndarray | None:
     if weighted_jacobian is None:
         return None
     jw = np.asarray(weighted_jacobian, dtype=float)[:n]
-    u, s, _ = np.linalg.svd(jw, full_matrices=True)
-    rank = int(np.sum(s > s[0] * 1e-12)) if s.size and s[0] > 0 else 0
-    return u[:, rank:]
+    # full column rank (the fits that get here have a covariance): the span is that of all
+    # columns, whatever their units
+    u, _, _ = np.linalg.svd(jw, full_matrices=True)
+    return u[:, min(jw.shape[1], n):]
 
 
 def estimate(residuals, scaled_values, dof: int, dist,
@@ -235,8 +237,8 @@ class ModelError:
     C J_w^T A of the module docstring's sandwich), and its configurations' canonical
     ``angles``, with its weighted ``residuals`` and scaled values a = f / sigma (``scaled``):
     step 2 needs them for the error the two steps share (:func:`shared`) and how far it is
-    shared (:func:`session_correlation`). Step 2's term keeps that correlation as ``rho``
-    (None when nothing is shared)."""
+    shared (:func:`session_correlation`). Step 2's term keeps that correlation as
+    ``session_correlation`` (None when nothing is shared)."""
 
     sigma: float
     length: float
@@ -249,7 +251,7 @@ class ModelError:
     angles: tuple | None = None
     residuals: tuple | None = None
     scaled: tuple | None = None
-    rho: float | None = None
+    session_correlation: float | None = None
 
     def to_dict(self) -> dict:
         out = {"sigma": self.sigma, "length": self.length, "own": self.own,
@@ -261,8 +263,8 @@ class ModelError:
             if self.residuals is not None:
                 out["residuals"] = [float(v) for v in self.residuals]
                 out["scaled"] = [float(v) for v in self.scaled]
-        if self.rho is not None:
-            out["rho"] = float(self.rho)
+        if self.session_correlation is not None:
+            out["session_correlation"] = float(self.session_correlation)
         return out
 
     @classmethod
@@ -296,10 +298,11 @@ class ModelError:
             rows, _ = _read_influence({"residuals": residuals, "scaled": scaled},
                                       [list(a) for a in angles], source, key="")
             residuals, scaled = rows["residuals"], rows["scaled"]
-        rho = data.get("rho")
+        rho = data.get("session_correlation")
         if rho is not None and (isinstance(rho, bool) or not isinstance(rho, (int, float))
                                 or not 0.0 <= rho <= 1.0):
-            raise FitError(f"{source}: model_error.rho = {rho!r}; expected a number in [0, 1]")
+            raise FitError(f"{source}: model_error.session_correlation = {rho!r}; expected a "
+                           f"number in [0, 1]")
         return cls(float(data["sigma"]), float(data["length"]), float(data["own"]),
                    None if data["given"] is None else float(data["given"]), data["source"],
                    float(data["chi2_threshold"]), noise, influence, angles, residuals, scaled,
@@ -358,19 +361,34 @@ def influence(cov, weighted_jacobian, scaled_values) -> np.ndarray:
 
 
 def session_correlation(residuals, scaled_values, weighted_jacobian, angles, own_cov,
-                        given: ModelError) -> float | None:
-    """rho in [0, 1]: how far step 2's model error is the one its given medium's fit showed
-    (1: one process over both sessions, :func:`shared`; 0: independent), by the restricted
-    likelihood of both fits' residuals at once. The stacked components outside each fit's
-    Jacobian, z = (Q_1^T r_1, Q_2^T r_2), are normal with covariance I + [[B_11, rho B_12],
-    [rho B_21, B_22]], B_ij = Q_i^T A_i K_ij A_j Q_j: K_11 = s_1^2 R(ell_1) over step 1's
-    configurations, K_22 = ``own_cov`` (step 2's error covariance over its own, the shared
-    process plus its excess), K_12 = s_1^2 R_12(ell_1). Q_1 spans the complement of step 1's
-    Jacobian, recovered from its influence G_1 = C J_w^T A (rows span J_w's columns once A is
-    divided out). The reference and the target are different objects: where the medium
-    model's miss depends on the object's lobe (a wide plate's view side), the two errors
-    are not one. None when the given term lacks its residuals (result files of earlier
-    veils: the error is then counted as one process, rho = 1) or a scaled value is 0."""
+                        given: ModelError, given_names, given_jacobian,
+                        given_cov) -> float | None:
+    """How far step 2's model error is the one its given medium's fit showed, in [0, 1] (1:
+    one process over both sessions, :func:`shared`; 0: independent), by the restricted
+    likelihood of both fits' residuals at once.
+
+    The components of each fit's weighted residuals outside its Jacobian, z_1 = Q_1^T r_1 and
+    z_2 = Q_2^T r_2, are normal with mean 0. Step 1's medium estimate is off by
+    delta = G_1 d_1 + (noise), and step 2 sees its data through it: r_2 = (I - H_2)(e_2 - J_m
+    delta), J_m = ``given_jacobian`` (step 2's weighted Jacobian in the medium's parameters
+    ``given_names``, points x parameters). With K_11 = s_1^2 R(ell_1) over step 1's
+    configurations, K_21 = s_1^2 R_21(ell_1) between the sessions' and K_22 = ``own_cov``
+    (step 2's error: the shared process plus its excess):
+
+        Cov(z_1)      = I + Q_1^T A_1 K_11 A_1 Q_1
+        Cov(z_1, z_2) = Q_1^T A_1 (c K_12 A_2 - K_11 G_1^T J_m^T) Q_2
+        Cov(z_2)      = I + Q_2^T (A_2 K_22 A_2 + J_m C_m J_m^T
+                                   - c (A_2 K_21 G_1^T J_m^T + transpose)) Q_2
+
+    c the correlation sought, C_m = ``given_cov`` the medium's covariance (its total, the
+    term included; rows as ``given_names``). Q_1 spans the complement of step 1's Jacobian,
+    recovered from its influence G_1 = C J_w^T A (its rows span J_w's columns once A is
+    divided out). c is one number for every direction: the likelihood sees the error only
+    outside the Jacobians, the cross term it scales lives inside them. The reference and
+    the target are different objects: where the medium model's miss depends on the object's
+    lobe (a wide plate's view side), the two errors are not one. None (the error then
+    counted as one process, c = 1) when the given term lacks its residuals (result files of
+    earlier veils), a scaled value is 0, or a fit leaves no residual component."""
     if given is None or given.residuals is None or given.influence is None \
             or given.length == 0.0 or given.sigma == 0.0:
         return None
@@ -378,47 +396,58 @@ def session_correlation(residuals, scaled_values, weighted_jacobian, angles, own
     r1 = np.asarray(given.residuals, dtype=float)
     if np.any(a1 == 0.0):
         return None
-    g1 = np.array(list(given.influence.values()), dtype=float)
+    g1 = np.array([given.influence[n] for n in given_names], dtype=float)
     q1 = _complement((g1 / a1[None, :]).T, a1.size)
     a2 = np.asarray(scaled_values, dtype=float)
     q2 = _complement(weighted_jacobian, a2.size)
-    s1 = given.sigma ** 2
-    k11 = s1 * correlation(distances(given.angles), given.length)
-    k12 = s1 * correlation(distances(given.angles, angles), given.length)
+    if q1.shape[1] == 0 or q2.shape[1] == 0:
+        return None
+    jm = np.asarray(given_jacobian, dtype=float)[:a2.size]
+    k11 = given.sigma ** 2 * correlation(distances(given.angles), given.length)
+    k12 = given.sigma ** 2 * correlation(distances(given.angles, angles), given.length)
     m1, m2 = a1[:, None] * q1, a2[:, None] * q2
+    jq = jm.T @ q2                                  # J_m^T Q_2
     b11 = m1.T @ k11 @ m1
-    b22 = m2.T @ np.asarray(own_cov, dtype=float) @ m2
-    b12 = m1.T @ k12 @ m2
+    b12 = m1.T @ k12 @ m2                           # scaled by c
+    f12 = (m1.T @ k11 @ g1.T) @ jq                  # through step 1's estimate
+    b22 = m2.T @ np.asarray(own_cov, dtype=float) @ m2 + jq.T @ np.asarray(given_cov) @ jq
+    h22 = (m2.T @ k12.T @ g1.T) @ jq                # scaled by c, with its transpose
     z = np.concatenate([q1.T @ r1, q2.T @ np.asarray(residuals, dtype=float)])
     n1 = b11.shape[0]
     base = np.eye(z.size)
     base[:n1, :n1] += 0.5 * (b11 + b11.T)
     base[n1:, n1:] += 0.5 * (b22 + b22.T)
+    base[:n1, n1:] -= f12
+    base[n1:, :n1] -= f12.T
 
-    def nll(rho):
+    def nll(c):
         cov = base.copy()
-        cov[:n1, n1:] += rho * b12
-        cov[n1:, :n1] += rho * b12.T
-        chol = np.linalg.cholesky(cov)
-        w = np.linalg.solve(chol, z)
+        cov[:n1, n1:] += c * b12
+        cov[n1:, :n1] += c * b12.T
+        cov[n1:, n1:] -= c * (h22 + h22.T)
+        try:
+            chol = np.linalg.cholesky(cov)
+        except np.linalg.LinAlgError:     # not a covariance at this c: not a candidate
+            return math.inf
+        w = solve_triangular(chol, z, lower=True)
         return float(np.sum(np.log(np.diag(chol))) + 0.5 * w @ w)
 
     found = minimize_scalar(nll, bounds=(0.0, 1.0), method="bounded",
                             options={"xatol": 1e-4})
     # the bounded search never evaluates its ends: they are candidates of their own
     best = min(((nll(0.0), 0.0), (float(found.fun), float(found.x)), (nll(1.0), 1.0)))
-    return best[1]
+    return None if not math.isfinite(best[0]) else best[1]
 
 
 def shared(own_influence, angles, given: ModelError, given_names, sensitivity,
-           rho: float = 1.0) -> np.ndarray:
+           share: float = 1.0) -> np.ndarray | None:
     """The covariance that the error a step shares with its given medium's fit adds to its
     total: step 2's estimate moves by G_2 d_2 + S G_1 d_1 (S = d estimate / d medium, first
     order), and d_1, d_2 are one process over the configurations of both sessions with the
     given fit's s and ell, so beside the two steps' own parts it has the cross term
     s^2 (G_2 R_21 G_1^T S^T + its transpose), R_21 = exp(-D(step 2's, step 1's) / ell). It
     is negative where the medium absorbed in step 1 the error it gives back in step 2.
-    ``rho`` scales it: the part of step 2's error that is step 1's
+    ``share`` scales it: how far step 2's error is step 1's
     (:func:`session_correlation`). None when the given term has no length (ell = 0: the two sessions' errors independent)
     or no influence. Step 2's own part must then be that of the shared process plus what its
     own s exceeds it by (veil.fitting.reported), so that the two are one covariance."""
@@ -431,7 +460,7 @@ def shared(own_influence, angles, given: ModelError, given_names, sensitivity,
     g1 = np.array([given.influence[n] for n in given_names], dtype=float)
     r21 = correlation(distances(angles, given.angles), given.length)
     cross = own_influence @ r21 @ g1.T @ np.asarray(sensitivity, dtype=float).T
-    return rho * given.sigma ** 2 * (cross + cross.T)
+    return share * given.sigma ** 2 * (cross + cross.T)
 
 
 def given_term(given_result) -> ModelError | None:

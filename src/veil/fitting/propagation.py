@@ -220,14 +220,26 @@ def sigma_points(specs, values, cov) -> tuple[np.ndarray, np.ndarray]:
     return np.array(points).reshape(-1, n), np.array(reach)
 
 
-def sensitivity(problem: Problem, x, cols: list[int]) -> np.ndarray:
-    """S = d x / d theta = -J_w^+ J_w,theta (free parameters x the given parameters in
-    problem columns ``cols``; module docstring)."""
+def _weighted_columns(problem: Problem, x, cols: list[int]):
+    """(J_w of the free parameters, J_w,theta of the given parameters in problem columns
+    ``cols``), the data's rows."""
     _, full = problem.value_and_jacobian(x, ITERATION_ACCURACY,
                                          list(problem.free_index) + list(cols))
     w = problem.w[:, None]
-    jw = full[:, problem.free] * w
-    return -np.linalg.lstsq(jw, full[:, cols] * w, rcond=None)[0]
+    return full[:, problem.free] * w, full[:, cols] * w
+
+
+def sensitivity(problem: Problem, x, cols: list[int]) -> np.ndarray:
+    """S = d x / d theta = -J_w^+ J_w,theta (free parameters x the given parameters in
+    problem columns ``cols``; module docstring)."""
+    jw, jg = _weighted_columns(problem, x, cols)
+    return -np.linalg.lstsq(jw, jg, rcond=None)[0]
+
+
+def given_jacobian(problem: Problem, x, cols: list[int]) -> np.ndarray:
+    """J_w,theta: the weighted residual model's derivative in the given parameters in
+    problem columns ``cols`` (points x parameters)."""
+    return _weighted_columns(problem, x, cols)[1]
 
 
 def linear_part(problem: Problem, x, cols: list[int], cov_given) -> np.ndarray:

@@ -68,9 +68,9 @@ def _statistics(result: FitResult) -> list[str]:
             f"standard errors)" if me.sigma > 0 else
             f"    model error        = none (reduced chi-square <= "
             f"{format_number(me.chi2_threshold, 4)})")
-        if me.rho is not None:
-            lines.append(f"    shared with step 1 = {format_number(me.rho, 3)} (correlation of "
-                         f"the two sessions' model errors)")
+        if me.session_correlation is not None:
+            lines.append(f"    shared with step 1 = {format_number(me.session_correlation, 3)} "
+                         f"(correlation of the two sessions' model errors)")
     if result.given:
         gp = ", ".join(f"{k}={format_number(v)}" for k, v in result.given.get("params", {}).items())
         lines.append(f"    given (fixed) model = {result.given.get('model')}({gp})")

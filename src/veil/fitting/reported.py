@@ -17,7 +17,7 @@ from typing import Callable
 
 from . import model_error as discrepancy
 from .problem import Problem
-from .propagation import propagated, sensitivity
+from .propagation import given_jacobian, propagated, sensitivity
 from .solver import uncertainties, weighted_jacobian
 
 
@@ -42,11 +42,11 @@ def _same(stderr, correlation):
 
 def _shared(problem: Problem, x, own_influence, given_result, given_column, term, how, dist,
             residuals, scaled, jw):
-    """(this step's error correlation, the cross term, rho) for the error a step shares with
+    """(this step's error correlation, the cross term, its share) for the error a step shares with
     its given medium's correlated term (:func:`veil.fitting.model_error.shared`): this
     step's error is the shared process plus what its own s exceeds it by, with its own
     length, so that the two sessions' errors have a covariance that is a covariance; the
-    cross term is scaled by how far the two are one (rho,
+    cross term is scaled by how far the two are one (the share,
     :func:`veil.fitting.model_error.session_correlation` from both fits' ``residuals``,
     ``scaled`` values and Jacobians; None, counted as 1, for a given result without its
     residuals). None when there is nothing shared, or when the given covariance entered
@@ -63,13 +63,16 @@ def _shared(problem: Problem, x, own_influence, given_result, given_column, term
     if extra > 0.0:
         corr = (given.sigma ** 2 * corr
                 + extra * discrepancy.correlation(dist, term.length)) / term.sigma ** 2
-    rho = discrepancy.session_correlation(residuals, scaled, jw, problem.angles,
-                                          term.sigma ** 2 * corr, given)
-    names = list(given_result.covariance(total=True)[0])
-    sens = sensitivity(problem, x, [given_column(n) for n in names])
+    names, cov_given = given_result.covariance(total=True)
+    names = list(names)
+    cols = [given_column(n) for n in names]
+    share = discrepancy.session_correlation(
+        residuals, scaled, jw, problem.angles, term.sigma ** 2 * corr, given, names,
+        given_jacobian(problem, x, cols), cov_given)
+    sens = sensitivity(problem, x, cols)
     cross = discrepancy.shared(own_influence, problem.angles, given, names, sens,
-                               1.0 if rho is None else rho)
-    return corr, cross, rho
+                               1.0 if share is None else share)
+    return corr, cross, share
 
 
 def reported(problem: Problem, x, summary, values, *, kind: str, rename: Callable = _same,
@@ -141,8 +144,8 @@ def reported(problem: Problem, x, summary, values, *, kind: str, rename: Callabl
                 shared = _shared(problem, x, g, given_result, given_column, term, how, dist,
                                  summary.residuals, scaled, jw)
                 if shared is not None:    # the sum of the shared process and step 2's own
-                    corr_d, cross, rho = shared
-                    term = dataclasses.replace(term, rho=rho)
+                    corr_d, cross, share = shared
+                    term = dataclasses.replace(term, session_correlation=share)
                 cov = discrepancy.sandwich(cov, jw, scaled, term.sigma, corr_d)
                 stderr, corr = named(cov)
                 stderr_total, corr_total, how = total_of(
