@@ -161,6 +161,36 @@ def test_figure_of_out_of_plane_data():
     assert_recovered(result, veil.BRDF1)
     png = fit_figure(prepare(table), result, None)
     assert png.startswith(PNG) and png == fit_figure(prepare(table), result, None)
+    from io import BytesIO
+
+    from PIL import Image
+
+    assert Image.open(BytesIO(png)).size == (840, 552)     # 7 x 4.6 in: no residual panel
+
+
+def test_relative_residuals_and_the_in_plane_figure_panel():
+    """The residual panel's numbers: (data - model) / model and sigma / model, 0 where the
+    model is 0; in-plane data get the panel (a taller figure), out-of-plane data not."""
+    from io import BytesIO
+
+    from PIL import Image
+
+    from veil.viz.fit_figures import relative_residuals
+
+    rel, err = relative_residuals([1.1, 2.0, 0.5], [1.0, 2.5, 0.0], [0.1, 0.5, 0.2])
+    np.testing.assert_allclose(rel, [0.1, -0.2, 0.0], atol=1e-15)
+    np.testing.assert_allclose(err, [0.1, 0.2, 0.0], atol=1e-15)
+    assert relative_residuals([1.0], [2.0])[1] is None
+    configs = protocol()
+    value = veil.reflectance(veil.BRDF1, configs["theta_i"], configs["theta_r"],
+                             configs["phi_i"], configs["phi_r"])
+    noise = 1 + 0.01 * np.random.default_rng(3).standard_normal(len(configs))
+    table = configs.assign(value=value * noise, sigma=0.01 * value)
+    data = prepare(table)
+    result = fit_reference(table)
+    png = fit_figure(data, result, None, dpi=50)
+    assert png == fit_figure(data, result, None, dpi=50)
+    assert Image.open(BytesIO(png)).size == (350, 290)        # 7 x 5.8 in: with the panel
 
 
 def invoke(args):

@@ -8,7 +8,8 @@ an interrupted or failed run leaves the folder as it was):
 - ``reference.json``, ``medium.json``, ``target.json``: :class:`veil.fitting.FitResult` files;
 - ``reference.png``, ``medium.png``, ``target.png``: data against the fitted curves, value
   against the signed reflection angle theta_r, one curve per psi (like the paper's figs.
-  15-17);
+  15-17), over a panel of the relative residuals with the fit's model-error band, where a
+  trend in the angles that the model cannot follow shows;
 - with ``target_clear``: ``target_direct.json`` (the target fitted directly, no medium),
   ``target_direct.png`` and a comparison of the estimated f_r with it;
 - ``report.md``: the parameter tables and the comparison.

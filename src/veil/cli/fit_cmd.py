@@ -307,7 +307,8 @@ def print_pipeline(result) -> None:
 def pipeline_command(ctx, reference_clear, reference_medium, target_medium, black, target_clear,
                      outdir, fix, free, compare, figures, accuracy, max_nfev, model_error,
                      propagation, models):
-    """Steps 0-2 in one go, with figures (data against fitted curves) and report.md."""
+    """Steps 0-2 in one go, with figures (data against fitted curves, over their relative
+    residuals) and report.md."""
     from ..pipeline import compare_models, run_pipeline
 
     if compare:

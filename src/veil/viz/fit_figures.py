@@ -47,21 +47,26 @@ def _curve_rho(rho_min, rho_max):
 
 def fit_figure(data, result: FitResult, other: Model | None, extra: FitResult | None = None,
                dpi: int = 120) -> bytes:
-    """PNG: data (markers, sigma bars) and fitted curves against theta_r, one colour per psi.
-
-    ``other`` is the model held fixed (None for f_r alone); ``extra`` adds a dashed f_r curve
-    (the through-medium estimate on the direct fit's figure). Out-of-plane data are drawn as
-    model against data instead.
+    """PNG: data (markers, sigma bars) and fitted curves against theta_r, one colour per psi,
+    over a panel of the relative residuals (data - model) / model with the fit's model-error
+    band (+-2 s, when the fit has a term), where a trend in the angles shows. ``other`` is the
+    model held fixed (None for f_r alone); ``extra`` adds a dashed f_r curve (the
+    through-medium estimate on the direct fit's figure). Out-of-plane data are drawn as model
+    against data instead, without the panel.
     """
     from matplotlib.figure import Figure
 
-    fig = Figure(figsize=(7.0, 4.6), dpi=dpi)
-    ax = fig.add_subplot()
+    gonio = _goniometer(data)
+    fig = Figure(figsize=(7.0, 4.6 if gonio is None else 5.8), dpi=dpi)
+    if gonio is None:
+        ax, res_ax = fig.add_subplot(), None
+    else:
+        ax, res_ax = fig.subplots(2, 1, sharex=True,
+                                  gridspec_kw={"height_ratios": (3.2, 1.0)})
     titles = {"reference": "Step 0: reference object, clear medium (f_r)",
               "medium": "Step 1: reference object through the medium (f_t fitted)",
               "target": "Step 2: target object through the medium (f_r fitted)",
               "direct": "Target object, clear medium: direct fit and estimate"}
-    gonio = _goniometer(data)
     y = data.y
     accuracy = result.accuracy or "default"
     if gonio is None:
@@ -109,8 +114,10 @@ def fit_figure(data, result: FitResult, other: Model | None, extra: FitResult | 
         if positive.size and np.max(positive) > LOG_RATIO * np.median(positive):
             ax.set_yscale("log")
             ax.set_ylim(bottom=max(np.min(positive) * 0.5, np.max(positive) * 1e-6))
-        ax.set_xlabel("reflection angle theta_r [deg] (signed, in the plane of incidence)")
         ax.set_ylabel("observed value [relative units, 1/sr]")
+        _residual_panel(res_ax, data, model_values(result, other, data.angles, accuracy),
+                        psi, tr, result.model_error)
+        ax.tick_params(labelbottom=False)
         handles += [Line2D([], [], color="0.3", marker="o", ms=3, lw=0,
                            label="data" + (" (+- sigma)" if data.sigma is not None else "")),
                     Line2D([], [], color="0.3", lw=1.2, label="fitted model")]
@@ -124,6 +131,36 @@ def fit_figure(data, result: FitResult, other: Model | None, extra: FitResult | 
     buf = io.BytesIO()
     fig.savefig(buf, format="png", metadata={"Software": None})
     return buf.getvalue()
+
+
+def relative_residuals(y, model, sigma=None):
+    """(data - model) / model and its noise sigma / model (None without sigma), 0 where the
+    model is 0 (nothing relative to show there)."""
+    y, model = np.asarray(y, dtype=float), np.asarray(model, dtype=float)
+    safe = np.where(model != 0.0, model, 1.0)
+    rel = np.where(model != 0.0, (y - model) / safe, 0.0)
+    err = None if sigma is None else np.where(model != 0.0, np.asarray(sigma) / np.abs(safe),
+                                              0.0)
+    return rel, err
+
+
+def _residual_panel(ax, data, model, psi, tr, model_error) -> None:
+    rel, err = relative_residuals(data.y, model, data.sigma)
+    s = getattr(model_error, "sigma", 0.0) or 0.0
+    if s > 0:
+        ax.axhspan(-200.0 * s, 200.0 * s, color="0.85", lw=0,
+                   label=f"model error +-2 s (s = {100 * s:.2g} %)")
+    for k, p in enumerate(np.unique(psi)):
+        sel = psi == p
+        ax.errorbar(tr[sel], 100.0 * rel[sel], yerr=None if err is None else 100.0 * err[sel],
+                    fmt="o", ms=2.5, color=COLORS[k % len(COLORS)], elinewidth=0.7, capsize=0)
+    ax.axhline(0.0, color="0.4", lw=0.8)
+    if s > 0:
+        ax.legend(fontsize=7, loc="best", framealpha=0.8)
+    ax.set_ylabel("(data - model)\n/ model [%]", fontsize=8)
+    ax.set_xlabel("reflection angle theta_r [deg] (signed, in the plane of incidence)")
+    ax.grid(True, which="major", alpha=0.3)
+    ax.tick_params(labelsize=8)
 
 
 # --------------------------------------------------------------------------------------
