@@ -118,6 +118,8 @@ def fit_figure(data, result: FitResult, other: Model | None, extra: FitResult | 
         _residual_panel(res_ax, data, model_values(result, other, data.angles, accuracy),
                         psi, tr, result.model_error)
         ax.tick_params(labelbottom=False)
+        res_ax.set_title("relative residual (data - model) / model", fontsize=8, loc="left")
+        fig.align_ylabels((ax, res_ax))
         handles += [Line2D([], [], color="0.3", marker="o", ms=3, lw=0,
                            label="data" + (" (+- sigma)" if data.sigma is not None else "")),
                     Line2D([], [], color="0.3", lw=1.2, label="fitted model")]
@@ -157,7 +159,7 @@ def _residual_panel(ax, data, model, psi, tr, model_error) -> None:
     ax.axhline(0.0, color="0.4", lw=0.8)
     if s > 0:
         ax.legend(fontsize=7, loc="best", framealpha=0.8)
-    ax.set_ylabel("(data - model)\n/ model [%]", fontsize=8)
+    ax.set_ylabel("residual [%]", fontsize=9)
     ax.set_xlabel("reflection angle theta_r [deg] (signed, in the plane of incidence)")
     ax.grid(True, which="major", alpha=0.3)
     ax.tick_params(labelsize=8)
