@@ -168,19 +168,45 @@ def test_figure_of_out_of_plane_data():
     assert Image.open(BytesIO(png)).size == (840, 552)     # 7 x 4.6 in: no residual panel
 
 
-def test_relative_residuals_and_the_in_plane_figure_panel():
-    """The residual panel's numbers: (data - model) / model and sigma / model, 0 where the
-    model is 0; in-plane data get the panel (a taller figure), out-of-plane data not."""
+def test_relative_residuals_and_the_residual_panel():
+    """The residual panel's numbers: (data - model) / model and sigma / model; NaN (not
+    drawn) where the model is 0, too small to divide by, or not finite; the panel's range
+    holds the bulk and the model-error band and clips an outlier to its edge."""
+    import warnings
+
+    from veil.viz.fit_figures import relative_residuals, residual_panel
+
+    rel, err = relative_residuals([1.1, 2.0, 0.5], [1.0, 2.5, 0.0], [0.1, 0.5, 0.2])
+    np.testing.assert_allclose(rel[:2], [0.1, -0.2], atol=1e-15)
+    np.testing.assert_allclose(err[:2], [0.1, 0.2], atol=1e-15)
+    assert np.isnan(rel[2]) and np.isnan(err[2])
+    assert relative_residuals([1.0], [2.0])[1] is None
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        rel, _ = relative_residuals([1.0, 1.0, 1.0, 1.0], [1.0, 1e-300, np.inf, 0.5])
+    np.testing.assert_array_equal(np.isnan(rel), [False, True, True, False])
+    assert rel[3] == 1.0
+    bulk = np.r_[np.full(50, 0.01), 10.0]                   # 1 % and one 1000 % point
+    half, shown, off = residual_panel(bulk)
+    assert half == pytest.approx(1.1) and off.tolist() == [False] * 50 + [True]
+    assert shown[-1] == pytest.approx(1.1) and shown[0] == pytest.approx(1.0)
+    assert residual_panel(bulk, sigma_model=0.01)[0] == pytest.approx(4.4)   # 4 s, in %
+    assert residual_panel(np.full(3, np.nan))[0] > 0
+
+
+def test_in_plane_figure_has_the_panel_and_its_band():
+    """In-plane data get the residual panel (a taller figure; out-of-plane data do not:
+    test_figure_of_out_of_plane_data); a fit with a model-error term draws its band (the
+    PNG differs from the same fit without it); a point far off the rest (a datum of 0,
+    -100 %) goes to the panel's edge without warnings. Deterministic bytes."""
+    import dataclasses
+    import warnings
     from io import BytesIO
 
     from PIL import Image
 
-    from veil.viz.fit_figures import relative_residuals
+    from veil.fitting.model_error import ModelError
 
-    rel, err = relative_residuals([1.1, 2.0, 0.5], [1.0, 2.5, 0.0], [0.1, 0.5, 0.2])
-    np.testing.assert_allclose(rel, [0.1, -0.2, 0.0], atol=1e-15)
-    np.testing.assert_allclose(err, [0.1, 0.2, 0.0], atol=1e-15)
-    assert relative_residuals([1.0], [2.0])[1] is None
     configs = protocol()
     value = veil.reflectance(veil.BRDF1, configs["theta_i"], configs["theta_r"],
                              configs["phi_i"], configs["phi_r"])
@@ -188,9 +214,18 @@ def test_relative_residuals_and_the_in_plane_figure_panel():
     table = configs.assign(value=value * noise, sigma=0.01 * value)
     data = prepare(table)
     result = fit_reference(table)
+    assert result.model_error is None or result.model_error.sigma == 0.0
     png = fit_figure(data, result, None, dpi=50)
     assert png == fit_figure(data, result, None, dpi=50)
     assert Image.open(BytesIO(png)).size == (350, 290)        # 7 x 5.8 in: with the panel
+    term = ModelError(0.01, 40.0, 0.01, None, "own residuals", 1.3)
+    banded = fit_figure(data, dataclasses.replace(result, model_error=term), None, dpi=50)
+    assert banded != png
+    zero = dataclasses.replace(data, y=np.where(np.arange(data.y.size) == 0, 0.0, data.y))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        edged = fit_figure(zero, result, None, dpi=50)
+    assert edged.startswith(PNG) and edged != png
 
 
 def invoke(args):

@@ -135,29 +135,63 @@ def fit_figure(data, result: FitResult, other: Model | None, extra: FitResult | 
     return buf.getvalue()
 
 
+#: A model value below this fraction of the session's largest is too small to divide by: its
+#: relative residual is not drawn.
+TINY_MODEL = 1e-9
+#: The residual panel's half-range: at least 4 model-error s, at most what holds this
+#: percentile of |residual| (points beyond are drawn at the edge, as triangles).
+PANEL_PERCENTILE = 98.0
+
+
 def relative_residuals(y, model, sigma=None):
-    """(data - model) / model and its noise sigma / model (None without sigma), 0 where the
-    model is 0 (nothing relative to show there)."""
+    """(data - model) / model and its noise sigma / model (None without sigma); NaN (not
+    drawn) where the model is not finite, or too small to divide by (below
+    :data:`TINY_MODEL` of the largest |model|)."""
     y, model = np.asarray(y, dtype=float), np.asarray(model, dtype=float)
-    safe = np.where(model != 0.0, model, 1.0)
-    rel = np.where(model != 0.0, (y - model) / safe, 0.0)
-    err = None if sigma is None else np.where(model != 0.0, np.asarray(sigma) / np.abs(safe),
-                                              0.0)
+    finite = np.isfinite(model) & np.isfinite(y)
+    scale = np.max(np.abs(model[finite])) if finite.any() else 0.0
+    ok = finite & (np.abs(model) > TINY_MODEL * scale)
+    safe = np.where(ok, model, 1.0)
+    rel = np.where(ok, (y - safe) / safe, np.nan)
+    err = None if sigma is None else np.where(ok, np.asarray(sigma, dtype=float)
+                                              / np.abs(safe), np.nan)
     return rel, err
+
+
+def residual_panel(rel, sigma_model: float = 0.0):
+    """What the residual panel draws, in per cent: (half-range, values clipped to it, the
+    mask of clipped points). The half-range holds the :data:`PANEL_PERCENTILE` percentile of
+    |rel| and at least 4 model-error s (and 1e-6 %), with a 10 % margin."""
+    pct = 100.0 * np.asarray(rel, dtype=float)
+    shown = np.abs(pct[np.isfinite(pct)])
+    core = np.percentile(shown, PANEL_PERCENTILE) if shown.size else 0.0
+    half = 1.1 * max(core, 400.0 * sigma_model, 1e-6)
+    off = np.isfinite(pct) & (np.abs(pct) > half)
+    return half, np.where(off, np.sign(pct) * half, pct), off
 
 
 def _residual_panel(ax, data, model, psi, tr, model_error) -> None:
     rel, err = relative_residuals(data.y, model, data.sigma)
     s = getattr(model_error, "sigma", 0.0) or 0.0
+    half, shown, off = residual_panel(rel, s)
     if s > 0:
         ax.axhspan(-200.0 * s, 200.0 * s, color="0.85", lw=0,
                    label=f"model error +-2 s (s = {100 * s:.2g} %)")
     for k, p in enumerate(np.unique(psi)):
-        sel = psi == p
-        ax.errorbar(tr[sel], 100.0 * rel[sel], yerr=None if err is None else 100.0 * err[sel],
-                    fmt="o", ms=2.5, color=COLORS[k % len(COLORS)], elinewidth=0.7, capsize=0)
+        sel, color = psi == p, COLORS[k % len(COLORS)]
+        inside = sel & ~off
+        ax.errorbar(tr[inside], shown[inside],
+                    yerr=None if err is None else 100.0 * err[inside], fmt="o", ms=2.5,
+                    color=color, elinewidth=0.7, capsize=0)
+        for sign, marker in ((1.0, "^"), (-1.0, "v")):
+            edge = sel & off & (np.sign(shown) == sign)
+            if edge.any():
+                ax.plot(tr[edge], shown[edge], marker, ms=4, color=color, clip_on=False)
+    ax.set_ylim(-half, half)
     ax.axhline(0.0, color="0.4", lw=0.8)
-    if s > 0:
+    if s > 0 or off.any():
+        if off.any():
+            ax.plot([], [], "^", ms=4, color="0.3", label="beyond the panel's range")
         ax.legend(fontsize=7, loc="best", framealpha=0.8)
     ax.set_ylabel("residual [%]", fontsize=9)
     ax.set_xlabel("reflection angle theta_r [deg] (signed, in the plane of incidence)")
