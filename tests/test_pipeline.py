@@ -192,6 +192,10 @@ def test_relative_residuals_and_the_residual_panel():
     assert shown[-1] == pytest.approx(1.1) and shown[0] == pytest.approx(1.0)
     assert residual_panel(bulk, sigma_model=0.01)[0] == pytest.approx(4.4)   # 4 s, in %
     assert residual_panel(np.full(3, np.nan))[0] > 0
+    scatter = np.linspace(-0.02, 0.02, 101)                  # no outlier: every point shown
+    half, shown, off = residual_panel(scatter)
+    assert half == pytest.approx(2.2) and not off.any()
+    np.testing.assert_allclose(shown, 100 * scatter)
 
 
 def test_in_plane_figure_has_the_panel_and_its_band():

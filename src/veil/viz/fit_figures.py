@@ -138,9 +138,10 @@ def fit_figure(data, result: FitResult, other: Model | None, extra: FitResult | 
 #: A model value below this fraction of the session's largest is too small to divide by: its
 #: relative residual is not drawn.
 TINY_MODEL = 1e-9
-#: The residual panel's half-range: at least 4 model-error s, at most what holds this
-#: percentile of |residual| (points beyond are drawn at the edge, as triangles).
+#: The residual panel's half-range holds every point but those beyond OUTLIER times this
+#: percentile of |residual| (drawn at the edge, as triangles), and at least 4 model-error s.
 PANEL_PERCENTILE = 98.0
+OUTLIER = 3.0
 
 
 def relative_residuals(y, model, sigma=None):
@@ -160,12 +161,14 @@ def relative_residuals(y, model, sigma=None):
 
 def residual_panel(rel, sigma_model: float = 0.0):
     """What the residual panel draws, in per cent: (half-range, values clipped to it, the
-    mask of clipped points). The half-range holds the :data:`PANEL_PERCENTILE` percentile of
-    |rel| and at least 4 model-error s (and 1e-6 %), with a 10 % margin."""
+    mask of clipped points). The half-range holds every |rel| up to :data:`OUTLIER` times
+    its :data:`PANEL_PERCENTILE` percentile, and at least 4 model-error s (and 1e-6 %), with
+    a 10 % margin: a gross outlier does not flatten the rest."""
     pct = 100.0 * np.asarray(rel, dtype=float)
     shown = np.abs(pct[np.isfinite(pct)])
     core = np.percentile(shown, PANEL_PERCENTILE) if shown.size else 0.0
-    half = 1.1 * max(core, 400.0 * sigma_model, 1e-6)
+    kept = shown[shown <= OUTLIER * core]
+    half = 1.1 * max(float(kept.max()) if kept.size else 0.0, 400.0 * sigma_model, 1e-6)
     off = np.isfinite(pct) & (np.abs(pct) > half)
     return half, np.where(off, np.sign(pct) * half, pct), off
 
