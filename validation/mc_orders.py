@@ -156,19 +156,17 @@ def jv(tau, rc, a, rp, r):
     return S / rc * f
 
 
-def view_side(tau, g, rc, a, theta_r, n, rng):
-    """Per order k = 0..KMAX: MC tallies of K_k(R') h(R') (h in {1, R'.R, R'_z, cos to R > c})
-    and the model's e^{-tau} w_k Int p(g^k) J_v h, and with J_v = 1."""
+def view_paths(tau, g, rc, a, R, n, rng):
+    """Per order k = 0..KMAX, yield (R', weights) of the adjoint paths from the camera's wall
+    point R_c R along -R that meet the plate's front at that order (R' = the plate's
+    outgoing direction)."""
     sig = tau / rc
-    R = np.array([math.sin(math.radians(theta_r)), 0.0, math.cos(math.radians(theta_r))])
     x = np.tile(R * rc * (1 - 1e-12), (n, 1))
     d = np.tile(-R, (n, 1))
     w = np.ones(n)
     alive = np.ones(n, bool)
     idx = np.arange(n)
-    tally = np.zeros((KMAX + 1, 3))
-    tally2 = np.zeros((KMAX + 1, 3))
-    for k in range(KMAX + 1):
+    for _ in range(KMAX + 1):
         ii = idx[alive]
         xs, ds = x[ii], d[ii]
         s = rng.exponential(1.0 / sig, len(ii))
@@ -176,11 +174,7 @@ def view_side(tau, g, rc, a, theta_r, n, rng):
         tp = plate_distance(xs, ds, a)
         front = ds[:, 2] < 0
         hitp = (tp < te) & (s >= tp) & front
-        # tally plate hits of order k
-        rp = -ds[hitp]
-        hh = np.stack([np.ones(hitp.sum()), rp @ R, rp[:, 2]], axis=1) * w[ii[hitp], None]
-        tally[k] += hh.sum(0)
-        tally2[k] += (hh ** 2).sum(0)
+        yield -ds[hitp], w[ii[hitp]]
         scat = s < np.minimum(te, tp)
         alive[ii[~scat]] = False
         ii, xs, ds, s = ii[scat], xs[scat], ds[scat], s[scat]
@@ -189,17 +183,33 @@ def view_side(tau, g, rc, a, theta_r, n, rng):
         cs = hg_cos(g, rng.random(len(ii)))
         ds = around(ds, cs, 2 * np.pi * rng.random(len(ii)))
         x[ii], d[ii] = xs, ds
-    mc = tally / n
-    se = np.sqrt(np.maximum(tally2 / n - mc ** 2, 0) / n)
-    # model: sample R' from HG(g^k) about R
-    m = 400000
-    mo = np.zeros((KMAX + 1, 3))
-    mo1 = np.zeros((KMAX + 1, 3))
-    mo[0] = mo1[0] = np.exp(-tau) * np.array([1, 1, R[2]])
+
+
+def model_directions(g, R, m, rng):
+    """Per order k = 1..KMAX, yield (k, R' drawn from p(g^k) about R, R' above the plate):
+    the samples of the model's view term e^{-tau} w_k Int p(g^k) J_v dR'."""
     for k in range(1, KMAX + 1):
         cs = hg_cos(g ** k, rng.random(m))
         rp = around(np.tile(R, (m, 1)), cs, 2 * np.pi * rng.random(m))
-        up = rp[:, 2] > 0
+        yield k, rp, rp[:, 2] > 0
+
+
+def view_side(tau, g, rc, a, theta_r, n, rng):
+    """Per order k = 0..KMAX: MC tallies of K_k(R') h(R') (h in {1, R'.R, R'_z, cos to R > c})
+    and the model's e^{-tau} w_k Int p(g^k) J_v h, and with J_v = 1."""
+    R = np.array([math.sin(math.radians(theta_r)), 0.0, math.cos(math.radians(theta_r))])
+    tally = np.zeros((KMAX + 1, 3))
+    tally2 = np.zeros((KMAX + 1, 3))
+    for k, (rp, w) in enumerate(view_paths(tau, g, rc, a, R, n, rng)):
+        hh = np.stack([np.ones(len(rp)), rp @ R, rp[:, 2]], axis=1) * w[:, None]
+        tally[k] += hh.sum(0)
+        tally2[k] += (hh ** 2).sum(0)
+    mc = tally / n
+    se = np.sqrt(np.maximum(tally2 / n - mc ** 2, 0) / n)
+    mo = np.zeros((KMAX + 1, 3))
+    mo1 = np.zeros((KMAX + 1, 3))
+    mo[0] = mo1[0] = np.exp(-tau) * np.array([1, 1, R[2]])
+    for k, rp, up in model_directions(g, R, 400000, rng):
         h = np.stack([up * 1.0, (rp @ R) * up, rp[:, 2] * up], axis=1)
         wk = np.exp(-tau) * (OMEGA * tau) ** k / math.factorial(k)
         mo[k] = wk * (h * jv(tau, rc, a, rp, R)[:, None]).mean(0)

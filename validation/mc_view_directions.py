@@ -10,7 +10,7 @@ veil's e^{-tau} (omega tau)^k/k! p(g^k; R'.R) J_v(R', R) lambda_k, resolved two 
    side, the specular at theta_i = -theta_r). What the fit sees, per configuration.
 
     PYTHONPATH=src python validation/mc_view_directions.py [--n 1000000] [--media m10,m10_w10]
-        [--angles 30,60,75] [--lights -60,-30,0,30,50]
+        [--angles 30,60,75] [--lights=-60,-30,0,30,50]
 """
 import argparse
 import json
@@ -38,41 +38,11 @@ def plate_vector(plate: dict):
                       plate["specular_reflectance"]])
 
 
-def view_hits(tau, g, rc, a, R, n, rng):
-    """Per order k = 0..KMAX, (directions R', weights) of the Monte Carlo's adjoint paths from
-    the camera's wall point that meet the plate's front (mc_orders.view_side's sampling)."""
-    sig = tau / rc
-    x = np.tile(R * rc * (1 - 1e-12), (n, 1))
-    d = np.tile(-R, (n, 1))
-    w = np.ones(n)
-    alive = np.ones(n, bool)
-    idx = np.arange(n)
-    out = []
-    for _ in range(M.KMAX + 1):
-        ii = idx[alive]
-        xs, ds = x[ii], d[ii]
-        s = rng.exponential(1.0 / sig, len(ii))
-        te = M.exit_distance(xs, ds, rc)
-        tp = M.plate_distance(xs, ds, a)
-        hit = (tp < te) & (s >= tp) & (ds[:, 2] < 0)
-        out.append((-ds[hit], w[ii[hit]]))
-        scat = s < np.minimum(te, tp)
-        alive[ii[~scat]] = False
-        ii, xs, ds, s = ii[scat], xs[scat], ds[scat], s[scat]
-        w[ii] *= M.OMEGA
-        x[ii] = xs + s[:, None] * ds
-        d[ii] = M.around(ds, M.hg_cos(g, rng.random(len(ii))), 2 * np.pi * rng.random(len(ii)))
-    return out
-
-
 def model_samples(tau, g, rc, a, R, lam, m, rng):
     """Per order k = 1..KMAX, (R' drawn from p(g^k) about R, veil's weight per sample:
     e^{-tau} (omega tau)^k/k! J_v lambda_k, 0 below the plate)."""
     out = []
-    for k in range(1, M.KMAX + 1):
-        rp = M.around(np.tile(R, (m, 1)), M.hg_cos(g ** k, rng.random(m)),
-                      2 * np.pi * rng.random(m))
-        up = rp[:, 2] > 0
+    for k, rp, up in M.model_directions(g, R, m, rng):
         wk = math.exp(-tau) * (M.OMEGA * tau) ** k / math.factorial(k)
         out.append((np.where(up[:, None], rp, R), wk * up * M.jv(tau, rc, a, rp, R)
                     * lam[min(k, len(lam) - 1)]))
@@ -98,7 +68,7 @@ def main(argv=None) -> int:
             R, e1 = np.array([math.sin(t), 0.0, math.cos(t)]), np.array([math.cos(t), 0.0,
                                                                           -math.sin(t)])
             rng = np.random.default_rng(7)
-            hits = view_hits(tau, g, rc, a, R, args.n, rng)
+            hits = list(M.view_paths(tau, g, rc, a, R, args.n, rng))
             lam = np.concatenate([[1.0], np.asarray(landing_factors(g, rc, a, math.cos(t)))])
             model = model_samples(tau, g, rc, a, R, lam, args.n, rng)
 

@@ -115,8 +115,8 @@ def fit_figure(data, result: FitResult, other: Model | None, extra: FitResult | 
             ax.set_yscale("log")
             ax.set_ylim(bottom=max(np.min(positive) * 0.5, np.max(positive) * 1e-6))
         ax.set_ylabel("observed value [relative units, 1/sr]")
-        _residual_panel(res_ax, data, model_values(result, other, data.angles, accuracy),
-                        psi, tr, result.model_error)
+        _residual_panel(res_ax, data, _fitted_values(data, result, other, accuracy), psi, tr,
+                        result.model_error)
         ax.tick_params(labelbottom=False)
         res_ax.set_title("relative residual (data - model) / model", fontsize=8, loc="left")
         fig.align_ylabels((ax, res_ax))
@@ -142,6 +142,16 @@ TINY_MODEL = 1e-9
 #: percentile of |residual| (drawn at the edge, as triangles), and at least 4 model-error s.
 PANEL_PERCENTILE = 98.0
 OUTLIER = 3.0
+
+
+def _fitted_values(data, result: FitResult, other, accuracy) -> np.ndarray:
+    """The fitted model at the data's configurations: from the result's own residuals
+    ((value - model) / sigma, or value - model unweighted) when they are this data's, else
+    evaluated."""
+    r = np.asarray(result.residuals, dtype=float)
+    if r.size != data.y.size:
+        return model_values(result, other, data.angles, accuracy)
+    return data.y - r * (data.sigma if result.weighted and data.sigma is not None else 1.0)
 
 
 def relative_residuals(y, model, sigma=None):
