@@ -251,18 +251,32 @@ def test_parts_sum_to_the_independent_value(name):
 # --------------------------------------------------------------------------------------
 # the engine: exact Jacobians and a brute-force integral
 # --------------------------------------------------------------------------------------
+#: The physical families are paired with each other, in the validation data's set-up (one
+#: pass 15, plate 5 wide: validation/README.md), as the physical pipeline fits them: their
+#: engine programs are then the ones test_compare's pipeline compiles (the program store
+#: builds each once for the suite) and the finite-plate weighting is in the checked Jacobian.
+PHYSICAL_PARTNERS = {"forward-series": "rough-plastic", "rough-plastic": "forward-series"}
+SET_UP = {"path_length": 15.0, "plate_width": 5.0}
+
+
 def _pair(name):
-    """The family paired with the paper's model of the other kind."""
+    """The family paired with the paper's model of the other kind (a physical family with
+    the other physical family, PHYSICAL_PARTNERS)."""
     model = _instance(name)
-    other = default_class("medium" if model.KIND == "brdf" else "brdf")
-    partner = _instance(other.NAME)
-    return (model, partner) if model.KIND == "brdf" else (partner, model)
+    if name in PHYSICAL_PARTNERS:
+        partner = _instance(PHYSICAL_PARTNERS[name])
+    else:
+        partner = _instance(default_class("medium" if model.KIND == "brdf" else "brdf").NAME)
+    brdf, medium = (model, partner) if model.KIND == "brdf" else (partner, model)
+    if name in PHYSICAL_PARTNERS:
+        medium = medium.replace(**SET_UP)
+    return brdf, medium
 
 
 @pytest.mark.parametrize("name", FAMILIES)
 def test_engine_jacobian_matches_central_differences(name):
-    """In every parameter of the family (its partner, a paper model, has its own case: the
-    Jacobian in the partner's parameters too would double the compilation)."""
+    """In every parameter of the family (its partner has its own case: the Jacobian in the
+    partner's parameters too would double the compilation)."""
     brdf, medium = _pair(name)
     # the fits' chunk (64 configurations in the plane of incidence, "fast"): the program is
     # the one step 1 (a medium family) or step 2 (a BRDF family) iterates with, compiled
@@ -282,9 +296,20 @@ def test_engine_jacobian_matches_central_differences(name):
         up, down = x.copy(), x.copy()
         up[k] += h
         down[k] -= h
-        numeric = (fwd(up[:nb], up[nb:]) - fwd(down[:nb], down[nb:])) / (2 * h)
+        f_up, f_down = fwd(up[:nb], up[nb:]), fwd(down[:nb], down[nb:])
+        numeric = (f_up - f_down) / (2 * h)
         scale = np.max(np.abs(numeric)) + 1e-300
-        assert np.allclose(jac[:, col], numeric, rtol=1e-4, atol=1e-6 * scale), (name, k)
+        central = np.isclose(jac[:, col], numeric, rtol=1e-4, atol=1e-6 * scale)
+        # The finite plate's weight J_v has kinks (the min and max of its plate depth) that
+        # the phase lobe's quadrature nodes cross as g moves them: the engine's value is
+        # piecewise smooth in g, and a central difference straddling a kink (measured: one
+        # of 64 configurations, g = 0.9 +- 9e-6, 1 % off; none with an infinite plate) is
+        # neither side's derivative. There the Jacobian must be one of the one-sided ones.
+        one_sided = (np.isclose(jac[:, col], (f_up - value) / h, rtol=1e-3, atol=1e-5 * scale)
+                     | np.isclose(jac[:, col], (value - f_down) / h, rtol=1e-3,
+                                  atol=1e-5 * scale))
+        assert np.all(central | one_sided), (name, k, np.flatnonzero(~(central | one_sided)))
+        assert np.mean(central) >= 0.95, (name, k, np.flatnonzero(~central))
 
 
 def _sphere_integral(fn, center, density_cone, n_r=1200, n_a=256):

@@ -147,3 +147,51 @@ def test_code_digest_follows_the_code_not_where_it_lives(tmp_path, monkeypatch):
     model.write_bytes(model.read_bytes() + b"\n")
     programs._source_digest.cache_clear()     # a process reads its code once
     assert programs.code_digest() != here
+
+
+_BUILD_SCRIPT = r"""
+import hashlib, os, sys, time
+import numpy as np
+import veil
+from veil.engine import forward, programs
+from veil.engine.quadrature import RULES
+
+compiled = []
+original = programs.compile_afresh
+def counting(fn, args):
+    compiled.append(1)
+    return original(fn, args)
+programs.compile_afresh = counting
+
+fw = forward.Forward(veil.BRDF1, veil.BTDF2, np.linspace(10, 70, 8), np.linspace(5, 60, 8),
+                     180.0, 0.0, RULES["fast"])
+program = forward._terms_fn(fw._kb, fw._km, fw.rule, fw.half, fw._mesh)
+args = (*fw._vectors(veil.BRDF1.to_vector(), veil.BTDF2.to_vector()), fw._wi, fw._wr)
+barrier, me = sys.argv[1], sys.argv[2]
+open(os.path.join(barrier, me), "w").close()
+while len(os.listdir(barrier)) < 2:  # both processes reach the call together
+    time.sleep(0.01)
+values = np.asarray(program(*args))
+print(len(compiled), hashlib.sha256(values.tobytes()).hexdigest())
+"""
+
+
+def test_processes_that_need_the_same_program_build_it_once(tmp_path):
+    """Two processes calling the same missing program at the same moment: one compiles, the
+    other waits on the entry's lock and reads it (the same numbers, bit for bit)."""
+    import subprocess
+    import sys
+
+    barrier = tmp_path / "barrier"
+    barrier.mkdir()
+    env = {**os.environ, "VEIL_CACHE_DIR": str(tmp_path / "cache")}
+    procs = [subprocess.Popen([sys.executable, "-c", _BUILD_SCRIPT, str(barrier), str(i)],
+                              env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                              text=True) for i in range(2)]
+    outs = [p.communicate(timeout=300) for p in procs]
+    assert all(p.returncode == 0 for p in procs), [o[1][-2000:] for o in outs]
+    counts, digests = zip(*(o[0].split() for o in outs))
+    assert sorted(counts) == ["0", "1"], outs
+    assert digests[0] == digests[1]
+    assert entries(tmp_path / "cache" / "programs") and \
+        len(list((tmp_path / "cache" / "programs").glob("*.lock"))) == 1

@@ -27,7 +27,12 @@ model structures, rule, shapes, devices), holding a header and the serialized ex
   damage, not against someone who can write there);
 - writes are atomic (a temporary file renamed into place under :data:`veil.io.COMMIT`, so an
   interrupt never leaves half an entry); a store that cannot be written is read, and
-  programs it lacks are built in memory for this process only (one line says so).
+  programs it lacks are built in memory for this process only (one line says so);
+- a program is built by one process at a time: processes that need the same missing entry
+  (the workers of a Dask cluster on one machine, the test suite's workers) wait on a lock
+  file beside it (``<entry>.lock``, POSIX advisory lock, released when its holder exits
+  however it exits) and then read what the first one stored, instead of compiling the same
+  program side by side.
 """
 
 from __future__ import annotations
@@ -40,6 +45,7 @@ import platform
 import sys
 import tempfile
 import threading
+from contextlib import contextmanager
 from functools import lru_cache
 
 import numpy as np
@@ -311,6 +317,32 @@ def write(identity: str, env: dict, payload: bytes) -> bool:
         return False
 
 
+@contextmanager
+def building(identity: str):
+    """Hold the store's lock for ``identity`` (one process builds a missing entry, the others
+    wait for it); does nothing where there is no store, it cannot be written, or the
+    platform has no ``fcntl``."""
+    path = _path(identity)
+    try:
+        import fcntl
+    except ImportError:  # not POSIX: no cross-process lock, each process builds its own
+        fcntl = None
+    fd = None
+    if path is not None and fcntl is not None:
+        try:
+            os.makedirs(os.path.dirname(path), exist_ok=True)
+            fd = os.open(path + ".lock", os.O_RDWR | os.O_CREAT, 0o600)
+        except OSError:  # unwritable store: write() says so once
+            fd = None
+    try:
+        if fd is not None:
+            fcntl.flock(fd, fcntl.LOCK_EX)
+        yield
+    finally:
+        if fd is not None:
+            os.close(fd)  # releases the lock
+
+
 class Program:
     """A jitted engine function ``fn`` whose lowered form, per argument shape, is kept in
     the program store. ``identity`` names what the function computes (its name, the model
@@ -348,13 +380,17 @@ class Program:
         identity = f"{self.identity} | inputs {signature}"
         env = environment(self.classes)
         compiled = read(identity, env, signature)
-        if compiled is None:
-            compiled = compile_afresh(self.fn, args)
-            payload = serialize(compiled, _devices_of(args))
-            if payload is not None:
-                write(identity, env, payload)
+        if compiled is not None:
+            return compiled
+        with building(identity):
+            compiled = read(identity, env, signature)  # another process may have built it
+            if compiled is None:
+                compiled = compile_afresh(self.fn, args)
+                payload = serialize(compiled, _devices_of(args))
+                if payload is not None:
+                    write(identity, env, payload)
         return compiled
 
 
-__all__ = ["Program", "directory", "environment", "code_digest", "read", "write",
+__all__ = ["Program", "building", "directory", "environment", "code_digest", "read", "write",
            "serialize", "structure_name", "FORMAT"]
