@@ -300,16 +300,19 @@ def test_engine_jacobian_matches_central_differences(name):
         numeric = (f_up - f_down) / (2 * h)
         scale = np.max(np.abs(numeric)) + 1e-300
         central = np.isclose(jac[:, col], numeric, rtol=1e-4, atol=1e-6 * scale)
-        # The finite plate's weight J_v has kinks (the min and max of its plate depth) that
-        # the phase lobe's quadrature nodes cross as g moves them: the engine's value is
+        # The finite plate's weight J_v has kinks (the min, max and abs in its plate depth)
+        # that the phase lobe's quadrature nodes cross as g moves them: the engine's value is
         # piecewise smooth in g, and a central difference straddling a kink (measured: one
         # of 64 configurations, g = 0.9 +- 9e-6, 1 % off; none with an infinite plate) is
-        # neither side's derivative. There the Jacobian must be one of the one-sided ones.
-        one_sided = (np.isclose(jac[:, col], (f_up - value) / h, rtol=1e-3, atol=1e-5 * scale)
-                     | np.isclose(jac[:, col], (value - f_down) / h, rtol=1e-3,
-                                  atol=1e-5 * scale))
+        # neither side's derivative. Only where a kink shows (the one-sided differences
+        # disagree), at most two configurations per parameter, the Jacobian must be one of
+        # the one-sided derivatives instead.
+        forward_d, backward_d = (f_up - value) / h, (value - f_down) / h
+        kink = ~np.isclose(forward_d, backward_d, rtol=1e-3, atol=1e-5 * scale)
+        one_sided = kink & (np.isclose(jac[:, col], forward_d, rtol=2e-4, atol=1e-6 * scale)
+                            | np.isclose(jac[:, col], backward_d, rtol=2e-4, atol=1e-6 * scale))
         assert np.all(central | one_sided), (name, k, np.flatnonzero(~(central | one_sided)))
-        assert np.mean(central) >= 0.95, (name, k, np.flatnonzero(~central))
+        assert np.count_nonzero(~central) <= 2, (name, k, np.flatnonzero(~central))
 
 
 def _sphere_integral(fn, center, density_cone, n_r=1200, n_a=256):

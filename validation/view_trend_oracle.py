@@ -12,7 +12,8 @@ paths), and the pipeline is run as bench_validity.py runs it. Uses the truth (r 
 measured at the true tau and g): it says whether building the conditional landing fraction
 is worth it, not how well a model would do.
 
-    PYTHONPATH=src python validation/view_trend_oracle.py [--media m10_w10,m10] [--orders cylinder]
+    PYTHONPATH=src python validation/view_trend_oracle.py [--media m10_w10,m10,m10_r10,m15]
+        [--orders cylinder]
 """
 import argparse
 import json
@@ -43,7 +44,7 @@ def ratio(medium: str):
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--media", default="m10_w10,m10")
+    ap.add_argument("--media", default="m10_w10,m10,m10_r10,m15")
     ap.add_argument("--orders", default="cylinder",
                     choices=("poisson", "cylinder", "light-side", "view-side"))
     args = ap.parse_args(argv)

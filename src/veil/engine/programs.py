@@ -30,9 +30,11 @@ model structures, rule, shapes, devices), holding a header and the serialized ex
   programs it lacks are built in memory for this process only (one line says so);
 - a program is built by one process at a time: processes that need the same missing entry
   (the workers of a Dask cluster on one machine, the test suite's workers) wait on a lock
-  file beside it (``<entry>.lock``, POSIX advisory lock, released when its holder exits
-  however it exits) and then read what the first one stored, instead of compiling the same
-  program side by side.
+  file beside it (``<entry>.<environment>.lock``, an advisory ``flock``, released when the
+  build ends or its holder exits) with one line saying so, and then read what the first one
+  stored, instead of compiling the same program side by side. Without a lock (Windows, a
+  store that cannot be written, a file system without ``flock``: one line) or after
+  WAIT_LIMIT seconds of waiting, each process builds its own, as before.
 """
 
 from __future__ import annotations
@@ -317,12 +319,31 @@ def write(identity: str, env: dict, payload: bytes) -> bool:
         return False
 
 
-@contextmanager
-def building(identity: str):
-    """Hold the store's lock for ``identity`` (one process builds a missing entry, the others
-    wait for it); does nothing where there is no store, it cannot be written, or the
-    platform has no ``fcntl``."""
+#: How long a process waits for another one building the same program before it builds
+#: its own (seconds; a compilation takes seconds to minutes).
+WAIT_LIMIT = 900.0
+_POLL = 0.1
+
+
+def _lock_path(identity: str, env: dict) -> str | None:
+    """The lock file of an entry, per environment (two environments sharing a store build
+    their own entries and never wait for each other)."""
     path = _path(identity)
+    if path is None:
+        return None
+    digest = hashlib.sha256(json.dumps(env, sort_keys=True).encode()).hexdigest()[:12]
+    return f"{path}.{digest}.lock"
+
+
+@contextmanager
+def building(identity: str, env: dict):
+    """Hold the store's lock for ``identity`` while a missing entry is built, so that one
+    process builds it and the others wait, then read it. Yields True if this process
+    had to wait for another one (then, if the entry is still missing, the other could not
+    store it, and this one builds without the lock). No lock (yields False) where there is
+    no store, the lock file cannot be made, the file system has no ``flock`` (one line says
+    so) or the platform has no ``fcntl``; after WAIT_LIMIT seconds of waiting (one line)."""
+    path = _lock_path(identity, env)
     try:
         import fcntl
     except ImportError:  # not POSIX: no cross-process lock, each process builds its own
@@ -331,16 +352,55 @@ def building(identity: str):
     if path is not None and fcntl is not None:
         try:
             os.makedirs(os.path.dirname(path), exist_ok=True)
-            fd = os.open(path + ".lock", os.O_RDWR | os.O_CREAT, 0o600)
+            fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o600)
         except OSError:  # unwritable store: write() says so once
             fd = None
+    locked = waited = False
     try:
         if fd is not None:
-            fcntl.flock(fd, fcntl.LOCK_EX)
-        yield
+            locked, waited = _acquire(fcntl, fd, path)
+        yield waited
     finally:
         if fd is not None:
-            os.close(fd)  # releases the lock
+            if locked:
+                # unlock explicitly: a child forked meanwhile shares the open file and would
+                # keep an unreleased lock until it exits
+                fcntl.flock(fd, fcntl.LOCK_UN)
+            os.close(fd)
+
+
+def _acquire(fcntl, fd: int, path: str) -> tuple:
+    """(locked, waited): the exclusive lock on ``fd``, polling with one line while another
+    process holds it (a line on the command line), up to WAIT_LIMIT seconds."""
+    import errno
+    import time
+
+    deadline = None
+    while True:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            return True, deadline is not None
+        except BlockingIOError:
+            pass
+        except OSError as exc:
+            if exc.errno in (errno.EAGAIN, errno.EACCES):
+                pass
+            else:  # ENOLCK, ENOSYS...: a file system without flock
+                _say_once(("no-flock", os.path.dirname(path)), f"the program store "
+                          f"{os.path.dirname(path)} cannot lock files ({exc.strerror}); "
+                          f"processes that need the same program build it side by side")
+                return False, False
+        if deadline is None:
+            deadline = time.monotonic() + WAIT_LIMIT
+            if _jax._started_as_command_line():  # a Python caller is not warned about a wait
+                sys.stderr.write(f"veil: waiting for another process that is building the "
+                                 f"same engine program ({os.path.basename(path)}); it is read "
+                                 f"from the store when done\n")
+        elif time.monotonic() > deadline:
+            _notice(f"waited {WAIT_LIMIT:.0f} s for another process building the same engine "
+                    f"program; building it here too")
+            return False, True
+        time.sleep(_POLL)
 
 
 class Program:
@@ -382,13 +442,19 @@ class Program:
         compiled = read(identity, env, signature)
         if compiled is not None:
             return compiled
-        with building(identity):
+        with building(identity, env) as waited:
             compiled = read(identity, env, signature)  # another process may have built it
-            if compiled is None:
-                compiled = compile_afresh(self.fn, args)
-                payload = serialize(compiled, _devices_of(args))
-                if payload is not None:
-                    write(identity, env, payload)
+            if compiled is None and not waited:
+                compiled = self._compile_and_store(identity, env, args)
+        if compiled is None:  # the process waited for stored nothing: no queue behind it
+            compiled = self._compile_and_store(identity, env, args)
+        return compiled
+
+    def _compile_and_store(self, identity, env, args):
+        compiled = compile_afresh(self.fn, args)
+        payload = serialize(compiled, _devices_of(args))
+        if payload is not None:
+            write(identity, env, payload)
         return compiled
 
 
