@@ -62,6 +62,23 @@ MODELS = {
 }
 
 
+def load_truth() -> dict:
+    """validation/data/truth.json: every plate's and medium's parameters and the geometry."""
+    with open(os.path.join(DATA, "truth.json")) as f:
+        return json.load(f)
+
+
+def study_parser(doc: str, media: str) -> argparse.ArgumentParser:
+    """The command line of a validation study of the physical pipeline (validation/*.py):
+    --media and --orders (the cylinder's by default; the study sets ORDERS from it)."""
+    from veil.models.forward_series import ORDER_WEIGHTS
+
+    ap = argparse.ArgumentParser(description=doc.split("\n")[0])
+    ap.add_argument("--media", default=media)
+    ap.add_argument("--orders", default="cylinder", choices=ORDER_WEIGHTS)
+    return ap
+
+
 def table(name: str, unweighted: bool = False) -> pd.DataFrame:
     t = pd.read_csv(os.path.join(DATA, f"{name}.csv"))
     if unweighted:

@@ -12,8 +12,6 @@ estimate against the direct fit and the truth, with and without the correction.
 
     PYTHONPATH=src python validation/transfer_check.py --media m10_w10,m10 [--orders cylinder]
 """
-import argparse
-import json
 import os
 import sys
 
@@ -77,14 +75,10 @@ def check(truth: dict, medium: str) -> list[str]:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--media", default="m10_w10,m10")
-    ap.add_argument("--orders", default="cylinder",
-                    choices=("poisson", "cylinder", "light-side", "view-side"))
+    ap = bv.study_parser(__doc__, "m10_w10,m10")
     args = ap.parse_args(argv)
     bv.ORDERS = args.orders
-    with open(os.path.join(bv.DATA, "truth.json")) as f:
-        truth = json.load(f)
+    truth = bv.load_truth()
     rows = [row for m in args.media.split(",") for row in check(truth, m)]
     print(f"orders = {args.orders}; grazing: a direction beyond 64 deg; true ks 1, eta 1.1178")
     print("| session | target data | estimate vs direct fit | vs truth | mean difference, grazing "

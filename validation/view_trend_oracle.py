@@ -15,8 +15,6 @@ is worth it, not how well a model would do.
     PYTHONPATH=src python validation/view_trend_oracle.py [--media m10_w10,m10,m10_r10,m15]
         [--orders cylinder]
 """
-import argparse
-import json
 import os
 import sys
 import tempfile
@@ -43,14 +41,10 @@ def ratio(medium: str):
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--media", default="m10_w10,m10,m10_r10,m15")
-    ap.add_argument("--orders", default="cylinder",
-                    choices=("poisson", "cylinder", "light-side", "view-side"))
+    ap = bv.study_parser(__doc__, "m10_w10,m10,m10_r10,m15")
     args = ap.parse_args(argv)
     bv.ORDERS = args.orders
-    with open(os.path.join(bv.DATA, "truth.json")) as f:
-        truth = json.load(f)
+    truth = bv.load_truth()
     plain_table = bv.table
     rows = []
     for medium in args.media.split(","):
