@@ -370,8 +370,8 @@ def building(identity: str, env: dict):
 
 
 def _acquire(fcntl, fd: int, path: str) -> tuple:
-    """(locked, waited): the exclusive lock on ``fd``, polling with one line while another
-    process holds it (a line on the command line), up to WAIT_LIMIT seconds."""
+    """(locked, waited): the exclusive lock on ``fd``, polling while another process holds
+    it (one line on the command line), up to WAIT_LIMIT seconds."""
     import errno
     import time
 
