@@ -258,3 +258,36 @@ def test_lock_is_released_for_a_forked_child(tmp_path, monkeypatch):
     finally:
         os.kill(child, 9)
         os.waitpid(child, 0)
+
+
+def test_a_wait_for_another_process_is_bounded(tmp_path, monkeypatch):
+    """While another process holds an entry's lock this one waits; after WAIT_LIMIT it says
+    so and goes on (``building`` yields True: it waited, and builds without the lock)."""
+    import subprocess
+    import sys
+    import time
+    import warnings
+
+    monkeypatch.setenv("VEIL_CACHE_DIR", str(tmp_path))
+    monkeypatch.setattr(programs, "WAIT_LIMIT", 1.0)
+    env = {"test": 2}
+    path = programs._lock_path("an identity", env)
+    os.makedirs(os.path.dirname(path))
+    holder = subprocess.Popen(
+        [sys.executable, "-c", "import fcntl, os, sys, time; fd = os.open(sys.argv[1], "
+         "os.O_RDWR | os.O_CREAT); fcntl.flock(fd, fcntl.LOCK_EX); print('held', flush=True); "
+         "time.sleep(60)", path], stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            start = time.monotonic()
+            with programs.building("an identity", env) as waited:
+                assert waited is True
+            elapsed = time.monotonic() - start
+        assert 1.0 <= elapsed < 10.0
+        said = [str(w.message) for w in caught if str(w.message).startswith("veil:")]
+        assert len(said) == 1 and "waited 1 s for another process" in said[0], said
+    finally:
+        holder.kill()
+        holder.wait()
