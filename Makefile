@@ -18,11 +18,11 @@ $(STAMP): pyproject.toml
 	$(PY) -m pip install --quiet -e '.[test]'
 	@touch $(STAMP)
 
-# --dist loadscope: a module's tests on one worker, so that its module-scoped fixtures (data
-# sets, fits, photo stacks) are made once (measured on 2 cores, same code, fresh stores:
-# 11:42 of tests and 21:30 CPU against worksteal's 13:41 and 25:30)
+# --dist worksteal; loadscope (a module's tests on one worker, its module fixtures made once)
+# was tried and measured within the host's noise (clean clones, 2 cores: 11:42 and 13:25 of
+# tests against worksteal's 12:25 and 13:41), with an idle worker while the last module runs
 test: $(STAMP)
-	$(PY) -m pytest -n $(JOBS) --dist loadscope -q --durations=30
+	$(PY) -m pytest -n $(JOBS) --dist worksteal -q --durations=30
 
 demo: $(STAMP)
 	$(VENV)/bin/veil demo -o demo-out
