@@ -333,6 +333,8 @@ def figure(rows: list[dict], path: str) -> None:
 
 
 def main(argv=None) -> int:
+    from veil.models.forward_series import ORDER_WEIGHTS
+
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--media", default="m01,m05,m10")
     ap.add_argument("--targets", default="target")
@@ -343,8 +345,7 @@ def main(argv=None) -> int:
                     help="also steps 1 and 2 as one joint fit per medium and model set")
     ap.add_argument("--replot", default=None, metavar="JSON",
                     help="draw --figure from the rows of an earlier --json run, fit nothing")
-    ap.add_argument("--orders", default="poisson",
-                    choices=("poisson", "cylinder", "light-side", "view-side"),
+    ap.add_argument("--orders", default="poisson", choices=ORDER_WEIGHTS,
                     help="the physical medium's order weights (forward-series option orders)")
     ap.add_argument("--model-error", default="correlated",
                     choices=("off", "independent", "correlated"),
@@ -363,8 +364,7 @@ def main(argv=None) -> int:
         if args.figure:
             figure(rows, args.figure)
         return 0
-    with open(os.path.join(DATA, "truth.json")) as f:
-        truth = json.load(f)
+    truth = load_truth()
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for medium in args.media.split(","):

@@ -4,8 +4,13 @@ saying so, an unwritable store keeps working, and the numbers never change."""
 
 from __future__ import annotations
 
+import errno
+import fcntl
 import json
 import os
+import subprocess
+import sys
+import time
 import warnings
 
 import numpy as np
@@ -16,14 +21,18 @@ from veil.engine import forward, programs
 from veil.engine.quadrature import RULES
 
 
-@pytest.fixture(scope="module")
-def engine_call():
+def make_engine_call():
     """An engine program (term matrices, 'fast', 8 in-plane configurations) and its inputs."""
     fw = forward.Forward(veil.BRDF1, veil.BTDF2, np.linspace(10, 70, 8), np.linspace(5, 60, 8),
                          180.0, 0.0, RULES["fast"])
     program = forward._terms_fn(fw._kb, fw._km, fw.rule, fw.half, fw._mesh)
     args = (*fw._vectors(veil.BRDF1.to_vector(), veil.BTDF2.to_vector()), fw._wi, fw._wr)
     return program, args
+
+
+@pytest.fixture(scope="module")
+def engine_call():
+    return make_engine_call()
 
 
 def fresh(program):
@@ -152,9 +161,9 @@ def test_code_digest_follows_the_code_not_where_it_lives(tmp_path, monkeypatch):
 _BUILD_SCRIPT = r"""
 import hashlib, os, sys, time
 import numpy as np
-import veil
-from veil.engine import forward, programs
-from veil.engine.quadrature import RULES
+sys.path.insert(0, sys.argv[3])
+from test_programs import make_engine_call
+from veil.engine import programs
 
 compiled = []
 original = programs.compile_afresh
@@ -163,10 +172,7 @@ def counting(fn, args):
     return original(fn, args)
 programs.compile_afresh = counting
 
-fw = forward.Forward(veil.BRDF1, veil.BTDF2, np.linspace(10, 70, 8), np.linspace(5, 60, 8),
-                     180.0, 0.0, RULES["fast"])
-program = forward._terms_fn(fw._kb, fw._km, fw.rule, fw.half, fw._mesh)
-args = (*fw._vectors(veil.BRDF1.to_vector(), veil.BTDF2.to_vector()), fw._wi, fw._wr)
+program, args = make_engine_call()
 barrier, me = sys.argv[1], sys.argv[2]
 open(os.path.join(barrier, me), "w").close()
 deadline = time.monotonic() + 120
@@ -182,13 +188,12 @@ print(len(compiled), hashlib.sha256(values.tobytes()).hexdigest())
 def test_processes_that_need_the_same_program_build_it_once(tmp_path):
     """Two processes calling the same missing program at the same moment: one compiles, the
     other waits on the entry's lock and reads it (the same numbers, bit for bit)."""
-    import subprocess
-    import sys
 
     barrier = tmp_path / "barrier"
     barrier.mkdir()
     env = {**os.environ, "VEIL_CACHE_DIR": str(tmp_path / "cache")}
-    procs = [subprocess.Popen([sys.executable, "-c", _BUILD_SCRIPT, str(barrier), str(i)],
+    procs = [subprocess.Popen([sys.executable, "-c", _BUILD_SCRIPT, str(barrier), str(i),
+                               os.path.dirname(__file__)],
                               env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                               text=True) for i in range(2)]
     try:
@@ -209,8 +214,6 @@ def test_processes_that_need_the_same_program_build_it_once(tmp_path):
 def test_store_without_file_locks_builds_as_before(tmp_path, monkeypatch, engine_call):
     """A file system without flock (NFS without lockd: ENOLCK): one line, the program built
     and stored without the lock, the same numbers."""
-    import errno
-    import fcntl
 
     program, args = engine_call
     monkeypatch.setenv("VEIL_CACHE_DIR", str(tmp_path))
@@ -232,7 +235,6 @@ def test_lock_is_released_for_a_forked_child(tmp_path, monkeypatch):
     """The lock is released when the build ends, not when every process sharing its open
     file has closed it: a child forked during a build (multiprocessing's default on Linux)
     does not keep it."""
-    import time
 
     monkeypatch.setenv("VEIL_CACHE_DIR", str(tmp_path))
     env = {"test": 1}
@@ -246,8 +248,6 @@ def test_lock_is_released_for_a_forked_child(tmp_path, monkeypatch):
         script = ("import sys, time; sys.path.insert(0, sys.argv[1]); from veil.engine "
                   "import programs; t = time.monotonic()\nwith programs.building('an "
                   "identity', {'test': 1}) as w: print(w, round(time.monotonic() - t, 1))")
-        import subprocess
-        import sys
 
         out = subprocess.run([sys.executable, "-c", script, os.path.dirname(
             os.path.dirname(os.path.dirname(programs.__file__)))], env={**os.environ},
@@ -263,10 +263,6 @@ def test_lock_is_released_for_a_forked_child(tmp_path, monkeypatch):
 def test_a_wait_for_another_process_is_bounded(tmp_path, monkeypatch):
     """While another process holds an entry's lock this one waits; after WAIT_LIMIT it says
     so and goes on (``building`` yields True: it waited, and builds without the lock)."""
-    import subprocess
-    import sys
-    import time
-    import warnings
 
     monkeypatch.setenv("VEIL_CACHE_DIR", str(tmp_path))
     monkeypatch.setattr(programs, "WAIT_LIMIT", 1.0)

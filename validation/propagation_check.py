@@ -38,7 +38,6 @@ Run:  PYTHONPATH=src python validation/propagation_check.py [--media m01,m05] [-
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
 import tempfile
@@ -236,8 +235,7 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--coords", default="natural,transformed")
     args = ap.parse_args(argv)
-    with open(os.path.join(bv.DATA, "truth.json")) as f:
-        truth = json.load(f)
+    truth = bv.load_truth()
     coords = args.coords.split(",")
     for c in coords:
         if c not in ("natural", "transformed"):

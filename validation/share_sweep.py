@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import os
 import sys
 import tempfile
@@ -40,8 +39,7 @@ def sweep(medium: str, orders: str, shares: list) -> dict:
     from veil.pipeline import compare
 
     bv.ORDERS = orders
-    with open(os.path.join(bv.DATA, "truth.json")) as f:
-        truth = json.load(f)
+    truth = bv.load_truth()
     names, kw = bv._case(truth, medium, "target", "physical")
     t = {k: bv.table(v, k.endswith("clear")) for k, v in names.items() if k != "session"}
     with tempfile.TemporaryDirectory() as out:
