@@ -34,7 +34,7 @@ f_r of step 0 held (no direct fit is compared there: the columns against it are 
 Run:  .venv/bin/python benchmarks/bench_validity.py [--media m01,m05,m10] [--targets target]
       [--models paper,physical] [--orders poisson|cylinder|light-side|view-side] [--joint]
       [--model-error off|independent|correlated] [--propagation auto|linear|sigma-points]
-      [--figure docs/validity.png] [--json out.json]
+      [--reference ref|smooth] [--figure docs/validity.png] [--json out.json]
 The clear-water tables have sigma = 0 (deterministic renders, validation/README.md); they are
 fitted unweighted.
 """
@@ -87,11 +87,22 @@ def table(name: str, unweighted: bool = False) -> pd.DataFrame:
     return t
 
 
-def sessions_of(truth: dict, medium: str, target: str):
-    """File stems of one case: medium 'm10' or 'm10_w10' (a geometry variant)."""
+#: The reference plate's object name (--reference): "ref" (alpha 0.1, rho 0.5) or "smooth"
+#: (alpha 0.03, rho 0.1: a clear specular peak; rendered in the 5 cm plate's geometry only).
+REFERENCE = "ref"
+
+
+def sessions_of(truth: dict, medium: str, target: str, reference: str | None = None):
+    """File stems of one case: medium 'm10' or 'm10_w10' (a geometry variant); the reference
+    plate ``reference`` (default REFERENCE)."""
     base, _, geom = medium.partition("_")
     suffix = f"_{geom}" if geom else ""
-    return {"reference_clear": "water_ref", "reference_medium": f"{base}_ref{suffix}",
+    ref = REFERENCE if reference is None else reference
+    stem = f"{base}_{ref}{suffix}"
+    if not os.path.exists(os.path.join(DATA, f"{stem}.csv")):
+        raise SystemExit(f"bench_validity: no session {stem}.csv in validation/data (the "
+                         f"reference {ref!r} was not rendered in medium {medium!r})")
+    return {"reference_clear": f"water_{ref}", "reference_medium": stem,
             "target_medium": f"{base}_{target}{suffix}", "black": f"{base}_black{suffix}",
             "target_clear": f"water_{target}", "session": f"{base}_{target}{suffix}"}
 
@@ -352,8 +363,12 @@ def main(argv=None) -> int:
                     help="the fits' model-discrepancy term (veil.fitting.model_error)")
     ap.add_argument("--propagation", default="auto", choices=("auto", "linear", "sigma-points"),
                     help="how step 1's covariance enters step 2's (veil.fitting.propagation)")
+    ap.add_argument("--reference", default="ref", choices=("ref", "smooth"),
+                    help="the reference plate (validation/README.md): ref (alpha 0.1) or "
+                         "smooth (alpha 0.03, a clear specular peak; 5 cm plate only)")
     args = ap.parse_args(argv)
-    global ORDERS, MODEL_ERROR, PROPAGATION
+    global ORDERS, MODEL_ERROR, PROPAGATION, REFERENCE
+    REFERENCE = args.reference
     ORDERS = args.orders
     MODEL_ERROR = args.model_error
     PROPAGATION = args.propagation

@@ -102,6 +102,10 @@ def _sessions():
         s[f"{med}_smooth"] = dict(object="smooth", medium=med, half_width=HALF_WIDTH, r_c=R_C)
     for obj in ("ref", "target", "smooth", "black", "ggx"):
         s[f"m15_{obj}"] = dict(object=obj, medium="m15", half_width=HALF_WIDTH, r_c=R_C)
+    # the smooth reference in the two geometry variations (step 1 on a plate with a clear
+    # specular peak, docs/validity.md)
+    s["m10_smooth_w10"] = dict(object="smooth", medium="m10", half_width=5.0, r_c=R_C)
+    s["m10_smooth_r10"] = dict(object="smooth", medium="m10", half_width=HALF_WIDTH, r_c=10.0)
     return s
 
 
