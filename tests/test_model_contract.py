@@ -190,6 +190,14 @@ def test_starting_grids_lie_inside_the_bounds(name):
             assert inside, f"{name} START[{role}][{pname}] has no value inside {p.interval()}"
 
 
+@pytest.mark.parametrize("name", FAMILIES)
+def test_a_declared_model_error_is_a_relative_error_and_a_length(name):
+    floor = REGISTRY[name].MODEL_ERROR_FLOOR
+    if floor is not None:
+        s, ell = floor
+        assert 0.0 < s < 0.5 and math.isfinite(ell) and ell >= 0.0, (name, floor)
+
+
 # --------------------------------------------------------------------------------------
 # sampling maps and weights
 # --------------------------------------------------------------------------------------

@@ -14,7 +14,7 @@ propagation "auto"), then:
    difference estimate - direct and the estimate's relative standard error.
 
 Run:  .venv/bin/python validation/share_sweep.py [--media m10_w10] [--orders cylinder]
-      [--shares 0,0.25,0.5,0.75,fitted,1]
+      [--reference ref|smooth] [--shares 0,0.25,0.5,0.75,fitted,1]
 """
 
 from __future__ import annotations
@@ -73,9 +73,12 @@ def main(argv=None) -> int:
     ap.add_argument("--media", default="m10_w10")
     ap.add_argument("--orders", default="cylinder",
                     choices=("poisson", "cylinder", "light-side", "view-side"))
+    ap.add_argument("--reference", default="ref", choices=("ref", "smooth"),
+                    help="the reference plate (bench_validity --reference)")
     ap.add_argument("--shares", default="0,0.25,0.5,0.75,fitted,1",
                     help="values of c, comma-separated; 'fitted' is step 2's estimate")
     args = ap.parse_args(argv)
+    bv.REFERENCE = args.reference
     shares = [s.strip() for s in args.shares.split(",")]
     for s in shares:
         if s != "fitted":

@@ -32,7 +32,7 @@ from .problem import (ITERATION_ACCURACY, OBJECTS, Block, Problem, Session, chec
                       model_slots)
 from . import model_error as discrepancy
 from .propagation import check_method, describe, media_part
-from .reported import Reported, reported
+from .reported import Reported, model_floor, reported
 from .result import FitResult, JointResult, load_result, model_entry
 from .solver import (as_fixed, check_fixed, check_max_nfev, covariance_matrix, run, summarize,
                      uncertainties)
@@ -401,7 +401,9 @@ def fit_joint(sessions, *, reference=None, shared=None, per_medium=None, fixed=N
         if reference is not None else None
     rep = reported(problem, outcome.solution.x, summary, outcome.values, kind=model_error,
                    given_result=given_result, given_column=lambda n: index[ref_names[n]],
-                   propagation="linear")   # the reference's covariance, to first order
+                   propagation="linear",   # the reference's covariance, to first order
+                   floor=model_floor(*(model_class(layout["models"][k], k)
+                                       for k in ("brdf", "medium"))))
     rep = _media_beyond_first_order(problem, outcome.solution.x, rep, propagation)
     return _result(problem, layout, outcome, summary, accuracy, given, rep)
 

@@ -77,7 +77,8 @@ def _shared(problem: Problem, x, own_influence, given_result, given_column, term
 
 def reported(problem: Problem, x, summary, values, *, kind: str, rename: Callable = _same,
              given_result=None, given_column: Callable[[str], int] | None = None,
-             propagation: str = "auto", keep_influence: bool = False) -> Reported:
+             propagation: str = "auto", keep_influence: bool = False,
+             floor=None) -> Reported:
     """The uncertainties of a fit at natural ``x``: the solver's ``summary`` (the noise's
     covariance of the free parameters, None when undetermined) and the model ``values``;
     ``rename(stderr, correlation)`` puts the problem's names into the result's.
@@ -88,7 +89,8 @@ def reported(problem: Problem, x, summary, values, *, kind: str, rename: Callabl
     :func:`veil.fitting.propagation.propagated`. A correlated term of a fit with
     ``keep_influence`` (step 1) keeps its influence on the estimate and its configurations;
     given such a fit, step 2's total adds the error the two share
-    (:func:`veil.fitting.model_error.shared`)."""
+    (:func:`veil.fitting.model_error.shared`). ``floor`` is the fit's models' declared
+    error (:func:`model_floor`), the least term a weighted fit reports."""
     cov = summary.covariance
     stderr, corr = rename(summary.stderr, summary.correlation)
 
@@ -125,7 +127,8 @@ def reported(problem: Problem, x, summary, values, *, kind: str, rename: Callabl
         jw = weighted_jacobian(problem, x)
         term = discrepancy.step_term(summary.residuals, values, problem.w,
                                      problem.n_points - problem.n_free, problem.angles,
-                                     discrepancy.given_term(given_result), kind, jw)
+                                     discrepancy.given_term(given_result), kind, jw,
+                                     floor)
         if term.sigma > 0 or given_noise is not given_result:
             # without an inherited term the total above is already the noise-only one
             noise_total = ((stderr_total, corr_total) if given_noise is given_result
@@ -162,4 +165,12 @@ def reported(problem: Problem, x, summary, values, *, kind: str, rename: Callabl
     return Reported(stderr, corr, stderr_total, corr_total, term, how)
 
 
-__all__ = ["Reported", "reported"]
+def model_floor(*models):
+    """The largest declared model error (s, ell) of ``models`` (classes or instances; None
+    skipped), ``Model.MODEL_ERROR_FLOOR``; None when none declares one."""
+    floors = [m.MODEL_ERROR_FLOOR for m in models
+              if m is not None and m.MODEL_ERROR_FLOOR is not None]
+    return max(floors, default=None)
+
+
+__all__ = ["Reported", "reported", "model_floor"]

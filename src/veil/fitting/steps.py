@@ -33,7 +33,7 @@ from .given import as_given, check_options
 from . import model_error as discrepancy
 from .problem import ITERATION_ACCURACY, Problem, check_accuracy, session_problem
 from .propagation import check_method, describe
-from .reported import reported
+from .reported import model_floor, reported
 from .result import FitResult, model_entry
 from .solver import as_fixed, check_fixed, check_max_nfev, run, summarize
 from .start_values import step_starts
@@ -140,7 +140,8 @@ def _step(step: str, data: FitData, fitted: Model, given: Model | None, given_re
                    given_result=given_result,
                    given_column=None if given is None
                    else lambda n: problem.index(type(given).param(n).key),
-                   propagation=propagation, keep_influence=cls.KIND == "medium")
+                   propagation=propagation, keep_influence=cls.KIND == "medium",
+                   floor=model_floor(brdf, medium))
     media = [m for m in (medium,) if m is not None]
     variant = media[0].options().get(VARIANT_OPTION) if media else None
     stats = dict(outcome.stats, grid_points=n_grid)

@@ -156,6 +156,11 @@ class Model:
     SCALES: ClassVar[dict[str, str]] = {}
     #: Starting grids {role: {parameter: values}} over the parameters that are not scales.
     START: ClassVar[dict[str, dict[str, tuple]]] = {}
+    #: The model's own relative error against physics where it is known (s, ell in degrees):
+    #: a floor on the model-discrepancy term of every weighted fit through the model
+    #: (veil.fitting.model_error), which the data of one session may be too few to show.
+    #: None: no floor (the term comes from the residuals alone).
+    MODEL_ERROR_FLOOR: ClassVar[tuple[float, float] | None] = None
 
     def __post_init__(self) -> None:
         owner = type(self).__name__
