@@ -3,6 +3,7 @@ and the physical models on the path-traced validation data (issue 12)."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 
@@ -131,3 +132,11 @@ def test_a_reference_with_a_specular_peak_determines_the_medium(medium, tau, g):
         assert (term.sigma, term.length, term.own, term.source) == (0.005, 40.0, 0.0,
                                                                     "model's floor")
         assert med.model_error.noise_only["stderr"]["tau"] < se["tau"]
+        # the report advises a peaked reference only where the medium is left uncertain
+        # (the rough reference's m01: tau 0.108 +- 0.186)
+        assert "[[Hint]]" not in med.report()
+        loose = dataclasses.replace(med, stderr=dict(med.stderr, tau=0.186),
+                                    stderr_total=None)
+        hint = loose.report().split("[[Hint]]")[1]
+        assert "tau uncertain" in hint and "g" not in hint.split("uncertain")[0]
+        assert "specular peak" in hint

@@ -7,6 +7,7 @@ from __future__ import annotations
 import math
 
 from ..numbers import format_number
+from .propagation import RELATIVE_LIMIT
 from .result import FitResult, JointResult
 
 #: What each step of MODEL.md sec. 7 estimates, for the report's header.
@@ -117,12 +118,39 @@ def _variables(result: FitResult) -> list[str]:
     return lines
 
 
+def _hints(result: FitResult) -> list[str]:
+    """Advice on the design where a step-1 medium with an unscattered beam is left uncertain
+    by more than RELATIVE_LIMIT of its scale (tau at optical depth 0.1 through a broad
+    reference): a reference whose specular peak is narrower than the medium's forward lobe
+    measures the unscattered beam e^{-2 tau} at its peak (docs/validity.md: tau within 1 %
+    from 0.1 to 1.5 with one)."""
+    if isinstance(result, JointResult) or result.step != "medium":
+        return []
+    cls = result.model_class
+    if not (hasattr(cls, "has") and cls.has("delta")):
+        return []
+    se = result.stderr_total or result.stderr
+    loose = [n for n, v in result.params.items()
+             if n not in result.fixed and n in se
+             and cls.param(n).relative_error(v, se[n]) > RELATIVE_LIMIT]
+    if not loose:
+        return []
+    return ["[[Hint]]",
+            f"    {', '.join(loose)} uncertain by more than {RELATIVE_LIMIT:g} of "
+            f"{'its' if len(loose) == 1 else 'their'} scale: this reference does not show "
+            f"the unscattered beam apart from the scattered light. A reference whose specular "
+            f"peak is narrower than the medium's forward lobe (a glossy plate) measures it at "
+            f"the peak and determines the medium (docs/validity.md)."]
+
+
 def fit_report(result: FitResult, min_correlation: float = 0.1) -> str:
     """The report of any fit result (module docstring); correlations of at least
-    ``min_correlation`` (the 20 strongest of a joint fit)."""
+    ``min_correlation`` (the 20 strongest of a joint fit); a hint on the design where a
+    medium with an unscattered beam is left uncertain."""
     most = 20 if isinstance(result, JointResult) else None
     lines = [_header(result)] + _statistics(result) + _sessions(result) + _variables(result)
     lines += result.correlation_lines(min_correlation, most=most)
+    lines += _hints(result)
     return "\n".join(lines)
 
 
