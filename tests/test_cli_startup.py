@@ -73,6 +73,10 @@ def test_models_command_imports_no_numerics():
     listed = json.loads(out[: out.rindex("}") + 1] if out.strip().startswith("{")
                         else out[: out.rindex("]") + 1])
     assert listed
+    # the declared model error is listed where a model has one
+    floors = {e["name"]: e["model_error_floor"] for e in listed}
+    assert floors["forward-series"] == {"sigma": 0.005, "length": 40.0}
+    assert floors["henyey-greenstein"] is None
 
 
 def test_model_declarations_import_without_jax():

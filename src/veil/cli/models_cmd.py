@@ -14,8 +14,8 @@ import click
               help="Print the declarations as JSON (name, kind, parameters, options, presets).")
 def models_command(kind, as_json):
     """List the model families veil knows: parameters with bounds, units and meaning,
-    options, the parameters that scale the model linearly, those a joint fit may share, and
-    the presets. Commands choose them with --brdf-model NAME and --medium-model NAME."""
+    options, the parameters that scale the model linearly, those a joint fit may share, the
+    presets, and the model's declared error where it has one. Commands choose them with --brdf-model NAME and --medium-model NAME."""
     from ..models import DEFAULTS, PRESETS, model_class, names
     from ..numbers import json_clean
 
@@ -34,6 +34,8 @@ def models_command(kind, as_json):
             "options": [{"name": o.name, "default": o.default, "choices": list(o.choices),
                          "meaning": o.doc} for o in cls.OPTIONS],
             "presets": [k for k, m in PRESETS.items() if type(m) is cls],
+            "model_error_floor": None if cls.MODEL_ERROR_FLOOR is None else
+            {"sigma": cls.MODEL_ERROR_FLOOR[0], "length": cls.MODEL_ERROR_FLOOR[1]},
         })
     if as_json:  # unbounded parameters have null bounds
         click.echo(json.dumps(json_clean(entries), indent=2, allow_nan=False))
@@ -65,4 +67,9 @@ def models_command(kind, as_json):
             console.print(escape(f"  option --{o['name'].replace('_', '-')}: "
                                  f"{' | '.join(map(str, o['choices'])) or type(o['default']).__name__}"
                                  f" (default {o['default']}): {o['meaning']}"))
+        if e["model_error_floor"]:
+            f = e["model_error_floor"]
+            console.print(escape(f"  declared model error: {100 * f['sigma']:g} % relative, "
+                                 f"correlation length {f['length']:g} deg (the least "
+                                 f"model-discrepancy term of a weighted fit through it)"))
         console.print("")
