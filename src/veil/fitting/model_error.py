@@ -65,7 +65,7 @@ CHI2_Z = 2.0
 LENGTHS = (0.0, 2.5, 5.0, 10.0, 20.0, 40.0, 80.0)
 #: Points of the grid over c in [0, 1] on which :func:`session_correlation` averages c under
 #: its likelihood (the trapezoid rule; the likelihood is smooth in c).
-SHARE_GRID = 201
+SHARE_GRID = 41
 #: The kinds of term a fit can estimate (``model_error=``, ``--model-error``): none, an
 #: independent error (ell = 0), or ell chosen by the likelihood among :data:`LENGTHS`.
 KINDS = ("off", "independent", "correlated")

@@ -410,9 +410,11 @@ def _stats_lines(result: FitResult) -> list[str]:
     if term is not None and term.sigma > 0:
         length = (f", correlated over {format_number(term.length, 3)} deg" if term.length
                   else ", independent between configurations")
-        where = ("shown by this fit's residuals: reduced chi-square above "
-                 f"{format_number(term.chi2_threshold, 4)}" if term.source == "own residuals"
-                 else "inherited from the medium's fit, whose residuals showed it")
+        where = {"own residuals": "shown by this fit's residuals: reduced chi-square above "
+                                   f"{format_number(term.chi2_threshold, 4)}",
+                 "model's floor": "the model's declared error against path tracing, more "
+                                  "than this fit's residuals show",
+                 }.get(term.source, "inherited from the medium's fit")
         lines.append(f"- model error: {format_number(100 * term.sigma, 3)} % of the model's "
                      f"value{length} ({where}), included in the standard errors "
                      f"(docs/validity.md)")
