@@ -126,12 +126,13 @@ def test_a_reference_with_a_specular_peak_determines_the_medium(medium, tau, g):
     # error (0.003 with the noise alone), the rough reference's 0.12-0.19
     assert se["tau"] < 0.1 * tau, se
     if medium == "m01":
-        # the residuals there do not exceed the noise (reduced chi-square 1.26): the term
-        # is the model's declared floor (forward_series.MODEL_ERROR_FLOOR)
+        # the residuals there show less than the model's declared error (reduced chi-square
+        # 1.26, under the test's limit): the term is the floor
+        # (forward_series.MODEL_ERROR_FLOOR), and it widens tau's own standard error
         term = med.model_error
-        assert (term.sigma, term.length, term.own, term.source) == (0.005, 40.0, 0.0,
-                                                                    "model's floor")
-        assert med.model_error.noise_only["stderr"]["tau"] < se["tau"]
+        assert (term.sigma, term.length, term.source) == (0.005, 40.0, "model's floor")
+        assert term.own < 0.005
+        assert term.noise_only["stderr"]["tau"] < 0.8 * med.stderr["tau"]
         # the report advises a peaked reference only where the medium is left uncertain
         # (the rough reference's m01: tau 0.108 +- 0.186)
         assert "[[Hint]]" not in med.report()
@@ -145,4 +146,4 @@ def test_a_reference_with_a_specular_peak_determines_the_medium(medium, tau, g):
 
         said = " ".join(_stats_lines(med))
         assert "0.5 % of the model's value, correlated over 40 deg (the model's declared " \
-            "error against path tracing" in said
+            "error (MODEL_ERROR_FLOOR)" in said

@@ -115,6 +115,20 @@ def test_step_two_takes_the_larger_of_its_own_and_the_medium_s():
     assert alone.sigma == 0.0 and alone.source == "none"
 
 
+def test_the_likelihood_mean_is_the_normalized_average():
+    grid = np.linspace(0.0, 1.0, 41)
+    # a likelihood exp(-nll) proportional to c: mean 2/3 (the trapezoid rule on a line is
+    # exact for the mass; the first moment within h^2 / 6)
+    nll = 1000.0 - np.log(np.maximum(grid, 1e-300))
+    assert abs(me.likelihood_mean(grid, nll) - 2.0 / 3.0) < 1e-3
+    flat = me.likelihood_mean(grid, np.full(41, 5.0))
+    assert abs(flat - 0.5) < 1e-12
+    # non-finite points weigh nothing; none finite: None
+    half = np.where(grid <= 0.5, 7.0, np.inf)
+    assert abs(me.likelihood_mean(grid, half) - 0.25) < 0.02
+    assert me.likelihood_mean(grid, np.full(41, np.inf)) is None
+
+
 def test_a_declared_floor_is_the_least_term():
     """A model's declared error (MODEL_ERROR_FLOOR) enters where the residuals show less
     (chi-square below the test's limit, or a smaller s), with its length only for the
@@ -129,7 +143,15 @@ def test_a_declared_floor_is_the_least_term():
     assert me.step_term(*args, None, "independent", None, (0.005, 40.0)).length == 0.0
     given = me.ModelError(0.02, 10.0, 0.02, None, "own residuals", 1.4)
     above = me.step_term(*args, given, "correlated", None, (0.005, 40.0))
-    assert (above.sigma, above.length, above.source) == (0.02, 10.0, "given medium")
+    # a larger s keeps its source, with at least the floor's reach
+    assert (above.sigma, above.length, above.source) == (0.02, 40.0, "given medium")
+    below = me.ModelError(0.003, 80.0, 0.003, None, "own residuals", 1.4)
+    floor = me.step_term(*args, below, "correlated", None, (0.005, 40.0))
+    assert (floor.sigma, floor.length, floor.source) == (0.005, 40.0, "model's floor")
+    # residuals that show more than the floor (about 1.3 %, independent): their s, the
+    # floor's length
+    own = me.step_term(3.0 * r, *args[1:], None, "correlated", None, (0.005, 40.0))
+    assert own.source == "own residuals" and own.sigma > 0.005 and own.length >= 40.0
     back = me.ModelError.from_dict(json.loads(json.dumps(term.to_dict())))
     assert back.source == "model's floor"
     # the physical medium declares one, the paper's models and the BRDFs none
@@ -312,17 +334,23 @@ def test_session_correlation_is_recovered():
     independent ones); None without the given fit's residuals (result files of earlier
     veils)."""
     rng = np.random.default_rng(0)
-    medians = {}
+    medians, maxima = {}, {}
     for truth in (0.0, 0.5, 1.0):
-        got = []
+        got, best = [], []
         for _ in range(30):
-            given, names, r2, a2, j2, jm, ang2, cov, cov_m = _two_sessions(rng, truth)
+            args = _two_sessions(rng, truth)
+            given, names, r2, a2, j2, jm, ang2, cov, cov_m = args
             got.append(me.session_correlation(r2, a2, j2, ang2, cov, given, names, jm, cov_m))
+            grid, nll = me.share_likelihood(r2, a2, j2, ang2, cov, given, names, jm, cov_m)
+            best.append(grid[int(np.argmin(nll))])
         # a mean over a likelihood that is positive on [0, 1] never reaches a bound
         assert all(0.0 < g < 1.0 for g in got), got
-        medians[truth] = float(np.median(got))
+        medians[truth], maxima[truth] = float(np.median(got)), float(np.median(best))
     assert medians[0.0] + 0.1 < medians[0.5] < medians[1.0] - 0.1, medians
     assert medians[0.0] < 0.45 and medians[1.0] > 0.65, medians
+    # the likelihood itself locates c (its maximum: 0.05, 0.54, 1.00 measured; without the
+    # coupling through step 1's estimate 0.00, 0.23, 0.74)
+    assert maxima[0.0] < 0.15 and 0.4 < maxima[0.5] < 0.65 and maxima[1.0] > 0.95, maxima
     given, names, r2, a2, j2, jm, ang2, cov, cov_m = _two_sessions(rng, 1.0)
     assert me.session_correlation(r2, a2, j2, ang2, cov, dataclasses.replace(
         given, residuals=None, scaled=None), names, jm, cov_m) is None

@@ -130,3 +130,31 @@ def test_a_subprocess_finds_the_plugins_through_the_environment(tmp_path):
                          env=dict(env, VEIL_PLUGINS="no_such_module"), capture_output=True,
                          text=True, timeout=120)
     assert bad.returncode == 2 and "VEIL_PLUGINS names module 'no_such_module'" in bad.stderr
+
+
+def test_a_declared_model_error_reaches_every_fit_through_the_model(files, monkeypatch):
+    """A family's MODEL_ERROR_FLOOR (here given to the test medium) is the least term of step
+    1, step 2 and a joint fit in media (their residuals show none: simulated data), with its
+    length only when correlated; a joint fit with a clear-water session gets none of it."""
+    from veil.fitting import fit_joint, fit_medium, fit_reference, fit_target
+
+    monkeypatch.setattr(veil_test_models.FisherTest, "MODEL_ERROR_FLOOR", (0.005, 40.0))
+    ref = fit_reference(files["ref_clear"])
+    med = fit_medium(files["ref_medium"], ref, black=files["black"],
+                     medium_model="fisher-test", accuracy="fast")
+    term = med.model_error
+    assert (term.sigma, term.length, term.source) == (0.005, 40.0, "model's floor")
+    assert term.influence is not None            # step 2 needs it for the shared cross term
+    tgt = fit_target(files["target"], med, brdf_model="lambertian-test", accuracy="fast")
+    assert tgt.model_error.sigma == 0.005 and tgt.model_error.length == 40.0
+    alone = fit_medium(files["ref_medium"], ref, black=files["black"],
+                       medium_model="fisher-test", accuracy="fast", model_error="independent")
+    assert (alone.model_error.sigma, alone.model_error.length) == (0.005, 0.0)
+    kw = dict(brdf_model="lambertian-test", medium_model="fisher-test", accuracy="fast",
+              fixed={"kappa[one]": 150.0, "kappa[two]": 60.0})
+    media = [(files["target"], "one", "target"), (files["target_2"], "two", "target")]
+    # without a clear session one scale is fixed (the media's and the object's trade off)
+    joint = fit_joint(media, **dict(kw, fixed=dict(kw["fixed"], **{"Td[one]": 2e-3})))
+    assert joint.model_error.source == "model's floor" and joint.model_error.sigma == 0.005
+    mixed = fit_joint(media + [(files["target_clear"], "none", "target")], **kw)
+    assert mixed.model_error.source != "model's floor"

@@ -15,7 +15,8 @@ import click
 def models_command(kind, as_json):
     """List the model families veil knows: parameters with bounds, units and meaning,
     options, the parameters that scale the model linearly, those a joint fit may share, the
-    presets, and the model's declared error where it has one. Commands choose them with --brdf-model NAME and --medium-model NAME."""
+    presets, and the model's declared error where it has one. Commands choose them with
+    --brdf-model NAME and --medium-model NAME."""
     from ..models import DEFAULTS, PRESETS, model_class, names
     from ..numbers import json_clean
 

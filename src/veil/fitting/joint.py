@@ -334,6 +334,16 @@ def _direct_fit(problem: Problem):
     return fit
 
 
+def _floor(problem: Problem, layout: dict):
+    """The declared model error of the joint fit's models (``Model.MODEL_ERROR_FLOOR``) when
+    every session is seen through a medium; None with a clear-water session among them:
+    the term is one process over all sessions, and a medium's error does not reach clear
+    water (the BRDF families declare none)."""
+    if any(b.medium is None for b in problem.blocks):
+        return None
+    return model_floor(*(model_class(layout["models"][k], k) for k in ("brdf", "medium")))
+
+
 def fit_joint(sessions, *, reference=None, shared=None, per_medium=None, fixed=None,
               start=None, variant: str | None = None, accuracy: str = "default",
               max_nfev=None, progress=None, brdf_model=None, medium_model=None,
@@ -358,7 +368,8 @@ def fit_joint(sessions, *, reference=None, shared=None, per_medium=None, fixed=N
         medium's Fresnel variant.
     accuracy, max_nfev, progress, model_error : as :func:`veil.fitting.steps.fit_medium`.
         A weighted joint fit whose residuals exceed the noise gets the model-discrepancy
-        term over all its sessions (:mod:`veil.fitting.model_error`; nothing is inherited),
+        term over all its sessions (:mod:`veil.fitting.model_error`; nothing is inherited;
+        at least the models' declared error when every session is in a medium),
         and a reference given as a fit result has its covariance propagated into
         ``stderr_total`` to first order (:mod:`veil.fitting.reported`).
     propagation : how the media's uncertainty reaches the objects' ``stderr_total``: "auto"
@@ -402,8 +413,7 @@ def fit_joint(sessions, *, reference=None, shared=None, per_medium=None, fixed=N
     rep = reported(problem, outcome.solution.x, summary, outcome.values, kind=model_error,
                    given_result=given_result, given_column=lambda n: index[ref_names[n]],
                    propagation="linear",   # the reference's covariance, to first order
-                   floor=model_floor(*(model_class(layout["models"][k], k)
-                                       for k in ("brdf", "medium"))))
+                   floor=_floor(problem, layout))
     rep = _media_beyond_first_order(problem, outcome.solution.x, rep, propagation)
     return _result(problem, layout, outcome, summary, accuracy, given, rep)
 

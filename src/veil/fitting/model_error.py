@@ -15,7 +15,8 @@ to the covariance:
   average out over the configurations, and a systematic error does not.
 - **s and ell from the residuals, when they show an error.** The chi-square test first:
   below ``1 + Z sqrt(2 / dof)`` (dof = points - free parameters, Z = :data:`CHI2_Z`) the data
-  do not show a model error, s = 0 and the fit is unchanged bit for bit. Above, (s, ell)
+  do not show a model error, s = 0 and (without a declared floor, below) the fit is unchanged
+  bit for bit. Above, (s, ell)
   maximize the Gaussian likelihood of the weighted residuals r_i = (y_i - f_i) / sigma_i
   under their covariance I + s^2 A R(ell) A, A = diag(f_i / sigma_i), ell over the grid
   :data:`LENGTHS` and s continuous (the model with ell = 0 is the "excess variance" of a
@@ -32,6 +33,10 @@ to the covariance:
   the given medium's (s, ell) when its s is the larger, its own otherwise (its own residuals
   can show less, its f_r absorbing part of the miss). The given model's covariance, its
   term included, is then propagated as before (``stderr_total``).
+- **A model's declared error is a floor.** A model may declare its own error against
+  physics (``Model.MODEL_ERROR_FLOOR`` = (s, ell)): the term then has at least that s and,
+  when correlated, at least that ell (an error the residuals of one session may be too
+  few to show, which the fit's parameters can still take up; docs/validity.md).
 - **The error the two steps share is counted once.** With a correlation length the same
   process reaches both sessions: the medium absorbs in step 1 part of the error it gives
   back in step 2, and adding the two parts alone overstates the total 3-6 times
@@ -345,8 +350,10 @@ def step_term(residuals, values, weights, dof: int, angles, given=None,
     canonical ``angles``, ell = 0 unless ``kind`` is "correlated"; ``given`` the given
     medium's term (step 2), None otherwise; ``weighted_jacobian`` the fit's J_w for the
     restricted likelihood (:func:`estimate`); ``floor`` the fit's models' declared error
-    (s, ell) (``Model.MODEL_ERROR_FLOOR``), used where it is the largest of the three (with
-    ell 0 unless ``kind`` is "correlated")."""
+    (s, ell) (``Model.MODEL_ERROR_FLOOR``): the term's s and ell are each at least the
+    floor's (ell only when ``kind`` is "correlated"; source "model's floor" where its s
+    decides). A shorter length with a larger s would average out over the configurations
+    and report less than the floor's own process."""
     correlated = check_kind(kind) == "correlated"
     lengths = LENGTHS if correlated else (0.0,)
     own, length = estimate(residuals, np.asarray(values) * np.asarray(weights), dof,
@@ -354,9 +361,12 @@ def step_term(residuals, values, weights, dof: int, angles, given=None,
     sigma, source = own, "own residuals" if own > 0 else "none"
     if given is not None and given.sigma > own:
         sigma, length, source = given.sigma, given.length, "given medium"
-    if floor is not None and float(floor[0]) > sigma:
-        sigma, length = float(floor[0]), float(floor[1]) if correlated else 0.0
-        source = "model's floor"
+    if floor is not None:
+        floor_sigma, floor_length = float(floor[0]), (float(floor[1]) if correlated else 0.0)
+        if floor_sigma > sigma:
+            sigma, length, source = floor_sigma, floor_length, "model's floor"
+        else:
+            length = max(length, floor_length)
     return ModelError(float(sigma), float(length), float(own),
                       None if given is None else float(given.sigma), source,
                       chi2_threshold(dof))
@@ -375,13 +385,43 @@ def session_correlation(residuals, scaled_values, weighted_jacobian, angles, own
     """How far step 2's model error is the one its given medium's fit showed, in [0, 1] (1:
     one process over both sessions, :func:`shared`; 0: independent): the mean of c under
     the restricted likelihood of both fits' residuals at once, normalized over c in [0, 1]
-    (a uniform prior; :data:`SHARE_GRID` points). The mean, not the likelihood's maximum:
-    step 2's total covariance is A + c B (the cross term of :func:`shared` is linear in c)
-    and the estimate does not depend on c, so over c's uncertainty the estimate's
-    covariance is A + E[c] B (the law of total covariance). The maximum sits at the bound
-    c = 1 in sessions where the likelihood barely prefers it, and then cancels more of the
-    error than the data show (docs/validity.md: the 10 cm cylinder with the smooth reference,
-    56 % of the curves within two standard errors at c = 1, 100 % at c <= 0.75).
+    (a uniform prior; :func:`share_likelihood` on :data:`SHARE_GRID` points,
+    :func:`likelihood_mean`). The mean, not the likelihood's maximum: step 2's total
+    covariance is A + c B (the cross term of :func:`shared` is linear in c) and the
+    estimate does not depend on c, so averaging over c's uncertainty gives A + E[c] B - an
+    approximation (the residuals that inform c are not independent of the estimate's error
+    given c), which pulls c towards 1/2 where one session holds little about it: towards
+    less cancellation where c is near 1, more where it is near 0 (synthetic medians 0.36 /
+    0.49 / 0.74 for the truths 0 / 0.5 / 1). The maximum sat at the bound c = 1 where the
+    likelihood barely prefers it and cancelled more of the error than the data show
+    (docs/validity.md: the 10 cm cylinder with the smooth reference, 56 % of the curves
+    within two standard errors at c = 1, 100 % at c <= 0.75)."""
+    found = share_likelihood(residuals, scaled_values, weighted_jacobian, angles, own_cov,
+                             given, given_names, given_jacobian, given_cov)
+    return None if found is None else likelihood_mean(*found)
+
+
+def likelihood_mean(grid, nll) -> float | None:
+    """The mean of ``grid`` under the normalized likelihood exp(-``nll``) (trapezoid rule;
+    non-finite nll weigh 0; None when none is finite)."""
+    grid, nll = np.asarray(grid, dtype=float), np.asarray(nll, dtype=float)
+    finite = np.isfinite(nll)
+    if not np.any(finite):
+        return None
+    w = np.where(finite, np.exp(-(nll - np.min(nll[finite]))), 0.0)
+    h = np.diff(grid)
+    mass = float(np.sum(h * (w[1:] + w[:-1])) / 2.0)
+    first = float(np.sum(h * (grid[1:] * w[1:] + grid[:-1] * w[:-1])) / 2.0)
+    if mass <= 0.0:      # one finite point alone
+        return float(grid[int(np.argmax(w))])
+    return float(np.clip(first / mass, grid[0], grid[-1]))
+
+
+def share_likelihood(residuals, scaled_values, weighted_jacobian, angles, own_cov,
+                     given: ModelError, given_names, given_jacobian,
+                     given_cov) -> tuple | None:
+    """(c on :data:`SHARE_GRID` points of [0, 1], the negative log restricted likelihood at
+    each) of :func:`session_correlation`.
 
     The components of each fit's weighted residuals outside its Jacobian, z_1 = Q_1^T r_1 and
     z_2 = Q_2^T r_2, are normal with mean 0. Step 1's medium estimate is off by
@@ -449,13 +489,7 @@ def session_correlation(residuals, scaled_values, weighted_jacobian, angles, own
         return float(np.sum(np.log(np.diag(chol))) + 0.5 * w @ w)
 
     grid = np.linspace(0.0, 1.0, SHARE_GRID)
-    values = np.array([nll(c) for c in grid])
-    finite = np.isfinite(values)
-    if not np.any(finite):
-        return None
-    weight = np.where(finite, np.exp(-(values - np.min(values[finite]))), 0.0)
-    return float(np.clip(np.trapezoid(grid * weight, grid) / np.trapezoid(weight, grid),
-                         0.0, 1.0))
+    return grid, np.array([nll(c) for c in grid])
 
 
 def shared(own_influence, angles, given: ModelError, given_names, sensitivity,
@@ -504,4 +538,5 @@ def noise_only(result):
 
 __all__ = ["CHI2_Z", "LENGTHS", "KINDS", "DEFAULT", "SOURCES", "check_kind", "chi2_threshold", "distances", "correlation",
            "estimate", "sandwich", "ModelError", "step_term", "given_term", "noise_only",
-           "influence", "shared", "session_correlation"]
+           "influence", "shared", "session_correlation", "share_likelihood",
+           "likelihood_mean", "SHARE_GRID"]

@@ -90,7 +90,8 @@ def reported(problem: Problem, x, summary, values, *, kind: str, rename: Callabl
     ``keep_influence`` (step 1) keeps its influence on the estimate and its configurations;
     given such a fit, step 2's total adds the error the two share
     (:func:`veil.fitting.model_error.shared`). ``floor`` is the fit's models' declared
-    error (:func:`model_floor`), the least term a weighted fit reports."""
+    error (:func:`model_floor`): the least term of a weighted fit whose ``kind`` is not
+    "off" and whose covariance is determined."""
     cov = summary.covariance
     stderr, corr = rename(summary.stderr, summary.correlation)
 
@@ -167,7 +168,8 @@ def reported(problem: Problem, x, summary, values, *, kind: str, rename: Callabl
 
 def model_floor(*models):
     """The largest declared model error (s, ell) of ``models`` (classes or instances; None
-    skipped), ``Model.MODEL_ERROR_FLOOR``; None when none declares one."""
+    skipped), ``Model.MODEL_ERROR_FLOOR``; None when none declares one. (Only media declare
+    one today; should a BRDF and a medium both declare, the larger is taken, not their sum.)"""
     floors = [m.MODEL_ERROR_FLOOR for m in models
               if m is not None and m.MODEL_ERROR_FLOOR is not None]
     return max(floors, default=None)

@@ -51,7 +51,8 @@ class FitResult:
     large: ``stats["propagation"]`` says which; docs/fitting.md).
     ``model_error`` is the model-discrepancy term of a weighted fit
     (:class:`veil.fitting.model_error.ModelError`: the relative model error the residuals
-    show beyond the noise, included in ``stderr`` and ``stderr_total``); None when the fit
+    show beyond the noise, or the model's declared one where that is larger, included in
+    ``stderr`` and ``stderr_total``); None when the fit
     did not estimate one (unweighted data, an undetermined covariance, or
     ``model_error="off"``).
     """

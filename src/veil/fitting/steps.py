@@ -14,8 +14,9 @@ values never come from the caller: the model's starting grid with the scale para
 solved exactly at each point gives several starts; the best fit among them wins
 (:mod:`veil.fitting.start_values`). A fit that propagates its given model's covariance
 (when that came from a fit) reports ``stderr_total``. A weighted fit whose residuals exceed
-the noise (reduced chi-square above the test's limit) adds a relative model error to its
-covariance (``model_error=``: "correlated" by default, "independent", or "off";
+the noise (reduced chi-square above the test's limit), or through a model that declares its
+own error (``Model.MODEL_ERROR_FLOOR``), adds a relative model error to its covariance
+(``model_error=``: "correlated" by default, "independent", or "off";
 :mod:`veil.fitting.model_error`).
 """
 

@@ -412,9 +412,9 @@ def _stats_lines(result: FitResult) -> list[str]:
                   else ", independent between configurations")
         where = {"own residuals": "shown by this fit's residuals: reduced chi-square above "
                                    f"{format_number(term.chi2_threshold, 4)}",
-                 "model's floor": "the model's declared error against path tracing, more "
-                                  "than this fit's residuals show",
-                 }.get(term.source, "inherited from the medium's fit")
+                 "model's floor": "the model's declared error (MODEL_ERROR_FLOOR), more than "
+                                  "this fit's residuals show",
+                 "given medium": "inherited from the medium's fit"}[term.source]
         lines.append(f"- model error: {format_number(100 * term.sigma, 3)} % of the model's "
                      f"value{length} ({where}), included in the standard errors "
                      f"(docs/validity.md)")
