@@ -130,10 +130,11 @@ def _hints(result: FitResult) -> list[str]:
     if not (hasattr(cls, "has") and cls.has("delta")):
         return []
     se = result.stderr_total or result.stderr
-    # the optical depth: the unscattered beam's e^{-2 tau} (g is measured against its room to
-    # the bound 1 and is loose near it for other reasons)
+    # parameters measured against their value (the optical depth, what the unscattered
+    # beam's e^{-2 tau} pins); one measured against its room to a bound (g near 1) is loose
+    # there for other reasons
     loose = [n for n, v in result.params.items()
-             if n == "tau" and n not in result.fixed and n in se
+             if n not in result.fixed and n in se and cls.param(n).error_scale != "bound"
              and cls.param(n).relative_error(v, se[n]) > RELATIVE_LIMIT]
     if not loose:
         return []
