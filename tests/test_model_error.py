@@ -338,10 +338,10 @@ def test_session_correlation_is_recovered():
     for truth in (0.0, 0.5, 1.0):
         got, best = [], []
         for _ in range(30):
-            args = _two_sessions(rng, truth)
-            given, names, r2, a2, j2, jm, ang2, cov, cov_m = args
-            got.append(me.session_correlation(r2, a2, j2, ang2, cov, given, names, jm, cov_m))
+            given, names, r2, a2, j2, jm, ang2, cov, cov_m = _two_sessions(rng, truth)
+            # session_correlation is this mean; the likelihood is computed once for both
             grid, nll = me.share_likelihood(r2, a2, j2, ang2, cov, given, names, jm, cov_m)
+            got.append(me.likelihood_mean(grid, nll))
             best.append(grid[int(np.argmin(nll))])
         # a mean over a likelihood that is positive on [0, 1] never reaches a bound
         assert all(0.0 < g < 1.0 for g in got), got
@@ -352,6 +352,9 @@ def test_session_correlation_is_recovered():
     # coupling through step 1's estimate 0.00, 0.23, 0.74)
     assert maxima[0.0] < 0.15 and 0.4 < maxima[0.5] < 0.65 and maxima[1.0] > 0.95, maxima
     given, names, r2, a2, j2, jm, ang2, cov, cov_m = _two_sessions(rng, 1.0)
+    grid, nll = me.share_likelihood(r2, a2, j2, ang2, cov, given, names, jm, cov_m)
+    assert me.session_correlation(r2, a2, j2, ang2, cov, given, names, jm, cov_m) == \
+        me.likelihood_mean(grid, nll)
     assert me.session_correlation(r2, a2, j2, ang2, cov, dataclasses.replace(
         given, residuals=None, scaled=None), names, jm, cov_m) is None
     # the cross term scales with it

@@ -126,8 +126,8 @@ def _hints(result: FitResult) -> list[str]:
     from 0.1 to 1.5 with one)."""
     if isinstance(result, JointResult) or result.step != "medium":
         return []
-    cls = result.model_class
-    if not (hasattr(cls, "has") and cls.has("delta")):
+    cls = result.model_class                    # a medium: step 1 fits one
+    if not cls.has("delta"):
         return []
     se = result.stderr_total or result.stderr
     # parameters measured against their value (the optical depth, what the unscattered
