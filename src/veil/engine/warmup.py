@@ -64,7 +64,7 @@ def _eval(brdf, medium, accuracy: str):
 
 def _direct(brdf):
     def run():
-        model = DirectModel(type(brdf), _angles(CHUNK))
+        model = DirectModel(brdf, _angles(CHUNK))
         model.value_and_jacobian(brdf.to_vector())
     return run
 
