@@ -167,9 +167,9 @@ from veil.engine import programs
 
 compiled = []
 original = programs.compile_afresh
-def counting(fn, args):
+def counting(fn, args, *rest):
     compiled.append(1)
-    return original(fn, args)
+    return original(fn, args, *rest)
 programs.compile_afresh = counting
 
 program, args = make_engine_call()

@@ -60,6 +60,9 @@ import tempfile  # noqa: E402
 import warnings  # noqa: E402
 
 if "jax" not in sys.modules:
+    # XLA's own log: its "Very slow compile? ... file a bug" alarm is noise to a user; what
+    # compiles, and for how long, the compile display says (veil.engine.compiling)
+    os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "3")
     _flags = os.environ.get("XLA_FLAGS", "")
     if "xla_force_host_platform_device_count" not in _flags:
         _n = int(os.environ.get("VEIL_CPU_DEVICES", "0") or 0) or min(os.cpu_count() or 1, 8)

@@ -105,8 +105,11 @@ class VeilGroup(LazyGroup):
     any other exception is a bug in veil (status 3, :func:`report_bug`)."""
 
     def invoke(self, ctx):
+        from .compile_display import shown
+
         try:
-            return super().invoke(ctx)
+            with shown():
+                return super().invoke(ctx)
         except (click.ClickException, click.exceptions.Exit, click.exceptions.Abort,
                 KeyboardInterrupt, SystemExit):
             raise
@@ -423,12 +426,12 @@ def load_medium(text: str, models, option: str = "--medium"):
 @contextlib.contextmanager
 def fit_progress(title: str):
     """A rich progress display on stderr; yields the ``progress(stage, done, total)`` callback."""
-    from rich.console import Console
+    from .compile_display import console
     from rich.progress import BarColumn, Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
 
     with Progress(SpinnerColumn(), TextColumn("{task.description}"), BarColumn(),
                   TextColumn("{task.fields[count]}"), TimeElapsedColumn(),
-                  console=Console(stderr=True), transient=True) as bar:
+                  console=console(), transient=True) as bar:
         task = bar.add_task(title, total=None, count="")
 
         def progress(stage, done, total):

@@ -169,13 +169,13 @@ class _Progress:
         if self.bar is None:
             if done >= total or seconds * (total - done) / CHUNK < PROGRESS_AFTER:
                 return
-            from rich.console import Console
+            from .compile_display import console
             from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TextColumn,
                                        TimeElapsedColumn, TimeRemainingColumn)
 
             self.bar = Progress(TextColumn("veil eval: configurations"), BarColumn(),
                                 MofNCompleteColumn(), TimeElapsedColumn(),
-                                TimeRemainingColumn(), console=Console(stderr=True),
+                                TimeRemainingColumn(), console=console(),
                                 transient=True)
             self.bar.start()
             self.task = self.bar.add_task("", total=total)

@@ -49,7 +49,7 @@ def ingest_command(photo_dir, manifest, roi, black_roi, dark, channel, response,
     float), JPEG and camera raw (linear, per colour channel, via LibRaw). Nothing in PHOTO_DIR
     is modified. See docs/ingest.md.
     """
-    from rich.console import Console
+    from .compile_display import console as shared_console
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
 
     from ..data import ingest as ingest_mod
@@ -66,7 +66,7 @@ def ingest_command(photo_dir, manifest, roi, black_roi, dark, channel, response,
     if target.exists() and target.is_relative_to(Path(photo_dir).resolve()):
         raise UserError(f"output {output} is an existing file in PHOTO_DIR {photo_dir}; veil "
                         f"never modifies PHOTO_DIR: choose another output path")
-    console = Console(stderr=True)
+    console = shared_console()
 
     def show(message, category, filename, lineno, file=None, line=None):
         console.print(f"Warning: {message}", style="yellow", markup=False, highlight=False,

@@ -79,12 +79,12 @@ def reproduce(outdir, *, size=256, accuracy="default", render_accuracy="fast", c
 
     progress = task = None
     if not quiet:
-        from rich.console import Console
+        from .compile_display import console
         from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
         progress = Progress(TextColumn("{task.description:<40}"), BarColumn(),
                             TextColumn("{task.completed}/{task.total}"), TimeElapsedColumn(),
-                            console=Console(stderr=True), transient=True)
+                            console=console(), transient=True)
         progress.start()
         task = progress.add_task("starting", total=20)
 

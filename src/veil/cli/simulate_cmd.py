@@ -125,13 +125,13 @@ def simulate_command(brdf, medium, output, black_path, psi, noise, seed, glow, f
     except ValueError as exc:
         raise UserError(str(exc)) from None
 
-    from rich.console import Console
+    from .compile_display import console
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
     what = "clear water" if model_m is None else medium.strip()
     with Progress(TextColumn("[progress.description]{task.description}"), BarColumn(),
                   MofNCompleteColumn(), TimeElapsedColumn(),
-                  console=Console(stderr=True), transient=True) as bar:
+                  console=console(), transient=True) as bar:
         task = bar.add_task(f"{brdf.strip()} through {what}", total=len(configs))
         result = simulate(model_b, model_m, psis, noise=noise, seed=seed,
                           black=black_path is not None, fine_step=fine_step,

@@ -31,7 +31,7 @@ def warmup_command(selected, accuracies, quiet):
         veil warmup
         veil warmup --models rough-plastic --models forward-series --accuracy high
     """
-    from rich.console import Console
+    from .compile_display import console as shared_console
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
     from ..engine import programs
@@ -46,7 +46,7 @@ def warmup_command(selected, accuracies, quiet):
                    "compiles, for this process", err=True)
     start = time.perf_counter()
     skipped = []
-    console = Console(stderr=True)
+    console = shared_console()
     with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
                   TimeElapsedColumn(), console=console, transient=True,
                   disable=quiet) as bar:

@@ -115,9 +115,10 @@ def direct_programs(model) -> tuple:
             return model.evaluate(v, wi, wr)
 
         name = structure_name(key)
-        _DIRECT_FNS[key] = (Program(jax.jit(f), f"f_r | {name}", (type(model),)),
+        _DIRECT_FNS[key] = (Program(jax.jit(f), f"f_r | {name}", (type(model),),
+                                    f"{model.NAME}: f_r (clear medium)"),
                             Program(jax.jit(jax.jacfwd(f)), f"f_r jacobian | {name}",
-                                    (type(model),)))
+                                    (type(model),), f"{model.NAME}: f_r and its Jacobian"))
     return _DIRECT_FNS[key]
 
 

@@ -39,6 +39,7 @@ model structures, rule, shapes, devices), holding a header and the serialized ex
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import os
@@ -257,16 +258,21 @@ def _devices_of(args) -> list:
 _OWN_KEY = {"xla_embed_ir_in_executable": False}
 
 
-def compile_afresh(fn, args):
+def compile_afresh(fn, args, label: str = "engine program", identity: str = ""):
     """``fn`` (jitted) compiled for ``args``, never through JAX's compilation cache: an
     executable JAX loaded from its cache cannot be serialized again (on jaxlib 0.10.2 the
     copy fails in the next process, "Function ... not found"), so the engine's executables
     live in the program store and none in JAX's cache (nothing is written there, and the
-    compile key is the store's own)."""
+    compile key is the store's own). The compile display (:mod:`.compiling`) is told when
+    the compilation starts, with a rough estimate of its time, and when it ends."""
     from jax._src import config as jax_config
 
+    from . import compiling
+
     with jax_config.persistent_cache_min_compile_time_secs(float("inf")):  # this thread only
-        return fn.lower(*args).compile(_OWN_KEY)
+        lowered = fn.lower(*args)
+        with compiling.announced(label, identity or label, lowered):
+            return lowered.compile(_OWN_KEY)
 
 
 def serialize(compiled, devices) -> bytes | None:
@@ -281,16 +287,11 @@ def serialize(compiled, devices) -> bytes | None:
                         protocol=pickle.HIGHEST_PROTOCOL)
 
 
-def write(identity: str, env: dict, payload: bytes) -> bool:
-    """Store a serialized program atomically; False (and one line, once) when the store
-    cannot be written."""
+def put_file(path: str, data: bytes) -> None:
+    """Write a file of the store atomically (a temporary renamed into place under
+    :data:`veil.io.COMMIT`; never listed among a command's outputs); OSError if it cannot."""
     from ..io import COMMIT, forget_temporary, register_temporary
 
-    path = _path(identity)
-    if path is None:
-        return False
-    header = json.dumps({"identity": identity, "environment": env, "size": len(payload),
-                         "sha256": hashlib.sha256(payload).hexdigest()}, sort_keys=True)
     folder = os.path.dirname(path)
     tmp = None
     try:
@@ -299,18 +300,31 @@ def write(identity: str, env: dict, payload: bytes) -> bool:
             fd, tmp = tempfile.mkstemp(dir=folder, prefix=".program-", suffix=".tmp")
             register_temporary(tmp, "file")
         with os.fdopen(fd, "wb") as fh:
-            fh.write(FORMAT + header.encode("utf-8") + b"\n" + bytes(payload))
+            fh.write(data)
         with COMMIT:
             os.replace(tmp, path)
             forget_temporary(tmp)
+    except OSError:
+        if tmp is not None:
+            with contextlib.suppress(OSError):
+                os.unlink(tmp)
+            forget_temporary(tmp)
+        raise
+
+
+def write(identity: str, env: dict, payload: bytes) -> bool:
+    """Store a serialized program atomically; False (and one line, once) when the store
+    cannot be written."""
+    path = _path(identity)
+    if path is None:
+        return False
+    header = json.dumps({"identity": identity, "environment": env, "size": len(payload),
+                         "sha256": hashlib.sha256(payload).hexdigest()}, sort_keys=True)
+    folder = os.path.dirname(path)
+    try:
+        put_file(path, FORMAT + header.encode("utf-8") + b"\n" + bytes(payload))
         return True
     except OSError as exc:
-        if tmp is not None:
-            try:
-                os.unlink(tmp)
-            except OSError:
-                pass
-            forget_temporary(tmp)
         if _jax.CACHE_UNWRITABLE:  # the cache directory's line has said it
             return False
         _say_once(("unwritable", folder), f"cannot store engine programs in {folder} "
@@ -407,12 +421,14 @@ class Program:
     """A jitted engine function ``fn`` whose lowered form, per argument shape, is kept in
     the program store. ``identity`` names what the function computes (its name, the model
     structures, rule and devices it was made for); ``classes`` are the model families it
-    traces, whose source code the entries are keyed on. Called like ``fn``; thread-safe
+    traces, whose source code the entries are keyed on; ``label`` says what it is to people
+    (the compile display, :mod:`veil.engine.compiling`). Called like ``fn``; thread-safe
     (background compilations, :meth:`veil.engine.forward.Forward.prepare`)."""
 
-    def __init__(self, fn, identity: str, classes=()):
+    def __init__(self, fn, identity: str, classes=(), label: str | None = None):
         self.fn = fn
         self.identity = identity
+        self.label = label or identity.split(" | ")[0]
         self.classes = tuple(classes)
         self._ready: dict = {}
         self._lock = threading.Lock()
@@ -435,8 +451,8 @@ class Program:
         return self.callable_for(*args)(*args)
 
     def _build(self, signature, args):
-        if directory() is None:
-            return self.fn
+        if directory() is None:  # nothing kept: compiled for this process, still announced
+            return compile_afresh(self.fn, args, self.label, self.identity)
         identity = f"{self.identity} | inputs {signature}"
         env = environment(self.classes)
         compiled = read(identity, env, signature)
@@ -451,7 +467,7 @@ class Program:
         return compiled
 
     def _compile_and_store(self, identity, env, args):
-        compiled = compile_afresh(self.fn, args)
+        compiled = compile_afresh(self.fn, args, self.label, identity)
         payload = serialize(compiled, _devices_of(args))
         if payload is not None:
             write(identity, env, payload)

@@ -1,0 +1,144 @@
+"""What the engine is compiling, for whoever shows it (the command line's compile display).
+
+A program that is not in the program store (:mod:`veil.engine.programs`) is compiled on
+first use, which takes from one to tens of seconds. :func:`announced` wraps each such
+compilation: listeners (:func:`listen`) are told when it starts, with a rough estimate of
+its time, and when it ends. The estimate is the size of the lowered program (lines of its
+StableHLO text) times the seconds a line took in this store's earlier compilations
+(``compile-times.json`` beside the programs; :data:`SECONDS_PER_LINE` before the first).
+Estimates are rough by design: compile time grows with the program and with the load of
+the machine.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import threading
+import time
+from dataclasses import dataclass
+from typing import Callable, Iterator
+
+#: Seconds of compilation per line of a program's StableHLO text before this store has
+#: measured its own (measured: benchmarks/bench_compile.py, 2 cores, idle).
+SECONDS_PER_LINE = 6e-4
+#: How much one new measurement moves the store's rate (an exponential average).
+LEARNING_RATE = 0.3
+TIMES_FILE = "compile-times.json"
+#: The environment variable naming a file that gets one JSON line per compilation.
+LOG_VARIABLE = "VEIL_COMPILE_LOG"
+
+
+@dataclass(frozen=True)
+class Compilation:
+    """One program being compiled: ``label`` says what it is, ``estimate`` roughly how
+    long it takes (seconds), ``lines`` the size it was estimated from."""
+
+    label: str
+    identity: str
+    lines: int
+    estimate: float
+    started: float
+
+
+Listener = Callable[[str, Compilation, float], None]
+_LISTENERS: list[Listener] = []
+_LOCK = threading.Lock()
+
+
+def listen(listener: Listener) -> Callable[[], None]:
+    """Call ``listener(event, compilation, seconds)`` for every compilation: event "start"
+    (seconds 0) and "end" (the seconds it took), from the compiling thread. Returns the
+    function that stops listening."""
+    with _LOCK:
+        _LISTENERS.append(listener)
+
+    def stop() -> None:
+        with _LOCK:
+            if listener in _LISTENERS:
+                _LISTENERS.remove(listener)
+    return stop
+
+
+def _tell(event: str, compilation: Compilation, seconds: float) -> None:
+    with _LOCK:
+        listeners = list(_LISTENERS)
+    for listener in listeners:
+        listener(event, compilation, seconds)
+
+
+def _times_path() -> str | None:
+    from .programs import directory
+
+    folder = directory()
+    return None if folder is None else os.path.join(folder, TIMES_FILE)
+
+
+def seconds_per_line() -> float:
+    """This store's measured compile rate, or :data:`SECONDS_PER_LINE`."""
+    path = _times_path()
+    if path is None:
+        return SECONDS_PER_LINE
+    try:
+        with open(path, encoding="utf-8") as fh:
+            rate = float(json.load(fh)["seconds_per_line"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return SECONDS_PER_LINE
+    return rate if 0.0 < rate < 1.0 else SECONDS_PER_LINE
+
+
+def _learn(lines: int, seconds: float) -> None:
+    """Move the store's rate towards this compilation's (best effort: a store that cannot
+    be written keeps the default)."""
+    path = _times_path()
+    if path is None or lines <= 0 or seconds <= 0:
+        return
+    rate = (1.0 - LEARNING_RATE) * seconds_per_line() + LEARNING_RATE * seconds / lines
+    from .programs import put_file
+
+    with contextlib.suppress(OSError):
+        put_file(path, (json.dumps({"seconds_per_line": rate}) + "\n").encode())
+
+
+def program_lines(lowered) -> int:
+    """The size of a lowered program: lines of its StableHLO text."""
+    try:
+        return lowered.as_text().count("\n")
+    except Exception:  # noqa: BLE001 - a backend without text: no estimate, still compiled
+        return 0
+
+
+@contextlib.contextmanager
+def announced(label: str, identity: str, lowered) -> Iterator[Compilation]:
+    """The block compiles ``lowered``: listeners hear of its start and its end."""
+    lines = program_lines(lowered)
+    compilation = Compilation(label, identity, lines, lines * seconds_per_line(),
+                              time.perf_counter())
+    _tell("start", compilation, 0.0)
+    ok = False
+    try:
+        yield compilation
+        ok = True
+    finally:
+        seconds = time.perf_counter() - compilation.started
+        _tell("end" if ok else "failed", compilation, seconds)
+        if ok:
+            _learn(lines, seconds)
+            _log(compilation, seconds)
+
+
+def _log(compilation: Compilation, seconds: float) -> None:
+    """One JSON line per compilation appended to the file named by ``VEIL_COMPILE_LOG``
+    (benchmarks/bench_compile.py reads it); nothing without it."""
+    path = os.environ.get(LOG_VARIABLE)
+    if not path:
+        return
+    line = json.dumps({"label": compilation.label, "lines": compilation.lines,
+                       "estimate": round(compilation.estimate, 2),
+                       "seconds": round(seconds, 3)})
+    with _LOCK, contextlib.suppress(OSError), open(path, "a", encoding="utf-8") as fh:
+        fh.write(line + "\n")
+
+
+__all__ = ["Compilation", "announced", "listen", "seconds_per_line", "program_lines"]

@@ -1,0 +1,112 @@
+"""The compile display (issue 28): what the engine compiles is announced with a rough
+estimate, shown as a live row on a terminal and as one line per program otherwise; the
+store learns its compile rate; ``veil warmup`` runs (issue 33, item 1)."""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from veil._jax import jax
+from veil.cli import compile_display
+from veil.engine import compiling, programs
+
+
+def _double_program(tag: str) -> programs.Program:
+    return programs.Program(jax.jit(lambda x: 2.0 * x + float(len(tag))), f"test {tag}",
+                            label=f"a test program ({tag})")
+
+
+def test_a_compilation_is_announced_with_an_estimate_and_the_rate_is_learned(
+        tmp_path, monkeypatch):
+    monkeypatch.setenv("VEIL_CACHE_DIR", str(tmp_path))
+    events = []
+    stop = compiling.listen(lambda e, c, s: events.append((e, c.label, c.lines, c.estimate, s)))
+    try:
+        out = _double_program("announce")(np.arange(3.0))
+        _double_program("announce")(np.arange(3.0))  # a new Program object: loaded, not built
+    finally:
+        stop()
+    assert np.array_equal(np.asarray(out), 2.0 * np.arange(3.0) + 8.0)
+    assert [e[0] for e in events] == ["start", "end"]
+    (_, label, lines, estimate, _), (_, _, _, _, seconds) = events
+    assert label == "a test program (announce)"
+    assert lines > 3 and estimate == pytest.approx(lines * compiling.SECONDS_PER_LINE)
+    assert seconds > 0
+    with open(tmp_path / "programs" / compiling.TIMES_FILE) as fh:
+        rate = json.load(fh)["seconds_per_line"]
+    expected = ((1 - compiling.LEARNING_RATE) * compiling.SECONDS_PER_LINE
+                + compiling.LEARNING_RATE * seconds / lines)
+    assert rate == pytest.approx(expected, rel=1e-9)
+    assert compiling.seconds_per_line() == pytest.approx(rate)
+
+
+def test_without_a_store_compilations_are_still_announced(monkeypatch):
+    monkeypatch.setenv("VEIL_CACHE_DIR", "off")
+    events = []
+    stop = compiling.listen(lambda e, c, s: events.append(e))
+    try:
+        _double_program("no store")(np.ones(2))
+    finally:
+        stop()
+    assert events == ["start", "end"]
+
+
+def _compilation(label="rough-plastic x forward-series: values, fast rule", estimate=12.0):
+    return compiling.Compilation(label, label, 1000, estimate, 0.0)
+
+
+def test_lines_when_not_on_a_terminal(capsys):
+    display = compile_display.CompileDisplay(live=False)
+    c = _compilation()
+    display("start", c, 0.0)
+    display("end", c, 11.2)
+    display("start", _compilation("b", 0.3), 0.0)
+    display("failed", _compilation("b", 0.3), 0.1)
+    display.close()
+    err = capsys.readouterr().err.splitlines()
+    assert err[0] == ("veil: compiling rough-plastic x forward-series: values, fast rule "
+                      "(about 12 s; once: kept in the program store for later runs)")
+    assert err[1].startswith("veil: compiling b (under a second")
+    assert err[2] == ("veil: compiled 1 engine program in 11 s of compile time; later runs "
+                      "load them")
+    assert len(err) == 3
+
+
+def test_live_rows_on_a_terminal(monkeypatch):
+    from rich.console import Console
+
+    screen = io.StringIO()
+    monkeypatch.setattr(compile_display, "_CONSOLE",
+                        Console(file=screen, force_terminal=True, width=120))
+    display = compile_display.CompileDisplay(live=None)  # decided at the first compilation
+    c = _compilation()
+    display("start", c, 0.0)
+    assert display.live is True and len(display._rows) == 1
+    display("end", c, 11.2)
+    assert display._rows == {}
+    display.close()
+    assert "compiled rough-plastic x forward-series: values, fast rule in 11.2 s" in \
+        screen.getvalue()
+
+
+def test_nested_blocks_share_one_display():
+    with compile_display.shown(live=False) as outer, compile_display.shown() as inner:
+        assert inner is outer
+
+
+def test_warmup_runs(tmp_path):
+    """``veil warmup`` of one family pair at the fits' accuracy (issue 33, item 1: it exited 3).
+    Uses the suite's program store (the fits compile the same programs)."""
+    env = dict(os.environ)
+    run = subprocess.run([sys.executable, "-m", "veil.cli", "warmup", "--models",
+                          "torrance-sparrow", "--accuracy", "fast", "--quiet"],
+                         capture_output=True, text=True, env=env, timeout=900)
+    assert run.returncode == 0, run.stderr
+    assert "veil warmup: 3 of 3 tasks ready" in run.stderr
