@@ -65,14 +65,17 @@ def _terms_fn(kb, km, rule: Rule, half: bool, mesh: Mesh):
         return integrator.apparent_terms(bt, mt, rule, vb, vm, wi, wr, half)
 
     return Program(_sharded(fn, mesh), _identity("terms", kb, km, rule, half, mesh),
-                   (kb[0], km[0]))
+                   (kb[0], km[0]), _label("values", kb, km, rule))
 
 
 @lru_cache(maxsize=128)
 def _terms_jac_fn(kb, km, rule: Rule, half: bool, nl_b: tuple, nl_m: tuple, mesh: Mesh):
     """Terms (M, 3, 2) and their derivatives (M, 3, 2, len(nl_b) + len(nl_m)) with respect
-    to the listed parameters, by forward mode: one linearization, its tangent map applied
-    to each basis vector (faster to compile and to run than jacfwd's batched tangents)."""
+    to the listed parameters, by forward mode: the tangents of every basis vector carried
+    through the quadrature together, beside one evaluation of the terms (jacfwd). Measured
+    against one linearization with its tangent map applied to each basis vector (rough-plastic
+    x forward-series, fast rule, in the medium's parameters): 26 % fewer lines of program,
+    38 % less compile time, the same run time (docs/performance.md "Compilation")."""
     bt, mt = integrator.template_for(kb), integrator.template_for(km)
     ib, im = np.asarray(nl_b, dtype=int), np.asarray(nl_m, dtype=int)
     nb = len(nl_b)
@@ -82,12 +85,25 @@ def _terms_jac_fn(kb, km, rule: Rule, half: bool, nl_b: tuple, nl_m: tuple, mesh
             return integrator.apparent_terms(bt, mt, rule, vb.at[ib].set(x[:nb]),
                                              vm.at[im].set(x[nb:]), wi, wr, half)
         x = jnp.concatenate([vb[ib], vm[im]])
-        terms, tangent = jax.linearize(g, x)
-        return terms, jax.vmap(tangent, out_axes=-1)(jnp.eye(x.size, dtype=x.dtype))
 
+        def along(direction):
+            return jax.jvp(g, (x,), (direction,))
+        # the terms do not depend on the direction: computed once, not per column
+        return jax.vmap(along, out_axes=(None, -1))(jnp.eye(x.size, dtype=x.dtype))
+
+    names = ([kb[0].PARAMS[i].name for i in nl_b] + [km[0].PARAMS[i].name for i in nl_m])
     return Program(_sharded(fn, mesh),
                    _identity(f"terms+jacobian {nl_b} {nl_m}", kb, km, rule, half, mesh),
-                   (kb[0], km[0]))
+                   (kb[0], km[0]), _label(f"values and d/d({', '.join(names)})", kb, km, rule))
+
+
+def _label(what: str, kb, km, rule: Rule) -> str:
+    """What a compiled engine function is, for people (the compile display)."""
+    named = [name for name, r in RULES.items() if r == rule]
+    options = [f"{k}={v}" for k, v in kb[1:] + km[1:]
+               if v not in (0.0, False) and not (k == "variant" and v == "paper")]
+    models = f"{kb[0].NAME} x {km[0].NAME}" + (f" ({', '.join(options)})" if options else "")
+    return f"{models}: {what}, {named[0] if named else 'custom'} rule"
 
 
 def _identity(what: str, kb, km, rule: Rule, half: bool, mesh: Mesh) -> str:
