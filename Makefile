@@ -8,7 +8,7 @@ JOBS   ?= 2
 # compiled engine code (JAX's persistent compilation cache) stays in the checkout too
 export VEIL_CACHE_DIR ?= $(CURDIR)/.veil-cache
 
-.PHONY: demo test bench bench-explore browser-deps warmup venv clean
+.PHONY: demo test check bench bench-compile bench-explore browser-deps warmup venv clean
 
 venv: $(STAMP)
 
@@ -24,6 +24,15 @@ $(STAMP): pyproject.toml
 test: $(STAMP)
 	$(PY) -m pytest -n $(JOBS) --dist worksteal -q --durations=30
 
+# the edit-test loop's subset (at most 3 minutes with the program store filled): the layout
+# rules, the command line's start and its errors, the compile display, and the model
+# contract (declarations, maps, parts, the engine's Jacobian at the fast rule)
+CHECK := tests/test_layout.py tests/test_cli_startup.py tests/test_cli_eval.py \
+	tests/test_compile_display.py tests/test_model_contract.py tests/test_registry_plugins.py
+check: $(STAMP)
+	$(PY) -m pytest -n $(JOBS) --dist worksteal -q $(CHECK) \
+		-k "not warmup and not brute_force and not monte_carlo and not independent_reference"
+
 demo: $(STAMP)
 	$(VENV)/bin/veil demo -o demo-out
 
@@ -33,6 +42,10 @@ warmup: $(STAMP)
 
 bench: $(STAMP)
 	$(PY) benchmarks/bench_apparent.py
+
+# compile seconds per program and the cold and warm pipeline per registered family pair
+bench-compile: $(STAMP)
+	$(PY) benchmarks/bench_compile.py
 
 bench-explore: $(STAMP)
 	$(PY) benchmarks/bench_explore.py --browser

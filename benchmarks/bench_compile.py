@@ -1,0 +1,150 @@
+"""Compile cost of the engine (issue 28; docs/performance.md "Compilation").
+
+For each registered family pair (BRDF x medium), ``veil fit pipeline`` runs as a fresh
+process on a path-traced session (validation/data, medium m05: the reference plate in clear
+water and in the medium, the target in the medium, the black cloth), first with a new, empty
+VEIL_CACHE_DIR ("cold": every engine program is compiled), then again with that folder
+("warm": every program is loaded). Each compilation is logged (VEIL_COMPILE_LOG) with its
+size and seconds. Printed: the cold and warm pipeline per pair (wall and CPU seconds, the
+programs compiled, the largest), and every program's compile seconds. CPU seconds are
+printed beside wall seconds: the machine may be shared, and CPU time is the figure load
+inflates least.
+
+    .venv/bin/python benchmarks/bench_compile.py                       # every pair
+    .venv/bin/python benchmarks/bench_compile.py --pairs rough-plastic:forward-series
+    .venv/bin/python benchmarks/bench_compile.py --markdown out.md     # tables for the docs
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import os
+import platform
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+
+import pandas as pd
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+DATA = os.path.join(HERE, "..", "validation", "data")
+VEIL = os.path.join(os.path.dirname(sys.executable), "veil")
+#: The validation set-up's geometry (validation/README.md): the physical medium's options.
+GEOMETRY = ["--path-length", "15", "--plate-width", "5"]
+MEDIUM = "m05"
+
+
+def registered_pairs() -> list[tuple[str, str]]:
+    from veil.models import names
+
+    return [(b, m) for b in names("brdf") for m in names("medium")]
+
+
+def sessions(folder: str) -> list[str]:
+    """The pipeline's input options on the m05 sessions (the clear reference without its
+    zero sigma column, which a weighted fit refuses)."""
+    clear = os.path.join(folder, "reference_clear.csv")
+    pd.read_csv(os.path.join(DATA, "water_ref.csv")).drop(columns=["sigma"]).to_csv(
+        clear, index=False)
+    return ["--reference-clear", clear,
+            "--reference-medium", os.path.join(DATA, f"{MEDIUM}_ref.csv"),
+            "--target-medium", os.path.join(DATA, f"{MEDIUM}_target.csv"),
+            "--black", os.path.join(DATA, f"{MEDIUM}_black.csv")]
+
+
+def run_pipeline(pair, inputs, cache: str, out: str, log: str) -> dict:
+    """One ``veil fit pipeline`` process; wall and CPU seconds, its compilations."""
+    brdf, medium = pair
+    args = [VEIL, "fit", "pipeline", *inputs, "-o", out, "--no-figures",
+            "--brdf-model", brdf, "--medium-model", medium]
+    if medium == "forward-series":
+        args += GEOMETRY
+    env = {**os.environ, "VEIL_CACHE_DIR": cache, "VEIL_COMPILE_LOG": log}
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    t0 = time.perf_counter()
+    done = subprocess.run(args, capture_output=True, text=True, env=env)
+    wall = time.perf_counter() - t0
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+    compiled = []
+    if os.path.exists(log):
+        with open(log, encoding="utf-8") as fh:
+            compiled = [json.loads(line) for line in fh if line.strip()]
+        os.unlink(log)
+    return {"wall": wall, "cpu": cpu, "status": done.returncode, "compiled": compiled,
+            "stderr": done.stderr}
+
+
+def measure(pair, folder: str) -> dict:
+    inputs = sessions(folder)
+    cache = os.path.join(folder, "cache")
+    log = os.path.join(folder, "compile.log")
+    cold = run_pipeline(pair, inputs, cache, os.path.join(folder, "cold"), log)
+    warm = run_pipeline(pair, inputs, cache, os.path.join(folder, "warm"), log)
+    return {"pair": pair, "cold": cold, "warm": warm}
+
+
+def _load() -> str:
+    one, five, _ = os.getloadavg()
+    return f"load {one:.1f} (5 min {five:.1f})"
+
+
+def tables(results: list[dict]) -> tuple[str, str]:
+    """Markdown: the pipelines per pair, and every program's compile time."""
+    rows = ["| pair | cold wall s | cold CPU s | programs | compile s (sum) | largest s | "
+            "warm wall s | warm CPU s | exit |", "|---|---:|---:|---:|---:|---:|---:|---:|---|"]
+    programs = ["| pair | program | StableHLO lines | estimate s | compile s |",
+                "|---|---|---:|---:|---:|"]
+    for r in results:
+        cold, warm = r["cold"], r["warm"]
+        secs = [c["seconds"] for c in cold["compiled"]]
+        name = " x ".join(r["pair"])
+        rows.append(f"| {name} | {cold['wall']:.1f} | {cold['cpu']:.1f} | {len(secs)} | "
+                    f"{sum(secs):.1f} | {max(secs, default=0):.1f} | {warm['wall']:.1f} | "
+                    f"{warm['cpu']:.1f} | {cold['status']}/{warm['status']} |")
+        for c in sorted(cold["compiled"], key=lambda c: -c["seconds"]):
+            label = c["label"].split(": ", 1)[-1]
+            programs.append(f"| {name} | {label} | {c['lines']} | {c['estimate']:.1f} | "
+                            f"{c['seconds']:.1f} |")
+    return "\n".join(rows), "\n".join(programs)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--pairs", default="all",
+                    help="comma-separated BRDF:MEDIUM pairs (default: every registered pair)")
+    ap.add_argument("--markdown", default=None, help="also write the tables to this file")
+    a = ap.parse_args(argv)
+    pairs = registered_pairs() if a.pairs == "all" else \
+        [tuple(p.split(":", 1)) for p in a.pairs.split(",")]
+    started = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+    header = (f"`{' '.join(['benchmarks/bench_compile.py'] + (argv or sys.argv[1:]))}`, "
+              f"{started}, {platform.machine()} with {os.cpu_count()} cores, {_load()} at the "
+              f"start")
+    print(header, flush=True)
+    results = []
+    for pair in pairs:
+        with tempfile.TemporaryDirectory(prefix="veil-bench-compile-") as folder:
+            r = measure(pair, folder)
+        results.append(r)
+        cold = r["cold"]
+        print(f"{' x '.join(pair)}: cold {cold['wall']:.1f} s ({len(cold['compiled'])} "
+              f"programs), warm {r['warm']['wall']:.1f} s, {_load()}", flush=True)
+        if cold["status"] not in (0, 1):
+            print(cold["stderr"][-2000:], file=sys.stderr)
+    pipelines, programs = tables(results)
+    footer = f"{_load()} at the end"
+    print("\n" + pipelines + "\n\n" + programs + "\n\n" + footer)
+    if a.markdown:
+        with open(a.markdown, "w", encoding="utf-8") as fh:
+            fh.write(f"{header}; {footer}.\n\n{pipelines}\n\n{programs}\n")
+    return 0 if all(r["cold"]["status"] in (0, 1) for r in results) else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
