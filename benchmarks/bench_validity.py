@@ -1,6 +1,6 @@
 """Validity on path-traced data: the paper's models against the physical ones (issue 12).
 
-The two-step method (MODEL.md sec. 7) on the Mitsuba 3 renders of the paper's lab set-up in
+The two-step method (docs/model.md sec. 7) on the Mitsuba 3 renders of the paper's lab set-up in
 validation/data (validation/README.md): the reference plate in clear water (step 0) and in
 the medium (step 1), the target in the medium (step 2), the black cloth subtracted; the
 target's clear-water session is fitted directly and is also the truth (it is the renderer's
@@ -55,7 +55,7 @@ import pandas as pd
 HERE = os.path.dirname(os.path.abspath(__file__))
 DATA = os.path.join(HERE, "..", "validation", "data")
 
-#: The two model sets compared: the paper's and the physical ones of MODEL.md sec. 8.
+#: The two model sets compared: the paper's and the physical ones of docs/model.md sec. 8.
 MODELS = {
     "paper": dict(brdf_model="torrance-sparrow", medium_model="henyey-greenstein"),
     "physical": dict(brdf_model="rough-plastic", medium_model="forward-series"),

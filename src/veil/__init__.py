@@ -1,6 +1,6 @@
 """veil: reflectance of objects seen through scattering media.
 
-Forward model (MODEL.md): :func:`apparent`, :func:`reflectance`; the registered model
+Forward model (docs/model.md): :func:`apparent`, :func:`reflectance`; the registered model
 families (``veil.TorranceSparrow``, ``veil.HenyeyGreenstein``, ... by class name, listed in
 ``veil.REGISTRY``) and the paper's presets ``BRDF1``, ``BRDF2``, ``BTDF1``, ``BTDF2``,
 ``BTDF3``; measurement tables, simulation, the fits of the two-step method, the joint fit

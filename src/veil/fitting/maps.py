@@ -1,7 +1,7 @@
 """Per-pixel step 2 (docs/maps.md): the target's BRDF at every pixel of a photo stack,
 through a fixed medium, at fixed configurations.
 
-For a fixed medium and fixed configurations the apparent value (MODEL.md eq. 1) is linear
+For a fixed medium and fixed configurations the apparent value (docs/model.md eq. 1) is linear
 in the BRDF's scale parameters (``SCALES``): with the engine's term matrices
 (:meth:`veil.engine.evaluator.ApparentModel.terms`, rows combined with the medium's row
 weights, :func:`veil.engine.integrator.row_scales`) it is

@@ -1,4 +1,4 @@
-"""The physical medium ``forward-series`` (MODEL.md sec. 8.1): the unscattered beam plus the
+"""The physical medium ``forward-series`` (docs/model.md sec. 8.1): the unscattered beam plus the
 orders of forward scattering along one pass of optical depth tau,
 
     f_t(I, T) = e^{-tau} [ delta(I, T) + sum_{k>=1} (omega tau)^k / k! p(g^k; I.T) ] a(I) b(T),
@@ -51,7 +51,7 @@ from .base import Medium, Option, Param
 from .renderers import Plugin, Unsupported, Value, float_value
 
 VARIANTS = ("paper", "exit")
-#: Weights of the orders: "poisson" (MODEL.md 8.1 as written); "light-side" (the light side's orders
+#: Weights of the orders: "poisson" (docs/model.md 8.1 as written); "light-side" (the light side's orders
 #: with the cylinder's path factors M_k, docs/physics.md sec. 8, the view side Poisson x J_v);
 #: "view-side" (the light side Poisson, the view side's orders with the landing factors lambda_k);
 #: "cylinder" (both).
@@ -196,7 +196,7 @@ def _medium_lost(model, renderer: str) -> list:
             "two to agree"]
     if model.eta_u != 1.0:
         lost.append(f"the boundary (eta_u = {model.eta_u:.6g}) is exported as a dielectric "
-                    f"interface; veil's Fresnel factors ({model.variant} variant, MODEL.md "
+                    f"interface; veil's Fresnel factors ({model.variant} variant, docs/model.md "
                     f"sec. 3) only approximate its refraction")
     if model.s != 1.0:
         lost.append(f"the intensity factor s = {model.s:.6g} is not part of the medium: "
@@ -245,7 +245,7 @@ class ForwardSeries(Medium):
              unless a fit frees it: f_t is not differentiable in eta_u at 1, where total
              internal reflection sets in on one side)
     s        overall intensity factor (held at 1 unless freed)
-    variant  Fresnel factors as the paper's medium ("paper" or "exit", MODEL.md sec. 3)
+    variant  Fresnel factors as the paper's medium ("paper" or "exit", docs/model.md sec. 3)
     path_length, plate_width  set-up geometry in one length unit (0: not given)
     """
 
@@ -260,7 +260,7 @@ class ForwardSeries(Medium):
     orders: str = "poisson"
 
     NAME = "forward-series"
-    LABEL = "unscattered beam + orders of forward scattering, physical (MODEL.md sec. 8.1)"
+    LABEL = "unscattered beam + orders of forward scattering, physical (docs/model.md sec. 8.1)"
     COMPONENTS = ("delta", "lobe")
     GAIN = "s"
     TABLE_ACCURACY = 1e-5
@@ -279,7 +279,7 @@ class ForwardSeries(Medium):
     )
     OPTIONS = (
         Option("variant", "paper", "Fresnel factor: paper = F_t(theta_in)^2, exit = "
-               "F_t(theta_in) F_t(theta_out) (MODEL.md sec. 3)", VARIANTS),
+               "F_t(theta_in) F_t(theta_out) (docs/model.md sec. 3)", VARIANTS),
         Option("path_length", 0.0, "path length of one pass, R_c (0: not given; then J_v = 1)"),
         Option("plate_width", 0.0, "width 2a of the square plate in the unit of path_length "
                "(0: infinite)"),
