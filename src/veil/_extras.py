@@ -1,0 +1,48 @@
+"""Optional dependencies: which extra of ``pip install veil[...]`` brings which module.
+
+The core (``pip install veil``) computes, simulates and fits; the heavy packages are extras:
+``veil[maps]`` (Dask, Zarr, OpenEXR: reflectance maps), ``veil[explore]`` (Panel: the
+interactive page), ``veil[ingest]`` (rawpy, tifffile, imagecodecs: photographs), ``veil[all]``.
+Code that needs one imports it through :func:`require` where it is used, never at the top of a
+module, so that ``import veil`` and every other command work without it. A missing one raises
+:class:`veil.errors.MissingExtraError` (an input error: the command line exits with status 2)
+whose message is the pip line to run.
+"""
+
+from __future__ import annotations
+
+import importlib
+
+from .errors import MissingExtraError
+
+#: Top-level module -> the extra that installs it (pyproject.toml, [project.optional-dependencies]).
+EXTRA_OF = {
+    "dask": "maps", "distributed": "maps", "zarr": "maps", "OpenEXR": "maps",
+    "panel": "explore", "bokeh": "explore",
+    "rawpy": "ingest", "tifffile": "ingest", "imagecodecs": "ingest",
+}
+
+
+def pip_line(extra: str) -> str:
+    """The command that installs an extra, as the user types it."""
+    return f"pip install 'veil[{extra}]'"
+
+
+def require(module: str, purpose: str | None = None):
+    """Import ``module`` (``"zarr"``, ``"dask.array"``) and return it; if its package is not
+    installed, raise :class:`MissingExtraError` naming the extra and the pip line."""
+    try:
+        return importlib.import_module(module)
+    except ImportError as exc:
+        top = module.split(".")[0]
+        missing = (exc.name or "").split(".")[0]
+        if top not in EXTRA_OF or missing not in (top, *EXTRA_OF):
+            raise  # not an optional package of veil: a broken installation, shown as it is
+        extra = EXTRA_OF[missing if missing in EXTRA_OF else top]
+        what = f"{purpose} needs" if purpose else "this needs"
+        raise MissingExtraError(
+            f"{what} the optional package {missing or top}, which is not installed; "
+            f"install veil's {extra!r} extra: {pip_line(extra)}") from None
+
+
+__all__ = ["EXTRA_OF", "pip_line", "require"]
