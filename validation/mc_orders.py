@@ -31,7 +31,7 @@ KMAX = 12
 
 
 def path_factors(tau, g, kmax=KMAX):
-    """M_k of docs/physics.md sec. 8 (numpy; veil.models.forward_series.path_factors)."""
+    """M_k of docs/physics-orders.md sec. 8 (numpy; veil.models.forward_series.path_factors)."""
     k = np.arange(1, kmax + 1, dtype=float)
     om = 1 - g ** k
     a = np.cumsum(om)

@@ -344,7 +344,7 @@ def sample_propagation(target_result: FitResult, medium_result: FitResult, table
     ``linear_covariance`` (A Cov_m A^T), ``converged`` (per draw) and ``redrawn`` (draws
     outside the model's bounds, drawn again: when many, the draws are a truncated normal,
     narrower than step 1's, and ``covariance`` is not the linear one's counterpart;
-    docs/validity.md, "Step 1's uncertainty at m01").
+    docs/validity-model-error.md, "Step 1's uncertainty at m01").
     """
     if isinstance(n_draws, bool) or not isinstance(n_draws, int) or n_draws < 2:
         raise FitError(f"n_draws = {n_draws!r}; expected an integer >= 2")

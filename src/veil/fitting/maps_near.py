@@ -1,4 +1,4 @@
-"""Near-field geometry of the reflectance maps (docs/maps.md "Geometry").
+"""Near-field geometry of the reflectance maps (docs/maps-geometry.md "Geometry").
 
 Collimated light, a pinhole camera at distance D from the plate centre along each
 configuration's view direction, the photos registered to the plate. In the plate's local

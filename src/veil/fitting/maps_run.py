@@ -611,7 +611,7 @@ def fit_maps(photo_dir, manifest, medium, output, *, brdf_model=None, options=No
     geometry : (camera distance, pixel pitch on the plate), same units: report the angular
         spread across the field and warn when it exceeds a fifth of the narrowest lobe.
     near_field : with ``geometry``, per-pixel angles (a pinhole camera at that distance
-        from the plate centre, collimated light; docs/maps.md "Geometry") instead of the
+        from the plate centre, collimated light; docs/maps-geometry.md "Geometry") instead of the
         manifest's angles at every pixel.
     progress(stage, done, total), log(message) : reports.
     """

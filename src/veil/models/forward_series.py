@@ -27,11 +27,11 @@ width the plate is infinite (S = R_c); without a path length J_v = 1 (the series
 
 Order weights (option ``orders``): "poisson" (default) as above; "light-side" weights the lobe's
 order k by the path factor M_k(tau, g) of the light side in the lab's cylinder
-(docs/physics.md sec. 8, ``path_factors``) and the view weight by the ratio that keeps the
+(docs/physics-orders.md sec. 8, ``path_factors``) and the view weight by the ratio that keeps the
 view side the Poisson series times J_v; "view-side" keeps the lobe Poisson and weights the view
 side's order k by the landing factor lambda_k(g; R_c, a, theta_r) (``landing_factors``: a
 path that wandered lands where its whole lateral drift puts it, not where its last direction
-back-projects); "cylinder" does both. Measured (docs/validity.md): "light-side" alone moves the
+back-projects); "cylinder" does both. Measured (docs/validity-orders.md): "light-side" alone moves the
 fitted tau at tau = 1 from 1.121 to 1.162; "cylinder" brings it to 1.050 (5 cm plate),
 1.038 (10 cm plate), 1.034 (R_c 10 cm), the estimate vs truth better there (0.21 -> 0.19 %,
 0.94 -> 0.76 %, 0.61 -> 0.46 %), 0.08 -> 0.14 % at tau = 0.5. Experimental (default off).
@@ -52,7 +52,7 @@ from .renderers import Plugin, Unsupported, Value, float_value
 
 VARIANTS = ("paper", "exit")
 #: Weights of the orders: "poisson" (docs/model.md 8.1 as written); "light-side" (the light side's orders
-#: with the cylinder's path factors M_k, docs/physics.md sec. 8, the view side Poisson x J_v);
+#: with the cylinder's path factors M_k, docs/physics-orders.md sec. 8, the view side Poisson x J_v);
 #: "view-side" (the light side Poisson, the view side's orders with the landing factors lambda_k);
 #: "cylinder" (both).
 ORDER_WEIGHTS = ("poisson", "cylinder", "light-side", "view-side")
@@ -78,7 +78,7 @@ def _mixture(v):
 
 def path_factors(tau, g):
     """M_k, k = 1..ORDERS: the cylinder's factor on the Poisson weight of order k of the light
-    reaching the plate centre (docs/physics.md sec. 8), M_k = exp(X_k),
+    reaching the plate centre (docs/physics-orders.md sec. 8), M_k = exp(X_k),
 
         X_k = A_k (1 - tau/(k+1)) - B_k (1 - tau/(k+2)),
         A_k = sum_{m=1..k} (1 - g^m),   B_k = sum_{m=1..k} (k+1-m)/(k+1) (1 - g^m):
@@ -114,7 +114,7 @@ def _rectangle_potential(aa, bb, z):
 def landing_factors(g, path_length, half_width, mu_r):
     """lambda_k, k = 1..ORDERS: the fraction of the order-k paths seen by the camera (at
     cos theta_r = mu_r) that left the square plate of half-width a, over the fraction that J_v
-    predicts (docs/physics.md sec. 8). Small angles: the HG(g^j) directions are 2-D Cauchy
+    predicts (docs/physics-orders.md sec. 8). Small angles: the HG(g^j) directions are 2-D Cauchy
     distributed with scale b_j = (1 - g^j)/g^{j/2} (and convolve as a Cauchy random walk), so
     a path with segment depths Delta_j (uniform spacings of R_c) is displaced at the plate by a
     2-D Cauchy variable of scale S = sum_j Delta_j b_j, J_v's straight back-projection by one of
@@ -286,7 +286,7 @@ class ForwardSeries(Medium):
         Option("orders", "poisson", "weights of the scattering orders: poisson = "
                "(omega tau)^k/k! on both sides; light = the light side's with the cylinder's "
                "path factors M_k(tau, g), the view side's unchanged; view = the view side's "
-               "with the plate's landing factors lambda_k (docs/physics.md sec. 8), the light "
+               "with the plate's landing factors lambda_k (docs/physics-orders.md sec. 8), the light "
                "side's unchanged; cylinder = both", ORDER_WEIGHTS),
     )
     #: Against path tracing without a fit (validation/forward_error.py, docs/validity.md) the
