@@ -8,7 +8,7 @@ JOBS   ?= 2
 # compiled engine code (JAX's persistent compilation cache) stays in the checkout too
 export VEIL_CACHE_DIR ?= $(CURDIR)/.veil-cache
 
-.PHONY: demo test bench bench-explore browser-deps warmup venv clean
+.PHONY: demo test docs bench bench-explore browser-deps warmup venv clean
 
 venv: $(STAMP)
 
@@ -23,6 +23,19 @@ $(STAMP): pyproject.toml
 # tests against worksteal's 12:25 and 13:41), with an idle worker while the last module runs
 test: $(STAMP)
 	$(PY) -m pytest -n $(JOBS) --dist worksteal -q --durations=30
+
+# the documentation site (docs/conf.py): warnings are errors, which includes every internal
+# link between pages and to a section (MyST's cross-references) and every docstring shown;
+# the examples named plot_*.py run and make their figures
+DOCS_STAMP := $(VENV)/.veil-docs-installed
+$(DOCS_STAMP): pyproject.toml $(STAMP)
+	$(PY) -m pip install --quiet -e '.[docs]'
+	@touch $(DOCS_STAMP)
+
+docs: $(DOCS_STAMP)
+	rm -rf docs/_build docs/generated docs/auto_examples docs/sg_execution_times.rst
+	$(PY) -m sphinx -W --keep-going -q -b html docs docs/_build/html
+	@echo "docs/_build/html/index.html"
 
 demo: $(STAMP)
 	$(VENV)/bin/veil demo -o demo-out
@@ -50,4 +63,4 @@ browser-deps:
 	fi
 
 clean:
-	rm -rf $(VENV) demo-out .pytest_cache .veil-cache test-artifacts
+	rm -rf $(VENV) demo-out .pytest_cache .veil-cache test-artifacts docs/_build docs/generated docs/auto_examples

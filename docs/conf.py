@@ -10,7 +10,8 @@ from __future__ import annotations
 
 import os
 import sys
-from importlib.metadata import PackageNotFoundError, version
+from importlib.metadata import PackageNotFoundError
+from importlib.metadata import version as _version
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.join(HERE, "..", "src"))
@@ -19,7 +20,7 @@ project = "veil"
 author = "The veil maintainers"
 copyright = "2026, The veil maintainers"
 try:
-    release = version("veil")
+    release = _version("veil")
 except PackageNotFoundError:
     release = "0+unknown"
 
@@ -42,6 +43,7 @@ myst_enable_extensions = ["colon_fence"]
 html_theme = "furo"
 html_title = f"veil {release}"
 html_static_path = []
+templates_path = ["_templates"]
 
 autosummary_generate = True
 autodoc_typehints = "none"
@@ -59,3 +61,44 @@ sphinx_gallery_conf = {
     "remove_config_comments": True,
     "within_subsection_order": "FileNameSortKey",
 }
+
+
+# Most docstrings are plain text written for `help()` and the terminal (formulas, aligned
+# lists), not reStructuredText. A docstring that docutils cannot read cleanly as rst is shown
+# as it is written, in a literal block under its first line, instead of as broken markup
+# (which -W would turn into an error). Sphinx's own roles (:func:, :class:) are not problems.
+def _rst_problems(text: str) -> list[str]:
+    import io
+    import re
+
+    from docutils.core import publish_doctree
+
+    text = re.sub(r":[\w:+-]+:`([^`]*)`", r"``\1``", text)  # Sphinx's roles need Sphinx
+    stream = io.StringIO()
+    try:
+        publish_doctree(text, settings_overrides={
+            "report_level": 2, "halt_level": 5, "warning_stream": stream})
+    except Exception as exc:  # noqa: BLE001 - anything docutils cannot read is a problem
+        return [repr(exc)]
+    return [line for line in stream.getvalue().splitlines()
+            if re.search(r"\((WARNING/2|ERROR/3|SEVERE/4)\)", line)
+            and "Unknown interpreted text role" not in line and "No role entry" not in line
+            and "Unknown directive type" not in line]
+
+
+def _plain_docstrings(app, what, name, obj, options, lines):
+    import inspect
+
+    if not lines or not _rst_problems("\n".join(lines)):
+        return
+    doc = inspect.getdoc(obj) or ""
+    first, _, rest = doc.strip().partition("\n\n")
+    if _rst_problems(first):  # even the first paragraph: all of it as written
+        first, rest = "", doc.strip()
+    lines[:] = [" ".join(first.split()), ""] if first else []
+    if rest.strip():
+        lines += ["::", ""] + ["    " + line for line in rest.splitlines()] + [""]
+
+
+def setup(app):
+    app.connect("autodoc-process-docstring", _plain_docstrings, priority=900)

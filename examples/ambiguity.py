@@ -1,4 +1,8 @@
-"""The paper's failure, reproduced and fixed (docs/model.md sec. 7; docs/ambiguity.md).
+"""
+The paper's failure, reproduced and fixed
+=========================================
+
+The paper's failure, reproduced and fixed (docs/model.md sec. 7; docs/ambiguity.md).
 
 A smooth target (n = 0.8, a PVC-like plate) is measured through a strongly scattering drink
 (BTDF3). The two-step estimate (docs/model.md sec. 7) takes step 1's medium as exact; a medium

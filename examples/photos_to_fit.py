@@ -1,4 +1,8 @@
-"""From photographs to the target's true BRDF, end to end on synthetic photos.
+"""
+From photographs to the target's true BRDF
+==========================================
+
+From photographs to the target's true BRDF, end to end on synthetic photos.
 
 A goniometer session is what a user's disk holds: one photo per stage rotation, the object
 patch and a black cloth beside it, both seen through the medium. This example

@@ -4,8 +4,10 @@ The paper's object through its three media
 
 The apparent reflectance f(I, R) of docs/model.md eq. (1): the paper's object BRDF1 seen
 through its three simulated media BTDF1-3 (docs/model.md sec. 6), in the plane of incidence
-with the light at 30 deg, beside the object's own f_r (eq. 2a). The denser the medium, the
-lower and broader the specular peak, and the brighter the off-specular floor.
+with the light at 30 deg, beside the object's own f_r (eq. 2a). From BTDF1 to BTDF3 the
+medium scatters more and more broadly (g from 0.98 to 0.88): the specular peak at
+theta_r = 30 deg spreads, and the off-specular floor rises towards the peak. The levels are
+relative: the media's coefficients T_d and T_t scale the curves (docs/model.md sec. 3).
 """
 
 import matplotlib.pyplot as plt
@@ -14,7 +16,7 @@ import numpy as np
 import veil
 
 theta_i = 30.0
-theta_r = np.linspace(-80.0, 80.0, 81)      # signed in-plane: < 0 is the light's side
+theta_r = np.linspace(-80.0, 80.0, 161)      # signed in-plane: < 0 is the light's side
 ti = np.full_like(theta_r, theta_i)
 phi_r = np.where(theta_r >= 0, 0.0, 180.0)  # the camera's azimuth (light at 180 deg)
 tr = np.abs(theta_r)
