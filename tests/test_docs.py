@@ -132,3 +132,15 @@ def test_readme_links_resolve():
     assert links
     missing = [link for link in links if "://" not in link and not (ROOT / link).exists()]
     assert not missing, missing
+
+
+def test_named_files_exist():
+    """A page that names a file of the repository (src/..., tests/..., benchmarks/...) names
+    one that exists; placeholders in capitals (NAME_cmd.py) are not files."""
+    pattern = re.compile(r"\b((?:src|tests|benchmarks|validation|examples)/[\w/.-]+\.(?:py|md))")
+    missing = []
+    for page in PAGES:
+        for path in set(pattern.findall(page.read_text())):
+            if not re.search(r"[A-Z]{3,}", path) and not (ROOT / path).exists():
+                missing.append(f"{page.name}: {path}")
+    assert not missing, missing
