@@ -132,3 +132,23 @@ def test_cli_without_the_extras():
         "main()\n")
     assert result.returncode == 2, (result.stdout, result.stderr[-3000:])
     assert "pip install 'veil[maps]'" in result.stderr + result.stdout
+
+
+def test_a_broken_optional_package_names_the_extra_too(monkeypatch):
+    """zarr installed but one of its own dependencies missing: the extra's pip line mends it."""
+    import importlib
+
+    def broken(name, *args, **kwargs):
+        raise ModuleNotFoundError("No module named 'numcodecs'", name="numcodecs")
+
+    monkeypatch.setattr(importlib, "import_module", broken)
+    with pytest.raises(MissingExtraError) as info:
+        require("zarr", "a maps store")
+    assert "numcodecs" in str(info.value) and pip_line("maps") in str(info.value)
+
+
+def test_require_of_a_core_module_is_not_an_extra(monkeypatch):
+    monkeypatch.setitem(sys.modules, "json", None)
+    with pytest.raises(ImportError) as info:
+        require("json")
+    assert not isinstance(info.value, MissingExtraError)

@@ -35,14 +35,15 @@ def require(module: str, purpose: str | None = None):
         return importlib.import_module(module)
     except ImportError as exc:
         top = module.split(".")[0]
-        missing = (exc.name or "").split(".")[0]
-        if top not in EXTRA_OF or missing not in (top, *EXTRA_OF):
-            raise  # not an optional package of veil: a broken installation, shown as it is
-        extra = EXTRA_OF[missing if missing in EXTRA_OF else top]
+        if top not in EXTRA_OF:
+            raise  # not an optional package: a bug in veil, shown as it is
+        extra = EXTRA_OF[top]
         what = f"{purpose} needs" if purpose else "this needs"
+        missing = (exc.name or top).split(".")[0]
+        why = "is not installed" if missing == top else f"cannot be imported ({exc})"
         raise MissingExtraError(
-            f"{what} the optional package {missing or top}, which is not installed; "
-            f"install veil's {extra!r} extra: {pip_line(extra)}") from None
+            f"{what} the optional package {top}, which {why}; install veil's {extra!r} "
+            f"extra: {pip_line(extra)}") from None
 
 
 __all__ = ["EXTRA_OF", "pip_line", "require"]
