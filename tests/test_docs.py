@@ -144,3 +144,16 @@ def test_named_files_exist():
             if not re.search(r"[A-Z]{3,}", path) and not (ROOT / path).exists():
                 missing.append(f"{page.name}: {path}")
     assert not missing, missing
+
+
+def test_model_md_presets_are_veils():
+    """The preset tables of docs/model.md sec. 6 hold veil.PRESETS' values, in order."""
+    import veil
+    text = (ROOT / "docs" / "model.md").read_text()
+    section = text[text.index("## 6."):text.index("## 7.")]
+    rows = re.findall(r"^\| (BRDF\d|BTDF\d)\s*\|(.*)\|\s*$", section, re.M)
+    assert [name for name, _ in rows] == ["BRDF1", "BRDF2", "BTDF1", "BTDF2", "BTDF3"]
+    for name, cells in rows:
+        values = [float(c) for c in cells.split("|")]
+        model = veil.PRESETS[name]
+        assert values == pytest.approx(list(model.to_vector()), rel=1e-12), name
