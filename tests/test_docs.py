@@ -11,6 +11,7 @@ one interpreter, so JAX is imported and the engine's programs compiled once."""
 from __future__ import annotations
 
 import json
+import math
 import os
 import re
 import subprocess
@@ -157,3 +158,50 @@ def test_model_md_presets_are_veils():
         values = [float(c) for c in cells.split("|")]
         model = veil.PRESETS[name]
         assert values == pytest.approx(list(model.to_vector()), rel=1e-12), name
+
+
+def _benchmark(name: str):
+    """A module of benchmarks/ (not a package), imported from its file."""
+    import importlib.util
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    try:
+        spec = importlib.util.spec_from_file_location(name, ROOT / "benchmarks" / f"{name}.py")
+        module = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(module)
+        return module
+    finally:
+        sys.path.remove(str(ROOT / "benchmarks"))
+
+
+def test_doc_tables_replace_only_their_block():
+    tables = _benchmark("doc_tables")
+    page = "a\n<!-- table:t (written by x) -->\nold\n<!-- /table:t -->\nb\n"
+    new = tables.replace(page, "t", "line\n\n" + tables.markdown(["x", "y"], [["1", "2"]], {1}))
+    assert new == ("a\n<!-- table:t (written by x) -->\nline\n\n| x | y |\n|---|---:|\n"
+                   "| 1 | 2 |\n<!-- /table:t -->\nb\n")
+    with pytest.raises(SystemExit):
+        tables.replace("no markers", "t", "line")
+    line = tables.provenance(["benchmarks/bench_validity.py", "--media", "m01"])
+    assert "bench_validity.py --media m01" in line and "cores" in line and "load" in line
+
+
+def test_bench_validity_writes_the_table_validity_md_has():
+    """The rows --doc writes are the rows docs/validity.md holds (the same run's numbers)."""
+    bench = _benchmark("bench_validity")
+    text = (ROOT / "docs" / "validity.md").read_text()
+    block = text[text.index("<!-- table:validity"):text.index("<!-- /table:validity -->")]
+    assert "| " + " | ".join(bench.DOC_COLUMNS) + " |" in block
+    rows = [
+        dict(medium="m01", target="target", models="physical", est_vs_direct=0.0031,
+             est_vs_truth=0.0031, direct_vs_truth=0.0, max_z=4.43, fr_max_z=5.14,
+             fr_within_2se=0.75, tau=0.108, tau_stderr=0.125, tau_true=0.1, g=0.98,
+             g_true=0.97, seconds=41.2),
+        dict(medium="m10", target="target", models="physical (joint)", est_vs_truth=0.0020,
+             tau=1.126, tau_stderr=0.016, tau_true=1.0, g=0.8957, g_true=0.88, seconds=87.0),
+        dict(medium="m05", target="target", models="paper", est_vs_direct=0.0113,
+             est_vs_truth=0.0387, direct_vs_truth=0.0348, max_z=3.49, fr_max_z=3.15,
+             fr_within_2se=0.64, tau=math.nan, g=0.9764, g_true=0.92, tau_true=0.5,
+             seconds=47.0),
+    ]
+    for cells in bench.doc_rows(rows):
+        assert "| " + " | ".join(cells) + " |" in block, cells
