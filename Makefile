@@ -8,14 +8,14 @@ JOBS   ?= 2
 # compiled engine code (JAX's persistent compilation cache) stays in the checkout too
 export VEIL_CACHE_DIR ?= $(CURDIR)/.veil-cache
 
-.PHONY: demo test check bench bench-compile bench-explore browser-deps warmup venv clean
+.PHONY: demo test check docs bench bench-compile bench-explore browser-deps warmup venv clean
 
 venv: $(STAMP)
 
 $(STAMP): pyproject.toml
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e '.[test]'
+	$(PY) -m pip install --quiet -e '.[all,test]'
 	@touch $(STAMP)
 
 # --dist worksteal; loadscope (a module's tests on one worker, its module fixtures made once)
@@ -32,6 +32,19 @@ CHECK := tests/test_layout.py tests/test_cli_startup.py tests/test_cli_eval.py \
 check: $(STAMP)
 	$(PY) -m pytest -n $(JOBS) --dist worksteal -q $(CHECK) \
 		-k "not warmup and not brute_force and not monte_carlo and not independent_reference"
+
+# the documentation site (docs/conf.py): warnings are errors, which includes every internal
+# link between pages and to a section (MyST's cross-references) and every docstring shown;
+# the examples named plot_*.py run and make their figures
+DOCS_STAMP := $(VENV)/.veil-docs-installed
+$(DOCS_STAMP): pyproject.toml $(STAMP)
+	$(PY) -m pip install --quiet -e '.[docs]'
+	@touch $(DOCS_STAMP)
+
+docs: $(DOCS_STAMP)
+	rm -rf docs/_build docs/generated docs/auto_examples docs/sg_execution_times.rst
+	$(PY) -m sphinx -W --keep-going -q -b html docs docs/_build/html
+	@echo "docs/_build/html/index.html"
 
 demo: $(STAMP)
 	$(VENV)/bin/veil demo -o demo-out
@@ -63,4 +76,4 @@ browser-deps:
 	fi
 
 clean:
-	rm -rf $(VENV) demo-out .pytest_cache .veil-cache test-artifacts
+	rm -rf $(VENV) demo-out .pytest_cache .veil-cache test-artifacts docs/_build docs/generated docs/auto_examples

@@ -4,7 +4,7 @@ Both run here, in one process, on the same configurations:
 
 * veil's engine (deterministic multiple-importance quadrature, ``veil.engine.apparent``), at the
   "default" rule, timed after compilation;
-* a baseline written for this benchmark: multiple-importance-sampled Monte Carlo of MODEL.md
+* a baseline written for this benchmark: multiple-importance-sampled Monte Carlo of docs/model.md
   eq. (1) in numpy (one-sample balance heuristic over five strategies: phase lobes about I
   and R, the facet lobe reflected from either side, and uniform hemispheres), run at the
   sample count whose estimated relative standard error is 1e-3 / 2 at every configuration

@@ -1,4 +1,4 @@
-"""Benchmark of the whole estimation (veil.run_pipeline, MODEL.md sec. 7; docs/fitting.md).
+"""Benchmark of the whole estimation (veil.run_pipeline, docs/model.md sec. 7; docs/fitting.md).
 
 The paper's protocol (psi = 30, 60, 90 deg; 111 configurations a session): reference BRDF2
 in clear water and in BTDF1 with a black cloth, target BRDF1 in BTDF1; 1 % noise. The

@@ -18,7 +18,7 @@ medians within each BRDF.
     python benchmarks/bench_forward_series.py --accuracy # accuracy instead of speed
 
 --accuracy: the engine at the default rule against (a) the independent reference
-tests/reference_physical.py (MODEL.md sec. 8 in numpy; Gauss rules and QMC, with its standard
+tests/reference_physical.py (docs/model.md sec. 8 in numpy; Gauss rules and QMC, with its standard
 error) and (b) the engine itself at three times the nodes per dimension (its quadrature
 error), for TS (BRDF2) through forward-series tau = 1, omega = 0.99, g = 0.88 with the
 options of tests/test_model_contract.py (the paper's Fresnel variant, eta_u = 1; the exit

@@ -1,4 +1,4 @@
-"""Benchmark of the joint fit (veil.fit_joint, docs/ambiguity.md; docs/performance.md "Joint fit").
+"""Benchmark of the joint fit (veil.fit_joint, docs/ambiguity.md; docs/performance-fitting.md "Joint fit").
 
 Three media sessions of about 120 configurations each (the paper's protocol, psi 30/60/90,
 with a 12 deg dense window): BRDF1 through BTDF1, BTDF2 and BTDF3, 1 % noise; the target's

@@ -1,4 +1,4 @@
-"""Benchmark of the reflectance maps (docs/maps.md, docs/performance.md "Reflectance maps").
+"""Benchmark of the reflectance maps (docs/maps.md, docs/performance-maps.md "Reflectance maps").
 
     .venv/bin/python benchmarks/bench_maps.py [--pixels 20000] [--size 200] [--rss-size 1000]
     .venv/bin/python benchmarks/bench_maps.py --solve-only [--repeat 3] [--tables-cache DIR]
@@ -20,7 +20,7 @@ with its wall and CPU seconds: CPU is the process's time over all its threads).
 --tables-cache DIR keeps the tables of part 1 in DIR (pickles, keyed by family and
 configurations) so that several runs, e.g. of two versions of the solver, share them.
 
---near D,P runs the near-field comparison alone (docs/maps.md "Geometry"): a photo of
+--near D,P runs the near-field comparison alone (docs/maps-geometry.md "Geometry"): a photo of
 NEAR_SIZE x NEAR_SIZE pixels of pitch P seen by a camera at distance D, Torrance-Sparrow
 through BTDF2 at the 111 configurations, index fixed, tables at --near-accuracy (default
 "fast"): the distant and the near-field tables (seconds, field grid), the interpolation

@@ -1,4 +1,4 @@
-"""Start-up benchmark of the command line (issue 16; docs/performance.md "Start-up").
+"""Start-up benchmark of the command line (issue 16; docs/performance-startup.md "Start-up").
 
 Each command runs as a fresh process of the ``veil`` program, as a user would run it:
 

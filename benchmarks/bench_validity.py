@@ -1,6 +1,6 @@
 """Validity on path-traced data: the paper's models against the physical ones (issue 12).
 
-The two-step method (MODEL.md sec. 7) on the Mitsuba 3 renders of the paper's lab set-up in
+The two-step method (docs/model.md sec. 7) on the Mitsuba 3 renders of the paper's lab set-up in
 validation/data (validation/README.md): the reference plate in clear water (step 0) and in
 the medium (step 1), the target in the medium (step 2), the black cloth subtracted; the
 target's clear-water session is fitted directly and is also the truth (it is the renderer's
@@ -35,6 +35,7 @@ Run:  .venv/bin/python benchmarks/bench_validity.py [--media m01,m05,m10] [--tar
       [--models paper,physical] [--orders poisson|cylinder|light-side|view-side] [--joint]
       [--model-error off|independent|correlated] [--propagation auto|linear|sigma-points]
       [--reference ref|smooth] [--figure docs/validity.png] [--json out.json]
+      [--doc docs/validity.md]
 The clear-water tables have sigma = 0 (deterministic renders, validation/README.md); they are
 fitted unweighted.
 """
@@ -55,7 +56,7 @@ import pandas as pd
 HERE = os.path.dirname(os.path.abspath(__file__))
 DATA = os.path.join(HERE, "..", "validation", "data")
 
-#: The two model sets compared: the paper's and the physical ones of MODEL.md sec. 8.
+#: The two model sets compared: the paper's and the physical ones of docs/model.md sec. 8.
 MODELS = {
     "paper": dict(brdf_model="torrance-sparrow", medium_model="henyey-greenstein"),
     "physical": dict(brdf_model="rough-plastic", medium_model="forward-series"),
@@ -306,6 +307,38 @@ def print_table(rows: list[dict]) -> None:
         Console(width=160).print(t)
 
 
+#: The columns of docs/validity.md's main table (``--doc``), one row per estimate.
+DOC_COLUMNS = ["medium (tau per pass, g)", "models", "estimate vs direct fit", "estimate vs truth",
+               "direct fit vs truth", "max \\|z\\| params", "max \\|z\\| curves",
+               "curves within 2 se", "tau ± se (true)", "g (true)", "s"]
+
+
+def _true(x: float) -> str:
+    """A true value as the tables write it: 1.0, 0.5, 0.97."""
+    return f"{x:.1f}" if round(x, 1) == x else f"{x:g}"
+
+
+def doc_rows(rows: list[dict]) -> list[list[str]]:
+    """The rows of the main table of docs/validity.md: the physical models' estimates in
+    bold, a joint fit's columns against the direct fit empty."""
+    out = []
+    for r in rows:
+        joint = r["models"].endswith("(joint)")
+        bold = (lambda s: f"**{s}**") if r["models"].startswith("physical") else (lambda s: s)
+        models = r["models"] if r["target"] == "target" else f"{r['models']}, {r['target']}"
+        tau = ("-" if math.isnan(_nan(r.get("tau"))) else
+               f"{r['tau']:.3f} ± {_nan(r.get('tau_stderr')):.3f} ({_true(r['tau_true'])})")
+        out.append([
+            f"{r['medium']} ({_true(r['tau_true'])}, {_true(r['g_true'])})", models,
+            "-" if joint else bold(_pct(r["est_vs_direct"])), bold(_pct(r["est_vs_truth"])),
+            "-" if joint else _pct(r["direct_vs_truth"]),
+            "-" if joint else _num(r["max_z"]),
+            "-" if joint else _num(_nan(r.get("fr_max_z"))),
+            "-" if joint else _pct(_nan(r.get("fr_within_2se")), 0),
+            tau, f"{r['g']:.4f} ({_true(r['g_true'])})", f"{r['seconds']:.0f}"])
+    return out
+
+
 def figure(rows: list[dict], path: str) -> None:
     import matplotlib
 
@@ -352,6 +385,9 @@ def main(argv=None) -> int:
     ap.add_argument("--models", default="paper,physical")
     ap.add_argument("--figure", default=None)
     ap.add_argument("--json", default=None)
+    ap.add_argument("--doc", default=None, metavar="PAGE",
+                    help="write the table, with this command, the date and the load, into "
+                         "PAGE between its markers <!-- table:validity --> (docs/validity.md)")
     ap.add_argument("--joint", action="store_true",
                     help="also steps 1 and 2 as one joint fit per medium and model set")
     ap.add_argument("--replot", default=None, metavar="JSON",
@@ -378,6 +414,10 @@ def main(argv=None) -> int:
         print_table(rows)
         if args.figure:
             figure(rows, args.figure)
+        if args.doc:
+            from doc_tables import markdown, write
+
+            write(args.doc, "validity", markdown(DOC_COLUMNS, doc_rows(rows), set(range(2, 11))))
         return 0
     truth = load_truth()
     rows = []
@@ -400,6 +440,10 @@ def main(argv=None) -> int:
     print_table(rows)
     if args.figure:
         figure(rows, args.figure)
+    if args.doc:
+        from doc_tables import markdown, write
+
+        write(args.doc, "validity", markdown(DOC_COLUMNS, doc_rows(rows), set(range(2, 11))))
     if args.json:
         from veil.io import write_text_atomic
 

@@ -1,4 +1,4 @@
-"""Reference values of the apparent reflectance (MODEL.md sec. 5) from tests/reference.py.
+"""Reference values of the apparent reflectance (docs/model.md sec. 5) from tests/reference.py.
 
 The reference is independent of veil's engine (numpy/scipy, deterministic quadrature for all
 low-dimensional pieces, multiple importance sampling on scrambled Sobol points for the
@@ -65,7 +65,7 @@ def write_atomic(path, rows):
 
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("brdf", help="BRDF preset (MODEL.md sec. 6), e.g. BRDF1")
+    p.add_argument("brdf", help="BRDF preset (docs/model.md sec. 6), e.g. BRDF1")
     p.add_argument("medium", help="BTDF preset, e.g. BTDF3")
     p.add_argument("--configs", help="CSV with theta_i, theta_r[, phi_i, phi_r] (degrees)")
     p.add_argument("--m", type=int, default=16, help="2^m Sobol points per strategy and scramble")

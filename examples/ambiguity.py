@@ -1,12 +1,16 @@
-"""The paper's failure, reproduced and fixed (MODEL.md sec. 7; docs/ambiguity.md).
+"""
+The paper's failure, reproduced and fixed
+=========================================
+
+The paper's failure, reproduced and fixed (docs/model.md sec. 7; docs/ambiguity.md).
 
 A smooth target (n = 0.8, a PVC-like plate) is measured through a strongly scattering drink
-(BTDF3). The two-step estimate (MODEL.md sec. 7) takes step 1's medium as exact; a medium
+(BTDF3). The two-step estimate (docs/model.md sec. 7) takes step 1's medium as exact; a medium
 slightly off - inside step 1's own 95 % confidence region, or biased by a forgotten
 black-cloth subtraction - turns the smooth target into a rough one, as in the paper
 (red PVC: n 0.83 measured directly, 0.20 through the drink). The diagnostics flag the
 estimate; a joint fit over three concentrations (the paper's thin, medium and thick media
-BTDF1-3, MODEL.md sec. 6) recovers n within its reported uncertainty.
+BTDF1-3, docs/model.md sec. 6) recovers n within its reported uncertainty.
 
     .venv/bin/python examples/ambiguity.py            # the table of docs/ambiguity.md
     .venv/bin/python examples/ambiguity.py --quick    # smaller protocol, "fast" quadrature

@@ -1,4 +1,8 @@
-"""Reflectance maps with a known answer (docs/maps.md).
+"""
+Reflectance maps with a known answer
+====================================
+
+Reflectance maps with a known answer (docs/maps.md).
 
 A plate of two Torrance-Sparrow materials (a matte left half, a glossy right half), with a
 roughness gradient from top to bottom and a diagonal scratch whose facets are tilted by

@@ -1,4 +1,8 @@
-"""From photographs to the target's true BRDF, end to end on synthetic photos.
+"""
+From photographs to the target's true BRDF
+==========================================
+
+From photographs to the target's true BRDF, end to end on synthetic photos.
 
 A goniometer session is what a user's disk holds: one photo per stage rotation, the object
 patch and a black cloth beside it, both seen through the medium. This example
@@ -9,7 +13,7 @@ patch and a black cloth beside it, both seen through the medium. This example
    with a camera offset, photon-like noise and a dark frame;
 2. ingests the folder (``veil.data.ingest.ingest``: ROI means, standard errors, saturation check);
 3. subtracts the black cloth and fits the target's Torrance-Sparrow parameters with the
-   medium known (step 2 of MODEL.md sec. 7), and prints them beside the truth.
+   medium known (step 2 of docs/model.md sec. 7), and prints them beside the truth.
 
     .venv/bin/python examples/photos_to_fit.py [OUTDIR]
 """

@@ -47,7 +47,7 @@ def render_near(brdf, medium, configs: pd.DataFrame, param_maps: np.ndarray, geo
                 accuracy: str = "fast") -> np.ndarray:
     """Apparent values (H*W, M) of a plate seen by a near camera (``geometry``, a
     veil.fitting.maps_near.NearGeometry of the full photo ``param_maps`` is): every pixel at
-    its own exact angles (collimated light, pinhole camera; docs/maps.md "Geometry"), one
+    its own exact angles (collimated light, pinhole camera; docs/maps-geometry.md "Geometry"), one
     engine evaluation per distinct parameter vector over its pixels."""
     n, h, w = param_maps.shape
     angles = tuple(configs[c].to_numpy(dtype=float)

@@ -1,10 +1,10 @@
-"""Independent brute-force reference for the apparent reflectance (MODEL.md sec. 5, paper eq. 1).
+"""Independent brute-force reference for the apparent reflectance (docs/model.md sec. 5, paper eq. 1).
 
-Written from MODEL.md alone, in numpy/scipy, sharing no code with veil's engine
+Written from docs/model.md alone, in numpy/scipy, sharing no code with veil's engine
 (``veil.engine.integrator``, ``veil.engine.quadrature``) nor with its model code. It is a checker: slow,
 simple, and every piece can be verified against another.
 
-Method. With f_t(A, B) = T_d + T_t a(A_z) b(B_z) p(A . B) (MODEL.md sec. 3; a = F_t^2, b = 1
+Method. With f_t(A, B) = T_d + T_t a(A_z) b(B_z) p(A . B) (docs/model.md sec. 3; a = F_t^2, b = 1
 for the "paper" variant, a = b = F_t for "exit") and f_r = P_d cos(theta_I) + f_s (sec. 2),
 eq. 1 expands into
 
@@ -38,7 +38,7 @@ from scipy.stats import qmc
 
 DEG = math.pi / 180.0
 
-#: The paper's presets as tuples, copied from MODEL.md sec. 6 (not from veil).
+#: The paper's presets as tuples, copied from docs/model.md sec. 6 (not from veil).
 PRESETS = {
     "BRDF1": (2.00e2, 5.00e5, 0.80, 1.55),
     "BRDF2": (1.00e3, 5.00e5, 0.50, 1.55),
@@ -49,11 +49,11 @@ PRESETS = {
 
 
 # ----------------------------------------------------------------------------------------
-# Model pieces (MODEL.md sec. 2-4), numpy
+# Model pieces (docs/model.md sec. 2-4), numpy
 # ----------------------------------------------------------------------------------------
 
 def reference_fresnel(cos_theta, eta):
-    """Unpolarized Fresnel reflectance, cosine form of MODEL.md sec. 4 (F = 1 under TIR)."""
+    """Unpolarized Fresnel reflectance, cosine form of docs/model.md sec. 4 (F = 1 under TIR)."""
     c = np.clip(np.asarray(cos_theta, dtype=float), 0.0, 1.0)
     eta = float(eta)
     if eta == 1.0:  # no interface; also the limit at grazing, where the formula is 0/0
@@ -77,7 +77,7 @@ def reference_fresnel_sintan(theta_deg, eta):
 
 
 def reference_hg(g, cos_gamma):
-    """Henyey-Greenstein phase function p(g, gamma) with its 1/(4 pi) (MODEL.md sec. 3, dec. 2)."""
+    """Henyey-Greenstein phase function p(g, gamma) with its 1/(4 pi) (docs/model.md sec. 3, dec. 2)."""
     mu = np.asarray(cos_gamma, dtype=float)
     return (1.0 - g * g) / (4.0 * math.pi * (1.0 + g * g - 2.0 * g * mu) ** 1.5)
 
@@ -100,7 +100,7 @@ def _hg_sample_x(g, u):
 
 
 def _params(model):
-    """A preset name (MODEL.md sec. 6) or a 4-tuple -> tuple of 4 floats."""
+    """A preset name (docs/model.md sec. 6) or a 4-tuple -> tuple of 4 floats."""
     if isinstance(model, str):
         model = PRESETS[model.upper()]
     vals = tuple(float(v) for v in model)
@@ -131,7 +131,7 @@ def _dir(theta_deg, phi_deg):
 
 
 def _fs_vec(Ps, n, eta_b, wi, wo):
-    """Specular part of f_r (MODEL.md sec. 2) for unit vectors (..., 3); 0 outside Omega+."""
+    """Specular part of f_r (docs/model.md sec. 2) for unit vectors (..., 3); 0 outside Omega+."""
     ci, co = wi[..., 2], wo[..., 2]
     h = wi + wo
     h = h / np.linalg.norm(h, axis=-1, keepdims=True)
@@ -147,7 +147,7 @@ def _fs_vec(Ps, n, eta_b, wi, wo):
 
 
 def reference_reflectance(brdf, theta_i, phi_i, theta_r, phi_r):
-    """Torrance-Sparrow f_r(I, R) of MODEL.md sec. 2; brdf = (Pd, Ps, n, eta_b), degrees."""
+    """Torrance-Sparrow f_r(I, R) of docs/model.md sec. 2; brdf = (Pd, Ps, n, eta_b), degrees."""
     Pd, Ps, n, eta_b = _params(brdf)
     wi, wo = _dir(theta_i, phi_i), _dir(theta_r, phi_r)
     ok = (wi[..., 2] > 0) & (wo[..., 2] > 0)
@@ -155,7 +155,7 @@ def reference_reflectance(brdf, theta_i, phi_i, theta_r, phi_r):
 
 
 def reference_btdf(medium, theta_i, phi_i, theta_t, phi_t, variant="paper"):
-    """f_t(I, T) of MODEL.md sec. 3; medium = (Td, Tt, g, eta_u); I, T outward, degrees."""
+    """f_t(I, T) of docs/model.md sec. 3; medium = (Td, Tt, g, eta_u); I, T outward, degrees."""
     Td, Tt, g, eta_u = _params(medium)
     a, b = _fresnel_factors(eta_u, variant)
     wi, wt = _dir(theta_i, phi_i), _dir(theta_t, phi_t)
@@ -555,7 +555,7 @@ def reference_terms(brdf, medium, theta_i, phi_i, theta_r, phi_r, variant="paper
 
 def reference_apparent(brdf, medium, theta_i, phi_i, theta_r, phi_r, variant="paper", *,
                        m=16, n_rep=16, seed=0):
-    """Apparent reflectance f(I, R) of MODEL.md sec. 5 and its standard error.
+    """Apparent reflectance f(I, R) of docs/model.md sec. 5 and its standard error.
 
     brdf = (Pd, Ps, n, eta_b), medium = (Td, Tt, g, eta_u), angles in degrees (scalars or
     small arrays, broadcast). ``m``: 2^m Sobol points per strategy and scramble; ``n_rep``

@@ -1,11 +1,11 @@
-"""Independent reference for the physical models of MODEL.md sec. 8 (rough-plastic, rough-conductor,
+"""Independent reference for the physical models of docs/model.md sec. 8 (rough-plastic, rough-conductor,
 forward-series medium, finite-plate view weighting J_v).
 
-Written from MODEL.md (and the published formulas it names) alone, in numpy/scipy, sharing no code
+Written from docs/model.md (and the published formulas it names) alone, in numpy/scipy, sharing no code
 with veil (nor with tests/reference.py). It is a checker: slow, simple, every piece verifiable
 against another (see tests/test_reference_physical.py; derivations in docs/physics.md).
 
-Conventions (MODEL.md sec. 1): local frame z = surface normal; I points from the surface to the
+Conventions (docs/model.md sec. 1): local frame z = surface normal; I points from the surface to the
 light, R to the camera; in-plane light at phi = 180 deg, camera at phi = 0; angles in DEGREES at the
 public API; f_r includes cos(theta_i) (a pixel value per unit irradiance); integrals are over the
 upper hemisphere in solid angle. Vector functions take unit vectors of shape (..., 3).
@@ -40,12 +40,12 @@ Fresnel
 
     fresnel_dielectric(cos_i, eta), fresnel_conductor(cos_i, n, k), fresnel_schlick(cos_i, f0)
 
-Medium forward-series (MODEL.md 8.1)
+Medium forward-series (docs/model.md 8.1)
 
     series_weights(tau, omega) -> w_k = (omega tau)^k / k!, k = 1..K (tail < 1e-17 of the sum)
     scattered_lobe(tau, omega, g, cos_gamma) -> L = sum_k w_k p(g^k, gamma)   (no e^-tau)
     hg(g, cos_gamma), hg_convolution(g1, g2, gamma_deg) -> (value, err)
-    plate_weight(Rp, R, tau, path_length, plate_half_width)      J_v, MODEL.md's closed form
+    plate_weight(Rp, R, tau, path_length, plate_half_width)      J_v, docs/model.md's closed form
     plate_weight_direct(Rp, R, tau, path_length, plate_half_width, light=None)
                                                                  J_v by direct integration
     plate_weight_lit(Rp, R, light, tau, path_length, plate_half_width)
@@ -127,7 +127,7 @@ def _dot(a, b):
 # ----------------------------------------------------------------------------------------
 
 def fresnel_dielectric(cos_i, eta):
-    """Unpolarized Fresnel reflectance from index 1 into relative index eta (MODEL.md sec. 4).
+    """Unpolarized Fresnel reflectance from index 1 into relative index eta (docs/model.md sec. 4).
 
     cos_i in [0, 1] (clipped). eta < 1 (incidence from the denser side): F = 1 beyond the
     critical angle. eta = 1: F = 0.
@@ -150,7 +150,7 @@ def fresnel_conductor(cos_i, n, k):
 
     Complex Snell: w = eta cos_t = sqrt(eta^2 - sin^2) on the branch with Im w >= 0 (a wave
     decaying into the metal); r_s = (c - w)/(c + w), r_p = (eta^2 c - w)/(eta^2 c + w);
-    F = (|r_s|^2 + |r_p|^2)/2. k = 0 gives the dielectric formula of MODEL.md sec. 4.
+    F = (|r_s|^2 + |r_p|^2)/2. k = 0 gives the dielectric formula of docs/model.md sec. 4.
     """
     c = np.clip(np.asarray(cos_i, dtype=float), 0.0, 1.0).astype(complex)
     eta = complex(float(n), float(k))
@@ -177,7 +177,7 @@ def _check_dist(distribution):
 
 
 def microfacet_D(cos_h, alpha, distribution="beckmann"):
-    """Normal distribution D(H) per steradian of facet normals (MODEL.md 8.2); 0 for cos_h <= 0."""
+    """Normal distribution D(H) per steradian of facet normals (docs/model.md 8.2); 0 for cos_h <= 0."""
     _check_dist(distribution)
     c = np.asarray(cos_h, dtype=float)
     ok = c > 0
@@ -320,7 +320,7 @@ def _vn(mu, alpha, distribution, kind, eta=1.0, smith="exact", n=32, check=False
 
 
 def rough_transmittance(mu, alpha, eta, distribution="beckmann", smith="exact", n=48, check=False):
-    """t(mu): Int over visible normals of (1 - F(v.m)) G1(w_t, m), from outside (MODEL.md 8.2).
+    """t(mu): Int over visible normals of (1 - F(v.m)) G1(w_t, m), from outside (docs/model.md 8.2).
 
     mu is clamped to >= 1e-6. ``check=True`` returns (value at 2n nodes, |2n - n| difference).
     """
@@ -420,7 +420,7 @@ def _specular(wi, wo, alpha, distribution, smith, fresnel):
 
 def rough_plastic_vec(wi, wo, rho, alpha, eta, ks=1.0, distribution="beckmann", nonlinear=False,
                       smith="exact", tables="exact"):
-    """rough-plastic f_r(I, R) of MODEL.md 8.2 on unit vectors wi = I, wo = R (..., 3)."""
+    """rough-plastic f_r(I, R) of docs/model.md 8.2 on unit vectors wi = I, wo = R (..., 3)."""
     _check_dist(distribution)
     wi, wo = np.asarray(wi, float), np.asarray(wo, float)
     ci, co = wi[..., 2], wo[..., 2]
@@ -437,7 +437,7 @@ def rough_plastic_vec(wi, wo, rho, alpha, eta, ks=1.0, distribution="beckmann", 
 
 def rough_plastic(theta_i, phi_i, theta_r, phi_r, rho, alpha, eta, ks=1.0, distribution="beckmann",
                   nonlinear=False, smith="exact", tables="exact"):
-    """rough-plastic f_r(I, R) (MODEL.md 8.2), angles in degrees (broadcast)."""
+    """rough-plastic f_r(I, R) (docs/model.md 8.2), angles in degrees (broadcast)."""
     return rough_plastic_vec(direction(theta_i, phi_i), direction(theta_r, phi_r), rho, alpha, eta,
                              ks, distribution, nonlinear, smith, tables)
 
@@ -454,7 +454,7 @@ def _conductor_fresnel(n, k, f0):
 
 def rough_conductor_vec(wi, wo, alpha, ks=1.0, n=None, k=None, f0=None, distribution="beckmann",
                         smith="exact"):
-    """rough-conductor f_r(I, R) of MODEL.md 8.3 on unit vectors (complex index or Schlick F0)."""
+    """rough-conductor f_r(I, R) of docs/model.md 8.3 on unit vectors (complex index or Schlick F0)."""
     _check_dist(distribution)
     return ks * _specular(np.asarray(wi, float), np.asarray(wo, float), alpha, distribution, smith,
                           _conductor_fresnel(n, k, f0))
@@ -462,7 +462,7 @@ def rough_conductor_vec(wi, wo, alpha, ks=1.0, n=None, k=None, f0=None, distribu
 
 def rough_conductor(theta_i, phi_i, theta_r, phi_r, alpha, ks=1.0, n=None, k=None, f0=None,
                     distribution="beckmann", smith="exact"):
-    """rough-conductor f_r(I, R) (MODEL.md 8.3), angles in degrees (broadcast)."""
+    """rough-conductor f_r(I, R) (docs/model.md 8.3), angles in degrees (broadcast)."""
     return rough_conductor_vec(direction(theta_i, phi_i), direction(theta_r, phi_r), alpha, ks, n,
                                k, f0, distribution, smith)
 
@@ -489,7 +489,7 @@ def make_rough_conductor(alpha, ks=1.0, n=None, k=None, f0=None, distribution="b
 # ----------------------------------------------------------------------------------------
 
 def hg(g, cos_gamma):
-    """HG phase function with its 1/(4 pi) (MODEL.md sec. 3)."""
+    """HG phase function with its 1/(4 pi) (docs/model.md sec. 3)."""
     mu = np.asarray(cos_gamma, dtype=float)
     return (1.0 - g * g) / (4.0 * math.pi * (1.0 + g * g - 2.0 * g * mu) ** 1.5)
 
@@ -524,7 +524,7 @@ def series_weights(tau, omega, rel_tail=1e-17):
 
 
 def scattered_lobe(tau, omega, g, cos_gamma=None, x=None):
-    """L = sum_{k>=1} w_k p(g^k, gamma) (MODEL.md 8.1, the bracket without delta and e^{-tau}).
+    """L = sum_{k>=1} w_k p(g^k, gamma) (docs/model.md 8.1, the bracket without delta and e^{-tau}).
     Give cos_gamma, or x = 1 - cos_gamma (more accurate near gamma = 0)."""
     if x is None:
         x = 1.0 - np.asarray(cos_gamma, dtype=float)
@@ -656,7 +656,7 @@ def hg_convolution(g1, g2, gamma_deg, rtol=1e-10):
 
 
 # ----------------------------------------------------------------------------------------
-# Finite-plate view weighting J_v (MODEL.md 8.1; derivation in docs/physics.md)
+# Finite-plate view weighting J_v (docs/model.md 8.1; derivation in docs/physics.md)
 # ----------------------------------------------------------------------------------------
 
 def _phi1(x):
@@ -668,7 +668,7 @@ def _phi1(x):
 
 
 def plate_weight(Rp, R, tau, path_length, plate_half_width=None):
-    """J_v(R', R) in MODEL.md's closed form (prototype):
+    """J_v(R', R) in docs/model.md's closed form (prototype):
     (1 - e^{-beta S}) / (beta R_c), beta = sigma_t (mu_R/mu_R' - 1), sigma_t = tau / R_c,
     S = min(R_c, a / max(|v_x|, |v_y|)), v = R - (mu_R/mu_R') R'. plate_half_width None: a = inf.
     0 where R' is not above the surface."""
@@ -969,11 +969,11 @@ def forward_series_terms(brdf_fn, tau, omega, g, eta_u, theta_i, theta_r, phi_i=
 def forward_series_apparent(brdf_fn, tau, omega, g, eta_u, theta_i, theta_r, phi_i=180.0, phi_r=0.0,
                             variant="paper", path_length=None, plate_half_width=None, n_qmc=2 ** 14,
                             n_rep=8, seed=0, scale=1.0):
-    """Apparent reflectance (MODEL.md eq. 1 with the forward-series f_t) and its standard error.
+    """Apparent reflectance (docs/model.md eq. 1 with the forward-series f_t) and its standard error.
 
     brdf_fn(wi, wo): vectorized f_r on unit vectors (wi = I light, wo = R camera); scalar
     angles in degrees. path_length = R_c and plate_half_width = a switch on the finite-plate
-    weighting J_v of the view-side scattered terms. ``scale``: MODEL.md's overall factor s.
+    weighting J_v of the view-side scattered terms. ``scale``: docs/model.md's overall factor s.
     stderr combines the 4-D term's Monte Carlo error with the 2-D terms' quadrature errors.
     """
     t = forward_series_terms(brdf_fn, tau, omega, g, eta_u, theta_i, theta_r, phi_i, phi_r, variant,

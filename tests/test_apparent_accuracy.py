@@ -1,4 +1,4 @@
-"""veil.engine.apparent (MODEL.md sec. 5, paper eq. 1) against the independent reference in
+"""veil.engine.apparent (docs/model.md sec. 5, paper eq. 1) against the independent reference in
 tests/reference.py, closed forms, and checks of the reference itself.
 
 Tolerance: 1e-3 relative (veil's documented accuracy for accuracy="default") plus three

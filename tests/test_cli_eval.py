@@ -180,7 +180,7 @@ def test_csv_round_trip(tmp_path):
 
 
 def test_csv_in_plane_and_goniometer_forms(tmp_path):
-    """The three angle forms of measurement tables (MODEL.md sec. 1) give the same values
+    """The three angle forms of measurement tables (docs/model.md sec. 1) give the same values
     as the four angles they mean; the input's columns pass through unchanged."""
     forms = {
         "full": "theta_i,phi_i,theta_r,phi_r\n45,180,15,0\n15,0,75,0\n",

@@ -1,4 +1,4 @@
-"""Acquisition design (veil.analysis.design, veil design; MODEL.md sec. 1, 7).
+"""Acquisition design (veil.analysis.design, veil design; docs/model.md sec. 1, 7).
 
 Coarse candidate grids (fine step 2 deg, coarse step 10 deg) at the "fast" quadrature.
 """
@@ -69,7 +69,7 @@ def test_plan_is_deterministic_distinct_and_reduces_uncertainty():
 
 
 def test_common_concentration_factor_carries_no_information_under_relative_noise():
-    # f is proportional to c^2 when Td and Tt both scale by c (MODEL.md sec. 5)
+    # f is proportional to c^2 when Td and Tt both scale by c (docs/model.md sec. 5)
     r = design(veil.BRDF1, ["BTDF2"], 8, factors=(0.5, 1.0, 2.0), psi=(60,), **COARSE)
     se = r["conditions"]["alone_se_n"].to_numpy()
     assert np.allclose(se, se[0], rtol=1e-6)

@@ -1,4 +1,4 @@
-"""Identifiability diagnostics (veil.analysis.diagnostics, veil diagnose; MODEL.md sec. 7).
+"""Identifiability diagnostics (veil.analysis.diagnostics, veil diagnose; docs/model.md sec. 7).
 
 Small sessions (55 configurations) at the "fast" quadrature.
 """

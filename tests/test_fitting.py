@@ -1,4 +1,4 @@
-"""Least-squares estimation (MODEL.md sec. 7): steps 0-2, results, errors and ``veil fit``.
+"""Least-squares estimation (docs/model.md sec. 7): steps 0-2, results, errors and ``veil fit``.
 
 Recovery runs on the paper's full protocol (111 configurations) at the "default" accuracy for
 every preset pair; the other tests use one relative angle (psi = 90 deg, 31 configurations)

@@ -1,4 +1,4 @@
-"""The forward series' order weights (MODEL.md 8.1, docs/physics.md sec. 8): the default
+"""The forward series' order weights (docs/model.md 8.1, docs/physics-orders.md sec. 8): the default
 ("poisson") is the series as written, bit for bit; "light-side" multiplies the light side's order
 k by the path factor M_k(tau, g), "view-side" the view side's by the landing factor lambda_k,
 "cylinder" both; each checked against its derivation and against a seeded Monte Carlo of the
@@ -33,7 +33,7 @@ def test_default_orders_are_the_poisson_series_bit_for_bit():
     r = np.array([math.sin(0.5), 0.0, math.cos(0.5)])
     rp = np.array([[math.sin(0.6), 0.0, math.cos(0.6)], [0.1, 0.2, math.sqrt(0.95)]])
     m = ForwardSeries(tau=1.0, omega=0.99, g=0.88, path_length=15.0, plate_width=5.0)
-    # J_v of MODEL.md 8.1 written out
+    # J_v of docs/model.md 8.1 written out
     sig, mu_p = 1.0 / 15.0, rp[:, 2]
     beta = sig * (r[2] / mu_p - 1.0)
     vv = r[None, :2] - (r[2] / mu_p)[:, None] * rp[:, :2]
@@ -43,7 +43,7 @@ def test_default_orders_are_the_poisson_series_bit_for_bit():
 
 
 def _x_by_terms(k, tau, g):
-    """X_k of docs/physics.md sec. 8 from its four terms, as derived (double sums)."""
+    """X_k of docs/physics-orders.md sec. 8 from its four terms, as derived (double sums)."""
     j = np.arange(1, k + 1)
     one = 1.0 - g ** j
     a = one.sum()                                        # Jacobian of the k segments
@@ -114,7 +114,7 @@ def _cauchy_in_rectangle(s, aa, bb, n=2001):
 
 
 def test_landing_factors_are_their_derivation():
-    """lambda_k = E[P(sum_j Delta_j b_j)] / E_t[P(t b_k)] (docs/physics.md sec. 8), rebuilt
+    """lambda_k = E[P(sum_j Delta_j b_j)] / E_t[P(t b_k)] (docs/physics-orders.md sec. 8), rebuilt
     from its definitions: P by integrating the Cauchy density over the rectangle, the
     straight back-projection by quadrature over the uniform depth, the path's scale by sampling
     the Dirichlet spacings (seeded). lambda_1 = 1; the infinite plate gives 1."""

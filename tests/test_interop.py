@@ -293,7 +293,7 @@ def test_torrance_sparrow_becomes_the_closest_rough_plastic(tmp_path):
 def test_verify_through_the_forward_series_medium(mi):
     """The plate path-traced inside the exported medium (a cylinder of radius path_length)
     against veil's apparent value: they differ by Monte Carlo noise and the series' own
-    approximations (about 2 % RMS, MODEL.md sec. 8.1). Measured: psi 60, 32768 spp: 2.58 %
+    approximations (about 2 % RMS, docs/model.md sec. 8.1). Measured: psi 60, 32768 spp: 2.58 %
     RMS with 1.34 % noise; here 4096 spp at 5 configurations."""
     from veil.interop.verify import verify
 

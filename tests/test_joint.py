@@ -1,4 +1,4 @@
-"""Joint estimation over several media (veil.fitting.joint, MODEL.md sec. 7; docs/ambiguity.md).
+"""Joint estimation over several media (veil.fitting.joint, docs/model.md sec. 7; docs/ambiguity.md).
 
 Small sessions (55 configurations: one engine chunk) at the "fast" quadrature keep the
 compilations and fits short; accuracy is not the point here.

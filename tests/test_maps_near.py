@@ -1,4 +1,4 @@
-"""Near-field reflectance maps (docs/maps.md "Geometry"): per-pixel angles of a pinhole
+"""Near-field reflectance maps (docs/maps-geometry.md "Geometry"): per-pixel angles of a pinhole
 camera at a finite distance, tabulated over a grid of plate points. The geometry by hand,
 the interpolated columns against the engine at each pixel's exact angles, a plate
 photographed from close by recovered with the option while the distant approximation is

@@ -1,4 +1,4 @@
-"""Measurement tables (MODEL.md sec. 7): forms, round trip, checks, black-cloth subtraction."""
+"""Measurement tables (docs/model.md sec. 7): forms, round trip, checks, black-cloth subtraction."""
 
 from __future__ import annotations
 
@@ -25,7 +25,7 @@ def write(tmp_path, name, text):
 
 
 # The same four configurations in the three forms (see the test): goniometer (psi, rho) ->
-# signed (psi/2 + rho, psi/2 - rho) -> canonical, by hand (MODEL.md sec. 1).
+# signed (psi/2 + rho, psi/2 - rho) -> canonical, by hand (docs/model.md sec. 1).
 CANONICAL = np.array([[15, 180, 15, 0], [10, 0, 70, 0], [89.5, 180, 0.5, 0], [30, 180, 10, 0]],
                      dtype=float)
 

@@ -3,7 +3,7 @@
 For each family: its parameter vector round-trips; its bounds reject what they must; its
 sampling maps and their inverses agree and its weights are the derivatives of its
 cumulatives; the parts the engine integrates sum to the model's value computed
-independently (the formulas below, written from MODEL.md, not from veil); the engine's exact
+independently (the formulas below, written from docs/model.md, not from veil); the engine's exact
 Jacobian agrees with central differences; and the engine agrees with a brute-force
 integral at a few configurations. Adding a family is its module, a registry line, and an
 entry in INDEPENDENT (and BRUTE_FORCE) here.
@@ -35,7 +35,7 @@ FAMILIES = sorted(REGISTRY)
 
 
 # --------------------------------------------------------------------------------------
-# independent values, from MODEL.md (and the test models' docstrings)
+# independent values, from docs/model.md (and the test models' docstrings)
 # --------------------------------------------------------------------------------------
 def _angles(w):
     theta = np.degrees(np.arccos(np.clip(w[..., 2], -1, 1)))
@@ -70,7 +70,7 @@ def _fisher(model, wa, wb):
 
 
 def _forward_series(model, wa, wb):
-    """The scattered part of MODEL.md 8.1's f_t (the delta is a distribution): e^{-tau}
+    """The scattered part of docs/model.md 8.1's f_t (the delta is a distribution): e^{-tau}
     sum_k w_k p(g^k) with the Fresnel factors of sec. 3 (reference_physical's pieces)."""
     x = 0.5 * np.sum((wa - wb) ** 2, axis=-1)
     lobe = rphys.scattered_lobe(model.tau, model.omega, model.g, x=x)
@@ -81,7 +81,7 @@ def _forward_series(model, wa, wb):
 
 
 def _rough_plastic(model, wi, wo):
-    """tests/reference_physical.py (MODEL.md sec. 8.2 in numpy, t and F_int as converged
+    """tests/reference_physical.py (docs/model.md sec. 8.2 in numpy, t and F_int as converged
     integrals, exact Smith G1)."""
     return rphys.rough_plastic_vec(wi, wo, model.rho, model.alpha, model.eta, model.ks,
                                   model.distribution, model.nonlinear, smith="exact",
@@ -374,9 +374,9 @@ def _ts_fn(brdf):
 @pytest.mark.parametrize("options", [{}, {"variant": "exit", "eta_u": 1.33},
                                      {"path_length": 15.0, "plate_width": 5.0}])
 def test_forward_series_engine_matches_the_independent_reference(options):
-    """MODEL.md 8.1 through eq. (1): the delta, 2-D and 4-D terms, the Fresnel variants and
+    """docs/model.md 8.1 through eq. (1): the delta, 2-D and 4-D terms, the Fresnel variants and
     the finite plate's view weighting, against tests/reference_physical.py (Gauss rules and
-    QMC with MIS, written from MODEL.md alone)."""
+    QMC with MIS, written from docs/model.md alone)."""
     brdf = ref_preset("BRDF2")
     values = dict(tau=1.0, omega=0.99, g=0.88, eta_u=1.0)
     values.update({k: v for k, v in options.items() if k in ("eta_u",)})
@@ -396,7 +396,7 @@ def test_forward_series_engine_matches_the_independent_reference(options):
 @pytest.mark.parametrize("g", [-0.5, 0.3, 0.88, 0.95, 0.99, 0.995])
 def test_forward_series_phase_tables_hold_their_accuracy_over_the_parameter_range(g):
     """The tabulated scattered lobe (density, cone fraction, sampling map and the density it
-    returns with it) against the closed-form series of MODEL.md 8.1, within TABLE_ACCURACY,
+    returns with it) against the closed-form series of docs/model.md 8.1, within TABLE_ACCURACY,
     from a single order's narrow peak to the broad tail of many orders."""
     cls = REGISTRY["forward-series"]
     tol = cls.TABLE_ACCURACY
@@ -488,7 +488,7 @@ def _mc_apparent(brdf, medium, ti, tr, n=1 << 17, seed=7):
     """eq. (1) by Monte Carlo with three strategies combined by the balance heuristic: I' and
     R' from the medium's lobes (mixed with uniform directions for the isotropic part); I'
     from its lobe and R' its mirror about a half vector from the facet law; and the reverse.
-    The value uses only the models' ``evaluate`` (checked above against MODEL.md); the
+    The value uses only the models' ``evaluate`` (checked above against docs/model.md); the
     sampling maps only move samples. Returns (values, standard errors)."""
     from veil.engine.angles import direction
 

@@ -199,7 +199,7 @@ def test_wrong_family_is_covered_only_with_the_term():
 
 def test_mismatched_medium_is_covered_only_with_the_term():
     """The paper's medium simulated with the Fresnel variant "exit", fitted with "paper"
-    (MODEL.md sec. 3), psi = 90 deg, the "fast" rule: steps 1 and 2 share the medium
+    (docs/model.md sec. 3), psi = 90 deg, the "fast" rule: steps 1 and 2 share the medium
     model's error. The target's estimated curve against its true f_r: a minority within two
     standard errors with the noise alone, all with the correlated term that step 2 takes
     from step 1."""

@@ -1,4 +1,4 @@
-"""Tests of veil's model code against MODEL.md sec. 1-4 and the independent tests/reference.py."""
+"""Tests of veil's model code against docs/model.md sec. 1-4 and the independent tests/reference.py."""
 
 from __future__ import annotations
 
@@ -31,7 +31,7 @@ def _upper_dirs(rng, n, max_theta=89.0):
 
 
 # ----------------------------------------------------------------------------------------
-# Fresnel (MODEL.md sec. 4)
+# Fresnel (docs/model.md sec. 4)
 # ----------------------------------------------------------------------------------------
 
 @pytest.mark.parametrize("eta", [0.75, 1.1, 1.16, 1.33, 1.55, 2.5])
@@ -69,7 +69,7 @@ def test_fresnel_index_one_is_zero():
 
 
 def test_fresnel_index_one_is_zero_at_grazing():
-    """MODEL.md sec. 4: eta = 1 gives F = 0, also at cos = 0 (the limit from inside; the
+    """docs/model.md sec. 4: eta = 1 gives F = 0, also at cos = 0 (the limit from inside; the
     TIR rule needs eta < 1, so it does not apply)."""
     assert float(_f(fresnel.reflectance(0.0, 1.0))) == 0.0
 
@@ -96,7 +96,7 @@ def test_fresnel_bounds_and_reference(c, eta):
 
 
 # ----------------------------------------------------------------------------------------
-# Henyey-Greenstein (MODEL.md sec. 3, decision 2)
+# Henyey-Greenstein (docs/model.md sec. 3, decision 2)
 # ----------------------------------------------------------------------------------------
 
 G_VALUES = [-0.9, -0.3, 0.0, 0.5, 0.88, 0.93, 0.98, 0.99]
@@ -131,7 +131,7 @@ def test_hg_matches_textbook_form(g):
 
 
 def test_hg_forward_peak_of_paper_media_about_four_per_sr():
-    """MODEL.md sec. 3: the three simulated media have T_t p(g, 0) of about 4 per sr."""
+    """docs/model.md sec. 3: the three simulated media have T_t p(g, 0) of about 4 per sr."""
     for name in ("BTDF1", "BTDF2", "BTDF3"):
         _, tt, g, _ = PRESETS[name]
         assert 3.5 < tt * float(_f(phase.hg_pdf(g, 0.0))) < 4.5
@@ -180,7 +180,7 @@ def test_hg_cone_fraction_monotone(g, x1, x2):
 
 
 # ----------------------------------------------------------------------------------------
-# Torrance-Sparrow f_r (MODEL.md sec. 2)
+# Torrance-Sparrow f_r (docs/model.md sec. 2)
 # ----------------------------------------------------------------------------------------
 
 BRDFS = {"BRDF1": veil.BRDF1, "BRDF2": veil.BRDF2,
@@ -226,7 +226,7 @@ def test_reflectance_at_mirror_closed_form(name, theta):
 
 @pytest.mark.parametrize("n, hwhm", [(0.8, 1.0), (0.5, 1.7), (0.2, 4.2)])
 def test_facet_half_width_in_degrees(n, hwhm):
-    """MODEL.md sec. 2 / decision 1: alpha in degrees, HWHM ~1.0, 1.7, 4.2 deg for n=.8,.5,.2.
+    """docs/model.md sec. 2 / decision 1: alpha in degrees, HWHM ~1.0, 1.7, 4.2 deg for n=.8,.5,.2.
 
     At normal incidence an in-plane camera at theta_r sees the facet alpha = theta_r / 2.
     """
@@ -293,7 +293,7 @@ def test_reflectance_rejects_bad_angles(bad):
 
 
 # ----------------------------------------------------------------------------------------
-# BTDF f_t (MODEL.md sec. 3, decision 3)
+# BTDF f_t (docs/model.md sec. 3, decision 3)
 # ----------------------------------------------------------------------------------------
 
 def _ft(model, wa, wb):
@@ -401,7 +401,7 @@ def test_valid_edge_parameters_accepted():
 
 
 # ----------------------------------------------------------------------------------------
-# Angles (MODEL.md sec. 1)
+# Angles (docs/model.md sec. 1)
 # ----------------------------------------------------------------------------------------
 
 def test_direction_unit_and_upper():
@@ -455,7 +455,7 @@ def test_goniometer_round_trip(psi, rho):
 
 @pytest.mark.parametrize("psi", [30.0, 60.0, 90.0])
 def test_goniometer_angle_between_light_and_camera(psi):
-    """psi is the angle between I and R for every rotation rho (MODEL.md sec. 1)."""
+    """psi is the angle between I and R for every rotation rho (docs/model.md sec. 1)."""
     rho = np.linspace(-psi / 2 - 40, psi / 2 + 40, 41)
     ti, tr = angles.from_goniometer(psi, rho)
     ok = (np.abs(ti) < 90) & (np.abs(tr) < 90)

@@ -1,4 +1,4 @@
-"""The whole estimation (MODEL.md sec. 7): veil.run_pipeline, ``veil fit pipeline``, ``veil demo``.
+"""The whole estimation (docs/model.md sec. 7): veil.run_pipeline, ``veil fit pipeline``, ``veil demo``.
 
 Recovery: the paper's set-up (reference BRDF2, target BRDF1) in each of the three media, full
 protocol, "default" accuracy, one black cloth for both sessions; every parameter within three

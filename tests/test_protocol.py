@@ -1,4 +1,4 @@
-"""The paper's acquisition protocol (MODEL.md sec. 1, 7): rotations, spacing, limits."""
+"""The paper's acquisition protocol (docs/model.md sec. 1, 7): rotations, spacing, limits."""
 
 from __future__ import annotations
 

@@ -1,5 +1,5 @@
-"""The microfacet families rough-plastic and rough-conductor (MODEL.md sec. 8.2-8.3) against the
-independent tests/reference_physical.py (numpy/scipy, written from MODEL.md; docs/physics.md),
+"""The microfacet families rough-plastic and rough-conductor (docs/model.md sec. 8.2-8.3) against the
+independent tests/reference_physical.py (numpy/scipy, written from docs/model.md; docs/physics.md),
 at the limits where they have closed forms, and for finiteness over the parameter box.
 
 The engine's side (contract, exact Jacobians, brute force through BTDF2) is in
@@ -154,7 +154,7 @@ def test_conductor_fresnel_exact():
         f0 = ((n - 1) ** 2 + k ** 2) / ((n + 1) ** 2 + k ** 2)
         assert got[-1] == pytest.approx(f0, rel=1e-13)
         assert got[0] == pytest.approx(1.0, abs=1e-15)
-        if k == 0.0:  # the dielectric formula of MODEL.md sec. 4, total reflection for n < 1
+        if k == 0.0:  # the dielectric formula of docs/model.md sec. 4, total reflection for n < 1
             assert np.allclose(got, np.asarray(fresnel.reflectance(c, n)), rtol=1e-12, atol=1e-15)
 
 

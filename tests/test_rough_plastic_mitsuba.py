@@ -22,7 +22,7 @@ measured with Mitsuba 3.9.1 on the sweep below: theta_i in {0, 20, 45, 70, 85}, 
 2. The diffuse part: Mitsuba estimates F_int by a 64-node rectangle rule that is 1.3-1.6 %
    low (a constant factor (1 - F_int,mitsuba) / (1 - F_int,veil) = 1.0006 to 1.0215 on
    rho_eff), and reads t(mu) from a 64-node table by linear interpolation. veil / Mitsuba
-   equals reference(MODEL.md) / reference(Mitsuba's numerics) to 1.25e-4 (Beckmann) and
+   equals reference(docs/model.md) / reference(Mitsuba's numerics) to 1.25e-4 (Beckmann) and
    1.0e-3 (GGX, Mitsuba's own table quadrature).
 3. Together, raw f_r differs by up to 2.2 % (linear) and 0.85 % (nonlinear).
 """
@@ -149,7 +149,7 @@ def test_specular_lobe_matches_mitsuba(mitsuba_eval, dist):
 @pytest.mark.parametrize("nonlinear", [False, True])
 @pytest.mark.parametrize("ks", [0.0, 1.0])
 def test_differences_from_mitsuba_are_the_known_ones(mitsuba_eval, dist, nonlinear, ks):
-    """veil / Mitsuba equals reference(model as MODEL.md states it) / reference(Mitsuba's
+    """veil / Mitsuba equals reference(model as docs/model.md states it) / reference(Mitsuba's
     numerics: rational Beckmann G1, its 64-node t(mu) table read linearly and its F_int
     rule): the whole difference is explained by items 1-2 of the module docstring.
     Measured residual: <= 1.25e-4 (Beckmann), <= 1.0e-3 (GGX: Mitsuba's own table

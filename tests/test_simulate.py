@@ -1,4 +1,4 @@
-"""Simulated sessions (MODEL.md sec. 7) and ``veil simulate``.
+"""Simulated sessions (docs/model.md sec. 7) and ``veil simulate``.
 
 The engine compiles once per model structure, accuracy and array shape; ``simulate`` always
 calls it with CHUNK configurations, so everything here at accuracy "fast" shares one
@@ -27,7 +27,7 @@ def angles(table):
 
 
 def hg_glow_shape(medium, psi):
-    """s = T_d + T_t p(g, gamma) with cos(gamma) = -cos(psi), by hand (MODEL.md sec. 3)."""
+    """s = T_d + T_t p(g, gamma) with cos(gamma) = -cos(psi), by hand (docs/model.md sec. 3)."""
     g, cos_gamma = medium.g, -math.cos(math.radians(psi))
     p = (1 - g * g) / (4 * math.pi * (1 + g * g - 2 * g * cos_gamma) ** 1.5)
     return medium.Td + medium.Tt * p

@@ -1,4 +1,4 @@
-"""Uncertainty through the pipeline (veil.analysis.uncertainty, MODEL.md sec. 7).
+"""Uncertainty through the pipeline (veil.analysis.uncertainty, docs/model.md sec. 7).
 
 The two-step fits run on small sessions (55 configurations, one engine chunk) at the "fast"
 quadrature; the point is the propagation arithmetic, checked against its definition, the

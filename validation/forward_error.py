@@ -1,8 +1,8 @@
-"""Forward error of the physical medium model (MODEL.md sec. 8.1) on the path-traced data: the
+"""Forward error of the physical medium model (docs/model.md sec. 8.1) on the path-traced data: the
 true plate (with Mitsuba's roughplastic numerics: rational G1, its t table and F_int rule) and
 the true medium, evaluated by the independent reference tests/reference_physical.py (quasi
 Monte Carlo), against every third configuration of the rendered session minus its black cloth.
-No fit: what is left is the model's own error (docs/validity.md).
+No fit: what is left is the model's own error (docs/validity-orders.md).
 
     .venv/bin/python validation/forward_error.py [OBJECT] [plate|inf|none] [m01,m05,...]
 """

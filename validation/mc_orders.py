@@ -1,5 +1,5 @@
 """Per-order Monte Carlo of the lab set-up's medium (validation/README.md), independent of veil:
-numpy, seeded. Measures, order by order, what the forward series (MODEL.md 8.1) assumes.
+numpy, seeded. Measures, order by order, what the forward series (docs/model.md 8.1) assumes.
 
 Light side: adjoint paths from the plate centre (first direction d0 from a proposal q about I),
 free-flight sampling in the cylinder (radius R_c about the y axis, |y| <= L), next-event
@@ -31,7 +31,7 @@ KMAX = 12
 
 
 def path_factors(tau, g, kmax=KMAX):
-    """M_k of docs/physics.md sec. 8 (numpy; veil.models.forward_series.path_factors)."""
+    """M_k of docs/physics-orders.md sec. 8 (numpy; veil.models.forward_series.path_factors)."""
     k = np.arange(1, kmax + 1, dtype=float)
     om = 1 - g ** k
     a = np.cumsum(om)

@@ -1,4 +1,4 @@
-"""The view side's landing factors lambda_k (docs/physics.md sec. 8,
+"""The view side's landing factors lambda_k (docs/physics-orders.md sec. 8,
 veil.models.forward_series.landing_factors) against the per-order Monte Carlo of the lab
 set-up (validation/mc_orders.py, same seeds): per order k, the Monte Carlo's view kernel
 Int K_k dR' over the model's e^{-tau} (omega tau)^k/k! Int p(g^k) J_v dR' (J_v alone) and over

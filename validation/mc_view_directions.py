@@ -1,4 +1,4 @@
-"""Where the view side's remaining error sits (docs/physics.md sec. 8, docs/validity.md): the
+"""Where the view side's remaining error sits (docs/physics-orders.md sec. 8, docs/validity-orders.md): the
 per-order Monte Carlo of the lab set-up's view side (validation/mc_orders.py) against
 veil's e^{-tau} (omega tau)^k/k! p(g^k; R'.R) J_v(R', R) lambda_k, resolved two ways.
 

@@ -4,7 +4,7 @@
 A flat square plate at the centre of a cylinder of radius R_c filled with a homogeneous,
 forward-scattering medium (index-matched wall), lit by a collimated beam of unit irradiance
 and seen by a one-ray radiance meter, at every configuration of the goniometer protocol
-(MODEL.md sec. 1).  Each session (object x medium x geometry) is written as a CSV table
+(docs/model.md sec. 1).  Each session (object x medium x geometry) is written as a CSV table
 (psi, rho, theta_i, theta_r, value, sigma) that veil reads; see validation/README.md.
 
 This script is NOT used by veil or its tests: veil reads only the committed tables.
@@ -112,7 +112,7 @@ def _sessions():
 SESSIONS = _sessions()
 
 # ----------------------------------------------------------------------------------------
-# The protocol (MODEL.md sec. 1; same sampling as veil.protocol.protocol, reimplemented so
+# The protocol (docs/model.md sec. 1; same sampling as veil.protocol.protocol, reimplemented so
 # that this script does not depend on veil).
 # ----------------------------------------------------------------------------------------
 

@@ -1,8 +1,8 @@
-"""Would a view side right in theta_r close the 10 cm plate's gap? An oracle check (docs/validity.md).
+"""Would a view side right in theta_r close the 10 cm plate's gap? An oracle check (docs/validity-orders.md).
 
 validation/mc_view_directions.py measures, weighted by the plates' own f_r, the ratio
 Monte Carlo / model of the view side as nearly a function of the view angle theta_r alone,
-the same for both plates to 0.001 (docs/physics.md sec. 8): the model is too dark at normal
+the same for both plates to 0.001 (docs/physics-orders.md sec. 8): the model is too dark at normal
 view and too bright towards grazing. If that trend is what leaves the estimate outside its
 uncertainty, a forward model that had it right would fix it. The oracle: fitting model x r
 to the data is fitting the model to data / r, so the medium sessions' values and standard
@@ -26,7 +26,7 @@ sys.path.insert(0, os.path.join(HERE, "..", "benchmarks"))
 import bench_validity as bv  # noqa: E402
 
 #: MC / model of the view side at theta_r = 0, 30, 60, 75 deg (mc_view_directions.py, the
-#: target plate, light at 30 deg; docs/physics.md sec. 8's table).
+#: target plate, light at 30 deg; docs/physics-orders.md sec. 8's table).
 MEASURED_ANGLES = np.array([0.0, 30.0, 60.0, 75.0])
 MEASURED = {"m10": [1.0067, 1.0056, 1.0022, 0.9988],
             "m10_w10": [1.0124, 1.0096, 0.9999, 0.9928],

@@ -1,6 +1,6 @@
 """veil: reflectance of objects seen through scattering media.
 
-Forward model (MODEL.md): :func:`apparent`, :func:`reflectance`; the registered model
+Forward model (docs/model.md): :func:`apparent`, :func:`reflectance`; the registered model
 families (``veil.TorranceSparrow``, ``veil.HenyeyGreenstein``, ... by class name, listed in
 ``veil.REGISTRY``) and the paper's presets ``BRDF1``, ``BRDF2``, ``BTDF1``, ``BTDF2``,
 ``BTDF3``; measurement tables, simulation, the fits of the two-step method, the joint fit
@@ -10,8 +10,6 @@ and the pipeline. Names are imported on first use, so ``import veil`` is cheap.
 from __future__ import annotations
 
 import importlib
-
-__version__ = "0.1.0"
 
 #: Public name -> the module that defines it.
 _API = {
@@ -29,7 +27,19 @@ _API = {
 _PRESETS = ("BRDF1", "BRDF2", "BTDF1", "BTDF2", "BTDF3")
 
 
+def _version() -> str:
+    """The installed distribution's version (written once, in pyproject.toml)."""
+    from importlib.metadata import PackageNotFoundError, version
+    try:
+        return version("veil")
+    except PackageNotFoundError:  # a source tree on sys.path, never installed
+        return "0+unknown"
+
+
 def __getattr__(name: str):
+    if name == "__version__":
+        value = globals()["__version__"] = _version()
+        return value
     if name == "__all__":  # ``from veil import *``: the API and every registered family
         return sorted(set(_API) | set(_PRESETS) | {"__version__"} | set(_families()))
     if name in _API:

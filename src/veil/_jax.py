@@ -1,6 +1,6 @@
 """JAX set-up shared by every module.
 
-- float64 everywhere (MODEL.md demands 1e-3 accuracy on integrands that span eight decades,
+- float64 everywhere (docs/model.md demands 1e-3 accuracy on integrands that span eight decades,
   which float32 cannot carry);
 - one CPU device per core, so that the integrator can spread configurations over all cores
   (XLA runs one computation per CPU device on one core). Set VEIL_CPU_DEVICES=1, or your own

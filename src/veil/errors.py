@@ -48,3 +48,10 @@ class FitError(InputError):
 
 __all__ = ["InputError", "InputTypeError", "MissingFileError", "NotAFileError",
            "UnwritableError", "MeasurementError", "ParameterError", "FitError"]
+
+
+class MissingExtraError(InputError, ImportError):
+    """An optional dependency a command needs is not installed; the message has the pip line."""
+
+
+__all__ += ["MissingExtraError"]

@@ -1,4 +1,4 @@
-"""The whole estimation of MODEL.md sec. 7 in one call: steps 0-2, result files, figures, report.
+"""The whole estimation of docs/model.md sec. 7 in one call: steps 0-2, result files, figures, report.
 
 :func:`run_pipeline` fits the reference's f_r in a clear medium (step 0), the medium through
 the reference (step 1) and the target through the medium (step 2), and writes into ``outdir``
@@ -101,7 +101,7 @@ def run_pipeline(reference_clear, reference_medium, target_medium, black=None, t
                  figures: bool = True, brdf_model=None, medium_model=None, brdf_options=None,
                  medium_options=None, free=None, model_error=None,
                  propagation=None) -> PipelineResult:
-    """Steps 0-2 of MODEL.md sec. 7 with files, figures and report.md in ``outdir``.
+    """Steps 0-2 of docs/model.md sec. 7 with files, figures and report.md in ``outdir``.
 
     reference_clear, reference_medium, target_medium : sessions (DataFrames or CSV paths):
         the reference in a clear medium, the reference in the medium, the target in the medium.

@@ -1,22 +1,22 @@
-"""Acquisition design: which configurations and media to measure (MODEL.md sec. 1, 7).
+"""Acquisition design: which configurations and media to measure (docs/model.md sec. 1, 7).
 
 The Fisher information of a measurement plan at given parameters is J^T W J, J the
-Jacobian of the apparent reflectance (MODEL.md eq. 1) with respect to the parameters and
+Jacobian of the apparent reflectance (docs/model.md eq. 1) with respect to the parameters and
 W = 1 / sigma^2 with sigma^2 = (noise f)^2 + floor^2 (relative noise as the simulator's,
 optionally an absolute floor). A plan is chosen greedily: each step adds the candidate - a
 goniometer configuration (psi, rho) under one medium condition - that most increases
 log det of the information about the parameters of interest (D_s-optimality: the other
 parameters are nuisances, profiled out through the Schur complement).
 
-Conditions are media: given models (e.g. the paper's BTDF1-3, thin to thick, MODEL.md sec. 6)
+Conditions are media: given models (e.g. the paper's BTDF1-3, thin to thick, docs/model.md sec. 6)
 and/or concentration factors c of each (the medium model says what a concentration does:
 the paper's scales T_d and T_t; :meth:`veil.models.Medium.concentrated`). Note that a common
-factor on the paper medium's T_d and T_t multiplies the apparent value by c^2 (MODEL.md
+factor on the paper medium's T_d and T_t multiplies the apparent value by c^2 (docs/model.md
 sec. 5): under purely relative noise it carries no information of its own; it matters
 through an absolute noise floor.
 
 Parameters are taken in fit coordinates (log for scale parameters). Of the target's BRDF
-only ratios of its scales mean anything (MODEL.md sec. 2): its first scale is the level (a
+only ratios of its scales mean anything (docs/model.md sec. 2): its first scale is the level (a
 nuisance), the others enter as ratios to it (the paper's Ps/Pd), and the ratios and the
 BRDF's other parameters (the paper's n and eta) are the parameters of interest. With
 ``mode="joint"`` (default) every medium parameter is a nuisance - per condition, or shared

@@ -1,4 +1,4 @@
-"""Identifiability diagnostics of a fit (MODEL.md sec. 7, the paper's sec. 5.2.4 failure).
+"""Identifiability diagnostics of a fit (docs/model.md sec. 7, the paper's sec. 5.2.4 failure).
 
 A fit can converge, pass its chi-square and still be meaningless: a smooth object through a
 strongly scattering medium and a rough one through a weak medium fit the same data. For any

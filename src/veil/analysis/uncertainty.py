@@ -1,8 +1,8 @@
-"""Honest uncertainty through the two-step pipeline (MODEL.md sec. 7).
+"""Honest uncertainty through the two-step pipeline (docs/model.md sec. 7).
 
 Step 2 fits the target with the medium of step 1 held fixed, and step 1 the medium with the
 reference of step 0 held fixed; each step's own standard errors say nothing of what the
-previous step left uncertain - the paper's failure (MODEL.md sec. 7) hides there. The fits
+previous step left uncertain - the paper's failure (docs/model.md sec. 7) hides there. The fits
 of :mod:`veil.fitting` add the given model's covariance (``stderr_total``; to first order,
 or through sigma points where it is large, :mod:`veil.fitting.propagation`);
 this module splits that total into a per-step budget, can compute step 0's part from the
@@ -126,7 +126,7 @@ def _check_pair(target_result, medium_result, reference_result):
 
 def medium_parts(medium_result: FitResult, reference_result: FitResult | None = None,
                  reference_table=None, *, black=None, accuracy: str = ITERATION_ACCURACY):
-    """The medium's covariance split into step 1's own part and step 0's (MODEL.md sec. 7).
+    """The medium's covariance split into step 1's own part and step 0's (docs/model.md sec. 7).
 
     Returns (names, {"step1": Cov, "step0": Cov}). Step 0's part is computed from the
     reference's result and its in-medium table (step 1's data) when both are given, else
@@ -344,7 +344,7 @@ def sample_propagation(target_result: FitResult, medium_result: FitResult, table
     ``linear_covariance`` (A Cov_m A^T), ``converged`` (per draw) and ``redrawn`` (draws
     outside the model's bounds, drawn again: when many, the draws are a truncated normal,
     narrower than step 1's, and ``covariance`` is not the linear one's counterpart;
-    docs/validity.md, "Step 1's uncertainty at m01").
+    docs/validity-model-error.md, "Step 1's uncertainty at m01").
     """
     if isinstance(n_draws, bool) or not isinstance(n_draws, int) or n_draws < 2:
         raise FitError(f"n_draws = {n_draws!r}; expected an integer >= 2")

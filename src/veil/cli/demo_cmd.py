@@ -1,6 +1,6 @@
 """``veil demo``: a simulated acquisition of the paper's protocol, estimated end to end.
 
-Sessions (MODEL.md sec. 6-7, relative noise ``--noise``): the reference BRDF2 in clear water,
+Sessions (docs/model.md sec. 6-7, relative noise ``--noise``): the reference BRDF2 in clear water,
 the reference in BTDF2 with a black cloth, the target BRDF1 in BTDF2, and the target in clear
 water (to score the estimate). The pipeline (:func:`veil.run_pipeline`) then recovers the
 reference, the medium and the target; the recovered parameters are printed beside the true
@@ -132,7 +132,7 @@ def demo_command(ctx, outdir, seed, noise, accuracy):
         shown = os.path.join(outdir, "paper-figures")
         click.echo(f"The paper's simulation experiment (figs. 9-12) -> {shown}")
         reproduce(folder / "paper-figures", shown=shown)
-        # 2. a simulated acquisition and the whole two-step estimation (sec. 5.2 / MODEL.md
+        # 2. a simulated acquisition and the whole two-step estimation (sec. 5.2 / docs/model.md
         #    sec. 7)
         click.echo("A simulated acquisition, estimated end to end")
         with fit_progress("demo") as progress:

@@ -1,4 +1,4 @@
-"""``veil design``: recommend a measurement plan (MODEL.md sec. 1, 7; docs/ambiguity.md).
+"""``veil design``: recommend a measurement plan (docs/model.md sec. 1, 7; docs/ambiguity.md).
 
 Ranks goniometer configurations (psi, rho) under candidate medium conditions by how much
 they shrink the target's parameter uncertainty (greedy D_s-optimal selection on the Fisher

@@ -1,4 +1,4 @@
-"""``veil diagnose``: identifiability of a fit (MODEL.md sec. 7; docs/ambiguity.md).
+"""``veil diagnose``: identifiability of a fit (docs/model.md sec. 7; docs/ambiguity.md).
 
 Prints the parameters that are poorly determined (relative standard error above a threshold,
 flat profile likelihood) and the pairs that trade off; with ``-o DIR`` writes

@@ -1,4 +1,4 @@
-"""``veil eval``: the apparent reflectance (MODEL.md eq. 1) at one configuration or at every
+"""``veil eval``: the apparent reflectance (docs/model.md eq. 1) at one configuration or at every
 row of a CSV file, next to the object's own reflectance and an error estimate."""
 
 from __future__ import annotations
@@ -24,12 +24,12 @@ DEFAULT_PHI_R = 0.0
 
 BRDF_HELP = ("Object's reflection model, of the --brdf-model family: a preset name, BRDF1 or "
              "BRDF2, or a literal list of the family's parameters in declared order - for the "
-             "paper's Torrance-Sparrow (MODEL.md sec. 2) 'PD,PS,N,ETA': PD, PS diffuse and "
+             "paper's Torrance-Sparrow (docs/model.md sec. 2) 'PD,PS,N,ETA': PD, PS diffuse and "
              "specular coefficients (relative units, >= 0), N smoothness (1/deg, > 0; larger "
              "is smoother), ETA refractive index of the surface (> 0). 'veil models' lists "
              "every family's parameters.")
 MEDIUM_HELP = ("Scattering medium, of the --medium-model family: a preset name, BTDF1, BTDF2 "
-               "or BTDF3, a literal list of its parameters - for the paper's medium (MODEL.md "
+               "or BTDF3, a literal list of its parameters - for the paper's medium (docs/model.md "
                "sec. 3) 'TD,TT,G,ETA': TD, TT isotropic and single-scattering coefficients "
                "(relative units, >= 0), G asymmetry (in (-1, 1)), ETA refractive index of the "
                "medium (> 0) - or 'none' for a clear medium (apparent = clear).")
@@ -91,7 +91,7 @@ def _format_table(brdf_text, medium_text, brdf, medium, angles, accuracy, value,
 
 def _read_configs(configs):
     """Angles (degrees, canonical) and the table of strings of a --configs file, in any of
-    the three angle forms of measurement tables (MODEL.md sec. 1): the four angles, signed
+    the three angle forms of measurement tables (docs/model.md sec. 1): the four angles, signed
     in-plane theta_i, theta_r, or goniometer psi, rho."""
     def four_angles(header):  # the four-angle form is parsed here, the others below
         return ANGLES if any(c in header for c in ("phi_i", "phi_r")) else ()
@@ -230,7 +230,7 @@ def _emit(text: str, output) -> None:
 @model_options()
 def eval_command(brdf_text, medium_text, theta_i, theta_r, phi_i, phi_r, configs, output,
                  accuracy, as_json, models):
-    """Apparent reflectance of an object seen through a scattering medium (MODEL.md eq. 1).
+    """Apparent reflectance of an object seen through a scattering medium (docs/model.md eq. 1).
 
     For one configuration give --theta-i and --theta-r (and optionally --phi-i, --phi-r);
     the result is a short table: apparent (through the medium), clear (the object's own

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import click
 
+from .._extras import require
 from ._common import UserError, check_output_path
 
 IN_FILE = click.Path(exists=True, dir_okay=False, path_type=Path)
@@ -157,6 +158,7 @@ def explore_command(ctx, files, data, black, port, no_browser, share_dir, static
     """
     if static and output is None:
         raise UserError("--static writes a page: give -o PAGE.html")
+    require("panel", "veil explore")  # before any work: the page is Panel's
     if output is not None and not static:
         raise UserError("-o is for --static (the server needs no output file)")
     if (param is not None) and not static:
@@ -200,7 +202,7 @@ def _write_static(state, views, param, points, output):
 
 
 def _serve(state, views, port, no_browser, share_dir):
-    import panel as pn
+    pn = require("panel", "veil explore")
 
     from ..viz.explore_page import ExplorePage
 

@@ -1,4 +1,4 @@
-"""``veil fit``: the two-step estimation of MODEL.md sec. 7 from measurement tables.
+"""``veil fit``: the two-step estimation of docs/model.md sec. 7 from measurement tables.
 
 Subcommands ``reference`` (step 0), ``medium`` (step 1), ``target`` (step 2) and ``pipeline``
 (all of them, with figures and report.md). Exit status 0 when every fit converged, 1 when a
@@ -92,7 +92,7 @@ def _parse_step_fix(items, models) -> dict:
 # --------------------------------------------------------------------------------------
 @click.group("fit", cls=LazyGroup)
 def fit_command():
-    """Estimate f_r and f_t from measurement tables (MODEL.md sec. 7, docs/fitting.md).
+    """Estimate f_r and f_t from measurement tables (docs/model.md sec. 7, docs/fitting.md).
 
     \b
         veil fit reference clear.csv -o reference.json

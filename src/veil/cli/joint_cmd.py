@@ -1,4 +1,4 @@
-"""``veil fit joint``: one fit over several sessions and media (MODEL.md sec. 7; docs/ambiguity.md).
+"""``veil fit joint``: one fit over several sessions and media (docs/model.md sec. 7; docs/ambiguity.md).
 
 Registered on the ``fit`` group from :mod:`veil.cli`. Exit status 0 when the fit converged,
 1 when it did not (the result is written anyway, ``"converged": false``), 2 for input
@@ -139,7 +139,7 @@ def _names(text, option):
 @model_options()
 def joint_command(ctx, sessions, reference_sessions, blacks, reference, shared, per_medium, fix,
                   output, accuracy, max_nfev, model_error, propagation, models):
-    """Fit the target (and the reference) over several media at once (MODEL.md sec. 7).
+    """Fit the target (and the reference) over several media at once (docs/model.md sec. 7).
 
     The object's parameters are shared by all its sessions, each medium has its own Td and
     Tt, g and eta_u are shared or per medium as declared. Example, three concentrations

@@ -1,5 +1,5 @@
 """``veil reproduce``: the paper's simulation experiment (sec. 5.1, figs. 9-12) from the
-presets of MODEL.md sec. 6, as figures, data and a report (docs/figures.md)."""
+presets of docs/model.md sec. 6, as figures, data and a report (docs/figures.md)."""
 
 from __future__ import annotations
 

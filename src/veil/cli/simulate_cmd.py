@@ -1,5 +1,5 @@
 """``veil simulate``: a simulated measurement session following the paper's protocol
-(MODEL.md sec. 1 and 7; table format and glow model in docs/measurements.md)."""
+(docs/model.md sec. 1 and 7; table format and glow model in docs/measurements.md)."""
 
 from __future__ import annotations
 
@@ -43,11 +43,11 @@ def _merl_model(merl, channel, models):
 @click.command("simulate")
 @click.option("--brdf", default=None, metavar="MODEL",
               help="The object: preset BRDF1 or BRDF2, or a literal list of the --brdf-model's "
-                   "parameters ('PD,PS,N,ETA' for the paper's Torrance-Sparrow, MODEL.md sec. 2; "
+                   "parameters ('PD,PS,N,ETA' for the paper's Torrance-Sparrow, docs/model.md sec. 2; "
                    "N in 1/deg).")
 @click.option("--medium", required=True, metavar="MODEL",
               help="The medium: preset BTDF1, BTDF2 or BTDF3, a literal list of the "
-                   "--medium-model's parameters ('TD,TT,G,ETA' for the paper's, MODEL.md sec. 3), "
+                   "--medium-model's parameters ('TD,TT,G,ETA' for the paper's, docs/model.md sec. 3), "
                    "or 'none' for clear water.")
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False, path_type=Path),
               help="CSV file to write the session to (written atomically).")
@@ -90,7 +90,7 @@ def _merl_model(merl, channel, models):
 @model_options()
 def simulate_command(brdf, medium, output, black_path, psi, noise, seed, glow, form,
                      fine_step, window, coarse_step, limit, accuracy, merl, channel, models):
-    """Simulate a measurement session of the paper's protocol (MODEL.md sec. 7).
+    """Simulate a measurement session of the paper's protocol (docs/model.md sec. 7).
 
     For each relative angle psi the object is rotated by rho (theta_i = psi/2 + rho,
     theta_r = psi/2 - rho): every --fine-step degrees within --window of the mirror

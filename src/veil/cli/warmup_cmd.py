@@ -22,7 +22,7 @@ from ._common import ACCURACIES
 def warmup_command(selected, accuracies, quiet):
     """Compile the engine for the chosen model families and keep it: the lowered programs
     in the program store and the compiled executables in the compilation cache (both under
-    VEIL_CACHE_DIR, default ~/.cache/veil; docs/performance.md "Start-up"). Each model pair
+    VEIL_CACHE_DIR, default ~/.cache/veil; docs/performance-startup.md "Start-up"). Each model pair
     takes a few seconds to a minute or two per program the first time; a second warmup
     only checks the entries and takes seconds. Entries made by another veil, JAX or CPU
     are built again. Example:

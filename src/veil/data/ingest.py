@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+from .._extras import require
 from ..errors import InputError, MissingFileError, UnwritableError
 
 PNG_SUFFIXES = frozenset({".png"})
@@ -220,7 +221,7 @@ def _image_patches(path: Path, kind: str, image: np.ndarray, rois) -> _Photo:
 
 
 def _read_png_jpeg(path: Path, kind: str, rois) -> _Photo:
-    import imagecodecs
+    imagecodecs = require("imagecodecs", f"reading a {kind.upper()} photo")
 
     data = path.read_bytes()
     try:
@@ -232,7 +233,7 @@ def _read_png_jpeg(path: Path, kind: str, rois) -> _Photo:
 
 
 def _read_tiff(path: Path, rois) -> _Photo:
-    import tifffile
+    tifffile = require("tifffile", "reading a TIFF photo")
 
     try:
         with tifffile.TiffFile(path) as tif:
@@ -261,7 +262,7 @@ def _read_tiff(path: Path, rois) -> _Photo:
 
 
 def _read_raw(path: Path, rois) -> _Photo:
-    import rawpy
+    rawpy = require("rawpy", "reading a camera raw photo")
 
     try:
         raw = rawpy.imread(os.fspath(path))

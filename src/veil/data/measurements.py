@@ -1,6 +1,6 @@
-"""Measurement tables (MODEL.md sec. 7): reading, checking, writing, black-cloth subtraction.
+"""Measurement tables (docs/model.md sec. 7): reading, checking, writing, black-cloth subtraction.
 
-One observation a row, angles in degrees (MODEL.md sec. 1) in one of three forms:
+One observation a row, angles in degrees (docs/model.md sec. 1) in one of three forms:
 
 - full:        ``theta_i, phi_i, theta_r, phi_r`` (polar angles in [0, 90), azimuths);
 - in-plane:    ``theta_i, theta_r`` without phi columns (signed in-plane angles);
@@ -258,7 +258,7 @@ def _warn_radians(cols: dict, what: str) -> bool:
     if present and all(np.all(np.abs(cols[c]) < _RADIAN_LIMITS[c]) for c in present):
         warnings.warn(
             f"every angle in {what} is small (|theta|, |rho| < 1.6, |psi| < 3.2, |phi| < 6.3): "
-            f"were they written in radians? veil reads angles in degrees (MODEL.md sec. 1)",
+            f"were they written in radians? veil reads angles in degrees (docs/model.md sec. 1)",
             LikelyRadiansWarning, stacklevel=3)
         return True
     return False
@@ -347,7 +347,7 @@ def _validated(table: pd.DataFrame, rows: RowNames | None = None) -> tuple[pd.Da
 
 
 def validate(table: pd.DataFrame) -> pd.DataFrame:
-    """Check a measurement table (MODEL.md sec. 7) and return a copy with float columns.
+    """Check a measurement table (docs/model.md sec. 7) and return a copy with float columns.
 
     Raises :class:`MeasurementError` naming row and column for: no rows, missing ``value``,
     incomplete or disagreeing angle forms, empty/non-numeric/NaN/infinite cells, angles out
@@ -359,7 +359,7 @@ def validate(table: pd.DataFrame) -> pd.DataFrame:
 
 
 def canonical_angles(table: pd.DataFrame) -> pd.DataFrame:
-    """Copy of ``table`` with float columns theta_i, phi_i, theta_r, phi_r first (MODEL.md sec. 1).
+    """Copy of ``table`` with float columns theta_i, phi_i, theta_r, phi_r first (docs/model.md sec. 1).
 
     Polar angles are unsigned in [0, 90), azimuths in [0, 360), whatever the input form; the
     table's other columns follow in their order (signed in-plane theta_i, theta_r are
@@ -377,7 +377,7 @@ def canonical_angles(table: pd.DataFrame) -> pd.DataFrame:
 
 
 def to_form(table: pd.DataFrame, form: str) -> pd.DataFrame:
-    """Copy of ``table`` with its angle columns rewritten in ``form`` (MODEL.md sec. 1).
+    """Copy of ``table`` with its angle columns rewritten in ``form`` (docs/model.md sec. 1).
 
     "full": theta_i, phi_i, theta_r, phi_r; "inplane": signed theta_i, theta_r;
     "goniometer": psi, rho and the signed theta_i, theta_r they imply (redundant, for
@@ -424,7 +424,7 @@ def _inplane(theta, phi, positive_at, tol=1e-6):
 # files
 # --------------------------------------------------------------------------------------
 def load_measurements(path) -> pd.DataFrame:
-    """Read and check a measurement CSV (MODEL.md sec. 7; format in docs/measurements.md).
+    """Read and check a measurement CSV (docs/model.md sec. 7; format in docs/measurements.md).
 
     Returns the table with its columns in file order; angle, ``value`` and ``sigma`` columns
     as float64 (exactly the decimal numbers written), other columns as pandas infers them.
@@ -517,7 +517,7 @@ def _infer(header, columns, which) -> dict:
 
 
 def save_measurements(table: pd.DataFrame, path) -> None:
-    """Check ``table`` and write it as CSV to ``path`` atomically (MODEL.md sec. 7).
+    """Check ``table`` and write it as CSV to ``path`` atomically (docs/model.md sec. 7).
 
     Floats are written in the shortest form that reads back to the same number, so
     :func:`load_measurements` returns an equal table (same columns, same order, same
@@ -538,7 +538,7 @@ def save_measurements(table: pd.DataFrame, path) -> None:
 # black cloth
 # --------------------------------------------------------------------------------------
 def subtract_black(table: pd.DataFrame, black: pd.DataFrame, tol: float = 0.05) -> pd.DataFrame:
-    """Subtract the black-cloth (medium-only) signal from a session (MODEL.md sec. 7).
+    """Subtract the black-cloth (medium-only) signal from a session (docs/model.md sec. 7).
 
     Every row of ``table`` is matched to the row of ``black`` whose light and view
     directions are both within ``tol`` degrees; ``value`` becomes the difference and

@@ -14,7 +14,7 @@ Indices (the reference code's, ``BRDFRead.cpp``):
   [0, 179].
 
 theta_d and phi_d are the polar and azimuthal angles of the light in the frame of the half
-vector (Rusinkiewicz's coordinates). veil's f_r includes cos theta_i (MODEL.md sec. 1), so
+vector (Rusinkiewicz's coordinates). veil's f_r includes cos theta_i (docs/model.md sec. 1), so
 :func:`reflectance` returns the table value times cos theta_i. Lookups are nearest-cell,
 as the reference code's.
 """

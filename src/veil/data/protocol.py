@@ -1,4 +1,4 @@
-"""The paper's acquisition protocol (MODEL.md sec. 1 and 7, paper sec. 5.2.1).
+"""The paper's acquisition protocol (docs/model.md sec. 1 and 7, paper sec. 5.2.1).
 
 Light and camera are fixed at a relative angle psi (30, 60 and 90 deg in the paper) and the
 object is rotated by rho; theta_i = psi/2 + rho, theta_r = psi/2 - rho (signed in-plane).
@@ -63,7 +63,7 @@ def protocol(psi=PSI, fine_step: float = 1.0, coarse_step: float = 5.0, window: 
     """Configurations of the paper's protocol: columns psi, rho, theta_i, phi_i, theta_r, phi_r.
 
     One block per psi (in the given order), rho ascending; angles in degrees, the last four
-    columns canonical (unsigned polar angles with azimuths, MODEL.md sec. 1).
+    columns canonical (unsigned polar angles with azimuths, docs/model.md sec. 1).
     """
     if np.ndim(psi) == 0:
         psi = (psi,)

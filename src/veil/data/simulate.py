@@ -1,11 +1,11 @@
-"""Simulated measurement sessions (MODEL.md sec. 7) following the paper's protocol.
+"""Simulated measurement sessions (docs/model.md sec. 7) following the paper's protocol.
 
 ``simulate`` evaluates value = apparent(brdf, medium) + glow at the configurations of
 :func:`veil.protocol.protocol` and adds relative Gaussian noise: value_noisy = value (1 + noise z),
 z ~ N(0, 1) from ``numpy.random.default_rng(seed)``; ``sigma`` = noise * value.
 
 The medium's glow (what a black cloth measures: light scattered by the medium towards the
-camera without reaching the object) is not part of MODEL.md. veil's model, a choice of this
+camera without reaching the object) is not part of docs/model.md. veil's model, a choice of this
 module (docs/measurements.md):
 
     glow(I, R) = glow_level * f_std * s(I, R) / s(I0, R0)
@@ -78,7 +78,7 @@ def simulate(brdf, medium, psi=PSI, noise: float = 0.01, seed: int = 0, black: b
              fine_step: float = 1.0, coarse_step: float = 5.0, window: float = 10.0,
              limit: float = 85.0, glow: float = GLOW_LEVEL, accuracy: str = "default",
              progress: Callable[[int, int], None] | None = None):
-    """Simulated goniometer session of ``brdf`` through ``medium`` (MODEL.md sec. 7).
+    """Simulated goniometer session of ``brdf`` through ``medium`` (docs/model.md sec. 7).
 
     brdf, medium : models or preset names; ``medium=None`` is clear water (no integral,
         no glow).

@@ -1,4 +1,4 @@
-"""Angle conventions of MODEL.md section 1: directions, signed in-plane angles, goniometer.
+"""Angle conventions of docs/model.md section 1: directions, signed in-plane angles, goniometer.
 
 All public functions take and return degrees. The light sits at phi = 180 deg and the camera
 at phi = 0 deg in the paper's in-plane set-up; a negative in-plane angle means the other side.

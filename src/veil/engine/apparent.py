@@ -1,4 +1,4 @@
-"""Public entry points of the forward model: ``apparent`` (MODEL.md eq. 1) and ``reflectance``.
+"""Public entry points of the forward model: ``apparent`` (docs/model.md eq. 1) and ``reflectance``.
 
 Angles are in degrees and broadcast like numpy arrays; results are numpy arrays.
 """
@@ -89,7 +89,7 @@ def _check_facets(models, vectors=None) -> None:
 
 
 def reflectance(brdf, theta_i, theta_r, phi_i=180.0, phi_r=0.0) -> np.ndarray:
-    """The object's own BRDF f_r (MODEL.md sec. 2) at the given angles (degrees)."""
+    """The object's own BRDF f_r (docs/model.md sec. 2) at the given angles (degrees)."""
     model = as_brdf(brdf)
     ti, tr, pi_, pr = check_angles(theta_i, theta_r, phi_i, phi_r)
     shape = np.broadcast(ti, tr, pi_, pr).shape
@@ -107,7 +107,7 @@ _DIRECT_FNS: dict = {}
 
 
 def direct_programs(model) -> tuple:
-    """f_r(v, wi, wr) and its Jacobian in v (MODEL.md sec. 2) for a BRDF's structure (class
+    """f_r(v, wi, wr) and its Jacobian in v (docs/model.md sec. 2) for a BRDF's structure (class
     and options), as stored engine programs (:class:`veil.engine.programs.Program`)."""
     key = model.structure()
     if key not in _DIRECT_FNS:
@@ -124,7 +124,7 @@ def direct_programs(model) -> tuple:
 
 def apparent(brdf, medium, theta_i, theta_r, phi_i=180.0, phi_r=0.0, *,
              accuracy: str = "default", return_error: bool = False):
-    """Apparent reflectance f(I, R) of ``brdf`` seen through ``medium`` (MODEL.md eq. 1).
+    """Apparent reflectance f(I, R) of ``brdf`` seen through ``medium`` (docs/model.md eq. 1).
 
     Parameters
     ----------

@@ -2,7 +2,7 @@
 fixed size, the last one padded with its last row, so that the engine compiles once per
 model structure, accuracy and chunk size whatever the number of configurations.
 
-- :func:`evaluate`: the apparent reflectance (MODEL.md sec. 5), or f_r alone without a
+- :func:`evaluate`: the apparent reflectance (docs/model.md sec. 5), or f_r alone without a
   medium, at any number of configurations, with progress (simulations, renders, ``veil
   eval``);
 - :class:`ApparentModel` and :class:`DirectModel`: values and Jacobians at a session's fixed
@@ -35,7 +35,7 @@ def chunks(size: int, chunk: int = CHUNK):
 
 def evaluate(brdf, medium, theta_i, phi_i, theta_r, phi_r, *, accuracy: str = "default",
              chunk: int = CHUNK, progress=None) -> np.ndarray:
-    """Apparent reflectance (MODEL.md eq. 1; f_r alone when ``medium`` is None) at flat
+    """Apparent reflectance (docs/model.md eq. 1; f_r alone when ``medium`` is None) at flat
     arrays of angles (degrees), ``chunk`` configurations per engine call;
     ``progress(done, total)`` after each chunk."""
     ti, pi_, tr, pr = (np.ravel(np.asarray(a, dtype=float))
@@ -94,7 +94,7 @@ class ApparentModel:
         return check_finite(terms, "the apparent reflectance", self.models, [vb, vm], terms)
 
     def values(self, vb, vm) -> np.ndarray:
-        """Apparent reflectance (M,) at parameter vectors ``vb``, ``vm`` (MODEL.md eq. 1)."""
+        """Apparent reflectance (M,) at parameter vectors ``vb``, ``vm`` (docs/model.md eq. 1)."""
         self.values_calls += 1
         terms = np.concatenate([f.terms(vb, vm)[:n] for f, n in self.parts])
         values = self.parts[0][0].combine(terms, vb, vm)
@@ -121,7 +121,7 @@ class ApparentModel:
 
 
 class DirectModel:
-    """f_r at the data's configurations (MODEL.md sec. 2), padded to a multiple of CHUNK
+    """f_r at the data's configurations (docs/model.md sec. 2), padded to a multiple of CHUNK
     (one compilation per padded length)."""
 
     def __init__(self, model, angles):

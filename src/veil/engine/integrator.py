@@ -1,4 +1,4 @@
-"""The apparent reflectance of MODEL.md section 5 (paper eq. 1), by deterministic quadrature.
+"""The apparent reflectance of docs/model.md section 5 (paper eq. 1), by deterministic quadrature.
 
     f(I, R) = Int Int f_t(I, I') f_r(I', R') f_t(R', R) dI' dR'
 

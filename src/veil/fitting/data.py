@@ -1,4 +1,4 @@
-"""The measurements of one session as a fit uses them (MODEL.md sec. 7): :func:`prepare`
+"""The measurements of one session as a fit uses them (docs/model.md sec. 7): :func:`prepare`
 validates a table (black cloth subtracted) into a :class:`FitData`."""
 
 from __future__ import annotations
@@ -46,7 +46,7 @@ def _load(table, what: str) -> pd.DataFrame:
 
 
 def prepare(table, black=None, what: str = "measurement") -> FitData:
-    """Validated data of a session (MODEL.md sec. 7), the black cloth subtracted if given."""
+    """Validated data of a session (docs/model.md sec. 7), the black cloth subtracted if given."""
     table = _load(table, what)
     if black is not None:
         black = _load(black, "black-cloth")

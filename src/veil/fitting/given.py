@@ -1,4 +1,4 @@
-"""The model a fit holds fixed, its "given" model (MODEL.md sec. 7): the reference's f_r in
+"""The model a fit holds fixed, its "given" model (docs/model.md sec. 7): the reference's f_r in
 step 1, the medium's f_t in step 2, from a step's :class:`FitResult` or a model instance,
 checked to be of the kind the fit needs."""
 

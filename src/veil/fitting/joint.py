@@ -1,4 +1,4 @@
-"""Joint estimation over several media (MODEL.md sec. 7, the paper's proposed remedy).
+"""Joint estimation over several media (docs/model.md sec. 7, the paper's proposed remedy).
 
 The two-step method takes each step's result as exact; a smooth target in a strongly
 scattering medium and a rough one in a weak medium then look alike (paper sec. 5.2.4).
@@ -137,11 +137,11 @@ def _check_overlap(sessions, datas) -> None:
             raise FitError(
                 f"session {s.name!r} shares no configuration (within {OVERLAP_TOL:g} deg) with "
                 f"any other session: a joint fit compares the same object or medium under "
-                f"the same configurations; check its angle columns (degrees, MODEL.md sec. 1)")
+                f"the same configurations; check its angle columns (degrees, docs/model.md sec. 1)")
 
 
 def _anchor_check(sessions, fixed_names, reference_given, params, brdf_cls, medium_cls) -> None:
-    """The overall scale (the BRDF's scales times the medium's, MODEL.md sec. 2-3) must be
+    """The overall scale (the BRDF's scales times the medium's, docs/model.md sec. 2-3) must be
     pinned in every connected set of objects and media, or the fit has an exact degeneracy."""
     parent: dict = {}
 
@@ -178,7 +178,7 @@ def _anchor_check(sessions, fixed_names, reference_given, params, brdf_cls, medi
                 f"({', '.join(brdf_cls.scale_names())}) times the medium's "
                 f"({', '.join(medium_cls.scale_names() or (medium_cls.GAIN,))}), so scaling "
                 f"the media up and "
-                f"the object down fits equally well (MODEL.md sec. 2-3). Add the reference "
+                f"the object down fits equally well (docs/model.md sec. 2-3). Add the reference "
                 f"measured in clear water (object 'reference', medium 'none') and in the "
                 f"media, give reference=, or fix one scale, e.g. "
                 f"fixed={{'{scale_m}[label]': ...}} (--fix '{scale_m}[label]=...')")

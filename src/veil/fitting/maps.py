@@ -1,7 +1,7 @@
 """Per-pixel step 2 (docs/maps.md): the target's BRDF at every pixel of a photo stack,
 through a fixed medium, at fixed configurations.
 
-For a fixed medium and fixed configurations the apparent value (MODEL.md eq. 1) is linear
+For a fixed medium and fixed configurations the apparent value (docs/model.md eq. 1) is linear
 in the BRDF's scale parameters (``SCALES``): with the engine's term matrices
 (:meth:`veil.engine.evaluator.ApparentModel.terms`, rows combined with the medium's row
 weights, :func:`veil.engine.integrator.row_scales`) it is
@@ -246,7 +246,7 @@ class MapTables:
     medium: dict
     accuracy: str
     angles: tuple = field(repr=False, default=())
-    #: near-field tables (docs/maps.md "Geometry"): the field grid (a
+    #: near-field tables (docs/maps-geometry.md "Geometry"): the field grid (a
     #: :class:`veil.fitting.maps_near.FieldGrid`), None for distant light and camera. Then
     #: ``values`` and ``coef`` have two leading axes more (the grid's x and y nodes);
     #: ``field_error`` is the largest interpolation error measured against exact per-pixel
@@ -324,7 +324,7 @@ def build_tables(brdf_cls, medium, angles, *, fixed=None, options=None, free=Non
     ``grid`` {name: (lo, hi, count)} overrides a nonlinear axis; ``progress(done, total)``
     after each node. ``near`` (a :class:`veil.fitting.maps_near.NearGeometry`) with
     ``roi`` (x, y, w, h of the photo): near-field tables over a grid of plate points
-    (:func:`veil.fitting.maps_near.field_grid`, docs/maps.md "Geometry")."""
+    (:func:`veil.fitting.maps_near.field_grid`, docs/maps-geometry.md "Geometry")."""
     from ..engine.evaluator import ApparentModel
     from ..engine.quadrature import RULES
     from .solver import check_fixed
@@ -452,7 +452,7 @@ FIELD_CHECKS = ((0.5, 0.5), (-0.5, -0.5))
 def _build_near(brdf_cls, medium, angles, template, names, base, free_scales, axes,
                 free_parts, known_weight, fixed, accuracy, progress, near, roi):
     """Near-field tables: the columns at every node of a grid of plate points and of the
-    nonlinear axes, with the pixel's own angles (docs/maps.md "Geometry"); the field
+    nonlinear axes, with the pixel's own angles (docs/maps-geometry.md "Geometry"); the field
     interpolation checked against exact columns at :data:`FIELD_CHECKS`."""
     from ..engine.evaluator import ApparentModel
     from ..engine.quadrature import RULES

@@ -1,8 +1,8 @@
-"""Near-field geometry of the reflectance maps (docs/maps.md "Geometry").
+"""Near-field geometry of the reflectance maps (docs/maps-geometry.md "Geometry").
 
 Collimated light, a pinhole camera at distance D from the plate centre along each
 configuration's view direction, the photos registered to the plate. In the plate's local
-frame (MODEL.md sec. 1: z the normal, phi from the x axis) pixel (x, y) of the full photo
+frame (docs/model.md sec. 1: z the normal, phi from the x axis) pixel (x, y) of the full photo
 (pixel centres at x + 1/2, y + 1/2) is the plate point
 
     p = ((x + 1/2 - cx) P, -(y + 1/2 - cy) P, 0),   (cx, cy) = (width / 2, height / 2)
@@ -11,7 +11,7 @@ frame (MODEL.md sec. 1: z the normal, phi from the x axis) pixel (x, y) of the f
 axis upwards, so that (x, y, z) stays right-handed). The camera of a configuration with
 view direction R = (theta_r, phi_r) sits at C = D R; the pixel sees the plate along
 R' = (C - p) / |C - p|, and the light direction I is the manifest's. (theta_i, phi_i,
-theta_r', phi_r') go to the engine as any configuration does (MODEL.md sec. 1, 5).
+theta_r', phi_r') go to the engine as any configuration does (docs/model.md sec. 1, 5).
 
 :class:`FieldGrid` is the grid of plate points at which :func:`veil.fitting.maps.build_tables`
 tabulates the basis columns; a pixel's columns are the tensor-product cubic B-spline over
@@ -112,7 +112,7 @@ class NearGeometry:
 def apparent_lobe(facet_deg: float, phase_deg: float) -> float:
     """Half width (deg) of the apparent specular lobe as a function of the view direction:
     the facet lobe seen in R (twice its half angle: turning R by d turns H by d/2), widened
-    by a phase lobe on each side of the medium (MODEL.md eq. 1), added in quadrature as
+    by a phase lobe on each side of the medium (docs/model.md eq. 1), added in quadrature as
     ``veil render``'s peak width does (viz.render.peak_width, in u = angle(N, H))."""
     facet = min(facet_deg, 60.0)
     lobe = min(phase_deg, 60.0)

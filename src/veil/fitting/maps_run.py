@@ -35,6 +35,7 @@ import numpy as np
 
 from ..data.ingest import (CHANNELS, ROI, IngestWarning, _linear, parse_roi,
                            manifest_photos, read_photo)
+from .._extras import require
 from ..errors import InputError, MissingFileError
 from ..io import write_bytes_atomic, write_text_atomic
 from .maps import (CONVERGED, MASKED, STATUS, MapTables, build_tables, solve_pixels, warm_up)
@@ -69,7 +70,7 @@ def probe_size(path) -> tuple[int, int]:
     if suffix == ".png":
         return _png_size(path)
     if suffix in (".tif", ".tiff"):
-        import tifffile
+        tifffile = require("tifffile", "reading a TIFF photo")
         try:
             with tifffile.TiffFile(path) as tif:
                 series = tif.series[0]
@@ -284,7 +285,7 @@ def is_complete(store) -> bool:
 
 def _store_info(store):
     """The store's veil attributes, or None when ``store`` is not a veil maps store."""
-    import zarr
+    zarr = require("zarr", "a maps store")
     try:
         group = zarr.open_group(os.fspath(store), mode="r")
     except Exception:  # noqa: BLE001 - zarr raises several kinds for a non-store
@@ -299,7 +300,7 @@ def _tiles(shape, tile):
 
 
 def _create_store(store, info, tables: MapTables, shape, tile, n_photos):
-    import zarr
+    zarr = require("zarr", "a maps store")
 
     group = zarr.open_group(os.fspath(store), mode="w")
     n_par = len(tables.names)
@@ -318,7 +319,7 @@ def _create_store(store, info, tables: MapTables, shape, tile, n_photos):
 
 def _stage(store, acq: Acquisition, progress=None):
     """Photos (minus dark frame or black photos) into ``stack/values``, one at a time."""
-    import zarr
+    zarr = require("zarr", "a maps store")
 
     arr = zarr.open_array(os.fspath(Path(store) / "stack" / "values"), mode="r+")
     roi = acq.roi
@@ -349,7 +350,7 @@ def _stage(store, acq: Acquisition, progress=None):
 
 def _solve_tile(block, tables: MapTables, store, iy, ix, tile, noise):
     """One tile: (photos, th, tw) values -> its chunks of the maps, then its marker."""
-    import zarr
+    zarr = require("zarr", "a maps store")
 
     block = np.asarray(block, dtype=np.float64)
     m, th, tw = block.shape
@@ -379,7 +380,7 @@ def _solve_tile(block, tables: MapTables, store, iy, ix, tile, noise):
 def connect(address, timeout: float = CONNECT_TIMEOUT):
     """A dask.distributed client for ``address``; an InputError within ``timeout`` seconds
     when no scheduler answers there."""
-    from distributed import Client
+    Client = require("distributed", "a Dask cluster").Client
 
     try:
         return Client(address, timeout=timeout, set_as_default=False)
@@ -391,7 +392,7 @@ def connect(address, timeout: float = CONNECT_TIMEOUT):
 
 
 def _run_local(tasks, progress, workers):
-    import dask
+    dask = require("dask", "veil maps")
     from dask.callbacks import Callback
 
     keys = {t.key for t in tasks}
@@ -409,7 +410,7 @@ def _run_local(tasks, progress, workers):
 
 
 def _run_distributed(client, tasks, progress):
-    from distributed import as_completed
+    as_completed = require("distributed", "a Dask cluster").as_completed
 
     out = []
     with client.as_current():
@@ -538,7 +539,7 @@ def summarize_maps(store) -> dict:
     fraction of pixels by status, and the pixels that were to be fitted but were not:
     ``failed`` (their number) and ``failed_by_status`` ({"CODE: meaning": count}), every
     status but 0 except the pixels outside the mask (``outside_mask``)."""
-    import zarr
+    zarr = require("zarr", "a maps store")
 
     group = zarr.open_group(os.fspath(store), mode="r")
     info = dict(group.attrs)["veil_maps"]
@@ -610,7 +611,7 @@ def fit_maps(photo_dir, manifest, medium, output, *, brdf_model=None, options=No
     geometry : (camera distance, pixel pitch on the plate), same units: report the angular
         spread across the field and warn when it exceeds a fifth of the narrowest lobe.
     near_field : with ``geometry``, per-pixel angles (a pinhole camera at that distance
-        from the plate centre, collimated light; docs/maps.md "Geometry") instead of the
+        from the plate centre, collimated light; docs/maps-geometry.md "Geometry") instead of the
         manifest's angles at every pixel.
     progress(stage, done, total), log(message) : reports.
     """
@@ -731,9 +732,9 @@ def fit_maps(photo_dir, manifest, medium, output, *, brdf_model=None, options=No
 
 
 def _compute(store, tables, todo, tile, noise, client, progress, workers):
-    import dask
-    import dask.array as da
-    import zarr
+    dask = require("dask", "veil maps")
+    da = require("dask.array", "veil maps")
+    zarr = require("zarr", "a maps store")
 
     if not todo:
         return {}
@@ -757,7 +758,7 @@ def _compute(store, tables, todo, tile, noise, client, progress, workers):
 
 def open_maps(store) -> dict:
     """The maps of a complete store as numpy arrays plus its attributes."""
-    import zarr
+    zarr = require("zarr", "a maps store")
 
     store = Path(store)
     if not store.exists():

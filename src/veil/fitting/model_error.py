@@ -1,4 +1,4 @@
-"""The model-discrepancy term of a weighted fit (MODEL.md secs. 7-8; docs/validity.md).
+"""The model-discrepancy term of a weighted fit (docs/model.md secs. 7-8; docs/validity.md).
 
 A weighted fit's standard errors count the data's noise only (docs/fitting.md). When the
 model itself misses the data - the forward-series medium against path tracing, a GGX plate

@@ -1,4 +1,4 @@
-"""The least-squares problem every fit solves (MODEL.md sec. 7; docs/fitting.md).
+"""The least-squares problem every fit solves (docs/model.md sec. 7; docs/fitting.md).
 
 A :class:`Problem` stacks sessions: each :class:`Block` is one measured session (its data,
 the BRDF of its object and, unless it is clear water, its medium) and maps its models'
@@ -42,7 +42,7 @@ def check_accuracy(accuracy) -> None:
 
 
 class SessionModel:
-    """Model values of one session at fixed configurations (MODEL.md sec. 2, 5), with the
+    """Model values of one session at fixed configurations (docs/model.md sec. 2, 5), with the
     Jacobian w.r.t. every parameter of either model or both; ``medium=None`` is clear water (f_r
     directly). Built on :mod:`veil.engine.evaluator` (one compilation per accuracy)."""
 
@@ -126,7 +126,7 @@ class SessionModel:
 
 @dataclass
 class Session:
-    """One measured session (MODEL.md sec. 7): a measurement ``table`` (DataFrame or CSV
+    """One measured session (docs/model.md sec. 7): a measurement ``table`` (DataFrame or CSV
     path, black cloth already subtracted), the ``medium`` label it was measured in ("none"
     for clear water) and the ``object`` measured ("target" or "reference")."""
 
@@ -416,7 +416,7 @@ def session_problem(table, brdf: BRDF, medium: Medium | None = None, *, free=(),
                     what: str = "session", data: FitData | None = None) -> Problem:
     """One session as a :class:`Problem` over the BRDF's parameters and the medium's (names
     as declared, the medium's aliased where declared); ``free`` names the estimated ones,
-    the others hold the given models' values. The problem of a step fit of MODEL.md sec. 7.
+    the others hold the given models' values. The problem of a step fit of docs/model.md sec. 7.
     ``data`` (already prepared) replaces ``table`` and ``black``."""
     data = prepare(table, black, what) if data is None else data
     session = Session(data.table, "none" if medium is None else "m", "target", name=what)

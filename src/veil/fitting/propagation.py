@@ -1,5 +1,5 @@
-"""How a given model's covariance reaches the fit that held it fixed (MODEL.md sec. 7;
-docs/fitting.md, "Propagation"): step 1's medium into step 2's target, step 0's reference
+"""How a given model's covariance reaches the fit that held it fixed (docs/model.md sec. 7;
+docs/uncertainty.md, "Propagation"): step 1's medium into step 2's target, step 0's reference
 into step 1's medium.
 
 - **linear**: the estimate x solves J_w^T r_w(x, theta) = 0, so it moves by

@@ -10,7 +10,7 @@ from ..numbers import format_number
 from .propagation import RELATIVE_LIMIT
 from .result import FitResult, JointResult
 
-#: What each step of MODEL.md sec. 7 estimates, for the report's header.
+#: What each step of docs/model.md sec. 7 estimates, for the report's header.
 STEP_WORDS = {"reference": "step 0, reference object in a clear medium (f_r directly)",
               "medium": "step 1, medium through the reference object (f_r fixed)",
               "target": "step 2, target object through the medium (f_t fixed)",

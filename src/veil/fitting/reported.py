@@ -4,7 +4,7 @@
 - the noise's covariance C of the free parameters (the solver's summary);
 - ``stderr_total``: C plus a given model's covariance propagated into it, to first order or
   through sigma points (:mod:`veil.fitting.propagation`), when the given model came from a
-  fit that has one (MODEL.md sec. 7);
+  fit that has one (docs/model.md sec. 7);
 - the model-discrepancy term (:mod:`veil.fitting.model_error`) in both, the uncertainties
   without it kept in its ``noise_only``.
 """

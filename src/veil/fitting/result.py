@@ -1,4 +1,4 @@
-"""The result of a fit (MODEL.md sec. 7): :class:`FitResult` (one model: a step of the
+"""The result of a fit (docs/model.md sec. 7): :class:`FitResult` (one model: a step of the
 two-step method) and :class:`JointResult` (several models: a joint fit), and their JSON file,
 key by key in docs/fitting.md. The text report is :mod:`veil.fitting.report`.
 
@@ -25,7 +25,7 @@ from ..numbers import from_json_float, json_float
 from .model_error import ModelError
 from .solver import covariance_matrix
 
-#: The steps of the two-step method (MODEL.md sec. 7); results may also say "direct".
+#: The steps of the two-step method (docs/model.md sec. 7); results may also say "direct".
 STEPS = ("reference", "medium", "target")
 #: Value of the "format" key of a result file, and the formats this veil reads.
 FORMAT = "veil.fit/2"
@@ -34,7 +34,7 @@ READABLE = ("veil.fit/1", "veil.joint/1", FORMAT)
 
 @dataclass(frozen=True)
 class FitResult:
-    """One fitted model (MODEL.md sec. 7): values, uncertainties and goodness of fit.
+    """One fitted model (docs/model.md sec. 7): values, uncertainties and goodness of fit.
 
     ``params`` holds every parameter in the model's order (fixed ones too, see ``fixed``);
     ``stderr`` is None for fixed parameters or when the Jacobian is singular. ``residuals``
@@ -294,7 +294,7 @@ class FitResult:
 
 @dataclass(frozen=True)
 class JointResult(FitResult):
-    """A joint fit (MODEL.md sec. 7): a :class:`FitResult` whose ``params`` span several
+    """A joint fit (docs/model.md sec. 7): a :class:`FitResult` whose ``params`` span several
     models and whose ``layout`` says which: ``models`` {"brdf": family, "medium": family}
     and their ``options``, ``objects`` {object: {model parameter: result name}}, ``media``
     {label: {model parameter (alias): result name}}, ``shared``, ``sessions`` (name,

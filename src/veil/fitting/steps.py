@@ -1,4 +1,4 @@
-"""The steps of the two-step method (MODEL.md sec. 7; docs/fitting.md), each a
+"""The steps of the two-step method (docs/model.md sec. 7; docs/fitting.md), each a
 :class:`veil.fitting.problem.Problem` of one session solved by :mod:`veil.fitting.solver`:
 
 - step 0, :func:`fit_reference`: the reference object's f_r from clear-medium data, directly
@@ -8,7 +8,7 @@
 - step 2, :func:`fit_target`: the target's f_r from the target in the medium, f_t held fixed.
 
 The BRDF family and the medium model are any registered ones (``brdf_model=``,
-``medium_model=``; default the paper's, MODEL.md sec. 2-3). Every fit minimizes
+``medium_model=``; default the paper's, docs/model.md sec. 2-3). Every fit minimizes
 sum(((model - value) / sigma)^2) (plain squared error without a sigma column). Starting
 values never come from the caller: the model's starting grid with the scale parameters
 solved exactly at each point gives several starts; the best fit among them wins
@@ -174,7 +174,7 @@ def _step(step: str, data: FitData, fitted: Model, given: Model | None, given_re
 # --------------------------------------------------------------------------------------
 def fit_reference(table, *, fixed=None, black=None, max_nfev=None, progress=None,
                   brdf_model=None, options=None, free=None, model_error=None) -> FitResult:
-    """Step 0 (MODEL.md sec. 7): fit the reference's f_r to clear-medium data, directly.
+    """Step 0 (docs/model.md sec. 7): fit the reference's f_r to clear-medium data, directly.
 
     table : measurement table (DataFrame or CSV path, docs/measurements.md).
     fixed : parameters held at given values, e.g. ``{"eta": 1.5}``.
@@ -195,7 +195,7 @@ def fit_reference(table, *, fixed=None, black=None, max_nfev=None, progress=None
 def fit_direct(table, *, fixed=None, black=None, max_nfev=None, progress=None,
                step: str = "direct", brdf_model=None, options=None, free=None,
                model_error=None) -> FitResult:
-    """f_r fitted to clear-medium data (MODEL.md sec. 2); ``step`` labels the result
+    """f_r fitted to clear-medium data (docs/model.md sec. 2); ``step`` labels the result
     ("reference" for step 0, "direct" for a target measured without the medium)."""
     check_max_nfev(max_nfev)
     model_error = discrepancy.check_kind(model_error)
@@ -212,13 +212,13 @@ def fit_direct(table, *, fixed=None, black=None, max_nfev=None, progress=None,
 def fit_medium(table, reference, *, fixed=None, black=None, variant: str | None = None,
                accuracy: str = "default", max_nfev=None, progress=None, medium_model=None,
                options=None, free=None, model_error=None, propagation=None) -> FitResult:
-    """Step 1 (MODEL.md sec. 7): fit the medium, the reference's f_r fixed.
+    """Step 1 (docs/model.md sec. 7): fit the medium, the reference's f_r fixed.
 
     table : the reference object measured in the medium (DataFrame or CSV path).
     reference : the step-0 :class:`FitResult` or a BRDF model.
     medium_model, options : the medium family (default the paper's Henyey-Greenstein
         medium) and its options; ``variant`` is the shortcut for the Fresnel variant
-        ("paper" or "exit", MODEL.md sec. 3).
+        ("paper" or "exit", docs/model.md sec. 3).
     free : names of parameters the family holds by default to fit too (the physical
         medium's intensity factor ``s``).
     accuracy : quadrature of the reported result ("fast", "default", "high"); iterations
@@ -246,7 +246,7 @@ def fit_medium(table, reference, *, fixed=None, black=None, variant: str | None 
 def fit_target(table, medium, *, fixed=None, black=None, variant: str | None = None,
                accuracy: str = "default", max_nfev=None, progress=None, brdf_model=None,
                options=None, free=None, model_error=None, propagation=None) -> FitResult:
-    """Step 2 (MODEL.md sec. 7): fit the target's f_r, the medium fixed.
+    """Step 2 (docs/model.md sec. 7): fit the target's f_r, the medium fixed.
 
     table : the target object measured in the medium (DataFrame or CSV path).
     medium : the step-1 :class:`FitResult` or a medium model.

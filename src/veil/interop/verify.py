@@ -4,7 +4,7 @@ configurations and compared with veil's own prediction (docs/interop.md).
 The fragment's own text is loaded (so the check covers the file as written): a square plate
 with the exported material at the origin, a directional light of unit irradiance from I and
 a one-ray radiance meter looking at the plate's centre from R. With a medium, the plate sits
-at the axis of a cylinder of radius ``path_length`` (the set-up of MODEL.md sec. 8.1) filled
+at the axis of a cylinder of radius ``path_length`` (the set-up of docs/model.md sec. 8.1) filled
 with the exported medium, and the render is a path-traced Monte Carlo estimate.
 
 Mitsuba 3 is an optional dependency (``pip install 'veil[mitsuba]'``); the variant is

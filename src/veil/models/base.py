@@ -38,7 +38,7 @@ KINDS = ("brdf", "medium")
 ROLES = {"brdf": ("reference", "target"), "medium": ("medium",)}
 SHARING = (None, "shared", "per-medium")
 #: The option that result files also keep under their own top-level key "variant" (the
-#: medium's Fresnel variant, MODEL.md sec. 3), and commands offer as ``--variant``.
+#: medium's Fresnel variant, docs/model.md sec. 3), and commands offer as ``--variant``.
 VARIANT_OPTION = "variant"
 ERROR_SCALES = ("value", "bound")
 
@@ -287,7 +287,7 @@ class Model:
 
 
 class BRDF(Model):
-    """A surface reflection model f_r(I, R) split for the integrator (MODEL.md sec. 5).
+    """A surface reflection model f_r(I, R) split for the integrator (docs/model.md sec. 5).
 
     f_r = sum_k s_k(cos theta_I) t_k(cos theta_R) + lobe(I, R). The separable part is
     integrated as products of one-direction integrals; the lobe declares the radial law of
@@ -362,7 +362,7 @@ class BRDF(Model):
 
 class Medium(Model):
     """A medium's transmission f_t(A, B) from direction A on the source side to B on the
-    object side (MODEL.md sec. 3, 8.1), a sum of components:
+    object side (docs/model.md sec. 3, 8.1), a sum of components:
 
     - "delta": the unscattered beam, weight(v) delta(A, B) a(A) b(B);
     - "iso": direction-independent (multiple) scattering, weight(v), no boundary factors;

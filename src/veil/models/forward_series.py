@@ -1,4 +1,4 @@
-"""The physical medium ``forward-series`` (MODEL.md sec. 8.1): the unscattered beam plus the
+"""The physical medium ``forward-series`` (docs/model.md sec. 8.1): the unscattered beam plus the
 orders of forward scattering along one pass of optical depth tau,
 
     f_t(I, T) = e^{-tau} [ delta(I, T) + sum_{k>=1} (omega tau)^k / k! p(g^k; I.T) ] a(I) b(T),
@@ -27,11 +27,11 @@ width the plate is infinite (S = R_c); without a path length J_v = 1 (the series
 
 Order weights (option ``orders``): "poisson" (default) as above; "light-side" weights the lobe's
 order k by the path factor M_k(tau, g) of the light side in the lab's cylinder
-(docs/physics.md sec. 8, ``path_factors``) and the view weight by the ratio that keeps the
+(docs/physics-orders.md sec. 8, ``path_factors``) and the view weight by the ratio that keeps the
 view side the Poisson series times J_v; "view-side" keeps the lobe Poisson and weights the view
 side's order k by the landing factor lambda_k(g; R_c, a, theta_r) (``landing_factors``: a
 path that wandered lands where its whole lateral drift puts it, not where its last direction
-back-projects); "cylinder" does both. Measured (docs/validity.md): "light-side" alone moves the
+back-projects); "cylinder" does both. Measured (docs/validity-orders.md): "light-side" alone moves the
 fitted tau at tau = 1 from 1.121 to 1.162; "cylinder" brings it to 1.050 (5 cm plate),
 1.038 (10 cm plate), 1.034 (R_c 10 cm), the estimate vs truth better there (0.21 -> 0.19 %,
 0.94 -> 0.76 %, 0.61 -> 0.46 %), 0.08 -> 0.14 % at tau = 0.5. Experimental (default off).
@@ -51,8 +51,8 @@ from .base import Medium, Option, Param
 from .renderers import Plugin, Unsupported, Value, float_value
 
 VARIANTS = ("paper", "exit")
-#: Weights of the orders: "poisson" (MODEL.md 8.1 as written); "light-side" (the light side's orders
-#: with the cylinder's path factors M_k, docs/physics.md sec. 8, the view side Poisson x J_v);
+#: Weights of the orders: "poisson" (docs/model.md 8.1 as written); "light-side" (the light side's orders
+#: with the cylinder's path factors M_k, docs/physics-orders.md sec. 8, the view side Poisson x J_v);
 #: "view-side" (the light side Poisson, the view side's orders with the landing factors lambda_k);
 #: "cylinder" (both).
 ORDER_WEIGHTS = ("poisson", "cylinder", "light-side", "view-side")
@@ -78,7 +78,7 @@ def _mixture(v):
 
 def path_factors(tau, g):
     """M_k, k = 1..ORDERS: the cylinder's factor on the Poisson weight of order k of the light
-    reaching the plate centre (docs/physics.md sec. 8), M_k = exp(X_k),
+    reaching the plate centre (docs/physics-orders.md sec. 8), M_k = exp(X_k),
 
         X_k = A_k (1 - tau/(k+1)) - B_k (1 - tau/(k+2)),
         A_k = sum_{m=1..k} (1 - g^m),   B_k = sum_{m=1..k} (k+1-m)/(k+1) (1 - g^m):
@@ -114,7 +114,7 @@ def _rectangle_potential(aa, bb, z):
 def landing_factors(g, path_length, half_width, mu_r):
     """lambda_k, k = 1..ORDERS: the fraction of the order-k paths seen by the camera (at
     cos theta_r = mu_r) that left the square plate of half-width a, over the fraction that J_v
-    predicts (docs/physics.md sec. 8). Small angles: the HG(g^j) directions are 2-D Cauchy
+    predicts (docs/physics-orders.md sec. 8). Small angles: the HG(g^j) directions are 2-D Cauchy
     distributed with scale b_j = (1 - g^j)/g^{j/2} (and convolve as a Cauchy random walk), so
     a path with segment depths Delta_j (uniform spacings of R_c) is displaced at the plate by a
     2-D Cauchy variable of scale S = sum_j Delta_j b_j, J_v's straight back-projection by one of
@@ -196,7 +196,7 @@ def _medium_lost(model, renderer: str) -> list:
             "two to agree"]
     if model.eta_u != 1.0:
         lost.append(f"the boundary (eta_u = {model.eta_u:.6g}) is exported as a dielectric "
-                    f"interface; veil's Fresnel factors ({model.variant} variant, MODEL.md "
+                    f"interface; veil's Fresnel factors ({model.variant} variant, docs/model.md "
                     f"sec. 3) only approximate its refraction")
     if model.s != 1.0:
         lost.append(f"the intensity factor s = {model.s:.6g} is not part of the medium: "
@@ -245,7 +245,7 @@ class ForwardSeries(Medium):
              unless a fit frees it: f_t is not differentiable in eta_u at 1, where total
              internal reflection sets in on one side)
     s        overall intensity factor (held at 1 unless freed)
-    variant  Fresnel factors as the paper's medium ("paper" or "exit", MODEL.md sec. 3)
+    variant  Fresnel factors as the paper's medium ("paper" or "exit", docs/model.md sec. 3)
     path_length, plate_width  set-up geometry in one length unit (0: not given)
     """
 
@@ -260,7 +260,7 @@ class ForwardSeries(Medium):
     orders: str = "poisson"
 
     NAME = "forward-series"
-    LABEL = "unscattered beam + orders of forward scattering, physical (MODEL.md sec. 8.1)"
+    LABEL = "unscattered beam + orders of forward scattering, physical (docs/model.md sec. 8.1)"
     COMPONENTS = ("delta", "lobe")
     GAIN = "s"
     TABLE_ACCURACY = 1e-5
@@ -279,14 +279,14 @@ class ForwardSeries(Medium):
     )
     OPTIONS = (
         Option("variant", "paper", "Fresnel factor: paper = F_t(theta_in)^2, exit = "
-               "F_t(theta_in) F_t(theta_out) (MODEL.md sec. 3)", VARIANTS),
+               "F_t(theta_in) F_t(theta_out) (docs/model.md sec. 3)", VARIANTS),
         Option("path_length", 0.0, "path length of one pass, R_c (0: not given; then J_v = 1)"),
         Option("plate_width", 0.0, "width 2a of the square plate in the unit of path_length "
                "(0: infinite)"),
         Option("orders", "poisson", "weights of the scattering orders: poisson = "
                "(omega tau)^k/k! on both sides; light = the light side's with the cylinder's "
                "path factors M_k(tau, g), the view side's unchanged; view = the view side's "
-               "with the plate's landing factors lambda_k (docs/physics.md sec. 8), the light "
+               "with the plate's landing factors lambda_k (docs/physics-orders.md sec. 8), the light "
                "side's unchanged; cylinder = both", ORDER_WEIGHTS),
     )
     #: Against path tracing without a fit (validation/forward_error.py, docs/validity.md) the

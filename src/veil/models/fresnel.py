@@ -1,4 +1,4 @@
-"""Unpolarized Fresnel reflectance in the cosine form of MODEL.md section 4."""
+"""Unpolarized Fresnel reflectance in the cosine form of docs/model.md section 4."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ from .._lazy import jnp
 
 
 def reflectance(cos_theta, eta):
-    """Fresnel reflectance F from index 1 into relative index ``eta`` (MODEL.md sec. 4).
+    """Fresnel reflectance F from index 1 into relative index ``eta`` (docs/model.md sec. 4).
 
     ``cos_theta`` is the cosine of the incidence angle (clipped to [0, 1]). Finite at normal
     incidence, F = 1 under total internal reflection (eta < 1, sin(theta) > eta), F = 0 for
@@ -34,18 +34,18 @@ def reflectance(cos_theta, eta):
 
 
 def transmittance(cos_theta, eta):
-    """Fresnel transmittance F_t = 1 - F (MODEL.md sec. 4)."""
+    """Fresnel transmittance F_t = 1 - F (docs/model.md sec. 4)."""
     return 1.0 - reflectance(cos_theta, eta)
 
 def boundary_first(cos_a, eta, variant: str):
-    """The boundary factor a(A) of a medium's transmission (MODEL.md sec. 3): F_t^2 for the
+    """The boundary factor a(A) of a medium's transmission (docs/model.md sec. 3): F_t^2 for the
     paper's variant, F_t for "exit"."""
     t = transmittance(cos_a, eta)
     return t * t if variant == "paper" else t
 
 
 def boundary_second(cos_b, eta, variant: str):
-    """The boundary factor b(B) (MODEL.md sec. 3): 1 for the paper's variant, F_t for "exit"."""
+    """The boundary factor b(B) (docs/model.md sec. 3): 1 for the paper's variant, F_t for "exit"."""
     if variant == "paper":
         return 1.0 + 0.0 * cos_b
     return transmittance(cos_b, eta)

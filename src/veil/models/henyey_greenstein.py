@@ -1,5 +1,5 @@
 """The paper's medium: isotropic multiple scattering plus Henyey-Greenstein single scattering
-seen through Fresnel transmittance at the medium's faces (MODEL.md sec. 3, paper eq. 2-4)."""
+seen through Fresnel transmittance at the medium's faces (docs/model.md sec. 3, paper eq. 2-4)."""
 
 from __future__ import annotations
 
@@ -31,7 +31,7 @@ class HenyeyGreenstein(Medium):
     Tt       single-scattering coefficient, relative units
     g        Henyey-Greenstein asymmetry, in (-1, 1); near 1 is a narrow forward lobe
     eta      relative refractive index of the medium's faces
-    variant  "paper": F_t(theta_I)^2 (MODEL.md decision 3, the default);
+    variant  "paper": F_t(theta_I)^2 (docs/model.md decision 3, the default);
              "exit": F_t(theta_I) F_t(theta_T), reciprocal.
     """
 
@@ -55,7 +55,7 @@ class HenyeyGreenstein(Medium):
               start=1.33, alias="eta_u", share="shared"),
     )
     OPTIONS = (Option("variant", "paper", "Fresnel factor: paper = F_t(theta_in)^2, exit = "
-                      "F_t(theta_in) F_t(theta_out) (MODEL.md sec. 3)", VARIANTS),)
+                      "F_t(theta_in) F_t(theta_out) (docs/model.md sec. 3)", VARIANTS),)
     #: Starting grid of a medium fit (step 1): g from broad to narrow lobes, water's index.
     START = {"medium": {"g": (0.5, 0.7, 0.8, 0.88, 0.93, 0.96, 0.98, 0.99, 0.995),
                         "eta": (1.33,)}}

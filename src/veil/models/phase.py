@@ -1,4 +1,4 @@
-"""Henyey-Greenstein phase function (MODEL.md sec. 3): density, cone fraction and inverse.
+"""Henyey-Greenstein phase function (docs/model.md sec. 3): density, cone fraction and inverse.
 
 Everything is written in terms of ``1 - cos(gamma)`` where precision matters: for g = 0.99
 the lobe is half a degree wide and ``cos(gamma)`` alone loses the digits.
@@ -28,7 +28,7 @@ def _den(g, one_minus_mu):
 
 
 def hg_pdf(g, one_minus_mu):
-    """p(g, gamma) per steradian, normalized over the sphere (MODEL.md eq. for p)."""
+    """p(g, gamma) per steradian, normalized over the sphere (docs/model.md eq. for p)."""
     d = _den(g, one_minus_mu)
     return (1.0 - g * g) / (_FOUR_PI * d * jnp.sqrt(d))
 

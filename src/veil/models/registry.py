@@ -33,7 +33,7 @@ FAMILIES = (
 #: The paper's models: the default family of each kind.
 DEFAULTS = {"brdf": TorranceSparrow.NAME, "medium": HenyeyGreenstein.NAME}
 #: Named sets of models compared by ``veil fit pipeline --compare``: the paper's and the
-#: physical models of MODEL.md sec. 8.
+#: physical models of docs/model.md sec. 8.
 MODEL_SETS = {"paper": dict(DEFAULTS),
               "physical": {"brdf": RoughPlastic.NAME, "medium": ForwardSeries.NAME}}
 
@@ -178,7 +178,7 @@ def default_class(kind: str) -> type[Model]:
     return REGISTRY[DEFAULTS[kind]]
 
 
-#: The paper's simulated objects (Table 2) and media (Table 3), MODEL.md sec. 6.
+#: The paper's simulated objects (Table 2) and media (Table 3), docs/model.md sec. 6.
 PRESETS: dict[str, Model] = {
     "BRDF1": TorranceSparrow(Pd=2.00e2, Ps=5.00e5, n=0.80, eta=1.55),
     "BRDF2": TorranceSparrow(Pd=1.00e3, Ps=5.00e5, n=0.50, eta=1.55),

@@ -1,4 +1,4 @@
-"""Rough conductor: metallic microfacets (MODEL.md sec. 8.3).
+"""Rough conductor: metallic microfacets (docs/model.md sec. 8.3).
 
     f_r(I, R) = ks F_cond(R.H) D(H) G1(I, H) G1(R, H) / (4 cos theta_r)
 
@@ -11,7 +11,7 @@ is an approximation that misses the dip real metals' reflectance takes before it
 at grazing incidence: with 550 nm optical constants in water it is off by up to 4 % (gold,
 copper) and 9 to 22 % (aluminium, iron, chromium) between 70 and 85 deg. The complex index is
 exact, is what renderers (Mitsuba's ``roughconductor`` eta and k) and tables of optical
-constants give, and contains the dielectric case (k = 0: MODEL.md sec. 4). Its cost is
+constants give, and contains the dielectric case (k = 0: docs/model.md sec. 4). Its cost is
 identifiability: with the free scale ks only the angular shape of F shows in the data, one
 curve for two parameters, so n and k are strongly correlated in a fit (F0 alone would be
 too, with ks, where the data stop short of grazing). Hold them at a known metal's tabulated
@@ -41,7 +41,7 @@ def conductor_reflectance(cos_theta, n, k):
         R_p = R_s ((a^2 + b^2) c^2 - 2 a c s^2 + s^4) / ((a^2 + b^2) c^2 + 2 a c s^2 + s^4)
 
     (s^2 = 1 - c^2). Normal incidence ((n - 1)^2 + k^2) / ((n + 1)^2 + k^2), grazing 1, and
-    for k = 0 the dielectric formula of MODEL.md sec. 4 (with total reflection for n < 1)."""
+    for k = 0 the dielectric formula of docs/model.md sec. 4 (with total reflection for n < 1)."""
     c = jnp.clip(cos_theta, 0.0, 1.0)
     c2 = c * c
     s2 = 1.0 - c2
@@ -66,7 +66,7 @@ def schlick_reflectance(cos_theta, f0):
 
 
 def rough_conductor(v, wi, wo, distribution="beckmann"):
-    """f_r(I, R) of MODEL.md sec. 8.3 at v = (alpha, n, k, ks), unit vectors wi = I, wo = R."""
+    """f_r(I, R) of docs/model.md sec. 8.3 at v = (alpha, n, k, ks), unit vectors wi = I, wo = R."""
     s = wi + wo
     h = s / jnp.sqrt(jnp.maximum(jnp.sum(s * s, axis=-1, keepdims=True), 1e-300))
     return RoughConductor.template(distribution=distribution)._lobe(v, wi, wo, h)
@@ -109,7 +109,7 @@ def _conductor_pbrt(model, setting) -> Plugin:
 
 @dataclass(frozen=True)
 class RoughConductor(MicrofacetFacets, BRDF):
-    """Rough conductor (alpha, n, k, ks): metallic microfacets (MODEL.md sec. 8.3).
+    """Rough conductor (alpha, n, k, ks): metallic microfacets (docs/model.md sec. 8.3).
 
     alpha  RMS slope of the facets (Beckmann or GGX)
     n, k   complex refractive index n + i k of the metal relative to the surrounding medium

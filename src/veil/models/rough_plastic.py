@@ -1,10 +1,10 @@
-"""Rough plastic: a dielectric microfacet interface over a Lambertian base (MODEL.md sec. 8.2).
+"""Rough plastic: a dielectric microfacet interface over a Lambertian base (docs/model.md sec. 8.2).
 
     f_r(I, R) = ks F(R.H, eta) D(H) G1(I, H) G1(R, H) / (4 cos theta_r)
               + rho_eff t(cos theta_i) t(cos theta_r) cos theta_i / (pi eta^2)
 
 D is Beckmann's or GGX's distribution of facet normals with RMS slope alpha, G1 Smith's exact
-masking for it, F the dielectric Fresnel reflectance of MODEL.md sec. 4 at the relative index
+masking for it, F the dielectric Fresnel reflectance of docs/model.md sec. 4 at the relative index
 eta (plastic over the surrounding medium: about 1.12 for a plastic in water). t(mu) is the
 rough interface's directional transmittance from outside as Mitsuba >= 3 defines it (the
 integral over visible normals of (1 - F) G1 of the refracted direction; docs/physics.md sec. 2)
@@ -86,7 +86,7 @@ def smith_g1(wz, wxy2, alpha, distribution="beckmann"):
 
 def ndf(hz, hxy2, alpha, distribution="beckmann"):
     """D(H) per steradian of facet normals at cos theta_H = ``hz``, sin^2 theta_H = ``hxy2``
-    (MODEL.md sec. 8.2); zero for hz <= 0."""
+    (docs/model.md sec. 8.2); zero for hz <= 0."""
     ok = hz > 0
     hz = jnp.where(ok, hz, 1.0)
     a2 = alpha * alpha
@@ -358,7 +358,7 @@ def diffuse_factors(v, tables, cos_i, cos_r, nonlinear=False):
 
 
 def rough_plastic(v, wi, wo, distribution="beckmann", nonlinear=False):
-    """f_r(I, R) of MODEL.md sec. 8.2 at parameter vector v = (rho, alpha, eta, ks) and unit
+    """f_r(I, R) of docs/model.md sec. 8.2 at parameter vector v = (rho, alpha, eta, ks) and unit
     vectors wi = I, wo = R (..., 3), with any options: zero unless both are above."""
     check_distribution(distribution)
     alpha, eta = v[1], v[2]
@@ -465,7 +465,7 @@ _ALPHA_GRID = geometric_grid(0.02, 0.6, 10)
 @dataclass(frozen=True)
 class RoughPlastic(MicrofacetFacets, BRDF):
     """Rough plastic (rho, alpha, eta, ks): a dielectric microfacet coat over a Lambertian
-    base (MODEL.md sec. 8.2).
+    base (docs/model.md sec. 8.2).
 
     rho    diffuse albedo (relative units: the scale of the diffuse part)
     alpha  RMS slope of the coat's facets (Beckmann or GGX)

@@ -1,7 +1,7 @@
-"""Torrance-Sparrow reflection, the paper's surface model (MODEL.md sec. 2).
+"""Torrance-Sparrow reflection, the paper's surface model (docs/model.md sec. 2).
 
 f_r = P_d cos(theta_i) + P_s F(theta_i', eta) G(I, R) exp(-(n alpha_deg)^2) / cos(theta_r),
-with alpha in degrees (MODEL.md decision 1).
+with alpha in degrees (docs/model.md decision 1).
 """
 
 from __future__ import annotations
@@ -33,7 +33,7 @@ class TorranceSparrow(BRDF):
     eta: float
 
     NAME = "torrance-sparrow"
-    LABEL = "Torrance-Sparrow, the paper's surface (MODEL.md sec. 2)"
+    LABEL = "Torrance-Sparrow, the paper's surface (docs/model.md sec. 2)"
     SCALES = {"separable": "Pd", "lobe": "Ps"}
     PARAMS = (
         Param("Pd", 0.0, math.inf, "diffuse coefficient, relative units", log_scale=True,

@@ -31,7 +31,7 @@ from ..models import names as family_names
 
 #: Value of the "format" key of a state file.
 FORMAT = "veil.explore/1"
-#: The two axes a curve can run along (MODEL.md sec. 1).
+#: The two axes a curve can run along (docs/model.md sec. 1).
 CURVES = ("incidence", "goniometer")
 #: Quadrature of the live views (the sphere is refined at "default" when the sliders rest).
 LIVE_ACCURACY = "fast"
@@ -248,7 +248,7 @@ def is_state_file(path) -> bool:
 # --------------------------------------------------------------------------------------
 def curve_axis(state_or_curve, theta_i: float, psi: float) -> tuple[np.ndarray, str]:
     """The curve's abscissa (deg) and its name: the signed reflection angle at fixed
-    incidence, or the goniometer's rotation rho at fixed psi (MODEL.md sec. 1); 1 deg apart,
+    incidence, or the goniometer's rotation rho at fixed psi (docs/model.md sec. 1); 1 deg apart,
     0.1 deg apart within 6 deg of the mirror configuration."""
     curve = state_or_curve
     if curve == "incidence":
@@ -310,14 +310,14 @@ class Curves:
                 curve, float(theta_i), float(psi), accuracy)
 
     def clear(self, brdf) -> np.ndarray:
-        """f_r along the curve (MODEL.md sec. 2)."""
+        """f_r along the curve (docs/model.md sec. 2)."""
         from ..engine.apparent import reflectance
 
         ti, pi_, tr, pr = self.angles
         return np.asarray(reflectance(brdf, ti, tr, pi_, pr), dtype=float)
 
     def through(self, brdf, medium) -> np.ndarray | None:
-        """The apparent reflectance along the curve (MODEL.md eq. 1); None without medium."""
+        """The apparent reflectance along the curve (docs/model.md eq. 1); None without medium."""
         if self.forward is None or medium is None:
             return None
         from ..engine.apparent import check_finite
@@ -358,7 +358,7 @@ def polar_lobe(x, values, curve: str, theta_i: float, psi: float) -> tuple[np.nd
 
 def transmission_lobe(medium, theta_i: float, points: int = 721) -> tuple:
     """The medium's transmission f_t(I, w) for the light's direction I (polar ``theta_i``,
-    azimuth 180 deg) and w through the plane of incidence (MODEL.md sec. 3-4): returns
+    azimuth 180 deg) and w through the plane of incidence (docs/model.md sec. 3-4): returns
     (angle of w from the normal, signed, deg; f_t; x; y) with (x, y) the lobe in the plane
     (x towards the camera's side). f_t peaks at w = I: light scattered forward keeps its
     direction."""

@@ -1,9 +1,9 @@
 """The paper's simulation experiment (section 5.1, figs. 9-12) as data and matplotlib figures.
 
-* fig. 9: the reflection lobes f_r of the objects for 45 deg incidence (MODEL.md sec. 2);
-* fig. 10: the transmission lobes f_t of the media for 45 deg incidence (MODEL.md sec. 3);
+* fig. 9: the reflection lobes f_r of the objects for 45 deg incidence (docs/model.md sec. 2);
+* fig. 10: the transmission lobes f_t of the media for 45 deg incidence (docs/model.md sec. 3);
 * fig. 11: observed value f(I, R) against reflection angle, each object under each medium and
-  in a clear medium (MODEL.md sec. 5, in-plane set-up of sec. 1);
+  in a clear medium (docs/model.md sec. 5, in-plane set-up of sec. 1);
 * fig. 12: spheres rendered with the true and the apparent BRDFs (:mod:`veil.render`).
 
 :func:`run_experiment` computes everything (deterministically) into an :class:`Experiment`;

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .._extras import require
 from ..errors import InputError
 from ..fitting.maps import CONVERGED, STATUS
 from ..fitting.maps import FEW_POINTS as STATUS_FEW, MASKED as STATUS_MASKED
@@ -109,7 +110,7 @@ def maps_figure(store, path, *, dpi: int = 110) -> Path:
 def _exr_bytes(image: np.ndarray) -> bytes:
     import tempfile
 
-    import OpenEXR
+    OpenEXR = require("OpenEXR", "writing an EXR map")
 
     with tempfile.TemporaryDirectory() as tmp:
         name = os.path.join(tmp, "map.exr")
@@ -123,7 +124,7 @@ def _exr_bytes(image: np.ndarray) -> bytes:
 def _tiff_bytes(image: np.ndarray) -> bytes:
     import io
 
-    import tifffile
+    tifffile = require("tifffile", "writing a TIFF map")
 
     buf = io.BytesIO()
     tifffile.imwrite(buf, np.ascontiguousarray(image, dtype=np.float32))

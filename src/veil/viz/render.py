@@ -1,4 +1,4 @@
-"""Spheres rendered with a true or an apparent BRDF (paper fig. 12, MODEL.md sec. 1, 5).
+"""Spheres rendered with a true or an apparent BRDF (paper fig. 12, docs/model.md sec. 1, 5).
 
 Scene: a unit sphere seen by an orthographic camera looking down the z axis (the camera
 direction R is +z everywhere), lit by a distant point light from direction L. A visible,
@@ -6,7 +6,7 @@ lit point with normal N gets the linear value
 
     pixel = f(I, R) cos(theta_i),      I = L, both angles measured from N   (paper eq. 1)
 
-where f is the object's own f_r (no medium) or the apparent reflectance of MODEL.md sec. 5.
+where f is the object's own f_r (no medium) or the apparent reflectance of docs/model.md sec. 5.
 Unlit points (N . L <= 0) and the background are exactly 0. The image spans [-1.05, 1.05]
 sphere radii in x (right) and y (up); the light's azimuth phi is measured from +x towards +y.
 
@@ -56,7 +56,7 @@ ERROR_ANGLE = 80.0
 # engine access
 # --------------------------------------------------------------------------------------
 def evaluate(brdf, medium, theta_i, theta_r, dphi, *, accuracy="fast", progress=None):
-    """f at flat arrays of (theta_i, theta_r, phi_r - phi_i) in degrees (MODEL.md sec. 5),
+    """f at flat arrays of (theta_i, theta_r, phi_r - phi_i) in degrees (docs/model.md sec. 5),
     through the engine's chunked evaluator in chunks of :data:`CHUNK` configurations.
     ``progress(k)`` is called after each chunk with the number of configurations it did.
     ``medium=None`` is f_r."""
@@ -153,7 +153,7 @@ def highlight_pixel(size, light_theta, light_phi=0.0):
 def peak_width(brdf, medium) -> float:
     """Rough half width (deg) of the apparent specular peak in u = angle(N, H).
 
-    The facet law's half-mass angle (sqrt(ln 2)/n for Torrance-Sparrow, MODEL.md sec. 2)
+    The facet law's half-mass angle (sqrt(ln 2)/n for Torrance-Sparrow, docs/model.md sec. 2)
     combined with two phase lobes of their half width at half maximum each (rotating N by
     d moves the mirror direction by 2 d); 60 deg where a model has no lobe.
     """

@@ -1,4 +1,4 @@
-"""The report of the reproduced simulation experiment (paper sec. 5.1; MODEL.md sec. 5, 6).
+"""The report of the reproduced simulation experiment (paper sec. 5.1; docs/model.md sec. 5, 6).
 
 One list of blocks (headings, paragraphs, tables, figures) is written twice: as Markdown
 (``report.md``, figures linked) and as a self-contained HTML page (``report.html``, figures
@@ -56,7 +56,7 @@ def build_blocks(exp: Experiment, files: dict) -> list:
     blocks = [("h1", "The paper's simulation experiment, reproduced"),
               ("p", "Baba, Mukaigawa and Yagi, \"BRDF Estimation Considering Scatterings of "
                     "Illumination and Reflection\", section 5.1 (figs. 9-12), recomputed from the "
-                    f"presets of MODEL.md section 6 with veil {__version__} (`veil reproduce`). "
+                    f"presets of docs/model.md section 6 with veil {__version__} (`veil reproduce`). "
                     f"Angles in degrees. Curves use the \"{exp.accuracy}\" quadrature; the "
                     f"spheres use the \"{exp.render_accuracy}\" quadrature on an interpolated "
                     f"table (see fig. 12).")]
@@ -81,7 +81,7 @@ def build_blocks(exp: Experiment, files: dict) -> list:
                             + [str(v) for v in m.options().values()] + [extra])
             blocks.append(("table", head, rows))
     blocks.append(("p", f"Incidence for figs. 9-11: theta_i = {exp.theta_i:g}°, light and camera "
-                        "in the plane of incidence on opposite sides of the normal (MODEL.md "
+                        "in the plane of incidence on opposite sides of the normal (docs/model.md "
                         f"sec. 1). Fig. 12: distant point light at {exp.light_theta:g}° from the "
                         f"viewing direction, orthographic camera, {exp.size} x {exp.size} pixels."))
 
@@ -399,7 +399,7 @@ def _stats_lines(result: FitResult) -> list[str]:
     if result.accuracy:
         lines.append(f"- quadrature accuracy of the result: {result.accuracy}")
     if result.variant:
-        lines.append(f"- medium Fresnel variant: {result.variant} (MODEL.md sec. 3)")
+        lines.append(f"- medium Fresnel variant: {result.variant} (docs/model.md sec. 3)")
     how = (result.stats or {}).get("propagation")
     if how and result.stderr_total is not None:
         lines.append("- the given model's uncertainty in \"stderr incl. given model\": " + (
@@ -426,7 +426,7 @@ def _stats_lines(result: FitResult) -> list[str]:
 
 def pipeline_report(ref, med, tgt, direct, comparison, truth, figures, inputs) -> str:
     """report.md: the parameter tables per step (value +- stderr), statistics, figures."""
-    out = ["# veil fit: two-step estimation (MODEL.md sec. 7)", ""]
+    out = ["# veil fit: two-step estimation (docs/model.md sec. 7)", ""]
     listed = [f"- {k.replace('_', ' ')}: `{os.fspath(v)}`" for k, v in inputs.items()
               if isinstance(v, (str, os.PathLike))]
     if listed:
