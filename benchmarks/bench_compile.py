@@ -13,6 +13,7 @@ inflates least.
     .venv/bin/python benchmarks/bench_compile.py                       # every pair
     .venv/bin/python benchmarks/bench_compile.py --pairs rough-plastic:forward-series
     .venv/bin/python benchmarks/bench_compile.py --markdown out.md     # tables for the docs
+    .venv/bin/python benchmarks/bench_compile.py --src /old/checkout/src   # another veil's code
 """
 
 from __future__ import annotations
@@ -56,7 +57,7 @@ def sessions(folder: str) -> list[str]:
             "--black", os.path.join(DATA, f"{MEDIUM}_black.csv")]
 
 
-def run_pipeline(pair, inputs, cache: str, out: str, log: str) -> dict:
+def run_pipeline(pair, inputs, cache: str, out: str, log: str, src=None) -> dict:
     """One ``veil fit pipeline`` process; wall and CPU seconds, its compilations."""
     brdf, medium = pair
     args = [VEIL, "fit", "pipeline", *inputs, "-o", out, "--no-figures",
@@ -64,6 +65,8 @@ def run_pipeline(pair, inputs, cache: str, out: str, log: str) -> dict:
     if medium == "forward-series":
         args += GEOMETRY
     env = {**os.environ, "VEIL_CACHE_DIR": cache, "VEIL_COMPILE_LOG": log}
+    if src:  # another checkout's veil, run with this environment's packages
+        env["PYTHONPATH"] = os.path.abspath(src)
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
     done = subprocess.run(args, capture_output=True, text=True, env=env)
@@ -75,16 +78,19 @@ def run_pipeline(pair, inputs, cache: str, out: str, log: str) -> dict:
         with open(log, encoding="utf-8") as fh:
             compiled = [json.loads(line) for line in fh if line.strip()]
         os.unlink(log)
+    store = os.path.join(cache, "programs")
+    stored = len([f for f in os.listdir(store) if f.endswith(".program")]) \
+        if os.path.isdir(store) else 0
     return {"wall": wall, "cpu": cpu, "status": done.returncode, "compiled": compiled,
-            "stderr": done.stderr}
+            "programs": len(compiled) or stored, "stderr": done.stderr}
 
 
-def measure(pair, folder: str) -> dict:
+def measure(pair, folder: str, src=None) -> dict:
     inputs = sessions(folder)
     cache = os.path.join(folder, "cache")
     log = os.path.join(folder, "compile.log")
-    cold = run_pipeline(pair, inputs, cache, os.path.join(folder, "cold"), log)
-    warm = run_pipeline(pair, inputs, cache, os.path.join(folder, "warm"), log)
+    cold = run_pipeline(pair, inputs, cache, os.path.join(folder, "cold"), log, src)
+    warm = run_pipeline(pair, inputs, cache, os.path.join(folder, "warm"), log, src)
     return {"pair": pair, "cold": cold, "warm": warm}
 
 
@@ -103,7 +109,7 @@ def tables(results: list[dict]) -> tuple[str, str]:
         cold, warm = r["cold"], r["warm"]
         secs = [c["seconds"] for c in cold["compiled"]]
         name = " x ".join(r["pair"])
-        rows.append(f"| {name} | {cold['wall']:.1f} | {cold['cpu']:.1f} | {len(secs)} | "
+        rows.append(f"| {name} | {cold['wall']:.1f} | {cold['cpu']:.1f} | {cold['programs']} | "
                     f"{sum(secs):.1f} | {max(secs, default=0):.1f} | {warm['wall']:.1f} | "
                     f"{warm['cpu']:.1f} | {cold['status']}/{warm['status']} |")
         for c in sorted(cold["compiled"], key=lambda c: -c["seconds"]):
@@ -119,6 +125,9 @@ def main(argv=None) -> int:
     ap.add_argument("--pairs", default="all",
                     help="comma-separated BRDF:MEDIUM pairs (default: every registered pair)")
     ap.add_argument("--markdown", default=None, help="also write the tables to this file")
+    ap.add_argument("--src", default=None, help="run the veil of this source folder (its "
+                    "src/), e.g. an older checkout, for a side-by-side comparison; without a "
+                    "compile log there, its programs are counted from the store")
     a = ap.parse_args(argv)
     pairs = registered_pairs() if a.pairs == "all" else \
         [tuple(p.split(":", 1)) for p in a.pairs.split(",")]
@@ -130,10 +139,10 @@ def main(argv=None) -> int:
     results = []
     for pair in pairs:
         with tempfile.TemporaryDirectory(prefix="veil-bench-compile-") as folder:
-            r = measure(pair, folder)
+            r = measure(pair, folder, a.src)
         results.append(r)
         cold = r["cold"]
-        print(f"{' x '.join(pair)}: cold {cold['wall']:.1f} s ({len(cold['compiled'])} "
+        print(f"{' x '.join(pair)}: cold {cold['wall']:.1f} s ({cold['programs']} "
               f"programs), warm {r['warm']['wall']:.1f} s, {_load()}", flush=True)
         if cold["status"] not in (0, 1):
             print(cold["stderr"][-2000:], file=sys.stderr)

@@ -350,7 +350,7 @@ def _lobe_lobe(brdf, medium, vb, vm, maux, wi, wr, rule: Rule, half: bool):
 
 
 def _lobe_one_side(brdf, medium, vb, vm, maux, fixed, center, rule: Rule, half: bool,
-                   view: bool, grid):
+                   view, grid):
     """The BRDF's lobe against the phase lobe on one side, the other direction fixed:
 
         view:     Int lobe(F, R') a(R') J(R') p(R'.C) dR'    (F = I, C = R)
@@ -358,21 +358,20 @@ def _lobe_one_side(brdf, medium, vb, vm, maux, fixed, center, rule: Rule, half: 
 
     by balanced MIS over two grids: the phase grid about C, and half vectors from the facet
     law with the free direction the mirror of F. ``grid`` is the dense phase grid about C
-    (:func:`_phase_grid`), shared with the other 2D terms."""
+    (:func:`_phase_grid`), shared with the other 2D terms. ``view`` is a boolean array, so
+    that both sides run as one computation (:func:`_lobe_sides`)."""
     g, u, f, p = grid
-    factor = (medium.factor_first if view else medium.factor_second)
 
-    def lobe(free, h=None, alpha=None):
-        if h is None:
-            s = free + fixed
-            h = s / jnp.sqrt(jnp.maximum(dot3(s, s), 1e-300))[..., None]
-        return brdf.lobe(vb, fixed, free, h, alpha) if view else \
-            brdf.lobe(vb, free, fixed, h, alpha)
+    def lobe(free, h, alpha):
+        fixed_b = jnp.broadcast_to(fixed, free.shape)
+        return brdf.lobe(vb, jnp.where(view, fixed_b, free), jnp.where(view, free, fixed_b),
+                         h, alpha)
 
     def weight(free):
-        w = factor(vm, free[..., 2])
-        if view and medium.has_view_weight():
-            w = w * medium.view_weight(vm, free, center)
+        z = free[..., 2]
+        w = jnp.where(view, medium.factor_first(vm, z), medium.factor_second(vm, z))
+        if medium.has_view_weight():
+            w = w * jnp.where(view, medium.view_weight(vm, free, center), 1.0)
         return w
 
     y_full = brdf.facet_cdf(vb, HALF_PI)
@@ -398,6 +397,22 @@ def _lobe_one_side(brdf, medium, vb, vm, maux, fixed, center, rule: Rule, half: 
     val = jnp.where(ok, lobe(free, h[0], alpha[0]) * weight(free) * p_free
                     / jnp.where(ok, den, 1.0), 0.0)
     return total + jnp.sum(uh[0] * val)
+
+
+def _lobe_sides(brdf, medium, vb, vm, maux, wi, wr, rule: Rule, half: bool, grid_i, grid_r):
+    """(:func:`_lobe_one_side` on the view side, on the light side), computed as one
+    computation over both (vmapped): the program holds the lobe, the phase function and
+    the medium's factors once instead of twice (issue 28: a smaller program compiles
+    faster; measured in docs/performance.md "Compilation")."""
+    grids = jax.tree.map(lambda a, b: jnp.stack([a, b]), tuple(grid_r), tuple(grid_i))
+
+    def side(fixed, center, view, grid):
+        return _lobe_one_side(brdf, medium, vb, vm, maux, fixed, center, rule, half, view,
+                              grid)
+
+    both = jax.vmap(side)(jnp.stack([wi, wr]), jnp.stack([wr, wi]), jnp.array([True, False]),
+                          grids)
+    return both[0], both[1]
 
 
 def pairs(medium_cls) -> list[tuple[str, str]]:
@@ -476,10 +491,9 @@ def _one_config(brdf, medium, rule, half, vb, vm, shared, maux, wi, wr):
                      + dv * a_i * sum(t * jnp.sum(wgi * s)
                                       for (_, t), (s, _) in zip(sep_fixed_r, seps_i)))
             if brdf.HAS_LOBE:
-                d_lobe = (dl * b_r * _lobe_one_side(brdf, medium, vb, vm, maux, wi, wr, rule, half,
-                                                    True, grid_r)
-                          + dv * a_i * _lobe_one_side(brdf, medium, vb, vm, maux, wr, wi, rule, half,
-                                                      False, grid_i))
+                view_side, light_side = _lobe_sides(brdf, medium, vb, vm, maux, wi, wr, rule,
+                                                    half, grid_i, grid_r)
+                d_lobe = dl * b_r * view_side + dv * a_i * light_side
             else:
                 d_lobe = zero
             rows[("delta", "lobe")] = (d_sep + zero, d_lobe + zero)
