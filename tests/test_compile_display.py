@@ -37,14 +37,18 @@ def test_a_compilation_is_announced_with_an_estimate_and_the_rate_is_learned(
     assert [e[0] for e in events] == ["start", "end"]
     (_, label, lines, estimate, _), (_, _, _, _, seconds) = events
     assert label == "a test program (announce)"
-    assert lines > 3 and estimate == pytest.approx(lines * compiling.SECONDS_PER_LINE)
+    default = compiling.SECONDS_PER_LINE["values"]
+    assert lines > 3 and estimate == pytest.approx(lines * default)
     assert seconds > 0
     with open(tmp_path / "programs" / compiling.TIMES_FILE) as fh:
-        rate = json.load(fh)["seconds_per_line"]
-    expected = ((1 - compiling.LEARNING_RATE) * compiling.SECONDS_PER_LINE
-                + compiling.LEARNING_RATE * seconds / lines)
-    assert rate == pytest.approx(expected, rel=1e-9)
-    assert compiling.seconds_per_line() == pytest.approx(rate)
+        rates = json.load(fh)["seconds_per_line"]
+    expected = (1 - compiling.LEARNING_RATE) * default + compiling.LEARNING_RATE * seconds / lines
+    assert rates["values"] == pytest.approx(expected, rel=1e-9)
+    assert rates["jacobian"] == compiling.SECONDS_PER_LINE["jacobian"]  # not measured yet
+    assert compiling.seconds_per_line("values") == pytest.approx(rates["values"])
+    assert compiling.kind_of("terms+jacobian (1,) () | x") == "jacobian"
+    assert compiling.kind_of("f_r jacobian | x") == "jacobian"
+    assert compiling.kind_of("terms | x") == "values"
 
 
 def test_without_a_store_compilations_are_still_announced(monkeypatch):

@@ -4,8 +4,9 @@ A program that is not in the program store (:mod:`veil.engine.programs`) is comp
 first use, which takes from one to tens of seconds. :func:`announced` wraps each such
 compilation: listeners (:func:`listen`) are told when it starts, with a rough estimate of
 its time, and when it ends. The estimate is the size of the lowered program (lines of its
-StableHLO text) times the seconds a line took in this store's earlier compilations
-(``compile-times.json`` beside the programs; :data:`SECONDS_PER_LINE` before the first).
+StableHLO text) times the seconds a line of that kind of program (values, or values with a
+Jacobian) took in this store's earlier compilations (``compile-times.json`` beside the
+programs; :data:`SECONDS_PER_LINE` before the first).
 Estimates are rough by design: compile time grows with the program and with the load of
 the machine.
 """
@@ -20,9 +21,10 @@ import time
 from dataclasses import dataclass
 from typing import Callable, Iterator
 
-#: Seconds of compilation per line of a program's StableHLO text before this store has
-#: measured its own (measured: benchmarks/bench_compile.py, 2 cores, idle).
-SECONDS_PER_LINE = 6e-4
+#: Seconds of compilation per line of a program's StableHLO text, by kind of program, before
+#: this store has measured its own: a Jacobian's lines take about twice a value's
+#: (benchmarks/bench_compile.py, 2 cores with other work beside it, load about 5).
+SECONDS_PER_LINE = {"values": 2e-3, "jacobian": 4e-3}
 #: How much one new measurement moves the store's rate (an exponential average).
 LEARNING_RATE = 0.3
 TIMES_FILE = "compile-times.json"
@@ -40,6 +42,15 @@ class Compilation:
     lines: int
     estimate: float
     started: float
+
+    @property
+    def kind(self) -> str:
+        return kind_of(self.identity)
+
+
+def kind_of(identity: str) -> str:
+    """"jacobian" or "values": what a program computes, from its identity's first part."""
+    return "jacobian" if "jacobian" in identity.split(" | ")[0] else "values"
 
 
 Listener = Callable[[str, Compilation, float], None]
@@ -75,30 +86,39 @@ def _times_path() -> str | None:
     return None if folder is None else os.path.join(folder, TIMES_FILE)
 
 
-def seconds_per_line() -> float:
-    """This store's measured compile rate, or :data:`SECONDS_PER_LINE`."""
+def _rates() -> dict:
     path = _times_path()
     if path is None:
-        return SECONDS_PER_LINE
+        return {}
     try:
         with open(path, encoding="utf-8") as fh:
-            rate = float(json.load(fh)["seconds_per_line"])
+            stored = json.load(fh)["seconds_per_line"]
     except (OSError, ValueError, KeyError, TypeError):
-        return SECONDS_PER_LINE
-    return rate if 0.0 < rate < 1.0 else SECONDS_PER_LINE
+        return {}
+    if not isinstance(stored, dict):
+        return {}
+    return {k: float(v) for k, v in stored.items()
+            if k in SECONDS_PER_LINE and isinstance(v, (int, float)) and 0.0 < v < 1.0}
 
 
-def _learn(lines: int, seconds: float) -> None:
-    """Move the store's rate towards this compilation's (best effort: a store that cannot
-    be written keeps the default)."""
+def seconds_per_line(kind: str = "values") -> float:
+    """This store's measured compile rate for ``kind``, or :data:`SECONDS_PER_LINE`'s."""
+    return _rates().get(kind, SECONDS_PER_LINE[kind])
+
+
+def _learn(kind: str, lines: int, seconds: float) -> None:
+    """Move the store's rate of ``kind`` towards this compilation's (best effort: a store
+    that cannot be written keeps the defaults)."""
     path = _times_path()
     if path is None or lines <= 0 or seconds <= 0:
         return
-    rate = (1.0 - LEARNING_RATE) * seconds_per_line() + LEARNING_RATE * seconds / lines
+    rates = {**SECONDS_PER_LINE, **_rates()}
+    rates[kind] = (1.0 - LEARNING_RATE) * rates[kind] + LEARNING_RATE * seconds / lines
     from .programs import put_file
 
     with contextlib.suppress(OSError):
-        put_file(path, (json.dumps({"seconds_per_line": rate}) + "\n").encode())
+        put_file(path, (json.dumps({"seconds_per_line": rates}, sort_keys=True)
+                        + "\n").encode())
 
 
 def program_lines(lowered) -> int:
@@ -113,8 +133,8 @@ def program_lines(lowered) -> int:
 def announced(label: str, identity: str, lowered) -> Iterator[Compilation]:
     """The block compiles ``lowered``: listeners hear of its start and its end."""
     lines = program_lines(lowered)
-    compilation = Compilation(label, identity, lines, lines * seconds_per_line(),
-                              time.perf_counter())
+    compilation = Compilation(label, identity, lines,
+                              lines * seconds_per_line(kind_of(identity)), time.perf_counter())
     _tell("start", compilation, 0.0)
     ok = False
     try:
@@ -124,7 +144,7 @@ def announced(label: str, identity: str, lowered) -> Iterator[Compilation]:
         seconds = time.perf_counter() - compilation.started
         _tell("end" if ok else "failed", compilation, seconds)
         if ok:
-            _learn(lines, seconds)
+            _learn(compilation.kind, lines, seconds)
             _log(compilation, seconds)
 
 
@@ -141,4 +161,5 @@ def _log(compilation: Compilation, seconds: float) -> None:
         fh.write(line + "\n")
 
 
-__all__ = ["Compilation", "announced", "listen", "seconds_per_line", "program_lines"]
+__all__ = ["Compilation", "announced", "listen", "seconds_per_line", "program_lines",
+           "kind_of"]
