@@ -23,7 +23,7 @@ from . import integrator
 from .programs import Program, structure_name
 from .angles import check_angles, direction
 from ..models.base import BRDF, BTDF
-from .quadrature import RULES, Rule
+from .quadrature import FINER, RULES, Rule
 
 _AXIS = "configurations"
 
@@ -99,7 +99,8 @@ def _terms_jac_fn(kb, km, rule: Rule, half: bool, nl_b: tuple, nl_m: tuple, mesh
 
 def _label(what: str, kb, km, rule: Rule) -> str:
     """What a compiled engine function is, for people (the compile display)."""
-    named = [name for name, r in RULES.items() if r == rule]
+    named = ([f"{name}" for name, r in RULES.items() if r == rule]
+             + [f"{name} error-estimate" for name, r in FINER.items() if r == rule])
     options = [f"{k}={v}" for k, v in kb[1:] + km[1:]
                if v not in (0.0, False) and not (k == "variant" and v == "paper")]
     models = f"{kb[0].NAME} x {km[0].NAME}" + (f" ({', '.join(options)})" if options else "")
