@@ -101,8 +101,9 @@ def _label(what: str, kb, km, rule: Rule) -> str:
     """What a compiled engine function is, for people (the compile display)."""
     named = ([f"{name}" for name, r in RULES.items() if r == rule]
              + [f"{name} error-estimate" for name, r in FINER.items() if r == rule])
-    options = [f"{k}={v}" for k, v in kb[1:] + km[1:]
-               if v not in (0.0, False) and not (k == "variant" and v == "paper")]
+    defaults = {o.name: o.default for o in kb[0].OPTIONS + km[0].OPTIONS}
+    options = [f"{k}={v:g}" if isinstance(v, float) else f"{k}={v}"
+               for k, v in kb[1:] + km[1:] if defaults.get(k, object()) != v]
     models = f"{kb[0].NAME} x {km[0].NAME}" + (f" ({', '.join(options)})" if options else "")
     return f"{models}: {what}, {named[0] if named else 'custom'} rule"
 
