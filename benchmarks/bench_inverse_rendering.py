@@ -109,6 +109,20 @@ def time_to_within(times, errors, level=TWO_PERCENT):
     return times[k]
 
 
+def parse_schedule(text: str) -> list[tuple[float, float]]:
+    """'0.5:0.3,0.75:0.1' -> [(0.5, 0.3), (0.75, 0.1)] (fraction of the iterations, factor)."""
+    out = []
+    for part in (p for p in text.split(",") if p.strip()):
+        at, _, factor = part.partition(":")
+        out.append((float(at), float(factor)))
+    return sorted(out)
+
+
+def first_within(times, errors, level=TWO_PERCENT):
+    """The first time the error is <= level (None: never)."""
+    return next((t for t, e in zip(times, errors) if e <= level), None)
+
+
 def to_latent(name: str, value: float) -> float:
     if name == "albedo":
         return math.log(value / (1.0 - value))
@@ -216,12 +230,12 @@ class InverseRendering:
     key's value to the named value's)."""
 
     def __init__(self, scene, spp: int, sessions, optimized: dict, lr: float, freeze: bool,
-                 seed: int):
+                 seed: int, betas=(0.9, 0.999)):
         self.scene, self.spp, self.sessions, self.seed = scene, spp, sessions, seed
         self.names = list(optimized)
         self.keys = {n: optimized[n][1] for n in self.names}
         self.scale = {n: optimized[n][2] for n in self.names}
-        self.opt = mi.ad.Adam(lr=lr)
+        self.opt = mi.ad.Adam(lr=lr, beta_1=betas[0], beta_2=betas[1])
         for n in self.names:
             self.opt[n] = mi.Float(to_latent(n, optimized[n][0]))
         keys = {"light.to_world", "sensor.to_world"}
@@ -321,14 +335,18 @@ def run_ir(truth: dict, medium: str, target: str, row: str, a, log) -> dict:
     scene = lab_scene(target, base, hw, r_c, a.integrator, a.spp, a.max_depth)
     load_s = time.perf_counter() - t_load
     tgt = len(sessions) - 1
-    optimized = {n: (PLATE_START[n], [PLATE_KEYS[n] if i == tgt else None
+    start = dict(PLATE_START, **MEDIUM_START)
+    start.update({k: float(v) for k, v in (x.split("=") for x in a.start.split(",") if x)})
+    optimized = {n: (start[n], [PLATE_KEYS[n] if i == tgt else None
                                       for i in range(len(sessions))], 1.0)
-                 for n in PLATE_KEYS}
+                 for n in a.plate_params.split(",")}
     if row == "joint":
-        optimized.update({n: (MEDIUM_START[n], [MEDIUM_KEYS[n]] * len(sessions),
+        optimized.update({n: (start[n], [MEDIUM_KEYS[n]] * len(sessions),
                               1.0 / r_c if n == "tau" else 1.0) for n in MEDIUM_KEYS})
-    ir = InverseRendering(scene, a.spp, sessions, optimized, a.lr, not a.no_freeze, a.seed)
+    ir = InverseRendering(scene, a.spp, sessions, optimized, a.lr, not a.no_freeze, a.seed,
+                          (a.beta1, a.beta2))
     angles, rendered = _clear_truth(names)
+    schedule = parse_schedule(a.lr_schedule)
     trace = []
     wall = cpu = 0.0
     first = None
@@ -336,8 +354,9 @@ def run_ir(truth: dict, medium: str, target: str, row: str, a, log) -> dict:
     trace.append({"it": 0, "wall": 0.0, "cpu": 0.0, "rms": rms0, "loss": math.nan,
                   **ir.values()})
     for it in range(a.iterations):
-        if a.lr_decay and it == int(a.iterations * a.lr_decay_at):
-            ir.opt.set_learning_rate(a.lr * a.lr_decay)
+        for at, factor in schedule:
+            if it == int(round(a.iterations * at)):
+                ir.opt.set_learning_rate(a.lr * factor)
         w0, c0 = time.perf_counter(), time.process_time()
         loss = ir.step()
         dw, dc = time.perf_counter() - w0, time.process_time() - c0
@@ -354,10 +373,14 @@ def run_ir(truth: dict, medium: str, target: str, row: str, a, log) -> dict:
     final = trace[-1]
     t2 = time_to_within([t["wall"] for t in trace], [t["rms"] for t in trace])
     c2 = time_to_within([t["cpu"] for t in trace], [t["rms"] for t in trace])
+    f2 = first_within([t["wall"] for t in trace], [t["rms"] for t in trace])
+    fi2 = first_within([t["it"] for t in trace], [t["rms"] for t in trace])
     est = {n: final[n] for n in ir.names}  # tau: sigma_t x R_c
     return {"row": "IR, medium known" if row == "known" else "IR, medium too",
             "medium": medium, "target": target, "wall": wall, "cpu": cpu, "rms": final["rms"],
-            "wall_2pct": t2, "cpu_2pct": c2, "iterations": a.iterations, "spp": a.spp,
+            "wall_2pct": t2, "cpu_2pct": c2, "wall_first_2pct": f2, "it_first_2pct": fi2,
+            "it_2pct": time_to_within([t["it"] for t in trace], [t["rms"] for t in trace]),
+            "iterations": a.iterations, "spp": a.spp,
             "first_iteration": first, "load_s": load_s, "estimate": est,
             "truth": {"alpha": plate["alpha"], "rho": plate["diffuse_reflectance"],
                       "ks": plate["specular_reflectance"], "tau": true_medium["tau"],
@@ -415,37 +438,47 @@ def _s(x) -> str:
     return "never" if x is None else f"{x:.1f}"
 
 
+def _ratio(ir, veil) -> str:
+    if veil is None or veil["wall_2pct"] is None:
+        return "-"
+    if ir is None:
+        return "never"
+    return f"{ir / veil['wall_2pct']:.1f} x"
+
+
 def print_table(rows: list[dict], header: str) -> None:
+    """One table per medium: the rows, their times and accuracy, IR's time over veil's."""
     print(header)
+    cols = ("row", "wall s", "CPU s", "RMS vs truth", "first <= 2 %: wall s (it.)",
+            "<= 2 % for good: wall s (it.)", "CPU s", "IR/veil: final", "first 2 %",
+            "for good", "notes")
     for medium in dict.fromkeys(r["medium"] for r in rows):
-        print(f"\nmedium {medium}, target {rows[0]['target']}:")
-        cols = ("row", "wall s", "CPU s", "RMS vs truth", "to 2 %: wall s", "CPU s",
-                "IR/veil wall", "IR/veil to 2 %", "notes")
         rs = [r for r in rows if r["medium"] == medium]
         veil = next((r for r in rs if r["row"] == "veil"), None)
         lines = []
         for r in rs:
-            ratio = ratio2 = "-"
-            if veil is not None and r["row"].startswith("IR"):
-                ratio = f"{r['wall'] / veil['wall']:.1f} x"
-                if r["wall_2pct"] is not None and veil["wall_2pct"] is not None:
-                    ratio2 = f"{r['wall_2pct'] / veil['wall_2pct']:.1f} x"
-                elif veil["wall_2pct"] is not None:
-                    ratio2 = f"> {r['wall'] / veil['wall_2pct']:.1f} x (never)"
-            if r["row"].startswith("IR"):
-                fw, fc = r["first_iteration"]
-                note = (f"{r['iterations']} it. x {r['spp']} spp; first it. {fw:.1f} s; "
+            ir = r["row"].startswith("IR")
+            if ir:
+                fw, _ = r["first_iteration"]
+                first = f"{_s(r['wall_first_2pct'])} ({r['it_first_2pct'] or '-'})"
+                good = f"{_s(r['wall_2pct'])} ({'-' if r['it_2pct'] is None else r['it_2pct']})"
+                ratios = (f"{r['wall'] / veil['wall']:.1f} x" if veil else "-",
+                          _ratio(r["wall_first_2pct"], veil), _ratio(r["wall_2pct"], veil))
+                note = (f"{r['iterations']} it. x {r['spp']} spp, first it. {fw:.1f} s; "
                         + ", ".join(f"{n} {v:.4g} ({r['truth'][n]:g})"
                                     for n, v in r["estimate"].items()))
             else:
+                first = good = _s(r["wall_2pct"])
+                ratios = ("-", "-", "-")
                 e = r["estimate"]
                 note = (f"{r['state']}; rho {e['rho']:.4g}, alpha {e['alpha']:.4g}, eta "
                         f"{e['eta']:.4g}, ks {e['ks']:.3g}; tau {e['tau']:.4g}, g {e['g']:.4g}")
             lines.append((r["row"], f"{r['wall']:.1f}", f"{r['cpu']:.1f}",
-                          f"{100 * r['rms']:.2f} %", _s(r["wall_2pct"]), _s(r["cpu_2pct"]),
-                          ratio, ratio2, note))
+                          f"{100 * r['rms']:.2f} %", first, good, _s(r["cpu_2pct"]),
+                          *ratios, note))
+        print(f"\nmedium {medium}, target {rs[0]['target']}:")
         widths = [max(len(c), *(len(x[i]) for x in lines)) for i, c in enumerate(cols)]
-        fmt = " | ".join("{:<%d}" % w if i in (0, 8) else "{:>%d}" % w
+        fmt = " | ".join("{:<%d}" % w if i in (0, len(cols) - 1) else "{:>%d}" % w
                          for i, w in enumerate(widths))
         print("| " + fmt.format(*cols) + " |")
         print("|" + "|".join("-" * (w + 2) for w in widths) + "|")
@@ -463,17 +496,25 @@ def main(argv=None) -> int:
     ap.add_argument("--spp", type=int, default=256,
                     help="samples per configuration and iteration (forward and backward)")
     ap.add_argument("--lr", type=float, default=0.05, help="Adam's learning rate (latents)")
-    ap.add_argument("--lr-decay", type=float, default=0.3,
-                    help="multiply the rate by this from --lr-decay-at (0: constant)")
-    ap.add_argument("--lr-decay-at", type=float, default=0.6,
-                    help="fraction of the iterations after which the rate drops")
+    ap.add_argument("--beta1", type=float, default=0.9, help="Adam's beta_1")
+    ap.add_argument("--beta2", type=float, default=0.999, help="Adam's beta_2 (Mitsuba's "
+                    "default 0.999 remembers the first, large gradients for hundreds of steps)")
+    ap.add_argument("--lr-schedule", default="0.5:0.3,0.75:0.1",
+                    help="AT:FACTOR,...: from the fraction AT of the iterations on, the rate is "
+                         "lr x FACTOR ('' for a constant rate)")
     ap.add_argument("--integrator", default="prbvolpath", choices=("prbvolpath", "volpath"))
     ap.add_argument("--variant", default="llvm_ad_mono")
     ap.add_argument("--max-depth", type=int, default=32,
                     help="path depth (render_lab's checks: 32 equals 128 here)")
     ap.add_argument("--no-freeze", action="store_true",
                     help="plain mi.render per configuration (no dr.freeze: about 6x slower)")
+    ap.add_argument("--plate-params", default="alpha,rho",
+                    help="the target's optimized parameters among alpha, rho, ks (default: "
+                         "alpha and diffuse_reflectance; specular_reflectance stays at "
+                         "Mitsuba's default 1, the physical value, which the truth has)")
     ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--start", default="",
+                    help="start values other than the defaults, e.g. alpha=0.2,rho=0.2,ks=1")
     ap.add_argument("--veil-runs", type=int, default=1)
     ap.add_argument("--json", default=None)
     ap.add_argument("--quiet", action="store_true")
