@@ -403,12 +403,16 @@ def run_ir(truth: dict, medium: str, target: str, row: str, a, log) -> dict:
 
 
 def _store_entries() -> int:
-    from veil._jax import cache_directory
+    """Compiled programs in veil's program store (veil.engine.programs, VEIL_CACHE_DIR)."""
+    from veil.engine.programs import SUFFIX, directory
 
-    d = cache_directory()
+    d = directory()
     if not d or not os.path.isdir(d):
         return 0
-    return sum(1 for e in os.listdir(d) if e.endswith("-cache"))
+    return sum(1 for e in os.listdir(d) if e.endswith(SUFFIX))
+
+
+_VEIL_RUNS = [0]
 
 
 def run_veil(truth: dict, medium: str, target: str, runs: int, log, lean: bool = False
@@ -433,9 +437,11 @@ def run_veil(truth: dict, medium: str, target: str, runs: int, log, lean: bool =
                                outdir=os.path.join(tmp, "fit"), figures=False, **kw)
             wall, cpu = time.perf_counter() - w0, time.process_time() - c0
         rms = bv._against_truth(names, res.target.as_model())[4]
-        state = ("first run in the process, program store "
-                 + (f"warm ({entries} entries)" if entries else "cold (empty)")) if k == 0 \
-            else "warm (same process)"
+        state = ("first pipeline in the process, program store "
+                 + (f"warm ({entries} programs)" if entries else "cold (empty)")
+                 if _VEIL_RUNS[0] == 0 else
+                 f"warm: after {_VEIL_RUNS[0]} pipeline(s) in this process")
+        _VEIL_RUNS[0] += 1
         med = res.medium.params
         out.append({"row": label + ("" if k == 0 else f" (run {k + 1})"), "medium": medium,
                     "target": target, "wall": wall, "cpu": cpu, "rms": rms,
