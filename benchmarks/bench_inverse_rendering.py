@@ -85,9 +85,9 @@ MISSING_LLVM = ("bench_inverse_rendering: Mitsuba's LLVM variant {variant!r} can
                 "apt-get install -y libllvm19\nand, if it lives elsewhere, set "
                 "DRJIT_LIBLLVM_PATH to its libLLVM.so (default {path}).")
 
-#: The plate's optimized parameters: Mitsuba key -> (latent transform, start). Starts are
-#: Mitsuba's own defaults of roughplastic (alpha 0.1, diffuse 0.5, specular 1): what a user
-#: gets without a guess. Latents are logs (positive parameters; Adam steps are relative).
+#: The plate's parameters (name -> Mitsuba key) and their starts: Mitsuba's own defaults of
+#: roughplastic (alpha 0.1, diffuse 0.5, specular 1), what a user gets without a guess.
+#: Latents are logs (positive parameters; Adam's steps are relative).
 PLATE_KEYS = {"alpha": "plate.bsdf.alpha",
               "rho": "plate.bsdf.diffuse_reflectance.value",
               "ks": "plate.bsdf.specular_reflectance.value"}
