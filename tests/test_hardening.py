@@ -495,7 +495,7 @@ def test_overflow_is_a_clear_input_error_and_json_is_always_json():
     r = invoke(["eval", "--brdf", "BRDF1", "--medium", "0.001,0.13,-0.999999999,1.3",
                 "--theta-i", "89.9999999", "--theta-r", "89.9999999", "--json"])
     assert r.exit_code == 0, r.output
-    obj = json.loads(r.output, parse_constant=lambda c: pytest.fail(f"{c} in JSON"))
+    obj = json.loads(r.stdout, parse_constant=lambda c: pytest.fail(f"{c} in JSON"))
     assert all(np.isfinite(obj[k][0]) for k in ("apparent", "clear", "error"))
 
 

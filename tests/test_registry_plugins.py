@@ -54,7 +54,7 @@ def test_eval_with_test_models_matches_the_api():
                 "--brdf", "0.6", "--medium", "2e-3,0.2,150", "--theta-i", "30",
                 "--theta-r", "40", "--json"])
     assert r.exit_code == 0, r.output
-    got = json.loads(r.output)
+    got = json.loads(r.stdout)
     assert got["brdf"]["model"] == "lambertian-test" and got["medium"]["model"] == "fisher-test"
     want = veil.apparent(LAMBERT, FISHER, 30.0, 40.0)
     assert got["apparent"][0] == pytest.approx(float(want), rel=1e-12)
