@@ -14,6 +14,7 @@ from ..data.protocol import protocol
 from ..engine.apparent import reflectance
 from ..errors import InputError
 from ..fitting import fit_direct
+from ..fitting.data import MAGNITUDE
 from ..models import BRDF, Model, model_class
 
 #: Relative angles (deg) of the in-plane configurations a closest fit compares: the paper's
@@ -56,6 +57,14 @@ def closest(source: Model, family: str, options: dict | None = None) -> Closest:
     table = configurations()
     angles = [table[c].to_numpy() for c in ("theta_i", "theta_r", "phi_i", "phi_r")]
     values = reflectance(source, *angles)
+    lo, hi = MAGNITUDE
+    if np.all(np.isfinite(values)) and not lo <= float(np.max(np.abs(values))) <= hi:
+        params = dict(zip(source.param_names(), source.to_vector()))
+        large = [n for n, v in params.items() if v != 0 and not lo <= abs(v) <= hi]
+        raise InputError(f"{source}: f_r reaches {float(np.max(np.abs(values))):.3g}, outside "
+                         f"the magnitudes a closest fit handles ({lo:g} to {hi:g})"
+                         + (f"; parameter(s) {', '.join(large)}" if large else "")
+                         + ": rescale the data the result was fitted to")
     if not np.all(values > 0):
         raise InputError(f"{source}: f_r is not positive at every configuration, so the "
                          f"relative difference of a closest fit is undefined")
