@@ -23,6 +23,7 @@ class FitData:
     y: np.ndarray
     sigma: np.ndarray | None
     table: pd.DataFrame    # validated, black subtracted
+    black: bool = False    # whether a black-cloth session was subtracted
 
     @property
     def w(self) -> np.ndarray:
@@ -69,7 +70,7 @@ def prepare(table, black=None, what: str = "measurement") -> FitData:
     for column, values in (("value", y), ("sigma", sigma)):
         if values is not None:
             _check_magnitude(values, column, checked)
-    return FitData(angles, y, sigma, checked)
+    return FitData(angles, y, sigma, checked, black is not None)
 
 
 #: Magnitudes a fit handles: beyond, squares and products of values leave float64's range

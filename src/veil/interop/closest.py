@@ -5,6 +5,7 @@ difference; the fit is veil's own (:func:`veil.fitting.fit_direct`) on noise-fre
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -15,6 +16,7 @@ from ..engine.apparent import reflectance
 from ..errors import InputError
 from ..fitting import fit_direct
 from ..fitting.data import MAGNITUDE
+from ..fitting.steps import MisfitWarning
 from ..models import BRDF, Model, model_class
 
 #: Relative angles (deg) of the in-plane configurations a closest fit compares: the paper's
@@ -71,7 +73,9 @@ def closest(source: Model, family: str, options: dict | None = None) -> Closest:
     data = table[["theta_i", "phi_i", "theta_r", "phi_r"]].copy()
     data["value"] = values
     data["sigma"] = RELATIVE_SIGMA * values
-    result = fit_direct(data, brdf_model=cls.NAME, options=dict(options or {}))
+    with warnings.catch_warnings():  # how far the family is from it is said below
+        warnings.simplefilter("ignore", MisfitWarning)
+        result = fit_direct(data, brdf_model=cls.NAME, options=dict(options or {}))
     model = result.as_model()
     fitted = reflectance(model, *angles)
     rel = fitted / values - 1.0
