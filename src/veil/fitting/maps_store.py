@@ -9,8 +9,9 @@ damage and not an empty tile.
 
 One writer at a time: :func:`store_lock` holds a file lock (:mod:`filelock`, the kernel's
 ``flock``) on a hidden file beside the store, ``.NAME.veil-lock``, which names the process
-holding it. The kernel releases the lock of a process that dies, however it dies, so a
-lock left by a killed run is taken over by the next run, which says so.
+holding it (it stays beside the store, empty, and is removed with a store that a failed
+first run did not leave). The kernel releases the lock of a process that dies, however it
+dies, so a lock left by a killed run is taken over by the next run, which says so.
 """
 
 from __future__ import annotations
@@ -151,8 +152,12 @@ def store_lock(store, say=None):
             raise write_error(path, exc) from None
         yield
     finally:
-        with contextlib.suppress(OSError), open(path, "r+", encoding="utf-8") as fh:
-            fh.truncate()
+        with contextlib.suppress(OSError):
+            if os.path.lexists(store):
+                with open(path, "r+", encoding="utf-8") as fh:
+                    fh.truncate()
+            else:  # no store (a failed first run): leave nothing behind
+                os.unlink(path)
         lock.release()
 
 
