@@ -158,6 +158,28 @@ def test_every_command_has_a_case(tmp_path):
     assert {"fit maps", "maps show", "plot lobe", "warmup", "demo"} <= commands
 
 
+def _spy_on_locks(monkeypatch) -> list:
+    """The folders committed under veil.io's commit lock and the maps stores written under
+    their store lock, as they happen."""
+    import veil.fitting.maps_run as maps_run
+    from veil import io as vio
+
+    locked = []
+    commit, store = vio._commit_lock, maps_run.store_lock
+
+    def commit_spy(path):
+        locked.append(Path(path))
+        return commit(path)
+
+    def store_spy(path, say=None):
+        locked.append(Path(path).absolute())
+        return store(path, say)
+
+    monkeypatch.setattr(vio, "_commit_lock", commit_spy)
+    monkeypatch.setattr(maps_run, "store_lock", store_spy)
+    return locked
+
+
 WARMUP_BUG = pytest.mark.xfail(strict=False, reason="issue 33 item 1, fixed on main")
 
 
@@ -173,12 +195,17 @@ def test_command_runs_on_valid_input(name, inputs, tmp_path, request, monkeypatc
 
         monkeypatch.setattr(reproduce_cmd, "reproduce", functools.partial(
             reproduce_cmd.reproduce, size=16, accuracy="fast", check=4, dpi=40, quiet=True))
+    locked = _spy_on_locks(monkeypatch)
     args, outputs = _cases(inputs, tmp_path)[name]
     result = run(*args)
     assert result.exit_code == 0, result.output
     for rel in outputs:
         path = tmp_path / rel
         assert path.exists(), f"{name}: {rel} not written"
+        top = tmp_path / Path(rel).parts[0]
+        if top.is_dir():  # a folder or a store: written under a lock another process
+            # respects (test_hardening2.py runs two writers at once)
+            assert top in locked, f"{name}: {top.name} written without the commit lock"
         if path.is_dir():
             assert any(path.iterdir()), f"{name}: {rel} is empty"
         else:
