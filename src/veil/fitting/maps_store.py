@@ -181,6 +181,38 @@ def _missing_chunks(arr, where: Path, limit: int = 3) -> list:
     return out
 
 
+def _is_int(x, low: int = 0) -> bool:
+    return isinstance(x, int) and not isinstance(x, bool) and x >= low
+
+
+def _attribute_problem(info: dict) -> str | None:
+    """What is wrong with a store's ``veil_maps`` attributes for its readers, or None."""
+    params, free = info.get("params"), info.get("free")
+    if not (isinstance(params, list) and params and all(isinstance(p, str) for p in params)):
+        return "have no list of parameter names ('params')"
+    if not (isinstance(free, list) and all(isinstance(p, str) for p in free)
+            and set(free) <= set(params)):
+        return "have no list of fitted parameters among 'params' ('free')"
+    fixed = info.get("fixed_values")
+    if not (isinstance(fixed, dict) and all(
+            isinstance(fixed.get(p), (int, float)) and not isinstance(fixed.get(p), bool)
+            and math.isfinite(fixed[p]) for p in params if p not in free)):
+        return "have no finite value of each held parameter ('fixed_values')"
+    shape = info.get("shape")
+    if not (isinstance(shape, list) and len(shape) == 2 and all(_is_int(n, 1) for n in shape)):
+        return "have no shape of two pixel counts ('shape')"
+    if not _is_int(info.get("tile"), 1) or not _is_int(info.get("outside_mask", 0)):
+        return "have no tile size ('tile') or count of pixels outside the mask"
+    if not _is_int(info.get("photos"), 1) or not isinstance(info.get("model"), str) or not (
+            isinstance(info.get("medium"), dict) and isinstance(info["medium"].get("model"),
+                                                                str)):
+        return "do not name the photos' count, the model and the medium"
+    if not isinstance(info.get("units", {}), dict) or not isinstance(
+            info.get("geometry") or {}, dict):
+        return "have units or a geometry that are not records"
+    return None
+
+
 def check_store(store, info: dict, complete: bool) -> None:
     """Raise :class:`DamagedStoreError` (naming the part) when the store's arrays, chunks or
     markers disagree: an array whose metadata cannot be read or whose shape is not the
@@ -194,11 +226,10 @@ def check_store(store, info: dict, complete: bool) -> None:
         return DamagedStoreError(f"{store} is damaged: {part}; it cannot be read or resumed "
                                  f"- remove it and run 'veil fit maps' again")
 
-    try:
-        shape, tile = tuple(info["shape"]), int(info["tile"])
-        names = list(info["params"])
-    except (KeyError, TypeError, ValueError):
-        raise damaged("its attributes (zarr.json) lack the shape, tile or parameters") from None
+    wrong = _attribute_problem(info)
+    if wrong:
+        raise damaged(f"its attributes (zarr.json, veil_maps) {wrong}")
+    shape, tile, names = tuple(info["shape"]), info["tile"], list(info["params"])
     for name in MAPS:
         try:
             arr = zarr.open_array(os.fspath(store / name), mode="r")
