@@ -244,7 +244,8 @@ def test_a_failing_write_replaces_none_of_a_commands_files(tmp_path, monkeypatch
 
 @pytest.fixture
 def full_disk(tmp_path):
-    """A 256 kB tmpfs filled to its last few kB (needs root and mount)."""
+    """A 256 kB tmpfs filled but for one page (needs root and mount): room for a lock
+    file's note or a tiny PNG, not for a table, a result or a store."""
     disk = tmp_path / "disk"
     disk.mkdir()
     if os.geteuid() != 0 or shutil.which("mount") is None or subprocess.run(
@@ -252,26 +253,40 @@ def full_disk(tmp_path):
             capture_output=True).returncode != 0:
         pytest.skip("cannot mount a small tmpfs (needs root)")
     try:
-        with open(disk / "filler", "wb") as fh:
+        with open(disk / "filler", "wb", buffering=0) as fh:
             try:
-                fh.write(b"x" * (256 * 1024 - 8 * 1024))
+                while True:
+                    fh.write(b"x" * 4096)
             except OSError:
                 pass
+        os.truncate(disk / "filler", (disk / "filler").stat().st_size - 4096)
         yield disk
     finally:
         subprocess.run(["umount", str(disk)], check=False)
 
 
 def test_full_disk_is_status_2_naming_the_path_with_nothing_left(full_disk, table, stack):
+    """The issue's case: each command's write fails with ENOSPC; status 2 names the path,
+    nothing is left. With no page free: simulate (two files) and a fit; with one: render
+    (its PNG would fit, its .npy not: neither is written) and fit maps (the lock's note fits,
+    the store not: removed)."""
     before = sorted(os.listdir(full_disk))
+    pad = full_disk / "pad"
+    try:
+        pad.write_bytes(b"x" * 4096)
+    except OSError:
+        pass
     sim = run("simulate", "--brdf", "BRDF1", "--medium", "none", "--fine-step", 1, "-o",
               full_disk / "sim.csv", "--black", full_disk / "black.csv")
     assert sim.exit_code == 2, sim.output
     assert "No space left on device" in sim.output and str(full_disk) in sim.output
     fit = run("fit", "reference", table[0], "-o", full_disk / "ref.json")
-    assert fit.exit_code == 0 or "No space left on device" in fit.output, fit.output
-    if fit.exit_code == 0:
-        (full_disk / "ref.json").unlink()
+    assert fit.exit_code == 2, fit.output
+    assert f"cannot write {full_disk / 'ref.json'}: No space left on device" in fit.output
+    pad.unlink()
+    render = run("render", "--brdf", "BRDF1", "--size", 16, "--check", 4, "--quiet",
+                 "--linear", full_disk / "s.npy", "-o", full_disk / "s.png")
+    assert render.exit_code == 2 and "No space left on device" in render.output, render.output
     maps = run(*maps_args(stack, full_disk / "maps.zarr"))
     assert maps.exit_code == 2, maps.output
     assert f"cannot write {full_disk / 'maps.zarr'}: No space left on device" in maps.output
@@ -345,11 +360,18 @@ def test_a_huge_reduced_chi_square_warns_and_points_to_the_black_cloth(table, tm
 # --------------------------------------------------------------------------------------
 # item 9: a result of the wrong kind
 # --------------------------------------------------------------------------------------
-def test_diagnose_names_the_option_and_the_file_of_a_wrong_kind(table):
+def test_diagnose_names_the_option_and_the_file_of_a_wrong_kind(table, tmp_path):
+    """The issue's `veil diagnose target.json --medium target.json` (a step-2 result stands
+    in: the reference fit relabelled)."""
     csv, result = table
-    out = run("diagnose", result, "--data", csv, "--medium", result)
+    doc = json.loads(result.read_text())
+    doc["step"] = "target"
+    target = tmp_path / "target.json"
+    target.write_text(json.dumps(doc))
+    out = run("diagnose", target, "--data", csv, "--medium", target)
     assert out.exit_code == 2, out.output
-    assert f"--medium {result}: the file is a torrance-sparrow (brdf) fit result" in out.output
+    assert (f"--medium {target}: the file is a torrance-sparrow (brdf) fit result of step "
+            f"target; --medium takes the medium's fit result") in out.output
 
 
 # --------------------------------------------------------------------------------------

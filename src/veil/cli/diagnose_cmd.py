@@ -28,7 +28,8 @@ def _load_other(text, kind, result, models):
     if os.path.exists(text) or text.lower().endswith(".json"):
         other = load_result(text)  # diagnose checks that it fits the result's step
         got = getattr(other, "kind", None) if not hasattr(other, "layout") else "joint"
-        if got != kind:
+        takes = {"medium": "target", "brdf": "medium"}[kind]  # the step that takes option
+        if got != kind and getattr(result, "step", None) == takes:
             what = ("a joint fit result" if got == "joint" else
                     f"a {other.model} ({got}) fit result of step {other.step}")
             wanted = ("the medium's fit result (step 1, a medium model)" if kind == "medium"
