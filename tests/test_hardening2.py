@@ -378,7 +378,8 @@ def test_diagnose_names_the_option_and_the_file_of_a_wrong_kind(table, tmp_path)
 # item 10: a signal after every output is in place
 # --------------------------------------------------------------------------------------
 LATE = """
-    import os, sys, time
+    import os, signal, sys, time
+    signal.signal(signal.SIGINT, signal.SIG_DFL)  # a test runner's worker may ignore it
     mark = sys.argv[1]
     class Finalized:  # runs in Python's shutdown, if the process gets there
         def __del__(self, open=open, sleep=time.sleep):
@@ -466,3 +467,38 @@ def test_two_processes_writing_one_folder_leave_one_whole_result(tmp_path, exist
         go.unlink()
     if exists:
         assert (target / "mine.txt").read_text() == "user's"
+
+
+# --------------------------------------------------------------------------------------
+# item 7, as the issue saw it: Ctrl-C while a real `veil fit maps` stages its photos
+# --------------------------------------------------------------------------------------
+def test_ctrl_c_while_staging_leaves_no_store(tmp_path):
+    """48 photos of 160 x 160 pixels take a second or more to stage; the store's zarr.json
+    appears when staging starts (after the tables). SIGINT then: status 130, "nothing was
+    written", and no store (it said so before, and left a partial store)."""
+    from maps_helpers import write_photos
+
+    configs = configurations(48)
+    rng = np.random.default_rng(0)
+    manifest = write_photos(tmp_path / "photos", configs,
+                            rng.uniform(1, 2, (160 * 160, len(configs))), (160, 160), 0.0)
+    out = tmp_path / "maps.zarr"
+    # the default SIGINT disposition restored in the child (a test runner may start its
+    # workers with SIGINT ignored), without a fork hook in this JAX-threaded process
+    launch = ("import os, signal, sys; signal.signal(signal.SIGINT, signal.SIG_DFL); "
+              "os.execv(sys.executable, [sys.executable, '-m', 'veil.cli', *sys.argv[1:]])")
+    args = [sys.executable, "-c", launch, *map(str, maps_args(
+        (tmp_path / "photos", manifest), out))]
+    proc = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env=ENV, cwd=tmp_path)
+    deadline = time.monotonic() + 120
+    while not (out / "zarr.json").exists():
+        assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()
+        time.sleep(0.01)
+    staged = (out / ".veil" / "staged").exists()
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    assert not staged, "staging ended before the signal: make the photos larger"
+    assert proc.returncode == 130, err
+    assert "veil: interrupted (Ctrl-C); nothing was written." in err
+    assert sorted(os.listdir(tmp_path)) == ["photos"]  # no store, no lock file

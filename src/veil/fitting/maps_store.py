@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError, MissingFileError, UnwritableError
-from ..io import write_error
+from ..io import forget_temporary, register_temporary, write_error
 from .maps import CONVERGED, MASKED, STATUS, MapTables
 
 FORMAT = "veil.maps/1"
@@ -138,6 +138,8 @@ def store_lock(store, say=None):
     except OSError as exc:
         raise UnwritableError(f"cannot lock {store}: cannot write {path} "
                               f"({exc.strerror or exc})") from None
+    # an interrupted command line removes it (with a store it removes, nothing is left)
+    register_temporary(path, "file")
     try:
         stale = _holder(path)
         if stale and stale.get("pid") != os.getpid() and say is not None:
@@ -158,6 +160,7 @@ def store_lock(store, say=None):
                     fh.truncate()
             else:  # no store (a failed first run): leave nothing behind
                 os.unlink(path)
+        forget_temporary(path)
         lock.release()
 
 
