@@ -135,10 +135,11 @@ def _discard(temps) -> None:
 
 def write_many_atomic(files: dict) -> None:
     """Write several files ({path: bytes}) together: every one to a synced temporary file
-    first, then all renamed into place at once (under :data:`COMMIT`). If any cannot be
-    written (no space left, a read-only folder), none is replaced, the temporaries are
-    removed and an :class:`veil.errors.UnwritableError` names the path: a command never
-    leaves some of its outputs new and others old."""
+    first, then all renamed into place at once (under :data:`COMMIT`; renames within a
+    folder need no space). If any cannot be written (no space left, a read-only folder),
+    none is replaced, the temporaries are removed and an
+    :class:`veil.errors.UnwritableError` names the path: a command never leaves some of its
+    outputs new and others old."""
     paths = [os.fspath(p) for p in files]
     temps = []
     try:
