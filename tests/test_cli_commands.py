@@ -188,13 +188,17 @@ WARMUP_BUG = pytest.mark.xfail(strict=False, reason="issue 33 item 1, fixed on m
 def test_command_runs_on_valid_input(name, inputs, tmp_path, request, monkeypatch):
     if name == "warmup":
         request.applymarker(WARMUP_BUG)
-    if name == "demo":  # its first half is `veil reproduce` at full size: run it small here
+    if name == "demo":  # `veil reproduce` at full size, then the paper's protocol fitted:
+        # both smaller here (each is run as it is by its own case)
         import functools
 
         import veil.cli.reproduce_cmd as reproduce_cmd
+        import veil.data.simulate as simulate
 
         monkeypatch.setattr(reproduce_cmd, "reproduce", functools.partial(
             reproduce_cmd.reproduce, size=16, accuracy="fast", check=4, dpi=40, quiet=True))
+        monkeypatch.setattr(simulate, "simulate", functools.partial(
+            simulate.simulate, fine_step=5.0, coarse_step=15.0))
     locked = _spy_on_locks(monkeypatch)
     args, outputs = _cases(inputs, tmp_path)[name]
     result = run(*args)

@@ -396,5 +396,5 @@ def abandon() -> str:
 
 
 __all__ = ["write_bytes_atomic", "write_text_atomic", "write_many_atomic", "write_error",
-           "output_folder", "check_output_folder", "COMMIT", "written", "abandon", "register_temporary", "forget_temporary",
-           "register_partial", "forget_partial"]
+           "output_folder", "check_output_folder", "COMMIT", "written", "abandon",
+           "register_temporary", "forget_temporary", "register_partial", "forget_partial"]

@@ -154,7 +154,8 @@ def _step(step: str, data: FitData, fitted: Model, given: Model | None, given_re
         note = describe(rep.propagation,
                         f"the {given_result.step or 'given'} fit's covariance")
         message += f"; {note}" if note else ""
-    warn_misfit(summary.chi2_reduced, data, what)
+    if summary.converged:  # one that did not converge says so (exit status 1)
+        warn_misfit(summary.chi2_reduced, data, what)
     return FitResult(model=cls.NAME,
                      params={own[k]: float(x[problem.index(k)]) for k in cls.keys()},
                      stderr=rep.stderr, correlation=rep.correlation,
@@ -183,8 +184,9 @@ class MisfitWarning(UserWarning):
 
 def warn_misfit(chi2_reduced: float, data: FitData, what: str) -> None:
     """Warn (:class:`MisfitWarning`) when a weighted fit's reduced chi-square exceeds
-    :data:`MISFIT_CHI2`, pointing to the black cloth: glow left in the data (no black
-    session subtracted) or a wrong one is the usual cause; negative values say so."""
+    :data:`MISFIT_CHI2` (called for converged fits), pointing to the black cloth: glow left
+    in the data (no black session subtracted) or a wrong one is the usual cause; negative
+    values say so."""
     if data.sigma is None or not chi2_reduced > MISFIT_CHI2:
         return
     negative = int(np.count_nonzero(data.y < 0))
