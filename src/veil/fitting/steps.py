@@ -318,5 +318,7 @@ def model_values(result_or_model, other, angles, accuracy: str = "default") -> n
     return engine.values(brdf.to_vector(), medium.to_vector())
 
 
-__all__ = ["MisfitWarning", "MISFIT_CHI2", "fit_reference", "fit_direct", "fit_medium", "fit_target", "model_values",
+__all__ = ["fit_reference", "fit_direct", "fit_medium", "fit_target", "model_values",
            "STARTS", "ROLE"]
+
+__all__ += ["MisfitWarning", "MISFIT_CHI2", "warn_misfit"]
