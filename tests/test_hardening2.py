@@ -191,7 +191,7 @@ def test_a_corrupt_photo_leaves_no_store(stack, tmp_path):
     assert sorted(os.listdir(tmp_path)) == ["photos"]  # no store, no lock file
 
 
-def test_interrupted_while_staging_leaves_no_store_and_after_staging_a_resumable_one(
+def test_interrupted_while_staging_leaves_no_store_and_a_kept_partial_store_is_named(
         stack, tmp_path, monkeypatch):
     import veil.fitting.maps_run as mr
 
