@@ -18,6 +18,8 @@ takes first: an interrupt lands before a commit or after it, never inside one.
 from __future__ import annotations
 
 import contextlib
+import errno
+import hashlib
 import os
 import shutil
 import tempfile
@@ -33,6 +35,9 @@ COMMIT = threading.RLock()
 _temporaries: dict[str, str] = {}   # path -> "file" | "folder", removed on interrupt
 _folders: dict[str, bool] = {}      # output folders being written -> whether one existed
 _written: list[str] = []            # complete outputs of this process, in order
+_partial: dict[str, str] = {}       # resumable outputs kept on interrupt -> what to say
+#: Longest wait (s) for another process's commit of the same output folder.
+COMMIT_LOCK_WAIT = 60.0
 _STAGING = ".veil-partial-"
 _BACKUP = ".veil-replaced-"
 
@@ -52,6 +57,16 @@ def _unwritable(path: str, exc: OSError) -> UnwritableError:
                            f"({reason})")
 
 
+def write_error(path, exc: OSError) -> UnwritableError:
+    """The error of an output ``path`` that could not be written for a reason of the system
+    (no space left on the device, a quota, an I/O error, a read-only filesystem): an
+    :class:`veil.errors.UnwritableError` (exit status 2) naming the path and the reason."""
+    code = errno.errorcode.get(exc.errno or 0, "")
+    reason = exc.strerror or str(exc) or type(exc).__name__
+    return UnwritableError(f"cannot write {os.fspath(path)}: {reason}"
+                           + (f" ({code})" if code else "") + "; nothing was written there")
+
+
 def _record(path: str) -> None:
     with COMMIT:
         path = os.path.abspath(path)
@@ -67,9 +82,16 @@ def write_bytes_atomic(path, data: bytes) -> None:
     atomic), is synced before the rename and removed if anything fails or the process is
     interrupted. A replaced file keeps its permission bits; a new file gets 0666 minus the
     umask. Raises :class:`veil.errors.UnwritableError` when the directory cannot be written
-    and :class:`veil.errors.NotAFileError` when ``path`` is a directory.
+    or the write fails (no space left on the device, any error of the operating system;
+    the target is then as it was) and :class:`veil.errors.NotAFileError` when ``path`` is a
+    directory.
     """
-    path = os.fspath(path)
+    write_many_atomic({path: data})
+
+
+def _temporary(path: str, data: bytes) -> str:
+    """A synced temporary file beside ``path`` holding ``data`` with the mode ``path`` will
+    have (registered; removed again if anything fails)."""
     if os.path.isdir(path):
         raise NotAFileError(f"cannot write {path}: it is a directory")
     directory = os.path.dirname(os.path.abspath(path))
@@ -82,7 +104,9 @@ def write_bytes_atomic(path, data: bytes) -> None:
             fd, tmp = tempfile.mkstemp(dir=directory, prefix=f".{os.path.basename(path)}.",
                                        suffix=".tmp")
         except OSError as exc:
-            raise _unwritable(path, exc) from None
+            if exc.errno in (errno.EACCES, errno.EPERM, errno.ENOENT, errno.ENOTDIR):
+                raise _unwritable(path, exc) from None
+            raise write_error(path, exc) from None
         _temporaries[tmp] = "file"
     try:
         with os.fdopen(fd, "wb") as fh:
@@ -90,17 +114,48 @@ def write_bytes_atomic(path, data: bytes) -> None:
             fh.flush()
             os.fsync(fh.fileno())
         os.chmod(tmp, mode)
-        with COMMIT:
-            os.replace(tmp, path)
+    except BaseException as exc:
+        _discard([tmp])
+        if isinstance(exc, OSError) and not isinstance(exc, UnwritableError):
+            raise write_error(path, exc) from None
+        raise
+    return tmp
+
+
+def _discard(temps) -> None:
+    # under COMMIT: an interrupt being handled (it holds COMMIT until the process exits,
+    # having removed the temporaries and the partial folder) ends the process with its
+    # status here, not an error of the write it pulled the folder from under
+    with COMMIT:
+        for tmp in temps:
+            with contextlib.suppress(OSError):
+                os.unlink(tmp)
             _temporaries.pop(tmp, None)
-            _record(path)
+
+
+def write_many_atomic(files: dict) -> None:
+    """Write several files ({path: bytes}) together: every one to a synced temporary file
+    first, then all renamed into place at once (under :data:`COMMIT`; renames within a
+    folder need no space). If any cannot be written (no space left, a read-only folder),
+    none is replaced, the temporaries are removed and an
+    :class:`veil.errors.UnwritableError` names the path: a command never leaves some of its
+    outputs new and others old."""
+    paths = [os.fspath(p) for p in files]
+    temps = []
+    try:
+        for path, data in zip(paths, files.values()):
+            temps.append(_temporary(path, data))
+        with COMMIT:
+            for k, (path, tmp) in enumerate(zip(paths, temps)):
+                try:
+                    os.replace(tmp, path)
+                except OSError as exc:
+                    raise write_error(path, exc) from None
+                _temporaries.pop(tmp, None)
+                temps[k] = None
+                _record(path)
     except BaseException:
-        # under COMMIT: an interrupt being handled (it holds COMMIT until the process exits,
-        # having removed the temporaries and the partial folder) ends the process with its
-        # status here, not an error of the write it pulled the folder from under
-        with COMMIT, contextlib.suppress(OSError):
-            os.unlink(tmp)
-        _temporaries.pop(tmp, None)
+        _discard([t for t in temps if t is not None])
         raise
 
 
@@ -182,6 +237,47 @@ def _merge(staging: str, path: str, owned) -> str:
 
 
 @contextlib.contextmanager
+def _commit_lock(path: str):
+    """Held while a folder is moved into place, so that two processes writing the same
+    folder at once commit one after the other (the last one's files win, whole) instead of
+    interleaving their entries. A file lock (:mod:`filelock`) in the temporary directory,
+    named after the folder's path: nothing is added beside or inside the folder."""
+    from filelock import FileLock, Timeout
+
+    where = os.path.join(tempfile.gettempdir(), "veil-locks")
+    try:
+        os.makedirs(where, exist_ok=True)
+        lock = FileLock(os.path.join(where, hashlib.sha256(path.encode()).hexdigest()[:32]
+                                     + ".lock"), timeout=COMMIT_LOCK_WAIT)
+        lock.acquire()
+    except Timeout:
+        raise UnwritableError(f"cannot write {path}: another process has been moving its "
+                              f"files into it for {COMMIT_LOCK_WAIT:g} s") from None
+    except OSError:  # no usable temporary directory: commit unlocked, as before
+        yield
+        return
+    try:
+        yield
+    finally:
+        lock.release()
+
+
+def _commit(staging: str, path: str, owned):
+    """Move ``staging`` into place as ``path`` (renamed whole when ``path`` does not exist,
+    merged entry by entry otherwise); returns the folder of replaced entries, or None."""
+    if not os.path.isdir(path):
+        try:
+            os.rename(staging, path)
+            return None
+        except OSError as exc:  # another process's folder appeared meanwhile: merge
+            if exc.errno not in (errno.ENOTEMPTY, errno.EEXIST) or not os.path.isdir(path):
+                raise
+    backup = _merge(staging, path, owned)
+    os.rmdir(staging)
+    return backup
+
+
+@contextlib.contextmanager
 def output_folder(path, owned=None):
     """Write a folder of outputs as one transaction; yields the folder to write into.
 
@@ -204,13 +300,8 @@ def output_folder(path, owned=None):
     _folders[path] = existed if outer is None else outer
     try:
         yield Path(staging)
-        with COMMIT:
-            if not os.path.isdir(path):
-                os.rename(staging, path)
-                backup = None
-            else:  # the folder exists (or appeared meanwhile): entry by entry
-                backup = _merge(staging, path, owned)
-                os.rmdir(staging)
+        with COMMIT, _commit_lock(path):
+            backup = _commit(staging, path, owned)
             _temporaries.pop(staging, None)
             if backup is not None:
                 _temporaries[backup] = "folder"
@@ -240,6 +331,19 @@ def forget_temporary(path) -> None:
     """Undo :func:`register_temporary`."""
     with COMMIT:
         _temporaries.pop(os.path.abspath(os.fspath(path)), None)
+
+
+def register_partial(path, note: str) -> None:
+    """Say, if the command line is interrupted, that ``path`` is kept partial and ``note``
+    (what it is and how to finish it: a maps store resumes)."""
+    with COMMIT:
+        _partial[os.path.abspath(os.fspath(path))] = note
+
+
+def forget_partial(path) -> None:
+    """Undo :func:`register_partial`."""
+    with COMMIT:
+        _partial.pop(os.path.abspath(os.fspath(path)), None)
 
 
 def written() -> list[str]:
@@ -280,8 +384,9 @@ def abandon() -> str:
         names = [show(p) for p in done]
         more = f" and {len(names) - 4} more" if len(names) > 5 else ""
         parts.append("complete: " + ", ".join(names[:4] if more else names) + more)
-    else:
+    elif not _partial:
         parts.append("nothing was written")
+    parts += [f"{show(p)} is {note}" for p, note in _partial.items() if os.path.isdir(p)]
     kept = [p for p in kept if not any(p == d or p.startswith(d + os.sep) for d in done)]
     if kept:
         parts.append(", ".join(show(p) for p in kept)
@@ -290,5 +395,6 @@ def abandon() -> str:
     return "; ".join(parts)
 
 
-__all__ = ["write_bytes_atomic", "write_text_atomic", "output_folder", "check_output_folder",
-           "COMMIT", "written", "abandon", "register_temporary", "forget_temporary"]
+__all__ = ["write_bytes_atomic", "write_text_atomic", "write_many_atomic", "write_error",
+           "output_folder", "check_output_folder", "COMMIT", "written", "abandon",
+           "register_temporary", "forget_temporary", "register_partial", "forget_partial"]

@@ -38,12 +38,19 @@ COMMANDS = {
 
 class CommandLine(VeilGroup):
     """:class:`VeilGroup` that, run as the ``veil`` program (arguments from ``sys.argv``),
-    first installs the Ctrl-C / SIGTERM handling of :mod:`veil.cli.interrupts`. Tests that
-    call ``main.main([...])`` or click's CliRunner pass the arguments and get none of it."""
+    first installs the Ctrl-C / SIGTERM handling of :mod:`veil.cli.interrupts` and ends the
+    process through :func:`veil.cli.interrupts.finish` (no window at the end in which a
+    signal goes unanswered). Tests that call ``main.main([...])`` or click's CliRunner pass
+    the arguments and get none of it."""
 
     def main(self, args=None, *more, **options):
         if args is None:
             interrupts.install()
+            try:
+                super().main(args, *more, **options)
+            except SystemExit as done:
+                interrupts.finish(done.code)
+            interrupts.finish(0)
         return super().main(args, *more, **options)
 
 

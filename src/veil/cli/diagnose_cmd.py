@@ -26,7 +26,17 @@ def _load_other(text, kind, result, models):
 
     option = "--medium" if kind == "medium" else "--reference"
     if os.path.exists(text) or text.lower().endswith(".json"):
-        return load_result(text)  # diagnose checks that it fits the result's step
+        other = load_result(text)  # diagnose checks that it fits the result's step
+        got = getattr(other, "kind", None) if not hasattr(other, "layout") else "joint"
+        takes = {"medium": "target", "brdf": "medium"}[kind]  # the step that takes option
+        if got != kind and getattr(result, "step", None) == takes:
+            what = ("a joint fit result" if got == "joint" else
+                    f"a {other.model} ({got}) fit result of step {other.step}")
+            wanted = ("the medium's fit result (step 1, a medium model)" if kind == "medium"
+                      else "the reference's fit result (step 0, a BRDF)")
+            raise UserError(f"{option} {text}: the file is {what}; {option} takes {wanted}, "
+                            f"or a model")
+        return other
     given = result.given_model() if result.given else None
     if given is not None and given.KIND == kind:
         models = ModelChoice(type(given) if kind == "brdf" else models.brdf,

@@ -28,6 +28,7 @@ up by :mod:`veil._jax` handles the two signals (nothing has been written by then
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import threading
@@ -87,6 +88,37 @@ def _watch(read_end: int, handled: frozenset) -> None:
                 _stop(signal.Signals(signum))
 
 
+def finish(code) -> None:
+    """End the process with the exit status ``code`` (as :class:`SystemExit` takes it) once
+    the command is done: flush the output, run the :mod:`atexit` functions while the
+    watchdog still answers signals, then :func:`os._exit`. Python's own shutdown (module
+    teardown, the engine's destructors: a few hundred ms) runs with signal handling
+    already gone, so a Ctrl-C there would end the process without a word; after this
+    there is no such window: a signal that arrives once every output is in place is
+    answered like any other ("complete: ..."), with status 130 or 143. Never returns."""
+    import atexit
+    import sys
+
+    if code is None:
+        status = 0
+    elif isinstance(code, int):
+        status = code
+    else:  # sys.exit("message"): printed, status 1, as Python does
+        with contextlib.suppress(Exception):
+            print(code, file=sys.stderr)
+        status = 1
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(Exception):
+            stream.flush()
+    with contextlib.suppress(Exception):
+        atexit._run_exitfuncs()
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(Exception):
+            stream.flush()
+    with _io.COMMIT:  # not while an interrupt is being handled: that one ends the process
+        os._exit(status & 0xFF)
+
+
 def message(signum, left: str) -> str:
     """The one line printed on exit."""
     return f"veil: {WHAT.get(signum, f'stopped by signal {int(signum)}')}; {left}."
@@ -112,4 +144,4 @@ def _stop(signum) -> None:
     os._exit(EXIT_STATUS.get(signum, 128 + int(signum)))
 
 
-__all__ = ["install", "installed", "message", "EXIT_STATUS"]
+__all__ = ["install", "installed", "finish", "message", "EXIT_STATUS"]

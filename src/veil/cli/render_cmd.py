@@ -58,7 +58,7 @@ def render_command(brdf, medium, light_theta, light_phi, size, exposure, tone, s
     the medium. Prints the exposure used, how many pixels clip and the measured
     interpolation error.
     """
-    from ..io import write_bytes_atomic
+    from ..io import write_many_atomic
     from ..viz.render import auto_exposure, check_memory, clipping, png_bytes, render, tone_map
 
     b = models.brdf_model(brdf)
@@ -82,11 +82,12 @@ def render_command(brdf, medium, light_theta, light_phi, size, exposure, tone, s
             "veil:light": f"theta {light_theta:g} deg, phi {light_phi:g} deg",
             "veil:pixel": "f(I,R) cos(theta_i), linear, then exposure, tone curve, sRGB",
             "veil:exposure": f"{exp_used:.6g}", "veil:tone": tone}
-    write_bytes_atomic(output, png_bytes(tone_map(result.image, exp_used, tone), text))
+    files = {output: png_bytes(tone_map(result.image, exp_used, tone), text)}
     if linear_path is not None:
         buf = io.BytesIO()
         np.save(buf, result.image.astype(np.float32))
-        write_bytes_atomic(linear_path, buf.getvalue())
+        files[linear_path] = buf.getvalue()
+    write_many_atomic(files)  # both files or neither
 
     click.echo(result.summary())
     click.echo(f"exposure {exp_used:.6g} ({'automatic: median lit pixel -> 0.18' if auto else 'given'}),"

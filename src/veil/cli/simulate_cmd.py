@@ -115,7 +115,8 @@ def simulate_command(brdf, medium, output, black_path, psi, noise, seed, glow, f
     for path in (output, black_path):
         if path is not None:
             check_output_path(path)
-    from ..data.measurements import save_measurements, to_form
+    from ..data.measurements import measurements_text, to_form
+    from ..io import write_many_atomic
     from ..data.protocol import protocol
     from ..data.simulate import simulate
 
@@ -139,8 +140,9 @@ def simulate_command(brdf, medium, output, black_path, psi, noise, seed, glow, f
                           accuracy=accuracy,
                           progress=lambda done, total: bar.update(task, completed=done))
     table, cloth = result if black_path is not None else (result, None)
-    save_measurements(to_form(table, form), output)
+    files = {output: measurements_text(to_form(table, form)).encode("utf-8")}
     if cloth is not None:
-        save_measurements(to_form(cloth, form), black_path)
+        files[black_path] = measurements_text(to_form(cloth, form)).encode("utf-8")
+    write_many_atomic(files)  # both files or neither
     click.echo(f"wrote {len(table)} configurations to {output}"
                + (f" and the black cloth to {black_path}" if cloth is not None else ""), err=True)

@@ -523,6 +523,11 @@ def save_measurements(table: pd.DataFrame, path) -> None:
     :func:`load_measurements` returns an equal table (same columns, same order, same
     floats). Rows and columns are written as they are; the index is not written.
     """
+    write_text_atomic(path, measurements_text(table))
+
+
+def measurements_text(table: pd.DataFrame) -> str:
+    """The CSV text :func:`save_measurements` writes (``table`` checked first)."""
     checked, _ = _validated(table)
     frame = table.copy()
     for c in frame.columns:
@@ -530,8 +535,7 @@ def save_measurements(table: pd.DataFrame, path) -> None:
             frame[c] = [repr(float(x)) for x in checked[c].to_numpy()]
         elif pd.api.types.is_float_dtype(frame[c].dtype):
             frame[c] = ["" if math.isnan(x) else repr(float(x)) for x in frame[c].to_numpy(dtype=float)]
-    text = frame.to_csv(index=False, lineterminator="\n")
-    write_text_atomic(path, text)
+    return frame.to_csv(index=False, lineterminator="\n")
 
 
 # --------------------------------------------------------------------------------------
@@ -597,5 +601,5 @@ def subtract_black(table: pd.DataFrame, black: pd.DataFrame, tol: float = 0.05) 
 
 
 __all__ = ["load_measurements", "save_measurements", "canonical_angles", "subtract_black",
-           "validate", "to_form", "MeasurementError",
+           "validate", "to_form", "MeasurementError", "measurements_text",
            "LikelyRadiansWarning", "CANONICAL", "FORMS"]

@@ -31,9 +31,22 @@ def _positive(name: str, value, allow_zero: bool = False) -> float:
     return v
 
 
-def rho_values(psi: float, fine_step: float = 1.0, coarse_step: float = 5.0,
-               window: float = 10.0, limit: float = 85.0) -> np.ndarray:
-    """Ascending rotations rho (deg) of the protocol for one psi (see the module docstring)."""
+#: Most configurations a protocol may have (sessions of the paper's protocol have ~40 per
+#: psi): a larger request is refused up front with the number it would make.
+MAX_CONFIGURATIONS = 100_000
+
+
+def _count(reach: float, fine_step: float, coarse_step: float, window: float) -> float:
+    """How many rotations :func:`rho_values` makes, computed without making them."""
+    n_fine = math.floor(window / fine_step + 1e-9)
+    fine = min(n_fine, max(math.ceil(reach / fine_step) - 1, 0))
+    coarse = max(math.ceil((reach - n_fine * fine_step) / coarse_step) - 1, 0)
+    return 1 + 2 * (fine + coarse)
+
+
+def _checked(psi, fine_step, coarse_step, window, limit) -> tuple:
+    """The protocol's numbers checked: (psi, fine_step, coarse_step, window, reach), reach
+    being the largest |rho| with both |theta| < limit."""
     fine_step = _positive("fine_step", fine_step)
     coarse_step = _positive("coarse_step", coarse_step)
     window = _positive("window", window, allow_zero=True)
@@ -46,7 +59,23 @@ def rho_values(psi: float, fine_step: float = 1.0, coarse_step: float = 5.0,
     if psi / 2 >= limit:
         raise InputError(f"psi = {psi:g} deg gives no configuration with both |theta| < "
                          f"{limit:g} deg (the mirror configuration has theta = psi/2)")
-    reach = limit - psi / 2  # both |theta| < limit  <=>  |rho| < reach
+    return psi, fine_step, coarse_step, window, limit - psi / 2
+
+
+def _check_size(count: float, fine_step: float, coarse_step: float) -> None:
+    if count > MAX_CONFIGURATIONS:
+        raise InputError(f"fine_step = {fine_step:g} deg, coarse_step = {coarse_step:g} deg "
+                         f"would make {count:.3g} configurations; at most "
+                         f"{MAX_CONFIGURATIONS:g} are allowed (the paper's protocol has "
+                         f"about 40 per psi): use larger steps")
+
+
+def rho_values(psi: float, fine_step: float = 1.0, coarse_step: float = 5.0,
+               window: float = 10.0, limit: float = 85.0) -> np.ndarray:
+    """Ascending rotations rho (deg) of the protocol for one psi (see the module docstring)."""
+    psi, fine_step, coarse_step, window, reach = _checked(psi, fine_step, coarse_step,
+                                                          window, limit)
+    _check_size(_count(reach, fine_step, coarse_step, window), fine_step, coarse_step)
     n_fine = int(math.floor(window / fine_step + 1e-9))
     pos = [k * fine_step for k in range(1, n_fine + 1) if k * fine_step < reach]
     last = n_fine * fine_step
@@ -77,6 +106,8 @@ def protocol(psi=PSI, fine_step: float = 1.0, coarse_step: float = 5.0, window: 
         raise InputError("psi is empty: give at least one relative angle (degrees)")
     if len(set(psis)) != len(psis):
         raise InputError(f"psi = {psis}: a relative angle is repeated")
+    checked = [_checked(p, fine_step, coarse_step, window, limit) for p in psis]
+    _check_size(sum(_count(c[4], *c[1:4]) for c in checked), *checked[0][1:3])
     blocks = []
     for p in psis:
         rho = rho_values(p, fine_step, coarse_step, window, limit)
@@ -88,4 +119,4 @@ def protocol(psi=PSI, fine_step: float = 1.0, coarse_step: float = 5.0, window: 
                          "theta_r": tr, "phi_r": pr})
 
 
-__all__ = ["protocol", "rho_values", "PSI"]
+__all__ = ["protocol", "rho_values", "PSI", "MAX_CONFIGURATIONS"]

@@ -23,6 +23,7 @@ class FitData:
     y: np.ndarray
     sigma: np.ndarray | None
     table: pd.DataFrame    # validated, black subtracted
+    black: bool = False    # whether a black-cloth session was subtracted
 
     @property
     def w(self) -> np.ndarray:
@@ -66,7 +67,35 @@ def prepare(table, black=None, what: str = "measurement") -> FitData:
                 f"{rows.many(zero)}, column 'sigma': 0 ({zero.size} row(s)); a zero standard "
                 f"deviation would give the point infinite weight: give every row a positive "
                 f"sigma, or drop the sigma column to fit unweighted")
-    return FitData(angles, y, sigma, checked)
+    for column, values in (("value", y), ("sigma", sigma)):
+        if values is not None:
+            _check_magnitude(values, column, checked)
+    return FitData(angles, y, sigma, checked, black is not None)
+
+
+#: Magnitudes a fit handles: beyond, squares and products of values leave float64's range
+#: (a value of 1e-300 squares to 0; one of 1e200 to infinity).
+MAGNITUDE = (1e-100, 1e100)
+
+
+def _check_magnitude(values: np.ndarray, column: str, table: pd.DataFrame) -> None:
+    """Refuse a column whose values are finite but too large or too small to fit in
+    float64's range (MeasurementError naming the row and column, exit status 2)."""
+    lo, hi = MAGNITUDE
+    size = np.abs(values)
+    rows = RowNames(table)
+    big = np.flatnonzero(size > hi)
+    how = (f"veil fits values of magnitude {lo:g} to {hi:g}: rescale the table (multiply "
+           f"'value' and 'sigma' by one factor; the fitted scale coefficients follow it)")
+    if big.size:
+        k = int(big[np.argmax(size[big])])
+        raise MeasurementError(f"{rows(k)}, column {column!r}: {values[k]:.6g} ({big.size} "
+                               f"row(s) above {hi:g}); {how}")
+    top = float(size.max()) if size.size else 0.0
+    if 0 < top < lo:
+        k = int(np.argmax(size))
+        raise MeasurementError(f"{rows.what}, column {column!r}: the largest magnitude is "
+                               f"{top:.6g} ({rows(k)}), below {lo:g}; {how}")
 
 
 __all__ = ["FitData", "prepare"]

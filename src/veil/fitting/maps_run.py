@@ -19,6 +19,7 @@
 
 from __future__ import annotations
 
+import errno
 import hashlib
 import json
 import math
@@ -37,12 +38,15 @@ from ..data.ingest import (CHANNELS, ROI, IngestWarning, _linear, parse_roi,
                            manifest_photos, read_photo)
 from .._extras import require
 from ..errors import InputError, MissingFileError
-from ..io import write_bytes_atomic, write_text_atomic
-from .maps import (CONVERGED, MASKED, STATUS, MapTables, build_tables, solve_pixels, warm_up)
+from ..io import (COMMIT, forget_partial, forget_temporary, register_partial,
+                  register_temporary, write_bytes_atomic, write_error, write_text_atomic)
+from .maps import STATUS, MapTables, build_tables, solve_pixels, warm_up
 from .maps_near import NearGeometry
+from .maps_store import (FORMAT, MAPS, DamagedStoreError, StoreBusyError, check_store,
+                         create_store, is_complete, marker_dir as _marker_dir, open_maps,
+                         store_info as _store_info, store_lock, summarize_maps,
+                         tile_marker as _tile_marker, tiles as _tiles)
 
-FORMAT = "veil.maps/1"
-MAPS = ("params", "stderr", "chi2_reduced", "n_points", "status")
 DEFAULT_TILE = 128
 SCHEDULER_ENV = "VEIL_DASK_SCHEDULER"
 CONNECT_TIMEOUT = 5.0
@@ -271,57 +275,12 @@ def load_acquisition(photo_dir, manifest, *, roi=None, mask=None, black_photos=N
 # --------------------------------------------------------------------------------------
 # the store
 # --------------------------------------------------------------------------------------
-def _marker_dir(store) -> Path:
-    return Path(store) / ".veil"
-
-
-def _tile_marker(store, iy, ix) -> Path:
-    return _marker_dir(store) / "tiles" / f"{iy}_{ix}"
-
-
-def is_complete(store) -> bool:
-    return (_marker_dir(store) / "complete").is_file()
-
-
-def _store_info(store):
-    """The store's veil attributes, or None when ``store`` is not a veil maps store."""
-    zarr = require("zarr", "a maps store")
-    try:
-        group = zarr.open_group(os.fspath(store), mode="r")
-    except Exception:  # noqa: BLE001 - zarr raises several kinds for a non-store
-        return None
-    info = dict(group.attrs).get("veil_maps")
-    return info if isinstance(info, dict) and info.get("format") == FORMAT else None
-
-
-def _tiles(shape, tile):
-    h, w = shape
-    return [(iy, ix) for iy in range(math.ceil(h / tile)) for ix in range(math.ceil(w / tile))]
-
-
-def _create_store(store, info, tables: MapTables, shape, tile, n_photos):
-    zarr = require("zarr", "a maps store")
-
-    group = zarr.open_group(os.fspath(store), mode="w")
-    n_par = len(tables.names)
-    h, w = shape
-    for name, lead, dtype in (("params", (n_par,), "float64"), ("stderr", (n_par,), "float64"),
-                              ("chi2_reduced", (), "float64"), ("n_points", (), "int32"),
-                              ("status", (), "uint8")):
-        group.create_array(name, shape=lead + (h, w), chunks=lead + (tile, tile), dtype=dtype,
-                           fill_value=MASKED if name == "status" else 0)
-    group.create_array("stack/values", shape=(n_photos, h, w), chunks=(1, tile, tile),
-                       dtype="float32", fill_value=float("nan"))
-    group.attrs["veil_maps"] = info
-    (_marker_dir(store) / "tiles").mkdir(parents=True, exist_ok=True)
-    return group
-
-
 def _stage(store, acq: Acquisition, progress=None):
     """Photos (minus dark frame or black photos) into ``stack/values``, one at a time."""
     zarr = require("zarr", "a maps store")
 
-    arr = zarr.open_array(os.fspath(Path(store) / "stack" / "values"), mode="r+")
+    arr = zarr.open_array(os.fspath(Path(store) / "stack" / "values"), mode="r+"
+                          ).with_config({"write_empty_chunks": True})
     roi = acq.roi
     dark = None
     if acq.dark is not None:
@@ -342,7 +301,9 @@ def _stage(store, acq: Acquisition, progress=None):
             bad = bad | bb
         if acq.mask is not None:
             bad = bad | ~acq.mask
-        arr[k] = np.where(bad, np.nan, values).astype(np.float32)
+        staged = np.where(bad, np.nan, values).astype(np.float32)
+        with COMMIT:  # an interrupt removes a new store between two photos, not within one
+            arr[k] = staged
         if progress is not None:
             progress("staging photos", k + 1, len(acq.paths))
     write_bytes_atomic(_marker_dir(store) / "staged", b"staged\n")
@@ -363,13 +324,17 @@ def _solve_tile(block, tables: MapTables, store, iy, ix, tile, noise):
         pixels = ((x0 + ix * tile + cols).ravel(), (y0 + iy * tile + rows).ravel())
     res = solve_pixels(tables, np.where(valid, y, 0.0), valid, noise, pixels=pixels)
     group = zarr.open_group(os.fspath(store), mode="r+")
+
+    def array(name):  # every chunk written, also one of fill values (maps_store)
+        return group[name].with_config({"write_empty_chunks": True})
+
     ys, xs = slice(iy * tile, iy * tile + th), slice(ix * tile, ix * tile + tw)
     n_par = res.params.shape[0]
-    group["params"][:, ys, xs] = res.params.reshape(n_par, th, tw)
-    group["stderr"][:, ys, xs] = res.stderr.reshape(n_par, th, tw)
-    group["chi2_reduced"][ys, xs] = res.chi2.reshape(th, tw)
-    group["n_points"][ys, xs] = res.n_points.reshape(th, tw)
-    group["status"][ys, xs] = res.status.reshape(th, tw)
+    array("params")[:, ys, xs] = res.params.reshape(n_par, th, tw)
+    array("stderr")[:, ys, xs] = res.stderr.reshape(n_par, th, tw)
+    array("chi2_reduced")[ys, xs] = res.chi2.reshape(th, tw)
+    array("n_points")[ys, xs] = res.n_points.reshape(th, tw)
+    array("status")[ys, xs] = res.status.reshape(th, tw)
     write_bytes_atomic(_tile_marker(store, iy, ix), b"done\n")
     return np.bincount(res.status, minlength=len(STATUS))
 
@@ -530,62 +495,6 @@ def geometry_record(tables: MapTables, geometry) -> dict:
     return out
 
 
-#: What status 1 means for a pixel inside the mask.
-FAILED_MASKED = "no usable photo (saturated or clipped in every photo)"
-
-
-def summarize_maps(store) -> dict:
-    """Medians and percentiles of each map over the converged pixels, the count and
-    fraction of pixels by status, and the pixels that were to be fitted but were not:
-    ``failed`` (their number) and ``failed_by_status`` ({"CODE: meaning": count}), every
-    status but 0 except the pixels outside the mask (``outside_mask``)."""
-    zarr = require("zarr", "a maps store")
-
-    group = zarr.open_group(os.fspath(store), mode="r")
-    info = dict(group.attrs)["veil_maps"]
-    status = np.asarray(group["status"][:])
-    ok = status == CONVERGED
-    total = int(status.size)
-    counts = {STATUS[k].split(" (")[0]: int(np.count_nonzero(status == k)) for k in STATUS}
-    # pixels the user left out (outside --mask) are status 1 without having failed
-    outside = int(info.get("outside_mask", 0))
-    failed = {}
-    for k in STATUS:
-        if k == CONVERGED:
-            continue
-        n = int(np.count_nonzero(status == k)) - (outside if k == MASKED else 0)
-        if n > 0:
-            failed[f"{k}: " + (FAILED_MASKED if k == MASKED else STATUS[k].split(" (")[0])] = n
-    out = {"pixels": total, "converged": int(np.count_nonzero(ok)),
-           "status_counts": counts, "outside_mask": outside,
-           "failed": int(sum(failed.values())), "failed_by_status": failed,
-           "undetermined_fraction": float(np.count_nonzero(status == 3) / total),
-           "geometry": info.get("geometry", {"kind": "distant"}),
-           "not_converged_fraction": float(np.count_nonzero(~ok) / total),
-           "params": {}}
-    params = group["params"]
-    stderr = group["stderr"]
-    free = set(info["free"])
-    for k, name in enumerate(info["params"]):
-        entry = {"free": name in free}
-        if name in free and ok.any():
-            v = np.asarray(params[k])[ok]
-            se = np.asarray(stderr[k])[ok]
-            pct = np.percentile(v, [5, 25, 50, 75, 95])
-            entry.update(median=float(pct[2]), p05=float(pct[0]), p25=float(pct[1]),
-                         p75=float(pct[3]), p95=float(pct[4]),
-                         median_stderr=float(np.median(se)))
-        elif name not in free:
-            entry["value"] = float(info["fixed_values"][name])
-        out["params"][name] = entry
-    if ok.any():
-        chi2 = np.asarray(group["chi2_reduced"][:])[ok]
-        pct = np.percentile(chi2, [5, 50, 95])
-        out["chi2_reduced"] = {"p05": float(pct[0]), "median": float(pct[1]),
-                               "p95": float(pct[2])}
-    return out
-
-
 def fit_maps(photo_dir, manifest, medium, output, *, brdf_model=None, options=None,
              fixed=None, free=None, grid=None, roi=None, mask=None, black_photos=None,
              black_frame=None, channel="gray", saturation=None, noise=None,
@@ -650,85 +559,160 @@ def fit_maps(photo_dir, manifest, medium, output, *, brdf_model=None, options=No
             near = None
     address = scheduler or os.environ.get(SCHEDULER_ENV) or None
     client = connect(address) if address else None
-    seconds = {}
     try:
-        existing = None
-        if output.exists():
-            existing = _store_info(output)
-            if existing is None:
-                raise InputError(f"{output} exists and is not a veil maps store; give a new "
-                                 f"path, or remove it")
         if not output.parent.exists():
             raise InputError(f"cannot write {output}: directory {output.parent} does not "
                              f"exist")
-        t0 = time.perf_counter()
-        tables = build_tables(cls, medium_model, acq.angles, fixed=fixed, options=options,
-                              free=free, grid=grid_spec, accuracy=accuracy,
-                              progress=(lambda d, t: progress("tables", d, t))
-                              if progress else None, near=near, roi=acq.roi)
-        seconds["tables"] = time.perf_counter() - t0
-        say(f"tables: {tables.describe()} in {seconds['tables']:.1f} s")
-        if near is not None:
-            notes = near_notes(tables, (acq.roi.h, acq.roi.w))
-        else:
-            notes = (geometry_notes(tables, cls, medium_model, (acq.roi.h, acq.roi.w),
-                                    geometry) if geometry is not None else [])
-        fingerprint = hashlib.sha256((acq.fingerprint() + tables.fingerprint()
-                                      + repr((noise, tile))).encode()).hexdigest()
-        shape = (acq.roi.h, acq.roi.w)
-        info = {"format": FORMAT, "fingerprint": fingerprint, "model": tables.model,
-                "options": tables.options, "params": list(tables.names),
-                "free": list(tables.free_names),
-                "fixed_values": {n: float(tables.base[i]) for i, n in enumerate(tables.names)
-                                 if n not in tables.free_names},
-                "units": {p.name: p.unit for p in cls.PARAMS},
-                "medium": tables.medium, "accuracy": accuracy, "roi": str(acq.roi),
-                "shape": list(shape), "tile": tile, "photos": len(acq.paths),
-                "channel": channel, "noise": list(noise) if noise else None,
-                "weighted": noise is not None, "status_codes": {str(k): v for k, v in
-                                                                STATUS.items()},
-                "grid": [a.describe() for a in tables.axes], "manifest": acq.name,
-                "outside_mask": int(np.count_nonzero(~acq.mask)) if acq.mask is not None
-                else 0,
-                "geometry": geometry_record(tables, geometry)}
-        if existing is not None and existing.get("fingerprint") != fingerprint:
-            raise InputError(f"{output} holds maps of another acquisition or other settings "
-                             f"(its photos, manifest, medium, model, fixed parameters, grid, "
-                             f"ROI, mask, noise or tile size differ); give a new output path "
-                             f"to start afresh, or the same inputs to resume it")
-        tiles = _tiles(shape, tile)
-        if existing is None:
-            _create_store(output, info, tables, shape, tile, len(acq.paths))
+        with store_lock(output, say):
+            existing = None
+            if output.exists():
+                existing = _store_info(output)
+                if existing is None:
+                    raise InputError(f"{output} exists and is not a veil maps store; give a "
+                                     f"new path, or remove it")
+            seconds = {}
+            t0 = time.perf_counter()
+            tables = build_tables(cls, medium_model, acq.angles, fixed=fixed, options=options,
+                                  free=free, grid=grid_spec, accuracy=accuracy,
+                                  progress=(lambda d, t: progress("tables", d, t))
+                                  if progress else None, near=near, roi=acq.roi)
+            seconds["tables"] = time.perf_counter() - t0
+            say(f"tables: {tables.describe()} in {seconds['tables']:.1f} s")
+            if near is not None:
+                notes = near_notes(tables, (acq.roi.h, acq.roi.w))
+            else:
+                notes = (geometry_notes(tables, cls, medium_model, (acq.roi.h, acq.roi.w),
+                                        geometry) if geometry is not None else [])
+            info = _store_attributes(acq, tables, cls, noise, tile, accuracy, channel,
+                                     geometry)
+            if existing is not None and existing.get("fingerprint") != info["fingerprint"]:
+                raise InputError(f"{output} holds maps of another acquisition or other "
+                                 f"settings (its photos, manifest, medium, model, fixed "
+                                 f"parameters, grid, ROI, mask, noise or tile size differ); "
+                                 f"give a new output path to start afresh, or the same "
+                                 f"inputs to resume it")
+            job = _Job(output, acq, tables, tile, noise, client, progress, workers, say,
+                       seconds, notes)
+            return _fill(job, info, existing)
+    finally:
+        if client is not None:
+            client.close()
+
+
+def _store_attributes(acq, tables, cls, noise, tile, accuracy, channel, geometry) -> dict:
+    """The store's attributes (``veil_maps``), with the fingerprint of its inputs."""
+    fingerprint = hashlib.sha256((acq.fingerprint() + tables.fingerprint()
+                                  + repr((noise, tile))).encode()).hexdigest()
+    shape = (acq.roi.h, acq.roi.w)
+    return {"format": FORMAT, "fingerprint": fingerprint, "model": tables.model,
+            "options": tables.options, "params": list(tables.names),
+            "free": list(tables.free_names),
+            "fixed_values": {n: float(tables.base[i]) for i, n in enumerate(tables.names)
+                             if n not in tables.free_names},
+            "units": {p.name: p.unit for p in cls.PARAMS},
+            "medium": tables.medium, "accuracy": accuracy, "roi": str(acq.roi),
+            "shape": list(shape), "tile": tile, "photos": len(acq.paths),
+            "channel": channel, "noise": list(noise) if noise else None,
+            "weighted": noise is not None, "status_codes": {str(k): v for k, v in
+                                                            STATUS.items()},
+            "grid": [a.describe() for a in tables.axes], "manifest": acq.name,
+            "outside_mask": int(np.count_nonzero(~acq.mask)) if acq.mask is not None else 0,
+            "geometry": geometry_record(tables, geometry)}
+
+
+@dataclass
+class _Job:
+    """What :func:`_fill` works with."""
+
+    output: Path
+    acq: Acquisition
+    tables: MapTables
+    tile: int
+    noise: tuple | None
+    client: object
+    progress: object
+    workers: int
+    say: object
+    seconds: dict
+    notes: list
+
+
+#: Errors of the system while writing (no space, a quota, an I/O error, read-only).
+WRITE_ERRNOS = {errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EIO, errno.EROFS}
+RESUME = "a partial maps store: rerun the same command to resume it"
+
+
+def _fill(job: _Job, info: dict, existing) -> MapsRun:
+    """Create (or resume) the store, stage the photos, solve the missing tiles, mark it
+    complete. A store this run creates is removed again if the run fails, or is
+    interrupted before the photos are staged: a failed run leaves nothing; an interrupted
+    one a store that resumes."""
+    output, tables = job.output, job.tables
+    tiles = _tiles(tuple(info["shape"]), job.tile)
+    new = existing is None
+    if not new:
+        check_store(output, existing, complete=is_complete(output))
         if is_complete(output):
-            say(f"{output} is complete (all {len(tiles)} tiles); nothing to compute")
-            return MapsRun(output, len(tiles), 0, len(tiles), {}, tables.describe(), seconds,
-                           summarize_maps(output), notes)
+            job.say(f"{output} is complete (all {len(tiles)} tiles); nothing to compute")
+            return MapsRun(output, len(tiles), 0, len(tiles), {}, tables.describe(),
+                           job.seconds, summarize_maps(output), job.notes)
+        register_partial(output, RESUME)
+    staged = not new
+    try:
+        if new:
+            register_temporary(output, "folder")
+            create_store(output, info, tables, tuple(info["shape"]), job.tile,
+                         len(job.acq.paths))
         t0 = time.perf_counter()
         if not (_marker_dir(output) / "staged").is_file():
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", IngestWarning)
-                _stage(output, acq, progress)
-        seconds["staging"] = time.perf_counter() - t0
-        todo = [t for t in tiles if not _tile_marker(output, *t).is_file()]
-        reused = len(tiles) - len(todo)
-        if reused:
-            say(f"resuming {output}: {reused} of {len(tiles)} tiles already done, computing "
-                f"the {len(todo)} missing")
-        t0 = time.perf_counter()
-        counts = _compute(output, tables, todo, tile, noise, client, progress, workers)
-        seconds["solve"] = time.perf_counter() - t0
-        missing = [t for t in tiles if not _tile_marker(output, *t).is_file()]
-        if missing:
-            raise RuntimeError(f"{len(missing)} tiles have no marker after the run")
-        write_bytes_atomic(_marker_dir(output) / "complete", b"complete\n")
-        summary = summarize_maps(output)
-        write_text_atomic(output / "summary.json", json.dumps(summary, indent=2) + "\n")
-        shutil.rmtree(output / "stack", ignore_errors=True)
-        return MapsRun(output, len(tiles), len(todo), reused, counts, tables.describe(),
-                       seconds, summary, notes)
+                _stage(output, job.acq, job.progress)
+        job.seconds["staging"] = time.perf_counter() - t0
+        if new:
+            forget_temporary(output)
+            register_partial(output, RESUME)
+            staged = True
+        return _solve(job, tiles)
+    except BaseException as exc:
+        if new and not (staged and isinstance(exc, KeyboardInterrupt)):
+            forget_temporary(output)
+            shutil.rmtree(output, ignore_errors=True)
+        if isinstance(exc, OSError) and not isinstance(exc, InputError) and (
+                exc.errno in WRITE_ERRNOS or _inside(exc.filename, output)):
+            raise write_error(output, exc) from None
+        raise
     finally:
-        if client is not None:
-            client.close()
+        forget_partial(output)
+
+
+def _inside(name, folder: Path) -> bool:
+    if not name:
+        return False
+    return os.path.abspath(os.fspath(name)).startswith(os.path.abspath(folder) + os.sep)
+
+
+def _solve(job: _Job, tiles) -> MapsRun:
+    """The tiles without a marker, then the complete marker and the summary."""
+    output = job.output
+    todo = [t for t in tiles if not _tile_marker(output, *t).is_file()]
+    reused = len(tiles) - len(todo)
+    if reused:
+        job.say(f"resuming {output}: {reused} of {len(tiles)} tiles already done, computing "
+                f"the {len(todo)} missing")
+    t0 = time.perf_counter()
+    counts = _compute(output, job.tables, todo, job.tile, job.noise, job.client,
+                      job.progress, job.workers)
+    job.seconds["solve"] = time.perf_counter() - t0
+    missing = [t for t in tiles if not _tile_marker(output, *t).is_file()]
+    if missing:
+        raise RuntimeError(f"{len(missing)} tiles have no marker after the run")
+    write_bytes_atomic(_marker_dir(output) / "complete", b"complete\n")
+    summary = summarize_maps(output)
+    write_text_atomic(output / "summary.json", json.dumps(summary, indent=2) + "\n")
+    shutil.rmtree(output / "stack", ignore_errors=True)
+    return MapsRun(output, len(tiles), len(todo), reused, counts, job.tables.describe(),
+                   job.seconds, summary, job.notes)
 
 
 def _compute(store, tables, todo, tile, noise, client, progress, workers):
@@ -756,24 +740,6 @@ def _compute(store, tables, todo, tile, noise, client, progress, workers):
     return {STATUS[k].split(" (")[0]: int(total[k]) for k in STATUS}
 
 
-def open_maps(store) -> dict:
-    """The maps of a complete store as numpy arrays plus its attributes."""
-    zarr = require("zarr", "a maps store")
-
-    store = Path(store)
-    if not store.exists():
-        raise MissingFileError(f"{store}: no such maps store")
-    info = _store_info(store)
-    if info is None:
-        raise InputError(f"{store} is not a veil maps store (made by 'veil fit maps')")
-    if not is_complete(store):
-        raise InputError(f"{store} is a partial maps store (an interrupted run); rerun "
-                         f"'veil fit maps' with the same inputs to finish it")
-    group = zarr.open_group(os.fspath(store), mode="r")
-    out = {name: np.asarray(group[name][:]) for name in MAPS}
-    out["info"] = info
-    return out
-
-
-__all__ = ["fit_maps", "open_maps", "MapsWarning", "geometry_notes", "summarize_maps", "load_acquisition", "MapsRun",
-           "connect", "is_complete", "SCHEDULER_ENV", "FORMAT"]
+__all__ = ["fit_maps", "open_maps", "MapsWarning", "geometry_notes", "summarize_maps",
+           "load_acquisition", "MapsRun", "connect", "is_complete", "SCHEDULER_ENV", "FORMAT",
+           "MAPS", "StoreBusyError", "DamagedStoreError"]

@@ -22,6 +22,8 @@ own error (``Model.MODEL_ERROR_FLOOR``), adds a relative model error to its cova
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 
 from ..engine.evaluator import ApparentModel, DirectModel
@@ -152,6 +154,8 @@ def _step(step: str, data: FitData, fitted: Model, given: Model | None, given_re
         note = describe(rep.propagation,
                         f"the {given_result.step or 'given'} fit's covariance")
         message += f"; {note}" if note else ""
+    if summary.converged:  # one that did not converge says so (exit status 1)
+        warn_misfit(summary.chi2_reduced, data, what)
     return FitResult(model=cls.NAME,
                      params={own[k]: float(x[problem.index(k)]) for k in cls.keys()},
                      stderr=rep.stderr, correlation=rep.correlation,
@@ -167,6 +171,33 @@ def _step(step: str, data: FitData, fitted: Model, given: Model | None, given_re
                      stats=stats,
                      options=fitted.options(), determined=summary.determined,
                      model_error=rep.model_error)
+
+
+#: A weighted fit whose reduced chi-square exceeds this misses its data by about ten
+#: standard deviations on average: a systematic error in the data, not noise.
+MISFIT_CHI2 = 100.0
+
+
+class MisfitWarning(UserWarning):
+    """A fit that converged but describes its data far worse than their sigma says."""
+
+
+def warn_misfit(chi2_reduced: float, data: FitData, what: str) -> None:
+    """Warn (:class:`MisfitWarning`) when a weighted fit's reduced chi-square exceeds
+    :data:`MISFIT_CHI2` (called for converged fits), pointing to the black cloth: glow left
+    in the data (no black session subtracted) or a wrong one is the usual cause; negative
+    values say so."""
+    if data.sigma is None or not chi2_reduced > MISFIT_CHI2:
+        return
+    negative = int(np.count_nonzero(data.y < 0))
+    seen = (f"; {negative} of {data.size} values are negative" if negative else "")
+    cause = ("check the black-cloth session subtracted (same configurations, same medium) "
+             "and the sigma column" if data.black else
+             "no black-cloth session was subtracted: measure the medium with the black cloth "
+             "(docs/measurements.md) and give it with --black (black=...)")
+    warnings.warn(f"the {what} fit's reduced chi-square is {chi2_reduced:.4g}: the model "
+                  f"misses the data by about {np.sqrt(chi2_reduced):.3g} standard deviations "
+                  f"on average{seen}; {cause}", MisfitWarning, stacklevel=4)
 
 
 # --------------------------------------------------------------------------------------
@@ -309,3 +340,5 @@ def model_values(result_or_model, other, angles, accuracy: str = "default") -> n
 __all__ = ["fit_reference", "fit_direct", "fit_medium", "fit_target", "model_values",
            "prepare_chain",
            "STARTS", "ROLE"]
+
+__all__ += ["MisfitWarning", "MISFIT_CHI2", "warn_misfit"]

@@ -5,6 +5,7 @@ difference; the fit is veil's own (:func:`veil.fitting.fit_direct`) on noise-fre
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -14,6 +15,8 @@ from ..data.protocol import protocol
 from ..engine.apparent import reflectance
 from ..errors import InputError
 from ..fitting import fit_direct
+from ..fitting.data import MAGNITUDE
+from ..fitting.steps import MisfitWarning
 from ..models import BRDF, Model, model_class
 
 #: Relative angles (deg) of the in-plane configurations a closest fit compares: the paper's
@@ -56,13 +59,23 @@ def closest(source: Model, family: str, options: dict | None = None) -> Closest:
     table = configurations()
     angles = [table[c].to_numpy() for c in ("theta_i", "theta_r", "phi_i", "phi_r")]
     values = reflectance(source, *angles)
+    lo, hi = MAGNITUDE
+    if np.all(np.isfinite(values)) and not lo <= float(np.max(np.abs(values))) <= hi:
+        params = dict(zip(source.param_names(), source.to_vector()))
+        large = [n for n, v in params.items() if v != 0 and not lo <= abs(v) <= hi]
+        raise InputError(f"{source}: f_r reaches {float(np.max(np.abs(values))):.3g}, outside "
+                         f"the magnitudes a closest fit handles ({lo:g} to {hi:g})"
+                         + (f"; parameter(s) {', '.join(large)}" if large else "")
+                         + ": rescale the data the result was fitted to")
     if not np.all(values > 0):
         raise InputError(f"{source}: f_r is not positive at every configuration, so the "
                          f"relative difference of a closest fit is undefined")
     data = table[["theta_i", "phi_i", "theta_r", "phi_r"]].copy()
     data["value"] = values
     data["sigma"] = RELATIVE_SIGMA * values
-    result = fit_direct(data, brdf_model=cls.NAME, options=dict(options or {}))
+    with warnings.catch_warnings():  # how far the family is from it is said below
+        warnings.simplefilter("ignore", MisfitWarning)
+        result = fit_direct(data, brdf_model=cls.NAME, options=dict(options or {}))
     model = result.as_model()
     fitted = reflectance(model, *angles)
     rel = fitted / values - 1.0

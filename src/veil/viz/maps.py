@@ -15,7 +15,7 @@ from ..errors import InputError
 from ..fitting.maps import CONVERGED, STATUS
 from ..fitting.maps import FEW_POINTS as STATUS_FEW, MASKED as STATUS_MASKED
 from ..fitting.maps_run import open_maps, summarize_maps
-from ..io import write_bytes_atomic, write_text_atomic
+from ..io import output_folder, write_bytes_atomic, write_text_atomic
 
 FORMATS = ("tiff", "exr")
 
@@ -144,7 +144,6 @@ def export_maps(store, folder, formats=FORMATS) -> list[Path]:
     folder = Path(folder)
     if folder.exists() and not folder.is_dir():
         raise InputError(f"{folder} exists and is not a directory")
-    folder.mkdir(parents=True, exist_ok=True)
     ok = maps["status"] == CONVERGED
     images = {}
     for k, name in enumerate(info["params"]):
@@ -153,16 +152,25 @@ def export_maps(store, folder, formats=FORMATS) -> list[Path]:
             images[f"{name}_stderr"] = np.where(ok, maps["stderr"][k], 0.0)
     images["chi2_reduced"] = maps["chi2_reduced"]
     images["status"] = maps["status"].astype(np.float32)
-    written = []
-    for name, image in images.items():
-        for fmt in formats:
-            path = folder / f"{name}.{'tif' if fmt == 'tiff' else 'exr'}"
-            write_bytes_atomic(path, _tiff_bytes(image) if fmt == "tiff" else _exr_bytes(image))
-            written.append(path)
-    path = folder / "summary.json"
-    write_text_atomic(path, json.dumps(summarize_maps(store), indent=2) + "\n")
-    written.append(path)
-    return written
+
+    def file(name, fmt):
+        return f"{name}.{'tif' if fmt == 'tiff' else 'exr'}"
+
+    # one transaction (veil.io.output_folder): a failed or concurrent export never leaves
+    # a mix; a rerun replaces the files of the earlier one (those of a format it does not
+    # write included)
+    owned = [file(n, f) for n in images for f in FORMATS] + ["summary.json"]
+    names = []
+    with output_folder(folder, owned=owned) as staging:
+        for name, image in images.items():
+            for fmt in formats:
+                names.append(file(name, fmt))
+                write_bytes_atomic(staging / names[-1], _tiff_bytes(image) if fmt == "tiff"
+                                   else _exr_bytes(image))
+        names.append("summary.json")
+        write_text_atomic(staging / "summary.json",
+                          json.dumps(summarize_maps(store, maps), indent=2) + "\n")
+    return [folder / n for n in names]
 
 
 __all__ = ["maps_figure", "export_maps", "FORMATS"]

@@ -1,0 +1,339 @@
+"""The Zarr store of ``veil fit maps`` (docs/maps.md): its layout and markers, the lock that
+keeps a second writer out, the check that finds a damaged store, and the readers.
+
+A store holds the maps (:data:`MAPS`), the staged photos while it is partial, and markers
+under ``.veil/``: ``staged`` once the photos are in, one file per finished tile, and
+``complete`` when every tile is. Stores made since issue 33 write every chunk, also one
+equal to the fill value (attribute ``chunks: "all"``), so that a missing chunk file is
+damage and not an empty tile.
+
+One writer at a time: :func:`store_lock` holds a file lock (:mod:`filelock`, the kernel's
+``flock``) on a hidden file beside the store, ``.NAME.veil-lock``, which names the process
+holding it (it stays beside the store, empty, and is removed with a store that a failed
+first run did not leave). The kernel releases the lock of a process that dies, however it
+dies, so a lock left by a killed run is taken over by the next run, which says so.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import math
+import os
+import socket
+import time
+from pathlib import Path
+
+import numpy as np
+
+from .._extras import require
+from ..errors import InputError, MissingFileError, UnwritableError
+from ..io import forget_temporary, register_temporary, write_error
+from .maps import CONVERGED, MASKED, STATUS, MapTables
+
+FORMAT = "veil.maps/1"
+MAPS = ("params", "stderr", "chi2_reduced", "n_points", "status")
+#: What status 1 means for a pixel inside the mask.
+FAILED_MASKED = "no usable photo (saturated or clipped in every photo)"
+LOCK_SUFFIX = ".veil-lock"
+
+
+class StoreBusyError(InputError):
+    """A maps store that another process is writing."""
+
+
+class DamagedStoreError(InputError):
+    """A maps store whose arrays, chunks or markers disagree."""
+
+
+# --------------------------------------------------------------------------------------
+# layout and markers
+# --------------------------------------------------------------------------------------
+def marker_dir(store) -> Path:
+    return Path(store) / ".veil"
+
+
+def tile_marker(store, iy: int, ix: int) -> Path:
+    return marker_dir(store) / "tiles" / f"{iy}_{ix}"
+
+
+def is_complete(store) -> bool:
+    return (marker_dir(store) / "complete").is_file()
+
+
+def tiles(shape, tile: int) -> list:
+    h, w = shape
+    return [(iy, ix) for iy in range(math.ceil(h / tile)) for ix in range(math.ceil(w / tile))]
+
+
+def store_info(store):
+    """The store's veil attributes, or None when ``store`` is not a veil maps store."""
+    zarr = require("zarr", "a maps store")
+    try:
+        group = zarr.open_group(os.fspath(store), mode="r")
+        info = dict(group.attrs).get("veil_maps")
+    except Exception:  # noqa: BLE001 - zarr raises several kinds for a non-store
+        return None
+    return info if isinstance(info, dict) and info.get("format") == FORMAT else None
+
+
+def create_store(store, info: dict, tables: MapTables, shape, tile: int, n_photos: int):
+    """A new store: the maps at their fill values, the stack to stage, the marker folder."""
+    zarr = require("zarr", "a maps store")
+
+    group = zarr.open_group(os.fspath(store), mode="w")
+    n_par = len(tables.names)
+    h, w = shape
+    for name, lead, dtype in (("params", (n_par,), "float64"), ("stderr", (n_par,), "float64"),
+                              ("chi2_reduced", (), "float64"), ("n_points", (), "int32"),
+                              ("status", (), "uint8")):
+        group.create_array(name, shape=lead + (h, w), chunks=lead + (tile, tile), dtype=dtype,
+                           fill_value=MASKED if name == "status" else 0)
+    group.create_array("stack/values", shape=(n_photos, h, w), chunks=(1, tile, tile),
+                       dtype="float32", fill_value=float("nan"))
+    group.attrs["veil_maps"] = dict(info, chunks="all")
+    (marker_dir(store) / "tiles").mkdir(parents=True, exist_ok=True)
+    return group
+
+
+# --------------------------------------------------------------------------------------
+# one writer at a time
+# --------------------------------------------------------------------------------------
+def lock_path(store) -> Path:
+    store = Path(os.path.abspath(os.fspath(store)))
+    return store.parent / f".{store.name}{LOCK_SUFFIX}"
+
+
+def _holder(path: Path) -> dict | None:
+    try:
+        text = path.read_text(encoding="utf-8").strip()
+        return json.loads(text) if text else None
+    except (OSError, ValueError):
+        return None
+
+
+def _describe(holder: dict | None) -> str:
+    if not holder:
+        return "a process that did not say which"
+    started = holder.get("started")
+    when = time.strftime(" since %Y-%m-%d %H:%M:%S", time.localtime(started)) \
+        if isinstance(started, (int, float)) else ""
+    return f"process {holder.get('pid')} on {holder.get('host')}{when}"
+
+
+@contextlib.contextmanager
+def store_lock(store, say=None):
+    """Hold the store's lock for the block (module docstring). A store another process holds
+    is a :class:`StoreBusyError` naming that process; a lock whose holder died is taken over
+    and ``say(message)`` told so."""
+    from filelock import FileLock, Timeout
+
+    path = lock_path(store)
+    lock = FileLock(os.fspath(path), timeout=0)
+    try:
+        lock.acquire()
+    except Timeout:
+        raise StoreBusyError(f"{store} is being written by another 'veil fit maps' run "
+                             f"({_describe(_holder(path))}); wait for it to end, or give "
+                             f"another output path") from None
+    except OSError as exc:
+        raise UnwritableError(f"cannot lock {store}: cannot write {path} "
+                              f"({exc.strerror or exc})") from None
+    # an interrupted command line removes it (with a store it removes, nothing is left)
+    register_temporary(path, "file")
+    try:
+        stale = _holder(path)
+        if stale and stale.get("pid") != os.getpid() and say is not None:
+            say(f"{store}: took over the lock left by {_describe(stale)}, which ended "
+                f"without releasing it (killed?)")
+        me = {"pid": os.getpid(), "host": socket.gethostname(), "started": time.time()}
+        try:
+            with open(path, "r+", encoding="utf-8") as fh:
+                fh.truncate()
+                fh.write(json.dumps(me))
+        except OSError as exc:
+            raise write_error(path, exc) from None
+        yield
+    finally:
+        with contextlib.suppress(OSError):
+            if os.path.lexists(store):
+                with open(path, "r+", encoding="utf-8") as fh:
+                    fh.truncate()
+            else:  # no store (a failed first run): leave nothing behind
+                os.unlink(path)
+        forget_temporary(path)
+        lock.release()
+
+
+# --------------------------------------------------------------------------------------
+# damage
+# --------------------------------------------------------------------------------------
+def _expected_shape(name: str, info: dict) -> tuple:
+    h, w = info["shape"]
+    return ((len(info["params"]), h, w) if name in ("params", "stderr") else (h, w))
+
+
+def _missing_chunks(arr, where: Path, limit: int = 3) -> list:
+    grid = [range(math.ceil(s / c)) for s, c in zip(arr.shape, arr.chunks)]
+    import itertools
+    out = []
+    for index in itertools.product(*grid):
+        if not where.joinpath("c", *map(str, index)).is_file():
+            out.append("/".join(["c", *map(str, index)]))
+            if len(out) >= limit:
+                break
+    return out
+
+
+def _is_int(x, low: int = 0) -> bool:
+    return isinstance(x, int) and not isinstance(x, bool) and x >= low
+
+
+def _attribute_problem(info: dict) -> str | None:
+    """What is wrong with a store's ``veil_maps`` attributes for its readers, or None."""
+    params, free = info.get("params"), info.get("free")
+    if not (isinstance(params, list) and params and all(isinstance(p, str) for p in params)):
+        return "have no list of parameter names ('params')"
+    if not (isinstance(free, list) and all(isinstance(p, str) for p in free)
+            and set(free) <= set(params)):
+        return "have no list of fitted parameters among 'params' ('free')"
+    fixed = info.get("fixed_values")
+    if not (isinstance(fixed, dict) and all(
+            isinstance(fixed.get(p), (int, float)) and not isinstance(fixed.get(p), bool)
+            and math.isfinite(fixed[p]) for p in params if p not in free)):
+        return "have no finite value of each held parameter ('fixed_values')"
+    shape = info.get("shape")
+    if not (isinstance(shape, list) and len(shape) == 2 and all(_is_int(n, 1) for n in shape)):
+        return "have no shape of two pixel counts ('shape')"
+    if not _is_int(info.get("tile"), 1) or not _is_int(info.get("outside_mask", 0)):
+        return "have no tile size ('tile') or count of pixels outside the mask"
+    if not _is_int(info.get("photos"), 1) or not isinstance(info.get("model"), str) or not (
+            isinstance(info.get("medium"), dict) and isinstance(info["medium"].get("model"),
+                                                                str)):
+        return "do not name the photos' count, the model and the medium"
+    if not isinstance(info.get("units", {}), dict) or not isinstance(
+            info.get("geometry") or {}, dict):
+        return "have units or a geometry that are not records"
+    return None
+
+
+def check_store(store, info: dict, complete: bool) -> None:
+    """Raise :class:`DamagedStoreError` (naming the part) when the store's arrays, chunks or
+    markers disagree: an array whose metadata cannot be read or whose shape is not the
+    store's, a chunk file missing from a complete store that writes every chunk, a
+    complete store without the marker of one of its tiles."""
+    zarr = require("zarr", "a maps store")
+
+    store = Path(store)
+
+    def damaged(part: str) -> DamagedStoreError:
+        return DamagedStoreError(f"{store} is damaged: {part}; it cannot be read or resumed "
+                                 f"- remove it and run 'veil fit maps' again")
+
+    wrong = _attribute_problem(info)
+    if wrong:
+        raise damaged(f"its attributes (zarr.json, veil_maps) {wrong}")
+    shape, tile, names = tuple(info["shape"]), info["tile"], list(info["params"])
+    for name in MAPS:
+        try:
+            arr = zarr.open_array(os.fspath(store / name), mode="r")
+        except Exception as exc:  # noqa: BLE001 - zarr raises many kinds
+            raise damaged(f"array {name} ({name}/zarr.json) cannot be read "
+                          f"({type(exc).__name__}: {exc})") from None
+        if tuple(arr.shape) != _expected_shape(name, {"shape": shape, "params": names}):
+            raise damaged(f"array {name} has shape {tuple(arr.shape)}, expected "
+                          f"{_expected_shape(name, {'shape': shape, 'params': names})}")
+        if complete and info.get("chunks") == "all":
+            gone = _missing_chunks(arr, store / name)
+            if gone:
+                raise damaged(f"array {name} lacks chunk file(s) {', '.join(gone)} (their "
+                              f"pixels would read as {arr.fill_value})")
+    if complete:
+        lost = [t for t in tiles(shape, tile) if not tile_marker(store, *t).is_file()]
+        if lost:
+            raise damaged(f"it is marked complete but {len(lost)} tile marker(s) are missing "
+                          f"(.veil/tiles/{lost[0][0]}_{lost[0][1]})")
+
+
+# --------------------------------------------------------------------------------------
+# readers
+# --------------------------------------------------------------------------------------
+def _read(group, name: str, store) -> np.ndarray:
+    try:
+        return np.asarray(group[name][:])
+    except Exception as exc:  # noqa: BLE001 - a corrupt chunk raises what its codec raises
+        raise DamagedStoreError(f"{store} is damaged: array {name} cannot be read "
+                                f"({type(exc).__name__}: {exc}); remove it and run 'veil fit "
+                                f"maps' again") from None
+
+
+def open_maps(store) -> dict:
+    """The maps of a complete, undamaged store as numpy arrays plus its attributes."""
+    zarr = require("zarr", "a maps store")
+
+    store = Path(store)
+    if not store.exists():
+        raise MissingFileError(f"{store}: no such maps store")
+    info = store_info(store)
+    if info is None:
+        raise InputError(f"{store} is not a veil maps store (made by 'veil fit maps')")
+    if not is_complete(store):
+        raise InputError(f"{store} is a partial maps store (an interrupted run, or one still "
+                         f"running); rerun 'veil fit maps' with the same inputs to finish it")
+    check_store(store, info, complete=True)
+    group = zarr.open_group(os.fspath(store), mode="r")
+    out = {name: _read(group, name, store) for name in MAPS}
+    out["info"] = info
+    return out
+
+
+def summarize_maps(store, maps: dict | None = None) -> dict:
+    """Medians and percentiles of each map over the converged pixels, the count and
+    fraction of pixels by status, and the pixels that were to be fitted but were not:
+    ``failed`` (their number) and ``failed_by_status`` ({"CODE: meaning": count}), every
+    status but 0 except the pixels outside the mask (``outside_mask``)."""
+    maps = maps if maps is not None else open_maps(store)
+    info = maps["info"]
+    status = maps["status"]
+    ok = status == CONVERGED
+    total = int(status.size)
+    counts = {STATUS[k].split(" (")[0]: int(np.count_nonzero(status == k)) for k in STATUS}
+    # pixels the user left out (outside --mask) are status 1 without having failed
+    outside = int(info.get("outside_mask", 0))
+    failed = {}
+    for k in STATUS:
+        if k == CONVERGED:
+            continue
+        n = int(np.count_nonzero(status == k)) - (outside if k == MASKED else 0)
+        if n > 0:
+            failed[f"{k}: " + (FAILED_MASKED if k == MASKED else STATUS[k].split(" (")[0])] = n
+    out = {"pixels": total, "converged": int(np.count_nonzero(ok)),
+           "status_counts": counts, "outside_mask": outside,
+           "failed": int(sum(failed.values())), "failed_by_status": failed,
+           "undetermined_fraction": float(np.count_nonzero(status == 3) / total),
+           "geometry": info.get("geometry", {"kind": "distant"}),
+           "not_converged_fraction": float(np.count_nonzero(~ok) / total),
+           "params": {}}
+    free = set(info["free"])
+    for k, name in enumerate(info["params"]):
+        entry = {"free": name in free}
+        if name in free and ok.any():
+            v = maps["params"][k][ok]
+            se = maps["stderr"][k][ok]
+            pct = np.percentile(v, [5, 25, 50, 75, 95])
+            entry.update(median=float(pct[2]), p05=float(pct[0]), p25=float(pct[1]),
+                         p75=float(pct[3]), p95=float(pct[4]),
+                         median_stderr=float(np.median(se)))
+        elif name not in free:
+            entry["value"] = float(info["fixed_values"][name])
+        out["params"][name] = entry
+    if ok.any():
+        pct = np.percentile(maps["chi2_reduced"][ok], [5, 50, 95])
+        out["chi2_reduced"] = {"p05": float(pct[0]), "median": float(pct[1]),
+                               "p95": float(pct[2])}
+    return out
+
+
+__all__ = ["FORMAT", "MAPS", "FAILED_MASKED", "StoreBusyError", "DamagedStoreError",
+           "is_complete", "store_info", "create_store", "store_lock", "lock_path",
+           "check_store", "open_maps", "summarize_maps", "tiles", "tile_marker", "marker_dir"]
