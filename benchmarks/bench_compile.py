@@ -12,7 +12,7 @@ inflates least.
 
     .venv/bin/python benchmarks/bench_compile.py                       # every pair
     .venv/bin/python benchmarks/bench_compile.py --pairs rough-plastic:forward-series
-    .venv/bin/python benchmarks/bench_compile.py --markdown out.md     # tables for the docs
+    .venv/bin/python benchmarks/bench_compile.py --doc docs/performance.md   # the page's tables
     .venv/bin/python benchmarks/bench_compile.py --src /old/checkout/src   # another veil's code
 """
 
@@ -125,6 +125,10 @@ def main(argv=None) -> int:
     ap.add_argument("--pairs", default="all",
                     help="comma-separated BRDF:MEDIUM pairs (default: every registered pair)")
     ap.add_argument("--markdown", default=None, help="also write the tables to this file")
+    ap.add_argument("--doc", default=None, metavar="PAGE",
+                    help="write the tables into PAGE between its markers compile-pipelines "
+                         "and compile-programs (benchmarks/doc_tables.py), with the command, "
+                         "date, machine and load")
     ap.add_argument("--src", default=None, help="run the veil of this source folder (its "
                     "src/), e.g. an older checkout, for a side-by-side comparison; without a "
                     "compile log there, its programs are counted from the store")
@@ -149,6 +153,11 @@ def main(argv=None) -> int:
     pipelines, programs = tables(results)
     footer = f"{_load()} at the end"
     print("\n" + pipelines + "\n\n" + programs + "\n\n" + footer)
+    if a.doc:
+        from doc_tables import write
+
+        write(a.doc, "compile-pipelines", pipelines + f"\n\n{footer.capitalize()}.")
+        write(a.doc, "compile-programs", programs)
     if a.markdown:
         with open(a.markdown, "w", encoding="utf-8") as fh:
             fh.write(f"{header}; {footer}.\n\n{pipelines}\n\n{programs}\n")
