@@ -180,14 +180,9 @@ def _spy_on_locks(monkeypatch) -> list:
     return locked
 
 
-WARMUP_BUG = pytest.mark.xfail(strict=False, reason="issue 33 item 1, fixed on main")
-
-
 @pytest.mark.parametrize("name", sorted(leaf_commands()),
                          ids=lambda n: n.replace(" ", "-"))
-def test_command_runs_on_valid_input(name, inputs, tmp_path, request, monkeypatch):
-    if name == "warmup":
-        request.applymarker(WARMUP_BUG)
+def test_command_runs_on_valid_input(name, inputs, tmp_path, monkeypatch):
     if name == "demo":  # `veil reproduce` at full size, then the paper's protocol fitted:
         # both smaller here (each is run as it is by its own case)
         import functools
