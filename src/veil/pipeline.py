@@ -30,7 +30,7 @@ from .io import check_output_folder, output_folder, write_bytes_atomic, write_te
 from .data.protocol import protocol
 from .errors import FitError
 from .fitting import (FitResult, fit_direct, fit_medium, fit_reference, fit_target,
-                      model_values, prepare, prepare_chain)
+                      model_values, prepare)
 from .fitting.model_error import check_kind
 from .fitting.propagation import check_method
 from .analysis.uncertainty import curve_stderr
@@ -147,10 +147,6 @@ def run_pipeline(reference_clear, reference_medium, target_medium, black=None, t
     if target_clear is not None:
         data["target_clear"] = prepare(target_clear, None, "target (clear medium)")
 
-    # steps 1 and 2's engine programs compile (or load) side by side while step 0 runs
-    prepare_chain([data["reference_medium"], data["target_medium"]], brdf_model=brdf_model,
-                  brdf_options=brdf_options, medium_model=medium_model,
-                  medium_options=medium_options, variant=variant, accuracy=accuracy)
     brdf = {"brdf_model": brdf_model, "options": brdf_options, "model_error": model_error}
     chained = {"model_error": model_error, "propagation": propagation}
     ref = fit_reference(data["reference_clear"].table, fixed=fixed.get("reference"),

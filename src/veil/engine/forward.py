@@ -75,7 +75,7 @@ def _terms_jac_fn(kb, km, rule: Rule, half: bool, nl_b: tuple, nl_m: tuple, mesh
     through the quadrature together, beside one evaluation of the terms (jacfwd). Measured
     against one linearization with its tangent map applied to each basis vector (rough-plastic
     x forward-series, fast rule, in the medium's parameters): 26 % fewer lines of program,
-    38 % less compile time, the same run time (docs/performance.md "Compilation")."""
+    20 % less compile time, the same run time (docs/performance.md "Compilation")."""
     bt, mt = integrator.template_for(kb), integrator.template_for(km)
     ib, im = np.asarray(nl_b, dtype=int), np.asarray(nl_m, dtype=int)
     nb = len(nl_b)

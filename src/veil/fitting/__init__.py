@@ -10,8 +10,8 @@ from .data import FitData, prepare
 from .joint import Session, build, fit_joint
 from .problem import Problem, session_problem
 from .result import FitResult, JointResult, load_result
-from .steps import fit_direct, fit_medium, fit_reference, fit_target, model_values, prepare_chain
+from .steps import fit_direct, fit_medium, fit_reference, fit_target, model_values
 
 __all__ = ["FitError", "FitData", "prepare", "Session", "build", "fit_joint", "Problem",
            "session_problem", "FitResult", "JointResult", "load_result", "fit_direct",
-           "fit_medium", "fit_reference", "fit_target", "model_values", "prepare_chain"]
+           "fit_medium", "fit_reference", "fit_target", "model_values"]

@@ -303,25 +303,6 @@ def fit_target(table, medium, *, fixed=None, black=None, variant: str | None = N
                  propagation)
 
 
-def prepare_chain(datas, *, brdf_model=None, brdf_options=None, medium_model=None,
-                  medium_options=None, variant=None, accuracy: str = "default") -> None:
-    """Start compiling (or loading), in the background and side by side, every engine
-    program that steps 1 and 2 will need on ``datas`` (their :class:`FitData`): values at
-    the iteration and the reported accuracy, and the Jacobians in the medium's and in the
-    object's parameters, so that they compile while step 0 runs (docs/performance.md).
-    An option a family does not accept is left for its step to report."""
-    try:
-        brdf = _template(_family(brdf_model, "brdf"), dict(brdf_options or {}))
-        medium = _template(_family(medium_model, "medium"), _options(medium_options, variant))
-    except InputError:
-        return
-    for data in datas:
-        ApparentModel(brdf, medium, data.angles, RULES[ITERATION_ACCURACY]).prepare(
-            values=True, jacobians=[("medium",), ("brdf",)])
-        if accuracy != ITERATION_ACCURACY:
-            ApparentModel(brdf, medium, data.angles, RULES[accuracy]).prepare(values=True)
-
-
 def model_values(result_or_model, other, angles, accuracy: str = "default") -> np.ndarray:
     """Values of a fitted model at canonical ``angles``: f_r alone for a BRDF when ``other`` is
     None, else the apparent reflectance with ``other`` (the medium or the BRDF)."""
@@ -338,7 +319,6 @@ def model_values(result_or_model, other, angles, accuracy: str = "default") -> n
 
 
 __all__ = ["fit_reference", "fit_direct", "fit_medium", "fit_target", "model_values",
-           "prepare_chain",
            "STARTS", "ROLE"]
 
 __all__ += ["MisfitWarning", "MISFIT_CHI2", "warn_misfit"]
