@@ -400,10 +400,9 @@ def _lobe_one_side(brdf, medium, vb, vm, maux, fixed, center, rule: Rule, half: 
 
 
 def _lobe_sides(brdf, medium, vb, vm, maux, wi, wr, rule: Rule, half: bool, grid_i, grid_r):
-    """(:func:`_lobe_one_side` on the view side, on the light side), computed as one
-    computation over both (vmapped): the program holds the lobe, the phase function and
-    the medium's factors once instead of twice (issue 28: a smaller program compiles
-    faster; measured in docs/performance.md "Compilation")."""
+    """(:func:`_lobe_one_side` on the view side, on the light side) as one vmapped
+    computation: the program holds the lobe, the phase function and the medium's factors
+    once, not twice (a smaller program compiles faster; docs/performance.md)."""
     grids = jax.tree.map(lambda a, b: jnp.stack([a, b]), tuple(grid_r), tuple(grid_i))
 
     def side(fixed, center, view, grid):
