@@ -269,6 +269,9 @@ def compile_afresh(fn, args, label: str = "engine program", identity: str = ""):
 
     from . import compiling
 
+    sizes = [np.shape(a)[0] for a in args if np.ndim(a) == 2]  # configurations (M, 3)
+    if sizes:
+        label = f"{label}, {max(sizes)} configurations"
     with jax_config.persistent_cache_min_compile_time_secs(float("inf")):  # this thread only
         lowered = fn.lower(*args)
         with compiling.announced(label, identity or label, lowered):
