@@ -1,4 +1,4 @@
-"""Compile cost of the engine (issue 28; docs/performance.md "Compilation").
+"""Compile cost of the engine (docs/performance-compile.md).
 
 For each registered family pair (BRDF x medium), ``veil fit pipeline`` runs as a fresh
 process on a path-traced session (validation/data, medium m05: the reference plate in clear
@@ -12,7 +12,7 @@ inflates least.
 
     .venv/bin/python benchmarks/bench_compile.py                       # every pair
     .venv/bin/python benchmarks/bench_compile.py --pairs rough-plastic:forward-series
-    .venv/bin/python benchmarks/bench_compile.py --doc docs/performance.md   # the page's tables
+    .venv/bin/python benchmarks/bench_compile.py --doc docs/performance-compile.md   # the page's tables
     .venv/bin/python benchmarks/bench_compile.py --src /old/checkout/src   # another veil's code
 """
 
