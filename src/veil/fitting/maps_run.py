@@ -660,9 +660,10 @@ def _fill(job: _Job, info: dict, existing) -> MapsRun:
     staged = not new
     try:
         if new:
-            register_temporary(output, "folder")
-            create_store(output, info, tables, tuple(info["shape"]), job.tile,
-                         len(job.acq.paths))
+            with COMMIT:  # an interrupt removes the store once it is created, not halfway
+                register_temporary(output, "folder")
+                create_store(output, info, tables, tuple(info["shape"]), job.tile,
+                             len(job.acq.paths))
         t0 = time.perf_counter()
         if not (_marker_dir(output) / "staged").is_file():
             with warnings.catch_warnings():
