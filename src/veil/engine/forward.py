@@ -20,7 +20,7 @@ from ..errors import InputError, InputTypeError
 from .._jax import jax, jnp
 from jax.sharding import Mesh, NamedSharding, PartitionSpec as P
 from . import integrator
-from .programs import Program, structure_name
+from .programs import JACOBIAN_OPTIONS, Program, structure_name
 from .angles import check_angles, direction
 from ..models.base import BRDF, BTDF
 from .quadrature import FINER, RULES, Rule
@@ -94,7 +94,8 @@ def _terms_jac_fn(kb, km, rule: Rule, half: bool, nl_b: tuple, nl_m: tuple, mesh
     names = ([kb[0].PARAMS[i].name for i in nl_b] + [km[0].PARAMS[i].name for i in nl_m])
     return Program(_sharded(fn, mesh),
                    _identity(f"terms+jacobian {nl_b} {nl_m}", kb, km, rule, half, mesh),
-                   (kb[0], km[0]), _label(f"values and d/d({', '.join(names)})", kb, km, rule))
+                   (kb[0], km[0]), _label(f"values and d/d({', '.join(names)})", kb, km, rule),
+                   JACOBIAN_OPTIONS)
 
 
 def _label(what: str, kb, km, rule: Rule) -> str:

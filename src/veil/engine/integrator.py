@@ -33,146 +33,10 @@ import math
 import numpy as np
 
 from .._jax import jax, jnp
-from ..models.base import BRDF, BTDF
-from .quadrature import Rule, frame, gauss_legendre_unit, horizon_one_minus_mu, periodic_unit
-
-TWO_PI = 2.0 * math.pi
-HALF_PI = 0.5 * math.pi
-FACET_GRADING = 3
-PHASE_GRADING = 1
-
-
-# --------------------------------------------------------------------------------------
-# grids
-# --------------------------------------------------------------------------------------
-def _azimuths(n: int, half: bool):
-    """Midpoint azimuth nodes in [0, 1) and weights; ``half`` keeps (0, 1/2) with double weight."""
-    v, w = periodic_unit(n)
-    if half:
-        keep = v < 0.5
-        return v[keep], 2.0 * w[keep]
-    return v, w
-
-
-def _phase_grid(medium: BTDF, vm, maux, center, n_r: int, n_a: int, half: bool,
-                grading: int = 1):
-    """Directions about ``center`` (3,) distributed as the phase lobe truncated at z = 0.
-
-    Returns (d (N, 3), unit weights (N,), frac_max (N,), p (N,)). sum(unit * frac_max * f(d))
-    approximates Int_{z>0} p(center . d) f(d) dd; p is the phase density at each node.
-    """
-    x, wx = gauss_legendre_unit(n_r)
-    if grading > 1:  # more nodes towards the horizon end of the cone fraction
-        wx = wx * grading * (1.0 - x) ** (grading - 1)
-        x = 1.0 - (1.0 - x) ** grading
-    v, wv = _azimuths(n_a, half)
-    u = jnp.asarray(np.repeat(x[None, :], len(v), 0).ravel())
-    beta = jnp.asarray(TWO_PI * np.repeat(v, n_r))
-    unit = jnp.asarray(np.outer(wv, wx).ravel())
-    cb, sb = jnp.cos(beta), jnp.sin(beta)
-    # the horizon depends on the azimuth only: one cone fraction per azimuth
-    cos_az = jnp.asarray(np.cos(TWO_PI * v))
-    frac_max = jnp.repeat(medium.phase_cone_fraction(
-        vm, horizon_one_minus_mu(center[2], cos_az), maux), n_r)
-    omm, p = medium.phase_sample(vm, u * frac_max, maux)
-    sg = jnp.sqrt(jnp.maximum(omm * (2.0 - omm), 0.0))
-    t1, t2 = frame(center)
-    d = ((1.0 - omm)[:, None] * center[None, :]
-         + sg[:, None] * (cb[:, None] * t1[None, :] + sb[:, None] * t2[None, :]))
-    return d, unit, frac_max, p
-
-
-def _half_grid(brdf: type[BRDF], vb, partner, n_r: int, n_a: int, half: bool):
-    """Half vectors distributed by the facet law, truncated per azimuth so that reflecting
-    each ``partner`` direction (P, 3) about them stays above the horizon.
-
-    Returns (h (P, N, 3), alpha (P, N), unit weights (N,), y_max (P, N)) where y_max is the
-    facet cumulative at the truncation angle of that node's azimuth.
-    """
-    x, wx = _graded_unit(n_r, FACET_GRADING)
-    v, wv = _azimuths(n_a, half)
-    u = jnp.asarray(np.repeat(x[None, :], len(v), 0).ravel())
-    phi = jnp.asarray(TWO_PI * np.repeat(v, n_r))
-    unit = jnp.asarray(np.outer(wv, wx).ravel())
-    cp, sp = jnp.cos(phi), jnp.sin(phi)
-    # reflected z = A cos(2 alpha - psi) with psi = atan2(sin(theta_P) cos(dphi), cos(theta_P))
-    xs = partner[:, None, 0] * cp[None, :] + partner[:, None, 1] * sp[None, :]
-    psi = jnp.arctan2(xs, jnp.maximum(partner[:, None, 2], 1e-300))
-    alpha_c = jnp.minimum(0.25 * math.pi + 0.5 * psi, HALF_PI)
-    y_max = brdf.facet_cdf(vb, alpha_c)
-    alpha = brdf.facet_inverse_cdf(vb, u[None, :] * y_max)
-    sa, ca = sincos(alpha)
-    h = jnp.stack([sa * cp[None, :], sa * sp[None, :], ca], axis=-1)
-    return h, alpha, sa, unit, y_max
-
-
-def _graded_unit(n: int, m: int):
-    """Gauss-Legendre in t with u = 1 - (1 - t)^m: the Jacobian's (1 - t)^(m - 1) flattens
-    the facet law's far tail, where alpha(u) ~ sqrt(-log(1 - u)) would make a Gauss rule in u
-    converge slowly."""
-    x, wx = gauss_legendre_unit(n)
-    return 1.0 - (1.0 - x) ** m, wx * m * (1.0 - x) ** (m - 1)
-
-
-_SIN = tuple((-1) ** k / math.factorial(2 * k + 1) for k in range(11))
-_COS = tuple((-1) ** k / math.factorial(2 * k) for k in range(12))
-
-
-def sincos(a):
-    """sin and cos of angles in [0, pi/2] by their Taylor series (error < 1e-15): a few
-    multiply-adds instead of XLA's much slower transcendental calls on the CPU."""
-    z = a * a
-    s = _SIN[-1]
-    for coef in _SIN[-2::-1]:
-        s = s * z + coef
-    c = _COS[-1]
-    for coef in _COS[-2::-1]:
-        c = c * z + coef
-    return a * s, c
-
-
-def _atan_series():
-    """Coefficients of atan(t)/t as a polynomial in t^2 on [0, tan(pi/8)^2] (error < 1e-15)."""
-    a2 = math.tan(math.pi / 8) ** 2
-    z = 0.5 * a2 * (1.0 + np.cos(np.linspace(0.0, math.pi, 400)))
-    t = np.sqrt(z)
-    f = np.where(t > 0, np.arctan(t) / np.where(t > 0, t, 1.0), 1.0)
-    fit = np.polynomial.Chebyshev.fit(z, f, 10, domain=[0.0, a2])
-    return tuple(fit.convert(kind=np.polynomial.Polynomial, domain=[0.0, a2], window=[0.0, a2]).coef)
-
-
-_ATAN = _atan_series()
-
-
-def polar_angle(s, c):
-    """atan2(s, c) for s >= 0, c >= 0 (sine and cosine of an angle in [0, pi/2]).
-
-    Four times the quarter angle, whose tangent t = tan(alpha/4) <= tan(pi/8) is reached by
-    two half-angle steps, atan(t) = t P(t^2): several times faster than XLA's atan2 on the
-    CPU, accurate to 1e-15, and smooth (differentiable) at s = 0.
-    """
-    t1 = s / (1.0 + c)                      # tan(alpha / 2) in [0, 1)
-    t2 = t1 / (1.0 + jnp.sqrt(1.0 + t1 * t1))  # tan(alpha / 4)
-    z = t2 * t2
-    acc = _ATAN[-1]
-    for coef in _ATAN[-2::-1]:
-        acc = acc * z + coef
-    return 4.0 * t2 * acc
-
-
-def dot3(a, b):
-    """a . b over the last axis, written out (XLA fuses it; a reduction it would not)."""
-    return a[..., 0] * b[..., 0] + a[..., 1] * b[..., 1] + a[..., 2] * b[..., 2]
-
-
-def _reflect(d, h):
-    return 2.0 * dot3(d, h)[..., None] * h - d
-
-
-def _half_distance(a, b):
-    """1 - a.b for unit vectors, without cancellation."""
-    return 0.5 * ((a[..., 0] - b[..., 0]) ** 2 + (a[..., 1] - b[..., 1]) ** 2
-                  + (a[..., 2] - b[..., 2]) ** 2)
+from . import lobe_terms
+from .nodes import (HALF_PI, TWO_PI, facet_grid, half_grid, lobe_at, normalized, phase_grid,
+                    polar, reflect, separable_at)
+from .quadrature import Rule, gauss_legendre_unit
 
 
 # --------------------------------------------------------------------------------------
@@ -193,14 +57,13 @@ def _lobe_albedo_tables(brdf, vb, rule: Rule):
     """A(theta) = Int lobe(I', R') dR' and B(theta) = Int lobe(I', R') dI' on a theta grid."""
     th = np.minimum(_table_thetas(rule), HALF_PI - 1e-7)  # the limit at the horizon
     d = jnp.asarray(np.stack([np.sin(th), np.zeros_like(th), np.cos(th)], axis=-1))
-    h, alpha, _, unit, y_max = _half_grid(brdf, vb, d, rule.table_radial, rule.table_azimuth, True)
-    other = _reflect(d[:, None, :], h)
+    h, alpha, _, unit, y_max = half_grid(brdf, vb, d, rule.table_radial, rule.table_azimuth, True)
+    other = reflect(d[:, None, :], h)
     din = jnp.broadcast_to(d[:, None, :], other.shape)
     c = jnp.sum(din * h, axis=-1)
     jac = unit[None, :] * 4.0 * c * y_max / brdf.facet_weight(vb, alpha)
-    a_tab = jnp.sum(jac * brdf.lobe(vb, din, other, h, alpha), axis=-1)
-    b_tab = jnp.sum(jac * brdf.lobe(vb, other, din, h, alpha), axis=-1)
-    return a_tab, b_tab
+    a_lobe, b_lobe = lobe_at(brdf, vb, [(din, other, h, alpha), (other, din, h, alpha)])
+    return jnp.sum(jac * a_lobe, axis=-1), jnp.sum(jac * b_lobe, axis=-1)
 
 
 def _interp_table(table, theta, rule: Rule):
@@ -225,193 +88,31 @@ def _simpson_weights(k: int, step: float) -> np.ndarray:
     return w * step / 3.0
 
 
-def _hemisphere_integral(fn, n=64):
-    """Int over the upper hemisphere of fn(cos theta) (isotropic integrand)."""
-    x, w = gauss_legendre_unit(n)
-    return TWO_PI * jnp.sum(jnp.asarray(w) * fn(jnp.asarray(x)))
-
-
-def _shared(brdf, rule, vb):
+def _shared(brdf, rule, vb, half: bool):
     """Per-call quantities that do not depend on the configuration: the BRDF's own tables
-    (``prepare``), the albedo tables of its lobe and the hemisphere integrals of its
-    separable factors."""
+    (``prepare``), the albedo tables of its lobe, the hemisphere integrals of its
+    separable factors, and the facet grids of the lobe terms (4D and dense)."""
     aux = brdf.prepare(vb)
+    x, w = gauss_legendre_unit(64)  # Int over the upper hemisphere of an isotropic factor
+    c = jnp.asarray(x)
+    weights = TWO_PI * jnp.asarray(w)
+    s_at, t_at = separable_at(brdf, vb, aux, [c], [c])
+    s_int = [jnp.sum(weights * s[0]) for s in s_at]
+    t_int = [jnp.sum(weights * t[0]) for t in t_at]
     if brdf.HAS_LOBE:
         a_tab, b_tab = _lobe_albedo_tables(brdf, vb, rule)
+        facets = (facet_grid(brdf, vb, rule.half_radial, rule.half_azimuth),
+                  facet_grid(brdf, vb, rule.dense_radial, rule.dense_azimuth, half),
+                  brdf.facet_cdf(vb, HALF_PI))
     else:
         a_tab = b_tab = jnp.zeros(rule.table)
-    n_sep = len(brdf.separable(vb, jnp.zeros(1), jnp.zeros(1), aux))
-    s_int = [_hemisphere_integral(lambda c, k=k: brdf.separable(vb, c, c, aux)[k][0])
-             for k in range(n_sep)]
-    t_int = [_hemisphere_integral(lambda c, k=k: brdf.separable(vb, c, c, aux)[k][1])
-             for k in range(n_sep)]
+        facets = None
     th = _table_thetas(rule)
     v = np.linspace(0.0, 1.0, rule.table)
     sw = jnp.asarray(_simpson_weights(rule.table, v[1]) * np.sin(th) * math.pi * (1.0 - v))
     c0_sep = sum(s * t for s, t in zip(s_int, t_int)) + 0.0 * jnp.sum(a_tab)
     c0_lobe = TWO_PI * jnp.sum(sw * a_tab)
-    return c0_sep, c0_lobe, a_tab, b_tab, s_int, t_int, aux
-
-
-# --------------------------------------------------------------------------------------
-# one configuration
-# --------------------------------------------------------------------------------------
-def _facet_grid(brdf: type[BRDF], vb, n_r: int, n_a: int, half: bool = False):
-    """Half vectors by the untruncated facet law, shaped (1, N, 3), with alpha, unit weights
-    and density per steradian (1, N); ``half`` keeps the azimuths in (0, pi) with double
-    weight (for integrands symmetric under y -> -y)."""
-    x, wx = _graded_unit(n_r, FACET_GRADING)
-    v, wv = _azimuths(n_a, half)
-    y_full = brdf.facet_cdf(vb, HALF_PI)
-    alpha = brdf.facet_inverse_cdf(vb, jnp.asarray(np.tile(x, len(v))) * y_full)
-    phi = jnp.asarray(TWO_PI * np.repeat(v, n_r))
-    sa, ca = sincos(alpha)
-    h = jnp.stack([sa * jnp.cos(phi), sa * jnp.sin(phi), ca], axis=-1)
-    qh = brdf.facet_weight(vb, alpha, sa) / y_full
-    unit = jnp.asarray(np.outer(wv, wx).ravel())
-    return h[None], alpha[None], unit[None], qh[None]
-
-
-def _apart(fn, vm, *args):
-    """fn(*args) computed apart from the surrounding expression (not fused into it): a
-    conditional on a value known only at run time keeps its branch a computation of its own
-    (taken whenever the medium's parameters are finite; otherwise the result is NaN, as it
-    would be anyway)."""
-    return jax.lax.cond(jnp.all(jnp.isfinite(vm)), fn,
-                        lambda *a: jax.tree.map(lambda z: jnp.full_like(z, jnp.nan), fn(*a)),
-                        *args)
-
-
-def _view_weight(medium, vm, r_prime, wr):
-    """The medium's weight of its view-side lobe at R' (..., 3) for the camera at R, or 1."""
-    if not medium.has_view_weight():
-        return 1.0
-    # apart: XLA would fuse it into the consumers of the grid's weights, the 4D products,
-    # and evaluate it again at every node of them
-    return _apart(lambda a, b: medium.view_weight(vm, a, b), vm, r_prime, wr)
-
-
-def _lobe_lobe(brdf, medium, vb, vm, maux, wi, wr, rule: Rule, half: bool):
-    """Int Int b(I') p(I.I') lobe(I', R') a(R') J(R') p(R'.R) dI' dR' (balanced MIS
-    quadrature), J the view-side weight of the medium (1 without one)."""
-    n_r, n_a = rule.phase_radial, rule.phase_azimuth
-    gi, ui, fi, pi_ = _phase_grid(medium, vm, maux, wi, n_r, n_a, half, PHASE_GRADING)   # I' about I
-    gr, ur, fr, pr = _phase_grid(medium, vm, maux, wr, n_r, n_a, False, PHASE_GRADING)   # R' about R
-    bi = medium.factor_second(vm, gi[:, 2])
-    ar = medium.factor_first(vm, gr[:, 2]) * _view_weight(medium, vm, gr, wr)
-    if half:  # component B needs only half of the R' azimuths (C pairs half I' with all R')
-        grb, urb, frb, prb = _phase_grid(medium, vm, maux, wr, n_r, n_a, True, PHASE_GRADING)
-        arb = medium.factor_first(vm, grb[:, 2]) * _view_weight(medium, vm, grb, wr)
-    else:
-        grb, urb, frb, prb, arb = gr, ur, fr, pr, ar
-
-    def balanced(p_i, p_r, c, q_h, lobe):
-        """lobe p_i p_r / (q_A + q_B + q_C) with the untruncated densities (balance rule)."""
-        den = q_h * (p_i + p_r) / (4.0 * c) + p_i * p_r
-        ok = (c > 0) & (den > 0)
-        return jnp.where(ok, lobe * p_i * p_r / jnp.where(ok, den, 1.0), 0.0)
-
-    # A: I' on the phase grid about I, H on the facet grid, R' = refl(I') (zero below the
-    # horizon, where the integrand already vanishes with a(R') and the shadowing term)
-    h, alpha, uh, qh = _facet_grid(brdf, vb, rule.half_radial, rule.half_azimuth)
-    i2 = gi[:, None, :]
-    r2 = _reflect(i2, h)
-    c = dot3(i2, h)
-    p_r = medium.phase(vm, _half_distance(r2, wr), maux)
-    val = balanced(pi_[:, None], p_r, c, qh, brdf.lobe(vb, i2, r2, h, alpha))
-    val = val * medium.factor_first(vm, r2[..., 2]) * bi[:, None]
-    if medium.has_view_weight():
-        val = val * medium.view_weight(vm, r2, wr)
-    total = jnp.sum(ui * fi * jnp.sum(uh * val, axis=-1))
-
-    # B: R' on the phase grid about R, H on the facet grid, I' = refl(R')
-    r2 = grb[:, None, :]
-    i2 = _reflect(r2, h)
-    c = dot3(r2, h)
-    p_i = medium.phase(vm, _half_distance(i2, wi), maux)
-    val = balanced(p_i, prb[:, None], c, qh, brdf.lobe(vb, i2, r2, h, alpha))
-    val = val * arb[:, None] * medium.factor_second(vm, i2[..., 2])
-    total = total + jnp.sum(urb * frb * jnp.sum(uh * val, axis=-1))
-
-    # C: I' and R' on their phase grids, H their half vector
-    i2 = gi[:, None, :]
-    r2 = gr[None, :, :]
-    s = i2 + r2
-    hh = s / jnp.sqrt(jnp.maximum(dot3(s, s), 1e-300))[..., None]
-    s2 = hh[..., 0] ** 2 + hh[..., 1] ** 2
-    sin_c = jnp.where(s2 > 0, jnp.sqrt(jnp.where(s2 > 0, s2, 1.0)), 0.0)
-    alpha_c = polar_angle(sin_c, hh[..., 2])
-    c = dot3(i2, hh)
-    q_h = brdf.facet_weight(vb, alpha_c, sin_c) / brdf.facet_cdf(vb, HALF_PI)
-    val = balanced(pi_[:, None], pr[None, :], c, q_h, brdf.lobe(vb, i2, r2, hh, alpha_c))
-    val = val * bi[:, None] * ar[None, :]
-    total = total + jnp.sum((ui * fi)[:, None] * (ur * fr)[None, :] * val)
-    return total
-
-
-def _lobe_one_side(brdf, medium, vb, vm, maux, fixed, center, rule: Rule, half: bool,
-                   view, grid):
-    """The BRDF's lobe against the phase lobe on one side, the other direction fixed:
-
-        view:     Int lobe(F, R') a(R') J(R') p(R'.C) dR'    (F = I, C = R)
-        not view: Int p(C.I') b(I') lobe(I', F) dI'          (F = R, C = I)
-
-    by balanced MIS over two grids: the phase grid about C, and half vectors from the facet
-    law with the free direction the mirror of F. ``grid`` is the dense phase grid about C
-    (:func:`_phase_grid`), shared with the other 2D terms. ``view`` is a boolean array, so
-    that both sides run as one computation (:func:`_lobe_sides`)."""
-    g, u, f, p = grid
-
-    def lobe(free, h, alpha):
-        fixed_b = jnp.broadcast_to(fixed, free.shape)
-        return brdf.lobe(vb, jnp.where(view, fixed_b, free), jnp.where(view, free, fixed_b),
-                         h, alpha)
-
-    def weight(free):
-        z = free[..., 2]
-        w = jnp.where(view, medium.factor_first(vm, z), medium.factor_second(vm, z))
-        if medium.has_view_weight():
-            w = w * jnp.where(view, medium.view_weight(vm, free, center), 1.0)
-        return w
-
-    y_full = brdf.facet_cdf(vb, HALF_PI)
-    # the phase grid: density of the free direction p, of the facet strategy q_h / (4 c)
-    s = g + fixed
-    hg = s / jnp.sqrt(jnp.maximum(dot3(s, s), 1e-300))[..., None]
-    c = dot3(g, hg)
-    s2 = hg[..., 0] ** 2 + hg[..., 1] ** 2
-    sin_h = jnp.where(s2 > 0, jnp.sqrt(jnp.where(s2 > 0, s2, 1.0)), 0.0)
-    alpha_h = polar_angle(sin_h, hg[..., 2])
-    q = jnp.where(hg[..., 2] > 0, brdf.facet_weight(vb, alpha_h, sin_h) / y_full, 0.0)
-    q_free = q / (4.0 * jnp.maximum(c, 1e-300))
-    ok = (c > 0) & (p + q_free > 0)
-    w_phase = jnp.where(ok, p / jnp.where(ok, p + q_free, 1.0), 0.0)
-    total = jnp.sum(u * f * w_phase * lobe(g, hg, alpha_h) * weight(g))
-    # the facet grid: H by the facet law, free = mirror of the fixed direction
-    h, alpha, uh, qh = _facet_grid(brdf, vb, rule.dense_radial, rule.dense_azimuth, half)
-    free = _reflect(fixed, h[0])
-    c = dot3(fixed, h[0])
-    p_free = medium.phase(vm, _half_distance(free, center), maux)
-    den = p_free + qh[0] / (4.0 * jnp.maximum(c, 1e-300))
-    ok = (c > 0) & (free[..., 2] > 0) & (den > 0)
-    val = jnp.where(ok, lobe(free, h[0], alpha[0]) * weight(free) * p_free
-                    / jnp.where(ok, den, 1.0), 0.0)
-    return total + jnp.sum(uh[0] * val)
-
-
-def _lobe_sides(brdf, medium, vb, vm, maux, wi, wr, rule: Rule, half: bool, grid_i, grid_r):
-    """(:func:`_lobe_one_side` on the view side, on the light side) as one vmapped
-    computation: the program holds the lobe, the phase function and the medium's factors
-    once, not twice (a smaller program compiles faster; docs/performance.md)."""
-    grids = jax.tree.map(lambda a, b: jnp.stack([a, b]), tuple(grid_r), tuple(grid_i))
-
-    def side(fixed, center, view, grid):
-        return _lobe_one_side(brdf, medium, vb, vm, maux, fixed, center, rule, half, view,
-                              grid)
-
-    both = jax.vmap(side)(jnp.stack([wi, wr]), jnp.stack([wr, wi]), jnp.array([True, False]),
-                          grids)
-    return both[0], both[1]
+    return c0_sep, c0_lobe, a_tab, b_tab, s_int, t_int, aux, facets
 
 
 def pairs(medium_cls) -> list[tuple[str, str]]:
@@ -421,6 +122,39 @@ def pairs(medium_cls) -> list[tuple[str, str]]:
     return [(a, b) for i, a in enumerate(comps) for b in comps[i:]]
 
 
+def _lobe_parts(brdf, medium, rule, half, vb, vm, maux, facets, wi, wr, grids):
+    """The lobe's values of every lobe term of one configuration, from one evaluation of the
+    lobe and one of the phase function at all of their nodes (:mod:`.lobe_terms`).
+    Returns {"lobe": 4D term, "sides": (view side, light side), "delta": lobe(I, R)}."""
+    comps = medium.COMPONENTS
+    parts = {}
+    if "lobe" in comps:
+        parts["lobe"] = lobe_terms.lobe_lobe(brdf, medium, vb, vm, maux, wi, wr, rule, half,
+                                             facets[0], facets[2])
+    if "delta" in comps:
+        h = normalized(wi + wr)
+        parts["delta"] = ([(wi, wr, h, polar(h)[0])], [], lambda lobe, phase: lobe[0])
+        if "lobe" in comps:
+            parts["sides"] = lobe_terms.lobe_sides(brdf, medium, vb, vm, wi, wr, half,
+                                                   grids[0], grids[1], facets[1], facets[2])
+    if not parts:
+        return {}
+    lobes = lobe_at(brdf, vb, [r for req, _, _ in parts.values() for r in req])
+    omm = [r for _, req, _ in parts.values() for r in req]
+    phases = []
+    if omm:
+        flat = medium.phase(vm, jnp.concatenate([o.reshape(-1) for o in omm]), maux)
+        start = 0
+        for o in omm:
+            phases.append(flat[start:start + o.size].reshape(o.shape))
+            start += o.size
+    out = {}
+    for name, (req_l, req_p, finish) in parts.items():
+        out[name] = finish(lobes[:len(req_l)], phases[:len(req_p)])
+        lobes, phases = lobes[len(req_l):], phases[len(req_p):]
+    return out
+
+
 def _one_config(brdf, medium, rule, half, vb, vm, shared, maux, wi, wr):
     """Term matrix E (rows, 2) of one configuration with the scale parameters set to 1.
 
@@ -428,7 +162,7 @@ def _one_config(brdf, medium, rule, half, vb, vm, shared, maux, wi, wr):
     T_d T_t, T_t^2), each with its components' weights; columns: the separable and lobe
     parts of f_r.
     """
-    c0_sep, c0_lobe, a_tab, b_tab, s_int, t_int, aux = shared
+    c0_sep, c0_lobe, a_tab, b_tab, s_int, t_int, aux, facets = shared
     zero = 0.0 * c0_sep
     comps = medium.COMPONENTS
     a_i = medium.factor_first(vm, wi[2])      # a(I): the light's way into the medium
@@ -440,62 +174,51 @@ def _one_config(brdf, medium, rule, half, vb, vm, shared, maux, wi, wr):
     def albedo(theta, table):
         return _interp_table(table, theta, rule) if brdf.HAS_LOBE else zero
 
+    grids, cos_i, cos_r = None, [wi[2]], [wr[2]]
+    if "lobe" in comps:  # 2D terms on a dense phase grid about I (I') and about R (R')
+        grids = (phase_grid(medium, vm, maux, wi, rule.dense_radial, rule.dense_azimuth, half),
+                 phase_grid(medium, vm, maux, wr, rule.dense_radial, rule.dense_azimuth, half))
+        cos_i, cos_r = [wi[2], grids[0][0][:, 2]], [wr[2], grids[1][0][:, 2]]
+    # s_k at I and the I' nodes, t_k at R and the R' nodes: one evaluation
+    s_at, t_at = separable_at(brdf, vb, aux, cos_i, cos_r)
+    s_wi, t_wr = [s[0] for s in s_at], [t[0] for t in t_at]
+    lobes = (_lobe_parts(brdf, medium, rule, half, vb, vm, maux, facets, wi, wr, grids)
+             if brdf.HAS_LOBE else {})
     if "iso" in comps:
         rows[("iso", "iso")] = (c0_sep, c0_lobe)
     if "lobe" in comps:
-        # 2D terms on a dense phase grid about I (I') and about R (R')
-        grid_i = _phase_grid(medium, vm, maux, wi, rule.dense_radial, rule.dense_azimuth, half)
-        grid_r = _phase_grid(medium, vm, maux, wr, rule.dense_radial, rule.dense_azimuth, half)
-        gi, ui, fi, _ = grid_i
-        gr, ur, fr, _ = grid_r
+        (gi, ui, fi, _), (gr, ur, fr, _) = grids
+        s_gi, t_gr = [s[1] for s in s_at], [t[1] for t in t_at]
         wgi = ui * fi * medium.factor_second(vm, gi[:, 2])
-        wgr = ur * fr * medium.factor_first(vm, gr[:, 2]) * _view_weight(medium, vm, gr, wr)
-        seps_i = brdf.separable(vb, gi[:, 2], gi[:, 2], aux)
-        seps_r = brdf.separable(vb, gr[:, 2], gr[:, 2], aux)
-        ti = jnp.arccos(jnp.clip(gi[:, 2], -1.0, 1.0))
-        tr = jnp.arccos(jnp.clip(gr[:, 2], -1.0, 1.0))
+        wgr = ur * fr * medium.factor_first(vm, gr[:, 2]) * lobe_terms.view_weight(
+            medium, vm, gr, wr)
         if "iso" in comps:
             # light lobe x view iso: a(I) Int b(I') p A(I'); light iso x view lobe: b(R) Int a J p B
-            mixed_sep = (a_i * jnp.sum(wgi * sum(s * tk for (s, _), tk in zip(seps_i, t_int)))
-                         + b_r * jnp.sum(wgr * sum(t * sk for (_, t), sk in zip(seps_r, s_int))))
+            ti = jnp.arccos(jnp.clip(gi[:, 2], -1.0, 1.0))
+            tr = jnp.arccos(jnp.clip(gr[:, 2], -1.0, 1.0))
+            mixed_sep = (a_i * jnp.sum(wgi * sum(s * tk for s, tk in zip(s_gi, t_int)))
+                         + b_r * jnp.sum(wgr * sum(t * sk for t, sk in zip(t_gr, s_int))))
             mixed_lobe = (a_i * jnp.sum(wgi * albedo(ti, a_tab))
                           + b_r * jnp.sum(wgr * albedo(tr, b_tab)))
             rows[("iso", "lobe")] = (mixed_sep, mixed_lobe)
-        sep = sum(jnp.sum(wgi * s) * jnp.sum(wgr * t) for (s, _), (_, t) in zip(seps_i, seps_r))
-        lobe = (_lobe_lobe(brdf, medium, vb, vm, maux, wi, wr, rule, half) if brdf.HAS_LOBE
-                else zero)
-        rows[("lobe", "lobe")] = (a_i * b_r * sep, a_i * b_r * lobe)
+        sep = sum(jnp.sum(wgi * s) * jnp.sum(wgr * t) for s, t in zip(s_gi, t_gr))
+        rows[("lobe", "lobe")] = (a_i * b_r * sep, a_i * b_r * lobes.get("lobe", zero))
     if "delta" in comps:
         dl, dv = a_i * b_i, a_r * b_r
-        seps = brdf.separable(vb, wi[2], wr[2], aux)
-        f_sep = sum(s * t for s, t in seps) + zero
-        if brdf.HAS_LOBE:
-            s = wi + wr
-            f_lobe = brdf.lobe(vb, wi, wr, s / jnp.sqrt(dot3(s, s)))
-        else:
-            f_lobe = zero
-        rows[("delta", "delta")] = (dl * dv * f_sep, dl * dv * f_lobe)
+        f_sep = sum(s * t for s, t in zip(s_wi, t_wr)) + zero
+        rows[("delta", "delta")] = (dl * dv * f_sep, dl * dv * lobes.get("delta", zero))
         if "iso" in comps:  # the unscattered beam on one side, the iso part on the other
-            sep_i, sep_r = brdf.separable(vb, wi[2], wi[2], aux), brdf.separable(vb, wr[2], wr[2], aux)
-            iso_sep = (dl * sum(s * tk for (s, _), tk in zip(sep_i, t_int))
-                       + dv * sum(t * sk for (_, t), sk in zip(sep_r, s_int)))
+            iso_sep = (dl * sum(s * tk for s, tk in zip(s_wi, t_int))
+                       + dv * sum(t * sk for t, sk in zip(t_wr, s_int)))
             iso_lobe = (dl * albedo(jnp.arccos(jnp.clip(wi[2], -1.0, 1.0)), a_tab)
                         + dv * albedo(jnp.arccos(jnp.clip(wr[2], -1.0, 1.0)), b_tab))
             rows[("delta", "iso")] = (iso_sep + zero, iso_lobe + zero)
         if "lobe" in comps:  # the unscattered beam on one side, the lobe on the other
-            sep_fixed_i = brdf.separable(vb, wi[2], wi[2], aux)
-            sep_fixed_r = brdf.separable(vb, wr[2], wr[2], aux)
-            d_sep = (dl * b_r * sum(s * jnp.sum(wgr * t)
-                                    for (s, _), (_, t) in zip(sep_fixed_i, seps_r))
-                     + dv * a_i * sum(t * jnp.sum(wgi * s)
-                                      for (_, t), (s, _) in zip(sep_fixed_r, seps_i)))
-            if brdf.HAS_LOBE:
-                view_side, light_side = _lobe_sides(brdf, medium, vb, vm, maux, wi, wr, rule,
-                                                    half, grid_i, grid_r)
-                d_lobe = dl * b_r * view_side + dv * a_i * light_side
-            else:
-                d_lobe = zero
-            rows[("delta", "lobe")] = (d_sep + zero, d_lobe + zero)
+            d_sep = (dl * b_r * sum(s * jnp.sum(wgr * t) for s, t in zip(s_wi, t_gr))
+                     + dv * a_i * sum(t * jnp.sum(wgi * s) for t, s in zip(t_wr, s_gi)))
+            view_side, light_side = lobes.get("sides", (zero, zero))
+            rows[("delta", "lobe")] = (d_sep + zero,
+                                       dl * b_r * view_side + dv * a_i * light_side + zero)
     out = []
     for a, b in pairs(medium):
         sep_v, lobe_v = rows[(a, b)] if (a, b) in rows else rows[(b, a)]
@@ -575,7 +298,7 @@ def apparent_terms(brdf_template, medium_template, rule, vb, vm, wi, wr, half=Fa
     brdf = brdf_template  # its functions read its options (e.g. a microfacet distribution)
     vb1 = _unit_scales(type(brdf), jnp.asarray(vb))
     vm1 = _unit_scales(type(medium_template), jnp.asarray(vm))
-    shared = _shared(brdf, rule, vb1)
+    shared = _shared(brdf, rule, vb1, half)
     maux = medium_template.prepare(vm1)
 
     def f(x):
@@ -583,8 +306,14 @@ def apparent_terms(brdf_template, medium_template, rule, vb, vm, wi, wr, half=Fa
                            x[1])
 
     if batch_size is None:  # keep the live intermediate arrays to a few hundred MB
-        batch_size = max(1, min(64, 1_500_000 // rule.points_per_config))
+        batch_size = _batch(wi.shape[0], 1_500_000 // rule.points_per_config)
     return jax.lax.map(f, (wi, wr), batch_size=batch_size)
+
+
+def _batch(n: int, limit: int) -> int:
+    """The largest divisor of ``n`` up to ``limit`` (at least 1): a batch that leaves no
+    remainder, which lax.map would compile as a second copy of the body."""
+    return max(b for b in range(1, max(1, min(n, limit)) + 1) if n % b == 0)
 
 
 _TEMPLATES: dict = {}

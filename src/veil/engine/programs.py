@@ -256,15 +256,21 @@ def _devices_of(args) -> list:
 #: A compile option at its default value that gives the store's compilations their own key
 #: in JAX's compilation cache (so they never find an entry made elsewhere).
 _OWN_KEY = {"xla_embed_ir_in_executable": False}
+#: XLA's options for the Jacobian programs: its older loop emitters compile them in about two
+#: thirds of the time at the same run time (the values programs run slower with them;
+#: docs/performance-compile.md).
+JACOBIAN_OPTIONS = {"xla_cpu_use_fusion_emitters": False}
 
 
-def compile_afresh(fn, args, label: str = "engine program", identity: str = ""):
+def compile_afresh(fn, args, label: str = "engine program", identity: str = "",
+                   options: dict | None = None):
     """``fn`` (jitted) compiled for ``args``, never through JAX's compilation cache: an
     executable JAX loaded from its cache cannot be serialized again (on jaxlib 0.10.2 the
     copy fails in the next process, "Function ... not found"), so the engine's executables
     live in the program store and none in JAX's cache (nothing is written there, and the
     compile key is the store's own). The compile display (:mod:`.compiling`) is told when
-    the compilation starts, with a rough estimate of its time, and when it ends."""
+    the compilation starts, with a rough estimate of its time, and when it ends. ``options``
+    are XLA compile options for this program only (:data:`JACOBIAN_OPTIONS`)."""
     from jax._src import config as jax_config
 
     from . import compiling
@@ -275,7 +281,7 @@ def compile_afresh(fn, args, label: str = "engine program", identity: str = ""):
     with jax_config.persistent_cache_min_compile_time_secs(float("inf")):  # this thread only
         lowered = fn.lower(*args)
         with compiling.announced(label, identity or label, lowered):
-            return lowered.compile(_OWN_KEY)
+            return lowered.compile({**_OWN_KEY, **(options or {})})
 
 
 def serialize(compiled, devices) -> bytes | None:
@@ -428,8 +434,12 @@ class Program:
     (the compile display, :mod:`veil.engine.compiling`). Called like ``fn``; thread-safe
     (background compilations, :meth:`veil.engine.forward.Forward.prepare`)."""
 
-    def __init__(self, fn, identity: str, classes=(), label: str | None = None):
+    def __init__(self, fn, identity: str, classes=(), label: str | None = None,
+                 options: dict | None = None):
         self.fn = fn
+        self.options = dict(options or {})
+        if self.options:  # compiled otherwise, so stored apart
+            identity = f"{identity} | options {sorted(self.options.items())}"
         self.identity = identity
         self.label = label or identity.split(" | ")[0]
         self.classes = tuple(classes)
@@ -455,7 +465,7 @@ class Program:
 
     def _build(self, signature, args):
         if directory() is None:  # nothing kept: compiled for this process, still announced
-            return compile_afresh(self.fn, args, self.label, self.identity)
+            return compile_afresh(self.fn, args, self.label, self.identity, self.options)
         identity = f"{self.identity} | inputs {signature}"
         env = environment(self.classes)
         compiled = read(identity, env, signature)
@@ -470,7 +480,7 @@ class Program:
         return compiled
 
     def _compile_and_store(self, identity, env, args):
-        compiled = compile_afresh(self.fn, args, self.label, identity)
+        compiled = compile_afresh(self.fn, args, self.label, identity, self.options)
         payload = serialize(compiled, _devices_of(args))
         if payload is not None:
             write(identity, env, payload)
@@ -478,4 +488,4 @@ class Program:
 
 
 __all__ = ["Program", "building", "directory", "environment", "code_digest", "read", "write",
-           "serialize", "structure_name", "FORMAT"]
+           "serialize", "structure_name", "FORMAT", "JACOBIAN_OPTIONS"]

@@ -1,0 +1,224 @@
+"""The integrator's nodes: direction grids with known densities, the small vector algebra
+they are built with, and the models evaluated at many node sets in one call.
+
+Several terms of the integrator (:mod:`veil.engine.integrator`, docs/model.md sec. 5) need
+the BRDF's lobe and separable part at their own nodes. :func:`lobe_at` and
+:func:`separable_at` evaluate a model once at the concatenation of several node sets: the
+compiled program then holds the model's function once instead of once per term, and a
+program's compile time grows with its size (docs/performance-compile.md).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .._jax import jnp
+from ..models.base import BRDF, BTDF
+from .quadrature import frame, gauss_legendre_unit, horizon_one_minus_mu, periodic_unit
+
+TWO_PI = 2.0 * math.pi
+HALF_PI = 0.5 * math.pi
+FACET_GRADING = 3
+PHASE_GRADING = 1
+
+
+def azimuths(n: int, half: bool):
+    """Midpoint azimuth nodes in [0, 1) and weights; ``half`` keeps (0, 1/2) with double weight."""
+    v, w = periodic_unit(n)
+    if half:
+        keep = v < 0.5
+        return v[keep], 2.0 * w[keep]
+    return v, w
+
+
+def phase_grid(medium: BTDF, vm, maux, center, n_r: int, n_a: int, half: bool,
+                grading: int = 1):
+    """Directions about ``center`` (3,) distributed as the phase lobe truncated at z = 0.
+
+    Returns (d (N, 3), unit weights (N,), frac_max (N,), p (N,)). sum(unit * frac_max * f(d))
+    approximates Int_{z>0} p(center . d) f(d) dd; p is the phase density at each node.
+    """
+    x, wx = gauss_legendre_unit(n_r)
+    if grading > 1:  # more nodes towards the horizon end of the cone fraction
+        wx = wx * grading * (1.0 - x) ** (grading - 1)
+        x = 1.0 - (1.0 - x) ** grading
+    v, wv = azimuths(n_a, half)
+    u = jnp.asarray(np.repeat(x[None, :], len(v), 0).ravel())
+    beta = jnp.asarray(TWO_PI * np.repeat(v, n_r))
+    unit = jnp.asarray(np.outer(wv, wx).ravel())
+    cb, sb = jnp.cos(beta), jnp.sin(beta)
+    # the horizon depends on the azimuth only: one cone fraction per azimuth
+    cos_az = jnp.asarray(np.cos(TWO_PI * v))
+    frac_max = jnp.repeat(medium.phase_cone_fraction(
+        vm, horizon_one_minus_mu(center[2], cos_az), maux), n_r)
+    omm, p = medium.phase_sample(vm, u * frac_max, maux)
+    sg = jnp.sqrt(jnp.maximum(omm * (2.0 - omm), 0.0))
+    t1, t2 = frame(center)
+    d = ((1.0 - omm)[:, None] * center[None, :]
+         + sg[:, None] * (cb[:, None] * t1[None, :] + sb[:, None] * t2[None, :]))
+    return d, unit, frac_max, p
+
+
+def half_grid(brdf: type[BRDF], vb, partner, n_r: int, n_a: int, half: bool):
+    """Half vectors distributed by the facet law, truncated per azimuth so that reflecting
+    each ``partner`` direction (P, 3) about them stays above the horizon.
+
+    Returns (h (P, N, 3), alpha (P, N), unit weights (N,), y_max (P, N)) where y_max is the
+    facet cumulative at the truncation angle of that node's azimuth.
+    """
+    x, wx = graded_unit(n_r, FACET_GRADING)
+    v, wv = azimuths(n_a, half)
+    u = jnp.asarray(np.repeat(x[None, :], len(v), 0).ravel())
+    phi = jnp.asarray(TWO_PI * np.repeat(v, n_r))
+    unit = jnp.asarray(np.outer(wv, wx).ravel())
+    cp, sp = jnp.cos(phi), jnp.sin(phi)
+    # reflected z = A cos(2 alpha - psi) with psi = atan2(sin(theta_P) cos(dphi), cos(theta_P))
+    xs = partner[:, None, 0] * cp[None, :] + partner[:, None, 1] * sp[None, :]
+    psi = jnp.arctan2(xs, jnp.maximum(partner[:, None, 2], 1e-300))
+    alpha_c = jnp.minimum(0.25 * math.pi + 0.5 * psi, HALF_PI)
+    y_max = brdf.facet_cdf(vb, alpha_c)
+    alpha = brdf.facet_inverse_cdf(vb, u[None, :] * y_max)
+    sa, ca = sincos(alpha)
+    h = jnp.stack([sa * cp[None, :], sa * sp[None, :], ca], axis=-1)
+    return h, alpha, sa, unit, y_max
+
+
+def graded_unit(n: int, m: int):
+    """Gauss-Legendre in t with u = 1 - (1 - t)^m: the Jacobian's (1 - t)^(m - 1) flattens
+    the facet law's far tail, where alpha(u) ~ sqrt(-log(1 - u)) would make a Gauss rule in u
+    converge slowly."""
+    x, wx = gauss_legendre_unit(n)
+    return 1.0 - (1.0 - x) ** m, wx * m * (1.0 - x) ** (m - 1)
+
+
+_SIN = tuple((-1) ** k / math.factorial(2 * k + 1) for k in range(11))
+_COS = tuple((-1) ** k / math.factorial(2 * k) for k in range(12))
+
+
+def sincos(a):
+    """sin and cos of angles in [0, pi/2] by their Taylor series (error < 1e-15): a few
+    multiply-adds instead of XLA's much slower transcendental calls on the CPU."""
+    z = a * a
+    s = _SIN[-1]
+    for coef in _SIN[-2::-1]:
+        s = s * z + coef
+    c = _COS[-1]
+    for coef in _COS[-2::-1]:
+        c = c * z + coef
+    return a * s, c
+
+
+def _atan_series():
+    """Coefficients of atan(t)/t as a polynomial in t^2 on [0, tan(pi/8)^2] (error < 1e-15)."""
+    a2 = math.tan(math.pi / 8) ** 2
+    z = 0.5 * a2 * (1.0 + np.cos(np.linspace(0.0, math.pi, 400)))
+    t = np.sqrt(z)
+    f = np.where(t > 0, np.arctan(t) / np.where(t > 0, t, 1.0), 1.0)
+    fit = np.polynomial.Chebyshev.fit(z, f, 10, domain=[0.0, a2])
+    return tuple(fit.convert(kind=np.polynomial.Polynomial, domain=[0.0, a2], window=[0.0, a2]).coef)
+
+
+_ATAN = _atan_series()
+
+
+def polar_angle(s, c):
+    """atan2(s, c) for s >= 0, c >= 0 (sine and cosine of an angle in [0, pi/2]).
+
+    Four times the quarter angle, whose tangent t = tan(alpha/4) <= tan(pi/8) is reached by
+    two half-angle steps, atan(t) = t P(t^2): several times faster than XLA's atan2 on the
+    CPU, accurate to 1e-15, and smooth (differentiable) at s = 0.
+    """
+    t1 = s / (1.0 + c)                      # tan(alpha / 2) in [0, 1)
+    t2 = t1 / (1.0 + jnp.sqrt(1.0 + t1 * t1))  # tan(alpha / 4)
+    z = t2 * t2
+    acc = _ATAN[-1]
+    for coef in _ATAN[-2::-1]:
+        acc = acc * z + coef
+    return 4.0 * t2 * acc
+
+
+def dot3(a, b):
+    """a . b over the last axis, written out (XLA fuses it; a reduction it would not)."""
+    return a[..., 0] * b[..., 0] + a[..., 1] * b[..., 1] + a[..., 2] * b[..., 2]
+
+
+def reflect(d, h):
+    return 2.0 * dot3(d, h)[..., None] * h - d
+
+
+def half_distance(a, b):
+    """1 - a.b for unit vectors, without cancellation."""
+    return 0.5 * ((a[..., 0] - b[..., 0]) ** 2 + (a[..., 1] - b[..., 1]) ** 2
+                  + (a[..., 2] - b[..., 2]) ** 2)
+
+
+def facet_grid(brdf: type[BRDF], vb, n_r: int, n_a: int, half: bool = False):
+    """Half vectors by the untruncated facet law, shaped (1, N, 3), with alpha, unit weights
+    and density per steradian (1, N); ``half`` keeps the azimuths in (0, pi) with double
+    weight (for integrands symmetric under y -> -y)."""
+    x, wx = graded_unit(n_r, FACET_GRADING)
+    v, wv = azimuths(n_a, half)
+    y_full = brdf.facet_cdf(vb, HALF_PI)
+    alpha = brdf.facet_inverse_cdf(vb, jnp.asarray(np.tile(x, len(v))) * y_full)
+    phi = jnp.asarray(TWO_PI * np.repeat(v, n_r))
+    sa, ca = sincos(alpha)
+    h = jnp.stack([sa * jnp.cos(phi), sa * jnp.sin(phi), ca], axis=-1)
+    qh = brdf.facet_weight(vb, alpha, sa) / y_full
+    unit = jnp.asarray(np.outer(wv, wx).ravel())
+    return h[None], alpha[None], unit[None], qh[None]
+
+
+def polar(h):
+    """(alpha, sin alpha) of unit vectors h (..., 3): the angle from the normal, smooth at 0."""
+    s2 = h[..., 0] ** 2 + h[..., 1] ** 2
+    sin_a = jnp.where(s2 > 0, jnp.sqrt(jnp.where(s2 > 0, s2, 1.0)), 0.0)
+    return polar_angle(sin_a, h[..., 2]), sin_a
+
+
+def normalized(s):
+    """s / |s| over the last axis (a zero vector stays finite)."""
+    return s / jnp.sqrt(jnp.maximum(dot3(s, s), 1e-300))[..., None]
+
+
+def _flat(arrays, shape, vector: bool):
+    return jnp.broadcast_to(arrays, shape + ((3,) if vector else ())).reshape(
+        (-1, 3) if vector else (-1,))
+
+
+def _split(values, shapes):
+    out, start = [], 0
+    for shape in shapes:
+        n = math.prod(shape)
+        out.append(values[start:start + n].reshape(shape))
+        start += n
+    return out
+
+
+def lobe_at(brdf: BRDF, vb, requests):
+    """``brdf.lobe`` at every node of several node sets, as one evaluation.
+
+    ``requests`` is a list of (wi, wo, h, alpha): unit vectors (..., 3) and angles (...)
+    that broadcast together; returns one array per request, of its broadcast shape."""
+    if not requests:
+        return []
+    shapes = [tuple(jnp.broadcast_shapes(i.shape[:-1], o.shape[:-1], h.shape[:-1], a.shape))
+              for i, o, h, a in requests]
+    columns = [jnp.concatenate([_flat(r[k], shape, k < 3) for r, shape in zip(requests, shapes)])
+               for k in range(4)]
+    return _split(brdf.lobe(vb, *columns), shapes)
+
+
+def separable_at(brdf: BRDF, vb, aux, cos_i, cos_r):
+    """``brdf.separable`` as one evaluation for lists of cosine arrays: returns
+    (s, t), s[k][j] = s_k at cos_i[j], t[k][j] = t_k at cos_r[j]. The two lists are
+    concatenated each; their total lengths must agree (the model takes them together)."""
+    shapes_i = [tuple(np.shape(c)) for c in cos_i]
+    shapes_r = [tuple(np.shape(c)) for c in cos_r]
+    ci = jnp.concatenate([jnp.reshape(c, (-1,)) for c in cos_i])
+    cr = jnp.concatenate([jnp.reshape(c, (-1,)) for c in cos_r])
+    pairs = brdf.separable(vb, ci, cr, aux)
+    s = [_split(jnp.broadcast_to(a, ci.shape), shapes_i) for a, _ in pairs]
+    t = [_split(jnp.broadcast_to(b, cr.shape), shapes_r) for _, b in pairs]
+    return s, t
