@@ -76,6 +76,7 @@ def main(argv=None) -> int:
                   f"{row['fr_max_z']:.2f}, tau {row['tau']:.4f}, g {row['g']:.4f}",
                   file=sys.stderr, flush=True)
     bv.print_table(rows)
+    bv.write_doc(args, rows)
     return 0
 
 
