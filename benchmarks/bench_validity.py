@@ -423,6 +423,8 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--media", default="m01,m05,m10")
     ap.add_argument("--targets", default="target")
+    ap.add_argument("--cases", default=None, metavar="MEDIUM:TARGET,...",
+                    help="these medium and target pairs instead of every --media x --targets")
     ap.add_argument("--models", default="paper,physical")
     ap.add_argument("--figure", default=None)
     ap.add_argument("--json", default=None)
@@ -458,21 +460,22 @@ def main(argv=None) -> int:
     truth = load_truth()
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
-        for medium in args.media.split(","):
-            for target in args.targets.split(","):
-                for models in args.models.split(","):
-                    out = os.path.join(tmp, f"{medium}-{target}-{models}")
-                    r = run_case(truth, medium, target, models, out)
-                    print(f"{medium} {target} {models}: est-vs-direct "
-                          f"{100 * r['est_vs_direct']:.2f} %, {r['seconds']:.1f} s",
+        cases = ([tuple(c.split(":")) for c in args.cases.split(",")] if args.cases else
+                 [(m, t) for m in args.media.split(",") for t in args.targets.split(",")])
+        for medium, target in cases:
+            for models in args.models.split(","):
+                out = os.path.join(tmp, f"{medium}-{target}-{models}")
+                r = run_case(truth, medium, target, models, out)
+                print(f"{medium} {target} {models}: est-vs-direct "
+                      f"{100 * r['est_vs_direct']:.2f} %, {r['seconds']:.1f} s",
+                      file=sys.stderr, flush=True)
+                rows.append(r)
+                if args.joint:
+                    r = run_joint(truth, medium, target, models)
+                    print(f"{medium} {target} {models} joint: est-vs-truth "
+                          f"{100 * r['est_vs_truth']:.2f} %, {r['seconds']:.1f} s",
                           file=sys.stderr, flush=True)
                     rows.append(r)
-                    if args.joint:
-                        r = run_joint(truth, medium, target, models)
-                        print(f"{medium} {target} {models} joint: est-vs-truth "
-                              f"{100 * r['est_vs_truth']:.2f} %, {r['seconds']:.1f} s",
-                              file=sys.stderr, flush=True)
-                        rows.append(r)
     print_table(rows)
     if args.figure:
         figure(rows, args.figure)

@@ -2,7 +2,7 @@
 
 Step 2's total covariance has a cross term with step 1's correlated model error, scaled by
 the session correlation c that step 2 estimates (veil.fitting.model_error.session_correlation;
-docs/validity-orders.md, "The 10 cm plate with the cylinder's orders"). This script runs the physical pipeline on one path-traced
+docs/validity-plate.md). This script runs the physical pipeline on one path-traced
 session as benchmarks/bench_validity.py does (target plate, model error "correlated",
 propagation "auto"), then:
 

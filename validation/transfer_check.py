@@ -1,4 +1,4 @@
-"""Tried and not kept (docs/validity-orders.md): correcting the target's data in the medium by the
+"""Tried and not kept (docs/validity-plate.md): correcting the target's data in the medium by the
 reference's relative residual of step 1, smoothed by step 1's own model-discrepancy process.
 
 If the forward model's miss were the same relative error for both plates (the view side's

@@ -1,4 +1,4 @@
-"""Would a view side right in theta_r close the 10 cm plate's gap? An oracle check (docs/validity-orders.md).
+"""Would a view side right in theta_r close the 10 cm plate's gap? An oracle check (docs/validity-plate.md).
 
 validation/mc_view_directions.py measures, weighted by the plates' own f_r, the ratio
 Monte Carlo / model of the view side as nearly a function of the view angle theta_r alone,
