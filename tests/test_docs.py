@@ -324,7 +324,7 @@ def test_numeric_tables_name_the_script_that_writes_them(page):
         # add_doc_options (study_parser includes it)
         if not re.search(r'"--doc"|add_options\(|add_doc_options\(|study_parser\(', code):
             problems.append(f"{where}: {script} takes no --doc")
-        named = re.search(r"--doc-table ([\w,-]+)", rest)
+        named = re.search(r"--doc-table[= ]([\w,-]+)", rest)
         if not (named and name in named.group(1).split(",")) and name not in code:
             problems.append(f"{where}: {script} does not write table {name} (give "
                             f"--doc-table {name} in the marker)")
