@@ -45,7 +45,9 @@ def paragraphs(text: str):
     items of a list count one by one."""
     text = re.sub(r"(?ms)^```.*?^```", "", text)
     for block in re.split(r"\n\s*\n", text):
-        lines = [line for line in block.split("\n") if line.strip()]
+        # a one-line HTML comment (a table's marker, notest) is not prose; what follows it is
+        lines = [line for line in block.split("\n") if line.strip()
+                 and not re.fullmatch(r"\s*<!--.*-->\s*", line)]
         if not lines or lines[0].lstrip().startswith(("|", "#", "<!--")) \
                 or all(line.startswith("    ") for line in lines):
             continue
