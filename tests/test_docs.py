@@ -239,7 +239,6 @@ NOT_YET_SCRIPTED = {
     ("maps-geometry.md", "| step (fraction of the apparent lobe)"),  # a sweep of bench_maps --near
     ("maps-geometry.md", "| geometry | Pd: mean, sd |"),         # tests/test_maps_near.py's plate
     ("performance-startup.md", "| Jacobian in |"),              # a profile of one chunk
-    ("physics-view-weighting.md", "| theta_i | theta_r | view term"),  # the reference's view term
     ("validity-reference.md", "| term | within 2 se |"),         # step 2 with the term forced
 }
 RULE = re.compile(r"\|(\s*:?-+:?\s*\|)+")

@@ -7,6 +7,8 @@ reference (tests/reference_physical.py; numpy/scipy, deterministic, a few second
   5 x 5 cm plate in a 15 cm cylinder at tau 0.5 / 1 / 2, the infinite plate at tau 1, and the
   plate lit by a light at theta_i = 45 deg (phi 180) against the closed form; the largest
   difference between the closed form and direct integration is printed under it;
+- ``view-term``: the view-side term of a rough plastic with J = 1, J_v and J_v with the light's
+  path across the plate ("lit"), the light at each row's theta_i;
 - ``mitsuba``: the reference's rough plastic against Mitsuba 3's roughplastic (needs
   ``import mitsuba``), each choice of Smith G1 and of the t(mu)/F_int numerics.
 
@@ -62,6 +64,33 @@ def plate_table(path_length: float = 15.0, half_width: float = 2.5) -> None:
     print(f"\nlargest |direct / closed - 1| over the rows: {worst:.1e}")
 
 
+def view_term_table(path_length: float = 15.0, half_width: float = 2.5) -> None:
+    """The view-side term Int f_r(I, X) J(X, R) L(X, R) dX (no boundary, eta_u = 1) of a GGX
+    rough plastic (rho 0.5, alpha 0.1, eta 1.12, ks 1) through tau 1, omega 0.95, g 0.93, with
+    J = 1, J_v's closed form, and J_v with the illumination path of the light at I across the
+    plate ("lit")."""
+    brdf = rp.make_rough_plastic(0.5, 0.1, 1.12, 1.0, "ggx")
+    tau, omega, g = 1.0, 0.95, 0.93
+    print("| theta_i | theta_r | view term, J_v = 1 | J_v closed | J_v lit | lit/closed - 1 |")
+    print("|---:|---:|---:|---:|---:|---:|")
+    for theta_i, theta_r in ((15, 15), (30, 30), (45, 45), (60, 0), (0, 60), (70, 10)):
+        wi, R = rp.direction(theta_i, 180.0), rp.direction(theta_r, 0.0)
+        weights = {
+            "one": lambda X: np.ones(X.shape[:-1]),
+            "closed": lambda X: rp.plate_weight(X, R, tau, path_length, half_width),
+            "lit": lambda X: rp.plate_weight_lit(X, R, wi, tau, path_length, half_width)}
+        out = []
+        for weight in weights.values():
+            def fn(X, weight=weight):
+                return (brdf(np.broadcast_to(wi, X.shape), X) * weight(X)
+                        * rp.scattered_lobe(tau, omega, g, x=1.0 - X @ R))
+            value, _ = rp.sphere_integral(fn, [R, rp._mirror(wi)],
+                                          [rp._lobe_scale(g), rp._brdf_scale(brdf)], rtol=1e-7)
+            out.append(value)
+        print(f"| {theta_i} | {theta_r} | " + " | ".join(f"{v:.5f}" for v in out)
+              + f" | {out[2] / out[1] - 1:+.4f} |")
+
+
 def mitsuba_table() -> None:
     """The reference's rough plastic (each choice of G1 and of the t/F_int numerics) against
     Mitsuba 3's roughplastic (scalar_rgb ``eval``: si.wi = R, wo = I, cos theta_I included):
@@ -103,13 +132,14 @@ def mitsuba_table() -> None:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--tables", default="fint,plate-weight,mitsuba",
+    ap.add_argument("--tables", default="fint,plate-weight,view-term,mitsuba",
                     help="which tables to compute, in this order")
-    add_options(ap, "fint,plate-weight,mitsuba")
+    add_options(ap, "fint,plate-weight,view-term,mitsuba")
     args = ap.parse_args(argv)
     doc = printed_tables(args).start()
     for name in args.tables.split(","):
-        {"fint": fint_table, "plate-weight": plate_table, "mitsuba": mitsuba_table}[name]()
+        {"fint": fint_table, "plate-weight": plate_table, "view-term": view_term_table,
+         "mitsuba": mitsuba_table}[name]()
         print()
     doc.finish()
     return 0
