@@ -270,6 +270,9 @@ if __name__ == "__main__":
         write(a.doc, a.doc_table, markdown(
             ["case (tau, g)", f"light irr., theta_i {' / '.join(angles)}",
              f"view, theta_r {' / '.join(angles)}", f"view order 2 / 3 / 4 at theta_r = {middle:g}"],
-            [[f"{med} ({CASES[med][0]:g}, {CASES[med][1]:g})", " / ".join(light_irr.get(med, [])),
+            [[f"{med} ({CASES[med][0]:g}, {CASES[med][1]:g}"
+              + (f", {2 * CASES[med][3]:g} cm plate" if CASES[med][3] != 2.5 else "")
+              + (f", R_c {CASES[med][2]:g} cm" if CASES[med][2] != 15.0 else "") + ")",
+              " / ".join(light_irr.get(med, [])),
               " / ".join(view_all.get(med, [])), view_orders.get(med, {}).get(middle, "-")]
              for med in a.media.split(",")]))
