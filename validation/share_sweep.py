@@ -79,9 +79,9 @@ def main(argv=None) -> int:
                     help="values of c, comma-separated; 'fitted' is step 2's estimate")
     bv.add_doc_options(ap, "share-sweep")
     args = ap.parse_args(argv)
-    doc_columns, doc_cells = ["c"], {s: [] for s in shares_of(args)}
     bv.REFERENCE = args.reference
     shares = [s.strip() for s in args.shares.split(",")]
+    doc_columns, doc_cells = ["c"], {s: [] for s in shares}  # for --doc: one row per share
     for s in shares:
         if s != "fitted":
             try:
@@ -117,10 +117,6 @@ def main(argv=None) -> int:
             doc_columns, [[s] + cells for s, cells in doc_cells.items()],
             set(range(1, len(doc_columns)))))
     return 0
-
-
-def shares_of(args) -> list[str]:
-    return [s.strip() for s in args.shares.split(",")]
 
 
 if __name__ == "__main__":
