@@ -235,7 +235,6 @@ HISTORY = {"design-notes.md", "changelog.md"}
 #: validation/), by page and the start of their header. The list may only shrink: a table
 #: that gains its markers must leave it.
 NOT_YET_SCRIPTED = {
-    ("interop.md", "| export | configurations |"),              # veil export --verify, by hand
     ("maps-geometry.md", "| step (fraction of the apparent lobe)"),  # a sweep of bench_maps --near
     ("maps-geometry.md", "| geometry | Pd: mean, sd |"),         # tests/test_maps_near.py's plate
     ("performance-startup.md", "| Jacobian in |"),              # a profile of one chunk
