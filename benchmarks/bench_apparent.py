@@ -33,6 +33,8 @@ from veil.engine.apparent import ERROR_FACTOR, FINER, RULES
 from veil.engine.forward import Forward
 from veil.models import PRESETS
 
+from doc_tables import add_options, printed_tables  # noqa: E402  (benchmarks/)
+
 DEG = 180.0 / math.pi
 FOUR_PI = 4.0 * math.pi
 
@@ -207,7 +209,9 @@ def main(argv=None):
     ap.add_argument("--quick", action="store_true", help="fewer configurations and baseline points")
     ap.add_argument("--baseline-configs", type=int, default=2,
                     help="configurations the Monte Carlo baseline is timed on (about 190 s each)")
+    add_options(ap, "apparent,-")
     args = ap.parse_args(argv)
+    doc = printed_tables(args).start()
 
     cfg = configurations(args.quick)
     ti, tr = cfg[:, 0], cfg[:, 1]
@@ -262,6 +266,7 @@ def main(argv=None):
     print(f"\nbaseline: {n_needed:,} samples per configuration (pilot relative standard error "
           f"{np.max(rel):.2e} at {pilot_n:,}; target 5e-4); "
           f"engine/baseline speed ratio on BRDF1 x BTDF1: {eng_rate / mc_rate:.0f}")
+    doc.finish()
     return 0
 
 

@@ -31,6 +31,8 @@ import veil  # noqa: F401  (sets up JAX)
 from veil.viz import explore as ex
 from veil.viz.explore_page import ExplorePage
 
+from doc_tables import add_options, printed_tables  # noqa: E402  (benchmarks/)
+
 CURVES_TARGET = 0.300
 VERBOSE = bool(os.environ.get("VEIL_BENCH_VERBOSE"))
 
@@ -214,12 +216,15 @@ def main():
     parser.add_argument("--browser", action="store_true", help="also time it in Chromium")
     parser.add_argument("--fit", action="store_true", help="with a fit's data panel")
     parser.add_argument("--no-refined", action="store_true", help="skip the refined sphere")
+    add_options(parser, "explore-process,explore-browser")
     args = parser.parse_args()
+    doc = printed_tables(args).start()
     print(f"veil explore latency, {os.cpu_count()} CPU(s); accuracy {ex.LIVE_ACCURACY!r} live,"
           f" {ex.REFINED_ACCURACY!r} refined")
     in_process(args.fit, not args.no_refined)
     if args.browser:
         browser()
+    doc.finish()
 
 
 if __name__ == "__main__":

@@ -113,10 +113,13 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--child", help=argparse.SUPPRESS)
     parser.add_argument("--runs", type=int, default=2, help=argparse.SUPPRESS)
+    from doc_tables import add_options, printed_tables
+    add_options(parser, "fit-first,fit-fresh,fit-warm")
     args = parser.parse_args()
     if args.child:
         child(args.child, args.runs)
         return
+    doc = printed_tables(args).start()
     with tempfile.TemporaryDirectory(prefix="bench-fit-data-") as directory:
         t0 = time.perf_counter()
         subprocess.run([sys.executable, "-c", f"import sys; sys.path.insert(0, "
@@ -143,6 +146,7 @@ def main() -> None:
             print(f"  {step}: " + ", ".join(f"{k} {v:.5g} (true {getattr(true, k):.5g})"
                                            for k, v in params.items()))
         print(f"load average at end {os.getloadavg()[0]:.1f}")
+    doc.finish()
 
 
 if __name__ == "__main__":

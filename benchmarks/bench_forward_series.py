@@ -42,6 +42,7 @@ from veil.models import PRESETS, REGISTRY
 
 sys.path.insert(0, os.path.dirname(__file__))
 from bench_apparent import configurations  # noqa: E402
+from doc_tables import add_options, printed_tables  # noqa: E402
 
 BRDFS = {
     "TS": PRESETS["BRDF2"],
@@ -115,9 +116,13 @@ def main(argv=None):
     ap.add_argument("--calls", type=int, default=3, help="engine calls per case and round")
     ap.add_argument("--accuracy", action="store_true", help="accuracy against the reference")
     ap.add_argument("--qmc", type=int, default=2 ** 13, help="reference QMC points per rep")
+    add_options(ap, "forward-series")
     args = ap.parse_args(argv)
+    doc = printed_tables(args).start()
     if args.accuracy:
-        return accuracy(args.qmc, 8)
+        status = accuracy(args.qmc, 8)
+        doc.finish()
+        return status
 
     cfg = configurations(args.quick)
     ti, tr = cfg[:, 0], cfg[:, 1]
@@ -156,6 +161,7 @@ def main(argv=None):
             print(f"| {bn} | {mn} | {rate:.0f} | {min(c):.0f}-{max(c):.0f} | {w:.0f} | "
                   f"{rate / base:.2f} | {statistics.median(r):.2f} ({min(r):.2f}-{max(r):.2f}) |")
     print(f"\nload after the run {os.getloadavg()[0]:.1f}")
+    doc.finish()
     return 0
 
 

@@ -154,6 +154,8 @@ def main():
     parser.add_argument("--formats", default=",".join(FORMATS))
     parser.add_argument("--worker", nargs=4, metavar=("DIR", "MANIFEST", "ROI", "BLACK_ROI"))
     parser.add_argument("--trace", action="store_true")
+    from doc_tables import add_options, printed_tables
+    add_options(parser, "ingest")
     args = parser.parse_args()
     if args.worker:
         worker(*args.worker, trace=args.trace)
@@ -164,6 +166,7 @@ def main():
     w, h = args.width, args.height
     roi = f"{w // 2 - 100},{h // 2 - 100},200,200"
     black_roi = f"{w // 10},{h // 10},200,200"
+    doc = printed_tables(args).start()
     t0 = time.perf_counter()
     image = base_image(w, h)
     print(f"ingest benchmark: {args.photos} photos of {w} x {h} ({w * h / 1e6:.0f} MP), 16-bit, "
@@ -192,6 +195,7 @@ def main():
               f"{timed['median']:.3f} | "
               f"{timed['worst']:.3f} | {timed['total']:.1f} | {timed['rss_mib']:.0f} | "
               f"{traced['traced_mib']:.0f} |")
+    doc.finish()
 
 
 if __name__ == "__main__":

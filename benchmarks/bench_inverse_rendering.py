@@ -480,9 +480,11 @@ def _ratio(ir, veil) -> str:
     return f"{ir / veil['wall_2pct']:.1f} x"
 
 
-def print_table(rows: list[dict], header: str) -> None:
-    """One table per medium: the rows, their times and accuracy, IR's time over veil's."""
+def print_table(rows: list[dict], header: str) -> list[list[str]]:
+    """One table per medium: the rows, their times and accuracy, IR's time over veil's.
+    Returns the rows of all media (medium first, without the notes) for --doc."""
     print(header)
+    doc = []
     cols = ("row", "wall s", "CPU s", "RMS vs truth", "first <= 2 %: wall s (it.)",
             "<= 2 % for good: wall s (it.)", "CPU s", "IR/veil: final", "first 2 %",
             "for good", "notes")
@@ -518,6 +520,13 @@ def print_table(rows: list[dict], header: str) -> None:
         print("|" + "|".join("-" * (w + 2) for w in widths) + "|")
         for x in lines:
             print("| " + fmt.format(*x) + " |")
+        doc += [[medium, *x[:-1]] for x in lines]
+    return doc
+
+
+DOC_COLUMNS = ("medium", "row", "wall s", "CPU s", "RMS vs truth", "first <= 2 %: wall s (it.)",
+               "<= 2 % for good: wall s (it.)", "CPU s to 2 %", "IR/veil: final", "first 2 %",
+               "for good")
 
 
 def main(argv=None) -> int:
@@ -554,6 +563,7 @@ def main(argv=None) -> int:
     ap.add_argument("--veil-runs", type=int, default=1)
     ap.add_argument("--json", default=None)
     ap.add_argument("--quiet", action="store_true")
+    bv.add_doc_options(ap, "inverse-rendering")
     a = ap.parse_args(argv)
     rows_wanted = [x.strip() for x in a.rows.split(",") if x.strip()]
     bad = set(rows_wanted) - {"veil", "veil-lean", "known", "joint"}
@@ -579,7 +589,11 @@ def main(argv=None) -> int:
             if row in rows_wanted:
                 rows.append(run_ir(truth, medium, a.target, row, a, log))
     header += f"; load average at end {' '.join(f'{x:.2f}' for x in os.getloadavg())}"
-    print_table(rows, header)
+    doc = print_table(rows, header)
+    if a.doc:
+        from doc_tables import markdown, write
+
+        write(a.doc, a.doc_table, markdown(list(DOC_COLUMNS), doc, set(range(2, 11))))
     if a.json:
         with open(a.json, "w") as f:
             json.dump(rows, f, indent=1)

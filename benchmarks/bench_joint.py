@@ -60,6 +60,12 @@ def main():
     if len(sys.argv) == 3 and sys.argv[1] == "--cold":
         cold(sys.argv[2])
         return
+    import argparse
+
+    from doc_tables import add_options, printed_tables
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    add_options(parser, "joint")
+    doc = printed_tables(parser.parse_args()).start()
     rows = []
     for accuracy in ("fast", "default"):
         with tempfile.TemporaryDirectory(prefix="bench-joint-jax-cache-") as cache:
@@ -83,6 +89,7 @@ def main():
         print(f"| {kind} | {accuracy} | {r['points']} | {r['free']} | {r['starts']} "
               f"| {r['nfev']} / {r['njev']} | {r['seconds']:.1f} "
               f"| {r['n']:.4f} +/- {r['n_se']:.4f} | {'yes' if r['converged'] else 'NO'} |")
+    doc.finish()
 
 
 if __name__ == "__main__":

@@ -359,7 +359,10 @@ def main():
     ap.add_argument("--near-size", type=int, default=200)
     ap.add_argument("--near-accuracy", default="fast")
     ap.add_argument("--step-fraction", type=float, default=None)
+    from doc_tables import add_options, printed_tables
+    add_options(ap, "maps-solve,maps-map,maps-rss")
     args = ap.parse_args()
+    doc = printed_tables(args).start()
     import veil  # noqa: F401  (JAX set up by veil before the models)
     from veil.models import model_class
 
@@ -371,11 +374,13 @@ def main():
         bench_near(distance, pitch, args.near_size, args.pixels, configs, args.near_accuracy,
                    args.step_fraction)
         print(f"\nload average at the end {os.getloadavg()[0]:.1f}")
+        doc.finish()
         return
     if args.rss_only:
         with tempfile.TemporaryDirectory() as tmp:
             _rss_table(args, configs, Path(tmp))
         print(f"\nload average at the end {os.getloadavg()[0]:.1f}")
+        doc.finish()
         return
     print("| target | free | tables (s) | pixels | solve (s) | CPU (s) | pixels/s | converged |")
     print("|---|---|---:|---:|---:|---:|---:|---:|")
@@ -395,6 +400,7 @@ def main():
         print("\nsolve runs (wall s, CPU s): "
               + "; ".join(f"{w:.2f}, {c:.2f}" for w, c in runs)
               + f"\nload average at the end {os.getloadavg()[0]:.1f}")
+        doc.finish()
         return
     per_pixel, worst = bench_full(configs)
     print(f"\nfull fit through the engine (veil.fit_target, fast quadrature): {per_pixel:.1f} s "
@@ -415,6 +421,7 @@ def main():
             _rss_table(args, configs, Path(tmp))
     print(f"\nbenchmark process peak RSS {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f}"
           f" MiB; load average at the end {os.getloadavg()[0]:.1f}")
+    doc.finish()
 
 
 if __name__ == "__main__":

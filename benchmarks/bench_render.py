@@ -42,7 +42,10 @@ def main() -> None:
     parser.add_argument("--sizes", default="128,256,512")
     parser.add_argument("--check", type=int, default=256)
     parser.add_argument("--accuracy", default="fast")
+    from doc_tables import add_options, printed_tables
+    add_options(parser, "render")
     args = parser.parse_args()
+    doc = printed_tables(args).start()
     sizes = [int(s) for s in args.sizes.split(",")]
 
     print(f"cold: veil render --brdf BRDF1 --medium BTDF3 --size 256 (fresh process): "
@@ -64,6 +67,7 @@ def main() -> None:
             print(f"| {size} | {b} x {m} | {r.seconds:.1f} | {r.table_nodes} | "
                   f"{100 * r.max_rel_error:.3f} % | {100 * r.max_rel_error_all:.2f} % | "
                   f"{100 * r.max_peak_error:.4f} % |", flush=True)
+    doc.finish()
 
 
 if __name__ == "__main__":

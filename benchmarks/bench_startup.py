@@ -83,7 +83,10 @@ def main() -> None:
     parser.add_argument("--warmup", action="store_true",
                         help="run 'veil warmup' on the filled cache before measuring it")
     parser.add_argument("--only", default=None, help="measure commands whose label has this")
+    from doc_tables import add_options, printed_tables
+    add_options(parser, "startup")
     opts = parser.parse_args()
+    doc = printed_tables(opts).start()
 
     work = tempfile.mkdtemp(prefix="bench-startup-")
     base_env = {k: v for k, v in os.environ.items()
@@ -132,6 +135,7 @@ def main() -> None:
                   f"({min(walls):.2f}-{max(walls):.2f}) | {statistics.median(cpus):.2f} | "
                   f"{'-' if target is None else f'{target:g}'} | "
                   f"{','.join(map(str, codes))} |")
+        doc.finish()
     finally:
         shutil.rmtree(work, ignore_errors=True)
 

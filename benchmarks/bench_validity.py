@@ -77,7 +77,48 @@ def study_parser(doc: str, media: str) -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(description=doc.split("\n")[0])
     ap.add_argument("--media", default=media)
     ap.add_argument("--orders", default="cylinder", choices=ORDER_WEIGHTS)
+    add_doc_options(ap, "validity")
     return ap
+
+
+def add_doc_options(ap: argparse.ArgumentParser, table: str) -> None:
+    """--doc PAGE, --doc-table NAME and --doc-format: where the rows' table is written."""
+    ap.add_argument("--doc", default=None, metavar="PAGE",
+                    help="write the table, with this command, the date, the machine and its "
+                         "load, into PAGE between its markers <!-- table:NAME ... --> and "
+                         "<!-- /table:NAME --> (benchmarks/doc_tables.py)")
+    ap.add_argument("--doc-table", default=table, metavar="NAME",
+                    help="the NAME of those markers (default: %(default)s)")
+    ap.add_argument("--doc-format", default="main", choices=("main", "seconds"),
+                    help="main: the columns of docs/validity.md's table; seconds: each "
+                         "medium's pipeline seconds, paper's models against physical")
+
+
+def seconds_rows(rows: list[dict]) -> list[list[str]]:
+    """Per medium (and target): the paper's and the physical pipeline's wall seconds."""
+    out, seen = [], {}
+    for r in rows:
+        if not r["models"].endswith("(joint)"):
+            seen.setdefault((r["medium"], r["target"]), {})[r["models"]] = r["seconds"]
+    for (medium, target), s in seen.items():
+        paper, physical = s.get("paper", math.nan), s.get("physical", math.nan)
+        label = medium if target == "target" else f"{medium}, {target}"
+        out.append([label, f"{paper:.1f}", f"{physical:.1f}", f"{physical / paper:.2f}"])
+    return out
+
+
+def write_doc(args, rows: list[dict]) -> None:
+    """The rows' table into ``args.doc`` (nothing without --doc)."""
+    if not getattr(args, "doc", None):
+        return
+    from doc_tables import markdown, write
+
+    if getattr(args, "doc_format", "main") == "seconds":
+        table = markdown(["medium", "paper models, s", "physical models, s", "ratio"],
+                         seconds_rows(rows), {1, 2, 3})
+    else:
+        table = markdown(DOC_COLUMNS, doc_rows(rows), set(range(2, 11)))
+    write(args.doc, getattr(args, "doc_table", "validity"), table)
 
 
 def table(name: str, unweighted: bool = False) -> pd.DataFrame:
@@ -382,12 +423,12 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--media", default="m01,m05,m10")
     ap.add_argument("--targets", default="target")
+    ap.add_argument("--cases", default=None, metavar="MEDIUM:TARGET,...",
+                    help="these medium and target pairs instead of every --media x --targets")
     ap.add_argument("--models", default="paper,physical")
     ap.add_argument("--figure", default=None)
     ap.add_argument("--json", default=None)
-    ap.add_argument("--doc", default=None, metavar="PAGE",
-                    help="write the table, with this command, the date and the load, into "
-                         "PAGE between its markers <!-- table:validity --> (docs/validity.md)")
+    add_doc_options(ap, "validity")
     ap.add_argument("--joint", action="store_true",
                     help="also steps 1 and 2 as one joint fit per medium and model set")
     ap.add_argument("--replot", default=None, metavar="JSON",
@@ -414,36 +455,31 @@ def main(argv=None) -> int:
         print_table(rows)
         if args.figure:
             figure(rows, args.figure)
-        if args.doc:
-            from doc_tables import markdown, write
-
-            write(args.doc, "validity", markdown(DOC_COLUMNS, doc_rows(rows), set(range(2, 11))))
+        write_doc(args, rows)
         return 0
     truth = load_truth()
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
-        for medium in args.media.split(","):
-            for target in args.targets.split(","):
-                for models in args.models.split(","):
-                    out = os.path.join(tmp, f"{medium}-{target}-{models}")
-                    r = run_case(truth, medium, target, models, out)
-                    print(f"{medium} {target} {models}: est-vs-direct "
-                          f"{100 * r['est_vs_direct']:.2f} %, {r['seconds']:.1f} s",
+        cases = ([tuple(c.split(":")) for c in args.cases.split(",")] if args.cases else
+                 [(m, t) for m in args.media.split(",") for t in args.targets.split(",")])
+        for medium, target in cases:
+            for models in args.models.split(","):
+                out = os.path.join(tmp, f"{medium}-{target}-{models}")
+                r = run_case(truth, medium, target, models, out)
+                print(f"{medium} {target} {models}: est-vs-direct "
+                      f"{100 * r['est_vs_direct']:.2f} %, {r['seconds']:.1f} s",
+                      file=sys.stderr, flush=True)
+                rows.append(r)
+                if args.joint:
+                    r = run_joint(truth, medium, target, models)
+                    print(f"{medium} {target} {models} joint: est-vs-truth "
+                          f"{100 * r['est_vs_truth']:.2f} %, {r['seconds']:.1f} s",
                           file=sys.stderr, flush=True)
                     rows.append(r)
-                    if args.joint:
-                        r = run_joint(truth, medium, target, models)
-                        print(f"{medium} {target} {models} joint: est-vs-truth "
-                              f"{100 * r['est_vs_truth']:.2f} %, {r['seconds']:.1f} s",
-                              file=sys.stderr, flush=True)
-                        rows.append(r)
     print_table(rows)
     if args.figure:
         figure(rows, args.figure)
-    if args.doc:
-        from doc_tables import markdown, write
-
-        write(args.doc, "validity", markdown(DOC_COLUMNS, doc_rows(rows), set(range(2, 11))))
+    write_doc(args, rows)
     if args.json:
         from veil.io import write_text_atomic
 

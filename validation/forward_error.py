@@ -4,7 +4,10 @@ the true medium, evaluated by the independent reference tests/reference_physical
 Monte Carlo), against every third configuration of the rendered session minus its black cloth.
 No fit: what is left is the model's own error (docs/validity-orders.md).
 
-    .venv/bin/python validation/forward_error.py [OBJECT] [plate|inf|none] [m01,m05,...]
+    .venv/bin/python validation/forward_error.py [OBJECT] [plate|inf|none] [m01,m05,...] [--doc PAGE]
+
+--doc PAGE writes the table of the media into PAGE's block <!-- table:forward-error ... -->
+(--doc-table NAME another block; benchmarks/doc_tables.py).
 """
 import json
 import os
@@ -21,6 +24,13 @@ import reference_physical as rp  # noqa: E402
 D = os.path.join(HERE, "data") + os.sep
 with open(D + "truth.json") as f:
     truth = json.load(f)
+sys.path.insert(0, os.path.join(HERE, "..", "benchmarks"))
+from doc_tables import add_options, markdown, write  # noqa: E402
+import argparse  # noqa: E402
+_doc = argparse.ArgumentParser(add_help=False)
+add_options(_doc, "forward-error")
+_argv = list(sys.argv)
+doc_args, sys.argv[1:] = _doc.parse_known_args()
 obj = sys.argv[1] if len(sys.argv) > 1 else "ref"
 geom = sys.argv[2] if len(sys.argv) > 2 else "plate"
 media = sys.argv[3].split(",") if len(sys.argv) > 3 else ["m01", "m05", "m10", "m15"]
@@ -47,3 +57,8 @@ for m in media:
     rel = (pred - y[idx]) / y[idx]
     out[m] = dict(rms=float(np.sqrt(np.mean(rel**2))), max=float(np.max(np.abs(rel))), z=float(np.sqrt(np.mean(((pred-y[idx])/sig[idx])**2))))
     print(obj, geom, m, out[m], f"{time.time()-t0:.0f}s", flush=True)
+if doc_args.doc:
+    write(doc_args.doc, doc_args.doc_table, markdown(
+        ["medium", "tau per pass", "RMS relative error", "largest", "RMS of error / renderer's sigma"],
+        [[m, f"{truth['media'][m]['tau']:g}", f"{100 * out[m]['rms']:.2f} %",
+          f"{100 * out[m]['max']:.2f} %", f"{out[m]['z']:.2f}"] for m in media], {1, 2, 3, 4}), _argv)

@@ -223,7 +223,13 @@ if __name__ == "__main__":
     ap.add_argument("--media", default="m05,m10,m15,m10_w10,m10_r10")
     ap.add_argument("--angles", default="0,40,70")
     ap.add_argument("--side", default="light,view")
+    import os
+    import sys
+    sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "benchmarks"))
+    from doc_tables import add_options, markdown, write
+    add_options(ap, "mc-orders")
     a = ap.parse_args()
+    light_irr, view_all, view_orders = {}, {}, {}  # ratios MC / model, for --doc
     for med in a.media.split(","):
         tau, g, rc, hw = CASES[med]
         for th in [float(t) for t in a.angles.split(",")]:
@@ -241,6 +247,7 @@ if __name__ == "__main__":
                 print("  M_k (cylinder):", " ".join(f"{m:.3f}" for m in mk[:6]))
                 print(f"  scattered irradiance, all orders: MC/cylinder = {mc[:, 1].sum() / (mk * mo[:, 1]).sum():.4f},"
                       f" front: {mc[:, 2].sum() / (mk * mo[:, 2]).sum():.4f}")
+                light_irr.setdefault(med, []).append(f"{mc[:, 1].sum() / mo[:, 1].sum():.3f}")
                 print(f"  scattered irradiance, all orders: MC/model = {mc[:, 1].sum() / mo[:, 1].sum():.4f}"
                       f" (+-{np.sqrt((se[:, 1]**2).sum()) / mo[:, 1].sum():.4f}); with the unscattered beam: "
                       f"{(mc[:, 1].sum() + e0) / (mo[:, 1].sum() + e0):.4f}")
@@ -254,3 +261,18 @@ if __name__ == "__main__":
                     print(f"  k={k}: {mc[k,0]:.4e} / {mo[k,0]:.4e} / {mo1[k,0]:.4e}  ratio {mc[k,0]/mo[k,0]:.3f}+-{se[k,0]/mo[k,0]:.3f}"
                           f"  cos {mc[k,1]/max(mc[k,0],1e-30):.4f} vs {mo[k,1]/mo[k,0]:.4f}")
                 print(f"  all orders: MC {mc[:,0].sum():.4f} model {mo[:,0].sum():.4f} ratio {mc[:,0].sum()/mo[:,0].sum():.4f}")
+                view_all.setdefault(med, []).append(f"{mc[:, 0].sum() / mo[:, 0].sum():.4f}")
+                view_orders.setdefault(med, {})[th] = " / ".join(
+                    f"{mc[k, 0] / mo[k, 0]:.3f}" for k in (2, 3, 4))
+    if a.doc:
+        angles = a.angles.split(",")
+        middle = float(angles[len(angles) // 2])
+        write(a.doc, a.doc_table, markdown(
+            ["case (tau, g)", f"light irr., theta_i {' / '.join(angles)}",
+             f"view, theta_r {' / '.join(angles)}", f"view order 2 / 3 / 4 at theta_r = {middle:g}"],
+            [[f"{med} ({CASES[med][0]:g}, {CASES[med][1]:g}"
+              + (f", {2 * CASES[med][3]:g} cm plate" if CASES[med][3] != 2.5 else "")
+              + (f", R_c {CASES[med][2]:g} cm" if CASES[med][2] != 15.0 else "") + ")",
+              " / ".join(light_irr.get(med, [])),
+              " / ".join(view_all.get(med, [])), view_orders.get(med, {}).get(middle, "-")]
+             for med in a.media.split(",")]))

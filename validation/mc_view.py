@@ -25,7 +25,11 @@ if __name__ == "__main__":
     ap.add_argument("--n", type=int, default=1_000_000)
     ap.add_argument("--media", default="m05,m10,m15,m10_w10,m10_r10")
     ap.add_argument("--angles", default="0,60,80")
+    sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "benchmarks"))
+    from doc_tables import add_options, printed_tables
+    add_options(ap, "mc-view")
     a = ap.parse_args()
+    doc = printed_tables(a).start()
     print("| case | theta_r | MC / J_v, k = 1 2 3 4 | MC / (J_v lambda_k), k = 1 2 3 4 | lambda_k, k = 2 3 4 "
           "| all orders MC / J_v | MC / (J_v lambda) | se k = 2 3 4 |")
     print("|---|---:|---|---|---|---:|---:|---|")
@@ -45,3 +49,4 @@ if __name__ == "__main__":
                   + f" | {mc.sum() / mo.sum():.4f} | {mc.sum() / (mo * lam).sum():.4f} | "
                   + " ".join(f"{se[k] / mc[k]:.3f}" for k in range(2, 5)) + " |", flush=True)
             print(f"  ({time.time() - t0:.0f} s)", file=sys.stderr)
+    doc.finish()

@@ -55,7 +55,11 @@ def main(argv=None) -> int:
     ap.add_argument("--media", default="m10,m10_w10")
     ap.add_argument("--angles", default="30,60,75")
     ap.add_argument("--lights", default="-60,-30,0,30,50")
+    sys.path.insert(0, os.path.join(HERE, "..", "benchmarks"))
+    from doc_tables import add_options, printed_tables
+    add_options(ap, "view-directions,view-weighted")
     args = ap.parse_args(argv)
+    doc = printed_tables(args).start()
     with open(os.path.join(HERE, "data", "truth.json")) as f:
         plates = json.load(f)["plates"]
     vectors = {p: plate_vector(plates[p]) for p in ("ref", "target")}
@@ -107,6 +111,7 @@ def main(argv=None) -> int:
         f"{p} {ti:g}" for p in vectors for ti in lights) + " |")
     print("|---|---:|---:|" + "---:|" * (len(vectors) * len(lights)))
     print("\n".join(weighted))
+    doc.finish()
     return 0
 
 

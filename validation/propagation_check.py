@@ -234,7 +234,9 @@ def main(argv=None) -> int:
     ap.add_argument("--draws", type=int, default=40)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--coords", default="natural,transformed")
+    bv.add_doc_options(ap, "propagation-check")
     args = ap.parse_args(argv)
+    doc_rows = []
     truth = bv.load_truth()
     coords = args.coords.split(",")
     for c in coords:
@@ -242,8 +244,19 @@ def main(argv=None) -> int:
             ap.error(f"--coords {c}: natural or transformed")
     print(f"draws {args.draws} per coordinate system, seed {args.seed}")
     for medium in args.media.split(","):
-        report(check(truth, medium, args.draws, args.seed, coords))
+        out = check(truth, medium, args.draws, args.seed, coords)
+        report(out)
         sys.stdout.flush()
+        doc_rows += [[out["medium"], r["row"], f"{r['zmax']:.2f}", f"{100 * r['within']:.0f} %",
+                      f"{r['ratio_all']:.2f}", f"{r['ratio_wide']:.2f}"]
+                     + [f"{v:.2e}" for v in r["params"]] for r in out["rows"]]
+        theta = out["theta"]
+    if args.doc:
+        from doc_tables import markdown, write
+
+        columns = ["session", "propagation", "max \\|z\\|", "within 2 se", "se ratio all",
+                   "\\|rho\\| >= 45"] + [f"se {n}" for n in theta]
+        write(args.doc, args.doc_table, markdown(columns, doc_rows, set(range(2, len(columns)))))
     return 0
 
 

@@ -2,7 +2,7 @@
 
 Step 2's total covariance has a cross term with step 1's correlated model error, scaled by
 the session correlation c that step 2 estimates (veil.fitting.model_error.session_correlation;
-docs/validity-orders.md, "The 10 cm plate with the cylinder's orders"). This script runs the physical pipeline on one path-traced
+docs/validity-plate.md). This script runs the physical pipeline on one path-traced
 session as benchmarks/bench_validity.py does (target plate, model error "correlated",
 propagation "auto"), then:
 
@@ -77,9 +77,11 @@ def main(argv=None) -> int:
                     help="the reference plate (bench_validity --reference)")
     ap.add_argument("--shares", default="0,0.25,0.5,0.75,fitted,1",
                     help="values of c, comma-separated; 'fitted' is step 2's estimate")
+    bv.add_doc_options(ap, "share-sweep")
     args = ap.parse_args(argv)
     bv.REFERENCE = args.reference
     shares = [s.strip() for s in args.shares.split(",")]
+    doc_columns, doc_cells = ["c"], {s: [] for s in shares}  # for --doc: one row per share
     for s in shares:
         if s != "fitted":
             try:
@@ -96,11 +98,24 @@ def main(argv=None) -> int:
         print("| c | curves within 2 se | max |z| |\n|---:|---:|---:|")
         for r in out["rows"]:
             print(f"| {r['c']:.2f} | {100 * r['within_2se']:.0f} % | {r['max_z']:.2f} |")
+        doc_columns += [f"{medium}: curves within 2 se", "max \\|z\\|"]
+        by_c = {r["c"]: r for r in out["rows"]}
+        for s in doc_cells:
+            r = by_c.get(out["fitted"] if s == "fitted" else float(s))
+            fitted = f" (c = {r['c']:.2f})" if r and s == "fitted" else ""
+            doc_cells[s] += ([f"{100 * r['within_2se']:.0f} %{fitted}", f"{r['max_z']:.2f}"]
+                             if r else ["-", "-"])
         cols = ["psi", "rho", "theta_i", "theta_r", "z", "difference", "se_relative"]
         print(f"\noutside two standard errors at the fitted c ({len(out['outside'])}):")
         if len(out["outside"]):
             print(out["outside"][[c for c in cols if c in out["outside"]]]
                   .to_string(index=False))
+    if args.doc:
+        from doc_tables import markdown, write
+
+        write(args.doc, args.doc_table, markdown(
+            doc_columns, [[s] + cells for s, cells in doc_cells.items()],
+            set(range(1, len(doc_columns)))))
     return 0
 
 

@@ -1,4 +1,4 @@
-"""Tried and not kept (docs/validity-orders.md): correcting the target's data in the medium by the
+"""Tried and not kept (docs/validity-plate.md): correcting the target's data in the medium by the
 reference's relative residual of step 1, smoothed by step 1's own model-discrepancy process.
 
 If the forward model's miss were the same relative error for both plates (the view side's
@@ -77,6 +77,8 @@ def check(truth: dict, medium: str) -> list[str]:
 def main(argv=None) -> int:
     ap = bv.study_parser(__doc__, "m10_w10,m10")
     args = ap.parse_args(argv)
+    from doc_tables import printed_tables
+    doc = printed_tables(args).start()  # --doc PAGE --doc-table NAME: the table printed below
     bv.ORDERS = args.orders
     truth = bv.load_truth()
     rows = [row for m in args.media.split(",") for row in check(truth, m)]
@@ -85,6 +87,7 @@ def main(argv=None) -> int:
           "| elsewhere | ks | eta |")
     print("|---|---|---:|---:|---:|---:|---:|---:|")
     print("\n".join(rows))
+    doc.finish()
     return 0
 
 

@@ -1,4 +1,4 @@
-"""Would a view side right in theta_r close the 10 cm plate's gap? An oracle check (docs/validity-orders.md).
+"""Would a view side right in theta_r close the 10 cm plate's gap? An oracle check (docs/validity-plate.md).
 
 validation/mc_view_directions.py measures, weighted by the plates' own f_r, the ratio
 Monte Carlo / model of the view side as nearly a function of the view angle theta_r alone,
@@ -76,6 +76,7 @@ def main(argv=None) -> int:
                   f"{row['fr_max_z']:.2f}, tau {row['tau']:.4f}, g {row['g']:.4f}",
                   file=sys.stderr, flush=True)
     bv.print_table(rows)
+    bv.write_doc(args, rows)
     return 0
 
 
