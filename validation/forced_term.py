@@ -102,6 +102,12 @@ def run(medium: str, orders: str, terms: list[tuple[float, float]]) -> list[list
               f"{term.chi2_threshold if term else float('nan'):.4f}), within 2 se "
               f"{100 * c['fr_within_2se']:.0f} %, max |z| {c['fr_max_z']:.2f}, "
               f"{time.perf_counter() - t0:.1f} s", file=sys.stderr, flush=True)
+        if mode == "none":
+            zs = ", ".join(f"{k} {r['estimated']:.4g} against {r['direct']:.4g} (z "
+                           f"{r['z']:.2f})" for k, r in c["params"].items()
+                           if r["z"] is not None)
+            print(f"  the estimate: {100 * c['rms_fr_relative']:.2f} % RMS off the direct fit; "
+                  f"{zs}", file=sys.stderr, flush=True)
         out.append([label, f"{100 * c['fr_within_2se']:.0f} %", f"{c['fr_max_z']:.2f}"])
     return out
 
