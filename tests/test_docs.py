@@ -231,15 +231,6 @@ def test_bench_validity_writes_the_table_validity_md_has():
 # design-notes.md and changelog.md keep history and its tables as they were.
 
 HISTORY = {"design-notes.md", "changelog.md"}
-#: Numeric tables no script writes yet (measured by hand or by code outside benchmarks/ and
-#: validation/), by page and the start of their header. The list may only shrink: a table
-#: that gains its markers must leave it.
-NOT_YET_SCRIPTED = {
-    ("maps-geometry.md", "| step (fraction of the apparent lobe)"),  # a sweep of bench_maps --near
-    ("maps-geometry.md", "| geometry | Pd: mean, sd |"),         # tests/test_maps_near.py's plate
-    ("performance-startup.md", "| Jacobian in |"),              # a profile of one chunk
-    ("validity-reference.md", "| term | within 2 se |"),         # step 2 with the term forced
-}
 RULE = re.compile(r"\|(\s*:?-+:?\s*\|)+")
 MARKER = re.compile(r"<!-- table:([\w-]+) \(written by ((?:benchmarks|validation)/[\w-]+\.py)"
                     r"([^>]*)\) -->")
@@ -304,12 +295,6 @@ def test_numeric_tables_name_the_script_that_writes_them(page):
         source = table_source(lines, at)
         if source == "not-measured":
             continue
-        header = lines[at].strip()
-        listed = any(page.name == p and header.startswith(h) for p, h in NOT_YET_SCRIPTED)
-        if listed:
-            if source is not None:
-                problems.append(f"{where}: has its markers now; remove it from NOT_YET_SCRIPTED")
-            continue
         if source is None:
             problems.append(f"{where}: a numeric table without <!-- table:NAME (written by "
                             f"SCRIPT --doc ...) --> ... <!-- /table:NAME -->")
@@ -332,14 +317,6 @@ def test_numeric_tables_name_the_script_that_writes_them(page):
                                                  rest):
             problems.append(f"{where}: the marker's command does not write docs/{page.name}")
     assert not problems, "\n".join(problems)
-
-
-def test_the_unscripted_tables_are_still_there():
-    """Each entry of NOT_YET_SCRIPTED names a numeric table that exists (a stale entry would
-    let a new hand-typed table through)."""
-    for name, header in NOT_YET_SCRIPTED:
-        text = (ROOT / "docs" / name).read_text()
-        assert any(line.strip().startswith(header) for line in text.splitlines()), (name, header)
 
 
 def test_pages_under_3000_words_by_wc():
