@@ -69,7 +69,7 @@ def main():
 
     import veil
     from maps_helpers import render
-    from veil.fitting.maps import CONVERGED
+    from veil.maps.solve import CONVERGED
 
     out = Path(args.outdir)
     (out / "photos").mkdir(parents=True, exist_ok=True)

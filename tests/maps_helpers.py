@@ -46,7 +46,7 @@ def write_stack(folder, brdf, medium, configs, param_maps: np.ndarray, noise=0.0
 def render_near(brdf, medium, configs: pd.DataFrame, param_maps: np.ndarray, geometry,
                 accuracy: str = "fast") -> np.ndarray:
     """Apparent values (H*W, M) of a plate seen by a near camera (``geometry``, a
-    veil.fitting.maps_near.NearGeometry of the full photo ``param_maps`` is): every pixel at
+    veil.maps.near.NearGeometry of the full photo ``param_maps`` is): every pixel at
     its own exact angles (collimated light, pinhole camera; docs/maps-geometry.md "Geometry"), one
     engine evaluation per distinct parameter vector over its pixels."""
     n, h, w = param_maps.shape

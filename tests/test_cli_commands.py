@@ -161,7 +161,7 @@ def test_every_command_has_a_case(tmp_path):
 def _spy_on_locks(monkeypatch) -> list:
     """The folders committed under veil.io's commit lock and the maps stores written under
     their store lock, as they happen."""
-    import veil.fitting.maps_run as maps_run
+    import veil.maps.run as maps_run
     from veil import io as vio
 
     locked = []

@@ -204,7 +204,7 @@ def good_store(tmp_path_factory):
 
 
 def _read_store(store):
-    from veil.fitting.maps_store import open_maps, summarize_maps
+    from veil.maps.store import open_maps, summarize_maps
 
     maps = open_maps(store)
     summary = summarize_maps(store, maps)
@@ -260,8 +260,8 @@ def test_random_damage_to_a_store_is_read_or_refused(tmp_path, good_store, data)
 def test_random_store_attributes_are_read_or_refused(tmp_path, good_store, edits):
     """The store's own attributes (root zarr.json, ``veil_maps``) edited: every reader,
     the figure's panels included, reads them cleanly or says the store is damaged."""
-    from veil.fitting.maps_store import open_maps
-    from veil.viz.maps import _panels
+    from veil.maps.store import open_maps
+    from veil.maps.show import _panels
 
     store = tmp_path / "store.zarr"
     if store.exists():

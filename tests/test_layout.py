@@ -14,7 +14,7 @@ import pytest
 ROOT = pathlib.Path(__file__).resolve().parents[1] / "src" / "veil"
 #: Layers, lowest first; a module's layer is its first package below veil.
 LAYERS = [("_extras", "_jax", "_lazy", "errors", "io", "numbers"), ("models",), ("engine",), ("data",),
-          ("fitting",), ("analysis", "interop"), ("viz",), ("pipeline",), ("cli",)]
+          ("fitting", "maps"), ("analysis", "interop"), ("viz",), ("pipeline",), ("cli",)]
 RANK = {name: k for k, names in enumerate(LAYERS) for name in names}
 
 

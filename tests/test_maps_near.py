@@ -18,9 +18,10 @@ from click.testing import CliRunner
 import veil
 from veil.cli import main
 from veil.data.ingest import ROI
-from veil.fitting.maps import CONVERGED, build_tables, solve_pixels
-from veil.fitting.maps_near import NearGeometry
-from veil.fitting.maps_run import open_maps
+from veil.maps.near import NearGeometry
+from veil.maps.solve import CONVERGED, solve_pixels
+from veil.maps.store import open_maps
+from veil.maps.tables import build_tables
 
 sys.path.insert(0, str(Path(__file__).parent))
 from maps_helpers import configurations, render, render_near, write_photos  # noqa: E402

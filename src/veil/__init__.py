@@ -19,7 +19,7 @@ _API = {
     "fit_reference": "fitting.steps", "fit_medium": "fitting.steps",
     "fit_target": "fitting.steps", "FitResult": "fitting.result",
     "run_pipeline": "pipeline", "fit_joint": "fitting.joint",
-    "fit_maps": "fitting.maps_run", "open_maps": "fitting.maps_run",
+    "fit_maps": "maps.run", "open_maps": "maps.store",
     "BRDF": "models", "BTDF": "models", "Medium": "models", "Model": "models",
     "Param": "models", "PRESETS": "models", "REGISTRY": "models", "preset": "models",
     "register": "models",

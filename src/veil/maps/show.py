@@ -12,9 +12,9 @@ import numpy as np
 
 from .._extras import require
 from ..errors import InputError
-from ..fitting.maps import CONVERGED, STATUS
-from ..fitting.maps import FEW_POINTS as STATUS_FEW, MASKED as STATUS_MASKED
-from ..fitting.maps_run import open_maps, summarize_maps
+from .status import CONVERGED, STATUS
+from .status import FEW_POINTS as STATUS_FEW, MASKED as STATUS_MASKED
+from .store import open_maps, summarize_maps
 from ..io import output_folder, write_bytes_atomic, write_text_atomic
 
 FORMATS = ("tiff", "exr")

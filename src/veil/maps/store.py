@@ -16,6 +16,8 @@ dies, so a lock left by a killed run is taken over by the next run, which says s
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import contextlib
 import json
 import math
@@ -29,7 +31,10 @@ import numpy as np
 from .._extras import require
 from ..errors import InputError, MissingFileError, UnwritableError
 from ..io import forget_temporary, register_temporary, write_error
-from .maps import CONVERGED, MASKED, STATUS, MapTables
+from .status import CONVERGED, MASKED, STATUS
+
+if TYPE_CHECKING:
+    from .tables import MapTables
 
 FORMAT = "veil.maps/1"
 MAPS = ("params", "stderr", "chi2_reduced", "n_points", "status")
