@@ -215,7 +215,7 @@ def synthetic_at(tables, xs, ys, n, seed=0):
 
 def bench_full(configs, n=2):
     import veil
-    from maps_helpers import render
+    from support.maps import render
     from veil.maps.solve import solve_pixels
     from veil.maps.tables import build_tables
 
@@ -248,7 +248,7 @@ def bench_full(configs, n=2):
 def bench_map(size, configs, root):
     import veil
     from distributed import LocalCluster
-    from maps_helpers import write_stack
+    from support.maps import write_stack
     from veil.maps.run import fit_maps, open_maps
 
     brdf, medium = veil.BRDF1, veil.BTDF2
@@ -297,7 +297,7 @@ def bench_rss(shape, photos, configs, root, roi=None):
     columns), all of it or its ``roi`` ("X,Y,W,H"): the same image (a plate of BRDF1
     values, noise) at ``photos`` configurations."""
     import tifffile
-    from maps_helpers import render
+    from support.maps import render
     import veil
 
     folder = root / f"rss{photos}"

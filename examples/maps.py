@@ -68,7 +68,7 @@ def main():
     import tifffile
 
     import veil
-    from maps_helpers import render
+    from support.maps import render
     from veil.maps.solve import CONVERGED
 
     out = Path(args.outdir)

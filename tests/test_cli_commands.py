@@ -20,7 +20,8 @@ from click.testing import CliRunner
 import veil
 from veil.cli import COMMANDS, main
 
-from maps_helpers import configurations, write_stack
+from support.cli import run
+from support.maps import configurations, write_stack
 
 COARSE = ["--fine-step", "5", "--coarse-step", "15", "--accuracy", "fast"]
 
@@ -41,10 +42,6 @@ def leaf_commands() -> set:
     for name in COMMANDS:
         walk(main.get_command(ctx, name.split()[0]), [name.split()[0]])
     return out
-
-
-def run(*args):
-    return CliRunner().invoke(main, [str(a) for a in args])
 
 
 @pytest.fixture(scope="module")

@@ -23,6 +23,8 @@ import veil
 from veil.cli import main
 from veil.cli.eval_cmd import eval_command
 
+from support.cli import run_checked
+
 VEIL = shutil.which("veil", path=os.path.dirname(sys.executable)) or "veil"
 BASE = ["eval", "--brdf", "BRDF1", "--medium", "BTDF2", "--accuracy", "fast"]
 
@@ -38,12 +40,7 @@ CSV_ANGLES = {  # the CSV's columns in the order apparent() takes them
 }
 
 
-def run(args):
-    result = CliRunner().invoke(main, args)
-    assert "Traceback" not in result.output
-    if result.exception is not None and not isinstance(result.exception, SystemExit):
-        raise result.exception
-    return result
+run = run_checked
 
 
 def run_json(args):

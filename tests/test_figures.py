@@ -1,4 +1,4 @@
-"""The reproduced experiment (veil.viz.figures, veil.viz.reports, `veil reproduce`, `veil plot`): the
+"""The reproduced experiment (veil.viz.figures, veil.viz.documents, `veil reproduce`, `veil plot`): the
 numbers behind figs. 9-12 and the report, read back from the written files."""
 
 from __future__ import annotations

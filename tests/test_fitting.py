@@ -23,6 +23,8 @@ from veil.fitting import FitError, FitResult, fit_medium, fit_reference, fit_tar
 from veil.data.measurements import MeasurementError, save_measurements, subtract_black
 from veil.data.protocol import PSI
 
+from support.cli import run_checked
+
 PAIRS = [(b, m) for b in ("BRDF1", "BRDF2") for m in ("BTDF1", "BTDF2", "BTDF3")]
 SMALL = (90.0,)
 FAST = {"accuracy": "fast"}
@@ -371,12 +373,7 @@ def test_bad_result_files(tmp_path):
 
 # -- the command line -----------------------------------------------------------------------
 
-def invoke(args):
-    result = CliRunner().invoke(main, [str(a) for a in args])
-    assert "Traceback" not in result.output
-    if result.exception is not None and not isinstance(result.exception, SystemExit):
-        raise result.exception
-    return result
+invoke = run_checked
 
 
 @pytest.fixture(scope="module")

@@ -26,7 +26,7 @@ import veil
 from veil.cli import main
 from veil.errors import InputError
 
-from maps_helpers import configurations, write_stack
+from support.maps import configurations, write_stack
 
 SETTINGS = settings(derandomize=True, deadline=None, database=None,
                     suppress_health_check=[HealthCheck.function_scoped_fixture,
@@ -70,7 +70,7 @@ def csv_texts(draw):
 
 
 def _read_table(path):
-    from veil.fitting.data import prepare
+    from veil.fitting.session_data import prepare
 
     table = veil.load_measurements(path)
     data = prepare(table)

@@ -28,15 +28,12 @@ from veil import io as vio
 from veil.cli import main
 from veil.errors import UnwritableError
 
-from maps_helpers import configurations, write_stack
+from support.cli import run
+from support.maps import configurations, write_stack
 
 H = W = 4
 ENV = {**os.environ, "PYTHONPATH": os.pathsep.join(
     [str(Path(veil.__file__).parents[1])] + [p for p in [os.environ.get("PYTHONPATH")] if p])}
-
-
-def run(*args):
-    return CliRunner().invoke(main, [str(a) for a in args])
 
 
 def python(script: str, *args, **kw) -> subprocess.Popen:
@@ -477,7 +474,7 @@ def test_ctrl_c_while_staging_leaves_no_store(tmp_path):
     """48 photos of 160 x 160 pixels take a second or more to stage; the store's zarr.json
     appears when staging starts (after the tables). SIGINT then: status 130, "nothing was
     written", and no store (it said so before, and left a partial store)."""
-    from maps_helpers import write_photos
+    from support.maps import write_photos
 
     configs = configurations(48)
     rng = np.random.default_rng(0)

@@ -23,8 +23,7 @@ from veil.maps.run import fit_maps, is_complete, open_maps
 from veil.maps.solve import CONVERGED, EDGE, MASKED, NOT_CONVERGED, UNDETERMINED, solve_pixels
 from veil.maps.tables import build_tables
 
-sys.path.insert(0, str(Path(__file__).parent))
-from maps_helpers import configurations, render, write_stack  # noqa: E402
+from support.maps import angles_of, configurations, render, write_stack
 
 BRDF, MEDIUM = veil.BRDF1, veil.BTDF2
 NAMES = type(BRDF).param_names()
@@ -32,11 +31,6 @@ INDEX = NAMES[3]            # held fixed in these tests (weakly determined throu
 SHAPE = NAMES[2]            # the tabulated nonlinear parameter
 GRID = f"{SHAPE}=0.25:2.5:16"
 FIX = {INDEX: float(BRDF.to_vector()[3])}
-
-
-def angles_of(configs):
-    return tuple(configs[c].to_numpy(dtype=float)
-                 for c in ("theta_i", "phi_i", "theta_r", "phi_r"))
 
 
 # --------------------------------------------------------------------------------------

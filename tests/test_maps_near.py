@@ -23,8 +23,8 @@ from veil.maps.solve import CONVERGED, solve_pixels
 from veil.maps.store import open_maps
 from veil.maps.tables import build_tables
 
-sys.path.insert(0, str(Path(__file__).parent))
-from maps_helpers import configurations, render, render_near, write_photos  # noqa: E402
+from support.cli import run
+from support.maps import angles_of, configurations, render, render_near, write_photos
 
 BRDF, MEDIUM = veil.BRDF1, veil.BTDF2
 CLS = type(BRDF)
@@ -38,15 +38,6 @@ H = W = 16
 #: 9 fifths of the apparent lobe (4.6 deg) the field grid follows
 DISTANCE, PITCH = 100.0, 0.65
 KW = dict(fixed=FIX, grid={SHAPE: GRID}, accuracy="fast")
-
-
-def angles_of(configs):
-    return tuple(configs[c].to_numpy(dtype=float)
-                 for c in ("theta_i", "phi_i", "theta_r", "phi_r"))
-
-
-def run(*args):
-    return CliRunner().invoke(main, [str(a) for a in args])
 
 
 # --------------------------------------------------------------------------------------

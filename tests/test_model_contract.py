@@ -21,11 +21,10 @@ import sys
 import numpy as np
 import pytest
 
-sys.path.insert(0, os.path.join(os.path.dirname(__file__), "plugins"))
-import veil_test_models  # noqa: E402,F401  (registers the test-only families)
+import veil_test_models  # noqa: F401  (registers the test-only families)
 
-import reference as ref  # noqa: E402
-import reference_physical as rphys  # noqa: E402
+import reference as ref
+import reference_physical as rphys
 from veil.engine.forward import Forward  # noqa: E402
 from veil.engine.evaluator import CHUNK  # noqa: E402
 from veil.engine.quadrature import RULES  # noqa: E402

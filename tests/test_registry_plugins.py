@@ -12,12 +12,12 @@ import sys
 import pytest
 from click.testing import CliRunner
 
-PLUGINS = os.path.join(os.path.dirname(__file__), "plugins")
-sys.path.insert(0, PLUGINS)
-import veil_test_models  # noqa: E402
+import veil_test_models
 
-import veil  # noqa: E402
-from veil.cli import main  # noqa: E402
+import veil
+from veil.cli import main
+
+PLUGINS = os.path.join(os.path.dirname(__file__), "plugins")
 from veil.fitting import FitResult, load_result  # noqa: E402
 
 FAST = ["--accuracy", "fast"]

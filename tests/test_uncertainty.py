@@ -20,8 +20,7 @@ from veil.errors import InputTypeError
 from veil.fitting import FitError, fit_target
 from veil.analysis.uncertainty import PARTS, budget_table, propagate, sample_propagation
 
-sys.path.insert(0, str(Path(__file__).parent))
-from chain_helpers import small_chain  # noqa: E402
+from support.chain import small_chain
 
 
 

@@ -35,7 +35,7 @@ from .fitting.model_error import check_kind
 from .fitting.propagation import check_method
 from .analysis.uncertainty import curve_stderr
 from .viz.fit_figures import fit_figure
-from .viz.reports import comparison_report, pipeline_report
+from .viz.documents import comparison_report, pipeline_report
 
 #: Output files, by role.
 FILES = {"reference": "reference.json", "medium": "medium.json", "target": "target.json",

@@ -32,6 +32,7 @@ import math
 import numpy as np
 import pandas as pd
 
+from ..data.measurements import ANGLE_COLUMNS
 from ..data.protocol import protocol
 from ..engine.apparent import as_brdf, as_btdf
 from ..errors import InputError
@@ -46,7 +47,6 @@ MODES = ("joint", "known")
 PRIOR_SD_LOG = 10.0
 PRIOR_SD_PLAIN = 1.0
 
-ANGLE_COLUMNS = ("psi", "rho", "theta_i", "phi_i", "theta_r", "phi_r")
 
 
 def interest_names(brdf_cls) -> tuple[str, ...]:

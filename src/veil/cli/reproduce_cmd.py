@@ -66,7 +66,7 @@ def reproduce(outdir, *, size=256, accuracy="default", render_accuracy="fast", c
     from ..io import check_output_folder, output_folder, write_bytes_atomic
     from ..viz.figures import fig9, fig10, fig11, fig12, figure_bytes, run_experiment
     from ..viz.render import png_bytes, tone_map
-    from ..viz.reports import write_report
+    from ..viz.documents import write_report
 
     if not 16 <= size <= 2048:
         raise UserError(f"--size {size} must be between 16 and 2048 pixels")

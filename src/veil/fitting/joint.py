@@ -26,13 +26,13 @@ from ..engine.angles import direction
 from ..errors import FitError, InputError
 from ..models import Model, default_class, model_class
 from ..models.base import VARIANT_OPTION
-from .data import prepare
+from .session_data import prepare
 from .given import as_given
 from .problem import (ITERATION_ACCURACY, OBJECTS, Block, Problem, Session, check_accuracy,
                       model_slots)
 from . import model_error as discrepancy
 from .propagation import check_method, describe, media_part
-from .reported import Reported, model_floor, reported
+from .reported_uncertainty import Reported, model_floor, reported
 from .result import FitResult, JointResult, load_result, model_entry
 from .solver import (as_fixed, check_fixed, check_max_nfev, covariance_matrix, run, summarize,
                      uncertainties)
@@ -371,7 +371,7 @@ def fit_joint(sessions, *, reference=None, shared=None, per_medium=None, fixed=N
         term over all its sessions (:mod:`veil.fitting.model_error`; nothing is inherited;
         at least the models' declared error when every session is in a medium),
         and a reference given as a fit result has its covariance propagated into
-        ``stderr_total`` to first order (:mod:`veil.fitting.reported`).
+        ``stderr_total`` to first order (:mod:`veil.fitting.reported_uncertainty`).
     propagation : how the media's uncertainty reaches the objects' ``stderr_total``: "auto"
         (the default, None: through refits at sigma points where a medium parameter is
         uncertain by more than a quarter of its scale, as tau at optical depth 0.1, and at

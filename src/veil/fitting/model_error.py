@@ -503,7 +503,7 @@ def shared(own_influence, angles, given: ModelError, given_names, sensitivity,
     ``share`` scales it: how far step 2's error is step 1's
     (:func:`session_correlation`). None when the given term has no length (ell = 0: the two sessions' errors independent)
     or no influence. Step 2's own part must then be that of the shared process plus what its
-    own s exceeds it by (veil.fitting.reported), so that the two are one covariance."""
+    own s exceeds it by (veil.fitting.reported_uncertainty), so that the two are one covariance."""
     if given is None or given.sigma == 0.0 or given.length == 0.0 or given.influence is None:
         return None
     missing = [n for n in given_names if n not in given.influence]

@@ -26,7 +26,7 @@ from ..engine.quadrature import RULES
 from ..errors import FitError
 from ..models import BRDF, Medium, Param
 from . import coordinates
-from .data import FitData, prepare
+from .session_data import FitData, prepare
 
 #: Quadrature of the iterations through a medium; the polish uses the requested accuracy.
 ITERATION_ACCURACY = "fast"

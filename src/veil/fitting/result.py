@@ -1,6 +1,6 @@
 """The result of a fit (docs/model.md sec. 7): :class:`FitResult` (one model: a step of the
 two-step method) and :class:`JointResult` (several models: a joint fit), and their JSON file,
-key by key in docs/fitting.md. The text report is :mod:`veil.fitting.report`.
+key by key in docs/fitting.md. The text report is :mod:`veil.fitting.fit_report`.
 
 Result files carry ``"format": "veil.fit/2"``; files of the earlier formats ("veil.fit/1",
 "veil.joint/1") are read as well, and any other format is refused with a clear message
@@ -15,6 +15,7 @@ import json
 import math
 import os
 from dataclasses import dataclass, field
+from typing import ClassVar
 
 from ..errors import FitError, InputError, MissingFileError, NotAFileError
 from ..io import write_bytes_atomic
@@ -56,6 +57,9 @@ class FitResult:
     did not estimate one (unweighted data, an undetermined covariance, or
     ``model_error="off"``).
     """
+
+    #: A joint fit (:class:`JointResult`): its report lists the sessions.
+    JOINT: ClassVar[bool] = False
 
     model: str
     params: dict
@@ -269,7 +273,7 @@ class FitResult:
     # -- text ------------------------------------------------------------------------------
     def report(self, min_correlation: float = 0.1) -> str:
         """A readable fit report (like lmfit's): statistics, variables, correlations."""
-        from .report import fit_report
+        from .fit_report import fit_report
 
         return fit_report(self, min_correlation)
 
@@ -299,6 +303,8 @@ class JointResult(FitResult):
     and their ``options``, ``objects`` {object: {model parameter: result name}}, ``media``
     {label: {model parameter (alias): result name}}, ``shared``, ``sessions`` (name,
     object, medium, n_points, chi2, rms_relative each)."""
+
+    JOINT: ClassVar[bool] = True
 
     layout: dict = field(default_factory=dict)
 

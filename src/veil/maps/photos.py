@@ -172,7 +172,7 @@ def load_acquisition(photo_dir, manifest, *, roi=None, mask=None, black_photos=N
     """Check the inputs of :func:`fit_maps` and read what is cheap (no photo decoded but the
     mask and raw headers)."""
     from ..data.measurements import canonical_angles
-    from ..fitting.data import CANONICAL
+    from ..fitting.session_data import CANONICAL
 
     photo_dir = Path(photo_dir)
     if not photo_dir.is_dir():

@@ -535,7 +535,7 @@ class FitView:
 
     def __init__(self, result, table, black=None, source: str = "the result",
                  table_name: str = "the table", draws: int = BAND_DRAWS, seed: int = 20110901):
-        from ..fitting.data import prepare
+        from ..fitting.session_data import prepare
 
         self.result, self.source = result, source
         check_result_kind(result, source)

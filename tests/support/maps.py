@@ -14,6 +14,12 @@ from veil.engine.evaluator import ApparentModel
 from veil.engine.quadrature import RULES
 
 
+def angles_of(configs: pd.DataFrame) -> tuple:
+    """The four angle columns (theta_i, phi_i, theta_r, phi_r) as float arrays."""
+    return tuple(configs[c].to_numpy(dtype=float)
+                 for c in ("theta_i", "phi_i", "theta_r", "phi_r"))
+
+
 def configurations(count: int = 24) -> pd.DataFrame:
     """``count`` in-plane configurations spread over the paper's protocol (psi = 30, 60,
     90 deg), denser near the mirror direction."""
