@@ -1,4 +1,5 @@
-"""The whole estimation of docs/model.md sec. 7 in one call: steps 0-2, result files, figures, report.
+"""The whole estimation of docs/model.md sec. 7 in one call: steps 0-2, result files,
+figures, report.
 
 :func:`run_pipeline` fits the reference's f_r in a clear medium (step 0), the medium through
 the reference (step 1) and the target through the medium (step 2), and writes into ``outdir``
@@ -26,16 +27,23 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .io import check_output_folder, output_folder, write_bytes_atomic, write_text_atomic
+from .analysis.uncertainty import curve_stderr
 from .data.protocol import protocol
 from .errors import FitError
-from .fitting import (FitResult, fit_direct, fit_medium, fit_reference, fit_target,
-                      model_values, prepare)
+from .fitting import (
+    FitResult,
+    fit_direct,
+    fit_medium,
+    fit_reference,
+    fit_target,
+    model_values,
+    prepare,
+)
 from .fitting.model_error import check_kind
 from .fitting.propagation import check_method
-from .analysis.uncertainty import curve_stderr
-from .viz.fit_figures import fit_figure
+from .io import check_output_folder, output_folder, write_bytes_atomic, write_text_atomic
 from .viz.documents import comparison_report, pipeline_report
+from .viz.fit_figures import fit_figure
 
 #: Output files, by role.
 FILES = {"reference": "reference.json", "medium": "medium.json", "target": "target.json",
@@ -86,7 +94,7 @@ def _inside(path, folder) -> bool:
 
 def _check_outputs(outdir: str, inputs: dict) -> None:
     check_output_folder(outdir)
-    for role, name in FILES.items():
+    for name in FILES.values():
         out = os.path.join(outdir, name)
         for what, inp in inputs.items():
             if isinstance(inp, (str, os.PathLike)) and _same(out, inp):

@@ -27,8 +27,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..errors import InputTypeError
-from ..errors import FitError
+from ..errors import FitError, InputTypeError
 from ..fitting.joint import build, shareable
 from ..fitting.problem import ITERATION_ACCURACY, session_problem
 from ..fitting.result import FitResult, JointResult
@@ -423,5 +422,5 @@ def _crossing(values, chi2):
     return None
 
 
-__all__ = ["diagnose", "Diagnosis", "Profile", "profile_likelihood", "problem_for", 
+__all__ = ["diagnose", "Diagnosis", "Profile", "profile_likelihood", "problem_for",
            "relative_error", "MAX_RELATIVE", "MAX_CORRELATION"]

@@ -8,7 +8,8 @@ or through sigma points where it is large, :mod:`veil.fitting.propagation`);
 this module splits that total into a per-step budget, can compute step 0's part from the
 reference's own data, and checks the linearization by sampling.
 
-The target's estimate solves J_t^T W r(theta_t, theta_m) = 0, so a change d theta_m of the medium moves it by
+The target's estimate solves J_t^T W r(theta_t, theta_m) = 0, so a change d theta_m of the
+medium moves it by
 
     d theta_t = -A d theta_m,   A = (J_t^T W J_t)^-1 J_t^T W J_m   (= J_t^+ J_m, weighted)
 
@@ -39,8 +40,8 @@ import math
 
 import numpy as np
 
-from ..errors import FitError, InputTypeError
 from ..engine.evaluator import DirectModel
+from ..errors import FitError, InputTypeError
 from ..fitting.problem import ITERATION_ACCURACY, session_problem
 from ..fitting.propagation import sigma_part
 from ..fitting.result import FitResult, JointResult

@@ -121,7 +121,7 @@ class VeilGroup(LazyGroup):
                 report_bug(exc, ctx.obj.get("debug", False) if ctx.obj else False)
             click.echo(f"Error: {exc.filename}: {exc.strerror or exc}", err=True)
             sys.exit(EXIT_INPUT)
-        except Exception as exc:  # noqa: BLE001 - anything else is a bug in veil
+        except Exception as exc:
             report_bug(exc, bool(ctx.obj and ctx.obj.get("debug")))
 
 
@@ -324,9 +324,10 @@ def model_options(kinds=("brdf", "medium")):
             numeric = all(isinstance(o.default, (int, float)) and not isinstance(o.default, bool)
                           for _, _, o in users)
             kind = click.Choice(choices) if choices else (click.FLOAT if numeric else str)
+            defaults = ", ".join(str(o.default) for _, _, o in users)
             wrapper = click.option(_option_flag(oname), oname, default=None, type=kind,
                                    help=f"Option of the model ({docs}); default: the model's "
-                                        f"({', '.join(str(o.default) for _, _, o in users)}).")(wrapper)
+                                        f"({defaults}).")(wrapper)
         for kind in reversed(kinds):
             word = "BRDF family of the objects" if kind == "brdf" else "medium model"
             wrapper = click.option(f"--{kind}-model", f"{kind}_model", default=None,
@@ -426,8 +427,9 @@ def load_medium(text: str, models, option: str = "--medium"):
 @contextlib.contextmanager
 def fit_progress(title: str):
     """A rich progress display on stderr; yields the ``progress(stage, done, total)`` callback."""
-    from .compile_display import console
     from rich.progress import BarColumn, Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
+
+    from .compile_display import console
 
     with Progress(SpinnerColumn(), TextColumn("{task.description}"), BarColumn(),
                   TextColumn("{task.fields[count]}"), TimeElapsedColumn(),
@@ -527,7 +529,7 @@ def read_csv_table(path, required, *, unit="a number", expected=None):
     table = pd.DataFrame(body.to_numpy(), columns=header)
     numbers = {}
     first_bad = None  # (row, column position, message): report the first in file order
-    for k, c in enumerate(required):
+    for c in required:
         cells = body.iloc[:, header.index(c)].tolist()
         values = np.empty(len(cells))
         for j, cell in enumerate(cells):

@@ -140,8 +140,8 @@ def design_command(brdf, media, factors, size, psi, fine_step, window, coarse_st
     for row in plan.itertuples():
         ti = row.theta_i if row.phi_i == 180.0 else -row.theta_i
         tr = row.theta_r if row.phi_r == 0.0 else -row.theta_r
-        table.add_row(str(row.step), escape(row.condition), f"{row.psi:g}", f"{row.rho:g}", f"{ti:g}",
-                      f"{tr:g}", f"{row.gain:.3g}")
+        table.add_row(str(row.step), escape(row.condition), f"{row.psi:g}", f"{row.rho:g}",
+                      f"{ti:g}", f"{tr:g}", f"{row.gain:.3g}")
     console.print(table)
     names = [info.names[k] for k in info.interest]
     ctab = Table(title="Conditions (predicted stderr of the interest parameters, plan of the "

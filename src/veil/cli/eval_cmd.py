@@ -9,11 +9,10 @@ import math
 import time
 
 import click
-from .._lazy import np
 
+from .._lazy import np
 from ..io import write_text_atomic
-from ._common import (ACCURACIES, UserError, check_output_path, model_options,
-                      read_csv_table)
+from ._common import ACCURACIES, UserError, check_output_path, model_options, read_csv_table
 
 ANGLES = ("theta_i", "phi_i", "theta_r", "phi_r")  # the --configs columns, degrees
 ADDED = ("apparent", "clear", "error")  # the columns veil eval adds
@@ -169,9 +168,16 @@ class _Progress:
         if self.bar is None:
             if done >= total or seconds * (total - done) / CHUNK < PROGRESS_AFTER:
                 return
+            from rich.progress import (
+                BarColumn,
+                MofNCompleteColumn,
+                Progress,
+                TextColumn,
+                TimeElapsedColumn,
+                TimeRemainingColumn,
+            )
+
             from .compile_display import console
-            from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TextColumn,
-                                       TimeElapsedColumn, TimeRemainingColumn)
 
             self.bar = Progress(TextColumn("veil eval: configurations"), BarColumn(),
                                 MofNCompleteColumn(), TimeElapsedColumn(),

@@ -204,9 +204,8 @@ def _write_static(state, views, param, points, output):
 def _serve(state, views, port, no_browser, share_dir):
     pn = require("panel", "veil explore")
 
-    from ..viz.explore_page import ExplorePage
-
     from ..viz.explore import warm_up
+    from ..viz.explore_page import ExplorePage
 
     echo = lambda text: click.echo(text, err=True)  # noqa: E731
     live, _ = warm_up(state)  # compiles in the background what the page needs

@@ -130,8 +130,9 @@ def export_command(result, medium_result, target, output, fmt, scale, ext_ior, p
 
         frame = curves(brdf, medium, psis, accuracy)
         write_text_atomic(output, to_csv_text(frame))
-        click.echo(f"wrote {len(frame)} rows ({len(frame) // (2 if medium is not None else 1)} "
-                   f"configurations, {'with and without the medium' if medium is not None else 'no medium'}) "
+        both = medium is not None
+        click.echo(f"wrote {len(frame)} rows ({len(frame) // (2 if both else 1)} "
+                   f"configurations, {'with and without the medium' if both else 'no medium'}) "
                    f"to {output}", err=True)
         return
     from ..interop.export import export

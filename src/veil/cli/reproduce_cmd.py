@@ -30,7 +30,8 @@ def curves_csv(exp) -> str:
     return "\n".join(lines) + "\n"
 
 
-@click.command("reproduce", short_help="Regenerate the paper's simulation experiment (figs. 9-12, report).")
+@click.command("reproduce",
+               short_help="Regenerate the paper's simulation experiment (figs. 9-12, report).")
 @click.option("-o", "--output", "outdir", required=True,
               help="Output directory (created if missing). Written as a whole at the end: "
                    "veil's files in it are replaced together, other files are left alone; "
@@ -64,9 +65,9 @@ def reproduce(outdir, *, size=256, accuracy="default", render_accuracy="fast", c
     import numpy as np
 
     from ..io import check_output_folder, output_folder, write_bytes_atomic
+    from ..viz.documents import write_report
     from ..viz.figures import fig9, fig10, fig11, fig12, figure_bytes, run_experiment
     from ..viz.render import png_bytes, tone_map
-    from ..viz.documents import write_report
 
     if not 16 <= size <= 2048:
         raise UserError(f"--size {size} must be between 16 and 2048 pixels")
@@ -79,8 +80,9 @@ def reproduce(outdir, *, size=256, accuracy="default", render_accuracy="fast", c
 
     progress = task = None
     if not quiet:
-        from .compile_display import console
         from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+        from .compile_display import console
 
         progress = Progress(TextColumn("{task.description:<40}"), BarColumn(),
                             TextColumn("{task.completed}/{task.total}"), TimeElapsedColumn(),

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+
 from .._extras import require
 from ..errors import InputError, MissingFileError, UnwritableError
 
@@ -55,7 +56,7 @@ class ROI:
     def slices(self):
         return slice(self.y, self.y + self.h), slice(self.x, self.x + self.w)
 
-    def overlaps(self, other: "ROI") -> bool:
+    def overlaps(self, other: ROI) -> bool:
         return (self.x < other.x + other.w and other.x < self.x + self.w
                 and self.y < other.y + other.h and other.y < self.y + self.h)
 
@@ -252,7 +253,7 @@ def _read_tiff(path: Path, rois) -> _Photo:
             image = tifffile.memmap(path, mode="r")
     except InputError:
         raise
-    except Exception as exc:  # noqa: BLE001 - TiffFileError, codec errors, a short file's mmap
+    except Exception as exc:
         raise InputError(f"{path}: cannot read as TIFF ({type(exc).__name__}: {exc}); "
                          f"expected a complete TIFF file holding one gray or RGB image (is "
                          f"the photo truncated, or not a TIFF?)") from None

@@ -14,8 +14,8 @@ import math
 import numpy as np
 import pandas as pd
 
-from ..errors import InputError
 from ..engine.angles import from_goniometer, from_signed_inplane
+from ..errors import InputError
 
 PSI = (30.0, 60.0, 90.0)
 

@@ -27,16 +27,17 @@ has no glow.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from functools import lru_cache
-from typing import Callable
 
 import numpy as np
 
-from ..errors import InputError
 from ..engine.angles import direction
 from ..engine.apparent import RULES, as_brdf, as_btdf
 from ..engine.evaluator import CHUNK, evaluate
+from ..errors import InputError
 from .protocol import PSI, protocol
+
 #: The glow's reference configuration (theta_i, phi_i, theta_r, phi_r), degrees.
 GLOW_REFERENCE = (0.0, 180.0, 60.0, 0.0)
 GLOW_LEVEL = 0.03

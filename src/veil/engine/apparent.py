@@ -7,13 +7,12 @@ from __future__ import annotations
 
 import numpy as np
 
-
-from ..errors import InputError, InputTypeError, ParameterError
 from .._jax import jax, jnp
+from ..errors import InputError, InputTypeError, ParameterError
+from ..models import BRDF, BTDF, preset
+from .angles import check_angles, direction
 from .forward import Forward, _bucket
 from .programs import Program, structure_name
-from .angles import check_angles, direction  # noqa: F401  (check_angles re-exported)
-from ..models import BRDF, BTDF, preset
 from .quadrature import ERROR_FACTOR, FINER, RULES, Rule  # noqa: F401  (re-exported)
 
 

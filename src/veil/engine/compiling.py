@@ -18,8 +18,8 @@ import json
 import os
 import threading
 import time
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
-from typing import Callable, Iterator
 
 #: Seconds of compilation per line of a program's StableHLO text, by kind of program, before
 #: this store has measured its own: a Jacobian's lines take about twice a value's
@@ -125,7 +125,7 @@ def program_lines(lowered) -> int:
     """The size of a lowered program: lines of its StableHLO text."""
     try:
         return lowered.as_text().count("\n")
-    except Exception:  # noqa: BLE001 - a backend without text: no estimate, still compiled
+    except Exception:
         return 0
 
 

@@ -49,12 +49,11 @@ import sys
 import tempfile
 import threading
 from contextlib import contextmanager
-from functools import lru_cache
+from functools import cache, lru_cache
 
 import numpy as np
 
-from .. import __version__
-from .. import _jax
+from .. import __version__, _jax
 from .._jax import CACHE_OFF, _notice, jax
 
 #: First line of every entry; a new layout gets a new number.
@@ -101,7 +100,7 @@ def _cpu() -> str:
     return hashlib.sha256("\n".join(described).encode()).hexdigest()[:16]
 
 
-@lru_cache(maxsize=None)
+@cache
 def _source_digest(files: tuple) -> str:
     """A digest of ``files`` ((name, path) pairs): each name and its file's bytes. Names,
     not paths, so that the same code in another checkout or environment finds its
@@ -232,7 +231,7 @@ def read(identity: str, env: dict, signature: tuple):
         by_id = {d.id: d for d in jax.devices()}
         compiled = serialize_executable.deserialize_and_load(
             executable, in_tree, out_tree, execution_devices=[by_id[i] for i in device_ids])
-    except Exception as exc:  # noqa: BLE001 - whatever the decoder raises: not trusted
+    except Exception as exc:
         return damaged(f"{type(exc).__name__}: {exc}")
     if _compiled_signature(compiled) != signature:
         return damaged("its inputs are not the call's")

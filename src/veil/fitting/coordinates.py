@@ -6,8 +6,6 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
-
 from ..models import Param
 
 #: Internal search range (natural-log units) of log-scale parameters without a finite bound.

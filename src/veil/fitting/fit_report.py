@@ -1,6 +1,6 @@
 """The text report of a fit result (like lmfit's; :meth:`veil.fitting.result.FitResult.report`):
-one layout for a step fit and a joint fit - a header, the statistics, the sessions of a joint fit, the variables with their standard
-errors, and the strongest correlations."""
+one layout for a step fit and a joint fit - a header, the statistics, the sessions of a joint
+fit, the variables with their standard errors, and the strongest correlations."""
 
 from __future__ import annotations
 
@@ -42,7 +42,8 @@ def _statistics(result: FitResult) -> list[str]:
              f"    free parameters    = {len(free)}"
              + (f"  (fixed: {', '.join(result.fixed)})" if result.fixed else "")]
     if result.JOINT:
-        lines.append(f"    shared by the media = {', '.join(result.layout.get('shared', [])) or '-'}")
+        shared = ", ".join(result.layout.get("shared", [])) or "-"
+        lines.append(f"    shared by the media = {shared}")
     lines += [f"    reduced chi-square = {format_number(result.chi2_reduced, 5)}",
               f"    rms relative resid = {format_number(100 * result.rms_relative, 4)} %"]
     if result.aic is not None:

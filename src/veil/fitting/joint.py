@@ -26,16 +26,30 @@ from ..engine.angles import direction
 from ..errors import FitError, InputError
 from ..models import Model, default_class, model_class
 from ..models.base import VARIANT_OPTION
-from .session_data import prepare
-from .given import as_given
-from .problem import (ITERATION_ACCURACY, OBJECTS, Block, Problem, Session, check_accuracy,
-                      model_slots)
 from . import model_error as discrepancy
+from .given import as_given
+from .problem import (
+    ITERATION_ACCURACY,
+    OBJECTS,
+    Block,
+    Problem,
+    Session,
+    check_accuracy,
+    model_slots,
+)
 from .propagation import check_method, describe, media_part
 from .reported_uncertainty import Reported, model_floor, reported
 from .result import FitResult, JointResult, load_result, model_entry
-from .solver import (as_fixed, check_fixed, check_max_nfev, covariance_matrix, run, summarize,
-                     uncertainties)
+from .session_data import prepare
+from .solver import (
+    as_fixed,
+    check_fixed,
+    check_max_nfev,
+    covariance_matrix,
+    run,
+    summarize,
+    uncertainties,
+)
 from .start_values import joint_starts, step_starts
 
 #: Two configurations closer than this (deg, for both I and R) are the same one when

@@ -395,7 +395,7 @@ class Problem:
             start += b.size
         return out
 
-    def with_fixed(self, names_values: dict) -> "Problem":
+    def with_fixed(self, names_values: dict) -> Problem:
         """A copy of the problem with more parameters held fixed (profiles, refits)."""
         out = Problem.__new__(Problem)
         out.__dict__.update(self.__dict__)

@@ -12,8 +12,8 @@
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 from . import model_error as discrepancy
 from .problem import Problem

@@ -180,7 +180,7 @@ class FitResult:
         write_bytes_atomic(path, text.encode("utf-8"))
 
     @classmethod
-    def from_dict(cls, data: dict, source: str = "the fit result") -> "FitResult":
+    def from_dict(cls, data: dict, source: str = "the fit result") -> FitResult:
         """Check and convert a dictionary written by :meth:`to_dict`."""
         if not isinstance(data, dict):
             raise FitError(f"{source}: expected a JSON object with keys model, params, ...; "
@@ -266,7 +266,7 @@ class FitResult:
             model_error=_read_term(data.get("model_error"), names, source))
 
     @classmethod
-    def from_json(cls, path) -> "FitResult":
+    def from_json(cls, path) -> FitResult:
         """Read a result written by :meth:`to_json`; errors name the file and the key."""
         return cls.from_dict(read_json(path), os.fspath(path))
 
@@ -358,7 +358,7 @@ class JointResult(FitResult):
         return out
 
     @classmethod
-    def from_dict(cls, data: dict, source: str = "the joint fit result") -> "JointResult":
+    def from_dict(cls, data: dict, source: str = "the joint fit result") -> JointResult:
         if not isinstance(data, dict) or data.get("model") != "joint":
             raise FitError(f"{source}: not a joint fit result (expected key 'model' = 'joint')")
         _check_format(data, source)

@@ -383,7 +383,7 @@ def _best_medium(problem: Problem, block: Block, x, engines):
     fixed = _fixed_names(problem, block, "medium")
     vb = x[block.ib]
     best = None
-    for combo, vm in grid_points(cls, "medium", free, x[block.im]):
+    for _combo, vm in grid_points(cls, "medium", free, x[block.im]):
         terms = engines.terms(block, vb, vm)
         basis = np.einsum("mkb,b->mk", terms, column_scales_of(block, vb))
         vm, cost = medium_scales(basis, vm, cls, fixed, block.data.y[idx], block.data.w[idx])

@@ -31,13 +31,13 @@ from ..engine.quadrature import RULES
 from ..errors import FitError, InputError
 from ..models import Model, default_class, model_class
 from ..models.base import VARIANT_OPTION
-from .session_data import FitData, prepare
-from .given import as_given, check_options
 from . import model_error as discrepancy
+from .given import as_given, check_options
 from .problem import ITERATION_ACCURACY, Problem, check_accuracy, session_problem
 from .propagation import check_method, describe
 from .reported_uncertainty import model_floor, reported
 from .result import FitResult, model_entry
+from .session_data import FitData, prepare
 from .solver import as_fixed, check_fixed, check_max_nfev, run, summarize
 from .start_values import step_starts
 

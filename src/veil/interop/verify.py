@@ -39,7 +39,7 @@ def load_mitsuba():
                          f"install mitsuba)") from None
     try:
         mi.set_variant(VARIANT)
-    except Exception as exc:  # noqa: BLE001 - a Mitsuba build without the variant
+    except Exception as exc:
         raise InputError(f"--verify needs Mitsuba's {VARIANT} variant, which this Mitsuba "
                          f"does not have ({exc})") from None
     return mi

@@ -241,5 +241,5 @@ def field_block(field_values, fu):
 #: Field-grid check points of the interpolation error (fractions of the grid's cells):
 
 
-__all__ = ["NODES", "Axis", "parse_grid", "make_axes", "bspline_inverse", "spline_weights", "interp",
-           "interp_near", "field_block"]
+__all__ = ["NODES", "Axis", "parse_grid", "make_axes", "bspline_inverse", "spline_weights",
+           "interp", "interp_near", "field_block"]

@@ -20,6 +20,7 @@ from ..errors import InputError, MissingFileError
 from ..io import COMMIT, write_bytes_atomic
 from .store import marker_dir
 
+
 # --------------------------------------------------------------------------------------
 # photos
 # --------------------------------------------------------------------------------------
@@ -47,7 +48,7 @@ def probe_size(path) -> tuple[int, int]:
             with tifffile.TiffFile(path) as tif:
                 series = tif.series[0]
                 shape, axes = series.shape, series.axes
-        except Exception as exc:  # noqa: BLE001 - tifffile raises many kinds
+        except Exception as exc:
             raise InputError(f"{path}: cannot read as TIFF ({type(exc).__name__}: {exc})"
                              ) from None
         return int(shape[axes.index("Y")]), int(shape[axes.index("X")])

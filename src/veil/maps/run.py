@@ -35,15 +35,35 @@ import numpy as np
 from .._extras import require
 from ..data.ingest import IngestWarning
 from ..errors import InputError
-from ..io import (COMMIT, forget_partial, forget_temporary, register_partial,
-                  register_temporary, write_bytes_atomic, write_error, write_text_atomic)
+from ..io import (
+    COMMIT,
+    forget_partial,
+    forget_temporary,
+    register_partial,
+    register_temporary,
+    write_bytes_atomic,
+    write_error,
+    write_text_atomic,
+)
 from .near import NearGeometry
 from .photos import Acquisition, load_acquisition, stage
 from .solve import solve_pixels, warm_up
 from .status import STATUS
-from .store import (FORMAT, MAPS, DamagedStoreError, StoreBusyError, check_store,
-                    create_store, is_complete, marker_dir, open_maps, store_info, store_lock,
-                    summarize_maps, tile_marker)
+from .store import (
+    FORMAT,
+    MAPS,
+    DamagedStoreError,
+    StoreBusyError,
+    check_store,
+    create_store,
+    is_complete,
+    marker_dir,
+    open_maps,
+    store_info,
+    store_lock,
+    summarize_maps,
+    tile_marker,
+)
 from .store import tiles as tile_indices
 from .tables import MapTables, build_tables, smoothest_facet
 
@@ -256,10 +276,10 @@ def fit_maps(photo_dir, manifest, medium, output, *, brdf_model=None, options=No
         manifest's angles at every pixel.
     progress(stage, done, total), log(message) : reports.
     """
-    from ..models import default_class, model_class
     from ..fitting.given import as_given
-    from .grid import parse_grid
     from ..fitting.problem import check_accuracy
+    from ..models import default_class, model_class
+    from .grid import parse_grid
 
     check_accuracy(accuracy)
     say = log or (lambda message: None)

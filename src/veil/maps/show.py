@@ -12,10 +12,11 @@ import numpy as np
 
 from .._extras import require
 from ..errors import InputError
-from .status import CONVERGED, STATUS
-from .status import FEW_POINTS as STATUS_FEW, MASKED as STATUS_MASKED
-from .store import open_maps, summarize_maps
 from ..io import output_folder, write_bytes_atomic, write_text_atomic
+from .status import CONVERGED, STATUS
+from .status import FEW_POINTS as STATUS_FEW
+from .status import MASKED as STATUS_MASKED
+from .store import open_maps, summarize_maps
 
 FORMATS = ("tiff", "exr")
 

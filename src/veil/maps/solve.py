@@ -9,11 +9,11 @@ weights, :func:`veil.engine.integrator.row_scales`) it is
     f(theta, s) = sum_k s_k B_k(theta) + C(theta)
 
 with B_k the columns of the parts whose scale is free and C the parts whose weight is known
-(a fixed scale, or a part without a scale). :class:`veil.maps.tables.MapTables` tabulates B and C over a
-regular grid of the free nonlinear parameters theta (in their fit coordinates: logarithms
-for ``log_scale`` parameters) once per acquisition, and keeps the tensor-product cubic
-B-spline that interpolates them (not-a-knot ends, C2, exact derivatives). :func:`solve_pixels`
-then fits every pixel against the tables, vectorized in JAX:
+(a fixed scale, or a part without a scale). :class:`veil.maps.tables.MapTables` tabulates B
+and C over a regular grid of the free nonlinear parameters theta (in their fit coordinates:
+logarithms for ``log_scale`` parameters) once per acquisition, and keeps the tensor-product
+cubic B-spline that interpolates them (not-a-knot ends, C2, exact derivatives).
+:func:`solve_pixels` then fits every pixel against the tables, vectorized in JAX:
 
 1. at every grid node the scales by exact non-negative least squares (closed form for up to
    two scales: every active set is tried);
@@ -38,8 +38,7 @@ from .._jax import jax, jnp
 from ..errors import FitError
 from ..fitting import least_squares as lsq
 from .grid import interp, interp_near
-from .status import (CONVERGED, EDGE, FEW_POINTS, MASKED, NOT_CONVERGED, STATUS,
-                     UNDETERMINED)
+from .status import CONVERGED, EDGE, FEW_POINTS, MASKED, NOT_CONVERGED, STATUS, UNDETERMINED
 from .tables import MapTables
 
 #: Convergence: the last undamped step, in standard errors, below this in every parameter

@@ -16,8 +16,6 @@ dies, so a lock left by a killed run is taken over by the next run, which says s
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import contextlib
 import json
 import math
@@ -25,6 +23,7 @@ import os
 import socket
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -77,7 +76,7 @@ def store_info(store):
     try:
         group = zarr.open_group(os.fspath(store), mode="r")
         info = dict(group.attrs).get("veil_maps")
-    except Exception:  # noqa: BLE001 - zarr raises several kinds for a non-store
+    except Exception:
         return None
     return info if isinstance(info, dict) and info.get("format") == FORMAT else None
 
@@ -242,7 +241,7 @@ def check_store(store, info: dict, complete: bool) -> None:
     for name in MAPS:
         try:
             arr = zarr.open_array(os.fspath(store / name), mode="r")
-        except Exception as exc:  # noqa: BLE001 - zarr raises many kinds
+        except Exception as exc:
             raise damaged(f"array {name} ({name}/zarr.json) cannot be read "
                           f"({type(exc).__name__}: {exc})") from None
         if tuple(arr.shape) != _expected_shape(name, {"shape": shape, "params": names}):
@@ -266,7 +265,7 @@ def check_store(store, info: dict, complete: bool) -> None:
 def _read(group, name: str, store) -> np.ndarray:
     try:
         return np.asarray(group[name][:])
-    except Exception as exc:  # noqa: BLE001 - a corrupt chunk raises what its codec raises
+    except Exception as exc:
         raise DamagedStoreError(f"{store} is damaged: array {name} cannot be read "
                                 f"({type(exc).__name__}: {exc}); remove it and run 'veil fit "
                                 f"maps' again") from None

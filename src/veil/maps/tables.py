@@ -15,6 +15,7 @@ from ..engine.integrator import BRDF_PARTS, row_scales
 from ..errors import FitError
 from .grid import _jnp, bspline_inverse, field_block, interp, interp_near, make_axes, parse_grid
 
+
 @dataclass
 class MapTables:
     """Basis columns of the apparent value at a grid of the nonlinear parameters.

@@ -30,7 +30,6 @@ from dataclasses import dataclass
 from typing import ClassVar
 
 from .._lazy import np
-
 from ..errors import InputTypeError, ParameterError
 
 KINDS = ("brdf", "medium")
@@ -217,13 +216,13 @@ class Model:
         return dict(cls.START.get(role, {}))
 
     @classmethod
-    def template(cls, **options) -> "Model":
+    def template(cls, **options) -> Model:
         """An instance at the declared starting values: it fixes the code path (class and
         options) of an engine whose parameters are passed as vectors."""
         return cls.from_params({p.name: p.start for p in cls.PARAMS}, options)
 
     @classmethod
-    def from_params(cls, params: dict, options: dict | None = None) -> "Model":
+    def from_params(cls, params: dict, options: dict | None = None) -> Model:
         """An instance from {name: value} (every parameter) and options (defaults for the
         rest); unknown or missing names are a ParameterError naming the declared ones."""
         names = cls.param_names()
@@ -261,7 +260,7 @@ class Model:
         """Static (non-parameter) fields, e.g. ``{"variant": "paper"}``."""
         return {o.name: getattr(self, o.name) for o in self.OPTIONS}
 
-    def with_vector(self, vector) -> "Model":
+    def with_vector(self, vector) -> Model:
         vector = np.asarray(vector, float)
         if vector.shape != (len(self.PARAMS),):
             raise ParameterError(f"{type(self).__name__} vector has shape {vector.shape}; "
@@ -270,7 +269,7 @@ class Model:
         values = dict(zip(self.param_names(), (float(x) for x in vector)))
         return dataclasses.replace(self, **values)
 
-    def replace(self, **changes) -> "Model":
+    def replace(self, **changes) -> Model:
         return dataclasses.replace(self, **changes)
 
     def as_dict(self) -> dict:
@@ -443,12 +442,12 @@ class Medium(Model):
         """Weight of the view-side lobe f_t(R', R) at unit vectors R' (..., 3), R (3,)."""
         return 1.0 + 0.0 * r_prime[..., 2]
 
-    def concentrated(self, factor: float) -> "Medium":
+    def concentrated(self, factor: float) -> Medium:
         """The medium at ``factor`` times its concentration (acquisition design, more or less
         of the scattering substance): by default every scale parameter times ``factor``."""
         return self.replace(**{n: getattr(self, n) * factor for n in self.scale_names()})
 
-    def without_iso(self) -> "Medium":
+    def without_iso(self) -> Medium:
         """The medium with its isotropic part switched off (its scale at 0)."""
         name = self.SCALES.get("iso")
         return self if name is None else self.replace(**{name: 0.0})

@@ -31,8 +31,8 @@ order k by the path factor M_k(tau, g) of the light side in the lab's cylinder
 view side the Poisson series times J_v; "view-side" keeps the lobe Poisson and weights the view
 side's order k by the landing factor lambda_k(g; R_c, a, theta_r) (``landing_factors``: a
 path that wandered lands where its whole lateral drift puts it, not where its last direction
-back-projects); "cylinder" does both. Measured (docs/validity-orders.md): "light-side" alone moves the
-fitted tau at tau = 1 from 1.121 to 1.162; "cylinder" brings it to 1.050 (5 cm plate),
+back-projects); "cylinder" does both. Measured (docs/validity-orders.md): "light-side" alone
+moves the fitted tau at tau = 1 from 1.121 to 1.162; "cylinder" brings it to 1.050 (5 cm plate),
 1.038 (10 cm plate), 1.034 (R_c 10 cm), the estimate vs truth better there (0.21 -> 0.19 %,
 0.94 -> 0.76 %, 0.61 -> 0.46 %), 0.08 -> 0.14 % at tau = 0.5. Experimental (default off).
 
@@ -51,8 +51,9 @@ from .base import Medium, Option, Param
 from .renderers import Plugin, Unsupported, Value, float_value
 
 VARIANTS = ("paper", "exit")
-#: Weights of the orders: "poisson" (docs/model.md 8.1 as written); "light-side" (the light side's orders
-#: with the cylinder's path factors M_k, docs/physics-orders.md sec. 8, the view side Poisson x J_v);
+#: Weights of the orders: "poisson" (docs/model.md 8.1 as written); "light-side" (the light
+#: side's orders with the cylinder's path factors M_k, docs/physics-orders.md sec. 8, the view
+#: side Poisson x J_v);
 #: "view-side" (the light side Poisson, the view side's orders with the landing factors lambda_k);
 #: "cylinder" (both).
 ORDER_WEIGHTS = ("poisson", "cylinder", "light-side", "view-side")
@@ -286,8 +287,8 @@ class ForwardSeries(Medium):
         Option("orders", "poisson", "weights of the scattering orders: poisson = "
                "(omega tau)^k/k! on both sides; light = the light side's with the cylinder's "
                "path factors M_k(tau, g), the view side's unchanged; view = the view side's "
-               "with the plate's landing factors lambda_k (docs/physics-orders.md sec. 8), the light "
-               "side's unchanged; cylinder = both", ORDER_WEIGHTS),
+               "with the plate's landing factors lambda_k (docs/physics-orders.md sec. 8), "
+               "the light side's unchanged; cylinder = both", ORDER_WEIGHTS),
     )
     #: Against path tracing without a fit (validation/forward_error.py, docs/validity.md) the
     #: series is 0.74 % RMS off at optical depth 0.1, about 0.5 % of it its own (the rest the
@@ -407,6 +408,6 @@ class ForwardSeries(Medium):
         frac = jnp.where(small, 1.0 - 0.5 * x + x * x / 6.0, -jnp.expm1(-xs) / xs)
         return depth / rc * frac
 
-    def concentrated(self, factor: float) -> "ForwardSeries":
+    def concentrated(self, factor: float) -> ForwardSeries:
         """More or less of the scattering substance: the optical depth times ``factor``."""
         return self.replace(tau=self.tau * factor)

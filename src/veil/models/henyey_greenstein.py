@@ -6,8 +6,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from . import fresnel
-from . import phase
+from . import fresnel, phase
 from .base import Medium, Option, Param
 from .renderers import Unsupported
 

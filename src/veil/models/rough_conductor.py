@@ -28,8 +28,13 @@ from dataclasses import dataclass
 from .._lazy import jnp
 from .base import BRDF, Option, Param
 from .renderers import Plugin, Unsupported, Value, float_value
-from .rough_plastic import (DISTRIBUTIONS, MicrofacetFacets, _safe_sqrt, microfacet_lobe,
-                            relative_scales)
+from .rough_plastic import (
+    DISTRIBUTIONS,
+    MicrofacetFacets,
+    _safe_sqrt,
+    microfacet_lobe,
+    relative_scales,
+)
 
 
 def conductor_reflectance(cos_theta, n, k):

@@ -26,8 +26,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from functools import lru_cache
-
+from functools import cache
 
 from .._lazy import jnp, np
 from ..errors import ParameterError
@@ -73,8 +72,9 @@ def smith_g1(wz, wxy2, alpha, distribution="beckmann"):
         den = wz + jnp.sqrt(wz * wz + alpha * alpha * wxy2)
         ok = den > 0
         return jnp.where(ok, 2.0 * wz / jnp.where(ok, den, 1.0), 1.0)
-    from .._jax import jax as _  # noqa: F401 - JAX set up by veil before its submodule
     from jax.scipy.special import erfc
+
+    from .._jax import jax as _  # noqa: F401 - JAX set up by veil before its submodule
 
     s = alpha * _safe_sqrt(wxy2)                       # alpha sin theta
     # a = cos / (alpha sin), held at 8 (1 - G1 < 1e-28 beyond: G1 = 1 exactly, also at the
@@ -174,7 +174,7 @@ F_RADIAL, F_POLAR, F_AZIMUTH = 12, 12, 12
 BECKMANN_END = 6.5
 
 
-@lru_cache(maxsize=None)
+@cache
 def _gauss(n: int, smooth: bool = False):
     """Gauss-Legendre nodes and weights on [0, 1]; ``smooth``: through s = 3t^2 - 2t^3, which
     turns square-root end behaviour into a smooth one."""
@@ -185,7 +185,7 @@ def _gauss(n: int, smooth: bool = False):
     return x, w
 
 
-@lru_cache(maxsize=None)
+@cache
 def _spline_matrix(n: int) -> np.ndarray:
     """Second derivatives of the not-a-knot cubic spline through values at 0..n-1 (unit
     spacing), as a matrix applied to the values."""

@@ -9,7 +9,6 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-
 from .._lazy import jnp
 from . import fresnel
 from .base import BRDF, Param, geometric_grid
@@ -68,7 +67,8 @@ class TorranceSparrow(BRDF):
         ps, n, eta = v[1], v[2], v[3]
         ci, co = wi[..., 2], wo[..., 2]
         hz = h[..., 2]
-        ch = wi[..., 0] * h[..., 0] + wi[..., 1] * h[..., 1] + wi[..., 2] * h[..., 2]  # cos theta_i'
+        # cos theta_i'
+        ch = wi[..., 0] * h[..., 0] + wi[..., 1] * h[..., 1] + wi[..., 2] * h[..., 2]
         if alpha is None:
             s2 = h[..., 0] ** 2 + h[..., 1] ** 2
             alpha = jnp.where(s2 > 0, jnp.arctan2(jnp.sqrt(jnp.where(s2 > 0, s2, 1.0)), hz), 0.0)

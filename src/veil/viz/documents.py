@@ -18,9 +18,9 @@ import numpy as np
 
 from .. import __version__
 from ..fitting.result import FitResult
+from ..models import PRESETS
 from ..numbers import format_number
 from .figures import Experiment, curve_metrics, lobe_data, transmission_data
-from ..models import PRESETS
 from .render import ERROR_ANGLE, MID_GREY, VIEW
 
 
@@ -56,7 +56,8 @@ def build_blocks(exp: Experiment, files: dict) -> list:
     blocks = [("h1", "The paper's simulation experiment, reproduced"),
               ("p", "Baba, Mukaigawa and Yagi, \"BRDF Estimation Considering Scatterings of "
                     "Illumination and Reflection\", section 5.1 (figs. 9-12), recomputed from the "
-                    f"presets of docs/model.md section 6 with veil {__version__} (`veil reproduce`). "
+                    f"presets of docs/model.md section 6 with veil {__version__} "
+                    f"(`veil reproduce`). "
                     f"Angles in degrees. Curves use the \"{exp.accuracy}\" quadrature; the "
                     f"spheres use the \"{exp.render_accuracy}\" quadrature on an interpolated "
                     f"table (see fig. 12).")]
@@ -148,8 +149,8 @@ def build_blocks(exp: Experiment, files: dict) -> list:
     blocks.append(("table", head, rows))
     blocks.append(("p", "FWHM: full width at half maximum of the whole curve (diffuse part "
                         "included), from linear interpolation between samples 0.25° apart near the "
-                        "mirror angle (1° elsewhere). \"n/a\" would mean the curve stays above half "
-                        "its maximum up to 0° or 89°."))
+                        "mirror angle (1° elsewhere). \"n/a\" would mean the curve stays above "
+                        "half its maximum up to 0° or 89°."))
 
     # fig. 12
     blocks.append(("h2", "Fig. 12: spheres rendered with the true and the apparent BRDFs"))
@@ -158,10 +159,10 @@ def build_blocks(exp: Experiment, files: dict) -> list:
                    "(from the right), orthographic camera, pixel value f(I, R) cos theta_i with "
                    "the local normal (paper eq. 1). Left column: true BRDF (clear medium); other "
                    "columns: apparent BRDF under each medium. Each panel has its own exposure "
-                   f"(the median lit pixel maps to {MID_GREY:g}) because the media scale f by up to "
-                   "four decades; the tone curve x/(1+x) (Reinhard) keeps highlights from clipping "
-                   "so that their strength relative to the body stays visible; sRGB encoding. "
-                   f"The image spans ±{VIEW:g} sphere radii."))
+                   f"(the median lit pixel maps to {MID_GREY:g}) because the media scale f by up "
+                   "to four decades; the tone curve x/(1+x) (Reinhard) keeps highlights from "
+                   "clipping so that their strength relative to the body stays visible; sRGB "
+                   f"encoding. The image spans ±{VIEW:g} sphere radii."))
     head = ["object", "medium", "peak", "median lit", "peak / median", "pixels >= half peak",
             "brightest pixel (row, col)", "mirror prediction", "table nodes",
             f"interp. error, angles <= {ERROR_ANGLE:g}°", "interp. error, all / of peak"]
@@ -181,8 +182,8 @@ def build_blocks(exp: Experiment, files: dict) -> list:
     blocks.append(("p", "The apparent BRDF is tabulated over the normal's polar coordinates "
                         "about the half vector (dense near the specular peak) and interpolated "
                         "by a bicubic spline of log f; the error columns compare the interpolated "
-                        f"value with direct engine evaluations at {checked} pixels per sphere (half "
-                        "of them among the brightest 10 %). \"All\" includes pixels within "
+                        f"value with direct engine evaluations at {checked} pixels per sphere "
+                        "(half of them among the brightest 10 %). \"All\" includes pixels within "
                         f"{90 - ERROR_ANGLE:g}° of the terminator or the rim, where the pixel "
                         "value itself is small; \"of peak\" is the largest error in units of the "
                         "image's peak value."))
@@ -209,7 +210,8 @@ def _observations(exp: Experiment, media: list) -> list:
             f"({', '.join(_num(p) for p in peaks)} /sr; clear {_num(clear.peak)}), because T_t "
             f"grows from {exp.media[media[0]].lobe_scale():g} to "
             f"{exp.media[media[-1]].lobe_scale():g}. Relative to "
-            f"the medium's strength, peak / T_t² {_trend(norm)} ({', '.join(_num(p) for p in norm)}; "
+            f"the medium's strength, peak / T_t² {_trend(norm)} "
+            f"({', '.join(_num(p) for p in norm)}; "
             f"clear {_num(clear.peak)}), and relative to the diffuse level, peak / f(0°) "
             f"{_trend(contrast)} ({', '.join(_num(c) for c in contrast)}; clear "
             f"{_num(clear.peak / clear.off_peak)}). The paper's \"weaker\" holds in these "
@@ -257,13 +259,14 @@ def _observations(exp: Experiment, media: list) -> list:
             f"stays within {100 * worst:.0f} % of the clear medium's for every medium; where the "
             f"full value departs further, the medium's multiple scattering T_d is the cause "
             f"(T_d / T_t = "
-            f"{', '.join(f'{_iso(exp.media[m]) / exp.media[m].lobe_scale():.2g}' for m in media)}).")
+            + ", ".join(f"{_iso(exp.media[m]) / exp.media[m].lobe_scale():.2g}" for m in media)
+            + ").")
     for b in exp.brdfs:
         areas = [exp.stats[(b, k)].half_area for k in ["clear"] + media]
         con = [exp.stats[(b, k)].contrast for k in ["clear"] + media]
         pos = [exp.stats[(b, k)] for k in ["clear"] + media]
-        off = max(math.hypot(s.peak_pixel[0] - s.mirror_pixel[0], s.peak_pixel[1] - s.mirror_pixel[1])
-                  for s in pos)
+        off = max(math.hypot(s.peak_pixel[0] - s.mirror_pixel[0],
+                             s.peak_pixel[1] - s.mirror_pixel[1]) for s in pos)
         items.append(
             f"{b} spheres (fig. 12, clear then {', '.join(media)}): the area at or above half "
             f"the peak {_trend(areas)} ({', '.join(map(str, areas))} pixels) and the peak over "
@@ -458,12 +461,14 @@ def pipeline_report(ref, med, tgt, direct, comparison, truth, figures, inputs) -
                 "| parameter | estimated (step 2) | direct | difference | z |",
                 "|---|---:|---:|---:|---:|"]
         for name, row in comparison["params"].items():
-            out.append(f"| {name} | {format_number(row['estimated'], 6)} | {format_number(row['direct'], 6)} | "
+            out.append(f"| {name} | {format_number(row['estimated'], 6)} | "
+                       f"{format_number(row['direct'], 6)} | "
                        f"{format_number(row['difference'], 3)} | {format_number(row['z'], 3)} |")
         out += ["", f"Over the {comparison['n_configurations']} configurations of the paper's "
                     f"protocol (psi = 30, 60, 90 deg): rms of f_r(estimated) - f_r(direct) = "
-                    f"{format_number(comparison['rms_fr_difference'], 4)} (relative units), rms relative "
-                    f"difference {format_number(100 * comparison['rms_fr_relative'], 3)} %, largest "
+                    f"{format_number(comparison['rms_fr_difference'], 4)} (relative units), rms "
+                    f"relative difference {format_number(100 * comparison['rms_fr_relative'], 3)} "
+                    f"%, largest "
                     f"{format_number(100 * comparison['max_fr_relative'], 3)} %.", ""]
         if comparison.get("fr_max_z") is not None:
             out += [f"In units of the curves' own standard error (both fits' covariances "

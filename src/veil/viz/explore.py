@@ -177,7 +177,7 @@ class State:
             raise InputError(f"curve = {self.curve!r}; expected one of {', '.join(CURVES)}")
 
     @classmethod
-    def default(cls) -> "State":
+    def default(cls) -> State:
         """The paper's default families at their first presets (their starting values when
         a family has no preset)."""
         models = []
@@ -187,7 +187,7 @@ class State:
             models.append(next(iter(found.values())) if found else family.template())
         return cls(models[0], models[1])
 
-    def with_model(self, model, kind: str) -> "State":
+    def with_model(self, model, kind: str) -> State:
         return State(**{**self.__dict__, kind: model})
 
     # -- files --------------------------------------------------------------------------
@@ -207,7 +207,7 @@ class State:
         write_text_atomic(path, self.to_json())
 
     @classmethod
-    def from_dict(cls, data, source: str = "the state") -> "State":
+    def from_dict(cls, data, source: str = "the state") -> State:
         if not isinstance(data, dict) or data.get("format") != FORMAT:
             raise InputError(f"{source}: not a veil explore state (expected key 'format' = "
                              f"{FORMAT!r})")
@@ -227,7 +227,7 @@ class State:
             raise InputError(f"{source}: {exc}") from None
 
     @classmethod
-    def load(cls, path) -> "State":
+    def load(cls, path) -> State:
         from ..fitting.result import read_json
 
         return cls.from_dict(read_json(path), os.fspath(path))
@@ -391,7 +391,7 @@ def _transmission_fn(cls, options: tuple):
     return _TRANSMISSION_FNS[key]
 
 
-def warm_up(state: "State", workers: int = 3):
+def warm_up(state: State, workers: int = 3):
     """Compile in the background what a page of ``state`` needs: the curves, the
     transmission lobe and the sphere at the live accuracy in parallel, then the refined
     sphere. Returns (futures of the live parts, future of the refined sphere)."""

@@ -536,7 +536,7 @@ class ExplorePage:
                 return
             try:
                 image, dt = self._render(state, accuracy)
-            except Exception as exc:  # noqa: BLE001 - shown on the page
+            except Exception as exc:
                 message = f"**sphere: {exc}**"
                 self.doc.add_next_tick_callback(lambda: self.say(message))
                 return
