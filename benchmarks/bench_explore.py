@@ -27,7 +27,7 @@ import tempfile
 import threading
 import time
 
-import veil  # noqa: F401  (sets up JAX)
+import veil
 from veil.viz import explore as ex
 from veil.viz.explore_page import ExplorePage
 

@@ -41,7 +41,7 @@ from veil.engine.quadrature import RULES
 from veil.models import PRESETS, REGISTRY
 
 sys.path.insert(0, os.path.dirname(__file__))
-from bench_apparent import configurations  # noqa: E402
+from bench_apparent import configurations
 
 BRDFS = {
     "TS": PRESETS["BRDF2"],

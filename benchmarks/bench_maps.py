@@ -33,8 +33,8 @@ veil.maps.near.STEP_FRACTION).
 from __future__ import annotations
 
 import argparse
-import math
 import hashlib
+import math
 import os
 import pickle
 import platform
@@ -66,6 +66,7 @@ def angles_of(configs):
 def synthetic(tables, n, seed=0):
     """Pixels from the tables' own spline at random nonlinear values and scales, 1 % noise."""
     import jax.numpy as jnp
+
     from veil.maps.grid import interp as _interp
 
     rng = np.random.default_rng(seed)
@@ -123,13 +124,14 @@ def bench_near(distance, pitch, size, n_pixels, configs, accuracy="fast", fracti
     """Distant against near-field tables and solve (see the module's docstring)."""
     import jax
     import jax.numpy as jnp
+
     import veil
     from veil.data.ingest import ROI
     from veil.maps import near as maps_near
     from veil.maps.grid import interp_near as _interp_near
+    from veil.maps.near import NearGeometry
     from veil.maps.solve import solve_pixels
     from veil.maps.tables import build_tables
-    from veil.maps.near import NearGeometry
 
     if fraction is not None:
         maps_near.STEP_FRACTION = fraction
@@ -194,6 +196,7 @@ def synthetic_at(tables, xs, ys, n, seed=0):
     """Pixels (at xs, ys for near-field tables) from the tables' own spline at random
     nonlinear values and scales, 1 % noise."""
     import jax.numpy as jnp
+
     from veil.maps.grid import interp_near as _interp_near
 
     if tables.near is None:
@@ -246,8 +249,9 @@ def bench_full(configs, n=2):
 
 
 def bench_map(size, configs, root):
-    import veil
     from distributed import LocalCluster
+
+    import veil
     from support.maps import write_stack
     from veil.maps.run import fit_maps, open_maps
 
@@ -297,8 +301,9 @@ def bench_rss(shape, photos, configs, root, roi=None):
     columns), all of it or its ``roi`` ("X,Y,W,H"): the same image (a plate of BRDF1
     values, noise) at ``photos`` configurations."""
     import tifffile
-    from support.maps import render
+
     import veil
+    from support.maps import render
 
     folder = root / f"rss{photos}"
     (folder / "photos").mkdir(parents=True)

@@ -21,7 +21,6 @@ import statistics
 import time
 
 import numpy as np
-
 from bench_maps import angles_of, protocol_configs, synthetic
 
 FAMILIES = (("torrance-sparrow", {"eta": 1.5}), ("rough-plastic", {"eta": 1.5}))
@@ -32,6 +31,7 @@ def optimistix_solver(tables, rtol: float, atol: float):
     import jax
     import jax.numpy as jnp
     import optimistix as optx
+
     from veil.maps import solve as maps_solve
 
     q, d = len(tables.free_scales), len(tables.axes)

@@ -14,9 +14,8 @@ import numpy as np
 import pytest
 from scipy import integrate
 
-import veil
-
 import reference as ref
+import veil
 
 TOL = 1e-3
 M_LOG2, N_REP = 15, 8  # reference: 2^15 Sobol points x 3 strategies x 8 scrambles

@@ -15,13 +15,11 @@ from pathlib import Path
 import click
 import numpy as np
 import pytest
-from click.testing import CliRunner
 
 import veil
-from veil.cli import COMMANDS, main
-
 from support.cli import run
 from support.maps import configurations, write_stack
+from veil.cli import COMMANDS, main
 
 COARSE = ["--fine-step", "5", "--coarse-step", "15", "--accuracy", "fast"]
 

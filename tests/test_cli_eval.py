@@ -17,13 +17,10 @@ import sys
 
 import numpy as np
 import pytest
-from click.testing import CliRunner
 
 import veil
-from veil.cli import main
-from veil.cli.eval_cmd import eval_command
-
 from support.cli import run_checked
+from veil.cli.eval_cmd import eval_command
 
 VEIL = shutil.which("veil", path=os.path.dirname(sys.executable)) or "veil"
 BASE = ["eval", "--brdf", "BRDF1", "--medium", "BTDF2", "--accuracy", "fast"]

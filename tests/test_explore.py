@@ -14,8 +14,7 @@ import pytest
 from click.testing import CliRunner
 
 import veil
-from veil.cli import main
-from veil.cli import explore_cmd
+from veil.cli import explore_cmd, main
 from veil.data.measurements import save_measurements
 from veil.errors import InputError
 from veil.fitting import fit_target

@@ -15,8 +15,8 @@ from PIL import Image
 
 import veil
 from veil.cli import main
-from veil.viz.figures import (curve_metrics, fig9, figure_bytes, lobe_data, transmission_data)
 from veil.models.fresnel import transmittance
+from veil.viz.figures import curve_metrics, fig9, figure_bytes, lobe_data, transmission_data
 
 
 def fwhm_from_samples(theta, f):

@@ -15,15 +15,12 @@ import math
 
 import numpy as np
 import pytest
-from click.testing import CliRunner
 
 import veil
-from veil.cli import main
-from veil.fitting import FitError, FitResult, fit_medium, fit_reference, fit_target
+from support.cli import run_checked
 from veil.data.measurements import MeasurementError, save_measurements, subtract_black
 from veil.data.protocol import PSI
-
-from support.cli import run_checked
+from veil.fitting import FitError, FitResult, fit_medium, fit_reference, fit_target
 
 PAIRS = [(b, m) for b in ("BRDF1", "BRDF2") for m in ("BTDF1", "BTDF2", "BTDF3")]
 SMALL = (90.0,)

@@ -5,14 +5,18 @@ k by the path factor M_k(tau, g), "view-side" the view side's by the landing fac
 lab set-up (validation/mc_orders.py)."""
 import math
 import os
-import sys
 
 import numpy as np
 import pytest
 
 from veil._jax import jax  # noqa: F401  (float64)
-from veil.models.forward_series import (ORDERS, ForwardSeries, _mixture, landing_factors,
-                                        path_factors)
+from veil.models.forward_series import (
+    ORDERS,
+    ForwardSeries,
+    _mixture,
+    landing_factors,
+    path_factors,
+)
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 

@@ -21,15 +21,12 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
-from click.testing import CliRunner
 
 import veil
-from veil import io as vio
-from veil.cli import main
-from veil.errors import UnwritableError
-
 from support.cli import run
 from support.maps import configurations, write_stack
+from veil import io as vio
+from veil.errors import UnwritableError
 
 H = W = 4
 ENV = {**os.environ, "PYTHONPATH": os.pathsep.join(

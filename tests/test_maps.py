@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import json
 import shutil
-import sys
 import time
 from pathlib import Path
 
@@ -16,14 +15,13 @@ import tifffile
 from click.testing import CliRunner
 
 import veil
+from support.maps import angles_of, configurations, render, write_stack
 from veil.cli import main
 from veil.engine.evaluator import ApparentModel
 from veil.engine.quadrature import RULES
 from veil.maps.run import fit_maps, is_complete, open_maps
 from veil.maps.solve import CONVERGED, EDGE, MASKED, NOT_CONVERGED, UNDETERMINED, solve_pixels
 from veil.maps.tables import build_tables
-
-from support.maps import angles_of, configurations, render, write_stack
 
 BRDF, MEDIUM = veil.BRDF1, veil.BTDF2
 NAMES = type(BRDF).param_names()

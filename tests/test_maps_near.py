@@ -8,23 +8,19 @@ from __future__ import annotations
 
 import json
 import math
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
-from click.testing import CliRunner
 
 import veil
-from veil.cli import main
+from support.cli import run
+from support.maps import angles_of, configurations, render, render_near, write_photos
 from veil.data.ingest import ROI
 from veil.maps.near import NearGeometry
 from veil.maps.solve import CONVERGED, solve_pixels
 from veil.maps.store import open_maps
 from veil.maps.tables import build_tables
-
-from support.cli import run
-from support.maps import angles_of, configurations, render, render_near, write_photos
 
 BRDF, MEDIUM = veil.BRDF1, veil.BTDF2
 CLS = type(BRDF)

@@ -11,23 +11,28 @@ m01 session (docs/validity.md, benchmarks/bench_validity.py --propagation).
 import dataclasses
 import json
 import math
-import sys
-from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 import veil
+from support.chain import small_chain
 from veil.analysis.uncertainty import propagate
 from veil.fitting import FitError, fit_target
-from veil.fitting.propagation import (RELATIVE_LIMIT, Axis, check_method, choose, how_of,
-                                      relative_uncertainty, sigma_points)
+from veil.fitting.propagation import (
+    RELATIVE_LIMIT,
+    Axis,
+    check_method,
+    choose,
+    how_of,
+    relative_uncertainty,
+    sigma_points,
+)
 from veil.fitting.result import FitResult
 from veil.models import model_class
-
-from support.chain import small_chain
 
 FS = model_class("forward-series", "medium")
 HG = model_class("henyey-greenstein", "medium")

@@ -9,19 +9,15 @@ underestimates the tail: docs/ambiguity.md).
 """
 
 import dataclasses
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 import veil
+from support.chain import small_chain
+from veil.analysis.uncertainty import PARTS, budget_table, propagate, sample_propagation
 from veil.errors import InputTypeError
 from veil.fitting import FitError, fit_target
-from veil.analysis.uncertainty import PARTS, budget_table, propagate, sample_propagation
-
-from support.chain import small_chain
-
 
 
 @pytest.fixture(scope="module")
