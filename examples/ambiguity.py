@@ -31,7 +31,7 @@ import veil
 from veil import HenyeyGreenstein, TorranceSparrow
 from veil.analysis.diagnostics import diagnose
 from veil.analysis.uncertainty import budget_table, propagate
-from veil.data.measurements import subtract_black
+from veil.data.black_cloth import subtract_black
 from veil.fitting import Session, fit_joint, fit_medium, fit_reference, fit_target
 from veil.io import write_text_atomic
 

@@ -18,7 +18,8 @@ import pytest
 
 import veil
 from support.cli import run_checked
-from veil.data.measurements import MeasurementError, save_measurements, subtract_black
+from veil.data.black_cloth import subtract_black
+from veil.data.measurements import MeasurementError, save_measurements
 from veil.data.protocol import PSI
 from veil.fitting import FitError, FitResult, fit_medium, fit_reference, fit_target
 
@@ -31,7 +32,7 @@ JSON_KEYS = {"model", "params", "stderr", "correlation", "chi2_reduced", "rms_re
 
 # -- simulated sessions, once per process ---------------------------------------------------
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def session(brdf: str, medium: str | None, psi=PSI, seed: int = 0,
             glow: float | None = None, accuracy: str = "default"):
     """(table, black) of ``brdf`` seen through ``medium`` (None: clear water), 1 % noise."""

@@ -162,7 +162,7 @@ def test_a_declared_floor_is_the_least_term():
 
 # -- fits ---------------------------------------------------------------------------------------
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _ggx_plate():
     """A GGX rough plastic, 0.5 % noise, the paper's protocol; and its true f_r there."""
     truth = model_class("rough-plastic")(rho=0.2, alpha=0.2, eta=1.1178, ks=1.0,

@@ -15,7 +15,7 @@ import importlib
 _API = {
     "apparent": "engine.apparent", "reflectance": "engine.apparent",
     "load_measurements": "data.measurements", "save_measurements": "data.measurements",
-    "subtract_black": "data.measurements", "simulate": "data.simulate",
+    "subtract_black": "data.black_cloth", "simulate": "data.simulate",
     "fit_reference": "fitting.steps", "fit_medium": "fitting.steps",
     "fit_target": "fitting.steps", "FitResult": "fitting.result",
     "run_pipeline": "pipeline", "fit_joint": "fitting.joint",

@@ -55,7 +55,8 @@ def parse_black(items) -> dict:
 
 def load_sessions(target_items, reference_items, black_items) -> tuple[list, list]:
     """Sessions (black cloth subtracted per medium) and every input path."""
-    from ..data.measurements import load_measurements, subtract_black
+    from ..data.black_cloth import subtract_black
+    from ..data.measurements import load_measurements
     from ..fitting.joint import Session
 
     targets = parse_sessions(target_items, "--session")

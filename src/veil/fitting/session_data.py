@@ -9,13 +9,13 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
+from ..data.black_cloth import subtract_black
 from ..data.measurements import (
     CANONICAL,
     MeasurementError,
     RowNames,
     canonical_angles,
     load_measurements,
-    subtract_black,
     validate,
 )
 from ..errors import InputTypeError
