@@ -154,6 +154,7 @@ def _verify(done, brdf, medium, psis, spp, setting, accuracy) -> None:
     from ..data.protocol import protocol
     from ..engine.apparent import apparent, reflectance
     from ..interop.verify import verify
+    from ..models.renderers import GEOMETRY_HALF_WIDTH, GEOMETRY_LENGTH
 
     table = protocol(psis, fine_step=2.0, coarse_step=10.0)
     configs = table[["theta_i", "theta_r", "phi_i", "phi_r"]].to_numpy()
@@ -178,8 +179,8 @@ def _verify(done, brdf, medium, psis, spp, setting, accuracy) -> None:
                         f"{exported.NAME} export does not give")
     predicted = apparent(material.model, exported, *configs.T, accuracy=accuracy)
     check = verify(done.text, done.scale, predicted, configs, spp or MEDIUM_SPP,
-                   passes=PASSES, medium={"path_length": geometry["path_length"],
-                           "half_width": geometry["plate_half_width"], "max_depth": 64})
+                   passes=PASSES, medium={"length": geometry[GEOMETRY_LENGTH],
+                                   "half_width": geometry[GEOMETRY_HALF_WIDTH], "max_depth": 64})
     click.echo(check.sentence())
     click.echo("(through a medium the two differ by the model's own approximations as well: "
                "docs/interop.md)")

@@ -122,7 +122,8 @@ def direct_programs(model) -> tuple:
 
 
 def apparent(brdf, medium, theta_i, theta_r, phi_i=180.0, phi_r=0.0, *,
-             accuracy: str = "default", return_error: bool = False):
+             accuracy: str = "default", return_error: bool = False
+             ) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
     """Apparent reflectance f(I, R) of ``brdf`` seen through ``medium`` (docs/model.md eq. 1).
 
     Parameters

@@ -39,14 +39,12 @@ model structures, rule, shapes, devices), holding a header and the serialized ex
 
 from __future__ import annotations
 
-import contextlib
 import hashlib
 import json
 import os
 import pickle
 import platform
 import sys
-import tempfile
 import threading
 from contextlib import contextmanager
 from functools import cache, lru_cache
@@ -54,7 +52,8 @@ from functools import cache, lru_cache
 import numpy as np
 
 from .. import __version__, _jax
-from .._jax import CACHE_OFF, _notice, jax
+from .._jax import _notice, jax
+from .store_files import directory, put_file
 
 #: First line of every entry; a new layout gets a new number.
 FORMAT = b"veil.program/2\n"
@@ -70,17 +69,6 @@ def _say_once(key, message: str) -> None:
             return
         _MESSAGES.add(key)
     _notice(message)
-
-
-def directory() -> str | None:
-    """The program store's folder, or None when it is disabled (``VEIL_CACHE_DIR=off``)."""
-    setting = os.environ.get("VEIL_CACHE_DIR")
-    if setting is not None:
-        if setting.strip().lower() in CACHE_OFF:
-            return None
-        return os.path.join(os.path.abspath(os.path.expanduser(setting)), "programs")
-    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
-    return os.path.join(base, "veil", "programs")
 
 
 def _cpu() -> str:
@@ -287,31 +275,6 @@ def serialize(compiled, devices) -> bytes | None:
         return None
     return pickle.dumps((executable, in_tree, out_tree, [d.id for d in devices]),
                         protocol=pickle.HIGHEST_PROTOCOL)
-
-
-def put_file(path: str, data: bytes) -> None:
-    """Write a file of the store atomically (a temporary renamed into place under
-    :data:`veil.io.COMMIT`; never listed among a command's outputs); OSError if it cannot."""
-    from ..io import COMMIT, forget_temporary, register_temporary
-
-    folder = os.path.dirname(path)
-    tmp = None
-    try:
-        os.makedirs(folder, exist_ok=True)
-        with COMMIT:  # no temporary is created once an interrupt is being handled
-            fd, tmp = tempfile.mkstemp(dir=folder, prefix=".program-", suffix=".tmp")
-            register_temporary(tmp, "file")
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-        with COMMIT:
-            os.replace(tmp, path)
-            forget_temporary(tmp)
-    except OSError:
-        if tmp is not None:
-            with contextlib.suppress(OSError):
-                os.unlink(tmp)
-            forget_temporary(tmp)
-        raise
 
 
 def write(identity: str, env: dict, payload: bytes) -> bool:

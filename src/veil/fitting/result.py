@@ -15,7 +15,7 @@ import json
 import math
 import os
 from dataclasses import dataclass, field
-from typing import ClassVar
+from typing import TYPE_CHECKING, ClassVar
 
 from ..errors import FitError, InputError, MissingFileError, NotAFileError
 from ..io import write_bytes_atomic
@@ -25,6 +25,9 @@ from ..models.base import VARIANT_OPTION
 from ..numbers import from_json_float, json_float
 from .model_error import ModelError
 from .solver import covariance_matrix
+
+if TYPE_CHECKING:
+    import numpy as np
 
 #: The steps of the two-step method (docs/model.md sec. 7); results may also say "direct".
 STEPS = ("reference", "medium", "target")
@@ -128,7 +131,7 @@ class FitResult:
         chi2 = self.chi2_reduced * max(self.n_points - self.n_free, 1)
         return chi2 + self.n_free * math.log(max(self.n_points, 1)) if self.weighted else None
 
-    def covariance(self, total: bool = True):
+    def covariance(self, total: bool = True) -> tuple[list, np.ndarray] | None:
         """(free names, covariance matrix) from the standard errors and correlations;
         ``total`` prefers the propagated ones. None if the uncertainties are undetermined."""
         se, corr = self.stderr, self.correlation
@@ -156,7 +159,7 @@ class FitResult:
             "converged": bool(self.converged),
             "determined": bool(self.determined),
             "message": self.message,
-            "variant": self.variant,
+            VARIANT_OPTION: self.variant,
             "options": dict(self.options),
             "fixed": {k: float(v) for k, v in self.fixed.items()},
             "weighted": bool(self.weighted),
@@ -187,7 +190,7 @@ class FitResult:
                            f"got {type(data).__name__}")
         _check_format(data, source)
         required = ("model", "params", "stderr", "correlation", "chi2_reduced", "rms_relative",
-                    "n_points", "converged", "message", "variant")
+                    "n_points", "converged", "message", VARIANT_OPTION)
         missing = [k for k in required if k not in data]
         if missing:
             raise FitError(f"{source}: missing key(s) {', '.join(missing)}; is this a fit "
@@ -209,7 +212,7 @@ class FitResult:
         for k, v in params.items():
             if isinstance(v, bool) or not isinstance(v, (int, float)):
                 raise FitError(f"{source}: params.{k} = {v!r} is not a number")
-        variant = data["variant"]
+        variant = data[VARIANT_OPTION]
         known = sorted({str(choice) for family in map(model_class, family_names())
                         for o in family.OPTIONS if o.name == VARIANT_OPTION
                         for choice in o.choices})
@@ -363,7 +366,7 @@ class JointResult(FitResult):
             raise FitError(f"{source}: not a joint fit result (expected key 'model' = 'joint')")
         _check_format(data, source)
         required = ("params", "stderr", "correlation", "chi2_reduced", "rms_relative",
-                    "n_points", "converged", "message", "variant", "layout")
+                    "n_points", "converged", "message", VARIANT_OPTION, "layout")
         missing = [k for k in required if k not in data]
         if missing:
             raise FitError(f"{source}: missing key(s) {', '.join(missing)}; is this a joint "
@@ -408,7 +411,7 @@ class JointResult(FitResult):
                 chi2_reduced=from_json_float(data["chi2_reduced"], source),
                 rms_relative=from_json_float(data["rms_relative"], source),
                 n_points=int(data["n_points"]), converged=data["converged"],
-                message=str(data["message"]), variant=data["variant"],
+                message=str(data["message"]), variant=data[VARIANT_OPTION],
                 fixed={k: float(v) for k, v in (data.get("fixed") or {}).items()},
                 step="joint", weighted=bool(data.get("weighted", True)),
                 accuracy=data.get("accuracy"), given=data.get("given"),

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 from .._lazy import jnp
 from .base import BRDF, Option, Param
@@ -35,6 +36,9 @@ from .rough_plastic import (
     microfacet_lobe,
     relative_scales,
 )
+
+if TYPE_CHECKING:  # the type only: models import JAX on first use (veil._lazy)
+    from jax import Array
 
 
 def conductor_reflectance(cos_theta, n, k):
@@ -162,9 +166,9 @@ class RoughConductor(MicrofacetFacets, BRDF):
     # -- the split used by the integrator: no separable part (methods of the instance:
     # they read the distribution option) -----------------------------------------------
     @staticmethod
-    def separable(v, cos_i, cos_r, aux=None):
+    def separable(v, cos_i, cos_r, aux=None) -> list:
         return []
 
-    def lobe(self, v, wi, wo, h, alpha=None):
+    def lobe(self, v, wi, wo, h, alpha=None) -> Array:
         return self._lobe(v, wi, wo, h)
 

@@ -27,12 +27,16 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from functools import cache
+from typing import TYPE_CHECKING, Any
 
 from .._lazy import jnp, np
 from ..errors import ParameterError
 from . import fresnel
 from .base import BRDF, Option, Param, geometric_grid
 from .renderers import Plugin, Unsupported, Value, float_value, intensity_scale
+
+if TYPE_CHECKING:  # the type only: models import JAX on first use (veil._lazy)
+    from jax import Array
 
 DISTRIBUTIONS = ("beckmann", "ggx")
 HALF_PI = 0.5 * math.pi
@@ -448,13 +452,13 @@ class MicrofacetFacets:
 
     ROUGHNESS_INDEX = 0
 
-    def facet_cdf(self, v, alpha):
+    def facet_cdf(self, v, alpha) -> Array:
         return facet_cdf(v[self.ROUGHNESS_INDEX], alpha, self.distribution)
 
-    def facet_inverse_cdf(self, v, y):
+    def facet_inverse_cdf(self, v, y) -> Array:
         return facet_inverse_cdf(v[self.ROUGHNESS_INDEX], y, self.distribution)
 
-    def facet_weight(self, v, alpha, sin_alpha=None):
+    def facet_weight(self, v, alpha, sin_alpha=None) -> Array:
         return facet_weight(v[self.ROUGHNESS_INDEX], alpha, sin_alpha, self.distribution)
 
 
@@ -524,14 +528,14 @@ class RoughPlastic(MicrofacetFacets, BRDF):
 
     # -- the split used by the integrator (methods of the instance: they read the
     # distribution option; the engine passes the model's template) ------------------------
-    def prepare(self, v):
+    def prepare(self, v) -> Any:
         return interface_tables(v[1], v[2], self.distribution)
 
-    def separable(self, v, cos_i, cos_r, aux=None):
+    def separable(self, v, cos_i, cos_r, aux=None) -> list:
         tables = self.prepare(v) if aux is None else aux
         return [diffuse_factors(v, tables, cos_i, cos_r)]
 
-    def lobe(self, v, wi, wo, h, alpha=None):
+    def lobe(self, v, wi, wo, h, alpha=None) -> Array:
         eta = v[2]
         return v[3] * microfacet_lobe(v[1], wi, wo, h, lambda c: fresnel.reflectance(c, eta),
                                       self.distribution)
