@@ -46,14 +46,14 @@ def optimistix_solver(tables, rtol: float, atol: float):
             val, _ = pixel.columns(coef, None, p[:q], p[q:])
             return (y - val) * w
 
-        sol = optx.least_squares(residual, lm, p0, max_steps=maps_solve.ITERATIONS,
-                                 throw=False)
+        sol = optx.least_squares(residual, lm, p0, max_steps=maps_solve.ITERATIONS, throw=False)
         return jnp.clip(sol.value, pixel.lo, pixel.hi), sol.stats["num_steps"]
 
     def batch(values, coef, y, w2):
         s0, u0 = pixel.node_stage(values, y, w2)
-        return jax.vmap(one, in_axes=(None, 0, 0, 0))(coef, y, w2,
-                                                       jnp.concatenate([s0, u0], axis=1))
+        return jax.vmap(one, in_axes=(None, 0, 0, 0))(
+            coef, y, w2, jnp.concatenate([s0, u0], axis=1)
+        )
 
     return jax.jit(batch)
 
@@ -86,12 +86,15 @@ def main() -> None:
     from veil.models import model_class
 
     configs = protocol_configs()
-    print("| target | solver | pixels/s (median of runs) | steps (median) | "
-          "|d nonlinear| / stderr: median, 99 % |")
+    print(
+        "| target | solver | pixels/s (median of runs) | steps (median) | "
+        "|d nonlinear| / stderr: median, 99 % |"
+    )
     print("|---|---|---:|---:|---|")
     for family, fixed in FAMILIES:
-        tables = build_tables(model_class(family, "brdf"), veil.BTDF2, angles_of(configs),
-                              fixed=fixed)
+        tables = build_tables(
+            model_class(family, "brdf"), veil.BTDF2, angles_of(configs), fixed=fixed
+        )
         y = synthetic(tables, args.pixels)
         valid = np.ones_like(y, dtype=bool)
         solve_pixels(tables, y[:1024], valid[:1024])  # compile
@@ -116,10 +119,14 @@ def main() -> None:
             diffs.append(np.abs(phys - fits.params[a.index])[ok] / se[ok])
         dev = np.max(np.stack(diffs), axis=0)
         n = len(y)
-        print(f"| {family} | veil | {n / statistics.median(ours):,.0f} | "
-              f"{np.median(fits.iterations):.0f} | - |")
-        print(f"| {family} | optimistix LM + lineax QR | {n / statistics.median(theirs):,.0f} | "
-              f"{np.median(steps):.0f} | {np.median(dev):.2g}, {np.quantile(dev, 0.99):.2g} |")
+        print(
+            f"| {family} | veil | {n / statistics.median(ours):,.0f} | "
+            f"{np.median(fits.iterations):.0f} | - |"
+        )
+        print(
+            f"| {family} | optimistix LM + lineax QR | {n / statistics.median(theirs):,.0f} | "
+            f"{np.median(steps):.0f} | {np.median(dev):.2g}, {np.quantile(dev, 0.99):.2g} |"
+        )
 
 
 if __name__ == "__main__":

@@ -12,4 +12,3 @@ def pytest_report_header(config) -> str:
     import veil
 
     return f"veil from {Path(veil.__file__).parent}"
-

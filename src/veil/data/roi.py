@@ -24,8 +24,12 @@ class ROI:
         return slice(self.y, self.y + self.h), slice(self.x, self.x + self.w)
 
     def overlaps(self, other: ROI) -> bool:
-        return (self.x < other.x + other.w and other.x < self.x + self.w
-                and self.y < other.y + other.h and other.y < self.y + self.h)
+        return (
+            self.x < other.x + other.w
+            and other.x < self.x + self.w
+            and self.y < other.y + other.h
+            and other.y < self.y + self.h
+        )
 
 
 def parse_roi(value, name: str = "roi") -> ROI:
@@ -41,16 +45,19 @@ def parse_roi(value, name: str = "roi") -> ROI:
         try:
             number = float(part)
         except (TypeError, ValueError):
-            raise InputError(f"{name} {value!r}: {label} = {part!r} is not an integer; "
-                             f"expected {form}") from None
+            raise InputError(
+                f"{name} {value!r}: {label} = {part!r} is not an integer; expected {form}"
+            ) from None
         if not number.is_integer():
-            raise InputError(f"{name} {value!r}: {label} = {part!r} is not an integer; "
-                             f"expected {form}")
+            raise InputError(
+                f"{name} {value!r}: {label} = {part!r} is not an integer; expected {form}"
+            )
         numbers.append(int(number))
     x, y, w, h = numbers
     if x < 0 or y < 0:
-        raise InputError(f"{name} {value!r}: X and Y must be >= 0 (pixel coordinates, origin "
-                         f"at the top-left)")
+        raise InputError(
+            f"{name} {value!r}: X and Y must be >= 0 (pixel coordinates, origin at the top-left)"
+        )
     if w < 1 or h < 1:
         raise InputError(f"{name} {value!r}: W and H must be >= 1 pixel")
     return ROI(x, y, w, h)

@@ -65,12 +65,15 @@ def covariance(jw: Any, xp: Any = np) -> tuple[Any, Any]:
             return np.full((n, n), np.nan), False
         _, s, vt = np.linalg.svd(je, full_matrices=False)
         full = bool(np.all(np.isfinite(s)) and s[-1] > s[0] * SINGULAR)
-        return ((vt.T / s ** 2) @ vt) / np.outer(scale, scale), full
+        return ((vt.T / s**2) @ vt) / np.outer(scale, scale), full
     low, piv = ldl(xp.where(ok, je.T @ je, xp.eye(n)), xp)
-    full = ok & (xp.min(xp.stack(piv)) > SINGULAR ** 2 * n) if n else ok
+    full = ok & (xp.min(xp.stack(piv)) > SINGULAR**2 * n) if n else ok
     eye = xp.eye(n)
-    inv = xp.stack([ldl_solve(low, piv, eye[i], xp) for i in range(n)], axis=1) if n \
+    inv = (
+        xp.stack([ldl_solve(low, piv, eye[i], xp) for i in range(n)], axis=1)
+        if n
         else xp.zeros((0, 0))
+    )
     return inv / xp.outer(scale, scale), full
 
 
@@ -115,8 +118,11 @@ def update_damping(lam: Any, better: Any, frozen: Any, xp: Any) -> Any:
     """The next damping: lower after a step that lowered the cost, higher after one that did
     not, unchanged for a pixel that has stopped."""
     low, high = DAMPING_RANGE
-    return xp.where(frozen, lam, xp.where(better, xp.maximum(lam * DAMPING_DOWN, low),
-                                          xp.minimum(lam * DAMPING_UP, high)))
+    return xp.where(
+        frozen,
+        lam,
+        xp.where(better, xp.maximum(lam * DAMPING_DOWN, low), xp.minimum(lam * DAMPING_UP, high)),
+    )
 
 
 def gauss_newton_decrease(p: Any, a: Any, g: Any, lo: Any, hi: Any, xp: Any) -> Any:
@@ -136,7 +142,7 @@ def stopped(decrease: Any, tol: float, variance: Any, yy: Any, xp: Any) -> Any:
     """The stopping rule: the Gauss-Newton step is below ``tol`` standard errors in every
     free parameter (``variance``: the residual variance, 1 when weighted; ``yy``: the data's
     own sum of squares, for a cost at rounding level)."""
-    return (decrease <= tol ** 2 * variance + 1e-24 * yy) & xp.isfinite(decrease)
+    return (decrease <= tol**2 * variance + 1e-24 * yy) & xp.isfinite(decrease)
 
 
 def step_in_stderr(step: Any, stderr: Any, xp: Any) -> Any:
@@ -175,8 +181,13 @@ def nnls_small(gram: Any, b: Any, yy: Any, q: int, xp: Any) -> tuple[Any, Any]:
         cands.append((sj, zero, xp.ones_like(ok)) if j == 0 else (zero, sj, xp.ones_like(ok)))
     best_s0, best_s1, best_cost = zero, zero, yy
     for c0, c1, feasible in cands:
-        cost = (yy - 2 * (c0 * b[..., 0] + c1 * b[..., 1]) + c0 * c0 * gram[..., 0, 0]
-                + 2 * c0 * c1 * gram[..., 0, 1] + c1 * c1 * gram[..., 1, 1])
+        cost = (
+            yy
+            - 2 * (c0 * b[..., 0] + c1 * b[..., 1])
+            + c0 * c0 * gram[..., 0, 0]
+            + 2 * c0 * c1 * gram[..., 0, 1]
+            + c1 * c1 * gram[..., 1, 1]
+        )
         better = feasible & (cost < best_cost)
         best_s0 = xp.where(better, c0, best_s0)
         best_s1 = xp.where(better, c1, best_s1)
@@ -212,7 +223,21 @@ def ldl_solve(low: list, piv: list, b: Any, xp: Any) -> Any:
     return xp.stack(x)
 
 
-__all__ = ["SINGULAR", "DAMPING_START", "equilibrate", "covariance", "residual_variance",
-           "held", "project", "at_bounds", "damped_step", "update_damping",
-           "gauss_newton_decrease", "stopped", "step_in_stderr", "nnls_small", "ldl",
-           "ldl_solve"]
+__all__ = [
+    "SINGULAR",
+    "DAMPING_START",
+    "equilibrate",
+    "covariance",
+    "residual_variance",
+    "held",
+    "project",
+    "at_bounds",
+    "damped_step",
+    "update_damping",
+    "gauss_newton_decrease",
+    "stopped",
+    "step_in_stderr",
+    "nnls_small",
+    "ldl",
+    "ldl_solve",
+]

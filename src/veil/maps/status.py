@@ -6,8 +6,7 @@ from __future__ import annotations
 STATUS = {
     0: "converged",
     1: "masked (outside the mask, or no photo usable at this pixel)",
-    2: "too few points (fewer usable photos than free parameters + 1: saturated, clipped "
-       "or dark)",
+    2: "too few points (fewer usable photos than free parameters + 1: saturated, clipped or dark)",
     3: "not determined (a scale at zero, a rank-deficient Jacobian, or no positive value)",
     4: "at the edge of the table (a nonlinear parameter at the end of its tabulated range)",
     5: "did not converge (last Gauss-Newton step above the tolerance)",
@@ -15,5 +14,4 @@ STATUS = {
 CONVERGED, MASKED, FEW_POINTS, UNDETERMINED, EDGE, NOT_CONVERGED = range(6)
 
 
-__all__ = ["STATUS", "CONVERGED", "MASKED", "FEW_POINTS", "UNDETERMINED", "EDGE",
-           "NOT_CONVERGED"]
+__all__ = ["STATUS", "CONVERGED", "MASKED", "FEW_POINTS", "UNDETERMINED", "EDGE", "NOT_CONVERGED"]
