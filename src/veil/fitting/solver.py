@@ -173,7 +173,7 @@ class Outcome:
 
     solution: Solution
     values: np.ndarray
-    accuracy: str
+    accuracy: str | None
     notes: list = field(default_factory=list)
     stats: dict = field(default_factory=dict)
 
@@ -185,7 +185,8 @@ def run(problem: Problem, starts, *, accuracy: str = "default", max_nfev=None, p
     polished at ``accuracy`` when the problem has a medium (module docstring)."""
     through_medium = any(b.medium is not None for b in problem.blocks)
     polish = through_medium and accuracy != ITERATION_ACCURACY
-    runs, skipped = [], 0
+    runs: list[Solution] = []
+    skipped = 0
     for s, x0 in enumerate(starts):
         if runs and not every and any(convincing(problem, r) for r in runs):
             skipped = len(starts) - s

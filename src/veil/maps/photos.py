@@ -131,7 +131,7 @@ def read_mask(path, shape, roi: ROI) -> np.ndarray:
                          f"{shape[1]} x {shape[0]} (nonzero = fit the pixel)")
     photo = read_photo(path, [("ROI", roi)])
     values = photo.patches[0].values
-    return np.asarray(values != 0).any(axis=-1) if values.ndim == 3 else values != 0
+    return np.asarray(np.asarray(values != 0).any(axis=-1) if values.ndim == 3 else values != 0)
 
 
 # --------------------------------------------------------------------------------------
@@ -212,7 +212,7 @@ def load_acquisition(photo_dir, manifest, *, roi=None, mask=None, black_photos=N
             raise MissingFileError(f"black frame {dark}: no such file")
     canon = canonical_angles(table.assign(value=0.0))
     angles = tuple(canon[c].to_numpy(dtype=float) for c in CANONICAL)
-    shape = None
+    shape: tuple[int, int] | None = None
     first = None
     for p, row in zip(list(paths) + list(blacks or []) + ([dark] if dark else []),
                       list(rows) + [f"black photo of {r}" for r in (rows if blacks else [])]
@@ -220,10 +220,12 @@ def load_acquisition(photo_dir, manifest, *, roi=None, mask=None, black_photos=N
         size = probe_size(p)
         if shape is None:
             shape, first = size, p
-        elif size != shape:
+        elif size != shape and shape is not None:
             raise InputError(f"{p} ({row}): {size[1]} x {size[0]} pixels, but {first} is "
                              f"{shape[1]} x {shape[0]}; every photo of a map must have the "
                              f"same size")
+    if shape is None:
+        raise InputError(f"{name}: no photo")
     if roi is None:
         roi = ROI(0, 0, shape[1], shape[0])
     else:

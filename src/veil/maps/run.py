@@ -27,8 +27,10 @@ import os
 import shutil
 import time
 import warnings
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -222,6 +224,8 @@ def near_notes(tables: MapTables, shape) -> list:
     """What the near-field tables did: the spread, the field grid, the interpolation error
     measured against exact per-pixel columns; the distant-camera warning does not apply."""
     grid = tables.near
+    if grid is None:
+        return []
     g = grid.geometry
     h, w = shape
     spread = field_spread(shape, g.distance, g.pitch)
@@ -241,7 +245,7 @@ def geometry_record(tables: MapTables, geometry) -> dict:
                 "spread_deg": field_spread((tables.near.roi[3], tables.near.roi[2]),
                                             g.distance, g.pitch),
                 "interpolation_error": tables.field_error}
-    out = {"kind": "distant"}
+    out: dict[str, str | float] = {"kind": "distant"}
     if geometry is not None:
         out.update(camera_distance=float(geometry[0]), pixel_pitch=float(geometry[1]))
     return out
@@ -304,7 +308,8 @@ def fit_maps(photo_dir, manifest, medium, output, *, brdf_model=None, options=No
         raise InputError("near-field geometry needs the camera distance and the pixel "
                          "pitch (--camera-distance D --pixel-pitch P)")
     if geometry is not None:  # checked before anything is computed
-        near = NearGeometry(*(_number(g) for g in geometry), tuple(acq.shape))
+        distance, pitch = (_number(g) for g in geometry)
+        near = NearGeometry(distance, pitch, tuple(acq.shape))
         if near_field:
             near.check_field(acq.angles, acq.roi)
         else:
@@ -381,10 +386,10 @@ class _Job:
     tables: MapTables
     tile: int
     noise: tuple | None
-    client: object
-    progress: object
+    client: Any
+    progress: Callable[[str, int, int], None] | None
     workers: int
-    say: object
+    say: Callable[[str], None]
     seconds: dict
     notes: list
 

@@ -320,7 +320,7 @@ def summarize_maps(store, maps: dict | None = None) -> dict:
            "params": {}}
     free = set(info["free"])
     for k, name in enumerate(info["params"]):
-        entry = {"free": name in free}
+        entry: dict[str, float | bool] = {"free": name in free}
         if name in free and ok.any():
             v = maps["params"][k][ok]
             se = maps["stderr"][k][ok]

@@ -8,12 +8,16 @@ from __future__ import annotations
 import hashlib
 import itertools
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..engine.integrator import BRDF_PARTS, row_scales
 from ..errors import FitError
 from .grid import _jnp, bspline_inverse, field_block, interp, interp_near, make_axes, parse_grid
+
+if TYPE_CHECKING:
+    from .near import FieldGrid
 
 
 @dataclass
@@ -44,7 +48,7 @@ class MapTables:
     #: ``values`` and ``coef`` have two leading axes more (the grid's x and y nodes);
     #: ``field_error`` is the largest interpolation error measured against exact per-pixel
     #: columns (relative to each column's maximum).
-    near: object = None
+    near: FieldGrid | None = None
     field_error: float = float("nan")
 
     @property
@@ -62,6 +66,8 @@ class MapTables:
 
     def field_coords(self, x, y) -> np.ndarray:
         """(N, 2) field-grid coordinates of pixels (x, y) of the full photo (near field)."""
+        if self.near is None:
+            raise FitError("distant tables have no field grid: no pixel coordinates")
         fx, fy = self.near.coords(np.ravel(x), np.ravel(y))
         return np.stack([fx, fy], axis=1)
 
