@@ -12,6 +12,7 @@ import pytest
 from click.testing import CliRunner
 
 import veil
+import veil.data.protocol
 from veil.cli import main
 from veil.fitting import FitError, FitResult, JointResult, Session, build, fit_joint, load_result
 

@@ -90,6 +90,17 @@ def _freed(cls, free, what: str) -> set:
     return free
 
 
+def _prepare_engine(problem, cls, given, given_result, accuracy: str) -> None:
+    """Everything a fit through a medium will compile (or load), side by side: derivatives
+    in the fitted model's parameters, and in the given model's to propagate its covariance."""
+    block = problem.blocks[0]
+    propagates = given_result is not None and given_result.covariance(total=True) is not None
+    wrt = [(cls.KIND,)] + ([(type(given).KIND,)] if propagates else [])
+    block.model(ITERATION_ACCURACY).prepare(values=True, jacobians=wrt)
+    if accuracy != ITERATION_ACCURACY:
+        block.model(accuracy).prepare(values=True)
+
+
 def _step(step: str, data: FitData, fitted: Model, given: Model | None, given_result,
           fixed: dict, accuracy: str, max_nfev, progress, freed=(),
           model_error: str = "off", propagation: str = "auto") -> FitResult:
@@ -117,15 +128,8 @@ def _step(step: str, data: FitData, fitted: Model, given: Model | None, given_re
                        f"{len(free)} free parameter(s) ({', '.join(free)}): need more points "
                        f"than free parameters (fix some with fixed=... / --fix NAME=VALUE, "
                        f"or measure more configurations)")
-    block = problem.blocks[0]
-    if medium is not None:  # everything this fit will compile (or load), side by side:
-        # derivatives in the fitted model's parameters, and in the given model's to
-        # propagate its covariance
-        propagates = given_result is not None and given_result.covariance(total=True) is not None
-        wrt = [(cls.KIND,)] + ([(type(given).KIND,)] if propagates else [])
-        block.model(ITERATION_ACCURACY).prepare(values=True, jacobians=wrt)
-        if accuracy != ITERATION_ACCURACY:
-            block.model(accuracy).prepare(values=True)
+    if medium is not None:
+        _prepare_engine(problem, cls, given, given_result, accuracy)
     starts, n_grid = step_starts(problem, cls.KIND, ROLE[step], STARTS[step], progress)
     outcome = run(problem, starts, accuracy=accuracy, max_nfev=max_nfev, progress=progress,
                   every=medium is None)

@@ -290,30 +290,14 @@ def fit_maps(photo_dir, manifest, medium, output, *, brdf_model=None, options=No
     tile = int(tile)
     if not 8 <= tile <= 4096:
         raise InputError(f"tile size {tile}: expected 8 to 4096 pixels")
-    if noise is not None:
-        rel, ab = (tuple(noise) + (0.0,))[:2] if not isinstance(noise, (int, float)) \
-            else (float(noise), 0.0)
-        if not (math.isfinite(rel) and math.isfinite(ab) and rel >= 0 and ab >= 0
-                and rel + ab > 0):
-            raise InputError(f"noise {noise!r}: expected RELATIVE[,ABSOLUTE] >= 0, not both 0")
-        noise = (float(rel), float(ab))
+    noise = _noise(noise)
     medium_model = as_given(medium, "medium", "the medium")
     cls = default_class("brdf") if brdf_model is None else model_class(brdf_model, "brdf")
     grid_spec = parse_grid(grid, cls) if isinstance(grid, (list, tuple)) else dict(grid or {})
     output = Path(output)
     acq = load_acquisition(photo_dir, manifest, roi=roi, mask=mask, black_photos=black_photos,
                            black_frame=black_frame, channel=channel, saturation=saturation)
-    near = None
-    if near_field and geometry is None:
-        raise InputError("near-field geometry needs the camera distance and the pixel "
-                         "pitch (--camera-distance D --pixel-pitch P)")
-    if geometry is not None:  # checked before anything is computed
-        distance, pitch = (_number(g) for g in geometry)
-        near = NearGeometry(distance, pitch, tuple(acq.shape))
-        if near_field:
-            near.check_field(acq.angles, acq.roi)
-        else:
-            near = None
+    near = _near_geometry(geometry, near_field, acq)
     address = scheduler or os.environ.get(SCHEDULER_ENV) or None
     client = connect(address) if address else None
     try:
@@ -327,7 +311,7 @@ def fit_maps(photo_dir, manifest, medium, output, *, brdf_model=None, options=No
                 if existing is None:
                     raise InputError(f"{output} exists and is not a veil maps store; give a "
                                      f"new path, or remove it")
-            seconds = {}
+            seconds: dict = {}
             t0 = time.perf_counter()
             tables = build_tables(cls, medium_model, acq.angles, fixed=fixed, options=options,
                                   free=free, grid=grid_spec, accuracy=accuracy,
@@ -335,11 +319,7 @@ def fit_maps(photo_dir, manifest, medium, output, *, brdf_model=None, options=No
                                   if progress else None, near=near, roi=acq.roi)
             seconds["tables"] = time.perf_counter() - t0
             say(f"tables: {tables.describe()} in {seconds['tables']:.1f} s")
-            if near is not None:
-                notes = near_notes(tables, (acq.roi.h, acq.roi.w))
-            else:
-                notes = (geometry_notes(tables, cls, medium_model, (acq.roi.h, acq.roi.w),
-                                        geometry) if geometry is not None else [])
+            notes = _geometry_notes(tables, cls, medium_model, acq, geometry)
             info = _store_attributes(acq, tables, cls, noise, tile, accuracy, channel,
                                      geometry)
             if existing is not None and existing.get("fingerprint") != info["fingerprint"]:
@@ -354,6 +334,42 @@ def fit_maps(photo_dir, manifest, medium, output, *, brdf_model=None, options=No
     finally:
         if client is not None:
             client.close()
+
+
+def _noise(noise) -> tuple[float, float] | None:
+    """``noise`` (RELATIVE or (RELATIVE, ABSOLUTE)) checked: (relative, absolute) or None."""
+    if noise is None:
+        return None
+    rel, ab = (tuple(noise) + (0.0,))[:2] if not isinstance(noise, (int, float)) \
+        else (float(noise), 0.0)
+    if not (math.isfinite(rel) and math.isfinite(ab) and rel >= 0 and ab >= 0 and rel + ab > 0):
+        raise InputError(f"noise {noise!r}: expected RELATIVE[,ABSOLUTE] >= 0, not both 0")
+    return float(rel), float(ab)
+
+
+def _near_geometry(geometry, near_field: bool, acq: Acquisition) -> NearGeometry | None:
+    """The near-field geometry of the photos (checked before anything is computed; the
+    camera distance and pixel pitch are checked even when only the notes use them)."""
+    if near_field and geometry is None:
+        raise InputError("near-field geometry needs the camera distance and the pixel "
+                         "pitch (--camera-distance D --pixel-pitch P)")
+    if geometry is None:
+        return None
+    distance, pitch = (_number(g) for g in geometry)
+    near = NearGeometry(distance, pitch, tuple(acq.shape))
+    if not near_field:
+        return None
+    near.check_field(acq.angles, acq.roi)
+    return near
+
+
+def _geometry_notes(tables: MapTables, cls, medium_model, acq: Acquisition, geometry) -> list:
+    """The notes of the map's geometry: near field, or the distant camera's spread."""
+    shape = (acq.roi.h, acq.roi.w)
+    if tables.near is not None:
+        return near_notes(tables, shape)
+    return ([] if geometry is None
+            else geometry_notes(tables, cls, medium_model, shape, geometry))
 
 
 def _store_attributes(acq, tables, cls, noise, tile, accuracy, channel, geometry) -> dict:
