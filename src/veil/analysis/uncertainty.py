@@ -161,6 +161,23 @@ def medium_parts(medium_result: FitResult, reference_result: FitResult | None = 
     return names, parts
 
 
+def _sigma_point_parts(problem, medium_result: FitResult, m_names, m_parts: dict,
+                       mapped) -> dict:
+    """Step 1's part (and step 0's) through sigma-point refits: step 0's is what adding its
+    covariance to step 1's adds."""
+    cols = [problem.index(n) for n in mapped]
+    specs = [medium_result.model_class.param(n) for n in m_names]
+    spread = {}
+    for part, cov_m in (("step1", m_parts["step1"]),
+                        ("step0", m_parts["step1"] + m_parts.get("step0", 0.0))):
+        if part in m_parts:
+            spread[part] = sigma_part(problem, problem.values, cols, specs, cov_m).covariance
+    parts = {"step1": spread["step1"]}
+    if "step0" in spread:
+        parts["step0"] = spread["step0"] - spread["step1"]
+    return parts
+
+
 def propagate(target_result: FitResult, medium_result: FitResult, table, *,
               reference_result: FitResult | None = None, reference_table=None, black=None,
               reference_black=None, accuracy: str = ITERATION_ACCURACY,
@@ -207,16 +224,7 @@ def propagate(target_result: FitResult, medium_result: FitResult, table, *,
         for part, cov_m in m_parts.items():
             parts[part] = a @ cov_m @ a.T
     else:
-        cols = [problem.index(n) for n in mapped]
-        specs = [medium_result.model_class.param(n) for n in m_names]
-        spread = {}
-        for part, cov_m in (("step1", m_parts["step1"]),
-                            ("step0", m_parts["step1"] + m_parts.get("step0", 0.0))):
-            if part in m_parts:
-                spread[part] = sigma_part(problem, problem.values, cols, specs, cov_m).covariance
-        parts["step1"] = spread["step1"]
-        if "step0" in spread:
-            parts["step0"] = spread["step0"] - spread["step1"]
+        parts.update(_sigma_point_parts(problem, medium_result, m_names, m_parts, mapped))
     cross = _shared_part(problem, target_result, medium_result, m_names, -a)
     if cross is not None:
         parts[SHARED] = cross

@@ -474,6 +474,28 @@ def finish_fits(ctx, results, written):
 ROW_CONVENTION = "rows counted as lines of the file, header = row 1"
 
 
+def _read_cells(path: str, required, expected):
+    """Every cell of a CSV file as text (pandas), or a UserError naming the file."""
+    import pandas as pd
+
+    try:
+        return pd.read_csv(path, header=None, dtype=str, keep_default_na=False,
+                           skip_blank_lines=False, skipinitialspace=True, encoding="utf-8")
+    except pd.errors.EmptyDataError:
+        columns = expected or ", ".join(required) if not callable(required) else expected
+        raise UserError(f"{path}: the file is empty; expected a header line naming the columns "
+                        f"{columns}, then one row per entry") from None
+    except pd.errors.ParserError as exc:
+        text = " ".join(str(exc).split())
+        m = re.search(r"Expected (\d+) fields in line (\d+), saw (\d+)", text)
+        if m:
+            raise UserError(f"{path}: row {m[2]} ({ROW_CONVENTION}) has {m[3]} fields but the "
+                            f"header (row 1) has {m[1]}") from None
+        raise UserError(f"{path}: not a well-formed CSV file ({text})") from None
+    except UnicodeDecodeError as exc:
+        raise UserError(f"{path}: not UTF-8 text ({exc.reason}); save the file as UTF-8") from None
+
+
 def read_csv_table(path, required, *, unit="a number", expected=None):
     """Read a CSV file with pandas, keeping every cell as text, and parse ``required`` columns.
 
@@ -491,21 +513,7 @@ def read_csv_table(path, required, *, unit="a number", expected=None):
     import pandas as pd  # heavy; only commands that read CSV pay for it
 
     path = os.fspath(path)
-    try:
-        raw = pd.read_csv(path, header=None, dtype=str, keep_default_na=False,
-                          skip_blank_lines=False, skipinitialspace=True, encoding="utf-8")
-    except pd.errors.EmptyDataError:
-        raise UserError(f"{path}: the file is empty; expected a header line naming the columns "
-                        f"{expected or ', '.join(required)}, then one row per entry") from None
-    except pd.errors.ParserError as exc:
-        text = " ".join(str(exc).split())
-        m = re.search(r"Expected (\d+) fields in line (\d+), saw (\d+)", text)
-        if m:
-            raise UserError(f"{path}: row {m[2]} ({ROW_CONVENTION}) has {m[3]} fields but the "
-                            f"header (row 1) has {m[1]}") from None
-        raise UserError(f"{path}: not a well-formed CSV file ({text})") from None
-    except UnicodeDecodeError as exc:
-        raise UserError(f"{path}: not UTF-8 text ({exc.reason}); save the file as UTF-8") from None
+    raw = _read_cells(path, required, expected)
     header = [str(c) for c in raw.iloc[0].tolist()]
     if callable(required):
         required = tuple(required(header))

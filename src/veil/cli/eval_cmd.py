@@ -199,6 +199,26 @@ def _emit(text: str, output) -> None:
         write_text_atomic(output, text)
 
 
+def _check_angle_options(theta_i, theta_r, phi_i, phi_r, configs, output, as_json) -> None:
+    """One configuration (--theta-i and --theta-r) or --configs, not both; -o with one
+    configuration only with --json."""
+    single = {"--theta-i": theta_i, "--theta-r": theta_r, "--phi-i": phi_i, "--phi-r": phi_r}
+    if configs is not None:
+        given = [name for name, v in single.items() if v is not None]
+        if given:
+            raise UserError(f"{', '.join(given)} cannot be combined with --configs: the angles "
+                            f"come from the columns of {configs}")
+        return
+    missing = [name for name in ("--theta-i", "--theta-r") if single[name] is None]
+    if missing:
+        raise UserError(f"missing {' and '.join(missing)} (degrees); give --theta-i and "
+                        f"--theta-r for one configuration, or --configs FILE.csv")
+    if output is not None and not as_json:
+        raise UserError("-o/--output writes the CSV of --configs or the object of --json; "
+                        "a single configuration's table goes to standard output (add "
+                        "--json to write it to a file)")
+
+
 @click.command("eval", short_help="Apparent reflectance through a medium at given angles "
                "(degrees), one configuration or a CSV of them.")
 @click.option("--brdf", "brdf_text", required=True, metavar="MODEL", help=BRDF_HELP)
@@ -250,21 +270,7 @@ def eval_command(brdf_text, medium_text, theta_i, theta_r, phi_i, phi_r, configs
       veil eval --brdf 200,5e5,0.8,1.55 --medium none --theta-i 30 --theta-r 30 --json
       veil eval --brdf BRDF2 --medium BTDF3 --configs angles.csv -o result.csv
     """
-    single = {"--theta-i": theta_i, "--theta-r": theta_r, "--phi-i": phi_i, "--phi-r": phi_r}
-    if configs is not None:
-        given = [name for name, v in single.items() if v is not None]
-        if given:
-            raise UserError(f"{', '.join(given)} cannot be combined with --configs: the angles "
-                            f"come from the columns of {configs}")
-    else:
-        missing = [name for name in ("--theta-i", "--theta-r") if single[name] is None]
-        if missing:
-            raise UserError(f"missing {' and '.join(missing)} (degrees); give --theta-i and "
-                            f"--theta-r for one configuration, or --configs FILE.csv")
-        if output is not None and not as_json:
-            raise UserError("-o/--output writes the CSV of --configs or the object of --json; "
-                            "a single configuration's table goes to standard output (add "
-                            "--json to write it to a file)")
+    _check_angle_options(theta_i, theta_r, phi_i, phi_r, configs, output, as_json)
     brdf, medium = _parse_models(brdf_text, medium_text, models)
     if output is not None:
         check_output_path(output, [configs])

@@ -325,16 +325,7 @@ def ingest(photo_dir, manifest, roi, black_roi=None, dark=None, channel="gray", 
         _warn(f"{len(extra)} photo file(s) in {photo_dir} are not in {name} and are ignored: "
               f"{shown}")
 
-    dark_photo = None
-    if dark is not None:
-        dark_photo = read_photo(dark, rois)
-        if dark_photo.kind == "raw" and response is not None:
-            raise InputError(f"dark frame {dark}: camera raw is already linear; a response "
-                             f"curve applies to JPEG/PNG/TIFF code values only")
-        level = saturation if saturation is not None else dark_photo.saturation
-        hot = sum(_clip_counts(p, channel, level, None)[0] for p in dark_photo.patches)
-        if hot:
-            _warn(f"dark frame {dark}: {hot} saturated pixel(s) in the ROIs (level {level:g})")
+    dark_photo = _dark_frame(dark, rois, channel, response, saturation)
 
     warned = set()
     results = []
@@ -342,42 +333,10 @@ def ingest(photo_dir, manifest, roi, black_roi=None, dark=None, channel="gray", 
     for i, (path, row_name) in enumerate(zip(paths, rows)):
         photo = read_photo(path, rois)
         where = f"{path} ({row_name})"
-        if photo.kind == "jpeg" and response is None and "jpeg" not in warned:
-            warned.add("jpeg")
-            _warn(f"{path}: JPEG code values are not linear in radiance (gamma/tone curve); "
-                  f"give a response curve (--response) to linearize them")
-        if photo.kind == "raw" and response is not None:
-            raise InputError(f"{where}: camera raw is already linear; a response curve applies "
-                             f"to JPEG/PNG/TIFF code values only")
-        if photo.saturation is None and saturation is None and "float" not in warned:
-            warned.add("float")
-            _warn(f"{path}: float samples have no format maximum, so saturation is not "
-                  f"checked; give a saturation level (--saturation) if the data were clipped")
-        if channel != "gray" and photo.shape[2] == 1 and photo.kind != "raw":
-            raise InputError(f"{where}: a single-channel (gray) image has no channel "
-                             f"{channel!r}; use channel gray")
-        if dark_photo is not None and ((dark_photo.kind == "raw") != (photo.kind == "raw")
-                                       or dark_photo.shape != photo.shape
-                                       or dark_photo.dtype != photo.dtype):
-            raise InputError(f"{where}: the dark frame {dark} does not match the photo (dark "
-                             f"frame {_describe(dark_photo)}, photo {_describe(photo)})")
+        _check_photo(photo, where, channel, response, saturation, dark, dark_photo, warned)
         level = saturation if saturation is not None else photo.saturation
-        row = {}
-        n_saturated = n_clipped = 0
-        for k, ((roi_name, _), patch) in enumerate(zip(rois, photo.patches)):
-            sat, clip = _clip_counts(patch, channel, level, photo.floor)
-            n_saturated += sat
-            n_clipped += clip
-            dark_patch = dark_photo.patches[k] if dark_photo is not None else None
-            value, sigma, n = roi_statistics(patch, channel, dark_patch, response,
-                                             f"{where}, {roi_name}")
-            prefix = "value" if k == 0 else "black"
-            row[prefix] = value
-            row["sigma" if k == 0 else "black_sigma"] = sigma
-            if k == 0:
-                row["n_pixels"] = n
-        row["saturated"] = n_saturated
-        row["clipped"] = n_clipped
+        row = _photo_row(photo, rois, channel, level, dark_photo, response, where)
+        n_saturated, n_clipped = row["saturated"], row["clipped"]
         bad = n_saturated or n_clipped
         if bad:
             what = []
@@ -406,6 +365,71 @@ def ingest(photo_dir, manifest, roi, black_roi=None, dark=None, channel="gray", 
     for col in order:
         out[col] = added[col].to_numpy()
     return out
+
+
+def _dark_frame(dark, rois, channel: str, response, saturation) -> Photo | None:
+    """The dark frame's ROIs (None without one), its hot pixels warned about."""
+    if dark is None:
+        return None
+    dark_photo = read_photo(dark, rois)
+    if dark_photo.kind == "raw" and response is not None:
+        raise InputError(f"dark frame {dark}: camera raw is already linear; a response "
+                         f"curve applies to JPEG/PNG/TIFF code values only")
+    level = saturation if saturation is not None else dark_photo.saturation
+    hot = sum(_clip_counts(p, channel, level, None)[0] for p in dark_photo.patches)
+    if hot:
+        _warn(f"dark frame {dark}: {hot} saturated pixel(s) in the ROIs (level {level:g})")
+    return dark_photo
+
+
+def _check_photo(photo: Photo, where: str, channel: str, response, saturation, dark,
+                 dark_photo: Photo | None, warned: set) -> None:
+    """A photo's format against the options: JPEG without a response curve and float
+    samples without a saturation level are warned about once (``warned``); camera raw with
+    a response curve, a missing channel or a dark frame of another kind are errors."""
+    path = photo.path
+    if photo.kind == "jpeg" and response is None and "jpeg" not in warned:
+        warned.add("jpeg")
+        _warn(f"{path}: JPEG code values are not linear in radiance (gamma/tone curve); "
+              f"give a response curve (--response) to linearize them")
+    if photo.kind == "raw" and response is not None:
+        raise InputError(f"{where}: camera raw is already linear; a response curve applies "
+                         f"to JPEG/PNG/TIFF code values only")
+    if photo.saturation is None and saturation is None and "float" not in warned:
+        warned.add("float")
+        _warn(f"{path}: float samples have no format maximum, so saturation is not "
+              f"checked; give a saturation level (--saturation) if the data were clipped")
+    if channel != "gray" and photo.shape[2] == 1 and photo.kind != "raw":
+        raise InputError(f"{where}: a single-channel (gray) image has no channel "
+                         f"{channel!r}; use channel gray")
+    if dark_photo is not None and ((dark_photo.kind == "raw") != (photo.kind == "raw")
+                                   or dark_photo.shape != photo.shape
+                                   or dark_photo.dtype != photo.dtype):
+        raise InputError(f"{where}: the dark frame {dark} does not match the photo (dark "
+                         f"frame {_describe(dark_photo)}, photo {_describe(photo)})")
+
+
+def _photo_row(photo: Photo, rois, channel: str, level, dark_photo: Photo | None, response,
+               where: str) -> dict:
+    """The measurement columns of one photo: value, sigma and n_pixels of the ROI (black,
+    black_sigma of the black ROI), saturated and clipped pixel counts."""
+    row = {}
+    n_saturated = n_clipped = 0
+    for k, ((roi_name, _), patch) in enumerate(zip(rois, photo.patches)):
+        sat, clip = _clip_counts(patch, channel, level, photo.floor)
+        n_saturated += sat
+        n_clipped += clip
+        dark_patch = dark_photo.patches[k] if dark_photo is not None else None
+        value, sigma, n = roi_statistics(patch, channel, dark_patch, response,
+                                         f"{where}, {roi_name}")
+        prefix = "value" if k == 0 else "black"
+        row[prefix] = value
+        row["sigma" if k == 0 else "black_sigma"] = sigma
+        if k == 0:
+            row["n_pixels"] = n
+    row["saturated"] = n_saturated
+    row["clipped"] = n_clipped
+    return row
 
 
 def _describe(photo: Photo) -> str:

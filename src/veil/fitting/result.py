@@ -36,6 +36,29 @@ FORMAT = "veil.fit/2"
 READABLE = ("veil.fit/1", "veil.joint/1", FORMAT)
 
 
+def _model_class_of(name, source: str):
+    """The family a result file names, or a FitError naming the file."""
+    if not isinstance(name, str):
+        raise FitError(f"{source}: key 'model' = {name!r}; expected a model name")
+    try:
+        return model_class(name)
+    except InputError:
+        raise FitError(f"{source}: key 'model' = {name!r} is not a known model "
+                       f"({', '.join(family_names())})") from None
+
+
+def _variant_of(data: dict, source: str):
+    """The result's variant: one of the registered families' variants, or None."""
+    variant = data[VARIANT_OPTION]
+    known = sorted({str(choice) for family in map(model_class, family_names())
+                    for o in family.OPTIONS if o.name == VARIANT_OPTION
+                    for choice in o.choices})
+    if variant is not None and variant not in known:
+        raise FitError(f"{source}: key 'variant' = {variant!r}; expected one of "
+                       f"{', '.join(known)} or null")
+    return variant
+
+
 @dataclass(frozen=True)
 class FitResult:
     """One fitted model (docs/model.md sec. 7): values, uncertainties and goodness of fit.
@@ -196,13 +219,7 @@ class FitResult:
             raise FitError(f"{source}: missing key(s) {', '.join(missing)}; is this a fit "
                            f"result written by veil (veil fit ... -o FILE.json)?")
         name = data["model"]
-        if not isinstance(name, str):
-            raise FitError(f"{source}: key 'model' = {name!r}; expected a model name")
-        try:
-            mcls = model_class(name)
-        except InputError:
-            raise FitError(f"{source}: key 'model' = {name!r} is not a known model "
-                           f"({', '.join(family_names())})") from None
+        mcls = _model_class_of(name, source)
         names = mcls.param_names()
         params = data["params"]
         if not isinstance(params, dict) or list(params) != list(names):
@@ -212,13 +229,7 @@ class FitResult:
         for k, v in params.items():
             if isinstance(v, bool) or not isinstance(v, (int, float)):
                 raise FitError(f"{source}: params.{k} = {v!r} is not a number")
-        variant = data[VARIANT_OPTION]
-        known = sorted({str(choice) for family in map(model_class, family_names())
-                        for o in family.OPTIONS if o.name == VARIANT_OPTION
-                        for choice in o.choices})
-        if variant is not None and variant not in known:
-            raise FitError(f"{source}: key 'variant' = {variant!r}; expected one of "
-                           f"{', '.join(known)} or null")
+        variant = _variant_of(data, source)
         options = data.get("options")
         if options is None:  # files of format veil.fit/1 keep the variant only
             options = {VARIANT_OPTION: variant} if VARIANT_OPTION in mcls.option_names() \

@@ -305,12 +305,7 @@ def fit_maps(photo_dir, manifest, medium, output, *, brdf_model=None, options=No
             raise InputError(f"cannot write {output}: directory {output.parent} does not "
                              f"exist")
         with store_lock(output, say):
-            existing = None
-            if output.exists():
-                existing = store_info(output)
-                if existing is None:
-                    raise InputError(f"{output} exists and is not a veil maps store; give a "
-                                     f"new path, or remove it")
+            existing = _existing_store(output)
             seconds: dict = {}
             t0 = time.perf_counter()
             tables = build_tables(cls, medium_model, acq.angles, fixed=fixed, options=options,
@@ -322,18 +317,34 @@ def fit_maps(photo_dir, manifest, medium, output, *, brdf_model=None, options=No
             notes = _geometry_notes(tables, cls, medium_model, acq, geometry)
             info = _store_attributes(acq, tables, cls, noise, tile, accuracy, channel,
                                      geometry)
-            if existing is not None and existing.get("fingerprint") != info["fingerprint"]:
-                raise InputError(f"{output} holds maps of another acquisition or other "
-                                 f"settings (its photos, manifest, medium, model, fixed "
-                                 f"parameters, grid, ROI, mask, noise or tile size differ); "
-                                 f"give a new output path to start afresh, or the same "
-                                 f"inputs to resume it")
+            _check_resumable(output, existing, info)
             job = _Job(output, acq, tables, tile, noise, client, progress, workers, say,
                        seconds, notes)
             return _fill(job, info, existing)
     finally:
         if client is not None:
             client.close()
+
+
+def _existing_store(output: Path) -> dict | None:
+    """The attributes of the maps store at ``output`` (None when there is none); an error
+    when something else is there."""
+    if not output.exists():
+        return None
+    existing = store_info(output)
+    if existing is None:
+        raise InputError(f"{output} exists and is not a veil maps store; give a new path, or "
+                         f"remove it")
+    return existing
+
+
+def _check_resumable(output: Path, existing: dict | None, info: dict) -> None:
+    """An existing store resumes only with the same inputs (its fingerprint)."""
+    if existing is not None and existing.get("fingerprint") != info["fingerprint"]:
+        raise InputError(f"{output} holds maps of another acquisition or other settings (its "
+                         f"photos, manifest, medium, model, fixed parameters, grid, ROI, mask, "
+                         f"noise or tile size differ); give a new output path to start afresh, "
+                         f"or the same inputs to resume it")
 
 
 def _noise(noise) -> tuple[float, float] | None:

@@ -371,6 +371,24 @@ def _shade(b, table, frame, light, normal, inside, padded=None):
     return f, lit, cos_i
 
 
+def _table_errors(b, m, table, image, lit_px, check, light, frame, peak: float,
+                  accuracy: str, bar) -> tuple[int, float, float, float]:
+    """The table's interpolation error against the engine at ``check`` lit pixels: (pixels
+    checked, largest relative error with both angles <= ERROR_ANGLE, over all, in units of
+    the image's peak)."""
+    size = image.shape[0]
+    pick = _check_pixels(image, lit_px, check)
+    normal, _ = pixel_normals(size, pick)
+    ti, tr, dp = local_angles(normal, light)
+    direct = evaluate(b, m, ti, tr, dp, accuracy=accuracy, progress=bar.advance)
+    interp = table(*_uw(normal, frame))
+    rel = np.abs(interp - direct) / direct
+    inner = np.maximum(ti, tr) <= ERROR_ANGLE
+    max_rel = float(rel[inner].max()) if inner.any() else 0.0
+    diff = np.abs(interp - direct) * (normal @ light)
+    return pick.size, max_rel, float(rel.max()), float(np.max(diff) / max(peak, 1e-300))
+
+
 def render(brdf, medium=None, light_theta=45.0, light_phi=0.0, size=256, *, accuracy="fast",
            samples=1, check=64, density=1.0, progress=False) -> Rendering:
     """Render the sphere (module docstring) and measure the interpolation error.
@@ -433,21 +451,10 @@ def render(brdf, medium=None, light_theta=45.0, light_phi=0.0, size=256, *, accu
             del normal, inside, f, lit, cos_i, linear
             bar.band()
 
-        max_rel = max_rel_all = max_peak = 0.0
-        checked = 0
+        checked, max_rel, max_rel_all, max_peak = 0, 0.0, 0.0, 0.0
         if table is not None and check:
-            pick = _check_pixels(image, lit_px, check)
-            checked = pick.size
-            normal, _ = pixel_normals(size, pick)
-            ti, tr, dp = local_angles(normal, light)
-            direct = evaluate(b, m, ti, tr, dp, accuracy=accuracy, progress=bar.advance)
-            interp = table(*_uw(normal, frame))
-            rel = np.abs(interp - direct) / direct
-            inner = np.maximum(ti, tr) <= ERROR_ANGLE
-            max_rel = float(rel[inner].max()) if inner.any() else 0.0
-            max_rel_all = float(rel.max())
-            diff = np.abs(interp - direct) * (normal @ light)
-            max_peak = float(np.max(diff) / max(peak, 1e-300))
+            checked, max_rel, max_rel_all, max_peak = _table_errors(
+                b, m, table, image, lit_px, check, light, frame, peak, accuracy, bar)
     return Rendering(image=image, brdf=b, medium=m, light_theta=float(light_theta),
                      light_phi=float(light_phi), accuracy=accuracy, samples=int(samples),
                      table_nodes=0 if table is None else table.nodes, checked=checked,
