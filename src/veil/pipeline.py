@@ -197,7 +197,8 @@ def run_pipeline(reference_clear, reference_medium, target_medium, black=None, t
                      options=medium_options, free=free.get("medium"), **chained)
     tgt = fit_target(data["target_medium"].table, med, fixed=fixed.get("target"),
                      accuracy=accuracy, max_nfev=max_nfev,
-                     progress=_stage(progress, "step 2, target"), free=free.get("target"), brdf_model=brdf_model, options=brdf_options,
+                     progress=_stage(progress, "step 2, target"), free=free.get("target"),
+                     brdf_model=brdf_model, options=brdf_options,
                      **chained)
     direct = comparison = None
     if target_clear is not None:
