@@ -1,6 +1,7 @@
-"""The one least-squares solver of veil (docs/fitting.md): every fit - a step of the
-two-step method, a joint fit, a profile or refit of the diagnostics - is a
-:class:`veil.fitting.problem.Problem` solved here.
+"""The solver of veil's fits (docs/fitting.md): every fit - a step of the two-step method, a
+joint fit, a profile or refit of the diagnostics - is a :class:`veil.fitting.problem.Problem`
+solved here, on the least-squares rules it shares with the per-pixel maps
+(:mod:`veil.fitting.least_squares`: rank, covariance, bounds).
 
 - :func:`solve`: scipy's trust-region-reflective least squares ("trf", x_scale="jac") in the
   problem's internal coordinates (log, atanh or plain, :mod:`veil.fitting.coordinates`),
@@ -11,8 +12,8 @@ two-step method, a joint fit, a profile or refit of the diagnostics - is a
   Jacobian by that rule's ~0.3 % error, so the polish converges to the optimum of the
   requested rule);
 - :func:`covariance`: (J^T W J)^-1 of the free parameters from the fast Jacobian at the
-  solution, columns equilibrated first (natural units span many decades), scaled by the
-  reduced chi-square for unweighted data;
+  solution (:func:`veil.fitting.least_squares.covariance`: columns equilibrated first,
+  natural units span many decades), scaled by the reduced chi-square for unweighted data;
 - :func:`summarize`: goodness of fit, standard errors and correlations, and the notes of a
   result: parameters at the edge of their search range, a singular Jacobian, data that
   cannot determine the model (which then never reads "converged").
