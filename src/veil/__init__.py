@@ -36,7 +36,8 @@ def _version() -> str:
         return "0+unknown"
 
 
-def __getattr__(name: str):
+def __getattr__(name: str) -> object:
+    value: object
     if name == "__version__":
         value = globals()["__version__"] = _version()
         return value

@@ -60,7 +60,7 @@ def _print(diag, console) -> None:
     table = Table(title="Identifiability", title_justify="left")
     for col in ("parameter", "value", "stderr", "relative", "profile 1-sigma", "flag"):
         table.add_column(col, justify="left" if col in ("parameter", "flag") else "right")
-    flagged = {}
+    flagged: dict = {}
     for n, reason in diag.poorly_determined:
         flagged.setdefault(n, []).append(reason)
     for n in diag.names:

@@ -82,7 +82,7 @@ def _parse_step_free(items, models) -> dict:
 
 def _parse_step_fix(items, models) -> dict:
     """``STEP.NAME=VALUE`` strings of ``fit pipeline`` -> {step: {name: value}}."""
-    by_step = {}
+    by_step: dict = {}
     classes = {"reference": models.brdf, "medium": models.medium, "target": models.brdf}
     for item in items:
         head, sep, _ = item.partition("=")

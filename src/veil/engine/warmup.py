@@ -78,7 +78,7 @@ def families(selected=None) -> tuple[list[str], list[str]]:
         return [DEFAULTS["brdf"]], [DEFAULTS["medium"]]
     if [s.strip().lower() for s in selected] == ["all"]:
         return names("brdf"), names("medium")
-    chosen = {"brdf": [], "medium": []}
+    chosen: dict[str, list] = {"brdf": [], "medium": []}
     for name in selected:
         cls = model_class(name)
         if cls.NAME not in chosen[cls.KIND]:
