@@ -172,14 +172,12 @@ def test_model_md_presets_are_veils():
 def _benchmark(name: str):
     """A module of benchmarks/ (not a package), imported from its file."""
     import importlib.util
-    sys.path.insert(0, str(ROOT / "benchmarks"))
-    try:
+    with pytest.MonkeyPatch.context() as patch:  # its imports of the other benchmarks
+        patch.syspath_prepend(str(ROOT / "benchmarks"))
         spec = importlib.util.spec_from_file_location(name, ROOT / "benchmarks" / f"{name}.py")
         module = importlib.util.module_from_spec(spec)
         spec.loader.exec_module(module)
         return module
-    finally:
-        sys.path.remove(str(ROOT / "benchmarks"))
 
 
 def test_doc_tables_replace_only_their_block():

@@ -13,9 +13,16 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import veil
-from veil.data.measurements import (LikelyRadiansWarning, MeasurementError, canonical_angles,
-                               load_measurements, save_measurements, subtract_black, to_form,
-                               validate)
+from veil.data.black_cloth import subtract_black
+from veil.data.measurements import (
+    LikelyRadiansWarning,
+    MeasurementError,
+    canonical_angles,
+    load_measurements,
+    save_measurements,
+    to_form,
+    validate,
+)
 
 
 def write(tmp_path, name, text):

@@ -67,7 +67,8 @@ if "jax" not in sys.modules:
     if "xla_force_host_platform_device_count" not in _flags:
         _n = int(os.environ.get("VEIL_CPU_DEVICES", "0") or 0) or min(os.cpu_count() or 1, 8)
         if _n > 1:
-            os.environ["XLA_FLAGS"] = (_flags + f" --xla_force_host_platform_device_count={_n}").strip()
+            _count = f" --xla_force_host_platform_device_count={_n}"
+            os.environ["XLA_FLAGS"] = (_flags + _count).strip()
 
 import jax  # noqa: E402
 

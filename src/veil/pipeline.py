@@ -1,4 +1,5 @@
-"""The whole estimation of docs/model.md sec. 7 in one call: steps 0-2, result files, figures, report.
+"""The whole estimation of docs/model.md sec. 7 in one call: steps 0-2, result files,
+figures, report.
 
 :func:`run_pipeline` fits the reference's f_r in a clear medium (step 0), the medium through
 the reference (step 1) and the target through the medium (step 2), and writes into ``outdir``
@@ -26,16 +27,24 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .io import check_output_folder, output_folder, write_bytes_atomic, write_text_atomic
+from .analysis.uncertainty import curve_stderr
+from .data.measurements import CANONICAL
 from .data.protocol import protocol
 from .errors import FitError
-from .fitting import (FitResult, fit_direct, fit_medium, fit_reference, fit_target,
-                      model_values, prepare)
+from .fitting import (
+    FitResult,
+    fit_direct,
+    fit_medium,
+    fit_reference,
+    fit_target,
+    model_values,
+    prepare,
+)
 from .fitting.model_error import check_kind
 from .fitting.propagation import check_method
-from .analysis.uncertainty import curve_stderr
+from .io import check_output_folder, output_folder, write_bytes_atomic, write_text_atomic
+from .viz.documents import comparison_report, pipeline_report
 from .viz.fit_figures import fit_figure
-from .viz.reports import comparison_report, pipeline_report
 
 #: Output files, by role.
 FILES = {"reference": "reference.json", "medium": "medium.json", "target": "target.json",
@@ -86,13 +95,54 @@ def _inside(path, folder) -> bool:
 
 def _check_outputs(outdir: str, inputs: dict) -> None:
     check_output_folder(outdir)
-    for role, name in FILES.items():
+    for name in FILES.values():
         out = os.path.join(outdir, name)
         for what, inp in inputs.items():
             if isinstance(inp, (str, os.PathLike)) and _same(out, inp):
                 raise FitError(f"input {what} ({os.fspath(inp)}) would be overwritten by the "
                                f"output {out}; veil never overwrites an input: choose another "
                                f"output directory")
+
+
+def _prepare_sessions(inputs: dict) -> dict:
+    """Every session read and checked before the first (long) fit (black cloth subtracted
+    from the sessions in the medium)."""
+    black = inputs["black"]
+    data = {"reference_clear": prepare(inputs["reference_clear"], None,
+                                       "reference (clear medium)"),
+            "reference_medium": prepare(inputs["reference_medium"], black,
+                                        "reference (in the medium)"),
+            "target_medium": prepare(inputs["target_medium"], black, "target (in the medium)")}
+    if inputs["target_clear"] is not None:
+        data["target_clear"] = prepare(inputs["target_clear"], None, "target (clear medium)")
+    return data
+
+
+def _relative_to(inputs: dict, outdir: str) -> dict:
+    """The inputs, those inside ``outdir`` named relative to it."""
+    return {k: (os.path.relpath(v, outdir) if isinstance(v, (str, os.PathLike))
+                and _inside(v, outdir) else v) for k, v in inputs.items()}
+
+
+def _stage(progress, name: str):
+    """The progress callback of one step (None without ``progress``); announces the step at
+    once."""
+    if progress is None:
+        return None
+    progress(f"{name}: starting", None, None)
+    return lambda what, done, total: progress(f"{name}: {what}", done, total)
+
+
+def _write_figures(folder, data: dict, ref, med, tgt, direct) -> dict:
+    """The figure of each fit in ``folder``: {figure key: file name}."""
+    figs = {"reference_fig": (data["reference_clear"], ref, None, None),
+            "medium_fig": (data["reference_medium"], med, ref.as_model(), None),
+            "target_fig": (data["target_medium"], tgt, med.as_model(), None)}
+    if direct is not None:
+        figs["direct_fig"] = (data["target_clear"], direct, None, tgt)
+    for key, (d, result, other, extra) in figs.items():
+        write_bytes_atomic(folder / FILES[key], fit_figure(d, result, other, extra))
+    return {key: FILES[key] for key in figs}
 
 
 def run_pipeline(reference_clear, reference_medium, target_medium, black=None, target_clear=None,
@@ -133,38 +183,28 @@ def run_pipeline(reference_clear, reference_medium, target_medium, black=None, t
               "target_medium": target_medium, "black": black, "target_clear": target_clear}
     _check_outputs(outdir, inputs)
 
-    def stage(name):
-        """The callback of one step; announces the step at once."""
-        if progress is None:
-            return None
-        progress(f"{name}: starting", None, None)
-        return lambda what, done, total: progress(f"{name}: {what}", done, total)
-
     # read and check every input before the first (long) fit
-    data = {"reference_clear": prepare(reference_clear, None, "reference (clear medium)"),
-            "reference_medium": prepare(reference_medium, black, "reference (in the medium)"),
-            "target_medium": prepare(target_medium, black, "target (in the medium)")}
-    if target_clear is not None:
-        data["target_clear"] = prepare(target_clear, None, "target (clear medium)")
+    data = _prepare_sessions(inputs)
 
     brdf = {"brdf_model": brdf_model, "options": brdf_options, "model_error": model_error}
     chained = {"model_error": model_error, "propagation": propagation}
     ref = fit_reference(data["reference_clear"].table, fixed=fixed.get("reference"),
-                        max_nfev=max_nfev, progress=stage("step 0, reference"),
+                        max_nfev=max_nfev, progress=_stage(progress, "step 0, reference"),
                         free=free.get("reference"), **brdf)
     med = fit_medium(data["reference_medium"].table, ref, fixed=fixed.get("medium"),
                      variant=variant, accuracy=accuracy, max_nfev=max_nfev,
-                     progress=stage("step 1, medium"), medium_model=medium_model,
+                     progress=_stage(progress, "step 1, medium"), medium_model=medium_model,
                      options=medium_options, free=free.get("medium"), **chained)
     tgt = fit_target(data["target_medium"].table, med, fixed=fixed.get("target"),
-                     accuracy=accuracy, max_nfev=max_nfev, progress=stage("step 2, target"),
-                     free=free.get("target"), brdf_model=brdf_model, options=brdf_options,
+                     accuracy=accuracy, max_nfev=max_nfev,
+                     progress=_stage(progress, "step 2, target"), free=free.get("target"),
+                     brdf_model=brdf_model, options=brdf_options,
                      **chained)
     direct = comparison = None
     if target_clear is not None:
         direct = fit_direct(data["target_clear"].table, fixed=fixed.get("target"),
-                            max_nfev=max_nfev, progress=stage("target, clear medium"),
-                            free=free.get("target"), **brdf)
+                            max_nfev=max_nfev, free=free.get("target"),
+                            progress=_stage(progress, "target, clear medium"), **brdf)
         comparison = compare(tgt, direct)
 
     names = {}
@@ -177,17 +217,9 @@ def run_pipeline(reference_clear, reference_medium, target_medium, black=None, t
         if figures:
             if progress is not None:
                 progress("figures", None, None)
-            figs = {"reference_fig": (data["reference_clear"], ref, None, None),
-                    "medium_fig": (data["reference_medium"], med, ref.as_model(), None),
-                    "target_fig": (data["target_medium"], tgt, med.as_model(), None)}
-            if direct is not None:
-                figs["direct_fig"] = (data["target_clear"], direct, None, tgt)
-            for key, (d, result, other, extra) in figs.items():
-                write_bytes_atomic(folder / FILES[key], fit_figure(d, result, other, extra))
-                names[key] = FILES[key]
+            names.update(_write_figures(folder, data, ref, med, tgt, direct))
         # inputs inside the output folder are named relative to it (links from report.md)
-        shown = {k: (os.path.relpath(v, outdir) if isinstance(v, (str, os.PathLike))
-                     and _inside(v, outdir) else v) for k, v in inputs.items()}
+        shown = _relative_to(inputs, outdir)
         report = pipeline_report(ref, med, tgt, direct, comparison, truth, names, shown)
         write_text_atomic(folder / FILES["report"], report)
         names["report"] = FILES["report"]
@@ -274,6 +306,20 @@ def _for_family(cls, per_step: dict, step: str, what: str, used: set) -> dict | 
     return kept
 
 
+def _target_difference(results: dict) -> dict:
+    """How far the other sets' target f_r is from the first's over the protocol's
+    configurations: relative rms and largest difference."""
+    names = list(results)
+    first = names[0]
+    configs = protocol()
+    angles = tuple(configs[c].to_numpy() for c in CANONICAL)
+    base = model_values(results[first].target, None, angles)
+    rel = np.concatenate([(model_values(results[n].target, None, angles) - base) / base
+                          for n in names[1:]])
+    return {"against": first, "n": len(configs), "rms": float(np.sqrt(np.mean(rel ** 2))),
+            "max": float(np.max(np.abs(rel)))}
+
+
 def compare_models(reference_clear, reference_medium, target_medium, black=None,
                    target_clear=None, outdir="veil-compare", *, sets=None,
                    accuracy: str = "default", fixed=None, free=None, max_nfev=None,
@@ -338,16 +384,7 @@ def compare_models(reference_clear, reference_medium, target_medium, black=None,
                                          model_error=model_error,
                                          propagation=propagation, **plan)
             seconds[name] = time.perf_counter() - t0
-        names = list(results)
-        first = names[0]
-        configs = protocol()
-        angles = tuple(configs[c].to_numpy() for c in ("theta_i", "phi_i", "theta_r", "phi_r"))
-        base = model_values(results[first].target, None, angles)
-        diffs = [(model_values(results[n].target, None, angles) - base) / base
-                 for n in names[1:]]
-        rel = np.concatenate(diffs)
-        difference = {"against": first, "n": len(configs),
-                      "rms": float(np.sqrt(np.mean(rel ** 2))), "max": float(np.max(np.abs(rel)))}
+        difference = _target_difference(results)
         write_text_atomic(folder / "comparison.md",
                           comparison_report(results, seconds, difference))
     # the sets' files were written in the staging folder, now moved to outdir

@@ -27,12 +27,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..errors import InputTypeError
-from ..errors import FitError
+from ..errors import FitError, InputTypeError
 from ..fitting.joint import build, shareable
 from ..fitting.problem import ITERATION_ACCURACY, session_problem
 from ..fitting.result import FitResult, JointResult
-from ..fitting.solver import covariance, solve
+from ..fitting.solver import covariance, solve, weighted_jacobian
 from ..models import REGISTRY, Model
 from ..numbers import format_number, format_percent
 
@@ -273,6 +272,28 @@ def _add_prior(problem, other: FitResult, what):
 # --------------------------------------------------------------------------------------
 # the diagnostics
 # --------------------------------------------------------------------------------------
+def _profiles(problem, x, which: list, stderr: dict, points: int, accuracy: str,
+              progress) -> dict:
+    """{name: profile likelihood} of the free parameters ``which``."""
+    names = problem.free_names
+    unknown = [n for n in which if n not in names]
+    if unknown:
+        raise FitError(f"cannot profile {', '.join(map(repr, unknown))}: the free "
+                       f"parameters are {', '.join(names)}")
+    chi2_scale = 1.0
+    if not problem.weighted:
+        dof = problem.n_points - len(names)
+        res = (problem.y - problem.model_values(x, accuracy)) * problem.w
+        chi2_scale = max(float(res @ res) / dof, 1e-300)
+    out = {}
+    for k, n in enumerate(which):
+        out[n] = profile_likelihood(problem, x, n, stderr[n], points=points, scale=chi2_scale,
+                                    accuracy=accuracy)
+        if progress:
+            progress("profiles", k + 1, len(which))
+    return out
+
+
 def diagnose(result: FitResult, data, *, medium=None, reference=None, black=None,
              profile=False, points: int = PROFILE_POINTS, max_relative: float = MAX_RELATIVE,
              max_correlation: float = MAX_CORRELATION, accuracy: str = ITERATION_ACCURACY,
@@ -307,8 +328,7 @@ def diagnose(result: FitResult, data, *, medium=None, reference=None, black=None
                        "the parameters is not determined at all (fix one of them)")
     se = np.sqrt(np.maximum(np.diag(cov), 0.0))
     corr = cov / np.outer(se, se)
-    _, full = problem.value_and_jacobian(x, accuracy, problem.free)
-    jw = np.concatenate([full * problem.w[:, None], problem.prior_rows(x)[1]])[:, problem.free]
+    jw = weighted_jacobian(problem, x, accuracy)
     vals = x[problem.free]
     cond_values = _cond(jw * np.where(vals != 0, np.abs(vals), 1.0)[None, :])
     cond_stderr = _cond(jw * se[None, :])
@@ -326,21 +346,8 @@ def diagnose(result: FitResult, data, *, medium=None, reference=None, black=None
                      thresholds={"max_relative": max_relative,
                                  "max_correlation": max_correlation, "flat": FLAT})
     if profile:
-        which = names if profile is True else list(profile)
-        unknown = [n for n in which if n not in names]
-        if unknown:
-            raise FitError(f"cannot profile {', '.join(map(repr, unknown))}: the free "
-                           f"parameters are {', '.join(names)}")
-        chi2_scale = 1.0
-        if not problem.weighted:
-            dof = problem.n_points - len(names)
-            res = (problem.y - problem.model_values(x, accuracy)) * problem.w
-            chi2_scale = max(float(res @ res) / dof, 1e-300)
-        for k, n in enumerate(which):
-            diag.profiles[n] = profile_likelihood(problem, x, n, stderr[n], points=points,
-                                                  scale=chi2_scale, accuracy=accuracy)
-            if progress:
-                progress("profiles", k + 1, len(which))
+        diag.profiles.update(_profiles(problem, x, names if profile is True else list(profile),
+                                       stderr, points, accuracy, progress))
     for n in names:
         if relative[n] > max_relative:
             diag.poorly_determined.append(
@@ -423,5 +430,5 @@ def _crossing(values, chi2):
     return None
 
 
-__all__ = ["diagnose", "Diagnosis", "Profile", "profile_likelihood", "problem_for", 
+__all__ = ["diagnose", "Diagnosis", "Profile", "profile_likelihood", "problem_for",
            "relative_error", "MAX_RELATIVE", "MAX_CORRELATION"]

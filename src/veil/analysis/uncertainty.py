@@ -8,7 +8,8 @@ or through sigma points where it is large, :mod:`veil.fitting.propagation`);
 this module splits that total into a per-step budget, can compute step 0's part from the
 reference's own data, and checks the linearization by sampling.
 
-The target's estimate solves J_t^T W r(theta_t, theta_m) = 0, so a change d theta_m of the medium moves it by
+The target's estimate solves J_t^T W r(theta_t, theta_m) = 0, so a change d theta_m of the
+medium moves it by
 
     d theta_t = -A d theta_m,   A = (J_t^T W J_t)^-1 J_t^T W J_m   (= J_t^+ J_m, weighted)
 
@@ -39,8 +40,8 @@ import math
 
 import numpy as np
 
-from ..errors import FitError, InputTypeError
 from ..engine.evaluator import DirectModel
+from ..errors import FitError, InputTypeError
 from ..fitting.problem import ITERATION_ACCURACY, session_problem
 from ..fitting.propagation import sigma_part
 from ..fitting.result import FitResult, JointResult
@@ -160,6 +161,23 @@ def medium_parts(medium_result: FitResult, reference_result: FitResult | None = 
     return names, parts
 
 
+def _sigma_point_parts(problem, medium_result: FitResult, m_names, m_parts: dict,
+                       mapped) -> dict:
+    """Step 1's part (and step 0's) through sigma-point refits: step 0's is what adding its
+    covariance to step 1's adds."""
+    cols = [problem.index(n) for n in mapped]
+    specs = [medium_result.model_class.param(n) for n in m_names]
+    spread = {}
+    for part, cov_m in (("step1", m_parts["step1"]),
+                        ("step0", m_parts["step1"] + m_parts.get("step0", 0.0))):
+        if part in m_parts:
+            spread[part] = sigma_part(problem, problem.values, cols, specs, cov_m).covariance
+    parts = {"step1": spread["step1"]}
+    if "step0" in spread:
+        parts["step0"] = spread["step0"] - spread["step1"]
+    return parts
+
+
 def propagate(target_result: FitResult, medium_result: FitResult, table, *,
               reference_result: FitResult | None = None, reference_table=None, black=None,
               reference_black=None, accuracy: str = ITERATION_ACCURACY,
@@ -206,16 +224,7 @@ def propagate(target_result: FitResult, medium_result: FitResult, table, *,
         for part, cov_m in m_parts.items():
             parts[part] = a @ cov_m @ a.T
     else:
-        cols = [problem.index(n) for n in mapped]
-        specs = [medium_result.model_class.param(n) for n in m_names]
-        spread = {}
-        for part, cov_m in (("step1", m_parts["step1"]),
-                            ("step0", m_parts["step1"] + m_parts.get("step0", 0.0))):
-            if part in m_parts:
-                spread[part] = sigma_part(problem, problem.values, cols, specs, cov_m).covariance
-        parts["step1"] = spread["step1"]
-        if "step0" in spread:
-            parts["step0"] = spread["step0"] - spread["step1"]
+        parts.update(_sigma_point_parts(problem, medium_result, m_names, m_parts, mapped))
     cross = _shared_part(problem, target_result, medium_result, m_names, -a)
     if cross is not None:
         parts[SHARED] = cross

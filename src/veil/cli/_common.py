@@ -121,7 +121,7 @@ class VeilGroup(LazyGroup):
                 report_bug(exc, ctx.obj.get("debug", False) if ctx.obj else False)
             click.echo(f"Error: {exc.filename}: {exc.strerror or exc}", err=True)
             sys.exit(EXIT_INPUT)
-        except Exception as exc:  # noqa: BLE001 - anything else is a bug in veil
+        except Exception as exc:
             report_bug(exc, bool(ctx.obj and ctx.obj.get("debug")))
 
 
@@ -324,9 +324,10 @@ def model_options(kinds=("brdf", "medium")):
             numeric = all(isinstance(o.default, (int, float)) and not isinstance(o.default, bool)
                           for _, _, o in users)
             kind = click.Choice(choices) if choices else (click.FLOAT if numeric else str)
+            defaults = ", ".join(str(o.default) for _, _, o in users)
             wrapper = click.option(_option_flag(oname), oname, default=None, type=kind,
                                    help=f"Option of the model ({docs}); default: the model's "
-                                        f"({', '.join(str(o.default) for _, _, o in users)}).")(wrapper)
+                                        f"({defaults}).")(wrapper)
         for kind in reversed(kinds):
             word = "BRDF family of the objects" if kind == "brdf" else "medium model"
             wrapper = click.option(f"--{kind}-model", f"{kind}_model", default=None,
@@ -426,8 +427,9 @@ def load_medium(text: str, models, option: str = "--medium"):
 @contextlib.contextmanager
 def fit_progress(title: str):
     """A rich progress display on stderr; yields the ``progress(stage, done, total)`` callback."""
-    from .compile_display import console
     from rich.progress import BarColumn, Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
+
+    from .compile_display import console
 
     with Progress(SpinnerColumn(), TextColumn("{task.description}"), BarColumn(),
                   TextColumn("{task.fields[count]}"), TimeElapsedColumn(),
@@ -472,6 +474,28 @@ def finish_fits(ctx, results, written):
 ROW_CONVENTION = "rows counted as lines of the file, header = row 1"
 
 
+def _read_cells(path: str, required, expected):
+    """Every cell of a CSV file as text (pandas), or a UserError naming the file."""
+    import pandas as pd
+
+    try:
+        return pd.read_csv(path, header=None, dtype=str, keep_default_na=False,
+                           skip_blank_lines=False, skipinitialspace=True, encoding="utf-8")
+    except pd.errors.EmptyDataError:
+        columns = expected or ", ".join(required) if not callable(required) else expected
+        raise UserError(f"{path}: the file is empty; expected a header line naming the columns "
+                        f"{columns}, then one row per entry") from None
+    except pd.errors.ParserError as exc:
+        text = " ".join(str(exc).split())
+        m = re.search(r"Expected (\d+) fields in line (\d+), saw (\d+)", text)
+        if m:
+            raise UserError(f"{path}: row {m[2]} ({ROW_CONVENTION}) has {m[3]} fields but the "
+                            f"header (row 1) has {m[1]}") from None
+        raise UserError(f"{path}: not a well-formed CSV file ({text})") from None
+    except UnicodeDecodeError as exc:
+        raise UserError(f"{path}: not UTF-8 text ({exc.reason}); save the file as UTF-8") from None
+
+
 def read_csv_table(path, required, *, unit="a number", expected=None):
     """Read a CSV file with pandas, keeping every cell as text, and parse ``required`` columns.
 
@@ -489,21 +513,7 @@ def read_csv_table(path, required, *, unit="a number", expected=None):
     import pandas as pd  # heavy; only commands that read CSV pay for it
 
     path = os.fspath(path)
-    try:
-        raw = pd.read_csv(path, header=None, dtype=str, keep_default_na=False,
-                          skip_blank_lines=False, skipinitialspace=True, encoding="utf-8")
-    except pd.errors.EmptyDataError:
-        raise UserError(f"{path}: the file is empty; expected a header line naming the columns "
-                        f"{expected or ', '.join(required)}, then one row per entry") from None
-    except pd.errors.ParserError as exc:
-        text = " ".join(str(exc).split())
-        m = re.search(r"Expected (\d+) fields in line (\d+), saw (\d+)", text)
-        if m:
-            raise UserError(f"{path}: row {m[2]} ({ROW_CONVENTION}) has {m[3]} fields but the "
-                            f"header (row 1) has {m[1]}") from None
-        raise UserError(f"{path}: not a well-formed CSV file ({text})") from None
-    except UnicodeDecodeError as exc:
-        raise UserError(f"{path}: not UTF-8 text ({exc.reason}); save the file as UTF-8") from None
+    raw = _read_cells(path, required, expected)
     header = [str(c) for c in raw.iloc[0].tolist()]
     if callable(required):
         required = tuple(required(header))
@@ -527,7 +537,7 @@ def read_csv_table(path, required, *, unit="a number", expected=None):
     table = pd.DataFrame(body.to_numpy(), columns=header)
     numbers = {}
     first_bad = None  # (row, column position, message): report the first in file order
-    for k, c in enumerate(required):
+    for c in required:
         cells = body.iloc[:, header.index(c)].tolist()
         values = np.empty(len(cells))
         for j, cell in enumerate(cells):

@@ -13,10 +13,20 @@ from pathlib import Path
 
 import click
 
-from ._common import (LazyGroup, UserError, check_output_path, echo_warnings, finish_fits,
-                      fit_progress, load_medium, load_reference, model_error_option,
-                      propagation_option,
-                      model_options, parse_fix)
+from ._common import (
+    LazyGroup,
+    UserError,
+    check_output_path,
+    echo_warnings,
+    finish_fits,
+    fit_progress,
+    load_medium,
+    load_reference,
+    model_error_option,
+    model_options,
+    parse_fix,
+    propagation_option,
+)
 
 IN_FILE = click.Path(exists=True, dir_okay=False, path_type=Path)
 OUT_FILE = click.Path(dir_okay=False, path_type=Path)
@@ -72,7 +82,7 @@ def _parse_step_free(items, models) -> dict:
 
 def _parse_step_fix(items, models) -> dict:
     """``STEP.NAME=VALUE`` strings of ``fit pipeline`` -> {step: {name: value}}."""
-    by_step = {}
+    by_step: dict = {}
     classes = {"reference": models.brdf, "medium": models.medium, "target": models.brdf}
     for item in items:
         head, sep, _ = item.partition("=")

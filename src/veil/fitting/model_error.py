@@ -276,7 +276,7 @@ class ModelError:
         return out
 
     @classmethod
-    def from_dict(cls, data, source: str = "the fit result") -> "ModelError":
+    def from_dict(cls, data, source: str = "the fit result") -> ModelError:
         """Check and convert the ``model_error`` entry of a result file."""
         keys = ("sigma", "length", "own", "given", "source", "chi2_threshold")
         if not isinstance(data, dict) or any(k not in data for k in keys):
@@ -497,13 +497,14 @@ def shared(own_influence, angles, given: ModelError, given_names, sensitivity,
     """The covariance that the error a step shares with its given medium's fit adds to its
     total: step 2's estimate moves by G_2 d_2 + S G_1 d_1 (S = d estimate / d medium, first
     order), and d_1, d_2 are one process over the configurations of both sessions with the
-    given fit's s and ell, so beside the two steps' own parts it has the cross term
-    s^2 (G_2 R_21 G_1^T S^T + its transpose), R_21 = exp(-D(step 2's, step 1's) / ell). It
-    is negative where the medium absorbed in step 1 the error it gives back in step 2.
-    ``share`` scales it: how far step 2's error is step 1's
-    (:func:`session_correlation`). None when the given term has no length (ell = 0: the two sessions' errors independent)
+    given fit's s and ell, so beside the two steps' own parts it has the cross term s^2 (G_2
+    R_21 G_1^T S^T + its transpose), R_21 = exp(-D(step 2's, step 1's) / ell). It is
+    negative where the medium absorbed in step 1 the error it gives back in step 2.
+    ``share`` scales it: how far step 2's error is step 1's (:func:`session_correlation`).
+    None when the given term has no length (ell = 0: the two sessions' errors independent)
     or no influence. Step 2's own part must then be that of the shared process plus what its
-    own s exceeds it by (veil.fitting.reported), so that the two are one covariance."""
+    own s exceeds it by (veil.fitting.reported_uncertainty), so that the two are one
+    covariance."""
     if given is None or given.sigma == 0.0 or given.length == 0.0 or given.influence is None:
         return None
     missing = [n for n in given_names if n not in given.influence]
@@ -536,7 +537,7 @@ def noise_only(result):
                                correlation_total=n.get("correlation_total"), model_error=None)
 
 
-__all__ = ["CHI2_Z", "LENGTHS", "KINDS", "DEFAULT", "SOURCES", "check_kind", "chi2_threshold", "distances", "correlation",
-           "estimate", "sandwich", "ModelError", "step_term", "given_term", "noise_only",
-           "influence", "shared", "session_correlation", "share_likelihood",
-           "likelihood_mean", "SHARE_GRID"]
+__all__ = ["CHI2_Z", "LENGTHS", "KINDS", "DEFAULT", "SOURCES", "check_kind", "chi2_threshold",
+           "distances", "correlation", "estimate", "sandwich", "ModelError", "step_term",
+           "given_term", "noise_only", "influence", "shared", "session_correlation",
+           "share_likelihood", "likelihood_mean", "SHARE_GRID"]

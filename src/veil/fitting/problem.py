@@ -26,7 +26,7 @@ from ..engine.quadrature import RULES
 from ..errors import FitError
 from ..models import BRDF, Medium, Param
 from . import coordinates
-from .data import FitData, prepare
+from .session_data import FitData, prepare
 
 #: Quadrature of the iterations through a medium; the polish uses the requested accuracy.
 ITERATION_ACCURACY = "fast"
@@ -395,7 +395,7 @@ class Problem:
             start += b.size
         return out
 
-    def with_fixed(self, names_values: dict) -> "Problem":
+    def with_fixed(self, names_values: dict) -> Problem:
         """A copy of the problem with more parameters held fixed (profiles, refits)."""
         out = Problem.__new__(Problem)
         out.__dict__.update(self.__dict__)

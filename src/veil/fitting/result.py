@@ -1,6 +1,6 @@
 """The result of a fit (docs/model.md sec. 7): :class:`FitResult` (one model: a step of the
 two-step method) and :class:`JointResult` (several models: a joint fit), and their JSON file,
-key by key in docs/fitting.md. The text report is :mod:`veil.fitting.report`.
+key by key in docs/fitting.md. The text report is :mod:`veil.fitting.fit_report`.
 
 Result files carry ``"format": "veil.fit/2"``; files of the earlier formats ("veil.fit/1",
 "veil.joint/1") are read as well, and any other format is refused with a clear message
@@ -15,6 +15,7 @@ import json
 import math
 import os
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, ClassVar
 
 from ..errors import FitError, InputError, MissingFileError, NotAFileError
 from ..io import write_bytes_atomic
@@ -25,11 +26,37 @@ from ..numbers import from_json_float, json_float
 from .model_error import ModelError
 from .solver import covariance_matrix
 
+if TYPE_CHECKING:
+    import numpy as np
+
 #: The steps of the two-step method (docs/model.md sec. 7); results may also say "direct".
 STEPS = ("reference", "medium", "target")
 #: Value of the "format" key of a result file, and the formats this veil reads.
 FORMAT = "veil.fit/2"
 READABLE = ("veil.fit/1", "veil.joint/1", FORMAT)
+
+
+def _model_class_of(name, source: str):
+    """The family a result file names, or a FitError naming the file."""
+    if not isinstance(name, str):
+        raise FitError(f"{source}: key 'model' = {name!r}; expected a model name")
+    try:
+        return model_class(name)
+    except InputError:
+        raise FitError(f"{source}: key 'model' = {name!r} is not a known model "
+                       f"({', '.join(family_names())})") from None
+
+
+def _variant_of(data: dict, source: str):
+    """The result's variant: one of the registered families' variants, or None."""
+    variant = data[VARIANT_OPTION]
+    known = sorted({str(choice) for family in map(model_class, family_names())
+                    for o in family.OPTIONS if o.name == VARIANT_OPTION
+                    for choice in o.choices})
+    if variant is not None and variant not in known:
+        raise FitError(f"{source}: key 'variant' = {variant!r}; expected one of "
+                       f"{', '.join(known)} or null")
+    return variant
 
 
 @dataclass(frozen=True)
@@ -56,6 +83,9 @@ class FitResult:
     did not estimate one (unweighted data, an undetermined covariance, or
     ``model_error="off"``).
     """
+
+    #: A joint fit (:class:`JointResult`): its report lists the sessions.
+    JOINT: ClassVar[bool] = False
 
     model: str
     params: dict
@@ -124,7 +154,7 @@ class FitResult:
         chi2 = self.chi2_reduced * max(self.n_points - self.n_free, 1)
         return chi2 + self.n_free * math.log(max(self.n_points, 1)) if self.weighted else None
 
-    def covariance(self, total: bool = True):
+    def covariance(self, total: bool = True) -> tuple[list, np.ndarray] | None:
         """(free names, covariance matrix) from the standard errors and correlations;
         ``total`` prefers the propagated ones. None if the uncertainties are undetermined."""
         se, corr = self.stderr, self.correlation
@@ -152,7 +182,7 @@ class FitResult:
             "converged": bool(self.converged),
             "determined": bool(self.determined),
             "message": self.message,
-            "variant": self.variant,
+            VARIANT_OPTION: self.variant,
             "options": dict(self.options),
             "fixed": {k: float(v) for k, v in self.fixed.items()},
             "weighted": bool(self.weighted),
@@ -176,26 +206,20 @@ class FitResult:
         write_bytes_atomic(path, text.encode("utf-8"))
 
     @classmethod
-    def from_dict(cls, data: dict, source: str = "the fit result") -> "FitResult":
+    def from_dict(cls, data: dict, source: str = "the fit result") -> FitResult:
         """Check and convert a dictionary written by :meth:`to_dict`."""
         if not isinstance(data, dict):
             raise FitError(f"{source}: expected a JSON object with keys model, params, ...; "
                            f"got {type(data).__name__}")
         _check_format(data, source)
         required = ("model", "params", "stderr", "correlation", "chi2_reduced", "rms_relative",
-                    "n_points", "converged", "message", "variant")
+                    "n_points", "converged", "message", VARIANT_OPTION)
         missing = [k for k in required if k not in data]
         if missing:
             raise FitError(f"{source}: missing key(s) {', '.join(missing)}; is this a fit "
                            f"result written by veil (veil fit ... -o FILE.json)?")
         name = data["model"]
-        if not isinstance(name, str):
-            raise FitError(f"{source}: key 'model' = {name!r}; expected a model name")
-        try:
-            mcls = model_class(name)
-        except InputError:
-            raise FitError(f"{source}: key 'model' = {name!r} is not a known model "
-                           f"({', '.join(family_names())})") from None
+        mcls = _model_class_of(name, source)
         names = mcls.param_names()
         params = data["params"]
         if not isinstance(params, dict) or list(params) != list(names):
@@ -205,13 +229,7 @@ class FitResult:
         for k, v in params.items():
             if isinstance(v, bool) or not isinstance(v, (int, float)):
                 raise FitError(f"{source}: params.{k} = {v!r} is not a number")
-        variant = data["variant"]
-        known = sorted({str(choice) for family in map(model_class, family_names())
-                        for o in family.OPTIONS if o.name == VARIANT_OPTION
-                        for choice in o.choices})
-        if variant is not None and variant not in known:
-            raise FitError(f"{source}: key 'variant' = {variant!r}; expected one of "
-                           f"{', '.join(known)} or null")
+        variant = _variant_of(data, source)
         options = data.get("options")
         if options is None:  # files of format veil.fit/1 keep the variant only
             options = {VARIANT_OPTION: variant} if VARIANT_OPTION in mcls.option_names() \
@@ -262,14 +280,14 @@ class FitResult:
             model_error=_read_term(data.get("model_error"), names, source))
 
     @classmethod
-    def from_json(cls, path) -> "FitResult":
+    def from_json(cls, path) -> FitResult:
         """Read a result written by :meth:`to_json`; errors name the file and the key."""
         return cls.from_dict(read_json(path), os.fspath(path))
 
     # -- text ------------------------------------------------------------------------------
     def report(self, min_correlation: float = 0.1) -> str:
         """A readable fit report (like lmfit's): statistics, variables, correlations."""
-        from .report import fit_report
+        from .fit_report import fit_report
 
         return fit_report(self, min_correlation)
 
@@ -299,6 +317,8 @@ class JointResult(FitResult):
     and their ``options``, ``objects`` {object: {model parameter: result name}}, ``media``
     {label: {model parameter (alias): result name}}, ``shared``, ``sessions`` (name,
     object, medium, n_points, chi2, rms_relative each)."""
+
+    JOINT: ClassVar[bool] = True
 
     layout: dict = field(default_factory=dict)
 
@@ -352,12 +372,12 @@ class JointResult(FitResult):
         return out
 
     @classmethod
-    def from_dict(cls, data: dict, source: str = "the joint fit result") -> "JointResult":
+    def from_dict(cls, data: dict, source: str = "the joint fit result") -> JointResult:
         if not isinstance(data, dict) or data.get("model") != "joint":
             raise FitError(f"{source}: not a joint fit result (expected key 'model' = 'joint')")
         _check_format(data, source)
         required = ("params", "stderr", "correlation", "chi2_reduced", "rms_relative",
-                    "n_points", "converged", "message", "variant", "layout")
+                    "n_points", "converged", "message", VARIANT_OPTION, "layout")
         missing = [k for k in required if k not in data]
         if missing:
             raise FitError(f"{source}: missing key(s) {', '.join(missing)}; is this a joint "
@@ -402,7 +422,7 @@ class JointResult(FitResult):
                 chi2_reduced=from_json_float(data["chi2_reduced"], source),
                 rms_relative=from_json_float(data["rms_relative"], source),
                 n_points=int(data["n_points"]), converged=data["converged"],
-                message=str(data["message"]), variant=data["variant"],
+                message=str(data["message"]), variant=data[VARIANT_OPTION],
                 fixed={k: float(v) for k, v in (data.get("fixed") or {}).items()},
                 step="joint", weighted=bool(data.get("weighted", True)),
                 accuracy=data.get("accuracy"), given=data.get("given"),

@@ -284,6 +284,28 @@ def _unit(model, v) -> np.ndarray:
     return v
 
 
+def _target_grid(problem: Problem, x, known_media: set, engines, count: int,
+                 progress) -> list:
+    """The target's starting grid through the media (scales alternating), best first."""
+    fixed_mask = ~problem.free
+    tblocks = [b for b in problem.blocks
+               if b.session.object == "target" and not b.session.clear]
+    cls = type(tblocks[0].brdf)
+    ib = tblocks[0].ib
+    free = [j for j, k in enumerate(ib) if not fixed_mask[k]]
+    points = grid_points(cls, "target", free, x[ib])
+    scored = []
+    for k, (combo, vb) in enumerate(points):
+        xt = x.copy()
+        _set_block(xt, ib, vb, fixed_mask)
+        cost, xt = _target_point(problem, xt, tblocks, known_media, engines)
+        scored.append((cost, combo, xt))
+        if progress:
+            progress("starting grid", k + 1, len(points))
+    chosen = pick_starts(scored, count)
+    return [xt for _, _, xt in chosen] or [x]
+
+
 def joint_starts(problem: Problem, layout: dict, start: dict | None, count: int,
                  direct_fit, progress=None):
     """Starting vectors (natural, best first) of a joint fit (module docstring).
@@ -351,21 +373,7 @@ def joint_starts(problem: Problem, layout: dict, start: dict | None, count: int,
     # the target (and media seen only through it): its grid, alternating scales
     if "target" in known_objects:
         return [x]
-    tblocks = [b for b in blocks if b.session.object == "target" and not b.session.clear]
-    cls = type(tblocks[0].brdf)
-    ib = tblocks[0].ib
-    free = [j for j, k in enumerate(ib) if not fixed_mask[k]]
-    points = grid_points(cls, "target", free, x[ib])
-    scored = []
-    for k, (combo, vb) in enumerate(points):
-        xt = x.copy()
-        _set_block(xt, ib, vb, fixed_mask)
-        cost, xt = _target_point(problem, xt, tblocks, known_media, engines)
-        scored.append((cost, combo, xt))
-        if progress:
-            progress("starting grid", k + 1, len(points))
-    chosen = pick_starts(scored, count)
-    return [xt for _, _, xt in chosen] or [x]
+    return _target_grid(problem, x, known_media, engines, count, progress)
 
 
 def _set_block(x, idx, v, fixed_mask) -> None:
@@ -383,7 +391,7 @@ def _best_medium(problem: Problem, block: Block, x, engines):
     fixed = _fixed_names(problem, block, "medium")
     vb = x[block.ib]
     best = None
-    for combo, vm in grid_points(cls, "medium", free, x[block.im]):
+    for _combo, vm in grid_points(cls, "medium", free, x[block.im]):
         terms = engines.terms(block, vb, vm)
         basis = np.einsum("mkb,b->mk", terms, column_scales_of(block, vb))
         vm, cost = medium_scales(basis, vm, cls, fixed, block.data.y[idx], block.data.w[idx])

@@ -134,7 +134,7 @@ def _load_plugins() -> None:
     for module in filter(None, (m.strip() for m in os.environ.get("VEIL_PLUGINS", "").split(","))):
         try:
             importlib.import_module(module)
-        except Exception as exc:  # noqa: BLE001 - any failure of a plugin is the plugin's
+        except Exception as exc:
             _plugin_error = InputError(f"VEIL_PLUGINS names module {module!r}, which cannot be "
                                        f"imported ({type(exc).__name__}: {exc})")
             raise _plugin_error from None
@@ -143,7 +143,7 @@ def _load_plugins() -> None:
     for ep in entry_points(group="veil.models"):
         try:
             ep.load()
-        except Exception as exc:  # noqa: BLE001
+        except Exception as exc:
             _plugin_error = InputError(f"the veil.models entry point {ep.name!r} ({ep.value}) "
                                        f"cannot be loaded ({type(exc).__name__}: {exc})")
             raise _plugin_error from None
@@ -197,5 +197,5 @@ def preset(name: str, kind: str | None = None) -> Model:
     return model
 
 
-__all__ = ["REGISTRY", "FAMILIES", "DEFAULTS", "MODEL_SETS", "PRESETS", "register", "names", "model_class",
-           "default_class", "preset"]
+__all__ = ["REGISTRY", "FAMILIES", "DEFAULTS", "MODEL_SETS", "PRESETS", "register", "names",
+           "model_class", "default_class", "preset"]

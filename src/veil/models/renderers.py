@@ -28,6 +28,10 @@ from ..errors import InputError
 RENDERER_NAMES = ("mitsuba", "pbrt")
 #: Kinds of a plugin parameter: how the writers spell it.
 VALUE_KINDS = ("float", "boolean", "string", "spectrum", "rgb")
+#: The keys of a plugin's ``geometry``: one pass through the medium (scene units) and the
+#: plate's half width.
+GEOMETRY_LENGTH = "path_length"
+GEOMETRY_HALF_WIDTH = "plate_half_width"
 
 
 class Unsupported(InputError):
