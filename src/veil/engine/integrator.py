@@ -22,8 +22,10 @@ half-vector grids of the albedo tables (per azimuth, so that the reflected direc
 above the horizon). The 4D term's half-vector grid is not truncated: where a reflected
 direction falls below the horizon its integrand is set to zero, which is a discontinuity
 only for an index-matched medium (eta_u = 1); otherwise the Fresnel transmittance and the
-shadowing term already take the integrand to zero there. For configurations in the plane of incidence the
-integrand is symmetric under y -> -y and only half of the azimuths are evaluated.
+shadowing term already take the integrand to zero there. For configurations in the plane of
+incidence the integrand is symmetric under y -> -y and only half of the azimuths are
+evaluated. The models are evaluated at the nodes of several terms at once
+(:mod:`veil.engine.nodes`, :mod:`veil.engine.lobe_terms`).
 """
 
 from __future__ import annotations
@@ -34,8 +36,18 @@ import numpy as np
 
 from .._jax import jax, jnp
 from . import lobe_terms
-from .nodes import (HALF_PI, TWO_PI, facet_grids, half_grid, lobe_at, normalized, phase_grids,
-                    polar, reflect, separable_at)
+from .nodes import (
+    HALF_PI,
+    TWO_PI,
+    facet_grids,
+    half_grid,
+    lobe_at,
+    normalized,
+    phase_grids,
+    polar,
+    reflect,
+    separable_at,
+)
 from .quadrature import Rule, gauss_legendre_unit
 
 

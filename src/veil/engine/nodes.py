@@ -42,7 +42,7 @@ def phase_grids(medium: BTDF, vm, maux, specs):
     azimuth of each grid.
     """
     parts, az_of, start = [], [], 0
-    for k, (_, n_r, n_a, half) in enumerate(specs):
+    for _, n_r, n_a, half in specs:
         x, wx = gauss_legendre_unit(n_r)
         v, wv = azimuths(n_a, half)
         parts.append((np.repeat(x[None, :], len(v), 0).ravel(), TWO_PI * np.repeat(v, n_r),
@@ -129,7 +129,8 @@ def _atan_series():
     t = np.sqrt(z)
     f = np.where(t > 0, np.arctan(t) / np.where(t > 0, t, 1.0), 1.0)
     fit = np.polynomial.Chebyshev.fit(z, f, 10, domain=[0.0, a2])
-    return tuple(fit.convert(kind=np.polynomial.Polynomial, domain=[0.0, a2], window=[0.0, a2]).coef)
+    poly = fit.convert(kind=np.polynomial.Polynomial, domain=[0.0, a2], window=[0.0, a2])
+    return tuple(poly.coef)
 
 
 _ATAN = _atan_series()
