@@ -321,3 +321,37 @@ def test_pages_under_3000_words_by_wc():
     """`wc -w` counts: every whitespace-separated token."""
     big = {p.name: len(p.read_text().split()) for p in PAGES}
     assert not {name: n for name, n in big.items() if n > MAX_WORDS}, big
+
+
+def _resolves(dotted: str) -> bool:
+    import importlib
+
+    parts = dotted.split(".")
+    for k in range(len(parts), 0, -1):
+        try:
+            obj = importlib.import_module(".".join(parts[:k]))
+        except ImportError:
+            continue
+        try:
+            for attr in parts[k:]:
+                obj = getattr(obj, attr)
+        except AttributeError:
+            return False
+        return True
+    return False
+
+
+def test_named_python_objects_exist():
+    """Every `veil.x.y` a page or the README names in code marks is a module or an object
+    of veil today (a module moved or renamed breaks this, not the reader)."""
+    pages = sorted((ROOT / "docs").glob("*.md")) + [ROOT / "README.md"]
+    missing = sorted({f"{page.name}: {name}" for page in pages
+                      for name in re.findall(r"`(veil(?:\.[A-Za-z_]\w*)+)(?![\w/])", page.read_text())
+                      if not _resolves(name)})
+    assert not missing, missing
+
+
+def test_the_name_check_fails_for_a_moved_module():
+    assert _resolves("veil.maps.near.STEP_FRACTION")
+    assert not _resolves("veil.fitting.maps_near.STEP_FRACTION")
+    assert not _resolves("veil.maps.near.NO_SUCH_NAME")
