@@ -20,6 +20,7 @@
 
 import os
 import sys
+from typing import Any
 
 
 def _started_as_command_line() -> bool:
@@ -37,7 +38,8 @@ def _guard_start_up() -> None:
     runs, in the first few hundredths of a second of Python's own start-up, Ctrl-C is
     still Python's KeyboardInterrupt.)"""
     try:  # the C module, loaded with Python itself (``signal`` imports enum: 20 ms)
-        import _signal as signal
+        # typeshed has no stub of the C module (signal's API)
+        import _signal as signal  # type: ignore[import-not-found]
     except ImportError:
         import signal
 
@@ -81,7 +83,8 @@ CACHE_OFF = ("", "0", "off", "no", "false", "none")
 
 def cache_directory() -> str | None:
     """The persistent compilation cache veil uses, or None when it is disabled."""
-    configured = jax.config.jax_compilation_cache_dir
+    # JAX's Config declares its options at run time, unknown to its type information
+    configured = jax.config.jax_compilation_cache_dir  # type: ignore[attr-defined]
     if configured:
         return configured
     setting = os.environ.get("VEIL_CACHE_DIR")
@@ -174,8 +177,11 @@ def _guard_cache_writes() -> None:
         with COMMIT:
             return put(self, key, value)
 
-    guarded_put._veil_guarded = True
-    lru_cache.LRUCache.put = guarded_put
+    # a patch of JAX's private class, by design: typed as such (Any), not as its method
+    patched: Any = guarded_put
+    patched._veil_guarded = True
+    cache_class: Any = lru_cache.LRUCache
+    cache_class.put = patched
 
 
 #: Set when the cache directory was found unwritable (and a line said so): the program store
@@ -185,7 +191,7 @@ CACHE_UNWRITABLE = False
 
 def _enable_cache() -> None:
     global CACHE_UNWRITABLE
-    if jax.config.jax_compilation_cache_dir:
+    if jax.config.jax_compilation_cache_dir:  # type: ignore[attr-defined]  # (cache_directory)
         return  # the user configured JAX's cache: theirs to manage
     path = cache_directory()
     if path is None:

@@ -24,6 +24,7 @@ import math
 import os
 import time
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -298,6 +299,7 @@ def _for_family(cls, per_step: dict, step: str, what: str, used: set) -> dict | 
     if not entries:
         return None
     names = cls.param_names()
+    kept: dict | list
     if isinstance(entries, dict):
         kept = {k: v for k, v in entries.items() if k in names}
     else:
@@ -340,8 +342,10 @@ def compare_models(reference_clear, reference_medium, target_medium, black=None,
     if len(sets) < 2:
         raise FitError(f"sets = {list(sets)}: a comparison needs at least two model sets")
     fixed, free = _check_fixed(fixed), _check_fixed(free, "free")
-    used_fix, used_free, used_opts = set(), set(), set()
-    plans = {}
+    used_fix: set[tuple] = set()
+    used_free: set[tuple] = set()
+    used_opts: set[str] = set()
+    plans: dict[str, dict[str, Any]] = {}
     for name, chosen in sets.items():
         brdf, medium = model_class(chosen["brdf"], "brdf"), model_class(chosen["medium"], "medium")
         b_opts = {k: v for k, v in (brdf_options or {}).items() if k in brdf.option_names()}

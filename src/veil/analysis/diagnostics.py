@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import cast
 
 import numpy as np
 
@@ -32,7 +33,7 @@ from ..fitting.joint import build, shareable
 from ..fitting.problem import ITERATION_ACCURACY, session_problem
 from ..fitting.result import FitResult, JointResult
 from ..fitting.solver import covariance, solve, weighted_jacobian
-from ..models import REGISTRY, Model
+from ..models import BRDF, REGISTRY, Medium, Model
 from ..numbers import format_number, format_percent
 
 #: Default thresholds.
@@ -189,7 +190,7 @@ def problem_for(result: FitResult, data, *, medium=None, reference=None, black=N
         Gaussian prior from its covariance; a model: held exact). Default: the result's
         ``given`` model, exact.
     """
-    notes = []
+    notes: list[str] = []
     if isinstance(result, JointResult):
         layout = result.layout
         ref = None
@@ -219,7 +220,7 @@ def problem_for(result: FitResult, data, *, medium=None, reference=None, black=N
     if step in ("reference", "direct"):
         if medium is not None or reference is not None:
             raise FitError(f"a {step} fit (clear water) has no medium or reference to include")
-        return session_problem(data, model, None, free=free, black=black,
+        return session_problem(data, cast(BRDF, model), None, free=free, black=black,
                                what=f"{step} (clear medium)"), notes
     if step == "target":
         if reference is not None:
@@ -231,7 +232,7 @@ def problem_for(result: FitResult, data, *, medium=None, reference=None, black=N
                 raise FitError("the target result does not name its medium: give medium=")
             notes.append("the medium is taken as exact (give the medium's fit result to "
                          "include its uncertainty)")
-        problem = session_problem(data, model, other, free=free, black=black,
+        problem = session_problem(data, cast(BRDF, model), other, free=free, black=black,
                                   what="target (in the medium)")
         if other_result is not None:
             _add_prior(problem, other_result, "medium")
@@ -245,7 +246,7 @@ def problem_for(result: FitResult, data, *, medium=None, reference=None, black=N
                 raise FitError("the medium result does not name its reference: give reference=")
             notes.append("the reference's f_r is taken as exact (give the reference's fit "
                          "result to include its uncertainty)")
-        problem = session_problem(data, other, model, free=free, black=black,
+        problem = session_problem(data, other, cast(Medium, model), free=free, black=black,
                                   what="reference (in the medium)")
         if other_result is not None:
             _add_prior(problem, other_result, "reference")

@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from typing import TYPE_CHECKING, cast
 
 import numpy as np
 
@@ -46,6 +47,9 @@ from ..fitting.problem import ITERATION_ACCURACY, session_problem
 from ..fitting.propagation import sigma_part
 from ..fitting.result import FitResult, JointResult
 from ..fitting.solver import solve
+
+if TYPE_CHECKING:  # the result's kind: a fit of a BRDF or of a medium
+    from ..models import BRDF, Medium
 
 #: Parts of the error budget, in pipeline order; a correlated model error that step 2 shares
 #: with step 1 adds their cross term as the part "shared" (docs/fitting.md; it can be
@@ -142,9 +146,10 @@ def medium_parts(medium_result: FitResult, reference_result: FitResult | None = 
                        "in the medium, step 1's data) to propagate step 0, or neither")
     if reference_result is not None:
         ref_names, cov0 = covariance_of(reference_result)
-        problem = session_problem(reference_table, reference_result.as_model(),
-                                  medium_result.as_model(), free=_medium_map(medium_result, names),
-                                  black=black, what="reference (in the medium)")
+        problem = session_problem(reference_table, cast("BRDF", reference_result.as_model()),
+                                  cast("Medium", medium_result.as_model()),
+                                  free=_medium_map(medium_result, names), black=black,
+                                  what="reference (in the medium)")
         if problem.n_points != medium_result.n_points:
             raise FitError(f"the reference table has {problem.n_points} points but the medium "
                            f"fit used {medium_result.n_points}: give the table (and black "
@@ -212,8 +217,9 @@ def propagate(target_result: FitResult, medium_result: FitResult, table, *,
     theta, cov2 = covariance_of(target_result)
     m_names, m_parts = medium_parts(medium_result, reference_result, reference_table,
                                     black=reference_black, accuracy=accuracy)
-    problem = session_problem(table, target_result.as_model(), medium_result.as_model(),
-                              free=theta, black=black, what="target (in the medium)")
+    problem = session_problem(table, cast("BRDF", target_result.as_model()),
+                              cast("Medium", medium_result.as_model()), free=theta,
+                              black=black, what="target (in the medium)")
     if problem.n_points != target_result.n_points:
         raise FitError(f"the table has {problem.n_points} points but the target fit used "
                        f"{target_result.n_points}: give the table (and black cloth) of that fit")
@@ -228,7 +234,7 @@ def propagate(target_result: FitResult, medium_result: FitResult, table, *,
     cross = _shared_part(problem, target_result, medium_result, m_names, -a)
     if cross is not None:
         parts[SHARED] = cross
-    total = sum(parts.values())
+    total = cast(np.ndarray, sum(parts.values()))  # (of arrays: an array)
     se = np.sqrt(np.maximum(np.diag(total), 0.0))
     budget = {}
     for j, n in enumerate(theta):
@@ -240,7 +246,7 @@ def propagate(target_result: FitResult, medium_result: FitResult, table, *,
     for i, na in enumerate(theta):
         corr[na] = {nb: (float(total[i, j] / (se[i] * se[j])) if se[i] * se[j] > 0 else None)
                     for j, nb in enumerate(theta)}
-    stderr_total = {n: None for n in target_result.params}
+    stderr_total: dict[str, float | None] = {n: None for n in target_result.params}
     stderr_total.update({n: float(s) for n, s in zip(theta, se)})
     sens = {n: {m: float(-a[j, k]) for k, m in enumerate(m_names)} for j, n in enumerate(theta)}
     what = "the medium's (step 1)" + (" and the reference's (step 0)" if "step0" in parts else "")
@@ -360,9 +366,9 @@ def sample_propagation(target_result: FitResult, medium_result: FitResult, table
     _check_pair(target_result, medium_result, None)
     theta = list(target_result.free)
     m_names, cov_m = covariance_of(medium_result)
-    medium = medium_result.as_model()
-    base = session_problem(table, target_result.as_model(), medium, free=theta, black=black,
-                           what="target (in the medium)")
+    medium = cast("Medium", medium_result.as_model())
+    base = session_problem(table, cast("BRDF", target_result.as_model()), medium, free=theta,
+                           black=black, what="target (in the medium)")
     nominal = solve(base, base.values, max_nfev=max_nfev)
     x0 = nominal.x
     mapped = _medium_map(medium_result, m_names)
@@ -372,15 +378,15 @@ def sample_propagation(target_result: FitResult, medium_result: FitResult, table
     draws, redrawn = _draw(rng, mean, cov_m, m_names, n_draws, medium_result.model_class)
     it = [base.index(n) for n in theta]
     im = [base.index(n) for n in mapped]
-    shifts, conv = [], []
+    shift_rows, conv = [], []
     for d in draws:
         sub = base.with_fixed(dict(zip(mapped, d)))
         start = x0.copy()
         start[im] = d
         sol = solve(sub, start, max_nfev=max_nfev)
-        shifts.append(sol.x[it] - x0[it])
+        shift_rows.append(sol.x[it] - x0[it])
         conv.append(sol.status > 0)
-    shifts = np.array(shifts)
+    shifts = np.array(shift_rows)
     linear = -(draws - mean) @ a.T
     return {"names": theta, "medium_names": m_names, "draws": draws, "shifts": shifts,
             "linear": linear, "covariance": np.cov(shifts, rowvar=False),

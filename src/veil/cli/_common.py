@@ -12,10 +12,14 @@ import sys
 import tempfile
 import warnings
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import click
 
 from ..errors import InputError
+
+if TYPE_CHECKING:  # the type only: the command line imports the models when it needs them
+    from ..models.base import Model
 
 
 class UserError(click.ClickException):
@@ -142,8 +146,8 @@ class ModelChoice:
     ``--medium-model`` and the options the families declare, e.g. ``--variant``); parses
     preset names and literal parameter lists into models of those families."""
 
-    brdf: type
-    medium: type
+    brdf: type[Model]
+    medium: type[Model]
     brdf_options: dict
     medium_options: dict
     explicit: frozenset = frozenset()

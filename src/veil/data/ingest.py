@@ -241,7 +241,7 @@ def read_manifest(manifest, photo_dir) -> tuple[pd.DataFrame, list[str], str]:
     if clash:
         raise InputError(f"{name}: column(s) {', '.join(map(repr, clash))} would be "
                          f"overwritten by ingest's results; rename or remove them")
-    seen = {}
+    seen: dict[Path, str] = {}
     root = Path(photo_dir).resolve()
     files = []
     for row, cell in zip(rows, table["file"].tolist()):
@@ -327,7 +327,7 @@ def ingest(photo_dir, manifest, roi, black_roi=None, dark=None, channel="gray", 
 
     dark_photo = _dark_frame(dark, rois, channel, response, saturation)
 
-    warned = set()
+    warned: set[str] = set()
     results = []
     keep = []
     for i, (path, row_name) in enumerate(zip(paths, rows)):

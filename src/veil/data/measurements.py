@@ -162,7 +162,7 @@ def _numbers(table: pd.DataFrame, column: str, rows: RowNames) -> np.ndarray:
             if not math.isfinite(values[k]):
                 problems.append((k, f"{cell!r} is not a finite number"))
                 values[k] = 0.0
-    for k in np.flatnonzero(~np.isfinite(values)):
+    for k in np.flatnonzero(~np.isfinite(values)).tolist():
         problems.append((int(k), "is empty or NaN" if np.isnan(values[k])
                          else f"{values[k]!r} is not a finite number"))
     if problems:
@@ -310,7 +310,7 @@ def _duplicates(angles, rows: RowNames) -> None:
     pairs = sorted(cKDTree(vec).query_pairs(radius))
     pairs = [(i, j) for i, j in pairs if _separation(vec[i], vec[j]) <= SAME_TOL]
     if pairs:
-        root = {}
+        root: dict[int, int] = {}
 
         def find(i):
             while root.get(i, i) != i:
@@ -345,7 +345,7 @@ def _validated(table: pd.DataFrame, rows: RowNames | None = None) -> tuple[pd.Da
         sigma = cols["sigma"] = _numbers(table, "sigma", rows)
         bad = np.flatnonzero(sigma < 0)
         if bad.size:
-            raise _range_error(rows, bad, lambda k: f"sigma = {_fmt(sigma[k])}",
+            raise _range_error(rows, bad, lambda k: f"sigma = {_fmt(float(sigma[k]))}",
                                "sigma is a standard deviation and must be >= 0")
     _duplicates(angles, rows)
     out = table.copy()
@@ -472,6 +472,7 @@ def load_measurements(path) -> pd.DataFrame:
     except csv.Error as exc:
         raise MeasurementError(f"line {reader.line_num} of {name} is not valid CSV: {exc}"
                                ) from None
+    assert header is not None  # the text is not blank
     for k, h in enumerate(header):
         if not h:
             raise MeasurementError(f"column {k + 1} in the header (line {header_line}) of {name} "

@@ -123,6 +123,7 @@ def _read_tiff(path: Path, rois) -> Photo:
         raise InputError(f"{path}: cannot read as TIFF ({type(exc).__name__}: {exc}); "
                          f"expected a complete TIFF file holding one gray or RGB image (is "
                          f"the photo truncated, or not a TIFF?)") from None
+    assert image is not None  # read above, or mapped
     if axes == "SYX":
         image = np.moveaxis(image, 0, -1)
     return _image_patches(path, "tiff", image, rois)

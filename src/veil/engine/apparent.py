@@ -5,6 +5,8 @@ Angles are in degrees and broadcast like numpy arrays; results are numpy arrays.
 
 from __future__ import annotations
 
+from typing import Literal, overload
+
 import numpy as np
 
 from .._jax import jax, jnp
@@ -121,6 +123,15 @@ def direct_programs(model) -> tuple:
     return _DIRECT_FNS[key]
 
 
+@overload
+def apparent(brdf, medium, theta_i, theta_r, phi_i=..., phi_r=..., *, accuracy: str = ...,
+             return_error: Literal[False] = ...) -> np.ndarray: ...
+@overload
+def apparent(brdf, medium, theta_i, theta_r, phi_i=..., phi_r=..., *, accuracy: str = ...,
+             return_error: Literal[True]) -> tuple[np.ndarray, np.ndarray]: ...
+@overload
+def apparent(brdf, medium, theta_i, theta_r, phi_i=..., phi_r=..., *, accuracy: str = ...,
+             return_error: bool = ...) -> np.ndarray | tuple[np.ndarray, np.ndarray]: ...
 def apparent(brdf, medium, theta_i, theta_r, phi_i=180.0, phi_r=0.0, *,
              accuracy: str = "default", return_error: bool = False
              ) -> np.ndarray | tuple[np.ndarray, np.ndarray]:

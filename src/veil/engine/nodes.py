@@ -73,7 +73,7 @@ def phase_grids(medium: BTDF, vm, maux, specs):
     return out
 
 
-def half_grid(brdf: type[BRDF], vb, partner, n_r: int, n_a: int, half: bool):
+def half_grid(brdf: BRDF, vb, partner, n_r: int, n_a: int, half: bool):
     """Half vectors distributed by the facet law, truncated per azimuth so that reflecting
     each ``partner`` direction (P, 3) about them stays above the horizon.
 
@@ -167,7 +167,7 @@ def half_distance(a, b):
                   + (a[..., 2] - b[..., 2]) ** 2)
 
 
-def facet_grids(brdf: type[BRDF], vb, shapes):
+def facet_grids(brdf: BRDF, vb, shapes):
     """Half vectors by the untruncated facet law for each (n_r, n_a, half) of ``shapes``, in
     one evaluation of the facet law: per grid (h (1, N, 3), alpha, unit weights, density per
     steradian (1, N)); ``half`` keeps the azimuths in (0, pi) with double weight (for

@@ -48,6 +48,7 @@ import sys
 import threading
 from contextlib import contextmanager
 from functools import cache, lru_cache
+from types import ModuleType
 
 import numpy as np
 
@@ -329,6 +330,7 @@ def building(identity: str, env: dict):
     no store, the lock file cannot be made, the file system has no ``flock`` (one line says
     so) or the platform has no ``fcntl``; after WAIT_LIMIT seconds of waiting (one line)."""
     path = _lock_path(identity, env)
+    fcntl: ModuleType | None
     try:
         import fcntl
     except ImportError:  # not POSIX: no cross-process lock, each process builds its own
@@ -342,12 +344,12 @@ def building(identity: str, env: dict):
             fd = None
     locked = waited = False
     try:
-        if fd is not None:
+        if fd is not None and path is not None:  # (fd is only opened at a path)
             locked, waited = _acquire(fcntl, fd, path)
         yield waited
     finally:
         if fd is not None:
-            if locked:
+            if locked and fcntl is not None:  # (locked only with fcntl)
                 # unlock explicitly: a child forked meanwhile shares the open file and would
                 # keep an unreleased lock until it exits
                 fcntl.flock(fd, fcntl.LOCK_UN)

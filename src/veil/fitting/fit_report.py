@@ -5,13 +5,14 @@ fit, the variables with their standard errors, and the strongest correlations.""
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, cast
 
 from ..numbers import format_number
 from .propagation import RELATIVE_LIMIT
 
 if TYPE_CHECKING:  # the results import this module to write their report, not this them
-    from .result import FitResult
+    from ..models import Medium
+    from .result import FitResult, JointResult
 
 #: What each step of docs/model.md sec. 7 estimates, for the report's header.
 STEP_WORDS = {"reference": "step 0, reference object in a clear medium (f_r directly)",
@@ -20,14 +21,19 @@ STEP_WORDS = {"reference": "step 0, reference object in a clear medium (f_r dire
               "direct": "target object in a clear medium (f_r directly)"}
 
 
+def _layout(result: FitResult) -> dict:
+    """The layout of a joint fit's result (``result.JOINT``)."""
+    return cast("JointResult", result).layout
+
+
 def _header(result: FitResult) -> str:
     if result.JOINT:
-        models = result.layout.get("models") or {}
+        models = _layout(result).get("models") or {}
         family = f", models {models['brdf']} / {models['medium']}" if models else ""
         variant = f", variant {result.variant}" if result.variant else ""
-        return (f"[[Joint fit: {len(result.layout.get('sessions', []))} sessions, "
-                f"{len(result.layout['media'])} media{variant}{family}]]")
-    what = STEP_WORDS.get(result.step, "")
+        return (f"[[Joint fit: {len(_layout(result).get('sessions', []))} sessions, "
+                f"{len(_layout(result)['media'])} media{variant}{family}]]")
+    what = STEP_WORDS.get(result.step or "", "")
     opts = ", ".join(f"{k} {v}" for k, v in result.options.items())
     return (f"[[Fit: {result.model}" + (f", variant {result.variant}" if result.variant else "")
             + (f" ({opts})" if opts and not result.variant else "")
@@ -42,7 +48,7 @@ def _statistics(result: FitResult) -> list[str]:
              f"    free parameters    = {len(free)}"
              + (f"  (fixed: {', '.join(result.fixed)})" if result.fixed else "")]
     if result.JOINT:
-        shared = ", ".join(result.layout.get("shared", [])) or "-"
+        shared = ", ".join(_layout(result).get("shared", [])) or "-"
         lines.append(f"    shared by the media = {shared}")
     lines += [f"    reduced chi-square = {format_number(result.chi2_reduced, 5)}",
               f"    rms relative resid = {format_number(100 * result.rms_relative, 4)} %"]
@@ -86,7 +92,7 @@ def _sessions(result: FitResult) -> list[str]:
     if not result.JOINT:
         return []
     lines = ["[[Sessions]]"]
-    for s in result.layout.get("sessions", []):
+    for s in _layout(result).get("sessions", []):
         rms = s.get("rms_relative")
         lines.append(f"    {s['name']}: {s['n_points']} points, chi2/N "
                      f"{format_number(s['chi2'], 4)}, rms rel "
@@ -130,7 +136,7 @@ def _hints(result: FitResult) -> list[str]:
     from 0.1 to 1.5 with one)."""
     if result.JOINT or result.step != "medium":
         return []
-    cls = result.model_class                    # a medium: step 1 fits one
+    cls = cast("type[Medium]", result.model_class)  # a medium: step 1 fits one
     if not cls.has("delta"):
         return []
     se = result.stderr_total or result.stderr

@@ -207,7 +207,7 @@ def _check_sessions(sessions) -> list:
     if not any(s.object == "target" and not s.clear for s in sessions):
         raise FitError("every target session is in clear water: there is no medium to fit "
                        "jointly; use veil fit direct (f_r directly) instead")
-    seen = {}
+    seen: dict[tuple, str] = {}
     for s in sessions:
         key = (s.object, s.medium)
         if key in seen:
@@ -469,9 +469,10 @@ def _media_beyond_first_order(problem: Problem, x, rep: Reported, method: str) -
     the media's block and the cross terms stay. When the result would not be a covariance
     (the sigma points' spread below the first order's in some direction) the first order is
     kept and the record says so."""
-    use_total = rep.stderr_total is not None
-    se, corr = ((rep.stderr_total, rep.correlation_total) if use_total
-                else (rep.stderr, rep.correlation))
+    se: dict = rep.stderr
+    corr: dict | None = rep.correlation
+    if rep.stderr_total is not None:
+        se, corr = rep.stderr_total, rep.correlation_total
     cov = covariance_matrix(se, corr, problem.free_names)
     if cov is None:
         return rep

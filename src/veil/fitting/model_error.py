@@ -54,6 +54,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from scipy.linalg import solve_triangular
@@ -198,21 +199,24 @@ def estimate(residuals, scaled_values, dof: int, dist,
     best = None
     for length in lengths:
         if length == 0.0 and basis is None:
-            def nll(u):
+            def nll_independent(u):
                 return _nll_independent(r, a, math.exp(2 * u))
+            nll = nll_independent
         else:
             if length > 0.0 and callable(dist):
                 dist = dist()
             corr = np.eye(r.size) if length == 0.0 else correlation(dist, length)
             spectrum = _spectrum(r, a, corr, basis)
 
-            def nll(u, spectrum=spectrum):
+            def nll_spectrum(u, spectrum=spectrum):
                 return _nll_spectrum(spectrum, math.exp(2 * u))
+            nll = nll_spectrum
         found = minimize_scalar(nll,
                                 bounds=(math.log(guess) - 6.0, math.log(guess) + 6.0),
                                 method="bounded", options={"xatol": 1e-6})
         if best is None or found.fun < best[0]:
             best = (float(found.fun), math.exp(float(found.x)), length)
+    assert best is not None  # lengths is never empty
     return best[1], best[2]
 
 
@@ -262,13 +266,15 @@ class ModelError:
     session_correlation: float | None = None
 
     def to_dict(self) -> dict:
-        out = {"sigma": self.sigma, "length": self.length, "own": self.own,
+        out: dict[str, Any] = {"sigma": self.sigma, "length": self.length, "own": self.own,
                "given": self.given, "source": self.source,
                "chi2_threshold": self.chi2_threshold, "noise_only": self.noise_only}
         if self.influence is not None:
+            assert self.angles is not None  # they come together (from_dict)
             out["influence"] = {k: [float(v) for v in row] for k, row in self.influence.items()}
             out["angles"] = [[float(v) for v in a] for a in self.angles]
             if self.residuals is not None:
+                assert self.scaled is not None  # they come together (from_dict)
                 out["residuals"] = [float(v) for v in self.residuals]
                 out["scaled"] = [float(v) for v in self.scaled]
         if self.session_correlation is not None:
@@ -303,6 +309,7 @@ class ModelError:
         if influence is not None:
             influence, angles = _read_influence(influence, angles, source)
         if residuals is not None:
+            assert angles is not None  # checked above: residuals come with the influence
             rows, _ = _read_influence({"residuals": residuals, "scaled": scaled},
                                       [list(a) for a in angles], source, key="")
             residuals, scaled = rows["residuals"], rows["scaled"]
@@ -456,6 +463,7 @@ def share_likelihood(residuals, scaled_values, weighted_jacobian, angles, own_co
     q1 = _complement((g1 / a1[None, :]).T, a1.size)
     a2 = np.asarray(scaled_values, dtype=float)
     q2 = _complement(weighted_jacobian, a2.size)
+    assert q1 is not None and q2 is not None  # both from a Jacobian
     if q1.shape[1] == 0 or q2.shape[1] == 0:
         return None
     jm = np.asarray(given_jacobian, dtype=float)[:a2.size]

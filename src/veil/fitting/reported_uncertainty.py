@@ -81,7 +81,8 @@ def _term_correlation(problem: Problem, term, given_result) -> tuple:
     given = discrepancy.given_term(given_result)
     dist = (discrepancy.distances(problem.angles)
             if term.length > 0 or (given is not None and given.length > 0) else None)
-    corr = None if term.length == 0.0 else discrepancy.correlation(dist, term.length)
+    corr = (None if term.length == 0.0 or dist is None  # (a length: dist is not None)
+            else discrepancy.correlation(dist, term.length))
     return dist, corr
 
 

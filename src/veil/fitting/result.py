@@ -14,8 +14,9 @@ import itertools
 import json
 import math
 import os
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
 from ..errors import FitError, InputError, MissingFileError, NotAFileError
 from ..io import write_bytes_atomic
@@ -154,7 +155,7 @@ class FitResult:
         chi2 = self.chi2_reduced * max(self.n_points - self.n_free, 1)
         return chi2 + self.n_free * math.log(max(self.n_points, 1)) if self.weighted else None
 
-    def covariance(self, total: bool = True) -> tuple[list, np.ndarray] | None:
+    def covariance(self, total: bool = True) -> tuple[Sequence[str], np.ndarray] | None:
         """(free names, covariance matrix) from the standard errors and correlations;
         ``total`` prefers the propagated ones. None if the uncertainties are undetermined."""
         se, corr = self.stderr, self.correlation
@@ -521,7 +522,7 @@ def _read_term(data, names, source: str) -> ModelError | None:
     keys = ("stderr", "correlation", "stderr_total", "correlation_total")
     if set(noise) - set(keys) or not isinstance(noise.get("stderr"), dict):
         raise FitError(f"{source}: model_error.noise_only must hold {', '.join(keys)}")
-    read = {}
+    read: dict[str, Any] = {}
     for k in keys:
         v = noise.get(k)
         if v is None:

@@ -288,7 +288,7 @@ def uncertainties(cov, names, free):
     return stderr, corr
 
 
-def covariance_matrix(stderr: dict, correlation: dict, names) -> np.ndarray | None:
+def covariance_matrix(stderr: dict, correlation: dict | None, names) -> np.ndarray | None:
     """The covariance of ``names`` from standard errors and correlations as
     :func:`uncertainties` writes them (a missing or None correlation is 0); None when a
     standard error is missing."""

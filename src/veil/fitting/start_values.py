@@ -177,7 +177,7 @@ def grid_points(cls, role: str, free, base: np.ndarray):
 def pick_starts(scored, count: int):
     """Best ``count`` of the (cost, index tuple, vector) grid points, skipping neighbours (one
     grid step) of points already chosen."""
-    chosen = []
+    chosen: list[tuple] = []
     for cost, combo, x in sorted(scored, key=lambda t: t[0]):
         if not np.isfinite(cost):
             continue
@@ -197,6 +197,7 @@ def _fixed_names(problem: Problem, block: Block, kind: str) -> set:
     """Model parameter names of ``block``'s ``kind`` model that the problem holds fixed."""
     idx = block.ib if kind == "brdf" else block.im
     model = block.brdf if kind == "brdf" else block.medium
+    assert model is not None and idx is not None  # a block of a session with a medium
     return {type(model).PARAMS[j].name for j, k in enumerate(idx) if not problem.free[k]}
 
 
@@ -324,7 +325,8 @@ def joint_starts(problem: Problem, layout: dict, start: dict | None, count: int,
         if not fixed_mask[k]:
             x[k] = value
 
-    known_media, known_objects = set(), set()
+    known_media: set[str] = set()
+    known_objects: set[str] = set()
     if layout.get("reference_given"):
         known_objects.add("reference")
     for key, model in dict(start or {}).items():
@@ -387,6 +389,7 @@ def _best_medium(problem: Problem, block: Block, x, engines):
     at ``x``."""
     _, idx = engines(block)
     cls = type(block.medium)
+    assert block.im is not None  # a block of a session with a medium
     free = [j for j, k in enumerate(block.im) if problem.free[k]]
     fixed = _fixed_names(problem, block, "medium")
     vb = x[block.ib]

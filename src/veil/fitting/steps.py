@@ -23,13 +23,14 @@ own error (``Model.MODEL_ERROR_FLOOR``), adds a relative model error to its cova
 from __future__ import annotations
 
 import warnings
+from typing import cast
 
 import numpy as np
 
 from ..engine.evaluator import ApparentModel, DirectModel
 from ..engine.quadrature import RULES
 from ..errors import FitError, InputError
-from ..models import Model, default_class, model_class
+from ..models import BRDF, Medium, Model, default_class, model_class
 from ..models.base import VARIANT_OPTION
 from . import model_error as discrepancy
 from .given import as_given, check_options
@@ -120,7 +121,9 @@ def _step(step: str, data: FitData, fitted: Model, given: Model | None, given_re
     if not free:
         raise FitError(f"every parameter of the {what} fit is fixed "
                        f"({', '.join(cls.param_names())}): nothing to fit")
-    problem = session_problem(None, brdf, medium, free=free, data=data, what=what)
+    # by kind: a medium step holds the BRDF given, the others fit the BRDF
+    problem = session_problem(None, cast(BRDF, brdf), cast("Medium | None", medium), free=free,
+                              data=data, what=what)
     for key, value in _fixed_slots(problem, cls, fixed, what).items():
         problem.values[problem.index(key)] = value
     if data.size <= len(free):
@@ -318,7 +321,7 @@ def model_values(result_or_model, other, angles, accuracy: str = "default") -> n
     if isinstance(other, FitResult):
         other = other.as_model()
     brdf, medium = (model, other) if model.KIND == "brdf" else (other, model)
-    engine = ApparentModel(brdf, medium, angles, RULES[accuracy])
+    engine = ApparentModel(cast(BRDF, brdf), cast(Medium, medium), angles, RULES[accuracy])
     return engine.values(brdf.to_vector(), medium.to_vector())
 
 

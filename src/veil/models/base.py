@@ -16,9 +16,9 @@ The class declares
   "target" for a BRDF; "medium" for a medium).
 
 Construction validates every value, so an invalid model cannot exist. The engine and the
-fits never touch instances inside JAX code: they work on the parameter *vector*
-(:meth:`Model.to_vector`) and the class's static functions, so one compiled function serves
-every parameter value.
+fits never touch parameter values of instances inside JAX code: they work on the parameter
+*vector* (:meth:`Model.to_vector`) and the methods of a template of the model (which read its
+options only), so one compiled function serves every parameter value.
 """
 
 from __future__ import annotations
@@ -27,13 +27,14 @@ import dataclasses
 import math
 import numbers
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar, Self
 
 from .._lazy import np
 from ..errors import InputTypeError, ParameterError
 
-if TYPE_CHECKING:  # the type only: models import JAX on first use (veil._lazy)
+if TYPE_CHECKING:  # the types only: models import JAX and numpy on first use (veil._lazy)
     from jax import Array
+    from numpy import ndarray
 
 KINDS = ("brdf", "medium")
 #: Fit roles whose starting grids a model declares, by kind.
@@ -163,6 +164,8 @@ class Model:
     #: (veil.fitting.model_error), which the data of one session may be too few to show.
     #: None: no floor (the term comes from the residuals alone).
     MODEL_ERROR_FLOOR: ClassVar[tuple[float, float] | None] = None
+    if TYPE_CHECKING:  # every concrete model is a dataclass (what dataclasses.replace needs)
+        __dataclass_fields__: ClassVar[dict[str, Any]]
 
     def __post_init__(self) -> None:
         owner = type(self).__name__
@@ -219,13 +222,13 @@ class Model:
         return dict(cls.START.get(role, {}))
 
     @classmethod
-    def template(cls, **options) -> Model:
+    def template(cls, **options) -> Self:
         """An instance at the declared starting values: it fixes the code path (class and
         options) of an engine whose parameters are passed as vectors."""
         return cls.from_params({p.name: p.start for p in cls.PARAMS}, options)
 
     @classmethod
-    def from_params(cls, params: dict, options: dict | None = None) -> Model:
+    def from_params(cls, params: dict, options: dict | None = None) -> Self:
         """An instance from {name: value} (every parameter) and options (defaults for the
         rest); unknown or missing names are a ParameterError naming the declared ones."""
         names = cls.param_names()
@@ -256,14 +259,14 @@ class Model:
         return {p.name: getattr(self, p.name) for p in self.PARAMS
                 if p.name not in scales and p.share != "shared"}
 
-    def to_vector(self) -> np.ndarray:
+    def to_vector(self) -> ndarray:
         return np.array([getattr(self, p.name) for p in self.PARAMS], dtype=float)
 
     def options(self) -> dict:
         """Static (non-parameter) fields, e.g. ``{"variant": "paper"}``."""
         return {o.name: getattr(self, o.name) for o in self.OPTIONS}
 
-    def with_vector(self, vector) -> Model:
+    def with_vector(self, vector) -> Self:
         vector = np.asarray(vector, float)
         if vector.shape != (len(self.PARAMS),):
             raise ParameterError(f"{type(self).__name__} vector has shape {vector.shape}; "
@@ -272,7 +275,7 @@ class Model:
         values = dict(zip(self.param_names(), (float(x) for x in vector)))
         return dataclasses.replace(self, **values)
 
-    def replace(self, **changes) -> Model:
+    def replace(self, **changes) -> Self:
         return dataclasses.replace(self, **changes)
 
     def as_dict(self) -> dict:
@@ -301,37 +304,31 @@ class BRDF(Model):
     KIND = "brdf"
     HAS_LOBE: ClassVar[bool] = True
 
-    @staticmethod
-    def prepare(v) -> Any:
+    def prepare(self, v) -> Any:
         """Tables the model needs at parameter vector ``v`` (computed once per engine call and
         passed to :meth:`separable` as ``aux``); None by default."""
         return None
 
-    @staticmethod
-    def separable(v, cos_i, cos_r, aux=None) -> list:  # pragma: no cover - interface
+    def separable(self, v, cos_i, cos_r, aux=None) -> list:  # pragma: no cover - interface
         """List of (s_k(cos_i), t_k(cos_r)) pairs (arrays broadcast against the inputs);
         ``aux`` is what :meth:`prepare` returned."""
         raise NotImplementedError
 
-    @staticmethod
-    def lobe(v, wi, wo, h, alpha=None) -> Array:  # pragma: no cover - interface
+    def lobe(self, v, wi, wo, h, alpha=None) -> Array:  # pragma: no cover - interface
         """The non-separable part at unit vectors wi, wo with half vector h (shape (..., 3));
         ``alpha`` (angle of h from the normal) may be passed when already known."""
         raise NotImplementedError
 
     # The lobe's half vectors are distributed about the normal by a radial law in alpha
     # (angle of H from z), uniform in azimuth; the integrator truncates it at the horizon.
-    @staticmethod
-    def facet_cdf(v, alpha) -> Array:  # pragma: no cover - interface
+    def facet_cdf(self, v, alpha) -> Array:  # pragma: no cover - interface
         """Increasing cumulative of the radial law, 0 at alpha = 0 (any positive scale)."""
         raise NotImplementedError
 
-    @staticmethod
-    def facet_inverse_cdf(v, y) -> Array:  # pragma: no cover - interface
+    def facet_inverse_cdf(self, v, y) -> Array:  # pragma: no cover - interface
         raise NotImplementedError
 
-    @staticmethod
-    def facet_weight(v, alpha, sin_alpha=None) -> Array:  # pragma: no cover - interface
+    def facet_weight(self, v, alpha, sin_alpha=None) -> Array:  # pragma: no cover - interface
         """d facet_cdf / d alpha / (2 pi sin alpha): density per steradian, cdf units
         (``sin_alpha`` may be passed when known)."""
         raise NotImplementedError
@@ -394,16 +391,13 @@ class Medium(Model):
         return {"delta": self.delta_weight, "iso": self.iso,
                 "lobe": self.lobe_weight}[component](v)
 
-    @staticmethod
-    def delta_weight(v) -> Array:  # pragma: no cover - interface
+    def delta_weight(self, v) -> Array:  # pragma: no cover - interface
         raise NotImplementedError
 
-    @staticmethod
-    def iso(v) -> Array:  # pragma: no cover - interface
+    def iso(self, v) -> Array:  # pragma: no cover - interface
         raise NotImplementedError
 
-    @staticmethod
-    def lobe_weight(v) -> Array:  # pragma: no cover - interface
+    def lobe_weight(self, v) -> Array:  # pragma: no cover - interface
         raise NotImplementedError
 
     def factor_first(self, v, cos_a) -> Array:  # pragma: no cover - interface
@@ -412,22 +406,18 @@ class Medium(Model):
     def factor_second(self, v, cos_b) -> Array:  # pragma: no cover - interface
         raise NotImplementedError
 
-    @staticmethod
-    def prepare(v) -> Any:
+    def prepare(self, v) -> Any:
         """Tables the lobe needs at parameter vector ``v``, computed once per engine call and
         passed to the phase functions as ``aux``; None by default."""
         return None
 
-    @staticmethod
-    def phase(v, one_minus_mu, aux=None) -> Array:  # pragma: no cover - interface
+    def phase(self, v, one_minus_mu, aux=None) -> Array:  # pragma: no cover - interface
         raise NotImplementedError
 
-    @staticmethod
-    def phase_cone_fraction(v, one_minus_mu, aux=None) -> Array:  # pragma: no cover - interface
+    def phase_cone_fraction(self, v, one_minus_mu, aux=None) -> Array:  # pragma: no cover
         raise NotImplementedError
 
-    @staticmethod
-    def phase_inverse_cone_fraction(v, frac, aux=None) -> Array:  # pragma: no cover - interface
+    def phase_inverse_cone_fraction(self, v, frac, aux=None) -> Array:  # pragma: no cover
         raise NotImplementedError
 
     def phase_sample(self, v, frac, aux=None) -> tuple:
@@ -445,12 +435,12 @@ class Medium(Model):
         """Weight of the view-side lobe f_t(R', R) at unit vectors R' (..., 3), R (3,)."""
         return 1.0 + 0.0 * r_prime[..., 2]
 
-    def concentrated(self, factor: float) -> Medium:
+    def concentrated(self, factor: float) -> Self:
         """The medium at ``factor`` times its concentration (acquisition design, more or less
         of the scattering substance): by default every scale parameter times ``factor``."""
         return self.replace(**{n: getattr(self, n) * factor for n in self.scale_names()})
 
-    def without_iso(self) -> Medium:
+    def without_iso(self) -> Self:
         """The medium with its isotropic part switched off (its scale at 0)."""
         name = self.SCALES.get("iso")
         return self if name is None else self.replace(**{name: 0.0})

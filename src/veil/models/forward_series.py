@@ -211,7 +211,7 @@ def _medium_lost(model, renderer: str) -> list:
 
 def _series_mitsuba(model, setting) -> Plugin:
     model, sigma_t, geometry = _geometry(model, setting)
-    extra = ()
+    extra: tuple[Plugin, ...] = ()
     if model.eta_u != 1.0:
         extra = (Plugin("bsdf", "dielectric", (float_value("int_ior", model.eta_u),
                                                 float_value("ext_ior", 1.0))),)

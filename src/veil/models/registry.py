@@ -13,9 +13,10 @@ from __future__ import annotations
 
 import importlib
 import os
+from typing import Literal, overload
 
 from ..errors import InputError, InputTypeError
-from .base import KINDS, ROLES, Model
+from .base import BRDF, KINDS, ROLES, Medium, Model
 from .forward_series import ForwardSeries
 from .henyey_greenstein import HenyeyGreenstein
 from .rough_conductor import RoughConductor
@@ -157,6 +158,12 @@ def names(kind: str | None = None) -> list[str]:
                                         n not in DEFAULTS.values(), n))
 
 
+@overload
+def model_class(name: str, kind: Literal["brdf"]) -> type[BRDF]: ...
+@overload
+def model_class(name: str, kind: Literal["medium"]) -> type[Medium]: ...
+@overload
+def model_class(name: str, kind: str | None = None) -> type[Model]: ...
 def model_class(name: str, kind: str | None = None) -> type[Model]:
     """The family registered as ``name`` (of ``kind`` when given); an InputError listing the
     known ones otherwise."""
@@ -173,6 +180,12 @@ def model_class(name: str, kind: str | None = None) -> type[Model]:
     return cls
 
 
+@overload
+def default_class(kind: Literal["brdf"]) -> type[BRDF]: ...
+@overload
+def default_class(kind: Literal["medium"]) -> type[Medium]: ...
+@overload
+def default_class(kind: str) -> type[Model]: ...
 def default_class(kind: str) -> type[Model]:
     """The paper's model of ``kind`` ("brdf" or "medium")."""
     return REGISTRY[DEFAULTS[kind]]

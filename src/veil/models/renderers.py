@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import SupportsFloat, cast
 
 from ..errors import InputError
 
@@ -68,7 +69,7 @@ class Value:
         if self.kind not in VALUE_KINDS:
             raise ValueError(f"Value {self.name}: kind {self.kind!r}")
         if self.kind in ("float", "spectrum", "rgb"):
-            v = float(self.value)
+            v = float(cast(SupportsFloat, self.value))  # these kinds hold a number
             if not math.isfinite(v):
                 raise Unsupported(f"{self.name} = {self.value!r} is not a finite number; a "
                                   f"renderer cannot take it")

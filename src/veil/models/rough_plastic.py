@@ -35,8 +35,9 @@ from . import fresnel
 from .base import BRDF, Option, Param, geometric_grid
 from .renderers import Plugin, Unsupported, Value, float_value, intensity_scale
 
-if TYPE_CHECKING:  # the type only: models import JAX on first use (veil._lazy)
+if TYPE_CHECKING:  # the types only: models import JAX and numpy on first use (veil._lazy)
     from jax import Array
+    from numpy import ndarray
 
 DISTRIBUTIONS = ("beckmann", "ggx")
 HALF_PI = 0.5 * math.pi
@@ -190,7 +191,7 @@ def _gauss(n: int, smooth: bool = False):
 
 
 @cache
-def _spline_matrix(n: int) -> np.ndarray:
+def _spline_matrix(n: int) -> ndarray:
     """Second derivatives of the not-a-knot cubic spline through values at 0..n-1 (unit
     spacing), as a matrix applied to the values."""
     a = np.zeros((n, n))
@@ -451,6 +452,8 @@ class MicrofacetFacets:
     vector."""
 
     ROUGHNESS_INDEX = 0
+    if TYPE_CHECKING:  # the option field of the dataclasses that mix this in
+        distribution: str
 
     def facet_cdf(self, v, alpha) -> Array:
         return facet_cdf(v[self.ROUGHNESS_INDEX], alpha, self.distribution)

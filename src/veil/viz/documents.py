@@ -53,7 +53,7 @@ def build_blocks(exp: Experiment, files: dict) -> list:
     """The report as blocks: ("h1"|"h2"|"p", text), ("ul", items), ("table", head, rows),
     ("img", file name, alt text, caption). ``files`` maps "fig9".."fig12" to PNG names."""
     media = sorted(exp.media, key=lambda m: exp.media[m].lobe_half_width())  # broadening
-    blocks = [("h1", "The paper's simulation experiment, reproduced"),
+    blocks: list[tuple] = [("h1", "The paper's simulation experiment, reproduced"),
               ("p", "Baba, Mukaigawa and Yagi, \"BRDF Estimation Considering Scatterings of "
                     "Illumination and Reflection\", section 5.1 (figs. 9-12), recomputed from the "
                     f"presets of docs/model.md section 6 with veil {__version__} "

@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import InputError
-from ..models import PRESETS, default_class, model_class
+from ..models import PRESETS, Model, default_class, model_class
 from ..models import names as family_names
 
 #: Value of the "format" key of a state file.
@@ -157,8 +157,8 @@ def _model(entry, kind: str, where: str):
 class State:
     """What the page shows: models, angles (degrees) and the files it was opened with."""
 
-    brdf: object
-    medium: object | None
+    brdf: Model
+    medium: Model | None
     theta_i: float = 45.0
     psi: float = 60.0
     curve: str = "incidence"

@@ -138,7 +138,7 @@ class FitView:
             w, v = np.linalg.eigh(cov_u)
             root = v * np.sqrt(np.clip(w, 0.0, None))
         base = self.result.as_model()
-        curves = []
+        curves: list = []
         tries = 0
         while len(curves) < draws and tries < 20 * draws:
             tries += 1

@@ -16,7 +16,8 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import panel as pn
-from bokeh.models import ColumnDataSource, DataRange1d, LinearAxis, Whisker
+from bokeh.models import ColumnDataSource, DataRange1d, LinearAxis
+from bokeh.models.annotations import Whisker
 from bokeh.plotting import figure
 
 from ..errors import InputError
@@ -381,7 +382,7 @@ class ExplorePage:
         self.updating = False
         self._held = False
         self.curves = None
-        self.timings = {}
+        self.timings: dict[str, float] = {}
         self.views = Views(fit_views)
         self.doc = pn.state.curdoc if background else None
         self._sphere_gen = 0

@@ -3,6 +3,8 @@ its states precomputed over one parameter's slider, saved as one file that needs
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import panel as pn
 
@@ -27,7 +29,7 @@ def static_page(state: ex.State, param: str, points: int, fit_views=(), progress
     model = getattr(state, kind)
     spec = ex.slider_spec(cls, name, getattr(model, name))
     values = grid_values(spec, getattr(model, name), points)
-    frames = {}
+    frames: dict[Any, dict[str, Any]] = {}
     views = Views(fit_views)
     for k, v in enumerate(values):
         m = model.replace(**{name: v})

@@ -23,7 +23,7 @@ from ..engine.angles import direction
 from ..engine.apparent import RULES, as_brdf, as_btdf, reflectance
 from ..errors import InputError
 from ..io import write_bytes_atomic
-from ..models import PRESETS
+from ..models import PRESETS, Model
 from .render import Rendering, auto_exposure, clipping, evaluate, highlight_pixel, render, tone_map
 
 #: Figure formats :func:`save_figure` writes, by file suffix.
@@ -132,8 +132,8 @@ def curve_metrics(theta, values, off_angle=0.0) -> CurveMetrics:
 
 @dataclass
 class Curve:
-    brdf: object
-    medium: object  # None: clear medium
+    brdf: Model
+    medium: Model | None  # None: clear medium
     theta_i: float
     theta_r: np.ndarray
     values: np.ndarray

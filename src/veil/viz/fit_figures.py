@@ -72,7 +72,7 @@ def fit_figure(data, result: FitResult, other: Model | None, extra: FitResult | 
         _model_against_data(ax, data, model_values(result, other, data.angles, accuracy))
     else:
         _curves_and_residuals(fig, ax, res_ax, data, gonio, result, other, extra, accuracy)
-    ax.set_title(titles.get(result.step, result.model), fontsize=10)
+    ax.set_title(titles.get(result.step or "", result.model), fontsize=10)
     ax.grid(True, which="major", alpha=0.3)
     fig.tight_layout()
     buf = io.BytesIO()
