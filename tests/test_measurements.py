@@ -159,6 +159,7 @@ def test_round_trip_random_tables(tmp_path, table):
 @pytest.mark.parametrize("text, expected", [
     ("", ["bad.csv is empty"]),
     ("\n\n  \n", ["bad.csv is empty"]),
+    ('""\n""\n', ["bad.csv has no header", "every line is blank"]),
     ("psi,rho,value\n", ["bad.csv", "no data rows"]),
     ("psi,rho,val\n30,0,1\n", ["bad.csv", "no 'value' column", "val"]),
     ("psi,rho,value\n30,0,1\n30,1,abc\n", ["line 3 of", "bad.csv", "column 'value'", "'abc' is not a number"]),

@@ -472,7 +472,10 @@ def load_measurements(path) -> pd.DataFrame:
     except csv.Error as exc:
         raise MeasurementError(f"line {reader.line_num} of {name} is not valid CSV: {exc}"
                                ) from None
-    assert header is not None  # the text is not blank
+    if header is None:  # nothing but blank cells (e.g. lines of "")
+        raise MeasurementError(
+            f"{name} has no header: every line is blank; expected a CSV header line naming "
+            f"the columns (value and angle columns in degrees, e.g. psi,rho,value)")
     for k, h in enumerate(header):
         if not h:
             raise MeasurementError(f"column {k + 1} in the header (line {header_line}) of {name} "
