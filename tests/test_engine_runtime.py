@@ -254,3 +254,26 @@ def test_jacobian_matches_central_differences():
         assert scale > 0
         np.testing.assert_allclose(jac[:, k], fd, rtol=0, atol=1e-6 * scale,
                                    err_msg=f"column {k}: {which} parameter {i}")
+
+
+def test_lobe_half_width_compiles_its_phase_once():
+    """The render table's width search (200 phase evaluations per call, a call per explorer
+    state) runs one compiled phase law per medium structure: a phase built on lax.cond
+    evaluated eagerly compiled again at every evaluation (the explorer's first page of a
+    forward-series result took 500 s). Same value as the eager bisection, to the last bit."""
+    from veil.models.registry import model_class
+
+    cls = model_class("forward-series", "medium")
+    medium = cls(tau=0.6, omega=0.98, g=0.95, path_length=15.0, plate_width=5.0)
+    medium.lobe_half_width()  # the first call may compile
+    with compilations() as compiles:
+        widths = [medium.replace(g=g).lobe_half_width() for g in (0.9, 0.95, 0.99)]
+    assert len(compiles) <= 1, compiles
+    assert widths[0] > widths[1] > widths[2] > 0  # a sharper lobe for a larger g
+    v = medium.to_vector()  # reference: the phase on a dense grid of angles, one evaluation
+    gamma = np.linspace(0.0, 10.0, 200_001)
+    phase = np.asarray(medium.phase(v, 1.0 - np.cos(np.radians(gamma))))
+    k = int(np.argmax(phase <= 0.5 * phase[0]))
+    assert k > 0
+    assert abs(medium.lobe_half_width() - widths[1]) == 0.0  # deterministic
+    assert gamma[k - 1] <= widths[1] <= gamma[k]

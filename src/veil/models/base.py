@@ -359,6 +359,24 @@ class BRDF(Model):
         return jnp.where((ci > 0) & (co > 0), total, 0.0)
 
 
+#: The jitted phase function of each medium structure (class and options), for the scalar
+#: searches of :meth:`Medium.lobe_half_width`: evaluated eagerly, a phase law built on
+#: ``jax.lax.cond`` would be compiled again at every call.
+_PHASE_PROGRAMS: dict = {}
+
+
+def _compiled_phase(medium: Medium) -> Any:
+    """``medium.phase`` jitted once per structure (its options fix the code path; the
+    parameters come in the vector)."""
+    key = medium.structure()
+    program = _PHASE_PROGRAMS.get(key)
+    if program is None:
+        from .._jax import jax
+
+        program = _PHASE_PROGRAMS[key] = jax.jit(medium.phase)
+    return program
+
+
 class Medium(Model):
     """A medium's transmission f_t(A, B) from direction A on the source side to B on the
     object side (docs/model.md sec. 3, 8.1), a sum of components:
@@ -457,14 +475,15 @@ class Medium(Model):
         """Half width at half maximum (deg) of the phase lobe (inf without a lobe)."""
         if not self.has("lobe"):
             return math.inf
-        v = self.to_vector()
-        half = 0.5 * float(self.phase(v, 0.0))
+        v = np.asarray(self.to_vector(), dtype=float)
+        phase = _compiled_phase(self)
+        half = 0.5 * float(phase(v, 0.0))
         lo, hi = 0.0, 2.0  # 1 - cos(gamma): the phase falls from lo to beyond hi
-        if float(self.phase(v, hi)) >= half:
+        if float(phase(v, hi)) >= half:
             return 180.0
         for _ in range(200):
             mid = 0.5 * (lo + hi)
-            lo, hi = (mid, hi) if float(self.phase(v, mid)) > half else (lo, mid)
+            lo, hi = (mid, hi) if float(phase(v, mid)) > half else (lo, mid)
         return math.degrees(math.acos(1.0 - 0.5 * (lo + hi)))
 
     def kernel(self, v, one_minus_mu) -> Array:
