@@ -9,7 +9,7 @@ by a pinhole camera 100 units from the plate centre (8.4 deg of view direction a
 field).
 
 1. ``maps-step``, for each step of the field grid (a fraction of the apparent lobe,
-   veil.fitting.maps_near.STEP_FRACTION): the field nodes, the tables' seconds, their
+   veil.maps.near.STEP_FRACTION): the field nodes, the tables' seconds, their
    built-in check (the largest interpolation error at two corner cells' centres, relative
    to a column's maximum) and the worst error at 6 pixels x 16 nodes against exact tables
    built at each pixel's own angles.
@@ -78,9 +78,9 @@ def setup():
 def step_sweep(fractions: list[float]) -> None:
     import veil
     from veil.data.ingest import ROI
-    from veil.fitting import maps_near
-    from veil.fitting.maps import build_tables
-    from veil.fitting.maps_near import NearGeometry
+    from veil.maps import near as maps_near
+    from veil.maps.tables import build_tables
+    from veil.maps.near import NearGeometry
 
     cls, _, shape, kw = setup()
     angles = angles_of(configurations(16))
@@ -160,9 +160,10 @@ def write_photos(folder: Path, configs, values, noise=0.01, seed=5) -> Path:
 
 def plate() -> None:
     import veil
-    from veil.fitting.maps import CONVERGED
-    from veil.fitting.maps_near import NearGeometry
-    from veil.fitting.maps_run import fit_maps, open_maps
+    from veil.maps.status import CONVERGED
+    from veil.maps.near import NearGeometry
+    from veil.maps.run import fit_maps
+    from veil.maps.store import open_maps
 
     _, names, _, kw = setup()
     v = veil.BRDF1.to_vector()
@@ -174,7 +175,7 @@ def plate() -> None:
                          NearGeometry(DISTANCE, PITCH, (H, W)))
     # the tables' programs compiled (or loaded) first: the seconds below are the tables' own
     from veil.data.ingest import ROI
-    from veil.fitting.maps import build_tables
+    from veil.maps.tables import build_tables
     angles = angles_of(configs)
     build_tables(type(veil.BRDF1), veil.BTDF2, angles, **kw)
     build_tables(type(veil.BRDF1), veil.BTDF2, angles, near=NearGeometry(DISTANCE, PITCH, (H, W)),

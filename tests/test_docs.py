@@ -355,3 +355,30 @@ def test_the_name_check_fails_for_a_moved_module():
     assert _resolves("veil.maps.near.STEP_FRACTION")
     assert not _resolves("veil.fitting.maps_near.STEP_FRACTION")
     assert not _resolves("veil.maps.near.NO_SUCH_NAME")
+
+
+def _veil_imports(path: Path) -> list[tuple[int, str]]:
+    """(line, dotted name) of every ``import veil...`` and ``from veil... import name`` of a
+    script."""
+    import ast
+
+    found = []
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.ImportFrom) and node.level == 0 and node.module and \
+                node.module.split(".")[0] == "veil":
+            found += [(node.lineno, f"{node.module}.{a.name}") for a in node.names]
+        elif isinstance(node, ast.Import):
+            found += [(node.lineno, a.name) for a in node.names
+                      if a.name.split(".")[0] == "veil"]
+    return found
+
+
+def test_scripts_import_what_veil_has():
+    """The benchmarks, validation scripts and examples import modules and names that exist
+    (a moved module broke benchmarks/bench_maps_near.py without any test noticing)."""
+    scripts = [p for folder in ("benchmarks", "validation", "examples")
+               for p in sorted((ROOT / folder).rglob("*.py"))]
+    assert len(scripts) > 20
+    missing = [f"{p.relative_to(ROOT)}:{line}: {name}" for p in scripts
+               for line, name in _veil_imports(p) if not _resolves(name)]
+    assert not missing, "\n".join(missing)
