@@ -19,6 +19,7 @@ Formats and the meaning of the uncertainties: docs/fitting.md.
 
 from __future__ import annotations
 
+import json
 import math
 import os
 import time
@@ -31,17 +32,21 @@ from .data.protocol import protocol
 from .errors import FitError
 from .fitting import (FitResult, fit_direct, fit_medium, fit_reference, fit_target,
                       model_values, prepare)
+from .fitting import selection
 from .fitting.model_error import check_kind
 from .fitting.propagation import check_method
 from .analysis.uncertainty import curve_stderr
 from .viz.fit_figures import fit_figure
-from .viz.reports import comparison_report, pipeline_report
+from .viz.reports import pipeline_report, ranking_section
 
 #: Output files, by role.
 FILES = {"reference": "reference.json", "medium": "medium.json", "target": "target.json",
          "direct": "target_direct.json", "report": "report.md",
          "reference_fig": "reference.png", "medium_fig": "medium.png",
-         "target_fig": "target.png", "direct_fig": "target_direct.png"}
+         "target_fig": "target.png", "direct_fig": "target_direct.png",
+         "ranking": "ranking.json"}
+#: With ``keep_candidates``, every candidate's result under this folder, by step.
+CANDIDATES_DIR = "candidates"
 STEP_KEYS = ("reference", "medium", "target")
 
 
@@ -55,6 +60,8 @@ class PipelineResult:
     direct: FitResult | None = None
     comparison: dict | None = None
     files: dict = field(default_factory=dict)
+    #: With ``models="auto"``: {step: :class:`veil.fitting.selection.Ranking`}.
+    rankings: dict = field(default_factory=dict)
 
     @property
     def converged(self) -> bool:
@@ -100,7 +107,7 @@ def run_pipeline(reference_clear, reference_medium, target_medium, black=None, t
                  fixed=None, max_nfev=None, progress=None, truth=None,
                  figures: bool = True, brdf_model=None, medium_model=None, brdf_options=None,
                  medium_options=None, free=None, model_error=None,
-                 propagation=None) -> PipelineResult:
+                 propagation=None, models=None, keep_candidates: bool = False) -> PipelineResult:
     """Steps 0-2 of docs/model.md sec. 7 with files, figures and report.md in ``outdir``.
 
     reference_clear, reference_medium, target_medium : sessions (DataFrames or CSV paths):
@@ -122,6 +129,14 @@ def run_pipeline(reference_clear, reference_medium, target_medium, black=None, t
         when larger than its own and counts the error the two share.
     propagation : how each step's given covariance enters its ``stderr_total`` ("auto", the
         default, "linear" or "sigma-points"; :mod:`veil.fitting.propagation`).
+    models : None (``brdf_model`` / ``medium_model`` as given), "paper" (the paper's models),
+        "BRDF+MEDIUM" (a pinned pair) or "auto": every registered candidate ranked per step
+        by BIC with its model-discrepancy term (:mod:`veil.fitting.selection`), the best
+        one used; options, ``fixed`` and ``free`` then apply to the candidates that declare
+        them. Rankings in ``ranking.json``, report.md and each chosen result's
+        ``stats["selection"]``; with ``keep_candidates`` every candidate's result too, in
+        ``candidates/<step>/``. Every candidate failing raises
+        :class:`veil.fitting.selection.NoCandidateError` (with the rankings).
     Other arguments as :func:`veil.fit_medium`. Returns a :class:`PipelineResult`.
     """
     model_error = check_kind(model_error)
@@ -147,33 +162,67 @@ def run_pipeline(reference_clear, reference_medium, target_medium, black=None, t
     if target_clear is not None:
         data["target_clear"] = prepare(target_clear, None, "target (clear medium)")
 
-    brdf = {"brdf_model": brdf_model, "options": brdf_options, "model_error": model_error}
-    chained = {"model_error": model_error, "propagation": propagation}
-    ref = fit_reference(data["reference_clear"].table, fixed=fixed.get("reference"),
-                        max_nfev=max_nfev, progress=stage("step 0, reference"),
-                        free=free.get("reference"), **brdf)
-    med = fit_medium(data["reference_medium"].table, ref, fixed=fixed.get("medium"),
-                     variant=variant, accuracy=accuracy, max_nfev=max_nfev,
-                     progress=stage("step 1, medium"), medium_model=medium_model,
-                     options=medium_options, free=free.get("medium"), **chained)
-    tgt = fit_target(data["target_medium"].table, med, fixed=fixed.get("target"),
-                     accuracy=accuracy, max_nfev=max_nfev, progress=stage("step 2, target"),
-                     free=free.get("target"), brdf_model=brdf_model, options=brdf_options,
-                     **chained)
+    mode = None if models is None else selection.parse_models(models)
+    if mode is not None and (brdf_model is not None or medium_model is not None):
+        raise FitError("give models= or brdf_model= / medium_model=, not both")
+    if mode == "paper":
+        mode = None
+    elif isinstance(mode, tuple):
+        (brdf_model, medium_model), mode = mode, None
+    rankings, kept = {}, {}
+    if mode == "auto":
+        ref, med, tgt, brdf_model, brdf_options, rankings, kept = _select(
+            data, fixed=fixed, free=free, variant=variant, accuracy=accuracy,
+            max_nfev=max_nfev, progress=progress, brdf_options=brdf_options,
+            medium_options=medium_options, model_error=model_error, propagation=propagation,
+            keep=keep_candidates)
+        brdf = {"brdf_model": brdf_model, "options": brdf_options,
+                "model_error": model_error}
+    else:
+        brdf = {"brdf_model": brdf_model, "options": brdf_options,
+                "model_error": model_error}
+        chained = {"model_error": model_error, "propagation": propagation}
+        ref = fit_reference(data["reference_clear"].table, fixed=fixed.get("reference"),
+                            max_nfev=max_nfev, progress=stage("step 0, reference"),
+                            free=free.get("reference"), **brdf)
+        med = fit_medium(data["reference_medium"].table, ref, fixed=fixed.get("medium"),
+                         variant=variant, accuracy=accuracy, max_nfev=max_nfev,
+                         progress=stage("step 1, medium"), medium_model=medium_model,
+                         options=medium_options, free=free.get("medium"), **chained)
+        tgt = fit_target(data["target_medium"].table, med, fixed=fixed.get("target"),
+                         accuracy=accuracy, max_nfev=max_nfev,
+                         progress=stage("step 2, target"), free=free.get("target"),
+                         brdf_model=brdf_model, options=brdf_options, **chained)
     direct = comparison = None
     if target_clear is not None:
-        direct = fit_direct(data["target_clear"].table, fixed=fixed.get("target"),
+        fix_d, free_d = fixed.get("target"), free.get("target")
+        if rankings:  # the chosen family's entries
+            cls = registry_class(brdf_model)
+            fix_d = _for_family(cls, fixed, "target", "fixed", set())
+            free_d = _for_family(cls, free, "target", "free", set())
+        direct = fit_direct(data["target_clear"].table, fixed=fix_d,
                             max_nfev=max_nfev, progress=stage("target, clear medium"),
-                            free=free.get("target"), **brdf)
+                            free=free_d, **brdf)
         comparison = compare(tgt, direct)
 
     names = {}
-    with output_folder(outdir, owned=FILES.values()) as folder:
+    owned = list(FILES.values()) + [CANDIDATES_DIR]
+    with output_folder(outdir, owned=owned) as folder:
         for key, result in (("reference", ref), ("medium", med), ("target", tgt),
                             ("direct", direct)):
             if result is not None:
                 result.to_json(folder / FILES[key])
                 names[key] = FILES[key]
+        if rankings:
+            write_text_atomic(folder / FILES["ranking"], json.dumps(
+                {step: r.to_dict() for step, r in rankings.items()}, indent=1) + "\n")
+            names["ranking"] = FILES["ranking"]
+        for step, results in kept.items():
+            (folder / CANDIDATES_DIR / step).mkdir(parents=True, exist_ok=True)
+            for label, result in results.items():
+                name = os.path.join(CANDIDATES_DIR, step, _file_name(label))
+                result.to_json(folder / name)
+                names[f"{CANDIDATES_DIR}/{step}/{label}"] = name
         if figures:
             if progress is not None:
                 progress("figures", None, None)
@@ -189,10 +238,143 @@ def run_pipeline(reference_clear, reference_medium, target_medium, black=None, t
         shown = {k: (os.path.relpath(v, outdir) if isinstance(v, (str, os.PathLike))
                      and _inside(v, outdir) else v) for k, v in inputs.items()}
         report = pipeline_report(ref, med, tgt, direct, comparison, truth, names, shown)
+        if rankings:
+            report = report.rstrip("\n") + "\n\n" + "\n".join(ranking_section(rankings)) + "\n"
         write_text_atomic(folder / FILES["report"], report)
         names["report"] = FILES["report"]
     files = {key: os.path.join(outdir, name) for key, name in names.items()}
-    return PipelineResult(ref, med, tgt, direct, comparison, files)
+    return PipelineResult(ref, med, tgt, direct, comparison, files, rankings)
+
+
+# --------------------------------------------------------------------------------------
+# models="auto": the data choose the model (issue 29)
+# --------------------------------------------------------------------------------------
+def _file_name(label: str) -> str:
+    """A candidate's result file: its label with [ , = ] made file-name safe."""
+    for a, b in (("[", "_"), ("]", ""), (",", "_"), ("=", "-")):
+        label = label.replace(a, b)
+    return label + ".json"
+
+
+def _per_family(cands, per_step: dict, step: str, what: str) -> dict:
+    """{label: the ``fixed`` / ``free`` entries of ``step`` its family declares}; an entry no
+    candidate declares is an error."""
+    used: set = set()
+    out = {c.label: _for_family(registry_class(c.family), per_step, step, what, used)
+           for c in cands}
+    unused = [f"{step}.{k}" for k in (per_step.get(step) or []) if (step, k) not in used]
+    if unused:
+        raise FitError(f"{what} {', '.join(unused)}: no candidate model has such a parameter")
+    return out
+
+
+def registry_class(name):
+    from .models import model_class
+
+    return model_class(name)
+
+
+def _with_selection(result: FitResult, ranking) -> FitResult:
+    """``result`` with its step's ranking in ``stats["selection"]``."""
+    import dataclasses
+
+    return dataclasses.replace(result, stats={**result.stats, "selection": ranking.to_dict()})
+
+
+def _fitted_curve(result: FitResult, data) -> np.ndarray:
+    """The fit's model values at its data's configurations, from its residuals."""
+    r = np.asarray(result.residuals, dtype=float)
+    return data.y - (r * data.sigma if result.weighted and data.sigma is not None else r)
+
+
+def _rank_step(step, kind, data, fit_one, options, progress, curves):
+    """Fit and rank one step's candidates; (ranking, {label: result}); raises
+    NoCandidateError when every candidate failed."""
+    cands = selection.candidates(kind, options)
+    if not cands:
+        raise FitError(f"no registered {kind} family is a candidate with options {options}")
+    if progress is not None:
+        progress(f"{step}: {len(cands)} candidates in {selection.workers(len(cands))} "
+                 f"thread(s)", None, None)
+    count = {"done": 0}
+
+    def tell(label, what):
+        count["done"] += 1
+        if progress is not None:
+            progress(f"{step}: {label} {what}", count["done"], len(cands))
+
+    fitted = selection.fit_candidates(fit_one, cands, tell)
+    ranking = selection.rank(step, fitted, data, cands)
+    results = {lab: res for lab, (res, _) in fitted.items() if isinstance(res, FitResult)}
+    if ranking.chosen is None:
+        raise selection.NoCandidateError(step, ranking)
+    if ranking.close_call:
+        ranking = ranking.with_spread(selection.curve_spread(
+            ranking, {lab: curves(results[lab]) for lab in ranking.close}))
+    return ranking, results
+
+
+def _select(data, *, fixed, free, variant, accuracy, max_nfev, progress, brdf_options,
+            medium_options, model_error, propagation, keep):
+    """Steps 0-2 with every candidate ranked (``models="auto"``)."""
+    brdf_options, medium_options = dict(brdf_options or {}), dict(medium_options or {})
+    if variant is not None:
+        medium_options.setdefault("variant", variant)
+    chained = {"model_error": model_error, "propagation": propagation}
+    configs = protocol()
+    angles = tuple(configs[c].to_numpy() for c in ("theta_i", "phi_i", "theta_r", "phi_r"))
+
+    def fr_curve(result):
+        return model_values(result, None, angles)
+
+    rankings, kept = {}, {}
+    b_cands = selection.candidates("brdf", brdf_options)
+    m_cands = selection.candidates("medium", medium_options)
+    fix_b = _per_family(b_cands, fixed, "reference", "fixed")
+    free_b = _per_family(b_cands, free, "reference", "free")
+    fix_m = _per_family(m_cands, fixed, "medium", "fixed")
+    free_m = _per_family(m_cands, free, "medium", "free")
+    fix_t = _per_family(b_cands, fixed, "target", "fixed")
+    free_t = _per_family(b_cands, free, "target", "free")
+
+    def step0(c):
+        return fit_reference(data["reference_clear"].table, fixed=fix_b[c.label],
+                             free=free_b[c.label], max_nfev=max_nfev, brdf_model=c.family,
+                             options=c.model_options(brdf_options), model_error=model_error)
+
+    ranking, results = _rank_step("reference", "brdf", data["reference_clear"], step0,
+                                  brdf_options, progress, fr_curve)
+    rankings["reference"], kept["reference"] = ranking, results
+    ref = _with_selection(results[ranking.chosen], ranking)
+
+    def step1(c):
+        return fit_medium(data["reference_medium"].table, ref, fixed=fix_m[c.label],
+                          free=free_m[c.label], accuracy=accuracy, max_nfev=max_nfev,
+                          medium_model=c.family, options=c.model_options(medium_options),
+                          **chained)
+
+    ranking, results = _rank_step("medium", "medium", data["reference_medium"], step1,
+                                  medium_options, progress,
+                                  lambda r: _fitted_curve(r, data["reference_medium"]))
+    rankings["medium"], kept["medium"] = ranking, results
+    med = _with_selection(results[ranking.chosen], ranking)
+
+    def step2(c):
+        return fit_target(data["target_medium"].table, med, fixed=fix_t[c.label],
+                          free=free_t[c.label], accuracy=accuracy, max_nfev=max_nfev,
+                          brdf_model=c.family, options=c.model_options(brdf_options),
+                          **chained)
+
+    ranking, results = _rank_step("target", "brdf", data["target_medium"], step2,
+                                  brdf_options, progress, fr_curve)
+    rankings["target"], kept["target"] = ranking, results
+    tgt = _with_selection(results[ranking.chosen], ranking)
+    chosen = ranking.row(ranking.chosen)
+    opts = {k: v for k, v in brdf_options.items()
+            if k in registry_class(chosen["family"]).option_names()}
+    opts.update(chosen["options"])
+    return (ref, med, tgt, chosen["family"], opts, rankings,
+            kept if keep else {})
 
 
 # --------------------------------------------------------------------------------------
@@ -232,6 +414,14 @@ def compare(estimated: FitResult, direct: FitResult) -> dict:
            "rms_fr_relative": float(np.sqrt(np.mean((diff / f_dir) ** 2))),
            "max_fr_relative": float(np.max(np.abs(diff / f_dir))),
            "fr_max_z": None, "fr_within_2se": None}
+    spread = ((estimated.stats or {}).get("selection") or {}).get("spread")
+    out["model_spread_rms_relative"] = None
+    if spread is not None and len(spread.get("spread", ())) == len(configs):
+        # a close call between families: their curves' BIC-weighted spread widens the
+        # estimate's uncertainty (veil.fitting.selection)
+        widen = np.asarray(spread["spread"], dtype=float)
+        se_f_est = widen if se_f_est is None else np.hypot(se_f_est, widen)
+        out["model_spread_rms_relative"] = spread["rms_relative"]
     if se_f_est is not None:
         se = np.hypot(se_f_est, 0.0 if se_f_dir is None else se_f_dir)
         if np.all(se > 0):
@@ -243,22 +433,8 @@ def compare(estimated: FitResult, direct: FitResult) -> dict:
 
 
 # --------------------------------------------------------------------------------------
-# model sets side by side
+# the entries of one family
 # --------------------------------------------------------------------------------------
-@dataclass(frozen=True)
-class ComparisonResult:
-    """``run_pipeline`` once per model set on the same data (``veil fit pipeline --compare``)."""
-
-    results: dict
-    seconds: dict
-    difference: dict
-    files: dict = field(default_factory=dict)
-
-    @property
-    def converged(self) -> bool:
-        return all(r.converged for r in self.results.values())
-
-
 def _for_family(cls, per_step: dict, step: str, what: str, used: set) -> dict | list | None:
     """The entries of ``per_step[step]`` that name parameters of ``cls`` (a fixed dict or a
     free list); records which were used."""
@@ -274,89 +450,4 @@ def _for_family(cls, per_step: dict, step: str, what: str, used: set) -> dict | 
     return kept
 
 
-def compare_models(reference_clear, reference_medium, target_medium, black=None,
-                   target_clear=None, outdir="veil-compare", *, sets=None,
-                   accuracy: str = "default", fixed=None, free=None, max_nfev=None,
-                   progress=None, brdf_options=None, medium_options=None,
-                   figures: bool = True, model_error=None,
-                   propagation=None) -> ComparisonResult:
-    """:func:`run_pipeline` with each named model set (default the paper's and the physical
-    ones, :data:`veil.models.MODEL_SETS`) on the same sessions, each into ``outdir/<set>/``,
-    and ``outdir/comparison.md``: goodness of fit (chi-square, AIC, BIC) step by step side by
-    side, each estimate against the direct fit, and the sets' estimates against each other.
-
-    Options, ``fixed`` and ``free`` entries apply to the sets whose families declare them;
-    one that no set's family declares is an error. The folder is written as one transaction.
-    """
-    from .models import MODEL_SETS, model_class
-
-    sets = dict(MODEL_SETS) if sets is None else dict(sets)
-    if len(sets) < 2:
-        raise FitError(f"sets = {list(sets)}: a comparison needs at least two model sets")
-    fixed, free = _check_fixed(fixed), _check_fixed(free, "free")
-    used_fix, used_free, used_opts = set(), set(), set()
-    plans = {}
-    for name, chosen in sets.items():
-        brdf, medium = model_class(chosen["brdf"], "brdf"), model_class(chosen["medium"], "medium")
-        b_opts = {k: v for k, v in (brdf_options or {}).items() if k in brdf.option_names()}
-        m_opts = {k: v for k, v in (medium_options or {}).items() if k in medium.option_names()}
-        used_opts.update(b_opts, m_opts)
-        plans[name] = dict(
-            brdf_model=brdf.NAME, medium_model=medium.NAME, brdf_options=b_opts,
-            medium_options=m_opts,
-            fixed={step: f for step in STEP_KEYS if (f := _for_family(
-                medium if step == "medium" else brdf, fixed, step, "fixed", used_fix))},
-            free={step: f for step in STEP_KEYS if (f := _for_family(
-                medium if step == "medium" else brdf, free, step, "free", used_free))})
-    for what, per_step, used in (("fixed", fixed, used_fix), ("free", free, used_free)):
-        unused = [f"{step}.{k}" for step, entries in per_step.items() for k in entries
-                  if (step, k) not in used]
-        if unused:
-            raise FitError(f"{what} {', '.join(unused)}: no compared model has such a "
-                           f"parameter ({', '.join(sets)})")
-    unused = sorted(set(brdf_options or {}) | set(medium_options or {}) - used_opts)
-    if unused:
-        raise FitError(f"option(s) {', '.join(unused)}: no compared model declares them")
-    outdir = os.fspath(outdir)
-    inputs = [reference_clear, reference_medium, target_medium, black, target_clear]
-    for inp in inputs:
-        if isinstance(inp, (str, os.PathLike)) and _inside(inp, outdir):
-            raise FitError(f"input {os.fspath(inp)} lies inside the output folder {outdir}; "
-                           f"veil never overwrites an input: choose another output directory")
-    results, seconds = {}, {}
-    with output_folder(outdir, owned=list(sets) + ["comparison.md"]) as folder:
-        for name, plan in plans.items():
-            if progress is not None:
-                progress(f"model set '{name}'", None, None)
-            inner = None if progress is None else (
-                lambda what, done, total, name=name: progress(f"{name}: {what}", done, total))
-            t0 = time.perf_counter()
-            results[name] = run_pipeline(reference_clear, reference_medium, target_medium,
-                                         black=black, target_clear=target_clear,
-                                         outdir=folder / name, accuracy=accuracy,
-                                         max_nfev=max_nfev, progress=inner, figures=figures,
-                                         model_error=model_error,
-                                         propagation=propagation, **plan)
-            seconds[name] = time.perf_counter() - t0
-        names = list(results)
-        first = names[0]
-        configs = protocol()
-        angles = tuple(configs[c].to_numpy() for c in ("theta_i", "phi_i", "theta_r", "phi_r"))
-        base = model_values(results[first].target, None, angles)
-        diffs = [(model_values(results[n].target, None, angles) - base) / base
-                 for n in names[1:]]
-        rel = np.concatenate(diffs)
-        difference = {"against": first, "n": len(configs),
-                      "rms": float(np.sqrt(np.mean(rel ** 2))), "max": float(np.max(np.abs(rel)))}
-        write_text_atomic(folder / "comparison.md",
-                          comparison_report(results, seconds, difference))
-    # the sets' files were written in the staging folder, now moved to outdir
-    files = {"comparison": os.path.join(outdir, "comparison.md")}
-    for name, r in results.items():
-        files.update({f"{name}/{key}": os.path.join(outdir, name, os.path.basename(path))
-                      for key, path in r.files.items()})
-    return ComparisonResult(results, seconds, difference, files)
-
-
-__all__ = ["run_pipeline", "PipelineResult", "compare", "compare_models", "ComparisonResult",
-           "fit_figure", "FILES"]
+__all__ = ["run_pipeline", "PipelineResult", "compare", "fit_figure", "FILES", "CANDIDATES_DIR"]

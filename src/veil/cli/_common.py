@@ -147,6 +147,9 @@ class ModelChoice:
     brdf_options: dict
     medium_options: dict
     explicit: frozenset = frozenset()
+    #: ``fit pipeline --models``: "auto", "paper" or "pinned" (a FAMILY+MEDIUM pair, in
+    #: ``brdf`` and ``medium``); "paper" also when the command has no --models.
+    mode: str = "paper"
 
     def parse(self, text: str, kind: str, option: str):
         """A preset name or a literal list of the family's parameters (in declared order);
@@ -288,20 +291,26 @@ def model_options(kinds=("brdf", "medium")):
         def wrapper(*args, **kwargs):
             chosen = {}
             explicit = set()
+            mode, pair = _models_mode(kwargs.get("model_spec"), kwargs.get("compare"))
             for kind in kinds:
                 value = kwargs.pop(f"{kind}_model", None)
                 if value is not None:
                     explicit.add(f"{kind}-model")
-                chosen[kind] = registry.model_class(value or DEFAULTS[kind], kind)
+                    if mode != "paper" or kwargs.get("model_spec") is not None:
+                        raise UserError(f"--{kind}-model with --models "
+                                        f"{kwargs.get('model_spec') or 'auto'}: give one of "
+                                        f"the two (--models FAMILY+MEDIUM pins a pair)")
+                chosen[kind] = registry.model_class(value or pair.get(kind) or DEFAULTS[kind],
+                                                    kind)
             opts = {"brdf": {}, "medium": {}}
             for oname in declared:
                 value = kwargs.pop(oname, None)
                 if value is None:
                     continue
                 targets = [k for k in kinds if oname in chosen[k].option_names()]
-                if not targets and kwargs.get("compare"):
-                    # fit pipeline --compare: the option goes to the compared families that
-                    # declare it (veil.pipeline.compare_models)
+                if mode == "auto":
+                    # fit pipeline --models auto: the option goes to every candidate that
+                    # declares it (veil.fitting.selection)
                     for kind, _, opt in declared[oname]:
                         opts[kind][oname] = _convert(value, opt)
                     continue
@@ -315,7 +324,8 @@ def model_options(kinds=("brdf", "medium")):
                     opts[k][oname] = _convert(value, opt)
             kwargs["models"] = ModelChoice(chosen.get("brdf", registry.default_class("brdf")),
                                            chosen.get("medium", registry.default_class("medium")),
-                                           opts["brdf"], opts["medium"], frozenset(explicit))
+                                           opts["brdf"], opts["medium"], frozenset(explicit),
+                                           mode)
             return fn(*args, **kwargs)
 
         for oname, users in reversed(list(declared.items())):
@@ -337,6 +347,25 @@ def model_options(kinds=("brdf", "medium")):
         return wrapper
 
     return decorate
+
+
+def _models_mode(spec, compare) -> tuple[str, dict]:
+    """("auto" | "paper" | "pinned", {kind: family}) of ``--models`` (``compare``: auto);
+    a UserError (exit 2) listing the registered families for an unknown one."""
+    if spec is None and not compare:
+        return "paper", {}
+    from ..fitting.selection import parse_models
+
+    try:
+        mode = parse_models(spec or "auto")
+    except InputError as exc:
+        raise UserError(f"--models: {exc}") from None
+    if compare and mode != "auto":
+        raise UserError(f"--compare writes out the ranking of --models auto; leave --models "
+                        f"{spec} out")
+    if isinstance(mode, tuple):
+        return "pinned", {"brdf": mode[0], "medium": mode[1]}
+    return mode, {}
 
 
 def _convert(value: str, opt):

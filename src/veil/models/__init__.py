@@ -5,8 +5,8 @@ per family."""
 from __future__ import annotations
 
 from .base import BRDF, BTDF, Medium, Model, Option, Param
-from .registry import (DEFAULTS, MODEL_SETS, PRESETS, REGISTRY, default_class, model_class, names, preset,
-                       register)
+from .registry import (APPARATUS_OPTIONS, DEFAULTS, PRESETS, REGISTRY, candidates, default_class,
+                       model_class, names, preset, register)
 
 __all__ = ["BRDF", "BTDF", "Medium", "Model", "Option", "Param", "REGISTRY", "PRESETS",
-           "DEFAULTS", "MODEL_SETS", "model_class", "default_class", "names", "preset", "register"]
+           "DEFAULTS", "APPARATUS_OPTIONS", "candidates", "model_class", "default_class", "names", "preset", "register"]
