@@ -33,6 +33,7 @@ from .errors import FitError
 from .fitting import (FitResult, fit_direct, fit_medium, fit_reference, fit_target,
                       model_values, prepare)
 from .fitting import selection
+from .models import AUTO, PAPER
 from .fitting.model_error import check_kind
 from .fitting.propagation import check_method
 from .analysis.uncertainty import curve_stderr
@@ -155,6 +156,17 @@ def run_pipeline(reference_clear, reference_medium, target_medium, black=None, t
         progress(f"{name}: starting", None, None)
         return lambda what, done, total: progress(f"{name}: {what}", done, total)
 
+    mode = None if models is None else selection.parse_models(models)
+    if mode is not None and (brdf_model is not None or medium_model is not None):
+        raise FitError("give models= or brdf_model= / medium_model=, not both")
+    if mode == PAPER:
+        mode = None
+    elif isinstance(mode, tuple):
+        (brdf_model, medium_model), mode = mode, None
+    plan = None
+    if mode == AUTO:  # the candidates and their entries, checked before any reading
+        plan = _plan(fixed, free, brdf_options, medium_options, variant)
+
     # read and check every input before the first (long) fit
     data = {"reference_clear": prepare(reference_clear, None, "reference (clear medium)"),
             "reference_medium": prepare(reference_medium, black, "reference (in the medium)"),
@@ -162,20 +174,11 @@ def run_pipeline(reference_clear, reference_medium, target_medium, black=None, t
     if target_clear is not None:
         data["target_clear"] = prepare(target_clear, None, "target (clear medium)")
 
-    mode = None if models is None else selection.parse_models(models)
-    if mode is not None and (brdf_model is not None or medium_model is not None):
-        raise FitError("give models= or brdf_model= / medium_model=, not both")
-    if mode == "paper":
-        mode = None
-    elif isinstance(mode, tuple):
-        (brdf_model, medium_model), mode = mode, None
     rankings, kept = {}, {}
-    if mode == "auto":
+    if plan is not None:
         ref, med, tgt, brdf_model, brdf_options, rankings, kept = _select(
-            data, fixed=fixed, free=free, variant=variant, accuracy=accuracy,
-            max_nfev=max_nfev, progress=progress, brdf_options=brdf_options,
-            medium_options=medium_options, model_error=model_error, propagation=propagation,
-            keep=keep_candidates)
+            data, plan, accuracy=accuracy, max_nfev=max_nfev, progress=progress,
+            model_error=model_error, propagation=propagation, keep=keep_candidates)
         brdf = {"brdf_model": brdf_model, "options": brdf_options,
                 "model_error": model_error}
     else:
@@ -287,12 +290,9 @@ def _fitted_curve(result: FitResult, data) -> np.ndarray:
     return data.y - (r * data.sigma if result.weighted and data.sigma is not None else r)
 
 
-def _rank_step(step, kind, data, fit_one, options, progress, curves):
+def _rank_step(step, cands, data, fit_one, progress, curves):
     """Fit and rank one step's candidates; (ranking, {label: result}); raises
     NoCandidateError when every candidate failed."""
-    cands = selection.candidates(kind, options)
-    if not cands:
-        raise FitError(f"no registered {kind} family is a candidate with options {options}")
     if progress is not None:
         progress(f"{step}: {len(cands)} candidates in {selection.workers(len(cands))} "
                  f"thread(s)", None, None)
@@ -314,12 +314,37 @@ def _rank_step(step, kind, data, fit_one, options, progress, curves):
     return ranking, results
 
 
-def _select(data, *, fixed, free, variant, accuracy, max_nfev, progress, brdf_options,
-            medium_options, model_error, propagation, keep):
-    """Steps 0-2 with every candidate ranked (``models="auto"``)."""
+def _plan(fixed, free, brdf_options, medium_options, variant) -> dict:
+    """The candidates of ``models="auto"`` and each one's options, fixed and free entries;
+    an entry or option no candidate declares is an error."""
     brdf_options, medium_options = dict(brdf_options or {}), dict(medium_options or {})
     if variant is not None:
         medium_options.setdefault("variant", variant)
+    b_cands = selection.candidates("brdf", brdf_options)
+    m_cands = selection.candidates("medium", medium_options)
+    for kind, cands, opts in (("BRDF", b_cands, brdf_options),
+                              ("medium", m_cands, medium_options)):
+        if not cands:
+            raise FitError(f"no registered {kind} family is a candidate with options {opts}")
+        declared = {o for c in cands for o in registry_class(c.family).option_names()}
+        unused = sorted(set(opts) - declared)
+        if unused:
+            raise FitError(f"option(s) {', '.join(unused)}: no {kind} candidate declares them")
+    return {"brdf": b_cands, "medium": m_cands, "brdf_options": brdf_options,
+            "medium_options": medium_options,
+            "fix_b": _per_family(b_cands, fixed, "reference", "fixed"),
+            "free_b": _per_family(b_cands, free, "reference", "free"),
+            "fix_m": _per_family(m_cands, fixed, "medium", "fixed"),
+            "free_m": _per_family(m_cands, free, "medium", "free"),
+            "fix_t": _per_family(b_cands, fixed, "target", "fixed"),
+            "free_t": _per_family(b_cands, free, "target", "free")}
+
+
+def _select(data, plan, *, accuracy, max_nfev, progress, model_error, propagation, keep):
+    """Steps 0-2 with every candidate ranked (``models="auto"``)."""
+    brdf_options, medium_options = plan["brdf_options"], plan["medium_options"]
+    fix_b, free_b, fix_m, free_m, fix_t, free_t = (
+        plan[k] for k in ("fix_b", "free_b", "fix_m", "free_m", "fix_t", "free_t"))
     chained = {"model_error": model_error, "propagation": propagation}
     configs = protocol()
     angles = tuple(configs[c].to_numpy() for c in ("theta_i", "phi_i", "theta_r", "phi_r"))
@@ -328,22 +353,14 @@ def _select(data, *, fixed, free, variant, accuracy, max_nfev, progress, brdf_op
         return model_values(result, None, angles)
 
     rankings, kept = {}, {}
-    b_cands = selection.candidates("brdf", brdf_options)
-    m_cands = selection.candidates("medium", medium_options)
-    fix_b = _per_family(b_cands, fixed, "reference", "fixed")
-    free_b = _per_family(b_cands, free, "reference", "free")
-    fix_m = _per_family(m_cands, fixed, "medium", "fixed")
-    free_m = _per_family(m_cands, free, "medium", "free")
-    fix_t = _per_family(b_cands, fixed, "target", "fixed")
-    free_t = _per_family(b_cands, free, "target", "free")
 
     def step0(c):
         return fit_reference(data["reference_clear"].table, fixed=fix_b[c.label],
                              free=free_b[c.label], max_nfev=max_nfev, brdf_model=c.family,
                              options=c.model_options(brdf_options), model_error=model_error)
 
-    ranking, results = _rank_step("reference", "brdf", data["reference_clear"], step0,
-                                  brdf_options, progress, fr_curve)
+    ranking, results = _rank_step("reference", plan["brdf"], data["reference_clear"], step0,
+                                  progress, fr_curve)
     rankings["reference"], kept["reference"] = ranking, results
     ref = _with_selection(results[ranking.chosen], ranking)
 
@@ -353,8 +370,8 @@ def _select(data, *, fixed, free, variant, accuracy, max_nfev, progress, brdf_op
                           medium_model=c.family, options=c.model_options(medium_options),
                           **chained)
 
-    ranking, results = _rank_step("medium", "medium", data["reference_medium"], step1,
-                                  medium_options, progress,
+    ranking, results = _rank_step("medium", plan["medium"], data["reference_medium"], step1,
+                                  progress,
                                   lambda r: _fitted_curve(r, data["reference_medium"]))
     rankings["medium"], kept["medium"] = ranking, results
     med = _with_selection(results[ranking.chosen], ranking)
@@ -365,8 +382,8 @@ def _select(data, *, fixed, free, variant, accuracy, max_nfev, progress, brdf_op
                           brdf_model=c.family, options=c.model_options(brdf_options),
                           **chained)
 
-    ranking, results = _rank_step("target", "brdf", data["target_medium"], step2,
-                                  brdf_options, progress, fr_curve)
+    ranking, results = _rank_step("target", plan["brdf"], data["target_medium"], step2,
+                                  progress, fr_curve)
     rankings["target"], kept["target"] = ranking, results
     tgt = _with_selection(results[ranking.chosen], ranking)
     chosen = ranking.row(ranking.chosen)

@@ -147,9 +147,9 @@ class ModelChoice:
     brdf_options: dict
     medium_options: dict
     explicit: frozenset = frozenset()
-    #: ``fit pipeline --models``: "auto", "paper" or "pinned" (a FAMILY+MEDIUM pair, in
-    #: ``brdf`` and ``medium``); "paper" also when the command has no --models.
-    mode: str = "paper"
+    #: ``fit pipeline --models``: veil.models.AUTO, PAPER or "pinned" (a FAMILY+MEDIUM pair,
+    #: in ``brdf`` and ``medium``); None when the command has no --models (the paper's).
+    mode: str | None = None
 
     def parse(self, text: str, kind: str, option: str):
         """A preset name or a literal list of the family's parameters (in declared order);
@@ -296,7 +296,7 @@ def model_options(kinds=("brdf", "medium")):
                 value = kwargs.pop(f"{kind}_model", None)
                 if value is not None:
                     explicit.add(f"{kind}-model")
-                    if mode != "paper" or kwargs.get("model_spec") is not None:
+                    if kwargs.get("model_spec") is not None or mode is not None:
                         raise UserError(f"--{kind}-model with --models "
                                         f"{kwargs.get('model_spec') or 'auto'}: give one of "
                                         f"the two (--models FAMILY+MEDIUM pins a pair)")
@@ -308,7 +308,7 @@ def model_options(kinds=("brdf", "medium")):
                 if value is None:
                     continue
                 targets = [k for k in kinds if oname in chosen[k].option_names()]
-                if mode == "auto":
+                if mode == registry.AUTO:
                     # fit pipeline --models auto: the option goes to every candidate that
                     # declares it (veil.fitting.selection)
                     for kind, _, opt in declared[oname]:
@@ -350,17 +350,19 @@ def model_options(kinds=("brdf", "medium")):
 
 
 def _models_mode(spec, compare) -> tuple[str, dict]:
-    """("auto" | "paper" | "pinned", {kind: family}) of ``--models`` (``compare``: auto);
-    a UserError (exit 2) listing the registered families for an unknown one."""
+    """(AUTO | PAPER | "pinned", {kind: family}) of ``--models`` (``compare``: AUTO; None
+    without either); a UserError (exit 2) listing the registered families for an unknown
+    one."""
     if spec is None and not compare:
-        return "paper", {}
+        return None, {}
     from ..fitting.selection import parse_models
+    from ..models import AUTO
 
     try:
-        mode = parse_models(spec or "auto")
+        mode = parse_models(spec or AUTO)
     except InputError as exc:
         raise UserError(f"--models: {exc}") from None
-    if compare and mode != "auto":
+    if compare and mode != AUTO:
         raise UserError(f"--compare writes out the ranking of --models auto; leave --models "
                         f"{spec} out")
     if isinstance(mode, tuple):

@@ -320,7 +320,9 @@ def pipeline_command(ctx, reference_clear, reference_medium, target_medium, blac
     residuals) and report.md; --models auto lets the data choose the models."""
     from ..pipeline import run_pipeline
 
-    auto = models.mode == "auto"
+    from ..models import AUTO
+
+    auto = models.mode == AUTO
     if auto:
         fixed = _raw_step_fix(fix)
         freed = _step_entries(free, "--free")
@@ -331,7 +333,7 @@ def pipeline_command(ctx, reference_clear, reference_medium, target_medium, blac
         raise UserError(f"--outdir {outdir} exists and is not a directory")
     if not outdir.parent.exists() and not outdir.exists():
         raise UserError(f"cannot create {outdir}: directory {outdir.parent} does not exist")
-    chosen = ({"models": "auto"} if auto else
+    chosen = ({"models": AUTO} if auto else
               {"brdf_model": models.brdf.NAME, "medium_model": models.medium.NAME})
     from ..fitting.selection import NoCandidateError
 

@@ -41,7 +41,7 @@ from .result import FitResult
 #: "not worth more than a bare mention").
 CLOSE_DELTA_BIC = 2.0
 #: The values of ``--models`` besides FAMILY+MEDIUM.
-MODES = ("auto", "paper")
+MODES = registry.MODES
 
 
 class NoCandidateError(FitError):
@@ -99,7 +99,7 @@ def parse_models(text) -> str | tuple[str, str]:
     from ..errors import InputError
 
     if text is None:
-        return "paper"
+        return registry.PAPER
     if isinstance(text, tuple):
         text = "+".join(text)
     word = str(text).strip().lower()

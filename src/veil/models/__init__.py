@@ -5,8 +5,8 @@ per family."""
 from __future__ import annotations
 
 from .base import BRDF, BTDF, Medium, Model, Option, Param
-from .registry import (APPARATUS_OPTIONS, DEFAULTS, PRESETS, REGISTRY, candidates, default_class,
+from .registry import (APPARATUS_OPTIONS, AUTO, DEFAULTS, PAPER, PRESETS, REGISTRY, candidates, default_class,
                        model_class, names, preset, register)
 
 __all__ = ["BRDF", "BTDF", "Medium", "Model", "Option", "Param", "REGISTRY", "PRESETS",
-           "DEFAULTS", "APPARATUS_OPTIONS", "candidates", "model_class", "default_class", "names", "preset", "register"]
+           "DEFAULTS", "AUTO", "PAPER", "APPARATUS_OPTIONS", "candidates", "model_class", "default_class", "names", "preset", "register"]

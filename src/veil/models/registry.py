@@ -32,6 +32,10 @@ FAMILIES = (
 )
 #: The paper's models: the default family of each kind.
 DEFAULTS = {"brdf": TorranceSparrow.NAME, "medium": HenyeyGreenstein.NAME}
+#: The ways of choosing the models of an estimation (``veil fit pipeline --models``): the data
+#: choose among every candidate, or the paper's models; any other value names a pair.
+AUTO, PAPER = "auto", "paper"
+MODES = (AUTO, PAPER)
 #: Options that describe the apparatus, not the model's shape: given once by the user (the
 #: path length, the plate's width, the Fresnel variant of the window), they apply to every
 #: candidate that declares them and are never ranked (:func:`candidates`).
@@ -223,5 +227,5 @@ def preset(name: str, kind: str | None = None) -> Model:
     return model
 
 
-__all__ = ["REGISTRY", "FAMILIES", "DEFAULTS", "APPARATUS_OPTIONS", "PRESETS", "register",
+__all__ = ["REGISTRY", "FAMILIES", "DEFAULTS", "AUTO", "PAPER", "MODES", "APPARATUS_OPTIONS", "PRESETS", "register",
            "names", "model_class", "default_class", "ranked_options", "candidates", "preset"]
