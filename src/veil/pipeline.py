@@ -35,6 +35,7 @@ from .fitting import (FitResult, fit_direct, fit_medium, fit_reference, fit_targ
 from .fitting import selection
 from .models import AUTO, PAPER
 from .fitting.model_error import check_kind
+from .fitting.steps import warn_misfit
 from .fitting.propagation import check_method
 from .analysis.uncertainty import curve_stderr
 from .viz.fit_figures import fit_figure
@@ -290,7 +291,7 @@ def _fitted_curve(result: FitResult, data) -> np.ndarray:
     return data.y - (r * data.sigma if result.weighted and data.sigma is not None else r)
 
 
-def _rank_step(step, cands, data, fit_one, progress, curves):
+def _rank_step(step, cands, data, fit_one, progress, curves, what):
     """Fit and rank one step's candidates; (ranking, {label: result}); raises
     NoCandidateError when every candidate failed."""
     if progress is not None:
@@ -308,6 +309,7 @@ def _rank_step(step, cands, data, fit_one, progress, curves):
     results = {lab: res for lab, (res, _) in fitted.items() if isinstance(res, FitResult)}
     if ranking.chosen is None:
         raise selection.NoCandidateError(step, ranking)
+    warn_misfit(results[ranking.chosen].chi2_reduced, data, what)
     if ranking.close_call:
         ranking = ranking.with_spread(selection.curve_spread(
             ranking, {lab: curves(results[lab]) for lab in ranking.close}))
@@ -360,7 +362,7 @@ def _select(data, plan, *, accuracy, max_nfev, progress, model_error, propagatio
                              options=c.model_options(brdf_options), model_error=model_error)
 
     ranking, results = _rank_step("reference", plan["brdf"], data["reference_clear"], step0,
-                                  progress, fr_curve)
+                                  progress, fr_curve, "reference (clear medium)")
     rankings["reference"], kept["reference"] = ranking, results
     ref = _with_selection(results[ranking.chosen], ranking)
 
@@ -372,7 +374,7 @@ def _select(data, plan, *, accuracy, max_nfev, progress, model_error, propagatio
 
     ranking, results = _rank_step("medium", plan["medium"], data["reference_medium"], step1,
                                   progress,
-                                  lambda r: _fitted_curve(r, data["reference_medium"]))
+                                  lambda r: _fitted_curve(r, data["reference_medium"]), "medium")
     rankings["medium"], kept["medium"] = ranking, results
     med = _with_selection(results[ranking.chosen], ranking)
 
@@ -383,7 +385,7 @@ def _select(data, plan, *, accuracy, max_nfev, progress, model_error, propagatio
                           **chained)
 
     ranking, results = _rank_step("target", plan["brdf"], data["target_medium"], step2,
-                                  progress, fr_curve)
+                                  progress, fr_curve, "target")
     rankings["target"], kept["target"] = ranking, results
     tgt = _with_selection(results[ranking.chosen], ranking)
     chosen = ranking.row(ranking.chosen)

@@ -27,6 +27,7 @@ import math
 import os
 import threading
 import time
+import warnings
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
@@ -36,6 +37,7 @@ from ..errors import FitError
 from ..models import registry
 from .model_error import _nll_independent, _nll_spectrum, _spectrum, correlation, distances
 from .result import FitResult
+from .steps import MisfitWarning
 
 #: Candidates whose BIC is within this of the best are a close call (Kass and Raftery 1995:
 #: "not worth more than a bare mention").
@@ -86,11 +88,24 @@ def candidates(kind: str, given_options: dict | None = None,
     where a family declares them; ``families`` (names) restricts to those families."""
     pinned = {k: v for k, v in (given_options or {}).items()
               if k not in registry.APPARATUS_OPTIONS}
-    found = [Candidate(name, opts) for name, opts in registry.candidates(kind, pinned)]
+    found = [Candidate(name, opts) for name, opts in registry.candidates(kind, pinned)
+             if _constructible(name, opts)]
     if families is not None:
         wanted = [registry.model_class(f, kind).NAME for f in families]
         found = [c for c in found if c.family in wanted]
     return found
+
+
+def _constructible(name: str, options: dict) -> bool:
+    """Whether the family makes a model with these option values (a declared value the
+    model refuses, such as rough-plastic's nonlinear = True, is no candidate)."""
+    from ..errors import InputError
+
+    try:
+        registry.REGISTRY[name].template(**options)
+    except (InputError, ValueError):
+        return False
+    return True
 
 
 def parse_models(text) -> str | tuple[str, str]:
@@ -148,11 +163,15 @@ def fit_candidates(fit, cands, progress=None) -> dict:
         return c.label, result, seconds
 
     n = workers(len(cands))
-    if n == 1:
-        done = [one(c) for c in cands]
-    else:
-        with ThreadPoolExecutor(max_workers=n, thread_name_prefix="veil-candidate") as pool:
-            done = list(pool.map(one, cands))
+    with warnings.catch_warnings():
+        # a poor candidate misses the data by many sigma by design: the pipeline warns for
+        # the chosen one only (veil.fitting.steps.warn_misfit)
+        warnings.simplefilter("ignore", MisfitWarning)
+        if n == 1:
+            done = [one(c) for c in cands]
+        else:
+            with ThreadPoolExecutor(max_workers=n, thread_name_prefix="veil-candidate") as pool:
+                done = list(pool.map(one, cands))
     for label, result, seconds in done:
         out[label] = (result, seconds)
     return out
