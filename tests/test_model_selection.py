@@ -38,9 +38,10 @@ def test_candidates_come_from_the_declarations():
     assert brdfs[0] == "torrance-sparrow"
     for dist in ("beckmann", "ggx"):
         assert f"rough-conductor[distribution={dist}]" in brdfs
-        assert f"rough-plastic[distribution={dist},nonlinear=False]" in brdfs
-        # a declared value the model refuses to make is no candidate
-        assert f"rough-plastic[distribution={dist},nonlinear=True]" not in brdfs
+        # nonlinear = True is declared but the model refuses it: no candidate, and the one
+        # value left does not tell candidates apart (not in the label)
+        assert f"rough-plastic[distribution={dist}]" in brdfs
+    assert not any("nonlinear" in label for label in brdfs)
     media = selection.candidates("medium")
     assert media[0].label == "henyey-greenstein"
     # apparatus options are never ranked: the Fresnel variant, path length, plate width
@@ -50,7 +51,10 @@ def test_candidates_come_from_the_declarations():
     assert orders == set(registry.REGISTRY["forward-series"].OPTIONS[3].choices)
     # an option given pins its value; apparatus ones go to every candidate declaring them
     ggx = selection.candidates("brdf", {"distribution": "ggx"})
-    assert {c.options.get("distribution", "ggx") for c in ggx} == {"ggx"}
+    assert [c.label for c in ggx if not c.family.endswith("-test")] == \
+        ["torrance-sparrow", "rough-conductor", "rough-plastic"]  # (a test plugin aside)
+    assert {c.model_options({"distribution": "ggx"}).get("distribution", "ggx")
+            for c in ggx} == {"ggx"}
     fs = next(c for c in media if c.family == "forward-series")
     given = {"path_length": 15.0, "variant": "exit", "distribution": "ggx"}
     assert fs.model_options(given) == {"path_length": 15.0, "variant": "exit",
@@ -255,7 +259,7 @@ def test_auto_picks_the_papers_models_on_the_papers_data(sessions, tmp_path):
     out_dir = tmp_path / "auto"
     # the discrete options pinned to one value each: every family, fewer engine programs
     pins = ["--distribution", "beckmann", "--orders", "poisson"]
-    run = _subprocess(_args(sessions, out_dir) + ["--compare"] + pins)
+    run = _subprocess(_args(sessions, out_dir) + ["--compare", "--max-nfev", "40"] + pins)
     assert run.returncode in (0, 1), run.stderr[-3000:]
     ranking = json.loads((out_dir / "ranking.json").read_text())
     assert ranking["reference"]["chosen"] == "torrance-sparrow"
@@ -280,3 +284,28 @@ def test_auto_picks_the_papers_models_on_the_papers_data(sessions, tmp_path):
         assert model.NAME == json.loads(path.read_text())["model"]
         if model.KIND == "brdf":  # (a medium's evaluation compiles a program per family)
             assert np.all(np.isfinite(veil.reflectance(model, [20.0, 40.0], [20.0, 40.0])))
+
+
+def test_a_close_call_widens_the_estimates_curve_uncertainty():
+    """veil.pipeline.compare: the spread of a close call at step 2 (stats.selection.spread,
+    one value per protocol configuration) is added to the estimate's curve uncertainty."""
+    import dataclasses
+
+    from veil.data.protocol import protocol
+    from veil.pipeline import compare
+
+    params = dict(zip(("Pd", "Ps", "n", "eta"), veil.BRDF1.to_vector()))
+    se = {k: 1e-3 * abs(v) for k, v in params.items()}
+    direct = FitResult(model="torrance-sparrow", params=params, stderr=se, correlation={},
+                       residuals=(0.0,) * 10, chi2_reduced=1.0, rms_relative=0.0,
+                       n_points=10, converged=True, message="")
+    shifted = dataclasses.replace(direct, params=dict(params, Pd=1.05 * params["Pd"]))
+    n = len(protocol())
+    plain = compare(shifted, direct)
+    spread = {"spread": [0.5 * params["Pd"]] * n, "rms_relative": 0.2, "max_relative": 0.3}
+    wide = compare(dataclasses.replace(shifted, stats={"selection": {"spread": spread}}),
+                   direct)
+    assert plain["model_spread_rms_relative"] is None
+    assert wide["model_spread_rms_relative"] == 0.2
+    assert wide["fr_max_z"] < plain["fr_max_z"]
+    assert wide["rms_fr_relative"] == plain["rms_fr_relative"]

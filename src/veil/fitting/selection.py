@@ -90,10 +90,24 @@ def candidates(kind: str, given_options: dict | None = None,
               if k not in registry.APPARATUS_OPTIONS}
     found = [Candidate(name, opts) for name, opts in registry.candidates(kind, pinned)
              if _constructible(name, opts)]
+    # an option left with one value in a family (pinned, or the only one the model makes)
+    # does not tell its candidates apart: out of their labels (model_options still sets it)
+    out = []
+    for c in found:
+        same = [c2 for c2 in found if c2.family == c.family]
+        keep = {k: v for k, v in c.options.items()
+                if any(c2.options.get(k) != v for c2 in same)        # tells them apart
+                or (v != _default(c.family, k) and k not in pinned)}  # nothing else sets it
+        out.append(Candidate(c.family, keep))
+    found = out
     if families is not None:
         wanted = [registry.model_class(f, kind).NAME for f in families]
         found = [c for c in found if c.family in wanted]
     return found
+
+
+def _default(name: str, option: str):
+    return next(o.default for o in registry.REGISTRY[name].OPTIONS if o.name == option)
 
 
 def _constructible(name: str, options: dict) -> bool:
