@@ -45,8 +45,9 @@ from .viz.reports import pipeline_report, ranking_section
 FILES = {"reference": "reference.json", "medium": "medium.json", "target": "target.json",
          "direct": "target_direct.json", "report": "report.md",
          "reference_fig": "reference.png", "medium_fig": "medium.png",
-         "target_fig": "target.png", "direct_fig": "target_direct.png",
-         "ranking": "ranking.json"}
+         "target_fig": "target.png", "direct_fig": "target_direct.png"}
+#: With ``models="auto"``: the rankings of the three steps.
+RANKING_FILE = "ranking.json"
 #: With ``keep_candidates``, every candidate's result under this folder, by step.
 CANDIDATES_DIR = "candidates"
 STEP_KEYS = ("reference", "medium", "target")
@@ -210,7 +211,7 @@ def run_pipeline(reference_clear, reference_medium, target_medium, black=None, t
         comparison = compare(tgt, direct)
 
     names = {}
-    owned = list(FILES.values()) + [CANDIDATES_DIR]
+    owned = list(FILES.values()) + [RANKING_FILE, CANDIDATES_DIR]
     with output_folder(outdir, owned=owned) as folder:
         for key, result in (("reference", ref), ("medium", med), ("target", tgt),
                             ("direct", direct)):
@@ -218,9 +219,9 @@ def run_pipeline(reference_clear, reference_medium, target_medium, black=None, t
                 result.to_json(folder / FILES[key])
                 names[key] = FILES[key]
         if rankings:
-            write_text_atomic(folder / FILES["ranking"], json.dumps(
+            write_text_atomic(folder / RANKING_FILE, json.dumps(
                 {step: r.to_dict() for step, r in rankings.items()}, indent=1) + "\n")
-            names["ranking"] = FILES["ranking"]
+            names["ranking"] = RANKING_FILE
         for step, results in kept.items():
             (folder / CANDIDATES_DIR / step).mkdir(parents=True, exist_ok=True)
             for label, result in results.items():
@@ -469,4 +470,5 @@ def _for_family(cls, per_step: dict, step: str, what: str, used: set) -> dict | 
     return kept
 
 
-__all__ = ["run_pipeline", "PipelineResult", "compare", "fit_figure", "FILES", "CANDIDATES_DIR"]
+__all__ = ["run_pipeline", "PipelineResult", "compare", "fit_figure", "FILES", "RANKING_FILE",
+           "CANDIDATES_DIR"]
