@@ -279,7 +279,9 @@ def rank(step: str, fitted: dict, data, cands=None) -> Ranking:
                        aic=dev + 2 * k, bic=dev + k * math.log(max(n, 1)),
                        converged=bool(result.converged))
             if not result.converged:
-                row["error"] = f"did not converge: {result.message}"
+                said = result.message or ""
+                row["error"] = said if said.startswith("did not converge") else \
+                    f"did not converge: {said}"
             elif not math.isfinite(dev):
                 row["error"] = "the likelihood is not finite"
         rows.append(row)
