@@ -49,7 +49,7 @@ MODES = registry.MODES
 class NoCandidateError(FitError):
     """Every candidate of a step failed or did not converge; ``ranking`` lists them."""
 
-    def __init__(self, step: str, ranking: "Ranking"):
+    def __init__(self, step: str, ranking: Ranking):
         self.step, self.ranking = step, ranking
         super().__init__(f"{step}: every candidate failed or did not converge ("
                          f"{len(ranking.rows)} tried)")
@@ -251,7 +251,7 @@ class Ranking:
                 "candidates": [{k: clean(v) for k, v in r.items()} for r in self.rows],
                 "spread": self.spread}
 
-    def with_spread(self, spread: dict | None) -> "Ranking":
+    def with_spread(self, spread: dict | None) -> Ranking:
         return Ranking(self.step, self.rows, self.chosen, self.close, spread)
 
 
