@@ -78,8 +78,9 @@ def test_compare_on_path_traced_data_prefers_the_physical_models(tmp_path):
     """m01 (optical depth 0.1 per pass): the rough plastic fits the path-traced plate in
     clear water to < 0.5 % RMS (issue 12's target) where Torrance-Sparrow misfits it by
     > 3 %; the physical estimate is within 2 % of the direct fit and covered by its
-    uncertainty; every number in comparison.md comes from the fits written beside it."""
+    uncertainty."""
     out_dir = tmp_path / "cmp"
+    out_dir.mkdir()
     texts = {}
     for name, pair in (("paper", "paper"), ("physical", "rough-plastic+forward-series")):
         options = ["--path-length", "15", "--plate-width", "5"] if name == "physical" else []
