@@ -14,6 +14,7 @@ inflates least.
     .venv/bin/python benchmarks/bench_compile.py --pairs rough-plastic:forward-series
     .venv/bin/python benchmarks/bench_compile.py --doc docs/performance-compile.md   # the page's tables
     .venv/bin/python benchmarks/bench_compile.py --src /old/checkout/src   # another veil's code
+    .venv/bin/python benchmarks/bench_compile.py --explore   # and the explorer's first page
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ from __future__ import annotations
 import argparse
 import datetime
 import json
+import math
 import os
 import platform
 import resource
@@ -85,13 +87,38 @@ def run_pipeline(pair, inputs, cache: str, out: str, log: str, src=None) -> dict
             "programs": len(compiled) or stored, "stderr": done.stderr}
 
 
-def measure(pair, folder: str, src=None) -> dict:
+def run_explore(result: str, cache: str, out: str, src=None, timeout=600.0) -> dict:
+    """``veil explore RESULT --static`` as a fresh process with the program store ``cache``:
+    the explorer's first page (its precomputations compiled unless the store has them)."""
+    env = {**os.environ, "VEIL_CACHE_DIR": cache}
+    if src:
+        env["PYTHONPATH"] = os.path.abspath(src)
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    t0 = time.perf_counter()
+    try:
+        done = subprocess.run([VEIL, "explore", result, "--static", "-o", out],
+                              capture_output=True, text=True, env=env, timeout=timeout)
+        status = done.returncode
+    except subprocess.TimeoutExpired:
+        status = "timeout"
+    wall = time.perf_counter() - t0
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+    return {"wall": wall, "cpu": cpu, "status": status}
+
+
+def measure(pair, folder: str, src=None, explore: bool = False) -> dict:
     inputs = sessions(folder)
     cache = os.path.join(folder, "cache")
     log = os.path.join(folder, "compile.log")
     cold = run_pipeline(pair, inputs, cache, os.path.join(folder, "cold"), log, src)
     warm = run_pipeline(pair, inputs, cache, os.path.join(folder, "warm"), log, src)
-    return {"pair": pair, "cold": cold, "warm": warm}
+    out = {"pair": pair, "cold": cold, "warm": warm}
+    if explore:  # the first page on the cold pipeline's result, with an empty store
+        out["explore"] = run_explore(os.path.join(folder, "cold", "target.json"),
+                                     os.path.join(folder, "explore-cache"),
+                                     os.path.join(folder, "page.html"), src)
+    return out
 
 
 def _load() -> str:
@@ -105,6 +132,10 @@ def tables(results: list[dict]) -> tuple[str, str]:
             "warm wall s | warm CPU s | exit |", "|---|---:|---:|---:|---:|---:|---:|---:|---|"]
     programs = ["| pair | program | StableHLO lines | estimate s | compile s |",
                 "|---|---|---:|---:|---:|"]
+    explore = any("explore" in r for r in results)
+    if explore:
+        rows[0] += " explorer's first page, cold: wall s | CPU s | exit |"
+        rows[1] += "---:|---:|---|"
     for r in results:
         cold, warm = r["cold"], r["warm"]
         secs = [c["seconds"] for c in cold["compiled"]]
@@ -112,6 +143,9 @@ def tables(results: list[dict]) -> tuple[str, str]:
         rows.append(f"| {name} | {cold['wall']:.1f} | {cold['cpu']:.1f} | {cold['programs']} | "
                     f"{sum(secs):.1f} | {max(secs, default=0):.1f} | {warm['wall']:.1f} | "
                     f"{warm['cpu']:.1f} | {cold['status']}/{warm['status']} |")
+        if explore:
+            e = r.get("explore", {"wall": math.nan, "cpu": math.nan, "status": "-"})
+            rows[-1] += f" {e['wall']:.1f} | {e['cpu']:.1f} | {e['status']} |"
         for c in sorted(cold["compiled"], key=lambda c: -c["seconds"]):
             label = c["label"].split(": ", 1)[-1]
             programs.append(f"| {name} | {label} | {c['lines']} | {c['estimate']:.1f} | "
@@ -125,6 +159,9 @@ def main(argv=None) -> int:
     ap.add_argument("--pairs", default="all",
                     help="comma-separated BRDF:MEDIUM pairs (default: every registered pair)")
     ap.add_argument("--markdown", default=None, help="also write the tables to this file")
+    ap.add_argument("--explore", action="store_true",
+                    help="also time `veil explore TARGET.json --static` on each cold result "
+                         "with an empty program store (the explorer's first page)")
     ap.add_argument("--doc", default=None, metavar="PAGE",
                     help="write the tables into PAGE between its markers compile-pipelines "
                          "and compile-programs (benchmarks/doc_tables.py), with the command, "
@@ -135,7 +172,7 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     pairs = registered_pairs() if a.pairs == "all" else \
         [tuple(p.split(":", 1)) for p in a.pairs.split(",")]
-    started = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+    started = datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d %H:%M UTC")
     header = (f"`{' '.join(['benchmarks/bench_compile.py'] + (argv or sys.argv[1:]))}`, "
               f"{started}, {platform.machine()} with {os.cpu_count()} cores, {_load()} at the "
               f"start")
@@ -143,7 +180,7 @@ def main(argv=None) -> int:
     results = []
     for pair in pairs:
         with tempfile.TemporaryDirectory(prefix="veil-bench-compile-") as folder:
-            r = measure(pair, folder, a.src)
+            r = measure(pair, folder, a.src, a.explore)
         results.append(r)
         cold = r["cold"]
         print(f"{' x '.join(pair)}: cold {cold['wall']:.1f} s ({cold['programs']} "

@@ -27,8 +27,9 @@ import tempfile
 import threading
 import time
 
-import veil  # noqa: F401  (sets up JAX)
+import veil
 from veil.viz import explore as ex
+from veil.viz import explore_fits as fits
 from veil.viz.explore_page import ExplorePage
 
 from doc_tables import add_options, printed_tables  # noqa: E402  (benchmarks/)
@@ -90,7 +91,7 @@ def _fit_view():
     small = dict(psi=(30, 60, 90), fine_step=2, coarse_step=10, glow=0.0, accuracy="fast")
     table = veil.simulate(veil.BRDF1, veil.BTDF2, noise=0.01, seed=31, **small)
     result = fit_target(table, veil.BTDF2, accuracy="fast")
-    return ex.FitView(result, table, source="simulated target fit")
+    return fits.FitView(result, table, source="simulated target fit")
 
 
 def browser(repeats: int = 3):

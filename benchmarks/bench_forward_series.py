@@ -41,8 +41,8 @@ from veil.engine.quadrature import RULES
 from veil.models import PRESETS, REGISTRY
 
 sys.path.insert(0, os.path.dirname(__file__))
-from bench_apparent import configurations  # noqa: E402
-from doc_tables import add_options, printed_tables  # noqa: E402
+from bench_apparent import configurations
+from doc_tables import add_options, printed_tables
 
 BRDFS = {
     "TS": PRESETS["BRDF2"],

@@ -74,7 +74,7 @@ ROOT = os.path.dirname(HERE)
 sys.path.insert(0, os.path.join(ROOT, "validation"))
 sys.path.insert(0, HERE)
 
-import bench_validity as bv  # noqa: E402  (load_truth, table, sessions_of, _against_truth)
+import bench_validity as bv
 
 LLVM_PATH = "/usr/lib/x86_64-linux-gnu/libLLVM.so.19.1"
 MISSING_MITSUBA = ("bench_inverse_rendering: Mitsuba 3 is not installed in this environment "
@@ -178,7 +178,7 @@ def start_mitsuba(variant: str) -> None:
         raise SystemExit(2)
     try:
         _mi.set_variant(variant)
-    except Exception as e:  # noqa: BLE001  (Dr.Jit raises ImportError without its LLVM)
+    except Exception as e:
         if "llvm" in str(e).lower() or variant.startswith("llvm"):
             print(MISSING_LLVM.format(variant=variant, err=e, path=LLVM_PATH), file=sys.stderr)
             raise SystemExit(2)

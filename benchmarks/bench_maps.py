@@ -27,14 +27,14 @@ through BTDF2 at the 111 configurations, index fixed, tables at --near-accuracy 
 error of the near-field columns against exact per-pixel tables at a few pixels, and the
 solve's pixels/s with and without (synthetic pixels from each set of tables, 1 % noise).
 --step-fraction F sets the field grid's step (a fraction of the apparent lobe; default
-veil.fitting.maps_near.STEP_FRACTION).
+veil.maps.near.STEP_FRACTION).
 """
 
 from __future__ import annotations
 
 import argparse
-import math
 import hashlib
+import math
 import os
 import pickle
 import platform
@@ -66,7 +66,8 @@ def angles_of(configs):
 def synthetic(tables, n, seed=0):
     """Pixels from the tables' own spline at random nonlinear values and scales, 1 % noise."""
     import jax.numpy as jnp
-    from veil.fitting.maps import _interp
+
+    from veil.maps.grid import interp as _interp
 
     rng = np.random.default_rng(seed)
     d = len(tables.axes)
@@ -87,7 +88,8 @@ def bench_solve(family, fixed, n_pixels, configs, repeat=1, cache=None):
     synthetic pixels, ``repeat`` times: (tables, table seconds, [(wall, cpu) per run],
     fits of the last run)."""
     import veil
-    from veil.fitting.maps import build_tables, solve_pixels
+    from veil.maps.solve import solve_pixels
+    from veil.maps.tables import build_tables
     from veil.models import model_class
 
     cls = model_class(family, "brdf")
@@ -122,11 +124,14 @@ def bench_near(distance, pitch, size, n_pixels, configs, accuracy="fast", fracti
     """Distant against near-field tables and solve (see the module's docstring)."""
     import jax
     import jax.numpy as jnp
+
     import veil
     from veil.data.ingest import ROI
-    from veil.fitting import maps_near
-    from veil.fitting.maps import _interp_near, build_tables, solve_pixels
-    from veil.fitting.maps_near import NearGeometry
+    from veil.maps import near as maps_near
+    from veil.maps.grid import interp_near as _interp_near
+    from veil.maps.near import NearGeometry
+    from veil.maps.solve import solve_pixels
+    from veil.maps.tables import build_tables
 
     if fraction is not None:
         maps_near.STEP_FRACTION = fraction
@@ -191,7 +196,8 @@ def synthetic_at(tables, xs, ys, n, seed=0):
     """Pixels (at xs, ys for near-field tables) from the tables' own spline at random
     nonlinear values and scales, 1 % noise."""
     import jax.numpy as jnp
-    from veil.fitting.maps import _interp_near
+
+    from veil.maps.grid import interp_near as _interp_near
 
     if tables.near is None:
         return synthetic(tables, n, seed)
@@ -212,8 +218,9 @@ def synthetic_at(tables, xs, ys, n, seed=0):
 
 def bench_full(configs, n=2):
     import veil
-    from maps_helpers import render
-    from veil.fitting.maps import build_tables, solve_pixels
+    from support.maps import render
+    from veil.maps.solve import solve_pixels
+    from veil.maps.tables import build_tables
 
     brdf, medium = veil.BRDF1, veil.BTDF2
     names = type(brdf).param_names()
@@ -242,10 +249,11 @@ def bench_full(configs, n=2):
 
 
 def bench_map(size, configs, root):
-    import veil
     from distributed import LocalCluster
-    from maps_helpers import write_stack
-    from veil.fitting.maps_run import fit_maps, open_maps
+
+    import veil
+    from support.maps import write_stack
+    from veil.maps.run import fit_maps, open_maps
 
     brdf, medium = veil.BRDF1, veil.BTDF2
     names = type(brdf).param_names()
@@ -275,7 +283,7 @@ RSS_CHILD = r"""
 import resource, sys, time
 sys.path.insert(0, sys.argv[1])
 import numpy as np, tifffile, veil
-from veil.fitting.maps_run import fit_maps
+from veil.maps.run import fit_maps
 root, photos, roi = sys.argv[2], int(sys.argv[3]), (sys.argv[4] or None)
 import pathlib, pandas as pd
 root = pathlib.Path(root)
@@ -293,8 +301,9 @@ def bench_rss(shape, photos, configs, root, roi=None):
     columns), all of it or its ``roi`` ("X,Y,W,H"): the same image (a plate of BRDF1
     values, noise) at ``photos`` configurations."""
     import tifffile
-    from maps_helpers import render
+
     import veil
+    from support.maps import render
 
     folder = root / f"rss{photos}"
     (folder / "photos").mkdir(parents=True)

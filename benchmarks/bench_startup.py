@@ -14,6 +14,18 @@ seconds: the machine is shared, and CPU time is the figure that load does not in
 
     .venv/bin/python benchmarks/bench_startup.py                 # this checkout's veil
     .venv/bin/python benchmarks/bench_startup.py --veil /other/.venv/bin/veil   # compare
+    .venv/bin/python benchmarks/bench_startup.py --jacobians    # one chunk's programs
+
+--jacobians profiles the engine programs of one chunk instead (docs/performance-startup.md
+"The pipeline's own work, less of it"): the apparent reflectance of the paper's models (BRDF1
+through BTDF1) at the first CHUNK (64) configurations of the paper's protocol, "fast" rule,
+with the Jacobian in both models' parameters (joint fits), in the medium's (step 1), in the
+object's (step 2), and values only. Each program is compiled into a new empty store by one
+process; then ``--runs`` fresh processes load it from the store (the seconds of
+veil.engine.programs.read: deserializing the executable) and run it warm ``--calls`` times.
+Printed: the median warm call (min-max over all calls) and its CPU seconds (both cores'
+threads: what load does not inflate), the stored executable's size and the load time
+(median over the fresh processes, min-max).
 """
 
 from __future__ import annotations
@@ -74,6 +86,94 @@ def timed(veil: str, args: list, env: dict) -> tuple[float, float, int]:
     return wall, cpu, proc.returncode
 
 
+#: The programs --jacobians profiles: (label, ``wrt`` of ApparentModel.value_and_jacobian,
+#: "values" for values alone).
+JACOBIANS = [("both models (joint fits)", "brdf+medium"),
+             ("the medium's parameters (step 1)", "medium"),
+             ("the object's parameters (step 2)", "brdf"),
+             ("values only, for comparison", "values")]
+
+#: One process of --jacobians: build (or load) one chunk's program, time its calls; prints
+#: one JSON line.
+CHUNK_PROFILE = r"""
+import json, statistics, sys, time
+mode, calls = sys.argv[1], int(sys.argv[2])
+import veil
+from veil.engine import programs
+loading = []
+_read = programs.read
+def read(*args, **kwargs):
+    t0 = time.perf_counter()
+    out = _read(*args, **kwargs)
+    loading.append((time.perf_counter() - t0, out is not None))
+    return out
+programs.read = read
+from veil.data.protocol import protocol
+from veil.engine.evaluator import CHUNK, ApparentModel
+from veil.engine.quadrature import RULES
+configs = protocol().iloc[:CHUNK]
+angles = tuple(configs[c].to_numpy(dtype=float) for c in ("theta_i", "phi_i", "theta_r", "phi_r"))
+brdf, medium = veil.BRDF1, veil.BTDF1
+model = ApparentModel(brdf, medium, angles, RULES["fast"])
+vb, vm = brdf.to_vector(), medium.to_vector()
+if mode == "values":
+    call = lambda: model.values(vb, vm)
+else:
+    call = lambda: model.value_and_jacobian(vb, vm, tuple(mode.split("+")))
+t0 = time.perf_counter()
+call()
+first = time.perf_counter() - t0
+times, cpu = [], []
+for _ in range(calls):
+    t0, c0 = time.perf_counter(), time.process_time()
+    call()
+    times.append(time.perf_counter() - t0)
+    cpu.append(time.process_time() - c0)
+print(json.dumps({"first": first, "load": sum(t for t, hit in loading if hit),
+                  "loaded": sum(hit for _, hit in loading), "times": times, "cpu": cpu}))
+"""
+
+
+def profile_jacobians(runs: int, calls: int, base_env: dict, work: str) -> None:
+    """--jacobians (module docstring): the table of one chunk's programs."""
+    import json
+
+    def child(mode, store):
+        proc = subprocess.run([sys.executable, "-c", CHUNK_PROFILE, mode, str(calls)],
+                              env={**base_env, "VEIL_CACHE_DIR": store}, capture_output=True,
+                              text=True)
+        if proc.returncode:
+            raise SystemExit(f"the chunk profile ({mode}) failed:\n{proc.stderr[-3000:]}")
+        return json.loads(proc.stdout.strip().splitlines()[-1])
+
+    print(f"one chunk's engine programs: {sys.executable}; {os.cpu_count()} cores, load "
+          f"average {os.getloadavg()[0]:.1f} at the start")
+    rows = []
+    for label, mode in JACOBIANS:
+        store = os.path.join(work, f"store-{mode}")
+        built = child(mode, store)  # compiles and stores the program
+        folder = os.path.join(store, "programs")
+        size = sum(os.path.getsize(os.path.join(folder, f)) for f in os.listdir(folder)
+                   if f.endswith(".program"))
+        fresh = [child(mode, store) for _ in range(runs)]
+        if not all(r["loaded"] for r in fresh):
+            raise SystemExit(f"the chunk profile ({mode}): a fresh process found no program")
+        times = [t for r in fresh for t in r["times"]]
+        cpu = [t for r in fresh for t in r["cpu"]]
+        loads = [r["load"] for r in fresh]
+        rows.append((label, times, cpu, size, loads))
+        print(f"  measured {label} (compiled and ran in {built['first']:.1f} s)",
+              file=sys.stderr, flush=True)
+    print(f"load average at the end {os.getloadavg()[0]:.1f}\n")
+    print(f"| Jacobian in | seconds, median of {runs} x {calls} (min-max) | CPU seconds "
+          f"(median) | executable | load in a fresh process, median of {runs} (min-max) |")
+    print("|---|---:|---:|---:|---:|")
+    for label, times, cpu, size, loads in rows:
+        print(f"| {label} | {statistics.median(times):.3f} ({min(times):.3f}-{max(times):.3f})"
+              f" | {statistics.median(cpu):.3f} | {size / 1e6:.2f} MB | "
+              f"{statistics.median(loads):.2f} s ({min(loads):.2f}-{max(loads):.2f}) |")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--veil", default=DEFAULT_VEIL, help="the veil program to measure")
@@ -83,15 +183,26 @@ def main() -> None:
     parser.add_argument("--warmup", action="store_true",
                         help="run 'veil warmup' on the filled cache before measuring it")
     parser.add_argument("--only", default=None, help="measure commands whose label has this")
+    parser.add_argument("--jacobians", action="store_true",
+                        help="profile one chunk's engine programs instead (values, Jacobians; "
+                             "table startup-jacobian); --runs fresh processes")
+    parser.add_argument("--calls", type=int, default=7,
+                        help="--jacobians: warm calls in each fresh process")
     from doc_tables import add_options, printed_tables
     add_options(parser, "startup")
     opts = parser.parse_args()
+    if opts.jacobians and opts.doc_table == "startup":
+        opts.doc_table = "startup-jacobian"
     doc = printed_tables(opts).start()
 
     work = tempfile.mkdtemp(prefix="bench-startup-")
     base_env = {k: v for k, v in os.environ.items()
                 if k not in ("VEIL_CACHE_DIR", "JAX_COMPILATION_CACHE_DIR")}
     try:
+        if opts.jacobians:
+            profile_jacobians(opts.runs, opts.calls, base_env, work)
+            doc.finish()
+            return
         data = os.path.join(work, "data")
         os.makedirs(data)
         simulate_sessions(data, opts.veil, {**base_env,

@@ -409,8 +409,9 @@ def figure(rows: list[dict], path: str) -> None:
         ax.legend(fontsize=6)
     axes[0][0].set_ylabel("value (1/sr)")
     fig.tight_layout()
-    from veil.io import write_bytes_atomic
     import io
+
+    from veil.io import write_bytes_atomic
 
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=110)

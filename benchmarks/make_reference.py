@@ -26,7 +26,7 @@ from pathlib import Path
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent / "tests"))
 
-import reference  # noqa: E402  (tests/reference.py)
+import reference
 
 COLUMNS = ["brdf", "medium", "theta_i", "phi_i", "theta_r", "phi_r", "reference", "stderr"]
 FAR = {0.0: 30.0, 30.0: 60.0, 45.0: 10.0, 60.0: 25.0, 75.0: 40.0}

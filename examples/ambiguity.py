@@ -28,13 +28,12 @@ import time
 import numpy as np
 
 import veil
-from veil.analysis.diagnostics import diagnose
-from veil.fitting import fit_medium, fit_reference, fit_target
-from veil.fitting import Session, fit_joint
-from veil.data.measurements import subtract_black
-from veil.io import write_text_atomic
 from veil import HenyeyGreenstein, TorranceSparrow
+from veil.analysis.diagnostics import diagnose
 from veil.analysis.uncertainty import budget_table, propagate
+from veil.data.black_cloth import subtract_black
+from veil.fitting import Session, fit_joint, fit_medium, fit_reference, fit_target
+from veil.io import write_text_atomic
 
 TARGET = TorranceSparrow(Pd=4.57e2, Ps=1.58e6, n=0.8, eta=1.5)     # smooth PVC-like plate
 REFERENCE = TorranceSparrow(Pd=2.91e3, Ps=1.34e6, n=0.8, eta=1.5)  # white acrylic

@@ -68,8 +68,8 @@ def main():
     import tifffile
 
     import veil
-    from maps_helpers import render
-    from veil.fitting.maps import CONVERGED
+    from support.maps import render
+    from veil.maps.solve import CONVERGED
 
     out = Path(args.outdir)
     (out / "photos").mkdir(parents=True, exist_ok=True)

@@ -29,8 +29,8 @@ import pandas as pd
 import tifffile
 
 import veil
+from veil.data.black_cloth import subtract_black
 from veil.data.ingest import ingest
-from veil.data.measurements import subtract_black
 
 GAIN = 2000.0      # camera code values per unit of apparent reflectance
 OFFSET = 400.0     # camera black level (code values), removed by the dark frame

@@ -167,7 +167,7 @@ def reference_btdf(medium, theta_i, phi_i, theta_t, phi_t, variant="paper"):
 # Deterministic low-dimensional pieces
 # ----------------------------------------------------------------------------------------
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _gl01(n):
     x, w = np.polynomial.legendre.leggauss(n)
     return 0.5 * (x + 1.0), 0.5 * w

@@ -94,13 +94,13 @@ MITSUBA_TABLE_RES = 64  # Mitsuba 3: MI_ROUGH_TRANSMITTANCE_RES
 # Small helpers
 # ----------------------------------------------------------------------------------------
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _gl01(n):
     x, w = np.polynomial.legendre.leggauss(n)
     return 0.5 * (x + 1.0), 0.5 * w
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _ss01(n):
     """GL nodes on [0, 1] through s = 3t^2 - 2t^3 (tames sqrt-type end behaviour)."""
     t, w = _gl01(n)

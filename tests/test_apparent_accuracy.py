@@ -14,9 +14,8 @@ import numpy as np
 import pytest
 from scipy import integrate
 
-import veil
-
 import reference as ref
+import veil
 
 TOL = 1e-3
 M_LOG2, N_REP = 15, 8  # reference: 2^15 Sobol points x 3 strategies x 8 scrambles
@@ -37,7 +36,7 @@ CONFIGS = {
 }
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _veil(brdf, medium, return_error=False):
     """veil.engine.apparent at every CONFIG for one preset pair, one vectorized call."""
     ti, pi_, tr, pr = (np.array(c) for c in zip(*CONFIGS.values()))
@@ -47,7 +46,7 @@ def _veil(brdf, medium, return_error=False):
     return dict(zip(CONFIGS, np.asarray(out)))
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _ref(brdf, medium, config):
     return ref.reference_apparent(brdf, medium, *CONFIGS[config], m=M_LOG2, n_rep=N_REP)
 
@@ -123,7 +122,7 @@ def _veil_at(brdf, medium, configs, accuracy="default"):
     return np.asarray(veil.apparent(brdf, medium, ti, tr, pi_, pr, accuracy=accuracy))
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _double_integral_fr(brdf):
     """Int Int f_r dI dR = 2 pi^2 P_d + J_s (J_s independently by two integrand forms)."""
     js_i = ref._spec_total(brdf, "I")

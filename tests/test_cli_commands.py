@@ -15,12 +15,11 @@ from pathlib import Path
 import click
 import numpy as np
 import pytest
-from click.testing import CliRunner
 
 import veil
+from support.cli import run
+from support.maps import configurations, write_stack
 from veil.cli import COMMANDS, main
-
-from maps_helpers import configurations, write_stack
 
 COARSE = ["--fine-step", "5", "--coarse-step", "15", "--accuracy", "fast"]
 
@@ -41,10 +40,6 @@ def leaf_commands() -> set:
     for name in COMMANDS:
         walk(main.get_command(ctx, name.split()[0]), [name.split()[0]])
     return out
-
-
-def run(*args):
-    return CliRunner().invoke(main, [str(a) for a in args])
 
 
 @pytest.fixture(scope="module")
@@ -161,7 +156,7 @@ def test_every_command_has_a_case(tmp_path):
 def _spy_on_locks(monkeypatch) -> list:
     """The folders committed under veil.io's commit lock and the maps stores written under
     their store lock, as they happen."""
-    import veil.fitting.maps_run as maps_run
+    import veil.maps.run as maps_run
     from veil import io as vio
 
     locked = []

@@ -17,10 +17,9 @@ import sys
 
 import numpy as np
 import pytest
-from click.testing import CliRunner
 
 import veil
-from veil.cli import main
+from support.cli import run_checked
 from veil.cli.eval_cmd import eval_command
 
 VEIL = shutil.which("veil", path=os.path.dirname(sys.executable)) or "veil"
@@ -38,12 +37,7 @@ CSV_ANGLES = {  # the CSV's columns in the order apparent() takes them
 }
 
 
-def run(args):
-    result = CliRunner().invoke(main, args)
-    assert "Traceback" not in result.output
-    if result.exception is not None and not isinstance(result.exception, SystemExit):
-        raise result.exception
-    return result
+run = run_checked
 
 
 def run_json(args):

@@ -132,9 +132,9 @@ def test_every_command_of_the_table_loads():
 
 def test_ingest_imports_no_jax(tmp_path):
     """veil ingest does no numerics of the engine: photographs in, a table out, no JAX."""
-    from test_ingest import ROI_TEXT, write_manifest, write_png
-
     import numpy as np
+
+    from test_ingest import ROI_TEXT, write_manifest, write_png
 
     photos = tmp_path / "photos"
     photos.mkdir()

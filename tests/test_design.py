@@ -9,9 +9,17 @@ import pytest
 from click.testing import CliRunner
 
 import veil
+from veil.analysis.design import (
+    PLAN_COLUMNS,
+    Information,
+    candidates,
+    conditions,
+    design,
+    greedy,
+    rank,
+    simulate_plan,
+)
 from veil.cli import main
-from veil.analysis.design import (PLAN_COLUMNS, Information, candidates, conditions, design, greedy,
-                         rank, simulate_plan)
 from veil.data.measurements import validate
 
 COARSE = dict(fine_step=2.0, coarse_step=10.0)

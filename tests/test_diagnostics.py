@@ -10,8 +10,8 @@ import pytest
 from click.testing import CliRunner
 
 import veil
-from veil.cli import main
 from veil.analysis.diagnostics import diagnose, relative_error
+from veil.cli import main
 from veil.fitting import FitError, fit_medium, fit_reference, fit_target
 
 SMALL = dict(psi=(30, 60, 90), fine_step=2, coarse_step=10, glow=0.0, accuracy="fast")
@@ -128,6 +128,7 @@ def test_plot_lays_profiles_out_in_a_grid(tmp_path):
     """Eight profiles and the correlation matrix: three rows of at most four panels, not one
     unreadable strip."""
     import matplotlib.image as mpimg
+
     from veil.analysis.diagnostics import Diagnosis, Profile
     from veil.viz.fit_figures import diagnosis_figure as plot
 

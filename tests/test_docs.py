@@ -172,14 +172,12 @@ def test_model_md_presets_are_veils():
 def _benchmark(name: str):
     """A module of benchmarks/ (not a package), imported from its file."""
     import importlib.util
-    sys.path.insert(0, str(ROOT / "benchmarks"))
-    try:
+    with pytest.MonkeyPatch.context() as patch:  # its imports of the other benchmarks
+        patch.syspath_prepend(str(ROOT / "benchmarks"))
         spec = importlib.util.spec_from_file_location(name, ROOT / "benchmarks" / f"{name}.py")
         module = importlib.util.module_from_spec(spec)
         spec.loader.exec_module(module)
         return module
-    finally:
-        sys.path.remove(str(ROOT / "benchmarks"))
 
 
 def test_doc_tables_replace_only_their_block():
@@ -231,15 +229,6 @@ def test_bench_validity_writes_the_table_validity_md_has():
 # design-notes.md and changelog.md keep history and its tables as they were.
 
 HISTORY = {"design-notes.md", "changelog.md"}
-#: Numeric tables no script writes yet (measured by hand or by code outside benchmarks/ and
-#: validation/), by page and the start of their header. The list may only shrink: a table
-#: that gains its markers must leave it.
-NOT_YET_SCRIPTED = {
-    ("maps-geometry.md", "| step (fraction of the apparent lobe)"),  # a sweep of bench_maps --near
-    ("maps-geometry.md", "| geometry | Pd: mean, sd |"),         # tests/test_maps_near.py's plate
-    ("performance-startup.md", "| Jacobian in |"),              # a profile of one chunk
-    ("validity-reference.md", "| term | within 2 se |"),         # step 2 with the term forced
-}
 RULE = re.compile(r"\|(\s*:?-+:?\s*\|)+")
 MARKER = re.compile(r"<!-- table:([\w-]+) \(written by ((?:benchmarks|validation)/[\w-]+\.py)"
                     r"([^>]*)\) -->")
@@ -304,12 +293,6 @@ def test_numeric_tables_name_the_script_that_writes_them(page):
         source = table_source(lines, at)
         if source == "not-measured":
             continue
-        header = lines[at].strip()
-        listed = any(page.name == p and header.startswith(h) for p, h in NOT_YET_SCRIPTED)
-        if listed:
-            if source is not None:
-                problems.append(f"{where}: has its markers now; remove it from NOT_YET_SCRIPTED")
-            continue
         if source is None:
             problems.append(f"{where}: a numeric table without <!-- table:NAME (written by "
                             f"SCRIPT --doc ...) --> ... <!-- /table:NAME -->")
@@ -334,15 +317,41 @@ def test_numeric_tables_name_the_script_that_writes_them(page):
     assert not problems, "\n".join(problems)
 
 
-def test_the_unscripted_tables_are_still_there():
-    """Each entry of NOT_YET_SCRIPTED names a numeric table that exists (a stale entry would
-    let a new hand-typed table through)."""
-    for name, header in NOT_YET_SCRIPTED:
-        text = (ROOT / "docs" / name).read_text()
-        assert any(line.strip().startswith(header) for line in text.splitlines()), (name, header)
-
-
 def test_pages_under_3000_words_by_wc():
     """`wc -w` counts: every whitespace-separated token."""
     big = {p.name: len(p.read_text().split()) for p in PAGES}
     assert not {name: n for name, n in big.items() if n > MAX_WORDS}, big
+
+
+def _resolves(dotted: str) -> bool:
+    import importlib
+
+    parts = dotted.split(".")
+    for k in range(len(parts), 0, -1):
+        try:
+            obj = importlib.import_module(".".join(parts[:k]))
+        except ImportError:
+            continue
+        try:
+            for attr in parts[k:]:
+                obj = getattr(obj, attr)
+        except AttributeError:
+            return False
+        return True
+    return False
+
+
+def test_named_python_objects_exist():
+    """Every `veil.x.y` a page or the README names in code marks is a module or an object
+    of veil today (a module moved or renamed breaks this, not the reader)."""
+    pages = sorted((ROOT / "docs").glob("*.md")) + [ROOT / "README.md"]
+    missing = sorted({f"{page.name}: {name}" for page in pages
+                      for name in re.findall(r"`(veil(?:\.[A-Za-z_]\w*)+)(?![\w/])", page.read_text())
+                      if not _resolves(name)})
+    assert not missing, missing
+
+
+def test_the_name_check_fails_for_a_moved_module():
+    assert _resolves("veil.maps.near.STEP_FRACTION")
+    assert not _resolves("veil.fitting.maps_near.STEP_FRACTION")
+    assert not _resolves("veil.maps.near.NO_SUCH_NAME")

@@ -14,13 +14,13 @@ import pytest
 from click.testing import CliRunner
 
 import veil
-from veil.cli import main
-from veil.cli import explore_cmd
+from veil.cli import explore_cmd, main
 from veil.data.measurements import save_measurements
 from veil.errors import InputError
 from veil.fitting import fit_target
 from veil.models import REGISTRY, model_class
 from veil.viz import explore as ex
+from veil.viz import explore_fits as fits
 
 SMALL = dict(psi=(30, 60, 90), fine_step=2, coarse_step=10, glow=0.0, accuracy="fast")
 
@@ -207,7 +207,7 @@ def fitted(tmp_path_factory):
 
 def test_fit_view_draws_data_band_and_residuals(fitted):
     result, paths = fitted
-    view = ex.FitView(result, str(paths["table"]), source="target.json")
+    view = fits.FitView(result, str(paths["table"]), source="target.json")
     assert view.brdf == result.as_model() and view.medium == veil.BTDF1
     np.testing.assert_allclose(view.residuals, result.residuals, rtol=1e-6, atol=1e-9)
     lo, hi = view.band
@@ -224,9 +224,9 @@ def test_fit_view_draws_data_band_and_residuals(fitted):
 def test_table_of_another_session_is_refused(fitted):
     result, paths = fitted
     with pytest.raises(InputError, match="does not belong"):
-        ex.FitView(result, str(paths["other"]), source="target.json", draws=0)
+        fits.FitView(result, str(paths["other"]), source="target.json", draws=0)
     with pytest.raises(InputError, match="does not belong.*points"):
-        ex.FitView(result, str(paths["short"]), source="target.json", draws=0)
+        fits.FitView(result, str(paths["short"]), source="target.json", draws=0)
 
 
 def test_cli_with_result_and_foreign_data_exits_2(fitted):

@@ -1,4 +1,4 @@
-"""The reproduced experiment (veil.viz.figures, veil.viz.reports, `veil reproduce`, `veil plot`): the
+"""The reproduced experiment (veil.viz.figures, veil.viz.documents, `veil reproduce`, `veil plot`): the
 numbers behind figs. 9-12 and the report, read back from the written files."""
 
 from __future__ import annotations
@@ -15,8 +15,8 @@ from PIL import Image
 
 import veil
 from veil.cli import main
-from veil.viz.figures import (curve_metrics, fig9, figure_bytes, lobe_data, transmission_data)
 from veil.models.fresnel import transmittance
+from veil.viz.figures import curve_metrics, fig9, figure_bytes, lobe_data, transmission_data
 
 
 def fwhm_from_samples(theta, f):

@@ -15,13 +15,13 @@ import math
 
 import numpy as np
 import pytest
-from click.testing import CliRunner
 
 import veil
-from veil.cli import main
-from veil.fitting import FitError, FitResult, fit_medium, fit_reference, fit_target
-from veil.data.measurements import MeasurementError, save_measurements, subtract_black
+from support.cli import run_checked
+from veil.data.black_cloth import subtract_black
+from veil.data.measurements import MeasurementError, save_measurements
 from veil.data.protocol import PSI
+from veil.fitting import FitError, FitResult, fit_medium, fit_reference, fit_target
 
 PAIRS = [(b, m) for b in ("BRDF1", "BRDF2") for m in ("BTDF1", "BTDF2", "BTDF3")]
 SMALL = (90.0,)
@@ -32,7 +32,7 @@ JSON_KEYS = {"model", "params", "stderr", "correlation", "chi2_reduced", "rms_re
 
 # -- simulated sessions, once per process ---------------------------------------------------
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def session(brdf: str, medium: str | None, psi=PSI, seed: int = 0,
             glow: float | None = None, accuracy: str = "default"):
     """(table, black) of ``brdf`` seen through ``medium`` (None: clear water), 1 % noise."""
@@ -371,12 +371,7 @@ def test_bad_result_files(tmp_path):
 
 # -- the command line -----------------------------------------------------------------------
 
-def invoke(args):
-    result = CliRunner().invoke(main, [str(a) for a in args])
-    assert "Traceback" not in result.output
-    if result.exception is not None and not isinstance(result.exception, SystemExit):
-        raise result.exception
-    return result
+invoke = run_checked
 
 
 @pytest.fixture(scope="module")

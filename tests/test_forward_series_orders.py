@@ -5,14 +5,18 @@ k by the path factor M_k(tau, g), "view-side" the view side's by the landing fac
 lab set-up (validation/mc_orders.py)."""
 import math
 import os
-import sys
 
 import numpy as np
 import pytest
 
 from veil._jax import jax  # noqa: F401  (float64)
-from veil.models.forward_series import (ORDERS, ForwardSeries, _mixture, landing_factors,
-                                        path_factors)
+from veil.models.forward_series import (
+    ORDERS,
+    ForwardSeries,
+    _mixture,
+    landing_factors,
+    path_factors,
+)
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 
@@ -91,7 +95,6 @@ def test_path_factors_against_monte_carlo_of_the_cylinder():
     """Per order, the light reaching the plate centre of the lab set-up (R_c 15, a 2.5,
     tau 1, g 0.88, light at the normal) over the Poisson weight: M_2, M_3 within 5 % of the
     seeded Monte Carlo, where the Poisson weights are off by 9 % and 30 %."""
-    sys.path.insert(0, os.path.join(HERE, "..", "validation"))
     import mc_orders
 
     mc, mo, se = mc_orders.light_side(1.0, 0.88, 15.0, 2.5, 0.0, 400_000,
@@ -169,7 +172,6 @@ def test_landing_factors_against_monte_carlo_of_the_cylinder():
     theta_r = 80 deg: the seeded Monte Carlo's paths of orders 2 and 3 land on the plate at
     0.70 and 0.52 of what J_v predicts; lambda_k reproduces that within 8 % (a Gaussian drift of
     HG's variance 1 - g^j, the first guess, is 35 % off at order 2, and J_v alone 30-48 %)."""
-    sys.path.insert(0, os.path.join(HERE, "..", "validation"))
     import mc_orders
 
     mc, mo, _, se = mc_orders.view_side(1.0, 0.88, 15.0, 2.5, 80.0, 150_000,

@@ -10,11 +10,8 @@ Derandomized (the same examples every run) and small, to stay within the suite's
 from __future__ import annotations
 
 import json
-import math
-import os
 import shutil
 import string
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -23,10 +20,9 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import veil
+from support.maps import configurations, write_stack
 from veil.cli import main
 from veil.errors import InputError
-
-from maps_helpers import configurations, write_stack
 
 SETTINGS = settings(derandomize=True, deadline=None, database=None,
                     suppress_health_check=[HealthCheck.function_scoped_fixture,
@@ -70,7 +66,7 @@ def csv_texts(draw):
 
 
 def _read_table(path):
-    from veil.fitting.data import prepare
+    from veil.fitting.session_data import prepare
 
     table = veil.load_measurements(path)
     data = prepare(table)
@@ -204,7 +200,7 @@ def good_store(tmp_path_factory):
 
 
 def _read_store(store):
-    from veil.fitting.maps_store import open_maps, summarize_maps
+    from veil.maps.store import open_maps, summarize_maps
 
     maps = open_maps(store)
     summary = summarize_maps(store, maps)
@@ -260,8 +256,8 @@ def test_random_damage_to_a_store_is_read_or_refused(tmp_path, good_store, data)
 def test_random_store_attributes_are_read_or_refused(tmp_path, good_store, edits):
     """The store's own attributes (root zarr.json, ``veil_maps``) edited: every reader,
     the figure's panels included, reads them cleanly or says the store is damaged."""
-    from veil.fitting.maps_store import open_maps
-    from veil.viz.maps import _panels
+    from veil.maps.show import _panels
+    from veil.maps.store import open_maps
 
     store = tmp_path / "store.zarr"
     if store.exists():

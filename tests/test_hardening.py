@@ -411,8 +411,8 @@ def test_interrupt_while_an_output_folder_is_written(tmp_path, sig=signal.SIGINT
 # --------------------------------------------------------------------------------------
 # item 5: no NaN or inf leaves veil
 # --------------------------------------------------------------------------------------
-from hypothesis import HealthCheck, given, settings  # noqa: E402
-from hypothesis import strategies as st  # noqa: E402
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 GRAZING = 90.0 - 1e-9
 N_CONFIGS = 8  # one shape, so the engine compiles once per code path (in-plane or not)

@@ -21,22 +21,16 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
-from click.testing import CliRunner
 
 import veil
+from support.cli import run
+from support.maps import configurations, write_stack
 from veil import io as vio
-from veil.cli import main
 from veil.errors import UnwritableError
-
-from maps_helpers import configurations, write_stack
 
 H = W = 4
 ENV = {**os.environ, "PYTHONPATH": os.pathsep.join(
     [str(Path(veil.__file__).parents[1])] + [p for p in [os.environ.get("PYTHONPATH")] if p])}
-
-
-def run(*args):
-    return CliRunner().invoke(main, [str(a) for a in args])
 
 
 def python(script: str, *args, **kw) -> subprocess.Popen:
@@ -90,7 +84,7 @@ def table(tmp_path_factory):
 # --------------------------------------------------------------------------------------
 HOLD = """
     import sys, time
-    from veil.fitting.maps_store import store_lock
+    from veil.maps.store import store_lock
     with store_lock(sys.argv[1]):
         print("locked", flush=True)
         time.sleep(120)
@@ -114,7 +108,7 @@ def test_a_second_writer_of_a_store_exits_2_naming_the_holder_and_a_dead_ones_lo
     taken = run(*maps_args(stack, out))
     assert taken.exit_code == 0, taken.output
     assert f"took over the lock left by process {holder.pid}" in taken.output
-    maps = veil.fitting.maps_store.open_maps(out)
+    maps = veil.maps.store.open_maps(out)
     assert np.all(maps["status"] == 0)
     assert (out.parent / f".{out.name}.veil-lock").read_text() == ""  # released
 
@@ -134,7 +128,7 @@ def test_two_fit_maps_runs_into_one_new_store_at_once(stack, tmp_path):
         assert any("is being written by another 'veil fit maps' run" in o for o in outs)
     else:
         assert any("nothing to compute" in o for o in outs)
-    maps = veil.fitting.maps_store.open_maps(out)
+    maps = veil.maps.store.open_maps(out)
     assert np.all(maps["status"] == 0) and np.all(maps["n_points"] == 8)
 
 
@@ -193,9 +187,10 @@ def test_a_corrupt_photo_leaves_no_store(stack, tmp_path):
 
 def test_interrupted_while_staging_leaves_no_store_and_a_kept_partial_store_is_named(
         stack, tmp_path, monkeypatch):
-    import veil.fitting.maps_run as mr
+    import veil.maps.photos as photos
+    import veil.maps.run as mr
 
-    real = mr._read_pixels
+    real = photos._read_pixels
     seen = []
 
     def interrupted(*args, **kw):
@@ -204,7 +199,7 @@ def test_interrupted_while_staging_leaves_no_store_and_a_kept_partial_store_is_n
             raise KeyboardInterrupt
         return real(*args, **kw)
 
-    monkeypatch.setattr(mr, "_read_pixels", interrupted)
+    monkeypatch.setattr(photos, "_read_pixels", interrupted)
     out = tmp_path / "maps.zarr"
     kw = dict(fixed={"eta": 1.5}, grid=["n=0.3:3:6"], tile=8, accuracy="fast")
     with pytest.raises(KeyboardInterrupt):
@@ -476,7 +471,7 @@ def test_ctrl_c_while_staging_leaves_no_store(tmp_path):
     """48 photos of 160 x 160 pixels take a second or more to stage; the store's zarr.json
     appears when staging starts (after the tables). SIGINT then: status 130, "nothing was
     written", and no store (it said so before, and left a partial store)."""
-    from maps_helpers import write_photos
+    from support.maps import write_photos
 
     configs = configurations(48)
     rng = np.random.default_rng(0)

@@ -15,7 +15,7 @@ import tifffile
 from click.testing import CliRunner
 
 from veil.cli import main
-from veil.data.ingest import IngestWarning, ROI, ingest, load_response, parse_roi
+from veil.data.ingest import ROI, IngestWarning, ingest, load_response, parse_roi
 
 H, W = 40, 60  # image height, width (pixels)
 ROI_TEXT = "30,10,20,16"  # x, y, w, h: columns 30..49, rows 10..25 (not symmetric in x/y)

@@ -304,7 +304,7 @@ def test_verify_through_the_forward_series_medium(mi):
                     [10.0, 50.0, 180.0, 0.0], [60.0, 0.0, 180.0, 0.0], [0.0, 60.0, 180.0, 0.0]])
     predicted = veil.apparent(brdf, med, *cfg.T, accuracy="fast")
     check = verify(done.text, done.scale, predicted, cfg, spp=4096, passes=4, seed=7,
-                   medium={"path_length": 15.0, "half_width": 2.5, "max_depth": 64})
+                   medium={"length": 15.0, "half_width": 2.5, "max_depth": 64})
     assert check.rms_noise < 0.06
     assert check.rms_relative < 0.03 + 3 * check.rms_noise
     # without the scattered light (the unscattered beam alone) the render is far above it

@@ -12,9 +12,9 @@ import pytest
 from click.testing import CliRunner
 
 import veil
+import veil.data.protocol
 from veil.cli import main
-from veil.fitting import FitError, FitResult
-from veil.fitting import JointResult, Session, build, fit_joint, load_result
+from veil.fitting import FitError, FitResult, JointResult, Session, build, fit_joint, load_result
 
 SMALL = dict(psi=(30, 60, 90), fine_step=2, coarse_step=10, glow=0.0, accuracy="fast")
 MEDIA = {"low": veil.BTDF1, "mid": veil.BTDF2, "high": veil.BTDF3}

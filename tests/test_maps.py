@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import json
 import shutil
-import sys
 import time
 from pathlib import Path
 
@@ -16,15 +15,13 @@ import tifffile
 from click.testing import CliRunner
 
 import veil
+from support.maps import angles_of, configurations, render, write_stack
 from veil.cli import main
 from veil.engine.evaluator import ApparentModel
 from veil.engine.quadrature import RULES
-from veil.fitting.maps import (CONVERGED, EDGE, MASKED, NOT_CONVERGED, UNDETERMINED,
-                               build_tables, solve_pixels)
-from veil.fitting.maps_run import fit_maps, is_complete, open_maps
-
-sys.path.insert(0, str(Path(__file__).parent))
-from maps_helpers import configurations, render, write_stack  # noqa: E402
+from veil.maps.run import fit_maps, is_complete, open_maps
+from veil.maps.solve import CONVERGED, EDGE, MASKED, NOT_CONVERGED, UNDETERMINED, solve_pixels
+from veil.maps.tables import build_tables
 
 BRDF, MEDIUM = veil.BRDF1, veil.BTDF2
 NAMES = type(BRDF).param_names()
@@ -32,11 +29,6 @@ INDEX = NAMES[3]            # held fixed in these tests (weakly determined throu
 SHAPE = NAMES[2]            # the tabulated nonlinear parameter
 GRID = f"{SHAPE}=0.25:2.5:16"
 FIX = {INDEX: float(BRDF.to_vector()[3])}
-
-
-def angles_of(configs):
-    return tuple(configs[c].to_numpy(dtype=float)
-                 for c in ("theta_i", "phi_i", "theta_r", "phi_r"))
 
 
 # --------------------------------------------------------------------------------------
@@ -123,7 +115,7 @@ def test_iterations_stop_per_pixel_and_a_stopped_pixel_is_frozen(monkeypatch):
     then frozen: its result does not depend on the other pixels of its batch (their order,
     a dark or a saturated neighbour, being alone), on whether its last iterations ran in a
     batch of slow pixels, nor on how many more iterations the batch may run."""
-    from veil.fitting import maps
+    from veil.maps import solve as maps
 
     configs = configurations(16)
     tables = build_tables(type(BRDF), MEDIUM, angles_of(configs), fixed=FIX,
@@ -227,7 +219,7 @@ def test_command_maps_outputs_and_resume(stack, tmp_path, monkeypatch):
     assert "spans" in again.output and "distant-camera approximation" in again.output
 
     # an interrupted run resumes with the missing tiles only, to the same bits
-    import veil.fitting.maps_run as mr
+    import veil.maps.run as mr
 
     part = tmp_path / "part.zarr"
     calls = []

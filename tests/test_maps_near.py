@@ -8,22 +8,19 @@ from __future__ import annotations
 
 import json
 import math
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
-from click.testing import CliRunner
 
 import veil
-from veil.cli import main
+from support.cli import run
+from support.maps import angles_of, configurations, render, render_near, write_photos
 from veil.data.ingest import ROI
-from veil.fitting.maps import CONVERGED, build_tables, solve_pixels
-from veil.fitting.maps_near import NearGeometry
-from veil.fitting.maps_run import open_maps
-
-sys.path.insert(0, str(Path(__file__).parent))
-from maps_helpers import configurations, render, render_near, write_photos  # noqa: E402
+from veil.maps.near import NearGeometry
+from veil.maps.solve import CONVERGED, solve_pixels
+from veil.maps.store import open_maps
+from veil.maps.tables import build_tables
 
 BRDF, MEDIUM = veil.BRDF1, veil.BTDF2
 CLS = type(BRDF)
@@ -37,15 +34,6 @@ H = W = 16
 #: 9 fifths of the apparent lobe (4.6 deg) the field grid follows
 DISTANCE, PITCH = 100.0, 0.65
 KW = dict(fixed=FIX, grid={SHAPE: GRID}, accuracy="fast")
-
-
-def angles_of(configs):
-    return tuple(configs[c].to_numpy(dtype=float)
-                 for c in ("theta_i", "phi_i", "theta_r", "phi_r"))
-
-
-def run(*args):
-    return CliRunner().invoke(main, [str(a) for a in args])
 
 
 # --------------------------------------------------------------------------------------

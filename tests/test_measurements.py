@@ -13,9 +13,16 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import veil
-from veil.data.measurements import (LikelyRadiansWarning, MeasurementError, canonical_angles,
-                               load_measurements, save_measurements, subtract_black, to_form,
-                               validate)
+from veil.data.black_cloth import subtract_black
+from veil.data.measurements import (
+    LikelyRadiansWarning,
+    MeasurementError,
+    canonical_angles,
+    load_measurements,
+    save_measurements,
+    to_form,
+    validate,
+)
 
 
 def write(tmp_path, name, text):
@@ -152,6 +159,7 @@ def test_round_trip_random_tables(tmp_path, table):
 @pytest.mark.parametrize("text, expected", [
     ("", ["bad.csv is empty"]),
     ("\n\n  \n", ["bad.csv is empty"]),
+    ('""\n""\n', ["bad.csv has no header", "every line is blank"]),
     ("psi,rho,value\n", ["bad.csv", "no data rows"]),
     ("psi,rho,val\n30,0,1\n", ["bad.csv", "no 'value' column", "val"]),
     ("psi,rho,value\n30,0,1\n30,1,abc\n", ["line 3 of", "bad.csv", "column 'value'", "'abc' is not a number"]),

@@ -15,21 +15,17 @@ real: they run through every command without a line of veil changed.
 from __future__ import annotations
 
 import math
-import os
-import sys
 
 import numpy as np
 import pytest
+import veil_test_models  # noqa: F401  (registers the test-only families)
 
-sys.path.insert(0, os.path.join(os.path.dirname(__file__), "plugins"))
-import veil_test_models  # noqa: E402,F401  (registers the test-only families)
-
-import reference as ref  # noqa: E402
-import reference_physical as rphys  # noqa: E402
-from veil.engine.forward import Forward  # noqa: E402
-from veil.engine.evaluator import CHUNK  # noqa: E402
-from veil.engine.quadrature import RULES  # noqa: E402
-from veil.models import REGISTRY, default_class  # noqa: E402
+import reference as ref
+import reference_physical as rphys
+from veil.engine.evaluator import CHUNK
+from veil.engine.forward import Forward
+from veil.engine.quadrature import RULES
+from veil.models import REGISTRY, default_class
 
 FAMILIES = sorted(REGISTRY)
 

@@ -133,7 +133,7 @@ def test_a_declared_floor_is_the_least_term():
     """A model's declared error (MODEL_ERROR_FLOOR) enters where the residuals show less
     (chi-square below the test's limit, or a smaller s), with its length only for the
     correlated kind; an own or given s above it wins."""
-    from veil.fitting.reported import model_floor
+    from veil.fitting.reported_uncertainty import model_floor
 
     r = np.random.default_rng(3).standard_normal(50)
     args = (r, np.full(50, 10.0), np.ones(50), 46, _angles(50))
@@ -162,7 +162,7 @@ def test_a_declared_floor_is_the_least_term():
 
 # -- fits ---------------------------------------------------------------------------------------
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _ggx_plate():
     """A GGX rough plastic, 0.5 % noise, the paper's protocol; and its true f_r there."""
     truth = model_class("rough-plastic")(rho=0.2, alpha=0.2, eta=1.1178, ks=1.0,

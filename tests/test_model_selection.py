@@ -9,24 +9,24 @@ import math
 import os
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
-from click.testing import CliRunner
 
 import veil
-from veil.cli import main
+from support.cli import run as run_cli
 from veil.fitting import FitResult, selection
-from veil.fitting.data import FitData
 from veil.fitting.model_error import ModelError
+from veil.fitting.session_data import FitData
 from veil.models import APPARATUS_OPTIONS, registry
 
-PLUGINS = os.path.join(os.path.dirname(__file__), "plugins")
-SRC = os.path.join(os.path.dirname(__file__), "..", "src")
+#: The veil under test, for a subprocess (a worktree's src/ or the installed package).
+SRC = str(Path(veil.__file__).parents[1])
 
 
 def invoke(args):
-    return CliRunner().invoke(main, [str(a) for a in args], catch_exceptions=False)
+    return run_cli(*args, catch_exceptions=False)
 
 
 # --------------------------------------------------------------------------------------
@@ -64,11 +64,7 @@ def test_candidates_come_from_the_declarations():
 
 
 def test_a_registered_plugin_family_becomes_a_candidate():
-    sys.path.insert(0, PLUGINS)
-    try:
-        import veil_test_models  # noqa: F401 - registers lambertian-test and fisher-test
-    finally:
-        sys.path.remove(PLUGINS)
+    import veil_test_models  # noqa: F401 - registers lambertian-test and fisher-test
     assert "lambertian-test" in [c.label for c in selection.candidates("brdf")]
     assert "fisher-test" in [c.label for c in selection.candidates("medium")]
 
@@ -235,7 +231,7 @@ def test_unknown_family_in_models_exits_2_listing_the_registered(sessions, tmp_p
 def _subprocess(args):
     """``veil`` in a subprocess, the registry without the test plugins (a family registered
     in this process would be a candidate too)."""
-    env = dict(os.environ, PYTHONPATH=os.path.abspath(SRC), VEIL_PLUGINS="")
+    env = dict(os.environ, PYTHONPATH=SRC, VEIL_PLUGINS="")
     cmd = [sys.executable, "-m", "veil.cli"] + [str(a) for a in args]
     return subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=1800)
 

@@ -11,11 +11,16 @@ from hypothesis import strategies as st
 from scipy import integrate, optimize
 
 import veil
+from reference import (
+    PRESETS,
+    reference_btdf,
+    reference_fresnel,
+    reference_fresnel_sintan,
+    reference_hg,
+    reference_reflectance,
+)
 from veil.engine import angles
 from veil.models import fresnel, phase
-
-from reference import (PRESETS, reference_btdf, reference_fresnel, reference_fresnel_sintan,
-                       reference_hg, reference_reflectance)
 
 DET = settings(deadline=None, max_examples=300, derandomize=True)
 
@@ -105,7 +110,7 @@ BREAKS = [1e-7, 1e-6, 1e-5, 1e-4, 1e-3, 1e-2, 0.1, 0.5, 1.0, 1.5, 1.9, 1.99]
 
 def _sphere_moment(g, weight):
     """Int over the sphere of p * weight(1 - mu), with x = 1 - mu in [0, 2]."""
-    fn = lambda x: float(_f(phase.hg_pdf(g, x))) * weight(x) * 2 * math.pi  # noqa: E731
+    fn = lambda x: float(_f(phase.hg_pdf(g, x))) * weight(x) * 2 * math.pi
     edges = [0.0] + BREAKS + [2.0]
     return sum(integrate.quad(fn, a, b, epsabs=0, epsrel=1e-12, limit=200)[0]
                for a, b in zip(edges[:-1], edges[1:]))
@@ -140,7 +145,7 @@ def test_hg_forward_peak_of_paper_media_about_four_per_sr():
 @pytest.mark.parametrize("g", [-0.7, 0.0, 0.5, 0.93, 0.99])
 def test_hg_cone_fraction_is_integral_of_pdf(g):
     for x in (1e-5, 1e-3, 0.1, 1.0, 1.7):
-        fn = lambda t: float(_f(phase.hg_pdf(g, t))) * 2 * math.pi  # noqa: E731
+        fn = lambda t: float(_f(phase.hg_pdf(g, t))) * 2 * math.pi
         edges = [0.0] + [b for b in BREAKS if b < x] + [x]
         want = sum(integrate.quad(fn, a, b, epsabs=0, epsrel=1e-12, limit=200)[0]
                    for a, b in zip(edges[:-1], edges[1:]))

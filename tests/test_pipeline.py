@@ -20,10 +20,10 @@ from click.testing import CliRunner
 import veil
 from test_fitting import assert_recovered, copy, session
 from veil.cli import main
-from veil.fitting import FitError, FitResult, fit_reference, prepare
 from veil.data.measurements import save_measurements
-from veil.pipeline import FILES, fit_figure, run_pipeline
 from veil.data.protocol import protocol
+from veil.fitting import FitError, FitResult, fit_reference, prepare
+from veil.pipeline import FILES, fit_figure, run_pipeline
 
 SMALL = (90.0,)
 PNG = b"\x89PNG\r\n\x1a\n"

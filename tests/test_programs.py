@@ -158,10 +158,16 @@ def test_code_digest_follows_the_code_not_where_it_lives(tmp_path, monkeypatch):
     assert programs.code_digest() != here
 
 
+def _child_env(**extra) -> dict:
+    """The environment of a child Python that imports this checkout's veil and this module."""
+    paths = [os.path.dirname(os.path.dirname(os.path.dirname(programs.__file__))),
+             os.path.dirname(os.path.abspath(__file__)), os.environ.get("PYTHONPATH", "")]
+    return {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in paths if p), **extra}
+
+
 _BUILD_SCRIPT = r"""
 import hashlib, os, sys, time
 import numpy as np
-sys.path.insert(0, sys.argv[3])
 from test_programs import make_engine_call
 from veil.engine import programs
 
@@ -191,9 +197,8 @@ def test_processes_that_need_the_same_program_build_it_once(tmp_path):
 
     barrier = tmp_path / "barrier"
     barrier.mkdir()
-    env = {**os.environ, "VEIL_CACHE_DIR": str(tmp_path / "cache")}
-    procs = [subprocess.Popen([sys.executable, "-c", _BUILD_SCRIPT, str(barrier), str(i),
-                               os.path.dirname(__file__)],
+    env = _child_env(VEIL_CACHE_DIR=str(tmp_path / "cache"))
+    procs = [subprocess.Popen([sys.executable, "-c", _BUILD_SCRIPT, str(barrier), str(i)],
                               env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                               text=True) for i in range(2)]
     try:
@@ -245,12 +250,11 @@ def test_lock_is_released_for_a_forked_child(tmp_path, monkeypatch):
             time.sleep(30)
             os._exit(0)
     try:
-        script = ("import sys, time; sys.path.insert(0, sys.argv[1]); from veil.engine "
+        script = ("import time; from veil.engine "
                   "import programs; t = time.monotonic()\nwith programs.building('an "
                   "identity', {'test': 1}) as w: print(w, round(time.monotonic() - t, 1))")
 
-        out = subprocess.run([sys.executable, "-c", script, os.path.dirname(
-            os.path.dirname(os.path.dirname(programs.__file__)))], env={**os.environ},
+        out = subprocess.run([sys.executable, "-c", script], env=_child_env(),
             capture_output=True, text=True, timeout=25)
         assert out.returncode == 0, out.stderr
         waited, seconds = out.stdout.split()

@@ -11,24 +11,28 @@ m01 session (docs/validity.md, benchmarks/bench_validity.py --propagation).
 import dataclasses
 import json
 import math
-import sys
-from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 import veil
+from support.chain import small_chain
 from veil.analysis.uncertainty import propagate
 from veil.fitting import FitError, fit_target
-from veil.fitting.propagation import (RELATIVE_LIMIT, Axis, check_method, choose, how_of,
-                                      relative_uncertainty, sigma_points)
+from veil.fitting.propagation import (
+    RELATIVE_LIMIT,
+    Axis,
+    check_method,
+    choose,
+    how_of,
+    relative_uncertainty,
+    sigma_points,
+)
 from veil.fitting.result import FitResult
 from veil.models import model_class
-
-sys.path.insert(0, str(Path(__file__).parent))
-from chain_helpers import small_chain  # noqa: E402
 
 FS = model_class("forward-series", "medium")
 HG = model_class("henyey-greenstein", "medium")
@@ -145,7 +149,7 @@ def test_sigma_points_agree_with_the_first_order_where_it_holds(chain):
     for name in forced.free:
         assert p.stderr_total[name] == pytest.approx(forced.stderr_total[name], rel=1e-6)
     # report.md says which way each step's total came
-    from veil.viz.reports import _stats_lines
+    from veil.viz.documents import _stats_lines
     assert (f"through {how['refits']} refits at {how['points']} sigma points"
             in "\n".join(_stats_lines(forced)))
     assert "\"stderr incl. given model\": to first order" in "\n".join(_stats_lines(auto))

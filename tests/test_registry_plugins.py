@@ -10,15 +10,14 @@ import subprocess
 import sys
 
 import pytest
+import veil_test_models
 from click.testing import CliRunner
 
-PLUGINS = os.path.join(os.path.dirname(__file__), "plugins")
-sys.path.insert(0, PLUGINS)
-import veil_test_models  # noqa: E402
+import veil
+from veil.cli import main
 
-import veil  # noqa: E402
-from veil.cli import main  # noqa: E402
-from veil.fitting import FitResult, load_result  # noqa: E402
+PLUGINS = os.path.join(os.path.dirname(__file__), "plugins")
+from veil.fitting import FitResult, load_result
 
 FAST = ["--accuracy", "fast"]
 KW = dict(psi=(30, 60, 90), fine_step=2, coarse_step=10, glow=0.0, accuracy="fast")

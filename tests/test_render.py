@@ -12,8 +12,15 @@ from PIL import Image
 
 import veil
 from veil.cli import main
-from veil.viz.render import (VIEW, auto_exposure, clipping, render, render_sphere, srgb_encode,
-                         tone_map)
+from veil.viz.render import (
+    VIEW,
+    auto_exposure,
+    clipping,
+    render,
+    render_sphere,
+    srgb_encode,
+    tone_map,
+)
 
 
 # -- independent geometry (not the module's) ---------------------------------------------

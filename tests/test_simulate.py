@@ -16,7 +16,8 @@ from click.testing import CliRunner
 
 import veil
 from veil.cli import main
-from veil.data.measurements import canonical_angles, load_measurements, subtract_black
+from veil.data.black_cloth import subtract_black
+from veil.data.measurements import canonical_angles, load_measurements
 from veil.data.simulate import CHUNK, glow_scale, simulate
 
 FAST = {"accuracy": "fast"}

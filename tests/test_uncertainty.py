@@ -9,20 +9,15 @@ underestimates the tail: docs/ambiguity.md).
 """
 
 import dataclasses
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 import veil
+from support.chain import small_chain
+from veil.analysis.uncertainty import PARTS, budget_table, propagate, sample_propagation
 from veil.errors import InputTypeError
 from veil.fitting import FitError, fit_target
-from veil.analysis.uncertainty import PARTS, budget_table, propagate, sample_propagation
-
-sys.path.insert(0, str(Path(__file__).parent))
-from chain_helpers import small_chain  # noqa: E402
-
 
 
 @pytest.fixture(scope="module")

@@ -15,11 +15,11 @@ import importlib
 _API = {
     "apparent": "engine.apparent", "reflectance": "engine.apparent",
     "load_measurements": "data.measurements", "save_measurements": "data.measurements",
-    "subtract_black": "data.measurements", "simulate": "data.simulate",
+    "subtract_black": "data.black_cloth", "simulate": "data.simulate",
     "fit_reference": "fitting.steps", "fit_medium": "fitting.steps",
     "fit_target": "fitting.steps", "FitResult": "fitting.result",
     "run_pipeline": "pipeline", "fit_joint": "fitting.joint",
-    "fit_maps": "fitting.maps_run", "open_maps": "fitting.maps_run",
+    "fit_maps": "maps.run", "open_maps": "maps.store",
     "BRDF": "models", "BTDF": "models", "Medium": "models", "Model": "models",
     "Param": "models", "PRESETS": "models", "REGISTRY": "models", "preset": "models",
     "register": "models",
@@ -36,7 +36,8 @@ def _version() -> str:
         return "0+unknown"
 
 
-def __getattr__(name: str):
+def __getattr__(name: str) -> object:
+    value: object
     if name == "__version__":
         value = globals()["__version__"] = _version()
         return value

@@ -20,6 +20,7 @@
 
 import os
 import sys
+from typing import Any
 
 
 def _started_as_command_line() -> bool:
@@ -37,7 +38,8 @@ def _guard_start_up() -> None:
     runs, in the first few hundredths of a second of Python's own start-up, Ctrl-C is
     still Python's KeyboardInterrupt.)"""
     try:  # the C module, loaded with Python itself (``signal`` imports enum: 20 ms)
-        import _signal as signal
+        # typeshed has no stub of the C module (signal's API)
+        import _signal as signal  # type: ignore[import-not-found]
     except ImportError:
         import signal
 
@@ -67,7 +69,8 @@ if "jax" not in sys.modules:
     if "xla_force_host_platform_device_count" not in _flags:
         _n = int(os.environ.get("VEIL_CPU_DEVICES", "0") or 0) or min(os.cpu_count() or 1, 8)
         if _n > 1:
-            os.environ["XLA_FLAGS"] = (_flags + f" --xla_force_host_platform_device_count={_n}").strip()
+            _count = f" --xla_force_host_platform_device_count={_n}"
+            os.environ["XLA_FLAGS"] = (_flags + _count).strip()
 
 import jax  # noqa: E402
 
@@ -80,7 +83,8 @@ CACHE_OFF = ("", "0", "off", "no", "false", "none")
 
 def cache_directory() -> str | None:
     """The persistent compilation cache veil uses, or None when it is disabled."""
-    configured = jax.config.jax_compilation_cache_dir
+    # JAX's Config declares its options at run time, unknown to its type information
+    configured = jax.config.jax_compilation_cache_dir  # type: ignore[attr-defined]
     if configured:
         return configured
     setting = os.environ.get("VEIL_CACHE_DIR")
@@ -173,8 +177,11 @@ def _guard_cache_writes() -> None:
         with COMMIT:
             return put(self, key, value)
 
-    guarded_put._veil_guarded = True
-    lru_cache.LRUCache.put = guarded_put
+    # a patch of JAX's private class, by design: typed as such (Any), not as its method
+    patched: Any = guarded_put
+    patched._veil_guarded = True
+    cache_class: Any = lru_cache.LRUCache
+    cache_class.put = patched
 
 
 #: Set when the cache directory was found unwritable (and a line said so): the program store
@@ -184,7 +191,7 @@ CACHE_UNWRITABLE = False
 
 def _enable_cache() -> None:
     global CACHE_UNWRITABLE
-    if jax.config.jax_compilation_cache_dir:
+    if jax.config.jax_compilation_cache_dir:  # type: ignore[attr-defined]  # (cache_directory)
         return  # the user configured JAX's cache: theirs to manage
     path = cache_directory()
     if path is None:

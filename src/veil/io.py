@@ -141,21 +141,22 @@ def write_many_atomic(files: dict) -> None:
     :class:`veil.errors.UnwritableError` names the path: a command never leaves some of its
     outputs new and others old."""
     paths = [os.fspath(p) for p in files]
-    temps = []
+    temps: list[str] = []
+    committed = 0  # the temporaries renamed into place so far
     try:
         for path, data in zip(paths, files.values()):
             temps.append(_temporary(path, data))
         with COMMIT:
-            for k, (path, tmp) in enumerate(zip(paths, temps)):
+            for path, tmp in zip(paths, temps):
                 try:
                     os.replace(tmp, path)
                 except OSError as exc:
                     raise write_error(path, exc) from None
                 _temporaries.pop(tmp, None)
-                temps[k] = None
+                committed += 1
                 _record(path)
     except BaseException:
-        _discard([t for t in temps if t is not None])
+        _discard(temps[committed:])
         raise
 
 
@@ -207,7 +208,7 @@ def _merge(staging: str, path: str, owned) -> str:
     backup = tempfile.mkdtemp(dir=path, prefix=_BACKUP)
     new = sorted(os.listdir(staging))
     stale = sorted(set(owned or ()) - set(new))
-    done = []  # (name, whether an old entry was moved to the backup)
+    done: list[tuple[str, bool | None]] = []  # (name, whether an old entry was moved)
     try:
         for name in new:
             target = os.path.join(path, name)
@@ -222,13 +223,13 @@ def _merge(staging: str, path: str, owned) -> str:
                 os.rename(target, os.path.join(backup, name))
                 done.append((name, None))
     except BaseException:
-        for name, had in reversed(done):
+        for name, moved in reversed(done):
             target = os.path.join(path, name)
             with contextlib.suppress(OSError):
-                if had is not None:
+                if moved is not None:
                     if os.path.lexists(target):
                         os.rename(target, os.path.join(staging, name))
-                if had is not False:
+                if moved is not False:
                     os.rename(os.path.join(backup, name), target)
         with contextlib.suppress(OSError):
             os.rmdir(backup)

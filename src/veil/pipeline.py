@@ -1,4 +1,5 @@
-"""The whole estimation of docs/model.md sec. 7 in one call: steps 0-2, result files, figures, report.
+"""The whole estimation of docs/model.md sec. 7 in one call: steps 0-2, result files,
+figures, report.
 
 :func:`run_pipeline` fits the reference's f_r in a clear medium (step 0), the medium through
 the reference (step 1) and the target through the medium (step 2), and writes into ``outdir``
@@ -23,22 +24,32 @@ import json
 import math
 import os
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
-from .io import check_output_folder, output_folder, write_bytes_atomic, write_text_atomic
+from .analysis.uncertainty import curve_stderr
+from .data.measurements import CANONICAL
 from .data.protocol import protocol
 from .errors import FitError
-from .fitting import (FitResult, fit_direct, fit_medium, fit_reference, fit_target,
-                      model_values, prepare)
-from .fitting import selection
-from .models import AUTO, PAPER
+from .fitting import (
+    FitResult,
+    fit_direct,
+    fit_medium,
+    fit_reference,
+    fit_target,
+    model_values,
+    prepare,
+    selection,
+)
 from .fitting.model_error import check_kind
-from .fitting.steps import warn_misfit
 from .fitting.propagation import check_method
-from .analysis.uncertainty import curve_stderr
+from .fitting.steps import warn_misfit
+from .io import check_output_folder, output_folder, write_bytes_atomic, write_text_atomic
+from .models import AUTO, model_class
+from .models.base import VARIANT_OPTION
+from .viz.documents import pipeline_report, ranking_section
 from .viz.fit_figures import fit_figure
-from .viz.reports import pipeline_report, ranking_section
 
 #: Output files, by role.
 FILES = {"reference": "reference.json", "medium": "medium.json", "target": "target.json",
@@ -95,13 +106,127 @@ def _inside(path, folder) -> bool:
 
 def _check_outputs(outdir: str, inputs: dict) -> None:
     check_output_folder(outdir)
-    for role, name in FILES.items():
+    for name in FILES.values():
         out = os.path.join(outdir, name)
         for what, inp in inputs.items():
             if isinstance(inp, (str, os.PathLike)) and _same(out, inp):
                 raise FitError(f"input {what} ({os.fspath(inp)}) would be overwritten by the "
                                f"output {out}; veil never overwrites an input: choose another "
                                f"output directory")
+
+
+def _prepare_sessions(inputs: dict) -> dict:
+    """Every session read and checked before the first (long) fit (black cloth subtracted
+    from the sessions in the medium)."""
+    black = inputs["black"]
+    data = {"reference_clear": prepare(inputs["reference_clear"], None,
+                                       "reference (clear medium)"),
+            "reference_medium": prepare(inputs["reference_medium"], black,
+                                        "reference (in the medium)"),
+            "target_medium": prepare(inputs["target_medium"], black, "target (in the medium)")}
+    if inputs["target_clear"] is not None:
+        data["target_clear"] = prepare(inputs["target_clear"], None, "target (clear medium)")
+    return data
+
+
+def _relative_to(inputs: dict, outdir: str) -> dict:
+    """The inputs, those inside ``outdir`` named relative to it."""
+    return {k: (os.path.relpath(v, outdir) if isinstance(v, (str, os.PathLike))
+                and _inside(v, outdir) else v) for k, v in inputs.items()}
+
+
+def _stage(progress, name: str):
+    """The progress callback of one step (None without ``progress``); announces the step at
+    once."""
+    if progress is None:
+        return None
+    progress(f"{name}: starting", None, None)
+    return lambda what, done, total: progress(f"{name}: {what}", done, total)
+
+
+def _write_figures(folder, data: dict, ref, med, tgt, direct) -> dict:
+    """The figure of each fit in ``folder``: {figure key: file name}."""
+    figs = {"reference_fig": (data["reference_clear"], ref, None, None),
+            "medium_fig": (data["reference_medium"], med, ref.as_model(), None),
+            "target_fig": (data["target_medium"], tgt, med.as_model(), None)}
+    if direct is not None:
+        figs["direct_fig"] = (data["target_clear"], direct, None, tgt)
+    for key, (d, result, other, extra) in figs.items():
+        write_bytes_atomic(folder / FILES[key], fit_figure(d, result, other, extra))
+    return {key: FILES[key] for key in figs}
+
+
+def _resolve_models(models, brdf_model, medium_model) -> tuple[Any, Any, bool]:
+    """``models=`` against ``brdf_model`` / ``medium_model``: (the BRDF family, the medium
+    family, whether the data choose them, ``models="auto"``)."""
+    if models is None:
+        return brdf_model, medium_model, False
+    mode = selection.parse_models(models)
+    if brdf_model is not None or medium_model is not None:
+        raise FitError("give models= or brdf_model= / medium_model=, not both")
+    if isinstance(mode, tuple):  # a pinned pair
+        return mode[0], mode[1], False
+    return None, None, mode == AUTO  # PAPER: the default families
+
+
+def _fit_steps(data: dict, fixed: dict, free: dict, *, variant, accuracy, max_nfev, progress,
+               brdf_model, medium_model, brdf_options, medium_options, model_error,
+               propagation) -> tuple[FitResult, FitResult, FitResult]:
+    """Steps 0-2 with the given families: (reference, medium, target)."""
+    brdf = {"brdf_model": brdf_model, "options": brdf_options, "model_error": model_error}
+    chained = {"model_error": model_error, "propagation": propagation}
+    ref = fit_reference(data["reference_clear"].table, fixed=fixed.get("reference"),
+                        max_nfev=max_nfev, progress=_stage(progress, "step 0, reference"),
+                        free=free.get("reference"), **brdf)
+    med = fit_medium(data["reference_medium"].table, ref, fixed=fixed.get("medium"),
+                     variant=variant, accuracy=accuracy, max_nfev=max_nfev,
+                     progress=_stage(progress, "step 1, medium"), medium_model=medium_model,
+                     options=medium_options, free=free.get("medium"), **chained)
+    tgt = fit_target(data["target_medium"].table, med, fixed=fixed.get("target"),
+                     accuracy=accuracy, max_nfev=max_nfev,
+                     progress=_stage(progress, "step 2, target"), free=free.get("target"),
+                     brdf_model=brdf_model, options=brdf_options,
+                     **chained)
+    return ref, med, tgt
+
+
+def _fit_direct(session, fixed: dict, free: dict, *, chosen: bool, brdf_model, brdf_options,
+                max_nfev, progress, model_error) -> FitResult:
+    """The target fitted directly in the clear medium; ``chosen``: ``brdf_model`` was
+    chosen among candidates, and only the target entries its family declares apply."""
+    fix_d, free_d = fixed.get("target"), free.get("target")
+    if chosen:
+        cls = model_class(brdf_model)
+        fix_d = _for_family(cls, fixed, "target", "fixed", set())
+        free_d = _for_family(cls, free, "target", "free", set())
+    return fit_direct(session.table, fixed=fix_d, max_nfev=max_nfev, free=free_d,
+                      progress=_stage(progress, "target, clear medium"),
+                      brdf_model=brdf_model, options=brdf_options, model_error=model_error)
+
+
+def _write_outputs(outdir: str, fits: dict, data: dict, rankings: dict, kept: dict, *,
+                   figures: bool, progress, comparison, truth, shown: dict) -> dict:
+    """The pipeline's files in ``outdir``, as one transaction: {key: file name}. ``shown``:
+    the inputs as report.md names them."""
+    names = {}
+    owned = list(FILES.values()) + [RANKING_FILE, CANDIDATES_DIR]
+    with output_folder(outdir, owned=owned) as folder:
+        for key, result in fits.items():
+            if result is not None:
+                result.to_json(folder / FILES[key])
+                names[key] = FILES[key]
+        names.update(_write_selection(folder, rankings, kept))
+        ref, med, tgt, direct = (fits[k] for k in ("reference", "medium", "target", "direct"))
+        if figures:
+            if progress is not None:
+                progress("figures", None, None)
+            names.update(_write_figures(folder, data, ref, med, tgt, direct))
+        report = pipeline_report(ref, med, tgt, direct, comparison, truth, names, shown)
+        if rankings:
+            report = report.rstrip("\n") + "\n\n" + "\n".join(ranking_section(rankings)) + "\n"
+        write_text_atomic(folder / FILES["report"], report)
+        names["report"] = FILES["report"]
+    return names
 
 
 def run_pipeline(reference_clear, reference_medium, target_medium, black=None, target_clear=None,
@@ -150,102 +275,36 @@ def run_pipeline(reference_clear, reference_medium, target_medium, black=None, t
               "target_medium": target_medium, "black": black, "target_clear": target_clear}
     _check_outputs(outdir, inputs)
 
-    def stage(name):
-        """The callback of one step; announces the step at once."""
-        if progress is None:
-            return None
-        progress(f"{name}: starting", None, None)
-        return lambda what, done, total: progress(f"{name}: {what}", done, total)
-
-    mode = None if models is None else selection.parse_models(models)
-    if mode is not None and (brdf_model is not None or medium_model is not None):
-        raise FitError("give models= or brdf_model= / medium_model=, not both")
-    if mode == PAPER:
-        mode = None
-    elif isinstance(mode, tuple):
-        (brdf_model, medium_model), mode = mode, None
-    plan = None
-    if mode == AUTO:  # the candidates and their entries, checked before any reading
-        plan = _plan(fixed, free, brdf_options, medium_options, variant)
-
+    brdf_model, medium_model, auto = _resolve_models(models, brdf_model, medium_model)
+    # the candidates and their entries, checked before any reading
+    plan = _plan(fixed, free, brdf_options, medium_options, variant) if auto else None
     # read and check every input before the first (long) fit
-    data = {"reference_clear": prepare(reference_clear, None, "reference (clear medium)"),
-            "reference_medium": prepare(reference_medium, black, "reference (in the medium)"),
-            "target_medium": prepare(target_medium, black, "target (in the medium)")}
-    if target_clear is not None:
-        data["target_clear"] = prepare(target_clear, None, "target (clear medium)")
+    data = _prepare_sessions(inputs)
 
-    rankings, kept = {}, {}
+    rankings: dict = {}
+    kept: dict = {}
     if plan is not None:
         ref, med, tgt, brdf_model, brdf_options, rankings, kept = _select(
             data, plan, accuracy=accuracy, max_nfev=max_nfev, progress=progress,
             model_error=model_error, propagation=propagation, keep=keep_candidates)
-        brdf = {"brdf_model": brdf_model, "options": brdf_options,
-                "model_error": model_error}
     else:
-        brdf = {"brdf_model": brdf_model, "options": brdf_options,
-                "model_error": model_error}
-        chained = {"model_error": model_error, "propagation": propagation}
-        ref = fit_reference(data["reference_clear"].table, fixed=fixed.get("reference"),
-                            max_nfev=max_nfev, progress=stage("step 0, reference"),
-                            free=free.get("reference"), **brdf)
-        med = fit_medium(data["reference_medium"].table, ref, fixed=fixed.get("medium"),
-                         variant=variant, accuracy=accuracy, max_nfev=max_nfev,
-                         progress=stage("step 1, medium"), medium_model=medium_model,
-                         options=medium_options, free=free.get("medium"), **chained)
-        tgt = fit_target(data["target_medium"].table, med, fixed=fixed.get("target"),
-                         accuracy=accuracy, max_nfev=max_nfev,
-                         progress=stage("step 2, target"), free=free.get("target"),
-                         brdf_model=brdf_model, options=brdf_options, **chained)
+        ref, med, tgt = _fit_steps(
+            data, fixed, free, variant=variant, accuracy=accuracy, max_nfev=max_nfev,
+            progress=progress, brdf_model=brdf_model, medium_model=medium_model,
+            brdf_options=brdf_options, medium_options=medium_options,
+            model_error=model_error, propagation=propagation)
     direct = comparison = None
     if target_clear is not None:
-        fix_d, free_d = fixed.get("target"), free.get("target")
-        if rankings:  # the chosen family's entries
-            cls = registry_class(brdf_model)
-            fix_d = _for_family(cls, fixed, "target", "fixed", set())
-            free_d = _for_family(cls, free, "target", "free", set())
-        direct = fit_direct(data["target_clear"].table, fixed=fix_d,
-                            max_nfev=max_nfev, progress=stage("target, clear medium"),
-                            free=free_d, **brdf)
+        direct = _fit_direct(data["target_clear"], fixed, free, chosen=bool(rankings),
+                             brdf_model=brdf_model, brdf_options=brdf_options,
+                             max_nfev=max_nfev, progress=progress, model_error=model_error)
         comparison = compare(tgt, direct)
 
-    names = {}
-    owned = list(FILES.values()) + [RANKING_FILE, CANDIDATES_DIR]
-    with output_folder(outdir, owned=owned) as folder:
-        for key, result in (("reference", ref), ("medium", med), ("target", tgt),
-                            ("direct", direct)):
-            if result is not None:
-                result.to_json(folder / FILES[key])
-                names[key] = FILES[key]
-        if rankings:
-            write_text_atomic(folder / RANKING_FILE, json.dumps(
-                {step: r.to_dict() for step, r in rankings.items()}, indent=1) + "\n")
-            names["ranking"] = RANKING_FILE
-        for step, results in kept.items():
-            (folder / CANDIDATES_DIR / step).mkdir(parents=True, exist_ok=True)
-            for label, result in results.items():
-                name = os.path.join(CANDIDATES_DIR, step, _file_name(label))
-                result.to_json(folder / name)
-                names[f"{CANDIDATES_DIR}/{step}/{label}"] = name
-        if figures:
-            if progress is not None:
-                progress("figures", None, None)
-            figs = {"reference_fig": (data["reference_clear"], ref, None, None),
-                    "medium_fig": (data["reference_medium"], med, ref.as_model(), None),
-                    "target_fig": (data["target_medium"], tgt, med.as_model(), None)}
-            if direct is not None:
-                figs["direct_fig"] = (data["target_clear"], direct, None, tgt)
-            for key, (d, result, other, extra) in figs.items():
-                write_bytes_atomic(folder / FILES[key], fit_figure(d, result, other, extra))
-                names[key] = FILES[key]
-        # inputs inside the output folder are named relative to it (links from report.md)
-        shown = {k: (os.path.relpath(v, outdir) if isinstance(v, (str, os.PathLike))
-                     and _inside(v, outdir) else v) for k, v in inputs.items()}
-        report = pipeline_report(ref, med, tgt, direct, comparison, truth, names, shown)
-        if rankings:
-            report = report.rstrip("\n") + "\n\n" + "\n".join(ranking_section(rankings)) + "\n"
-        write_text_atomic(folder / FILES["report"], report)
-        names["report"] = FILES["report"]
+    fits = {"reference": ref, "medium": med, "target": tgt, "direct": direct}
+    # inputs inside the output folder are named relative to it (links from report.md)
+    names = _write_outputs(outdir, fits, data, rankings, kept, figures=figures,
+                           progress=progress, comparison=comparison, truth=truth,
+                           shown=_relative_to(inputs, outdir))
     files = {key: os.path.join(outdir, name) for key, name in names.items()}
     return PipelineResult(ref, med, tgt, direct, comparison, files, rankings)
 
@@ -260,22 +319,33 @@ def _file_name(label: str) -> str:
     return label + ".json"
 
 
+def _write_selection(folder, rankings: dict, kept: dict) -> dict:
+    """``ranking.json`` (with rankings) and every kept candidate's result in ``folder``:
+    {key: file name}."""
+    names = {}
+    if rankings:
+        write_text_atomic(folder / RANKING_FILE, json.dumps(
+            {step: r.to_dict() for step, r in rankings.items()}, indent=1) + "\n")
+        names["ranking"] = RANKING_FILE
+    for step, results in kept.items():
+        (folder / CANDIDATES_DIR / step).mkdir(parents=True, exist_ok=True)
+        for label, result in results.items():
+            name = os.path.join(CANDIDATES_DIR, step, _file_name(label))
+            result.to_json(folder / name)
+            names[f"{CANDIDATES_DIR}/{step}/{label}"] = name
+    return names
+
+
 def _per_family(cands, per_step: dict, step: str, what: str) -> dict:
     """{label: the ``fixed`` / ``free`` entries of ``step`` its family declares}; an entry no
     candidate declares is an error."""
     used: set = set()
-    out = {c.label: _for_family(registry_class(c.family), per_step, step, what, used)
+    out = {c.label: _for_family(model_class(c.family), per_step, step, what, used)
            for c in cands}
     unused = [f"{step}.{k}" for k in (per_step.get(step) or []) if (step, k) not in used]
     if unused:
         raise FitError(f"{what} {', '.join(unused)}: no candidate model has such a parameter")
     return out
-
-
-def registry_class(name):
-    from .models import model_class
-
-    return model_class(name)
 
 
 def _with_selection(result: FitResult, ranking) -> FitResult:
@@ -321,14 +391,14 @@ def _plan(fixed, free, brdf_options, medium_options, variant) -> dict:
     an entry or option no candidate declares is an error."""
     brdf_options, medium_options = dict(brdf_options or {}), dict(medium_options or {})
     if variant is not None:
-        medium_options.setdefault("variant", variant)
+        medium_options.setdefault(VARIANT_OPTION, variant)
     b_cands = selection.candidates("brdf", brdf_options)
     m_cands = selection.candidates("medium", medium_options)
     for kind, cands, opts in (("BRDF", b_cands, brdf_options),
                               ("medium", m_cands, medium_options)):
         if not cands:
             raise FitError(f"no registered {kind} family is a candidate with options {opts}")
-        declared = {o for c in cands for o in registry_class(c.family).option_names()}
+        declared = {o for c in cands for o in model_class(c.family).option_names()}
         unused = sorted(set(opts) - declared)
         if unused:
             raise FitError(f"option(s) {', '.join(unused)}: no {kind} candidate declares them")
@@ -349,7 +419,7 @@ def _select(data, plan, *, accuracy, max_nfev, progress, model_error, propagatio
         plan[k] for k in ("fix_b", "free_b", "fix_m", "free_m", "fix_t", "free_t"))
     chained = {"model_error": model_error, "propagation": propagation}
     configs = protocol()
-    angles = tuple(configs[c].to_numpy() for c in ("theta_i", "phi_i", "theta_r", "phi_r"))
+    angles = tuple(configs[c].to_numpy() for c in CANONICAL)
 
     def fr_curve(result):
         return model_values(result, None, angles)
@@ -390,7 +460,7 @@ def _select(data, plan, *, accuracy, max_nfev, progress, model_error, propagatio
     tgt = _with_selection(results[ranking.chosen], ranking)
     chosen = ranking.row(ranking.chosen)
     opts = {k: v for k, v in brdf_options.items()
-            if k in registry_class(chosen["family"]).option_names()}
+            if k in model_class(chosen["family"]).option_names()}
     opts.update(chosen["options"])
     return (ref, med, tgt, chosen["family"], opts, rankings,
             kept if keep else {})
@@ -424,7 +494,7 @@ def compare(estimated: FitResult, direct: FitResult) -> dict:
                       "stderr_combined": combined if combined > 0 else None,
                       "z": (value - ref) / combined if combined > 0 else None}
     configs = protocol()
-    angles = tuple(configs[c].to_numpy() for c in ("theta_i", "phi_i", "theta_r", "phi_r"))
+    angles = tuple(configs[c].to_numpy() for c in CANONICAL)
     f_est, se_f_est = curve_stderr(estimated, angles)
     f_dir, se_f_dir = curve_stderr(direct, angles)
     diff = f_est - f_dir
@@ -461,6 +531,7 @@ def _for_family(cls, per_step: dict, step: str, what: str, used: set) -> dict | 
     if not entries:
         return None
     names = cls.param_names()
+    kept: dict | list
     if isinstance(entries, dict):
         kept = {k: v for k, v in entries.items() if k in names}
     else:

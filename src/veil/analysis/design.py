@@ -32,6 +32,7 @@ import math
 import numpy as np
 import pandas as pd
 
+from ..data.measurements import ANGLE_COLUMNS
 from ..data.protocol import protocol
 from ..engine.apparent import as_brdf, as_btdf
 from ..errors import InputError
@@ -46,7 +47,6 @@ MODES = ("joint", "known")
 PRIOR_SD_LOG = 10.0
 PRIOR_SD_PLAIN = 1.0
 
-ANGLE_COLUMNS = ("psi", "rho", "theta_i", "phi_i", "theta_r", "phi_r")
 
 
 def interest_names(brdf_cls) -> tuple[str, ...]:
@@ -134,6 +134,41 @@ def candidates(conds: dict, psi=DEFAULT_PSI, *, fine_step: float = 1.0,
     return pd.concat(blocks, ignore_index=True)
 
 
+def _check_noise(noise, floor) -> None:
+    """The relative noise and the noise floor: finite, >= 0, not both 0."""
+    for name, v in (("noise", noise), ("noise floor", floor)):
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) \
+                or v < 0:
+            raise InputError(f"{name} = {v!r}: expected a finite number >= 0")
+    if noise == 0 and floor == 0:
+        raise InputError("noise and noise floor are both 0: the information would be "
+                         "infinite; give a relative noise (e.g. 0.01) or a floor")
+
+
+def _medium_columns(mcls, media: list, labels: list, names: list, prior_log: list) -> dict:
+    """The columns of the media's parameters in a joint design: {(condition, parameter):
+    column}, one per condition, or one for all when the media share the value. Appends the
+    columns' names and whether their prior is in logs to ``names`` and ``prior_log``."""
+    col = {}
+    shared = {p.name: p.share is not None and len({getattr(m, p.name) for m in media}) == 1
+              for p in mcls.PARAMS}
+    for label in labels:
+        for p in mcls.PARAMS:
+            if shared[p.name]:
+                continue
+            col[(label, p.name)] = len(names)
+            names.append(f"{p.key}[{label}]")
+            prior_log.append(p.log_scale)
+    for p in mcls.PARAMS:
+        if shared[p.name]:
+            idx = len(names)
+            names.append(p.key)
+            prior_log.append(p.log_scale)
+            for label in labels:
+                col[(label, p.name)] = idx
+    return col
+
+
 class Information:
     """Per-candidate information rows of a design problem (module docstring).
 
@@ -148,13 +183,7 @@ class Information:
                  accuracy: str = "fast"):
         if mode not in MODES:
             raise InputError(f"medium mode {mode!r}; expected one of {', '.join(MODES)}")
-        for name, v in (("noise", noise), ("noise floor", floor)):
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) \
-                    or v < 0:
-                raise InputError(f"{name} = {v!r}: expected a finite number >= 0")
-        if noise == 0 and floor == 0:
-            raise InputError("noise and noise floor are both 0: the information would be "
-                             "infinite; give a relative noise (e.g. 0.01) or a floor")
+        _check_noise(noise, floor)
         self.brdf = as_brdf(brdf)
         bcls = type(self.brdf)
         possible = interest_names(bcls)
@@ -188,24 +217,7 @@ class Information:
                   if p.name not in scales]
         names = [s[0] for s in specs] + ([scales[0]] if scales else [])
         prior_log = [s[2] for s in specs] + ([True] if scales else [])
-        col = {}
-        if mode == "joint":
-            shared = {p.name: p.share is not None and len({getattr(m, p.name) for m in media}) == 1
-                      for p in mcls.PARAMS}
-            for label in labels:
-                for p in mcls.PARAMS:
-                    if shared[p.name]:
-                        continue
-                    col[(label, p.name)] = len(names)
-                    names.append(f"{p.key}[{label}]")
-                    prior_log.append(p.log_scale)
-            for p in mcls.PARAMS:
-                if shared[p.name]:
-                    idx = len(names)
-                    names.append(p.key)
-                    prior_log.append(p.log_scale)
-                    for label in labels:
-                        col[(label, p.name)] = idx
+        col = _medium_columns(mcls, media, labels, names, prior_log) if mode == "joint" else {}
         self.names = names
         self.interest = [names.index(p) for p in interest]
         self.nuisance = [k for k in range(len(names)) if k not in self.interest]

@@ -24,16 +24,16 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import cast
 
 import numpy as np
 
-from ..errors import InputTypeError
-from ..errors import FitError
+from ..errors import FitError, InputTypeError
 from ..fitting.joint import build, shareable
 from ..fitting.problem import ITERATION_ACCURACY, session_problem
 from ..fitting.result import FitResult, JointResult
-from ..fitting.solver import covariance, solve
-from ..models import REGISTRY, Model
+from ..fitting.solver import covariance, solve, weighted_jacobian
+from ..models import BRDF, REGISTRY, Medium, Model
 from ..numbers import format_number, format_percent
 
 #: Default thresholds.
@@ -190,7 +190,7 @@ def problem_for(result: FitResult, data, *, medium=None, reference=None, black=N
         Gaussian prior from its covariance; a model: held exact). Default: the result's
         ``given`` model, exact.
     """
-    notes = []
+    notes: list[str] = []
     if isinstance(result, JointResult):
         layout = result.layout
         ref = None
@@ -220,7 +220,7 @@ def problem_for(result: FitResult, data, *, medium=None, reference=None, black=N
     if step in ("reference", "direct"):
         if medium is not None or reference is not None:
             raise FitError(f"a {step} fit (clear water) has no medium or reference to include")
-        return session_problem(data, model, None, free=free, black=black,
+        return session_problem(data, cast(BRDF, model), None, free=free, black=black,
                                what=f"{step} (clear medium)"), notes
     if step == "target":
         if reference is not None:
@@ -232,7 +232,7 @@ def problem_for(result: FitResult, data, *, medium=None, reference=None, black=N
                 raise FitError("the target result does not name its medium: give medium=")
             notes.append("the medium is taken as exact (give the medium's fit result to "
                          "include its uncertainty)")
-        problem = session_problem(data, model, other, free=free, black=black,
+        problem = session_problem(data, cast(BRDF, model), other, free=free, black=black,
                                   what="target (in the medium)")
         if other_result is not None:
             _add_prior(problem, other_result, "medium")
@@ -246,7 +246,7 @@ def problem_for(result: FitResult, data, *, medium=None, reference=None, black=N
                 raise FitError("the medium result does not name its reference: give reference=")
             notes.append("the reference's f_r is taken as exact (give the reference's fit "
                          "result to include its uncertainty)")
-        problem = session_problem(data, other, model, free=free, black=black,
+        problem = session_problem(data, other, cast(Medium, model), free=free, black=black,
                                   what="reference (in the medium)")
         if other_result is not None:
             _add_prior(problem, other_result, "reference")
@@ -273,6 +273,28 @@ def _add_prior(problem, other: FitResult, what):
 # --------------------------------------------------------------------------------------
 # the diagnostics
 # --------------------------------------------------------------------------------------
+def _profiles(problem, x, which: list, stderr: dict, points: int, accuracy: str,
+              progress) -> dict:
+    """{name: profile likelihood} of the free parameters ``which``."""
+    names = problem.free_names
+    unknown = [n for n in which if n not in names]
+    if unknown:
+        raise FitError(f"cannot profile {', '.join(map(repr, unknown))}: the free "
+                       f"parameters are {', '.join(names)}")
+    chi2_scale = 1.0
+    if not problem.weighted:
+        dof = problem.n_points - len(names)
+        res = (problem.y - problem.model_values(x, accuracy)) * problem.w
+        chi2_scale = max(float(res @ res) / dof, 1e-300)
+    out = {}
+    for k, n in enumerate(which):
+        out[n] = profile_likelihood(problem, x, n, stderr[n], points=points, scale=chi2_scale,
+                                    accuracy=accuracy)
+        if progress:
+            progress("profiles", k + 1, len(which))
+    return out
+
+
 def diagnose(result: FitResult, data, *, medium=None, reference=None, black=None,
              profile=False, points: int = PROFILE_POINTS, max_relative: float = MAX_RELATIVE,
              max_correlation: float = MAX_CORRELATION, accuracy: str = ITERATION_ACCURACY,
@@ -307,8 +329,7 @@ def diagnose(result: FitResult, data, *, medium=None, reference=None, black=None
                        "the parameters is not determined at all (fix one of them)")
     se = np.sqrt(np.maximum(np.diag(cov), 0.0))
     corr = cov / np.outer(se, se)
-    _, full = problem.value_and_jacobian(x, accuracy, problem.free)
-    jw = np.concatenate([full * problem.w[:, None], problem.prior_rows(x)[1]])[:, problem.free]
+    jw = weighted_jacobian(problem, x, accuracy)
     vals = x[problem.free]
     cond_values = _cond(jw * np.where(vals != 0, np.abs(vals), 1.0)[None, :])
     cond_stderr = _cond(jw * se[None, :])
@@ -326,21 +347,8 @@ def diagnose(result: FitResult, data, *, medium=None, reference=None, black=None
                      thresholds={"max_relative": max_relative,
                                  "max_correlation": max_correlation, "flat": FLAT})
     if profile:
-        which = names if profile is True else list(profile)
-        unknown = [n for n in which if n not in names]
-        if unknown:
-            raise FitError(f"cannot profile {', '.join(map(repr, unknown))}: the free "
-                           f"parameters are {', '.join(names)}")
-        chi2_scale = 1.0
-        if not problem.weighted:
-            dof = problem.n_points - len(names)
-            res = (problem.y - problem.model_values(x, accuracy)) * problem.w
-            chi2_scale = max(float(res @ res) / dof, 1e-300)
-        for k, n in enumerate(which):
-            diag.profiles[n] = profile_likelihood(problem, x, n, stderr[n], points=points,
-                                                  scale=chi2_scale, accuracy=accuracy)
-            if progress:
-                progress("profiles", k + 1, len(which))
+        diag.profiles.update(_profiles(problem, x, names if profile is True else list(profile),
+                                       stderr, points, accuracy, progress))
     for n in names:
         if relative[n] > max_relative:
             diag.poorly_determined.append(
@@ -423,5 +431,5 @@ def _crossing(values, chi2):
     return None
 
 
-__all__ = ["diagnose", "Diagnosis", "Profile", "profile_likelihood", "problem_for", 
+__all__ = ["diagnose", "Diagnosis", "Profile", "profile_likelihood", "problem_for",
            "relative_error", "MAX_RELATIVE", "MAX_CORRELATION"]

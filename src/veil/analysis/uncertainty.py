@@ -8,7 +8,8 @@ or through sigma points where it is large, :mod:`veil.fitting.propagation`);
 this module splits that total into a per-step budget, can compute step 0's part from the
 reference's own data, and checks the linearization by sampling.
 
-The target's estimate solves J_t^T W r(theta_t, theta_m) = 0, so a change d theta_m of the medium moves it by
+The target's estimate solves J_t^T W r(theta_t, theta_m) = 0, so a change d theta_m of the
+medium moves it by
 
     d theta_t = -A d theta_m,   A = (J_t^T W J_t)^-1 J_t^T W J_m   (= J_t^+ J_m, weighted)
 
@@ -36,15 +37,19 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from typing import TYPE_CHECKING, cast
 
 import numpy as np
 
-from ..errors import FitError, InputTypeError
 from ..engine.evaluator import DirectModel
+from ..errors import FitError, InputTypeError
 from ..fitting.problem import ITERATION_ACCURACY, session_problem
 from ..fitting.propagation import sigma_part
 from ..fitting.result import FitResult, JointResult
 from ..fitting.solver import solve
+
+if TYPE_CHECKING:  # the result's kind: a fit of a BRDF or of a medium
+    from ..models import BRDF, Medium
 
 #: Parts of the error budget, in pipeline order; a correlated model error that step 2 shares
 #: with step 1 adds their cross term as the part "shared" (docs/fitting.md; it can be
@@ -141,9 +146,10 @@ def medium_parts(medium_result: FitResult, reference_result: FitResult | None = 
                        "in the medium, step 1's data) to propagate step 0, or neither")
     if reference_result is not None:
         ref_names, cov0 = covariance_of(reference_result)
-        problem = session_problem(reference_table, reference_result.as_model(),
-                                  medium_result.as_model(), free=_medium_map(medium_result, names),
-                                  black=black, what="reference (in the medium)")
+        problem = session_problem(reference_table, cast("BRDF", reference_result.as_model()),
+                                  cast("Medium", medium_result.as_model()),
+                                  free=_medium_map(medium_result, names), black=black,
+                                  what="reference (in the medium)")
         if problem.n_points != medium_result.n_points:
             raise FitError(f"the reference table has {problem.n_points} points but the medium "
                            f"fit used {medium_result.n_points}: give the table (and black "
@@ -158,6 +164,23 @@ def medium_parts(medium_result: FitResult, reference_result: FitResult | None = 
                            "parameters")
         parts["step0"] = cov_t - cov1
     return names, parts
+
+
+def _sigma_point_parts(problem, medium_result: FitResult, m_names, m_parts: dict,
+                       mapped) -> dict:
+    """Step 1's part (and step 0's) through sigma-point refits: step 0's is what adding its
+    covariance to step 1's adds."""
+    cols = [problem.index(n) for n in mapped]
+    specs = [medium_result.model_class.param(n) for n in m_names]
+    spread = {}
+    for part, cov_m in (("step1", m_parts["step1"]),
+                        ("step0", m_parts["step1"] + m_parts.get("step0", 0.0))):
+        if part in m_parts:
+            spread[part] = sigma_part(problem, problem.values, cols, specs, cov_m).covariance
+    parts = {"step1": spread["step1"]}
+    if "step0" in spread:
+        parts["step0"] = spread["step0"] - spread["step1"]
+    return parts
 
 
 def propagate(target_result: FitResult, medium_result: FitResult, table, *,
@@ -194,8 +217,9 @@ def propagate(target_result: FitResult, medium_result: FitResult, table, *,
     theta, cov2 = covariance_of(target_result)
     m_names, m_parts = medium_parts(medium_result, reference_result, reference_table,
                                     black=reference_black, accuracy=accuracy)
-    problem = session_problem(table, target_result.as_model(), medium_result.as_model(),
-                              free=theta, black=black, what="target (in the medium)")
+    problem = session_problem(table, cast("BRDF", target_result.as_model()),
+                              cast("Medium", medium_result.as_model()), free=theta,
+                              black=black, what="target (in the medium)")
     if problem.n_points != target_result.n_points:
         raise FitError(f"the table has {problem.n_points} points but the target fit used "
                        f"{target_result.n_points}: give the table (and black cloth) of that fit")
@@ -206,20 +230,11 @@ def propagate(target_result: FitResult, medium_result: FitResult, table, *,
         for part, cov_m in m_parts.items():
             parts[part] = a @ cov_m @ a.T
     else:
-        cols = [problem.index(n) for n in mapped]
-        specs = [medium_result.model_class.param(n) for n in m_names]
-        spread = {}
-        for part, cov_m in (("step1", m_parts["step1"]),
-                            ("step0", m_parts["step1"] + m_parts.get("step0", 0.0))):
-            if part in m_parts:
-                spread[part] = sigma_part(problem, problem.values, cols, specs, cov_m).covariance
-        parts["step1"] = spread["step1"]
-        if "step0" in spread:
-            parts["step0"] = spread["step0"] - spread["step1"]
+        parts.update(_sigma_point_parts(problem, medium_result, m_names, m_parts, mapped))
     cross = _shared_part(problem, target_result, medium_result, m_names, -a)
     if cross is not None:
         parts[SHARED] = cross
-    total = sum(parts.values())
+    total = cast(np.ndarray, sum(parts.values()))  # (of arrays: an array)
     se = np.sqrt(np.maximum(np.diag(total), 0.0))
     budget = {}
     for j, n in enumerate(theta):
@@ -231,7 +246,7 @@ def propagate(target_result: FitResult, medium_result: FitResult, table, *,
     for i, na in enumerate(theta):
         corr[na] = {nb: (float(total[i, j] / (se[i] * se[j])) if se[i] * se[j] > 0 else None)
                     for j, nb in enumerate(theta)}
-    stderr_total = {n: None for n in target_result.params}
+    stderr_total: dict[str, float | None] = {n: None for n in target_result.params}
     stderr_total.update({n: float(s) for n, s in zip(theta, se)})
     sens = {n: {m: float(-a[j, k]) for k, m in enumerate(m_names)} for j, n in enumerate(theta)}
     what = "the medium's (step 1)" + (" and the reference's (step 0)" if "step0" in parts else "")
@@ -351,9 +366,9 @@ def sample_propagation(target_result: FitResult, medium_result: FitResult, table
     _check_pair(target_result, medium_result, None)
     theta = list(target_result.free)
     m_names, cov_m = covariance_of(medium_result)
-    medium = medium_result.as_model()
-    base = session_problem(table, target_result.as_model(), medium, free=theta, black=black,
-                           what="target (in the medium)")
+    medium = cast("Medium", medium_result.as_model())
+    base = session_problem(table, cast("BRDF", target_result.as_model()), medium, free=theta,
+                           black=black, what="target (in the medium)")
     nominal = solve(base, base.values, max_nfev=max_nfev)
     x0 = nominal.x
     mapped = _medium_map(medium_result, m_names)
@@ -363,15 +378,15 @@ def sample_propagation(target_result: FitResult, medium_result: FitResult, table
     draws, redrawn = _draw(rng, mean, cov_m, m_names, n_draws, medium_result.model_class)
     it = [base.index(n) for n in theta]
     im = [base.index(n) for n in mapped]
-    shifts, conv = [], []
+    shift_rows, conv = [], []
     for d in draws:
         sub = base.with_fixed(dict(zip(mapped, d)))
         start = x0.copy()
         start[im] = d
         sol = solve(sub, start, max_nfev=max_nfev)
-        shifts.append(sol.x[it] - x0[it])
+        shift_rows.append(sol.x[it] - x0[it])
         conv.append(sol.status > 0)
-    shifts = np.array(shifts)
+    shifts = np.array(shift_rows)
     linear = -(draws - mean) @ a.T
     return {"names": theta, "medium_names": m_names, "draws": draws, "shifts": shifts,
             "linear": linear, "covariance": np.cov(shifts, rowvar=False),

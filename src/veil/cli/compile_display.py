@@ -12,7 +12,8 @@ from __future__ import annotations
 import contextlib
 import threading
 import time
-from typing import Iterator
+from collections.abc import Iterator
+from typing import Any
 
 import click
 
@@ -44,7 +45,7 @@ class CompileDisplay:
         self.total = 0.0
         self._lock = threading.Lock()
         self._rows: dict = {}
-        self._progress = None
+        self._progress: Any = None  # a rich Progress, made at the first compilation
         self._ticker: threading.Thread | None = None
 
     def __call__(self, event: str, compilation, seconds: float) -> None:

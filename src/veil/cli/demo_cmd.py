@@ -18,7 +18,6 @@ import click
 
 from ..models import PRESETS
 
-
 #: The demo's set-up: which preset plays which role.
 SETUP = {"reference": "BRDF2", "medium": "BTDF2", "target": "BRDF1"}
 #: Session files written under OUTDIR/data, by role.

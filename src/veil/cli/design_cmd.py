@@ -40,6 +40,40 @@ def _se(info, name, value) -> str:
     return (f"{value:.3g}" if plain else f"{100 * value:.3g} %") + mark
 
 
+def _conditions(named: dict, factors) -> dict:
+    """The media to compare, each at the concentration ``factors`` when given."""
+    facs = _floats(factors, "--factors") if factors else None
+    if facs is None:
+        return named
+    bad = [f for f in facs if not (math.isfinite(f) and f > 0)]
+    if bad:
+        raise UserError(f"--factors {factors!r}: {bad[0]:g} is not a concentration factor; "
+                        f"expected finite numbers > 0 (e.g. 0.5,1,2)")
+    from ..analysis.design import condition_medium
+
+    out = {f"{label} x{f:g}": condition_medium(m, f) for label, m in named.items() for f in facs}
+    if len(out) != len(named) * len(facs):
+        raise UserError(f"--factors {factors!r}: a factor is repeated")
+    return out
+
+
+def _plan_table(plan):
+    """The plan as a rich table, signed in-plane angles."""
+    from rich.markup import escape
+    from rich.table import Table
+
+    table = Table(title=f"Plan of {len(plan)} measurements (greedy D_s-optimal, best first)",
+                  title_justify="left")
+    for col in ("step", "condition", "psi", "rho", "theta_i", "theta_r", "gain"):
+        table.add_column(col, justify="left" if col == "condition" else "right")
+    for row in plan.itertuples():
+        ti = row.theta_i if row.phi_i == 180.0 else -row.theta_i
+        tr = row.theta_r if row.phi_r == 0.0 else -row.theta_r
+        table.add_row(str(row.step), escape(row.condition), f"{row.psi:g}", f"{row.rho:g}",
+                      f"{ti:g}", f"{tr:g}", f"{row.gain:.3g}")
+    return table
+
+
 @click.command("design")
 @click.option("--brdf", required=True, metavar="MODEL",
               help="The expected target: preset (BRDF1, BRDF2) or a literal list of the "
@@ -107,19 +141,7 @@ def design_command(brdf, media, factors, size, psi, fine_step, window, coarse_st
         raise UserError("a --medium is given twice")
     if output is not None:
         check_output_path(output)
-    named = dict(zip(labels, chosen))
-    facs = _floats(factors, "--factors") if factors else None
-    if facs is not None:
-        bad = [f for f in facs if not (math.isfinite(f) and f > 0)]
-        if bad:
-            raise UserError(f"--factors {factors!r}: {bad[0]:g} is not a concentration factor; "
-                            f"expected finite numbers > 0 (e.g. 0.5,1,2)")
-        from ..analysis.design import condition_medium
-
-        named = {f"{label} x{f:g}": condition_medium(m, f)
-                 for label, m in named.items() for f in facs}
-        if len(named) != len(labels) * len(facs):
-            raise UserError(f"--factors {factors!r}: a factor is repeated")
+    named = _conditions(dict(zip(labels, chosen)), factors)
     from ._common import echo_warnings
     with echo_warnings():
         result = design(model_b, list(named.values()), size, psi=_floats(psi, "--psi"),
@@ -133,16 +155,7 @@ def design_command(brdf, media, factors, size, psi, fine_step, window, coarse_st
     mapping = dict(zip(info.conditions, named))
     plan["condition"] = [mapping[c] for c in plan["condition"]]
     console = Console()
-    table = Table(title=f"Plan of {len(plan)} measurements (greedy D_s-optimal, best first)",
-                  title_justify="left")
-    for col in ("step", "condition", "psi", "rho", "theta_i", "theta_r", "gain"):
-        table.add_column(col, justify="left" if col == "condition" else "right")
-    for row in plan.itertuples():
-        ti = row.theta_i if row.phi_i == 180.0 else -row.theta_i
-        tr = row.theta_r if row.phi_r == 0.0 else -row.theta_r
-        table.add_row(str(row.step), escape(row.condition), f"{row.psi:g}", f"{row.rho:g}", f"{ti:g}",
-                      f"{tr:g}", f"{row.gain:.3g}")
-    console.print(table)
+    console.print(_plan_table(plan))
     names = [info.names[k] for k in info.interest]
     ctab = Table(title="Conditions (predicted stderr of the interest parameters, plan of the "
                        "same size from one condition alone)",

@@ -60,7 +60,7 @@ def _print(diag, console) -> None:
     table = Table(title="Identifiability", title_justify="left")
     for col in ("parameter", "value", "stderr", "relative", "profile 1-sigma", "flag"):
         table.add_column(col, justify="left" if col in ("parameter", "flag") else "right")
-    flagged = {}
+    flagged: dict = {}
     for n, reason in diag.poorly_determined:
         flagged.setdefault(n, []).append(reason)
     for n in diag.names:
@@ -68,8 +68,9 @@ def _print(diag, console) -> None:
         interval = "-"
         if prof is not None:
             lo, hi = prof.interval
-            interval = (f"[{'<' + format(prof.values[0], '.4g') if lo is None else format(lo, '.4g')}, "
-                        f"{'>' + format(prof.values[-1], '.4g') if hi is None else format(hi, '.4g')}]")
+            low = "<" + format(prof.values[0], ".4g") if lo is None else format(lo, ".4g")
+            high = ">" + format(prof.values[-1], ".4g") if hi is None else format(hi, ".4g")
+            interval = f"[{low}, {high}]"
         rel = diag.relative[n]
         table.add_row(e(n), f"{diag.values[n]:.5g}", f"{diag.stderr[n]:.3g}",
                       "-" if rel == float("inf") else f"{100 * rel:.3g} %", interval,
@@ -98,7 +99,8 @@ def _print(diag, console) -> None:
 @click.option("--data", "data", multiple=True, required=True, metavar="TABLE",
               help="The fit's measurement table. For a joint result: each session as "
                    "LABEL=PATH (target) or ref:LABEL=PATH (reference), repeated.")
-@click.option("--black", type=IN_FILE, help="Black-cloth table subtracted in the fit (step results).")
+@click.option("--black", type=IN_FILE,
+              help="Black-cloth table subtracted in the fit (step results).")
 @click.option("--medium", metavar="MEDIUM",
               help="For a target fit: the medium's fit result (JSON; its uncertainty is "
                    "included) or a model (held exact). Default: the medium in RESULT, exact.")

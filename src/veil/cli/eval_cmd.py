@@ -9,11 +9,10 @@ import math
 import time
 
 import click
-from .._lazy import np
 
+from .._lazy import np
 from ..io import write_text_atomic
-from ._common import (ACCURACIES, UserError, check_output_path, model_options,
-                      read_csv_table)
+from ._common import ACCURACIES, UserError, check_output_path, model_options
 
 ANGLES = ("theta_i", "phi_i", "theta_r", "phi_r")  # the --configs columns, degrees
 ADDED = ("apparent", "clear", "error")  # the columns veil eval adds
@@ -93,6 +92,8 @@ def _read_configs(configs):
     """Angles (degrees, canonical) and the table of strings of a --configs file, in any of
     the three angle forms of measurement tables (docs/model.md sec. 1): the four angles, signed
     in-plane theta_i, theta_r, or goniometer psi, rho."""
+    from ._csv_input import read_csv_table
+
     def four_angles(header):  # the four-angle form is parsed here, the others below
         return ANGLES if any(c in header for c in ("phi_i", "phi_r")) else ()
 
@@ -169,9 +170,16 @@ class _Progress:
         if self.bar is None:
             if done >= total or seconds * (total - done) / CHUNK < PROGRESS_AFTER:
                 return
+            from rich.progress import (
+                BarColumn,
+                MofNCompleteColumn,
+                Progress,
+                TextColumn,
+                TimeElapsedColumn,
+                TimeRemainingColumn,
+            )
+
             from .compile_display import console
-            from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TextColumn,
-                                       TimeElapsedColumn, TimeRemainingColumn)
 
             self.bar = Progress(TextColumn("veil eval: configurations"), BarColumn(),
                                 MofNCompleteColumn(), TimeElapsedColumn(),
@@ -191,6 +199,26 @@ def _emit(text: str, output) -> None:
         click.echo(text, nl=False)
     else:
         write_text_atomic(output, text)
+
+
+def _check_angle_options(theta_i, theta_r, phi_i, phi_r, configs, output, as_json) -> None:
+    """One configuration (--theta-i and --theta-r) or --configs, not both; -o with one
+    configuration only with --json."""
+    single = {"--theta-i": theta_i, "--theta-r": theta_r, "--phi-i": phi_i, "--phi-r": phi_r}
+    if configs is not None:
+        given = [name for name, v in single.items() if v is not None]
+        if given:
+            raise UserError(f"{', '.join(given)} cannot be combined with --configs: the angles "
+                            f"come from the columns of {configs}")
+        return
+    missing = [name for name in ("--theta-i", "--theta-r") if single[name] is None]
+    if missing:
+        raise UserError(f"missing {' and '.join(missing)} (degrees); give --theta-i and "
+                        f"--theta-r for one configuration, or --configs FILE.csv")
+    if output is not None and not as_json:
+        raise UserError("-o/--output writes the CSV of --configs or the object of --json; "
+                        "a single configuration's table goes to standard output (add "
+                        "--json to write it to a file)")
 
 
 @click.command("eval", short_help="Apparent reflectance through a medium at given angles "
@@ -244,21 +272,7 @@ def eval_command(brdf_text, medium_text, theta_i, theta_r, phi_i, phi_r, configs
       veil eval --brdf 200,5e5,0.8,1.55 --medium none --theta-i 30 --theta-r 30 --json
       veil eval --brdf BRDF2 --medium BTDF3 --configs angles.csv -o result.csv
     """
-    single = {"--theta-i": theta_i, "--theta-r": theta_r, "--phi-i": phi_i, "--phi-r": phi_r}
-    if configs is not None:
-        given = [name for name, v in single.items() if v is not None]
-        if given:
-            raise UserError(f"{', '.join(given)} cannot be combined with --configs: the angles "
-                            f"come from the columns of {configs}")
-    else:
-        missing = [name for name in ("--theta-i", "--theta-r") if single[name] is None]
-        if missing:
-            raise UserError(f"missing {' and '.join(missing)} (degrees); give --theta-i and "
-                            f"--theta-r for one configuration, or --configs FILE.csv")
-        if output is not None and not as_json:
-            raise UserError("-o/--output writes the CSV of --configs or the object of --json; "
-                            "a single configuration's table goes to standard output (add "
-                            "--json to write it to a file)")
+    _check_angle_options(theta_i, theta_r, phi_i, phi_r, configs, output, as_json)
     brdf, medium = _parse_models(brdf_text, medium_text, models)
     if output is not None:
         check_output_path(output, [configs])

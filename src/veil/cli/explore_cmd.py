@@ -73,6 +73,7 @@ def load_inputs(files, data, black):
     from ..errors import InputError
     from ..fitting.result import load_result
     from ..viz import explore as ex
+    from ..viz import explore_fits as fits
 
     files = [os.fspath(f) for f in files]
     states = [f for f in files if ex.is_state_file(f)]
@@ -93,7 +94,7 @@ def load_inputs(files, data, black):
         state = None
     results = []
     for f in files:
-        results.append(ex.check_result_kind(load_result(f), f))
+        results.append(fits.check_result_kind(load_result(f), f))
     if data is not None and not results:
         raise UserError(f"--data {data}: give the fit result it belongs to (RESULT.json)")
     if black is not None and data is None:
@@ -103,7 +104,7 @@ def load_inputs(files, data, black):
         errors = []
         for result, f in zip(results, files):
             try:
-                views.append(ex.FitView(result, os.fspath(data), None if black is None
+                views.append(fits.FitView(result, os.fspath(data), None if black is None
                                         else os.fspath(black), source=f,
                                         table_name=os.fspath(data)))
                 break
@@ -113,7 +114,7 @@ def load_inputs(files, data, black):
             raise UserError(f"--data {data} belongs to none of the results: "
                             + "; ".join(errors))
     if state is None:
-        brdf, medium = ex.models_of(results, files)
+        brdf, medium = fits.models_of(results, files)
         state = ex.State(brdf, medium, results=files,
                          data=None if data is None else os.fspath(data),
                          black=None if black is None else os.fspath(black))
@@ -189,7 +190,7 @@ def _default_param(state) -> str:
 
 
 def _write_static(state, views, param, points, output):
-    from ..viz.explore_page import save_static, static_page
+    from ..viz.explore_static import save_static, static_page
 
     def progress(done, total):
         click.echo(f"\rprecomputing {done}/{total}", err=True, nl=done == total)
@@ -204,9 +205,8 @@ def _write_static(state, views, param, points, output):
 def _serve(state, views, port, no_browser, share_dir):
     pn = require("panel", "veil explore")
 
-    from ..viz.explore_page import ExplorePage
-
     from ..viz.explore import warm_up
+    from ..viz.explore_page import ExplorePage
 
     echo = lambda text: click.echo(text, err=True)  # noqa: E731
     live, _ = warm_up(state)  # compiles in the background what the page needs

@@ -130,8 +130,9 @@ def export_command(result, medium_result, target, output, fmt, scale, ext_ior, p
 
         frame = curves(brdf, medium, psis, accuracy)
         write_text_atomic(output, to_csv_text(frame))
-        click.echo(f"wrote {len(frame)} rows ({len(frame) // (2 if medium is not None else 1)} "
-                   f"configurations, {'with and without the medium' if medium is not None else 'no medium'}) "
+        both = medium is not None
+        click.echo(f"wrote {len(frame)} rows ({len(frame) // (2 if both else 1)} "
+                   f"configurations, {'with and without the medium' if both else 'no medium'}) "
                    f"to {output}", err=True)
         return
     from ..interop.export import export
@@ -153,6 +154,7 @@ def _verify(done, brdf, medium, psis, spp, setting, accuracy) -> None:
     from ..data.protocol import protocol
     from ..engine.apparent import apparent, reflectance
     from ..interop.verify import verify
+    from ..models.renderers import GEOMETRY_HALF_WIDTH, GEOMETRY_LENGTH
 
     table = protocol(psis, fine_step=2.0, coarse_step=10.0)
     configs = table[["theta_i", "theta_r", "phi_i", "phi_r"]].to_numpy()
@@ -177,8 +179,8 @@ def _verify(done, brdf, medium, psis, spp, setting, accuracy) -> None:
                         f"{exported.NAME} export does not give")
     predicted = apparent(material.model, exported, *configs.T, accuracy=accuracy)
     check = verify(done.text, done.scale, predicted, configs, spp or MEDIUM_SPP,
-                   passes=PASSES, medium={"path_length": geometry["path_length"],
-                           "half_width": geometry["plate_half_width"], "max_depth": 64})
+                   passes=PASSES, medium={"length": geometry[GEOMETRY_LENGTH],
+                                   "half_width": geometry[GEOMETRY_HALF_WIDTH], "max_depth": 64})
     click.echo(check.sentence())
     click.echo("(through a medium the two differ by the model's own approximations as well: "
                "docs/interop.md)")

@@ -13,10 +13,20 @@ from pathlib import Path
 
 import click
 
-from ._common import (LazyGroup, UserError, check_output_path, echo_warnings, finish_fits,
-                      fit_progress, load_medium, load_reference, model_error_option,
-                      propagation_option,
-                      model_options, parse_fix)
+from ._common import (
+    LazyGroup,
+    UserError,
+    check_output_path,
+    echo_warnings,
+    finish_fits,
+    fit_progress,
+    load_medium,
+    load_reference,
+    model_error_option,
+    model_options,
+    parse_fix,
+    propagation_option,
+)
 
 IN_FILE = click.Path(exists=True, dir_okay=False, path_type=Path)
 OUT_FILE = click.Path(dir_okay=False, path_type=Path)
@@ -72,7 +82,7 @@ def _parse_step_free(items, models) -> dict:
 
 def _parse_step_fix(items, models) -> dict:
     """``STEP.NAME=VALUE`` strings of ``fit pipeline`` -> {step: {name: value}}."""
-    by_step = {}
+    by_step: dict = {}
     classes = {"reference": models.brdf, "medium": models.medium, "target": models.brdf}
     for item in items:
         head, sep, _ = item.partition("=")
@@ -318,9 +328,8 @@ def pipeline_command(ctx, reference_clear, reference_medium, target_medium, blac
                      model_error, propagation, models):
     """Steps 0-2 in one go, with figures (data against fitted curves, over their relative
     residuals) and report.md; --models auto lets the data choose the models."""
-    from ..pipeline import run_pipeline
-
     from ..models import AUTO
+    from ..pipeline import run_pipeline
 
     auto = models.mode == AUTO
     if auto:
@@ -372,7 +381,7 @@ def _raw_step_fix(items) -> dict:
     later (veil.pipeline)."""
     import math
 
-    fixed = {}
+    fixed: dict[str, dict[str, float]] = {}
     for step, entries in _step_entries(items, "--fix").items():
         for entry in entries:
             name, sep, text = entry.partition("=")

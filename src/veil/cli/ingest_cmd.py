@@ -43,17 +43,18 @@ def ingest_command(photo_dir, manifest, roi, black_roi, dark, channel, response,
                    keep_saturated, output):
     """Photos -> measurement table: the mean of an ROI in each photo.
 
-    Reads the photos of PHOTO_DIR that the manifest lists and writes one row per photo: the manifest's columns, value (mean over the ROI after dark-frame
-    subtraction), sigma (its standard error), black and black_sigma (with --black-roi),
-    saturated and clipped (pixel counts in the ROIs) and n_pixels. PNG, TIFF (integer or
-    float), JPEG and camera raw (linear, per colour channel, via LibRaw). Nothing in PHOTO_DIR
-    is modified. See docs/ingest.md.
+    Reads the photos of PHOTO_DIR that the manifest lists and writes one row per photo: the
+    manifest's columns, value (mean over the ROI after dark-frame subtraction), sigma (its
+    standard error), black and black_sigma (with --black-roi), saturated and clipped (pixel
+    counts in the ROIs) and n_pixels. PNG, TIFF (integer or float), JPEG and camera raw
+    (linear, per colour channel, via LibRaw). Nothing in PHOTO_DIR is modified. See
+    docs/ingest.md.
     """
-    from .compile_display import console as shared_console
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
 
     from ..data import ingest as ingest_mod
     from ..data.measurements import save_measurements
+    from .compile_display import console as shared_console
 
     try:
         rois = [ingest_mod.parse_roi(roi, "--roi")]

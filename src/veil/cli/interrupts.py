@@ -129,7 +129,7 @@ def _stop(signum) -> None:
     try:
         _io.COMMIT.acquire(timeout=COMMIT_WAIT)
         left = _io.abandon()
-    except BaseException as exc:  # noqa: BLE001 - the exit below must happen regardless
+    except BaseException as exc:
         left = f"clean-up failed ({type(exc).__name__}: {exc})"
     line = message(signum, left) + "\n"
     try:

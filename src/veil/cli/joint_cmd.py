@@ -1,4 +1,5 @@
-"""``veil fit joint``: one fit over several sessions and media (docs/model.md sec. 7; docs/ambiguity.md).
+"""``veil fit joint``: one fit over several sessions and media (docs/model.md sec. 7;
+docs/ambiguity.md).
 
 Registered on the ``fit`` group from :mod:`veil.cli`. Exit status 0 when the fit converged,
 1 when it did not (the result is written anyway, ``"converged": false``), 2 for input
@@ -13,8 +14,13 @@ from pathlib import Path
 
 import click
 
-from ._common import (UserError, check_output_path, model_error_option, model_options,
-                      propagation_option)
+from ._common import (
+    UserError,
+    check_output_path,
+    model_error_option,
+    model_options,
+    propagation_option,
+)
 
 OUT_FILE = click.Path(dir_okay=False, path_type=Path)
 
@@ -49,7 +55,8 @@ def parse_black(items) -> dict:
 
 def load_sessions(target_items, reference_items, black_items) -> tuple[list, list]:
     """Sessions (black cloth subtracted per medium) and every input path."""
-    from ..data.measurements import load_measurements, subtract_black
+    from ..data.black_cloth import subtract_black
+    from ..data.measurements import load_measurements
     from ..fitting.joint import Session
 
     targets = parse_sessions(target_items, "--session")

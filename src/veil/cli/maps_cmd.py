@@ -107,8 +107,8 @@ def fit_maps_command(ctx, photo_dir, manifest, medium, output, black_photos, bla
     the status map flags them), 2 for input mistakes; a rerun after an interruption
     computes only the missing tiles.
     """
-    from ..fitting.maps import parse_grid
-    from ..fitting.maps_run import fit_maps
+    from ..maps.grid import parse_grid
+    from ..maps.run import fit_maps
 
     if black_photos and black_frame:
         raise UserError("give --black-photos or --black-frame, not both")
@@ -182,7 +182,7 @@ def maps_command():
 def show_command(store, output):
     """One figure: every fitted parameter, its standard error, the reduced chi-square and
     the status of each pixel."""
-    from ..viz.maps import maps_figure
+    from ..maps.show import maps_figure
 
     path = maps_figure(store, output)
     click.echo(f"wrote {path}", err=True)
@@ -197,7 +197,7 @@ def show_command(store, output):
 def export_command(store, output, formats):
     """Every map as float32 TIFF and OpenEXR, plus summary.json (medians, percentiles,
     undetermined fraction)."""
-    from ..viz.maps import FORMATS, export_maps
+    from ..maps.show import FORMATS, export_maps
 
     written = export_maps(store, output, formats or FORMATS)
     click.echo(f"wrote {len(written)} files to {output}", err=True)

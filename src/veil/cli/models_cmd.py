@@ -65,8 +65,8 @@ def models_command(kind, as_json):
         console.print(f"  literal: {e['literal']}"
                       + (f"; presets: {', '.join(e['presets'])}" if e["presets"] else ""))
         for o in e["options"]:
-            console.print(escape(f"  option --{o['name'].replace('_', '-')}: "
-                                 f"{' | '.join(map(str, o['choices'])) or type(o['default']).__name__}"
+            values = " | ".join(map(str, o["choices"])) or type(o["default"]).__name__
+            console.print(escape(f"  option --{o['name'].replace('_', '-')}: {values}"
                                  f" (default {o['default']}): {o['meaning']}"))
         if e["model_error_floor"]:
             f = e["model_error_floor"]

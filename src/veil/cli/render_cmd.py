@@ -7,8 +7,8 @@ import io
 import os
 
 import click
-from .._lazy import np
 
+from .._lazy import np
 from ._common import UserError, check_file_target, model_options
 
 
@@ -90,8 +90,9 @@ def render_command(brdf, medium, light_theta, light_phi, size, exposure, tone, s
     write_many_atomic(files)  # both files or neither
 
     click.echo(result.summary())
-    click.echo(f"exposure {exp_used:.6g} ({'automatic: median lit pixel -> 0.18' if auto else 'given'}),"
-               f" tone curve {tone}; peak = {peak_fs:.3g} x full scale")
+    how = "automatic: median lit pixel -> 0.18" if auto else "given"
+    click.echo(f"exposure {exp_used:.6g} ({how}), tone curve {tone}; peak = {peak_fs:.3g} x "
+               f"full scale")
     if tone == "clip":
         if n_clip:
             click.echo(f"highlights clip: {n_clip} pixels ({100 * frac:.2g} % of the lit ones) "

@@ -30,7 +30,8 @@ def curves_csv(exp) -> str:
     return "\n".join(lines) + "\n"
 
 
-@click.command("reproduce", short_help="Regenerate the paper's simulation experiment (figs. 9-12, report).")
+@click.command("reproduce",
+               short_help="Regenerate the paper's simulation experiment (figs. 9-12, report).")
 @click.option("-o", "--output", "outdir", required=True,
               help="Output directory (created if missing). Written as a whole at the end: "
                    "veil's files in it are replaced together, other files are left alone; "
@@ -54,19 +55,37 @@ def reproduce_command(outdir, size, accuracy, render_accuracy, check, dpi, quiet
               check=check, dpi=dpi, quiet=quiet)
 
 
+def _write_spheres(folder, exp) -> None:
+    """The rendered spheres: tone-mapped PNGs (their exposure in the metadata) and the
+    linear images as float32 .npy."""
+    import io
+
+    import numpy as np
+
+    from ..io import write_bytes_atomic
+    from ..viz.render import png_bytes, tone_map
+
+    folder.mkdir()
+    for (b, m), st in exp.stats.items():
+        img = tone_map(exp.renders[(b, m)].image, st.exposure, "reinhard")
+        meta = {"veil:exposure": f"{st.exposure:.6g}", "veil:tone": "reinhard",
+                "veil:brdf": str(exp.brdfs[b]),
+                "veil:medium": "clear" if m == "clear" else str(exp.media[m])}
+        write_bytes_atomic(folder / f"{b}_{m}.png", png_bytes(img, meta))
+        buf = io.BytesIO()
+        np.save(buf, exp.renders[(b, m)].image.astype(np.float32))
+        write_bytes_atomic(folder / f"{b}_{m}.npy", buf.getvalue())
+
+
 def reproduce(outdir, *, size=256, accuracy="default", render_accuracy="fast", check=64,
               dpi=150, quiet=False, shown=None) -> None:
     """The work of ``veil reproduce`` (options as there); messages name the folder
     ``shown`` (default ``outdir``)."""
-    import io
-
     import matplotlib.pyplot as plt
-    import numpy as np
 
     from ..io import check_output_folder, output_folder, write_bytes_atomic
+    from ..viz.documents import write_report
     from ..viz.figures import fig9, fig10, fig11, fig12, figure_bytes, run_experiment
-    from ..viz.render import png_bytes, tone_map
-    from ..viz.reports import write_report
 
     if not 16 <= size <= 2048:
         raise UserError(f"--size {size} must be between 16 and 2048 pixels")
@@ -79,8 +98,9 @@ def reproduce(outdir, *, size=256, accuracy="default", render_accuracy="fast", c
 
     progress = task = None
     if not quiet:
-        from .compile_display import console
         from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+        from .compile_display import console
 
         progress = Progress(TextColumn("{task.description:<40}"), BarColumn(),
                             TextColumn("{task.completed}/{task.total}"), TimeElapsedColumn(),
@@ -111,16 +131,7 @@ def reproduce(outdir, *, size=256, accuracy="default", render_accuracy="fast", c
                     files[key] = f"{FIGURES[key]}.png"
                 finally:
                     plt.close(fig)
-            (folder / "spheres").mkdir()
-            for (b, m), st in exp.stats.items():
-                img = tone_map(exp.renders[(b, m)].image, st.exposure, "reinhard")
-                meta = {"veil:exposure": f"{st.exposure:.6g}", "veil:tone": "reinhard",
-                        "veil:brdf": str(exp.brdfs[b]),
-                        "veil:medium": "clear" if m == "clear" else str(exp.media[m])}
-                write_bytes_atomic(folder / "spheres" / f"{b}_{m}.png", png_bytes(img, meta))
-                buf = io.BytesIO()
-                np.save(buf, exp.renders[(b, m)].image.astype(np.float32))
-                write_bytes_atomic(folder / "spheres" / f"{b}_{m}.npy", buf.getvalue())
+            _write_spheres(folder / "spheres", exp)
             write_bytes_atomic(folder / "fig11_curves.csv", curves_csv(exp).encode())
             md, page = write_report(exp, folder, files)
     finally:

@@ -8,8 +8,7 @@ from pathlib import Path
 
 import click
 
-from ._common import (GLOW_LEVEL, TABLE_FORMS, UserError, check_output_path, model_options,
-                      parse_psi)
+from ._common import GLOW_LEVEL, TABLE_FORMS, UserError, check_output_path, model_options, parse_psi
 
 
 def _same_file(a: Path, b: Path) -> bool:
@@ -43,12 +42,12 @@ def _merl_model(merl, channel, models):
 @click.command("simulate")
 @click.option("--brdf", default=None, metavar="MODEL",
               help="The object: preset BRDF1 or BRDF2, or a literal list of the --brdf-model's "
-                   "parameters ('PD,PS,N,ETA' for the paper's Torrance-Sparrow, docs/model.md sec. 2; "
-                   "N in 1/deg).")
+                   "parameters ('PD,PS,N,ETA' for the paper's Torrance-Sparrow, docs/model.md "
+                   "sec. 2; N in 1/deg).")
 @click.option("--medium", required=True, metavar="MODEL",
               help="The medium: preset BTDF1, BTDF2 or BTDF3, a literal list of the "
-                   "--medium-model's parameters ('TD,TT,G,ETA' for the paper's, docs/model.md sec. 3), "
-                   "or 'none' for clear water.")
+                   "--medium-model's parameters ('TD,TT,G,ETA' for the paper's, docs/model.md "
+                   "sec. 3), or 'none' for clear water.")
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False, path_type=Path),
               help="CSV file to write the session to (written atomically).")
 @click.option("--black", "black_path", type=click.Path(dir_okay=False, path_type=Path),
@@ -66,7 +65,8 @@ def _merl_model(merl, channel, models):
               help="Medium glow level, a fraction of the reference object's (BRDF2's) "
                    "signal through the same medium at theta_i = 0, theta_r = 60 deg: the same "
                    "glow for every object in a medium (docs/measurements.md); 0 for none.")
-@click.option("--form", type=click.Choice(list(TABLE_FORMS)), default="goniometer", show_default=True,
+@click.option("--form", type=click.Choice(list(TABLE_FORMS)), default="goniometer",
+              show_default=True,
               help="Angle columns to write: goniometer = psi,rho plus the signed in-plane "
                    "theta_i,theta_r they imply; inplane = signed theta_i,theta_r; full = "
                    "theta_i,phi_i,theta_r,phi_r. All in degrees.")
@@ -116,9 +116,9 @@ def simulate_command(brdf, medium, output, black_path, psi, noise, seed, glow, f
         if path is not None:
             check_output_path(path)
     from ..data.measurements import measurements_text, to_form
-    from ..io import write_many_atomic
     from ..data.protocol import protocol
     from ..data.simulate import simulate
+    from ..io import write_many_atomic
 
     try:
         configs = protocol(psis, fine_step=fine_step, coarse_step=coarse_step, window=window,
@@ -126,8 +126,9 @@ def simulate_command(brdf, medium, output, black_path, psi, noise, seed, glow, f
     except ValueError as exc:
         raise UserError(str(exc)) from None
 
-    from .compile_display import console
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from .compile_display import console
 
     what = "clear water" if model_m is None else medium.strip()
     with Progress(TextColumn("[progress.description]{task.description}"), BarColumn(),

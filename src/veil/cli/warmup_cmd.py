@@ -31,13 +31,13 @@ def warmup_command(selected, accuracies, quiet):
         veil warmup
         veil warmup --models rough-plastic --models forward-series --accuracy high
     """
-    from .compile_display import console as shared_console
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
     from ..engine import programs
     from ..engine.forward import wait_for_compilations
     from ..engine.warmup import tasks
     from ..errors import InputError
+    from .compile_display import console as shared_console
 
     todo = tasks(list(selected) or None, tuple(accuracies) or ("fast", "default"))
     store = programs.directory()

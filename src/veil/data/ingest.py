@@ -16,18 +16,20 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-from .._extras import require
-from ..errors import InputError, MissingFileError, UnwritableError
 
-PNG_SUFFIXES = frozenset({".png"})
-JPEG_SUFFIXES = frozenset({".jpg", ".jpeg", ".jpe"})
-TIFF_SUFFIXES = frozenset({".tif", ".tiff"})
-RAW_SUFFIXES = frozenset({
-    ".3fr", ".ari", ".arw", ".bay", ".cr2", ".cr3", ".crw", ".dcr", ".dng", ".erf", ".fff",
-    ".iiq", ".k25", ".kdc", ".mef", ".mos", ".mrw", ".nef", ".nrw", ".orf", ".pef", ".raf",
-    ".raw", ".rw2", ".rwl", ".sr2", ".srf", ".srw", ".x3f",
-})
-PHOTO_SUFFIXES = PNG_SUFFIXES | JPEG_SUFFIXES | TIFF_SUFFIXES | RAW_SUFFIXES
+from ..errors import InputError, MissingFileError
+from .photo_files import (
+    JPEG_SUFFIXES,
+    PHOTO_SUFFIXES,
+    PNG_SUFFIXES,
+    RAW_SUFFIXES,
+    TIFF_SUFFIXES,
+    Patch,
+    Photo,
+    read_photo,
+)
+from .roi import ROI, parse_roi
+
 CHANNELS = ("gray", "r", "g", "b")
 #: Columns :func:`ingest` adds to the manifest's (``black``, ``black_sigma`` only with a black ROI).
 ADDED_COLUMNS = ("value", "sigma", "black", "black_sigma", "saturated", "clipped", "n_pixels")
@@ -35,57 +37,6 @@ ADDED_COLUMNS = ("value", "sigma", "black", "black_sigma", "saturated", "clipped
 
 class IngestWarning(UserWarning):
     """Something in the photos that the user should know about but that does not stop ingest."""
-
-
-# -- regions of interest -------------------------------------------------------------------
-
-@dataclass(frozen=True)
-class ROI:
-    """A rectangle in pixel coordinates: x to the right, y down, origin at the top-left pixel."""
-
-    x: int
-    y: int
-    w: int
-    h: int
-
-    def __str__(self):
-        return f"{self.x},{self.y},{self.w},{self.h}"
-
-    @property
-    def slices(self):
-        return slice(self.y, self.y + self.h), slice(self.x, self.x + self.w)
-
-    def overlaps(self, other: "ROI") -> bool:
-        return (self.x < other.x + other.w and other.x < self.x + self.w
-                and self.y < other.y + other.h and other.y < self.y + self.h)
-
-
-def parse_roi(value, name: str = "roi") -> ROI:
-    """``"X,Y,W,H"`` (or 4 numbers, or a :class:`ROI`) -> :class:`ROI`; integers, W, H >= 1."""
-    if isinstance(value, ROI):
-        return value
-    parts = [p.strip() for p in value.split(",")] if isinstance(value, str) else list(value)
-    form = "X,Y,W,H in pixels (x to the right, y down, origin top-left)"
-    if len(parts) != 4:
-        raise InputError(f"{name} {value!r}: expected 4 integers {form}")
-    numbers = []
-    for label, part in zip("XYWH", parts):
-        try:
-            number = float(part)
-        except (TypeError, ValueError):
-            raise InputError(f"{name} {value!r}: {label} = {part!r} is not an integer; "
-                             f"expected {form}") from None
-        if not number.is_integer():
-            raise InputError(f"{name} {value!r}: {label} = {part!r} is not an integer; "
-                             f"expected {form}")
-        numbers.append(int(number))
-    x, y, w, h = numbers
-    if x < 0 or y < 0:
-        raise InputError(f"{name} {value!r}: X and Y must be >= 0 (pixel coordinates, origin "
-                         f"at the top-left)")
-    if w < 1 or h < 1:
-        raise InputError(f"{name} {value!r}: W and H must be >= 1 pixel")
-    return ROI(x, y, w, h)
 
 
 # -- response curve ------------------------------------------------------------------------
@@ -157,167 +108,7 @@ def load_response(path) -> Response:
 
 # -- reading photos ------------------------------------------------------------------------
 
-@dataclass
-class _Patch:
-    """The code values of one ROI as stored in the file, plus what is needed to read them."""
-
-    values: np.ndarray  # (h, w, c) for images, (h, w) for a raw mosaic
-    cfa: np.ndarray | None = None  # raw mosaic: 0, 1, 2 = R, G, B per photosite
-    black: np.ndarray | None = None  # raw mosaic: black level per photosite
-
-
-@dataclass
-class _Photo:
-    """One decoded photo reduced to its ROIs."""
-
-    path: Path
-    kind: str  # "png", "jpeg", "tiff", "raw"
-    shape: tuple  # (height, width, channels); channels = 1 for a raw mosaic
-    saturation: float | None  # the format's maximum code value (None: float data)
-    floor: float | None  # code value of pixels clipped from below (None: float data)
-    patches: list
-
-    @property
-    def dtype(self) -> np.dtype:
-        return self.patches[0].values.dtype
-
-
-def _check_roi(roi: ROI, name: str, height: int, width: int, path: Path) -> None:
-    if roi.x + roi.w > width or roi.y + roi.h > height:
-        raise InputError(f"{path}: {name} {roi} (x {roi.x}..{roi.x + roi.w - 1}, y "
-                         f"{roi.y}..{roi.y + roi.h - 1}) lies outside the image, which is "
-                         f"{width} x {height} pixels (x 0..{width - 1}, y 0..{height - 1})")
-
-
-def _int_limits(dtype: np.dtype):
-    if dtype.kind in "ui":
-        info = np.iinfo(dtype)
-        return float(info.max), float(info.min)
-    if dtype.kind == "f":
-        return None, None
-    raise InputError(f"unsupported sample type {dtype}; expected unsigned/signed integer or "
-                     f"float samples")
-
-
-def _image_patches(path: Path, kind: str, image: np.ndarray, rois) -> _Photo:
-    """Crop ``rois`` out of an (H, W), (H, W, C) image; alpha channels are dropped."""
-    if image.ndim == 2:
-        image = image[:, :, None]
-    if image.ndim != 3 or image.shape[2] not in (1, 2, 3, 4):
-        raise InputError(f"{path}: unsupported image layout {image.shape}; expected a gray or "
-                         f"RGB image (height x width [x channels])")
-    channels = 1 if image.shape[2] in (1, 2) else 3  # 2 = gray + alpha, 4 = RGB + alpha
-    height, width = image.shape[:2]
-    try:
-        saturation, floor = _int_limits(image.dtype)
-    except ValueError as exc:
-        raise InputError(f"{path}: {exc}") from None
-    patches = []
-    for name, roi in rois:
-        _check_roi(roi, name, height, width, path)
-        rows, cols = roi.slices
-        patches.append(_Patch(np.array(image[rows, cols, :channels])))
-    return _Photo(path, kind, (height, width, channels), saturation, floor, patches)
-
-
-def _read_png_jpeg(path: Path, kind: str, rois) -> _Photo:
-    imagecodecs = require("imagecodecs", f"reading a {kind.upper()} photo")
-
-    data = path.read_bytes()
-    try:
-        image = imagecodecs.png_decode(data) if kind == "png" else imagecodecs.jpeg8_decode(data)
-    except Exception as exc:  # imagecodecs raises its own error classes per codec
-        raise InputError(f"{path}: cannot decode as {kind.upper()} ({exc})") from None
-    del data
-    return _image_patches(path, kind, image, rois)
-
-
-def _read_tiff(path: Path, rois) -> _Photo:
-    tifffile = require("tifffile", "reading a TIFF photo")
-
-    try:
-        with tifffile.TiffFile(path) as tif:
-            series = tif.series[0]
-            page = series.pages[0]
-            if page is not None and page.photometric == tifffile.PHOTOMETRIC.PALETTE:
-                raise InputError(f"{path}: palette (indexed colour) TIFF; expected gray or RGB "
-                                 f"samples")
-            axes = series.axes
-            if axes not in ("YX", "YXS", "SYX"):
-                raise InputError(f"{path}: TIFF holds an array with axes {axes!r} and shape "
-                                 f"{series.shape}; expected one gray or RGB image")
-            memmappable = page is not None and page.is_memmappable and len(tif.series) == 1
-            image = None if memmappable else series.asarray()
-        if memmappable:  # uncompressed: read only the ROIs' rows, read-only mapping
-            image = tifffile.memmap(path, mode="r")
-    except InputError:
-        raise
-    except Exception as exc:  # noqa: BLE001 - TiffFileError, codec errors, a short file's mmap
-        raise InputError(f"{path}: cannot read as TIFF ({type(exc).__name__}: {exc}); "
-                         f"expected a complete TIFF file holding one gray or RGB image (is "
-                         f"the photo truncated, or not a TIFF?)") from None
-    if axes == "SYX":
-        image = np.moveaxis(image, 0, -1)
-    return _image_patches(path, "tiff", image, rois)
-
-
-def _read_raw(path: Path, rois) -> _Photo:
-    rawpy = require("rawpy", "reading a camera raw photo")
-
-    try:
-        raw = rawpy.imread(os.fspath(path))
-    except (rawpy.LibRawError, OSError) as exc:
-        raise InputError(f"{path}: cannot read as camera raw with LibRaw ({exc})") from None
-    with raw:
-        if raw.raw_type != rawpy.RawType.Flat:
-            raise InputError(f"{path}: raw data are not a colour-filter mosaic (LibRaw raw "
-                             f"type {raw.raw_type.name}); convert it to a linear 16-bit TIFF")
-        desc = raw.color_desc.decode("ascii", "replace")
-        if any(c not in "RGB" for c in desc):
-            raise InputError(f"{path}: colour filter colours {desc!r} are not R, G, B; only "
-                             f"RGB mosaics are supported")
-        colour_of_index = np.array(["RGB".index(c) for c in desc])
-        black_of_index = np.asarray(raw.black_level_per_channel, dtype=float)
-        mosaic = raw.raw_image_visible
-        indices = raw.raw_colors_visible
-        height, width = mosaic.shape
-        patches = []
-        for name, roi in rois:
-            _check_roi(roi, name, height, width, path)
-            rows, cols = roi.slices
-            index = np.array(indices[rows, cols])
-            patches.append(_Patch(np.array(mosaic[rows, cols]), colour_of_index[index],
-                                  black_of_index[index]))
-        saturation = float(raw.white_level)
-    return _Photo(path, "raw", (height, width, 1), saturation, 0.0, patches)
-
-
-def read_photo(path, rois) -> _Photo:
-    """Decode ``path`` and keep only ``rois`` (a list of ``(name, ROI)``) as code values."""
-    path = Path(path)
-    suffix = path.suffix.lower()
-    if not path.is_file():
-        raise MissingFileError(f"{path}: no such file")
-    try:
-        if suffix in PNG_SUFFIXES:
-            return _read_png_jpeg(path, "png", rois)
-        if suffix in JPEG_SUFFIXES:
-            return _read_png_jpeg(path, "jpeg", rois)
-        if suffix in TIFF_SUFFIXES:
-            return _read_tiff(path, rois)
-        if suffix in RAW_SUFFIXES:
-            return _read_raw(path, rois)
-    except PermissionError:
-        raise UnwritableError(f"{path}: permission denied") from None
-    except OSError as exc:
-        raise InputError(f"{path}: cannot read ({exc.strerror or exc})") from None
-    raise InputError(f"{path}: unsupported file type {suffix or '(no suffix)'!r}; supported: "
-                     f"PNG, TIFF, JPEG and camera raw ({', '.join(sorted(RAW_SUFFIXES))})")
-
-
-# -- statistics ----------------------------------------------------------------------------
-
-def _used(patch: _Patch, channel: str) -> np.ndarray:
+def _used(patch: Patch, channel: str) -> np.ndarray:
     """Boolean (h, w, c) or (h, w) mask of the samples ``channel`` reads."""
     if patch.cfa is not None:
         if channel == "gray":
@@ -331,7 +122,7 @@ def _used(patch: _Patch, channel: str) -> np.ndarray:
     return mask
 
 
-def _clip_counts(patch: _Patch, channel: str, saturation, floor):
+def _clip_counts(patch: Patch, channel: str, saturation, floor):
     """(saturated, clipped) pixel counts: a pixel counts if any sample ``channel`` uses does."""
     used = _used(patch, channel)
     counts = []
@@ -345,7 +136,7 @@ def _clip_counts(patch: _Patch, channel: str, saturation, floor):
     return counts[0], counts[1]
 
 
-def _linear(patch: _Patch, response: Response | None, where: str) -> np.ndarray:
+def _linear(patch: Patch, response: Response | None, where: str) -> np.ndarray:
     values = patch.values.astype(np.float64)
     if not np.all(np.isfinite(values)):
         bad = int(np.count_nonzero(~np.isfinite(values)))
@@ -366,7 +157,7 @@ def _stats(groups):
             int(sum(g.size for g in groups)))
 
 
-def roi_statistics(patch: _Patch, channel: str, dark: _Patch | None = None,
+def roi_statistics(patch: Patch, channel: str, dark: Patch | None = None,
                    response: Response | None = None, where: str = "ROI"):
     """``(value, sigma, n)`` of one ROI: mean of linear, dark-subtracted ``channel`` values.
 
@@ -450,7 +241,7 @@ def read_manifest(manifest, photo_dir) -> tuple[pd.DataFrame, list[str], str]:
     if clash:
         raise InputError(f"{name}: column(s) {', '.join(map(repr, clash))} would be "
                          f"overwritten by ingest's results; rename or remove them")
-    seen = {}
+    seen: dict[Path, str] = {}
     root = Path(photo_dir).resolve()
     files = []
     for row, cell in zip(rows, table["file"].tolist()):
@@ -534,59 +325,18 @@ def ingest(photo_dir, manifest, roi, black_roi=None, dark=None, channel="gray", 
         _warn(f"{len(extra)} photo file(s) in {photo_dir} are not in {name} and are ignored: "
               f"{shown}")
 
-    dark_photo = None
-    if dark is not None:
-        dark_photo = read_photo(dark, rois)
-        if dark_photo.kind == "raw" and response is not None:
-            raise InputError(f"dark frame {dark}: camera raw is already linear; a response "
-                             f"curve applies to JPEG/PNG/TIFF code values only")
-        level = saturation if saturation is not None else dark_photo.saturation
-        hot = sum(_clip_counts(p, channel, level, None)[0] for p in dark_photo.patches)
-        if hot:
-            _warn(f"dark frame {dark}: {hot} saturated pixel(s) in the ROIs (level {level:g})")
+    dark_photo = _dark_frame(dark, rois, channel, response, saturation)
 
-    warned = set()
+    warned: set[str] = set()
     results = []
     keep = []
     for i, (path, row_name) in enumerate(zip(paths, rows)):
         photo = read_photo(path, rois)
         where = f"{path} ({row_name})"
-        if photo.kind == "jpeg" and response is None and "jpeg" not in warned:
-            warned.add("jpeg")
-            _warn(f"{path}: JPEG code values are not linear in radiance (gamma/tone curve); "
-                  f"give a response curve (--response) to linearize them")
-        if photo.kind == "raw" and response is not None:
-            raise InputError(f"{where}: camera raw is already linear; a response curve applies "
-                             f"to JPEG/PNG/TIFF code values only")
-        if photo.saturation is None and saturation is None and "float" not in warned:
-            warned.add("float")
-            _warn(f"{path}: float samples have no format maximum, so saturation is not "
-                  f"checked; give a saturation level (--saturation) if the data were clipped")
-        if channel != "gray" and photo.shape[2] == 1 and photo.kind != "raw":
-            raise InputError(f"{where}: a single-channel (gray) image has no channel "
-                             f"{channel!r}; use channel gray")
-        if dark_photo is not None and ((dark_photo.kind == "raw") != (photo.kind == "raw")
-                                       or dark_photo.shape != photo.shape
-                                       or dark_photo.dtype != photo.dtype):
-            raise InputError(f"{where}: the dark frame {dark} does not match the photo (dark "
-                             f"frame {_describe(dark_photo)}, photo {_describe(photo)})")
+        _check_photo(photo, where, channel, response, saturation, dark, dark_photo, warned)
         level = saturation if saturation is not None else photo.saturation
-        row = {}
-        n_saturated = n_clipped = 0
-        for k, ((roi_name, _), patch) in enumerate(zip(rois, photo.patches)):
-            sat, clip = _clip_counts(patch, channel, level, photo.floor)
-            n_saturated += sat
-            n_clipped += clip
-            dark_patch = dark_photo.patches[k] if dark_photo is not None else None
-            value, sigma, n = roi_statistics(patch, channel, dark_patch, response,
-                                             f"{where}, {roi_name}")
-            prefix = "value" if k == 0 else "black"
-            row[prefix] = value
-            row["sigma" if k == 0 else "black_sigma"] = sigma
-            if k == 0:
-                row["n_pixels"] = n
-        row["saturated"] = n_saturated
-        row["clipped"] = n_clipped
+        row = _photo_row(photo, rois, channel, level, dark_photo, response, where)
+        n_saturated, n_clipped = row["saturated"], row["clipped"]
         bad = n_saturated or n_clipped
         if bad:
             what = []
@@ -617,9 +367,80 @@ def ingest(photo_dir, manifest, roi, black_roi=None, dark=None, channel="gray", 
     return out
 
 
-def _describe(photo: _Photo) -> str:
+def _dark_frame(dark, rois, channel: str, response, saturation) -> Photo | None:
+    """The dark frame's ROIs (None without one), its hot pixels warned about."""
+    if dark is None:
+        return None
+    dark_photo = read_photo(dark, rois)
+    if dark_photo.kind == "raw" and response is not None:
+        raise InputError(f"dark frame {dark}: camera raw is already linear; a response "
+                         f"curve applies to JPEG/PNG/TIFF code values only")
+    level = saturation if saturation is not None else dark_photo.saturation
+    hot = sum(_clip_counts(p, channel, level, None)[0] for p in dark_photo.patches)
+    if hot:
+        _warn(f"dark frame {dark}: {hot} saturated pixel(s) in the ROIs (level {level:g})")
+    return dark_photo
+
+
+def _check_photo(photo: Photo, where: str, channel: str, response, saturation, dark,
+                 dark_photo: Photo | None, warned: set) -> None:
+    """A photo's format against the options: JPEG without a response curve and float
+    samples without a saturation level are warned about once (``warned``); camera raw with
+    a response curve, a missing channel or a dark frame of another kind are errors."""
+    path = photo.path
+    if photo.kind == "jpeg" and response is None and "jpeg" not in warned:
+        warned.add("jpeg")
+        _warn(f"{path}: JPEG code values are not linear in radiance (gamma/tone curve); "
+              f"give a response curve (--response) to linearize them")
+    if photo.kind == "raw" and response is not None:
+        raise InputError(f"{where}: camera raw is already linear; a response curve applies "
+                         f"to JPEG/PNG/TIFF code values only")
+    if photo.saturation is None and saturation is None and "float" not in warned:
+        warned.add("float")
+        _warn(f"{path}: float samples have no format maximum, so saturation is not "
+              f"checked; give a saturation level (--saturation) if the data were clipped")
+    if channel != "gray" and photo.shape[2] == 1 and photo.kind != "raw":
+        raise InputError(f"{where}: a single-channel (gray) image has no channel "
+                         f"{channel!r}; use channel gray")
+    if dark_photo is not None and ((dark_photo.kind == "raw") != (photo.kind == "raw")
+                                   or dark_photo.shape != photo.shape
+                                   or dark_photo.dtype != photo.dtype):
+        raise InputError(f"{where}: the dark frame {dark} does not match the photo (dark "
+                         f"frame {_describe(dark_photo)}, photo {_describe(photo)})")
+
+
+def _photo_row(photo: Photo, rois, channel: str, level, dark_photo: Photo | None, response,
+               where: str) -> dict:
+    """The measurement columns of one photo: value, sigma and n_pixels of the ROI (black,
+    black_sigma of the black ROI), saturated and clipped pixel counts."""
+    row = {}
+    n_saturated = n_clipped = 0
+    for k, ((roi_name, _), patch) in enumerate(zip(rois, photo.patches)):
+        sat, clip = _clip_counts(patch, channel, level, photo.floor)
+        n_saturated += sat
+        n_clipped += clip
+        dark_patch = dark_photo.patches[k] if dark_photo is not None else None
+        value, sigma, n = roi_statistics(patch, channel, dark_patch, response,
+                                         f"{where}, {roi_name}")
+        prefix = "value" if k == 0 else "black"
+        row[prefix] = value
+        row["sigma" if k == 0 else "black_sigma"] = sigma
+        if k == 0:
+            row["n_pixels"] = n
+    row["saturated"] = n_saturated
+    row["clipped"] = n_clipped
+    return row
+
+
+def _describe(photo: Photo) -> str:
     height, width, channels = photo.shape
     kind = "raw mosaic" if photo.kind == "raw" else f"{channels}-channel {photo.kind}"
     dtype = photo.dtype
     depth = f"{dtype.itemsize * 8}-bit {'float' if dtype.kind == 'f' else 'integer'}"
     return f"{width} x {height} {depth} {kind}"
+
+
+__all__ = ["ingest", "read_manifest", "manifest_photos", "load_response", "Response",
+           "roi_statistics", "IngestWarning", "CHANNELS", "ADDED_COLUMNS", "ROI", "parse_roi",
+           "read_photo", "PHOTO_SUFFIXES", "PNG_SUFFIXES", "JPEG_SUFFIXES", "TIFF_SUFFIXES",
+           "RAW_SUFFIXES"]

@@ -27,10 +27,15 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from ..errors import (InputError, InputTypeError, MeasurementError, MissingFileError,
-                      NotAFileError)
+from ..engine.angles import (
+    direction,
+    from_goniometer,
+    from_signed_inplane,
+    to_goniometer,
+    to_signed_inplane,
+)
+from ..errors import InputError, InputTypeError, MeasurementError, MissingFileError, NotAFileError
 from ..io import write_text_atomic
-from ..engine.angles import direction, from_goniometer, from_signed_inplane, to_goniometer, to_signed_inplane
 
 #: Angle columns, in the order :func:`canonical_angles` writes them.
 CANONICAL = ("theta_i", "phi_i", "theta_r", "phi_r")
@@ -157,12 +162,13 @@ def _numbers(table: pd.DataFrame, column: str, rows: RowNames) -> np.ndarray:
             if not math.isfinite(values[k]):
                 problems.append((k, f"{cell!r} is not a finite number"))
                 values[k] = 0.0
-    for k in np.flatnonzero(~np.isfinite(values)):
+    for k in np.flatnonzero(~np.isfinite(values)).tolist():
         problems.append((int(k), "is empty or NaN" if np.isnan(values[k])
                          else f"{values[k]!r} is not a finite number"))
     if problems:
         problems.sort()
-        listed = "; ".join(f"{rows(k)}, column {column!r}: {msg}" for k, msg in problems[:_MAX_LISTED])
+        listed = "; ".join(f"{rows(k)}, column {column!r}: {msg}"
+                           for k, msg in problems[:_MAX_LISTED])
         more = f"; and {len(problems) - _MAX_LISTED} more" if len(problems) > _MAX_LISTED else ""
         raise MeasurementError(listed + more + " (expected a finite number"
                                + (", in degrees)" if column in ANGLE_COLUMNS else ")"))
@@ -183,14 +189,14 @@ def _angles_from(cols: dict, forms: dict, rows: RowNames):
             a = cols[name]
             bad = np.flatnonzero((a < 0) | (a >= 90))
             if bad.size:
-                raise _range_error(rows, bad, lambda k: f"{name} = {_fmt(a[k])}",
+                raise _range_error(rows, bad, lambda k, name=name, a=a: f"{name} = {_fmt(a[k])}",
                                    f"{name} with phi columns is a polar angle in [0, 90) deg; "
                                    f"signed in-plane angles go without phi columns")
         for name in ("phi_i", "phi_r"):
             a = cols[name]
             bad = np.flatnonzero(np.abs(a) > 360)
             if bad.size:
-                raise _range_error(rows, bad, lambda k: f"{name} = {_fmt(a[k])}",
+                raise _range_error(rows, bad, lambda k, name=name, a=a: f"{name} = {_fmt(a[k])}",
                                    f"{name} is an azimuth in [-360, 360] deg")
         phi_i, phi_r = (_wrap(cols["phi_i"]), _wrap(cols["phi_r"]))
         result["full"] = (cols["theta_i"] + 0.0, phi_i, cols["theta_r"] + 0.0, phi_r)
@@ -199,7 +205,7 @@ def _angles_from(cols: dict, forms: dict, rows: RowNames):
             a = cols[name]
             bad = np.flatnonzero(np.abs(a) >= 90)
             if bad.size:
-                raise _range_error(rows, bad, lambda k: f"{name} = {_fmt(a[k])}",
+                raise _range_error(rows, bad, lambda k, name=name, a=a: f"{name} = {_fmt(a[k])}",
                                    f"signed in-plane {name} must lie in (-90, 90) deg")
         ti, pi_, tr, pr = from_signed_inplane(cols["theta_i"], cols["theta_r"])
         result["inplane"] = (ti, pi_, tr, pr)
@@ -246,8 +252,10 @@ def _check_agreement(found: dict, rows: RowNames) -> tuple:
                 cols = {"full": "theta_i,phi_i,theta_r,phi_r", "inplane": "theta_i,theta_r",
                         "goniometer": "psi,rho"}
                 raise _range_error(
-                    rows, bad, lambda k: (f"{cols[names[0]]} give {_config_text(primary, k)} but "
-                                          f"{cols[other]} give {_config_text(found[other], k)}"),
+                    rows, bad,
+                    lambda k, cols=cols, other=other: (
+                        f"{cols[names[0]]} give {_config_text(primary, k)} but "
+                        f"{cols[other]} give {_config_text(found[other], k)}"),
                     f"ambiguous angles: the table has both {cols[names[0]]} and {cols[other]} "
                     f"columns and they disagree; keep one form or make them agree")
     return primary
@@ -266,7 +274,8 @@ def _warn_radians(cols: dict, what: str) -> bool:
 
 def _check_type(table) -> None:
     if not isinstance(table, pd.DataFrame):
-        raise InputTypeError(f"expected a pandas DataFrame measurement table, got {type(table).__name__}")
+        raise InputTypeError(f"expected a pandas DataFrame measurement table, got "
+                             f"{type(table).__name__}")
 
 
 def _check_columns(table: pd.DataFrame, what: str) -> None:
@@ -301,7 +310,7 @@ def _duplicates(angles, rows: RowNames) -> None:
     pairs = sorted(cKDTree(vec).query_pairs(radius))
     pairs = [(i, j) for i, j in pairs if _separation(vec[i], vec[j]) <= SAME_TOL]
     if pairs:
-        root = {}
+        root: dict[int, int] = {}
 
         def find(i):
             while root.get(i, i) != i:
@@ -336,7 +345,7 @@ def _validated(table: pd.DataFrame, rows: RowNames | None = None) -> tuple[pd.Da
         sigma = cols["sigma"] = _numbers(table, "sigma", rows)
         bad = np.flatnonzero(sigma < 0)
         if bad.size:
-            raise _range_error(rows, bad, lambda k: f"sigma = {_fmt(sigma[k])}",
+            raise _range_error(rows, bad, lambda k: f"sigma = {_fmt(float(sigma[k]))}",
                                "sigma is a standard deviation and must be >= 0")
     _duplicates(angles, rows)
     out = table.copy()
@@ -359,7 +368,8 @@ def validate(table: pd.DataFrame) -> pd.DataFrame:
 
 
 def canonical_angles(table: pd.DataFrame) -> pd.DataFrame:
-    """Copy of ``table`` with float columns theta_i, phi_i, theta_r, phi_r first (docs/model.md sec. 1).
+    """Copy of ``table`` with float columns theta_i, phi_i, theta_r, phi_r first (docs/model.md
+    sec. 1).
 
     Polar angles are unsigned in [0, 90), azimuths in [0, 360), whatever the input form; the
     table's other columns follow in their order (signed in-plane theta_i, theta_r are
@@ -460,7 +470,12 @@ def load_measurements(path) -> pd.DataFrame:
                 records.append(rec)
                 lines.append(reader.line_num)
     except csv.Error as exc:
-        raise MeasurementError(f"line {reader.line_num} of {name} is not valid CSV: {exc}") from None
+        raise MeasurementError(f"line {reader.line_num} of {name} is not valid CSV: {exc}"
+                               ) from None
+    if header is None:  # nothing but blank cells (e.g. lines of "")
+        raise MeasurementError(
+            f"{name} has no header: every line is blank; expected a CSV header line naming "
+            f"the columns (value and angle columns in degrees, e.g. psi,rho,value)")
     for k, h in enumerate(header):
         if not h:
             raise MeasurementError(f"column {k + 1} in the header (line {header_line}) of {name} "
@@ -534,72 +549,11 @@ def measurements_text(table: pd.DataFrame) -> str:
         if c in KNOWN_COLUMNS:
             frame[c] = [repr(float(x)) for x in checked[c].to_numpy()]
         elif pd.api.types.is_float_dtype(frame[c].dtype):
-            frame[c] = ["" if math.isnan(x) else repr(float(x)) for x in frame[c].to_numpy(dtype=float)]
+            frame[c] = ["" if math.isnan(x) else repr(float(x))
+                        for x in frame[c].to_numpy(dtype=float)]
     return frame.to_csv(index=False, lineterminator="\n")
 
 
-# --------------------------------------------------------------------------------------
-# black cloth
-# --------------------------------------------------------------------------------------
-def subtract_black(table: pd.DataFrame, black: pd.DataFrame, tol: float = 0.05) -> pd.DataFrame:
-    """Subtract the black-cloth (medium-only) signal from a session (docs/model.md sec. 7).
-
-    Every row of ``table`` is matched to the row of ``black`` whose light and view
-    directions are both within ``tol`` degrees; ``value`` becomes the difference and
-    ``sigma`` the quadrature sum (a missing sigma counts as 0; no sigma column in either
-    table gives none). The table's other columns are kept; unused black rows are ignored.
-    Raises :class:`MeasurementError` naming the configurations with no match, or with more
-    than one match (tolerance too large).
-    """
-    if not (isinstance(tol, (int, float)) and math.isfinite(tol) and tol >= 0):
-        raise InputError(f"tol = {tol!r}: expected a finite tolerance >= 0 in degrees")
-    _check_type(table)
-    _check_type(black)
-    rows_t = RowNames(table)
-    checked, angles = _validated(table, rows_t)
-    if "veil_source" not in black.attrs:
-        black = black.copy()
-        black.attrs["veil_name"] = "the black-cloth table"
-    rows_b = RowNames(black)
-    black_checked, black_angles = _validated(black, rows_b)
-
-    from scipy.spatial import cKDTree
-
-    vt, vb = _vectors(angles), _vectors(black_angles)
-    radius = 2.0 * math.sqrt(2.0) * math.sin(math.radians(tol) / 2.0) * (1 + 1e-9) + 1e-15
-    candidates = cKDTree(vb).query_ball_point(vt, radius)
-    match = np.empty(len(vt), dtype=int)
-    missing, ambiguous = [], []
-    for k, cand in enumerate(candidates):
-        cand = sorted(j for j in cand if _separation(vt[k], vb[j]) <= tol)
-        if not cand:
-            missing.append(k)
-        elif len(cand) > 1:
-            ambiguous.append((k, cand))
-        else:
-            match[k] = cand[0]
-    if missing:
-        raise _range_error(
-            rows_t, missing, lambda k: _config_text(angles, k),
-            f"{len(missing)} configuration(s) have no black-cloth measurement within "
-            f"{tol:g} deg in {rows_b.what}")
-    if ambiguous:
-        k, cand = ambiguous[0]
-        raise MeasurementError(
-            f"{rows_t(k)} ({_config_text(angles, k)}) is within {tol:g} deg of several "
-            f"black-cloth rows: {rows_b.many(cand)} ({len(ambiguous)} such row(s)); "
-            f"use a smaller tolerance")
-    out = checked.copy()
-    out["value"] = checked["value"].to_numpy() - black_checked["value"].to_numpy()[match]
-    has_t, has_b = "sigma" in checked.columns, "sigma" in black_checked.columns
-    if has_t or has_b:
-        st = checked["sigma"].to_numpy() if has_t else 0.0
-        sb = black_checked["sigma"].to_numpy()[match] if has_b else 0.0
-        out["sigma"] = np.hypot(st, sb)
-    out.attrs = dict(table.attrs)
-    return out
-
-
-__all__ = ["load_measurements", "save_measurements", "canonical_angles", "subtract_black",
+__all__ = ["load_measurements", "save_measurements", "canonical_angles",
            "validate", "to_form", "MeasurementError", "measurements_text",
            "LikelyRadiansWarning", "CANONICAL", "FORMS"]

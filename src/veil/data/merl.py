@@ -79,7 +79,8 @@ def read_merl(path) -> MerlBRDF:
         raise MerlError(f"{name}: dimensions {dims}; a MERL file has {DIMS} (theta_h, "
                         f"theta_d, phi_d)")
     if len(raw) != FILE_BYTES:
-        raise MerlError(f"{name}: {len(raw) if len(raw) <= FILE_BYTES else 'more than ' + str(FILE_BYTES)} "
+        size = len(raw) if len(raw) <= FILE_BYTES else f"more than {FILE_BYTES}"
+        raise MerlError(f"{name}: {size} "
                         f"bytes; a MERL file of dimensions {DIMS} has exactly {FILE_BYTES} "
                         f"(12 header bytes + 3 channels x {N_CELLS} float64)")
     data = np.frombuffer(raw[HEADER_BYTES:], dtype="<f8").reshape((3,) + DIMS)

@@ -14,8 +14,8 @@ import math
 import numpy as np
 import pandas as pd
 
-from ..errors import InputError
 from ..engine.angles import from_goniometer, from_signed_inplane
+from ..errors import InputError
 
 PSI = (30.0, 60.0, 90.0)
 
@@ -83,8 +83,8 @@ def rho_values(psi: float, fine_step: float = 1.0, coarse_step: float = 5.0,
     while last + j * coarse_step < reach:
         pos.append(last + j * coarse_step)
         j += 1
-    pos = np.array(pos, dtype=float)
-    return np.concatenate([-pos[::-1], [0.0], pos])
+    arr = np.array(pos, dtype=float)
+    return np.concatenate([-arr[::-1], [0.0], arr])
 
 
 def protocol(psi=PSI, fine_step: float = 1.0, coarse_step: float = 5.0, window: float = 10.0,

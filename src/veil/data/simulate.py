@@ -27,16 +27,21 @@ has no glow.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from functools import lru_cache
-from typing import Callable
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..errors import InputError
 from ..engine.angles import direction
 from ..engine.apparent import RULES, as_brdf, as_btdf
 from ..engine.evaluator import CHUNK, evaluate
+from ..errors import InputError
 from .protocol import PSI, protocol
+
+if TYPE_CHECKING:
+    import pandas as pd
+
 #: The glow's reference configuration (theta_i, phi_i, theta_r, phi_r), degrees.
 GLOW_REFERENCE = (0.0, 180.0, 60.0, 0.0)
 GLOW_LEVEL = 0.03
@@ -77,7 +82,8 @@ def _evaluate(brdf, medium, angles, accuracy, progress):
 def simulate(brdf, medium, psi=PSI, noise: float = 0.01, seed: int = 0, black: bool = False, *,
              fine_step: float = 1.0, coarse_step: float = 5.0, window: float = 10.0,
              limit: float = 85.0, glow: float = GLOW_LEVEL, accuracy: str = "default",
-             progress: Callable[[int, int], None] | None = None):
+             progress: Callable[[int, int], None] | None = None
+             ) -> pd.DataFrame | tuple[pd.DataFrame, pd.DataFrame]:
     """Simulated goniometer session of ``brdf`` through ``medium`` (docs/model.md sec. 7).
 
     brdf, medium : models or preset names; ``medium=None`` is clear water (no integral,

@@ -5,15 +5,16 @@ Angles are in degrees and broadcast like numpy arrays; results are numpy arrays.
 
 from __future__ import annotations
 
+from typing import Literal, overload
+
 import numpy as np
 
-
-from ..errors import InputError, InputTypeError, ParameterError
 from .._jax import jax, jnp
+from ..errors import InputError, InputTypeError, ParameterError
+from ..models import BRDF, BTDF, preset
+from .angles import check_angles, direction
 from .forward import Forward, _bucket
 from .programs import Program, structure_name
-from .angles import check_angles, direction  # noqa: F401  (check_angles re-exported)
-from ..models import BRDF, BTDF, preset
 from .quadrature import ERROR_FACTOR, FINER, RULES, Rule  # noqa: F401  (re-exported)
 
 
@@ -122,8 +123,18 @@ def direct_programs(model) -> tuple:
     return _DIRECT_FNS[key]
 
 
+@overload
+def apparent(brdf, medium, theta_i, theta_r, phi_i=..., phi_r=..., *, accuracy: str = ...,
+             return_error: Literal[False] = ...) -> np.ndarray: ...
+@overload
+def apparent(brdf, medium, theta_i, theta_r, phi_i=..., phi_r=..., *, accuracy: str = ...,
+             return_error: Literal[True]) -> tuple[np.ndarray, np.ndarray]: ...
+@overload
+def apparent(brdf, medium, theta_i, theta_r, phi_i=..., phi_r=..., *, accuracy: str = ...,
+             return_error: bool = ...) -> np.ndarray | tuple[np.ndarray, np.ndarray]: ...
 def apparent(brdf, medium, theta_i, theta_r, phi_i=180.0, phi_r=0.0, *,
-             accuracy: str = "default", return_error: bool = False):
+             accuracy: str = "default", return_error: bool = False
+             ) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
     """Apparent reflectance f(I, R) of ``brdf`` seen through ``medium`` (docs/model.md eq. 1).
 
     Parameters

@@ -18,8 +18,8 @@ import json
 import os
 import threading
 import time
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
-from typing import Callable, Iterator
 
 #: Seconds of compilation per line of a program's StableHLO text, by kind of program, before
 #: this store has measured its own: a Jacobian's lines take about twice a value's
@@ -80,7 +80,7 @@ def _tell(event: str, compilation: Compilation, seconds: float) -> None:
 
 
 def _times_path() -> str | None:
-    from .programs import directory
+    from .store_files import directory
 
     folder = directory()
     return None if folder is None else os.path.join(folder, TIMES_FILE)
@@ -114,7 +114,7 @@ def _learn(kind: str, lines: int, seconds: float) -> None:
         return
     rates = {**SECONDS_PER_LINE, **_rates()}
     rates[kind] = (1.0 - LEARNING_RATE) * rates[kind] + LEARNING_RATE * seconds / lines
-    from .programs import put_file
+    from .store_files import put_file
 
     with contextlib.suppress(OSError):
         put_file(path, (json.dumps({"seconds_per_line": rates}, sort_keys=True)
@@ -125,7 +125,7 @@ def program_lines(lowered) -> int:
     """The size of a lowered program: lines of its StableHLO text."""
     try:
         return lowered.as_text().count("\n")
-    except Exception:  # noqa: BLE001 - a backend without text: no estimate, still compiled
+    except Exception:
         return 0
 
 

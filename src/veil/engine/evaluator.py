@@ -14,11 +14,10 @@ import math
 
 import numpy as np
 
-from .angles import direction
-from .apparent import check_finite
-from .forward import Forward
 from ..models import BRDF, BTDF
-from .apparent import apparent, direct_programs, reflectance
+from .angles import direction
+from .apparent import apparent, check_finite, direct_programs, reflectance
+from .forward import Forward
 
 #: Configurations per engine call of fits and simulations (they share one compilation).
 CHUNK = 64

@@ -15,14 +15,15 @@ from concurrent.futures import Future, ThreadPoolExecutor
 from functools import lru_cache
 
 import numpy as np
+from jax.sharding import Mesh, NamedSharding
+from jax.sharding import PartitionSpec as P
 
-from ..errors import InputError, InputTypeError
 from .._jax import jax, jnp
-from jax.sharding import Mesh, NamedSharding, PartitionSpec as P
-from . import integrator
-from .programs import JACOBIAN_OPTIONS, Program, structure_name
-from .angles import check_angles, direction
+from ..errors import InputError, InputTypeError
 from ..models.base import BRDF, BTDF
+from . import integrator
+from .angles import check_angles, direction
+from .programs import JACOBIAN_OPTIONS, Program, structure_name
 from .quadrature import FINER, RULES, Rule
 
 _AXIS = "configurations"

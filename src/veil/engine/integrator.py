@@ -22,8 +22,10 @@ half-vector grids of the albedo tables (per azimuth, so that the reflected direc
 above the horizon). The 4D term's half-vector grid is not truncated: where a reflected
 direction falls below the horizon its integrand is set to zero, which is a discontinuity
 only for an index-matched medium (eta_u = 1); otherwise the Fresnel transmittance and the
-shadowing term already take the integrand to zero there. For configurations in the plane of incidence the
-integrand is symmetric under y -> -y and only half of the azimuths are evaluated.
+shadowing term already take the integrand to zero there. For configurations in the plane of
+incidence the integrand is symmetric under y -> -y and only half of the azimuths are
+evaluated. The models are evaluated at the nodes of several terms at once
+(:mod:`veil.engine.nodes`, :mod:`veil.engine.lobe_terms`).
 """
 
 from __future__ import annotations
@@ -34,8 +36,18 @@ import numpy as np
 
 from .._jax import jax, jnp
 from . import lobe_terms
-from .nodes import (HALF_PI, TWO_PI, facet_grid, half_grid, lobe_at, normalized, phase_grid,
-                    polar, reflect, separable_at)
+from .nodes import (
+    HALF_PI,
+    TWO_PI,
+    facet_grids,
+    half_grid,
+    lobe_at,
+    normalized,
+    phase_grids,
+    polar,
+    reflect,
+    separable_at,
+)
 from .quadrature import Rule, gauss_legendre_unit
 
 
@@ -101,8 +113,8 @@ def _shared(brdf, rule, vb, half: bool):
     t_int = [jnp.sum(weights * t[0]) for t in t_at]
     if brdf.HAS_LOBE:
         a_tab, b_tab = _lobe_albedo_tables(brdf, vb, rule)
-        facets = (facet_grid(brdf, vb, rule.half_radial, rule.half_azimuth),
-                  facet_grid(brdf, vb, rule.dense_radial, rule.dense_azimuth, half),
+        facets = (*facet_grids(brdf, vb, [(rule.half_radial, rule.half_azimuth, False),
+                                          (rule.dense_radial, rule.dense_azimuth, half)]),
                   brdf.facet_cdf(vb, HALF_PI))
     else:
         a_tab = b_tab = jnp.zeros(rule.table)
@@ -129,7 +141,7 @@ def _lobe_parts(brdf, medium, rule, half, vb, vm, maux, facets, wi, wr, grids):
     comps = medium.COMPONENTS
     parts = {}
     if "lobe" in comps:
-        parts["lobe"] = lobe_terms.lobe_lobe(brdf, medium, vb, vm, maux, wi, wr, rule, half,
+        parts["lobe"] = lobe_terms.lobe_lobe(brdf, medium, vb, vm, wi, wr, half, grids[2:],
                                              facets[0], facets[2])
     if "delta" in comps:
         h = normalized(wi + wr)
@@ -175,9 +187,15 @@ def _one_config(brdf, medium, rule, half, vb, vm, shared, maux, wi, wr):
         return _interp_table(table, theta, rule) if brdf.HAS_LOBE else zero
 
     grids, cos_i, cos_r = None, [wi[2]], [wr[2]]
-    if "lobe" in comps:  # 2D terms on a dense phase grid about I (I') and about R (R')
-        grids = (phase_grid(medium, vm, maux, wi, rule.dense_radial, rule.dense_azimuth, half),
-                 phase_grid(medium, vm, maux, wr, rule.dense_radial, rule.dense_azimuth, half))
+    if "lobe" in comps:
+        # the 2D terms' dense grids about I (I') and about R (R'), and the 4D term's grids
+        specs = [(wi, rule.dense_radial, rule.dense_azimuth, half),
+                 (wr, rule.dense_radial, rule.dense_azimuth, half)]
+        if brdf.HAS_LOBE:
+            specs += [(wi, rule.phase_radial, rule.phase_azimuth, half),
+                      (wr, rule.phase_radial, rule.phase_azimuth, False)]
+            specs += [(wr, rule.phase_radial, rule.phase_azimuth, True)] if half else []
+        grids = phase_grids(medium, vm, maux, specs)
         cos_i, cos_r = [wi[2], grids[0][0][:, 2]], [wr[2], grids[1][0][:, 2]]
     # s_k at I and the I' nodes, t_k at R and the R' nodes: one evaluation
     s_at, t_at = separable_at(brdf, vb, aux, cos_i, cos_r)
@@ -187,7 +205,7 @@ def _one_config(brdf, medium, rule, half, vb, vm, shared, maux, wi, wr):
     if "iso" in comps:
         rows[("iso", "iso")] = (c0_sep, c0_lobe)
     if "lobe" in comps:
-        (gi, ui, fi, _), (gr, ur, fr, _) = grids
+        (gi, ui, fi, _), (gr, ur, fr, _) = grids[:2]
         s_gi, t_gr = [s[1] for s in s_at], [t[1] for t in t_at]
         wgi = ui * fi * medium.factor_second(vm, gi[:, 2])
         wgr = ur * fr * medium.factor_first(vm, gr[:, 2]) * lobe_terms.view_weight(

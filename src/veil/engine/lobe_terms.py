@@ -19,8 +19,7 @@ A part returns ``(lobe_requests, phase_requests, finish)``: lists of node sets (
 from __future__ import annotations
 
 from .._jax import jax, jnp
-from .nodes import (PHASE_GRADING, dot3, half_distance, normalized, phase_grid, polar,
-                    reflect)
+from .nodes import dot3, half_distance, normalized, polar, reflect
 
 
 def apart(fn, vm, *args):
@@ -49,17 +48,17 @@ def _balanced(p_i, p_r, c, q_h, lobe):
     return jnp.where(ok, lobe * p_i * p_r / jnp.where(ok, den, 1.0), 0.0)
 
 
-def lobe_lobe(brdf, medium, vb, vm, maux, wi, wr, rule, half: bool, facets, y_full):
+def lobe_lobe(brdf, medium, vb, vm, wi, wr, half: bool, grids, facets, y_full):
     """Int Int b(I') p(I.I') lobe(I', R') a(R') J(R') p(R'.R) dI' dR' (balanced MIS
     quadrature over three product grids), J the view-side weight of the medium (1 without
-    one). ``facets`` is the 4D term's facet grid (:func:`veil.engine.nodes.facet_grid`)."""
-    n_r, n_a = rule.phase_radial, rule.phase_azimuth
-    gi, ui, fi, pi_ = phase_grid(medium, vm, maux, wi, n_r, n_a, half, PHASE_GRADING)  # I' about I
-    gr, ur, fr, pr = phase_grid(medium, vm, maux, wr, n_r, n_a, False, PHASE_GRADING)  # R' about R
+    one). ``grids`` are the phase grids (:func:`veil.engine.nodes.phase_grids`) about I
+    (``half`` azimuths), about R, and about R with ``half`` azimuths (only when ``half``);
+    ``facets`` the 4D term's facet grid (:func:`veil.engine.nodes.facet_grids`)."""
+    (gi, ui, fi, pi_), (gr, ur, fr, pr) = grids[:2]
     bi = medium.factor_second(vm, gi[:, 2])
     ar = medium.factor_first(vm, gr[:, 2]) * view_weight(medium, vm, gr, wr)
     if half:  # component B needs only half of the R' azimuths (C pairs half I' with all R')
-        grb, urb, frb, prb = phase_grid(medium, vm, maux, wr, n_r, n_a, True, PHASE_GRADING)
+        grb, urb, frb, prb = grids[2]
         arb = medium.factor_first(vm, grb[:, 2]) * view_weight(medium, vm, grb, wr)
     else:
         grb, urb, frb, prb, arb = gr, ur, fr, pr, ar

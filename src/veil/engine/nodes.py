@@ -21,7 +21,6 @@ from .quadrature import frame, gauss_legendre_unit, horizon_one_minus_mu, period
 TWO_PI = 2.0 * math.pi
 HALF_PI = 0.5 * math.pi
 FACET_GRADING = 3
-PHASE_GRADING = 1
 
 
 def azimuths(n: int, half: bool):
@@ -33,35 +32,48 @@ def azimuths(n: int, half: bool):
     return v, w
 
 
-def phase_grid(medium: BTDF, vm, maux, center, n_r: int, n_a: int, half: bool,
-                grading: int = 1):
-    """Directions about ``center`` (3,) distributed as the phase lobe truncated at z = 0.
+def phase_grids(medium: BTDF, vm, maux, specs):
+    """Directions about each ``center`` (3,) of ``specs`` = [(center, n_r, n_a, half), ...],
+    distributed as the phase lobe truncated at z = 0, in one evaluation of the phase law.
 
-    Returns (d (N, 3), unit weights (N,), frac_max (N,), p (N,)). sum(unit * frac_max * f(d))
-    approximates Int_{z>0} p(center . d) f(d) dd; p is the phase density at each node.
+    Returns per spec (d (N, 3), unit weights (N,), frac_max (N,), p (N,)):
+    sum(unit * frac_max * f(d)) approximates Int_{z>0} p(center . d) f(d) dd; p is the phase
+    density at each node. The horizon depends on the azimuth only: one cone fraction per
+    azimuth of each grid.
     """
-    x, wx = gauss_legendre_unit(n_r)
-    if grading > 1:  # more nodes towards the horizon end of the cone fraction
-        wx = wx * grading * (1.0 - x) ** (grading - 1)
-        x = 1.0 - (1.0 - x) ** grading
-    v, wv = azimuths(n_a, half)
-    u = jnp.asarray(np.repeat(x[None, :], len(v), 0).ravel())
-    beta = jnp.asarray(TWO_PI * np.repeat(v, n_r))
-    unit = jnp.asarray(np.outer(wv, wx).ravel())
-    cb, sb = jnp.cos(beta), jnp.sin(beta)
-    # the horizon depends on the azimuth only: one cone fraction per azimuth
-    cos_az = jnp.asarray(np.cos(TWO_PI * v))
-    frac_max = jnp.repeat(medium.phase_cone_fraction(
-        vm, horizon_one_minus_mu(center[2], cos_az), maux), n_r)
+    parts, az_of, start = [], [], 0
+    for _, n_r, n_a, half in specs:
+        x, wx = gauss_legendre_unit(n_r)
+        v, wv = azimuths(n_a, half)
+        parts.append((np.repeat(x[None, :], len(v), 0).ravel(), TWO_PI * np.repeat(v, n_r),
+                      np.outer(wv, wx).ravel(), TWO_PI * v))
+        az_of.append(start + np.repeat(np.arange(len(v)), n_r))
+        start += len(v)
+    centers = jnp.stack([c for c, *_ in specs])
+    grid_of_az = np.concatenate([np.full(p[3].size, k) for k, p in enumerate(parts)])
+    cos_az = jnp.asarray(np.cos(np.concatenate([p[3] for p in parts])))
+    frac_az = medium.phase_cone_fraction(
+        vm, horizon_one_minus_mu(centers[grid_of_az, 2], cos_az), maux)
+    frac_max = frac_az[np.concatenate(az_of)]
+    u = jnp.asarray(np.concatenate([p[0] for p in parts]))
     omm, p = medium.phase_sample(vm, u * frac_max, maux)
     sg = jnp.sqrt(jnp.maximum(omm * (2.0 - omm), 0.0))
-    t1, t2 = frame(center)
-    d = ((1.0 - omm)[:, None] * center[None, :]
-         + sg[:, None] * (cb[:, None] * t1[None, :] + sb[:, None] * t2[None, :]))
-    return d, unit, frac_max, p
+    beta = jnp.asarray(np.concatenate([p[1] for p in parts]))
+    grid_of = np.concatenate([np.full(p[0].size, k) for k, p in enumerate(parts)])
+    t1, t2 = frame(centers)
+    d = ((1.0 - omm)[:, None] * centers[grid_of]
+         + sg[:, None] * (jnp.cos(beta)[:, None] * t1[grid_of]
+                          + jnp.sin(beta)[:, None] * t2[grid_of]))
+    out, start = [], 0
+    for part in parts:
+        n = part[0].size
+        cut = slice(start, start + n)
+        out.append((d[cut], jnp.asarray(part[2]), frac_max[cut], p[cut]))
+        start += n
+    return out
 
 
-def half_grid(brdf: type[BRDF], vb, partner, n_r: int, n_a: int, half: bool):
+def half_grid(brdf: BRDF, vb, partner, n_r: int, n_a: int, half: bool):
     """Half vectors distributed by the facet law, truncated per azimuth so that reflecting
     each ``partner`` direction (P, 3) about them stays above the horizon.
 
@@ -117,7 +129,8 @@ def _atan_series():
     t = np.sqrt(z)
     f = np.where(t > 0, np.arctan(t) / np.where(t > 0, t, 1.0), 1.0)
     fit = np.polynomial.Chebyshev.fit(z, f, 10, domain=[0.0, a2])
-    return tuple(fit.convert(kind=np.polynomial.Polynomial, domain=[0.0, a2], window=[0.0, a2]).coef)
+    poly = fit.convert(kind=np.polynomial.Polynomial, domain=[0.0, a2], window=[0.0, a2])
+    return tuple(poly.coef)
 
 
 _ATAN = _atan_series()
@@ -154,20 +167,29 @@ def half_distance(a, b):
                   + (a[..., 2] - b[..., 2]) ** 2)
 
 
-def facet_grid(brdf: type[BRDF], vb, n_r: int, n_a: int, half: bool = False):
-    """Half vectors by the untruncated facet law, shaped (1, N, 3), with alpha, unit weights
-    and density per steradian (1, N); ``half`` keeps the azimuths in (0, pi) with double
-    weight (for integrands symmetric under y -> -y)."""
-    x, wx = graded_unit(n_r, FACET_GRADING)
-    v, wv = azimuths(n_a, half)
+def facet_grids(brdf: BRDF, vb, shapes):
+    """Half vectors by the untruncated facet law for each (n_r, n_a, half) of ``shapes``, in
+    one evaluation of the facet law: per grid (h (1, N, 3), alpha, unit weights, density per
+    steradian (1, N)); ``half`` keeps the azimuths in (0, pi) with double weight (for
+    integrands symmetric under y -> -y). Once per engine call: sin and cos by XLA."""
+    nodes = []
+    for n_r, n_a, half in shapes:
+        x, wx = graded_unit(n_r, FACET_GRADING)
+        v, wv = azimuths(n_a, half)
+        nodes.append((np.tile(x, len(v)), TWO_PI * np.repeat(v, n_r), np.outer(wv, wx).ravel()))
     y_full = brdf.facet_cdf(vb, HALF_PI)
-    alpha = brdf.facet_inverse_cdf(vb, jnp.asarray(np.tile(x, len(v))) * y_full)
-    phi = jnp.asarray(TWO_PI * np.repeat(v, n_r))
-    sa, ca = sincos(alpha)
+    alpha = brdf.facet_inverse_cdf(vb, jnp.asarray(np.concatenate([n[0] for n in nodes]))
+                                   * y_full)
+    phi = jnp.asarray(np.concatenate([n[1] for n in nodes]))
+    sa, ca = jnp.sin(alpha), jnp.cos(alpha)
     h = jnp.stack([sa * jnp.cos(phi), sa * jnp.sin(phi), ca], axis=-1)
     qh = brdf.facet_weight(vb, alpha, sa) / y_full
-    unit = jnp.asarray(np.outer(wv, wx).ravel())
-    return h[None], alpha[None], unit[None], qh[None]
+    out, start = [], 0
+    for x, _, unit in nodes:
+        part = slice(start, start + x.size)
+        out.append((h[None, part], alpha[None, part], jnp.asarray(unit)[None], qh[None, part]))
+        start += x.size
+    return out
 
 
 def polar(h):

@@ -39,23 +39,22 @@ model structures, rule, shapes, devices), holding a header and the serialized ex
 
 from __future__ import annotations
 
-import contextlib
 import hashlib
 import json
 import os
 import pickle
 import platform
 import sys
-import tempfile
 import threading
 from contextlib import contextmanager
-from functools import lru_cache
+from functools import cache, lru_cache
+from types import ModuleType
 
 import numpy as np
 
-from .. import __version__
-from .. import _jax
-from .._jax import CACHE_OFF, _notice, jax
+from .. import __version__, _jax
+from .._jax import _notice, jax
+from .store_files import directory, put_file
 
 #: First line of every entry; a new layout gets a new number.
 FORMAT = b"veil.program/2\n"
@@ -71,17 +70,6 @@ def _say_once(key, message: str) -> None:
             return
         _MESSAGES.add(key)
     _notice(message)
-
-
-def directory() -> str | None:
-    """The program store's folder, or None when it is disabled (``VEIL_CACHE_DIR=off``)."""
-    setting = os.environ.get("VEIL_CACHE_DIR")
-    if setting is not None:
-        if setting.strip().lower() in CACHE_OFF:
-            return None
-        return os.path.join(os.path.abspath(os.path.expanduser(setting)), "programs")
-    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
-    return os.path.join(base, "veil", "programs")
 
 
 def _cpu() -> str:
@@ -101,7 +89,7 @@ def _cpu() -> str:
     return hashlib.sha256("\n".join(described).encode()).hexdigest()[:16]
 
 
-@lru_cache(maxsize=None)
+@cache
 def _source_digest(files: tuple) -> str:
     """A digest of ``files`` ((name, path) pairs): each name and its file's bytes. Names,
     not paths, so that the same code in another checkout or environment finds its
@@ -232,7 +220,7 @@ def read(identity: str, env: dict, signature: tuple):
         by_id = {d.id: d for d in jax.devices()}
         compiled = serialize_executable.deserialize_and_load(
             executable, in_tree, out_tree, execution_devices=[by_id[i] for i in device_ids])
-    except Exception as exc:  # noqa: BLE001 - whatever the decoder raises: not trusted
+    except Exception as exc:
         return damaged(f"{type(exc).__name__}: {exc}")
     if _compiled_signature(compiled) != signature:
         return damaged("its inputs are not the call's")
@@ -296,31 +284,6 @@ def serialize(compiled, devices) -> bytes | None:
                         protocol=pickle.HIGHEST_PROTOCOL)
 
 
-def put_file(path: str, data: bytes) -> None:
-    """Write a file of the store atomically (a temporary renamed into place under
-    :data:`veil.io.COMMIT`; never listed among a command's outputs); OSError if it cannot."""
-    from ..io import COMMIT, forget_temporary, register_temporary
-
-    folder = os.path.dirname(path)
-    tmp = None
-    try:
-        os.makedirs(folder, exist_ok=True)
-        with COMMIT:  # no temporary is created once an interrupt is being handled
-            fd, tmp = tempfile.mkstemp(dir=folder, prefix=".program-", suffix=".tmp")
-            register_temporary(tmp, "file")
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-        with COMMIT:
-            os.replace(tmp, path)
-            forget_temporary(tmp)
-    except OSError:
-        if tmp is not None:
-            with contextlib.suppress(OSError):
-                os.unlink(tmp)
-            forget_temporary(tmp)
-        raise
-
-
 def write(identity: str, env: dict, payload: bytes) -> bool:
     """Store a serialized program atomically; False (and one line, once) when the store
     cannot be written."""
@@ -367,6 +330,7 @@ def building(identity: str, env: dict):
     no store, the lock file cannot be made, the file system has no ``flock`` (one line says
     so) or the platform has no ``fcntl``; after WAIT_LIMIT seconds of waiting (one line)."""
     path = _lock_path(identity, env)
+    fcntl: ModuleType | None
     try:
         import fcntl
     except ImportError:  # not POSIX: no cross-process lock, each process builds its own
@@ -380,12 +344,12 @@ def building(identity: str, env: dict):
             fd = None
     locked = waited = False
     try:
-        if fd is not None:
+        if fd is not None and path is not None:  # (fd is only opened at a path)
             locked, waited = _acquire(fcntl, fd, path)
         yield waited
     finally:
         if fd is not None:
-            if locked:
+            if locked and fcntl is not None:  # (locked only with fcntl)
                 # unlock explicitly: a child forked meanwhile shares the open file and would
                 # keep an unreleased lock until it exits
                 fcntl.flock(fd, fcntl.LOCK_UN)

@@ -8,22 +8,22 @@ bit-for-bit repeatable.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import lru_cache
+from functools import cache
 
 import numpy as np
 
-from ..errors import InputError
 from .._jax import jnp
+from ..errors import InputError
 
 
-@lru_cache(maxsize=None)
+@cache
 def gauss_legendre_unit(n: int) -> tuple[np.ndarray, np.ndarray]:
     """Gauss-Legendre nodes and weights on [0, 1]."""
     x, w = np.polynomial.legendre.leggauss(n)
     return 0.5 * (x + 1.0), 0.5 * w
 
 
-@lru_cache(maxsize=None)
+@cache
 def periodic_unit(n: int) -> tuple[np.ndarray, np.ndarray]:
     """Midpoint (trapezoidal) rule for a periodic variable on [0, 1)."""
     return (np.arange(n) + 0.5) / n, np.full(n, 1.0 / n)
@@ -97,7 +97,7 @@ class Rule:
             raise InputError(f"Rule.table = {self.table!r}; expected an odd integer >= 3 "
                              "(Simpson's rule)")
 
-    def scaled(self, factor: float) -> "Rule":
+    def scaled(self, factor: float) -> Rule:
         def s(n, lo=2):
             return max(lo, int(round(n * factor)))
 

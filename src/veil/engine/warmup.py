@@ -3,17 +3,18 @@
 Each task runs the very code path a command takes - the fits' chunked evaluator
 (:class:`~veil.engine.evaluator.ApparentModel`, 64 in-plane configurations a chunk, values
 and the three Jacobians of the fits at the iteration accuracy - in the medium's parameters
-(step 1), the object's (step 2), both (joint fits) - values at the reported one), ``veil eval`` of one configuration (:func:`~veil.engine.apparent.apparent` with its
-error estimate) and the object's own f_r (step 0 of the fits) - so that what it stores in
-the program store (:mod:`veil.engine.programs`) and JAX's compilation cache is exactly what
-those commands look up later. Out-of-plane configurations and other chunk sizes are
-compiled on first use, as before.
+(step 1), the object's (step 2), both (joint fits) - values at the reported one), ``veil
+eval`` of one configuration (:func:`~veil.engine.apparent.apparent` with its error estimate)
+and the object's own f_r (step 0 of the fits) - so that what it stores in the program store
+(:mod:`veil.engine.programs`) and JAX's compilation cache is exactly what those commands
+look up later. Out-of-plane configurations and other chunk sizes are compiled on first use,
+as before.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 
@@ -77,7 +78,7 @@ def families(selected=None) -> tuple[list[str], list[str]]:
         return [DEFAULTS["brdf"]], [DEFAULTS["medium"]]
     if [s.strip().lower() for s in selected] == ["all"]:
         return names("brdf"), names("medium")
-    chosen = {"brdf": [], "medium": []}
+    chosen: dict[str, list] = {"brdf": [], "medium": []}
     for name in selected:
         cls = model_class(name)
         if cls.NAME not in chosen[cls.KIND]:

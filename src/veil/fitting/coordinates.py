@@ -6,8 +6,6 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
-
 from ..models import Param
 
 #: Internal search range (natural-log units) of log-scale parameters without a finite bound.
@@ -66,14 +64,4 @@ def bounds(p: Param, u0: float, kind: str | None = None) -> tuple[float, float]:
             p.upper - OPEN_MARGIN * width if p.upper_open else p.upper)
 
 
-def at_bound(u: np.ndarray, bounds, names) -> list[str]:
-    """The ``names`` of the internal coordinates ``u`` within :data:`EDGE` of the width of
-    their search interval (``bounds`` = (lower ends, upper ends)) from either end."""
-    lo, hi = bounds
-    span = np.maximum(hi - lo, 1e-300)
-    near = (u - lo <= EDGE * span) | (hi - u <= EDGE * span)
-    return [n for n, hit in zip(names, near) if hit]
-
-
-__all__ = ["LOG_RANGE", "OPEN_MARGIN", "EDGE", "coordinate", "to_u", "to_x", "bounds",
-           "at_bound"]
+__all__ = ["LOG_RANGE", "OPEN_MARGIN", "EDGE", "coordinate", "to_u", "to_x", "bounds"]

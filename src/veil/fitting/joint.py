@@ -26,16 +26,30 @@ from ..engine.angles import direction
 from ..errors import FitError, InputError
 from ..models import Model, default_class, model_class
 from ..models.base import VARIANT_OPTION
-from .data import prepare
-from .given import as_given
-from .problem import (ITERATION_ACCURACY, OBJECTS, Block, Problem, Session, check_accuracy,
-                      model_slots)
 from . import model_error as discrepancy
+from .given import as_given
+from .problem import (
+    ITERATION_ACCURACY,
+    OBJECTS,
+    Block,
+    Problem,
+    Session,
+    check_accuracy,
+    model_slots,
+)
 from .propagation import check_method, describe, media_part
-from .reported import Reported, model_floor, reported
+from .reported_uncertainty import Reported, model_floor, reported
 from .result import FitResult, JointResult, load_result, model_entry
-from .solver import (as_fixed, check_fixed, check_max_nfev, covariance_matrix, run, summarize,
-                     uncertainties)
+from .session_data import prepare
+from .solver import (
+    as_fixed,
+    check_fixed,
+    check_max_nfev,
+    covariance_matrix,
+    run,
+    summarize,
+    uncertainties,
+)
 from .start_values import joint_starts, step_starts
 
 #: Two configurations closer than this (deg, for both I and R) are the same one when
@@ -184,30 +198,16 @@ def _anchor_check(sessions, fixed_names, reference_given, params, brdf_cls, medi
                 f"fixed={{'{scale_m}[label]': ...}} (--fix '{scale_m}[label]=...')")
 
 
-def build(sessions, *, reference=None, shared=None, per_medium=None, fixed=None,
-          variant: str | None = None, brdf_model=None, medium_model=None, brdf_options=None,
-          medium_options=None, free=None) -> tuple[Problem, dict]:
-    """The stacked :class:`Problem` of a joint fit and its layout (see :func:`fit_joint`)."""
-    bcls = default_class("brdf") if brdf_model is None else model_class(brdf_model, "brdf")
-    mcls = default_class("medium") if medium_model is None else model_class(medium_model,
-                                                                            "medium")
-    medium_options = dict(medium_options or {})
-    if variant is not None:
-        medium_options[VARIANT_OPTION] = variant
-    try:
-        template_b = bcls.template(**dict(brdf_options or {}))
-        template_m = mcls.template(**medium_options)
-    except InputError as exc:
-        raise FitError(str(exc)) from None
-    sessions = as_sessions(sessions)
-    shared_names = _declarations(mcls, bcls, shared, per_medium)
+def _check_sessions(sessions) -> list:
+    """The media of a joint fit's sessions, checked: a target through a medium, one
+    session per object and medium, a target session in every medium."""
     if not any(s.object == "target" for s in sessions):
         raise FitError("no session of the target: a joint fit estimates the target object "
                        "through the media; add at least one session with object 'target'")
     if not any(s.object == "target" and not s.clear for s in sessions):
         raise FitError("every target session is in clear water: there is no medium to fit "
                        "jointly; use veil fit direct (f_r directly) instead")
-    seen = {}
+    seen: dict[tuple, str] = {}
     for s in sessions:
         key = (s.object, s.medium)
         if key in seen:
@@ -220,6 +220,11 @@ def build(sessions, *, reference=None, shared=None, per_medium=None, fixed=None,
             raise FitError(f"medium {m!r} has a reference session but no target session: "
                            f"every medium of a joint fit must have a session of the target "
                            f"(fit that medium alone with veil fit medium)")
+    return media
+
+
+def _reference_of(reference, bcls, sessions):
+    """The reference's given BRDF (None when not given), checked against the sessions."""
     ref_sessions = [s for s in sessions if s.object == "reference"]
     reference_model = None
     if reference is not None:
@@ -235,16 +240,13 @@ def build(sessions, *, reference=None, shared=None, per_medium=None, fixed=None,
         raise FitError("reference sessions in a medium need the reference's f_r: give "
                        "reference= (the step-0 result or a BRDF model) or add its "
                        "clear-water session (object 'reference', medium 'none')")
+    return reference_model
 
-    datas = [prepare(s.table, None, s.name) for s in sessions]
-    weighted = {d.sigma is not None for d in datas}
-    if len(weighted) > 1:
-        which = [s.name for s, d in zip(sessions, datas) if d.sigma is None]
-        raise FitError(f"session(s) {', '.join(which)} have no sigma column but the others "
-                       f"do: weighted and unweighted residuals cannot be mixed in one fit; "
-                       f"give every session a sigma column or none")
-    _check_overlap(sessions, datas)
 
+def _slots(bcls, mcls, sessions, media, shared_names) -> tuple[list, dict, dict]:
+    """(the joint fit's parameter slots, {object: {parameter: slot}}, {medium: {parameter
+    key: slot}}): one BRDF per object, the medium's shared parameters once, the others per
+    medium."""
     params = []
     objects_layout: dict = {}
     for obj, prefix in zip(OBJECTS, ("", "ref.")):
@@ -264,9 +266,15 @@ def build(sessions, *, reference=None, shared=None, per_medium=None, fixed=None,
             else:
                 params.append(s)
                 media_layout[m][p.key] = s.name
+    return params, objects_layout, media_layout
+
+
+def _fixed_and_freed(params, fixed, free, mcls, shared_names) -> tuple[dict, np.ndarray,
+                                                                      np.ndarray]:
+    """(the fixed values checked, the starting values, which slots are free) from ``fixed``
+    and the held parameters to ``free``."""
     names = [p.name for p in params]
     index = {n: k for k, n in enumerate(names)}
-
     fixed = as_fixed(fixed)
     for k, v in fixed.items():
         if k not in index:
@@ -286,6 +294,43 @@ def build(sessions, *, reference=None, shared=None, per_medium=None, fixed=None,
     if clash:
         raise FitError(f"{', '.join(clash)} both fixed and freed")
     free = np.array([not p.spec.held or p.name in freed for p in params], dtype=bool)
+    return fixed, values, free
+
+
+def build(sessions, *, reference=None, shared=None, per_medium=None, fixed=None,
+          variant: str | None = None, brdf_model=None, medium_model=None, brdf_options=None,
+          medium_options=None, free=None) -> tuple[Problem, dict]:
+    """The stacked :class:`Problem` of a joint fit and its layout (see :func:`fit_joint`)."""
+    bcls = default_class("brdf") if brdf_model is None else model_class(brdf_model, "brdf")
+    mcls = default_class("medium") if medium_model is None else model_class(medium_model,
+                                                                            "medium")
+    medium_options = dict(medium_options or {})
+    if variant is not None:
+        medium_options[VARIANT_OPTION] = variant
+    try:
+        template_b = bcls.template(**dict(brdf_options or {}))
+        template_m = mcls.template(**medium_options)
+    except InputError as exc:
+        raise FitError(str(exc)) from None
+    sessions = as_sessions(sessions)
+    shared_names = _declarations(mcls, bcls, shared, per_medium)
+    media = _check_sessions(sessions)
+    reference_model = _reference_of(reference, bcls, sessions)
+
+    datas = [prepare(s.table, None, s.name) for s in sessions]
+    weighted = {d.sigma is not None for d in datas}
+    if len(weighted) > 1:
+        which = [s.name for s, d in zip(sessions, datas) if d.sigma is None]
+        raise FitError(f"session(s) {', '.join(which)} have no sigma column but the others "
+                       f"do: weighted and unweighted residuals cannot be mixed in one fit; "
+                       f"give every session a sigma column or none")
+    _check_overlap(sessions, datas)
+
+    params, objects_layout, media_layout = _slots(bcls, mcls, sessions, media, shared_names)
+    names = [p.name for p in params]
+    index = {n: k for k, n in enumerate(names)}
+
+    fixed, values, free = _fixed_and_freed(params, fixed, free, mcls, shared_names)
     if reference_model is not None:
         for pname, gname in objects_layout["reference"].items():
             if gname in fixed:
@@ -371,7 +416,7 @@ def fit_joint(sessions, *, reference=None, shared=None, per_medium=None, fixed=N
         term over all its sessions (:mod:`veil.fitting.model_error`; nothing is inherited;
         at least the models' declared error when every session is in a medium),
         and a reference given as a fit result has its covariance propagated into
-        ``stderr_total`` to first order (:mod:`veil.fitting.reported`).
+        ``stderr_total`` to first order (:mod:`veil.fitting.reported_uncertainty`).
     propagation : how the media's uncertainty reaches the objects' ``stderr_total``: "auto"
         (the default, None: through refits at sigma points where a medium parameter is
         uncertain by more than a quarter of its scale, as tau at optical depth 0.1, and at
@@ -424,9 +469,10 @@ def _media_beyond_first_order(problem: Problem, x, rep: Reported, method: str) -
     the media's block and the cross terms stay. When the result would not be a covariance
     (the sigma points' spread below the first order's in some direction) the first order is
     kept and the record says so."""
-    use_total = rep.stderr_total is not None
-    se, corr = ((rep.stderr_total, rep.correlation_total) if use_total
-                else (rep.stderr, rep.correlation))
+    se: dict = rep.stderr
+    corr: dict | None = rep.correlation
+    if rep.stderr_total is not None:
+        se, corr = rep.stderr_total, rep.correlation_total
     cov = covariance_matrix(se, corr, problem.free_names)
     if cov is None:
         return rep

@@ -54,6 +54,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from scipy.linalg import solve_triangular
@@ -198,21 +199,24 @@ def estimate(residuals, scaled_values, dof: int, dist,
     best = None
     for length in lengths:
         if length == 0.0 and basis is None:
-            def nll(u):
+            def nll_independent(u):
                 return _nll_independent(r, a, math.exp(2 * u))
+            nll = nll_independent
         else:
             if length > 0.0 and callable(dist):
                 dist = dist()
             corr = np.eye(r.size) if length == 0.0 else correlation(dist, length)
             spectrum = _spectrum(r, a, corr, basis)
 
-            def nll(u, spectrum=spectrum):
+            def nll_spectrum(u, spectrum=spectrum):
                 return _nll_spectrum(spectrum, math.exp(2 * u))
+            nll = nll_spectrum
         found = minimize_scalar(nll,
                                 bounds=(math.log(guess) - 6.0, math.log(guess) + 6.0),
                                 method="bounded", options={"xatol": 1e-6})
         if best is None or found.fun < best[0]:
             best = (float(found.fun), math.exp(float(found.x)), length)
+    assert best is not None  # lengths is never empty
     return best[1], best[2]
 
 
@@ -262,13 +266,15 @@ class ModelError:
     session_correlation: float | None = None
 
     def to_dict(self) -> dict:
-        out = {"sigma": self.sigma, "length": self.length, "own": self.own,
+        out: dict[str, Any] = {"sigma": self.sigma, "length": self.length, "own": self.own,
                "given": self.given, "source": self.source,
                "chi2_threshold": self.chi2_threshold, "noise_only": self.noise_only}
         if self.influence is not None:
+            assert self.angles is not None  # they come together (from_dict)
             out["influence"] = {k: [float(v) for v in row] for k, row in self.influence.items()}
             out["angles"] = [[float(v) for v in a] for a in self.angles]
             if self.residuals is not None:
+                assert self.scaled is not None  # they come together (from_dict)
                 out["residuals"] = [float(v) for v in self.residuals]
                 out["scaled"] = [float(v) for v in self.scaled]
         if self.session_correlation is not None:
@@ -276,7 +282,7 @@ class ModelError:
         return out
 
     @classmethod
-    def from_dict(cls, data, source: str = "the fit result") -> "ModelError":
+    def from_dict(cls, data, source: str = "the fit result") -> ModelError:
         """Check and convert the ``model_error`` entry of a result file."""
         keys = ("sigma", "length", "own", "given", "source", "chi2_threshold")
         if not isinstance(data, dict) or any(k not in data for k in keys):
@@ -303,6 +309,7 @@ class ModelError:
         if influence is not None:
             influence, angles = _read_influence(influence, angles, source)
         if residuals is not None:
+            assert angles is not None  # checked above: residuals come with the influence
             rows, _ = _read_influence({"residuals": residuals, "scaled": scaled},
                                       [list(a) for a in angles], source, key="")
             residuals, scaled = rows["residuals"], rows["scaled"]
@@ -456,6 +463,7 @@ def share_likelihood(residuals, scaled_values, weighted_jacobian, angles, own_co
     q1 = _complement((g1 / a1[None, :]).T, a1.size)
     a2 = np.asarray(scaled_values, dtype=float)
     q2 = _complement(weighted_jacobian, a2.size)
+    assert q1 is not None and q2 is not None  # both from a Jacobian
     if q1.shape[1] == 0 or q2.shape[1] == 0:
         return None
     jm = np.asarray(given_jacobian, dtype=float)[:a2.size]
@@ -497,13 +505,14 @@ def shared(own_influence, angles, given: ModelError, given_names, sensitivity,
     """The covariance that the error a step shares with its given medium's fit adds to its
     total: step 2's estimate moves by G_2 d_2 + S G_1 d_1 (S = d estimate / d medium, first
     order), and d_1, d_2 are one process over the configurations of both sessions with the
-    given fit's s and ell, so beside the two steps' own parts it has the cross term
-    s^2 (G_2 R_21 G_1^T S^T + its transpose), R_21 = exp(-D(step 2's, step 1's) / ell). It
-    is negative where the medium absorbed in step 1 the error it gives back in step 2.
-    ``share`` scales it: how far step 2's error is step 1's
-    (:func:`session_correlation`). None when the given term has no length (ell = 0: the two sessions' errors independent)
+    given fit's s and ell, so beside the two steps' own parts it has the cross term s^2 (G_2
+    R_21 G_1^T S^T + its transpose), R_21 = exp(-D(step 2's, step 1's) / ell). It is
+    negative where the medium absorbed in step 1 the error it gives back in step 2.
+    ``share`` scales it: how far step 2's error is step 1's (:func:`session_correlation`).
+    None when the given term has no length (ell = 0: the two sessions' errors independent)
     or no influence. Step 2's own part must then be that of the shared process plus what its
-    own s exceeds it by (veil.fitting.reported), so that the two are one covariance."""
+    own s exceeds it by (veil.fitting.reported_uncertainty), so that the two are one
+    covariance."""
     if given is None or given.sigma == 0.0 or given.length == 0.0 or given.influence is None:
         return None
     missing = [n for n in given_names if n not in given.influence]
@@ -536,7 +545,7 @@ def noise_only(result):
                                correlation_total=n.get("correlation_total"), model_error=None)
 
 
-__all__ = ["CHI2_Z", "LENGTHS", "KINDS", "DEFAULT", "SOURCES", "check_kind", "chi2_threshold", "distances", "correlation",
-           "estimate", "sandwich", "ModelError", "step_term", "given_term", "noise_only",
-           "influence", "shared", "session_correlation", "share_likelihood",
-           "likelihood_mean", "SHARE_GRID"]
+__all__ = ["CHI2_Z", "LENGTHS", "KINDS", "DEFAULT", "SOURCES", "check_kind", "chi2_threshold",
+           "distances", "correlation", "estimate", "sandwich", "ModelError", "step_term",
+           "given_term", "noise_only", "influence", "shared", "session_correlation",
+           "share_likelihood", "likelihood_mean", "SHARE_GRID"]

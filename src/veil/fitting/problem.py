@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import os
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -24,9 +25,9 @@ from ..engine.evaluator import WRT, ApparentModel, DirectModel
 from ..engine.integrator import BRDF_PARTS, row_scales
 from ..engine.quadrature import RULES
 from ..errors import FitError
-from ..models import BRDF, Medium, Param
+from ..models import BRDF, Medium, Model, Param
 from . import coordinates
-from .data import FitData, prepare
+from .session_data import FitData, prepare
 
 #: Quadrature of the iterations through a medium; the polish uses the requested accuracy.
 ITERATION_ACCURACY = "fast"
@@ -190,7 +191,7 @@ class Slot:
 
 def model_slots(model, kind: str, owner: str, name=lambda p: p.key) -> list[Slot]:
     """Slots of every parameter of ``model`` (class or instance), named by ``name(param)``."""
-    cls = model if isinstance(model, type) else type(model)
+    cls: type[Model] = model if isinstance(model, type) else type(model)
     scales = set(cls.scale_names()) | {getattr(cls, "GAIN", None)} - {None}
     return [Slot(name(p), kind, owner, i, p, p.name in scales) for i, p in enumerate(cls.PARAMS)]
 
@@ -241,8 +242,8 @@ class Problem:
         self.angles = tuple(np.concatenate(parts)
                             for parts in zip(*(b.data.angles for b in self.blocks)))
         self._cache: dict = {}
-        self._last = None
-        self.prior = None
+        self._last: tuple[tuple[bytes, Any], Any] | None = None
+        self.prior: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
 
     def set_prior(self, names, mean, cov) -> None:
         """A Gaussian prior N(mean, cov) (natural units) on parameters ``names``: extra
@@ -395,7 +396,7 @@ class Problem:
             start += b.size
         return out
 
-    def with_fixed(self, names_values: dict) -> "Problem":
+    def with_fixed(self, names_values: dict) -> Problem:
         """A copy of the problem with more parameters held fixed (profiles, refits)."""
         out = Problem.__new__(Problem)
         out.__dict__.update(self.__dict__)
@@ -429,7 +430,8 @@ def session_problem(table, brdf: BRDF, medium: Medium | None = None, *, free=(),
         im = np.arange(len(type(brdf).PARAMS), len(params))
     names = [p.name for p in params]
     if len(set(names)) != len(names):
-        raise FitError(f"the parameters of {type(brdf).NAME} and {type(medium).NAME} share a "
+        assert medium is not None  # a model's own names differ
+        raise FitError(f"the parameters of {brdf.NAME} and {medium.NAME} share a "
                        f"name ({', '.join(names)}): one of them must declare an alias")
     free = list(free)
     unknown = [n for n in free if n not in names]

@@ -26,8 +26,8 @@ into step 1's medium.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 
@@ -72,7 +72,7 @@ class Axis:
     spec: Param
 
     @classmethod
-    def of(cls, spec: Param, value: float) -> "Axis":
+    def of(cls, spec: Param, value: float) -> Axis:
         lo, hi = spec.lower, spec.upper
         if spec.error_scale == "bound" and math.isfinite(lo) and math.isfinite(hi):
             kind = "upper" if hi - value <= value - lo else "lower"
@@ -373,6 +373,7 @@ def media_part(problem: Problem, x, cov, method: str = "auto"):
     return cols_o, refits.covariance - linear_part(cond, x, cols_m, cmm), how
 
 
-__all__ = ["METHODS", "RELATIVE_LIMIT", "RELATIVE_MAX", "how_of", "NEGLIGIBLE", "MIN_REACH", "REFIT_NFEV", "check_method", "Axis",
-           "relative_uncertainty", "choose", "describe", "sigma_points", "sensitivity", "linear_part", "Refits",
-           "sigma_part", "propagated", "media_part"]
+__all__ = ["METHODS", "RELATIVE_LIMIT", "RELATIVE_MAX", "how_of", "NEGLIGIBLE", "MIN_REACH",
+           "REFIT_NFEV", "check_method", "Axis", "relative_uncertainty", "choose", "describe",
+           "sigma_points", "sensitivity", "linear_part", "Refits", "sigma_part", "propagated",
+           "media_part"]

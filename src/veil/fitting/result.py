@@ -1,6 +1,6 @@
 """The result of a fit (docs/model.md sec. 7): :class:`FitResult` (one model: a step of the
 two-step method) and :class:`JointResult` (several models: a joint fit), and their JSON file,
-key by key in docs/fitting.md. The text report is :mod:`veil.fitting.report`.
+key by key in docs/fitting.md. The text report is :mod:`veil.fitting.fit_report`.
 
 Result files carry ``"format": "veil.fit/2"``; files of the earlier formats ("veil.fit/1",
 "veil.joint/1") are read as well, and any other format is refused with a clear message
@@ -9,12 +9,13 @@ Result files carry ``"format": "veil.fit/2"``; files of the earlier formats ("ve
 
 from __future__ import annotations
 
-import dataclasses
 import itertools
 import json
 import math
 import os
+from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, ClassVar
 
 from ..errors import FitError, InputError, MissingFileError, NotAFileError
 from ..io import write_bytes_atomic
@@ -23,13 +24,50 @@ from ..models import names as family_names
 from ..models.base import VARIANT_OPTION
 from ..numbers import from_json_float, json_float
 from .model_error import ModelError
+from .result_fields import (
+    FORMAT,
+    READABLE,
+    _check_common,
+    _check_format,
+    _json_matrix,
+    _json_term,
+    _read_matrix,
+    _read_residuals,
+    _read_stats,
+    _read_term,
+    model_entry,
+    model_from_entry,
+)
 from .solver import covariance_matrix
+
+if TYPE_CHECKING:
+    import numpy as np
 
 #: The steps of the two-step method (docs/model.md sec. 7); results may also say "direct".
 STEPS = ("reference", "medium", "target")
-#: Value of the "format" key of a result file, and the formats this veil reads.
-FORMAT = "veil.fit/2"
-READABLE = ("veil.fit/1", "veil.joint/1", FORMAT)
+
+
+def _model_class_of(name, source: str):
+    """The family a result file names, or a FitError naming the file."""
+    if not isinstance(name, str):
+        raise FitError(f"{source}: key 'model' = {name!r}; expected a model name")
+    try:
+        return model_class(name)
+    except InputError:
+        raise FitError(f"{source}: key 'model' = {name!r} is not a known model "
+                       f"({', '.join(family_names())})") from None
+
+
+def _variant_of(data: dict, source: str):
+    """The result's variant: one of the registered families' variants, or None."""
+    variant = data[VARIANT_OPTION]
+    known = sorted({str(choice) for family in map(model_class, family_names())
+                    for o in family.OPTIONS if o.name == VARIANT_OPTION
+                    for choice in o.choices})
+    if variant is not None and variant not in known:
+        raise FitError(f"{source}: key 'variant' = {variant!r}; expected one of "
+                       f"{', '.join(known)} or null")
+    return variant
 
 
 @dataclass(frozen=True)
@@ -56,6 +94,9 @@ class FitResult:
     did not estimate one (unweighted data, an undetermined covariance, or
     ``model_error="off"``).
     """
+
+    #: A joint fit (:class:`JointResult`): its report lists the sessions.
+    JOINT: ClassVar[bool] = False
 
     model: str
     params: dict
@@ -124,7 +165,7 @@ class FitResult:
         chi2 = self.chi2_reduced * max(self.n_points - self.n_free, 1)
         return chi2 + self.n_free * math.log(max(self.n_points, 1)) if self.weighted else None
 
-    def covariance(self, total: bool = True):
+    def covariance(self, total: bool = True) -> tuple[Sequence[str], np.ndarray] | None:
         """(free names, covariance matrix) from the standard errors and correlations;
         ``total`` prefers the propagated ones. None if the uncertainties are undetermined."""
         se, corr = self.stderr, self.correlation
@@ -152,7 +193,7 @@ class FitResult:
             "converged": bool(self.converged),
             "determined": bool(self.determined),
             "message": self.message,
-            "variant": self.variant,
+            VARIANT_OPTION: self.variant,
             "options": dict(self.options),
             "fixed": {k: float(v) for k, v in self.fixed.items()},
             "weighted": bool(self.weighted),
@@ -176,26 +217,20 @@ class FitResult:
         write_bytes_atomic(path, text.encode("utf-8"))
 
     @classmethod
-    def from_dict(cls, data: dict, source: str = "the fit result") -> "FitResult":
+    def from_dict(cls, data: dict, source: str = "the fit result") -> FitResult:
         """Check and convert a dictionary written by :meth:`to_dict`."""
         if not isinstance(data, dict):
             raise FitError(f"{source}: expected a JSON object with keys model, params, ...; "
                            f"got {type(data).__name__}")
         _check_format(data, source)
         required = ("model", "params", "stderr", "correlation", "chi2_reduced", "rms_relative",
-                    "n_points", "converged", "message", "variant")
+                    "n_points", "converged", "message", VARIANT_OPTION)
         missing = [k for k in required if k not in data]
         if missing:
             raise FitError(f"{source}: missing key(s) {', '.join(missing)}; is this a fit "
                            f"result written by veil (veil fit ... -o FILE.json)?")
         name = data["model"]
-        if not isinstance(name, str):
-            raise FitError(f"{source}: key 'model' = {name!r}; expected a model name")
-        try:
-            mcls = model_class(name)
-        except InputError:
-            raise FitError(f"{source}: key 'model' = {name!r} is not a known model "
-                           f"({', '.join(family_names())})") from None
+        mcls = _model_class_of(name, source)
         names = mcls.param_names()
         params = data["params"]
         if not isinstance(params, dict) or list(params) != list(names):
@@ -205,13 +240,7 @@ class FitResult:
         for k, v in params.items():
             if isinstance(v, bool) or not isinstance(v, (int, float)):
                 raise FitError(f"{source}: params.{k} = {v!r} is not a number")
-        variant = data["variant"]
-        known = sorted({str(choice) for family in map(model_class, family_names())
-                        for o in family.OPTIONS if o.name == VARIANT_OPTION
-                        for choice in o.choices})
-        if variant is not None and variant not in known:
-            raise FitError(f"{source}: key 'variant' = {variant!r}; expected one of "
-                           f"{', '.join(known)} or null")
+        variant = _variant_of(data, source)
         options = data.get("options")
         if options is None:  # files of format veil.fit/1 keep the variant only
             options = {VARIANT_OPTION: variant} if VARIANT_OPTION in mcls.option_names() \
@@ -262,14 +291,14 @@ class FitResult:
             model_error=_read_term(data.get("model_error"), names, source))
 
     @classmethod
-    def from_json(cls, path) -> "FitResult":
+    def from_json(cls, path) -> FitResult:
         """Read a result written by :meth:`to_json`; errors name the file and the key."""
         return cls.from_dict(read_json(path), os.fspath(path))
 
     # -- text ------------------------------------------------------------------------------
     def report(self, min_correlation: float = 0.1) -> str:
         """A readable fit report (like lmfit's): statistics, variables, correlations."""
-        from .report import fit_report
+        from .fit_report import fit_report
 
         return fit_report(self, min_correlation)
 
@@ -299,6 +328,8 @@ class JointResult(FitResult):
     and their ``options``, ``objects`` {object: {model parameter: result name}}, ``media``
     {label: {model parameter (alias): result name}}, ``shared``, ``sessions`` (name,
     object, medium, n_points, chi2, rms_relative each)."""
+
+    JOINT: ClassVar[bool] = True
 
     layout: dict = field(default_factory=dict)
 
@@ -352,12 +383,12 @@ class JointResult(FitResult):
         return out
 
     @classmethod
-    def from_dict(cls, data: dict, source: str = "the joint fit result") -> "JointResult":
+    def from_dict(cls, data: dict, source: str = "the joint fit result") -> JointResult:
         if not isinstance(data, dict) or data.get("model") != "joint":
             raise FitError(f"{source}: not a joint fit result (expected key 'model' = 'joint')")
         _check_format(data, source)
         required = ("params", "stderr", "correlation", "chi2_reduced", "rms_relative",
-                    "n_points", "converged", "message", "variant", "layout")
+                    "n_points", "converged", "message", VARIANT_OPTION, "layout")
         missing = [k for k in required if k not in data]
         if missing:
             raise FitError(f"{source}: missing key(s) {', '.join(missing)}; is this a joint "
@@ -402,7 +433,7 @@ class JointResult(FitResult):
                 chi2_reduced=from_json_float(data["chi2_reduced"], source),
                 rms_relative=from_json_float(data["rms_relative"], source),
                 n_points=int(data["n_points"]), converged=data["converged"],
-                message=str(data["message"]), variant=data["variant"],
+                message=str(data["message"]), variant=data[VARIANT_OPTION],
                 fixed={k: float(v) for k, v in (data.get("fixed") or {}).items()},
                 step="joint", weighted=bool(data.get("weighted", True)),
                 accuracy=data.get("accuracy"), given=data.get("given"),
@@ -428,105 +459,6 @@ class JointResult(FitResult):
 # --------------------------------------------------------------------------------------
 # reading
 # --------------------------------------------------------------------------------------
-def model_entry(model: Model) -> dict:
-    """{"model": name, "params": {...}, options...}: how a result file names a model (its
-    "given" key)."""
-    return {"model": model.NAME, "params": model.as_dict(), **model.options()}
-
-
-def model_from_entry(entry, where: str) -> Model:
-    """The model of a :func:`model_entry` dict; a FitError naming ``where`` otherwise."""
-    if not isinstance(entry, dict) or "model" not in entry or "params" not in entry:
-        raise FitError(f"{where}: expected an object with keys 'model' and 'params'")
-    if not isinstance(entry["model"], str) or not isinstance(entry["params"], dict):
-        raise FitError(f"{where}: 'model' must be a name and 'params' an object")
-    try:
-        cls = model_class(entry["model"])
-        options = {k: entry[k] for k in cls.option_names() if k in entry}
-        return cls.from_params(entry["params"], options)
-    except InputError as exc:
-        raise FitError(f"{where}: {exc}") from None
-
-
-def _check_format(data: dict, source: str) -> None:
-    fmt = data.get("format")
-    if fmt is not None and fmt not in READABLE:
-        raise FitError(f"{source}: key 'format' = {fmt!r}: this veil reads result files of "
-                       f"format {', '.join(READABLE)}; the file was written by another "
-                       f"(newer?) version of veil")
-
-
-def _check_common(data: dict, source: str) -> None:
-    n = data["n_points"]
-    if isinstance(n, bool) or not isinstance(n, int) or n < 0:
-        raise FitError(f"{source}: key 'n_points' = {n!r}; expected an integer >= 0")
-    if not isinstance(data["converged"], bool):
-        raise FitError(f"{source}: key 'converged' = {data['converged']!r}; expected "
-                       f"true or false")
-
-
-def _read_residuals(data: dict, source: str) -> tuple:
-    res = data.get("residuals") or ()
-    if not isinstance(res, list):
-        raise FitError(f"{source}: key 'residuals' must be a list of numbers")
-    return tuple(from_json_float(r, source) for r in res)
-
-
-def _read_stats(data: dict, source: str) -> dict:
-    stats = data.get("stats") or {}
-    if not isinstance(stats, dict):
-        raise FitError(f"{source}: key 'stats' must be an object")
-    return stats
-
-
-def _json_term(term: ModelError) -> dict:
-    out = term.to_dict()
-    noise = out["noise_only"]
-    if noise is not None:
-        out["noise_only"] = {
-            k: None if v is None else (_json_matrix(v) if k.startswith("correlation") else
-                                       {n: json_float(x) for n, x in v.items()})
-            for k, v in noise.items()}
-    return out
-
-
-def _read_term(data, names, source: str) -> ModelError | None:
-    """The ``model_error`` entry of a result file (absent in files of earlier veils)."""
-    if data is None:
-        return None
-    term = ModelError.from_dict(data, source)
-    noise = term.noise_only
-    if noise is None:
-        return term
-    keys = ("stderr", "correlation", "stderr_total", "correlation_total")
-    if set(noise) - set(keys) or not isinstance(noise.get("stderr"), dict):
-        raise FitError(f"{source}: model_error.noise_only must hold {', '.join(keys)}")
-    read = {}
-    for k in keys:
-        v = noise.get(k)
-        if v is None:
-            read[k] = None
-        elif k.startswith("correlation"):
-            read[k] = _read_matrix(v, source)
-        elif not isinstance(v, dict):
-            raise FitError(f"{source}: model_error.noise_only.{k} must be an object or null")
-        else:
-            read[k] = {n: from_json_float(v.get(n), source) for n in names}
-    return dataclasses.replace(term, noise_only=read)
-
-
-def _json_matrix(rows: dict) -> dict:
-    return {a: {b: json_float(r) for b, r in row.items()} for a, row in rows.items()}
-
-
-def _read_matrix(rows, source: str) -> dict:
-    if rows is None:
-        return {}
-    if not isinstance(rows, dict) or not all(isinstance(r, dict) for r in rows.values()):
-        raise FitError(f"{source}: a correlation matrix must map names to objects of numbers")
-    return {a: {b: from_json_float(r, source) for b, r in row.items()} for a, row in rows.items()}
-
-
 def read_json(path):
     """The JSON data of a result file; errors name the file (a missing file, a directory, not
     UTF-8, not JSON)."""

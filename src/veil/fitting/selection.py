@@ -168,7 +168,7 @@ def fit_candidates(fit, cands, progress=None) -> dict:
             result = fit(c)
         except (KeyboardInterrupt, SystemExit):
             raise
-        except Exception as exc:  # noqa: BLE001 - a failing candidate is reported, not fatal
+        except Exception as exc:  # a failing candidate is reported, not fatal
             result = exc
         seconds = time.perf_counter() - t0
         if progress is not None:
@@ -270,11 +270,11 @@ def rank(step: str, fitted: dict, data, cands=None) -> Ranking:
         if isinstance(result, Exception):
             row["error"] = f"{type(result).__name__}: {result}"
         else:
-            r = np.asarray(result.residuals, dtype=float)
+            res = np.asarray(result.residuals, dtype=float)
             dev, extra = deviance(result, data)
-            n, k = r.size, result.n_free + extra
+            n, k = res.size, result.n_free + extra
             row.update(family=result.model, options=dict(result.options) if cand is None
-                       else row["options"], chi2=float(r @ r), deviance=dev,
+                       else row["options"], chi2=float(res @ res), deviance=dev,
                        rms_relative=float(result.rms_relative), n_points=n, k=k,
                        aic=dev + 2 * k, bic=dev + k * math.log(max(n, 1)),
                        converged=bool(result.converged))
@@ -367,6 +367,6 @@ def close_call_lines(ranking: Ranking) -> list[str]:
     return [text]
 
 
-__all__ = ["CLOSE_DELTA_BIC", "MODES", "NoCandidateError", "Candidate", "candidates", "parse_models", "workers",
-           "fit_candidates", "deviance", "Ranking", "rank", "curve_spread", "table_lines",
-           "close_call_lines"]
+__all__ = ["CLOSE_DELTA_BIC", "MODES", "NoCandidateError", "Candidate", "candidates",
+           "parse_models", "workers", "fit_candidates", "deviance", "Ranking", "rank",
+           "curve_spread", "table_lines", "close_call_lines"]

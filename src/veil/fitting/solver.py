@@ -1,6 +1,7 @@
-"""The one least-squares solver of veil (docs/fitting.md): every fit - a step of the
-two-step method, a joint fit, a profile or refit of the diagnostics - is a
-:class:`veil.fitting.problem.Problem` solved here.
+"""The solver of veil's fits (docs/fitting.md): every fit - a step of the two-step method, a
+joint fit, a profile or refit of the diagnostics - is a :class:`veil.fitting.problem.Problem`
+solved here, on the least-squares rules it shares with the per-pixel maps
+(:mod:`veil.fitting.least_squares`: rank, covariance, bounds).
 
 - :func:`solve`: scipy's trust-region-reflective least squares ("trf", x_scale="jac") in the
   problem's internal coordinates (log, atanh or plain, :mod:`veil.fitting.coordinates`),
@@ -11,8 +12,8 @@ two-step method, a joint fit, a profile or refit of the diagnostics - is a
   Jacobian by that rule's ~0.3 % error, so the polish converges to the optimum of the
   requested rule);
 - :func:`covariance`: (J^T W J)^-1 of the free parameters from the fast Jacobian at the
-  solution, columns equilibrated first (natural units span many decades), scaled by the
-  reduced chi-square for unweighted data;
+  solution (:func:`veil.fitting.least_squares.covariance`: columns equilibrated first,
+  natural units span many decades), scaled by the reduced chi-square for unweighted data;
 - :func:`summarize`: goodness of fit, standard errors and correlations, and the notes of a
   result: parameters at the edge of their search range, a singular Jacobian, data that
   cannot determine the model (which then never reads "converged").
@@ -27,6 +28,7 @@ from scipy.optimize import least_squares
 
 from ..errors import FitError, InputError
 from . import coordinates
+from . import least_squares as lsq
 from .problem import ITERATION_ACCURACY, Problem
 
 #: Termination of scipy's least_squares. A relative cost change below 1e-6 at the optimum
@@ -40,8 +42,6 @@ TOL_FINAL = {"ftol": 1e-8, "xtol": 1e-8, "gtol": 1e-8}
 #: Reduced chi-square up to which a converged weighted fit inside its search range makes
 #: further starts unnecessary.
 CONVINCING = 2.0
-#: A singular value below this fraction of the largest makes the Jacobian singular.
-SINGULAR = 1e-10
 #: Note of a result whose Jacobian is singular at the solution.
 SINGULAR_NOTE = "Jacobian singular at the solution: uncertainties not determined"
 
@@ -143,15 +143,16 @@ def solve(problem: Problem, x0, *, accuracy: str = ITERATION_ACCURACY, tol=None,
         full = np.concatenate([full * problem.w[:, None], problem.prior_rows(x)[1]])
         return full[:, problem.free] * d[None, :]
 
-    lsq = least_squares(fun, u0, jac=jac, bounds=(lo, hi), method="trf", x_scale="jac",
+    fit = least_squares(fun, u0, jac=jac, bounds=(lo, hi), method="trf", x_scale="jac",
                         max_nfev=max_nfev, **tol)
-    x, _ = problem.to_x(lsq.x, base)
+    x, _ = problem.to_x(fit.x, base)
     problem.remember(x, accuracy, last.get(x.tobytes()))
-    hit = coordinates.at_bound(lsq.x, (lo, hi), problem.free_names)
-    low = [n for n, u, a, b in zip(problem.free_names, lsq.x, lo, hi)
-           if u - a <= coordinates.EDGE * max(b - a, 1e-300)]
-    return Solution(x=x, cost=float(lsq.cost), status=int(lsq.status), message=lsq.message,
-                    nfev=counts["f"], njev=counts["j"], at_bound=hit, at_lower=low)
+    low, high = lsq.at_bounds(fit.x, lo, hi, coordinates.EDGE * np.maximum(hi - lo, 1e-300))
+    names = problem.free_names
+    return Solution(x=x, cost=float(fit.cost), status=int(fit.status), message=fit.message,
+                    nfev=counts["f"], njev=counts["j"],
+                    at_bound=[n for n, a, b in zip(names, low, high) if a or b],
+                    at_lower=[n for n, a in zip(names, low) if a])
 
 
 def convincing(problem: Problem, sol: Solution) -> bool:
@@ -173,7 +174,7 @@ class Outcome:
 
     solution: Solution
     values: np.ndarray
-    accuracy: str
+    accuracy: str | None
     notes: list = field(default_factory=list)
     stats: dict = field(default_factory=dict)
 
@@ -185,7 +186,8 @@ def run(problem: Problem, starts, *, accuracy: str = "default", max_nfev=None, p
     polished at ``accuracy`` when the problem has a medium (module docstring)."""
     through_medium = any(b.medium is not None for b in problem.blocks)
     polish = through_medium and accuracy != ITERATION_ACCURACY
-    runs, skipped = [], 0
+    runs: list[Solution] = []
+    skipped = 0
     for s, x0 in enumerate(starts):
         if runs and not every and any(convincing(problem, r) for r in runs):
             skipped = len(starts) - s
@@ -238,31 +240,18 @@ def weighted_jacobian(problem: Problem, x, accuracy: str = ITERATION_ACCURACY) -
     return np.concatenate([full * problem.w[:, None], problem.prior_rows(x)[1]])[:, problem.free]
 
 
-def _equilibrated_svd(jw: np.ndarray):
-    """(column scales, singular values, V^T) of the weighted Jacobian with unit columns;
-    None when a column is zero or not finite."""
-    scale = np.linalg.norm(jw, axis=0)
-    if scale.size == 0 or np.any(scale == 0) or not np.all(np.isfinite(jw)):
-        return None
-    _, s, vt = np.linalg.svd(jw / scale, full_matrices=False)
-    return scale, s, vt
-
-
 def covariance(problem: Problem, x, accuracy: str = ITERATION_ACCURACY, values=None):
-    """Covariance (natural units) of the free parameters at ``x`` (module docstring); None
-    when the Jacobian is singular. Unweighted data scale it by the reduced chi-square of
-    ``values`` (the reported model values; by default the model at ``accuracy``)."""
-    found = _equilibrated_svd(weighted_jacobian(problem, x, accuracy))
-    if found is None:
+    """Covariance (natural units) of the free parameters at ``x`` (module docstring;
+    :func:`veil.fitting.least_squares.covariance`); None when the Jacobian is singular.
+    Unweighted data scale it by the reduced chi-square of ``values`` (the reported model
+    values; by default the model at ``accuracy``)."""
+    cov, full = lsq.covariance(weighted_jacobian(problem, x, accuracy))
+    if not full:
         return None
-    scale, s, vt = found
-    if s[-1] <= s[0] * SINGULAR or not np.all(np.isfinite(s)):
-        return None
-    cov = ((vt.T / s ** 2) @ vt) / np.outer(scale, scale)
     if not problem.weighted:
         val = problem.model_values(x, accuracy) if values is None else values
         res = (problem.y - val) * problem.w
-        cov = cov * float(res @ res) / max(problem.n_points - problem.n_free, 1)
+        cov = cov * float(lsq.residual_variance(res, problem.n_points - problem.n_free))
     return cov
 
 
@@ -275,11 +264,11 @@ def undetermined_parameters(problem: Problem, x, accuracy: str = ITERATION_ACCUR
     dead = [n for n, c in zip(names, np.linalg.norm(jw, axis=0)) if not c > 0]
     if dead:
         return dead
-    found = _equilibrated_svd(jw)
-    if found is None:
+    je, _, ok = lsq.equilibrate(jw)
+    if not ok or je.shape[1] == 0:
         return list(names)
-    _, s, vt = found
-    weak = vt[s <= s[0] * SINGULAR] if np.all(np.isfinite(s)) else vt
+    _, s, vt = np.linalg.svd(je, full_matrices=False)
+    weak = vt[s <= s[0] * lsq.SINGULAR] if np.all(np.isfinite(s)) else vt
     return [n for j, n in enumerate(names) if np.any(np.abs(weak[:, j]) > 0.1)]
 
 
@@ -299,7 +288,7 @@ def uncertainties(cov, names, free):
     return stderr, corr
 
 
-def covariance_matrix(stderr: dict, correlation: dict, names) -> np.ndarray | None:
+def covariance_matrix(stderr: dict, correlation: dict | None, names) -> np.ndarray | None:
     """The covariance of ``names`` from standard errors and correlations as
     :func:`uncertainties` writes them (a missing or None correlation is 0); None when a
     standard error is missing."""

@@ -177,7 +177,7 @@ def grid_points(cls, role: str, free, base: np.ndarray):
 def pick_starts(scored, count: int):
     """Best ``count`` of the (cost, index tuple, vector) grid points, skipping neighbours (one
     grid step) of points already chosen."""
-    chosen = []
+    chosen: list[tuple] = []
     for cost, combo, x in sorted(scored, key=lambda t: t[0]):
         if not np.isfinite(cost):
             continue
@@ -197,6 +197,7 @@ def _fixed_names(problem: Problem, block: Block, kind: str) -> set:
     """Model parameter names of ``block``'s ``kind`` model that the problem holds fixed."""
     idx = block.ib if kind == "brdf" else block.im
     model = block.brdf if kind == "brdf" else block.medium
+    assert model is not None and idx is not None  # a block of a session with a medium
     return {type(model).PARAMS[j].name for j, k in enumerate(idx) if not problem.free[k]}
 
 
@@ -284,6 +285,28 @@ def _unit(model, v) -> np.ndarray:
     return v
 
 
+def _target_grid(problem: Problem, x, known_media: set, engines, count: int,
+                 progress) -> list:
+    """The target's starting grid through the media (scales alternating), best first."""
+    fixed_mask = ~problem.free
+    tblocks = [b for b in problem.blocks
+               if b.session.object == "target" and not b.session.clear]
+    cls = type(tblocks[0].brdf)
+    ib = tblocks[0].ib
+    free = [j for j, k in enumerate(ib) if not fixed_mask[k]]
+    points = grid_points(cls, "target", free, x[ib])
+    scored = []
+    for k, (combo, vb) in enumerate(points):
+        xt = x.copy()
+        _set_block(xt, ib, vb, fixed_mask)
+        cost, xt = _target_point(problem, xt, tblocks, known_media, engines)
+        scored.append((cost, combo, xt))
+        if progress:
+            progress("starting grid", k + 1, len(points))
+    chosen = pick_starts(scored, count)
+    return [xt for _, _, xt in chosen] or [x]
+
+
 def joint_starts(problem: Problem, layout: dict, start: dict | None, count: int,
                  direct_fit, progress=None):
     """Starting vectors (natural, best first) of a joint fit (module docstring).
@@ -302,7 +325,8 @@ def joint_starts(problem: Problem, layout: dict, start: dict | None, count: int,
         if not fixed_mask[k]:
             x[k] = value
 
-    known_media, known_objects = set(), set()
+    known_media: set[str] = set()
+    known_objects: set[str] = set()
     if layout.get("reference_given"):
         known_objects.add("reference")
     for key, model in dict(start or {}).items():
@@ -351,21 +375,7 @@ def joint_starts(problem: Problem, layout: dict, start: dict | None, count: int,
     # the target (and media seen only through it): its grid, alternating scales
     if "target" in known_objects:
         return [x]
-    tblocks = [b for b in blocks if b.session.object == "target" and not b.session.clear]
-    cls = type(tblocks[0].brdf)
-    ib = tblocks[0].ib
-    free = [j for j, k in enumerate(ib) if not fixed_mask[k]]
-    points = grid_points(cls, "target", free, x[ib])
-    scored = []
-    for k, (combo, vb) in enumerate(points):
-        xt = x.copy()
-        _set_block(xt, ib, vb, fixed_mask)
-        cost, xt = _target_point(problem, xt, tblocks, known_media, engines)
-        scored.append((cost, combo, xt))
-        if progress:
-            progress("starting grid", k + 1, len(points))
-    chosen = pick_starts(scored, count)
-    return [xt for _, _, xt in chosen] or [x]
+    return _target_grid(problem, x, known_media, engines, count, progress)
 
 
 def _set_block(x, idx, v, fixed_mask) -> None:
@@ -379,11 +389,12 @@ def _best_medium(problem: Problem, block: Block, x, engines):
     at ``x``."""
     _, idx = engines(block)
     cls = type(block.medium)
+    assert block.im is not None  # a block of a session with a medium
     free = [j for j, k in enumerate(block.im) if problem.free[k]]
     fixed = _fixed_names(problem, block, "medium")
     vb = x[block.ib]
     best = None
-    for combo, vm in grid_points(cls, "medium", free, x[block.im]):
+    for _combo, vm in grid_points(cls, "medium", free, x[block.im]):
         terms = engines.terms(block, vb, vm)
         basis = np.einsum("mkb,b->mk", terms, column_scales_of(block, vb))
         vm, cost = medium_scales(basis, vm, cls, fixed, block.data.y[idx], block.data.w[idx])

@@ -23,21 +23,22 @@ own error (``Model.MODEL_ERROR_FLOOR``), adds a relative model error to its cova
 from __future__ import annotations
 
 import warnings
+from typing import cast
 
 import numpy as np
 
 from ..engine.evaluator import ApparentModel, DirectModel
 from ..engine.quadrature import RULES
 from ..errors import FitError, InputError
-from ..models import Model, default_class, model_class
+from ..models import BRDF, Medium, Model, default_class, model_class
 from ..models.base import VARIANT_OPTION
-from .data import FitData, prepare
-from .given import as_given, check_options
 from . import model_error as discrepancy
+from .given import as_given, check_options
 from .problem import ITERATION_ACCURACY, Problem, check_accuracy, session_problem
 from .propagation import check_method, describe
-from .reported import model_floor, reported
+from .reported_uncertainty import model_floor, reported
 from .result import FitResult, model_entry
+from .session_data import FitData, prepare
 from .solver import as_fixed, check_fixed, check_max_nfev, run, summarize
 from .start_values import step_starts
 
@@ -90,6 +91,17 @@ def _freed(cls, free, what: str) -> set:
     return free
 
 
+def _prepare_engine(problem, cls, given, given_result, accuracy: str) -> None:
+    """Everything a fit through a medium will compile (or load), side by side: derivatives
+    in the fitted model's parameters, and in the given model's to propagate its covariance."""
+    block = problem.blocks[0]
+    propagates = given_result is not None and given_result.covariance(total=True) is not None
+    wrt = [(cls.KIND,)] + ([(type(given).KIND,)] if propagates else [])
+    block.model(ITERATION_ACCURACY).prepare(values=True, jacobians=wrt)
+    if accuracy != ITERATION_ACCURACY:
+        block.model(accuracy).prepare(values=True)
+
+
 def _step(step: str, data: FitData, fitted: Model, given: Model | None, given_result,
           fixed: dict, accuracy: str, max_nfev, progress, freed=(),
           model_error: str = "off", propagation: str = "auto") -> FitResult:
@@ -109,7 +121,9 @@ def _step(step: str, data: FitData, fitted: Model, given: Model | None, given_re
     if not free:
         raise FitError(f"every parameter of the {what} fit is fixed "
                        f"({', '.join(cls.param_names())}): nothing to fit")
-    problem = session_problem(None, brdf, medium, free=free, data=data, what=what)
+    # by kind: a medium step holds the BRDF given, the others fit the BRDF
+    problem = session_problem(None, cast(BRDF, brdf), cast("Medium | None", medium), free=free,
+                              data=data, what=what)
     for key, value in _fixed_slots(problem, cls, fixed, what).items():
         problem.values[problem.index(key)] = value
     if data.size <= len(free):
@@ -117,15 +131,8 @@ def _step(step: str, data: FitData, fitted: Model, given: Model | None, given_re
                        f"{len(free)} free parameter(s) ({', '.join(free)}): need more points "
                        f"than free parameters (fix some with fixed=... / --fix NAME=VALUE, "
                        f"or measure more configurations)")
-    block = problem.blocks[0]
-    if medium is not None:  # everything this fit will compile (or load), side by side:
-        # derivatives in the fitted model's parameters, and in the given model's to
-        # propagate its covariance
-        propagates = given_result is not None and given_result.covariance(total=True) is not None
-        wrt = [(cls.KIND,)] + ([(type(given).KIND,)] if propagates else [])
-        block.model(ITERATION_ACCURACY).prepare(values=True, jacobians=wrt)
-        if accuracy != ITERATION_ACCURACY:
-            block.model(accuracy).prepare(values=True)
+    if medium is not None:
+        _prepare_engine(problem, cls, given, given_result, accuracy)
     starts, n_grid = step_starts(problem, cls.KIND, ROLE[step], STARTS[step], progress)
     outcome = run(problem, starts, accuracy=accuracy, max_nfev=max_nfev, progress=progress,
                   every=medium is None)
@@ -314,7 +321,7 @@ def model_values(result_or_model, other, angles, accuracy: str = "default") -> n
     if isinstance(other, FitResult):
         other = other.as_model()
     brdf, medium = (model, other) if model.KIND == "brdf" else (other, model)
-    engine = ApparentModel(brdf, medium, angles, RULES[accuracy])
+    engine = ApparentModel(cast(BRDF, brdf), cast(Medium, medium), angles, RULES[accuracy])
     return engine.values(brdf.to_vector(), medium.to_vector())
 
 

@@ -15,7 +15,7 @@ from ..data.protocol import protocol
 from ..engine.apparent import reflectance
 from ..errors import InputError
 from ..fitting import fit_direct
-from ..fitting.data import MAGNITUDE
+from ..fitting.session_data import MAGNITUDE
 from ..fitting.steps import MisfitWarning
 from ..models import BRDF, Model, model_class
 

@@ -4,6 +4,8 @@ medium), for plotting elsewhere."""
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import pandas as pd
 
@@ -26,7 +28,7 @@ def curves(brdf, medium=None, psi=PSI, accuracy: str = "default", **protocol_opt
                          "give a BRDF result or preset too")
     table = protocol(psi, **protocol_options)
     angles = [table[c].to_numpy() for c in ("theta_i", "theta_r", "phi_i", "phi_r")]
-    blocks = [(NO_MEDIUM, reflectance(brdf, *angles))]
+    blocks: list[tuple[str, Any]] = [(NO_MEDIUM, reflectance(brdf, *angles))]
     if medium is not None:
         blocks.append((medium.NAME, apparent(brdf, medium, *angles, accuracy=accuracy)))
     frames = []

@@ -53,12 +53,15 @@ def _exporters(renderer: str) -> list[str]:
             or renderer in getattr(model_class(n), "PROXIES", {})]
 
 
+#: The setting of an export that names none (a frozen dataclass: one instance serves all).
+DEFAULT_SETTING = Setting()
+
 def check_renderer(renderer: str) -> None:
     if renderer not in RENDERER_NAMES:
         raise InputError(f"renderer {renderer!r}; expected one of {', '.join(RENDERER_NAMES)}")
 
 
-def plugin(model: Model, renderer: str, setting: Setting = Setting()) -> Exported:
+def plugin(model: Model, renderer: str, setting: Setting = DEFAULT_SETTING) -> Exported:
     """The renderer plugin of ``model`` (module docstring); :class:`Unsupported` (an
     InputError) when the renderer cannot express it."""
     check_renderer(renderer)
@@ -102,7 +105,7 @@ def _comments(items, renderer: str, source: str) -> list[str]:
 
 
 def export(models, renderer: str = "mitsuba", fmt: str | None = None,
-           setting: Setting = Setting(), source: str = "") -> Export:
+           setting: Setting = DEFAULT_SETTING, source: str = "") -> Export:
     """Scene text for ``models`` (a BRDF and/or a medium) in ``renderer``'s format ``fmt``."""
     check_renderer(renderer)
     fmt = fmt or FORMATS[renderer][0]

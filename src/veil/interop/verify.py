@@ -39,7 +39,7 @@ def load_mitsuba():
                          f"install mitsuba)") from None
     try:
         mi.set_variant(VARIANT)
-    except Exception as exc:  # noqa: BLE001 - a Mitsuba build without the variant
+    except Exception as exc:
         raise InputError(f"--verify needs Mitsuba's {VARIANT} variant, which this Mitsuba "
                          f"does not have ({exc})") from None
     return mi
@@ -110,7 +110,7 @@ def _scene(fragment: str, wi, wr, spp: int, medium: dict | None) -> str:
         extra = ""
         plate = ""
     else:
-        rc, half = float(medium["path_length"]), float(medium["half_width"])
+        rc, half = float(medium["length"]), float(medium["half_width"])
         max_depth = int(medium["max_depth"])
         origin = (rc * 1.2) * np.asarray(wr)
         integrator = (f'<integrator type="volpath"><integer name="max_depth" value="{max_depth}"'
@@ -144,7 +144,7 @@ def _scene(fragment: str, wi, wr, spp: int, medium: dict | None) -> str:
 def render(fragment: str, configs, spp: int = 1, medium: dict | None = None,
            seed: int = 0) -> np.ndarray:
     """Rendered values (first RGB channel) of the fragment at ``configs`` (rows theta_i,
-    theta_r, phi_i, phi_r in degrees); ``medium`` = {"path_length", "half_width",
+    theta_r, phi_i, phi_r in degrees); ``medium`` = {"length", "half_width",
     "max_depth"} path-traces the plate inside the exported medium."""
     mi = load_mitsuba()
     configs = np.asarray(configs, dtype=float)

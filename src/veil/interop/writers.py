@@ -63,7 +63,7 @@ def mitsuba_xml(plugins, comments) -> str:
 
 
 def _dict_plugin(p: Plugin) -> dict:
-    out = {"type": p.type}
+    out: dict[str, object] = {"type": p.type}
     for v in p.values:
         out[v.name] = v.value
     for child in p.children:
@@ -73,7 +73,7 @@ def _dict_plugin(p: Plugin) -> dict:
 
 def mitsuba_dict(plugins) -> dict:
     """The Python dict of :func:`mitsuba_xml` (for ``mitsuba.load_dict``)."""
-    scene = {"type": "scene"}
+    scene: dict[str, object] = {"type": "scene"}
     for p in plugins:
         scene[IDS[p.kind]] = _dict_plugin(p)
         for extra in p.extra:

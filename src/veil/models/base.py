@@ -16,9 +16,9 @@ The class declares
   "target" for a BRDF; "medium" for a medium).
 
 Construction validates every value, so an invalid model cannot exist. The engine and the
-fits never touch instances inside JAX code: they work on the parameter *vector*
-(:meth:`Model.to_vector`) and the class's static functions, so one compiled function serves
-every parameter value.
+fits never touch parameter values of instances inside JAX code: they work on the parameter
+*vector* (:meth:`Model.to_vector`) and the methods of a template of the model (which read its
+options only), so one compiled function serves every parameter value.
 """
 
 from __future__ import annotations
@@ -27,11 +27,14 @@ import dataclasses
 import math
 import numbers
 from dataclasses import dataclass
-from typing import ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar, Self
 
 from .._lazy import np
-
 from ..errors import InputTypeError, ParameterError
+
+if TYPE_CHECKING:  # the types only: models import JAX and numpy on first use (veil._lazy)
+    from jax import Array
+    from numpy import ndarray
 
 KINDS = ("brdf", "medium")
 #: Fit roles whose starting grids a model declares, by kind.
@@ -161,6 +164,8 @@ class Model:
     #: (veil.fitting.model_error), which the data of one session may be too few to show.
     #: None: no floor (the term comes from the residuals alone).
     MODEL_ERROR_FLOOR: ClassVar[tuple[float, float] | None] = None
+    if TYPE_CHECKING:  # every concrete model is a dataclass (what dataclasses.replace needs)
+        __dataclass_fields__: ClassVar[dict[str, Any]]
 
     def __post_init__(self) -> None:
         owner = type(self).__name__
@@ -195,7 +200,7 @@ class Model:
         return tuple(p.key for p in cls.PARAMS)
 
     @classmethod
-    def scale_index(cls, part: str):
+    def scale_index(cls, part: str) -> int | None:
         name = cls.SCALES.get(part)
         return None if name is None else cls.param_names().index(name)
 
@@ -217,13 +222,13 @@ class Model:
         return dict(cls.START.get(role, {}))
 
     @classmethod
-    def template(cls, **options) -> "Model":
+    def template(cls, **options) -> Self:
         """An instance at the declared starting values: it fixes the code path (class and
         options) of an engine whose parameters are passed as vectors."""
         return cls.from_params({p.name: p.start for p in cls.PARAMS}, options)
 
     @classmethod
-    def from_params(cls, params: dict, options: dict | None = None) -> "Model":
+    def from_params(cls, params: dict, options: dict | None = None) -> Self:
         """An instance from {name: value} (every parameter) and options (defaults for the
         rest); unknown or missing names are a ParameterError naming the declared ones."""
         names = cls.param_names()
@@ -254,14 +259,14 @@ class Model:
         return {p.name: getattr(self, p.name) for p in self.PARAMS
                 if p.name not in scales and p.share != "shared"}
 
-    def to_vector(self) -> np.ndarray:
+    def to_vector(self) -> ndarray:
         return np.array([getattr(self, p.name) for p in self.PARAMS], dtype=float)
 
     def options(self) -> dict:
         """Static (non-parameter) fields, e.g. ``{"variant": "paper"}``."""
         return {o.name: getattr(self, o.name) for o in self.OPTIONS}
 
-    def with_vector(self, vector) -> "Model":
+    def with_vector(self, vector) -> Self:
         vector = np.asarray(vector, float)
         if vector.shape != (len(self.PARAMS),):
             raise ParameterError(f"{type(self).__name__} vector has shape {vector.shape}; "
@@ -270,7 +275,7 @@ class Model:
         values = dict(zip(self.param_names(), (float(x) for x in vector)))
         return dataclasses.replace(self, **values)
 
-    def replace(self, **changes) -> "Model":
+    def replace(self, **changes) -> Self:
         return dataclasses.replace(self, **changes)
 
     def as_dict(self) -> dict:
@@ -299,37 +304,31 @@ class BRDF(Model):
     KIND = "brdf"
     HAS_LOBE: ClassVar[bool] = True
 
-    @staticmethod
-    def prepare(v):
+    def prepare(self, v) -> Any:
         """Tables the model needs at parameter vector ``v`` (computed once per engine call and
         passed to :meth:`separable` as ``aux``); None by default."""
         return None
 
-    @staticmethod
-    def separable(v, cos_i, cos_r, aux=None):  # pragma: no cover - interface
+    def separable(self, v, cos_i, cos_r, aux=None) -> list:  # pragma: no cover - interface
         """List of (s_k(cos_i), t_k(cos_r)) pairs (arrays broadcast against the inputs);
         ``aux`` is what :meth:`prepare` returned."""
         raise NotImplementedError
 
-    @staticmethod
-    def lobe(v, wi, wo, h, alpha=None):  # pragma: no cover - interface
+    def lobe(self, v, wi, wo, h, alpha=None) -> Array:  # pragma: no cover - interface
         """The non-separable part at unit vectors wi, wo with half vector h (shape (..., 3));
         ``alpha`` (angle of h from the normal) may be passed when already known."""
         raise NotImplementedError
 
     # The lobe's half vectors are distributed about the normal by a radial law in alpha
     # (angle of H from z), uniform in azimuth; the integrator truncates it at the horizon.
-    @staticmethod
-    def facet_cdf(v, alpha):  # pragma: no cover - interface
+    def facet_cdf(self, v, alpha) -> Array:  # pragma: no cover - interface
         """Increasing cumulative of the radial law, 0 at alpha = 0 (any positive scale)."""
         raise NotImplementedError
 
-    @staticmethod
-    def facet_inverse_cdf(v, y):  # pragma: no cover - interface
+    def facet_inverse_cdf(self, v, y) -> Array:  # pragma: no cover - interface
         raise NotImplementedError
 
-    @staticmethod
-    def facet_weight(v, alpha, sin_alpha=None):  # pragma: no cover - interface
+    def facet_weight(self, v, alpha, sin_alpha=None) -> Array:  # pragma: no cover - interface
         """d facet_cdf / d alpha / (2 pi sin alpha): density per steradian, cdf units
         (``sin_alpha`` may be passed when known)."""
         raise NotImplementedError
@@ -344,7 +343,7 @@ class BRDF(Model):
         top = float(self.facet_cdf(v, 0.5 * math.pi))
         return math.degrees(float(self.facet_inverse_cdf(v, 0.5 * top)))
 
-    def evaluate(self, v, wi, wo):
+    def evaluate(self, v, wi, wo) -> Array:
         """Full f_r(wi, wo) at parameter vector ``v`` with this instance's options, zero
         unless both directions are in the upper hemisphere."""
         from .._jax import jnp
@@ -387,48 +386,41 @@ class Medium(Model):
     def has(cls, component: str) -> bool:
         return component in cls.COMPONENTS
 
-    def weight(self, v, component: str):
+    def weight(self, v, component: str) -> Array:
         """The weight of ``component`` at parameter vector ``v``."""
         return {"delta": self.delta_weight, "iso": self.iso,
                 "lobe": self.lobe_weight}[component](v)
 
-    @staticmethod
-    def delta_weight(v):  # pragma: no cover - interface
+    def delta_weight(self, v) -> Array:  # pragma: no cover - interface
         raise NotImplementedError
 
-    @staticmethod
-    def iso(v):  # pragma: no cover - interface
+    def iso(self, v) -> Array:  # pragma: no cover - interface
         raise NotImplementedError
 
-    @staticmethod
-    def lobe_weight(v):  # pragma: no cover - interface
+    def lobe_weight(self, v) -> Array:  # pragma: no cover - interface
         raise NotImplementedError
 
-    def factor_first(self, v, cos_a):  # pragma: no cover - interface
+    def factor_first(self, v, cos_a) -> Array:  # pragma: no cover - interface
         raise NotImplementedError
 
-    def factor_second(self, v, cos_b):  # pragma: no cover - interface
+    def factor_second(self, v, cos_b) -> Array:  # pragma: no cover - interface
         raise NotImplementedError
 
-    @staticmethod
-    def prepare(v):
+    def prepare(self, v) -> Any:
         """Tables the lobe needs at parameter vector ``v``, computed once per engine call and
         passed to the phase functions as ``aux``; None by default."""
         return None
 
-    @staticmethod
-    def phase(v, one_minus_mu, aux=None):  # pragma: no cover - interface
+    def phase(self, v, one_minus_mu, aux=None) -> Array:  # pragma: no cover - interface
         raise NotImplementedError
 
-    @staticmethod
-    def phase_cone_fraction(v, one_minus_mu, aux=None):  # pragma: no cover - interface
+    def phase_cone_fraction(self, v, one_minus_mu, aux=None) -> Array:  # pragma: no cover
         raise NotImplementedError
 
-    @staticmethod
-    def phase_inverse_cone_fraction(v, frac, aux=None):  # pragma: no cover - interface
+    def phase_inverse_cone_fraction(self, v, frac, aux=None) -> Array:  # pragma: no cover
         raise NotImplementedError
 
-    def phase_sample(self, v, frac, aux=None):
+    def phase_sample(self, v, frac, aux=None) -> tuple:
         """(1 - cos, p) at the cone holding ``frac`` of the phase function: the sampling map
         and the density at its nodes together (a tabulated phase function reads both from
         one table row); by default ``phase_inverse_cone_fraction`` then ``phase``."""
@@ -439,16 +431,16 @@ class Medium(Model):
     def has_view_weight(self) -> bool:
         return False
 
-    def view_weight(self, v, r_prime, r):
+    def view_weight(self, v, r_prime, r) -> Array:
         """Weight of the view-side lobe f_t(R', R) at unit vectors R' (..., 3), R (3,)."""
         return 1.0 + 0.0 * r_prime[..., 2]
 
-    def concentrated(self, factor: float) -> "Medium":
+    def concentrated(self, factor: float) -> Self:
         """The medium at ``factor`` times its concentration (acquisition design, more or less
         of the scattering substance): by default every scale parameter times ``factor``."""
         return self.replace(**{n: getattr(self, n) * factor for n in self.scale_names()})
 
-    def without_iso(self) -> "Medium":
+    def without_iso(self) -> Self:
         """The medium with its isotropic part switched off (its scale at 0)."""
         name = self.SCALES.get("iso")
         return self if name is None else self.replace(**{name: 0.0})
@@ -475,7 +467,7 @@ class Medium(Model):
             lo, hi = (mid, hi) if float(self.phase(v, mid)) > half else (lo, mid)
         return math.degrees(math.acos(1.0 - 0.5 * (lo + hi)))
 
-    def kernel(self, v, one_minus_mu):
+    def kernel(self, v, one_minus_mu) -> Array:
         """The scattering kernel without boundary factors, iso + weight p, at deflection
         1 - cos(gamma): what a black cloth sees of the medium (veil.data.simulate)."""
         value = 0.0 * one_minus_mu
@@ -485,7 +477,7 @@ class Medium(Model):
             value = value + self.lobe_weight(v) * self.phase(v, one_minus_mu)
         return value
 
-    def evaluate(self, v, wa, wb):
+    def evaluate(self, v, wa, wb) -> Array:
         """f_t(wa, wb) for unit vectors without its delta component (a distribution, not a
         function): the iso part plus the lobe with its boundary factors."""
         from .._jax import jnp

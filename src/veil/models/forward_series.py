@@ -31,8 +31,8 @@ order k by the path factor M_k(tau, g) of the light side in the lab's cylinder
 view side the Poisson series times J_v; "view-side" keeps the lobe Poisson and weights the view
 side's order k by the landing factor lambda_k(g; R_c, a, theta_r) (``landing_factors``: a
 path that wandered lands where its whole lateral drift puts it, not where its last direction
-back-projects); "cylinder" does both. Measured (docs/validity-orders.md): "light-side" alone moves the
-fitted tau at tau = 1 from 1.121 to 1.162; "cylinder" brings it to 1.050 (5 cm plate),
+back-projects); "cylinder" does both. Measured (docs/validity-orders.md): "light-side" alone
+moves the fitted tau at tau = 1 from 1.121 to 1.162; "cylinder" brings it to 1.050 (5 cm plate),
 1.038 (10 cm plate), 1.034 (R_c 10 cm), the estimate vs truth better there (0.21 -> 0.19 %,
 0.94 -> 0.76 %, 0.61 -> 0.46 %), 0.08 -> 0.14 % at tau = 0.5. Experimental (default off).
 
@@ -44,15 +44,20 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
 
 from .._lazy import jnp
 from . import fresnel, phase
 from .base import Medium, Option, Param
-from .renderers import Plugin, Unsupported, Value, float_value
+from .renderers import GEOMETRY_HALF_WIDTH, GEOMETRY_LENGTH, Plugin, Unsupported, Value, float_value
+
+if TYPE_CHECKING:  # the type only: models import JAX on first use (veil._lazy)
+    from jax import Array
 
 VARIANTS = ("paper", "exit")
-#: Weights of the orders: "poisson" (docs/model.md 8.1 as written); "light-side" (the light side's orders
-#: with the cylinder's path factors M_k, docs/physics-orders.md sec. 8, the view side Poisson x J_v);
+#: Weights of the orders: "poisson" (docs/model.md 8.1 as written); "light-side" (the light
+#: side's orders with the cylinder's path factors M_k, docs/physics-orders.md sec. 8, the view
+#: side Poisson x J_v);
 #: "view-side" (the light side Poisson, the view side's orders with the landing factors lambda_k);
 #: "cylinder" (both).
 ORDER_WEIGHTS = ("poisson", "cylinder", "light-side", "view-side")
@@ -186,7 +191,7 @@ def _geometry(model, setting):
         width = model.plate_width if model.plate_width <= length * 2 else 0.0
         model = model.replace(path_length=float(length), plate_width=width)
     half = 0.5 * model.plate_width if model.plate_width > 0 else length
-    return model, model.tau / length, {"path_length": length, "plate_half_width": half}
+    return model, model.tau / length, {GEOMETRY_LENGTH: length, GEOMETRY_HALF_WIDTH: half}
 
 
 def _medium_lost(model, renderer: str) -> list:
@@ -206,7 +211,7 @@ def _medium_lost(model, renderer: str) -> list:
 
 def _series_mitsuba(model, setting) -> Plugin:
     model, sigma_t, geometry = _geometry(model, setting)
-    extra = ()
+    extra: tuple[Plugin, ...] = ()
     if model.eta_u != 1.0:
         extra = (Plugin("bsdf", "dielectric", (float_value("int_ior", model.eta_u),
                                                 float_value("ext_ior", 1.0))),)
@@ -286,8 +291,8 @@ class ForwardSeries(Medium):
         Option("orders", "poisson", "weights of the scattering orders: poisson = "
                "(omega tau)^k/k! on both sides; light = the light side's with the cylinder's "
                "path factors M_k(tau, g), the view side's unchanged; view = the view side's "
-               "with the plate's landing factors lambda_k (docs/physics-orders.md sec. 8), the light "
-               "side's unchanged; cylinder = both", ORDER_WEIGHTS),
+               "with the plate's landing factors lambda_k (docs/physics-orders.md sec. 8), "
+               "the light side's unchanged; cylinder = both", ORDER_WEIGHTS),
     )
     #: Against path tracing without a fit (validation/forward_error.py, docs/validity.md) the
     #: series is 0.74 % RMS off at optical depth 0.1, about 0.5 % of it its own (the rest the
@@ -320,50 +325,50 @@ class ForwardSeries(Medium):
 
     # -- components ----------------------------------------------------------------------
     @staticmethod
-    def delta_weight(v):
+    def delta_weight(v) -> Array:
         return jnp.exp(-v[0])
 
-    def lobe_weight(self, v):
+    def lobe_weight(self, v) -> Array:
         if self.orders in ("cylinder", "light-side"):
             return jnp.exp(-v[0]) * v[1] * v[0] * _path_mixture(v)[2]
         return jnp.exp(-v[0]) * jnp.expm1(v[1] * v[0])
 
-    def factor_first(self, v, cos_a):
+    def factor_first(self, v, cos_a) -> Array:
         return fresnel.boundary_first(cos_a, v[3], self.variant)
 
-    def factor_second(self, v, cos_b):
+    def factor_second(self, v, cos_b) -> Array:
         return fresnel.boundary_second(cos_b, v[3], self.variant)
 
     # -- the normalized scattered lobe, tabulated once per engine call --------------------
-    def mixture(self, v):
+    def mixture(self, v) -> tuple:
         """(c_k, g_k) of the normalized scattered lobe (module docstring; with
         ``orders="cylinder"`` or "light-side" the light side's weights)."""
         if self.orders in ("cylinder", "light-side"):
             return _path_mixture(v)[:2]
         return _mixture(v)
 
-    def prepare(self, v):
+    def prepare(self, v) -> Any:
         return phase.mixture_table(*self.mixture(v))
 
-    def phase(self, v, one_minus_mu, aux=None):
+    def phase(self, v, one_minus_mu, aux=None) -> Array:
         return phase.mixture_pdf(self.prepare(v) if aux is None else aux, one_minus_mu)
 
-    def phase_cone_fraction(self, v, one_minus_mu, aux=None):
+    def phase_cone_fraction(self, v, one_minus_mu, aux=None) -> Array:
         return phase.mixture_cone_fraction(self.prepare(v) if aux is None else aux,
                                            one_minus_mu)
 
-    def phase_inverse_cone_fraction(self, v, frac, aux=None):
+    def phase_inverse_cone_fraction(self, v, frac, aux=None) -> Array:
         return phase.mixture_inverse_cone_fraction(self.prepare(v) if aux is None else aux,
                                                    frac)
 
-    def phase_sample(self, v, frac, aux=None):
+    def phase_sample(self, v, frac, aux=None) -> tuple:
         return phase.mixture_inverse_with_pdf(self.prepare(v) if aux is None else aux, frac)
 
     # -- the finite plate ----------------------------------------------------------------
     def has_view_weight(self) -> bool:
         return self.path_length > 0 or self.orders in ("cylinder", "light-side")
 
-    def view_weight(self, v, r_prime, r):
+    def view_weight(self, v, r_prime, r) -> Array:
         """J_v(R', R) (module docstring); 1 without a path length. With other ``orders`` than
         "poisson", times sum_k x^k/k! V_k p(g^k) / sum_k x^k/k! M_k p(g^k) at R'.R: M_k the
         weights the lobe carries (1 unless the light side's path factors are in it, "light-side",
@@ -407,6 +412,6 @@ class ForwardSeries(Medium):
         frac = jnp.where(small, 1.0 - 0.5 * x + x * x / 6.0, -jnp.expm1(-xs) / xs)
         return depth / rc * frac
 
-    def concentrated(self, factor: float) -> "ForwardSeries":
+    def concentrated(self, factor: float) -> ForwardSeries:
         """More or less of the scattering substance: the optical depth times ``factor``."""
         return self.replace(tau=self.tau * factor)

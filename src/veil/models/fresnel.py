@@ -45,7 +45,8 @@ def boundary_first(cos_a, eta, variant: str):
 
 
 def boundary_second(cos_b, eta, variant: str):
-    """The boundary factor b(B) (docs/model.md sec. 3): 1 for the paper's variant, F_t for "exit"."""
+    """The boundary factor b(B) (docs/model.md sec. 3): 1 for the paper's variant, F_t for
+    "exit"."""
     if variant == "paper":
         return 1.0 + 0.0 * cos_b
     return transmittance(cos_b, eta)

@@ -5,11 +5,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
-from . import fresnel
-from . import phase
+from . import fresnel, phase
 from .base import Medium, Option, Param
 from .renderers import Unsupported
+
+if TYPE_CHECKING:  # the type only: models import JAX on first use (veil._lazy)
+    from jax import Array
 
 VARIANTS = ("paper", "exit")
 
@@ -63,27 +66,27 @@ class HenyeyGreenstein(Medium):
     RENDERERS = {"mitsuba": _no_renderer, "pbrt": _no_renderer}
 
     @staticmethod
-    def iso(v):
+    def iso(v) -> Array:
         return v[0]
 
     @staticmethod
-    def lobe_weight(v):
+    def lobe_weight(v) -> Array:
         return v[1]
 
-    def factor_first(self, v, cos_a):
+    def factor_first(self, v, cos_a) -> Array:
         return fresnel.boundary_first(cos_a, v[3], self.variant)
 
-    def factor_second(self, v, cos_b):
+    def factor_second(self, v, cos_b) -> Array:
         return fresnel.boundary_second(cos_b, v[3], self.variant)
 
     @staticmethod
-    def phase(v, one_minus_mu, aux=None):
+    def phase(v, one_minus_mu, aux=None) -> Array:
         return phase.hg_pdf(v[2], one_minus_mu)
 
     @staticmethod
-    def phase_cone_fraction(v, one_minus_mu, aux=None):
+    def phase_cone_fraction(v, one_minus_mu, aux=None) -> Array:
         return phase.hg_cone_fraction(v[2], one_minus_mu)
 
     @staticmethod
-    def phase_inverse_cone_fraction(v, frac, aux=None):
+    def phase_inverse_cone_fraction(v, frac, aux=None) -> Array:
         return phase.hg_inverse_cone_fraction(v[2], frac)

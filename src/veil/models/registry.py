@@ -13,9 +13,10 @@ from __future__ import annotations
 
 import importlib
 import os
+from typing import Any, Literal, overload
 
 from ..errors import InputError, InputTypeError
-from .base import KINDS, ROLES, Model
+from .base import BRDF, KINDS, ROLES, Medium, Model, Option
 from .forward_series import ForwardSeries
 from .henyey_greenstein import HenyeyGreenstein
 from .rough_conductor import RoughConductor
@@ -138,7 +139,7 @@ def _load_plugins() -> None:
     for module in filter(None, (m.strip() for m in os.environ.get("VEIL_PLUGINS", "").split(","))):
         try:
             importlib.import_module(module)
-        except Exception as exc:  # noqa: BLE001 - any failure of a plugin is the plugin's
+        except Exception as exc:
             _plugin_error = InputError(f"VEIL_PLUGINS names module {module!r}, which cannot be "
                                        f"imported ({type(exc).__name__}: {exc})")
             raise _plugin_error from None
@@ -147,7 +148,7 @@ def _load_plugins() -> None:
     for ep in entry_points(group="veil.models"):
         try:
             ep.load()
-        except Exception as exc:  # noqa: BLE001
+        except Exception as exc:
             _plugin_error = InputError(f"the veil.models entry point {ep.name!r} ({ep.value}) "
                                        f"cannot be loaded ({type(exc).__name__}: {exc})")
             raise _plugin_error from None
@@ -161,6 +162,12 @@ def names(kind: str | None = None) -> list[str]:
                                         n not in DEFAULTS.values(), n))
 
 
+@overload
+def model_class(name: str, kind: Literal["brdf"]) -> type[BRDF]: ...
+@overload
+def model_class(name: str, kind: Literal["medium"]) -> type[Medium]: ...
+@overload
+def model_class(name: str, kind: str | None = None) -> type[Model]: ...
 def model_class(name: str, kind: str | None = None) -> type[Model]:
     """The family registered as ``name`` (of ``kind`` when given); an InputError listing the
     known ones otherwise."""
@@ -177,13 +184,13 @@ def model_class(name: str, kind: str | None = None) -> type[Model]:
     return cls
 
 
-def ranked_options(cls: type[Model]) -> tuple:
+def ranked_options(cls: type[Model]) -> tuple[Option, ...]:
     """The options of ``cls`` whose every value is a candidate of its own: those with a finite
     set of allowed values that do not describe the apparatus (:data:`APPARATUS_OPTIONS`)."""
     return tuple(o for o in cls.OPTIONS if o.choices and o.name not in APPARATUS_OPTIONS)
 
 
-def candidates(kind: str, pinned: dict | None = None) -> list[tuple[str, dict]]:
+def candidates(kind: str, pinned: dict[str, Any] | None = None) -> list[tuple[str, dict[str, Any]]]:
     """Every registered family of ``kind`` with every combination of its ranked options
     (:func:`ranked_options`), as (name, {option: value}), in :func:`names` order (the
     paper's first) and the declared order of the values (the default first). ``pinned``
@@ -191,18 +198,26 @@ def candidates(kind: str, pinned: dict | None = None) -> list[tuple[str, dict]]:
     if kind not in KINDS:
         raise InputError(f"kind = {kind!r}; expected one of {', '.join(KINDS)}")
     pinned = dict(pinned or {})
-    out = []
+    out: list[tuple[str, dict[str, Any]]] = []
     for name in names(kind):
         cls = REGISTRY[name]
-        combos = [{}]
+        combos: list[dict[str, Any]] = [{}]
         for opt in ranked_options(cls):
-            values = [pinned[opt.name]] if opt.name in pinned else \
-                [opt.default] + [v for v in opt.choices if v != opt.default]
+            if opt.name in pinned:
+                values = [pinned[opt.name]]
+            else:
+                values = [opt.default] + [v for v in opt.choices if v != opt.default]
             combos = [dict(c, **{opt.name: v}) for c in combos for v in values]
         out += [(name, c) for c in combos]
     return out
 
 
+@overload
+def default_class(kind: Literal["brdf"]) -> type[BRDF]: ...
+@overload
+def default_class(kind: Literal["medium"]) -> type[Medium]: ...
+@overload
+def default_class(kind: str) -> type[Model]: ...
 def default_class(kind: str) -> type[Model]:
     """The paper's model of ``kind`` ("brdf" or "medium")."""
     return REGISTRY[DEFAULTS[kind]]
@@ -227,5 +242,6 @@ def preset(name: str, kind: str | None = None) -> Model:
     return model
 
 
-__all__ = ["REGISTRY", "FAMILIES", "DEFAULTS", "AUTO", "PAPER", "MODES", "APPARATUS_OPTIONS", "PRESETS", "register",
-           "names", "model_class", "default_class", "ranked_options", "candidates", "preset"]
+__all__ = ["REGISTRY", "FAMILIES", "DEFAULTS", "AUTO", "PAPER", "MODES", "APPARATUS_OPTIONS",
+           "PRESETS", "register", "names", "model_class", "default_class", "ranked_options",
+           "candidates", "preset"]

@@ -22,12 +22,17 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import SupportsFloat, cast
 
 from ..errors import InputError
 
 RENDERER_NAMES = ("mitsuba", "pbrt")
 #: Kinds of a plugin parameter: how the writers spell it.
 VALUE_KINDS = ("float", "boolean", "string", "spectrum", "rgb")
+#: The keys of a plugin's ``geometry``: one pass through the medium (scene units) and the
+#: plate's half width.
+GEOMETRY_LENGTH = "path_length"
+GEOMETRY_HALF_WIDTH = "plate_half_width"
 
 
 class Unsupported(InputError):
@@ -64,7 +69,7 @@ class Value:
         if self.kind not in VALUE_KINDS:
             raise ValueError(f"Value {self.name}: kind {self.kind!r}")
         if self.kind in ("float", "spectrum", "rgb"):
-            v = float(self.value)
+            v = float(cast(SupportsFloat, self.value))  # these kinds hold a number
             if not math.isfinite(v):
                 raise Unsupported(f"{self.name} = {self.value!r} is not a finite number; a "
                                   f"renderer cannot take it")

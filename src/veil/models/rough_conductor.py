@@ -24,12 +24,21 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 from .._lazy import jnp
 from .base import BRDF, Option, Param
 from .renderers import Plugin, Unsupported, Value, float_value
-from .rough_plastic import (DISTRIBUTIONS, MicrofacetFacets, _safe_sqrt, microfacet_lobe,
-                            relative_scales)
+from .rough_plastic import (
+    DISTRIBUTIONS,
+    MicrofacetFacets,
+    _safe_sqrt,
+    microfacet_lobe,
+    relative_scales,
+)
+
+if TYPE_CHECKING:  # the type only: models import JAX on first use (veil._lazy)
+    from jax import Array
 
 
 def conductor_reflectance(cos_theta, n, k):
@@ -157,9 +166,9 @@ class RoughConductor(MicrofacetFacets, BRDF):
     # -- the split used by the integrator: no separable part (methods of the instance:
     # they read the distribution option) -----------------------------------------------
     @staticmethod
-    def separable(v, cos_i, cos_r, aux=None):
+    def separable(v, cos_i, cos_r, aux=None) -> list:
         return []
 
-    def lobe(self, v, wi, wo, h, alpha=None):
+    def lobe(self, v, wi, wo, h, alpha=None) -> Array:
         return self._lobe(v, wi, wo, h)
 

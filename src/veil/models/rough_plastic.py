@@ -26,14 +26,18 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from functools import lru_cache
-
+from functools import cache
+from typing import TYPE_CHECKING, Any
 
 from .._lazy import jnp, np
 from ..errors import ParameterError
 from . import fresnel
 from .base import BRDF, Option, Param, geometric_grid
 from .renderers import Plugin, Unsupported, Value, float_value, intensity_scale
+
+if TYPE_CHECKING:  # the types only: models import JAX and numpy on first use (veil._lazy)
+    from jax import Array
+    from numpy import ndarray
 
 DISTRIBUTIONS = ("beckmann", "ggx")
 HALF_PI = 0.5 * math.pi
@@ -73,8 +77,9 @@ def smith_g1(wz, wxy2, alpha, distribution="beckmann"):
         den = wz + jnp.sqrt(wz * wz + alpha * alpha * wxy2)
         ok = den > 0
         return jnp.where(ok, 2.0 * wz / jnp.where(ok, den, 1.0), 1.0)
-    from .._jax import jax as _  # noqa: F401 - JAX set up by veil before its submodule
     from jax.scipy.special import erfc
+
+    from .._jax import jax as _  # noqa: F401 - JAX set up by veil before its submodule
 
     s = alpha * _safe_sqrt(wxy2)                       # alpha sin theta
     # a = cos / (alpha sin), held at 8 (1 - G1 < 1e-28 beyond: G1 = 1 exactly, also at the
@@ -174,7 +179,7 @@ F_RADIAL, F_POLAR, F_AZIMUTH = 12, 12, 12
 BECKMANN_END = 6.5
 
 
-@lru_cache(maxsize=None)
+@cache
 def _gauss(n: int, smooth: bool = False):
     """Gauss-Legendre nodes and weights on [0, 1]; ``smooth``: through s = 3t^2 - 2t^3, which
     turns square-root end behaviour into a smooth one."""
@@ -185,8 +190,8 @@ def _gauss(n: int, smooth: bool = False):
     return x, w
 
 
-@lru_cache(maxsize=None)
-def _spline_matrix(n: int) -> np.ndarray:
+@cache
+def _spline_matrix(n: int) -> ndarray:
     """Second derivatives of the not-a-knot cubic spline through values at 0..n-1 (unit
     spacing), as a matrix applied to the values."""
     a = np.zeros((n, n))
@@ -447,14 +452,16 @@ class MicrofacetFacets:
     vector."""
 
     ROUGHNESS_INDEX = 0
+    if TYPE_CHECKING:  # the option field of the dataclasses that mix this in
+        distribution: str
 
-    def facet_cdf(self, v, alpha):
+    def facet_cdf(self, v, alpha) -> Array:
         return facet_cdf(v[self.ROUGHNESS_INDEX], alpha, self.distribution)
 
-    def facet_inverse_cdf(self, v, y):
+    def facet_inverse_cdf(self, v, y) -> Array:
         return facet_inverse_cdf(v[self.ROUGHNESS_INDEX], y, self.distribution)
 
-    def facet_weight(self, v, alpha, sin_alpha=None):
+    def facet_weight(self, v, alpha, sin_alpha=None) -> Array:
         return facet_weight(v[self.ROUGHNESS_INDEX], alpha, sin_alpha, self.distribution)
 
 
@@ -524,14 +531,14 @@ class RoughPlastic(MicrofacetFacets, BRDF):
 
     # -- the split used by the integrator (methods of the instance: they read the
     # distribution option; the engine passes the model's template) ------------------------
-    def prepare(self, v):
+    def prepare(self, v) -> Any:
         return interface_tables(v[1], v[2], self.distribution)
 
-    def separable(self, v, cos_i, cos_r, aux=None):
+    def separable(self, v, cos_i, cos_r, aux=None) -> list:
         tables = self.prepare(v) if aux is None else aux
         return [diffuse_factors(v, tables, cos_i, cos_r)]
 
-    def lobe(self, v, wi, wo, h, alpha=None):
+    def lobe(self, v, wi, wo, h, alpha=None) -> Array:
         eta = v[2]
         return v[3] * microfacet_lobe(v[1], wi, wo, h, lambda c: fresnel.reflectance(c, eta),
                                       self.distribution)

@@ -8,11 +8,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-
+from typing import TYPE_CHECKING
 
 from .._lazy import jnp
 from . import fresnel
 from .base import BRDF, Param, geometric_grid
+
+if TYPE_CHECKING:  # the type only: models import JAX on first use (veil._lazy)
+    from jax import Array
 
 DEG = 180.0 / math.pi
 HALF_PI = 0.5 * math.pi
@@ -60,15 +63,16 @@ class TorranceSparrow(BRDF):
 
     # -- the split used by the integrator ------------------------------------------------
     @staticmethod
-    def separable(v, cos_i, cos_r, aux=None):
+    def separable(v, cos_i, cos_r, aux=None) -> list:
         return [(v[0] * jnp.maximum(cos_i, 0.0), jnp.ones_like(cos_r))]
 
     @staticmethod
-    def lobe(v, wi, wo, h, alpha=None):
+    def lobe(v, wi, wo, h, alpha=None) -> Array:
         ps, n, eta = v[1], v[2], v[3]
         ci, co = wi[..., 2], wo[..., 2]
         hz = h[..., 2]
-        ch = wi[..., 0] * h[..., 0] + wi[..., 1] * h[..., 1] + wi[..., 2] * h[..., 2]  # cos theta_i'
+        # cos theta_i'
+        ch = wi[..., 0] * h[..., 0] + wi[..., 1] * h[..., 1] + wi[..., 2] * h[..., 2]
         if alpha is None:
             s2 = h[..., 0] ** 2 + h[..., 1] ** 2
             alpha = jnp.where(s2 > 0, jnp.arctan2(jnp.sqrt(jnp.where(s2 > 0, s2, 1.0)), hz), 0.0)
@@ -84,17 +88,17 @@ class TorranceSparrow(BRDF):
     # cumulative  C(alpha) = 1 - exp(-(c alpha)^2),  c = n * 180/pi
     # weight      dC/dalpha / (2 pi sin alpha): density per steradian of H, in C's units
     @staticmethod
-    def facet_cdf(v, alpha):
+    def facet_cdf(v, alpha) -> Array:
         c = v[2] * DEG
         return -jnp.expm1(-(c * alpha) ** 2)
 
     @staticmethod
-    def facet_inverse_cdf(v, y):
+    def facet_inverse_cdf(v, y) -> Array:
         c = v[2] * DEG
         return jnp.sqrt(-jnp.log1p(-y)) / c
 
     @staticmethod
-    def facet_weight(v, alpha, sin_alpha=None):
+    def facet_weight(v, alpha, sin_alpha=None) -> Array:
         c = v[2] * DEG
         if sin_alpha is None:
             sin_alpha = jnp.sin(alpha)

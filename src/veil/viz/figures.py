@@ -19,13 +19,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..engine.angles import direction
+from ..engine.apparent import RULES, as_brdf, as_btdf, reflectance
 from ..errors import InputError
 from ..io import write_bytes_atomic
-from ..engine.apparent import RULES, as_brdf, as_btdf, reflectance
-from ..engine.angles import direction
-from ..models import PRESETS
-from .render import (Rendering, auto_exposure, clipping, evaluate, highlight_pixel, render,
-                     tone_map)
+from ..models import PRESETS, Model
+from .render import Rendering, auto_exposure, clipping, evaluate, highlight_pixel, render, tone_map
 
 #: Figure formats :func:`save_figure` writes, by file suffix.
 FORMATS = ("png", "pdf", "svg")
@@ -133,8 +132,8 @@ def curve_metrics(theta, values, off_angle=0.0) -> CurveMetrics:
 
 @dataclass
 class Curve:
-    brdf: object
-    medium: object  # None: clear medium
+    brdf: Model
+    medium: Model | None  # None: clear medium
     theta_i: float
     theta_r: np.ndarray
     values: np.ndarray
@@ -413,8 +412,8 @@ def fig10(media=("BTDF1", "BTDF2", "BTDF3"), theta_i=45.0, labels=None):
             _setup_log_polar(ax, lo, hi, zero="S", direction=1)
         r_top = hi - lo
         ax1.plot([math.radians(theta_i)] * 2, [0, r_top], color="0.5", lw=0.8, ls=":")
-        ax1.set_title("(a) in the plane of incidence\nangle = travel direction -T from straight down",
-                      pad=4)
+        ax1.set_title("(a) in the plane of incidence\n"
+                      "angle = travel direction -T from straight down", pad=4)
         ax2.set_title("(b) out of the plane\nangle = travel direction -T from the unscattered -I",
                       pad=4)
         ax3.set_xlabel("deflection from the unscattered direction [deg]")
@@ -507,8 +506,8 @@ def fig11(exp: Experiment):
         for i, scale in enumerate(rows):
             for j, b in enumerate(names):
                 curves = [exp.curves[(b, "clear")]] + [exp.curves[(b, m)] for m in exp.media]
-                draw_curves(axes[i, j], curves, scale, f"({next(letters)}) {b}: {SHORT_WORDS[scale]}",
-                            with_brdf=False)
+                draw_curves(axes[i, j], curves, scale,
+                            f"({next(letters)}) {b}: {SHORT_WORDS[scale]}", with_brdf=False)
         handles, labels = axes[0, 0].get_legend_handles_labels()
         fig.legend(handles, labels, loc="upper center", ncol=len(labels), frameon=False,
                    bbox_to_anchor=(0.5, 1.0))

@@ -67,72 +67,83 @@ def fit_figure(data, result: FitResult, other: Model | None, extra: FitResult | 
               "medium": "Step 1: reference object through the medium (f_t fitted)",
               "target": "Step 2: target object through the medium (f_r fitted)",
               "direct": "Target object, clear medium: direct fit and estimate"}
-    y = data.y
     accuracy = result.accuracy or "default"
     if gonio is None:
-        model = model_values(result, other, data.angles, accuracy)
-        ax.plot(model, y, "o", ms=3, color=COLORS[0])
-        lo, hi = min(np.min(y), np.min(model)), max(np.max(y), np.max(model))
-        if lo > 0:
-            ax.set_xscale("log")
-            ax.set_yscale("log")
-        ax.plot([lo, hi], [lo, hi], "-", color="0.5", lw=1)
-        ax.set_xlabel("fitted model value [relative units, 1/sr]")
-        ax.set_ylabel("measured value [relative units, 1/sr]")
+        _model_against_data(ax, data, model_values(result, other, data.angles, accuracy))
     else:
-        psi, rho, tr = gonio
-        curves = []
-        for k, p in enumerate(np.unique(psi)):
-            sel = psi == p
-            r = _curve_rho(rho[sel].min(), rho[sel].max())
-            ti_c, tr_c = p / 2 + r, p / 2 - r
-            curves.append((k, p, sel, tr_c, ti_c))
-        all_ti = np.concatenate([c[4] for c in curves])
-        all_tr = np.concatenate([c[3] for c in curves])
-        angles_c = from_signed_inplane(all_ti, all_tr)
-        angles_c = (angles_c[0], angles_c[1], angles_c[2], angles_c[3])
-        fitted = model_values(result, other, angles_c, CURVE_ACCURACY)
-        dashed = model_values(extra, None, angles_c) if extra is not None else None
-        from matplotlib.lines import Line2D
-
-        start = 0
-        handles = []
-        for k, p, sel, tr_c, _ in curves:
-            color = COLORS[k % len(COLORS)]
-            n = len(tr_c)
-            order = np.argsort(tr[sel])
-            yerr = data.sigma[sel][order] if data.sigma is not None else None
-            ax.errorbar(tr[sel][order], y[sel][order], yerr=yerr, fmt="o", ms=3, color=color,
-                        elinewidth=0.8, capsize=0)
-            ax.plot(tr_c, fitted[start:start + n], "-", color=color, lw=1.2)
-            if dashed is not None:
-                ax.plot(tr_c, dashed[start:start + n], "--", color=color, lw=1.0)
-            handles.append(Line2D([], [], color=color, marker="o", ms=3, lw=1.2,
-                                  label=f"psi = {p:g}°"))
-            start += n
-        positive = y[y > 0]
-        if positive.size and np.max(positive) > LOG_RATIO * np.median(positive):
-            ax.set_yscale("log")
-            ax.set_ylim(bottom=max(np.min(positive) * 0.5, np.max(positive) * 1e-6))
-        ax.set_ylabel("observed value [relative units, 1/sr]")
-        _residual_panel(res_ax, data, _fitted_values(data, result, other, accuracy), psi, tr,
-                        result.model_error)
-        ax.tick_params(labelbottom=False)
-        res_ax.set_title("relative residual (data - model) / model", fontsize=8, loc="left")
-        fig.align_ylabels((ax, res_ax))
-        handles += [Line2D([], [], color="0.3", marker="o", ms=3, lw=0,
-                           label="data" + (" (+- sigma)" if data.sigma is not None else "")),
-                    Line2D([], [], color="0.3", lw=1.2, label="fitted model")]
-        if dashed is not None:
-            handles.append(Line2D([], [], color="0.3", lw=1.0, ls="--",
-                                  label="f_r estimated through the medium (step 2)"))
-        ax.legend(handles=handles, fontsize=7.5, loc="best", framealpha=0.8)
-    ax.set_title(titles.get(result.step, result.model), fontsize=10)
+        _curves_and_residuals(fig, ax, res_ax, data, gonio, result, other, extra, accuracy)
+    ax.set_title(titles.get(result.step or "", result.model), fontsize=10)
     ax.grid(True, which="major", alpha=0.3)
     fig.tight_layout()
     buf = io.BytesIO()
     fig.savefig(buf, format="png", metadata={"Software": None})
     return buf.getvalue()
+
+
+def _model_against_data(ax, data, model) -> None:
+    """Out-of-plane data: the model's value against the measured one."""
+    y = data.y
+    ax.plot(model, y, "o", ms=3, color=COLORS[0])
+    lo, hi = min(np.min(y), np.min(model)), max(np.max(y), np.max(model))
+    if lo > 0:
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+    ax.plot([lo, hi], [lo, hi], "-", color="0.5", lw=1)
+    ax.set_xlabel("fitted model value [relative units, 1/sr]")
+    ax.set_ylabel("measured value [relative units, 1/sr]")
+
+
+def _curves_and_residuals(fig, ax, res_ax, data, gonio, result, other, extra,
+                          accuracy) -> None:
+    """Goniometer data: the data and the fitted curves per psi, the residual panel below."""
+    y = data.y
+    psi, rho, tr = gonio
+    curves = []
+    for k, p in enumerate(np.unique(psi)):
+        sel = psi == p
+        r = _curve_rho(rho[sel].min(), rho[sel].max())
+        ti_c, tr_c = p / 2 + r, p / 2 - r
+        curves.append((k, p, sel, tr_c, ti_c))
+    all_ti = np.concatenate([c[4] for c in curves])
+    all_tr = np.concatenate([c[3] for c in curves])
+    angles_c = from_signed_inplane(all_ti, all_tr)
+    angles_c = (angles_c[0], angles_c[1], angles_c[2], angles_c[3])
+    fitted = model_values(result, other, angles_c, CURVE_ACCURACY)
+    dashed = model_values(extra, None, angles_c) if extra is not None else None
+    from matplotlib.lines import Line2D
+
+    start = 0
+    handles = []
+    for k, p, sel, tr_c, _ in curves:
+        color = COLORS[k % len(COLORS)]
+        n = len(tr_c)
+        order = np.argsort(tr[sel])
+        yerr = data.sigma[sel][order] if data.sigma is not None else None
+        ax.errorbar(tr[sel][order], y[sel][order], yerr=yerr, fmt="o", ms=3, color=color,
+                    elinewidth=0.8, capsize=0)
+        ax.plot(tr_c, fitted[start:start + n], "-", color=color, lw=1.2)
+        if dashed is not None:
+            ax.plot(tr_c, dashed[start:start + n], "--", color=color, lw=1.0)
+        handles.append(Line2D([], [], color=color, marker="o", ms=3, lw=1.2,
+                              label=f"psi = {p:g}°"))
+        start += n
+    positive = y[y > 0]
+    if positive.size and np.max(positive) > LOG_RATIO * np.median(positive):
+        ax.set_yscale("log")
+        ax.set_ylim(bottom=max(np.min(positive) * 0.5, np.max(positive) * 1e-6))
+    ax.set_ylabel("observed value [relative units, 1/sr]")
+    _residual_panel(res_ax, data, _fitted_values(data, result, other, accuracy), psi, tr,
+                    result.model_error)
+    ax.tick_params(labelbottom=False)
+    res_ax.set_title("relative residual (data - model) / model", fontsize=8, loc="left")
+    fig.align_ylabels((ax, res_ax))
+    handles += [Line2D([], [], color="0.3", marker="o", ms=3, lw=0,
+                       label="data" + (" (+- sigma)" if data.sigma is not None else "")),
+                Line2D([], [], color="0.3", lw=1.2, label="fitted model")]
+    if dashed is not None:
+        handles.append(Line2D([], [], color="0.3", lw=1.0, ls="--",
+                              label="f_r estimated through the medium (step 2)"))
+    ax.legend(handles=handles, fontsize=7.5, loc="best", framealpha=0.8)
 
 
 #: A model value below this fraction of the session's largest is too small to divide by: its

@@ -29,9 +29,9 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.interpolate import RectBivariateSpline
 
-from ..errors import InputError
 from ..engine.apparent import RULES, as_brdf, as_btdf
 from ..engine.evaluator import evaluate as chunked
+from ..errors import InputError
 
 #: Half width of the view in sphere radii (orthographic camera; a 5 % margin around the rim).
 VIEW = 1.05
@@ -243,7 +243,8 @@ class Rendering:
     samples: int
     table_nodes: int  # engine evaluations for the table (0: direct f_r)
     checked: int  # pixels compared with direct engine evaluations
-    max_rel_error: float  # max |interp - direct| / direct, checked pixels with both angles <= 80 deg
+    #: max |interp - direct| / direct, checked pixels with both angles <= 80 deg
+    max_rel_error: float
     max_rel_error_all: float  # the same over all checked pixels (grazing ones included)
     max_peak_error: float  # max |interp - direct| cos(theta_i) / image maximum, all checked
     seconds: float
@@ -270,7 +271,8 @@ def _check_args(size, light_theta, light_phi, samples, accuracy):
                          f"grazing angles, where the table is not reliable)")
     if not isinstance(size, (int, np.integer)) or isinstance(size, bool) or not 8 <= size <= 4096:
         raise InputError(f"size = {size!r} must be an integer in [8, 4096] pixels")
-    if not isinstance(samples, (int, np.integer)) or isinstance(samples, bool) or not 1 <= samples <= 8:
+    if not isinstance(samples, (int, np.integer)) or isinstance(samples, bool) \
+            or not 1 <= samples <= 8:
         raise InputError(f"samples = {samples!r} must be an integer in [1, 8] per pixel axis")
     if accuracy not in RULES:
         raise InputError(f"accuracy = {accuracy!r}; expected one of {', '.join(RULES)}")
@@ -369,6 +371,24 @@ def _shade(b, table, frame, light, normal, inside, padded=None):
     return f, lit, cos_i
 
 
+def _table_errors(b, m, table, image, lit_px, check, light, frame, peak: float,
+                  accuracy: str, bar) -> tuple[int, float, float, float]:
+    """The table's interpolation error against the engine at ``check`` lit pixels: (pixels
+    checked, largest relative error with both angles <= ERROR_ANGLE, over all, in units of
+    the image's peak)."""
+    size = image.shape[0]
+    pick = _check_pixels(image, lit_px, check)
+    normal, _ = pixel_normals(size, pick)
+    ti, tr, dp = local_angles(normal, light)
+    direct = evaluate(b, m, ti, tr, dp, accuracy=accuracy, progress=bar.advance)
+    interp = table(*_uw(normal, frame))
+    rel = np.abs(interp - direct) / direct
+    inner = np.maximum(ti, tr) <= ERROR_ANGLE
+    max_rel = float(rel[inner].max()) if inner.any() else 0.0
+    diff = np.abs(interp - direct) * (normal @ light)
+    return pick.size, max_rel, float(rel.max()), float(np.max(diff) / max(peak, 1e-300))
+
+
 def render(brdf, medium=None, light_theta=45.0, light_phi=0.0, size=256, *, accuracy="fast",
            samples=1, check=64, density=1.0, progress=False) -> Rendering:
     """Render the sphere (module docstring) and measure the interpolation error.
@@ -405,9 +425,11 @@ def render(brdf, medium=None, light_theta=45.0, light_phi=0.0, size=256, *, accu
     with _Progress(progress, f"rendering {size}x{size}") as bar:
         table = None
         if m is not None:
-            n_table = len(u_nodes(peak_width(b, m), density)) * max(5, int(round((W_NODES - 1) * density)) + 1)
+            n_table = len(u_nodes(peak_width(b, m), density)) \
+                * max(5, int(round((W_NODES - 1) * density)) + 1)
             bar.start(n_table + (check if check else 0), len(bands))
-            table = build_table(b, m, light, accuracy=accuracy, density=density, progress=bar.advance)
+            table = build_table(b, m, light, accuracy=accuracy, density=density,
+                                progress=bar.advance)
         else:
             bar.start(0, len(bands))
         image = np.zeros((size, size))
@@ -420,7 +442,8 @@ def render(brdf, medium=None, light_theta=45.0, light_phi=0.0, size=256, *, accu
             linear = np.where(lit, f * np.where(lit, cos_i, 0.0), 0.0)
             peak = max(peak, float(linear.max()))
             if samples > 1:
-                image[first:stop] = linear.reshape(stop - first, samples, size, samples).mean(axis=(1, 3))
+                image[first:stop] = linear.reshape(stop - first, samples, size,
+                                                   samples).mean(axis=(1, 3))
                 centres, on_disk = pixel_normals(size, np.arange(first * size, stop * size))
                 lit_px[first:stop] = (on_disk & (centres @ light > 0.0)).reshape(stop - first, size)
             else:
@@ -428,21 +451,10 @@ def render(brdf, medium=None, light_theta=45.0, light_phi=0.0, size=256, *, accu
             del normal, inside, f, lit, cos_i, linear
             bar.band()
 
-        max_rel = max_rel_all = max_peak = 0.0
-        checked = 0
+        checked, max_rel, max_rel_all, max_peak = 0, 0.0, 0.0, 0.0
         if table is not None and check:
-            pick = _check_pixels(image, lit_px, check)
-            checked = pick.size
-            normal, _ = pixel_normals(size, pick)
-            ti, tr, dp = local_angles(normal, light)
-            direct = evaluate(b, m, ti, tr, dp, accuracy=accuracy, progress=bar.advance)
-            interp = table(*_uw(normal, frame))
-            rel = np.abs(interp - direct) / direct
-            inner = np.maximum(ti, tr) <= ERROR_ANGLE
-            max_rel = float(rel[inner].max()) if inner.any() else 0.0
-            max_rel_all = float(rel.max())
-            diff = np.abs(interp - direct) * (normal @ light)
-            max_peak = float(np.max(diff) / max(peak, 1e-300))
+            checked, max_rel, max_rel_all, max_peak = _table_errors(
+                b, m, table, image, lit_px, check, light, frame, peak, accuracy, bar)
     return Rendering(image=image, brdf=b, medium=m, light_theta=float(light_theta),
                      light_phi=float(light_phi), accuracy=accuracy, samples=int(samples),
                      table_nodes=0 if table is None else table.nodes, checked=checked,
@@ -472,8 +484,13 @@ class _Progress:
     def __enter__(self):
         if self.enabled:
             from rich.console import Console
-            from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TextColumn,
-                                       TimeElapsedColumn)
+            from rich.progress import (
+                BarColumn,
+                MofNCompleteColumn,
+                Progress,
+                TextColumn,
+                TimeElapsedColumn,
+            )
             self._p = Progress(TextColumn("{task.description}"), BarColumn(),
                                MofNCompleteColumn(), TimeElapsedColumn(),
                                console=Console(stderr=True), transient=True)

@@ -1,14 +1,18 @@
-"""The text report of a fit result (like lmfit's): one layout for a step fit and a joint fit
-- a header, the statistics, the sessions of a joint fit, the variables with their standard
-errors, and the strongest correlations."""
+"""The text report of a fit result (like lmfit's; :meth:`veil.fitting.result.FitResult.report`):
+one layout for a step fit and a joint fit - a header, the statistics, the sessions of a joint
+fit, the variables with their standard errors, and the strongest correlations."""
 
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING, cast
 
 from ..numbers import format_number
 from .propagation import RELATIVE_LIMIT
-from .result import FitResult, JointResult
+
+if TYPE_CHECKING:  # the results import this module to write their report, not this them
+    from ..models import Medium
+    from .result import FitResult, JointResult
 
 #: What each step of docs/model.md sec. 7 estimates, for the report's header.
 STEP_WORDS = {"reference": "step 0, reference object in a clear medium (f_r directly)",
@@ -17,14 +21,19 @@ STEP_WORDS = {"reference": "step 0, reference object in a clear medium (f_r dire
               "direct": "target object in a clear medium (f_r directly)"}
 
 
+def _layout(result: FitResult) -> dict:
+    """The layout of a joint fit's result (``result.JOINT``)."""
+    return cast("JointResult", result).layout
+
+
 def _header(result: FitResult) -> str:
-    if isinstance(result, JointResult):
-        models = result.layout.get("models") or {}
+    if result.JOINT:
+        models = _layout(result).get("models") or {}
         family = f", models {models['brdf']} / {models['medium']}" if models else ""
         variant = f", variant {result.variant}" if result.variant else ""
-        return (f"[[Joint fit: {len(result.layout.get('sessions', []))} sessions, "
-                f"{len(result.layout['media'])} media{variant}{family}]]")
-    what = STEP_WORDS.get(result.step, "")
+        return (f"[[Joint fit: {len(_layout(result).get('sessions', []))} sessions, "
+                f"{len(_layout(result)['media'])} media{variant}{family}]]")
+    what = STEP_WORDS.get(result.step or "", "")
     opts = ", ".join(f"{k} {v}" for k, v in result.options.items())
     return (f"[[Fit: {result.model}" + (f", variant {result.variant}" if result.variant else "")
             + (f" ({opts})" if opts and not result.variant else "")
@@ -38,8 +47,9 @@ def _statistics(result: FitResult) -> list[str]:
                 else "  (UNWEIGHTED: no sigma column; errors scaled by reduced chi-square)"),
              f"    free parameters    = {len(free)}"
              + (f"  (fixed: {', '.join(result.fixed)})" if result.fixed else "")]
-    if isinstance(result, JointResult):
-        lines.append(f"    shared by the media = {', '.join(result.layout.get('shared', [])) or '-'}")
+    if result.JOINT:
+        shared = ", ".join(_layout(result).get("shared", [])) or "-"
+        lines.append(f"    shared by the media = {shared}")
     lines += [f"    reduced chi-square = {format_number(result.chi2_reduced, 5)}",
               f"    rms relative resid = {format_number(100 * result.rms_relative, 4)} %"]
     if result.aic is not None:
@@ -50,7 +60,7 @@ def _statistics(result: FitResult) -> list[str]:
     if result.accuracy:
         lines.append(f"    accuracy           = {result.accuracy}")
     stats = result.stats
-    if stats and not isinstance(result, JointResult):
+    if stats and not result.JOINT:
         lines.append(f"    evaluations        = {stats.get('nfev', 0)} function, "
                      f"{stats.get('njev', 0)} Jacobian"
                      + (f" over {stats.get('starts', 1)} start(s)" if stats.get("starts") else ""))
@@ -79,10 +89,10 @@ def _statistics(result: FitResult) -> list[str]:
 
 
 def _sessions(result: FitResult) -> list[str]:
-    if not isinstance(result, JointResult):
+    if not result.JOINT:
         return []
     lines = ["[[Sessions]]"]
-    for s in result.layout.get("sessions", []):
+    for s in _layout(result).get("sessions", []):
         rms = s.get("rms_relative")
         lines.append(f"    {s['name']}: {s['n_points']} points, chi2/N "
                      f"{format_number(s['chi2'], 4)}, rms rel "
@@ -94,7 +104,7 @@ def _variables(result: FitResult) -> list[str]:
     lines = ["[[Variables]]"]
     width = max(len(n) for n in result.params)
     units = {}
-    if not isinstance(result, JointResult):
+    if not result.JOINT:
         units = {p.name: f" {p.unit}" if p.unit else "" for p in result.model_class.PARAMS}
     for name, v in result.params.items():
         unit = units.get(name, "")
@@ -110,7 +120,7 @@ def _variables(result: FitResult) -> list[str]:
         if result.stderr_total is not None and result.stderr_total.get(name) is not None:
             # a joint fit's total: the reference's and, where the propagation line says
             # sigma points, the media's beyond first order
-            what = ("total" if isinstance(result, JointResult)
+            what = ("total" if result.JOINT
                     else "with the given model's uncertainty")
             total = f"; {what} +/- {format_number(result.stderr_total[name], 3)}"
         lines.append(f"    {name:<{width}}: {format_number(v)}{unit} +/- "
@@ -124,9 +134,9 @@ def _hints(result: FitResult) -> list[str]:
     reference): a reference whose specular peak is narrower than the medium's forward lobe
     measures the unscattered beam e^{-2 tau} at its peak (docs/validity.md: tau within 1 %
     from 0.1 to 1.5 with one)."""
-    if isinstance(result, JointResult) or result.step != "medium":
+    if result.JOINT or result.step != "medium":
         return []
-    cls = result.model_class                    # a medium: step 1 fits one
+    cls = cast("type[Medium]", result.model_class)  # a medium: step 1 fits one
     if not cls.has("delta"):
         return []
     se = result.stderr_total or result.stderr
@@ -150,7 +160,7 @@ def fit_report(result: FitResult, min_correlation: float = 0.1) -> str:
     """The report of any fit result (module docstring); correlations of at least
     ``min_correlation`` (the 20 strongest of a joint fit); a hint on the design where a
     medium with an unscattered beam is left uncertain."""
-    most = 20 if isinstance(result, JointResult) else None
+    most = 20 if result.JOINT else None
     lines = [_header(result)] + _statistics(result) + _sessions(result) + _variables(result)
     lines += result.correlation_lines(min_correlation, most=most)
     lines += _hints(result)

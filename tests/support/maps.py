@@ -14,6 +14,11 @@ from veil.engine.evaluator import ApparentModel
 from veil.engine.quadrature import RULES
 
 
+def angles_of(configs: pd.DataFrame) -> tuple:
+    """The four angle columns (theta_i, phi_i, theta_r, phi_r) as float arrays."""
+    return tuple(configs[c].to_numpy(dtype=float) for c in ("theta_i", "phi_i", "theta_r", "phi_r"))
+
+
 def configurations(count: int = 24) -> pd.DataFrame:
     """``count`` in-plane configurations spread over the paper's protocol (psi = 30, 60,
     90 deg), denser near the mirror direction."""
@@ -26,16 +31,18 @@ def configurations(count: int = 24) -> pd.DataFrame:
 
 def render(brdf, medium, configs: pd.DataFrame, vectors: np.ndarray) -> np.ndarray:
     """Apparent values (P, M) of the BRDF vectors (P, n_params) at the configurations."""
-    angles = tuple(configs[c].to_numpy(dtype=float)
-                   for c in ("theta_i", "phi_i", "theta_r", "phi_r"))
+    angles = tuple(
+        configs[c].to_numpy(dtype=float) for c in ("theta_i", "phi_i", "theta_r", "phi_r")
+    )
     engine = ApparentModel(brdf, medium, angles, RULES["default"])
     uniq, inverse = np.unique(vectors, axis=0, return_inverse=True)
     values = np.stack([engine.values(v, medium.to_vector()) for v in uniq])
     return values[inverse.ravel()]
 
 
-def write_stack(folder, brdf, medium, configs, param_maps: np.ndarray, noise=0.01, seed=0,
-                suffix=".tif") -> Path:
+def write_stack(
+    folder, brdf, medium, configs, param_maps: np.ndarray, noise=0.01, seed=0, suffix=".tif"
+) -> Path:
     """Photos (one per configuration) of a plate whose BRDF vector at each pixel is
     ``param_maps`` (n_params, H, W); relative Gaussian noise. Returns the manifest path."""
     n, h, w = param_maps.shape
@@ -43,15 +50,17 @@ def write_stack(folder, brdf, medium, configs, param_maps: np.ndarray, noise=0.0
     return write_photos(folder, configs, values, (h, w), noise, seed, suffix)
 
 
-def render_near(brdf, medium, configs: pd.DataFrame, param_maps: np.ndarray, geometry,
-                accuracy: str = "fast") -> np.ndarray:
+def render_near(
+    brdf, medium, configs: pd.DataFrame, param_maps: np.ndarray, geometry, accuracy: str = "fast"
+) -> np.ndarray:
     """Apparent values (H*W, M) of a plate seen by a near camera (``geometry``, a
-    veil.fitting.maps_near.NearGeometry of the full photo ``param_maps`` is): every pixel at
+    veil.maps.near.NearGeometry of the full photo ``param_maps`` is): every pixel at
     its own exact angles (collimated light, pinhole camera; docs/maps-geometry.md "Geometry"), one
     engine evaluation per distinct parameter vector over its pixels."""
     n, h, w = param_maps.shape
-    angles = tuple(configs[c].to_numpy(dtype=float)
-                   for c in ("theta_i", "phi_i", "theta_r", "phi_r"))
+    angles = tuple(
+        configs[c].to_numpy(dtype=float) for c in ("theta_i", "phi_i", "theta_r", "phi_r")
+    )
     yy, xx = np.mgrid[0:h, 0:w]
     pix = geometry.angles(angles, xx.ravel(), yy.ravel())  # each (H*W, M)
     vectors = param_maps.reshape(n, -1).T
@@ -66,8 +75,9 @@ def render_near(brdf, medium, configs: pd.DataFrame, param_maps: np.ndarray, geo
     return out
 
 
-def write_photos(folder, configs, values: np.ndarray, shape, noise=0.01, seed=0,
-                 suffix=".tif") -> Path:
+def write_photos(
+    folder, configs, values: np.ndarray, shape, noise=0.01, seed=0, suffix=".tif"
+) -> Path:
     """Float32 TIFFs of ``values`` (H*W, M) with relative Gaussian noise, and the manifest."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)

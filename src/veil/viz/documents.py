@@ -18,9 +18,9 @@ import numpy as np
 
 from .. import __version__
 from ..fitting.result import FitResult
+from ..models import PRESETS
 from ..numbers import format_number
 from .figures import Experiment, curve_metrics, lobe_data, transmission_data
-from ..models import PRESETS
 from .render import ERROR_ANGLE, MID_GREY, VIEW
 
 
@@ -53,16 +53,29 @@ def build_blocks(exp: Experiment, files: dict) -> list:
     """The report as blocks: ("h1"|"h2"|"p", text), ("ul", items), ("table", head, rows),
     ("img", file name, alt text, caption). ``files`` maps "fig9".."fig12" to PNG names."""
     media = sorted(exp.media, key=lambda m: exp.media[m].lobe_half_width())  # broadening
-    blocks = [("h1", "The paper's simulation experiment, reproduced"),
+    blocks: list[tuple] = [("h1", "The paper's simulation experiment, reproduced"),
               ("p", "Baba, Mukaigawa and Yagi, \"BRDF Estimation Considering Scatterings of "
                     "Illumination and Reflection\", section 5.1 (figs. 9-12), recomputed from the "
-                    f"presets of docs/model.md section 6 with veil {__version__} (`veil reproduce`). "
+                    f"presets of docs/model.md section 6 with veil {__version__} "
+                    f"(`veil reproduce`). "
                     f"Angles in degrees. Curves use the \"{exp.accuracy}\" quadrature; the "
                     f"spheres use the \"{exp.render_accuracy}\" quadrature on an interpolated "
                     f"table (see fig. 12).")]
 
-    # parameters
-    blocks.append(("h2", "Parameters"))
+    blocks += _parameter_blocks(exp, media, files)
+    blocks += _fig9_blocks(exp, media, files)
+    blocks += _fig10_blocks(exp, media, files)
+    blocks += _fig11_blocks(exp, media, files)
+    blocks += _fig12_blocks(exp, media, files)
+    blocks.append(("h2", "Observations"))
+    blocks.append(("ul", _observations(exp, media)))
+    return blocks
+
+
+def _parameter_blocks(exp: Experiment, media: list, files: dict) -> list:
+    """The parameters of the objects and media, and the geometry."""
+    out: list = []
+    out.append(("h2", "Parameters"))
     for kind, models in (("object", exp.brdfs), ("medium", exp.media)):
         for family in dict.fromkeys(type(m) for m in models.values()):
             names = [n for n, m in models.items() if type(m) is family]
@@ -79,14 +92,18 @@ def build_blocks(exp: Experiment, files: dict) -> list:
                          _num(m.lobe_scale() * float(m.phase(m.to_vector(), 0.0))))
                 rows.append([n] + [_num(v) for v in m.as_dict().values()]
                             + [str(v) for v in m.options().values()] + [extra])
-            blocks.append(("table", head, rows))
-    blocks.append(("p", f"Incidence for figs. 9-11: theta_i = {exp.theta_i:g}°, light and camera "
+            out.append(("table", head, rows))
+    out.append(("p", f"Incidence for figs. 9-11: theta_i = {exp.theta_i:g}°, light and camera "
                         "in the plane of incidence on opposite sides of the normal (docs/model.md "
                         f"sec. 1). Fig. 12: distant point light at {exp.light_theta:g}° from the "
                         f"viewing direction, orthographic camera, {exp.size} x {exp.size} pixels."))
+    return out
 
-    # fig. 9
-    blocks.append(("h2", "Fig. 9: reflection lobes of the objects"))
+
+def _fig9_blocks(exp: Experiment, media: list, files: dict) -> list:
+    """Fig. 9: the objects' reflection lobes."""
+    out: list = []
+    out.append(("h2", "Fig. 9: reflection lobes of the objects"))
     widths = []
     for n, b in exp.brdfs.items():
         t_in, f_in, _, _ = lobe_data(b, exp.theta_i)
@@ -94,15 +111,19 @@ def build_blocks(exp: Experiment, files: dict) -> list:
         widths.append(f"{n}: peak {_num(cm.peak)} /sr at theta_r = {cm.peak_angle:.1f}°, full "
                       f"width at half maximum {cm.fwhm:.2f}°, diffuse level "
                       f"{_num(float(np.interp(0.0, t_in, f_in)))} /sr")
-    blocks.append(("img", files["fig9"], "fig. 9",
+    out.append(("img", files["fig9"], "fig. 9",
                    f"Fig. 9. f_r of the objects for {exp.theta_i:g}° incidence. (a) In the plane "
                    "of incidence against the signed reflection angle, (b) out of the plane, "
                    "through the mirror direction, against the angle from it; the radius is log10 "
                    "f_r (rings are decades). (c) Close-up of the specular lobe, log scale."))
-    blocks.append(("ul", widths))
+    out.append(("ul", widths))
+    return out
 
-    # fig. 10
-    blocks.append(("h2", "Fig. 10: transmission lobes of the media"))
+
+def _fig10_blocks(exp: Experiment, media: list, files: dict) -> list:
+    """Fig. 10: the media's transmission lobes."""
+    out: list = []
+    out.append(("h2", "Fig. 10: transmission lobes of the media"))
     items = []
     for n in media:
         beta, f_in, _, _ = transmission_data(exp.media[n], exp.theta_i)
@@ -112,21 +133,25 @@ def build_blocks(exp: Experiment, files: dict) -> list:
         items.append(f"{n} ({shape}): peak {_num(cm.peak)} /sr, half width at "
                      f"half maximum {cm.fwhm / 2:.2f}°, isotropic floor "
                      f"{_num(float(med.iso(med.to_vector())))} /sr")
-    blocks.append(("img", files["fig10"], "fig. 10",
+    out.append(("img", files["fig10"], "fig. 10",
                    f"Fig. 10. f_t(I, T) of the media for {exp.theta_i:g}° incidence against the "
                    "travel direction -T of the transmitted light: (a) in the plane of incidence "
                    "(angle from straight down), (b) out of the plane (angle from the unscattered "
                    "direction); radius log10 f_t. (c) Close-up against the deflection angle, log "
                    "scale."))
-    blocks.append(("ul", items))
+    out.append(("ul", items))
     hw = [curve_metrics(*transmission_data(exp.media[n], exp.theta_i)[:2]).fwhm / 2 for n in media]
-    blocks.append(("p", f"As g falls ({', '.join(media)}) the lobe's half width {_trend(hw)} "
+    out.append(("p", f"As g falls ({', '.join(media)}) the lobe's half width {_trend(hw)} "
                         f"({', '.join(f'{w:.2f}°' for w in hw)}), with the same forward peak: the "
                         "transmitted light spreads more, as the paper states."))
+    return out
 
-    # fig. 11
-    blocks.append(("h2", "Fig. 11: observed value against reflection angle"))
-    blocks.append(("img", files["fig11"], "fig. 11",
+
+def _fig11_blocks(exp: Experiment, media: list, files: dict) -> list:
+    """Fig. 11: the observed value against the reflection angle."""
+    out: list = []
+    out.append(("h2", "Fig. 11: observed value against reflection angle"))
+    out.append(("img", files["fig11"], "fig. 11",
                    f"Fig. 11. Observed value f(I, R) at {exp.theta_i:g}° incidence against the "
                    "reflection angle, in the plane of incidence, each object in a clear medium "
                    "(red, as in the paper) and under each medium. Top: f on a log scale (the "
@@ -145,23 +170,27 @@ def build_blocks(exp: Experiment, files: dict) -> list:
                          f"{cm.fwhm:.1f}°" if not math.isnan(cm.fwhm) else "n/a",
                          _num(cm.off_peak), _num(cm.peak / tt2), _num(cm.off_peak / tt2),
                          _num(cm.peak / cm.off_peak)])
-    blocks.append(("table", head, rows))
-    blocks.append(("p", "FWHM: full width at half maximum of the whole curve (diffuse part "
+    out.append(("table", head, rows))
+    out.append(("p", "FWHM: full width at half maximum of the whole curve (diffuse part "
                         "included), from linear interpolation between samples 0.25° apart near the "
-                        "mirror angle (1° elsewhere). \"n/a\" would mean the curve stays above half "
-                        "its maximum up to 0° or 89°."))
+                        "mirror angle (1° elsewhere). \"n/a\" would mean the curve stays above "
+                        "half its maximum up to 0° or 89°."))
+    return out
 
-    # fig. 12
-    blocks.append(("h2", "Fig. 12: spheres rendered with the true and the apparent BRDFs"))
-    blocks.append(("img", files["fig12"], "fig. 12",
+
+def _fig12_blocks(exp: Experiment, media: list, files: dict) -> list:
+    """Fig. 12: the spheres, and the rendering's accuracy."""
+    out: list = []
+    out.append(("h2", "Fig. 12: spheres rendered with the true and the apparent BRDFs"))
+    out.append(("img", files["fig12"], "fig. 12",
                    f"Fig. 12. A unit sphere under a distant point light at {exp.light_theta:g}° "
                    "(from the right), orthographic camera, pixel value f(I, R) cos theta_i with "
                    "the local normal (paper eq. 1). Left column: true BRDF (clear medium); other "
                    "columns: apparent BRDF under each medium. Each panel has its own exposure "
-                   f"(the median lit pixel maps to {MID_GREY:g}) because the media scale f by up to "
-                   "four decades; the tone curve x/(1+x) (Reinhard) keeps highlights from clipping "
-                   "so that their strength relative to the body stays visible; sRGB encoding. "
-                   f"The image spans ±{VIEW:g} sphere radii."))
+                   f"(the median lit pixel maps to {MID_GREY:g}) because the media scale f by up "
+                   "to four decades; the tone curve x/(1+x) (Reinhard) keeps highlights from "
+                   "clipping so that their strength relative to the body stays visible; sRGB "
+                   f"encoding. The image spans ±{VIEW:g} sphere radii."))
     head = ["object", "medium", "peak", "median lit", "peak / median", "pixels >= half peak",
             "brightest pixel (row, col)", "mirror prediction", "table nodes",
             f"interp. error, angles <= {ERROR_ANGLE:g}°", "interp. error, all / of peak"]
@@ -176,20 +205,17 @@ def build_blocks(exp: Experiment, files: dict) -> list:
                          str(st.half_area), f"({st.peak_pixel[0]}, {st.peak_pixel[1]})",
                          f"({st.mirror_pixel[0]:.1f}, {st.mirror_pixel[1]:.1f})",
                          str(r.table_nodes) if r.table_nodes else "-", err, err2])
-    blocks.append(("table", head, rows))
+    out.append(("table", head, rows))
     checked = max((r.checked for r in exp.renders.values()), default=0)
-    blocks.append(("p", "The apparent BRDF is tabulated over the normal's polar coordinates "
+    out.append(("p", "The apparent BRDF is tabulated over the normal's polar coordinates "
                         "about the half vector (dense near the specular peak) and interpolated "
                         "by a bicubic spline of log f; the error columns compare the interpolated "
-                        f"value with direct engine evaluations at {checked} pixels per sphere (half "
-                        "of them among the brightest 10 %). \"All\" includes pixels within "
+                        f"value with direct engine evaluations at {checked} pixels per sphere "
+                        "(half of them among the brightest 10 %). \"All\" includes pixels within "
                         f"{90 - ERROR_ANGLE:g}° of the terminator or the rim, where the pixel "
                         "value itself is small; \"of peak\" is the largest error in units of the "
                         "image's peak value."))
-
-    blocks.append(("h2", "Observations"))
-    blocks.append(("ul", _observations(exp, media)))
-    return blocks
+    return out
 
 
 def _observations(exp: Experiment, media: list) -> list:
@@ -209,7 +235,8 @@ def _observations(exp: Experiment, media: list) -> list:
             f"({', '.join(_num(p) for p in peaks)} /sr; clear {_num(clear.peak)}), because T_t "
             f"grows from {exp.media[media[0]].lobe_scale():g} to "
             f"{exp.media[media[-1]].lobe_scale():g}. Relative to "
-            f"the medium's strength, peak / T_t² {_trend(norm)} ({', '.join(_num(p) for p in norm)}; "
+            f"the medium's strength, peak / T_t² {_trend(norm)} "
+            f"({', '.join(_num(p) for p in norm)}; "
             f"clear {_num(clear.peak)}), and relative to the diffuse level, peak / f(0°) "
             f"{_trend(contrast)} ({', '.join(_num(c) for c in contrast)}; clear "
             f"{_num(clear.peak / clear.off_peak)}). The paper's \"weaker\" holds in these "
@@ -229,7 +256,12 @@ def _observations(exp: Experiment, media: list) -> list:
             f"{b}, diffuse part (f at theta_r = 0°, 45° from the mirror direction, over T_t²): "
             f"{', '.join(_num(o) for o in off)} against {_num(clear.off_peak)} /sr in a clear "
             f"medium, i.e. {verdict}.")
-    # what the isotropic (T_d) terms add off the peak
+    return items + _isotropic_observations(exp, media) + _sphere_observations(exp, media)
+
+
+def _isotropic_observations(exp: Experiment, media: list) -> list:
+    """What the isotropic (T_d) terms add off the peak."""
+    items = []
     for b in exp.brdfs:
         clear = exp.curves[(b, "clear")].metrics
         parts, ratios, fres = [], [], []
@@ -257,13 +289,20 @@ def _observations(exp: Experiment, media: list) -> list:
             f"stays within {100 * worst:.0f} % of the clear medium's for every medium; where the "
             f"full value departs further, the medium's multiple scattering T_d is the cause "
             f"(T_d / T_t = "
-            f"{', '.join(f'{_iso(exp.media[m]) / exp.media[m].lobe_scale():.2g}' for m in media)}).")
+            + ", ".join(f"{_iso(exp.media[m]) / exp.media[m].lobe_scale():.2g}" for m in media)
+            + ").")
+    return items
+
+
+def _sphere_observations(exp: Experiment, media: list) -> list:
+    """The spheres of fig. 12: the highlight's area, contrast and position."""
+    items = []
     for b in exp.brdfs:
         areas = [exp.stats[(b, k)].half_area for k in ["clear"] + media]
         con = [exp.stats[(b, k)].contrast for k in ["clear"] + media]
         pos = [exp.stats[(b, k)] for k in ["clear"] + media]
-        off = max(math.hypot(s.peak_pixel[0] - s.mirror_pixel[0], s.peak_pixel[1] - s.mirror_pixel[1])
-                  for s in pos)
+        off = max(math.hypot(s.peak_pixel[0] - s.mirror_pixel[0],
+                             s.peak_pixel[1] - s.mirror_pixel[1]) for s in pos)
         items.append(
             f"{b} spheres (fig. 12, clear then {', '.join(media)}): the area at or above half "
             f"the peak {_trend(areas)} ({', '.join(map(str, areas))} pixels) and the peak over "
@@ -458,12 +497,14 @@ def pipeline_report(ref, med, tgt, direct, comparison, truth, figures, inputs) -
                 "| parameter | estimated (step 2) | direct | difference | z |",
                 "|---|---:|---:|---:|---:|"]
         for name, row in comparison["params"].items():
-            out.append(f"| {name} | {format_number(row['estimated'], 6)} | {format_number(row['direct'], 6)} | "
+            out.append(f"| {name} | {format_number(row['estimated'], 6)} | "
+                       f"{format_number(row['direct'], 6)} | "
                        f"{format_number(row['difference'], 3)} | {format_number(row['z'], 3)} |")
         out += ["", f"Over the {comparison['n_configurations']} configurations of the paper's "
                     f"protocol (psi = 30, 60, 90 deg): rms of f_r(estimated) - f_r(direct) = "
-                    f"{format_number(comparison['rms_fr_difference'], 4)} (relative units), rms relative "
-                    f"difference {format_number(100 * comparison['rms_fr_relative'], 3)} %, largest "
+                    f"{format_number(comparison['rms_fr_difference'], 4)} (relative units), rms "
+                    f"relative difference {format_number(100 * comparison['rms_fr_relative'], 3)} "
+                    f"%, largest "
                     f"{format_number(100 * comparison['max_fr_relative'], 3)} %.", ""]
         if comparison.get("fr_max_z") is not None:
             out += [f"In units of the curves' own standard error (both fits' covariances "

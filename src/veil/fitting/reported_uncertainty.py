@@ -12,8 +12,8 @@
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 from . import model_error as discrepancy
 from .problem import Problem
@@ -73,6 +73,27 @@ def _shared(problem: Problem, x, own_influence, given_result, given_column, term
     cross = discrepancy.shared(own_influence, problem.angles, given, names, sens,
                                1.0 if share is None else share)
     return corr, cross, share
+
+
+def _term_correlation(problem: Problem, term, given_result) -> tuple:
+    """(distances between the configurations, or None when no term has a length; the
+    correlation of the fit's own term, None when independent)."""
+    given = discrepancy.given_term(given_result)
+    dist = (discrepancy.distances(problem.angles)
+            if term.length > 0 or (given is not None and given.length > 0) else None)
+    corr = (None if term.length == 0.0 or dist is None  # (a length: dist is not None)
+            else discrepancy.correlation(dist, term.length))
+    return dist, corr
+
+
+def _with_influence(term, rows: dict, problem: Problem, summary, scaled):
+    """``term`` keeping its influence on the estimate (``rows``, by result name) and its
+    configurations, for the step that is given this fit."""
+    return dataclasses.replace(
+        term, influence={k: tuple(float(v) for v in row) for k, row in rows.items()},
+        angles=tuple(tuple(float(v) for v in a) for a in problem.angles),
+        residuals=tuple(float(v) for v in summary.residuals),
+        scaled=tuple(float(v) for v in scaled))
 
 
 def reported(problem: Problem, x, summary, values, *, kind: str, rename: Callable = _same,
@@ -137,12 +158,7 @@ def reported(problem: Problem, x, summary, values, *, kind: str, rename: Callabl
             noise_only = {"stderr": stderr, "correlation": corr,
                           "stderr_total": noise_total[0], "correlation_total": noise_total[1]}
             if term.sigma > 0:
-                given = discrepancy.given_term(given_result)
-                dist = (discrepancy.distances(problem.angles)
-                        if term.length > 0 or (given is not None and given.length > 0)
-                        else None)
-                corr_d = (None if term.length == 0.0
-                          else discrepancy.correlation(dist, term.length))
+                dist, corr_d = _term_correlation(problem, term, given_result)
                 scaled = values * problem.w
                 g = discrepancy.influence(cov, jw, scaled)
                 shared = _shared(problem, x, g, given_result, given_column, term, how, dist,
@@ -155,13 +171,7 @@ def reported(problem: Problem, x, summary, values, *, kind: str, rename: Callabl
                 stderr_total, corr_total, how = total_of(
                     cov, given_result, None if shared is None else cross)
                 if keep_influence and term.length > 0:
-                    rows = {k: tuple(float(v) for v in row)
-                            for k, row in named_rows(g).items()}
-                    term = dataclasses.replace(
-                        term, influence=rows,
-                        angles=tuple(tuple(float(v) for v in a) for a in problem.angles),
-                        residuals=tuple(float(v) for v in summary.residuals),
-                        scaled=tuple(float(v) for v in scaled))
+                    term = _with_influence(term, named_rows(g), problem, summary, scaled)
             term = dataclasses.replace(term, noise_only=noise_only)
     return Reported(stderr, corr, stderr_total, corr_total, term, how)
 

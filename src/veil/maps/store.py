@@ -23,13 +23,17 @@ import os
 import socket
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from .._extras import require
 from ..errors import InputError, MissingFileError, UnwritableError
 from ..io import forget_temporary, register_temporary, write_error
-from .maps import CONVERGED, MASKED, STATUS, MapTables
+from .status import CONVERGED, MASKED, STATUS
+
+if TYPE_CHECKING:
+    from .tables import MapTables
 
 FORMAT = "veil.maps/1"
 MAPS = ("params", "stderr", "chi2_reduced", "n_points", "status")
@@ -72,7 +76,7 @@ def store_info(store):
     try:
         group = zarr.open_group(os.fspath(store), mode="r")
         info = dict(group.attrs).get("veil_maps")
-    except Exception:  # noqa: BLE001 - zarr raises several kinds for a non-store
+    except Exception:
         return None
     return info if isinstance(info, dict) and info.get("format") == FORMAT else None
 
@@ -237,7 +241,7 @@ def check_store(store, info: dict, complete: bool) -> None:
     for name in MAPS:
         try:
             arr = zarr.open_array(os.fspath(store / name), mode="r")
-        except Exception as exc:  # noqa: BLE001 - zarr raises many kinds
+        except Exception as exc:
             raise damaged(f"array {name} ({name}/zarr.json) cannot be read "
                           f"({type(exc).__name__}: {exc})") from None
         if tuple(arr.shape) != _expected_shape(name, {"shape": shape, "params": names}):
@@ -261,7 +265,7 @@ def check_store(store, info: dict, complete: bool) -> None:
 def _read(group, name: str, store) -> np.ndarray:
     try:
         return np.asarray(group[name][:])
-    except Exception as exc:  # noqa: BLE001 - a corrupt chunk raises what its codec raises
+    except Exception as exc:
         raise DamagedStoreError(f"{store} is damaged: array {name} cannot be read "
                                 f"({type(exc).__name__}: {exc}); remove it and run 'veil fit "
                                 f"maps' again") from None
@@ -316,7 +320,7 @@ def summarize_maps(store, maps: dict | None = None) -> dict:
            "params": {}}
     free = set(info["free"])
     for k, name in enumerate(info["params"]):
-        entry = {"free": name in free}
+        entry: dict[str, float | bool] = {"free": name in free}
         if name in free and ok.any():
             v = maps["params"][k][ok]
             se = maps["stderr"][k][ok]

@@ -12,10 +12,11 @@ import numpy as np
 
 from .._extras import require
 from ..errors import InputError
-from ..fitting.maps import CONVERGED, STATUS
-from ..fitting.maps import FEW_POINTS as STATUS_FEW, MASKED as STATUS_MASKED
-from ..fitting.maps_run import open_maps, summarize_maps
 from ..io import output_folder, write_bytes_atomic, write_text_atomic
+from .status import CONVERGED, STATUS
+from .status import FEW_POINTS as STATUS_FEW
+from .status import MASKED as STATUS_MASKED
+from .store import open_maps, summarize_maps
 
 FORMATS = ("tiff", "exr")
 
@@ -51,7 +52,7 @@ def maps_figure(store, path, *, dpi: int = 110) -> Path:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    from matplotlib.colors import BoundaryNorm, ListedColormap, LogNorm
+    from matplotlib.colors import BoundaryNorm, ListedColormap, LogNorm, Normalize
 
     maps = open_maps(store)
     panels = _panels(maps)
@@ -65,13 +66,13 @@ def maps_figure(store, path, *, dpi: int = 110) -> Path:
     cmap = matplotlib.colormaps["viridis"].with_extremes(bad="0.75")
     for ax, (title, image, label, log) in zip(axes.flat, panels):
         finite = np.isfinite(image)
-        norm = None
+        norm: Normalize | None = None
         if finite.any():
             lo, hi = np.percentile(image[finite], [1, 99])
             if log:
                 norm = LogNorm(max(lo, 1e-300), max(hi, lo * 1.0001))
             elif hi > lo:
-                norm = matplotlib.colors.Normalize(lo, hi)
+                norm = Normalize(lo, hi)
         im = ax.imshow(np.ma.masked_invalid(image), cmap=cmap, norm=norm,
                        interpolation="nearest")
         fig.colorbar(im, ax=ax, label=label, shrink=0.85)

@@ -4,12 +4,12 @@
 1. The manifest and the photos are checked as ``veil ingest`` checks them (the same reader,
    :mod:`veil.data.ingest`); photo sizes are read from the headers before anything is
    written, and a scheduler address is connected to first.
-2. The tables (:func:`veil.fitting.maps.build_tables`) are built once, on the client.
+2. The tables (:func:`veil.maps.tables.build_tables`) are built once, on the client.
 3. The photos are staged one at a time into the store (``stack/values``, float32, one chunk
    per photo and tile; saturated, clipped and masked samples as NaN; dark frame or black
    photos subtracted), so memory holds one photo whatever the stack's size.
 4. The staged stack is a dask array in tiles (all photos of a tile together); one task per
-   tile solves its pixels (:func:`veil.fitting.maps.solve_pixels`) against the shared
+   tile solves its pixels (:func:`veil.maps.solve.solve_pixels`) against the shared
    tables and writes its chunks of the maps, then a marker: a tile with its marker is
    complete. A rerun with the same inputs computes only the tiles without one.
 5. When every tile is there the store is marked complete (``.veil/complete``), its summary
@@ -25,288 +25,53 @@ import json
 import math
 import os
 import shutil
-import struct
 import time
 import warnings
-import itertools
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
-from ..data.ingest import (CHANNELS, ROI, IngestWarning, _linear, parse_roi,
-                           manifest_photos, read_photo)
 from .._extras import require
-from ..errors import InputError, MissingFileError
-from ..io import (COMMIT, forget_partial, forget_temporary, register_partial,
-                  register_temporary, write_bytes_atomic, write_error, write_text_atomic)
-from .maps import STATUS, MapTables, build_tables, solve_pixels, warm_up
-from .maps_near import NearGeometry
-from .maps_store import (FORMAT, MAPS, DamagedStoreError, StoreBusyError, check_store,
-                         create_store, is_complete, marker_dir as _marker_dir, open_maps,
-                         store_info as _store_info, store_lock, summarize_maps,
-                         tile_marker as _tile_marker, tiles as _tiles)
+from ..data.ingest import IngestWarning
+from ..errors import InputError
+from ..io import (
+    COMMIT,
+    forget_partial,
+    forget_temporary,
+    register_partial,
+    register_temporary,
+    write_bytes_atomic,
+    write_error,
+    write_text_atomic,
+)
+from .near import NearGeometry
+from .photos import Acquisition, load_acquisition, stage
+from .solve import solve_pixels, warm_up
+from .status import STATUS
+from .store import (
+    FORMAT,
+    MAPS,
+    DamagedStoreError,
+    StoreBusyError,
+    check_store,
+    create_store,
+    is_complete,
+    marker_dir,
+    open_maps,
+    store_info,
+    store_lock,
+    summarize_maps,
+    tile_marker,
+)
+from .store import tiles as tile_indices
+from .tables import MapTables, build_tables, smoothest_facet
 
 DEFAULT_TILE = 128
 SCHEDULER_ENV = "VEIL_DASK_SCHEDULER"
 CONNECT_TIMEOUT = 5.0
-
-
-# --------------------------------------------------------------------------------------
-# photos
-# --------------------------------------------------------------------------------------
-def _png_size(path: Path):
-    with open(path, "rb") as fh:
-        head = fh.read(33)
-    if len(head) < 24 or head[:8] != b"\x89PNG\r\n\x1a\n" or head[12:16] != b"IHDR":
-        raise InputError(f"{path}: not a PNG file (no PNG header)")
-    width, height = struct.unpack(">II", head[16:24])
-    return int(height), int(width)
-
-
-def probe_size(path) -> tuple[int, int]:
-    """(height, width) of a photo from its header (PNG, TIFF) or by decoding it; for camera
-    raw the size of the half-resolution superpixel image."""
-    path = Path(path)
-    if not path.is_file():
-        raise MissingFileError(f"{path}: no such file")
-    suffix = path.suffix.lower()
-    if suffix == ".png":
-        return _png_size(path)
-    if suffix in (".tif", ".tiff"):
-        tifffile = require("tifffile", "reading a TIFF photo")
-        try:
-            with tifffile.TiffFile(path) as tif:
-                series = tif.series[0]
-                shape, axes = series.shape, series.axes
-        except Exception as exc:  # noqa: BLE001 - tifffile raises many kinds
-            raise InputError(f"{path}: cannot read as TIFF ({type(exc).__name__}: {exc})"
-                             ) from None
-        return int(shape[axes.index("Y")]), int(shape[axes.index("X")])
-    photo = read_photo(path, [])
-    h, w = photo.shape[:2]
-    return (h // 2, w // 2) if photo.kind == "raw" else (h, w)
-
-
-def _pixels(photo, channel: str, level, where: str):
-    """(linear values (h, w), unusable (h, w)) of a photo read with one ROI: ``channel`` per
-    pixel, unusable where a used sample is at or above ``level`` or at the format's floor.
-    Camera raw: 2 x 2 colour-filter blocks as superpixels (gray: mean of R, G, B)."""
-    patch = photo.patches[0]
-    values = _linear(patch, None, where)
-    raw = patch.values
-    if patch.cfa is not None:
-        h, w = values.shape
-        h2, w2 = h // 2, w // 2
-        vb = values[:2 * h2, :2 * w2].reshape(h2, 2, w2, 2)
-        cb = patch.cfa[:2 * h2, :2 * w2].reshape(h2, 2, w2, 2)
-        rb = raw[:2 * h2, :2 * w2].reshape(h2, 2, w2, 2)
-        colours = range(3) if channel == "gray" else ["rgb".index(channel)]
-        means, bad = [], np.zeros((h2, w2), dtype=bool)
-        for c in colours:
-            sel = cb == c
-            count = sel.sum(axis=(1, 3))
-            if np.any(count == 0):
-                raise InputError(f"{where}: a 2 x 2 block of the colour filter has no "
-                                 f"{'RGB'[c]} photosite; expected a Bayer mosaic")
-            means.append((vb * sel).sum(axis=(1, 3)) / count)
-            if level is not None:
-                bad |= ((rb >= level) & sel).any(axis=(1, 3))
-            if photo.floor is not None:
-                bad |= ((rb <= photo.floor) & sel).any(axis=(1, 3))
-        return sum(means) / len(means), bad
-    if channel == "gray":
-        out = values.mean(axis=2)
-        used = raw
-    else:
-        k = "rgb".index(channel)
-        out = values[:, :, k]
-        used = raw[:, :, k:k + 1]
-    bad = np.zeros(out.shape, dtype=bool)
-    if level is not None:
-        bad |= (used >= level).any(axis=2)
-    if photo.floor is not None:
-        bad |= (used <= photo.floor).any(axis=2)
-    return out, bad
-
-
-def _read_pixels(path, roi: ROI, channel, saturation, where):
-    """Linear per-pixel values and the unusable samples of ``roi`` of one photo (for raw
-    the ROI is in superpixels)."""
-    path = Path(path)
-    if path.suffix.lower() in (".jpg", ".jpeg", ".jpe"):
-        raise InputError(f"{where}: JPEG code values are not linear in radiance; per-pixel "
-                         f"maps need linear photos (PNG, TIFF or camera raw)")
-    scale = 2 if path.suffix.lower() in _raw_suffixes() else 1
-    full = ROI(roi.x * scale, roi.y * scale, roi.w * scale, roi.h * scale)
-    photo = read_photo(path, [("ROI", full)])
-    if channel != "gray" and photo.shape[2] == 1 and photo.kind != "raw":
-        raise InputError(f"{where}: a single-channel (gray) image has no channel "
-                         f"{channel!r}; use channel gray")
-    level = saturation if saturation is not None else photo.saturation
-    return _pixels(photo, channel, level, where)
-
-
-def _raw_suffixes():
-    from ..data.ingest import RAW_SUFFIXES
-    return RAW_SUFFIXES
-
-
-def read_mask(path, shape, roi: ROI) -> np.ndarray:
-    """Boolean mask (ROI) from an image of the photos' size: nonzero = fit the pixel."""
-    path = Path(path)
-    size = probe_size(path) if path.suffix.lower() not in _raw_suffixes() else None
-    if size != tuple(shape):
-        got = "camera raw" if size is None else f"{size[1]} x {size[0]}"
-        raise InputError(f"mask {path}: {got} pixels; expected the photos' size "
-                         f"{shape[1]} x {shape[0]} (nonzero = fit the pixel)")
-    photo = read_photo(path, [("ROI", roi)])
-    values = photo.patches[0].values
-    return np.asarray(values != 0).any(axis=-1) if values.ndim == 3 else values != 0
-
-
-# --------------------------------------------------------------------------------------
-# the acquisition
-# --------------------------------------------------------------------------------------
-@dataclass
-class Acquisition:
-    """What the maps are fitted from: photos in manifest order, their configurations,
-    what is subtracted, the region and the mask."""
-
-    paths: list
-    blacks: list | None
-    dark: Path | None
-    angles: tuple
-    shape: tuple  # (height, width) of every photo
-    roi: ROI
-    mask: np.ndarray | None
-    channel: str
-    saturation: float | None
-    rows: list
-    name: str
-
-    def fingerprint(self) -> str:
-        h = hashlib.sha256()
-        files = list(self.paths) + list(self.blacks or []) + ([self.dark] if self.dark else [])
-        for p in files:
-            st = os.stat(p)
-            h.update(f"{os.path.abspath(p)}|{st.st_size}|{st.st_mtime_ns}\n".encode())
-        for a in self.angles:
-            h.update(np.ascontiguousarray(a, dtype=float).tobytes())
-        h.update(repr((self.shape, str(self.roi), self.channel, self.saturation)).encode())
-        if self.mask is not None:
-            h.update(np.packbits(self.mask).tobytes())
-        return h.hexdigest()
-
-
-def load_acquisition(photo_dir, manifest, *, roi=None, mask=None, black_photos=None,
-                     black_frame=None, channel="gray", saturation=None) -> Acquisition:
-    """Check the inputs of :func:`fit_maps` and read what is cheap (no photo decoded but the
-    mask and raw headers)."""
-    from ..data.measurements import canonical_angles
-    from .data import CANONICAL
-
-    photo_dir = Path(photo_dir)
-    if not photo_dir.is_dir():
-        raise MissingFileError(f"photo directory {photo_dir}: no such directory")
-    if channel not in CHANNELS:
-        raise InputError(f"channel {channel!r}: expected one of {', '.join(CHANNELS)}")
-    if black_photos is not None and black_frame is not None:
-        raise InputError("give black photos (one per manifest row) or one black frame, not "
-                         "both")
-    if saturation is not None:
-        saturation = float(saturation)
-        if not math.isfinite(saturation):
-            raise InputError(f"saturation level {saturation!r} is not a finite number")
-    table, rows, name, paths = manifest_photos(manifest, photo_dir)
-    jpeg = [(row, f) for row, f in zip(rows, table["file"])
-            if Path(f).suffix.lower() in (".jpg", ".jpeg", ".jpe")]
-    if jpeg:
-        raise InputError(f"{name}: {jpeg[0][1]!r} ({jpeg[0][0]}) is a JPEG; JPEG code values "
-                         f"are not linear in radiance, and per-pixel maps need linear photos "
-                         f"(PNG, TIFF or camera raw)")
-    blacks = None
-    if black_photos is not None:
-        bdir = Path(black_photos)
-        if not bdir.is_dir():
-            raise MissingFileError(f"black photo directory {bdir}: no such directory")
-        blacks = [bdir / f for f in table["file"]]
-        gone = [(row, f) for row, f, p in zip(rows, table["file"], blacks) if not p.is_file()]
-        if gone:
-            shown = "; ".join(f"{f!r} ({row})" for row, f in gone[:10])
-            raise MissingFileError(f"black photos: {len(gone)} photo(s) of {name} have no "
-                                   f"black photo of the same name in {bdir}: {shown}")
-    dark = None
-    if black_frame is not None:
-        dark = Path(black_frame)
-        if not dark.is_file():
-            raise MissingFileError(f"black frame {dark}: no such file")
-    canon = canonical_angles(table.assign(value=0.0))
-    angles = tuple(canon[c].to_numpy(dtype=float) for c in CANONICAL)
-    shape = None
-    first = None
-    for p, row in zip(list(paths) + list(blacks or []) + ([dark] if dark else []),
-                      list(rows) + [f"black photo of {r}" for r in (rows if blacks else [])]
-                      + (["the black frame"] if dark else [])):
-        size = probe_size(p)
-        if shape is None:
-            shape, first = size, p
-        elif size != shape:
-            raise InputError(f"{p} ({row}): {size[1]} x {size[0]} pixels, but {first} is "
-                             f"{shape[1]} x {shape[0]}; every photo of a map must have the "
-                             f"same size")
-    if roi is None:
-        roi = ROI(0, 0, shape[1], shape[0])
-    else:
-        roi = parse_roi(roi, "ROI")
-        if roi.x + roi.w > shape[1] or roi.y + roi.h > shape[0]:
-            raise InputError(f"ROI {roi} lies outside the photos, which are {shape[1]} x "
-                             f"{shape[0]} pixels")
-    mask_arr = read_mask(mask, shape, roi) if mask is not None else None
-    if mask_arr is not None and not mask_arr.any():
-        raise InputError(f"mask {mask}: no nonzero pixel inside the ROI {roi}; nothing to fit")
-    if len(paths) < 2:
-        raise InputError(f"{name}: {len(paths)} photo; a map needs more photos than free "
-                         f"parameters")
-    return Acquisition(paths, blacks, dark, angles, shape, roi, mask_arr, channel, saturation,
-                       rows, name)
-
-
-# --------------------------------------------------------------------------------------
-# the store
-# --------------------------------------------------------------------------------------
-def _stage(store, acq: Acquisition, progress=None):
-    """Photos (minus dark frame or black photos) into ``stack/values``, one at a time."""
-    zarr = require("zarr", "a maps store")
-
-    arr = zarr.open_array(os.fspath(Path(store) / "stack" / "values"), mode="r+"
-                          ).with_config({"write_empty_chunks": True})
-    roi = acq.roi
-    dark = None
-    if acq.dark is not None:
-        dark = _read_pixels(acq.dark, roi, acq.channel, acq.saturation,
-                            f"black frame {acq.dark}")
-    for k, (path, row) in enumerate(zip(acq.paths, acq.rows)):
-        where = f"{path} ({row})"
-        values, bad = _read_pixels(path, roi, acq.channel, acq.saturation, where)
-        if not np.all(np.isfinite(values)):
-            raise InputError(f"{where}: non-finite samples (NaN or infinity)")
-        if dark is not None:
-            values = values - dark[0]
-            bad = bad | dark[1]
-        if acq.blacks is not None:
-            bv, bb = _read_pixels(acq.blacks[k], roi, acq.channel, acq.saturation,
-                                  f"black photo {acq.blacks[k]} ({row})")
-            values = values - bv
-            bad = bad | bb
-        if acq.mask is not None:
-            bad = bad | ~acq.mask
-        staged = np.where(bad, np.nan, values).astype(np.float32)
-        with COMMIT:  # an interrupt removes a new store between two photos, not within one
-            arr[k] = staged
-        if progress is not None:
-            progress("staging photos", k + 1, len(acq.paths))
-    write_bytes_atomic(_marker_dir(store) / "staged", b"staged\n")
 
 
 def _solve_tile(block, tables: MapTables, store, iy, ix, tile, noise):
@@ -325,7 +90,7 @@ def _solve_tile(block, tables: MapTables, store, iy, ix, tile, noise):
     res = solve_pixels(tables, np.where(valid, y, 0.0), valid, noise, pixels=pixels)
     group = zarr.open_group(os.fspath(store), mode="r+")
 
-    def array(name):  # every chunk written, also one of fill values (maps_store)
+    def array(name):  # every chunk written, also one of fill values (veil.maps.store)
         return group[name].with_config({"write_empty_chunks": True})
 
     ys, xs = slice(iy * tile, iy * tile + th), slice(ix * tile, ix * tile + tw)
@@ -335,7 +100,7 @@ def _solve_tile(block, tables: MapTables, store, iy, ix, tile, noise):
     array("chi2_reduced")[ys, xs] = res.chi2.reshape(th, tw)
     array("n_points")[ys, xs] = res.n_points.reshape(th, tw)
     array("status")[ys, xs] = res.status.reshape(th, tw)
-    write_bytes_atomic(_tile_marker(store, iy, ix), b"done\n")
+    write_bytes_atomic(tile_marker(store, iy, ix), b"done\n")
     return np.bincount(res.status, minlength=len(STATUS))
 
 
@@ -420,22 +185,11 @@ def geometry_notes(tables: MapTables, brdf_cls, medium_model, shape, geometry) -
         raise InputError(f"camera distance {distance:g} and pixel pitch {pitch:g} must be "
                          f"positive numbers")
     h, w = shape
-    half = 0.5 * math.hypot(h, w) * pitch
-    spread = 2 * math.degrees(math.atan(half / distance))
+    spread = field_spread(shape, distance, pitch)
     widths = {"the medium's phase lobe": medium_model.lobe_half_width()}
-    corners = itertools.product(*[(a.lo, a.hi) for a in tables.axes]) if tables.axes else [()]
-    brdf_widths = []
-    for corner in corners:
-        v = tables.base.copy()
-        for a, value in zip(tables.axes, corner):
-            v[a.index] = value
-        try:
-            model = brdf_cls.from_params(dict(zip(tables.names, v)), tables.options)
-            brdf_widths.append(model.facet_half_angle())
-        except (ValueError, TypeError):
-            continue
-    if brdf_widths:
-        widths["the BRDF's facet lobe (smoothest end of the table)"] = min(brdf_widths)
+    facet = smoothest_facet(brdf_cls, tables.names, tables.base, tables.axes, tables.options)
+    if math.isfinite(facet):
+        widths["the BRDF's facet lobe (smoothest end of the table)"] = facet
     which, narrow = min(widths.items(), key=lambda kv: kv[1])
     notes = [f"geometry: the field ({w} x {h} pixels of {pitch:g} at distance {distance:g}) "
              f"spans {spread:.3g} deg of view direction; narrowest lobe: {which}, "
@@ -470,6 +224,8 @@ def near_notes(tables: MapTables, shape) -> list:
     """What the near-field tables did: the spread, the field grid, the interpolation error
     measured against exact per-pixel columns; the distant-camera warning does not apply."""
     grid = tables.near
+    if grid is None:
+        return []
     g = grid.geometry
     h, w = shape
     spread = field_spread(shape, g.distance, g.pitch)
@@ -489,7 +245,7 @@ def geometry_record(tables: MapTables, geometry) -> dict:
                 "spread_deg": field_spread((tables.near.roi[3], tables.near.roi[2]),
                                             g.distance, g.pitch),
                 "interpolation_error": tables.field_error}
-    out = {"kind": "distant"}
+    out: dict[str, str | float] = {"kind": "distant"}
     if geometry is not None:
         out.update(camera_distance=float(geometry[0]), pixel_pitch=float(geometry[1]))
     return out
@@ -524,39 +280,24 @@ def fit_maps(photo_dir, manifest, medium, output, *, brdf_model=None, options=No
         manifest's angles at every pixel.
     progress(stage, done, total), log(message) : reports.
     """
+    from ..fitting.given import as_given
+    from ..fitting.problem import check_accuracy
     from ..models import default_class, model_class
-    from .given import as_given
-    from .maps import parse_grid
-    from .problem import check_accuracy
+    from .grid import parse_grid
 
     check_accuracy(accuracy)
     say = log or (lambda message: None)
     tile = int(tile)
     if not 8 <= tile <= 4096:
         raise InputError(f"tile size {tile}: expected 8 to 4096 pixels")
-    if noise is not None:
-        rel, ab = (tuple(noise) + (0.0,))[:2] if not isinstance(noise, (int, float)) \
-            else (float(noise), 0.0)
-        if not (math.isfinite(rel) and math.isfinite(ab) and rel >= 0 and ab >= 0
-                and rel + ab > 0):
-            raise InputError(f"noise {noise!r}: expected RELATIVE[,ABSOLUTE] >= 0, not both 0")
-        noise = (float(rel), float(ab))
+    noise = _noise(noise)
     medium_model = as_given(medium, "medium", "the medium")
     cls = default_class("brdf") if brdf_model is None else model_class(brdf_model, "brdf")
     grid_spec = parse_grid(grid, cls) if isinstance(grid, (list, tuple)) else dict(grid or {})
     output = Path(output)
     acq = load_acquisition(photo_dir, manifest, roi=roi, mask=mask, black_photos=black_photos,
                            black_frame=black_frame, channel=channel, saturation=saturation)
-    near = None
-    if near_field and geometry is None:
-        raise InputError("near-field geometry needs the camera distance and the pixel "
-                         "pitch (--camera-distance D --pixel-pitch P)")
-    if geometry is not None:  # checked before anything is computed
-        near = NearGeometry(*(_number(g) for g in geometry), tuple(acq.shape))
-        if near_field:
-            near.check_field(acq.angles, acq.roi)
-        else:
-            near = None
+    near = _near_geometry(geometry, near_field, acq)
     address = scheduler or os.environ.get(SCHEDULER_ENV) or None
     client = connect(address) if address else None
     try:
@@ -564,13 +305,8 @@ def fit_maps(photo_dir, manifest, medium, output, *, brdf_model=None, options=No
             raise InputError(f"cannot write {output}: directory {output.parent} does not "
                              f"exist")
         with store_lock(output, say):
-            existing = None
-            if output.exists():
-                existing = _store_info(output)
-                if existing is None:
-                    raise InputError(f"{output} exists and is not a veil maps store; give a "
-                                     f"new path, or remove it")
-            seconds = {}
+            existing = _existing_store(output)
+            seconds: dict = {}
             t0 = time.perf_counter()
             tables = build_tables(cls, medium_model, acq.angles, fixed=fixed, options=options,
                                   free=free, grid=grid_spec, accuracy=accuracy,
@@ -578,25 +314,73 @@ def fit_maps(photo_dir, manifest, medium, output, *, brdf_model=None, options=No
                                   if progress else None, near=near, roi=acq.roi)
             seconds["tables"] = time.perf_counter() - t0
             say(f"tables: {tables.describe()} in {seconds['tables']:.1f} s")
-            if near is not None:
-                notes = near_notes(tables, (acq.roi.h, acq.roi.w))
-            else:
-                notes = (geometry_notes(tables, cls, medium_model, (acq.roi.h, acq.roi.w),
-                                        geometry) if geometry is not None else [])
+            notes = _geometry_notes(tables, cls, medium_model, acq, geometry)
             info = _store_attributes(acq, tables, cls, noise, tile, accuracy, channel,
                                      geometry)
-            if existing is not None and existing.get("fingerprint") != info["fingerprint"]:
-                raise InputError(f"{output} holds maps of another acquisition or other "
-                                 f"settings (its photos, manifest, medium, model, fixed "
-                                 f"parameters, grid, ROI, mask, noise or tile size differ); "
-                                 f"give a new output path to start afresh, or the same "
-                                 f"inputs to resume it")
+            _check_resumable(output, existing, info)
             job = _Job(output, acq, tables, tile, noise, client, progress, workers, say,
                        seconds, notes)
             return _fill(job, info, existing)
     finally:
         if client is not None:
             client.close()
+
+
+def _existing_store(output: Path) -> dict | None:
+    """The attributes of the maps store at ``output`` (None when there is none); an error
+    when something else is there."""
+    if not output.exists():
+        return None
+    existing = store_info(output)
+    if existing is None:
+        raise InputError(f"{output} exists and is not a veil maps store; give a new path, or "
+                         f"remove it")
+    return existing
+
+
+def _check_resumable(output: Path, existing: dict | None, info: dict) -> None:
+    """An existing store resumes only with the same inputs (its fingerprint)."""
+    if existing is not None and existing.get("fingerprint") != info["fingerprint"]:
+        raise InputError(f"{output} holds maps of another acquisition or other settings (its "
+                         f"photos, manifest, medium, model, fixed parameters, grid, ROI, mask, "
+                         f"noise or tile size differ); give a new output path to start afresh, "
+                         f"or the same inputs to resume it")
+
+
+def _noise(noise) -> tuple[float, float] | None:
+    """``noise`` (RELATIVE or (RELATIVE, ABSOLUTE)) checked: (relative, absolute) or None."""
+    if noise is None:
+        return None
+    rel, ab = (tuple(noise) + (0.0,))[:2] if not isinstance(noise, (int, float)) \
+        else (float(noise), 0.0)
+    if not (math.isfinite(rel) and math.isfinite(ab) and rel >= 0 and ab >= 0 and rel + ab > 0):
+        raise InputError(f"noise {noise!r}: expected RELATIVE[,ABSOLUTE] >= 0, not both 0")
+    return float(rel), float(ab)
+
+
+def _near_geometry(geometry, near_field: bool, acq: Acquisition) -> NearGeometry | None:
+    """The near-field geometry of the photos (checked before anything is computed; the
+    camera distance and pixel pitch are checked even when only the notes use them)."""
+    if near_field and geometry is None:
+        raise InputError("near-field geometry needs the camera distance and the pixel "
+                         "pitch (--camera-distance D --pixel-pitch P)")
+    if geometry is None:
+        return None
+    distance, pitch = (_number(g) for g in geometry)
+    near = NearGeometry(distance, pitch, tuple(acq.shape))
+    if not near_field:
+        return None
+    near.check_field(acq.angles, acq.roi)
+    return near
+
+
+def _geometry_notes(tables: MapTables, cls, medium_model, acq: Acquisition, geometry) -> list:
+    """The notes of the map's geometry: near field, or the distant camera's spread."""
+    shape = (acq.roi.h, acq.roi.w)
+    if tables.near is not None:
+        return near_notes(tables, shape)
+    return ([] if geometry is None
+            else geometry_notes(tables, cls, medium_model, shape, geometry))
 
 
 def _store_attributes(acq, tables, cls, noise, tile, accuracy, channel, geometry) -> dict:
@@ -629,10 +413,10 @@ class _Job:
     tables: MapTables
     tile: int
     noise: tuple | None
-    client: object
-    progress: object
+    client: Any
+    progress: Callable[[str, int, int], None] | None
     workers: int
-    say: object
+    say: Callable[[str], None]
     seconds: dict
     notes: list
 
@@ -648,7 +432,7 @@ def _fill(job: _Job, info: dict, existing) -> MapsRun:
     interrupted before the photos are staged: a failed run leaves nothing; an interrupted
     one a store that resumes."""
     output, tables = job.output, job.tables
-    tiles = _tiles(tuple(info["shape"]), job.tile)
+    tiles = tile_indices(tuple(info["shape"]), job.tile)
     new = existing is None
     if not new:
         check_store(output, existing, complete=is_complete(output))
@@ -665,10 +449,10 @@ def _fill(job: _Job, info: dict, existing) -> MapsRun:
                 create_store(output, info, tables, tuple(info["shape"]), job.tile,
                              len(job.acq.paths))
         t0 = time.perf_counter()
-        if not (_marker_dir(output) / "staged").is_file():
+        if not (marker_dir(output) / "staged").is_file():
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", IngestWarning)
-                _stage(output, job.acq, job.progress)
+                stage(output, job.acq, job.progress)
         job.seconds["staging"] = time.perf_counter() - t0
         if new:
             forget_temporary(output)
@@ -696,7 +480,7 @@ def _inside(name, folder: Path) -> bool:
 def _solve(job: _Job, tiles) -> MapsRun:
     """The tiles without a marker, then the complete marker and the summary."""
     output = job.output
-    todo = [t for t in tiles if not _tile_marker(output, *t).is_file()]
+    todo = [t for t in tiles if not tile_marker(output, *t).is_file()]
     reused = len(tiles) - len(todo)
     if reused:
         job.say(f"resuming {output}: {reused} of {len(tiles)} tiles already done, computing "
@@ -705,10 +489,10 @@ def _solve(job: _Job, tiles) -> MapsRun:
     counts = _compute(output, job.tables, todo, job.tile, job.noise, job.client,
                       job.progress, job.workers)
     job.seconds["solve"] = time.perf_counter() - t0
-    missing = [t for t in tiles if not _tile_marker(output, *t).is_file()]
+    missing = [t for t in tiles if not tile_marker(output, *t).is_file()]
     if missing:
         raise RuntimeError(f"{len(missing)} tiles have no marker after the run")
-    write_bytes_atomic(_marker_dir(output) / "complete", b"complete\n")
+    write_bytes_atomic(marker_dir(output) / "complete", b"complete\n")
     summary = summarize_maps(output)
     write_text_atomic(output / "summary.json", json.dumps(summary, indent=2) + "\n")
     shutil.rmtree(output / "stack", ignore_errors=True)

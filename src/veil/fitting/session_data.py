@@ -9,9 +9,16 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
+from ..data.black_cloth import subtract_black
+from ..data.measurements import (
+    CANONICAL,
+    MeasurementError,
+    RowNames,
+    canonical_angles,
+    load_measurements,
+    validate,
+)
 from ..errors import InputTypeError
-from ..data.measurements import (CANONICAL, MeasurementError, RowNames, canonical_angles,
-                           load_measurements, subtract_black, validate)
 
 
 @dataclass

@@ -13,7 +13,7 @@ view direction R = (theta_r, phi_r) sits at C = D R; the pixel sees the plate al
 R' = (C - p) / |C - p|, and the light direction I is the manifest's. (theta_i, phi_i,
 theta_r', phi_r') go to the engine as any configuration does (docs/model.md sec. 1, 5).
 
-:class:`FieldGrid` is the grid of plate points at which :func:`veil.fitting.maps.build_tables`
+:class:`FieldGrid` is the grid of plate points at which :func:`veil.maps.tables.build_tables`
 tabulates the basis columns; a pixel's columns are the tensor-product cubic B-spline over
 the grid (and the nonlinear axes) at its position.
 """

@@ -1,0 +1,280 @@
+"""The photos of a map (docs/maps.md): read as ``veil ingest`` reads them (the same reader,
+:mod:`veil.data.ingest`), their sizes from the headers before anything is written, the
+acquisition they make (:class:`Acquisition`: photos, manifest rows, angles, ROI, mask, black
+photos or dark frame), and its staging into the store, one photo at a time."""
+
+from __future__ import annotations
+
+import hashlib
+import math
+import os
+import struct
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .._extras import require
+from ..data.ingest import CHANNELS, ROI, _linear, manifest_photos, parse_roi, read_photo
+from ..errors import InputError, MissingFileError
+from ..io import COMMIT, write_bytes_atomic
+from .store import marker_dir
+
+
+# --------------------------------------------------------------------------------------
+# photos
+# --------------------------------------------------------------------------------------
+def _png_size(path: Path):
+    with open(path, "rb") as fh:
+        head = fh.read(33)
+    if len(head) < 24 or head[:8] != b"\x89PNG\r\n\x1a\n" or head[12:16] != b"IHDR":
+        raise InputError(f"{path}: not a PNG file (no PNG header)")
+    width, height = struct.unpack(">II", head[16:24])
+    return int(height), int(width)
+
+
+def probe_size(path) -> tuple[int, int]:
+    """(height, width) of a photo from its header (PNG, TIFF) or by decoding it; for camera
+    raw the size of the half-resolution superpixel image."""
+    path = Path(path)
+    if not path.is_file():
+        raise MissingFileError(f"{path}: no such file")
+    suffix = path.suffix.lower()
+    if suffix == ".png":
+        return _png_size(path)
+    if suffix in (".tif", ".tiff"):
+        tifffile = require("tifffile", "reading a TIFF photo")
+        try:
+            with tifffile.TiffFile(path) as tif:
+                series = tif.series[0]
+                shape, axes = series.shape, series.axes
+        except Exception as exc:
+            raise InputError(f"{path}: cannot read as TIFF ({type(exc).__name__}: {exc})"
+                             ) from None
+        return int(shape[axes.index("Y")]), int(shape[axes.index("X")])
+    photo = read_photo(path, [])
+    h, w = photo.shape[:2]
+    return (h // 2, w // 2) if photo.kind == "raw" else (h, w)
+
+
+def _pixels(photo, channel: str, level, where: str):
+    """(linear values (h, w), unusable (h, w)) of a photo read with one ROI: ``channel`` per
+    pixel, unusable where a used sample is at or above ``level`` or at the format's floor.
+    Camera raw: 2 x 2 colour-filter blocks as superpixels (gray: mean of R, G, B)."""
+    patch = photo.patches[0]
+    values = _linear(patch, None, where)
+    raw = patch.values
+    if patch.cfa is not None:
+        h, w = values.shape
+        h2, w2 = h // 2, w // 2
+        vb = values[:2 * h2, :2 * w2].reshape(h2, 2, w2, 2)
+        cb = patch.cfa[:2 * h2, :2 * w2].reshape(h2, 2, w2, 2)
+        rb = raw[:2 * h2, :2 * w2].reshape(h2, 2, w2, 2)
+        colours = range(3) if channel == "gray" else ["rgb".index(channel)]
+        means, bad = [], np.zeros((h2, w2), dtype=bool)
+        for c in colours:
+            sel = cb == c
+            count = sel.sum(axis=(1, 3))
+            if np.any(count == 0):
+                raise InputError(f"{where}: a 2 x 2 block of the colour filter has no "
+                                 f"{'RGB'[c]} photosite; expected a Bayer mosaic")
+            means.append((vb * sel).sum(axis=(1, 3)) / count)
+            if level is not None:
+                bad |= ((rb >= level) & sel).any(axis=(1, 3))
+            if photo.floor is not None:
+                bad |= ((rb <= photo.floor) & sel).any(axis=(1, 3))
+        return sum(means) / len(means), bad
+    if channel == "gray":
+        out = values.mean(axis=2)
+        used = raw
+    else:
+        k = "rgb".index(channel)
+        out = values[:, :, k]
+        used = raw[:, :, k:k + 1]
+    bad = np.zeros(out.shape, dtype=bool)
+    if level is not None:
+        bad |= (used >= level).any(axis=2)
+    if photo.floor is not None:
+        bad |= (used <= photo.floor).any(axis=2)
+    return out, bad
+
+
+def _read_pixels(path, roi: ROI, channel, saturation, where):
+    """Linear per-pixel values and the unusable samples of ``roi`` of one photo (for raw
+    the ROI is in superpixels)."""
+    path = Path(path)
+    if path.suffix.lower() in (".jpg", ".jpeg", ".jpe"):
+        raise InputError(f"{where}: JPEG code values are not linear in radiance; per-pixel "
+                         f"maps need linear photos (PNG, TIFF or camera raw)")
+    scale = 2 if path.suffix.lower() in _raw_suffixes() else 1
+    full = ROI(roi.x * scale, roi.y * scale, roi.w * scale, roi.h * scale)
+    photo = read_photo(path, [("ROI", full)])
+    if channel != "gray" and photo.shape[2] == 1 and photo.kind != "raw":
+        raise InputError(f"{where}: a single-channel (gray) image has no channel "
+                         f"{channel!r}; use channel gray")
+    level = saturation if saturation is not None else photo.saturation
+    return _pixels(photo, channel, level, where)
+
+
+def _raw_suffixes():
+    from ..data.ingest import RAW_SUFFIXES
+    return RAW_SUFFIXES
+
+
+def read_mask(path, shape, roi: ROI) -> np.ndarray:
+    """Boolean mask (ROI) from an image of the photos' size: nonzero = fit the pixel."""
+    path = Path(path)
+    size = probe_size(path) if path.suffix.lower() not in _raw_suffixes() else None
+    if size != tuple(shape):
+        got = "camera raw" if size is None else f"{size[1]} x {size[0]}"
+        raise InputError(f"mask {path}: {got} pixels; expected the photos' size "
+                         f"{shape[1]} x {shape[0]} (nonzero = fit the pixel)")
+    photo = read_photo(path, [("ROI", roi)])
+    values = photo.patches[0].values
+    return np.asarray(np.asarray(values != 0).any(axis=-1) if values.ndim == 3 else values != 0)
+
+
+# --------------------------------------------------------------------------------------
+# the acquisition
+# --------------------------------------------------------------------------------------
+@dataclass
+class Acquisition:
+    """What the maps are fitted from: photos in manifest order, their configurations,
+    what is subtracted, the region and the mask."""
+
+    paths: list
+    blacks: list | None
+    dark: Path | None
+    angles: tuple
+    shape: tuple  # (height, width) of every photo
+    roi: ROI
+    mask: np.ndarray | None
+    channel: str
+    saturation: float | None
+    rows: list
+    name: str
+
+    def fingerprint(self) -> str:
+        h = hashlib.sha256()
+        files = list(self.paths) + list(self.blacks or []) + ([self.dark] if self.dark else [])
+        for p in files:
+            st = os.stat(p)
+            h.update(f"{os.path.abspath(p)}|{st.st_size}|{st.st_mtime_ns}\n".encode())
+        for a in self.angles:
+            h.update(np.ascontiguousarray(a, dtype=float).tobytes())
+        h.update(repr((self.shape, str(self.roi), self.channel, self.saturation)).encode())
+        if self.mask is not None:
+            h.update(np.packbits(self.mask).tobytes())
+        return h.hexdigest()
+
+
+def load_acquisition(photo_dir, manifest, *, roi=None, mask=None, black_photos=None,
+                     black_frame=None, channel="gray", saturation=None) -> Acquisition:
+    """Check the inputs of :func:`fit_maps` and read what is cheap (no photo decoded but the
+    mask and raw headers)."""
+    from ..data.measurements import canonical_angles
+    from ..fitting.session_data import CANONICAL
+
+    photo_dir = Path(photo_dir)
+    if not photo_dir.is_dir():
+        raise MissingFileError(f"photo directory {photo_dir}: no such directory")
+    if channel not in CHANNELS:
+        raise InputError(f"channel {channel!r}: expected one of {', '.join(CHANNELS)}")
+    if black_photos is not None and black_frame is not None:
+        raise InputError("give black photos (one per manifest row) or one black frame, not "
+                         "both")
+    if saturation is not None:
+        saturation = float(saturation)
+        if not math.isfinite(saturation):
+            raise InputError(f"saturation level {saturation!r} is not a finite number")
+    table, rows, name, paths = manifest_photos(manifest, photo_dir)
+    jpeg = [(row, f) for row, f in zip(rows, table["file"])
+            if Path(f).suffix.lower() in (".jpg", ".jpeg", ".jpe")]
+    if jpeg:
+        raise InputError(f"{name}: {jpeg[0][1]!r} ({jpeg[0][0]}) is a JPEG; JPEG code values "
+                         f"are not linear in radiance, and per-pixel maps need linear photos "
+                         f"(PNG, TIFF or camera raw)")
+    blacks = None
+    if black_photos is not None:
+        bdir = Path(black_photos)
+        if not bdir.is_dir():
+            raise MissingFileError(f"black photo directory {bdir}: no such directory")
+        blacks = [bdir / f for f in table["file"]]
+        gone = [(row, f) for row, f, p in zip(rows, table["file"], blacks) if not p.is_file()]
+        if gone:
+            shown = "; ".join(f"{f!r} ({row})" for row, f in gone[:10])
+            raise MissingFileError(f"black photos: {len(gone)} photo(s) of {name} have no "
+                                   f"black photo of the same name in {bdir}: {shown}")
+    dark = None
+    if black_frame is not None:
+        dark = Path(black_frame)
+        if not dark.is_file():
+            raise MissingFileError(f"black frame {dark}: no such file")
+    canon = canonical_angles(table.assign(value=0.0))
+    angles = tuple(canon[c].to_numpy(dtype=float) for c in CANONICAL)
+    shape: tuple[int, int] | None = None
+    first = None
+    for p, row in zip(list(paths) + list(blacks or []) + ([dark] if dark else []),
+                      list(rows) + [f"black photo of {r}" for r in (rows if blacks else [])]
+                      + (["the black frame"] if dark else [])):
+        size = probe_size(p)
+        if shape is None:
+            shape, first = size, p
+        elif size != shape and shape is not None:
+            raise InputError(f"{p} ({row}): {size[1]} x {size[0]} pixels, but {first} is "
+                             f"{shape[1]} x {shape[0]}; every photo of a map must have the "
+                             f"same size")
+    if shape is None:
+        raise InputError(f"{name}: no photo")
+    if roi is None:
+        roi = ROI(0, 0, shape[1], shape[0])
+    else:
+        roi = parse_roi(roi, "ROI")
+        if roi.x + roi.w > shape[1] or roi.y + roi.h > shape[0]:
+            raise InputError(f"ROI {roi} lies outside the photos, which are {shape[1]} x "
+                             f"{shape[0]} pixels")
+    mask_arr = read_mask(mask, shape, roi) if mask is not None else None
+    if mask_arr is not None and not mask_arr.any():
+        raise InputError(f"mask {mask}: no nonzero pixel inside the ROI {roi}; nothing to fit")
+    if len(paths) < 2:
+        raise InputError(f"{name}: {len(paths)} photo; a map needs more photos than free "
+                         f"parameters")
+    return Acquisition(paths, blacks, dark, angles, shape, roi, mask_arr, channel, saturation,
+                       rows, name)
+
+
+def stage(store, acq: Acquisition, progress=None):
+    """Photos (minus dark frame or black photos) into ``stack/values``, one at a time."""
+    zarr = require("zarr", "a maps store")
+
+    arr = zarr.open_array(os.fspath(Path(store) / "stack" / "values"), mode="r+"
+                          ).with_config({"write_empty_chunks": True})
+    roi = acq.roi
+    dark = None
+    if acq.dark is not None:
+        dark = _read_pixels(acq.dark, roi, acq.channel, acq.saturation,
+                            f"black frame {acq.dark}")
+    for k, (path, row) in enumerate(zip(acq.paths, acq.rows)):
+        where = f"{path} ({row})"
+        values, bad = _read_pixels(path, roi, acq.channel, acq.saturation, where)
+        if not np.all(np.isfinite(values)):
+            raise InputError(f"{where}: non-finite samples (NaN or infinity)")
+        if dark is not None:
+            values = values - dark[0]
+            bad = bad | dark[1]
+        if acq.blacks is not None:
+            bv, bb = _read_pixels(acq.blacks[k], roi, acq.channel, acq.saturation,
+                                  f"black photo {acq.blacks[k]} ({row})")
+            values = values - bv
+            bad = bad | bb
+        if acq.mask is not None:
+            bad = bad | ~acq.mask
+        staged = np.where(bad, np.nan, values).astype(np.float32)
+        with COMMIT:  # an interrupt removes a new store between two photos, not within one
+            arr[k] = staged
+        if progress is not None:
+            progress("staging photos", k + 1, len(acq.paths))
+    write_bytes_atomic(marker_dir(store) / "staged", b"staged\n")
+
+
+__all__ = ["probe_size", "read_mask", "Acquisition", "load_acquisition", "stage"]

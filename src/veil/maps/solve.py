@@ -1,0 +1,435 @@
+"""Per-pixel step 2 (docs/maps.md): the target's BRDF at every pixel of a photo stack,
+through a fixed medium, at fixed configurations.
+
+For a fixed medium and fixed configurations the apparent value (docs/model.md eq. 1) is linear
+in the BRDF's scale parameters (``SCALES``): with the engine's term matrices
+(:meth:`veil.engine.evaluator.ApparentModel.terms`, rows combined with the medium's row
+weights, :func:`veil.engine.integrator.row_scales`) it is
+
+    f(theta, s) = sum_k s_k B_k(theta) + C(theta)
+
+with B_k the columns of the parts whose scale is free and C the parts whose weight is known
+(a fixed scale, or a part without a scale). :class:`veil.maps.tables.MapTables` tabulates B
+and C over a regular grid of the free nonlinear parameters theta (in their fit coordinates:
+logarithms for ``log_scale`` parameters) once per acquisition, and keeps the tensor-product
+cubic B-spline that interpolates them (not-a-knot ends, C2, exact derivatives).
+:func:`solve_pixels` then fits every pixel against the tables, vectorized in JAX:
+
+1. at every grid node the scales by exact non-negative least squares (closed form for up to
+   two scales: every active set is tried);
+2. the best node;
+3. Levenberg-Marquardt in (scales, theta) on the B-spline, a fixed number of iterations,
+   then an undamped Gauss-Newton step whose size, in standard errors, decides convergence.
+
+Every pixel gets its parameters, standard errors, reduced chi-square, number of points and
+a status (:data:`STATUS`); a pixel is reported converged only when the final step is below
+:data:`STEP_TOL` standard errors, no scale is at zero, the Jacobian has full rank and no
+nonlinear parameter sits at the edge of the table.
+"""
+
+from __future__ import annotations
+
+import threading
+from dataclasses import dataclass
+
+import numpy as np
+
+from .._jax import jax, jnp
+from ..errors import FitError
+from ..fitting import least_squares as lsq
+from .grid import interp, interp_near
+from .status import CONVERGED, EDGE, FEW_POINTS, MASKED, NOT_CONVERGED, STATUS, UNDETERMINED
+from .tables import MapTables
+
+#: Convergence: the last undamped step, in standard errors, below this in every parameter
+#: (the full fit's own tolerance leaves it within about 1 % of a standard error).
+STEP_TOL = 1e-2
+#: Levenberg-Marquardt iterations from the best node, at most: a pixel stops (its state
+#: frozen) once its Gauss-Newton step over the parameters not held at a bound is below
+#: :data:`LM_TOL` standard errors, and a batch once all its pixels have stopped.
+ITERATIONS = 20
+#: Iterations in a batch's first call: the pixels still running then (a few per cent) are
+#: gathered from all batches of the call into full batches of their own for the rest, so
+#: that a few slow pixels do not hold up the whole batch.
+FIRST_ITERATIONS = 4
+#: Stopping tolerance of the iterations, in standard errors (half of :data:`STEP_TOL`, so
+#: that a stopped pixel passes the final convergence test).
+LM_TOL = 5e-3
+#: Pixels per solver call: every call has this shape, so results do not depend on how
+#: pixels are grouped into tiles or workers (bit for bit).
+BATCH = 512
+#: Batches dispatched to a device and not yet collected, at most.
+IN_FLIGHT = 2
+#: Near-field tables: pixels whose node values the node stage holds at once (a divisor of
+#: BATCH; their node values are NEAR_GROUP x nodes x configurations x columns).
+NEAR_GROUP = 32
+
+_SOLVERS: dict = {}
+#: One solver call at a time per process: concurrent first calls of a jitted function from
+#: several threads (dask's threaded scheduler) were seen to deadlock, and XLA already uses
+#: every core inside one call.
+_CALL_LOCK = threading.Lock()
+
+
+class _PixelSolver:
+    """The per-pixel solve for q scales and d axes of ``sizes`` nodes (``weighted``: data
+    with noise weights; ``near``: tables with two field axes first, each pixel at its own
+    field coordinates, docs/maps.md "Geometry"). Its functions are of one pixel (or a batch:
+    :meth:`batch`, :meth:`resume`, which :func:`_solver` compiles). The rules - damping,
+    bounds, stopping, covariance and rank - are :mod:`veil.fitting.least_squares`'."""
+
+    def __init__(self, q: int, d: int, sizes: tuple, weighted: bool, near: bool) -> None:
+        self.q, self.d, self.sizes, self.weighted, self.near = q, d, sizes, weighted, near
+        self.n = q + d
+        self.top = jnp.asarray([float(k - 1) for k in sizes])
+        self.lo = jnp.zeros(self.n)
+        self.hi = jnp.concatenate([jnp.full(q, jnp.inf), self.top]) if d \
+            else jnp.full(q, jnp.inf)
+
+    def interp(self, coef, fu, u):
+        if self.near:
+            return interp_near(coef, fu, u, self.d)
+        return interp(coef, u, self.d)
+
+    def columns(self, coef, fu, s, u):
+        """(value, Jacobian) at scales ``s`` and grid coordinates ``u``."""
+        return self.combine(*self.interp(coef, fu, u), s)
+
+    def combine(self, b, db, s):
+        """(value, Jacobian) from the basis ``b`` and its derivatives ``db`` at scales ``s``."""
+        q = self.q
+        val = b[:, :q] @ s + b[:, q]
+        jac_u = (jnp.einsum("amk,k->ma", db[..., :q], s) + db[..., q].T
+                 if self.d else jnp.zeros((b.shape[0], 0)))
+        return val, jnp.concatenate([b[:, :q], jac_u], axis=1)
+
+    def initial(self, coef, fu, u0, s0, y, w2):
+        """The iterations' state at the best node: (iterations, p, lambda, cost, value,
+        Jacobian, stopped)."""
+        p0 = jnp.concatenate([s0, u0])
+        v0, j0 = self.columns(coef, fu, s0, u0)
+        r0 = (y - v0) * jnp.sqrt(w2)
+        return (jnp.asarray(0), p0, jnp.asarray(lsq.DAMPING_START), r0 @ r0, v0, j0,
+                jnp.asarray(False))
+
+    def refit(self, coef, fu, y, w, p):
+        """(p with its scales replaced by their non-negative least-squares optimum at its
+        nonlinear parameters, value, Jacobian): the model is linear in the scales, so every
+        trial point of the iterations lies on the valley floor s*(theta) (variable
+        projection), where a curved valley between a scale and a roughness would otherwise
+        make the steps creep."""
+        q, u = self.q, p[self.q:]
+        b, db = self.interp(coef, fu, u)
+        bw = b[:, :q] * w[:, None]
+        rw = (y - b[:, q]) * w
+        s, _ = lsq.nnls_small(bw.T @ bw, bw.T @ rw, rw @ rw, q, jnp)
+        val, jac = self.combine(b, db, s)
+        return jnp.concatenate([s, u]), val, jac
+
+    def iterate(self, coef, fu, y, w, state):
+        """One Levenberg-Marquardt iteration of a pixel (one evaluation of the spline); a
+        pixel whose reduced Gauss-Newton step is below LM_TOL standard errors is frozen."""
+        it, p, lam, cost, val, jac, _ = state
+        r = (y - val) * w
+        jw = jac * w[:, None]
+        a, g = jw.T @ jw, jw.T @ r
+        variance = 1.0 if self.weighted else cost / self.dof(w)
+        dec = lsq.gauss_newton_decrease(p, a, g, self.lo, self.hi, jnp)
+        now = lsq.stopped(dec, LM_TOL, variance, (y * w) @ (y * w), jnp)
+        step = lsq.damped_step(a, g, lam, jnp)
+        trial, tval, tjac = self.refit(
+            coef, fu, y, w,
+            lsq.project(p + jnp.where(jnp.isfinite(step), step, 0.0), self.lo, self.hi, jnp))
+        tr = (y - tval) * w
+        tcost = tr @ tr
+        better = (tcost < cost) & ~now
+        return (it + jnp.where(now, 0, 1), jnp.where(better, trial, p),
+                lsq.update_damping(lam, better, now, jnp), jnp.where(better, tcost, cost),
+                jnp.where(better, tval, val), jnp.where(better, tjac, jac), now)
+
+    def dof(self, w):
+        return jnp.maximum(jnp.sum(w > 0) - self.n, 1)
+
+    def one_pixel(self, coef, fu, y, w2, state, limit):
+        """Iterations from ``state`` until the pixel stops or has had ``limit``, then its
+        statistics: (results, state)."""
+        w = jnp.sqrt(w2)
+        # under vmap the loop runs while any pixel of the batch runs; a frozen pixel's
+        # state is selected unchanged (and the body leaves it unchanged too)
+        state = jax.lax.while_loop(lambda st: (st[0] < limit) & ~st[-1],
+                                   lambda st: self.iterate(coef, fu, y, w, st), state)
+        iters, p, _, _, val, jac, _ = state
+        r = (y - val) * w
+        jw = jac * w[:, None]
+        cov, rank_ok = lsq.covariance(jw, jnp)
+        chi2 = lsq.residual_variance(r, jnp.sum(w2 > 0) - self.n, jnp)
+        if not self.weighted:
+            cov = cov * chi2
+        se = jnp.sqrt(jnp.maximum(jnp.diag(cov), 0.0))
+        # the undamped Gauss-Newton step from the solution, in standard errors
+        gn = cov @ (jw.T @ r)
+        if not self.weighted:
+            gn = gn / jnp.where(chi2 > 0, chi2, 1.0)
+        proj = lsq.project(p + gn, self.lo, self.hi, jnp) - p
+        step_se = lsq.step_in_stderr(proj, se, jnp)
+        return (p, se, chi2, jnp.sum(w2 > 0), rank_ok, step_se, iters), state
+
+    def best_node(self, nodes, y, w2):
+        """The scales by exact NNLS at every node (N, M, q + 1) of one pixel, the best node:
+        (s0, u0)."""
+        q = self.q
+        bq, c = nodes[..., :q], nodes[..., q]
+        wy = w2 * y
+        gram = jnp.einsum("nmi,m,nmj->nij", bq, w2, bq)
+        rhs = jnp.einsum("nmi,m->ni", bq, wy) - jnp.einsum("nmi,nm->ni", bq, w2 * c)
+        yy = wy @ y - 2 * c @ wy + (c * c) @ w2
+        s_all, cost = lsq.nnls_small(gram, rhs, yy, q, jnp)
+        best = jnp.argmin(cost)
+        u0 = (jnp.stack(jnp.unravel_index(best, self.sizes)).astype(float) if self.d
+              else jnp.zeros((0,)))
+        return s_all[best], u0
+
+    def node_stage(self, values, y, w2):
+        """Distant tables: the scales by exact NNLS at every node, the best node, for a
+        batch of pixels as matrix products over the configurations: (s0, u0)."""
+        q, d = self.q, self.d
+        nodes = values.reshape((-1,) + values.shape[d:])  # (N, M, q + 1)
+        n_nodes, m = nodes.shape[0], nodes.shape[1]
+        bq, c = nodes[..., :q], nodes[..., q]
+        # (P, M) @ (M, ...)
+        prods = jnp.einsum("nmi,nmj->mnij", bq, bq).reshape(m, -1)
+        gram = (w2 @ prods).reshape(-1, n_nodes, q, q)
+        wy = w2 * y
+        vb = jnp.transpose(bq, (1, 0, 2)).reshape(m, -1)
+        vc = jnp.transpose(bq * c[..., None], (1, 0, 2)).reshape(m, -1)
+        rhs = (wy @ vb - w2 @ vc).reshape(-1, n_nodes, q)
+        yy = (wy * y).sum(-1)[:, None] - 2 * wy @ c.T + w2 @ (c * c).T
+        s_all, cost = lsq.nnls_small(gram, rhs, yy, q, jnp)
+        best = jnp.argmin(cost, axis=1)
+        s0 = jnp.take_along_axis(s_all, best[:, None, None], axis=1)[:, 0, :]
+        if d:
+            u0 = jnp.stack(jnp.unravel_index(best, self.sizes), axis=1).astype(float)
+        else:
+            u0 = jnp.zeros((y.shape[0], 0))
+        return s0, u0
+
+    def near_nodes(self, values, fu, y, w2):
+        """Near-field tables, one pixel: the best node of the nearest field node's columns -
+        a starting point; the iterations then use the pixel's own interpolated columns."""
+        ix = jnp.clip(jnp.round(fu[0]), 0, values.shape[0] - 1).astype(jnp.int64)
+        iy = jnp.clip(jnp.round(fu[1]), 0, values.shape[1] - 1).astype(jnp.int64)
+        nodes = values[ix, iy]
+        return self.best_node(nodes.reshape((-1,) + nodes.shape[self.d:]), y, w2)
+
+    def batch(self, values, coef, y, w2, fu=None):
+        """1. every node: the scales by exact NNLS; 2. the best node; 3. Levenberg-Marquardt
+        on the spline, FIRST_ITERATIONS at most."""
+        if self.near:  # per pixel, NEAR_GROUP pixels at a time (memory: their node values)
+            def group(a):
+                return a.reshape((-1, NEAR_GROUP) + a.shape[1:])
+
+            s0, u0 = jax.lax.map(
+                lambda args: jax.vmap(self.near_nodes, in_axes=(None, 0, 0, 0))(values, *args),
+                (group(fu), group(y), group(w2)))
+            s0, u0 = (a.reshape((y.shape[0],) + a.shape[2:]) for a in (s0, u0))
+        else:
+            s0, u0 = self.node_stage(values, y, w2)
+            fu = jnp.zeros((y.shape[0], 0))
+        state = jax.vmap(self.initial, in_axes=(None, 0, 0, 0, 0, 0))(coef, fu, u0, s0, y, w2)
+        return jax.vmap(self.one_pixel, in_axes=(None, 0, 0, 0, 0, None))(
+            coef, fu, y, w2, state, min(FIRST_ITERATIONS, ITERATIONS))
+
+    def resume(self, coef, y, w2, state, fu=None):
+        """The pixels still running after FIRST_ITERATIONS, gathered from several batches."""
+        if fu is None:
+            fu = jnp.zeros((y.shape[0], 0))
+        return jax.vmap(self.one_pixel, in_axes=(None, 0, 0, 0, 0, None))(
+            coef, fu, y, w2, state, ITERATIONS)
+
+
+def _solver(q: int, d: int, sizes: tuple, weighted: bool, near: bool = False):
+    """The jitted (batch, resume) pair of :class:`_PixelSolver`, made once per shape."""
+    key = (q, d, sizes, weighted) + ((True,) if near else ())
+    if key not in _SOLVERS:
+        solver = _PixelSolver(q, d, sizes, weighted, near)
+        _SOLVERS[key] = (jax.jit(solver.batch), jax.jit(solver.resume))
+    return _SOLVERS[key]
+
+
+def _dispatch(tables, count, call, done):
+    """``count`` items in batches of BATCH (the last padded by repeating its last item):
+    ``call(indices, device, (values, coef) on the device)`` for each batch, round the CPU
+    devices (one core each, veil._jax) without waiting, at most IN_FLIGHT per device
+    pending; ``done(start, stop, result)`` in order. Every batch is the same computation
+    on BATCH items whichever device runs it."""
+    devices = jax.devices()
+    on_device = {}
+    pending = []
+    for b, start in enumerate(range(0, count, BATCH)):
+        stop = min(start + BATCH, count)
+        idx = np.minimum(np.arange(start, start + BATCH), stop - 1)
+        dev = devices[b % len(devices)]
+        if dev not in on_device:
+            on_device[dev] = tuple(jax.device_put(a, dev) for a in tables.solver_arrays)
+        pending.append((start, stop, call(idx, dev, on_device[dev])))
+        if len(pending) >= IN_FLIGHT * len(devices):
+            done(*pending.pop(0))
+    while pending:
+        done(*pending.pop(0))
+
+
+def warm_up(tables: MapTables, noise=None) -> None:
+    """Compile both parts of the solver of ``tables`` on every CPU device (on dark pixels,
+    which stop at once), so that no later call waits for a compilation."""
+    near = tables.near is not None
+    first, rest = _solver(len(tables.free_scales), len(tables.axes),
+                          tuple(a.count for a in tables.axes), noise is not None, near)
+    y = np.zeros((BATCH, tables.n_configs))
+    extra = (np.zeros((BATCH, 2)),) if near else ()
+    with _CALL_LOCK:
+        for dev in jax.devices():
+            values, coef = (jax.device_put(a, dev) for a in tables.solver_arrays)
+            y_dev, w2_dev = jax.device_put(y, dev), jax.device_put(np.ones_like(y), dev)
+            fu = tuple(jax.device_put(a, dev) for a in extra)
+            _, state = first(values, coef, y_dev, w2_dev, *fu)
+            jax.block_until_ready(rest(coef, y_dev, w2_dev, state, *fu))
+
+
+@dataclass
+class PixelFits:
+    """Per-pixel results (flat arrays over pixels): ``params`` (P, N) every BRDF parameter,
+    ``stderr`` (P, N) (0 where fixed or not reported), ``chi2`` (N,), ``n_points`` (N,),
+    ``status`` (N,) uint8 (:data:`STATUS`), ``iterations`` (N,) Levenberg-Marquardt
+    iterations the pixel took (at most :data:`ITERATIONS`)."""
+
+    params: np.ndarray
+    stderr: np.ndarray
+    chi2: np.ndarray
+    n_points: np.ndarray
+    status: np.ndarray
+    iterations: np.ndarray
+
+
+def solve_pixels(tables: MapTables, y: np.ndarray, valid: np.ndarray,
+                 noise=None, pixels=None) -> PixelFits:
+    """Fit every pixel: ``y`` (N, M) values, ``valid`` (N, M) usable samples (saturated,
+    clipped and masked ones False), ``noise`` None (unweighted) or (relative, absolute):
+    sigma = sqrt((relative * value)^2 + absolute^2). Near-field tables need ``pixels``
+    (x (N,), y (N,)): each pixel's position in the full photo."""
+    fu = None
+    if tables.near is not None:
+        if pixels is None:
+            raise FitError("near-field tables: give each pixel's position (pixels=(x, y))")
+        fu = tables.field_coords(*pixels)
+        if len(fu) != len(y):
+            raise FitError(f"{len(fu)} pixel positions for {len(y)} pixels")
+    y = np.asarray(y, dtype=float)
+    valid = np.asarray(valid, dtype=bool) & np.isfinite(y)
+    if y.shape[1] != tables.n_configs:
+        raise FitError(f"{y.shape[1]} values per pixel but the tables have "
+                       f"{tables.n_configs} configurations")
+    y = np.where(valid, y, 0.0)
+    if noise is None:
+        w2 = valid.astype(float)
+    else:
+        rel, ab = noise
+        sigma2 = (rel * y) ** 2 + ab ** 2
+        w2 = np.where(valid & (sigma2 > 0), 1.0 / np.where(sigma2 > 0, sigma2, 1.0), 0.0)
+    out = _run(tables, y, w2, fu, noise is not None)
+    status = _status(tables, out, y, valid)
+    return _physical(tables, out, status)
+
+
+def _run(tables: MapTables, y, w2, fu, weighted: bool) -> dict:
+    """The solver's outputs for every pixel: p, se, chi2, npts, rank_ok, step, iters (flat
+    arrays over pixels). Pixels still running after FIRST_ITERATIONS are gathered from
+    every batch into full batches of their own for the rest."""
+    q, d = len(tables.free_scales), len(tables.axes)
+    first, rest = _solver(q, d, tuple(a.count for a in tables.axes), weighted, fu is not None)
+    n_pix, n = len(y), q + d
+    out = {"p": np.zeros((n_pix, n)), "se": np.zeros((n_pix, n)), "chi2": np.zeros(n_pix),
+           "npts": np.zeros(n_pix, dtype=np.int64), "rank_ok": np.zeros(n_pix, dtype=bool),
+           "step": np.zeros(n_pix), "iters": np.zeros(n_pix, dtype=np.int32)}
+    slow_pixels, slow_states = [], []
+
+    def store(where, outs):
+        for name, value in zip(out, outs):
+            out[name][where] = value
+
+    def first_done(start, stop, result):
+        outs, state = result
+        k = stop - start
+        store(slice(start, stop), [np.asarray(a)[:k] for a in outs])
+        state = [np.asarray(a)[:k] for a in state]
+        slow = ~state[-1] & (state[0] >= FIRST_ITERATIONS)
+        if slow.any():
+            slow_pixels.append(np.arange(start, stop)[slow])
+            slow_states.append([a[slow] for a in state])
+
+    def put(dev, *arrays):
+        return tuple(jax.device_put(a, dev) for a in arrays)
+
+    def at(idx, dev):  # near field: the pixels' field coordinates (none otherwise)
+        return put(dev, fu[idx]) if fu is not None else ()
+
+    with _CALL_LOCK:
+        _dispatch(tables, n_pix,
+                  lambda idx, dev, tab: first(*tab, *put(dev, y[idx], w2[idx]), *at(idx, dev)),
+                  first_done)
+        if slow_pixels:  # the rest of the iterations for the slow pixels of every batch
+            where = np.concatenate(slow_pixels)
+            states = [np.concatenate(parts) for parts in zip(*slow_states)]
+            _dispatch(tables, len(where),
+                      lambda idx, dev, tab: rest(tab[1], *put(dev, y[where[idx]], w2[where[idx]]),
+                                                 put(dev, *[a[idx] for a in states]),
+                                                 *at(where[idx], dev)),
+                      lambda start, stop, result: store(
+                          where[start:stop], [np.asarray(a)[:stop - start] for a in result[0]]))
+    return out
+
+
+def _status(tables: MapTables, out: dict, y, valid) -> np.ndarray:
+    """Each pixel's status (:data:`STATUS`), the worst that applies."""
+    q, d = len(tables.free_scales), len(tables.axes)
+    n_pix = len(y)
+    status = np.full(n_pix, CONVERGED, dtype=np.uint8)
+    status[out["step"] > STEP_TOL] = NOT_CONVERGED
+    if d:
+        top = np.array([a.count - 1 for a in tables.axes], dtype=float)
+        low, high = lsq.at_bounds(out["p"][:, q:], 0.0, top, 1e-9)
+        status[np.any(low | high, axis=1)] = EDGE
+    signal = np.any((y > 0) & valid, axis=1)
+    scale_zero = np.any(out["p"][:, :q] <= 0, axis=1) if q else np.zeros(n_pix, bool)
+    status[~out["rank_ok"] | scale_zero | ~signal] = UNDETERMINED
+    status[out["npts"] <= q + d] = FEW_POINTS
+    status[~valid.any(axis=1)] = MASKED
+    bad = ~np.all(np.isfinite(out["p"]), axis=1) | ~np.all(np.isfinite(out["se"]), axis=1) \
+        | ~np.isfinite(out["chi2"])
+    status[bad & (status == CONVERGED)] = UNDETERMINED
+    return status
+
+
+def _physical(tables: MapTables, out: dict, status) -> PixelFits:
+    """The pixels' results in physical parameters (standard errors where converged)."""
+    q = len(tables.free_scales)
+    n_pix = len(status)
+    params = np.repeat(tables.base[:, None], n_pix, axis=1)
+    stderr = np.zeros((len(tables.names), n_pix))
+    for c, i in enumerate(tables.free_scales):
+        params[i] = out["p"][:, c]
+        stderr[i] = out["se"][:, c]
+    for c, a in enumerate(tables.axes):
+        phys = a.physical(out["p"][:, q + c])
+        params[a.index] = phys
+        stderr[a.index] = out["se"][:, q + c] * a.step * (phys if a.log else 1.0)
+    reported = status == CONVERGED
+    good_numbers = np.all(np.isfinite(params), axis=0) & np.all(np.isfinite(stderr), axis=0)
+    params = np.where(good_numbers[None, :], params, tables.base[:, None])
+    stderr = np.where((reported & good_numbers)[None, :], stderr, 0.0)
+    chi2 = np.where(np.isfinite(out["chi2"]) & (status != MASKED) & (status != FEW_POINTS),
+                    out["chi2"], 0.0)
+    return PixelFits(params, stderr, chi2, out["npts"].astype(np.int32), status, out["iters"])
+
+
+__all__ = ["STATUS", "CONVERGED", "MASKED", "FEW_POINTS", "UNDETERMINED", "EDGE",
+           "NOT_CONVERGED", "solve_pixels", "warm_up", "PixelFits"]

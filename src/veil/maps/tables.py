@@ -1,0 +1,293 @@
+"""The tables of a per-pixel fit (docs/maps.md): the basis columns of the apparent value at
+every node of the grid of the free nonlinear parameters, built once per acquisition through
+the engine, and their B-spline coefficients; near-field tables add two axes of plate points
+(docs/maps-geometry.md "Geometry")."""
+
+from __future__ import annotations
+
+import hashlib
+import itertools
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from ..engine.integrator import BRDF_PARTS, row_scales
+from ..errors import FitError
+from .grid import _jnp, bspline_inverse, field_block, interp, interp_near, make_axes, parse_grid
+
+if TYPE_CHECKING:
+    from .near import FieldGrid
+
+
+@dataclass
+class MapTables:
+    """Basis columns of the apparent value at a grid of the nonlinear parameters.
+
+    ``values``: (K_1, ..., K_d, M, q + 1) node values: the q free scales' columns, then the
+    known part C. ``coef``: the same with each axis replaced by its K + 2 B-spline
+    coefficients. ``base``: the BRDF vector (fixed and held values; the free ones are
+    overwritten per pixel). ``free_scales``: indices of the free scale parameters, in column
+    order. ``axes``: the nonlinear axes.
+    """
+
+    model: str
+    options: dict
+    names: tuple
+    base: np.ndarray
+    free_scales: tuple
+    axes: list
+    values: np.ndarray
+    coef: np.ndarray
+    fixed: dict
+    medium: dict
+    accuracy: str
+    angles: tuple = field(repr=False, default=())
+    #: near-field tables (docs/maps-geometry.md "Geometry"): the field grid (a
+    #: :class:`veil.maps.near.FieldGrid`), None for distant light and camera. Then
+    #: ``values`` and ``coef`` have two leading axes more (the grid's x and y nodes);
+    #: ``field_error`` is the largest interpolation error measured against exact per-pixel
+    #: columns (relative to each column's maximum).
+    near: FieldGrid | None = None
+    field_error: float = float("nan")
+
+    @property
+    def n_free(self) -> int:
+        return len(self.free_scales) + len(self.axes)
+
+    @property
+    def n_configs(self) -> int:
+        return self.values.shape[-2]
+
+    @property
+    def solver_arrays(self) -> tuple:
+        """(node values, spline coefficients) the solver runs on."""
+        return self.values, self.coef
+
+    def field_coords(self, x, y) -> np.ndarray:
+        """(N, 2) field-grid coordinates of pixels (x, y) of the full photo (near field)."""
+        if self.near is None:
+            raise FitError("distant tables have no field grid: no pixel coordinates")
+        fx, fy = self.near.coords(np.ravel(x), np.ravel(y))
+        return np.stack([fx, fy], axis=1)
+
+    @property
+    def free_names(self) -> tuple:
+        idx = list(self.free_scales) + [a.index for a in self.axes]
+        return tuple(self.names[i] for i in idx)
+
+    def fingerprint(self) -> str:
+        """Hash of everything the tables depend on (and of the tables themselves)."""
+        h = hashlib.sha256()
+        h.update(repr((self.model, sorted(self.options.items()), self.names,
+                       self.base.tolist(), self.free_scales, [a.__dict__ for a in self.axes],
+                       sorted(self.fixed.items()), self.medium, self.accuracy)).encode())
+        for a in self.angles:
+            h.update(np.ascontiguousarray(a, dtype=float).tobytes())
+        if self.near is not None:  # (distant tables hash as they always did)
+            h.update(repr(self.near.as_dict()).encode())
+        h.update(np.ascontiguousarray(self.values).tobytes())
+        return h.hexdigest()
+
+    def describe(self) -> str:
+        grid = "; ".join(a.describe() for a in self.axes) or "no nonlinear parameter"
+        nodes = int(np.prod([a.count for a in self.axes])) if self.axes else 1
+        text = (f"{self.model}: free {', '.join(self.free_names)}; table {grid}; {nodes} "
+                f"node(s) x {self.n_configs} configurations ({self.accuracy} quadrature)")
+        if self.near is not None:
+            text += (f"; {self.near.describe()}, interpolation error "
+                     f"{self.field_error:.2g} of a column's maximum")
+        return text
+
+    def basis(self, node_values: dict, pixel=None) -> np.ndarray:
+        """(M, q + 1) columns at physical values of the nonlinear parameters, by the
+        spline (numpy; for checks); near-field tables at ``pixel`` (x, y) of the photo."""
+        jnp = _jnp()
+        u = np.array([(a.coord(node_values[a.name]) - a.coord(a.lo)) / a.step
+                      for a in self.axes])
+        if self.near is None:
+            b, _ = interp(jnp.asarray(self.coef), jnp.asarray(u), len(self.axes))
+        else:
+            fu = self.field_coords(*pixel)[0]
+            b, _ = interp_near(jnp.asarray(self.coef), jnp.asarray(fu), jnp.asarray(u),
+                                len(self.axes))
+        return np.asarray(b)
+
+
+def build_tables(brdf_cls, medium, angles, *, fixed=None, options=None, free=None,
+                 grid=None, accuracy: str = "default", progress=None, near=None,
+                 roi=None) -> MapTables:
+    """The tables of a per-pixel target fit: ``brdf_cls`` through ``medium`` (a medium
+    model) at ``angles`` (theta_i, phi_i, theta_r, phi_r arrays, degrees). ``fixed``,
+    ``free`` (held parameters to fit) and ``options`` as :func:`veil.fit_target`;
+    ``grid`` {name: (lo, hi, count)} overrides a nonlinear axis; ``progress(done, total)``
+    after each node. ``near`` (a :class:`veil.maps.near.NearGeometry`) with
+    ``roi`` (x, y, w, h of the photo): near-field tables over a grid of plate points
+    (:func:`veil.maps.near.field_grid`, docs/maps-geometry.md "Geometry")."""
+    from ..engine.evaluator import ApparentModel
+    from ..engine.quadrature import RULES
+    from ..fitting.solver import check_fixed
+
+    fixed = dict(fixed or {})
+    freed = set(free or ())
+    names = cls_names = brdf_cls.param_names()
+    for n in list(fixed) + list(freed):
+        if n not in cls_names:
+            raise FitError(f"{brdf_cls.NAME} has no parameter {n!r}; its parameters are "
+                           f"{', '.join(cls_names)}")
+    for n, v in fixed.items():
+        check_fixed(n, v, brdf_cls.param(n), brdf_cls.__name__)
+    try:
+        template = brdf_cls.template(**dict(options or {}))
+    except (ValueError, TypeError) as exc:
+        raise FitError(str(exc)) from None
+    base = template.to_vector()
+    for n, v in fixed.items():
+        base[names.index(n)] = float(v)
+    free_set = [i for i, p in enumerate(brdf_cls.PARAMS)
+                if p.name not in fixed and (not p.held or p.name in freed)]
+    scale_of = {brdf_cls.scale_index(part): part for part in BRDF_PARTS
+                if brdf_cls.scale_index(part) is not None}
+    free_scales = tuple(i for i in free_set if i in scale_of)
+    nonlinear = [i for i in free_set if i not in scale_of]
+    if not free_set:
+        raise FitError("every parameter of the target is fixed: nothing to fit")
+    axes = make_axes(brdf_cls, nonlinear, parse_grid([], brdf_cls) | dict(grid or {}))
+    free_parts = [BRDF_PARTS.index(scale_of[i]) for i in free_scales]
+    known_weight = np.ones(len(BRDF_PARTS))
+    for k, part in enumerate(BRDF_PARTS):
+        i = brdf_cls.scale_index(part)
+        if i is not None:
+            known_weight[k] = 0.0 if i in free_scales else base[i]
+    angles = tuple(np.ascontiguousarray(a, dtype=float) for a in angles)
+    if near is not None:
+        return _build_near(brdf_cls, medium, angles, template, names, base, free_scales,
+                           axes, free_parts, known_weight, fixed, accuracy, progress, near,
+                           roi)
+    engine = ApparentModel(template, medium, angles, RULES[accuracy])
+    vm = medium.to_vector()
+    rows = row_scales(type(medium), vm)
+    shape = tuple(a.count for a in axes)
+    q = len(free_scales)
+    values = np.empty(shape + (len(angles[0]), q + 1))
+    for done, (combo, vb) in enumerate(_nodes(axes, base)):
+        values[combo] = _columns(engine, vb, vm, rows, free_parts, known_weight, q)
+        if progress is not None:
+            progress(done + 1, int(np.prod(shape)) if shape else 1)
+    coef = _to_coef(values, 0, len(axes))
+    medium_entry = {"model": type(medium).NAME, "params": medium.as_dict(),
+                    "options": medium.options()}
+    return MapTables(brdf_cls.NAME, dict(template.options()), names, base, free_scales, axes,
+                     values, np.ascontiguousarray(coef), dict(fixed), medium_entry, accuracy,
+                     angles)
+
+
+def _nodes(axes, base):
+    """(index of the node, BRDF vector there) for every node of the grid of ``axes``."""
+    for combo in itertools.product(*[range(a.count) for a in axes]):
+        vb = base.copy()
+        for a, j in zip(axes, combo):
+            vb[a.index] = a.nodes()[j]
+        yield combo, vb
+
+
+def smoothest_facet(brdf_cls, names, base, axes, options) -> float:
+    """The BRDF's facet half angle (deg) at the smoothest corner of the table (inf when the
+    family has no facet lobe)."""
+    corners = itertools.product(*[(a.lo, a.hi) for a in axes]) if axes else [()]
+    widths = []
+    for corner in corners:
+        v = np.array(base, dtype=float)
+        for a, value in zip(axes, corner):
+            v[a.index] = value
+        try:
+            model = brdf_cls.from_params(dict(zip(names, v)), options)
+            widths.append(model.facet_half_angle())
+        except (ValueError, TypeError):
+            continue
+    return min(widths) if widths else float("inf")
+
+
+def _columns(engine, vb, vm, rows, free_parts, known_weight, q):
+    """(M, q + 1) basis columns of the engine's configurations at BRDF vector ``vb``."""
+    terms = engine.terms(vb, vm)  # (M, rows, parts), scales at 1
+    cols = np.einsum("mrb,r->mb", terms, rows)
+    out = np.empty(cols.shape[:1] + (q + 1,))
+    for c, k in enumerate(free_parts):
+        out[:, c] = cols[:, k]
+    out[:, q] = cols @ known_weight
+    return out
+
+
+def _to_coef(values, axes_first: int, count: int):
+    """B-spline coefficients along axes ``axes_first .. axes_first + count - 1``."""
+    for ax in range(axes_first, axes_first + count):
+        inv = bspline_inverse(values.shape[ax])
+        values = np.moveaxis(np.tensordot(inv, values, axes=([1], [ax])), 0, ax)
+    return values
+
+
+
+
+#: the centres of two opposite corner cells, farthest from the nodes in both axes.
+FIELD_CHECKS = ((0.5, 0.5), (-0.5, -0.5))
+
+
+def _build_near(brdf_cls, medium, angles, template, names, base, free_scales, axes,
+                free_parts, known_weight, fixed, accuracy, progress, near, roi):
+    """Near-field tables: the columns at every node of a grid of plate points and of the
+    nonlinear axes, with the pixel's own angles (docs/maps-geometry.md "Geometry"); the field
+    interpolation checked against exact columns at :data:`FIELD_CHECKS`."""
+    from ..engine.evaluator import ApparentModel
+    from ..engine.quadrature import RULES
+    from .near import apparent_lobe, field_grid
+
+    if roi is None:
+        raise FitError("near-field tables need the region of the photo (roi)")
+    lobe = apparent_lobe(smoothest_facet(brdf_cls, names, base, axes, template.options()),
+                         medium.lobe_half_width())
+    fgrid = field_grid(near, angles, roi, lobe)
+    kx, ky = fgrid.shape
+    m = len(angles[0])
+    node_angles = tuple(np.ascontiguousarray(a.reshape(-1)) for a in fgrid.node_angles(angles))
+    # the check pixels: cell centres of two opposite corner cells
+    checks = []
+    for fx, fy in FIELD_CHECKS:
+        gx = fx if fx >= 0 else kx - 1 + fx
+        gy = fy if fy >= 0 else ky - 1 + fy
+        x = fgrid.xs[0] + gx * (fgrid.xs[-1] - fgrid.xs[0]) / (kx - 1)
+        y = fgrid.ys[0] + gy * (fgrid.ys[-1] - fgrid.ys[0]) / (ky - 1)
+        checks.append(((gx, gy), near.angles(angles, x, y)))
+    all_angles = tuple(np.concatenate([node_angles[j]] + [c[1][j] for c in checks])
+                       for j in range(4))
+    engine = ApparentModel(template, medium, all_angles, RULES[accuracy])
+    vm = medium.to_vector()
+    rows = row_scales(type(medium), vm)
+    shape = tuple(a.count for a in axes)
+    q = len(free_scales)
+    values = np.empty((kx, ky) + shape + (m, q + 1))
+    exact = np.empty((len(checks),) + shape + (m, q + 1))
+    total = int(np.prod(shape)) if shape else 1
+    for done, (combo, vb) in enumerate(_nodes(axes, base)):
+        cols = _columns(engine, vb, vm, rows, free_parts, known_weight, q)
+        values[(slice(None), slice(None)) + combo] = cols[:kx * ky * m].reshape(kx, ky, m,
+                                                                             q + 1)
+        exact[(slice(None),) + combo] = cols[kx * ky * m:].reshape(len(checks), m, q + 1)
+        if progress is not None:
+            progress(done + 1, total)
+    field_values = np.ascontiguousarray(_to_coef(values, 0, 2))
+    coef = np.ascontiguousarray(_to_coef(field_values, 2, len(axes)))
+    error = 0.0
+    for k, ((gx, gy), _) in enumerate(checks):
+        approx = field_block(field_values, (gx, gy))
+        scale = np.max(np.abs(exact[k]), axis=-2, keepdims=True)
+        scale = np.where(scale > 0, scale, 1.0)
+        error = max(error, float(np.max(np.abs(approx - exact[k]) / scale)))
+    medium_entry = {"model": type(medium).NAME, "params": medium.as_dict(),
+                    "options": medium.options()}
+    return MapTables(brdf_cls.NAME, dict(template.options()), names, base, free_scales, axes,
+                     values, coef, dict(fixed), medium_entry, accuracy, angles, near=fgrid,
+                     field_error=error)
+
+
+__all__ = ["MapTables", "build_tables", "smoothest_facet", "FIELD_CHECKS"]

@@ -1,0 +1,182 @@
+"""What `veil explore` shows of a fit (docs/explore.md): a result checked for its kind, the
+models it holds, and :class:`FitView` - its data, the model's curves through them with an
+uncertainty band, and the residuals."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import InputError
+from .explore import LIVE_ACCURACY, State
+
+#: Parameter draws of the uncertainty band, and the band's quantiles (a 95 % band).
+BAND_DRAWS = 24
+BAND_QUANTILES = (2.5, 97.5)
+#: Largest |recomputed - stored| of the residuals, relative to their rms (plus an absolute
+#: 1e-6), for a table to count as the fit's data.
+RESIDUAL_TOLERANCE = 0.02
+
+
+def check_result_kind(result, source: str):
+    """The result if ``veil explore`` can show it: a step fit (reference, medium or target);
+    an InputError saying what the file is otherwise."""
+    from ..fitting.result import JointResult
+
+    if isinstance(result, JointResult):
+        raise InputError(f"{source} is a joint fit result; veil explore shows step results "
+                         f"('veil fit reference', 'veil fit medium', 'veil fit target')")
+    if result.kind == "medium" and result.given is None:
+        raise InputError(f"{source}: a medium fit result that does not name its reference "
+                         f"object; veil explore needs both models")
+    return result
+
+
+def models_of(results, sources) -> tuple:
+    """(brdf, medium) of fit results: each result sets the model of its kind, the models
+    it held fixed fill in the rest (the first result's first)."""
+    brdf = medium = None
+    given_b = given_m = None
+    clear = False
+    for result, source in zip(results, sources):
+        check_result_kind(result, source)
+        model = result.as_model()
+        given = result.given_model()
+        if model.KIND == "brdf":
+            if brdf is not None:
+                raise InputError(f"{source}: a second BRDF fit result; give at most one result "
+                                 f"per kind (a BRDF fit and a medium fit)")
+            brdf = model
+            if result.step == "reference" and given is None:
+                clear = True
+            if given is not None and given_m is None:
+                given_m = given
+        else:
+            if medium is not None:
+                raise InputError(f"{source}: a second medium fit result; give at most one "
+                                 f"result per kind (a BRDF fit and a medium fit)")
+            medium = model
+            if given is not None and given_b is None:
+                given_b = given
+    brdf = brdf or given_b
+    medium = medium or given_m
+    if brdf is None:
+        brdf = State.default().brdf
+    if medium is None and not clear:
+        medium = State.default().medium
+    return brdf, medium
+
+
+class FitView:
+    """A fit result with its measurement table: what the fit's data panel draws.
+
+    The table must be the fit's own: as many points as the fit used, and the residuals
+    recomputed at the fitted parameters equal to the ones the result stores
+    (:data:`RESIDUAL_TOLERANCE`); otherwise an InputError says it does not belong."""
+
+    def __init__(self, result, table, black=None, source: str = "the result",
+                 table_name: str = "the table", draws: int = BAND_DRAWS, seed: int = 20110901):
+        from ..fitting.session_data import prepare
+
+        self.result, self.source = result, source
+        check_result_kind(result, source)
+        self.data = prepare(table, black, what=f"{table_name}")
+        model, given = result.as_model(), result.given_model()
+        if model.KIND == "brdf":
+            self.brdf, self.medium = model, given
+        else:
+            self.brdf, self.medium = given, model
+        if given is None and result.step != "reference":
+            raise InputError(f"{source}: the result does not name the model it held fixed")
+        if self.data.size != result.n_points:
+            raise InputError(f"{table_name} does not belong to {source}: it has "
+                             f"{self.data.size} points, the fit used {result.n_points} (give "
+                             f"the fit's own table{' and black cloth' if black is None else ''})")
+        ti, pi_, tr, pr = self.data.angles
+        self.x, self.group, self.xlabel, self.group_label = _data_axes(*self.data.angles)
+        self.order = np.lexsort((self.x, self.group))
+        self.fitted = self.model_values(self.brdf, self.medium, result.accuracy or "default")
+        resid = (self.data.y - self.fitted) * (self.data.w if result.weighted else 1.0)
+        stored = np.asarray(result.residuals, dtype=float)
+        if stored.shape == resid.shape:
+            scale = float(np.sqrt(np.mean(stored ** 2))) if stored.size else 0.0
+            gap = float(np.max(np.abs(resid - stored))) if stored.size else 0.0
+            if gap > RESIDUAL_TOLERANCE * scale + 1e-6 * (1.0 + float(np.max(np.abs(self.data.y)))):
+                raise InputError(f"{table_name} does not belong to {source}: the fitted model "
+                                 f"misses its points by residuals up to {gap:.3g} where the fit "
+                                 f"reported rms {scale:.3g} (another session's table, or a "
+                                 f"black cloth missing or different)")
+        self.residuals = resid
+        self.band = self._band(draws, seed)
+
+    # -- engine ----------------------------------------------------------------------------
+    def model_values(self, brdf, medium, accuracy: str = LIVE_ACCURACY) -> np.ndarray:
+        from ..engine.evaluator import evaluate
+
+        ti, pi_, tr, pr = self.data.angles
+        return np.asarray(evaluate(brdf, medium, ti, pi_, tr, pr, accuracy=accuracy),
+                          dtype=float)
+
+    def _band(self, draws: int, seed: int):
+        """(low, high) of the model over parameters drawn from the fit's covariance (normal
+        in the declared fit coordinates: log for log_scale parameters), or None when the
+        fit reports no covariance."""
+        found = self.result.covariance(total=True)
+        if found is None or draws <= 0:
+            return None
+        names, cov = found
+        cls = self.result.model_class
+        mean = np.array([self.result.params[n] for n in names], dtype=float)
+        logs = np.array([cls.param(n).log_scale and mean[k] > 0 for k, n in enumerate(names)])
+        # covariance of log values to first order: divide by the values
+        jac = np.where(logs, 1.0 / np.where(logs, mean, 1.0), 1.0)
+        cov_u = cov * np.outer(jac, jac)
+        mean_u = np.where(logs, np.log(np.where(logs, mean, 1.0)), mean)
+        rng = np.random.default_rng(seed)
+        try:
+            root = np.linalg.cholesky(cov_u + 1e-300 * np.eye(len(names)))
+        except np.linalg.LinAlgError:
+            w, v = np.linalg.eigh(cov_u)
+            root = v * np.sqrt(np.clip(w, 0.0, None))
+        base = self.result.as_model()
+        curves: list = []
+        tries = 0
+        while len(curves) < draws and tries < 20 * draws:
+            tries += 1
+            u = mean_u + root @ rng.standard_normal(len(names))
+            x = np.where(logs, np.exp(u), u)
+            params = dict(base.as_dict())
+            params.update({n: float(v) for n, v in zip(names, x)})
+            if not all(cls.param(n).contains(params[n]) for n in names):
+                continue
+            model = cls.from_params(params, base.options())
+            b, m = (model, self.medium) if model.KIND == "brdf" else (self.brdf, model)
+            curves.append(self.model_values(b, m))
+        if len(curves) < 2:
+            return None
+        lo, hi = np.percentile(np.array(curves), BAND_QUANTILES, axis=0)
+        return lo, hi
+
+    def param_rows(self) -> list[dict]:
+        """One row per parameter: name, value, stderr (None when fixed or undetermined)."""
+        se = self.result.stderr_total or self.result.stderr
+        return [{"parameter": n, "value": float(v),
+                 "stderr": None if n in self.result.fixed else se.get(n),
+                 "fixed": n in self.result.fixed}
+                for n, v in self.result.params.items()]
+
+
+def _data_axes(ti, pi_, tr, pr):
+    """(x, group, x name, group name) of measurements: rho within psi groups for in-plane
+    data (the paper's protocol), theta_r within theta_i groups otherwise."""
+    from ..engine.angles import to_goniometer, to_signed_inplane
+
+    try:
+        sti, stw = to_signed_inplane(ti, pi_, tr, pr)
+    except InputError:
+        return np.asarray(tr, float), np.round(np.asarray(ti, float), 3), "theta_r (deg)", "theta_i"
+    psi, rho = to_goniometer(sti, stw)
+    return rho, np.round(psi, 3), "rho (deg)", "psi"
+
+
+__all__ = ["BAND_DRAWS", "BAND_QUANTILES", "RESIDUAL_TOLERANCE", "check_result_kind",
+           "models_of", "FitView"]
