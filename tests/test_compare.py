@@ -1,5 +1,7 @@
-"""Model sets side by side (``veil fit pipeline --compare``), held parameters freed (``--free``),
-and the physical models on the path-traced validation data (issue 12)."""
+"""The paper's and the physical models on the same data (``--models``, issue 29's pinned
+pairs), held parameters freed (``--free``), and the physical models on the path-traced
+validation data (issue 12). The ranking of every candidate (``--models auto``,
+``--compare``): tests/test_model_selection.py."""
 
 from __future__ import annotations
 
@@ -46,7 +48,7 @@ def _run(args):
 def test_compare_refuses_a_chosen_model_and_unknown_names(tmp_path):
     base = _pipeline_args(tmp_path) + ["-o", tmp_path / "out"]
     out = _run(base + ["--compare", "--brdf-model", "rough-plastic"])
-    assert out.exit_code == 2 and "leave --brdf-model out" in out.output
+    assert out.exit_code == 2 and "give one of the two" in out.output
     out = _run(base + ["--free", "medium.nosuch"])
     assert out.exit_code == 2 and "no parameter 'nosuch'" in out.output
     # the paper's medium holds nothing: its parameters are Td, Tt, g, eta
@@ -55,20 +57,20 @@ def test_compare_refuses_a_chosen_model_and_unknown_names(tmp_path):
     out = _run(base + ["--free", "s"])
     assert out.exit_code == 2 and "expected STEP.NAME" in out.output
     out = _run(base + ["--compare", "--fix", "medium.nosuch=1"])
-    assert out.exit_code == 2 and "medium.nosuch: no compared model has such a parameter" \
+    assert out.exit_code == 2 and "medium.nosuch: no candidate model has such a parameter" \
         in out.output
     assert not (tmp_path / "out").exists()
 
 
-def test_compare_models_checks_before_fitting(tmp_path):
-    from veil.pipeline import compare_models
+def test_auto_checks_before_fitting(tmp_path):
+    from veil.pipeline import run_pipeline
 
-    with pytest.raises(FitError, match="at least two model sets"):
-        compare_models(None, None, None, outdir=tmp_path / "x",
-                       sets={"paper": {"brdf": "torrance-sparrow",
-                                       "medium": "henyey-greenstein"}})
     with pytest.raises(FitError, match="target.nosuch"):
-        compare_models(None, None, None, outdir=tmp_path / "x", free={"target": ["nosuch"]})
+        run_pipeline(None, None, None, outdir=tmp_path / "x", models="auto",
+                     free={"target": ["nosuch"]})
+    with pytest.raises(FitError, match="not both"):
+        run_pipeline(None, None, None, outdir=tmp_path / "x", models="auto",
+                     brdf_model="rough-plastic")
 
 
 @pytest.mark.slow
@@ -76,12 +78,16 @@ def test_compare_on_path_traced_data_prefers_the_physical_models(tmp_path):
     """m01 (optical depth 0.1 per pass): the rough plastic fits the path-traced plate in
     clear water to < 0.5 % RMS (issue 12's target) where Torrance-Sparrow misfits it by
     > 3 %; the physical estimate is within 2 % of the direct fit and covered by its
-    uncertainty; every number in comparison.md comes from the fits written beside it."""
+    uncertainty."""
     out_dir = tmp_path / "cmp"
-    out = _run(_pipeline_args(tmp_path) + ["--compare", "--accuracy", "fast", "--path-length",
-                                           "15", "--plate-width", "5", "--no-figures",
-                                           "-o", out_dir])
-    assert out.exit_code in (0, 1), out.output
+    out_dir.mkdir()
+    texts = {}
+    for name, pair in (("paper", "paper"), ("physical", "rough-plastic+forward-series")):
+        options = ["--path-length", "15", "--plate-width", "5"] if name == "physical" else []
+        out = _run(_pipeline_args(tmp_path) + ["--models", pair, "--accuracy", "fast",
+                                               "--no-figures", "-o", out_dir / name] + options)
+        assert out.exit_code in (0, 1), out.output
+        texts[name] = out.output
     results = {s: {k: json.loads((out_dir / s / f"{k}.json").read_text())
                    for k in ("reference", "medium", "target", "target_direct")}
                for s in ("paper", "physical")}
@@ -91,14 +97,15 @@ def test_compare_on_path_traced_data_prefers_the_physical_models(tmp_path):
     assert results["physical"]["reference"]["rms_relative"] < 0.005
     # Torrance-Sparrow misfits the rough plastic by several percent (measured 4.6 %)
     assert results["paper"]["reference"]["rms_relative"] > 0.03
-    text = (out_dir / "comparison.md").read_text()
-    assert "| reference |" in text and "AIC" in text
+    # BIC prefers the physical reference (the same data and weights)
+    assert results["physical"]["reference"]["bic"] is None or \
+        results["physical"]["reference"]["bic"] < results["paper"]["reference"]["bic"]
     assert not list(out_dir.rglob("*.png"))  # --no-figures
     phys = results["physical"]
     assert phys["medium"]["converged"] and phys["target"]["converged"]
-    # the estimate against the direct fit: in the report and within the target
-    line = next(ln for ln in text.splitlines() if ln.startswith("- physical:"))
-    assert float(line.split()[2]) < 2.0
+    # the estimate against the direct fit: in the terminal report, within 2 %
+    line = next(ln for ln in texts["physical"].splitlines() if "rms f_r difference" in ln)
+    assert float(line.split("(")[-1].split()[0]) < 2.0
     tau = phys["medium"]["params"]["tau"]
     assert abs(tau - 0.1) < 0.05 * 0.1 + 3 * phys["medium"]["stderr"]["tau"]
 

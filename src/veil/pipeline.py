@@ -20,9 +20,9 @@ Formats and the meaning of the uncertainties: docs/fitting.md.
 
 from __future__ import annotations
 
+import json
 import math
 import os
-import time
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -40,11 +40,15 @@ from .fitting import (
     fit_target,
     model_values,
     prepare,
+    selection,
 )
 from .fitting.model_error import check_kind
 from .fitting.propagation import check_method
+from .fitting.steps import warn_misfit
 from .io import check_output_folder, output_folder, write_bytes_atomic, write_text_atomic
-from .viz.documents import comparison_report, pipeline_report
+from .models import AUTO, model_class
+from .models.base import VARIANT_OPTION
+from .viz.documents import pipeline_report, ranking_section
 from .viz.fit_figures import fit_figure
 
 #: Output files, by role.
@@ -52,6 +56,10 @@ FILES = {"reference": "reference.json", "medium": "medium.json", "target": "targ
          "direct": "target_direct.json", "report": "report.md",
          "reference_fig": "reference.png", "medium_fig": "medium.png",
          "target_fig": "target.png", "direct_fig": "target_direct.png"}
+#: With ``models="auto"``: the rankings of the three steps.
+RANKING_FILE = "ranking.json"
+#: With ``keep_candidates``, every candidate's result under this folder, by step.
+CANDIDATES_DIR = "candidates"
 STEP_KEYS = ("reference", "medium", "target")
 
 
@@ -65,6 +73,8 @@ class PipelineResult:
     direct: FitResult | None = None
     comparison: dict | None = None
     files: dict = field(default_factory=dict)
+    #: With ``models="auto"``: {step: :class:`veil.fitting.selection.Ranking`}.
+    rankings: dict = field(default_factory=dict)
 
     @property
     def converged(self) -> bool:
@@ -146,12 +156,85 @@ def _write_figures(folder, data: dict, ref, med, tgt, direct) -> dict:
     return {key: FILES[key] for key in figs}
 
 
+def _resolve_models(models, brdf_model, medium_model) -> tuple[Any, Any, bool]:
+    """``models=`` against ``brdf_model`` / ``medium_model``: (the BRDF family, the medium
+    family, whether the data choose them, ``models="auto"``)."""
+    if models is None:
+        return brdf_model, medium_model, False
+    mode = selection.parse_models(models)
+    if brdf_model is not None or medium_model is not None:
+        raise FitError("give models= or brdf_model= / medium_model=, not both")
+    if isinstance(mode, tuple):  # a pinned pair
+        return mode[0], mode[1], False
+    return None, None, mode == AUTO  # PAPER: the default families
+
+
+def _fit_steps(data: dict, fixed: dict, free: dict, *, variant, accuracy, max_nfev, progress,
+               brdf_model, medium_model, brdf_options, medium_options, model_error,
+               propagation) -> tuple[FitResult, FitResult, FitResult]:
+    """Steps 0-2 with the given families: (reference, medium, target)."""
+    brdf = {"brdf_model": brdf_model, "options": brdf_options, "model_error": model_error}
+    chained = {"model_error": model_error, "propagation": propagation}
+    ref = fit_reference(data["reference_clear"].table, fixed=fixed.get("reference"),
+                        max_nfev=max_nfev, progress=_stage(progress, "step 0, reference"),
+                        free=free.get("reference"), **brdf)
+    med = fit_medium(data["reference_medium"].table, ref, fixed=fixed.get("medium"),
+                     variant=variant, accuracy=accuracy, max_nfev=max_nfev,
+                     progress=_stage(progress, "step 1, medium"), medium_model=medium_model,
+                     options=medium_options, free=free.get("medium"), **chained)
+    tgt = fit_target(data["target_medium"].table, med, fixed=fixed.get("target"),
+                     accuracy=accuracy, max_nfev=max_nfev,
+                     progress=_stage(progress, "step 2, target"), free=free.get("target"),
+                     brdf_model=brdf_model, options=brdf_options,
+                     **chained)
+    return ref, med, tgt
+
+
+def _fit_direct(session, fixed: dict, free: dict, *, chosen: bool, brdf_model, brdf_options,
+                max_nfev, progress, model_error) -> FitResult:
+    """The target fitted directly in the clear medium; ``chosen``: ``brdf_model`` was
+    chosen among candidates, and only the target entries its family declares apply."""
+    fix_d, free_d = fixed.get("target"), free.get("target")
+    if chosen:
+        cls = model_class(brdf_model)
+        fix_d = _for_family(cls, fixed, "target", "fixed", set())
+        free_d = _for_family(cls, free, "target", "free", set())
+    return fit_direct(session.table, fixed=fix_d, max_nfev=max_nfev, free=free_d,
+                      progress=_stage(progress, "target, clear medium"),
+                      brdf_model=brdf_model, options=brdf_options, model_error=model_error)
+
+
+def _write_outputs(outdir: str, fits: dict, data: dict, rankings: dict, kept: dict, *,
+                   figures: bool, progress, comparison, truth, shown: dict) -> dict:
+    """The pipeline's files in ``outdir``, as one transaction: {key: file name}. ``shown``:
+    the inputs as report.md names them."""
+    names = {}
+    owned = list(FILES.values()) + [RANKING_FILE, CANDIDATES_DIR]
+    with output_folder(outdir, owned=owned) as folder:
+        for key, result in fits.items():
+            if result is not None:
+                result.to_json(folder / FILES[key])
+                names[key] = FILES[key]
+        names.update(_write_selection(folder, rankings, kept))
+        ref, med, tgt, direct = (fits[k] for k in ("reference", "medium", "target", "direct"))
+        if figures:
+            if progress is not None:
+                progress("figures", None, None)
+            names.update(_write_figures(folder, data, ref, med, tgt, direct))
+        report = pipeline_report(ref, med, tgt, direct, comparison, truth, names, shown)
+        if rankings:
+            report = report.rstrip("\n") + "\n\n" + "\n".join(ranking_section(rankings)) + "\n"
+        write_text_atomic(folder / FILES["report"], report)
+        names["report"] = FILES["report"]
+    return names
+
+
 def run_pipeline(reference_clear, reference_medium, target_medium, black=None, target_clear=None,
                  outdir="veil-fit", *, variant: str | None = None, accuracy: str = "default",
                  fixed=None, max_nfev=None, progress=None, truth=None,
                  figures: bool = True, brdf_model=None, medium_model=None, brdf_options=None,
                  medium_options=None, free=None, model_error=None,
-                 propagation=None) -> PipelineResult:
+                 propagation=None, models=None, keep_candidates: bool = False) -> PipelineResult:
     """Steps 0-2 of docs/model.md sec. 7 with files, figures and report.md in ``outdir``.
 
     reference_clear, reference_medium, target_medium : sessions (DataFrames or CSV paths):
@@ -173,6 +256,14 @@ def run_pipeline(reference_clear, reference_medium, target_medium, black=None, t
         when larger than its own and counts the error the two share.
     propagation : how each step's given covariance enters its ``stderr_total`` ("auto", the
         default, "linear" or "sigma-points"; :mod:`veil.fitting.propagation`).
+    models : None (``brdf_model`` / ``medium_model`` as given), "paper" (the paper's models),
+        "BRDF+MEDIUM" (a pinned pair) or "auto": every registered candidate ranked per step
+        by BIC with its model-discrepancy term (:mod:`veil.fitting.selection`), the best
+        one used; options, ``fixed`` and ``free`` then apply to the candidates that declare
+        them. Rankings in ``ranking.json``, report.md and each chosen result's
+        ``stats["selection"]``; with ``keep_candidates`` every candidate's result too, in
+        ``candidates/<step>/``. Every candidate failing raises
+        :class:`veil.fitting.selection.NoCandidateError` (with the rankings).
     Other arguments as :func:`veil.fit_medium`. Returns a :class:`PipelineResult`.
     """
     model_error = check_kind(model_error)
@@ -184,48 +275,195 @@ def run_pipeline(reference_clear, reference_medium, target_medium, black=None, t
               "target_medium": target_medium, "black": black, "target_clear": target_clear}
     _check_outputs(outdir, inputs)
 
+    brdf_model, medium_model, auto = _resolve_models(models, brdf_model, medium_model)
+    # the candidates and their entries, checked before any reading
+    plan = _plan(fixed, free, brdf_options, medium_options, variant) if auto else None
     # read and check every input before the first (long) fit
     data = _prepare_sessions(inputs)
 
-    brdf = {"brdf_model": brdf_model, "options": brdf_options, "model_error": model_error}
-    chained = {"model_error": model_error, "propagation": propagation}
-    ref = fit_reference(data["reference_clear"].table, fixed=fixed.get("reference"),
-                        max_nfev=max_nfev, progress=_stage(progress, "step 0, reference"),
-                        free=free.get("reference"), **brdf)
-    med = fit_medium(data["reference_medium"].table, ref, fixed=fixed.get("medium"),
-                     variant=variant, accuracy=accuracy, max_nfev=max_nfev,
-                     progress=_stage(progress, "step 1, medium"), medium_model=medium_model,
-                     options=medium_options, free=free.get("medium"), **chained)
-    tgt = fit_target(data["target_medium"].table, med, fixed=fixed.get("target"),
-                     accuracy=accuracy, max_nfev=max_nfev,
-                     progress=_stage(progress, "step 2, target"), free=free.get("target"),
-                     brdf_model=brdf_model, options=brdf_options,
-                     **chained)
+    rankings: dict = {}
+    kept: dict = {}
+    if plan is not None:
+        ref, med, tgt, brdf_model, brdf_options, rankings, kept = _select(
+            data, plan, accuracy=accuracy, max_nfev=max_nfev, progress=progress,
+            model_error=model_error, propagation=propagation, keep=keep_candidates)
+    else:
+        ref, med, tgt = _fit_steps(
+            data, fixed, free, variant=variant, accuracy=accuracy, max_nfev=max_nfev,
+            progress=progress, brdf_model=brdf_model, medium_model=medium_model,
+            brdf_options=brdf_options, medium_options=medium_options,
+            model_error=model_error, propagation=propagation)
     direct = comparison = None
     if target_clear is not None:
-        direct = fit_direct(data["target_clear"].table, fixed=fixed.get("target"),
-                            max_nfev=max_nfev, free=free.get("target"),
-                            progress=_stage(progress, "target, clear medium"), **brdf)
+        direct = _fit_direct(data["target_clear"], fixed, free, chosen=bool(rankings),
+                             brdf_model=brdf_model, brdf_options=brdf_options,
+                             max_nfev=max_nfev, progress=progress, model_error=model_error)
         comparison = compare(tgt, direct)
 
-    names = {}
-    with output_folder(outdir, owned=FILES.values()) as folder:
-        for key, result in (("reference", ref), ("medium", med), ("target", tgt),
-                            ("direct", direct)):
-            if result is not None:
-                result.to_json(folder / FILES[key])
-                names[key] = FILES[key]
-        if figures:
-            if progress is not None:
-                progress("figures", None, None)
-            names.update(_write_figures(folder, data, ref, med, tgt, direct))
-        # inputs inside the output folder are named relative to it (links from report.md)
-        shown = _relative_to(inputs, outdir)
-        report = pipeline_report(ref, med, tgt, direct, comparison, truth, names, shown)
-        write_text_atomic(folder / FILES["report"], report)
-        names["report"] = FILES["report"]
+    fits = {"reference": ref, "medium": med, "target": tgt, "direct": direct}
+    # inputs inside the output folder are named relative to it (links from report.md)
+    names = _write_outputs(outdir, fits, data, rankings, kept, figures=figures,
+                           progress=progress, comparison=comparison, truth=truth,
+                           shown=_relative_to(inputs, outdir))
     files = {key: os.path.join(outdir, name) for key, name in names.items()}
-    return PipelineResult(ref, med, tgt, direct, comparison, files)
+    return PipelineResult(ref, med, tgt, direct, comparison, files, rankings)
+
+
+# --------------------------------------------------------------------------------------
+# models="auto": the data choose the model (issue 29)
+# --------------------------------------------------------------------------------------
+def _file_name(label: str) -> str:
+    """A candidate's result file: its label with [ , = ] made file-name safe."""
+    for a, b in (("[", "_"), ("]", ""), (",", "_"), ("=", "-")):
+        label = label.replace(a, b)
+    return label + ".json"
+
+
+def _write_selection(folder, rankings: dict, kept: dict) -> dict:
+    """``ranking.json`` (with rankings) and every kept candidate's result in ``folder``:
+    {key: file name}."""
+    names = {}
+    if rankings:
+        write_text_atomic(folder / RANKING_FILE, json.dumps(
+            {step: r.to_dict() for step, r in rankings.items()}, indent=1) + "\n")
+        names["ranking"] = RANKING_FILE
+    for step, results in kept.items():
+        (folder / CANDIDATES_DIR / step).mkdir(parents=True, exist_ok=True)
+        for label, result in results.items():
+            name = os.path.join(CANDIDATES_DIR, step, _file_name(label))
+            result.to_json(folder / name)
+            names[f"{CANDIDATES_DIR}/{step}/{label}"] = name
+    return names
+
+
+def _per_family(cands, per_step: dict, step: str, what: str) -> dict:
+    """{label: the ``fixed`` / ``free`` entries of ``step`` its family declares}; an entry no
+    candidate declares is an error."""
+    used: set = set()
+    out = {c.label: _for_family(model_class(c.family), per_step, step, what, used)
+           for c in cands}
+    unused = [f"{step}.{k}" for k in (per_step.get(step) or []) if (step, k) not in used]
+    if unused:
+        raise FitError(f"{what} {', '.join(unused)}: no candidate model has such a parameter")
+    return out
+
+
+def _with_selection(result: FitResult, ranking) -> FitResult:
+    """``result`` with its step's ranking in ``stats["selection"]``."""
+    import dataclasses
+
+    return dataclasses.replace(result, stats={**result.stats, "selection": ranking.to_dict()})
+
+
+def _fitted_curve(result: FitResult, data) -> np.ndarray:
+    """The fit's model values at its data's configurations, from its residuals."""
+    r = np.asarray(result.residuals, dtype=float)
+    return data.y - (r * data.sigma if result.weighted and data.sigma is not None else r)
+
+
+def _rank_step(step, cands, data, fit_one, progress, curves, what):
+    """Fit and rank one step's candidates; (ranking, {label: result}); raises
+    NoCandidateError when every candidate failed."""
+    if progress is not None:
+        progress(f"{step}: {len(cands)} candidates in {selection.workers(len(cands))} "
+                 f"thread(s)", None, None)
+    count = {"done": 0}
+
+    def tell(label, what):
+        count["done"] += 1
+        if progress is not None:
+            progress(f"{step}: {label} {what}", count["done"], len(cands))
+
+    fitted = selection.fit_candidates(fit_one, cands, tell)
+    ranking = selection.rank(step, fitted, data, cands)
+    results = {lab: res for lab, (res, _) in fitted.items() if isinstance(res, FitResult)}
+    if ranking.chosen is None:
+        raise selection.NoCandidateError(step, ranking)
+    warn_misfit(results[ranking.chosen].chi2_reduced, data, what)
+    if ranking.close_call:
+        ranking = ranking.with_spread(selection.curve_spread(
+            ranking, {lab: curves(results[lab]) for lab in ranking.close}))
+    return ranking, results
+
+
+def _plan(fixed, free, brdf_options, medium_options, variant) -> dict:
+    """The candidates of ``models="auto"`` and each one's options, fixed and free entries;
+    an entry or option no candidate declares is an error."""
+    brdf_options, medium_options = dict(brdf_options or {}), dict(medium_options or {})
+    if variant is not None:
+        medium_options.setdefault(VARIANT_OPTION, variant)
+    b_cands = selection.candidates("brdf", brdf_options)
+    m_cands = selection.candidates("medium", medium_options)
+    for kind, cands, opts in (("BRDF", b_cands, brdf_options),
+                              ("medium", m_cands, medium_options)):
+        if not cands:
+            raise FitError(f"no registered {kind} family is a candidate with options {opts}")
+        declared = {o for c in cands for o in model_class(c.family).option_names()}
+        unused = sorted(set(opts) - declared)
+        if unused:
+            raise FitError(f"option(s) {', '.join(unused)}: no {kind} candidate declares them")
+    return {"brdf": b_cands, "medium": m_cands, "brdf_options": brdf_options,
+            "medium_options": medium_options,
+            "fix_b": _per_family(b_cands, fixed, "reference", "fixed"),
+            "free_b": _per_family(b_cands, free, "reference", "free"),
+            "fix_m": _per_family(m_cands, fixed, "medium", "fixed"),
+            "free_m": _per_family(m_cands, free, "medium", "free"),
+            "fix_t": _per_family(b_cands, fixed, "target", "fixed"),
+            "free_t": _per_family(b_cands, free, "target", "free")}
+
+
+def _select(data, plan, *, accuracy, max_nfev, progress, model_error, propagation, keep):
+    """Steps 0-2 with every candidate ranked (``models="auto"``)."""
+    brdf_options, medium_options = plan["brdf_options"], plan["medium_options"]
+    fix_b, free_b, fix_m, free_m, fix_t, free_t = (
+        plan[k] for k in ("fix_b", "free_b", "fix_m", "free_m", "fix_t", "free_t"))
+    chained = {"model_error": model_error, "propagation": propagation}
+    configs = protocol()
+    angles = tuple(configs[c].to_numpy() for c in CANONICAL)
+
+    def fr_curve(result):
+        return model_values(result, None, angles)
+
+    rankings, kept = {}, {}
+
+    def step0(c):
+        return fit_reference(data["reference_clear"].table, fixed=fix_b[c.label],
+                             free=free_b[c.label], max_nfev=max_nfev, brdf_model=c.family,
+                             options=c.model_options(brdf_options), model_error=model_error)
+
+    ranking, results = _rank_step("reference", plan["brdf"], data["reference_clear"], step0,
+                                  progress, fr_curve, "reference (clear medium)")
+    rankings["reference"], kept["reference"] = ranking, results
+    ref = _with_selection(results[ranking.chosen], ranking)
+
+    def step1(c):
+        return fit_medium(data["reference_medium"].table, ref, fixed=fix_m[c.label],
+                          free=free_m[c.label], accuracy=accuracy, max_nfev=max_nfev,
+                          medium_model=c.family, options=c.model_options(medium_options),
+                          **chained)
+
+    ranking, results = _rank_step("medium", plan["medium"], data["reference_medium"], step1,
+                                  progress,
+                                  lambda r: _fitted_curve(r, data["reference_medium"]), "medium")
+    rankings["medium"], kept["medium"] = ranking, results
+    med = _with_selection(results[ranking.chosen], ranking)
+
+    def step2(c):
+        return fit_target(data["target_medium"].table, med, fixed=fix_t[c.label],
+                          free=free_t[c.label], accuracy=accuracy, max_nfev=max_nfev,
+                          brdf_model=c.family, options=c.model_options(brdf_options),
+                          **chained)
+
+    ranking, results = _rank_step("target", plan["brdf"], data["target_medium"], step2,
+                                  progress, fr_curve, "target")
+    rankings["target"], kept["target"] = ranking, results
+    tgt = _with_selection(results[ranking.chosen], ranking)
+    chosen = ranking.row(ranking.chosen)
+    opts = {k: v for k, v in brdf_options.items()
+            if k in model_class(chosen["family"]).option_names()}
+    opts.update(chosen["options"])
+    return (ref, med, tgt, chosen["family"], opts, rankings,
+            kept if keep else {})
 
 
 # --------------------------------------------------------------------------------------
@@ -256,7 +494,7 @@ def compare(estimated: FitResult, direct: FitResult) -> dict:
                       "stderr_combined": combined if combined > 0 else None,
                       "z": (value - ref) / combined if combined > 0 else None}
     configs = protocol()
-    angles = tuple(configs[c].to_numpy() for c in ("theta_i", "phi_i", "theta_r", "phi_r"))
+    angles = tuple(configs[c].to_numpy() for c in CANONICAL)
     f_est, se_f_est = curve_stderr(estimated, angles)
     f_dir, se_f_dir = curve_stderr(direct, angles)
     diff = f_est - f_dir
@@ -265,6 +503,14 @@ def compare(estimated: FitResult, direct: FitResult) -> dict:
            "rms_fr_relative": float(np.sqrt(np.mean((diff / f_dir) ** 2))),
            "max_fr_relative": float(np.max(np.abs(diff / f_dir))),
            "fr_max_z": None, "fr_within_2se": None}
+    spread = ((estimated.stats or {}).get("selection") or {}).get("spread")
+    out["model_spread_rms_relative"] = None
+    if spread is not None and len(spread.get("spread", ())) == len(configs):
+        # a close call between families: their curves' BIC-weighted spread widens the
+        # estimate's uncertainty (veil.fitting.selection)
+        widen = np.asarray(spread["spread"], dtype=float)
+        se_f_est = widen if se_f_est is None else np.hypot(se_f_est, widen)
+        out["model_spread_rms_relative"] = spread["rms_relative"]
     if se_f_est is not None:
         se = np.hypot(se_f_est, 0.0 if se_f_dir is None else se_f_dir)
         if np.all(se > 0):
@@ -276,22 +522,8 @@ def compare(estimated: FitResult, direct: FitResult) -> dict:
 
 
 # --------------------------------------------------------------------------------------
-# model sets side by side
+# the entries of one family
 # --------------------------------------------------------------------------------------
-@dataclass(frozen=True)
-class ComparisonResult:
-    """``run_pipeline`` once per model set on the same data (``veil fit pipeline --compare``)."""
-
-    results: dict
-    seconds: dict
-    difference: dict
-    files: dict = field(default_factory=dict)
-
-    @property
-    def converged(self) -> bool:
-        return all(r.converged for r in self.results.values())
-
-
 def _for_family(cls, per_step: dict, step: str, what: str, used: set) -> dict | list | None:
     """The entries of ``per_step[step]`` that name parameters of ``cls`` (a fixed dict or a
     free list); records which were used."""
@@ -308,96 +540,5 @@ def _for_family(cls, per_step: dict, step: str, what: str, used: set) -> dict | 
     return kept
 
 
-def _target_difference(results: dict) -> dict:
-    """How far the other sets' target f_r is from the first's over the protocol's
-    configurations: relative rms and largest difference."""
-    names = list(results)
-    first = names[0]
-    configs = protocol()
-    angles = tuple(configs[c].to_numpy() for c in CANONICAL)
-    base = model_values(results[first].target, None, angles)
-    rel = np.concatenate([(model_values(results[n].target, None, angles) - base) / base
-                          for n in names[1:]])
-    return {"against": first, "n": len(configs), "rms": float(np.sqrt(np.mean(rel ** 2))),
-            "max": float(np.max(np.abs(rel)))}
-
-
-def compare_models(reference_clear, reference_medium, target_medium, black=None,
-                   target_clear=None, outdir="veil-compare", *, sets=None,
-                   accuracy: str = "default", fixed=None, free=None, max_nfev=None,
-                   progress=None, brdf_options=None, medium_options=None,
-                   figures: bool = True, model_error=None,
-                   propagation=None) -> ComparisonResult:
-    """:func:`run_pipeline` with each named model set (default the paper's and the physical
-    ones, :data:`veil.models.MODEL_SETS`) on the same sessions, each into ``outdir/<set>/``,
-    and ``outdir/comparison.md``: goodness of fit (chi-square, AIC, BIC) step by step side by
-    side, each estimate against the direct fit, and the sets' estimates against each other.
-
-    Options, ``fixed`` and ``free`` entries apply to the sets whose families declare them;
-    one that no set's family declares is an error. The folder is written as one transaction.
-    """
-    from .models import MODEL_SETS, model_class
-
-    sets = dict(MODEL_SETS) if sets is None else dict(sets)
-    if len(sets) < 2:
-        raise FitError(f"sets = {list(sets)}: a comparison needs at least two model sets")
-    fixed, free = _check_fixed(fixed), _check_fixed(free, "free")
-    used_fix: set[tuple] = set()
-    used_free: set[tuple] = set()
-    used_opts: set[str] = set()
-    plans: dict[str, dict[str, Any]] = {}
-    for name, chosen in sets.items():
-        brdf, medium = model_class(chosen["brdf"], "brdf"), model_class(chosen["medium"], "medium")
-        b_opts = {k: v for k, v in (brdf_options or {}).items() if k in brdf.option_names()}
-        m_opts = {k: v for k, v in (medium_options or {}).items() if k in medium.option_names()}
-        used_opts.update(b_opts, m_opts)
-        plans[name] = dict(
-            brdf_model=brdf.NAME, medium_model=medium.NAME, brdf_options=b_opts,
-            medium_options=m_opts,
-            fixed={step: f for step in STEP_KEYS if (f := _for_family(
-                medium if step == "medium" else brdf, fixed, step, "fixed", used_fix))},
-            free={step: f for step in STEP_KEYS if (f := _for_family(
-                medium if step == "medium" else brdf, free, step, "free", used_free))})
-    for what, per_step, used in (("fixed", fixed, used_fix), ("free", free, used_free)):
-        unused = [f"{step}.{k}" for step, entries in per_step.items() for k in entries
-                  if (step, k) not in used]
-        if unused:
-            raise FitError(f"{what} {', '.join(unused)}: no compared model has such a "
-                           f"parameter ({', '.join(sets)})")
-    unused = sorted(set(brdf_options or {}) | set(medium_options or {}) - used_opts)
-    if unused:
-        raise FitError(f"option(s) {', '.join(unused)}: no compared model declares them")
-    outdir = os.fspath(outdir)
-    inputs = [reference_clear, reference_medium, target_medium, black, target_clear]
-    for inp in inputs:
-        if isinstance(inp, (str, os.PathLike)) and _inside(inp, outdir):
-            raise FitError(f"input {os.fspath(inp)} lies inside the output folder {outdir}; "
-                           f"veil never overwrites an input: choose another output directory")
-    results, seconds = {}, {}
-    with output_folder(outdir, owned=list(sets) + ["comparison.md"]) as folder:
-        for name, plan in plans.items():
-            if progress is not None:
-                progress(f"model set '{name}'", None, None)
-            inner = None if progress is None else (
-                lambda what, done, total, name=name: progress(f"{name}: {what}", done, total))
-            t0 = time.perf_counter()
-            results[name] = run_pipeline(reference_clear, reference_medium, target_medium,
-                                         black=black, target_clear=target_clear,
-                                         outdir=folder / name, accuracy=accuracy,
-                                         max_nfev=max_nfev, progress=inner, figures=figures,
-                                         model_error=model_error,
-                                         propagation=propagation, **plan)
-            seconds[name] = time.perf_counter() - t0
-        difference = _target_difference(results)
-        write_text_atomic(folder / "comparison.md",
-                          comparison_report(results, seconds, difference))
-    # the sets' files were written in the staging folder, now moved to outdir
-    files = {"comparison": os.path.join(outdir, "comparison.md")}
-    for name, r in results.items():
-        files.update({f"{name}/{key}": os.path.join(outdir, name, os.path.basename(path))
-                      for key, path in r.files.items()})
-    return ComparisonResult(results, seconds, difference, files)
-
-
-__all__ = ["run_pipeline", "PipelineResult", "compare", "compare_models", "ComparisonResult",
-           "fit_figure", "FILES"]
+__all__ = ["run_pipeline", "PipelineResult", "compare", "fit_figure", "FILES", "RANKING_FILE",
+           "CANDIDATES_DIR"]

@@ -7,7 +7,6 @@ import functools
 import importlib
 import math
 import os
-import re
 import sys
 import tempfile
 import warnings
@@ -151,6 +150,9 @@ class ModelChoice:
     brdf_options: dict
     medium_options: dict
     explicit: frozenset = frozenset()
+    #: ``fit pipeline --models``: veil.models.AUTO, PAPER or "pinned" (a FAMILY+MEDIUM pair,
+    #: in ``brdf`` and ``medium``); None when the command has no --models (the paper's).
+    mode: str | None = None
 
     def parse(self, text: str, kind: str, option: str):
         """A preset name or a literal list of the family's parameters (in declared order);
@@ -292,34 +294,22 @@ def model_options(kinds=("brdf", "medium")):
         def wrapper(*args, **kwargs):
             chosen = {}
             explicit = set()
+            mode, pair = _models_mode(kwargs.get("model_spec"), kwargs.get("compare"))
             for kind in kinds:
                 value = kwargs.pop(f"{kind}_model", None)
                 if value is not None:
                     explicit.add(f"{kind}-model")
-                chosen[kind] = registry.model_class(value or DEFAULTS[kind], kind)
-            opts = {"brdf": {}, "medium": {}}
-            for oname in declared:
-                value = kwargs.pop(oname, None)
-                if value is None:
-                    continue
-                targets = [k for k in kinds if oname in chosen[k].option_names()]
-                if not targets and kwargs.get("compare"):
-                    # fit pipeline --compare: the option goes to the compared families that
-                    # declare it (veil.pipeline.compare_models)
-                    for kind, _, opt in declared[oname]:
-                        opts[kind][oname] = _convert(value, opt)
-                    continue
-                if not targets:
-                    users = sorted({n for _, n, _ in declared[oname]})
-                    raise UserError(f"{_option_flag(oname)} applies to the model(s) "
-                                    f"{', '.join(users)}, not to "
-                                    f"{' / '.join(chosen[k].NAME for k in kinds)}")
-                for k in targets:
-                    opt = next(o for o in chosen[k].OPTIONS if o.name == oname)
-                    opts[k][oname] = _convert(value, opt)
+                    if kwargs.get("model_spec") is not None or mode is not None:
+                        raise UserError(f"--{kind}-model with --models "
+                                        f"{kwargs.get('model_spec') or 'auto'}: give one of "
+                                        f"the two (--models FAMILY+MEDIUM pins a pair)")
+                chosen[kind] = registry.model_class(value or pair.get(kind) or DEFAULTS[kind],
+                                                    kind)
+            opts = _option_values(declared, chosen, kinds, kwargs, mode == registry.AUTO)
             kwargs["models"] = ModelChoice(chosen.get("brdf", registry.default_class("brdf")),
                                            chosen.get("medium", registry.default_class("medium")),
-                                           opts["brdf"], opts["medium"], frozenset(explicit))
+                                           opts["brdf"], opts["medium"], frozenset(explicit),
+                                           mode)
             return fn(*args, **kwargs)
 
         for oname, users in reversed(list(declared.items())):
@@ -342,6 +332,53 @@ def model_options(kinds=("brdf", "medium")):
         return wrapper
 
     return decorate
+
+
+def _option_values(declared: dict, chosen: dict, kinds, kwargs: dict, auto: bool) -> dict:
+    """{kind: {option: value}} of the model options given (popped from ``kwargs``), each
+    to the chosen families that declare it; with ``auto`` (fit pipeline --models auto) to
+    every candidate that declares it (veil.fitting.selection). An option no chosen family
+    declares is a UserError."""
+    opts: dict[str, dict] = {"brdf": {}, "medium": {}}
+    for oname in declared:
+        value = kwargs.pop(oname, None)
+        if value is None:
+            continue
+        if auto:
+            for kind, _, opt in declared[oname]:
+                opts[kind][oname] = _convert(value, opt)
+            continue
+        targets = [k for k in kinds if oname in chosen[k].option_names()]
+        if not targets:
+            users = sorted({n for _, n, _ in declared[oname]})
+            raise UserError(f"{_option_flag(oname)} applies to the model(s) "
+                            f"{', '.join(users)}, not to "
+                            f"{' / '.join(chosen[k].NAME for k in kinds)}")
+        for k in targets:
+            opt = next(o for o in chosen[k].OPTIONS if o.name == oname)
+            opts[k][oname] = _convert(value, opt)
+    return opts
+
+
+def _models_mode(spec, compare) -> tuple[str | None, dict]:
+    """(AUTO | PAPER | "pinned", {kind: family}) of ``--models`` (``compare``: AUTO; None
+    without either); a UserError (exit 2) listing the registered families for an unknown
+    one."""
+    if spec is None and not compare:
+        return None, {}
+    from ..fitting.selection import parse_models
+    from ..models import AUTO
+
+    try:
+        mode = parse_models(spec or AUTO)
+    except InputError as exc:
+        raise UserError(f"--models: {exc}") from None
+    if compare and mode != AUTO:
+        raise UserError(f"--compare writes out the ranking of --models auto; leave --models "
+                        f"{spec} out")
+    if isinstance(mode, tuple):
+        return "pinned", {"brdf": mode[0], "medium": mode[1]}
+    return mode, {}
 
 
 def _convert(value: str, opt):
@@ -470,103 +507,6 @@ def finish_fits(ctx, results, written):
         click.echo("Error: a fit did not converge (its result was written with "
                    "\"converged\": false): " + "; ".join(r.message for r in failed), err=True)
         ctx.exit(1)
-
-
-# -- CSV input -----------------------------------------------------------------------------
-
-#: How error messages count rows: as lines of the file, the header line being row 1.
-ROW_CONVENTION = "rows counted as lines of the file, header = row 1"
-
-
-def _read_cells(path: str, required, expected):
-    """Every cell of a CSV file as text (pandas), or a UserError naming the file."""
-    import pandas as pd
-
-    try:
-        return pd.read_csv(path, header=None, dtype=str, keep_default_na=False,
-                           skip_blank_lines=False, skipinitialspace=True, encoding="utf-8")
-    except pd.errors.EmptyDataError:
-        columns = expected or ", ".join(required) if not callable(required) else expected
-        raise UserError(f"{path}: the file is empty; expected a header line naming the columns "
-                        f"{columns}, then one row per entry") from None
-    except pd.errors.ParserError as exc:
-        text = " ".join(str(exc).split())
-        m = re.search(r"Expected (\d+) fields in line (\d+), saw (\d+)", text)
-        if m:
-            raise UserError(f"{path}: row {m[2]} ({ROW_CONVENTION}) has {m[3]} fields but the "
-                            f"header (row 1) has {m[1]}") from None
-        raise UserError(f"{path}: not a well-formed CSV file ({text})") from None
-    except UnicodeDecodeError as exc:
-        raise UserError(f"{path}: not UTF-8 text ({exc.reason}); save the file as UTF-8") from None
-
-
-def read_csv_table(path, required, *, unit="a number", expected=None):
-    """Read a CSV file with pandas, keeping every cell as text, and parse ``required`` columns.
-
-    Returns ``(table, numbers, rows)``: ``table`` is a DataFrame of strings with every column
-    of the file in file order (for passthrough; lines that are entirely blank are dropped),
-    ``numbers`` maps each required column to a float array (finite values only) and ``rows``
-    holds each kept row's number in the file (header = row 1). Any problem - unreadable,
-    empty, ragged, a required column missing or duplicated, an empty, non-numeric or
-    non-finite cell - raises :class:`UserError` naming the file, the row and the column.
-    ``unit`` words what a cell should hold, e.g. "an angle in degrees"; ``expected`` the
-    columns a file should have, for messages (default: ``required``). ``required`` may be a
-    function of the header (list of column names) returning the columns to parse.
-    """
-    import numpy as np
-    import pandas as pd  # heavy; only commands that read CSV pay for it
-
-    path = os.fspath(path)
-    raw = _read_cells(path, required, expected)
-    header = [str(c) for c in raw.iloc[0].tolist()]
-    if callable(required):
-        required = tuple(required(header))
-    body = raw.iloc[1:]
-    missing = [c for c in required if c not in header]
-    if missing:
-        plural = "s" if len(missing) > 1 else ""
-        raise UserError(f"{path}: missing column{plural} {', '.join(map(repr, missing))} "
-                        f"(required: {', '.join(required)}); the header (row 1) has: "
-                        f"{', '.join(map(repr, header))}")
-    for c in required:
-        if header.count(c) > 1:
-            raise UserError(f"{path}: column {c!r} appears {header.count(c)} times in the "
-                            f"header (row 1); it must appear once")
-    blank = (body == "").all(axis=1).to_numpy()
-    body = body[~blank]
-    rows = body.index.to_numpy() + 1
-    if len(body) == 0:
-        raise UserError(f"{path}: no data rows after the header (row 1); expected one row per "
-                        f"entry with columns {expected or ', '.join(required)}")
-    table = pd.DataFrame(body.to_numpy(), columns=header)
-    numbers = {}
-    first_bad = None  # (row, column position, message): report the first in file order
-    for c in required:
-        cells = body.iloc[:, header.index(c)].tolist()
-        values = np.empty(len(cells))
-        for j, cell in enumerate(cells):
-            text = cell.strip()
-            problem = None
-            if text == "":
-                problem = "empty cell"
-            else:
-                try:
-                    values[j] = float(text)
-                except ValueError:
-                    problem = f"{cell!r} is not a number"
-                else:
-                    if not math.isfinite(values[j]):
-                        problem = f"{cell!r} is not a finite number"
-            if problem is not None:
-                key = (int(rows[j]), header.index(c))
-                if first_bad is None or key < first_bad[:2]:
-                    first_bad = key + (f"{path}: row {rows[j]} ({ROW_CONVENTION}), column "
-                                       f"{c!r}: {problem}; expected {unit}",)
-                break
-        numbers[c] = values
-    if first_bad is not None:
-        raise UserError(first_bad[2])
-    return table, numbers, rows
 
 
 # -- output files --------------------------------------------------------------------------

@@ -12,7 +12,7 @@ import click
 
 from .._lazy import np
 from ..io import write_text_atomic
-from ._common import ACCURACIES, UserError, check_output_path, model_options, read_csv_table
+from ._common import ACCURACIES, UserError, check_output_path, model_options
 
 ANGLES = ("theta_i", "phi_i", "theta_r", "phi_r")  # the --configs columns, degrees
 ADDED = ("apparent", "clear", "error")  # the columns veil eval adds
@@ -92,6 +92,8 @@ def _read_configs(configs):
     """Angles (degrees, canonical) and the table of strings of a --configs file, in any of
     the three angle forms of measurement tables (docs/model.md sec. 1): the four angles, signed
     in-plane theta_i, theta_r, or goniometer psi, rho."""
+    from ._csv_input import read_csv_table
+
     def four_angles(header):  # the four-angle form is parsed here, the others below
         return ANGLES if any(c in header for c in ("phi_i", "phi_r")) else ()
 

@@ -262,7 +262,10 @@ def target_command(ctx, table, medium, output, fix, free, black, accuracy, max_n
 
 
 def print_pipeline(result) -> None:
-    """The fit reports of a :class:`veil.pipeline.PipelineResult` and its comparison."""
+    """The rankings (``--models auto``), the fit reports of a
+    :class:`veil.pipeline.PipelineResult` and its comparison."""
+    for ranking in getattr(result, "rankings", {}).values():
+        print_ranking(ranking)
     for r in (result.reference, result.medium, result.target, result.direct):
         if r is not None:
             click.echo(r.report())
@@ -299,12 +302,18 @@ def print_pipeline(result) -> None:
 @click.option("--free", "free", multiple=True, metavar="STEP.NAME",
               help="Fit a parameter the family holds by default in one step (e.g. medium.s, "
                    "the forward-series exposure factor); repeatable.")
+@click.option("--models", "model_spec", default=None, metavar="auto|paper|FAMILY+MEDIUM",
+              help="Which models: 'auto' fits every registered family (each value of its "
+                   "discrete options) and ranks them per step by BIC with the fit's "
+                   "model-discrepancy term, using the best (step 0 the reference's BRDF, step "
+                   "1 the medium, step 2 the target's BRDF; tables in the output and "
+                   "report.md); 'paper' the paper's Torrance-Sparrow + Henyey-Greenstein; "
+                   "FAMILY+MEDIUM pins a pair (e.g. rough-plastic+forward-series).  "
+                   "[default: paper]")
 @click.option("--compare", is_flag=True,
-              help="Fit the paper's models and the physical ones (rough-plastic, "
-                   "forward-series; 'veil models') to the same data, each into OUTDIR/<set>/, "
-                   "and report goodness of fit (chi-square, AIC, BIC) and the estimates side "
-                   "by side in OUTDIR/comparison.md. Options, --fix and --free apply to the "
-                   "models that declare them.")
+              help="--models auto with the ranking written out in full: every candidate's "
+                   "result in OUTDIR/candidates/STEP/. Options, --fix and --free apply to the "
+                   "candidates that declare them.")
 @click.option("--figures/--no-figures", default=True, show_default=True,
               help="Draw the data against the fitted curves (the PNGs); --no-figures writes "
                    "the results and report.md only, faster.")
@@ -315,38 +324,78 @@ def print_pipeline(result) -> None:
 @model_options()
 @click.pass_context
 def pipeline_command(ctx, reference_clear, reference_medium, target_medium, black, target_clear,
-                     outdir, fix, free, compare, figures, accuracy, max_nfev, model_error,
-                     propagation, models):
+                     outdir, fix, free, model_spec, compare, figures, accuracy, max_nfev,
+                     model_error, propagation, models):
     """Steps 0-2 in one go, with figures (data against fitted curves, over their relative
-    residuals) and report.md."""
-    from ..pipeline import compare_models, run_pipeline
+    residuals) and report.md; --models auto lets the data choose the models."""
+    from ..models import AUTO
+    from ..pipeline import run_pipeline
 
-    if compare:
-        if models.explicit:
-            raise UserError(f"--compare fits the paper's and the physical model sets; leave "
-                            f"{' and '.join('--' + e for e in sorted(models.explicit))} out")
-        return _compare(ctx, compare_models, reference_clear, reference_medium,
-                        target_medium, black, target_clear, outdir, fix, free, accuracy,
-                        max_nfev, models, figures, model_error, propagation)
-    fixed = _parse_step_fix(fix, models)
-    freed = _parse_step_free(free, models)
+    auto = models.mode == AUTO
+    if auto:
+        fixed = _raw_step_fix(fix)
+        freed = _step_entries(free, "--free")
+    else:
+        fixed = _parse_step_fix(fix, models)
+        freed = _parse_step_free(free, models)
     if outdir.exists() and not outdir.is_dir():
         raise UserError(f"--outdir {outdir} exists and is not a directory")
     if not outdir.parent.exists() and not outdir.exists():
         raise UserError(f"cannot create {outdir}: directory {outdir.parent} does not exist")
-    with echo_warnings(), fit_progress("pipeline") as progress:
-        result = run_pipeline(reference_clear, reference_medium, target_medium, black=black,
-                              target_clear=target_clear, outdir=outdir,
-                              accuracy=accuracy, fixed=fixed, max_nfev=max_nfev,
-                              progress=progress, brdf_model=models.brdf.NAME,
-                              medium_model=models.medium.NAME,
-                              brdf_options=models.brdf_options,
-                              medium_options=models.medium_options, free=freed,
-                              figures=figures, model_error=model_error,
-                              propagation=propagation)
+    chosen = ({"models": AUTO} if auto else
+              {"brdf_model": models.brdf.NAME, "medium_model": models.medium.NAME})
+    from ..fitting.selection import NoCandidateError
+
+    try:
+        with echo_warnings(), fit_progress("pipeline") as progress:
+            result = run_pipeline(reference_clear, reference_medium, target_medium,
+                                  black=black, target_clear=target_clear, outdir=outdir,
+                                  accuracy=accuracy, fixed=fixed, max_nfev=max_nfev,
+                                  progress=progress, brdf_options=models.brdf_options,
+                                  medium_options=models.medium_options, free=freed,
+                                  figures=figures, model_error=model_error,
+                                  propagation=propagation, keep_candidates=compare,
+                                  **chosen)
+    except NoCandidateError as exc:
+        print_ranking(exc.ranking)
+        click.echo(f"Error: {exc}; nothing was written", err=True)
+        ctx.exit(1)
     print_pipeline(result)
     fits = [result.reference, result.medium, result.target, result.direct]
     finish_fits(ctx, fits, list(result.files.values()))
+
+
+def print_ranking(ranking) -> None:
+    """One step's ranking of ``--models auto`` as a table."""
+    from ..fitting.selection import table_lines
+
+    click.echo(f"[[Candidates of step '{ranking.step}', ranked by BIC with the "
+               f"model-discrepancy term; * the one used]]")
+    for line in table_lines(ranking):
+        click.echo("    " + line)
+    click.echo("")
+
+
+def _raw_step_fix(items) -> dict:
+    """``STEP.NAME=VALUE`` -> {step: {name: value}}, names checked against the candidates
+    later (veil.pipeline)."""
+    import math
+
+    fixed: dict[str, dict[str, float]] = {}
+    for step, entries in _step_entries(items, "--fix").items():
+        for entry in entries:
+            name, sep, text = entry.partition("=")
+            try:
+                value = float(text)
+            except ValueError:
+                value = math.nan
+            if not sep or not math.isfinite(value):
+                raise UserError(f"--fix {step}.{entry!r}: expected STEP.NAME=VALUE with a "
+                                f"finite number")
+            if name.strip() in fixed.get(step, {}):
+                raise UserError(f"--fix: {step}.{name.strip()} is fixed twice")
+            fixed.setdefault(step, {})[name.strip()] = value
+    return fixed
 
 
 def _step_entries(items, option: str) -> dict:
@@ -359,39 +408,3 @@ def _step_entries(items, option: str) -> dict:
                             f"{', '.join(STEPS)}")
         by_step.setdefault(step.strip(), []).append(rest.strip())
     return by_step
-
-
-def _compare(ctx, compare_models, reference_clear, reference_medium, target_medium, black,
-             target_clear, outdir, fix, free, accuracy, max_nfev, models, figures,
-             model_error="correlated", propagation="auto"):
-    """``fit pipeline --compare``: every model set on the same data (pipeline.compare_models)."""
-    import math
-
-    fixed = {}
-    for step, entries in _step_entries(fix, "--fix").items():
-        for entry in entries:
-            name, sep, text = entry.partition("=")
-            try:
-                value = float(text)
-            except ValueError:
-                value = math.nan
-            if not sep or not math.isfinite(value):
-                raise UserError(f"--fix {step}.{entry!r}: expected STEP.NAME=VALUE with a "
-                                f"finite number")
-            fixed.setdefault(step, {})[name.strip()] = value
-    freed = _step_entries(free, "--free")
-    with echo_warnings(), fit_progress("compare") as progress:
-        result = compare_models(reference_clear, reference_medium, target_medium, black=black,
-                                target_clear=target_clear, outdir=outdir, accuracy=accuracy,
-                                fixed=fixed, free=freed, max_nfev=max_nfev, progress=progress,
-                                brdf_options=models.brdf_options,
-                                medium_options=models.medium_options, figures=figures,
-                                model_error=model_error, propagation=propagation)
-    for name, r in result.results.items():
-        click.echo(f"==== model set '{name}' ====")
-        print_pipeline(r)
-    with open(result.files["comparison"], encoding="utf-8") as f:
-        click.echo(f.read())
-    fits = [f for r in result.results.values()
-            for f in (r.reference, r.medium, r.target, r.direct)]
-    finish_fits(ctx, fits, list(result.files.values()))

@@ -6,16 +6,20 @@ from __future__ import annotations
 
 from .base import BRDF, BTDF, Medium, Model, Option, Param
 from .registry import (
-                       DEFAULTS,
-                       MODEL_SETS,
-                       PRESETS,
-                       REGISTRY,
-                       default_class,
-                       model_class,
-                       names,
-                       preset,
-                       register,
+    APPARATUS_OPTIONS,
+    AUTO,
+    DEFAULTS,
+    PAPER,
+    PRESETS,
+    REGISTRY,
+    candidates,
+    default_class,
+    model_class,
+    names,
+    preset,
+    register,
 )
 
 __all__ = ["BRDF", "BTDF", "Medium", "Model", "Option", "Param", "REGISTRY", "PRESETS",
-           "DEFAULTS", "MODEL_SETS", "model_class", "default_class", "names", "preset", "register"]
+           "DEFAULTS", "AUTO", "PAPER", "APPARATUS_OPTIONS", "candidates", "model_class",
+           "default_class", "names", "preset", "register"]

@@ -13,10 +13,10 @@ from __future__ import annotations
 
 import importlib
 import os
-from typing import Literal, overload
+from typing import Any, Literal, overload
 
 from ..errors import InputError, InputTypeError
-from .base import BRDF, KINDS, ROLES, Medium, Model
+from .base import BRDF, KINDS, ROLES, Medium, Model, Option
 from .forward_series import ForwardSeries
 from .henyey_greenstein import HenyeyGreenstein
 from .rough_conductor import RoughConductor
@@ -33,10 +33,14 @@ FAMILIES = (
 )
 #: The paper's models: the default family of each kind.
 DEFAULTS = {"brdf": TorranceSparrow.NAME, "medium": HenyeyGreenstein.NAME}
-#: Named sets of models compared by ``veil fit pipeline --compare``: the paper's and the
-#: physical models of docs/model.md sec. 8.
-MODEL_SETS = {"paper": dict(DEFAULTS),
-              "physical": {"brdf": RoughPlastic.NAME, "medium": ForwardSeries.NAME}}
+#: The ways of choosing the models of an estimation (``veil fit pipeline --models``): the data
+#: choose among every candidate, or the paper's models; any other value names a pair.
+AUTO, PAPER = "auto", "paper"
+MODES = (AUTO, PAPER)
+#: Options that describe the apparatus, not the model's shape: given once by the user (the
+#: path length, the plate's width, the Fresnel variant of the window), they apply to every
+#: candidate that declares them and are never ranked (:func:`candidates`).
+APPARATUS_OPTIONS = frozenset({"variant", "path_length", "plate_width"})
 
 REGISTRY: dict[str, type[Model]] = {}
 _plugins_loaded = False
@@ -180,6 +184,34 @@ def model_class(name: str, kind: str | None = None) -> type[Model]:
     return cls
 
 
+def ranked_options(cls: type[Model]) -> tuple[Option, ...]:
+    """The options of ``cls`` whose every value is a candidate of its own: those with a finite
+    set of allowed values that do not describe the apparatus (:data:`APPARATUS_OPTIONS`)."""
+    return tuple(o for o in cls.OPTIONS if o.choices and o.name not in APPARATUS_OPTIONS)
+
+
+def candidates(kind: str, pinned: dict[str, Any] | None = None) -> list[tuple[str, dict[str, Any]]]:
+    """Every registered family of ``kind`` with every combination of its ranked options
+    (:func:`ranked_options`), as (name, {option: value}), in :func:`names` order (the
+    paper's first) and the declared order of the values (the default first). ``pinned``
+    {option: value} keeps, for the families that declare an option, that value only."""
+    if kind not in KINDS:
+        raise InputError(f"kind = {kind!r}; expected one of {', '.join(KINDS)}")
+    pinned = dict(pinned or {})
+    out: list[tuple[str, dict[str, Any]]] = []
+    for name in names(kind):
+        cls = REGISTRY[name]
+        combos: list[dict[str, Any]] = [{}]
+        for opt in ranked_options(cls):
+            if opt.name in pinned:
+                values = [pinned[opt.name]]
+            else:
+                values = [opt.default] + [v for v in opt.choices if v != opt.default]
+            combos = [dict(c, **{opt.name: v}) for c in combos for v in values]
+        out += [(name, c) for c in combos]
+    return out
+
+
 @overload
 def default_class(kind: Literal["brdf"]) -> type[BRDF]: ...
 @overload
@@ -210,5 +242,6 @@ def preset(name: str, kind: str | None = None) -> Model:
     return model
 
 
-__all__ = ["REGISTRY", "FAMILIES", "DEFAULTS", "MODEL_SETS", "PRESETS", "register", "names",
-           "model_class", "default_class", "preset"]
+__all__ = ["REGISTRY", "FAMILIES", "DEFAULTS", "AUTO", "PAPER", "MODES", "APPARATUS_OPTIONS",
+           "PRESETS", "register", "names", "model_class", "default_class", "ranked_options",
+           "candidates", "preset"]

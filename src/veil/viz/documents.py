@@ -518,53 +518,25 @@ def pipeline_report(ref, med, tgt, direct, comparison, truth, figures, inputs) -
     return "\n".join(out)
 
 
-__all__ = ["build_blocks", "to_markdown", "to_html", "write_report", "pipeline_report"]
+__all__ = ["build_blocks", "to_markdown", "to_html", "write_report", "pipeline_report",
+           "ranking_section"]
 
 
-def comparison_report(results: dict, seconds: dict, difference: dict) -> str:
-    """Markdown of ``veil fit pipeline --compare``: per model set (``results``: name ->
-    PipelineResult) the goodness of fit of every step side by side, the estimate against the
-    direct fit when there is one, and the difference of the sets' estimated f_r."""
-    from ..numbers import format_percent
+def ranking_section(rankings: dict) -> list[str]:
+    """report.md's lines for ``--models auto``: per step the candidates ranked by BIC with
+    the model-discrepancy term (:mod:`veil.fitting.selection`), best first."""
+    from ..fitting.selection import table_lines
 
-    names = list(results)
-    lines = ["# veil fit pipeline --compare: model sets on the same data", ""]
-    for name in names:
-        r = results[name]
-        lines.append(f"- **{name}**: BRDF {r.target.model}, medium {r.medium.model} "
-                     f"(folder `{name}/`, {seconds[name]:.1f} s)")
-    lines += ["", "## Goodness of fit, step by step", "",
-              "AIC and BIC (chi^2 + 2k, chi^2 + k ln N) compare models on the same data "
-              "and weights: lower is better; they are not defined for an unweighted fit.", "",
-              "| step | " + " | ".join(f"{n}: chi2_red | {n}: AIC | {n}: BIC | {n}: rms rel."
-                                      for n in names) + " |",
-              "|---|" + "---:|" * (4 * len(names))]
-    for step in ("reference", "medium", "target", "direct"):
-        fits = [getattr(results[n], step) for n in names]
-        if any(f is None for f in fits):
-            continue
-        cells = []
-        for f in fits:
-            conv = "" if f.converged else " (not converged)"
-            cells += [format_number(f.chi2_reduced, 4) + conv, format_number(f.aic, 6, "-"),
-                      format_number(f.bic, 6, "-"), format_percent(f.rms_relative)]
-        lines.append(f"| {step} | " + " | ".join(cells) + " |")
-    lines += ["", "## The estimate", ""]
-    if all(results[n].comparison is not None for n in names):
-        lines += ["Estimated target f_r against the target's direct fit (clear medium), rms "
-                  "over the protocol's configurations:", ""]
-        for n in names:
-            c = results[n].comparison
-            zs = [abs(row["z"]) for row in c["params"].values() if row["z"] is not None]
-            zs_text = f"; largest |difference| / combined stderr {max(zs):.2f}" if zs else ""
-            if c.get("fr_max_z") is not None:
-                zs_text += (f"; curves: largest |difference| / se {c['fr_max_z']:.2f}, "
-                            f"{format_percent(c['fr_within_2se'])} within 2 se")
-            lines.append(f"- {n}: {format_percent(c['rms_fr_relative'])} rms relative "
-                         f"(largest {format_percent(c['max_fr_relative'])}){zs_text}")
-        lines.append("")
-    lines.append(f"The estimates of the two sets differ by {format_percent(difference['rms'])} "
-                 f"rms (largest {format_percent(difference['max'])}) relative to the "
-                 f"{difference['against']} set's f_r over the protocol's "
-                 f"{difference['n']} configurations.")
-    return "\n".join(lines) + "\n"
+    titles = {"reference": "Step 0: the reference's BRDF, on its clear-medium data",
+              "medium": "Step 1: the medium, through the chosen reference model",
+              "target": "Step 2: the target's BRDF, through the chosen medium"}
+    out = ["## The data choose the model (--models auto)", "",
+           "Every registered family with every value of its discrete options, fitted to the "
+           "same data and ranked by BIC = -2 ln L + k ln N, L the likelihood of the weighted "
+           "residuals under each fit's model-discrepancy term (the chi-square when it has "
+           "none), k its free parameters (with the term's when fitted from its own "
+           "residuals); weight exp(-dBIC/2), normalized. * marks the model used. A "
+           "candidate that failed or did not converge is listed and not ranked.", ""]
+    for step, ranking in rankings.items():
+        out += [f"### {titles.get(step, step)}", ""] + table_lines(ranking, markdown=True) + [""]
+    return out

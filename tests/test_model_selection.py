@@ -1,0 +1,307 @@
+"""The data choose the model (issue 29): candidates generated from the registry, the ranking's
+arithmetic (BIC with the model-discrepancy term, weights) by hand, ``fit pipeline --models
+auto`` on the paper's simulated data, and the bad-input rules."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import veil
+from support.cli import run as run_cli
+from veil.fitting import FitResult, selection
+from veil.fitting.model_error import ModelError
+from veil.fitting.session_data import FitData
+from veil.models import APPARATUS_OPTIONS, registry
+
+#: The veil under test, for a subprocess (a worktree's src/ or the installed package).
+SRC = str(Path(veil.__file__).parents[1])
+
+
+def invoke(args):
+    return run_cli(*args, catch_exceptions=False)
+
+
+# --------------------------------------------------------------------------------------
+# candidates
+# --------------------------------------------------------------------------------------
+def test_candidates_come_from_the_declarations():
+    brdfs = [c.label for c in selection.candidates("brdf")]
+    # every family, every value of its discrete options, the paper's first
+    assert brdfs[0] == "torrance-sparrow"
+    for dist in ("beckmann", "ggx"):
+        assert f"rough-conductor[distribution={dist}]" in brdfs
+        # nonlinear = True is declared but the model refuses it: no candidate, and the one
+        # value left does not tell candidates apart (not in the label)
+        assert f"rough-plastic[distribution={dist}]" in brdfs
+    assert not any("nonlinear" in label for label in brdfs)
+    media = selection.candidates("medium")
+    assert media[0].label == "henyey-greenstein"
+    # apparatus options are never ranked: the Fresnel variant, path length, plate width
+    for c in selection.candidates("brdf") + media:
+        assert not set(c.options) & APPARATUS_OPTIONS
+    orders = {c.options["orders"] for c in media if c.family == "forward-series"}
+    assert orders == set(registry.REGISTRY["forward-series"].OPTIONS[3].choices)
+    # an option given pins its value; apparatus ones go to every candidate declaring them
+    ggx = selection.candidates("brdf", {"distribution": "ggx"})
+    assert [c.label for c in ggx if not c.family.endswith("-test")] == \
+        ["torrance-sparrow", "rough-conductor", "rough-plastic"]  # (a test plugin aside)
+    assert {c.model_options({"distribution": "ggx"}).get("distribution", "ggx")
+            for c in ggx} == {"ggx"}
+    fs = next(c for c in media if c.family == "forward-series")
+    given = {"path_length": 15.0, "variant": "exit", "distribution": "ggx"}
+    assert fs.model_options(given) == {"path_length": 15.0, "variant": "exit",
+                                       "orders": "poisson"}
+    assert media[0].model_options(given) == {"variant": "exit"}
+    assert "MODEL_SETS" not in dir(veil.models)
+
+
+def test_a_registered_plugin_family_becomes_a_candidate():
+    import veil_test_models  # noqa: F401 - registers lambertian-test and fisher-test
+    assert "lambertian-test" in [c.label for c in selection.candidates("brdf")]
+    assert "fisher-test" in [c.label for c in selection.candidates("medium")]
+
+
+def test_models_names_are_checked():
+    assert selection.parse_models("AUTO") == "auto"
+    assert selection.parse_models("Rough-Plastic+forward-series") == \
+        ("rough-plastic", "forward-series")
+    with pytest.raises(veil.errors.InputError, match="known: torrance-sparrow"):
+        selection.parse_models("nosuch+henyey-greenstein")
+    with pytest.raises(veil.errors.InputError, match="expected auto, paper or FAMILY"):
+        selection.parse_models("best")
+
+
+# --------------------------------------------------------------------------------------
+# the ranking's arithmetic
+# --------------------------------------------------------------------------------------
+def _result(residuals, n_free, term=None, converged=True):
+    params = {f"p{i}": 1.0 for i in range(n_free)}
+    r = np.asarray(residuals, dtype=float)
+    return FitResult(model="torrance-sparrow", params=params, stderr={}, correlation={},
+                     residuals=tuple(r), chi2_reduced=float(r @ r) / (r.size - n_free),
+                     rms_relative=0.01, n_points=r.size, converged=converged, message="",
+                     model_error=term)
+
+
+def _data(n, rng):
+    angles = tuple(rng.uniform(0, 80, n) for _ in range(4))
+    y = rng.uniform(1.0, 3.0, n)
+    return FitData(angles, y, 0.02 * y, None)
+
+
+def test_bic_and_weights_against_hand_computation():
+    rng = np.random.default_rng(3)
+    n = 40
+    data = _data(n, rng)
+    r_a, r_b, r_c = rng.normal(size=n), 1.1 * rng.normal(size=n), rng.normal(size=n)
+    fitted = {"a": (_result(r_a, 3), 1.0), "b": (_result(r_b, 2), 1.0),
+              "c": (_result(r_c, 5), 1.0)}
+    ranking = selection.rank("reference", fitted, data)
+    bic = {"a": r_a @ r_a + 3 * math.log(n), "b": r_b @ r_b + 2 * math.log(n),
+           "c": r_c @ r_c + 5 * math.log(n)}
+    aic = {"a": r_a @ r_a + 6, "b": r_b @ r_b + 4, "c": r_c @ r_c + 10}
+    best = min(bic.values())
+    w = {k: math.exp(-0.5 * (v - best)) for k, v in bic.items()}
+    total = sum(w.values())
+    assert [row["label"] for row in ranking.rows] == sorted(bic, key=bic.get)
+    for row in ranking.rows:
+        lab = row["label"]
+        assert row["bic"] == pytest.approx(bic[lab], rel=1e-12)
+        assert row["aic"] == pytest.approx(aic[lab], rel=1e-12)
+        assert row["delta_bic"] == pytest.approx(bic[lab] - best, abs=1e-9)
+        assert row["weight"] == pytest.approx(w[lab] / total, rel=1e-12)
+    assert ranking.chosen == min(bic, key=bic.get)
+
+
+def test_the_discrepancy_term_enters_the_likelihood():
+    """An independent term s: -2 ln L = sum ln(1 + s^2 a^2) + r^2 / (1 + s^2 a^2),
+    a = f / sigma, and s counts as a parameter when fitted from the fit's own residuals."""
+    rng = np.random.default_rng(4)
+    n = 30
+    data = _data(n, rng)
+    r = 3.0 * rng.normal(size=n)
+    term = ModelError(sigma=0.05, length=0.0, own=0.05, given=None, source="own residuals",
+                      chi2_threshold=1.5)
+    ranking = selection.rank("target", {"x": (_result(r, 2, term), 0.0)}, data)
+    a = (data.y - r * data.sigma) / data.sigma
+    v = 1.0 + 0.05 ** 2 * a * a
+    dev = float(np.sum(np.log(v) + r * r / v))
+    row = ranking.rows[0]
+    assert row["deviance"] == pytest.approx(dev, rel=1e-12)
+    assert row["k"] == 3 and row["bic"] == pytest.approx(dev + 3 * math.log(n), rel=1e-12)
+    assert row["chi2"] == pytest.approx(float(r @ r))
+
+
+def test_failed_and_unconverged_candidates_are_listed_not_ranked():
+    rng = np.random.default_rng(5)
+    data = _data(20, rng)
+    r = rng.normal(size=20)
+
+    def fit(c):
+        if c.label == "boom":
+            raise RuntimeError("no luck")
+        return _result(r, 2, converged=c.label != "stuck")
+
+    cands = [selection.Candidate("torrance-sparrow"), ]
+    fitted = selection.fit_candidates(
+        fit, [type("C", (), {"label": lab})() for lab in ("ok", "boom", "stuck")])
+    ranking = selection.rank("reference", fitted, data, cands)
+    assert ranking.chosen == "ok" and ranking.rows[0]["weight"] == 1.0
+    rows = {row["label"]: row for row in ranking.rows}
+    assert "RuntimeError: no luck" in rows["boom"]["error"] and rows["boom"]["bic"] is None
+    assert rows["stuck"]["error"].startswith("did not converge") and rows["stuck"]["weight"] == 0
+    text = "\n".join(selection.table_lines(ranking))
+    assert "boom" in text and "failed" in text
+    none = selection.rank("reference", {"boom": fitted["boom"]}, data)
+    assert none.chosen is None
+    assert "every candidate failed" in "\n".join(selection.table_lines(none))
+
+
+def test_a_close_call_is_said_and_widens_by_the_spread():
+    rng = np.random.default_rng(6)
+    data = _data(25, rng)
+    r = rng.normal(size=25)
+    fitted = {"a": (_result(r, 2), 0.0), "b": (_result(1.001 * r, 2), 0.0),
+              "c": (_result(3 * r, 2), 0.0)}
+    ranking = selection.rank("target", fitted, data)
+    assert ranking.close == ["a", "b"] and ranking.close_call
+    curves = {"a": np.array([1.0, 2.0]), "b": np.array([1.2, 2.0]), "c": np.array([9.0, 9.0])}
+    spread = selection.curve_spread(ranking, curves)
+    wa, wb = ranking.row("a")["weight"], ranking.row("b")["weight"]
+    wa, wb = wa / (wa + wb), wb / (wa + wb)
+    mean = wa * 1.0 + wb * 1.2
+    sd = math.sqrt(wa * (1.0 - mean) ** 2 + wb * (1.2 - mean) ** 2)
+    assert spread["spread"] == pytest.approx([sd, 0.0], abs=1e-12)
+    assert spread["max_relative"] == pytest.approx(sd / 1.0)
+    text = "\n".join(selection.close_call_lines(ranking.with_spread(spread)))
+    assert "close call: b within delta-BIC 2 of a" in text and "widened" in text
+
+
+# --------------------------------------------------------------------------------------
+# the command line
+# --------------------------------------------------------------------------------------
+SIM = dict(psi=(30, 60, 90), fine_step=5, coarse_step=15, accuracy="fast")
+
+
+@pytest.fixture(scope="module")
+def sessions(tmp_path_factory):
+    """The paper's simulated acquisition (veil demo's set-up, a coarser grid)."""
+    d = tmp_path_factory.mktemp("sessions")
+    paths = {}
+    tables = {"reference-clear": veil.simulate(veil.BRDF2, None, noise=0.01, seed=0, **SIM)}
+    tables["reference-medium"], tables["black"] = veil.simulate(
+        veil.BRDF2, veil.BTDF2, noise=0.01, seed=1, black=True, **SIM)
+    tables["target-medium"] = veil.simulate(veil.BRDF1, veil.BTDF2, noise=0.01, seed=2, **SIM)
+    for role, table in tables.items():
+        paths[role] = d / f"{role}.csv"
+        table.to_csv(paths[role], index=False)
+    return paths
+
+
+def _args(sessions, out):
+    args = ["fit", "pipeline"]
+    for role, path in sessions.items():
+        args += [f"--{role}", path]
+    return args + ["--accuracy", "fast", "--no-figures", "-o", out]
+
+
+def test_unknown_family_in_models_exits_2_listing_the_registered(sessions, tmp_path):
+    out = invoke(_args(sessions, tmp_path / "o") + ["--models", "nosuch+henyey-greenstein"])
+    assert out.exit_code == 2
+    assert "unknown BRDF model 'nosuch'" in out.output and "rough-plastic" in out.output
+    out = invoke(_args(sessions, tmp_path / "o") + ["--models", "torrance-sparrow+nosuch"])
+    assert out.exit_code == 2 and "forward-series" in out.output
+    out = invoke(_args(sessions, tmp_path / "o") + ["--models", "auto", "--brdf-model",
+                                                      "rough-plastic"])
+    assert out.exit_code == 2 and "give one of the two" in out.output
+    out = invoke(_args(sessions, tmp_path / "o") + ["--models", "auto", "--fix",
+                                                      "medium.nosuch=1"])
+    assert out.exit_code == 2 and "no candidate model has such a parameter" in out.output
+    assert not (tmp_path / "o").exists()
+
+
+def _subprocess(args):
+    """``veil`` in a subprocess, the registry without the test plugins (a family registered
+    in this process would be a candidate too)."""
+    env = dict(os.environ, PYTHONPATH=SRC, VEIL_PLUGINS="")
+    cmd = [sys.executable, "-m", "veil.cli"] + [str(a) for a in args]
+    return subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=1800)
+
+
+def test_every_candidate_failing_exits_1_with_the_table(sessions, tmp_path):
+    """One evaluation per fit: no candidate of step 0 converges."""
+    run = _subprocess(_args(sessions, tmp_path / "o") + ["--models", "auto", "--max-nfev", "1"])
+    assert run.returncode == 1, run.stderr[-3000:]
+    assert "Candidates of step 'reference'" in run.stdout
+    assert "every candidate failed" in run.stdout and "torrance-sparrow" in run.stdout
+    assert "did not converge" in run.stdout
+    assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.slow
+def test_auto_picks_the_papers_models_on_the_papers_data(sessions, tmp_path):
+    """A subprocess (no test plugin registered): every candidate of every step fitted, the
+    paper's Torrance-Sparrow and Henyey-Greenstein chosen (they made the data), the
+    rankings in the terminal, report.md and the results; every candidate's result (--compare)
+    loads and evaluates."""
+    out_dir = tmp_path / "auto"
+    # the discrete options pinned to one value each: every family, fewer engine programs
+    pins = ["--distribution", "beckmann", "--orders", "poisson"]
+    run = _subprocess(_args(sessions, out_dir) + ["--compare", "--max-nfev", "40"] + pins)
+    assert run.returncode in (0, 1), run.stderr[-3000:]
+    ranking = json.loads((out_dir / "ranking.json").read_text())
+    assert ranking["reference"]["chosen"] == "torrance-sparrow"
+    assert ranking["medium"]["chosen"] == "henyey-greenstein"
+    assert ranking["target"]["chosen"] == "torrance-sparrow"
+    pinned = {"distribution": "beckmann", "orders": "poisson"}
+    count = {kind: len([c for c in selection.candidates(kind, pinned)
+                        if not c.family.endswith("-test")]) for kind in ("brdf", "medium")}
+    assert count == {"brdf": 3, "medium": 2}
+    for step in ("reference", "medium", "target"):
+        rows = ranking[step]["candidates"]
+        assert len(rows) == count["brdf" if step != "medium" else "medium"]
+        assert sum(r["weight"] for r in rows) == pytest.approx(1.0)
+        assert f"Candidates of step '{step}'" in run.stdout
+    result = json.loads((out_dir / "target.json").read_text())
+    assert result["stats"]["selection"]["chosen"] == "torrance-sparrow"
+    assert "The data choose the model" in (out_dir / "report.md").read_text()
+    files = sorted((out_dir / "candidates").rglob("*.json"))
+    assert len(files) == 2 * count["brdf"] + count["medium"]
+    for path in files:
+        model = FitResult.from_json(path).as_model()
+        assert model.NAME == json.loads(path.read_text())["model"]
+        if model.KIND == "brdf":  # (a medium's evaluation compiles a program per family)
+            assert np.all(np.isfinite(veil.reflectance(model, [20.0, 40.0], [20.0, 40.0])))
+
+
+def test_a_close_call_widens_the_estimates_curve_uncertainty():
+    """veil.pipeline.compare: the spread of a close call at step 2 (stats.selection.spread,
+    one value per protocol configuration) is added to the estimate's curve uncertainty."""
+    import dataclasses
+
+    from veil.data.protocol import protocol
+    from veil.pipeline import compare
+
+    params = dict(zip(("Pd", "Ps", "n", "eta"), veil.BRDF1.to_vector()))
+    se = {k: 1e-3 * abs(v) for k, v in params.items()}
+    direct = FitResult(model="torrance-sparrow", params=params, stderr=se, correlation={},
+                       residuals=(0.0,) * 10, chi2_reduced=1.0, rms_relative=0.0,
+                       n_points=10, converged=True, message="")
+    shifted = dataclasses.replace(direct, params=dict(params, Pd=1.05 * params["Pd"]))
+    n = len(protocol())
+    plain = compare(shifted, direct)
+    spread = {"spread": [0.5 * params["Pd"]] * n, "rms_relative": 0.2, "max_relative": 0.3}
+    wide = compare(dataclasses.replace(shifted, stats={"selection": {"spread": spread}}),
+                   direct)
+    assert plain["model_spread_rms_relative"] is None
+    assert wide["model_spread_rms_relative"] == 0.2
+    assert wide["fr_max_z"] < plain["fr_max_z"]
+    assert wide["rms_fr_relative"] == plain["rms_fr_relative"]
