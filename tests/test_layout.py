@@ -3,7 +3,8 @@ models -> engine -> data -> fitting (and maps) -> analysis -> viz -> pipeline ->
 module imports only from its own layer or below (the top-level facade ``veil/__init__.py``,
 which imports lazily, excepted); no two modules import each other, directly or round a loop.
 Outside ``models/`` no code names a model class, a parameter or an option (not even a
-one-letter parameter where code looks one up), and the public API says what it returns.
+one-letter parameter where code looks one up), the public API says what it returns, and
+no module or function outgrows the sizes docs/architecture.md promises.
 
 Each rule is a function of a source tree, and a test plants a violation in a small tree to
 show that the rule catches it."""
@@ -410,3 +411,41 @@ def test_a_public_function_without_a_return_annotation_is_caught(monkeypatch):
 
     monkeypatch.setattr(veil, "unannotated", unannotated, raising=False)
     assert missing_return_annotations(["apparent", "unannotated"]) == ["unannotated"]
+
+
+#: The sizes docs/architecture.md promises: lines per module, lines per function.
+MAX_MODULE_LINES = 600
+MAX_FUNCTION_LINES = 80
+
+
+def oversized(root: pathlib.Path = ROOT) -> list[str]:
+    """Modules over MAX_MODULE_LINES lines and functions (methods, nested ones) over
+    MAX_FUNCTION_LINES, from the first line of the definition to its last."""
+    found = []
+    for path in _modules(root):
+        text = path.read_text()
+        name = str(path.relative_to(root))
+        if text.count("\n") > MAX_MODULE_LINES:
+            found.append(f"{name}: {text.count(chr(10))} lines")
+        for node in ast.walk(ast.parse(text)):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                lines = (node.end_lineno or node.lineno) - node.lineno + 1
+                if lines > MAX_FUNCTION_LINES:
+                    found.append(f"{name}:{node.lineno}: {node.name} has {lines} lines")
+    return found
+
+
+def test_modules_and_functions_within_their_size():
+    assert not oversized(), "\n".join(oversized())
+
+
+def test_an_oversized_module_and_function_are_caught(tmp_path):
+    pkg = tmp_path / "fitting"
+    pkg.mkdir()
+    body = "\n".join(f"    x{k} = {k}" for k in range(MAX_FUNCTION_LINES))
+    (pkg / "long.py").write_text(f"def fine():\n    return 1\n\n\ndef long():\n{body}\n")
+    (pkg / "big.py").write_text("\n" * (MAX_MODULE_LINES + 1))
+    found = oversized(tmp_path)
+    assert any("long.py:5: long has 81 lines" in f for f in found), found
+    assert any(f.startswith("fitting/big.py: 601 lines") for f in found), found
+    assert not any("fine" in f for f in found)
