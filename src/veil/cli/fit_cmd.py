@@ -57,6 +57,22 @@ def _free_option(help_text):
     return click.option("--free", "free", multiple=True, metavar="NAME", help=help_text)
 
 
+def _write_fit(ctx, result, output) -> None:
+    """A step's result: its JSON written (atomically), its report shown, the run finished."""
+    result.to_json(output)
+    click.echo(result.report())
+    finish_fits(ctx, [result], [output])
+
+
+def _step_through_medium_options(command):
+    """The options a step through the medium shares (steps 1 and 2): the black cloth, the
+    accuracy, the evaluation budget, the model error, the propagation and the models."""
+    for option in (click.pass_context, model_options(), propagation_option, model_error_option,
+                   _max_nfev_option, _accuracy_option, _black_option):
+        command = option(command)
+    return command
+
+
 def _parse_free(items, cls, option="--free") -> list:
     """Names of parameters held by default (``Param.held``) to fit too."""
     names = cls.param_names()
@@ -168,9 +184,7 @@ def reference_command(ctx, table, output, fix, black, max_nfev, merl, channel, s
         result = fit_reference(data, fixed=fixed, black=black, max_nfev=max_nfev,
                                progress=progress, brdf_model=models.brdf.NAME,
                                options=models.brdf_options, model_error=model_error)
-    result.to_json(output)
-    click.echo(result.report())
-    finish_fits(ctx, [result], [output])
+    _write_fit(ctx, result, output)
 
 
 @fit_command.command("medium")
@@ -185,13 +199,7 @@ def reference_command(ctx, table, output, fix, black, max_nfev, merl, channel, s
              "repeatable.")
 @_free_option("Fit a parameter the medium model holds by default (held ones are marked in "
               "'veil models', e.g. forward-series' s, the exposure factor); repeatable.")
-@_black_option
-@_accuracy_option
-@_max_nfev_option
-@model_error_option
-@propagation_option
-@model_options()
-@click.pass_context
+@_step_through_medium_options
 def medium_command(ctx, table, reference, output, fix, free, black, accuracy, max_nfev,
                    model_error, propagation, models):
     """Step 1: fit the medium (default the paper's Td, Tt, g, eta) to the reference measured
@@ -208,9 +216,7 @@ def medium_command(ctx, table, reference, output, fix, free, black, accuracy, ma
                             max_nfev=max_nfev, progress=progress,
                             medium_model=models.medium.NAME, options=models.medium_options,
                             free=freed, model_error=model_error, propagation=propagation)
-    result.to_json(output)
-    click.echo(result.report())
-    finish_fits(ctx, [result], [output])
+    _write_fit(ctx, result, output)
 
 
 @fit_command.command("target")
@@ -225,13 +231,7 @@ def medium_command(ctx, table, reference, output, fix, free, black, accuracy, ma
              "VALUE; repeatable.")
 @_free_option("Fit a parameter the BRDF family holds by default (marked held in 'veil "
               "models'); repeatable.")
-@_black_option
-@_accuracy_option
-@_max_nfev_option
-@model_error_option
-@propagation_option
-@model_options()
-@click.pass_context
+@_step_through_medium_options
 def target_command(ctx, table, medium, output, fix, free, black, accuracy, max_nfev,
                    model_error, propagation, models):
     """Step 2: fit the target's f_r (default Torrance-Sparrow) through the fitted medium.
@@ -256,9 +256,7 @@ def target_command(ctx, table, medium, output, fix, free, black, accuracy, max_n
                             max_nfev=max_nfev, progress=progress,
                             brdf_model=models.brdf.NAME, options=models.brdf_options,
                             free=freed, model_error=model_error, propagation=propagation)
-    result.to_json(output)
-    click.echo(result.report())
-    finish_fits(ctx, [result], [output])
+    _write_fit(ctx, result, output)
 
 
 def print_pipeline(result) -> None:
