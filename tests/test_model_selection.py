@@ -305,3 +305,40 @@ def test_a_close_call_widens_the_estimates_curve_uncertainty():
     assert wide["model_spread_rms_relative"] == 0.2
     assert wide["fr_max_z"] < plain["fr_max_z"]
     assert wide["rms_fr_relative"] == plain["rms_fr_relative"]
+
+
+# --------------------------------------------------------------------------------------
+# the single fits: --brdf-model auto / --medium-model auto
+# --------------------------------------------------------------------------------------
+def test_fit_reference_auto_ranks_every_family(sessions, tmp_path):
+    """`veil fit reference --brdf-model auto`: every BRDF candidate fitted to the clear
+    reference, the paper's Torrance-Sparrow chosen (it made the data), the ranking in the
+    terminal and in the result; a --fix applies to the families that declare it."""
+    out = tmp_path / "ref.json"
+    run = _subprocess(["fit", "reference", sessions["reference-clear"], "--brdf-model", "auto",
+                       "--fix", "ks=1", "-o", out])
+    assert run.returncode == 0, run.stderr[-3000:]
+    assert "Candidates of step 'reference'" in run.stdout
+    result = json.loads(out.read_text())
+    chosen = result["stats"]["selection"]
+    assert result["model"] == chosen["chosen"] == "torrance-sparrow"
+    labels = [row["label"] for row in chosen["candidates"]]
+    families = {row["family"] for row in chosen["candidates"]}
+    assert families == {"torrance-sparrow", "rough-plastic", "rough-conductor"}
+    assert len(labels) == len(selection.candidates("brdf")) - len(
+        [c for c in selection.candidates("brdf") if c.family.endswith("-test")])
+    weights = [row["weight"] for row in chosen["candidates"]]
+    assert sum(weights) == pytest.approx(1.0) and weights[0] == max(weights)
+    assert FitResult.from_json(out).as_model().NAME == "torrance-sparrow"
+
+
+def test_single_fit_auto_bad_input(sessions, tmp_path):
+    """A --fix no candidate declares: exit 2 before any fit; `auto` is not a family of the
+    commands that do not rank (fit pipeline has --models auto), exit 2."""
+    out = tmp_path / "ref.json"
+    run = invoke(["fit", "reference", sessions["reference-clear"], "--brdf-model", "auto",
+                  "--fix", "nosuch=1", "-o", str(out)])
+    assert run.exit_code == 2 and "no candidate family has such a parameter" in run.output
+    assert not out.exists()
+    run = invoke(_args(sessions, tmp_path / "o") + ["--brdf-model", "auto"])
+    assert run.exit_code == 2 and "'auto' is not a registered brdf model" in run.output

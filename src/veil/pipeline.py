@@ -44,7 +44,6 @@ from .fitting import (
 )
 from .fitting.model_error import check_kind
 from .fitting.propagation import check_method
-from .fitting.steps import warn_misfit
 from .io import check_output_folder, output_folder, write_bytes_atomic, write_text_atomic
 from .models import AUTO, model_class
 from .models.base import VARIANT_OPTION
@@ -348,13 +347,6 @@ def _per_family(cands, per_step: dict, step: str, what: str) -> dict:
     return out
 
 
-def _with_selection(result: FitResult, ranking) -> FitResult:
-    """``result`` with its step's ranking in ``stats["selection"]``."""
-    import dataclasses
-
-    return dataclasses.replace(result, stats={**result.stats, "selection": ranking.to_dict()})
-
-
 def _fitted_curve(result: FitResult, data) -> np.ndarray:
     """The fit's model values at its data's configurations, from its residuals."""
     r = np.asarray(result.residuals, dtype=float)
@@ -362,24 +354,9 @@ def _fitted_curve(result: FitResult, data) -> np.ndarray:
 
 
 def _rank_step(step, cands, data, fit_one, progress, curves, what):
-    """Fit and rank one step's candidates; (ranking, {label: result}); raises
-    NoCandidateError when every candidate failed."""
-    if progress is not None:
-        progress(f"{step}: {len(cands)} candidates in {selection.workers(len(cands))} "
-                 f"thread(s)", None, None)
-    count = {"done": 0}
-
-    def tell(label, what):
-        count["done"] += 1
-        if progress is not None:
-            progress(f"{step}: {label} {what}", count["done"], len(cands))
-
-    fitted = selection.fit_candidates(fit_one, cands, tell)
-    ranking = selection.rank(step, fitted, data, cands)
-    results = {lab: res for lab, (res, _) in fitted.items() if isinstance(res, FitResult)}
-    if ranking.chosen is None:
-        raise selection.NoCandidateError(step, ranking)
-    warn_misfit(results[ranking.chosen].chi2_reduced, data, what)
+    """Fit and rank one step's candidates (:func:`veil.fitting.selection.select`); a close
+    call's ranking carries the spread of the close candidates' ``curves``."""
+    ranking, results = selection.select(step, cands, data, fit_one, what, progress)
     if ranking.close_call:
         ranking = ranking.with_spread(selection.curve_spread(
             ranking, {lab: curves(results[lab]) for lab in ranking.close}))
@@ -434,7 +411,7 @@ def _select(data, plan, *, accuracy, max_nfev, progress, model_error, propagatio
     ranking, results = _rank_step("reference", plan["brdf"], data["reference_clear"], step0,
                                   progress, fr_curve, "reference (clear medium)")
     rankings["reference"], kept["reference"] = ranking, results
-    ref = _with_selection(results[ranking.chosen], ranking)
+    ref = selection.with_selection(results[ranking.chosen], ranking)
 
     def step1(c):
         return fit_medium(data["reference_medium"].table, ref, fixed=fix_m[c.label],
@@ -446,7 +423,7 @@ def _select(data, plan, *, accuracy, max_nfev, progress, model_error, propagatio
                                   progress,
                                   lambda r: _fitted_curve(r, data["reference_medium"]), "medium")
     rankings["medium"], kept["medium"] = ranking, results
-    med = _with_selection(results[ranking.chosen], ranking)
+    med = selection.with_selection(results[ranking.chosen], ranking)
 
     def step2(c):
         return fit_target(data["target_medium"].table, med, fixed=fix_t[c.label],
@@ -457,7 +434,7 @@ def _select(data, plan, *, accuracy, max_nfev, progress, model_error, propagatio
     ranking, results = _rank_step("target", plan["brdf"], data["target_medium"], step2,
                                   progress, fr_curve, "target")
     rankings["target"], kept["target"] = ranking, results
-    tgt = _with_selection(results[ranking.chosen], ranking)
+    tgt = selection.with_selection(results[ranking.chosen], ranking)
     chosen = ranking.row(ranking.chosen)
     opts = {k: v for k, v in brdf_options.items()
             if k in model_class(chosen["family"]).option_names()}

@@ -153,6 +153,9 @@ class ModelChoice:
     #: ``fit pipeline --models``: veil.models.AUTO, PAPER or "pinned" (a FAMILY+MEDIUM pair,
     #: in ``brdf`` and ``medium``); None when the command has no --models (the paper's).
     mode: str | None = None
+    #: The kinds whose family is ``auto`` (``--brdf-model auto`` of the single fits): every
+    #: registered family of that kind is fitted and ranked (veil.fitting.selection).
+    ranked: frozenset = frozenset()
 
     def parse(self, text: str, kind: str, option: str):
         """A preset name or a literal list of the family's parameters (in declared order);
@@ -222,17 +225,20 @@ class ModelName(click.ParamType):
 
     name = "NAME"
 
-    def __init__(self, kind: str):
+    def __init__(self, kind: str, auto: bool = False):
         self.kind = kind
+        self.auto = auto  # "auto" (every registered family ranked) accepted too
 
     def convert(self, value, param, ctx):
-        from ..models import names
+        from ..models import AUTO, names
 
         try:
             known = names(self.kind)
         except InputError as exc:
             self.fail(str(exc), param, ctx)
         name = str(value).strip().lower()
+        if self.auto and name == AUTO:
+            return name
         if name not in known:
             self.fail(f"{value!r} is not a registered {self.kind} model; known: "
                       f"{', '.join(known)} ('veil models' lists them)", param, ctx)
@@ -269,11 +275,11 @@ propagation_option = click.option(
          "docs/fitting.md).")
 
 
-def model_options(kinds=("brdf", "medium")):
+def model_options(kinds=("brdf", "medium"), auto_kinds=()):
     """Click options for the model families of ``kinds`` and every option the registered
     families of those kinds declare; the command receives them as ``models``
-    (a :class:`ModelChoice`)."""
-    from ..models import DEFAULTS, names, registry
+    (a :class:`ModelChoice`). The family options of ``auto_kinds`` also take ``auto``."""
+    from ..models import AUTO, DEFAULTS, names, registry
 
     def known(kind):
         """The registered names; without the plugins when they cannot be loaded (the
@@ -295,8 +301,10 @@ def model_options(kinds=("brdf", "medium")):
             chosen = {}
             explicit = set()
             mode, pair = _models_mode(kwargs.get("model_spec"), kwargs.get("compare"))
+            ranked = frozenset(k for k in kinds if kwargs.get(f"{k}_model") == AUTO)
             for kind in kinds:
                 value = kwargs.pop(f"{kind}_model", None)
+                value = None if value == AUTO else value
                 if value is not None:
                     explicit.add(f"{kind}-model")
                     if kwargs.get("model_spec") is not None or mode is not None:
@@ -305,11 +313,12 @@ def model_options(kinds=("brdf", "medium")):
                                         f"the two (--models FAMILY+MEDIUM pins a pair)")
                 chosen[kind] = registry.model_class(value or pair.get(kind) or DEFAULTS[kind],
                                                     kind)
-            opts = _option_values(declared, chosen, kinds, kwargs, mode == registry.AUTO)
+            opts = _option_values(declared, chosen, kinds, kwargs,
+                                  mode == registry.AUTO or bool(ranked))
             kwargs["models"] = ModelChoice(chosen.get("brdf", registry.default_class("brdf")),
                                            chosen.get("medium", registry.default_class("medium")),
                                            opts["brdf"], opts["medium"], frozenset(explicit),
-                                           mode)
+                                           mode, ranked)
             return fn(*args, **kwargs)
 
         for oname, users in reversed(list(declared.items())):
@@ -324,11 +333,13 @@ def model_options(kinds=("brdf", "medium")):
                                         f"({defaults}).")(wrapper)
         for kind in reversed(kinds):
             word = "BRDF family of the objects" if kind == "brdf" else "medium model"
+            auto = (f"; {AUTO}: every registered family fitted and ranked by BIC, the best "
+                    f"one kept" if kind in auto_kinds else "")
             wrapper = click.option(f"--{kind}-model", f"{kind}_model", default=None,
-                                   type=ModelName(kind), metavar="NAME",
+                                   type=ModelName(kind, kind in auto_kinds), metavar="NAME",
                                    help=f"The {word} (default {DEFAULTS[kind]}, the paper's; "
                                         f"'veil models' lists them: "
-                                        f"{', '.join(known(kind))}).")(wrapper)
+                                        f"{', '.join(known(kind))}{auto}).")(wrapper)
         return wrapper
 
     return decorate

@@ -64,13 +64,83 @@ def _write_fit(ctx, result, output) -> None:
     finish_fits(ctx, [result], [output])
 
 
-def _step_through_medium_options(command):
+def _step_through_medium_options(ranked_kind: str):
     """The options a step through the medium shares (steps 1 and 2): the black cloth, the
-    accuracy, the evaluation budget, the model error, the propagation and the models."""
-    for option in (click.pass_context, model_options(), propagation_option, model_error_option,
-                   _max_nfev_option, _accuracy_option, _black_option):
-        command = option(command)
-    return command
+    accuracy, the evaluation budget, the model error, the propagation and the models (the
+    fitted one, ``ranked_kind``, may be ``auto``)."""
+    def decorate(command):
+        for option in (click.pass_context, model_options(auto_kinds=(ranked_kind,)),
+                       propagation_option, model_error_option, _max_nfev_option,
+                       _accuracy_option, _black_option):
+            command = option(command)
+        return command
+
+    return decorate
+
+
+def _per_candidate(items, cands, parse, option: str) -> dict:
+    """{candidate label: ``parse(items of its family's parameters, family)``} for a ranked
+    fit: each NAME=VALUE (or NAME) applies to the candidates that declare the parameter; one
+    that no candidate declares is a UserError."""
+    from ..models import model_class
+
+    used, out = set(), {}
+    for c in cands:
+        cls = model_class(c.family)
+        mine = [i for i in items if i.partition("=")[0].strip() in cls.param_names()]
+        used.update(mine)
+        out[c.label] = parse(mine, cls)
+    unused = [i for i in items if i not in used]
+    if unused:
+        raise UserError(f"{option} {', '.join(map(repr, unused))}: no candidate family has "
+                        f"such a parameter")
+    return out
+
+
+def _ranked_fit(ctx, kind: str, step: str, models, data, fit, what: str, fix=(), free=()):
+    """``--brdf-model auto`` / ``--medium-model auto``: every registered family of ``kind``
+    (with each value of its discrete options) fitted by ``fit(candidate, fixed, freed)`` and
+    ranked by BIC on ``data`` (veil.fitting.selection); the ranking printed and the chosen
+    result returned with it in ``stats["selection"]``. Exit 1 with the table when every
+    candidate failed."""
+    from ..fitting import selection
+    from ..fitting.session_data import prepare
+
+    cands = selection.candidates(kind, models.brdf_options if kind == "brdf"
+                                 else models.medium_options)
+    fixes = _per_candidate(fix, cands, parse_fix, "--fix")
+    frees = _per_candidate(free, cands, _parse_free, "--free")
+    table, black = data
+    prepared = prepare(table, black, what)
+
+    def one(c):
+        return fit(c, fixes[c.label], frees[c.label])
+
+    try:
+        with echo_warnings(), fit_progress(step) as progress:
+            ranking, results = selection.select(step.rpartition(", ")[2], cands, prepared, one,
+                                                what, progress)
+    except selection.NoCandidateError as exc:
+        print_ranking(exc.ranking)
+        click.echo(f"Error: {exc}; nothing was written", err=True)
+        ctx.exit(1)
+    print_ranking(ranking)
+    return selection.with_selection(results[ranking.chosen], ranking)
+
+
+def _fit_step(ctx, kind: str, step: str, models, fit, data, what: str, fix=(), free=()):
+    """One step's fit of the ``kind`` model: ``fit(family, options, fixed, freed,
+    progress)`` with the chosen family, or every candidate ranked (:func:`_ranked_fit`)
+    when it is ``auto``. ``data`` are the (table, black) the fit reads, ``what`` names them."""
+    cls = models.brdf if kind == "brdf" else models.medium
+    options = models.brdf_options if kind == "brdf" else models.medium_options
+    if kind in models.ranked:
+        return _ranked_fit(ctx, kind, step, models, data,
+                           lambda c, fixed, freed: fit(c.family, c.model_options(options),
+                                                       fixed, freed, None), what, fix, free)
+    fixed, freed = parse_fix(fix, cls), _parse_free(free, cls)
+    with echo_warnings(), fit_progress(step) as progress:
+        return fit(cls.NAME, options, fixed, freed, progress)
 
 
 def _parse_free(items, cls, option="--free") -> list:
@@ -165,25 +235,27 @@ def merl_table(merl, channel, sampling):
 @_channel_option
 @_sampling_option
 @model_error_option
-@model_options(("brdf",))
+@model_options(("brdf",), auto_kinds=("brdf",))
 @click.pass_context
 def reference_command(ctx, table, output, fix, black, max_nfev, merl, channel, sampling,
                       model_error, models):
     """Step 0: fit the reference's f_r (default Torrance-Sparrow) to clear-medium data,
     directly: a measurement TABLE, or a measured BRDF (--merl FILE --channel g)."""
-    fixed = parse_fix(fix, models.brdf)
     if (table is None) == (merl is None):
         raise UserError("give a measurement TABLE or --merl FILE (one of the two)")
     if merl is not None and black is not None:
         raise UserError("--black applies to a measurement table, not to --merl")
     check_output_path(output, [table, black, merl])
     data = table if merl is None else merl_table(merl, channel, sampling)
-    with echo_warnings(), fit_progress("step 0, reference") as progress:
-        from ..fitting import fit_reference
+    from ..fitting import fit_reference
 
-        result = fit_reference(data, fixed=fixed, black=black, max_nfev=max_nfev,
-                               progress=progress, brdf_model=models.brdf.NAME,
-                               options=models.brdf_options, model_error=model_error)
+    def fit(family, options, fixed, _, progress):
+        return fit_reference(data, fixed=fixed, black=black, max_nfev=max_nfev,
+                             progress=progress, brdf_model=family, options=options,
+                             model_error=model_error)
+
+    result = _fit_step(ctx, "brdf", "step 0, reference", models, fit, (data, black),
+                       "reference (clear medium)", fix)
     _write_fit(ctx, result, output)
 
 
@@ -199,23 +271,24 @@ def reference_command(ctx, table, output, fix, black, max_nfev, merl, channel, s
              "repeatable.")
 @_free_option("Fit a parameter the medium model holds by default (held ones are marked in "
               "'veil models', e.g. forward-series' s, the exposure factor); repeatable.")
-@_step_through_medium_options
+@_step_through_medium_options("medium")
 def medium_command(ctx, table, reference, output, fix, free, black, accuracy, max_nfev,
                    model_error, propagation, models):
     """Step 1: fit the medium (default the paper's Td, Tt, g, eta) to the reference measured
     in it."""
-    fixed = parse_fix(fix, models.medium)
-    freed = _parse_free(free, models.medium)
     ref = load_reference(reference, models)
     inputs = [table, black] + ([reference] if os.path.exists(reference) else [])
     check_output_path(output, inputs)
-    with echo_warnings(), fit_progress("step 1, medium") as progress:
-        from ..fitting import fit_medium
+    from ..fitting import fit_medium
 
-        result = fit_medium(table, ref, fixed=fixed, black=black, accuracy=accuracy,
-                            max_nfev=max_nfev, progress=progress,
-                            medium_model=models.medium.NAME, options=models.medium_options,
-                            free=freed, model_error=model_error, propagation=propagation)
+    def fit(family, options, fixed, freed, progress):
+        return fit_medium(table, ref, fixed=fixed, black=black, accuracy=accuracy,
+                          max_nfev=max_nfev, progress=progress, medium_model=family,
+                          options=options, free=freed, model_error=model_error,
+                          propagation=propagation)
+
+    result = _fit_step(ctx, "medium", "step 1, medium", models, fit, (table, black),
+                       "reference (in the medium)", fix, free)
     _write_fit(ctx, result, output)
 
 
@@ -231,13 +304,11 @@ def medium_command(ctx, table, reference, output, fix, free, black, accuracy, ma
              "VALUE; repeatable.")
 @_free_option("Fit a parameter the BRDF family holds by default (marked held in 'veil "
               "models'); repeatable.")
-@_step_through_medium_options
+@_step_through_medium_options("brdf")
 def target_command(ctx, table, medium, output, fix, free, black, accuracy, max_nfev,
                    model_error, propagation, models):
     """Step 2: fit the target's f_r (default Torrance-Sparrow) through the fitted medium.
     A JSON --medium keeps its own model and options (a contradicting option is an error)."""
-    fixed = parse_fix(fix, models.brdf)
-    freed = _parse_free(free, models.brdf)
     med = load_medium(medium, models)
     given = med.as_model() if hasattr(med, "as_model") else med
     if "medium-model" in models.explicit and type(given) is not models.medium:
@@ -249,13 +320,16 @@ def target_command(ctx, table, medium, output, fix, free, black, accuracy, max_n
                             f"leave --{k} out to use the medium's")
     inputs = [table, black] + ([medium] if os.path.exists(medium) else [])
     check_output_path(output, inputs)
-    with echo_warnings(), fit_progress("step 2, target") as progress:
-        from ..fitting import fit_target
+    from ..fitting import fit_target
 
-        result = fit_target(table, med, fixed=fixed, black=black, accuracy=accuracy,
-                            max_nfev=max_nfev, progress=progress,
-                            brdf_model=models.brdf.NAME, options=models.brdf_options,
-                            free=freed, model_error=model_error, propagation=propagation)
+    def fit(family, options, fixed, freed, progress):
+        return fit_target(table, med, fixed=fixed, black=black, accuracy=accuracy,
+                          max_nfev=max_nfev, progress=progress, brdf_model=family,
+                          options=options, free=freed, model_error=model_error,
+                          propagation=propagation)
+
+    result = _fit_step(ctx, "brdf", "step 2, target", models, fit, (table, black),
+                       "target (in the medium)", fix, free)
     _write_fit(ctx, result, output)
 
 

@@ -23,6 +23,7 @@ ranked by BIC with each fit's model-discrepancy term.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 import threading
@@ -37,7 +38,7 @@ from ..errors import FitError
 from ..models import registry
 from .model_error import _nll_independent, _nll_spectrum, _spectrum, correlation, distances
 from .result import FitResult
-from .steps import MisfitWarning
+from .steps import MisfitWarning, warn_misfit
 
 #: Candidates whose BIC is within this of the best are a close call (Kass and Raftery 1995:
 #: "not worth more than a bare mention").
@@ -298,6 +299,34 @@ def rank(step: str, fitted: dict, data, cands=None) -> Ranking:
     chosen = ranked[0]["label"] if ranked else None
     close = [r["label"] for r in ranked if r["delta_bic"] <= CLOSE_DELTA_BIC]
     return Ranking(step, ranked + others, chosen, close)
+
+
+def select(step: str, cands, data, fit, what: str, progress=None) -> tuple[Ranking, dict]:
+    """Fit every candidate (``fit(candidate)``, in threads) and rank them on ``data``:
+    (ranking, {label: FitResult}). A :class:`NoCandidateError` when every candidate failed;
+    the chosen one is warned about when it misses the data (``what`` names them)."""
+    if progress is not None:
+        progress(f"{step}: {len(cands)} candidates in {workers(len(cands))} thread(s)",
+                 None, None)
+    count = {"done": 0}
+
+    def tell(label, outcome):
+        count["done"] += 1
+        if progress is not None:
+            progress(f"{step}: {label} {outcome}", count["done"], len(cands))
+
+    fitted = fit_candidates(fit, cands, tell)
+    ranking = rank(step, fitted, data, cands)
+    results = {lab: res for lab, (res, _) in fitted.items() if isinstance(res, FitResult)}
+    if ranking.chosen is None:
+        raise NoCandidateError(step, ranking)
+    warn_misfit(results[ranking.chosen].chi2_reduced, data, what)
+    return ranking, results
+
+
+def with_selection(result: FitResult, ranking: Ranking) -> FitResult:
+    """``result`` with its step's ranking in ``stats["selection"]``."""
+    return dataclasses.replace(result, stats={**result.stats, "selection": ranking.to_dict()})
 
 
 def curve_spread(ranking: Ranking, curves: dict) -> dict | None:
