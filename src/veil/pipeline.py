@@ -44,6 +44,7 @@ from .fitting import (
 )
 from .fitting.model_error import check_kind
 from .fitting.propagation import check_method
+from .fitting.steps import prefetch
 from .io import check_output_folder, output_folder, write_bytes_atomic, write_text_atomic
 from .models import AUTO, model_class
 from .models.base import VARIANT_OPTION
@@ -174,6 +175,9 @@ def _fit_steps(data: dict, fixed: dict, free: dict, *, variant, accuracy, max_nf
     """Steps 0-2 with the given families: (reference, medium, target)."""
     brdf = {"brdf_model": brdf_model, "options": brdf_options, "model_error": model_error}
     chained = {"model_error": model_error, "propagation": propagation}
+    prefetch(data["reference_medium"], brdf_model=brdf_model, brdf_options=brdf_options,
+             medium_model=medium_model, medium_options=medium_options, variant=variant,
+             accuracy=accuracy)
     ref = fit_reference(data["reference_clear"].table, fixed=fixed.get("reference"),
                         max_nfev=max_nfev, progress=_stage(progress, "step 0, reference"),
                         free=free.get("reference"), **brdf)

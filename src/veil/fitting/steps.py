@@ -102,6 +102,24 @@ def _prepare_engine(problem, cls, given, given_result, accuracy: str) -> None:
         block.model(accuracy).prepare(values=True)
 
 
+def prefetch(data: FitData, *, brdf_model=None, brdf_options=None, medium_model=None,
+             medium_options=None, variant: str | None = None,
+             accuracy: str = "default") -> None:
+    """Start compiling (or loading) in the background the engine programs that steps 1 and 2
+    run at ``data``'s configurations (values and both models' derivatives at the iterations'
+    rule, values at ``accuracy``), so that a first run compiles them while step 0 fits the
+    clear reference. A model or option the steps will refuse is left to them to report."""
+    try:
+        brdf = _template(_family(brdf_model, "brdf"), dict(brdf_options or {}))
+        medium = _template(_family(medium_model, "medium"), _options(medium_options, variant))
+    except (InputError, FitError):
+        return
+    rules = [ITERATION_ACCURACY] + ([accuracy] if accuracy != ITERATION_ACCURACY else [])
+    for rule in rules:
+        model = ApparentModel(cast(BRDF, brdf), cast(Medium, medium), data.angles, RULES[rule])
+        model.prepare(values=True, jacobians=[("medium",), ("brdf",)] if rule == rules[0] else [])
+
+
 def _step(step: str, data: FitData, fitted: Model, given: Model | None, given_result,
           fixed: dict, accuracy: str, max_nfev, progress, freed=(),
           model_error: str = "off", propagation: str = "auto") -> FitResult:
