@@ -137,8 +137,16 @@ _merl_option = click.option(
     help="A measured BRDF in the MERL binary format instead of a table: sampled at the "
          "--sampling configurations (docs/interop.md).")
 _channel_option = click.option(
-    "--channel", type=click.Choice(["r", "g", "b"]), default="g", show_default=True,
-    help="Colour channel of the --merl file.")
+    "--channel", default=None, metavar="NAME",
+    help="The one channel to fit of a TABLE with a channel column (r, g, b or a wavelength "
+         "in nm; without it every channel is fitted at once, docs/fitting.md \"Channels\"), "
+         "or the colour channel of the --merl file (r, g or b; default g).")
+_step_channel_option = click.option(
+    "--channel", default=None, metavar="NAME",
+    help="The channel to fit of a TABLE with a channel column (r, g, b or a wavelength in "
+         "nm): a fit through the medium takes one channel at a time; a reference fitted "
+         "over several channels gives its model of this channel.")
+MERL_CHANNELS = ("r", "g", "b")
 _sampling_option = click.option(
     "--sampling", type=click.Choice(["protocol", "inplane"]), default="protocol",
     show_default=True,
@@ -177,13 +185,17 @@ def reference_command(ctx, table, output, fix, black, max_nfev, merl, channel, s
     if merl is not None and black is not None:
         raise UserError("--black applies to a measurement table, not to --merl")
     check_output_path(output, [table, black, merl])
-    data = table if merl is None else merl_table(merl, channel, sampling)
+    if merl is not None and channel not in (None,) + MERL_CHANNELS:
+        raise UserError(f"--channel {channel!r}: a MERL file has channels "
+                        f"{', '.join(MERL_CHANNELS)}")
+    data = table if merl is None else merl_table(merl, channel or "g", sampling)
     with echo_warnings(), fit_progress("step 0, reference") as progress:
         from ..fitting import fit_reference
 
         result = fit_reference(data, fixed=fixed, black=black, max_nfev=max_nfev,
                                progress=progress, brdf_model=models.brdf.NAME,
-                               options=models.brdf_options, model_error=model_error)
+                               options=models.brdf_options, model_error=model_error,
+                               channel=channel if merl is None else None)
     _write_fit(ctx, result, output)
 
 
@@ -199,9 +211,10 @@ def reference_command(ctx, table, output, fix, black, max_nfev, merl, channel, s
              "repeatable.")
 @_free_option("Fit a parameter the medium model holds by default (held ones are marked in "
               "'veil models', e.g. forward-series' s, the exposure factor); repeatable.")
+@_step_channel_option
 @_step_through_medium_options
 def medium_command(ctx, table, reference, output, fix, free, black, accuracy, max_nfev,
-                   model_error, propagation, models):
+                   model_error, propagation, models, channel):
     """Step 1: fit the medium (default the paper's Td, Tt, g, eta) to the reference measured
     in it."""
     fixed = parse_fix(fix, models.medium)
@@ -215,7 +228,8 @@ def medium_command(ctx, table, reference, output, fix, free, black, accuracy, ma
         result = fit_medium(table, ref, fixed=fixed, black=black, accuracy=accuracy,
                             max_nfev=max_nfev, progress=progress,
                             medium_model=models.medium.NAME, options=models.medium_options,
-                            free=freed, model_error=model_error, propagation=propagation)
+                            free=freed, model_error=model_error, propagation=propagation,
+                            channel=channel)
     _write_fit(ctx, result, output)
 
 
@@ -231,15 +245,17 @@ def medium_command(ctx, table, reference, output, fix, free, black, accuracy, ma
              "VALUE; repeatable.")
 @_free_option("Fit a parameter the BRDF family holds by default (marked held in 'veil "
               "models'); repeatable.")
+@_step_channel_option
 @_step_through_medium_options
 def target_command(ctx, table, medium, output, fix, free, black, accuracy, max_nfev,
-                   model_error, propagation, models):
+                   model_error, propagation, models, channel):
     """Step 2: fit the target's f_r (default Torrance-Sparrow) through the fitted medium.
     A JSON --medium keeps its own model and options (a contradicting option is an error)."""
     fixed = parse_fix(fix, models.brdf)
     freed = _parse_free(free, models.brdf)
     med = load_medium(medium, models)
-    given = med.as_model() if hasattr(med, "as_model") else med
+    given = med.as_model(channel=channel if getattr(med, "channels", None) else None) \
+        if hasattr(med, "as_model") else med
     if "medium-model" in models.explicit and type(given) is not models.medium:
         raise UserError(f"--medium-model {models.medium.NAME} but {medium} is a "
                         f"{given.NAME} medium")
@@ -255,7 +271,8 @@ def target_command(ctx, table, medium, output, fix, free, black, accuracy, max_n
         result = fit_target(table, med, fixed=fixed, black=black, accuracy=accuracy,
                             max_nfev=max_nfev, progress=progress,
                             brdf_model=models.brdf.NAME, options=models.brdf_options,
-                            free=freed, model_error=model_error, propagation=propagation)
+                            free=freed, model_error=model_error, propagation=propagation,
+                            channel=channel)
     _write_fit(ctx, result, output)
 
 
