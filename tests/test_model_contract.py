@@ -187,6 +187,21 @@ def test_starting_grids_lie_inside_the_bounds(name):
 
 
 @pytest.mark.parametrize("name", FAMILIES)
+def test_every_parameter_declares_whether_it_is_per_channel_or_shared(name):
+    """Colour (docs/fitting.md, "Channels"): a family says which of its parameters take one
+    value per channel (albedos, scales, a medium's optical depth and albedo) and which one
+    value tied across the channels (roughness, index, g) - ``Param(channels=...)``."""
+    cls = REGISTRY[name]
+    undeclared = [p.name for p in cls.PARAMS if p.channels is None]
+    assert not undeclared, (f"{name}: declare channels='per-channel' or 'shared' for "
+                            f"{', '.join(undeclared)}")
+    sharing = cls.channel_sharing()
+    for scale in cls.scale_names():  # a linear scale is an albedo: one per channel
+        assert sharing[scale] == "per-channel", (name, scale)
+    assert "shared" in sharing.values() or len(cls.PARAMS) == 1, name
+
+
+@pytest.mark.parametrize("name", FAMILIES)
 def test_a_declared_model_error_is_a_relative_error_and_a_length(name):
     floor = REGISTRY[name].MODEL_ERROR_FLOOR
     if floor is not None:

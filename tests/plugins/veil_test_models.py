@@ -31,7 +31,8 @@ class LambertianTest(BRDF):
     LABEL = "Lambertian surface (test-only model)"
     HAS_LOBE = False
     SCALES = {"separable": "rho"}
-    PARAMS = (Param("rho", 0.0, math.inf, "albedo, relative units", log_scale=True, start=1.0),)
+    PARAMS = (Param("rho", 0.0, math.inf, "albedo, relative units", log_scale=True, start=1.0,
+                    channels="per-channel"),)
 
     @staticmethod
     def separable(v, cos_i, cos_r, aux=None):
@@ -51,10 +52,12 @@ class FisherTest(Medium):
     LABEL = "isotropic + von Mises-Fisher single scattering (test-only model)"
     SCALES = {"iso": "Td", "lobe": "Tt"}
     PARAMS = (
-        Param("Td", 0.0, math.inf, "isotropic coefficient", log_scale=True, start=1e-3),
-        Param("Tt", 0.0, math.inf, "lobe coefficient", log_scale=True, start=0.1),
+        Param("Td", 0.0, math.inf, "isotropic coefficient", log_scale=True, start=1e-3,
+              channels="per-channel"),
+        Param("Tt", 0.0, math.inf, "lobe coefficient", log_scale=True, start=0.1,
+              channels="per-channel"),
         Param("kappa", 0.5, 1e5, "concentration of the lobe", log_scale=True, start=100.0,
-              share="per-medium"),
+              share="per-medium", channels="shared"),
     )
     START = {"medium": {"kappa": (10.0, 30.0, 100.0, 300.0, 1000.0, 3000.0)}}
 

@@ -110,8 +110,8 @@ def _ranked_fit(ctx, kind: str, step: str, models, data, fit, what: str, fix=(),
                                  else models.medium_options)
     fixes = _per_candidate(fix, cands, parse_fix, "--fix")
     frees = _per_candidate(free, cands, _parse_free, "--free")
-    table, black = data
-    prepared = prepare(table, black, what)
+    table, black, channel = data
+    prepared = prepare(table, black, what, channel)
 
     def one(c):
         return fit(c, fixes[c.label], frees[c.label])
@@ -131,7 +131,8 @@ def _ranked_fit(ctx, kind: str, step: str, models, data, fit, what: str, fix=(),
 def _fit_step(ctx, kind: str, step: str, models, fit, data, what: str, fix=(), free=()):
     """One step's fit of the ``kind`` model: ``fit(family, options, fixed, freed,
     progress)`` with the chosen family, or every candidate ranked (:func:`_ranked_fit`)
-    when it is ``auto``. ``data`` are the (table, black) the fit reads, ``what`` names them."""
+    when it is ``auto``. ``data`` are the (table, black, channel) the fit reads, ``what``
+    names them."""
     cls = models.brdf if kind == "brdf" else models.medium
     options = models.brdf_options if kind == "brdf" else models.medium_options
     if kind in models.ranked:
@@ -207,8 +208,16 @@ _merl_option = click.option(
     help="A measured BRDF in the MERL binary format instead of a table: sampled at the "
          "--sampling configurations (docs/interop.md).")
 _channel_option = click.option(
-    "--channel", type=click.Choice(["r", "g", "b"]), default="g", show_default=True,
-    help="Colour channel of the --merl file.")
+    "--channel", default=None, metavar="NAME",
+    help="The one channel to fit of a TABLE with a channel column (r, g, b or a wavelength "
+         "in nm; without it every channel is fitted at once, docs/fitting.md \"Channels\"), "
+         "or the colour channel of the --merl file (r, g or b; default g).")
+_step_channel_option = click.option(
+    "--channel", default=None, metavar="NAME",
+    help="The channel to fit of a TABLE with a channel column (r, g, b or a wavelength in "
+         "nm): a fit through the medium takes one channel at a time; a reference fitted "
+         "over several channels gives its model of this channel.")
+MERL_CHANNELS = ("r", "g", "b")
 _sampling_option = click.option(
     "--sampling", type=click.Choice(["protocol", "inplane"]), default="protocol",
     show_default=True,
@@ -246,15 +255,19 @@ def reference_command(ctx, table, output, fix, black, max_nfev, merl, channel, s
     if merl is not None and black is not None:
         raise UserError("--black applies to a measurement table, not to --merl")
     check_output_path(output, [table, black, merl])
-    data = table if merl is None else merl_table(merl, channel, sampling)
+    if merl is not None and channel not in (None,) + MERL_CHANNELS:
+        raise UserError(f"--channel {channel!r}: a MERL file has channels "
+                        f"{', '.join(MERL_CHANNELS)}")
+    data = table if merl is None else merl_table(merl, channel or "g", sampling)
+    one = channel if merl is None else None
     from ..fitting import fit_reference
 
     def fit(family, options, fixed, _, progress):
         return fit_reference(data, fixed=fixed, black=black, max_nfev=max_nfev,
                              progress=progress, brdf_model=family, options=options,
-                             model_error=model_error)
+                             model_error=model_error, channel=one)
 
-    result = _fit_step(ctx, "brdf", "step 0, reference", models, fit, (data, black),
+    result = _fit_step(ctx, "brdf", "step 0, reference", models, fit, (data, black, one),
                        "reference (clear medium)", fix)
     _write_fit(ctx, result, output)
 
@@ -271,9 +284,10 @@ def reference_command(ctx, table, output, fix, black, max_nfev, merl, channel, s
              "repeatable.")
 @_free_option("Fit a parameter the medium model holds by default (held ones are marked in "
               "'veil models', e.g. forward-series' s, the exposure factor); repeatable.")
+@_step_channel_option
 @_step_through_medium_options("medium")
 def medium_command(ctx, table, reference, output, fix, free, black, accuracy, max_nfev,
-                   model_error, propagation, models):
+                   model_error, propagation, models, channel):
     """Step 1: fit the medium (default the paper's Td, Tt, g, eta) to the reference measured
     in it."""
     ref = load_reference(reference, models)
@@ -285,9 +299,9 @@ def medium_command(ctx, table, reference, output, fix, free, black, accuracy, ma
         return fit_medium(table, ref, fixed=fixed, black=black, accuracy=accuracy,
                           max_nfev=max_nfev, progress=progress, medium_model=family,
                           options=options, free=freed, model_error=model_error,
-                          propagation=propagation)
+                          propagation=propagation, channel=channel)
 
-    result = _fit_step(ctx, "medium", "step 1, medium", models, fit, (table, black),
+    result = _fit_step(ctx, "medium", "step 1, medium", models, fit, (table, black, channel),
                        "reference (in the medium)", fix, free)
     _write_fit(ctx, result, output)
 
@@ -304,13 +318,15 @@ def medium_command(ctx, table, reference, output, fix, free, black, accuracy, ma
              "VALUE; repeatable.")
 @_free_option("Fit a parameter the BRDF family holds by default (marked held in 'veil "
               "models'); repeatable.")
+@_step_channel_option
 @_step_through_medium_options("brdf")
 def target_command(ctx, table, medium, output, fix, free, black, accuracy, max_nfev,
-                   model_error, propagation, models):
+                   model_error, propagation, models, channel):
     """Step 2: fit the target's f_r (default Torrance-Sparrow) through the fitted medium.
     A JSON --medium keeps its own model and options (a contradicting option is an error)."""
     med = load_medium(medium, models)
-    given = med.as_model() if hasattr(med, "as_model") else med
+    given = med.as_model(channel=channel if getattr(med, "channels", None) else None) \
+        if hasattr(med, "as_model") else med
     if "medium-model" in models.explicit and type(given) is not models.medium:
         raise UserError(f"--medium-model {models.medium.NAME} but {medium} is a "
                         f"{given.NAME} medium")
@@ -326,9 +342,9 @@ def target_command(ctx, table, medium, output, fix, free, black, accuracy, max_n
         return fit_target(table, med, fixed=fixed, black=black, accuracy=accuracy,
                           max_nfev=max_nfev, progress=progress, brdf_model=family,
                           options=options, free=freed, model_error=model_error,
-                          propagation=propagation)
+                          propagation=propagation, channel=channel)
 
-    result = _fit_step(ctx, "brdf", "step 2, target", models, fit, (table, black),
+    result = _fit_step(ctx, "brdf", "step 2, target", models, fit, (table, black, channel),
                        "target (in the medium)", fix, free)
     _write_fit(ctx, result, output)
 

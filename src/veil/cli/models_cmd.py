@@ -14,9 +14,9 @@ import click
               help="Print the declarations as JSON (name, kind, parameters, options, presets).")
 def models_command(kind, as_json):
     """List the model families veil knows: parameters with bounds, units and meaning,
-    options, the parameters that scale the model linearly, those a joint fit may share, the
-    presets, and the model's declared error where it has one. Commands choose them with
-    --brdf-model NAME and --medium-model NAME."""
+    options, the parameters that scale the model linearly, those a joint fit may share, those
+    that take one value per colour channel, the presets, and the model's declared error
+    where it has one. Commands choose them with --brdf-model NAME and --medium-model NAME."""
     from ..models import DEFAULTS, PRESETS, model_class, names
     from ..numbers import json_clean
 
@@ -30,7 +30,8 @@ def models_command(kind, as_json):
             "parameters": [{"name": p.name, "alias": p.alias, "lower": p.lower,
                             "upper": p.upper, "interval": p.interval(), "unit": p.unit,
                             "meaning": p.doc, "log_scale": p.log_scale,
-                            "scale": p.name in cls.scale_names(), "share": p.share}
+                            "scale": p.name in cls.scale_names(), "share": p.share,
+                            "channels": cls.channel_sharing()[p.name]}
                            for p in cls.PARAMS],
             "options": [{"name": o.name, "default": o.default, "choices": list(o.choices),
                          "meaning": o.doc} for o in cls.OPTIONS],
@@ -59,6 +60,8 @@ def models_command(kind, as_json):
                 notes.append("linear scale")
             if p["share"]:
                 notes.append(f"joint fits: {p['share'].replace('-', ' ')} by default")
+            notes.append("one per channel" if p["channels"] == "per-channel"
+                         else "shared by the channels")
             meaning = p["meaning"] + (f" [{'; '.join(notes)}]" if notes else "")
             table.add_row(escape(name), p["interval"], escape(p["unit"] or "-"), escape(meaning))
         console.print(table)

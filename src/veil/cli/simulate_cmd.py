@@ -39,6 +39,51 @@ def _merl_model(merl, channel, models):
     return result.as_model()
 
 
+def _channel_models(model_b, model_m, channels: str | None, per_channel) -> dict | None:
+    """{channel: (brdf, medium)} of ``--channels`` with the ``--per-channel NAME=V1,V2,...``
+    values (a parameter of the BRDF or, by its name next to the BRDF's, of the medium);
+    None without ``--channels``."""
+    if channels is None:
+        if per_channel:
+            raise UserError("--per-channel needs --channels (e.g. --channels r,g,b)")
+        return None
+    from ..data.channels import channel_label
+
+    labels = [channel_label(c) for c in channels.split(",") if c.strip()]
+    names = [str(c) for c in labels]
+    if not names or None in labels or len(set(names)) != len(names):
+        raise UserError(f"--channels {channels!r}: expected distinct channels, comma-separated "
+                        f"(r,g,b or wavelengths in nm such as 450,550,650)")
+    values: dict = {}
+    for item in per_channel:
+        name, sep, text = item.partition("=")
+        name = name.strip()
+        try:
+            numbers = [float(v) for v in text.split(",")] if sep else []
+        except ValueError:
+            numbers = []
+        if len(numbers) != len(names):
+            raise UserError(f"--per-channel {item!r}: expected NAME=V1,...,V{len(names)}, one "
+                            f"number per channel of --channels ({', '.join(names)})")
+        owner = next((m for m in (model_b, model_m) if m is not None and name in m.keys()),
+                     None)
+        if owner is None:
+            known = [k for m in (model_b, model_m) if m is not None for k in m.keys()]
+            raise UserError(f"--per-channel {item!r}: {name!r} is not a parameter of the "
+                            f"object or the medium ({', '.join(known)})")
+        if name in values:
+            raise UserError(f"--per-channel: {name} is given twice")
+        values[name] = (owner, type(owner).param(name).name, numbers)
+    out = {}
+    for k, channel in enumerate(names):
+        pair = []
+        for model in (model_b, model_m):
+            changes = {own: vals[k] for owner, own, vals in values.values() if owner is model}
+            pair.append(None if model is None else model.replace(**changes))
+        out[channel] = tuple(pair)
+    return out
+
+
 @click.command("simulate")
 @click.option("--brdf", default=None, metavar="MODEL",
               help="The object: preset BRDF1 or BRDF2, or a literal list of the --brdf-model's "
@@ -87,9 +132,18 @@ def _merl_model(merl, channel, models):
                    "(docs/interop.md).")
 @click.option("--channel", type=click.Choice(["r", "g", "b"]), default="g", show_default=True,
               help="Colour channel of the --merl file.")
+@click.option("--channels", default=None, metavar="C1,C2,...",
+              help="Write several channels (r,g,b, or wavelengths in nm): the session once per "
+                   "channel, with a channel column (docs/measurements.md, \"Channels\").")
+@click.option("--per-channel", "per_channel", multiple=True, metavar="NAME=V1,V2,...",
+              help="With --channels: a parameter of the object or the medium (names as in "
+                   "'veil models'; the medium's index is eta_u) that takes one value per "
+                   "channel, e.g. Pd=0.3,0.5,0.8; repeatable. Other parameters are those of "
+                   "--brdf and --medium in every channel.")
 @model_options()
 def simulate_command(brdf, medium, output, black_path, psi, noise, seed, glow, form,
-                     fine_step, window, coarse_step, limit, accuracy, merl, channel, models):
+                     fine_step, window, coarse_step, limit, accuracy, merl, channel, channels,
+                     per_channel, models):
     """Simulate a measurement session of the paper's protocol (docs/model.md sec. 7).
 
     For each relative angle psi the object is rotated by rho (theta_i = psi/2 + rho,
@@ -100,6 +154,8 @@ def simulate_command(brdf, medium, output, black_path, psi, noise, seed, glow, f
 
     \b
         veil simulate --brdf BRDF1 --medium BTDF2 -o meas.csv --black black.csv
+        veil simulate --brdf BRDF1 --medium none --channels r,g,b \\
+            --per-channel Pd=400,1000,2500 -o rgb.csv
     """
     if (brdf is None) == (merl is None):
         raise UserError("give the object as --brdf MODEL or --merl FILE (one of the two)")
@@ -109,6 +165,7 @@ def simulate_command(brdf, medium, output, black_path, psi, noise, seed, glow, f
         brdf = f"{model_b.NAME} fitted to {merl.name}"
     else:
         model_b = models.brdf_model(brdf)
+    by_channel = _channel_models(model_b, model_m, channels, per_channel)
     psis = parse_psi(psi)
     if black_path is not None and _same_file(output, black_path):
         raise UserError(f"--output and --black are the same file ({output}); give two files")
@@ -117,7 +174,7 @@ def simulate_command(brdf, medium, output, black_path, psi, noise, seed, glow, f
             check_output_path(path)
     from ..data.measurements import measurements_text, to_form
     from ..data.protocol import protocol
-    from ..data.simulate import simulate
+    from ..data.simulate import simulate, simulate_channels
     from ..io import write_many_atomic
 
     try:
@@ -135,15 +192,19 @@ def simulate_command(brdf, medium, output, black_path, psi, noise, seed, glow, f
                   MofNCompleteColumn(), TimeElapsedColumn(),
                   console=console(), transient=True) as bar:
         task = bar.add_task(f"{brdf.strip()} through {what}", total=len(configs))
-        result = simulate(model_b, model_m, psis, noise=noise, seed=seed,
-                          black=black_path is not None, fine_step=fine_step,
-                          coarse_step=coarse_step, window=window, limit=limit, glow=glow,
-                          accuracy=accuracy,
-                          progress=lambda done, total: bar.update(task, completed=done))
+        protocol_args = dict(noise=noise, seed=seed, black=black_path is not None,
+                             fine_step=fine_step, coarse_step=coarse_step, window=window,
+                             limit=limit, glow=glow, accuracy=accuracy,
+                             progress=lambda done, total: bar.update(task, completed=done,
+                                                                     total=total))
+        result = simulate(model_b, model_m, psis, **protocol_args) if by_channel is None \
+            else simulate_channels(by_channel, psis, **protocol_args)
     table, cloth = result if black_path is not None else (result, None)
     files = {output: measurements_text(to_form(table, form)).encode("utf-8")}
     if cloth is not None:
         files[black_path] = measurements_text(to_form(cloth, form)).encode("utf-8")
     write_many_atomic(files)  # both files or neither
-    click.echo(f"wrote {len(table)} configurations to {output}"
+    click.echo(f"wrote {len(table)} " + ("configurations" if by_channel is None else
+                                         f"rows ({len(by_channel)} channels)")
+               + f" to {output}"
                + (f" and the black cloth to {black_path}" if cloth is not None else ""), err=True)

@@ -36,6 +36,7 @@ from ..engine.angles import (
 )
 from ..errors import InputError, InputTypeError, MeasurementError, MissingFileError, NotAFileError
 from ..io import write_text_atomic
+from .channels import CHANNEL, channel_labels, channel_order, check_same_configurations
 
 #: Angle columns, in the order :func:`canonical_angles` writes them.
 CANONICAL = ("theta_i", "phi_i", "theta_r", "phi_r")
@@ -45,6 +46,8 @@ FORMS = ("full", "inplane", "goniometer")
 
 #: Two configurations closer than this (deg, for both I and R) are the same configuration.
 SAME_TOL = 1e-6
+#: The distance of unit-vector pairs (I, R) that are the same configuration, at most.
+_SAME_RADIUS = 2.0 * math.sqrt(2.0) * math.sin(math.radians(SAME_TOL) / 2.0) * (1 + 1e-9)
 #: Below these magnitudes every angle of its column looks like radians (pi/2, pi, 2 pi).
 _RADIAN_LIMITS = {"theta_i": 1.6, "theta_r": 1.6, "rho": 1.6, "psi": 3.2, "phi_i": 6.3,
                   "phi_r": 6.3}
@@ -302,13 +305,16 @@ def _parse_angles(table: pd.DataFrame, rows: RowNames, warn: bool = True):
     return cols, _check_agreement(_angles_from(cols, forms, rows), rows)
 
 
-def _duplicates(angles, rows: RowNames) -> None:
+def _duplicates(angles, rows: RowNames, positions: np.ndarray | None = None) -> None:
+    """A MeasurementError for a configuration measured twice (among ``positions``: the rows
+    of one channel; all rows when None)."""
     from scipy.spatial import cKDTree
 
-    vec = _vectors(angles)
-    radius = 2.0 * math.sqrt(2.0) * math.sin(math.radians(SAME_TOL) / 2.0) * (1 + 1e-9)
-    pairs = sorted(cKDTree(vec).query_pairs(radius))
-    pairs = [(i, j) for i, j in pairs if _separation(vec[i], vec[j]) <= SAME_TOL]
+    at = np.arange(len(angles[0])) if positions is None else positions
+    vec = _vectors(angles)[at]
+    pairs = sorted(cKDTree(vec).query_pairs(_SAME_RADIUS))
+    pairs = [(int(at[i]), int(at[j])) for i, j in pairs
+             if _separation(vec[i], vec[j]) <= SAME_TOL]
     if pairs:
         root: dict[int, int] = {}
 
@@ -347,7 +353,7 @@ def _validated(table: pd.DataFrame, rows: RowNames | None = None) -> tuple[pd.Da
         if bad.size:
             raise _range_error(rows, bad, lambda k: f"sigma = {_fmt(float(sigma[k]))}",
                                "sigma is a standard deviation and must be >= 0")
-    _duplicates(angles, rows)
+    _check_configurations(table, angles, rows)
     out = table.copy()
     for c, v in cols.items():
         out[c] = v
@@ -355,12 +361,34 @@ def _validated(table: pd.DataFrame, rows: RowNames | None = None) -> tuple[pd.Da
     return out, angles
 
 
+def _check_configurations(table: pd.DataFrame, angles, rows: RowNames) -> None:
+    """No configuration twice (in any one channel), and every channel the same ones."""
+    if CHANNEL not in table.columns:
+        _duplicates(angles, rows)
+        return
+    labels = channel_labels(table[CHANNEL], rows)
+    for name in channel_order(labels):
+        _duplicates(angles, rows, np.flatnonzero(labels == name))
+    check_same_configurations(labels, _vectors(angles), rows,
+                              lambda a, b: _separation(a, b) <= SAME_TOL, _SAME_RADIUS)
+
+
+def table_channels(table: pd.DataFrame) -> np.ndarray | None:
+    """The channel of every row of a table (docs/measurements.md, "Channels": ``r``, ``g``,
+    ``b`` or a wavelength in nm, as text), None without a ``channel`` column."""
+    if CHANNEL not in table.columns:
+        return None
+    return channel_labels(table[CHANNEL], RowNames(table))
+
+
 def validate(table: pd.DataFrame) -> pd.DataFrame:
     """Check a measurement table (docs/model.md sec. 7) and return a copy with float columns.
 
     Raises :class:`MeasurementError` naming row and column for: no rows, missing ``value``,
     incomplete or disagreeing angle forms, empty/non-numeric/NaN/infinite cells, angles out
-    of range, negative ``sigma``, duplicate configurations. Warns
+    of range, negative ``sigma``, duplicate configurations; with a ``channel`` column, an
+    unknown channel, a wavelength out of range, or channels that measure different
+    configurations (:mod:`veil.data.channels`). Warns
     (:class:`LikelyRadiansWarning`) if every angle is small enough to be radians. Negative
     ``value`` is allowed (black-subtracted data).
     """
@@ -556,4 +584,4 @@ def measurements_text(table: pd.DataFrame) -> str:
 
 __all__ = ["load_measurements", "save_measurements", "canonical_angles",
            "validate", "to_form", "MeasurementError", "measurements_text",
-           "LikelyRadiansWarning", "CANONICAL", "FORMS"]
+           "LikelyRadiansWarning", "CANONICAL", "FORMS", "table_channels", "CHANNEL"]

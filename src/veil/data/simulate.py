@@ -106,29 +106,14 @@ def simulate(brdf, medium, psi=PSI, noise: float = 0.01, seed: int = 0, black: b
     brdf = as_brdf(brdf)
     if medium is not None:
         medium = as_btdf(medium)
-    for name, val in (("noise", noise), ("glow", glow)):
-        if isinstance(val, bool) or not isinstance(val, (int, float)) \
-                or not math.isfinite(val) or val < 0:
-            raise InputError(f"{name} = {val!r}: expected a finite number >= 0 (relative)")
-    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
-        raise InputError(f"seed = {seed!r}: expected an integer >= 0")
-    if accuracy not in RULES:
-        raise InputError(f"accuracy = {accuracy!r}; expected one of {', '.join(RULES)}")
+    _check_noise(noise, glow, seed, accuracy)
     table = protocol(psi, fine_step=fine_step, coarse_step=coarse_step, window=window,
                      limit=limit)
     n = len(table)
-    angles = [table[c].to_numpy() for c in ("theta_i", "phi_i", "theta_r", "phi_r")]
-    truth = _evaluate(brdf, medium, angles, accuracy, progress)
-    if medium is None or glow == 0:
-        glow_values = np.zeros(n)
-    else:
-        shape = glow_shape(medium, *angles)
-        glow_values = glow * glow_scale(medium, accuracy) * shape \
-            / glow_shape(medium, *GLOW_REFERENCE)
+    exact, glow_values = _session(brdf, medium, table, glow, accuracy, progress)
     rng = np.random.default_rng(seed)
     z_object = rng.standard_normal(n)
     z_black = rng.standard_normal(n)
-    exact = truth + glow_values
     out = table.copy()
     out["value"] = exact + noise * exact * z_object
     out["sigma"] = noise * np.abs(exact)
@@ -140,5 +125,81 @@ def simulate(brdf, medium, psi=PSI, noise: float = 0.01, seed: int = 0, black: b
     return out, cloth
 
 
-__all__ = ["simulate", "glow_shape", "glow_scale", "CHUNK", "GLOW_REFERENCE", "GLOW_LEVEL",
-           "GLOW_STANDARD"]
+def _check_noise(noise, glow, seed, accuracy) -> None:
+    """An InputError for a noise or glow level, a seed or an accuracy out of place."""
+    for name, val in (("noise", noise), ("glow", glow)):
+        if isinstance(val, bool) or not isinstance(val, (int, float)) \
+                or not math.isfinite(val) or val < 0:
+            raise InputError(f"{name} = {val!r}: expected a finite number >= 0 (relative)")
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise InputError(f"seed = {seed!r}: expected an integer >= 0")
+    if accuracy not in RULES:
+        raise InputError(f"accuracy = {accuracy!r}; expected one of {', '.join(RULES)}")
+
+
+def _session(brdf, medium, table: pd.DataFrame, glow: float, accuracy: str,
+             progress) -> tuple[np.ndarray, np.ndarray]:
+    """(noise-free value, glow) at the configurations of the protocol ``table``: the apparent
+    reflectance plus the medium's glow (module docstring)."""
+    brdf = as_brdf(brdf)
+    if medium is not None:
+        medium = as_btdf(medium)
+    n = len(table)
+    angles = [table[c].to_numpy() for c in ("theta_i", "phi_i", "theta_r", "phi_r")]
+    truth = _evaluate(brdf, medium, angles, accuracy, progress)
+    if medium is None or glow == 0:
+        glow_values = np.zeros(n)
+    else:
+        shape = glow_shape(medium, *angles)
+        glow_values = glow * glow_scale(medium, accuracy) * shape \
+            / glow_shape(medium, *GLOW_REFERENCE)
+    return truth + glow_values, glow_values
+
+
+def simulate_channels(channels: dict, psi=PSI, noise: float = 0.01, seed: int = 0,
+                      black: bool = False, *, fine_step: float = 1.0, coarse_step: float = 5.0,
+                      window: float = 10.0, limit: float = 85.0, glow: float = GLOW_LEVEL,
+                      accuracy: str = "default",
+                      progress: Callable[[int, int], None] | None = None
+                      ) -> pd.DataFrame | tuple[pd.DataFrame, pd.DataFrame]:
+    """A simulated session of several colour channels (docs/measurements.md, "Channels"):
+    ``channels`` maps each channel (``"r"``, ``"g"``, ``"b"`` or a wavelength in nm) to its
+    (brdf, medium) pair, as :func:`simulate` takes them. The table has the protocol's
+    configurations once per channel, channel after channel, with a ``channel`` column
+    before ``value`` and ``sigma``. The noise is drawn from one generator: every channel's
+    object noise first (in the order given), then every channel's black cloth. Other
+    arguments as :func:`simulate`.
+    """
+    import pandas as pd
+
+    from .channels import CHANNEL
+
+    if not isinstance(channels, dict) or not channels:
+        raise InputError("channels: expected a dict {channel: (brdf, medium)} with at least "
+                         "one channel")
+    _check_noise(noise, glow, seed, accuracy)
+    table = protocol(psi, fine_step=fine_step, coarse_step=coarse_step, window=window,
+                     limit=limit)
+    n, size = len(table), len(table) * len(channels)
+    parts = []
+    for k, (brdf, medium) in enumerate(channels.values()):
+        step = None if progress is None else \
+            (lambda done, total, k=k: progress(k * n + done, size))
+        parts.append(_session(brdf, medium, table, glow, accuracy, step))
+    exact = np.concatenate([p[0] for p in parts])
+    glow_values = np.concatenate([p[1] for p in parts])
+    rng = np.random.default_rng(seed)
+    z_object = rng.standard_normal(size)
+    z_black = rng.standard_normal(size)
+    rows = pd.concat([table] * len(channels), ignore_index=True)
+    rows[CHANNEL] = np.repeat(np.array(list(channels), dtype=object), n)
+    out, cloth = rows.copy(), rows.copy()
+    out["value"] = exact + noise * exact * z_object
+    out["sigma"] = noise * np.abs(exact)
+    cloth["value"] = glow_values + noise * glow_values * z_black
+    cloth["sigma"] = noise * glow_values
+    return (out, cloth) if black else out
+
+
+__all__ = ["simulate", "simulate_channels", "glow_shape", "glow_scale", "CHUNK",
+           "GLOW_REFERENCE", "GLOW_LEVEL", "GLOW_STANDARD"]

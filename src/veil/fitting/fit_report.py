@@ -50,6 +50,12 @@ def _statistics(result: FitResult) -> list[str]:
     if result.JOINT:
         shared = ", ".join(_layout(result).get("shared", [])) or "-"
         lines.append(f"    shared by the media = {shared}")
+    if result.channels:
+        first = next(iter(result.channels.values()))
+        tied = [n for n in first.values() if all(n in c.values()
+                                                 for c in result.channels.values())]
+        lines.append(f"    channels           = {', '.join(result.channels)} (one fit; tied "
+                     f"across them: {', '.join(dict.fromkeys(tied)) or '-'})")
     lines += [f"    reduced chi-square = {format_number(result.chi2_reduced, 5)}",
               f"    rms relative resid = {format_number(100 * result.rms_relative, 4)} %"]
     if result.aic is not None:

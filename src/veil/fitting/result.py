@@ -37,6 +37,8 @@ from .result_fields import (
     _read_term,
     model_entry,
     model_from_entry,
+    model_of_channel,
+    read_channels,
 )
 from .solver import covariance_matrix
 
@@ -93,6 +95,10 @@ class FitResult:
     ``stderr`` and ``stderr_total``); None when the fit
     did not estimate one (unweighted data, an undetermined covariance, or
     ``model_error="off"``).
+    ``channels`` is the layout of a fit of several colour channels at once
+    (:mod:`veil.fitting.channel_fit`): {channel: {model parameter: its name in ``params``}},
+    ``Pd[r]`` for a parameter per channel, ``n`` for one tied across them; None for a fit of
+    one channel (``params`` then in the model's own names).
     """
 
     #: A joint fit (:class:`JointResult`): its report lists the sessions.
@@ -120,6 +126,7 @@ class FitResult:
     options: dict = field(default_factory=dict)
     determined: bool = True
     model_error: ModelError | None = None
+    channels: dict | None = None
 
     # -- models ----------------------------------------------------------------------------
     @property
@@ -127,13 +134,25 @@ class FitResult:
         return model_class(self.model)
 
     @property
+    def channel_names(self) -> tuple[str, ...]:
+        """The channels fitted at once (empty for a fit of one channel)."""
+        return tuple(self.channels or ())
+
+    @property
     def kind(self) -> str:
         """"brdf" or "medium": the kind of the fitted model."""
         return self.model_class.KIND
 
-    def as_model(self) -> Model:
-        """The fitted model instance (with its options)."""
-        return self.model_class.from_params(self.params, self.options)
+    def as_model(self, channel: str | None = None) -> Model:
+        """The fitted model instance (with its options); of one ``channel`` of a fit of
+        several channels (``channels``), the model ``veil.reflectance`` evaluates."""
+        if self.channels is None:
+            if channel is not None:
+                raise FitError(f"channel {channel!r}: this result is a fit of one channel; "
+                               f"call as_model() without a channel")
+            return self.model_class.from_params(self.params, self.options)
+        return model_of_channel(self.model_class, self.params, self.channels, channel,
+                                self.options)
 
     def given_model(self) -> Model | None:
         """The model the fit held fixed (``given``), or None."""
@@ -207,6 +226,7 @@ class FitResult:
             "residuals": [json_float(r) for r in self.residuals],
             # only when estimated: results without the term keep their earlier bytes
             **({} if self.model_error is None else {"model_error": _json_term(self.model_error)}),
+            **({} if self.channels is None else {"channels": self.channels}),
         }
 
     def to_json(self, path) -> None:
@@ -233,6 +253,9 @@ class FitResult:
         mcls = _model_class_of(name, source)
         names = mcls.param_names()
         params = data["params"]
+        channels = read_channels(data, mcls, source)
+        if channels is not None:
+            names = tuple(dict.fromkeys(channels[c][p] for p in names for c in channels))
         if not isinstance(params, dict) or list(params) != list(names):
             got = list(params) if isinstance(params, dict) else params
             raise FitError(f"{source}: key 'params' must map exactly {', '.join(names)} (in "
@@ -248,7 +271,11 @@ class FitResult:
         if not isinstance(options, dict):
             raise FitError(f"{source}: key 'options' must be an object; got {options!r}")
         try:
-            model = mcls.from_params({k: float(v) for k, v in params.items()}, options)
+            values = {k: float(v) for k, v in params.items()}
+            model = mcls.from_params(values, options) if channels is None else \
+                model_of_channel(mcls, values, channels, next(iter(channels)), options)
+            for c in channels or {}:
+                model_of_channel(mcls, values, channels or {}, c, options)
         except InputError as exc:
             raise FitError(f"{source}: {exc}") from None
         given = data.get("given")
@@ -288,7 +315,7 @@ class FitResult:
             _read_matrix(data["correlation_total"], source),
             stats=_read_stats(data, source), options=model.options(),
             determined=bool(data.get("determined", True)),
-            model_error=_read_term(data.get("model_error"), names, source))
+            model_error=_read_term(data.get("model_error"), names, source), channels=channels)
 
     @classmethod
     def from_json(cls, path) -> FitResult:
@@ -365,8 +392,10 @@ class JointResult(FitResult):
         return cls.from_params({p.name: self.params[names[p.key]] for p in cls.PARAMS},
                                self._options("medium"))
 
-    def as_model(self):
+    def as_model(self, channel: str | None = None):
         """The target's BRDF (what :meth:`FitResult.as_model` gives for a step-2 fit)."""
+        if channel is not None:
+            raise FitError(f"channel {channel!r}: a joint fit is of one channel")
         return self.brdf("target")
 
     def target_names(self) -> dict:

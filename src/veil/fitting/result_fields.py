@@ -37,6 +37,36 @@ def model_from_entry(entry, where: str) -> Model:
         raise FitError(f"{where}: {exc}") from None
 
 
+def model_of_channel(cls: type[Model], params: dict, channels: dict, channel,
+                     options: dict) -> Model:
+    """The one-channel model of ``channel`` of a fit of several channels: its parameters
+    taken from ``params`` through the layout ``channels`` ({channel: {parameter: name}})."""
+    if channel is None or str(channel) not in channels:
+        first = next(iter(channels))
+        raise FitError(f"this result fits channels {', '.join(channels)} at once: choose one "
+                       f"(--channel {first} on the command line, as_model(channel={first!r}) "
+                       f"or channel={first!r} in Python)"
+                       + ("" if channel is None else f" (it has no channel {channel!r})"))
+    names = channels[str(channel)]
+    return cls.from_params({p: params[names[p]] for p in cls.param_names()}, options)
+
+
+def read_channels(data: dict, cls: type[Model], source: str) -> dict | None:
+    """The ``channels`` layout of a result file (absent: a fit of one channel), checked:
+    each channel maps every parameter of ``cls`` to a name in ``params``."""
+    channels = data.get("channels")
+    if channels is None:
+        return None
+    names = set(cls.param_names())
+    if not isinstance(channels, dict) or not channels or not all(
+            isinstance(m, dict) and set(m) == names and all(isinstance(v, str)
+                                                            for v in m.values())
+            for m in channels.values()):
+        raise FitError(f"{source}: key 'channels' must map each channel to an object naming "
+                       f"every parameter of {cls.NAME} ({', '.join(cls.param_names())})")
+    return {str(c): dict(m) for c, m in channels.items()}
+
+
 def _check_format(data: dict, source: str) -> None:
     fmt = data.get("format")
     if fmt is not None and fmt not in READABLE:

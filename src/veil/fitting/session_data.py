@@ -10,12 +10,14 @@ import numpy as np
 import pandas as pd
 
 from ..data.black_cloth import subtract_black
+from ..data.channels import CHANNEL, channel_label, channel_order, channel_rows
 from ..data.measurements import (
     CANONICAL,
     MeasurementError,
     RowNames,
     canonical_angles,
     load_measurements,
+    table_channels,
     validate,
 )
 from ..errors import InputTypeError
@@ -53,11 +55,57 @@ def _load(table, what: str) -> pd.DataFrame:
     return table
 
 
-def prepare(table, black=None, what: str = "measurement") -> FitData:
-    """Validated data of a session (docs/model.md sec. 7), the black cloth subtracted if given."""
+def channels_of(table, what: str = "measurement") -> tuple[pd.DataFrame, list[str] | None]:
+    """(the table loaded and checked, its channels in order or None without a ``channel``
+    column; docs/measurements.md, "Channels")."""
+    table = validate(_load(table, what))
+    labels = table_channels(table)
+    return table, None if labels is None else channel_order(labels)
+
+
+#: How a multi-channel table's one channel is chosen, for the messages.
+SELECT = ("select one with --channel NAME in veil fit reference, medium or target "
+          "(channel='NAME' in Python), or keep one channel's rows of the table")
+
+
+def one_channel(table: pd.DataFrame, channel: str | None, what: str,
+                several: str = "") -> tuple[pd.DataFrame, str | None]:
+    """The rows of ``channel`` of a table with a ``channel`` column, without it (a table
+    without one as it is; its only channel when ``channel`` is None). A MeasurementError for
+    a channel the table lacks, a channel asked of a table without channels, or several
+    channels and none chosen (``several`` says what supports them). Returns the rows and
+    the channel's name (None without a ``channel`` column)."""
+    labels = table_channels(table)
+    source = RowNames(table).what
+    if labels is None:
+        if channel is not None:
+            raise MeasurementError(f"channel {channel!r} asked, but {source} has no "
+                                   f"{CHANNEL!r} column (it is one channel)")
+        return table, None
+    order = channel_order(labels)
+    if channel is None and len(order) > 1:
+        raise MeasurementError(
+            f"{source} holds {len(order)} channels ({', '.join(order)}): the {what} fit does "
+            f"not fit several channels at once{several}; {SELECT}")
+    name = order[0] if channel is None else channel_label(channel)
+    if name not in order:
+        raise MeasurementError(f"{source} has no channel {channel!r}; its channels are "
+                               f"{', '.join(order)}")
+    return channel_rows(table, labels, name), name
+
+
+def prepare(table, black=None, what: str = "measurement", channel: str | None = None,
+            several: str = "") -> FitData:
+    """Validated data of a session (docs/model.md sec. 7), the black cloth subtracted if
+    given; of one channel of a multi-channel table (:func:`one_channel`)."""
     table = _load(table, what)
+    source = table
+    if CHANNEL in table.columns or channel is not None:
+        table, channel = one_channel(validate(table), channel, what, several)
     if black is not None:
         black = _load(black, "black-cloth")
+        if CHANNEL in black.columns or channel is not None:
+            black = _black_channel(validate(black), source, channel)
         checked = subtract_black(table, black)
     else:
         checked = validate(table)
@@ -78,6 +126,28 @@ def prepare(table, black=None, what: str = "measurement") -> FitData:
         if values is not None:
             _check_magnitude(values, column, checked)
     return FitData(angles, y, sigma, checked, black is not None)
+
+
+def _black_channel(black: pd.DataFrame, table: pd.DataFrame, channel: str | None
+                   ) -> pd.DataFrame:
+    """The black-cloth rows of the session's ``channel``: a MeasurementError naming the
+    black file when it lacks that channel, or when only one of the two tables has channels."""
+    source = RowNames(black).what
+    if channel is None:
+        raise MeasurementError(f"the black-cloth table {source} has a {CHANNEL!r} column but "
+                               f"the session {RowNames(table).what} has none: give both "
+                               f"tables per channel or neither")
+    if CHANNEL not in black.columns:
+        raise MeasurementError(f"the black-cloth table {source} has no {CHANNEL!r} column: "
+                               f"the session's channel {channel!r} needs the black cloth "
+                               f"measured in that channel")
+    labels = table_channels(black)
+    assert labels is not None  # it has the column
+    if channel not in channel_order(labels):
+        raise MeasurementError(f"the black-cloth table {source} has no channel {channel!r} "
+                               f"(its channels are {', '.join(channel_order(labels))}); "
+                               f"measure the black cloth in every channel of the session")
+    return channel_rows(black, labels, channel)
 
 
 #: Magnitudes a fit handles: beyond, squares and products of values leave float64's range
@@ -105,4 +175,4 @@ def _check_magnitude(values: np.ndarray, column: str, table: pd.DataFrame) -> No
                                f"{top:.6g} ({rows(k)}), below {lo:g}; {how}")
 
 
-__all__ = ["FitData", "prepare"]
+__all__ = ["FitData", "prepare", "channels_of", "one_channel", "SELECT"]

@@ -33,12 +33,13 @@ from ..errors import FitError, InputError
 from ..models import BRDF, Medium, Model, default_class, model_class
 from ..models.base import VARIANT_OPTION
 from . import model_error as discrepancy
+from .channel_fit import fit_channels
 from .given import as_given, check_options
 from .problem import ITERATION_ACCURACY, Problem, check_accuracy, session_problem
 from .propagation import check_method, describe
 from .reported_uncertainty import model_floor, reported
 from .result import FitResult, model_entry
-from .session_data import FitData, prepare
+from .session_data import FitData, channels_of, prepare
 from .solver import as_fixed, check_fixed, check_max_nfev, run, summarize
 from .start_values import step_starts
 
@@ -229,7 +230,8 @@ def warn_misfit(chi2_reduced: float, data: FitData, what: str) -> None:
 # the steps
 # --------------------------------------------------------------------------------------
 def fit_reference(table, *, fixed=None, black=None, max_nfev=None, progress=None,
-                  brdf_model=None, options=None, free=None, model_error=None) -> FitResult:
+                  brdf_model=None, options=None, free=None, model_error=None,
+                  channel: str | None = None) -> FitResult:
     """Step 0 (docs/model.md sec. 7): fit the reference's f_r to clear-medium data, directly.
 
     table : measurement table (DataFrame or CSV path, docs/measurements.md).
@@ -242,17 +244,22 @@ def fit_reference(table, *, fixed=None, black=None, max_nfev=None, progress=None
     free : names of parameters the family holds by default (``Param.held``) to fit too.
     model_error : the model-discrepancy term of a weighted fit: "off", "independent" or
         "correlated" (the default, None; :mod:`veil.fitting.model_error`).
+    channel : of a table with a ``channel`` column (docs/measurements.md, "Channels"), the
+        one channel to fit; None fits every channel at once, the parameters the family
+        declares shared tied across them (:mod:`veil.fitting.channel_fit`; ``fixed`` names
+        a parameter of every channel, or one channel's as ``Pd[r]``).
     """
     return fit_direct(table, fixed=fixed, black=black, max_nfev=max_nfev, progress=progress,
                       step="reference", brdf_model=brdf_model, options=options, free=free,
-                      model_error=model_error)
+                      model_error=model_error, channel=channel)
 
 
 def fit_direct(table, *, fixed=None, black=None, max_nfev=None, progress=None,
                step: str = "direct", brdf_model=None, options=None, free=None,
-               model_error=None) -> FitResult:
+               model_error=None, channel: str | None = None) -> FitResult:
     """f_r fitted to clear-medium data (docs/model.md sec. 2); ``step`` labels the result
-    ("reference" for step 0, "direct" for a target measured without the medium)."""
+    ("reference" for step 0, "direct" for a target measured without the medium);
+    ``channel`` as :func:`fit_reference`."""
     check_max_nfev(max_nfev)
     model_error = discrepancy.check_kind(model_error)
     if step not in ("reference", "direct"):
@@ -260,14 +267,23 @@ def fit_direct(table, *, fixed=None, black=None, max_nfev=None, progress=None,
     cls = _family(brdf_model, "brdf")
     fitted = _template(cls, dict(options or {}))
     what = "reference" if step == "reference" else "target"
-    data = prepare(table, black, f"{what} (clear medium)")
+    if channel is None:
+        table, channels = channels_of(table, f"{what} (clear medium)")
+        if channels is not None and len(channels) > 1:
+            return fit_channels(table, black, cast(BRDF, fitted), channels, step=step,
+                                what=f"{what} (clear medium)", fixed=as_fixed(fixed),
+                                freed=_freed(cls, free, what), max_nfev=max_nfev,
+                                progress=progress, model_error=model_error,
+                                starts=STARTS[step])
+    data = prepare(table, black, f"{what} (clear medium)", channel=channel)
     return _step(step, data, fitted, None, None, as_fixed(fixed), ITERATION_ACCURACY,
                  max_nfev, progress, _freed(cls, free, what), model_error)
 
 
 def fit_medium(table, reference, *, fixed=None, black=None, variant: str | None = None,
                accuracy: str = "default", max_nfev=None, progress=None, medium_model=None,
-               options=None, free=None, model_error=None, propagation=None) -> FitResult:
+               options=None, free=None, model_error=None, propagation=None,
+               channel: str | None = None) -> FitResult:
     """Step 1 (docs/model.md sec. 7): fit the medium, the reference's f_r fixed.
 
     table : the reference object measured in the medium (DataFrame or CSV path).
@@ -283,16 +299,20 @@ def fit_medium(table, reference, *, fixed=None, black=None, variant: str | None 
         same medium model on the target's data).
     propagation : how the given fit's covariance enters ``stderr_total``: "auto" (the
         default, None), "linear" or "sigma-points" (:mod:`veil.fitting.propagation`).
+    channel : the one channel of a multi-channel table to fit (a fit through the medium
+        takes one channel at a time; a multi-channel table without it is an error); the
+        reference of a fit of several channels gives its model of that channel.
     Other arguments as :func:`fit_reference`.
     """
     check_accuracy(accuracy)
     check_max_nfev(max_nfev)
     model_error = discrepancy.check_kind(model_error)
     propagation = check_method(propagation)
+    reference = _of_channel(reference, channel)
     brdf = as_given(reference, "brdf", "the reference")
     cls = _family(medium_model, "medium")
     fitted = _template(cls, _options(options, variant))
-    data = prepare(table, black, "reference (in the medium)")
+    data = prepare(table, black, "reference (in the medium)", channel, ONE_CHANNEL)
     return _step("medium", data, fitted, brdf,
                  reference if isinstance(reference, FitResult) else None, as_fixed(fixed),
                  accuracy, max_nfev, progress, _freed(cls, free, "medium"), model_error,
@@ -301,7 +321,8 @@ def fit_medium(table, reference, *, fixed=None, black=None, variant: str | None 
 
 def fit_target(table, medium, *, fixed=None, black=None, variant: str | None = None,
                accuracy: str = "default", max_nfev=None, progress=None, brdf_model=None,
-               options=None, free=None, model_error=None, propagation=None) -> FitResult:
+               options=None, free=None, model_error=None, propagation=None,
+               channel: str | None = None) -> FitResult:
     """Step 2 (docs/model.md sec. 7): fit the target's f_r, the medium fixed.
 
     table : the target object measured in the medium (DataFrame or CSV path).
@@ -317,15 +338,29 @@ def fit_target(table, medium, *, fixed=None, black=None, variant: str | None = N
     check_max_nfev(max_nfev)
     model_error = discrepancy.check_kind(model_error)
     propagation = check_method(propagation)
-    model_m = as_given(medium, "medium", "the medium")
+    model_m = as_given(_of_channel(medium, channel), "medium", "the medium")
     check_options(model_m, _options(None, variant), "the medium")
     cls = _family(brdf_model, "brdf")
     fitted = _template(cls, dict(options or {}))
-    data = prepare(table, black, "target (in the medium)")
+    data = prepare(table, black, "target (in the medium)", channel, ONE_CHANNEL)
     return _step("target", data, fitted, model_m,
                  medium if isinstance(medium, FitResult) else None, as_fixed(fixed),
                  accuracy, max_nfev, progress, _freed(cls, free, "target"), model_error,
                  propagation)
+
+
+#: What a multi-channel table's error says fits several channels (the steps through a
+#: medium take one at a time).
+ONE_CHANNEL = (" (through a medium veil fits one channel at a time; veil fit reference fits "
+               "every channel of a clear-water table at once)")
+
+
+def _of_channel(result, channel: str | None):
+    """A fit of several channels given to a step of one ``channel``: its model of that
+    channel (a FitError naming the channels when none is chosen); anything else as it is."""
+    if isinstance(result, FitResult) and result.channels is not None:
+        return result.as_model(channel=channel)
+    return result
 
 
 def model_values(result_or_model, other, angles, accuracy: str = "default") -> np.ndarray:
@@ -346,4 +381,4 @@ def model_values(result_or_model, other, angles, accuracy: str = "default") -> n
 __all__ = ["fit_reference", "fit_direct", "fit_medium", "fit_target", "model_values",
            "STARTS", "ROLE"]
 
-__all__ += ["MisfitWarning", "MISFIT_CHI2", "warn_misfit"]
+__all__ += ["MisfitWarning", "MISFIT_CHI2", "warn_misfit", "ONE_CHANNEL"]

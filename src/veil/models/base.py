@@ -7,7 +7,8 @@ The class declares
 - ``NAME`` (registry key), ``KIND`` ("brdf" or "medium"), ``LABEL`` (one line for people);
 - ``PARAMS``: one :class:`Param` per parameter - bounds, unit, meaning, the fit coordinate
   (``log_scale``), a neutral starting value, the name it takes next to another model's
-  parameters (``alias``), whether media of a joint fit may share it (``share``) and how its
+  parameters (``alias``), whether media of a joint fit may share it (``share``), whether it
+  takes one value per colour channel or one for all channels (``channels``) and how its
   relative uncertainty is judged (``error_scale``);
 - ``OPTIONS``: one :class:`Option` per option (default and allowed values);
 - ``SCALES``: the parameters that scale one part of the model linearly (the engine computes
@@ -40,6 +41,10 @@ KINDS = ("brdf", "medium")
 #: Fit roles whose starting grids a model declares, by kind.
 ROLES = {"brdf": ("reference", "target"), "medium": ("medium",)}
 SHARING = (None, "shared", "per-medium")
+#: How a parameter spans the channels of a multi-channel table (docs/measurements.md,
+#: "Channels"): one value per channel, or one value tied across the channels. None (not
+#: declared) means a scale parameter per channel and any other shared.
+CHANNEL_SHARING = (None, "per-channel", "shared")
 #: The option that result files also keep under their own top-level key "variant" (the
 #: medium's Fresnel variant, docs/model.md sec. 3), and commands offer as ``--variant``.
 VARIANT_OPTION = "variant"
@@ -65,6 +70,10 @@ class Param:
     share : in a joint fit over several media, None = always one value per medium,
         "shared" = one value for all media unless declared otherwise, "per-medium" = one per
         medium unless declared shared.
+    channels : in a fit of several colour channels at once, "per-channel" = one value per
+        channel (albedos, scales, a medium's optical depth and albedo), "shared" = one value
+        tied across the channels (roughness, index, g); None = undeclared (a scale per
+        channel, any other shared; :meth:`Model.channel_sharing`).
     error_scale : a relative uncertainty is stderr / |value| ("value") or stderr / the
         distance to the nearer bound ("bound": g's lobe width scales with 1 - |g|).
     held : fits hold it at ``start`` unless asked to free it (``free=``, ``--free``).
@@ -81,6 +90,7 @@ class Param:
     start: float | None = None
     alias: str | None = None
     share: str | None = None
+    channels: str | None = None
     error_scale: str = "value"
     held: bool = False
 
@@ -88,6 +98,9 @@ class Param:
         if self.share not in SHARING:
             raise ValueError(f"Param {self.name}: share = {self.share!r}; expected one of "
                              f"{SHARING}")
+        if self.channels not in CHANNEL_SHARING:
+            raise ValueError(f"Param {self.name}: channels = {self.channels!r}; expected one of "
+                             f"{CHANNEL_SHARING}")
         if self.error_scale not in ERROR_SCALES:
             raise ValueError(f"Param {self.name}: error_scale = {self.error_scale!r}")
 
@@ -207,6 +220,15 @@ class Model:
     @classmethod
     def scale_names(cls) -> tuple[str, ...]:
         return tuple(cls.SCALES.values())
+
+    @classmethod
+    def channel_sharing(cls) -> dict[str, str]:
+        """{parameter name: "per-channel" or "shared"} across the channels of a multi-channel
+        fit, as declared (``Param.channels``); an undeclared parameter is per channel when it
+        is a scale (``SCALES``, ``GAIN``) and shared otherwise."""
+        scales = set(cls.scale_names()) | {getattr(cls, "GAIN", None)} - {None}
+        return {p.name: p.channels or ("per-channel" if p.name in scales else "shared")
+                for p in cls.PARAMS}
 
     @classmethod
     def option_names(cls) -> tuple[str, ...]:

@@ -271,16 +271,17 @@ class ForwardSeries(Medium):
     TABLE_ACCURACY = 1e-5
     PARAMS = (
         Param("tau", 0.0, TAU_MAX, "optical depth of one pass through the medium", start=0.5,
-              share="per-medium"),
-        Param("omega", 0.0, 1.0, "single-scattering albedo", start=0.99, share="shared"),
+              share="per-medium", channels="per-channel"),
+        Param("omega", 0.0, 1.0, "single-scattering albedo", start=0.99, share="shared",
+              channels="per-channel"),
         Param("g", -1.0, 1.0, "Henyey-Greenstein asymmetry of one scattering event",
               lower_open=True, upper_open=True, start=0.9, share="per-medium",
-              error_scale="bound"),
+              error_scale="bound", channels="shared"),
         Param("eta_u", 0.0, 10.0, "index of the medium's boundary (1: none; held at 1 "
               "unless freed: an index-matched set-up has none)", lower_open=True, start=1.0,
-              share="shared", held=True),
+              share="shared", held=True, channels="shared"),
         Param("s", 0.0, math.inf, "overall intensity factor (exposure)", log_scale=True,
-              start=1.0, held=True),
+              start=1.0, held=True, channels="per-channel"),
     )
     OPTIONS = (
         Option("variant", "paper", "Fresnel factor: paper = F_t(theta_in)^2, exit = "

@@ -49,13 +49,14 @@ class HenyeyGreenstein(Medium):
     SCALES = {"iso": "Td", "lobe": "Tt"}
     PARAMS = (
         Param("Td", 0.0, math.inf, "isotropic multiple-scattering coefficient, relative units",
-              log_scale=True, start=1e-3),
+              log_scale=True, start=1e-3, channels="per-channel"),
         Param("Tt", 0.0, math.inf, "single-scattering coefficient, relative units",
-              log_scale=True, start=0.1),
+              log_scale=True, start=0.1, channels="per-channel"),
         Param("g", -1.0, 1.0, "Henyey-Greenstein asymmetry parameter", lower_open=True,
-              upper_open=True, start=0.9, share="per-medium", error_scale="bound"),
+              upper_open=True, start=0.9, share="per-medium", error_scale="bound",
+              channels="shared"),
         Param("eta", 0.0, 10.0, "relative refractive index of the medium", lower_open=True,
-              start=1.33, alias="eta_u", share="shared"),
+              start=1.33, alias="eta_u", share="shared", channels="shared"),
     )
     OPTIONS = (Option("variant", "paper", "Fresnel factor: paper = F_t(theta_in)^2, exit = "
                       "F_t(theta_in) F_t(theta_out) (docs/model.md sec. 3)", VARIANTS),)

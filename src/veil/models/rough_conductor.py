@@ -136,13 +136,15 @@ class RoughConductor(MicrofacetFacets, BRDF):
     LABEL = "rough conductor: metallic microfacets, complex index (sec. 8.3)"
     SCALES = {"lobe": "ks"}
     PARAMS = (
-        Param("alpha", 1e-3, 1.0, "RMS slope of the microfacets", log_scale=True, start=0.1),
+        Param("alpha", 1e-3, 1.0, "RMS slope of the microfacets", log_scale=True, start=0.1,
+              channels="shared"),
+        # a metal's colour is its spectral complex index: per channel (docs/model.md 8.3)
         Param("n", 0.0, 10.0, "real part of the metal's refractive index relative to the "
-              "surrounding medium", lower_open=True, start=1.0),
+              "surrounding medium", lower_open=True, start=1.0, channels="per-channel"),
         Param("k", 0.0, 20.0, "imaginary part (extinction coefficient) of the relative index",
-              start=3.0),
+              start=3.0, channels="per-channel"),
         Param("ks", 0.0, math.inf, "specular scale, relative units (scale of the lobe)",
-              log_scale=True, start=1.0),
+              log_scale=True, start=1.0, channels="per-channel"),
     )
     OPTIONS = (Option("distribution", "beckmann", "microfacet distribution: beckmann or ggx",
                       DISTRIBUTIONS),)

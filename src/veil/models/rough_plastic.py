@@ -498,13 +498,14 @@ class RoughPlastic(MicrofacetFacets, BRDF):
     SCALES = {"separable": "rho", "lobe": "ks"}
     PARAMS = (
         Param("rho", 0.0, math.inf, "diffuse albedo, relative units (scale of the diffuse "
-              "part)", log_scale=True, start=1.0),
+              "part)", log_scale=True, start=1.0, channels="per-channel"),
         Param("alpha", 1e-3, 1.0, "RMS slope of the coat's microfacets", log_scale=True,
-              start=0.1),
+              start=0.1, channels="shared"),
         Param("eta", 1.0, 3.0, "refractive index of the plastic relative to the surrounding "
-              "medium (~1.12 in water)", lower_open=True, start=1.12, error_scale="bound"),
+              "medium (~1.12 in water)", lower_open=True, start=1.12, error_scale="bound",
+              channels="shared"),
         Param("ks", 0.0, math.inf, "specular scale, relative units (scale of the lobe)",
-              log_scale=True, start=1.0),
+              log_scale=True, start=1.0, channels="per-channel"),
     )
     OPTIONS = (
         Option("distribution", "beckmann", "microfacet distribution: beckmann or ggx",

@@ -40,13 +40,13 @@ class TorranceSparrow(BRDF):
     SCALES = {"separable": "Pd", "lobe": "Ps"}
     PARAMS = (
         Param("Pd", 0.0, math.inf, "diffuse coefficient, relative units", log_scale=True,
-              start=1.0),
+              start=1.0, channels="per-channel"),
         Param("Ps", 0.0, math.inf, "specular coefficient, relative units", log_scale=True,
-              start=1.0),
+              start=1.0, channels="per-channel"),
         Param("n", 0.0, 50.0, "smoothness, 1/deg in exp(-(n alpha_deg)^2)", unit="1/deg",
-              lower_open=True, log_scale=True, start=0.5),
+              lower_open=True, log_scale=True, start=0.5, channels="shared"),
         Param("eta", 0.0, 10.0, "relative refractive index of the surface", lower_open=True,
-              start=1.5),
+              start=1.5, channels="shared"),
     )
     #: Starting grids: a clear-water fit (step 0) searches n widely and three indices; a
     #: fit through a medium (step 2) searches n only (the index barely shows there).
