@@ -9,6 +9,7 @@ import numpy as np
 import pandas as pd
 
 from ..errors import InputError
+from .channels import channel_order
 from .measurements import (
     MeasurementError,
     RowNames,
@@ -18,7 +19,22 @@ from .measurements import (
     _separation,
     _validated,
     _vectors,
+    table_channels,
 )
+
+
+def _one_channel(frame: pd.DataFrame, what: str) -> None:
+    """A MeasurementError when ``frame`` holds several channels: the black cloth is
+    subtracted channel by channel, by a command that fits one channel at a time."""
+    labels = table_channels(frame)
+    if labels is None:
+        return
+    order = channel_order(labels)
+    if len(order) > 1:
+        raise MeasurementError(
+            f"the {what} {RowNames(frame).what} holds {len(order)} channels "
+            f"({', '.join(order)}): this command takes one channel's rows (veil fit "
+            f"reference, medium and target select one with --channel NAME)")
 
 
 def subtract_black(table: pd.DataFrame, black: pd.DataFrame, tol: float = 0.05) -> pd.DataFrame:
@@ -35,6 +51,8 @@ def subtract_black(table: pd.DataFrame, black: pd.DataFrame, tol: float = 0.05) 
         raise InputError(f"tol = {tol!r}: expected a finite tolerance >= 0 in degrees")
     _check_type(table)
     _check_type(black)
+    for frame, what in ((table, "session"), (black, "black-cloth table")):
+        _one_channel(frame, what)
     rows_t = RowNames(table)
     checked, angles = _validated(table, rows_t)
     if "veil_source" not in black.attrs:

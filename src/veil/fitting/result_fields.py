@@ -43,9 +43,11 @@ def model_of_channel(cls: type[Model], params: dict, channels: dict, channel,
     taken from ``params`` through the layout ``channels`` ({channel: {parameter: name}})."""
     if channel is None or str(channel) not in channels:
         first = next(iter(channels))
-        raise FitError(f"this result fits channels {', '.join(channels)} at once: choose one "
-                       f"(--channel {first} on the command line, as_model(channel={first!r}) "
-                       f"or channel={first!r} in Python)"
+        raise FitError(f"this result fits channels {', '.join(channels)} at once and its "
+                       f"model is one channel's: name one (--channel {first} in veil fit "
+                       f"medium and target, as_model(channel={first!r}) or "
+                       f"channel={first!r} in Python); the other commands take results of "
+                       f"one channel"
                        + ("" if channel is None else f" (it has no channel {channel!r})"))
     names = channels[str(channel)]
     return cls.from_params({p: params[names[p]] for p in cls.param_names()}, options)
