@@ -24,8 +24,8 @@ direction falls below the horizon its integrand is set to zero, which is a disco
 only for an index-matched medium (eta_u = 1); otherwise the Fresnel transmittance and the
 shadowing term already take the integrand to zero there. For configurations in the plane of
 incidence the integrand is symmetric under y -> -y and only half of the azimuths are
-evaluated. The models are evaluated at the nodes of several terms at once
-(:mod:`veil.engine.nodes`, :mod:`veil.engine.lobe_terms`).
+evaluated. The models are evaluated at each term's nodes (:mod:`veil.engine.nodes`,
+:mod:`veil.engine.lobe_terms`).
 """
 
 from __future__ import annotations
@@ -135,8 +135,8 @@ def pairs(medium_cls) -> list[tuple[str, str]]:
 
 
 def _lobe_parts(brdf, medium, rule, half, vb, vm, maux, facets, wi, wr, grids):
-    """The lobe's values of every lobe term of one configuration, from one evaluation of the
-    lobe and one of the phase function at all of their nodes (:mod:`.lobe_terms`).
+    """The lobe's values of every lobe term of one configuration: the lobe and the phase
+    function evaluated at each term's nodes (:mod:`.lobe_terms`).
     Returns {"lobe": 4D term, "sides": (view side, light side), "delta": lobe(I, R)}."""
     comps = medium.COMPONENTS
     parts = {}
@@ -153,13 +153,7 @@ def _lobe_parts(brdf, medium, rule, half, vb, vm, maux, facets, wi, wr, grids):
         return {}
     lobes = lobe_at(brdf, vb, [r for req, _, _ in parts.values() for r in req])
     omm = [r for _, req, _ in parts.values() for r in req]
-    phases = []
-    if omm:
-        flat = medium.phase(vm, jnp.concatenate([o.reshape(-1) for o in omm]), maux)
-        start = 0
-        for o in omm:
-            phases.append(flat[start:start + o.size].reshape(o.shape))
-            start += o.size
+    phases = [medium.phase(vm, o, maux) for o in omm]
     out = {}
     for name, (req_l, req_p, finish) in parts.items():
         out[name] = finish(lobes[:len(req_l)], phases[:len(req_p)])
@@ -197,7 +191,7 @@ def _one_config(brdf, medium, rule, half, vb, vm, shared, maux, wi, wr):
             specs += [(wr, rule.phase_radial, rule.phase_azimuth, True)] if half else []
         grids = phase_grids(medium, vm, maux, specs)
         cos_i, cos_r = [wi[2], grids[0][0][:, 2]], [wr[2], grids[1][0][:, 2]]
-    # s_k at I and the I' nodes, t_k at R and the R' nodes: one evaluation
+    # s_k at I and the I' nodes, t_k at R and the R' nodes
     s_at, t_at = separable_at(brdf, vb, aux, cos_i, cos_r)
     s_wi, t_wr = [s[0] for s in s_at], [t[0] for t in t_at]
     lobes = (_lobe_parts(brdf, medium, rule, half, vb, vm, maux, facets, wi, wr, grids)

@@ -2,14 +2,11 @@
 (docs/model.md sec. 5): the 4D lobe-lobe term and the two one-sided terms.
 
 Each term is written in two parts: its nodes, and a ``finish`` that sums the integrand
-once the lobe and the phase function are known there. :mod:`veil.engine.integrator` collects
-the nodes of the one-sided terms, of the unscattered beam and of the albedo tables and
-evaluates the lobe (:func:`veil.engine.nodes.lobe_at`) and the phase function once at all
-of them: the compiled program holds one copy of each model function for them instead of one
-per term, and compiles faster (docs/performance-compile.md). The 4D term's lobe stays where
-it is summed: there are tens of thousands of nodes per configuration, and XLA fuses the lobe
-into the sum instead of holding its values (measured: held, the Jacobian programs ran 1.5 to
-2 times slower).
+once the lobe and the phase function are known there. :mod:`veil.engine.integrator`
+evaluates the lobe (:func:`veil.engine.nodes.lobe_at`) and the phase function at each
+part's nodes. The 4D term's lobe is evaluated where it is summed: there are tens of thousands
+of nodes per configuration, and XLA fuses the lobe into the sum instead of holding its
+values.
 
 A part returns ``(lobe_requests, phase_requests, finish)``: lists of node sets (for
 ``lobe_at``: (wi, wo, h, alpha); for the phase function: 1 - cos of the scattering angle) and

@@ -1,11 +1,13 @@
 """The integrator's nodes: direction grids with known densities, the small vector algebra
-they are built with, and the models evaluated at many node sets in one call.
+they are built with, and the models evaluated at several node sets.
 
 Several terms of the integrator (:mod:`veil.engine.integrator`, docs/model.md sec. 5) need
-the BRDF's lobe and separable part at their own nodes. :func:`lobe_at` and
-:func:`separable_at` evaluate a model once at the concatenation of several node sets: the
-compiled program then holds the model's function once instead of once per term, and a
-program's compile time grows with its size (docs/performance-compile.md).
+the BRDF's lobe and separable part, or the phase law, at their own nodes. :func:`lobe_at`,
+:func:`separable_at` and :func:`phase_grids` evaluate the model at each node set where that
+set is used, so that XLA fuses the evaluation into the sum that consumes it. Evaluated once at
+the concatenation of the node sets, the programs were 15 to 25 % smaller but their Jacobians
+ran 1.3 to 2.5 times slower, their values held in memory with a tangent beside each
+(docs/design-notes.md). Only the per-call facet grids share one evaluation.
 """
 
 from __future__ import annotations
@@ -34,43 +36,29 @@ def azimuths(n: int, half: bool):
 
 def phase_grids(medium: BTDF, vm, maux, specs):
     """Directions about each ``center`` (3,) of ``specs`` = [(center, n_r, n_a, half), ...],
-    distributed as the phase lobe truncated at z = 0, in one evaluation of the phase law.
+    distributed as the phase lobe truncated at z = 0 (:func:`phase_grid` for each)."""
+    return [phase_grid(medium, vm, maux, *spec) for spec in specs]
 
-    Returns per spec (d (N, 3), unit weights (N,), frac_max (N,), p (N,)):
-    sum(unit * frac_max * f(d)) approximates Int_{z>0} p(center . d) f(d) dd; p is the phase
-    density at each node. The horizon depends on the azimuth only: one cone fraction per
-    azimuth of each grid.
-    """
-    parts, az_of, start = [], [], 0
-    for _, n_r, n_a, half in specs:
-        x, wx = gauss_legendre_unit(n_r)
-        v, wv = azimuths(n_a, half)
-        parts.append((np.repeat(x[None, :], len(v), 0).ravel(), TWO_PI * np.repeat(v, n_r),
-                      np.outer(wv, wx).ravel(), TWO_PI * v))
-        az_of.append(start + np.repeat(np.arange(len(v)), n_r))
-        start += len(v)
-    centers = jnp.stack([c for c, *_ in specs])
-    grid_of_az = np.concatenate([np.full(p[3].size, k) for k, p in enumerate(parts)])
-    cos_az = jnp.asarray(np.cos(np.concatenate([p[3] for p in parts])))
+
+def phase_grid(medium: BTDF, vm, maux, center, n_r: int, n_a: int, half: bool):
+    """Directions about ``center`` (3,) distributed as the phase lobe truncated at z = 0:
+    (d (N, 3), unit weights (N,), frac_max (N,), p (N,)), where
+    sum(unit * frac_max * f(d)) approximates Int_{z>0} p(center . d) f(d) dd and p is the
+    phase density at each node. The horizon depends on the azimuth only: one cone fraction
+    per azimuth."""
+    x, wx = gauss_legendre_unit(n_r)
+    v, wv = azimuths(n_a, half)
     frac_az = medium.phase_cone_fraction(
-        vm, horizon_one_minus_mu(centers[grid_of_az, 2], cos_az), maux)
-    frac_max = frac_az[np.concatenate(az_of)]
-    u = jnp.asarray(np.concatenate([p[0] for p in parts]))
+        vm, horizon_one_minus_mu(center[2], jnp.asarray(np.cos(TWO_PI * v))), maux)
+    frac_max = frac_az[np.repeat(np.arange(len(v)), n_r)]
+    u = jnp.asarray(np.repeat(x[None, :], len(v), 0).ravel())
     omm, p = medium.phase_sample(vm, u * frac_max, maux)
     sg = jnp.sqrt(jnp.maximum(omm * (2.0 - omm), 0.0))
-    beta = jnp.asarray(np.concatenate([p[1] for p in parts]))
-    grid_of = np.concatenate([np.full(p[0].size, k) for k, p in enumerate(parts)])
-    t1, t2 = frame(centers)
-    d = ((1.0 - omm)[:, None] * centers[grid_of]
-         + sg[:, None] * (jnp.cos(beta)[:, None] * t1[grid_of]
-                          + jnp.sin(beta)[:, None] * t2[grid_of]))
-    out, start = [], 0
-    for part in parts:
-        n = part[0].size
-        cut = slice(start, start + n)
-        out.append((d[cut], jnp.asarray(part[2]), frac_max[cut], p[cut]))
-        start += n
-    return out
+    beta = jnp.asarray(TWO_PI * np.repeat(v, n_r))
+    t1, t2 = frame(center)
+    d = ((1.0 - omm)[:, None] * center
+         + sg[:, None] * (jnp.cos(beta)[:, None] * t1 + jnp.sin(beta)[:, None] * t2))
+    return d, jnp.asarray(np.outer(wv, wx).ravel()), frac_max, p
 
 
 def half_grid(brdf: BRDF, vb, partner, n_r: int, n_a: int, half: bool):
@@ -204,43 +192,27 @@ def normalized(s):
     return s / jnp.sqrt(jnp.maximum(dot3(s, s), 1e-300))[..., None]
 
 
-def _flat(arrays, shape, vector: bool):
-    return jnp.broadcast_to(arrays, shape + ((3,) if vector else ())).reshape(
-        (-1, 3) if vector else (-1,))
-
-
-def _split(values, shapes):
-    out, start = [], 0
-    for shape in shapes:
-        n = math.prod(shape)
-        out.append(values[start:start + n].reshape(shape))
-        start += n
-    return out
-
-
 def lobe_at(brdf: BRDF, vb, requests):
-    """``brdf.lobe`` at every node of several node sets, as one evaluation.
+    """``brdf.lobe`` at the nodes of each of several node sets.
 
     ``requests`` is a list of (wi, wo, h, alpha): unit vectors (..., 3) and angles (...)
     that broadcast together; returns one array per request, of its broadcast shape."""
-    if not requests:
-        return []
-    shapes = [tuple(jnp.broadcast_shapes(i.shape[:-1], o.shape[:-1], h.shape[:-1], a.shape))
-              for i, o, h, a in requests]
-    columns = [jnp.concatenate([_flat(r[k], shape, k < 3) for r, shape in zip(requests, shapes)])
-               for k in range(4)]
-    return _split(brdf.lobe(vb, *columns), shapes)
+    out = []
+    for wi, wo, h, alpha in requests:
+        shape = tuple(jnp.broadcast_shapes(wi.shape[:-1], wo.shape[:-1], h.shape[:-1],
+                                           alpha.shape))
+        out.append(jnp.broadcast_to(brdf.lobe(vb, wi, wo, h, alpha), shape))
+    return out
 
 
 def separable_at(brdf: BRDF, vb, aux, cos_i, cos_r):
-    """``brdf.separable`` as one evaluation for lists of cosine arrays: returns
-    (s, t), s[k][j] = s_k at cos_i[j], t[k][j] = t_k at cos_r[j]. The two lists are
-    concatenated each; their total lengths must agree (the model takes them together)."""
-    shapes_i = [tuple(np.shape(c)) for c in cos_i]
-    shapes_r = [tuple(np.shape(c)) for c in cos_r]
-    ci = jnp.concatenate([jnp.reshape(c, (-1,)) for c in cos_i])
-    cr = jnp.concatenate([jnp.reshape(c, (-1,)) for c in cos_r])
-    pairs = brdf.separable(vb, ci, cr, aux)
-    s = [_split(jnp.broadcast_to(a, ci.shape), shapes_i) for a, _ in pairs]
-    t = [_split(jnp.broadcast_to(b, cr.shape), shapes_r) for _, b in pairs]
+    """``brdf.separable`` for lists of cosine arrays taken pairwise (``cos_i[j]`` with
+    ``cos_r[j]``, of one shape): returns (s, t), s[k][j] = s_k at cos_i[j], t[k][j] = t_k at
+    cos_r[j]."""
+    per_pair = [brdf.separable(vb, jnp.asarray(ci), jnp.asarray(cr), aux)
+                for ci, cr in zip(cos_i, cos_r)]
+    s = [[jnp.broadcast_to(pair[k][0], np.shape(ci)) for pair, ci in zip(per_pair, cos_i)]
+         for k in range(len(per_pair[0]))]
+    t = [[jnp.broadcast_to(pair[k][1], np.shape(cr)) for pair, cr in zip(per_pair, cos_r)]
+         for k in range(len(per_pair[0]))]
     return s, t
