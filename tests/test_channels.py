@@ -184,20 +184,27 @@ def test_a_repeated_configuration_within_one_channel_is_still_a_duplicate(tmp_pa
         validate(table)
 
 
-def test_steps_through_a_medium_refuse_several_channels_and_say_how_to_choose(tmp_path,
-                                                                              rgb_fit):
+def test_steps_through_a_medium_refuse_a_reference_of_other_channels(tmp_path, rgb_fit):
+    """A table of several channels through a medium needs the reference fitted over the same
+    channels (tests/test_channels_medium.py fits them): one of other channels, or of one
+    channel, exits 2 naming both."""
     path = tmp_path / "rgb.csv"
     save_measurements(simulate_channels(_channels(), noise=0.01, seed=1), path)
+    two = simulate_channels({c: _channels()[c] for c in "rg"}, noise=0.01, seed=1)
+    save_measurements(two, tmp_path / "rg.csv")
     rgb_fit.to_json(tmp_path / "ref.json")
-    for args in (("medium", path, "--reference", "BRDF1"), ("target", path, "--medium", "BTDF2"),
-                 ("medium", path, "--reference", tmp_path / "ref.json")):
-        out = run("fit", *args, "-o", tmp_path / "out.json")
-        assert out.exit_code == 2, out.output
-        assert "--channel" in out.output and "Traceback" not in out.output
-    out = run("fit", "medium", path, "--reference", "BRDF1", "-o", tmp_path / "out.json")
-    assert "holds 3 channels (r, g, b)" in out.output and "one channel at a time" in out.output
+    out = run("fit", "medium", tmp_path / "rg.csv", "--reference", tmp_path / "ref.json",
+              "-o", tmp_path / "out.json")
+    assert out.exit_code == 2, out.output
+    assert "fit of channels r, g, b" in out.output and "has channels r, g" in out.output
+    fit_reference(path, channel="g").to_json(tmp_path / "ref_g.json")
+    out = run("fit", "medium", path, "--reference", tmp_path / "ref_g.json",
+              "-o", tmp_path / "out.json")
+    assert out.exit_code == 2 and "a fit of one channel" in out.output, out.output
+    assert "--channel" in out.output and "Traceback" not in out.output
     out = run("fit", "reference", path, "--channel", "q", "-o", tmp_path / "out.json")
     assert out.exit_code == 2 and "has no channel 'q'" in out.output
+    assert not (tmp_path / "out.json").exists()
 
 
 def test_commands_of_one_channel_refuse_several_and_name_the_file(tmp_path, rgb_fit):

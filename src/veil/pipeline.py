@@ -44,6 +44,7 @@ from .fitting import (
 )
 from .fitting.model_error import check_kind
 from .fitting.propagation import check_method
+from .fitting.session_data import channels_of
 from .fitting.steps import prefetch
 from .io import check_output_folder, output_folder, write_bytes_atomic, write_text_atomic
 from .models import AUTO, model_class
@@ -61,6 +62,12 @@ RANKING_FILE = "ranking.json"
 #: With ``keep_candidates``, every candidate's result under this folder, by step.
 CANDIDATES_DIR = "candidates"
 STEP_KEYS = ("reference", "medium", "target")
+#: report.md's section on a pipeline over several channels: what it does not draw yet.
+CHANNELS_NOTE = ("## Channels\n\nEvery step fitted the channels {} at once, the parameters "
+                 "declared per channel one per channel and the others tied (docs/fitting.md, "
+                 "\"Channels\"). Not made for several channels: the figures, and the "
+                 "comparison of the estimate with the target measured directly (fitted, in "
+                 "target_direct.json); fit one channel (--channel NAME) for those.")
 
 
 @dataclass(frozen=True)
@@ -115,18 +122,41 @@ def _check_outputs(outdir: str, inputs: dict) -> None:
                                f"output directory")
 
 
-def _prepare_sessions(inputs: dict) -> dict:
+def _prepare_sessions(inputs: dict, channel: str | None = None) -> tuple[dict, list | None]:
     """Every session read and checked before the first (long) fit (black cloth subtracted
-    from the sessions in the medium)."""
+    from the sessions in the medium): ({session: its data}, the channels fitted at once or
+    None). Of several channels (none chosen) every channel is checked and the data are the
+    first channel's (the engine's configurations)."""
     black = inputs["black"]
-    data = {"reference_clear": prepare(inputs["reference_clear"], None,
-                                       "reference (clear medium)"),
-            "reference_medium": prepare(inputs["reference_medium"], black,
-                                        "reference (in the medium)"),
-            "target_medium": prepare(inputs["target_medium"], black, "target (in the medium)")}
-    if inputs["target_clear"] is not None:
-        data["target_clear"] = prepare(inputs["target_clear"], None, "target (clear medium)")
-    return data
+    whats = {"reference_clear": "reference (clear medium)",
+             "reference_medium": "reference (in the medium)",
+             "target_medium": "target (in the medium)", "target_clear": "target (clear medium)"}
+    keys = [k for k in whats if inputs[k] is not None]
+    channels = None
+    if channel is None:
+        _, channels = channels_of(inputs["reference_clear"], whats["reference_clear"])
+        channels = channels if channels is not None and len(channels) > 1 else None
+    data: dict = {}
+    picks: list[str | None] = list(channels) if channels else [channel]
+    for key in keys:
+        session_black = black if key in ("reference_medium", "target_medium") else None
+        for c in picks:
+            found = prepare(inputs[key], session_black, whats[key], channel=c)
+            data.setdefault(key, found)
+    return data, channels
+
+
+def _channel_sources(inputs: dict, channels, auto: bool, truth) -> dict | None:
+    """{session: (table, black)} the steps fit over several ``channels`` (None for one);
+    ``models="auto"`` and ``truth`` take one channel (a FitError)."""
+    if channels is None:
+        return None
+    if auto or truth is not None:
+        raise FitError(f"the tables hold channels {', '.join(channels)}: "
+                       f"{'models=auto' if auto else 'truth='} takes one channel; choose one "
+                       f"with channel= (--channel NAME)")
+    return {k: (inputs[k], inputs["black"] if k.endswith("_medium") else None)
+            for k in ("reference_clear", "reference_medium", "target_medium")}
 
 
 def _relative_to(inputs: dict, outdir: str) -> dict:
@@ -171,22 +201,28 @@ def _resolve_models(models, brdf_model, medium_model) -> tuple[Any, Any, bool]:
 
 def _fit_steps(data: dict, fixed: dict, free: dict, *, variant, accuracy, max_nfev, progress,
                brdf_model, medium_model, brdf_options, medium_options, model_error,
-               propagation) -> tuple[FitResult, FitResult, FitResult]:
-    """Steps 0-2 with the given families: (reference, medium, target)."""
+               propagation, sources=None) -> tuple[FitResult, FitResult, FitResult]:
+    """Steps 0-2 with the given families: (reference, medium, target). ``sources``
+    {session: (table, black)} replaces the checked data's tables (several channels: each
+    step fits them at once, the black cloth subtracted channel by channel)."""
     brdf = {"brdf_model": brdf_model, "options": brdf_options, "model_error": model_error}
     chained = {"model_error": model_error, "propagation": propagation}
+    table, black = {}, {}
+    for key in ("reference_clear", "reference_medium", "target_medium"):
+        table[key], black[key] = (sources or {}).get(key, (data[key].table, None))
     prefetch(data["reference_medium"], brdf_model=brdf_model, brdf_options=brdf_options,
              medium_model=medium_model, medium_options=medium_options, variant=variant,
              accuracy=accuracy)
-    ref = fit_reference(data["reference_clear"].table, fixed=fixed.get("reference"),
+    ref = fit_reference(table["reference_clear"], fixed=fixed.get("reference"),
                         max_nfev=max_nfev, progress=_stage(progress, "step 0, reference"),
                         free=free.get("reference"), **brdf)
-    med = fit_medium(data["reference_medium"].table, ref, fixed=fixed.get("medium"),
-                     variant=variant, accuracy=accuracy, max_nfev=max_nfev,
-                     progress=_stage(progress, "step 1, medium"), medium_model=medium_model,
-                     options=medium_options, free=free.get("medium"), **chained)
-    tgt = fit_target(data["target_medium"].table, med, fixed=fixed.get("target"),
-                     accuracy=accuracy, max_nfev=max_nfev,
+    med = fit_medium(table["reference_medium"], ref, fixed=fixed.get("medium"),
+                     black=black["reference_medium"], variant=variant, accuracy=accuracy,
+                     max_nfev=max_nfev, progress=_stage(progress, "step 1, medium"),
+                     medium_model=medium_model, options=medium_options,
+                     free=free.get("medium"), **chained)
+    tgt = fit_target(table["target_medium"], med, fixed=fixed.get("target"),
+                     black=black["target_medium"], accuracy=accuracy, max_nfev=max_nfev,
                      progress=_stage(progress, "step 2, target"), free=free.get("target"),
                      brdf_model=brdf_model, options=brdf_options,
                      **chained)
@@ -202,13 +238,15 @@ def _fit_direct(session, fixed: dict, free: dict, *, chosen: bool, brdf_model, b
         cls = model_class(brdf_model)
         fix_d = _for_family(cls, fixed, "target", "fixed", set())
         free_d = _for_family(cls, free, "target", "free", set())
-    return fit_direct(session.table, fixed=fix_d, max_nfev=max_nfev, free=free_d,
+    table = session if isinstance(session, (str, os.PathLike)) else session.table
+    return fit_direct(table, fixed=fix_d, max_nfev=max_nfev, free=free_d,
                       progress=_stage(progress, "target, clear medium"),
                       brdf_model=brdf_model, options=brdf_options, model_error=model_error)
 
 
 def _write_outputs(outdir: str, fits: dict, data: dict, rankings: dict, kept: dict, *,
-                   figures: bool, progress, comparison, truth, shown: dict) -> dict:
+                   figures: bool, progress, comparison, truth, shown: dict,
+                   channels=None) -> dict:
     """The pipeline's files in ``outdir``, as one transaction: {key: file name}. ``shown``:
     the inputs as report.md names them."""
     names = {}
@@ -227,6 +265,9 @@ def _write_outputs(outdir: str, fits: dict, data: dict, rankings: dict, kept: di
         report = pipeline_report(ref, med, tgt, direct, comparison, truth, names, shown)
         if rankings:
             report = report.rstrip("\n") + "\n\n" + "\n".join(ranking_section(rankings)) + "\n"
+        if channels is not None:
+            report = report.rstrip("\n") + "\n\n" + CHANNELS_NOTE.format(
+                ", ".join(channels)) + "\n"
         write_text_atomic(folder / FILES["report"], report)
         names["report"] = FILES["report"]
     return names
@@ -237,7 +278,8 @@ def run_pipeline(reference_clear, reference_medium, target_medium, black=None, t
                  fixed=None, max_nfev=None, progress=None, truth=None,
                  figures: bool = True, brdf_model=None, medium_model=None, brdf_options=None,
                  medium_options=None, free=None, model_error=None,
-                 propagation=None, models=None, keep_candidates: bool = False) -> PipelineResult:
+                 propagation=None, models=None, keep_candidates: bool = False,
+                 channel: str | None = None) -> PipelineResult:
     """Steps 0-2 of docs/model.md sec. 7 with files, figures and report.md in ``outdir``.
 
     reference_clear, reference_medium, target_medium : sessions (DataFrames or CSV paths):
@@ -267,6 +309,7 @@ def run_pipeline(reference_clear, reference_medium, target_medium, black=None, t
         ``stats["selection"]``; with ``keep_candidates`` every candidate's result too, in
         ``candidates/<step>/``. Every candidate failing raises
         :class:`veil.fitting.selection.NoCandidateError` (with the rankings).
+    channel : one channel of the tables; None: all in every step (docs/fitting.md "Channels").
     Other arguments as :func:`veil.fit_medium`. Returns a :class:`PipelineResult`.
     """
     model_error = check_kind(model_error)
@@ -282,10 +325,9 @@ def run_pipeline(reference_clear, reference_medium, target_medium, black=None, t
     # the candidates and their entries, checked before any reading
     plan = _plan(fixed, free, brdf_options, medium_options, variant) if auto else None
     # read and check every input before the first (long) fit
-    data = _prepare_sessions(inputs)
-
-    rankings: dict = {}
-    kept: dict = {}
+    data, channels = _prepare_sessions(inputs, channel)
+    sources = _channel_sources(inputs, channels, auto, truth)
+    rankings, kept = dict[str, Any](), dict[str, Any]()
     if plan is not None:
         ref, med, tgt, brdf_model, brdf_options, rankings, kept = _select(
             data, plan, accuracy=accuracy, max_nfev=max_nfev, progress=progress,
@@ -295,19 +337,20 @@ def run_pipeline(reference_clear, reference_medium, target_medium, black=None, t
             data, fixed, free, variant=variant, accuracy=accuracy, max_nfev=max_nfev,
             progress=progress, brdf_model=brdf_model, medium_model=medium_model,
             brdf_options=brdf_options, medium_options=medium_options,
-            model_error=model_error, propagation=propagation)
+            model_error=model_error, propagation=propagation, sources=sources)
     direct = comparison = None
-    if target_clear is not None:
-        direct = _fit_direct(data["target_clear"], fixed, free, chosen=bool(rankings),
-                             brdf_model=brdf_model, brdf_options=brdf_options,
-                             max_nfev=max_nfev, progress=progress, model_error=model_error)
-        comparison = compare(tgt, direct)
+    if target_clear is not None:      # several channels: fitted, not compared (report.md)
+        direct = _fit_direct(data["target_clear"] if channels is None else target_clear,
+                             fixed, free, chosen=bool(rankings), brdf_model=brdf_model,
+                             brdf_options=brdf_options, max_nfev=max_nfev, progress=progress,
+                             model_error=model_error)
+        comparison = compare(tgt, direct) if channels is None else None
 
     fits = {"reference": ref, "medium": med, "target": tgt, "direct": direct}
     # inputs inside the output folder are named relative to it (links from report.md)
-    names = _write_outputs(outdir, fits, data, rankings, kept, figures=figures,
-                           progress=progress, comparison=comparison, truth=truth,
-                           shown=_relative_to(inputs, outdir))
+    names = _write_outputs(outdir, fits, data, rankings, kept, progress=progress,
+                           figures=figures and channels is None, comparison=comparison, truth=truth,
+                           shown=_relative_to(inputs, outdir), channels=channels)
     files = {key: os.path.join(outdir, name) for key, name in names.items()}
     return PipelineResult(ref, med, tgt, direct, comparison, files, rankings)
 

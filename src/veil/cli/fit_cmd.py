@@ -214,9 +214,10 @@ _channel_option = click.option(
          "or the colour channel of the --merl file (r, g or b; default g).")
 _step_channel_option = click.option(
     "--channel", default=None, metavar="NAME",
-    help="The channel to fit of a TABLE with a channel column (r, g, b or a wavelength in "
-         "nm): a fit through the medium takes one channel at a time; a reference fitted "
-         "over several channels gives its model of this channel.")
+    help="The one channel to fit of a TABLE with a channel column (r, g, b or a wavelength "
+         "in nm); a result fitted over several channels gives its model of this channel. "
+         "Without it every channel is fitted at once, through a result of the same channels "
+         "(docs/fitting.md \"Channels\").")
 MERL_CHANNELS = ("r", "g", "b")
 _sampling_option = click.option(
     "--sampling", type=click.Choice(["protocol", "inplane"]), default="protocol",
@@ -325,7 +326,8 @@ def target_command(ctx, table, medium, output, fix, free, black, accuracy, max_n
     """Step 2: fit the target's f_r (default Torrance-Sparrow) through the fitted medium.
     A JSON --medium keeps its own model and options (a contradicting option is an error)."""
     med = load_medium(medium, models)
-    given = med.as_model(channel=channel if getattr(med, "channels", None) else None) \
+    several = getattr(med, "channels", None)    # a fit of several channels: any one's options
+    given = med.as_model(channel=(channel or next(iter(several))) if several else None) \
         if hasattr(med, "as_model") else med
     if "medium-model" in models.explicit and type(given) is not models.medium:
         raise UserError(f"--medium-model {models.medium.NAME} but {medium} is a "
@@ -409,11 +411,14 @@ def print_pipeline(result) -> None:
 @_max_nfev_option
 @model_error_option
 @propagation_option
+@click.option("--channel", default=None, metavar="NAME",
+              help="The one channel to fit of tables with a channel column; without it every "
+                   "step fits every channel at once (docs/fitting.md \"Channels\").")
 @model_options()
 @click.pass_context
 def pipeline_command(ctx, reference_clear, reference_medium, target_medium, black, target_clear,
                      outdir, fix, free, model_spec, compare, figures, accuracy, max_nfev,
-                     model_error, propagation, models):
+                     model_error, propagation, models, channel):
     """Steps 0-2 in one go, with figures (data against fitted curves, over their relative
     residuals) and report.md; --models auto lets the data choose the models."""
     from ..models import AUTO
@@ -443,7 +448,7 @@ def pipeline_command(ctx, reference_clear, reference_medium, target_medium, blac
                                   medium_options=models.medium_options, free=freed,
                                   figures=figures, model_error=model_error,
                                   propagation=propagation, keep_candidates=compare,
-                                  **chosen)
+                                  channel=channel, **chosen)
     except NoCandidateError as exc:
         print_ranking(exc.ranking)
         click.echo(f"Error: {exc}; nothing was written", err=True)

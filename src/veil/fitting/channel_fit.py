@@ -7,8 +7,8 @@ channel, like a joint fit's sessions: the parameters the model declares per chan
 (``Param.channels``: albedos, scales) have one slot per channel, named ``NAME[channel]``
 (``Pd[r]``), the others one slot tied across the channels, named plainly (``n``).
 
-Step 0 of the two-step method (f_r in clear water, docs/model.md sec. 2) fits this way; the
-steps through a medium take one channel at a time for now (:mod:`veil.fitting.session_data`).
+Step 0 of the two-step method (f_r in clear water, docs/model.md sec. 2) fits this way;
+the steps through a medium over channels are :mod:`veil.fitting.channel_steps`.
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import FitError
-from ..models import BRDF
+from ..models import BRDF, Model
 from .problem import ITERATION_ACCURACY, Block, Problem, Session, Slot, model_slots
 from .reported_uncertainty import model_floor, reported
 from .result import FitResult
@@ -25,27 +25,39 @@ from .solver import check_fixed, run, summarize
 from .start_values import brdf_scales, grid_points, pick_starts
 
 
-def channel_layout(cls: type[BRDF], channels: list[str]) -> tuple[list[Slot], dict]:
+def channel_layout(
+    cls: type[Model], channels: list[str], kind: str = "brdf"
+) -> tuple[list[Slot], dict]:
     """(the slots of a fit of ``channels``, {channel: {parameter: slot name}}): per the
     declaration (:meth:`veil.models.Model.channel_sharing`) one slot per channel or one for
-    all, in the model's parameter order."""
+    all, in the model's parameter order; ``kind`` is the model's ("brdf" or "medium")."""
     sharing = cls.channel_sharing()
-    slots: list[Slot] = []
     layout: dict = {c: {} for c in channels}
-    for spec, plain in zip(cls.PARAMS, model_slots(cls, "brdf", "*")):
-        if sharing[spec.name] == "shared":
-            slots.append(plain)
-            for c in channels:
-                layout[c][spec.name] = plain.name
-            continue
+    for spec, plain in zip(cls.PARAMS, model_slots(cls, kind, "*")):
         for c in channels:
-            name = f"{plain.name}[{c}]"
-            slots.append(Slot(name, "brdf", c, plain.index, spec, plain.scale))
-            layout[c][spec.name] = name
-    return slots, layout
+            shared = sharing[spec.name] == "shared"
+            layout[c][spec.name] = plain.name if shared else f"{plain.name}[{c}]"
+    return layout_slots(cls, kind, layout), layout
 
 
-def _fixed_values(slots: list[Slot], fixed: dict, cls: type[BRDF]) -> dict:
+def layout_slots(cls: type[Model], kind: str, layout: dict) -> list[Slot]:
+    """The slots of a channels' ``layout`` ({channel: {parameter: slot name}}), in the
+    model's parameter order: a name every channel shares is one slot (owner "*"), the others
+    one per channel (owned by it)."""
+    slots: list[Slot] = []
+    for plain in model_slots(cls, kind, "*"):
+        names = {c: layout[c][plain.spec.name] for c in layout}
+        if len(set(names.values())) == 1:
+            slots.append(
+                Slot(next(iter(names.values())), kind, "*", plain.index, plain.spec, plain.scale)
+            )
+            continue
+        for c, name in names.items():
+            slots.append(Slot(name, kind, c, plain.index, plain.spec, plain.scale))
+    return slots
+
+
+def _fixed_values(slots: list[Slot], fixed: dict, cls: type[Model]) -> dict:
     """{slot name: value} of ``fixed``: a slot's name (``Pd[r]``) holds that slot, a
     parameter's own name (``eta``, ``Pd``) every slot of it."""
     out = {}
@@ -186,4 +198,4 @@ def fit_channels(
     )
 
 
-__all__ = ["channel_layout", "channel_problem", "channel_starts", "fit_channels"]
+__all__ = ["channel_layout", "layout_slots", "channel_problem", "channel_starts", "fit_channels"]

@@ -333,8 +333,9 @@ def propagated(problem: Problem, x, given_result, column: Callable[[str], int],
     gnames, gcov = found
     gcov = np.asarray(gcov, dtype=float)
     cols = [column(n) for n in gnames]
-    cls = given_result.model_class
-    specs = [cls.param(n) for n in gnames]
+    # the problem's slots of the given parameters (a fit of several channels names them
+    # per channel, Td[r]; docs/fitting.md "Channels")
+    specs = [problem.params[c].spec for c in cols]
     relative = relative_uncertainty(specs, [x[c] for c in cols], gcov)
     how = how_of(method, relative)
     refits = None if how["method"] == "linear" else _refitted(problem, x, cols, specs, gcov,

@@ -35,6 +35,7 @@ from .result_fields import (
     _read_residuals,
     _read_stats,
     _read_term,
+    check_given,
     model_entry,
     model_from_entry,
     model_of_channel,
@@ -154,9 +155,12 @@ class FitResult:
         return model_of_channel(self.model_class, self.params, self.channels, channel,
                                 self.options)
 
-    def given_model(self) -> Model | None:
-        """The model the fit held fixed (``given``), or None."""
-        return model_from_entry(self.given, "the result's 'given' entry") if self.given else None
+    def given_model(self, channel: str | None = None) -> Model | None:
+        """The model the fit held fixed (``given``), or None; of ``channel`` when it is a
+        fit of several channels."""
+        if not self.given:
+            return None
+        return model_from_entry(self.given, "the result's 'given' entry", channel)
 
     @property
     def free(self) -> tuple[str, ...]:
@@ -279,8 +283,7 @@ class FitResult:
         except InputError as exc:
             raise FitError(f"{source}: {exc}") from None
         given = data.get("given")
-        if given is not None:
-            model_from_entry(given, f"{source}: key 'given'")
+        check_given(given, f"{source}: key 'given'")
         stderr = data["stderr"]
         if not isinstance(stderr, dict) or set(stderr) - set(names):
             raise FitError(f"{source}: key 'stderr' must map parameter names ({', '.join(names)})"

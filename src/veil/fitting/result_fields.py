@@ -23,8 +23,10 @@ def model_entry(model: Model) -> dict:
     return {"model": model.NAME, "params": model.as_dict(), **model.options()}
 
 
-def model_from_entry(entry, where: str) -> Model:
-    """The model of a :func:`model_entry` dict; a FitError naming ``where`` otherwise."""
+def model_from_entry(entry, where: str, channel: str | None = None) -> Model:
+    """The model of a :func:`model_entry` dict; a FitError naming ``where`` otherwise. An
+    entry of a fit of several channels (its ``channels`` layout, the ``given`` key of a step
+    through a medium over channels) gives the model of ``channel``."""
     if not isinstance(entry, dict) or "model" not in entry or "params" not in entry:
         raise FitError(f"{where}: expected an object with keys 'model' and 'params'")
     if not isinstance(entry["model"], str) or not isinstance(entry["params"], dict):
@@ -32,9 +34,23 @@ def model_from_entry(entry, where: str) -> Model:
     try:
         cls = model_class(entry["model"])
         options = {k: entry[k] for k in cls.option_names() if k in entry}
+        if entry.get("channels") is not None:
+            layout = read_channels(entry, cls, where)
+            assert layout is not None  # checked above
+            return model_of_channel(cls, entry["params"], layout, channel, options)
         return cls.from_params(entry["params"], options)
     except InputError as exc:
         raise FitError(f"{where}: {exc}") from None
+
+
+def check_given(entry, where: str) -> None:
+    """A result's ``given`` key checked (None passes): every channel's model of an entry of
+    several channels."""
+    if entry is None:
+        return
+    channels = entry.get("channels") if isinstance(entry, dict) else None
+    for c in channels or (None,):
+        model_from_entry(entry, where, c)
 
 
 def model_of_channel(cls: type[Model], params: dict, channels: dict, channel,

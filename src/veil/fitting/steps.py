@@ -27,6 +27,7 @@ from typing import cast
 
 import numpy as np
 
+from ..data.measurements import RowNames
 from ..engine.evaluator import ApparentModel, DirectModel
 from ..engine.quadrature import RULES
 from ..errors import FitError, InputError
@@ -34,6 +35,7 @@ from ..models import BRDF, Medium, Model, default_class, model_class
 from ..models.base import VARIANT_OPTION
 from . import model_error as discrepancy
 from .channel_fit import fit_channels
+from .channel_steps import fit_through
 from .given import as_given, check_options
 from .problem import ITERATION_ACCURACY, Problem, check_accuracy, session_problem
 from .propagation import check_method, describe
@@ -299,20 +301,30 @@ def fit_medium(table, reference, *, fixed=None, black=None, variant: str | None 
         same medium model on the target's data).
     propagation : how the given fit's covariance enters ``stderr_total``: "auto" (the
         default, None), "linear" or "sigma-points" (:mod:`veil.fitting.propagation`).
-    channel : the one channel of a multi-channel table to fit (a fit through the medium
-        takes one channel at a time; a multi-channel table without it is an error); the
-        reference of a fit of several channels gives its model of that channel.
+    channel : the one channel of a multi-channel table to fit; the reference of a fit of
+        several channels gives its model of that channel. None fits every channel at once
+        (:mod:`veil.fitting.channel_steps`): the medium's parameters declared per channel
+        one per channel, the others tied, each channel through the reference's model of
+        that channel (a fit over the same channels; a BRDF model is every channel's).
     Other arguments as :func:`fit_reference`.
     """
     check_accuracy(accuracy)
     check_max_nfev(max_nfev)
     model_error = discrepancy.check_kind(model_error)
     propagation = check_method(propagation)
-    reference = _of_channel(reference, channel)
-    brdf = as_given(reference, "brdf", "the reference")
     cls = _family(medium_model, "medium")
     fitted = _template(cls, _options(options, variant))
-    data = prepare(table, black, "reference (in the medium)", channel, ONE_CHANNEL)
+    what = "reference (in the medium)"
+    several = _several(table, black, channel, what)
+    if several is not None:
+        return fit_through("medium", several, fitted, reference, fixed=as_fixed(fixed),
+                           freed=_freed(cls, free, "medium"), accuracy=accuracy,
+                           max_nfev=max_nfev, progress=progress, model_error=model_error,
+                           propagation=propagation, starts=STARTS["medium"],
+                           role="the reference", source=_source(several))
+    reference = _of_channel(reference, channel)
+    brdf = as_given(reference, "brdf", "the reference")
+    data = prepare(table, black, "reference (in the medium)", channel)
     return _step("medium", data, fitted, brdf,
                  reference if isinstance(reference, FitResult) else None, as_fixed(fixed),
                  accuracy, max_nfev, progress, _freed(cls, free, "medium"), model_error,
@@ -338,21 +350,51 @@ def fit_target(table, medium, *, fixed=None, black=None, variant: str | None = N
     check_max_nfev(max_nfev)
     model_error = discrepancy.check_kind(model_error)
     propagation = check_method(propagation)
-    model_m = as_given(_of_channel(medium, channel), "medium", "the medium")
-    check_options(model_m, _options(None, variant), "the medium")
     cls = _family(brdf_model, "brdf")
     fitted = _template(cls, dict(options or {}))
-    data = prepare(table, black, "target (in the medium)", channel, ONE_CHANNEL)
+    several = _several(table, black, channel, "target (in the medium)")
+    if several is not None:
+        model_m = _given_of(medium, next(iter(several)))
+        if isinstance(model_m, Model):
+            check_options(model_m, _options(None, variant), "the medium")
+        return fit_through("target", several, fitted, medium, fixed=as_fixed(fixed),
+                           freed=_freed(cls, free, "target"), accuracy=accuracy,
+                           max_nfev=max_nfev, progress=progress, model_error=model_error,
+                           propagation=propagation, starts=STARTS["target"],
+                           role="the medium", source=_source(several))
+    model_m = as_given(_of_channel(medium, channel), "medium", "the medium")
+    check_options(model_m, _options(None, variant), "the medium")
+    data = prepare(table, black, "target (in the medium)", channel)
     return _step("target", data, fitted, model_m,
                  medium if isinstance(medium, FitResult) else None, as_fixed(fixed),
                  accuracy, max_nfev, progress, _freed(cls, free, "target"), model_error,
                  propagation)
 
 
-#: What a multi-channel table's error says fits several channels (the steps through a
-#: medium take one at a time).
-ONE_CHANNEL = (" (through a medium veil fits one channel at a time; veil fit reference fits "
-               "every channel of a clear-water table at once)")
+def _several(table, black, channel: str | None, what: str) -> dict[str, FitData] | None:
+    """{channel: its data} of a table of several channels when no ``channel`` is chosen (a
+    step through the medium then fits them at once, :mod:`veil.fitting.channel_steps`);
+    None otherwise (one channel: the step as before)."""
+    if channel is not None:
+        return None
+    loaded, channels = channels_of(table, what)
+    if channels is None or len(channels) < 2:
+        return None
+    return {c: prepare(loaded, black, what, channel=c) for c in channels}
+
+
+def _source(datas: dict[str, FitData]) -> str:
+    """How errors name a table of several channels."""
+    return RowNames(next(iter(datas.values())).table).what
+
+
+def _given_of(given, channel: str):
+    """The model of ``channel`` of a given fit of several channels (for the options' check;
+    its options are every channel's); anything else as it is."""
+    if isinstance(given, FitResult) and given.channels is not None and not given.JOINT:
+        return given.as_model(channel=channel if channel in given.channels
+                              else next(iter(given.channels)))
+    return given
 
 
 def _of_channel(result, channel: str | None):
@@ -381,4 +423,4 @@ def model_values(result_or_model, other, angles, accuracy: str = "default") -> n
 __all__ = ["fit_reference", "fit_direct", "fit_medium", "fit_target", "model_values",
            "STARTS", "ROLE"]
 
-__all__ += ["MisfitWarning", "MISFIT_CHI2", "warn_misfit", "ONE_CHANNEL"]
+__all__ += ["MisfitWarning", "MISFIT_CHI2", "warn_misfit"]

@@ -1,0 +1,164 @@
+"""Colour channels through a medium (issue 30, second slice; docs/fitting.md "Channels"):
+steps 1 and 2 fit every channel of a table at once, the medium's and the BRDF's parameters
+declared per channel one per channel and the shared ones tied, each channel through the
+given fit's model of that channel, its covariance propagated per channel; the pipeline over
+channels; a one-channel table exactly as the table without the column."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import pytest
+from support.cli import run
+
+import veil
+from veil.data.measurements import save_measurements
+from veil.data.simulate import simulate_channels
+from veil.errors import FitError
+from veil.fitting import FitResult, fit_medium, fit_reference, fit_target
+
+#: The paper's medium BTDF2 with T_d and T_t scaled per channel (water that dims red); the
+#: reference BRDF2 and the target BRDF1 with their diffuse albedo per channel.
+MEDIUM = {"r": 0.6, "g": 1.0, "b": 1.5}
+REF_PD = {"r": 800.0, "g": 1000.0, "b": 1200.0}
+TGT_PD = {"r": 100.0, "g": 200.0, "b": 400.0}
+FAST = "fast"
+
+
+def _medium(c: str):
+    m = veil.BTDF2
+    return m.replace(Td=m.Td * MEDIUM[c], Tt=m.Tt * MEDIUM[c])
+
+
+def _sessions() -> dict:
+    """{session: (table, black or None)} simulated at the fast quadrature, the medium's glow
+    in the black cloth."""
+    ref = {c: veil.BRDF2.replace(Pd=REF_PD[c]) for c in MEDIUM}
+    tgt = {c: veil.BRDF1.replace(Pd=TGT_PD[c]) for c in MEDIUM}
+    clear = simulate_channels({c: (ref[c], None) for c in MEDIUM}, noise=0.01, seed=1,
+                              accuracy=FAST)
+    ref_m, black_r = simulate_channels({c: (ref[c], _medium(c)) for c in MEDIUM},
+                                       noise=0.01, seed=2, black=True, accuracy=FAST)
+    tgt_m, black_t = simulate_channels({c: (tgt[c], _medium(c)) for c in MEDIUM},
+                                       noise=0.01, seed=3, black=True, accuracy=FAST)
+    return {"clear": (clear, None), "ref_m": (ref_m, black_r), "tgt_m": (tgt_m, black_t)}
+
+
+@pytest.fixture(scope="module")
+def fits():
+    s = _sessions()
+    ref = fit_reference(s["clear"][0])
+    med = fit_medium(s["ref_m"][0], ref, black=s["ref_m"][1], accuracy=FAST)
+    tgt = fit_target(s["tgt_m"][0], med, black=s["tgt_m"][1], accuracy=FAST)
+    return s, ref, med, tgt
+
+
+def _z(result: FitResult, name: str, truth: float) -> float:
+    return (result.params[name] - truth) / result.stderr_total[name]
+
+
+def test_the_medium_per_channel_and_its_shared_parameters_once(fits):
+    _, ref, med, _ = fits
+    assert med.converged and med.channel_names == ("r", "g", "b")
+    for c in MEDIUM:
+        truth = _medium(c)
+        for p in ("Td", "Tt"):
+            assert abs(_z(med, f"{p}[{c}]", getattr(truth, p))) < 3, (c, p)
+    assert [n for n in med.params if not n.endswith("]")] == ["g", "eta_u"]
+    assert abs(_z(med, "g", veil.BTDF2.g)) < 3 and abs(_z(med, "eta_u", veil.BTDF2.eta)) < 3
+    # the reference's covariance propagated per channel: the totals exceed the noise's
+    assert all(med.stderr_total[n] > med.stderr[n] for n in med.free)
+    assert med.stats["propagation"]["method"] in ("linear", "sigma-points")
+    red = med.as_model(channel="r")
+    assert red.Td == med.params["Td[r]"] and red.g == med.params["g"]
+    assert med.given_model(channel="b") == ref.as_model(channel="b")
+
+
+def test_the_target_per_channel_through_each_channels_medium(fits):
+    _, _, med, tgt = fits
+    assert tgt.converged and tgt.channel_names == ("r", "g", "b")
+    for c, pd_ in TGT_PD.items():
+        assert abs(_z(tgt, f"Pd[{c}]", pd_)) < 3, c
+        assert abs(_z(tgt, f"Ps[{c}]", veil.BRDF1.Ps)) < 3, c
+    assert abs(_z(tgt, "n", veil.BRDF1.n)) < 3 and abs(_z(tgt, "eta", veil.BRDF1.eta)) < 3
+    assert tgt.as_model(channel="g").Pd == tgt.params["Pd[g]"]
+    assert tgt.given_model(channel="r") == med.as_model(channel="r")
+    text = tgt.report()
+    assert "tied across them: n, eta" in text and "Pd[b]" in text
+
+
+def test_results_of_several_channels_round_trip_with_their_given_fit(fits, tmp_path):
+    _, _, med, tgt = fits
+    for result in (med, tgt):
+        result.to_json(tmp_path / "x.json")
+        back = FitResult.from_json(tmp_path / "x.json")
+        assert back.to_dict() == result.to_dict()
+        assert json.loads((tmp_path / "x.json").read_text())["given"]["channels"]
+        with pytest.raises(FitError, match="fits channels r, g, b at once"):
+            back.as_model()
+
+
+def test_channels_of_the_given_fit_must_be_the_tables(fits):
+    s, ref, med, _ = fits
+    table, black = s["ref_m"]
+    two = table[table["channel"] != "b"].copy()
+    with pytest.raises(FitError, match=r"fit of channels r, g, b but .* has channels r, g"):
+        fit_medium(two, ref, black=black[black["channel"] != "b"], accuracy=FAST)
+    with pytest.raises(FitError, match="a fit of one channel"):
+        one = dataclasses.replace(med, channels=None, params=dict(veil.BTDF2.as_dict()))
+        fit_target(s["tgt_m"][0], one, black=s["tgt_m"][1], accuracy=FAST)
+
+
+def test_a_one_channel_table_gives_the_result_of_the_table_without_the_column(fits):
+    s, ref, _, _ = fits
+    table, black = s["ref_m"]
+    one, one_black = (t[t["channel"] == "g"].reset_index(drop=True) for t in (table, black))
+    plain, plain_black = (t.drop(columns="channel") for t in (one, one_black))
+    given = ref.as_model(channel="g")
+    a = fit_medium(one, given, black=one_black, accuracy=FAST)
+    b = fit_medium(plain, given, black=plain_black, accuracy=FAST)
+    assert a.to_dict() == b.to_dict()
+
+
+def _write_sessions(tmp_path) -> dict:
+    paths = {}
+    for key, (table, black) in _sessions().items():
+        paths[key] = tmp_path / f"{key}.csv"
+        save_measurements(table, paths[key])
+        if black is not None:
+            save_measurements(black, tmp_path / f"{key}_black.csv")
+    return paths
+
+
+def test_the_pipeline_over_three_channels_and_one_of_them(tmp_path):
+    p = _write_sessions(tmp_path)
+    base = ["fit", "pipeline", "--reference-clear", p["clear"], "--reference-medium",
+            p["ref_m"], "--target-medium", p["tgt_m"], "--black",
+            tmp_path / "ref_m_black.csv", "--accuracy", FAST]
+    out = run(*base, "-o", tmp_path / "rgb")
+    assert out.exit_code == 0, out.output
+    med = FitResult.from_json(tmp_path / "rgb" / "medium.json")
+    tgt = FitResult.from_json(tmp_path / "rgb" / "target.json")
+    assert med.channel_names == tgt.channel_names == ("r", "g", "b")
+    for c in MEDIUM:
+        assert abs(_z(med, f"Tt[{c}]", _medium(c).Tt)) < 3
+        assert abs(_z(tgt, f"Pd[{c}]", TGT_PD[c])) < 3
+    report = (tmp_path / "rgb" / "report.md").read_text()
+    assert "## Channels" in report and "Not made for several channels" in report
+    assert not list((tmp_path / "rgb").glob("*.png"))
+    out = run(*base, "--channel", "g", "--no-figures", "-o", tmp_path / "g")
+    assert out.exit_code == 0, out.output
+    green = FitResult.from_json(tmp_path / "g" / "medium.json")
+    assert green.channels is None and abs(green.params["Tt"] - _medium("g").Tt) \
+        < 3 * green.stderr_total["Tt"]
+
+
+def test_the_pipeline_refuses_auto_models_over_several_channels(tmp_path):
+    p = _write_sessions(tmp_path)
+    out = run("fit", "pipeline", "--reference-clear", p["clear"], "--reference-medium",
+              p["ref_m"], "--target-medium", p["tgt_m"], "--models", "auto",
+              "-o", tmp_path / "out")
+    assert out.exit_code == 2, out.output
+    assert "channels r, g, b" in out.output and "--channel" in out.output
+    assert not (tmp_path / "out").exists()
