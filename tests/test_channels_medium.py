@@ -1,4 +1,4 @@
-"""Colour channels through a medium (issue 30, second slice; docs/fitting.md "Channels"):
+"""Colour channels through a medium (issue 30, second slice; docs/channels.md):
 steps 1 and 2 fit every channel of a table at once, the medium's and the BRDF's parameters
 declared per channel one per channel and the shared ones tied, each channel through the
 given fit's model of that channel, its covariance propagated per channel; the pipeline over

@@ -188,7 +188,7 @@ def test_starting_grids_lie_inside_the_bounds(name):
 
 @pytest.mark.parametrize("name", FAMILIES)
 def test_every_parameter_declares_whether_it_is_per_channel_or_shared(name):
-    """Colour (docs/fitting.md, "Channels"): a family says which of its parameters take one
+    """Colour (docs/channels.md): a family says which of its parameters take one
     value per channel (albedos, scales, a medium's optical depth and albedo) and which one
     value tied across the channels (roughness, index, g) - ``Param(channels=...)``."""
     cls = REGISTRY[name]

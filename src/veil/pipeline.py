@@ -309,7 +309,7 @@ def run_pipeline(reference_clear, reference_medium, target_medium, black=None, t
         ``stats["selection"]``; with ``keep_candidates`` every candidate's result too, in
         ``candidates/<step>/``. Every candidate failing raises
         :class:`veil.fitting.selection.NoCandidateError` (with the rankings).
-    channel : one channel of the tables; None: all in every step (docs/fitting.md "Channels").
+    channel : one channel of the tables; None: all in every step (docs/channels.md).
     Other arguments as :func:`veil.fit_medium`. Returns a :class:`PipelineResult`.
     """
     model_error = check_kind(model_error)

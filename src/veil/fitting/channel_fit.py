@@ -1,4 +1,4 @@
-"""Fits of several colour channels at once (docs/fitting.md, "Channels"; docs/model.md sec. 7).
+"""Fits of several colour channels at once (docs/channels.md; docs/model.md sec. 7).
 
 A multi-channel table (docs/measurements.md, "Channels") is one session seen in several
 channels. Its fit is one weighted least-squares problem (:mod:`veil.fitting.problem`, solved

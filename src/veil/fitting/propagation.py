@@ -334,7 +334,7 @@ def propagated(problem: Problem, x, given_result, column: Callable[[str], int],
     gcov = np.asarray(gcov, dtype=float)
     cols = [column(n) for n in gnames]
     # the problem's slots of the given parameters (a fit of several channels names them
-    # per channel, Td[r]; docs/fitting.md "Channels")
+    # per channel, Td[r]; docs/channels.md)
     specs = [problem.params[c].spec for c in cols]
     relative = relative_uncertainty(specs, [x[c] for c in cols], gcov)
     how = how_of(method, relative)
