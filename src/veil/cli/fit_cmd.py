@@ -50,7 +50,8 @@ _black_option = click.option(
     help="Black-cloth session in the medium (same configurations), subtracted first.")
 _max_nfev_option = click.option(
     "--max-nfev", type=click.IntRange(min=1), default=None,
-    help="Limit on function evaluations of each least-squares run (default: scipy's).")
+    help="Limit on function evaluations of each least-squares run (default: 100 per free "
+         "parameter).")
 
 
 def _free_option(help_text):

@@ -1,10 +1,11 @@
-"""The least-squares rules of veil, written once (docs/fitting.md, docs/maps.md).
+"""The least-squares core of veil, written once (docs/fitting.md, docs/maps.md).
 
-Two solvers run on them: the single fits (:mod:`veil.fitting.solver`: scipy's
-trust-region-reflective iterations through the engine) and the per-pixel batched solve
-(:mod:`veil.maps.solve`: Levenberg-Marquardt on tabulated columns, vectorized in JAX with a
-stopping test per pixel). What they share is here, as functions of an array module ``xp``
-(numpy or ``jax.numpy``):
+Two solvers iterate Levenberg-Marquardt on it: the single fits (:mod:`veil.fitting.solver`,
+through the engine, with :func:`levenberg_marquardt`) and the per-pixel batched solve
+(:mod:`veil.maps.solve`: tabulated columns, vectorized in JAX with a stopping test per pixel,
+each pixel frozen once it stops). Both take every step with :func:`lm_step` and
+:func:`lm_accept`; what they share is here, as functions of an array module ``xp`` (numpy or
+``jax.numpy``):
 
 - the rank and covariance of a weighted Jacobian: columns equilibrated to unit length first
   (natural units span many decades), rank deficient when the smallest singular value is
@@ -13,17 +14,37 @@ stopping test per pixel). What they share is here, as functions of an array modu
   :func:`residual_variance`);
 - bounds: a parameter is held at a bound when it sits there and the gradient pushes it out;
   steps are projected back into the box; a solution within a tolerance of a bound is "at the
-  edge" (:func:`held`, :func:`project`, :func:`at_bounds`);
+  edge" (:func:`held`, :func:`reduced`, :func:`project`, :func:`at_bounds`);
 - damping: Levenberg-Marquardt's diagonal scaling and the update of its factor
-  (:func:`damped_step`, :func:`update_damping`);
+  (:func:`damped_step`, :func:`update_damping`); the maps scale by J^T J's diagonal, the
+  single fits by the largest diagonal met so far over each parameter's room to the bound it
+  is pushed to (:func:`damping_scale`, as scipy's trust-region-reflective method scales);
 - the stopping rule: the undamped Gauss-Newton step over the parameters not held at a bound,
-  in standard errors (:func:`gauss_newton_decrease`, :func:`stopped`, :func:`step_in_stderr`);
-- the small dense algebra the batched solve unrolls (batched LAPACK calls on tiny matrices
-  are slow in XLA): :func:`ldl`, :func:`ldl_solve`, :func:`nnls_small`.
+  in standard errors (:func:`gauss_newton_decrease`, :func:`stopped`, :func:`step_in_stderr`),
+  below a tolerance ``tol`` in every such parameter. The decrease g^T A^-1 g bounds
+  (step_j / stderr_j)^2 of every parameter j, and near the optimum that step is the distance
+  to it: an iteration that stops is within about ``tol`` standard errors of the optimum (the
+  single fits' tolerances are :mod:`veil.fitting.solver`'s ``TOL_*``, the maps' ``LM_TOL``);
+- one step: the damped step over the parameters not held, projected into the box, and the
+  decrease for the stopping rule (:func:`lm_step`); a trial point that lowers the cost is
+  taken and the damping falls, else the damping rises (:func:`lm_accept`);
+- the iteration of one problem, in numpy (:func:`levenberg_marquardt`), which also weighs
+  each step's gain (actual over predicted decrease) in the damping: those steps until the
+  stopping rule holds (status 1); or a trial step below ``tol`` standard errors does not
+  lower the cost and changes it no more than the quadratic model allows (2,
+  :func:`_no_lower_cost`); or, with a Jacobian that is only close (frozen: the polish, the
+  sigma-point refits), a step lowers the cost by less than a step of ``tol`` standard
+  errors would (3) - such a Jacobian leaves a Gauss-Newton step of its own error at the
+  optimum. Not converged: the evaluations run out (0), no step lowers the cost with the
+  damping at its maximum (-1), residuals or Jacobian not finite (-2);
+- the small dense algebra, unrolled (batched LAPACK calls on tiny matrices are slow in XLA):
+  :func:`ldl`, :func:`ldl_solve`, :func:`nnls_small`.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -37,6 +58,9 @@ DAMPING_START = 1e-4
 DAMPING_DOWN = 0.2
 DAMPING_UP = 10.0
 DAMPING_RANGE = (1e-12, 1e12)
+#: The gain of a step taken (actual over predicted decrease of the cost) above which the
+#: single fits lower the damping, and below which they raise it (:func:`lm_accept`).
+GAIN_GOOD, GAIN_POOR = 0.75, 0.25
 
 
 # --------------------------------------------------------------------------------------
@@ -105,36 +129,65 @@ def at_bounds(p: Any, lo: Any, hi: Any, tol: Any) -> tuple[Any, Any]:
 # --------------------------------------------------------------------------------------
 # damping and the stopping rule
 # --------------------------------------------------------------------------------------
-def damped_step(a: Any, g: Any, lam: Any, xp: Any) -> Any:
+def damped_step(a: Any, g: Any, lam: Any, xp: Any, scale: Any = None) -> Any:
     """Levenberg-Marquardt's step from the normal matrix ``a`` and gradient ``g``: the
-    damping ``lam`` times ``a``'s diagonal (1 where it is zero) added."""
-    diag = xp.diag(a)
+    damping ``lam`` times a diagonal added, ``scale`` (default: ``a``'s diagonal), 1 where it
+    is zero."""
+    diag = xp.diag(a) if scale is None else scale
     scale = xp.where(diag > 0, diag, 1.0)
     low, piv = ldl(a + lam * xp.diag(scale), xp)
     return ldl_solve(low, piv, g, xp)
 
 
-def update_damping(lam: Any, better: Any, frozen: Any, xp: Any) -> Any:
+def update_damping(
+    lam: Any, better: Any, frozen: Any, xp: Any, good: Any = None, poor: Any = None
+) -> Any:
     """The next damping: lower after a step that lowered the cost, higher after one that did
-    not, unchanged for a pixel that has stopped."""
+    not, unchanged for a pixel that has stopped. Told how well the model predicted a step
+    taken (the single fits, :func:`lm_accept`), it lowers the damping only after a ``good``
+    prediction, keeps it after a fair one and raises it after a ``poor`` one."""
     low, high = DAMPING_RANGE
-    return xp.where(
-        frozen,
-        lam,
-        xp.where(better, xp.maximum(lam * DAMPING_DOWN, low), xp.minimum(lam * DAMPING_UP, high)),
-    )
+    down = xp.maximum(lam * DAMPING_DOWN, low)
+    up = xp.minimum(lam * DAMPING_UP, high)
+    if good is not None:
+        down = xp.where(good, down, xp.where(poor, up, lam))
+    return xp.where(frozen, lam, xp.where(better, down, up))
+
+
+def damping_scale(largest: Any, p: Any, g: Any, lo: Any, hi: Any) -> Any:
+    """The diagonal the single fits' damping multiplies (numpy): in the Jacobian's
+    equilibrated coordinates (``largest``: the largest diagonal of J^T J met so far, as
+    MINPACK and scipy keep it, so that a parameter whose column vanishes on the way is not
+    thrown across its range) the identity, divided by each parameter's room - its distance
+    to the bound the descent direction ``g`` points to, in those coordinates, relative to
+    the geometric mean of all (Coleman and Li's scaling, as scipy's trust-region-reflective
+    method has it: a parameter close to its bound takes shorter steps, one far from it
+    longer). A parameter without a bound that way, or on it, keeps the identity."""
+    col = np.sqrt(largest)
+    room = np.where(g > 0, hi - p, p - lo) * col
+    finite = np.isfinite(room) & (room > 0)
+    if not np.any(finite):
+        return largest
+    mean = np.exp(np.mean(np.log(room[finite])))
+    return largest * np.where(finite, mean / np.where(finite, room, 1.0), 1.0)
+
+
+def reduced(p: Any, a: Any, g: Any, lo: Any, hi: Any, xp: Any) -> tuple[Any, Any]:
+    """The normal matrix ``a`` and descent direction ``g`` over the parameters not held at a
+    bound (:func:`held`): a held parameter's row and column are the identity's and its entry
+    of ``g`` is 0, so that its step is 0 (both unchanged when none is held)."""
+    n = a.shape[0]
+    hold = held(p, g, lo, hi)
+    pair = hold[:, None] | hold[None, :]
+    return xp.where(pair, xp.eye(n), a), xp.where(hold, 0.0, g)
 
 
 def gauss_newton_decrease(p: Any, a: Any, g: Any, lo: Any, hi: Any, xp: Any) -> Any:
     """Predicted cost decrease of the undamped Gauss-Newton step over the parameters not
     held at a bound: an upper bound on (step / standard error)^2 of every such parameter,
     times the residual variance when unweighted."""
-    n = a.shape[0]
-    hold = held(p, g, lo, hi)
-    pair = hold[:, None] | hold[None, :]
-    reduced = xp.where(pair, xp.eye(n), a)
-    gr = xp.where(hold, 0.0, g)
-    low, piv = ldl(reduced, xp)
+    ar, gr = reduced(p, a, g, lo, hi, xp)
+    low, piv = ldl(ar, xp)
     return gr @ ldl_solve(low, piv, gr, xp)
 
 
@@ -150,6 +203,167 @@ def step_in_stderr(step: Any, stderr: Any, xp: Any) -> Any:
     if step.shape[-1] == 0:
         return 0.0
     return xp.max(xp.abs(step) / xp.where(stderr > 0, stderr, 1.0))
+
+
+# --------------------------------------------------------------------------------------
+# one step, and the iteration of one problem
+# --------------------------------------------------------------------------------------
+def lm_step(
+    p: Any, a: Any, g: Any, lam: Any, lo: Any, hi: Any, xp: Any, scale: Any = None
+) -> tuple[Any, Any]:
+    """One Levenberg-Marquardt step from ``p`` with normal matrix ``a`` (J^T J of the
+    weighted Jacobian), descent direction ``g`` (J^T r, r = data - model) and damping
+    ``lam`` (times ``scale``, :func:`damped_step`): (the trial point, the undamped
+    Gauss-Newton decrease for :func:`stopped`). The step is damped over the parameters not
+    held at a bound (held ones stay, :func:`reduced`) and the trial point projected into the
+    box; a step component that is not finite is 0."""
+    ar, gr = reduced(p, a, g, lo, hi, xp)
+    low, piv = ldl(ar, xp)
+    decrease = gr @ ldl_solve(low, piv, gr, xp)
+    step = damped_step(ar, gr, lam, xp, scale)
+    return project(p + xp.where(xp.isfinite(step), step, 0.0), lo, hi, xp), decrease
+
+
+def lm_accept(
+    cost: Any, trial_cost: Any, lam: Any, frozen: Any, xp: Any, predicted: Any = None
+) -> tuple[Any, Any]:
+    """(whether the trial point is taken: it lowers the cost - a cost that is not finite
+    does not - and the iteration has not stopped; the next damping, :func:`update_damping`).
+    Given the ``predicted`` decrease of the step, the gain (actual over predicted decrease)
+    tells the damping how well the model predicted it: good above :data:`GAIN_GOOD`, poor
+    below :data:`GAIN_POOR` (or without a predicted decrease)."""
+    better = xp.logical_and(trial_cost < cost, xp.logical_not(frozen))
+    if predicted is None:
+        return better, update_damping(lam, better, frozen, xp)
+    actual = cost - trial_cost  # -inf for a cost that is not finite: poor
+    good = xp.logical_and(predicted > 0, actual > GAIN_GOOD * predicted)
+    poor = xp.logical_or(predicted <= 0, actual < GAIN_POOR * predicted)
+    return better, update_damping(lam, better, frozen, xp, good, poor)
+
+
+#: The status of :func:`levenberg_marquardt` (> 0 converged) and its message.
+STOPS = {
+    1: "the Gauss-Newton step is below {tol:g} standard errors",
+    2: "no step of more than {tol:g} standard errors lowers the cost",
+    3: "a step lowered the cost by less than one of {tol:g} standard errors does",
+    0: "the maximum number of function evaluations ({limit}) is exceeded",
+    -1: "no step lowers the cost (damping at its maximum)",
+    -2: "the residuals or the Jacobian are not finite",
+}
+#: Evaluations of the residuals per parameter that :func:`levenberg_marquardt` makes at most
+#: when no limit is given.
+NFEV_PER_PARAMETER = 100
+
+
+@dataclass
+class Iterations:
+    """What :func:`levenberg_marquardt` found: the parameters ``p``, the ``residuals``
+    there, the ``cost`` 0.5 sum(residuals^2), the ``status`` (> 0 converged) and its
+    ``message``, the evaluations of the residuals (``nfev``) and of the Jacobian
+    (``njev``)."""
+
+    p: np.ndarray
+    residuals: np.ndarray
+    cost: float
+    status: int
+    message: str
+    nfev: int
+    njev: int
+
+
+def levenberg_marquardt(
+    fun: Callable[[np.ndarray], Any],
+    jac: Callable[[np.ndarray], Any],
+    p0: Any,
+    lo: Any,
+    hi: Any,
+    *,
+    tol: float,
+    max_nfev: int | None = None,
+    dof: int | None = None,
+    weighted: bool = True,
+    yy: float | None = None,
+    exact: bool = True,
+) -> Iterations:
+    """Levenberg-Marquardt for one problem in numpy (module docstring): residuals ``fun(p)``
+    (model - data, weighted) evaluated at every trial point, their Jacobian ``jac(p)`` at
+    every point taken (``exact``: False when it is only close, frozen), from ``p0`` projected
+    into the box [``lo``, ``hi``]. The damping scales with the largest diagonal of J^T J met
+    so far (as MINPACK's: a parameter whose column vanishes on the way is not thrown across
+    its range) and follows each step's gain. Steps are measured in standard errors with the
+    residual variance sum(r^2) / ``dof`` for data not ``weighted``; for weighted data with
+    1, or that reduced chi-square where it is above 1 (a model that misses the data by more
+    than their noise; 1 when ``dof`` is None). ``yy``: the data's own sum of squares
+    (default: the start's); ``max_nfev``: evaluations of the residuals (default:
+    :data:`NFEV_PER_PARAMETER` each)."""
+    p = project(np.asarray(p0, dtype=float), lo, hi, np)
+    limit = max_nfev or NFEV_PER_PARAMETER * max(p.size, 1)
+    f = np.asarray(fun(p), dtype=float)
+    nfev, njev, lam, largest = 1, 0, DAMPING_START, np.zeros(p.size)
+    yy = float(f @ f) if yy is None else yy
+    while np.all(np.isfinite(f)):
+        jm = np.asarray(jac(p), dtype=float)
+        njev += 1
+        a, g = jm.T @ jm, -(jm.T @ f)
+        if not (np.all(np.isfinite(a)) and np.all(np.isfinite(g))):
+            break
+        if p.size == 0:
+            return _end(p, f, 1, nfev, njev, tol, limit)
+        largest = np.maximum(largest, np.diag(a))
+        scale = damping_scale(largest, p, g, lo, hi)
+        cost = float(f @ f)
+        variance = 1.0 if dof is None else cost / max(dof, 1)
+        variance = max(variance, 1.0) if weighted else variance
+        trial, decrease = lm_step(p, a, g, lam, lo, hi, np, scale)
+        if stopped(decrease, tol, variance, yy, np):
+            return _end(p, f, 1, nfev, njev, tol, limit)
+        while True:  # trial points until one lowers the cost
+            if nfev >= limit:
+                return _end(p, f, 0, nfev, njev, tol, limit)
+            ft = np.asarray(fun(trial), dtype=float)
+            nfev += 1
+            trial_cost = float(ft @ ft) if np.all(np.isfinite(ft)) else np.inf
+            step = trial - p
+            better, lam = lm_accept(
+                cost, trial_cost, lam, False, np, 2 * step @ g - step @ a @ step
+            )
+            lam = float(lam)
+            if better and not exact and cost - trial_cost <= tol**2 * variance:
+                return _end(trial, ft, 3, nfev, njev, tol, limit)
+            if better:
+                break
+            if _no_lower_cost(step, a, decrease, trial_cost - cost, tol**2 * variance, cost):
+                return _end(p, f, 2, nfev, njev, tol, limit)
+            if lam >= DAMPING_RANGE[1]:
+                return _end(p, f, -1, nfev, njev, tol, limit)
+            trial, _ = lm_step(p, a, g, lam, lo, hi, np, scale)
+        p, f = trial, ft
+    return _end(p, f, -2, nfev, njev, tol, limit)
+
+
+def _no_lower_cost(
+    step: np.ndarray, a: np.ndarray, decrease: float, rise: float, limit: float, cost: float
+) -> bool:
+    """Whether a trial ``step`` that did not lower the cost ends the iterations: it is within
+    the tolerance (its squared A-norm, in standard errors, at most ``limit``) and the cost
+    rose by no more than the local quadratic model allows (10 times its bound
+    2 sqrt(decrease) |step|_A + |step|_A^2, plus rounding). The optimum is then within about
+    the step: an approximate Jacobian (the polish's frozen one) leaves a Gauss-Newton step of
+    its own error there, which the rule of :func:`stopped` would wait for in vain. A step
+    that changes the cost far more than the model says (a parameter whose column has
+    vanished) ends nothing."""
+    size = float(step @ a @ step)
+    allowed = 10 * (2 * np.sqrt(max(decrease, 0.0) * size) + size) + 1e-12 * cost
+    return size <= limit and rise <= allowed
+
+
+def _end(
+    p: np.ndarray, f: np.ndarray, status: int, nfev: int, njev: int, tol: float, limit: int
+) -> Iterations:
+    message = STOPS[status].format(tol=tol, limit=limit)
+    if p.size == 0 and status == 1:
+        message = "no free parameter"
+    return Iterations(p, f, 0.5 * float(f @ f), status, message, nfev, njev)
 
 
 # --------------------------------------------------------------------------------------
@@ -234,9 +448,17 @@ __all__ = [
     "at_bounds",
     "damped_step",
     "update_damping",
+    "damping_scale",
+    "reduced",
     "gauss_newton_decrease",
     "stopped",
     "step_in_stderr",
+    "lm_step",
+    "lm_accept",
+    "STOPS",
+    "NFEV_PER_PARAMETER",
+    "Iterations",
+    "levenberg_marquardt",
     "nnls_small",
     "ldl",
     "ldl_solve",

@@ -239,7 +239,8 @@ def fit_reference(table, *, fixed=None, black=None, max_nfev=None, progress=None
     table : measurement table (DataFrame or CSV path, docs/measurements.md).
     fixed : parameters held at given values, e.g. ``{"eta": 1.5}``.
     black : black-cloth table subtracted first (a clear medium normally has none).
-    max_nfev : limit on function evaluations of each least-squares run (None: scipy's).
+    max_nfev : limit on function evaluations of each least-squares run (None: 100 per free
+        parameter).
     progress : called as progress(stage, done, total) while fitting.
     brdf_model, options : the BRDF family (a registered name; default the paper's
         Torrance-Sparrow) and its options.

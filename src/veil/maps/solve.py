@@ -75,8 +75,9 @@ class _PixelSolver:
     """The per-pixel solve for q scales and d axes of ``sizes`` nodes (``weighted``: data
     with noise weights; ``near``: tables with two field axes first, each pixel at its own
     field coordinates, docs/maps.md "Geometry"). Its functions are of one pixel (or a batch:
-    :meth:`batch`, :meth:`resume`, which :func:`_solver` compiles). The rules - damping,
-    bounds, stopping, covariance and rank - are :mod:`veil.fitting.least_squares`'."""
+    :meth:`batch`, :meth:`resume`, which :func:`_solver` compiles). The step and the rules -
+    damping, bounds, stopping, covariance and rank - are :mod:`veil.fitting.least_squares`'
+    (:func:`~veil.fitting.least_squares.lm_step`, the single fits' step too)."""
 
     def __init__(self, q: int, d: int, sizes: tuple, weighted: bool, near: bool) -> None:
         self.q, self.d, self.sizes, self.weighted, self.near = q, d, sizes, weighted, near
@@ -127,25 +128,23 @@ class _PixelSolver:
         return jnp.concatenate([s, u]), val, jac
 
     def iterate(self, coef, fu, y, w, state):
-        """One Levenberg-Marquardt iteration of a pixel (one evaluation of the spline); a
-        pixel whose reduced Gauss-Newton step is below LM_TOL standard errors is frozen."""
+        """One Levenberg-Marquardt iteration of a pixel (one evaluation of the spline), by
+        :func:`veil.fitting.least_squares.lm_step` and ``lm_accept``; a pixel whose reduced
+        Gauss-Newton step is below LM_TOL standard errors is frozen."""
         it, p, lam, cost, val, jac, _ = state
         r = (y - val) * w
         jw = jac * w[:, None]
         a, g = jw.T @ jw, jw.T @ r
         variance = 1.0 if self.weighted else cost / self.dof(w)
-        dec = lsq.gauss_newton_decrease(p, a, g, self.lo, self.hi, jnp)
+        proposed, dec = lsq.lm_step(p, a, g, lam, self.lo, self.hi, jnp)
         now = lsq.stopped(dec, LM_TOL, variance, (y * w) @ (y * w), jnp)
-        step = lsq.damped_step(a, g, lam, jnp)
-        trial, tval, tjac = self.refit(
-            coef, fu, y, w,
-            lsq.project(p + jnp.where(jnp.isfinite(step), step, 0.0), self.lo, self.hi, jnp))
+        trial, tval, tjac = self.refit(coef, fu, y, w, proposed)
         tr = (y - tval) * w
         tcost = tr @ tr
-        better = (tcost < cost) & ~now
-        return (it + jnp.where(now, 0, 1), jnp.where(better, trial, p),
-                lsq.update_damping(lam, better, now, jnp), jnp.where(better, tcost, cost),
-                jnp.where(better, tval, val), jnp.where(better, tjac, jac), now)
+        better, lam = lsq.lm_accept(cost, tcost, lam, now, jnp)
+        return (it + jnp.where(now, 0, 1), jnp.where(better, trial, p), lam,
+                jnp.where(better, tcost, cost), jnp.where(better, tval, val),
+                jnp.where(better, tjac, jac), now)
 
     def dof(self, w):
         return jnp.maximum(jnp.sum(w > 0) - self.n, 1)
