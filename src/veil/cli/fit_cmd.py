@@ -79,6 +79,31 @@ def _step_through_medium_options(ranked_kind: str):
     return decorate
 
 
+#: Steps 1 and 2 by the kind of model they fit: the step and what its table holds.
+_THROUGH_MEDIUM = {"medium": ("step 1, medium", "reference (in the medium)"),
+                   "brdf": ("step 2, target", "target (in the medium)")}
+
+
+def _fit_through_medium(ctx, fit_step, kind: str, table, given, output, *, fix, free, black,
+                        models, channel, **fit_options) -> None:
+    """``veil fit medium`` and ``veil fit target``: ``fit_step`` (veil.fitting's fit_medium
+    or fit_target) of the ``kind`` model to ``table`` through the medium, ``given`` the
+    (model held, file or preset it was read from) - the reference's f_r or the medium; the
+    result written to ``output``. ``fit_options``: the accuracy, the evaluation budget, the
+    model error and the propagation, as the command received them."""
+    model, source = given
+    check_output_path(output, [table, black] + ([source] if os.path.exists(source) else []))
+    step, what = _THROUGH_MEDIUM[kind]
+
+    def fit(family, options, fixed, freed, progress):
+        return fit_step(table, model, fixed=fixed, black=black, progress=progress,
+                        options=options, free=freed, channel=channel,
+                        **{f"{kind}_model": family}, **fit_options)
+
+    result = _fit_step(ctx, kind, step, models, fit, (table, black, channel), what, fix, free)
+    _write_fit(ctx, result, output)
+
+
 def _per_candidate(items, cands, parse, option: str) -> dict:
     """{candidate label: ``parse(items of its family's parameters, family)``} for a ranked
     fit: each NAME=VALUE (or NAME) applies to the candidates that declare the parameter; one
@@ -288,24 +313,14 @@ def reference_command(ctx, table, output, fix, black, max_nfev, merl, channel, s
               "'veil models', e.g. forward-series' s, the exposure factor); repeatable.")
 @_step_channel_option
 @_step_through_medium_options("medium")
-def medium_command(ctx, table, reference, output, fix, free, black, accuracy, max_nfev,
-                   model_error, propagation, models, channel):
+def medium_command(ctx, table, reference, output, models, **opts):
     """Step 1: fit the medium (default the paper's Td, Tt, g, eta) to the reference measured
     in it."""
-    ref = load_reference(reference, models)
-    inputs = [table, black] + ([reference] if os.path.exists(reference) else [])
-    check_output_path(output, inputs)
     from ..fitting import fit_medium
 
-    def fit(family, options, fixed, freed, progress):
-        return fit_medium(table, ref, fixed=fixed, black=black, accuracy=accuracy,
-                          max_nfev=max_nfev, progress=progress, medium_model=family,
-                          options=options, free=freed, model_error=model_error,
-                          propagation=propagation, channel=channel)
-
-    result = _fit_step(ctx, "medium", "step 1, medium", models, fit, (table, black, channel),
-                       "reference (in the medium)", fix, free)
-    _write_fit(ctx, result, output)
+    ref = load_reference(reference, models)
+    _fit_through_medium(ctx, fit_medium, "medium", table, (ref, reference), output,
+                        models=models, **opts)
 
 
 @fit_command.command("target")
@@ -322,8 +337,7 @@ def medium_command(ctx, table, reference, output, fix, free, black, accuracy, ma
               "models'); repeatable.")
 @_step_channel_option
 @_step_through_medium_options("brdf")
-def target_command(ctx, table, medium, output, fix, free, black, accuracy, max_nfev,
-                   model_error, propagation, models, channel):
+def target_command(ctx, table, medium, output, models, channel, **opts):
     """Step 2: fit the target's f_r (default Torrance-Sparrow) through the fitted medium.
     A JSON --medium keeps its own model and options (a contradicting option is an error)."""
     med = load_medium(medium, models)
@@ -337,19 +351,10 @@ def target_command(ctx, table, medium, output, fix, free, black, accuracy, max_n
         if given.options().get(k) != v:
             raise UserError(f"--{k} {v} but {medium} has {k} {given.options().get(k)}; "
                             f"leave --{k} out to use the medium's")
-    inputs = [table, black] + ([medium] if os.path.exists(medium) else [])
-    check_output_path(output, inputs)
     from ..fitting import fit_target
 
-    def fit(family, options, fixed, freed, progress):
-        return fit_target(table, med, fixed=fixed, black=black, accuracy=accuracy,
-                          max_nfev=max_nfev, progress=progress, brdf_model=family,
-                          options=options, free=freed, model_error=model_error,
-                          propagation=propagation, channel=channel)
-
-    result = _fit_step(ctx, "brdf", "step 2, target", models, fit, (table, black, channel),
-                       "target (in the medium)", fix, free)
-    _write_fit(ctx, result, output)
+    _fit_through_medium(ctx, fit_target, "brdf", table, (med, medium), output,
+                        models=models, channel=channel, **opts)
 
 
 def print_pipeline(result) -> None:
