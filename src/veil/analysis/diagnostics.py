@@ -30,7 +30,7 @@ import numpy as np
 
 from ..errors import FitError, InputTypeError
 from ..fitting.joint import build, shareable
-from ..fitting.problem import ITERATION_ACCURACY, session_problem
+from ..fitting.problem import ITERATION_ACCURACY, Problem, session_problem
 from ..fitting.result import FitResult, JointResult
 from ..fitting.solver import covariance, solve, weighted_jacobian
 from ..models import BRDF, REGISTRY, Medium, Model
@@ -222,40 +222,49 @@ def problem_for(result: FitResult, data, *, medium=None, reference=None, black=N
             raise FitError(f"a {step} fit (clear water) has no medium or reference to include")
         return session_problem(data, cast(BRDF, model), None, free=free, black=black,
                                what=f"{step} (clear medium)"), notes
-    if step == "target":
-        if reference is not None:
-            raise FitError("a target fit (step 2) takes --medium, not --reference")
-        other, other_result = _as_model(medium, "medium")
-        if other is None:
-            other = result.given_model()
-            if other is None:
-                raise FitError("the target result does not name its medium: give medium=")
-            notes.append("the medium is taken as exact (give the medium's fit result to "
-                         "include its uncertainty)")
-        problem = session_problem(data, cast(BRDF, model), other, free=free, black=black,
-                                  what="target (in the medium)")
-        if other_result is not None:
-            _add_prior(problem, other_result, "medium")
-    elif step == "medium":
-        if medium is not None:
-            raise FitError("a medium fit (step 1) takes --reference, not --medium")
-        other, other_result = _as_model(reference, "brdf")
-        if other is None:
-            other = result.given_model()
-            if other is None:
-                raise FitError("the medium result does not name its reference: give reference=")
-            notes.append("the reference's f_r is taken as exact (give the reference's fit "
-                         "result to include its uncertainty)")
-        problem = session_problem(data, other, cast(Medium, model), free=free, black=black,
-                                  what="reference (in the medium)")
-        if other_result is not None:
-            _add_prior(problem, other_result, "reference")
+    if step in _THROUGH_MEDIUM:
+        problem = _through_medium(result, data, step, {"medium": medium, "reference": reference},
+                                  free, black, notes)
     else:
         raise FitError(f"cannot diagnose a result of step {step!r}")
     if problem.n_points != result.n_points:
         raise FitError(f"the data have {problem.n_points} points but the fit used "
                        f"{result.n_points}: give the table (and black cloth) of that fit")
     return problem, notes
+
+
+#: The steps through the medium by their name in a result: (the step's number, the argument
+#: naming the model held, that model's kind and words, the argument the step does not take,
+#: what the table holds).
+_THROUGH_MEDIUM = {
+    "target": (2, "medium", "medium", "the medium", "reference", "target (in the medium)"),
+    "medium": (1, "reference", "brdf", "the reference's f_r", "medium",
+               "reference (in the medium)"),
+}
+
+
+def _through_medium(result: FitResult, data, step: str, given: dict, free, black,
+                    notes: list) -> Problem:
+    """The problem of step 1 or 2: the fitted model through (or of) the model held, which
+    ``given`` names (a FitResult joins with its prior, a model is exact) or else the
+    result's own ``given`` model, exact (said in ``notes``)."""
+    number, name, kind, words, other_name, what = _THROUGH_MEDIUM[step]
+    if given[other_name] is not None:
+        raise FitError(f"a {step} fit (step {number}) takes --{name}, not --{other_name}")
+    other, other_result = _as_model(given[name], kind)
+    if other is None:
+        other = result.given_model()
+        if other is None:
+            raise FitError(f"the {step} result does not name its {name}: give {name}=")
+        notes.append(f"{words} is taken as exact (give the {name}'s fit result to include "
+                     f"its uncertainty)")
+    model = result.as_model()
+    brdf, medium = (other, model) if kind == "brdf" else (model, other)
+    problem = session_problem(data, cast(BRDF, brdf), cast(Medium, medium), free=free,
+                              black=black, what=what)
+    if other_result is not None:
+        _add_prior(problem, other_result, name)
+    return problem
 
 
 def _add_prior(problem, other: FitResult, what):
