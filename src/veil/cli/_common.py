@@ -275,6 +275,29 @@ propagation_option = click.option(
          "docs/fitting.md).")
 
 
+def rotation_options(candidate: bool = False):
+    """The protocol's rotations (veil.data.protocol.rho_values, its defaults): --fine-step,
+    --window, --coarse-step and --limit; ``candidate``: the steps of a design's candidates."""
+    step = "Candidate rotation step" if candidate else "Rotation step"
+    options = (
+        click.option("--fine-step", type=float, default=1.0, show_default=True,
+                     help=f"{step} near the mirror configuration, degrees."),
+        click.option("--window", type=float, default=10.0, show_default=True,
+                     help="Half-width of the dense region around rho = 0, degrees."),
+        click.option("--coarse-step", type=float, default=5.0, show_default=True,
+                     help=f"{step} outside the window, degrees."),
+        click.option("--limit", type=float, default=85.0, show_default=True,
+                     help="Keep configurations with both |theta_i| and |theta_r| below this, "
+                          "degrees."))
+
+    def decorate(command):
+        for option in reversed(options):
+            command = option(command)
+        return command
+
+    return decorate
+
+
 def model_options(kinds=("brdf", "medium"), auto_kinds=()):
     """Click options for the model families of ``kinds`` and every option the registered
     families of those kinds declare; the command receives them as ``models``
@@ -405,10 +428,24 @@ def _convert(value: str, opt):
     return value
 
 
+def fix_value(option: str, item: str, name: str, text: str, fixed: dict) -> float:
+    """The VALUE ``text`` of the ``NAME=VALUE`` ``item`` of ``option`` (``--fix``): a finite
+    number, and ``name`` not in ``fixed`` yet, or a UserError saying which."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise UserError(f"{option} {item!r}: {text.strip()!r} is not a number") from None
+    if not math.isfinite(value):
+        raise UserError(f"{option} {item!r}: {text.strip()!r} is not a finite number")
+    if name in fixed:
+        raise UserError(f"{option}: {name} is fixed twice")
+    return value
+
+
 def parse_fix(items, cls, option="--fix") -> dict:
     """``NAME=VALUE`` strings -> {name: value}, names and values checked against ``cls``'s
     declared parameters."""
-    fixed = {}
+    fixed: dict[str, float] = {}
     names = cls.param_names()
     for item in items:
         name, sep, text = item.partition("=")
@@ -419,14 +456,7 @@ def parse_fix(items, cls, option="--fix") -> dict:
         if name not in names:
             raise UserError(f"{option} {item!r}: {cls.NAME} has no parameter {name!r}; "
                             f"its parameters are {', '.join(names)}")
-        try:
-            value = float(text)
-        except ValueError:
-            raise UserError(f"{option} {item!r}: {text.strip()!r} is not a number") from None
-        if not math.isfinite(value):
-            raise UserError(f"{option} {item!r}: {text.strip()!r} is not a finite number")
-        if name in fixed:
-            raise UserError(f"{option}: {name} is fixed twice")
+        value = fix_value(option, item, name, text, fixed)
         try:
             cls.param(name).check(value, cls.__name__)
         except ValueError as exc:

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import click
 
-from ._common import UserError, check_output_path, model_options
+from ._common import UserError, check_output_path, model_options, rotation_options
 
 
 def _floats(text, option):
@@ -89,14 +89,7 @@ def _plan_table(plan):
               help="Number of measurements in the plan.")
 @click.option("--psi", default="30,45,60,75,90,105,120", show_default=True, metavar="DEG,...",
               help="Candidate relative angles between light and camera, degrees.")
-@click.option("--fine-step", type=float, default=1.0, show_default=True,
-              help="Candidate rotation step near the mirror configuration, degrees.")
-@click.option("--window", type=float, default=10.0, show_default=True,
-              help="Half-width of the dense region around rho = 0, degrees.")
-@click.option("--coarse-step", type=float, default=5.0, show_default=True,
-              help="Candidate rotation step outside the window, degrees.")
-@click.option("--limit", type=float, default=85.0, show_default=True,
-              help="Keep configurations with both |theta| below this, degrees.")
+@rotation_options(candidate=True)
 @click.option("--noise", type=click.FloatRange(min=0), default=0.01, show_default=True,
               help="Relative noise of a measurement (0.01 = 1 %).")
 @click.option("--noise-floor", type=click.FloatRange(min=0), default=0.0, show_default=True,

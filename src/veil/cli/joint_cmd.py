@@ -8,7 +8,6 @@ mistakes.
 
 from __future__ import annotations
 
-import math
 import os
 from pathlib import Path
 
@@ -17,6 +16,7 @@ import click
 from ._common import (
     UserError,
     check_output_path,
+    fix_value,
     model_error_option,
     model_options,
     propagation_option,
@@ -79,21 +79,13 @@ def load_sessions(target_items, reference_items, black_items) -> tuple[list, lis
 
 
 def parse_joint_fix(items) -> dict:
-    fixed = {}
+    fixed: dict[str, float] = {}
     for item in items:
         name, sep, text = item.partition("=")
         name = name.strip()
         if not sep or not name:
             raise UserError(f"--fix {item!r}: expected NAME=VALUE, e.g. 'Td[low]=1e-3' or eta=1.5")
-        try:
-            value = float(text)
-        except ValueError:
-            raise UserError(f"--fix {item!r}: {text.strip()!r} is not a number") from None
-        if not math.isfinite(value):
-            raise UserError(f"--fix {item!r}: {text.strip()!r} is not a finite number")
-        if name in fixed:
-            raise UserError(f"--fix: {name} is fixed twice")
-        fixed[name] = value
+        fixed[name] = fix_value("--fix", item, name, text, fixed)
     return fixed
 
 

@@ -8,7 +8,15 @@ from pathlib import Path
 
 import click
 
-from ._common import GLOW_LEVEL, TABLE_FORMS, UserError, check_output_path, model_options, parse_psi
+from ._common import (
+    GLOW_LEVEL,
+    TABLE_FORMS,
+    UserError,
+    check_output_path,
+    model_options,
+    parse_psi,
+    rotation_options,
+)
 
 
 def _same_file(a: Path, b: Path) -> bool:
@@ -115,14 +123,7 @@ def _channel_models(model_b, model_m, channels: str | None, per_channel) -> dict
               help="Angle columns to write: goniometer = psi,rho plus the signed in-plane "
                    "theta_i,theta_r they imply; inplane = signed theta_i,theta_r; full = "
                    "theta_i,phi_i,theta_r,phi_r. All in degrees.")
-@click.option("--fine-step", type=float, default=1.0, show_default=True,
-              help="Rotation step near the mirror configuration, degrees.")
-@click.option("--window", type=float, default=10.0, show_default=True,
-              help="Half-width of the dense region around rho = 0, degrees.")
-@click.option("--coarse-step", type=float, default=5.0, show_default=True,
-              help="Rotation step outside the window, degrees.")
-@click.option("--limit", type=float, default=85.0, show_default=True,
-              help="Keep configurations with both |theta_i| and |theta_r| below this, degrees.")
+@rotation_options()
 @click.option("--accuracy", type=click.Choice(["fast", "default", "high"]), default="default",
               show_default=True, help="Quadrature level of the apparent reflectance.")
 @click.option("--merl", "merl", type=click.Path(exists=True, dir_okay=False, path_type=Path),
