@@ -12,6 +12,7 @@ show that the rule catches it."""
 from __future__ import annotations
 
 import ast
+import inspect
 import pathlib
 import re
 
@@ -204,9 +205,17 @@ def _imports_of(node, path: pathlib.Path, root: pathlib.Path):
         yield node.lineno, base + module + [a.name]
 
 
+def _rank(module: str):
+    """The layer of a dotted module name: its rank in LAYERS (a planted tree's unknown
+    package is a layer of its own)."""
+    layer = _layer(module.split("."))
+    return RANK.get(layer, layer)
+
+
 def import_loops(root: pathlib.Path = ROOT) -> list[list[str]]:
-    """The loops of the import graph whose modules are all of one layer (each loop once, as
-    the modules round it); a loop across layers is an upward import, caught above."""
+    """The loops of the import graph whose modules are all of one layer - one package, or
+    packages of the same rank such as fitting/ and maps/ (each loop once, as the modules
+    round it); a loop across layers is an upward import, caught above."""
     graph = import_graph(root)
     loops, seen = [], set()
     for start in sorted(graph):
@@ -216,7 +225,7 @@ def import_loops(root: pathlib.Path = ROOT) -> list[list[str]]:
             for nxt in sorted(graph.get(node, ())):
                 if nxt == start:
                     key = frozenset(trail)
-                    if key not in seen and len({_layer(m.split(".")) for m in trail}) == 1:
+                    if key not in seen and len({_rank(m) for m in trail}) == 1:
                         seen.add(key)
                         loops.append(trail)
                 elif nxt not in trail and nxt > start:
@@ -254,6 +263,18 @@ def test_an_import_loop_within_a_layer_is_caught(tmp_path):
         "from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from .result import report\n"
         "text = 'x'\n")
     assert import_loops(root) == []
+
+
+def test_an_import_loop_between_packages_of_one_layer_is_caught(tmp_path):
+    """fitting/ and maps/ are one layer: neither import goes up, but the two make a loop;
+    so do two modules of the lowest layer (io and numbers)."""
+    root = _tree(tmp_path, {
+        "fitting/solver.py": "from ..maps.solve import step\n",
+        "maps/solve.py": "from veil.fitting import solver\nstep = 1\n",
+        "io.py": "from .numbers import json_float\n",
+        "numbers.py": "def json_float(x):\n    from .io import write\n    return x\n",
+    })
+    assert sorted(import_loops(root)) == [["fitting.solver", "maps.solve"], ["io", "numbers"]]
 
 
 # --------------------------------------------------------------------------------------
@@ -374,43 +395,71 @@ def test_a_one_letter_parameter_name_in_a_code_path_is_caught(tmp_path):
 # --------------------------------------------------------------------------------------
 # the public API says what it returns
 # --------------------------------------------------------------------------------------
-def missing_return_annotations(names=None) -> list[str]:
-    """The functions of ``veil.__all__``, and the public methods of its classes defined in
-    veil, without a return annotation."""
-    import inspect
-
-    import veil
-
-    missing = []
-    for name in names if names is not None else veil.__all__:
-        obj = getattr(veil, name)
+def _public_functions(module, names) -> list:
+    """(label, function) of the functions among ``names`` of ``module`` and the public
+    methods (static and class methods too) of its classes defined in veil."""
+    out = []
+    for name in names:
+        obj = getattr(module, name)
         if inspect.isfunction(obj):
-            members = [(name, obj)]
+            out.append((name, obj))
         elif inspect.isclass(obj) and obj.__module__.startswith("veil."):
-            members = [(f"{name}.{m}", f) for m, f in vars(obj).items()
-                       if not m.startswith("_") and inspect.isfunction(
-                           f.__func__ if isinstance(f, staticmethod | classmethod) else f)]
-        else:
-            continue
-        for label, f in members:
-            f = f.__func__ if isinstance(f, staticmethod | classmethod) else f
-            if "return" not in f.__annotations__:
-                missing.append(label)
-    return missing
+            for m, f in vars(obj).items():
+                f = f.__func__ if isinstance(f, staticmethod | classmethod) else f
+                if not m.startswith("_") and inspect.isfunction(f):
+                    out.append((f"{name}.{m}", f))
+    return out
+
+
+def public_packages(root: pathlib.Path = ROOT) -> list[str]:
+    """veil and its subpackages (veil.fitting, veil.maps, ...) that declare ``__all__``."""
+    found = ["veil"]
+    for init in sorted(root.glob("*/__init__.py")):
+        if re.search(r"^__all__\b", init.read_text(), re.M):
+            found.append(f"veil.{init.parent.name}")
+    return found
+
+
+def missing_return_annotations(names=None, package: str = "veil") -> list[str]:
+    """The functions of ``package.__all__`` (default veil's), and the public methods of its
+    classes defined in veil, without a return annotation: their labels, a subpackage's
+    prefixed by its name."""
+    import importlib
+
+    module = importlib.import_module(package)
+    prefix = "" if package == "veil" else package.removeprefix("veil.") + "."
+    return [prefix + label
+            for label, f in _public_functions(module, names if names is not None
+                                              else module.__all__)
+            if "return" not in f.__annotations__]
 
 
 def test_public_api_has_return_annotations():
-    assert not missing_return_annotations()
+    packages = public_packages()
+    assert {"veil", "veil.fitting", "veil.models"} <= set(packages), packages
+    missing = [m for package in packages for m in missing_return_annotations(package=package)]
+    assert not missing, missing
 
 
 def test_a_public_function_without_a_return_annotation_is_caught(monkeypatch):
     import veil
+    import veil.fitting
 
     def unannotated(x):
         return x
 
+    class Solver:
+        def run(self) -> None: ...
+
+        @classmethod
+        def load(cls, path): ...
+
+    Solver.__module__ = "veil.fitting.solver"
     monkeypatch.setattr(veil, "unannotated", unannotated, raising=False)
+    monkeypatch.setattr(veil.fitting, "Solver", Solver, raising=False)
     assert missing_return_annotations(["apparent", "unannotated"]) == ["unannotated"]
+    assert missing_return_annotations(["fit_target", "Solver"], "veil.fitting") == [
+        "fitting.Solver.load"]
 
 
 #: The sizes docs/architecture.md promises: lines per module, lines per function.

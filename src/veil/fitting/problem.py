@@ -258,7 +258,7 @@ class Problem:
         idx = np.array([self.index(n) for n in names])
         self.prior = (idx, np.asarray(mean, dtype=float), np.linalg.inv(chol))
 
-    def prior_rows(self, x):
+    def prior_rows(self, x) -> tuple[np.ndarray, np.ndarray]:
         """Prior residuals (k,) and their Jacobian (k, P) w.r.t. all natural parameters."""
         if self.prior is None:
             return np.zeros(0), np.zeros((0, len(self.params)))
@@ -302,7 +302,7 @@ class Problem:
         return np.array([a for a, _ in pairs]), np.array([b for _, b in pairs])
 
     # -- evaluation ----------------------------------------------------------------------
-    def split(self, block: Block, x):
+    def split(self, block: Block, x) -> tuple[np.ndarray, np.ndarray | None]:
         return x[block.ib], (None if block.im is None else x[block.im])
 
     def model_values(self, x, accuracy=ITERATION_ACCURACY) -> np.ndarray:
@@ -333,7 +333,8 @@ class Problem:
             out.append(tuple(kinds))
         return tuple(out)
 
-    def value_and_jacobian(self, x, accuracy=ITERATION_ACCURACY, columns=None):
+    def value_and_jacobian(self, x, accuracy=ITERATION_ACCURACY,
+                           columns=None) -> tuple[np.ndarray, np.ndarray]:
         """Model values (N,) and d values / d (global parameters) (N, P), unweighted.
 
         ``columns``: the global parameter indices (or a boolean mask) the caller reads; the

@@ -395,7 +395,7 @@ class JointResult(FitResult):
         return cls.from_params({p.name: self.params[names[p.key]] for p in cls.PARAMS},
                                self._options("medium"))
 
-    def as_model(self, channel: str | None = None):
+    def as_model(self, channel: str | None = None) -> Model:
         """The target's BRDF (what :meth:`FitResult.as_model` gives for a step-2 fit)."""
         if channel is not None:
             raise FitError(f"channel {channel!r}: a joint fit is of one channel")
