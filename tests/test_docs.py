@@ -341,6 +341,49 @@ def _resolves(dotted: str) -> bool:
     return False
 
 
+def unnamed_modules(tree: str, src: Path = ROOT / "src" / "veil") -> list[str]:
+    """The modules of ``src`` that the source tree drawn in docs/architecture.md (``tree``,
+    its first code block) does not name: a package's module in the package's entry (from
+    its line ``  pkg/`` to the next entry at that indent), a top-level one in any top-level
+    entry; left out: ``__init__.py``, ``__main__.py`` and the commands (``cli/*_cmd.py``,
+    "one module per command")."""
+    entries: dict[str, str] = {}
+    name = ""
+    for line in tree.splitlines():
+        if re.match(r"  \S", line):
+            head = line.split()[0]
+            name = head.rstrip("/") if head.endswith("/") else ""
+        entries[name] = entries.get(name, "") + line + "\n"
+    missing = []
+    for path in sorted(src.rglob("*.py")):
+        rel = path.relative_to(src)
+        if path.name in ("__init__.py", "__main__.py") or path.name.endswith("_cmd.py"):
+            continue
+        package = rel.parts[0] if len(rel.parts) > 1 else ""
+        if not re.search(rf"(?<![\w/]){re.escape(path.name)}\b", entries.get(package, "")):
+            missing.append(str(rel))
+    return missing
+
+
+def test_architecture_names_every_module():
+    text = (ROOT / "docs" / "architecture.md").read_text()
+    tree = text.split("```")[1]
+    assert tree.startswith("\nsrc/veil/"), tree[:40]
+    assert not unnamed_modules(tree), unnamed_modules(tree)
+
+
+def test_an_unnamed_module_is_caught(tmp_path):
+    for rel in ("io.py", "fitting/solver.py", "fitting/steps.py", "maps/solve.py",
+                "cli/fit_cmd.py", "cli/_common.py"):
+        (tmp_path / rel).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / rel).write_text("")
+    tree = ("src/veil/\n  io.py   atomic writes\n  fitting/   estimation\n"
+            "    solver.py   the fits (not maps' solve.py)\n  maps/   per pixel\n"
+            "  cli/    one module per command\n")
+    assert unnamed_modules(tree, tmp_path) == ["cli/_common.py", "fitting/steps.py",
+                                                "maps/solve.py"]
+
+
 def test_named_python_objects_exist():
     """Every `veil.x.y` a page or the README names in code marks is a module or an object
     of veil today (a module moved or renamed breaks this, not the reader)."""
