@@ -65,14 +65,35 @@ def _write_fit(ctx, result, output) -> None:
     finish_fits(ctx, [result], [output])
 
 
-def _step_through_medium_options(ranked_kind: str):
-    """The options a step through the medium shares (steps 1 and 2): the black cloth, the
-    accuracy, the evaluation budget, the model error, the propagation and the models (the
-    fitted one, ``ranked_kind``, may be ``auto``)."""
+_BRDF_FIX_HELP = ("Hold a parameter of the BRDF (e.g. eta=1.5; 'veil models' lists them) at "
+                  "VALUE; repeatable.")
+#: The help of the options steps 1 and 2 word differently, by the kind of model they fit:
+#: what -o holds, --fix and --free.
+_STEP_HELP = {
+    "medium": ("the fitted medium", "Hold a parameter of the medium (e.g. g=0.9; 'veil models' "
+               "lists them) at VALUE; repeatable.", "Fit a parameter the medium model holds by "
+               "default (held ones are marked in 'veil models', e.g. forward-series' s, the "
+               "exposure factor); repeatable."),
+    "brdf": ("the fitted target f_r", _BRDF_FIX_HELP, "Fit a parameter the BRDF family holds "
+             "by default (marked held in 'veil models'); repeatable."),
+}
+
+
+def _step_through_medium_options(ranked_kind: str, given):
+    """The arguments and options of a step through the medium (steps 1 and 2): the TABLE,
+    the ``given`` model's option, the output, --fix and --free of the fitted model (of kind
+    ``ranked_kind``), the channel, the black cloth, the accuracy, the evaluation budget, the
+    model error, the propagation and the models (the fitted one may be ``auto``)."""
+    output, fix, free = _STEP_HELP[ranked_kind]
+
     def decorate(command):
         for option in (click.pass_context, model_options(auto_kinds=(ranked_kind,)),
                        propagation_option, model_error_option, _max_nfev_option,
-                       _accuracy_option, _black_option):
+                       _accuracy_option, _black_option, _step_channel_option,
+                       _free_option(free), _fix_option(fix),
+                       click.option("-o", "--output", required=True, type=OUT_FILE,
+                                    help=f"JSON file for {output} (written atomically)."),
+                       given, click.argument("table", type=IN_FILE)):
             command = option(command)
         return command
 
@@ -263,8 +284,7 @@ def merl_table(merl, channel, sampling):
 @click.argument("table", type=IN_FILE, required=False)
 @click.option("-o", "--output", required=True, type=OUT_FILE,
               help="JSON file for the fitted f_r (written atomically).")
-@_fix_option("Hold a parameter of the BRDF (e.g. eta=1.5; 'veil models' lists them) at "
-             "VALUE; repeatable.")
+@_fix_option(_BRDF_FIX_HELP)
 @_black_option
 @_max_nfev_option
 @_merl_option
@@ -300,19 +320,10 @@ def reference_command(ctx, table, output, fix, black, max_nfev, merl, channel, s
 
 
 @fit_command.command("medium")
-@click.argument("table", type=IN_FILE)
-@click.option("--reference", "reference", required=True, metavar="REF",
-              help="The reference's f_r: a JSON file from 'veil fit reference', a preset "
-                   "(BRDF1, BRDF2) or a literal list of the BRDF's parameters (PD,PS,N,ETA "
-                   "for the paper's).")
-@click.option("-o", "--output", required=True, type=OUT_FILE,
-              help="JSON file for the fitted medium (written atomically).")
-@_fix_option("Hold a parameter of the medium (e.g. g=0.9; 'veil models' lists them) at VALUE; "
-             "repeatable.")
-@_free_option("Fit a parameter the medium model holds by default (held ones are marked in "
-              "'veil models', e.g. forward-series' s, the exposure factor); repeatable.")
-@_step_channel_option
-@_step_through_medium_options("medium")
+@_step_through_medium_options("medium", click.option(
+    "--reference", "reference", required=True, metavar="REF",
+    help="The reference's f_r: a JSON file from 'veil fit reference', a preset (BRDF1, BRDF2) "
+         "or a literal list of the BRDF's parameters (PD,PS,N,ETA for the paper's)."))
 def medium_command(ctx, table, reference, output, models, **opts):
     """Step 1: fit the medium (default the paper's Td, Tt, g, eta) to the reference measured
     in it."""
@@ -324,19 +335,10 @@ def medium_command(ctx, table, reference, output, models, **opts):
 
 
 @fit_command.command("target")
-@click.argument("table", type=IN_FILE)
-@click.option("--medium", "medium", required=True, metavar="MEDIUM",
-              help="The medium's f_t: a JSON file from 'veil fit medium', a preset (BTDF1, "
-                   "BTDF2, BTDF3) or a literal list of the medium's parameters (TD,TT,G,ETA "
-                   "for the paper's).")
-@click.option("-o", "--output", required=True, type=OUT_FILE,
-              help="JSON file for the fitted target f_r (written atomically).")
-@_fix_option("Hold a parameter of the BRDF (e.g. eta=1.5; 'veil models' lists them) at "
-             "VALUE; repeatable.")
-@_free_option("Fit a parameter the BRDF family holds by default (marked held in 'veil "
-              "models'); repeatable.")
-@_step_channel_option
-@_step_through_medium_options("brdf")
+@_step_through_medium_options("brdf", click.option(
+    "--medium", "medium", required=True, metavar="MEDIUM",
+    help="The medium's f_t: a JSON file from 'veil fit medium', a preset (BTDF1, BTDF2, "
+         "BTDF3) or a literal list of the medium's parameters (TD,TT,G,ETA for the paper's)."))
 def target_command(ctx, table, medium, output, models, channel, **opts):
     """Step 2: fit the target's f_r (default Torrance-Sparrow) through the fitted medium.
     A JSON --medium keeps its own model and options (a contradicting option is an error)."""
