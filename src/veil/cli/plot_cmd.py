@@ -11,10 +11,17 @@ from .render_cmd import output_path
 FIGURE_SUFFIXES = (".png", ".pdf", ".svg")
 
 
-def _theta_i(value):
-    if not 0.0 <= value < 90.0:
-        raise UserError(f"--theta-i {value:g} deg is outside [0, 90)")
-    return value
+_theta_i_option = click.option("--theta-i", type=float, default=45.0, show_default=True,
+                               help="Incidence angle, degrees.")
+_output_option = click.option("-o", "--output", required=True,
+                              help="Output figure (.png, .pdf or .svg).")
+
+
+def _check(theta_i, output) -> None:
+    """The incidence angle in [0, 90) and the figure's file name (FIGURE_SUFFIXES)."""
+    if not 0.0 <= theta_i < 90.0:
+        raise UserError(f"--theta-i {theta_i:g} deg is outside [0, 90)")
+    output_path(output, FIGURE_SUFFIXES, "output")
 
 
 def _save(fig, output):
@@ -37,26 +44,23 @@ def plot_command():
 @plot_command.command("lobe")
 @click.option("--brdf", "brdfs", multiple=True, required=True,
               help="Object (repeatable): preset or 'PD,PS,N,ETA'.")
-@click.option("--theta-i", type=float, default=45.0, show_default=True,
-              help="Incidence angle, degrees.")
-@click.option("-o", "--output", required=True, help="Output figure (.png, .pdf or .svg).")
+@_theta_i_option
+@_output_option
 @model_options(("brdf",))
 def lobe(brdfs, theta_i, output, models):
     """Reflection lobe f_r (as the paper's fig. 9): in and out of the plane of incidence."""
     from ..viz.figures import fig9
 
     models = [models.brdf_model(b) for b in brdfs]
-    _theta_i(theta_i)
-    output_path(output, FIGURE_SUFFIXES, "output")
+    _check(theta_i, output)
     _save(fig9(models, theta_i), output)
 
 
 @plot_command.command("transmission")
 @click.option("--medium", "media", multiple=True, required=True,
               help="Medium (repeatable): preset or 'TD,TT,G,ETA'.")
-@click.option("--theta-i", type=float, default=45.0, show_default=True,
-              help="Incidence angle, degrees.")
-@click.option("-o", "--output", required=True, help="Output figure (.png, .pdf or .svg).")
+@_theta_i_option
+@_output_option
 @model_options(("medium",))
 def transmission(media, theta_i, output, models):
     """Transmission lobe f_t (as the paper's fig. 10) against the transmitted direction."""
@@ -65,8 +69,7 @@ def transmission(media, theta_i, output, models):
     models = [models.medium_model(m) for m in media]
     if any(m is None for m in models):
         raise UserError("--medium none has no transmission lobe; give a preset or 'TD,TT,G,ETA'")
-    _theta_i(theta_i)
-    output_path(output, FIGURE_SUFFIXES, "output")
+    _check(theta_i, output)
     _save(fig10(models, theta_i), output)
 
 
@@ -75,14 +78,13 @@ def transmission(media, theta_i, output, models):
               help="Object (repeatable): preset or 'PD,PS,N,ETA'.")
 @click.option("--medium", "media", multiple=True, default=("none",), show_default=True,
               help="Medium (repeatable): preset, 'TD,TT,G,ETA' or 'none' (clear).")
-@click.option("--theta-i", type=float, default=45.0, show_default=True,
-              help="Incidence angle, degrees.")
+@_theta_i_option
 @click.option("--scale", type=click.Choice(["log", "linear", "peak", "tt2"]), default="log",
               show_default=True,
               help="y axis: log or linear f; peak: each curve over its own peak; tt2: f / T_t^2.")
 @click.option("--accuracy", type=click.Choice(["fast", "default", "high"]), default="default",
               show_default=True, help="Quadrature of the engine.")
-@click.option("-o", "--output", required=True, help="Output figure (.png, .pdf or .svg).")
+@_output_option
 @model_options()
 def curve(brdfs, media, theta_i, scale, accuracy, output, models):
     """Observed value against reflection angle in the plane of incidence (as fig. 11)."""
@@ -90,8 +92,7 @@ def curve(brdfs, media, theta_i, scale, accuracy, output, models):
 
     b_models = [models.brdf_model(b) for b in brdfs]
     m_models = [models.medium_model(m) for m in media]
-    _theta_i(theta_i)
-    output_path(output, FIGURE_SUFFIXES, "output")
+    _check(theta_i, output)
     curves = [inplane_curve(b, m, theta_i, accuracy=accuracy) for b in b_models for m in m_models]
     for c in curves:
         med = "clear" if c.medium is None else str(c.medium)
