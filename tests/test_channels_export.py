@@ -1,0 +1,238 @@
+"""Colour out of veil (issue 30, item 5; docs/interop.md "Colour", docs/channels.md): a
+result fitted over the channels r, g, b exported as one RGB material and medium (Mitsuba 3
+``rgb``, pbrt-v4 RGB spectra) whose per-channel values are the channels' own, checked
+channel by channel by rendering; the MERL reader's three channels; colour renders.
+
+Expected values come from the definitions in docs/interop.md (rho / ks, tau / path length,
+the MERL scales), computed here from the models' parameters."""
+
+from __future__ import annotations
+
+import re
+
+import numpy as np
+import pandas as pd
+import pytest
+from support.cli import run
+
+import veil
+from veil.fitting.channel_fit import channel_layout
+from veil.fitting.result import FitResult
+from veil.models import model_class
+from veil.models.renderers import Plugin, Unsupported, Value
+
+PLASTIC = model_class("rough-plastic")
+CONDUCTOR = model_class("rough-conductor")
+SERIES = model_class("forward-series")
+RGB = ("r", "g", "b")
+
+
+def channel_result(models: dict, path, channels_key=True):
+    """A result file of a fit over the channels of ``models`` ({channel: model}, one
+    family), its parameters named as a multi-channel fit names them (``rho[r]``, ``alpha``)."""
+    first = next(iter(models.values()))
+    cls = type(first)
+    slots, layout = channel_layout(cls, list(models), cls.KIND)
+    params: dict = {}
+    for s in slots:
+        owners = list(models) if s.owner == "*" else [s.owner]
+        values = {models[c].as_dict()[s.spec.name] for c in owners}
+        assert len(values) == 1, f"{s.name} is shared but differs"
+        params[s.name] = values.pop()
+    FitResult(model=cls.NAME, params=params, stderr={k: None for k in params},
+              correlation={}, residuals=(0.0,), chi2_reduced=1.0, rms_relative=0.01,
+              n_points=10, converged=True, message="", options=first.options(),
+              channels=layout if channels_key else None).to_json(path)
+    return path
+
+
+def _plates():
+    return {c: PLASTIC(rho=r, alpha=0.1, eta=1.5, ks=k)
+            for c, r, k in zip(RGB, (0.5, 0.8, 1.2), (2.0, 2.0, 1.6))}
+
+
+def _waters():
+    return {c: SERIES(tau=t, omega=w, g=0.9, path_length=15.0, plate_width=5.0)
+            for c, t, w in zip(RGB, (0.45, 0.3, 0.15), (0.95, 0.97, 0.99))}
+
+
+def _xml_rgb(text: str, name: str) -> list[float]:
+    found = re.search(rf'<rgb name="{name}" value="([^"]+)"/>', text) or re.search(
+        rf'<texture type="srgb" name="{name}"><rgb name="color" value="([^"]+)"/>', text)
+    assert found, name
+    return [float(x) for x in found.group(1).split(",")]
+
+
+# -- the scene text -------------------------------------------------------------------------
+
+def test_rgb_export_values_are_each_channels_own(tmp_path):
+    plates, waters = _plates(), _waters()
+    plate = channel_result(plates, tmp_path / "plate.json")
+    water = channel_result(waters, tmp_path / "water.json")
+    out = run("export", plate, water, "--to", "mitsuba", "-o", tmp_path / "s.xml")
+    assert out.exit_code == 0, out.output
+    text = (tmp_path / "s.xml").read_text()
+    # each channel divided by its own specular scale: the interface is physical in each
+    assert _xml_rgb(text, "diffuse_reflectance") == [plates[c].rho / plates[c].ks for c in RGB]
+    assert '<float name="specular_reflectance" value="1.0"/>' in text
+    assert '<float name="alpha" value="0.1"/>' in text    # shared: one number
+    assert _xml_rgb(text, "sigma_t") == pytest.approx([waters[c].tau / 15.0 for c in RGB],
+                                                      rel=1e-15)
+    assert _xml_rgb(text, "albedo") == [0.95, 0.97, 0.99]
+    assert "r 2.0, g 2.0, b 1.6" in text and "1.6" in out.output
+    # the dict form loads the same values
+    out = run("export", plate, water, "--to", "mitsuba", "--format", "dict", "-o",
+              tmp_path / "s.py")
+    space: dict = {}
+    exec((tmp_path / "s.py").read_text(), space)
+    bsdf = space["scene"]["veil_material"]
+    diffuse = [plates[c].rho / plates[c].ks for c in RGB]
+    assert bsdf["diffuse_reflectance"] == {"type": "rgb", "value": diffuse}
+    assert space["scene"]["veil_medium"]["albedo"]["value"] == [0.95, 0.97, 0.99]
+    # pbrt-v4: RGB spectra; sigma_a + sigma_s = sigma_t and sigma_s / sigma_t = omega per channel
+    ggx = {c: m.replace(distribution="ggx") for c, m in plates.items()}
+    out = run("export", channel_result(ggx, tmp_path / "ggx.json"), water, "--to", "pbrt",
+              "-o", tmp_path / "s.pbrt")
+    assert out.exit_code == 0, out.output
+    pbrt = (tmp_path / "s.pbrt").read_text()
+
+    def rgb(name):
+        return [float(x) for x in pbrt.split(f'"rgb {name}" [ ')[1].split(" ]")[0].split()]
+
+    assert rgb("reflectance") == diffuse
+    sa, ss = np.array(rgb("sigma_a")), np.array(rgb("sigma_s"))
+    np.testing.assert_allclose(sa + ss, [0.03, 0.02, 0.01], rtol=1e-14)
+    np.testing.assert_allclose(ss / (sa + ss), [0.95, 0.97, 0.99], rtol=1e-14)
+
+
+def test_rgb_export_above_one_and_conductor_spectra(tmp_path):
+    """A diffuse value above 1 is an unbounded sRGB texture in Mitsuba (its plain rgb is a
+    reflectance, refused above 1); a conductor's n, k become RGB spectra in pbrt."""
+    from veil.interop.colour import export_colour
+
+    plates = {c: PLASTIC(rho=r, alpha=0.2, eta=1.4, ks=1.0) for c, r in zip(RGB, (0.3, 0.9, 1.3))}
+    text = export_colour({c: [m] for c, m in plates.items()}).text
+    assert ('<texture type="srgb" name="diffuse_reflectance"><rgb name="color" '
+            'value="0.3, 0.9, 1.3"/><boolean name="unbounded" value="true"/></texture>') in text
+    assert "channel b: rho / scale = 1.3 > 1 is not a physical albedo" in text
+    metals = {c: CONDUCTOR(alpha=0.2, n=n, k=k, ks=1.0, distribution="ggx")
+              for c, n, k in zip(RGB, (0.2, 0.9, 1.1), (3.0, 2.5, 2.0))}
+    pbrt = export_colour({c: [m] for c, m in metals.items()}, "pbrt").text
+    assert '"rgb eta" [ 0.2 0.9 1.1 ]' in pbrt and '"rgb k" [ 3.0 2.5 2.0 ]' in pbrt
+
+
+def test_a_value_the_renderer_takes_once_must_be_shared():
+    from veil.interop.colour import merge_plugins
+
+    per = {c: Plugin("bsdf", "roughplastic", (Value("alpha", "float", a),
+                                              Value("diffuse_reflectance", "float", 0.5, True)))
+           for c, a in zip(RGB, (0.1, 0.1, 0.2))}
+    with pytest.raises(Unsupported, match="takes one alpha for every colour.*b 0.2"):
+        merge_plugins(per, "mitsuba")
+
+
+def test_rgb_export_bad_input(tmp_path):
+    plate = channel_result(_plates(), tmp_path / "plate.json")
+    # wavelength channels are not the renderer's RGB
+    waves = channel_result({"450": _plates()["b"], "550": _plates()["g"]}, tmp_path / "w.json")
+    out = run("export", waves, "--to", "mitsuba", "-o", tmp_path / "x.xml")
+    assert out.exit_code == 2
+    assert "w.json: channels 450, 550" in out.output and "--channel NAME" in out.output
+    # two results of different channels: both named
+    out = run("export", plate, channel_result({c: _waters()[c] for c in "rg"},
+                                              tmp_path / "rg.json"),
+              "--to", "mitsuba", "-o", tmp_path / "x.xml")
+    assert out.exit_code == 2 and "plate.json is a fit of channels r, g, b" in out.output
+    assert "rg.json" in out.output
+    out = run("export", plate, "--channel", "450", "--to", "mitsuba", "-o", tmp_path / "x.xml")
+    assert out.exit_code == 2 and "has no channel '450'" in out.output
+    # the input is never the output
+    before = plate.read_bytes()
+    out = run("export", plate, "--to", "mitsuba", "-o", plate)
+    assert out.exit_code == 2 and plate.read_bytes() == before
+    assert not (tmp_path / "x.xml").exists()
+
+
+def test_one_channel_of_a_colour_result_and_a_grey_medium(tmp_path):
+    plates = _plates()
+    plate = channel_result(plates, tmp_path / "plate.json")
+    out = run("export", plate, "--channel", "g", "--to", "mitsuba", "-o", tmp_path / "g.xml")
+    assert out.exit_code == 0, out.output
+    one = veil.interop.export.export([plates["g"]], "mitsuba").text
+    assert (tmp_path / "g.xml").read_text().split("<scene")[1] == one.split("<scene")[1]
+    # a medium of one channel beside a plate of three: every channel's medium
+    grey = tmp_path / "grey.json"
+    FitResult(model=SERIES.NAME, params=_waters()["g"].as_dict(),
+              stderr={k: None for k in _waters()["g"].as_dict()}, correlation={},
+              residuals=(0.0,), chi2_reduced=1.0, rms_relative=0.01, n_points=10,
+              converged=True, message="", options=_waters()["g"].options()).to_json(grey)
+    out = run("export", plate, grey, "--to", "mitsuba", "-o", tmp_path / "s.xml")
+    assert out.exit_code == 0, out.output
+    assert "grey.json is a fit of one channel: its model is every channel's" in out.output
+    text = (tmp_path / "s.xml").read_text()
+    assert f'<float name="sigma_t" value="{0.3 / 15.0!r}"/>' in text
+
+
+def test_rgb_csv_curves(tmp_path):
+    plates = _plates()
+    out = run("export", channel_result(plates, tmp_path / "plate.json"), "--to", "csv",
+              "-o", tmp_path / "c.csv", "--psi", "60")
+    assert out.exit_code == 0, out.output
+    table = pd.read_csv(tmp_path / "c.csv")
+    assert list(table["channel"].unique()) == list(RGB)
+    cols = ["theta_i", "theta_r", "phi_i", "phi_r"]
+    for c in RGB:
+        part = table[table["channel"] == c]
+        np.testing.assert_allclose(part["value"],
+                                   veil.reflectance(plates[c], *part[cols].to_numpy().T),
+                                   rtol=1e-14)
+
+
+# -- rendered by Mitsuba, channel by channel ----------------------------------------------------
+
+@pytest.fixture(scope="module")
+def mi():
+    return pytest.importorskip("mitsuba")
+
+
+def test_verify_each_channel_and_catch_a_wrong_one(mi):
+    """Each channel of one render against veil's curve of that channel: the plastic within
+    Mitsuba's known F_int difference (1.5-1.7 % RMS measured), the conductor to float32
+    (7e-7); a conductor whose green index is written wrong fails in green alone."""
+    from veil.data.protocol import protocol
+    from veil.interop.colour import export_colour
+    from veil.interop.verify import verify_channels
+
+    cfg = protocol((30, 90), fine_step=5.0, coarse_step=20.0)[
+        ["theta_i", "theta_r", "phi_i", "phi_r"]].to_numpy()
+    plates = _plates()
+    done = export_colour({c: [m] for c, m in plates.items()})
+    checks = verify_channels(done.text, done.scales,
+                             {c: veil.reflectance(m, *cfg.T) for c, m in plates.items()}, cfg)
+    for c in RGB:
+        assert 0.005 < checks[c].rms_relative < 0.02 and checks[c].max_relative < 0.022
+    metals = {c: CONDUCTOR(alpha=0.1, n=n, k=k, ks=s)
+              for c, n, k, s in zip(RGB, (0.2, 0.9, 1.1), (3.0, 2.5, 2.0), (3.0, 2.0, 1.0))}
+    done = export_colour({c: [m] for c, m in metals.items()})
+    predicted = {c: veil.reflectance(m, *cfg.T) for c, m in metals.items()}
+    checks = verify_channels(done.text, done.scales, predicted, cfg)
+    assert all(checks[c].rms_relative < 1e-5 for c in RGB)
+    # the renders differ per channel as veil's curves do (not one channel copied)
+    peak = int(np.argmax(predicted["r"]))
+    seen = np.array([checks[c].rendered[peak] / done.scales[c] for c in RGB])
+    assert np.ptp(seen) > 0.05 * seen.max()
+    assert _xml_rgb(done.text, "eta") == [0.2, 0.9, 1.1]
+    wrong = done.text.replace('value="0.2, 0.9, 1.1"', 'value="0.2, 0.6, 1.1"')
+    assert wrong.count("0.2, 0.6, 1.1") == 1
+    checks = verify_channels(wrong, done.scales, predicted, cfg)
+    assert checks["g"].rms_relative > 0.05
+    assert checks["r"].rms_relative < 1e-5 and checks["b"].rms_relative < 1e-5
+
+
+def test_cli_verify_prints_each_channel(mi, tmp_path):
+    out = run("export", channel_result(_plates(), tmp_path / "plate.json"), "--to", "mitsuba",
+              "-o", tmp_path / "p.xml", "--verify", "--psi", "60")
+    assert out.exit_code == 0, out.output
+    rms = {c: float(out.output.split(f"channel {c}: Mitsuba")[1].split("from veil ")[1]
+                    .split(" %")[0]) for c in RGB}
+    assert all(0.3 < v < 2.2 for v in rms.values()), rms
