@@ -236,3 +236,72 @@ def test_cli_verify_prints_each_channel(mi, tmp_path):
     rms = {c: float(out.output.split(f"channel {c}: Mitsuba")[1].split("from veil ")[1]
                     .split(" %")[0]) for c in RGB}
     assert all(0.3 < v < 2.2 for v in rms.values()), rms
+
+
+# -- MERL: the three channels ------------------------------------------------------------------
+
+#: Raw values of a Lambertian MERL file, one per channel.
+LAMBERT = {"r": 300.0, "g": 500.0, "b": 200.0}
+
+
+def _lambert(tmp_path):
+    from veil.data import merl
+
+    path = tmp_path / "lambert.binary"
+    merl.write_merl(path, np.stack([np.full((90, 90, 180), LAMBERT[c]) for c in RGB]))
+    return path
+
+
+def test_merl_channels_table_is_the_three_channels(tmp_path):
+    from veil.data import merl
+
+    data = np.stack([np.full((90, 90, 180), 1000.0 + 100 * k) for k in range(3)])
+    data[:, 47, 25, 179] += [1.0, 2.0, 3.0]   # theta_i 0, theta_r 51 deg in the plane
+    merl.write_merl(tmp_path / "m.binary", data)
+    brdf = merl.read_merl(tmp_path / "m.binary")
+    table = merl.channels_table(brdf, sampling="inplane")
+    assert list(table.columns[-3:]) == ["channel", "value", "sigma"]
+    assert list(dict.fromkeys(table["channel"])) == list(RGB) and len(table) == 3 * 18 * 35
+    for k, c in enumerate(RGB):
+        part = table[table["channel"] == c]
+        one = merl.measurement_table(brdf, c, "inplane")
+        np.testing.assert_array_equal(part["value"].to_numpy(), one["value"].to_numpy())
+        # the hand-computed cell of that channel (tests/test_interop.py's index formulas)
+        assert float(merl.reflectance(brdf, c, 0.0, 51.0)) == pytest.approx(
+            (1000 + 100 * k + 1 + k) * merl.SCALES[c], rel=1e-15)
+    with pytest.raises(veil.errors.InputError, match="a MERL file has the channels r, g, b"):
+        merl.channels_table(brdf, ["r", "450"])
+
+
+def test_fit_reference_from_merl_fits_the_three_channels(tmp_path):
+    out = run("fit", "reference", "--merl", _lambert(tmp_path), "--sampling", "inplane",
+              "-o", tmp_path / "rgb.json")
+    assert out.exit_code == 0, out.output
+    result = veil.fitting.result.load_result(tmp_path / "rgb.json")
+    assert result.channel_names == RGB and result.n_points == 3 * 18 * 35
+    from veil.data.merl import SCALES
+
+    for c in RGB:   # the paper's Pd: f_r = Pd cos theta_i, the specular part vanishing
+        assert result.params[f"Pd[{c}]"] == pytest.approx(LAMBERT[c] * SCALES[c], rel=1e-6)
+    # one channel as before
+    out = run("fit", "reference", "--merl", _lambert(tmp_path), "--channel", "b",
+              "--sampling", "inplane", "-o", tmp_path / "b.json")
+    b = veil.fitting.result.load_result(tmp_path / "b.json")
+    assert b.channels is None and b.params["Pd"] == pytest.approx(200 * SCALES["b"], rel=1e-6)
+
+
+def test_simulate_from_merl_channels(tmp_path):
+    out = run("simulate", "--merl", _lambert(tmp_path), "--channels", "r,g,b", "--medium",
+              "none", "--noise", "0", "--psi", "60", "-o", tmp_path / "s.csv")
+    assert out.exit_code == 0, out.output
+    assert "channels r, g, b fitted at once" in out.output
+    table = pd.read_csv(tmp_path / "s.csv")
+    from veil.data.merl import SCALES
+
+    v = {c: table.loc[table["channel"] == c, "value"].to_numpy() for c in RGB}
+    for c in RGB:
+        np.testing.assert_allclose(v[c] / v["g"], LAMBERT[c] * SCALES[c]
+                                   / (LAMBERT["g"] * SCALES["g"]), rtol=1e-5)
+    out = run("simulate", "--merl", _lambert(tmp_path), "--channels", "r,550", "--medium",
+              "none", "-o", tmp_path / "x.csv")
+    assert out.exit_code == 2 and "lambert.binary: channels r, 550" in out.output
