@@ -305,3 +305,47 @@ def test_simulate_from_merl_channels(tmp_path):
     out = run("simulate", "--merl", _lambert(tmp_path), "--channels", "r,550", "--medium",
               "none", "-o", tmp_path / "x.csv")
     assert out.exit_code == 2 and "lambert.binary: channels r, 550" in out.output
+
+
+# -- veil render in colour ---------------------------------------------------------------------
+
+def test_colour_render_is_each_channels_sphere(tmp_path):
+    """Each channel of the RGB image is the sphere under that channel's model (the same
+    numbers as a grey render of it); the channels differ as the models do."""
+    from PIL import Image
+
+    from veil.viz.render import render
+
+    plates = _plates()
+    plate = channel_result(plates, tmp_path / "plate.json")
+    out = run("render", "--brdf", plate, "--size", "32", "--quiet", "-o", tmp_path / "c.png",
+              "--linear", tmp_path / "c.npy")
+    assert out.exit_code == 0, out.output
+    assert "channel b: RoughPlastic(rho=1.2" in out.output and "median lit luminance" in out.output
+    image = np.load(tmp_path / "c.npy")
+    assert image.shape == (32, 32, 3)
+    for k, c in enumerate(RGB):
+        np.testing.assert_array_equal(image[..., k],
+                                      render(plates[c], None, size=32).image.astype(np.float32))
+    png = Image.open(tmp_path / "c.png")
+    assert png.mode == "RGB" and png.size == (32, 32)
+    rgb = np.asarray(png).reshape(-1, 3)
+    assert np.ptp(rgb.mean(axis=0)) > 10      # coloured, not grey
+    # one channel of the result: the grey render of that channel's model
+    out = run("render", "--brdf", plate, "--channel", "b", "--size", "32", "--quiet", "-o",
+              tmp_path / "b.png", "--linear", tmp_path / "b.npy")
+    assert out.exit_code == 0, out.output
+    np.testing.assert_array_equal(np.load(tmp_path / "b.npy"), image[..., 2])
+    assert Image.open(tmp_path / "b.png").mode == "L"
+
+
+def test_colour_render_bad_input(tmp_path):
+    waves = channel_result({"450": _plates()["b"], "550": _plates()["g"]}, tmp_path / "w.json")
+    out = run("render", "--brdf", waves, "--size", "16", "-o", tmp_path / "x.png")
+    assert out.exit_code == 2 and "needs the channels r, g, b; got 450, 550" in out.output
+    out = run("render", "--brdf", "BRDF1", "--channel", "r", "-o", tmp_path / "x.png")
+    assert out.exit_code == 2 and "--channel r" in out.output
+    water = channel_result(_waters(), tmp_path / "water.json")
+    out = run("render", "--brdf", water, "-o", tmp_path / "x.png")
+    assert out.exit_code == 2 and "a medium result; expected a BRDF result" in out.output
+    assert not (tmp_path / "x.png").exists()

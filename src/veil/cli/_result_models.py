@@ -70,10 +70,12 @@ def _model(result, key, channel):
     return result.as_model()
 
 
-def result_models(result_path, other_path=None, channel: str | None = None) -> ResultModels:
+def result_models(
+    result_path, other_path=None, channel: str | None = None, given: bool = True
+) -> ResultModels:
     """The BRDF and medium of ``result_path`` and the optional ``other_path`` (one of each
-    kind at most; a target result brings the medium it was fitted through, a medium result
-    its reference BRDF), channel by channel (module docstring)."""
+    kind at most; with ``given``, a target result brings the medium it was fitted through, a
+    medium result its reference BRDF), channel by channel (module docstring)."""
     from ..fitting.result import load_result
 
     loaded = [(result_path, load_result(result_path))]
@@ -95,7 +97,7 @@ def result_models(result_path, other_path=None, channel: str | None = None) -> R
             if medium is not None:
                 raise UserError(f"{path}: a second medium result; give one BRDF and one medium")
             medium = models
-    if other_path is None:
+    if other_path is None and given:
         brdf, medium = _with_given(loaded[0][1], keys, channel, brdf, medium)
     source = str(result_path) + (f" and {other_path}" if other_path is not None else "")
     return ResultModels(brdf, medium, source, keys, notes)
