@@ -3,7 +3,6 @@
 
 from __future__ import annotations
 
-import io
 import os
 
 import click
@@ -81,11 +80,13 @@ def render_command(brdf, medium, channel, light_theta, light_phi, size, exposure
     for note in notes:
         click.echo(note, err=True)
     if None not in b:
-        from .render_colour import render_rgb
+        from .render_output import render_rgb
 
         render_rgb(b, m, light_theta, light_phi, size, exposure, tone, samples, accuracy, check,
                    linear_path, output, quiet)
         return
+    from .render_output import report, write_images
+
     b, m = b[None], None if m is None else m[None]
     result = render(b, m, light_theta, light_phi, size, accuracy=accuracy, samples=samples,
                     check=check, progress=not quiet)
@@ -102,32 +103,6 @@ def render_command(brdf, medium, channel, light_theta, light_phi, size, exposure
     how = "automatic: median lit pixel -> 0.18" if auto else "given"
     report(f"exposure {exp_used:.6g} ({how})", tone, (n_clip, frac, peak_fs), output,
            linear_path, result.seconds)
-
-
-def write_images(output, png: bytes, linear_path, image) -> None:
-    """The PNG and, when asked, the linear values (float32 .npy): both files or neither."""
-    from ..io import write_many_atomic
-
-    files = {output: png}
-    if linear_path is not None:
-        buf = io.BytesIO()
-        np.save(buf, image.astype(np.float32))
-        files[linear_path] = buf.getvalue()
-    write_many_atomic(files)
-
-
-def report(exposure: str, tone: str, clipped, output, linear_path, seconds: float) -> None:
-    """The lines after the render's summary: exposure and tone, clipping, files written."""
-    n_clip, frac, peak_fs = clipped
-    click.echo(f"{exposure}, tone curve {tone}; peak = {peak_fs:.3g} x full scale")
-    if tone == "clip":
-        if n_clip:
-            click.echo(f"highlights clip: {n_clip} pixels ({100 * frac:.2g} % of the lit ones) "
-                       f"are above white")
-        else:
-            click.echo("nothing clips")
-    click.echo(f"wrote {output}" + (f" and {linear_path}" if linear_path else "")
-               + f" in {seconds:.1f} s")
 
 
 def _is_file(text: str) -> bool:

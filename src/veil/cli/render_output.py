@@ -1,11 +1,44 @@
-"""``veil render`` of results fitted over the channels r, g, b: each channel's sphere as the
-red, green and blue of one RGB image (:mod:`veil.viz.render_colour`, docs/figures.md)."""
+"""What ``veil render`` writes and prints: the image files, the lines after the render's
+summary, and the render of results fitted over the channels r, g, b (each channel's sphere
+as the red, green and blue of one RGB image, :mod:`veil.viz.render_colour`,
+docs/figures.md)."""
 
 from __future__ import annotations
 
+import io
+
 import click
 
-from .render_cmd import report, write_images
+from .._lazy import np
+
+
+def write_images(output, png: bytes, linear_path, image) -> None:
+    """The PNG and, when asked, the linear values (float32 .npy): both files or neither."""
+    from ..io import write_many_atomic
+
+    files = {output: png}
+    if linear_path is not None:
+        buf = io.BytesIO()
+        np.save(buf, image.astype(np.float32))
+        files[linear_path] = buf.getvalue()
+    write_many_atomic(files)
+
+
+def report(exposure: str, tone: str, clipped, output, linear_path, seconds: float) -> None:
+    """The lines after the render's summary: exposure and tone, clipping, files written."""
+    n_clip, frac, peak_fs = clipped
+    click.echo(f"{exposure}, tone curve {tone}; peak = {peak_fs:.3g} x full scale")
+    if tone == "clip":
+        if n_clip:
+            click.echo(
+                f"highlights clip: {n_clip} pixels ({100 * frac:.2g} % of the lit ones) "
+                f"are above white"
+            )
+        else:
+            click.echo("nothing clips")
+    click.echo(
+        f"wrote {output}" + (f" and {linear_path}" if linear_path else "") + f" in {seconds:.1f} s"
+    )
 
 
 def render_rgb(
@@ -61,4 +94,4 @@ def render_rgb(
     report(f"exposure {exp_used:.6g} ({how})", tone, clipped, output, linear_path, result.seconds)
 
 
-__all__ = ["render_rgb"]
+__all__ = ["render_rgb", "write_images", "report"]
