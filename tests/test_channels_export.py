@@ -121,6 +121,27 @@ def test_rgb_export_above_one_and_conductor_spectra(tmp_path):
     assert '"rgb eta" [ 0.2 0.9 1.1 ]' in pbrt and '"rgb k" [ 3.0 2.5 2.0 ]' in pbrt
 
 
+@pytest.mark.slow
+def test_torrance_sparrow_colour_becomes_one_closest_rough_plastic(tmp_path):
+    """The paper's BRDF1 with P_d per channel: the closest rough plastic is fitted to the
+    three channels at once, so its roughness and index are one number in the file (measured:
+    alpha 0.0216, eta 1.385; 10.2-10.3 % RMS in f_r per channel, as BRDF1 alone)."""
+    ts = {c: veil.BRDF1.replace(Pd=p) for c, p in zip(RGB, (400.0, 1000.0, 2500.0))}
+    out = run("export", channel_result(ts, tmp_path / "ts.json"), "--to", "mitsuba", "-o",
+              tmp_path / "ts.xml")
+    assert out.exit_code == 0, out.output
+    rms = [float(out.output.split(f"channel {c}: rough-plastic fitted")[1]
+                 .split("in f_r ")[1].split(" %")[0]) for c in RGB]
+    assert all(5 < r < 15 for r in rms), rms
+    text = (tmp_path / "ts.xml").read_text()
+    closest = re.findall(r"closest rough-plastic: RoughPlastic\(rho=([^,]+), alpha=([^,]+), "
+                         r"eta=([^,]+), ks=([^,]+),", text)
+    assert len(closest) == 3 and len({(a, e) for _, a, e, _ in closest}) == 1
+    rho = [float(r) / float(k) for r, _, _, k in closest]
+    assert _xml_rgb(text, "diffuse_reflectance") == pytest.approx(rho, rel=1e-5)
+    assert rho[0] < rho[1] < rho[2]
+
+
 def test_a_value_the_renderer_takes_once_must_be_shared():
     from veil.interop.colour import merge_plugins
 
