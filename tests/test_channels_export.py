@@ -370,3 +370,69 @@ def test_colour_render_bad_input(tmp_path):
     out = run("render", "--brdf", water, "-o", tmp_path / "x.png")
     assert out.exit_code == 2 and "a medium result; expected a BRDF result" in out.output
     assert not (tmp_path / "x.png").exists()
+
+
+# -- veil explore in colour --------------------------------------------------------------------
+
+def test_explore_draws_each_channel_in_its_colour(tmp_path):
+    """A result fitted over r, g, b: one curve per channel (the channel's own f_r), the
+    controls edit one channel, a shared parameter follows in every channel and a per-channel
+    one does not, the sphere is the colour sphere, the shared state reopens."""
+    pytest.importorskip("panel")
+    from veil.cli.explore_cmd import load_inputs
+    from veil.viz import explore as ex
+    from veil.viz.explore_page import ExplorePage
+
+    plates = _plates()
+    state, _ = load_inputs([channel_result(plates, tmp_path / "plate.json")], None, None)
+    assert list(state.channels) == list(RGB) and state.channel == "r"
+    page = ExplorePage(state.with_model(None, "medium"), share_dir=tmp_path, background=False)
+
+    def plotted(c):
+        data = page.views.channels.src[c].data
+        x = np.asarray(data["x"])
+        ti, pi_, tr, pr = ex.curve_angles("incidence", state.theta_i, state.psi, x)
+        return np.asarray(data["clear"]), ti, tr, pi_, pr
+
+    for c in RGB:
+        y, ti, tr, pi_, pr = plotted(c)
+        np.testing.assert_allclose(y, veil.reflectance(plates[c], ti, tr, pi_, pr), rtol=1e-12)
+    assert ex.channel_colour("r") != ex.channel_colour("b")
+    # a shared parameter (the roughness) moves every channel; a per-channel one (rho) one
+    cls = type(plates["r"])
+    shared = next(n for n, s in cls.channel_sharing().items() if s == "shared")
+    own = next(n for n, s in cls.channel_sharing().items() if s == "per-channel")
+    for name, factor in ((shared, 1.5), (own, 2.0)):
+        slider, spec = page.brdf.sliders[name]
+        slider.value = spec.to_slider(getattr(plates["r"], name) * factor)
+    now = {c: page.state.channels[c][0] for c in RGB}
+    for c in RGB:
+        assert getattr(now[c], shared) == pytest.approx(1.5 * getattr(plates[c], shared))
+        assert getattr(now[c], own) == pytest.approx(
+            getattr(plates[c], own) * (2.0 if c == "r" else 1.0))
+        y, ti, tr, pi_, pr = plotted(c)
+        np.testing.assert_allclose(y, veil.reflectance(now[c], ti, tr, pi_, pr), rtol=1e-12)
+    # the controls switch to channel b: its own value on the per-channel slider
+    page.channel.value = "b"
+    slider, spec = page.brdf.sliders[own]
+    assert page.state.brdf == now["b"]
+    assert spec.to_value(slider.value) == pytest.approx(getattr(plates["b"], own), rel=1e-3)
+    # the sphere in colour: each channel's sphere, distinct channels
+    image = page.views.src["sphere"].data["image"][0]
+    want, linear = ex.sphere_colour(state.with_model(None, "medium").channels, state.theta_i)
+    np.testing.assert_array_equal(image, want)
+    assert linear.shape[-1] == 3 and np.ptp(linear.reshape(-1, 3).mean(axis=0)) > 0.01
+    written = page.on_share()
+    again = ex.State.load(written)
+    assert again.channels == page.state.channels and again.channel == "b"
+
+
+def test_explore_colour_refusals(tmp_path):
+    pytest.importorskip("panel")
+    plate = channel_result(_plates(), tmp_path / "plate.json")
+    table = tmp_path / "t.csv"
+    table.write_text("theta_i,theta_r,value\n10,20,1\n")
+    out = run("explore", plate, "--data", table, "--no-browser")
+    assert out.exit_code == 2 and "the data panel shows a fit of one channel" in out.output
+    out = run("explore", plate, "--static", "-o", tmp_path / "p.html")
+    assert out.exit_code == 2 and "--static precomputes one channel's page" in out.output
