@@ -75,7 +75,7 @@ class ChannelLines:
 def channel_selector(page):
     """The widget choosing the channel that ``page``'s controls edit."""
     widget = pn.widgets.RadioButtonGroup(
-        name="channel", options=list(page.state.channels), value=page.state.channel
+        label="channel", options=list(page.state.channels), value=page.state.channel
     )
 
     def on_change(event):
