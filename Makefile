@@ -39,7 +39,9 @@ check: $(STAMP)
 # lines until they are next rewritten)
 FORMATTED := src/veil/fitting/least_squares.py src/veil/maps/__init__.py src/veil/maps/status.py \
 	src/veil/engine/store_files.py src/veil/data/roi.py tests/support tests/conftest.py \
-	benchmarks/bench_maps_optimistix.py src/veil/data/channels.py src/veil/fitting/channel_fit.py
+	benchmarks/bench_maps_optimistix.py src/veil/data/channels.py src/veil/fitting/channel_fit.py \
+	src/veil/interop/colour.py src/veil/cli/_result_models.py src/veil/cli/export_colour.py \
+	src/veil/viz/render_colour.py src/veil/cli/render_output.py src/veil/viz/explore_colour.py
 lint: $(STAMP)
 	$(PY) -m ruff check src
 	$(PY) -m ruff format --check $(FORMATTED)

@@ -208,6 +208,55 @@ def test_command_line_propagation(chain, tmp_path):
     assert saved["stats"]["propagation"]["method"] == "sigma-points"
 
 
+def test_off_moves_nothing_but_the_totals(chain):
+    """propagation="off" (how `--models auto` fits the candidates it ranks): the estimate,
+    chi-square, residuals, own standard errors and model-discrepancy term bit for bit those
+    of "auto", no total, no record; the BIC of the ranking therefore cannot change."""
+    on = fit_target(chain["target"], chain["r1"], accuracy="fast")
+    off = fit_target(chain["target"], chain["r1"], accuracy="fast", propagation="off")
+    assert on.stderr_total is not None and "propagation" in on.stats
+    assert off.stderr_total is None and "propagation" not in off.stats
+    assert off.params == on.params and off.stderr == on.stderr
+    assert off.residuals == on.residuals and off.chi2_reduced == on.chi2_reduced
+    assert off.model_error == on.model_error
+
+
+def test_auto_propagates_into_the_chosen_candidate_only():
+    """veil.pipeline._rank_step: every candidate fitted once by the screening fit, the
+    chosen one (and only it) fitted again by ``propagated``, whose result replaces it."""
+    from veil.fitting.selection import candidates
+    from veil.pipeline import _rank_step
+
+    cands = [c for c in candidates("brdf") if c.family in ("torrance-sparrow", "rough-plastic")]
+    assert len(cands) >= 2
+    data = SimpleNamespace(y=np.ones(6), sigma=None, angles=np.zeros((6, 4)))
+    rss = {c.label: 1.0 + i for i, c in enumerate(cands)}      # the first one is the best
+
+    def result(label, step):
+        return FitResult(model=label.split("[")[0], params={}, stderr={}, correlation={},
+                         residuals=(np.sqrt(rss[label] / 6),) * 6, chi2_reduced=1.0,
+                         rms_relative=0.0, n_points=6, converged=True, message="",
+                         step=step, weighted=False)
+
+    calls = []
+
+    def screened(c):
+        calls.append(("screen", c.label))
+        return result(c.label, "screened")
+
+    def propagated(c):
+        calls.append(("again", c.label))
+        return result(c.label, "propagated")
+
+    ranking, results = _rank_step("target", cands, data, screened, None, None, "target",
+                                  propagated)
+    assert ranking.chosen == cands[0].label
+    assert sorted(calls) == sorted([("screen", c.label) for c in cands]
+                                   + [("again", cands[0].label)])
+    assert results[cands[0].label].step == "propagated"
+    assert all(results[c.label].step == "screened" for c in cands[1:])
+
+
 class _LinearInU:
     """A stand-in for a fit whose estimate moves linearly in the given parameters' relative
     coordinates u (sigma_part's refits replaced by x_free = x0 + M (u - u0)): the sigma-point

@@ -400,13 +400,20 @@ def _fitted_curve(result: FitResult, data) -> np.ndarray:
     return data.y - (r * data.sigma if result.weighted and data.sigma is not None else r)
 
 
-def _rank_step(step, cands, data, fit_one, progress, curves, what):
+def _rank_step(step, cands, data, fit_one, progress, curves, what, propagated=None):
     """Fit and rank one step's candidates (:func:`veil.fitting.selection.select`); a close
-    call's ranking carries the spread of the close candidates' ``curves``."""
+    call's ranking carries the spread of the close candidates' ``curves``. With
+    ``propagated``, the candidates are fitted by ``fit_one`` without the given fit's
+    covariance (which moves no estimate, chi-square or BIC) and the chosen one again by
+    ``propagated``, with it: the derivatives in the given model are compiled and evaluated
+    for that one only."""
     ranking, results = selection.select(step, cands, data, fit_one, what, progress)
     if ranking.close_call:
         ranking = ranking.with_spread(selection.curve_spread(
             ranking, {lab: curves(results[lab]) for lab in ranking.close}))
+    if propagated is not None:
+        chosen = next(c for c in cands if c.label == ranking.chosen)
+        results = dict(results, **{ranking.chosen: propagated(chosen)})
     return ranking, results
 
 
@@ -441,7 +448,10 @@ def _select(data, plan, *, accuracy, max_nfev, progress, model_error, propagatio
     brdf_options, medium_options = plan["brdf_options"], plan["medium_options"]
     fix_b, free_b, fix_m, free_m, fix_t, free_t = (
         plan[k] for k in ("fix_b", "free_b", "fix_m", "free_m", "fix_t", "free_t"))
-    chained = {"model_error": model_error, "propagation": propagation}
+    # the candidates without the given fit's covariance, the chosen one with it; with
+    # ``keep`` (every candidate's result written out) each one with it
+    screen = propagation if keep or propagation == "off" else "off"
+    again = None if screen == propagation else propagation
     configs = protocol()
     angles = tuple(configs[c].to_numpy() for c in CANONICAL)
 
@@ -460,26 +470,28 @@ def _select(data, plan, *, accuracy, max_nfev, progress, model_error, propagatio
     rankings["reference"], kept["reference"] = ranking, results
     ref = selection.with_selection(results[ranking.chosen], ranking)
 
-    def step1(c):
+    def step1(c, chained=screen):
         return fit_medium(data["reference_medium"].table, ref, fixed=fix_m[c.label],
                           free=free_m[c.label], accuracy=accuracy, max_nfev=max_nfev,
                           medium_model=c.family, options=c.model_options(medium_options),
-                          **chained)
+                          model_error=model_error, propagation=chained)
 
     ranking, results = _rank_step("medium", plan["medium"], data["reference_medium"], step1,
                                   progress,
-                                  lambda r: _fitted_curve(r, data["reference_medium"]), "medium")
+                                  lambda r: _fitted_curve(r, data["reference_medium"]), "medium",
+                                  again and (lambda c: step1(c, again)))
     rankings["medium"], kept["medium"] = ranking, results
     med = selection.with_selection(results[ranking.chosen], ranking)
 
-    def step2(c):
+    def step2(c, chained=screen):
         return fit_target(data["target_medium"].table, med, fixed=fix_t[c.label],
                           free=free_t[c.label], accuracy=accuracy, max_nfev=max_nfev,
                           brdf_model=c.family, options=c.model_options(brdf_options),
-                          **chained)
+                          model_error=model_error, propagation=chained)
 
     ranking, results = _rank_step("target", plan["brdf"], data["target_medium"], step2,
-                                  progress, fr_curve, "target")
+                                  progress, fr_curve, "target",
+                                  again and (lambda c: step2(c, again)))
     rankings["target"], kept["target"] = ranking, results
     tgt = selection.with_selection(results[ranking.chosen], ranking)
     chosen = ranking.row(ranking.chosen)

@@ -265,14 +265,14 @@ model_error_option = click.option(
 # the methods of veil.fitting.propagation (METHODS; not imported, as above;
 # tests/test_propagation.py checks they agree)
 propagation_option = click.option(
-    "--propagation", "propagation", type=click.Choice(["auto", "linear", "sigma-points"]),
+    "--propagation", "propagation", type=click.Choice(["auto", "linear", "sigma-points", "off"]),
     default="auto", show_default=True,
     help="How the previous step's uncertainty (a joint fit: the media's) enters the total "
          "standard errors: 'linear' (first order), 'sigma-points' (the fit repeated at 2n "
          "points of that covariance, in coordinates where it is relative), 'auto' the latter "
          "where a parameter is uncertain by more than 0.25 of its scale (tau at optical "
          "depth 0.1) and at most 3 (beyond, it is not determined: first order, noted; "
-         "docs/fitting.md).")
+         "docs/fitting.md); 'off' reports the fit's own standard errors only, faster.")
 
 
 def rotation_options(candidate: bool = False):

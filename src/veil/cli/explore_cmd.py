@@ -97,6 +97,11 @@ def load_inputs(files, data, black):
         results.append(fits.check_result_kind(load_result(f), f))
     if data is not None and not results:
         raise UserError(f"--data {data}: give the fit result it belongs to (RESULT.json)")
+    channels = fits.result_channels(results, files)
+    if channels and data is not None:
+        raise UserError(f"--data {data}: the data panel shows a fit of one channel; the "
+                        f"results are fitted over channels {', '.join(channels)} (the page "
+                        f"shows their models without --data)")
     if black is not None and data is None:
         raise UserError("--black needs --data (the black cloth of the fit's table)")
     views = []
@@ -114,10 +119,13 @@ def load_inputs(files, data, black):
             raise UserError(f"--data {data} belongs to none of the results: "
                             + "; ".join(errors))
     if state is None:
-        brdf, medium = fits.models_of(results, files)
+        by_channel = {c: fits.models_of(results, files, c) for c in channels} or None
+        brdf, medium = (fits.models_of(results, files) if by_channel is None
+                        else by_channel[channels[0]])
         state = ex.State(brdf, medium, results=files,
                          data=None if data is None else os.fspath(data),
-                         black=None if black is None else os.fspath(black))
+                         black=None if black is None else os.fspath(black),
+                         channels=by_channel)
     return state, views
 
 
@@ -173,6 +181,9 @@ def explore_command(ctx, files, data, black, port, no_browser, share_dir, static
         if not os.access(share, os.W_OK):
             raise UserError(f"--share-dir {share}: folder is not writable")
     state, views = load_inputs(files, data, black)
+    if static and state.channels is not None:
+        raise UserError("--static precomputes one channel's page; results fitted over "
+                        "several channels are shown by the server (without --static)")
     if static:
         _write_static(state, views, param, points, output)
         return

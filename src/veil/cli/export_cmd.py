@@ -28,36 +28,6 @@ def _positive(name):
     return check
 
 
-def _models(result_path, other_path):
-    """(brdf, medium, source text) from one or two result files (one of each kind at most);
-    a target result brings the medium it was fitted through, a medium result its
-    reference BRDF."""
-    from ..fitting.result import load_result
-
-    results = [load_result(result_path)]
-    if other_path is not None:
-        results.append(load_result(other_path))
-    brdf = medium = None
-    for path, result in zip((result_path, other_path), results):
-        model = result.as_model()
-        if model.KIND == "brdf":
-            if brdf is not None:
-                raise UserError(f"{path}: a second BRDF result; give one BRDF and one medium")
-            brdf = model
-        else:
-            if medium is not None:
-                raise UserError(f"{path}: a second medium result; give one BRDF and one medium")
-            medium = model
-    if other_path is None:
-        given = results[0].given_model() if hasattr(results[0], "given_model") else None
-        if given is not None and given.KIND == "brdf" and brdf is None:
-            brdf = given
-        elif given is not None and given.KIND == "medium" and medium is None:
-            medium = given
-    source = str(result_path) + (f" and {other_path}" if other_path is not None else "")
-    return brdf, medium, source
-
-
 @click.command("export")
 @click.argument("result", type=IN_FILE)
 @click.argument("medium_result", metavar="[MEDIUM]", required=False, type=IN_FILE)
@@ -92,12 +62,18 @@ def _models(result_path, other_path):
                    f"{MEDIUM_SPP} through a medium).")
 @click.option("--accuracy", type=click.Choice(["fast", "default", "high"]), default="default",
               show_default=True, help="Quadrature of veil's apparent values (csv, --verify).")
+@click.option("--channel", default=None, metavar="NAME",
+              help="Export one channel of a result fitted over several (r, g, b or a "
+                   "wavelength in nm). Without it such a result of the channels r, g, b is "
+                   "written as one RGB material (docs/interop.md, \"Colour\").")
 def export_command(result, medium_result, target, output, fmt, scale, ext_ior, path_length,
-                   verify, psi, spp, accuracy):
+                   verify, psi, spp, accuracy, channel):
     """Write fitted models for a renderer, or their predicted curves as CSV.
 
     RESULT is a fit result (JSON); the optional MEDIUM a second one of the other kind (a
-    target result brings its medium along, a medium result its reference BRDF). Each model
+    target result brings its medium along, a medium result its reference BRDF). A result
+    fitted over the channels r, g, b becomes one RGB material (--verify checks each
+    channel; --to csv has a channel column); --channel NAME exports one channel. Each model
     family maps onto the renderer's own plugin where there is one (rough-plastic ->
     roughplastic, rough-conductor -> roughconductor, forward-series -> homogeneous medium
     with a Henyey-Greenstein phase function); the paper's Torrance-Sparrow BRDF becomes the
@@ -122,22 +98,26 @@ def export_command(result, medium_result, target, output, fmt, scale, ext_ior, p
         from ..interop.verify import load_mitsuba
 
         load_mitsuba()  # a missing Mitsuba is an error before any work
-    brdf, medium, source = _models(result, medium_result)
+    from ._result_models import result_models
+
+    loaded = result_models(result, medium_result, channel)
+    for note in loaded.notes:
+        click.echo(note, err=True)
     from ..io import write_text_atomic
 
     if target == "csv":
-        from ..interop.curves import curves, to_csv_text
+        _csv(loaded, psis, accuracy, output)
+        return
+    setting = Setting(scale=scale, ext_ior=ext_ior, path_length=path_length)
+    if loaded.colour:
+        from .export_colour import export_rgb
 
-        frame = curves(brdf, medium, psis, accuracy)
-        write_text_atomic(output, to_csv_text(frame))
-        both = medium is not None
-        click.echo(f"wrote {len(frame)} rows ({len(frame) // (2 if both else 1)} "
-                   f"configurations, {'with and without the medium' if both else 'no medium'}) "
-                   f"to {output}", err=True)
+        export_rgb(loaded, target, fmt, setting, output, verify, psis, spp, accuracy,
+                   medium_spp=MEDIUM_SPP, passes=PASSES)
         return
     from ..interop.export import export
 
-    setting = Setting(scale=scale, ext_ior=ext_ior, path_length=path_length)
+    brdf, medium, source = loaded.one("brdf"), loaded.one("medium"), loaded.source
     done = export([brdf, medium], target, fmt, setting, source)
     write_text_atomic(output, done.text)
     for item in done.items:
@@ -148,6 +128,23 @@ def export_command(result, medium_result, target, output, fmt, scale, ext_ior, p
                f"is written in it as comments", err=True)
     if verify:
         _verify(done, brdf, medium, psis, spp, setting, accuracy)
+
+
+def _csv(loaded, psis, accuracy, output) -> None:
+    """--to csv: the predicted curves (a channel column when there are several)."""
+    from ..interop.curves import channel_curves, curves, to_csv_text
+    from ..io import write_text_atomic
+
+    if loaded.colour:
+        frame = channel_curves(loaded.brdf, loaded.medium, psis, accuracy)
+    else:
+        frame = curves(loaded.one("brdf"), loaded.one("medium"), psis, accuracy)
+    write_text_atomic(output, to_csv_text(frame))
+    both = loaded.medium is not None
+    n = len(loaded.channels)
+    click.echo(f"wrote {len(frame)} rows ({len(frame) // (2 if both else 1) // n} "
+               f"configurations, {'with and without the medium' if both else 'no medium'}"
+               + (f", {n} channels" if loaded.colour else "") + f") to {output}", err=True)
 
 
 def _verify(done, brdf, medium, psis, spp, setting, accuracy) -> None:

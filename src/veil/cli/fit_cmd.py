@@ -258,7 +258,8 @@ _channel_option = click.option(
     "--channel", default=None, metavar="NAME",
     help="The one channel to fit of a TABLE with a channel column (r, g, b or a wavelength "
          "in nm; without it every channel is fitted at once, docs/fitting.md \"Channels\"), "
-         "or the colour channel of the --merl file (r, g or b; default g).")
+         "or the colour channel of the --merl file (r, g or b; without it the file's three "
+         "channels are fitted at once).")
 _step_channel_option = click.option(
     "--channel", default=None, metavar="NAME",
     help="The one channel to fit of a TABLE with a channel column (r, g, b or a wavelength "
@@ -274,9 +275,12 @@ _sampling_option = click.option(
 
 
 def merl_table(merl, channel, sampling):
-    """The measurement table of a MERL file's f_r (relative sigma of 1 %)."""
-    from ..data.merl import measurement_table, read_merl
+    """The measurement table of a MERL file's f_r (relative sigma of 1 %): of ``channel``,
+    or of the three channels (None)."""
+    from ..data.merl import channels_table, measurement_table, read_merl
 
+    if channel is None:
+        return channels_table(read_merl(merl), sampling=sampling)
     return measurement_table(read_merl(merl), channel, sampling)
 
 
@@ -296,7 +300,8 @@ def merl_table(merl, channel, sampling):
 def reference_command(ctx, table, output, fix, black, max_nfev, merl, channel, sampling,
                       model_error, models):
     """Step 0: fit the reference's f_r (default Torrance-Sparrow) to clear-medium data,
-    directly: a measurement TABLE, or a measured BRDF (--merl FILE --channel g)."""
+    directly: a measurement TABLE, or a measured BRDF (--merl FILE: its r, g, b channels at
+    once, or one with --channel g)."""
     if (table is None) == (merl is None):
         raise UserError("give a measurement TABLE or --merl FILE (one of the two)")
     if merl is not None and black is not None:
@@ -305,7 +310,7 @@ def reference_command(ctx, table, output, fix, black, max_nfev, merl, channel, s
     if merl is not None and channel not in (None,) + MERL_CHANNELS:
         raise UserError(f"--channel {channel!r}: a MERL file has channels "
                         f"{', '.join(MERL_CHANNELS)}")
-    data = table if merl is None else merl_table(merl, channel or "g", sampling)
+    data = table if merl is None else merl_table(merl, channel, sampling)
     one = channel if merl is None else None
     from ..fitting import fit_reference
 

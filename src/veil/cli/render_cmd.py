@@ -3,7 +3,6 @@
 
 from __future__ import annotations
 
-import io
 import os
 
 import click
@@ -21,9 +20,15 @@ def output_path(path: str, suffixes: tuple, what: str) -> str:
 
 
 @click.command("render", short_help="Render a sphere under a true or apparent BRDF.")
-@click.option("--brdf", required=True, help="Object: preset (BRDF1, BRDF2) or 'PD,PS,N,ETA'.")
+@click.option("--brdf", required=True,
+              help="Object: preset (BRDF1, BRDF2), 'PD,PS,N,ETA', or a BRDF fit result (JSON; "
+                   "one fitted over the channels r, g, b renders in colour).")
 @click.option("--medium", default="none", show_default=True,
-              help="Medium: preset (BTDF1..3), 'TD,TT,G,ETA', or 'none' for the true BRDF.")
+              help="Medium: preset (BTDF1..3), 'TD,TT,G,ETA', a medium fit result (JSON), or "
+                   "'none' for the true BRDF.")
+@click.option("--channel", default=None, metavar="NAME",
+              help="Render one channel of results fitted over several (a grey image); "
+                   "without it results of the channels r, g, b render in colour.")
 @click.option("--light-theta", type=float, default=45.0, show_default=True,
               help="Light's polar angle from the viewing direction, degrees, in [0, 120].")
 @click.option("--light-phi", type=float, default=0.0, show_default=True,
@@ -46,23 +51,23 @@ def output_path(path: str, suffixes: tuple, what: str) -> str:
               help="Pixels evaluated directly to measure the interpolation error.")
 @click.option("--linear", "linear_path", default=None,
               help="Also save the linear float values (float32) to this .npy file.")
-@click.option("-o", "--output", required=True, help="Output PNG (8-bit greyscale, sRGB).")
+@click.option("-o", "--output", required=True,
+              help="Output PNG (8-bit sRGB: greyscale, or RGB for a colour render).")
 @click.option("--quiet", is_flag=True, help="No progress display.")
 @model_options()
-def render_command(brdf, medium, light_theta, light_phi, size, exposure, tone, samples,
-                   accuracy, check, linear_path, output, quiet, models):
+def render_command(brdf, medium, channel, light_theta, light_phi, size, exposure, tone,
+                   samples, accuracy, check, linear_path, output, quiet, models):
     """Render a unit sphere lit by a distant point light, seen by an orthographic camera.
 
     Pixel value = f(I, R) cos(theta_i) at each visible, lit point with the sphere's local
     normal (paper eq. 1), f the object's BRDF or, with --medium, its apparent BRDF through
     the medium. Prints the exposure used, how many pixels clip and the measured
-    interpolation error.
+    interpolation error. Results fitted over the channels r, g, b render each channel with
+    its own model, as the red, green and blue of an RGB image (docs/figures.md).
     """
-    from ..io import write_many_atomic
     from ..viz.render import auto_exposure, check_memory, clipping, png_bytes, render, tone_map
 
-    b = models.brdf_model(brdf)
-    m = models.medium_model(medium)
+    b, m, notes = _given_models(brdf, medium, channel, models)
     output_path(output, (".png",), "output")
     if linear_path is not None:
         output_path(linear_path, (".npy",), "--linear file")
@@ -72,7 +77,17 @@ def render_command(brdf, medium, light_theta, light_phi, size, exposure, tone, s
         raise UserError(f"--exposure {exposure:g} must be a positive number")
     if 8 <= size <= 4096 and 1 <= samples <= 8:  # render() words the range errors
         check_memory(size, samples, names=("--size", "--samples"))
+    for note in notes:
+        click.echo(note, err=True)
+    if None not in b:
+        from .render_output import render_rgb
 
+        render_rgb(b, m, light_theta, light_phi, size, exposure, tone, samples, accuracy, check,
+                   linear_path, output, quiet)
+        return
+    from .render_output import report, write_images
+
+    b, m = b[None], None if m is None else m[None]
     result = render(b, m, light_theta, light_phi, size, accuracy=accuracy, samples=samples,
                     check=check, progress=not quiet)
     auto = exposure is None
@@ -82,22 +97,37 @@ def render_command(brdf, medium, light_theta, light_phi, size, exposure, tone, s
             "veil:light": f"theta {light_theta:g} deg, phi {light_phi:g} deg",
             "veil:pixel": "f(I,R) cos(theta_i), linear, then exposure, tone curve, sRGB",
             "veil:exposure": f"{exp_used:.6g}", "veil:tone": tone}
-    files = {output: png_bytes(tone_map(result.image, exp_used, tone), text)}
-    if linear_path is not None:
-        buf = io.BytesIO()
-        np.save(buf, result.image.astype(np.float32))
-        files[linear_path] = buf.getvalue()
-    write_many_atomic(files)  # both files or neither
-
+    write_images(output, png_bytes(tone_map(result.image, exp_used, tone), text), linear_path,
+                 result.image)
     click.echo(result.summary())
     how = "automatic: median lit pixel -> 0.18" if auto else "given"
-    click.echo(f"exposure {exp_used:.6g} ({how}), tone curve {tone}; peak = {peak_fs:.3g} x "
-               f"full scale")
-    if tone == "clip":
-        if n_clip:
-            click.echo(f"highlights clip: {n_clip} pixels ({100 * frac:.2g} % of the lit ones) "
-                       f"are above white")
-        else:
-            click.echo("nothing clips")
-    click.echo(f"wrote {output}" + (f" and {linear_path}" if linear_path else "")
-               + f" in {result.seconds:.1f} s")
+    report(f"exposure {exp_used:.6g} ({how})", tone, (n_clip, frac, peak_fs), output,
+           linear_path, result.seconds)
+
+
+def _is_file(text: str) -> bool:
+    return os.path.exists(text) or text.lower().endswith(".json")
+
+
+def _given_models(brdf: str, medium: str, channel, models):
+    """({channel: BRDF}, {channel: medium} or None, notes) of --brdf and --medium, presets,
+    literals or fit results (docs/channels.md); keyed None for a grey render."""
+    files = [t for t in (brdf, medium) if _is_file(t)]
+    if not files:
+        if channel is not None:
+            raise UserError(f"--channel {channel}: it names a channel of fit results (JSON); "
+                            f"--brdf and --medium are presets or literals")
+        return {None: models.brdf_model(brdf)}, {None: models.medium_model(medium)}, []
+    from ._result_models import result_models
+
+    loaded = result_models(files[0], files[1] if len(files) > 1 else None, channel, given=False)
+    keys = loaded.channels
+    if _is_file(brdf) and loaded.brdf is None:
+        raise UserError(f"--brdf {brdf}: a medium result; expected a BRDF result")
+    if _is_file(medium) and loaded.medium is None:
+        raise UserError(f"--medium {medium}: a BRDF result; expected a medium result")
+    b = loaded.brdf if _is_file(brdf) else dict.fromkeys(keys, models.brdf_model(brdf))
+    if _is_file(medium):
+        return b, loaded.medium, loaded.notes
+    m = models.medium_model(medium)
+    return b, None if m is None else dict.fromkeys(keys, m), loaded.notes

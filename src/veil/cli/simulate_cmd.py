@@ -33,12 +33,21 @@ def _nonneg(name):
     return check
 
 
-def _merl_model(merl, channel, models):
+def _merl_model(merl, channel, models, channels=None):
     """The --brdf-model family fitted to a MERL file's f_r (every in-plane configuration);
-    prints the fit's RMS relative difference."""
-    from ..data.merl import measurement_table, read_merl
+    prints the fit's RMS relative difference. With ``channels`` (--channels r,g,b): those
+    channels fitted at once, {channel: model}."""
+    from ..data.merl import channels_table, measurement_table, read_merl
     from ..fitting import fit_reference
 
+    if channels is not None:
+        names = channel_names(channels)
+        table = channels_table(read_merl(merl), names, "inplane")
+        result = fit_reference(table, brdf_model=models.brdf.NAME, options=models.brdf_options)
+        click.echo(f"{merl}: channels {', '.join(names)} fitted at once, represented by "
+                   f"{models.brdf.NAME} (RMS relative difference "
+                   f"{100 * result.rms_relative:.3g} % over {result.n_points} points)", err=True)
+        return {c: result.as_model(channel=c) for c in names}
     table = measurement_table(read_merl(merl), channel, "inplane")
     result = fit_reference(table, brdf_model=models.brdf.NAME, options=models.brdf_options)
     click.echo(f"{merl}: channel {channel} represented by {result.as_model()} (RMS relative "
@@ -47,14 +56,8 @@ def _merl_model(merl, channel, models):
     return result.as_model()
 
 
-def _channel_models(model_b, model_m, channels: str | None, per_channel) -> dict | None:
-    """{channel: (brdf, medium)} of ``--channels`` with the ``--per-channel NAME=V1,V2,...``
-    values (a parameter of the BRDF or, by its name next to the BRDF's, of the medium);
-    None without ``--channels``."""
-    if channels is None:
-        if per_channel:
-            raise UserError("--per-channel needs --channels (e.g. --channels r,g,b)")
-        return None
+def channel_names(channels: str) -> list[str]:
+    """The channels of ``--channels`` (labels as measurement tables write them)."""
     from ..data.channels import channel_label
 
     labels = [channel_label(c) for c in channels.split(",") if c.strip()]
@@ -62,6 +65,20 @@ def _channel_models(model_b, model_m, channels: str | None, per_channel) -> dict
     if not names or None in labels or len(set(names)) != len(names):
         raise UserError(f"--channels {channels!r}: expected distinct channels, comma-separated "
                         f"(r,g,b or wavelengths in nm such as 450,550,650)")
+    return names
+
+
+def _channel_models(model_b, model_m, channels: str | None, per_channel) -> dict | None:
+    """{channel: (brdf, medium)} of ``--channels`` with the ``--per-channel NAME=V1,V2,...``
+    values (a parameter of the BRDF or, by its name next to the BRDF's, of the medium);
+    None without ``--channels``. ``model_b`` may be {channel: BRDF} (a MERL file's)."""
+    if channels is None:
+        if per_channel:
+            raise UserError("--per-channel needs --channels (e.g. --channels r,g,b)")
+        return None
+    names = channel_names(channels)
+    by_channel = model_b if isinstance(model_b, dict) else dict.fromkeys(names, model_b)
+    model_b = by_channel[names[0]]
     values: dict = {}
     for item in per_channel:
         name, sep, text = item.partition("=")
@@ -81,12 +98,13 @@ def _channel_models(model_b, model_m, channels: str | None, per_channel) -> dict
                             f"object or the medium ({', '.join(known)})")
         if name in values:
             raise UserError(f"--per-channel: {name} is given twice")
-        values[name] = (owner, type(owner).param(name).name, numbers)
+        values[name] = (owner.KIND, type(owner).param(name).name, numbers)
     out = {}
     for k, channel in enumerate(names):
         pair = []
-        for model in (model_b, model_m):
-            changes = {own: vals[k] for owner, own, vals in values.values() if owner is model}
+        for model in (by_channel[channel], model_m):
+            changes = {own: vals[k] for kind, own, vals in values.values()
+                       if model is not None and kind == model.KIND}
             pair.append(None if model is None else model.replace(**changes))
         out[channel] = tuple(pair)
     return out
@@ -132,7 +150,8 @@ def _channel_models(model_b, model_m, channels: str | None, per_channel) -> dict
                    "simulated through the medium; the fit's RMS difference is printed "
                    "(docs/interop.md).")
 @click.option("--channel", type=click.Choice(["r", "g", "b"]), default="g", show_default=True,
-              help="Colour channel of the --merl file.")
+              help="Colour channel of the --merl file (with --channels r,g,b: those channels "
+                   "of the file, fitted at once).")
 @click.option("--channels", default=None, metavar="C1,C2,...",
               help="Write several channels (r,g,b, or wavelengths in nm): the session once per "
                    "channel, with a channel column (docs/measurements.md, \"Channels\").")
@@ -162,8 +181,8 @@ def simulate_command(brdf, medium, output, black_path, psi, noise, seed, glow, f
         raise UserError("give the object as --brdf MODEL or --merl FILE (one of the two)")
     model_m = models.medium_model(medium)
     if merl is not None:
-        model_b = _merl_model(merl, channel, models)
-        brdf = f"{model_b.NAME} fitted to {merl.name}"
+        model_b = _merl_model(merl, channel, models, channels)
+        brdf = f"{models.brdf.NAME} fitted to {merl.name}"
     else:
         model_b = models.brdf_model(brdf)
     by_channel = _channel_models(model_b, model_m, channels, per_channel)

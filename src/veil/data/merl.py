@@ -182,6 +182,27 @@ def measurement_table(brdf: MerlBRDF, channel: str, sampling: str = "protocol",
     return table
 
 
+def channels_table(brdf: MerlBRDF, channels=CHANNELS, sampling: str = "protocol",
+                   relative_sigma: float = 0.01) -> pd.DataFrame:
+    """A measurement table of several channels of the MERL BRDF (docs/measurements.md,
+    "Channels"): :func:`measurement_table` of each channel, channel after channel, with a
+    ``channel`` column before ``value`` and ``sigma``; a fit of it fits the channels at once
+    (docs/channels.md)."""
+    from .channels import CHANNEL
+
+    names = [str(c) for c in channels]
+    unknown = [c for c in names if c not in CHANNELS]
+    if unknown or not names or len(set(names)) != len(names):
+        raise InputError(f"{brdf.path}: channels {', '.join(names) or 'none'}; a MERL file has "
+                         f"the channels {', '.join(CHANNELS)} (each at most once)")
+    parts = []
+    for c in names:
+        part = measurement_table(brdf, c, sampling, relative_sigma)
+        part.insert(len(part.columns) - 2, CHANNEL, c)
+        parts.append(part)
+    return pd.concat(parts, ignore_index=True)
+
+
 def write_merl(path, data) -> None:
     """Write raw channel data of shape (3, 90, 90, 180) as a MERL file (atomically)."""
     from ..io import write_bytes_atomic
@@ -193,5 +214,5 @@ def write_merl(path, data) -> None:
 
 
 __all__ = ["MerlBRDF", "MerlError", "read_merl", "write_merl", "half_diff", "indices",
-           "reflectance", "configurations", "measurement_table", "DIMS", "SCALES", "CHANNELS",
-           "SAMPLINGS"]
+           "reflectance", "configurations", "measurement_table", "channels_table", "DIMS",
+           "SCALES", "CHANNELS", "SAMPLINGS"]

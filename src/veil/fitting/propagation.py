@@ -39,7 +39,7 @@ from .solver import TOL_ITER, solve
 
 #: The propagation methods: "auto" picks "sigma-points" when the worst given parameter's
 #: relative uncertainty exceeds RELATIVE_LIMIT and not RELATIVE_MAX, else "linear".
-METHODS = ("auto", "linear", "sigma-points")
+METHODS = ("auto", "linear", "sigma-points", "off")
 #: Relative uncertainty (stderr over the value or over the room to the nearer bound) of a
 #: given parameter above which "auto" propagates through sigma points.
 RELATIVE_LIMIT = 0.25
@@ -326,8 +326,9 @@ def propagated(problem: Problem, x, given_result, column: Callable[[str], int],
     "auto" chooses by the given parameters' relative uncertainty); ``column`` maps a name of
     the given result to its index in the problem. ``how`` records the method, the relative
     uncertainties and, for sigma points, the refits. (None, None) when the given result has
-    no covariance."""
-    found = given_result.covariance(total=True)
+    no covariance, or with ``method`` "off" (the totals are then not reported: the ranking of
+    candidates, whose estimates, chi-square and BIC the given covariance does not move)."""
+    found = None if method == "off" else given_result.covariance(total=True)
     if found is None:
         return None, None
     gnames, gcov = found
@@ -353,11 +354,12 @@ def media_part(problem: Problem, x, cov, method: str = "auto"):
     (free parameters, problem order; the rest of ``cov`` - a model-discrepancy sandwich, a
     reference's propagated part - kept as it is). Returns (object columns, delta = sigma part -
     A C_mm A^T, how); delta is None when "auto" (``method``) keeps the first order or
-    there is nothing to do (no media or no objects free); how None then too when nothing."""
+    there is nothing to do (no media or no objects free); how None then too when nothing,
+    and with ``method`` "off" (the first order, which the joint covariance holds, kept)."""
     free = [int(k) for k in problem.free_index]
     cols_m = [k for k in free if problem.params[k].kind == "medium"]
     cols_o = [k for k in free if problem.params[k].kind != "medium"]
-    if not cols_m or not cols_o or cov is None:
+    if method == "off" or not cols_m or not cols_o or cov is None:
         return cols_o, None, None
     pos = {k: j for j, k in enumerate(free)}
     jm = [pos[k] for k in cols_m]

@@ -94,11 +94,14 @@ def _freed(cls, free, what: str) -> set:
     return free
 
 
-def _prepare_engine(problem, cls, given, given_result, accuracy: str) -> None:
+def _prepare_engine(problem, cls, given, given_result, accuracy: str,
+                    propagation: str) -> None:
     """Everything a fit through a medium will compile (or load), side by side: derivatives
-    in the fitted model's parameters, and in the given model's to propagate its covariance."""
+    in the fitted model's parameters, and in the given model's to propagate its covariance
+    (not with ``propagation`` "off")."""
     block = problem.blocks[0]
-    propagates = given_result is not None and given_result.covariance(total=True) is not None
+    propagates = (propagation != "off" and given_result is not None
+                  and given_result.covariance(total=True) is not None)
     wrt = [(cls.KIND,)] + ([(type(given).KIND,)] if propagates else [])
     block.model(ITERATION_ACCURACY).prepare(values=True, jacobians=wrt)
     if accuracy != ITERATION_ACCURACY:
@@ -153,7 +156,7 @@ def _step(step: str, data: FitData, fitted: Model, given: Model | None, given_re
                        f"than free parameters (fix some with fixed=... / --fix NAME=VALUE, "
                        f"or measure more configurations)")
     if medium is not None:
-        _prepare_engine(problem, cls, given, given_result, accuracy)
+        _prepare_engine(problem, cls, given, given_result, accuracy, propagation)
     starts, n_grid = step_starts(problem, cls.KIND, ROLE[step], STARTS[step], progress)
     outcome = run(problem, starts, accuracy=accuracy, max_nfev=max_nfev, progress=progress,
                   every=medium is None)

@@ -11,6 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
+from ..data.channels import CHANNEL
 from ..data.protocol import protocol
 from ..engine.apparent import reflectance
 from ..errors import InputError
@@ -50,14 +51,10 @@ def configurations() -> pd.DataFrame:
     return protocol(CLOSEST_PSI)
 
 
-def closest(source: Model, family: str, options: dict | None = None) -> Closest:
-    """The model of ``family`` (with ``options``) closest to the BRDF ``source`` in relative
-    least squares over :func:`configurations`."""
+def _source_values(source: Model, angles) -> np.ndarray:
+    """f_r of ``source`` at ``angles``, checked for what a closest fit handles."""
     if not isinstance(source, BRDF):
         raise InputError(f"a closest fit needs a BRDF; {source.NAME} is a {source.KIND} model")
-    cls = model_class(family, "brdf")
-    table = configurations()
-    angles = [table[c].to_numpy() for c in ("theta_i", "theta_r", "phi_i", "phi_r")]
     values = reflectance(source, *angles)
     lo, hi = MAGNITUDE
     if np.all(np.isfinite(values)) and not lo <= float(np.max(np.abs(values))) <= hi:
@@ -70,17 +67,53 @@ def closest(source: Model, family: str, options: dict | None = None) -> Closest:
     if not np.all(values > 0):
         raise InputError(f"{source}: f_r is not positive at every configuration, so the "
                          f"relative difference of a closest fit is undefined")
+    return values
+
+
+def _closest_of(source: Model, model: Model, values, angles, converged: bool) -> Closest:
+    rel = reflectance(model, *angles) / values - 1.0
+    return Closest(source, model, float(np.sqrt(np.mean(rel ** 2))),
+                   float(np.max(np.abs(rel))), len(values), converged)
+
+
+def closest(source: Model, family: str, options: dict | None = None) -> Closest:
+    """The model of ``family`` (with ``options``) closest to the BRDF ``source`` in relative
+    least squares over :func:`configurations`."""
+    cls = model_class(family, "brdf")
+    table = configurations()
+    angles = [table[c].to_numpy() for c in ("theta_i", "theta_r", "phi_i", "phi_r")]
+    values = _source_values(source, angles)
     data = table[["theta_i", "phi_i", "theta_r", "phi_r"]].copy()
     data["value"] = values
     data["sigma"] = RELATIVE_SIGMA * values
     with warnings.catch_warnings():  # how far the family is from it is said below
         warnings.simplefilter("ignore", MisfitWarning)
         result = fit_direct(data, brdf_model=cls.NAME, options=dict(options or {}))
-    model = result.as_model()
-    fitted = reflectance(model, *angles)
-    rel = fitted / values - 1.0
-    return Closest(source, model, float(np.sqrt(np.mean(rel ** 2))),
-                   float(np.max(np.abs(rel))), len(values), bool(result.converged))
+    return _closest_of(source, result.as_model(), values, angles, bool(result.converged))
 
 
-__all__ = ["Closest", "closest", "configurations", "CLOSEST_PSI"]
+def closest_channels(sources: dict, family: str, options: dict | None = None) -> dict:
+    """{channel: :class:`Closest`} of the BRDFs ``sources`` ({channel: model}): the model of
+    ``family`` closest to every channel at once, one relative least-squares fit over the
+    channels (docs/channels.md) with the family's shared parameters tied, so that the
+    channels' models differ only where the family declares a parameter per channel."""
+    cls = model_class(family, "brdf")
+    table = configurations()
+    angles = [table[c].to_numpy() for c in ("theta_i", "theta_r", "phi_i", "phi_r")]
+    values = {c: _source_values(m, angles) for c, m in sources.items()}
+    parts = []
+    for c, v in values.items():
+        part = table[["theta_i", "phi_i", "theta_r", "phi_r"]].copy()
+        part[CHANNEL] = c
+        part["value"] = v
+        part["sigma"] = RELATIVE_SIGMA * v
+        parts.append(part)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", MisfitWarning)
+        result = fit_direct(pd.concat(parts, ignore_index=True), brdf_model=cls.NAME,
+                            options=dict(options or {}))
+    return {c: _closest_of(m, result.as_model(channel=c), values[c], angles,
+                           bool(result.converged)) for c, m in sources.items()}
+
+
+__all__ = ["Closest", "closest", "closest_channels", "configurations", "CLOSEST_PSI"]

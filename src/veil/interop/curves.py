@@ -9,6 +9,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from ..data.channels import CHANNEL
 from ..data.protocol import PSI, protocol
 from ..engine.apparent import apparent, reflectance
 from ..errors import InputError
@@ -44,9 +45,25 @@ def curves(brdf, medium=None, psi=PSI, accuracy: str = "default", **protocol_opt
     return pd.concat(frames, ignore_index=True)[list(COLUMNS)]
 
 
+def channel_curves(brdfs: dict | None, media: dict | None = None, psi=PSI,
+                   accuracy: str = "default", **protocol_options) -> pd.DataFrame:
+    """:func:`curves` of every channel ({channel: model} of the BRDF and the optional
+    medium, docs/channels.md), channel after channel, with a ``channel`` column before
+    ``value``."""
+    if brdfs is None:
+        return curves(None)
+    frames = []
+    for c, brdf in brdfs.items():
+        frame = curves(brdf, None if media is None else media[c], psi, accuracy,
+                       **protocol_options)
+        frame.insert(len(COLUMNS) - 1, CHANNEL, c)
+        frames.append(frame)
+    return pd.concat(frames, ignore_index=True)
+
+
 def to_csv_text(frame: pd.DataFrame) -> str:
     """The table as CSV text, numbers written to full precision (deterministic)."""
     return frame.to_csv(index=False, float_format="%.17g", lineterminator="\n")
 
 
-__all__ = ["curves", "to_csv_text", "COLUMNS", "NO_MEDIUM"]
+__all__ = ["curves", "channel_curves", "to_csv_text", "COLUMNS", "NO_MEDIUM"]

@@ -65,27 +65,46 @@ def plugin(model: Model, renderer: str, setting: Setting = DEFAULT_SETTING) -> E
     """The renderer plugin of ``model`` (module docstring); :class:`Unsupported` (an
     InputError) when the renderer cannot express it."""
     check_renderer(renderer)
-    cls = type(model)
-    hooks = getattr(cls, "RENDERERS", {})
-    proxies = getattr(cls, "PROXIES", {})
+    hooks = getattr(type(model), "RENDERERS", {})
     if renderer in hooks:
         made = hooks[renderer](model, setting)
         return Exported(model, model if made.model is None else made.model, made)
-    if renderer in proxies and model.KIND == "brdf":
-        from .closest import closest
+    family, options = proxy(model, renderer, setting)
+    from .closest import closest
 
+    return from_closest(model, closest(model, family, options), renderer, setting)
+
+
+def proxy(model: Model, renderer: str, setting: Setting = DEFAULT_SETTING) -> tuple[str, dict]:
+    """(family, options) of the closest family that stands for ``model`` in ``renderer``,
+    which has no plugin of its own for it (checked to be exportable there before any fit);
+    :class:`Unsupported` when there is none."""
+    cls = type(model)
+    proxies = getattr(cls, "PROXIES", {})
+    if renderer in proxies and model.KIND == "brdf":
         family, options = proxies[renderer]
         try:  # fail before fitting when the closest family cannot be exported either
             plugin(model_class(family, "brdf").template(**options), renderer, setting)
         except InputError as exc:
             raise Unsupported(f"{model.NAME} has no counterpart in {renderer}, and its closest "
                               f"family {family} cannot be exported there either: {exc}") from None
-        fit = closest(model, family, options)
-        inner = plugin(fit.model, renderer, setting).plugin
-        return Exported(model, fit.model,
-                        dataclasses.replace(inner, lost=(fit.sentence(),) + inner.lost), fit)
+        return family, dict(options)
     raise Unsupported(f"{model.NAME} has no counterpart in {renderer}; the families veil "
                       f"exports there are {', '.join(_exporters(renderer)) or 'none'}")
+
+
+def has_own_plugin(model: Model, renderer: str) -> bool:
+    """Whether ``renderer`` has a plugin of its own for ``model``'s family."""
+    return renderer in getattr(type(model), "RENDERERS", {})
+
+
+def from_closest(model: Model, fit, renderer: str, setting: Setting = DEFAULT_SETTING
+                 ) -> Exported:
+    """``model`` exported as ``fit`` (a :class:`veil.interop.closest.Closest` of it), the
+    fit's sentence first among what the conversion loses."""
+    inner = plugin(fit.model, renderer, setting).plugin
+    return Exported(model, fit.model,
+                    dataclasses.replace(inner, lost=(fit.sentence(),) + inner.lost), fit)
 
 
 def _comments(items, renderer: str, source: str) -> list[str]:
@@ -107,27 +126,44 @@ def _comments(items, renderer: str, source: str) -> list[str]:
 def export(models, renderer: str = "mitsuba", fmt: str | None = None,
            setting: Setting = DEFAULT_SETTING, source: str = "") -> Export:
     """Scene text for ``models`` (a BRDF and/or a medium) in ``renderer``'s format ``fmt``."""
+    fmt = check_format(renderer, fmt)
+    models = sorted_models(models)
+    items = tuple(plugin(m, renderer, setting) for m in models)
+    comments = tuple(_comments(items, renderer, source))
+    text = scene_text([i.plugin for i in items], comments, renderer, fmt)
+    return Export(renderer, fmt, text, items, comments)
+
+
+def check_format(renderer: str, fmt: str | None) -> str:
+    """The output format ``fmt`` of ``renderer`` (None: its default), checked."""
     check_renderer(renderer)
     fmt = fmt or FORMATS[renderer][0]
     if fmt not in FORMATS[renderer]:
         raise InputError(f"format {fmt!r} for {renderer}; expected one of "
                          f"{', '.join(FORMATS[renderer])}")
+    return fmt
+
+
+def sorted_models(models) -> list[Model]:
+    """The given models (None left out) in the order an export writes them, checked: at
+    least one, at most one of each kind."""
     models = [m for m in models if m is not None]
     if not models:
         raise InputError("nothing to export: give a BRDF or a medium")
     kinds = [m.KIND for m in models]
     if len(set(kinds)) != len(kinds):
         raise InputError(f"export takes at most one BRDF and one medium; got {', '.join(kinds)}")
-    items = tuple(plugin(m, renderer, setting) for m in sorted(models, key=lambda m: m.KIND))
-    comments = tuple(_comments(items, renderer, source))
-    plugins = [i.plugin for i in items]
+    return sorted(models, key=lambda m: m.KIND)
+
+
+def scene_text(plugins, comments, renderer: str, fmt: str) -> str:
+    """The scene text of ``plugins`` in ``renderer``'s format ``fmt``."""
     if renderer == "pbrt":
-        text = pbrt_text(plugins, comments)
-    elif fmt == "dict":
-        text = mitsuba_dict_source(plugins, comments)
-    else:
-        text = mitsuba_xml(plugins, comments)
-    return Export(renderer, fmt, text, items, comments)
+        return pbrt_text(plugins, comments)
+    if fmt == "dict":
+        return mitsuba_dict_source(plugins, comments)
+    return mitsuba_xml(plugins, comments)
 
 
-__all__ = ["FORMATS", "Export", "Exported", "export", "plugin", "check_renderer"]
+__all__ = ["FORMATS", "Export", "Exported", "export", "plugin", "proxy", "from_closest",
+           "has_own_plugin", "check_renderer", "check_format", "sorted_models", "scene_text"]

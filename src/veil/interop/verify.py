@@ -17,6 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..data.channels import RGB
 from ..engine.angles import direction
 from ..errors import InputError
 from .writers import IDS
@@ -141,23 +142,38 @@ def _scene(fragment: str, wi, wr, spp: int, medium: dict | None) -> str:
     return body + integrator + light + sensor + shape + extra + "</scene>\n"
 
 
-def render(fragment: str, configs, spp: int = 1, medium: dict | None = None,
-           seed: int = 0) -> np.ndarray:
-    """Rendered values (first RGB channel) of the fragment at ``configs`` (rows theta_i,
-    theta_r, phi_i, phi_r in degrees); ``medium`` = {"length", "half_width",
-    "max_depth"} path-traces the plate inside the exported medium."""
+def render_rgb(fragment: str, configs, spp: int = 1, medium: dict | None = None,
+               seed: int = 0) -> np.ndarray:
+    """Rendered red, green and blue values, shape (n, 3), of the fragment at ``configs``
+    (rows theta_i, theta_r, phi_i, phi_r in degrees) under a white light; ``medium`` =
+    {"length", "half_width", "max_depth"} path-traces the plate inside the exported medium."""
     mi = load_mitsuba()
     configs = np.asarray(configs, dtype=float)
     wi = np.asarray(direction(configs[:, 0], configs[:, 2]))
     wr = np.asarray(direction(configs[:, 1], configs[:, 3]))
-    out = np.empty(len(configs))
+    out = np.empty((len(configs), 3))
     for k in range(len(configs)):
         scene = mi.load_string(_scene(fragment, wi[k].tolist(), wr[k].tolist(), spp, medium))
         image = np.asarray(mi.render(scene, spp=spp, seed=seed + k))
-        out[k] = float(image.ravel()[0])
+        out[k] = [float(x) for x in image.ravel()[:3]]
     if not np.all(np.isfinite(out)):
         raise FloatingPointError("Mitsuba rendered a non-finite value")
     return out
+
+
+def render(fragment: str, configs, spp: int = 1, medium: dict | None = None,
+           seed: int = 0) -> np.ndarray:
+    """Rendered values (first RGB channel) of the fragment at ``configs``
+    (:func:`render_rgb`)."""
+    return render_rgb(fragment, configs, spp, medium, seed)[:, 0]
+
+
+def _check_predicted(predicted, what: str = "") -> np.ndarray:
+    predicted = np.asarray(predicted, dtype=float)
+    if not np.max(predicted) > 0:
+        raise InputError(f"veil predicts no light at any configuration{what}: nothing to "
+                         f"compare")
+    return predicted
 
 
 def verify(fragment: str, scale: float, predicted, configs, spp: int = 1,
@@ -166,9 +182,7 @@ def verify(fragment: str, scale: float, predicted, configs, spp: int = 1,
     ``passes`` > 1 the ``spp`` are split into independent passes whose spread gives each
     render's standard error."""
     configs = np.asarray(configs, dtype=float)
-    predicted = np.asarray(predicted, dtype=float)
-    if not np.max(predicted) > 0:
-        raise InputError("veil predicts no light at any configuration: nothing to compare")
+    predicted = _check_predicted(predicted)
     if passes <= 1:
         rendered = scale * render(fragment, configs, spp, medium, seed)
         return Verification(rendered, predicted, configs, spp, medium is not None)
@@ -180,4 +194,26 @@ def verify(fragment: str, scale: float, predicted, configs, spp: int = 1,
                         stderr)
 
 
-__all__ = ["VARIANT", "load_mitsuba", "render", "verify", "Verification"]
+def verify_channels(fragment: str, scales: dict, predicted: dict, configs, spp: int = 1,
+                    medium: dict | None = None, seed: int = 0, passes: int = 1) -> dict:
+    """{channel: :class:`Verification`} of a colour export (channels r, g, b, keys of
+    ``scales`` and ``predicted``): each channel of one render (:func:`render_rgb`) times
+    that channel's intensity scale against veil's prediction of that channel. ``passes``
+    as :func:`verify`."""
+    configs = np.asarray(configs, dtype=float)
+    wanted = {c: _check_predicted(v, f" in channel {c}") for c, v in predicted.items()}
+    index = {c: RGB.index(c) for c in wanted}
+    per = spp if passes <= 1 else max(1, spp // passes)
+    runs = np.array([render_rgb(fragment, configs, per, medium, seed + 100003 * k)
+                     for k in range(max(passes, 1))])
+    out = {}
+    for c, values in wanted.items():
+        channel = scales[c] * runs[:, :, index[c]]
+        stderr = None if passes <= 1 else channel.std(axis=0, ddof=1) / np.sqrt(passes)
+        out[c] = Verification(channel.mean(axis=0), values, configs, per * max(passes, 1),
+                              medium is not None, stderr)
+    return out
+
+
+__all__ = ["VARIANT", "load_mitsuba", "render", "render_rgb", "verify", "verify_channels",
+           "Verification"]

@@ -28,7 +28,23 @@ def _comment(text: str) -> str:
     return text
 
 
+def _rgb_text(values, sep: str) -> str:
+    return sep.join(number(x) for x in values)
+
+
+def _unbounded(v) -> bool:
+    """An (r, g, b) value with a component above 1: Mitsuba's plain ``rgb`` is a
+    reflectance (refused above 1), so it is written as an unbounded ``srgb`` texture."""
+    return isinstance(v.value, tuple) and max(v.value) > 1.0
+
+
 def _xml_value(v) -> str:
+    if isinstance(v.value, tuple):
+        if _unbounded(v):
+            return (f'<texture type="srgb" name="{v.name}"><rgb name="color" '
+                    f'value="{_rgb_text(v.value, ", ")}"/><boolean name="unbounded" '
+                    f'value="true"/></texture>')
+        return f'<rgb name="{v.name}" value="{_rgb_text(v.value, ", ")}"/>'
     if v.kind == "boolean":
         return f'<boolean name="{v.name}" value="{"true" if v.value else "false"}"/>'
     if v.kind == "string":
@@ -65,7 +81,11 @@ def mitsuba_xml(plugins, comments) -> str:
 def _dict_plugin(p: Plugin) -> dict:
     out: dict[str, object] = {"type": p.type}
     for v in p.values:
-        out[v.name] = v.value
+        if isinstance(v.value, tuple):
+            out[v.name] = ({"type": "srgb", "color": list(v.value), "unbounded": True}
+                           if _unbounded(v) else {"type": "rgb", "value": list(v.value)})
+        else:
+            out[v.name] = v.value
     for child in p.children:
         out[child.kind] = _dict_plugin(child)
     return out
@@ -90,6 +110,8 @@ def mitsuba_dict_source(plugins, comments) -> str:
 
 
 def _pbrt_value(v) -> str:
+    if isinstance(v.value, tuple):  # a colour export: pbrt's RGB spectrum of the value
+        return f'"rgb {v.name}" [ {_rgb_text(v.value, " ")} ]'
     if v.kind == "boolean":
         return f'"bool {v.name}" [ {"true" if v.value else "false"} ]'
     if v.kind == "string":

@@ -216,8 +216,8 @@ def _series_mitsuba(model, setting) -> Plugin:
         extra = (Plugin("bsdf", "dielectric", (float_value("int_ior", model.eta_u),
                                                 float_value("ext_ior", 1.0))),)
     return Plugin("medium", "homogeneous", (
-        float_value("sigma_t", sigma_t),
-        float_value("albedo", model.omega),
+        float_value("sigma_t", sigma_t, colour=True),
+        float_value("albedo", model.omega, colour=True),
     ), children=(Plugin("phase", "hg", (float_value("g", model.g),)),),
         lost=tuple(_medium_lost(model, "Mitsuba")), scale=model.s, extra=extra,
         geometry=geometry, model=model)

@@ -59,21 +59,39 @@ class Setting:
 
 @dataclass(frozen=True)
 class Value:
-    """One parameter of a plugin: its renderer name, kind (:data:`VALUE_KINDS`) and value."""
+    """One parameter of a plugin: its renderer name, kind (:data:`VALUE_KINDS`) and value.
+
+    ``colour`` : the renderer takes a colour here (a reflectance, an index of a conductor,
+    a medium's coefficients), so that a model fitted over the r, g, b channels may give it
+    one value per channel; kinds "spectrum" and "rgb" always do. An "rgb" value of a colour
+    export is a tuple (r, g, b) (:mod:`veil.interop.colour`); otherwise one number.
+    """
 
     name: str
     kind: str
     value: object
+    colour: bool = False
 
     def __post_init__(self) -> None:
         if self.kind not in VALUE_KINDS:
             raise ValueError(f"Value {self.name}: kind {self.kind!r}")
-        if self.kind in ("float", "spectrum", "rgb"):
+        if self.kind == "rgb" and isinstance(self.value, tuple):
+            rgb = tuple(float(x) for x in self.value)
+            if len(rgb) != 3 or not all(math.isfinite(x) for x in rgb):
+                raise Unsupported(f"{self.name} = {self.value!r}: expected three finite "
+                                  f"numbers (r, g, b); a renderer cannot take it")
+            object.__setattr__(self, "value", rgb)
+        elif self.kind in ("float", "spectrum", "rgb"):
             v = float(cast(SupportsFloat, self.value))  # these kinds hold a number
             if not math.isfinite(v):
                 raise Unsupported(f"{self.name} = {self.value!r} is not a finite number; a "
                                   f"renderer cannot take it")
             object.__setattr__(self, "value", v)
+
+    @property
+    def colourable(self) -> bool:
+        """Whether the renderer takes one value per colour channel here."""
+        return self.colour or self.kind in ("spectrum", "rgb")
 
 
 @dataclass(frozen=True)
@@ -105,8 +123,8 @@ class Plugin:
     model: object = None
 
 
-def float_value(name: str, value) -> Value:
-    return Value(name, "float", value)
+def float_value(name: str, value, colour: bool = False) -> Value:
+    return Value(name, "float", value, colour)
 
 
 def intensity_scale(setting: Setting, default: float) -> float:

@@ -93,9 +93,9 @@ def _conductor_mitsuba(model, setting) -> Plugin:
     return Plugin("bsdf", "roughconductor", (
         Value("distribution", "string", model.distribution),
         float_value("alpha", model.alpha),
-        float_value("eta", model.n),
-        float_value("k", model.k),
-        float_value("specular_reflectance", ks),
+        float_value("eta", model.n, colour=True),
+        float_value("k", model.k, colour=True),
+        float_value("specular_reflectance", ks, colour=True),
     ), lost=tuple(lost), scale=scale)
 
 

@@ -418,8 +418,8 @@ def _plastic_mitsuba(model, setting) -> Plugin:
         float_value("alpha", model.alpha),
         float_value("int_ior", model.eta * setting.ext_ior),
         float_value("ext_ior", setting.ext_ior),
-        float_value("diffuse_reflectance", rho),
-        float_value("specular_reflectance", ks),
+        float_value("diffuse_reflectance", rho, colour=True),
+        float_value("specular_reflectance", ks, colour=True),
         Value("nonlinear", "boolean", bool(model.nonlinear)),
     ), lost=tuple(lost) + MITSUBA_PLASTIC_LOST, scale=scale)
 

@@ -165,6 +165,10 @@ class State:
     results: list = field(default_factory=list)
     data: str | None = None
     black: str | None = None
+    #: Results fitted over several channels (docs/channels.md): {channel: (brdf, medium)},
+    #: and the channel the controls edit, whose models are ``brdf`` and ``medium``.
+    channels: dict | None = None
+    channel: str | None = None
 
     def __post_init__(self):
         for name, lo, hi in (("theta_i", 0.0, MAX_ANGLE), ("psi", 0.0, 2 * MAX_ANGLE - 2.0)):
@@ -175,6 +179,15 @@ class State:
             setattr(self, name, float(v))
         if self.curve not in CURVES:
             raise InputError(f"curve = {self.curve!r}; expected one of {', '.join(CURVES)}")
+        if self.channels is not None:
+            if not isinstance(self.channels, dict) or not self.channels:
+                raise InputError("channels: expected {channel: (brdf, medium)}, at least one")
+            self.channels = {str(c): tuple(v) for c, v in self.channels.items()}
+            self.channel = str(self.channel or next(iter(self.channels)))
+            if self.channel not in self.channels:
+                raise InputError(f"channel {self.channel!r}: the state has channels "
+                                 f"{', '.join(self.channels)}")
+            self.channels[self.channel] = (self.brdf, self.medium)
 
     @classmethod
     def default(cls) -> State:
@@ -188,15 +201,35 @@ class State:
         return cls(models[0], models[1])
 
     def with_model(self, model, kind: str) -> State:
-        return State(**{**self.__dict__, kind: model})
+        """The state with ``model`` as the edited channel's model of ``kind``; in the other
+        channels the parameters declared shared across channels follow it (the same family
+        and options), those per channel keep their values."""
+        if self.channels is None:
+            return State(**{**self.__dict__, kind: model})
+        k = 0 if kind == "brdf" else 1
+        channels = {}
+        for c, pair in self.channels.items():
+            mine = model if c == self.channel else _follow(pair[k], model)
+            channels[c] = (mine, pair[1]) if k == 0 else (pair[0], mine)
+        return State(**{**self.__dict__, kind: model, "channels": channels})
+
+    def with_channel(self, channel: str) -> State:
+        """The state whose controls edit ``channel``."""
+        brdf, medium = self.channels[channel] if self.channels else (self.brdf, self.medium)
+        return State(**{**self.__dict__, "brdf": brdf, "medium": medium, "channel": channel})
 
     # -- files --------------------------------------------------------------------------
     def to_dict(self) -> dict:
-        return {"format": FORMAT, "brdf": _entry(self.brdf), "medium": _entry(self.medium),
-                "theta_i": self.theta_i, "psi": self.psi, "curve": self.curve,
-                "results": [os.fspath(r) for r in self.results],
-                "data": None if self.data is None else os.fspath(self.data),
-                "black": None if self.black is None else os.fspath(self.black)}
+        out = {"format": FORMAT, "brdf": _entry(self.brdf), "medium": _entry(self.medium),
+               "theta_i": self.theta_i, "psi": self.psi, "curve": self.curve,
+               "results": [os.fspath(r) for r in self.results],
+               "data": None if self.data is None else os.fspath(self.data),
+               "black": None if self.black is None else os.fspath(self.black)}
+        if self.channels is not None:
+            out["channel"] = self.channel
+            out["channels"] = {c: {"brdf": _entry(b), "medium": _entry(m)}
+                               for c, (b, m) in self.channels.items()}
+        return out
 
     def to_json(self) -> str:
         return json.dumps(self.to_dict(), indent=2, allow_nan=False) + "\n"
@@ -219,10 +252,12 @@ class State:
         for key in ("data", "black"):
             if data.get(key) is not None and not isinstance(data[key], str):
                 raise InputError(f"{source}: key {key!r} must be a file name or null")
+        channels = _channels_entry(data.get("channels"), source)
         try:
             return cls(brdf, medium, theta_i=data.get("theta_i", 45.0),
                        psi=data.get("psi", 60.0), curve=data.get("curve", "incidence"),
-                       results=results, data=data.get("data"), black=data.get("black"))
+                       results=results, data=data.get("data"), black=data.get("black"),
+                       channels=channels, channel=data.get("channel"))
         except InputError as exc:
             raise InputError(f"{source}: {exc}") from None
 
@@ -231,6 +266,30 @@ class State:
         from ..fitting.result import read_json
 
         return cls.from_dict(read_json(path), os.fspath(path))
+
+
+def _follow(old, model):
+    """``old`` (another channel's model) after the edited channel's became ``model``: the
+    parameters shared across channels taken from ``model``; ``model`` itself when the
+    family changed."""
+    if model is None or old is None or type(old) is not type(model):
+        return model
+    params = old.as_dict()
+    for name, sharing in model.channel_sharing().items():
+        if sharing == "shared":
+            params[name] = getattr(model, name)
+    return type(model).from_params(params, model.options())
+
+
+def _channels_entry(entry, source: str) -> dict | None:
+    if entry is None:
+        return None
+    if not isinstance(entry, dict) or not all(isinstance(v, dict) for v in entry.values()):
+        raise InputError(f"{source}: key 'channels' must map each channel to an object with "
+                         f"keys 'brdf' and 'medium'")
+    return {c: (_model(v.get("brdf"), "brdf", f"{source}, channel {c}, key 'brdf'"),
+                _model(v.get("medium"), "medium", f"{source}, channel {c}, key 'medium'"))
+            for c, v in entry.items()}
 
 
 def is_state_file(path) -> bool:
@@ -466,6 +525,46 @@ def sphere(brdf, medium, light_theta: float, size: int = 96, accuracy: str = LIV
     return rgba[::-1].copy().view(dtype=np.uint32).reshape(grey.shape), linear
 
 
-__all__ = ["FORMAT", "CURVES", "State", "SliderSpec", "slider_spec", "presets_of", "families",
+#: The colour each channel's curves are drawn in: r, g, b, and a wavelength's hue.
+CHANNEL_COLOURS = {"r": "#d62728", "g": "#2ca02c", "b": "#1f77b4"}
+
+
+def channel_colour(channel: str) -> str:
+    """The colour of a channel's curves: its own for r, g, b; for a wavelength (nm) a hue
+    from violet (400) to red (700), grey outside the visible."""
+    if channel in CHANNEL_COLOURS:
+        return CHANNEL_COLOURS[channel]
+    try:
+        nm = float(channel)
+    except ValueError:
+        return "#7f7f7f"
+    if not 380.0 <= nm <= 780.0:
+        return "#7f7f7f"
+    import colorsys
+
+    hue = 0.75 * (1.0 - (min(max(nm, 400.0), 700.0) - 400.0) / 300.0)
+    r, g, b = colorsys.hsv_to_rgb(hue, 0.85, 0.85)
+    return f"#{int(255 * r):02x}{int(255 * g):02x}{int(255 * b):02x}"
+
+
+def sphere_colour(channels: dict, light_theta: float, size: int = 96,
+                  accuracy: str = LIVE_ACCURACY):
+    """(RGBA uint32 image, linear (size, size, 3) image): :func:`sphere` of the channels r,
+    g, b ({channel: (brdf, medium)}) as one colour image (:mod:`veil.viz.render_colour`),
+    tone-mapped by its automatic exposure (the median lit luminance)."""
+    from .render import render, tone_map
+    from .render_colour import auto_exposure_colour
+
+    theta = min(float(light_theta), 89.0)
+    linear = np.stack([render(b, m, light_theta=theta, size=size, accuracy=accuracy, check=0,
+                              density=table_density(b, m, theta, accuracy)).image
+                       for b, m in (channels[c] for c in ("r", "g", "b"))], axis=-1)
+    rgb = np.asarray(tone_map(linear, auto_exposure_colour(linear)), dtype=np.uint8)
+    rgba = np.concatenate([rgb, np.full(rgb.shape[:2] + (1,), 255, dtype=np.uint8)], axis=-1)
+    return rgba[::-1].copy().view(dtype=np.uint32).reshape(rgb.shape[:2]), linear
+
+
+__all__ = ["FORMAT", "CURVES", "State", "channel_colour", "sphere_colour", "CHANNEL_COLOURS",
+           "SliderSpec", "slider_spec", "presets_of", "families",
            "is_state_file", "curve_axis", "curve_angles", "Curves", "polar_lobe",
            "transmission_lobe", "sphere", "warm_up", "log_floor"]

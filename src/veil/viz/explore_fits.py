@@ -31,16 +31,31 @@ def check_result_kind(result, source: str):
     return result
 
 
-def models_of(results, sources) -> tuple:
+def result_channels(results, sources) -> tuple:
+    """The channels of results fitted over several (docs/channels.md), the same in each
+    such result; () when every result is of one channel."""
+    found = [(s, tuple(getattr(r, "channel_names", ()) or ())) for r, s in zip(results, sources)]
+    found = [(s, c) for s, c in found if c]
+    for s, c in found[1:]:
+        if sorted(c) != sorted(found[0][1]):
+            raise InputError(f"{found[0][0]} is a fit of channels {', '.join(found[0][1])} and "
+                             f"{s} of channels {', '.join(c)}: give results of the same "
+                             f"channels")
+    return found[0][1] if found else ()
+
+
+def models_of(results, sources, channel: str | None = None) -> tuple:
     """(brdf, medium) of fit results: each result sets the model of its kind, the models
-    it held fixed fill in the rest (the first result's first)."""
+    it held fixed fill in the rest (the first result's first); of ``channel`` for results
+    fitted over several channels (a result of one channel is every channel's)."""
     brdf = medium = None
     given_b = given_m = None
     clear = False
     for result, source in zip(results, sources):
         check_result_kind(result, source)
-        model = result.as_model()
-        given = result.given_model()
+        several = bool(getattr(result, "channel_names", ()))
+        model = result.as_model(channel=channel) if several else result.as_model()
+        given = result.given_model(channel)
         if model.KIND == "brdf":
             if brdf is not None:
                 raise InputError(f"{source}: a second BRDF fit result; give at most one result "

@@ -23,6 +23,7 @@ from bokeh.plotting import figure
 from ..errors import InputError
 from . import explore as ex
 from . import explore_fits as fits
+from .explore_colour import ChannelLines, channel_selector, sphere_of
 
 #: Names of the plotted data sources (the page's readable contract with its tests).
 SOURCES = {
@@ -74,7 +75,7 @@ def _state_columns(state: ex.State) -> dict:
 class Views:
     """The plots and their named data sources; :meth:`draw` puts a state's numbers in."""
 
-    def __init__(self, fit_views=()):
+    def __init__(self, fit_views=(), channels=None):
         tools = "pan,wheel_zoom,box_zoom,reset,save,hover"
         self.src = {k: ColumnDataSource(name=SOURCES[k]) for k in VIEW_SOURCES}
         self.src["medium"].data = {"x": [], "y": [], "ylog": []}
@@ -125,6 +126,7 @@ class Views:
         self.state_fig = figure(height=10, width=10, toolbar_location=None, visible=False)
         self.state_fig.scatter(x="value", y="key", source=self.src["state"], visible=False)
         self.fit = [FitPlots(v, k) for k, v in enumerate(fit_views)]
+        self.channels = None if channels is None else ChannelLines(self.lin, self.log, channels)
 
     def draw_curves(self, x, xlabel, through, clear, curve, theta_i, psi):
         floor = ex.log_floor(through, clear)
@@ -313,6 +315,11 @@ class Controls:
         items.append(self.readout)
         self.box.objects = items
 
+    def show(self, model) -> None:
+        """Show ``model`` (another channel's, of the same family) without changing it."""
+        self.model = model
+        self._build()
+
     def _readout(self) -> str:
         m = self.model
         if m is None:
@@ -383,7 +390,7 @@ class ExplorePage:
         self._held = False
         self.curves = None
         self.timings: dict[str, float] = {}
-        self.views = Views(fit_views)
+        self.views = Views(fit_views, state.channels)
         self.doc = pn.state.curdoc if background else None
         self._sphere_gen = 0
         self._pending, self._scheduled = (False, False), False
@@ -404,6 +411,7 @@ class ExplorePage:
         for w in (self.theta_i, self.psi, self.curve):
             w.param.watch(self._on_angles, "value")
         self.theta_i.param.watch(self.on_rest, "value_throttled")
+        self.channel = None if state.channels is None else channel_selector(self)
         self.share = pn.widgets.Button(label="share: write this state", color="primary")
         self.share.on_click(self.on_share)
         self.redraw(sphere=False)
@@ -418,6 +426,7 @@ class ExplorePage:
     def layout(self):
         controls = pn.Column(
             pn.pane.Markdown("### veil explore"),
+            *([] if self.channel is None else [pn.pane.Markdown("**channel**"), self.channel]),
             self.brdf.family, self.brdf.box, self.medium.family, self.medium.box,
             pn.pane.Markdown("**angles**"), self.curve, self.theta_i, self.psi,
             self.share, self.status, width=340)
@@ -498,6 +507,8 @@ class ExplorePage:
             return
         self.views.draw_curves(self.curves.x, self.curves.xlabel, through, clear, s.curve,
                                s.theta_i, s.psi)
+        if self.views.channels is not None:
+            self.views.channels.draw(self.curves, s.channels)
         if transmission:
             self.views.draw_transmission(s.medium, s.theta_i)
         for plots in self.views.fit:
@@ -512,7 +523,7 @@ class ExplorePage:
 
     def _render(self, state, accuracy):
         t0 = time.perf_counter()
-        image, _ = ex.sphere(state.brdf, state.medium, state.theta_i, SPHERE_SIZE, accuracy)
+        image, _ = sphere_of(state, SPHERE_SIZE, accuracy)
         return image, time.perf_counter() - t0
 
     def _sphere_now(self):
