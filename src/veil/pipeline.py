@@ -470,30 +470,25 @@ def _select(data, plan, *, accuracy, max_nfev, progress, model_error, propagatio
     rankings["reference"], kept["reference"] = ranking, results
     ref = selection.with_selection(results[ranking.chosen], ranking)
 
-    def step1(c, chained=screen):
-        return fit_medium(data["reference_medium"].table, ref, fixed=fix_m[c.label],
-                          free=free_m[c.label], accuracy=accuracy, max_nfev=max_nfev,
-                          medium_model=c.family, options=c.model_options(medium_options),
-                          model_error=model_error, propagation=chained)
+    def through_medium(step, fit, session, given, kind, fix, free, options, curve, what):
+        """Steps 1 and 2: ``fit`` (fit_medium, fit_target) of every candidate of ``kind``
+        to ``session`` through the ``given`` model, ranked; the chosen result."""
+        def one(c, chained=screen):
+            return fit(data[session].table, given, fixed=fix[c.label], free=free[c.label],
+                       accuracy=accuracy, max_nfev=max_nfev,
+                       options=c.model_options(options), model_error=model_error,
+                       propagation=chained, **{f"{kind}_model": c.family})
 
-    ranking, results = _rank_step("medium", plan["medium"], data["reference_medium"], step1,
-                                  progress,
-                                  lambda r: _fitted_curve(r, data["reference_medium"]), "medium",
-                                  again and (lambda c: step1(c, again)))
-    rankings["medium"], kept["medium"] = ranking, results
-    med = selection.with_selection(results[ranking.chosen], ranking)
+        ranking, results = _rank_step(step, plan[kind], data[session], one, progress, curve,
+                                      what, again and (lambda c: one(c, again)))
+        rankings[step], kept[step] = ranking, results
+        return selection.with_selection(results[ranking.chosen], ranking), ranking
 
-    def step2(c, chained=screen):
-        return fit_target(data["target_medium"].table, med, fixed=fix_t[c.label],
-                          free=free_t[c.label], accuracy=accuracy, max_nfev=max_nfev,
-                          brdf_model=c.family, options=c.model_options(brdf_options),
-                          model_error=model_error, propagation=chained)
-
-    ranking, results = _rank_step("target", plan["brdf"], data["target_medium"], step2,
-                                  progress, fr_curve, "target",
-                                  again and (lambda c: step2(c, again)))
-    rankings["target"], kept["target"] = ranking, results
-    tgt = selection.with_selection(results[ranking.chosen], ranking)
+    med, _ = through_medium("medium", fit_medium, "reference_medium", ref, "medium", fix_m,
+                            free_m, medium_options,
+                            lambda r: _fitted_curve(r, data["reference_medium"]), "medium")
+    tgt, ranking = through_medium("target", fit_target, "target_medium", med, "brdf", fix_t,
+                                  free_t, brdf_options, fr_curve, "target")
     chosen = ranking.row(ranking.chosen)
     opts = {k: v for k, v in brdf_options.items()
             if k in model_class(chosen["family"]).option_names()}
