@@ -513,16 +513,14 @@ def sphere(brdf, medium, light_theta: float, size: int = 96, accuracy: str = LIV
     rendering = render(brdf, medium, light_theta=theta, size=size, accuracy=accuracy,
                        check=0, density=table_density(brdf, medium, theta, accuracy))
     linear = rendering.image
-    grey = tone_map(linear, auto_exposure(linear))
-    grey = np.asarray(grey)
-    if grey.dtype != np.uint8:
-        grey = np.clip(np.round(grey * 255.0), 0, 255).astype(np.uint8)
-    if grey.ndim == 3:
-        grey = grey[..., 0]
-    rgba = np.empty(grey.shape + (4,), dtype=np.uint8)
-    rgba[..., 0] = rgba[..., 1] = rgba[..., 2] = grey
-    rgba[..., 3] = 255
-    return rgba[::-1].copy().view(dtype=np.uint32).reshape(grey.shape), linear
+    grey = tone_map(linear, auto_exposure(linear))          # uint8 (size, size)
+    return _rgba(np.repeat(grey[..., None], 3, axis=-1)), linear
+
+
+def _rgba(rgb) -> np.ndarray:
+    """(size, size) uint32 RGBA of a uint8 (size, size, 3) image, rows from the bottom."""
+    rgba = np.concatenate([rgb, np.full(rgb.shape[:2] + (1,), 255, dtype=np.uint8)], axis=-1)
+    return rgba[::-1].copy().view(dtype=np.uint32).reshape(rgb.shape[:2])
 
 
 #: The colour each channel's curves are drawn in: r, g, b, and a wavelength's hue.
@@ -559,9 +557,7 @@ def sphere_colour(channels: dict, light_theta: float, size: int = 96,
     linear = np.stack([render(b, m, light_theta=theta, size=size, accuracy=accuracy, check=0,
                               density=table_density(b, m, theta, accuracy)).image
                        for b, m in (channels[c] for c in ("r", "g", "b"))], axis=-1)
-    rgb = np.asarray(tone_map(linear, auto_exposure_colour(linear)), dtype=np.uint8)
-    rgba = np.concatenate([rgb, np.full(rgb.shape[:2] + (1,), 255, dtype=np.uint8)], axis=-1)
-    return rgba[::-1].copy().view(dtype=np.uint32).reshape(rgb.shape[:2]), linear
+    return _rgba(tone_map(linear, auto_exposure_colour(linear))), linear
 
 
 __all__ = ["FORMAT", "CURVES", "State", "channel_colour", "sphere_colour", "CHANNEL_COLOURS",
