@@ -41,7 +41,8 @@ FORMATTED := src/veil/fitting/least_squares.py src/veil/maps/__init__.py src/vei
 	src/veil/engine/store_files.py src/veil/data/roi.py tests/support tests/conftest.py \
 	benchmarks/bench_maps_optimistix.py src/veil/data/channels.py src/veil/fitting/channel_fit.py \
 	src/veil/interop/colour.py src/veil/cli/_result_models.py src/veil/cli/export_colour.py \
-	src/veil/viz/render_colour.py src/veil/cli/render_output.py src/veil/viz/explore_colour.py
+	src/veil/viz/render_colour.py src/veil/cli/render_output.py src/veil/viz/explore_colour.py \
+	src/veil/models/channel_model.py src/veil/data/ingest_channels.py
 lint: $(STAMP)
 	$(PY) -m ruff check src
 	$(PY) -m ruff format --check $(FORMATTED)

@@ -38,8 +38,9 @@ def write_tiff(path, image, **kwargs):
     tifffile.imwrite(path, image, **kwargs)
 
 
-def write_dng(path, mosaic, black=64, white=4095):
-    """A minimal, real DNG (RGGB colour-filter mosaic) that LibRaw reads."""
+def write_dng(path, mosaic, black=64, white=4095, as_shot=(1, 1, 1, 1, 1, 1)):
+    """A minimal, real DNG (RGGB colour-filter mosaic) that LibRaw reads; ``as_shot`` is the
+    AsShotNeutral tag (R, G, B as numerator, denominator pairs)."""
     tags = [
         (271, "s", 0, "Veil", True), (272, "s", 0, "Test", True),
         (50706, "B", 4, (1, 4, 0, 0), True), (50707, "B", 4, (1, 1, 0, 0), True),
@@ -49,7 +50,7 @@ def write_dng(path, mosaic, black=64, white=4095):
         (50714, "H", 1, black, True), (50717, "H", 1, white, True),
         (50721, "2i", 9, (10000, 10000, 0, 10000, 0, 10000, 10000, 0, 10000, 0, 10000, 10000,
                           0, 10000, 0, 10000, 10000, 10000), True),
-        (50728, "2I", 3, (1, 1, 1, 1, 1, 1), True),
+        (50728, "2I", 3, as_shot, True),
     ]
     tifffile.imwrite(path, mosaic.astype(np.uint16), photometric=32803, extratags=tags,
                      subfiletype=0, metadata=None)

@@ -22,7 +22,7 @@ _API = {
     "fit_maps": "maps.run", "open_maps": "maps.store",
     "BRDF": "models", "BTDF": "models", "Medium": "models", "Model": "models",
     "Param": "models", "PRESETS": "models", "REGISTRY": "models", "preset": "models",
-    "register": "models",
+    "register": "models", "ChannelModel": "models",
 }
 _PRESETS = ("BRDF1", "BRDF2", "BTDF1", "BTDF2", "BTDF3")
 

@@ -175,7 +175,7 @@ def _as_model(obj, kind):
         if obj.kind != kind:
             raise FitError(f"expected a {kind} fit result, got a {obj.model} ({obj.kind}) "
                            f"result")
-        return obj.as_model(), obj
+        return obj.one_model(), obj
     if isinstance(obj, Model) and obj.KIND == kind:
         return obj, None
     raise FitError(f"expected a FitResult or a {kind} model, got {type(obj).__name__}")
@@ -215,7 +215,7 @@ def problem_for(result: FitResult, data, *, medium=None, reference=None, black=N
         problem.values = np.array([result.params[n] for n in problem.names])
         return problem, notes
     step = result.step
-    model = result.as_model()
+    model = result.one_model()
     free = [result.model_class.param(n).key for n in result.free]
     if step in ("reference", "direct"):
         if medium is not None or reference is not None:
@@ -258,7 +258,7 @@ def _through_medium(result: FitResult, data, step: str, given: dict, free, black
             raise FitError(f"the {step} result does not name its {name}: give {name}=")
         notes.append(f"{words} is taken as exact (give the {name}'s fit result to include "
                      f"its uncertainty)")
-    model = result.as_model()
+    model = result.one_model()
     brdf, medium = (other, model) if kind == "brdf" else (model, other)
     problem = session_problem(data, cast(BRDF, brdf), cast(Medium, medium), free=free,
                               black=black, what=what)

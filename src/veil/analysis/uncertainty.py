@@ -146,8 +146,8 @@ def medium_parts(medium_result: FitResult, reference_result: FitResult | None = 
                        "in the medium, step 1's data) to propagate step 0, or neither")
     if reference_result is not None:
         ref_names, cov0 = covariance_of(reference_result)
-        problem = session_problem(reference_table, cast("BRDF", reference_result.as_model()),
-                                  cast("Medium", medium_result.as_model()),
+        problem = session_problem(reference_table, cast("BRDF", reference_result.one_model()),
+                                  cast("Medium", medium_result.one_model()),
                                   free=_medium_map(medium_result, names), black=black,
                                   what="reference (in the medium)")
         if problem.n_points != medium_result.n_points:
@@ -217,8 +217,8 @@ def propagate(target_result: FitResult, medium_result: FitResult, table, *,
     theta, cov2 = covariance_of(target_result)
     m_names, m_parts = medium_parts(medium_result, reference_result, reference_table,
                                     black=reference_black, accuracy=accuracy)
-    problem = session_problem(table, cast("BRDF", target_result.as_model()),
-                              cast("Medium", medium_result.as_model()), free=theta,
+    problem = session_problem(table, cast("BRDF", target_result.one_model()),
+                              cast("Medium", medium_result.one_model()), free=theta,
                               black=black, what="target (in the medium)")
     if problem.n_points != target_result.n_points:
         raise FitError(f"the table has {problem.n_points} points but the target fit used "
@@ -326,7 +326,7 @@ def curve_stderr(result: FitResult, angles) -> tuple[np.ndarray, np.ndarray | No
     the result's covariance (the total one when it has it) through f_r's exact Jacobian:
     se_k^2 = J_k Cov J_k^T (of a joint fit, the target's f_r and the block of its
     parameters). The error is None when the covariance is undetermined."""
-    model = result.as_model()
+    model = result.one_model()
     if model.KIND != "brdf":
         raise InputTypeError(f"expected a BRDF result, got a {model.KIND} result "
                              f"({result.model})")
@@ -366,8 +366,8 @@ def sample_propagation(target_result: FitResult, medium_result: FitResult, table
     _check_pair(target_result, medium_result, None)
     theta = list(target_result.free)
     m_names, cov_m = covariance_of(medium_result)
-    medium = cast("Medium", medium_result.as_model())
-    base = session_problem(table, cast("BRDF", target_result.as_model()), medium, free=theta,
+    medium = cast("Medium", medium_result.one_model())
+    base = session_problem(table, cast("BRDF", target_result.one_model()), medium, free=theta,
                            black=black, what="target (in the medium)")
     nominal = solve(base, base.values, max_nfev=max_nfev)
     x0 = nominal.x

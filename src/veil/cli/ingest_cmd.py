@@ -26,8 +26,10 @@ ROI_HELP = ("pixel coordinates X,Y,W,H: x to the right, y down, origin at the to
 @click.option("--dark", default=None, type=click.Path(exists=True, dir_okay=False),
               help="Dark frame (same camera, format and size; lens capped), subtracted pixel "
                    "by pixel.")
-@click.option("--channel", type=click.Choice(["gray", "r", "g", "b"]), default="gray",
-              show_default=True, help="Colour channel; gray = (R + G + B) / 3.")
+@click.option("--channel", type=click.Choice(["gray", "r", "g", "b", "rgb"]), default="gray",
+              show_default=True,
+              help="Colour channel; gray = (R + G + B) / 3; rgb = r, g and b at once, one "
+                   "table with a 'channel' column (one row per photo and channel).")
 @click.option("--response", default=None, type=click.Path(exists=True, dir_okay=False),
               help="Camera response curve: CSV with columns code,linear mapping code values to "
                    "linear values (interpolated); needed for JPEG to be linear.")
@@ -46,13 +48,15 @@ def ingest_command(photo_dir, manifest, roi, black_roi, dark, channel, response,
     Reads the photos of PHOTO_DIR that the manifest lists and writes one row per photo: the
     manifest's columns, value (mean over the ROI after dark-frame subtraction), sigma (its
     standard error), black and black_sigma (with --black-roi), saturated and clipped (pixel
-    counts in the ROIs) and n_pixels. PNG, TIFF (integer or float), JPEG and camera raw
-    (linear, per colour channel, via LibRaw). Nothing in PHOTO_DIR is modified. See
-    docs/ingest.md.
+    counts in the ROIs) and n_pixels. With --channel rgb: one row per photo and channel,
+    channel after channel, a column channel (r, g, b) and, for camera raw, white_balance
+    (recorded, not applied). PNG, TIFF (integer or float), JPEG and camera raw (linear, per
+    colour channel, via LibRaw). Nothing in PHOTO_DIR is modified. See docs/ingest.md.
     """
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
 
     from ..data import ingest as ingest_mod
+    from ..data.ingest_channels import WHITE_BALANCE
     from ..data.measurements import save_measurements
     from .compile_display import console as shared_console
 
@@ -88,4 +92,12 @@ def ingest_command(photo_dir, manifest, roi, black_roi, dark, channel, response,
                                   dark, channel, response=response, saturation=saturation,
                                   keep_saturated=keep_saturated, progress=progress)
     save_measurements(table, output)
-    click.echo(f"{len(table)} measurement(s) written to {output}", err=True)
+    if channel != ingest_mod.ALL_RGB:
+        click.echo(f"{len(table)} measurement(s) written to {output}", err=True)
+        return
+    click.echo(f"{len(table)} measurement(s) written to {output}: {len(table) // 3} photo(s) "
+               f"in channels r, g, b", err=True)
+    if WHITE_BALANCE in table.columns:
+        click.echo("camera raw: white balance not applied (linear camera channels); the "
+                   "camera's as-shot multipliers (green = 1) are in column white_balance",
+                   err=True)

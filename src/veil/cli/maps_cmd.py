@@ -120,7 +120,7 @@ def fit_maps_command(ctx, photo_dir, manifest, medium, output, black_photos, bla
                         "plate, same units)")
     fixed = parse_fix(fix, models.brdf)
     med = load_medium(medium, models)
-    given = med.as_model() if hasattr(med, "as_model") else med
+    given = med.one_model() if hasattr(med, "as_model") else med
     if "medium-model" in models.explicit and type(given) is not models.medium:
         raise UserError(f"--medium-model {models.medium.NAME} but {medium} is a "
                         f"{given.NAME} medium")

@@ -18,6 +18,16 @@ import numpy as np
 import pandas as pd
 
 from ..errors import InputError, MissingFileError
+from .ingest_channels import (
+    ALL_RGB,
+    StackKind,
+    channel_table,
+    channels_read,
+    check_channel_columns,
+    excluded_message,
+    is_colour,
+    photo_balance,
+)
 from .photo_files import (
     JPEG_SUFFIXES,
     PHOTO_SUFFIXES,
@@ -291,18 +301,22 @@ def ingest(photo_dir, manifest, roi, black_roi=None, dark=None, channel="gray", 
     """One measurement row per photo of ``manifest``: its columns plus the ROI statistics.
 
     ``roi``/``black_roi``: ``"X,Y,W,H"`` or :class:`ROI`. ``dark``: a dark frame subtracted
-    pixel by pixel. ``channel``: ``gray``, ``r``, ``g`` or ``b``. ``response``: CSV path or
-    :class:`Response` mapping code values to linear values. ``saturation``: code value at or
-    above which a sample is saturated (default: the format's maximum). Photos with saturated or
-    clipped (minimum code value) pixels in the ROIs are dropped with a warning unless
-    ``keep_saturated``. ``progress(done, total, file)`` is called after each photo. Warnings
-    are :class:`IngestWarning`; user errors are ``ValueError`` / ``FileNotFoundError``.
+    pixel by pixel. ``channel``: ``gray``, ``r``, ``g`` or ``b``; ``rgb`` reads all three at
+    once into one table with a ``channel`` column, one row per photo and channel, channel
+    after channel (:mod:`veil.data.ingest_channels`; docs/ingest.md). ``response``: CSV path
+    or :class:`Response` mapping code values to linear values. ``saturation``: code value at
+    or above which a sample is saturated (default: the format's maximum). Photos with
+    saturated or clipped (minimum code value) pixels in the ROIs are dropped with a warning
+    unless ``keep_saturated``. ``progress(done, total, file)`` is called after each photo.
+    Warnings are :class:`IngestWarning`; user errors are ``ValueError`` /
+    ``FileNotFoundError``.
     """
     photo_dir = Path(photo_dir)
     if not photo_dir.is_dir():
         raise MissingFileError(f"photo directory {photo_dir}: no such directory")
-    if channel not in CHANNELS:
-        raise InputError(f"channel {channel!r}: expected one of {', '.join(CHANNELS)}")
+    if channel not in CHANNELS + (ALL_RGB,):
+        raise InputError(f"channel {channel!r}: expected one of {', '.join(CHANNELS)} or "
+                         f"{ALL_RGB} (all three)")
     rois = [("ROI", parse_roi(roi, "ROI"))]
     if black_roi is not None:
         rois.append(("black ROI", parse_roi(black_roi, "black ROI")))
@@ -316,6 +330,8 @@ def ingest(photo_dir, manifest, roi, black_roi=None, dark=None, channel="gray", 
         response = load_response(response)
 
     table, rows, name, paths = manifest_photos(manifest, photo_dir)
+    if channel == ALL_RGB:
+        check_channel_columns(table, name)
     ignore = set()
     if dark is not None:
         ignore.add(Path(dark).resolve())
@@ -325,46 +341,58 @@ def ingest(photo_dir, manifest, roi, black_roi=None, dark=None, channel="gray", 
         _warn(f"{len(extra)} photo file(s) in {photo_dir} are not in {name} and are ignored: "
               f"{shown}")
 
-    dark_photo = _dark_frame(dark, rois, channel, response, saturation)
-
-    warned: set[str] = set()
-    results = []
-    keep = []
-    for i, (path, row_name) in enumerate(zip(paths, rows)):
-        photo = read_photo(path, rois)
-        where = f"{path} ({row_name})"
-        _check_photo(photo, where, channel, response, saturation, dark, dark_photo, warned)
-        level = saturation if saturation is not None else photo.saturation
-        row = _photo_row(photo, rois, channel, level, dark_photo, response, where)
-        n_saturated, n_clipped = row["saturated"], row["clipped"]
-        bad = n_saturated or n_clipped
-        if bad:
-            what = []
-            if n_saturated:
-                what.append(f"{n_saturated} saturated pixel(s) (code >= {level:g})")
-            if n_clipped:
-                what.append(f"{n_clipped} clipped pixel(s) (code <= {photo.floor:g})")
-            action = ("kept as asked" if keep_saturated else
-                      "excluded (--keep-saturated / keep_saturated=True keeps it)")
-            _warn(f"{where}: {' and '.join(what)} in the ROIs; {action}")
-        if keep_saturated or not bad:
-            keep.append(i)
-            results.append(row)
-        if progress is not None:
-            progress(i + 1, len(paths), str(table["file"].iloc[i]))
-        del photo
-
+    # the dark frame's hot pixels: any sample counts when every channel is read
+    dark_photo = _dark_frame(dark, rois, "gray" if channel == ALL_RGB else channel, response,
+                             saturation)
+    keep, results, balances = _read_stack(
+        table, paths, rows, rois, channel, dark, dark_photo, response, saturation,
+        keep_saturated, progress)
     if not keep:
         raise InputError(f"all {len(paths)} photos were excluded for saturated or clipped "
                          f"pixels in the ROIs; lower the exposure, move the ROIs, or keep them "
                          f"with --keep-saturated")
-    out = table.iloc[keep].reset_index(drop=True)
-    added = pd.DataFrame(results)
     order = ["value", "sigma"] + (["black", "black_sigma"] if black_roi is not None else [])
     order += ["saturated", "clipped", "n_pixels"]
+    if channel == ALL_RGB:
+        return channel_table(table, keep, results, balances, order)
+    out = table.iloc[keep].reset_index(drop=True)
+    added = pd.DataFrame(results[channel])
     for col in order:
         out[col] = added[col].to_numpy()
     return out
+
+
+def _read_stack(table, paths, rows, rois, channel: str, dark, dark_photo, response,
+                saturation, keep_saturated: bool, progress):
+    """The photos read one at a time: (positions kept, {channel: their rows}, each kept
+    photo's white balance (:func:`veil.data.ingest_channels.photo_balance`)); a photo with
+    saturated or clipped pixels in any channel read is warned about and, unless
+    ``keep_saturated``, left out of every channel."""
+    names = channels_read(channel)
+    stack = StackKind()
+    warned: set[str] = set()
+    results: dict[str, list] = {c: [] for c in names}
+    keep, balances = [], []
+    for i, (path, row_name) in enumerate(zip(paths, rows)):
+        photo = read_photo(path, rois)
+        where = f"{path} ({row_name})"
+        _check_photo(photo, where, channel, response, saturation, dark, dark_photo, warned)
+        stack.check(photo, where)
+        level = saturation if saturation is not None else photo.saturation
+        found = {c: _photo_row(photo, rois, c, level, dark_photo, response, where)
+                 for c in names}
+        message = excluded_message(where, found, level, photo.floor, keep_saturated)
+        if message is not None:
+            _warn(message)
+        if keep_saturated or message is None:
+            keep.append(i)
+            for c in names:
+                results[c].append(found[c])
+            balances.append(photo_balance(photo))
+        if progress is not None:
+            progress(i + 1, len(paths), str(table["file"].iloc[i]))
+        del photo
+    return keep, results, balances
 
 
 def _dark_frame(dark, rois, channel: str, response, saturation) -> Photo | None:
@@ -399,6 +427,10 @@ def _check_photo(photo: Photo, where: str, channel: str, response, saturation, d
         warned.add("float")
         _warn(f"{path}: float samples have no format maximum, so saturation is not "
               f"checked; give a saturation level (--saturation) if the data were clipped")
+    if channel == ALL_RGB and not is_colour(photo):
+        raise InputError(f"{where}: a single-channel (gray) image has no colour channels; "
+                         f"--channel {ALL_RGB} (channel={ALL_RGB!r}) reads colour photos "
+                         f"(RGB images or camera raw): use channel gray for grey ones")
     if channel != "gray" and photo.shape[2] == 1 and photo.kind != "raw":
         raise InputError(f"{where}: a single-channel (gray) image has no channel "
                          f"{channel!r}; use channel gray")
@@ -441,6 +473,6 @@ def _describe(photo: Photo) -> str:
 
 
 __all__ = ["ingest", "read_manifest", "manifest_photos", "load_response", "Response",
-           "roi_statistics", "IngestWarning", "CHANNELS", "ADDED_COLUMNS", "ROI", "parse_roi",
-           "read_photo", "PHOTO_SUFFIXES", "PNG_SUFFIXES", "JPEG_SUFFIXES", "TIFF_SUFFIXES",
-           "RAW_SUFFIXES"]
+           "roi_statistics", "IngestWarning", "CHANNELS", "ALL_RGB", "ADDED_COLUMNS", "ROI",
+           "parse_roi", "read_photo", "PHOTO_SUFFIXES", "PNG_SUFFIXES", "JPEG_SUFFIXES",
+           "TIFF_SUFFIXES", "RAW_SUFFIXES"]

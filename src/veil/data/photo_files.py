@@ -4,6 +4,7 @@ kept (:func:`read_photo`)."""
 
 from __future__ import annotations
 
+import math
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -43,6 +44,9 @@ class Photo:
     saturation: float | None  # the format's maximum code value (None: float data)
     floor: float | None  # code value of pixels clipped from below (None: float data)
     patches: list
+    #: camera raw: the camera's as-shot white-balance multipliers of R, G, B scaled so that
+    #: G is 1 (LibRaw's camera_whitebalance; never applied); None when it recorded none
+    white_balance: tuple | None = None
 
     @property
     def dtype(self) -> np.dtype:
@@ -157,7 +161,21 @@ def _read_raw(path: Path, rois) -> Photo:
             patches.append(Patch(np.array(mosaic[rows, cols]), colour_of_index[index],
                                   black_of_index[index]))
         saturation = float(raw.white_level)
-    return Photo(path, "raw", (height, width, 1), saturation, 0.0, patches)
+        balance = _white_balance(desc, raw.camera_whitebalance)
+    return Photo(path, "raw", (height, width, 1), saturation, 0.0, patches, balance)
+
+
+def _white_balance(desc: str, multipliers) -> tuple | None:
+    """The as-shot multipliers of R, G, B (the first of each colour in ``desc``) over G's;
+    None when any is missing, zero or not finite (a camera that recorded none)."""
+    values = np.asarray(multipliers, dtype=float)
+    try:
+        r, g, b = (float(values[desc.index(c)]) for c in "RGB")
+    except (ValueError, IndexError):
+        return None
+    if not all(math.isfinite(x) and x > 0 for x in (r, g, b)):
+        return None
+    return (r / g, 1.0, b / g)
 
 
 def read_photo(path, rois) -> Photo:

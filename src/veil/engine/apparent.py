@@ -12,6 +12,7 @@ import numpy as np
 from .._jax import jax, jnp
 from ..errors import InputError, InputTypeError, ParameterError
 from ..models import BRDF, BTDF, preset
+from ..models.channel_model import ChannelModel, channel_member, channels_of
 from .angles import check_angles, direction
 from .forward import Forward, _bucket
 from .programs import Program, structure_name
@@ -90,7 +91,14 @@ def _check_facets(models, vectors=None) -> None:
 
 
 def reflectance(brdf, theta_i, theta_r, phi_i=180.0, phi_r=0.0) -> np.ndarray:
-    """The object's own BRDF f_r (docs/model.md sec. 2) at the given angles (degrees)."""
+    """The object's own BRDF f_r (docs/model.md sec. 2) at the given angles (degrees).
+
+    A :class:`~veil.models.ChannelModel` (``as_model()`` of a fit over several channels)
+    gives every channel: the angles' broadcast shape plus a trailing axis of its channels,
+    in their order, each channel's values those of its own model bit for bit."""
+    if isinstance(brdf, ChannelModel):
+        return np.stack([reflectance(brdf[c], theta_i, theta_r, phi_i, phi_r)
+                         for c in brdf.channels], axis=-1)
     model = as_brdf(brdf)
     ti, tr, pi_, pr = check_angles(theta_i, theta_r, phi_i, phi_r)
     shape = np.broadcast(ti, tr, pi_, pr).shape
@@ -147,12 +155,23 @@ def apparent(brdf, medium, theta_i, theta_r, phi_i=180.0, phi_r=0.0, *,
     return_error : also return an error estimate (absolute): twice the difference to the
         same quadrature with 1.3 times the nodes per dimension (costs about three times the
         evaluation itself).
+
+    Colour: ``brdf`` or ``medium`` (or both) may be a :class:`~veil.models.ChannelModel`
+    (``as_model()`` of a fit over several channels; both of the same channels). The values
+    (and errors) then have a trailing axis of its channels, in their order; a model of one
+    channel beside it is every channel's. Each channel's values are bit for bit those of
+    its one-channel models; the channels share one set of configurations, and those whose
+    parameters differ only in their scales share one quadrature.
     """
     if accuracy not in RULES:
         raise InputError(f"accuracy = {accuracy!r}; expected one of {', '.join(RULES)}")
     if medium is None:
         value = reflectance(brdf, theta_i, theta_r, phi_i, phi_r)
         return (value, np.zeros_like(value)) if return_error else value
+    channels = channels_of(brdf, medium)
+    if channels is not None:
+        return _apparent_channels(brdf, medium, channels, (theta_i, theta_r, phi_i, phi_r),
+                                  accuracy, return_error)
     b, m = as_brdf(brdf), as_btdf(medium)
     ti, tr, pi_, pr = check_angles(theta_i, theta_r, phi_i, phi_r)
     shape = ti.shape
@@ -173,3 +192,54 @@ def apparent(brdf, medium, theta_i, theta_r, phi_i=180.0, phi_r=0.0, *,
     finer = evaluate(fine)
     error = ERROR_FACTOR * np.abs(value - finer)
     return value, check_finite(error, "the error estimate of the apparent reflectance", [b, m])
+
+
+def _apparent_channels(brdf, medium, channels, angles, accuracy: str, return_error: bool):
+    """:func:`apparent` of every channel (its docstring, "Colour"): one :class:`Forward` of
+    the configurations for all of them; the term matrices (scales at 1) computed once for
+    the channels whose parameters differ only in their scales."""
+    pairs = {c: (as_brdf(channel_member(brdf, c)), as_btdf(channel_member(medium, c)))
+             for c in channels}
+    ti, tr, pi_, pr = check_angles(*angles)
+    shape = ti.shape
+    b0, m0 = pairs[channels[0]]
+
+    def evaluate(forward):
+        terms_of: dict = {}
+        out = []
+        for c in channels:
+            b, m = pairs[c]
+            vb, vm = b.to_vector(), m.to_vector()
+            key = (_unit_scale_key(b), _unit_scale_key(m))
+            if key not in terms_of:
+                terms_of[key] = forward.terms(vb, vm)
+            terms = terms_of[key]
+            value = forward.combine(terms, vb, vm).reshape(shape)
+            out.append(check_finite(value, f"the apparent reflectance of channel {c}", [b, m],
+                                    terms=terms))
+        return np.stack(out, axis=-1)
+
+    fine = None
+    if return_error:
+        fine = Forward(b0, m0, ti, tr, pi_, pr, FINER[accuracy])
+        fine.prepare(values=True)
+    value = evaluate(Forward(b0, m0, ti, tr, pi_, pr, RULES[accuracy]))
+    if not return_error:
+        return value
+    error = ERROR_FACTOR * np.abs(value - evaluate(fine))
+    return value, check_finite(error, "the error estimate of the apparent reflectance",
+                               [b0, m0])
+
+
+def _unit_scale_key(model) -> bytes:
+    """A model's parameters with its scales (and a medium's gain) at 1: all the term
+    matrices depend on (veil.engine.integrator sets them to 1 inside the program)."""
+    v = model.to_vector()
+    for part in model.SCALES:
+        i = model.scale_index(part)
+        if i is not None:
+            v[i] = 1.0
+    gain = getattr(model, "GAIN", None)
+    if gain is not None:
+        v[model.param_names().index(gain)] = 1.0
+    return v.tobytes()

@@ -30,7 +30,7 @@ def as_given(obj, kind: str, role: str) -> Model:
         if not obj.converged:
             warnings.warn(f"the fit of {role} did not converge; its model is used as it is",
                           stacklevel=3)
-        return obj.as_model()
+        return obj.one_model()
     if isinstance(obj, Model):
         if obj.KIND != kind:
             raise FitError(f"{role} must be {NEEDS[kind]}; got the {obj.KIND} model {obj}")

@@ -431,7 +431,7 @@ def fit_joint(sessions, *, reference=None, shared=None, per_medium=None, fixed=N
     if start is not None:
         if not isinstance(start, dict):
             raise FitError("start: expected a dict {object or medium label: model}")
-        start = {k: (v.as_model() if isinstance(v, FitResult) else v) for k, v in start.items()}
+        start = {k: (v.one_model() if isinstance(v, FitResult) else v) for k, v in start.items()}
         for k, v in start.items():
             if not isinstance(v, Model):
                 raise FitError(f"start[{k!r}]: expected a model or a fit result, got {v!r}")

@@ -15,13 +15,14 @@ import math
 import os
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, ClassVar
+from typing import TYPE_CHECKING, ClassVar, overload
 
 from ..errors import FitError, InputError, MissingFileError, NotAFileError
 from ..io import write_bytes_atomic
 from ..models import Model, default_class, model_class
 from ..models import names as family_names
 from ..models.base import VARIANT_OPTION
+from ..models.channel_model import ChannelModel
 from ..numbers import from_json_float, json_float
 from .model_error import ModelError
 from .result_fields import (
@@ -144,9 +145,26 @@ class FitResult:
         """"brdf" or "medium": the kind of the fitted model."""
         return self.model_class.KIND
 
-    def as_model(self, channel: str | None = None) -> Model:
-        """The fitted model instance (with its options); of one ``channel`` of a fit of
-        several channels (``channels``), the model ``veil.reflectance`` evaluates."""
+    @overload
+    def as_model(self, channel: str) -> Model: ...
+    @overload
+    def as_model(self, channel: None = None) -> Model | ChannelModel: ...
+    def as_model(self, channel: str | None = None) -> Model | ChannelModel:
+        """The fitted model instance (with its options), which ``veil.reflectance`` and
+        ``veil.apparent`` evaluate. Of a fit of several channels (``channels``): the model of
+        one ``channel``, or without one a :class:`~veil.models.channel_model.ChannelModel`
+        of every channel, whose values carry a trailing channel axis in the order of
+        ``channel_names`` (``values[..., k]`` is channel k, bit for bit what
+        ``as_model(channel=channel_names[k])`` gives). A fit of one channel: its model, as
+        before channels existed."""
+        if self.channels is not None and channel is None:
+            return ChannelModel({c: self.one_model(c) for c in self.channels})
+        return self.one_model(channel)
+
+    def one_model(self, channel: str | None = None) -> Model:
+        """The model of one channel: the fitted model of a fit of one channel, or of
+        ``channel`` of a fit of several (a FitError naming the channels when none is
+        named: what needs one model, a fit of one channel or a map, says so)."""
         if self.channels is None:
             if channel is not None:
                 raise FitError(f"channel {channel!r}: this result is a fit of one channel; "
@@ -397,6 +415,10 @@ class JointResult(FitResult):
 
     def as_model(self, channel: str | None = None) -> Model:
         """The target's BRDF (what :meth:`FitResult.as_model` gives for a step-2 fit)."""
+        return self.one_model(channel)
+
+    def one_model(self, channel: str | None = None) -> Model:
+        """The target's BRDF, as :meth:`as_model` (a joint fit is of one channel)."""
         if channel is not None:
             raise FitError(f"channel {channel!r}: a joint fit is of one channel")
         return self.brdf("target")

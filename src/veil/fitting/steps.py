@@ -412,13 +412,13 @@ def _of_channel(result, channel: str | None):
 def model_values(result_or_model, other, angles, accuracy: str = "default") -> np.ndarray:
     """Values of a fitted model at canonical ``angles``: f_r alone for a BRDF when ``other`` is
     None, else the apparent reflectance with ``other`` (the medium or the BRDF)."""
-    model = result_or_model.as_model() if isinstance(result_or_model, FitResult) \
+    model = result_or_model.one_model() if isinstance(result_or_model, FitResult) \
         else result_or_model
     angles = tuple(np.asarray(a, dtype=float) for a in angles)
     if other is None:
         return DirectModel(model, angles).values(model.to_vector())
     if isinstance(other, FitResult):
-        other = other.as_model()
+        other = other.one_model()
     brdf, medium = (model, other) if model.KIND == "brdf" else (other, model)
     engine = ApparentModel(cast(BRDF, brdf), cast(Medium, medium), angles, RULES[accuracy])
     return engine.values(brdf.to_vector(), medium.to_vector())

@@ -89,7 +89,7 @@ def closest(source: Model, family: str, options: dict | None = None) -> Closest:
     with warnings.catch_warnings():  # how far the family is from it is said below
         warnings.simplefilter("ignore", MisfitWarning)
         result = fit_direct(data, brdf_model=cls.NAME, options=dict(options or {}))
-    return _closest_of(source, result.as_model(), values, angles, bool(result.converged))
+    return _closest_of(source, result.one_model(), values, angles, bool(result.converged))
 
 
 def closest_channels(sources: dict, family: str, options: dict | None = None) -> dict:

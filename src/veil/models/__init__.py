@@ -5,6 +5,7 @@ per family."""
 from __future__ import annotations
 
 from .base import BRDF, BTDF, Medium, Model, Option, Param
+from .channel_model import ChannelModel
 from .registry import (
     APPARATUS_OPTIONS,
     AUTO,
@@ -20,6 +21,6 @@ from .registry import (
     register,
 )
 
-__all__ = ["BRDF", "BTDF", "Medium", "Model", "Option", "Param", "REGISTRY", "PRESETS",
-           "DEFAULTS", "AUTO", "PAPER", "APPARATUS_OPTIONS", "candidates", "model_class",
+__all__ = ["BRDF", "BTDF", "Medium", "Model", "Option", "Param", "ChannelModel", "REGISTRY",
+           "PRESETS", "DEFAULTS", "AUTO", "PAPER", "APPARATUS_OPTIONS", "candidates", "model_class",
            "default_class", "names", "preset", "register"]

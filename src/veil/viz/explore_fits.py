@@ -95,7 +95,7 @@ class FitView:
         self.result, self.source = result, source
         check_result_kind(result, source)
         self.data = prepare(table, black, what=f"{table_name}")
-        model, given = result.as_model(), result.given_model()
+        model, given = result.one_model(), result.given_model()
         if model.KIND == "brdf":
             self.brdf, self.medium = model, given
         else:
@@ -152,7 +152,7 @@ class FitView:
         except np.linalg.LinAlgError:
             w, v = np.linalg.eigh(cov_u)
             root = v * np.sqrt(np.clip(w, 0.0, None))
-        base = self.result.as_model()
+        base = self.result.one_model()
         curves: list = []
         tries = 0
         while len(curves) < draws and tries < 20 * draws:
