@@ -42,7 +42,8 @@ FORMATTED := src/veil/fitting/least_squares.py src/veil/maps/__init__.py src/vei
 	benchmarks/bench_maps_optimistix.py src/veil/data/channels.py src/veil/fitting/channel_fit.py \
 	src/veil/interop/colour.py src/veil/cli/_result_models.py src/veil/cli/export_colour.py \
 	src/veil/viz/render_colour.py src/veil/cli/render_output.py src/veil/viz/explore_colour.py \
-	src/veil/models/channel_model.py src/veil/data/ingest_channels.py
+	src/veil/models/channel_model.py src/veil/data/ingest_channels.py tests/test_ingest_channels.py \
+	tests/test_channel_model.py
 lint: $(STAMP)
 	$(PY) -m ruff check src
 	$(PY) -m ruff format --check $(FORMATTED)

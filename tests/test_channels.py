@@ -10,9 +10,9 @@ import json
 import numpy as np
 import pandas as pd
 import pytest
-from support.cli import run
 
 import veil
+from support.cli import run
 from veil.data.measurements import load_measurements, save_measurements, validate
 from veil.data.simulate import simulate_channels
 from veil.errors import FitError, MeasurementError
@@ -86,8 +86,8 @@ def test_json_round_trip_and_the_model_of_one_channel(rgb_fit, tmp_path):
     assert red.Pd == rgb_fit.params["Pd[r]"] and red.n == rgb_fit.params["n"]
     values = veil.reflectance(red, 45, [40, 45, 50])
     assert np.all(np.isfinite(values)) and values[1] > values[0]
-    with pytest.raises(FitError, match="fits channels r, g, b at once"):
-        back.as_model()
+    every = back.as_model()  # every channel at once (tests/test_channel_model.py)
+    assert isinstance(every, veil.ChannelModel) and every["r"] == red
     with pytest.raises(FitError, match="no channel 'x'"):
         back.as_model(channel="x")
     data["channels"]["g"] = {"Pd": "Pd[g]"}

@@ -9,6 +9,7 @@ from __future__ import annotations
 import dataclasses
 import json
 
+import numpy as np
 import pytest
 from support.cli import run
 
@@ -95,8 +96,20 @@ def test_results_of_several_channels_round_trip_with_their_given_fit(fits, tmp_p
         back = FitResult.from_json(tmp_path / "x.json")
         assert back.to_dict() == result.to_dict()
         assert json.loads((tmp_path / "x.json").read_text())["given"]["channels"]
+        every = back.as_model()  # every channel at once; one model needs a channel named
+        assert isinstance(every, veil.ChannelModel) and every["g"] == back.as_model(channel="g")
         with pytest.raises(FitError, match="fits channels r, g, b at once"):
-            back.as_model()
+            back.one_model()
+
+
+def test_the_models_of_every_channel_evaluate_through_each_other(fits):
+    """as_model() of a target and a medium fitted over r, g, b: the apparent reflectance of
+    every channel at once, channel by channel bit for bit each one-channel pair's."""
+    _, _, med, tgt = fits
+    values = veil.apparent(tgt.as_model(), med.as_model(), 40, [30, 45], accuracy=FAST)
+    each = [veil.apparent(tgt.as_model(channel=c), med.as_model(channel=c), 40, [30, 45],
+                          accuracy=FAST) for c in "rgb"]
+    assert values.shape == (2, 3) and values.tobytes() == np.stack(each, -1).tobytes()
 
 
 def test_channels_of_the_given_fit_must_be_the_tables(fits):
