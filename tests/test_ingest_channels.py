@@ -170,7 +170,7 @@ def test_a_grey_image_has_no_rgb(photos, tmp_path):
         out,
     )
     assert result.exit_code == 2, result.output
-    assert "grey.png" in result.output and "use channel gray" in result.output
+    assert "grey.png" in result.output and "read with channel gray" in result.output
     assert "Traceback" not in result.output and not out.exists()
 
 

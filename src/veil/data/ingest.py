@@ -430,7 +430,8 @@ def _check_photo(photo: Photo, where: str, channel: str, response, saturation, d
     if channel == ALL_RGB and not is_colour(photo):
         raise InputError(f"{where}: a single-channel (gray) image has no colour channels; "
                          f"--channel {ALL_RGB} (channel={ALL_RGB!r}) reads colour photos "
-                         f"(RGB images or camera raw): use channel gray for grey ones")
+                         f"(RGB images or camera raw); a stack of grey photos is read with "
+                         f"channel gray")
     if channel != "gray" and photo.shape[2] == 1 and photo.kind != "raw":
         raise InputError(f"{where}: a single-channel (gray) image has no channel "
                          f"{channel!r}; use channel gray")
