@@ -9,6 +9,7 @@ from __future__ import annotations
 import dataclasses
 import json
 
+import numpy as np
 import pytest
 from support.cli import run
 
@@ -162,3 +163,86 @@ def test_the_pipeline_refuses_auto_models_over_several_channels(tmp_path):
     assert out.exit_code == 2, out.output
     assert "channels r, g, b" in out.output and "--channel" in out.output
     assert not (tmp_path / "out").exists()
+
+
+def _channel_problem(medium_by_channel: dict, medium_template):
+    """The step-1 problem over channels r, g, b of a reference BRDF2 through the given media
+    (fast rule; psi = 60 deg alone, one engine chunk), and its data by channel."""
+    from veil.fitting.channel_steps import through_problem
+    from veil.fitting.session_data import channels_of, prepare
+
+    ref = {c: veil.BRDF2.replace(Pd=REF_PD[c]) for c in MEDIUM}
+    table = simulate_channels({c: (ref[c], medium_by_channel[c]) for c in MEDIUM},
+                              psi=(60.0,), noise=0.01, seed=5, accuracy=FAST)
+    loaded, channels = channels_of(table, "reference")
+    datas = {c: prepare(loaded, None, "reference", channel=c) for c in channels}
+    problem = through_problem(datas, medium_template, veil.BRDF2, {}, (), "medium",
+                              "the reference", "the table")[0]
+    return problem, datas
+
+
+def _runs_and_values(problem, x):
+    """(engine program runs, model values) of one evaluation of ``problem`` at ``x``."""
+    from veil.engine import forward
+
+    runs = []
+    original = forward.Forward._run
+
+    def counted(self, fn, vb, vm):
+        runs.append(fn)
+        return original(self, fn, vb, vm)
+
+    forward.Forward._run = counted
+    try:
+        values = problem.model_values(x, FAST)
+    finally:
+        forward.Forward._run = original
+    return len(runs), values
+
+
+def _separately(problem, datas, x):
+    """Each channel's values by an engine of its own (no sharing)."""
+    from veil.fitting.problem import SessionModel
+
+    out = []
+    for b, data in zip(problem.blocks, datas.values()):
+        own = SessionModel(b.brdf, b.medium, data.angles, FAST)
+        out.append(own.values(*problem.split(b, x)))
+    return np.concatenate(out)
+
+
+def test_channels_differing_in_scales_run_the_engine_once():
+    """The paper medium's per-channel T_d and T_t are scales: the three channels' blocks
+    share one engine and its programs run once per evaluation, the values exactly those of
+    three separate engines (docs/channels.md, "Cost")."""
+    problem, datas = _channel_problem({c: _medium(c) for c in MEDIUM}, veil.BTDF2)
+    chunks = len(problem.blocks[0].model(FAST)._engine.parts)
+    assert len({id(b.models) for b in problem.blocks}) == 1
+    x = problem.values.copy()
+    x[problem.index("Td[b]")] *= 1.7  # the channels' scales differ
+    runs, values = _runs_and_values(problem, x)
+    assert runs == chunks
+    np.testing.assert_array_equal(values, _separately(problem, datas, x))
+    # a shared, non-scale parameter moved: the programs run again, once
+    x[problem.index("g")] = 0.5
+    runs, values = _runs_and_values(problem, x)
+    assert runs == chunks
+    np.testing.assert_array_equal(values, _separately(problem, datas, x))
+
+
+def test_channels_differing_in_a_non_scale_parameter_run_it_per_channel():
+    """forward-series' optical depth is per channel and not a scale: the shared engine runs
+    its programs for each channel, and no channel is given another's terms."""
+    from veil.models import model_class
+
+    series = model_class("forward-series")
+    waters = {c: series(tau=t, omega=0.97, g=0.9)
+              for c, t in zip(MEDIUM, (0.45, 0.3, 0.15))}
+    problem, datas = _channel_problem(waters, waters["g"])
+    chunks = len(problem.blocks[0].model(FAST)._engine.parts)
+    x = problem.values.copy()
+    for c, t in zip(MEDIUM, (0.45, 0.3, 0.15)):
+        x[problem.index(f"tau[{c}]")] = t
+    runs, values = _runs_and_values(problem, x)
+    assert runs == 3 * chunks
+    np.testing.assert_array_equal(values, _separately(problem, datas, x))
