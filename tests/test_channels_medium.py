@@ -8,7 +8,10 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import re
 
+import matplotlib.colors
+import matplotlib.image
 import numpy as np
 import pytest
 from support.cli import run
@@ -18,6 +21,7 @@ from veil.data.measurements import save_measurements
 from veil.data.simulate import simulate_channels
 from veil.errors import FitError
 from veil.fitting import FitResult, fit_medium, fit_reference, fit_target
+from veil.viz.explore import CHANNEL_COLOURS
 
 #: The paper's medium BTDF2 with T_d and T_t scaled per channel (water that dims red); the
 #: reference BRDF2 and the target BRDF1 with their diffuse albedo per channel.
@@ -43,7 +47,10 @@ def _sessions() -> dict:
                                        noise=0.01, seed=2, black=True, accuracy=FAST)
     tgt_m, black_t = simulate_channels({c: (tgt[c], _medium(c)) for c in MEDIUM},
                                        noise=0.01, seed=3, black=True, accuracy=FAST)
-    return {"clear": (clear, None), "ref_m": (ref_m, black_r), "tgt_m": (tgt_m, black_t)}
+    tgt_clear = simulate_channels({c: (tgt[c], None) for c in MEDIUM}, noise=0.01, seed=4,
+                                  accuracy=FAST)
+    return {"clear": (clear, None), "ref_m": (ref_m, black_r), "tgt_m": (tgt_m, black_t),
+            "tgt_clear": (tgt_clear, None)}
 
 
 @pytest.fixture(scope="module")
@@ -137,7 +144,7 @@ def test_the_pipeline_over_three_channels_and_one_of_them(tmp_path):
     base = ["fit", "pipeline", "--reference-clear", p["clear"], "--reference-medium",
             p["ref_m"], "--target-medium", p["tgt_m"], "--black",
             tmp_path / "ref_m_black.csv", "--accuracy", FAST]
-    out = run(*base, "-o", tmp_path / "rgb")
+    out = run(*base, "--target-clear", p["tgt_clear"], "-o", tmp_path / "rgb")
     assert out.exit_code == 0, out.output
     med = FitResult.from_json(tmp_path / "rgb" / "medium.json")
     tgt = FitResult.from_json(tmp_path / "rgb" / "target.json")
@@ -146,8 +153,19 @@ def test_the_pipeline_over_three_channels_and_one_of_them(tmp_path):
         assert abs(_z(med, f"Tt[{c}]", _medium(c).Tt)) < 3
         assert abs(_z(tgt, f"Pd[{c}]", TGT_PD[c])) < 3
     report = (tmp_path / "rgb" / "report.md").read_text()
-    assert "## Channels" in report and "Not made for several channels" in report
-    assert not list((tmp_path / "rgb").glob("*.png"))
+    assert "## Channels" in report and "every channel in its colour" in report
+    # the estimate against the direct fit, per channel: close (1 % noise), each listed
+    rms = {c: float(re.search(rf"\| {c} \| ([0-9.e+-]+) \|", report).group(1)) for c in MEDIUM}
+    assert all(0.0 < v < 5.0 for v in rms.values()), rms
+    # four figures, each drawing the three channels in their colours
+    figures = sorted(f.name for f in (tmp_path / "rgb").glob("*.png"))
+    assert len(figures) == 4, figures
+    for name in figures:
+        pixels = matplotlib.image.imread(tmp_path / "rgb" / name)[..., :3]
+        for c in MEDIUM:
+            colour = np.array(matplotlib.colors.to_rgb(CHANNEL_COLOURS[c]))
+            near = np.all(np.abs(pixels - colour) < 0.02, axis=-1).sum()
+            assert near > 200, (name, c, near)
     out = run(*base, "--channel", "g", "--no-figures", "-o", tmp_path / "g")
     assert out.exit_code == 0, out.output
     green = FitResult.from_json(tmp_path / "g" / "medium.json")
