@@ -140,3 +140,11 @@ def test_a_one_channel_result_as_before(rgb_table, rgb_json, tmp_path):
     # what needs the model of one channel still names the channels of a fit of several
     with pytest.raises(FitError, match="fits channels r, g, b at once"):
         FitResult.from_json(rgb_json).one_model()
+
+
+def test_a_step_of_one_channel_given_a_fit_of_several_names_its_channels(rgb_json):
+    """The model a step of one channel holds fixed is one channel's: a fit of several
+    given without a channel is an error naming them (not a ChannelModel taken as a BRDF)."""
+    table = veil.simulate(veil.BRDF1, None, noise=0.01, seed=1)
+    with pytest.raises(FitError, match="fits channels r, g, b at once"):
+        veil.fit_medium(table, FitResult.from_json(rgb_json))

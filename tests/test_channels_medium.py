@@ -8,7 +8,10 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import re
 
+import matplotlib.colors
+import matplotlib.image
 import numpy as np
 import pytest
 from support.cli import run
@@ -18,6 +21,7 @@ from veil.data.measurements import save_measurements
 from veil.data.simulate import simulate_channels
 from veil.errors import FitError
 from veil.fitting import FitResult, fit_medium, fit_reference, fit_target
+from veil.viz.explore import CHANNEL_COLOURS
 
 #: The paper's medium BTDF2 with T_d and T_t scaled per channel (water that dims red); the
 #: reference BRDF2 and the target BRDF1 with their diffuse albedo per channel.
@@ -43,7 +47,10 @@ def _sessions() -> dict:
                                        noise=0.01, seed=2, black=True, accuracy=FAST)
     tgt_m, black_t = simulate_channels({c: (tgt[c], _medium(c)) for c in MEDIUM},
                                        noise=0.01, seed=3, black=True, accuracy=FAST)
-    return {"clear": (clear, None), "ref_m": (ref_m, black_r), "tgt_m": (tgt_m, black_t)}
+    tgt_clear = simulate_channels({c: (tgt[c], None) for c in MEDIUM}, noise=0.01, seed=4,
+                                  accuracy=FAST)
+    return {"clear": (clear, None), "ref_m": (ref_m, black_r), "tgt_m": (tgt_m, black_t),
+            "tgt_clear": (tgt_clear, None)}
 
 
 @pytest.fixture(scope="module")
@@ -149,7 +156,7 @@ def test_the_pipeline_over_three_channels_and_one_of_them(tmp_path):
     base = ["fit", "pipeline", "--reference-clear", p["clear"], "--reference-medium",
             p["ref_m"], "--target-medium", p["tgt_m"], "--black",
             tmp_path / "ref_m_black.csv", "--accuracy", FAST]
-    out = run(*base, "-o", tmp_path / "rgb")
+    out = run(*base, "--target-clear", p["tgt_clear"], "-o", tmp_path / "rgb")
     assert out.exit_code == 0, out.output
     med = FitResult.from_json(tmp_path / "rgb" / "medium.json")
     tgt = FitResult.from_json(tmp_path / "rgb" / "target.json")
@@ -158,8 +165,19 @@ def test_the_pipeline_over_three_channels_and_one_of_them(tmp_path):
         assert abs(_z(med, f"Tt[{c}]", _medium(c).Tt)) < 3
         assert abs(_z(tgt, f"Pd[{c}]", TGT_PD[c])) < 3
     report = (tmp_path / "rgb" / "report.md").read_text()
-    assert "## Channels" in report and "Not made for several channels" in report
-    assert not list((tmp_path / "rgb").glob("*.png"))
+    assert "## Channels" in report and "every channel in its colour" in report
+    # the estimate against the direct fit, per channel: close (1 % noise), each listed
+    rms = {c: float(re.search(rf"\| {c} \| ([0-9.e+-]+) \|", report).group(1)) for c in MEDIUM}
+    assert all(0.0 < v < 5.0 for v in rms.values()), rms
+    # four figures, each drawing the three channels in their colours
+    figures = sorted(f.name for f in (tmp_path / "rgb").glob("*.png"))
+    assert len(figures) == 4, figures
+    for name in figures:
+        pixels = matplotlib.image.imread(tmp_path / "rgb" / name)[..., :3]
+        for c in MEDIUM:
+            colour = np.array(matplotlib.colors.to_rgb(CHANNEL_COLOURS[c]))
+            near = np.all(np.abs(pixels - colour) < 0.02, axis=-1).sum()
+            assert near > 200, (name, c, near)
     out = run(*base, "--channel", "g", "--no-figures", "-o", tmp_path / "g")
     assert out.exit_code == 0, out.output
     green = FitResult.from_json(tmp_path / "g" / "medium.json")
@@ -175,3 +193,86 @@ def test_the_pipeline_refuses_auto_models_over_several_channels(tmp_path):
     assert out.exit_code == 2, out.output
     assert "channels r, g, b" in out.output and "--channel" in out.output
     assert not (tmp_path / "out").exists()
+
+
+def _channel_problem(medium_by_channel: dict, medium_template):
+    """The step-1 problem over channels r, g, b of a reference BRDF2 through the given media
+    (fast rule; psi = 60 deg alone, one engine chunk), and its data by channel."""
+    from veil.fitting.channel_steps import through_problem
+    from veil.fitting.session_data import channels_of, prepare
+
+    ref = {c: veil.BRDF2.replace(Pd=REF_PD[c]) for c in MEDIUM}
+    table = simulate_channels({c: (ref[c], medium_by_channel[c]) for c in MEDIUM},
+                              psi=(60.0,), noise=0.01, seed=5, accuracy=FAST)
+    loaded, channels = channels_of(table, "reference")
+    datas = {c: prepare(loaded, None, "reference", channel=c) for c in channels}
+    problem = through_problem(datas, medium_template, veil.BRDF2, {}, (), "medium",
+                              "the reference", "the table")[0]
+    return problem, datas
+
+
+def _runs_and_values(problem, x):
+    """(engine program runs, model values) of one evaluation of ``problem`` at ``x``."""
+    from veil.engine import forward
+
+    runs = []
+    original = forward.Forward._run
+
+    def counted(self, fn, vb, vm):
+        runs.append(fn)
+        return original(self, fn, vb, vm)
+
+    forward.Forward._run = counted
+    try:
+        values = problem.model_values(x, FAST)
+    finally:
+        forward.Forward._run = original
+    return len(runs), values
+
+
+def _separately(problem, datas, x):
+    """Each channel's values by an engine of its own (no sharing)."""
+    from veil.fitting.problem import SessionModel
+
+    out = []
+    for b, data in zip(problem.blocks, datas.values()):
+        own = SessionModel(b.brdf, b.medium, data.angles, FAST)
+        out.append(own.values(*problem.split(b, x)))
+    return np.concatenate(out)
+
+
+def test_channels_differing_in_scales_run_the_engine_once():
+    """The paper medium's per-channel T_d and T_t are scales: the three channels' blocks
+    share one engine and its programs run once per evaluation, the values exactly those of
+    three separate engines (docs/channels.md, "Cost")."""
+    problem, datas = _channel_problem({c: _medium(c) for c in MEDIUM}, veil.BTDF2)
+    chunks = len(problem.blocks[0].model(FAST)._engine.parts)
+    assert len({id(b.models) for b in problem.blocks}) == 1
+    x = problem.values.copy()
+    x[problem.index("Td[b]")] *= 1.7  # the channels' scales differ
+    runs, values = _runs_and_values(problem, x)
+    assert runs == chunks
+    np.testing.assert_array_equal(values, _separately(problem, datas, x))
+    # a shared, non-scale parameter moved: the programs run again, once
+    x[problem.index("g")] = 0.5
+    runs, values = _runs_and_values(problem, x)
+    assert runs == chunks
+    np.testing.assert_array_equal(values, _separately(problem, datas, x))
+
+
+def test_channels_differing_in_a_non_scale_parameter_run_it_per_channel():
+    """forward-series' optical depth is per channel and not a scale: the shared engine runs
+    its programs for each channel, and no channel is given another's terms."""
+    from veil.models import model_class
+
+    series = model_class("forward-series")
+    waters = {c: series(tau=t, omega=0.97, g=0.9)
+              for c, t in zip(MEDIUM, (0.45, 0.3, 0.15))}
+    problem, datas = _channel_problem(waters, waters["g"])
+    chunks = len(problem.blocks[0].model(FAST)._engine.parts)
+    x = problem.values.copy()
+    for c, t in zip(MEDIUM, (0.45, 0.3, 0.15)):
+        x[problem.index(f"tau[{c}]")] = t
+    runs, values = _runs_and_values(problem, x)
+    assert runs == 3 * chunks
+    np.testing.assert_array_equal(values, _separately(problem, datas, x))

@@ -21,14 +21,13 @@ Formats and the meaning of the uncertainties: docs/fitting.md.
 from __future__ import annotations
 
 import json
-import math
 import os
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
-from .analysis.uncertainty import curve_stderr
+from .analysis.comparison import compare
 from .data.measurements import CANONICAL
 from .data.protocol import protocol
 from .errors import FitError
@@ -51,6 +50,7 @@ from .models import AUTO, model_class
 from .models.base import VARIANT_OPTION
 from .viz.documents import pipeline_report, ranking_section
 from .viz.fit_figures import fit_figure
+from .viz.fit_figures_colour import channel_fit_figure
 
 #: Output files, by role.
 FILES = {"reference": "reference.json", "medium": "medium.json", "target": "target.json",
@@ -62,12 +62,12 @@ RANKING_FILE = "ranking.json"
 #: With ``keep_candidates``, every candidate's result under this folder, by step.
 CANDIDATES_DIR = "candidates"
 STEP_KEYS = ("reference", "medium", "target")
-#: report.md's section on a pipeline over several channels: what it does not draw yet.
+#: report.md's section on a pipeline over several channels.
 CHANNELS_NOTE = ("## Channels\n\nEvery step fitted the channels {} at once, the parameters "
-                 "declared per channel one per channel and the others tied (docs/fitting.md, "
-                 "\"Channels\"). Not made for several channels: the figures, and the "
-                 "comparison of the estimate with the target measured directly (fitted, in "
-                 "target_direct.json); fit one channel (--channel NAME) for those.")
+                 "declared per channel one per channel and the others tied (docs/channels.md). "
+                 "The figures draw every channel in its colour.")
+#: The key of ``data`` (:func:`_prepare_sessions`) holding every channel's data.
+CHANNEL_DATA = "by channel"
 
 
 @dataclass(frozen=True)
@@ -125,8 +125,9 @@ def _check_outputs(outdir: str, inputs: dict) -> None:
 def _prepare_sessions(inputs: dict, channel: str | None = None) -> tuple[dict, list | None]:
     """Every session read and checked before the first (long) fit (black cloth subtracted
     from the sessions in the medium): ({session: its data}, the channels fitted at once or
-    None). Of several channels (none chosen) every channel is checked and the data are the
-    first channel's (the engine's configurations)."""
+    None). Of several channels (none chosen) every channel is checked, the data are the
+    first channel's (the engine's configurations) and ``data[CHANNEL_DATA]`` holds
+    {session: {channel: its data}} (the figures')."""
     black = inputs["black"]
     whats = {"reference_clear": "reference (clear medium)",
              "reference_medium": "reference (in the medium)",
@@ -138,11 +139,15 @@ def _prepare_sessions(inputs: dict, channel: str | None = None) -> tuple[dict, l
         channels = channels if channels is not None and len(channels) > 1 else None
     data: dict = {}
     picks: list[str | None] = list(channels) if channels else [channel]
+    by_channel: dict = {}
     for key in keys:
         session_black = black if key in ("reference_medium", "target_medium") else None
         for c in picks:
             found = prepare(inputs[key], session_black, whats[key], channel=c)
             data.setdefault(key, found)
+            by_channel.setdefault(key, {})[c] = found
+    if channels:
+        data[CHANNEL_DATA] = by_channel
     return data, channels
 
 
@@ -176,14 +181,41 @@ def _stage(progress, name: str):
 
 def _write_figures(folder, data: dict, ref, med, tgt, direct) -> dict:
     """The figure of each fit in ``folder``: {figure key: file name}."""
+    if CHANNEL_DATA in data:
+        return _write_channel_figures(folder, data[CHANNEL_DATA], ref, med, tgt, direct)
     figs = {"reference_fig": (data["reference_clear"], ref, None, None),
-            "medium_fig": (data["reference_medium"], med, ref.as_model(), None),
-            "target_fig": (data["target_medium"], tgt, med.as_model(), None)}
+            "medium_fig": (data["reference_medium"], med, ref.one_model(), None),
+            "target_fig": (data["target_medium"], tgt, med.one_model(), None)}
     if direct is not None:
         figs["direct_fig"] = (data["target_clear"], direct, None, tgt)
     for key, (d, result, other, extra) in figs.items():
         write_bytes_atomic(folder / FILES[key], fit_figure(d, result, other, extra))
     return {key: FILES[key] for key in figs}
+
+
+def _write_channel_figures(folder, datas: dict, ref, med, tgt, direct) -> dict:
+    """:func:`_write_figures` of fits over several channels: every channel in its colour."""
+    channels = ref.channel_names
+    figs = {"reference_fig": (datas["reference_clear"], ref, None, None),
+            "medium_fig": (datas["reference_medium"], med, ref, None),
+            "target_fig": (datas["target_medium"], tgt, med, None)}
+    if direct is not None:
+        figs["direct_fig"] = (datas["target_clear"], direct, None, tgt)
+    for key, (d, result, other, extra) in figs.items():
+        others = {c: None if other is None else other.as_model(channel=c) for c in channels}
+        write_bytes_atomic(folder / FILES[key], channel_fit_figure(d, result, others, extra))
+    return {key: FILES[key] for key in figs}
+
+
+def _channel_lines(comparison: dict | None) -> str:
+    """report.md's per-channel comparison of the estimate with the direct fit (if any)."""
+    if not comparison or "rms_fr_relative_by_channel" not in comparison:
+        return ""
+    rows = [f"| {c} | {100 * v:.3g} |"
+            for c, v in comparison["rms_fr_relative_by_channel"].items()]
+    return ("\n\nThe estimate against the target measured directly, per channel (rms relative "
+            "difference of f_r over the paper's protocol):\n\n| channel | rms [%] |\n|---|---|\n"
+            + "\n".join(rows))
 
 
 def _resolve_models(models, brdf_model, medium_model) -> tuple[Any, Any, bool]:
@@ -267,7 +299,7 @@ def _write_outputs(outdir: str, fits: dict, data: dict, rankings: dict, kept: di
             report = report.rstrip("\n") + "\n\n" + "\n".join(ranking_section(rankings)) + "\n"
         if channels is not None:
             report = report.rstrip("\n") + "\n\n" + CHANNELS_NOTE.format(
-                ", ".join(channels)) + "\n"
+                ", ".join(channels)) + _channel_lines(comparison) + "\n"
         write_text_atomic(folder / FILES["report"], report)
         names["report"] = FILES["report"]
     return names
@@ -339,17 +371,17 @@ def run_pipeline(reference_clear, reference_medium, target_medium, black=None, t
             brdf_options=brdf_options, medium_options=medium_options,
             model_error=model_error, propagation=propagation, sources=sources)
     direct = comparison = None
-    if target_clear is not None:      # several channels: fitted, not compared (report.md)
+    if target_clear is not None:
         direct = _fit_direct(data["target_clear"] if channels is None else target_clear,
                              fixed, free, chosen=bool(rankings), brdf_model=brdf_model,
                              brdf_options=brdf_options, max_nfev=max_nfev, progress=progress,
                              model_error=model_error)
-        comparison = compare(tgt, direct) if channels is None else None
+        comparison = compare(tgt, direct)
 
     fits = {"reference": ref, "medium": med, "target": tgt, "direct": direct}
     # inputs inside the output folder are named relative to it (links from report.md)
     names = _write_outputs(outdir, fits, data, rankings, kept, progress=progress,
-                           figures=figures and channels is None, comparison=comparison, truth=truth,
+                           figures=figures, comparison=comparison, truth=truth,
                            shown=_relative_to(inputs, outdir), channels=channels)
     files = {key: os.path.join(outdir, name) for key, name in names.items()}
     return PipelineResult(ref, med, tgt, direct, comparison, files, rankings)
@@ -495,61 +527,6 @@ def _select(data, plan, *, accuracy, max_nfev, progress, model_error, propagatio
     opts.update(chosen["options"])
     return (ref, med, tgt, chosen["family"], opts, rankings,
             kept if keep else {})
-
-
-# --------------------------------------------------------------------------------------
-# comparison with the directly measured target
-# --------------------------------------------------------------------------------------
-def compare(estimated: FitResult, direct: FitResult) -> dict:
-    """Estimated (through the medium; a step-2 or a joint fit) against direct f_r of the same
-    object.
-
-    Per parameter: difference and difference / sqrt(se_est^2 + se_direct^2) (the estimate's
-    total standard error when it has one); and the rms of f_r_est - f_r_direct over the
-    configurations of the paper's protocol (absolute and relative to f_r_direct). The curves
-    are compared in units of their own standard error too (the covariances propagated
-    through f_r's Jacobian at each configuration): ``fr_max_z`` the largest |difference| /
-    se, ``fr_within_2se`` the share of configurations within two standard errors (None
-    when an uncertainty is undetermined). Correlated parameters can differ by many of their
-    own standard errors while the curves agree: the curves are what the estimate is for.
-    """
-    rows = {}
-    se_est = estimated.stderr_total or estimated.stderr
-    named = estimated.target_names()        # a joint fit's by their result names
-    for name, ref in direct.params.items():
-        key = named[name]
-        value = estimated.params[key]
-        a, b = se_est.get(key), direct.stderr.get(name)
-        combined = math.hypot(a or 0.0, b or 0.0)
-        rows[name] = {"estimated": value, "direct": ref, "difference": value - ref,
-                      "stderr_combined": combined if combined > 0 else None,
-                      "z": (value - ref) / combined if combined > 0 else None}
-    configs = protocol()
-    angles = tuple(configs[c].to_numpy() for c in CANONICAL)
-    f_est, se_f_est = curve_stderr(estimated, angles)
-    f_dir, se_f_dir = curve_stderr(direct, angles)
-    diff = f_est - f_dir
-    out = {"params": rows, "n_configurations": len(configs),
-           "rms_fr_difference": float(np.sqrt(np.mean(diff ** 2))),
-           "rms_fr_relative": float(np.sqrt(np.mean((diff / f_dir) ** 2))),
-           "max_fr_relative": float(np.max(np.abs(diff / f_dir))),
-           "fr_max_z": None, "fr_within_2se": None}
-    spread = ((estimated.stats or {}).get("selection") or {}).get("spread")
-    out["model_spread_rms_relative"] = None
-    if spread is not None and len(spread.get("spread", ())) == len(configs):
-        # a close call between families: their curves' BIC-weighted spread widens the
-        # estimate's uncertainty (veil.fitting.selection)
-        widen = np.asarray(spread["spread"], dtype=float)
-        se_f_est = widen if se_f_est is None else np.hypot(se_f_est, widen)
-        out["model_spread_rms_relative"] = spread["rms_relative"]
-    if se_f_est is not None:
-        se = np.hypot(se_f_est, 0.0 if se_f_dir is None else se_f_dir)
-        if np.all(se > 0):
-            z = np.abs(diff) / se
-            out["fr_max_z"] = float(np.max(z))
-            out["fr_within_2se"] = float(np.mean(z <= 2.0))
-    return out
-
 
 
 # --------------------------------------------------------------------------------------

@@ -321,12 +321,14 @@ def _draw(rng, mean, cov, names, n_draws, cls):
     return np.array(out), tries - n_draws
 
 
-def curve_stderr(result: FitResult, angles) -> tuple[np.ndarray, np.ndarray | None]:
+def curve_stderr(result: FitResult, angles,
+                 channel: str | None = None) -> tuple[np.ndarray, np.ndarray | None]:
     """f_r of a fitted BRDF at canonical ``angles`` and its standard error per configuration,
     the result's covariance (the total one when it has it) through f_r's exact Jacobian:
     se_k^2 = J_k Cov J_k^T (of a joint fit, the target's f_r and the block of its
-    parameters). The error is None when the covariance is undetermined."""
-    model = result.one_model()
+    parameters; of a fit over several channels, ``channel``'s f_r and its parameters). The
+    error is None when the covariance is undetermined."""
+    model = result.one_model(channel)
     if model.KIND != "brdf":
         raise InputTypeError(f"expected a BRDF result, got a {model.KIND} result "
                              f"({result.model})")
@@ -337,7 +339,8 @@ def curve_stderr(result: FitResult, angles) -> tuple[np.ndarray, np.ndarray | No
         return values, None
     names, cov = found
     # a joint fit: the target's parameters (by their result names) out of all it fitted
-    own = {r: p for p, r in result.target_names().items()}
+    layout = result.target_names() if channel is None else (result.channels or {})[channel]
+    own = {r: p for p, r in layout.items()}
     keep = [k for k, n in enumerate(names) if n in own]
     names, cov = [own[names[k]] for k in keep], cov[np.ix_(keep, keep)]
     order = type(model).param_names()

@@ -37,6 +37,7 @@ from ..engine.angles import direction
 from ..engine.apparent import RULES, as_brdf, as_btdf
 from ..engine.evaluator import CHUNK, evaluate
 from ..errors import InputError
+from ..models.base import compiled_kernel
 from .protocol import PSI, protocol
 
 if TYPE_CHECKING:
@@ -58,7 +59,7 @@ def glow_shape(medium, theta_i, phi_i, theta_r, phi_r) -> np.ndarray:
     wi = np.asarray(direction(theta_i, phi_i))
     wr = np.asarray(direction(theta_r, phi_r))
     one_minus_mu = np.maximum(1.0 + np.sum(wi * wr, axis=-1), 0.0)  # 1 - cos(gamma)
-    return np.asarray(m.kernel(v, one_minus_mu), dtype=float)
+    return np.asarray(compiled_kernel(m)(v, one_minus_mu), dtype=float)
 
 
 @lru_cache(maxsize=64)

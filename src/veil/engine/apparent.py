@@ -161,7 +161,7 @@ def apparent(brdf, medium, theta_i, theta_r, phi_i=180.0, phi_r=0.0, *,
     (and errors) then have a trailing axis of its channels, in their order; a model of one
     channel beside it is every channel's. Each channel's values are bit for bit those of
     its one-channel models; the channels share one set of configurations, and those whose
-    parameters differ only in their scales share one quadrature.
+    parameters differ only in their scales one run of the quadrature.
     """
     if accuracy not in RULES:
         raise InputError(f"accuracy = {accuracy!r}; expected one of {', '.join(RULES)}")
@@ -196,8 +196,8 @@ def apparent(brdf, medium, theta_i, theta_r, phi_i=180.0, phi_r=0.0, *,
 
 def _apparent_channels(brdf, medium, channels, angles, accuracy: str, return_error: bool):
     """:func:`apparent` of every channel (its docstring, "Colour"): one :class:`Forward` of
-    the configurations for all of them; the term matrices (scales at 1) computed once for
-    the channels whose parameters differ only in their scales."""
+    the configurations for all of them, whose programs run once for consecutive channels
+    that differ only in scale parameters (``Forward.terms`` keeps its last term matrices)."""
     pairs = {c: (as_brdf(channel_member(brdf, c)), as_btdf(channel_member(medium, c)))
              for c in channels}
     ti, tr, pi_, pr = check_angles(*angles)
@@ -205,15 +205,11 @@ def _apparent_channels(brdf, medium, channels, angles, accuracy: str, return_err
     b0, m0 = pairs[channels[0]]
 
     def evaluate(forward):
-        terms_of: dict = {}
         out = []
         for c in channels:
             b, m = pairs[c]
             vb, vm = b.to_vector(), m.to_vector()
-            key = (_unit_scale_key(b), _unit_scale_key(m))
-            if key not in terms_of:
-                terms_of[key] = forward.terms(vb, vm)
-            terms = terms_of[key]
+            terms = forward.terms(vb, vm)
             value = forward.combine(terms, vb, vm).reshape(shape)
             out.append(check_finite(value, f"the apparent reflectance of channel {c}", [b, m],
                                     terms=terms))
@@ -229,17 +225,3 @@ def _apparent_channels(brdf, medium, channels, angles, accuracy: str, return_err
     error = ERROR_FACTOR * np.abs(value - evaluate(fine))
     return value, check_finite(error, "the error estimate of the apparent reflectance",
                                [b0, m0])
-
-
-def _unit_scale_key(model) -> bytes:
-    """A model's parameters with its scales (and a medium's gain) at 1: all the term
-    matrices depend on (veil.engine.integrator sets them to 1 inside the program)."""
-    v = model.to_vector()
-    for part in model.SCALES:
-        i = model.scale_index(part)
-        if i is not None:
-            v[i] = 1.0
-    gain = getattr(model, "GAIN", None)
-    if gain is not None:
-        v[model.param_names().index(gain)] = 1.0
-    return v.tobytes()

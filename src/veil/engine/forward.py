@@ -154,6 +154,25 @@ def wait_for_compilations() -> None:
         future.exception()
 
 
+def _unit_scale_vector(cls, v) -> np.ndarray:
+    """``v`` with the model's scale parameters and gain set to 1 (host-side, as
+    integrator._unit_scales does inside the programs)."""
+    out = np.array(v, dtype=float)
+    for part in cls.SCALES:
+        out[cls.scale_index(part)] = 1.0
+    gain = getattr(cls, "GAIN", None)
+    if gain is not None:
+        out[cls.param_names().index(gain)] = 1.0
+    return out
+
+
+def _read_only(a) -> np.ndarray:
+    """A host copy of a program's output that no caller can change (it is kept)."""
+    out = np.asarray(a)
+    out.flags.writeable = False
+    return out
+
+
 class Forward:
     """Apparent reflectance of ``brdf`` through ``medium`` at fixed configurations.
 
@@ -185,10 +204,27 @@ class Forward:
         self._wi, self._wr = jax.device_put(wi[idx], split), jax.device_put(wr[idx], split)
         self._kb = integrator.template(brdf).structure()
         self._km = integrator.template(medium).structure()
+        # the last output of each program, by its non-scale parameters (see _memo_run)
+        self._last: dict = {}
 
     # ----------------------------------------------------------------------------------
     def _run(self, fn, vb, vm):
         return fn(vb, vm, self._wi, self._wr)
+
+    def _memo_run(self, fn, vb, vm):
+        """``fn``'s output at ``vb``, ``vm``, or its last output when only scale parameters
+        changed since: the term matrices and their derivatives do not depend on them (the
+        program sets them to 1, integrator._unit_scales). Channels whose own parameters are
+        all scales (a BRDF's albedos, the paper medium's T_d and T_t) share their shared
+        parameters' programs run once per iteration (docs/channels.md, "Cost")."""
+        key = (_unit_scale_vector(type(self.brdf), vb).tobytes()
+               + _unit_scale_vector(type(self.medium), vm).tobytes())
+        last = self._last.get(fn)
+        if last is not None and last[0] == key:
+            return last[1]
+        out = jax.tree_util.tree_map(_read_only, self._run(fn, vb, vm))
+        self._last[fn] = (key, out)
+        return out
 
     def prepare(self, values: bool = True, jacobians=()) -> list[Future]:
         """Start compiling (or loading) in the background what later calls will need: the
@@ -245,7 +281,7 @@ class Forward:
         """Term matrices (M, rows, 2) with scale parameters set to 1 (see integrator)."""
         fn = _terms_fn(self._kb, self._km, self.rule, self.half, self._mesh)
         vb, vm = self._vectors(vb, vm)
-        return np.asarray(self._run(fn, vb, vm))[: self.size]
+        return self._memo_run(fn, vb, vm)[: self.size]
 
     def combine(self, terms, vb, vm) -> np.ndarray:
         """The apparent reflectance from the term matrices and the scale parameters, on the
@@ -269,9 +305,9 @@ class Forward:
             free_brdf, free_medium)
         vb, vm = self._vectors(vb, vm)
         if fn is not None:
-            terms, jac_nl = self._run(fn, vb, vm)
-            terms = np.asarray(terms)[: self.size]
-            jac_nl = np.asarray(jac_nl)[: self.size]  # (M, rows, 2, len(nl_b) + len(nl_m))
+            terms, jac_nl = self._memo_run(fn, vb, vm)
+            terms = terms[: self.size]
+            jac_nl = jac_nl[: self.size]  # (M, rows, 2, len(nl_b) + len(nl_m))
         else:  # only scale parameters free: the term matrices are all it takes
             terms = self.terms(vb, vm)
             jac_nl = np.zeros(terms.shape + (0,))

@@ -100,6 +100,7 @@ def through_problem(datas: dict[str, FitData], fitted: Model, given, fixed: dict
     if not free.any():
         raise FitError(f"every parameter of the {what} fit is fixed: nothing to fit")
     blocks = []
+    engines = _shared_engines()
     for c, data in datas.items():
         b_layout, m_layout = (f_layout, g_layout) if cls.KIND == "brdf" else (g_layout, f_layout)
         brdf = cast(BRDF, fitted if cls.KIND == "brdf" else g_models[c])
@@ -108,7 +109,7 @@ def through_problem(datas: dict[str, FitData], fitted: Model, given, fixed: dict
         im = np.array([names.index(m_layout[c][p.name]) for p in type(medium).PARAMS])
         session = Session(data.table, "m", "reference" if cls.KIND == "medium" else "target",
                           name=f"channel {c}")
-        blocks.append(Block(session, data, ib, im, brdf, medium))
+        blocks.append(Block(session, data, ib, im, brdf, medium, engines(data, brdf, medium)))
     weighted = {d.sigma is not None for d in datas.values()}
     if len(weighted) > 1:
         raise FitError(f"the {what} table has a sigma for some channels and not others")
@@ -118,6 +119,25 @@ def through_problem(datas: dict[str, FitData], fitted: Model, given, fixed: dict
                        f"fit has {problem.n_free} free parameter(s): need more points than "
                        f"free parameters")
     return problem, f_layout, g_models
+
+
+def _shared_engines():
+    """A function giving each channel's block its engines: one dict (accuracy -> engine,
+    :class:`~veil.fitting.problem.Block`) shared by the channels measured at the same
+    configurations with models of the same structure, so that an iteration runs the engine's
+    programs once for all of them where the channels differ only in scale parameters
+    (``Forward._memo_run``; docs/channels.md, "Cost")."""
+    seen: list = []
+
+    def engines(data: FitData, brdf: BRDF, medium: Medium) -> dict:
+        for angles, structures, shared in seen:
+            if structures == (brdf.structure(), medium.structure()) and all(
+                    np.array_equal(a, b) for a, b in zip(angles, data.angles)):
+                return shared
+        seen.append((data.angles, (brdf.structure(), medium.structure()), {}))
+        return seen[-1][2]
+
+    return engines
 
 
 def _block_point(problem: Problem, b: Block, kind: str, v: np.ndarray):

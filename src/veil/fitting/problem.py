@@ -382,7 +382,11 @@ class Problem:
     def engine_calls(self) -> dict:
         """{accuracy: [value evaluations, Jacobian evaluations]} summed over the sessions."""
         out: dict = {}
+        counted: set = set()
         for b in self.blocks:
+            if id(b.models) in counted:  # engines shared by channels (channel_steps)
+                continue
+            counted.add(id(b.models))
             for acc, m in b.models.items():
                 c = out.setdefault(acc, [0, 0])
                 v, j = m.calls

@@ -405,7 +405,7 @@ def _of_channel(result, channel: str | None):
     """A fit of several channels given to a step of one ``channel``: its model of that
     channel (a FitError naming the channels when none is chosen); anything else as it is."""
     if isinstance(result, FitResult) and result.channels is not None:
-        return result.as_model(channel=channel)
+        return result.one_model(channel)
     return result
 
 

@@ -28,6 +28,13 @@ COLORS = ("#1f77b4", "#d62728", "#2ca02c", "#ff7f0e", "#6a3d9a", "#8c564b")
 # --------------------------------------------------------------------------------------
 # figures
 # --------------------------------------------------------------------------------------
+#: The title of each step's figure.
+STEP_TITLES = {"reference": "Step 0: reference object, clear medium (f_r)",
+               "medium": "Step 1: reference object through the medium (f_t fitted)",
+               "target": "Step 2: target object through the medium (f_r fitted)",
+               "direct": "Target object, clear medium: direct fit and estimate"}
+
+
 def _goniometer(data):
     """(psi, rho, signed theta_r) of in-plane data, or None if a row is out of the plane."""
     try:
@@ -63,16 +70,12 @@ def fit_figure(data, result: FitResult, other: Model | None, extra: FitResult | 
     else:
         ax, res_ax = fig.subplots(2, 1, sharex=True,
                                   gridspec_kw={"height_ratios": (3.2, 1.0)})
-    titles = {"reference": "Step 0: reference object, clear medium (f_r)",
-              "medium": "Step 1: reference object through the medium (f_t fitted)",
-              "target": "Step 2: target object through the medium (f_r fitted)",
-              "direct": "Target object, clear medium: direct fit and estimate"}
     accuracy = result.accuracy or "default"
     if gonio is None:
         _model_against_data(ax, data, model_values(result, other, data.angles, accuracy))
     else:
         _curves_and_residuals(fig, ax, res_ax, data, gonio, result, other, extra, accuracy)
-    ax.set_title(titles.get(result.step or "", result.model), fontsize=10)
+    ax.set_title(STEP_TITLES.get(result.step or "", result.model), fontsize=10)
     ax.grid(True, which="major", alpha=0.3)
     fig.tight_layout()
     buf = io.BytesIO()
