@@ -28,6 +28,7 @@ two-step view).
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -37,7 +38,7 @@ from ..data.protocol import protocol
 from ..engine.apparent import as_brdf, as_btdf
 from ..errors import InputError
 from ..fitting.problem import SessionModel
-from ..models import default_class, model_class
+from ..models import BTDF, default_class, model_class
 
 DEFAULT_PSI = (30.0, 45.0, 60.0, 75.0, 90.0, 105.0, 120.0)
 MODES = ("joint", "known")
@@ -86,7 +87,7 @@ def _floats(name, values, positive=True):
     return tuple(out)
 
 
-def condition_medium(medium, factor: float):
+def condition_medium(medium, factor: float) -> BTDF:
     """The medium at concentration factor ``factor`` (module docstring)."""
     return as_btdf(medium).concentrated(factor)
 
@@ -349,7 +350,7 @@ def plan_table(info: Information, chosen, gains) -> pd.DataFrame:
 def design(brdf, media, size: int = 60, *, factors=None, psi=DEFAULT_PSI,
            noise: float = 0.01, floor: float = 0.0, mode: str = "joint", interest=None,
            accuracy: str = "fast", fine_step: float = 1.0, coarse_step: float = 5.0,
-           window: float = 10.0, limit: float = 85.0):
+           window: float = 10.0, limit: float = 85.0) -> dict[str, Any]:
     """Recommend a measurement plan of ``size`` configurations (module docstring).
 
     brdf : the target (model or preset) at which the information is evaluated.

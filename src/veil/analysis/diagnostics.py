@@ -181,7 +181,8 @@ def _as_model(obj, kind):
     raise FitError(f"expected a FitResult or a {kind} model, got {type(obj).__name__}")
 
 
-def problem_for(result: FitResult, data, *, medium=None, reference=None, black=None):
+def problem_for(result: FitResult, data, *, medium=None, reference=None,
+                black=None) -> tuple[Problem, list[str]]:
     """The least-squares problem a result solved, at its estimate: (problem, notes).
 
     data : the table of a step result (DataFrame or path), or for a joint result its sessions

@@ -130,7 +130,8 @@ def _check_pair(target_result, medium_result, reference_result):
 
 
 def medium_parts(medium_result: FitResult, reference_result: FitResult | None = None,
-                 reference_table=None, *, black=None, accuracy: str = ITERATION_ACCURACY):
+                 reference_table=None, *, black=None,
+                 accuracy: str = ITERATION_ACCURACY) -> tuple[list[str], dict[str, np.ndarray]]:
     """The medium's covariance split into step 1's own part and step 0's (docs/model.md sec. 7).
 
     Returns (names, {"step1": Cov, "step0": Cov}). Step 0's part is computed from the

@@ -158,7 +158,8 @@ def _stats(groups):
 
 
 def roi_statistics(patch: Patch, channel: str, dark: Patch | None = None,
-                   response: Response | None = None, where: str = "ROI"):
+                   response: Response | None = None,
+                   where: str = "ROI") -> tuple[float, float, int]:
     """``(value, sigma, n)`` of one ROI: mean of linear, dark-subtracted ``channel`` values.
 
     ``gray`` is (R + G + B) / 3, the average of the three channels (for a raw mosaic the
@@ -184,7 +185,7 @@ def roi_statistics(patch: Patch, channel: str, dark: Patch | None = None,
 
 # -- the manifest --------------------------------------------------------------------------
 
-def manifest_photos(manifest, photo_dir):
+def manifest_photos(manifest, photo_dir) -> tuple[pd.DataFrame, list[str], str, list[Path]]:
     """The manifest read (:func:`read_manifest`) and the paths of its photos:
     (table, row names, manifest name, paths); MissingFileError naming the rows whose photo is
     not in ``photo_dir``."""

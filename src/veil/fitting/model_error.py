@@ -54,13 +54,16 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from scipy.linalg import solve_triangular
 from scipy.optimize import minimize_scalar
 
 from ..errors import FitError
+
+if TYPE_CHECKING:
+    from .result import FitResult
 
 #: The chi-square test's level: a model error is estimated only when the reduced chi-square
 #: exceeds 1 by more than CHI2_Z of its own standard deviations sqrt(2 / dof) (2: about
@@ -533,7 +536,7 @@ def given_term(given_result) -> ModelError | None:
     return getattr(given_result, "model_error", None)
 
 
-def noise_only(result):
+def noise_only(result) -> FitResult:
     """The result as without the model-discrepancy term: its uncertainties counting the
     data's noise only (the same object when it has no active term)."""
     me = result.model_error

@@ -176,7 +176,7 @@ def reported(problem: Problem, x, summary, values, *, kind: str, rename: Callabl
     return Reported(stderr, corr, stderr_total, corr_total, term, how)
 
 
-def model_floor(*models):
+def model_floor(*models) -> tuple[float, float] | None:
     """The largest declared model error (s, ell) of ``models`` (classes or instances; None
     skipped), ``Model.MODEL_ERROR_FLOOR``; None when none declares one. (Only media declare
     one today; should a BRDF and a medium both declare, the larger is taken, not their sum.)"""

@@ -15,7 +15,7 @@ import math
 import os
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
 from ..errors import FitError, InputError, MissingFileError, NotAFileError
 from ..io import write_bytes_atomic
@@ -33,6 +33,7 @@ from .result_fields import (
     _json_term,
     _read_matrix,
     _read_residuals,
+    _read_statistic,
     _read_stats,
     _read_term,
     check_given,
@@ -305,8 +306,8 @@ class FitResult:
             stderr={k: from_json_float(stderr.get(k), source) for k in names},
             correlation=_read_matrix(data["correlation"], source),
             residuals=_read_residuals(data, source),
-            chi2_reduced=from_json_float(data["chi2_reduced"], source),
-            rms_relative=from_json_float(data["rms_relative"], source),
+            chi2_reduced=_read_statistic(data["chi2_reduced"], source),
+            rms_relative=_read_statistic(data["rms_relative"], source),
             n_points=int(data["n_points"]), converged=data["converged"],
             message=str(data["message"]), variant=variant,
             fixed={k: float(v) for k, v in fixed.items()}, step=step,
@@ -462,8 +463,8 @@ class JointResult(FitResult):
                 stderr={k: from_json_float(data["stderr"].get(k), source) for k in params},
                 correlation=_read_matrix(data["correlation"], source),
                 residuals=_read_residuals(data, source),
-                chi2_reduced=from_json_float(data["chi2_reduced"], source),
-                rms_relative=from_json_float(data["rms_relative"], source),
+                chi2_reduced=_read_statistic(data["chi2_reduced"], source),
+                rms_relative=_read_statistic(data["rms_relative"], source),
                 n_points=int(data["n_points"]), converged=data["converged"],
                 message=str(data["message"]), variant=data[VARIANT_OPTION],
                 fixed={k: float(v) for k, v in (data.get("fixed") or {}).items()},
@@ -491,7 +492,7 @@ class JointResult(FitResult):
 # --------------------------------------------------------------------------------------
 # reading
 # --------------------------------------------------------------------------------------
-def read_json(path):
+def read_json(path) -> Any:
     """The JSON data of a result file; errors name the file (a missing file, a directory, not
     UTF-8, not JSON)."""
     name = os.fspath(path)

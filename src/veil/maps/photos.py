@@ -243,7 +243,7 @@ def load_acquisition(photo_dir, manifest, *, roi=None, mask=None, black_photos=N
                        rows, name)
 
 
-def stage(store, acq: Acquisition, progress=None):
+def stage(store, acq: Acquisition, progress=None) -> None:
     """Photos (minus dark frame or black photos) into ``stack/values``, one at a time."""
     zarr = require("zarr", "a maps store")
 

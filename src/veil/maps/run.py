@@ -30,7 +30,7 @@ import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -68,6 +68,9 @@ from .store import (
 )
 from .store import tiles as tile_indices
 from .tables import MapTables, build_tables, smoothest_facet
+
+if TYPE_CHECKING:
+    from distributed import Client
 
 DEFAULT_TILE = 128
 SCHEDULER_ENV = "VEIL_DASK_SCHEDULER"
@@ -107,7 +110,7 @@ def _solve_tile(block, tables: MapTables, store, iy, ix, tile, noise):
 # --------------------------------------------------------------------------------------
 # scheduling
 # --------------------------------------------------------------------------------------
-def connect(address, timeout: float = CONNECT_TIMEOUT):
+def connect(address, timeout: float = CONNECT_TIMEOUT) -> Client:
     """A dask.distributed client for ``address``; an InputError within ``timeout`` seconds
     when no scheduler answers there."""
     Client = require("distributed", "a Dask cluster").Client

@@ -22,12 +22,16 @@ import json
 import math
 import os
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..errors import InputError
 from ..models import PRESETS, Model, default_class, model_class
 from ..models import names as family_names
+
+if TYPE_CHECKING:
+    from concurrent.futures import Future
 
 #: Value of the "format" key of a state file.
 FORMAT = "veil.explore/1"
@@ -362,7 +366,7 @@ class Curves:
                                                            RULES[accuracy])
 
     @staticmethod
-    def key_of(brdf, medium, curve, theta_i, psi, accuracy=LIVE_ACCURACY):
+    def key_of(brdf, medium, curve, theta_i, psi, accuracy=LIVE_ACCURACY) -> tuple:
         return (type(brdf), tuple(sorted(brdf.options().items())),
                 None if medium is None else type(medium),
                 None if medium is None else tuple(sorted(medium.options().items())),
@@ -450,7 +454,7 @@ def _transmission_fn(cls, options: tuple):
     return _TRANSMISSION_FNS[key]
 
 
-def warm_up(state: State, workers: int = 3):
+def warm_up(state: State, workers: int = 3) -> tuple[list[Future], Future]:
     """Compile in the background what a page of ``state`` needs: the curves, the
     transmission lobe and the sphere at the live accuracy in parallel, then the refined
     sphere. Returns (futures of the live parts, future of the refined sphere)."""
@@ -502,7 +506,8 @@ def table_density(brdf, medium, light_theta: float, accuracy: str) -> float:
     return LIVE_DENSITIES[-1]
 
 
-def sphere(brdf, medium, light_theta: float, size: int = 96, accuracy: str = LIVE_ACCURACY):
+def sphere(brdf, medium, light_theta: float, size: int = 96,
+           accuracy: str = LIVE_ACCURACY) -> tuple[np.ndarray, np.ndarray]:
     """(RGBA uint32 image (size, size) for a plot, linear image): the lit sphere of
     :func:`veil.viz.render.render` (the render table at ``accuracy``, coarser for sharp
     lobes at the live accuracy: :func:`table_density`), tone-mapped by its automatic
@@ -546,7 +551,7 @@ def channel_colour(channel: str) -> str:
 
 
 def sphere_colour(channels: dict, light_theta: float, size: int = 96,
-                  accuracy: str = LIVE_ACCURACY):
+                  accuracy: str = LIVE_ACCURACY) -> tuple[np.ndarray, np.ndarray]:
     """(RGBA uint32 image, linear (size, size, 3) image): :func:`sphere` of the channels r,
     g, b ({channel: (brdf, medium)}) as one colour image (:mod:`veil.viz.render_colour`),
     tone-mapped by its automatic exposure (the median lit luminance)."""

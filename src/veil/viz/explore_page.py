@@ -13,6 +13,7 @@ import os
 import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
+from contextlib import AbstractContextManager
 
 import numpy as np
 import panel as pn
@@ -128,7 +129,7 @@ class Views:
         self.fit = [FitPlots(v, k) for k, v in enumerate(fit_views)]
         self.channels = None if channels is None else ChannelLines(self.lin, self.log, channels)
 
-    def draw_curves(self, x, xlabel, through, clear, curve, theta_i, psi):
+    def draw_curves(self, x, xlabel, through, clear, curve, theta_i, psi) -> None:
         floor = ex.log_floor(through, clear)
         if through is None:
             self.src["medium"].data = {"x": [], "y": [], "ylog": []}
@@ -146,7 +147,7 @@ class Views:
                                   "y0": cy / ctop}
         self.polar.title.text = "polar lobes, each to its peak"
 
-    def draw_transmission(self, medium, theta_i):
+    def draw_transmission(self, medium, theta_i) -> None:
         if medium is None:
             self.src["transmission"].data = {"x": [], "y": []}
             self.trans.title.text = "medium transmission lobe: no medium"
@@ -159,11 +160,11 @@ class Views:
         self.trans.title.text = (f"f_t(I, w): peak {float(np.max(value)):.3g}, log radius "
                                  f"({ex.LOBE_DECADES:g} decades)")
 
-    def draw_sphere(self, image, accuracy):
+    def draw_sphere(self, image, accuracy) -> None:
         self.src["sphere"].data = {"image": [image], "accuracy": [accuracy]}
         self.sphere.title.text = f"lit sphere ({accuracy} accuracy)"
 
-    def draw_state(self, state):
+    def draw_state(self, state) -> None:
         self.src["state"].data = _state_columns(state)
 
 
@@ -241,7 +242,7 @@ class FitPlots:
                     f"{'converged' if r.converged else 'NOT converged'}")
         return "\n".join(rows)
 
-    def draw_current(self, brdf, medium):
+    def draw_current(self, brdf, medium) -> None:
         """The model of the current controls at the data's configurations."""
         view = self.view
         values = view.model_values(brdf, medium)
@@ -388,7 +389,7 @@ class ExplorePage:
         self.share_dir = os.fspath(share_dir)
         self.updating = False
         self._held = False
-        self.curves = None
+        self.curves: ex.Curves | None = None
         self.timings: dict[str, float] = {}
         self.views = Views(fit_views, state.channels)
         self.doc = pn.state.curdoc if background else None
@@ -413,7 +414,7 @@ class ExplorePage:
         self.theta_i.param.watch(self.on_rest, "value_throttled")
         self.channel = None if state.channels is None else channel_selector(self)
         self.share = pn.widgets.Button(label="share: write this state", color="primary")
-        self.share.on_click(self.on_share)
+        self.share.on_click(self._share)
         self.redraw(sphere=False)
         self._sphere_now()
         if background:
@@ -423,7 +424,7 @@ class ExplorePage:
             pn.state.onload(lambda: self.redraw(transmission=False, sphere=False))
 
     # -- layout ----------------------------------------------------------------------------
-    def layout(self):
+    def layout(self) -> pn.Row:
         controls = pn.Column(
             pn.pane.Markdown("### veil explore"),
             *([] if self.channel is None else [pn.pane.Markdown("**channel**"), self.channel]),
@@ -441,7 +442,7 @@ class ExplorePage:
         return pn.Row(controls, views)
 
     # -- events ----------------------------------------------------------------------------
-    def hold(self):
+    def hold(self) -> AbstractContextManager[None]:
         page = self
 
         class _Hold:
@@ -469,12 +470,12 @@ class ExplorePage:
         # when that slider rests
         self.request_redraw(transmission=True, sphere=False)
 
-    def on_rest(self, event=None):
+    def on_rest(self, event=None) -> None:
         """Sliders at rest: render the sphere (live accuracy, then refined)."""
         self.schedule_sphere()
 
     # -- drawing ---------------------------------------------------------------------------
-    def request_redraw(self, transmission=True, sphere=False):
+    def request_redraw(self, transmission=True, sphere=False) -> None:
         """Redraw for the latest state: at once without a server; on the server at the
         loop's next turn, so that the values a dragged slider sends in a burst cost one
         redraw, not one each."""
@@ -493,7 +494,7 @@ class ExplorePage:
         self._pending = (False, False)
         self.redraw(transmission, sphere)
 
-    def redraw(self, transmission=True, sphere=False):
+    def redraw(self, transmission=True, sphere=False) -> None:
         t0 = time.perf_counter()
         s = self.state
         key = ex.Curves.key_of(s.brdf, s.medium, s.curve, s.theta_i, s.psi)
@@ -531,7 +532,7 @@ class ExplorePage:
         self.views.draw_sphere(image, ex.LIVE_ACCURACY)
         self.timings["sphere"] = dt
 
-    def schedule_sphere(self):
+    def schedule_sphere(self) -> None:
         """Render the sphere at the live accuracy once the sliders rested
         :data:`SPHERE_DELAY` s, then at the refined accuracy after :data:`REFINE_DELAY` s
         more. The waits are timers of the server's loop and a newer state cancels what has
@@ -570,7 +571,11 @@ class ExplorePage:
 
         self.doc.add_timeout_callback(lambda: start(ex.LIVE_ACCURACY), int(1e3 * SPHERE_DELAY))
 
-    def on_share(self, event=None):
+    def _share(self, event) -> None:
+        """The share button's callback (panel wants one that returns None)."""
+        self.on_share(event)
+
+    def on_share(self, event=None) -> str | None:
         """Write the state as JSON into the share folder; ``veil explore FILE`` reopens it."""
         stamp = time.strftime("%Y%m%d-%H%M%S")
         path = os.path.join(self.share_dir, f"veil-explore-{stamp}.json")

@@ -16,6 +16,7 @@ import io
 import math
 import os
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -25,6 +26,9 @@ from ..errors import InputError
 from ..io import write_bytes_atomic
 from ..models import PRESETS, Model
 from .render import Rendering, auto_exposure, clipping, evaluate, highlight_pixel, render, tone_map
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 #: Figure formats :func:`save_figure` writes, by file suffix.
 FORMATS = ("png", "pdf", "svg")
@@ -86,7 +90,7 @@ def _name(model) -> str:
 # --------------------------------------------------------------------------------------
 # the data
 # --------------------------------------------------------------------------------------
-def reflection_angles(theta_i=45.0, top=89.0):
+def reflection_angles(theta_i=45.0, top=89.0) -> np.ndarray:
     """In-plane reflection angles (deg): every 1 deg on [0, top], every 0.25 deg near the mirror."""
     coarse = np.arange(0.0, top + 1e-9, 1.0)
     fine = np.arange(max(0.0, theta_i - 15.0), min(top, theta_i + 15.0) + 1e-9, 0.25)
@@ -287,7 +291,7 @@ def _mirror_cut(theta_i, s_deg):
     return theta, phi
 
 
-def lobe_data(brdf, theta_i=45.0):
+def lobe_data(brdf, theta_i=45.0) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """f_r in the plane of incidence (signed theta_r) and out of it (angle s from the mirror)."""
     b = as_brdf(brdf)
     t_in = np.unique(np.concatenate([np.linspace(-89.5, 89.5, 359),
@@ -313,7 +317,7 @@ def _three_panels(plt):
     return fig, ax1, ax2, ax3
 
 
-def fig9(brdfs=("BRDF1", "BRDF2"), theta_i=45.0, labels=None):
+def fig9(brdfs=("BRDF1", "BRDF2"), theta_i=45.0, labels=None) -> Figure:
     """Reflection lobes f_r for incidence theta_i: in plane, out of plane, close-up (log)."""
     ctx, plt = _style()
     with ctx:
@@ -357,7 +361,8 @@ def fig9(brdfs=("BRDF1", "BRDF2"), theta_i=45.0, labels=None):
 # --------------------------------------------------------------------------------------
 # fig. 10: transmission lobes
 # --------------------------------------------------------------------------------------
-def transmission_data(medium, theta_i=45.0):
+def transmission_data(medium,
+                      theta_i=45.0) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """f_t(I, T) against the propagation direction -T of the transmitted light.
 
     In the plane: beta = signed angle of -T from the downward vertical (beta = theta_i is the
@@ -381,7 +386,7 @@ def transmission_data(medium, theta_i=45.0):
     return beta, f_in, s[ok], f_out
 
 
-def fig10(media=("BTDF1", "BTDF2", "BTDF3"), theta_i=45.0, labels=None):
+def fig10(media=("BTDF1", "BTDF2", "BTDF3"), theta_i=45.0, labels=None) -> Figure:
     """Transmission lobes f_t for incidence theta_i: in plane, out of plane, close-up (log)."""
     ctx, plt = _style()
     with ctx:
@@ -454,7 +459,7 @@ def _values(values: dict) -> str:
     return ", ".join(f"{k} = {v:g}" for k, v in values.items())
 
 
-def draw_curves(ax, curves, scale="log", title=None, with_brdf=True):
+def draw_curves(ax, curves, scale="log", title=None, with_brdf=True) -> None:
     """Observed value against reflection angle on one axis.
 
     scale: "log" or "linear" (f as is), "peak" (each curve over its own peak, linear) or
@@ -495,7 +500,7 @@ def draw_curves(ax, curves, scale="log", title=None, with_brdf=True):
         ax.set_title(title)
 
 
-def fig11(exp: Experiment):
+def fig11(exp: Experiment) -> Figure:
     """Rows: f (log), f / T_t^2 (log), f over its own peak (linear); one column per object."""
     ctx, plt = _style()
     names = list(exp.brdfs)
@@ -515,7 +520,7 @@ def fig11(exp: Experiment):
     return fig
 
 
-def fig_curve(curves, scale="log"):
+def fig_curve(curves, scale="log") -> Figure:
     """One panel of observed value against reflection angle (``veil plot curve``)."""
     ctx, plt = _style()
     with ctx:
@@ -529,7 +534,7 @@ def fig_curve(curves, scale="log"):
 # --------------------------------------------------------------------------------------
 # fig. 12: rendered spheres
 # --------------------------------------------------------------------------------------
-def fig12(exp: Experiment, tone="reinhard"):
+def fig12(exp: Experiment, tone="reinhard") -> Figure:
     """Rows: objects; columns: clear medium then each medium. Each panel has its own exposure
     (median lit pixel -> 18 % grey) and the tone curve ``tone`` (see :func:`tone_map`)."""
     ctx, plt = _style()

@@ -55,7 +55,7 @@ ERROR_ANGLE = 80.0
 # --------------------------------------------------------------------------------------
 # engine access
 # --------------------------------------------------------------------------------------
-def evaluate(brdf, medium, theta_i, theta_r, dphi, *, accuracy="fast", progress=None):
+def evaluate(brdf, medium, theta_i, theta_r, dphi, *, accuracy="fast", progress=None) -> np.ndarray:
     """f at flat arrays of (theta_i, theta_r, phi_r - phi_i) in degrees (docs/model.md sec. 5),
     through the engine's chunked evaluator in chunks of :data:`CHUNK` configurations.
     ``progress(k)`` is called after each chunk with the number of configurations it did.
@@ -76,13 +76,13 @@ def evaluate(brdf, medium, theta_i, theta_r, dphi, *, accuracy="fast", progress=
 # --------------------------------------------------------------------------------------
 # geometry
 # --------------------------------------------------------------------------------------
-def light_direction(theta, phi):
+def light_direction(theta, phi) -> np.ndarray:
     """World direction of a distant light at polar ``theta`` from the view axis, azimuth phi."""
     t, p = math.radians(theta), math.radians(phi)
     return np.array([math.sin(t) * math.cos(p), math.sin(t) * math.sin(p), math.cos(t)])
 
 
-def half_vector_frame(light):
+def half_vector_frame(light) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(H, e1, e2): H = (L + V)/|L + V| with V = +z, e1 perpendicular to H towards L."""
     view = np.array([0.0, 0.0, 1.0])
     h = light + view
@@ -94,7 +94,7 @@ def half_vector_frame(light):
     return h, e1, np.cross(h, e1)
 
 
-def local_angles(normal, light):
+def local_angles(normal, light) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(theta_i, theta_r, phi_r - phi_i) in degrees for normals (..., 3), camera at +z.
 
     Polar angles are unclamped (> 90 where the point is unlit or not visible).
@@ -111,7 +111,7 @@ def local_angles(normal, light):
             np.degrees(np.arccos(np.clip(cos_d, -1, 1))))
 
 
-def sphere_normals(size, samples=1, rows=None):
+def sphere_normals(size, samples=1, rows=None) -> tuple[np.ndarray, np.ndarray]:
     """Normals (size*s, size*s, 3) at (sub)pixel centres and the mask of the disk.
 
     The image spans x, y in [-VIEW, VIEW] (x to the right, y up, row 0 at the top); the unit
@@ -128,7 +128,7 @@ def sphere_normals(size, samples=1, rows=None):
     return np.stack([x, y, z], axis=-1), inside
 
 
-def pixel_normals(size, flat_index):
+def pixel_normals(size, flat_index) -> tuple[np.ndarray, np.ndarray]:
     """Normals (n, 3) at the centres of the pixels with flat indices ``flat_index`` (row-major
     in a size x size image) and whether each is on the disk."""
     row, col = np.divmod(np.asarray(flat_index), size)
@@ -139,7 +139,7 @@ def pixel_normals(size, flat_index):
     return np.stack([x, y, np.sqrt(np.where(inside, 1.0 - r2, 0.0))], axis=-1), inside
 
 
-def highlight_pixel(size, light_theta, light_phi=0.0):
+def highlight_pixel(size, light_theta, light_phi=0.0) -> tuple[float, float]:
     """(row, col) (fractional) where the mirror direction puts the highlight: N = H."""
     h, _, _ = half_vector_frame(light_direction(light_theta, light_phi))
     col = (h[0] / VIEW + 1.0) / 2.0 * size - 0.5
@@ -201,7 +201,8 @@ class ApparentTable:
         return np.exp(self.spline.ev(u, np.abs(w))) - self.floor
 
 
-def build_table(brdf, medium, light, *, accuracy="fast", density=1.0, progress=None):
+def build_table(brdf, medium, light, *, accuracy="fast", density=1.0,
+                progress=None) -> ApparentTable:
     """Evaluate the engine on the (u, w) grid about H and fit the interpolating spline."""
     h, e1, e2 = half_vector_frame(light)
     u = u_nodes(peak_width(brdf, medium), density)
@@ -530,7 +531,7 @@ def auto_exposure(linear) -> float:
     return MID_GREY / float(np.median(lit))
 
 
-def srgb_encode(x):
+def srgb_encode(x) -> np.ndarray:
     """The sRGB transfer function for linear values in [0, 1]."""
     x = np.clip(x, 0.0, 1.0)
     return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1.0 / 2.4) - 0.055)
@@ -562,7 +563,7 @@ def tone_map(linear, exposure, tone="clip") -> np.ndarray:
     return out
 
 
-def clipping(linear, exposure, tone="clip"):
+def clipping(linear, exposure, tone="clip") -> tuple[int, float, float]:
     """(clipped pixels, their fraction of the lit pixels, peak in units of full scale).
 
     Nothing clips under the "reinhard" tone curve.
