@@ -25,7 +25,7 @@ exactly to the total: :func:`propagate` reports them per parameter (the "budget"
 model-discrepancy term (:mod:`veil.fitting.model_error`) enters each step's own part; a
 correlated one that step 2 shares with step 1 also has a cross term between the two parts
 (it mostly cancels: the medium absorbs the error in step 1 and gives it back in step 2),
-counted as the budget's part "shared" (:func:`veil.fitting.model_error.shared`).
+counted as the budget's part "shared" (:func:`veil.fitting.shared_error.shared`).
 :func:`sample_propagation` checks the linearization by refitting the target over media drawn
 from step 1's distribution. Where step 1 leaves the medium uncertain by a large part of its
 scale the fits propagate through sigma points instead (:mod:`veil.fitting.propagation`), and
@@ -261,8 +261,9 @@ def propagate(target_result: FitResult, medium_result: FitResult, table, *,
 
 def _shared_part(problem, target_result, medium_result, m_names, sens):
     """The cross term of the correlated model error steps 1 and 2 share
-    (:func:`veil.fitting.model_error.shared`) at the target's estimate, None without one."""
-    from ..fitting.model_error import influence, noise_only, shared
+    (:func:`veil.fitting.shared_error.shared`) at the target's estimate, None without one."""
+    from ..fitting.model_error import noise_only
+    from ..fitting.shared_error import influence, shared
     from ..fitting.solver import weighted_jacobian
 
     term = medium_result.model_error

@@ -16,6 +16,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from . import model_error as discrepancy
+from . import shared_error
 from .problem import Problem
 from .propagation import given_jacobian, propagated, sensitivity
 from .solver import uncertainties, weighted_jacobian
@@ -43,11 +44,11 @@ def _same(stderr, correlation):
 def _shared(problem: Problem, x, own_influence, given_result, given_column, term, how, dist,
             residuals, scaled, jw):
     """(this step's error correlation, the cross term, its share) for the error a step shares with
-    its given medium's correlated term (:func:`veil.fitting.model_error.shared`): this
+    its given medium's correlated term (:func:`veil.fitting.shared_error.shared`): this
     step's error is the shared process plus what its own s exceeds it by, with its own
     length, so that the two sessions' errors have a covariance that is a covariance; the
     cross term is scaled by how far the two are one (the share,
-    :func:`veil.fitting.model_error.session_correlation` from both fits' ``residuals``,
+    :func:`veil.fitting.shared_error.session_correlation` from both fits' ``residuals``,
     ``scaled`` values and Jacobians; None, counted as 1, for a given result without its
     residuals). None when there is nothing shared, or when the given covariance entered
     through sigma points (the cross term is first order; it is then left out, which errs on
@@ -66,11 +67,11 @@ def _shared(problem: Problem, x, own_influence, given_result, given_column, term
     names, cov_given = given_result.covariance(total=True)
     names = list(names)
     cols = [given_column(n) for n in names]
-    share = discrepancy.session_correlation(
+    share = shared_error.session_correlation(
         residuals, scaled, jw, problem.angles, term.sigma ** 2 * corr, given, names,
         given_jacobian(problem, x, cols), cov_given)
     sens = sensitivity(problem, x, cols)
-    cross = discrepancy.shared(own_influence, problem.angles, given, names, sens,
+    cross = shared_error.shared(own_influence, problem.angles, given, names, sens,
                                1.0 if share is None else share)
     return corr, cross, share
 
@@ -110,7 +111,7 @@ def reported(problem: Problem, x, summary, values, *, kind: str, rename: Callabl
     :func:`veil.fitting.propagation.propagated`. A correlated term of a fit with
     ``keep_influence`` (step 1) keeps its influence on the estimate and its configurations;
     given such a fit, step 2's total adds the error the two share
-    (:func:`veil.fitting.model_error.shared`). ``floor`` is the fit's models' declared
+    (:func:`veil.fitting.shared_error.shared`). ``floor`` is the fit's models' declared
     error (:func:`model_floor`): the least term of a weighted fit whose ``kind`` is not
     "off" and whose covariance is determined."""
     cov = summary.covariance
@@ -160,7 +161,7 @@ def reported(problem: Problem, x, summary, values, *, kind: str, rename: Callabl
             if term.sigma > 0:
                 dist, corr_d = _term_correlation(problem, term, given_result)
                 scaled = values * problem.w
-                g = discrepancy.influence(cov, jw, scaled)
+                g = shared_error.influence(cov, jw, scaled)
                 shared = _shared(problem, x, g, given_result, given_column, term, how, dist,
                                  summary.residuals, scaled, jw)
                 if shared is not None:    # the sum of the shared process and step 2's own

@@ -10,7 +10,8 @@ import panel as pn
 
 from ..errors import InputError
 from . import explore as ex
-from .explore_page import SPHERE_SIZE, Views
+from .explore_page import SPHERE_SIZE
+from .explore_plots import Views
 
 
 def grid_values(spec: ex.SliderSpec, value: float, points: int) -> list[float]:

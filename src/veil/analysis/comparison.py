@@ -1,0 +1,67 @@
+"""The estimate through the medium against the same object fitted directly in clear water
+(:func:`compare`): per parameter, and as curves over the paper's protocol."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..data.measurements import CANONICAL
+from ..data.protocol import protocol
+from ..fitting.result import FitResult
+from .uncertainty import curve_stderr
+
+
+def compare(estimated: FitResult, direct: FitResult) -> dict:
+    """Estimated (through the medium; a step-2 or a joint fit) against direct f_r of the same
+    object.
+
+    Per parameter: difference and difference / sqrt(se_est^2 + se_direct^2) (the estimate's
+    total standard error when it has one); and the rms of f_r_est - f_r_direct over the
+    configurations of the paper's protocol (absolute and relative to f_r_direct). The curves
+    are compared in units of their own standard error too (the covariances propagated
+    through f_r's Jacobian at each configuration): ``fr_max_z`` the largest |difference| /
+    se, ``fr_within_2se`` the share of configurations within two standard errors (None
+    when an uncertainty is undetermined). Correlated parameters can differ by many of their
+    own standard errors while the curves agree: the curves are what the estimate is for.
+    """
+    rows = {}
+    se_est = estimated.stderr_total or estimated.stderr
+    named = estimated.target_names()        # a joint fit's by their result names
+    for name, ref in direct.params.items():
+        key = named[name]
+        value = estimated.params[key]
+        a, b = se_est.get(key), direct.stderr.get(name)
+        combined = math.hypot(a or 0.0, b or 0.0)
+        rows[name] = {"estimated": value, "direct": ref, "difference": value - ref,
+                      "stderr_combined": combined if combined > 0 else None,
+                      "z": (value - ref) / combined if combined > 0 else None}
+    configs = protocol()
+    angles = tuple(configs[c].to_numpy() for c in CANONICAL)
+    f_est, se_f_est = curve_stderr(estimated, angles)
+    f_dir, se_f_dir = curve_stderr(direct, angles)
+    diff = f_est - f_dir
+    out = {"params": rows, "n_configurations": len(configs),
+           "rms_fr_difference": float(np.sqrt(np.mean(diff ** 2))),
+           "rms_fr_relative": float(np.sqrt(np.mean((diff / f_dir) ** 2))),
+           "max_fr_relative": float(np.max(np.abs(diff / f_dir))),
+           "fr_max_z": None, "fr_within_2se": None}
+    spread = ((estimated.stats or {}).get("selection") or {}).get("spread")
+    out["model_spread_rms_relative"] = None
+    if spread is not None and len(spread.get("spread", ())) == len(configs):
+        # a close call between families: their curves' BIC-weighted spread widens the
+        # estimate's uncertainty (veil.fitting.selection)
+        widen = np.asarray(spread["spread"], dtype=float)
+        se_f_est = widen if se_f_est is None else np.hypot(se_f_est, widen)
+        out["model_spread_rms_relative"] = spread["rms_relative"]
+    if se_f_est is not None:
+        se = np.hypot(se_f_est, 0.0 if se_f_dir is None else se_f_dir)
+        if np.all(se > 0):
+            z = np.abs(diff) / se
+            out["fr_max_z"] = float(np.max(z))
+            out["fr_within_2se"] = float(np.mean(z <= 2.0))
+    return out
+
+
+__all__ = ["compare"]
