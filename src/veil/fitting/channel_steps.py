@@ -27,12 +27,12 @@ from ..models.base import VARIANT_OPTION
 from .channel_fit import _fixed_values, channel_layout, layout_slots
 from .given import as_given
 from .problem import ITERATION_ACCURACY, Block, Problem, Session, Slot, model_slots
-from .propagation import describe
 from .reported_uncertainty import model_floor, reported
 from .result import RESULTS, FitResult, model_entry
 from .session_data import FitData
 from .solver import run, summarize
 from .start_values import brdf_scales, column_scales_of, grid_points, medium_scales, pick_starts
+from .step_fit import stats_and_message
 
 
 def given_layout(given, kind: str, channels: list[str], role: str, source: str,
@@ -233,12 +233,7 @@ def fit_through(step: str, datas: dict[str, FitData], fitted: Model, given, *, f
                    given_result=result_given, given_column=problem.index,
                    propagation=propagation, keep_influence=step == "medium",
                    floor=model_floor(problem.blocks[0].brdf, problem.blocks[0].medium))
-    stats = dict(outcome.stats, grid_points=n_grid)
-    message = summary.message
-    if rep.propagation is not None:
-        stats["propagation"] = rep.propagation
-        note = describe(rep.propagation, f"the {given.step or 'given'} fit's covariance")
-        message += f"; {note}" if note else ""
+    stats, message = stats_and_message(outcome, summary, rep, given, n_grid)
     medium = fitted if cls.KIND == "medium" else first_given
     return FitResult(
         model=cls.NAME, params={n: float(x[problem.index(n)]) for n in mine},

@@ -71,6 +71,18 @@ def _problem(data: FitData, cls, brdf, medium, free: list, fixed: dict, what: st
     return problem
 
 
+def stats_and_message(outcome, summary, rep, given_result, n_grid: int) -> tuple[dict, str]:
+    """A step's ``stats`` (the run's, the starting grid's size, how the given fit's
+    covariance was propagated) and its message (the solver's, with a note on that)."""
+    stats = dict(outcome.stats, grid_points=n_grid)
+    message = summary.message
+    if rep.propagation is not None:
+        stats["propagation"] = rep.propagation
+        note = describe(rep.propagation, f"the {given_result.step or 'given'} fit's covariance")
+        message += f"; {note}" if note else ""
+    return stats, message
+
+
 def _result(step: str, data: FitData, problem: Problem, outcome, summary, rep, fitted: Model,
             given: Model | None, given_result, free: list, what: str,
             n_grid: int) -> FitResult:
@@ -84,13 +96,7 @@ def _result(step: str, data: FitData, problem: Problem, outcome, summary, rep, f
     names = [own[k] for k in cls.keys()]
     media = [m for m in (medium,) if m is not None]
     variant = media[0].options().get(VARIANT_OPTION) if media else None
-    stats = dict(outcome.stats, grid_points=n_grid)
-    message = summary.message
-    if rep.propagation is not None:
-        stats["propagation"] = rep.propagation
-        note = describe(rep.propagation,
-                        f"the {given_result.step or 'given'} fit's covariance")
-        message += f"; {note}" if note else ""
+    stats, message = stats_and_message(outcome, summary, rep, given_result, n_grid)
     if summary.converged:  # one that did not converge says so (exit status 1)
         warn_misfit(summary.chi2_reduced, data, what)
     return FitResult(model=cls.NAME,
@@ -181,4 +187,5 @@ def fit_step(step: str, data: FitData, fitted: Model, given: Model | None, given
                    free, what, n_grid)
 
 
-__all__ = ["fit_step", "warn_misfit", "MisfitWarning", "MISFIT_CHI2", "STARTS", "ROLE"]
+__all__ = ["fit_step", "stats_and_message", "warn_misfit", "MisfitWarning", "MISFIT_CHI2",
+           "STARTS", "ROLE"]
