@@ -200,15 +200,9 @@ def manifest_photos(manifest, photo_dir) -> tuple[pd.DataFrame, list[str], str, 
     return table, rows, name, paths
 
 
-def read_manifest(manifest, photo_dir) -> tuple[pd.DataFrame, list[str], str]:
-    """The manifest (all its columns; angles as float), a name for each row, its own name.
-
-    Checks the ``file`` column (present, non-empty, unique, inside ``photo_dir``) and the
-    angle columns (one of the three forms of :mod:`veil.measurements`, no configuration twice).
-    Rows of a file are named by their line (header = line 1), as :mod:`veil.measurements` does.
-    """
-    from .measurements import ANGLE_COLUMNS, validate
-
+def _manifest_table(manifest) -> tuple[pd.DataFrame, list[str], str]:
+    """The manifest (a DataFrame, or a CSV file without its blank lines), a name for each
+    row and its own name."""
     if isinstance(manifest, pd.DataFrame):
         name = "the manifest"
         table = manifest.copy()
@@ -232,16 +226,11 @@ def read_manifest(manifest, photo_dir) -> tuple[pd.DataFrame, list[str], str]:
         table = raw[kept].reset_index(drop=True)
         table.attrs = {"veil_source": name, "veil_lines": tuple(lines)}
         rows = [f"line {line} of {name}" for line in lines]
-    if "file" not in table.columns:
-        raise InputError(f"{name}: no column 'file'; the header has "
-                         f"{', '.join(map(repr, map(str, table.columns)))}; the manifest names "
-                         f"each photo (relative to PHOTO_DIR) in a column 'file'")
-    if len(table) == 0:
-        raise InputError(f"{name}: no photos listed (no rows after the header)")
-    clash = [c for c in ADDED_COLUMNS if c in table.columns]
-    if clash:
-        raise InputError(f"{name}: column(s) {', '.join(map(repr, clash))} would be "
-                         f"overwritten by ingest's results; rename or remove them")
+    return table, rows, name
+
+
+def _manifest_files(table: pd.DataFrame, rows: list[str], photo_dir) -> list[str]:
+    """The ``file`` column checked: each a path inside ``photo_dir``, none twice."""
     seen: dict[Path, str] = {}
     root = Path(photo_dir).resolve()
     files = []
@@ -259,6 +248,30 @@ def read_manifest(manifest, photo_dir) -> tuple[pd.DataFrame, list[str], str]:
                              f"photo has one geometry")
         seen[key] = row
         files.append(cell.strip())
+    return files
+
+
+def read_manifest(manifest, photo_dir) -> tuple[pd.DataFrame, list[str], str]:
+    """The manifest (all its columns; angles as float), a name for each row, its own name.
+
+    Checks the ``file`` column (present, non-empty, unique, inside ``photo_dir``) and the
+    angle columns (one of the three forms of :mod:`veil.measurements`, no configuration twice).
+    Rows of a file are named by their line (header = line 1), as :mod:`veil.measurements` does.
+    """
+    from .measurements import ANGLE_COLUMNS, validate
+
+    table, rows, name = _manifest_table(manifest)
+    if "file" not in table.columns:
+        raise InputError(f"{name}: no column 'file'; the header has "
+                         f"{', '.join(map(repr, map(str, table.columns)))}; the manifest names "
+                         f"each photo (relative to PHOTO_DIR) in a column 'file'")
+    if len(table) == 0:
+        raise InputError(f"{name}: no photos listed (no rows after the header)")
+    clash = [c for c in ADDED_COLUMNS if c in table.columns]
+    if clash:
+        raise InputError(f"{name}: column(s) {', '.join(map(repr, clash))} would be "
+                         f"overwritten by ingest's results; rename or remove them")
+    files = _manifest_files(table, rows, photo_dir)
     table["file"] = files
     probe = table.assign(value=0.0)
     probe.attrs = dict(table.attrs)
@@ -287,6 +300,41 @@ def _warn(message: str) -> None:
     warnings.warn(message, IngestWarning, stacklevel=3)
 
 
+def _settings(roi, black_roi, channel: str, saturation, response) -> tuple:
+    """(the ROIs, the saturation level, the response) of :func:`ingest`, checked."""
+    if channel not in CHANNELS:
+        raise InputError(f"channel {channel!r}: expected one of {', '.join(CHANNELS)}")
+    rois = [("ROI", parse_roi(roi, "ROI"))]
+    if black_roi is not None:
+        rois.append(("black ROI", parse_roi(black_roi, "black ROI")))
+        if rois[0][1].overlaps(rois[1][1]):
+            _warn(f"the ROI {rois[0][1]} and the black ROI {rois[1][1]} overlap")
+    if saturation is not None:
+        saturation = float(saturation)
+        if not math.isfinite(saturation):
+            raise InputError(f"saturation level {saturation!r} is not a finite number")
+    if response is not None and not isinstance(response, Response):
+        response = load_response(response)
+    return rois, saturation, response
+
+
+def _saturated(row: dict, level, floor, where: str, keep: bool) -> bool:
+    """Whether a photo's ROIs hold saturated or clipped pixels (a warning says so, and
+    whether the photo is ``keep``-t)."""
+    n_saturated, n_clipped = row["saturated"], row["clipped"]
+    if not (n_saturated or n_clipped):
+        return False
+    what = []
+    if n_saturated:
+        what.append(f"{n_saturated} saturated pixel(s) (code >= {level:g})")
+    if n_clipped:
+        what.append(f"{n_clipped} clipped pixel(s) (code <= {floor:g})")
+    action = ("kept as asked" if keep else
+              "excluded (--keep-saturated / keep_saturated=True keeps it)")
+    _warn(f"{where}: {' and '.join(what)} in the ROIs; {action}")
+    return True
+
+
 def ingest(photo_dir, manifest, roi, black_roi=None, dark=None, channel="gray", *,
            response=None, saturation=None, keep_saturated=False, progress=None) -> pd.DataFrame:
     """One measurement row per photo of ``manifest``: its columns plus the ROI statistics.
@@ -302,20 +350,7 @@ def ingest(photo_dir, manifest, roi, black_roi=None, dark=None, channel="gray", 
     photo_dir = Path(photo_dir)
     if not photo_dir.is_dir():
         raise MissingFileError(f"photo directory {photo_dir}: no such directory")
-    if channel not in CHANNELS:
-        raise InputError(f"channel {channel!r}: expected one of {', '.join(CHANNELS)}")
-    rois = [("ROI", parse_roi(roi, "ROI"))]
-    if black_roi is not None:
-        rois.append(("black ROI", parse_roi(black_roi, "black ROI")))
-        if rois[0][1].overlaps(rois[1][1]):
-            _warn(f"the ROI {rois[0][1]} and the black ROI {rois[1][1]} overlap")
-    if saturation is not None:
-        saturation = float(saturation)
-        if not math.isfinite(saturation):
-            raise InputError(f"saturation level {saturation!r} is not a finite number")
-    if response is not None and not isinstance(response, Response):
-        response = load_response(response)
-
+    rois, saturation, response = _settings(roi, black_roi, channel, saturation, response)
     table, rows, name, paths = manifest_photos(manifest, photo_dir)
     ignore = set()
     if dark is not None:
@@ -337,17 +372,7 @@ def ingest(photo_dir, manifest, roi, black_roi=None, dark=None, channel="gray", 
         _check_photo(photo, where, channel, response, saturation, dark, dark_photo, warned)
         level = saturation if saturation is not None else photo.saturation
         row = _photo_row(photo, rois, channel, level, dark_photo, response, where)
-        n_saturated, n_clipped = row["saturated"], row["clipped"]
-        bad = n_saturated or n_clipped
-        if bad:
-            what = []
-            if n_saturated:
-                what.append(f"{n_saturated} saturated pixel(s) (code >= {level:g})")
-            if n_clipped:
-                what.append(f"{n_clipped} clipped pixel(s) (code <= {photo.floor:g})")
-            action = ("kept as asked" if keep_saturated else
-                      "excluded (--keep-saturated / keep_saturated=True keeps it)")
-            _warn(f"{where}: {' and '.join(what)} in the ROIs; {action}")
+        bad = _saturated(row, level, photo.floor, where, keep_saturated)
         if keep_saturated or not bad:
             keep.append(i)
             results.append(row)

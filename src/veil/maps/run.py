@@ -15,6 +15,26 @@
 5. When every tile is there the store is marked complete (``.veil/complete``), its summary
    written, and the staged stack removed. A store without the marker is partial: readers
    refuse it, a rerun resumes it.
+
+More arguments of :func:`fit_maps`:
+
+- ``grid``: {name: (lo, hi, count)} or ``NAME=LO:HI[:COUNT]`` strings: a nonlinear
+  parameter's tabulated range (default: the range of the model's starting grids).
+- ``roi``, ``mask``: the region (``X,Y,W,H``) and an image of the photos' size whose nonzero
+  pixels are fitted. ``black_photos``: a folder with a black-cloth photo of each manifest
+  row (same name), subtracted pixel by pixel; ``black_frame``: one frame subtracted from
+  every photo (a dark frame). ``channel``, ``saturation``: as ``veil ingest``.
+- ``noise``: None (unweighted fit, standard errors from the residuals) or (relative,
+  absolute): sigma = sqrt((relative * value)^2 + absolute^2) per sample.
+- ``tile``: tile size in pixels (memory is bounded by it). ``scheduler``: a
+  dask.distributed address (default ``$VEIL_DASK_SCHEDULER``; none: local threads,
+  ``workers``).
+- ``geometry``: (camera distance, pixel pitch on the plate), same units: report the angular
+  spread across the field and warn when it exceeds a fifth of the narrowest lobe.
+- ``near_field``: with ``geometry``, per-pixel angles (a pinhole camera at that distance
+  from the plate centre, collimated light; docs/maps-geometry.md "Geometry") instead of the
+  manifest's angles at every pixel.
+- ``progress(stage, done, total)``, ``log(message)``: reports.
 """
 
 from __future__ import annotations
@@ -192,22 +212,8 @@ def fit_maps(photo_dir, manifest, medium, output, *, brdf_model=None, options=No
 
     brdf_model, options, fixed, free : the BRDF family and its options, parameters held
         at values, held parameters to fit (as :func:`veil.fit_target`).
-    grid : {name: (lo, hi, count)} or ``NAME=LO:HI[:COUNT]`` strings: a nonlinear
-        parameter's tabulated range (default: the range of the model's starting grids).
-    roi, mask : the region (``X,Y,W,H``) and an image of the photos' size whose nonzero
-        pixels are fitted. black_photos : a folder with a black-cloth photo of each
-        manifest row (same name), subtracted pixel by pixel; black_frame : one frame
-        subtracted from every photo (a dark frame). channel, saturation : as ``veil ingest``.
-    noise : None (unweighted fit, standard errors from the residuals) or (relative,
-        absolute): sigma = sqrt((relative * value)^2 + absolute^2) per sample.
-    tile : tile size in pixels (memory is bounded by it). scheduler : a dask.distributed
-        address (default ``$VEIL_DASK_SCHEDULER``; none: local threads, ``workers``).
-    geometry : (camera distance, pixel pitch on the plate), same units: report the angular
-        spread across the field and warn when it exceeds a fifth of the narrowest lobe.
-    near_field : with ``geometry``, per-pixel angles (a pinhole camera at that distance
-        from the plate centre, collimated light; docs/maps-geometry.md "Geometry") instead of the
-        manifest's angles at every pixel.
-    progress(stage, done, total), log(message) : reports.
+    The other arguments (the grid, the region and mask, black photos or frame, noise,
+    tiles and scheduler, geometry and near field, reports): the module docstring.
     """
     from ..fitting.given import as_given
     from ..fitting.problem import check_accuracy
@@ -216,9 +222,7 @@ def fit_maps(photo_dir, manifest, medium, output, *, brdf_model=None, options=No
 
     check_accuracy(accuracy)
     say = log or (lambda message: None)
-    tile = int(tile)
-    if not 8 <= tile <= 4096:
-        raise InputError(f"tile size {tile}: expected 8 to 4096 pixels")
+    tile = _tile(tile)
     noise = _noise(noise)
     medium_model = as_given(medium, "medium", "the medium")
     cls = default_class("brdf") if brdf_model is None else model_class(brdf_model, "brdf")
@@ -230,19 +234,13 @@ def fit_maps(photo_dir, manifest, medium, output, *, brdf_model=None, options=No
     address = scheduler or os.environ.get(SCHEDULER_ENV) or None
     client = connect(address) if address else None
     try:
-        if not output.parent.exists():
-            raise InputError(f"cannot write {output}: directory {output.parent} does not "
-                             f"exist")
+        _check_output(output)
         with store_lock(output, say):
             existing = _existing_store(output)
             seconds: dict = {}
-            t0 = time.perf_counter()
-            tables = build_tables(cls, medium_model, acq.angles, fixed=fixed, options=options,
-                                  free=free, grid=grid_spec, accuracy=accuracy,
-                                  progress=(lambda d, t: progress("tables", d, t))
-                                  if progress else None, near=near, roi=acq.roi)
-            seconds["tables"] = time.perf_counter() - t0
-            say(f"tables: {tables.describe()} in {seconds['tables']:.1f} s")
+            build = dict(fixed=fixed, options=options, free=free, grid=grid_spec)
+            tables = _tables(cls, medium_model, acq, build, accuracy, near, progress, say,
+                             seconds)
             notes = geometry_notes_of(tables, cls, medium_model, acq, geometry)
             info = _store_attributes(acq, tables, cls, noise, tile, accuracy, channel,
                                      geometry)
@@ -253,6 +251,31 @@ def fit_maps(photo_dir, manifest, medium, output, *, brdf_model=None, options=No
     finally:
         if client is not None:
             client.close()
+
+
+def _tile(tile) -> int:
+    tile = int(tile)
+    if not 8 <= tile <= 4096:
+        raise InputError(f"tile size {tile}: expected 8 to 4096 pixels")
+    return tile
+
+
+def _check_output(output: Path) -> None:
+    if not output.parent.exists():
+        raise InputError(f"cannot write {output}: directory {output.parent} does not exist")
+
+
+def _tables(cls, medium_model, acq: Acquisition, settings: dict, accuracy: str, near,
+            progress, say, seconds: dict) -> MapTables:
+    """The tables of the photos' configurations (:func:`build_tables` with ``settings``),
+    their time in ``seconds["tables"]``."""
+    t0 = time.perf_counter()
+    tables = build_tables(cls, medium_model, acq.angles, roi=acq.roi, accuracy=accuracy,
+                          near=near, progress=(lambda d, t: progress("tables", d, t))
+                          if progress else None, **settings)
+    seconds["tables"] = time.perf_counter() - t0
+    say(f"tables: {tables.describe()} in {seconds['tables']:.1f} s")
+    return tables
 
 
 def _existing_store(output: Path) -> dict | None:
