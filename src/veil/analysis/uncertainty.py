@@ -211,10 +211,7 @@ def propagate(target_result: FitResult, medium_result: FitResult, table, *,
     ``stats["sensitivity"]`` holds d target / d medium.
     """
     _check_pair(target_result, medium_result, reference_result)
-    if method is None:
-        method = (target_result.stats.get("propagation") or {}).get("method", "linear")
-    if method not in ("linear", "sigma-points"):
-        raise FitError(f"method = {method!r}; expected 'linear' or 'sigma-points'")
+    method = _method(method, target_result)
     theta, cov2 = covariance_of(target_result)
     m_names, m_parts = medium_parts(medium_result, reference_result, reference_table,
                                     black=reference_black, accuracy=accuracy)
@@ -235,6 +232,32 @@ def propagate(target_result: FitResult, medium_result: FitResult, table, *,
     cross = _shared_part(problem, target_result, medium_result, m_names, -a)
     if cross is not None:
         parts[SHARED] = cross
+    total, se, budget, corr = _totals(theta, parts)
+    stderr_total: dict[str, float | None] = {n: None for n in target_result.params}
+    stderr_total.update({n: float(s) for n, s in zip(theta, se)})
+    sens = {n: {m: float(-a[j, k]) for k, m in enumerate(m_names)} for j, n in enumerate(theta)}
+    what = "the medium's (step 1)" + (" and the reference's (step 0)" if "step0" in parts else "")
+    how = "by linearization" if method == "linear" else "through sigma-point refits"
+    message = f"{target_result.message}; total standard errors include {what} uncertainty, "
+    message += f"propagated {how}"
+    stats = dict(target_result.stats, budget=budget, sensitivity=sens)
+    return dataclasses.replace(target_result, stderr_total=stderr_total,
+                               correlation_total=corr, message=message, stats=stats)
+
+
+def _method(method, target_result: FitResult) -> str:
+    """The propagation method: as given, or the one the step-2 fit used (linear when the
+    result does not say)."""
+    if method is None:
+        method = (target_result.stats.get("propagation") or {}).get("method", "linear")
+    if method not in ("linear", "sigma-points"):
+        raise FitError(f"method = {method!r}; expected 'linear' or 'sigma-points'")
+    return method
+
+
+def _totals(theta: list, parts: dict) -> tuple:
+    """(the total covariance, its standard errors, the budget {name: {part: variance,
+    "total": ...}}, the total correlation {name: {name: r}}) of the ``parts``."""
     total = cast(np.ndarray, sum(parts.values()))  # (of arrays: an array)
     se = np.sqrt(np.maximum(np.diag(total), 0.0))
     budget = {}
@@ -247,16 +270,7 @@ def propagate(target_result: FitResult, medium_result: FitResult, table, *,
     for i, na in enumerate(theta):
         corr[na] = {nb: (float(total[i, j] / (se[i] * se[j])) if se[i] * se[j] > 0 else None)
                     for j, nb in enumerate(theta)}
-    stderr_total: dict[str, float | None] = {n: None for n in target_result.params}
-    stderr_total.update({n: float(s) for n, s in zip(theta, se)})
-    sens = {n: {m: float(-a[j, k]) for k, m in enumerate(m_names)} for j, n in enumerate(theta)}
-    what = "the medium's (step 1)" + (" and the reference's (step 0)" if "step0" in parts else "")
-    how = "by linearization" if method == "linear" else "through sigma-point refits"
-    message = (target_result.message + f"; total standard errors include {what} "
-               f"uncertainty, propagated {how}")
-    stats = dict(target_result.stats, budget=budget, sensitivity=sens)
-    return dataclasses.replace(target_result, stderr_total=stderr_total,
-                               correlation_total=corr, message=message, stats=stats)
+    return total, se, budget, corr
 
 
 def _shared_part(problem, target_result, medium_result, m_names, sens):
