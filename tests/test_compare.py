@@ -155,7 +155,7 @@ def test_a_reference_with_a_specular_peak_determines_the_medium(medium, tau, g):
         assert "tau uncertain" in hint and "g" not in hint.split("uncertain")[0]
         assert "specular peak" in hint
         # report.md says where the term came from
-        from veil.viz.documents import _stats_lines
+        from veil.viz.pipeline_report import _stats_lines
 
         said = " ".join(_stats_lines(med))
         assert "0.5 % of the model's value, correlated over 40 deg (the model's declared " \

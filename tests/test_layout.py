@@ -411,19 +411,21 @@ def _public_functions(module, names) -> list:
     return out
 
 
-def public_packages(root: pathlib.Path = ROOT) -> list[str]:
-    """veil and its subpackages (veil.fitting, veil.maps, ...) that declare ``__all__``."""
+def public_modules(root: pathlib.Path = ROOT) -> list[str]:
+    """veil and every package and module below it that declares ``__all__`` (veil.fitting,
+    veil.fitting.solver, veil.viz.render, ...): their ``__all__`` is their public API."""
     found = ["veil"]
-    for init in sorted(root.glob("*/__init__.py")):
-        if re.search(r"^__all__\b", init.read_text(), re.M):
-            found.append(f"veil.{init.parent.name}")
+    for path in _modules(root):
+        if re.search(r"^__all__\b", path.read_text(), re.M):
+            rel = path.relative_to(root).with_suffix("").parts
+            found.append(".".join(("veil",) + (rel[:-1] if rel[-1] == "__init__" else rel)))
     return found
 
 
 def missing_return_annotations(names=None, package: str = "veil") -> list[str]:
-    """The functions of ``package.__all__`` (default veil's), and the public methods of its
-    classes defined in veil, without a return annotation: their labels, a subpackage's
-    prefixed by its name."""
+    """The functions of ``package.__all__`` (default veil's; ``package`` may be any module),
+    and the public methods of its classes defined in veil, without a return annotation:
+    their labels, a subpackage's or module's prefixed by its name below veil."""
     import importlib
 
     module = importlib.import_module(package)
@@ -435,10 +437,23 @@ def missing_return_annotations(names=None, package: str = "veil") -> list[str]:
 
 
 def test_public_api_has_return_annotations():
-    packages = public_packages()
-    assert {"veil", "veil.fitting", "veil.models"} <= set(packages), packages
-    missing = [m for package in packages for m in missing_return_annotations(package=package)]
+    modules = public_modules()
+    assert {"veil", "veil.fitting", "veil.models", "veil.fitting.solver",
+            "veil.viz.render"} <= set(modules), modules
+    missing = [m for module in modules for m in missing_return_annotations(package=module)]
     assert not missing, missing
+
+
+def test_a_module_all_is_public_api(tmp_path):
+    """A module's own ``__all__`` makes it public API, as a package's does; a module without
+    one is not."""
+    root = _tree(tmp_path, {
+        "fitting/__init__.py": '__all__ = ["solve"]\n',
+        "fitting/solver.py": 'def solve(x):\n    return x\n\n\n__all__ = ["solve"]\n',
+        "fitting/helpers.py": "def helper(x):\n    return x\n",
+        "io.py": "__all__ = []\n",
+    })
+    assert public_modules(root) == ["veil", "veil.fitting", "veil.fitting.solver", "veil.io"]
 
 
 def test_a_public_function_without_a_return_annotation_is_caught(monkeypatch):
@@ -460,6 +475,11 @@ def test_a_public_function_without_a_return_annotation_is_caught(monkeypatch):
     assert missing_return_annotations(["apparent", "unannotated"]) == ["unannotated"]
     assert missing_return_annotations(["fit_target", "Solver"], "veil.fitting") == [
         "fitting.Solver.load"]
+    import veil.fitting.solver
+
+    monkeypatch.setattr(veil.fitting.solver, "unannotated", unannotated, raising=False)
+    assert missing_return_annotations(["solve", "unannotated"], "veil.fitting.solver") == [
+        "fitting.solver.unannotated"]
 
 
 #: The sizes docs/architecture.md promises: lines per module, lines per function.

@@ -24,6 +24,7 @@ from veil.analysis.uncertainty import curve_stderr, propagate
 from veil.cli import main
 from veil.fitting import FitError, FitResult, fit_direct, model_values
 from veil.fitting import model_error as me
+from veil.fitting import shared_error as se
 from veil.models import model_class
 
 ANGLES = ("theta_i", "phi_i", "theta_r", "phi_r")
@@ -120,13 +121,13 @@ def test_the_likelihood_mean_is_the_normalized_average():
     # a likelihood exp(-nll) proportional to c: mean 2/3 (the trapezoid rule on a line is
     # exact for the mass; the first moment within h^2 / 6)
     nll = 1000.0 - np.log(np.maximum(grid, 1e-300))
-    assert abs(me.likelihood_mean(grid, nll) - 2.0 / 3.0) < 1e-3
-    flat = me.likelihood_mean(grid, np.full(41, 5.0))
+    assert abs(se.likelihood_mean(grid, nll) - 2.0 / 3.0) < 1e-3
+    flat = se.likelihood_mean(grid, np.full(41, 5.0))
     assert abs(flat - 0.5) < 1e-12
     # non-finite points weigh nothing; none finite: None
     half = np.where(grid <= 0.5, 7.0, np.inf)
-    assert abs(me.likelihood_mean(grid, half) - 0.25) < 0.02
-    assert me.likelihood_mean(grid, np.full(41, np.inf)) is None
+    assert abs(se.likelihood_mean(grid, half) - 0.25) < 0.02
+    assert se.likelihood_mean(grid, np.full(41, np.inf)) is None
 
 
 def test_a_declared_floor_is_the_least_term():
@@ -279,10 +280,10 @@ def test_shared_term_is_the_kernel_over_both_sessions_written_out():
     m = np.hstack([g2, sens @ g1])
     full = 0.01 ** 2 * m @ k @ m.T
     own = 0.01 ** 2 * (g2 @ k[:15, :15] @ g2.T + sens @ g1 @ k[15:, 15:] @ g1.T @ sens.T)
-    got = me.shared(g2, a2, given, ["a", "b", "c"], sens)
+    got = se.shared(g2, a2, given, ["a", "b", "c"], sens)
     np.testing.assert_allclose(got, full - own, rtol=1e-10, atol=1e-14)
-    assert me.shared(g2, a2, dataclasses.replace(given, length=0.0), "abc", sens) is None
-    assert me.shared(g2, a2, dataclasses.replace(given, influence=None), "abc", sens) is None
+    assert se.shared(g2, a2, dataclasses.replace(given, length=0.0), "abc", sens) is None
+    assert se.shared(g2, a2, dataclasses.replace(given, influence=None), "abc", sens) is None
 
 
 def _two_sessions(rng, share, length=40.0, s=0.01):
@@ -340,8 +341,8 @@ def test_session_correlation_is_recovered():
         for _ in range(30):
             given, names, r2, a2, j2, jm, ang2, cov, cov_m = _two_sessions(rng, truth)
             # session_correlation is this mean; the likelihood is computed once for both
-            grid, nll = me.share_likelihood(r2, a2, j2, ang2, cov, given, names, jm, cov_m)
-            got.append(me.likelihood_mean(grid, nll))
+            grid, nll = se.share_likelihood(r2, a2, j2, ang2, cov, given, names, jm, cov_m)
+            got.append(se.likelihood_mean(grid, nll))
             best.append(grid[int(np.argmin(nll))])
         # a mean over a likelihood that is positive on [0, 1] never reaches a bound
         assert all(0.0 < g < 1.0 for g in got), got
@@ -352,16 +353,16 @@ def test_session_correlation_is_recovered():
     # coupling through step 1's estimate 0.00, 0.23, 0.74)
     assert maxima[0.0] < 0.15 and 0.4 < maxima[0.5] < 0.65 and maxima[1.0] > 0.95, maxima
     given, names, r2, a2, j2, jm, ang2, cov, cov_m = _two_sessions(rng, 1.0)
-    grid, nll = me.share_likelihood(r2, a2, j2, ang2, cov, given, names, jm, cov_m)
-    assert me.session_correlation(r2, a2, j2, ang2, cov, given, names, jm, cov_m) == \
-        me.likelihood_mean(grid, nll)
-    assert me.session_correlation(r2, a2, j2, ang2, cov, dataclasses.replace(
+    grid, nll = se.share_likelihood(r2, a2, j2, ang2, cov, given, names, jm, cov_m)
+    assert se.session_correlation(r2, a2, j2, ang2, cov, given, names, jm, cov_m) == \
+        se.likelihood_mean(grid, nll)
+    assert se.session_correlation(r2, a2, j2, ang2, cov, dataclasses.replace(
         given, residuals=None, scaled=None), names, jm, cov_m) is None
     # the cross term scales with it
     sens = rng.standard_normal((4, 3))
     g2 = rng.standard_normal((4, 90))
-    np.testing.assert_allclose(me.shared(g2, ang2, given, names, sens, 0.25),
-                               0.25 * me.shared(g2, ang2, given, names, sens))
+    np.testing.assert_allclose(se.shared(g2, ang2, given, names, sens, 0.25),
+                               0.25 * se.shared(g2, ang2, given, names, sens))
 
 
 def test_joint_fit_gets_its_own_term_and_the_reference_s_covariance():

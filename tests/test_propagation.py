@@ -149,7 +149,7 @@ def test_sigma_points_agree_with_the_first_order_where_it_holds(chain):
     for name in forced.free:
         assert p.stderr_total[name] == pytest.approx(forced.stderr_total[name], rel=1e-6)
     # report.md says which way each step's total came
-    from veil.viz.documents import _stats_lines
+    from veil.viz.pipeline_report import _stats_lines
     assert (f"through {how['refits']} refits at {how['points']} sigma points"
             in "\n".join(_stats_lines(forced)))
     assert "\"stderr incl. given model\": to first order" in "\n".join(_stats_lines(auto))
@@ -222,10 +222,10 @@ def test_off_moves_nothing_but_the_totals(chain):
 
 
 def test_auto_propagates_into_the_chosen_candidate_only():
-    """veil.pipeline._rank_step: every candidate fitted once by the screening fit, the
+    """veil.fitting.auto.rank_step: every candidate fitted once by the screening fit, the
     chosen one (and only it) fitted again by ``propagated``, whose result replaces it."""
+    from veil.fitting.auto import rank_step
     from veil.fitting.selection import candidates
-    from veil.pipeline import _rank_step
 
     cands = [c for c in candidates("brdf") if c.family in ("torrance-sparrow", "rough-plastic")]
     assert len(cands) >= 2
@@ -248,7 +248,7 @@ def test_auto_propagates_into_the_chosen_candidate_only():
         calls.append(("again", c.label))
         return result(c.label, "propagated")
 
-    ranking, results = _rank_step("target", cands, data, screened, None, None, "target",
+    ranking, results = rank_step("target", cands, data, screened, None, None, "target",
                                   propagated)
     assert ranking.chosen == cands[0].label
     assert sorted(calls) == sorted([("screen", c.label) for c in cands]

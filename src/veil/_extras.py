@@ -12,6 +12,7 @@ whose message is the pip line to run.
 from __future__ import annotations
 
 import importlib
+from types import ModuleType
 
 from .errors import MissingExtraError
 
@@ -28,7 +29,7 @@ def pip_line(extra: str) -> str:
     return f"pip install 'veil[{extra}]'"
 
 
-def require(module: str, purpose: str | None = None):
+def require(module: str, purpose: str | None = None) -> ModuleType:
     """Import ``module`` (``"zarr"``, ``"dask.array"``) and return it; if its package is not
     installed, raise :class:`MissingExtraError` naming the extra and the pip line."""
     try:

@@ -24,6 +24,7 @@ import os
 import shutil
 import tempfile
 import threading
+from collections.abc import Iterator
 from pathlib import Path
 
 from .errors import NotAFileError, UnwritableError
@@ -279,7 +280,7 @@ def _commit(staging: str, path: str, owned):
 
 
 @contextlib.contextmanager
-def output_folder(path, owned=None):
+def output_folder(path, owned=None) -> Iterator[Path]:
     """Write a folder of outputs as one transaction; yields the folder to write into.
 
     Everything is written into a temporary folder (a hidden sibling when ``path`` does not

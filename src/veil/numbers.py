@@ -5,6 +5,7 @@ non-finite numbers never reach a file, they become null)."""
 from __future__ import annotations
 
 import math
+from typing import Any
 
 from .errors import InputError
 
@@ -26,7 +27,7 @@ def format_percent(x, digits: int = 3, missing: str = "-") -> str:
     return f"{100 * float(x):.{digits}g} %"
 
 
-def json_float(x):
+def json_float(x) -> float | None:
     """A number for a JSON file: float, or None (null) when missing or not finite."""
     if x is None:
         return None
@@ -34,7 +35,7 @@ def json_float(x):
     return x if math.isfinite(x) else None
 
 
-def json_clean(obj):
+def json_clean(obj) -> Any:
     """``obj`` with every non-finite float (also inside dicts, lists, numpy scalars) as None:
     what json.dumps(..., allow_nan=False) accepts."""
     if isinstance(obj, dict):
@@ -48,7 +49,7 @@ def json_clean(obj):
     return obj
 
 
-def from_json_float(x, where: str = "a fit result"):
+def from_json_float(x, where: str = "a fit result") -> float | None:
     """A number read from a file: float or None; anything else is an InputError."""
     if x is None:
         return None

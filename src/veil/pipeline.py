@@ -16,6 +16,26 @@ an interrupted or failed run leaves the folder as it was):
 - ``report.md``: the parameter tables and the comparison.
 
 Formats and the meaning of the uncertainties: docs/fitting.md.
+
+More arguments of :func:`run_pipeline`:
+
+- ``truth``: optional true models {"reference": ..., "medium": ..., "target": ...}
+  (simulated data) listed beside the estimates in report.md.
+- ``brdf_model``, ``medium_model``, ``brdf_options``, ``medium_options``: the families of
+  the objects and of the medium (registered names; default the paper's) and their options.
+- ``model_error``: the model-discrepancy term of every weighted step ("off", "independent"
+  or "correlated", the default; :mod:`veil.fitting.model_error`): step 2 uses step 1's
+  when larger than its own and counts the error the two share.
+- ``propagation``: how each step's given covariance enters its ``stderr_total`` ("auto",
+  the default, "linear" or "sigma-points"; :mod:`veil.fitting.propagation`).
+- ``models``: None (``brdf_model`` / ``medium_model`` as given), "paper" (the paper's
+  models), "BRDF+MEDIUM" (a pinned pair) or "auto": every registered candidate ranked per
+  step by BIC with its model-discrepancy term (:mod:`veil.fitting.selection`,
+  :mod:`veil.fitting.auto`), the best one used; options, ``fixed`` and ``free`` then
+  apply to the candidates that declare them. Rankings in ``ranking.json``, report.md and
+  each chosen result's ``stats["selection"]``; with ``keep_candidates`` every candidate's
+  result too, in ``candidates/<step>/``. Every candidate failing raises
+  :class:`veil.fitting.selection.NoCandidateError` (with the rankings).
 """
 
 from __future__ import annotations
@@ -25,11 +45,7 @@ import os
 from dataclasses import dataclass, field
 from typing import Any
 
-import numpy as np
-
 from .analysis.comparison import compare
-from .data.measurements import CANONICAL
-from .data.protocol import protocol
 from .errors import FitError
 from .fitting import (
     FitResult,
@@ -37,20 +53,19 @@ from .fitting import (
     fit_medium,
     fit_reference,
     fit_target,
-    model_values,
     prepare,
     selection,
 )
+from .fitting.auto import for_family, plan_candidates, select_steps
 from .fitting.model_error import check_kind
 from .fitting.propagation import check_method
 from .fitting.session_data import channels_of
 from .fitting.steps import prefetch
 from .io import check_output_folder, output_folder, write_bytes_atomic, write_text_atomic
 from .models import AUTO, model_class
-from .models.base import VARIANT_OPTION
-from .viz.documents import pipeline_report, ranking_section
 from .viz.fit_figures import fit_figure
 from .viz.fit_figures_colour import channel_fit_figure
+from .viz.pipeline_report import pipeline_report, ranking_section
 
 #: Output files, by role.
 FILES = {"reference": "reference.json", "medium": "medium.json", "target": "target.json",
@@ -231,70 +246,92 @@ def _resolve_models(models, brdf_model, medium_model) -> tuple[Any, Any, bool]:
     return None, None, mode == AUTO  # PAPER: the default families
 
 
-def _fit_steps(data: dict, fixed: dict, free: dict, *, variant, accuracy, max_nfev, progress,
-               brdf_model, medium_model, brdf_options, medium_options, model_error,
-               propagation, sources=None) -> tuple[FitResult, FitResult, FitResult]:
+@dataclass(frozen=True)
+class _Run:
+    """The settings of one pipeline run, checked (:func:`run_pipeline`'s arguments)."""
+
+    outdir: str
+    fixed: dict
+    free: dict
+    variant: str | None
+    accuracy: str
+    max_nfev: int | None
+    progress: Any
+    truth: Any
+    figures: bool
+    brdf_model: Any
+    medium_model: Any
+    brdf_options: Any
+    medium_options: Any
+    model_error: Any
+    propagation: Any
+    auto: bool
+    keep_candidates: bool
+    channel: str | None
+
+
+def _fit_steps(data: dict, run: _Run, sources=None) -> tuple[FitResult, FitResult, FitResult]:
     """Steps 0-2 with the given families: (reference, medium, target). ``sources``
     {session: (table, black)} replaces the checked data's tables (several channels: each
     step fits them at once, the black cloth subtracted channel by channel)."""
-    brdf = {"brdf_model": brdf_model, "options": brdf_options, "model_error": model_error}
-    chained = {"model_error": model_error, "propagation": propagation}
+    fixed, free, progress = run.fixed, run.free, run.progress
+    brdf = {"brdf_model": run.brdf_model, "options": run.brdf_options,
+            "model_error": run.model_error}
+    chained = {"model_error": run.model_error, "propagation": run.propagation,
+               "accuracy": run.accuracy, "max_nfev": run.max_nfev}
     table, black = {}, {}
     for key in ("reference_clear", "reference_medium", "target_medium"):
         table[key], black[key] = (sources or {}).get(key, (data[key].table, None))
-    prefetch(data["reference_medium"], brdf_model=brdf_model, brdf_options=brdf_options,
-             medium_model=medium_model, medium_options=medium_options, variant=variant,
-             accuracy=accuracy)
+    prefetch(data["reference_medium"], brdf_model=run.brdf_model,
+             brdf_options=run.brdf_options, medium_model=run.medium_model,
+             medium_options=run.medium_options, variant=run.variant, accuracy=run.accuracy)
     ref = fit_reference(table["reference_clear"], fixed=fixed.get("reference"),
-                        max_nfev=max_nfev, progress=_stage(progress, "step 0, reference"),
+                        max_nfev=run.max_nfev, progress=_stage(progress, "step 0, reference"),
                         free=free.get("reference"), **brdf)
     med = fit_medium(table["reference_medium"], ref, fixed=fixed.get("medium"),
-                     black=black["reference_medium"], variant=variant, accuracy=accuracy,
-                     max_nfev=max_nfev, progress=_stage(progress, "step 1, medium"),
-                     medium_model=medium_model, options=medium_options,
+                     black=black["reference_medium"], variant=run.variant,
+                     progress=_stage(progress, "step 1, medium"),
+                     medium_model=run.medium_model, options=run.medium_options,
                      free=free.get("medium"), **chained)
     tgt = fit_target(table["target_medium"], med, fixed=fixed.get("target"),
-                     black=black["target_medium"], accuracy=accuracy, max_nfev=max_nfev,
-                     progress=_stage(progress, "step 2, target"), free=free.get("target"),
-                     brdf_model=brdf_model, options=brdf_options,
-                     **chained)
+                     black=black["target_medium"], progress=_stage(progress, "step 2, target"),
+                     free=free.get("target"), brdf_model=run.brdf_model,
+                     options=run.brdf_options, **chained)
     return ref, med, tgt
 
 
-def _fit_direct(session, fixed: dict, free: dict, *, chosen: bool, brdf_model, brdf_options,
-                max_nfev, progress, model_error) -> FitResult:
+def _fit_direct(session, run: _Run, *, chosen: bool, brdf_model, brdf_options) -> FitResult:
     """The target fitted directly in the clear medium; ``chosen``: ``brdf_model`` was
     chosen among candidates, and only the target entries its family declares apply."""
-    fix_d, free_d = fixed.get("target"), free.get("target")
+    fix_d, free_d = run.fixed.get("target"), run.free.get("target")
     if chosen:
         cls = model_class(brdf_model)
-        fix_d = _for_family(cls, fixed, "target", "fixed", set())
-        free_d = _for_family(cls, free, "target", "free", set())
+        fix_d = for_family(cls, run.fixed, "target", "fixed", set())
+        free_d = for_family(cls, run.free, "target", "free", set())
     table = session if isinstance(session, (str, os.PathLike)) else session.table
-    return fit_direct(table, fixed=fix_d, max_nfev=max_nfev, free=free_d,
-                      progress=_stage(progress, "target, clear medium"),
-                      brdf_model=brdf_model, options=brdf_options, model_error=model_error)
+    return fit_direct(table, fixed=fix_d, max_nfev=run.max_nfev, free=free_d,
+                      progress=_stage(run.progress, "target, clear medium"),
+                      brdf_model=brdf_model, options=brdf_options, model_error=run.model_error)
 
 
-def _write_outputs(outdir: str, fits: dict, data: dict, rankings: dict, kept: dict, *,
-                   figures: bool, progress, comparison, truth, shown: dict,
-                   channels=None) -> dict:
-    """The pipeline's files in ``outdir``, as one transaction: {key: file name}. ``shown``:
-    the inputs as report.md names them."""
+def _write_outputs(run: _Run, fits: dict, data: dict, rankings: dict, kept: dict, *,
+                   comparison, shown: dict, channels=None) -> dict:
+    """The pipeline's files in ``run.outdir``, as one transaction: {key: file name}.
+    ``shown``: the inputs as report.md names them."""
     names = {}
     owned = list(FILES.values()) + [RANKING_FILE, CANDIDATES_DIR]
-    with output_folder(outdir, owned=owned) as folder:
+    with output_folder(run.outdir, owned=owned) as folder:
         for key, result in fits.items():
             if result is not None:
                 result.to_json(folder / FILES[key])
                 names[key] = FILES[key]
         names.update(_write_selection(folder, rankings, kept))
         ref, med, tgt, direct = (fits[k] for k in ("reference", "medium", "target", "direct"))
-        if figures:
-            if progress is not None:
-                progress("figures", None, None)
+        if run.figures:
+            if run.progress is not None:
+                run.progress("figures", None, None)
             names.update(_write_figures(folder, data, ref, med, tgt, direct))
-        report = pipeline_report(ref, med, tgt, direct, comparison, truth, names, shown)
+        report = pipeline_report(ref, med, tgt, direct, comparison, run.truth, names, shown)
         if rankings:
             report = report.rstrip("\n") + "\n\n" + "\n".join(ranking_section(rankings)) + "\n"
         if channels is not None:
@@ -303,6 +340,39 @@ def _write_outputs(outdir: str, fits: dict, data: dict, rankings: dict, kept: di
         write_text_atomic(folder / FILES["report"], report)
         names["report"] = FILES["report"]
     return names
+
+
+def _pipeline(run: _Run, inputs: dict) -> PipelineResult:
+    """:func:`run_pipeline` with its settings checked: read every session, fit (or rank the
+    candidates of) steps 0-2, fit the target directly if given, write the files."""
+    brdf_model, brdf_options = run.brdf_model, run.brdf_options
+    # the candidates and their entries, checked before any reading
+    plan = (plan_candidates(run.fixed, run.free, brdf_options, run.medium_options, run.variant)
+            if run.auto else None)
+    # read and check every input before the first (long) fit
+    data, channels = _prepare_sessions(inputs, run.channel)
+    sources = _channel_sources(inputs, channels, run.auto, run.truth)
+    rankings, kept = dict[str, Any](), dict[str, Any]()
+    if plan is not None:
+        ref, med, tgt, brdf_model, brdf_options, rankings, kept = select_steps(
+            data, plan, accuracy=run.accuracy, max_nfev=run.max_nfev, progress=run.progress,
+            model_error=run.model_error, propagation=run.propagation,
+            keep=run.keep_candidates)
+    else:
+        ref, med, tgt = _fit_steps(data, run, sources)
+    direct = comparison = None
+    if inputs["target_clear"] is not None:
+        direct = _fit_direct(inputs["target_clear"] if channels else data["target_clear"],
+                             run, chosen=bool(rankings), brdf_model=brdf_model,
+                             brdf_options=brdf_options)
+        comparison = compare(tgt, direct)
+
+    fits = {"reference": ref, "medium": med, "target": tgt, "direct": direct}
+    # inputs inside the output folder are named relative to it (links from report.md)
+    names = _write_outputs(run, fits, data, rankings, kept, comparison=comparison,
+                           shown=_relative_to(inputs, run.outdir), channels=channels)
+    files = {key: os.path.join(run.outdir, name) for key, name in names.items()}
+    return PipelineResult(ref, med, tgt, direct, comparison, files, rankings)
 
 
 def run_pipeline(reference_clear, reference_medium, target_medium, black=None, target_clear=None,
@@ -324,71 +394,24 @@ def run_pipeline(reference_clear, reference_medium, target_medium, black=None, t
         apply to the direct fit.
     free : parameters the families hold by default (``Param.held``) to fit too, per step,
         e.g. ``{"medium": ["s"]}``; the target's also apply to the direct fit.
-    truth : optional true models {"reference": ..., "medium": ..., "target": ...} (simulated
-        data) listed beside the estimates in report.md.
-    brdf_model, medium_model, brdf_options, medium_options : the families of the objects and
-        of the medium (registered names; default the paper's) and their options.
-    model_error : the model-discrepancy term of every weighted step ("off", "independent"
-        or "correlated", the default; :mod:`veil.fitting.model_error`): step 2 uses step 1's
-        when larger than its own and counts the error the two share.
-    propagation : how each step's given covariance enters its ``stderr_total`` ("auto", the
-        default, "linear" or "sigma-points"; :mod:`veil.fitting.propagation`).
-    models : None (``brdf_model`` / ``medium_model`` as given), "paper" (the paper's models),
-        "BRDF+MEDIUM" (a pinned pair) or "auto": every registered candidate ranked per step
-        by BIC with its model-discrepancy term (:mod:`veil.fitting.selection`), the best
-        one used; options, ``fixed`` and ``free`` then apply to the candidates that declare
-        them. Rankings in ``ranking.json``, report.md and each chosen result's
-        ``stats["selection"]``; with ``keep_candidates`` every candidate's result too, in
-        ``candidates/<step>/``. Every candidate failing raises
-        :class:`veil.fitting.selection.NoCandidateError` (with the rankings).
     channel : one channel of the tables; None: all in every step (docs/channels.md).
-    Other arguments as :func:`veil.fit_medium`. Returns a :class:`PipelineResult`.
+    truth, the models and their options, model_error, propagation, models and
+    keep_candidates: the module docstring. Other arguments as :func:`veil.fit_medium`.
     """
-    model_error = check_kind(model_error)
-    propagation = check_method(propagation)
-    fixed = _check_fixed(fixed)
-    free = _check_fixed(free, "free")
-    outdir = os.fspath(outdir)
+    model_error, propagation = check_kind(model_error), check_method(propagation)
+    fixed, free, outdir = _check_fixed(fixed), _check_fixed(free, "free"), os.fspath(outdir)
     inputs = {"reference_clear": reference_clear, "reference_medium": reference_medium,
               "target_medium": target_medium, "black": black, "target_clear": target_clear}
     _check_outputs(outdir, inputs)
-
     brdf_model, medium_model, auto = _resolve_models(models, brdf_model, medium_model)
-    # the candidates and their entries, checked before any reading
-    plan = _plan(fixed, free, brdf_options, medium_options, variant) if auto else None
-    # read and check every input before the first (long) fit
-    data, channels = _prepare_sessions(inputs, channel)
-    sources = _channel_sources(inputs, channels, auto, truth)
-    rankings, kept = dict[str, Any](), dict[str, Any]()
-    if plan is not None:
-        ref, med, tgt, brdf_model, brdf_options, rankings, kept = _select(
-            data, plan, accuracy=accuracy, max_nfev=max_nfev, progress=progress,
-            model_error=model_error, propagation=propagation, keep=keep_candidates)
-    else:
-        ref, med, tgt = _fit_steps(
-            data, fixed, free, variant=variant, accuracy=accuracy, max_nfev=max_nfev,
-            progress=progress, brdf_model=brdf_model, medium_model=medium_model,
-            brdf_options=brdf_options, medium_options=medium_options,
-            model_error=model_error, propagation=propagation, sources=sources)
-    direct = comparison = None
-    if target_clear is not None:
-        direct = _fit_direct(data["target_clear"] if channels is None else target_clear,
-                             fixed, free, chosen=bool(rankings), brdf_model=brdf_model,
-                             brdf_options=brdf_options, max_nfev=max_nfev, progress=progress,
-                             model_error=model_error)
-        comparison = compare(tgt, direct)
-
-    fits = {"reference": ref, "medium": med, "target": tgt, "direct": direct}
-    # inputs inside the output folder are named relative to it (links from report.md)
-    names = _write_outputs(outdir, fits, data, rankings, kept, progress=progress,
-                           figures=figures, comparison=comparison, truth=truth,
-                           shown=_relative_to(inputs, outdir), channels=channels)
-    files = {key: os.path.join(outdir, name) for key, name in names.items()}
-    return PipelineResult(ref, med, tgt, direct, comparison, files, rankings)
+    run = _Run(outdir, fixed, free, variant, accuracy, max_nfev, progress, truth, figures,
+               brdf_model, medium_model, brdf_options, medium_options, model_error,
+               propagation, auto, keep_candidates, channel)
+    return _pipeline(run, inputs)
 
 
 # --------------------------------------------------------------------------------------
-# models="auto": the data choose the model (issue 29)
+# models="auto": the rankings and every candidate's result in the output folder
 # --------------------------------------------------------------------------------------
 def _file_name(label: str) -> str:
     """A candidate's result file: its label with [ , = ] made file-name safe."""
@@ -412,140 +435,6 @@ def _write_selection(folder, rankings: dict, kept: dict) -> dict:
             result.to_json(folder / name)
             names[f"{CANDIDATES_DIR}/{step}/{label}"] = name
     return names
-
-
-def _per_family(cands, per_step: dict, step: str, what: str) -> dict:
-    """{label: the ``fixed`` / ``free`` entries of ``step`` its family declares}; an entry no
-    candidate declares is an error."""
-    used: set = set()
-    out = {c.label: _for_family(model_class(c.family), per_step, step, what, used)
-           for c in cands}
-    unused = [f"{step}.{k}" for k in (per_step.get(step) or []) if (step, k) not in used]
-    if unused:
-        raise FitError(f"{what} {', '.join(unused)}: no candidate model has such a parameter")
-    return out
-
-
-def _fitted_curve(result: FitResult, data) -> np.ndarray:
-    """The fit's model values at its data's configurations, from its residuals."""
-    r = np.asarray(result.residuals, dtype=float)
-    return data.y - (r * data.sigma if result.weighted and data.sigma is not None else r)
-
-
-def _rank_step(step, cands, data, fit_one, progress, curves, what, propagated=None):
-    """Fit and rank one step's candidates (:func:`veil.fitting.selection.select`); a close
-    call's ranking carries the spread of the close candidates' ``curves``. With
-    ``propagated``, the candidates are fitted by ``fit_one`` without the given fit's
-    covariance (which moves no estimate, chi-square or BIC) and the chosen one again by
-    ``propagated``, with it: the derivatives in the given model are compiled and evaluated
-    for that one only."""
-    ranking, results = selection.select(step, cands, data, fit_one, what, progress)
-    if ranking.close_call:
-        ranking = ranking.with_spread(selection.curve_spread(
-            ranking, {lab: curves(results[lab]) for lab in ranking.close}))
-    if propagated is not None:
-        chosen = next(c for c in cands if c.label == ranking.chosen)
-        results = dict(results, **{ranking.chosen: propagated(chosen)})
-    return ranking, results
-
-
-def _plan(fixed, free, brdf_options, medium_options, variant) -> dict:
-    """The candidates of ``models="auto"`` and each one's options, fixed and free entries;
-    an entry or option no candidate declares is an error."""
-    brdf_options, medium_options = dict(brdf_options or {}), dict(medium_options or {})
-    if variant is not None:
-        medium_options.setdefault(VARIANT_OPTION, variant)
-    b_cands = selection.candidates("brdf", brdf_options)
-    m_cands = selection.candidates("medium", medium_options)
-    for kind, cands, opts in (("BRDF", b_cands, brdf_options),
-                              ("medium", m_cands, medium_options)):
-        if not cands:
-            raise FitError(f"no registered {kind} family is a candidate with options {opts}")
-        declared = {o for c in cands for o in model_class(c.family).option_names()}
-        unused = sorted(set(opts) - declared)
-        if unused:
-            raise FitError(f"option(s) {', '.join(unused)}: no {kind} candidate declares them")
-    return {"brdf": b_cands, "medium": m_cands, "brdf_options": brdf_options,
-            "medium_options": medium_options,
-            "fix_b": _per_family(b_cands, fixed, "reference", "fixed"),
-            "free_b": _per_family(b_cands, free, "reference", "free"),
-            "fix_m": _per_family(m_cands, fixed, "medium", "fixed"),
-            "free_m": _per_family(m_cands, free, "medium", "free"),
-            "fix_t": _per_family(b_cands, fixed, "target", "fixed"),
-            "free_t": _per_family(b_cands, free, "target", "free")}
-
-
-def _select(data, plan, *, accuracy, max_nfev, progress, model_error, propagation, keep):
-    """Steps 0-2 with every candidate ranked (``models="auto"``)."""
-    brdf_options, medium_options = plan["brdf_options"], plan["medium_options"]
-    fix_b, free_b, fix_m, free_m, fix_t, free_t = (
-        plan[k] for k in ("fix_b", "free_b", "fix_m", "free_m", "fix_t", "free_t"))
-    # the candidates without the given fit's covariance, the chosen one with it; with
-    # ``keep`` (every candidate's result written out) each one with it
-    screen = propagation if keep or propagation == "off" else "off"
-    again = None if screen == propagation else propagation
-    configs = protocol()
-    angles = tuple(configs[c].to_numpy() for c in CANONICAL)
-
-    def fr_curve(result):
-        return model_values(result, None, angles)
-
-    rankings, kept = {}, {}
-
-    def step0(c):
-        return fit_reference(data["reference_clear"].table, fixed=fix_b[c.label],
-                             free=free_b[c.label], max_nfev=max_nfev, brdf_model=c.family,
-                             options=c.model_options(brdf_options), model_error=model_error)
-
-    ranking, results = _rank_step("reference", plan["brdf"], data["reference_clear"], step0,
-                                  progress, fr_curve, "reference (clear medium)")
-    rankings["reference"], kept["reference"] = ranking, results
-    ref = selection.with_selection(results[ranking.chosen], ranking)
-
-    def through_medium(step, fit, session, given, kind, fix, free, options, curve, what):
-        """Steps 1 and 2: ``fit`` (fit_medium, fit_target) of every candidate of ``kind``
-        to ``session`` through the ``given`` model, ranked; the chosen result."""
-        def one(c, chained=screen):
-            return fit(data[session].table, given, fixed=fix[c.label], free=free[c.label],
-                       accuracy=accuracy, max_nfev=max_nfev,
-                       options=c.model_options(options), model_error=model_error,
-                       propagation=chained, **{f"{kind}_model": c.family})
-
-        ranking, results = _rank_step(step, plan[kind], data[session], one, progress, curve,
-                                      what, again and (lambda c: one(c, again)))
-        rankings[step], kept[step] = ranking, results
-        return selection.with_selection(results[ranking.chosen], ranking), ranking
-
-    med, _ = through_medium("medium", fit_medium, "reference_medium", ref, "medium", fix_m,
-                            free_m, medium_options,
-                            lambda r: _fitted_curve(r, data["reference_medium"]), "medium")
-    tgt, ranking = through_medium("target", fit_target, "target_medium", med, "brdf", fix_t,
-                                  free_t, brdf_options, fr_curve, "target")
-    chosen = ranking.row(ranking.chosen)
-    opts = {k: v for k, v in brdf_options.items()
-            if k in model_class(chosen["family"]).option_names()}
-    opts.update(chosen["options"])
-    return (ref, med, tgt, chosen["family"], opts, rankings,
-            kept if keep else {})
-
-
-# --------------------------------------------------------------------------------------
-# the entries of one family
-# --------------------------------------------------------------------------------------
-def _for_family(cls, per_step: dict, step: str, what: str, used: set) -> dict | list | None:
-    """The entries of ``per_step[step]`` that name parameters of ``cls`` (a fixed dict or a
-    free list); records which were used."""
-    entries = per_step.get(step)
-    if not entries:
-        return None
-    names = cls.param_names()
-    kept: dict | list
-    if isinstance(entries, dict):
-        kept = {k: v for k, v in entries.items() if k in names}
-    else:
-        kept = [k for k in entries if k in names]
-    used.update((step, k) for k in kept)
-    return kept
 
 
 __all__ = ["run_pipeline", "PipelineResult", "compare", "fit_figure", "FILES", "RANKING_FILE",

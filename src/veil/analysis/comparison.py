@@ -12,7 +12,7 @@ import numpy as np
 
 from ..data.measurements import CANONICAL
 from ..data.protocol import protocol
-from ..fitting import FitResult
+from ..fitting.result import FitResult
 from .uncertainty import curve_stderr
 
 

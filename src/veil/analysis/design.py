@@ -28,6 +28,7 @@ two-step view).
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -37,7 +38,7 @@ from ..data.protocol import protocol
 from ..engine.apparent import as_brdf, as_btdf
 from ..errors import InputError
 from ..fitting.problem import SessionModel
-from ..models import default_class, model_class
+from ..models import BTDF, default_class, model_class
 
 DEFAULT_PSI = (30.0, 45.0, 60.0, 75.0, 90.0, 105.0, 120.0)
 MODES = ("joint", "known")
@@ -86,7 +87,7 @@ def _floats(name, values, positive=True):
     return tuple(out)
 
 
-def condition_medium(medium, factor: float):
+def condition_medium(medium, factor: float) -> BTDF:
     """The medium at concentration factor ``factor`` (module docstring)."""
     return as_btdf(medium).concentrated(factor)
 
@@ -169,6 +170,32 @@ def _medium_columns(mcls, media: list, labels: list, names: list, prior_log: lis
     return col
 
 
+def _interest(bcls, interest) -> tuple:
+    """The parameters of interest (default: every one a plan can inform), checked."""
+    possible = interest_names(bcls)
+    if not possible:
+        raise InputError(f"the BRDF family {bcls.NAME} has one scale and no other "
+                         f"parameter: only its level, which no plan can separate from the "
+                         f"media's, could be estimated; there is nothing to design for")
+    interest = possible if interest is None else tuple(interest)
+    unknown = [p for p in interest if p not in possible]
+    if unknown or not interest:
+        raise InputError(f"parameters of interest {list(interest)}: choose among "
+                         f"{', '.join(possible)}")
+    return interest
+
+
+def _check_conditions(conditions: dict, table: pd.DataFrame) -> None:
+    """Every candidate's condition is known, and every condition of one medium model."""
+    missing = set(table["condition"]) - set(conditions)
+    if missing:
+        raise InputError(f"candidates name unknown condition(s) {', '.join(sorted(missing))}")
+    classes = {type(m) for m in conditions.values()}
+    if len(classes) > 1:
+        raise InputError("the conditions mix medium models "
+                         f"({', '.join(sorted(c.NAME for c in classes))}); use one")
+
+
 class Information:
     """Per-candidate information rows of a design problem (module docstring).
 
@@ -186,25 +213,10 @@ class Information:
         _check_noise(noise, floor)
         self.brdf = as_brdf(brdf)
         bcls = type(self.brdf)
-        possible = interest_names(bcls)
-        if not possible:
-            raise InputError(f"the BRDF family {bcls.NAME} has one scale and no other "
-                             f"parameter: only its level, which no plan can separate from the "
-                             f"media's, could be estimated; there is nothing to design for")
-        interest = possible if interest is None else tuple(interest)
-        unknown = [p for p in interest if p not in possible]
-        if unknown or not interest:
-            raise InputError(f"parameters of interest {list(interest)}: choose among "
-                             f"{', '.join(possible)}")
+        interest = _interest(bcls, interest)
         self.conditions = dict(conds)
         self.table = table.reset_index(drop=True)
-        missing = set(self.table["condition"]) - set(self.conditions)
-        if missing:
-            raise InputError(f"candidates name unknown condition(s) {', '.join(sorted(missing))}")
-        classes = {type(m) for m in self.conditions.values()}
-        if len(classes) > 1:
-            raise InputError("the conditions mix medium models "
-                             f"({', '.join(sorted(c.NAME for c in classes))}); use one")
+        _check_conditions(self.conditions, self.table)
         self.noise, self.floor, self.mode = float(noise), float(floor), mode
         labels = list(self.conditions)
         media = list(self.conditions.values())
@@ -349,7 +361,7 @@ def plan_table(info: Information, chosen, gains) -> pd.DataFrame:
 def design(brdf, media, size: int = 60, *, factors=None, psi=DEFAULT_PSI,
            noise: float = 0.01, floor: float = 0.0, mode: str = "joint", interest=None,
            accuracy: str = "fast", fine_step: float = 1.0, coarse_step: float = 5.0,
-           window: float = 10.0, limit: float = 85.0):
+           window: float = 10.0, limit: float = 85.0) -> dict[str, Any]:
     """Recommend a measurement plan of ``size`` configurations (module docstring).
 
     brdf : the target (model or preset) at which the information is evaluated.

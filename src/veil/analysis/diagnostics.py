@@ -181,7 +181,8 @@ def _as_model(obj, kind):
     raise FitError(f"expected a FitResult or a {kind} model, got {type(obj).__name__}")
 
 
-def problem_for(result: FitResult, data, *, medium=None, reference=None, black=None):
+def problem_for(result: FitResult, data, *, medium=None, reference=None,
+                black=None) -> tuple[Problem, list[str]]:
     """The least-squares problem a result solved, at its estimate: (problem, notes).
 
     data : the table of a step result (DataFrame or path), or for a joint result its sessions
@@ -311,27 +312,10 @@ def diagnose(result: FitResult, data, *, medium=None, reference=None, black=None
     """Diagnostics of ``result`` on its ``data`` (module docstring; arguments as
     :func:`problem_for`). ``profile``: False, True (every free parameter) or a list of names.
     Names are the problem's: a medium's index is ``eta_u`` (the BRDF has ``eta``)."""
-    if not isinstance(result, FitResult):
-        raise InputTypeError(f"expected a FitResult, got {type(result).__name__}")
-    for name, v, lo, hi in (("max_relative", max_relative, 0, math.inf),
-                            ("max_correlation", max_correlation, 0, 1)):
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not (lo < v <= hi):
-            raise FitError(f"{name} = {v!r}; expected a number in ({lo}, {hi}]")
-    if isinstance(points, bool) or not isinstance(points, int) or points < 3:
-        raise FitError(f"points = {points!r}; expected an integer >= 3")
+    _check_arguments(result, points, max_relative, max_correlation)
     problem, notes = problem_for(result, data, medium=medium, reference=reference, black=black)
-    x = problem.values.copy()
     names = problem.free_names
-    if problem.prior is not None:
-        # the previous step's parameters are now free: the optimum moves (a little)
-        sol = solve(problem, x, accuracy=accuracy)
-        moved = [f"{n} {_f(x[problem.index(n)])} -> {_f(sol.x[problem.index(n)])}"
-                 for n in names if not math.isclose(x[problem.index(n)], sol.x[problem.index(n)],
-                                                    rel_tol=1e-3, abs_tol=1e-12)]
-        x = sol.x
-        if moved:
-            notes.append("with the previous step's parameters free under its uncertainty the "
-                         "optimum moves: " + ", ".join(moved))
+    x = _optimum(problem, notes, accuracy)
     cov = covariance(problem, x, accuracy)
     if cov is None:
         raise FitError("the Jacobian is singular at the estimate: at least one combination of "
@@ -358,6 +342,42 @@ def diagnose(result: FitResult, data, *, medium=None, reference=None, black=None
     if profile:
         diag.profiles.update(_profiles(problem, x, names if profile is True else list(profile),
                                        stderr, points, accuracy, progress))
+    _verdicts(diag, max_relative, max_correlation)
+    return diag
+
+
+def _check_arguments(result, points, max_relative, max_correlation) -> None:
+    if not isinstance(result, FitResult):
+        raise InputTypeError(f"expected a FitResult, got {type(result).__name__}")
+    for name, v, lo, hi in (("max_relative", max_relative, 0, math.inf),
+                            ("max_correlation", max_correlation, 0, 1)):
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not (lo < v <= hi):
+            raise FitError(f"{name} = {v!r}; expected a number in ({lo}, {hi}]")
+    if isinstance(points, bool) or not isinstance(points, int) or points < 3:
+        raise FitError(f"points = {points!r}; expected an integer >= 3")
+
+
+def _optimum(problem: Problem, notes: list, accuracy: str) -> np.ndarray:
+    """The estimate: the result's, or where it moves when the previous step's parameters
+    are free under their uncertainty (``notes`` says so)."""
+    x = problem.values.copy()
+    if problem.prior is None:
+        return x
+    names = problem.free_names
+    sol = solve(problem, x, accuracy=accuracy)
+    moved = [f"{n} {_f(x[problem.index(n)])} -> {_f(sol.x[problem.index(n)])}"
+             for n in names if not math.isclose(x[problem.index(n)], sol.x[problem.index(n)],
+                                                rel_tol=1e-3, abs_tol=1e-12)]
+    if moved:
+        notes.append("with the previous step's parameters free under its uncertainty the "
+                     "optimum moves: " + ", ".join(moved))
+    return sol.x
+
+
+def _verdicts(diag: Diagnosis, max_relative: float, max_correlation: float) -> None:
+    """The poorly determined parameters (relative standard error, flat profile) and the
+    trade-offs (correlation) of ``diag``, strongest first."""
+    names, relative, corr = diag.names, diag.relative, diag.correlation
     for n in names:
         if relative[n] > max_relative:
             diag.poorly_determined.append(
@@ -372,7 +392,6 @@ def diagnose(result: FitResult, data, *, medium=None, reference=None, black=None
             if abs(corr[i, j]) > max_correlation:
                 diag.tradeoffs.append((a, names[j], float(corr[i, j])))
     diag.tradeoffs.sort(key=lambda t: -abs(t[2]))
-    return diag
 
 
 def _cond(a: np.ndarray) -> float:

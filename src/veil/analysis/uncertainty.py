@@ -25,7 +25,7 @@ exactly to the total: :func:`propagate` reports them per parameter (the "budget"
 model-discrepancy term (:mod:`veil.fitting.model_error`) enters each step's own part; a
 correlated one that step 2 shares with step 1 also has a cross term between the two parts
 (it mostly cancels: the medium absorbs the error in step 1 and gives it back in step 2),
-counted as the budget's part "shared" (:func:`veil.fitting.model_error.shared`).
+counted as the budget's part "shared" (:func:`veil.fitting.shared_error.shared`).
 :func:`sample_propagation` checks the linearization by refitting the target over media drawn
 from step 1's distribution. Where step 1 leaves the medium uncertain by a large part of its
 scale the fits propagate through sigma points instead (:mod:`veil.fitting.propagation`), and
@@ -130,7 +130,8 @@ def _check_pair(target_result, medium_result, reference_result):
 
 
 def medium_parts(medium_result: FitResult, reference_result: FitResult | None = None,
-                 reference_table=None, *, black=None, accuracy: str = ITERATION_ACCURACY):
+                 reference_table=None, *, black=None,
+                 accuracy: str = ITERATION_ACCURACY) -> tuple[list[str], dict[str, np.ndarray]]:
     """The medium's covariance split into step 1's own part and step 0's (docs/model.md sec. 7).
 
     Returns (names, {"step1": Cov, "step0": Cov}). Step 0's part is computed from the
@@ -210,10 +211,7 @@ def propagate(target_result: FitResult, medium_result: FitResult, table, *,
     ``stats["sensitivity"]`` holds d target / d medium.
     """
     _check_pair(target_result, medium_result, reference_result)
-    if method is None:
-        method = (target_result.stats.get("propagation") or {}).get("method", "linear")
-    if method not in ("linear", "sigma-points"):
-        raise FitError(f"method = {method!r}; expected 'linear' or 'sigma-points'")
+    method = _method(method, target_result)
     theta, cov2 = covariance_of(target_result)
     m_names, m_parts = medium_parts(medium_result, reference_result, reference_table,
                                     black=reference_black, accuracy=accuracy)
@@ -234,6 +232,32 @@ def propagate(target_result: FitResult, medium_result: FitResult, table, *,
     cross = _shared_part(problem, target_result, medium_result, m_names, -a)
     if cross is not None:
         parts[SHARED] = cross
+    total, se, budget, corr = _totals(theta, parts)
+    stderr_total: dict[str, float | None] = {n: None for n in target_result.params}
+    stderr_total.update({n: float(s) for n, s in zip(theta, se)})
+    sens = {n: {m: float(-a[j, k]) for k, m in enumerate(m_names)} for j, n in enumerate(theta)}
+    what = "the medium's (step 1)" + (" and the reference's (step 0)" if "step0" in parts else "")
+    how = "by linearization" if method == "linear" else "through sigma-point refits"
+    message = f"{target_result.message}; total standard errors include {what} uncertainty, "
+    message += f"propagated {how}"
+    stats = dict(target_result.stats, budget=budget, sensitivity=sens)
+    return dataclasses.replace(target_result, stderr_total=stderr_total,
+                               correlation_total=corr, message=message, stats=stats)
+
+
+def _method(method, target_result: FitResult) -> str:
+    """The propagation method: as given, or the one the step-2 fit used (linear when the
+    result does not say)."""
+    if method is None:
+        method = (target_result.stats.get("propagation") or {}).get("method", "linear")
+    if method not in ("linear", "sigma-points"):
+        raise FitError(f"method = {method!r}; expected 'linear' or 'sigma-points'")
+    return method
+
+
+def _totals(theta: list, parts: dict) -> tuple:
+    """(the total covariance, its standard errors, the budget {name: {part: variance,
+    "total": ...}}, the total correlation {name: {name: r}}) of the ``parts``."""
     total = cast(np.ndarray, sum(parts.values()))  # (of arrays: an array)
     se = np.sqrt(np.maximum(np.diag(total), 0.0))
     budget = {}
@@ -246,22 +270,14 @@ def propagate(target_result: FitResult, medium_result: FitResult, table, *,
     for i, na in enumerate(theta):
         corr[na] = {nb: (float(total[i, j] / (se[i] * se[j])) if se[i] * se[j] > 0 else None)
                     for j, nb in enumerate(theta)}
-    stderr_total: dict[str, float | None] = {n: None for n in target_result.params}
-    stderr_total.update({n: float(s) for n, s in zip(theta, se)})
-    sens = {n: {m: float(-a[j, k]) for k, m in enumerate(m_names)} for j, n in enumerate(theta)}
-    what = "the medium's (step 1)" + (" and the reference's (step 0)" if "step0" in parts else "")
-    how = "by linearization" if method == "linear" else "through sigma-point refits"
-    message = (target_result.message + f"; total standard errors include {what} "
-               f"uncertainty, propagated {how}")
-    stats = dict(target_result.stats, budget=budget, sensitivity=sens)
-    return dataclasses.replace(target_result, stderr_total=stderr_total,
-                               correlation_total=corr, message=message, stats=stats)
+    return total, se, budget, corr
 
 
 def _shared_part(problem, target_result, medium_result, m_names, sens):
     """The cross term of the correlated model error steps 1 and 2 share
-    (:func:`veil.fitting.model_error.shared`) at the target's estimate, None without one."""
-    from ..fitting.model_error import influence, noise_only, shared
+    (:func:`veil.fitting.shared_error.shared`) at the target's estimate, None without one."""
+    from ..fitting.model_error import noise_only
+    from ..fitting.shared_error import influence, shared
     from ..fitting.solver import weighted_jacobian
 
     term = medium_result.model_error

@@ -10,8 +10,12 @@ for a one-channel export or render, which behaves exactly as before channels exi
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 from ._common import UserError
+
+if TYPE_CHECKING:
+    from ..models import Model
 
 
 @dataclass
@@ -29,7 +33,7 @@ class ResultModels:
     def colour(self) -> bool:
         return self.channels != (None,)
 
-    def one(self, kind: str):
+    def one(self, kind: str) -> Model | None:
         """The one-channel model of ``kind`` (None when not given)."""
         models = self.brdf if kind == "brdf" else self.medium
         return None if models is None else models[None]

@@ -74,6 +74,53 @@ def _plan_table(plan):
     return table
 
 
+def _media(media, models) -> tuple[list[str], list]:
+    """(labels, media) of the --medium options: scattering media, none twice."""
+    chosen = []
+    for text in media:
+        m = models.medium_model(text)
+        if m is None:
+            raise UserError("--medium none: the design compares scattering media; give a "
+                            "preset or literal")
+        chosen.append(m)
+    labels = [t.strip().upper() if "," not in t else t.strip() for t in media]
+    if len(set(labels)) != len(labels):
+        raise UserError("a --medium is given twice")
+    return labels, chosen
+
+
+def _print_design(plan, result: dict, info, mapping: dict) -> None:
+    """The plan, the conditions (each alone) and the predicted standard errors as tables."""
+    from rich.console import Console
+    from rich.markup import escape
+    from rich.table import Table
+
+    console = Console()
+    console.print(_plan_table(plan))
+    names = [info.names[k] for k in info.interest]
+    ctab = Table(title="Conditions (predicted stderr of the interest parameters, plan of the "
+                       "same size from one condition alone)",
+                 title_justify="left")
+    ctab.add_column("condition")
+    ctab.add_column("in plan", justify="right")
+    for n in names:
+        ctab.add_column(escape(f"{n} alone"), justify="right")
+    for row in result["conditions"].to_dict("records"):
+        ctab.add_row(escape(mapping[row["condition"]]), str(row["in_plan"]),
+                     *[_se(info, n, row[f"alone_se_{n}"]) for n in names])
+    console.print(ctab)
+    se = result["stderr"]
+    console.print("predicted stderr with the plan: "
+                  + ", ".join(f"{n} {_se(info, n, se[n])}" for n in names)
+                  + " (relative for parameters fitted as logarithms, else absolute)")
+    if "*" in "".join(_se(info, n, se[n]) for n in names) or any(
+            "*" in _se(info, n, r[f"alone_se_{n}"])
+            for r in result["conditions"].to_dict("records")
+            for n in names):
+        console.print("* at the level of the weak prior: not identified by such a plan "
+                      "(more measurements, or other media)")
+
+
 @click.command("design")
 @click.option("--brdf", required=True, metavar="MODEL",
               help="The expected target: preset (BRDF1, BRDF2) or a literal list of the "
@@ -114,24 +161,11 @@ def design_command(brdf, media, factors, size, psi, fine_step, window, coarse_st
         veil design --brdf BRDF1 --medium BTDF1 --medium BTDF2 --medium BTDF3 --size 60 \\
             -o plan.csv
     """
-    from rich.console import Console
-    from rich.markup import escape
-    from rich.table import Table
-
     from ..analysis.design import design
     from ..io import write_text_atomic
 
     model_b = models.brdf_model(brdf)
-    chosen = []
-    for text in media:
-        m = models.medium_model(text)
-        if m is None:
-            raise UserError("--medium none: the design compares scattering media; give a "
-                            "preset or literal")
-        chosen.append(m)
-    labels = [t.strip().upper() if "," not in t else t.strip() for t in media]
-    if len(set(labels)) != len(labels):
-        raise UserError("a --medium is given twice")
+    labels, chosen = _media(media, models)
     if output is not None:
         check_output_path(output)
     named = _conditions(dict(zip(labels, chosen)), factors)
@@ -147,30 +181,7 @@ def design_command(brdf, media, factors, size, psi, fine_step, window, coarse_st
     plan, info = result["plan"], result["information"]
     mapping = dict(zip(info.conditions, named))
     plan["condition"] = [mapping[c] for c in plan["condition"]]
-    console = Console()
-    console.print(_plan_table(plan))
-    names = [info.names[k] for k in info.interest]
-    ctab = Table(title="Conditions (predicted stderr of the interest parameters, plan of the "
-                       "same size from one condition alone)",
-                 title_justify="left")
-    ctab.add_column("condition")
-    ctab.add_column("in plan", justify="right")
-    for n in names:
-        ctab.add_column(escape(f"{n} alone"), justify="right")
-    for row in result["conditions"].to_dict("records"):
-        ctab.add_row(escape(mapping[row["condition"]]), str(row["in_plan"]),
-                     *[_se(info, n, row[f"alone_se_{n}"]) for n in names])
-    console.print(ctab)
-    se = result["stderr"]
-    console.print("predicted stderr with the plan: "
-                  + ", ".join(f"{n} {_se(info, n, se[n])}" for n in names)
-                  + " (relative for parameters fitted as logarithms, else absolute)")
-    if "*" in "".join(_se(info, n, se[n]) for n in names) or any(
-            "*" in _se(info, n, r[f"alone_se_{n}"])
-            for r in result["conditions"].to_dict("records")
-            for n in names):
-        console.print("* at the level of the weak prior: not identified by such a plan "
-                      "(more measurements, or other media)")
+    _print_design(plan, result, info, mapping)
     if output is not None:
         write_text_atomic(output, plan.to_csv(index=False, lineterminator="\n"))
         click.echo(f"wrote {output}", err=True)

@@ -132,9 +132,7 @@ def diagnose_command(result_path, data, black, medium, reference, profile, profi
     from rich.console import Console
 
     from ..analysis.diagnostics import diagnose
-    from ..data.measurements import load_measurements
-    from ..fitting import JointResult, Session, load_result
-    from ..viz.fit_figures import diagnosis_figure
+    from ..fitting import JointResult, load_result
 
     result = load_result(result_path)
     inputs = [result_path, black]
@@ -142,20 +140,7 @@ def diagnose_command(result_path, data, black, medium, reference, profile, profi
         if black is not None or medium is not None or reference is not None:
             raise UserError("a joint result takes only --data LABEL=PATH / ref:LABEL=PATH "
                             "(black cloth already subtracted; media and reference are in it)")
-        sessions = []
-        for item in data:
-            head, sep, path = item.partition("=")
-            if not sep or not head.strip() or not path.strip():
-                raise UserError(f"--data {item!r}: a joint result needs LABEL=PATH or "
-                                f"ref:LABEL=PATH for each session")
-            obj, label = ("reference", head[4:]) if head.startswith("ref:") else ("target", head)
-            path = path.strip()
-            if not os.path.isfile(path):
-                raise UserError(f"--data {item!r}: file {path} does not exist")
-            sessions.append(Session(load_measurements(path), label.strip(), obj,
-                                    name=f"{obj} in {label.strip()} ({path})"))
-            inputs.append(path)
-        table = sessions
+        table = _sessions(data, inputs)
     else:
         if len(data) != 1:
             raise UserError(f"--data given {len(data)} times: a {result.step} fit has one table")
@@ -186,13 +171,40 @@ def diagnose_command(result_path, data, black, medium, reference, profile, profi
                         max_correlation=max_correlation, progress=progress)
     _print(diag, Console())
     if files:
-        from ..io import output_folder, write_text_atomic
+        _write(diag, outdir, files)
 
-        names = {key: path.name for key, path in files.items()}
-        with output_folder(outdir, owned=names.values()) as folder:
-            write_text_atomic(folder / names["json"],
-                              json.dumps(diag.to_dict(), indent=2, allow_nan=False) + "\n")
-            diagnosis_figure(diag, folder / names["png"])
-        for path in files.values():
-            click.echo(f"wrote {path}", err=True)
 
+def _sessions(data, inputs: list) -> list:
+    """The sessions of a joint result from ``--data LABEL=PATH`` / ``ref:LABEL=PATH`` (their
+    paths added to ``inputs``)."""
+    from ..data.measurements import load_measurements
+    from ..fitting import Session
+
+    sessions = []
+    for item in data:
+        head, sep, path = item.partition("=")
+        if not sep or not head.strip() or not path.strip():
+            raise UserError(f"--data {item!r}: a joint result needs LABEL=PATH or "
+                            f"ref:LABEL=PATH for each session")
+        obj, label = ("reference", head[4:]) if head.startswith("ref:") else ("target", head)
+        path = path.strip()
+        if not os.path.isfile(path):
+            raise UserError(f"--data {item!r}: file {path} does not exist")
+        sessions.append(Session(load_measurements(path), label.strip(), obj,
+                                name=f"{obj} in {label.strip()} ({path})"))
+        inputs.append(path)
+    return sessions
+
+
+def _write(diag, outdir, files: dict) -> None:
+    """diagnostics.json and diagnostics.png in ``outdir``, as one transaction."""
+    from ..io import output_folder, write_text_atomic
+    from ..viz.fit_figures import diagnosis_figure
+
+    names = {key: path.name for key, path in files.items()}
+    with output_folder(outdir, owned=names.values()) as folder:
+        write_text_atomic(folder / names["json"],
+                          json.dumps(diag.to_dict(), indent=2, allow_nan=False) + "\n")
+        diagnosis_figure(diag, folder / names["png"])
+    for path in files.values():
+        click.echo(f"wrote {path}", err=True)

@@ -256,6 +256,35 @@ def _check_angle_options(theta_i, theta_r, phi_i, phi_r, configs, output, as_jso
                    "theta_i, phi_i, theta_r, phi_r (degrees) and apparent, clear, error "
                    "(1/sr, relative units), one entry per configuration in input order.")
 @model_options()
+def _option_angles(theta_i, theta_r, phi_i, phi_r) -> tuple:
+    """The one configuration of --theta-i, --theta-r (--phi-i, --phi-r), checked."""
+    phi_i = DEFAULT_PHI_I if phi_i is None else phi_i
+    phi_r = DEFAULT_PHI_R if phi_r is None else phi_r
+    _check_option_angle("--theta-i", theta_i, polar=True)
+    _check_option_angle("--theta-r", theta_r, polar=True)
+    _check_option_angle("--phi-i", phi_i, polar=False)
+    _check_option_angle("--phi-r", phi_r, polar=False)
+    return tuple(np.array([x]) for x in (theta_i, phi_i, theta_r, phi_r))
+
+
+def _evaluate(brdf, medium, ti, tr, pi_, pr, accuracy: str) -> tuple:
+    """(apparent, its error, clear) at the configurations, flat arrays; the object's own
+    f_r on a worker thread, its program loading while the engine's do."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from ..engine.apparent import reflectance
+
+    progress = _Progress()
+    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="veil-clear") as pool:
+        clear_future = pool.submit(reflectance, brdf, ti, tr, pi_, pr)
+        try:
+            value, error = evaluate_configs(brdf, medium, ti, tr, pi_, pr, accuracy, progress)
+        finally:
+            progress.stop()
+        clear = clear_future.result()
+    return tuple(np.asarray(a, dtype=float).reshape(-1) for a in (value, error, clear))
+
+
 def eval_command(brdf_text, medium_text, theta_i, theta_r, phi_i, phi_r, configs, output,
                  accuracy, as_json, models):
     """Apparent reflectance of an object seen through a scattering medium (docs/model.md eq. 1).
@@ -280,28 +309,8 @@ def eval_command(brdf_text, medium_text, theta_i, theta_r, phi_i, phi_r, configs
     if configs is not None:
         ti, pi_, tr, pr, table = _read_configs(configs)
     else:
-        phi_i = DEFAULT_PHI_I if phi_i is None else phi_i
-        phi_r = DEFAULT_PHI_R if phi_r is None else phi_r
-        _check_option_angle("--theta-i", theta_i, polar=True)
-        _check_option_angle("--theta-r", theta_r, polar=True)
-        _check_option_angle("--phi-i", phi_i, polar=False)
-        _check_option_angle("--phi-r", phi_r, polar=False)
-        ti, pi_, tr, pr = (np.array([x]) for x in (theta_i, phi_i, theta_r, phi_r))
-
-    from concurrent.futures import ThreadPoolExecutor
-
-    from ..engine.apparent import reflectance
-
-    progress = _Progress()
-    # the object's own f_r on a worker thread: its program loads while the engine's do
-    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="veil-clear") as pool:
-        clear_future = pool.submit(reflectance, brdf, ti, tr, pi_, pr)
-        try:
-            value, error = evaluate_configs(brdf, medium, ti, tr, pi_, pr, accuracy, progress)
-        finally:
-            progress.stop()
-        clear = clear_future.result()
-    value, error, clear = (np.asarray(a, dtype=float).reshape(-1) for a in (value, error, clear))
+        ti, pi_, tr, pr = _option_angles(theta_i, theta_r, phi_i, phi_r)
+    value, error, clear = _evaluate(brdf, medium, ti, tr, pi_, pr, accuracy)
 
     if as_json:
         obj = {

@@ -103,8 +103,6 @@ def export_command(result, medium_result, target, output, fmt, scale, ext_ior, p
     loaded = result_models(result, medium_result, channel)
     for note in loaded.notes:
         click.echo(note, err=True)
-    from ..io import write_text_atomic
-
     if target == "csv":
         _csv(loaded, psis, accuracy, output)
         return
@@ -115,7 +113,13 @@ def export_command(result, medium_result, target, output, fmt, scale, ext_ior, p
         export_rgb(loaded, target, fmt, setting, output, verify, psis, spp, accuracy,
                    medium_spp=MEDIUM_SPP, passes=PASSES)
         return
+    _export_one(loaded, target, fmt, setting, output, verify, psis, spp, accuracy)
+
+
+def _export_one(loaded, target, fmt, setting, output, verify, psis, spp, accuracy) -> None:
+    """The renderer's file of one channel's models (and its check by rendering)."""
     from ..interop.export import export
+    from ..io import write_text_atomic
 
     brdf, medium, source = loaded.one("brdf"), loaded.one("medium"), loaded.source
     done = export([brdf, medium], target, fmt, setting, source)

@@ -27,35 +27,26 @@ from ._common import (
     parse_fix,
     propagation_option,
 )
-
-IN_FILE = click.Path(exists=True, dir_okay=False, path_type=Path)
-OUT_FILE = click.Path(dir_okay=False, path_type=Path)
-STEPS = ("reference", "medium", "target")
-
-
-# --------------------------------------------------------------------------------------
-# options shared by the subcommands
-# --------------------------------------------------------------------------------------
-def _fix_option(help_text):
-    return click.option("--fix", "fix", multiple=True, metavar="NAME=VALUE", help=help_text)
-
-
-_accuracy_option = click.option(
-    "--accuracy", type=click.Choice(["fast", "default", "high"]), default="default",
-    show_default=True,
-    help="Quadrature of the reported result; iterations run at 'fast' and are polished at "
-         "this accuracy.")
-_black_option = click.option(
-    "--black", "black", type=IN_FILE,
-    help="Black-cloth session in the medium (same configurations), subtracted first.")
-_max_nfev_option = click.option(
-    "--max-nfev", type=click.IntRange(min=1), default=None,
-    help="Limit on function evaluations of each least-squares run (default: 100 per free "
-         "parameter).")
-
-
-def _free_option(help_text):
-    return click.option("--free", "free", multiple=True, metavar="NAME", help=help_text)
+from ._fit_options import (
+    _BRDF_FIX_HELP,
+    IN_FILE,
+    MERL_CHANNELS,
+    OUT_FILE,
+    _accuracy_option,
+    _black_option,
+    _channel_option,
+    _fix_option,
+    _max_nfev_option,
+    _merl_option,
+    _parse_free,
+    _parse_step_fix,
+    _parse_step_free,
+    _raw_step_fix,
+    _sampling_option,
+    _step_entries,
+    _step_through_medium_options,
+)
+from ._fit_reports import print_pipeline, print_ranking
 
 
 def _write_fit(ctx, result, output) -> None:
@@ -63,41 +54,6 @@ def _write_fit(ctx, result, output) -> None:
     result.to_json(output)
     click.echo(result.report())
     finish_fits(ctx, [result], [output])
-
-
-_BRDF_FIX_HELP = ("Hold a parameter of the BRDF (e.g. eta=1.5; 'veil models' lists them) at "
-                  "VALUE; repeatable.")
-#: The help of the options steps 1 and 2 word differently, by the kind of model they fit:
-#: what -o holds, --fix and --free.
-_STEP_HELP = {
-    "medium": ("the fitted medium", "Hold a parameter of the medium (e.g. g=0.9; 'veil models' "
-               "lists them) at VALUE; repeatable.", "Fit a parameter the medium model holds by "
-               "default (held ones are marked in 'veil models', e.g. forward-series' s, the "
-               "exposure factor); repeatable."),
-    "brdf": ("the fitted target f_r", _BRDF_FIX_HELP, "Fit a parameter the BRDF family holds "
-             "by default (marked held in 'veil models'); repeatable."),
-}
-
-
-def _step_through_medium_options(ranked_kind: str, given):
-    """The arguments and options of a step through the medium (steps 1 and 2): the TABLE,
-    the ``given`` model's option, the output, --fix and --free of the fitted model (of kind
-    ``ranked_kind``), the channel, the black cloth, the accuracy, the evaluation budget, the
-    model error, the propagation and the models (the fitted one may be ``auto``)."""
-    output, fix, free = _STEP_HELP[ranked_kind]
-
-    def decorate(command):
-        for option in (click.pass_context, model_options(auto_kinds=(ranked_kind,)),
-                       propagation_option, model_error_option, _max_nfev_option,
-                       _accuracy_option, _black_option, _step_channel_option,
-                       _free_option(free), _fix_option(fix),
-                       click.option("-o", "--output", required=True, type=OUT_FILE,
-                                    help=f"JSON file for {output} (written atomically)."),
-                       given, click.argument("table", type=IN_FILE)):
-            command = option(command)
-        return command
-
-    return decorate
 
 
 #: Steps 1 and 2 by the kind of model they fit: the step and what its table holds.
@@ -191,46 +147,6 @@ def _fit_step(ctx, kind: str, step: str, models, fit, data, what: str, fix=(), f
         return fit(cls.NAME, options, fixed, freed, progress)
 
 
-def _parse_free(items, cls, option="--free") -> list:
-    """Names of parameters held by default (``Param.held``) to fit too."""
-    names = cls.param_names()
-    out = []
-    for item in items:
-        name = item.strip()
-        if name not in names:
-            raise UserError(f"{option} {item!r}: {cls.NAME} has no parameter {name!r}; its "
-                            f"parameters are {', '.join(names)}")
-        if name in out:
-            raise UserError(f"{option}: {name} is freed twice")
-        out.append(name)
-    return out
-
-
-def _parse_step_free(items, models) -> dict:
-    """``STEP.NAME`` strings of ``fit pipeline --free`` -> {step: [name, ...]}, checked
-    against the chosen families."""
-    classes = {"reference": models.brdf, "medium": models.medium, "target": models.brdf}
-    return {step: _parse_free(names, classes[step], f"--free ({step})")
-            for step, names in _step_entries(items, "--free").items()}
-
-
-def _parse_step_fix(items, models) -> dict:
-    """``STEP.NAME=VALUE`` strings of ``fit pipeline`` -> {step: {name: value}}."""
-    by_step: dict = {}
-    classes = {"reference": models.brdf, "medium": models.medium, "target": models.brdf}
-    for item in items:
-        head, sep, _ = item.partition("=")
-        step, dot, name = head.partition(".")
-        if not sep or not dot or step.strip() not in classes:
-            raise UserError(f"--fix {item!r}: expected STEP.NAME=VALUE with STEP one of "
-                            f"{', '.join(STEPS)}, e.g. medium.{models.medium.param_names()[-1]}"
-                            f"=1.33")
-        step = step.strip()
-        by_step.setdefault(step, []).append(f"{name}={item.partition('=')[2]}")
-    return {step: parse_fix(entries, classes[step], f"--fix ({step})")
-            for step, entries in by_step.items()}
-
-
 # --------------------------------------------------------------------------------------
 # commands
 # --------------------------------------------------------------------------------------
@@ -248,30 +164,6 @@ def fit_command():
     Exit status 1 when a fit did not converge (the result is written anyway), 2 for input
     mistakes.
     """
-
-
-_merl_option = click.option(
-    "--merl", "merl", type=IN_FILE,
-    help="A measured BRDF in the MERL binary format instead of a table: sampled at the "
-         "--sampling configurations (docs/interop.md).")
-_channel_option = click.option(
-    "--channel", default=None, metavar="NAME",
-    help="The one channel to fit of a TABLE with a channel column (r, g, b or a wavelength "
-         "in nm; without it every channel is fitted at once, docs/fitting.md \"Channels\"), "
-         "or the colour channel of the --merl file (r, g or b; without it the file's three "
-         "channels are fitted at once).")
-_step_channel_option = click.option(
-    "--channel", default=None, metavar="NAME",
-    help="The one channel to fit of a TABLE with a channel column (r, g, b or a wavelength "
-         "in nm); a result fitted over several channels gives its model of this channel. "
-         "Without it every channel is fitted at once, through a result of the same channels "
-         "(docs/fitting.md \"Channels\").")
-MERL_CHANNELS = ("r", "g", "b")
-_sampling_option = click.option(
-    "--sampling", type=click.Choice(["protocol", "inplane"]), default="protocol",
-    show_default=True,
-    help="Where the --merl BRDF is sampled: the paper's protocol (psi 30, 60, 90 deg) or every "
-         "in-plane configuration on a 5-degree grid.")
 
 
 def merl_table(merl, channel, sampling):
@@ -364,28 +256,6 @@ def target_command(ctx, table, medium, output, models, channel, **opts):
                         models=models, channel=channel, **opts)
 
 
-def print_pipeline(result) -> None:
-    """The rankings (``--models auto``), the fit reports of a
-    :class:`veil.pipeline.PipelineResult` and its comparison."""
-    for ranking in getattr(result, "rankings", {}).values():
-        print_ranking(ranking)
-    for r in (result.reference, result.medium, result.target, result.direct):
-        if r is not None:
-            click.echo(r.report())
-            click.echo("")
-    if result.comparison is not None:
-        c = result.comparison
-        click.echo("[[Estimated target f_r against the direct fit]]")
-        for name, row in c["params"].items():
-            z = "n/a" if row["z"] is None else f"{row['z']:+.2f}"
-            click.echo(f"    {name:<4}: estimated {row['estimated']:.6g}, direct "
-                       f"{row['direct']:.6g}, difference {row['difference']:+.3g} "
-                       f"({z} combined stderr)")
-        click.echo(f"    rms f_r difference over {c['n_configurations']} protocol "
-                   f"configurations: {c['rms_fr_difference']:.4g} "
-                   f"({100 * c['rms_fr_relative']:.3g} % rms relative)")
-
-
 @fit_command.command("pipeline")
 @click.option("--reference-clear", required=True, type=IN_FILE,
               help="Reference object in a clear medium (step 0).")
@@ -469,48 +339,3 @@ def pipeline_command(ctx, reference_clear, reference_medium, target_medium, blac
     print_pipeline(result)
     fits = [result.reference, result.medium, result.target, result.direct]
     finish_fits(ctx, fits, list(result.files.values()))
-
-
-def print_ranking(ranking) -> None:
-    """One step's ranking of ``--models auto`` as a table."""
-    from ..fitting.selection import table_lines
-
-    click.echo(f"[[Candidates of step '{ranking.step}', ranked by BIC with the "
-               f"model-discrepancy term; * the one used]]")
-    for line in table_lines(ranking):
-        click.echo("    " + line)
-    click.echo("")
-
-
-def _raw_step_fix(items) -> dict:
-    """``STEP.NAME=VALUE`` -> {step: {name: value}}, names checked against the candidates
-    later (veil.pipeline)."""
-    import math
-
-    fixed: dict[str, dict[str, float]] = {}
-    for step, entries in _step_entries(items, "--fix").items():
-        for entry in entries:
-            name, sep, text = entry.partition("=")
-            try:
-                value = float(text)
-            except ValueError:
-                value = math.nan
-            if not sep or not math.isfinite(value):
-                raise UserError(f"--fix {step}.{entry!r}: expected STEP.NAME=VALUE with a "
-                                f"finite number")
-            if name.strip() in fixed.get(step, {}):
-                raise UserError(f"--fix: {step}.{name.strip()} is fixed twice")
-            fixed.setdefault(step, {})[name.strip()] = value
-    return fixed
-
-
-def _step_entries(items, option: str) -> dict:
-    """``STEP.NAME[=VALUE]`` strings -> {step: [NAME[=VALUE], ...]} (names unchecked)."""
-    by_step: dict = {}
-    for item in items:
-        step, dot, rest = item.partition(".")
-        if not dot or step.strip() not in STEPS or not rest.strip():
-            raise UserError(f"{option} {item!r}: expected STEP.NAME with STEP one of "
-                            f"{', '.join(STEPS)}")
-        by_step.setdefault(step.strip(), []).append(rest.strip())
-    return by_step

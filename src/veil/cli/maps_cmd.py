@@ -110,25 +110,11 @@ def fit_maps_command(ctx, photo_dir, manifest, medium, output, black_photos, bla
     from ..maps.grid import parse_grid
     from ..maps.run import fit_maps
 
-    if black_photos and black_frame:
-        raise UserError("give --black-photos or --black-frame, not both")
-    if (camera_distance is None) != (pixel_pitch is None):
-        raise UserError("--camera-distance and --pixel-pitch go together")
-    if near_field and camera_distance is None:
-        raise UserError("--near-field needs --camera-distance D and --pixel-pitch P (the "
-                        "camera's distance from the plate centre and a pixel's size on the "
-                        "plate, same units)")
+    _check_options(black_photos, black_frame, camera_distance, pixel_pitch, near_field)
     fixed = parse_fix(fix, models.brdf)
-    med = load_medium(medium, models)
-    given = med.one_model() if hasattr(med, "as_model") else med
-    if "medium-model" in models.explicit and type(given) is not models.medium:
-        raise UserError(f"--medium-model {models.medium.NAME} but {medium} is a "
-                        f"{given.NAME} medium")
+    med = _medium(medium, models)
     grid_spec = parse_grid(grid, models.brdf)
-    out = Path(output)
-    if out.resolve().is_relative_to(Path(photo_dir).resolve()):
-        raise UserError(f"output {output} is inside PHOTO_DIR {photo_dir}; veil never "
-                        f"modifies PHOTO_DIR: choose another output path")
+    out = _output(output, photo_dir)
 
     def log(message):
         click.echo(message, err=True)
@@ -142,6 +128,41 @@ def fit_maps_command(ctx, photo_dir, manifest, medium, output, black_photos, bla
                        scheduler=scheduler, workers=workers, progress=progress, log=log,
                        geometry=((camera_distance, pixel_pitch) if camera_distance is not None
                                  else None), near_field=near_field)
+    _print_run(ctx, run)
+
+
+def _check_options(black_photos, black_frame, camera_distance, pixel_pitch,
+                   near_field) -> None:
+    if black_photos and black_frame:
+        raise UserError("give --black-photos or --black-frame, not both")
+    if (camera_distance is None) != (pixel_pitch is None):
+        raise UserError("--camera-distance and --pixel-pitch go together")
+    if near_field and camera_distance is None:
+        raise UserError("--near-field needs --camera-distance D and --pixel-pitch P (the "
+                        "camera's distance from the plate centre and a pixel's size on the "
+                        "plate, same units)")
+
+
+def _medium(medium, models):
+    """The medium result or model of --medium, of the --medium-model family if given."""
+    med = load_medium(medium, models)
+    given = med.one_model() if hasattr(med, "as_model") else med
+    if "medium-model" in models.explicit and type(given) is not models.medium:
+        raise UserError(f"--medium-model {models.medium.NAME} but {medium} is a "
+                        f"{given.NAME} medium")
+    return med
+
+
+def _output(output, photo_dir) -> Path:
+    out = Path(output)
+    if out.resolve().is_relative_to(Path(photo_dir).resolve()):
+        raise UserError(f"output {output} is inside PHOTO_DIR {photo_dir}; veil never "
+                        f"modifies PHOTO_DIR: choose another output path")
+    return out
+
+
+def _print_run(ctx, run) -> None:
+    """The run's notes and summary; exit status 1 when some pixels were not fitted."""
     for line in run.notes:  # the warnings among them were printed as warnings already
         if not line.startswith("warning: "):
             click.echo(line, err=True)

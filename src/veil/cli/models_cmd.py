@@ -17,31 +17,41 @@ def models_command(kind, as_json):
     options, the parameters that scale the model linearly, those a joint fit may share, those
     that take one value per colour channel, the presets, and the model's declared error
     where it has one. Commands choose them with --brdf-model NAME and --medium-model NAME."""
-    from ..models import DEFAULTS, PRESETS, model_class, names
+    from ..models import names
     from ..numbers import json_clean
 
-    entries = []
-    for name in names(kind):
-        cls = model_class(name)
-        entries.append({
-            "name": name, "kind": cls.KIND, "label": cls.LABEL,
-            "default": DEFAULTS[cls.KIND] == name,
-            "literal": cls.literal_form(),
-            "parameters": [{"name": p.name, "alias": p.alias, "lower": p.lower,
-                            "upper": p.upper, "interval": p.interval(), "unit": p.unit,
-                            "meaning": p.doc, "log_scale": p.log_scale,
-                            "scale": p.name in cls.scale_names(), "share": p.share,
-                            "channels": cls.channel_sharing()[p.name]}
-                           for p in cls.PARAMS],
-            "options": [{"name": o.name, "default": o.default, "choices": list(o.choices),
-                         "meaning": o.doc} for o in cls.OPTIONS],
-            "presets": [k for k, m in PRESETS.items() if type(m) is cls],
-            "model_error_floor": None if cls.MODEL_ERROR_FLOOR is None else
-            {"sigma": cls.MODEL_ERROR_FLOOR[0], "length": cls.MODEL_ERROR_FLOOR[1]},
-        })
+    entries = [_entry(name) for name in names(kind)]
     if as_json:  # unbounded parameters have null bounds
         click.echo(json.dumps(json_clean(entries), indent=2, allow_nan=False))
         return
+    _print_tables(entries)
+
+
+def _entry(name: str) -> dict:
+    """The declaration of the family ``name`` as an entry of the list."""
+    from ..models import DEFAULTS, PRESETS, model_class
+
+    cls = model_class(name)
+    return {
+        "name": name, "kind": cls.KIND, "label": cls.LABEL,
+        "default": DEFAULTS[cls.KIND] == name,
+        "literal": cls.literal_form(),
+        "parameters": [{"name": p.name, "alias": p.alias, "lower": p.lower,
+                        "upper": p.upper, "interval": p.interval(), "unit": p.unit,
+                        "meaning": p.doc, "log_scale": p.log_scale,
+                        "scale": p.name in cls.scale_names(), "share": p.share,
+                        "channels": cls.channel_sharing()[p.name]}
+                       for p in cls.PARAMS],
+        "options": [{"name": o.name, "default": o.default, "choices": list(o.choices),
+                     "meaning": o.doc} for o in cls.OPTIONS],
+        "presets": [k for k, m in PRESETS.items() if type(m) is cls],
+        "model_error_floor": None if cls.MODEL_ERROR_FLOOR is None else
+        {"sigma": cls.MODEL_ERROR_FLOOR[0], "length": cls.MODEL_ERROR_FLOOR[1]},
+    }
+
+
+def _print_tables(entries: list) -> None:
+    """The families as tables (rich), their literals, presets, options and declared error."""
     from rich.console import Console
     from rich.markup import escape
     from rich.table import Table

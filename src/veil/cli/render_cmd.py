@@ -65,7 +65,7 @@ def render_command(brdf, medium, channel, light_theta, light_phi, size, exposure
     interpolation error. Results fitted over the channels r, g, b render each channel with
     its own model, as the red, green and blue of an RGB image (docs/figures.md).
     """
-    from ..viz.render import auto_exposure, check_memory, clipping, png_bytes, render, tone_map
+    from ..viz.render import check_memory
 
     b, m, notes = _given_models(brdf, medium, channel, models)
     output_path(output, (".png",), "output")
@@ -85,9 +85,16 @@ def render_command(brdf, medium, channel, light_theta, light_phi, size, exposure
         render_rgb(b, m, light_theta, light_phi, size, exposure, tone, samples, accuracy, check,
                    linear_path, output, quiet)
         return
+    _render_grey(b[None], None if m is None else m[None], light_theta, light_phi, size,
+                 exposure, tone, samples, accuracy, check, linear_path, output, quiet)
+
+
+def _render_grey(b, m, light_theta, light_phi, size, exposure, tone, samples, accuracy, check,
+                 linear_path, output, quiet) -> None:
+    """One channel's (grey) render: the PNG (and the linear image), what it printed."""
+    from ..viz.render import auto_exposure, clipping, png_bytes, render, tone_map
     from .render_output import report, write_images
 
-    b, m = b[None], None if m is None else m[None]
     result = render(b, m, light_theta, light_phi, size, accuracy=accuracy, samples=samples,
                     check=check, progress=not quiet)
     auto = exposure is None

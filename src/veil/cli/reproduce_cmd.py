@@ -77,15 +77,47 @@ def _write_spheres(folder, exp) -> None:
         write_bytes_atomic(folder / f"{b}_{m}.npy", buf.getvalue())
 
 
+def _write_figures(folder, exp, dpi: int, step) -> dict:
+    """Figs. 9-12 as PNG and PDF in ``folder``: {figure key: its PNG's name}."""
+    import matplotlib.pyplot as plt
+
+    from ..io import write_bytes_atomic
+    from ..viz.figures import fig9, fig10, fig11, fig12, figure_bytes
+
+    drawers = {"fig9": lambda: fig9(list(exp.brdfs.values()), exp.theta_i, list(exp.brdfs)),
+               "fig10": lambda: fig10(list(exp.media.values()), exp.theta_i, list(exp.media)),
+               "fig11": lambda: fig11(exp), "fig12": lambda: fig12(exp)}
+    n_steps = 2 * len(exp.curves)
+    files = {}
+    for k, (key, draw) in enumerate(drawers.items()):
+        step(f"drawing {key}", n_steps + k, n_steps)
+        fig = draw()
+        try:
+            for fmt in ("png", "pdf"):
+                name = f"{FIGURES[key]}.{fmt}"
+                write_bytes_atomic(folder / name, figure_bytes(fig, fmt, dpi))
+            files[key] = f"{FIGURES[key]}.png"
+        finally:
+            plt.close(fig)
+    return files
+
+
+def _print_curves(exp) -> None:
+    """Each curve's peak, its angle, FWHM and value at 0 deg."""
+    for (b, m), c in exp.curves.items():
+        mt = c.metrics
+        click.echo(f"{b:6s} {m:6s} peak {mt.peak:10.4g} at {mt.peak_angle:5.2f} deg  "
+                   f"FWHM {mt.fwhm:5.1f} deg  f(0 deg) {mt.off_peak:9.4g}")
+
+
 def reproduce(outdir, *, size=256, accuracy="default", render_accuracy="fast", check=64,
               dpi=150, quiet=False, shown=None) -> None:
     """The work of ``veil reproduce`` (options as there); messages name the folder
     ``shown`` (default ``outdir``)."""
-    import matplotlib.pyplot as plt
 
     from ..io import check_output_folder, output_folder, write_bytes_atomic
     from ..viz.documents import write_report
-    from ..viz.figures import fig9, fig10, fig11, fig12, figure_bytes, run_experiment
+    from ..viz.figures import run_experiment
 
     if not 16 <= size <= 2048:
         raise UserError(f"--size {size} must be between 16 and 2048 pixels")
@@ -115,22 +147,8 @@ def reproduce(outdir, *, size=256, accuracy="default", render_accuracy="fast", c
     try:
         exp = run_experiment(size=size, accuracy=accuracy, render_accuracy=render_accuracy,
                              check=check, progress=step)
-        drawers = {"fig9": lambda: fig9(list(exp.brdfs.values()), exp.theta_i, list(exp.brdfs)),
-                   "fig10": lambda: fig10(list(exp.media.values()), exp.theta_i, list(exp.media)),
-                   "fig11": lambda: fig11(exp), "fig12": lambda: fig12(exp)}
-        n_steps = 2 * len(exp.curves)
         with output_folder(outdir, owned=OWNED) as folder:
-            files = {}
-            for k, (key, draw) in enumerate(drawers.items()):
-                step(f"drawing {key}", n_steps + k, n_steps)
-                fig = draw()
-                try:
-                    for fmt in ("png", "pdf"):
-                        name = f"{FIGURES[key]}.{fmt}"
-                        write_bytes_atomic(folder / name, figure_bytes(fig, fmt, dpi))
-                    files[key] = f"{FIGURES[key]}.png"
-                finally:
-                    plt.close(fig)
+            files = _write_figures(folder, exp, dpi, step)
             _write_spheres(folder / "spheres", exp)
             write_bytes_atomic(folder / "fig11_curves.csv", curves_csv(exp).encode())
             md, page = write_report(exp, folder, files)
@@ -138,10 +156,7 @@ def reproduce(outdir, *, size=256, accuracy="default", render_accuracy="fast", c
         if progress is not None:
             progress.stop()
 
-    for (b, m), c in exp.curves.items():
-        mt = c.metrics
-        click.echo(f"{b:6s} {m:6s} peak {mt.peak:10.4g} at {mt.peak_angle:5.2f} deg  "
-                   f"FWHM {mt.fwhm:5.1f} deg  f(0 deg) {mt.off_peak:9.4g}")
+    _print_curves(exp)
     worst = max((r.max_rel_error for r in exp.renders.values()), default=0.0)
     click.echo(f"spheres: worst interpolation error {100 * worst:.2g} % (angles <= 80 deg)")
     click.echo(f"wrote figures, spheres/, fig11_curves.csv, {os.path.basename(md)} and "

@@ -180,11 +180,7 @@ def simulate_command(brdf, medium, output, black_path, psi, noise, seed, glow, f
     if (brdf is None) == (merl is None):
         raise UserError("give the object as --brdf MODEL or --merl FILE (one of the two)")
     model_m = models.medium_model(medium)
-    if merl is not None:
-        model_b = _merl_model(merl, channel, models, channels)
-        brdf = f"{models.brdf.NAME} fitted to {merl.name}"
-    else:
-        model_b = models.brdf_model(brdf)
+    model_b, brdf = _object(brdf, merl, channel, models, channels)
     by_channel = _channel_models(model_b, model_m, channels, per_channel)
     psis = parse_psi(psi)
     if black_path is not None and _same_file(output, black_path):
@@ -192,10 +188,8 @@ def simulate_command(brdf, medium, output, black_path, psi, noise, seed, glow, f
     for path in (output, black_path):
         if path is not None:
             check_output_path(path)
-    from ..data.measurements import measurements_text, to_form
     from ..data.protocol import protocol
     from ..data.simulate import simulate, simulate_channels
-    from ..io import write_many_atomic
 
     try:
         configs = protocol(psis, fine_step=fine_step, coarse_step=coarse_step, window=window,
@@ -203,14 +197,8 @@ def simulate_command(brdf, medium, output, black_path, psi, noise, seed, glow, f
     except ValueError as exc:
         raise UserError(str(exc)) from None
 
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
-
-    from .compile_display import console
-
     what = "clear water" if model_m is None else medium.strip()
-    with Progress(TextColumn("[progress.description]{task.description}"), BarColumn(),
-                  MofNCompleteColumn(), TimeElapsedColumn(),
-                  console=console(), transient=True) as bar:
+    with _bar() as bar:
         task = bar.add_task(f"{brdf.strip()} through {what}", total=len(configs))
         protocol_args = dict(noise=noise, seed=seed, black=black_path is not None,
                              fine_step=fine_step, coarse_step=coarse_step, window=window,
@@ -219,6 +207,14 @@ def simulate_command(brdf, medium, output, black_path, psi, noise, seed, glow, f
                                                                      total=total))
         result = simulate(model_b, model_m, psis, **protocol_args) if by_channel is None \
             else simulate_channels(by_channel, psis, **protocol_args)
+    _write(result, output, black_path, form, by_channel)
+
+
+def _write(result, output, black_path, form: str, by_channel) -> None:
+    """The session (and its black cloth) in ``form``, both files or neither."""
+    from ..data.measurements import measurements_text, to_form
+    from ..io import write_many_atomic
+
     table, cloth = result if black_path is not None else (result, None)
     files = {output: measurements_text(to_form(table, form)).encode("utf-8")}
     if cloth is not None:
@@ -228,3 +224,22 @@ def simulate_command(brdf, medium, output, black_path, psi, noise, seed, glow, f
                                          f"rows ({len(by_channel)} channels)")
                + f" to {output}"
                + (f" and the black cloth to {black_path}" if cloth is not None else ""), err=True)
+
+
+def _object(brdf, merl, channel, models, channels) -> tuple:
+    """(the object's BRDF, how the progress names it): --brdf MODEL or fitted to --merl."""
+    if merl is not None:
+        return (_merl_model(merl, channel, models, channels),
+                f"{models.brdf.NAME} fitted to {merl.name}")
+    return models.brdf_model(brdf), brdf
+
+
+def _bar():
+    """The progress bar of the configurations simulated."""
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from .compile_display import console
+
+    return Progress(TextColumn("[progress.description]{task.description}"), BarColumn(),
+                    MofNCompleteColumn(), TimeElapsedColumn(), console=console(),
+                    transient=True)

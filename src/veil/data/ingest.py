@@ -168,7 +168,8 @@ def _stats(groups):
 
 
 def roi_statistics(patch: Patch, channel: str, dark: Patch | None = None,
-                   response: Response | None = None, where: str = "ROI"):
+                   response: Response | None = None,
+                   where: str = "ROI") -> tuple[float, float, int]:
     """``(value, sigma, n)`` of one ROI: mean of linear, dark-subtracted ``channel`` values.
 
     ``gray`` is (R + G + B) / 3, the average of the three channels (for a raw mosaic the
@@ -194,7 +195,7 @@ def roi_statistics(patch: Patch, channel: str, dark: Patch | None = None,
 
 # -- the manifest --------------------------------------------------------------------------
 
-def manifest_photos(manifest, photo_dir):
+def manifest_photos(manifest, photo_dir) -> tuple[pd.DataFrame, list[str], str, list[Path]]:
     """The manifest read (:func:`read_manifest`) and the paths of its photos:
     (table, row names, manifest name, paths); MissingFileError naming the rows whose photo is
     not in ``photo_dir``."""
@@ -209,15 +210,9 @@ def manifest_photos(manifest, photo_dir):
     return table, rows, name, paths
 
 
-def read_manifest(manifest, photo_dir) -> tuple[pd.DataFrame, list[str], str]:
-    """The manifest (all its columns; angles as float), a name for each row, its own name.
-
-    Checks the ``file`` column (present, non-empty, unique, inside ``photo_dir``) and the
-    angle columns (one of the three forms of :mod:`veil.measurements`, no configuration twice).
-    Rows of a file are named by their line (header = line 1), as :mod:`veil.measurements` does.
-    """
-    from .measurements import ANGLE_COLUMNS, validate
-
+def _manifest_table(manifest) -> tuple[pd.DataFrame, list[str], str]:
+    """The manifest (a DataFrame, or a CSV file without its blank lines), a name for each
+    row and its own name."""
     if isinstance(manifest, pd.DataFrame):
         name = "the manifest"
         table = manifest.copy()
@@ -241,16 +236,11 @@ def read_manifest(manifest, photo_dir) -> tuple[pd.DataFrame, list[str], str]:
         table = raw[kept].reset_index(drop=True)
         table.attrs = {"veil_source": name, "veil_lines": tuple(lines)}
         rows = [f"line {line} of {name}" for line in lines]
-    if "file" not in table.columns:
-        raise InputError(f"{name}: no column 'file'; the header has "
-                         f"{', '.join(map(repr, map(str, table.columns)))}; the manifest names "
-                         f"each photo (relative to PHOTO_DIR) in a column 'file'")
-    if len(table) == 0:
-        raise InputError(f"{name}: no photos listed (no rows after the header)")
-    clash = [c for c in ADDED_COLUMNS if c in table.columns]
-    if clash:
-        raise InputError(f"{name}: column(s) {', '.join(map(repr, clash))} would be "
-                         f"overwritten by ingest's results; rename or remove them")
+    return table, rows, name
+
+
+def _manifest_files(table: pd.DataFrame, rows: list[str], photo_dir) -> list[str]:
+    """The ``file`` column checked: each a path inside ``photo_dir``, none twice."""
     seen: dict[Path, str] = {}
     root = Path(photo_dir).resolve()
     files = []
@@ -268,6 +258,30 @@ def read_manifest(manifest, photo_dir) -> tuple[pd.DataFrame, list[str], str]:
                              f"photo has one geometry")
         seen[key] = row
         files.append(cell.strip())
+    return files
+
+
+def read_manifest(manifest, photo_dir) -> tuple[pd.DataFrame, list[str], str]:
+    """The manifest (all its columns; angles as float), a name for each row, its own name.
+
+    Checks the ``file`` column (present, non-empty, unique, inside ``photo_dir``) and the
+    angle columns (one of the three forms of :mod:`veil.measurements`, no configuration twice).
+    Rows of a file are named by their line (header = line 1), as :mod:`veil.measurements` does.
+    """
+    from .measurements import ANGLE_COLUMNS, validate
+
+    table, rows, name = _manifest_table(manifest)
+    if "file" not in table.columns:
+        raise InputError(f"{name}: no column 'file'; the header has "
+                         f"{', '.join(map(repr, map(str, table.columns)))}; the manifest names "
+                         f"each photo (relative to PHOTO_DIR) in a column 'file'")
+    if len(table) == 0:
+        raise InputError(f"{name}: no photos listed (no rows after the header)")
+    clash = [c for c in ADDED_COLUMNS if c in table.columns]
+    if clash:
+        raise InputError(f"{name}: column(s) {', '.join(map(repr, clash))} would be "
+                         f"overwritten by ingest's results; rename or remove them")
+    files = _manifest_files(table, rows, photo_dir)
     table["file"] = files
     probe = table.assign(value=0.0)
     probe.attrs = dict(table.attrs)
@@ -296,6 +310,25 @@ def _warn(message: str) -> None:
     warnings.warn(message, IngestWarning, stacklevel=3)
 
 
+def _settings(roi, black_roi, channel: str, saturation, response) -> tuple:
+    """(the ROIs, the saturation level, the response) of :func:`ingest`, checked."""
+    if channel not in CHANNELS + (ALL_RGB,):
+        raise InputError(f"channel {channel!r}: expected one of {', '.join(CHANNELS)} or "
+                         f"{ALL_RGB} (all three)")
+    rois = [("ROI", parse_roi(roi, "ROI"))]
+    if black_roi is not None:
+        rois.append(("black ROI", parse_roi(black_roi, "black ROI")))
+        if rois[0][1].overlaps(rois[1][1]):
+            _warn(f"the ROI {rois[0][1]} and the black ROI {rois[1][1]} overlap")
+    if saturation is not None:
+        saturation = float(saturation)
+        if not math.isfinite(saturation):
+            raise InputError(f"saturation level {saturation!r} is not a finite number")
+    if response is not None and not isinstance(response, Response):
+        response = load_response(response)
+    return rois, saturation, response
+
+
 def ingest(photo_dir, manifest, roi, black_roi=None, dark=None, channel="gray", *,
            response=None, saturation=None, keep_saturated=False, progress=None) -> pd.DataFrame:
     """One measurement row per photo of ``manifest``: its columns plus the ROI statistics.
@@ -314,21 +347,7 @@ def ingest(photo_dir, manifest, roi, black_roi=None, dark=None, channel="gray", 
     photo_dir = Path(photo_dir)
     if not photo_dir.is_dir():
         raise MissingFileError(f"photo directory {photo_dir}: no such directory")
-    if channel not in CHANNELS + (ALL_RGB,):
-        raise InputError(f"channel {channel!r}: expected one of {', '.join(CHANNELS)} or "
-                         f"{ALL_RGB} (all three)")
-    rois = [("ROI", parse_roi(roi, "ROI"))]
-    if black_roi is not None:
-        rois.append(("black ROI", parse_roi(black_roi, "black ROI")))
-        if rois[0][1].overlaps(rois[1][1]):
-            _warn(f"the ROI {rois[0][1]} and the black ROI {rois[1][1]} overlap")
-    if saturation is not None:
-        saturation = float(saturation)
-        if not math.isfinite(saturation):
-            raise InputError(f"saturation level {saturation!r} is not a finite number")
-    if response is not None and not isinstance(response, Response):
-        response = load_response(response)
-
+    rois, saturation, response = _settings(roi, black_roi, channel, saturation, response)
     table, rows, name, paths = manifest_photos(manifest, photo_dir)
     if channel == ALL_RGB:
         check_channel_columns(table, name)

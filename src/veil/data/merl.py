@@ -99,7 +99,7 @@ def _rotate(v, axis, angle):
     return v * c + axis * dot * (1.0 - c) + np.cross(axis, v) * s
 
 
-def half_diff(wi, wo):
+def half_diff(wi, wo) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(theta_h, theta_d, phi_d) in radians of unit vectors ``wi`` (light), ``wo`` (view)."""
     wi, wo = np.asarray(wi, dtype=float), np.asarray(wo, dtype=float)
     h = wi + wo
@@ -113,7 +113,7 @@ def half_diff(wi, wo):
     return theta_h, theta_d, phi_d
 
 
-def indices(theta_h, theta_d, phi_d):
+def indices(theta_h, theta_d, phi_d) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The table cell (theta_h, theta_d, phi_d indices) of half/difference angles (radians),
     as the reference code computes it (module docstring)."""
     theta_h = np.asarray(theta_h, dtype=float)
@@ -126,7 +126,8 @@ def indices(theta_h, theta_d, phi_d):
     return ih, idd.astype(int), ip.astype(int)
 
 
-def reflectance(brdf: MerlBRDF, channel: str, theta_i, theta_r, phi_i=180.0, phi_r=0.0):
+def reflectance(brdf: MerlBRDF, channel: str, theta_i, theta_r, phi_i=180.0,
+                phi_r=0.0) -> np.ndarray:
     """f_r = table value x cos theta_i (veil's convention) at the given angles (degrees);
     a MerlError when a needed cell is negative (unmeasured)."""
     from ..engine.angles import check_angles, direction

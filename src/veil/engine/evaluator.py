@@ -99,7 +99,7 @@ class ApparentModel:
         values = self.parts[0][0].combine(terms, vb, vm)
         return check_finite(values, "the apparent reflectance", self.models, [vb, vm], terms)
 
-    def value_and_jacobian(self, vb, vm, wrt=WRT):
+    def value_and_jacobian(self, vb, vm, wrt=WRT) -> tuple[np.ndarray, np.ndarray]:
         """Values (M,) and d value / d (every BRDF parameter, every medium parameter), the
         columns of a model not in ``wrt`` NaN (not computed: a fit of one model's parameters
         runs the smaller program of its own derivatives)."""
@@ -141,7 +141,7 @@ class DirectModel:
         values = np.asarray(f(np.asarray(v, dtype=float), self.wi, self.wr))[: self.size]
         return check_finite(values, "the reflectance f_r", [self.model], [v])
 
-    def value_and_jacobian(self, v):
+    def value_and_jacobian(self, v) -> tuple[np.ndarray, np.ndarray]:
         """f_r (M,) and its Jacobian (M, len(v)) with respect to ``v``."""
         self.jacobian_calls += 1
         f, jf = direct_programs(self.model)

@@ -180,17 +180,7 @@ def _one_config(brdf, medium, rule, half, vb, vm, shared, maux, wi, wr):
     def albedo(theta, table):
         return _interp_table(table, theta, rule) if brdf.HAS_LOBE else zero
 
-    grids, cos_i, cos_r = None, [wi[2]], [wr[2]]
-    if "lobe" in comps:
-        # the 2D terms' dense grids about I (I') and about R (R'), and the 4D term's grids
-        specs = [(wi, rule.dense_radial, rule.dense_azimuth, half),
-                 (wr, rule.dense_radial, rule.dense_azimuth, half)]
-        if brdf.HAS_LOBE:
-            specs += [(wi, rule.phase_radial, rule.phase_azimuth, half),
-                      (wr, rule.phase_radial, rule.phase_azimuth, False)]
-            specs += [(wr, rule.phase_radial, rule.phase_azimuth, True)] if half else []
-        grids = phase_grids(medium, vm, maux, specs)
-        cos_i, cos_r = [wi[2], grids[0][0][:, 2]], [wr[2], grids[1][0][:, 2]]
+    grids, cos_i, cos_r = _lobe_grids(brdf, medium, rule, half, vm, maux, wi, wr)
     # s_k at I and the I' nodes, t_k at R and the R' nodes
     s_at, t_at = separable_at(brdf, vb, aux, cos_i, cos_r)
     s_wi, t_wr = [s[0] for s in s_at], [t[0] for t in t_at]
@@ -231,6 +221,27 @@ def _one_config(brdf, medium, rule, half, vb, vm, shared, maux, wi, wr):
             view_side, light_side = lobes.get("sides", (zero, zero))
             rows[("delta", "lobe")] = (d_sep + zero,
                                        dl * b_r * view_side + dv * a_i * light_side + zero)
+    return _weighted_rows(medium, vm, rows)
+
+
+def _lobe_grids(brdf, medium, rule, half, vm, maux, wi, wr):
+    """(grids, cosines at I and its nodes, at R and its nodes) of :func:`_one_config`:
+    without the medium's lobe no grids; with it the 2D terms' dense grids about I (I') and
+    about R (R'), and the 4D term's grids."""
+    if "lobe" not in medium.COMPONENTS:
+        return None, [wi[2]], [wr[2]]
+    specs = [(wi, rule.dense_radial, rule.dense_azimuth, half),
+             (wr, rule.dense_radial, rule.dense_azimuth, half)]
+    if brdf.HAS_LOBE:
+        specs += [(wi, rule.phase_radial, rule.phase_azimuth, half),
+                  (wr, rule.phase_radial, rule.phase_azimuth, False)]
+        specs += [(wr, rule.phase_radial, rule.phase_azimuth, True)] if half else []
+    grids = phase_grids(medium, vm, maux, specs)
+    return grids, [wi[2], grids[0][0][:, 2]], [wr[2], grids[1][0][:, 2]]
+
+
+def _weighted_rows(medium, vm, rows: dict):
+    """The term matrix (rows, 2): each component pair's row times its weights."""
     out = []
     for a, b in pairs(medium):
         sep_v, lobe_v = rows[(a, b)] if (a, b) in rows else rows[(b, a)]

@@ -46,15 +46,20 @@ import pickle
 import platform
 import sys
 import threading
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from functools import cache, lru_cache
 from types import ModuleType
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from .. import __version__, _jax
 from .._jax import _notice, jax
 from .store_files import directory, put_file
+
+if TYPE_CHECKING:
+    from jax.stages import Compiled
 
 #: First line of every entry; a new layout gets a new number.
 FORMAT = b"veil.program/2\n"
@@ -165,7 +170,7 @@ def _path(identity: str) -> str | None:
     return os.path.join(folder, hashlib.sha256(identity.encode()).hexdigest()[:40] + SUFFIX)
 
 
-def read(identity: str, env: dict, signature: tuple):
+def read(identity: str, env: dict, signature: tuple) -> Compiled | None:
     """The stored program for ``identity``, loaded and ready to run (a
     ``jax.stages.Compiled``), or None when there is none or it cannot be trusted (then one
     line says why and that it is built again)."""
@@ -322,7 +327,7 @@ def _lock_path(identity: str, env: dict) -> str | None:
 
 
 @contextmanager
-def building(identity: str, env: dict):
+def building(identity: str, env: dict) -> Iterator[bool]:
     """Hold the store's lock for ``identity`` while a missing entry is built, so that one
     process builds it and the others wait, then read it. Yields True if this process
     had to wait for another one (then, if the entry is still missing, the other could not
@@ -413,7 +418,7 @@ class Program:
     def __repr__(self) -> str:
         return f"Program({self.identity})"
 
-    def callable_for(self, *args):
+    def callable_for(self, *args) -> Callable[..., Any]:
         """The function this program runs for ``args`` (loading or building it first)."""
         signature = _signature(args)
         ready = self._ready.get(signature)

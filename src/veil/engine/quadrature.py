@@ -9,11 +9,15 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import cache
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from .._jax import jnp
 from ..errors import InputError
+
+if TYPE_CHECKING:
+    from jax import Array
 
 
 @cache
@@ -29,7 +33,7 @@ def periodic_unit(n: int) -> tuple[np.ndarray, np.ndarray]:
     return (np.arange(n) + 0.5) / n, np.full(n, 1.0 / n)
 
 
-def frame(center):
+def frame(center) -> tuple[Array, Array]:
     """Orthonormal frame (t1, t2) about unit vectors ``center`` (..., 3).
 
     t1 points from ``center`` towards the horizon (down the polar angle), t2 horizontally.
@@ -44,7 +48,7 @@ def frame(center):
     return t1, t2
 
 
-def horizon_one_minus_mu(center_z, cos_beta):
+def horizon_one_minus_mu(center_z, cos_beta) -> Array:
     """1 - cos(gamma_max): angular distance from the centre to the horizon along azimuth beta.
 
     For a centre at polar angle theta, the great circle leaving it at azimuth beta (beta = 0

@@ -27,15 +27,16 @@ from ..models.base import VARIANT_OPTION
 from .channel_fit import _fixed_values, channel_layout, layout_slots
 from .given import as_given
 from .problem import ITERATION_ACCURACY, Block, Problem, Session, Slot, model_slots
-from .propagation import describe
 from .reported_uncertainty import model_floor, reported
 from .result import RESULTS, FitResult, model_entry
 from .session_data import FitData
 from .solver import run, summarize
 from .start_values import brdf_scales, column_scales_of, grid_points, medium_scales, pick_starts
+from .step_fit import stats_and_message
 
 
-def given_layout(given, kind: str, channels: list[str], role: str, source: str):
+def given_layout(given, kind: str, channels: list[str], role: str, source: str,
+                 ) -> tuple[list[Slot], list[float], dict[str, dict[str, str]], dict[str, Model]]:
     """(slots, values, layout, {channel: model}) of the model a step holds fixed in a fit of
     ``channels`` (module docstring); a fit of other channels, or of one channel, is a
     FitError naming both (``role`` names the given model, ``source`` the table)."""
@@ -89,8 +90,9 @@ def through_problem(datas: dict[str, FitData], fitted: Model, given, fixed: dict
     slots = f_slots + g_slots if cls.KIND == "brdf" else g_slots + f_slots
     _check_names(slots, fitted, next(iter(g_models.values())).NAME)
     names = [s.name for s in slots]
-    values = np.array([s.spec.start for s in f_slots] + list(g_values) if cls.KIND == "brdf"
-                      else list(g_values) + [s.spec.start for s in f_slots], dtype=float)
+    starts = [s.spec.start for s in f_slots]
+    values = np.array([*starts, *g_values] if cls.KIND == "brdf" else [*g_values, *starts],
+                      dtype=float)
     held = _fixed_values(f_slots, fixed, cls)
     for name, value in held.items():
         values[names.index(name)] = value
@@ -164,7 +166,8 @@ def _block_point(problem: Problem, b: Block, kind: str, v: np.ndarray):
     return cost, out
 
 
-def through_starts(problem: Problem, kind: str, role: str, count: int, progress=None):
+def through_starts(problem: Problem, kind: str, role: str, count: int,
+                   progress=None) -> tuple[list[np.ndarray], int]:
     """Starting vectors of a step over channels, best first: the fitted model's grid for
     ``role``; for each value of its shared nonlinear parameters every channel takes its own
     best value of the per-channel ones, the scales solved exactly channel by channel (a scale
@@ -250,12 +253,7 @@ def fit_through(step: str, datas: dict[str, FitData], fitted: Model, given, *, f
                    given_result=result_given, given_column=problem.index,
                    propagation=propagation, keep_influence=step == "medium",
                    floor=model_floor(problem.blocks[0].brdf, problem.blocks[0].medium))
-    stats = dict(outcome.stats, grid_points=n_grid)
-    message = summary.message
-    if rep.propagation is not None:
-        stats["propagation"] = rep.propagation
-        note = describe(rep.propagation, f"the {given.step or 'given'} fit's covariance")
-        message += f"; {note}" if note else ""
+    stats, message = stats_and_message(outcome, summary, rep, given, n_grid)
     medium = fitted if cls.KIND == "medium" else first_given
     return FitResult(
         model=cls.NAME, params={n: float(x[problem.index(n)]) for n in mine},

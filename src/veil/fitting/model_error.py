@@ -41,8 +41,9 @@ to the covariance:
   process reaches both sessions: the medium absorbs in step 1 part of the error it gives
   back in step 2, and adding the two parts alone overstates the total 3-6 times
   (docs/validity.md). Step 1 keeps its influence G_1 = C J_w^T A on the medium, its
-  configurations and residuals; step 2 adds the cross term of :func:`shared`, scaled by how
-  far its error is step 1's (:func:`session_correlation`: the two objects differ).
+  configurations and residuals; step 2 adds the cross term of
+  :func:`veil.fitting.shared_error.shared`, scaled by how far its error is step 1's
+  (:func:`~veil.fitting.shared_error.session_correlation`: the two objects differ).
 
 The result carries the term as ``model_error`` (:meth:`ModelError.to_dict`): s, where it came
 from, the chi-square threshold, and the uncertainties without it (``noise_only``), which
@@ -54,13 +55,15 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from scipy.linalg import solve_triangular
 from scipy.optimize import minimize_scalar
 
 from ..errors import FitError
+
+if TYPE_CHECKING:
+    from .result import FitResult
 
 #: The chi-square test's level: a model error is estimated only when the reduced chi-square
 #: exceeds 1 by more than CHI2_Z of its own standard deviations sqrt(2 / dof) (2: about
@@ -69,15 +72,12 @@ CHI2_Z = 2.0
 #: Correlation lengths ell (degrees of D, the module docstring's distance) the likelihood
 #: chooses from; 0 is independent errors.
 LENGTHS = (0.0, 2.5, 5.0, 10.0, 20.0, 40.0, 80.0)
-#: Points of the grid over c in [0, 1] on which :func:`session_correlation` averages c under
-#: its likelihood (the trapezoid rule; the likelihood is smooth in c).
-SHARE_GRID = 41
 #: The kinds of term a fit can estimate (``model_error=``, ``--model-error``): none, an
 #: independent error (ell = 0), or ell chosen by the likelihood among :data:`LENGTHS`.
 KINDS = ("off", "independent", "correlated")
 #: The fits' default kind: correlated (docs/validity.md: with the error steps 1 and 2 share
-#: counted, :func:`shared`, it covers every path-traced session at 1.5-5 times the noise's
-#: standard errors; the independent one leaves four of ten short).
+#: counted, :func:`~veil.fitting.shared_error.shared`, it covers every path-traced session
+#: at 1.5-5 times the noise's standard errors; the independent one leaves four of ten short).
 DEFAULT = "correlated"
 #: Where a step's term came from (``ModelError.source``).
 SOURCES = ("none", "own residuals", "given medium", "model's floor")
@@ -248,9 +248,10 @@ class ModelError:
     ``influence``, {parameter: d estimate / d_i for each configuration i, per unit s} (G =
     C J_w^T A of the module docstring's sandwich), and its configurations' canonical
     ``angles``, with its weighted ``residuals`` and scaled values a = f / sigma (``scaled``):
-    step 2 needs them for the error the two steps share (:func:`shared`) and how far it is
-    shared (:func:`session_correlation`). Step 2's term keeps that correlation as
-    ``session_correlation`` (None when nothing is shared)."""
+    step 2 needs them for the error the two steps share
+    (:func:`~veil.fitting.shared_error.shared`) and how far it is shared
+    (:func:`~veil.fitting.shared_error.session_correlation`). Step 2's term keeps that
+    correlation as ``session_correlation`` (None when nothing is shared)."""
 
     sigma: float
     length: float
@@ -379,152 +380,6 @@ def step_term(residuals, values, weights, dof: int, angles, given=None,
                       chi2_threshold(dof))
 
 
-def influence(cov, weighted_jacobian, scaled_values) -> np.ndarray:
-    """G = C J_w^T A (free parameters x points): the estimate's change per unit relative
-    error at each configuration (module docstring)."""
-    return (np.asarray(cov, dtype=float) @ np.asarray(weighted_jacobian, dtype=float).T
-            * np.asarray(scaled_values, dtype=float)[None, :])
-
-
-def session_correlation(residuals, scaled_values, weighted_jacobian, angles, own_cov,
-                        given: ModelError, given_names, given_jacobian,
-                        given_cov) -> float | None:
-    """How far step 2's model error is the one its given medium's fit showed, in [0, 1] (1:
-    one process over both sessions, :func:`shared`; 0: independent): the mean of c under
-    the restricted likelihood of both fits' residuals at once, normalized over c in [0, 1]
-    (a uniform prior; :func:`share_likelihood` on :data:`SHARE_GRID` points,
-    :func:`likelihood_mean`). The mean, not the likelihood's maximum: step 2's total
-    covariance is A + c B (the cross term of :func:`shared` is linear in c) and the
-    estimate does not depend on c, so averaging over c's uncertainty gives A + E[c] B - an
-    approximation (the residuals that inform c are not independent of the estimate's error
-    given c), which pulls c towards 1/2 where one session holds little about it: towards
-    less cancellation where c is near 1, more where it is near 0 (synthetic medians 0.36 /
-    0.49 / 0.74 for the truths 0 / 0.5 / 1). The maximum sat at the bound c = 1 where the
-    likelihood barely prefers it and cancelled more of the error than the data show
-    (docs/validity.md: the 10 cm cylinder with the smooth reference, 56 % of the curves
-    within two standard errors at c = 1, 100 % at c <= 0.75)."""
-    found = share_likelihood(residuals, scaled_values, weighted_jacobian, angles, own_cov,
-                             given, given_names, given_jacobian, given_cov)
-    return None if found is None else likelihood_mean(*found)
-
-
-def likelihood_mean(grid, nll) -> float | None:
-    """The mean of ``grid`` under the normalized likelihood exp(-``nll``) (trapezoid rule;
-    non-finite nll weigh 0; None when none is finite)."""
-    grid, nll = np.asarray(grid, dtype=float), np.asarray(nll, dtype=float)
-    finite = np.isfinite(nll)
-    if not np.any(finite):
-        return None
-    w = np.where(finite, np.exp(-(nll - np.min(nll[finite]))), 0.0)
-    h = np.diff(grid)
-    mass = float(np.sum(h * (w[1:] + w[:-1])) / 2.0)
-    first = float(np.sum(h * (grid[1:] * w[1:] + grid[:-1] * w[:-1])) / 2.0)
-    if mass <= 0.0:      # one finite point alone
-        return float(grid[int(np.argmax(w))])
-    return float(np.clip(first / mass, grid[0], grid[-1]))
-
-
-def share_likelihood(residuals, scaled_values, weighted_jacobian, angles, own_cov,
-                     given: ModelError, given_names, given_jacobian,
-                     given_cov) -> tuple | None:
-    """(c on :data:`SHARE_GRID` points of [0, 1], the negative log restricted likelihood at
-    each) of :func:`session_correlation`.
-
-    The components of each fit's weighted residuals outside its Jacobian, z_1 = Q_1^T r_1 and
-    z_2 = Q_2^T r_2, are normal with mean 0. Step 1's medium estimate is off by
-    delta = G_1 d_1 + (noise), and step 2 sees its data through it: r_2 = (I - H_2)(e_2 - J_m
-    delta), J_m = ``given_jacobian`` (step 2's weighted Jacobian in the medium's parameters
-    ``given_names``, points x parameters). With K_11 = s_1^2 R(ell_1) over step 1's
-    configurations, K_21 = s_1^2 R_21(ell_1) between the sessions' and K_22 = ``own_cov``
-    (step 2's error: the shared process plus its excess):
-
-        Cov(z_1)      = I + Q_1^T A_1 K_11 A_1 Q_1
-        Cov(z_1, z_2) = Q_1^T A_1 (c K_12 A_2 - K_11 G_1^T J_m^T) Q_2
-        Cov(z_2)      = I + Q_2^T (A_2 K_22 A_2 + J_m C_m J_m^T
-                                   - c (A_2 K_21 G_1^T J_m^T + transpose)) Q_2
-
-    c the correlation sought, C_m = ``given_cov`` the medium's covariance (its total, the
-    term included; rows as ``given_names``). Q_1 spans the complement of step 1's Jacobian,
-    recovered from its influence G_1 = C J_w^T A (its rows span J_w's columns once A is
-    divided out). c is one number for every direction: the likelihood sees the error only
-    outside the Jacobians, the cross term it scales lives inside them. The reference and
-    the target are different objects: where the medium model's miss depends on the object's
-    lobe (a wide plate's view side), the two errors are not one. None (the error then
-    counted as one process, c = 1) when the given term lacks its residuals (result files of
-    earlier veils), a scaled value is 0, or a fit leaves no residual component."""
-    if given is None or given.residuals is None or given.influence is None \
-            or given.length == 0.0 or given.sigma == 0.0:
-        return None
-    a1 = np.asarray(given.scaled, dtype=float)
-    r1 = np.asarray(given.residuals, dtype=float)
-    if np.any(a1 == 0.0):
-        return None
-    g1 = np.array([given.influence[n] for n in given_names], dtype=float)
-    q1 = _complement((g1 / a1[None, :]).T, a1.size)
-    a2 = np.asarray(scaled_values, dtype=float)
-    q2 = _complement(weighted_jacobian, a2.size)
-    assert q1 is not None and q2 is not None  # both from a Jacobian
-    if q1.shape[1] == 0 or q2.shape[1] == 0:
-        return None
-    jm = np.asarray(given_jacobian, dtype=float)[:a2.size]
-    k11 = given.sigma ** 2 * correlation(distances(given.angles), given.length)
-    k12 = given.sigma ** 2 * correlation(distances(given.angles, angles), given.length)
-    m1, m2 = a1[:, None] * q1, a2[:, None] * q2
-    jq = jm.T @ q2                                  # J_m^T Q_2
-    b11 = m1.T @ k11 @ m1
-    b12 = m1.T @ k12 @ m2                           # scaled by c
-    f12 = (m1.T @ k11 @ g1.T) @ jq                  # through step 1's estimate
-    b22 = m2.T @ np.asarray(own_cov, dtype=float) @ m2 + jq.T @ np.asarray(given_cov) @ jq
-    h22 = (m2.T @ k12.T @ g1.T) @ jq                # scaled by c, with its transpose
-    z = np.concatenate([q1.T @ r1, q2.T @ np.asarray(residuals, dtype=float)])
-    n1 = b11.shape[0]
-    base = np.eye(z.size)
-    base[:n1, :n1] += 0.5 * (b11 + b11.T)
-    base[n1:, n1:] += 0.5 * (b22 + b22.T)
-    base[:n1, n1:] -= f12
-    base[n1:, :n1] -= f12.T
-
-    def nll(c):
-        cov = base.copy()
-        cov[:n1, n1:] += c * b12
-        cov[n1:, :n1] += c * b12.T
-        cov[n1:, n1:] -= c * (h22 + h22.T)
-        try:
-            chol = np.linalg.cholesky(cov)
-        except np.linalg.LinAlgError:     # not a covariance at this c: not a candidate
-            return math.inf
-        w = solve_triangular(chol, z, lower=True)
-        return float(np.sum(np.log(np.diag(chol))) + 0.5 * w @ w)
-
-    grid = np.linspace(0.0, 1.0, SHARE_GRID)
-    return grid, np.array([nll(c) for c in grid])
-
-
-def shared(own_influence, angles, given: ModelError, given_names, sensitivity,
-           share: float = 1.0) -> np.ndarray | None:
-    """The covariance that the error a step shares with its given medium's fit adds to its
-    total: step 2's estimate moves by G_2 d_2 + S G_1 d_1 (S = d estimate / d medium, first
-    order), and d_1, d_2 are one process over the configurations of both sessions with the
-    given fit's s and ell, so beside the two steps' own parts it has the cross term s^2 (G_2
-    R_21 G_1^T S^T + its transpose), R_21 = exp(-D(step 2's, step 1's) / ell). It is
-    negative where the medium absorbed in step 1 the error it gives back in step 2.
-    ``share`` scales it: how far step 2's error is step 1's (:func:`session_correlation`).
-    None when the given term has no length (ell = 0: the two sessions' errors independent)
-    or no influence. Step 2's own part must then be that of the shared process plus what its
-    own s exceeds it by (veil.fitting.reported_uncertainty), so that the two are one
-    covariance."""
-    if given is None or given.sigma == 0.0 or given.length == 0.0 or given.influence is None:
-        return None
-    missing = [n for n in given_names if n not in given.influence]
-    if missing:
-        raise FitError(f"the medium result's model_error.influence has no row for "
-                       f"{', '.join(missing)} (it has {', '.join(given.influence)})")
-    g1 = np.array([given.influence[n] for n in given_names], dtype=float)
-    r21 = correlation(distances(angles, given.angles), given.length)
-    cross = own_influence @ r21 @ g1.T @ np.asarray(sensitivity, dtype=float).T
-    return share * given.sigma ** 2 * (cross + cross.T)
-
-
 def given_term(given_result) -> ModelError | None:
     """The model-discrepancy term of a given medium's fit (a FitResult of step 1), else
     None."""
@@ -533,7 +388,7 @@ def given_term(given_result) -> ModelError | None:
     return getattr(given_result, "model_error", None)
 
 
-def noise_only(result):
+def noise_only(result) -> FitResult:
     """The result as without the model-discrepancy term: its uncertainties counting the
     data's noise only (the same object when it has no active term)."""
     me = result.model_error
@@ -547,5 +402,4 @@ def noise_only(result):
 
 __all__ = ["CHI2_Z", "LENGTHS", "KINDS", "DEFAULT", "SOURCES", "check_kind", "chi2_threshold",
            "distances", "correlation", "estimate", "sandwich", "ModelError", "step_term",
-           "given_term", "noise_only", "influence", "shared", "session_correlation",
-           "share_likelihood", "likelihood_mean", "SHARE_GRID"]
+           "given_term", "noise_only"]

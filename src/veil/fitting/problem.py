@@ -110,7 +110,7 @@ class SessionModel:
             cols.append(self._direct.values(v))
         return np.stack(cols, axis=1)[:, None, :]
 
-    def jacobian(self, vb, vm=None, wrt=WRT):
+    def jacobian(self, vb, vm=None, wrt=WRT) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Values (M,), d/d vb (M, nb) and d/d vm (M, nm); through a medium, the derivatives
         of a model not in ``wrt`` are NaN (not computed)."""
         vb = np.asarray(vb, dtype=float)

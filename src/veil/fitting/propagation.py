@@ -320,7 +320,7 @@ def _refitted(problem: Problem, x, cols, specs, cov, how: dict):
 
 
 def propagated(problem: Problem, x, given_result, column: Callable[[str], int],
-               method: str = "auto"):
+               method: str = "auto") -> tuple[np.ndarray | None, dict | None]:
     """(part, how): the covariance that ``given_result``'s (total) covariance adds to the free
     parameters of the fit at natural ``x``, linearly or through sigma points (``method``;
     "auto" chooses by the given parameters' relative uncertainty); ``column`` maps a name of
@@ -346,7 +346,8 @@ def propagated(problem: Problem, x, given_result, column: Callable[[str], int],
     return refits.covariance, how
 
 
-def media_part(problem: Problem, x, cov, method: str = "auto"):
+def media_part(problem: Problem, x, cov,
+               method: str = "auto") -> tuple[list[int], np.ndarray | None, dict | None]:
     """A joint fit's counterpart of sigma points (it estimates the media with the objects):
     by the law of total covariance, E[Cov(o | m)] + Cov(E[o | m]), the media's share of the
     objects' covariance is to first order A C_mm A^T; it is replaced by the spread of the

@@ -13,9 +13,11 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import Any
 
 from . import model_error as discrepancy
+from . import shared_error
 from .problem import Problem
 from .propagation import given_jacobian, propagated, sensitivity
 from .solver import uncertainties, weighted_jacobian
@@ -43,11 +45,11 @@ def _same(stderr, correlation):
 def _shared(problem: Problem, x, own_influence, given_result, given_column, term, how, dist,
             residuals, scaled, jw):
     """(this step's error correlation, the cross term, its share) for the error a step shares with
-    its given medium's correlated term (:func:`veil.fitting.model_error.shared`): this
+    its given medium's correlated term (:func:`veil.fitting.shared_error.shared`): this
     step's error is the shared process plus what its own s exceeds it by, with its own
     length, so that the two sessions' errors have a covariance that is a covariance; the
     cross term is scaled by how far the two are one (the share,
-    :func:`veil.fitting.model_error.session_correlation` from both fits' ``residuals``,
+    :func:`veil.fitting.shared_error.session_correlation` from both fits' ``residuals``,
     ``scaled`` values and Jacobians; None, counted as 1, for a given result without its
     residuals). None when there is nothing shared, or when the given covariance entered
     through sigma points (the cross term is first order; it is then left out, which errs on
@@ -66,11 +68,11 @@ def _shared(problem: Problem, x, own_influence, given_result, given_column, term
     names, cov_given = given_result.covariance(total=True)
     names = list(names)
     cols = [given_column(n) for n in names]
-    share = discrepancy.session_correlation(
+    share = shared_error.session_correlation(
         residuals, scaled, jw, problem.angles, term.sigma ** 2 * corr, given, names,
         given_jacobian(problem, x, cols), cov_given)
     sens = sensitivity(problem, x, cols)
-    cross = discrepancy.shared(own_influence, problem.angles, given, names, sens,
+    cross = shared_error.shared(own_influence, problem.angles, given, names, sens,
                                1.0 if share is None else share)
     return corr, cross, share
 
@@ -110,73 +112,97 @@ def reported(problem: Problem, x, summary, values, *, kind: str, rename: Callabl
     :func:`veil.fitting.propagation.propagated`. A correlated term of a fit with
     ``keep_influence`` (step 1) keeps its influence on the estimate and its configurations;
     given such a fit, step 2's total adds the error the two share
-    (:func:`veil.fitting.model_error.shared`). ``floor`` is the fit's models' declared
+    (:func:`veil.fitting.shared_error.shared`). ``floor`` is the fit's models' declared
     error (:func:`model_floor`): the least term of a weighted fit whose ``kind`` is not
     "off" and whose covariance is determined."""
+    totals = _Totals(problem, x, rename, given_column, propagation)
     cov = summary.covariance
     stderr, corr = rename(summary.stderr, summary.correlation)
-
-    def named(c):
-        return rename(*uncertainties(c, problem.names, problem.free_index))
-
-    def named_rows(m):
-        """{result name: row} of a (free parameters x ...) matrix."""
-        keys = dict.fromkeys(problem.names)
-        keys.update(zip(problem.free_names, m))
-        return {k: v for k, v in rename(keys, {})[0].items() if v is not None}
-
-    parts = {}
-
-    def total_of(c, given_res, extra=None):
-        """(stderr, correlation, how) of ``c`` with ``given_res``'s part (and ``extra``)."""
-        if given_res is None or c is None:
-            return None, None, None
-        # the given model's part depends on its covariance alone: made once per given fit
-        if id(given_res) not in parts:
-            parts[id(given_res)] = propagated(problem, x, given_res, given_column, propagation)
-        part, how = parts[id(given_res)]
-        if part is None:
-            return None, None, how
-        return (*named(c + part + (0.0 if extra is None else extra)), how)
-
     # the given fit without any model-discrepancy term (its own or inherited): "off" reports
     # the noise alone, and every fit keeps its noise-only uncertainties when a term entered
     given_noise = None if given_result is None else discrepancy.noise_only(given_result)
-    stderr_total, corr_total, how = total_of(cov, given_noise if kind == "off"
-                                             else given_result)
-    term = None
-    if kind != "off" and problem.weighted and cov is not None:
-        jw = weighted_jacobian(problem, x)
-        term = discrepancy.step_term(summary.residuals, values, problem.w,
-                                     problem.n_points - problem.n_free, problem.angles,
-                                     discrepancy.given_term(given_result), kind, jw,
-                                     floor)
-        if term.sigma > 0 or given_noise is not given_result:
-            # without an inherited term the total above is already the noise-only one
-            noise_total = ((stderr_total, corr_total) if given_noise is given_result
-                           else total_of(cov, given_noise)[:2])
-            noise_only = {"stderr": stderr, "correlation": corr,
-                          "stderr_total": noise_total[0], "correlation_total": noise_total[1]}
-            if term.sigma > 0:
-                dist, corr_d = _term_correlation(problem, term, given_result)
-                scaled = values * problem.w
-                g = discrepancy.influence(cov, jw, scaled)
-                shared = _shared(problem, x, g, given_result, given_column, term, how, dist,
-                                 summary.residuals, scaled, jw)
-                if shared is not None:    # the sum of the shared process and step 2's own
-                    corr_d, cross, share = shared
-                    term = dataclasses.replace(term, session_correlation=share)
-                cov = discrepancy.sandwich(cov, jw, scaled, term.sigma, corr_d)
-                stderr, corr = named(cov)
-                stderr_total, corr_total, how = total_of(
-                    cov, given_result, None if shared is None else cross)
-                if keep_influence and term.length > 0:
-                    term = _with_influence(term, named_rows(g), problem, summary, scaled)
-            term = dataclasses.replace(term, noise_only=noise_only)
+    stderr_total, corr_total, how = totals.of(cov, given_noise if kind == "off"
+                                              else given_result)
+    if kind == "off" or not problem.weighted or cov is None:
+        return Reported(stderr, corr, stderr_total, corr_total, None, how)
+    jw = weighted_jacobian(problem, x)
+    term = discrepancy.step_term(summary.residuals, values, problem.w,
+                                 problem.n_points - problem.n_free, problem.angles,
+                                 discrepancy.given_term(given_result), kind, jw, floor)
+    if not (term.sigma > 0 or given_noise is not given_result):
+        return Reported(stderr, corr, stderr_total, corr_total, term, how)
+    # without an inherited term the total above is already the noise-only one
+    noise_total = ((stderr_total, corr_total) if given_noise is given_result
+                   else totals.of(cov, given_noise)[:2])
+    noise_only = {"stderr": stderr, "correlation": corr,
+                  "stderr_total": noise_total[0], "correlation_total": noise_total[1]}
+    if term.sigma > 0:
+        stderr, corr, stderr_total, corr_total, how, term = _with_term(
+            totals, term, cov, jw, values, summary, given_result, how, keep_influence)
+    term = dataclasses.replace(term, noise_only=noise_only)
     return Reported(stderr, corr, stderr_total, corr_total, term, how)
 
 
-def model_floor(*models):
+@dataclass(frozen=True)
+class _Totals:
+    """A fit's uncertainties in the result's names (``rename``), and its totals: a given
+    fit's propagated part added (made once per given fit: it depends on that fit's
+    covariance alone)."""
+
+    problem: Problem
+    x: Any
+    rename: Callable
+    given_column: Callable[[str], int] | None
+    propagation: str
+    parts: dict = field(default_factory=dict)
+
+    def named(self, c) -> tuple:
+        return self.rename(*uncertainties(c, self.problem.names, self.problem.free_index))
+
+    def named_rows(self, m) -> dict:
+        """{result name: row} of a (free parameters x ...) matrix."""
+        keys = dict.fromkeys(self.problem.names)
+        keys.update(zip(self.problem.free_names, m))
+        return {k: v for k, v in self.rename(keys, {})[0].items() if v is not None}
+
+    def of(self, c, given_res, extra=None) -> tuple:
+        """(stderr, correlation, how) of ``c`` with ``given_res``'s part (and ``extra``)."""
+        if given_res is None or c is None:
+            return None, None, None
+        if id(given_res) not in self.parts:
+            assert self.given_column is not None  # a given fit comes with its columns
+            self.parts[id(given_res)] = propagated(self.problem, self.x, given_res,
+                                                   self.given_column, self.propagation)
+        part, how = self.parts[id(given_res)]
+        if part is None:
+            return None, None, how
+        return (*self.named(c + part + (0.0 if extra is None else extra)), how)
+
+
+def _with_term(totals: _Totals, term, cov, jw, values, summary, given_result, how,
+               keep_influence: bool) -> tuple:
+    """(stderr, correlation, their totals, how, the term) of a fit whose model-discrepancy
+    ``term`` enters its covariance (the sandwich), with the error it shares with its given
+    medium's fit and, with ``keep_influence``, its influence kept for step 2."""
+    problem = totals.problem
+    dist, corr_d = _term_correlation(problem, term, given_result)
+    scaled = values * problem.w
+    g = shared_error.influence(cov, jw, scaled)
+    shared = _shared(problem, totals.x, g, given_result, totals.given_column, term, how, dist,
+                     summary.residuals, scaled, jw)
+    if shared is not None:    # the sum of the shared process and step 2's own
+        corr_d, _, share = shared
+        term = dataclasses.replace(term, session_correlation=share)
+    cov = discrepancy.sandwich(cov, jw, scaled, term.sigma, corr_d)
+    stderr, corr = totals.named(cov)
+    stderr_total, corr_total, how = totals.of(cov, given_result,
+                                              None if shared is None else shared[1])
+    if keep_influence and term.length > 0:
+        term = _with_influence(term, totals.named_rows(g), problem, summary, scaled)
+    return stderr, corr, stderr_total, corr_total, how, term
+
+
+def model_floor(*models) -> tuple[float, float] | None:
     """The largest declared model error (s, ell) of ``models`` (classes or instances; None
     skipped), ``Model.MODEL_ERROR_FLOOR``; None when none declares one. (Only media declare
     one today; should a BRDF and a medium both declare, the larger is taken, not their sum.)"""

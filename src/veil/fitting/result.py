@@ -15,64 +15,29 @@ import math
 import os
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, ClassVar, overload
+from typing import TYPE_CHECKING, Any, ClassVar, overload
 
 from ..errors import FitError, InputError, MissingFileError, NotAFileError
 from ..io import write_bytes_atomic
 from ..models import Model, default_class, model_class
-from ..models import names as family_names
 from ..models.base import VARIANT_OPTION
 from ..models.channel_model import ChannelModel
-from ..numbers import from_json_float, json_float
+from ..numbers import json_float
 from .model_error import ModelError
 from .result_fields import (
     FORMAT,
     READABLE,
-    _check_common,
-    _check_format,
     _json_matrix,
     _json_term,
-    _read_matrix,
-    _read_residuals,
-    _read_stats,
-    _read_term,
-    check_given,
     model_entry,
     model_from_entry,
     model_of_channel,
-    read_channels,
 )
+from .result_reading import STEPS, fit_fields, joint_fields
 from .solver import covariance_matrix
 
 if TYPE_CHECKING:
     import numpy as np
-
-#: The steps of the two-step method (docs/model.md sec. 7); results may also say "direct".
-STEPS = ("reference", "medium", "target")
-
-
-def _model_class_of(name, source: str):
-    """The family a result file names, or a FitError naming the file."""
-    if not isinstance(name, str):
-        raise FitError(f"{source}: key 'model' = {name!r}; expected a model name")
-    try:
-        return model_class(name)
-    except InputError:
-        raise FitError(f"{source}: key 'model' = {name!r} is not a known model "
-                       f"({', '.join(family_names())})") from None
-
-
-def _variant_of(data: dict, source: str):
-    """The result's variant: one of the registered families' variants, or None."""
-    variant = data[VARIANT_OPTION]
-    known = sorted({str(choice) for family in map(model_class, family_names())
-                    for o in family.OPTIONS if o.name == VARIANT_OPTION
-                    for choice in o.choices})
-    if variant is not None and variant not in known:
-        raise FitError(f"{source}: key 'variant' = {variant!r}; expected one of "
-                       f"{', '.join(known)} or null")
-    return variant
-
 
 @dataclass(frozen=True)
 class FitResult:
@@ -260,83 +225,9 @@ class FitResult:
 
     @classmethod
     def from_dict(cls, data: dict, source: str = "the fit result") -> FitResult:
-        """Check and convert a dictionary written by :meth:`to_dict`."""
-        if not isinstance(data, dict):
-            raise FitError(f"{source}: expected a JSON object with keys model, params, ...; "
-                           f"got {type(data).__name__}")
-        _check_format(data, source)
-        required = ("model", "params", "stderr", "correlation", "chi2_reduced", "rms_relative",
-                    "n_points", "converged", "message", VARIANT_OPTION)
-        missing = [k for k in required if k not in data]
-        if missing:
-            raise FitError(f"{source}: missing key(s) {', '.join(missing)}; is this a fit "
-                           f"result written by veil (veil fit ... -o FILE.json)?")
-        name = data["model"]
-        mcls = _model_class_of(name, source)
-        names = mcls.param_names()
-        params = data["params"]
-        channels = read_channels(data, mcls, source)
-        if channels is not None:
-            names = tuple(dict.fromkeys(channels[c][p] for p in names for c in channels))
-        if not isinstance(params, dict) or list(params) != list(names):
-            got = list(params) if isinstance(params, dict) else params
-            raise FitError(f"{source}: key 'params' must map exactly {', '.join(names)} (in "
-                           f"this order) for model {name}; got {got!r}")
-        for k, v in params.items():
-            if isinstance(v, bool) or not isinstance(v, (int, float)):
-                raise FitError(f"{source}: params.{k} = {v!r} is not a number")
-        variant = _variant_of(data, source)
-        options = data.get("options")
-        if options is None:  # files of format veil.fit/1 keep the variant only
-            options = {VARIANT_OPTION: variant} if VARIANT_OPTION in mcls.option_names() \
-                and variant is not None else {}
-        if not isinstance(options, dict):
-            raise FitError(f"{source}: key 'options' must be an object; got {options!r}")
-        try:
-            values = {k: float(v) for k, v in params.items()}
-            model = mcls.from_params(values, options) if channels is None else \
-                model_of_channel(mcls, values, channels, next(iter(channels)), options)
-            for c in channels or {}:
-                model_of_channel(mcls, values, channels or {}, c, options)
-        except InputError as exc:
-            raise FitError(f"{source}: {exc}") from None
-        given = data.get("given")
-        check_given(given, f"{source}: key 'given'")
-        stderr = data["stderr"]
-        if not isinstance(stderr, dict) or set(stderr) - set(names):
-            raise FitError(f"{source}: key 'stderr' must map parameter names ({', '.join(names)})"
-                           f" to numbers or null; got {stderr!r}")
-        fixed = data.get("fixed") or {}
-        if not isinstance(fixed, dict) or set(fixed) - set(names):
-            raise FitError(f"{source}: key 'fixed' must map parameter names to values; "
-                           f"got {fixed!r}")
-        step = data.get("step")
-        if step is not None and step not in STEPS + ("direct",):
-            raise FitError(f"{source}: key 'step' = {step!r}; expected one of "
-                           f"{', '.join(STEPS)}, direct or null")
-        _check_common(data, source)
-        for key in ("stderr_total", "correlation_total"):
-            if data.get(key) is not None and not isinstance(data[key], dict):
-                raise FitError(f"{source}: key {key!r} must be an object or null")
-        return cls(
-            model=name, params={k: float(v) for k, v in params.items()},
-            stderr={k: from_json_float(stderr.get(k), source) for k in names},
-            correlation=_read_matrix(data["correlation"], source),
-            residuals=_read_residuals(data, source),
-            chi2_reduced=from_json_float(data["chi2_reduced"], source),
-            rms_relative=from_json_float(data["rms_relative"], source),
-            n_points=int(data["n_points"]), converged=data["converged"],
-            message=str(data["message"]), variant=variant,
-            fixed={k: float(v) for k, v in fixed.items()}, step=step,
-            weighted=bool(data.get("weighted", True)), accuracy=data.get("accuracy"),
-            given=given,
-            stderr_total=None if data.get("stderr_total") is None else
-            {k: from_json_float(data["stderr_total"].get(k), source) for k in names},
-            correlation_total=None if data.get("correlation_total") is None else
-            _read_matrix(data["correlation_total"], source),
-            stats=_read_stats(data, source), options=model.options(),
-            determined=bool(data.get("determined", True)),
-            model_error=_read_term(data.get("model_error"), names, source), channels=channels)
+        """Check and convert a dictionary written by :meth:`to_dict`
+        (:func:`veil.fitting.result_reading.fit_fields`)."""
+        return cls(**fit_fields(data, source))
 
     @classmethod
     def from_json(cls, path) -> FitResult:
@@ -438,69 +329,13 @@ class JointResult(FitResult):
 
     @classmethod
     def from_dict(cls, data: dict, source: str = "the joint fit result") -> JointResult:
-        if not isinstance(data, dict) or data.get("model") != "joint":
-            raise FitError(f"{source}: not a joint fit result (expected key 'model' = 'joint')")
-        _check_format(data, source)
-        required = ("params", "stderr", "correlation", "chi2_reduced", "rms_relative",
-                    "n_points", "converged", "message", VARIANT_OPTION, "layout")
-        missing = [k for k in required if k not in data]
-        if missing:
-            raise FitError(f"{source}: missing key(s) {', '.join(missing)}; is this a joint "
-                           f"fit result written by veil (veil fit joint -o FILE.json)?")
-        layout = data["layout"]
-        if not isinstance(layout, dict) or not {"objects", "media"} <= set(layout):
-            raise FitError(f"{source}: key 'layout' must hold 'objects' and 'media'")
-        for part in ("objects", "media"):
-            entries = layout[part]
-            if not isinstance(entries, dict) or not all(
-                    isinstance(m, dict) and all(isinstance(v, str) for v in m.values())
-                    for m in entries.values()):
-                raise FitError(f"{source}: layout.{part} must map each {part[:-1]} to an "
-                               f"object of parameter names")
-        for part in ("models", "options"):
-            if layout.get(part) is not None and not isinstance(layout[part], dict):
-                raise FitError(f"{source}: layout.{part} must be an object")
-        params = data["params"]
-        if not isinstance(params, dict):
-            raise FitError(f"{source}: key 'params' must map names to numbers")
-        named = [n for names in layout["objects"].values() for n in names.values()]
-        named += [n for names in layout["media"].values() for n in names.values()]
-        absent = [n for n in dict.fromkeys(named) if n not in params]
-        if absent:
-            raise FitError(f"{source}: layout names parameter(s) {', '.join(absent)} missing "
-                           f"from 'params'")
-        for k, v in params.items():
-            if isinstance(v, bool) or not isinstance(v, (int, float)):
-                raise FitError(f"{source}: params.{k} = {v!r} is not a number")
-        _check_common(data, source)
-        if not isinstance(data["stderr"], dict):
-            raise FitError(f"{source}: key 'stderr' must map names to numbers or null")
-        for key in ("stderr_total", "correlation_total"):
-            if data.get(key) is not None and not isinstance(data[key], dict):
-                raise FitError(f"{source}: key {key!r} must be an object or null")
+        """Check and convert a dictionary written by :meth:`to_dict`
+        (:func:`veil.fitting.result_reading.joint_fields`)."""
         try:
-            result = cls(
-                model="joint", params={k: float(v) for k, v in params.items()},
-                stderr={k: from_json_float(data["stderr"].get(k), source) for k in params},
-                correlation=_read_matrix(data["correlation"], source),
-                residuals=_read_residuals(data, source),
-                chi2_reduced=from_json_float(data["chi2_reduced"], source),
-                rms_relative=from_json_float(data["rms_relative"], source),
-                n_points=int(data["n_points"]), converged=data["converged"],
-                message=str(data["message"]), variant=data[VARIANT_OPTION],
-                fixed={k: float(v) for k, v in (data.get("fixed") or {}).items()},
-                step="joint", weighted=bool(data.get("weighted", True)),
-                accuracy=data.get("accuracy"), given=data.get("given"),
-                stats=_read_stats(data, source),
-                determined=bool(data.get("determined", True)), layout=layout,
-                stderr_total=None if data.get("stderr_total") is None else
-                {k: from_json_float(data["stderr_total"].get(k), source) for k in params},
-                correlation_total=None if data.get("correlation_total") is None else
-                _read_matrix(data["correlation_total"], source),
-                model_error=_read_term(data.get("model_error"), list(params), source))
-            for obj in layout["objects"]:
+            result = cls(**joint_fields(data, source))
+            for obj in result.layout["objects"]:
                 result.brdf(obj)
-            for label in layout["media"]:
+            for label in result.layout["media"]:
                 result.medium(label)
         except InputError as exc:
             raise FitError(f"{source}: {exc}") from None
@@ -513,7 +348,7 @@ class JointResult(FitResult):
 # --------------------------------------------------------------------------------------
 # reading
 # --------------------------------------------------------------------------------------
-def read_json(path):
+def read_json(path) -> Any:
     """The JSON data of a result file; errors name the file (a missing file, a directory, not
     UTF-8, not JSON)."""
     name = os.fspath(path)

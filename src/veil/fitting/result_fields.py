@@ -5,6 +5,7 @@ with the checks that name the file and the field."""
 from __future__ import annotations
 
 import dataclasses
+import math
 from typing import Any
 
 from ..errors import FitError, InputError
@@ -107,6 +108,13 @@ def _read_residuals(data: dict, source: str) -> tuple:
     if not isinstance(res, list):
         raise FitError(f"{source}: key 'residuals' must be a list of numbers")
     return tuple(from_json_float(r, source) for r in res)
+
+
+def _read_statistic(value, source: str) -> float:
+    """A fit statistic (chi2_reduced, rms_relative) read back: nan where the file has null
+    (:func:`veil.numbers.json_float` writes a non-finite one as null)."""
+    number = from_json_float(value, source)
+    return math.nan if number is None else number
 
 
 def _read_stats(data: dict, source: str) -> dict:

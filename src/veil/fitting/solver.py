@@ -37,6 +37,7 @@ scipy's were: the chord method, not the tolerance, sets that distance.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -91,7 +92,7 @@ def check_fixed(name: str, value, param, owner: str) -> None:
         raise FitError(f"fixed {exc}") from None
 
 
-def ticker(progress, stage: str):
+def ticker(progress, stage: str) -> Callable[..., None]:
     """A callback for each evaluation of a least-squares run: calls progress(stage, n, None)
     at the n-th call (nothing when ``progress`` is None or false)."""
     count = 0
@@ -238,7 +239,8 @@ def run(problem: Problem, starts, *, accuracy: str = "default", max_nfev=None, p
 # --------------------------------------------------------------------------------------
 # the solution's statistics
 # --------------------------------------------------------------------------------------
-def goodness(y: np.ndarray, w: np.ndarray, values: np.ndarray, n_free: int):
+def goodness(y: np.ndarray, w: np.ndarray, values: np.ndarray,
+             n_free: int) -> tuple[np.ndarray, float, float]:
     """(residuals (y - values) * w, reduced chi-square sum(residuals^2) / (points - n_free),
     rms of the relative residuals (y - values) / values over nonzero values, nan if none)."""
     res = (y - values) * w
@@ -255,7 +257,8 @@ def weighted_jacobian(problem: Problem, x, accuracy: str = ITERATION_ACCURACY) -
     return np.concatenate([full * problem.w[:, None], problem.prior_rows(x)[1]])[:, problem.free]
 
 
-def covariance(problem: Problem, x, accuracy: str = ITERATION_ACCURACY, values=None):
+def covariance(problem: Problem, x, accuracy: str = ITERATION_ACCURACY,
+               values=None) -> np.ndarray | None:
     """Covariance (natural units) of the free parameters at ``x`` (module docstring;
     :func:`veil.fitting.least_squares.covariance`); None when the Jacobian is singular.
     Unweighted data scale it by the reduced chi-square of ``values`` (the reported model
@@ -287,11 +290,12 @@ def undetermined_parameters(problem: Problem, x, accuracy: str = ITERATION_ACCUR
     return [n for j, n in enumerate(names) if np.any(np.abs(weak[:, j]) > 0.1)]
 
 
-def uncertainties(cov, names, free):
+def uncertainties(cov, names, free) -> tuple[dict[str, float | None],
+                                             dict[str, dict[str, float | None]]]:
     """(stderr dict over all names, correlation dict over the free ones) from a covariance
     of the free parameters (``free``: their indices into ``names``)."""
-    stderr = {n: None for n in names}
-    corr = {}
+    stderr: dict[str, float | None] = {n: None for n in names}
+    corr: dict[str, dict[str, float | None]] = {}
     se = np.sqrt(np.maximum(np.diag(cov), 0.0))
     for j, i in enumerate(free):
         stderr[names[i]] = float(se[j])
@@ -351,7 +355,8 @@ def summarize(problem: Problem, outcome: Outcome, extra_notes=()) -> Summary:
     if edge:
         notes.append(f"{', '.join(edge)} at the edge of the search range "
                      f"(uncertainty unreliable)")
-    stderr, corr = {n: None for n in problem.names}, {}
+    stderr: dict[str, float | None] = {n: None for n in problem.names}
+    corr: dict[str, dict[str, float | None]] = {}
     if why:
         cov = None
     elif cov is None:

@@ -48,7 +48,7 @@ def _floor(value: float, column: np.ndarray, y: np.ndarray, w: np.ndarray) -> fl
     return 1e-3 * alone if alone > 0 else 1e-12
 
 
-def brdf_scales(basis: np.ndarray, x: np.ndarray, cls, fixed, y, w):
+def brdf_scales(basis: np.ndarray, x: np.ndarray, cls, fixed, y, w) -> tuple[np.ndarray, float]:
     """Best BRDF scales >= 0 for the part columns ``basis`` (M, parts) at vector ``x``; the
     scales named in ``fixed`` (and parts without a scale, weight 1) are kept."""
     x = np.array(x, dtype=float)
@@ -86,7 +86,7 @@ def quadratic_scale(a, b, c, y, w) -> float:
 _RATIOS = np.concatenate([[0.0], np.logspace(-6, 8, 561)])
 
 
-def medium_scales(basis: np.ndarray, x: np.ndarray, cls, fixed, y, w):
+def medium_scales(basis: np.ndarray, x: np.ndarray, cls, fixed, y, w) -> tuple[np.ndarray, float]:
     """Best medium scales >= 0 for the row columns ``basis`` (M, rows) at vector ``x``: rows
     are products s_a s_b of the components' scales (veil.engine.integrator.pairs; 1 for a
     component without one) times the gain. Two free component scales (the paper's T_d,
@@ -151,7 +151,7 @@ def medium_scales(basis: np.ndarray, x: np.ndarray, cls, fixed, y, w):
 # --------------------------------------------------------------------------------------
 # grids
 # --------------------------------------------------------------------------------------
-def grid_points(cls, role: str, free, base: np.ndarray):
+def grid_points(cls, role: str, free, base: np.ndarray) -> list[tuple[tuple[int, ...], np.ndarray]]:
     """Grid over the free nonlinear parameters (``free``: indices into ``cls.PARAMS``) of
     the model's starting grid for ``role``, the others as in ``base``: a list of (index
     tuple, vector). A free nonlinear parameter without a grid starts at ``base``."""
@@ -174,7 +174,7 @@ def grid_points(cls, role: str, free, base: np.ndarray):
     return points
 
 
-def pick_starts(scored, count: int):
+def pick_starts(scored, count: int) -> list[tuple[float, tuple[int, ...], np.ndarray]]:
     """Best ``count`` of the (cost, index tuple, vector) grid points, skipping neighbours (one
     grid step) of points already chosen."""
     chosen: list[tuple] = []
@@ -201,7 +201,8 @@ def _fixed_names(problem: Problem, block: Block, kind: str) -> set:
     return {type(model).PARAMS[j].name for j, k in enumerate(idx) if not problem.free[k]}
 
 
-def step_starts(problem: Problem, kind: str, role: str, count: int, progress=None):
+def step_starts(problem: Problem, kind: str, role: str, count: int,
+                progress=None) -> tuple[list[np.ndarray], int]:
     """Starting vectors (natural, best first) of a one-session problem whose ``kind`` model
     is free: the model's grid for ``role``, scales exact at each point. Returns (starts,
     number of grid points)."""
@@ -308,7 +309,7 @@ def _target_grid(problem: Problem, x, known_media: set, engines, count: int,
 
 
 def joint_starts(problem: Problem, layout: dict, start: dict | None, count: int,
-                 direct_fit, progress=None):
+                 direct_fit, progress=None) -> list[np.ndarray]:
     """Starting vectors (natural, best first) of a joint fit (module docstring).
 
     ``layout`` maps objects and media to their parameter names (veil.fitting.joint);

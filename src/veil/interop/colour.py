@@ -60,15 +60,16 @@ class ColourExport:
     def scales(self) -> dict:
         return {c: self.scale(c) for c in self.channels}
 
-    def item(self, kind: str, channel: str):
+    def item(self, kind: str, channel: str) -> Exported | None:
         return next((i for i in self.channels[channel] if i.model.KIND == kind), None)
 
     def plugin(self, kind: str) -> Plugin | None:
         """The merged plugin of ``kind`` ("brdf" or "medium") as written."""
         items = {c: self.item(kind, c) for c in self.channels}
-        if any(i is None for i in items.values()):
+        plugins = {c: i.plugin for c, i in items.items() if i is not None}
+        if len(plugins) < len(items):
             return None
-        return merge_plugins({c: i.plugin for c, i in items.items()}, self.renderer)
+        return merge_plugins(plugins, self.renderer)
 
 
 def rgb_order(channels, source: str = "") -> list[str]:

@@ -44,7 +44,7 @@ class Export:
             s *= item.plugin.scale
         return s
 
-    def item(self, kind: str):
+    def item(self, kind: str) -> Exported | None:
         return next((i for i in self.items if i.model.KIND == kind), None)
 
 

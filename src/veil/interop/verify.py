@@ -14,6 +14,7 @@ Mitsuba 3 is an optional dependency (``pip install 'veil[mitsuba]'``); the varia
 from __future__ import annotations
 
 from dataclasses import dataclass
+from types import ModuleType
 
 import numpy as np
 
@@ -30,7 +31,7 @@ NEGLIGIBLE = 1e-4
 METER_DISTANCE = 5.0
 
 
-def load_mitsuba():
+def load_mitsuba() -> ModuleType:
     """The mitsuba module set to :data:`VARIANT`; an InputError when it is not installed."""
     try:
         import mitsuba as mi

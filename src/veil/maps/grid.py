@@ -7,10 +7,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..errors import FitError
+
+if TYPE_CHECKING:
+    from jax import Array
 
 #: Grid nodes per nonlinear axis by the number of axes (``grid=`` overrides).
 NODES = {1: 48, 2: 24, 3: 12}
@@ -28,7 +32,7 @@ class Axis:
     hi: float
     count: int
 
-    def coord(self, value):
+    def coord(self, value) -> np.ndarray:
         return np.log(value) if self.log else np.asarray(value, dtype=float)
 
     @property
@@ -39,7 +43,7 @@ class Axis:
         c = np.linspace(float(self.coord(self.lo)), float(self.coord(self.hi)), self.count)
         return np.exp(c) if self.log else c
 
-    def physical(self, u):
+    def physical(self, u) -> np.ndarray | Array | float:
         """Physical value at grid coordinate ``u`` (0 .. count - 1); numpy or JAX."""
         c = float(self.coord(self.lo)) + u * self.step
         if self.log:
@@ -144,7 +148,7 @@ def bspline_inverse(k: int) -> np.ndarray:
     return np.linalg.solve(a, rhs)
 
 
-def spline_weights(t, jnp):
+def spline_weights(t, jnp) -> tuple[np.ndarray | Array, np.ndarray | Array]:
     """Cubic B-spline weights and their derivatives at offset t in [0, 1] of a cell."""
     t2, t3 = t * t, t * t * t
     w = jnp.stack([(1 - t) ** 3 / 6, (3 * t3 - 6 * t2 + 4) / 6,
@@ -159,7 +163,7 @@ def spline_weights(t, jnp):
 # --------------------------------------------------------------------------------------
 # the per-pixel solver (JAX)
 # --------------------------------------------------------------------------------------
-def interp(coef, u, d):
+def interp(coef, u, d) -> tuple[Array, Array]:
     """Basis (M, q + 1) and its derivatives (d, M, q + 1) at grid coordinates ``u`` (d,)."""
     from .._jax import jnp
 
@@ -208,7 +212,7 @@ def contract(block, ws, dws, d):
     return value, jnp.stack(derivs)
 
 
-def interp_near(coef, fu, u, d):
+def interp_near(coef, fu, u, d) -> tuple[Array, Array]:
     """Near-field tables: basis (M, q + 1) at field-grid coordinates ``fu`` (2,) and grid
     coordinates ``u`` (d,), and its derivatives (d, M, q + 1) along the nonlinear axes
     (the pixel's position is not fitted)."""
@@ -224,7 +228,7 @@ def interp_near(coef, fu, u, d):
 
 
 
-def field_block(field_values, fu):
+def field_block(field_values, fu) -> np.ndarray:
     """Node values (K_1, ..., K_d, M, q + 1) at field-grid coordinates ``fu`` (2,) from the
     field coefficients (numpy; for the tables' own check of the interpolation)."""
     ws = []

@@ -136,7 +136,7 @@ class FieldGrid:
     def shape(self) -> tuple:
         return (len(self.xs), len(self.ys))
 
-    def coords(self, x, y):
+    def coords(self, x, y) -> tuple[np.ndarray, np.ndarray]:
         """Grid coordinates (0 .. K - 1 on each axis) of pixels (x, y) of the full photo."""
         def one(v, nodes):
             lo, hi = nodes[0], nodes[-1]

@@ -168,6 +168,41 @@ class Acquisition:
         return h.hexdigest()
 
 
+def _black_photos(black_photos, table, rows: list, name: str) -> list[Path]:
+    """The black photo of each manifest row: the file of the same name in ``black_photos``
+    (a MissingFileError naming the rows without one)."""
+    bdir = Path(black_photos)
+    if not bdir.is_dir():
+        raise MissingFileError(f"black photo directory {bdir}: no such directory")
+    blacks = [bdir / f for f in table["file"]]
+    gone = [(row, f) for row, f, p in zip(rows, table["file"], blacks) if not p.is_file()]
+    if gone:
+        shown = "; ".join(f"{f!r} ({row})" for row, f in gone[:10])
+        raise MissingFileError(f"black photos: {len(gone)} photo(s) of {name} have no "
+                               f"black photo of the same name in {bdir}: {shown}")
+    return blacks
+
+
+def _common_size(paths, rows, blacks, dark, name: str) -> tuple[int, int]:
+    """The size (h, w) every photo, black photo and the black frame share (read from their
+    headers), or an InputError naming the first that differs."""
+    shape: tuple[int, int] | None = None
+    first = None
+    for p, row in zip(list(paths) + list(blacks or []) + ([dark] if dark else []),
+                      list(rows) + [f"black photo of {r}" for r in (rows if blacks else [])]
+                      + (["the black frame"] if dark else [])):
+        size = probe_size(p)
+        if shape is None:
+            shape, first = size, p
+        elif size != shape and shape is not None:
+            raise InputError(f"{p} ({row}): {size[1]} x {size[0]} pixels, but {first} is "
+                             f"{shape[1]} x {shape[0]}; every photo of a map must have the "
+                             f"same size")
+    if shape is None:
+        raise InputError(f"{name}: no photo")
+    return shape
+
+
 def load_acquisition(photo_dir, manifest, *, roi=None, mask=None, black_photos=None,
                      black_frame=None, channel="gray", saturation=None) -> Acquisition:
     """Check the inputs of :func:`fit_maps` and read what is cheap (no photo decoded but the
@@ -194,17 +229,7 @@ def load_acquisition(photo_dir, manifest, *, roi=None, mask=None, black_photos=N
         raise InputError(f"{name}: {jpeg[0][1]!r} ({jpeg[0][0]}) is a JPEG; JPEG code values "
                          f"are not linear in radiance, and per-pixel maps need linear photos "
                          f"(PNG, TIFF or camera raw)")
-    blacks = None
-    if black_photos is not None:
-        bdir = Path(black_photos)
-        if not bdir.is_dir():
-            raise MissingFileError(f"black photo directory {bdir}: no such directory")
-        blacks = [bdir / f for f in table["file"]]
-        gone = [(row, f) for row, f, p in zip(rows, table["file"], blacks) if not p.is_file()]
-        if gone:
-            shown = "; ".join(f"{f!r} ({row})" for row, f in gone[:10])
-            raise MissingFileError(f"black photos: {len(gone)} photo(s) of {name} have no "
-                                   f"black photo of the same name in {bdir}: {shown}")
+    blacks = None if black_photos is None else _black_photos(black_photos, table, rows, name)
     dark = None
     if black_frame is not None:
         dark = Path(black_frame)
@@ -212,20 +237,7 @@ def load_acquisition(photo_dir, manifest, *, roi=None, mask=None, black_photos=N
             raise MissingFileError(f"black frame {dark}: no such file")
     canon = canonical_angles(table.assign(value=0.0))
     angles = tuple(canon[c].to_numpy(dtype=float) for c in CANONICAL)
-    shape: tuple[int, int] | None = None
-    first = None
-    for p, row in zip(list(paths) + list(blacks or []) + ([dark] if dark else []),
-                      list(rows) + [f"black photo of {r}" for r in (rows if blacks else [])]
-                      + (["the black frame"] if dark else [])):
-        size = probe_size(p)
-        if shape is None:
-            shape, first = size, p
-        elif size != shape and shape is not None:
-            raise InputError(f"{p} ({row}): {size[1]} x {size[0]} pixels, but {first} is "
-                             f"{shape[1]} x {shape[0]}; every photo of a map must have the "
-                             f"same size")
-    if shape is None:
-        raise InputError(f"{name}: no photo")
+    shape = _common_size(paths, rows, blacks, dark, name)
     if roi is None:
         roi = ROI(0, 0, shape[1], shape[0])
     else:
@@ -243,7 +255,7 @@ def load_acquisition(photo_dir, manifest, *, roi=None, mask=None, black_photos=N
                        rows, name)
 
 
-def stage(store, acq: Acquisition, progress=None):
+def stage(store, acq: Acquisition, progress=None) -> None:
     """Photos (minus dark frame or black photos) into ``stack/values``, one at a time."""
     zarr = require("zarr", "a maps store")
 

@@ -15,6 +15,26 @@
 5. When every tile is there the store is marked complete (``.veil/complete``), its summary
    written, and the staged stack removed. A store without the marker is partial: readers
    refuse it, a rerun resumes it.
+
+More arguments of :func:`fit_maps`:
+
+- ``grid``: {name: (lo, hi, count)} or ``NAME=LO:HI[:COUNT]`` strings: a nonlinear
+  parameter's tabulated range (default: the range of the model's starting grids).
+- ``roi``, ``mask``: the region (``X,Y,W,H``) and an image of the photos' size whose nonzero
+  pixels are fitted. ``black_photos``: a folder with a black-cloth photo of each manifest
+  row (same name), subtracted pixel by pixel; ``black_frame``: one frame subtracted from
+  every photo (a dark frame). ``channel``, ``saturation``: as ``veil ingest``.
+- ``noise``: None (unweighted fit, standard errors from the residuals) or (relative,
+  absolute): sigma = sqrt((relative * value)^2 + absolute^2) per sample.
+- ``tile``: tile size in pixels (memory is bounded by it). ``scheduler``: a
+  dask.distributed address (default ``$VEIL_DASK_SCHEDULER``; none: local threads,
+  ``workers``).
+- ``geometry``: (camera distance, pixel pitch on the plate), same units: report the angular
+  spread across the field and warn when it exceeds a fifth of the narrowest lobe.
+- ``near_field``: with ``geometry``, per-pixel angles (a pinhole camera at that distance
+  from the plate centre, collimated light; docs/maps-geometry.md "Geometry") instead of the
+  manifest's angles at every pixel.
+- ``progress(stage, done, total)``, ``log(message)``: reports.
 """
 
 from __future__ import annotations
@@ -30,7 +50,7 @@ import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -47,7 +67,13 @@ from ..io import (
     write_error,
     write_text_atomic,
 )
-from .near import NearGeometry
+from .geometry_notes import (
+    MapsWarning,
+    geometry_notes,
+    geometry_notes_of,
+    geometry_record,
+    near_geometry,
+)
 from .photos import Acquisition, load_acquisition, stage
 from .solve import solve_pixels, warm_up
 from .status import STATUS
@@ -67,7 +93,10 @@ from .store import (
     tile_marker,
 )
 from .store import tiles as tile_indices
-from .tables import MapTables, build_tables, smoothest_facet
+from .tables import MapTables, build_tables
+
+if TYPE_CHECKING:
+    from distributed import Client
 
 DEFAULT_TILE = 128
 SCHEDULER_ENV = "VEIL_DASK_SCHEDULER"
@@ -107,7 +136,7 @@ def _solve_tile(block, tables: MapTables, store, iy, ix, tile, noise):
 # --------------------------------------------------------------------------------------
 # scheduling
 # --------------------------------------------------------------------------------------
-def connect(address, timeout: float = CONNECT_TIMEOUT):
+def connect(address, timeout: float = CONNECT_TIMEOUT) -> Client:
     """A dask.distributed client for ``address``; an InputError within ``timeout`` seconds
     when no scheduler answers there."""
     Client = require("distributed", "a Dask cluster").Client
@@ -171,86 +200,6 @@ class MapsRun:
     notes: list = field(default_factory=list)
 
 
-class MapsWarning(UserWarning):
-    """Something about a map the user should know that does not stop it."""
-
-
-def geometry_notes(tables: MapTables, brdf_cls, medium_model, shape, geometry) -> list:
-    """The angular spread across the field implied by a camera at ``distance`` with
-    ``pitch`` (plate size of a pixel, same units) against the narrowest lobe (the medium's
-    phase lobe, the BRDF's facet lobe at the ends of the table); warns when the spread
-    exceeds a fifth of it: distant light and camera are then a poor approximation."""
-    distance, pitch = (float(g) for g in geometry)
-    if not (distance > 0 and pitch > 0 and math.isfinite(distance) and math.isfinite(pitch)):
-        raise InputError(f"camera distance {distance:g} and pixel pitch {pitch:g} must be "
-                         f"positive numbers")
-    h, w = shape
-    spread = field_spread(shape, distance, pitch)
-    widths = {"the medium's phase lobe": medium_model.lobe_half_width()}
-    facet = smoothest_facet(brdf_cls, tables.names, tables.base, tables.axes, tables.options)
-    if math.isfinite(facet):
-        widths["the BRDF's facet lobe (smoothest end of the table)"] = facet
-    which, narrow = min(widths.items(), key=lambda kv: kv[1])
-    notes = [f"geometry: the field ({w} x {h} pixels of {pitch:g} at distance {distance:g}) "
-             f"spans {spread:.3g} deg of view direction; narrowest lobe: {which}, "
-             f"{narrow:.3g} deg half width"]
-    if math.isfinite(narrow) and spread > narrow / 5:
-        message = (f"the view direction changes by {spread:.3g} deg across the field, more "
-                   f"than a fifth of {which} ({narrow:.3g} deg): the distant-camera "
-                   f"approximation (every pixel at the manifest's angles) is poor; map a "
-                   f"smaller ROI or move the camera further away")
-        message += " (or map with per-pixel angles: --near-field)"
-        warnings.warn(message, MapsWarning, stacklevel=3)
-        notes.append("warning: " + message)
-    return notes
-
-
-def _number(value) -> float:
-    try:
-        return float(value)
-    except (TypeError, ValueError):
-        raise InputError(f"camera distance / pixel pitch {value!r}: expected a positive "
-                         f"finite number") from None
-
-
-def field_spread(shape, distance, pitch) -> float:
-    """Spread of view directions across a field of ``shape`` (h, w) pixels (deg):
-    2 atan(diagonal / 2 D)."""
-    h, w = shape
-    return 2 * math.degrees(math.atan(0.5 * math.hypot(h, w) * pitch / distance))
-
-
-def near_notes(tables: MapTables, shape) -> list:
-    """What the near-field tables did: the spread, the field grid, the interpolation error
-    measured against exact per-pixel columns; the distant-camera warning does not apply."""
-    grid = tables.near
-    if grid is None:
-        return []
-    g = grid.geometry
-    h, w = shape
-    spread = field_spread(shape, g.distance, g.pitch)
-    return [f"geometry: near field - every pixel at its own angles (camera at {g.distance:g} "
-            f"from the plate centre, pixel pitch {g.pitch:g}, optical centre "
-            f"({g.centre[0]:g}, {g.centre[1]:g}) px); the field ({w} x {h} pixels) spans "
-            f"{spread:.3g} deg of view direction; {grid.describe()}; interpolation error "
-            f"against exact per-pixel columns {tables.field_error:.2g} of a column's maximum; "
-            f"the distant-camera warning does not apply"]
-
-
-def geometry_record(tables: MapTables, geometry) -> dict:
-    """The geometry of a map for its attributes and summary.json."""
-    if tables.near is not None:
-        g = tables.near.geometry
-        return {"kind": "near-field", **tables.near.as_dict(),
-                "spread_deg": field_spread((tables.near.roi[3], tables.near.roi[2]),
-                                            g.distance, g.pitch),
-                "interpolation_error": tables.field_error}
-    out: dict[str, str | float] = {"kind": "distant"}
-    if geometry is not None:
-        out.update(camera_distance=float(geometry[0]), pixel_pitch=float(geometry[1]))
-    return out
-
-
 def fit_maps(photo_dir, manifest, medium, output, *, brdf_model=None, options=None,
              fixed=None, free=None, grid=None, roi=None, mask=None, black_photos=None,
              black_frame=None, channel="gray", saturation=None, noise=None,
@@ -263,22 +212,8 @@ def fit_maps(photo_dir, manifest, medium, output, *, brdf_model=None, options=No
 
     brdf_model, options, fixed, free : the BRDF family and its options, parameters held
         at values, held parameters to fit (as :func:`veil.fit_target`).
-    grid : {name: (lo, hi, count)} or ``NAME=LO:HI[:COUNT]`` strings: a nonlinear
-        parameter's tabulated range (default: the range of the model's starting grids).
-    roi, mask : the region (``X,Y,W,H``) and an image of the photos' size whose nonzero
-        pixels are fitted. black_photos : a folder with a black-cloth photo of each
-        manifest row (same name), subtracted pixel by pixel; black_frame : one frame
-        subtracted from every photo (a dark frame). channel, saturation : as ``veil ingest``.
-    noise : None (unweighted fit, standard errors from the residuals) or (relative,
-        absolute): sigma = sqrt((relative * value)^2 + absolute^2) per sample.
-    tile : tile size in pixels (memory is bounded by it). scheduler : a dask.distributed
-        address (default ``$VEIL_DASK_SCHEDULER``; none: local threads, ``workers``).
-    geometry : (camera distance, pixel pitch on the plate), same units: report the angular
-        spread across the field and warn when it exceeds a fifth of the narrowest lobe.
-    near_field : with ``geometry``, per-pixel angles (a pinhole camera at that distance
-        from the plate centre, collimated light; docs/maps-geometry.md "Geometry") instead of the
-        manifest's angles at every pixel.
-    progress(stage, done, total), log(message) : reports.
+    The other arguments (the grid, the region and mask, black photos or frame, noise,
+    tiles and scheduler, geometry and near field, reports): the module docstring.
     """
     from ..fitting.given import as_given
     from ..fitting.problem import check_accuracy
@@ -287,9 +222,7 @@ def fit_maps(photo_dir, manifest, medium, output, *, brdf_model=None, options=No
 
     check_accuracy(accuracy)
     say = log or (lambda message: None)
-    tile = int(tile)
-    if not 8 <= tile <= 4096:
-        raise InputError(f"tile size {tile}: expected 8 to 4096 pixels")
+    tile = _tile(tile)
     noise = _noise(noise)
     medium_model = as_given(medium, "medium", "the medium")
     cls = default_class("brdf") if brdf_model is None else model_class(brdf_model, "brdf")
@@ -297,24 +230,18 @@ def fit_maps(photo_dir, manifest, medium, output, *, brdf_model=None, options=No
     output = Path(output)
     acq = load_acquisition(photo_dir, manifest, roi=roi, mask=mask, black_photos=black_photos,
                            black_frame=black_frame, channel=channel, saturation=saturation)
-    near = _near_geometry(geometry, near_field, acq)
+    near = near_geometry(geometry, near_field, acq)
     address = scheduler or os.environ.get(SCHEDULER_ENV) or None
     client = connect(address) if address else None
     try:
-        if not output.parent.exists():
-            raise InputError(f"cannot write {output}: directory {output.parent} does not "
-                             f"exist")
+        _check_output(output)
         with store_lock(output, say):
             existing = _existing_store(output)
             seconds: dict = {}
-            t0 = time.perf_counter()
-            tables = build_tables(cls, medium_model, acq.angles, fixed=fixed, options=options,
-                                  free=free, grid=grid_spec, accuracy=accuracy,
-                                  progress=(lambda d, t: progress("tables", d, t))
-                                  if progress else None, near=near, roi=acq.roi)
-            seconds["tables"] = time.perf_counter() - t0
-            say(f"tables: {tables.describe()} in {seconds['tables']:.1f} s")
-            notes = _geometry_notes(tables, cls, medium_model, acq, geometry)
+            build = dict(fixed=fixed, options=options, free=free, grid=grid_spec)
+            tables = _tables(cls, medium_model, acq, build, accuracy, near, progress, say,
+                             seconds)
+            notes = geometry_notes_of(tables, cls, medium_model, acq, geometry)
             info = _store_attributes(acq, tables, cls, noise, tile, accuracy, channel,
                                      geometry)
             _check_resumable(output, existing, info)
@@ -324,6 +251,31 @@ def fit_maps(photo_dir, manifest, medium, output, *, brdf_model=None, options=No
     finally:
         if client is not None:
             client.close()
+
+
+def _tile(tile) -> int:
+    tile = int(tile)
+    if not 8 <= tile <= 4096:
+        raise InputError(f"tile size {tile}: expected 8 to 4096 pixels")
+    return tile
+
+
+def _check_output(output: Path) -> None:
+    if not output.parent.exists():
+        raise InputError(f"cannot write {output}: directory {output.parent} does not exist")
+
+
+def _tables(cls, medium_model, acq: Acquisition, settings: dict, accuracy: str, near,
+            progress, say, seconds: dict) -> MapTables:
+    """The tables of the photos' configurations (:func:`build_tables` with ``settings``),
+    their time in ``seconds["tables"]``."""
+    t0 = time.perf_counter()
+    tables = build_tables(cls, medium_model, acq.angles, roi=acq.roi, accuracy=accuracy,
+                          near=near, progress=(lambda d, t: progress("tables", d, t))
+                          if progress else None, **settings)
+    seconds["tables"] = time.perf_counter() - t0
+    say(f"tables: {tables.describe()} in {seconds['tables']:.1f} s")
+    return tables
 
 
 def _existing_store(output: Path) -> dict | None:
@@ -356,31 +308,6 @@ def _noise(noise) -> tuple[float, float] | None:
     if not (math.isfinite(rel) and math.isfinite(ab) and rel >= 0 and ab >= 0 and rel + ab > 0):
         raise InputError(f"noise {noise!r}: expected RELATIVE[,ABSOLUTE] >= 0, not both 0")
     return float(rel), float(ab)
-
-
-def _near_geometry(geometry, near_field: bool, acq: Acquisition) -> NearGeometry | None:
-    """The near-field geometry of the photos (checked before anything is computed; the
-    camera distance and pixel pitch are checked even when only the notes use them)."""
-    if near_field and geometry is None:
-        raise InputError("near-field geometry needs the camera distance and the pixel "
-                         "pitch (--camera-distance D --pixel-pitch P)")
-    if geometry is None:
-        return None
-    distance, pitch = (_number(g) for g in geometry)
-    near = NearGeometry(distance, pitch, tuple(acq.shape))
-    if not near_field:
-        return None
-    near.check_field(acq.angles, acq.roi)
-    return near
-
-
-def _geometry_notes(tables: MapTables, cls, medium_model, acq: Acquisition, geometry) -> list:
-    """The notes of the map's geometry: near field, or the distant camera's spread."""
-    shape = (acq.roi.h, acq.roi.w)
-    if tables.near is not None:
-        return near_notes(tables, shape)
-    return ([] if geometry is None
-            else geometry_notes(tables, cls, medium_model, shape, geometry))
 
 
 def _store_attributes(acq, tables, cls, noise, tile, accuracy, channel, geometry) -> dict:

@@ -22,8 +22,9 @@ import math
 import os
 import socket
 import time
+from collections.abc import Iterator
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -33,6 +34,8 @@ from ..io import forget_temporary, register_temporary, write_error
 from .status import CONVERGED, MASKED, STATUS
 
 if TYPE_CHECKING:
+    import zarr
+
     from .tables import MapTables
 
 FORMAT = "veil.maps/1"
@@ -70,7 +73,7 @@ def tiles(shape, tile: int) -> list:
     return [(iy, ix) for iy in range(math.ceil(h / tile)) for ix in range(math.ceil(w / tile))]
 
 
-def store_info(store):
+def store_info(store) -> dict | None:
     """The store's veil attributes, or None when ``store`` is not a veil maps store."""
     zarr = require("zarr", "a maps store")
     try:
@@ -81,7 +84,8 @@ def store_info(store):
     return info if isinstance(info, dict) and info.get("format") == FORMAT else None
 
 
-def create_store(store, info: dict, tables: MapTables, shape, tile: int, n_photos: int):
+def create_store(store, info: dict, tables: MapTables, shape, tile: int,
+                 n_photos: int) -> zarr.Group:
     """A new store: the maps at their fill values, the stack to stage, the marker folder."""
     zarr = require("zarr", "a maps store")
 
@@ -126,7 +130,7 @@ def _describe(holder: dict | None) -> str:
 
 
 @contextlib.contextmanager
-def store_lock(store, say=None):
+def store_lock(store, say=None) -> Iterator[None]:
     """Hold the store's lock for the block (module docstring). A store another process holds
     is a :class:`StoreBusyError` naming that process; a lock whose holder died is taken over
     and ``say(message)`` told so."""
@@ -286,7 +290,7 @@ def open_maps(store) -> dict:
                          f"running); rerun 'veil fit maps' with the same inputs to finish it")
     check_store(store, info, complete=True)
     group = zarr.open_group(os.fspath(store), mode="r")
-    out = {name: _read(group, name, store) for name in MAPS}
+    out: dict[str, Any] = {name: _read(group, name, store) for name in MAPS}
     out["info"] = info
     return out
 

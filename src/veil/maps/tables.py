@@ -114,6 +114,48 @@ class MapTables:
         return np.asarray(b)
 
 
+def _template(brdf_cls, fixed: dict, freed: set, options) -> tuple:
+    """(the family's model at its starting values with ``options``, its vector with the
+    ``fixed`` values), every name and value checked."""
+    from ..fitting.solver import check_fixed
+
+    names = brdf_cls.param_names()
+    for n in list(fixed) + list(freed):
+        if n not in names:
+            raise FitError(f"{brdf_cls.NAME} has no parameter {n!r}; its parameters are "
+                           f"{', '.join(names)}")
+    for n, v in fixed.items():
+        check_fixed(n, v, brdf_cls.param(n), brdf_cls.__name__)
+    try:
+        template = brdf_cls.template(**dict(options or {}))
+    except (ValueError, TypeError) as exc:
+        raise FitError(str(exc)) from None
+    base = template.to_vector()
+    for n, v in fixed.items():
+        base[names.index(n)] = float(v)
+    return template, base
+
+
+def _unknowns(brdf_cls, fixed: dict, freed: set, base) -> tuple:
+    """(the free scales, the free nonlinear parameters (indices), the parts of the free
+    scales, each part's known weight: 0 for a free scale, else its value)."""
+    free_set = [i for i, p in enumerate(brdf_cls.PARAMS)
+                if p.name not in fixed and (not p.held or p.name in freed)]
+    scale_of = {brdf_cls.scale_index(part): part for part in BRDF_PARTS
+                if brdf_cls.scale_index(part) is not None}
+    free_scales = tuple(i for i in free_set if i in scale_of)
+    nonlinear = [i for i in free_set if i not in scale_of]
+    if not free_set:
+        raise FitError("every parameter of the target is fixed: nothing to fit")
+    free_parts = [BRDF_PARTS.index(scale_of[i]) for i in free_scales]
+    known_weight = np.ones(len(BRDF_PARTS))
+    for k, part in enumerate(BRDF_PARTS):
+        i = brdf_cls.scale_index(part)
+        if i is not None:
+            known_weight[k] = 0.0 if i in free_scales else base[i]
+    return free_scales, nonlinear, free_parts, known_weight
+
+
 def build_tables(brdf_cls, medium, angles, *, fixed=None, options=None, free=None,
                  grid=None, accuracy: str = "default", progress=None, near=None,
                  roi=None) -> MapTables:
@@ -126,39 +168,13 @@ def build_tables(brdf_cls, medium, angles, *, fixed=None, options=None, free=Non
     (:func:`veil.maps.near.field_grid`, docs/maps-geometry.md "Geometry")."""
     from ..engine.evaluator import ApparentModel
     from ..engine.quadrature import RULES
-    from ..fitting.solver import check_fixed
 
     fixed = dict(fixed or {})
     freed = set(free or ())
-    names = cls_names = brdf_cls.param_names()
-    for n in list(fixed) + list(freed):
-        if n not in cls_names:
-            raise FitError(f"{brdf_cls.NAME} has no parameter {n!r}; its parameters are "
-                           f"{', '.join(cls_names)}")
-    for n, v in fixed.items():
-        check_fixed(n, v, brdf_cls.param(n), brdf_cls.__name__)
-    try:
-        template = brdf_cls.template(**dict(options or {}))
-    except (ValueError, TypeError) as exc:
-        raise FitError(str(exc)) from None
-    base = template.to_vector()
-    for n, v in fixed.items():
-        base[names.index(n)] = float(v)
-    free_set = [i for i, p in enumerate(brdf_cls.PARAMS)
-                if p.name not in fixed and (not p.held or p.name in freed)]
-    scale_of = {brdf_cls.scale_index(part): part for part in BRDF_PARTS
-                if brdf_cls.scale_index(part) is not None}
-    free_scales = tuple(i for i in free_set if i in scale_of)
-    nonlinear = [i for i in free_set if i not in scale_of]
-    if not free_set:
-        raise FitError("every parameter of the target is fixed: nothing to fit")
+    names = brdf_cls.param_names()
+    template, base = _template(brdf_cls, fixed, freed, options)
+    free_scales, nonlinear, free_parts, known_weight = _unknowns(brdf_cls, fixed, freed, base)
     axes = make_axes(brdf_cls, nonlinear, parse_grid([], brdf_cls) | dict(grid or {}))
-    free_parts = [BRDF_PARTS.index(scale_of[i]) for i in free_scales]
-    known_weight = np.ones(len(BRDF_PARTS))
-    for k, part in enumerate(BRDF_PARTS):
-        i = brdf_cls.scale_index(part)
-        if i is not None:
-            known_weight[k] = 0.0 if i in free_scales else base[i]
     angles = tuple(np.ascontiguousarray(a, dtype=float) for a in angles)
     if near is not None:
         return _build_near(brdf_cls, medium, angles, template, names, base, free_scales,
@@ -233,6 +249,32 @@ def _to_coef(values, axes_first: int, count: int):
 FIELD_CHECKS = ((0.5, 0.5), (-0.5, -0.5))
 
 
+def _check_pixels(fgrid, near, angles) -> list:
+    """The pixels where the field interpolation is checked (:data:`FIELD_CHECKS`: cell
+    centres of two opposite corner cells): [((gx, gy), their angles)]."""
+    kx, ky = fgrid.shape
+    checks = []
+    for fx, fy in FIELD_CHECKS:
+        gx = fx if fx >= 0 else kx - 1 + fx
+        gy = fy if fy >= 0 else ky - 1 + fy
+        x = fgrid.xs[0] + gx * (fgrid.xs[-1] - fgrid.xs[0]) / (kx - 1)
+        y = fgrid.ys[0] + gy * (fgrid.ys[-1] - fgrid.ys[0]) / (ky - 1)
+        checks.append(((gx, gy), near.angles(angles, x, y)))
+    return checks
+
+
+def _field_error(field_values, exact, checks) -> float:
+    """The largest error of the field interpolation at the check pixels, relative to each
+    column's maximum."""
+    error = 0.0
+    for k, ((gx, gy), _) in enumerate(checks):
+        approx = field_block(field_values, (gx, gy))
+        scale = np.max(np.abs(exact[k]), axis=-2, keepdims=True)
+        scale = np.where(scale > 0, scale, 1.0)
+        error = max(error, float(np.max(np.abs(approx - exact[k]) / scale)))
+    return error
+
+
 def _build_near(brdf_cls, medium, angles, template, names, base, free_scales, axes,
                 free_parts, known_weight, fixed, accuracy, progress, near, roi):
     """Near-field tables: the columns at every node of a grid of plate points and of the
@@ -250,14 +292,7 @@ def _build_near(brdf_cls, medium, angles, template, names, base, free_scales, ax
     kx, ky = fgrid.shape
     m = len(angles[0])
     node_angles = tuple(np.ascontiguousarray(a.reshape(-1)) for a in fgrid.node_angles(angles))
-    # the check pixels: cell centres of two opposite corner cells
-    checks = []
-    for fx, fy in FIELD_CHECKS:
-        gx = fx if fx >= 0 else kx - 1 + fx
-        gy = fy if fy >= 0 else ky - 1 + fy
-        x = fgrid.xs[0] + gx * (fgrid.xs[-1] - fgrid.xs[0]) / (kx - 1)
-        y = fgrid.ys[0] + gy * (fgrid.ys[-1] - fgrid.ys[0]) / (ky - 1)
-        checks.append(((gx, gy), near.angles(angles, x, y)))
+    checks = _check_pixels(fgrid, near, angles)
     all_angles = tuple(np.concatenate([node_angles[j]] + [c[1][j] for c in checks])
                        for j in range(4))
     engine = ApparentModel(template, medium, all_angles, RULES[accuracy])
@@ -277,12 +312,7 @@ def _build_near(brdf_cls, medium, angles, template, names, base, free_scales, ax
             progress(done + 1, total)
     field_values = np.ascontiguousarray(_to_coef(values, 0, 2))
     coef = np.ascontiguousarray(_to_coef(field_values, 2, len(axes)))
-    error = 0.0
-    for k, ((gx, gy), _) in enumerate(checks):
-        approx = field_block(field_values, (gx, gy))
-        scale = np.max(np.abs(exact[k]), axis=-2, keepdims=True)
-        scale = np.where(scale > 0, scale, 1.0)
-        error = max(error, float(np.max(np.abs(approx - exact[k]) / scale)))
+    error = _field_error(field_values, exact, checks)
     medium_entry = {"model": type(medium).NAME, "params": medium.as_dict(),
                     "options": medium.options()}
     return MapTables(brdf_cls.NAME, dict(template.options()), names, base, free_scales, axes,

@@ -28,14 +28,9 @@ from typing import TYPE_CHECKING
 
 from .._lazy import jnp
 from .base import BRDF, Option, Param
+from .microfacet import DISTRIBUTIONS, _safe_sqrt, microfacet_lobe
 from .renderers import Plugin, Unsupported, Value, float_value
-from .rough_plastic import (
-    DISTRIBUTIONS,
-    MicrofacetFacets,
-    _safe_sqrt,
-    microfacet_lobe,
-    relative_scales,
-)
+from .rough_plastic import MicrofacetFacets, relative_scales
 
 if TYPE_CHECKING:  # the type only: models import JAX on first use (veil._lazy)
     from jax import Array

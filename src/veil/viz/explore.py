@@ -11,7 +11,8 @@ numpy in, numpy out, so that the tests can check the numbers without a browser.
   ``log_scale`` parameters, bounds from the declaration).
 - :class:`Curves`: the in-plane curves with and without the medium at fixed configurations,
   compiled once (``Forward``), re-evaluated at each new parameter vector.
-- :func:`transmission_lobe`, :func:`polar_lobe`, :func:`sphere`: the other views.
+- :func:`transmission_lobe`, :func:`polar_lobe`: the lobes; the lit sphere:
+  :mod:`veil.viz.explore_sphere`.
 - :class:`FitView`: a fit result and its data: points with error bars, the fitted model, an
   uncertainty band drawn from the fit's covariance, residuals, the parameters with stderr.
 """
@@ -22,20 +23,22 @@ import json
 import math
 import os
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..errors import InputError
 from ..models import PRESETS, Model, default_class, model_class
 from ..models import names as family_names
+from .explore_sphere import LIVE_ACCURACY, REFINED_ACCURACY, sphere, sphere_colour
+
+if TYPE_CHECKING:
+    from concurrent.futures import Future
 
 #: Value of the "format" key of a state file.
 FORMAT = "veil.explore/1"
 #: The two axes a curve can run along (docs/model.md sec. 1).
 CURVES = ("incidence", "goniometer")
-#: Quadrature of the live views (the sphere is refined at "default" when the sliders rest).
-LIVE_ACCURACY = "fast"
-REFINED_ACCURACY = "default"
 #: Largest polar angle (deg) of a curve's configurations.
 MAX_ANGLE = 89.0
 #: Decades a log slider spans on each side of its value when a bound is open-ended.
@@ -362,7 +365,7 @@ class Curves:
                                                            RULES[accuracy])
 
     @staticmethod
-    def key_of(brdf, medium, curve, theta_i, psi, accuracy=LIVE_ACCURACY):
+    def key_of(brdf, medium, curve, theta_i, psi, accuracy=LIVE_ACCURACY) -> tuple:
         return (type(brdf), tuple(sorted(brdf.options().items())),
                 None if medium is None else type(medium),
                 None if medium is None else tuple(sorted(medium.options().items())),
@@ -450,7 +453,7 @@ def _transmission_fn(cls, options: tuple):
     return _TRANSMISSION_FNS[key]
 
 
-def warm_up(state: State, workers: int = 3):
+def warm_up(state: State, workers: int = 3) -> tuple[list[Future], Future]:
     """Compile in the background what a page of ``state`` needs: the curves, the
     transmission lobe and the sphere at the live accuracy in parallel, then the refined
     sphere. Returns (futures of the live parts, future of the refined sphere)."""
@@ -478,51 +481,6 @@ def warm_up(state: State, workers: int = 3):
     return live, later
 
 
-#: Largest render table of the live sphere (engine configurations): sharp lobes get a
-#: coarser table while the sliders move, the refined render has the full one.
-LIVE_TABLE_NODES = 1024
-#: Table densities tried, in order, for the live sphere.
-LIVE_DENSITIES = (1.0, 0.85, 0.7, 0.55)
-
-
-def table_density(brdf, medium, light_theta: float, accuracy: str) -> float:
-    """The render table's density: 1 (render's own) for the refined sphere and whenever the
-    table has at most :data:`LIVE_TABLE_NODES` nodes; for a live sphere of a sharper lobe
-    the first of :data:`LIVE_DENSITIES` that keeps it under that."""
-    from .render import W_NODES, auto_density, peak_width, u_nodes
-
-    if accuracy != LIVE_ACCURACY or medium is None:
-        return 1.0
-    width = peak_width(brdf, medium)
-    for density in LIVE_DENSITIES:
-        d = density * auto_density(float(light_theta))
-        nodes = len(u_nodes(width, d)) * max(5, int(round((W_NODES - 1) * d)) + 1)
-        if nodes <= LIVE_TABLE_NODES:
-            return density
-    return LIVE_DENSITIES[-1]
-
-
-def sphere(brdf, medium, light_theta: float, size: int = 96, accuracy: str = LIVE_ACCURACY):
-    """(RGBA uint32 image (size, size) for a plot, linear image): the lit sphere of
-    :func:`veil.viz.render.render` (the render table at ``accuracy``, coarser for sharp
-    lobes at the live accuracy: :func:`table_density`), tone-mapped by its automatic
-    exposure; rows from the bottom, as plots want them."""
-    from .render import auto_exposure, render, tone_map
-
-    theta = min(float(light_theta), 89.0)
-    rendering = render(brdf, medium, light_theta=theta, size=size, accuracy=accuracy,
-                       check=0, density=table_density(brdf, medium, theta, accuracy))
-    linear = rendering.image
-    grey = tone_map(linear, auto_exposure(linear))          # uint8 (size, size)
-    return _rgba(np.repeat(grey[..., None], 3, axis=-1)), linear
-
-
-def _rgba(rgb) -> np.ndarray:
-    """(size, size) uint32 RGBA of a uint8 (size, size, 3) image, rows from the bottom."""
-    rgba = np.concatenate([rgb, np.full(rgb.shape[:2] + (1,), 255, dtype=np.uint8)], axis=-1)
-    return rgba[::-1].copy().view(dtype=np.uint32).reshape(rgb.shape[:2])
-
-
 #: The colour each channel's curves are drawn in: r, g, b, and a wavelength's hue.
 CHANNEL_COLOURS = {"r": "#d62728", "g": "#2ca02c", "b": "#1f77b4"}
 
@@ -543,21 +501,6 @@ def channel_colour(channel: str) -> str:
     hue = 0.75 * (1.0 - (min(max(nm, 400.0), 700.0) - 400.0) / 300.0)
     r, g, b = colorsys.hsv_to_rgb(hue, 0.85, 0.85)
     return f"#{int(255 * r):02x}{int(255 * g):02x}{int(255 * b):02x}"
-
-
-def sphere_colour(channels: dict, light_theta: float, size: int = 96,
-                  accuracy: str = LIVE_ACCURACY):
-    """(RGBA uint32 image, linear (size, size, 3) image): :func:`sphere` of the channels r,
-    g, b ({channel: (brdf, medium)}) as one colour image (:mod:`veil.viz.render_colour`),
-    tone-mapped by its automatic exposure (the median lit luminance)."""
-    from .render import render, tone_map
-    from .render_colour import auto_exposure_colour
-
-    theta = min(float(light_theta), 89.0)
-    linear = np.stack([render(b, m, light_theta=theta, size=size, accuracy=accuracy, check=0,
-                              density=table_density(b, m, theta, accuracy)).image
-                       for b, m in (channels[c] for c in ("r", "g", "b"))], axis=-1)
-    return _rgba(tone_map(linear, auto_exposure_colour(linear))), linear
 
 
 __all__ = ["FORMAT", "CURVES", "State", "channel_colour", "sphere_colour", "CHANNEL_COLOURS",

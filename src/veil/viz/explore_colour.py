@@ -72,7 +72,7 @@ class ChannelLines:
         return values
 
 
-def channel_selector(page):
+def channel_selector(page) -> pn.widgets.RadioButtonGroup:
     """The widget choosing the channel that ``page``'s controls edit."""
     widget = pn.widgets.RadioButtonGroup(
         label="channel", options=list(page.state.channels), value=page.state.channel
@@ -88,7 +88,7 @@ def channel_selector(page):
     return widget
 
 
-def sphere_of(state, size: int, accuracy: str):
+def sphere_of(state, size: int, accuracy: str) -> tuple[np.ndarray, np.ndarray]:
     """(RGBA image, linear image) of the page's sphere: in colour for the channels r, g, b,
     else of the edited channel."""
     if state.channels is not None and sorted(state.channels) == sorted(RGB):

@@ -4,10 +4,15 @@ uncertainty band, and the residuals."""
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from ..errors import InputError
 from .explore import LIVE_ACCURACY, State
+
+if TYPE_CHECKING:
+    from ..fitting.result import FitResult
 
 #: Parameter draws of the uncertainty band, and the band's quantiles (a 95 % band).
 BAND_DRAWS = 24
@@ -17,7 +22,7 @@ BAND_QUANTILES = (2.5, 97.5)
 RESIDUAL_TOLERANCE = 0.02
 
 
-def check_result_kind(result, source: str):
+def check_result_kind(result, source: str) -> FitResult:
     """The result if ``veil explore`` can show it: a step fit (reference, medium or target);
     an InputError saying what the file is otherwise."""
     from ..fitting.result import JointResult

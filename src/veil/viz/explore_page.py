@@ -3,8 +3,8 @@ numbers of :mod:`veil.viz.explore`. No JavaScript of veil's own: Panel syncs the
 and the plots' data sources with the Python process (server) or embeds precomputed states
 (``--static``).
 
-Every plotted data source has a name ``veil-...`` (see :data:`SOURCES`) so that tests can
-read the plotted numbers back from the browser (``Bokeh.documents[0].get_model_by_name``).
+The plots and their named data sources (:data:`SOURCES`, read back by the tests):
+:mod:`veil.viz.explore_plots`.
 """
 
 from __future__ import annotations
@@ -13,36 +13,18 @@ import os
 import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
+from contextlib import AbstractContextManager
 
 import numpy as np
 import panel as pn
-from bokeh.models import ColumnDataSource, DataRange1d, LinearAxis
-from bokeh.models.annotations import Whisker
-from bokeh.plotting import figure
 
 from ..errors import InputError
 from . import explore as ex
-from . import explore_fits as fits
-from .explore_colour import ChannelLines, channel_selector, sphere_of
+from .explore_colour import channel_selector, sphere_of
+from .explore_plots import SOURCES, FitPlots, Views
 
-#: Names of the plotted data sources (the page's readable contract with its tests).
-SOURCES = {
-    "medium": "veil-curve-medium",      # x, y: apparent reflectance along the curve
-    "clear": "veil-curve-clear",        # x, y: f_r along the curve
-    "polar": "veil-polar",              # x, y (and the clear lobe x0, y0)
-    "transmission": "veil-transmission",  # x, y: f_t lobe
-    "sphere": "veil-sphere",            # image, accuracy
-    "state": "veil-state",              # key, value: the page's state, flattened
-    "data": "veil-fit-data",
-    "fit": "veil-fit-model",
-    "residuals": "veil-fit-residuals",
-}
-#: The sources of the main views (the fit panels have their own).
-VIEW_SOURCES = ("medium", "clear", "polar", "transmission", "sphere", "state")
 NONE = "none (clear)"
 CUSTOM = "(custom)"
-COLORS = ("#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#ff7f0e", "#8c564b", "#e377c2",
-          "#17becf")
 #: Sphere image size (pixels) of the page.
 SPHERE_SIZE = 96
 #: Seconds the sliders must rest before the sphere is rendered again, and then before it
@@ -50,211 +32,6 @@ SPHERE_SIZE = 96
 #: pause, and a move during the wait cancels it).
 SPHERE_DELAY = 0.25
 REFINE_DELAY = 1.5
-
-
-def _state_columns(state: ex.State) -> dict:
-    keys, values = [], []
-    for kind in ("brdf", "medium"):
-        model = getattr(state, kind)
-        keys.append(f"{kind}.model")
-        values.append("" if model is None else model.NAME)
-        if model is None:
-            continue
-        for k, v in model.as_dict().items():
-            keys.append(f"{kind}.{k}")
-            values.append(repr(float(v)))
-        for k, v in model.options().items():
-            keys.append(f"{kind}.option.{k}")
-            values.append(str(v))
-    for k in ("theta_i", "psi", "curve"):
-        keys.append(k)
-        values.append(str(getattr(state, k)))
-    return {"key": keys, "value": values}
-
-
-class Views:
-    """The plots and their named data sources; :meth:`draw` puts a state's numbers in."""
-
-    def __init__(self, fit_views=(), channels=None):
-        tools = "pan,wheel_zoom,box_zoom,reset,save,hover"
-        self.src = {k: ColumnDataSource(name=SOURCES[k]) for k in VIEW_SOURCES}
-        self.src["medium"].data = {"x": [], "y": [], "ylog": []}
-        self.src["clear"].data = {"x": [], "y": [], "ylog": []}
-        self.src["polar"].data = {"x": [], "y": [], "x0": [], "y0": []}
-        self.src["transmission"].data = {"x": [], "y": []}
-        self.src["sphere"].data = {"image": [np.zeros((2, 2), dtype=np.uint32)],
-                                   "accuracy": [""]}
-        self.src["state"].data = {"key": [], "value": []}
-        self.lin = figure(title="in-plane curve", height=300, width=460, tools=tools,
-                          y_axis_label="f (1/sr)")
-        self.log = figure(title="in-plane curve (log)", height=300, width=460, tools=tools,
-                          y_axis_type="log", y_axis_label="f (1/sr)")
-        # linear: the two curves differ by orders of magnitude, so f_r has its own axis
-        through = self.lin.line("x", "y", source=self.src["medium"], line_width=2,
-                                color=COLORS[0], legend_label="through the medium")
-        self.lin.y_range = DataRange1d(renderers=[through])
-        self.lin.extra_y_ranges = {"clear": DataRange1d()}
-        clear = self.lin.line("x", "y", source=self.src["clear"], line_width=1.5,
-                              color=COLORS[1], line_dash="dashed", y_range_name="clear",
-                              legend_label="without medium (right axis)")
-        self.lin.extra_y_ranges["clear"].renderers = [clear]
-        self.lin.add_layout(LinearAxis(y_range_name="clear", axis_label="f_r (1/sr)",
-                                       axis_label_text_color=COLORS[1]), "right")
-        self.lin.yaxis[0].axis_label_text_color = COLORS[0]
-        self.log.line("x", "ylog", source=self.src["medium"], line_width=2, color=COLORS[0],
-                      legend_label="through the medium")
-        self.log.line("x", "ylog", source=self.src["clear"], line_width=1.5, color=COLORS[1],
-                      line_dash="dashed", legend_label="without medium")
-        for fig in (self.lin, self.log):
-            fig.legend.location = "top_left"
-            fig.legend.click_policy = "hide"
-        self.polar = figure(title="polar lobe (plane of incidence)", height=300, width=300,
-                            match_aspect=True, tools=tools)
-        self.polar.line("x", "y", source=self.src["polar"], line_width=2, color=COLORS[0])
-        self.polar.line("x0", "y0", source=self.src["polar"], color=COLORS[1],
-                        line_dash="dashed")
-        self.trans = figure(title="medium transmission lobe f_t(I, w)", height=300, width=300,
-                            match_aspect=True, tools=tools)
-        self.trans.line("x", "y", source=self.src["transmission"], line_width=2,
-                        color=COLORS[2])
-        self.sphere = figure(title="lit sphere", height=300, width=300, tools="",
-                             x_range=(0, 1), y_range=(0, 1), toolbar_location=None)
-        self.sphere.image_rgba(image="image", x=0, y=0, dw=1, dh=1, source=self.src["sphere"])
-        self.sphere.axis.visible = False
-        self.sphere.grid.visible = False
-        # the state, readable from the page (not drawn)
-        self.state_fig = figure(height=10, width=10, toolbar_location=None, visible=False)
-        self.state_fig.scatter(x="value", y="key", source=self.src["state"], visible=False)
-        self.fit = [FitPlots(v, k) for k, v in enumerate(fit_views)]
-        self.channels = None if channels is None else ChannelLines(self.lin, self.log, channels)
-
-    def draw_curves(self, x, xlabel, through, clear, curve, theta_i, psi):
-        floor = ex.log_floor(through, clear)
-        if through is None:
-            self.src["medium"].data = {"x": [], "y": [], "ylog": []}
-        else:
-            self.src["medium"].data = {"x": x, "y": through, "ylog": np.maximum(through, floor)}
-        self.src["clear"].data = {"x": x, "y": clear, "ylog": np.maximum(clear, floor)}
-        for fig in (self.lin, self.log):
-            fig.xaxis.axis_label = xlabel
-        main = through if through is not None else clear
-        px, py = ex.polar_lobe(x, main, curve, theta_i, psi)
-        cx, cy = ex.polar_lobe(x, clear, curve, theta_i, psi)
-        top = max(float(np.max(main)), 1e-300)
-        ctop = max(float(np.max(clear)), 1e-300)
-        self.src["polar"].data = {"x": px / top, "y": py / top, "x0": cx / ctop,
-                                  "y0": cy / ctop}
-        self.polar.title.text = "polar lobes, each to its peak"
-
-    def draw_transmission(self, medium, theta_i):
-        if medium is None:
-            self.src["transmission"].data = {"x": [], "y": []}
-            self.trans.title.text = "medium transmission lobe: no medium"
-            return
-        angle, value, _, _ = ex.transmission_lobe(medium, theta_i)
-        radius = ex.log_radius(value, ex.LOBE_DECADES)
-        rad = np.radians(angle)
-        self.src["transmission"].data = {"x": radius * np.sin(rad), "y": radius * np.cos(rad),
-                                         "angle": angle, "f": value}
-        self.trans.title.text = (f"f_t(I, w): peak {float(np.max(value)):.3g}, log radius "
-                                 f"({ex.LOBE_DECADES:g} decades)")
-
-    def draw_sphere(self, image, accuracy):
-        self.src["sphere"].data = {"image": [image], "accuracy": [accuracy]}
-        self.sphere.title.text = f"lit sphere ({accuracy} accuracy)"
-
-    def draw_state(self, state):
-        self.src["state"].data = _state_columns(state)
-
-
-class FitPlots:
-    """The data panel of one fit result: data with error bars over the fitted model and its
-    uncertainty band, the model of the current controls, residuals, parameters."""
-
-    def __init__(self, view: fits.FitView, k: int):
-        self.view = view
-        tools = "pan,wheel_zoom,box_zoom,reset,save,hover"
-        suffix = "" if k == 0 else f"-{k}"
-        self.src_data = ColumnDataSource(name=SOURCES["data"] + suffix)
-        self.src_fit = ColumnDataSource(name=SOURCES["fit"] + suffix)
-        self.src_res = ColumnDataSource(name=SOURCES["residuals"] + suffix)
-        self.src_band = ColumnDataSource()
-        self.src_now = ColumnDataSource()
-        o = view.order
-        groups = sorted(set(view.group.tolist()))
-        color = [COLORS[groups.index(g) % len(COLORS)] for g in view.group[o]]
-        sigma = view.data.sigma[o] if view.data.sigma is not None else np.zeros(o.size)
-        y = view.data.y[o]
-        self.src_data.data = {"x": view.x[o], "y": y, "lower": y - sigma, "upper": y + sigma,
-                              "color": color, "group": view.group[o]}
-        xs, ys, bx, by, cols = [], [], [], [], []
-        for j, g in enumerate(groups):
-            sel = o[view.group[o] == g]
-            xs.append(view.x[sel])
-            ys.append(view.fitted[sel])
-            cols.append(COLORS[j % len(COLORS)])
-            if view.band is not None:
-                lo, hi = view.band
-                bx.append(np.concatenate([view.x[sel], view.x[sel][::-1]]))
-                by.append(np.concatenate([lo[sel], hi[sel][::-1]]))
-        self.src_fit.data = {"xs": xs, "ys": ys, "color": cols,
-                             "group": [f"{view.group_label} = {g:g}" for g in groups]}
-        self.src_band.data = {"xs": bx, "ys": by, "color": cols[: len(bx)]}
-        self.src_res.data = {"x": view.x[o], "r": view.residuals[o], "now": view.residuals[o],
-                             "color": color}
-        self.groups, self.colors = groups, cols
-        r = view.result
-        title = f"{os.path.basename(view.source)}: {r.model} ({r.step or 'fit'})"
-        self.fig = figure(title=title, height=320, width=620, tools=tools,
-                          x_axis_label=view.xlabel, y_axis_label="value")
-        if view.band is not None:
-            self.fig.patches("xs", "ys", source=self.src_band, color="color", alpha=0.25,
-                             line_alpha=0, legend_label="95 % band (fit covariance)")
-        self.fig.multi_line("xs", "ys", source=self.src_fit, color="color", line_width=2,
-                            legend_label="fitted model")
-        self.fig.multi_line("xs", "ys", source=self.src_now, color="black", line_width=1,
-                            line_dash="dotted", legend_label="current controls")
-        self.fig.scatter("x", "y", source=self.src_data, color="color", size=4,
-                         legend_label="data")
-        self.fig.add_layout(Whisker(base="x", lower="lower", upper="upper",
-                                    source=self.src_data, line_color="gray"))
-        self.fig.legend.click_policy = "hide"
-        self.res = figure(title="residuals" + (" (weighted)" if r.weighted else ""),
-                          height=200, width=620, tools=tools, x_range=self.fig.x_range,
-                          x_axis_label=view.xlabel)
-        self.res.scatter("x", "r", source=self.src_res, color="color", size=4,
-                         legend_label="fit")
-        self.res.scatter("x", "now", source=self.src_res, color="black", marker="x", size=4,
-                         legend_label="current controls")
-        self.res.legend.click_policy = "hide"
-        self.points = None  # the current model's engine at the data's configurations
-
-    def table(self) -> str:
-        rows = ["| parameter | value | stderr |", "|---|---:|---:|"]
-        for row in self.view.param_rows():
-            se = ("fixed" if row["fixed"] else "undetermined" if row["stderr"] is None
-                  else f"{row['stderr']:.3g}")
-            rows.append(f"| {row['parameter']} | {row['value']:.5g} | {se} |")
-        r = self.view.result
-        rows.append("")
-        rows.append(f"chi2 reduced {r.chi2_reduced:.4g}, {r.n_points} points, "
-                    f"{'converged' if r.converged else 'NOT converged'}")
-        return "\n".join(rows)
-
-    def draw_current(self, brdf, medium):
-        """The model of the current controls at the data's configurations."""
-        view = self.view
-        values = view.model_values(brdf, medium)
-        o = view.order
-        xs, ys = [], []
-        for g in self.groups:
-            sel = o[view.group[o] == g]
-            xs.append(view.x[sel])
-            ys.append(values[sel])
-        self.src_now.data = {"xs": xs, "ys": ys}
-        w = view.data.w if view.result.weighted else 1.0
-        now = ((view.data.y - values) * w)[o]
-        self.src_res.data = {**self.src_res.data, "now": now}
 
 
 class Controls:
@@ -388,7 +165,7 @@ class ExplorePage:
         self.share_dir = os.fspath(share_dir)
         self.updating = False
         self._held = False
-        self.curves = None
+        self.curves: ex.Curves | None = None
         self.timings: dict[str, float] = {}
         self.views = Views(fit_views, state.channels)
         self.doc = pn.state.curdoc if background else None
@@ -413,7 +190,7 @@ class ExplorePage:
         self.theta_i.param.watch(self.on_rest, "value_throttled")
         self.channel = None if state.channels is None else channel_selector(self)
         self.share = pn.widgets.Button(label="share: write this state", color="primary")
-        self.share.on_click(self.on_share)
+        self.share.on_click(self._share)
         self.redraw(sphere=False)
         self._sphere_now()
         if background:
@@ -423,7 +200,7 @@ class ExplorePage:
             pn.state.onload(lambda: self.redraw(transmission=False, sphere=False))
 
     # -- layout ----------------------------------------------------------------------------
-    def layout(self):
+    def layout(self) -> pn.Row:
         controls = pn.Column(
             pn.pane.Markdown("### veil explore"),
             *([] if self.channel is None else [pn.pane.Markdown("**channel**"), self.channel]),
@@ -441,7 +218,7 @@ class ExplorePage:
         return pn.Row(controls, views)
 
     # -- events ----------------------------------------------------------------------------
-    def hold(self):
+    def hold(self) -> AbstractContextManager[None]:
         page = self
 
         class _Hold:
@@ -469,12 +246,12 @@ class ExplorePage:
         # when that slider rests
         self.request_redraw(transmission=True, sphere=False)
 
-    def on_rest(self, event=None):
+    def on_rest(self, event=None) -> None:
         """Sliders at rest: render the sphere (live accuracy, then refined)."""
         self.schedule_sphere()
 
     # -- drawing ---------------------------------------------------------------------------
-    def request_redraw(self, transmission=True, sphere=False):
+    def request_redraw(self, transmission=True, sphere=False) -> None:
         """Redraw for the latest state: at once without a server; on the server at the
         loop's next turn, so that the values a dragged slider sends in a burst cost one
         redraw, not one each."""
@@ -493,7 +270,7 @@ class ExplorePage:
         self._pending = (False, False)
         self.redraw(transmission, sphere)
 
-    def redraw(self, transmission=True, sphere=False):
+    def redraw(self, transmission=True, sphere=False) -> None:
         t0 = time.perf_counter()
         s = self.state
         key = ex.Curves.key_of(s.brdf, s.medium, s.curve, s.theta_i, s.psi)
@@ -531,7 +308,7 @@ class ExplorePage:
         self.views.draw_sphere(image, ex.LIVE_ACCURACY)
         self.timings["sphere"] = dt
 
-    def schedule_sphere(self):
+    def schedule_sphere(self) -> None:
         """Render the sphere at the live accuracy once the sliders rested
         :data:`SPHERE_DELAY` s, then at the refined accuracy after :data:`REFINE_DELAY` s
         more. The waits are timers of the server's loop and a newer state cancels what has
@@ -570,7 +347,11 @@ class ExplorePage:
 
         self.doc.add_timeout_callback(lambda: start(ex.LIVE_ACCURACY), int(1e3 * SPHERE_DELAY))
 
-    def on_share(self, event=None):
+    def _share(self, event) -> None:
+        """The share button's callback (panel wants one that returns None)."""
+        self.on_share(event)
+
+    def on_share(self, event=None) -> str | None:
         """Write the state as JSON into the share folder; ``veil explore FILE`` reopens it."""
         stamp = time.strftime("%Y%m%d-%H%M%S")
         path = os.path.join(self.share_dir, f"veil-explore-{stamp}.json")

@@ -10,7 +10,8 @@ import panel as pn
 
 from ..errors import InputError
 from . import explore as ex
-from .explore_page import SPHERE_SIZE, Views
+from .explore_page import SPHERE_SIZE
+from .explore_plots import Views
 
 
 def grid_values(spec: ex.SliderSpec, value: float, points: int) -> list[float]:
@@ -21,7 +22,8 @@ def grid_values(spec: ex.SliderSpec, value: float, points: int) -> list[float]:
     return [float(f"{spec.to_value(x):.6g}") for x in xs]
 
 
-def static_page(state: ex.State, param: str, points: int, fit_views=(), progress=None):
+def static_page(state: ex.State, param: str, points: int, fit_views=(),
+                progress=None) -> tuple[pn.Column, list[float]]:
     """A self-contained page (no server): the curves, lobes and sphere precomputed for
     ``points`` values of one parameter (``kind.name`` or a name unique to one model),
     switched by a slider (Panel embeds every state in the page)."""

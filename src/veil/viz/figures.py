@@ -7,86 +7,43 @@
 * fig. 12: spheres rendered with the true and the apparent BRDFs (:mod:`veil.render`).
 
 :func:`run_experiment` computes everything (deterministically) into an :class:`Experiment`;
-the ``fig*`` functions draw it; :func:`save_figure` writes PNG/PDF/SVG atomically.
+the ``fig*`` functions draw it (figs. 9 and 10: :mod:`veil.viz.lobe_figures`);
+:func:`save_figure` writes PNG/PDF/SVG atomically (:mod:`veil.viz.figure_style`).
 """
 
 from __future__ import annotations
 
-import io
 import math
-import os
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..engine.angles import direction
-from ..engine.apparent import RULES, as_brdf, as_btdf, reflectance
+from ..engine.apparent import RULES, as_brdf, as_btdf
 from ..errors import InputError
 from ..io import write_bytes_atomic
-from ..models import PRESETS, Model
+from ..models import Model
+from .figure_style import (
+    CLEAR_COLOR,
+    FORMATS,
+    MEDIUM_COLORS,
+    _name,
+    _style,
+    _values,
+    figure_bytes,
+    figure_format,
+    save_figure,
+)
+from .lobe_figures import fig9, fig10, lobe_data, transmission_data
 from .render import Rendering, auto_exposure, clipping, evaluate, highlight_pixel, render, tone_map
 
-#: Figure formats :func:`save_figure` writes, by file suffix.
-FORMATS = ("png", "pdf", "svg")
-#: Colours: the clear medium is red as in the paper's fig. 11; media from light to dark.
-CLEAR_COLOR = "#d62728"
-MEDIUM_COLORS = ("#1f77b4", "#2ca02c", "#6a3d9a", "#ff7f0e", "#8c564b", "#17becf")
-BRDF_COLORS = ("#1f77b4", "#d62728", "#2ca02c", "#ff7f0e")
-STYLE = {"font.size": 10, "axes.titlesize": 10.5, "axes.labelsize": 10, "legend.fontsize": 9,
-         "xtick.labelsize": 9, "ytick.labelsize": 9, "figure.dpi": 100,
-         "svg.hashsalt": "veil", "pdf.compression": 6}
-
-
-# --------------------------------------------------------------------------------------
-# files
-# --------------------------------------------------------------------------------------
-def figure_format(path) -> str:
-    """The format of ``path`` from its suffix; ValueError for anything but png/pdf/svg."""
-    ext = os.path.splitext(os.fspath(path))[1].lower().lstrip(".")
-    if ext not in FORMATS:
-        raise InputError(f"cannot tell the figure format of {os.fspath(path)!r}: use a file "
-                         f"name ending in {', '.join('.' + f for f in FORMATS)}")
-    return ext
-
-
-def figure_bytes(fig, fmt: str, dpi=150) -> bytes:
-    """The figure encoded as ``fmt``, without time stamps (deterministic output)."""
-    buf = io.BytesIO()
-    meta = {"png": {"Software": None}, "pdf": {"CreationDate": None, "ModDate": None},
-            "svg": {"Date": None}}[fmt]
-    fig.savefig(buf, format=fmt, dpi=dpi, metadata=meta)
-    return buf.getvalue()
-
-
-def save_figure(fig, path, dpi=150) -> None:
-    """Save a matplotlib figure atomically; the format follows the suffix (png, pdf, svg)."""
-    write_bytes_atomic(path, figure_bytes(fig, figure_format(path), dpi))
-
-
-def _style():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt.rc_context(STYLE), plt
-
-
-def _name(model) -> str:
-    """Preset name if the model is one (plus its non-default options), else its values."""
-    defaults = model.default_options()
-    extra = "".join(f", {v}" for k, v in model.options().items() if v != defaults[k])
-    for key, value in PRESETS.items():
-        if type(value) is type(model) and value.replace(**model.options()) == model:
-            return key + extra
-    vals = " ".join(f"{p.name}={getattr(model, p.name):.3g}" for p in model.PARAMS)
-    return vals + extra
-
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 # --------------------------------------------------------------------------------------
 # the data
 # --------------------------------------------------------------------------------------
-def reflection_angles(theta_i=45.0, top=89.0):
+def reflection_angles(theta_i=45.0, top=89.0) -> np.ndarray:
     """In-plane reflection angles (deg): every 1 deg on [0, top], every 0.25 deg near the mirror."""
     coarse = np.arange(0.0, top + 1e-9, 1.0)
     fine = np.arange(max(0.0, theta_i - 15.0), min(top, theta_i + 15.0) + 1e-9, 0.25)
@@ -242,193 +199,6 @@ def run_experiment(brdfs=("BRDF1", "BRDF2"), media=("BTDF1", "BTDF2", "BTDF3"), 
 
 
 # --------------------------------------------------------------------------------------
-# polar helpers (log radius)
-# --------------------------------------------------------------------------------------
-def _decades(values, most=6):
-    """(lo, hi) decades for a log radius: the smallest value sits a little outside the origin."""
-    v = np.asarray(values)
-    v = v[v > 0]
-    hi = math.ceil(math.log10(v.max()) + 1e-9)
-    lo = math.floor(math.log10(v.min()) - 0.3)
-    return max(lo, hi - most), hi
-
-
-def _log_radius(values, lo):
-    return np.clip(np.log10(np.maximum(values, 1e-300)) - lo, 0.0, None)
-
-
-def _setup_log_polar(ax, lo, hi, zero="N", direction=-1, unit=""):
-    ax.set_theta_zero_location(zero)
-    ax.set_theta_direction(direction)
-    ax.set_thetamin(-90)
-    ax.set_thetamax(90)
-    ax.set_rlim(0, hi - lo)
-    ticks = list(range(1, hi - lo + 1))
-    step = 1 if len(ticks) <= 4 else 2  # label every other ring when they would crowd
-    ax.set_rticks(ticks)
-    ax.set_yticklabels([f"$10^{{{lo + t}}}$" if (hi - lo - t) % step == 0 else "" for t in ticks],
-                       fontsize=8)
-    ax.set_rlabel_position(-75)
-    ax.set_thetagrids(range(-90, 91, 30), [f"{a}°" for a in range(-90, 91, 30)])
-    ax.grid(True, alpha=0.4)
-
-
-# --------------------------------------------------------------------------------------
-# fig. 9: reflection lobes
-# --------------------------------------------------------------------------------------
-def _mirror_cut(theta_i, s_deg):
-    """Directions R(s) = cos s M + sin s y through the mirror direction M, out of the plane."""
-    t = math.radians(theta_i)
-    m = np.array([math.sin(t), 0.0, math.cos(t)])
-    s = np.radians(np.asarray(s_deg, float))
-    r = np.cos(s)[:, None] * m + np.sin(s)[:, None] * np.array([0.0, 1.0, 0.0])
-    theta = np.degrees(np.arccos(np.clip(r[:, 2], -1, 1)))
-    phi = np.degrees(np.arctan2(r[:, 1], r[:, 0]))
-    return theta, phi
-
-
-def lobe_data(brdf, theta_i=45.0):
-    """f_r in the plane of incidence (signed theta_r) and out of it (angle s from the mirror)."""
-    b = as_brdf(brdf)
-    t_in = np.unique(np.concatenate([np.linspace(-89.5, 89.5, 359),
-                                     np.arange(theta_i - 15, theta_i + 15.001, 0.05)]))
-    t_in = t_in[np.abs(t_in) < 89.9]
-    f_in = reflectance(b, theta_i, np.abs(t_in), 180.0, np.where(t_in < 0, 180.0, 0.0))
-    s = np.unique(np.concatenate([np.linspace(-89.5, 89.5, 359), np.arange(-15, 15.001, 0.05)]))
-    th, ph = _mirror_cut(theta_i, s)
-    ok = th < 89.9
-    f_out = reflectance(b, theta_i, th[ok], 180.0, ph[ok])
-    return t_in, f_in, s[ok], f_out
-
-
-def _legend_columns(handles) -> int:
-    return 2 if all(len(h.get_label()) <= 22 for h in handles) and len(handles) > 1 else 1
-
-
-def _three_panels(plt):
-    fig = plt.figure(figsize=(13.0, 4.3))
-    ax1 = fig.add_axes([0.01, 0.10, 0.30, 0.72], projection="polar")
-    ax2 = fig.add_axes([0.33, 0.10, 0.30, 0.72], projection="polar")
-    ax3 = fig.add_axes([0.70, 0.30, 0.28, 0.56])
-    return fig, ax1, ax2, ax3
-
-
-def fig9(brdfs=("BRDF1", "BRDF2"), theta_i=45.0, labels=None):
-    """Reflection lobes f_r for incidence theta_i: in plane, out of plane, close-up (log)."""
-    ctx, plt = _style()
-    with ctx:
-        fig, ax1, ax2, ax3 = _three_panels(plt)
-        data = [lobe_data(b, theta_i) for b in brdfs]
-        lo, hi = _decades(np.concatenate([np.concatenate([d[1], d[3]]) for d in data]))
-        handles = []
-        for k, (b, (t_in, f_in, s, f_out)) in enumerate(zip(brdfs, data)):
-            name = labels[k] if labels else _name(as_brdf(b))
-            c = BRDF_COLORS[k % len(BRDF_COLORS)]
-            (line,) = ax1.plot(np.radians(t_in), _log_radius(f_in, lo), color=c, lw=1.4, label=name)
-            handles.append(line)
-            ax2.plot(np.radians(s), _log_radius(f_out, lo), color=c, lw=1.4)
-            near = np.abs(t_in - theta_i) <= 15
-            ax3.semilogy(t_in[near] - theta_i, f_in[near], color=c, lw=1.6)
-            near = np.abs(s) <= 15
-            ax3.semilogy(s[near], f_out[near], color=c, lw=1.2, ls="--")
-        for ax in (ax1, ax2):
-            _setup_log_polar(ax, lo, hi)
-        r_top = hi - lo
-        ax1.annotate("", xy=(0, 0), xytext=(math.radians(-theta_i), r_top),
-                     arrowprops=dict(arrowstyle="->", color="0.3", lw=1.2))
-        ax1.text(math.radians(-theta_i + 7), r_top * 0.8, "light", color="0.3", ha="center")
-        ax1.plot([math.radians(theta_i)] * 2, [0, r_top], color="0.5", lw=0.8, ls=":")
-        ax1.set_title("(a) in the plane of incidence\nangle = signed reflection angle θ_r", pad=4)
-        ax2.set_title("(b) out of the plane, through the mirror direction\n"
-                      "angle = from the mirror direction", pad=4)
-        floor = min(float(np.min(d[1])) for d in data)
-        ax3.set_ylim(bottom=10 ** math.floor(math.log10(floor)))
-        ax3.set_xlabel("angle from the mirror direction [deg]")
-        ax3.set_ylabel("f_r [1/sr] (log scale)")
-        ax3.set_title("(c) close-up: solid in the plane,\ndashed out of the plane")
-        ax3.set_xlim(-15, 15)
-        ax3.grid(True, which="major", alpha=0.3)
-        fig.legend(handles=handles, loc="lower center", bbox_to_anchor=(0.84, 0.0),
-                   ncol=_legend_columns(handles), frameon=False,
-                   title=f"incidence {theta_i:g}°, radius: f_r [1/sr], log")
-    return fig
-
-
-# --------------------------------------------------------------------------------------
-# fig. 10: transmission lobes
-# --------------------------------------------------------------------------------------
-def transmission_data(medium, theta_i=45.0):
-    """f_t(I, T) against the propagation direction -T of the transmitted light.
-
-    In the plane: beta = signed angle of -T from the downward vertical (beta = theta_i is the
-    unscattered continuation of the incident ray). Out of the plane: angle s of -T from -I,
-    perpendicular to the plane of incidence.
-    """
-    m = as_btdf(medium)
-    v = m.to_vector()
-    wi = np.asarray(direction(theta_i, 180.0))
-    beta = np.unique(np.concatenate([np.linspace(-89.5, 89.5, 359),
-                                     np.arange(theta_i - 20, min(theta_i + 20, 89.9), 0.05)]))
-    beta = beta[np.abs(beta) < 89.9]
-    b = np.radians(beta)
-    t = np.stack([-np.sin(b), np.zeros_like(b), np.cos(b)], axis=-1)  # T = -(propagation)
-    f_in = np.asarray(m.evaluate(v, np.broadcast_to(wi, t.shape), t))
-    s = np.unique(np.concatenate([np.linspace(-89.5, 89.5, 359), np.arange(-20, 20.001, 0.05)]))
-    sr = np.radians(s)
-    t2 = np.cos(sr)[:, None] * wi + np.sin(sr)[:, None] * np.array([0.0, 1.0, 0.0])
-    ok = t2[:, 2] > math.cos(math.radians(89.9))
-    f_out = np.asarray(m.evaluate(v, np.broadcast_to(wi, t2[ok].shape), t2[ok]))
-    return beta, f_in, s[ok], f_out
-
-
-def fig10(media=("BTDF1", "BTDF2", "BTDF3"), theta_i=45.0, labels=None):
-    """Transmission lobes f_t for incidence theta_i: in plane, out of plane, close-up (log)."""
-    ctx, plt = _style()
-    with ctx:
-        fig, ax1, ax2, ax3 = _three_panels(plt)
-        data = [transmission_data(m, theta_i) for m in media]
-        lo, hi = _decades(np.concatenate([np.concatenate([d[1], d[3]]) for d in data]))
-        handles = []
-        differ = False
-        for k, (m, (beta, f_in, s, f_out)) in enumerate(zip(media, data)):
-            model = as_btdf(m)
-            name = labels[k] if labels else _name(model)
-            shape = model.shape_values()
-            if not all(f"{k}={v:.3g}" in name for k, v in shape.items()):
-                name = f"{name} ({_values(shape)})"
-            c = MEDIUM_COLORS[k % len(MEDIUM_COLORS)]
-            (line,) = ax1.plot(np.radians(beta), _log_radius(f_in, lo), color=c, lw=1.4, label=name)
-            handles.append(line)
-            ax2.plot(np.radians(s), _log_radius(f_out, lo), color=c, lw=1.4)
-            near = np.abs(beta - theta_i) <= 20
-            x_in, y_in = beta[near] - theta_i, f_in[near]
-            ax3.semilogy(x_in, y_in, color=c, lw=1.6)
-            near = np.abs(s) <= 20
-            y_out = np.interp(x_in, s, f_out)
-            if np.max(np.abs(y_out / y_in - 1)) > 1e-3:
-                differ = True
-                ax3.semilogy(s[near], f_out[near], color=c, lw=1.1, ls="--")
-        for ax in (ax1, ax2):
-            _setup_log_polar(ax, lo, hi, zero="S", direction=1)
-        r_top = hi - lo
-        ax1.plot([math.radians(theta_i)] * 2, [0, r_top], color="0.5", lw=0.8, ls=":")
-        ax1.set_title("(a) in the plane of incidence\n"
-                      "angle = travel direction -T from straight down", pad=4)
-        ax2.set_title("(b) out of the plane\nangle = travel direction -T from the unscattered -I",
-                      pad=4)
-        ax3.set_xlabel("deflection from the unscattered direction [deg]")
-        ax3.set_ylabel("f_t [1/sr] (log scale)")
-        ax3.set_title("(c) close-up" + (": solid in the plane, dashed out of it" if differ
-                                         else " (in and out of the plane coincide)"))
-        ax3.set_xlim(-20, 20)
-        ax3.grid(True, which="major", alpha=0.3)
-        fig.legend(handles=handles, loc="lower center", bbox_to_anchor=(0.84, 0.0),
-                   ncol=_legend_columns(handles), frameon=False,
-                   title=f"incidence {theta_i:g}°, radius: f_t [1/sr], log")
-    return fig
-
-
-# --------------------------------------------------------------------------------------
 # fig. 11: observed value against reflection angle
 # --------------------------------------------------------------------------------------
 SCALES = ("log", "linear", "peak", "tt2")
@@ -450,11 +220,7 @@ def _medium_label(curve: Curve, with_brdf=True) -> str:
     return f"{head}{_name(curve.medium)} ({_values(curve.medium.shape_values())})"
 
 
-def _values(values: dict) -> str:
-    return ", ".join(f"{k} = {v:g}" for k, v in values.items())
-
-
-def draw_curves(ax, curves, scale="log", title=None, with_brdf=True):
+def draw_curves(ax, curves, scale="log", title=None, with_brdf=True) -> None:
     """Observed value against reflection angle on one axis.
 
     scale: "log" or "linear" (f as is), "peak" (each curve over its own peak, linear) or
@@ -495,7 +261,7 @@ def draw_curves(ax, curves, scale="log", title=None, with_brdf=True):
         ax.set_title(title)
 
 
-def fig11(exp: Experiment):
+def fig11(exp: Experiment) -> Figure:
     """Rows: f (log), f / T_t^2 (log), f over its own peak (linear); one column per object."""
     ctx, plt = _style()
     names = list(exp.brdfs)
@@ -515,7 +281,7 @@ def fig11(exp: Experiment):
     return fig
 
 
-def fig_curve(curves, scale="log"):
+def fig_curve(curves, scale="log") -> Figure:
     """One panel of observed value against reflection angle (``veil plot curve``)."""
     ctx, plt = _style()
     with ctx:
@@ -529,7 +295,7 @@ def fig_curve(curves, scale="log"):
 # --------------------------------------------------------------------------------------
 # fig. 12: rendered spheres
 # --------------------------------------------------------------------------------------
-def fig12(exp: Experiment, tone="reinhard"):
+def fig12(exp: Experiment, tone="reinhard") -> Figure:
     """Rows: objects; columns: clear medium then each medium. Each panel has its own exposure
     (median lit pixel -> 18 % grey) and the tone curve ``tone`` (see :func:`tone_map`)."""
     ctx, plt = _style()

@@ -15,7 +15,9 @@ through polar coordinates about the half vector H = (L + R)/|L + R|: u = angle(N
 the azimuth w of N about H (w = 0 towards L). The engine is evaluated once on a table in
 (u, w) -- dense in u near the specular peak (u = 0), uniform in w over [0, 180] -- and the
 image is a bicubic spline of log f over that table. :func:`render` measures the
-interpolation error against direct engine evaluations at sampled pixels.
+interpolation error against direct engine evaluations at sampled pixels. The scene's
+geometry (normals, angles, the half vector's frame): :mod:`veil.viz.sphere_geometry`; the
+(u, w) table and its spline: :mod:`veil.viz.render_table`.
 """
 
 from __future__ import annotations
@@ -24,207 +26,39 @@ import io
 import math
 import os
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
-from scipy.interpolate import RectBivariateSpline
 
 from ..engine.apparent import RULES, as_brdf, as_btdf
-from ..engine.evaluator import evaluate as chunked
 from ..errors import InputError
+from .render_table import (
+    W_NODES,
+    ApparentTable,
+    auto_density,
+    build_table,
+    evaluate,
+    peak_width,
+    u_nodes,
+)
+from .sphere_geometry import (
+    VIEW,
+    half_vector_frame,
+    highlight_pixel,
+    light_direction,
+    local_angles,
+    pixel_normals,
+    sphere_normals,
+)
 
-#: Half width of the view in sphere radii (orthographic camera; a 5 % margin around the rim).
-VIEW = 1.05
 #: Largest light angle from the view axis (deg) that :func:`render` accepts.
 MAX_LIGHT_THETA = 120.0
-#: Configurations per engine call. Every call has this shape, so the engine compiles once.
-CHUNK = 256
-#: Polar angles of table nodes beyond this (degrees) are evaluated at this angle: nodes
-#: outside the lit, visible region continue the table smoothly instead of being invalid.
-THETA_CLAMP = 89.9
-#: Nodes of the w (azimuth about H) axis over [0, 180] degrees.
-W_NODES = 19
 #: Mid-grey convention of the automatic exposure: the median lit pixel maps to this.
 MID_GREY = 0.18
 #: The headline interpolation error covers pixels with both polar angles up to this (deg);
 #: beyond it (terminator and silhouette, where cos(theta_i) or the projected area vanish)
 #: the error is reported separately.
 ERROR_ANGLE = 80.0
-
-
-# --------------------------------------------------------------------------------------
-# engine access
-# --------------------------------------------------------------------------------------
-def evaluate(brdf, medium, theta_i, theta_r, dphi, *, accuracy="fast", progress=None):
-    """f at flat arrays of (theta_i, theta_r, phi_r - phi_i) in degrees (docs/model.md sec. 5),
-    through the engine's chunked evaluator in chunks of :data:`CHUNK` configurations.
-    ``progress(k)`` is called after each chunk with the number of configurations it did.
-    ``medium=None`` is f_r."""
-    ti, tr, dp = (np.ravel(np.asarray(a, dtype=float))
-                  for a in np.broadcast_arrays(theta_i, theta_r, dphi))
-    last = [0]
-
-    def step(done, total):
-        if progress:
-            progress(done - last[0])
-        last[0] = done
-
-    return chunked(brdf, medium, ti, 0.0, tr, dp, accuracy=accuracy, chunk=CHUNK,
-                   progress=step)
-
-
-# --------------------------------------------------------------------------------------
-# geometry
-# --------------------------------------------------------------------------------------
-def light_direction(theta, phi):
-    """World direction of a distant light at polar ``theta`` from the view axis, azimuth phi."""
-    t, p = math.radians(theta), math.radians(phi)
-    return np.array([math.sin(t) * math.cos(p), math.sin(t) * math.sin(p), math.cos(t)])
-
-
-def half_vector_frame(light):
-    """(H, e1, e2): H = (L + V)/|L + V| with V = +z, e1 perpendicular to H towards L."""
-    view = np.array([0.0, 0.0, 1.0])
-    h = light + view
-    h /= np.linalg.norm(h)
-    e1 = light - np.dot(light, h) * h
-    if np.linalg.norm(e1) < 1e-12:  # light along the view axis: any e1 will do
-        e1 = np.array([1.0, 0.0, 0.0]) - h[0] * h
-    e1 /= np.linalg.norm(e1)
-    return h, e1, np.cross(h, e1)
-
-
-def local_angles(normal, light):
-    """(theta_i, theta_r, phi_r - phi_i) in degrees for normals (..., 3), camera at +z.
-
-    Polar angles are unclamped (> 90 where the point is unlit or not visible).
-    """
-    n = np.asarray(normal, dtype=float)
-    cl = n @ light
-    cv = n[..., 2]
-    lt = light - cl[..., None] * n
-    vt = np.array([0.0, 0.0, 1.0]) - cv[..., None] * n
-    nl, nv = np.linalg.norm(lt, axis=-1), np.linalg.norm(vt, axis=-1)
-    ok = (nl > 1e-12) & (nv > 1e-12)
-    cos_d = np.where(ok, np.sum(lt * vt, axis=-1) / np.where(ok, nl * nv, 1.0), -1.0)
-    return (np.degrees(np.arccos(np.clip(cl, -1, 1))), np.degrees(np.arccos(np.clip(cv, -1, 1))),
-            np.degrees(np.arccos(np.clip(cos_d, -1, 1))))
-
-
-def sphere_normals(size, samples=1, rows=None):
-    """Normals (size*s, size*s, 3) at (sub)pixel centres and the mask of the disk.
-
-    The image spans x, y in [-VIEW, VIEW] (x to the right, y up, row 0 at the top); the unit
-    sphere's rim leaves a margin of (VIEW - 1) radii. ``rows=(first, stop)`` gives only the
-    subpixel rows of pixel rows first..stop-1, shape ((stop - first)*s, size*s, 3).
-    """
-    m = size * samples
-    c = ((np.arange(m) + 0.5) / m * 2.0 - 1.0) * VIEW
-    r = c if rows is None else c[rows[0] * samples: rows[1] * samples]
-    x, y = np.meshgrid(c, -r)
-    r2 = x * x + y * y
-    inside = r2 < 1.0
-    z = np.sqrt(np.where(inside, 1.0 - r2, 0.0))
-    return np.stack([x, y, z], axis=-1), inside
-
-
-def pixel_normals(size, flat_index):
-    """Normals (n, 3) at the centres of the pixels with flat indices ``flat_index`` (row-major
-    in a size x size image) and whether each is on the disk."""
-    row, col = np.divmod(np.asarray(flat_index), size)
-    c = lambda k: ((k + 0.5) / size * 2.0 - 1.0) * VIEW  # noqa: E731
-    x, y = c(col), -c(row)
-    r2 = x * x + y * y
-    inside = r2 < 1.0
-    return np.stack([x, y, np.sqrt(np.where(inside, 1.0 - r2, 0.0))], axis=-1), inside
-
-
-def highlight_pixel(size, light_theta, light_phi=0.0):
-    """(row, col) (fractional) where the mirror direction puts the highlight: N = H."""
-    h, _, _ = half_vector_frame(light_direction(light_theta, light_phi))
-    col = (h[0] / VIEW + 1.0) / 2.0 * size - 0.5
-    row = (1.0 - h[1] / VIEW) / 2.0 * size - 0.5
-    return float(row), float(col)
-
-
-# --------------------------------------------------------------------------------------
-# the (u, w) table
-# --------------------------------------------------------------------------------------
-def peak_width(brdf, medium) -> float:
-    """Rough half width (deg) of the apparent specular peak in u = angle(N, H).
-
-    The facet law's half-mass angle (sqrt(ln 2)/n for Torrance-Sparrow, docs/model.md sec. 2)
-    combined with two phase lobes of their half width at half maximum each (rotating N by
-    d moves the mirror direction by 2 d); 60 deg where a model has no lobe.
-    """
-    facet = min(brdf.facet_half_angle(), 60.0)
-    if medium is None:
-        return facet
-    lobe = min(medium.lobe_half_width(), 60.0)
-    return math.sqrt(facet ** 2 + 0.5 * lobe ** 2)
-
-
-def u_nodes(width: float, density: float = 1.0) -> np.ndarray:
-    """Table nodes in u (deg): step width/6 up to 5 widths, then growing by 15 % (at most 2 deg)."""
-    step = min(max(width / 6.0, 0.02), 1.0) / density
-    core = 5.0 * width
-    nodes = list(np.arange(0.0, core, step))
-    u = nodes[-1]
-    while u < 90.0:
-        step = min(step * (1.0 + 0.15 / density), 2.0 / density)
-        u = min(u + step, 90.0)
-        nodes.append(u)
-    return np.asarray(nodes)
-
-
-def auto_density(light_theta: float) -> float:
-    """Table density factor for a light at ``light_theta`` (deg): 1 up to 60, 2 from 80."""
-    return 1.0 + min(max((light_theta - 60.0) / 20.0, 0.0), 1.0)
-
-
-@dataclass
-class ApparentTable:
-    """log f tabulated over (u, w) for one light; call it to interpolate f."""
-
-    u: np.ndarray
-    w: np.ndarray
-    values: np.ndarray  # f at the (clamped) node configurations, shape (len(u), len(w))
-    spline: RectBivariateSpline = field(repr=False)
-    floor: float
-
-    @property
-    def nodes(self) -> int:
-        return self.values.size
-
-    def __call__(self, u, w):
-        """f at normals with polar coordinates (u, w) about H, in degrees."""
-        return np.exp(self.spline.ev(u, np.abs(w))) - self.floor
-
-
-def build_table(brdf, medium, light, *, accuracy="fast", density=1.0, progress=None):
-    """Evaluate the engine on the (u, w) grid about H and fit the interpolating spline."""
-    h, e1, e2 = half_vector_frame(light)
-    u = u_nodes(peak_width(brdf, medium), density)
-    w = np.linspace(0.0, 180.0, max(5, int(round((W_NODES - 1) * density)) + 1))
-    uu, ww = np.meshgrid(np.radians(u), np.radians(w), indexing="ij")
-    normal = (np.cos(uu)[..., None] * h
-              + np.sin(uu)[..., None] * (np.cos(ww)[..., None] * e1 + np.sin(ww)[..., None] * e2))
-    ti, tr, dp = local_angles(normal, light)
-    ti, tr = np.minimum(ti, THETA_CLAMP), np.minimum(tr, THETA_CLAMP)
-    values = evaluate(brdf, medium, ti, tr, dp, accuracy=accuracy,
-                      progress=progress).reshape(uu.shape)
-    if not np.all(np.isfinite(values)) or np.any(values < 0):
-        raise RuntimeError("the engine returned a negative or non-finite value on the table")
-    floor = max(1e-12 * float(values.max()), 1e-300)
-    logv = np.log(values + floor)
-    # symmetries: f(u, -w) = f(u, w), f(u, 180 + d) = f(u, 180 - d), f(-u, w) = f(u, 180 - w)
-    k = 3
-    w_ext = np.concatenate([-w[k:0:-1], w, 360.0 - w[-2:-k - 2:-1]])
-    lw = np.concatenate([logv[:, k:0:-1], logv, logv[:, -2:-k - 2:-1]], axis=1)
-    u_ext = np.concatenate([-u[k:0:-1], u])
-    lu = np.concatenate([lw[k:0:-1, ::-1], lw], axis=0)
-    spline = RectBivariateSpline(u_ext, w_ext, lu, kx=3, ky=3, s=0)
-    return ApparentTable(u, w, values, spline, floor)
 
 
 # --------------------------------------------------------------------------------------
@@ -389,6 +223,32 @@ def _table_errors(b, m, table, image, lit_px, check, light, frame, peak: float,
     return pick.size, max_rel, float(rel.max()), float(np.max(diff) / max(peak, 1e-300))
 
 
+def _shade_bands(b, table, frame, light, size: int, samples: int, rows: int,
+                 bar) -> tuple[np.ndarray, np.ndarray, float]:
+    """The image shaded in bands of ``rows`` pixel rows: (linear image, the pixel centres
+    on the lit disk, the largest linear sample value)."""
+    per_row = size * samples * samples
+    image = np.zeros((size, size))
+    lit_px = np.zeros((size, size), dtype=bool)  # pixel centres on the lit disk
+    peak = 0.0  # largest linear sample value
+    for first in range(0, size, rows):
+        stop = min(size, first + rows)
+        normal, inside = sphere_normals(size, samples, (first, stop))
+        f, lit, cos_i = _shade(b, table, frame, light, normal, inside, padded=rows * per_row)
+        linear = np.where(lit, f * np.where(lit, cos_i, 0.0), 0.0)
+        peak = max(peak, float(linear.max()))
+        if samples > 1:
+            image[first:stop] = linear.reshape(stop - first, samples, size,
+                                               samples).mean(axis=(1, 3))
+            centres, on_disk = pixel_normals(size, np.arange(first * size, stop * size))
+            lit_px[first:stop] = (on_disk & (centres @ light > 0.0)).reshape(stop - first, size)
+        else:
+            image[first:stop], lit_px[first:stop] = linear, lit
+        del normal, inside, f, lit, cos_i, linear
+        bar.band()
+    return image, lit_px, peak
+
+
 def render(brdf, medium=None, light_theta=45.0, light_phi=0.0, size=256, *, accuracy="fast",
            samples=1, check=64, density=1.0, progress=False) -> Rendering:
     """Render the sphere (module docstring) and measure the interpolation error.
@@ -432,25 +292,7 @@ def render(brdf, medium=None, light_theta=45.0, light_phi=0.0, size=256, *, accu
                                 progress=bar.advance)
         else:
             bar.start(0, len(bands))
-        image = np.zeros((size, size))
-        lit_px = np.zeros((size, size), dtype=bool)  # pixel centres on the lit disk
-        peak = 0.0  # largest linear sample value
-        for first in bands:
-            stop = min(size, first + rows)
-            normal, inside = sphere_normals(size, samples, (first, stop))
-            f, lit, cos_i = _shade(b, table, frame, light, normal, inside, padded=rows * per_row)
-            linear = np.where(lit, f * np.where(lit, cos_i, 0.0), 0.0)
-            peak = max(peak, float(linear.max()))
-            if samples > 1:
-                image[first:stop] = linear.reshape(stop - first, samples, size,
-                                                   samples).mean(axis=(1, 3))
-                centres, on_disk = pixel_normals(size, np.arange(first * size, stop * size))
-                lit_px[first:stop] = (on_disk & (centres @ light > 0.0)).reshape(stop - first, size)
-            else:
-                image[first:stop], lit_px[first:stop] = linear, lit
-            del normal, inside, f, lit, cos_i, linear
-            bar.band()
-
+        image, lit_px, peak = _shade_bands(b, table, frame, light, size, samples, rows, bar)
         checked, max_rel, max_rel_all, max_peak = 0, 0.0, 0.0, 0.0
         if table is not None and check:
             checked, max_rel, max_rel_all, max_peak = _table_errors(
@@ -530,7 +372,7 @@ def auto_exposure(linear) -> float:
     return MID_GREY / float(np.median(lit))
 
 
-def srgb_encode(x):
+def srgb_encode(x) -> np.ndarray:
     """The sRGB transfer function for linear values in [0, 1]."""
     x = np.clip(x, 0.0, 1.0)
     return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1.0 / 2.4) - 0.055)
@@ -562,7 +404,7 @@ def tone_map(linear, exposure, tone="clip") -> np.ndarray:
     return out
 
 
-def clipping(linear, exposure, tone="clip"):
+def clipping(linear, exposure, tone="clip") -> tuple[int, float, float]:
     """(clipped pixels, their fraction of the lit pixels, peak in units of full scale).
 
     Nothing clips under the "reinhard" tone curve.
@@ -590,4 +432,5 @@ def png_bytes(image_u8, text=None) -> bytes:
 __all__ = ["render", "render_sphere", "Rendering", "evaluate", "auto_exposure", "tone_map",
            "clipping", "srgb_encode", "highlight_pixel", "build_table", "ApparentTable",
            "local_angles", "light_direction", "half_vector_frame", "sphere_normals", "png_bytes",
-           "TONES", "memory_estimate", "available_memory", "check_memory", "pixel_normals"]
+           "TONES", "memory_estimate", "available_memory", "check_memory", "pixel_normals",
+           "VIEW"]

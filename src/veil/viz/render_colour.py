@@ -70,7 +70,7 @@ def auto_exposure_colour(image) -> float:
     return 1.0 if lit.size == 0 else MID_GREY / float(np.median(lit))
 
 
-def clipping_colour(image, exposure: float, tone: str = "clip"):
+def clipping_colour(image, exposure: float, tone: str = "clip") -> tuple[int, float, float]:
     """(pixels with a channel above white, their fraction of the lit pixels, peak in units
     of full scale); nothing clips under the "reinhard" tone curve."""
     img = np.asarray(image)

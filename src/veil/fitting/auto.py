@@ -1,0 +1,190 @@
+"""``models="auto"`` (issue 29): steps 0-2 with every candidate of each step fitted and
+ranked (:mod:`veil.fitting.selection`), the chosen one handed on to the next step.
+
+:func:`plan_candidates` lists the candidates and each one's options, fixed and free entries (checked
+before any data are read); :func:`select_steps` fits and ranks them step by step. The
+candidates are fitted without the given fit's covariance (it moves no estimate,
+chi-square or BIC), the chosen one again with it, unless every candidate's result is kept.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from ..data.measurements import CANONICAL
+from ..data.protocol import protocol
+from ..errors import FitError
+from ..models import model_class
+from ..models.base import VARIANT_OPTION
+from . import selection
+from .result import FitResult
+from .steps import fit_medium, fit_reference, fit_target, model_values
+
+
+def for_family(cls, per_step: dict, step: str, what: str, used: set) -> dict | list | None:
+    """The entries of ``per_step[step]`` that name parameters of ``cls`` (a fixed dict or a
+    free list); records which were used."""
+    entries = per_step.get(step)
+    if not entries:
+        return None
+    names = cls.param_names()
+    kept: dict | list
+    if isinstance(entries, dict):
+        kept = {k: v for k, v in entries.items() if k in names}
+    else:
+        kept = [k for k in entries if k in names]
+    used.update((step, k) for k in kept)
+    return kept
+
+
+def _per_family(cands, per_step: dict, step: str, what: str) -> dict:
+    """{label: the ``fixed`` / ``free`` entries of ``step`` its family declares}; an entry no
+    candidate declares is an error."""
+    used: set = set()
+    out = {c.label: for_family(model_class(c.family), per_step, step, what, used)
+           for c in cands}
+    unused = [f"{step}.{k}" for k in (per_step.get(step) or []) if (step, k) not in used]
+    if unused:
+        raise FitError(f"{what} {', '.join(unused)}: no candidate model has such a parameter")
+    return out
+
+
+def fitted_curve(result: FitResult, data) -> np.ndarray:
+    """The fit's model values at its data's configurations, from its residuals."""
+    r = np.asarray(result.residuals, dtype=float)
+    return data.y - (r * data.sigma if result.weighted and data.sigma is not None else r)
+
+
+def rank_step(step, cands, data, fit_one, progress, curves, what,
+              propagated=None) -> tuple[selection.Ranking, dict]:
+    """Fit and rank one step's candidates (:func:`veil.fitting.selection.select`); a close
+    call's ranking carries the spread of the close candidates' ``curves``. With
+    ``propagated``, the candidates are fitted by ``fit_one`` without the given fit's
+    covariance (which moves no estimate, chi-square or BIC) and the chosen one again by
+    ``propagated``, with it: the derivatives in the given model are compiled and evaluated
+    for that one only."""
+    ranking, results = selection.select(step, cands, data, fit_one, what, progress)
+    if ranking.close_call:
+        ranking = ranking.with_spread(selection.curve_spread(
+            ranking, {lab: curves(results[lab]) for lab in ranking.close}))
+    if propagated is not None:
+        chosen = next(c for c in cands if c.label == ranking.chosen)
+        results = {**results, ranking.chosen: propagated(chosen)}
+    return ranking, results
+
+
+def plan_candidates(fixed, free, brdf_options, medium_options, variant) -> dict:
+    """The candidates of ``models="auto"`` and each one's options, fixed and free entries;
+    an entry or option no candidate declares is an error."""
+    brdf_options, medium_options = dict(brdf_options or {}), dict(medium_options or {})
+    if variant is not None:
+        medium_options.setdefault(VARIANT_OPTION, variant)
+    b_cands = selection.candidates("brdf", brdf_options)
+    m_cands = selection.candidates("medium", medium_options)
+    for kind, cands, opts in (("BRDF", b_cands, brdf_options),
+                              ("medium", m_cands, medium_options)):
+        if not cands:
+            raise FitError(f"no registered {kind} family is a candidate with options {opts}")
+        declared = {o for c in cands for o in model_class(c.family).option_names()}
+        unused = sorted(set(opts) - declared)
+        if unused:
+            raise FitError(f"option(s) {', '.join(unused)}: no {kind} candidate declares them")
+    return {"brdf": b_cands, "medium": m_cands, "brdf_options": brdf_options,
+            "medium_options": medium_options,
+            "fix_b": _per_family(b_cands, fixed, "reference", "fixed"),
+            "free_b": _per_family(b_cands, free, "reference", "free"),
+            "fix_m": _per_family(m_cands, fixed, "medium", "fixed"),
+            "free_m": _per_family(m_cands, free, "medium", "free"),
+            "fix_t": _per_family(b_cands, fixed, "target", "fixed"),
+            "free_t": _per_family(b_cands, free, "target", "free")}
+
+
+@dataclass(frozen=True)
+class _Ranked:
+    """What every candidate fit of :func:`select_steps` shares; the rankings and the
+    candidates' results, by step, collected as the steps run."""
+
+    data: dict
+    plan: dict
+    accuracy: str
+    max_nfev: int | None
+    progress: Any
+    model_error: Any
+    #: the propagation of the candidates' fits, and of the chosen one's refit (None: none)
+    screen: str
+    again: str | None
+    rankings: dict = field(default_factory=dict)
+    kept: dict = field(default_factory=dict)
+
+    def reference(self, curve) -> FitResult:
+        """Step 0: every BRDF candidate fitted to the reference in clear water, ranked."""
+        fix, free, options = self.plan["fix_b"], self.plan["free_b"], self.plan["brdf_options"]
+
+        def one(c):
+            return fit_reference(self.data["reference_clear"].table, fixed=fix[c.label],
+                                 free=free[c.label], max_nfev=self.max_nfev,
+                                 brdf_model=c.family, options=c.model_options(options),
+                                 model_error=self.model_error)
+
+        ranking, results = rank_step("reference", self.plan["brdf"],
+                                     self.data["reference_clear"], one, self.progress, curve,
+                                     "reference (clear medium)")
+        self.rankings["reference"], self.kept["reference"] = ranking, results
+        return selection.with_selection(results[ranking.chosen], ranking)
+
+    def through_medium(self, step, fit, session, given, kind,
+                       curve) -> tuple[FitResult, selection.Ranking]:
+        """Steps 1 and 2: ``fit`` (fit_medium, fit_target) of every candidate of ``kind``
+        to ``session`` through the ``given`` model, ranked; the chosen result."""
+        key = {"medium": "m", "target": "t"}[step]
+        fix, free = self.plan[f"fix_{key}"], self.plan[f"free_{key}"]
+        options = self.plan[f"{kind}_options"]
+
+        def one(c, chained=self.screen):
+            return fit(self.data[session].table, given, fixed=fix[c.label], free=free[c.label],
+                       accuracy=self.accuracy, max_nfev=self.max_nfev,
+                       options=c.model_options(options), model_error=self.model_error,
+                       propagation=chained, **{f"{kind}_model": c.family})
+
+        again = self.again
+        ranking, results = rank_step(step, self.plan[kind], self.data[session], one,
+                                     self.progress, curve, step,
+                                     again and (lambda c: one(c, again)))
+        self.rankings[step], self.kept[step] = ranking, results
+        return selection.with_selection(results[ranking.chosen], ranking), ranking
+
+
+def select_steps(data, plan, *, accuracy, max_nfev, progress, model_error, propagation,
+                 keep) -> tuple[FitResult, FitResult, FitResult, str, dict, dict, dict]:
+    """Steps 0-2 with every candidate ranked: (reference, medium, target, the chosen BRDF
+    family, its options, {step: ranking}, {step: {label: result}} when ``keep``)."""
+    # the candidates without the given fit's covariance, the chosen one with it; with
+    # ``keep`` (every candidate's result written out) each one with it
+    screen = propagation if keep or propagation == "off" else "off"
+    run = _Ranked(data, plan, accuracy, max_nfev, progress, model_error, screen,
+                  None if screen == propagation else propagation)
+    configs = protocol()
+    angles = tuple(configs[c].to_numpy() for c in CANONICAL)
+
+    def fr_curve(result):
+        return model_values(result, None, angles)
+
+    ref = run.reference(fr_curve)
+    med, _ = run.through_medium("medium", fit_medium, "reference_medium", ref, "medium",
+                                lambda r: fitted_curve(r, data["reference_medium"]))
+    tgt, ranking = run.through_medium("target", fit_target, "target_medium", med, "brdf",
+                                      fr_curve)
+    assert ranking.chosen is not None  # select() raised NoCandidateError otherwise
+    chosen = ranking.row(ranking.chosen)
+    brdf_options = plan["brdf_options"]
+    opts = {k: v for k, v in brdf_options.items()
+            if k in model_class(chosen["family"]).option_names()}
+    opts.update(chosen["options"])
+    return (ref, med, tgt, chosen["family"], opts, run.rankings,
+            run.kept if keep else {})
+
+
+__all__ = ["plan_candidates", "select_steps", "rank_step", "fitted_curve", "for_family"]
