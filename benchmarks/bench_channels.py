@@ -8,7 +8,8 @@ channel's alone. Both pipelines run in one process, each once to compile (not ti
 alternately ``--rounds`` times; the table prints the median wall and CPU seconds per step and
 the ratio three channels / one channel, measured side by side.
 
-    .venv/bin/python benchmarks/bench_channels.py [--rounds 3] [--accuracy fast]
+    .venv/bin/python benchmarks/bench_channels.py [--rounds 3] [--accuracy fast] \\
+        [--physical] [--doc docs/channels.md --doc-table channels-paper]
 """
 
 from __future__ import annotations
@@ -103,7 +104,11 @@ def main() -> None:
     parser.add_argument("--physical", action="store_true",
                         help="rough plastics through forward-series water (default: the "
                         "paper's models)")
+    from doc_tables import add_options, printed_tables
+
+    add_options(parser, "channels-paper")
     args = parser.parse_args()
+    doc = printed_tables(args).start()
     data = {"one channel (g)": sessions(["g"], args.accuracy, args.physical),
             "three channels (r, g, b)": sessions(list(CHANNELS), args.accuracy,
                                                  args.physical)}
@@ -132,6 +137,7 @@ def main() -> None:
         (w1, c1, e1), (w3, c3, e3) = cells
         print(f"| {step} | {w1:.2f} / {c1:.2f} | {w3:.2f} / {c3:.2f} | "
               f"{w3 / w1:.2f} / {c3 / c1:.2f} | {e1 or ''}; {e3 or ''} |")
+    doc.finish()
 
 
 if __name__ == "__main__":

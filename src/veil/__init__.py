@@ -13,16 +13,30 @@ import importlib
 
 #: Public name -> the module that defines it.
 _API = {
-    "apparent": "engine.apparent", "reflectance": "engine.apparent",
-    "load_measurements": "data.measurements", "save_measurements": "data.measurements",
-    "subtract_black": "data.black_cloth", "simulate": "data.simulate",
-    "fit_reference": "fitting.steps", "fit_medium": "fitting.steps",
-    "fit_target": "fitting.steps", "FitResult": "fitting.result",
-    "run_pipeline": "pipeline", "fit_joint": "fitting.joint",
-    "fit_maps": "maps.run", "open_maps": "maps.store",
-    "BRDF": "models", "BTDF": "models", "Medium": "models", "Model": "models",
-    "Param": "models", "PRESETS": "models", "REGISTRY": "models", "preset": "models",
-    "register": "models", "ChannelModel": "models",
+    "apparent": "engine.apparent",
+    "reflectance": "engine.apparent",
+    "load_measurements": "data.measurements",
+    "save_measurements": "data.measurements",
+    "subtract_black": "data.black_cloth",
+    "simulate": "data.simulate",
+    "fit_reference": "fitting.steps",
+    "fit_medium": "fitting.steps",
+    "fit_target": "fitting.steps",
+    "FitResult": "fitting.result",
+    "run_pipeline": "pipeline",
+    "fit_joint": "fitting.joint",
+    "fit_maps": "maps.run",
+    "open_maps": "maps.store",
+    "BRDF": "models",
+    "BTDF": "models",
+    "Medium": "models",
+    "Model": "models",
+    "Param": "models",
+    "PRESETS": "models",
+    "REGISTRY": "models",
+    "preset": "models",
+    "register": "models",
+    "ChannelModel": "models",
 }
 _PRESETS = ("BRDF1", "BRDF2", "BTDF1", "BTDF2", "BTDF3")
 
@@ -30,6 +44,7 @@ _PRESETS = ("BRDF1", "BRDF2", "BTDF1", "BTDF2", "BTDF3")
 def _version() -> str:
     """The installed distribution's version (written once, in pyproject.toml)."""
     from importlib.metadata import PackageNotFoundError, version
+
     try:
         return version("veil")
     except PackageNotFoundError:  # a source tree on sys.path, never installed

@@ -18,9 +18,15 @@ from .errors import MissingExtraError
 
 #: Top-level module -> the extra that installs it (pyproject.toml, [project.optional-dependencies]).
 EXTRA_OF = {
-    "dask": "maps", "distributed": "maps", "zarr": "maps", "OpenEXR": "maps",
-    "panel": "explore", "bokeh": "explore",
-    "rawpy": "ingest", "tifffile": "ingest", "imagecodecs": "ingest",
+    "dask": "maps",
+    "distributed": "maps",
+    "zarr": "maps",
+    "OpenEXR": "maps",
+    "panel": "explore",
+    "bokeh": "explore",
+    "rawpy": "ingest",
+    "tifffile": "ingest",
+    "imagecodecs": "ingest",
 }
 
 
@@ -44,7 +50,8 @@ def require(module: str, purpose: str | None = None) -> ModuleType:
         why = "is not installed" if missing == top else f"cannot be imported ({exc})"
         raise MissingExtraError(
             f"{what} the optional package {top}, which {why}; install veil's {extra!r} "
-            f"extra: {pip_line(extra)}") from None
+            f"extra: {pip_line(extra)}"
+        ) from None
 
 
 __all__ = ["EXTRA_OF", "pip_line", "require"]

@@ -202,14 +202,18 @@ def _enable_cache() -> None:
         CACHE_UNWRITABLE = True
         view = _read_only_view(path)
         if view is None:
-            _notice(f"the compilation cache directory {path} is not writable ({problem}); "
-                    f"running without a persistent cache, so every process compiles the "
-                    f"engine again. Set VEIL_CACHE_DIR to a writable directory, or "
-                    f"VEIL_CACHE_DIR=off to silence this.")
+            _notice(
+                f"the compilation cache directory {path} is not writable ({problem}); "
+                f"running without a persistent cache, so every process compiles the "
+                f"engine again. Set VEIL_CACHE_DIR to a writable directory, or "
+                f"VEIL_CACHE_DIR=off to silence this."
+            )
             return
         path, count = view
-        _notice(f"the compilation cache directory {cache_directory()} is read-only: reading "
-                f"its {count} entries, not keeping new ones")
+        _notice(
+            f"the compilation cache directory {cache_directory()} is read-only: reading "
+            f"its {count} entries, not keeping new ones"
+        )
     _guard_cache_writes()
     if "JAX_PERSISTENT_CACHE_ENABLE_XLA_CACHES" not in os.environ:
         # JAX otherwise adds the GPU autotuning cache's folder, inside the cache directory,

@@ -26,8 +26,9 @@ class _Deferred:
         if attr.startswith("__") and attr.endswith("__"):
             raise AttributeError(attr)  # probes by copy, pickle, inspect: not a reason to import
         module = importlib.import_module(self.__dict__["_veil_module"])
-        target = getattr(module, self.__dict__["_veil_name"]) if self.__dict__["_veil_name"] \
-            else module
+        target = (
+            getattr(module, self.__dict__["_veil_name"]) if self.__dict__["_veil_name"] else module
+        )
         value = getattr(target, attr)
         self.__dict__[attr] = value
         return value

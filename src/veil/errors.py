@@ -46,8 +46,16 @@ class FitError(InputError):
     """A fit that cannot be set up (bad data, bad options, bad given model or result file)."""
 
 
-__all__ = ["InputError", "InputTypeError", "MissingFileError", "NotAFileError",
-           "UnwritableError", "MeasurementError", "ParameterError", "FitError"]
+__all__ = [
+    "InputError",
+    "InputTypeError",
+    "MissingFileError",
+    "NotAFileError",
+    "UnwritableError",
+    "MeasurementError",
+    "ParameterError",
+    "FitError",
+]
 
 
 class MissingExtraError(InputError, ImportError):

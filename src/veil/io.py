@@ -33,10 +33,10 @@ from .errors import NotAFileError, UnwritableError
 #: releases it) before it removes the temporaries and exits.
 COMMIT = threading.RLock()
 
-_temporaries: dict[str, str] = {}   # path -> "file" | "folder", removed on interrupt
-_folders: dict[str, bool] = {}      # output folders being written -> whether one existed
-_written: list[str] = []            # complete outputs of this process, in order
-_partial: dict[str, str] = {}       # resumable outputs kept on interrupt -> what to say
+_temporaries: dict[str, str] = {}  # path -> "file" | "folder", removed on interrupt
+_folders: dict[str, bool] = {}  # output folders being written -> whether one existed
+_written: list[str] = []  # complete outputs of this process, in order
+_partial: dict[str, str] = {}  # resumable outputs kept on interrupt -> what to say
 #: Longest wait (s) for another process's commit of the same output folder.
 COMMIT_LOCK_WAIT = 60.0
 _STAGING = ".veil-partial-"
@@ -54,8 +54,7 @@ def _unwritable(path: str, exc: OSError) -> UnwritableError:
     reason = exc.strerror or str(exc)
     if not os.path.isdir(directory):
         return UnwritableError(f"cannot write {path}: directory {directory} does not exist")
-    return UnwritableError(f"cannot write {path}: directory {directory} is not writable "
-                           f"({reason})")
+    return UnwritableError(f"cannot write {path}: directory {directory} is not writable ({reason})")
 
 
 def write_error(path, exc: OSError) -> UnwritableError:
@@ -64,8 +63,11 @@ def write_error(path, exc: OSError) -> UnwritableError:
     :class:`veil.errors.UnwritableError` (exit status 2) naming the path and the reason."""
     code = errno.errorcode.get(exc.errno or 0, "")
     reason = exc.strerror or str(exc) or type(exc).__name__
-    return UnwritableError(f"cannot write {os.fspath(path)}: {reason}"
-                           + (f" ({code})" if code else "") + "; nothing was written there")
+    return UnwritableError(
+        f"cannot write {os.fspath(path)}: {reason}"
+        + (f" ({code})" if code else "")
+        + "; nothing was written there"
+    )
 
 
 def _record(path: str) -> None:
@@ -102,8 +104,9 @@ def _temporary(path: str, data: bytes) -> str:
         mode = _umask_mode()
     with COMMIT:  # no temporary is created once an interrupt is being handled
         try:
-            fd, tmp = tempfile.mkstemp(dir=directory, prefix=f".{os.path.basename(path)}.",
-                                       suffix=".tmp")
+            fd, tmp = tempfile.mkstemp(
+                dir=directory, prefix=f".{os.path.basename(path)}.", suffix=".tmp"
+            )
         except OSError as exc:
             if exc.errno in (errno.EACCES, errno.EPERM, errno.ENOENT, errno.ENOTDIR):
                 raise _unwritable(path, exc) from None
@@ -178,25 +181,31 @@ def check_output_folder(path) -> str:
         return path
     parent = os.path.dirname(path)
     if not os.path.isdir(parent):
-        raise UnwritableError(f"cannot create the output directory {path}: directory "
-                              f"{parent} does not exist")
+        raise UnwritableError(
+            f"cannot create the output directory {path}: directory {parent} does not exist"
+        )
     if not os.access(parent, os.W_OK | os.X_OK):
-        raise UnwritableError(f"cannot create the output directory {path}: directory "
-                              f"{parent} is not writable")
+        raise UnwritableError(
+            f"cannot create the output directory {path}: directory {parent} is not writable"
+        )
     return path
 
 
 def _make_staging(path: str, existed: bool) -> str:
     """A temporary folder on the same filesystem as ``path``: inside it when it exists (its
     entries are then renamed one by one), beside it otherwise (renamed as a whole)."""
-    where, prefix = (path, _STAGING) if existed else \
-        (os.path.dirname(path), f".{os.path.basename(path)}{_STAGING}")
+    where, prefix = (
+        (path, _STAGING)
+        if existed
+        else (os.path.dirname(path), f".{os.path.basename(path)}{_STAGING}")
+    )
     with COMMIT:
         try:
             staging = tempfile.mkdtemp(dir=where, prefix=prefix)
         except OSError as exc:
-            raise UnwritableError(f"cannot write into the output directory {path} "
-                                  f"({exc.strerror or exc})") from None
+            raise UnwritableError(
+                f"cannot write into the output directory {path} ({exc.strerror or exc})"
+            ) from None
         _temporaries[staging] = "folder"
     os.chmod(staging, _umask_mode(0o777))
     return staging
@@ -249,12 +258,16 @@ def _commit_lock(path: str):
     where = os.path.join(tempfile.gettempdir(), "veil-locks")
     try:
         os.makedirs(where, exist_ok=True)
-        lock = FileLock(os.path.join(where, hashlib.sha256(path.encode()).hexdigest()[:32]
-                                     + ".lock"), timeout=COMMIT_LOCK_WAIT)
+        lock = FileLock(
+            os.path.join(where, hashlib.sha256(path.encode()).hexdigest()[:32] + ".lock"),
+            timeout=COMMIT_LOCK_WAIT,
+        )
         lock.acquire()
     except Timeout:
-        raise UnwritableError(f"cannot write {path}: another process has been moving its "
-                              f"files into it for {COMMIT_LOCK_WAIT:g} s") from None
+        raise UnwritableError(
+            f"cannot write {path}: another process has been moving its "
+            f"files into it for {COMMIT_LOCK_WAIT:g} s"
+        ) from None
     except OSError:  # no usable temporary directory: commit unlocked, as before
         yield
         return
@@ -352,8 +365,7 @@ def written() -> list[str]:
     """Complete outputs this process has written so far (files and folders, absolute
     paths), leaving out those inside temporaries that will be removed."""
     temps = [t + os.sep for t, kind in _temporaries.items() if kind == "folder"]
-    return [w for w in _written
-            if os.path.lexists(w) and not any(w.startswith(t) for t in temps)]
+    return [w for w in _written if os.path.lexists(w) and not any(w.startswith(t) for t in temps)]
 
 
 def abandon() -> str:
@@ -365,8 +377,9 @@ def abandon() -> str:
     """
     done = written()
     temps = [t + os.sep for t, kind in _temporaries.items() if kind == "folder"]
-    kept = [p for p, existed in _folders.items()
-            if existed and not any(p.startswith(t) for t in temps)]
+    kept = [
+        p for p, existed in _folders.items() if existed and not any(p.startswith(t) for t in temps)
+    ]
     for tmp, kind in list(_temporaries.items()):
         with contextlib.suppress(OSError):
             if kind == "folder":
@@ -391,12 +404,27 @@ def abandon() -> str:
     parts += [f"{show(p)} is {note}" for p, note in _partial.items() if os.path.isdir(p)]
     kept = [p for p in kept if not any(p == d or p.startswith(d + os.sep) for d in done)]
     if kept:
-        parts.append(", ".join(show(p) for p in kept)
-                     + (" is" if len(kept) == 1 else " are") + " as the earlier run left "
-                     + ("it" if len(kept) == 1 else "them"))
+        parts.append(
+            ", ".join(show(p) for p in kept)
+            + (" is" if len(kept) == 1 else " are")
+            + " as the earlier run left "
+            + ("it" if len(kept) == 1 else "them")
+        )
     return "; ".join(parts)
 
 
-__all__ = ["write_bytes_atomic", "write_text_atomic", "write_many_atomic", "write_error",
-           "output_folder", "check_output_folder", "COMMIT", "written", "abandon",
-           "register_temporary", "forget_temporary", "register_partial", "forget_partial"]
+__all__ = [
+    "write_bytes_atomic",
+    "write_text_atomic",
+    "write_many_atomic",
+    "write_error",
+    "output_folder",
+    "check_output_folder",
+    "COMMIT",
+    "written",
+    "abandon",
+    "register_temporary",
+    "forget_temporary",
+    "register_partial",
+    "forget_partial",
+]

@@ -68,19 +68,28 @@ from .viz.fit_figures_colour import channel_fit_figure
 from .viz.pipeline_report import pipeline_report, ranking_section
 
 #: Output files, by role.
-FILES = {"reference": "reference.json", "medium": "medium.json", "target": "target.json",
-         "direct": "target_direct.json", "report": "report.md",
-         "reference_fig": "reference.png", "medium_fig": "medium.png",
-         "target_fig": "target.png", "direct_fig": "target_direct.png"}
+FILES = {
+    "reference": "reference.json",
+    "medium": "medium.json",
+    "target": "target.json",
+    "direct": "target_direct.json",
+    "report": "report.md",
+    "reference_fig": "reference.png",
+    "medium_fig": "medium.png",
+    "target_fig": "target.png",
+    "direct_fig": "target_direct.png",
+}
 #: With ``models="auto"``: the rankings of the three steps.
 RANKING_FILE = "ranking.json"
 #: With ``keep_candidates``, every candidate's result under this folder, by step.
 CANDIDATES_DIR = "candidates"
 STEP_KEYS = ("reference", "medium", "target")
 #: report.md's section on a pipeline over several channels.
-CHANNELS_NOTE = ("## Channels\n\nEvery step fitted the channels {} at once, the parameters "
-                 "declared per channel one per channel and the others tied (docs/channels.md). "
-                 "The figures draw every channel in its colour.")
+CHANNELS_NOTE = (
+    "## Channels\n\nEvery step fitted the channels {} at once, the parameters "
+    "declared per channel one per channel and the others tied (docs/channels.md). "
+    "The figures draw every channel in its colour."
+)
 #: The key of ``data`` (:func:`_prepare_sessions`) holding every channel's data.
 CHANNEL_DATA = "by channel"
 
@@ -108,9 +117,11 @@ def _check_fixed(fixed, what: str = "fixed") -> dict:
     if fixed is None:
         return {}
     if not isinstance(fixed, dict) or set(fixed) - set(STEP_KEYS):
-        raise FitError(f"{what} = {fixed!r}; expected a dict by step, e.g. "
-                       f"{{'medium': {{'eta': 1.33}}, 'target': {{'eta': 1.5}}}} (steps "
-                       f"{', '.join(STEP_KEYS)})")
+        raise FitError(
+            f"{what} = {fixed!r}; expected a dict by step, e.g. "
+            f"{{'medium': {{'eta': 1.33}}, 'target': {{'eta': 1.5}}}} (steps "
+            f"{', '.join(STEP_KEYS)})"
+        )
     return fixed
 
 
@@ -132,9 +143,11 @@ def _check_outputs(outdir: str, inputs: dict) -> None:
         out = os.path.join(outdir, name)
         for what, inp in inputs.items():
             if isinstance(inp, (str, os.PathLike)) and _same(out, inp):
-                raise FitError(f"input {what} ({os.fspath(inp)}) would be overwritten by the "
-                               f"output {out}; veil never overwrites an input: choose another "
-                               f"output directory")
+                raise FitError(
+                    f"input {what} ({os.fspath(inp)}) would be overwritten by the "
+                    f"output {out}; veil never overwrites an input: choose another "
+                    f"output directory"
+                )
 
 
 def _prepare_sessions(inputs: dict, channel: str | None = None) -> tuple[dict, list | None]:
@@ -144,9 +157,12 @@ def _prepare_sessions(inputs: dict, channel: str | None = None) -> tuple[dict, l
     first channel's (the engine's configurations) and ``data[CHANNEL_DATA]`` holds
     {session: {channel: its data}} (the figures')."""
     black = inputs["black"]
-    whats = {"reference_clear": "reference (clear medium)",
-             "reference_medium": "reference (in the medium)",
-             "target_medium": "target (in the medium)", "target_clear": "target (clear medium)"}
+    whats = {
+        "reference_clear": "reference (clear medium)",
+        "reference_medium": "reference (in the medium)",
+        "target_medium": "target (in the medium)",
+        "target_clear": "target (clear medium)",
+    }
     keys = [k for k in whats if inputs[k] is not None]
     channels = None
     if channel is None:
@@ -172,17 +188,27 @@ def _channel_sources(inputs: dict, channels, auto: bool, truth) -> dict | None:
     if channels is None:
         return None
     if auto or truth is not None:
-        raise FitError(f"the tables hold channels {', '.join(channels)}: "
-                       f"{'models=auto' if auto else 'truth='} takes one channel; choose one "
-                       f"with channel= (--channel NAME)")
-    return {k: (inputs[k], inputs["black"] if k.endswith("_medium") else None)
-            for k in ("reference_clear", "reference_medium", "target_medium")}
+        raise FitError(
+            f"the tables hold channels {', '.join(channels)}: "
+            f"{'models=auto' if auto else 'truth='} takes one channel; choose one "
+            f"with channel= (--channel NAME)"
+        )
+    return {
+        k: (inputs[k], inputs["black"] if k.endswith("_medium") else None)
+        for k in ("reference_clear", "reference_medium", "target_medium")
+    }
 
 
 def _relative_to(inputs: dict, outdir: str) -> dict:
     """The inputs, those inside ``outdir`` named relative to it."""
-    return {k: (os.path.relpath(v, outdir) if isinstance(v, (str, os.PathLike))
-                and _inside(v, outdir) else v) for k, v in inputs.items()}
+    return {
+        k: (
+            os.path.relpath(v, outdir)
+            if isinstance(v, (str, os.PathLike)) and _inside(v, outdir)
+            else v
+        )
+        for k, v in inputs.items()
+    }
 
 
 def _stage(progress, name: str):
@@ -198,9 +224,11 @@ def _write_figures(folder, data: dict, ref, med, tgt, direct) -> dict:
     """The figure of each fit in ``folder``: {figure key: file name}."""
     if CHANNEL_DATA in data:
         return _write_channel_figures(folder, data[CHANNEL_DATA], ref, med, tgt, direct)
-    figs = {"reference_fig": (data["reference_clear"], ref, None, None),
-            "medium_fig": (data["reference_medium"], med, ref.one_model(), None),
-            "target_fig": (data["target_medium"], tgt, med.one_model(), None)}
+    figs = {
+        "reference_fig": (data["reference_clear"], ref, None, None),
+        "medium_fig": (data["reference_medium"], med, ref.one_model(), None),
+        "target_fig": (data["target_medium"], tgt, med.one_model(), None),
+    }
     if direct is not None:
         figs["direct_fig"] = (data["target_clear"], direct, None, tgt)
     for key, (d, result, other, extra) in figs.items():
@@ -211,9 +239,11 @@ def _write_figures(folder, data: dict, ref, med, tgt, direct) -> dict:
 def _write_channel_figures(folder, datas: dict, ref, med, tgt, direct) -> dict:
     """:func:`_write_figures` of fits over several channels: every channel in its colour."""
     channels = ref.channel_names
-    figs = {"reference_fig": (datas["reference_clear"], ref, None, None),
-            "medium_fig": (datas["reference_medium"], med, ref, None),
-            "target_fig": (datas["target_medium"], tgt, med, None)}
+    figs = {
+        "reference_fig": (datas["reference_clear"], ref, None, None),
+        "medium_fig": (datas["reference_medium"], med, ref, None),
+        "target_fig": (datas["target_medium"], tgt, med, None),
+    }
     if direct is not None:
         figs["direct_fig"] = (datas["target_clear"], direct, None, tgt)
     for key, (d, result, other, extra) in figs.items():
@@ -226,11 +256,12 @@ def _channel_lines(comparison: dict | None) -> str:
     """report.md's per-channel comparison of the estimate with the direct fit (if any)."""
     if not comparison or "rms_fr_relative_by_channel" not in comparison:
         return ""
-    rows = [f"| {c} | {100 * v:.3g} |"
-            for c, v in comparison["rms_fr_relative_by_channel"].items()]
-    return ("\n\nThe estimate against the target measured directly, per channel (rms relative "
-            "difference of f_r over the paper's protocol):\n\n| channel | rms [%] |\n|---|---|\n"
-            + "\n".join(rows))
+    rows = [f"| {c} | {100 * v:.3g} |" for c, v in comparison["rms_fr_relative_by_channel"].items()]
+    return (
+        "\n\nThe estimate against the target measured directly, per channel (rms relative "
+        "difference of f_r over the paper's protocol):\n\n| channel | rms [%] |\n|---|---|\n"
+        + "\n".join(rows)
+    )
 
 
 def _resolve_models(models, brdf_model, medium_model) -> tuple[Any, Any, bool]:
@@ -275,28 +306,60 @@ def _fit_steps(data: dict, run: _Run, sources=None) -> tuple[FitResult, FitResul
     {session: (table, black)} replaces the checked data's tables (several channels: each
     step fits them at once, the black cloth subtracted channel by channel)."""
     fixed, free, progress = run.fixed, run.free, run.progress
-    brdf = {"brdf_model": run.brdf_model, "options": run.brdf_options,
-            "model_error": run.model_error}
-    chained = {"model_error": run.model_error, "propagation": run.propagation,
-               "accuracy": run.accuracy, "max_nfev": run.max_nfev}
+    brdf = {
+        "brdf_model": run.brdf_model,
+        "options": run.brdf_options,
+        "model_error": run.model_error,
+    }
+    chained = {
+        "model_error": run.model_error,
+        "propagation": run.propagation,
+        "accuracy": run.accuracy,
+        "max_nfev": run.max_nfev,
+    }
     table, black = {}, {}
     for key in ("reference_clear", "reference_medium", "target_medium"):
         table[key], black[key] = (sources or {}).get(key, (data[key].table, None))
-    prefetch(data["reference_medium"], brdf_model=run.brdf_model,
-             brdf_options=run.brdf_options, medium_model=run.medium_model,
-             medium_options=run.medium_options, variant=run.variant, accuracy=run.accuracy)
-    ref = fit_reference(table["reference_clear"], fixed=fixed.get("reference"),
-                        max_nfev=run.max_nfev, progress=_stage(progress, "step 0, reference"),
-                        free=free.get("reference"), **brdf)
-    med = fit_medium(table["reference_medium"], ref, fixed=fixed.get("medium"),
-                     black=black["reference_medium"], variant=run.variant,
-                     progress=_stage(progress, "step 1, medium"),
-                     medium_model=run.medium_model, options=run.medium_options,
-                     free=free.get("medium"), **chained)
-    tgt = fit_target(table["target_medium"], med, fixed=fixed.get("target"),
-                     black=black["target_medium"], progress=_stage(progress, "step 2, target"),
-                     free=free.get("target"), brdf_model=run.brdf_model,
-                     options=run.brdf_options, **chained)
+    prefetch(
+        data["reference_medium"],
+        brdf_model=run.brdf_model,
+        brdf_options=run.brdf_options,
+        medium_model=run.medium_model,
+        medium_options=run.medium_options,
+        variant=run.variant,
+        accuracy=run.accuracy,
+    )
+    ref = fit_reference(
+        table["reference_clear"],
+        fixed=fixed.get("reference"),
+        max_nfev=run.max_nfev,
+        progress=_stage(progress, "step 0, reference"),
+        free=free.get("reference"),
+        **brdf,
+    )
+    med = fit_medium(
+        table["reference_medium"],
+        ref,
+        fixed=fixed.get("medium"),
+        black=black["reference_medium"],
+        variant=run.variant,
+        progress=_stage(progress, "step 1, medium"),
+        medium_model=run.medium_model,
+        options=run.medium_options,
+        free=free.get("medium"),
+        **chained,
+    )
+    tgt = fit_target(
+        table["target_medium"],
+        med,
+        fixed=fixed.get("target"),
+        black=black["target_medium"],
+        progress=_stage(progress, "step 2, target"),
+        free=free.get("target"),
+        brdf_model=run.brdf_model,
+        options=run.brdf_options,
+        **chained,
+    )
     return ref, med, tgt
 
 
@@ -309,13 +372,29 @@ def _fit_direct(session, run: _Run, *, chosen: bool, brdf_model, brdf_options) -
         fix_d = for_family(cls, run.fixed, "target", "fixed", set())
         free_d = for_family(cls, run.free, "target", "free", set())
     table = session if isinstance(session, (str, os.PathLike)) else session.table
-    return fit_direct(table, fixed=fix_d, max_nfev=run.max_nfev, free=free_d,
-                      progress=_stage(run.progress, "target, clear medium"),
-                      brdf_model=brdf_model, options=brdf_options, model_error=run.model_error)
+    return fit_direct(
+        table,
+        fixed=fix_d,
+        max_nfev=run.max_nfev,
+        free=free_d,
+        progress=_stage(run.progress, "target, clear medium"),
+        brdf_model=brdf_model,
+        options=brdf_options,
+        model_error=run.model_error,
+    )
 
 
-def _write_outputs(run: _Run, fits: dict, data: dict, rankings: dict, kept: dict, *,
-                   comparison, shown: dict, channels=None) -> dict:
+def _write_outputs(
+    run: _Run,
+    fits: dict,
+    data: dict,
+    rankings: dict,
+    kept: dict,
+    *,
+    comparison,
+    shown: dict,
+    channels=None,
+) -> dict:
     """The pipeline's files in ``run.outdir``, as one transaction: {key: file name}.
     ``shown``: the inputs as report.md names them."""
     names = {}
@@ -335,8 +414,13 @@ def _write_outputs(run: _Run, fits: dict, data: dict, rankings: dict, kept: dict
         if rankings:
             report = report.rstrip("\n") + "\n\n" + "\n".join(ranking_section(rankings)) + "\n"
         if channels is not None:
-            report = report.rstrip("\n") + "\n\n" + CHANNELS_NOTE.format(
-                ", ".join(channels)) + _channel_lines(comparison) + "\n"
+            report = (
+                report.rstrip("\n")
+                + "\n\n"
+                + CHANNELS_NOTE.format(", ".join(channels))
+                + _channel_lines(comparison)
+                + "\n"
+            )
         write_text_atomic(folder / FILES["report"], report)
         names["report"] = FILES["report"]
     return names
@@ -347,41 +431,81 @@ def _pipeline(run: _Run, inputs: dict) -> PipelineResult:
     candidates of) steps 0-2, fit the target directly if given, write the files."""
     brdf_model, brdf_options = run.brdf_model, run.brdf_options
     # the candidates and their entries, checked before any reading
-    plan = (plan_candidates(run.fixed, run.free, brdf_options, run.medium_options, run.variant)
-            if run.auto else None)
+    plan = (
+        plan_candidates(run.fixed, run.free, brdf_options, run.medium_options, run.variant)
+        if run.auto
+        else None
+    )
     # read and check every input before the first (long) fit
     data, channels = _prepare_sessions(inputs, run.channel)
     sources = _channel_sources(inputs, channels, run.auto, run.truth)
     rankings, kept = dict[str, Any](), dict[str, Any]()
     if plan is not None:
         ref, med, tgt, brdf_model, brdf_options, rankings, kept = select_steps(
-            data, plan, accuracy=run.accuracy, max_nfev=run.max_nfev, progress=run.progress,
-            model_error=run.model_error, propagation=run.propagation,
-            keep=run.keep_candidates)
+            data,
+            plan,
+            accuracy=run.accuracy,
+            max_nfev=run.max_nfev,
+            progress=run.progress,
+            model_error=run.model_error,
+            propagation=run.propagation,
+            keep=run.keep_candidates,
+        )
     else:
         ref, med, tgt = _fit_steps(data, run, sources)
     direct = comparison = None
     if inputs["target_clear"] is not None:
-        direct = _fit_direct(inputs["target_clear"] if channels else data["target_clear"],
-                             run, chosen=bool(rankings), brdf_model=brdf_model,
-                             brdf_options=brdf_options)
+        direct = _fit_direct(
+            inputs["target_clear"] if channels else data["target_clear"],
+            run,
+            chosen=bool(rankings),
+            brdf_model=brdf_model,
+            brdf_options=brdf_options,
+        )
         comparison = compare(tgt, direct)
 
     fits = {"reference": ref, "medium": med, "target": tgt, "direct": direct}
     # inputs inside the output folder are named relative to it (links from report.md)
-    names = _write_outputs(run, fits, data, rankings, kept, comparison=comparison,
-                           shown=_relative_to(inputs, run.outdir), channels=channels)
+    names = _write_outputs(
+        run,
+        fits,
+        data,
+        rankings,
+        kept,
+        comparison=comparison,
+        shown=_relative_to(inputs, run.outdir),
+        channels=channels,
+    )
     files = {key: os.path.join(run.outdir, name) for key, name in names.items()}
     return PipelineResult(ref, med, tgt, direct, comparison, files, rankings)
 
 
-def run_pipeline(reference_clear, reference_medium, target_medium, black=None, target_clear=None,
-                 outdir="veil-fit", *, variant: str | None = None, accuracy: str = "default",
-                 fixed=None, max_nfev=None, progress=None, truth=None,
-                 figures: bool = True, brdf_model=None, medium_model=None, brdf_options=None,
-                 medium_options=None, free=None, model_error=None,
-                 propagation=None, models=None, keep_candidates: bool = False,
-                 channel: str | None = None) -> PipelineResult:
+def run_pipeline(
+    reference_clear,
+    reference_medium,
+    target_medium,
+    black=None,
+    target_clear=None,
+    outdir="veil-fit",
+    *,
+    variant: str | None = None,
+    accuracy: str = "default",
+    fixed=None,
+    max_nfev=None,
+    progress=None,
+    truth=None,
+    figures: bool = True,
+    brdf_model=None,
+    medium_model=None,
+    brdf_options=None,
+    medium_options=None,
+    free=None,
+    model_error=None,
+    propagation=None,
+    models=None,
+    keep_candidates: bool = False,
+    channel: str | None = None,
+) -> PipelineResult:
     """Steps 0-2 of docs/model.md sec. 7 with files, figures and report.md in ``outdir``.
 
     reference_clear, reference_medium, target_medium : sessions (DataFrames or CSV paths):
@@ -400,13 +524,35 @@ def run_pipeline(reference_clear, reference_medium, target_medium, black=None, t
     """
     model_error, propagation = check_kind(model_error), check_method(propagation)
     fixed, free, outdir = _check_fixed(fixed), _check_fixed(free, "free"), os.fspath(outdir)
-    inputs = {"reference_clear": reference_clear, "reference_medium": reference_medium,
-              "target_medium": target_medium, "black": black, "target_clear": target_clear}
+    inputs = {
+        "reference_clear": reference_clear,
+        "reference_medium": reference_medium,
+        "target_medium": target_medium,
+        "black": black,
+        "target_clear": target_clear,
+    }
     _check_outputs(outdir, inputs)
     brdf_model, medium_model, auto = _resolve_models(models, brdf_model, medium_model)
-    run = _Run(outdir, fixed, free, variant, accuracy, max_nfev, progress, truth, figures,
-               brdf_model, medium_model, brdf_options, medium_options, model_error,
-               propagation, auto, keep_candidates, channel)
+    run = _Run(
+        outdir,
+        fixed,
+        free,
+        variant,
+        accuracy,
+        max_nfev,
+        progress,
+        truth,
+        figures,
+        brdf_model,
+        medium_model,
+        brdf_options,
+        medium_options,
+        model_error,
+        propagation,
+        auto,
+        keep_candidates,
+        channel,
+    )
     return _pipeline(run, inputs)
 
 
@@ -425,8 +571,10 @@ def _write_selection(folder, rankings: dict, kept: dict) -> dict:
     {key: file name}."""
     names = {}
     if rankings:
-        write_text_atomic(folder / RANKING_FILE, json.dumps(
-            {step: r.to_dict() for step, r in rankings.items()}, indent=1) + "\n")
+        write_text_atomic(
+            folder / RANKING_FILE,
+            json.dumps({step: r.to_dict() for step, r in rankings.items()}, indent=1) + "\n",
+        )
         names["ranking"] = RANKING_FILE
     for step, results in kept.items():
         (folder / CANDIDATES_DIR / step).mkdir(parents=True, exist_ok=True)
@@ -437,5 +585,12 @@ def _write_selection(folder, rankings: dict, kept: dict) -> dict:
     return names
 
 
-__all__ = ["run_pipeline", "PipelineResult", "compare", "fit_figure", "FILES", "RANKING_FILE",
-           "CANDIDATES_DIR"]
+__all__ = [
+    "run_pipeline",
+    "PipelineResult",
+    "compare",
+    "fit_figure",
+    "FILES",
+    "RANKING_FILE",
+    "CANDIDATES_DIR",
+]

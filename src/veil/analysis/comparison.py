@@ -31,23 +31,32 @@ def compare(estimated: FitResult, direct: FitResult) -> dict:
     """
     rows = {}
     se_est = estimated.stderr_total or estimated.stderr
-    named = estimated.target_names()        # a joint fit's by their result names
+    named = estimated.target_names()  # a joint fit's by their result names
     for name, ref in direct.params.items():
         key = named[name]
         value = estimated.params[key]
         a, b = se_est.get(key), direct.stderr.get(name)
         combined = math.hypot(a or 0.0, b or 0.0)
-        rows[name] = {"estimated": value, "direct": ref, "difference": value - ref,
-                      "stderr_combined": combined if combined > 0 else None,
-                      "z": (value - ref) / combined if combined > 0 else None}
+        rows[name] = {
+            "estimated": value,
+            "direct": ref,
+            "difference": value - ref,
+            "stderr_combined": combined if combined > 0 else None,
+            "z": (value - ref) / combined if combined > 0 else None,
+        }
     configs = protocol()
     f_est, se_f_est, f_dir, se_f_dir, by_channel = _curves(estimated, direct, configs)
     diff = f_est - f_dir
-    out = {"params": rows, "n_configurations": len(configs), **by_channel,
-           "rms_fr_difference": float(np.sqrt(np.mean(diff ** 2))),
-           "rms_fr_relative": float(np.sqrt(np.mean((diff / f_dir) ** 2))),
-           "max_fr_relative": float(np.max(np.abs(diff / f_dir))),
-           "fr_max_z": None, "fr_within_2se": None}
+    out = {
+        "params": rows,
+        "n_configurations": len(configs),
+        **by_channel,
+        "rms_fr_difference": float(np.sqrt(np.mean(diff**2))),
+        "rms_fr_relative": float(np.sqrt(np.mean((diff / f_dir) ** 2))),
+        "max_fr_relative": float(np.max(np.abs(diff / f_dir))),
+        "fr_max_z": None,
+        "fr_within_2se": None,
+    }
     spread = ((estimated.stats or {}).get("selection") or {}).get("spread")
     out["model_spread_rms_relative"] = None
     if spread is not None and len(spread.get("spread", ())) == len(f_est):
@@ -65,7 +74,6 @@ def compare(estimated: FitResult, direct: FitResult) -> dict:
     return out
 
 
-
 def _curves(estimated: FitResult, direct: FitResult, configs) -> tuple:
     """(f_est, its se, f_dir, its se, {"channels": {channel: rms relative difference}} or
     {}) over the protocol's ``configs``; of a fit over several channels, channel after
@@ -73,13 +81,19 @@ def _curves(estimated: FitResult, direct: FitResult, configs) -> tuple:
     angles = tuple(configs[c].to_numpy() for c in CANONICAL)
     if not estimated.channels:
         return (*curve_stderr(estimated, angles), *curve_stderr(direct, angles), {})
-    parts = [(curve_stderr(estimated, angles, c), curve_stderr(direct, angles, c))
-             for c in estimated.channel_names]
+    parts = [
+        (curve_stderr(estimated, angles, c), curve_stderr(direct, angles, c))
+        for c in estimated.channel_names
+    ]
     f_est, f_dir = (np.concatenate([p[k][0] for p in parts]) for k in (0, 1))
-    se_est, se_dir = (None if any(p[k][1] is None for p in parts)
-                      else np.concatenate([p[k][1] for p in parts]) for k in (0, 1))
-    rms = {c: float(np.sqrt(np.mean(((e[0] - d[0]) / d[0]) ** 2)))
-           for c, (e, d) in zip(estimated.channel_names, parts)}
+    se_est, se_dir = (
+        None if any(p[k][1] is None for p in parts) else np.concatenate([p[k][1] for p in parts])
+        for k in (0, 1)
+    )
+    rms = {
+        c: float(np.sqrt(np.mean(((e[0] - d[0]) / d[0]) ** 2)))
+        for c, (e, d) in zip(estimated.channel_names, parts)
+    }
     return f_est, se_est, f_dir, se_dir, {"rms_fr_relative_by_channel": rms}
 
 

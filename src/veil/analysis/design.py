@@ -49,7 +49,6 @@ PRIOR_SD_LOG = 10.0
 PRIOR_SD_PLAIN = 1.0
 
 
-
 def interest_names(brdf_cls) -> tuple[str, ...]:
     """The BRDF's parameters of interest: ratios of its scales to the first (the level),
     then its other parameters (module docstring)."""
@@ -61,8 +60,12 @@ def interest_names(brdf_cls) -> tuple[str, ...]:
 def plan_columns(medium_cls) -> tuple[str, ...]:
     """Columns of a plan: step, condition, the angles, medium_<parameter> of the row's
     condition, gain."""
-    return (("step", "condition") + ANGLE_COLUMNS
-            + tuple(f"medium_{p.name}" for p in medium_cls.PARAMS) + ("gain",))
+    return (
+        ("step", "condition")
+        + ANGLE_COLUMNS
+        + tuple(f"medium_{p.name}" for p in medium_cls.PARAMS)
+        + ("gain",)
+    )
 
 
 #: Interest and plan columns of the paper's models.
@@ -103,8 +106,9 @@ def conditions(media, factors=None) -> dict:
     out = {}
     for k, m in enumerate(media):
         model = as_btdf(m)
-        base = m.upper() if isinstance(m, str) else (f"medium {k + 1}" if len(media) > 1
-                                                     else "medium")
+        base = (
+            m.upper() if isinstance(m, str) else (f"medium {k + 1}" if len(media) > 1 else "medium")
+        )
         if factors is None:
             label = base
             if label in out:
@@ -119,14 +123,22 @@ def conditions(media, factors=None) -> dict:
     return out
 
 
-def candidates(conds: dict, psi=DEFAULT_PSI, *, fine_step: float = 1.0,
-               coarse_step: float = 5.0, window: float = 10.0, limit: float = 85.0) -> pd.DataFrame:
+def candidates(
+    conds: dict,
+    psi=DEFAULT_PSI,
+    *,
+    fine_step: float = 1.0,
+    coarse_step: float = 5.0,
+    window: float = 10.0,
+    limit: float = 85.0,
+) -> pd.DataFrame:
     """Candidate measurements: every protocol configuration (:func:`veil.protocol.protocol`)
     under every condition. Columns condition, psi, rho, theta_i, phi_i, theta_r, phi_r
     (degrees)."""
     psi = _floats("psi", psi)
-    configs = protocol(psi, fine_step=fine_step, coarse_step=coarse_step, window=window,
-                       limit=limit)
+    configs = protocol(
+        psi, fine_step=fine_step, coarse_step=coarse_step, window=window, limit=limit
+    )
     blocks = []
     for label in conds:
         block = configs.copy()
@@ -138,12 +150,13 @@ def candidates(conds: dict, psi=DEFAULT_PSI, *, fine_step: float = 1.0,
 def _check_noise(noise, floor) -> None:
     """The relative noise and the noise floor: finite, >= 0, not both 0."""
     for name, v in (("noise", noise), ("noise floor", floor)):
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) \
-                or v < 0:
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
             raise InputError(f"{name} = {v!r}: expected a finite number >= 0")
     if noise == 0 and floor == 0:
-        raise InputError("noise and noise floor are both 0: the information would be "
-                         "infinite; give a relative noise (e.g. 0.01) or a floor")
+        raise InputError(
+            "noise and noise floor are both 0: the information would be "
+            "infinite; give a relative noise (e.g. 0.01) or a floor"
+        )
 
 
 def _medium_columns(mcls, media: list, labels: list, names: list, prior_log: list) -> dict:
@@ -151,8 +164,10 @@ def _medium_columns(mcls, media: list, labels: list, names: list, prior_log: lis
     column}, one per condition, or one for all when the media share the value. Appends the
     columns' names and whether their prior is in logs to ``names`` and ``prior_log``."""
     col = {}
-    shared = {p.name: p.share is not None and len({getattr(m, p.name) for m in media}) == 1
-              for p in mcls.PARAMS}
+    shared = {
+        p.name: p.share is not None and len({getattr(m, p.name) for m in media}) == 1
+        for p in mcls.PARAMS
+    }
     for label in labels:
         for p in mcls.PARAMS:
             if shared[p.name]:
@@ -174,14 +189,17 @@ def _interest(bcls, interest) -> tuple:
     """The parameters of interest (default: every one a plan can inform), checked."""
     possible = interest_names(bcls)
     if not possible:
-        raise InputError(f"the BRDF family {bcls.NAME} has one scale and no other "
-                         f"parameter: only its level, which no plan can separate from the "
-                         f"media's, could be estimated; there is nothing to design for")
+        raise InputError(
+            f"the BRDF family {bcls.NAME} has one scale and no other "
+            f"parameter: only its level, which no plan can separate from the "
+            f"media's, could be estimated; there is nothing to design for"
+        )
     interest = possible if interest is None else tuple(interest)
     unknown = [p for p in interest if p not in possible]
     if unknown or not interest:
-        raise InputError(f"parameters of interest {list(interest)}: choose among "
-                         f"{', '.join(possible)}")
+        raise InputError(
+            f"parameters of interest {list(interest)}: choose among {', '.join(possible)}"
+        )
     return interest
 
 
@@ -192,8 +210,10 @@ def _check_conditions(conditions: dict, table: pd.DataFrame) -> None:
         raise InputError(f"candidates name unknown condition(s) {', '.join(sorted(missing))}")
     classes = {type(m) for m in conditions.values()}
     if len(classes) > 1:
-        raise InputError("the conditions mix medium models "
-                         f"({', '.join(sorted(c.NAME for c in classes))}); use one")
+        raise InputError(
+            "the conditions mix medium models "
+            f"({', '.join(sorted(c.NAME for c in classes))}); use one"
+        )
 
 
 class Information:
@@ -205,9 +225,18 @@ class Information:
     ``interest`` indexes the parameters of interest.
     """
 
-    def __init__(self, brdf, conds: dict, table: pd.DataFrame, *, noise: float = 0.01,
-                 floor: float = 0.0, mode: str = "joint", interest=None,
-                 accuracy: str = "fast"):
+    def __init__(
+        self,
+        brdf,
+        conds: dict,
+        table: pd.DataFrame,
+        *,
+        noise: float = 0.01,
+        floor: float = 0.0,
+        mode: str = "joint",
+        interest=None,
+        accuracy: str = "fast",
+    ):
         if mode not in MODES:
             raise InputError(f"medium mode {mode!r}; expected one of {', '.join(MODES)}")
         _check_noise(noise, floor)
@@ -225,21 +254,26 @@ class Information:
         level = bcls.index(scales[0]) if scales else None
         # BRDF columns: ratios, other parameters, the level (a nuisance) last
         specs = [(f"{s}/{scales[0]}", bcls.index(s), True, "ratio") for s in scales[1:]]
-        specs += [(p.name, i, p.log_scale, "own") for i, p in enumerate(bcls.PARAMS)
-                  if p.name not in scales]
+        specs += [
+            (p.name, i, p.log_scale, "own")
+            for i, p in enumerate(bcls.PARAMS)
+            if p.name not in scales
+        ]
         names = [s[0] for s in specs] + ([scales[0]] if scales else [])
         prior_log = [s[2] for s in specs] + ([True] if scales else [])
         col = _medium_columns(mcls, media, labels, names, prior_log) if mode == "joint" else {}
         self.names = names
         self.interest = [names.index(p) for p in interest]
         self.nuisance = [k for k in range(len(names)) if k not in self.interest]
-        self.prior = np.array([1.0 / PRIOR_SD_LOG ** 2 if lg else 1.0 / PRIOR_SD_PLAIN ** 2
-                               for lg in prior_log])
+        self.prior = np.array(
+            [1.0 / PRIOR_SD_LOG**2 if lg else 1.0 / PRIOR_SD_PLAIN**2 for lg in prior_log]
+        )
         vb = self.brdf.to_vector()
         rows = np.zeros((len(self.table), len(names)))
         values = np.zeros(len(self.table))
-        angles_all = [self.table[c].to_numpy(dtype=float)
-                      for c in ("theta_i", "phi_i", "theta_r", "phi_r")]
+        angles_all = [
+            self.table[c].to_numpy(dtype=float) for c in ("theta_i", "phi_i", "theta_r", "phi_r")
+        ]
         cond = self.table["condition"].to_numpy()
         for label, medium in self.conditions.items():
             sel = np.flatnonzero(cond == label)
@@ -248,10 +282,12 @@ class Information:
             vm = medium.to_vector()
             model = SessionModel(self.brdf, medium, [a[sel] for a in angles_all], accuracy)
             val, jb, jm = model.jacobian(vb, vm)
-            sigma = np.sqrt((self.noise * val) ** 2 + self.floor ** 2)
+            sigma = np.sqrt((self.noise * val) ** 2 + self.floor**2)
             if np.any(sigma <= 0):
-                raise InputError("the model is 0 at some candidate configuration and there is "
-                                 "no noise floor: give --noise-floor")
+                raise InputError(
+                    "the model is 0 at some candidate configuration and there is "
+                    "no noise floor: give --noise-floor"
+                )
             # fit coordinates: log for log-scale parameters; a ratio s_j / s_1 moves s_j only,
             # the level s_1 moves every scale together
             r = np.zeros((sel.size, len(names)))
@@ -266,6 +302,7 @@ class Information:
             values[sel] = val
         self.rows = rows
         self.values = values
+
     # ----------------------------------------------------------------------------------
     def matrix(self, selected=()) -> np.ndarray:
         """Information of the candidates ``selected`` (indices), prior included."""
@@ -279,7 +316,8 @@ class Information:
         s = m[np.ix_(self.interest, self.interest)]
         if nu:
             s = s - m[np.ix_(self.interest, nu)] @ np.linalg.solve(
-                m[np.ix_(nu, nu)], m[np.ix_(nu, self.interest)])
+                m[np.ix_(nu, nu)], m[np.ix_(nu, self.interest)]
+            )
         sign, logdet = np.linalg.slogdet(s)
         return float(logdet) if sign > 0 else -np.inf
 
@@ -310,12 +348,16 @@ def greedy(info: Information, size: int, base=(), allowed=None) -> tuple[np.ndar
     if isinstance(size, bool) or not isinstance(size, (int, np.integer)) or size < 1:
         raise InputError(f"size = {size!r}: expected a positive integer")
     base = [int(k) for k in base]
-    available = (np.ones(len(info.rows), dtype=bool) if allowed is None
-                 else np.asarray(allowed, dtype=bool).copy())
+    available = (
+        np.ones(len(info.rows), dtype=bool)
+        if allowed is None
+        else np.asarray(allowed, dtype=bool).copy()
+    )
     available[base] = False
     if size > available.sum():
-        raise InputError(f"size = {size} but only {int(available.sum())} candidate "
-                         f"configurations are available")
+        raise InputError(
+            f"size = {size} but only {int(available.sum())} candidate configurations are available"
+        )
     m = info.matrix(base)
     chosen, gains = [], []
     for _ in range(size):
@@ -339,16 +381,18 @@ def rank(info: Information, base=()) -> pd.DataFrame:
     out.insert(0, "index", np.arange(len(out)))
     out["gain"] = g
     out = out.drop(index=base)
-    return out.sort_values(["gain", "index"], ascending=[False, True],
-                           kind="mergesort").reset_index(drop=True)
+    return out.sort_values(
+        ["gain", "index"], ascending=[False, True], kind="mergesort"
+    ).reset_index(drop=True)
 
 
 def plan_table(info: Information, chosen, gains) -> pd.DataFrame:
     """The plan as a table (columns :func:`plan_columns`); angles in degrees, the medium
     parameters of each row's condition in the medium_* columns."""
     rows = info.table.iloc[np.asarray(chosen, dtype=int)].reset_index(drop=True)
-    out = pd.DataFrame({"step": np.arange(1, len(rows) + 1),
-                        "condition": rows["condition"].to_numpy()})
+    out = pd.DataFrame(
+        {"step": np.arange(1, len(rows) + 1), "condition": rows["condition"].to_numpy()}
+    )
     for c in ("psi", "rho", "theta_i", "phi_i", "theta_r", "phi_r"):
         out[c] = rows[c].to_numpy(dtype=float)
     meds = [info.conditions[label] for label in out["condition"]]
@@ -358,10 +402,23 @@ def plan_table(info: Information, chosen, gains) -> pd.DataFrame:
     return out
 
 
-def design(brdf, media, size: int = 60, *, factors=None, psi=DEFAULT_PSI,
-           noise: float = 0.01, floor: float = 0.0, mode: str = "joint", interest=None,
-           accuracy: str = "fast", fine_step: float = 1.0, coarse_step: float = 5.0,
-           window: float = 10.0, limit: float = 85.0) -> dict[str, Any]:
+def design(
+    brdf,
+    media,
+    size: int = 60,
+    *,
+    factors=None,
+    psi=DEFAULT_PSI,
+    noise: float = 0.01,
+    floor: float = 0.0,
+    mode: str = "joint",
+    interest=None,
+    accuracy: str = "fast",
+    fine_step: float = 1.0,
+    coarse_step: float = 5.0,
+    window: float = 10.0,
+    limit: float = 85.0,
+) -> dict[str, Any]:
     """Recommend a measurement plan of ``size`` configurations (module docstring).
 
     brdf : the target (model or preset) at which the information is evaluated.
@@ -373,10 +430,19 @@ def design(brdf, media, size: int = 60, *, factors=None, psi=DEFAULT_PSI,
     condition alone), ``information`` (the :class:`Information`) and ``criterion``.
     """
     conds = conditions(media, factors)
-    table = candidates(conds, psi, fine_step=fine_step, coarse_step=coarse_step,
-                       window=window, limit=limit)
-    info = Information(brdf, conds, table, noise=noise, floor=floor, mode=mode,
-                       interest=interest, accuracy=accuracy)
+    table = candidates(
+        conds, psi, fine_step=fine_step, coarse_step=coarse_step, window=window, limit=limit
+    )
+    info = Information(
+        brdf,
+        conds,
+        table,
+        noise=noise,
+        floor=floor,
+        mode=mode,
+        interest=interest,
+        accuracy=accuracy,
+    )
     chosen, gains = greedy(info, size)
     plan = plan_table(info, chosen, gains)
     m = info.matrix(chosen)
@@ -387,17 +453,29 @@ def design(brdf, media, size: int = 60, *, factors=None, psi=DEFAULT_PSI,
         k = min(size, int(np.sum(cond == label)))
         pick, _ = greedy(info, k, allowed=cond == label)
         se = info.stderr(info.matrix(pick))
-        row = {"condition": label, "in_plan": int(np.sum(cond[chosen] == label)),
-               "alone_size": k}
+        row = {"condition": label, "in_plan": int(np.sum(cond[chosen] == label)), "alone_size": k}
         row.update({f"alone_se_{n}": se[n] for n in interest_names})
         rows.append(row)
-    return {"plan": plan, "stderr": info.stderr(m), "conditions": pd.DataFrame(rows),
-            "information": info, "criterion": info.criterion(m)}
+    return {
+        "plan": plan,
+        "stderr": info.stderr(m),
+        "conditions": pd.DataFrame(rows),
+        "information": info,
+        "criterion": info.criterion(m),
+    }
 
 
-def simulate_plan(plan: pd.DataFrame, brdf, *, noise: float = 0.01, seed: int = 0,
-                  accuracy: str = "default", variant: str | None = None, medium_model=None,
-                  options=None) -> dict:
+def simulate_plan(
+    plan: pd.DataFrame,
+    brdf,
+    *,
+    noise: float = 0.01,
+    seed: int = 0,
+    accuracy: str = "default",
+    variant: str | None = None,
+    medium_model=None,
+    options=None,
+) -> dict:
     """Simulated measurement tables of a plan, one per condition {label: table} (no glow):
     value = apparent reflectance through the row's medium (medium_* columns; the medium
     family ``medium_model``, default the paper's, with ``options``; ``variant`` the Fresnel
@@ -407,16 +485,17 @@ def simulate_plan(plan: pd.DataFrame, brdf, *, noise: float = 0.01, seed: int = 
     """
     from ..models.base import VARIANT_OPTION
 
-    mcls = default_class("medium") if medium_model is None else model_class(medium_model,
-                                                                            "medium")
+    mcls = default_class("medium") if medium_model is None else model_class(medium_model, "medium")
     options = dict(options or {})
     if variant is not None:
         options[VARIANT_OPTION] = variant
     need = [c for c in plan_columns(mcls) if c not in ("step", "gain")]
     missing = [c for c in need if c not in plan.columns]
     if missing:
-        raise InputError(f"the plan lacks column(s) {', '.join(missing)} (written by veil design "
-                         f"for the {mcls.NAME} medium)")
+        raise InputError(
+            f"the plan lacks column(s) {', '.join(missing)} (written by veil design "
+            f"for the {mcls.NAME} medium)"
+        )
     b = as_brdf(brdf)
     rng = np.random.default_rng(seed)
     z = rng.standard_normal(len(plan))
@@ -425,8 +504,9 @@ def simulate_plan(plan: pd.DataFrame, brdf, *, noise: float = 0.01, seed: int = 
     for label in dict.fromkeys(cond):
         sel = np.flatnonzero(cond == label)
         first = plan.iloc[sel[0]]
-        med = mcls.from_params({p.name: float(first[f"medium_{p.name}"]) for p in mcls.PARAMS},
-                               options)
+        med = mcls.from_params(
+            {p.name: float(first[f"medium_{p.name}"]) for p in mcls.PARAMS}, options
+        )
         sub = plan.iloc[sel]
         angles = [sub[c].to_numpy(dtype=float) for c in ("theta_i", "phi_i", "theta_r", "phi_r")]
         val = SessionModel(b, med, angles, accuracy).values(b.to_vector(), med.to_vector())
@@ -437,6 +517,19 @@ def simulate_plan(plan: pd.DataFrame, brdf, *, noise: float = 0.01, seed: int = 
     return out
 
 
-__all__ = ["conditions", "candidates", "condition_medium", "Information", "greedy", "rank",
-           "plan_table", "design", "simulate_plan", "DEFAULT_PSI", "INTEREST", "PLAN_COLUMNS",
-           "interest_names", "plan_columns"]
+__all__ = [
+    "conditions",
+    "candidates",
+    "condition_medium",
+    "Information",
+    "greedy",
+    "rank",
+    "plan_table",
+    "design",
+    "simulate_plan",
+    "DEFAULT_PSI",
+    "INTEREST",
+    "PLAN_COLUMNS",
+    "interest_names",
+    "plan_columns",
+]

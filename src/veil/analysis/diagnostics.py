@@ -39,7 +39,7 @@ from ..numbers import format_number, format_percent
 #: Default thresholds.
 MAX_RELATIVE = 0.25
 MAX_CORRELATION = 0.9
-FLAT = 1.0            # Delta chi^2 below which a profile end counts as flat
+FLAT = 1.0  # Delta chi^2 below which a profile end counts as flat
 #: Largest half-width of a profile grid in fit coordinates (log units for scale parameters,
 #: atanh units for g, plain for indices); otherwise 3 standard errors.
 MAX_SPAN = {"log": math.log(4.0), "atanh": 1.0, "plain": 0.5}
@@ -62,9 +62,15 @@ class Profile:
     converged: bool
 
     def to_dict(self) -> dict:
-        return {"name": self.name, "estimate": self.estimate, "values": self.values,
-                "delta_chi2": self.delta_chi2, "interval": list(self.interval),
-                "flat": self.flat, "converged": self.converged}
+        return {
+            "name": self.name,
+            "estimate": self.estimate,
+            "values": self.values,
+            "delta_chi2": self.delta_chi2,
+            "interval": list(self.interval),
+            "flat": self.flat,
+            "converged": self.converged,
+        }
 
 
 @dataclass
@@ -90,17 +96,28 @@ class Diagnosis:
 
     def to_dict(self) -> dict:
         """JSON-ready (non-finite numbers become None)."""
-        return _finite({"parameters": self.names, "values": self.values, "stderr": self.stderr,
+        return _finite(
+            {
+                "parameters": self.names,
+                "values": self.values,
+                "stderr": self.stderr,
                 "relative_stderr": self.relative,
-                "correlation": {a: {b: float(self.correlation[i, j])
-                                    for j, b in enumerate(self.names)}
-                                for i, a in enumerate(self.names)},
-                "condition": self.condition, "weakest_direction": self.weakest,
+                "correlation": {
+                    a: {b: float(self.correlation[i, j]) for j, b in enumerate(self.names)}
+                    for i, a in enumerate(self.names)
+                },
+                "condition": self.condition,
+                "weakest_direction": self.weakest,
                 "profiles": {k: p.to_dict() for k, p in self.profiles.items()},
-                "poorly_determined": [{"parameter": n, "reason": r}
-                                      for n, r in self.poorly_determined],
+                "poorly_determined": [
+                    {"parameter": n, "reason": r} for n, r in self.poorly_determined
+                ],
                 "tradeoffs": [{"a": a, "b": b, "correlation": r} for a, b, r in self.tradeoffs],
-                "notes": self.notes, "thresholds": self.thresholds, "ok": self.ok})
+                "notes": self.notes,
+                "thresholds": self.thresholds,
+                "ok": self.ok,
+            }
+        )
 
     def report(self) -> str:
         lines = ["[[Identifiability]]"]
@@ -110,10 +127,12 @@ class Diagnosis:
             extra = ""
             if prof is not None:
                 lo, hi = prof.interval
-                extra = (f"  profile 1-sigma [{_f(lo)}, {_f(hi)}]"
-                         + (f" FLAT ({', '.join(prof.flat)})" if prof.flat else ""))
-            lines.append(f"    {n:<10} {_f(self.values[n])} +/- {_f(se)} "
-                         f"(relative {_pct(rel)}){extra}")
+                extra = f"  profile 1-sigma [{_f(lo)}, {_f(hi)}]" + (
+                    f" FLAT ({', '.join(prof.flat)})" if prof.flat else ""
+                )
+            lines.append(
+                f"    {n:<10} {_f(self.values[n])} +/- {_f(se)} (relative {_pct(rel)}){extra}"
+            )
         lines.append(f"    condition number (columns x values) = {_f(self.condition['values'])}")
         lines.append(f"    condition number (columns x stderr) = {_f(self.condition['stderr'])}")
         w = ", ".join(f"{c:+.2f} {n}" for n, c in self.weakest.items() if abs(c) >= 0.1)
@@ -173,16 +192,16 @@ def _as_model(obj, kind):
         raise FitError(f"expected a {kind} fit result or model, got a joint fit result")
     if isinstance(obj, FitResult):
         if obj.kind != kind:
-            raise FitError(f"expected a {kind} fit result, got a {obj.model} ({obj.kind}) "
-                           f"result")
+            raise FitError(f"expected a {kind} fit result, got a {obj.model} ({obj.kind}) result")
         return obj.one_model(), obj
     if isinstance(obj, Model) and obj.KIND == kind:
         return obj, None
     raise FitError(f"expected a FitResult or a {kind} model, got {type(obj).__name__}")
 
 
-def problem_for(result: FitResult, data, *, medium=None, reference=None,
-                black=None) -> tuple[Problem, list[str]]:
+def problem_for(
+    result: FitResult, data, *, medium=None, reference=None, black=None
+) -> tuple[Problem, list[str]]:
     """The least-squares problem a result solved, at its estimate: (problem, notes).
 
     data : the table of a step result (DataFrame or path), or for a joint result its sessions
@@ -197,22 +216,30 @@ def problem_for(result: FitResult, data, *, medium=None, reference=None,
         ref = None
         if layout.get("reference_given"):
             if not result.given:
-                raise FitError("the joint result held the reference fixed but does not say "
-                               "which (key 'given')")
+                raise FitError(
+                    "the joint result held the reference fixed but does not say which (key 'given')"
+                )
             ref = result.given_model()
         ref_names = set(layout["objects"].get("reference", {}).values()) if ref else set()
         fixed = {k: v for k, v in result.fixed.items() if k not in ref_names}
         mcls = result._family("medium")
-        problem, _ = build(data, reference=ref, shared=layout.get("shared", []),
-                           per_medium=[p for p in shareable(mcls)
-                                       if p not in layout.get("shared", [])],
-                           fixed=fixed, brdf_model=result._family("brdf").NAME,
-                           medium_model=mcls.NAME, brdf_options=result._options("brdf"),
-                           medium_options=result._options("medium"))
+        problem, _ = build(
+            data,
+            reference=ref,
+            shared=layout.get("shared", []),
+            per_medium=[p for p in shareable(mcls) if p not in layout.get("shared", [])],
+            fixed=fixed,
+            brdf_model=result._family("brdf").NAME,
+            medium_model=mcls.NAME,
+            brdf_options=result._options("brdf"),
+            medium_options=result._options("medium"),
+        )
         if problem.names != list(result.params):
-            raise FitError("the sessions given do not make up the joint fit's parameters "
-                           f"({', '.join(result.params)}); give the same sessions (media "
-                           f"labels and objects) as the fit")
+            raise FitError(
+                "the sessions given do not make up the joint fit's parameters "
+                f"({', '.join(result.params)}); give the same sessions (media "
+                f"labels and objects) as the fit"
+            )
         problem.values = np.array([result.params[n] for n in problem.names])
         return problem, notes
     step = result.step
@@ -221,16 +248,20 @@ def problem_for(result: FitResult, data, *, medium=None, reference=None,
     if step in ("reference", "direct"):
         if medium is not None or reference is not None:
             raise FitError(f"a {step} fit (clear water) has no medium or reference to include")
-        return session_problem(data, cast(BRDF, model), None, free=free, black=black,
-                               what=f"{step} (clear medium)"), notes
+        return session_problem(
+            data, cast(BRDF, model), None, free=free, black=black, what=f"{step} (clear medium)"
+        ), notes
     if step in _THROUGH_MEDIUM:
-        problem = _through_medium(result, data, step, {"medium": medium, "reference": reference},
-                                  free, black, notes)
+        problem = _through_medium(
+            result, data, step, {"medium": medium, "reference": reference}, free, black, notes
+        )
     else:
         raise FitError(f"cannot diagnose a result of step {step!r}")
     if problem.n_points != result.n_points:
-        raise FitError(f"the data have {problem.n_points} points but the fit used "
-                       f"{result.n_points}: give the table (and black cloth) of that fit")
+        raise FitError(
+            f"the data have {problem.n_points} points but the fit used "
+            f"{result.n_points}: give the table (and black cloth) of that fit"
+        )
     return problem, notes
 
 
@@ -239,13 +270,20 @@ def problem_for(result: FitResult, data, *, medium=None, reference=None,
 #: what the table holds).
 _THROUGH_MEDIUM = {
     "target": (2, "medium", "medium", "the medium", "reference", "target (in the medium)"),
-    "medium": (1, "reference", "brdf", "the reference's f_r", "medium",
-               "reference (in the medium)"),
+    "medium": (
+        1,
+        "reference",
+        "brdf",
+        "the reference's f_r",
+        "medium",
+        "reference (in the medium)",
+    ),
 }
 
 
-def _through_medium(result: FitResult, data, step: str, given: dict, free, black,
-                    notes: list) -> Problem:
+def _through_medium(
+    result: FitResult, data, step: str, given: dict, free, black, notes: list
+) -> Problem:
     """The problem of step 1 or 2: the fitted model through (or of) the model held, which
     ``given`` names (a FitResult joins with its prior, a model is exact) or else the
     result's own ``given`` model, exact (said in ``notes``)."""
@@ -257,12 +295,14 @@ def _through_medium(result: FitResult, data, step: str, given: dict, free, black
         other = result.given_model()
         if other is None:
             raise FitError(f"the {step} result does not name its {name}: give {name}=")
-        notes.append(f"{words} is taken as exact (give the {name}'s fit result to include "
-                     f"its uncertainty)")
+        notes.append(
+            f"{words} is taken as exact (give the {name}'s fit result to include its uncertainty)"
+        )
     model = result.one_model()
     brdf, medium = (other, model) if kind == "brdf" else (model, other)
-    problem = session_problem(data, cast(BRDF, brdf), cast(Medium, medium), free=free,
-                              black=black, what=what)
+    problem = session_problem(
+        data, cast(BRDF, brdf), cast(Medium, medium), free=free, black=black, what=what
+    )
     if other_result is not None:
         _add_prior(problem, other_result, name)
     return problem
@@ -283,14 +323,15 @@ def _add_prior(problem, other: FitResult, what):
 # --------------------------------------------------------------------------------------
 # the diagnostics
 # --------------------------------------------------------------------------------------
-def _profiles(problem, x, which: list, stderr: dict, points: int, accuracy: str,
-              progress) -> dict:
+def _profiles(problem, x, which: list, stderr: dict, points: int, accuracy: str, progress) -> dict:
     """{name: profile likelihood} of the free parameters ``which``."""
     names = problem.free_names
     unknown = [n for n in which if n not in names]
     if unknown:
-        raise FitError(f"cannot profile {', '.join(map(repr, unknown))}: the free "
-                       f"parameters are {', '.join(names)}")
+        raise FitError(
+            f"cannot profile {', '.join(map(repr, unknown))}: the free "
+            f"parameters are {', '.join(names)}"
+        )
     chi2_scale = 1.0
     if not problem.weighted:
         dof = problem.n_points - len(names)
@@ -298,17 +339,28 @@ def _profiles(problem, x, which: list, stderr: dict, points: int, accuracy: str,
         chi2_scale = max(float(res @ res) / dof, 1e-300)
     out = {}
     for k, n in enumerate(which):
-        out[n] = profile_likelihood(problem, x, n, stderr[n], points=points, scale=chi2_scale,
-                                    accuracy=accuracy)
+        out[n] = profile_likelihood(
+            problem, x, n, stderr[n], points=points, scale=chi2_scale, accuracy=accuracy
+        )
         if progress:
             progress("profiles", k + 1, len(which))
     return out
 
 
-def diagnose(result: FitResult, data, *, medium=None, reference=None, black=None,
-             profile=False, points: int = PROFILE_POINTS, max_relative: float = MAX_RELATIVE,
-             max_correlation: float = MAX_CORRELATION, accuracy: str = ITERATION_ACCURACY,
-             progress=None) -> Diagnosis:
+def diagnose(
+    result: FitResult,
+    data,
+    *,
+    medium=None,
+    reference=None,
+    black=None,
+    profile=False,
+    points: int = PROFILE_POINTS,
+    max_relative: float = MAX_RELATIVE,
+    max_correlation: float = MAX_CORRELATION,
+    accuracy: str = ITERATION_ACCURACY,
+    progress=None,
+) -> Diagnosis:
     """Diagnostics of ``result`` on its ``data`` (module docstring; arguments as
     :func:`problem_for`). ``profile``: False, True (every free parameter) or a list of names.
     Names are the problem's: a medium's index is ``eta_u`` (the BRDF has ``eta``)."""
@@ -318,8 +370,10 @@ def diagnose(result: FitResult, data, *, medium=None, reference=None, black=None
     x = _optimum(problem, notes, accuracy)
     cov = covariance(problem, x, accuracy)
     if cov is None:
-        raise FitError("the Jacobian is singular at the estimate: at least one combination of "
-                       "the parameters is not determined at all (fix one of them)")
+        raise FitError(
+            "the Jacobian is singular at the estimate: at least one combination of "
+            "the parameters is not determined at all (fix one of them)"
+        )
     se = np.sqrt(np.maximum(np.diag(cov), 0.0))
     corr = cov / np.outer(se, se)
     jw = weighted_jacobian(problem, x, accuracy)
@@ -332,16 +386,33 @@ def diagnose(result: FitResult, data, *, medium=None, reference=None, black=None
     weak = weak * np.sign(weak[np.argmax(np.abs(weak))])
     values = {n: float(v) for n, v in zip(names, vals)}
     stderr = {n: float(v) for n, v in zip(names, se)}
-    relative = {n: relative_error(n, values[n], stderr[n], problem.params[problem.index(n)].spec)
-                for n in names}
-    diag = Diagnosis(names=names, values=values, stderr=stderr, relative=relative,
-                     correlation=corr, condition={"values": cond_values, "stderr": cond_stderr},
-                     weakest={n: float(c) for n, c in zip(names, weak)}, notes=notes,
-                     thresholds={"max_relative": max_relative,
-                                 "max_correlation": max_correlation, "flat": FLAT})
+    relative = {
+        n: relative_error(n, values[n], stderr[n], problem.params[problem.index(n)].spec)
+        for n in names
+    }
+    diag = Diagnosis(
+        names=names,
+        values=values,
+        stderr=stderr,
+        relative=relative,
+        correlation=corr,
+        condition={"values": cond_values, "stderr": cond_stderr},
+        weakest={n: float(c) for n, c in zip(names, weak)},
+        notes=notes,
+        thresholds={"max_relative": max_relative, "max_correlation": max_correlation, "flat": FLAT},
+    )
     if profile:
-        diag.profiles.update(_profiles(problem, x, names if profile is True else list(profile),
-                                       stderr, points, accuracy, progress))
+        diag.profiles.update(
+            _profiles(
+                problem,
+                x,
+                names if profile is True else list(profile),
+                stderr,
+                points,
+                accuracy,
+                progress,
+            )
+        )
     _verdicts(diag, max_relative, max_correlation)
     return diag
 
@@ -349,8 +420,10 @@ def diagnose(result: FitResult, data, *, medium=None, reference=None, black=None
 def _check_arguments(result, points, max_relative, max_correlation) -> None:
     if not isinstance(result, FitResult):
         raise InputTypeError(f"expected a FitResult, got {type(result).__name__}")
-    for name, v, lo, hi in (("max_relative", max_relative, 0, math.inf),
-                            ("max_correlation", max_correlation, 0, 1)):
+    for name, v, lo, hi in (
+        ("max_relative", max_relative, 0, math.inf),
+        ("max_correlation", max_correlation, 0, 1),
+    ):
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not (lo < v <= hi):
             raise FitError(f"{name} = {v!r}; expected a number in ({lo}, {hi}]")
     if isinstance(points, bool) or not isinstance(points, int) or points < 3:
@@ -365,12 +438,18 @@ def _optimum(problem: Problem, notes: list, accuracy: str) -> np.ndarray:
         return x
     names = problem.free_names
     sol = solve(problem, x, accuracy=accuracy)
-    moved = [f"{n} {_f(x[problem.index(n)])} -> {_f(sol.x[problem.index(n)])}"
-             for n in names if not math.isclose(x[problem.index(n)], sol.x[problem.index(n)],
-                                                rel_tol=1e-3, abs_tol=1e-12)]
+    moved = [
+        f"{n} {_f(x[problem.index(n)])} -> {_f(sol.x[problem.index(n)])}"
+        for n in names
+        if not math.isclose(
+            x[problem.index(n)], sol.x[problem.index(n)], rel_tol=1e-3, abs_tol=1e-12
+        )
+    ]
     if moved:
-        notes.append("with the previous step's parameters free under its uncertainty the "
-                     "optimum moves: " + ", ".join(moved))
+        notes.append(
+            "with the previous step's parameters free under its uncertainty the "
+            "optimum moves: " + ", ".join(moved)
+        )
     return sol.x
 
 
@@ -381,12 +460,17 @@ def _verdicts(diag: Diagnosis, max_relative: float, max_correlation: float) -> N
     for n in names:
         if relative[n] > max_relative:
             diag.poorly_determined.append(
-                (n, f"relative standard error {_pct(relative[n])} > {_pct(max_relative)}"))
+                (n, f"relative standard error {_pct(relative[n])} > {_pct(max_relative)}")
+            )
         prof = diag.profiles.get(n)
         if prof is not None and prof.flat:
             diag.poorly_determined.append(
-                (n, f"flat profile ({' and '.join(prof.flat)} side: Delta chi^2 < {FLAT:g} "
-                    f"out to {_f(prof.values[0] if 'lower' in prof.flat else prof.values[-1])})"))
+                (
+                    n,
+                    f"flat profile ({' and '.join(prof.flat)} side: Delta chi^2 < {FLAT:g} "
+                    f"out to {_f(prof.values[0] if 'lower' in prof.flat else prof.values[-1])})",
+                )
+            )
     for i, a in enumerate(names):
         for j in range(i + 1, len(names)):
             if abs(corr[i, j]) > max_correlation:
@@ -399,9 +483,17 @@ def _cond(a: np.ndarray) -> float:
     return float(s[0] / s[-1]) if s[-1] > 0 else math.inf
 
 
-def profile_likelihood(problem, x, name: str, stderr: float, *, points: int = PROFILE_POINTS,
-                       scale: float = 1.0, accuracy: str = ITERATION_ACCURACY,
-                       max_nfev: int = 30) -> Profile:
+def profile_likelihood(
+    problem,
+    x,
+    name: str,
+    stderr: float,
+    *,
+    points: int = PROFILE_POINTS,
+    scale: float = 1.0,
+    accuracy: str = ITERATION_ACCURACY,
+    max_nfev: int = 30,
+) -> Profile:
     """Hold ``name`` on a grid about its estimate and refit the rest (warm starts walking
     outward); Delta chi^2 = (chi^2 - chi^2_min) / ``scale``. The grid spans 3 standard errors
     each side in fit coordinates, at most :data:`MAX_SPAN`."""
@@ -435,11 +527,19 @@ def profile_likelihood(problem, x, name: str, stderr: float, *, points: int = PR
         flat.append("lower")
     if chi2[-1] < FLAT:
         flat.append("upper")
-    interval = (_crossing(values[: half + 1][::-1], chi2[: half + 1][::-1]),
-                _crossing(values[half:], chi2[half:]))
-    return Profile(name=name, estimate=float(x[k]), values=values,
-                   delta_chi2=[float(c) for c in chi2], interval=interval, flat=flat,
-                   converged=bool(converged))
+    interval = (
+        _crossing(values[: half + 1][::-1], chi2[: half + 1][::-1]),
+        _crossing(values[half:], chi2[half:]),
+    )
+    return Profile(
+        name=name,
+        estimate=float(x[k]),
+        values=values,
+        delta_chi2=[float(c) for c in chi2],
+        interval=interval,
+        flat=flat,
+        converged=bool(converged),
+    )
 
 
 def _cost(problem, x, accuracy) -> float:
@@ -459,5 +559,13 @@ def _crossing(values, chi2):
     return None
 
 
-__all__ = ["diagnose", "Diagnosis", "Profile", "profile_likelihood", "problem_for",
-           "relative_error", "MAX_RELATIVE", "MAX_CORRELATION"]
+__all__ = [
+    "diagnose",
+    "Diagnosis",
+    "Profile",
+    "profile_likelihood",
+    "problem_for",
+    "relative_error",
+    "MAX_RELATIVE",
+    "MAX_CORRELATION",
+]

@@ -67,9 +67,11 @@ def covariance_of(result: FitResult, total: bool = False) -> tuple[list[str], np
     found = result.covariance(total=total)
     if found is None:
         missing = [n for n in result.free if result.stderr.get(n) is None]
-        raise FitError(f"the {result.model} fit ({result.step or 'result'}) has no standard "
-                       f"error for {', '.join(missing) or 'its parameters'} (Jacobian "
-                       f"singular): its uncertainty cannot be propagated")
+        raise FitError(
+            f"the {result.model} fit ({result.step or 'result'}) has no standard "
+            f"error for {', '.join(missing) or 'its parameters'} (Jacobian "
+            f"singular): its uncertainty cannot be propagated"
+        )
     names, cov = found
     return list(names), np.asarray(cov, dtype=float)
 
@@ -99,39 +101,62 @@ def _medium_map(medium_result: FitResult, names) -> list[str]:
 
 def _check_pair(target_result, medium_result, reference_result):
     """Results of the right steps, chained (the target fitted through this medium...)."""
-    if not isinstance(target_result, FitResult) or isinstance(target_result, JointResult) \
-            or target_result.kind != "brdf" or target_result.step != "target":
-        raise FitError("target_result must be a step-2 fit (veil fit target: a BRDF fitted "
-                       "through a medium, step 'target')")
-    if not isinstance(medium_result, FitResult) or isinstance(medium_result, JointResult) \
-            or medium_result.kind != "medium":
+    if (
+        not isinstance(target_result, FitResult)
+        or isinstance(target_result, JointResult)
+        or target_result.kind != "brdf"
+        or target_result.step != "target"
+    ):
+        raise FitError(
+            "target_result must be a step-2 fit (veil fit target: a BRDF fitted "
+            "through a medium, step 'target')"
+        )
+    if (
+        not isinstance(medium_result, FitResult)
+        or isinstance(medium_result, JointResult)
+        or medium_result.kind != "medium"
+    ):
         raise FitError("medium_result must be a step-1 fit (veil fit medium: a medium model)")
     given = target_result.given or {}
     if given.get("params"):
         if given.get("model") != medium_result.model:
-            raise FitError(f"the target was fitted through a {given.get('model')} medium, not "
-                           f"the {medium_result.model} of the medium result")
+            raise FitError(
+                f"the target was fitted through a {given.get('model')} medium, not "
+                f"the {medium_result.model} of the medium result"
+            )
         for k, v in medium_result.params.items():
             g = given["params"].get(k)
             if g is None or not math.isclose(float(g), v, rel_tol=1e-9, abs_tol=1e-15):
-                raise FitError(f"the target was fitted through a different medium ({k} = {g} "
-                               f"in the target result, {v} in the medium result): propagate "
-                               f"with the medium result the target fit used")
+                raise FitError(
+                    f"the target was fitted through a different medium ({k} = {g} "
+                    f"in the target result, {v} in the medium result): propagate "
+                    f"with the medium result the target fit used"
+                )
     if reference_result is not None:
-        if not isinstance(reference_result, FitResult) \
-                or isinstance(reference_result, JointResult) or reference_result.kind != "brdf":
+        if (
+            not isinstance(reference_result, FitResult)
+            or isinstance(reference_result, JointResult)
+            or reference_result.kind != "brdf"
+        ):
             raise FitError("reference_result must be a step-0 fit (veil fit reference)")
         given = medium_result.given or {}
         for k, v in reference_result.params.items():
             g = (given.get("params") or {}).get(k)
             if g is not None and not math.isclose(float(g), v, rel_tol=1e-9, abs_tol=1e-15):
-                raise FitError(f"the medium was fitted with a different reference ({k} = {g} "
-                               f"in the medium result, {v} in the reference result)")
+                raise FitError(
+                    f"the medium was fitted with a different reference ({k} = {g} "
+                    f"in the medium result, {v} in the reference result)"
+                )
 
 
-def medium_parts(medium_result: FitResult, reference_result: FitResult | None = None,
-                 reference_table=None, *, black=None,
-                 accuracy: str = ITERATION_ACCURACY) -> tuple[list[str], dict[str, np.ndarray]]:
+def medium_parts(
+    medium_result: FitResult,
+    reference_result: FitResult | None = None,
+    reference_table=None,
+    *,
+    black=None,
+    accuracy: str = ITERATION_ACCURACY,
+) -> tuple[list[str], dict[str, np.ndarray]]:
     """The medium's covariance split into step 1's own part and step 0's (docs/model.md sec. 7).
 
     Returns (names, {"step1": Cov, "step0": Cov}). Step 0's part is computed from the
@@ -143,39 +168,50 @@ def medium_parts(medium_result: FitResult, reference_result: FitResult | None = 
     names, cov1 = covariance_of(medium_result)
     parts = {"step1": cov1}
     if (reference_result is None) != (reference_table is None):
-        raise FitError("give both reference_result (step 0) and reference_table (the reference "
-                       "in the medium, step 1's data) to propagate step 0, or neither")
+        raise FitError(
+            "give both reference_result (step 0) and reference_table (the reference "
+            "in the medium, step 1's data) to propagate step 0, or neither"
+        )
     if reference_result is not None:
         ref_names, cov0 = covariance_of(reference_result)
-        problem = session_problem(reference_table, cast("BRDF", reference_result.one_model()),
-                                  cast("Medium", medium_result.one_model()),
-                                  free=_medium_map(medium_result, names), black=black,
-                                  what="reference (in the medium)")
+        problem = session_problem(
+            reference_table,
+            cast("BRDF", reference_result.one_model()),
+            cast("Medium", medium_result.one_model()),
+            free=_medium_map(medium_result, names),
+            black=black,
+            what="reference (in the medium)",
+        )
         if problem.n_points != medium_result.n_points:
-            raise FitError(f"the reference table has {problem.n_points} points but the medium "
-                           f"fit used {medium_result.n_points}: give the table (and black "
-                           f"cloth) of that fit")
-        b = sensitivity(problem, problem.values, _medium_map(medium_result, names),
-                        list(ref_names), accuracy)
+            raise FitError(
+                f"the reference table has {problem.n_points} points but the medium "
+                f"fit used {medium_result.n_points}: give the table (and black "
+                f"cloth) of that fit"
+            )
+        b = sensitivity(
+            problem, problem.values, _medium_map(medium_result, names), list(ref_names), accuracy
+        )
         parts["step0"] = b @ cov0 @ b.T
     elif medium_result.stderr_total is not None:
         names_t, cov_t = covariance_of(medium_result, total=True)
         if names_t != names:
-            raise FitError("the medium result's total and own uncertainties cover different "
-                           "parameters")
+            raise FitError(
+                "the medium result's total and own uncertainties cover different parameters"
+            )
         parts["step0"] = cov_t - cov1
     return names, parts
 
 
-def _sigma_point_parts(problem, medium_result: FitResult, m_names, m_parts: dict,
-                       mapped) -> dict:
+def _sigma_point_parts(problem, medium_result: FitResult, m_names, m_parts: dict, mapped) -> dict:
     """Step 1's part (and step 0's) through sigma-point refits: step 0's is what adding its
     covariance to step 1's adds."""
     cols = [problem.index(n) for n in mapped]
     specs = [medium_result.model_class.param(n) for n in m_names]
     spread = {}
-    for part, cov_m in (("step1", m_parts["step1"]),
-                        ("step0", m_parts["step1"] + m_parts.get("step0", 0.0))):
+    for part, cov_m in (
+        ("step1", m_parts["step1"]),
+        ("step0", m_parts["step1"] + m_parts.get("step0", 0.0)),
+    ):
         if part in m_parts:
             spread[part] = sigma_part(problem, problem.values, cols, specs, cov_m).covariance
     parts = {"step1": spread["step1"]}
@@ -184,10 +220,18 @@ def _sigma_point_parts(problem, medium_result: FitResult, m_names, m_parts: dict
     return parts
 
 
-def propagate(target_result: FitResult, medium_result: FitResult, table, *,
-              reference_result: FitResult | None = None, reference_table=None, black=None,
-              reference_black=None, accuracy: str = ITERATION_ACCURACY,
-              method: str | None = None) -> FitResult:
+def propagate(
+    target_result: FitResult,
+    medium_result: FitResult,
+    table,
+    *,
+    reference_result: FitResult | None = None,
+    reference_table=None,
+    black=None,
+    reference_black=None,
+    accuracy: str = ITERATION_ACCURACY,
+    method: str | None = None,
+) -> FitResult:
     """The target's result with total uncertainties and their budget (module docstring).
 
     target_result, medium_result : the step-2 and step-1 FitResults (the target fitted
@@ -213,14 +257,22 @@ def propagate(target_result: FitResult, medium_result: FitResult, table, *,
     _check_pair(target_result, medium_result, reference_result)
     method = _method(method, target_result)
     theta, cov2 = covariance_of(target_result)
-    m_names, m_parts = medium_parts(medium_result, reference_result, reference_table,
-                                    black=reference_black, accuracy=accuracy)
-    problem = session_problem(table, cast("BRDF", target_result.one_model()),
-                              cast("Medium", medium_result.one_model()), free=theta,
-                              black=black, what="target (in the medium)")
+    m_names, m_parts = medium_parts(
+        medium_result, reference_result, reference_table, black=reference_black, accuracy=accuracy
+    )
+    problem = session_problem(
+        table,
+        cast("BRDF", target_result.one_model()),
+        cast("Medium", medium_result.one_model()),
+        free=theta,
+        black=black,
+        what="target (in the medium)",
+    )
     if problem.n_points != target_result.n_points:
-        raise FitError(f"the table has {problem.n_points} points but the target fit used "
-                       f"{target_result.n_points}: give the table (and black cloth) of that fit")
+        raise FitError(
+            f"the table has {problem.n_points} points but the target fit used "
+            f"{target_result.n_points}: give the table (and black cloth) of that fit"
+        )
     mapped = _medium_map(medium_result, m_names)
     a = sensitivity(problem, problem.values, theta, mapped, accuracy)
     parts = {"step2": cov2}
@@ -241,8 +293,13 @@ def propagate(target_result: FitResult, medium_result: FitResult, table, *,
     message = f"{target_result.message}; total standard errors include {what} uncertainty, "
     message += f"propagated {how}"
     stats = dict(target_result.stats, budget=budget, sensitivity=sens)
-    return dataclasses.replace(target_result, stderr_total=stderr_total,
-                               correlation_total=corr, message=message, stats=stats)
+    return dataclasses.replace(
+        target_result,
+        stderr_total=stderr_total,
+        correlation_total=corr,
+        message=message,
+        stats=stats,
+    )
 
 
 def _method(method, target_result: FitResult) -> str:
@@ -262,14 +319,15 @@ def _totals(theta: list, parts: dict) -> tuple:
     se = np.sqrt(np.maximum(np.diag(total), 0.0))
     budget = {}
     for j, n in enumerate(theta):
-        entry = {part: float(parts[part][j, j]) for part in PARTS + (SHARED,)
-                 if part in parts}
+        entry = {part: float(parts[part][j, j]) for part in PARTS + (SHARED,) if part in parts}
         entry["total"] = float(total[j, j])
         budget[n] = entry
     corr = {}
     for i, na in enumerate(theta):
-        corr[na] = {nb: (float(total[i, j] / (se[i] * se[j])) if se[i] * se[j] > 0 else None)
-                    for j, nb in enumerate(theta)}
+        corr[na] = {
+            nb: (float(total[i, j] / (se[i] * se[j])) if se[i] * se[j] > 0 else None)
+            for j, nb in enumerate(theta)
+        }
     return total, se, budget, corr
 
 
@@ -286,14 +344,13 @@ def _shared_part(problem, target_result, medium_result, m_names, sens):
     if target_result.model_error is None or target_result.model_error.sigma == 0.0:
         return None
     if (target_result.stats.get("propagation") or {}).get("method", "linear") != "linear":
-        return None       # as the fit: no first-order cross term beside sigma points
+        return None  # as the fit: no first-order cross term beside sigma points
     _, cov_noise = covariance_of(noise_only(target_result))
     x = problem.values
     values = problem.model_values(x, ITERATION_ACCURACY)
     g2 = influence(cov_noise, weighted_jacobian(problem, x), values * problem.w)
     share = target_result.model_error.session_correlation
-    return shared(g2, problem.angles, term, list(m_names), sens,
-                  1.0 if share is None else share)
+    return shared(g2, problem.angles, term, list(m_names), sens, 1.0 if share is None else share)
 
 
 def budget_table(result: FitResult) -> list[dict]:
@@ -301,13 +358,16 @@ def budget_table(result: FitResult) -> list[dict]:
     returned by :func:`propagate`."""
     budget = result.stats.get("budget")
     if not budget:
-        raise FitError("this result carries no uncertainty budget (see veil.uncertainty."
-                       "propagate)")
+        raise FitError("this result carries no uncertainty budget (see veil.uncertainty.propagate)")
     rows = []
     for n, entry in budget.items():
         total = entry["total"]
-        row = {"parameter": n, "value": result.params[n], "stderr": math.sqrt(total),
-               "stderr_step2": math.sqrt(entry["step2"])}
+        row = {
+            "parameter": n,
+            "value": result.params[n],
+            "stderr": math.sqrt(total),
+            "stderr_step2": math.sqrt(entry["step2"]),
+        }
         for part in PARTS + (SHARED,):
             if part in entry:
                 row[f"{part}_%"] = 100.0 * entry[part] / total if total > 0 else 0.0
@@ -325,8 +385,10 @@ def _draw(rng, mean, cov, names, n_draws, cls):
     while len(out) < n_draws:
         tries += 1
         if tries > 100 * n_draws:
-            raise FitError("the medium's distribution lies mostly outside the parameter "
-                           "bounds: draws cannot be made")
+            raise FitError(
+                "the medium's distribution lies mostly outside the parameter "
+                "bounds: draws cannot be made"
+            )
         d = mean + chol @ rng.standard_normal(len(names))
         try:
             for s, v in zip(specs, d):
@@ -337,8 +399,9 @@ def _draw(rng, mean, cov, names, n_draws, cls):
     return np.array(out), tries - n_draws
 
 
-def curve_stderr(result: FitResult, angles,
-                 channel: str | None = None) -> tuple[np.ndarray, np.ndarray | None]:
+def curve_stderr(
+    result: FitResult, angles, channel: str | None = None
+) -> tuple[np.ndarray, np.ndarray | None]:
     """f_r of a fitted BRDF at canonical ``angles`` and its standard error per configuration,
     the result's covariance (the total one when it has it) through f_r's exact Jacobian:
     se_k^2 = J_k Cov J_k^T (of a joint fit, the target's f_r and the block of its
@@ -346,8 +409,7 @@ def curve_stderr(result: FitResult, angles,
     error is None when the covariance is undetermined."""
     model = result.one_model(channel)
     if model.KIND != "brdf":
-        raise InputTypeError(f"expected a BRDF result, got a {model.KIND} result "
-                             f"({result.model})")
+        raise InputTypeError(f"expected a BRDF result, got a {model.KIND} result ({result.model})")
     angles = tuple(np.asarray(a, dtype=float) for a in angles)
     values, jac = DirectModel(model, angles).value_and_jacobian(model.to_vector())
     found = result.covariance(total=True)
@@ -365,9 +427,17 @@ def curve_stderr(result: FitResult, angles,
     return values, np.sqrt(np.maximum(var, 0.0))
 
 
-def sample_propagation(target_result: FitResult, medium_result: FitResult, table, *,
-                       n_draws: int = 100, seed: int = 0, black=None,
-                       accuracy: str = ITERATION_ACCURACY, max_nfev: int | None = 50) -> dict:
+def sample_propagation(
+    target_result: FitResult,
+    medium_result: FitResult,
+    table,
+    *,
+    n_draws: int = 100,
+    seed: int = 0,
+    black=None,
+    accuracy: str = ITERATION_ACCURACY,
+    max_nfev: int | None = 50,
+) -> dict:
     """Step 1's contribution by sampling: refit the target with the medium drawn from step 1's
     distribution (normal, natural units), each refit warm-started from the target fitted with
     the nominal medium by the same machinery (so the two differ only by the draw).
@@ -386,8 +456,14 @@ def sample_propagation(target_result: FitResult, medium_result: FitResult, table
     theta = list(target_result.free)
     m_names, cov_m = covariance_of(medium_result)
     medium = cast("Medium", medium_result.one_model())
-    base = session_problem(table, cast("BRDF", target_result.one_model()), medium, free=theta,
-                           black=black, what="target (in the medium)")
+    base = session_problem(
+        table,
+        cast("BRDF", target_result.one_model()),
+        medium,
+        free=theta,
+        black=black,
+        what="target (in the medium)",
+    )
     nominal = solve(base, base.values, max_nfev=max_nfev)
     x0 = nominal.x
     mapped = _medium_map(medium_result, m_names)
@@ -407,12 +483,27 @@ def sample_propagation(target_result: FitResult, medium_result: FitResult, table
         conv.append(sol.status > 0)
     shifts = np.array(shift_rows)
     linear = -(draws - mean) @ a.T
-    return {"names": theta, "medium_names": m_names, "draws": draws, "shifts": shifts,
-            "linear": linear, "covariance": np.cov(shifts, rowvar=False),
-            "linear_covariance": a @ cov_m @ a.T, "converged": np.array(conv),
-            "redrawn": redrawn}
+    return {
+        "names": theta,
+        "medium_names": m_names,
+        "draws": draws,
+        "shifts": shifts,
+        "linear": linear,
+        "covariance": np.cov(shifts, rowvar=False),
+        "linear_covariance": a @ cov_m @ a.T,
+        "converged": np.array(conv),
+        "redrawn": redrawn,
+    }
 
 
-__all__ = ["propagate", "sample_propagation", "curve_stderr", "medium_parts", "covariance_of",
-           "sensitivity",
-           "budget_table", "PARTS", "SHARED"]
+__all__ = [
+    "propagate",
+    "sample_propagation",
+    "curve_stderr",
+    "medium_parts",
+    "covariance_of",
+    "sensitivity",
+    "budget_table",
+    "PARTS",
+    "SHARED",
+]

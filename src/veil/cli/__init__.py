@@ -54,8 +54,9 @@ class CommandLine(VeilGroup):
         return super().main(args, *more, **options)
 
 
-@click.group(cls=CommandLine, lazy=COMMANDS,
-             context_settings={"help_option_names": ["-h", "--help"]})
+@click.group(
+    cls=CommandLine, lazy=COMMANDS, context_settings={"help_option_names": ["-h", "--help"]}
+)
 @click.version_option(package_name="veil")
 @click.option("--debug", is_flag=True, help="Print the full traceback of an internal error.")
 @click.pass_context

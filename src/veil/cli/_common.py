@@ -32,8 +32,10 @@ def parse_psi(text: str) -> tuple[float, ...]:
         try:
             values.append(float(part))
         except ValueError:
-            raise UserError(f"--psi {text!r}: {part.strip()!r} is not a number (expected "
-                            f"comma-separated angles in degrees, e.g. 30,60,90)") from None
+            raise UserError(
+                f"--psi {text!r}: {part.strip()!r} is not a number (expected "
+                f"comma-separated angles in degrees, e.g. 30,60,90)"
+            ) from None
     return tuple(values)
 
 
@@ -58,8 +60,9 @@ class LazyGroup(click.Group):
     def _load(self, name: str) -> click.Command:
         module, _, attribute = self.lazy[name].partition(":")
         command = getattr(importlib.import_module(f"veil.cli.{module}"), attribute)
-        subcommands = {k[len(name) + 1:]: v for k, v in self.lazy.items()
-                       if k.startswith(name + " ")}
+        subcommands = {
+            k[len(name) + 1 :]: v for k, v in self.lazy.items() if k.startswith(name + " ")
+        }
         if subcommands:
             if isinstance(command, LazyGroup):
                 command.lazy.update(subcommands)
@@ -82,8 +85,13 @@ class VeilGroup(LazyGroup):
         try:
             with shown():
                 return super().invoke(ctx)
-        except (click.ClickException, click.exceptions.Exit, click.exceptions.Abort,
-                KeyboardInterrupt, SystemExit):
+        except (
+            click.ClickException,
+            click.exceptions.Exit,
+            click.exceptions.Abort,
+            KeyboardInterrupt,
+            SystemExit,
+        ):
             raise
         except InputError as exc:
             click.echo(f"Error: {exc}", err=True)
@@ -111,15 +119,35 @@ def rotation_options(candidate: bool = False):
     --window, --coarse-step and --limit; ``candidate``: the steps of a design's candidates."""
     step = "Candidate rotation step" if candidate else "Rotation step"
     options = (
-        click.option("--fine-step", type=float, default=1.0, show_default=True,
-                     help=f"{step} near the mirror configuration, degrees."),
-        click.option("--window", type=float, default=10.0, show_default=True,
-                     help="Half-width of the dense region around rho = 0, degrees."),
-        click.option("--coarse-step", type=float, default=5.0, show_default=True,
-                     help=f"{step} outside the window, degrees."),
-        click.option("--limit", type=float, default=85.0, show_default=True,
-                     help="Keep configurations with both |theta_i| and |theta_r| below this, "
-                          "degrees."))
+        click.option(
+            "--fine-step",
+            type=float,
+            default=1.0,
+            show_default=True,
+            help=f"{step} near the mirror configuration, degrees.",
+        ),
+        click.option(
+            "--window",
+            type=float,
+            default=10.0,
+            show_default=True,
+            help="Half-width of the dense region around rho = 0, degrees.",
+        ),
+        click.option(
+            "--coarse-step",
+            type=float,
+            default=5.0,
+            show_default=True,
+            help=f"{step} outside the window, degrees.",
+        ),
+        click.option(
+            "--limit",
+            type=float,
+            default=85.0,
+            show_default=True,
+            help="Keep configurations with both |theta_i| and |theta_r| below this, degrees.",
+        ),
+    )
 
     def decorate(command):
         for option in reversed(options):
@@ -138,6 +166,7 @@ def load_result_file(path, kind: str, option: str):
 
 # -- loading the given models --------------------------------------------------------------
 
+
 def _is_file(text: str) -> bool:
     return os.path.exists(text) or text.lower().endswith(".json")
 
@@ -149,8 +178,9 @@ def load_reference(text: str, models, option: str = "--reference"):
     try:
         return models.brdf_model(text, option)
     except click.ClickException as exc:
-        raise UserError(f"{option} {text!r} is not an existing JSON file and {exc.message}"
-                        ) from None
+        raise UserError(
+            f"{option} {text!r} is not an existing JSON file and {exc.message}"
+        ) from None
 
 
 def load_medium(text: str, models, option: str = "--medium"):
@@ -160,15 +190,19 @@ def load_medium(text: str, models, option: str = "--medium"):
     try:
         model = models.medium_model(text, option)
     except click.ClickException as exc:
-        raise UserError(f"{option} {text!r} is not an existing JSON file and {exc.message}"
-                        ) from None
+        raise UserError(
+            f"{option} {text!r} is not an existing JSON file and {exc.message}"
+        ) from None
     if model is None:
-        raise UserError(f"{option} none: this needs a scattering medium; for a target in a "
-                        "clear medium use 'veil fit reference'")
+        raise UserError(
+            f"{option} none: this needs a scattering medium; for a target in a "
+            "clear medium use 'veil fit reference'"
+        )
     return model
 
 
 # -- progress, warnings and the exit status of fits ---------------------------------------
+
 
 @contextlib.contextmanager
 def fit_progress(title: str):
@@ -177,9 +211,15 @@ def fit_progress(title: str):
 
     from .compile_display import console
 
-    with Progress(SpinnerColumn(), TextColumn("{task.description}"), BarColumn(),
-                  TextColumn("{task.fields[count]}"), TimeElapsedColumn(),
-                  console=console(), transient=True) as bar:
+    with Progress(
+        SpinnerColumn(),
+        TextColumn("{task.description}"),
+        BarColumn(),
+        TextColumn("{task.fields[count]}"),
+        TimeElapsedColumn(),
+        console=console(),
+        transient=True,
+    ) as bar:
         task = bar.add_task(title, total=None, count="")
 
         def progress(stage, done, total):
@@ -187,8 +227,9 @@ def fit_progress(title: str):
                 count = ""
             else:
                 count = f"{done}/{total}" if total else f"{done} evaluations"
-            bar.update(task, description=f"{title}: {stage}", completed=done or 0, total=total,
-                       count=count)
+            bar.update(
+                task, description=f"{title}: {stage}", completed=done or 0, total=total, count=count
+            )
 
         yield progress
 
@@ -209,12 +250,16 @@ def finish_fits(ctx, results, written):
         click.echo(f"wrote {path}", err=True)
     failed = [r for r in results if r is not None and not r.converged]
     if failed:
-        click.echo("Error: a fit did not converge (its result was written with "
-                   "\"converged\": false): " + "; ".join(r.message for r in failed), err=True)
+        click.echo(
+            "Error: a fit did not converge (its result was written with "
+            '"converged": false): ' + "; ".join(r.message for r in failed),
+            err=True,
+        )
         ctx.exit(1)
 
 
 # -- output files --------------------------------------------------------------------------
+
 
 def check_output_path(output, inputs=()):
     """Fail early (UserError) if ``output`` cannot be written or is one of the ``inputs``."""
@@ -223,10 +268,12 @@ def check_output_path(output, inputs=()):
         if inp is None:
             continue
         inp = os.fspath(inp)
-        same = (os.path.exists(output) and os.path.exists(inp) and os.path.samefile(output, inp))
+        same = os.path.exists(output) and os.path.exists(inp) and os.path.samefile(output, inp)
         if same or os.path.abspath(output) == os.path.abspath(inp):
-            raise UserError(f"output {output} is the input file {inp}; veil never overwrites "
-                            f"an input: choose another output path")
+            raise UserError(
+                f"output {output} is the input file {inp}; veil never overwrites "
+                f"an input: choose another output path"
+            )
     check_file_target(output, f"output {output}", output)
 
 
@@ -240,4 +287,3 @@ def check_file_target(path, named: str, written: str) -> None:
         raise UserError(f"cannot write {written}: directory {directory} does not exist")
     if not os.access(directory, os.W_OK):
         raise UserError(f"cannot write {written}: directory {directory} is not writable")
-

@@ -19,18 +19,29 @@ def _read_cells(path: str, required, expected):
     import pandas as pd
 
     try:
-        return pd.read_csv(path, header=None, dtype=str, keep_default_na=False,
-                           skip_blank_lines=False, skipinitialspace=True, encoding="utf-8")
+        return pd.read_csv(
+            path,
+            header=None,
+            dtype=str,
+            keep_default_na=False,
+            skip_blank_lines=False,
+            skipinitialspace=True,
+            encoding="utf-8",
+        )
     except pd.errors.EmptyDataError:
         columns = expected or ", ".join(required) if not callable(required) else expected
-        raise UserError(f"{path}: the file is empty; expected a header line naming the columns "
-                        f"{columns}, then one row per entry") from None
+        raise UserError(
+            f"{path}: the file is empty; expected a header line naming the columns "
+            f"{columns}, then one row per entry"
+        ) from None
     except pd.errors.ParserError as exc:
         text = " ".join(str(exc).split())
         m = re.search(r"Expected (\d+) fields in line (\d+), saw (\d+)", text)
         if m:
-            raise UserError(f"{path}: row {m[2]} ({ROW_CONVENTION}) has {m[3]} fields but the "
-                            f"header (row 1) has {m[1]}") from None
+            raise UserError(
+                f"{path}: row {m[2]} ({ROW_CONVENTION}) has {m[3]} fields but the "
+                f"header (row 1) has {m[1]}"
+            ) from None
         raise UserError(f"{path}: not a well-formed CSV file ({text})") from None
     except UnicodeDecodeError as exc:
         raise UserError(f"{path}: not UTF-8 text ({exc.reason}); save the file as UTF-8") from None
@@ -61,19 +72,25 @@ def read_csv_table(path, required, *, unit="a number", expected=None):
     missing = [c for c in required if c not in header]
     if missing:
         plural = "s" if len(missing) > 1 else ""
-        raise UserError(f"{path}: missing column{plural} {', '.join(map(repr, missing))} "
-                        f"(required: {', '.join(required)}); the header (row 1) has: "
-                        f"{', '.join(map(repr, header))}")
+        raise UserError(
+            f"{path}: missing column{plural} {', '.join(map(repr, missing))} "
+            f"(required: {', '.join(required)}); the header (row 1) has: "
+            f"{', '.join(map(repr, header))}"
+        )
     for c in required:
         if header.count(c) > 1:
-            raise UserError(f"{path}: column {c!r} appears {header.count(c)} times in the "
-                            f"header (row 1); it must appear once")
+            raise UserError(
+                f"{path}: column {c!r} appears {header.count(c)} times in the "
+                f"header (row 1); it must appear once"
+            )
     blank = (body == "").all(axis=1).to_numpy()
     body = body[~blank]
     rows = body.index.to_numpy() + 1
     if len(body) == 0:
-        raise UserError(f"{path}: no data rows after the header (row 1); expected one row per "
-                        f"entry with columns {expected or ', '.join(required)}")
+        raise UserError(
+            f"{path}: no data rows after the header (row 1); expected one row per "
+            f"entry with columns {expected or ', '.join(required)}"
+        )
     table = pd.DataFrame(body.to_numpy(), columns=header)
     numbers = {}
     first_bad = None  # (row, column position, message): report the first in file order
@@ -96,8 +113,10 @@ def read_csv_table(path, required, *, unit="a number", expected=None):
             if problem is not None:
                 key = (int(rows[j]), header.index(c))
                 if first_bad is None or key < first_bad[:2]:
-                    first_bad = key + (f"{path}: row {rows[j]} ({ROW_CONVENTION}), column "
-                                       f"{c!r}: {problem}; expected {unit}",)
+                    first_bad = key + (
+                        f"{path}: row {rows[j]} ({ROW_CONVENTION}), column "
+                        f"{c!r}: {problem}; expected {unit}",
+                    )
                 break
         numbers[c] = values
     if first_bad is not None:

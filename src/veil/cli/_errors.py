@@ -39,8 +39,11 @@ def report_bug(exc: BaseException, debug: bool) -> None:
             fh.write(f"veil {' '.join(sys.argv[1:])}\n\n{text}")
     except OSError:
         where = None
-    click.echo(f"veil: internal error, sorry - this is a bug in veil, not a mistake in your "
-               f"input ({type(exc).__name__}: {exc}). "
-               + (f"The traceback is in {where}; " if where else "")
-               + "rerun with --debug to print it, and please report it.", err=True)
+    click.echo(
+        f"veil: internal error, sorry - this is a bug in veil, not a mistake in your "
+        f"input ({type(exc).__name__}: {exc}). "
+        + (f"The traceback is in {where}; " if where else "")
+        + "rerun with --debug to print it, and please report it.",
+        err=True,
+    )
     sys.exit(EXIT_BUG)

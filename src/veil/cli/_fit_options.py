@@ -21,17 +21,26 @@ def _fix_option(help_text):
 
 
 _accuracy_option = click.option(
-    "--accuracy", type=click.Choice(["fast", "default", "high"]), default="default",
+    "--accuracy",
+    type=click.Choice(["fast", "default", "high"]),
+    default="default",
     show_default=True,
     help="Quadrature of the reported result; iterations run at 'fast' and are polished at "
-         "this accuracy.")
+    "this accuracy.",
+)
 _black_option = click.option(
-    "--black", "black", type=IN_FILE,
-    help="Black-cloth session in the medium (same configurations), subtracted first.")
+    "--black",
+    "black",
+    type=IN_FILE,
+    help="Black-cloth session in the medium (same configurations), subtracted first.",
+)
 _max_nfev_option = click.option(
-    "--max-nfev", type=click.IntRange(min=1), default=None,
+    "--max-nfev",
+    type=click.IntRange(min=1),
+    default=None,
     help="Limit on function evaluations of each least-squares run (default: 100 per free "
-         "parameter).")
+    "parameter).",
+)
 
 
 def _free_option(help_text):
@@ -39,40 +48,61 @@ def _free_option(help_text):
 
 
 _merl_option = click.option(
-    "--merl", "merl", type=IN_FILE,
+    "--merl",
+    "merl",
+    type=IN_FILE,
     help="A measured BRDF in the MERL binary format instead of a table: sampled at the "
-         "--sampling configurations (docs/interop.md).")
+    "--sampling configurations (docs/interop.md).",
+)
 _channel_option = click.option(
-    "--channel", default=None, metavar="NAME",
+    "--channel",
+    default=None,
+    metavar="NAME",
     help="The one channel to fit of a TABLE with a channel column (r, g, b or a wavelength "
-         "in nm; without it every channel is fitted at once, docs/fitting.md \"Channels\"), "
-         "or the colour channel of the --merl file (r, g or b; without it the file's three "
-         "channels are fitted at once).")
+    'in nm; without it every channel is fitted at once, docs/fitting.md "Channels"), '
+    "or the colour channel of the --merl file (r, g or b; without it the file's three "
+    "channels are fitted at once).",
+)
 _step_channel_option = click.option(
-    "--channel", default=None, metavar="NAME",
+    "--channel",
+    default=None,
+    metavar="NAME",
     help="The one channel to fit of a TABLE with a channel column (r, g, b or a wavelength "
-         "in nm); a result fitted over several channels gives its model of this channel. "
-         "Without it every channel is fitted at once, through a result of the same channels "
-         "(docs/fitting.md \"Channels\").")
+    "in nm); a result fitted over several channels gives its model of this channel. "
+    "Without it every channel is fitted at once, through a result of the same channels "
+    '(docs/fitting.md "Channels").',
+)
 MERL_CHANNELS = ("r", "g", "b")
 _sampling_option = click.option(
-    "--sampling", type=click.Choice(["protocol", "inplane"]), default="protocol",
+    "--sampling",
+    type=click.Choice(["protocol", "inplane"]),
+    default="protocol",
     show_default=True,
     help="Where the --merl BRDF is sampled: the paper's protocol (psi 30, 60, 90 deg) or every "
-         "in-plane configuration on a 5-degree grid.")
+    "in-plane configuration on a 5-degree grid.",
+)
 
 
-_BRDF_FIX_HELP = ("Hold a parameter of the BRDF (e.g. eta=1.5; 'veil models' lists them) at "
-                  "VALUE; repeatable.")
+_BRDF_FIX_HELP = (
+    "Hold a parameter of the BRDF (e.g. eta=1.5; 'veil models' lists them) at VALUE; repeatable."
+)
 #: The help of the options steps 1 and 2 word differently, by the kind of model they fit:
 #: what -o holds, --fix and --free.
 _STEP_HELP = {
-    "medium": ("the fitted medium", "Hold a parameter of the medium (e.g. g=0.9; 'veil models' "
-               "lists them) at VALUE; repeatable.", "Fit a parameter the medium model holds by "
-               "default (held ones are marked in 'veil models', e.g. forward-series' s, the "
-               "exposure factor); repeatable."),
-    "brdf": ("the fitted target f_r", _BRDF_FIX_HELP, "Fit a parameter the BRDF family holds "
-             "by default (marked held in 'veil models'); repeatable."),
+    "medium": (
+        "the fitted medium",
+        "Hold a parameter of the medium (e.g. g=0.9; 'veil models' "
+        "lists them) at VALUE; repeatable.",
+        "Fit a parameter the medium model holds by "
+        "default (held ones are marked in 'veil models', e.g. forward-series' s, the "
+        "exposure factor); repeatable.",
+    ),
+    "brdf": (
+        "the fitted target f_r",
+        _BRDF_FIX_HELP,
+        "Fit a parameter the BRDF family holds "
+        "by default (marked held in 'veil models'); repeatable.",
+    ),
 }
 
 
@@ -84,13 +114,27 @@ def _step_through_medium_options(ranked_kind: str, given):
     output, fix, free = _STEP_HELP[ranked_kind]
 
     def decorate(command):
-        for option in (click.pass_context, model_options(auto_kinds=(ranked_kind,)),
-                       propagation_option, model_error_option, _max_nfev_option,
-                       _accuracy_option, _black_option, _step_channel_option,
-                       _free_option(free), _fix_option(fix),
-                       click.option("-o", "--output", required=True, type=OUT_FILE,
-                                    help=f"JSON file for {output} (written atomically)."),
-                       given, click.argument("table", type=IN_FILE)):
+        for option in (
+            click.pass_context,
+            model_options(auto_kinds=(ranked_kind,)),
+            propagation_option,
+            model_error_option,
+            _max_nfev_option,
+            _accuracy_option,
+            _black_option,
+            _step_channel_option,
+            _free_option(free),
+            _fix_option(fix),
+            click.option(
+                "-o",
+                "--output",
+                required=True,
+                type=OUT_FILE,
+                help=f"JSON file for {output} (written atomically).",
+            ),
+            given,
+            click.argument("table", type=IN_FILE),
+        ):
             command = option(command)
         return command
 
@@ -108,8 +152,10 @@ def _parse_free(items, cls, option="--free") -> list:
     for item in items:
         name = item.strip()
         if name not in names:
-            raise UserError(f"{option} {item!r}: {cls.NAME} has no parameter {name!r}; its "
-                            f"parameters are {', '.join(names)}")
+            raise UserError(
+                f"{option} {item!r}: {cls.NAME} has no parameter {name!r}; its "
+                f"parameters are {', '.join(names)}"
+            )
         if name in out:
             raise UserError(f"{option}: {name} is freed twice")
         out.append(name)
@@ -120,8 +166,10 @@ def _parse_step_free(items, models) -> dict:
     """``STEP.NAME`` strings of ``fit pipeline --free`` -> {step: [name, ...]}, checked
     against the chosen families."""
     classes = {"reference": models.brdf, "medium": models.medium, "target": models.brdf}
-    return {step: _parse_free(names, classes[step], f"--free ({step})")
-            for step, names in _step_entries(items, "--free").items()}
+    return {
+        step: _parse_free(names, classes[step], f"--free ({step})")
+        for step, names in _step_entries(items, "--free").items()
+    }
 
 
 def _parse_step_fix(items, models) -> dict:
@@ -132,13 +180,17 @@ def _parse_step_fix(items, models) -> dict:
         head, sep, _ = item.partition("=")
         step, dot, name = head.partition(".")
         if not sep or not dot or step.strip() not in classes:
-            raise UserError(f"--fix {item!r}: expected STEP.NAME=VALUE with STEP one of "
-                            f"{', '.join(STEPS)}, e.g. medium.{models.medium.param_names()[-1]}"
-                            f"=1.33")
+            raise UserError(
+                f"--fix {item!r}: expected STEP.NAME=VALUE with STEP one of "
+                f"{', '.join(STEPS)}, e.g. medium.{models.medium.param_names()[-1]}"
+                f"=1.33"
+            )
         step = step.strip()
         by_step.setdefault(step, []).append(f"{name}={item.partition('=')[2]}")
-    return {step: parse_fix(entries, classes[step], f"--fix ({step})")
-            for step, entries in by_step.items()}
+    return {
+        step: parse_fix(entries, classes[step], f"--fix ({step})")
+        for step, entries in by_step.items()
+    }
 
 
 def _raw_step_fix(items) -> dict:
@@ -153,8 +205,9 @@ def _raw_step_fix(items) -> dict:
             except ValueError:
                 value = math.nan
             if not sep or not math.isfinite(value):
-                raise UserError(f"--fix {step}.{entry!r}: expected STEP.NAME=VALUE with a "
-                                f"finite number")
+                raise UserError(
+                    f"--fix {step}.{entry!r}: expected STEP.NAME=VALUE with a finite number"
+                )
             if name.strip() in fixed.get(step, {}):
                 raise UserError(f"--fix: {step}.{name.strip()} is fixed twice")
             fixed.setdefault(step, {})[name.strip()] = value
@@ -167,7 +220,8 @@ def _step_entries(items, option: str) -> dict:
     for item in items:
         step, dot, rest = item.partition(".")
         if not dot or step.strip() not in STEPS or not rest.strip():
-            raise UserError(f"{option} {item!r}: expected STEP.NAME with STEP one of "
-                            f"{', '.join(STEPS)}")
+            raise UserError(
+                f"{option} {item!r}: expected STEP.NAME with STEP one of {', '.join(STEPS)}"
+            )
         by_step.setdefault(step.strip(), []).append(rest.strip())
     return by_step

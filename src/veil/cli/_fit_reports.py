@@ -20,20 +20,26 @@ def print_pipeline(result) -> None:
         click.echo("[[Estimated target f_r against the direct fit]]")
         for name, row in c["params"].items():
             z = "n/a" if row["z"] is None else f"{row['z']:+.2f}"
-            click.echo(f"    {name:<4}: estimated {row['estimated']:.6g}, direct "
-                       f"{row['direct']:.6g}, difference {row['difference']:+.3g} "
-                       f"({z} combined stderr)")
-        click.echo(f"    rms f_r difference over {c['n_configurations']} protocol "
-                   f"configurations: {c['rms_fr_difference']:.4g} "
-                   f"({100 * c['rms_fr_relative']:.3g} % rms relative)")
+            click.echo(
+                f"    {name:<4}: estimated {row['estimated']:.6g}, direct "
+                f"{row['direct']:.6g}, difference {row['difference']:+.3g} "
+                f"({z} combined stderr)"
+            )
+        click.echo(
+            f"    rms f_r difference over {c['n_configurations']} protocol "
+            f"configurations: {c['rms_fr_difference']:.4g} "
+            f"({100 * c['rms_fr_relative']:.3g} % rms relative)"
+        )
 
 
 def print_ranking(ranking) -> None:
     """One step's ranking of ``--models auto`` as a table."""
     from ..fitting.selection import table_lines
 
-    click.echo(f"[[Candidates of step '{ranking.step}', ranked by BIC with the "
-               f"model-discrepancy term; * the one used]]")
+    click.echo(
+        f"[[Candidates of step '{ranking.step}', ranked by BIC with the "
+        f"model-discrepancy term; * the one used]]"
+    )
     for line in table_lines(ranking):
         click.echo("    " + line)
     click.echo("")

@@ -52,33 +52,43 @@ class ModelChoice:
             model = PRESETS.get(text.upper())
             word = "BRDF" if kind == "brdf" else "BTDF"
             if model is not None and model.KIND != kind:
-                raise UserError(f"{option}: {text!r} is not a {word} preset (it is a "
-                                f"{model.KIND} model)")
+                raise UserError(
+                    f"{option}: {text!r} is not a {word} preset (it is a {model.KIND} model)"
+                )
             if model is None:
                 known = [k for k, m in PRESETS.items() if m.KIND == kind]
-                raise UserError(f"{option}: {word} {text!r} is neither a preset name "
-                                f"({', '.join(known)}) nor a literal {cls.literal_form()} "
-                                f"({cls.NAME}; see veil models)")
+                raise UserError(
+                    f"{option}: {word} {text!r} is neither a preset name "
+                    f"({', '.join(known)}) nor a literal {cls.literal_form()} "
+                    f"({cls.NAME}; see veil models)"
+                )
             if type(model) is not cls:
                 if f"{kind}-model" in self.explicit:
-                    raise UserError(f"{option} {text}: the preset is a {model.NAME} model, not "
-                                    f"{cls.NAME} (--{kind}-model)")
+                    raise UserError(
+                        f"{option} {text}: the preset is a {model.NAME} model, not "
+                        f"{cls.NAME} (--{kind}-model)"
+                    )
                 cls = type(model)
             try:
-                return model.replace(**{k: v for k, v in options.items()
-                                        if k in cls.option_names()})
+                return model.replace(
+                    **{k: v for k, v in options.items() if k in cls.option_names()}
+                )
             except InputError as exc:
                 raise UserError(f"{option} {text}: {exc}") from None
         if len(parts) != len(cls.PARAMS):
-            raise UserError(f"{option} literal {text!r} must have {len(cls.PARAMS)} numbers: "
-                            f"{cls.literal_form()} ({cls.NAME})")
+            raise UserError(
+                f"{option} literal {text!r} must have {len(cls.PARAMS)} numbers: "
+                f"{cls.literal_form()} ({cls.NAME})"
+            )
         values = {}
         for prm, s in zip(cls.PARAMS, parts):
             try:
                 values[prm.name] = float(s)
             except ValueError:
-                raise UserError(f"{option}: parameter {prm.name} = {s!r} is not a number (form "
-                                f"{cls.literal_form()})") from None
+                raise UserError(
+                    f"{option}: parameter {prm.name} = {s!r} is not a number (form "
+                    f"{cls.literal_form()})"
+                ) from None
         try:
             return cls.from_params(values, options)
         except InputError as exc:
@@ -120,8 +130,12 @@ class ModelName(click.ParamType):
         if self.auto and name == AUTO:
             return name
         if name not in known:
-            self.fail(f"{value!r} is not a registered {self.kind} model; known: "
-                      f"{', '.join(known)} ('veil models' lists them)", param, ctx)
+            self.fail(
+                f"{value!r} is not a registered {self.kind} model; known: "
+                f"{', '.join(known)} ('veil models' lists them)",
+                param,
+                ctx,
+            )
         return name
 
 
@@ -132,27 +146,35 @@ def _option_flag(name: str) -> str:
 # the kinds and default of veil.fitting.model_error (KINDS, DEFAULT; not imported: help
 # stays free of the fitting stack; tests/test_model_error.py checks they agree)
 model_error_option = click.option(
-    "--model-error", "model_error", type=click.Choice(["off", "independent", "correlated"]),
-    default="correlated", show_default=True,
+    "--model-error",
+    "model_error",
+    type=click.Choice(["off", "independent", "correlated"]),
+    default="correlated",
+    show_default=True,
     help="The model-discrepancy term of a weighted fit whose reduced chi-square exceeds "
-         "1 + 2 sqrt(2/dof): a relative model error estimated from the residuals and added "
-         "to the covariance (the estimates are not moved); 'correlated' lets the likelihood "
-         "choose a correlation length over the angles (docs/validity.md), 'independent' "
-         "takes none. Step 2 uses step 1's when larger and counts the error the two share; "
-         "a joint fit estimates its own over all its sessions.")
+    "1 + 2 sqrt(2/dof): a relative model error estimated from the residuals and added "
+    "to the covariance (the estimates are not moved); 'correlated' lets the likelihood "
+    "choose a correlation length over the angles (docs/validity.md), 'independent' "
+    "takes none. Step 2 uses step 1's when larger and counts the error the two share; "
+    "a joint fit estimates its own over all its sessions.",
+)
 
 
 # the methods of veil.fitting.propagation (METHODS; not imported, as above;
 # tests/test_propagation.py checks they agree)
 propagation_option = click.option(
-    "--propagation", "propagation", type=click.Choice(["auto", "linear", "sigma-points", "off"]),
-    default="auto", show_default=True,
+    "--propagation",
+    "propagation",
+    type=click.Choice(["auto", "linear", "sigma-points", "off"]),
+    default="auto",
+    show_default=True,
     help="How the previous step's uncertainty (a joint fit: the media's) enters the total "
-         "standard errors: 'linear' (first order), 'sigma-points' (the fit repeated at 2n "
-         "points of that covariance, in coordinates where it is relative), 'auto' the latter "
-         "where a parameter is uncertain by more than 0.25 of its scale (tau at optical "
-         "depth 0.1) and at most 3 (beyond, it is not determined: first order, noted; "
-         "docs/fitting.md); 'off' reports the fit's own standard errors only, faster.")
+    "standard errors: 'linear' (first order), 'sigma-points' (the fit repeated at 2n "
+    "points of that covariance, in coordinates where it is relative), 'auto' the latter "
+    "where a parameter is uncertain by more than 0.25 of its scale (tau at optical "
+    "depth 0.1) and at most 3 (beyond, it is not determined: first order, noted; "
+    "docs/fitting.md); 'off' reports the fit's own standard errors only, faster.",
+)
 
 
 def model_options(kinds=("brdf", "medium"), auto_kinds=()):
@@ -188,17 +210,24 @@ def model_options(kinds=("brdf", "medium"), auto_kinds=()):
                 if value is not None:
                     explicit.add(f"{kind}-model")
                     if kwargs.get("model_spec") is not None or mode is not None:
-                        raise UserError(f"--{kind}-model with --models "
-                                        f"{kwargs.get('model_spec') or 'auto'}: give one of "
-                                        f"the two (--models FAMILY+MEDIUM pins a pair)")
-                chosen[kind] = registry.model_class(value or pair.get(kind) or DEFAULTS[kind],
-                                                    kind)
-            opts = _option_values(declared, chosen, kinds, kwargs,
-                                  mode == registry.AUTO or bool(ranked))
-            kwargs["models"] = ModelChoice(chosen.get("brdf", registry.default_class("brdf")),
-                                           chosen.get("medium", registry.default_class("medium")),
-                                           opts["brdf"], opts["medium"], frozenset(explicit),
-                                           mode, ranked)
+                        raise UserError(
+                            f"--{kind}-model with --models "
+                            f"{kwargs.get('model_spec') or 'auto'}: give one of "
+                            f"the two (--models FAMILY+MEDIUM pins a pair)"
+                        )
+                chosen[kind] = registry.model_class(value or pair.get(kind) or DEFAULTS[kind], kind)
+            opts = _option_values(
+                declared, chosen, kinds, kwargs, mode == registry.AUTO or bool(ranked)
+            )
+            kwargs["models"] = ModelChoice(
+                chosen.get("brdf", registry.default_class("brdf")),
+                chosen.get("medium", registry.default_class("medium")),
+                opts["brdf"],
+                opts["medium"],
+                frozenset(explicit),
+                mode,
+                ranked,
+            )
             return fn(*args, **kwargs)
 
         return _with_options(wrapper, declared, kinds, auto_kinds, known)
@@ -214,22 +243,36 @@ def _with_options(wrapper, declared: dict, kinds, auto_kinds, known):
     for oname, users in reversed(list(declared.items())):
         choices = sorted({str(c) for _, _, o in users for c in o.choices})
         docs = "; ".join(f"{n}: {o.doc}" for _, n, o in users)
-        numeric = all(isinstance(o.default, (int, float)) and not isinstance(o.default, bool)
-                      for _, _, o in users)
+        numeric = all(
+            isinstance(o.default, (int, float)) and not isinstance(o.default, bool)
+            for _, _, o in users
+        )
         kind = click.Choice(choices) if choices else (click.FLOAT if numeric else str)
         defaults = ", ".join(str(o.default) for _, _, o in users)
-        wrapper = click.option(_option_flag(oname), oname, default=None, type=kind,
-                               help=f"Option of the model ({docs}); default: the model's "
-                                    f"({defaults}).")(wrapper)
+        wrapper = click.option(
+            _option_flag(oname),
+            oname,
+            default=None,
+            type=kind,
+            help=f"Option of the model ({docs}); default: the model's ({defaults}).",
+        )(wrapper)
     for kind in reversed(kinds):
         word = "BRDF family of the objects" if kind == "brdf" else "medium model"
-        auto = (f"; {AUTO}: every registered family fitted and ranked by BIC, the best "
-                f"one kept" if kind in auto_kinds else "")
-        wrapper = click.option(f"--{kind}-model", f"{kind}_model", default=None,
-                               type=ModelName(kind, kind in auto_kinds), metavar="NAME",
-                               help=f"The {word} (default {DEFAULTS[kind]}, the paper's; "
-                                    f"'veil models' lists them: "
-                                    f"{', '.join(known(kind))}{auto}).")(wrapper)
+        auto = (
+            f"; {AUTO}: every registered family fitted and ranked by BIC, the best one kept"
+            if kind in auto_kinds
+            else ""
+        )
+        wrapper = click.option(
+            f"--{kind}-model",
+            f"{kind}_model",
+            default=None,
+            type=ModelName(kind, kind in auto_kinds),
+            metavar="NAME",
+            help=f"The {word} (default {DEFAULTS[kind]}, the paper's; "
+            f"'veil models' lists them: "
+            f"{', '.join(known(kind))}{auto}).",
+        )(wrapper)
     return wrapper
 
 
@@ -250,9 +293,11 @@ def _option_values(declared: dict, chosen: dict, kinds, kwargs: dict, auto: bool
         targets = [k for k in kinds if oname in chosen[k].option_names()]
         if not targets:
             users = sorted({n for _, n, _ in declared[oname]})
-            raise UserError(f"{_option_flag(oname)} applies to the model(s) "
-                            f"{', '.join(users)}, not to "
-                            f"{' / '.join(chosen[k].NAME for k in kinds)}")
+            raise UserError(
+                f"{_option_flag(oname)} applies to the model(s) "
+                f"{', '.join(users)}, not to "
+                f"{' / '.join(chosen[k].NAME for k in kinds)}"
+            )
         for k in targets:
             opt = next(o for o in chosen[k].OPTIONS if o.name == oname)
             opts[k][oname] = _convert(value, opt)
@@ -273,8 +318,9 @@ def _models_mode(spec, compare) -> tuple[str | None, dict]:
     except InputError as exc:
         raise UserError(f"--models: {exc}") from None
     if compare and mode != AUTO:
-        raise UserError(f"--compare writes out the ranking of --models auto; leave --models "
-                        f"{spec} out")
+        raise UserError(
+            f"--compare writes out the ranking of --models auto; leave --models {spec} out"
+        )
     if isinstance(mode, tuple):
         return "pinned", {"brdf": mode[0], "medium": mode[1]}
     return mode, {}
@@ -316,11 +362,15 @@ def parse_fix(items, cls, option="--fix") -> dict:
         name, sep, text = item.partition("=")
         name = name.strip()
         if not sep or not name:
-            raise UserError(f"{option} {item!r}: expected NAME=VALUE, e.g. {names[-1]}=1.5 "
-                            f"(parameters of {cls.NAME}: {', '.join(names)})")
+            raise UserError(
+                f"{option} {item!r}: expected NAME=VALUE, e.g. {names[-1]}=1.5 "
+                f"(parameters of {cls.NAME}: {', '.join(names)})"
+            )
         if name not in names:
-            raise UserError(f"{option} {item!r}: {cls.NAME} has no parameter {name!r}; "
-                            f"its parameters are {', '.join(names)}")
+            raise UserError(
+                f"{option} {item!r}: {cls.NAME} has no parameter {name!r}; "
+                f"its parameters are {', '.join(names)}"
+            )
         value = fix_value(option, item, name, text, fixed)
         try:
             cls.param(name).check(value, cls.__name__)

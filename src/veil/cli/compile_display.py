@@ -59,22 +59,32 @@ class CompileDisplay:
         if self.live is None:  # decided at the first compilation: no rich import before
             self.live = console().is_terminal
         if not self.live:
-            click.echo(f"veil: compiling {c.label} ({_seconds(c.estimate)}; once: kept in the "
-                       f"program store for later runs)", err=True)
+            click.echo(
+                f"veil: compiling {c.label} ({_seconds(c.estimate)}; once: kept in the "
+                f"program store for later runs)",
+                err=True,
+            )
             return
         if self._progress is None:
             from rich.progress import BarColumn, Progress, SpinnerColumn, TextColumn
 
             self._progress = Progress(
-                SpinnerColumn(), TextColumn("compiling {task.description}"), BarColumn(),
-                TextColumn("{task.fields[seconds]}"), console=console(), transient=True)
+                SpinnerColumn(),
+                TextColumn("compiling {task.description}"),
+                BarColumn(),
+                TextColumn("{task.fields[seconds]}"),
+                console=console(),
+                transient=True,
+            )
             self._progress.start()
         estimate = max(c.estimate, 1.0)
-        self._rows[c] = self._progress.add_task(c.label, total=estimate,
-                                                seconds=f"0 s of ~{estimate:.0f} s")
+        self._rows[c] = self._progress.add_task(
+            c.label, total=estimate, seconds=f"0 s of ~{estimate:.0f} s"
+        )
         if self._ticker is None:
-            self._ticker = threading.Thread(target=self._tick, daemon=True,
-                                            name="veil-compile-display")
+            self._ticker = threading.Thread(
+                target=self._tick, daemon=True, name="veil-compile-display"
+            )
             self._ticker.start()
 
     def _end(self, c, seconds: float, ok: bool) -> None:
@@ -87,8 +97,9 @@ class CompileDisplay:
         if task is not None and self._progress is not None:
             self._progress.remove_task(task)
             if ok:
-                self._progress.console.print(f"  compiled {c.label} in {seconds:.1f} s",
-                                             highlight=False, style="dim")
+                self._progress.console.print(
+                    f"  compiled {c.label} in {seconds:.1f} s", highlight=False, style="dim"
+                )
 
     def _tick(self) -> None:
         while True:
@@ -100,8 +111,11 @@ class CompileDisplay:
                 for c, task in self._rows.items():
                     elapsed = now - c.started
                     total = max(c.estimate, 1.0)
-                    self._progress.update(task, completed=min(elapsed, 0.99 * total),
-                                          seconds=f"{elapsed:.0f} s of ~{total:.0f} s")
+                    self._progress.update(
+                        task,
+                        completed=min(elapsed, 0.99 * total),
+                        seconds=f"{elapsed:.0f} s of ~{total:.0f} s",
+                    )
 
     def close(self) -> None:
         with self._lock:
@@ -109,9 +123,12 @@ class CompileDisplay:
                 self._progress.stop()
                 self._progress = None
         if self.count and not self.live:
-            click.echo(f"veil: compiled {self.count} engine program"
-                       f"{'s' if self.count > 1 else ''} in {self.total:.0f} s of compile "
-                       f"time; later runs load them", err=True)
+            click.echo(
+                f"veil: compiled {self.count} engine program"
+                f"{'s' if self.count > 1 else ''} in {self.total:.0f} s of compile "
+                f"time; later runs load them",
+                err=True,
+            )
 
 
 _ACTIVE: list = []

@@ -21,9 +21,13 @@ from ..models import PRESETS
 #: The demo's set-up: which preset plays which role.
 SETUP = {"reference": "BRDF2", "medium": "BTDF2", "target": "BRDF1"}
 #: Session files written under OUTDIR/data, by role.
-SESSIONS = {"reference_clear": "reference_clear.csv", "reference_medium": "reference_medium.csv",
-            "black": "black.csv", "target_medium": "target_medium.csv",
-            "target_clear": "target_clear.csv"}
+SESSIONS = {
+    "reference_clear": "reference_clear.csv",
+    "reference_medium": "reference_medium.csv",
+    "black": "black.csv",
+    "target_medium": "target_medium.csv",
+    "target_clear": "target_clear.csv",
+}
 
 
 def simulate_sessions(outdir: Path, seed: int, noise: float, accuracy: str, progress=None):
@@ -46,18 +50,21 @@ def simulate_sessions(outdir: Path, seed: int, noise: float, accuracy: str, prog
             progress(f"simulating {name}", None, None)
 
     step("reference, clear water")
-    save_measurements(simulate(ref, None, noise=noise, seed=seed, accuracy=accuracy),
-                      paths["reference_clear"])
+    save_measurements(
+        simulate(ref, None, noise=noise, seed=seed, accuracy=accuracy), paths["reference_clear"]
+    )
     step(f"reference in {SETUP['medium']} with the black cloth")
     table, black = simulate(ref, med, noise=noise, seed=seed + 1, black=True, accuracy=accuracy)
     save_measurements(table, paths["reference_medium"])
     save_measurements(black, paths["black"])
     step(f"target in {SETUP['medium']}")
-    save_measurements(simulate(tgt, med, noise=noise, seed=seed + 2, accuracy=accuracy),
-                      paths["target_medium"])
+    save_measurements(
+        simulate(tgt, med, noise=noise, seed=seed + 2, accuracy=accuracy), paths["target_medium"]
+    )
     step("target, clear water")
-    save_measurements(simulate(tgt, None, noise=noise, seed=seed + 3, accuracy=accuracy),
-                      paths["target_clear"])
+    save_measurements(
+        simulate(tgt, None, noise=noise, seed=seed + 3, accuracy=accuracy), paths["target_clear"]
+    )
     return paths
 
 
@@ -66,48 +73,90 @@ def fit_sessions(paths: dict, outdir: Path, accuracy: str, progress=None):
     from ..pipeline import run_pipeline
 
     truth = {k: PRESETS[v] for k, v in SETUP.items()}
-    return run_pipeline(paths["reference_clear"], paths["reference_medium"],
-                        paths["target_medium"], black=paths["black"],
-                        target_clear=paths["target_clear"], outdir=outdir, accuracy=accuracy,
-                        progress=progress, truth=truth)
+    return run_pipeline(
+        paths["reference_clear"],
+        paths["reference_medium"],
+        paths["target_medium"],
+        black=paths["black"],
+        target_clear=paths["target_clear"],
+        outdir=outdir,
+        accuracy=accuracy,
+        progress=progress,
+        truth=truth,
+    )
 
 
 def summary_table(result):
     """A rich table: every parameter, true value, recovered value +- total stderr, z."""
     from rich.table import Table
 
-    table = Table(title="veil demo: recovered parameters against the truth",
-                  caption="stderr includes the uncertainty of the earlier steps; "
-                          "z = (recovered - true) / stderr")
-    for col, justify in (("step", "left"), ("param", "left"), ("true", "right"),
-                         ("recovered", "right"), ("stderr", "right"), ("z", "right")):
+    table = Table(
+        title="veil demo: recovered parameters against the truth",
+        caption="stderr includes the uncertainty of the earlier steps; "
+        "z = (recovered - true) / stderr",
+    )
+    for col, justify in (
+        ("step", "left"),
+        ("param", "left"),
+        ("true", "right"),
+        ("recovered", "right"),
+        ("stderr", "right"),
+        ("z", "right"),
+    ):
         table.add_column(col, justify=justify)
-    for step, key, fit in (("0 reference", "reference", result.reference),
-                           ("1 medium", "medium", result.medium),
-                           ("2 target", "target", result.target)):
+    for step, key, fit in (
+        ("0 reference", "reference", result.reference),
+        ("1 medium", "medium", result.medium),
+        ("2 target", "target", result.target),
+    ):
         true_model = PRESETS[SETUP[key]]
         se_all = fit.stderr_total or fit.stderr
         for name, value in fit.params.items():
             true = getattr(true_model, name)
             se = se_all.get(name)
             z = (value - true) / se if se else math.nan
-            table.add_row(f"{step} {SETUP[key]}", name, f"{true:.6g}", f"{value:.6g}",
-                          "n/a" if se is None else f"{se:.3g}",
-                          "n/a" if math.isnan(z) else f"{z:+.2f}")
+            table.add_row(
+                f"{step} {SETUP[key]}",
+                name,
+                f"{true:.6g}",
+                f"{value:.6g}",
+                "n/a" if se is None else f"{se:.3g}",
+                "n/a" if math.isnan(z) else f"{z:+.2f}",
+            )
     return table
 
 
 @click.command("demo")
-@click.option("-o", "--outdir", required=True, type=click.Path(file_okay=False, path_type=Path),
-              help="Directory for the simulated sessions (data/), the fit results, figures "
-                   "and report.md (created). Written as a whole at the end; an interrupted "
-                   "run leaves it as it was.")
-@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True,
-              help="Seed of the first session's noise (the others use seed+1, +2, +3).")
-@click.option("--noise", type=click.FloatRange(min=0.0, min_open=True), default=0.01,
-              show_default=True, help="Relative noise of every measurement (0.01 = 1 %).")
-@click.option("--accuracy", type=click.Choice(["fast", "default", "high"]), default="default",
-              show_default=True, help="Quadrature of the simulation and of the fit results.")
+@click.option(
+    "-o",
+    "--outdir",
+    required=True,
+    type=click.Path(file_okay=False, path_type=Path),
+    help="Directory for the simulated sessions (data/), the fit results, figures "
+    "and report.md (created). Written as a whole at the end; an interrupted "
+    "run leaves it as it was.",
+)
+@click.option(
+    "--seed",
+    type=click.IntRange(min=0),
+    default=0,
+    show_default=True,
+    help="Seed of the first session's noise (the others use seed+1, +2, +3).",
+)
+@click.option(
+    "--noise",
+    type=click.FloatRange(min=0.0, min_open=True),
+    default=0.01,
+    show_default=True,
+    help="Relative noise of every measurement (0.01 = 1 %).",
+)
+@click.option(
+    "--accuracy",
+    type=click.Choice(["fast", "default", "high"]),
+    default="default",
+    show_default=True,
+    help="Quadrature of the simulation and of the fit results.",
+)
 @click.pass_context
 def demo_command(ctx, outdir, seed, noise, accuracy):
     """The paper's simulation experiment (figs. 9-12, as `veil reproduce`), then a simulated
@@ -141,9 +190,11 @@ def demo_command(ctx, outdir, seed, noise, accuracy):
     console.print(summary_table(result))
     if result.comparison is not None:
         c = result.comparison
-        console.print(f"Estimated target f_r against the target measured in clear water: rms "
-                      f"difference {100 * c['rms_fr_relative']:.3g} % over "
-                      f"{c['n_configurations']} protocol configurations.")
+        console.print(
+            f"Estimated target f_r against the target measured in clear water: rms "
+            f"difference {100 * c['rms_fr_relative']:.3g} % over "
+            f"{c['n_configurations']} protocol configurations."
+        )
     console.print(f"Results, figures and report: {os.path.join(outdir, 'report.md')}")
     if not result.converged:
         click.echo("Error: a fit did not converge (see report.md)", err=True)

@@ -30,24 +30,34 @@ def _load_other(text, kind, result, models):
         got = getattr(other, "kind", None) if not hasattr(other, "layout") else "joint"
         takes = {"medium": "target", "brdf": "medium"}[kind]  # the step that takes option
         if got != kind and getattr(result, "step", None) == takes:
-            what = ("a joint fit result" if got == "joint" else
-                    f"a {other.model} ({got}) fit result of step {other.step}")
-            wanted = ("the medium's fit result (step 1, a medium model)" if kind == "medium"
-                      else "the reference's fit result (step 0, a BRDF)")
-            raise UserError(f"{option} {text}: the file is {what}; {option} takes {wanted}, "
-                            f"or a model")
+            what = (
+                "a joint fit result"
+                if got == "joint"
+                else f"a {other.model} ({got}) fit result of step {other.step}"
+            )
+            wanted = (
+                "the medium's fit result (step 1, a medium model)"
+                if kind == "medium"
+                else "the reference's fit result (step 0, a BRDF)"
+            )
+            raise UserError(
+                f"{option} {text}: the file is {what}; {option} takes {wanted}, or a model"
+            )
         return other
     given = result.given_model() if result.given else None
     if given is not None and given.KIND == kind:
-        models = ModelChoice(type(given) if kind == "brdf" else models.brdf,
-                             type(given) if kind == "medium" else models.medium,
-                             given.options() if kind == "brdf" else models.brdf_options,
-                             given.options() if kind == "medium" else models.medium_options)
+        models = ModelChoice(
+            type(given) if kind == "brdf" else models.brdf,
+            type(given) if kind == "medium" else models.medium,
+            given.options() if kind == "brdf" else models.brdf_options,
+            given.options() if kind == "medium" else models.medium_options,
+        )
     try:
         model = models.parse(text, kind, option)
     except click.ClickException as exc:
-        raise UserError(f"{option} {text!r} is not an existing JSON file and {exc.message}"
-                        ) from None
+        raise UserError(
+            f"{option} {text!r} is not an existing JSON file and {exc.message}"
+        ) from None
     if model is None:
         raise UserError("--medium none: a target fit's medium scatters; give its fit result")
     return model
@@ -72,12 +82,19 @@ def _print(diag, console) -> None:
             high = ">" + format(prof.values[-1], ".4g") if hi is None else format(hi, ".4g")
             interval = f"[{low}, {high}]"
         rel = diag.relative[n]
-        table.add_row(e(n), f"{diag.values[n]:.5g}", f"{diag.stderr[n]:.3g}",
-                      "-" if rel == float("inf") else f"{100 * rel:.3g} %", interval,
-                      "POOR" if n in flagged else "")
+        table.add_row(
+            e(n),
+            f"{diag.values[n]:.5g}",
+            f"{diag.stderr[n]:.3g}",
+            "-" if rel == float("inf") else f"{100 * rel:.3g} %",
+            interval,
+            "POOR" if n in flagged else "",
+        )
     console.print(table)
-    console.print(f"condition number of the weighted Jacobian: {diag.condition['values']:.4g} "
-                  f"(columns x values), {diag.condition['stderr']:.4g} (columns x stderr)")
+    console.print(
+        f"condition number of the weighted Jacobian: {diag.condition['values']:.4g} "
+        f"(columns x values), {diag.condition['stderr']:.4g} (columns x stderr)"
+    )
     weak = ", ".join(f"{c:+.2f} {e(n)}" for n, c in diag.weakest.items() if abs(c) >= 0.1)
     console.print(f"weakest direction (relative units): {weak}")
     if diag.poorly_determined:
@@ -96,33 +113,82 @@ def _print(diag, console) -> None:
 
 @click.command("diagnose")
 @click.argument("result_path", metavar="RESULT.json", type=IN_FILE)
-@click.option("--data", "data", multiple=True, required=True, metavar="TABLE",
-              help="The fit's measurement table. For a joint result: each session as "
-                   "LABEL=PATH (target) or ref:LABEL=PATH (reference), repeated.")
-@click.option("--black", type=IN_FILE,
-              help="Black-cloth table subtracted in the fit (step results).")
-@click.option("--medium", metavar="MEDIUM",
-              help="For a target fit: the medium's fit result (JSON; its uncertainty is "
-                   "included) or a model (held exact). Default: the medium in RESULT, exact.")
-@click.option("--reference", metavar="REF",
-              help="For a medium fit: the reference's fit result (JSON; its uncertainty is "
-                   "included) or a model. Default: the reference in RESULT, exact.")
+@click.option(
+    "--data",
+    "data",
+    multiple=True,
+    required=True,
+    metavar="TABLE",
+    help="The fit's measurement table. For a joint result: each session as "
+    "LABEL=PATH (target) or ref:LABEL=PATH (reference), repeated.",
+)
+@click.option(
+    "--black", type=IN_FILE, help="Black-cloth table subtracted in the fit (step results)."
+)
+@click.option(
+    "--medium",
+    metavar="MEDIUM",
+    help="For a target fit: the medium's fit result (JSON; its uncertainty is "
+    "included) or a model (held exact). Default: the medium in RESULT, exact.",
+)
+@click.option(
+    "--reference",
+    metavar="REF",
+    help="For a medium fit: the reference's fit result (JSON; its uncertainty is "
+    "included) or a model. Default: the reference in RESULT, exact.",
+)
 @click.option("--profile", is_flag=True, help="Compute profile likelihoods (refits; slower).")
-@click.option("--profile-param", "profile_params", multiple=True, metavar="NAME",
-              help="Profile only this parameter (repeatable; implies --profile).")
-@click.option("--points", type=click.IntRange(min=3), default=9, show_default=True,
-              help="Grid points of each profile.")
-@click.option("--max-relative", type=click.FloatRange(min=0, min_open=True), default=0.25,
-              show_default=True, help="Relative standard error above which a parameter is "
-                                      "poorly determined (for g: relative to 1 - |g|).")
-@click.option("--max-correlation", type=click.FloatRange(0, 1, min_open=True), default=0.9,
-              show_default=True, help="|correlation| above which a pair trades off.")
-@click.option("-o", "--outdir", type=click.Path(file_okay=False, path_type=Path),
-              help="Directory for diagnostics.json and diagnostics.png (created; both are "
-                   "replaced together, other files in it are left alone).")
+@click.option(
+    "--profile-param",
+    "profile_params",
+    multiple=True,
+    metavar="NAME",
+    help="Profile only this parameter (repeatable; implies --profile).",
+)
+@click.option(
+    "--points",
+    type=click.IntRange(min=3),
+    default=9,
+    show_default=True,
+    help="Grid points of each profile.",
+)
+@click.option(
+    "--max-relative",
+    type=click.FloatRange(min=0, min_open=True),
+    default=0.25,
+    show_default=True,
+    help="Relative standard error above which a parameter is "
+    "poorly determined (for g: relative to 1 - |g|).",
+)
+@click.option(
+    "--max-correlation",
+    type=click.FloatRange(0, 1, min_open=True),
+    default=0.9,
+    show_default=True,
+    help="|correlation| above which a pair trades off.",
+)
+@click.option(
+    "-o",
+    "--outdir",
+    type=click.Path(file_okay=False, path_type=Path),
+    help="Directory for diagnostics.json and diagnostics.png (created; both are "
+    "replaced together, other files in it are left alone).",
+)
 @model_options()
-def diagnose_command(result_path, data, black, medium, reference, profile, profile_params,
-                     points, max_relative, max_correlation, outdir, models):
+def diagnose_command(
+    result_path,
+    data,
+    black,
+    medium,
+    reference,
+    profile,
+    profile_params,
+    points,
+    max_relative,
+    max_correlation,
+    outdir,
+    models,
+):
     """Which parameters of a fit are poorly determined, and which trade off.
 
     \b
@@ -138,8 +204,10 @@ def diagnose_command(result_path, data, black, medium, reference, profile, profi
     inputs = [result_path, black]
     if isinstance(result, JointResult):
         if black is not None or medium is not None or reference is not None:
-            raise UserError("a joint result takes only --data LABEL=PATH / ref:LABEL=PATH "
-                            "(black cloth already subtracted; media and reference are in it)")
+            raise UserError(
+                "a joint result takes only --data LABEL=PATH / ref:LABEL=PATH "
+                "(black cloth already subtracted; media and reference are in it)"
+            )
         table = _sessions(data, inputs)
     else:
         if len(data) != 1:
@@ -164,11 +232,20 @@ def diagnose_command(result_path, data, black, medium, reference, profile, profi
                 check_output_path(path, inputs)
     prof = list(profile_params) if profile_params else bool(profile)
     from ._common import echo_warnings, fit_progress
+
     with echo_warnings(), fit_progress("diagnose") as progress:
-        diag = diagnose(result, table, medium=med, reference=ref,
-                        black=None if black is None else os.fspath(black), profile=prof,
-                        points=points, max_relative=max_relative,
-                        max_correlation=max_correlation, progress=progress)
+        diag = diagnose(
+            result,
+            table,
+            medium=med,
+            reference=ref,
+            black=None if black is None else os.fspath(black),
+            profile=prof,
+            points=points,
+            max_relative=max_relative,
+            max_correlation=max_correlation,
+            progress=progress,
+        )
     _print(diag, Console())
     if files:
         _write(diag, outdir, files)
@@ -184,14 +261,22 @@ def _sessions(data, inputs: list) -> list:
     for item in data:
         head, sep, path = item.partition("=")
         if not sep or not head.strip() or not path.strip():
-            raise UserError(f"--data {item!r}: a joint result needs LABEL=PATH or "
-                            f"ref:LABEL=PATH for each session")
+            raise UserError(
+                f"--data {item!r}: a joint result needs LABEL=PATH or "
+                f"ref:LABEL=PATH for each session"
+            )
         obj, label = ("reference", head[4:]) if head.startswith("ref:") else ("target", head)
         path = path.strip()
         if not os.path.isfile(path):
             raise UserError(f"--data {item!r}: file {path} does not exist")
-        sessions.append(Session(load_measurements(path), label.strip(), obj,
-                                name=f"{obj} in {label.strip()} ({path})"))
+        sessions.append(
+            Session(
+                load_measurements(path),
+                label.strip(),
+                obj,
+                name=f"{obj} in {label.strip()} ({path})",
+            )
+        )
         inputs.append(path)
     return sessions
 
@@ -203,8 +288,9 @@ def _write(diag, outdir, files: dict) -> None:
 
     names = {key: path.name for key, path in files.items()}
     with output_folder(outdir, owned=names.values()) as folder:
-        write_text_atomic(folder / names["json"],
-                          json.dumps(diag.to_dict(), indent=2, allow_nan=False) + "\n")
+        write_text_atomic(
+            folder / names["json"], json.dumps(diag.to_dict(), indent=2, allow_nan=False) + "\n"
+        )
         diagnosis_figure(diag, folder / names["png"])
     for path in files.values():
         click.echo(f"wrote {path}", err=True)

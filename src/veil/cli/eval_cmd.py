@@ -16,31 +16,38 @@ from ._common import ACCURACIES, UserError, check_output_path, model_options
 
 ANGLES = ("theta_i", "phi_i", "theta_r", "phi_r")  # the --configs columns, degrees
 ADDED = ("apparent", "clear", "error")  # the columns veil eval adds
-FORMS_TEXT = ("theta_i, phi_i, theta_r, phi_r (or signed in-plane theta_i, theta_r, or "
-              "goniometer psi, rho)")
+FORMS_TEXT = (
+    "theta_i, phi_i, theta_r, phi_r (or signed in-plane theta_i, theta_r, or goniometer psi, rho)"
+)
 DEFAULT_PHI_I = 180.0
 DEFAULT_PHI_R = 0.0
 
-BRDF_HELP = ("Object's reflection model, of the --brdf-model family: a preset name, BRDF1 or "
-             "BRDF2, or a literal list of the family's parameters in declared order - for the "
-             "paper's Torrance-Sparrow (docs/model.md sec. 2) 'PD,PS,N,ETA': PD, PS diffuse and "
-             "specular coefficients (relative units, >= 0), N smoothness (1/deg, > 0; larger "
-             "is smoother), ETA refractive index of the surface (> 0). 'veil models' lists "
-             "every family's parameters.")
-MEDIUM_HELP = ("Scattering medium, of the --medium-model family: a preset name, BTDF1, BTDF2 "
-               "or BTDF3, a literal list of its parameters - for the paper's medium (docs/model.md "
-               "sec. 3) 'TD,TT,G,ETA': TD, TT isotropic and single-scattering coefficients "
-               "(relative units, >= 0), G asymmetry (in (-1, 1)), ETA refractive index of the "
-               "medium (> 0) - or 'none' for a clear medium (apparent = clear).")
+BRDF_HELP = (
+    "Object's reflection model, of the --brdf-model family: a preset name, BRDF1 or "
+    "BRDF2, or a literal list of the family's parameters in declared order - for the "
+    "paper's Torrance-Sparrow (docs/model.md sec. 2) 'PD,PS,N,ETA': PD, PS diffuse and "
+    "specular coefficients (relative units, >= 0), N smoothness (1/deg, > 0; larger "
+    "is smoother), ETA refractive index of the surface (> 0). 'veil models' lists "
+    "every family's parameters."
+)
+MEDIUM_HELP = (
+    "Scattering medium, of the --medium-model family: a preset name, BTDF1, BTDF2 "
+    "or BTDF3, a literal list of its parameters - for the paper's medium (docs/model.md "
+    "sec. 3) 'TD,TT,G,ETA': TD, TT isotropic and single-scattering coefficients "
+    "(relative units, >= 0), G asymmetry (in (-1, 1)), ETA refractive index of the "
+    "medium (> 0) - or 'none' for a clear medium (apparent = clear)."
+)
 
 
 def _check_option_angle(option: str, value: float, polar: bool) -> None:
     if not math.isfinite(value):
         raise UserError(f"{option} = {value!r} is not a finite number of degrees")
     if polar and not 0.0 <= value < 90.0:
-        raise UserError(f"{option} = {value:g} deg is outside [0, 90): it is the polar angle "
-                        f"from the surface normal; for a direction on the other side of the "
-                        f"normal use the azimuth (phi + 180)")
+        raise UserError(
+            f"{option} = {value:g} deg is outside [0, 90): it is the polar angle "
+            f"from the surface normal; for a direction on the other side of the "
+            f"normal use the azimuth (phi + 180)"
+        )
 
 
 def _parse_models(brdf_text, medium_text, models):
@@ -97,12 +104,15 @@ def _read_configs(configs):
     def four_angles(header):  # the four-angle form is parsed here, the others below
         return ANGLES if any(c in header for c in ("phi_i", "phi_r")) else ()
 
-    table, numbers, rows = read_csv_table(configs, four_angles, unit="an angle in degrees",
-                                          expected=FORMS_TEXT)
+    table, numbers, rows = read_csv_table(
+        configs, four_angles, unit="an angle in degrees", expected=FORMS_TEXT
+    )
     clash = [c for c in ADDED if c in table.columns]
     if clash:
-        raise UserError(f"{configs}: already has a column {clash[0]!r}, which veil eval "
-                        f"adds; rename or remove it")
+        raise UserError(
+            f"{configs}: already has a column {clash[0]!r}, which veil eval "
+            f"adds; rename or remove it"
+        )
     from ..data.measurements import MeasurementError, canonical_angles
 
     named = table.copy()
@@ -119,9 +129,11 @@ def _read_configs(configs):
             bad = np.flatnonzero((numbers[c] < 0.0) | (numbers[c] >= 90.0))
             if bad.size:
                 j = bad[0]
-                raise UserError(f"{configs}: row {rows[j]} (rows counted as lines of the file, "
-                                f"header = row 1), column {c!r}: {numbers[c][j]:g} deg is "
-                                f"outside [0, 90) (polar angle from the surface normal)")
+                raise UserError(
+                    f"{configs}: row {rows[j]} (rows counted as lines of the file, "
+                    f"header = row 1), column {c!r}: {numbers[c][j]:g} deg is "
+                    f"outside [0, 90) (polar angle from the surface normal)"
+                )
         return (*(numbers[c] for c in ANGLES), table)
     try:
         canonical = canonical_angles(named)
@@ -151,9 +163,10 @@ def evaluate_configs(brdf, medium, ti, tr, pi_, pr, accuracy, progress=None):
         t0 = time.perf_counter()
         idx = np.minimum(np.arange(start, start + CHUNK), n - 1)
         k = min(CHUNK, n - start)
-        v, e = apparent(brdf, medium, ti[idx], tr[idx], pi_[idx], pr[idx], accuracy=accuracy,
-                        return_error=True)
-        value[start:start + k], error[start:start + k] = v[:k], e[:k]
+        v, e = apparent(
+            brdf, medium, ti[idx], tr[idx], pi_[idx], pr[idx], accuracy=accuracy, return_error=True
+        )
+        value[start : start + k], error[start : start + k] = v[:k], e[:k]
         if progress is not None:
             progress(start + k, n, time.perf_counter() - t0)
     return value, error
@@ -181,10 +194,15 @@ class _Progress:
 
             from .compile_display import console
 
-            self.bar = Progress(TextColumn("veil eval: configurations"), BarColumn(),
-                                MofNCompleteColumn(), TimeElapsedColumn(),
-                                TimeRemainingColumn(), console=console(),
-                                transient=True)
+            self.bar = Progress(
+                TextColumn("veil eval: configurations"),
+                BarColumn(),
+                MofNCompleteColumn(),
+                TimeElapsedColumn(),
+                TimeRemainingColumn(),
+                console=console(),
+                transient=True,
+            )
             self.bar.start()
             self.task = self.bar.add_task("", total=total)
         self.bar.update(self.task, completed=done)
@@ -208,53 +226,94 @@ def _check_angle_options(theta_i, theta_r, phi_i, phi_r, configs, output, as_jso
     if configs is not None:
         given = [name for name, v in single.items() if v is not None]
         if given:
-            raise UserError(f"{', '.join(given)} cannot be combined with --configs: the angles "
-                            f"come from the columns of {configs}")
+            raise UserError(
+                f"{', '.join(given)} cannot be combined with --configs: the angles "
+                f"come from the columns of {configs}"
+            )
         return
     missing = [name for name in ("--theta-i", "--theta-r") if single[name] is None]
     if missing:
-        raise UserError(f"missing {' and '.join(missing)} (degrees); give --theta-i and "
-                        f"--theta-r for one configuration, or --configs FILE.csv")
+        raise UserError(
+            f"missing {' and '.join(missing)} (degrees); give --theta-i and "
+            f"--theta-r for one configuration, or --configs FILE.csv"
+        )
     if output is not None and not as_json:
-        raise UserError("-o/--output writes the CSV of --configs or the object of --json; "
-                        "a single configuration's table goes to standard output (add "
-                        "--json to write it to a file)")
+        raise UserError(
+            "-o/--output writes the CSV of --configs or the object of --json; "
+            "a single configuration's table goes to standard output (add "
+            "--json to write it to a file)"
+        )
 
 
-@click.command("eval", short_help="Apparent reflectance through a medium at given angles "
-               "(degrees), one configuration or a CSV of them.")
+@click.command(
+    "eval",
+    short_help="Apparent reflectance through a medium at given angles "
+    "(degrees), one configuration or a CSV of them.",
+)
 @click.option("--brdf", "brdf_text", required=True, metavar="MODEL", help=BRDF_HELP)
 @click.option("--medium", "medium_text", required=True, metavar="MODEL", help=MEDIUM_HELP)
-@click.option("--theta-i", type=float, metavar="DEG",
-              help="Polar angle of the light direction I from the surface normal, in degrees, "
-                   "in [0, 90). Required unless --configs is given.")
-@click.option("--theta-r", type=float, metavar="DEG",
-              help="Polar angle of the camera direction R from the surface normal, in degrees, "
-                   "in [0, 90). Required unless --configs is given.")
-@click.option("--phi-i", type=float, metavar="DEG",
-              help="Azimuth of the light direction I, in degrees. [default: 180, the light "
-                   "opposite the camera in the plane of incidence]")
-@click.option("--phi-r", type=float, metavar="DEG",
-              help="Azimuth of the camera direction R, in degrees. [default: 0]")
-@click.option("--configs", type=click.Path(exists=True, dir_okay=False, readable=True),
-              metavar="FILE.csv",
-              help="Evaluate every row of this CSV file instead of one configuration. Angles "
-                   "in degrees in any form of a measurement table: theta_i, phi_i, theta_r, "
-                   "phi_r; signed in-plane theta_i, theta_r; or goniometer psi, rho. Other "
-                   "columns are copied unchanged. Output: the input's columns in the same row "
-                   "order plus apparent, clear and error (1/sr, relative units) as CSV.")
-@click.option("-o", "--output", type=click.Path(dir_okay=False), metavar="OUT",
-              help="Write the --configs CSV (or, with --json, the JSON object) to this file "
-                   "instead of standard output. Written atomically; never the --configs file.")
-@click.option("--accuracy", type=click.Choice(list(ACCURACIES)), default="default",
-              show_default=True,
-              help="Quadrature level: fast (coarse rule, quick previews), default (about 1e-3 "
-                   "relative error for the paper's presets at angles below 80 deg), high "
-                   "(twice as fine, slower). The error column estimates what is left.")
-@click.option("--json", "as_json", is_flag=True,
-              help="Print a JSON object instead of the table or CSV: the models, the lists "
-                   "theta_i, phi_i, theta_r, phi_r (degrees) and apparent, clear, error "
-                   "(1/sr, relative units), one entry per configuration in input order.")
+@click.option(
+    "--theta-i",
+    type=float,
+    metavar="DEG",
+    help="Polar angle of the light direction I from the surface normal, in degrees, "
+    "in [0, 90). Required unless --configs is given.",
+)
+@click.option(
+    "--theta-r",
+    type=float,
+    metavar="DEG",
+    help="Polar angle of the camera direction R from the surface normal, in degrees, "
+    "in [0, 90). Required unless --configs is given.",
+)
+@click.option(
+    "--phi-i",
+    type=float,
+    metavar="DEG",
+    help="Azimuth of the light direction I, in degrees. [default: 180, the light "
+    "opposite the camera in the plane of incidence]",
+)
+@click.option(
+    "--phi-r",
+    type=float,
+    metavar="DEG",
+    help="Azimuth of the camera direction R, in degrees. [default: 0]",
+)
+@click.option(
+    "--configs",
+    type=click.Path(exists=True, dir_okay=False, readable=True),
+    metavar="FILE.csv",
+    help="Evaluate every row of this CSV file instead of one configuration. Angles "
+    "in degrees in any form of a measurement table: theta_i, phi_i, theta_r, "
+    "phi_r; signed in-plane theta_i, theta_r; or goniometer psi, rho. Other "
+    "columns are copied unchanged. Output: the input's columns in the same row "
+    "order plus apparent, clear and error (1/sr, relative units) as CSV.",
+)
+@click.option(
+    "-o",
+    "--output",
+    type=click.Path(dir_okay=False),
+    metavar="OUT",
+    help="Write the --configs CSV (or, with --json, the JSON object) to this file "
+    "instead of standard output. Written atomically; never the --configs file.",
+)
+@click.option(
+    "--accuracy",
+    type=click.Choice(list(ACCURACIES)),
+    default="default",
+    show_default=True,
+    help="Quadrature level: fast (coarse rule, quick previews), default (about 1e-3 "
+    "relative error for the paper's presets at angles below 80 deg), high "
+    "(twice as fine, slower). The error column estimates what is left.",
+)
+@click.option(
+    "--json",
+    "as_json",
+    is_flag=True,
+    help="Print a JSON object instead of the table or CSV: the models, the lists "
+    "theta_i, phi_i, theta_r, phi_r (degrees) and apparent, clear, error "
+    "(1/sr, relative units), one entry per configuration in input order.",
+)
 @model_options()
 def _option_angles(theta_i, theta_r, phi_i, phi_r) -> tuple:
     """The one configuration of --theta-i, --theta-r (--phi-i, --phi-r), checked."""
@@ -285,8 +344,19 @@ def _evaluate(brdf, medium, ti, tr, pi_, pr, accuracy: str) -> tuple:
     return tuple(np.asarray(a, dtype=float).reshape(-1) for a in (value, error, clear))
 
 
-def eval_command(brdf_text, medium_text, theta_i, theta_r, phi_i, phi_r, configs, output,
-                 accuracy, as_json, models):
+def eval_command(
+    brdf_text,
+    medium_text,
+    theta_i,
+    theta_r,
+    phi_i,
+    phi_r,
+    configs,
+    output,
+    accuracy,
+    as_json,
+    models,
+):
     """Apparent reflectance of an object seen through a scattering medium (docs/model.md eq. 1).
 
     For one configuration give --theta-i and --theta-r (and optionally --phi-i, --phi-r);
@@ -318,9 +388,13 @@ def eval_command(brdf_text, medium_text, theta_i, theta_r, phi_i, phi_r, configs
             "medium": _model_json(medium),
             "accuracy": accuracy,
             "angle_unit": "deg",
-            "theta_i": ti.tolist(), "phi_i": pi_.tolist(),
-            "theta_r": tr.tolist(), "phi_r": pr.tolist(),
-            "apparent": value.tolist(), "clear": clear.tolist(), "error": error.tolist(),
+            "theta_i": ti.tolist(),
+            "phi_i": pi_.tolist(),
+            "theta_r": tr.tolist(),
+            "phi_r": pr.tolist(),
+            "apparent": value.tolist(),
+            "clear": clear.tolist(),
+            "error": error.tolist(),
         }
         _emit(json.dumps(obj, indent=2, allow_nan=False) + "\n", output)
     elif configs is not None:
@@ -330,9 +404,22 @@ def eval_command(brdf_text, medium_text, theta_i, theta_r, phi_i, phi_r, configs
         out.to_csv(buf, index=False, lineterminator="\n")
         _emit(buf.getvalue(), output)
     else:
-        click.echo(_format_table(brdf_text, medium_text, brdf, medium,
-                                 (ti[0], pi_[0], tr[0], pr[0]), accuracy,
-                                 value[0], clear[0], error[0]), nl=False)
+        click.echo(
+            _format_table(
+                brdf_text,
+                medium_text,
+                brdf,
+                medium,
+                (ti[0], pi_[0], tr[0], pr[0]),
+                accuracy,
+                value[0],
+                clear[0],
+                error[0],
+            ),
+            nl=False,
+        )
     if output is not None:
-        click.echo(f"wrote {len(value)} configuration{'s' if len(value) != 1 else ''} to "
-                   f"{output}", err=True)
+        click.echo(
+            f"wrote {len(value)} configuration{'s' if len(value) != 1 else ''} to {output}",
+            err=True,
+        )

@@ -79,8 +79,10 @@ def load_inputs(files, data, black):
     states = [f for f in files if ex.is_state_file(f)]
     if states:
         if len(files) > 1:
-            raise UserError(f"{states[0]} is a saved page state: give it alone (it names its "
-                            f"own results and data)")
+            raise UserError(
+                f"{states[0]} is a saved page state: give it alone (it names its "
+                f"own results and data)"
+            )
         state = ex.State.load(states[0])
         for path in state.results + [p for p in (state.data, state.black) if p]:
             if not os.path.isfile(path):
@@ -99,9 +101,11 @@ def load_inputs(files, data, black):
         raise UserError(f"--data {data}: give the fit result it belongs to (RESULT.json)")
     channels = fits.result_channels(results, files)
     if channels and data is not None:
-        raise UserError(f"--data {data}: the data panel shows a fit of one channel; the "
-                        f"results are fitted over channels {', '.join(channels)} (the page "
-                        f"shows their models without --data)")
+        raise UserError(
+            f"--data {data}: the data panel shows a fit of one channel; the "
+            f"results are fitted over channels {', '.join(channels)} (the page "
+            f"shows their models without --data)"
+        )
     if black is not None and data is None:
         raise UserError("--black needs --data (the black cloth of the fit's table)")
     views = []
@@ -109,51 +113,97 @@ def load_inputs(files, data, black):
         errors = []
         for result, f in zip(results, files):
             try:
-                views.append(fits.FitView(result, os.fspath(data), None if black is None
-                                        else os.fspath(black), source=f,
-                                        table_name=os.fspath(data)))
+                views.append(
+                    fits.FitView(
+                        result,
+                        os.fspath(data),
+                        None if black is None else os.fspath(black),
+                        source=f,
+                        table_name=os.fspath(data),
+                    )
+                )
                 break
             except InputError as exc:
                 errors.append(str(exc))
         if not views:
-            raise UserError(f"--data {data} belongs to none of the results: "
-                            + "; ".join(errors))
+            raise UserError(f"--data {data} belongs to none of the results: " + "; ".join(errors))
     if state is None:
         by_channel = {c: fits.models_of(results, files, c) for c in channels} or None
-        brdf, medium = (fits.models_of(results, files) if by_channel is None
-                        else by_channel[channels[0]])
-        state = ex.State(brdf, medium, results=files,
-                         data=None if data is None else os.fspath(data),
-                         black=None if black is None else os.fspath(black),
-                         channels=by_channel)
+        brdf, medium = (
+            fits.models_of(results, files) if by_channel is None else by_channel[channels[0]]
+        )
+        state = ex.State(
+            brdf,
+            medium,
+            results=files,
+            data=None if data is None else os.fspath(data),
+            black=None if black is None else os.fspath(black),
+            channels=by_channel,
+        )
     return state, views
 
 
 @click.command("explore")
 @click.argument("files", nargs=-1, type=IN_FILE, metavar="[RESULT.json ...]")
-@click.option("--data", type=IN_FILE, metavar="TABLE.csv",
-              help="The measurement table of one of the results: drawn with error bars over "
-                   "the fitted model, its uncertainty band and residuals.")
-@click.option("--black", type=IN_FILE, metavar="TABLE.csv",
-              help="The black-cloth table the fit subtracted from --data.")
-@click.option("--port", type=click.IntRange(0, 65535), default=DEFAULT_PORT, show_default=True,
-              help="Port of the local server (0: any free port; a port in use: another).")
+@click.option(
+    "--data",
+    type=IN_FILE,
+    metavar="TABLE.csv",
+    help="The measurement table of one of the results: drawn with error bars over "
+    "the fitted model, its uncertainty band and residuals.",
+)
+@click.option(
+    "--black",
+    type=IN_FILE,
+    metavar="TABLE.csv",
+    help="The black-cloth table the fit subtracted from --data.",
+)
+@click.option(
+    "--port",
+    type=click.IntRange(0, 65535),
+    default=DEFAULT_PORT,
+    show_default=True,
+    help="Port of the local server (0: any free port; a port in use: another).",
+)
 @click.option("--no-browser", is_flag=True, help="Print the address instead of opening it.")
-@click.option("--share-dir", type=click.Path(file_okay=False, path_type=Path), default=".",
-              show_default=True, help="Folder where the page's share button writes states.")
-@click.option("--static", "static", is_flag=True,
-              help="Write a self-contained page (-o) instead of serving: the views "
-                   "precomputed over a grid of one parameter (--param), switched by a slider.")
-@click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path),
-              help="The page --static writes (HTML).")
-@click.option("--param", "param", metavar="NAME",
-              help="--static: the parameter on the slider (brdf.NAME or medium.NAME where "
-                   "both models have one). Default: the BRDF's first shape parameter.")
-@click.option("--points", type=click.IntRange(2, 41), default=9, show_default=True,
-              help="--static: values of the parameter on the slider.")
+@click.option(
+    "--share-dir",
+    type=click.Path(file_okay=False, path_type=Path),
+    default=".",
+    show_default=True,
+    help="Folder where the page's share button writes states.",
+)
+@click.option(
+    "--static",
+    "static",
+    is_flag=True,
+    help="Write a self-contained page (-o) instead of serving: the views "
+    "precomputed over a grid of one parameter (--param), switched by a slider.",
+)
+@click.option(
+    "-o",
+    "--output",
+    type=click.Path(dir_okay=False, path_type=Path),
+    help="The page --static writes (HTML).",
+)
+@click.option(
+    "--param",
+    "param",
+    metavar="NAME",
+    help="--static: the parameter on the slider (brdf.NAME or medium.NAME where "
+    "both models have one). Default: the BRDF's first shape parameter.",
+)
+@click.option(
+    "--points",
+    type=click.IntRange(2, 41),
+    default=9,
+    show_default=True,
+    help="--static: values of the parameter on the slider.",
+)
 @click.pass_context
-def explore_command(ctx, files, data, black, port, no_browser, share_dir, static, output,
-                    param, points):
+def explore_command(
+    ctx, files, data, black, port, no_browser, share_dir, static, output, param, points
+):
     """An interactive page: a BRDF through a medium, and a fit against its data.
 
     \b
@@ -182,8 +232,10 @@ def explore_command(ctx, files, data, black, port, no_browser, share_dir, static
             raise UserError(f"--share-dir {share}: folder is not writable")
     state, views = load_inputs(files, data, black)
     if static and state.channels is not None:
-        raise UserError("--static precomputes one channel's page; results fitted over "
-                        "several channels are shown by the server (without --static)")
+        raise UserError(
+            "--static precomputes one channel's page; results fitted over "
+            "several channels are shown by the server (without --static)"
+        )
     if static:
         _write_static(state, views, param, points, output)
         return
@@ -206,11 +258,13 @@ def _write_static(state, views, param, points, output):
     def progress(done, total):
         click.echo(f"\rprecomputing {done}/{total}", err=True, nl=done == total)
 
-    body, values = static_page(state, param or _default_param(state), points, views,
-                               progress=progress)
+    body, values = static_page(
+        state, param or _default_param(state), points, views, progress=progress
+    )
     save_static(body, output)
-    click.echo(f"wrote {output} ({len(values)} states of {param or _default_param(state)})",
-               err=True)
+    click.echo(
+        f"wrote {output} ({len(values)} states of {param or _default_param(state)})", err=True
+    )
 
 
 def _serve(state, views, port, no_browser, share_dir):
@@ -230,13 +284,21 @@ def _serve(state, views, port, no_browser, share_dir):
 
     pn.extension()
     try:
-        server = pn.serve({"/": page}, port=chosen, address=ADDRESS, show=False, start=False,
-                          title="veil explore", verbose=False,
-                          websocket_origin=[f"{ADDRESS}:{chosen}", f"localhost:{chosen}"])
+        server = pn.serve(
+            {"/": page},
+            port=chosen,
+            address=ADDRESS,
+            show=False,
+            start=False,
+            title="veil explore",
+            verbose=False,
+            websocket_origin=[f"{ADDRESS}:{chosen}", f"localhost:{chosen}"],
+        )
     except OSError as exc:
         if exc.errno == errno.EADDRINUSE:
-            raise UserError(f"port {chosen} was taken before the server could use it; run "
-                            f"again") from None
+            raise UserError(
+                f"port {chosen} was taken before the server could use it; run again"
+            ) from None
         raise
     url = f"http://{ADDRESS}:{chosen}/"
     server.start()

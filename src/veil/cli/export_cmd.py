@@ -22,52 +22,116 @@ PASSES = 4
 def _positive(name):
     def check(ctx, param, value):
         if value is not None and not (math.isfinite(value) and value > 0):
-            raise click.BadParameter(f"{value!r}: expected a finite number > 0",
-                                     param_hint=name)
+            raise click.BadParameter(f"{value!r}: expected a finite number > 0", param_hint=name)
         return value
+
     return check
 
 
 @click.command("export")
 @click.argument("result", type=IN_FILE)
 @click.argument("medium_result", metavar="[MEDIUM]", required=False, type=IN_FILE)
-@click.option("--to", "target", required=True, type=click.Choice(TARGETS),
-              help="mitsuba: a Mitsuba 3 scene fragment; pbrt: a pbrt-v4 material and medium "
-                   "block; csv: the predicted curves as a tidy table.")
-@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False, path_type=Path),
-              help="File to write (atomically).")
-@click.option("--format", "fmt", type=click.Choice(["xml", "dict"]), default=None,
-              help="Mitsuba only: XML (default) or the equivalent Python dict "
-                   "(mitsuba.load_dict), written as Python source defining 'scene'.")
-@click.option("--scale", type=float, default=None, callback=_positive("--scale"),
-              help="Intensity scale divided out of the BRDF's relative scales (veil's values "
-                   "are products with the light and the camera gain). Default: the family's "
-                   "choice (rough-plastic, rough-conductor: ks, so that the interface is "
-                   "physical). The file says which scale was used.")
-@click.option("--ext-ior", type=float, default=1.0, show_default=True,
-              callback=_positive("--ext-ior"),
-              help="Index of the medium around the surface in the renderer's scene (plugins "
-                   "that take absolute indices get veil's relative index times this).")
-@click.option("--path-length", type=float, default=None, callback=_positive("--path-length"),
-              help="Length of one pass through the medium in scene units: sigma_t = tau / "
-                   "length (default: the medium's own path_length option).")
-@click.option("--verify", is_flag=True,
-              help="Render the export with Mitsuba 3 (pip install 'veil[mitsuba]') at the "
-                   "configurations of the paper's protocol and print the RMS difference "
-                   "from veil's prediction.")
-@click.option("--psi", default="30,60,90", show_default=True, metavar="DEG,...",
-              help="Relative angles of the configurations of --verify and of --to csv.")
-@click.option("--spp", type=click.IntRange(min=1), default=None,
-              help=f"Samples per configuration of --verify (default 1 for a surface, "
-                   f"{MEDIUM_SPP} through a medium).")
-@click.option("--accuracy", type=click.Choice(["fast", "default", "high"]), default="default",
-              show_default=True, help="Quadrature of veil's apparent values (csv, --verify).")
-@click.option("--channel", default=None, metavar="NAME",
-              help="Export one channel of a result fitted over several (r, g, b or a "
-                   "wavelength in nm). Without it such a result of the channels r, g, b is "
-                   "written as one RGB material (docs/interop.md, \"Colour\").")
-def export_command(result, medium_result, target, output, fmt, scale, ext_ior, path_length,
-                   verify, psi, spp, accuracy, channel):
+@click.option(
+    "--to",
+    "target",
+    required=True,
+    type=click.Choice(TARGETS),
+    help="mitsuba: a Mitsuba 3 scene fragment; pbrt: a pbrt-v4 material and medium "
+    "block; csv: the predicted curves as a tidy table.",
+)
+@click.option(
+    "-o",
+    "--output",
+    required=True,
+    type=click.Path(dir_okay=False, path_type=Path),
+    help="File to write (atomically).",
+)
+@click.option(
+    "--format",
+    "fmt",
+    type=click.Choice(["xml", "dict"]),
+    default=None,
+    help="Mitsuba only: XML (default) or the equivalent Python dict "
+    "(mitsuba.load_dict), written as Python source defining 'scene'.",
+)
+@click.option(
+    "--scale",
+    type=float,
+    default=None,
+    callback=_positive("--scale"),
+    help="Intensity scale divided out of the BRDF's relative scales (veil's values "
+    "are products with the light and the camera gain). Default: the family's "
+    "choice (rough-plastic, rough-conductor: ks, so that the interface is "
+    "physical). The file says which scale was used.",
+)
+@click.option(
+    "--ext-ior",
+    type=float,
+    default=1.0,
+    show_default=True,
+    callback=_positive("--ext-ior"),
+    help="Index of the medium around the surface in the renderer's scene (plugins "
+    "that take absolute indices get veil's relative index times this).",
+)
+@click.option(
+    "--path-length",
+    type=float,
+    default=None,
+    callback=_positive("--path-length"),
+    help="Length of one pass through the medium in scene units: sigma_t = tau / "
+    "length (default: the medium's own path_length option).",
+)
+@click.option(
+    "--verify",
+    is_flag=True,
+    help="Render the export with Mitsuba 3 (pip install 'veil[mitsuba]') at the "
+    "configurations of the paper's protocol and print the RMS difference "
+    "from veil's prediction.",
+)
+@click.option(
+    "--psi",
+    default="30,60,90",
+    show_default=True,
+    metavar="DEG,...",
+    help="Relative angles of the configurations of --verify and of --to csv.",
+)
+@click.option(
+    "--spp",
+    type=click.IntRange(min=1),
+    default=None,
+    help=f"Samples per configuration of --verify (default 1 for a surface, "
+    f"{MEDIUM_SPP} through a medium).",
+)
+@click.option(
+    "--accuracy",
+    type=click.Choice(["fast", "default", "high"]),
+    default="default",
+    show_default=True,
+    help="Quadrature of veil's apparent values (csv, --verify).",
+)
+@click.option(
+    "--channel",
+    default=None,
+    metavar="NAME",
+    help="Export one channel of a result fitted over several (r, g, b or a "
+    "wavelength in nm). Without it such a result of the channels r, g, b is "
+    'written as one RGB material (docs/interop.md, "Colour").',
+)
+def export_command(
+    result,
+    medium_result,
+    target,
+    output,
+    fmt,
+    scale,
+    ext_ior,
+    path_length,
+    verify,
+    psi,
+    spp,
+    accuracy,
+    channel,
+):
     """Write fitted models for a renderer, or their predicted curves as CSV.
 
     RESULT is a fit result (JSON); the optional MEDIUM a second one of the other kind (a
@@ -92,8 +156,9 @@ def export_command(result, medium_result, target, output, fmt, scale, ext_ior, p
     if fmt is not None and target != "mitsuba":
         raise UserError(f"--format {fmt} applies to --to mitsuba only")
     if verify and target != "mitsuba":
-        raise UserError(f"--verify renders with Mitsuba; it applies to --to mitsuba, not "
-                        f"--to {target}")
+        raise UserError(
+            f"--verify renders with Mitsuba; it applies to --to mitsuba, not --to {target}"
+        )
     if verify:
         from ..interop.verify import load_mitsuba
 
@@ -110,8 +175,19 @@ def export_command(result, medium_result, target, output, fmt, scale, ext_ior, p
     if loaded.colour:
         from .export_colour import export_rgb
 
-        export_rgb(loaded, target, fmt, setting, output, verify, psis, spp, accuracy,
-                   medium_spp=MEDIUM_SPP, passes=PASSES)
+        export_rgb(
+            loaded,
+            target,
+            fmt,
+            setting,
+            output,
+            verify,
+            psis,
+            spp,
+            accuracy,
+            medium_spp=MEDIUM_SPP,
+            passes=PASSES,
+        )
         return
     _export_one(loaded, target, fmt, setting, output, verify, psis, spp, accuracy)
 
@@ -127,9 +203,12 @@ def _export_one(loaded, target, fmt, setting, output, verify, psis, spp, accurac
     for item in done.items:
         if item.closest is not None:
             click.echo(item.closest.sentence())
-    click.echo(f"wrote {target} {done.format} to {output} "
-               f"({', '.join(i.plugin.type for i in done.items)}); what the conversion loses "
-               f"is written in it as comments", err=True)
+    click.echo(
+        f"wrote {target} {done.format} to {output} "
+        f"({', '.join(i.plugin.type for i in done.items)}); what the conversion loses "
+        f"is written in it as comments",
+        err=True,
+    )
     if verify:
         _verify(done, brdf, medium, psis, spp, setting, accuracy)
 
@@ -146,9 +225,13 @@ def _csv(loaded, psis, accuracy, output) -> None:
     write_text_atomic(output, to_csv_text(frame))
     both = loaded.medium is not None
     n = len(loaded.channels)
-    click.echo(f"wrote {len(frame)} rows ({len(frame) // (2 if both else 1) // n} "
-               f"configurations, {'with and without the medium' if both else 'no medium'}"
-               + (f", {n} channels" if loaded.colour else "") + f") to {output}", err=True)
+    click.echo(
+        f"wrote {len(frame)} rows ({len(frame) // (2 if both else 1) // n} "
+        f"configurations, {'with and without the medium' if both else 'no medium'}"
+        + (f", {n} channels" if loaded.colour else "")
+        + f") to {output}",
+        err=True,
+    )
 
 
 def _verify(done, brdf, medium, psis, spp, setting, accuracy) -> None:
@@ -161,8 +244,10 @@ def _verify(done, brdf, medium, psis, spp, setting, accuracy) -> None:
     configs = table[["theta_i", "theta_r", "phi_i", "phi_r"]].to_numpy()
     material = done.item("brdf")
     if material is None:
-        raise UserError("--verify renders a plate: give a BRDF result too (or a medium result "
-                        "that names its reference BRDF)")
+        raise UserError(
+            "--verify renders a plate: give a BRDF result too (or a medium result "
+            "that names its reference BRDF)"
+        )
     if medium is None:
         predicted = reflectance(material.model, *configs.T)
         check = verify(done.text, done.scale, predicted, configs, spp or 1)
@@ -170,18 +255,34 @@ def _verify(done, brdf, medium, psis, spp, setting, accuracy) -> None:
         if material.closest is not None:
             source = reflectance(material.source, *configs.T)
             ratio = check.rendered[check.used] / source[check.used] - 1
-            click.echo(f"against the {material.source.NAME} result itself: RMS relative "
-                       f"difference {100 * float((ratio ** 2).mean() ** 0.5):.3g} %")
+            click.echo(
+                f"against the {material.source.NAME} result itself: RMS relative "
+                f"difference {100 * float((ratio**2).mean() ** 0.5):.3g} %"
+            )
         return
     item = done.item("medium")
     exported, geometry = item.model, item.plugin.geometry
     if not geometry:
-        raise UserError(f"--verify through a medium needs the scene geometry, which the "
-                        f"{exported.NAME} export does not give")
+        raise UserError(
+            f"--verify through a medium needs the scene geometry, which the "
+            f"{exported.NAME} export does not give"
+        )
     predicted = apparent(material.model, exported, *configs.T, accuracy=accuracy)
-    check = verify(done.text, done.scale, predicted, configs, spp or MEDIUM_SPP,
-                   passes=PASSES, medium={"length": geometry[GEOMETRY_LENGTH],
-                                   "half_width": geometry[GEOMETRY_HALF_WIDTH], "max_depth": 64})
+    check = verify(
+        done.text,
+        done.scale,
+        predicted,
+        configs,
+        spp or MEDIUM_SPP,
+        passes=PASSES,
+        medium={
+            "length": geometry[GEOMETRY_LENGTH],
+            "half_width": geometry[GEOMETRY_HALF_WIDTH],
+            "max_depth": 64,
+        },
+    )
     click.echo(check.sentence())
-    click.echo("(through a medium the two differ by the model's own approximations as well: "
-               "docs/interop.md)")
+    click.echo(
+        "(through a medium the two differ by the model's own approximations as well: "
+        "docs/interop.md)"
+    )

@@ -57,12 +57,27 @@ def _write_fit(ctx, result, output) -> None:
 
 
 #: Steps 1 and 2 by the kind of model they fit: the step and what its table holds.
-_THROUGH_MEDIUM = {"medium": ("step 1, medium", "reference (in the medium)"),
-                   "brdf": ("step 2, target", "target (in the medium)")}
+_THROUGH_MEDIUM = {
+    "medium": ("step 1, medium", "reference (in the medium)"),
+    "brdf": ("step 2, target", "target (in the medium)"),
+}
 
 
-def _fit_through_medium(ctx, fit_step, kind: str, table, given, output, *, fix, free, black,
-                        models, channel, **fit_options) -> None:
+def _fit_through_medium(
+    ctx,
+    fit_step,
+    kind: str,
+    table,
+    given,
+    output,
+    *,
+    fix,
+    free,
+    black,
+    models,
+    channel,
+    **fit_options,
+) -> None:
     """``veil fit medium`` and ``veil fit target``: ``fit_step`` (veil.fitting's fit_medium
     or fit_target) of the ``kind`` model to ``table`` through the medium, ``given`` the
     (model held, file or preset it was read from) - the reference's f_r or the medium; the
@@ -73,9 +88,18 @@ def _fit_through_medium(ctx, fit_step, kind: str, table, given, output, *, fix, 
     step, what = _THROUGH_MEDIUM[kind]
 
     def fit(family, options, fixed, freed, progress):
-        return fit_step(table, model, fixed=fixed, black=black, progress=progress,
-                        options=options, free=freed, channel=channel,
-                        **{f"{kind}_model": family}, **fit_options)
+        return fit_step(
+            table,
+            model,
+            fixed=fixed,
+            black=black,
+            progress=progress,
+            options=options,
+            free=freed,
+            channel=channel,
+            **{f"{kind}_model": family},
+            **fit_options,
+        )
 
     result = _fit_step(ctx, kind, step, models, fit, (table, black, channel), what, fix, free)
     _write_fit(ctx, result, output)
@@ -95,8 +119,9 @@ def _per_candidate(items, cands, parse, option: str) -> dict:
         out[c.label] = parse(mine, cls)
     unused = [i for i in items if i not in used]
     if unused:
-        raise UserError(f"{option} {', '.join(map(repr, unused))}: no candidate family has "
-                        f"such a parameter")
+        raise UserError(
+            f"{option} {', '.join(map(repr, unused))}: no candidate family has such a parameter"
+        )
     return out
 
 
@@ -109,8 +134,9 @@ def _ranked_fit(ctx, kind: str, step: str, models, data, fit, what: str, fix=(),
     from ..fitting import selection
     from ..fitting.session_data import prepare
 
-    cands = selection.candidates(kind, models.brdf_options if kind == "brdf"
-                                 else models.medium_options)
+    cands = selection.candidates(
+        kind, models.brdf_options if kind == "brdf" else models.medium_options
+    )
     fixes = _per_candidate(fix, cands, parse_fix, "--fix")
     frees = _per_candidate(free, cands, _parse_free, "--free")
     table, black, channel = data
@@ -121,8 +147,9 @@ def _ranked_fit(ctx, kind: str, step: str, models, data, fit, what: str, fix=(),
 
     try:
         with echo_warnings(), fit_progress(step) as progress:
-            ranking, results = selection.select(step.rpartition(", ")[2], cands, prepared, one,
-                                                what, progress)
+            ranking, results = selection.select(
+                step.rpartition(", ")[2], cands, prepared, one, what, progress
+            )
     except selection.NoCandidateError as exc:
         print_ranking(exc.ranking)
         click.echo(f"Error: {exc}; nothing was written", err=True)
@@ -139,9 +166,17 @@ def _fit_step(ctx, kind: str, step: str, models, fit, data, what: str, fix=(), f
     cls = models.brdf if kind == "brdf" else models.medium
     options = models.brdf_options if kind == "brdf" else models.medium_options
     if kind in models.ranked:
-        return _ranked_fit(ctx, kind, step, models, data,
-                           lambda c, fixed, freed: fit(c.family, c.model_options(options),
-                                                       fixed, freed, None), what, fix, free)
+        return _ranked_fit(
+            ctx,
+            kind,
+            step,
+            models,
+            data,
+            lambda c, fixed, freed: fit(c.family, c.model_options(options), fixed, freed, None),
+            what,
+            fix,
+            free,
+        )
     fixed, freed = parse_fix(fix, cls), _parse_free(free, cls)
     with echo_warnings(), fit_progress(step) as progress:
         return fit(cls.NAME, options, fixed, freed, progress)
@@ -178,8 +213,13 @@ def merl_table(merl, channel, sampling):
 
 @fit_command.command("reference")
 @click.argument("table", type=IN_FILE, required=False)
-@click.option("-o", "--output", required=True, type=OUT_FILE,
-              help="JSON file for the fitted f_r (written atomically).")
+@click.option(
+    "-o",
+    "--output",
+    required=True,
+    type=OUT_FILE,
+    help="JSON file for the fitted f_r (written atomically).",
+)
 @_fix_option(_BRDF_FIX_HELP)
 @_black_option
 @_max_nfev_option
@@ -189,8 +229,9 @@ def merl_table(merl, channel, sampling):
 @model_error_option
 @model_options(("brdf",), auto_kinds=("brdf",))
 @click.pass_context
-def reference_command(ctx, table, output, fix, black, max_nfev, merl, channel, sampling,
-                      model_error, models):
+def reference_command(
+    ctx, table, output, fix, black, max_nfev, merl, channel, sampling, model_error, models
+):
     """Step 0: fit the reference's f_r (default Torrance-Sparrow) to clear-medium data,
     directly: a measurement TABLE, or a measured BRDF (--merl FILE: its r, g, b channels at
     once, or one with --channel g)."""
@@ -200,108 +241,214 @@ def reference_command(ctx, table, output, fix, black, max_nfev, merl, channel, s
         raise UserError("--black applies to a measurement table, not to --merl")
     check_output_path(output, [table, black, merl])
     if merl is not None and channel not in (None,) + MERL_CHANNELS:
-        raise UserError(f"--channel {channel!r}: a MERL file has channels "
-                        f"{', '.join(MERL_CHANNELS)}")
+        raise UserError(
+            f"--channel {channel!r}: a MERL file has channels {', '.join(MERL_CHANNELS)}"
+        )
     data = table if merl is None else merl_table(merl, channel, sampling)
     one = channel if merl is None else None
     from ..fitting import fit_reference
 
     def fit(family, options, fixed, _, progress):
-        return fit_reference(data, fixed=fixed, black=black, max_nfev=max_nfev,
-                             progress=progress, brdf_model=family, options=options,
-                             model_error=model_error, channel=one)
+        return fit_reference(
+            data,
+            fixed=fixed,
+            black=black,
+            max_nfev=max_nfev,
+            progress=progress,
+            brdf_model=family,
+            options=options,
+            model_error=model_error,
+            channel=one,
+        )
 
-    result = _fit_step(ctx, "brdf", "step 0, reference", models, fit, (data, black, one),
-                       "reference (clear medium)", fix)
+    result = _fit_step(
+        ctx,
+        "brdf",
+        "step 0, reference",
+        models,
+        fit,
+        (data, black, one),
+        "reference (clear medium)",
+        fix,
+    )
     _write_fit(ctx, result, output)
 
 
 @fit_command.command("medium")
-@_step_through_medium_options("medium", click.option(
-    "--reference", "reference", required=True, metavar="REF",
-    help="The reference's f_r: a JSON file from 'veil fit reference', a preset (BRDF1, BRDF2) "
-         "or a literal list of the BRDF's parameters (PD,PS,N,ETA for the paper's)."))
+@_step_through_medium_options(
+    "medium",
+    click.option(
+        "--reference",
+        "reference",
+        required=True,
+        metavar="REF",
+        help="The reference's f_r: a JSON file from 'veil fit reference', a preset (BRDF1, BRDF2) "
+        "or a literal list of the BRDF's parameters (PD,PS,N,ETA for the paper's).",
+    ),
+)
 def medium_command(ctx, table, reference, output, models, **opts):
     """Step 1: fit the medium (default the paper's Td, Tt, g, eta) to the reference measured
     in it."""
     from ..fitting import fit_medium
 
     ref = load_reference(reference, models)
-    _fit_through_medium(ctx, fit_medium, "medium", table, (ref, reference), output,
-                        models=models, **opts)
+    _fit_through_medium(
+        ctx, fit_medium, "medium", table, (ref, reference), output, models=models, **opts
+    )
 
 
 @fit_command.command("target")
-@_step_through_medium_options("brdf", click.option(
-    "--medium", "medium", required=True, metavar="MEDIUM",
-    help="The medium's f_t: a JSON file from 'veil fit medium', a preset (BTDF1, BTDF2, "
-         "BTDF3) or a literal list of the medium's parameters (TD,TT,G,ETA for the paper's)."))
+@_step_through_medium_options(
+    "brdf",
+    click.option(
+        "--medium",
+        "medium",
+        required=True,
+        metavar="MEDIUM",
+        help="The medium's f_t: a JSON file from 'veil fit medium', a preset (BTDF1, BTDF2, "
+        "BTDF3) or a literal list of the medium's parameters (TD,TT,G,ETA for the paper's).",
+    ),
+)
 def target_command(ctx, table, medium, output, models, channel, **opts):
     """Step 2: fit the target's f_r (default Torrance-Sparrow) through the fitted medium.
     A JSON --medium keeps its own model and options (a contradicting option is an error)."""
     med = load_medium(medium, models)
-    several = getattr(med, "channels", None)    # a fit of several channels: any one's options
-    given = med.as_model(channel=(channel or next(iter(several))) if several else None) \
-        if hasattr(med, "as_model") else med
+    several = getattr(med, "channels", None)  # a fit of several channels: any one's options
+    given = (
+        med.as_model(channel=(channel or next(iter(several))) if several else None)
+        if hasattr(med, "as_model")
+        else med
+    )
     if "medium-model" in models.explicit and type(given) is not models.medium:
-        raise UserError(f"--medium-model {models.medium.NAME} but {medium} is a "
-                        f"{given.NAME} medium")
+        raise UserError(
+            f"--medium-model {models.medium.NAME} but {medium} is a {given.NAME} medium"
+        )
     for k, v in models.medium_options.items():
         if given.options().get(k) != v:
-            raise UserError(f"--{k} {v} but {medium} has {k} {given.options().get(k)}; "
-                            f"leave --{k} out to use the medium's")
+            raise UserError(
+                f"--{k} {v} but {medium} has {k} {given.options().get(k)}; "
+                f"leave --{k} out to use the medium's"
+            )
     from ..fitting import fit_target
 
-    _fit_through_medium(ctx, fit_target, "brdf", table, (med, medium), output,
-                        models=models, channel=channel, **opts)
+    _fit_through_medium(
+        ctx,
+        fit_target,
+        "brdf",
+        table,
+        (med, medium),
+        output,
+        models=models,
+        channel=channel,
+        **opts,
+    )
 
 
 @fit_command.command("pipeline")
-@click.option("--reference-clear", required=True, type=IN_FILE,
-              help="Reference object in a clear medium (step 0).")
-@click.option("--reference-medium", required=True, type=IN_FILE,
-              help="Reference object in the scattering medium (step 1).")
-@click.option("--target-medium", required=True, type=IN_FILE,
-              help="Target object in the scattering medium (step 2).")
+@click.option(
+    "--reference-clear",
+    required=True,
+    type=IN_FILE,
+    help="Reference object in a clear medium (step 0).",
+)
+@click.option(
+    "--reference-medium",
+    required=True,
+    type=IN_FILE,
+    help="Reference object in the scattering medium (step 1).",
+)
+@click.option(
+    "--target-medium",
+    required=True,
+    type=IN_FILE,
+    help="Target object in the scattering medium (step 2).",
+)
 @_black_option
-@click.option("--target-clear", type=IN_FILE,
-              help="Target object in a clear medium: fitted directly and compared with the "
-                   "estimate.")
-@click.option("-o", "--outdir", required=True, type=click.Path(file_okay=False, path_type=Path),
-              help="Directory for the JSON results, figures and report.md (created).")
-@_fix_option("Hold a parameter of one step: STEP.NAME=VALUE, STEP reference, medium or "
-             "target (e.g. medium.eta=1.33); repeatable. Target values also hold in the "
-             "direct fit.")
-@click.option("--free", "free", multiple=True, metavar="STEP.NAME",
-              help="Fit a parameter the family holds by default in one step (e.g. medium.s, "
-                   "the forward-series exposure factor); repeatable.")
-@click.option("--models", "model_spec", default=None, metavar="auto|paper|FAMILY+MEDIUM",
-              help="Which models: 'auto' fits every registered family (each value of its "
-                   "discrete options) and ranks them per step by BIC with the fit's "
-                   "model-discrepancy term, using the best (step 0 the reference's BRDF, step "
-                   "1 the medium, step 2 the target's BRDF; tables in the output and "
-                   "report.md); 'paper' the paper's Torrance-Sparrow + Henyey-Greenstein; "
-                   "FAMILY+MEDIUM pins a pair (e.g. rough-plastic+forward-series).  "
-                   "[default: paper]")
-@click.option("--compare", is_flag=True,
-              help="--models auto with the ranking written out in full: every candidate's "
-                   "result in OUTDIR/candidates/STEP/. Options, --fix and --free apply to the "
-                   "candidates that declare them.")
-@click.option("--figures/--no-figures", default=True, show_default=True,
-              help="Draw the data against the fitted curves (the PNGs); --no-figures writes "
-                   "the results and report.md only, faster.")
+@click.option(
+    "--target-clear",
+    type=IN_FILE,
+    help="Target object in a clear medium: fitted directly and compared with the estimate.",
+)
+@click.option(
+    "-o",
+    "--outdir",
+    required=True,
+    type=click.Path(file_okay=False, path_type=Path),
+    help="Directory for the JSON results, figures and report.md (created).",
+)
+@_fix_option(
+    "Hold a parameter of one step: STEP.NAME=VALUE, STEP reference, medium or "
+    "target (e.g. medium.eta=1.33); repeatable. Target values also hold in the "
+    "direct fit."
+)
+@click.option(
+    "--free",
+    "free",
+    multiple=True,
+    metavar="STEP.NAME",
+    help="Fit a parameter the family holds by default in one step (e.g. medium.s, "
+    "the forward-series exposure factor); repeatable.",
+)
+@click.option(
+    "--models",
+    "model_spec",
+    default=None,
+    metavar="auto|paper|FAMILY+MEDIUM",
+    help="Which models: 'auto' fits every registered family (each value of its "
+    "discrete options) and ranks them per step by BIC with the fit's "
+    "model-discrepancy term, using the best (step 0 the reference's BRDF, step "
+    "1 the medium, step 2 the target's BRDF; tables in the output and "
+    "report.md); 'paper' the paper's Torrance-Sparrow + Henyey-Greenstein; "
+    "FAMILY+MEDIUM pins a pair (e.g. rough-plastic+forward-series).  "
+    "[default: paper]",
+)
+@click.option(
+    "--compare",
+    is_flag=True,
+    help="--models auto with the ranking written out in full: every candidate's "
+    "result in OUTDIR/candidates/STEP/. Options, --fix and --free apply to the "
+    "candidates that declare them.",
+)
+@click.option(
+    "--figures/--no-figures",
+    default=True,
+    show_default=True,
+    help="Draw the data against the fitted curves (the PNGs); --no-figures writes "
+    "the results and report.md only, faster.",
+)
 @_accuracy_option
 @_max_nfev_option
 @model_error_option
 @propagation_option
-@click.option("--channel", default=None, metavar="NAME",
-              help="The one channel to fit of tables with a channel column; without it every "
-                   "step fits every channel at once (docs/fitting.md \"Channels\").")
+@click.option(
+    "--channel",
+    default=None,
+    metavar="NAME",
+    help="The one channel to fit of tables with a channel column; without it every "
+    'step fits every channel at once (docs/fitting.md "Channels").',
+)
 @model_options()
 @click.pass_context
-def pipeline_command(ctx, reference_clear, reference_medium, target_medium, black, target_clear,
-                     outdir, fix, free, model_spec, compare, figures, accuracy, max_nfev,
-                     model_error, propagation, models, channel):
+def pipeline_command(
+    ctx,
+    reference_clear,
+    reference_medium,
+    target_medium,
+    black,
+    target_clear,
+    outdir,
+    fix,
+    free,
+    model_spec,
+    compare,
+    figures,
+    accuracy,
+    max_nfev,
+    model_error,
+    propagation,
+    models,
+    channel,
+):
     """Steps 0-2 in one go, with figures (data against fitted curves, over their relative
     residuals) and report.md; --models auto lets the data choose the models."""
     from ..models import AUTO
@@ -318,20 +465,36 @@ def pipeline_command(ctx, reference_clear, reference_medium, target_medium, blac
         raise UserError(f"--outdir {outdir} exists and is not a directory")
     if not outdir.parent.exists() and not outdir.exists():
         raise UserError(f"cannot create {outdir}: directory {outdir.parent} does not exist")
-    chosen = ({"models": AUTO} if auto else
-              {"brdf_model": models.brdf.NAME, "medium_model": models.medium.NAME})
+    chosen = (
+        {"models": AUTO}
+        if auto
+        else {"brdf_model": models.brdf.NAME, "medium_model": models.medium.NAME}
+    )
     from ..fitting.selection import NoCandidateError
 
     try:
         with echo_warnings(), fit_progress("pipeline") as progress:
-            result = run_pipeline(reference_clear, reference_medium, target_medium,
-                                  black=black, target_clear=target_clear, outdir=outdir,
-                                  accuracy=accuracy, fixed=fixed, max_nfev=max_nfev,
-                                  progress=progress, brdf_options=models.brdf_options,
-                                  medium_options=models.medium_options, free=freed,
-                                  figures=figures, model_error=model_error,
-                                  propagation=propagation, keep_candidates=compare,
-                                  channel=channel, **chosen)
+            result = run_pipeline(
+                reference_clear,
+                reference_medium,
+                target_medium,
+                black=black,
+                target_clear=target_clear,
+                outdir=outdir,
+                accuracy=accuracy,
+                fixed=fixed,
+                max_nfev=max_nfev,
+                progress=progress,
+                brdf_options=models.brdf_options,
+                medium_options=models.medium_options,
+                free=freed,
+                figures=figures,
+                model_error=model_error,
+                propagation=propagation,
+                keep_candidates=compare,
+                channel=channel,
+                **chosen,
+            )
     except NoCandidateError as exc:
         print_ranking(exc.ranking)
         click.echo(f"Error: {exc}; nothing was written", err=True)

@@ -61,8 +61,9 @@ def install() -> bool:
         return False
     read_end, write_end = os.pipe()
     os.set_blocking(write_end, False)
-    watchdog = threading.Thread(target=_watch, args=(read_end, frozenset(handled)),
-                                name="veil-interrupts", daemon=True)
+    watchdog = threading.Thread(
+        target=_watch, args=(read_end, frozenset(handled)), name="veil-interrupts", daemon=True
+    )
     watchdog.start()
     signal.set_wakeup_fd(write_end, warn_on_full_buffer=False)
     for s in handled:

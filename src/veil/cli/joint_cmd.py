@@ -32,8 +32,10 @@ def parse_sessions(items, option: str) -> list[tuple[str, str]]:
         label, sep, path = item.partition("=")
         label, path = label.strip(), path.strip()
         if not sep or not label or not path:
-            raise UserError(f"{option} {item!r}: expected LABEL=PATH, e.g. low=target_low.csv "
-                            f"(LABEL names the medium; 'none' is clear water)")
+            raise UserError(
+                f"{option} {item!r}: expected LABEL=PATH, e.g. low=target_low.csv "
+                f"(LABEL names the medium; 'none' is clear water)"
+            )
         if not os.path.exists(path):
             raise UserError(f"{option} {item!r}: file {path} does not exist")
         if os.path.isdir(path):
@@ -65,8 +67,10 @@ def load_sessions(target_items, reference_items, black_items) -> tuple[list, lis
     labels = {label for label, _ in targets + refs}
     unused = [label for label in blacks if label not in labels]
     if unused:
-        raise UserError(f"--black given for medium {', '.join(map(repr, unused))} but no session "
-                        f"is in that medium")
+        raise UserError(
+            f"--black given for medium {', '.join(map(repr, unused))} but no session "
+            f"is in that medium"
+        )
     sessions, inputs = [], []
     for obj, items in (("target", targets), ("reference", refs)):
         for label, path in items:
@@ -94,50 +98,110 @@ def _names(text, option):
         return None
     names = [t.strip() for t in text.split(",") if t.strip()]
     if not names:
-        raise UserError(f"{option} {text!r}: expected a comma-separated list of parameter "
-                        f"names (the medium's shareable ones, e.g. g,eta_u)")
+        raise UserError(
+            f"{option} {text!r}: expected a comma-separated list of parameter "
+            f"names (the medium's shareable ones, e.g. g,eta_u)"
+        )
     return names
 
 
 @click.command("joint")
-@click.option("--session", "sessions", multiple=True, metavar="LABEL=PATH",
-              help="The target measured in medium LABEL (e.g. low=target_low.csv); repeat for "
-                   "each medium. LABEL 'none' is clear water.")
-@click.option("--reference-session", "reference_sessions", multiple=True, metavar="LABEL=PATH",
-              help="The reference object measured in medium LABEL ('none' = clear water); "
-                   "repeatable.")
-@click.option("--black", "blacks", multiple=True, metavar="LABEL=PATH",
-              help="Black-cloth session of medium LABEL, subtracted from every session in "
-                   "that medium; repeatable.")
-@click.option("--reference", "reference", metavar="REF",
-              help="The reference's f_r, held fixed: a JSON file from 'veil fit reference', a "
-                   "preset or a literal list of the BRDF's parameters. Without it a "
-                   "clear-water reference session makes the reference's parameters free.")
-@click.option("--shared", default=None, metavar="NAMES",
-              help="Medium parameters shared by all media (among those the medium model "
-                   "declares shareable; the paper's: g, eta_u). Default: as the model declares "
-                   "(the paper's: eta_u shared, g per medium).")
-@click.option("--per-medium", default=None, metavar="NAMES",
-              help="Medium parameters free per medium (among the shareable ones); scale "
-                   "parameters (the paper's Td and Tt) always are.")
-@click.option("--fix", "fix", multiple=True, metavar="NAME=VALUE",
-              help="Hold a parameter, named as in the result: the target's (Pd, Ps, n, eta for "
-                   "the paper's), ref.NAME for the reference, 'NAME[LABEL]' per medium (e.g. "
-                   "'Td[low]') or NAME when shared (e.g. eta_u); repeatable.")
-@click.option("-o", "--output", required=True, type=OUT_FILE,
-              help="JSON file for the joint result (written atomically).")
-@click.option("--accuracy", type=click.Choice(["fast", "default", "high"]), default="default",
-              show_default=True,
-              help="Quadrature of the reported result; iterations run at 'fast' and are "
-                   "polished at this accuracy.")
-@click.option("--max-nfev", type=click.IntRange(min=1), default=None,
-              help="Limit on function evaluations of each least-squares run.")
+@click.option(
+    "--session",
+    "sessions",
+    multiple=True,
+    metavar="LABEL=PATH",
+    help="The target measured in medium LABEL (e.g. low=target_low.csv); repeat for "
+    "each medium. LABEL 'none' is clear water.",
+)
+@click.option(
+    "--reference-session",
+    "reference_sessions",
+    multiple=True,
+    metavar="LABEL=PATH",
+    help="The reference object measured in medium LABEL ('none' = clear water); repeatable.",
+)
+@click.option(
+    "--black",
+    "blacks",
+    multiple=True,
+    metavar="LABEL=PATH",
+    help="Black-cloth session of medium LABEL, subtracted from every session in "
+    "that medium; repeatable.",
+)
+@click.option(
+    "--reference",
+    "reference",
+    metavar="REF",
+    help="The reference's f_r, held fixed: a JSON file from 'veil fit reference', a "
+    "preset or a literal list of the BRDF's parameters. Without it a "
+    "clear-water reference session makes the reference's parameters free.",
+)
+@click.option(
+    "--shared",
+    default=None,
+    metavar="NAMES",
+    help="Medium parameters shared by all media (among those the medium model "
+    "declares shareable; the paper's: g, eta_u). Default: as the model declares "
+    "(the paper's: eta_u shared, g per medium).",
+)
+@click.option(
+    "--per-medium",
+    default=None,
+    metavar="NAMES",
+    help="Medium parameters free per medium (among the shareable ones); scale "
+    "parameters (the paper's Td and Tt) always are.",
+)
+@click.option(
+    "--fix",
+    "fix",
+    multiple=True,
+    metavar="NAME=VALUE",
+    help="Hold a parameter, named as in the result: the target's (Pd, Ps, n, eta for "
+    "the paper's), ref.NAME for the reference, 'NAME[LABEL]' per medium (e.g. "
+    "'Td[low]') or NAME when shared (e.g. eta_u); repeatable.",
+)
+@click.option(
+    "-o",
+    "--output",
+    required=True,
+    type=OUT_FILE,
+    help="JSON file for the joint result (written atomically).",
+)
+@click.option(
+    "--accuracy",
+    type=click.Choice(["fast", "default", "high"]),
+    default="default",
+    show_default=True,
+    help="Quadrature of the reported result; iterations run at 'fast' and are "
+    "polished at this accuracy.",
+)
+@click.option(
+    "--max-nfev",
+    type=click.IntRange(min=1),
+    default=None,
+    help="Limit on function evaluations of each least-squares run.",
+)
 @model_error_option
 @propagation_option
 @click.pass_context
 @model_options()
-def joint_command(ctx, sessions, reference_sessions, blacks, reference, shared, per_medium, fix,
-                  output, accuracy, max_nfev, model_error, propagation, models):
+def joint_command(
+    ctx,
+    sessions,
+    reference_sessions,
+    blacks,
+    reference,
+    shared,
+    per_medium,
+    fix,
+    output,
+    accuracy,
+    max_nfev,
+    model_error,
+    propagation,
+    models,
+):
     """Fit the target (and the reference) over several media at once (docs/model.md sec. 7).
 
     The object's parameters are shared by all its sessions, each medium has its own Td and
@@ -156,8 +220,10 @@ def joint_command(ctx, sessions, reference_sessions, blacks, reference, shared, 
     from ._common import echo_warnings, finish_fits, fit_progress, load_reference
 
     if not sessions:
-        raise UserError("no --session given: a joint fit needs the target measured in at "
-                        "least one medium (--session LABEL=PATH)")
+        raise UserError(
+            "no --session given: a joint fit needs the target measured in at "
+            "least one medium (--session LABEL=PATH)"
+        )
     fixed = parse_joint_fix(fix)
     loaded, inputs = load_sessions(sessions, reference_sessions, blacks)
     ref = None
@@ -169,13 +235,22 @@ def joint_command(ctx, sessions, reference_sessions, blacks, reference, shared, 
     with echo_warnings(), fit_progress("joint fit") as progress:
         from ..fitting.joint import fit_joint
 
-        result = fit_joint(loaded, reference=ref, shared=_names(shared, "--shared"),
-                           per_medium=_names(per_medium, "--per-medium"), fixed=fixed or None,
-                           accuracy=accuracy, max_nfev=max_nfev, progress=progress,
-                           brdf_model=models.brdf.NAME, medium_model=models.medium.NAME,
-                           brdf_options=models.brdf_options,
-                           medium_options=models.medium_options, model_error=model_error,
-                           propagation=propagation)
+        result = fit_joint(
+            loaded,
+            reference=ref,
+            shared=_names(shared, "--shared"),
+            per_medium=_names(per_medium, "--per-medium"),
+            fixed=fixed or None,
+            accuracy=accuracy,
+            max_nfev=max_nfev,
+            progress=progress,
+            brdf_model=models.brdf.NAME,
+            medium_model=models.medium.NAME,
+            brdf_options=models.brdf_options,
+            medium_options=models.medium_options,
+            model_error=model_error,
+            propagation=propagation,
+        )
     result.to_json(output)
     click.echo(result.report())
     finish_fits(ctx, [result], [output])

@@ -24,74 +24,182 @@ def _noise(text):
     try:
         values = [float(p) for p in parts]
     except ValueError:
-        raise UserError(f"--noise {text!r}: expected RELATIVE[,ABSOLUTE], e.g. 0.01 or "
-                        f"0.01,0.5") from None
-    if len(values) not in (1, 2) or not all(math.isfinite(v) and v >= 0 for v in values) \
-            or sum(values) <= 0:
+        raise UserError(
+            f"--noise {text!r}: expected RELATIVE[,ABSOLUTE], e.g. 0.01 or 0.01,0.5"
+        ) from None
+    if (
+        len(values) not in (1, 2)
+        or not all(math.isfinite(v) and v >= 0 for v in values)
+        or sum(values) <= 0
+    ):
         raise UserError(f"--noise {text!r}: expected RELATIVE[,ABSOLUTE] >= 0, not both 0")
     return tuple(values + [0.0])[:2]
 
 
 @click.command("maps")
 @click.argument("photo_dir", type=click.Path(exists=True, file_okay=False))
-@click.option("--manifest", required=True, type=click.Path(exists=True, dir_okay=False),
-              help="CSV naming each photo (column 'file', relative to PHOTO_DIR) and its "
-                   "geometry, as 'veil ingest' reads it.")
-@click.option("--medium", "medium", required=True, metavar="MEDIUM",
-              help="The medium: a JSON file from 'veil fit medium', a preset or a literal "
-                   "list of the medium's parameters.")
-@click.option("-o", "--output", required=True, type=click.Path(file_okay=True),
-              help="Zarr store for the maps (a folder; an existing partial store of the same "
-                   "inputs is resumed).")
-@click.option("--black-photos", type=click.Path(exists=True, file_okay=False),
-              help="Folder with a black-cloth photo of each manifest row (same file name), "
-                   "subtracted pixel by pixel.")
-@click.option("--black-frame", type=click.Path(exists=True, dir_okay=False),
-              help="One frame subtracted from every photo pixel by pixel (a dark frame).")
+@click.option(
+    "--manifest",
+    required=True,
+    type=click.Path(exists=True, dir_okay=False),
+    help="CSV naming each photo (column 'file', relative to PHOTO_DIR) and its "
+    "geometry, as 'veil ingest' reads it.",
+)
+@click.option(
+    "--medium",
+    "medium",
+    required=True,
+    metavar="MEDIUM",
+    help="The medium: a JSON file from 'veil fit medium', a preset or a literal "
+    "list of the medium's parameters.",
+)
+@click.option(
+    "-o",
+    "--output",
+    required=True,
+    type=click.Path(file_okay=True),
+    help="Zarr store for the maps (a folder; an existing partial store of the same "
+    "inputs is resumed).",
+)
+@click.option(
+    "--black-photos",
+    type=click.Path(exists=True, file_okay=False),
+    help="Folder with a black-cloth photo of each manifest row (same file name), "
+    "subtracted pixel by pixel.",
+)
+@click.option(
+    "--black-frame",
+    type=click.Path(exists=True, dir_okay=False),
+    help="One frame subtracted from every photo pixel by pixel (a dark frame).",
+)
 @click.option("--roi", default=None, help=f"Region to map: {ROI_HELP} [default: the photos].")
-@click.option("--mask", type=click.Path(exists=True, dir_okay=False),
-              help="Image of the photos' size; its nonzero pixels are fitted.")
-@click.option("--channel", type=click.Choice(["gray", "r", "g", "b"]), default="gray",
-              show_default=True, help="Colour channel; gray = (R + G + B) / 3.")
-@click.option("--saturation", type=float, default=None,
-              help="Code value at or above which a sample is saturated [default: the "
-                   "format's maximum]; saturated samples are left out of that pixel's fit.")
-@click.option("--noise", default=None, metavar="REL[,ABS]",
-              help="Noise model sigma = sqrt((REL value)^2 + ABS^2) for a weighted fit and a "
-                   "true reduced chi-square [default: unweighted, standard errors from the "
-                   "residuals].")
-@click.option("--fix", "fix", multiple=True, metavar="NAME=VALUE",
-              help="Hold a parameter of the BRDF at VALUE; repeatable.")
-@click.option("--free", "free", multiple=True, metavar="NAME",
-              help="Fit a parameter the family holds by default; repeatable.")
-@click.option("--grid", "grid", multiple=True, metavar="NAME=LO:HI[:N]",
-              help="Tabulated range of a nonlinear parameter [default: the range of the "
-                   "model's starting grids]; repeatable.")
-@click.option("--accuracy", type=click.Choice(["fast", "default", "high"]), default="default",
-              show_default=True, help="Quadrature of the tables.")
-@click.option("--tile", type=click.IntRange(8, 4096), default=128, show_default=True,
-              help="Tile size in pixels; memory is bounded by it.")
-@click.option("--scheduler", default=None, metavar="ADDRESS",
-              help="dask.distributed scheduler to run on (default: $VEIL_DASK_SCHEDULER, "
-                   "else local threads).")
-@click.option("--workers", type=click.IntRange(1, 256), default=2, show_default=True,
-              help="Local threads (without a scheduler).")
-@click.option("--camera-distance", type=float, default=None,
-              help="Camera distance to the plate centre, in the units of --pixel-pitch: with "
-                   "it the angular spread across the field is reported and checked (distant "
-                   "geometry), or used for per-pixel angles (--near-field).")
-@click.option("--pixel-pitch", type=float, default=None,
-              help="Size of one pixel on the plate (same units as --camera-distance).")
-@click.option("--near-field", is_flag=True, default=False,
-              help="Per-pixel angles: a pinhole camera at --camera-distance from the plate "
-                   "centre, pixels --pixel-pitch apart on the plate, collimated light "
-                   "(docs/maps.md \"Geometry\") [default: distant light and camera, every "
-                   "pixel at the manifest's angles].")
+@click.option(
+    "--mask",
+    type=click.Path(exists=True, dir_okay=False),
+    help="Image of the photos' size; its nonzero pixels are fitted.",
+)
+@click.option(
+    "--channel",
+    type=click.Choice(["gray", "r", "g", "b"]),
+    default="gray",
+    show_default=True,
+    help="Colour channel; gray = (R + G + B) / 3.",
+)
+@click.option(
+    "--saturation",
+    type=float,
+    default=None,
+    help="Code value at or above which a sample is saturated [default: the "
+    "format's maximum]; saturated samples are left out of that pixel's fit.",
+)
+@click.option(
+    "--noise",
+    default=None,
+    metavar="REL[,ABS]",
+    help="Noise model sigma = sqrt((REL value)^2 + ABS^2) for a weighted fit and a "
+    "true reduced chi-square [default: unweighted, standard errors from the "
+    "residuals].",
+)
+@click.option(
+    "--fix",
+    "fix",
+    multiple=True,
+    metavar="NAME=VALUE",
+    help="Hold a parameter of the BRDF at VALUE; repeatable.",
+)
+@click.option(
+    "--free",
+    "free",
+    multiple=True,
+    metavar="NAME",
+    help="Fit a parameter the family holds by default; repeatable.",
+)
+@click.option(
+    "--grid",
+    "grid",
+    multiple=True,
+    metavar="NAME=LO:HI[:N]",
+    help="Tabulated range of a nonlinear parameter [default: the range of the "
+    "model's starting grids]; repeatable.",
+)
+@click.option(
+    "--accuracy",
+    type=click.Choice(["fast", "default", "high"]),
+    default="default",
+    show_default=True,
+    help="Quadrature of the tables.",
+)
+@click.option(
+    "--tile",
+    type=click.IntRange(8, 4096),
+    default=128,
+    show_default=True,
+    help="Tile size in pixels; memory is bounded by it.",
+)
+@click.option(
+    "--scheduler",
+    default=None,
+    metavar="ADDRESS",
+    help="dask.distributed scheduler to run on (default: $VEIL_DASK_SCHEDULER, "
+    "else local threads).",
+)
+@click.option(
+    "--workers",
+    type=click.IntRange(1, 256),
+    default=2,
+    show_default=True,
+    help="Local threads (without a scheduler).",
+)
+@click.option(
+    "--camera-distance",
+    type=float,
+    default=None,
+    help="Camera distance to the plate centre, in the units of --pixel-pitch: with "
+    "it the angular spread across the field is reported and checked (distant "
+    "geometry), or used for per-pixel angles (--near-field).",
+)
+@click.option(
+    "--pixel-pitch",
+    type=float,
+    default=None,
+    help="Size of one pixel on the plate (same units as --camera-distance).",
+)
+@click.option(
+    "--near-field",
+    is_flag=True,
+    default=False,
+    help="Per-pixel angles: a pinhole camera at --camera-distance from the plate "
+    "centre, pixels --pixel-pitch apart on the plate, collimated light "
+    '(docs/maps.md "Geometry") [default: distant light and camera, every '
+    "pixel at the manifest's angles].",
+)
 @model_options()
 @click.pass_context
-def fit_maps_command(ctx, photo_dir, manifest, medium, output, black_photos, black_frame, roi,
-                     mask, channel, saturation, noise, fix, free, grid, accuracy, tile,
-                     scheduler, workers, camera_distance, pixel_pitch, near_field, models):
+def fit_maps_command(
+    ctx,
+    photo_dir,
+    manifest,
+    medium,
+    output,
+    black_photos,
+    black_frame,
+    roi,
+    mask,
+    channel,
+    saturation,
+    noise,
+    fix,
+    free,
+    grid,
+    accuracy,
+    tile,
+    scheduler,
+    workers,
+    camera_distance,
+    pixel_pitch,
+    near_field,
+    models,
+):
     """Per-pixel step 2: the target's BRDF at every pixel of a photo stack, through the
     fitted medium, with standard errors, reduced chi-square and a status per pixel, into a
     Zarr store (docs/maps.md).
@@ -120,27 +228,46 @@ def fit_maps_command(ctx, photo_dir, manifest, medium, output, black_photos, bla
         click.echo(message, err=True)
 
     with echo_warnings(), fit_progress("maps") as progress:
-        run = fit_maps(photo_dir, manifest, med, out, brdf_model=models.brdf.NAME,
-                       options=models.brdf_options, fixed=fixed, free=list(free),
-                       grid=grid_spec, roi=roi, mask=mask, black_photos=black_photos,
-                       black_frame=black_frame, channel=channel, saturation=saturation,
-                       noise=_noise(noise), tile=tile, accuracy=accuracy,
-                       scheduler=scheduler, workers=workers, progress=progress, log=log,
-                       geometry=((camera_distance, pixel_pitch) if camera_distance is not None
-                                 else None), near_field=near_field)
+        run = fit_maps(
+            photo_dir,
+            manifest,
+            med,
+            out,
+            brdf_model=models.brdf.NAME,
+            options=models.brdf_options,
+            fixed=fixed,
+            free=list(free),
+            grid=grid_spec,
+            roi=roi,
+            mask=mask,
+            black_photos=black_photos,
+            black_frame=black_frame,
+            channel=channel,
+            saturation=saturation,
+            noise=_noise(noise),
+            tile=tile,
+            accuracy=accuracy,
+            scheduler=scheduler,
+            workers=workers,
+            progress=progress,
+            log=log,
+            geometry=((camera_distance, pixel_pitch) if camera_distance is not None else None),
+            near_field=near_field,
+        )
     _print_run(ctx, run)
 
 
-def _check_options(black_photos, black_frame, camera_distance, pixel_pitch,
-                   near_field) -> None:
+def _check_options(black_photos, black_frame, camera_distance, pixel_pitch, near_field) -> None:
     if black_photos and black_frame:
         raise UserError("give --black-photos or --black-frame, not both")
     if (camera_distance is None) != (pixel_pitch is None):
         raise UserError("--camera-distance and --pixel-pitch go together")
     if near_field and camera_distance is None:
-        raise UserError("--near-field needs --camera-distance D and --pixel-pitch P (the "
-                        "camera's distance from the plate centre and a pixel's size on the "
-                        "plate, same units)")
+        raise UserError(
+            "--near-field needs --camera-distance D and --pixel-pitch P (the "
+            "camera's distance from the plate centre and a pixel's size on the "
+            "plate, same units)"
+        )
 
 
 def _medium(medium, models):
@@ -148,16 +275,19 @@ def _medium(medium, models):
     med = load_medium(medium, models)
     given = med.one_model() if hasattr(med, "as_model") else med
     if "medium-model" in models.explicit and type(given) is not models.medium:
-        raise UserError(f"--medium-model {models.medium.NAME} but {medium} is a "
-                        f"{given.NAME} medium")
+        raise UserError(
+            f"--medium-model {models.medium.NAME} but {medium} is a {given.NAME} medium"
+        )
     return med
 
 
 def _output(output, photo_dir) -> Path:
     out = Path(output)
     if out.resolve().is_relative_to(Path(photo_dir).resolve()):
-        raise UserError(f"output {output} is inside PHOTO_DIR {photo_dir}; veil never "
-                        f"modifies PHOTO_DIR: choose another output path")
+        raise UserError(
+            f"output {output} is inside PHOTO_DIR {photo_dir}; veil never "
+            f"modifies PHOTO_DIR: choose another output path"
+        )
     return out
 
 
@@ -167,27 +297,36 @@ def _print_run(ctx, run) -> None:
         if not line.startswith("warning: "):
             click.echo(line, err=True)
     s = run.summary
-    click.echo(f"{run.store}: {s['pixels']} pixels, {s['converged']} converged "
-               f"({100 * s['converged'] / max(s['pixels'], 1):.1f} %); tiles: "
-               f"{run.tiles_computed} computed, {run.tiles_reused} reused of "
-               f"{run.tiles_total}")
+    click.echo(
+        f"{run.store}: {s['pixels']} pixels, {s['converged']} converged "
+        f"({100 * s['converged'] / max(s['pixels'], 1):.1f} %); tiles: "
+        f"{run.tiles_computed} computed, {run.tiles_reused} reused of "
+        f"{run.tiles_total}"
+    )
     if s.get("outside_mask"):
-        click.echo(f"    outside the mask (status 1, not fitted): {s['outside_mask']} pixels",
-                   err=True)
+        click.echo(
+            f"    outside the mask (status 1, not fitted): {s['outside_mask']} pixels", err=True
+        )
     for name, entry in s["params"].items():
         if "median" in entry:
-            click.echo(f"    {name}: median {entry['median']:.6g} (5-95 %: {entry['p05']:.4g}"
-                       f" .. {entry['p95']:.4g}), median stderr {entry['median_stderr']:.3g}")
+            click.echo(
+                f"    {name}: median {entry['median']:.6g} (5-95 %: {entry['p05']:.4g}"
+                f" .. {entry['p95']:.4g}), median stderr {entry['median_stderr']:.3g}"
+            )
     for stage, sec in run.seconds.items():
         click.echo(f"    {stage}: {sec:.1f} s", err=True)
     if s["failed"]:
         # the convention of every fit (docs/errors.md): results written, exit status 1
         fitted = s["pixels"] - s.get("outside_mask", 0)
-        click.echo(f"Error: {s['failed']} of {fitted} pixels were not fitted (the maps were "
-                   f"written; their status map says why, and their values and standard "
-                   f"errors are not estimates): "
-                   + "; ".join(f"status {name} - {count} pixels"
-                               for name, count in s["failed_by_status"].items()), err=True)
+        click.echo(
+            f"Error: {s['failed']} of {fitted} pixels were not fitted (the maps were "
+            f"written; their status map says why, and their values and standard "
+            f"errors are not estimates): "
+            + "; ".join(
+                f"status {name} - {count} pixels" for name, count in s["failed_by_status"].items()
+            ),
+            err=True,
+        )
         ctx.exit(1)
 
 
@@ -198,8 +337,13 @@ def maps_command():
 
 @maps_command.command("show")
 @click.argument("store", type=click.Path(exists=True))
-@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
-              help="Figure to write (PNG, PDF or SVG by its suffix).")
+@click.option(
+    "-o",
+    "--output",
+    required=True,
+    type=click.Path(dir_okay=False),
+    help="Figure to write (PNG, PDF or SVG by its suffix).",
+)
 def show_command(store, output):
     """One figure: every fitted parameter, its standard error, the reduced chi-square and
     the status of each pixel."""
@@ -211,10 +355,20 @@ def show_command(store, output):
 
 @maps_command.command("export")
 @click.argument("store", type=click.Path(exists=True))
-@click.option("-o", "--output", required=True, type=click.Path(file_okay=False),
-              help="Folder for the images and summary.json (created).")
-@click.option("--format", "formats", multiple=True, type=click.Choice(["tiff", "exr"]),
-              help="Image format(s) [default: both].")
+@click.option(
+    "-o",
+    "--output",
+    required=True,
+    type=click.Path(file_okay=False),
+    help="Folder for the images and summary.json (created).",
+)
+@click.option(
+    "--format",
+    "formats",
+    multiple=True,
+    type=click.Choice(["tiff", "exr"]),
+    help="Image format(s) [default: both].",
+)
 def export_command(store, output, formats):
     """Every map as float32 TIFF and OpenEXR, plus summary.json (medians, percentiles,
     undetermined fraction)."""
@@ -224,5 +378,6 @@ def export_command(store, output, formats):
     click.echo(f"wrote {len(written)} files to {output}", err=True)
     with open(Path(output) / "summary.json") as fh:
         summary = json.load(fh)
-    click.echo(json.dumps({k: summary[k] for k in ("pixels", "converged",
-                                                    "undetermined_fraction")}))
+    click.echo(
+        json.dumps({k: summary[k] for k in ("pixels", "converged", "undetermined_fraction")})
+    )

@@ -11,10 +11,12 @@ from .render_cmd import output_path
 FIGURE_SUFFIXES = (".png", ".pdf", ".svg")
 
 
-_theta_i_option = click.option("--theta-i", type=float, default=45.0, show_default=True,
-                               help="Incidence angle, degrees.")
-_output_option = click.option("-o", "--output", required=True,
-                              help="Output figure (.png, .pdf or .svg).")
+_theta_i_option = click.option(
+    "--theta-i", type=float, default=45.0, show_default=True, help="Incidence angle, degrees."
+)
+_output_option = click.option(
+    "-o", "--output", required=True, help="Output figure (.png, .pdf or .svg)."
+)
 
 
 def _check(theta_i, output) -> None:
@@ -42,8 +44,13 @@ def plot_command():
 
 
 @plot_command.command("lobe")
-@click.option("--brdf", "brdfs", multiple=True, required=True,
-              help="Object (repeatable): preset or 'PD,PS,N,ETA'.")
+@click.option(
+    "--brdf",
+    "brdfs",
+    multiple=True,
+    required=True,
+    help="Object (repeatable): preset or 'PD,PS,N,ETA'.",
+)
 @_theta_i_option
 @_output_option
 @model_options(("brdf",))
@@ -57,8 +64,13 @@ def lobe(brdfs, theta_i, output, models):
 
 
 @plot_command.command("transmission")
-@click.option("--medium", "media", multiple=True, required=True,
-              help="Medium (repeatable): preset or 'TD,TT,G,ETA'.")
+@click.option(
+    "--medium",
+    "media",
+    multiple=True,
+    required=True,
+    help="Medium (repeatable): preset or 'TD,TT,G,ETA'.",
+)
 @_theta_i_option
 @_output_option
 @model_options(("medium",))
@@ -74,16 +86,36 @@ def transmission(media, theta_i, output, models):
 
 
 @plot_command.command("curve")
-@click.option("--brdf", "brdfs", multiple=True, required=True,
-              help="Object (repeatable): preset or 'PD,PS,N,ETA'.")
-@click.option("--medium", "media", multiple=True, default=("none",), show_default=True,
-              help="Medium (repeatable): preset, 'TD,TT,G,ETA' or 'none' (clear).")
+@click.option(
+    "--brdf",
+    "brdfs",
+    multiple=True,
+    required=True,
+    help="Object (repeatable): preset or 'PD,PS,N,ETA'.",
+)
+@click.option(
+    "--medium",
+    "media",
+    multiple=True,
+    default=("none",),
+    show_default=True,
+    help="Medium (repeatable): preset, 'TD,TT,G,ETA' or 'none' (clear).",
+)
 @_theta_i_option
-@click.option("--scale", type=click.Choice(["log", "linear", "peak", "tt2"]), default="log",
-              show_default=True,
-              help="y axis: log or linear f; peak: each curve over its own peak; tt2: f / T_t^2.")
-@click.option("--accuracy", type=click.Choice(["fast", "default", "high"]), default="default",
-              show_default=True, help="Quadrature of the engine.")
+@click.option(
+    "--scale",
+    type=click.Choice(["log", "linear", "peak", "tt2"]),
+    default="log",
+    show_default=True,
+    help="y axis: log or linear f; peak: each curve over its own peak; tt2: f / T_t^2.",
+)
+@click.option(
+    "--accuracy",
+    type=click.Choice(["fast", "default", "high"]),
+    default="default",
+    show_default=True,
+    help="Quadrature of the engine.",
+)
 @_output_option
 @model_options()
 def curve(brdfs, media, theta_i, scale, accuracy, output, models):
@@ -97,6 +129,8 @@ def curve(brdfs, media, theta_i, scale, accuracy, output, models):
     for c in curves:
         med = "clear" if c.medium is None else str(c.medium)
         mt = c.metrics
-        click.echo(f"{c.brdf} / {med}: peak {mt.peak:.4g} at {mt.peak_angle:.2f} deg, "
-                   f"FWHM {mt.fwhm:.2f} deg, f(0 deg) {mt.off_peak:.4g}")
+        click.echo(
+            f"{c.brdf} / {med}: peak {mt.peak:.4g} at {mt.peak_angle:.2f} deg, "
+            f"FWHM {mt.fwhm:.2f} deg, f(0 deg) {mt.off_peak:.4g}"
+        )
     _save(fig_curve(curves, scale), output)

@@ -20,43 +20,114 @@ def output_path(path: str, suffixes: tuple, what: str) -> str:
 
 
 @click.command("render", short_help="Render a sphere under a true or apparent BRDF.")
-@click.option("--brdf", required=True,
-              help="Object: preset (BRDF1, BRDF2), 'PD,PS,N,ETA', or a BRDF fit result (JSON; "
-                   "one fitted over the channels r, g, b renders in colour).")
-@click.option("--medium", default="none", show_default=True,
-              help="Medium: preset (BTDF1..3), 'TD,TT,G,ETA', a medium fit result (JSON), or "
-                   "'none' for the true BRDF.")
-@click.option("--channel", default=None, metavar="NAME",
-              help="Render one channel of results fitted over several (a grey image); "
-                   "without it results of the channels r, g, b render in colour.")
-@click.option("--light-theta", type=float, default=45.0, show_default=True,
-              help="Light's polar angle from the viewing direction, degrees, in [0, 120].")
-@click.option("--light-phi", type=float, default=0.0, show_default=True,
-              help="Light's azimuth, degrees (0: from the right, 90: from the top).")
-@click.option("--size", type=int, default=256, show_default=True,
-              help="Image size in pixels, 8 to 4096 (memory grows with its square: about "
-                   "0.9 GB at 4096).")
-@click.option("--exposure", type=float, default=None,
-              help="Scale from linear value to display (1 = white). Default: automatic, the "
-                   "median lit pixel maps to 0.18.")
-@click.option("--tone", type=click.Choice(["clip", "reinhard"]), default="clip",
-              show_default=True,
-              help="clip: linear, clipped at white; reinhard: x/(1+x), never clips.")
-@click.option("--samples", type=int, default=1, show_default=True,
-              help="k x k samples per pixel, 1 to 8 (1: the pixel centre); the time grows "
-                   "with k^2, the memory does not.")
-@click.option("--accuracy", type=click.Choice(["fast", "default", "high"]), default="fast",
-              show_default=True, help="Quadrature of the engine.")
-@click.option("--check", type=int, default=64, show_default=True,
-              help="Pixels evaluated directly to measure the interpolation error.")
-@click.option("--linear", "linear_path", default=None,
-              help="Also save the linear float values (float32) to this .npy file.")
-@click.option("-o", "--output", required=True,
-              help="Output PNG (8-bit sRGB: greyscale, or RGB for a colour render).")
+@click.option(
+    "--brdf",
+    required=True,
+    help="Object: preset (BRDF1, BRDF2), 'PD,PS,N,ETA', or a BRDF fit result (JSON; "
+    "one fitted over the channels r, g, b renders in colour).",
+)
+@click.option(
+    "--medium",
+    default="none",
+    show_default=True,
+    help="Medium: preset (BTDF1..3), 'TD,TT,G,ETA', a medium fit result (JSON), or "
+    "'none' for the true BRDF.",
+)
+@click.option(
+    "--channel",
+    default=None,
+    metavar="NAME",
+    help="Render one channel of results fitted over several (a grey image); "
+    "without it results of the channels r, g, b render in colour.",
+)
+@click.option(
+    "--light-theta",
+    type=float,
+    default=45.0,
+    show_default=True,
+    help="Light's polar angle from the viewing direction, degrees, in [0, 120].",
+)
+@click.option(
+    "--light-phi",
+    type=float,
+    default=0.0,
+    show_default=True,
+    help="Light's azimuth, degrees (0: from the right, 90: from the top).",
+)
+@click.option(
+    "--size",
+    type=int,
+    default=256,
+    show_default=True,
+    help="Image size in pixels, 8 to 4096 (memory grows with its square: about 0.9 GB at 4096).",
+)
+@click.option(
+    "--exposure",
+    type=float,
+    default=None,
+    help="Scale from linear value to display (1 = white). Default: automatic, the "
+    "median lit pixel maps to 0.18.",
+)
+@click.option(
+    "--tone",
+    type=click.Choice(["clip", "reinhard"]),
+    default="clip",
+    show_default=True,
+    help="clip: linear, clipped at white; reinhard: x/(1+x), never clips.",
+)
+@click.option(
+    "--samples",
+    type=int,
+    default=1,
+    show_default=True,
+    help="k x k samples per pixel, 1 to 8 (1: the pixel centre); the time grows "
+    "with k^2, the memory does not.",
+)
+@click.option(
+    "--accuracy",
+    type=click.Choice(["fast", "default", "high"]),
+    default="fast",
+    show_default=True,
+    help="Quadrature of the engine.",
+)
+@click.option(
+    "--check",
+    type=int,
+    default=64,
+    show_default=True,
+    help="Pixels evaluated directly to measure the interpolation error.",
+)
+@click.option(
+    "--linear",
+    "linear_path",
+    default=None,
+    help="Also save the linear float values (float32) to this .npy file.",
+)
+@click.option(
+    "-o",
+    "--output",
+    required=True,
+    help="Output PNG (8-bit sRGB: greyscale, or RGB for a colour render).",
+)
 @click.option("--quiet", is_flag=True, help="No progress display.")
 @model_options()
-def render_command(brdf, medium, channel, light_theta, light_phi, size, exposure, tone,
-                   samples, accuracy, check, linear_path, output, quiet, models):
+def render_command(
+    brdf,
+    medium,
+    channel,
+    light_theta,
+    light_phi,
+    size,
+    exposure,
+    tone,
+    samples,
+    accuracy,
+    check,
+    linear_path,
+    output,
+    quiet,
+    models,
+):
     """Render a unit sphere lit by a distant point light, seen by an orthographic camera.
 
     Pixel value = f(I, R) cos(theta_i) at each visible, lit point with the sphere's local
@@ -82,34 +153,93 @@ def render_command(brdf, medium, channel, light_theta, light_phi, size, exposure
     if None not in b:
         from .render_output import render_rgb
 
-        render_rgb(b, m, light_theta, light_phi, size, exposure, tone, samples, accuracy, check,
-                   linear_path, output, quiet)
+        render_rgb(
+            b,
+            m,
+            light_theta,
+            light_phi,
+            size,
+            exposure,
+            tone,
+            samples,
+            accuracy,
+            check,
+            linear_path,
+            output,
+            quiet,
+        )
         return
-    _render_grey(b[None], None if m is None else m[None], light_theta, light_phi, size,
-                 exposure, tone, samples, accuracy, check, linear_path, output, quiet)
+    _render_grey(
+        b[None],
+        None if m is None else m[None],
+        light_theta,
+        light_phi,
+        size,
+        exposure,
+        tone,
+        samples,
+        accuracy,
+        check,
+        linear_path,
+        output,
+        quiet,
+    )
 
 
-def _render_grey(b, m, light_theta, light_phi, size, exposure, tone, samples, accuracy, check,
-                 linear_path, output, quiet) -> None:
+def _render_grey(
+    b,
+    m,
+    light_theta,
+    light_phi,
+    size,
+    exposure,
+    tone,
+    samples,
+    accuracy,
+    check,
+    linear_path,
+    output,
+    quiet,
+) -> None:
     """One channel's (grey) render: the PNG (and the linear image), what it printed."""
     from ..viz.render import auto_exposure, clipping, png_bytes, render, tone_map
     from .render_output import report, write_images
 
-    result = render(b, m, light_theta, light_phi, size, accuracy=accuracy, samples=samples,
-                    check=check, progress=not quiet)
+    result = render(
+        b,
+        m,
+        light_theta,
+        light_phi,
+        size,
+        accuracy=accuracy,
+        samples=samples,
+        check=check,
+        progress=not quiet,
+    )
     auto = exposure is None
     exp_used = auto_exposure(result.image) if auto else exposure
     n_clip, frac, peak_fs = clipping(result.image, exp_used, tone)
-    text = {"veil:brdf": str(b), "veil:medium": "clear" if m is None else str(m),
-            "veil:light": f"theta {light_theta:g} deg, phi {light_phi:g} deg",
-            "veil:pixel": "f(I,R) cos(theta_i), linear, then exposure, tone curve, sRGB",
-            "veil:exposure": f"{exp_used:.6g}", "veil:tone": tone}
-    write_images(output, png_bytes(tone_map(result.image, exp_used, tone), text), linear_path,
-                 result.image)
+    text = {
+        "veil:brdf": str(b),
+        "veil:medium": "clear" if m is None else str(m),
+        "veil:light": f"theta {light_theta:g} deg, phi {light_phi:g} deg",
+        "veil:pixel": "f(I,R) cos(theta_i), linear, then exposure, tone curve, sRGB",
+        "veil:exposure": f"{exp_used:.6g}",
+        "veil:tone": tone,
+    }
+    write_images(
+        output, png_bytes(tone_map(result.image, exp_used, tone), text), linear_path, result.image
+    )
     click.echo(result.summary())
     how = "automatic: median lit pixel -> 0.18" if auto else "given"
-    report(f"exposure {exp_used:.6g} ({how})", tone, (n_clip, frac, peak_fs), output,
-           linear_path, result.seconds)
+    report(
+        f"exposure {exp_used:.6g} ({how})",
+        tone,
+        (n_clip, frac, peak_fs),
+        output,
+        linear_path,
+        result.seconds,
+    )
 
 
 def _is_file(text: str) -> bool:
@@ -122,8 +252,10 @@ def _given_models(brdf: str, medium: str, channel, models):
     files = [t for t in (brdf, medium) if _is_file(t)]
     if not files:
         if channel is not None:
-            raise UserError(f"--channel {channel}: it names a channel of fit results (JSON); "
-                            f"--brdf and --medium are presets or literals")
+            raise UserError(
+                f"--channel {channel}: it names a channel of fit results (JSON); "
+                f"--brdf and --medium are presets or literals"
+            )
         return {None: models.brdf_model(brdf)}, {None: models.medium_model(medium)}, []
     from ._result_models import result_models
 

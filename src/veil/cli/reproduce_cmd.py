@@ -11,13 +11,21 @@ import click
 from ._common import UserError
 
 #: Figure files (without suffix) by figure.
-FIGURES = {"fig9": "fig09_reflection_lobes", "fig10": "fig10_transmission_lobes",
-           "fig11": "fig11_observed_values", "fig12": "fig12_spheres"}
+FIGURES = {
+    "fig9": "fig09_reflection_lobes",
+    "fig10": "fig10_transmission_lobes",
+    "fig11": "fig11_observed_values",
+    "fig12": "fig12_spheres",
+}
 
 
 #: Every entry ``veil reproduce`` writes at the top of its folder (a rerun replaces them all).
-OWNED = tuple(f"{name}.{fmt}" for name in FIGURES.values() for fmt in ("png", "pdf")) + \
-    ("spheres", "fig11_curves.csv", "report.md", "report.html")
+OWNED = tuple(f"{name}.{fmt}" for name in FIGURES.values() for fmt in ("png", "pdf")) + (
+    "spheres",
+    "fig11_curves.csv",
+    "report.md",
+    "report.html",
+)
 
 
 def curves_csv(exp) -> str:
@@ -30,29 +38,66 @@ def curves_csv(exp) -> str:
     return "\n".join(lines) + "\n"
 
 
-@click.command("reproduce",
-               short_help="Regenerate the paper's simulation experiment (figs. 9-12, report).")
-@click.option("-o", "--output", "outdir", required=True,
-              help="Output directory (created if missing). Written as a whole at the end: "
-                   "veil's files in it are replaced together, other files are left alone; "
-                   "an interrupted run leaves it as it was.")
-@click.option("--size", type=int, default=256, show_default=True,
-              help="Size of the rendered spheres (fig. 12), pixels.")
-@click.option("--accuracy", type=click.Choice(["fast", "default", "high"]), default="default",
-              show_default=True, help="Quadrature of the fig. 11 curves.")
-@click.option("--render-accuracy", type=click.Choice(["fast", "default", "high"]),
-              default="fast", show_default=True,
-              help="Quadrature of the fig. 12 sphere tables.")
-@click.option("--check", type=int, default=64, show_default=True,
-              help="Pixels per sphere evaluated directly to measure the interpolation error.")
-@click.option("--dpi", type=int, default=150, show_default=True,
-              help="Resolution of the PNG figures (dots per inch).")
+@click.command(
+    "reproduce", short_help="Regenerate the paper's simulation experiment (figs. 9-12, report)."
+)
+@click.option(
+    "-o",
+    "--output",
+    "outdir",
+    required=True,
+    help="Output directory (created if missing). Written as a whole at the end: "
+    "veil's files in it are replaced together, other files are left alone; "
+    "an interrupted run leaves it as it was.",
+)
+@click.option(
+    "--size",
+    type=int,
+    default=256,
+    show_default=True,
+    help="Size of the rendered spheres (fig. 12), pixels.",
+)
+@click.option(
+    "--accuracy",
+    type=click.Choice(["fast", "default", "high"]),
+    default="default",
+    show_default=True,
+    help="Quadrature of the fig. 11 curves.",
+)
+@click.option(
+    "--render-accuracy",
+    type=click.Choice(["fast", "default", "high"]),
+    default="fast",
+    show_default=True,
+    help="Quadrature of the fig. 12 sphere tables.",
+)
+@click.option(
+    "--check",
+    type=int,
+    default=64,
+    show_default=True,
+    help="Pixels per sphere evaluated directly to measure the interpolation error.",
+)
+@click.option(
+    "--dpi",
+    type=int,
+    default=150,
+    show_default=True,
+    help="Resolution of the PNG figures (dots per inch).",
+)
 @click.option("--quiet", is_flag=True, help="No progress display.")
 def reproduce_command(outdir, size, accuracy, render_accuracy, check, dpi, quiet):
     """Regenerate the paper's simulation experiment: figs. 9-12 (PNG and PDF), the fig. 11
     curves (CSV), the fig. 12 spheres (PNG) and report.md / report.html."""
-    reproduce(outdir, size=size, accuracy=accuracy, render_accuracy=render_accuracy,
-              check=check, dpi=dpi, quiet=quiet)
+    reproduce(
+        outdir,
+        size=size,
+        accuracy=accuracy,
+        render_accuracy=render_accuracy,
+        check=check,
+        dpi=dpi,
+        quiet=quiet,
+    )
 
 
 def _write_spheres(folder, exp) -> None:
@@ -68,9 +113,12 @@ def _write_spheres(folder, exp) -> None:
     folder.mkdir()
     for (b, m), st in exp.stats.items():
         img = tone_map(exp.renders[(b, m)].image, st.exposure, "reinhard")
-        meta = {"veil:exposure": f"{st.exposure:.6g}", "veil:tone": "reinhard",
-                "veil:brdf": str(exp.brdfs[b]),
-                "veil:medium": "clear" if m == "clear" else str(exp.media[m])}
+        meta = {
+            "veil:exposure": f"{st.exposure:.6g}",
+            "veil:tone": "reinhard",
+            "veil:brdf": str(exp.brdfs[b]),
+            "veil:medium": "clear" if m == "clear" else str(exp.media[m]),
+        }
         write_bytes_atomic(folder / f"{b}_{m}.png", png_bytes(img, meta))
         buf = io.BytesIO()
         np.save(buf, exp.renders[(b, m)].image.astype(np.float32))
@@ -84,9 +132,12 @@ def _write_figures(folder, exp, dpi: int, step) -> dict:
     from ..io import write_bytes_atomic
     from ..viz.figures import fig9, fig10, fig11, fig12, figure_bytes
 
-    drawers = {"fig9": lambda: fig9(list(exp.brdfs.values()), exp.theta_i, list(exp.brdfs)),
-               "fig10": lambda: fig10(list(exp.media.values()), exp.theta_i, list(exp.media)),
-               "fig11": lambda: fig11(exp), "fig12": lambda: fig12(exp)}
+    drawers = {
+        "fig9": lambda: fig9(list(exp.brdfs.values()), exp.theta_i, list(exp.brdfs)),
+        "fig10": lambda: fig10(list(exp.media.values()), exp.theta_i, list(exp.media)),
+        "fig11": lambda: fig11(exp),
+        "fig12": lambda: fig12(exp),
+    }
     n_steps = 2 * len(exp.curves)
     files = {}
     for k, (key, draw) in enumerate(drawers.items()):
@@ -106,12 +157,23 @@ def _print_curves(exp) -> None:
     """Each curve's peak, its angle, FWHM and value at 0 deg."""
     for (b, m), c in exp.curves.items():
         mt = c.metrics
-        click.echo(f"{b:6s} {m:6s} peak {mt.peak:10.4g} at {mt.peak_angle:5.2f} deg  "
-                   f"FWHM {mt.fwhm:5.1f} deg  f(0 deg) {mt.off_peak:9.4g}")
+        click.echo(
+            f"{b:6s} {m:6s} peak {mt.peak:10.4g} at {mt.peak_angle:5.2f} deg  "
+            f"FWHM {mt.fwhm:5.1f} deg  f(0 deg) {mt.off_peak:9.4g}"
+        )
 
 
-def reproduce(outdir, *, size=256, accuracy="default", render_accuracy="fast", check=64,
-              dpi=150, quiet=False, shown=None) -> None:
+def reproduce(
+    outdir,
+    *,
+    size=256,
+    accuracy="default",
+    render_accuracy="fast",
+    check=64,
+    dpi=150,
+    quiet=False,
+    shown=None,
+) -> None:
     """The work of ``veil reproduce`` (options as there); messages name the folder
     ``shown`` (default ``outdir``)."""
 
@@ -134,9 +196,14 @@ def reproduce(outdir, *, size=256, accuracy="default", render_accuracy="fast", c
 
         from .compile_display import console
 
-        progress = Progress(TextColumn("{task.description:<40}"), BarColumn(),
-                            TextColumn("{task.completed}/{task.total}"), TimeElapsedColumn(),
-                            console=console(), transient=True)
+        progress = Progress(
+            TextColumn("{task.description:<40}"),
+            BarColumn(),
+            TextColumn("{task.completed}/{task.total}"),
+            TimeElapsedColumn(),
+            console=console(),
+            transient=True,
+        )
         progress.start()
         task = progress.add_task("starting", total=20)
 
@@ -145,8 +212,13 @@ def reproduce(outdir, *, size=256, accuracy="default", render_accuracy="fast", c
             progress.update(task, description=message, completed=done, total=total + 4)
 
     try:
-        exp = run_experiment(size=size, accuracy=accuracy, render_accuracy=render_accuracy,
-                             check=check, progress=step)
+        exp = run_experiment(
+            size=size,
+            accuracy=accuracy,
+            render_accuracy=render_accuracy,
+            check=check,
+            progress=step,
+        )
         with output_folder(outdir, owned=OWNED) as folder:
             files = _write_figures(folder, exp, dpi, step)
             _write_spheres(folder / "spheres", exp)
@@ -159,6 +231,8 @@ def reproduce(outdir, *, size=256, accuracy="default", render_accuracy="fast", c
     _print_curves(exp)
     worst = max((r.max_rel_error for r in exp.renders.values()), default=0.0)
     click.echo(f"spheres: worst interpolation error {100 * worst:.2g} % (angles <= 80 deg)")
-    click.echo(f"wrote figures, spheres/, fig11_curves.csv, {os.path.basename(md)} and "
-               f"{os.path.basename(page)} to {shown or outdir} in "
-               f"{time.perf_counter() - t0:.0f} s")
+    click.echo(
+        f"wrote figures, spheres/, fig11_curves.csv, {os.path.basename(md)} and "
+        f"{os.path.basename(page)} to {shown or outdir} in "
+        f"{time.perf_counter() - t0:.0f} s"
+    )

@@ -30,6 +30,7 @@ def _nonneg(name):
         if value is not None and not value >= 0:
             raise click.BadParameter(f"{value!r}: expected a number >= 0", param_hint=name)
         return value
+
     return check
 
 
@@ -44,15 +45,21 @@ def _merl_model(merl, channel, models, channels=None):
         names = channel_names(channels)
         table = channels_table(read_merl(merl), names, "inplane")
         result = fit_reference(table, brdf_model=models.brdf.NAME, options=models.brdf_options)
-        click.echo(f"{merl}: channels {', '.join(names)} fitted at once, represented by "
-                   f"{models.brdf.NAME} (RMS relative difference "
-                   f"{100 * result.rms_relative:.3g} % over {result.n_points} points)", err=True)
+        click.echo(
+            f"{merl}: channels {', '.join(names)} fitted at once, represented by "
+            f"{models.brdf.NAME} (RMS relative difference "
+            f"{100 * result.rms_relative:.3g} % over {result.n_points} points)",
+            err=True,
+        )
         return {c: result.as_model(channel=c) for c in names}
     table = measurement_table(read_merl(merl), channel, "inplane")
     result = fit_reference(table, brdf_model=models.brdf.NAME, options=models.brdf_options)
-    click.echo(f"{merl}: channel {channel} represented by {result.as_model()} (RMS relative "
-               f"difference {100 * result.rms_relative:.3g} % over {result.n_points} in-plane "
-               f"configurations)", err=True)
+    click.echo(
+        f"{merl}: channel {channel} represented by {result.as_model()} (RMS relative "
+        f"difference {100 * result.rms_relative:.3g} % over {result.n_points} in-plane "
+        f"configurations)",
+        err=True,
+    )
     return result.as_model()
 
 
@@ -63,8 +70,10 @@ def channel_names(channels: str) -> list[str]:
     labels = [channel_label(c) for c in channels.split(",") if c.strip()]
     names = [str(c) for c in labels]
     if not names or None in labels or len(set(names)) != len(names):
-        raise UserError(f"--channels {channels!r}: expected distinct channels, comma-separated "
-                        f"(r,g,b or wavelengths in nm such as 450,550,650)")
+        raise UserError(
+            f"--channels {channels!r}: expected distinct channels, comma-separated "
+            f"(r,g,b or wavelengths in nm such as 450,550,650)"
+        )
     return names
 
 
@@ -88,14 +97,17 @@ def _channel_models(model_b, model_m, channels: str | None, per_channel) -> dict
         except ValueError:
             numbers = []
         if len(numbers) != len(names):
-            raise UserError(f"--per-channel {item!r}: expected NAME=V1,...,V{len(names)}, one "
-                            f"number per channel of --channels ({', '.join(names)})")
-        owner = next((m for m in (model_b, model_m) if m is not None and name in m.keys()),
-                     None)
+            raise UserError(
+                f"--per-channel {item!r}: expected NAME=V1,...,V{len(names)}, one "
+                f"number per channel of --channels ({', '.join(names)})"
+            )
+        owner = next((m for m in (model_b, model_m) if m is not None and name in m.keys()), None)
         if owner is None:
             known = [k for m in (model_b, model_m) if m is not None for k in m.keys()]
-            raise UserError(f"--per-channel {item!r}: {name!r} is not a parameter of the "
-                            f"object or the medium ({', '.join(known)})")
+            raise UserError(
+                f"--per-channel {item!r}: {name!r} is not a parameter of the "
+                f"object or the medium ({', '.join(known)})"
+            )
         if name in values:
             raise UserError(f"--per-channel: {name} is given twice")
         values[name] = (owner.KIND, type(owner).param(name).name, numbers)
@@ -103,67 +115,153 @@ def _channel_models(model_b, model_m, channels: str | None, per_channel) -> dict
     for k, channel in enumerate(names):
         pair = []
         for model in (by_channel[channel], model_m):
-            changes = {own: vals[k] for kind, own, vals in values.values()
-                       if model is not None and kind == model.KIND}
+            changes = {
+                own: vals[k]
+                for kind, own, vals in values.values()
+                if model is not None and kind == model.KIND
+            }
             pair.append(None if model is None else model.replace(**changes))
         out[channel] = tuple(pair)
     return out
 
 
 @click.command("simulate")
-@click.option("--brdf", default=None, metavar="MODEL",
-              help="The object: preset BRDF1 or BRDF2, or a literal list of the --brdf-model's "
-                   "parameters ('PD,PS,N,ETA' for the paper's Torrance-Sparrow, docs/model.md "
-                   "sec. 2; N in 1/deg).")
-@click.option("--medium", required=True, metavar="MODEL",
-              help="The medium: preset BTDF1, BTDF2 or BTDF3, a literal list of the "
-                   "--medium-model's parameters ('TD,TT,G,ETA' for the paper's, docs/model.md "
-                   "sec. 3), or 'none' for clear water.")
-@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False, path_type=Path),
-              help="CSV file to write the session to (written atomically).")
-@click.option("--black", "black_path", type=click.Path(dir_okay=False, path_type=Path),
-              help="Also write the black-cloth (medium-only glow) session, same "
-                   "configurations, to this CSV file.")
-@click.option("--psi", default="30,60,90", show_default=True, metavar="DEG,...",
-              help="Relative angles between light and camera, degrees, comma-separated.")
-@click.option("--noise", type=float, default=0.01, show_default=True, callback=_nonneg("--noise"),
-              help="Relative standard deviation of the Gaussian noise (0.01 = 1 % of each "
-                   "value); written to the sigma column.")
-@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True,
-              help="Seed of the noise generator (same seed, same files, bit for bit).")
-@click.option("--glow", type=float, default=GLOW_LEVEL, show_default=True,
-              callback=_nonneg("--glow"),
-              help="Medium glow level, a fraction of the reference object's (BRDF2's) "
-                   "signal through the same medium at theta_i = 0, theta_r = 60 deg: the same "
-                   "glow for every object in a medium (docs/measurements.md); 0 for none.")
-@click.option("--form", type=click.Choice(list(TABLE_FORMS)), default="goniometer",
-              show_default=True,
-              help="Angle columns to write: goniometer = psi,rho plus the signed in-plane "
-                   "theta_i,theta_r they imply; inplane = signed theta_i,theta_r; full = "
-                   "theta_i,phi_i,theta_r,phi_r. All in degrees.")
+@click.option(
+    "--brdf",
+    default=None,
+    metavar="MODEL",
+    help="The object: preset BRDF1 or BRDF2, or a literal list of the --brdf-model's "
+    "parameters ('PD,PS,N,ETA' for the paper's Torrance-Sparrow, docs/model.md "
+    "sec. 2; N in 1/deg).",
+)
+@click.option(
+    "--medium",
+    required=True,
+    metavar="MODEL",
+    help="The medium: preset BTDF1, BTDF2 or BTDF3, a literal list of the "
+    "--medium-model's parameters ('TD,TT,G,ETA' for the paper's, docs/model.md "
+    "sec. 3), or 'none' for clear water.",
+)
+@click.option(
+    "-o",
+    "--output",
+    required=True,
+    type=click.Path(dir_okay=False, path_type=Path),
+    help="CSV file to write the session to (written atomically).",
+)
+@click.option(
+    "--black",
+    "black_path",
+    type=click.Path(dir_okay=False, path_type=Path),
+    help="Also write the black-cloth (medium-only glow) session, same "
+    "configurations, to this CSV file.",
+)
+@click.option(
+    "--psi",
+    default="30,60,90",
+    show_default=True,
+    metavar="DEG,...",
+    help="Relative angles between light and camera, degrees, comma-separated.",
+)
+@click.option(
+    "--noise",
+    type=float,
+    default=0.01,
+    show_default=True,
+    callback=_nonneg("--noise"),
+    help="Relative standard deviation of the Gaussian noise (0.01 = 1 % of each "
+    "value); written to the sigma column.",
+)
+@click.option(
+    "--seed",
+    type=click.IntRange(min=0),
+    default=0,
+    show_default=True,
+    help="Seed of the noise generator (same seed, same files, bit for bit).",
+)
+@click.option(
+    "--glow",
+    type=float,
+    default=GLOW_LEVEL,
+    show_default=True,
+    callback=_nonneg("--glow"),
+    help="Medium glow level, a fraction of the reference object's (BRDF2's) "
+    "signal through the same medium at theta_i = 0, theta_r = 60 deg: the same "
+    "glow for every object in a medium (docs/measurements.md); 0 for none.",
+)
+@click.option(
+    "--form",
+    type=click.Choice(list(TABLE_FORMS)),
+    default="goniometer",
+    show_default=True,
+    help="Angle columns to write: goniometer = psi,rho plus the signed in-plane "
+    "theta_i,theta_r they imply; inplane = signed theta_i,theta_r; full = "
+    "theta_i,phi_i,theta_r,phi_r. All in degrees.",
+)
 @rotation_options()
-@click.option("--accuracy", type=click.Choice(["fast", "default", "high"]), default="default",
-              show_default=True, help="Quadrature level of the apparent reflectance.")
-@click.option("--merl", "merl", type=click.Path(exists=True, dir_okay=False, path_type=Path),
-              help="A measured BRDF (MERL binary file) instead of --brdf: the --brdf-model "
-                   "family is fitted to it (every in-plane configuration, --channel) and "
-                   "simulated through the medium; the fit's RMS difference is printed "
-                   "(docs/interop.md).")
-@click.option("--channel", type=click.Choice(["r", "g", "b"]), default="g", show_default=True,
-              help="Colour channel of the --merl file (with --channels r,g,b: those channels "
-                   "of the file, fitted at once).")
-@click.option("--channels", default=None, metavar="C1,C2,...",
-              help="Write several channels (r,g,b, or wavelengths in nm): the session once per "
-                   "channel, with a channel column (docs/measurements.md, \"Channels\").")
-@click.option("--per-channel", "per_channel", multiple=True, metavar="NAME=V1,V2,...",
-              help="With --channels: a parameter of the object or the medium (names as in "
-                   "'veil models'; the medium's index is eta_u) that takes one value per "
-                   "channel, e.g. Pd=0.3,0.5,0.8; repeatable. Other parameters are those of "
-                   "--brdf and --medium in every channel.")
+@click.option(
+    "--accuracy",
+    type=click.Choice(["fast", "default", "high"]),
+    default="default",
+    show_default=True,
+    help="Quadrature level of the apparent reflectance.",
+)
+@click.option(
+    "--merl",
+    "merl",
+    type=click.Path(exists=True, dir_okay=False, path_type=Path),
+    help="A measured BRDF (MERL binary file) instead of --brdf: the --brdf-model "
+    "family is fitted to it (every in-plane configuration, --channel) and "
+    "simulated through the medium; the fit's RMS difference is printed "
+    "(docs/interop.md).",
+)
+@click.option(
+    "--channel",
+    type=click.Choice(["r", "g", "b"]),
+    default="g",
+    show_default=True,
+    help="Colour channel of the --merl file (with --channels r,g,b: those channels "
+    "of the file, fitted at once).",
+)
+@click.option(
+    "--channels",
+    default=None,
+    metavar="C1,C2,...",
+    help="Write several channels (r,g,b, or wavelengths in nm): the session once per "
+    'channel, with a channel column (docs/measurements.md, "Channels").',
+)
+@click.option(
+    "--per-channel",
+    "per_channel",
+    multiple=True,
+    metavar="NAME=V1,V2,...",
+    help="With --channels: a parameter of the object or the medium (names as in "
+    "'veil models'; the medium's index is eta_u) that takes one value per "
+    "channel, e.g. Pd=0.3,0.5,0.8; repeatable. Other parameters are those of "
+    "--brdf and --medium in every channel.",
+)
 @model_options()
-def simulate_command(brdf, medium, output, black_path, psi, noise, seed, glow, form,
-                     fine_step, window, coarse_step, limit, accuracy, merl, channel, channels,
-                     per_channel, models):
+def simulate_command(
+    brdf,
+    medium,
+    output,
+    black_path,
+    psi,
+    noise,
+    seed,
+    glow,
+    form,
+    fine_step,
+    window,
+    coarse_step,
+    limit,
+    accuracy,
+    merl,
+    channel,
+    channels,
+    per_channel,
+    models,
+):
     """Simulate a measurement session of the paper's protocol (docs/model.md sec. 7).
 
     For each relative angle psi the object is rotated by rho (theta_i = psi/2 + rho,
@@ -192,21 +290,32 @@ def simulate_command(brdf, medium, output, black_path, psi, noise, seed, glow, f
     from ..data.simulate import simulate, simulate_channels
 
     try:
-        configs = protocol(psis, fine_step=fine_step, coarse_step=coarse_step, window=window,
-                           limit=limit)
+        configs = protocol(
+            psis, fine_step=fine_step, coarse_step=coarse_step, window=window, limit=limit
+        )
     except ValueError as exc:
         raise UserError(str(exc)) from None
 
     what = "clear water" if model_m is None else medium.strip()
     with _bar() as bar:
         task = bar.add_task(f"{brdf.strip()} through {what}", total=len(configs))
-        protocol_args = dict(noise=noise, seed=seed, black=black_path is not None,
-                             fine_step=fine_step, coarse_step=coarse_step, window=window,
-                             limit=limit, glow=glow, accuracy=accuracy,
-                             progress=lambda done, total: bar.update(task, completed=done,
-                                                                     total=total))
-        result = simulate(model_b, model_m, psis, **protocol_args) if by_channel is None \
+        protocol_args = dict(
+            noise=noise,
+            seed=seed,
+            black=black_path is not None,
+            fine_step=fine_step,
+            coarse_step=coarse_step,
+            window=window,
+            limit=limit,
+            glow=glow,
+            accuracy=accuracy,
+            progress=lambda done, total: bar.update(task, completed=done, total=total),
+        )
+        result = (
+            simulate(model_b, model_m, psis, **protocol_args)
+            if by_channel is None
             else simulate_channels(by_channel, psis, **protocol_args)
+        )
     _write(result, output, black_path, form, by_channel)
 
 
@@ -220,17 +329,22 @@ def _write(result, output, black_path, form: str, by_channel) -> None:
     if cloth is not None:
         files[black_path] = measurements_text(to_form(cloth, form)).encode("utf-8")
     write_many_atomic(files)  # both files or neither
-    click.echo(f"wrote {len(table)} " + ("configurations" if by_channel is None else
-                                         f"rows ({len(by_channel)} channels)")
-               + f" to {output}"
-               + (f" and the black cloth to {black_path}" if cloth is not None else ""), err=True)
+    click.echo(
+        f"wrote {len(table)} "
+        + ("configurations" if by_channel is None else f"rows ({len(by_channel)} channels)")
+        + f" to {output}"
+        + (f" and the black cloth to {black_path}" if cloth is not None else ""),
+        err=True,
+    )
 
 
 def _object(brdf, merl, channel, models, channels) -> tuple:
     """(the object's BRDF, how the progress names it): --brdf MODEL or fitted to --merl."""
     if merl is not None:
-        return (_merl_model(merl, channel, models, channels),
-                f"{models.brdf.NAME} fitted to {merl.name}")
+        return (
+            _merl_model(merl, channel, models, channels),
+            f"{models.brdf.NAME} fitted to {merl.name}",
+        )
     return models.brdf_model(brdf), brdf
 
 
@@ -240,6 +354,11 @@ def _bar():
 
     from .compile_display import console
 
-    return Progress(TextColumn("[progress.description]{task.description}"), BarColumn(),
-                    MofNCompleteColumn(), TimeElapsedColumn(), console=console(),
-                    transient=True)
+    return Progress(
+        TextColumn("[progress.description]{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeElapsedColumn(),
+        console=console(),
+        transient=True,
+    )

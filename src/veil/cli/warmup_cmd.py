@@ -11,13 +11,23 @@ from ._common import ACCURACIES
 
 
 @click.command("warmup", short_help="Compile and store the engine programs ahead of time.")
-@click.option("--models", "selected", multiple=True, metavar="NAME",
-              help="A model family to prepare (repeatable; 'veil models' lists them; 'all' "
-                   "for every registered family). A kind not named gets the paper's family. "
-                   "Default: the paper's pair, torrance-sparrow x henyey-greenstein.")
-@click.option("--accuracy", "accuracies", multiple=True, type=click.Choice(ACCURACIES),
-              help="Accuracy of the results to prepare for (repeatable; default: fast and "
-                   "default). The fits iterate at 'fast' whatever they report.")
+@click.option(
+    "--models",
+    "selected",
+    multiple=True,
+    metavar="NAME",
+    help="A model family to prepare (repeatable; 'veil models' lists them; 'all' "
+    "for every registered family). A kind not named gets the paper's family. "
+    "Default: the paper's pair, torrance-sparrow x henyey-greenstein.",
+)
+@click.option(
+    "--accuracy",
+    "accuracies",
+    multiple=True,
+    type=click.Choice(ACCURACIES),
+    help="Accuracy of the results to prepare for (repeatable; default: fast and "
+    "default). The fits iterate at 'fast' whatever they report.",
+)
 @click.option("--quiet", is_flag=True, help="No progress display.")
 def warmup_command(selected, accuracies, quiet):
     """Compile the engine for the chosen model families and keep it: the lowered programs
@@ -42,14 +52,23 @@ def warmup_command(selected, accuracies, quiet):
     todo = tasks(list(selected) or None, tuple(accuracies) or ("fast", "default"))
     store = programs.directory()
     if store is None:
-        click.echo("veil warmup: VEIL_CACHE_DIR is off, so nothing is kept: this only "
-                   "compiles, for this process", err=True)
+        click.echo(
+            "veil warmup: VEIL_CACHE_DIR is off, so nothing is kept: this only "
+            "compiles, for this process",
+            err=True,
+        )
     start = time.perf_counter()
     skipped = []
     console = shared_console()
-    with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
-                  TimeElapsedColumn(), console=console, transient=True,
-                  disable=quiet) as bar:
+    with Progress(
+        TextColumn("{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeElapsedColumn(),
+        console=console,
+        transient=True,
+        disable=quiet,
+    ) as bar:
         track = bar.add_task("warmup", total=len(todo))
         for k, task in enumerate(todo):
             bar.update(track, description=f"warmup: {task.label}")
@@ -63,10 +82,12 @@ def warmup_command(selected, accuracies, quiet):
             finally:
                 bar.update(track, completed=k + 1)
             if not quiet:
-                console.print(f"  {task.label}: {time.perf_counter() - t0:.1f} s",
-                              highlight=False)
+                console.print(f"  {task.label}: {time.perf_counter() - t0:.1f} s", highlight=False)
     for line in skipped:
         click.echo(f"Warning: skipped {line}", err=True)
     where = f"in {store} and the compilation cache" if store else "for this process only"
-    click.echo(f"veil warmup: {len(todo) - len(skipped)} of {len(todo)} tasks ready {where} "
-               f"({time.perf_counter() - start:.1f} s)", err=True)
+    click.echo(
+        f"veil warmup: {len(todo) - len(skipped)} of {len(todo)} tasks ready {where} "
+        f"({time.perf_counter() - start:.1f} s)",
+        err=True,
+    )

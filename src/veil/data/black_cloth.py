@@ -34,7 +34,8 @@ def _one_channel(frame: pd.DataFrame, what: str) -> None:
         raise MeasurementError(
             f"the {what} {RowNames(frame).what} holds {len(order)} channels "
             f"({', '.join(order)}): this command takes one channel's rows (veil fit "
-            f"reference, medium and target select one with --channel NAME)")
+            f"reference, medium and target select one with --channel NAME)"
+        )
 
 
 def subtract_black(table: pd.DataFrame, black: pd.DataFrame, tol: float = 0.05) -> pd.DataFrame:
@@ -78,15 +79,19 @@ def subtract_black(table: pd.DataFrame, black: pd.DataFrame, tol: float = 0.05) 
             match[k] = cand[0]
     if missing:
         raise _range_error(
-            rows_t, missing, lambda k: _config_text(angles, k),
+            rows_t,
+            missing,
+            lambda k: _config_text(angles, k),
             f"{len(missing)} configuration(s) have no black-cloth measurement within "
-            f"{tol:g} deg in {rows_b.what}")
+            f"{tol:g} deg in {rows_b.what}",
+        )
     if ambiguous:
         k, cand = ambiguous[0]
         raise MeasurementError(
             f"{rows_t(k)} ({_config_text(angles, k)}) is within {tol:g} deg of several "
             f"black-cloth rows: {rows_b.many(cand)} ({len(ambiguous)} such row(s)); "
-            f"use a smaller tolerance")
+            f"use a smaller tolerance"
+        )
     out = checked.copy()
     out["value"] = checked["value"].to_numpy() - black_checked["value"].to_numpy()[match]
     has_t, has_b = "sigma" in checked.columns, "sigma" in black_checked.columns
@@ -96,7 +101,6 @@ def subtract_black(table: pd.DataFrame, black: pd.DataFrame, tol: float = 0.05) 
         out["sigma"] = np.hypot(st, sb)
     out.attrs = dict(table.attrs)
     return out
-
 
 
 __all__ = ["subtract_black"]

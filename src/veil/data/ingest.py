@@ -28,6 +28,7 @@ from .ingest_channels import (
     is_colour,
     photo_balance,
 )
+from .manifest import ADDED_COLUMNS, manifest_photos, read_manifest, unlisted_photos
 from .photo_files import (
     JPEG_SUFFIXES,
     PHOTO_SUFFIXES,
@@ -41,8 +42,6 @@ from .photo_files import (
 from .roi import ROI, parse_roi
 
 CHANNELS = ("gray", "r", "g", "b")
-#: Columns :func:`ingest` adds to the manifest's (``black``, ``black_sigma`` only with a black ROI).
-ADDED_COLUMNS = ("value", "sigma", "black", "black_sigma", "saturated", "clipped", "n_pixels")
 
 
 class IngestWarning(UserWarning):
@@ -50,6 +49,7 @@ class IngestWarning(UserWarning):
 
 
 # -- response curve ------------------------------------------------------------------------
+
 
 @dataclass(frozen=True)
 class Response:
@@ -63,9 +63,11 @@ class Response:
         lo, hi = float(np.min(values)), float(np.max(values))
         if lo < self.code[0] or hi > self.code[-1]:
             bad = lo if lo < self.code[0] else hi
-            raise InputError(f"{where}: code value {bad:g} is outside the range of "
-                             f"{self.source}, [{self.code[0]:g}, {self.code[-1]:g}]; the curve "
-                             f"must cover every code value in the ROIs")
+            raise InputError(
+                f"{where}: code value {bad:g} is outside the range of "
+                f"{self.source}, [{self.code[0]:g}, {self.code[-1]:g}]; the curve "
+                f"must cover every code value in the ROIs"
+            )
         return np.interp(values, self.code, self.linear)
 
 
@@ -73,19 +75,24 @@ def load_response(path) -> Response:
     """Read a response CSV: columns ``code`` (strictly increasing) and ``linear``."""
     path = os.fspath(path)
     try:
-        raw = pd.read_csv(path, dtype=str, keep_default_na=False, skipinitialspace=True,
-                          skip_blank_lines=False)
+        raw = pd.read_csv(
+            path, dtype=str, keep_default_na=False, skipinitialspace=True, skip_blank_lines=False
+        )
     except pd.errors.EmptyDataError:
-        raise InputError(f"{path}: the response curve file is empty; expected a header "
-                         f"'code,linear' and one row per code value") from None
+        raise InputError(
+            f"{path}: the response curve file is empty; expected a header "
+            f"'code,linear' and one row per code value"
+        ) from None
     except (pd.errors.ParserError, UnicodeDecodeError) as exc:
         raise InputError(f"{path}: not a readable CSV file ({exc})") from None
     raw.columns = [str(c).strip() for c in raw.columns]
     missing = [c for c in ("code", "linear") if c not in raw.columns]
     if missing:
-        raise InputError(f"{path}: missing column(s) {', '.join(map(repr, missing))}; the "
-                         f"header has {', '.join(map(repr, raw.columns))}; expected "
-                         f"'code' (code value in the file) and 'linear' (linear value)")
+        raise InputError(
+            f"{path}: missing column(s) {', '.join(map(repr, missing))}; the "
+            f"header has {', '.join(map(repr, raw.columns))}; expected "
+            f"'code' (code value in the file) and 'linear' (linear value)"
+        )
     kept = ~(raw == "").all(axis=1).to_numpy()  # blank lines
     lines = np.flatnonzero(kept) + 2  # line numbers in the file, header = line 1
     raw = raw[kept]
@@ -100,23 +107,29 @@ def load_response(path) -> Response:
             except ValueError:
                 values[j] = np.nan
             if not math.isfinite(values[j]):
-                raise InputError(f"line {lines[j]} of {path}, column {col!r}: "
-                                 f"{cell!r} is not a finite number")
+                raise InputError(
+                    f"line {lines[j]} of {path}, column {col!r}: {cell!r} is not a finite number"
+                )
         columns[col] = values
     code, linear = columns["code"], columns["linear"]
     for j in range(1, len(code)):
         if code[j] <= code[j - 1]:
-            raise InputError(f"line {lines[j]} of {path}, column 'code': "
-                             f"{code[j]:g} does not exceed the previous row's {code[j - 1]:g}; "
-                             f"code values must be strictly increasing")
+            raise InputError(
+                f"line {lines[j]} of {path}, column 'code': "
+                f"{code[j]:g} does not exceed the previous row's {code[j - 1]:g}; "
+                f"code values must be strictly increasing"
+            )
         if linear[j] < linear[j - 1]:
-            raise InputError(f"line {lines[j]} of {path}, column 'linear': "
-                             f"{linear[j]:g} is below the previous row's {linear[j - 1]:g}; a "
-                             f"response curve must not decrease")
+            raise InputError(
+                f"line {lines[j]} of {path}, column 'linear': "
+                f"{linear[j]:g} is below the previous row's {linear[j - 1]:g}; a "
+                f"response curve must not decrease"
+            )
     return Response(code, linear, f"response curve {path}")
 
 
 # -- reading photos ------------------------------------------------------------------------
+
 
 def _used(patch: Patch, channel: str) -> np.ndarray:
     """Boolean (h, w, c) or (h, w) mask of the samples ``channel`` reads."""
@@ -163,13 +176,20 @@ def _stats(groups):
     means = [g.mean() for g in groups]
     variances = [g.var(ddof=1) / g.size for g in groups]
     k = len(groups)
-    return (float(sum(means) / k), float(math.sqrt(sum(variances)) / k),
-            int(sum(g.size for g in groups)))
+    return (
+        float(sum(means) / k),
+        float(math.sqrt(sum(variances)) / k),
+        int(sum(g.size for g in groups)),
+    )
 
 
-def roi_statistics(patch: Patch, channel: str, dark: Patch | None = None,
-                   response: Response | None = None,
-                   where: str = "ROI") -> tuple[float, float, int]:
+def roi_statistics(
+    patch: Patch,
+    channel: str,
+    dark: Patch | None = None,
+    response: Response | None = None,
+    where: str = "ROI",
+) -> tuple[float, float, int]:
     """``(value, sigma, n)`` of one ROI: mean of linear, dark-subtracted ``channel`` values.
 
     ``gray`` is (R + G + B) / 3, the average of the three channels (for a raw mosaic the
@@ -188,123 +208,15 @@ def roi_statistics(patch: Patch, channel: str, dark: Patch | None = None,
     for c, g in zip(("R", "G", "B") if len(groups) == 3 else (channel.upper(),), groups):
         if g.size < 2:
             what = f"{c} photosites" if patch.cfa is not None else "pixels"
-            raise InputError(f"{where}: only {g.size} {what} in the ROI; at least 2 are needed "
-                             f"for a standard error - make the ROI larger")
+            raise InputError(
+                f"{where}: only {g.size} {what} in the ROI; at least 2 are needed "
+                f"for a standard error - make the ROI larger"
+            )
     return _stats(groups)
 
 
 # -- the manifest --------------------------------------------------------------------------
 
-def manifest_photos(manifest, photo_dir) -> tuple[pd.DataFrame, list[str], str, list[Path]]:
-    """The manifest read (:func:`read_manifest`) and the paths of its photos:
-    (table, row names, manifest name, paths); MissingFileError naming the rows whose photo is
-    not in ``photo_dir``."""
-    table, rows, name = read_manifest(manifest, photo_dir)
-    paths = [photo_dir / f for f in table["file"]]
-    missing = [(row, f) for row, f, p in zip(rows, table["file"], paths) if not p.is_file()]
-    if missing:
-        shown = "; ".join(f"{f!r} ({row})" for row, f in missing[:10])
-        more = f" and {len(missing) - 10} more" if len(missing) > 10 else ""
-        raise MissingFileError(f"{name}: {len(missing)} photo(s) listed in the manifest are not "
-                               f"in {photo_dir}: {shown}{more}")
-    return table, rows, name, paths
-
-
-def _manifest_table(manifest) -> tuple[pd.DataFrame, list[str], str]:
-    """The manifest (a DataFrame, or a CSV file without its blank lines), a name for each
-    row and its own name."""
-    if isinstance(manifest, pd.DataFrame):
-        name = "the manifest"
-        table = manifest.copy()
-        table.attrs = {"veil_name": name}
-        rows = [f"row {label!r} (index label) of {name}" for label in table.index]
-    else:
-        name = os.fspath(manifest)
-        try:
-            raw = pd.read_csv(name, skipinitialspace=True, keep_default_na=False,
-                              na_values=[""], dtype={"file": str}, skip_blank_lines=False)
-        except FileNotFoundError:
-            raise MissingFileError(f"manifest {name}: no such file") from None
-        except pd.errors.EmptyDataError:
-            raise InputError(f"{name}: the manifest is empty; expected a header with 'file' and "
-                             f"angle columns, then one row per photo") from None
-        except (pd.errors.ParserError, UnicodeDecodeError) as exc:
-            raise InputError(f"{name}: not a readable CSV file ({exc})") from None
-        raw.columns = [str(c).strip() for c in raw.columns]
-        kept = ~raw.isna().all(axis=1).to_numpy()  # blank lines
-        lines = (np.flatnonzero(kept) + 2).tolist()
-        table = raw[kept].reset_index(drop=True)
-        table.attrs = {"veil_source": name, "veil_lines": tuple(lines)}
-        rows = [f"line {line} of {name}" for line in lines]
-    return table, rows, name
-
-
-def _manifest_files(table: pd.DataFrame, rows: list[str], photo_dir) -> list[str]:
-    """The ``file`` column checked: each a path inside ``photo_dir``, none twice."""
-    seen: dict[Path, str] = {}
-    root = Path(photo_dir).resolve()
-    files = []
-    for row, cell in zip(rows, table["file"].tolist()):
-        where = f"{row}, column 'file'"
-        if not isinstance(cell, str) or cell.strip() == "":
-            raise InputError(f"{where}: empty; expected the photo's file name in PHOTO_DIR")
-        rel = Path(cell.strip())
-        if rel.is_absolute() or not (root / rel).resolve().is_relative_to(root):
-            raise InputError(f"{where}: {cell!r} is not a path inside PHOTO_DIR ({photo_dir}); "
-                             f"give file names relative to PHOTO_DIR")
-        key = (root / rel).resolve()
-        if key in seen:
-            raise InputError(f"{where}: {cell!r} is listed again (first on {seen[key]}); each "
-                             f"photo has one geometry")
-        seen[key] = row
-        files.append(cell.strip())
-    return files
-
-
-def read_manifest(manifest, photo_dir) -> tuple[pd.DataFrame, list[str], str]:
-    """The manifest (all its columns; angles as float), a name for each row, its own name.
-
-    Checks the ``file`` column (present, non-empty, unique, inside ``photo_dir``) and the
-    angle columns (one of the three forms of :mod:`veil.measurements`, no configuration twice).
-    Rows of a file are named by their line (header = line 1), as :mod:`veil.measurements` does.
-    """
-    from .measurements import ANGLE_COLUMNS, validate
-
-    table, rows, name = _manifest_table(manifest)
-    if "file" not in table.columns:
-        raise InputError(f"{name}: no column 'file'; the header has "
-                         f"{', '.join(map(repr, map(str, table.columns)))}; the manifest names "
-                         f"each photo (relative to PHOTO_DIR) in a column 'file'")
-    if len(table) == 0:
-        raise InputError(f"{name}: no photos listed (no rows after the header)")
-    clash = [c for c in ADDED_COLUMNS if c in table.columns]
-    if clash:
-        raise InputError(f"{name}: column(s) {', '.join(map(repr, clash))} would be "
-                         f"overwritten by ingest's results; rename or remove them")
-    files = _manifest_files(table, rows, photo_dir)
-    table["file"] = files
-    probe = table.assign(value=0.0)
-    probe.attrs = dict(table.attrs)
-    checked = validate(probe)  # angle forms, ranges, duplicate configurations
-    for column in ANGLE_COLUMNS:
-        if column in table.columns:
-            table[column] = checked[column].to_numpy()
-    return table.reset_index(drop=True), rows, name
-
-
-def _unlisted_photos(photo_dir: Path, listed: set, ignore: set) -> list[str]:
-    """Photo files in ``photo_dir`` (and the sub-folders the manifest uses) not in ``listed``."""
-    folders = {photo_dir.resolve()} | {p.parent for p in listed}
-    extra = []
-    for folder in sorted(folders):
-        for entry in sorted(folder.iterdir()):
-            if (entry.is_file() and entry.suffix.lower() in PHOTO_SUFFIXES
-                    and entry.resolve() not in listed and entry.resolve() not in ignore):
-                extra.append(os.path.relpath(entry, photo_dir))
-    return extra
-
-
-# -- ingest --------------------------------------------------------------------------------
 
 def _warn(message: str) -> None:
     warnings.warn(message, IngestWarning, stacklevel=3)
@@ -313,8 +225,9 @@ def _warn(message: str) -> None:
 def _settings(roi, black_roi, channel: str, saturation, response) -> tuple:
     """(the ROIs, the saturation level, the response) of :func:`ingest`, checked."""
     if channel not in CHANNELS + (ALL_RGB,):
-        raise InputError(f"channel {channel!r}: expected one of {', '.join(CHANNELS)} or "
-                         f"{ALL_RGB} (all three)")
+        raise InputError(
+            f"channel {channel!r}: expected one of {', '.join(CHANNELS)} or {ALL_RGB} (all three)"
+        )
     rois = [("ROI", parse_roi(roi, "ROI"))]
     if black_roi is not None:
         rois.append(("black ROI", parse_roi(black_roi, "black ROI")))
@@ -329,8 +242,19 @@ def _settings(roi, black_roi, channel: str, saturation, response) -> tuple:
     return rois, saturation, response
 
 
-def ingest(photo_dir, manifest, roi, black_roi=None, dark=None, channel="gray", *,
-           response=None, saturation=None, keep_saturated=False, progress=None) -> pd.DataFrame:
+def ingest(
+    photo_dir,
+    manifest,
+    roi,
+    black_roi=None,
+    dark=None,
+    channel="gray",
+    *,
+    response=None,
+    saturation=None,
+    keep_saturated=False,
+    progress=None,
+) -> pd.DataFrame:
     """One measurement row per photo of ``manifest``: its columns plus the ROI statistics.
 
     ``roi``/``black_roi``: ``"X,Y,W,H"`` or :class:`ROI`. ``dark``: a dark frame subtracted
@@ -354,22 +278,36 @@ def ingest(photo_dir, manifest, roi, black_roi=None, dark=None, channel="gray", 
     ignore = set()
     if dark is not None:
         ignore.add(Path(dark).resolve())
-    extra = _unlisted_photos(photo_dir, {p.resolve() for p in paths}, ignore)
+    extra = unlisted_photos(photo_dir, {p.resolve() for p in paths}, ignore)
     if extra:
         shown = ", ".join(extra[:10]) + (f" and {len(extra) - 10} more" if len(extra) > 10 else "")
-        _warn(f"{len(extra)} photo file(s) in {photo_dir} are not in {name} and are ignored: "
-              f"{shown}")
+        _warn(
+            f"{len(extra)} photo file(s) in {photo_dir} are not in {name} and are ignored: {shown}"
+        )
 
     # the dark frame's hot pixels: any sample counts when every channel is read
-    dark_photo = _dark_frame(dark, rois, "gray" if channel == ALL_RGB else channel, response,
-                             saturation)
+    dark_photo = _dark_frame(
+        dark, rois, "gray" if channel == ALL_RGB else channel, response, saturation
+    )
     keep, results, balances = _read_stack(
-        table, paths, rows, rois, channel, dark, dark_photo, response, saturation,
-        keep_saturated, progress)
+        table,
+        paths,
+        rows,
+        rois,
+        channel,
+        dark,
+        dark_photo,
+        response,
+        saturation,
+        keep_saturated,
+        progress,
+    )
     if not keep:
-        raise InputError(f"all {len(paths)} photos were excluded for saturated or clipped "
-                         f"pixels in the ROIs; lower the exposure, move the ROIs, or keep them "
-                         f"with --keep-saturated")
+        raise InputError(
+            f"all {len(paths)} photos were excluded for saturated or clipped "
+            f"pixels in the ROIs; lower the exposure, move the ROIs, or keep them "
+            f"with --keep-saturated"
+        )
     order = ["value", "sigma"] + (["black", "black_sigma"] if black_roi is not None else [])
     order += ["saturated", "clipped", "n_pixels"]
     if channel == ALL_RGB:
@@ -381,8 +319,19 @@ def ingest(photo_dir, manifest, roi, black_roi=None, dark=None, channel="gray", 
     return out
 
 
-def _read_stack(table, paths, rows, rois, channel: str, dark, dark_photo, response,
-                saturation, keep_saturated: bool, progress):
+def _read_stack(
+    table,
+    paths,
+    rows,
+    rois,
+    channel: str,
+    dark,
+    dark_photo,
+    response,
+    saturation,
+    keep_saturated: bool,
+    progress,
+):
     """The photos read one at a time: (positions kept, {channel: their rows}, each kept
     photo's white balance (:func:`veil.data.ingest_channels.photo_balance`)); a photo with
     saturated or clipped pixels in any channel read is warned about and, unless
@@ -398,8 +347,7 @@ def _read_stack(table, paths, rows, rois, channel: str, dark, dark_photo, respon
         _check_photo(photo, where, channel, response, saturation, dark, dark_photo, warned)
         stack.check(photo, where)
         level = saturation if saturation is not None else photo.saturation
-        found = {c: _photo_row(photo, rois, c, level, dark_photo, response, where)
-                 for c in names}
+        found = {c: _photo_row(photo, rois, c, level, dark_photo, response, where) for c in names}
         message = excluded_message(where, found, level, photo.floor, keep_saturated)
         if message is not None:
             _warn(message)
@@ -420,8 +368,10 @@ def _dark_frame(dark, rois, channel: str, response, saturation) -> Photo | None:
         return None
     dark_photo = read_photo(dark, rois)
     if dark_photo.kind == "raw" and response is not None:
-        raise InputError(f"dark frame {dark}: camera raw is already linear; a response "
-                         f"curve applies to JPEG/PNG/TIFF code values only")
+        raise InputError(
+            f"dark frame {dark}: camera raw is already linear; a response "
+            f"curve applies to JPEG/PNG/TIFF code values only"
+        )
     level = saturation if saturation is not None else dark_photo.saturation
     hot = sum(_clip_counts(p, channel, level, None)[0] for p in dark_photo.patches)
     if hot:
@@ -429,40 +379,62 @@ def _dark_frame(dark, rois, channel: str, response, saturation) -> Photo | None:
     return dark_photo
 
 
-def _check_photo(photo: Photo, where: str, channel: str, response, saturation, dark,
-                 dark_photo: Photo | None, warned: set) -> None:
+def _check_photo(
+    photo: Photo,
+    where: str,
+    channel: str,
+    response,
+    saturation,
+    dark,
+    dark_photo: Photo | None,
+    warned: set,
+) -> None:
     """A photo's format against the options: JPEG without a response curve and float
     samples without a saturation level are warned about once (``warned``); camera raw with
     a response curve, a missing channel or a dark frame of another kind are errors."""
     path = photo.path
     if photo.kind == "jpeg" and response is None and "jpeg" not in warned:
         warned.add("jpeg")
-        _warn(f"{path}: JPEG code values are not linear in radiance (gamma/tone curve); "
-              f"give a response curve (--response) to linearize them")
+        _warn(
+            f"{path}: JPEG code values are not linear in radiance (gamma/tone curve); "
+            f"give a response curve (--response) to linearize them"
+        )
     if photo.kind == "raw" and response is not None:
-        raise InputError(f"{where}: camera raw is already linear; a response curve applies "
-                         f"to JPEG/PNG/TIFF code values only")
+        raise InputError(
+            f"{where}: camera raw is already linear; a response curve applies "
+            f"to JPEG/PNG/TIFF code values only"
+        )
     if photo.saturation is None and saturation is None and "float" not in warned:
         warned.add("float")
-        _warn(f"{path}: float samples have no format maximum, so saturation is not "
-              f"checked; give a saturation level (--saturation) if the data were clipped")
+        _warn(
+            f"{path}: float samples have no format maximum, so saturation is not "
+            f"checked; give a saturation level (--saturation) if the data were clipped"
+        )
     if channel == ALL_RGB and not is_colour(photo):
-        raise InputError(f"{where}: a single-channel (gray) image has no colour channels; "
-                         f"--channel {ALL_RGB} (channel={ALL_RGB!r}) reads colour photos "
-                         f"(RGB images or camera raw); a stack of grey photos is read with "
-                         f"channel gray")
+        raise InputError(
+            f"{where}: a single-channel (gray) image has no colour channels; "
+            f"--channel {ALL_RGB} (channel={ALL_RGB!r}) reads colour photos "
+            f"(RGB images or camera raw); a stack of grey photos is read with "
+            f"channel gray"
+        )
     if channel != "gray" and photo.shape[2] == 1 and photo.kind != "raw":
-        raise InputError(f"{where}: a single-channel (gray) image has no channel "
-                         f"{channel!r}; use channel gray")
-    if dark_photo is not None and ((dark_photo.kind == "raw") != (photo.kind == "raw")
-                                   or dark_photo.shape != photo.shape
-                                   or dark_photo.dtype != photo.dtype):
-        raise InputError(f"{where}: the dark frame {dark} does not match the photo (dark "
-                         f"frame {_describe(dark_photo)}, photo {_describe(photo)})")
+        raise InputError(
+            f"{where}: a single-channel (gray) image has no channel {channel!r}; use channel gray"
+        )
+    if dark_photo is not None and (
+        (dark_photo.kind == "raw") != (photo.kind == "raw")
+        or dark_photo.shape != photo.shape
+        or dark_photo.dtype != photo.dtype
+    ):
+        raise InputError(
+            f"{where}: the dark frame {dark} does not match the photo (dark "
+            f"frame {_describe(dark_photo)}, photo {_describe(photo)})"
+        )
 
 
-def _photo_row(photo: Photo, rois, channel: str, level, dark_photo: Photo | None, response,
-               where: str) -> dict:
+def _photo_row(
+    photo: Photo, rois, channel: str, level, dark_photo: Photo | None, response, where: str
+) -> dict:
     """The measurement columns of one photo: value, sigma and n_pixels of the ROI (black,
     black_sigma of the black ROI), saturated and clipped pixel counts."""
     row = {}
@@ -472,8 +444,9 @@ def _photo_row(photo: Photo, rois, channel: str, level, dark_photo: Photo | None
         n_saturated += sat
         n_clipped += clip
         dark_patch = dark_photo.patches[k] if dark_photo is not None else None
-        value, sigma, n = roi_statistics(patch, channel, dark_patch, response,
-                                         f"{where}, {roi_name}")
+        value, sigma, n = roi_statistics(
+            patch, channel, dark_patch, response, f"{where}, {roi_name}"
+        )
         prefix = "value" if k == 0 else "black"
         row[prefix] = value
         row["sigma" if k == 0 else "black_sigma"] = sigma
@@ -492,7 +465,23 @@ def _describe(photo: Photo) -> str:
     return f"{width} x {height} {depth} {kind}"
 
 
-__all__ = ["ingest", "read_manifest", "manifest_photos", "load_response", "Response",
-           "roi_statistics", "IngestWarning", "CHANNELS", "ALL_RGB", "ADDED_COLUMNS", "ROI",
-           "parse_roi", "read_photo", "PHOTO_SUFFIXES", "PNG_SUFFIXES", "JPEG_SUFFIXES",
-           "TIFF_SUFFIXES", "RAW_SUFFIXES"]
+__all__ = [
+    "ingest",
+    "read_manifest",
+    "manifest_photos",
+    "load_response",
+    "Response",
+    "roi_statistics",
+    "IngestWarning",
+    "CHANNELS",
+    "ALL_RGB",
+    "ADDED_COLUMNS",
+    "ROI",
+    "parse_roi",
+    "read_photo",
+    "PHOTO_SUFFIXES",
+    "PNG_SUFFIXES",
+    "JPEG_SUFFIXES",
+    "TIFF_SUFFIXES",
+    "RAW_SUFFIXES",
+]

@@ -59,8 +59,9 @@ from .table_angles import (
 
 def _check_type(table) -> None:
     if not isinstance(table, pd.DataFrame):
-        raise InputTypeError(f"expected a pandas DataFrame measurement table, got "
-                             f"{type(table).__name__}")
+        raise InputTypeError(
+            f"expected a pandas DataFrame measurement table, got {type(table).__name__}"
+        )
 
 
 def _check_columns(table: pd.DataFrame, what: str) -> None:
@@ -95,8 +96,7 @@ def _duplicates(angles, rows: RowNames, positions: np.ndarray | None = None) -> 
     at = np.arange(len(angles[0])) if positions is None else positions
     vec = _vectors(angles)[at]
     pairs = sorted(cKDTree(vec).query_pairs(_SAME_RADIUS))
-    pairs = [(int(at[i]), int(at[j])) for i, j in pairs
-             if _separation(vec[i], vec[j]) <= SAME_TOL]
+    pairs = [(int(at[i]), int(at[j])) for i, j in pairs if _separation(vec[i], vec[j]) <= SAME_TOL]
     if pairs:
         root: dict[int, int] = {}
 
@@ -111,12 +111,17 @@ def _duplicates(angles, rows: RowNames, positions: np.ndarray | None = None) -> 
         groups: dict[int, list[int]] = {}
         for k in sorted({k for pair in pairs for k in pair}):
             groups.setdefault(find(k), []).append(k)
-        listed = [f"{' and '.join(rows(k) for k in g)} ({_config_text(angles, g[0])})"
-                  for g in list(groups.values())[:_MAX_LISTED]]
+        listed = [
+            f"{' and '.join(rows(k) for k in g)} ({_config_text(angles, g[0])})"
+            for g in list(groups.values())[:_MAX_LISTED]
+        ]
         more = f"; and {len(groups) - _MAX_LISTED} more" if len(groups) > _MAX_LISTED else ""
         raise MeasurementError(
             f"duplicate configurations in {rows.what} (same angles within {SAME_TOL:g} deg): "
-            + "; ".join(listed) + more + "; average repeated measurements into one row")
+            + "; ".join(listed)
+            + more
+            + "; average repeated measurements into one row"
+        )
 
 
 def _validated(table: pd.DataFrame, rows: RowNames | None = None) -> tuple[pd.DataFrame, tuple]:
@@ -125,16 +130,22 @@ def _validated(table: pd.DataFrame, rows: RowNames | None = None) -> tuple[pd.Da
     rows = rows or RowNames(table)
     _check_columns(table, rows.what)
     if "value" not in table.columns:
-        raise MeasurementError(f"{rows.what} has no 'value' column (the measured values); "
-                               f"found columns {', '.join(map(str, table.columns))}")
+        raise MeasurementError(
+            f"{rows.what} has no 'value' column (the measured values); "
+            f"found columns {', '.join(map(str, table.columns))}"
+        )
     cols, angles = _parse_angles(table, rows)
     cols["value"] = _numbers(table, "value", rows)
     if "sigma" in table.columns:
         sigma = cols["sigma"] = _numbers(table, "sigma", rows)
         bad = np.flatnonzero(sigma < 0)
         if bad.size:
-            raise _range_error(rows, bad, lambda k: f"sigma = {_fmt(float(sigma[k]))}",
-                               "sigma is a standard deviation and must be >= 0")
+            raise _range_error(
+                rows,
+                bad,
+                lambda k: f"sigma = {_fmt(float(sigma[k]))}",
+                "sigma is a standard deviation and must be >= 0",
+            )
     _check_configurations(table, angles, rows)
     out = table.copy()
     for c, v in cols.items():
@@ -151,8 +162,9 @@ def _check_configurations(table: pd.DataFrame, angles, rows: RowNames) -> None:
     labels = channel_labels(table[CHANNEL], rows)
     for name in channel_order(labels):
         _duplicates(angles, rows, np.flatnonzero(labels == name))
-    check_same_configurations(labels, _vectors(angles), rows,
-                              lambda a, b: _separation(a, b) <= SAME_TOL, _SAME_RADIUS)
+    check_same_configurations(
+        labels, _vectors(angles), rows, lambda a, b: _separation(a, b) <= SAME_TOL, _SAME_RADIUS
+    )
 
 
 def table_channels(table: pd.DataFrame) -> np.ndarray | None:
@@ -217,9 +229,13 @@ def to_form(table: pd.DataFrame, form: str) -> pd.DataFrame:
         except ValueError:
             _, pi_, _, pr = angles
             off = np.flatnonzero(~(_inplane(angles[0], pi_, 180.0) & _inplane(angles[2], pr, 0.0)))
-            raise _range_error(rows, off, lambda k: _config_text(angles, k),
-                               f"not in the plane of incidence (phi 0 or 180 deg): cannot be "
-                               f"written in the {form} form") from None
+            raise _range_error(
+                rows,
+                off,
+                lambda k: _config_text(angles, k),
+                f"not in the plane of incidence (phi 0 or 180 deg): cannot be "
+                f"written in the {form} form",
+            ) from None
         if form == "inplane":
             head = {"theta_i": ti, "theta_r": tr}
         else:
@@ -261,13 +277,15 @@ def load_measurements(path) -> pd.DataFrame:
     try:
         text = raw.decode("utf-8-sig")
     except UnicodeDecodeError as exc:
-        line = raw[:exc.start].count(b"\n") + 1
-        raise MeasurementError(f"line {line} of {name} is not UTF-8 text (byte {exc.start}); "
-                               f"expected a CSV text file") from None
+        line = raw[: exc.start].count(b"\n") + 1
+        raise MeasurementError(
+            f"line {line} of {name} is not UTF-8 text (byte {exc.start}); expected a CSV text file"
+        ) from None
     if not text.strip():
         raise MeasurementError(
             f"{name} is empty: expected a CSV header line naming the columns (value and angle "
-            f"columns in degrees, e.g. psi,rho,value) and one row per observation")
+            f"columns in degrees, e.g. psi,rho,value) and one row per observation"
+        )
     reader = csv.reader(io.StringIO(text, newline=""), strict=True)
     header, header_line, records, lines = None, 0, [], []
     try:
@@ -280,26 +298,32 @@ def load_measurements(path) -> pd.DataFrame:
                 records.append(rec)
                 lines.append(reader.line_num)
     except csv.Error as exc:
-        raise MeasurementError(f"line {reader.line_num} of {name} is not valid CSV: {exc}"
-                               ) from None
+        raise MeasurementError(
+            f"line {reader.line_num} of {name} is not valid CSV: {exc}"
+        ) from None
     if header is None:  # nothing but blank cells (e.g. lines of "")
         raise MeasurementError(
             f"{name} has no header: every line is blank; expected a CSV header line naming "
-            f"the columns (value and angle columns in degrees, e.g. psi,rho,value)")
+            f"the columns (value and angle columns in degrees, e.g. psi,rho,value)"
+        )
     for k, h in enumerate(header):
         if not h:
-            raise MeasurementError(f"column {k + 1} in the header (line {header_line}) of {name} "
-                                   f"has no name")
+            raise MeasurementError(
+                f"column {k + 1} in the header (line {header_line}) of {name} has no name"
+            )
     seen = set()
     for h in header:
         if h in seen:
-            raise MeasurementError(f"the header (line {header_line}) of {name} names column "
-                                   f"{h!r} twice")
+            raise MeasurementError(
+                f"the header (line {header_line}) of {name} names column {h!r} twice"
+            )
         seen.add(h)
     for rec, line in zip(records, lines):
         if len(rec) != len(header):
-            raise MeasurementError(f"line {line} of {name} has {len(rec)} fields but the header "
-                                   f"(line {header_line}) has {len(header)}: {', '.join(header)}")
+            raise MeasurementError(
+                f"line {line} of {name} has {len(rec)} fields but the header "
+                f"(line {header_line}) has {len(header)}: {', '.join(header)}"
+            )
     if not records:
         raise MeasurementError(f"{name} has a header (line {header_line}) but no data rows")
     columns = list(zip(*records))
@@ -359,11 +383,23 @@ def measurements_text(table: pd.DataFrame) -> str:
         if c in KNOWN_COLUMNS:
             frame[c] = [repr(float(x)) for x in checked[c].to_numpy()]
         elif pd.api.types.is_float_dtype(frame[c].dtype):
-            frame[c] = ["" if math.isnan(x) else repr(float(x))
-                        for x in frame[c].to_numpy(dtype=float)]
+            frame[c] = [
+                "" if math.isnan(x) else repr(float(x)) for x in frame[c].to_numpy(dtype=float)
+            ]
     return frame.to_csv(index=False, lineterminator="\n")
 
 
-__all__ = ["load_measurements", "save_measurements", "canonical_angles",
-           "validate", "to_form", "MeasurementError", "measurements_text",
-           "LikelyRadiansWarning", "CANONICAL", "FORMS", "table_channels", "CHANNEL"]
+__all__ = [
+    "load_measurements",
+    "save_measurements",
+    "canonical_angles",
+    "validate",
+    "to_form",
+    "MeasurementError",
+    "measurements_text",
+    "LikelyRadiansWarning",
+    "CANONICAL",
+    "FORMS",
+    "table_channels",
+    "CHANNEL",
+]

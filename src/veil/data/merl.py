@@ -72,23 +72,30 @@ def read_merl(path) -> MerlBRDF:
     except IsADirectoryError:
         raise NotAFileError(f"MERL file {name} is a directory") from None
     if len(raw) < HEADER_BYTES:
-        raise MerlError(f"{name}: {len(raw)} bytes; a MERL file starts with three int32 "
-                        f"dimensions {DIMS} and has {FILE_BYTES} bytes in all")
+        raise MerlError(
+            f"{name}: {len(raw)} bytes; a MERL file starts with three int32 "
+            f"dimensions {DIMS} and has {FILE_BYTES} bytes in all"
+        )
     dims = tuple(int(d) for d in np.frombuffer(raw[:HEADER_BYTES], dtype="<i4"))
     if dims != DIMS:
-        raise MerlError(f"{name}: dimensions {dims}; a MERL file has {DIMS} (theta_h, "
-                        f"theta_d, phi_d)")
+        raise MerlError(
+            f"{name}: dimensions {dims}; a MERL file has {DIMS} (theta_h, theta_d, phi_d)"
+        )
     if len(raw) != FILE_BYTES:
         size = len(raw) if len(raw) <= FILE_BYTES else f"more than {FILE_BYTES}"
-        raise MerlError(f"{name}: {size} "
-                        f"bytes; a MERL file of dimensions {DIMS} has exactly {FILE_BYTES} "
-                        f"(12 header bytes + 3 channels x {N_CELLS} float64)")
+        raise MerlError(
+            f"{name}: {size} "
+            f"bytes; a MERL file of dimensions {DIMS} has exactly {FILE_BYTES} "
+            f"(12 header bytes + 3 channels x {N_CELLS} float64)"
+        )
     data = np.frombuffer(raw[HEADER_BYTES:], dtype="<f8").reshape((3,) + DIMS)
     bad = ~np.isfinite(data)
     if bad.any():
         c, h, d, p = (int(x[0]) for x in np.nonzero(bad))
-        raise MerlError(f"{name}: {int(bad.sum())} values are not finite numbers, the first in "
-                        f"channel {CHANNELS[c]} at index (theta_h {h}, theta_d {d}, phi_d {p})")
+        raise MerlError(
+            f"{name}: {int(bad.sum())} values are not finite numbers, the first in "
+            f"channel {CHANNELS[c]} at index (theta_h {h}, theta_d {d}, phi_d {p})"
+        )
     return MerlBRDF(name, data.copy())
 
 
@@ -126,8 +133,9 @@ def indices(theta_h, theta_d, phi_d) -> tuple[np.ndarray, np.ndarray, np.ndarray
     return ih, idd.astype(int), ip.astype(int)
 
 
-def reflectance(brdf: MerlBRDF, channel: str, theta_i, theta_r, phi_i=180.0,
-                phi_r=0.0) -> np.ndarray:
+def reflectance(
+    brdf: MerlBRDF, channel: str, theta_i, theta_r, phi_i=180.0, phi_r=0.0
+) -> np.ndarray:
     """f_r = table value x cos theta_i (veil's convention) at the given angles (degrees);
     a MerlError when a needed cell is negative (unmeasured)."""
     from ..engine.angles import check_angles, direction
@@ -140,11 +148,13 @@ def reflectance(brdf: MerlBRDF, channel: str, theta_i, theta_r, phi_i=180.0,
     neg = values < 0
     if np.any(neg):
         k = int(np.flatnonzero(neg.ravel())[0])
-        raise MerlError(f"{brdf.path}: negative value {values.ravel()[k]:g} in channel "
-                        f"{channel} at index (theta_h {ih.ravel()[k]}, theta_d "
-                        f"{idd.ravel()[k]}, phi_d {ip.ravel()[k]}), needed at theta_i "
-                        f"{np.ravel(ti)[k]:g}, theta_r {np.ravel(tr)[k]:g} deg; a BRDF "
-                        f"table must hold values >= 0 (negative marks unmeasured cells)")
+        raise MerlError(
+            f"{brdf.path}: negative value {values.ravel()[k]:g} in channel "
+            f"{channel} at index (theta_h {ih.ravel()[k]}, theta_d "
+            f"{idd.ravel()[k]}, phi_d {ip.ravel()[k]}), needed at theta_i "
+            f"{np.ravel(ti)[k]:g}, theta_r {np.ravel(tr)[k]:g} deg; a BRDF "
+            f"table must hold values >= 0 (negative marks unmeasured cells)"
+        )
     return values * np.cos(np.deg2rad(ti))
 
 
@@ -166,14 +176,21 @@ def configurations(sampling: str = "protocol", psi=PSI) -> pd.DataFrame:
     return pd.DataFrame({"theta_i": t_i, "phi_i": p_i, "theta_r": t_r, "phi_r": p_r})
 
 
-def measurement_table(brdf: MerlBRDF, channel: str, sampling: str = "protocol",
-                      relative_sigma: float = 0.01) -> pd.DataFrame:
+def measurement_table(
+    brdf: MerlBRDF, channel: str, sampling: str = "protocol", relative_sigma: float = 0.01
+) -> pd.DataFrame:
     """A measurement table (docs/measurements.md) of the MERL BRDF's f_r at
     :func:`configurations`, sigma = ``relative_sigma`` x value (a relative fit); cells where
     the BRDF is 0 get the smallest positive sigma of the table."""
     table = configurations(sampling).copy()
-    values = reflectance(brdf, channel, table["theta_i"].to_numpy(), table["theta_r"].to_numpy(),
-                         table["phi_i"].to_numpy(), table["phi_r"].to_numpy())
+    values = reflectance(
+        brdf,
+        channel,
+        table["theta_i"].to_numpy(),
+        table["theta_r"].to_numpy(),
+        table["phi_i"].to_numpy(),
+        table["phi_r"].to_numpy(),
+    )
     if not np.any(values > 0):
         raise MerlError(f"{brdf.path}: channel {channel} is 0 at every configuration")
     sigma = relative_sigma * values
@@ -183,8 +200,9 @@ def measurement_table(brdf: MerlBRDF, channel: str, sampling: str = "protocol",
     return table
 
 
-def channels_table(brdf: MerlBRDF, channels=CHANNELS, sampling: str = "protocol",
-                   relative_sigma: float = 0.01) -> pd.DataFrame:
+def channels_table(
+    brdf: MerlBRDF, channels=CHANNELS, sampling: str = "protocol", relative_sigma: float = 0.01
+) -> pd.DataFrame:
     """A measurement table of several channels of the MERL BRDF (docs/measurements.md,
     "Channels"): :func:`measurement_table` of each channel, channel after channel, with a
     ``channel`` column before ``value`` and ``sigma``; a fit of it fits the channels at once
@@ -194,8 +212,10 @@ def channels_table(brdf: MerlBRDF, channels=CHANNELS, sampling: str = "protocol"
     names = [str(c) for c in channels]
     unknown = [c for c in names if c not in CHANNELS]
     if unknown or not names or len(set(names)) != len(names):
-        raise InputError(f"{brdf.path}: channels {', '.join(names) or 'none'}; a MERL file has "
-                         f"the channels {', '.join(CHANNELS)} (each at most once)")
+        raise InputError(
+            f"{brdf.path}: channels {', '.join(names) or 'none'}; a MERL file has "
+            f"the channels {', '.join(CHANNELS)} (each at most once)"
+        )
     parts = []
     for c in names:
         part = measurement_table(brdf, c, sampling, relative_sigma)
@@ -214,6 +234,19 @@ def write_merl(path, data) -> None:
     write_bytes_atomic(path, np.asarray(DIMS, dtype="<i4").tobytes() + data.tobytes())
 
 
-__all__ = ["MerlBRDF", "MerlError", "read_merl", "write_merl", "half_diff", "indices",
-           "reflectance", "configurations", "measurement_table", "channels_table", "DIMS",
-           "SCALES", "CHANNELS", "SAMPLINGS"]
+__all__ = [
+    "MerlBRDF",
+    "MerlError",
+    "read_merl",
+    "write_merl",
+    "half_diff",
+    "indices",
+    "reflectance",
+    "configurations",
+    "measurement_table",
+    "channels_table",
+    "DIMS",
+    "SCALES",
+    "CHANNELS",
+    "SAMPLINGS",
+]

@@ -18,12 +18,41 @@ from .roi import ROI
 PNG_SUFFIXES = frozenset({".png"})
 JPEG_SUFFIXES = frozenset({".jpg", ".jpeg", ".jpe"})
 TIFF_SUFFIXES = frozenset({".tif", ".tiff"})
-RAW_SUFFIXES = frozenset({
-    ".3fr", ".ari", ".arw", ".bay", ".cr2", ".cr3", ".crw", ".dcr", ".dng", ".erf", ".fff",
-    ".iiq", ".k25", ".kdc", ".mef", ".mos", ".mrw", ".nef", ".nrw", ".orf", ".pef", ".raf",
-    ".raw", ".rw2", ".rwl", ".sr2", ".srf", ".srw", ".x3f",
-})
+RAW_SUFFIXES = frozenset(
+    {
+        ".3fr",
+        ".ari",
+        ".arw",
+        ".bay",
+        ".cr2",
+        ".cr3",
+        ".crw",
+        ".dcr",
+        ".dng",
+        ".erf",
+        ".fff",
+        ".iiq",
+        ".k25",
+        ".kdc",
+        ".mef",
+        ".mos",
+        ".mrw",
+        ".nef",
+        ".nrw",
+        ".orf",
+        ".pef",
+        ".raf",
+        ".raw",
+        ".rw2",
+        ".rwl",
+        ".sr2",
+        ".srf",
+        ".srw",
+        ".x3f",
+    }
+)
 PHOTO_SUFFIXES = PNG_SUFFIXES | JPEG_SUFFIXES | TIFF_SUFFIXES | RAW_SUFFIXES
+
 
 @dataclass
 class Patch:
@@ -55,9 +84,11 @@ class Photo:
 
 def _check_roi(roi: ROI, name: str, height: int, width: int, path: Path) -> None:
     if roi.x + roi.w > width or roi.y + roi.h > height:
-        raise InputError(f"{path}: {name} {roi} (x {roi.x}..{roi.x + roi.w - 1}, y "
-                         f"{roi.y}..{roi.y + roi.h - 1}) lies outside the image, which is "
-                         f"{width} x {height} pixels (x 0..{width - 1}, y 0..{height - 1})")
+        raise InputError(
+            f"{path}: {name} {roi} (x {roi.x}..{roi.x + roi.w - 1}, y "
+            f"{roi.y}..{roi.y + roi.h - 1}) lies outside the image, which is "
+            f"{width} x {height} pixels (x 0..{width - 1}, y 0..{height - 1})"
+        )
 
 
 def _int_limits(dtype: np.dtype):
@@ -66,8 +97,9 @@ def _int_limits(dtype: np.dtype):
         return float(info.max), float(info.min)
     if dtype.kind == "f":
         return None, None
-    raise InputError(f"unsupported sample type {dtype}; expected unsigned/signed integer or "
-                     f"float samples")
+    raise InputError(
+        f"unsupported sample type {dtype}; expected unsigned/signed integer or float samples"
+    )
 
 
 def _image_patches(path: Path, kind: str, image: np.ndarray, rois) -> Photo:
@@ -75,8 +107,10 @@ def _image_patches(path: Path, kind: str, image: np.ndarray, rois) -> Photo:
     if image.ndim == 2:
         image = image[:, :, None]
     if image.ndim != 3 or image.shape[2] not in (1, 2, 3, 4):
-        raise InputError(f"{path}: unsupported image layout {image.shape}; expected a gray or "
-                         f"RGB image (height x width [x channels])")
+        raise InputError(
+            f"{path}: unsupported image layout {image.shape}; expected a gray or "
+            f"RGB image (height x width [x channels])"
+        )
     channels = 1 if image.shape[2] in (1, 2) else 3  # 2 = gray + alpha, 4 = RGB + alpha
     height, width = image.shape[:2]
     try:
@@ -111,12 +145,15 @@ def _read_tiff(path: Path, rois) -> Photo:
             series = tif.series[0]
             page = series.pages[0]
             if page is not None and page.photometric == tifffile.PHOTOMETRIC.PALETTE:
-                raise InputError(f"{path}: palette (indexed colour) TIFF; expected gray or RGB "
-                                 f"samples")
+                raise InputError(
+                    f"{path}: palette (indexed colour) TIFF; expected gray or RGB samples"
+                )
             axes = series.axes
             if axes not in ("YX", "YXS", "SYX"):
-                raise InputError(f"{path}: TIFF holds an array with axes {axes!r} and shape "
-                                 f"{series.shape}; expected one gray or RGB image")
+                raise InputError(
+                    f"{path}: TIFF holds an array with axes {axes!r} and shape "
+                    f"{series.shape}; expected one gray or RGB image"
+                )
             memmappable = page is not None and page.is_memmappable and len(tif.series) == 1
             image = None if memmappable else series.asarray()
         if memmappable:  # uncompressed: read only the ROIs' rows, read-only mapping
@@ -124,9 +161,11 @@ def _read_tiff(path: Path, rois) -> Photo:
     except InputError:
         raise
     except Exception as exc:
-        raise InputError(f"{path}: cannot read as TIFF ({type(exc).__name__}: {exc}); "
-                         f"expected a complete TIFF file holding one gray or RGB image (is "
-                         f"the photo truncated, or not a TIFF?)") from None
+        raise InputError(
+            f"{path}: cannot read as TIFF ({type(exc).__name__}: {exc}); "
+            f"expected a complete TIFF file holding one gray or RGB image (is "
+            f"the photo truncated, or not a TIFF?)"
+        ) from None
     assert image is not None  # read above, or mapped
     if axes == "SYX":
         image = np.moveaxis(image, 0, -1)
@@ -142,12 +181,16 @@ def _read_raw(path: Path, rois) -> Photo:
         raise InputError(f"{path}: cannot read as camera raw with LibRaw ({exc})") from None
     with raw:
         if raw.raw_type != rawpy.RawType.Flat:
-            raise InputError(f"{path}: raw data are not a colour-filter mosaic (LibRaw raw "
-                             f"type {raw.raw_type.name}); convert it to a linear 16-bit TIFF")
+            raise InputError(
+                f"{path}: raw data are not a colour-filter mosaic (LibRaw raw "
+                f"type {raw.raw_type.name}); convert it to a linear 16-bit TIFF"
+            )
         desc = raw.color_desc.decode("ascii", "replace")
         if any(c not in "RGB" for c in desc):
-            raise InputError(f"{path}: colour filter colours {desc!r} are not R, G, B; only "
-                             f"RGB mosaics are supported")
+            raise InputError(
+                f"{path}: colour filter colours {desc!r} are not R, G, B; only "
+                f"RGB mosaics are supported"
+            )
         colour_of_index = np.array(["RGB".index(c) for c in desc])
         black_of_index = np.asarray(raw.black_level_per_channel, dtype=float)
         mosaic = raw.raw_image_visible
@@ -158,8 +201,9 @@ def _read_raw(path: Path, rois) -> Photo:
             _check_roi(roi, name, height, width, path)
             rows, cols = roi.slices
             index = np.array(indices[rows, cols])
-            patches.append(Patch(np.array(mosaic[rows, cols]), colour_of_index[index],
-                                  black_of_index[index]))
+            patches.append(
+                Patch(np.array(mosaic[rows, cols]), colour_of_index[index], black_of_index[index])
+            )
         saturation = float(raw.white_level)
         balance = _white_balance(desc, raw.camera_whitebalance)
     return Photo(path, "raw", (height, width, 1), saturation, 0.0, patches, balance)
@@ -197,8 +241,10 @@ def read_photo(path, rois) -> Photo:
         raise UnwritableError(f"{path}: permission denied") from None
     except OSError as exc:
         raise InputError(f"{path}: cannot read ({exc.strerror or exc})") from None
-    raise InputError(f"{path}: unsupported file type {suffix or '(no suffix)'!r}; supported: "
-                     f"PNG, TIFF, JPEG and camera raw ({', '.join(sorted(RAW_SUFFIXES))})")
+    raise InputError(
+        f"{path}: unsupported file type {suffix or '(no suffix)'!r}; supported: "
+        f"PNG, TIFF, JPEG and camera raw ({', '.join(sorted(RAW_SUFFIXES))})"
+    )
 
 
 # -- statistics ----------------------------------------------------------------------------

@@ -26,8 +26,9 @@ def _positive(name: str, value, allow_zero: bool = False) -> float:
     except (TypeError, ValueError):
         raise InputError(f"{name} = {value!r} is not a number (degrees)") from None
     if not math.isfinite(v) or v < 0 or (v == 0 and not allow_zero):
-        raise InputError(f"{name} = {value!r} deg: expected a finite number "
-                         f"{'>= 0' if allow_zero else '> 0'}")
+        raise InputError(
+            f"{name} = {value!r} deg: expected a finite number {'>= 0' if allow_zero else '> 0'}"
+        )
     return v
 
 
@@ -57,24 +58,34 @@ def _checked(psi, fine_step, coarse_step, window, limit) -> tuple:
     if not (math.isfinite(psi) and 0 < psi < 180):
         raise InputError(f"psi = {psi:g} deg: expected a relative angle in (0, 180) deg")
     if psi / 2 >= limit:
-        raise InputError(f"psi = {psi:g} deg gives no configuration with both |theta| < "
-                         f"{limit:g} deg (the mirror configuration has theta = psi/2)")
+        raise InputError(
+            f"psi = {psi:g} deg gives no configuration with both |theta| < "
+            f"{limit:g} deg (the mirror configuration has theta = psi/2)"
+        )
     return psi, fine_step, coarse_step, window, limit - psi / 2
 
 
 def _check_size(count: float, fine_step: float, coarse_step: float) -> None:
     if count > MAX_CONFIGURATIONS:
-        raise InputError(f"fine_step = {fine_step:g} deg, coarse_step = {coarse_step:g} deg "
-                         f"would make {count:.3g} configurations; at most "
-                         f"{MAX_CONFIGURATIONS:g} are allowed (the paper's protocol has "
-                         f"about 40 per psi): use larger steps")
+        raise InputError(
+            f"fine_step = {fine_step:g} deg, coarse_step = {coarse_step:g} deg "
+            f"would make {count:.3g} configurations; at most "
+            f"{MAX_CONFIGURATIONS:g} are allowed (the paper's protocol has "
+            f"about 40 per psi): use larger steps"
+        )
 
 
-def rho_values(psi: float, fine_step: float = 1.0, coarse_step: float = 5.0,
-               window: float = 10.0, limit: float = 85.0) -> np.ndarray:
+def rho_values(
+    psi: float,
+    fine_step: float = 1.0,
+    coarse_step: float = 5.0,
+    window: float = 10.0,
+    limit: float = 85.0,
+) -> np.ndarray:
     """Ascending rotations rho (deg) of the protocol for one psi (see the module docstring)."""
-    psi, fine_step, coarse_step, window, reach = _checked(psi, fine_step, coarse_step,
-                                                          window, limit)
+    psi, fine_step, coarse_step, window, reach = _checked(
+        psi, fine_step, coarse_step, window, limit
+    )
     _check_size(_count(reach, fine_step, coarse_step, window), fine_step, coarse_step)
     n_fine = int(math.floor(window / fine_step + 1e-9))
     pos = [k * fine_step for k in range(1, n_fine + 1) if k * fine_step < reach]
@@ -87,8 +98,13 @@ def rho_values(psi: float, fine_step: float = 1.0, coarse_step: float = 5.0,
     return np.concatenate([-arr[::-1], [0.0], arr])
 
 
-def protocol(psi=PSI, fine_step: float = 1.0, coarse_step: float = 5.0, window: float = 10.0,
-             limit: float = 85.0) -> pd.DataFrame:
+def protocol(
+    psi=PSI,
+    fine_step: float = 1.0,
+    coarse_step: float = 5.0,
+    window: float = 10.0,
+    limit: float = 85.0,
+) -> pd.DataFrame:
     """Configurations of the paper's protocol: columns psi, rho, theta_i, phi_i, theta_r, phi_r.
 
     One block per psi (in the given order), rho ascending; angles in degrees, the last four
@@ -115,8 +131,9 @@ def protocol(psi=PSI, fine_step: float = 1.0, coarse_step: float = 5.0, window: 
     psi_all = np.concatenate([b[0] for b in blocks])
     rho_all = np.concatenate([b[1] for b in blocks])
     ti, pi_, tr, pr = from_signed_inplane(*from_goniometer(psi_all, rho_all))
-    return pd.DataFrame({"psi": psi_all, "rho": rho_all, "theta_i": ti, "phi_i": pi_,
-                         "theta_r": tr, "phi_r": pr})
+    return pd.DataFrame(
+        {"psi": psi_all, "rho": rho_all, "theta_i": ti, "phi_i": pi_, "theta_r": tr, "phi_r": pr}
+    )
 
 
 __all__ = ["protocol", "rho_values", "PSI", "MAX_CONFIGURATIONS"]

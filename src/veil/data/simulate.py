@@ -70,8 +70,7 @@ def glow_scale(medium, accuracy: str = "default") -> float:
     from ..models import PRESETS
 
     angles = [np.full(1, a) for a in GLOW_REFERENCE]
-    return float(_evaluate(PRESETS[GLOW_STANDARD], as_btdf(medium), angles, accuracy,
-                           None)[0])
+    return float(_evaluate(PRESETS[GLOW_STANDARD], as_btdf(medium), angles, accuracy, None)[0])
 
 
 def _evaluate(brdf, medium, angles, accuracy, progress):
@@ -80,11 +79,22 @@ def _evaluate(brdf, medium, angles, accuracy, progress):
     return evaluate(brdf, medium, ti, pi_, tr, pr, accuracy=accuracy, progress=progress)
 
 
-def simulate(brdf, medium, psi=PSI, noise: float = 0.01, seed: int = 0, black: bool = False, *,
-             fine_step: float = 1.0, coarse_step: float = 5.0, window: float = 10.0,
-             limit: float = 85.0, glow: float = GLOW_LEVEL, accuracy: str = "default",
-             progress: Callable[[int, int], None] | None = None
-             ) -> pd.DataFrame | tuple[pd.DataFrame, pd.DataFrame]:
+def simulate(
+    brdf,
+    medium,
+    psi=PSI,
+    noise: float = 0.01,
+    seed: int = 0,
+    black: bool = False,
+    *,
+    fine_step: float = 1.0,
+    coarse_step: float = 5.0,
+    window: float = 10.0,
+    limit: float = 85.0,
+    glow: float = GLOW_LEVEL,
+    accuracy: str = "default",
+    progress: Callable[[int, int], None] | None = None,
+) -> pd.DataFrame | tuple[pd.DataFrame, pd.DataFrame]:
     """Simulated goniometer session of ``brdf`` through ``medium`` (docs/model.md sec. 7).
 
     brdf, medium : models or preset names; ``medium=None`` is clear water (no integral,
@@ -108,8 +118,7 @@ def simulate(brdf, medium, psi=PSI, noise: float = 0.01, seed: int = 0, black: b
     if medium is not None:
         medium = as_btdf(medium)
     _check_noise(noise, glow, seed, accuracy)
-    table = protocol(psi, fine_step=fine_step, coarse_step=coarse_step, window=window,
-                     limit=limit)
+    table = protocol(psi, fine_step=fine_step, coarse_step=coarse_step, window=window, limit=limit)
     n = len(table)
     exact, glow_values = _session(brdf, medium, table, glow, accuracy, progress)
     rng = np.random.default_rng(seed)
@@ -129,8 +138,12 @@ def simulate(brdf, medium, psi=PSI, noise: float = 0.01, seed: int = 0, black: b
 def _check_noise(noise, glow, seed, accuracy) -> None:
     """An InputError for a noise or glow level, a seed or an accuracy out of place."""
     for name, val in (("noise", noise), ("glow", glow)):
-        if isinstance(val, bool) or not isinstance(val, (int, float)) \
-                or not math.isfinite(val) or val < 0:
+        if (
+            isinstance(val, bool)
+            or not isinstance(val, (int, float))
+            or not math.isfinite(val)
+            or val < 0
+        ):
             raise InputError(f"{name} = {val!r}: expected a finite number >= 0 (relative)")
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise InputError(f"seed = {seed!r}: expected an integer >= 0")
@@ -138,8 +151,9 @@ def _check_noise(noise, glow, seed, accuracy) -> None:
         raise InputError(f"accuracy = {accuracy!r}; expected one of {', '.join(RULES)}")
 
 
-def _session(brdf, medium, table: pd.DataFrame, glow: float, accuracy: str,
-             progress) -> tuple[np.ndarray, np.ndarray]:
+def _session(
+    brdf, medium, table: pd.DataFrame, glow: float, accuracy: str, progress
+) -> tuple[np.ndarray, np.ndarray]:
     """(noise-free value, glow) at the configurations of the protocol ``table``: the apparent
     reflectance plus the medium's glow (module docstring)."""
     brdf = as_brdf(brdf)
@@ -152,17 +166,27 @@ def _session(brdf, medium, table: pd.DataFrame, glow: float, accuracy: str,
         glow_values = np.zeros(n)
     else:
         shape = glow_shape(medium, *angles)
-        glow_values = glow * glow_scale(medium, accuracy) * shape \
-            / glow_shape(medium, *GLOW_REFERENCE)
+        glow_values = (
+            glow * glow_scale(medium, accuracy) * shape / glow_shape(medium, *GLOW_REFERENCE)
+        )
     return truth + glow_values, glow_values
 
 
-def simulate_channels(channels: dict, psi=PSI, noise: float = 0.01, seed: int = 0,
-                      black: bool = False, *, fine_step: float = 1.0, coarse_step: float = 5.0,
-                      window: float = 10.0, limit: float = 85.0, glow: float = GLOW_LEVEL,
-                      accuracy: str = "default",
-                      progress: Callable[[int, int], None] | None = None
-                      ) -> pd.DataFrame | tuple[pd.DataFrame, pd.DataFrame]:
+def simulate_channels(
+    channels: dict,
+    psi=PSI,
+    noise: float = 0.01,
+    seed: int = 0,
+    black: bool = False,
+    *,
+    fine_step: float = 1.0,
+    coarse_step: float = 5.0,
+    window: float = 10.0,
+    limit: float = 85.0,
+    glow: float = GLOW_LEVEL,
+    accuracy: str = "default",
+    progress: Callable[[int, int], None] | None = None,
+) -> pd.DataFrame | tuple[pd.DataFrame, pd.DataFrame]:
     """A simulated session of several colour channels (docs/measurements.md, "Channels"):
     ``channels`` maps each channel (``"r"``, ``"g"``, ``"b"`` or a wavelength in nm) to its
     (brdf, medium) pair, as :func:`simulate` takes them. The table has the protocol's
@@ -176,16 +200,15 @@ def simulate_channels(channels: dict, psi=PSI, noise: float = 0.01, seed: int = 
     from .channels import CHANNEL
 
     if not isinstance(channels, dict) or not channels:
-        raise InputError("channels: expected a dict {channel: (brdf, medium)} with at least "
-                         "one channel")
+        raise InputError(
+            "channels: expected a dict {channel: (brdf, medium)} with at least one channel"
+        )
     _check_noise(noise, glow, seed, accuracy)
-    table = protocol(psi, fine_step=fine_step, coarse_step=coarse_step, window=window,
-                     limit=limit)
+    table = protocol(psi, fine_step=fine_step, coarse_step=coarse_step, window=window, limit=limit)
     n, size = len(table), len(table) * len(channels)
     parts = []
     for k, (brdf, medium) in enumerate(channels.values()):
-        step = None if progress is None else \
-            (lambda done, total, k=k: progress(k * n + done, size))
+        step = None if progress is None else (lambda done, total, k=k: progress(k * n + done, size))
         parts.append(_session(brdf, medium, table, glow, accuracy, step))
     exact = np.concatenate([p[0] for p in parts])
     glow_values = np.concatenate([p[1] for p in parts])
@@ -202,5 +225,13 @@ def simulate_channels(channels: dict, psi=PSI, noise: float = 0.01, seed: int = 
     return (out, cloth) if black else out
 
 
-__all__ = ["simulate", "simulate_channels", "glow_shape", "glow_scale", "CHUNK",
-           "GLOW_REFERENCE", "GLOW_LEVEL", "GLOW_STANDARD"]
+__all__ = [
+    "simulate",
+    "simulate_channels",
+    "glow_shape",
+    "glow_scale",
+    "CHUNK",
+    "GLOW_REFERENCE",
+    "GLOW_LEVEL",
+    "GLOW_STANDARD",
+]

@@ -25,8 +25,14 @@ SAME_TOL = 1e-6
 #: The distance of unit-vector pairs (I, R) that are the same configuration, at most.
 _SAME_RADIUS = 2.0 * math.sqrt(2.0) * math.sin(math.radians(SAME_TOL) / 2.0) * (1 + 1e-9)
 #: Below these magnitudes every angle of its column looks like radians (pi/2, pi, 2 pi).
-_RADIAN_LIMITS = {"theta_i": 1.6, "theta_r": 1.6, "rho": 1.6, "psi": 3.2, "phi_i": 6.3,
-                  "phi_r": 6.3}
+_RADIAN_LIMITS = {
+    "theta_i": 1.6,
+    "theta_r": 1.6,
+    "rho": 1.6,
+    "psi": 3.2,
+    "phi_i": 6.3,
+    "phi_r": 6.3,
+}
 _MAX_LISTED = 10
 
 
@@ -44,8 +50,12 @@ class RowNames:
         source = table.attrs.get("veil_source")
         lines = table.attrs.get("veil_lines")
         self.lines = None
-        if source is not None and lines is not None and len(lines) == len(table) \
-                and table.index.equals(pd.RangeIndex(len(table))):
+        if (
+            source is not None
+            and lines is not None
+            and len(lines) == len(table)
+            and table.index.equals(pd.RangeIndex(len(table)))
+        ):
             self.lines = tuple(lines)
             self.what = str(source)
         else:
@@ -75,8 +85,11 @@ class RowNames:
         named = [f"{a}" if a == b else f"{a}-{b}" for a, b in runs[:_MAX_LISTED]]
         rest = sum(b - a + 1 for a, b in runs[_MAX_LISTED:])
         word = "line" if len(positions) == 1 else "lines"
-        return (f"{word} {', '.join(named)}" + (f" and {rest} more" if rest else "")
-                + f" of {self.what}")
+        return (
+            f"{word} {', '.join(named)}"
+            + (f" and {rest} more" if rest else "")
+            + f" of {self.what}"
+        )
 
 
 def _fmt(x: float) -> str:
@@ -85,7 +98,7 @@ def _fmt(x: float) -> str:
 
 def _config_text(angles, k) -> str:
     ti, pi_, tr, pr = (a[k] for a in angles)
-    return (f"theta_i={_fmt(ti)}, phi_i={_fmt(pi_)}, theta_r={_fmt(tr)}, phi_r={_fmt(pr)}")
+    return f"theta_i={_fmt(ti)}, phi_i={_fmt(pi_)}, theta_r={_fmt(tr)}, phi_r={_fmt(pr)}"
 
 
 # --------------------------------------------------------------------------------------
@@ -100,16 +113,21 @@ def _form(columns, what: str) -> dict:
             present, missing = (a, b) if a in have else (b, a)
             raise MeasurementError(
                 f"{what} has column {present!r} but not {missing!r}: angle columns come in "
-                f"pairs (theta_i,phi_i,theta_r,phi_r or theta_i,theta_r or psi,rho)")
+                f"pairs (theta_i,phi_i,theta_r,phi_r or theta_i,theta_r or psi,rho)"
+            )
     if "phi_i" in have and "theta_i" not in have:
         raise MeasurementError(f"{what} has phi_i and phi_r but no theta_i and theta_r columns")
-    forms = {"full": "phi_i" in have, "inplane": "theta_i" in have and "phi_i" not in have,
-             "goniometer": "psi" in have}
+    forms = {
+        "full": "phi_i" in have,
+        "inplane": "theta_i" in have and "phi_i" not in have,
+        "goniometer": "psi" in have,
+    }
     if not any(forms.values()):
         raise MeasurementError(
             f"{what} has no angle columns: expected theta_i,phi_i,theta_r,phi_r (full), "
             f"theta_i,theta_r (signed in-plane) or psi,rho (goniometer), in degrees; "
-            f"found columns {', '.join(map(str, columns))}")
+            f"found columns {', '.join(map(str, columns))}"
+        )
     return forms
 
 
@@ -126,8 +144,11 @@ def _numbers(table: pd.DataFrame, column: str, rows: RowNames) -> np.ndarray:
         problems = []
         for k, cell in enumerate(series.tolist()):
             try:
-                if cell is None or (isinstance(cell, float) and math.isnan(cell)) \
-                        or (isinstance(cell, str) and not cell.strip()):
+                if (
+                    cell is None
+                    or (isinstance(cell, float) and math.isnan(cell))
+                    or (isinstance(cell, str) and not cell.strip())
+                ):
                     problems.append((k, "is empty"))
                     values[k] = 0.0
                     continue
@@ -142,15 +163,26 @@ def _numbers(table: pd.DataFrame, column: str, rows: RowNames) -> np.ndarray:
                 problems.append((k, f"{cell!r} is not a finite number"))
                 values[k] = 0.0
     for k in np.flatnonzero(~np.isfinite(values)).tolist():
-        problems.append((int(k), "is empty or NaN" if np.isnan(values[k])
-                         else f"{values[k]!r} is not a finite number"))
+        problems.append(
+            (
+                int(k),
+                "is empty or NaN"
+                if np.isnan(values[k])
+                else f"{values[k]!r} is not a finite number",
+            )
+        )
     if problems:
         problems.sort()
-        listed = "; ".join(f"{rows(k)}, column {column!r}: {msg}"
-                           for k, msg in problems[:_MAX_LISTED])
+        listed = "; ".join(
+            f"{rows(k)}, column {column!r}: {msg}" for k, msg in problems[:_MAX_LISTED]
+        )
         more = f"; and {len(problems) - _MAX_LISTED} more" if len(problems) > _MAX_LISTED else ""
-        raise MeasurementError(listed + more + " (expected a finite number"
-                               + (", in degrees)" if column in ANGLE_COLUMNS else ")"))
+        raise MeasurementError(
+            listed
+            + more
+            + " (expected a finite number"
+            + (", in degrees)" if column in ANGLE_COLUMNS else ")")
+        )
     return values
 
 
@@ -168,15 +200,23 @@ def _angles_from(cols: dict, forms: dict, rows: RowNames):
             a = cols[name]
             bad = np.flatnonzero((a < 0) | (a >= 90))
             if bad.size:
-                raise _range_error(rows, bad, lambda k, name=name, a=a: f"{name} = {_fmt(a[k])}",
-                                   f"{name} with phi columns is a polar angle in [0, 90) deg; "
-                                   f"signed in-plane angles go without phi columns")
+                raise _range_error(
+                    rows,
+                    bad,
+                    lambda k, name=name, a=a: f"{name} = {_fmt(a[k])}",
+                    f"{name} with phi columns is a polar angle in [0, 90) deg; "
+                    f"signed in-plane angles go without phi columns",
+                )
         for name in ("phi_i", "phi_r"):
             a = cols[name]
             bad = np.flatnonzero(np.abs(a) > 360)
             if bad.size:
-                raise _range_error(rows, bad, lambda k, name=name, a=a: f"{name} = {_fmt(a[k])}",
-                                   f"{name} is an azimuth in [-360, 360] deg")
+                raise _range_error(
+                    rows,
+                    bad,
+                    lambda k, name=name, a=a: f"{name} = {_fmt(a[k])}",
+                    f"{name} is an azimuth in [-360, 360] deg",
+                )
         phi_i, phi_r = (_wrap(cols["phi_i"]), _wrap(cols["phi_r"]))
         result["full"] = (cols["theta_i"] + 0.0, phi_i, cols["theta_r"] + 0.0, phi_r)
     if forms["inplane"]:
@@ -184,8 +224,12 @@ def _angles_from(cols: dict, forms: dict, rows: RowNames):
             a = cols[name]
             bad = np.flatnonzero(np.abs(a) >= 90)
             if bad.size:
-                raise _range_error(rows, bad, lambda k, name=name, a=a: f"{name} = {_fmt(a[k])}",
-                                   f"signed in-plane {name} must lie in (-90, 90) deg")
+                raise _range_error(
+                    rows,
+                    bad,
+                    lambda k, name=name, a=a: f"{name} = {_fmt(a[k])}",
+                    f"signed in-plane {name} must lie in (-90, 90) deg",
+                )
         ti, pi_, tr, pr = from_signed_inplane(cols["theta_i"], cols["theta_r"])
         result["inplane"] = (ti, pi_, tr, pr)
     if forms["goniometer"]:
@@ -194,9 +238,14 @@ def _angles_from(cols: dict, forms: dict, rows: RowNames):
         bad = np.flatnonzero((np.abs(ti) >= 90) | (np.abs(tr) >= 90))
         if bad.size:
             raise _range_error(
-                rows, bad, lambda k: (f"psi = {_fmt(psi[k])}, rho = {_fmt(rho[k])} give "
-                                      f"theta_i = {_fmt(ti[k])}, theta_r = {_fmt(tr[k])}"),
-                "theta_i = psi/2 + rho and theta_r = psi/2 - rho must lie in (-90, 90) deg")
+                rows,
+                bad,
+                lambda k: (
+                    f"psi = {_fmt(psi[k])}, rho = {_fmt(rho[k])} give "
+                    f"theta_i = {_fmt(ti[k])}, theta_r = {_fmt(tr[k])}"
+                ),
+                "theta_i = psi/2 + rho and theta_r = psi/2 - rho must lie in (-90, 90) deg",
+            )
         result["goniometer"] = from_signed_inplane(ti, tr)
     return result
 
@@ -214,8 +263,10 @@ def _vectors(angles) -> np.ndarray:
 
 def _separation(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Largest of the angles (deg) between the I vectors and between the R vectors of a and b."""
+
     def ang(u, v):
         return np.rad2deg(2.0 * np.arcsin(np.clip(np.linalg.norm(u - v, axis=-1) / 2.0, 0, 1)))
+
     return np.maximum(ang(a[..., :3], b[..., :3]), ang(a[..., 3:], b[..., 3:]))
 
 
@@ -228,15 +279,21 @@ def _check_agreement(found: dict, rows: RowNames) -> tuple:
             sep = _separation(ref, _vectors(found[other]))
             bad = np.flatnonzero(sep > SAME_TOL)
             if bad.size:
-                cols = {"full": "theta_i,phi_i,theta_r,phi_r", "inplane": "theta_i,theta_r",
-                        "goniometer": "psi,rho"}
+                cols = {
+                    "full": "theta_i,phi_i,theta_r,phi_r",
+                    "inplane": "theta_i,theta_r",
+                    "goniometer": "psi,rho",
+                }
                 raise _range_error(
-                    rows, bad,
+                    rows,
+                    bad,
                     lambda k, cols=cols, other=other: (
                         f"{cols[names[0]]} give {_config_text(primary, k)} but "
-                        f"{cols[other]} give {_config_text(found[other], k)}"),
+                        f"{cols[other]} give {_config_text(found[other], k)}"
+                    ),
                     f"ambiguous angles: the table has both {cols[names[0]]} and {cols[other]} "
-                    f"columns and they disagree; keep one form or make them agree")
+                    f"columns and they disagree; keep one form or make them agree",
+                )
     return primary
 
 
@@ -246,10 +303,19 @@ def _warn_radians(cols: dict, what: str) -> bool:
         warnings.warn(
             f"every angle in {what} is small (|theta|, |rho| < 1.6, |psi| < 3.2, |phi| < 6.3): "
             f"were they written in radians? veil reads angles in degrees (docs/model.md sec. 1)",
-            LikelyRadiansWarning, stacklevel=3)
+            LikelyRadiansWarning,
+            stacklevel=3,
+        )
         return True
     return False
 
 
-__all__ = ["CANONICAL", "ANGLE_COLUMNS", "KNOWN_COLUMNS", "FORMS", "SAME_TOL",
-           "LikelyRadiansWarning", "RowNames"]
+__all__ = [
+    "CANONICAL",
+    "ANGLE_COLUMNS",
+    "KNOWN_COLUMNS",
+    "FORMS",
+    "SAME_TOL",
+    "LikelyRadiansWarning",
+    "RowNames",
+]

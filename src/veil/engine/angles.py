@@ -13,8 +13,9 @@ from ..errors import InputError
 
 def check_angles(theta_i, theta_r, phi_i, phi_r):
     """Broadcast and validate angles (degrees); raise ValueError naming the bad value."""
-    arrays = np.broadcast_arrays(*(np.asarray(a, dtype=float)
-                                   for a in (theta_i, theta_r, phi_i, phi_r)))
+    arrays = np.broadcast_arrays(
+        *(np.asarray(a, dtype=float) for a in (theta_i, theta_r, phi_i, phi_r))
+    )
     for name, a in zip(("theta_i", "theta_r", "phi_i", "phi_r"), arrays):
         bad = ~np.isfinite(a)
         if bad.any():
@@ -63,8 +64,9 @@ def to_signed_inplane(theta_i, phi_i, theta_r, phi_r, tol=1e-6):
         on_neg = distance(phi, positive_at + 180.0) <= tol
         if not np.all(on_pos | on_neg):
             bad = np.flatnonzero(~(on_pos | on_neg))
-            raise InputError(f"rows {bad.tolist()} are not in the plane of incidence (phi not 0 "
-                             f"or 180 deg)")
+            raise InputError(
+                f"rows {bad.tolist()} are not in the plane of incidence (phi not 0 or 180 deg)"
+            )
         return np.where(on_pos, theta, -theta)
 
     return side(ti, pi_, 180.0), side(tr, pr, 0.0)

@@ -44,9 +44,11 @@ def overflow_error(what: str, models, vectors=None) -> InputError:
         values = model.to_vector() if vectors is None else np.asarray(vectors[k], dtype=float)
         names = model.param_names()
         named += [f"{name} = {values[names.index(name)]:.4g}" for name in model.SCALES.values()]
-    return InputError(f"{what} overflows float64 (it would exceed 1.8e308) with "
-                      f"{', '.join(named)}: these coefficients scale it linearly (relative "
-                      f"units); give them smaller values")
+    return InputError(
+        f"{what} overflows float64 (it would exceed 1.8e308) with "
+        f"{', '.join(named)}: these coefficients scale it linearly (relative "
+        f"units); give them smaller values"
+    )
 
 
 def check_finite(values, what: str, models, vectors=None, terms=None) -> np.ndarray:
@@ -56,12 +58,15 @@ def check_finite(values, what: str, models, vectors=None, terms=None) -> np.ndar
     values = np.asarray(values)
     if terms is not None and not np.all(np.isfinite(terms)):
         _check_facets(models, vectors)
-        raise FloatingPointError(f"the engine computed a non-finite term for {what} with "
-                                 f"{', '.join(str(m) for m in models if m is not None)}")
+        raise FloatingPointError(
+            f"the engine computed a non-finite term for {what} with "
+            f"{', '.join(str(m) for m in models if m is not None)}"
+        )
     if not np.all(np.isfinite(values)):
         if terms is None and np.any(np.isnan(values)):
-            raise FloatingPointError(f"{what} is NaN with "
-                                     f"{', '.join(str(m) for m in models if m is not None)}")
+            raise FloatingPointError(
+                f"{what} is NaN with {', '.join(str(m) for m in models if m is not None)}"
+            )
         raise overflow_error(what, models, vectors)
     return values
 
@@ -83,11 +88,13 @@ def _check_facets(models, vectors=None) -> None:
         v = model.to_vector() if vectors is None else np.asarray(vectors[k], dtype=float)
         mass = float(cdf(jnp.asarray(v, dtype=float), 0.5 * np.pi))
         if not mass >= MIN_FACET_MASS:
-            raise ParameterError(f"{model if vectors is None else type(model).__name__}: its "
-                                 f"facet distribution is too wide for float64 (cumulative "
-                                 f"{mass:.3g} over the hemisphere, below {MIN_FACET_MASS:g}); "
-                                 f"a facet law this flat gives the same values as a smoothness "
-                                 f"of 1e-100, so give a larger smoothness")
+            raise ParameterError(
+                f"{model if vectors is None else type(model).__name__}: its "
+                f"facet distribution is too wide for float64 (cumulative "
+                f"{mass:.3g} over the hemisphere, below {MIN_FACET_MASS:g}); "
+                f"a facet law this flat gives the same values as a smoothness "
+                f"of 1e-100, so give a larger smoothness"
+            )
 
 
 def reflectance(brdf, theta_i, theta_r, phi_i=180.0, phi_r=0.0) -> np.ndarray:
@@ -97,8 +104,9 @@ def reflectance(brdf, theta_i, theta_r, phi_i=180.0, phi_r=0.0) -> np.ndarray:
     gives every channel: the angles' broadcast shape plus a trailing axis of its channels,
     in their order, each channel's values those of its own model bit for bit."""
     if isinstance(brdf, ChannelModel):
-        return np.stack([reflectance(brdf[c], theta_i, theta_r, phi_i, phi_r)
-                         for c in brdf.channels], axis=-1)
+        return np.stack(
+            [reflectance(brdf[c], theta_i, theta_r, phi_i, phi_r) for c in brdf.channels], axis=-1
+        )
     model = as_brdf(brdf)
     ti, tr, pi_, pr = check_angles(theta_i, theta_r, phi_i, phi_r)
     shape = np.broadcast(ti, tr, pi_, pr).shape
@@ -120,29 +128,72 @@ def direct_programs(model) -> tuple:
     and options), as stored engine programs (:class:`veil.engine.programs.Program`)."""
     key = model.structure()
     if key not in _DIRECT_FNS:
+
         def f(v, wi, wr):
             return model.evaluate(v, wi, wr)
 
         name = structure_name(key)
-        _DIRECT_FNS[key] = (Program(jax.jit(f), f"f_r | {name}", (type(model),),
-                                    f"{model.NAME}: f_r (clear medium)"),
-                            Program(jax.jit(jax.jacfwd(f)), f"f_r jacobian | {name}",
-                                    (type(model),), f"{model.NAME}: f_r and its Jacobian"))
+        _DIRECT_FNS[key] = (
+            Program(
+                jax.jit(f), f"f_r | {name}", (type(model),), f"{model.NAME}: f_r (clear medium)"
+            ),
+            Program(
+                jax.jit(jax.jacfwd(f)),
+                f"f_r jacobian | {name}",
+                (type(model),),
+                f"{model.NAME}: f_r and its Jacobian",
+            ),
+        )
     return _DIRECT_FNS[key]
 
 
 @overload
-def apparent(brdf, medium, theta_i, theta_r, phi_i=..., phi_r=..., *, accuracy: str = ...,
-             return_error: Literal[False] = ...) -> np.ndarray: ...
+def apparent(
+    brdf,
+    medium,
+    theta_i,
+    theta_r,
+    phi_i=...,
+    phi_r=...,
+    *,
+    accuracy: str = ...,
+    return_error: Literal[False] = ...,
+) -> np.ndarray: ...
 @overload
-def apparent(brdf, medium, theta_i, theta_r, phi_i=..., phi_r=..., *, accuracy: str = ...,
-             return_error: Literal[True]) -> tuple[np.ndarray, np.ndarray]: ...
+def apparent(
+    brdf,
+    medium,
+    theta_i,
+    theta_r,
+    phi_i=...,
+    phi_r=...,
+    *,
+    accuracy: str = ...,
+    return_error: Literal[True],
+) -> tuple[np.ndarray, np.ndarray]: ...
 @overload
-def apparent(brdf, medium, theta_i, theta_r, phi_i=..., phi_r=..., *, accuracy: str = ...,
-             return_error: bool = ...) -> np.ndarray | tuple[np.ndarray, np.ndarray]: ...
-def apparent(brdf, medium, theta_i, theta_r, phi_i=180.0, phi_r=0.0, *,
-             accuracy: str = "default", return_error: bool = False
-             ) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
+def apparent(
+    brdf,
+    medium,
+    theta_i,
+    theta_r,
+    phi_i=...,
+    phi_r=...,
+    *,
+    accuracy: str = ...,
+    return_error: bool = ...,
+) -> np.ndarray | tuple[np.ndarray, np.ndarray]: ...
+def apparent(
+    brdf,
+    medium,
+    theta_i,
+    theta_r,
+    phi_i=180.0,
+    phi_r=0.0,
+    *,
+    accuracy: str = "default",
+    return_error: bool = False,
+) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
     """Apparent reflectance f(I, R) of ``brdf`` seen through ``medium`` (docs/model.md eq. 1).
 
     Parameters
@@ -170,8 +221,9 @@ def apparent(brdf, medium, theta_i, theta_r, phi_i=180.0, phi_r=0.0, *,
         return (value, np.zeros_like(value)) if return_error else value
     channels = channels_of(brdf, medium)
     if channels is not None:
-        return _apparent_channels(brdf, medium, channels, (theta_i, theta_r, phi_i, phi_r),
-                                  accuracy, return_error)
+        return _apparent_channels(
+            brdf, medium, channels, (theta_i, theta_r, phi_i, phi_r), accuracy, return_error
+        )
     b, m = as_brdf(brdf), as_btdf(medium)
     ti, tr, pi_, pr = check_angles(theta_i, theta_r, phi_i, phi_r)
     shape = ti.shape
@@ -198,8 +250,9 @@ def _apparent_channels(brdf, medium, channels, angles, accuracy: str, return_err
     """:func:`apparent` of every channel (its docstring, "Colour"): one :class:`Forward` of
     the configurations for all of them, whose programs run once for consecutive channels
     that differ only in scale parameters (``Forward.terms`` keeps its last term matrices)."""
-    pairs = {c: (as_brdf(channel_member(brdf, c)), as_btdf(channel_member(medium, c)))
-             for c in channels}
+    pairs = {
+        c: (as_brdf(channel_member(brdf, c)), as_btdf(channel_member(medium, c))) for c in channels
+    }
     ti, tr, pi_, pr = check_angles(*angles)
     shape = ti.shape
     b0, m0 = pairs[channels[0]]
@@ -211,8 +264,9 @@ def _apparent_channels(brdf, medium, channels, angles, accuracy: str, return_err
             vb, vm = b.to_vector(), m.to_vector()
             terms = forward.terms(vb, vm)
             value = forward.combine(terms, vb, vm).reshape(shape)
-            out.append(check_finite(value, f"the apparent reflectance of channel {c}", [b, m],
-                                    terms=terms))
+            out.append(
+                check_finite(value, f"the apparent reflectance of channel {c}", [b, m], terms=terms)
+            )
         return np.stack(out, axis=-1)
 
     fine = None
@@ -223,5 +277,4 @@ def _apparent_channels(brdf, medium, channels, angles, accuracy: str, return_err
     if not return_error:
         return value
     error = ERROR_FACTOR * np.abs(value - evaluate(fine))
-    return value, check_finite(error, "the error estimate of the apparent reflectance",
-                               [b0, m0])
+    return value, check_finite(error, "the error estimate of the apparent reflectance", [b0, m0])

@@ -49,7 +49,7 @@ class Compilation:
 
 
 def kind_of(identity: str) -> str:
-    """"jacobian" or "values": what a program computes, from its identity's first part."""
+    """ "jacobian" or "values": what a program computes, from its identity's first part."""
     return "jacobian" if "jacobian" in identity.split(" | ")[0] else "values"
 
 
@@ -69,6 +69,7 @@ def listen(listener: Listener) -> Callable[[], None]:
         with _LOCK:
             if listener in _LISTENERS:
                 _LISTENERS.remove(listener)
+
     return stop
 
 
@@ -97,8 +98,11 @@ def _rates() -> dict:
         return {}
     if not isinstance(stored, dict):
         return {}
-    return {k: float(v) for k, v in stored.items()
-            if k in SECONDS_PER_LINE and isinstance(v, (int, float)) and 0.0 < v < 1.0}
+    return {
+        k: float(v)
+        for k, v in stored.items()
+        if k in SECONDS_PER_LINE and isinstance(v, (int, float)) and 0.0 < v < 1.0
+    }
 
 
 def seconds_per_line(kind: str = "values") -> float:
@@ -117,8 +121,7 @@ def _learn(kind: str, lines: int, seconds: float) -> None:
     from .store_files import put_file
 
     with contextlib.suppress(OSError):
-        put_file(path, (json.dumps({"seconds_per_line": rates}, sort_keys=True)
-                        + "\n").encode())
+        put_file(path, (json.dumps({"seconds_per_line": rates}, sort_keys=True) + "\n").encode())
 
 
 def program_lines(lowered) -> int:
@@ -133,8 +136,9 @@ def program_lines(lowered) -> int:
 def announced(label: str, identity: str, lowered) -> Iterator[Compilation]:
     """The block compiles ``lowered``: listeners hear of its start and its end."""
     lines = program_lines(lowered)
-    compilation = Compilation(label, identity, lines,
-                              lines * seconds_per_line(kind_of(identity)), time.perf_counter())
+    compilation = Compilation(
+        label, identity, lines, lines * seconds_per_line(kind_of(identity)), time.perf_counter()
+    )
     _tell("start", compilation, 0.0)
     ok = False
     try:
@@ -154,12 +158,16 @@ def _log(compilation: Compilation, seconds: float) -> None:
     path = os.environ.get(LOG_VARIABLE)
     if not path:
         return
-    line = json.dumps({"label": compilation.label, "lines": compilation.lines,
-                       "estimate": round(compilation.estimate, 2),
-                       "seconds": round(seconds, 3)})
+    line = json.dumps(
+        {
+            "label": compilation.label,
+            "lines": compilation.lines,
+            "estimate": round(compilation.estimate, 2),
+            "seconds": round(seconds, 3),
+        }
+    )
     with _LOCK, contextlib.suppress(OSError), open(path, "a", encoding="utf-8") as fh:
         fh.write(line + "\n")
 
 
-__all__ = ["Compilation", "announced", "listen", "seconds_per_line", "program_lines",
-           "kind_of"]
+__all__ = ["Compilation", "announced", "listen", "seconds_per_line", "program_lines", "kind_of"]

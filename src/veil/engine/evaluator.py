@@ -32,13 +32,25 @@ def chunks(size: int, chunk: int = CHUNK):
         yield start, stop, np.minimum(np.arange(start, start + chunk), stop - 1)
 
 
-def evaluate(brdf, medium, theta_i, phi_i, theta_r, phi_r, *, accuracy: str = "default",
-             chunk: int = CHUNK, progress=None) -> np.ndarray:
+def evaluate(
+    brdf,
+    medium,
+    theta_i,
+    phi_i,
+    theta_r,
+    phi_r,
+    *,
+    accuracy: str = "default",
+    chunk: int = CHUNK,
+    progress=None,
+) -> np.ndarray:
     """Apparent reflectance (docs/model.md eq. 1; f_r alone when ``medium`` is None) at flat
     arrays of angles (degrees), ``chunk`` configurations per engine call;
     ``progress(done, total)`` after each chunk."""
-    ti, pi_, tr, pr = (np.ravel(np.asarray(a, dtype=float))
-                       for a in np.broadcast_arrays(theta_i, phi_i, theta_r, phi_r))
+    ti, pi_, tr, pr = (
+        np.ravel(np.asarray(a, dtype=float))
+        for a in np.broadcast_arrays(theta_i, phi_i, theta_r, phi_r)
+    )
     n = ti.size
     if medium is None:
         out = np.asarray(reflectance(brdf, ti, tr, pi_, pr), dtype=float)
@@ -114,8 +126,9 @@ class ApparentModel:
             full[:, cols] = j[:n]
             vals.append(v[:n])
             jacs.append(full)
-        values = check_finite(np.concatenate(vals), "the apparent reflectance", self.models,
-                              [vb, vm])
+        values = check_finite(
+            np.concatenate(vals), "the apparent reflectance", self.models, [vb, vm]
+        )
         return values, np.concatenate(jacs)
 
 
@@ -147,8 +160,10 @@ class DirectModel:
         f, jf = direct_programs(self.model)
         vj = np.asarray(v, dtype=float)
         values = np.asarray(f(vj, self.wi, self.wr))[: self.size]
-        return (check_finite(values, "the reflectance f_r", [self.model], [v]),
-                np.asarray(jf(vj, self.wi, self.wr))[: self.size])
+        return (
+            check_finite(values, "the reflectance f_r", [self.model], [v]),
+            np.asarray(jf(vj, self.wi, self.wr))[: self.size],
+        )
 
 
 __all__ = ["ApparentModel", "DirectModel"]

@@ -54,8 +54,9 @@ def _sharded(fn, mesh: Mesh):
     """``fn(vb, vm, wi, wr)`` compiled once for every device of ``mesh``: the parameters are
     replicated, the configurations (leading axis of ``wi``, ``wr`` and of every output) are
     split. One SPMD program, so one compilation however many devices run it."""
-    return jax.jit(jax.shard_map(fn, mesh=mesh, in_specs=(P(), P(), P(_AXIS), P(_AXIS)),
-                                 out_specs=P(_AXIS)))
+    return jax.jit(
+        jax.shard_map(fn, mesh=mesh, in_specs=(P(), P(), P(_AXIS), P(_AXIS)), out_specs=P(_AXIS))
+    )
 
 
 @lru_cache(maxsize=128)
@@ -65,8 +66,12 @@ def _terms_fn(kb, km, rule: Rule, half: bool, mesh: Mesh):
     def fn(vb, vm, wi, wr):
         return integrator.apparent_terms(bt, mt, rule, vb, vm, wi, wr, half)
 
-    return Program(_sharded(fn, mesh), _identity("terms", kb, km, rule, half, mesh),
-                   (kb[0], km[0]), _label("values", kb, km, rule))
+    return Program(
+        _sharded(fn, mesh),
+        _identity("terms", kb, km, rule, half, mesh),
+        (kb[0], km[0]),
+        _label("values", kb, km, rule),
+    )
 
 
 @lru_cache(maxsize=128)
@@ -83,37 +88,49 @@ def _terms_jac_fn(kb, km, rule: Rule, half: bool, nl_b: tuple, nl_m: tuple, mesh
 
     def fn(vb, vm, wi, wr):
         def g(x):
-            return integrator.apparent_terms(bt, mt, rule, vb.at[ib].set(x[:nb]),
-                                             vm.at[im].set(x[nb:]), wi, wr, half)
+            return integrator.apparent_terms(
+                bt, mt, rule, vb.at[ib].set(x[:nb]), vm.at[im].set(x[nb:]), wi, wr, half
+            )
+
         x = jnp.concatenate([vb[ib], vm[im]])
 
         def along(direction):
             return jax.jvp(g, (x,), (direction,))
+
         # the terms do not depend on the direction: computed once, not per column
         return jax.vmap(along, out_axes=(None, -1))(jnp.eye(x.size, dtype=x.dtype))
 
-    names = ([kb[0].PARAMS[i].name for i in nl_b] + [km[0].PARAMS[i].name for i in nl_m])
-    return Program(_sharded(fn, mesh),
-                   _identity(f"terms+jacobian {nl_b} {nl_m}", kb, km, rule, half, mesh),
-                   (kb[0], km[0]), _label(f"values and d/d({', '.join(names)})", kb, km, rule),
-                   JACOBIAN_OPTIONS)
+    names = [kb[0].PARAMS[i].name for i in nl_b] + [km[0].PARAMS[i].name for i in nl_m]
+    return Program(
+        _sharded(fn, mesh),
+        _identity(f"terms+jacobian {nl_b} {nl_m}", kb, km, rule, half, mesh),
+        (kb[0], km[0]),
+        _label(f"values and d/d({', '.join(names)})", kb, km, rule),
+        JACOBIAN_OPTIONS,
+    )
 
 
 def _label(what: str, kb, km, rule: Rule) -> str:
     """What a compiled engine function is, for people (the compile display)."""
-    named = ([f"{name}" for name, r in RULES.items() if r == rule]
-             + [f"{name} error-estimate" for name, r in FINER.items() if r == rule])
+    named = [f"{name}" for name, r in RULES.items() if r == rule] + [
+        f"{name} error-estimate" for name, r in FINER.items() if r == rule
+    ]
     defaults = {o.name: o.default for o in kb[0].OPTIONS + km[0].OPTIONS}
-    options = [f"{k}={v:g}" if isinstance(v, float) else f"{k}={v}"
-               for k, v in kb[1:] + km[1:] if defaults.get(k, object()) != v]
+    options = [
+        f"{k}={v:g}" if isinstance(v, float) else f"{k}={v}"
+        for k, v in kb[1:] + km[1:]
+        if defaults.get(k, object()) != v
+    ]
     models = f"{kb[0].NAME} x {km[0].NAME}" + (f" ({', '.join(options)})" if options else "")
     return f"{models}: {what}, {named[0] if named else 'custom'} rule"
 
 
 def _identity(what: str, kb, km, rule: Rule, half: bool, mesh: Mesh) -> str:
     """What a compiled engine function is, for the program store (veil.engine.programs)."""
-    return (f"{what} | {structure_name(kb)} | {structure_name(km)} | {rule!r} | half={half} | "
-            f"{mesh.devices.size} {_devices()[0].platform} devices")
+    return (
+        f"{what} | {structure_name(kb)} | {structure_name(km)} | {rule!r} | half={half} | "
+        f"{mesh.devices.size} {_devices()[0].platform} devices"
+    )
 
 
 # Background compilation (Forward.prepare): the first call of each compiled function and
@@ -136,8 +153,11 @@ def _submit(fn, *args) -> Future:
         if known is not None and not (known.done() and known.exception() is not None):
             return known
         if not _POOL:
-            _POOL.append(ThreadPoolExecutor(max_workers=max(2, os.cpu_count() or 1),
-                                            thread_name_prefix="veil-compile"))
+            _POOL.append(
+                ThreadPoolExecutor(
+                    max_workers=max(2, os.cpu_count() or 1), thread_name_prefix="veil-compile"
+                )
+            )
         if len(_PREPARED) > 256:  # forget finished ones (the compiled code stays in JAX)
             for k in [k for k, f in _PREPARED.items() if f.done()]:
                 del _PREPARED[k]
@@ -180,13 +200,23 @@ class Forward:
     the models given here fix only the code path (class and options such as the variant).
     """
 
-    def __init__(self, brdf: BRDF, medium: BTDF, theta_i, theta_r, phi_i=180.0, phi_r=0.0,
-                 rule: Rule | None = None):
+    def __init__(
+        self,
+        brdf: BRDF,
+        medium: BTDF,
+        theta_i,
+        theta_r,
+        phi_i=180.0,
+        phi_r=0.0,
+        rule: Rule | None = None,
+    ):
         self.brdf, self.medium = brdf, medium
         self.rule = RULES["default"] if rule is None else rule
         if not isinstance(self.rule, Rule):
-            raise InputTypeError(f"rule must be a veil.quadrature.Rule, got {rule!r} (for a named "
-                            "accuracy use veil.apparent.RULES[name])")
+            raise InputTypeError(
+                f"rule must be a veil.quadrature.Rule, got {rule!r} (for a named "
+                "accuracy use veil.apparent.RULES[name])"
+            )
         ti, tr, pi_, pr = (a.ravel() for a in check_angles(theta_i, theta_r, phi_i, phi_r))
         self.size = ti.size
         if self.size == 0:
@@ -217,8 +247,10 @@ class Forward:
         program sets them to 1, integrator._unit_scales). Channels whose own parameters are
         all scales (a BRDF's albedos, the paper medium's T_d and T_t) share their shared
         parameters' programs run once per iteration (docs/channels.md, "Cost")."""
-        key = (_unit_scale_vector(type(self.brdf), vb).tobytes()
-               + _unit_scale_vector(type(self.medium), vm).tobytes())
+        key = (
+            _unit_scale_vector(type(self.brdf), vb).tobytes()
+            + _unit_scale_vector(type(self.medium), vm).tobytes()
+        )
         last = self._last.get(fn)
         if last is not None and last[0] == key:
             return last[1]
@@ -253,8 +285,11 @@ class Forward:
             scale_m[mcls.param_names().index(mcls.GAIN)] = "gain"
         nl_b = tuple(i for i in free_brdf if i not in scale_b)
         nl_m = tuple(i for i in free_medium if i not in scale_m)
-        fn = (_terms_jac_fn(self._kb, self._km, self.rule, self.half, nl_b, nl_m, self._mesh)
-              if nl_b or nl_m else None)
+        fn = (
+            _terms_jac_fn(self._kb, self._km, self.rule, self.half, nl_b, nl_m, self._mesh)
+            if nl_b or nl_m
+            else None
+        )
         return fn, free_brdf, free_medium, scale_b, scale_m, nl_b, nl_m
 
     def _vectors(self, vb, vm):
@@ -262,8 +297,10 @@ class Forward:
         for name, v, cls in (("brdf", vb, type(self.brdf)), ("medium", vm, type(self.medium))):
             v = np.asarray(v, dtype=float)
             if v.shape != (len(cls.PARAMS),):
-                raise InputError(f"{name} parameter vector has shape {v.shape}; expected "
-                                 f"({len(cls.PARAMS)},) for {', '.join(cls.param_names())}")
+                raise InputError(
+                    f"{name} parameter vector has shape {v.shape}; expected "
+                    f"({len(cls.PARAMS)},) for {', '.join(cls.param_names())}"
+                )
             if not np.all(np.isfinite(v)):
                 raise InputError(f"{name} parameter vector {v.tolist()} has a non-finite value")
             out.append(v)  # numpy: jnp.asarray would compile a program in a new process
@@ -274,8 +311,10 @@ class Forward:
         try:
             return tuple(range(n)[operator.index(i)] for i in indices)
         except (IndexError, TypeError):
-            raise IndexError(f"parameter indices {tuple(indices)!r} are not all integers in "
-                             f"[-{n}, {n}) for {', '.join(cls.param_names())}") from None
+            raise IndexError(
+                f"parameter indices {tuple(indices)!r} are not all integers in "
+                f"[-{n}, {n}) for {', '.join(cls.param_names())}"
+            ) from None
 
     def terms(self, vb, vm) -> np.ndarray:
         """Term matrices (M, rows, 2) with scale parameters set to 1 (see integrator)."""
@@ -302,7 +341,8 @@ class Forward:
         automatic differentiation through the quadrature (exact for the discrete rule).
         """
         fn, free_brdf, free_medium, scale_b, scale_m, nl_b, nl_m = self._jacobian_fn(
-            free_brdf, free_medium)
+            free_brdf, free_medium
+        )
         vb, vm = self._vectors(vb, vm)
         if fn is not None:
             terms, jac_nl = self._memo_run(fn, vb, vm)
@@ -311,7 +351,7 @@ class Forward:
         else:  # only scale parameters free: the term matrices are all it takes
             terms = self.terms(vb, vm)
             jac_nl = np.zeros(terms.shape + (0,))
-        jb, jm = jac_nl[..., : len(nl_b)], jac_nl[..., len(nl_b):]
+        jb, jm = jac_nl[..., : len(nl_b)], jac_nl[..., len(nl_b) :]
         value = self.combine(terms, vb, vm)
         bcls, mcls = type(self.brdf), type(self.medium)
         rows = integrator.row_scales(mcls, vm)

@@ -89,8 +89,12 @@ def _interp_table(table, theta, rule: Rule):
     m1 = 0.5 * (p2 - p0)
     m2 = 0.5 * (p3 - p1)
     t2, t3 = t * t, t * t * t
-    return ((2 * t3 - 3 * t2 + 1) * p1 + (t3 - 2 * t2 + t) * m1
-            + (-2 * t3 + 3 * t2) * p2 + (t3 - t2) * m2)
+    return (
+        (2 * t3 - 3 * t2 + 1) * p1
+        + (t3 - 2 * t2 + t) * m1
+        + (-2 * t3 + 3 * t2) * p2
+        + (t3 - t2) * m2
+    )
 
 
 def _simpson_weights(k: int, step: float) -> np.ndarray:
@@ -113,9 +117,17 @@ def _shared(brdf, rule, vb, half: bool):
     t_int = [jnp.sum(weights * t[0]) for t in t_at]
     if brdf.HAS_LOBE:
         a_tab, b_tab = _lobe_albedo_tables(brdf, vb, rule)
-        facets = (*facet_grids(brdf, vb, [(rule.half_radial, rule.half_azimuth, False),
-                                          (rule.dense_radial, rule.dense_azimuth, half)]),
-                  brdf.facet_cdf(vb, HALF_PI))
+        facets = (
+            *facet_grids(
+                brdf,
+                vb,
+                [
+                    (rule.half_radial, rule.half_azimuth, False),
+                    (rule.dense_radial, rule.dense_azimuth, half),
+                ],
+            ),
+            brdf.facet_cdf(vb, HALF_PI),
+        )
     else:
         a_tab = b_tab = jnp.zeros(rule.table)
         facets = None
@@ -141,14 +153,16 @@ def _lobe_parts(brdf, medium, rule, half, vb, vm, maux, facets, wi, wr, grids):
     comps = medium.COMPONENTS
     parts = {}
     if "lobe" in comps:
-        parts["lobe"] = lobe_terms.lobe_lobe(brdf, medium, vb, vm, wi, wr, half, grids[2:],
-                                             facets[0], facets[2])
+        parts["lobe"] = lobe_terms.lobe_lobe(
+            brdf, medium, vb, vm, wi, wr, half, grids[2:], facets[0], facets[2]
+        )
     if "delta" in comps:
         h = normalized(wi + wr)
         parts["delta"] = ([(wi, wr, h, polar(h)[0])], [], lambda lobe, phase: lobe[0])
         if "lobe" in comps:
-            parts["sides"] = lobe_terms.lobe_sides(brdf, medium, vb, vm, wi, wr, half,
-                                                   grids[0], grids[1], facets[1], facets[2])
+            parts["sides"] = lobe_terms.lobe_sides(
+                brdf, medium, vb, vm, wi, wr, half, grids[0], grids[1], facets[1], facets[2]
+            )
     if not parts:
         return {}
     lobes = lobe_at(brdf, vb, [r for req, _, _ in parts.values() for r in req])
@@ -156,8 +170,8 @@ def _lobe_parts(brdf, medium, rule, half, vb, vm, maux, facets, wi, wr, grids):
     phases = [medium.phase(vm, o, maux) for o in omm]
     out = {}
     for name, (req_l, req_p, finish) in parts.items():
-        out[name] = finish(lobes[:len(req_l)], phases[:len(req_p)])
-        lobes, phases = lobes[len(req_l):], phases[len(req_p):]
+        out[name] = finish(lobes[: len(req_l)], phases[: len(req_p)])
+        lobes, phases = lobes[len(req_l) :], phases[len(req_p) :]
     return out
 
 
@@ -171,10 +185,10 @@ def _one_config(brdf, medium, rule, half, vb, vm, shared, maux, wi, wr):
     c0_sep, c0_lobe, a_tab, b_tab, s_int, t_int, aux, facets = shared
     zero = 0.0 * c0_sep
     comps = medium.COMPONENTS
-    a_i = medium.factor_first(vm, wi[2])      # a(I): the light's way into the medium
-    b_i = medium.factor_second(vm, wi[2])     # b(I): the unscattered beam leaving it
-    a_r = medium.factor_first(vm, wr[2])      # a(R): the unscattered view ray entering
-    b_r = medium.factor_second(vm, wr[2])     # b(R): leaving towards the camera
+    a_i = medium.factor_first(vm, wi[2])  # a(I): the light's way into the medium
+    b_i = medium.factor_second(vm, wi[2])  # b(I): the unscattered beam leaving it
+    a_r = medium.factor_first(vm, wr[2])  # a(R): the unscattered view ray entering
+    b_r = medium.factor_second(vm, wr[2])  # b(R): leaving towards the camera
     rows = {}
 
     def albedo(theta, table):
@@ -184,24 +198,30 @@ def _one_config(brdf, medium, rule, half, vb, vm, shared, maux, wi, wr):
     # s_k at I and the I' nodes, t_k at R and the R' nodes
     s_at, t_at = separable_at(brdf, vb, aux, cos_i, cos_r)
     s_wi, t_wr = [s[0] for s in s_at], [t[0] for t in t_at]
-    lobes = (_lobe_parts(brdf, medium, rule, half, vb, vm, maux, facets, wi, wr, grids)
-             if brdf.HAS_LOBE else {})
+    lobes = (
+        _lobe_parts(brdf, medium, rule, half, vb, vm, maux, facets, wi, wr, grids)
+        if brdf.HAS_LOBE
+        else {}
+    )
     if "iso" in comps:
         rows[("iso", "iso")] = (c0_sep, c0_lobe)
     if "lobe" in comps:
         (gi, ui, fi, _), (gr, ur, fr, _) = grids[:2]
         s_gi, t_gr = [s[1] for s in s_at], [t[1] for t in t_at]
         wgi = ui * fi * medium.factor_second(vm, gi[:, 2])
-        wgr = ur * fr * medium.factor_first(vm, gr[:, 2]) * lobe_terms.view_weight(
-            medium, vm, gr, wr)
+        wgr = (
+            ur * fr * medium.factor_first(vm, gr[:, 2]) * lobe_terms.view_weight(medium, vm, gr, wr)
+        )
         if "iso" in comps:
             # light lobe x view iso: a(I) Int b(I') p A(I'); light iso x view lobe: b(R) Int a J p B
             ti = jnp.arccos(jnp.clip(gi[:, 2], -1.0, 1.0))
             tr = jnp.arccos(jnp.clip(gr[:, 2], -1.0, 1.0))
-            mixed_sep = (a_i * jnp.sum(wgi * sum(s * tk for s, tk in zip(s_gi, t_int)))
-                         + b_r * jnp.sum(wgr * sum(t * sk for t, sk in zip(t_gr, s_int))))
-            mixed_lobe = (a_i * jnp.sum(wgi * albedo(ti, a_tab))
-                          + b_r * jnp.sum(wgr * albedo(tr, b_tab)))
+            mixed_sep = a_i * jnp.sum(
+                wgi * sum(s * tk for s, tk in zip(s_gi, t_int))
+            ) + b_r * jnp.sum(wgr * sum(t * sk for t, sk in zip(t_gr, s_int)))
+            mixed_lobe = a_i * jnp.sum(wgi * albedo(ti, a_tab)) + b_r * jnp.sum(
+                wgr * albedo(tr, b_tab)
+            )
             rows[("iso", "lobe")] = (mixed_sep, mixed_lobe)
         sep = sum(jnp.sum(wgi * s) * jnp.sum(wgr * t) for s, t in zip(s_gi, t_gr))
         rows[("lobe", "lobe")] = (a_i * b_r * sep, a_i * b_r * lobes.get("lobe", zero))
@@ -210,17 +230,22 @@ def _one_config(brdf, medium, rule, half, vb, vm, shared, maux, wi, wr):
         f_sep = sum(s * t for s, t in zip(s_wi, t_wr)) + zero
         rows[("delta", "delta")] = (dl * dv * f_sep, dl * dv * lobes.get("delta", zero))
         if "iso" in comps:  # the unscattered beam on one side, the iso part on the other
-            iso_sep = (dl * sum(s * tk for s, tk in zip(s_wi, t_int))
-                       + dv * sum(t * sk for t, sk in zip(t_wr, s_int)))
-            iso_lobe = (dl * albedo(jnp.arccos(jnp.clip(wi[2], -1.0, 1.0)), a_tab)
-                        + dv * albedo(jnp.arccos(jnp.clip(wr[2], -1.0, 1.0)), b_tab))
+            iso_sep = dl * sum(s * tk for s, tk in zip(s_wi, t_int)) + dv * sum(
+                t * sk for t, sk in zip(t_wr, s_int)
+            )
+            iso_lobe = dl * albedo(jnp.arccos(jnp.clip(wi[2], -1.0, 1.0)), a_tab) + dv * albedo(
+                jnp.arccos(jnp.clip(wr[2], -1.0, 1.0)), b_tab
+            )
             rows[("delta", "iso")] = (iso_sep + zero, iso_lobe + zero)
         if "lobe" in comps:  # the unscattered beam on one side, the lobe on the other
-            d_sep = (dl * b_r * sum(s * jnp.sum(wgr * t) for s, t in zip(s_wi, t_gr))
-                     + dv * a_i * sum(t * jnp.sum(wgi * s) for t, s in zip(t_wr, s_gi)))
+            d_sep = dl * b_r * sum(
+                s * jnp.sum(wgr * t) for s, t in zip(s_wi, t_gr)
+            ) + dv * a_i * sum(t * jnp.sum(wgi * s) for t, s in zip(t_wr, s_gi))
             view_side, light_side = lobes.get("sides", (zero, zero))
-            rows[("delta", "lobe")] = (d_sep + zero,
-                                       dl * b_r * view_side + dv * a_i * light_side + zero)
+            rows[("delta", "lobe")] = (
+                d_sep + zero,
+                dl * b_r * view_side + dv * a_i * light_side + zero,
+            )
     return _weighted_rows(medium, vm, rows)
 
 
@@ -230,11 +255,15 @@ def _lobe_grids(brdf, medium, rule, half, vm, maux, wi, wr):
     about R (R'), and the 4D term's grids."""
     if "lobe" not in medium.COMPONENTS:
         return None, [wi[2]], [wr[2]]
-    specs = [(wi, rule.dense_radial, rule.dense_azimuth, half),
-             (wr, rule.dense_radial, rule.dense_azimuth, half)]
+    specs = [
+        (wi, rule.dense_radial, rule.dense_azimuth, half),
+        (wr, rule.dense_radial, rule.dense_azimuth, half),
+    ]
     if brdf.HAS_LOBE:
-        specs += [(wi, rule.phase_radial, rule.phase_azimuth, half),
-                  (wr, rule.phase_radial, rule.phase_azimuth, False)]
+        specs += [
+            (wi, rule.phase_radial, rule.phase_azimuth, half),
+            (wr, rule.phase_radial, rule.phase_azimuth, False),
+        ]
         specs += [(wr, rule.phase_radial, rule.phase_azimuth, True)] if half else []
     grids = phase_grids(medium, vm, maux, specs)
     return grids, [wi[2], grids[0][0][:, 2]], [wr[2], grids[1][0][:, 2]]
@@ -293,8 +322,12 @@ def row_scale_derivative(medium_cls, vm, index: int) -> np.ndarray:
     if not comp:
         raise ValueError(f"{names[index]} is not a scale of {medium_cls.NAME}")
     c = comp[0]
-    return np.array([gain * ((s[b] if a == c else 0.0) + (s[a] if b == c else 0.0))
-                     for a, b in pairs(medium_cls)])
+    return np.array(
+        [
+            gain * ((s[b] if a == c else 0.0) + (s[a] if b == c else 0.0))
+            for a, b in pairs(medium_cls)
+        ]
+    )
 
 
 def column_scales(brdf_cls, vb):
@@ -311,8 +344,9 @@ def combine_terms(brdf_cls, medium_cls, terms, vb, vm):
     return jnp.einsum("...mb,m,b->...", terms, rows, cols)
 
 
-def apparent_terms(brdf_template, medium_template, rule, vb, vm, wi, wr, half=False,
-                   batch_size=None):
+def apparent_terms(
+    brdf_template, medium_template, rule, vb, vm, wi, wr, half=False, batch_size=None
+):
     """Term matrices (M, rows, 2) for unit direction arrays (M, 3); see :func:`_one_config`.
 
     Pure JAX and differentiable in the non-scale parameters of ``vb`` and ``vm``.
@@ -325,8 +359,7 @@ def apparent_terms(brdf_template, medium_template, rule, vb, vm, wi, wr, half=Fa
     maux = medium_template.prepare(vm1)
 
     def f(x):
-        return _one_config(brdf, medium_template, rule, half, vb1, vm1, shared, maux, x[0],
-                           x[1])
+        return _one_config(brdf, medium_template, rule, half, vb1, vm1, shared, maux, x[0], x[1])
 
     if batch_size is None:  # keep the live intermediate arrays to a few hundred MB
         batch_size = _batch(wi.shape[0], 1_500_000 // rule.points_per_config)

@@ -24,9 +24,12 @@ def apart(fn, vm, *args):
     conditional on a value known only at run time keeps its branch a computation of its own
     (taken whenever the medium's parameters are finite; otherwise the result is NaN, as it
     would be anyway)."""
-    return jax.lax.cond(jnp.all(jnp.isfinite(vm)), fn,
-                        lambda *a: jax.tree.map(lambda z: jnp.full_like(z, jnp.nan), fn(*a)),
-                        *args)
+    return jax.lax.cond(
+        jnp.all(jnp.isfinite(vm)),
+        fn,
+        lambda *a: jax.tree.map(lambda z: jnp.full_like(z, jnp.nan), fn(*a)),
+        *args,
+    )
 
 
 def view_weight(medium, vm, r_prime, wr):
@@ -110,10 +113,18 @@ def _side_nodes(brdf, vb, fixed, center, view, grid, facets, y_full):
     h = facets[0][0]
     free = reflect(fixed, h)
     fixed_g, fixed_f = jnp.broadcast_to(fixed, g.shape), jnp.broadcast_to(fixed, free.shape)
-    return dict(w_phase=w_phase, hg=hg, alpha_h=alpha_h, free=free,
-                c_free=dot3(fixed, h), omm=half_distance(free, center),
-                i_p=jnp.where(view, fixed_g, g), o_p=jnp.where(view, g, fixed_g),
-                i_f=jnp.where(view, fixed_f, free), o_f=jnp.where(view, free, fixed_f))
+    return dict(
+        w_phase=w_phase,
+        hg=hg,
+        alpha_h=alpha_h,
+        free=free,
+        c_free=dot3(fixed, h),
+        omm=half_distance(free, center),
+        i_p=jnp.where(view, fixed_g, g),
+        o_p=jnp.where(view, g, fixed_g),
+        i_f=jnp.where(view, fixed_f, free),
+        o_f=jnp.where(view, free, fixed_f),
+    )
 
 
 def lobe_sides(brdf, medium, vb, vm, wi, wr, half: bool, grid_i, grid_r, facets, y_full):
@@ -133,10 +144,17 @@ def lobe_sides(brdf, medium, vb, vm, wi, wr, half: bool, grid_i, grid_r, facets,
     view = jnp.array([True, False])
     grids = jax.tree.map(lambda a, b: jnp.stack([a, b]), tuple(grid_r), tuple(grid_i))
     nodes = jax.vmap(lambda f, c, v, g: _side_nodes(brdf, vb, f, c, v, g, facets, y_full))(
-        fixed, center, view, grids)
-    lobes = [(nodes["i_p"], nodes["o_p"], nodes["hg"], nodes["alpha_h"]),
-             (nodes["i_f"], nodes["o_f"], jnp.broadcast_to(facets[0], nodes["free"].shape),
-              jnp.broadcast_to(facets[1], nodes["free"].shape[:-1]))]
+        fixed, center, view, grids
+    )
+    lobes = [
+        (nodes["i_p"], nodes["o_p"], nodes["hg"], nodes["alpha_h"]),
+        (
+            nodes["i_f"],
+            nodes["o_f"],
+            jnp.broadcast_to(facets[0], nodes["free"].shape),
+            jnp.broadcast_to(facets[1], nodes["free"].shape[:-1]),
+        ),
+    ]
     phases = [nodes["omm"]]
 
     def weight(free, center, view):
@@ -152,8 +170,9 @@ def lobe_sides(brdf, medium, vb, vm, wi, wr, half: bool, grid_i, grid_r, facets,
         qh, uh = facets[3][0], facets[2][0]
         den = p_free + qh / (4.0 * jnp.maximum(node["c_free"], 1e-300))
         ok = (node["c_free"] > 0) & (node["free"][..., 2] > 0) & (den > 0)
-        val = jnp.where(ok, lobe_f * weight(node["free"], center, view) * p_free
-                        / jnp.where(ok, den, 1.0), 0.0)
+        val = jnp.where(
+            ok, lobe_f * weight(node["free"], center, view) * p_free / jnp.where(ok, den, 1.0), 0.0
+        )
         return total + jnp.sum(uh * val)
 
     def finish(lobe, phase):

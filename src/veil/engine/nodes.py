@@ -49,15 +49,17 @@ def phase_grid(medium: BTDF, vm, maux, center, n_r: int, n_a: int, half: bool):
     x, wx = gauss_legendre_unit(n_r)
     v, wv = azimuths(n_a, half)
     frac_az = medium.phase_cone_fraction(
-        vm, horizon_one_minus_mu(center[2], jnp.asarray(np.cos(TWO_PI * v))), maux)
+        vm, horizon_one_minus_mu(center[2], jnp.asarray(np.cos(TWO_PI * v))), maux
+    )
     frac_max = frac_az[np.repeat(np.arange(len(v)), n_r)]
     u = jnp.asarray(np.repeat(x[None, :], len(v), 0).ravel())
     omm, p = medium.phase_sample(vm, u * frac_max, maux)
     sg = jnp.sqrt(jnp.maximum(omm * (2.0 - omm), 0.0))
     beta = jnp.asarray(TWO_PI * np.repeat(v, n_r))
     t1, t2 = frame(center)
-    d = ((1.0 - omm)[:, None] * center
-         + sg[:, None] * (jnp.cos(beta)[:, None] * t1 + jnp.sin(beta)[:, None] * t2))
+    d = (1.0 - omm)[:, None] * center + sg[:, None] * (
+        jnp.cos(beta)[:, None] * t1 + jnp.sin(beta)[:, None] * t2
+    )
     return d, jnp.asarray(np.outer(wv, wx).ravel()), frac_max, p
 
 
@@ -131,7 +133,7 @@ def polar_angle(s, c):
     two half-angle steps, atan(t) = t P(t^2): several times faster than XLA's atan2 on the
     CPU, accurate to 1e-15, and smooth (differentiable) at s = 0.
     """
-    t1 = s / (1.0 + c)                      # tan(alpha / 2) in [0, 1)
+    t1 = s / (1.0 + c)  # tan(alpha / 2) in [0, 1)
     t2 = t1 / (1.0 + jnp.sqrt(1.0 + t1 * t1))  # tan(alpha / 4)
     z = t2 * t2
     acc = _ATAN[-1]
@@ -151,8 +153,9 @@ def reflect(d, h):
 
 def half_distance(a, b):
     """1 - a.b for unit vectors, without cancellation."""
-    return 0.5 * ((a[..., 0] - b[..., 0]) ** 2 + (a[..., 1] - b[..., 1]) ** 2
-                  + (a[..., 2] - b[..., 2]) ** 2)
+    return 0.5 * (
+        (a[..., 0] - b[..., 0]) ** 2 + (a[..., 1] - b[..., 1]) ** 2 + (a[..., 2] - b[..., 2]) ** 2
+    )
 
 
 def facet_grids(brdf: BRDF, vb, shapes):
@@ -166,8 +169,7 @@ def facet_grids(brdf: BRDF, vb, shapes):
         v, wv = azimuths(n_a, half)
         nodes.append((np.tile(x, len(v)), TWO_PI * np.repeat(v, n_r), np.outer(wv, wx).ravel()))
     y_full = brdf.facet_cdf(vb, HALF_PI)
-    alpha = brdf.facet_inverse_cdf(vb, jnp.asarray(np.concatenate([n[0] for n in nodes]))
-                                   * y_full)
+    alpha = brdf.facet_inverse_cdf(vb, jnp.asarray(np.concatenate([n[0] for n in nodes])) * y_full)
     phi = jnp.asarray(np.concatenate([n[1] for n in nodes]))
     sa, ca = jnp.sin(alpha), jnp.cos(alpha)
     h = jnp.stack([sa * jnp.cos(phi), sa * jnp.sin(phi), ca], axis=-1)
@@ -199,8 +201,7 @@ def lobe_at(brdf: BRDF, vb, requests):
     that broadcast together; returns one array per request, of its broadcast shape."""
     out = []
     for wi, wo, h, alpha in requests:
-        shape = tuple(jnp.broadcast_shapes(wi.shape[:-1], wo.shape[:-1], h.shape[:-1],
-                                           alpha.shape))
+        shape = tuple(jnp.broadcast_shapes(wi.shape[:-1], wo.shape[:-1], h.shape[:-1], alpha.shape))
         out.append(jnp.broadcast_to(brdf.lobe(vb, wi, wo, h, alpha), shape))
     return out
 
@@ -209,10 +210,15 @@ def separable_at(brdf: BRDF, vb, aux, cos_i, cos_r):
     """``brdf.separable`` for lists of cosine arrays taken pairwise (``cos_i[j]`` with
     ``cos_r[j]``, of one shape): returns (s, t), s[k][j] = s_k at cos_i[j], t[k][j] = t_k at
     cos_r[j]."""
-    per_pair = [brdf.separable(vb, jnp.asarray(ci), jnp.asarray(cr), aux)
-                for ci, cr in zip(cos_i, cos_r)]
-    s = [[jnp.broadcast_to(pair[k][0], np.shape(ci)) for pair, ci in zip(per_pair, cos_i)]
-         for k in range(len(per_pair[0]))]
-    t = [[jnp.broadcast_to(pair[k][1], np.shape(cr)) for pair, cr in zip(per_pair, cos_r)]
-         for k in range(len(per_pair[0]))]
+    per_pair = [
+        brdf.separable(vb, jnp.asarray(ci), jnp.asarray(cr), aux) for ci, cr in zip(cos_i, cos_r)
+    ]
+    s = [
+        [jnp.broadcast_to(pair[k][0], np.shape(ci)) for pair, ci in zip(per_pair, cos_i)]
+        for k in range(len(per_pair[0]))
+    ]
+    t = [
+        [jnp.broadcast_to(pair[k][1], np.shape(cr)) for pair, cr in zip(per_pair, cos_r)]
+        for k in range(len(per_pair[0]))
+    ]
     return s, t

@@ -116,8 +116,9 @@ def _veil_sources() -> tuple:
     root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
     names = ["_jax.py", "_lazy.py"]
     for folder in ("engine", "models"):
-        names += sorted(f"{folder}/{f}" for f in os.listdir(os.path.join(root, folder))
-                        if f.endswith(".py"))
+        names += sorted(
+            f"{folder}/{f}" for f in os.listdir(os.path.join(root, folder)) if f.endswith(".py")
+        )
     return tuple((name, os.path.join(root, *name.split("/"))) for name in names)
 
 
@@ -141,10 +142,16 @@ def code_digest(classes=()) -> str:
 def _environment_base() -> dict:
     import jaxlib
 
-    return {"veil": __version__, "jax": jax.__version__,
-            "jaxlib": getattr(jaxlib, "__version__", "?"), "numpy": np.__version__,
-            "python": platform.python_version(), "cpu": _cpu(),
-            "platform": jax.default_backend(), "devices": len(jax.devices())}
+    return {
+        "veil": __version__,
+        "jax": jax.__version__,
+        "jaxlib": getattr(jaxlib, "__version__", "?"),
+        "numpy": np.__version__,
+        "python": platform.python_version(),
+        "cpu": _cpu(),
+        "platform": jax.default_backend(),
+        "devices": len(jax.devices()),
+    }
 
 
 def environment(classes=()) -> dict:
@@ -159,8 +166,7 @@ def structure_name(structure: tuple) -> str:
 
 
 def _signature(args) -> tuple:
-    return tuple((tuple(np.shape(a)), str(getattr(a, "dtype", np.asarray(a).dtype)))
-                 for a in args)
+    return tuple((tuple(np.shape(a)), str(getattr(a, "dtype", np.asarray(a).dtype))) for a in args)
 
 
 def _path(identity: str) -> str | None:
@@ -183,24 +189,32 @@ def read(identity: str, env: dict, signature: tuple) -> Compiled | None:
     except (FileNotFoundError, NotADirectoryError):  # nothing stored
         return None
     except OSError as exc:
-        _say_once(("unreadable", path), f"cannot read the stored engine program {path} "
-                  f"({type(exc).__name__}: {exc}); building it again")
+        _say_once(
+            ("unreadable", path),
+            f"cannot read the stored engine program {path} "
+            f"({type(exc).__name__}: {exc}); building it again",
+        )
         return None
 
     def damaged(why):
-        _say_once(("damaged", path), f"the stored engine program {path} is damaged ({why}); "
-                  f"building it again")
+        _say_once(
+            ("damaged", path),
+            f"the stored engine program {path} is damaged ({why}); building it again",
+        )
         return None
 
     if not blob.startswith(FORMAT):
         if blob.startswith(b"veil.program/"):
-            layout = blob[len(b"veil.program/"):].split(b"\n", 1)[0].decode("ascii", "replace")
-            _say_once(("layout", layout), f"stored engine programs in {os.path.dirname(path)} "
-                      f"were made by another veil (store layout {layout}, this veil's "
-                      f"{FORMAT.decode().strip().rsplit('/', 1)[1]}); building them again")
+            layout = blob[len(b"veil.program/") :].split(b"\n", 1)[0].decode("ascii", "replace")
+            _say_once(
+                ("layout", layout),
+                f"stored engine programs in {os.path.dirname(path)} "
+                f"were made by another veil (store layout {layout}, this veil's "
+                f"{FORMAT.decode().strip().rsplit('/', 1)[1]}); building them again",
+            )
             return None
         return damaged("not a veil program file")
-    head, newline, payload = blob[len(FORMAT):].partition(b"\n")
+    head, newline, payload = blob[len(FORMAT) :].partition(b"\n")
     try:
         header = json.loads(head.decode("utf-8"))
         stored_env, stored_identity = header["environment"], header["identity"]
@@ -212,11 +226,13 @@ def read(identity: str, env: dict, signature: tuple) -> Compiled | None:
     if stored_identity != identity:
         return damaged("it holds another program")
     if stored_env != env:
-        changed = sorted(k for k in set(env) | set(stored_env)
-                         if env.get(k) != stored_env.get(k))
+        changed = sorted(k for k in set(env) | set(stored_env) if env.get(k) != stored_env.get(k))
         what = ", ".join(f"{k} {stored_env.get(k)} -> {env.get(k)}" for k in changed)
-        _say_once(("stale", tuple(changed)), f"stored engine programs in {os.path.dirname(path)} "
-                  f"were made by another veil, JAX, code or CPU ({what}); building them again")
+        _say_once(
+            ("stale", tuple(changed)),
+            f"stored engine programs in {os.path.dirname(path)} "
+            f"were made by another veil, JAX, code or CPU ({what}); building them again",
+        )
         return None
     try:
         from jax.experimental import serialize_executable
@@ -224,7 +240,8 @@ def read(identity: str, env: dict, signature: tuple) -> Compiled | None:
         executable, in_tree, out_tree, device_ids = pickle.loads(payload)
         by_id = {d.id: d for d in jax.devices()}
         compiled = serialize_executable.deserialize_and_load(
-            executable, in_tree, out_tree, execution_devices=[by_id[i] for i in device_ids])
+            executable, in_tree, out_tree, execution_devices=[by_id[i] for i in device_ids]
+        )
     except Exception as exc:
         return damaged(f"{type(exc).__name__}: {exc}")
     if _compiled_signature(compiled) != signature:
@@ -255,8 +272,9 @@ _OWN_KEY = {"xla_embed_ir_in_executable": False}
 JACOBIAN_OPTIONS = {"xla_cpu_use_fusion_emitters": False}
 
 
-def compile_afresh(fn, args, label: str = "engine program", identity: str = "",
-                   options: dict | None = None):
+def compile_afresh(
+    fn, args, label: str = "engine program", identity: str = "", options: dict | None = None
+):
     """``fn`` (jitted) compiled for ``args``, never through JAX's compilation cache: an
     executable JAX loaded from its cache cannot be serialized again (on jaxlib 0.10.2 the
     copy fails in the next process, "Function ... not found"), so the engine's executables
@@ -285,8 +303,9 @@ def serialize(compiled, devices) -> bytes | None:
         executable, in_tree, out_tree = serialize_executable.serialize(compiled)
     except (ValueError, NotImplementedError):
         return None
-    return pickle.dumps((executable, in_tree, out_tree, [d.id for d in devices]),
-                        protocol=pickle.HIGHEST_PROTOCOL)
+    return pickle.dumps(
+        (executable, in_tree, out_tree, [d.id for d in devices]), protocol=pickle.HIGHEST_PROTOCOL
+    )
 
 
 def write(identity: str, env: dict, payload: bytes) -> bool:
@@ -295,8 +314,15 @@ def write(identity: str, env: dict, payload: bytes) -> bool:
     path = _path(identity)
     if path is None:
         return False
-    header = json.dumps({"identity": identity, "environment": env, "size": len(payload),
-                         "sha256": hashlib.sha256(payload).hexdigest()}, sort_keys=True)
+    header = json.dumps(
+        {
+            "identity": identity,
+            "environment": env,
+            "size": len(payload),
+            "sha256": hashlib.sha256(payload).hexdigest(),
+        },
+        sort_keys=True,
+    )
     folder = os.path.dirname(path)
     try:
         put_file(path, FORMAT + header.encode("utf-8") + b"\n" + bytes(payload))
@@ -304,9 +330,12 @@ def write(identity: str, env: dict, payload: bytes) -> bool:
     except OSError as exc:
         if _jax.CACHE_UNWRITABLE:  # the cache directory's line has said it
             return False
-        _say_once(("unwritable", folder), f"cannot store engine programs in {folder} "
-                  f"({type(exc).__name__}: {exc}); using what it holds and tracing the rest "
-                  f"in every process")
+        _say_once(
+            ("unwritable", folder),
+            f"cannot store engine programs in {folder} "
+            f"({type(exc).__name__}: {exc}); using what it holds and tracing the rest "
+            f"in every process",
+        )
         return False
 
 
@@ -378,19 +407,26 @@ def _acquire(fcntl, fd: int, path: str) -> tuple:
             if exc.errno in (errno.EAGAIN, errno.EACCES):
                 pass
             else:  # ENOLCK, ENOSYS...: a file system without flock
-                _say_once(("no-flock", os.path.dirname(path)), f"the program store "
-                          f"{os.path.dirname(path)} cannot lock files ({exc.strerror}); "
-                          f"processes that need the same program build it side by side")
+                _say_once(
+                    ("no-flock", os.path.dirname(path)),
+                    f"the program store "
+                    f"{os.path.dirname(path)} cannot lock files ({exc.strerror}); "
+                    f"processes that need the same program build it side by side",
+                )
                 return False, False
         if deadline is None:
             deadline = time.monotonic() + WAIT_LIMIT
             if _jax._started_as_command_line():  # a Python caller is not warned about a wait
-                sys.stderr.write(f"veil: waiting for another process that is building the "
-                                 f"same engine program ({os.path.basename(path)}); it is read "
-                                 f"from the store when done\n")
+                sys.stderr.write(
+                    f"veil: waiting for another process that is building the "
+                    f"same engine program ({os.path.basename(path)}); it is read "
+                    f"from the store when done\n"
+                )
         elif time.monotonic() > deadline:
-            _notice(f"waited {WAIT_LIMIT:.0f} s for another process building the same engine "
-                    f"program; building it here too")
+            _notice(
+                f"waited {WAIT_LIMIT:.0f} s for another process building the same engine "
+                f"program; building it here too"
+            )
             return False, True
         time.sleep(_POLL)
 
@@ -403,8 +439,9 @@ class Program:
     (the compile display, :mod:`veil.engine.compiling`). Called like ``fn``; thread-safe
     (background compilations, :meth:`veil.engine.forward.Forward.prepare`)."""
 
-    def __init__(self, fn, identity: str, classes=(), label: str | None = None,
-                 options: dict | None = None):
+    def __init__(
+        self, fn, identity: str, classes=(), label: str | None = None, options: dict | None = None
+    ):
         self.fn = fn
         self.options = dict(options or {})
         if self.options:  # compiled otherwise, so stored apart
@@ -456,5 +493,16 @@ class Program:
         return compiled
 
 
-__all__ = ["Program", "building", "directory", "environment", "code_digest", "read", "write",
-           "serialize", "structure_name", "FORMAT", "JACOBIAN_OPTIONS"]
+__all__ = [
+    "Program",
+    "building",
+    "directory",
+    "environment",
+    "code_digest",
+    "read",
+    "write",
+    "serialize",
+    "structure_name",
+    "FORMAT",
+    "JACOBIAN_OPTIONS",
+]

@@ -89,17 +89,28 @@ class Rule:
     table_azimuth: int = 48
 
     def __post_init__(self) -> None:
-        for name in ("phase_radial", "phase_azimuth", "half_radial", "half_azimuth",
-                     "dense_radial", "dense_azimuth", "table_radial", "table_azimuth"):
+        for name in (
+            "phase_radial",
+            "phase_azimuth",
+            "half_radial",
+            "half_azimuth",
+            "dense_radial",
+            "dense_azimuth",
+            "table_radial",
+            "table_azimuth",
+        ):
             n = getattr(self, name)
             if not isinstance(n, int) or n < 2:
                 raise InputError(f"Rule.{name} = {n!r}; expected an integer >= 2")
             if name.endswith("azimuth") and n % 2:
-                raise InputError(f"Rule.{name} = {n}; azimuth counts must be even (the "
-                                 "in-plane symmetry pairs azimuths beta and -beta)")
+                raise InputError(
+                    f"Rule.{name} = {n}; azimuth counts must be even (the "
+                    "in-plane symmetry pairs azimuths beta and -beta)"
+                )
         if not isinstance(self.table, int) or self.table < 3 or self.table % 2 == 0:
-            raise InputError(f"Rule.table = {self.table!r}; expected an odd integer >= 3 "
-                             "(Simpson's rule)")
+            raise InputError(
+                f"Rule.table = {self.table!r}; expected an odd integer >= 3 (Simpson's rule)"
+            )
 
     def scaled(self, factor: float) -> Rule:
         def s(n, lo=2):
@@ -107,10 +118,19 @@ class Rule:
 
         def even(n):
             return 2 * s(n / 2)
+
         t = s(self.table, 11)
-        return Rule(s(self.phase_radial), even(self.phase_azimuth), s(self.half_radial),
-                    even(self.half_azimuth), s(self.dense_radial), even(self.dense_azimuth),
-                    t + (t + 1) % 2, s(self.table_radial), even(self.table_azimuth))
+        return Rule(
+            s(self.phase_radial),
+            even(self.phase_azimuth),
+            s(self.half_radial),
+            even(self.half_azimuth),
+            s(self.dense_radial),
+            even(self.dense_azimuth),
+            t + (t + 1) % 2,
+            s(self.table_radial),
+            even(self.table_azimuth),
+        )
 
     @property
     def points_per_config(self) -> int:
@@ -132,5 +152,13 @@ RULES = {
 FINER = {name: rule.scaled(1.3) for name, rule in RULES.items()}
 ERROR_FACTOR = 2.0
 
-__all__ = ["Rule", "RULES", "FINER", "ERROR_FACTOR", "gauss_legendre_unit", "periodic_unit",
-           "frame", "horizon_one_minus_mu"]
+__all__ = [
+    "Rule",
+    "RULES",
+    "FINER",
+    "ERROR_FACTOR",
+    "gauss_legendre_unit",
+    "periodic_unit",
+    "frame",
+    "horizon_one_minus_mu",
+]

@@ -53,6 +53,7 @@ def _fits(brdf, medium, accuracy: str, jacobian: bool):
         model.terms(vb, vm)
         for wrt in JACOBIANS if jacobian else ():
             model.value_and_jacobian(vb, vm, wrt)
+
     return run
 
 
@@ -60,6 +61,7 @@ def _eval(brdf, medium, accuracy: str):
     def run():
         apparent(brdf, medium, 45.0, 50.0, accuracy=accuracy, return_error=True)
         reflectance(brdf, 45.0, 50.0)
+
     return run
 
 
@@ -67,6 +69,7 @@ def _direct(brdf):
     def run():
         model = DirectModel(brdf, _angles(CHUNK))
         model.value_and_jacobian(brdf.to_vector())
+
     return run
 
 
@@ -97,14 +100,26 @@ def tasks(selected=None, accuracies=("fast", "default")) -> list[Task]:
         for mname in media:
             medium = model_class(mname, "medium").template()
             pair = f"{bname} x {mname}"
-            out.append(Task(f"{pair}: fit iterations ({ITERATION}, values and Jacobian)",
-                            _fits(brdf, medium, ITERATION, True)))
+            out.append(
+                Task(
+                    f"{pair}: fit iterations ({ITERATION}, values and Jacobian)",
+                    _fits(brdf, medium, ITERATION, True),
+                )
+            )
             for acc in accuracies:
                 if acc != ITERATION:
-                    out.append(Task(f"{pair}: fit results and simulations ({acc})",
-                                    _fits(brdf, medium, acc, False)))
-                out.append(Task(f"{pair}: veil eval ({acc}, with its error estimate)",
-                                _eval(brdf, medium, acc)))
+                    out.append(
+                        Task(
+                            f"{pair}: fit results and simulations ({acc})",
+                            _fits(brdf, medium, acc, False),
+                        )
+                    )
+                out.append(
+                    Task(
+                        f"{pair}: veil eval ({acc}, with its error estimate)",
+                        _eval(brdf, medium, acc),
+                    )
+                )
     return out
 
 

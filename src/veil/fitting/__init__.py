@@ -13,6 +13,21 @@ from .result import FitResult, JointResult, load_result
 from .session_data import FitData, prepare
 from .steps import fit_direct, fit_medium, fit_reference, fit_target, model_values
 
-__all__ = ["FitError", "FitData", "prepare", "Session", "build", "fit_joint", "Problem",
-           "session_problem", "FitResult", "JointResult", "load_result", "fit_direct",
-           "fit_medium", "fit_reference", "fit_target", "model_values"]
+__all__ = [
+    "FitError",
+    "FitData",
+    "prepare",
+    "Session",
+    "build",
+    "fit_joint",
+    "Problem",
+    "session_problem",
+    "FitResult",
+    "JointResult",
+    "load_result",
+    "fit_direct",
+    "fit_medium",
+    "fit_reference",
+    "fit_target",
+    "model_values",
+]

@@ -44,8 +44,7 @@ def _per_family(cands, per_step: dict, step: str, what: str) -> dict:
     """{label: the ``fixed`` / ``free`` entries of ``step`` its family declares}; an entry no
     candidate declares is an error."""
     used: set = set()
-    out = {c.label: for_family(model_class(c.family), per_step, step, what, used)
-           for c in cands}
+    out = {c.label: for_family(model_class(c.family), per_step, step, what, used) for c in cands}
     unused = [f"{step}.{k}" for k in (per_step.get(step) or []) if (step, k) not in used]
     if unused:
         raise FitError(f"{what} {', '.join(unused)}: no candidate model has such a parameter")
@@ -58,8 +57,9 @@ def fitted_curve(result: FitResult, data) -> np.ndarray:
     return data.y - (r * data.sigma if result.weighted and data.sigma is not None else r)
 
 
-def rank_step(step, cands, data, fit_one, progress, curves, what,
-              propagated=None) -> tuple[selection.Ranking, dict]:
+def rank_step(
+    step, cands, data, fit_one, progress, curves, what, propagated=None
+) -> tuple[selection.Ranking, dict]:
     """Fit and rank one step's candidates (:func:`veil.fitting.selection.select`); a close
     call's ranking carries the spread of the close candidates' ``curves``. With
     ``propagated``, the candidates are fitted by ``fit_one`` without the given fit's
@@ -68,8 +68,9 @@ def rank_step(step, cands, data, fit_one, progress, curves, what,
     for that one only."""
     ranking, results = selection.select(step, cands, data, fit_one, what, progress)
     if ranking.close_call:
-        ranking = ranking.with_spread(selection.curve_spread(
-            ranking, {lab: curves(results[lab]) for lab in ranking.close}))
+        ranking = ranking.with_spread(
+            selection.curve_spread(ranking, {lab: curves(results[lab]) for lab in ranking.close})
+        )
     if propagated is not None:
         chosen = next(c for c in cands if c.label == ranking.chosen)
         results = {**results, ranking.chosen: propagated(chosen)}
@@ -84,22 +85,25 @@ def plan_candidates(fixed, free, brdf_options, medium_options, variant) -> dict:
         medium_options.setdefault(VARIANT_OPTION, variant)
     b_cands = selection.candidates("brdf", brdf_options)
     m_cands = selection.candidates("medium", medium_options)
-    for kind, cands, opts in (("BRDF", b_cands, brdf_options),
-                              ("medium", m_cands, medium_options)):
+    for kind, cands, opts in (("BRDF", b_cands, brdf_options), ("medium", m_cands, medium_options)):
         if not cands:
             raise FitError(f"no registered {kind} family is a candidate with options {opts}")
         declared = {o for c in cands for o in model_class(c.family).option_names()}
         unused = sorted(set(opts) - declared)
         if unused:
             raise FitError(f"option(s) {', '.join(unused)}: no {kind} candidate declares them")
-    return {"brdf": b_cands, "medium": m_cands, "brdf_options": brdf_options,
-            "medium_options": medium_options,
-            "fix_b": _per_family(b_cands, fixed, "reference", "fixed"),
-            "free_b": _per_family(b_cands, free, "reference", "free"),
-            "fix_m": _per_family(m_cands, fixed, "medium", "fixed"),
-            "free_m": _per_family(m_cands, free, "medium", "free"),
-            "fix_t": _per_family(b_cands, fixed, "target", "fixed"),
-            "free_t": _per_family(b_cands, free, "target", "free")}
+    return {
+        "brdf": b_cands,
+        "medium": m_cands,
+        "brdf_options": brdf_options,
+        "medium_options": medium_options,
+        "fix_b": _per_family(b_cands, fixed, "reference", "fixed"),
+        "free_b": _per_family(b_cands, free, "reference", "free"),
+        "fix_m": _per_family(m_cands, fixed, "medium", "fixed"),
+        "free_m": _per_family(m_cands, free, "medium", "free"),
+        "fix_t": _per_family(b_cands, fixed, "target", "fixed"),
+        "free_t": _per_family(b_cands, free, "target", "free"),
+    }
 
 
 @dataclass(frozen=True)
@@ -124,19 +128,31 @@ class _Ranked:
         fix, free, options = self.plan["fix_b"], self.plan["free_b"], self.plan["brdf_options"]
 
         def one(c):
-            return fit_reference(self.data["reference_clear"].table, fixed=fix[c.label],
-                                 free=free[c.label], max_nfev=self.max_nfev,
-                                 brdf_model=c.family, options=c.model_options(options),
-                                 model_error=self.model_error)
+            return fit_reference(
+                self.data["reference_clear"].table,
+                fixed=fix[c.label],
+                free=free[c.label],
+                max_nfev=self.max_nfev,
+                brdf_model=c.family,
+                options=c.model_options(options),
+                model_error=self.model_error,
+            )
 
-        ranking, results = rank_step("reference", self.plan["brdf"],
-                                     self.data["reference_clear"], one, self.progress, curve,
-                                     "reference (clear medium)")
+        ranking, results = rank_step(
+            "reference",
+            self.plan["brdf"],
+            self.data["reference_clear"],
+            one,
+            self.progress,
+            curve,
+            "reference (clear medium)",
+        )
         self.rankings["reference"], self.kept["reference"] = ranking, results
         return selection.with_selection(results[ranking.chosen], ranking)
 
-    def through_medium(self, step, fit, session, given, kind,
-                       curve) -> tuple[FitResult, selection.Ranking]:
+    def through_medium(
+        self, step, fit, session, given, kind, curve
+    ) -> tuple[FitResult, selection.Ranking]:
         """Steps 1 and 2: ``fit`` (fit_medium, fit_target) of every candidate of ``kind``
         to ``session`` through the ``given`` model, ranked; the chosen result."""
         key = {"medium": "m", "target": "t"}[step]
@@ -144,28 +160,52 @@ class _Ranked:
         options = self.plan[f"{kind}_options"]
 
         def one(c, chained=self.screen):
-            return fit(self.data[session].table, given, fixed=fix[c.label], free=free[c.label],
-                       accuracy=self.accuracy, max_nfev=self.max_nfev,
-                       options=c.model_options(options), model_error=self.model_error,
-                       propagation=chained, **{f"{kind}_model": c.family})
+            return fit(
+                self.data[session].table,
+                given,
+                fixed=fix[c.label],
+                free=free[c.label],
+                accuracy=self.accuracy,
+                max_nfev=self.max_nfev,
+                options=c.model_options(options),
+                model_error=self.model_error,
+                propagation=chained,
+                **{f"{kind}_model": c.family},
+            )
 
         again = self.again
-        ranking, results = rank_step(step, self.plan[kind], self.data[session], one,
-                                     self.progress, curve, step,
-                                     again and (lambda c: one(c, again)))
+        ranking, results = rank_step(
+            step,
+            self.plan[kind],
+            self.data[session],
+            one,
+            self.progress,
+            curve,
+            step,
+            again and (lambda c: one(c, again)),
+        )
         self.rankings[step], self.kept[step] = ranking, results
         return selection.with_selection(results[ranking.chosen], ranking), ranking
 
 
-def select_steps(data, plan, *, accuracy, max_nfev, progress, model_error, propagation,
-                 keep) -> tuple[FitResult, FitResult, FitResult, str, dict, dict, dict]:
+def select_steps(
+    data, plan, *, accuracy, max_nfev, progress, model_error, propagation, keep
+) -> tuple[FitResult, FitResult, FitResult, str, dict, dict, dict]:
     """Steps 0-2 with every candidate ranked: (reference, medium, target, the chosen BRDF
     family, its options, {step: ranking}, {step: {label: result}} when ``keep``)."""
     # the candidates without the given fit's covariance, the chosen one with it; with
     # ``keep`` (every candidate's result written out) each one with it
     screen = propagation if keep or propagation == "off" else "off"
-    run = _Ranked(data, plan, accuracy, max_nfev, progress, model_error, screen,
-                  None if screen == propagation else propagation)
+    run = _Ranked(
+        data,
+        plan,
+        accuracy,
+        max_nfev,
+        progress,
+        model_error,
+        screen,
+        None if screen == propagation else propagation,
+    )
     configs = protocol()
     angles = tuple(configs[c].to_numpy() for c in CANONICAL)
 
@@ -173,18 +213,23 @@ def select_steps(data, plan, *, accuracy, max_nfev, progress, model_error, propa
         return model_values(result, None, angles)
 
     ref = run.reference(fr_curve)
-    med, _ = run.through_medium("medium", fit_medium, "reference_medium", ref, "medium",
-                                lambda r: fitted_curve(r, data["reference_medium"]))
-    tgt, ranking = run.through_medium("target", fit_target, "target_medium", med, "brdf",
-                                      fr_curve)
+    med, _ = run.through_medium(
+        "medium",
+        fit_medium,
+        "reference_medium",
+        ref,
+        "medium",
+        lambda r: fitted_curve(r, data["reference_medium"]),
+    )
+    tgt, ranking = run.through_medium("target", fit_target, "target_medium", med, "brdf", fr_curve)
     assert ranking.chosen is not None  # select() raised NoCandidateError otherwise
     chosen = ranking.row(ranking.chosen)
     brdf_options = plan["brdf_options"]
-    opts = {k: v for k, v in brdf_options.items()
-            if k in model_class(chosen["family"]).option_names()}
+    opts = {
+        k: v for k, v in brdf_options.items() if k in model_class(chosen["family"]).option_names()
+    }
     opts.update(chosen["options"])
-    return (ref, med, tgt, chosen["family"], opts, run.rankings,
-            run.kept if keep else {})
+    return (ref, med, tgt, chosen["family"], opts, run.rankings, run.kept if keep else {})
 
 
 __all__ = ["plan_candidates", "select_steps", "rank_step", "fitted_curve", "for_family"]

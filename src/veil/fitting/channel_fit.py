@@ -106,8 +106,9 @@ def channel_problem(
     return problem, layout
 
 
-def channel_starts(problem: Problem, role: str, count: int,
-                   progress=None) -> tuple[list[np.ndarray], int]:
+def channel_starts(
+    problem: Problem, role: str, count: int, progress=None
+) -> tuple[list[np.ndarray], int]:
     """Starting vectors of a channels' problem, best first: the model's grid for ``role``
     over its free nonlinear parameters (the same value in every channel), the scales solved
     exactly channel by channel (a scale tied across channels takes their mean). Returns

@@ -35,33 +35,45 @@ from .start_values import brdf_scales, column_scales_of, grid_points, medium_sca
 from .step_fit import stats_and_message
 
 
-def given_layout(given, kind: str, channels: list[str], role: str, source: str,
-                 ) -> tuple[list[Slot], list[float], dict[str, dict[str, str]], dict[str, Model]]:
+def given_layout(
+    given,
+    kind: str,
+    channels: list[str],
+    role: str,
+    source: str,
+) -> tuple[list[Slot], list[float], dict[str, dict[str, str]], dict[str, Model]]:
     """(slots, values, layout, {channel: model}) of the model a step holds fixed in a fit of
     ``channels`` (module docstring); a fit of other channels, or of one channel, is a
     FitError naming both (``role`` names the given model, ``source`` the table)."""
     if isinstance(given, FitResult) and given.channels is not None and not given.JOINT:
         if given.kind != kind:
-            raise FitError(f"{role} must be {RESULTS[kind]}; got a {given.model} result"
-                           + (f" of step {given.step!r}" if given.step else ""))
+            raise FitError(
+                f"{role} must be {RESULTS[kind]}; got a {given.model} result"
+                + (f" of step {given.step!r}" if given.step else "")
+            )
         have = list(given.channels)
         if sorted(have) != sorted(channels):
-            raise FitError(f"{role} is a fit of channels {', '.join(have)} but {source} has "
-                           f"channels {', '.join(channels)}: give {role} fitted over the "
-                           f"table's channels, or fit one channel with --channel NAME "
-                           f"(channel= in Python)")
+            raise FitError(
+                f"{role} is a fit of channels {', '.join(have)} but {source} has "
+                f"channels {', '.join(channels)}: give {role} fitted over the "
+                f"table's channels, or fit one channel with --channel NAME "
+                f"(channel= in Python)"
+            )
         if not given.converged:
-            warnings.warn(f"the fit of {role} did not converge; its model is used as it is",
-                          stacklevel=4)
+            warnings.warn(
+                f"the fit of {role} did not converge; its model is used as it is", stacklevel=4
+            )
         layout = {c: dict(given.channels[c]) for c in channels}
         slots = layout_slots(given.model_class, kind, layout)
         values = [given.params[s.name] for s in slots]
         return slots, values, layout, {c: given.as_model(channel=c) for c in channels}
     if isinstance(given, FitResult) and not given.JOINT:
-        raise FitError(f"{role} is a fit of one channel but {source} has channels "
-                       f"{', '.join(channels)}: give {role} fitted over the same channels "
-                       f"(e.g. veil fit reference on a table of every channel), or fit one "
-                       f"channel with --channel NAME (channel= in Python)")
+        raise FitError(
+            f"{role} is a fit of one channel but {source} has channels "
+            f"{', '.join(channels)}: give {role} fitted over the same channels "
+            f"(e.g. veil fit reference on a table of every channel), or fit one "
+            f"channel with --channel NAME (channel= in Python)"
+        )
     model = as_given(given, kind, role)
     slots = model_slots(model, kind, "*")
     layout = {c: {s.spec.name: s.name for s in slots} for c in channels}
@@ -71,12 +83,22 @@ def given_layout(given, kind: str, channels: list[str], role: str, source: str,
 def _check_names(slots: list[Slot], fitted: Model, given_name: str) -> None:
     names = [s.name for s in slots]
     if len(set(names)) != len(names):
-        raise FitError(f"the parameters of {given_name} and {fitted.NAME} share a name "
-                       f"({', '.join(names)}): one of them must declare an alias")
+        raise FitError(
+            f"the parameters of {given_name} and {fitted.NAME} share a name "
+            f"({', '.join(names)}): one of them must declare an alias"
+        )
 
 
-def through_problem(datas: dict[str, FitData], fitted: Model, given, fixed: dict, freed,
-                    what: str, role: str, source: str) -> tuple[Problem, dict, dict]:
+def through_problem(
+    datas: dict[str, FitData],
+    fitted: Model,
+    given,
+    fixed: dict,
+    freed,
+    what: str,
+    role: str,
+    source: str,
+) -> tuple[Problem, dict, dict]:
     """The problem of a step through the medium over every channel of ``datas`` (module
     docstring): ``fitted``'s parameters free (but ``fixed``; held ones unless ``freed``),
     ``given`` (a fit or a model) held. Returns (problem, the fitted model's layout, the given
@@ -91,14 +113,19 @@ def through_problem(datas: dict[str, FitData], fitted: Model, given, fixed: dict
     _check_names(slots, fitted, next(iter(g_models.values())).NAME)
     names = [s.name for s in slots]
     starts = [s.spec.start for s in f_slots]
-    values = np.array([*starts, *g_values] if cls.KIND == "brdf" else [*g_values, *starts],
-                      dtype=float)
+    values = np.array(
+        [*starts, *g_values] if cls.KIND == "brdf" else [*g_values, *starts], dtype=float
+    )
     held = _fixed_values(f_slots, fixed, cls)
     for name, value in held.items():
         values[names.index(name)] = value
     mine = {s.name for s in f_slots}
-    free = np.array([s.name in mine and s.name not in held
-                     and (not s.spec.held or s.spec.name in freed) for s in slots])
+    free = np.array(
+        [
+            s.name in mine and s.name not in held and (not s.spec.held or s.spec.name in freed)
+            for s in slots
+        ]
+    )
     if not free.any():
         raise FitError(f"every parameter of the {what} fit is fixed: nothing to fit")
     blocks = []
@@ -109,17 +136,20 @@ def through_problem(datas: dict[str, FitData], fitted: Model, given, fixed: dict
         medium = cast(Medium, g_models[c] if cls.KIND == "brdf" else fitted)
         ib = np.array([names.index(b_layout[c][p.name]) for p in type(brdf).PARAMS])
         im = np.array([names.index(m_layout[c][p.name]) for p in type(medium).PARAMS])
-        session = Session(data.table, "m", "reference" if cls.KIND == "medium" else "target",
-                          name=f"channel {c}")
+        session = Session(
+            data.table, "m", "reference" if cls.KIND == "medium" else "target", name=f"channel {c}"
+        )
         blocks.append(Block(session, data, ib, im, brdf, medium, engines(data, brdf, medium)))
     weighted = {d.sigma is not None for d in datas.values()}
     if len(weighted) > 1:
         raise FitError(f"the {what} table has a sigma for some channels and not others")
     problem = Problem(blocks, slots, values, free, weighted=weighted.pop())
     if problem.n_points <= problem.n_free:
-        raise FitError(f"the {what} data have {problem.n_points} point(s) but the channels' "
-                       f"fit has {problem.n_free} free parameter(s): need more points than "
-                       f"free parameters")
+        raise FitError(
+            f"the {what} data have {problem.n_points} point(s) but the channels' "
+            f"fit has {problem.n_free} free parameter(s): need more points than "
+            f"free parameters"
+        )
     return problem, f_layout, g_models
 
 
@@ -134,7 +164,8 @@ def _shared_engines():
     def engines(data: FitData, brdf: BRDF, medium: Medium) -> dict:
         for angles, structures, shared in seen:
             if structures == (brdf.structure(), medium.structure()) and all(
-                    np.array_equal(a, b) for a, b in zip(angles, data.angles)):
+                np.array_equal(a, b) for a, b in zip(angles, data.angles)
+            ):
                 return shared
         seen.append((data.angles, (brdf.structure(), medium.structure()), {}))
         return seen[-1][2]
@@ -166,8 +197,9 @@ def _block_point(problem: Problem, b: Block, kind: str, v: np.ndarray):
     return cost, out
 
 
-def through_starts(problem: Problem, kind: str, role: str, count: int,
-                   progress=None) -> tuple[list[np.ndarray], int]:
+def through_starts(
+    problem: Problem, kind: str, role: str, count: int, progress=None
+) -> tuple[list[np.ndarray], int]:
     """Starting vectors of a step over channels, best first: the fitted model's grid for
     ``role``; for each value of its shared nonlinear parameters every channel takes its own
     best value of the per-channel ones, the scales solved exactly channel by channel (a scale
@@ -211,9 +243,14 @@ def _rename(names: list[str]):
     keep = set(names)
 
     def rename(se, corr):
-        return ({n: se[n] for n in names},
-                {a: {b: r for b, r in row.items() if b in keep}
-                 for a, row in corr.items() if a in keep})
+        return (
+            {n: se[n] for n in names},
+            {
+                a: {b: r for b, r in row.items() if b in keep}
+                for a, row in corr.items()
+                if a in keep
+            },
+        )
 
     return rename
 
@@ -222,52 +259,92 @@ def _given_entry(given, g_models: dict) -> dict:
     """The result's ``given`` key: a model, or a fit of several channels with its layout."""
     if isinstance(given, FitResult) and given.channels is not None:
         first = next(iter(g_models.values()))
-        return {"model": given.model, "params": dict(given.params),
-                "channels": {c: dict(m) for c, m in given.channels.items()},
-                **first.options()}
+        return {
+            "model": given.model,
+            "params": dict(given.params),
+            "channels": {c: dict(m) for c, m in given.channels.items()},
+            **first.options(),
+        }
     return model_entry(next(iter(g_models.values())))
 
 
-def fit_through(step: str, datas: dict[str, FitData], fitted: Model, given, *, fixed: dict,
-                freed, accuracy: str, max_nfev, progress, model_error: str, propagation: str,
-                starts: int, role: str, source: str) -> FitResult:
+def fit_through(
+    step: str,
+    datas: dict[str, FitData],
+    fitted: Model,
+    given,
+    *,
+    fixed: dict,
+    freed,
+    accuracy: str,
+    max_nfev,
+    progress,
+    model_error: str,
+    propagation: str,
+    starts: int,
+    role: str,
+    source: str,
+) -> FitResult:
     """Step 1 (``step`` "medium") or 2 ("target") over every channel of ``datas`` (module
     docstring; docs/model.md sec. 7); ``given`` the reference (a fit or a BRDF) or the
     medium held fixed."""
     cls = type(fitted)
     what = "medium" if step == "medium" else "target"
-    problem, layout, g_models = through_problem(datas, fitted, given, fixed, freed, what,
-                                                role, source)
-    problem.blocks[0].model(ITERATION_ACCURACY).prepare(values=True,
-                                                        jacobians=[(cls.KIND,)])
-    begin, n_grid = through_starts(problem, cls.KIND, "medium" if step == "medium"
-                                   else "target", starts, progress)
-    outcome = run(problem, begin, accuracy=accuracy, max_nfev=max_nfev, progress=progress,
-                  every=False)
+    problem, layout, g_models = through_problem(
+        datas, fitted, given, fixed, freed, what, role, source
+    )
+    problem.blocks[0].model(ITERATION_ACCURACY).prepare(values=True, jacobians=[(cls.KIND,)])
+    begin, n_grid = through_starts(
+        problem, cls.KIND, "medium" if step == "medium" else "target", starts, progress
+    )
+    outcome = run(
+        problem, begin, accuracy=accuracy, max_nfev=max_nfev, progress=progress, every=False
+    )
     summary = summarize(problem, outcome)
     x = outcome.solution.x
     mine = [n for n in dict.fromkeys(layout[c][p.name] for p in cls.PARAMS for c in layout)]
     result_given = given if isinstance(given, FitResult) else None
     first_given = next(iter(g_models.values()))
-    rep = reported(problem, x, summary, outcome.values, kind=model_error, rename=_rename(mine),
-                   given_result=result_given, given_column=problem.index,
-                   propagation=propagation, keep_influence=step == "medium",
-                   floor=model_floor(problem.blocks[0].brdf, problem.blocks[0].medium))
+    rep = reported(
+        problem,
+        x,
+        summary,
+        outcome.values,
+        kind=model_error,
+        rename=_rename(mine),
+        given_result=result_given,
+        given_column=problem.index,
+        propagation=propagation,
+        keep_influence=step == "medium",
+        floor=model_floor(problem.blocks[0].brdf, problem.blocks[0].medium),
+    )
     stats, message = stats_and_message(outcome, summary, rep, given, n_grid)
     medium = fitted if cls.KIND == "medium" else first_given
     return FitResult(
-        model=cls.NAME, params={n: float(x[problem.index(n)]) for n in mine},
-        stderr=rep.stderr, correlation=rep.correlation,
+        model=cls.NAME,
+        params={n: float(x[problem.index(n)]) for n in mine},
+        stderr=rep.stderr,
+        correlation=rep.correlation,
         residuals=tuple(float(r) for r in summary.residuals),
-        chi2_reduced=summary.chi2_reduced, rms_relative=summary.rms_relative,
-        n_points=problem.n_points, converged=summary.converged, message=message,
+        chi2_reduced=summary.chi2_reduced,
+        rms_relative=summary.rms_relative,
+        n_points=problem.n_points,
+        converged=summary.converged,
+        message=message,
         variant=medium.options().get(VARIANT_OPTION),
-        fixed={n: float(x[problem.index(n)]) for n in mine
-               if not problem.free[problem.index(n)]},
-        step=step, weighted=problem.weighted, accuracy=outcome.accuracy,
-        given=_given_entry(given, g_models), stderr_total=rep.stderr_total,
-        correlation_total=rep.correlation_total, stats=stats, options=fitted.options(),
-        determined=summary.determined, model_error=rep.model_error, channels=layout)
+        fixed={n: float(x[problem.index(n)]) for n in mine if not problem.free[problem.index(n)]},
+        step=step,
+        weighted=problem.weighted,
+        accuracy=outcome.accuracy,
+        given=_given_entry(given, g_models),
+        stderr_total=rep.stderr_total,
+        correlation_total=rep.correlation_total,
+        stats=stats,
+        options=fitted.options(),
+        determined=summary.determined,
+        model_error=rep.model_error,
+        channels=layout,
+    )
 
 
 __all__ = ["given_layout", "through_problem", "through_starts", "fit_through"]

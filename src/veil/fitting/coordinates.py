@@ -54,14 +54,18 @@ def bounds(p: Param, u0: float, kind: str | None = None) -> tuple[float, float]:
     the width away), or u0 +- :data:`LOG_RANGE` for an unbounded log-scale side."""
     kind = kind or coordinate(p)
     if kind == "log":
-        return (math.log(p.lower) if p.lower > 0 else u0 - LOG_RANGE,
-                math.log(p.upper) if math.isfinite(p.upper) else u0 + LOG_RANGE)
+        return (
+            math.log(p.lower) if p.lower > 0 else u0 - LOG_RANGE,
+            math.log(p.upper) if math.isfinite(p.upper) else u0 + LOG_RANGE,
+        )
     if kind == "atanh":
         edge = math.atanh(1 - OPEN_MARGIN)
         return -edge, edge
     width = (p.upper - p.lower) if math.isfinite(p.upper - p.lower) else 1.0
-    return (p.lower + OPEN_MARGIN * width if p.lower_open else p.lower,
-            p.upper - OPEN_MARGIN * width if p.upper_open else p.upper)
+    return (
+        p.lower + OPEN_MARGIN * width if p.lower_open else p.lower,
+        p.upper - OPEN_MARGIN * width if p.upper_open else p.upper,
+    )
 
 
 __all__ = ["LOG_RANGE", "OPEN_MARGIN", "EDGE", "coordinate", "to_u", "to_x", "bounds"]

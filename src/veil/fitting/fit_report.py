@@ -15,10 +15,12 @@ if TYPE_CHECKING:  # the results import this module to write their report, not t
     from .result import FitResult, JointResult
 
 #: What each step of docs/model.md sec. 7 estimates, for the report's header.
-STEP_WORDS = {"reference": "step 0, reference object in a clear medium (f_r directly)",
-              "medium": "step 1, medium through the reference object (f_r fixed)",
-              "target": "step 2, target object through the medium (f_t fixed)",
-              "direct": "target object in a clear medium (f_r directly)"}
+STEP_WORDS = {
+    "reference": "step 0, reference object in a clear medium (f_r directly)",
+    "medium": "step 1, medium through the reference object (f_r fixed)",
+    "target": "step 2, target object through the medium (f_t fixed)",
+    "direct": "target object in a clear medium (f_r directly)",
+}
 
 
 def _layout(result: FitResult) -> dict:
@@ -31,63 +33,91 @@ def _header(result: FitResult) -> str:
         models = _layout(result).get("models") or {}
         family = f", models {models['brdf']} / {models['medium']}" if models else ""
         variant = f", variant {result.variant}" if result.variant else ""
-        return (f"[[Joint fit: {len(_layout(result).get('sessions', []))} sessions, "
-                f"{len(_layout(result)['media'])} media{variant}{family}]]")
+        return (
+            f"[[Joint fit: {len(_layout(result).get('sessions', []))} sessions, "
+            f"{len(_layout(result)['media'])} media{variant}{family}]]"
+        )
     what = STEP_WORDS.get(result.step or "", "")
     opts = ", ".join(f"{k} {v}" for k, v in result.options.items())
-    return (f"[[Fit: {result.model}" + (f", variant {result.variant}" if result.variant else "")
-            + (f" ({opts})" if opts and not result.variant else "")
-            + (f" - {what}" if what else "") + "]]")
+    return (
+        f"[[Fit: {result.model}"
+        + (f", variant {result.variant}" if result.variant else "")
+        + (f" ({opts})" if opts and not result.variant else "")
+        + (f" - {what}" if what else "")
+        + "]]"
+    )
 
 
 def _statistics(result: FitResult) -> list[str]:
     free = result.free
-    lines = [f"    data points        = {result.n_points}"
-             + ("  (weighted by sigma)" if result.weighted
-                else "  (UNWEIGHTED: no sigma column; errors scaled by reduced chi-square)"),
-             f"    free parameters    = {len(free)}"
-             + (f"  (fixed: {', '.join(result.fixed)})" if result.fixed else "")]
+    lines = [
+        f"    data points        = {result.n_points}"
+        + (
+            "  (weighted by sigma)"
+            if result.weighted
+            else "  (UNWEIGHTED: no sigma column; errors scaled by reduced chi-square)"
+        ),
+        f"    free parameters    = {len(free)}"
+        + (f"  (fixed: {', '.join(result.fixed)})" if result.fixed else ""),
+    ]
     if result.JOINT:
         shared = ", ".join(_layout(result).get("shared", [])) or "-"
         lines.append(f"    shared by the media = {shared}")
     if result.channels:
         first = next(iter(result.channels.values()))
-        tied = [n for n in first.values() if all(n in c.values()
-                                                 for c in result.channels.values())]
-        lines.append(f"    channels           = {', '.join(result.channels)} (one fit; tied "
-                     f"across them: {', '.join(dict.fromkeys(tied)) or '-'})")
-    lines += [f"    reduced chi-square = {format_number(result.chi2_reduced, 5)}",
-              f"    rms relative resid = {format_number(100 * result.rms_relative, 4)} %"]
+        tied = [n for n in first.values() if all(n in c.values() for c in result.channels.values())]
+        lines.append(
+            f"    channels           = {', '.join(result.channels)} (one fit; tied "
+            f"across them: {', '.join(dict.fromkeys(tied)) or '-'})"
+        )
+    lines += [
+        f"    reduced chi-square = {format_number(result.chi2_reduced, 5)}",
+        f"    rms relative resid = {format_number(100 * result.rms_relative, 4)} %",
+    ]
     if result.aic is not None:
-        lines.append(f"    AIC, BIC           = {format_number(result.aic, 6)}, "
-                     f"{format_number(result.bic, 6)}")
-    lines.append(f"    converged          = {'yes' if result.converged else 'NO'} "
-                 f"({result.message})")
+        lines.append(
+            f"    AIC, BIC           = {format_number(result.aic, 6)}, "
+            f"{format_number(result.bic, 6)}"
+        )
+    lines.append(
+        f"    converged          = {'yes' if result.converged else 'NO'} ({result.message})"
+    )
     if result.accuracy:
         lines.append(f"    accuracy           = {result.accuracy}")
     stats = result.stats
     if stats and not result.JOINT:
-        lines.append(f"    evaluations        = {stats.get('nfev', 0)} function, "
-                     f"{stats.get('njev', 0)} Jacobian"
-                     + (f" over {stats.get('starts', 1)} start(s)" if stats.get("starts") else ""))
+        lines.append(
+            f"    evaluations        = {stats.get('nfev', 0)} function, "
+            f"{stats.get('njev', 0)} Jacobian"
+            + (f" over {stats.get('starts', 1)} start(s)" if stats.get("starts") else "")
+        )
     how = (stats or {}).get("propagation")
     if how and result.stderr_total is not None:
-        lines.append("    propagation        = " + (
-            "first order (linear)" if how.get("method") == "linear" else
-            f"sigma points: {how.get('refits')} refits at {how.get('points')} points, "
-            f"{how.get('converged')} converged"))
+        lines.append(
+            "    propagation        = "
+            + (
+                "first order (linear)"
+                if how.get("method") == "linear"
+                else f"sigma points: {how.get('refits')} refits at {how.get('points')} points, "
+                f"{how.get('converged')} converged"
+            )
+        )
     me = getattr(result, "model_error", None)
     if me is not None:
         lines.append(
             f"    model error        = {format_number(100 * me.sigma, 3)} % relative"
             + (f", correlation length {format_number(me.length, 3)} deg" if me.length else "")
             + f" ({me.source}; chi-square limit {format_number(me.chi2_threshold, 4)}; in the "
-            f"standard errors)" if me.sigma > 0 else
-            f"    model error        = none (reduced chi-square <= "
-            f"{format_number(me.chi2_threshold, 4)})")
+            f"standard errors)"
+            if me.sigma > 0
+            else f"    model error        = none (reduced chi-square <= "
+            f"{format_number(me.chi2_threshold, 4)})"
+        )
         if me.session_correlation is not None:
-            lines.append(f"    shared with step 1 = {format_number(me.session_correlation, 3)} "
-                         f"(correlation of the two sessions' model errors)")
+            lines.append(
+                f"    shared with step 1 = {format_number(me.session_correlation, 3)} "
+                f"(correlation of the two sessions' model errors)"
+            )
     if result.given:
         gp = ", ".join(f"{k}={format_number(v)}" for k, v in result.given.get("params", {}).items())
         lines.append(f"    given (fixed) model = {result.given.get('model')}({gp})")
@@ -100,9 +130,11 @@ def _sessions(result: FitResult) -> list[str]:
     lines = ["[[Sessions]]"]
     for s in _layout(result).get("sessions", []):
         rms = s.get("rms_relative")
-        lines.append(f"    {s['name']}: {s['n_points']} points, chi2/N "
-                     f"{format_number(s['chi2'], 4)}, rms rel "
-                     f"{format_number(None if rms is None else 100 * rms, 3)} %")
+        lines.append(
+            f"    {s['name']}: {s['n_points']} points, chi2/N "
+            f"{format_number(s['chi2'], 4)}, rms rel "
+            f"{format_number(None if rms is None else 100 * rms, 3)} %"
+        )
     return lines
 
 
@@ -126,11 +158,11 @@ def _variables(result: FitResult) -> list[str]:
         if result.stderr_total is not None and result.stderr_total.get(name) is not None:
             # a joint fit's total: the reference's and, where the propagation line says
             # sigma points, the media's beyond first order
-            what = ("total" if result.JOINT
-                    else "with the given model's uncertainty")
+            what = "total" if result.JOINT else "with the given model's uncertainty"
             total = f"; {what} +/- {format_number(result.stderr_total[name], 3)}"
-        lines.append(f"    {name:<{width}}: {format_number(v)}{unit} +/- "
-                     f"{format_number(se, 3)}{rel}{total}")
+        lines.append(
+            f"    {name:<{width}}: {format_number(v)}{unit} +/- {format_number(se, 3)}{rel}{total}"
+        )
     return lines
 
 
@@ -149,17 +181,24 @@ def _hints(result: FitResult) -> list[str]:
     # parameters measured against their value (the optical depth, what the unscattered
     # beam's e^{-2 tau} pins); one measured against its room to a bound (g near 1) is loose
     # there for other reasons
-    loose = [n for n, v in result.params.items()
-             if n not in result.fixed and n in se and cls.param(n).error_scale != "bound"
-             and cls.param(n).relative_error(v, se[n]) > RELATIVE_LIMIT]
+    loose = [
+        n
+        for n, v in result.params.items()
+        if n not in result.fixed
+        and n in se
+        and cls.param(n).error_scale != "bound"
+        and cls.param(n).relative_error(v, se[n]) > RELATIVE_LIMIT
+    ]
     if not loose:
         return []
-    return ["[[Hint]]",
-            f"    {', '.join(loose)} uncertain by more than {RELATIVE_LIMIT:g} of "
-            f"{'its' if len(loose) == 1 else 'their'} scale: this reference does not show "
-            f"the unscattered beam apart from the scattered light. A reference whose specular "
-            f"peak is narrower than the medium's forward lobe (a glossy plate) measures it at "
-            f"the peak and determines the medium (docs/validity.md)."]
+    return [
+        "[[Hint]]",
+        f"    {', '.join(loose)} uncertain by more than {RELATIVE_LIMIT:g} of "
+        f"{'its' if len(loose) == 1 else 'their'} scale: this reference does not show "
+        f"the unscattered beam apart from the scattered light. A reference whose specular "
+        f"peak is narrower than the medium's forward lobe (a glossy plate) measures it at "
+        f"the peak and determines the medium (docs/validity.md).",
+    ]
 
 
 def fit_report(result: FitResult, min_correlation: float = 0.1) -> str:

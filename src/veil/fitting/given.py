@@ -11,9 +11,10 @@ from ..models import Model
 from .result import RESULTS, FitResult, JointResult
 
 #: How errors name what a fit needs, by kind: a model, a fit result.
-NEEDS = {"brdf": "a BRDF (the step-0 result of 'veil fit reference', or a BRDF model)",
-         "medium": "a medium (the step-1 result of 'veil fit medium', or a medium model)"}
-
+NEEDS = {
+    "brdf": "a BRDF (the step-0 result of 'veil fit reference', or a BRDF model)",
+    "medium": "a medium (the step-1 result of 'veil fit medium', or a medium model)",
+}
 
 
 def as_given(obj, kind: str, role: str) -> Model:
@@ -21,15 +22,20 @@ def as_given(obj, kind: str, role: str) -> Model:
     converge) or a model instance; ``role`` names it in errors ("the reference", "the
     medium")."""
     if isinstance(obj, JointResult):
-        raise FitError(f"{role} must be {NEEDS[kind]}; got a joint fit result (take one of its "
-                       f"models with .brdf(object) or .medium(label))")
+        raise FitError(
+            f"{role} must be {NEEDS[kind]}; got a joint fit result (take one of its "
+            f"models with .brdf(object) or .medium(label))"
+        )
     if isinstance(obj, FitResult):
         if obj.kind != kind:
-            raise FitError(f"{role} must be {RESULTS[kind]}; got a {obj.model} result"
-                           + (f" of step {obj.step!r}" if obj.step else ""))
+            raise FitError(
+                f"{role} must be {RESULTS[kind]}; got a {obj.model} result"
+                + (f" of step {obj.step!r}" if obj.step else "")
+            )
         if not obj.converged:
-            warnings.warn(f"the fit of {role} did not converge; its model is used as it is",
-                          stacklevel=3)
+            warnings.warn(
+                f"the fit of {role} did not converge; its model is used as it is", stacklevel=3
+            )
         return obj.one_model()
     if isinstance(obj, Model):
         if obj.KIND != kind:
@@ -47,8 +53,10 @@ def check_options(model: Model, options: dict | None, role: str) -> Model:
         if k not in model.options():
             raise FitError(f"{role} ({model.NAME}) has no option {k!r}")
         if model.options()[k] != v:
-            raise FitError(f"{k} = {v!r} but {role} was fitted with {k} "
-                           f"{model.options()[k]!r}; leave {k} unset to use {role}'s")
+            raise FitError(
+                f"{k} = {v!r} but {role} was fitted with {k} "
+                f"{model.options()[k]!r}; leave {k} unset to use {role}'s"
+            )
     return model
 
 

@@ -62,15 +62,22 @@ STARTS = 2
 def _direct_fit(problem: Problem):
     """The fit of an object's f_r from its clear-water block (step 0 inside a joint fit):
     returns the fitted BRDF vector."""
+
     def fit(block: Block, fixed: dict) -> np.ndarray:
         cls = type(block.brdf)
         own = Block(block.session, block.data, np.arange(len(block.ib)), None, block.brdf, None)
-        sub = Problem([own], [problem.params[k] for k in block.ib], problem.values[block.ib],
-                      [problem.free[k] for k in block.ib], weighted=problem.weighted)
+        sub = Problem(
+            [own],
+            [problem.params[k] for k in block.ib],
+            problem.values[block.ib],
+            [problem.free[k] for k in block.ib],
+            weighted=problem.weighted,
+        )
         for name, value in fixed.items():
             sub.values[cls.index(name)] = value
         starts, _ = step_starts(sub, "brdf", "reference", 3)
         return run(sub, starts, every=True).solution.x
+
     return fit
 
 
@@ -107,12 +114,24 @@ def _prepare_engines(problem: Problem, ref_cols: list, accuracy: str) -> None:
             block.model(accuracy).prepare(values=True)
 
 
-def _solve(problem: Problem, layout: dict, reference, start, accuracy: str, max_nfev,
-           progress, model_error: str, propagation: str) -> JointResult:
+def _solve(
+    problem: Problem,
+    layout: dict,
+    reference,
+    start,
+    accuracy: str,
+    max_nfev,
+    progress,
+    model_error: str,
+    propagation: str,
+) -> JointResult:
     """The joint problem solved from its starts, its uncertainties reported (the given
     reference's covariance to first order, the media's as ``propagation`` says)."""
-    given_result = reference if isinstance(reference, FitResult) and \
-        reference.covariance(total=True) is not None else None
+    given_result = (
+        reference
+        if isinstance(reference, FitResult) and reference.covariance(total=True) is not None
+        else None
+    )
     index = {n: k for k, n in enumerate(problem.names)}
     ref_names = layout["objects"].get("reference", {})
     ref_cols = [] if given_result is None else [index[ref_names[n]] for n in given_result.free]
@@ -120,21 +139,44 @@ def _solve(problem: Problem, layout: dict, reference, start, accuracy: str, max_
     starts = joint_starts(problem, layout, start, STARTS, _direct_fit(problem), progress)
     outcome = run(problem, starts, accuracy=accuracy, max_nfev=max_nfev, progress=progress)
     summary = summarize(problem, outcome)
-    given = model_entry(as_given(reference, "brdf", "the reference")) \
-        if reference is not None else None
-    rep = reported(problem, outcome.solution.x, summary, outcome.values, kind=model_error,
-                   given_result=given_result, given_column=lambda n: index[ref_names[n]],
-                   propagation="linear",   # the reference's covariance, to first order
-                   floor=_floor(problem, layout))
+    given = (
+        model_entry(as_given(reference, "brdf", "the reference")) if reference is not None else None
+    )
+    rep = reported(
+        problem,
+        outcome.solution.x,
+        summary,
+        outcome.values,
+        kind=model_error,
+        given_result=given_result,
+        given_column=lambda n: index[ref_names[n]],
+        propagation="linear",  # the reference's covariance, to first order
+        floor=_floor(problem, layout),
+    )
     rep = _media_beyond_first_order(problem, outcome.solution.x, rep, propagation)
     return _result(problem, layout, outcome, summary, accuracy, given, rep)
 
 
-def fit_joint(sessions, *, reference=None, shared=None, per_medium=None, fixed=None,
-              start=None, variant: str | None = None, accuracy: str = "default",
-              max_nfev=None, progress=None, brdf_model=None, medium_model=None,
-              brdf_options=None, medium_options=None, free=None,
-              model_error=None, propagation=None) -> JointResult:
+def fit_joint(
+    sessions,
+    *,
+    reference=None,
+    shared=None,
+    per_medium=None,
+    fixed=None,
+    start=None,
+    variant: str | None = None,
+    accuracy: str = "default",
+    max_nfev=None,
+    progress=None,
+    brdf_model=None,
+    medium_model=None,
+    brdf_options=None,
+    medium_options=None,
+    free=None,
+    model_error=None,
+    propagation=None,
+) -> JointResult:
     """Fit several sessions of one target under several media at once (module docstring).
 
     sessions : list of :class:`Session` (table, medium label, object "target"/"reference")
@@ -166,13 +208,22 @@ def fit_joint(sessions, *, reference=None, shared=None, per_medium=None, fixed=N
     propagation = check_method(propagation)
     check_max_nfev(max_nfev)
     start = _start_models(start)
-    problem, layout = build(sessions, reference=reference, shared=shared,
-                            per_medium=per_medium, fixed=fixed, variant=variant,
-                            brdf_model=brdf_model, medium_model=medium_model,
-                            brdf_options=brdf_options, medium_options=medium_options,
-                            free=free)
-    return _solve(problem, layout, reference, start, accuracy, max_nfev, progress,
-                  model_error, propagation)
+    problem, layout = build(
+        sessions,
+        reference=reference,
+        shared=shared,
+        per_medium=per_medium,
+        fixed=fixed,
+        variant=variant,
+        brdf_model=brdf_model,
+        medium_model=medium_model,
+        brdf_options=brdf_options,
+        medium_options=medium_options,
+        free=free,
+    )
+    return _solve(
+        problem, layout, reference, start, accuracy, max_nfev, progress, model_error, propagation
+    )
 
 
 def _media_beyond_first_order(problem: Problem, x, rep: Reported, method: str) -> Reported:
@@ -200,20 +251,27 @@ def _media_beyond_first_order(problem: Problem, x, rep: Reported, method: str) -
         total[np.ix_(jo, jo)] += delta
         d = np.sqrt(np.maximum(np.diag(total), 0.0))
         if not np.all(d > 0):
-            how = dict(how, method="linear", fallback="a parameter's variance vanished with "
-                       "the sigma points: first order kept")
+            how = dict(
+                how,
+                method="linear",
+                fallback="a parameter's variance vanished with the sigma points: first order kept",
+            )
         elif np.linalg.eigvalsh(total / np.outer(d, d)).min() > -1e-10:
             st, ct = uncertainties(total, problem.names, problem.free_index)
-            return dataclasses.replace(rep, stderr_total=st, correlation_total=ct,
-                                       propagation=how)
+            return dataclasses.replace(rep, stderr_total=st, correlation_total=ct, propagation=how)
         else:
-            how = dict(how, method="linear", fallback="the sigma points' spread is below the "
-                       "first order's in some direction: first order kept")
+            how = dict(
+                how,
+                method="linear",
+                fallback="the sigma points' spread is below the "
+                "first order's in some direction: first order kept",
+            )
     return dataclasses.replace(rep, propagation=how)
 
 
-def _result(problem: Problem, layout, outcome, summary, accuracy, given,
-            rep: Reported) -> JointResult:
+def _result(
+    problem: Problem, layout, outcome, summary, accuracy, given, rep: Reported
+) -> JointResult:
     """Assemble the JointResult from the solver's outcome and summary."""
     y, values = problem.y, outcome.values
     res = summary.residuals
@@ -223,10 +281,16 @@ def _result(problem: Problem, layout, outcome, summary, accuracy, given,
         v = values[sl]
         nzb = v != 0
         relb = (y[sl][nzb] - v[nzb]) / v[nzb]
-        sessions.append({"name": b.session.name, "object": b.session.object,
-                         "medium": b.session.medium, "n_points": int(b.size),
-                         "chi2": float(r @ r) / b.size,
-                         "rms_relative": float(np.sqrt(np.mean(relb ** 2))) if relb.size else None})
+        sessions.append(
+            {
+                "name": b.session.name,
+                "object": b.session.object,
+                "medium": b.session.medium,
+                "n_points": int(b.size),
+                "chi2": float(r @ r) / b.size,
+                "rms_relative": float(np.sqrt(np.mean(relb**2))) if relb.size else None,
+            }
+        )
     layout = dict(layout, sessions=sessions)
     x = outcome.solution.x
     names = problem.names
@@ -241,17 +305,40 @@ def _result(problem: Problem, layout, outcome, summary, accuracy, given,
         note = describe(rep.propagation, "the media's uncertainty")
         message += f"; {note}" if note else ""
     variant = layout["options"]["medium"].get(VARIANT_OPTION)
-    return JointResult(model="joint", params={n: float(v) for n, v in zip(names, x)},
-                       stderr=rep.stderr, correlation=rep.correlation,
-                       stderr_total=rep.stderr_total, correlation_total=rep.correlation_total,
-                       model_error=rep.model_error,
-                       residuals=tuple(float(r) for r in res),
-                       chi2_reduced=summary.chi2_reduced, rms_relative=summary.rms_relative,
-                       n_points=problem.n_points, converged=summary.converged,
-                       message=message, variant=variant, fixed=fixed, step="joint",
-                       weighted=problem.weighted, accuracy=accuracy, given=given,
-                       stats=stats, determined=summary.determined, layout=layout)
+    return JointResult(
+        model="joint",
+        params={n: float(v) for n, v in zip(names, x)},
+        stderr=rep.stderr,
+        correlation=rep.correlation,
+        stderr_total=rep.stderr_total,
+        correlation_total=rep.correlation_total,
+        model_error=rep.model_error,
+        residuals=tuple(float(r) for r in res),
+        chi2_reduced=summary.chi2_reduced,
+        rms_relative=summary.rms_relative,
+        n_points=problem.n_points,
+        converged=summary.converged,
+        message=message,
+        variant=variant,
+        fixed=fixed,
+        step="joint",
+        weighted=problem.weighted,
+        accuracy=accuracy,
+        given=given,
+        stats=stats,
+        determined=summary.determined,
+        layout=layout,
+    )
 
 
-__all__ = ["fit_joint", "Session", "JointResult", "load_result", "build", "as_sessions",
-           "shareable", "OVERLAP_TOL", "STARTS"]
+__all__ = [
+    "fit_joint",
+    "Session",
+    "JointResult",
+    "load_result",
+    "build",
+    "as_sessions",
+    "shareable",
+    "OVERLAP_TOL",
+    "STARTS",
+]

@@ -32,8 +32,10 @@ def as_sessions(sessions) -> list[Session]:
     if isinstance(sessions, dict):
         sessions = [Session(t, m, "target") for m, t in sessions.items()]
     if isinstance(sessions, (Session, pd.DataFrame, str)) or sessions is None:
-        raise FitError("sessions: expected a list of Session(table, medium, object) or a dict "
-                       "{medium label: target table}")
+        raise FitError(
+            "sessions: expected a list of Session(table, medium, object) or a dict "
+            "{medium label: target table}"
+        )
     out = []
     for s in sessions:
         if isinstance(s, Session):
@@ -41,11 +43,14 @@ def as_sessions(sessions) -> list[Session]:
         elif isinstance(s, tuple) and 2 <= len(s) <= 3:
             out.append(Session(*s))
         else:
-            raise FitError(f"sessions: {s!r} is neither a Session nor a (table, medium[, "
-                           f"object]) tuple")
+            raise FitError(
+                f"sessions: {s!r} is neither a Session nor a (table, medium[, object]) tuple"
+            )
     if not out:
-        raise FitError("no sessions given: a joint fit needs at least one session of the "
-                       "target measured in a medium")
+        raise FitError(
+            "no sessions given: a joint fit needs at least one session of the "
+            "target measured in a medium"
+        )
     return out
 
 
@@ -68,15 +73,21 @@ def _declarations(medium_cls, brdf_cls, shared, per_medium) -> tuple[str, ...]:
         for a in arg:
             spec = next((p for p in medium_cls.PARAMS if a in (p.name, p.key)), None)
             if spec is not None and spec.key != a and a in brdf_cls.param_names():
-                raise FitError(f"{what} lists {a!r}: the medium's {a} is called {spec.key!r} "
-                               f"here ({a!r} is the target's); choose among {', '.join(able)}")
+                raise FitError(
+                    f"{what} lists {a!r}: the medium's {a} is called {spec.key!r} "
+                    f"here ({a!r} is the target's); choose among {', '.join(able)}"
+                )
             if spec is not None and spec.share is None:
-                raise FitError(f"{what} lists {a!r}: {spec.key} is always per medium (each "
-                               f"medium or concentration has its own); only "
-                               f"{' and '.join(able)} can be shared")
+                raise FitError(
+                    f"{what} lists {a!r}: {spec.key} is always per medium (each "
+                    f"medium or concentration has its own); only "
+                    f"{' and '.join(able)} can be shared"
+                )
             if a not in able:
-                raise FitError(f"{what} lists {a!r}: not a medium parameter that can be shared; "
-                               f"choose among {', '.join(able)}")
+                raise FitError(
+                    f"{what} lists {a!r}: not a medium parameter that can be shared; "
+                    f"choose among {', '.join(able)}"
+                )
         dup = [a for a in set(arg) if arg.count(a) > 1]
         if dup:
             raise FitError(f"{what} lists {dup[0]!r} twice")
@@ -86,9 +97,11 @@ def _declarations(medium_cls, brdf_cls, shared, per_medium) -> tuple[str, ...]:
     if s is not None and p is not None:
         both = [a for a in s if a in p]
         if both:
-            raise FitError(f"contradictory sharing declarations: {', '.join(both)} declared "
-                           f"both shared by the media and free per medium; declare each of "
-                           f"{', '.join(able)} once")
+            raise FitError(
+                f"contradictory sharing declarations: {', '.join(both)} declared "
+                f"both shared by the media and free per medium; declare each of "
+                f"{', '.join(able)} once"
+            )
     if s is None and p is None:
         return tuple(q.key for q in medium_cls.PARAMS if q.share == "shared")
     if s is None:
@@ -116,7 +129,8 @@ def _check_overlap(sessions, datas) -> None:
             raise FitError(
                 f"session {s.name!r} shares no configuration (within {OVERLAP_TOL:g} deg) with "
                 f"any other session: a joint fit compares the same object or medium under "
-                f"the same configurations; check its angle columns (degrees, docs/model.md sec. 1)")
+                f"the same configurations; check its angle columns (degrees, docs/model.md sec. 1)"
+            )
 
 
 def _anchor_check(sessions, fixed_names, reference_given, params, brdf_cls, medium_cls) -> None:
@@ -148,8 +162,9 @@ def _anchor_check(sessions, fixed_names, reference_given, params, brdf_cls, medi
     roots = {find(("obj", s.object)) for s in sessions}
     for r in roots:
         if r not in anchored:
-            members = sorted(f"{a[0] == 'obj' and 'object' or 'medium'} {a[1]}"
-                             for a in parent if find(a) == r)
+            members = sorted(
+                f"{a[0] == 'obj' and 'object' or 'medium'} {a[1]}" for a in parent if find(a) == r
+            )
             scale_m = next(iter(medium_cls.scale_names() or (medium_cls.GAIN,)))
             raise FitError(
                 f"the overall scale is not determined for {', '.join(members)}: the apparent "
@@ -160,31 +175,40 @@ def _anchor_check(sessions, fixed_names, reference_given, params, brdf_cls, medi
                 f"the object down fits equally well (docs/model.md sec. 2-3). Add the reference "
                 f"measured in clear water (object 'reference', medium 'none') and in the "
                 f"media, give reference=, or fix one scale, e.g. "
-                f"fixed={{'{scale_m}[label]': ...}} (--fix '{scale_m}[label]=...')")
+                f"fixed={{'{scale_m}[label]': ...}} (--fix '{scale_m}[label]=...')"
+            )
 
 
 def _check_sessions(sessions) -> list:
     """The media of a joint fit's sessions, checked: a target through a medium, one
     session per object and medium, a target session in every medium."""
     if not any(s.object == "target" for s in sessions):
-        raise FitError("no session of the target: a joint fit estimates the target object "
-                       "through the media; add at least one session with object 'target'")
+        raise FitError(
+            "no session of the target: a joint fit estimates the target object "
+            "through the media; add at least one session with object 'target'"
+        )
     if not any(s.object == "target" and not s.clear for s in sessions):
-        raise FitError("every target session is in clear water: there is no medium to fit "
-                       "jointly; use veil fit direct (f_r directly) instead")
+        raise FitError(
+            "every target session is in clear water: there is no medium to fit "
+            "jointly; use veil fit direct (f_r directly) instead"
+        )
     seen: dict[tuple, str] = {}
     for s in sessions:
         key = (s.object, s.medium)
         if key in seen:
-            raise FitError(f"two sessions of the {s.object} in medium {s.medium!r} "
-                           f"({seen[key]!r} and {s.name!r}): merge them into one table")
+            raise FitError(
+                f"two sessions of the {s.object} in medium {s.medium!r} "
+                f"({seen[key]!r} and {s.name!r}): merge them into one table"
+            )
         seen[key] = s.name
     media = list(dict.fromkeys(s.medium for s in sessions if not s.clear))
     for m in media:
         if not any(s.medium == m and s.object == "target" for s in sessions):
-            raise FitError(f"medium {m!r} has a reference session but no target session: "
-                           f"every medium of a joint fit must have a session of the target "
-                           f"(fit that medium alone with veil fit medium)")
+            raise FitError(
+                f"medium {m!r} has a reference session but no target session: "
+                f"every medium of a joint fit must have a session of the target "
+                f"(fit that medium alone with veil fit medium)"
+            )
     return media
 
 
@@ -195,16 +219,22 @@ def _reference_of(reference, bcls, sessions):
     if reference is not None:
         reference_model = as_given(reference, "brdf", "the reference")
         if type(reference_model) is not bcls:
-            raise FitError(f"the reference is a {reference_model.NAME} model but the joint fit "
-                           f"uses the BRDF family {bcls.NAME} for its objects")
+            raise FitError(
+                f"the reference is a {reference_model.NAME} model but the joint fit "
+                f"uses the BRDF family {bcls.NAME} for its objects"
+            )
         if not ref_sessions:
-            raise FitError("reference= given but no session of the reference object: the "
-                           "reference's f_r only matters through its sessions (object "
-                           "'reference')")
+            raise FitError(
+                "reference= given but no session of the reference object: the "
+                "reference's f_r only matters through its sessions (object "
+                "'reference')"
+            )
     elif ref_sessions and not any(s.clear for s in ref_sessions):
-        raise FitError("reference sessions in a medium need the reference's f_r: give "
-                       "reference= (the step-0 result or a BRDF model) or add its "
-                       "clear-water session (object 'reference', medium 'none')")
+        raise FitError(
+            "reference sessions in a medium need the reference's f_r: give "
+            "reference= (the step-0 result or a BRDF model) or add its "
+            "clear-water session (object 'reference', medium 'none')"
+        )
     return reference_model
 
 
@@ -234,8 +264,9 @@ def _slots(bcls, mcls, sessions, media, shared_names) -> tuple[list, dict, dict]
     return params, objects_layout, media_layout
 
 
-def _fixed_and_freed(params, fixed, free, mcls, shared_names) -> tuple[dict, np.ndarray,
-                                                                      np.ndarray]:
+def _fixed_and_freed(
+    params, fixed, free, mcls, shared_names
+) -> tuple[dict, np.ndarray, np.ndarray]:
     """(the fixed values checked, the starting values, which slots are free) from ``fixed``
     and the held parameters to ``free``."""
     names = [p.name for p in params]
@@ -246,15 +277,18 @@ def _fixed_and_freed(params, fixed, free, mcls, shared_names) -> tuple[dict, np.
             hint = ""
             if k in shareable(mcls) and k not in shared_names:
                 hint = f" ({k} is free per medium here: fix {k}[label] for each medium)"
-            raise FitError(f"cannot fix {k!r}: the joint fit's parameters are "
-                           f"{', '.join(names)}{hint}")
+            raise FitError(
+                f"cannot fix {k!r}: the joint fit's parameters are {', '.join(names)}{hint}"
+            )
         check_fixed(k, v, params[index[k]].spec, k)
     values = np.array([p.spec.start for p in params], dtype=float)
     freed = list(free or ())
     unknown = [n for n in freed if n not in index]
     if unknown:
-        raise FitError(f"cannot free {', '.join(map(repr, unknown))}: the joint fit's "
-                       f"parameters are {', '.join(names)}")
+        raise FitError(
+            f"cannot free {', '.join(map(repr, unknown))}: the joint fit's "
+            f"parameters are {', '.join(names)}"
+        )
     clash = [n for n in freed if n in fixed]
     if clash:
         raise FitError(f"{', '.join(clash)} both fixed and freed")
@@ -266,26 +300,37 @@ def _templates(brdf_model, medium_model, brdf_options, medium_options, variant) 
     """The BRDF's and the medium's family, and each at its starting values with its
     options."""
     bcls = default_class("brdf") if brdf_model is None else model_class(brdf_model, "brdf")
-    mcls = default_class("medium") if medium_model is None else model_class(medium_model,
-                                                                            "medium")
+    mcls = default_class("medium") if medium_model is None else model_class(medium_model, "medium")
     medium_options = dict(medium_options or {})
     if variant is not None:
         medium_options[VARIANT_OPTION] = variant
     try:
-        return (bcls, mcls, bcls.template(**dict(brdf_options or {})),
-                mcls.template(**medium_options))
+        return (
+            bcls,
+            mcls,
+            bcls.template(**dict(brdf_options or {})),
+            mcls.template(**medium_options),
+        )
     except InputError as exc:
         raise FitError(str(exc)) from None
 
 
-def _hold(values: np.ndarray, free: np.ndarray, fixed: dict, index: dict,
-          objects_layout: dict, reference_model) -> None:
+def _hold(
+    values: np.ndarray,
+    free: np.ndarray,
+    fixed: dict,
+    index: dict,
+    objects_layout: dict,
+    reference_model,
+) -> None:
     """Hold the ``fixed`` values and a given reference's parameters (as a whole)."""
     if reference_model is not None:
         for pname, gname in objects_layout["reference"].items():
             if gname in fixed:
-                raise FitError(f"cannot fix {gname!r}: the reference is given (reference=) "
-                               f"and held fixed as a whole")
+                raise FitError(
+                    f"cannot fix {gname!r}: the reference is given (reference=) "
+                    f"and held fixed as a whole"
+                )
             values[index[gname]] = getattr(reference_model, pname)
             free[index[gname]] = False
     for k, v in fixed.items():
@@ -293,13 +338,25 @@ def _hold(values: np.ndarray, free: np.ndarray, fixed: dict, index: dict,
         free[index[k]] = False
 
 
-def build(sessions, *, reference=None, shared=None, per_medium=None, fixed=None,
-          variant: str | None = None, brdf_model=None, medium_model=None, brdf_options=None,
-          medium_options=None, free=None) -> tuple[Problem, dict]:
+def build(
+    sessions,
+    *,
+    reference=None,
+    shared=None,
+    per_medium=None,
+    fixed=None,
+    variant: str | None = None,
+    brdf_model=None,
+    medium_model=None,
+    brdf_options=None,
+    medium_options=None,
+    free=None,
+) -> tuple[Problem, dict]:
     """The stacked :class:`Problem` of a joint fit and its layout (see
     :func:`veil.fitting.joint.fit_joint`)."""
-    bcls, mcls, template_b, template_m = _templates(brdf_model, medium_model, brdf_options,
-                                                    medium_options, variant)
+    bcls, mcls, template_b, template_m = _templates(
+        brdf_model, medium_model, brdf_options, medium_options, variant
+    )
     sessions = as_sessions(sessions)
     shared_names = _declarations(mcls, bcls, shared, per_medium)
     media = _check_sessions(sessions)
@@ -309,9 +366,11 @@ def build(sessions, *, reference=None, shared=None, per_medium=None, fixed=None,
     weighted = {d.sigma is not None for d in datas}
     if len(weighted) > 1:
         which = [s.name for s, d in zip(sessions, datas) if d.sigma is None]
-        raise FitError(f"session(s) {', '.join(which)} have no sigma column but the others "
-                       f"do: weighted and unweighted residuals cannot be mixed in one fit; "
-                       f"give every session a sigma column or none")
+        raise FitError(
+            f"session(s) {', '.join(which)} have no sigma column but the others "
+            f"do: weighted and unweighted residuals cannot be mixed in one fit; "
+            f"give every session a sigma column or none"
+        )
     _check_overlap(sessions, datas)
 
     params, objects_layout, media_layout = _slots(bcls, mcls, sessions, media, shared_names)
@@ -328,18 +387,27 @@ def build(sessions, *, reference=None, shared=None, per_medium=None, fixed=None,
     blocks = []
     for s, d in zip(sessions, datas):
         ib = np.array([index[n] for n in objects_layout[s.object].values()])
-        im = None if s.clear else np.array([index[media_layout[s.medium][p.key]]
-                                            for p in mcls.PARAMS])
+        im = (
+            None
+            if s.clear
+            else np.array([index[media_layout[s.medium][p.key]] for p in mcls.PARAMS])
+        )
         blocks.append(Block(s, d, ib, im, template_b, None if s.clear else template_m))
     problem = Problem(blocks, params, values, free, weighted=weighted.pop())
     if problem.n_points <= problem.n_free:
-        raise FitError(f"the sessions have {problem.n_points} points but the joint fit has "
-                       f"{problem.n_free} free parameters: measure more configurations or fix "
-                       f"some")
-    layout = {"models": {"brdf": bcls.NAME, "medium": mcls.NAME},
-              "options": {"brdf": template_b.options(), "medium": template_m.options()},
-              "objects": objects_layout, "media": media_layout, "shared": list(shared_names),
-              "reference_given": reference_model is not None}
+        raise FitError(
+            f"the sessions have {problem.n_points} points but the joint fit has "
+            f"{problem.n_free} free parameters: measure more configurations or fix "
+            f"some"
+        )
+    layout = {
+        "models": {"brdf": bcls.NAME, "medium": mcls.NAME},
+        "options": {"brdf": template_b.options(), "medium": template_m.options()},
+        "objects": objects_layout,
+        "media": media_layout,
+        "shared": list(shared_names),
+        "reference_given": reference_model is not None,
+    }
     return problem, layout
 
 

@@ -98,8 +98,9 @@ def distances(angles, other=None) -> np.ndarray:
     that between their reflected ones, from canonical ``angles`` (theta_i, phi_i, theta_r,
     phi_r in degrees); j over ``other``'s configurations when given (else ``angles``')."""
     ti, pi, tr, pr = (np.asarray(a, dtype=float) for a in angles)
-    tj, pj, trj, prj = (ti, pi, tr, pr) if other is None else (
-        np.asarray(a, dtype=float) for a in other)
+    tj, pj, trj, prj = (
+        (ti, pi, tr, pr) if other is None else (np.asarray(a, dtype=float) for a in other)
+    )
     out = np.zeros((ti.size, tj.size))
     for u, v in ((_unit(ti, pi), _unit(tj, pj)), (_unit(tr, pr), _unit(trj, prj))):
         out += np.degrees(np.arccos(np.clip(u @ v.T, -1.0, 1.0)))
@@ -168,11 +169,12 @@ def _complement(weighted_jacobian, n: int) -> np.ndarray | None:
     # full column rank (the fits that get here have a covariance): the span is that of all
     # columns, whatever their units
     u, _, _ = np.linalg.svd(jw, full_matrices=True)
-    return u[:, min(jw.shape[1], n):]
+    return u[:, min(jw.shape[1], n) :]
 
 
-def estimate(residuals, scaled_values, dof: int, dist,
-             lengths=LENGTHS, weighted_jacobian=None) -> tuple[float, float]:
+def estimate(
+    residuals, scaled_values, dof: int, dist, lengths=LENGTHS, weighted_jacobian=None
+) -> tuple[float, float]:
     """(s, ell) of the module docstring: (0, 0) when the reduced chi-square is not above
     :func:`chi2_threshold`, else the maximum of the likelihood over ell in ``lengths``
     and s. ``residuals`` r_i = (y - f) / sigma, ``scaled_values`` a_i = f / sigma, ``dist``
@@ -191,16 +193,20 @@ def estimate(residuals, scaled_values, dof: int, dist,
     if float(r @ r) / dof <= chi2_threshold(dof):
         return 0.0, 0.0
     if not np.any(a != 0):
-        raise FitError("the residuals exceed the noise where the model is zero: no relative "
-                       "model error explains them")
+        raise FitError(
+            "the residuals exceed the noise where the model is zero: no relative "
+            "model error explains them"
+        )
     # s^2 a^2 of the order of the excess per point: search log s around it, wide
-    guess = math.sqrt(max(float(r @ r) / dof - 1.0, 1e-6) / float(np.mean(a ** 2)))
+    guess = math.sqrt(max(float(r @ r) / dof - 1.0, 1e-6) / float(np.mean(a**2)))
     basis = _complement(weighted_jacobian, r.size)
     best = None
     for length in lengths:
         if length == 0.0 and basis is None:
+
             def nll_independent(u):
                 return _nll_independent(r, a, math.exp(2 * u))
+
             nll = nll_independent
         else:
             if length > 0.0 and callable(dist):
@@ -210,18 +216,27 @@ def estimate(residuals, scaled_values, dof: int, dist,
 
             def nll_spectrum(u, spectrum=spectrum):
                 return _nll_spectrum(spectrum, math.exp(2 * u))
+
             nll = nll_spectrum
-        found = minimize_scalar(nll,
-                                bounds=(math.log(guess) - 6.0, math.log(guess) + 6.0),
-                                method="bounded", options={"xatol": 1e-6})
+        found = minimize_scalar(
+            nll,
+            bounds=(math.log(guess) - 6.0, math.log(guess) + 6.0),
+            method="bounded",
+            options={"xatol": 1e-6},
+        )
         if best is None or found.fun < best[0]:
             best = (float(found.fun), math.exp(float(found.x)), length)
     assert best is not None  # lengths is never empty
     return best[1], best[2]
 
 
-def sandwich(cov: np.ndarray, weighted_jacobian: np.ndarray, scaled_values, sigma: float,
-             corr: np.ndarray | None = None) -> np.ndarray:
+def sandwich(
+    cov: np.ndarray,
+    weighted_jacobian: np.ndarray,
+    scaled_values,
+    sigma: float,
+    corr: np.ndarray | None = None,
+) -> np.ndarray:
     """C + s^2 (A J_w C)^T R (A J_w C) (module docstring): the covariance of the weighted
     estimate with the relative model error ``sigma`` (correlation ``corr``, None:
     independent) beside the noise. ``cov`` is C (free parameters, natural units),
@@ -229,11 +244,12 @@ def sandwich(cov: np.ndarray, weighted_jacobian: np.ndarray, scaled_values, sigm
     cov = np.asarray(cov, dtype=float)
     if sigma == 0.0:
         return cov
-    m = (np.asarray(weighted_jacobian, dtype=float)
-         * np.asarray(scaled_values, dtype=float)[:, None]) @ cov
+    m = (
+        np.asarray(weighted_jacobian, dtype=float) * np.asarray(scaled_values, dtype=float)[:, None]
+    ) @ cov
     rm = m if corr is None else np.asarray(corr, dtype=float) @ m
     extra = m.T @ rm
-    return cov + sigma ** 2 * 0.5 * (extra + extra.T)
+    return cov + sigma**2 * 0.5 * (extra + extra.T)
 
 
 @dataclass(frozen=True)
@@ -267,9 +283,15 @@ class ModelError:
     session_correlation: float | None = None
 
     def to_dict(self) -> dict:
-        out: dict[str, Any] = {"sigma": self.sigma, "length": self.length, "own": self.own,
-               "given": self.given, "source": self.source,
-               "chi2_threshold": self.chi2_threshold, "noise_only": self.noise_only}
+        out: dict[str, Any] = {
+            "sigma": self.sigma,
+            "length": self.length,
+            "own": self.own,
+            "given": self.given,
+            "source": self.source,
+            "chi2_threshold": self.chi2_threshold,
+            "noise_only": self.noise_only,
+        }
         if self.influence is not None:
             assert self.angles is not None  # they come together (from_dict)
             out["influence"] = {k: [float(v) for v in row] for k, row in self.influence.items()}
@@ -287,72 +309,121 @@ class ModelError:
         """Check and convert the ``model_error`` entry of a result file."""
         keys = ("sigma", "length", "own", "given", "source", "chi2_threshold")
         if not isinstance(data, dict) or any(k not in data for k in keys):
-            raise FitError(f"{source}: key 'model_error' must be null or an object with keys "
-                           f"{', '.join(keys)}, noise_only; got {data!r}")
+            raise FitError(
+                f"{source}: key 'model_error' must be null or an object with keys "
+                f"{', '.join(keys)}, noise_only; got {data!r}"
+            )
         for k in ("sigma", "length", "own", "chi2_threshold") + (
-                ("given",) if data["given"] is not None else ()):
+            ("given",) if data["given"] is not None else ()
+        ):
             v = data[k]
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) \
-                    or v < 0:
+            if (
+                isinstance(v, bool)
+                or not isinstance(v, (int, float))
+                or not math.isfinite(v)
+                or v < 0
+            ):
                 raise FitError(f"{source}: model_error.{k} = {v!r}; expected a number >= 0")
         if data["source"] not in SOURCES:
-            raise FitError(f"{source}: model_error.source = {data['source']!r}; expected one "
-                           f"of {', '.join(SOURCES)}")
+            raise FitError(
+                f"{source}: model_error.source = {data['source']!r}; expected one "
+                f"of {', '.join(SOURCES)}"
+            )
         noise = data.get("noise_only")
         if noise is not None and not isinstance(noise, dict):
             raise FitError(f"{source}: model_error.noise_only must be an object or null")
         influence, angles = data.get("influence"), data.get("angles")
         residuals, scaled = data.get("residuals"), data.get("scaled")
-        if (influence is None) != (angles is None) or (residuals is None) != (scaled is None) \
-                or (residuals is not None and influence is None):
-            raise FitError(f"{source}: model_error.influence and model_error.angles come "
-                           f"together, and residuals and scaled only with them")
+        if (
+            (influence is None) != (angles is None)
+            or (residuals is None) != (scaled is None)
+            or (residuals is not None and influence is None)
+        ):
+            raise FitError(
+                f"{source}: model_error.influence and model_error.angles come "
+                f"together, and residuals and scaled only with them"
+            )
         if influence is not None:
             influence, angles = _read_influence(influence, angles, source)
         if residuals is not None:
             assert angles is not None  # checked above: residuals come with the influence
-            rows, _ = _read_influence({"residuals": residuals, "scaled": scaled},
-                                      [list(a) for a in angles], source, key="")
+            rows, _ = _read_influence(
+                {"residuals": residuals, "scaled": scaled},
+                [list(a) for a in angles],
+                source,
+                key="",
+            )
             residuals, scaled = rows["residuals"], rows["scaled"]
         rho = data.get("session_correlation")
-        if rho is not None and (isinstance(rho, bool) or not isinstance(rho, (int, float))
-                                or not 0.0 <= rho <= 1.0):
-            raise FitError(f"{source}: model_error.session_correlation = {rho!r}; expected a "
-                           f"number in [0, 1]")
-        return cls(float(data["sigma"]), float(data["length"]), float(data["own"]),
-                   None if data["given"] is None else float(data["given"]), data["source"],
-                   float(data["chi2_threshold"]), noise, influence, angles, residuals, scaled,
-                   None if rho is None else float(rho))
+        if rho is not None and (
+            isinstance(rho, bool) or not isinstance(rho, (int, float)) or not 0.0 <= rho <= 1.0
+        ):
+            raise FitError(
+                f"{source}: model_error.session_correlation = {rho!r}; expected a number in [0, 1]"
+            )
+        return cls(
+            float(data["sigma"]),
+            float(data["length"]),
+            float(data["own"]),
+            None if data["given"] is None else float(data["given"]),
+            data["source"],
+            float(data["chi2_threshold"]),
+            noise,
+            influence,
+            angles,
+            residuals,
+            scaled,
+            None if rho is None else float(rho),
+        )
 
 
 def _read_influence(influence, angles, source: str, key: str = "influence"):
     """A result file's model_error.influence ({name: N numbers}; ``key`` names the entry in
     messages, "" for top-level lists) and angles (4 lists of N canonical angles), checked:
     finite numbers, one length."""
+
     def numbers(row, where):
-        if not isinstance(row, list) or not row or any(
+        if (
+            not isinstance(row, list)
+            or not row
+            or any(
                 isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v)
-                for v in row):
+                for v in row
+            )
+        ):
             raise FitError(f"{source}: {where} must be a non-empty list of finite numbers")
         return tuple(float(v) for v in row)
 
     if not isinstance(influence, dict) or not influence:
         raise FitError(f"{source}: model_error.influence must be an object of lists")
     if not isinstance(angles, list) or len(angles) != 4:
-        raise FitError(f"{source}: model_error.angles must be 4 lists (theta_i, phi_i, "
-                       f"theta_r, phi_r)")
-    rows = {k: numbers(v, f"model_error.{key + '.' if key else ''}{k}")
-            for k, v in influence.items()}
+        raise FitError(
+            f"{source}: model_error.angles must be 4 lists (theta_i, phi_i, theta_r, phi_r)"
+        )
+    rows = {
+        k: numbers(v, f"model_error.{key + '.' if key else ''}{k}") for k, v in influence.items()
+    }
     cols = tuple(numbers(a, "model_error.angles") for a in angles)
     sizes = {len(r) for r in rows.values()} | {len(a) for a in cols}
     if len(sizes) != 1:
-        raise FitError(f"{source}: model_error.{key or ', '.join(rows)} and angles have "
-                       f"different lengths ({sorted(sizes)})")
+        raise FitError(
+            f"{source}: model_error.{key or ', '.join(rows)} and angles have "
+            f"different lengths ({sorted(sizes)})"
+        )
     return rows, cols
 
 
-def step_term(residuals, values, weights, dof: int, angles, given=None,
-              kind: str = DEFAULT, weighted_jacobian=None, floor=None) -> ModelError:
+def step_term(
+    residuals,
+    values,
+    weights,
+    dof: int,
+    angles,
+    given=None,
+    kind: str = DEFAULT,
+    weighted_jacobian=None,
+    floor=None,
+) -> ModelError:
     """The term of one step (module docstring): its own (s, ell) from ``residuals``
     (weighted), the model ``values``, the ``weights`` 1/sigma and the configurations'
     canonical ``angles``, ell = 0 unless ``kind`` is "correlated"; ``given`` the given
@@ -364,8 +435,14 @@ def step_term(residuals, values, weights, dof: int, angles, given=None,
     and report less than the floor's own process."""
     correlated = check_kind(kind) == "correlated"
     lengths = LENGTHS if correlated else (0.0,)
-    own, length = estimate(residuals, np.asarray(values) * np.asarray(weights), dof,
-                           lambda: distances(angles), lengths, weighted_jacobian)
+    own, length = estimate(
+        residuals,
+        np.asarray(values) * np.asarray(weights),
+        dof,
+        lambda: distances(angles),
+        lengths,
+        weighted_jacobian,
+    )
     sigma, source = own, "own residuals" if own > 0 else "none"
     if given is not None and given.sigma > own:
         sigma, length, source = given.sigma, given.length, "given medium"
@@ -375,9 +452,14 @@ def step_term(residuals, values, weights, dof: int, angles, given=None,
             sigma, length, source = floor_sigma, floor_length, "model's floor"
         else:
             length = max(length, floor_length)
-    return ModelError(float(sigma), float(length), float(own),
-                      None if given is None else float(given.sigma), source,
-                      chi2_threshold(dof))
+    return ModelError(
+        float(sigma),
+        float(length),
+        float(own),
+        None if given is None else float(given.sigma),
+        source,
+        chi2_threshold(dof),
+    )
 
 
 def given_term(given_result) -> ModelError | None:
@@ -395,11 +477,30 @@ def noise_only(result) -> FitResult:
     if me is None or me.noise_only is None:
         return result
     n = me.noise_only
-    return dataclasses.replace(result, stderr=n["stderr"], correlation=n["correlation"],
-                               stderr_total=n.get("stderr_total"),
-                               correlation_total=n.get("correlation_total"), model_error=None)
+    return dataclasses.replace(
+        result,
+        stderr=n["stderr"],
+        correlation=n["correlation"],
+        stderr_total=n.get("stderr_total"),
+        correlation_total=n.get("correlation_total"),
+        model_error=None,
+    )
 
 
-__all__ = ["CHI2_Z", "LENGTHS", "KINDS", "DEFAULT", "SOURCES", "check_kind", "chi2_threshold",
-           "distances", "correlation", "estimate", "sandwich", "ModelError", "step_term",
-           "given_term", "noise_only"]
+__all__ = [
+    "CHI2_Z",
+    "LENGTHS",
+    "KINDS",
+    "DEFAULT",
+    "SOURCES",
+    "check_kind",
+    "chi2_threshold",
+    "distances",
+    "correlation",
+    "estimate",
+    "sandwich",
+    "ModelError",
+    "step_term",
+    "given_term",
+    "noise_only",
+]

@@ -118,7 +118,7 @@ class SessionModel:
             val, jac = self._direct.value_and_jacobian(vb)
             return val, jac, np.zeros((self.size, 0))
         val, jac = self._engine.value_and_jacobian(vb, np.asarray(vm, dtype=float), wrt)
-        return val, jac[:, : self.nb], jac[:, self.nb:]
+        return val, jac[:, : self.nb], jac[:, self.nb :]
 
     def row_weights(self, vm) -> np.ndarray:
         """The medium's row scales at ``vm`` ([1] in clear water)."""
@@ -138,22 +138,26 @@ class Session:
 
     def __post_init__(self):
         if not isinstance(self.medium, str) or not self.medium.strip():
-            raise FitError(f"session medium = {self.medium!r}: expected a non-empty label "
-                           f"(e.g. 'low', 'x2') or 'none' for clear water")
+            raise FitError(
+                f"session medium = {self.medium!r}: expected a non-empty label "
+                f"(e.g. 'low', 'x2') or 'none' for clear water"
+            )
         self.medium = self.medium.strip()
         if self.medium.lower() in CLEAR:
             self.medium = "none"
         bad = [c for c in "[]=,:@ " if c in self.medium]
         if bad:
-            raise FitError(f"session medium label {self.medium!r} contains {bad[0]!r}; labels "
-                           f"may not contain spaces or any of [ ] = , : @")
+            raise FitError(
+                f"session medium label {self.medium!r} contains {bad[0]!r}; labels "
+                f"may not contain spaces or any of [ ] = , : @"
+            )
         if self.object not in OBJECTS:
-            raise FitError(f"session object = {self.object!r}: expected 'target' or "
-                           f"'reference'")
+            raise FitError(f"session object = {self.object!r}: expected 'target' or 'reference'")
         if self.name is None:
             src = self.table if isinstance(self.table, (str, os.PathLike)) else None
-            self.name = f"{self.object} in {self.medium if self.medium != 'none' else 'water'}" \
-                + (f" ({os.fspath(src)})" if src is not None else "")
+            self.name = f"{self.object} in {self.medium if self.medium != 'none' else 'water'}" + (
+                f" ({os.fspath(src)})" if src is not None else ""
+            )
 
     @property
     def clear(self) -> bool:
@@ -212,8 +216,7 @@ class Block:
 
     def model(self, accuracy: str) -> SessionModel:
         if accuracy not in self.models:
-            self.models[accuracy] = SessionModel(self.brdf, self.medium, self.data.angles,
-                                                 accuracy)
+            self.models[accuracy] = SessionModel(self.brdf, self.medium, self.data.angles, accuracy)
         return self.models[accuracy]
 
     @property
@@ -239,8 +242,9 @@ class Problem:
         self.y = np.concatenate([b.data.y for b in self.blocks])
         self.w = np.concatenate([b.data.w for b in self.blocks])
         #: canonical angles (theta_i, phi_i, theta_r, phi_r) of all points, in row order
-        self.angles = tuple(np.concatenate(parts)
-                            for parts in zip(*(b.data.angles for b in self.blocks)))
+        self.angles = tuple(
+            np.concatenate(parts) for parts in zip(*(b.data.angles for b in self.blocks))
+        )
         self._cache: dict = {}
         self._last: tuple[tuple[bytes, Any], Any] | None = None
         self.prior: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
@@ -283,8 +287,10 @@ class Problem:
         try:
             return self.names.index(name)
         except ValueError:
-            raise FitError(f"{name!r} is not a parameter of this fit; its parameters are "
-                           f"{', '.join(self.names)}") from None
+            raise FitError(
+                f"{name!r} is not a parameter of this fit; its parameters are "
+                f"{', '.join(self.names)}"
+            ) from None
 
     # -- coordinates ---------------------------------------------------------------------
     def to_u(self, x) -> np.ndarray:
@@ -328,13 +334,17 @@ class Problem:
         wanted = None if columns is None else {int(c) for c in np.ravel(columns)}
         out = []
         for b in self.blocks:
-            kinds = [kind for kind, idx in (("brdf", b.ib), ("medium", b.im))
-                     if idx is not None and (wanted is None or wanted & {int(i) for i in idx})]
+            kinds = [
+                kind
+                for kind, idx in (("brdf", b.ib), ("medium", b.im))
+                if idx is not None and (wanted is None or wanted & {int(i) for i in idx})
+            ]
             out.append(tuple(kinds))
         return tuple(out)
 
-    def value_and_jacobian(self, x, accuracy=ITERATION_ACCURACY,
-                           columns=None) -> tuple[np.ndarray, np.ndarray]:
+    def value_and_jacobian(
+        self, x, accuracy=ITERATION_ACCURACY, columns=None
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Model values (N,) and d values / d (global parameters) (N, P), unweighted.
 
         ``columns``: the global parameter indices (or a boolean mask) the caller reads; the
@@ -418,8 +428,16 @@ class Problem:
         return out
 
 
-def session_problem(table, brdf: BRDF, medium: Medium | None = None, *, free=(), black=None,
-                    what: str = "session", data: FitData | None = None) -> Problem:
+def session_problem(
+    table,
+    brdf: BRDF,
+    medium: Medium | None = None,
+    *,
+    free=(),
+    black=None,
+    what: str = "session",
+    data: FitData | None = None,
+) -> Problem:
     """One session as a :class:`Problem` over the BRDF's parameters and the medium's (names
     as declared, the medium's aliased where declared); ``free`` names the estimated ones,
     the others hold the given models' values. The problem of a step fit of docs/model.md sec. 7.
@@ -436,13 +454,17 @@ def session_problem(table, brdf: BRDF, medium: Medium | None = None, *, free=(),
     names = [p.name for p in params]
     if len(set(names)) != len(names):
         assert medium is not None  # a model's own names differ
-        raise FitError(f"the parameters of {brdf.NAME} and {medium.NAME} share a "
-                       f"name ({', '.join(names)}): one of them must declare an alias")
+        raise FitError(
+            f"the parameters of {brdf.NAME} and {medium.NAME} share a "
+            f"name ({', '.join(names)}): one of them must declare an alias"
+        )
     free = list(free)
     unknown = [n for n in free if n not in names]
     if unknown:
-        raise FitError(f"{', '.join(map(repr, unknown))}: not a parameter of this session "
-                       f"(parameters: {', '.join(names)})")
+        raise FitError(
+            f"{', '.join(map(repr, unknown))}: not a parameter of this session "
+            f"(parameters: {', '.join(names)})"
+        )
     mask = np.array([n in free for n in names])
     if not mask.any():
         raise FitError("no free parameter: nothing to fit")
@@ -450,5 +472,16 @@ def session_problem(table, brdf: BRDF, medium: Medium | None = None, *, free=(),
     return Problem([block], params, values, mask, weighted=data.sigma is not None)
 
 
-__all__ = ["ITERATION_ACCURACY", "CLEAR", "OBJECTS", "check_accuracy", "SessionModel",
-           "Session", "Slot", "model_slots", "Block", "Problem", "session_problem"]
+__all__ = [
+    "ITERATION_ACCURACY",
+    "CLEAR",
+    "OBJECTS",
+    "check_accuracy",
+    "SessionModel",
+    "Session",
+    "Slot",
+    "model_slots",
+    "Block",
+    "Problem",
+    "session_problem",
+]

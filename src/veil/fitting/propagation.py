@@ -157,10 +157,15 @@ def how_of(method: str, relative: dict) -> dict:
     how = {"method": chosen, "relative_uncertainty": relative, "limit": RELATIVE_LIMIT}
     if method == "auto" and _worst(relative) > RELATIVE_MAX:
         worst = max(relative, key=lambda n: math.inf if relative[n] is None else relative[n])
-        size = "not determined" if relative[worst] is None else \
-            f"uncertain by {relative[worst]:.3g} of its scale"
-        how["fallback"] = (f"{worst} {size} (over {RELATIVE_MAX:g}): its uncertainty "
-                           f"propagated to first order, which is then only indicative")
+        size = (
+            "not determined"
+            if relative[worst] is None
+            else f"uncertain by {relative[worst]:.3g} of its scale"
+        )
+        how["fallback"] = (
+            f"{worst} {size} (over {RELATIVE_MAX:g}): its uncertainty "
+            f"propagated to first order, which is then only indicative"
+        )
     return how
 
 
@@ -174,14 +179,17 @@ def describe(how: dict, what: str) -> str:
     rel = how["relative_uncertainty"]
     worst = max(rel, key=lambda n: math.inf if rel[n] is None else rel[n])
     size = "undetermined" if rel[worst] is None else f"{rel[worst]:.2f} of its scale"
-    return (f"{what} propagated through {how['refits']} refits at "
-            f"{how['points']} sigma points ({how['converged']} converged; {worst} uncertain "
-            f"by {size}, limit {how['limit']:g})")
+    return (
+        f"{what} propagated through {how['refits']} refits at "
+        f"{how['points']} sigma points ({how['converged']} converged; {worst} uncertain "
+        f"by {size}, limit {how['limit']:g})"
+    )
 
 
 def _reach(axes, u0, step) -> float:
     """The largest t in [0, 1] with u0 + t step inside every parameter's bounds (bisection;
     each coordinate is monotone in t and the bounds are intervals)."""
+
     def ok(t):
         return all(a.inside(a.to_x(float(v))) for a, v in zip(axes, u0 + t * step))
 
@@ -223,8 +231,9 @@ def sigma_points(specs, values, cov) -> tuple[np.ndarray, np.ndarray]:
 def _weighted_columns(problem: Problem, x, cols: list[int]):
     """(J_w of the free parameters, J_w,theta of the given parameters in problem columns
     ``cols``), the data's rows."""
-    _, full = problem.value_and_jacobian(x, ITERATION_ACCURACY,
-                                         list(problem.free_index) + list(cols))
+    _, full = problem.value_and_jacobian(
+        x, ITERATION_ACCURACY, list(problem.free_index) + list(cols)
+    )
     w = problem.w[:, None]
     return full[:, problem.free] * w, full[:, cols] * w
 
@@ -262,8 +271,9 @@ class Refits:
     refits: int
 
 
-def sigma_part(problem: Problem, x, cols: list[int], specs, cov_given,
-               max_nfev: int = REFIT_NFEV) -> Refits:
+def sigma_part(
+    problem: Problem, x, cols: list[int], specs, cov_given, max_nfev: int = REFIT_NFEV
+) -> Refits:
     """The fit repeated at the given model's sigma points (module docstring), from ``x`` at
     the iteration quadrature, the free parameters' Jacobian taken once at each start (a
     chord method: the point's medium is exact, the shifts are small; the same to 0.5 % of
@@ -278,24 +288,25 @@ def sigma_part(problem: Problem, x, cols: list[int], specs, cov_given,
     values = np.array([x[c] for c in cols])
     points, reach = sigma_points(specs, values, cov_given)
     free = problem.free_index
-    nominal = solve(problem.with_fixed({}), x, tol=TOL_ITER, max_nfev=max_nfev,
-                    jacobian_at=x)
+    nominal = solve(problem.with_fixed({}), x, tol=TOL_ITER, max_nfev=max_nfev, jacobian_at=x)
     shifts = np.zeros((len(points), len(free)))
     done = np.zeros(len(points), dtype=bool)
     converged = 0
     for i, point in enumerate(points):
-        twin = i ^ 1                                   # the other point of its pair
+        twin = i ^ 1  # the other point of its pair
         if reach[i] < 1.0 and reach[twin] == 1.0:
-            continue                                   # mirrored below
+            continue  # mirrored below
         if reach[i] < MIN_REACH:
-            continue                                   # no room either way: no spread
+            continue  # no room either way: no spread
         sub = problem.with_fixed(dict(zip(names, point)))
         start = nominal.x.copy()
         start[cols] = point
         sol = solve(sub, start, tol=TOL_ITER, max_nfev=max_nfev, jacobian_at=start)
         if not np.all(np.isfinite(sol.x)) or not np.isfinite(sol.cost):
-            raise FitError(f"the refit at the given model's sigma point "
-                           f"{dict(zip(names, point))} gave non-finite values")
+            raise FitError(
+                f"the refit at the given model's sigma point "
+                f"{dict(zip(names, point))} gave non-finite values"
+            )
         shifts[i] = (sol.x[free] - nominal.x[free]) / reach[i]
         done[i] = True
         converged += int(sol.status > 0)
@@ -312,15 +323,16 @@ def _refitted(problem: Problem, x, cols, specs, cov, how: dict):
     so, the method the first order) when a refit failed."""
     try:
         refits = sigma_part(problem, x, cols, specs, cov)
-    except InputError as exc:          # FitError too: a refit that failed
+    except InputError as exc:  # FitError too: a refit that failed
         how.update(method="linear", fallback=f"sigma points failed ({exc}); first order used")
         return None
     how.update(points=len(refits.points), refits=refits.refits, converged=refits.converged)
     return refits
 
 
-def propagated(problem: Problem, x, given_result, column: Callable[[str], int],
-               method: str = "auto") -> tuple[np.ndarray | None, dict | None]:
+def propagated(
+    problem: Problem, x, given_result, column: Callable[[str], int], method: str = "auto"
+) -> tuple[np.ndarray | None, dict | None]:
     """(part, how): the covariance that ``given_result``'s (total) covariance adds to the free
     parameters of the fit at natural ``x``, linearly or through sigma points (``method``;
     "auto" chooses by the given parameters' relative uncertainty); ``column`` maps a name of
@@ -339,15 +351,15 @@ def propagated(problem: Problem, x, given_result, column: Callable[[str], int],
     specs = [problem.params[c].spec for c in cols]
     relative = relative_uncertainty(specs, [x[c] for c in cols], gcov)
     how = how_of(method, relative)
-    refits = None if how["method"] == "linear" else _refitted(problem, x, cols, specs, gcov,
-                                                               how)
+    refits = None if how["method"] == "linear" else _refitted(problem, x, cols, specs, gcov, how)
     if refits is None:
         return linear_part(problem, x, cols, gcov), how
     return refits.covariance, how
 
 
-def media_part(problem: Problem, x, cov,
-               method: str = "auto") -> tuple[list[int], np.ndarray | None, dict | None]:
+def media_part(
+    problem: Problem, x, cov, method: str = "auto"
+) -> tuple[list[int], np.ndarray | None, dict | None]:
     """A joint fit's counterpart of sigma points (it estimates the media with the objects):
     by the law of total covariance, E[Cov(o | m)] + Cov(E[o | m]), the media's share of the
     objects' covariance is to first order A C_mm A^T; it is replaced by the spread of the
@@ -377,7 +389,24 @@ def media_part(problem: Problem, x, cov,
     return cols_o, refits.covariance - linear_part(cond, x, cols_m, cmm), how
 
 
-__all__ = ["METHODS", "RELATIVE_LIMIT", "RELATIVE_MAX", "how_of", "NEGLIGIBLE", "MIN_REACH",
-           "REFIT_NFEV", "check_method", "Axis", "relative_uncertainty", "choose", "describe",
-           "sigma_points", "sensitivity", "linear_part", "Refits", "sigma_part", "propagated",
-           "media_part"]
+__all__ = [
+    "METHODS",
+    "RELATIVE_LIMIT",
+    "RELATIVE_MAX",
+    "how_of",
+    "NEGLIGIBLE",
+    "MIN_REACH",
+    "REFIT_NFEV",
+    "check_method",
+    "Axis",
+    "relative_uncertainty",
+    "choose",
+    "describe",
+    "sigma_points",
+    "sensitivity",
+    "linear_part",
+    "Refits",
+    "sigma_part",
+    "propagated",
+    "media_part",
+]

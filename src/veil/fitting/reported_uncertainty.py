@@ -42,8 +42,19 @@ def _same(stderr, correlation):
     return stderr, correlation
 
 
-def _shared(problem: Problem, x, own_influence, given_result, given_column, term, how, dist,
-            residuals, scaled, jw):
+def _shared(
+    problem: Problem,
+    x,
+    own_influence,
+    given_result,
+    given_column,
+    term,
+    how,
+    dist,
+    residuals,
+    scaled,
+    jw,
+):
     """(this step's error correlation, the cross term, its share) for the error a step shares with
     its given medium's correlated term (:func:`veil.fitting.shared_error.shared`): this
     step's error is the shared process plus what its own s exceeds it by, with its own
@@ -60,20 +71,30 @@ def _shared(problem: Problem, x, own_influence, given_result, given_column, term
         return None
     if how is None or how.get("method") != "linear":
         return None
-    extra = max(term.sigma ** 2 - given.sigma ** 2, 0.0)
+    extra = max(term.sigma**2 - given.sigma**2, 0.0)
     corr = discrepancy.correlation(dist, given.length)
     if extra > 0.0:
-        corr = (given.sigma ** 2 * corr
-                + extra * discrepancy.correlation(dist, term.length)) / term.sigma ** 2
+        corr = (
+            given.sigma**2 * corr + extra * discrepancy.correlation(dist, term.length)
+        ) / term.sigma**2
     names, cov_given = given_result.covariance(total=True)
     names = list(names)
     cols = [given_column(n) for n in names]
     share = shared_error.session_correlation(
-        residuals, scaled, jw, problem.angles, term.sigma ** 2 * corr, given, names,
-        given_jacobian(problem, x, cols), cov_given)
+        residuals,
+        scaled,
+        jw,
+        problem.angles,
+        term.sigma**2 * corr,
+        given,
+        names,
+        given_jacobian(problem, x, cols),
+        cov_given,
+    )
     sens = sensitivity(problem, x, cols)
-    cross = shared_error.shared(own_influence, problem.angles, given, names, sens,
-                               1.0 if share is None else share)
+    cross = shared_error.shared(
+        own_influence, problem.angles, given, names, sens, 1.0 if share is None else share
+    )
     return corr, cross, share
 
 
@@ -81,10 +102,16 @@ def _term_correlation(problem: Problem, term, given_result) -> tuple:
     """(distances between the configurations, or None when no term has a length; the
     correlation of the fit's own term, None when independent)."""
     given = discrepancy.given_term(given_result)
-    dist = (discrepancy.distances(problem.angles)
-            if term.length > 0 or (given is not None and given.length > 0) else None)
-    corr = (None if term.length == 0.0 or dist is None  # (a length: dist is not None)
-            else discrepancy.correlation(dist, term.length))
+    dist = (
+        discrepancy.distances(problem.angles)
+        if term.length > 0 or (given is not None and given.length > 0)
+        else None
+    )
+    corr = (
+        None
+        if term.length == 0.0 or dist is None  # (a length: dist is not None)
+        else discrepancy.correlation(dist, term.length)
+    )
     return dist, corr
 
 
@@ -92,16 +119,28 @@ def _with_influence(term, rows: dict, problem: Problem, summary, scaled):
     """``term`` keeping its influence on the estimate (``rows``, by result name) and its
     configurations, for the step that is given this fit."""
     return dataclasses.replace(
-        term, influence={k: tuple(float(v) for v in row) for k, row in rows.items()},
+        term,
+        influence={k: tuple(float(v) for v in row) for k, row in rows.items()},
         angles=tuple(tuple(float(v) for v in a) for a in problem.angles),
         residuals=tuple(float(v) for v in summary.residuals),
-        scaled=tuple(float(v) for v in scaled))
+        scaled=tuple(float(v) for v in scaled),
+    )
 
 
-def reported(problem: Problem, x, summary, values, *, kind: str, rename: Callable = _same,
-             given_result=None, given_column: Callable[[str], int] | None = None,
-             propagation: str = "auto", keep_influence: bool = False,
-             floor=None) -> Reported:
+def reported(
+    problem: Problem,
+    x,
+    summary,
+    values,
+    *,
+    kind: str,
+    rename: Callable = _same,
+    given_result=None,
+    given_column: Callable[[str], int] | None = None,
+    propagation: str = "auto",
+    keep_influence: bool = False,
+    floor=None,
+) -> Reported:
     """The uncertainties of a fit at natural ``x``: the solver's ``summary`` (the noise's
     covariance of the free parameters, None when undetermined) and the model ``values``;
     ``rename(stderr, correlation)`` puts the problem's names into the result's.
@@ -121,24 +160,39 @@ def reported(problem: Problem, x, summary, values, *, kind: str, rename: Callabl
     # the given fit without any model-discrepancy term (its own or inherited): "off" reports
     # the noise alone, and every fit keeps its noise-only uncertainties when a term entered
     given_noise = None if given_result is None else discrepancy.noise_only(given_result)
-    stderr_total, corr_total, how = totals.of(cov, given_noise if kind == "off"
-                                              else given_result)
+    stderr_total, corr_total, how = totals.of(cov, given_noise if kind == "off" else given_result)
     if kind == "off" or not problem.weighted or cov is None:
         return Reported(stderr, corr, stderr_total, corr_total, None, how)
     jw = weighted_jacobian(problem, x)
-    term = discrepancy.step_term(summary.residuals, values, problem.w,
-                                 problem.n_points - problem.n_free, problem.angles,
-                                 discrepancy.given_term(given_result), kind, jw, floor)
+    term = discrepancy.step_term(
+        summary.residuals,
+        values,
+        problem.w,
+        problem.n_points - problem.n_free,
+        problem.angles,
+        discrepancy.given_term(given_result),
+        kind,
+        jw,
+        floor,
+    )
     if not (term.sigma > 0 or given_noise is not given_result):
         return Reported(stderr, corr, stderr_total, corr_total, term, how)
     # without an inherited term the total above is already the noise-only one
-    noise_total = ((stderr_total, corr_total) if given_noise is given_result
-                   else totals.of(cov, given_noise)[:2])
-    noise_only = {"stderr": stderr, "correlation": corr,
-                  "stderr_total": noise_total[0], "correlation_total": noise_total[1]}
+    noise_total = (
+        (stderr_total, corr_total)
+        if given_noise is given_result
+        else totals.of(cov, given_noise)[:2]
+    )
+    noise_only = {
+        "stderr": stderr,
+        "correlation": corr,
+        "stderr_total": noise_total[0],
+        "correlation_total": noise_total[1],
+    }
     if term.sigma > 0:
         stderr, corr, stderr_total, corr_total, how, term = _with_term(
-            totals, term, cov, jw, values, summary, given_result, how, keep_influence)
+            totals, term, cov, jw, values, summary, given_result, how, keep_influence
+        )
     term = dataclasses.replace(term, noise_only=noise_only)
     return Reported(stderr, corr, stderr_total, corr_total, term, how)
 
@@ -171,16 +225,18 @@ class _Totals:
             return None, None, None
         if id(given_res) not in self.parts:
             assert self.given_column is not None  # a given fit comes with its columns
-            self.parts[id(given_res)] = propagated(self.problem, self.x, given_res,
-                                                   self.given_column, self.propagation)
+            self.parts[id(given_res)] = propagated(
+                self.problem, self.x, given_res, self.given_column, self.propagation
+            )
         part, how = self.parts[id(given_res)]
         if part is None:
             return None, None, how
         return (*self.named(c + part + (0.0 if extra is None else extra)), how)
 
 
-def _with_term(totals: _Totals, term, cov, jw, values, summary, given_result, how,
-               keep_influence: bool) -> tuple:
+def _with_term(
+    totals: _Totals, term, cov, jw, values, summary, given_result, how, keep_influence: bool
+) -> tuple:
     """(stderr, correlation, their totals, how, the term) of a fit whose model-discrepancy
     ``term`` enters its covariance (the sandwich), with the error it shares with its given
     medium's fit and, with ``keep_influence``, its influence kept for step 2."""
@@ -188,15 +244,27 @@ def _with_term(totals: _Totals, term, cov, jw, values, summary, given_result, ho
     dist, corr_d = _term_correlation(problem, term, given_result)
     scaled = values * problem.w
     g = shared_error.influence(cov, jw, scaled)
-    shared = _shared(problem, totals.x, g, given_result, totals.given_column, term, how, dist,
-                     summary.residuals, scaled, jw)
-    if shared is not None:    # the sum of the shared process and step 2's own
+    shared = _shared(
+        problem,
+        totals.x,
+        g,
+        given_result,
+        totals.given_column,
+        term,
+        how,
+        dist,
+        summary.residuals,
+        scaled,
+        jw,
+    )
+    if shared is not None:  # the sum of the shared process and step 2's own
         corr_d, _, share = shared
         term = dataclasses.replace(term, session_correlation=share)
     cov = discrepancy.sandwich(cov, jw, scaled, term.sigma, corr_d)
     stderr, corr = totals.named(cov)
-    stderr_total, corr_total, how = totals.of(cov, given_result,
-                                              None if shared is None else shared[1])
+    stderr_total, corr_total, how = totals.of(
+        cov, given_result, None if shared is None else shared[1]
+    )
     if keep_influence and term.length > 0:
         term = _with_influence(term, totals.named_rows(g), problem, summary, scaled)
     return stderr, corr, stderr_total, corr_total, how, term
@@ -206,8 +274,9 @@ def model_floor(*models) -> tuple[float, float] | None:
     """The largest declared model error (s, ell) of ``models`` (classes or instances; None
     skipped), ``Model.MODEL_ERROR_FLOOR``; None when none declares one. (Only media declare
     one today; should a BRDF and a medium both declare, the larger is taken, not their sum.)"""
-    floors = [m.MODEL_ERROR_FLOOR for m in models
-              if m is not None and m.MODEL_ERROR_FLOOR is not None]
+    floors = [
+        m.MODEL_ERROR_FLOOR for m in models if m is not None and m.MODEL_ERROR_FLOOR is not None
+    ]
     return max(floors, default=None)
 
 

@@ -39,6 +39,7 @@ from .solver import covariance_matrix
 if TYPE_CHECKING:
     import numpy as np
 
+
 @dataclass(frozen=True)
 class FitResult:
     """One fitted model (docs/model.md sec. 7): values, uncertainties and goodness of fit.
@@ -107,7 +108,7 @@ class FitResult:
 
     @property
     def kind(self) -> str:
-        """"brdf" or "medium": the kind of the fitted model."""
+        """ "brdf" or "medium": the kind of the fitted model."""
         return self.model_class.KIND
 
     @overload
@@ -132,11 +133,12 @@ class FitResult:
         named: what needs one model, a fit of one channel or a map, says so)."""
         if self.channels is None:
             if channel is not None:
-                raise FitError(f"channel {channel!r}: this result is a fit of one channel; "
-                               f"call as_model() without a channel")
+                raise FitError(
+                    f"channel {channel!r}: this result is a fit of one channel; "
+                    f"call as_model() without a channel"
+                )
             return self.model_class.from_params(self.params, self.options)
-        return model_of_channel(self.model_class, self.params, self.channels, channel,
-                                self.options)
+        return model_of_channel(self.model_class, self.params, self.channels, channel, self.options)
 
     def given_model(self, channel: str | None = None) -> Model | None:
         """The model the fit held fixed (``given``), or None; of ``channel`` when it is a
@@ -205,10 +207,12 @@ class FitResult:
             "weighted": bool(self.weighted),
             "accuracy": self.accuracy,
             "given": self.given,
-            "stderr_total": None if self.stderr_total is None else
-            {k: json_float(v) for k, v in self.stderr_total.items()},
-            "correlation_total": None if self.correlation_total is None else
-            _json_matrix(self.correlation_total),
+            "stderr_total": None
+            if self.stderr_total is None
+            else {k: json_float(v) for k, v in self.stderr_total.items()},
+            "correlation_total": None
+            if self.correlation_total is None
+            else _json_matrix(self.correlation_total),
             "stats": self.stats,
             "residuals": [json_float(r) for r in self.residuals],
             # only when estimated: results without the term keep their earlier bytes
@@ -289,20 +293,25 @@ class JointResult(FitResult):
     def brdf(self, obj: str = "target") -> Model:
         names = self.layout["objects"].get(obj)
         if names is None:
-            raise FitError(f"the joint fit has no object {obj!r}; it has "
-                           f"{', '.join(self.layout['objects'])}")
+            raise FitError(
+                f"the joint fit has no object {obj!r}; it has {', '.join(self.layout['objects'])}"
+            )
         cls = self._family("brdf")
-        return cls.from_params({p.name: self.params[names[p.key]] for p in cls.PARAMS},
-                               self._options("brdf"))
+        return cls.from_params(
+            {p.name: self.params[names[p.key]] for p in cls.PARAMS}, self._options("brdf")
+        )
 
     def medium(self, label: str) -> Model:
         names = self.layout["media"].get(label)
         if names is None:
-            raise FitError(f"the joint fit has no medium {label!r}; it has "
-                           f"{', '.join(self.layout['media']) or 'none'}")
+            raise FitError(
+                f"the joint fit has no medium {label!r}; it has "
+                f"{', '.join(self.layout['media']) or 'none'}"
+            )
         cls = self._family("medium")
-        return cls.from_params({p.name: self.params[names[p.key]] for p in cls.PARAMS},
-                               self._options("medium"))
+        return cls.from_params(
+            {p.name: self.params[names[p.key]] for p in cls.PARAMS}, self._options("medium")
+        )
 
     def as_model(self, channel: str | None = None) -> Model:
         """The target's BRDF (what :meth:`FitResult.as_model` gives for a step-2 fit)."""
@@ -340,8 +349,9 @@ class JointResult(FitResult):
         except InputError as exc:
             raise FitError(f"{source}: {exc}") from None
         except KeyError as exc:
-            raise FitError(f"{source}: the layout names parameter {exc} that the model "
-                           f"does not have") from None
+            raise FitError(
+                f"{source}: the layout names parameter {exc} that the model does not have"
+            ) from None
         return result
 
 
@@ -360,13 +370,15 @@ def read_json(path) -> Any:
     except IsADirectoryError:
         raise NotAFileError(f"fit result {name} is a directory, not a JSON file") from None
     except UnicodeDecodeError as exc:
-        raise FitError(f"{name} is not UTF-8 text ({exc.reason}); expected a JSON fit "
-                       f"result") from None
+        raise FitError(
+            f"{name} is not UTF-8 text ({exc.reason}); expected a JSON fit result"
+        ) from None
     try:
         return json.loads(text)
     except json.JSONDecodeError as exc:
-        raise FitError(f"{name}: not valid JSON at line {exc.lineno}, column {exc.colno}: "
-                       f"{exc.msg}") from None
+        raise FitError(
+            f"{name}: not valid JSON at line {exc.lineno}, column {exc.colno}: {exc.msg}"
+        ) from None
 
 
 def load_result(path) -> FitResult:
@@ -378,8 +390,10 @@ def load_result(path) -> FitResult:
 
 
 #: How errors name the fit result a role needs, by kind.
-RESULTS = {"brdf": "a BRDF fit (step 0, 'veil fit reference')",
-           "medium": "a medium fit (step 1, 'veil fit medium')"}
+RESULTS = {
+    "brdf": "a BRDF fit (step 0, 'veil fit reference')",
+    "medium": "a medium fit (step 1, 'veil fit medium')",
+}
 
 
 def load_model_result(path, kind: str, option: str) -> FitResult:
@@ -388,14 +402,28 @@ def load_model_result(path, kind: str, option: str) -> FitResult:
     result = load_result(path)
     role = option.lstrip("-").replace("-", " ")
     if isinstance(result, JointResult):
-        raise FitError(f"{option} {os.fspath(path)}: the {role} must be {RESULTS[kind]}; got a "
-                       f"joint fit result")
+        raise FitError(
+            f"{option} {os.fspath(path)}: the {role} must be {RESULTS[kind]}; got a "
+            f"joint fit result"
+        )
     if result.kind != kind:
-        raise FitError(f"{option} {os.fspath(path)}: the {role} must be {RESULTS[kind]}; got a "
-                       f"{result.model} result" + (f" of step {result.step!r}" if result.step
-                                                   else ""))
+        raise FitError(
+            f"{option} {os.fspath(path)}: the {role} must be {RESULTS[kind]}; got a "
+            f"{result.model} result" + (f" of step {result.step!r}" if result.step else "")
+        )
     return result
 
 
-__all__ = ["FitResult", "JointResult", "FORMAT", "READABLE", "STEPS", "RESULTS", "model_entry",
-           "model_from_entry", "read_json", "load_result", "load_model_result"]
+__all__ = [
+    "FitResult",
+    "JointResult",
+    "FORMAT",
+    "READABLE",
+    "STEPS",
+    "RESULTS",
+    "model_entry",
+    "model_from_entry",
+    "read_json",
+    "load_result",
+    "load_model_result",
+]

@@ -54,18 +54,20 @@ def check_given(entry, where: str) -> None:
         model_from_entry(entry, where, c)
 
 
-def model_of_channel(cls: type[Model], params: dict, channels: dict, channel,
-                     options: dict) -> Model:
+def model_of_channel(
+    cls: type[Model], params: dict, channels: dict, channel, options: dict
+) -> Model:
     """The one-channel model of ``channel`` of a fit of several channels: its parameters
     taken from ``params`` through the layout ``channels`` ({channel: {parameter: name}})."""
     if channel is None or str(channel) not in channels:
         first = next(iter(channels))
-        raise FitError(f"this result fits channels {', '.join(channels)} at once and its "
-                       f"model is one channel's: name one (--channel {first} in veil fit "
-                       f"medium and target, as_model(channel={first!r}) or "
-                       f"channel={first!r} in Python); the other commands take results of "
-                       f"one channel"
-                       + ("" if channel is None else f" (it has no channel {channel!r})"))
+        raise FitError(
+            f"this result fits channels {', '.join(channels)} at once and its "
+            f"model is one channel's: name one (--channel {first} in veil fit "
+            f"medium and target, as_model(channel={first!r}) or "
+            f"channel={first!r} in Python); the other commands take results of "
+            f"one channel" + ("" if channel is None else f" (it has no channel {channel!r})")
+        )
     names = channels[str(channel)]
     return cls.from_params({p: params[names[p]] for p in cls.param_names()}, options)
 
@@ -77,21 +79,29 @@ def read_channels(data: dict, cls: type[Model], source: str) -> dict | None:
     if channels is None:
         return None
     names = set(cls.param_names())
-    if not isinstance(channels, dict) or not channels or not all(
-            isinstance(m, dict) and set(m) == names and all(isinstance(v, str)
-                                                            for v in m.values())
-            for m in channels.values()):
-        raise FitError(f"{source}: key 'channels' must map each channel to an object naming "
-                       f"every parameter of {cls.NAME} ({', '.join(cls.param_names())})")
+    if (
+        not isinstance(channels, dict)
+        or not channels
+        or not all(
+            isinstance(m, dict) and set(m) == names and all(isinstance(v, str) for v in m.values())
+            for m in channels.values()
+        )
+    ):
+        raise FitError(
+            f"{source}: key 'channels' must map each channel to an object naming "
+            f"every parameter of {cls.NAME} ({', '.join(cls.param_names())})"
+        )
     return {str(c): dict(m) for c, m in channels.items()}
 
 
 def _check_format(data: dict, source: str) -> None:
     fmt = data.get("format")
     if fmt is not None and fmt not in READABLE:
-        raise FitError(f"{source}: key 'format' = {fmt!r}: this veil reads result files of "
-                       f"format {', '.join(READABLE)}; the file was written by another "
-                       f"(newer?) version of veil")
+        raise FitError(
+            f"{source}: key 'format' = {fmt!r}: this veil reads result files of "
+            f"format {', '.join(READABLE)}; the file was written by another "
+            f"(newer?) version of veil"
+        )
 
 
 def _check_common(data: dict, source: str) -> None:
@@ -99,8 +109,7 @@ def _check_common(data: dict, source: str) -> None:
     if isinstance(n, bool) or not isinstance(n, int) or n < 0:
         raise FitError(f"{source}: key 'n_points' = {n!r}; expected an integer >= 0")
     if not isinstance(data["converged"], bool):
-        raise FitError(f"{source}: key 'converged' = {data['converged']!r}; expected "
-                       f"true or false")
+        raise FitError(f"{source}: key 'converged' = {data['converged']!r}; expected true or false")
 
 
 def _read_residuals(data: dict, source: str) -> tuple:
@@ -129,9 +138,15 @@ def _json_term(term: ModelError) -> dict:
     noise = out["noise_only"]
     if noise is not None:
         out["noise_only"] = {
-            k: None if v is None else (_json_matrix(v) if k.startswith("correlation") else
-                                       {n: json_float(x) for n, x in v.items()})
-            for k, v in noise.items()}
+            k: None
+            if v is None
+            else (
+                _json_matrix(v)
+                if k.startswith("correlation")
+                else {n: json_float(x) for n, x in v.items()}
+            )
+            for k, v in noise.items()
+        }
     return out
 
 

@@ -34,19 +34,27 @@ def _model_class_of(name, source: str):
     try:
         return model_class(name)
     except InputError:
-        raise FitError(f"{source}: key 'model' = {name!r} is not a known model "
-                       f"({', '.join(family_names())})") from None
+        raise FitError(
+            f"{source}: key 'model' = {name!r} is not a known model ({', '.join(family_names())})"
+        ) from None
 
 
 def _variant_of(data: dict, source: str):
     """The result's variant: one of the registered families' variants, or None."""
     variant = data[VARIANT_OPTION]
-    known = sorted({str(choice) for family in map(model_class, family_names())
-                    for o in family.OPTIONS if o.name == VARIANT_OPTION
-                    for choice in o.choices})
+    known = sorted(
+        {
+            str(choice)
+            for family in map(model_class, family_names())
+            for o in family.OPTIONS
+            if o.name == VARIANT_OPTION
+            for choice in o.choices
+        }
+    )
     if variant is not None and variant not in known:
-        raise FitError(f"{source}: key 'variant' = {variant!r}; expected one of "
-                       f"{', '.join(known)} or null")
+        raise FitError(
+            f"{source}: key 'variant' = {variant!r}; expected one of {', '.join(known)} or null"
+        )
     return variant
 
 
@@ -63,22 +71,30 @@ def _common_fields(data: dict, names, source: str) -> dict:
         residuals=_read_residuals(data, source),
         chi2_reduced=_read_statistic(data["chi2_reduced"], source),
         rms_relative=_read_statistic(data["rms_relative"], source),
-        n_points=int(data["n_points"]), converged=data["converged"],
-        message=str(data["message"]), weighted=bool(data.get("weighted", True)),
-        accuracy=data.get("accuracy"), stats=_read_stats(data, source),
+        n_points=int(data["n_points"]),
+        converged=data["converged"],
+        message=str(data["message"]),
+        weighted=bool(data.get("weighted", True)),
+        accuracy=data.get("accuracy"),
+        stats=_read_stats(data, source),
         determined=bool(data.get("determined", True)),
-        stderr_total=None if total is None else
-        {k: from_json_float(total.get(k), source) for k in names},
-        correlation_total=None if data.get("correlation_total") is None else
-        _read_matrix(data["correlation_total"], source),
-        model_error=_read_term(data.get("model_error"), list(names), source))
+        stderr_total=None
+        if total is None
+        else {k: from_json_float(total.get(k), source) for k in names},
+        correlation_total=None
+        if data.get("correlation_total") is None
+        else _read_matrix(data["correlation_total"], source),
+        model_error=_read_term(data.get("model_error"), list(names), source),
+    )
 
 
 def _check_keys(data, required: tuple, source: str, what: str, command: str) -> None:
     missing = [k for k in required if k not in data]
     if missing:
-        raise FitError(f"{source}: missing key(s) {', '.join(missing)}; is this a {what} "
-                       f"written by veil ({command} -o FILE.json)?")
+        raise FitError(
+            f"{source}: missing key(s) {', '.join(missing)}; is this a {what} "
+            f"written by veil ({command} -o FILE.json)?"
+        )
 
 
 def _check_numbers(params: dict, source: str) -> None:
@@ -99,8 +115,10 @@ def _fit_params(data: dict, source: str):
         names = tuple(dict.fromkeys(channels[c][p] for p in names for c in channels))
     if not isinstance(params, dict) or list(params) != list(names):
         got = list(params) if isinstance(params, dict) else params
-        raise FitError(f"{source}: key 'params' must map exactly {', '.join(names)} (in "
-                       f"this order) for model {name}; got {got!r}")
+        raise FitError(
+            f"{source}: key 'params' must map exactly {', '.join(names)} (in "
+            f"this order) for model {name}; got {got!r}"
+        )
     _check_numbers(params, source)
     return mcls, names, channels
 
@@ -108,8 +126,11 @@ def _fit_params(data: dict, source: str):
 def _fit_options(data: dict, mcls, variant, source: str) -> dict:
     options = data.get("options")
     if options is None:  # files of format veil.fit/1 keep the variant only
-        options = {VARIANT_OPTION: variant} if VARIANT_OPTION in mcls.option_names() \
-            and variant is not None else {}
+        options = (
+            {VARIANT_OPTION: variant}
+            if VARIANT_OPTION in mcls.option_names() and variant is not None
+            else {}
+        )
     if not isinstance(options, dict):
         raise FitError(f"{source}: key 'options' must be an object; got {options!r}")
     return options
@@ -119,19 +140,39 @@ def fit_fields(data: dict, source: str) -> dict:
     """The fields of a :class:`~veil.fitting.result.FitResult` from the data of its file
     (written by its ``to_dict``), every key checked; errors name ``source``."""
     if not isinstance(data, dict):
-        raise FitError(f"{source}: expected a JSON object with keys model, params, ...; "
-                       f"got {type(data).__name__}")
+        raise FitError(
+            f"{source}: expected a JSON object with keys model, params, ...; "
+            f"got {type(data).__name__}"
+        )
     _check_format(data, source)
-    _check_keys(data, ("model", "params", "stderr", "correlation", "chi2_reduced",
-                       "rms_relative", "n_points", "converged", "message", VARIANT_OPTION),
-                source, "fit result", "veil fit ...")
+    _check_keys(
+        data,
+        (
+            "model",
+            "params",
+            "stderr",
+            "correlation",
+            "chi2_reduced",
+            "rms_relative",
+            "n_points",
+            "converged",
+            "message",
+            VARIANT_OPTION,
+        ),
+        source,
+        "fit result",
+        "veil fit ...",
+    )
     mcls, names, channels = _fit_params(data, source)
     variant = _variant_of(data, source)
     options = _fit_options(data, mcls, variant, source)
     try:
         values = {k: float(v) for k, v in data["params"].items()}
-        model = mcls.from_params(values, options) if channels is None else \
-            model_of_channel(mcls, values, channels, next(iter(channels)), options)
+        model = (
+            mcls.from_params(values, options)
+            if channels is None
+            else model_of_channel(mcls, values, channels, next(iter(channels)), options)
+        )
         for c in channels or {}:
             model_of_channel(mcls, values, channels or {}, c, options)
     except InputError as exc:
@@ -140,19 +181,29 @@ def fit_fields(data: dict, source: str) -> dict:
     check_given(given, f"{source}: key 'given'")
     stderr = data["stderr"]
     if not isinstance(stderr, dict) or set(stderr) - set(names):
-        raise FitError(f"{source}: key 'stderr' must map parameter names ({', '.join(names)})"
-                       f" to numbers or null; got {stderr!r}")
+        raise FitError(
+            f"{source}: key 'stderr' must map parameter names ({', '.join(names)})"
+            f" to numbers or null; got {stderr!r}"
+        )
     fixed = data.get("fixed") or {}
     if not isinstance(fixed, dict) or set(fixed) - set(names):
-        raise FitError(f"{source}: key 'fixed' must map parameter names to values; "
-                       f"got {fixed!r}")
+        raise FitError(f"{source}: key 'fixed' must map parameter names to values; got {fixed!r}")
     step = data.get("step")
     if step is not None and step not in STEPS + ("direct",):
-        raise FitError(f"{source}: key 'step' = {step!r}; expected one of "
-                       f"{', '.join(STEPS)}, direct or null")
-    return dict(_common_fields(data, names, source), model=data["model"], params=values,
-                variant=variant, fixed={k: float(v) for k, v in fixed.items()}, step=step,
-                given=given, options=model.options(), channels=channels)
+        raise FitError(
+            f"{source}: key 'step' = {step!r}; expected one of {', '.join(STEPS)}, direct or null"
+        )
+    return dict(
+        _common_fields(data, names, source),
+        model=data["model"],
+        params=values,
+        variant=variant,
+        fixed={k: float(v) for k, v in fixed.items()},
+        step=step,
+        given=given,
+        options=model.options(),
+        channels=channels,
+    )
 
 
 def _check_layout(layout, params, source: str) -> None:
@@ -162,10 +213,12 @@ def _check_layout(layout, params, source: str) -> None:
     for part in ("objects", "media"):
         entries = layout[part]
         if not isinstance(entries, dict) or not all(
-                isinstance(m, dict) and all(isinstance(v, str) for v in m.values())
-                for m in entries.values()):
-            raise FitError(f"{source}: layout.{part} must map each {part[:-1]} to an "
-                           f"object of parameter names")
+            isinstance(m, dict) and all(isinstance(v, str) for v in m.values())
+            for m in entries.values()
+        ):
+            raise FitError(
+                f"{source}: layout.{part} must map each {part[:-1]} to an object of parameter names"
+            )
     for part in ("models", "options"):
         if layout.get(part) is not None and not isinstance(layout[part], dict):
             raise FitError(f"{source}: layout.{part} must be an object")
@@ -175,8 +228,9 @@ def _check_layout(layout, params, source: str) -> None:
     named += [n for names in layout["media"].values() for n in names.values()]
     absent = [n for n in dict.fromkeys(named) if n not in params]
     if absent:
-        raise FitError(f"{source}: layout names parameter(s) {', '.join(absent)} missing "
-                       f"from 'params'")
+        raise FitError(
+            f"{source}: layout names parameter(s) {', '.join(absent)} missing from 'params'"
+        )
 
 
 def joint_fields(data: dict, source: str) -> dict:
@@ -185,19 +239,39 @@ def joint_fields(data: dict, source: str) -> dict:
     if not isinstance(data, dict) or data.get("model") != "joint":
         raise FitError(f"{source}: not a joint fit result (expected key 'model' = 'joint')")
     _check_format(data, source)
-    _check_keys(data, ("params", "stderr", "correlation", "chi2_reduced", "rms_relative",
-                       "n_points", "converged", "message", VARIANT_OPTION, "layout"),
-                source, "joint fit result", "veil fit joint")
+    _check_keys(
+        data,
+        (
+            "params",
+            "stderr",
+            "correlation",
+            "chi2_reduced",
+            "rms_relative",
+            "n_points",
+            "converged",
+            "message",
+            VARIANT_OPTION,
+            "layout",
+        ),
+        source,
+        "joint fit result",
+        "veil fit joint",
+    )
     params = data["params"]
     _check_layout(data["layout"], params, source)
     _check_numbers(params, source)
     if not isinstance(data["stderr"], dict):
         raise FitError(f"{source}: key 'stderr' must map names to numbers or null")
-    return dict(_common_fields(data, list(params), source), model="joint",
-                params={k: float(v) for k, v in params.items()},
-                variant=data[VARIANT_OPTION],
-                fixed={k: float(v) for k, v in (data.get("fixed") or {}).items()},
-                step="joint", given=data.get("given"), layout=data["layout"])
+    return dict(
+        _common_fields(data, list(params), source),
+        model="joint",
+        params={k: float(v) for k, v in params.items()},
+        variant=data[VARIANT_OPTION],
+        fixed={k: float(v) for k, v in (data.get("fixed") or {}).items()},
+        step="joint",
+        given=data.get("given"),
+        layout=data["layout"],
+    )
 
 
 __all__ = ["STEPS", "fit_fields", "joint_fields"]

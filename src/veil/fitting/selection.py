@@ -52,8 +52,9 @@ class NoCandidateError(FitError):
 
     def __init__(self, step: str, ranking: Ranking):
         self.step, self.ranking = step, ranking
-        super().__init__(f"{step}: every candidate failed or did not converge ("
-                         f"{len(ranking.rows)} tried)")
+        super().__init__(
+            f"{step}: every candidate failed or did not converge ({len(ranking.rows)} tried)"
+        )
 
 
 @dataclass(frozen=True)
@@ -83,22 +84,26 @@ class Candidate:
         return out
 
 
-def candidates(kind: str, given_options: dict | None = None,
-               families=None) -> list[Candidate]:
+def candidates(kind: str, given_options: dict | None = None, families=None) -> list[Candidate]:
     """The candidates of ``kind`` ("brdf" or "medium"); ``given_options`` pin ranked options
     where a family declares them; ``families`` (names) restricts to those families."""
-    pinned = {k: v for k, v in (given_options or {}).items()
-              if k not in registry.APPARATUS_OPTIONS}
-    found = [Candidate(name, opts) for name, opts in registry.candidates(kind, pinned)
-             if _constructible(name, opts)]
+    pinned = {k: v for k, v in (given_options or {}).items() if k not in registry.APPARATUS_OPTIONS}
+    found = [
+        Candidate(name, opts)
+        for name, opts in registry.candidates(kind, pinned)
+        if _constructible(name, opts)
+    ]
     # an option left with one value in a family (pinned, or the only one the model makes)
     # does not tell its candidates apart: out of their labels (model_options still sets it)
     out = []
     for c in found:
         same = [c2 for c2 in found if c2.family == c.family]
-        keep = {k: v for k, v in c.options.items()
-                if any(c2.options.get(k) != v for c2 in same)        # tells them apart
-                or (v != _default(c.family, k) and k not in pinned)}  # nothing else sets it
+        keep = {
+            k: v
+            for k, v in c.options.items()
+            if any(c2.options.get(k) != v for c2 in same)  # tells them apart
+            or (v != _default(c.family, k) and k not in pinned)
+        }  # nothing else sets it
         out.append(Candidate(c.family, keep))
     found = out
     if families is not None:
@@ -137,11 +142,15 @@ def parse_models(text) -> str | tuple[str, str]:
         return word
     brdf, plus, medium = word.partition("+")
     if not plus:
-        raise InputError(f"models {text!r}: expected auto, paper or FAMILY+MEDIUM; BRDF "
-                         f"families: {', '.join(registry.names('brdf'))}; media: "
-                         f"{', '.join(registry.names('medium'))}")
-    return (registry.model_class(brdf.strip(), "brdf").NAME,
-            registry.model_class(medium.strip(), "medium").NAME)
+        raise InputError(
+            f"models {text!r}: expected auto, paper or FAMILY+MEDIUM; BRDF "
+            f"families: {', '.join(registry.names('brdf'))}; media: "
+            f"{', '.join(registry.names('medium'))}"
+        )
+    return (
+        registry.model_class(brdf.strip(), "brdf").NAME,
+        registry.model_class(medium.strip(), "medium").NAME,
+    )
 
 
 # --------------------------------------------------------------------------------------
@@ -208,7 +217,7 @@ def deviance(result: FitResult, data) -> tuple[float, int]:
         return float(r @ r), 0
     f = data.y - r * data.sigma
     a = f / data.sigma
-    t = term.sigma ** 2
+    t = term.sigma**2
     if term.length <= 0:
         nll = _nll_independent(r, a, t)
     else:
@@ -246,11 +255,17 @@ class Ranking:
             if isinstance(v, float) and not math.isfinite(v):
                 return None
             return v
-        return {"step": self.step, "criterion": "BIC with the model-discrepancy term",
-                "chosen": self.chosen, "close_call": self.close_call, "close": list(self.close),
-                "close_delta_bic": CLOSE_DELTA_BIC,
-                "candidates": [{k: clean(v) for k, v in r.items()} for r in self.rows],
-                "spread": self.spread}
+
+        return {
+            "step": self.step,
+            "criterion": "BIC with the model-discrepancy term",
+            "chosen": self.chosen,
+            "close_call": self.close_call,
+            "close": list(self.close),
+            "close_delta_bic": CLOSE_DELTA_BIC,
+            "candidates": [{k: clean(v) for k, v in r.items()} for r in self.rows],
+            "spread": self.spread,
+        }
 
     def with_spread(self, spread: dict | None) -> Ranking:
         return Ranking(self.step, self.rows, self.chosen, self.close, spread)
@@ -263,26 +278,46 @@ def rank(step: str, fitted: dict, data, cands=None) -> Ranking:
     rows = []
     for label, (result, seconds) in fitted.items():
         cand = by_label.get(label)
-        row = {"label": label, "family": cand.family if cand else None,
-               "options": dict(cand.options) if cand else {}, "chi2": None, "deviance": None,
-               "rms_relative": None, "n_points": None, "k": None, "aic": None, "bic": None,
-               "delta_bic": None, "weight": 0.0, "converged": False, "error": None,
-               "seconds": round(seconds, 3)}
+        row = {
+            "label": label,
+            "family": cand.family if cand else None,
+            "options": dict(cand.options) if cand else {},
+            "chi2": None,
+            "deviance": None,
+            "rms_relative": None,
+            "n_points": None,
+            "k": None,
+            "aic": None,
+            "bic": None,
+            "delta_bic": None,
+            "weight": 0.0,
+            "converged": False,
+            "error": None,
+            "seconds": round(seconds, 3),
+        }
         if isinstance(result, Exception):
             row["error"] = f"{type(result).__name__}: {result}"
         else:
             res = np.asarray(result.residuals, dtype=float)
             dev, extra = deviance(result, data)
             n, k = res.size, result.n_free + extra
-            row.update(family=result.model, options=dict(result.options) if cand is None
-                       else row["options"], chi2=float(res @ res), deviance=dev,
-                       rms_relative=float(result.rms_relative), n_points=n, k=k,
-                       aic=dev + 2 * k, bic=dev + k * math.log(max(n, 1)),
-                       converged=bool(result.converged))
+            row.update(
+                family=result.model,
+                options=dict(result.options) if cand is None else row["options"],
+                chi2=float(res @ res),
+                deviance=dev,
+                rms_relative=float(result.rms_relative),
+                n_points=n,
+                k=k,
+                aic=dev + 2 * k,
+                bic=dev + k * math.log(max(n, 1)),
+                converged=bool(result.converged),
+            )
             if not result.converged:
                 said = result.message or ""
-                row["error"] = said if said.startswith("did not converge") else \
-                    f"did not converge: {said}"
+                row["error"] = (
+                    said if said.startswith("did not converge") else f"did not converge: {said}"
+                )
             elif not math.isfinite(dev):
                 row["error"] = "the likelihood is not finite"
         rows.append(row)
@@ -306,8 +341,7 @@ def select(step: str, cands, data, fit, what: str, progress=None) -> tuple[Ranki
     (ranking, {label: FitResult}). A :class:`NoCandidateError` when every candidate failed;
     the chosen one is warned about when it misses the data (``what`` names them)."""
     if progress is not None:
-        progress(f"{step}: {len(cands)} candidates in {workers(len(cands))} thread(s)",
-                 None, None)
+        progress(f"{step}: {len(cands)} candidates in {workers(len(cands))} thread(s)", None, None)
     count = {"done": 0}
 
     def tell(label, outcome):
@@ -345,27 +379,42 @@ def curve_spread(ranking: Ranking, curves: dict) -> dict | None:
     spread = np.sqrt(np.maximum(w @ (f - mean) ** 2, 0.0))
     ref = np.abs(np.asarray(curves[ranking.chosen], dtype=float))
     rel = spread / np.where(ref > 0, ref, np.inf)
-    return {"labels": labels, "weights": [float(v) for v in w],
-            "spread": [float(v) for v in spread], "mean": [float(v) for v in mean],
-            "rms_relative": float(np.sqrt(np.mean(rel ** 2))),
-            "max_relative": float(np.max(rel))}
+    return {
+        "labels": labels,
+        "weights": [float(v) for v in w],
+        "spread": [float(v) for v in spread],
+        "mean": [float(v) for v in mean],
+        "rms_relative": float(np.sqrt(np.mean(rel**2))),
+        "max_relative": float(np.max(rel)),
+    }
 
 
 def table_lines(ranking: Ranking, markdown: bool = False) -> list[str]:
     """The ranking as a table (text or markdown): chi-square, RMS residual, AIC, BIC,
     delta-BIC, weight, converged, one candidate a line, best first."""
+
     def num(v, fmt):
-        return "-" if v is None or (isinstance(v, float) and not math.isfinite(v)) \
-            else format(v, fmt)
+        return (
+            "-" if v is None or (isinstance(v, float) and not math.isfinite(v)) else format(v, fmt)
+        )
+
     head = ("candidate", "chi2", "RMS resid. %", "AIC", "BIC", "dBIC", "weight", "converged")
     body = []
     for r in ranking.rows:
         mark = "*" if r["label"] == ranking.chosen else ""
         rms = None if r["rms_relative"] is None else 100 * r["rms_relative"]
-        body.append((r["label"] + mark, num(r["chi2"], ".4g"), num(rms, ".3g"),
-                     num(r["aic"], ".2f"), num(r["bic"], ".2f"), num(r["delta_bic"], ".2f"),
-                     num(r["weight"], ".3f"),
-                     "yes" if r["converged"] else ("failed" if r["chi2"] is None else "no")))
+        body.append(
+            (
+                r["label"] + mark,
+                num(r["chi2"], ".4g"),
+                num(rms, ".3g"),
+                num(r["aic"], ".2f"),
+                num(r["bic"], ".2f"),
+                num(r["delta_bic"], ".2f"),
+                num(r["weight"], ".3f"),
+                "yes" if r["converged"] else ("failed" if r["chi2"] is None else "no"),
+            )
+        )
     notes = [f"  {r['label']}: {r['error']}" for r in ranking.rows if r["error"]]
     if markdown:
         lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
@@ -373,8 +422,9 @@ def table_lines(ranking: Ranking, markdown: bool = False) -> list[str]:
         lines += [""] + [f"- {n.strip()}" for n in notes] if notes else []
     else:
         widths = [max(len(x[i]) for x in [head] + body) for i in range(len(head))]
-        lines = ["  ".join(x.ljust(w) for x, w in zip(row, widths)).rstrip()
-                 for row in [head] + body]
+        lines = [
+            "  ".join(x.ljust(w) for x, w in zip(row, widths)).rstrip() for row in [head] + body
+        ]
         lines += notes
     lines += close_call_lines(ranking)
     return lines
@@ -387,15 +437,32 @@ def close_call_lines(ranking: Ranking) -> list[str]:
     if not ranking.close_call:
         return []
     others = [lab for lab in ranking.close if lab != ranking.chosen]
-    text = (f"close call: {', '.join(others)} within delta-BIC {CLOSE_DELTA_BIC:g} of "
-            f"{ranking.chosen}; the data do not decide between them")
+    text = (
+        f"close call: {', '.join(others)} within delta-BIC {CLOSE_DELTA_BIC:g} of "
+        f"{ranking.chosen}; the data do not decide between them"
+    )
     if ranking.spread is not None:
-        text += (f"; the curves' uncertainty is widened by their BIC-weighted spread "
-                 f"({100 * ranking.spread['rms_relative']:.3g} % RMS, "
-                 f"{100 * ranking.spread['max_relative']:.3g} % at most)")
+        text += (
+            f"; the curves' uncertainty is widened by their BIC-weighted spread "
+            f"({100 * ranking.spread['rms_relative']:.3g} % RMS, "
+            f"{100 * ranking.spread['max_relative']:.3g} % at most)"
+        )
     return [text]
 
 
-__all__ = ["CLOSE_DELTA_BIC", "MODES", "NoCandidateError", "Candidate", "candidates",
-           "parse_models", "workers", "fit_candidates", "deviance", "Ranking", "rank",
-           "curve_spread", "table_lines", "close_call_lines"]
+__all__ = [
+    "CLOSE_DELTA_BIC",
+    "MODES",
+    "NoCandidateError",
+    "Candidate",
+    "candidates",
+    "parse_models",
+    "workers",
+    "fit_candidates",
+    "deviance",
+    "Ranking",
+    "rank",
+    "curve_spread",
+    "table_lines",
+    "close_call_lines",
+]

@@ -28,11 +28,11 @@ class FitData:
     """One session's data: canonical ``angles``, values ``y``, their ``sigma`` (None: fit
     unweighted) and the validated ``table``; ``w`` are the residual weights 1/sigma (or 1)."""
 
-    angles: tuple          # canonical theta_i, phi_i, theta_r, phi_r (degrees)
+    angles: tuple  # canonical theta_i, phi_i, theta_r, phi_r (degrees)
     y: np.ndarray
     sigma: np.ndarray | None
-    table: pd.DataFrame    # validated, black subtracted
-    black: bool = False    # whether a black-cloth session was subtracted
+    table: pd.DataFrame  # validated, black subtracted
+    black: bool = False  # whether a black-cloth session was subtracted
 
     @property
     def w(self) -> np.ndarray:
@@ -47,8 +47,10 @@ def _load(table, what: str) -> pd.DataFrame:
     if isinstance(table, (str, os.PathLike)):
         return load_measurements(table)
     if not isinstance(table, pd.DataFrame):
-        raise InputTypeError(f"{what}: expected a measurement table (pandas DataFrame) or a CSV "
-                        f"path, got {type(table).__name__}")
+        raise InputTypeError(
+            f"{what}: expected a measurement table (pandas DataFrame) or a CSV "
+            f"path, got {type(table).__name__}"
+        )
     if "veil_source" not in table.attrs and "veil_name" not in table.attrs:
         table = table.copy()
         table.attrs["veil_name"] = f"the {what} table"
@@ -64,12 +66,15 @@ def channels_of(table, what: str = "measurement") -> tuple[pd.DataFrame, list[st
 
 
 #: How a multi-channel table's one channel is chosen, for the messages.
-SELECT = ("select one with --channel NAME in veil fit reference, medium or target "
-          "(channel='NAME' in Python), or keep one channel's rows of the table")
+SELECT = (
+    "select one with --channel NAME in veil fit reference, medium or target "
+    "(channel='NAME' in Python), or keep one channel's rows of the table"
+)
 
 
-def one_channel(table: pd.DataFrame, channel: str | None, what: str,
-                several: str = "") -> tuple[pd.DataFrame, str | None]:
+def one_channel(
+    table: pd.DataFrame, channel: str | None, what: str, several: str = ""
+) -> tuple[pd.DataFrame, str | None]:
     """The rows of ``channel`` of a table with a ``channel`` column, without it (a table
     without one as it is; its only channel when ``channel`` is None). A MeasurementError for
     a channel the table lacks, a channel asked of a table without channels, or several
@@ -79,23 +84,28 @@ def one_channel(table: pd.DataFrame, channel: str | None, what: str,
     source = RowNames(table).what
     if labels is None:
         if channel is not None:
-            raise MeasurementError(f"channel {channel!r} asked, but {source} has no "
-                                   f"{CHANNEL!r} column (it is one channel)")
+            raise MeasurementError(
+                f"channel {channel!r} asked, but {source} has no "
+                f"{CHANNEL!r} column (it is one channel)"
+            )
         return table, None
     order = channel_order(labels)
     if channel is None and len(order) > 1:
         raise MeasurementError(
             f"{source} holds {len(order)} channels ({', '.join(order)}): the {what} fit does "
-            f"not fit several channels at once{several}; {SELECT}")
+            f"not fit several channels at once{several}; {SELECT}"
+        )
     name = order[0] if channel is None else channel_label(channel)
     if name not in order:
-        raise MeasurementError(f"{source} has no channel {channel!r}; its channels are "
-                               f"{', '.join(order)}")
+        raise MeasurementError(
+            f"{source} has no channel {channel!r}; its channels are {', '.join(order)}"
+        )
     return channel_rows(table, labels, name), name
 
 
-def prepare(table, black=None, what: str = "measurement", channel: str | None = None,
-            several: str = "") -> FitData:
+def prepare(
+    table, black=None, what: str = "measurement", channel: str | None = None, several: str = ""
+) -> FitData:
     """Validated data of a session (docs/model.md sec. 7), the black cloth subtracted if
     given; of one channel of a multi-channel table (:func:`one_channel`)."""
     table = _load(table, what)
@@ -121,32 +131,38 @@ def prepare(table, black=None, what: str = "measurement", channel: str | None = 
             raise MeasurementError(
                 f"{rows.many(zero)}, column 'sigma': 0 ({zero.size} row(s)); a zero standard "
                 f"deviation would give the point infinite weight: give every row a positive "
-                f"sigma, or drop the sigma column to fit unweighted")
+                f"sigma, or drop the sigma column to fit unweighted"
+            )
     for column, values in (("value", y), ("sigma", sigma)):
         if values is not None:
             _check_magnitude(values, column, checked)
     return FitData(angles, y, sigma, checked, black is not None)
 
 
-def _black_channel(black: pd.DataFrame, table: pd.DataFrame, channel: str | None
-                   ) -> pd.DataFrame:
+def _black_channel(black: pd.DataFrame, table: pd.DataFrame, channel: str | None) -> pd.DataFrame:
     """The black-cloth rows of the session's ``channel``: a MeasurementError naming the
     black file when it lacks that channel, or when only one of the two tables has channels."""
     source = RowNames(black).what
     if channel is None:
-        raise MeasurementError(f"the black-cloth table {source} has a {CHANNEL!r} column but "
-                               f"the session {RowNames(table).what} has none: give both "
-                               f"tables per channel or neither")
+        raise MeasurementError(
+            f"the black-cloth table {source} has a {CHANNEL!r} column but "
+            f"the session {RowNames(table).what} has none: give both "
+            f"tables per channel or neither"
+        )
     if CHANNEL not in black.columns:
-        raise MeasurementError(f"the black-cloth table {source} has no {CHANNEL!r} column: "
-                               f"the session's channel {channel!r} needs the black cloth "
-                               f"measured in that channel")
+        raise MeasurementError(
+            f"the black-cloth table {source} has no {CHANNEL!r} column: "
+            f"the session's channel {channel!r} needs the black cloth "
+            f"measured in that channel"
+        )
     labels = table_channels(black)
     assert labels is not None  # it has the column
     if channel not in channel_order(labels):
-        raise MeasurementError(f"the black-cloth table {source} has no channel {channel!r} "
-                               f"(its channels are {', '.join(channel_order(labels))}); "
-                               f"measure the black cloth in every channel of the session")
+        raise MeasurementError(
+            f"the black-cloth table {source} has no channel {channel!r} "
+            f"(its channels are {', '.join(channel_order(labels))}); "
+            f"measure the black cloth in every channel of the session"
+        )
     return channel_rows(black, labels, channel)
 
 
@@ -162,17 +178,22 @@ def _check_magnitude(values: np.ndarray, column: str, table: pd.DataFrame) -> No
     size = np.abs(values)
     rows = RowNames(table)
     big = np.flatnonzero(size > hi)
-    how = (f"veil fits values of magnitude {lo:g} to {hi:g}: rescale the table (multiply "
-           f"'value' and 'sigma' by one factor; the fitted scale coefficients follow it)")
+    how = (
+        f"veil fits values of magnitude {lo:g} to {hi:g}: rescale the table (multiply "
+        f"'value' and 'sigma' by one factor; the fitted scale coefficients follow it)"
+    )
     if big.size:
         k = int(big[np.argmax(size[big])])
-        raise MeasurementError(f"{rows(k)}, column {column!r}: {values[k]:.6g} ({big.size} "
-                               f"row(s) above {hi:g}); {how}")
+        raise MeasurementError(
+            f"{rows(k)}, column {column!r}: {values[k]:.6g} ({big.size} row(s) above {hi:g}); {how}"
+        )
     top = float(size.max()) if size.size else 0.0
     if 0 < top < lo:
         k = int(np.argmax(size))
-        raise MeasurementError(f"{rows.what}, column {column!r}: the largest magnitude is "
-                               f"{top:.6g} ({rows(k)}), below {lo:g}; {how}")
+        raise MeasurementError(
+            f"{rows.what}, column {column!r}: the largest magnitude is "
+            f"{top:.6g} ({rows(k)}), below {lo:g}; {how}"
+        )
 
 
 __all__ = ["FitData", "prepare", "channels_of", "one_channel", "SELECT"]

@@ -22,13 +22,24 @@ SHARE_GRID = 41
 def influence(cov, weighted_jacobian, scaled_values) -> np.ndarray:
     """G = C J_w^T A (free parameters x points): the estimate's change per unit relative
     error at each configuration (module docstring)."""
-    return (np.asarray(cov, dtype=float) @ np.asarray(weighted_jacobian, dtype=float).T
-            * np.asarray(scaled_values, dtype=float)[None, :])
+    return (
+        np.asarray(cov, dtype=float)
+        @ np.asarray(weighted_jacobian, dtype=float).T
+        * np.asarray(scaled_values, dtype=float)[None, :]
+    )
 
 
-def session_correlation(residuals, scaled_values, weighted_jacobian, angles, own_cov,
-                        given: ModelError, given_names, given_jacobian,
-                        given_cov) -> float | None:
+def session_correlation(
+    residuals,
+    scaled_values,
+    weighted_jacobian,
+    angles,
+    own_cov,
+    given: ModelError,
+    given_names,
+    given_jacobian,
+    given_cov,
+) -> float | None:
     """How far step 2's model error is the one its given medium's fit showed, in [0, 1] (1:
     one process over both sessions, :func:`shared`; 0: independent): the mean of c under
     the restricted likelihood of both fits' residuals at once, normalized over c in [0, 1]
@@ -43,8 +54,17 @@ def session_correlation(residuals, scaled_values, weighted_jacobian, angles, own
     likelihood barely prefers it and cancelled more of the error than the data show
     (docs/validity.md: the 10 cm cylinder with the smooth reference, 56 % of the curves
     within two standard errors at c = 1, 100 % at c <= 0.75)."""
-    found = share_likelihood(residuals, scaled_values, weighted_jacobian, angles, own_cov,
-                             given, given_names, given_jacobian, given_cov)
+    found = share_likelihood(
+        residuals,
+        scaled_values,
+        weighted_jacobian,
+        angles,
+        own_cov,
+        given,
+        given_names,
+        given_jacobian,
+        given_cov,
+    )
     return None if found is None else likelihood_mean(*found)
 
 
@@ -59,25 +79,26 @@ def likelihood_mean(grid, nll) -> float | None:
     h = np.diff(grid)
     mass = float(np.sum(h * (w[1:] + w[:-1])) / 2.0)
     first = float(np.sum(h * (grid[1:] * w[1:] + grid[:-1] * w[:-1])) / 2.0)
-    if mass <= 0.0:      # one finite point alone
+    if mass <= 0.0:  # one finite point alone
         return float(grid[int(np.argmax(w))])
     return float(np.clip(first / mass, grid[0], grid[-1]))
 
 
-def _share_blocks(given: ModelError, g1, q1, q2, a1, a2, r1, residuals, angles, own_cov,
-                  given_jacobian, given_cov) -> tuple:
+def _share_blocks(
+    given: ModelError, g1, q1, q2, a1, a2, r1, residuals, angles, own_cov, given_jacobian, given_cov
+) -> tuple:
     """The covariance of both fits' residual components at c = 0, the blocks that c scales
     (b12, h22), the components z and the size of step 1's (:func:`share_likelihood`)."""
-    jm = np.asarray(given_jacobian, dtype=float)[:a2.size]
-    k11 = given.sigma ** 2 * correlation(distances(given.angles), given.length)
-    k12 = given.sigma ** 2 * correlation(distances(given.angles, angles), given.length)
+    jm = np.asarray(given_jacobian, dtype=float)[: a2.size]
+    k11 = given.sigma**2 * correlation(distances(given.angles), given.length)
+    k12 = given.sigma**2 * correlation(distances(given.angles, angles), given.length)
     m1, m2 = a1[:, None] * q1, a2[:, None] * q2
-    jq = jm.T @ q2                                  # J_m^T Q_2
+    jq = jm.T @ q2  # J_m^T Q_2
     b11 = m1.T @ k11 @ m1
-    b12 = m1.T @ k12 @ m2                           # scaled by c
-    f12 = (m1.T @ k11 @ g1.T) @ jq                  # through step 1's estimate
+    b12 = m1.T @ k12 @ m2  # scaled by c
+    f12 = (m1.T @ k11 @ g1.T) @ jq  # through step 1's estimate
     b22 = m2.T @ np.asarray(own_cov, dtype=float) @ m2 + jq.T @ np.asarray(given_cov) @ jq
-    h22 = (m2.T @ k12.T @ g1.T) @ jq                # scaled by c, with its transpose
+    h22 = (m2.T @ k12.T @ g1.T) @ jq  # scaled by c, with its transpose
     z = np.concatenate([q1.T @ r1, q2.T @ np.asarray(residuals, dtype=float)])
     n1 = b11.shape[0]
     base = np.eye(z.size)
@@ -89,9 +110,17 @@ def _share_blocks(given: ModelError, g1, q1, q2, a1, a2, r1, residuals, angles, 
     return base, b12, h22, z, n1
 
 
-def share_likelihood(residuals, scaled_values, weighted_jacobian, angles, own_cov,
-                     given: ModelError, given_names, given_jacobian,
-                     given_cov) -> tuple | None:
+def share_likelihood(
+    residuals,
+    scaled_values,
+    weighted_jacobian,
+    angles,
+    own_cov,
+    given: ModelError,
+    given_names,
+    given_jacobian,
+    given_cov,
+) -> tuple | None:
     """(c on :data:`SHARE_GRID` points of [0, 1], the negative log restricted likelihood at
     each) of :func:`session_correlation`.
 
@@ -117,8 +146,13 @@ def share_likelihood(residuals, scaled_values, weighted_jacobian, angles, own_co
     lobe (a wide plate's view side), the two errors are not one. None (the error then
     counted as one process, c = 1) when the given term lacks its residuals (result files of
     earlier veils), a scaled value is 0, or a fit leaves no residual component."""
-    if given is None or given.residuals is None or given.influence is None \
-            or given.length == 0.0 or given.sigma == 0.0:
+    if (
+        given is None
+        or given.residuals is None
+        or given.influence is None
+        or given.length == 0.0
+        or given.sigma == 0.0
+    ):
         return None
     a1 = np.asarray(given.scaled, dtype=float)
     r1 = np.asarray(given.residuals, dtype=float)
@@ -131,8 +165,9 @@ def share_likelihood(residuals, scaled_values, weighted_jacobian, angles, own_co
     assert q1 is not None and q2 is not None  # both from a Jacobian
     if q1.shape[1] == 0 or q2.shape[1] == 0:
         return None
-    base, b12, h22, z, n1 = _share_blocks(given, g1, q1, q2, a1, a2, r1, residuals, angles,
-                                          own_cov, given_jacobian, given_cov)
+    base, b12, h22, z, n1 = _share_blocks(
+        given, g1, q1, q2, a1, a2, r1, residuals, angles, own_cov, given_jacobian, given_cov
+    )
 
     def nll(c):
         cov = base.copy()
@@ -141,7 +176,7 @@ def share_likelihood(residuals, scaled_values, weighted_jacobian, angles, own_co
         cov[n1:, n1:] -= c * (h22 + h22.T)
         try:
             chol = np.linalg.cholesky(cov)
-        except np.linalg.LinAlgError:     # not a covariance at this c: not a candidate
+        except np.linalg.LinAlgError:  # not a covariance at this c: not a candidate
             return math.inf
         w = solve_triangular(chol, z, lower=True)
         return float(np.sum(np.log(np.diag(chol))) + 0.5 * w @ w)
@@ -150,8 +185,9 @@ def share_likelihood(residuals, scaled_values, weighted_jacobian, angles, own_co
     return grid, np.array([nll(c) for c in grid])
 
 
-def shared(own_influence, angles, given: ModelError, given_names, sensitivity,
-           share: float = 1.0) -> np.ndarray | None:
+def shared(
+    own_influence, angles, given: ModelError, given_names, sensitivity, share: float = 1.0
+) -> np.ndarray | None:
     """The covariance that the error a step shares with its given medium's fit adds to its
     total: step 2's estimate moves by G_2 d_2 + S G_1 d_1 (S = d estimate / d medium, first
     order), and d_1, d_2 are one process over the configurations of both sessions with the
@@ -167,13 +203,21 @@ def shared(own_influence, angles, given: ModelError, given_names, sensitivity,
         return None
     missing = [n for n in given_names if n not in given.influence]
     if missing:
-        raise FitError(f"the medium result's model_error.influence has no row for "
-                       f"{', '.join(missing)} (it has {', '.join(given.influence)})")
+        raise FitError(
+            f"the medium result's model_error.influence has no row for "
+            f"{', '.join(missing)} (it has {', '.join(given.influence)})"
+        )
     g1 = np.array([given.influence[n] for n in given_names], dtype=float)
     r21 = correlation(distances(angles, given.angles), given.length)
     cross = own_influence @ r21 @ g1.T @ np.asarray(sensitivity, dtype=float).T
-    return share * given.sigma ** 2 * (cross + cross.T)
+    return share * given.sigma**2 * (cross + cross.T)
 
 
-__all__ = ["influence", "shared", "session_correlation", "likelihood_mean",
-           "share_likelihood", "SHARE_GRID"]
+__all__ = [
+    "influence",
+    "shared",
+    "session_correlation",
+    "likelihood_mean",
+    "share_likelihood",
+    "SHARE_GRID",
+]

@@ -66,8 +66,9 @@ SINGULAR_NOTE = "Jacobian singular at the solution: uncertainties not determined
 # --------------------------------------------------------------------------------------
 def check_max_nfev(max_nfev) -> None:
     """A FitError unless ``max_nfev`` is a positive integer or None."""
-    if max_nfev is not None and (isinstance(max_nfev, bool) or not isinstance(max_nfev, int)
-                                 or max_nfev < 1):
+    if max_nfev is not None and (
+        isinstance(max_nfev, bool) or not isinstance(max_nfev, int) or max_nfev < 1
+    ):
         raise FitError(f"max_nfev = {max_nfev!r}; expected a positive integer or None")
 
 
@@ -123,12 +124,25 @@ class Solution:
     at_lower: list = field(default_factory=list)
 
     def stats(self, **extra) -> dict:
-        return {"nfev": self.nfev, "njev": self.njev, "status": self.status,
-                "cost": self.cost, **extra}
+        return {
+            "nfev": self.nfev,
+            "njev": self.njev,
+            "status": self.status,
+            "cost": self.cost,
+            **extra,
+        }
 
 
-def solve(problem: Problem, x0, *, accuracy: str = ITERATION_ACCURACY, tol=None,
-          max_nfev=None, jacobian_at=None, on_eval=None) -> Solution:
+def solve(
+    problem: Problem,
+    x0,
+    *,
+    accuracy: str = ITERATION_ACCURACY,
+    tol=None,
+    max_nfev=None,
+    jacobian_at=None,
+    on_eval=None,
+) -> Solution:
     """Weighted least squares from natural start ``x0`` by Levenberg-Marquardt
     (:func:`veil.fitting.least_squares.levenberg_marquardt`): values at ``accuracy``,
     Jacobians at the "fast" quadrature, recomputed at every point taken, or frozen at the
@@ -158,17 +172,32 @@ def solve(problem: Problem, x0, *, accuracy: str = ITERATION_ACCURACY, tol=None,
 
     yw = problem.y * problem.w
     fit = lsq.levenberg_marquardt(
-        fun, jac, u0, lo, hi, tol=tol, max_nfev=max_nfev, yy=float(yw @ yw),
-        dof=problem.n_points - problem.n_free, weighted=problem.weighted,
-        exact=jacobian_at is None)
+        fun,
+        jac,
+        u0,
+        lo,
+        hi,
+        tol=tol,
+        max_nfev=max_nfev,
+        yy=float(yw @ yw),
+        dof=problem.n_points - problem.n_free,
+        weighted=problem.weighted,
+        exact=jacobian_at is None,
+    )
     x, _ = problem.to_x(fit.p, base)
     problem.remember(x, accuracy, evaluated.get(x.tobytes()))
     low, high = lsq.at_bounds(fit.p, lo, hi, coordinates.EDGE * np.maximum(hi - lo, 1e-300))
     names = problem.free_names
-    return Solution(x=x, cost=fit.cost, status=fit.status, message=fit.message,
-                    nfev=fit.nfev, njev=fit.njev,
-                    at_bound=[n for n, a, b in zip(names, low, high) if a or b],
-                    at_lower=[n for n, a in zip(names, low) if a])
+    return Solution(
+        x=x,
+        cost=fit.cost,
+        status=fit.status,
+        message=fit.message,
+        nfev=fit.nfev,
+        njev=fit.njev,
+        at_bound=[n for n, a, b in zip(names, low, high) if a or b],
+        at_lower=[n for n, a in zip(names, low) if a],
+    )
 
 
 def convincing(problem: Problem, sol: Solution) -> bool:
@@ -176,8 +205,13 @@ def convincing(problem: Problem, sol: Solution) -> bool:
     CONVINCING: further starts are unnecessary (a second minimum of similar cost is what
     veil.analysis.diagnostics' profiles look for)."""
     dof = problem.n_points - problem.n_free
-    return (sol.status > 0 and problem.weighted and dof > 0
-            and 2 * sol.cost / dof <= CONVINCING and not sol.at_bound)
+    return (
+        sol.status > 0
+        and problem.weighted
+        and dof > 0
+        and 2 * sol.cost / dof <= CONVINCING
+        and not sol.at_bound
+    )
 
 
 # --------------------------------------------------------------------------------------
@@ -195,8 +229,15 @@ class Outcome:
     stats: dict = field(default_factory=dict)
 
 
-def run(problem: Problem, starts, *, accuracy: str = "default", max_nfev=None, progress=None,
-        every: bool = False) -> Outcome:
+def run(
+    problem: Problem,
+    starts,
+    *,
+    accuracy: str = "default",
+    max_nfev=None,
+    progress=None,
+    every: bool = False,
+) -> Outcome:
     """Least squares from each natural start vector (best first): all of them when
     ``every``, else the next only while the fits so far are not convincing; the best is
     polished at ``accuracy`` when the problem has a medium (module docstring)."""
@@ -209,8 +250,11 @@ def run(problem: Problem, starts, *, accuracy: str = "default", max_nfev=None, p
             skipped = len(starts) - s
             break
         tick = ticker(progress, f"start {s + 1}/{len(starts)}: iteration")
-        runs.append(solve(problem, x0, tol=TOL_ITER if polish else TOL_FINAL,
-                          max_nfev=max_nfev, on_eval=tick))
+        runs.append(
+            solve(
+                problem, x0, tol=TOL_ITER if polish else TOL_FINAL, max_nfev=max_nfev, on_eval=tick
+            )
+        )
     if not runs:
         raise FitError("no starting point: the starting grid gave no finite cost")
     best = min(range(len(runs)), key=lambda r: (runs[r].cost, r))
@@ -220,17 +264,30 @@ def run(problem: Problem, starts, *, accuracy: str = "default", max_nfev=None, p
     final_accuracy = accuracy if through_medium else None
     if polish:
         if sol.status <= 0:
-            notes.append(f"iterations at {ITERATION_ACCURACY!r} accuracy stopped early "
-                         f"({sol.message})")
+            notes.append(
+                f"iterations at {ITERATION_ACCURACY!r} accuracy stopped early ({sol.message})"
+            )
         tick = ticker(progress, f"polish at {accuracy!r}: iteration")
-        sol = solve(problem, sol.x, accuracy=accuracy, tol=TOL_POLISH, max_nfev=max_nfev,
-                    jacobian_at=sol.x if sol.status > 0 else None, on_eval=tick)
+        sol = solve(
+            problem,
+            sol.x,
+            accuracy=accuracy,
+            tol=TOL_POLISH,
+            max_nfev=max_nfev,
+            jacobian_at=sol.x if sol.status > 0 else None,
+            on_eval=tick,
+        )
         run_stats.append(sol.stats(polish=True))
     values = problem.model_values(sol.x, accuracy if through_medium else ITERATION_ACCURACY)
-    stats = {"starts": len(runs), "starts_skipped": skipped, "best_start": best + 1,
-             "nfev": sum(r["nfev"] for r in run_stats),
-             "njev": sum(r["njev"] for r in run_stats), "runs": run_stats,
-             "configurations": problem.n_points}
+    stats = {
+        "starts": len(runs),
+        "starts_skipped": skipped,
+        "best_start": best + 1,
+        "nfev": sum(r["nfev"] for r in run_stats),
+        "njev": sum(r["njev"] for r in run_stats),
+        "runs": run_stats,
+        "configurations": problem.n_points,
+    }
     if through_medium:
         stats["engine_calls"] = problem.engine_calls()
     return Outcome(sol, values, final_accuracy, notes, stats)
@@ -239,15 +296,16 @@ def run(problem: Problem, starts, *, accuracy: str = "default", max_nfev=None, p
 # --------------------------------------------------------------------------------------
 # the solution's statistics
 # --------------------------------------------------------------------------------------
-def goodness(y: np.ndarray, w: np.ndarray, values: np.ndarray,
-             n_free: int) -> tuple[np.ndarray, float, float]:
+def goodness(
+    y: np.ndarray, w: np.ndarray, values: np.ndarray, n_free: int
+) -> tuple[np.ndarray, float, float]:
     """(residuals (y - values) * w, reduced chi-square sum(residuals^2) / (points - n_free),
     rms of the relative residuals (y - values) / values over nonzero values, nan if none)."""
     res = (y - values) * w
     chi2 = float(res @ res) / max(y.size - n_free, 1)
     nonzero = values != 0
     rel = (y[nonzero] - values[nonzero]) / values[nonzero]
-    rms_rel = float(np.sqrt(np.mean(rel ** 2))) if rel.size else float("nan")
+    rms_rel = float(np.sqrt(np.mean(rel**2))) if rel.size else float("nan")
     return res, chi2, rms_rel
 
 
@@ -257,8 +315,9 @@ def weighted_jacobian(problem: Problem, x, accuracy: str = ITERATION_ACCURACY) -
     return np.concatenate([full * problem.w[:, None], problem.prior_rows(x)[1]])[:, problem.free]
 
 
-def covariance(problem: Problem, x, accuracy: str = ITERATION_ACCURACY,
-               values=None) -> np.ndarray | None:
+def covariance(
+    problem: Problem, x, accuracy: str = ITERATION_ACCURACY, values=None
+) -> np.ndarray | None:
     """Covariance (natural units) of the free parameters at ``x`` (module docstring;
     :func:`veil.fitting.least_squares.covariance`); None when the Jacobian is singular.
     Unweighted data scale it by the reduced chi-square of ``values`` (the reported model
@@ -290,8 +349,9 @@ def undetermined_parameters(problem: Problem, x, accuracy: str = ITERATION_ACCUR
     return [n for j, n in enumerate(names) if np.any(np.abs(weak[:, j]) > 0.1)]
 
 
-def uncertainties(cov, names, free) -> tuple[dict[str, float | None],
-                                             dict[str, dict[str, float | None]]]:
+def uncertainties(
+    cov, names, free
+) -> tuple[dict[str, float | None], dict[str, dict[str, float | None]]]:
     """(stderr dict over all names, correlation dict over the free ones) from a covariance
     of the free parameters (``free``: their indices into ``names``)."""
     stderr: dict[str, float | None] = {n: None for n in names}
@@ -353,8 +413,7 @@ def summarize(problem: Problem, outcome: Outcome, extra_notes=()) -> Summary:
     notes = list(outcome.notes) + list(extra_notes)
     edge = [n for n in sol.at_bound if n not in which]
     if edge:
-        notes.append(f"{', '.join(edge)} at the edge of the search range "
-                     f"(uncertainty unreliable)")
+        notes.append(f"{', '.join(edge)} at the edge of the search range (uncertainty unreliable)")
     stderr: dict[str, float | None] = {n: None for n in problem.names}
     corr: dict[str, dict[str, float | None]] = {}
     if why:
@@ -379,27 +438,52 @@ def _undetermined(problem: Problem, sol: Solution, cov) -> tuple[list[str], list
     for b, sl in zip(problem.blocks, problem.slices()):
         y = problem.y[sl]
         if not np.any(y > 0):
-            why.append(f"session {b.session.name!r} has no positive value (all "
-                       f"{'zero' if np.all(y == 0) else 'zero or negative'}"
-                       f"{' after black-cloth subtraction' if b.medium is not None else ''}): "
-                       f"it carries no signal to fit {', '.join(problem.free_names)}")
+            why.append(
+                f"session {b.session.name!r} has no positive value (all "
+                f"{'zero' if np.all(y == 0) else 'zero or negative'}"
+                f"{' after black-cloth subtraction' if b.medium is not None else ''}): "
+                f"it carries no signal to fit {', '.join(problem.free_names)}"
+            )
             which += problem.free_names
     if cov is None:
         found = undetermined_parameters(problem, sol.x)
-        why.append(f"the data do not constrain "
-                   f"{', '.join(found) or 'a combination of the free parameters'} (the "
-                   f"Jacobian's rank is below the {problem.n_free} free parameters, so their "
-                   f"uncertainties are not determined)")
+        why.append(
+            f"the data do not constrain "
+            f"{', '.join(found) or 'a combination of the free parameters'} (the "
+            f"Jacobian's rank is below the {problem.n_free} free parameters, so their "
+            f"uncertainties are not determined)"
+        )
         which += found
     floor = [n for n in sol.at_lower if problem.params[problem.index(n)].scale]
     if floor:
-        why.append(f"{', '.join(floor)} at the floor of the search range (the data ask for "
-                   f"a vanishing scale)")
+        why.append(
+            f"{', '.join(floor)} at the floor of the search range (the data ask for "
+            f"a vanishing scale)"
+        )
         which += floor
     return why, [n for n in problem.free_names if n in which]
 
 
-__all__ = ["TOL_ITER", "TOL_POLISH", "TOL_FINAL", "CONVINCING", "SINGULAR_NOTE",
-           "check_max_nfev", "as_fixed", "check_fixed", "ticker", "Solution", "solve",
-           "convincing", "Outcome", "run", "goodness", "weighted_jacobian", "covariance",
-           "undetermined_parameters", "uncertainties", "Summary", "summarize"]
+__all__ = [
+    "TOL_ITER",
+    "TOL_POLISH",
+    "TOL_FINAL",
+    "CONVINCING",
+    "SINGULAR_NOTE",
+    "check_max_nfev",
+    "as_fixed",
+    "check_fixed",
+    "ticker",
+    "Solution",
+    "solve",
+    "convincing",
+    "Outcome",
+    "run",
+    "goodness",
+    "weighted_jacobian",
+    "covariance",
+    "undetermined_parameters",
+    "uncertainties",
+    "Summary",
+    "summarize",
+]

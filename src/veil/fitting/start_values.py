@@ -77,8 +77,9 @@ def quadratic_scale(a, b, c, y, w) -> float:
         lead = next(k for k, co in enumerate(coeffs) if co != 0)
         if lead < 3:
             roots = np.roots(coeffs[lead:])
-            cands += [float(z.real) for z in roots
-                      if abs(z.imag) <= 1e-9 * (1 + abs(z)) and z.real > 0]
+            cands += [
+                float(z.real) for z in roots if abs(z.imag) <= 1e-9 * (1 + abs(z)) and z.real > 0
+            ]
     costs = [float(np.sum((a * t * t + b * t + r) ** 2)) for t in cands]
     return cands[int(np.argmin(costs))]
 
@@ -102,18 +103,33 @@ def medium_scales(basis: np.ndarray, x: np.ndarray, cls, fixed, y, w) -> tuple[n
     gain = 1.0 if gi is None else x[gi]
     gain_free = gi is not None and names[gi] not in fixed
     if len(free) > 2:
-        raise FitError(f"{cls.NAME}: starting values for more than two scaled components are "
-                       f"not implemented")
+        raise FitError(
+            f"{cls.NAME}: starting values for more than two scaled components are not implemented"
+        )
     if len(free) == 2:
         # value = s1^2 (c11 + r c12 + r^2 c22) with r = s2 / s1: exact in s1^2 per ratio
         c1, c2 = free
         col = {pr: basis[:, k] * gain for k, pr in enumerate(prs)}
         a0, a1, a2 = col[(c1, c1)], col[(c1, c2)], col[(c2, c2)]
-        rest = sum(col[pr] * s[pr[0]] * s[pr[1]] for pr in prs
-                   if c1 not in pr and c2 not in pr) if len(prs) > 3 else 0.0
+        rest = (
+            sum(col[pr] * s[pr[0]] * s[pr[1]] for pr in prs if c1 not in pr and c2 not in pr)
+            if len(prs) > 3
+            else 0.0
+        )
         target = y - rest
-        cols = np.concatenate([(a0[None, :] + _RATIOS[:, None] * a1[None, :]
-                                + _RATIOS[:, None] ** 2 * a2[None, :]), a2[None, :]]) * w
+        cols = (
+            np.concatenate(
+                [
+                    (
+                        a0[None, :]
+                        + _RATIOS[:, None] * a1[None, :]
+                        + _RATIOS[:, None] ** 2 * a2[None, :]
+                    ),
+                    a2[None, :],
+                ]
+            )
+            * w
+        )
         yw = target * w
         num, den = cols @ yw, np.einsum("km,km->k", cols, cols)
         sq = np.where(den > 0, np.maximum(num, 0.0) / np.where(den > 0, den, 1.0), 0.0)
@@ -201,8 +217,9 @@ def _fixed_names(problem: Problem, block: Block, kind: str) -> set:
     return {type(model).PARAMS[j].name for j, k in enumerate(idx) if not problem.free[k]}
 
 
-def step_starts(problem: Problem, kind: str, role: str, count: int,
-                progress=None) -> tuple[list[np.ndarray], int]:
+def step_starts(
+    problem: Problem, kind: str, role: str, count: int, progress=None
+) -> tuple[list[np.ndarray], int]:
     """Starting vectors (natural, best first) of a one-session problem whose ``kind`` model
     is free: the model's grid for ``role``, scales exact at each point. Returns (starts,
     number of grid points)."""
@@ -263,8 +280,10 @@ class _GridEngines:
         if key not in self.engines:
             idx = _subsample(block)
             angles = tuple(a[idx] for a in block.data.angles)
-            self.engines[key] = (SessionModel(block.brdf, block.medium, angles,
-                                              ITERATION_ACCURACY), idx)
+            self.engines[key] = (
+                SessionModel(block.brdf, block.medium, angles, ITERATION_ACCURACY),
+                idx,
+            )
         return self.engines[key]
 
     def terms(self, block: Block, vb, vm) -> np.ndarray:
@@ -280,18 +299,17 @@ def _unit(model, v) -> np.ndarray:
     them."""
     v = np.array(v, dtype=float)
     cls = type(model)
-    for name in cls.scale_names() + ((getattr(cls, "GAIN", None),) if getattr(cls, "GAIN", None)
-                                     else ()):
+    for name in cls.scale_names() + (
+        (getattr(cls, "GAIN", None),) if getattr(cls, "GAIN", None) else ()
+    ):
         v[cls.index(name)] = 1.0
     return v
 
 
-def _target_grid(problem: Problem, x, known_media: set, engines, count: int,
-                 progress) -> list:
+def _target_grid(problem: Problem, x, known_media: set, engines, count: int, progress) -> list:
     """The target's starting grid through the media (scales alternating), best first."""
     fixed_mask = ~problem.free
-    tblocks = [b for b in problem.blocks
-               if b.session.object == "target" and not b.session.clear]
+    tblocks = [b for b in problem.blocks if b.session.object == "target" and not b.session.clear]
     cls = type(tblocks[0].brdf)
     ib = tblocks[0].ib
     free = [j for j, k in enumerate(ib) if not fixed_mask[k]]
@@ -308,8 +326,9 @@ def _target_grid(problem: Problem, x, known_media: set, engines, count: int,
     return [xt for _, _, xt in chosen] or [x]
 
 
-def joint_starts(problem: Problem, layout: dict, start: dict | None, count: int,
-                 direct_fit, progress=None) -> list[np.ndarray]:
+def joint_starts(
+    problem: Problem, layout: dict, start: dict | None, count: int, direct_fit, progress=None
+) -> list[np.ndarray]:
     """Starting vectors (natural, best first) of a joint fit (module docstring).
 
     ``layout`` maps objects and media to their parameter names (veil.fitting.joint);
@@ -333,14 +352,21 @@ def joint_starts(problem: Problem, layout: dict, start: dict | None, count: int,
     for key, model in dict(start or {}).items():
         kind = "brdf" if key in objects else "medium" if key in media else None
         if kind is None:
-            raise FitError(f"start: {key!r} is neither an object ({', '.join(objects)}) nor a "
-                           f"medium ({', '.join(media)}) of the joint fit")
-        block = next(b for b in blocks if (b.session.object == key if kind == "brdf"
-                                           else b.session.medium == key))
+            raise FitError(
+                f"start: {key!r} is neither an object ({', '.join(objects)}) nor a "
+                f"medium ({', '.join(media)}) of the joint fit"
+            )
+        block = next(
+            b
+            for b in blocks
+            if (b.session.object == key if kind == "brdf" else b.session.medium == key)
+        )
         family = type(block.brdf if kind == "brdf" else block.medium)
         if type(model) is not family:
-            raise FitError(f"start[{key!r}] is a {model.NAME} model; the joint fit's "
-                           f"{'objects' if kind == 'brdf' else 'media'} are {family.NAME}")
+            raise FitError(
+                f"start[{key!r}] is a {model.NAME} model; the joint fit's "
+                f"{'objects' if kind == 'brdf' else 'media'} are {family.NAME}"
+            )
         names = (objects if kind == "brdf" else media)[key]
         for p in family.PARAMS:
             set_(names[p.key], getattr(model, p.name))
@@ -351,8 +377,9 @@ def joint_starts(problem: Problem, layout: dict, start: dict | None, count: int,
             continue
         clear = [b for b in blocks if b.session.object == obj and b.session.clear]
         if clear:
-            fixed = {p: problem.values[idx_of[n]] for p, n in names.items()
-                     if fixed_mask[idx_of[n]]}
+            fixed = {
+                p: problem.values[idx_of[n]] for p, n in names.items() if fixed_mask[idx_of[n]]
+            }
             vb = direct_fit(clear[0], fixed)
             for j, k in enumerate(clear[0].ib):
                 if not fixed_mask[k]:
@@ -365,8 +392,9 @@ def joint_starts(problem: Problem, layout: dict, start: dict | None, count: int,
     for label in media:
         if label in known_media:
             continue
-        through = [b for b in blocks if b.session.medium == label
-                   and b.session.object in known_objects]
+        through = [
+            b for b in blocks if b.session.medium == label and b.session.object in known_objects
+        ]
         if through:
             cost, vm = _best_medium(problem, through[0], x, engines)
             _set_block(x, through[0].im, vm, fixed_mask)
@@ -414,8 +442,12 @@ def _target_point(problem: Problem, x, tblocks, known_media, engines):
     # unknown media start from the middle of their grid
     for b in tblocks:
         if b.session.medium not in known_media:
-            points = grid_points(type(b.medium), "medium",
-                                 [j for j, k in enumerate(b.im) if problem.free[k]], x[b.im])
+            points = grid_points(
+                type(b.medium),
+                "medium",
+                [j for j, k in enumerate(b.im) if problem.free[k]],
+                x[b.im],
+            )
             _set_block(x, b.im, points[len(points) // 2][1], fixed_mask)
     cost = np.inf
     for _ in range(3):
@@ -434,8 +466,9 @@ def _target_point(problem: Problem, x, tblocks, known_media, engines):
             _, idx = engines(b)
             if b.session.medium in known_media:
                 terms = engines.terms(b, x[b.ib], x[b.im])
-                model = np.einsum("mkb,k,b->m", terms, _rows(b, x[b.im]),
-                                  column_scales_of(b, x[b.ib]))
+                model = np.einsum(
+                    "mkb,k,b->m", terms, _rows(b, x[b.im]), column_scales_of(b, x[b.ib])
+                )
                 cost += float(np.sum(((model - b.data.y[idx]) * b.data.w[idx]) ** 2))
                 continue
             c, vm = _best_medium(problem, b, x, engines)
@@ -444,5 +477,14 @@ def _target_point(problem: Problem, x, tblocks, known_media, engines):
     return cost, x
 
 
-__all__ = ["GRID_SUBSAMPLE", "weighted_nnls", "brdf_scales", "quadratic_scale",
-           "medium_scales", "grid_points", "pick_starts", "step_starts", "joint_starts"]
+__all__ = [
+    "GRID_SUBSAMPLE",
+    "weighted_nnls",
+    "brdf_scales",
+    "quadratic_scale",
+    "medium_scales",
+    "grid_points",
+    "pick_starts",
+    "step_starts",
+    "joint_starts",
+]

@@ -25,8 +25,7 @@ from .start_values import step_starts
 #: Least-squares runs started from the best distinct grid points, by step.
 STARTS = {"reference": 3, "direct": 3, "medium": 2, "target": 2}
 #: The fit role (starting grid of the model's declaration) of each step.
-ROLE = {"reference": "reference", "direct": "reference", "medium": "medium",
-        "target": "target"}
+ROLE = {"reference": "reference", "direct": "reference", "medium": "medium", "target": "target"}
 
 
 def _fixed_slots(problem: Problem, cls, fixed: dict, what: str) -> dict:
@@ -34,21 +33,25 @@ def _fixed_slots(problem: Problem, cls, fixed: dict, what: str) -> dict:
     out = {}
     for name, value in fixed.items():
         if name not in cls.param_names():
-            raise FitError(f"cannot fix {name!r} in the {what} fit: {cls.NAME} has parameters "
-                           f"{', '.join(cls.param_names())}")
+            raise FitError(
+                f"cannot fix {name!r} in the {what} fit: {cls.NAME} has parameters "
+                f"{', '.join(cls.param_names())}"
+            )
         check_fixed(name, value, cls.param(name), cls.__name__)
         out[cls.param(name).key] = float(value)
     return out
 
 
-def _prepare_engine(problem, cls, given, given_result, accuracy: str,
-                    propagation: str) -> None:
+def _prepare_engine(problem, cls, given, given_result, accuracy: str, propagation: str) -> None:
     """Everything a fit through a medium will compile (or load), side by side: derivatives
     in the fitted model's parameters, and in the given model's to propagate its covariance
     (not with ``propagation`` "off")."""
     block = problem.blocks[0]
-    propagates = (propagation != "off" and given_result is not None
-                  and given_result.covariance(total=True) is not None)
+    propagates = (
+        propagation != "off"
+        and given_result is not None
+        and given_result.covariance(total=True) is not None
+    )
     wrt = [(cls.KIND,)] + ([(type(given).KIND,)] if propagates else [])
     block.model(ITERATION_ACCURACY).prepare(values=True, jacobians=wrt)
     if accuracy != ITERATION_ACCURACY:
@@ -59,15 +62,18 @@ def _problem(data: FitData, cls, brdf, medium, free: list, fixed: dict, what: st
     """The step's problem: ``free`` slots, the ``fixed`` values set; more points than free
     parameters, or a FitError."""
     # by kind: a medium step holds the BRDF given, the others fit the BRDF
-    problem = session_problem(None, cast(BRDF, brdf), cast("Medium | None", medium), free=free,
-                              data=data, what=what)
+    problem = session_problem(
+        None, cast(BRDF, brdf), cast("Medium | None", medium), free=free, data=data, what=what
+    )
     for key, value in _fixed_slots(problem, cls, fixed, what).items():
         problem.values[problem.index(key)] = value
     if data.size <= len(free):
-        raise FitError(f"the {what} data have {data.size} point(s) but the fit has "
-                       f"{len(free)} free parameter(s) ({', '.join(free)}): need more points "
-                       f"than free parameters (fix some with fixed=... / --fix NAME=VALUE, "
-                       f"or measure more configurations)")
+        raise FitError(
+            f"the {what} data have {data.size} point(s) but the fit has "
+            f"{len(free)} free parameter(s) ({', '.join(free)}): need more points "
+            f"than free parameters (fix some with fixed=... / --fix NAME=VALUE, "
+            f"or measure more configurations)"
+        )
     return problem
 
 
@@ -83,37 +89,61 @@ def stats_and_message(outcome, summary, rep, given_result, n_grid: int) -> tuple
     return stats, message
 
 
-def _result(step: str, data: FitData, problem: Problem, outcome, summary, rep, fitted: Model,
-            given: Model | None, given_result, free: list, what: str,
-            n_grid: int) -> FitResult:
+def _result(
+    step: str,
+    data: FitData,
+    problem: Problem,
+    outcome,
+    summary,
+    rep,
+    fitted: Model,
+    given: Model | None,
+    given_result,
+    free: list,
+    what: str,
+    n_grid: int,
+) -> FitResult:
     """The step's :class:`FitResult` from the solver's outcome and the reported
     uncertainties ``rep`` (``n_grid`` starting grid points); a converged weighted fit far
     from its data warns."""
     cls = type(fitted)
     medium = fitted if cls.KIND == "medium" else given
     x = outcome.solution.x
-    own = {p.key: p.name for p in cls.PARAMS}           # slot name -> model's own name
+    own = {p.key: p.name for p in cls.PARAMS}  # slot name -> model's own name
     names = [own[k] for k in cls.keys()]
     media = [m for m in (medium,) if m is not None]
     variant = media[0].options().get(VARIANT_OPTION) if media else None
     stats, message = stats_and_message(outcome, summary, rep, given_result, n_grid)
     if summary.converged:  # one that did not converge says so (exit status 1)
         warn_misfit(summary.chi2_reduced, data, what)
-    return FitResult(model=cls.NAME,
-                     params={own[k]: float(x[problem.index(k)]) for k in cls.keys()},
-                     stderr=rep.stderr, correlation=rep.correlation,
-                     residuals=tuple(float(r) for r in summary.residuals),
-                     chi2_reduced=summary.chi2_reduced, rms_relative=summary.rms_relative,
-                     n_points=data.size, converged=summary.converged, message=message,
-                     variant=variant,
-                     fixed={n: float(x[problem.index(cls.param(n).key)]) for n in names
-                            if cls.param(n).key not in free},
-                     step=step, weighted=data.sigma is not None, accuracy=outcome.accuracy,
-                     given=None if given is None else model_entry(given),
-                     stderr_total=rep.stderr_total, correlation_total=rep.correlation_total,
-                     stats=stats,
-                     options=fitted.options(), determined=summary.determined,
-                     model_error=rep.model_error)
+    return FitResult(
+        model=cls.NAME,
+        params={own[k]: float(x[problem.index(k)]) for k in cls.keys()},
+        stderr=rep.stderr,
+        correlation=rep.correlation,
+        residuals=tuple(float(r) for r in summary.residuals),
+        chi2_reduced=summary.chi2_reduced,
+        rms_relative=summary.rms_relative,
+        n_points=data.size,
+        converged=summary.converged,
+        message=message,
+        variant=variant,
+        fixed={
+            n: float(x[problem.index(cls.param(n).key)])
+            for n in names
+            if cls.param(n).key not in free
+        },
+        step=step,
+        weighted=data.sigma is not None,
+        accuracy=outcome.accuracy,
+        given=None if given is None else model_entry(given),
+        stderr_total=rep.stderr_total,
+        correlation_total=rep.correlation_total,
+        stats=stats,
+        options=fitted.options(),
+        determined=summary.determined,
+        model_error=rep.model_error,
+    )
 
 
 #: A weighted fit whose reduced chi-square exceeds this misses its data by about ten
@@ -133,19 +163,37 @@ def warn_misfit(chi2_reduced: float, data: FitData, what: str) -> None:
     if data.sigma is None or not chi2_reduced > MISFIT_CHI2:
         return
     negative = int(np.count_nonzero(data.y < 0))
-    seen = (f"; {negative} of {data.size} values are negative" if negative else "")
-    cause = ("check the black-cloth session subtracted (same configurations, same medium) "
-             "and the sigma column" if data.black else
-             "no black-cloth session was subtracted: measure the medium with the black cloth "
-             "(docs/measurements.md) and give it with --black (black=...)")
-    warnings.warn(f"the {what} fit's reduced chi-square is {chi2_reduced:.4g}: the model "
-                  f"misses the data by about {np.sqrt(chi2_reduced):.3g} standard deviations "
-                  f"on average{seen}; {cause}", MisfitWarning, stacklevel=4)
+    seen = f"; {negative} of {data.size} values are negative" if negative else ""
+    cause = (
+        "check the black-cloth session subtracted (same configurations, same medium) "
+        "and the sigma column"
+        if data.black
+        else "no black-cloth session was subtracted: measure the medium with the black cloth "
+        "(docs/measurements.md) and give it with --black (black=...)"
+    )
+    warnings.warn(
+        f"the {what} fit's reduced chi-square is {chi2_reduced:.4g}: the model "
+        f"misses the data by about {np.sqrt(chi2_reduced):.3g} standard deviations "
+        f"on average{seen}; {cause}",
+        MisfitWarning,
+        stacklevel=4,
+    )
 
 
-def fit_step(step: str, data: FitData, fitted: Model, given: Model | None, given_result,
-             fixed: dict, accuracy: str, max_nfev, progress, freed=(),
-             model_error: str = "off", propagation: str = "auto") -> FitResult:
+def fit_step(
+    step: str,
+    data: FitData,
+    fitted: Model,
+    given: Model | None,
+    given_result,
+    fixed: dict,
+    accuracy: str,
+    max_nfev,
+    progress,
+    freed=(),
+    model_error: str = "off",
+    propagation: str = "auto",
+) -> FitResult:
     """One step: the ``fitted`` model's parameters free (but ``fixed``, and the held ones not
     ``freed``), ``given`` held; unless ``model_error`` is "off" a weighted fit estimates the
     model-discrepancy term of that kind (:mod:`veil.fitting.model_error`); ``propagation``
@@ -155,37 +203,65 @@ def fit_step(step: str, data: FitData, fitted: Model, given: Model | None, given
     clash = [n for n in freed if n in fixed]
     if clash:
         raise FitError(f"{', '.join(clash)} both fixed and freed")
-    free = [p.key for p in cls.PARAMS
-            if p.name not in fixed and (not p.held or p.name in freed)]
-    what = {"reference": "reference (clear medium)", "direct": "target (clear medium)",
-            "medium": "medium", "target": "target"}[step]
+    free = [p.key for p in cls.PARAMS if p.name not in fixed and (not p.held or p.name in freed)]
+    what = {
+        "reference": "reference (clear medium)",
+        "direct": "target (clear medium)",
+        "medium": "medium",
+        "target": "target",
+    }[step]
     if not free:
-        raise FitError(f"every parameter of the {what} fit is fixed "
-                       f"({', '.join(cls.param_names())}): nothing to fit")
+        raise FitError(
+            f"every parameter of the {what} fit is fixed "
+            f"({', '.join(cls.param_names())}): nothing to fit"
+        )
     problem = _problem(data, cls, brdf, medium, free, fixed, what)
     if medium is not None:
         _prepare_engine(problem, cls, given, given_result, accuracy, propagation)
     starts, n_grid = step_starts(problem, cls.KIND, ROLE[step], STARTS[step], progress)
-    outcome = run(problem, starts, accuracy=accuracy, max_nfev=max_nfev, progress=progress,
-                  every=medium is None)
+    outcome = run(
+        problem,
+        starts,
+        accuracy=accuracy,
+        max_nfev=max_nfev,
+        progress=progress,
+        every=medium is None,
+    )
     summary = summarize(problem, outcome)
     x = outcome.solution.x
-    own = {p.key: p.name for p in cls.PARAMS}           # slot name -> model's own name
+    own = {p.key: p.name for p in cls.PARAMS}  # slot name -> model's own name
 
     def rename(se, corr):
         """(stderr, correlation) in the model's own names."""
-        return ({own[k]: se[k] for k in cls.keys()},
-                {own[a]: {own[b]: r for b, r in row.items()} for a, row in corr.items()})
+        return (
+            {own[k]: se[k] for k in cls.keys()},
+            {own[a]: {own[b]: r for b, r in row.items()} for a, row in corr.items()},
+        )
 
-    rep = reported(problem, x, summary, outcome.values, kind=model_error, rename=rename,
-                   given_result=given_result,
-                   given_column=None if given is None
-                   else lambda n: problem.index(type(given).param(n).key),
-                   propagation=propagation, keep_influence=cls.KIND == "medium",
-                   floor=model_floor(brdf, medium))
-    return _result(step, data, problem, outcome, summary, rep, fitted, given, given_result,
-                   free, what, n_grid)
+    rep = reported(
+        problem,
+        x,
+        summary,
+        outcome.values,
+        kind=model_error,
+        rename=rename,
+        given_result=given_result,
+        given_column=None if given is None else lambda n: problem.index(type(given).param(n).key),
+        propagation=propagation,
+        keep_influence=cls.KIND == "medium",
+        floor=model_floor(brdf, medium),
+    )
+    return _result(
+        step, data, problem, outcome, summary, rep, fitted, given, given_result, free, what, n_grid
+    )
 
 
-__all__ = ["fit_step", "stats_and_message", "warn_misfit", "MisfitWarning", "MISFIT_CHI2",
-           "STARTS", "ROLE"]
+__all__ = [
+    "fit_step",
+    "stats_and_message",
+    "warn_misfit",
+    "MisfitWarning",
+    "MISFIT_CHI2",
+    "STARTS",
+    "ROLE",
+]

@@ -69,14 +69,23 @@ def _freed(cls, free, what: str) -> set:
     free = set(free or ())
     unknown = [n for n in free if n not in cls.param_names()]
     if unknown:
-        raise FitError(f"cannot free {', '.join(map(repr, unknown))} in the {what} fit: "
-                       f"{cls.NAME} has parameters {', '.join(cls.param_names())}")
+        raise FitError(
+            f"cannot free {', '.join(map(repr, unknown))} in the {what} fit: "
+            f"{cls.NAME} has parameters {', '.join(cls.param_names())}"
+        )
     return free
 
 
-def prefetch(data: FitData, *, brdf_model=None, brdf_options=None, medium_model=None,
-             medium_options=None, variant: str | None = None,
-             accuracy: str = "default") -> None:
+def prefetch(
+    data: FitData,
+    *,
+    brdf_model=None,
+    brdf_options=None,
+    medium_model=None,
+    medium_options=None,
+    variant: str | None = None,
+    accuracy: str = "default",
+) -> None:
     """Start compiling (or loading) in the background the engine programs that steps 1 and 2
     run at ``data``'s configurations (values and both models' derivatives at the iterations'
     rule, values at ``accuracy``), so that a first run compiles them while step 0 fits the
@@ -95,9 +104,19 @@ def prefetch(data: FitData, *, brdf_model=None, brdf_options=None, medium_model=
 # --------------------------------------------------------------------------------------
 # the steps
 # --------------------------------------------------------------------------------------
-def fit_reference(table, *, fixed=None, black=None, max_nfev=None, progress=None,
-                  brdf_model=None, options=None, free=None, model_error=None,
-                  channel: str | None = None) -> FitResult:
+def fit_reference(
+    table,
+    *,
+    fixed=None,
+    black=None,
+    max_nfev=None,
+    progress=None,
+    brdf_model=None,
+    options=None,
+    free=None,
+    model_error=None,
+    channel: str | None = None,
+) -> FitResult:
     """Step 0 (docs/model.md sec. 7): fit the reference's f_r to clear-medium data, directly.
 
     table : measurement table (DataFrame or CSV path, docs/measurements.md).
@@ -116,14 +135,35 @@ def fit_reference(table, *, fixed=None, black=None, max_nfev=None, progress=None
         declares shared tied across them (:mod:`veil.fitting.channel_fit`; ``fixed`` names
         a parameter of every channel, or one channel's as ``Pd[r]``).
     """
-    return fit_direct(table, fixed=fixed, black=black, max_nfev=max_nfev, progress=progress,
-                      step="reference", brdf_model=brdf_model, options=options, free=free,
-                      model_error=model_error, channel=channel)
+    return fit_direct(
+        table,
+        fixed=fixed,
+        black=black,
+        max_nfev=max_nfev,
+        progress=progress,
+        step="reference",
+        brdf_model=brdf_model,
+        options=options,
+        free=free,
+        model_error=model_error,
+        channel=channel,
+    )
 
 
-def fit_direct(table, *, fixed=None, black=None, max_nfev=None, progress=None,
-               step: str = "direct", brdf_model=None, options=None, free=None,
-               model_error=None, channel: str | None = None) -> FitResult:
+def fit_direct(
+    table,
+    *,
+    fixed=None,
+    black=None,
+    max_nfev=None,
+    progress=None,
+    step: str = "direct",
+    brdf_model=None,
+    options=None,
+    free=None,
+    model_error=None,
+    channel: str | None = None,
+) -> FitResult:
     """f_r fitted to clear-medium data (docs/model.md sec. 2); ``step`` labels the result
     ("reference" for step 0, "direct" for a target measured without the medium);
     ``channel`` as :func:`fit_reference`."""
@@ -137,20 +177,53 @@ def fit_direct(table, *, fixed=None, black=None, max_nfev=None, progress=None,
     if channel is None:
         table, channels = channels_of(table, f"{what} (clear medium)")
         if channels is not None and len(channels) > 1:
-            return fit_channels(table, black, cast(BRDF, fitted), channels, step=step,
-                                what=f"{what} (clear medium)", fixed=as_fixed(fixed),
-                                freed=_freed(cls, free, what), max_nfev=max_nfev,
-                                progress=progress, model_error=model_error,
-                                starts=STARTS[step])
+            return fit_channels(
+                table,
+                black,
+                cast(BRDF, fitted),
+                channels,
+                step=step,
+                what=f"{what} (clear medium)",
+                fixed=as_fixed(fixed),
+                freed=_freed(cls, free, what),
+                max_nfev=max_nfev,
+                progress=progress,
+                model_error=model_error,
+                starts=STARTS[step],
+            )
     data = prepare(table, black, f"{what} (clear medium)", channel=channel)
-    return fit_step(step, data, fitted, None, None, as_fixed(fixed), ITERATION_ACCURACY,
-                 max_nfev, progress, _freed(cls, free, what), model_error)
+    return fit_step(
+        step,
+        data,
+        fitted,
+        None,
+        None,
+        as_fixed(fixed),
+        ITERATION_ACCURACY,
+        max_nfev,
+        progress,
+        _freed(cls, free, what),
+        model_error,
+    )
 
 
-def fit_medium(table, reference, *, fixed=None, black=None, variant: str | None = None,
-               accuracy: str = "default", max_nfev=None, progress=None, medium_model=None,
-               options=None, free=None, model_error=None, propagation=None,
-               channel: str | None = None) -> FitResult:
+def fit_medium(
+    table,
+    reference,
+    *,
+    fixed=None,
+    black=None,
+    variant: str | None = None,
+    accuracy: str = "default",
+    max_nfev=None,
+    progress=None,
+    medium_model=None,
+    options=None,
+    free=None,
+    model_error=None,
+    propagation=None,
+    channel: str | None = None,
+) -> FitResult:
     """Step 1 (docs/model.md sec. 7): fit the medium, the reference's f_r fixed.
 
     table : the reference object measured in the medium (DataFrame or CSV path).
@@ -181,24 +254,58 @@ def fit_medium(table, reference, *, fixed=None, black=None, variant: str | None 
     what = "reference (in the medium)"
     several = _several(table, black, channel, what)
     if several is not None:
-        return fit_through("medium", several, fitted, reference, fixed=as_fixed(fixed),
-                           freed=_freed(cls, free, "medium"), accuracy=accuracy,
-                           max_nfev=max_nfev, progress=progress, model_error=model_error,
-                           propagation=propagation, starts=STARTS["medium"],
-                           role="the reference", source=_source(several))
+        return fit_through(
+            "medium",
+            several,
+            fitted,
+            reference,
+            fixed=as_fixed(fixed),
+            freed=_freed(cls, free, "medium"),
+            accuracy=accuracy,
+            max_nfev=max_nfev,
+            progress=progress,
+            model_error=model_error,
+            propagation=propagation,
+            starts=STARTS["medium"],
+            role="the reference",
+            source=_source(several),
+        )
     reference = _of_channel(reference, channel)
     brdf = as_given(reference, "brdf", "the reference")
     data = prepare(table, black, "reference (in the medium)", channel)
-    return fit_step("medium", data, fitted, brdf,
-                 reference if isinstance(reference, FitResult) else None, as_fixed(fixed),
-                 accuracy, max_nfev, progress, _freed(cls, free, "medium"), model_error,
-                 propagation)
+    return fit_step(
+        "medium",
+        data,
+        fitted,
+        brdf,
+        reference if isinstance(reference, FitResult) else None,
+        as_fixed(fixed),
+        accuracy,
+        max_nfev,
+        progress,
+        _freed(cls, free, "medium"),
+        model_error,
+        propagation,
+    )
 
 
-def fit_target(table, medium, *, fixed=None, black=None, variant: str | None = None,
-               accuracy: str = "default", max_nfev=None, progress=None, brdf_model=None,
-               options=None, free=None, model_error=None, propagation=None,
-               channel: str | None = None) -> FitResult:
+def fit_target(
+    table,
+    medium,
+    *,
+    fixed=None,
+    black=None,
+    variant: str | None = None,
+    accuracy: str = "default",
+    max_nfev=None,
+    progress=None,
+    brdf_model=None,
+    options=None,
+    free=None,
+    model_error=None,
+    propagation=None,
+    channel: str | None = None,
+) -> FitResult:
     """Step 2 (docs/model.md sec. 7): fit the target's f_r, the medium fixed.
 
     table : the target object measured in the medium (DataFrame or CSV path).
@@ -221,18 +328,39 @@ def fit_target(table, medium, *, fixed=None, black=None, variant: str | None = N
         model_m = _given_of(medium, next(iter(several)))
         if isinstance(model_m, Model):
             check_options(model_m, _options(None, variant), "the medium")
-        return fit_through("target", several, fitted, medium, fixed=as_fixed(fixed),
-                           freed=_freed(cls, free, "target"), accuracy=accuracy,
-                           max_nfev=max_nfev, progress=progress, model_error=model_error,
-                           propagation=propagation, starts=STARTS["target"],
-                           role="the medium", source=_source(several))
+        return fit_through(
+            "target",
+            several,
+            fitted,
+            medium,
+            fixed=as_fixed(fixed),
+            freed=_freed(cls, free, "target"),
+            accuracy=accuracy,
+            max_nfev=max_nfev,
+            progress=progress,
+            model_error=model_error,
+            propagation=propagation,
+            starts=STARTS["target"],
+            role="the medium",
+            source=_source(several),
+        )
     model_m = as_given(_of_channel(medium, channel), "medium", "the medium")
     check_options(model_m, _options(None, variant), "the medium")
     data = prepare(table, black, "target (in the medium)", channel)
-    return fit_step("target", data, fitted, model_m,
-                 medium if isinstance(medium, FitResult) else None, as_fixed(fixed),
-                 accuracy, max_nfev, progress, _freed(cls, free, "target"), model_error,
-                 propagation)
+    return fit_step(
+        "target",
+        data,
+        fitted,
+        model_m,
+        medium if isinstance(medium, FitResult) else None,
+        as_fixed(fixed),
+        accuracy,
+        max_nfev,
+        progress,
+        _freed(cls, free, "target"),
+        model_error,
+        propagation,
+    )
 
 
 def _several(table, black, channel: str | None, what: str) -> dict[str, FitData] | None:
@@ -256,8 +384,9 @@ def _given_of(given, channel: str):
     """The model of ``channel`` of a given fit of several channels (for the options' check;
     its options are every channel's); anything else as it is."""
     if isinstance(given, FitResult) and given.channels is not None and not given.JOINT:
-        return given.as_model(channel=channel if channel in given.channels
-                              else next(iter(given.channels)))
+        return given.as_model(
+            channel=channel if channel in given.channels else next(iter(given.channels))
+        )
     return given
 
 
@@ -272,8 +401,9 @@ def _of_channel(result, channel: str | None):
 def model_values(result_or_model, other, angles, accuracy: str = "default") -> np.ndarray:
     """Values of a fitted model at canonical ``angles``: f_r alone for a BRDF when ``other`` is
     None, else the apparent reflectance with ``other`` (the medium or the BRDF)."""
-    model = result_or_model.one_model() if isinstance(result_or_model, FitResult) \
-        else result_or_model
+    model = (
+        result_or_model.one_model() if isinstance(result_or_model, FitResult) else result_or_model
+    )
     angles = tuple(np.asarray(a, dtype=float) for a in angles)
     if other is None:
         return DirectModel(model, angles).values(model.to_vector())
@@ -284,7 +414,14 @@ def model_values(result_or_model, other, angles, accuracy: str = "default") -> n
     return engine.values(brdf.to_vector(), medium.to_vector())
 
 
-__all__ = ["fit_reference", "fit_direct", "fit_medium", "fit_target", "model_values",
-           "STARTS", "ROLE"]
+__all__ = [
+    "fit_reference",
+    "fit_direct",
+    "fit_medium",
+    "fit_target",
+    "model_values",
+    "STARTS",
+    "ROLE",
+]
 
 __all__ += ["MisfitWarning", "MISFIT_CHI2", "warn_misfit"]

@@ -41,10 +41,12 @@ class Closest:
     converged: bool
 
     def sentence(self) -> str:
-        return (f"{self.model.NAME} fitted to the {self.source.NAME} result: RMS relative "
-                f"difference in f_r {100 * self.rms_relative:.3g} % (largest "
-                f"{100 * self.max_relative:.3g} %) over {self.n} in-plane configurations "
-                f"(psi {', '.join(f'{p:g}' for p in CLOSEST_PSI)} deg)")
+        return (
+            f"{self.model.NAME} fitted to the {self.source.NAME} result: RMS relative "
+            f"difference in f_r {100 * self.rms_relative:.3g} % (largest "
+            f"{100 * self.max_relative:.3g} %) over {self.n} in-plane configurations "
+            f"(psi {', '.join(f'{p:g}' for p in CLOSEST_PSI)} deg)"
+        )
 
 
 def configurations() -> pd.DataFrame:
@@ -60,20 +62,30 @@ def _source_values(source: Model, angles) -> np.ndarray:
     if np.all(np.isfinite(values)) and not lo <= float(np.max(np.abs(values))) <= hi:
         params = dict(zip(source.param_names(), source.to_vector()))
         large = [n for n, v in params.items() if v != 0 and not lo <= abs(v) <= hi]
-        raise InputError(f"{source}: f_r reaches {float(np.max(np.abs(values))):.3g}, outside "
-                         f"the magnitudes a closest fit handles ({lo:g} to {hi:g})"
-                         + (f"; parameter(s) {', '.join(large)}" if large else "")
-                         + ": rescale the data the result was fitted to")
+        raise InputError(
+            f"{source}: f_r reaches {float(np.max(np.abs(values))):.3g}, outside "
+            f"the magnitudes a closest fit handles ({lo:g} to {hi:g})"
+            + (f"; parameter(s) {', '.join(large)}" if large else "")
+            + ": rescale the data the result was fitted to"
+        )
     if not np.all(values > 0):
-        raise InputError(f"{source}: f_r is not positive at every configuration, so the "
-                         f"relative difference of a closest fit is undefined")
+        raise InputError(
+            f"{source}: f_r is not positive at every configuration, so the "
+            f"relative difference of a closest fit is undefined"
+        )
     return values
 
 
 def _closest_of(source: Model, model: Model, values, angles, converged: bool) -> Closest:
     rel = reflectance(model, *angles) / values - 1.0
-    return Closest(source, model, float(np.sqrt(np.mean(rel ** 2))),
-                   float(np.max(np.abs(rel))), len(values), converged)
+    return Closest(
+        source,
+        model,
+        float(np.sqrt(np.mean(rel**2))),
+        float(np.max(np.abs(rel))),
+        len(values),
+        converged,
+    )
 
 
 def closest(source: Model, family: str, options: dict | None = None) -> Closest:
@@ -110,10 +122,13 @@ def closest_channels(sources: dict, family: str, options: dict | None = None) ->
         parts.append(part)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", MisfitWarning)
-        result = fit_direct(pd.concat(parts, ignore_index=True), brdf_model=cls.NAME,
-                            options=dict(options or {}))
-    return {c: _closest_of(m, result.as_model(channel=c), values[c], angles,
-                           bool(result.converged)) for c, m in sources.items()}
+        result = fit_direct(
+            pd.concat(parts, ignore_index=True), brdf_model=cls.NAME, options=dict(options or {})
+        )
+    return {
+        c: _closest_of(m, result.as_model(channel=c), values[c], angles, bool(result.converged))
+        for c, m in sources.items()
+    }
 
 
 __all__ = ["Closest", "closest", "closest_channels", "configurations", "CLOSEST_PSI"]

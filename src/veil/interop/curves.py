@@ -15,18 +15,20 @@ from ..engine.apparent import apparent, reflectance
 from ..errors import InputError
 
 #: Columns of the table, in order.
-COLUMNS = ("brdf_model", "medium", "psi", "rho", "theta_i", "phi_i", "theta_r", "phi_r",
-           "value")
+COLUMNS = ("brdf_model", "medium", "psi", "rho", "theta_i", "phi_i", "theta_r", "phi_r", "value")
 NO_MEDIUM = "none"
 
 
-def curves(brdf, medium=None, psi=PSI, accuracy: str = "default", **protocol_options
-           ) -> pd.DataFrame:
+def curves(
+    brdf, medium=None, psi=PSI, accuracy: str = "default", **protocol_options
+) -> pd.DataFrame:
     """f_r of ``brdf`` and, when ``medium`` is given, its apparent value through it, at the
     configurations of the paper's protocol (:func:`veil.data.protocol.protocol`)."""
     if brdf is None:
-        raise InputError("predicted curves need a BRDF (the object); a medium alone has none: "
-                         "give a BRDF result or preset too")
+        raise InputError(
+            "predicted curves need a BRDF (the object); a medium alone has none: "
+            "give a BRDF result or preset too"
+        )
     table = protocol(psi, **protocol_options)
     angles = [table[c].to_numpy() for c in ("theta_i", "theta_r", "phi_i", "phi_r")]
     blocks: list[tuple[str, Any]] = [(NO_MEDIUM, reflectance(brdf, *angles))]
@@ -45,8 +47,13 @@ def curves(brdf, medium=None, psi=PSI, accuracy: str = "default", **protocol_opt
     return pd.concat(frames, ignore_index=True)[list(COLUMNS)]
 
 
-def channel_curves(brdfs: dict | None, media: dict | None = None, psi=PSI,
-                   accuracy: str = "default", **protocol_options) -> pd.DataFrame:
+def channel_curves(
+    brdfs: dict | None,
+    media: dict | None = None,
+    psi=PSI,
+    accuracy: str = "default",
+    **protocol_options,
+) -> pd.DataFrame:
     """:func:`curves` of every channel ({channel: model} of the BRDF and the optional
     medium, docs/channels.md), channel after channel, with a ``channel`` column before
     ``value``."""
@@ -54,8 +61,7 @@ def channel_curves(brdfs: dict | None, media: dict | None = None, psi=PSI,
         return curves(None)
     frames = []
     for c, brdf in brdfs.items():
-        frame = curves(brdf, None if media is None else media[c], psi, accuracy,
-                       **protocol_options)
+        frame = curves(brdf, None if media is None else media[c], psi, accuracy, **protocol_options)
         frame.insert(len(COLUMNS) - 1, CHANNEL, c)
         frames.append(frame)
     return pd.concat(frames, ignore_index=True)

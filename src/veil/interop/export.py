@@ -49,12 +49,17 @@ class Export:
 
 
 def _exporters(renderer: str) -> list[str]:
-    return [n for n in names() if renderer in getattr(model_class(n), "RENDERERS", {})
-            or renderer in getattr(model_class(n), "PROXIES", {})]
+    return [
+        n
+        for n in names()
+        if renderer in getattr(model_class(n), "RENDERERS", {})
+        or renderer in getattr(model_class(n), "PROXIES", {})
+    ]
 
 
 #: The setting of an export that names none (a frozen dataclass: one instance serves all).
 DEFAULT_SETTING = Setting()
+
 
 def check_renderer(renderer: str) -> None:
     if renderer not in RENDERER_NAMES:
@@ -86,11 +91,15 @@ def proxy(model: Model, renderer: str, setting: Setting = DEFAULT_SETTING) -> tu
         try:  # fail before fitting when the closest family cannot be exported either
             plugin(model_class(family, "brdf").template(**options), renderer, setting)
         except InputError as exc:
-            raise Unsupported(f"{model.NAME} has no counterpart in {renderer}, and its closest "
-                              f"family {family} cannot be exported there either: {exc}") from None
+            raise Unsupported(
+                f"{model.NAME} has no counterpart in {renderer}, and its closest "
+                f"family {family} cannot be exported there either: {exc}"
+            ) from None
         return family, dict(options)
-    raise Unsupported(f"{model.NAME} has no counterpart in {renderer}; the families veil "
-                      f"exports there are {', '.join(_exporters(renderer)) or 'none'}")
+    raise Unsupported(
+        f"{model.NAME} has no counterpart in {renderer}; the families veil "
+        f"exports there are {', '.join(_exporters(renderer)) or 'none'}"
+    )
 
 
 def has_own_plugin(model: Model, renderer: str) -> bool:
@@ -98,13 +107,13 @@ def has_own_plugin(model: Model, renderer: str) -> bool:
     return renderer in getattr(type(model), "RENDERERS", {})
 
 
-def from_closest(model: Model, fit, renderer: str, setting: Setting = DEFAULT_SETTING
-                 ) -> Exported:
+def from_closest(model: Model, fit, renderer: str, setting: Setting = DEFAULT_SETTING) -> Exported:
     """``model`` exported as ``fit`` (a :class:`veil.interop.closest.Closest` of it), the
     fit's sentence first among what the conversion loses."""
     inner = plugin(fit.model, renderer, setting).plugin
-    return Exported(model, fit.model,
-                    dataclasses.replace(inner, lost=(fit.sentence(),) + inner.lost), fit)
+    return Exported(
+        model, fit.model, dataclasses.replace(inner, lost=(fit.sentence(),) + inner.lost), fit
+    )
 
 
 def _comments(items, renderer: str, source: str) -> list[str]:
@@ -123,8 +132,13 @@ def _comments(items, renderer: str, source: str) -> list[str]:
     return lines
 
 
-def export(models, renderer: str = "mitsuba", fmt: str | None = None,
-           setting: Setting = DEFAULT_SETTING, source: str = "") -> Export:
+def export(
+    models,
+    renderer: str = "mitsuba",
+    fmt: str | None = None,
+    setting: Setting = DEFAULT_SETTING,
+    source: str = "",
+) -> Export:
     """Scene text for ``models`` (a BRDF and/or a medium) in ``renderer``'s format ``fmt``."""
     fmt = check_format(renderer, fmt)
     models = sorted_models(models)
@@ -139,8 +153,9 @@ def check_format(renderer: str, fmt: str | None) -> str:
     check_renderer(renderer)
     fmt = fmt or FORMATS[renderer][0]
     if fmt not in FORMATS[renderer]:
-        raise InputError(f"format {fmt!r} for {renderer}; expected one of "
-                         f"{', '.join(FORMATS[renderer])}")
+        raise InputError(
+            f"format {fmt!r} for {renderer}; expected one of {', '.join(FORMATS[renderer])}"
+        )
     return fmt
 
 
@@ -165,5 +180,17 @@ def scene_text(plugins, comments, renderer: str, fmt: str) -> str:
     return mitsuba_xml(plugins, comments)
 
 
-__all__ = ["FORMATS", "Export", "Exported", "export", "plugin", "proxy", "from_closest",
-           "has_own_plugin", "check_renderer", "check_format", "sorted_models", "scene_text"]
+__all__ = [
+    "FORMATS",
+    "Export",
+    "Exported",
+    "export",
+    "plugin",
+    "proxy",
+    "from_closest",
+    "has_own_plugin",
+    "check_renderer",
+    "check_format",
+    "sorted_models",
+    "scene_text",
+]

@@ -36,14 +36,17 @@ def load_mitsuba() -> ModuleType:
     try:
         import mitsuba as mi
     except ImportError as exc:
-        raise InputError(f"--verify renders with Mitsuba 3, which is not installed here "
-                         f"({exc}); install it with: pip install 'veil[mitsuba]' (or pip "
-                         f"install mitsuba)") from None
+        raise InputError(
+            f"--verify renders with Mitsuba 3, which is not installed here "
+            f"({exc}); install it with: pip install 'veil[mitsuba]' (or pip "
+            f"install mitsuba)"
+        ) from None
     try:
         mi.set_variant(VARIANT)
     except Exception as exc:
-        raise InputError(f"--verify needs Mitsuba's {VARIANT} variant, which this Mitsuba "
-                         f"does not have ({exc})") from None
+        raise InputError(
+            f"--verify needs Mitsuba's {VARIANT} variant, which this Mitsuba does not have ({exc})"
+        ) from None
     return mi
 
 
@@ -71,7 +74,7 @@ class Verification:
 
     @property
     def rms_relative(self) -> float:
-        return float(np.sqrt(np.mean(self.relative ** 2)))
+        return float(np.sqrt(np.mean(self.relative**2)))
 
     @property
     def max_relative(self) -> float:
@@ -89,13 +92,22 @@ class Verification:
         what = "path-traced through the medium" if self.medium else "rendered"
         left = len(self.predicted) - int(np.sum(self.used))
         noise = self.rms_noise
-        return (f"Mitsuba {VARIANT} {what} at {len(self.predicted)} configurations ({self.spp} "
-                f"spp): RMS relative difference from veil {100 * self.rms_relative:.3g} % "
-                f"(largest {100 * self.max_relative:.3g} %)"
-                + (f", of which Monte Carlo noise (RMS relative standard error) "
-                   f"{100 * noise:.3g} %" if noise is not None else "")
-                + (f"; {left} configurations where veil's value is below {NEGLIGIBLE:g} of "
-                   f"its largest left out" if left else ""))
+        return (
+            f"Mitsuba {VARIANT} {what} at {len(self.predicted)} configurations ({self.spp} "
+            f"spp): RMS relative difference from veil {100 * self.rms_relative:.3g} % "
+            f"(largest {100 * self.max_relative:.3g} %)"
+            + (
+                f", of which Monte Carlo noise (RMS relative standard error) {100 * noise:.3g} %"
+                if noise is not None
+                else ""
+            )
+            + (
+                f"; {left} configurations where veil's value is below {NEGLIGIBLE:g} of "
+                f"its largest left out"
+                if left
+                else ""
+            )
+        )
 
 
 def _vec(tag: str, name: str, v) -> str:
@@ -115,36 +127,45 @@ def _scene(fragment: str, wi, wr, spp: int, medium: dict | None) -> str:
         rc, half = float(medium["length"]), float(medium["half_width"])
         max_depth = int(medium["max_depth"])
         origin = (rc * 1.2) * np.asarray(wr)
-        integrator = (f'<integrator type="volpath"><integer name="max_depth" value="{max_depth}"'
-                      f'/></integrator>')
+        integrator = (
+            f'<integrator type="volpath"><integer name="max_depth" value="{max_depth}"'
+            f"/></integrator>"
+        )
         ref = f'<ref name="interior" id="{IDS["medium"]}"/>'
         length = 4.0 * rc
-        extra = (f'<shape type="cylinder"><point name="p0" x="0" y="{-length!r}" z="0"/>'
-                 f'<point name="p1" x="0" y="{length!r}" z="0"/><float name="radius" '
-                 f'value="{rc!r}"/><bsdf type="null"/>{ref}</shape>'
-                 f'<shape type="disk"><transform name="to_world"><rotate x="1" angle="-90"/>'
-                 f'<scale value="{rc!r}"/><translate y="{length!r}"/></transform>'
-                 f'<bsdf type="null"/>{ref}</shape>'
-                 f'<shape type="disk"><transform name="to_world"><rotate x="1" angle="90"/>'
-                 f'<scale value="{rc!r}"/><translate y="{-length!r}"/></transform>'
-                 f'<bsdf type="null"/>{ref}</shape>')
+        extra = (
+            f'<shape type="cylinder"><point name="p0" x="0" y="{-length!r}" z="0"/>'
+            f'<point name="p1" x="0" y="{length!r}" z="0"/><float name="radius" '
+            f'value="{rc!r}"/><bsdf type="null"/>{ref}</shape>'
+            f'<shape type="disk"><transform name="to_world"><rotate x="1" angle="-90"/>'
+            f'<scale value="{rc!r}"/><translate y="{length!r}"/></transform>'
+            f'<bsdf type="null"/>{ref}</shape>'
+            f'<shape type="disk"><transform name="to_world"><rotate x="1" angle="90"/>'
+            f'<scale value="{rc!r}"/><translate y="{-length!r}"/></transform>'
+            f'<bsdf type="null"/>{ref}</shape>'
+        )
         plate = f'<transform name="to_world"><scale x="{half!r}" y="{half!r}"/></transform>'
         # the plate is inside the medium on both sides
         plate += ref + f'<ref name="exterior" id="{IDS["medium"]}"/>'
-    light = (f'<emitter type="directional">{_vec("vector", "direction", -np.asarray(wi))}'
-             f'<rgb name="irradiance" value="1"/></emitter>')
-    sensor = (f'<sensor type="radiancemeter">{_vec("point", "origin", origin)}'
-              f'{_vec("vector", "direction", -np.asarray(wr))}'
-              f'<film type="hdrfilm"><integer name="width" value="1"/><integer name="height" '
-              f'value="1"/><rfilter type="box"/><string name="pixel_format" value="rgb"/></film>'
-              f'<sampler type="independent"><integer name="sample_count" value="{spp}"/>'
-              f'</sampler></sensor>')
+    light = (
+        f'<emitter type="directional">{_vec("vector", "direction", -np.asarray(wi))}'
+        f'<rgb name="irradiance" value="1"/></emitter>'
+    )
+    sensor = (
+        f'<sensor type="radiancemeter">{_vec("point", "origin", origin)}'
+        f"{_vec('vector', 'direction', -np.asarray(wr))}"
+        f'<film type="hdrfilm"><integer name="width" value="1"/><integer name="height" '
+        f'value="1"/><rfilter type="box"/><string name="pixel_format" value="rgb"/></film>'
+        f'<sampler type="independent"><integer name="sample_count" value="{spp}"/>'
+        f"</sampler></sensor>"
+    )
     shape = f'<shape type="rectangle">{plate}<ref id="{IDS["bsdf"]}"/></shape>'
     return body + integrator + light + sensor + shape + extra + "</scene>\n"
 
 
-def render_rgb(fragment: str, configs, spp: int = 1, medium: dict | None = None,
-               seed: int = 0) -> np.ndarray:
+def render_rgb(
+    fragment: str, configs, spp: int = 1, medium: dict | None = None, seed: int = 0
+) -> np.ndarray:
     """Rendered red, green and blue values, shape (n, 3), of the fragment at ``configs``
     (rows theta_i, theta_r, phi_i, phi_r in degrees) under a white light; ``medium`` =
     {"length", "half_width", "max_depth"} path-traces the plate inside the exported medium."""
@@ -162,8 +183,9 @@ def render_rgb(fragment: str, configs, spp: int = 1, medium: dict | None = None,
     return out
 
 
-def render(fragment: str, configs, spp: int = 1, medium: dict | None = None,
-           seed: int = 0) -> np.ndarray:
+def render(
+    fragment: str, configs, spp: int = 1, medium: dict | None = None, seed: int = 0
+) -> np.ndarray:
     """Rendered values (first RGB channel) of the fragment at ``configs``
     (:func:`render_rgb`)."""
     return render_rgb(fragment, configs, spp, medium, seed)[:, 0]
@@ -172,13 +194,20 @@ def render(fragment: str, configs, spp: int = 1, medium: dict | None = None,
 def _check_predicted(predicted, what: str = "") -> np.ndarray:
     predicted = np.asarray(predicted, dtype=float)
     if not np.max(predicted) > 0:
-        raise InputError(f"veil predicts no light at any configuration{what}: nothing to "
-                         f"compare")
+        raise InputError(f"veil predicts no light at any configuration{what}: nothing to compare")
     return predicted
 
 
-def verify(fragment: str, scale: float, predicted, configs, spp: int = 1,
-           medium: dict | None = None, seed: int = 0, passes: int = 1) -> Verification:
+def verify(
+    fragment: str,
+    scale: float,
+    predicted,
+    configs,
+    spp: int = 1,
+    medium: dict | None = None,
+    seed: int = 0,
+    passes: int = 1,
+) -> Verification:
     """:func:`render` times the exported intensity ``scale`` against ``predicted``; with
     ``passes`` > 1 the ``spp`` are split into independent passes whose spread gives each
     render's standard error."""
@@ -188,15 +217,25 @@ def verify(fragment: str, scale: float, predicted, configs, spp: int = 1,
         rendered = scale * render(fragment, configs, spp, medium, seed)
         return Verification(rendered, predicted, configs, spp, medium is not None)
     per = max(1, spp // passes)
-    runs = np.array([scale * render(fragment, configs, per, medium, seed + 100003 * k)
-                     for k in range(passes)])
+    runs = np.array(
+        [scale * render(fragment, configs, per, medium, seed + 100003 * k) for k in range(passes)]
+    )
     stderr = runs.std(axis=0, ddof=1) / np.sqrt(passes)
-    return Verification(runs.mean(axis=0), predicted, configs, per * passes, medium is not None,
-                        stderr)
+    return Verification(
+        runs.mean(axis=0), predicted, configs, per * passes, medium is not None, stderr
+    )
 
 
-def verify_channels(fragment: str, scales: dict, predicted: dict, configs, spp: int = 1,
-                    medium: dict | None = None, seed: int = 0, passes: int = 1) -> dict:
+def verify_channels(
+    fragment: str,
+    scales: dict,
+    predicted: dict,
+    configs,
+    spp: int = 1,
+    medium: dict | None = None,
+    seed: int = 0,
+    passes: int = 1,
+) -> dict:
     """{channel: :class:`Verification`} of a colour export (channels r, g, b, keys of
     ``scales`` and ``predicted``): each channel of one render (:func:`render_rgb`) times
     that channel's intensity scale against veil's prediction of that channel. ``passes``
@@ -205,16 +244,28 @@ def verify_channels(fragment: str, scales: dict, predicted: dict, configs, spp: 
     wanted = {c: _check_predicted(v, f" in channel {c}") for c, v in predicted.items()}
     index = {c: RGB.index(c) for c in wanted}
     per = spp if passes <= 1 else max(1, spp // passes)
-    runs = np.array([render_rgb(fragment, configs, per, medium, seed + 100003 * k)
-                     for k in range(max(passes, 1))])
+    runs = np.array(
+        [
+            render_rgb(fragment, configs, per, medium, seed + 100003 * k)
+            for k in range(max(passes, 1))
+        ]
+    )
     out = {}
     for c, values in wanted.items():
         channel = scales[c] * runs[:, :, index[c]]
         stderr = None if passes <= 1 else channel.std(axis=0, ddof=1) / np.sqrt(passes)
-        out[c] = Verification(channel.mean(axis=0), values, configs, per * max(passes, 1),
-                              medium is not None, stderr)
+        out[c] = Verification(
+            channel.mean(axis=0), values, configs, per * max(passes, 1), medium is not None, stderr
+        )
     return out
 
 
-__all__ = ["VARIANT", "load_mitsuba", "render", "render_rgb", "verify", "verify_channels",
-           "Verification"]
+__all__ = [
+    "VARIANT",
+    "load_mitsuba",
+    "render",
+    "render_rgb",
+    "verify",
+    "verify_channels",
+    "Verification",
+]

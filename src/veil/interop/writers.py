@@ -41,9 +41,11 @@ def _unbounded(v) -> bool:
 def _xml_value(v) -> str:
     if isinstance(v.value, tuple):
         if _unbounded(v):
-            return (f'<texture type="srgb" name="{v.name}"><rgb name="color" '
-                    f'value="{_rgb_text(v.value, ", ")}"/><boolean name="unbounded" '
-                    f'value="true"/></texture>')
+            return (
+                f'<texture type="srgb" name="{v.name}"><rgb name="color" '
+                f'value="{_rgb_text(v.value, ", ")}"/><boolean name="unbounded" '
+                f'value="true"/></texture>'
+            )
         return f'<rgb name="{v.name}" value="{_rgb_text(v.value, ", ")}"/>'
     if v.kind == "boolean":
         return f'<boolean name="{v.name}" value="{"true" if v.value else "false"}"/>'
@@ -82,8 +84,11 @@ def _dict_plugin(p: Plugin) -> dict:
     out: dict[str, object] = {"type": p.type}
     for v in p.values:
         if isinstance(v.value, tuple):
-            out[v.name] = ({"type": "srgb", "color": list(v.value), "unbounded": True}
-                           if _unbounded(v) else {"type": "rgb", "value": list(v.value)})
+            out[v.name] = (
+                {"type": "srgb", "color": list(v.value), "unbounded": True}
+                if _unbounded(v)
+                else {"type": "rgb", "value": list(v.value)}
+            )
         else:
             out[v.name] = v.value
     for child in p.children:
@@ -104,8 +109,7 @@ def mitsuba_dict(plugins) -> dict:
 def mitsuba_dict_source(plugins, comments) -> str:
     """Python source defining ``scene`` = :func:`mitsuba_dict` (comments above it)."""
     lines = [f"# {c}" for c in comments]
-    lines.append("scene = " + pprint.pformat(mitsuba_dict(plugins), sort_dicts=False,
-                                             width=96))
+    lines.append("scene = " + pprint.pformat(mitsuba_dict(plugins), sort_dicts=False, width=96))
     return "\n".join(lines) + "\n"
 
 
@@ -137,5 +141,12 @@ def pbrt_text(plugins, comments) -> str:
     return "\n".join(lines) + "\n"
 
 
-__all__ = ["IDS", "BOUNDARY_ID", "number", "mitsuba_xml", "mitsuba_dict",
-           "mitsuba_dict_source", "pbrt_text"]
+__all__ = [
+    "IDS",
+    "BOUNDARY_ID",
+    "number",
+    "mitsuba_xml",
+    "mitsuba_dict",
+    "mitsuba_dict_source",
+    "pbrt_text",
+]

@@ -57,6 +57,7 @@ class Axis:
 
 def _jnp():
     from .._jax import jnp
+
     return jnp
 
 
@@ -70,14 +71,15 @@ def parse_grid(items, cls) -> dict:
         if not sep or len(parts) not in (2, 3):
             raise FitError(f"grid {item!r}: expected NAME=LO:HI or NAME=LO:HI:COUNT")
         if name not in cls.param_names():
-            raise FitError(f"grid {item!r}: {cls.NAME} has no parameter {name!r}; its "
-                           f"parameters are {', '.join(cls.param_names())}")
+            raise FitError(
+                f"grid {item!r}: {cls.NAME} has no parameter {name!r}; its "
+                f"parameters are {', '.join(cls.param_names())}"
+            )
         try:
             lo, hi = float(parts[0]), float(parts[1])
             count = int(parts[2]) if len(parts) == 3 else None
         except ValueError:
-            raise FitError(f"grid {item!r}: LO and HI must be numbers, COUNT an integer"
-                           ) from None
+            raise FitError(f"grid {item!r}: LO and HI must be numbers, COUNT an integer") from None
         if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
             raise FitError(f"grid {item!r}: expected finite LO < HI")
         if count is not None and not 4 <= count <= 400:
@@ -85,8 +87,7 @@ def parse_grid(items, cls) -> dict:
         p = cls.param(name)
         for v in (lo, hi):
             if not p.contains(v):
-                raise FitError(f"grid {item!r}: {v:g} is outside {name}'s bounds "
-                               f"{p.interval()}")
+                raise FitError(f"grid {item!r}: {v:g} is outside {name}'s bounds {p.interval()}")
         out[name] = (lo, hi, count)
     return out
 
@@ -98,12 +99,16 @@ def make_axes(cls, free_nonlinear, grid=None) -> list[Axis]:
     grid = dict(grid or {})
     unknown = [n for n in grid if cls.param_names().index(n) not in free_nonlinear]
     if unknown:
-        raise FitError(f"grid given for {', '.join(unknown)}, which is not a free nonlinear "
-                       f"parameter of this fit (a scale, fixed, or held)")
+        raise FitError(
+            f"grid given for {', '.join(unknown)}, which is not a free nonlinear "
+            f"parameter of this fit (a scale, fixed, or held)"
+        )
     d = len(free_nonlinear)
     if d > 3:
-        raise FitError(f"{d} free nonlinear parameters; per-pixel tables handle at most 3: "
-                       f"fix some with --fix NAME=VALUE")
+        raise FitError(
+            f"{d} free nonlinear parameters; per-pixel tables handle at most 3: "
+            f"fix some with --fix NAME=VALUE"
+        )
     axes = []
     for i in free_nonlinear:
         p = cls.PARAMS[i]
@@ -112,17 +117,21 @@ def make_axes(cls, free_nonlinear, grid=None) -> list[Axis]:
         else:
             values = set()
             for role in ("target", "reference"):
-                values |= {float(v) for v in cls.start_grid(role).get(p.name, ())
-                           if p.contains(float(v))}
+                values |= {
+                    float(v) for v in cls.start_grid(role).get(p.name, ()) if p.contains(float(v))
+                }
             if len(values) < 2:
-                raise FitError(f"{cls.NAME}.{p.name}: the model's starting grids give no "
-                               f"range to tabulate; fix it (--fix {p.name}=VALUE) or give "
-                               f"its range (--grid {p.name}=LO:HI)")
+                raise FitError(
+                    f"{cls.NAME}.{p.name}: the model's starting grids give no "
+                    f"range to tabulate; fix it (--fix {p.name}=VALUE) or give "
+                    f"its range (--grid {p.name}=LO:HI)"
+                )
             lo, hi, count = min(values), max(values), None
         if p.log_scale and lo <= 0:
             raise FitError(f"grid of {p.name}: a log-scaled parameter needs LO > 0")
-        axes.append(Axis(p.name, i, bool(p.log_scale), float(lo), float(hi),
-                         int(count or NODES[d])))
+        axes.append(
+            Axis(p.name, i, bool(p.log_scale), float(lo), float(hi), int(count or NODES[d]))
+        )
     return axes
 
 
@@ -136,13 +145,13 @@ def bspline_inverse(k: int) -> np.ndarray:
     j - 1."""
     a = np.zeros((k + 2, k + 2))
     for i in range(k):  # value at node i: (c_i + 4 c_{i+1} + c_{i+2}) / 6
-        a[i, i:i + 3] = (1 / 6, 4 / 6, 1 / 6)
+        a[i, i : i + 3] = (1 / 6, 4 / 6, 1 / 6)
     if k >= 4:  # jump of the third derivative at nodes 1 and k - 2: a fourth difference
         a[k, 0:5] = (1, -4, 6, -4, 1)
-        a[k + 1, k - 3:k + 2] = (1, -4, 6, -4, 1)
+        a[k + 1, k - 3 : k + 2] = (1, -4, 6, -4, 1)
     else:  # natural ends
         a[k, 0:3] = (1, -2, 1)
-        a[k + 1, k - 1:k + 2] = (1, -2, 1)
+        a[k + 1, k - 1 : k + 2] = (1, -2, 1)
     rhs = np.zeros((k + 2, k))
     rhs[:k, :] = np.eye(k)
     return np.linalg.solve(a, rhs)
@@ -151,13 +160,11 @@ def bspline_inverse(k: int) -> np.ndarray:
 def spline_weights(t, jnp) -> tuple[np.ndarray | Array, np.ndarray | Array]:
     """Cubic B-spline weights and their derivatives at offset t in [0, 1] of a cell."""
     t2, t3 = t * t, t * t * t
-    w = jnp.stack([(1 - t) ** 3 / 6, (3 * t3 - 6 * t2 + 4) / 6,
-                   (-3 * t3 + 3 * t2 + 3 * t + 1) / 6, t3 / 6])
-    dw = jnp.stack([-0.5 * (1 - t) ** 2, (3 * t2 - 4 * t) / 2,
-                    (-3 * t2 + 2 * t + 1) / 2, t2 / 2])
+    w = jnp.stack(
+        [(1 - t) ** 3 / 6, (3 * t3 - 6 * t2 + 4) / 6, (-3 * t3 + 3 * t2 + 3 * t + 1) / 6, t3 / 6]
+    )
+    dw = jnp.stack([-0.5 * (1 - t) ** 2, (3 * t2 - 4 * t) / 2, (-3 * t2 + 2 * t + 1) / 2, t2 / 2])
     return w, dw
-
-
 
 
 # --------------------------------------------------------------------------------------
@@ -173,10 +180,10 @@ def interp(coef, u, d) -> tuple[Array, Array]:
         x = jnp.abs(u[0] - (jnp.arange(coef.shape[0]) - 1.0))
         sign = jnp.sign(u[0] - (jnp.arange(coef.shape[0]) - 1.0))
         inner, outer = x < 1, (x >= 1) & (x < 2)
-        w = jnp.where(inner, 2 / 3 - x * x + 0.5 * x ** 3,
-                      jnp.where(outer, (2 - x) ** 3 / 6, 0.0))
-        dw = sign * jnp.where(inner, -2 * x + 1.5 * x * x,
-                              jnp.where(outer, -0.5 * (2 - x) ** 2, 0.0))
+        w = jnp.where(inner, 2 / 3 - x * x + 0.5 * x**3, jnp.where(outer, (2 - x) ** 3 / 6, 0.0))
+        dw = sign * jnp.where(
+            inner, -2 * x + 1.5 * x * x, jnp.where(outer, -0.5 * (2 - x) ** 2, 0.0)
+        )
         both = jnp.tensordot(jnp.stack([w, dw]), coef, axes=([1], [0]))
         return both[0], both[1:]
     block, ws, dws = spline_block(coef, u, d)
@@ -207,8 +214,9 @@ def contract(block, ws, dws, d):
     letters = "abc"[:d]
     spec = f"{letters}...," + ",".join(letters) + "->..."
     value = jnp.einsum(spec, block, *ws)
-    derivs = [jnp.einsum(spec, block, *[dws[b] if b == a else ws[b] for b in range(d)])
-              for a in range(d)]
+    derivs = [
+        jnp.einsum(spec, block, *[dws[b] if b == a else ws[b] for b in range(d)]) for a in range(d)
+    ]
     return value, jnp.stack(derivs)
 
 
@@ -226,8 +234,6 @@ def interp_near(coef, fu, u, d) -> tuple[Array, Array]:
     return contract(block, ws[2:], dws[2:], d)
 
 
-
-
 def field_block(field_values, fu) -> np.ndarray:
     """Node values (K_1, ..., K_d, M, q + 1) at field-grid coordinates ``fu`` (2,) from the
     field coefficients (numpy; for the tables' own check of the interpolation)."""
@@ -238,12 +244,21 @@ def field_block(field_values, fu) -> np.ndarray:
         w, _ = spline_weights(fu[a] - i, np)
         ws.append((i, w))
     (ix, wx), (iy, wy) = ws
-    block = field_values[ix:ix + 4, iy:iy + 4]
+    block = field_values[ix : ix + 4, iy : iy + 4]
     return np.einsum("ab...,a,b->...", block, wx, wy)
 
 
 #: Field-grid check points of the interpolation error (fractions of the grid's cells):
 
 
-__all__ = ["NODES", "Axis", "parse_grid", "make_axes", "bspline_inverse", "spline_weights",
-           "interp", "interp_near", "field_block"]
+__all__ = [
+    "NODES",
+    "Axis",
+    "parse_grid",
+    "make_axes",
+    "bspline_inverse",
+    "spline_weights",
+    "interp",
+    "interp_near",
+    "field_block",
+]

@@ -65,16 +65,17 @@ class NearGeometry:
         """Plate positions (..., 3) of pixels (x, y) of the full photo (fractional allowed)."""
         cx, cy = self.centre
         x, y = np.broadcast_arrays(np.asarray(x, dtype=float), np.asarray(y, dtype=float))
-        return np.stack([(x + 0.5 - cx) * self.pitch, -(y + 0.5 - cy) * self.pitch,
-                         np.zeros_like(x)], axis=-1)
+        return np.stack(
+            [(x + 0.5 - cx) * self.pitch, -(y + 0.5 - cy) * self.pitch, np.zeros_like(x)], axis=-1
+        )
 
     def angles(self, angles, x, y) -> tuple:
         """(theta_i, phi_i, theta_r, phi_r), each (..., M) for pixels (x, y) (...) and the
         configurations ``angles`` (M,) (degrees): the light's unchanged, the view from the
         plate point to the camera."""
         ti, pi_, tr, pr = (np.asarray(a, dtype=float) for a in angles)
-        camera = self.distance * direction(tr, pr)                    # (M, 3)
-        p = self.plate_points(x, y)[..., None, :]                     # (..., 1, 3)
+        camera = self.distance * direction(tr, pr)  # (M, 3)
+        p = self.plate_points(x, y)[..., None, :]  # (..., 1, 3)
         v = camera - p
         v = v / np.linalg.norm(v, axis=-1, keepdims=True)
         theta = np.degrees(np.arccos(np.clip(v[..., 2], -1.0, 1.0)))
@@ -82,8 +83,7 @@ class NearGeometry:
         # straight down the normal the azimuth is arbitrary: keep the manifest's
         phi = np.where(theta < 1e-9, pr, phi)
         shape = theta.shape
-        return (np.broadcast_to(ti, shape).copy(), np.broadcast_to(pi_, shape).copy(),
-                theta, phi)
+        return (np.broadcast_to(ti, shape).copy(), np.broadcast_to(pi_, shape).copy(), theta, phi)
 
     def check_field(self, angles, roi) -> None:
         """InputError when a pixel of ``roi`` sees a configuration's camera at or beyond
@@ -91,7 +91,7 @@ class NearGeometry:
         xs = np.array([roi.x, roi.x + roi.w - 1], dtype=float)
         ys = np.array([roi.y, roi.y + roi.h - 1], dtype=float)
         xx, yy = np.meshgrid(xs, ys)
-        theta = self.angles(angles, xx, yy)[2]                        # (2, 2, M)
+        theta = self.angles(angles, xx, yy)[2]  # (2, 2, M)
         worst = np.unravel_index(np.argmax(theta), theta.shape)
         if theta[worst] >= MAX_THETA:
             m = worst[-1]
@@ -101,12 +101,15 @@ class NearGeometry:
                 f"{float(np.asarray(angles[2])[m]):g} deg) at {theta[worst]:.4g} deg from the "
                 f"normal (at most {MAX_THETA:g}): the field ({roi.w} x {roi.h} pixels of "
                 f"{self.pitch:g} at distance {self.distance:g}) is larger than the plate "
-                f"allows; map a smaller ROI, or check --camera-distance and --pixel-pitch")
+                f"allows; map a smaller ROI, or check --camera-distance and --pixel-pitch"
+            )
 
     def describe(self) -> str:
         cx, cy = self.centre
-        return (f"near-field: camera at {self.distance:g} from the plate centre, pixel pitch "
-                f"{self.pitch:g}, optical centre ({cx:g}, {cy:g}) px")
+        return (
+            f"near-field: camera at {self.distance:g} from the plate centre, pixel pitch "
+            f"{self.pitch:g}, optical centre ({cx:g}, {cy:g}) px"
+        )
 
 
 def apparent_lobe(facet_deg: float, phase_deg: float) -> float:
@@ -116,7 +119,7 @@ def apparent_lobe(facet_deg: float, phase_deg: float) -> float:
     ``veil render``'s peak width does (viz.render.peak_width, in u = angle(N, H))."""
     facet = min(facet_deg, 60.0)
     lobe = min(phase_deg, 60.0)
-    return math.sqrt((2.0 * facet) ** 2 + 2.0 * lobe ** 2)
+    return math.sqrt((2.0 * facet) ** 2 + 2.0 * lobe**2)
 
 
 @dataclass(frozen=True)
@@ -138,9 +141,11 @@ class FieldGrid:
 
     def coords(self, x, y) -> tuple[np.ndarray, np.ndarray]:
         """Grid coordinates (0 .. K - 1 on each axis) of pixels (x, y) of the full photo."""
+
         def one(v, nodes):
             lo, hi = nodes[0], nodes[-1]
             return (np.asarray(v, dtype=float) - lo) / ((hi - lo) / (len(nodes) - 1))
+
         return one(x, self.xs), one(y, self.ys)
 
     def node_angles(self, angles) -> tuple:
@@ -149,21 +154,30 @@ class FieldGrid:
         return self.geometry.angles(angles, xx, yy)
 
     def describe(self) -> str:
-        return (f"field grid {len(self.xs)} x {len(self.ys)} plate points (step "
-                f"<= {self.step_deg:.3g} deg of view direction, {self.step_deg / self.lobe_deg:.2g}"
-                f" of the {self.lobe_deg:.3g} deg apparent lobe)")
+        return (
+            f"field grid {len(self.xs)} x {len(self.ys)} plate points (step "
+            f"<= {self.step_deg:.3g} deg of view direction, {self.step_deg / self.lobe_deg:.2g}"
+            f" of the {self.lobe_deg:.3g} deg apparent lobe)"
+        )
 
     def as_dict(self) -> dict:
         g = self.geometry
-        return {"camera_distance": g.distance, "pixel_pitch": g.pitch,
-                "optical_centre": list(g.centre), "photo_shape": list(g.shape),
-                "field_nodes": [len(self.xs), len(self.ys)],
-                "field_x": [self.xs[0], self.xs[-1]], "field_y": [self.ys[0], self.ys[-1]],
-                "step_deg": self.step_deg, "apparent_lobe_deg": self.lobe_deg}
+        return {
+            "camera_distance": g.distance,
+            "pixel_pitch": g.pitch,
+            "optical_centre": list(g.centre),
+            "photo_shape": list(g.shape),
+            "field_nodes": [len(self.xs), len(self.ys)],
+            "field_x": [self.xs[0], self.xs[-1]],
+            "field_y": [self.ys[0], self.ys[-1]],
+            "step_deg": self.step_deg,
+            "apparent_lobe_deg": self.lobe_deg,
+        }
 
 
-def field_grid(geometry: NearGeometry, angles, roi, lobe_deg: float,
-               fraction: float | None = None) -> FieldGrid:
+def field_grid(
+    geometry: NearGeometry, angles, roi, lobe_deg: float, fraction: float | None = None
+) -> FieldGrid:
     """The regular grid of plate points over ``roi`` (pixel centres) whose neighbouring
     nodes differ in view direction by at most ``fraction`` (default :data:`STEP_FRACTION`)
     x ``lobe_deg`` at every configuration (the rate of change measured on a 9 x 9 probe of
@@ -195,12 +209,18 @@ def field_grid(geometry: NearGeometry, angles, roi, lobe_deg: float,
             f"near-field geometry: the field ({roi.w} x {roi.h} pixels of {geometry.pitch:g} "
             f"at distance {geometry.distance:g}) needs {counts[0]} x {counts[1]} field "
             f"nodes to follow a {lobe_deg:.3g} deg lobe (at most {MAX_NODES}); map a "
-            f"smaller ROI in several runs")
+            f"smaller ROI in several runs"
+        )
     xs = tuple(float(v) for v in np.linspace(x0, x1 if x1 > x0 else x0 + 1, counts[0]))
     ys = tuple(float(v) for v in np.linspace(y0, y1 if y1 > y0 else y0 + 1, counts[1]))
-    return FieldGrid(geometry, (int(roi.x), int(roi.y), int(roi.w), int(roi.h)), xs, ys,
-                     float(step), float(lobe_deg))
+    return FieldGrid(
+        geometry,
+        (int(roi.x), int(roi.y), int(roi.w), int(roi.h)),
+        xs,
+        ys,
+        float(step),
+        float(lobe_deg),
+    )
 
 
-__all__ = ["NearGeometry", "FieldGrid", "field_grid", "apparent_lobe", "STEP_FRACTION",
-           "MAX_THETA"]
+__all__ = ["NearGeometry", "FieldGrid", "field_grid", "apparent_lobe", "STEP_FRACTION", "MAX_THETA"]

@@ -49,8 +49,7 @@ def probe_size(path) -> tuple[int, int]:
                 series = tif.series[0]
                 shape, axes = series.shape, series.axes
         except Exception as exc:
-            raise InputError(f"{path}: cannot read as TIFF ({type(exc).__name__}: {exc})"
-                             ) from None
+            raise InputError(f"{path}: cannot read as TIFF ({type(exc).__name__}: {exc})") from None
         return int(shape[axes.index("Y")]), int(shape[axes.index("X")])
     photo = read_photo(path, [])
     h, w = photo.shape[:2]
@@ -67,17 +66,19 @@ def _pixels(photo, channel: str, level, where: str):
     if patch.cfa is not None:
         h, w = values.shape
         h2, w2 = h // 2, w // 2
-        vb = values[:2 * h2, :2 * w2].reshape(h2, 2, w2, 2)
-        cb = patch.cfa[:2 * h2, :2 * w2].reshape(h2, 2, w2, 2)
-        rb = raw[:2 * h2, :2 * w2].reshape(h2, 2, w2, 2)
+        vb = values[: 2 * h2, : 2 * w2].reshape(h2, 2, w2, 2)
+        cb = patch.cfa[: 2 * h2, : 2 * w2].reshape(h2, 2, w2, 2)
+        rb = raw[: 2 * h2, : 2 * w2].reshape(h2, 2, w2, 2)
         colours = range(3) if channel == "gray" else ["rgb".index(channel)]
         means, bad = [], np.zeros((h2, w2), dtype=bool)
         for c in colours:
             sel = cb == c
             count = sel.sum(axis=(1, 3))
             if np.any(count == 0):
-                raise InputError(f"{where}: a 2 x 2 block of the colour filter has no "
-                                 f"{'RGB'[c]} photosite; expected a Bayer mosaic")
+                raise InputError(
+                    f"{where}: a 2 x 2 block of the colour filter has no "
+                    f"{'RGB'[c]} photosite; expected a Bayer mosaic"
+                )
             means.append((vb * sel).sum(axis=(1, 3)) / count)
             if level is not None:
                 bad |= ((rb >= level) & sel).any(axis=(1, 3))
@@ -90,7 +91,7 @@ def _pixels(photo, channel: str, level, where: str):
     else:
         k = "rgb".index(channel)
         out = values[:, :, k]
-        used = raw[:, :, k:k + 1]
+        used = raw[:, :, k : k + 1]
     bad = np.zeros(out.shape, dtype=bool)
     if level is not None:
         bad |= (used >= level).any(axis=2)
@@ -104,20 +105,24 @@ def _read_pixels(path, roi: ROI, channel, saturation, where):
     the ROI is in superpixels)."""
     path = Path(path)
     if path.suffix.lower() in (".jpg", ".jpeg", ".jpe"):
-        raise InputError(f"{where}: JPEG code values are not linear in radiance; per-pixel "
-                         f"maps need linear photos (PNG, TIFF or camera raw)")
+        raise InputError(
+            f"{where}: JPEG code values are not linear in radiance; per-pixel "
+            f"maps need linear photos (PNG, TIFF or camera raw)"
+        )
     scale = 2 if path.suffix.lower() in _raw_suffixes() else 1
     full = ROI(roi.x * scale, roi.y * scale, roi.w * scale, roi.h * scale)
     photo = read_photo(path, [("ROI", full)])
     if channel != "gray" and photo.shape[2] == 1 and photo.kind != "raw":
-        raise InputError(f"{where}: a single-channel (gray) image has no channel "
-                         f"{channel!r}; use channel gray")
+        raise InputError(
+            f"{where}: a single-channel (gray) image has no channel {channel!r}; use channel gray"
+        )
     level = saturation if saturation is not None else photo.saturation
     return _pixels(photo, channel, level, where)
 
 
 def _raw_suffixes():
     from ..data.ingest import RAW_SUFFIXES
+
     return RAW_SUFFIXES
 
 
@@ -127,8 +132,10 @@ def read_mask(path, shape, roi: ROI) -> np.ndarray:
     size = probe_size(path) if path.suffix.lower() not in _raw_suffixes() else None
     if size != tuple(shape):
         got = "camera raw" if size is None else f"{size[1]} x {size[0]}"
-        raise InputError(f"mask {path}: {got} pixels; expected the photos' size "
-                         f"{shape[1]} x {shape[0]} (nonzero = fit the pixel)")
+        raise InputError(
+            f"mask {path}: {got} pixels; expected the photos' size "
+            f"{shape[1]} x {shape[0]} (nonzero = fit the pixel)"
+        )
     photo = read_photo(path, [("ROI", roi)])
     values = photo.patches[0].values
     return np.asarray(np.asarray(values != 0).any(axis=-1) if values.ndim == 3 else values != 0)
@@ -178,8 +185,10 @@ def _black_photos(black_photos, table, rows: list, name: str) -> list[Path]:
     gone = [(row, f) for row, f, p in zip(rows, table["file"], blacks) if not p.is_file()]
     if gone:
         shown = "; ".join(f"{f!r} ({row})" for row, f in gone[:10])
-        raise MissingFileError(f"black photos: {len(gone)} photo(s) of {name} have no "
-                               f"black photo of the same name in {bdir}: {shown}")
+        raise MissingFileError(
+            f"black photos: {len(gone)} photo(s) of {name} have no "
+            f"black photo of the same name in {bdir}: {shown}"
+        )
     return blacks
 
 
@@ -188,23 +197,37 @@ def _common_size(paths, rows, blacks, dark, name: str) -> tuple[int, int]:
     headers), or an InputError naming the first that differs."""
     shape: tuple[int, int] | None = None
     first = None
-    for p, row in zip(list(paths) + list(blacks or []) + ([dark] if dark else []),
-                      list(rows) + [f"black photo of {r}" for r in (rows if blacks else [])]
-                      + (["the black frame"] if dark else [])):
+    for p, row in zip(
+        list(paths) + list(blacks or []) + ([dark] if dark else []),
+        list(rows)
+        + [f"black photo of {r}" for r in (rows if blacks else [])]
+        + (["the black frame"] if dark else []),
+    ):
         size = probe_size(p)
         if shape is None:
             shape, first = size, p
         elif size != shape and shape is not None:
-            raise InputError(f"{p} ({row}): {size[1]} x {size[0]} pixels, but {first} is "
-                             f"{shape[1]} x {shape[0]}; every photo of a map must have the "
-                             f"same size")
+            raise InputError(
+                f"{p} ({row}): {size[1]} x {size[0]} pixels, but {first} is "
+                f"{shape[1]} x {shape[0]}; every photo of a map must have the "
+                f"same size"
+            )
     if shape is None:
         raise InputError(f"{name}: no photo")
     return shape
 
 
-def load_acquisition(photo_dir, manifest, *, roi=None, mask=None, black_photos=None,
-                     black_frame=None, channel="gray", saturation=None) -> Acquisition:
+def load_acquisition(
+    photo_dir,
+    manifest,
+    *,
+    roi=None,
+    mask=None,
+    black_photos=None,
+    black_frame=None,
+    channel="gray",
+    saturation=None,
+) -> Acquisition:
     """Check the inputs of :func:`fit_maps` and read what is cheap (no photo decoded but the
     mask and raw headers)."""
     from ..data.measurements import canonical_angles
@@ -216,19 +239,23 @@ def load_acquisition(photo_dir, manifest, *, roi=None, mask=None, black_photos=N
     if channel not in CHANNELS:
         raise InputError(f"channel {channel!r}: expected one of {', '.join(CHANNELS)}")
     if black_photos is not None and black_frame is not None:
-        raise InputError("give black photos (one per manifest row) or one black frame, not "
-                         "both")
+        raise InputError("give black photos (one per manifest row) or one black frame, not both")
     if saturation is not None:
         saturation = float(saturation)
         if not math.isfinite(saturation):
             raise InputError(f"saturation level {saturation!r} is not a finite number")
     table, rows, name, paths = manifest_photos(manifest, photo_dir)
-    jpeg = [(row, f) for row, f in zip(rows, table["file"])
-            if Path(f).suffix.lower() in (".jpg", ".jpeg", ".jpe")]
+    jpeg = [
+        (row, f)
+        for row, f in zip(rows, table["file"])
+        if Path(f).suffix.lower() in (".jpg", ".jpeg", ".jpe")
+    ]
     if jpeg:
-        raise InputError(f"{name}: {jpeg[0][1]!r} ({jpeg[0][0]}) is a JPEG; JPEG code values "
-                         f"are not linear in radiance, and per-pixel maps need linear photos "
-                         f"(PNG, TIFF or camera raw)")
+        raise InputError(
+            f"{name}: {jpeg[0][1]!r} ({jpeg[0][0]}) is a JPEG; JPEG code values "
+            f"are not linear in radiance, and per-pixel maps need linear photos "
+            f"(PNG, TIFF or camera raw)"
+        )
     blacks = None if black_photos is None else _black_photos(black_photos, table, rows, name)
     dark = None
     if black_frame is not None:
@@ -243,29 +270,32 @@ def load_acquisition(photo_dir, manifest, *, roi=None, mask=None, black_photos=N
     else:
         roi = parse_roi(roi, "ROI")
         if roi.x + roi.w > shape[1] or roi.y + roi.h > shape[0]:
-            raise InputError(f"ROI {roi} lies outside the photos, which are {shape[1]} x "
-                             f"{shape[0]} pixels")
+            raise InputError(
+                f"ROI {roi} lies outside the photos, which are {shape[1]} x {shape[0]} pixels"
+            )
     mask_arr = read_mask(mask, shape, roi) if mask is not None else None
     if mask_arr is not None and not mask_arr.any():
         raise InputError(f"mask {mask}: no nonzero pixel inside the ROI {roi}; nothing to fit")
     if len(paths) < 2:
-        raise InputError(f"{name}: {len(paths)} photo; a map needs more photos than free "
-                         f"parameters")
-    return Acquisition(paths, blacks, dark, angles, shape, roi, mask_arr, channel, saturation,
-                       rows, name)
+        raise InputError(
+            f"{name}: {len(paths)} photo; a map needs more photos than free parameters"
+        )
+    return Acquisition(
+        paths, blacks, dark, angles, shape, roi, mask_arr, channel, saturation, rows, name
+    )
 
 
 def stage(store, acq: Acquisition, progress=None) -> None:
     """Photos (minus dark frame or black photos) into ``stack/values``, one at a time."""
     zarr = require("zarr", "a maps store")
 
-    arr = zarr.open_array(os.fspath(Path(store) / "stack" / "values"), mode="r+"
-                          ).with_config({"write_empty_chunks": True})
+    arr = zarr.open_array(os.fspath(Path(store) / "stack" / "values"), mode="r+").with_config(
+        {"write_empty_chunks": True}
+    )
     roi = acq.roi
     dark = None
     if acq.dark is not None:
-        dark = _read_pixels(acq.dark, roi, acq.channel, acq.saturation,
-                            f"black frame {acq.dark}")
+        dark = _read_pixels(acq.dark, roi, acq.channel, acq.saturation, f"black frame {acq.dark}")
     for k, (path, row) in enumerate(zip(acq.paths, acq.rows)):
         where = f"{path} ({row})"
         values, bad = _read_pixels(path, roi, acq.channel, acq.saturation, where)
@@ -275,8 +305,13 @@ def stage(store, acq: Acquisition, progress=None) -> None:
             values = values - dark[0]
             bad = bad | dark[1]
         if acq.blacks is not None:
-            bv, bb = _read_pixels(acq.blacks[k], roi, acq.channel, acq.saturation,
-                                  f"black photo {acq.blacks[k]} ({row})")
+            bv, bb = _read_pixels(
+                acq.blacks[k],
+                roi,
+                acq.channel,
+                acq.saturation,
+                f"black photo {acq.blacks[k]} ({row})",
+            )
             values = values - bv
             bad = bad | bb
         if acq.mask is not None:

@@ -144,10 +144,12 @@ def connect(address, timeout: float = CONNECT_TIMEOUT) -> Client:
     try:
         return Client(address, timeout=timeout, set_as_default=False)
     except (OSError, TimeoutError, ValueError) as exc:
-        raise InputError(f"dask scheduler {address!r}: cannot connect within {timeout:g} s "
-                         f"({type(exc).__name__}: {exc}); nothing was written. Start the "
-                         f"scheduler, correct --scheduler / ${SCHEDULER_ENV}, or leave both "
-                         f"out to run locally") from None
+        raise InputError(
+            f"dask scheduler {address!r}: cannot connect within {timeout:g} s "
+            f"({type(exc).__name__}: {exc}); nothing was written. Start the "
+            f"scheduler, correct --scheduler / ${SCHEDULER_ENV}, or leave both "
+            f"out to run locally"
+        ) from None
 
 
 def _run_local(tasks, progress, workers):
@@ -200,12 +202,33 @@ class MapsRun:
     notes: list = field(default_factory=list)
 
 
-def fit_maps(photo_dir, manifest, medium, output, *, brdf_model=None, options=None,
-             fixed=None, free=None, grid=None, roi=None, mask=None, black_photos=None,
-             black_frame=None, channel="gray", saturation=None, noise=None,
-             tile: int = DEFAULT_TILE, accuracy: str = "default", scheduler=None,
-             workers: int = 2, progress=None, log=None, geometry=None,
-             near_field: bool = False) -> MapsRun:
+def fit_maps(
+    photo_dir,
+    manifest,
+    medium,
+    output,
+    *,
+    brdf_model=None,
+    options=None,
+    fixed=None,
+    free=None,
+    grid=None,
+    roi=None,
+    mask=None,
+    black_photos=None,
+    black_frame=None,
+    channel="gray",
+    saturation=None,
+    noise=None,
+    tile: int = DEFAULT_TILE,
+    accuracy: str = "default",
+    scheduler=None,
+    workers: int = 2,
+    progress=None,
+    log=None,
+    geometry=None,
+    near_field: bool = False,
+) -> MapsRun:
     """Per-pixel step 2 (docs/maps.md): the target's BRDF at every pixel of the photos
     listed in ``manifest`` (as ``veil ingest`` reads it) through ``medium`` (a step-1
     result or a medium model), written to the Zarr store ``output``.
@@ -228,8 +251,16 @@ def fit_maps(photo_dir, manifest, medium, output, *, brdf_model=None, options=No
     cls = default_class("brdf") if brdf_model is None else model_class(brdf_model, "brdf")
     grid_spec = parse_grid(grid, cls) if isinstance(grid, (list, tuple)) else dict(grid or {})
     output = Path(output)
-    acq = load_acquisition(photo_dir, manifest, roi=roi, mask=mask, black_photos=black_photos,
-                           black_frame=black_frame, channel=channel, saturation=saturation)
+    acq = load_acquisition(
+        photo_dir,
+        manifest,
+        roi=roi,
+        mask=mask,
+        black_photos=black_photos,
+        black_frame=black_frame,
+        channel=channel,
+        saturation=saturation,
+    )
     near = near_geometry(geometry, near_field, acq)
     address = scheduler or os.environ.get(SCHEDULER_ENV) or None
     client = connect(address) if address else None
@@ -239,14 +270,13 @@ def fit_maps(photo_dir, manifest, medium, output, *, brdf_model=None, options=No
             existing = _existing_store(output)
             seconds: dict = {}
             build = dict(fixed=fixed, options=options, free=free, grid=grid_spec)
-            tables = _tables(cls, medium_model, acq, build, accuracy, near, progress, say,
-                             seconds)
+            tables = _tables(cls, medium_model, acq, build, accuracy, near, progress, say, seconds)
             notes = geometry_notes_of(tables, cls, medium_model, acq, geometry)
-            info = _store_attributes(acq, tables, cls, noise, tile, accuracy, channel,
-                                     geometry)
+            info = _store_attributes(acq, tables, cls, noise, tile, accuracy, channel, geometry)
             _check_resumable(output, existing, info)
-            job = _Job(output, acq, tables, tile, noise, client, progress, workers, say,
-                       seconds, notes)
+            job = _Job(
+                output, acq, tables, tile, noise, client, progress, workers, say, seconds, notes
+            )
             return _fill(job, info, existing)
     finally:
         if client is not None:
@@ -265,14 +295,30 @@ def _check_output(output: Path) -> None:
         raise InputError(f"cannot write {output}: directory {output.parent} does not exist")
 
 
-def _tables(cls, medium_model, acq: Acquisition, settings: dict, accuracy: str, near,
-            progress, say, seconds: dict) -> MapTables:
+def _tables(
+    cls,
+    medium_model,
+    acq: Acquisition,
+    settings: dict,
+    accuracy: str,
+    near,
+    progress,
+    say,
+    seconds: dict,
+) -> MapTables:
     """The tables of the photos' configurations (:func:`build_tables` with ``settings``),
     their time in ``seconds["tables"]``."""
     t0 = time.perf_counter()
-    tables = build_tables(cls, medium_model, acq.angles, roi=acq.roi, accuracy=accuracy,
-                          near=near, progress=(lambda d, t: progress("tables", d, t))
-                          if progress else None, **settings)
+    tables = build_tables(
+        cls,
+        medium_model,
+        acq.angles,
+        roi=acq.roi,
+        accuracy=accuracy,
+        near=near,
+        progress=(lambda d, t: progress("tables", d, t)) if progress else None,
+        **settings,
+    )
     seconds["tables"] = time.perf_counter() - t0
     say(f"tables: {tables.describe()} in {seconds['tables']:.1f} s")
     return tables
@@ -285,26 +331,30 @@ def _existing_store(output: Path) -> dict | None:
         return None
     existing = store_info(output)
     if existing is None:
-        raise InputError(f"{output} exists and is not a veil maps store; give a new path, or "
-                         f"remove it")
+        raise InputError(
+            f"{output} exists and is not a veil maps store; give a new path, or remove it"
+        )
     return existing
 
 
 def _check_resumable(output: Path, existing: dict | None, info: dict) -> None:
     """An existing store resumes only with the same inputs (its fingerprint)."""
     if existing is not None and existing.get("fingerprint") != info["fingerprint"]:
-        raise InputError(f"{output} holds maps of another acquisition or other settings (its "
-                         f"photos, manifest, medium, model, fixed parameters, grid, ROI, mask, "
-                         f"noise or tile size differ); give a new output path to start afresh, "
-                         f"or the same inputs to resume it")
+        raise InputError(
+            f"{output} holds maps of another acquisition or other settings (its "
+            f"photos, manifest, medium, model, fixed parameters, grid, ROI, mask, "
+            f"noise or tile size differ); give a new output path to start afresh, "
+            f"or the same inputs to resume it"
+        )
 
 
 def _noise(noise) -> tuple[float, float] | None:
     """``noise`` (RELATIVE or (RELATIVE, ABSOLUTE)) checked: (relative, absolute) or None."""
     if noise is None:
         return None
-    rel, ab = (tuple(noise) + (0.0,))[:2] if not isinstance(noise, (int, float)) \
-        else (float(noise), 0.0)
+    rel, ab = (
+        (tuple(noise) + (0.0,))[:2] if not isinstance(noise, (int, float)) else (float(noise), 0.0)
+    )
     if not (math.isfinite(rel) and math.isfinite(ab) and rel >= 0 and ab >= 0 and rel + ab > 0):
         raise InputError(f"noise {noise!r}: expected RELATIVE[,ABSOLUTE] >= 0, not both 0")
     return float(rel), float(ab)
@@ -312,23 +362,38 @@ def _noise(noise) -> tuple[float, float] | None:
 
 def _store_attributes(acq, tables, cls, noise, tile, accuracy, channel, geometry) -> dict:
     """The store's attributes (``veil_maps``), with the fingerprint of its inputs."""
-    fingerprint = hashlib.sha256((acq.fingerprint() + tables.fingerprint()
-                                  + repr((noise, tile))).encode()).hexdigest()
+    fingerprint = hashlib.sha256(
+        (acq.fingerprint() + tables.fingerprint() + repr((noise, tile))).encode()
+    ).hexdigest()
     shape = (acq.roi.h, acq.roi.w)
-    return {"format": FORMAT, "fingerprint": fingerprint, "model": tables.model,
-            "options": tables.options, "params": list(tables.names),
-            "free": list(tables.free_names),
-            "fixed_values": {n: float(tables.base[i]) for i, n in enumerate(tables.names)
-                             if n not in tables.free_names},
-            "units": {p.name: p.unit for p in cls.PARAMS},
-            "medium": tables.medium, "accuracy": accuracy, "roi": str(acq.roi),
-            "shape": list(shape), "tile": tile, "photos": len(acq.paths),
-            "channel": channel, "noise": list(noise) if noise else None,
-            "weighted": noise is not None, "status_codes": {str(k): v for k, v in
-                                                            STATUS.items()},
-            "grid": [a.describe() for a in tables.axes], "manifest": acq.name,
-            "outside_mask": int(np.count_nonzero(~acq.mask)) if acq.mask is not None else 0,
-            "geometry": geometry_record(tables, geometry)}
+    return {
+        "format": FORMAT,
+        "fingerprint": fingerprint,
+        "model": tables.model,
+        "options": tables.options,
+        "params": list(tables.names),
+        "free": list(tables.free_names),
+        "fixed_values": {
+            n: float(tables.base[i])
+            for i, n in enumerate(tables.names)
+            if n not in tables.free_names
+        },
+        "units": {p.name: p.unit for p in cls.PARAMS},
+        "medium": tables.medium,
+        "accuracy": accuracy,
+        "roi": str(acq.roi),
+        "shape": list(shape),
+        "tile": tile,
+        "photos": len(acq.paths),
+        "channel": channel,
+        "noise": list(noise) if noise else None,
+        "weighted": noise is not None,
+        "status_codes": {str(k): v for k, v in STATUS.items()},
+        "grid": [a.describe() for a in tables.axes],
+        "manifest": acq.name,
+        "outside_mask": int(np.count_nonzero(~acq.mask)) if acq.mask is not None else 0,
+        "geometry": geometry_record(tables, geometry),
+    }
 
 
 @dataclass
@@ -365,16 +430,26 @@ def _fill(job: _Job, info: dict, existing) -> MapsRun:
         check_store(output, existing, complete=is_complete(output))
         if is_complete(output):
             job.say(f"{output} is complete (all {len(tiles)} tiles); nothing to compute")
-            return MapsRun(output, len(tiles), 0, len(tiles), {}, tables.describe(),
-                           job.seconds, summarize_maps(output), job.notes)
+            return MapsRun(
+                output,
+                len(tiles),
+                0,
+                len(tiles),
+                {},
+                tables.describe(),
+                job.seconds,
+                summarize_maps(output),
+                job.notes,
+            )
         register_partial(output, RESUME)
     staged = not new
     try:
         if new:
             with COMMIT:  # an interrupt removes the store once it is created, not halfway
                 register_temporary(output, "folder")
-                create_store(output, info, tables, tuple(info["shape"]), job.tile,
-                             len(job.acq.paths))
+                create_store(
+                    output, info, tables, tuple(info["shape"]), job.tile, len(job.acq.paths)
+                )
         t0 = time.perf_counter()
         if not (marker_dir(output) / "staged").is_file():
             with warnings.catch_warnings():
@@ -390,8 +465,11 @@ def _fill(job: _Job, info: dict, existing) -> MapsRun:
         if new and not (staged and isinstance(exc, KeyboardInterrupt)):
             forget_temporary(output)
             shutil.rmtree(output, ignore_errors=True)
-        if isinstance(exc, OSError) and not isinstance(exc, InputError) and (
-                exc.errno in WRITE_ERRNOS or _inside(exc.filename, output)):
+        if (
+            isinstance(exc, OSError)
+            and not isinstance(exc, InputError)
+            and (exc.errno in WRITE_ERRNOS or _inside(exc.filename, output))
+        ):
             raise write_error(output, exc) from None
         raise
     finally:
@@ -410,11 +488,14 @@ def _solve(job: _Job, tiles) -> MapsRun:
     todo = [t for t in tiles if not tile_marker(output, *t).is_file()]
     reused = len(tiles) - len(todo)
     if reused:
-        job.say(f"resuming {output}: {reused} of {len(tiles)} tiles already done, computing "
-                f"the {len(todo)} missing")
+        job.say(
+            f"resuming {output}: {reused} of {len(tiles)} tiles already done, computing "
+            f"the {len(todo)} missing"
+        )
     t0 = time.perf_counter()
-    counts = _compute(output, job.tables, todo, job.tile, job.noise, job.client,
-                      job.progress, job.workers)
+    counts = _compute(
+        output, job.tables, todo, job.tile, job.noise, job.client, job.progress, job.workers
+    )
     job.seconds["solve"] = time.perf_counter() - t0
     missing = [t for t in tiles if not tile_marker(output, *t).is_file()]
     if missing:
@@ -423,8 +504,17 @@ def _solve(job: _Job, tiles) -> MapsRun:
     summary = summarize_maps(output)
     write_text_atomic(output / "summary.json", json.dumps(summary, indent=2) + "\n")
     shutil.rmtree(output / "stack", ignore_errors=True)
-    return MapsRun(output, len(tiles), len(todo), reused, counts, job.tables.describe(),
-                   job.seconds, summary, job.notes)
+    return MapsRun(
+        output,
+        len(tiles),
+        len(todo),
+        reused,
+        counts,
+        job.tables.describe(),
+        job.seconds,
+        summary,
+        job.notes,
+    )
 
 
 def _compute(store, tables, todo, tile, noise, client, progress, workers):
@@ -444,14 +534,41 @@ def _compute(store, tables, todo, tile, noise, client, progress, workers):
     else:
         shared = dask.delayed(tables, pure=True)
     solve = dask.delayed(_solve_tile, pure=False)
-    tasks = [solve(blocks[0, iy, ix], shared, os.fspath(store), iy, ix, tile, noise,
-                   dask_key_name=f"veil-maps-tile-{iy}-{ix}") for iy, ix in todo]
-    results = (_run_distributed(client, tasks, progress) if client is not None
-               else _run_local(tasks, progress, workers))
+    tasks = [
+        solve(
+            blocks[0, iy, ix],
+            shared,
+            os.fspath(store),
+            iy,
+            ix,
+            tile,
+            noise,
+            dask_key_name=f"veil-maps-tile-{iy}-{ix}",
+        )
+        for iy, ix in todo
+    ]
+    results = (
+        _run_distributed(client, tasks, progress)
+        if client is not None
+        else _run_local(tasks, progress, workers)
+    )
     total = np.sum(results, axis=0)
     return {STATUS[k].split(" (")[0]: int(total[k]) for k in STATUS}
 
 
-__all__ = ["fit_maps", "open_maps", "MapsWarning", "geometry_notes", "summarize_maps",
-           "load_acquisition", "MapsRun", "connect", "is_complete", "SCHEDULER_ENV", "FORMAT",
-           "MAPS", "StoreBusyError", "DamagedStoreError"]
+__all__ = [
+    "fit_maps",
+    "open_maps",
+    "MapsWarning",
+    "geometry_notes",
+    "summarize_maps",
+    "load_acquisition",
+    "MapsRun",
+    "connect",
+    "is_complete",
+    "SCHEDULER_ENV",
+    "FORMAT",
+    "MAPS",
+    "StoreBusyError",
+    "DamagedStoreError",
+]

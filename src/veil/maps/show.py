@@ -39,10 +39,12 @@ def _panels(maps):
         out.append((f"stderr of {name}", err, f"[{unit}]", False))
     fitted = (maps["status"] != STATUS_MASKED) & (maps["status"] != STATUS_FEW)
     chi = np.where(fitted, maps["chi2_reduced"], np.nan)
-    label = "reduced chi-square" if info.get("weighted") else \
-        "residual variance [value^2] (unweighted)"
-    out.append(("reduced chi-square" if info.get("weighted") else "residual variance",
-                chi, label, False))
+    label = (
+        "reduced chi-square" if info.get("weighted") else "residual variance [value^2] (unweighted)"
+    )
+    out.append(
+        ("reduced chi-square" if info.get("weighted") else "residual variance", chi, label, False)
+    )
     return out
 
 
@@ -50,6 +52,7 @@ def maps_figure(store, path, *, dpi: int = 110) -> Path:
     """One figure of a complete maps store: every free parameter, its standard error, the
     reduced chi-square and the status map; written atomically as PNG/PDF/SVG."""
     import matplotlib
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     from matplotlib.colors import BoundaryNorm, ListedColormap, LogNorm, Normalize
@@ -61,8 +64,9 @@ def maps_figure(store, path, *, dpi: int = 110) -> Path:
     rows = -(-n // cols)
     h, w = maps["status"].shape
     aspect = h / max(w, 1)
-    fig, axes = plt.subplots(rows, cols, figsize=(4.2 * cols, 3.6 * rows * max(aspect, 0.4)),
-                             squeeze=False)
+    fig, axes = plt.subplots(
+        rows, cols, figsize=(4.2 * cols, 3.6 * rows * max(aspect, 0.4)), squeeze=False
+    )
     cmap = matplotlib.colormaps["viridis"].with_extremes(bad="0.75")
     for ax, (title, image, label, log) in zip(axes.flat, panels):
         finite = np.isfinite(image)
@@ -73,17 +77,19 @@ def maps_figure(store, path, *, dpi: int = 110) -> Path:
                 norm = LogNorm(max(lo, 1e-300), max(hi, lo * 1.0001))
             elif hi > lo:
                 norm = Normalize(lo, hi)
-        im = ax.imshow(np.ma.masked_invalid(image), cmap=cmap, norm=norm,
-                       interpolation="nearest")
+        im = ax.imshow(np.ma.masked_invalid(image), cmap=cmap, norm=norm, interpolation="nearest")
         fig.colorbar(im, ax=ax, label=label, shrink=0.85)
         ax.set_title(title)
         ax.set_xticks([])
         ax.set_yticks([])
     ax = axes.flat[len(panels)]
     colours = ["#2ca02c", "#d9d9d9", "#ff7f0e", "#d62728", "#9467bd", "#8c564b"]
-    im = ax.imshow(maps["status"], cmap=ListedColormap(colours),
-                   norm=BoundaryNorm(np.arange(len(STATUS) + 1) - 0.5, len(STATUS)),
-                   interpolation="nearest")
+    im = ax.imshow(
+        maps["status"],
+        cmap=ListedColormap(colours),
+        norm=BoundaryNorm(np.arange(len(STATUS) + 1) - 0.5, len(STATUS)),
+        interpolation="nearest",
+    )
     bar = fig.colorbar(im, ax=ax, ticks=list(STATUS), shrink=0.85)
     bar.ax.set_yticklabels([STATUS[k].split(" (")[0] for k in STATUS], fontsize=7)
     ax.set_title("status (grey in the other panels: not converged)")
@@ -93,14 +99,22 @@ def maps_figure(store, path, *, dpi: int = 110) -> Path:
         ax.axis("off")
     info = maps["info"]
     geometry = info.get("geometry") or {}
-    camera = (f", near-field camera at {geometry['camera_distance']:g} (pixel "
-              f"{geometry['pixel_pitch']:g})" if geometry.get("kind") == "near-field" else "")
-    fig.suptitle(f"{info['model']} through {info['medium']['model']}: {h} x {w} pixels, "
-                 f"{info['photos']} photos{camera}", fontsize=11)
+    camera = (
+        f", near-field camera at {geometry['camera_distance']:g} (pixel "
+        f"{geometry['pixel_pitch']:g})"
+        if geometry.get("kind") == "near-field"
+        else ""
+    )
+    fig.suptitle(
+        f"{info['model']} through {info['medium']['model']}: {h} x {w} pixels, "
+        f"{info['photos']} photos{camera}",
+        fontsize=11,
+    )
     fig.tight_layout()
     path = Path(path)
     fmt = path.suffix.lower().lstrip(".") or "png"
     import io
+
     buf = io.BytesIO()
     fig.savefig(buf, format=fmt, dpi=dpi)
     plt.close(fig)
@@ -166,11 +180,13 @@ def export_maps(store, folder, formats=FORMATS) -> list[Path]:
         for name, image in images.items():
             for fmt in formats:
                 names.append(file(name, fmt))
-                write_bytes_atomic(staging / names[-1], _tiff_bytes(image) if fmt == "tiff"
-                                   else _exr_bytes(image))
+                write_bytes_atomic(
+                    staging / names[-1], _tiff_bytes(image) if fmt == "tiff" else _exr_bytes(image)
+                )
         names.append("summary.json")
-        write_text_atomic(staging / "summary.json",
-                          json.dumps(summarize_maps(store, maps), indent=2) + "\n")
+        write_text_atomic(
+            staging / "summary.json", json.dumps(summarize_maps(store, maps), indent=2) + "\n"
+        )
     return [folder / n for n in names]
 
 

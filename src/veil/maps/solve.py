@@ -84,8 +84,7 @@ class _PixelSolver:
         self.n = q + d
         self.top = jnp.asarray([float(k - 1) for k in sizes])
         self.lo = jnp.zeros(self.n)
-        self.hi = jnp.concatenate([jnp.full(q, jnp.inf), self.top]) if d \
-            else jnp.full(q, jnp.inf)
+        self.hi = jnp.concatenate([jnp.full(q, jnp.inf), self.top]) if d else jnp.full(q, jnp.inf)
 
     def interp(self, coef, fu, u):
         if self.near:
@@ -100,8 +99,11 @@ class _PixelSolver:
         """(value, Jacobian) from the basis ``b`` and its derivatives ``db`` at scales ``s``."""
         q = self.q
         val = b[:, :q] @ s + b[:, q]
-        jac_u = (jnp.einsum("amk,k->ma", db[..., :q], s) + db[..., q].T
-                 if self.d else jnp.zeros((b.shape[0], 0)))
+        jac_u = (
+            jnp.einsum("amk,k->ma", db[..., :q], s) + db[..., q].T
+            if self.d
+            else jnp.zeros((b.shape[0], 0))
+        )
         return val, jnp.concatenate([b[:, :q], jac_u], axis=1)
 
     def initial(self, coef, fu, u0, s0, y, w2):
@@ -110,8 +112,15 @@ class _PixelSolver:
         p0 = jnp.concatenate([s0, u0])
         v0, j0 = self.columns(coef, fu, s0, u0)
         r0 = (y - v0) * jnp.sqrt(w2)
-        return (jnp.asarray(0), p0, jnp.asarray(lsq.DAMPING_START), r0 @ r0, v0, j0,
-                jnp.asarray(False))
+        return (
+            jnp.asarray(0),
+            p0,
+            jnp.asarray(lsq.DAMPING_START),
+            r0 @ r0,
+            v0,
+            j0,
+            jnp.asarray(False),
+        )
 
     def refit(self, coef, fu, y, w, p):
         """(p with its scales replaced by their non-negative least-squares optimum at its
@@ -119,7 +128,7 @@ class _PixelSolver:
         trial point of the iterations lies on the valley floor s*(theta) (variable
         projection), where a curved valley between a scale and a roughness would otherwise
         make the steps creep."""
-        q, u = self.q, p[self.q:]
+        q, u = self.q, p[self.q :]
         b, db = self.interp(coef, fu, u)
         bw = b[:, :q] * w[:, None]
         rw = (y - b[:, q]) * w
@@ -142,9 +151,15 @@ class _PixelSolver:
         tr = (y - tval) * w
         tcost = tr @ tr
         better, lam = lsq.lm_accept(cost, tcost, lam, now, jnp)
-        return (it + jnp.where(now, 0, 1), jnp.where(better, trial, p), lam,
-                jnp.where(better, tcost, cost), jnp.where(better, tval, val),
-                jnp.where(better, tjac, jac), now)
+        return (
+            it + jnp.where(now, 0, 1),
+            jnp.where(better, trial, p),
+            lam,
+            jnp.where(better, tcost, cost),
+            jnp.where(better, tval, val),
+            jnp.where(better, tjac, jac),
+            now,
+        )
 
     def dof(self, w):
         return jnp.maximum(jnp.sum(w > 0) - self.n, 1)
@@ -155,8 +170,9 @@ class _PixelSolver:
         w = jnp.sqrt(w2)
         # under vmap the loop runs while any pixel of the batch runs; a frozen pixel's
         # state is selected unchanged (and the body leaves it unchanged too)
-        state = jax.lax.while_loop(lambda st: (st[0] < limit) & ~st[-1],
-                                   lambda st: self.iterate(coef, fu, y, w, st), state)
+        state = jax.lax.while_loop(
+            lambda st: (st[0] < limit) & ~st[-1], lambda st: self.iterate(coef, fu, y, w, st), state
+        )
         iters, p, _, _, val, jac, _ = state
         r = (y - val) * w
         jw = jac * w[:, None]
@@ -184,8 +200,11 @@ class _PixelSolver:
         yy = wy @ y - 2 * c @ wy + (c * c) @ w2
         s_all, cost = lsq.nnls_small(gram, rhs, yy, q, jnp)
         best = jnp.argmin(cost)
-        u0 = (jnp.stack(jnp.unravel_index(best, self.sizes)).astype(float) if self.d
-              else jnp.zeros((0,)))
+        u0 = (
+            jnp.stack(jnp.unravel_index(best, self.sizes)).astype(float)
+            if self.d
+            else jnp.zeros((0,))
+        )
         return s_all[best], u0
 
     def node_stage(self, values, y, w2):
@@ -218,32 +237,36 @@ class _PixelSolver:
         ix = jnp.clip(jnp.round(fu[0]), 0, values.shape[0] - 1).astype(jnp.int64)
         iy = jnp.clip(jnp.round(fu[1]), 0, values.shape[1] - 1).astype(jnp.int64)
         nodes = values[ix, iy]
-        return self.best_node(nodes.reshape((-1,) + nodes.shape[self.d:]), y, w2)
+        return self.best_node(nodes.reshape((-1,) + nodes.shape[self.d :]), y, w2)
 
     def batch(self, values, coef, y, w2, fu=None):
         """1. every node: the scales by exact NNLS; 2. the best node; 3. Levenberg-Marquardt
         on the spline, FIRST_ITERATIONS at most."""
         if self.near:  # per pixel, NEAR_GROUP pixels at a time (memory: their node values)
+
             def group(a):
                 return a.reshape((-1, NEAR_GROUP) + a.shape[1:])
 
             s0, u0 = jax.lax.map(
                 lambda args: jax.vmap(self.near_nodes, in_axes=(None, 0, 0, 0))(values, *args),
-                (group(fu), group(y), group(w2)))
+                (group(fu), group(y), group(w2)),
+            )
             s0, u0 = (a.reshape((y.shape[0],) + a.shape[2:]) for a in (s0, u0))
         else:
             s0, u0 = self.node_stage(values, y, w2)
             fu = jnp.zeros((y.shape[0], 0))
         state = jax.vmap(self.initial, in_axes=(None, 0, 0, 0, 0, 0))(coef, fu, u0, s0, y, w2)
         return jax.vmap(self.one_pixel, in_axes=(None, 0, 0, 0, 0, None))(
-            coef, fu, y, w2, state, min(FIRST_ITERATIONS, ITERATIONS))
+            coef, fu, y, w2, state, min(FIRST_ITERATIONS, ITERATIONS)
+        )
 
     def resume(self, coef, y, w2, state, fu=None):
         """The pixels still running after FIRST_ITERATIONS, gathered from several batches."""
         if fu is None:
             fu = jnp.zeros((y.shape[0], 0))
         return jax.vmap(self.one_pixel, in_axes=(None, 0, 0, 0, 0, None))(
-            coef, fu, y, w2, state, ITERATIONS)
+            coef, fu, y, w2, state, ITERATIONS
+        )
 
 
 def _solver(q: int, d: int, sizes: tuple, weighted: bool, near: bool = False):
@@ -281,8 +304,13 @@ def warm_up(tables: MapTables, noise=None) -> None:
     """Compile both parts of the solver of ``tables`` on every CPU device (on dark pixels,
     which stop at once), so that no later call waits for a compilation."""
     near = tables.near is not None
-    first, rest = _solver(len(tables.free_scales), len(tables.axes),
-                          tuple(a.count for a in tables.axes), noise is not None, near)
+    first, rest = _solver(
+        len(tables.free_scales),
+        len(tables.axes),
+        tuple(a.count for a in tables.axes),
+        noise is not None,
+        near,
+    )
     y = np.zeros((BATCH, tables.n_configs))
     extra = (np.zeros((BATCH, 2)),) if near else ()
     with _CALL_LOCK:
@@ -309,8 +337,9 @@ class PixelFits:
     iterations: np.ndarray
 
 
-def solve_pixels(tables: MapTables, y: np.ndarray, valid: np.ndarray,
-                 noise=None, pixels=None) -> PixelFits:
+def solve_pixels(
+    tables: MapTables, y: np.ndarray, valid: np.ndarray, noise=None, pixels=None
+) -> PixelFits:
     """Fit every pixel: ``y`` (N, M) values, ``valid`` (N, M) usable samples (saturated,
     clipped and masked ones False), ``noise`` None (unweighted) or (relative, absolute):
     sigma = sqrt((relative * value)^2 + absolute^2). Near-field tables need ``pixels``
@@ -325,14 +354,15 @@ def solve_pixels(tables: MapTables, y: np.ndarray, valid: np.ndarray,
     y = np.asarray(y, dtype=float)
     valid = np.asarray(valid, dtype=bool) & np.isfinite(y)
     if y.shape[1] != tables.n_configs:
-        raise FitError(f"{y.shape[1]} values per pixel but the tables have "
-                       f"{tables.n_configs} configurations")
+        raise FitError(
+            f"{y.shape[1]} values per pixel but the tables have {tables.n_configs} configurations"
+        )
     y = np.where(valid, y, 0.0)
     if noise is None:
         w2 = valid.astype(float)
     else:
         rel, ab = noise
-        sigma2 = (rel * y) ** 2 + ab ** 2
+        sigma2 = (rel * y) ** 2 + ab**2
         w2 = np.where(valid & (sigma2 > 0), 1.0 / np.where(sigma2 > 0, sigma2, 1.0), 0.0)
     out = _run(tables, y, w2, fu, noise is not None)
     status = _status(tables, out, y, valid)
@@ -346,9 +376,15 @@ def _run(tables: MapTables, y, w2, fu, weighted: bool) -> dict:
     q, d = len(tables.free_scales), len(tables.axes)
     first, rest = _solver(q, d, tuple(a.count for a in tables.axes), weighted, fu is not None)
     n_pix, n = len(y), q + d
-    out = {"p": np.zeros((n_pix, n)), "se": np.zeros((n_pix, n)), "chi2": np.zeros(n_pix),
-           "npts": np.zeros(n_pix, dtype=np.int64), "rank_ok": np.zeros(n_pix, dtype=bool),
-           "step": np.zeros(n_pix), "iters": np.zeros(n_pix, dtype=np.int32)}
+    out = {
+        "p": np.zeros((n_pix, n)),
+        "se": np.zeros((n_pix, n)),
+        "chi2": np.zeros(n_pix),
+        "npts": np.zeros(n_pix, dtype=np.int64),
+        "rank_ok": np.zeros(n_pix, dtype=bool),
+        "step": np.zeros(n_pix),
+        "iters": np.zeros(n_pix, dtype=np.int32),
+    }
     slow_pixels, slow_states = [], []
 
     def store(where, outs):
@@ -372,18 +408,28 @@ def _run(tables: MapTables, y, w2, fu, weighted: bool) -> dict:
         return put(dev, fu[idx]) if fu is not None else ()
 
     with _CALL_LOCK:
-        _dispatch(tables, n_pix,
-                  lambda idx, dev, tab: first(*tab, *put(dev, y[idx], w2[idx]), *at(idx, dev)),
-                  first_done)
+        _dispatch(
+            tables,
+            n_pix,
+            lambda idx, dev, tab: first(*tab, *put(dev, y[idx], w2[idx]), *at(idx, dev)),
+            first_done,
+        )
         if slow_pixels:  # the rest of the iterations for the slow pixels of every batch
             where = np.concatenate(slow_pixels)
             states = [np.concatenate(parts) for parts in zip(*slow_states)]
-            _dispatch(tables, len(where),
-                      lambda idx, dev, tab: rest(tab[1], *put(dev, y[where[idx]], w2[where[idx]]),
-                                                 put(dev, *[a[idx] for a in states]),
-                                                 *at(where[idx], dev)),
-                      lambda start, stop, result: store(
-                          where[start:stop], [np.asarray(a)[:stop - start] for a in result[0]]))
+            _dispatch(
+                tables,
+                len(where),
+                lambda idx, dev, tab: rest(
+                    tab[1],
+                    *put(dev, y[where[idx]], w2[where[idx]]),
+                    put(dev, *[a[idx] for a in states]),
+                    *at(where[idx], dev),
+                ),
+                lambda start, stop, result: store(
+                    where[start:stop], [np.asarray(a)[: stop - start] for a in result[0]]
+                ),
+            )
     return out
 
 
@@ -402,8 +448,11 @@ def _status(tables: MapTables, out: dict, y, valid) -> np.ndarray:
     status[~out["rank_ok"] | scale_zero | ~signal] = UNDETERMINED
     status[out["npts"] <= q + d] = FEW_POINTS
     status[~valid.any(axis=1)] = MASKED
-    bad = ~np.all(np.isfinite(out["p"]), axis=1) | ~np.all(np.isfinite(out["se"]), axis=1) \
+    bad = (
+        ~np.all(np.isfinite(out["p"]), axis=1)
+        | ~np.all(np.isfinite(out["se"]), axis=1)
         | ~np.isfinite(out["chi2"])
+    )
     status[bad & (status == CONVERGED)] = UNDETERMINED
     return status
 
@@ -425,10 +474,21 @@ def _physical(tables: MapTables, out: dict, status) -> PixelFits:
     good_numbers = np.all(np.isfinite(params), axis=0) & np.all(np.isfinite(stderr), axis=0)
     params = np.where(good_numbers[None, :], params, tables.base[:, None])
     stderr = np.where((reported & good_numbers)[None, :], stderr, 0.0)
-    chi2 = np.where(np.isfinite(out["chi2"]) & (status != MASKED) & (status != FEW_POINTS),
-                    out["chi2"], 0.0)
+    chi2 = np.where(
+        np.isfinite(out["chi2"]) & (status != MASKED) & (status != FEW_POINTS), out["chi2"], 0.0
+    )
     return PixelFits(params, stderr, chi2, out["npts"].astype(np.int32), status, out["iters"])
 
 
-__all__ = ["STATUS", "CONVERGED", "MASKED", "FEW_POINTS", "UNDETERMINED", "EDGE",
-           "NOT_CONVERGED", "solve_pixels", "warm_up", "PixelFits"]
+__all__ = [
+    "STATUS",
+    "CONVERGED",
+    "MASKED",
+    "FEW_POINTS",
+    "UNDETERMINED",
+    "EDGE",
+    "NOT_CONVERGED",
+    "solve_pixels",
+    "warm_up",
+    "PixelFits",
+]

@@ -84,21 +84,36 @@ def store_info(store) -> dict | None:
     return info if isinstance(info, dict) and info.get("format") == FORMAT else None
 
 
-def create_store(store, info: dict, tables: MapTables, shape, tile: int,
-                 n_photos: int) -> zarr.Group:
+def create_store(
+    store, info: dict, tables: MapTables, shape, tile: int, n_photos: int
+) -> zarr.Group:
     """A new store: the maps at their fill values, the stack to stage, the marker folder."""
     zarr = require("zarr", "a maps store")
 
     group = zarr.open_group(os.fspath(store), mode="w")
     n_par = len(tables.names)
     h, w = shape
-    for name, lead, dtype in (("params", (n_par,), "float64"), ("stderr", (n_par,), "float64"),
-                              ("chi2_reduced", (), "float64"), ("n_points", (), "int32"),
-                              ("status", (), "uint8")):
-        group.create_array(name, shape=lead + (h, w), chunks=lead + (tile, tile), dtype=dtype,
-                           fill_value=MASKED if name == "status" else 0)
-    group.create_array("stack/values", shape=(n_photos, h, w), chunks=(1, tile, tile),
-                       dtype="float32", fill_value=float("nan"))
+    for name, lead, dtype in (
+        ("params", (n_par,), "float64"),
+        ("stderr", (n_par,), "float64"),
+        ("chi2_reduced", (), "float64"),
+        ("n_points", (), "int32"),
+        ("status", (), "uint8"),
+    ):
+        group.create_array(
+            name,
+            shape=lead + (h, w),
+            chunks=lead + (tile, tile),
+            dtype=dtype,
+            fill_value=MASKED if name == "status" else 0,
+        )
+    group.create_array(
+        "stack/values",
+        shape=(n_photos, h, w),
+        chunks=(1, tile, tile),
+        dtype="float32",
+        fill_value=float("nan"),
+    )
     group.attrs["veil_maps"] = dict(info, chunks="all")
     (marker_dir(store) / "tiles").mkdir(parents=True, exist_ok=True)
     return group
@@ -124,8 +139,11 @@ def _describe(holder: dict | None) -> str:
     if not holder:
         return "a process that did not say which"
     started = holder.get("started")
-    when = time.strftime(" since %Y-%m-%d %H:%M:%S", time.localtime(started)) \
-        if isinstance(started, (int, float)) else ""
+    when = (
+        time.strftime(" since %Y-%m-%d %H:%M:%S", time.localtime(started))
+        if isinstance(started, (int, float))
+        else ""
+    )
     return f"process {holder.get('pid')} on {holder.get('host')}{when}"
 
 
@@ -141,19 +159,24 @@ def store_lock(store, say=None) -> Iterator[None]:
     try:
         lock.acquire()
     except Timeout:
-        raise StoreBusyError(f"{store} is being written by another 'veil fit maps' run "
-                             f"({_describe(_holder(path))}); wait for it to end, or give "
-                             f"another output path") from None
+        raise StoreBusyError(
+            f"{store} is being written by another 'veil fit maps' run "
+            f"({_describe(_holder(path))}); wait for it to end, or give "
+            f"another output path"
+        ) from None
     except OSError as exc:
-        raise UnwritableError(f"cannot lock {store}: cannot write {path} "
-                              f"({exc.strerror or exc})") from None
+        raise UnwritableError(
+            f"cannot lock {store}: cannot write {path} ({exc.strerror or exc})"
+        ) from None
     # an interrupted command line removes it (with a store it removes, nothing is left)
     register_temporary(path, "file")
     try:
         stale = _holder(path)
         if stale and stale.get("pid") != os.getpid() and say is not None:
-            say(f"{store}: took over the lock left by {_describe(stale)}, which ended "
-                f"without releasing it (killed?)")
+            say(
+                f"{store}: took over the lock left by {_describe(stale)}, which ended "
+                f"without releasing it (killed?)"
+            )
         me = {"pid": os.getpid(), "host": socket.gethostname(), "started": time.time()}
         try:
             with open(path, "r+", encoding="utf-8") as fh:
@@ -178,12 +201,13 @@ def store_lock(store, say=None) -> Iterator[None]:
 # --------------------------------------------------------------------------------------
 def _expected_shape(name: str, info: dict) -> tuple:
     h, w = info["shape"]
-    return ((len(info["params"]), h, w) if name in ("params", "stderr") else (h, w))
+    return (len(info["params"]), h, w) if name in ("params", "stderr") else (h, w)
 
 
 def _missing_chunks(arr, where: Path, limit: int = 3) -> list:
     grid = [range(math.ceil(s / c)) for s, c in zip(arr.shape, arr.chunks)]
     import itertools
+
     out = []
     for index in itertools.product(*grid):
         if not where.joinpath("c", *map(str, index)).is_file():
@@ -202,25 +226,40 @@ def _attribute_problem(info: dict) -> str | None:
     params, free = info.get("params"), info.get("free")
     if not (isinstance(params, list) and params and all(isinstance(p, str) for p in params)):
         return "have no list of parameter names ('params')"
-    if not (isinstance(free, list) and all(isinstance(p, str) for p in free)
-            and set(free) <= set(params)):
+    if not (
+        isinstance(free, list)
+        and all(isinstance(p, str) for p in free)
+        and set(free) <= set(params)
+    ):
         return "have no list of fitted parameters among 'params' ('free')"
     fixed = info.get("fixed_values")
-    if not (isinstance(fixed, dict) and all(
-            isinstance(fixed.get(p), (int, float)) and not isinstance(fixed.get(p), bool)
-            and math.isfinite(fixed[p]) for p in params if p not in free)):
+    if not (
+        isinstance(fixed, dict)
+        and all(
+            isinstance(fixed.get(p), (int, float))
+            and not isinstance(fixed.get(p), bool)
+            and math.isfinite(fixed[p])
+            for p in params
+            if p not in free
+        )
+    ):
         return "have no finite value of each held parameter ('fixed_values')"
     shape = info.get("shape")
     if not (isinstance(shape, list) and len(shape) == 2 and all(_is_int(n, 1) for n in shape)):
         return "have no shape of two pixel counts ('shape')"
     if not _is_int(info.get("tile"), 1) or not _is_int(info.get("outside_mask", 0)):
         return "have no tile size ('tile') or count of pixels outside the mask"
-    if not _is_int(info.get("photos"), 1) or not isinstance(info.get("model"), str) or not (
-            isinstance(info.get("medium"), dict) and isinstance(info["medium"].get("model"),
-                                                                str)):
+    if (
+        not _is_int(info.get("photos"), 1)
+        or not isinstance(info.get("model"), str)
+        or not (
+            isinstance(info.get("medium"), dict) and isinstance(info["medium"].get("model"), str)
+        )
+    ):
         return "do not name the photos' count, the model and the medium"
     if not isinstance(info.get("units", {}), dict) or not isinstance(
-            info.get("geometry") or {}, dict):
+        info.get("geometry") or {}, dict
+    ):
         return "have units or a geometry that are not records"
     return None
 
@@ -235,8 +274,10 @@ def check_store(store, info: dict, complete: bool) -> None:
     store = Path(store)
 
     def damaged(part: str) -> DamagedStoreError:
-        return DamagedStoreError(f"{store} is damaged: {part}; it cannot be read or resumed "
-                                 f"- remove it and run 'veil fit maps' again")
+        return DamagedStoreError(
+            f"{store} is damaged: {part}; it cannot be read or resumed "
+            f"- remove it and run 'veil fit maps' again"
+        )
 
     wrong = _attribute_problem(info)
     if wrong:
@@ -246,21 +287,28 @@ def check_store(store, info: dict, complete: bool) -> None:
         try:
             arr = zarr.open_array(os.fspath(store / name), mode="r")
         except Exception as exc:
-            raise damaged(f"array {name} ({name}/zarr.json) cannot be read "
-                          f"({type(exc).__name__}: {exc})") from None
+            raise damaged(
+                f"array {name} ({name}/zarr.json) cannot be read ({type(exc).__name__}: {exc})"
+            ) from None
         if tuple(arr.shape) != _expected_shape(name, {"shape": shape, "params": names}):
-            raise damaged(f"array {name} has shape {tuple(arr.shape)}, expected "
-                          f"{_expected_shape(name, {'shape': shape, 'params': names})}")
+            raise damaged(
+                f"array {name} has shape {tuple(arr.shape)}, expected "
+                f"{_expected_shape(name, {'shape': shape, 'params': names})}"
+            )
         if complete and info.get("chunks") == "all":
             gone = _missing_chunks(arr, store / name)
             if gone:
-                raise damaged(f"array {name} lacks chunk file(s) {', '.join(gone)} (their "
-                              f"pixels would read as {arr.fill_value})")
+                raise damaged(
+                    f"array {name} lacks chunk file(s) {', '.join(gone)} (their "
+                    f"pixels would read as {arr.fill_value})"
+                )
     if complete:
         lost = [t for t in tiles(shape, tile) if not tile_marker(store, *t).is_file()]
         if lost:
-            raise damaged(f"it is marked complete but {len(lost)} tile marker(s) are missing "
-                          f"(.veil/tiles/{lost[0][0]}_{lost[0][1]})")
+            raise damaged(
+                f"it is marked complete but {len(lost)} tile marker(s) are missing "
+                f"(.veil/tiles/{lost[0][0]}_{lost[0][1]})"
+            )
 
 
 # --------------------------------------------------------------------------------------
@@ -270,9 +318,11 @@ def _read(group, name: str, store) -> np.ndarray:
     try:
         return np.asarray(group[name][:])
     except Exception as exc:
-        raise DamagedStoreError(f"{store} is damaged: array {name} cannot be read "
-                                f"({type(exc).__name__}: {exc}); remove it and run 'veil fit "
-                                f"maps' again") from None
+        raise DamagedStoreError(
+            f"{store} is damaged: array {name} cannot be read "
+            f"({type(exc).__name__}: {exc}); remove it and run 'veil fit "
+            f"maps' again"
+        ) from None
 
 
 def open_maps(store) -> dict:
@@ -286,8 +336,10 @@ def open_maps(store) -> dict:
     if info is None:
         raise InputError(f"{store} is not a veil maps store (made by 'veil fit maps')")
     if not is_complete(store):
-        raise InputError(f"{store} is a partial maps store (an interrupted run, or one still "
-                         f"running); rerun 'veil fit maps' with the same inputs to finish it")
+        raise InputError(
+            f"{store} is a partial maps store (an interrupted run, or one still "
+            f"running); rerun 'veil fit maps' with the same inputs to finish it"
+        )
     check_store(store, info, complete=True)
     group = zarr.open_group(os.fspath(store), mode="r")
     out: dict[str, Any] = {name: _read(group, name, store) for name in MAPS}
@@ -315,13 +367,18 @@ def summarize_maps(store, maps: dict | None = None) -> dict:
         n = int(np.count_nonzero(status == k)) - (outside if k == MASKED else 0)
         if n > 0:
             failed[f"{k}: " + (FAILED_MASKED if k == MASKED else STATUS[k].split(" (")[0])] = n
-    out = {"pixels": total, "converged": int(np.count_nonzero(ok)),
-           "status_counts": counts, "outside_mask": outside,
-           "failed": int(sum(failed.values())), "failed_by_status": failed,
-           "undetermined_fraction": float(np.count_nonzero(status == 3) / total),
-           "geometry": info.get("geometry", {"kind": "distant"}),
-           "not_converged_fraction": float(np.count_nonzero(~ok) / total),
-           "params": {}}
+    out = {
+        "pixels": total,
+        "converged": int(np.count_nonzero(ok)),
+        "status_counts": counts,
+        "outside_mask": outside,
+        "failed": int(sum(failed.values())),
+        "failed_by_status": failed,
+        "undetermined_fraction": float(np.count_nonzero(status == 3) / total),
+        "geometry": info.get("geometry", {"kind": "distant"}),
+        "not_converged_fraction": float(np.count_nonzero(~ok) / total),
+        "params": {},
+    }
     free = set(info["free"])
     for k, name in enumerate(info["params"]):
         entry: dict[str, float | bool] = {"free": name in free}
@@ -329,19 +386,38 @@ def summarize_maps(store, maps: dict | None = None) -> dict:
             v = maps["params"][k][ok]
             se = maps["stderr"][k][ok]
             pct = np.percentile(v, [5, 25, 50, 75, 95])
-            entry.update(median=float(pct[2]), p05=float(pct[0]), p25=float(pct[1]),
-                         p75=float(pct[3]), p95=float(pct[4]),
-                         median_stderr=float(np.median(se)))
+            entry.update(
+                median=float(pct[2]),
+                p05=float(pct[0]),
+                p25=float(pct[1]),
+                p75=float(pct[3]),
+                p95=float(pct[4]),
+                median_stderr=float(np.median(se)),
+            )
         elif name not in free:
             entry["value"] = float(info["fixed_values"][name])
         out["params"][name] = entry
     if ok.any():
         pct = np.percentile(maps["chi2_reduced"][ok], [5, 50, 95])
-        out["chi2_reduced"] = {"p05": float(pct[0]), "median": float(pct[1]),
-                               "p95": float(pct[2])}
+        out["chi2_reduced"] = {"p05": float(pct[0]), "median": float(pct[1]), "p95": float(pct[2])}
     return out
 
 
-__all__ = ["FORMAT", "MAPS", "FAILED_MASKED", "StoreBusyError", "DamagedStoreError",
-           "is_complete", "store_info", "create_store", "store_lock", "lock_path",
-           "check_store", "open_maps", "summarize_maps", "tiles", "tile_marker", "marker_dir"]
+__all__ = [
+    "FORMAT",
+    "MAPS",
+    "FAILED_MASKED",
+    "StoreBusyError",
+    "DamagedStoreError",
+    "is_complete",
+    "store_info",
+    "create_store",
+    "store_lock",
+    "lock_path",
+    "check_store",
+    "open_maps",
+    "summarize_maps",
+    "tiles",
+    "tile_marker",
+    "marker_dir",
+]

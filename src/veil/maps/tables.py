@@ -79,9 +79,21 @@ class MapTables:
     def fingerprint(self) -> str:
         """Hash of everything the tables depend on (and of the tables themselves)."""
         h = hashlib.sha256()
-        h.update(repr((self.model, sorted(self.options.items()), self.names,
-                       self.base.tolist(), self.free_scales, [a.__dict__ for a in self.axes],
-                       sorted(self.fixed.items()), self.medium, self.accuracy)).encode())
+        h.update(
+            repr(
+                (
+                    self.model,
+                    sorted(self.options.items()),
+                    self.names,
+                    self.base.tolist(),
+                    self.free_scales,
+                    [a.__dict__ for a in self.axes],
+                    sorted(self.fixed.items()),
+                    self.medium,
+                    self.accuracy,
+                )
+            ).encode()
+        )
         for a in self.angles:
             h.update(np.ascontiguousarray(a, dtype=float).tobytes())
         if self.near is not None:  # (distant tables hash as they always did)
@@ -92,25 +104,29 @@ class MapTables:
     def describe(self) -> str:
         grid = "; ".join(a.describe() for a in self.axes) or "no nonlinear parameter"
         nodes = int(np.prod([a.count for a in self.axes])) if self.axes else 1
-        text = (f"{self.model}: free {', '.join(self.free_names)}; table {grid}; {nodes} "
-                f"node(s) x {self.n_configs} configurations ({self.accuracy} quadrature)")
+        text = (
+            f"{self.model}: free {', '.join(self.free_names)}; table {grid}; {nodes} "
+            f"node(s) x {self.n_configs} configurations ({self.accuracy} quadrature)"
+        )
         if self.near is not None:
-            text += (f"; {self.near.describe()}, interpolation error "
-                     f"{self.field_error:.2g} of a column's maximum")
+            text += (
+                f"; {self.near.describe()}, interpolation error "
+                f"{self.field_error:.2g} of a column's maximum"
+            )
         return text
 
     def basis(self, node_values: dict, pixel=None) -> np.ndarray:
         """(M, q + 1) columns at physical values of the nonlinear parameters, by the
         spline (numpy; for checks); near-field tables at ``pixel`` (x, y) of the photo."""
         jnp = _jnp()
-        u = np.array([(a.coord(node_values[a.name]) - a.coord(a.lo)) / a.step
-                      for a in self.axes])
+        u = np.array([(a.coord(node_values[a.name]) - a.coord(a.lo)) / a.step for a in self.axes])
         if self.near is None:
             b, _ = interp(jnp.asarray(self.coef), jnp.asarray(u), len(self.axes))
         else:
             fu = self.field_coords(*pixel)[0]
-            b, _ = interp_near(jnp.asarray(self.coef), jnp.asarray(fu), jnp.asarray(u),
-                                len(self.axes))
+            b, _ = interp_near(
+                jnp.asarray(self.coef), jnp.asarray(fu), jnp.asarray(u), len(self.axes)
+            )
         return np.asarray(b)
 
 
@@ -122,8 +138,9 @@ def _template(brdf_cls, fixed: dict, freed: set, options) -> tuple:
     names = brdf_cls.param_names()
     for n in list(fixed) + list(freed):
         if n not in names:
-            raise FitError(f"{brdf_cls.NAME} has no parameter {n!r}; its parameters are "
-                           f"{', '.join(names)}")
+            raise FitError(
+                f"{brdf_cls.NAME} has no parameter {n!r}; its parameters are {', '.join(names)}"
+            )
     for n, v in fixed.items():
         check_fixed(n, v, brdf_cls.param(n), brdf_cls.__name__)
     try:
@@ -139,10 +156,16 @@ def _template(brdf_cls, fixed: dict, freed: set, options) -> tuple:
 def _unknowns(brdf_cls, fixed: dict, freed: set, base) -> tuple:
     """(the free scales, the free nonlinear parameters (indices), the parts of the free
     scales, each part's known weight: 0 for a free scale, else its value)."""
-    free_set = [i for i, p in enumerate(brdf_cls.PARAMS)
-                if p.name not in fixed and (not p.held or p.name in freed)]
-    scale_of = {brdf_cls.scale_index(part): part for part in BRDF_PARTS
-                if brdf_cls.scale_index(part) is not None}
+    free_set = [
+        i
+        for i, p in enumerate(brdf_cls.PARAMS)
+        if p.name not in fixed and (not p.held or p.name in freed)
+    ]
+    scale_of = {
+        brdf_cls.scale_index(part): part
+        for part in BRDF_PARTS
+        if brdf_cls.scale_index(part) is not None
+    }
     free_scales = tuple(i for i in free_set if i in scale_of)
     nonlinear = [i for i in free_set if i not in scale_of]
     if not free_set:
@@ -156,9 +179,20 @@ def _unknowns(brdf_cls, fixed: dict, freed: set, base) -> tuple:
     return free_scales, nonlinear, free_parts, known_weight
 
 
-def build_tables(brdf_cls, medium, angles, *, fixed=None, options=None, free=None,
-                 grid=None, accuracy: str = "default", progress=None, near=None,
-                 roi=None) -> MapTables:
+def build_tables(
+    brdf_cls,
+    medium,
+    angles,
+    *,
+    fixed=None,
+    options=None,
+    free=None,
+    grid=None,
+    accuracy: str = "default",
+    progress=None,
+    near=None,
+    roi=None,
+) -> MapTables:
     """The tables of a per-pixel target fit: ``brdf_cls`` through ``medium`` (a medium
     model) at ``angles`` (theta_i, phi_i, theta_r, phi_r arrays, degrees). ``fixed``,
     ``free`` (held parameters to fit) and ``options`` as :func:`veil.fit_target`;
@@ -177,9 +211,23 @@ def build_tables(brdf_cls, medium, angles, *, fixed=None, options=None, free=Non
     axes = make_axes(brdf_cls, nonlinear, parse_grid([], brdf_cls) | dict(grid or {}))
     angles = tuple(np.ascontiguousarray(a, dtype=float) for a in angles)
     if near is not None:
-        return _build_near(brdf_cls, medium, angles, template, names, base, free_scales,
-                           axes, free_parts, known_weight, fixed, accuracy, progress, near,
-                           roi)
+        return _build_near(
+            brdf_cls,
+            medium,
+            angles,
+            template,
+            names,
+            base,
+            free_scales,
+            axes,
+            free_parts,
+            known_weight,
+            fixed,
+            accuracy,
+            progress,
+            near,
+            roi,
+        )
     engine = ApparentModel(template, medium, angles, RULES[accuracy])
     vm = medium.to_vector()
     rows = row_scales(type(medium), vm)
@@ -191,11 +239,25 @@ def build_tables(brdf_cls, medium, angles, *, fixed=None, options=None, free=Non
         if progress is not None:
             progress(done + 1, int(np.prod(shape)) if shape else 1)
     coef = _to_coef(values, 0, len(axes))
-    medium_entry = {"model": type(medium).NAME, "params": medium.as_dict(),
-                    "options": medium.options()}
-    return MapTables(brdf_cls.NAME, dict(template.options()), names, base, free_scales, axes,
-                     values, np.ascontiguousarray(coef), dict(fixed), medium_entry, accuracy,
-                     angles)
+    medium_entry = {
+        "model": type(medium).NAME,
+        "params": medium.as_dict(),
+        "options": medium.options(),
+    }
+    return MapTables(
+        brdf_cls.NAME,
+        dict(template.options()),
+        names,
+        base,
+        free_scales,
+        axes,
+        values,
+        np.ascontiguousarray(coef),
+        dict(fixed),
+        medium_entry,
+        accuracy,
+        angles,
+    )
 
 
 def _nodes(axes, base):
@@ -243,8 +305,6 @@ def _to_coef(values, axes_first: int, count: int):
     return values
 
 
-
-
 #: the centres of two opposite corner cells, farthest from the nodes in both axes.
 FIELD_CHECKS = ((0.5, 0.5), (-0.5, -0.5))
 
@@ -275,8 +335,23 @@ def _field_error(field_values, exact, checks) -> float:
     return error
 
 
-def _build_near(brdf_cls, medium, angles, template, names, base, free_scales, axes,
-                free_parts, known_weight, fixed, accuracy, progress, near, roi):
+def _build_near(
+    brdf_cls,
+    medium,
+    angles,
+    template,
+    names,
+    base,
+    free_scales,
+    axes,
+    free_parts,
+    known_weight,
+    fixed,
+    accuracy,
+    progress,
+    near,
+    roi,
+):
     """Near-field tables: the columns at every node of a grid of plate points and of the
     nonlinear axes, with the pixel's own angles (docs/maps-geometry.md "Geometry"); the field
     interpolation checked against exact columns at :data:`FIELD_CHECKS`."""
@@ -286,15 +361,17 @@ def _build_near(brdf_cls, medium, angles, template, names, base, free_scales, ax
 
     if roi is None:
         raise FitError("near-field tables need the region of the photo (roi)")
-    lobe = apparent_lobe(smoothest_facet(brdf_cls, names, base, axes, template.options()),
-                         medium.lobe_half_width())
+    lobe = apparent_lobe(
+        smoothest_facet(brdf_cls, names, base, axes, template.options()), medium.lobe_half_width()
+    )
     fgrid = field_grid(near, angles, roi, lobe)
     kx, ky = fgrid.shape
     m = len(angles[0])
     node_angles = tuple(np.ascontiguousarray(a.reshape(-1)) for a in fgrid.node_angles(angles))
     checks = _check_pixels(fgrid, near, angles)
-    all_angles = tuple(np.concatenate([node_angles[j]] + [c[1][j] for c in checks])
-                       for j in range(4))
+    all_angles = tuple(
+        np.concatenate([node_angles[j]] + [c[1][j] for c in checks]) for j in range(4)
+    )
     engine = ApparentModel(template, medium, all_angles, RULES[accuracy])
     vm = medium.to_vector()
     rows = row_scales(type(medium), vm)
@@ -305,19 +382,34 @@ def _build_near(brdf_cls, medium, angles, template, names, base, free_scales, ax
     total = int(np.prod(shape)) if shape else 1
     for done, (combo, vb) in enumerate(_nodes(axes, base)):
         cols = _columns(engine, vb, vm, rows, free_parts, known_weight, q)
-        values[(slice(None), slice(None)) + combo] = cols[:kx * ky * m].reshape(kx, ky, m,
-                                                                             q + 1)
-        exact[(slice(None),) + combo] = cols[kx * ky * m:].reshape(len(checks), m, q + 1)
+        values[(slice(None), slice(None)) + combo] = cols[: kx * ky * m].reshape(kx, ky, m, q + 1)
+        exact[(slice(None),) + combo] = cols[kx * ky * m :].reshape(len(checks), m, q + 1)
         if progress is not None:
             progress(done + 1, total)
     field_values = np.ascontiguousarray(_to_coef(values, 0, 2))
     coef = np.ascontiguousarray(_to_coef(field_values, 2, len(axes)))
     error = _field_error(field_values, exact, checks)
-    medium_entry = {"model": type(medium).NAME, "params": medium.as_dict(),
-                    "options": medium.options()}
-    return MapTables(brdf_cls.NAME, dict(template.options()), names, base, free_scales, axes,
-                     values, coef, dict(fixed), medium_entry, accuracy, angles, near=fgrid,
-                     field_error=error)
+    medium_entry = {
+        "model": type(medium).NAME,
+        "params": medium.as_dict(),
+        "options": medium.options(),
+    }
+    return MapTables(
+        brdf_cls.NAME,
+        dict(template.options()),
+        names,
+        base,
+        free_scales,
+        axes,
+        values,
+        coef,
+        dict(fixed),
+        medium_entry,
+        accuracy,
+        angles,
+        near=fgrid,
+        field_error=error,
+    )
 
 
 __all__ = ["MapTables", "build_tables", "smoothest_facet", "FIELD_CHECKS"]

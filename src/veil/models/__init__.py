@@ -21,6 +21,24 @@ from .registry import (
     register,
 )
 
-__all__ = ["BRDF", "BTDF", "Medium", "Model", "Option", "Param", "ChannelModel", "REGISTRY",
-           "PRESETS", "DEFAULTS", "AUTO", "PAPER", "APPARATUS_OPTIONS", "candidates", "model_class",
-           "default_class", "names", "preset", "register"]
+__all__ = [
+    "BRDF",
+    "BTDF",
+    "Medium",
+    "Model",
+    "Option",
+    "Param",
+    "ChannelModel",
+    "REGISTRY",
+    "PRESETS",
+    "DEFAULTS",
+    "AUTO",
+    "PAPER",
+    "APPARATUS_OPTIONS",
+    "candidates",
+    "model_class",
+    "default_class",
+    "names",
+    "preset",
+    "register",
+]

@@ -96,11 +96,14 @@ class Param:
 
     def __post_init__(self) -> None:
         if self.share not in SHARING:
-            raise ValueError(f"Param {self.name}: share = {self.share!r}; expected one of "
-                             f"{SHARING}")
+            raise ValueError(
+                f"Param {self.name}: share = {self.share!r}; expected one of {SHARING}"
+            )
         if self.channels not in CHANNEL_SHARING:
-            raise ValueError(f"Param {self.name}: channels = {self.channels!r}; expected one of "
-                             f"{CHANNEL_SHARING}")
+            raise ValueError(
+                f"Param {self.name}: channels = {self.channels!r}; expected one of "
+                f"{CHANNEL_SHARING}"
+            )
         if self.error_scale not in ERROR_SCALES:
             raise ValueError(f"Param {self.name}: error_scale = {self.error_scale!r}")
 
@@ -116,8 +119,9 @@ class Param:
         if not math.isfinite(v):
             raise ParameterError(f"{owner}.{self.name} = {v!r} is not a finite number")
         if not self.contains(v):
-            raise ParameterError(f"{owner}.{self.name} = {v:g} is outside {self.interval()}"
-                                 f" ({self.doc})")
+            raise ParameterError(
+                f"{owner}.{self.name} = {v:g} is outside {self.interval()} ({self.doc})"
+            )
 
     def contains(self, v: float) -> bool:
         lo_bad = v <= self.lower if self.lower_open else v < self.lower
@@ -152,11 +156,15 @@ class Option:
 
     def check(self, value, owner: str) -> None:
         if self.choices and value not in self.choices:
-            raise ParameterError(f"{owner}.{self.name} = {value!r}; expected one of "
-                                 f"{', '.join(map(str, self.choices))} ({self.doc})")
+            raise ParameterError(
+                f"{owner}.{self.name} = {value!r}; expected one of "
+                f"{', '.join(map(str, self.choices))} ({self.doc})"
+            )
         if not self.choices and not isinstance(value, type(self.default)):
-            raise InputTypeError(f"{owner}.{self.name} = {value!r}; expected a "
-                                 f"{type(self.default).__name__} ({self.doc})")
+            raise InputTypeError(
+                f"{owner}.{self.name} = {value!r}; expected a "
+                f"{type(self.default).__name__} ({self.doc})"
+            )
 
 
 class Model:
@@ -200,8 +208,10 @@ class Model:
         for p in cls.PARAMS:
             if name in (p.name, p.alias):
                 return p
-        raise ParameterError(f"{cls.NAME} has no parameter {name!r}; its parameters are "
-                             f"{', '.join(cls.param_names())}")
+        raise ParameterError(
+            f"{cls.NAME} has no parameter {name!r}; its parameters are "
+            f"{', '.join(cls.param_names())}"
+        )
 
     @classmethod
     def index(cls, name: str) -> int:
@@ -227,8 +237,10 @@ class Model:
         fit, as declared (``Param.channels``); an undeclared parameter is per channel when it
         is a scale (``SCALES``, ``GAIN``) and shared otherwise."""
         scales = set(cls.scale_names()) | {getattr(cls, "GAIN", None)} - {None}
-        return {p.name: p.channels or ("per-channel" if p.name in scales else "shared")
-                for p in cls.PARAMS}
+        return {
+            p.name: p.channels or ("per-channel" if p.name in scales else "shared")
+            for p in cls.PARAMS
+        }
 
     @classmethod
     def option_names(cls) -> tuple[str, ...]:
@@ -257,15 +269,22 @@ class Model:
         missing = [n for n in names if n not in params]
         unknown = [n for n in params if n not in names]
         if missing or unknown:
-            raise ParameterError(f"{cls.NAME} takes parameters {', '.join(names)}"
-                                 + (f"; missing {', '.join(missing)}" if missing else "")
-                                 + (f"; unknown {', '.join(unknown)}" if unknown else ""))
+            raise ParameterError(
+                f"{cls.NAME} takes parameters {', '.join(names)}"
+                + (f"; missing {', '.join(missing)}" if missing else "")
+                + (f"; unknown {', '.join(unknown)}" if unknown else "")
+            )
         options = dict(options or {})
         bad = [k for k in options if k not in cls.option_names()]
         if bad:
-            raise ParameterError(f"{cls.NAME} has no option {bad[0]!r}"
-                                 + (f"; its options are {', '.join(cls.option_names())}"
-                                    if cls.OPTIONS else "; it takes no options"))
+            raise ParameterError(
+                f"{cls.NAME} has no option {bad[0]!r}"
+                + (
+                    f"; its options are {', '.join(cls.option_names())}"
+                    if cls.OPTIONS
+                    else "; it takes no options"
+                )
+            )
         return cls(**{n: params[n] for n in names}, **{**cls.default_options(), **options})
 
     @classmethod
@@ -278,8 +297,11 @@ class Model:
         """The parameters that tell two models of the family apart in a legend: neither
         scales nor shared by media (the paper's medium: g)."""
         scales = set(self.scale_names())
-        return {p.name: getattr(self, p.name) for p in self.PARAMS
-                if p.name not in scales and p.share != "shared"}
+        return {
+            p.name: getattr(self, p.name)
+            for p in self.PARAMS
+            if p.name not in scales and p.share != "shared"
+        }
 
     def to_vector(self) -> ndarray:
         return np.array([getattr(self, p.name) for p in self.PARAMS], dtype=float)
@@ -291,9 +313,11 @@ class Model:
     def with_vector(self, vector) -> Self:
         vector = np.asarray(vector, float)
         if vector.shape != (len(self.PARAMS),):
-            raise ParameterError(f"{type(self).__name__} vector has shape {vector.shape}; "
-                                 f"expected ({len(self.PARAMS)},) for "
-                                 f"{', '.join(self.param_names())}")
+            raise ParameterError(
+                f"{type(self).__name__} vector has shape {vector.shape}; "
+                f"expected ({len(self.PARAMS)},) for "
+                f"{', '.join(self.param_names())}"
+            )
         values = dict(zip(self.param_names(), (float(x) for x in vector)))
         return dataclasses.replace(self, **values)
 
@@ -444,8 +468,7 @@ class Medium(Model):
 
     def weight(self, v, component: str) -> Array:
         """The weight of ``component`` at parameter vector ``v``."""
-        return {"delta": self.delta_weight, "iso": self.iso,
-                "lobe": self.lobe_weight}[component](v)
+        return {"delta": self.delta_weight, "iso": self.iso, "lobe": self.lobe_weight}[component](v)
 
     def delta_weight(self, v) -> Array:  # pragma: no cover - interface
         raise NotImplementedError
@@ -544,8 +567,12 @@ class Medium(Model):
             value = value + self.iso(v)
         if self.has("lobe"):
             one_minus_mu = jnp.maximum(1.0 - jnp.sum(wa * wb, axis=-1), 0.0)
-            value = value + (self.lobe_weight(v) * self.factor_first(v, wa[..., 2])
-                             * self.factor_second(v, wb[..., 2]) * self.phase(v, one_minus_mu))
+            value = value + (
+                self.lobe_weight(v)
+                * self.factor_first(v, wa[..., 2])
+                * self.factor_second(v, wb[..., 2])
+                * self.phase(v, one_minus_mu)
+            )
         return value
 
 

@@ -93,7 +93,7 @@ def path_factors(tau, g):
     (the circle of radius R_c shortens the beam's path to a laterally displaced vertex, and
     bounds where the vertices can be). Independent of R_c: the cylinder's shape, not its size."""
     k = jnp.arange(1, ORDERS + 1, dtype=float)
-    one_minus = 1.0 - jnp.cumprod(jnp.full(ORDERS, g))        # 1 - g^m, m = 1..ORDERS
+    one_minus = 1.0 - jnp.cumprod(jnp.full(ORDERS, g))  # 1 - g^m, m = 1..ORDERS
     a = jnp.cumsum(one_minus)
     # sum_m (k+1-m)(1 - g^m) = (k+1) A_k - sum_m m (1 - g^m)
     b = a - jnp.cumsum(k * one_minus) / (k + 1.0)
@@ -111,9 +111,11 @@ def _rectangle_fraction(s, aa, bb):
 def _rectangle_potential(aa, bb, z):
     """F(aa, bb, z) = Int_0^aa Int_0^bb (x^2 + y^2 + z^2)^{-1/2} dx dy (z > 0)."""
     d = jnp.sqrt(aa * aa + bb * bb + z * z)
-    return (aa * jnp.log((bb + d) / jnp.sqrt(aa * aa + z * z))
-            + bb * jnp.log((aa + d) / jnp.sqrt(bb * bb + z * z))
-            - z * jnp.arctan(aa * bb / (z * d)))
+    return (
+        aa * jnp.log((bb + d) / jnp.sqrt(aa * aa + z * z))
+        + bb * jnp.log((aa + d) / jnp.sqrt(bb * bb + z * z))
+        - z * jnp.arctan(aa * bb / (z * d))
+    )
 
 
 def landing_factors(g, path_length, half_width, mu_r):
@@ -137,7 +139,7 @@ def landing_factors(g, path_length, half_width, mu_r):
     g = jnp.clip(g, 1e-3, 1.0 - 1e-12)
     k = jnp.arange(1, ORDERS + 1, dtype=float)
     gk = jnp.cumprod(jnp.full(ORDERS, g))
-    b = (1.0 - gk) / jnp.sqrt(gk)                                     # b_j, j = 1..ORDERS
+    b = (1.0 - gk) / jnp.sqrt(gk)  # b_j, j = 1..ORDERS
     rc, aa, bb = path_length, half_width * jnp.maximum(mu_r, 1e-6), half_width
     # S = sum_{j<=k} Delta_j b_j, (Delta_0 .. Delta_k) ~ R_c Dirichlet(1, ..., 1)
     s1 = jnp.cumsum(b)
@@ -172,7 +174,7 @@ def _path_mixture(v):
     tau, omega, g = v[0], v[1], v[2]
     x = omega * tau
     k = jnp.arange(1, ORDERS + 1, dtype=float)
-    s = jnp.cumprod(jnp.concatenate([jnp.ones(1), x / k[1:]]))     # x^(k-1) / k!
+    s = jnp.cumprod(jnp.concatenate([jnp.ones(1), x / k[1:]]))  # x^(k-1) / k!
     w = s * path_factors(tau, g)
     total = jnp.sum(w)
     return w / total, jnp.cumprod(jnp.full(ORDERS, g)), total
@@ -183,10 +185,12 @@ def _geometry(model, setting):
     """(model with the setting's path length, sigma_t, scene geometry)."""
     length = setting.path_length if setting.path_length is not None else model.path_length
     if not length or length <= 0:
-        raise Unsupported(f"{ForwardSeries.NAME}: a renderer's medium needs an extinction "
-                          f"coefficient sigma_t = tau / (path length of one pass), and this "
-                          f"medium has no path_length; give the length in scene units "
-                          f"(veil export --path-length L)")
+        raise Unsupported(
+            f"{ForwardSeries.NAME}: a renderer's medium needs an extinction "
+            f"coefficient sigma_t = tau / (path length of one pass), and this "
+            f"medium has no path_length; give the length in scene units "
+            f"(veil export --path-length L)"
+        )
     if length != model.path_length:
         width = model.plate_width if model.plate_width <= length * 2 else 0.0
         model = model.replace(path_length=float(length), plate_width=width)
@@ -195,17 +199,23 @@ def _geometry(model, setting):
 
 
 def _medium_lost(model, renderer: str) -> list:
-    lost = ["the series neglects path-length differences of scattered light (docs/physics.md "
-            "sec. 4); the renderer path-traces the actual geometry, so the medium must fill "
-            "the set-up's geometry (a cylinder of radius path_length about the plate) for the "
-            "two to agree"]
+    lost = [
+        "the series neglects path-length differences of scattered light (docs/physics.md "
+        "sec. 4); the renderer path-traces the actual geometry, so the medium must fill "
+        "the set-up's geometry (a cylinder of radius path_length about the plate) for the "
+        "two to agree"
+    ]
     if model.eta_u != 1.0:
-        lost.append(f"the boundary (eta_u = {model.eta_u:.6g}) is exported as a dielectric "
-                    f"interface; veil's Fresnel factors ({model.variant} variant, docs/model.md "
-                    f"sec. 3) only approximate its refraction")
+        lost.append(
+            f"the boundary (eta_u = {model.eta_u:.6g}) is exported as a dielectric "
+            f"interface; veil's Fresnel factors ({model.variant} variant, docs/model.md "
+            f"sec. 3) only approximate its refraction"
+        )
     if model.s != 1.0:
-        lost.append(f"the intensity factor s = {model.s:.6g} is not part of the medium: "
-                    f"multiply the render by it")
+        lost.append(
+            f"the intensity factor s = {model.s:.6g} is not part of the medium: "
+            f"multiply the render by it"
+        )
     return lost
 
 
@@ -213,29 +223,52 @@ def _series_mitsuba(model, setting) -> Plugin:
     model, sigma_t, geometry = _geometry(model, setting)
     extra: tuple[Plugin, ...] = ()
     if model.eta_u != 1.0:
-        extra = (Plugin("bsdf", "dielectric", (float_value("int_ior", model.eta_u),
-                                                float_value("ext_ior", 1.0))),)
-    return Plugin("medium", "homogeneous", (
-        float_value("sigma_t", sigma_t, colour=True),
-        float_value("albedo", model.omega, colour=True),
-    ), children=(Plugin("phase", "hg", (float_value("g", model.g),)),),
-        lost=tuple(_medium_lost(model, "Mitsuba")), scale=model.s, extra=extra,
-        geometry=geometry, model=model)
+        extra = (
+            Plugin(
+                "bsdf",
+                "dielectric",
+                (float_value("int_ior", model.eta_u), float_value("ext_ior", 1.0)),
+            ),
+        )
+    return Plugin(
+        "medium",
+        "homogeneous",
+        (
+            float_value("sigma_t", sigma_t, colour=True),
+            float_value("albedo", model.omega, colour=True),
+        ),
+        children=(Plugin("phase", "hg", (float_value("g", model.g),)),),
+        lost=tuple(_medium_lost(model, "Mitsuba")),
+        scale=model.s,
+        extra=extra,
+        geometry=geometry,
+        model=model,
+    )
 
 
 def _series_pbrt(model, setting) -> Plugin:
     model, sigma_t, geometry = _geometry(model, setting)
     lost = _medium_lost(model, "pbrt")
     if model.eta_u != 1.0:
-        lost[1] = (f"the boundary (eta_u = {model.eta_u:.6g}) needs a dielectric interface "
-                   f"shape in the pbrt scene (Material \"dielectric\" \"float eta\" "
-                   f"{model.eta_u:.6g}); it is not written here")
-    return Plugin("medium", "homogeneous", (
-        Value("sigma_a", "rgb", (1.0 - model.omega) * sigma_t),
-        Value("sigma_s", "rgb", model.omega * sigma_t),
-        float_value("scale", 1.0),
-        float_value("g", model.g),
-    ), lost=tuple(lost), scale=model.s, geometry=geometry, model=model)
+        lost[1] = (
+            f"the boundary (eta_u = {model.eta_u:.6g}) needs a dielectric interface "
+            f'shape in the pbrt scene (Material "dielectric" "float eta" '
+            f"{model.eta_u:.6g}); it is not written here"
+        )
+    return Plugin(
+        "medium",
+        "homogeneous",
+        (
+            Value("sigma_a", "rgb", (1.0 - model.omega) * sigma_t),
+            Value("sigma_s", "rgb", model.omega * sigma_t),
+            float_value("scale", 1.0),
+            float_value("g", model.g),
+        ),
+        lost=tuple(lost),
+        scale=model.s,
+        geometry=geometry,
+        model=model,
+    )
 
 
 @dataclass(frozen=True)
@@ -270,30 +303,83 @@ class ForwardSeries(Medium):
     GAIN = "s"
     TABLE_ACCURACY = 1e-5
     PARAMS = (
-        Param("tau", 0.0, TAU_MAX, "optical depth of one pass through the medium", start=0.5,
-              share="per-medium", channels="per-channel"),
-        Param("omega", 0.0, 1.0, "single-scattering albedo", start=0.99, share="shared",
-              channels="per-channel"),
-        Param("g", -1.0, 1.0, "Henyey-Greenstein asymmetry of one scattering event",
-              lower_open=True, upper_open=True, start=0.9, share="per-medium",
-              error_scale="bound", channels="shared"),
-        Param("eta_u", 0.0, 10.0, "index of the medium's boundary (1: none; held at 1 "
-              "unless freed: an index-matched set-up has none)", lower_open=True, start=1.0,
-              share="shared", held=True, channels="shared"),
-        Param("s", 0.0, math.inf, "overall intensity factor (exposure)", log_scale=True,
-              start=1.0, held=True, channels="per-channel"),
+        Param(
+            "tau",
+            0.0,
+            TAU_MAX,
+            "optical depth of one pass through the medium",
+            start=0.5,
+            share="per-medium",
+            channels="per-channel",
+        ),
+        Param(
+            "omega",
+            0.0,
+            1.0,
+            "single-scattering albedo",
+            start=0.99,
+            share="shared",
+            channels="per-channel",
+        ),
+        Param(
+            "g",
+            -1.0,
+            1.0,
+            "Henyey-Greenstein asymmetry of one scattering event",
+            lower_open=True,
+            upper_open=True,
+            start=0.9,
+            share="per-medium",
+            error_scale="bound",
+            channels="shared",
+        ),
+        Param(
+            "eta_u",
+            0.0,
+            10.0,
+            "index of the medium's boundary (1: none; held at 1 "
+            "unless freed: an index-matched set-up has none)",
+            lower_open=True,
+            start=1.0,
+            share="shared",
+            held=True,
+            channels="shared",
+        ),
+        Param(
+            "s",
+            0.0,
+            math.inf,
+            "overall intensity factor (exposure)",
+            log_scale=True,
+            start=1.0,
+            held=True,
+            channels="per-channel",
+        ),
     )
     OPTIONS = (
-        Option("variant", "paper", "Fresnel factor: paper = F_t(theta_in)^2, exit = "
-               "F_t(theta_in) F_t(theta_out) (docs/model.md sec. 3)", VARIANTS),
+        Option(
+            "variant",
+            "paper",
+            "Fresnel factor: paper = F_t(theta_in)^2, exit = "
+            "F_t(theta_in) F_t(theta_out) (docs/model.md sec. 3)",
+            VARIANTS,
+        ),
         Option("path_length", 0.0, "path length of one pass, R_c (0: not given; then J_v = 1)"),
-        Option("plate_width", 0.0, "width 2a of the square plate in the unit of path_length "
-               "(0: infinite)"),
-        Option("orders", "poisson", "weights of the scattering orders: poisson = "
-               "(omega tau)^k/k! on both sides; light = the light side's with the cylinder's "
-               "path factors M_k(tau, g), the view side's unchanged; view = the view side's "
-               "with the plate's landing factors lambda_k (docs/physics-orders.md sec. 8), "
-               "the light side's unchanged; cylinder = both", ORDER_WEIGHTS),
+        Option(
+            "plate_width",
+            0.0,
+            "width 2a of the square plate in the unit of path_length (0: infinite)",
+        ),
+        Option(
+            "orders",
+            "poisson",
+            "weights of the scattering orders: poisson = "
+            "(omega tau)^k/k! on both sides; light = the light side's with the cylinder's "
+            "path factors M_k(tau, g), the view side's unchanged; view = the view side's "
+            "with the plate's landing factors lambda_k (docs/physics-orders.md sec. 8), "
+            "the light side's unchanged; cylinder = both",
+            ORDER_WEIGHTS,
+        ),
     )
     #: Against path tracing without a fit (validation/forward_error.py, docs/validity.md) the
     #: series is 0.74 % RMS off at optical depth 0.1, about 0.5 % of it its own (the rest the
@@ -301,9 +387,14 @@ class ForwardSeries(Medium):
     #: that a session's residuals cannot show it, while the target's parameters can absorb it
     #: (m01: the index and the specular scale 3-4 standard errors off with the true medium).
     MODEL_ERROR_FLOOR = (0.005, 40.0)
-    START = {"medium": {"tau": (0.05, 0.15, 0.3, 0.5, 0.8, 1.2, 1.8),
-                        "g": (0.8, 0.88, 0.93, 0.96, 0.98),
-                        "omega": (0.99,), "eta_u": (1.33,)}}
+    START = {
+        "medium": {
+            "tau": (0.05, 0.15, 0.3, 0.5, 0.8, 1.2, 1.8),
+            "g": (0.8, 0.88, 0.93, 0.96, 0.98),
+            "omega": (0.99,),
+            "eta_u": (1.33,),
+        }
+    }
     #: The renderers' own plugins for it (veil.models.renderers).
     RENDERERS = {"mitsuba": _series_mitsuba, "pbrt": _series_pbrt}
 
@@ -316,13 +407,16 @@ class ForwardSeries(Medium):
             if not math.isfinite(getattr(self, name)) or getattr(self, name) < 0:
                 from ..errors import ParameterError
 
-                raise ParameterError(f"ForwardSeries.{name} = {value!r}: expected a length "
-                                     f">= 0 (0: not given)")
+                raise ParameterError(
+                    f"ForwardSeries.{name} = {value!r}: expected a length >= 0 (0: not given)"
+                )
         if self.plate_width > 0 and self.path_length <= 0:
             from ..errors import ParameterError
 
-            raise ParameterError("ForwardSeries.plate_width needs path_length: the plate's "
-                                 "weighting compares its width with the path length")
+            raise ParameterError(
+                "ForwardSeries.plate_width needs path_length: the plate's "
+                "weighting compares its width with the path length"
+            )
 
     # -- components ----------------------------------------------------------------------
     @staticmethod
@@ -355,12 +449,10 @@ class ForwardSeries(Medium):
         return phase.mixture_pdf(self.prepare(v) if aux is None else aux, one_minus_mu)
 
     def phase_cone_fraction(self, v, one_minus_mu, aux=None) -> Array:
-        return phase.mixture_cone_fraction(self.prepare(v) if aux is None else aux,
-                                           one_minus_mu)
+        return phase.mixture_cone_fraction(self.prepare(v) if aux is None else aux, one_minus_mu)
 
     def phase_inverse_cone_fraction(self, v, frac, aux=None) -> Array:
-        return phase.mixture_inverse_cone_fraction(self.prepare(v) if aux is None else aux,
-                                                   frac)
+        return phase.mixture_inverse_cone_fraction(self.prepare(v) if aux is None else aux, frac)
 
     def phase_sample(self, v, frac, aux=None) -> tuple:
         return phase.mixture_inverse_with_pdf(self.prepare(v) if aux is None else aux, frac)
@@ -382,7 +474,7 @@ class ForwardSeries(Medium):
         k = jnp.arange(1, ORDERS + 1, dtype=float)
         s = jnp.cumprod(jnp.concatenate([jnp.ones(1), omega * tau / k[1:]]))
         gk = jnp.cumprod(jnp.full(ORDERS, g))
-        omm = 0.5 * jnp.sum((r_prime - r) ** 2, axis=-1)    # 1 - R'.R without cancellation
+        omm = 0.5 * jnp.sum((r_prime - r) ** 2, axis=-1)  # 1 - R'.R without cancellation
         p = phase.hg_pdf(gk, omm[..., None])
         lobe = s * path_factors(tau, g) if self.orders in ("cylinder", "light-side") else s
         view = s

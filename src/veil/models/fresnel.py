@@ -37,6 +37,7 @@ def transmittance(cos_theta, eta):
     """Fresnel transmittance F_t = 1 - F (docs/model.md sec. 4)."""
     return 1.0 - reflectance(cos_theta, eta)
 
+
 def boundary_first(cos_a, eta, variant: str):
     """The boundary factor a(A) of a medium's transmission (docs/model.md sec. 3): F_t^2 for the
     paper's variant, F_t for "exit"."""

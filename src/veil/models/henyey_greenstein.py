@@ -23,7 +23,8 @@ def _no_renderer(model, setting):
         f"f_t = Td + Tt p(g) has no unscattered beam and its Td, Tt are relative units, not "
         f"an extinction coefficient and an albedo, so no homogeneous medium reproduces it. "
         f"Fit the physical medium to the same data instead (veil fit medium "
-        f"--medium-model forward-series ...) and export that")
+        f"--medium-model forward-series ...) and export that"
+    )
 
 
 @dataclass(frozen=True)
@@ -48,21 +49,59 @@ class HenyeyGreenstein(Medium):
     LABEL = "the paper's medium: isotropic + Henyey-Greenstein single scattering (sec. 3)"
     SCALES = {"iso": "Td", "lobe": "Tt"}
     PARAMS = (
-        Param("Td", 0.0, math.inf, "isotropic multiple-scattering coefficient, relative units",
-              log_scale=True, start=1e-3, channels="per-channel"),
-        Param("Tt", 0.0, math.inf, "single-scattering coefficient, relative units",
-              log_scale=True, start=0.1, channels="per-channel"),
-        Param("g", -1.0, 1.0, "Henyey-Greenstein asymmetry parameter", lower_open=True,
-              upper_open=True, start=0.9, share="per-medium", error_scale="bound",
-              channels="shared"),
-        Param("eta", 0.0, 10.0, "relative refractive index of the medium", lower_open=True,
-              start=1.33, alias="eta_u", share="shared", channels="shared"),
+        Param(
+            "Td",
+            0.0,
+            math.inf,
+            "isotropic multiple-scattering coefficient, relative units",
+            log_scale=True,
+            start=1e-3,
+            channels="per-channel",
+        ),
+        Param(
+            "Tt",
+            0.0,
+            math.inf,
+            "single-scattering coefficient, relative units",
+            log_scale=True,
+            start=0.1,
+            channels="per-channel",
+        ),
+        Param(
+            "g",
+            -1.0,
+            1.0,
+            "Henyey-Greenstein asymmetry parameter",
+            lower_open=True,
+            upper_open=True,
+            start=0.9,
+            share="per-medium",
+            error_scale="bound",
+            channels="shared",
+        ),
+        Param(
+            "eta",
+            0.0,
+            10.0,
+            "relative refractive index of the medium",
+            lower_open=True,
+            start=1.33,
+            alias="eta_u",
+            share="shared",
+            channels="shared",
+        ),
     )
-    OPTIONS = (Option("variant", "paper", "Fresnel factor: paper = F_t(theta_in)^2, exit = "
-                      "F_t(theta_in) F_t(theta_out) (docs/model.md sec. 3)", VARIANTS),)
+    OPTIONS = (
+        Option(
+            "variant",
+            "paper",
+            "Fresnel factor: paper = F_t(theta_in)^2, exit = "
+            "F_t(theta_in) F_t(theta_out) (docs/model.md sec. 3)",
+            VARIANTS,
+        ),
+    )
     #: Starting grid of a medium fit (step 1): g from broad to narrow lobes, water's index.
-    START = {"medium": {"g": (0.5, 0.7, 0.8, 0.88, 0.93, 0.96, 0.98, 0.99, 0.995),
-                        "eta": (1.33,)}}
+    START = {"medium": {"g": (0.5, 0.7, 0.8, 0.88, 0.93, 0.96, 0.98, 0.99, 0.995), "eta": (1.33,)}}
     #: No renderer has this medium (veil.models.renderers): a clear refusal for each.
     RENDERERS = {"mitsuba": _no_renderer, "pbrt": _no_renderer}
 

@@ -56,7 +56,7 @@ def smith_g1(wz, wxy2, alpha, distribution="beckmann"):
 
     from .._jax import jax as _  # noqa: F401 - JAX set up by veil before its submodule
 
-    s = alpha * _safe_sqrt(wxy2)                       # alpha sin theta
+    s = alpha * _safe_sqrt(wxy2)  # alpha sin theta
     # a = cos / (alpha sin), held at 8 (1 - G1 < 1e-28 beyond: G1 = 1 exactly, also at the
     # normal) and at 1e-30 (G1 = 2 sqrt(pi) a to double precision, finite derivatives)
     a = jnp.maximum(wz / jnp.maximum(s, 0.125 * wz), 1e-30)
@@ -75,7 +75,7 @@ def ndf(hz, hxy2, alpha, distribution="beckmann"):
         d = a2 / (math.pi * (a2 * hz * hz + hxy2) ** 2)
     else:
         h2 = hz * hz
-        x = hxy2 / (a2 * h2)                          # tan^2 / alpha^2
+        x = hxy2 / (a2 * h2)  # tan^2 / alpha^2
         ok = ok & (x < BECKMANN_CUT)
         d = jnp.exp(-jnp.where(ok, x, 0.0)) / (math.pi * a2 * h2 * h2)
     return jnp.where(ok, d, 0.0)
@@ -111,8 +111,8 @@ def facet_weight(alpha, theta, sin_theta=None, distribution="beckmann"):
     a2 = alpha * alpha
     if distribution == "ggx":
         return a2 * c / (math.pi * (a2 * c * c + s * s) ** 2)
-    x = s * s / (a2 * jnp.maximum(c * c, 1e-200))    # tan^2 / alpha^2 (a _safe_div here
-    near = x < BECKMANN_CUT                          # makes the engine 30 % slower)
+    x = s * s / (a2 * jnp.maximum(c * c, 1e-200))  # tan^2 / alpha^2 (a _safe_div here
+    near = x < BECKMANN_CUT  # makes the engine 30 % slower)
     cs = jnp.where(near, c, 1.0)
     return jnp.where(near, jnp.exp(-jnp.where(near, x, 0.0)) / (math.pi * a2 * cs * cs * cs), 0.0)
 
@@ -125,8 +125,9 @@ def microfacet_lobe(alpha, wi, wo, h, reflectance, distribution="beckmann"):
     c = wo[..., 0] * h[..., 0] + wo[..., 1] * h[..., 1] + wo[..., 2] * h[..., 2]
     ok = (ci > 0) & (co > 0) & (hz > 0) & (c > 0)
     ci_s, co_s = jnp.where(ok, ci, 1.0), jnp.where(ok, co, 1.0)
-    g = (smith_g1(ci_s, wi[..., 0] ** 2 + wi[..., 1] ** 2, alpha, distribution)
-         * smith_g1(co_s, wo[..., 0] ** 2 + wo[..., 1] ** 2, alpha, distribution))
+    g = smith_g1(ci_s, wi[..., 0] ** 2 + wi[..., 1] ** 2, alpha, distribution) * smith_g1(
+        co_s, wo[..., 0] ** 2 + wo[..., 1] ** 2, alpha, distribution
+    )
     d = ndf(hz, h[..., 0] ** 2 + h[..., 1] ** 2, alpha, distribution)
     f = reflectance(jnp.where(ok, c, 1.0))
     return jnp.where(ok, f * d * g / (4.0 * co_s), 0.0)
@@ -134,5 +135,6 @@ def microfacet_lobe(alpha, wi, wo, h, reflectance, distribution="beckmann"):
 
 def check_distribution(distribution) -> None:
     if distribution not in DISTRIBUTIONS:
-        raise ParameterError(f"distribution = {distribution!r}; expected one of "
-                             f"{', '.join(DISTRIBUTIONS)}")
+        raise ParameterError(
+            f"distribution = {distribution!r}; expected one of {', '.join(DISTRIBUTIONS)}"
+        )

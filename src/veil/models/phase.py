@@ -76,7 +76,7 @@ def hg_inverse_cone_fraction(g, frac):
 # test_forward_series_phase_tables_hold_their_accuracy_over_the_parameter_range).
 MIXTURE_NODES = 512
 PDF_NODES = 8192
-_X_MAX = 2.0 ** 0.25
+_X_MAX = 2.0**0.25
 
 
 def _hg_pdf_slope(g, one_minus_mu):
@@ -123,26 +123,27 @@ def mixture_table(c, gk, nodes: int | None = None):
     n = MIXTURE_NODES if nodes is None else nodes
     hx = _X_MAX / n
     x = jnp.linspace(0.0, _X_MAX, n + 1)
-    x3 = x ** 3
-    omm = x ** 4
+    x3 = x**3
+    omm = x**4
     f, p, dp = _terms(c, gk, omm, slope=True)
     # G = F / (1 - cos): smooth at the peak, where F itself grows as x^4 (no cubic fits it);
     # dG/dx = 4 (2 pi p - G) / x, 0 at x = 0
     pos = x > 0
     g_val = jnp.where(pos, f / jnp.where(pos, omm, 1.0), 2.0 * math.pi * p)
     g_slope = jnp.where(pos, 4.0 * (2.0 * math.pi * p - g_val) / jnp.where(pos, x, 1.0), 0.0)
-    by_x = jnp.stack(_hermite_rows(g_val, g_slope, hx) + _hermite_rows(p, dp * 4.0 * x3, hx),
-                     axis=-1)
+    by_x = jnp.stack(
+        _hermite_rows(g_val, g_slope, hx) + _hermite_rows(p, dp * 4.0 * x3, hx), axis=-1
+    )
     total = f[-1]
     t = jnp.linspace(0.0, 1.0, n + 1)
-    t4 = t ** 4
+    t4 = t**4
     target = total * -jnp.expm1(_M * jnp.log1p(-jnp.minimum(t4, 1.0 - 1e-300)))
     target = jnp.where(t4 < 1.0, target, total)
     # start from linear interpolation in the F table, Newton steps on the exact F (in 1 - cos)
     fs, ts = jax.lax.stop_gradient(f), jax.lax.stop_gradient(target)
     xs = jnp.interp(ts, fs, jax.lax.stop_gradient(x))
     cs, gs = jax.lax.stop_gradient(c), jax.lax.stop_gradient(gk)
-    om = xs ** 4
+    om = xs**4
     for _ in range(5):
         fv, pv = _terms(cs, gs, om)
         om = jnp.clip(om - (fv - ts) / jnp.maximum(2.0 * math.pi * pv, 1e-300), 0.0, 2.0)
@@ -156,14 +157,19 @@ def mixture_table(c, gk, nodes: int | None = None):
     # (F_total M / (2 pi p(0)))^(1/4)
     ok = xv > 0
     ratio = jnp.where(ok, t / jnp.where(ok, xv, 1.0), 0.0)
-    dxdt = jnp.where(ok, total * _M * (1.0 - t4) ** (_M - 1) * ratio ** 3 / (2.0 * math.pi * pv),
-                     jnp.sqrt(jnp.sqrt(total * _M / (2.0 * math.pi * pv))))
-    by_t = jnp.stack(_hermite_rows(xv, dxdt, 1.0 / n)
-                     + _hermite_rows(pv, dpv * 4.0 * xv ** 3 * dxdt, 1.0 / n), axis=-1)
+    dxdt = jnp.where(
+        ok,
+        total * _M * (1.0 - t4) ** (_M - 1) * ratio**3 / (2.0 * math.pi * pv),
+        jnp.sqrt(jnp.sqrt(total * _M / (2.0 * math.pi * pv))),
+    )
+    by_t = jnp.stack(
+        _hermite_rows(xv, dxdt, 1.0 / n) + _hermite_rows(pv, dpv * 4.0 * xv**3 * dxdt, 1.0 / n),
+        axis=-1,
+    )
     # the density alone, for the engine's many point evaluations: a finer table read by
     # linear interpolation (two scalar gathers; a lookup's cost is the bytes it moves)
     xf = jnp.linspace(0.0, _X_MAX, PDF_NODES + 1)
-    _, pf = _terms(c, gk, xf ** 4)
+    _, pf = _terms(c, gk, xf**4)
     return by_x, by_t, total, pf
 
 
@@ -202,9 +208,13 @@ def _apart(fn, table, x):
     A conditional on a value known only at run time (the table's total, positive for every
     valid parameter vector) keeps its branch out of the surrounding fusions; the other branch
     gives NaN (a NaN table would give NaN anyway)."""
-    return jax.lax.cond(table[2] > 0, fn,
-                        lambda t, y: jax.tree.map(lambda z: jnp.full_like(z, jnp.nan), fn(t, y)),
-                        table, x)
+    return jax.lax.cond(
+        table[2] > 0,
+        fn,
+        lambda t, y: jax.tree.map(lambda z: jnp.full_like(z, jnp.nan), fn(t, y)),
+        table,
+        x,
+    )
 
 
 def _lerp(table, u):
@@ -218,8 +228,9 @@ def _lerp(table, u):
 def mixture_pdf(table, one_minus_mu):
     """The tabulated mixture's density per steradian (linear in x on the fine table)."""
     n = table[3].shape[0] - 1
-    u = jnp.clip(jnp.sqrt(jnp.sqrt(jnp.clip(one_minus_mu, 0.0, 2.0))) * (n / _X_MAX), 0.0,
-                 n * (1.0 - 1e-12))
+    u = jnp.clip(
+        jnp.sqrt(jnp.sqrt(jnp.clip(one_minus_mu, 0.0, 2.0))) * (n / _X_MAX), 0.0, n * (1.0 - 1e-12)
+    )
     return _apart(_lerp, table, u)  # the index in vector code, the lookup apart
 
 

@@ -52,14 +52,17 @@ def register(cls: type[Model]) -> type[Model]:
     checked here, so a family with an inconsistent declaration never runs."""
     name = getattr(cls, "NAME", None)
     if not isinstance(name, str) or not name or name != name.strip().lower():
-        raise ValueError(f"{cls.__name__}.NAME = {name!r}: a registered model needs a "
-                         f"lower-case name")
+        raise ValueError(
+            f"{cls.__name__}.NAME = {name!r}: a registered model needs a lower-case name"
+        )
     if getattr(cls, "KIND", None) not in KINDS:
-        raise ValueError(f"{cls.__name__}.KIND = {getattr(cls, 'KIND', None)!r}; expected one "
-                         f"of {KINDS}")
+        raise ValueError(
+            f"{cls.__name__}.KIND = {getattr(cls, 'KIND', None)!r}; expected one of {KINDS}"
+        )
     if REGISTRY.get(name, cls) is not cls:
-        raise ValueError(f"a model named {name!r} is already registered "
-                         f"({REGISTRY[name].__name__})")
+        raise ValueError(
+            f"a model named {name!r} is already registered ({REGISTRY[name].__name__})"
+        )
     names = cls.param_names()
     if not names or len(set(names)) != len(names):
         raise ValueError(f"{cls.__name__}.PARAMS must name each parameter once")
@@ -71,20 +74,27 @@ def register(cls: type[Model]) -> type[Model]:
             raise ValueError(f"{cls.__name__}.SCALES[{part!r}] = {pname!r} is not a parameter")
     for role, grid in cls.START.items():
         if role not in ROLES[cls.KIND]:
-            raise ValueError(f"{cls.__name__}.START has role {role!r}; a {cls.KIND} fit has "
-                             f"roles {ROLES[cls.KIND]}")
+            raise ValueError(
+                f"{cls.__name__}.START has role {role!r}; a {cls.KIND} fit has "
+                f"roles {ROLES[cls.KIND]}"
+            )
         for pname in grid:
             if pname not in names or pname in cls.SCALES.values():
-                raise ValueError(f"{cls.__name__}.START[{role!r}] lists {pname!r}, which is "
-                                 f"not a parameter other than a scale")
+                raise ValueError(
+                    f"{cls.__name__}.START[{role!r}] lists {pname!r}, which is "
+                    f"not a parameter other than a scale"
+                )
     for p in cls.PARAMS:
         if p.start is None or not p.contains(p.start):
-            raise ValueError(f"{cls.__name__}: parameter {p.name} needs a start value inside "
-                             f"{p.interval()}")
+            raise ValueError(
+                f"{cls.__name__}: parameter {p.name} needs a start value inside {p.interval()}"
+            )
     missing = [m for m in _interface(cls) if _abstract(cls, m)]
     if missing:
-        raise ValueError(f"{cls.__name__} declares {cls.KIND} parts whose functions it does not "
-                         f"define: {', '.join(missing)}")
+        raise ValueError(
+            f"{cls.__name__} declares {cls.KIND} parts whose functions it does not "
+            f"define: {', '.join(missing)}"
+        )
     cls.template()  # the declared options and starting values make a valid model
     REGISTRY[name] = cls
     return cls
@@ -105,8 +115,10 @@ def _interface(cls) -> list[str]:
         needed += ["phase", "phase_cone_fraction", "phase_inverse_cone_fraction"]
     bad = [c for c in cls.COMPONENTS if c not in ("delta", "iso", "lobe")]
     if bad or list(cls.COMPONENTS) != sorted(cls.COMPONENTS, key=("delta", "iso", "lobe").index):
-        raise ValueError(f"{cls.__name__}.COMPONENTS = {cls.COMPONENTS!r}: expected some of "
-                         f"delta, iso, lobe in that order")
+        raise ValueError(
+            f"{cls.__name__}.COMPONENTS = {cls.COMPONENTS!r}: expected some of "
+            f"delta, iso, lobe in that order"
+        )
     return needed
 
 
@@ -140,8 +152,10 @@ def _load_plugins() -> None:
         try:
             importlib.import_module(module)
         except Exception as exc:
-            _plugin_error = InputError(f"VEIL_PLUGINS names module {module!r}, which cannot be "
-                                       f"imported ({type(exc).__name__}: {exc})")
+            _plugin_error = InputError(
+                f"VEIL_PLUGINS names module {module!r}, which cannot be "
+                f"imported ({type(exc).__name__}: {exc})"
+            )
             raise _plugin_error from None
     from importlib.metadata import entry_points
 
@@ -149,8 +163,10 @@ def _load_plugins() -> None:
         try:
             ep.load()
         except Exception as exc:
-            _plugin_error = InputError(f"the veil.models entry point {ep.name!r} ({ep.value}) "
-                                       f"cannot be loaded ({type(exc).__name__}: {exc})")
+            _plugin_error = InputError(
+                f"the veil.models entry point {ep.name!r} ({ep.value}) "
+                f"cannot be loaded ({type(exc).__name__}: {exc})"
+            )
             raise _plugin_error from None
 
 
@@ -158,8 +174,9 @@ def names(kind: str | None = None) -> list[str]:
     """Registered family names (of one kind): BRDFs first, the paper's first of each kind."""
     _load_plugins()
     found = [n for n, c in REGISTRY.items() if kind is None or c.KIND == kind]
-    return sorted(found, key=lambda n: (KINDS.index(REGISTRY[n].KIND),
-                                        n not in DEFAULTS.values(), n))
+    return sorted(
+        found, key=lambda n: (KINDS.index(REGISTRY[n].KIND), n not in DEFAULTS.values(), n)
+    )
 
 
 @overload
@@ -242,6 +259,20 @@ def preset(name: str, kind: str | None = None) -> Model:
     return model
 
 
-__all__ = ["REGISTRY", "FAMILIES", "DEFAULTS", "AUTO", "PAPER", "MODES", "APPARATUS_OPTIONS",
-           "PRESETS", "register", "names", "model_class", "default_class", "ranked_options",
-           "candidates", "preset"]
+__all__ = [
+    "REGISTRY",
+    "FAMILIES",
+    "DEFAULTS",
+    "AUTO",
+    "PAPER",
+    "MODES",
+    "APPARATUS_OPTIONS",
+    "PRESETS",
+    "register",
+    "names",
+    "model_class",
+    "default_class",
+    "ranked_options",
+    "candidates",
+    "preset",
+]

@@ -78,14 +78,18 @@ class Value:
         if self.kind == "rgb" and isinstance(self.value, tuple):
             rgb = tuple(float(x) for x in self.value)
             if len(rgb) != 3 or not all(math.isfinite(x) for x in rgb):
-                raise Unsupported(f"{self.name} = {self.value!r}: expected three finite "
-                                  f"numbers (r, g, b); a renderer cannot take it")
+                raise Unsupported(
+                    f"{self.name} = {self.value!r}: expected three finite "
+                    f"numbers (r, g, b); a renderer cannot take it"
+                )
             object.__setattr__(self, "value", rgb)
         elif self.kind in ("float", "spectrum", "rgb"):
             v = float(cast(SupportsFloat, self.value))  # these kinds hold a number
             if not math.isfinite(v):
-                raise Unsupported(f"{self.name} = {self.value!r} is not a finite number; a "
-                                  f"renderer cannot take it")
+                raise Unsupported(
+                    f"{self.name} = {self.value!r} is not a finite number; a "
+                    f"renderer cannot take it"
+                )
             object.__setattr__(self, "value", v)
 
     @property
@@ -135,5 +139,13 @@ def intensity_scale(setting: Setting, default: float) -> float:
     return float(scale)
 
 
-__all__ = ["RENDERER_NAMES", "VALUE_KINDS", "Unsupported", "Setting", "Value", "Plugin",
-           "float_value", "intensity_scale"]
+__all__ = [
+    "RENDERER_NAMES",
+    "VALUE_KINDS",
+    "Unsupported",
+    "Setting",
+    "Value",
+    "Plugin",
+    "float_value",
+    "intensity_scale",
+]

@@ -75,40 +75,67 @@ def rough_conductor(v, wi, wo, distribution="beckmann"):
     h = s / jnp.sqrt(jnp.maximum(jnp.sum(s * s, axis=-1, keepdims=True), 1e-300))
     return RoughConductor.template(distribution=distribution)._lobe(v, wi, wo, h)
 
+
 # -- renderers (veil.models.renderers, docs/interop.md) --------------------------------------
 def _conductor_mitsuba(model, setting) -> Plugin:
     scale, _, ks, lost = relative_scales(
-        model, setting, "ks / scale = {ks} != 1 has no physical counterpart: it becomes "
-        "Mitsuba's specular_reflectance, a non-physical factor", diffuse=False)
+        model,
+        setting,
+        "ks / scale = {ks} != 1 has no physical counterpart: it becomes "
+        "Mitsuba's specular_reflectance, a non-physical factor",
+        diffuse=False,
+    )
     if model.distribution == "beckmann":
-        lost.append("Mitsuba's Beckmann G1 is Walter et al.'s rational approximation (up to "
-                    "0.35 % per factor, 0.5 % on f_r; docs/physics.md sec. 3)")
-    lost.append("eta and k are relative to the medium around the surface, as veil's n and k "
-                "(Mitsuba's roughconductor has no exterior index)")
-    return Plugin("bsdf", "roughconductor", (
-        Value("distribution", "string", model.distribution),
-        float_value("alpha", model.alpha),
-        float_value("eta", model.n, colour=True),
-        float_value("k", model.k, colour=True),
-        float_value("specular_reflectance", ks, colour=True),
-    ), lost=tuple(lost), scale=scale)
+        lost.append(
+            "Mitsuba's Beckmann G1 is Walter et al.'s rational approximation (up to "
+            "0.35 % per factor, 0.5 % on f_r; docs/physics.md sec. 3)"
+        )
+    lost.append(
+        "eta and k are relative to the medium around the surface, as veil's n and k "
+        "(Mitsuba's roughconductor has no exterior index)"
+    )
+    return Plugin(
+        "bsdf",
+        "roughconductor",
+        (
+            Value("distribution", "string", model.distribution),
+            float_value("alpha", model.alpha),
+            float_value("eta", model.n, colour=True),
+            float_value("k", model.k, colour=True),
+            float_value("specular_reflectance", ks, colour=True),
+        ),
+        lost=tuple(lost),
+        scale=scale,
+    )
 
 
 def _conductor_pbrt(model, setting) -> Plugin:
     if model.distribution != "ggx":
-        raise Unsupported(f"pbrt-v4 has only the Trowbridge-Reitz (GGX) microfacet "
-                          f"distribution; this {RoughConductor.NAME} result uses "
-                          f"{model.distribution} (export it to Mitsuba, which has both)")
+        raise Unsupported(
+            f"pbrt-v4 has only the Trowbridge-Reitz (GGX) microfacet "
+            f"distribution; this {RoughConductor.NAME} result uses "
+            f"{model.distribution} (export it to Mitsuba, which has both)"
+        )
     scale, _, ks, lost = relative_scales(
-        model, setting, "ks / scale = {ks} is lost: pbrt's conductor has no specular factor "
-        "(the render has ks / scale = 1)", diffuse=False)
+        model,
+        setting,
+        "ks / scale = {ks} is lost: pbrt's conductor has no specular factor "
+        "(the render has ks / scale = 1)",
+        diffuse=False,
+    )
     lost.append("eta and k are relative to the medium around the surface (constant spectra)")
-    return Plugin("material", "conductor", (
-        Value("eta", "spectrum", model.n),
-        Value("k", "spectrum", model.k),
-        float_value("roughness", model.alpha),
-        Value("remaproughness", "boolean", False),
-    ), lost=tuple(lost), scale=scale)
+    return Plugin(
+        "material",
+        "conductor",
+        (
+            Value("eta", "spectrum", model.n),
+            Value("k", "spectrum", model.k),
+            float_value("roughness", model.alpha),
+            Value("remaproughness", "boolean", False),
+        ),
+        lost=tuple(lost),
+        scale=scale,
+    )
 
 
 @dataclass(frozen=True)
@@ -131,25 +158,61 @@ class RoughConductor(MicrofacetFacets, BRDF):
     LABEL = "rough conductor: metallic microfacets, complex index (sec. 8.3)"
     SCALES = {"lobe": "ks"}
     PARAMS = (
-        Param("alpha", 1e-3, 1.0, "RMS slope of the microfacets", log_scale=True, start=0.1,
-              channels="shared"),
+        Param(
+            "alpha",
+            1e-3,
+            1.0,
+            "RMS slope of the microfacets",
+            log_scale=True,
+            start=0.1,
+            channels="shared",
+        ),
         # a metal's colour is its spectral complex index: per channel (docs/model.md 8.3)
-        Param("n", 0.0, 10.0, "real part of the metal's refractive index relative to the "
-              "surrounding medium", lower_open=True, start=1.0, channels="per-channel"),
-        Param("k", 0.0, 20.0, "imaginary part (extinction coefficient) of the relative index",
-              start=3.0, channels="per-channel"),
-        Param("ks", 0.0, math.inf, "specular scale, relative units (scale of the lobe)",
-              log_scale=True, start=1.0, channels="per-channel"),
+        Param(
+            "n",
+            0.0,
+            10.0,
+            "real part of the metal's refractive index relative to the surrounding medium",
+            lower_open=True,
+            start=1.0,
+            channels="per-channel",
+        ),
+        Param(
+            "k",
+            0.0,
+            20.0,
+            "imaginary part (extinction coefficient) of the relative index",
+            start=3.0,
+            channels="per-channel",
+        ),
+        Param(
+            "ks",
+            0.0,
+            math.inf,
+            "specular scale, relative units (scale of the lobe)",
+            log_scale=True,
+            start=1.0,
+            channels="per-channel",
+        ),
     )
-    OPTIONS = (Option("distribution", "beckmann", "microfacet distribution: beckmann or ggx",
-                      DISTRIBUTIONS),)
+    OPTIONS = (
+        Option(
+            "distribution", "beckmann", "microfacet distribution: beckmann or ggx", DISTRIBUTIONS
+        ),
+    )
     #: Starting grids: the roughness widely, a few metals' indices in a clear-water fit; the
     #: index barely shows through a medium, so a target fit starts at one.
     START = {
-        "reference": {"alpha": (0.02, 0.04, 0.08, 0.15, 0.3, 0.6), "n": (0.3, 1.0, 2.5),
-                      "k": (1.5, 4.0)},
-        "target": {"alpha": (0.02, 0.03, 0.05, 0.08, 0.12, 0.2, 0.3, 0.45, 0.6), "n": (1.0,),
-                   "k": (3.0,)},
+        "reference": {
+            "alpha": (0.02, 0.04, 0.08, 0.15, 0.3, 0.6),
+            "n": (0.3, 1.0, 2.5),
+            "k": (1.5, 4.0),
+        },
+        "target": {
+            "alpha": (0.02, 0.03, 0.05, 0.08, 0.12, 0.2, 0.3, 0.45, 0.6),
+            "n": (1.0,),
+            "k": (3.0,),
+        },
     }
     HAS_LOBE = True
     #: The renderers' own plugins for it (veil.models.renderers).
@@ -157,8 +220,9 @@ class RoughConductor(MicrofacetFacets, BRDF):
 
     def _lobe(self, v, wi, wo, h):
         n, k = v[1], v[2]
-        return v[3] * microfacet_lobe(v[0], wi, wo, h,
-                                      lambda c: conductor_reflectance(c, n, k), self.distribution)
+        return v[3] * microfacet_lobe(
+            v[0], wi, wo, h, lambda c: conductor_reflectance(c, n, k), self.distribution
+        )
 
     # -- the split used by the integrator: no separable part (methods of the instance:
     # they read the distribution option) -----------------------------------------------
@@ -168,4 +232,3 @@ class RoughConductor(MicrofacetFacets, BRDF):
 
     def lobe(self, v, wi, wo, h, alpha=None) -> Array:
         return self._lobe(v, wi, wo, h)
-

@@ -75,7 +75,7 @@ def _gauss(n: int, smooth: bool = False):
     x, w = np.polynomial.legendre.leggauss(n)
     x, w = 0.5 * (x + 1.0), 0.5 * w
     if smooth:
-        x, w = 3 * x * x - 2 * x ** 3, w * 6 * x * (1 - x)
+        x, w = 3 * x * x - 2 * x**3, w * 6 * x * (1 - x)
     return x, w
 
 
@@ -86,10 +86,10 @@ def _spline_matrix(n: int) -> ndarray:
     a = np.zeros((n, n))
     b = np.zeros((n, n))
     for i in range(1, n - 1):
-        a[i, i - 1:i + 2] = (1.0, 4.0, 1.0)
-        b[i, i - 1:i + 2] = (6.0, -12.0, 6.0)
-    a[0, :3] = (1.0, -2.0, 1.0)      # not-a-knot: the third derivative is continuous at
-    a[-1, -3:] = (1.0, -2.0, 1.0)    # the second and the last but one knot
+        a[i, i - 1 : i + 2] = (1.0, 4.0, 1.0)
+        b[i, i - 1 : i + 2] = (6.0, -12.0, 6.0)
+    a[0, :3] = (1.0, -2.0, 1.0)  # not-a-knot: the third derivative is continuous at
+    a[-1, -3:] = (1.0, -2.0, 1.0)  # the second and the last but one knot
     return np.linalg.solve(a, b)
 
 
@@ -106,21 +106,22 @@ def _slopes(alpha, cot_theta, distribution, n, tail_break):
     u (dN = du dphi / 2 pi), split where r = ``cot_theta`` (K,) and, for GGX, at
     r = ``tail_break`` (its heavy tail changes on that scale)."""
     zero = jnp.zeros_like(cot_theta)
-    if distribution == "ggx":   # beta = atan(r / alpha), u = sin^2 beta
+    if distribution == "ggx":  # beta = atan(r / alpha), u = sin^2 beta
         x, w = _gauss(n, smooth=True)
         bc = jnp.arctan(cot_theta / alpha)
         bt = jnp.arctan(tail_break / alpha) + zero
         beta, wb = _pieces([zero, jnp.minimum(bc, bt), jnp.maximum(bc, bt), zero + HALF_PI], x, w)
         beta = jnp.minimum(beta, HALF_PI - 1e-12)
         return alpha * jnp.tan(beta), wb * jnp.sin(2.0 * beta)
-    x, w = _gauss(n)              # rho = r / alpha, u = 1 - exp(-rho^2)
+    x, w = _gauss(n)  # rho = r / alpha, u = 1 - exp(-rho^2)
     rc = jnp.minimum(cot_theta / alpha, BECKMANN_END)
     rho, wr = _pieces([zero, rc, zero + BECKMANN_END], x, w)
     return alpha * rho, wr * 2.0 * rho * jnp.exp(-rho * rho)
 
 
-def transmittance_at(alpha, eta, mu, distribution="beckmann", n_radial=T_RADIAL,
-                     n_azimuth=T_AZIMUTH):
+def transmittance_at(
+    alpha, eta, mu, distribution="beckmann", n_radial=T_RADIAL, n_azimuth=T_AZIMUTH
+):
     """t(mu) for an array of incidence cosines ``mu`` (K,) in [0, 1], by quadrature over the
     visible normals in slope space (s = r (cos phi, sin phi); (v.m)^+ D(m) dm =
     (cos theta - r sin theta cos phi)^+ dN): r split where the visibility cut enters, phi
@@ -129,36 +130,37 @@ def transmittance_at(alpha, eta, mu, distribution="beckmann", n_radial=T_RADIAL,
     ct = jnp.clip(mu, 0.0, 1.0)
     st = _safe_sqrt(1.0 - ct * ct)
     cot = jnp.minimum(_safe_div(ct, st, 1e150), 1e150)
-    r, wr = _slopes(alpha, cot, distribution, n_radial, 1.0)          # (K, N)
+    r, wr = _slopes(alpha, cot, distribution, n_radial, 1.0)  # (K, N)
     y, wy = _gauss(n_azimuth)
-    k = _safe_div(ct[:, None], st[:, None] * r, 2.0)                   # cos phi_c
+    k = _safe_div(ct[:, None], st[:, None] * r, 2.0)  # cos phi_c
     cut = k < 1.0
-    phic = jnp.where(cut, jnp.arccos(jnp.where(cut, k, 0.0)), 0.0)     # visible: phi > phi_c
+    phic = jnp.where(cut, jnp.arccos(jnp.where(cut, k, 0.0)), 0.0)  # visible: phi > phi_c
     span = math.pi - phic
-    phi = phic[..., None] + span[..., None] * y                        # (K, N, A)
+    phi = phic[..., None] + span[..., None] * y  # (K, N, A)
     wphi = span[..., None] * wy
     cp, sp = jnp.cos(phi), jnp.sin(phi)
     rr = r[..., None]
     stt, ctt = st[:, None, None], ct[:, None, None]
-    proj = jnp.maximum(ctt - rr * stt * cp, 0.0)          # (v.m) / cos theta_m
-    inv_norm = 1.0 / jnp.sqrt(1.0 + rr * rr)              # cos theta_m
-    c = proj * inv_norm                                   # v.m
+    proj = jnp.maximum(ctt - rr * stt * cp, 0.0)  # (v.m) / cos theta_m
+    inv_norm = 1.0 / jnp.sqrt(1.0 + rr * rr)  # cos theta_m
+    c = proj * inv_norm  # v.m
     f = fresnel.reflectance(c, eta)
     cos_t = jnp.sqrt(jnp.maximum(1.0 - (1.0 - c * c) / (eta * eta), 0.0))
-    kk = c / eta - cos_t                                  # w_t = -v / eta + kk m
+    kk = c / eta - cos_t  # w_t = -v / eta + kk m
     mx, my, mz = -rr * cp * inv_norm, -rr * sp * inv_norm, inv_norm
     wtx = -stt / eta + kk * mx
     wty = kk * my
     wtz = -ctt / eta + kk * mz
-    below = wtz < 0.0                                     # the refracted ray goes down
+    below = wtz < 0.0  # the refracted ray goes down
     g = smith_g1(jnp.where(below, -wtz, 0.0), wtx * wtx + wty * wty, alpha, distribution)
     h = jnp.where(below, (1.0 - f) * g, 0.0)
     weight = wr[..., None] * wphi * proj
     return jnp.sum(weight * h, axis=(1, 2)) / jnp.sum(weight, axis=(1, 2))
 
 
-def internal_reflectance(alpha, eta, distribution="beckmann", n_radial=F_RADIAL,
-                         n_polar=F_POLAR, n_azimuth=F_AZIMUTH):
+def internal_reflectance(
+    alpha, eta, distribution="beckmann", n_radial=F_RADIAL, n_polar=F_POLAR, n_azimuth=F_AZIMUTH
+):
     """F_int = 2 Int_0^1 mu R(mu; 1/eta) dmu: the cosine-weighted hemispherical reflectance of
     the rough interface seen from inside (Fresnel at 1/eta with total internal reflection,
     Smith G1 of both rays). Integrated in the frame of the facet normal m,
@@ -169,7 +171,7 @@ def internal_reflectance(alpha, eta, distribution="beckmann", n_radial=F_RADIAL,
     cut chi = asin(1/eta) and the horizons are |cos psi| < cot chi cot theta_m."""
     inv = 1.0 / eta
     chi_c = jnp.arcsin(inv)
-    cot_c = jnp.sqrt(eta * eta - 1.0)                 # tan(pi/2 - chi_c)
+    cot_c = jnp.sqrt(eta * eta - 1.0)  # tan(pi/2 - chi_c)
     if distribution == "ggx":
         x, w = _gauss(n_radial)
         bb = jnp.arctan(cot_c / alpha)
@@ -185,28 +187,29 @@ def internal_reflectance(alpha, eta, distribution="beckmann", n_radial=F_RADIAL,
         wm = wm * 2.0 * rho * jnp.exp(-rho * rho)
     cm = 1.0 / jnp.sqrt(1.0 + tm * tm)
     sm = tm * cm
-    wm = wm / cm                                      # D(m) dm = du dphi_m / (2 pi cos theta_m)
-    chi_k = HALF_PI - jnp.arctan(tm)                  # where the horizons start to cut
+    wm = wm / cm  # D(m) dm = du dphi_m / (2 pi cos theta_m)
+    chi_k = HALF_PI - jnp.arctan(tm)  # where the horizons start to cut
     lo, hi = jnp.minimum(chi_c, chi_k), jnp.maximum(chi_c, chi_k)
     zero = jnp.zeros_like(chi_k)
     xc, wc = _gauss(n_polar, smooth=True)
-    chi, wchi = _pieces([zero, lo, hi, zero + HALF_PI], xc, wc)        # (M, 3 n)
+    chi, wchi = _pieces([zero, lo, hi, zero + HALF_PI], xc, wc)  # (M, 3 n)
     cchi, schi = jnp.cos(chi), jnp.sin(chi)
     wchi = wchi * schi * cchi * fresnel.reflectance(cchi, inv)
-    kk = _safe_div(cchi * cm[:, None], schi * sm[:, None], 2.0)        # cot chi cot theta_m
+    kk = _safe_div(cchi * cm[:, None], schi * sm[:, None], 2.0)  # cot chi cot theta_m
     cut = kk < 1.0
     psi0 = jnp.where(cut, jnp.arccos(jnp.where(cut, kk, 0.0)), 0.0)
     xp, wp = _gauss(n_azimuth)
     span = HALF_PI - psi0
     psi = psi0[..., None] + span[..., None] * xp
-    wpsi = 4.0 * span[..., None] * wp                 # four symmetric quarters of the circle
+    wpsi = 4.0 * span[..., None] * wp  # four symmetric quarters of the circle
     a = (cchi * cm[:, None])[..., None]
     b = (schi * sm[:, None])[..., None]
     cps = jnp.cos(psi)
     vz = jnp.clip(a - b * cps, 0.0, 1.0)
     wz = jnp.clip(a + b * cps, 0.0, 1.0)
-    g = (smith_g1(vz, 1.0 - vz * vz, alpha, distribution)
-         * smith_g1(wz, 1.0 - wz * wz, alpha, distribution))
+    g = smith_g1(vz, 1.0 - vz * vz, alpha, distribution) * smith_g1(
+        wz, 1.0 - wz * wz, alpha, distribution
+    )
     inner = jnp.sum(wpsi * g, axis=-1)
     return jnp.sum(wm[:, None] * wchi * inner) / math.pi
 
@@ -230,13 +233,12 @@ def transmittance_lookup(alpha, tables, mu):
     """t(mu) from the tables of :func:`interface_tables` (mu in [0, 1])."""
     t, m2 = tables[0], tables[1]
     c = jnp.clip(mu, 0.0, 1.0)
-    gamma = jnp.arctan2(c, _safe_sqrt(1.0 - c * c))       # pi/2 - theta
+    gamma = jnp.arctan2(c, _safe_sqrt(1.0 - c * c))  # pi/2 - theta
     x = jnp.arcsinh(gamma / alpha) / _table_map(alpha) * (TABLE_NODES - 1)
     i = jnp.clip(jnp.floor(x), 0, TABLE_NODES - 2).astype(int)
     s = x - i
     q = 1.0 - s
-    return (q * t[i] + s * t[i + 1]
-            + ((q * q * q - q) * m2[i] + (s * s * s - s) * m2[i + 1]) / 6.0)
+    return q * t[i] + s * t[i + 1] + ((q * q * q - q) * m2[i] + (s * s * s - s) * m2[i + 1]) / 6.0
 
 
 def diffuse_factors(v, tables, cos_i, cos_r, nonlinear=False):
@@ -245,8 +247,11 @@ def diffuse_factors(v, tables, cos_i, cos_r, nonlinear=False):
     f_int = tables[2]
     rho_eff = rho / (1.0 - (rho * f_int if nonlinear else f_int))
     up_i, up_r = cos_i > 0, cos_r > 0
-    s = jnp.where(up_i, rho_eff * transmittance_lookup(alpha, tables, cos_i) * cos_i
-                  / (math.pi * eta * eta), 0.0)
+    s = jnp.where(
+        up_i,
+        rho_eff * transmittance_lookup(alpha, tables, cos_i) * cos_i / (math.pi * eta * eta),
+        0.0,
+    )
     t = jnp.where(up_r, transmittance_lookup(alpha, tables, cos_r), 0.0)
     return s, t
 
@@ -258,12 +263,13 @@ def rough_plastic(v, wi, wo, distribution="beckmann", nonlinear=False):
     alpha, eta = v[1], v[2]
     s = wi + wo
     h = s / jnp.sqrt(jnp.maximum(jnp.sum(s * s, axis=-1, keepdims=True), 1e-300))
-    spec = v[3] * microfacet_lobe(alpha, wi, wo, h, lambda c: fresnel.reflectance(c, eta),
-                                  distribution)
-    a, b = diffuse_factors(v, interface_tables(alpha, eta, distribution), wi[..., 2],
-                           wo[..., 2], nonlinear)
+    spec = v[3] * microfacet_lobe(
+        alpha, wi, wo, h, lambda c: fresnel.reflectance(c, eta), distribution
+    )
+    a, b = diffuse_factors(
+        v, interface_tables(alpha, eta, distribution), wi[..., 2], wo[..., 2], nonlinear
+    )
     return jnp.where((wi[..., 2] > 0) & (wo[..., 2] > 0), spec + a * b, 0.0)
-
 
 
 # --------------------------------------------------------------------------------------
@@ -287,50 +293,76 @@ def relative_scales(model, setting, ks_lost: str, diffuse: bool = True):
     rho = model.rho / scale if diffuse else 0.0
     ks = model.ks / scale
     names = "rho and ks are" if diffuse else "ks is"
-    lost = [f"veil's {names} relative (light x camera gain): divided by the intensity "
-            f"scale {scale:.6g}; a render under unit irradiance times {scale:.6g} is "
-            f"veil's value"]
+    lost = [
+        f"veil's {names} relative (light x camera gain): divided by the intensity "
+        f"scale {scale:.6g}; a render under unit irradiance times {scale:.6g} is "
+        f"veil's value"
+    ]
     if abs(ks - 1.0) > 1e-12:
         lost.append(ks_lost.format(ks=f"{ks:.6g}"))
     if rho > 1.0:
-        lost.append(f"rho / scale = {rho:.6g} > 1 is not a physical albedo (the renderer "
-                    f"takes it as given)")
+        lost.append(
+            f"rho / scale = {rho:.6g} > 1 is not a physical albedo (the renderer takes it as given)"
+        )
     return scale, rho, ks, lost
 
 
 def _plastic_mitsuba(model, setting) -> Plugin:
     scale, rho, ks, lost = relative_scales(
-        model, setting, "ks / scale = {ks} != 1 has no physical counterpart: it becomes "
-        "Mitsuba's specular_reflectance, a non-physical factor on the specular part")
-    return Plugin("bsdf", "roughplastic", (
-        Value("distribution", "string", model.distribution),
-        float_value("alpha", model.alpha),
-        float_value("int_ior", model.eta * setting.ext_ior),
-        float_value("ext_ior", setting.ext_ior),
-        float_value("diffuse_reflectance", rho, colour=True),
-        float_value("specular_reflectance", ks, colour=True),
-        Value("nonlinear", "boolean", bool(model.nonlinear)),
-    ), lost=tuple(lost) + MITSUBA_PLASTIC_LOST, scale=scale)
+        model,
+        setting,
+        "ks / scale = {ks} != 1 has no physical counterpart: it becomes "
+        "Mitsuba's specular_reflectance, a non-physical factor on the specular part",
+    )
+    return Plugin(
+        "bsdf",
+        "roughplastic",
+        (
+            Value("distribution", "string", model.distribution),
+            float_value("alpha", model.alpha),
+            float_value("int_ior", model.eta * setting.ext_ior),
+            float_value("ext_ior", setting.ext_ior),
+            float_value("diffuse_reflectance", rho, colour=True),
+            float_value("specular_reflectance", ks, colour=True),
+            Value("nonlinear", "boolean", bool(model.nonlinear)),
+        ),
+        lost=tuple(lost) + MITSUBA_PLASTIC_LOST,
+        scale=scale,
+    )
 
 
 def _plastic_pbrt(model, setting) -> Plugin:
     if model.distribution != "ggx":
-        raise Unsupported(f"pbrt-v4 has only the Trowbridge-Reitz (GGX) microfacet "
-                          f"distribution; this {RoughPlastic.NAME} result uses "
-                          f"{model.distribution} (export it to Mitsuba, which has both)")
+        raise Unsupported(
+            f"pbrt-v4 has only the Trowbridge-Reitz (GGX) microfacet "
+            f"distribution; this {RoughPlastic.NAME} result uses "
+            f"{model.distribution} (export it to Mitsuba, which has both)"
+        )
     scale, rho, ks, lost = relative_scales(
-        model, setting, "ks / scale = {ks} is lost: pbrt's coateddiffuse has no specular "
-        "factor (the render has ks / scale = 1)")
-    lost.append("coateddiffuse is pbrt's closest material, not the same model: it simulates "
-                "the light between coat and base stochastically (thickness 0.01, no "
-                "absorption), where veil's f_r uses rho / (1 - F_int) "
-                + ("(nonlinear: rho / (1 - rho F_int))" if model.nonlinear else ""))
-    return Plugin("material", "coateddiffuse", (
-        Value("reflectance", "rgb", rho),
-        float_value("roughness", model.alpha),
-        Value("remaproughness", "boolean", False),
-        float_value("eta", model.eta),
-    ), lost=tuple(lost), scale=scale)
+        model,
+        setting,
+        "ks / scale = {ks} is lost: pbrt's coateddiffuse has no specular "
+        "factor (the render has ks / scale = 1)",
+    )
+    lost.append(
+        "coateddiffuse is pbrt's closest material, not the same model: it simulates "
+        "the light between coat and base stochastically (thickness 0.01, no "
+        "absorption), where veil's f_r uses rho / (1 - F_int) "
+        + ("(nonlinear: rho / (1 - rho F_int))" if model.nonlinear else "")
+    )
+    return Plugin(
+        "material",
+        "coateddiffuse",
+        (
+            Value("reflectance", "rgb", rho),
+            float_value("roughness", model.alpha),
+            Value("remaproughness", "boolean", False),
+            float_value("eta", model.eta),
+        ),
+        lost=tuple(lost),
+        scale=scale,
+    )
+
 
 # --------------------------------------------------------------------------------------
 # the family
@@ -386,21 +418,54 @@ class RoughPlastic(MicrofacetFacets, BRDF):
     LABEL = "rough plastic: dielectric microfacet coat over a Lambertian base (sec. 8.2)"
     SCALES = {"separable": "rho", "lobe": "ks"}
     PARAMS = (
-        Param("rho", 0.0, math.inf, "diffuse albedo, relative units (scale of the diffuse "
-              "part)", log_scale=True, start=1.0, channels="per-channel"),
-        Param("alpha", 1e-3, 1.0, "RMS slope of the coat's microfacets", log_scale=True,
-              start=0.1, channels="shared"),
-        Param("eta", 1.0, 3.0, "refractive index of the plastic relative to the surrounding "
-              "medium (~1.12 in water)", lower_open=True, start=1.12, error_scale="bound",
-              channels="shared"),
-        Param("ks", 0.0, math.inf, "specular scale, relative units (scale of the lobe)",
-              log_scale=True, start=1.0, channels="per-channel"),
+        Param(
+            "rho",
+            0.0,
+            math.inf,
+            "diffuse albedo, relative units (scale of the diffuse part)",
+            log_scale=True,
+            start=1.0,
+            channels="per-channel",
+        ),
+        Param(
+            "alpha",
+            1e-3,
+            1.0,
+            "RMS slope of the coat's microfacets",
+            log_scale=True,
+            start=0.1,
+            channels="shared",
+        ),
+        Param(
+            "eta",
+            1.0,
+            3.0,
+            "refractive index of the plastic relative to the surrounding medium (~1.12 in water)",
+            lower_open=True,
+            start=1.12,
+            error_scale="bound",
+            channels="shared",
+        ),
+        Param(
+            "ks",
+            0.0,
+            math.inf,
+            "specular scale, relative units (scale of the lobe)",
+            log_scale=True,
+            start=1.0,
+            channels="per-channel",
+        ),
     )
     OPTIONS = (
-        Option("distribution", "beckmann", "microfacet distribution: beckmann or ggx",
-               DISTRIBUTIONS),
-        Option("nonlinear", False, "rho_eff = rho / (1 - rho F_int) instead of "
-               "rho / (1 - F_int)", (False, True)),
+        Option(
+            "distribution", "beckmann", "microfacet distribution: beckmann or ggx", DISTRIBUTIONS
+        ),
+        Option(
+            "nonlinear",
+            False,
+            "rho_eff = rho / (1 - rho F_int) instead of rho / (1 - F_int)",
+            (False, True),
+        ),
     )
     #: Starting grids: a clear-water fit (step 0) searches the roughness widely and four
     #: indices; a fit through a medium (step 2) the roughness at a plastic's index in water.
@@ -417,7 +482,8 @@ class RoughPlastic(MicrofacetFacets, BRDF):
             raise ParameterError(
                 f"{type(self).__name__}.nonlinear = True is not available: rho / (1 - rho "
                 f"F_int) would make rho a non-linear parameter, and the engine solves for the "
-                f"declared scale (rho) linearly; use nonlinear = False (rho / (1 - F_int))")
+                f"declared scale (rho) linearly; use nonlinear = False (rho / (1 - F_int))"
+            )
 
     # -- the split used by the integrator (methods of the instance: they read the
     # distribution option; the engine passes the model's template) ------------------------
@@ -430,8 +496,6 @@ class RoughPlastic(MicrofacetFacets, BRDF):
 
     def lobe(self, v, wi, wo, h, alpha=None) -> Array:
         eta = v[2]
-        return v[3] * microfacet_lobe(v[1], wi, wo, h, lambda c: fresnel.reflectance(c, eta),
-                                      self.distribution)
-
-
-
+        return v[3] * microfacet_lobe(
+            v[1], wi, wo, h, lambda c: fresnel.reflectance(c, eta), self.distribution
+        )

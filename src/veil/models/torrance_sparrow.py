@@ -39,27 +39,55 @@ class TorranceSparrow(BRDF):
     LABEL = "Torrance-Sparrow, the paper's surface (docs/model.md sec. 2)"
     SCALES = {"separable": "Pd", "lobe": "Ps"}
     PARAMS = (
-        Param("Pd", 0.0, math.inf, "diffuse coefficient, relative units", log_scale=True,
-              start=1.0, channels="per-channel"),
-        Param("Ps", 0.0, math.inf, "specular coefficient, relative units", log_scale=True,
-              start=1.0, channels="per-channel"),
-        Param("n", 0.0, 50.0, "smoothness, 1/deg in exp(-(n alpha_deg)^2)", unit="1/deg",
-              lower_open=True, log_scale=True, start=0.5, channels="shared"),
-        Param("eta", 0.0, 10.0, "relative refractive index of the surface", lower_open=True,
-              start=1.5, channels="shared"),
+        Param(
+            "Pd",
+            0.0,
+            math.inf,
+            "diffuse coefficient, relative units",
+            log_scale=True,
+            start=1.0,
+            channels="per-channel",
+        ),
+        Param(
+            "Ps",
+            0.0,
+            math.inf,
+            "specular coefficient, relative units",
+            log_scale=True,
+            start=1.0,
+            channels="per-channel",
+        ),
+        Param(
+            "n",
+            0.0,
+            50.0,
+            "smoothness, 1/deg in exp(-(n alpha_deg)^2)",
+            unit="1/deg",
+            lower_open=True,
+            log_scale=True,
+            start=0.5,
+            channels="shared",
+        ),
+        Param(
+            "eta",
+            0.0,
+            10.0,
+            "relative refractive index of the surface",
+            lower_open=True,
+            start=1.5,
+            channels="shared",
+        ),
     )
     #: Starting grids: a clear-water fit (step 0) searches n widely and three indices; a
     #: fit through a medium (step 2) searches n only (the index barely shows there).
     START = {
-        "reference": {"n": geometric_grid(0.03, 5.0, 16),
-                      "eta": (1.2, 1.5, 2.0)},
+        "reference": {"n": geometric_grid(0.03, 5.0, 16), "eta": (1.2, 1.5, 2.0)},
         "target": {"n": (0.08, 0.13, 0.2, 0.3, 0.45, 0.65, 0.9, 1.3, 2.0), "eta": (1.5,)},
     }
     #: No renderer has the V-groove Torrance-Sparrow model: the exporter fits this family to
     #: it and exports that, with the RMS difference (veil.models.renderers).
     #: (pbrt-v4 has only GGX microfacets.)
-    PROXIES = {"mitsuba": ("rough-plastic", {}),
-               "pbrt": ("rough-plastic", {"distribution": "ggx"})}
+    PROXIES = {"mitsuba": ("rough-plastic", {}), "pbrt": ("rough-plastic", {"distribution": "ggx"})}
 
     # -- the split used by the integrator ------------------------------------------------
     @staticmethod
@@ -76,7 +104,7 @@ class TorranceSparrow(BRDF):
         if alpha is None:
             s2 = h[..., 0] ** 2 + h[..., 1] ** 2
             alpha = jnp.where(s2 > 0, jnp.arctan2(jnp.sqrt(jnp.where(s2 > 0, s2, 1.0)), hz), 0.0)
-        d = jnp.exp(-(n * DEG * alpha) ** 2)
+        d = jnp.exp(-((n * DEG * alpha) ** 2))
         ok = (ci > 0) & (co > 0) & (ch > 0)
         ch_s = jnp.where(ok, ch, 1.0)
         co_s = jnp.where(ok, co, 1.0)
@@ -90,7 +118,7 @@ class TorranceSparrow(BRDF):
     @staticmethod
     def facet_cdf(v, alpha) -> Array:
         c = v[2] * DEG
-        return -jnp.expm1(-(c * alpha) ** 2)
+        return -jnp.expm1(-((c * alpha) ** 2))
 
     @staticmethod
     def facet_inverse_cdf(v, y) -> Array:
@@ -104,4 +132,4 @@ class TorranceSparrow(BRDF):
             sin_alpha = jnp.sin(alpha)
         big = alpha > 1e-6
         ratio = jnp.where(big, alpha / jnp.where(big, sin_alpha, 1.0), 1.0 + alpha * alpha / 6.0)
-        return c * c * ratio * jnp.exp(-(c * alpha) ** 2) / math.pi
+        return c * c * ratio * jnp.exp(-((c * alpha) ** 2)) / math.pi

@@ -51,14 +51,19 @@ def build_blocks(exp: Experiment, files: dict) -> list:
     """The report as blocks: ("h1"|"h2"|"p", text), ("ul", items), ("table", head, rows),
     ("img", file name, alt text, caption). ``files`` maps "fig9".."fig12" to PNG names."""
     media = sorted(exp.media, key=lambda m: exp.media[m].lobe_half_width())  # broadening
-    blocks: list[tuple] = [("h1", "The paper's simulation experiment, reproduced"),
-              ("p", "Baba, Mukaigawa and Yagi, \"BRDF Estimation Considering Scatterings of "
-                    "Illumination and Reflection\", section 5.1 (figs. 9-12), recomputed from the "
-                    f"presets of docs/model.md section 6 with veil {__version__} "
-                    f"(`veil reproduce`). "
-                    f"Angles in degrees. Curves use the \"{exp.accuracy}\" quadrature; the "
-                    f"spheres use the \"{exp.render_accuracy}\" quadrature on an interpolated "
-                    f"table (see fig. 12).")]
+    blocks: list[tuple] = [
+        ("h1", "The paper's simulation experiment, reproduced"),
+        (
+            "p",
+            'Baba, Mukaigawa and Yagi, "BRDF Estimation Considering Scatterings of '
+            'Illumination and Reflection", section 5.1 (figs. 9-12), recomputed from the '
+            f"presets of docs/model.md section 6 with veil {__version__} "
+            f"(`veil reproduce`). "
+            f'Angles in degrees. Curves use the "{exp.accuracy}" quadrature; the '
+            f'spheres use the "{exp.render_accuracy}" quadrature on an interpolated '
+            f"table (see fig. 12).",
+        ),
+    ]
 
     blocks += _parameter_blocks(exp, media, files)
     blocks += _fig9_blocks(exp, media, files)
@@ -81,20 +86,33 @@ def _parameter_blocks(exp: Experiment, media: list, files: dict) -> list:
                 names = [n for n in media if n in names]
             head = [kind] + [p.name + (f" [{p.unit}]" if p.unit else "") for p in family.PARAMS]
             head += list(family.option_names())
-            head.append("facet half-mass angle" if kind == "object" else
-                        "forward peak of the lobe [1/sr]")
+            head.append(
+                "facet half-mass angle" if kind == "object" else "forward peak of the lobe [1/sr]"
+            )
             rows = []
             for n in names:
                 m = models[n]
-                extra = (_deg(m.facet_half_angle()) if kind == "object" else
-                         _num(m.lobe_scale() * float(m.phase(m.to_vector(), 0.0))))
-                rows.append([n] + [_num(v) for v in m.as_dict().values()]
-                            + [str(v) for v in m.options().values()] + [extra])
+                extra = (
+                    _deg(m.facet_half_angle())
+                    if kind == "object"
+                    else _num(m.lobe_scale() * float(m.phase(m.to_vector(), 0.0)))
+                )
+                rows.append(
+                    [n]
+                    + [_num(v) for v in m.as_dict().values()]
+                    + [str(v) for v in m.options().values()]
+                    + [extra]
+                )
             out.append(("table", head, rows))
-    out.append(("p", f"Incidence for figs. 9-11: theta_i = {exp.theta_i:g}°, light and camera "
-                        "in the plane of incidence on opposite sides of the normal (docs/model.md "
-                        f"sec. 1). Fig. 12: distant point light at {exp.light_theta:g}° from the "
-                        f"viewing direction, orthographic camera, {exp.size} x {exp.size} pixels."))
+    out.append(
+        (
+            "p",
+            f"Incidence for figs. 9-11: theta_i = {exp.theta_i:g}°, light and camera "
+            "in the plane of incidence on opposite sides of the normal (docs/model.md "
+            f"sec. 1). Fig. 12: distant point light at {exp.light_theta:g}° from the "
+            f"viewing direction, orthographic camera, {exp.size} x {exp.size} pixels.",
+        )
+    )
     return out
 
 
@@ -106,14 +124,22 @@ def _fig9_blocks(exp: Experiment, media: list, files: dict) -> list:
     for n, b in exp.brdfs.items():
         t_in, f_in, _, _ = lobe_data(b, exp.theta_i)
         cm = curve_metrics(t_in, f_in)
-        widths.append(f"{n}: peak {_num(cm.peak)} /sr at theta_r = {cm.peak_angle:.1f}°, full "
-                      f"width at half maximum {cm.fwhm:.2f}°, diffuse level "
-                      f"{_num(float(np.interp(0.0, t_in, f_in)))} /sr")
-    out.append(("img", files["fig9"], "fig. 9",
-                   f"Fig. 9. f_r of the objects for {exp.theta_i:g}° incidence. (a) In the plane "
-                   "of incidence against the signed reflection angle, (b) out of the plane, "
-                   "through the mirror direction, against the angle from it; the radius is log10 "
-                   "f_r (rings are decades). (c) Close-up of the specular lobe, log scale."))
+        widths.append(
+            f"{n}: peak {_num(cm.peak)} /sr at theta_r = {cm.peak_angle:.1f}°, full "
+            f"width at half maximum {cm.fwhm:.2f}°, diffuse level "
+            f"{_num(float(np.interp(0.0, t_in, f_in)))} /sr"
+        )
+    out.append(
+        (
+            "img",
+            files["fig9"],
+            "fig. 9",
+            f"Fig. 9. f_r of the objects for {exp.theta_i:g}° incidence. (a) In the plane "
+            "of incidence against the signed reflection angle, (b) out of the plane, "
+            "through the mirror direction, against the angle from it; the radius is log10 "
+            "f_r (rings are decades). (c) Close-up of the specular lobe, log scale.",
+        )
+    )
     out.append(("ul", widths))
     return out
 
@@ -128,20 +154,33 @@ def _fig10_blocks(exp: Experiment, media: list, files: dict) -> list:
         cm = curve_metrics(beta, f_in)
         med = exp.media[n]
         shape = ", ".join(f"{k} = {v:g}" for k, v in med.shape_values().items())
-        items.append(f"{n} ({shape}): peak {_num(cm.peak)} /sr, half width at "
-                     f"half maximum {cm.fwhm / 2:.2f}°, isotropic floor "
-                     f"{_num(float(med.iso(med.to_vector())))} /sr")
-    out.append(("img", files["fig10"], "fig. 10",
-                   f"Fig. 10. f_t(I, T) of the media for {exp.theta_i:g}° incidence against the "
-                   "travel direction -T of the transmitted light: (a) in the plane of incidence "
-                   "(angle from straight down), (b) out of the plane (angle from the unscattered "
-                   "direction); radius log10 f_t. (c) Close-up against the deflection angle, log "
-                   "scale."))
+        items.append(
+            f"{n} ({shape}): peak {_num(cm.peak)} /sr, half width at "
+            f"half maximum {cm.fwhm / 2:.2f}°, isotropic floor "
+            f"{_num(float(med.iso(med.to_vector())))} /sr"
+        )
+    out.append(
+        (
+            "img",
+            files["fig10"],
+            "fig. 10",
+            f"Fig. 10. f_t(I, T) of the media for {exp.theta_i:g}° incidence against the "
+            "travel direction -T of the transmitted light: (a) in the plane of incidence "
+            "(angle from straight down), (b) out of the plane (angle from the unscattered "
+            "direction); radius log10 f_t. (c) Close-up against the deflection angle, log "
+            "scale.",
+        )
+    )
     out.append(("ul", items))
     hw = [curve_metrics(*transmission_data(exp.media[n], exp.theta_i)[:2]).fwhm / 2 for n in media]
-    out.append(("p", f"As g falls ({', '.join(media)}) the lobe's half width {_trend(hw)} "
-                        f"({', '.join(f'{w:.2f}°' for w in hw)}), with the same forward peak: the "
-                        "transmitted light spreads more, as the paper states."))
+    out.append(
+        (
+            "p",
+            f"As g falls ({', '.join(media)}) the lobe's half width {_trend(hw)} "
+            f"({', '.join(f'{w:.2f}°' for w in hw)}), with the same forward peak: the "
+            "transmitted light spreads more, as the paper states.",
+        )
+    )
     return out
 
 
@@ -149,30 +188,59 @@ def _fig11_blocks(exp: Experiment, media: list, files: dict) -> list:
     """Fig. 11: the observed value against the reflection angle."""
     out: list = []
     out.append(("h2", "Fig. 11: observed value against reflection angle"))
-    out.append(("img", files["fig11"], "fig. 11",
-                   f"Fig. 11. Observed value f(I, R) at {exp.theta_i:g}° incidence against the "
-                   "reflection angle, in the plane of incidence, each object in a clear medium "
-                   "(red, as in the paper) and under each medium. Top: f on a log scale (the "
-                   "media differ by four decades). Middle: f / T_t² on a log scale, clear medium "
-                   "as is: single-scattered light crosses the medium twice with weight T_t, so "
-                   "this compares the shapes at a common strength. Bottom: each curve divided by "
-                   "its own peak, linear scale; the dotted line is half maximum."))
-    head = ["object", "medium", "peak f [1/sr]", "at theta_r", "FWHM",
-            "f at theta_r = 0° [1/sr]", "peak / T_t²", "f(0°) / T_t²", "peak / f(0°)"]
+    out.append(
+        (
+            "img",
+            files["fig11"],
+            "fig. 11",
+            f"Fig. 11. Observed value f(I, R) at {exp.theta_i:g}° incidence against the "
+            "reflection angle, in the plane of incidence, each object in a clear medium "
+            "(red, as in the paper) and under each medium. Top: f on a log scale (the "
+            "media differ by four decades). Middle: f / T_t² on a log scale, clear medium "
+            "as is: single-scattered light crosses the medium twice with weight T_t, so "
+            "this compares the shapes at a common strength. Bottom: each curve divided by "
+            "its own peak, linear scale; the dotted line is half maximum.",
+        )
+    )
+    head = [
+        "object",
+        "medium",
+        "peak f [1/sr]",
+        "at theta_r",
+        "FWHM",
+        "f at theta_r = 0° [1/sr]",
+        "peak / T_t²",
+        "f(0°) / T_t²",
+        "peak / f(0°)",
+    ]
     rows = []
     for b in exp.brdfs:
         for m in ["clear"] + media:
             cm = exp.curves[(b, m)].metrics
             tt2 = 1.0 if m == "clear" else exp.media[m].lobe_scale() ** 2
-            rows.append([b, m, _num(cm.peak), f"{cm.peak_angle:.2f}°",
-                         f"{cm.fwhm:.1f}°" if not math.isnan(cm.fwhm) else "n/a",
-                         _num(cm.off_peak), _num(cm.peak / tt2), _num(cm.off_peak / tt2),
-                         _num(cm.peak / cm.off_peak)])
+            rows.append(
+                [
+                    b,
+                    m,
+                    _num(cm.peak),
+                    f"{cm.peak_angle:.2f}°",
+                    f"{cm.fwhm:.1f}°" if not math.isnan(cm.fwhm) else "n/a",
+                    _num(cm.off_peak),
+                    _num(cm.peak / tt2),
+                    _num(cm.off_peak / tt2),
+                    _num(cm.peak / cm.off_peak),
+                ]
+            )
     out.append(("table", head, rows))
-    out.append(("p", "FWHM: full width at half maximum of the whole curve (diffuse part "
-                        "included), from linear interpolation between samples 0.25° apart near the "
-                        "mirror angle (1° elsewhere). \"n/a\" would mean the curve stays above "
-                        "half its maximum up to 0° or 89°."))
+    out.append(
+        (
+            "p",
+            "FWHM: full width at half maximum of the whole curve (diffuse part "
+            "included), from linear interpolation between samples 0.25° apart near the "
+            'mirror angle (1° elsewhere). "n/a" would mean the curve stays above '
+            "half its maximum up to 0° or 89°.",
+        )
+    )
     return out
 
 
@@ -180,39 +248,74 @@ def _fig12_blocks(exp: Experiment, media: list, files: dict) -> list:
     """Fig. 12: the spheres, and the rendering's accuracy."""
     out: list = []
     out.append(("h2", "Fig. 12: spheres rendered with the true and the apparent BRDFs"))
-    out.append(("img", files["fig12"], "fig. 12",
-                   f"Fig. 12. A unit sphere under a distant point light at {exp.light_theta:g}° "
-                   "(from the right), orthographic camera, pixel value f(I, R) cos theta_i with "
-                   "the local normal (paper eq. 1). Left column: true BRDF (clear medium); other "
-                   "columns: apparent BRDF under each medium. Each panel has its own exposure "
-                   f"(the median lit pixel maps to {MID_GREY:g}) because the media scale f by up "
-                   "to four decades; the tone curve x/(1+x) (Reinhard) keeps highlights from "
-                   "clipping so that their strength relative to the body stays visible; sRGB "
-                   f"encoding. The image spans ±{VIEW:g} sphere radii."))
-    head = ["object", "medium", "peak", "median lit", "peak / median", "pixels >= half peak",
-            "brightest pixel (row, col)", "mirror prediction", "table nodes",
-            f"interp. error, angles <= {ERROR_ANGLE:g}°", "interp. error, all / of peak"]
+    out.append(
+        (
+            "img",
+            files["fig12"],
+            "fig. 12",
+            f"Fig. 12. A unit sphere under a distant point light at {exp.light_theta:g}° "
+            "(from the right), orthographic camera, pixel value f(I, R) cos theta_i with "
+            "the local normal (paper eq. 1). Left column: true BRDF (clear medium); other "
+            "columns: apparent BRDF under each medium. Each panel has its own exposure "
+            f"(the median lit pixel maps to {MID_GREY:g}) because the media scale f by up "
+            "to four decades; the tone curve x/(1+x) (Reinhard) keeps highlights from "
+            "clipping so that their strength relative to the body stays visible; sRGB "
+            f"encoding. The image spans ±{VIEW:g} sphere radii.",
+        )
+    )
+    head = [
+        "object",
+        "medium",
+        "peak",
+        "median lit",
+        "peak / median",
+        "pixels >= half peak",
+        "brightest pixel (row, col)",
+        "mirror prediction",
+        "table nodes",
+        f"interp. error, angles <= {ERROR_ANGLE:g}°",
+        "interp. error, all / of peak",
+    ]
     rows = []
     for b in exp.brdfs:
         for m in ["clear"] + media:
             st, r = exp.stats[(b, m)], exp.renders[(b, m)]
-            err = ("exact (f_r)" if not r.table_nodes else f"{100 * r.max_rel_error:.2g} %")
-            err2 = ("-" if not r.table_nodes else
-                    f"{100 * r.max_rel_error_all:.2g} % / {100 * r.max_peak_error:.2g} %")
-            rows.append([b, m, _num(st.peak), _num(st.median), _num(st.contrast),
-                         str(st.half_area), f"({st.peak_pixel[0]}, {st.peak_pixel[1]})",
-                         f"({st.mirror_pixel[0]:.1f}, {st.mirror_pixel[1]:.1f})",
-                         str(r.table_nodes) if r.table_nodes else "-", err, err2])
+            err = "exact (f_r)" if not r.table_nodes else f"{100 * r.max_rel_error:.2g} %"
+            err2 = (
+                "-"
+                if not r.table_nodes
+                else f"{100 * r.max_rel_error_all:.2g} % / {100 * r.max_peak_error:.2g} %"
+            )
+            rows.append(
+                [
+                    b,
+                    m,
+                    _num(st.peak),
+                    _num(st.median),
+                    _num(st.contrast),
+                    str(st.half_area),
+                    f"({st.peak_pixel[0]}, {st.peak_pixel[1]})",
+                    f"({st.mirror_pixel[0]:.1f}, {st.mirror_pixel[1]:.1f})",
+                    str(r.table_nodes) if r.table_nodes else "-",
+                    err,
+                    err2,
+                ]
+            )
     out.append(("table", head, rows))
     checked = max((r.checked for r in exp.renders.values()), default=0)
-    out.append(("p", "The apparent BRDF is tabulated over the normal's polar coordinates "
-                        "about the half vector (dense near the specular peak) and interpolated "
-                        "by a bicubic spline of log f; the error columns compare the interpolated "
-                        f"value with direct engine evaluations at {checked} pixels per sphere "
-                        "(half of them among the brightest 10 %). \"All\" includes pixels within "
-                        f"{90 - ERROR_ANGLE:g}° of the terminator or the rim, where the pixel "
-                        "value itself is small; \"of peak\" is the largest error in units of the "
-                        "image's peak value."))
+    out.append(
+        (
+            "p",
+            "The apparent BRDF is tabulated over the normal's polar coordinates "
+            "about the half vector (dense near the specular peak) and interpolated "
+            "by a bicubic spline of log f; the error columns compare the interpolated "
+            f"value with direct engine evaluations at {checked} pixels per sphere "
+            '(half of them among the brightest 10 %). "All" includes pixels within '
+            f"{90 - ERROR_ANGLE:g}° of the terminator or the rim, where the pixel "
+            'value itself is small; "of peak" is the largest error in units of the '
+            "image's peak value.",
+        )
+    )
     return out
 
 
@@ -237,23 +340,31 @@ def _observations(exp: Experiment, media: list) -> list:
             f"({', '.join(_num(p) for p in norm)}; "
             f"clear {_num(clear.peak)}), and relative to the diffuse level, peak / f(0°) "
             f"{_trend(contrast)} ({', '.join(_num(c) for c in contrast)}; clear "
-            f"{_num(clear.peak / clear.off_peak)}). The paper's \"weaker\" holds in these "
-            f"relative senses.")
+            f'{_num(clear.peak / clear.off_peak)}). The paper\'s "weaker" holds in these '
+            f"relative senses."
+        )
         items.append(
             f"{b}, width: the full width at half maximum {_trend([clear.fwhm] + fwhm)} from "
             f"{clear.fwhm:.1f}° (clear) to {', '.join(f'{w:.1f}°' for w in fwhm)}: the highlight "
-            f"spreads as g falls, as the paper states.")
+            f"spreads as g falls, as the paper states."
+        )
         ratio = [o / clear.off_peak for o in off]
         near = [abs(r - 1) <= 0.2 for r in ratio]
-        verdict = ("within 20 % of the clear medium's for every medium" if all(near) else
-                   "within 20 % of the clear medium's for " +
-                   (", ".join(m for m, ok in zip(media, near) if ok) or "no medium") +
-                   "; " + ", ".join(f"{m} is {r:.2f} times it" for m, r, ok in
-                                    zip(media, ratio, near) if not ok))
+        verdict = (
+            "within 20 % of the clear medium's for every medium"
+            if all(near)
+            else "within 20 % of the clear medium's for "
+            + (", ".join(m for m, ok in zip(media, near) if ok) or "no medium")
+            + "; "
+            + ", ".join(
+                f"{m} is {r:.2f} times it" for m, r, ok in zip(media, ratio, near) if not ok
+            )
+        )
         items.append(
             f"{b}, diffuse part (f at theta_r = 0°, 45° from the mirror direction, over T_t²): "
             f"{', '.join(_num(o) for o in off)} against {_num(clear.off_peak)} /sr in a clear "
-            f"medium, i.e. {verdict}.")
+            f"medium, i.e. {verdict}."
+        )
     return items + _isotropic_observations(exp, media) + _sphere_observations(exp, media)
 
 
@@ -273,10 +384,18 @@ def _isotropic_observations(exp: Experiment, media: list) -> list:
             # and on the way out towards the camera at 0 deg: a(I) b(I) a(R) b(R)
             v = med.to_vector()
             ci = math.cos(math.radians(exp.theta_i))
-            fres.append(float(med.factor_first(v, ci) * med.factor_second(v, ci)
-                              * med.factor_first(v, 1.0) * med.factor_second(v, 1.0)))
-            parts.append(f"{m} {_num(single / tt2)} ({100 * (1 - single / full):.0f} % "
-                         f"of the full f(0°) comes from the T_d terms)")
+            fres.append(
+                float(
+                    med.factor_first(v, ci)
+                    * med.factor_second(v, ci)
+                    * med.factor_first(v, 1.0)
+                    * med.factor_second(v, 1.0)
+                )
+            )
+            parts.append(
+                f"{m} {_num(single / tt2)} ({100 * (1 - single / full):.0f} % "
+                f"of the full f(0°) comes from the T_d terms)"
+            )
         worst = max(abs(1 - r) for r in ratios)
         items.append(
             f"{b}, off the peak with the isotropic term switched off (T_d = 0), f(0°) / T_t² is "
@@ -288,7 +407,8 @@ def _isotropic_observations(exp: Experiment, media: list) -> list:
             f"full value departs further, the medium's multiple scattering T_d is the cause "
             f"(T_d / T_t = "
             + ", ".join(f"{_iso(exp.media[m]) / exp.media[m].lobe_scale():.2g}" for m in media)
-            + ").")
+            + ")."
+        )
     return items
 
 
@@ -299,14 +419,17 @@ def _sphere_observations(exp: Experiment, media: list) -> list:
         areas = [exp.stats[(b, k)].half_area for k in ["clear"] + media]
         con = [exp.stats[(b, k)].contrast for k in ["clear"] + media]
         pos = [exp.stats[(b, k)] for k in ["clear"] + media]
-        off = max(math.hypot(s.peak_pixel[0] - s.mirror_pixel[0],
-                             s.peak_pixel[1] - s.mirror_pixel[1]) for s in pos)
+        off = max(
+            math.hypot(s.peak_pixel[0] - s.mirror_pixel[0], s.peak_pixel[1] - s.mirror_pixel[1])
+            for s in pos
+        )
         items.append(
             f"{b} spheres (fig. 12, clear then {', '.join(media)}): the area at or above half "
             f"the peak {_trend(areas)} ({', '.join(map(str, areas))} pixels) and the peak over "
             f"the median lit pixel {_trend(con)} ({', '.join(_num(c) for c in con)}): the "
             f"highlight grows wider and weaker as g falls. The brightest pixel is at most "
-            f"{off:.1f} pixels from where the mirror direction puts it.")
+            f"{off:.1f} pixels from where the mirror direction puts it."
+        )
     return items
 
 
@@ -338,23 +461,32 @@ def to_markdown(blocks) -> str:
 def _inline(text: str) -> str:
     """HTML-escape, then render `code` spans."""
     parts = re.split(r"(`[^`]*`)", text)
-    return "".join(f"<code>{html.escape(p[1:-1])}</code>" if p.startswith("`") and p.endswith("`")
-                   else html.escape(p) for p in parts)
+    return "".join(
+        f"<code>{html.escape(p[1:-1])}</code>"
+        if p.startswith("`") and p.endswith("`")
+        else html.escape(p)
+        for p in parts
+    )
 
 
-_CSS = ("body{font-family:sans-serif;max-width:1200px;margin:2em auto;padding:0 1em;"
-        "line-height:1.45;color:#222}table{border-collapse:collapse;margin:1em 0;font-size:0.9em}"
-        "td,th{border:1px solid #bbb;padding:0.25em 0.5em;text-align:right}"
-        "th{background:#eee}td:first-child,td:nth-child(2){text-align:left}"
-        "figure{margin:1.5em 0}img{max-width:100%}figcaption{font-size:0.92em;color:#444}"
-        "code{background:#f3f3f3;padding:0 0.2em}")
+_CSS = (
+    "body{font-family:sans-serif;max-width:1200px;margin:2em auto;padding:0 1em;"
+    "line-height:1.45;color:#222}table{border-collapse:collapse;margin:1em 0;font-size:0.9em}"
+    "td,th{border:1px solid #bbb;padding:0.25em 0.5em;text-align:right}"
+    "th{background:#eee}td:first-child,td:nth-child(2){text-align:left}"
+    "figure{margin:1.5em 0}img{max-width:100%}figcaption{font-size:0.92em;color:#444}"
+    "code{background:#f3f3f3;padding:0 0.2em}"
+)
 
 
 def to_html(blocks, directory) -> str:
     """Self-contained HTML: figures read from ``directory`` and embedded as base64."""
-    out = ["<!DOCTYPE html>", "<html lang=\"en\"><head><meta charset=\"utf-8\">",
-           "<title>veil: the paper's simulation experiment, reproduced</title>",
-           f"<style>{_CSS}</style></head><body>"]
+    out = [
+        "<!DOCTYPE html>",
+        '<html lang="en"><head><meta charset="utf-8">',
+        "<title>veil: the paper's simulation experiment, reproduced</title>",
+        f"<style>{_CSS}</style></head><body>",
+    ]
     for b in blocks:
         kind = b[0]
         if kind in ("h1", "h2", "p"):
@@ -363,16 +495,24 @@ def to_html(blocks, directory) -> str:
             out.append("<ul>" + "".join(f"<li>{_inline(i)}</li>" for i in b[1]) + "</ul>")
         elif kind == "table":
             head, rows = b[1], b[2]
-            out.append("<table><thead><tr>" + "".join(f"<th>{_inline(h)}</th>" for h in head)
-                       + "</tr></thead><tbody>"
-                       + "".join("<tr>" + "".join(f"<td>{_inline(str(c))}</td>" for c in row)
-                                 + "</tr>" for row in rows) + "</tbody></table>")
+            out.append(
+                "<table><thead><tr>"
+                + "".join(f"<th>{_inline(h)}</th>" for h in head)
+                + "</tr></thead><tbody>"
+                + "".join(
+                    "<tr>" + "".join(f"<td>{_inline(str(c))}</td>" for c in row) + "</tr>"
+                    for row in rows
+                )
+                + "</tbody></table>"
+            )
         elif kind == "img":
             with open(os.path.join(directory, b[1]), "rb") as fh:
                 data = base64.b64encode(fh.read()).decode("ascii")
-            out.append(f"<figure><img alt=\"{html.escape(b[2])}\" "
-                       f"src=\"data:image/png;base64,{data}\">"
-                       f"<figcaption>{_inline(b[3])}</figcaption></figure>")
+            out.append(
+                f'<figure><img alt="{html.escape(b[2])}" '
+                f'src="data:image/png;base64,{data}">'
+                f"<figcaption>{_inline(b[3])}</figcaption></figure>"
+            )
     out.append("</body></html>")
     return "\n".join(out) + "\n"
 

@@ -110,8 +110,16 @@ def slider_spec(cls, name: str, value: float) -> SliderSpec:
             hi -= step
         label = name
     unit = f" [{p.unit}]" if p.unit else ""
-    return SliderSpec(name=name, label=f"{label}{unit}", start=lo, end=hi, step=step,
-                      log=p.log_scale, doc=p.doc, unit=p.unit)
+    return SliderSpec(
+        name=name,
+        label=f"{label}{unit}",
+        start=lo,
+        end=hi,
+        step=step,
+        log=p.log_scale,
+        doc=p.doc,
+        unit=p.unit,
+    )
 
 
 def presets_of(cls) -> dict:
@@ -130,8 +138,11 @@ def families(kind: str) -> list[str]:
 def _entry(model) -> dict | None:
     if model is None:
         return None
-    return {"model": model.NAME, "params": {k: float(v) for k, v in model.as_dict().items()},
-            "options": dict(model.options())}
+    return {
+        "model": model.NAME,
+        "params": {k: float(v) for k, v in model.as_dict().items()},
+        "options": dict(model.options()),
+    }
 
 
 def _model(entry, kind: str, where: str):
@@ -139,8 +150,11 @@ def _model(entry, kind: str, where: str):
         if kind == "medium":
             return None
         raise InputError(f"{where}: a BRDF is required")
-    if not isinstance(entry, dict) or not isinstance(entry.get("model"), str) \
-            or not isinstance(entry.get("params"), dict):
+    if (
+        not isinstance(entry, dict)
+        or not isinstance(entry.get("model"), str)
+        or not isinstance(entry.get("params"), dict)
+    ):
         raise InputError(f"{where}: expected an object with keys 'model' and 'params'")
     cls = model_class(entry["model"], kind)
     options = entry.get("options") or {}
@@ -176,8 +190,12 @@ class State:
     def __post_init__(self):
         for name, lo, hi in (("theta_i", 0.0, MAX_ANGLE), ("psi", 0.0, 2 * MAX_ANGLE - 2.0)):
             v = getattr(self, name)
-            if not isinstance(v, (int, float)) or isinstance(v, bool) or not math.isfinite(v) \
-                    or not lo <= v <= hi:
+            if (
+                not isinstance(v, (int, float))
+                or isinstance(v, bool)
+                or not math.isfinite(v)
+                or not lo <= v <= hi
+            ):
                 raise InputError(f"{name} = {v!r}: expected degrees in [{lo:g}, {hi:g}]")
             setattr(self, name, float(v))
         if self.curve not in CURVES:
@@ -188,8 +206,9 @@ class State:
             self.channels = {str(c): tuple(v) for c, v in self.channels.items()}
             self.channel = str(self.channel or next(iter(self.channels)))
             if self.channel not in self.channels:
-                raise InputError(f"channel {self.channel!r}: the state has channels "
-                                 f"{', '.join(self.channels)}")
+                raise InputError(
+                    f"channel {self.channel!r}: the state has channels {', '.join(self.channels)}"
+                )
             self.channels[self.channel] = (self.brdf, self.medium)
 
     @classmethod
@@ -223,15 +242,22 @@ class State:
 
     # -- files --------------------------------------------------------------------------
     def to_dict(self) -> dict:
-        out = {"format": FORMAT, "brdf": _entry(self.brdf), "medium": _entry(self.medium),
-               "theta_i": self.theta_i, "psi": self.psi, "curve": self.curve,
-               "results": [os.fspath(r) for r in self.results],
-               "data": None if self.data is None else os.fspath(self.data),
-               "black": None if self.black is None else os.fspath(self.black)}
+        out = {
+            "format": FORMAT,
+            "brdf": _entry(self.brdf),
+            "medium": _entry(self.medium),
+            "theta_i": self.theta_i,
+            "psi": self.psi,
+            "curve": self.curve,
+            "results": [os.fspath(r) for r in self.results],
+            "data": None if self.data is None else os.fspath(self.data),
+            "black": None if self.black is None else os.fspath(self.black),
+        }
         if self.channels is not None:
             out["channel"] = self.channel
-            out["channels"] = {c: {"brdf": _entry(b), "medium": _entry(m)}
-                               for c, (b, m) in self.channels.items()}
+            out["channels"] = {
+                c: {"brdf": _entry(b), "medium": _entry(m)} for c, (b, m) in self.channels.items()
+            }
         return out
 
     def to_json(self) -> str:
@@ -245,8 +271,9 @@ class State:
     @classmethod
     def from_dict(cls, data, source: str = "the state") -> State:
         if not isinstance(data, dict) or data.get("format") != FORMAT:
-            raise InputError(f"{source}: not a veil explore state (expected key 'format' = "
-                             f"{FORMAT!r})")
+            raise InputError(
+                f"{source}: not a veil explore state (expected key 'format' = {FORMAT!r})"
+            )
         brdf = _model(data.get("brdf"), "brdf", f"{source}, key 'brdf'")
         medium = _model(data.get("medium"), "medium", f"{source}, key 'medium'")
         results = data.get("results") or []
@@ -257,10 +284,18 @@ class State:
                 raise InputError(f"{source}: key {key!r} must be a file name or null")
         channels = _channels_entry(data.get("channels"), source)
         try:
-            return cls(brdf, medium, theta_i=data.get("theta_i", 45.0),
-                       psi=data.get("psi", 60.0), curve=data.get("curve", "incidence"),
-                       results=results, data=data.get("data"), black=data.get("black"),
-                       channels=channels, channel=data.get("channel"))
+            return cls(
+                brdf,
+                medium,
+                theta_i=data.get("theta_i", 45.0),
+                psi=data.get("psi", 60.0),
+                curve=data.get("curve", "incidence"),
+                results=results,
+                data=data.get("data"),
+                black=data.get("black"),
+                channels=channels,
+                channel=data.get("channel"),
+            )
         except InputError as exc:
             raise InputError(f"{source}: {exc}") from None
 
@@ -288,11 +323,17 @@ def _channels_entry(entry, source: str) -> dict | None:
     if entry is None:
         return None
     if not isinstance(entry, dict) or not all(isinstance(v, dict) for v in entry.values()):
-        raise InputError(f"{source}: key 'channels' must map each channel to an object with "
-                         f"keys 'brdf' and 'medium'")
-    return {c: (_model(v.get("brdf"), "brdf", f"{source}, channel {c}, key 'brdf'"),
-                _model(v.get("medium"), "medium", f"{source}, channel {c}, key 'medium'"))
-            for c, v in entry.items()}
+        raise InputError(
+            f"{source}: key 'channels' must map each channel to an object with "
+            f"keys 'brdf' and 'medium'"
+        )
+    return {
+        c: (
+            _model(v.get("brdf"), "brdf", f"{source}, channel {c}, key 'brdf'"),
+            _model(v.get("medium"), "medium", f"{source}, channel {c}, key 'medium'"),
+        )
+        for c, v in entry.items()
+    }
 
 
 def is_state_file(path) -> bool:
@@ -342,15 +383,22 @@ class Curves:
     families of ``brdf`` and ``medium`` (their options fixed): the engine compiles once per
     family, options, accuracy and size, then each call is one evaluation."""
 
-    def __init__(self, brdf, medium, curve: str, theta_i: float, psi: float,
-                 accuracy: str = LIVE_ACCURACY):
+    def __init__(
+        self, brdf, medium, curve: str, theta_i: float, psi: float, accuracy: str = LIVE_ACCURACY
+    ):
         from ..engine.apparent import RULES
         from ..engine.forward import Forward
 
-        self.key = (type(brdf), tuple(sorted(brdf.options().items())),
-                    None if medium is None else type(medium),
-                    None if medium is None else tuple(sorted(medium.options().items())),
-                    curve, float(theta_i), float(psi), accuracy)
+        self.key = (
+            type(brdf),
+            tuple(sorted(brdf.options().items())),
+            None if medium is None else type(medium),
+            None if medium is None else tuple(sorted(medium.options().items())),
+            curve,
+            float(theta_i),
+            float(psi),
+            accuracy,
+        )
         self.x, self.xlabel = curve_axis(curve, theta_i, psi)
         self.angles = curve_angles(curve, theta_i, psi, self.x)
         self.accuracy = accuracy
@@ -361,15 +409,22 @@ class Curves:
             raise AssertionError(f"a curve of {n} points exceeds CURVE_SIZE = {CURVE_SIZE}")
         idx = np.minimum(np.arange(CURVE_SIZE), n - 1)
         ti, pi_, tr, pr = (a[idx] for a in self.angles)
-        self.forward = None if medium is None else Forward(brdf, medium, ti, tr, pi_, pr,
-                                                           RULES[accuracy])
+        self.forward = (
+            None if medium is None else Forward(brdf, medium, ti, tr, pi_, pr, RULES[accuracy])
+        )
 
     @staticmethod
     def key_of(brdf, medium, curve, theta_i, psi, accuracy=LIVE_ACCURACY) -> tuple:
-        return (type(brdf), tuple(sorted(brdf.options().items())),
-                None if medium is None else type(medium),
-                None if medium is None else tuple(sorted(medium.options().items())),
-                curve, float(theta_i), float(psi), accuracy)
+        return (
+            type(brdf),
+            tuple(sorted(brdf.options().items())),
+            None if medium is None else type(medium),
+            None if medium is None else tuple(sorted(medium.options().items())),
+            curve,
+            float(theta_i),
+            float(psi),
+            accuracy,
+        )
 
     def clear(self, brdf) -> np.ndarray:
         """f_r along the curve (docs/model.md sec. 2)."""
@@ -405,8 +460,7 @@ def log_radius(values, decades: float = LOBE_DECADES) -> np.ndarray:
     (and under)."""
     v = np.asarray(values, dtype=float)
     top = max(float(np.max(v)), 1e-300)
-    return np.clip(1.0 + np.log10(np.maximum(v, top * 10.0 ** -decades) / top) / decades,
-                   0.0, 1.0)
+    return np.clip(1.0 + np.log10(np.maximum(v, top * 10.0**-decades) / top) / decades, 0.0, 1.0)
 
 
 def polar_lobe(x, values, curve: str, theta_i: float, psi: float) -> tuple[np.ndarray, np.ndarray]:
@@ -503,7 +557,24 @@ def channel_colour(channel: str) -> str:
     return f"#{int(255 * r):02x}{int(255 * g):02x}{int(255 * b):02x}"
 
 
-__all__ = ["FORMAT", "CURVES", "State", "channel_colour", "sphere_colour", "CHANNEL_COLOURS",
-           "SliderSpec", "slider_spec", "presets_of", "families",
-           "is_state_file", "curve_axis", "curve_angles", "Curves", "polar_lobe",
-           "transmission_lobe", "sphere", "warm_up", "log_floor"]
+__all__ = [
+    "FORMAT",
+    "CURVES",
+    "State",
+    "channel_colour",
+    "sphere_colour",
+    "CHANNEL_COLOURS",
+    "SliderSpec",
+    "slider_spec",
+    "presets_of",
+    "families",
+    "is_state_file",
+    "curve_axis",
+    "curve_angles",
+    "Curves",
+    "polar_lobe",
+    "transmission_lobe",
+    "sphere",
+    "warm_up",
+    "log_floor",
+]

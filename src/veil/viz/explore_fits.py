@@ -28,11 +28,15 @@ def check_result_kind(result, source: str) -> FitResult:
     from ..fitting.result import JointResult
 
     if isinstance(result, JointResult):
-        raise InputError(f"{source} is a joint fit result; veil explore shows step results "
-                         f"('veil fit reference', 'veil fit medium', 'veil fit target')")
+        raise InputError(
+            f"{source} is a joint fit result; veil explore shows step results "
+            f"('veil fit reference', 'veil fit medium', 'veil fit target')"
+        )
     if result.kind == "medium" and result.given is None:
-        raise InputError(f"{source}: a medium fit result that does not name its reference "
-                         f"object; veil explore needs both models")
+        raise InputError(
+            f"{source}: a medium fit result that does not name its reference "
+            f"object; veil explore needs both models"
+        )
     return result
 
 
@@ -43,9 +47,11 @@ def result_channels(results, sources) -> tuple:
     found = [(s, c) for s, c in found if c]
     for s, c in found[1:]:
         if sorted(c) != sorted(found[0][1]):
-            raise InputError(f"{found[0][0]} is a fit of channels {', '.join(found[0][1])} and "
-                             f"{s} of channels {', '.join(c)}: give results of the same "
-                             f"channels")
+            raise InputError(
+                f"{found[0][0]} is a fit of channels {', '.join(found[0][1])} and "
+                f"{s} of channels {', '.join(c)}: give results of the same "
+                f"channels"
+            )
     return found[0][1] if found else ()
 
 
@@ -63,8 +69,10 @@ def models_of(results, sources, channel: str | None = None) -> tuple:
         given = result.given_model(channel)
         if model.KIND == "brdf":
             if brdf is not None:
-                raise InputError(f"{source}: a second BRDF fit result; give at most one result "
-                                 f"per kind (a BRDF fit and a medium fit)")
+                raise InputError(
+                    f"{source}: a second BRDF fit result; give at most one result "
+                    f"per kind (a BRDF fit and a medium fit)"
+                )
             brdf = model
             if result.step == "reference" and given is None:
                 clear = True
@@ -72,8 +80,10 @@ def models_of(results, sources, channel: str | None = None) -> tuple:
                 given_m = given
         else:
             if medium is not None:
-                raise InputError(f"{source}: a second medium fit result; give at most one "
-                                 f"result per kind (a BRDF fit and a medium fit)")
+                raise InputError(
+                    f"{source}: a second medium fit result; give at most one "
+                    f"result per kind (a BRDF fit and a medium fit)"
+                )
             medium = model
             if given is not None and given_b is None:
                 given_b = given
@@ -93,8 +103,16 @@ class FitView:
     recomputed at the fitted parameters equal to the ones the result stores
     (:data:`RESIDUAL_TOLERANCE`); otherwise an InputError says it does not belong."""
 
-    def __init__(self, result, table, black=None, source: str = "the result",
-                 table_name: str = "the table", draws: int = BAND_DRAWS, seed: int = 20110901):
+    def __init__(
+        self,
+        result,
+        table,
+        black=None,
+        source: str = "the result",
+        table_name: str = "the table",
+        draws: int = BAND_DRAWS,
+        seed: int = 20110901,
+    ):
         from ..fitting.session_data import prepare
 
         self.result, self.source = result, source
@@ -108,9 +126,11 @@ class FitView:
         if given is None and result.step != "reference":
             raise InputError(f"{source}: the result does not name the model it held fixed")
         if self.data.size != result.n_points:
-            raise InputError(f"{table_name} does not belong to {source}: it has "
-                             f"{self.data.size} points, the fit used {result.n_points} (give "
-                             f"the fit's own table{' and black cloth' if black is None else ''})")
+            raise InputError(
+                f"{table_name} does not belong to {source}: it has "
+                f"{self.data.size} points, the fit used {result.n_points} (give "
+                f"the fit's own table{' and black cloth' if black is None else ''})"
+            )
         ti, pi_, tr, pr = self.data.angles
         self.x, self.group, self.xlabel, self.group_label = _data_axes(*self.data.angles)
         self.order = np.lexsort((self.x, self.group))
@@ -118,13 +138,15 @@ class FitView:
         resid = (self.data.y - self.fitted) * (self.data.w if result.weighted else 1.0)
         stored = np.asarray(result.residuals, dtype=float)
         if stored.shape == resid.shape:
-            scale = float(np.sqrt(np.mean(stored ** 2))) if stored.size else 0.0
+            scale = float(np.sqrt(np.mean(stored**2))) if stored.size else 0.0
             gap = float(np.max(np.abs(resid - stored))) if stored.size else 0.0
             if gap > RESIDUAL_TOLERANCE * scale + 1e-6 * (1.0 + float(np.max(np.abs(self.data.y)))):
-                raise InputError(f"{table_name} does not belong to {source}: the fitted model "
-                                 f"misses its points by residuals up to {gap:.3g} where the fit "
-                                 f"reported rms {scale:.3g} (another session's table, or a "
-                                 f"black cloth missing or different)")
+                raise InputError(
+                    f"{table_name} does not belong to {source}: the fitted model "
+                    f"misses its points by residuals up to {gap:.3g} where the fit "
+                    f"reported rms {scale:.3g} (another session's table, or a "
+                    f"black cloth missing or different)"
+                )
         self.residuals = resid
         self.band = self._band(draws, seed)
 
@@ -133,8 +155,7 @@ class FitView:
         from ..engine.evaluator import evaluate
 
         ti, pi_, tr, pr = self.data.angles
-        return np.asarray(evaluate(brdf, medium, ti, pi_, tr, pr, accuracy=accuracy),
-                          dtype=float)
+        return np.asarray(evaluate(brdf, medium, ti, pi_, tr, pr, accuracy=accuracy), dtype=float)
 
     def _band(self, draws: int, seed: int):
         """(low, high) of the model over parameters drawn from the fit's covariance (normal
@@ -179,10 +200,15 @@ class FitView:
     def param_rows(self) -> list[dict]:
         """One row per parameter: name, value, stderr (None when fixed or undetermined)."""
         se = self.result.stderr_total or self.result.stderr
-        return [{"parameter": n, "value": float(v),
-                 "stderr": None if n in self.result.fixed else se.get(n),
-                 "fixed": n in self.result.fixed}
-                for n, v in self.result.params.items()]
+        return [
+            {
+                "parameter": n,
+                "value": float(v),
+                "stderr": None if n in self.result.fixed else se.get(n),
+                "fixed": n in self.result.fixed,
+            }
+            for n, v in self.result.params.items()
+        ]
 
 
 def _data_axes(ti, pi_, tr, pr):
@@ -198,5 +224,11 @@ def _data_axes(ti, pi_, tr, pr):
     return rho, np.round(psi, 3), "rho (deg)", "psi"
 
 
-__all__ = ["BAND_DRAWS", "BAND_QUANTILES", "RESIDUAL_TOLERANCE", "check_result_kind",
-           "models_of", "FitView"]
+__all__ = [
+    "BAND_DRAWS",
+    "BAND_QUANTILES",
+    "RESIDUAL_TOLERANCE",
+    "check_result_kind",
+    "models_of",
+    "FitView",
+]

@@ -42,9 +42,11 @@ class Controls:
         self.page, self.kind = page, kind
         names = ex.families(kind)
         options = names + ([NONE] if kind == "medium" else [])
-        self.family = pn.widgets.Select(label=f"{'BRDF' if kind == 'brdf' else 'medium'} model",
-                                        options=options,
-                                        value=NONE if model is None else model.NAME)
+        self.family = pn.widgets.Select(
+            label=f"{'BRDF' if kind == 'brdf' else 'medium'} model",
+            options=options,
+            value=NONE if model is None else model.NAME,
+        )
         self.family.param.watch(self._on_family, "value")
         self.box = pn.Column(sizing_mode="stretch_width")
         self.model = model
@@ -60,16 +62,19 @@ class Controls:
             return
         cls = type(model)
         presets = ex.presets_of(cls)
-        self.preset = pn.widgets.Select(label="preset", options=[CUSTOM] + list(presets),
-                                        value=next((k for k, m in presets.items() if m == model),
-                                                   CUSTOM))
+        self.preset = pn.widgets.Select(
+            label="preset",
+            options=[CUSTOM] + list(presets),
+            value=next((k for k, m in presets.items() if m == model), CUSTOM),
+        )
         self.preset.param.watch(self._on_preset, "value")
         items.append(self.preset)
         for opt in cls.OPTIONS:
             value = getattr(model, opt.name)
             if opt.choices:
-                w = pn.widgets.Select(label=opt.name, options={str(c): c for c in opt.choices},
-                                      value=value)
+                w = pn.widgets.Select(
+                    label=opt.name, options={str(c): c for c in opt.choices}, value=value
+                )
             elif isinstance(opt.default, bool):
                 w = pn.widgets.Checkbox(label=opt.name, value=value)
             elif isinstance(opt.default, (int, float)):
@@ -81,9 +86,15 @@ class Controls:
             items.append(w)
         for p in cls.PARAMS:
             spec = ex.slider_spec(cls, p.name, getattr(model, p.name))
-            s = pn.widgets.FloatSlider(label=spec.label, start=spec.start, end=spec.end,
-                                       step=spec.step, value=spec.to_slider(getattr(model, p.name)),
-                                       format="0[.]0000", sizing_mode="stretch_width")
+            s = pn.widgets.FloatSlider(
+                label=spec.label,
+                start=spec.start,
+                end=spec.end,
+                step=spec.step,
+                value=spec.to_slider(getattr(model, p.name)),
+                format="0[.]0000",
+                sizing_mode="stretch_width",
+            )
             s.param.watch(self._on_slider, "value")
             s.param.watch(self.page.on_rest, "value_throttled")
             self.sliders[p.name] = (s, spec)
@@ -171,20 +182,35 @@ class ExplorePage:
         self.doc = pn.state.curdoc if background else None
         self._sphere_gen = 0
         self._pending, self._scheduled = (False, False), False
-        self._pools = ({a: ThreadPoolExecutor(max_workers=1, thread_name_prefix=f"sphere-{a}")
-                        for a in (ex.LIVE_ACCURACY, ex.REFINED_ACCURACY)}
-                       if background else None)
+        self._pools = (
+            {
+                a: ThreadPoolExecutor(max_workers=1, thread_name_prefix=f"sphere-{a}")
+                for a in (ex.LIVE_ACCURACY, ex.REFINED_ACCURACY)
+            }
+            if background
+            else None
+        )
         self._lock = threading.Lock()
         self.status = pn.pane.Markdown("", sizing_mode="stretch_width")
         self.brdf = Controls(self, "brdf", state.brdf)
         self.medium = Controls(self, "medium", state.medium)
-        self.theta_i = pn.widgets.FloatSlider(label="incidence theta_i (deg)", start=0.0,
-                                              end=ex.MAX_ANGLE - 1.0, step=0.5,
-                                              value=state.theta_i)
-        self.psi = pn.widgets.FloatSlider(label="psi, light-camera angle (deg)", start=0.0,
-                                          end=2 * ex.MAX_ANGLE - 2.0, step=0.5, value=state.psi)
-        self.curve = pn.widgets.RadioButtonGroup(label="curve", options=list(ex.CURVES),
-                                                 value=state.curve)
+        self.theta_i = pn.widgets.FloatSlider(
+            label="incidence theta_i (deg)",
+            start=0.0,
+            end=ex.MAX_ANGLE - 1.0,
+            step=0.5,
+            value=state.theta_i,
+        )
+        self.psi = pn.widgets.FloatSlider(
+            label="psi, light-camera angle (deg)",
+            start=0.0,
+            end=2 * ex.MAX_ANGLE - 2.0,
+            step=0.5,
+            value=state.psi,
+        )
+        self.curve = pn.widgets.RadioButtonGroup(
+            label="curve", options=list(ex.CURVES), value=state.curve
+        )
         for w in (self.theta_i, self.psi, self.curve):
             w.param.watch(self._on_angles, "value")
         self.theta_i.param.watch(self.on_rest, "value_throttled")
@@ -204,17 +230,34 @@ class ExplorePage:
         controls = pn.Column(
             pn.pane.Markdown("### veil explore"),
             *([] if self.channel is None else [pn.pane.Markdown("**channel**"), self.channel]),
-            self.brdf.family, self.brdf.box, self.medium.family, self.medium.box,
-            pn.pane.Markdown("**angles**"), self.curve, self.theta_i, self.psi,
-            self.share, self.status, width=340)
+            self.brdf.family,
+            self.brdf.box,
+            self.medium.family,
+            self.medium.box,
+            pn.pane.Markdown("**angles**"),
+            self.curve,
+            self.theta_i,
+            self.psi,
+            self.share,
+            self.status,
+            width=340,
+        )
         views = pn.Column(
             pn.Row(pn.pane.Bokeh(self.views.lin), pn.pane.Bokeh(self.views.log)),
-            pn.Row(pn.pane.Bokeh(self.views.polar), pn.pane.Bokeh(self.views.trans),
-                   pn.pane.Bokeh(self.views.sphere)),
-            pn.pane.Bokeh(self.views.state_fig))
+            pn.Row(
+                pn.pane.Bokeh(self.views.polar),
+                pn.pane.Bokeh(self.views.trans),
+                pn.pane.Bokeh(self.views.sphere),
+            ),
+            pn.pane.Bokeh(self.views.state_fig),
+        )
         for plots in self.views.fit:
-            views.append(pn.Row(pn.Column(pn.pane.Bokeh(plots.fig), pn.pane.Bokeh(plots.res)),
-                                pn.pane.Markdown(plots.table(), width=300)))
+            views.append(
+                pn.Row(
+                    pn.Column(pn.pane.Bokeh(plots.fig), pn.pane.Bokeh(plots.res)),
+                    pn.pane.Markdown(plots.table(), width=300),
+                )
+            )
         return pn.Row(controls, views)
 
     # -- events ----------------------------------------------------------------------------
@@ -240,8 +283,14 @@ class ExplorePage:
         self.request_redraw(transmission=(kind == "medium"), sphere=sphere)
 
     def _on_angles(self, event):
-        self.state = ex.State(**{**self.state.__dict__, "theta_i": float(self.theta_i.value),
-                                 "psi": float(self.psi.value), "curve": self.curve.value})
+        self.state = ex.State(
+            **{
+                **self.state.__dict__,
+                "theta_i": float(self.theta_i.value),
+                "psi": float(self.psi.value),
+                "curve": self.curve.value,
+            }
+        )
         # psi and the curve's axis do not change the sphere; theta_i (its light) does,
         # when that slider rests
         self.request_redraw(transmission=True, sphere=False)
@@ -282,8 +331,9 @@ class ExplorePage:
         except InputError as exc:
             self.say(f"**{exc}**")
             return
-        self.views.draw_curves(self.curves.x, self.curves.xlabel, through, clear, s.curve,
-                               s.theta_i, s.psi)
+        self.views.draw_curves(
+            self.curves.x, self.curves.xlabel, through, clear, s.curve, s.theta_i, s.psi
+        )
         if self.views.channels is not None:
             self.views.channels.draw(self.curves, s.channels)
         if transmission:
@@ -292,8 +342,10 @@ class ExplorePage:
             plots.draw_current(s.brdf, s.medium)
         self.views.draw_state(s)
         peak = through if through is not None else clear
-        self.say(f"peak {float(np.max(peak)):.5g} at {self.curves.x[int(np.argmax(peak))]:g} deg"
-                 f" ({(time.perf_counter() - t0) * 1e3:.0f} ms)")
+        self.say(
+            f"peak {float(np.max(peak)):.5g} at {self.curves.x[int(np.argmax(peak))]:g} deg"
+            f" ({(time.perf_counter() - t0) * 1e3:.0f} ms)"
+        )
         self.timings["curves"] = time.perf_counter() - t0
         if sphere:
             self.schedule_sphere()
@@ -337,8 +389,10 @@ class ExplorePage:
                 self.views.draw_sphere(image, accuracy)
                 self.timings[f"sphere {accuracy}"] = dt
                 if accuracy == ex.LIVE_ACCURACY:
-                    self.doc.add_timeout_callback(lambda: start(ex.REFINED_ACCURACY),
-                                                  int(1e3 * REFINE_DELAY))
+                    self.doc.add_timeout_callback(
+                        lambda: start(ex.REFINED_ACCURACY), int(1e3 * REFINE_DELAY)
+                    )
+
             self.doc.add_next_tick_callback(show)
 
         def start(accuracy):

@@ -34,8 +34,9 @@ def table_density(brdf, medium, light_theta: float, accuracy: str) -> float:
     return LIVE_DENSITIES[-1]
 
 
-def sphere(brdf, medium, light_theta: float, size: int = 96,
-           accuracy: str = LIVE_ACCURACY) -> tuple[np.ndarray, np.ndarray]:
+def sphere(
+    brdf, medium, light_theta: float, size: int = 96, accuracy: str = LIVE_ACCURACY
+) -> tuple[np.ndarray, np.ndarray]:
     """(RGBA uint32 image (size, size) for a plot, linear image): the lit sphere of
     :func:`veil.viz.render.render` (the render table at ``accuracy``, coarser for sharp
     lobes at the live accuracy: :func:`table_density`), tone-mapped by its automatic
@@ -43,10 +44,17 @@ def sphere(brdf, medium, light_theta: float, size: int = 96,
     from .render import auto_exposure, render, tone_map
 
     theta = min(float(light_theta), 89.0)
-    rendering = render(brdf, medium, light_theta=theta, size=size, accuracy=accuracy,
-                       check=0, density=table_density(brdf, medium, theta, accuracy))
+    rendering = render(
+        brdf,
+        medium,
+        light_theta=theta,
+        size=size,
+        accuracy=accuracy,
+        check=0,
+        density=table_density(brdf, medium, theta, accuracy),
+    )
     linear = rendering.image
-    grey = tone_map(linear, auto_exposure(linear))          # uint8 (size, size)
+    grey = tone_map(linear, auto_exposure(linear))  # uint8 (size, size)
     return _rgba(np.repeat(grey[..., None], 3, axis=-1)), linear
 
 
@@ -56,8 +64,9 @@ def _rgba(rgb) -> np.ndarray:
     return rgba[::-1].copy().view(dtype=np.uint32).reshape(rgb.shape[:2])
 
 
-def sphere_colour(channels: dict, light_theta: float, size: int = 96,
-                  accuracy: str = LIVE_ACCURACY) -> tuple[np.ndarray, np.ndarray]:
+def sphere_colour(
+    channels: dict, light_theta: float, size: int = 96, accuracy: str = LIVE_ACCURACY
+) -> tuple[np.ndarray, np.ndarray]:
     """(RGBA uint32 image, linear (size, size, 3) image): :func:`sphere` of the channels r,
     g, b ({channel: (brdf, medium)}) as one colour image (:mod:`veil.viz.render_colour`),
     tone-mapped by its automatic exposure (the median lit luminance)."""
@@ -65,11 +74,22 @@ def sphere_colour(channels: dict, light_theta: float, size: int = 96,
     from .render_colour import auto_exposure_colour
 
     theta = min(float(light_theta), 89.0)
-    linear = np.stack([render(b, m, light_theta=theta, size=size, accuracy=accuracy, check=0,
-                              density=table_density(b, m, theta, accuracy)).image
-                       for b, m in (channels[c] for c in ("r", "g", "b"))], axis=-1)
+    linear = np.stack(
+        [
+            render(
+                b,
+                m,
+                light_theta=theta,
+                size=size,
+                accuracy=accuracy,
+                check=0,
+                density=table_density(b, m, theta, accuracy),
+            ).image
+            for b, m in (channels[c] for c in ("r", "g", "b"))
+        ],
+        axis=-1,
+    )
     return _rgba(tone_map(linear, auto_exposure_colour(linear))), linear
 
 
-__all__ = ["LIVE_ACCURACY", "REFINED_ACCURACY", "table_density", "sphere",
-           "sphere_colour"]
+__all__ = ["LIVE_ACCURACY", "REFINED_ACCURACY", "table_density", "sphere", "sphere_colour"]

@@ -22,8 +22,9 @@ def grid_values(spec: ex.SliderSpec, value: float, points: int) -> list[float]:
     return [float(f"{spec.to_value(x):.6g}") for x in xs]
 
 
-def static_page(state: ex.State, param: str, points: int, fit_views=(),
-                progress=None) -> tuple[pn.Column, list[float]]:
+def static_page(
+    state: ex.State, param: str, points: int, fit_views=(), progress=None
+) -> tuple[pn.Column, list[float]]:
     """A self-contained page (no server): the curves, lobes and sphere precomputed for
     ``points`` values of one parameter (``kind.name`` or a name unique to one model),
     switched by a slider (Panel embeds every state in the page)."""
@@ -49,9 +50,11 @@ def static_page(state: ex.State, param: str, points: int, fit_views=(),
         frames[v]["_fit"] = [(dict(p.src_now.data), dict(p.src_res.data)) for p in views.fit]
         if progress:
             progress(k + 1, len(values))
-    slider = pn.widgets.DiscreteSlider(label=f"{kind} {name}", options=values,
-                                       value=values[int(np.argmin(
-                                           [abs(x - getattr(model, name)) for x in values]))])
+    slider = pn.widgets.DiscreteSlider(
+        label=f"{kind} {name}",
+        options=values,
+        value=values[int(np.argmin([abs(x - getattr(model, name)) for x in values]))],
+    )
 
     def apply(value):
         frame = frames[value]
@@ -62,20 +65,30 @@ def static_page(state: ex.State, param: str, points: int, fit_views=(),
 
     slider.param.watch(lambda event: apply(event.new), "value")
     apply(slider.value)
-    other = "; ".join(f"{m.NAME}: " + ", ".join(f"{k} = {v:.4g}" for k, v in m.as_dict().items())
-                      for m in (state.brdf, state.medium) if m is not None)
+    other = "; ".join(
+        f"{m.NAME}: " + ", ".join(f"{k} = {v:.4g}" for k, v in m.as_dict().items())
+        for m in (state.brdf, state.medium)
+        if m is not None
+    )
     header = pn.pane.Markdown(
         f"### veil explore (static page)\n{other}\n\nincidence {state.theta_i:g} deg, psi "
         f"{state.psi:g} deg, curve: {state.curve}. The slider switches between precomputed "
-        f"states of **{name}** ({kind}); run `veil explore` for every control.")
-    body = pn.Column(header, slider,
-                     pn.Row(pn.pane.Bokeh(views.lin), pn.pane.Bokeh(views.log)),
-                     pn.Row(pn.pane.Bokeh(views.polar), pn.pane.Bokeh(views.trans),
-                            pn.pane.Bokeh(views.sphere)),
-                     pn.pane.Bokeh(views.state_fig))
+        f"states of **{name}** ({kind}); run `veil explore` for every control."
+    )
+    body = pn.Column(
+        header,
+        slider,
+        pn.Row(pn.pane.Bokeh(views.lin), pn.pane.Bokeh(views.log)),
+        pn.Row(pn.pane.Bokeh(views.polar), pn.pane.Bokeh(views.trans), pn.pane.Bokeh(views.sphere)),
+        pn.pane.Bokeh(views.state_fig),
+    )
     for plots in views.fit:
-        body.append(pn.Row(pn.Column(pn.pane.Bokeh(plots.fig), pn.pane.Bokeh(plots.res)),
-                           pn.pane.Markdown(plots.table(), width=300)))
+        body.append(
+            pn.Row(
+                pn.Column(pn.pane.Bokeh(plots.fig), pn.pane.Bokeh(plots.res)),
+                pn.pane.Markdown(plots.table(), width=300),
+            )
+        )
     return body, values
 
 
@@ -97,10 +110,13 @@ def _find_param(state: ex.State, param: str):
         return found[0]
     known = [f"{k}.{n}" for k in kinds for n in type(getattr(state, k)).param_names()]
     if not found:
-        raise InputError(f"--param {param!r} is not a parameter of the page's models; known: "
-                         f"{', '.join(known)}")
-    raise InputError(f"--param {param!r} names a parameter of both models: write "
-                     f"{' or '.join(f'{k}.{param}' for k, _, _ in found)}")
+        raise InputError(
+            f"--param {param!r} is not a parameter of the page's models; known: {', '.join(known)}"
+        )
+    raise InputError(
+        f"--param {param!r} names a parameter of both models: write "
+        f"{' or '.join(f'{k}.{param}' for k, _, _ in found)}"
+    )
 
 
 def save_static(body, path) -> None:
@@ -112,8 +128,15 @@ def save_static(body, path) -> None:
     from ..io import write_text_atomic
 
     buffer = _io.StringIO()
-    body.save(buffer, embed=True, resources=INLINE, title="veil explore", max_states=10000,
-              max_opts=10000, progress=False)
+    body.save(
+        buffer,
+        embed=True,
+        resources=INLINE,
+        title="veil explore",
+        max_states=10000,
+        max_opts=10000,
+        progress=False,
+    )
     write_text_atomic(path, buffer.getvalue())
 
 

@@ -16,9 +16,17 @@ FORMATS = ("png", "pdf", "svg")
 CLEAR_COLOR = "#d62728"
 MEDIUM_COLORS = ("#1f77b4", "#2ca02c", "#6a3d9a", "#ff7f0e", "#8c564b", "#17becf")
 BRDF_COLORS = ("#1f77b4", "#d62728", "#2ca02c", "#ff7f0e")
-STYLE = {"font.size": 10, "axes.titlesize": 10.5, "axes.labelsize": 10, "legend.fontsize": 9,
-         "xtick.labelsize": 9, "ytick.labelsize": 9, "figure.dpi": 100,
-         "svg.hashsalt": "veil", "pdf.compression": 6}
+STYLE = {
+    "font.size": 10,
+    "axes.titlesize": 10.5,
+    "axes.labelsize": 10,
+    "legend.fontsize": 9,
+    "xtick.labelsize": 9,
+    "ytick.labelsize": 9,
+    "figure.dpi": 100,
+    "svg.hashsalt": "veil",
+    "pdf.compression": 6,
+}
 
 
 # --------------------------------------------------------------------------------------
@@ -28,16 +36,21 @@ def figure_format(path) -> str:
     """The format of ``path`` from its suffix; ValueError for anything but png/pdf/svg."""
     ext = os.path.splitext(os.fspath(path))[1].lower().lstrip(".")
     if ext not in FORMATS:
-        raise InputError(f"cannot tell the figure format of {os.fspath(path)!r}: use a file "
-                         f"name ending in {', '.join('.' + f for f in FORMATS)}")
+        raise InputError(
+            f"cannot tell the figure format of {os.fspath(path)!r}: use a file "
+            f"name ending in {', '.join('.' + f for f in FORMATS)}"
+        )
     return ext
 
 
 def figure_bytes(fig, fmt: str, dpi=150) -> bytes:
     """The figure encoded as ``fmt``, without time stamps (deterministic output)."""
     buf = io.BytesIO()
-    meta = {"png": {"Software": None}, "pdf": {"CreationDate": None, "ModDate": None},
-            "svg": {"Date": None}}[fmt]
+    meta = {
+        "png": {"Software": None},
+        "pdf": {"CreationDate": None, "ModDate": None},
+        "svg": {"Date": None},
+    }[fmt]
     fig.savefig(buf, format=fmt, dpi=dpi, metadata=meta)
     return buf.getvalue()
 

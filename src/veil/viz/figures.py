@@ -40,6 +40,7 @@ from .render import Rendering, auto_exposure, clipping, evaluate, highlight_pixe
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
+
 # --------------------------------------------------------------------------------------
 # the data
 # --------------------------------------------------------------------------------------
@@ -83,8 +84,9 @@ def curve_metrics(theta, values, off_angle=0.0) -> CurveMetrics:
 
     left = crossing(range(k - 1, -1, -1))
     right = crossing(range(k + 1, len(values)))
-    return CurveMetrics(peak, float(theta[k]), left, right,
-                        float(np.interp(off_angle, theta, values)), off_angle)
+    return CurveMetrics(
+        peak, float(theta[k]), left, right, float(np.interp(off_angle, theta, values)), off_angle
+    )
 
 
 @dataclass
@@ -97,14 +99,22 @@ class Curve:
     metrics: CurveMetrics
 
 
-def inplane_curve(brdf, medium, theta_i=45.0, theta_r=None, *, accuracy="default",
-                  progress=None) -> Curve:
+def inplane_curve(
+    brdf, medium, theta_i=45.0, theta_r=None, *, accuracy="default", progress=None
+) -> Curve:
     """f(I, R) in the plane of incidence, light at theta_i, camera at theta_r on the mirror side."""
     b = as_brdf(brdf)
     m = None if medium is None else as_btdf(medium)
     tr = reflection_angles(theta_i) if theta_r is None else np.asarray(theta_r, float)
-    values = evaluate(b, m, np.full(tr.shape, float(theta_i)), tr, np.full(tr.shape, 180.0),
-                      accuracy=accuracy, progress=progress)
+    values = evaluate(
+        b,
+        m,
+        np.full(tr.shape, float(theta_i)),
+        tr,
+        np.full(tr.shape, 180.0),
+        accuracy=accuracy,
+        progress=progress,
+    )
     return Curve(b, m, float(theta_i), tr, values, curve_metrics(tr, values))
 
 
@@ -135,9 +145,16 @@ def sphere_stats(rendering: Rendering) -> SphereStats:
     n_clip, frac, _ = clipping(img, exposure)
     lit = img[img > 0]
     row, col = highlight_pixel(img.shape[0], rendering.light_theta, rendering.light_phi)
-    return SphereStats(float(img.max()), (int(k[0]), int(k[1])), (round(row, 2), round(col, 2)),
-                       float(np.median(lit)), int(np.count_nonzero(img >= 0.5 * img.max())),
-                       exposure, n_clip, frac)
+    return SphereStats(
+        float(img.max()),
+        (int(k[0]), int(k[1])),
+        (round(row, 2), round(col, 2)),
+        float(np.median(lit)),
+        int(np.count_nonzero(img >= 0.5 * img.max())),
+        exposure,
+        n_clip,
+        frac,
+    )
 
 
 @dataclass
@@ -159,9 +176,18 @@ class Experiment:
     single_only: dict = field(default_factory=dict)
 
 
-def run_experiment(brdfs=("BRDF1", "BRDF2"), media=("BTDF1", "BTDF2", "BTDF3"), *, theta_i=45.0,
-                   light_theta=45.0, size=256, accuracy="default", render_accuracy="fast",
-                   check=64, progress=None) -> Experiment:
+def run_experiment(
+    brdfs=("BRDF1", "BRDF2"),
+    media=("BTDF1", "BTDF2", "BTDF3"),
+    *,
+    theta_i=45.0,
+    light_theta=45.0,
+    size=256,
+    accuracy="default",
+    render_accuracy="fast",
+    check=64,
+    progress=None,
+) -> Experiment:
     """Compute the curves (fig. 11) and renders (fig. 12) of the experiment.
 
     ``progress(message, done, total)`` is called as the work advances (optional).
@@ -169,9 +195,15 @@ def run_experiment(brdfs=("BRDF1", "BRDF2"), media=("BTDF1", "BTDF2", "BTDF3"), 
     for name, acc in (("accuracy", accuracy), ("render_accuracy", render_accuracy)):
         if acc not in RULES:
             raise InputError(f"{name} = {acc!r}; expected one of {', '.join(RULES)}")
-    exp = Experiment({b if isinstance(b, str) else _name(b): as_brdf(b) for b in brdfs},
-                     {m if isinstance(m, str) else _name(m): as_btdf(m) for m in media},
-                     float(theta_i), float(light_theta), int(size), accuracy, render_accuracy)
+    exp = Experiment(
+        {b if isinstance(b, str) else _name(b): as_brdf(b) for b in brdfs},
+        {m if isinstance(m, str) else _name(m): as_btdf(m) for m in media},
+        float(theta_i),
+        float(light_theta),
+        int(size),
+        accuracy,
+        render_accuracy,
+    )
     keys = [(b, "clear") for b in exp.brdfs] + [(b, m) for b in exp.brdfs for m in exp.media]
     total = 2 * len(keys)
     done = 0
@@ -182,15 +214,17 @@ def run_experiment(brdfs=("BRDF1", "BRDF2"), media=("BTDF1", "BTDF2", "BTDF3"), 
         exp.curves[key] = inplane_curve(b, m, theta_i, accuracy=accuracy)
         if m is not None:
             off = exp.curves[key].metrics.off_angle
-            exp.single_only[key] = float(evaluate(b, m.without_iso(), theta_i, off, 180.0,
-                                                  accuracy=accuracy)[0])
+            exp.single_only[key] = float(
+                evaluate(b, m.without_iso(), theta_i, off, 180.0, accuracy=accuracy)[0]
+            )
         done += 1
     for key in keys:
         b, m = exp.brdfs[key[0]], exp.media.get(key[1])
         if progress:
             progress(f"fig. 12 sphere {key[0]} x {key[1]}", done, total)
-        exp.renders[key] = render(b, m, light_theta, 0.0, size, accuracy=render_accuracy,
-                                  check=check)
+        exp.renders[key] = render(
+            b, m, light_theta, 0.0, size, accuracy=render_accuracy, check=check
+        )
         exp.stats[key] = sphere_stats(exp.renders[key])
         done += 1
     if progress:
@@ -202,15 +236,20 @@ def run_experiment(brdfs=("BRDF1", "BRDF2"), media=("BTDF1", "BTDF2", "BTDF3"), 
 # fig. 11: observed value against reflection angle
 # --------------------------------------------------------------------------------------
 SCALES = ("log", "linear", "peak", "tt2")
-SCALE_WORDS = {"log": "observed value, log scale",
-               "linear": "observed value, linear scale",
-               "peak": "each curve divided by its own peak, linear scale",
-               "tt2": "observed value divided by T_t² (clear medium as is), log scale"}
+SCALE_WORDS = {
+    "log": "observed value, log scale",
+    "linear": "observed value, linear scale",
+    "peak": "each curve divided by its own peak, linear scale",
+    "tt2": "observed value divided by T_t² (clear medium as is), log scale",
+}
 
 
-SHORT_WORDS = {"log": "observed value f, log scale", "linear": "observed value f",
-               "peak": "f divided by its own peak, linear scale",
-               "tt2": "f / T_t² (clear medium: f), log scale"}
+SHORT_WORDS = {
+    "log": "observed value f, log scale",
+    "linear": "observed value f",
+    "peak": "f divided by its own peak, linear scale",
+    "tt2": "f / T_t² (clear medium: f), log scale",
+}
 
 
 def _medium_label(curve: Curve, with_brdf=True) -> str:
@@ -244,8 +283,9 @@ def draw_curves(ax, curves, scale="log", title=None, with_brdf=True) -> None:
         ax.plot(curve.theta_r, y, color=color, lw=lw, label=_medium_label(curve, with_brdf))
     if scale in ("log", "tt2"):
         ax.set_yscale("log")
-        ax.set_ylabel("f(I, R) [1/sr], log scale" if scale == "log"
-                      else "f(I, R) / T_t² [1/sr], log scale")
+        ax.set_ylabel(
+            "f(I, R) [1/sr], log scale" if scale == "log" else "f(I, R) / T_t² [1/sr], log scale"
+        )
     elif scale == "linear":
         ax.set_ylabel("f(I, R) [1/sr]")
     else:
@@ -272,11 +312,22 @@ def fig11(exp: Experiment) -> Figure:
         for i, scale in enumerate(rows):
             for j, b in enumerate(names):
                 curves = [exp.curves[(b, "clear")]] + [exp.curves[(b, m)] for m in exp.media]
-                draw_curves(axes[i, j], curves, scale,
-                            f"({next(letters)}) {b}: {SHORT_WORDS[scale]}", with_brdf=False)
+                draw_curves(
+                    axes[i, j],
+                    curves,
+                    scale,
+                    f"({next(letters)}) {b}: {SHORT_WORDS[scale]}",
+                    with_brdf=False,
+                )
         handles, labels = axes[0, 0].get_legend_handles_labels()
-        fig.legend(handles, labels, loc="upper center", ncol=len(labels), frameon=False,
-                   bbox_to_anchor=(0.5, 1.0))
+        fig.legend(
+            handles,
+            labels,
+            loc="upper center",
+            ncol=len(labels),
+            frameon=False,
+            bbox_to_anchor=(0.5, 1.0),
+        )
         fig.tight_layout(rect=(0, 0, 1, 0.975))
     return fig
 
@@ -302,8 +353,9 @@ def fig12(exp: Experiment, tone="reinhard") -> Figure:
     rows = list(exp.brdfs)
     cols = ["clear"] + list(exp.media)
     with ctx:
-        fig, axes = plt.subplots(len(rows), len(cols), figsize=(3.1 * len(cols), 4.0 * len(rows)),
-                                 squeeze=False)
+        fig, axes = plt.subplots(
+            len(rows), len(cols), figsize=(3.1 * len(cols), 4.0 * len(rows)), squeeze=False
+        )
         letter = iter("abcdefghijklmnop")
         for i, b in enumerate(rows):
             for j, m in enumerate(cols):
@@ -316,23 +368,56 @@ def fig12(exp: Experiment, tone="reinhard") -> Figure:
                 what = "true BRDF (clear)" if m == "clear" else f"apparent, {m}"
                 ax.set_title(f"({next(letter)}) {b}, {what}")
                 if tone == "clip":
-                    clip = (f"highlight clips: {100 * st.clipped_fraction:.2g} % of lit px"
-                            if st.clipped else "nothing clips")
+                    clip = (
+                        f"highlight clips: {100 * st.clipped_fraction:.2g} % of lit px"
+                        if st.clipped
+                        else "nothing clips"
+                    )
                 else:
                     clip = f"peak/median {st.contrast:.3g}"
-                ax.set_xlabel(f"peak {st.peak:.3g}, median {st.median:.3g} [1/sr]\n"
-                              f"exposure {st.exposure:.3g}; {clip}", fontsize=8.5)
-        curve = ("x/(1+x) (Reinhard, nothing clips)" if tone == "reinhard"
-                 else "linear, clipped at white")
-        fig.suptitle(f"Spheres lit from θ = {exp.light_theta:g}° (from the right), orthographic "
-                     f"view; pixel = f·cos θ_i; exposure: median lit pixel → 0.18; "
-                     f"tone curve {curve}; sRGB", fontsize=10, y=0.995)
+                ax.set_xlabel(
+                    f"peak {st.peak:.3g}, median {st.median:.3g} [1/sr]\n"
+                    f"exposure {st.exposure:.3g}; {clip}",
+                    fontsize=8.5,
+                )
+        curve = (
+            "x/(1+x) (Reinhard, nothing clips)"
+            if tone == "reinhard"
+            else "linear, clipped at white"
+        )
+        fig.suptitle(
+            f"Spheres lit from θ = {exp.light_theta:g}° (from the right), orthographic "
+            f"view; pixel = f·cos θ_i; exposure: median lit pixel → 0.18; "
+            f"tone curve {curve}; sRGB",
+            fontsize=10,
+            y=0.995,
+        )
         fig.tight_layout(rect=(0, 0, 1, 0.975))
     return fig
 
 
-__all__ = ["Experiment", "run_experiment", "Curve", "CurveMetrics", "curve_metrics",
-           "inplane_curve", "reflection_angles", "lobe_data", "transmission_data", "fig9",
-           "fig10", "fig11", "fig12", "fig_curve", "draw_curves", "save_figure", "figure_bytes",
-           "figure_format", "write_bytes_atomic", "SphereStats", "sphere_stats",
-           "SCALES", "FORMATS"]
+__all__ = [
+    "Experiment",
+    "run_experiment",
+    "Curve",
+    "CurveMetrics",
+    "curve_metrics",
+    "inplane_curve",
+    "reflection_angles",
+    "lobe_data",
+    "transmission_data",
+    "fig9",
+    "fig10",
+    "fig11",
+    "fig12",
+    "fig_curve",
+    "draw_curves",
+    "save_figure",
+    "figure_bytes",
+    "figure_format",
+    "write_bytes_atomic",
+    "SphereStats",
+    "sphere_stats",
+    "SCALES",
+    "FORMATS",
+]

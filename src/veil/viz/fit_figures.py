@@ -29,10 +29,12 @@ COLORS = ("#1f77b4", "#d62728", "#2ca02c", "#ff7f0e", "#6a3d9a", "#8c564b")
 # figures
 # --------------------------------------------------------------------------------------
 #: The title of each step's figure.
-STEP_TITLES = {"reference": "Step 0: reference object, clear medium (f_r)",
-               "medium": "Step 1: reference object through the medium (f_t fitted)",
-               "target": "Step 2: target object through the medium (f_r fitted)",
-               "direct": "Target object, clear medium: direct fit and estimate"}
+STEP_TITLES = {
+    "reference": "Step 0: reference object, clear medium (f_r)",
+    "medium": "Step 1: reference object through the medium (f_t fitted)",
+    "target": "Step 2: target object through the medium (f_r fitted)",
+    "direct": "Target object, clear medium: direct fit and estimate",
+}
 
 
 def _goniometer(data):
@@ -52,8 +54,9 @@ def _curve_rho(rho_min, rho_max):
     return rho[(rho >= rho_min - 1e-9) & (rho <= rho_max + 1e-9)]
 
 
-def fit_figure(data, result: FitResult, other: Model | None, extra: FitResult | None = None,
-               dpi: int = 120) -> bytes:
+def fit_figure(
+    data, result: FitResult, other: Model | None, extra: FitResult | None = None, dpi: int = 120
+) -> bytes:
     """PNG: data (markers, sigma bars) and fitted curves against theta_r, one colour per psi,
     over a panel of the relative residuals (data - model) / model with the fit's model-error
     band (+-2 s, when the fit has a term), where a trend in the angles shows. ``other`` is the
@@ -68,8 +71,7 @@ def fit_figure(data, result: FitResult, other: Model | None, extra: FitResult | 
     if gonio is None:
         ax, res_ax = fig.add_subplot(), None
     else:
-        ax, res_ax = fig.subplots(2, 1, sharex=True,
-                                  gridspec_kw={"height_ratios": (3.2, 1.0)})
+        ax, res_ax = fig.subplots(2, 1, sharex=True, gridspec_kw={"height_ratios": (3.2, 1.0)})
     accuracy = result.accuracy or "default"
     if gonio is None:
         _model_against_data(ax, data, model_values(result, other, data.angles, accuracy))
@@ -96,8 +98,7 @@ def _model_against_data(ax, data, model) -> None:
     ax.set_ylabel("measured value [relative units, 1/sr]")
 
 
-def _curves_and_residuals(fig, ax, res_ax, data, gonio, result, other, extra,
-                          accuracy) -> None:
+def _curves_and_residuals(fig, ax, res_ax, data, gonio, result, other, extra, accuracy) -> None:
     """Goniometer data: the data and the fitted curves per psi, the residual panel below."""
     y = data.y
     psi, rho, tr = gonio
@@ -122,30 +123,55 @@ def _curves_and_residuals(fig, ax, res_ax, data, gonio, result, other, extra,
         n = len(tr_c)
         order = np.argsort(tr[sel])
         yerr = data.sigma[sel][order] if data.sigma is not None else None
-        ax.errorbar(tr[sel][order], y[sel][order], yerr=yerr, fmt="o", ms=3, color=color,
-                    elinewidth=0.8, capsize=0)
-        ax.plot(tr_c, fitted[start:start + n], "-", color=color, lw=1.2)
+        ax.errorbar(
+            tr[sel][order],
+            y[sel][order],
+            yerr=yerr,
+            fmt="o",
+            ms=3,
+            color=color,
+            elinewidth=0.8,
+            capsize=0,
+        )
+        ax.plot(tr_c, fitted[start : start + n], "-", color=color, lw=1.2)
         if dashed is not None:
-            ax.plot(tr_c, dashed[start:start + n], "--", color=color, lw=1.0)
-        handles.append(Line2D([], [], color=color, marker="o", ms=3, lw=1.2,
-                              label=f"psi = {p:g}°"))
+            ax.plot(tr_c, dashed[start : start + n], "--", color=color, lw=1.0)
+        handles.append(Line2D([], [], color=color, marker="o", ms=3, lw=1.2, label=f"psi = {p:g}°"))
         start += n
     positive = y[y > 0]
     if positive.size and np.max(positive) > LOG_RATIO * np.median(positive):
         ax.set_yscale("log")
         ax.set_ylim(bottom=max(np.min(positive) * 0.5, np.max(positive) * 1e-6))
     ax.set_ylabel("observed value [relative units, 1/sr]")
-    _residual_panel(res_ax, data, _fitted_values(data, result, other, accuracy), psi, tr,
-                    result.model_error)
+    _residual_panel(
+        res_ax, data, _fitted_values(data, result, other, accuracy), psi, tr, result.model_error
+    )
     ax.tick_params(labelbottom=False)
     res_ax.set_title("relative residual (data - model) / model", fontsize=8, loc="left")
     fig.align_ylabels((ax, res_ax))
-    handles += [Line2D([], [], color="0.3", marker="o", ms=3, lw=0,
-                       label="data" + (" (+- sigma)" if data.sigma is not None else "")),
-                Line2D([], [], color="0.3", lw=1.2, label="fitted model")]
+    handles += [
+        Line2D(
+            [],
+            [],
+            color="0.3",
+            marker="o",
+            ms=3,
+            lw=0,
+            label="data" + (" (+- sigma)" if data.sigma is not None else ""),
+        ),
+        Line2D([], [], color="0.3", lw=1.2, label="fitted model"),
+    ]
     if dashed is not None:
-        handles.append(Line2D([], [], color="0.3", lw=1.0, ls="--",
-                              label="f_r estimated through the medium (step 2)"))
+        handles.append(
+            Line2D(
+                [],
+                [],
+                color="0.3",
+                lw=1.0,
+                ls="--",
+                label="f_r estimated through the medium (step 2)",
+            )
+        )
     ax.legend(handles=handles, fontsize=7.5, loc="best", framealpha=0.8)
 
 
@@ -178,8 +204,11 @@ def relative_residuals(y, model, sigma=None):
     ok = finite & (np.abs(model) > TINY_MODEL * scale)
     safe = np.where(ok, model, 1.0)
     rel = np.where(ok, (y - safe) / safe, np.nan)
-    err = None if sigma is None else np.where(ok, np.asarray(sigma, dtype=float)
-                                              / np.abs(safe), np.nan)
+    err = (
+        None
+        if sigma is None
+        else np.where(ok, np.asarray(sigma, dtype=float) / np.abs(safe), np.nan)
+    )
     return rel, err
 
 
@@ -202,14 +231,26 @@ def _residual_panel(ax, data, model, psi, tr, model_error) -> None:
     s = getattr(model_error, "sigma", 0.0) or 0.0
     half, shown, off = residual_panel(rel, s)
     if s > 0:
-        ax.axhspan(-200.0 * s, 200.0 * s, color="0.85", lw=0,
-                   label=f"model error +-2 s (s = {100 * s:.2g} %)")
+        ax.axhspan(
+            -200.0 * s,
+            200.0 * s,
+            color="0.85",
+            lw=0,
+            label=f"model error +-2 s (s = {100 * s:.2g} %)",
+        )
     for k, p in enumerate(np.unique(psi)):
         sel, color = psi == p, COLORS[k % len(COLORS)]
         inside = sel & ~off
-        ax.errorbar(tr[inside], shown[inside],
-                    yerr=None if err is None else 100.0 * err[inside], fmt="o", ms=2.5,
-                    color=color, elinewidth=0.7, capsize=0)
+        ax.errorbar(
+            tr[inside],
+            shown[inside],
+            yerr=None if err is None else 100.0 * err[inside],
+            fmt="o",
+            ms=2.5,
+            color=color,
+            elinewidth=0.7,
+            capsize=0,
+        )
         for sign, marker in ((1.0, "^"), (-1.0, "v")):
             edge = sel & off & (np.sign(shown) == sign)
             if edge.any():
@@ -233,6 +274,7 @@ def diagnosis_figure(diag, path) -> None:
     """PNG: the correlation matrix and each profile (Delta chi^2 against the held value,
     with the quadratic expected from the standard error); written atomically."""
     import matplotlib
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
@@ -254,8 +296,9 @@ def diagnosis_figure(diag, path) -> None:
         ax.plot(v, prof.delta_chi2, "o-", label="profile")
         se = diag.stderr[name]
         fine = np.linspace(v.min(), v.max(), 200)
-        ax.plot(fine, ((fine - prof.estimate) / se) ** 2, "--", color="gray",
-                label="quadratic (stderr)")
+        ax.plot(
+            fine, ((fine - prof.estimate) / se) ** 2, "--", color="gray", label="quadratic (stderr)"
+        )
         ax.axhline(1.0, color="k", lw=0.8)
         ax.set_ylim(0, max(10.0, min(50.0, max(prof.delta_chi2) * 1.1)))
         ax.set_xlabel(name)

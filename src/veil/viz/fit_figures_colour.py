@@ -26,8 +26,9 @@ from .fit_figures import (
 PSI_STYLES = (("o", "-"), ("s", "--"), ("^", ":"), ("D", "-."), ("v", (0, (5, 1))))
 
 
-def channel_fit_figure(datas: dict, result: FitResult, others: dict,
-                       extra: FitResult | None = None, dpi: int = 120) -> bytes:
+def channel_fit_figure(
+    datas: dict, result: FitResult, others: dict, extra: FitResult | None = None, dpi: int = 120
+) -> bytes:
     """PNG of ``result``, a fit over the channels of ``datas`` ({channel: FitData}, in-plane
     goniometer data): ``others`` {channel: the model held fixed, None for f_r alone};
     ``extra`` (a result over the same channels) adds each channel's f_r as a thin dotted
@@ -52,17 +53,28 @@ def channel_fit_figure(datas: dict, result: FitResult, others: dict,
         psi, _, tr = gonio
         for k, p in enumerate(np.unique(psi)):
             sel = psi == p
-            res_ax.plot(tr[sel], 100.0 * rel[sel], PSI_STYLES[k % len(PSI_STYLES)][0],
-                        ms=2.5, color=colour)
+            res_ax.plot(
+                tr[sel], 100.0 * rel[sel], PSI_STYLES[k % len(PSI_STYLES)][0], ms=2.5, color=colour
+            )
         shown.append(100.0 * rel[np.isfinite(rel)])
         positive.append(data.y[data.y > 0])
         handles.append(Line2D([], [], color=colour, lw=1.5, label=f"channel {channel}"))
     psis = np.unique(_goniometer(next(iter(datas.values())))[0])
-    handles += [Line2D([], [], color="0.3", marker=m, ls=ls, ms=3, lw=1.0, label=f"psi = {p:g}°")
-                for p, (m, ls) in zip(psis, PSI_STYLES)]
+    handles += [
+        Line2D([], [], color="0.3", marker=m, ls=ls, ms=3, lw=1.0, label=f"psi = {p:g}°")
+        for p, (m, ls) in zip(psis, PSI_STYLES)
+    ]
     if extra is not None:
-        handles.append(Line2D([], [], color="0.3", lw=0.8, ls=(0, (1, 1)),
-                              label="f_r estimated through the medium (step 2)"))
+        handles.append(
+            Line2D(
+                [],
+                [],
+                color="0.3",
+                lw=0.8,
+                ls=(0, (1, 1)),
+                label="f_r estimated through the medium (step 2)",
+            )
+        )
     _axes(ax, res_ax, np.concatenate(positive), np.concatenate(shown))
     title = STEP_TITLES.get(result.step or "", result.model)
     ax.set_title(f"{title}, channels {', '.join(datas)}", fontsize=10)
@@ -84,15 +96,34 @@ def _channel_curves(ax, data, gonio, model: Model, other, estimate, colour: str)
         sel = psi == p
         order = np.argsort(tr[sel])
         yerr = data.sigma[sel][order] if data.sigma is not None else None
-        ax.errorbar(tr[sel][order], data.y[sel][order], yerr=yerr, fmt=marker, ms=3,
-                    color=colour, elinewidth=0.8, capsize=0, alpha=0.8)
+        ax.errorbar(
+            tr[sel][order],
+            data.y[sel][order],
+            yerr=yerr,
+            fmt=marker,
+            ms=3,
+            color=colour,
+            elinewidth=0.8,
+            capsize=0,
+            alpha=0.8,
+        )
         r = _curve_rho(rho[sel].min(), rho[sel].max())
         angles = from_signed_inplane(p / 2 + r, p / 2 - r)
-        ax.plot(p / 2 - r, model_values(model, other, angles, CURVE_ACCURACY), ls=style,
-                color=colour, lw=1.2)
+        ax.plot(
+            p / 2 - r,
+            model_values(model, other, angles, CURVE_ACCURACY),
+            ls=style,
+            color=colour,
+            lw=1.2,
+        )
         if estimate is not None:
-            ax.plot(p / 2 - r, model_values(estimate, None, angles), ls=(0, (1, 1)),
-                    color=colour, lw=0.8)
+            ax.plot(
+                p / 2 - r,
+                model_values(estimate, None, angles),
+                ls=(0, (1, 1)),
+                color=colour,
+                lw=0.8,
+            )
 
 
 def _axes(ax, res_ax, positive: np.ndarray, residuals_pct: np.ndarray) -> None:

@@ -42,8 +42,9 @@ def _setup_log_polar(ax, lo, hi, zero="N", direction=-1, unit=""):
     ticks = list(range(1, hi - lo + 1))
     step = 1 if len(ticks) <= 4 else 2  # label every other ring when they would crowd
     ax.set_rticks(ticks)
-    ax.set_yticklabels([f"$10^{{{lo + t}}}$" if (hi - lo - t) % step == 0 else "" for t in ticks],
-                       fontsize=8)
+    ax.set_yticklabels(
+        [f"$10^{{{lo + t}}}$" if (hi - lo - t) % step == 0 else "" for t in ticks], fontsize=8
+    )
     ax.set_rlabel_position(-75)
     ax.set_thetagrids(range(-90, 91, 30), [f"{a}°" for a in range(-90, 91, 30)])
     ax.grid(True, alpha=0.4)
@@ -66,8 +67,11 @@ def _mirror_cut(theta_i, s_deg):
 def lobe_data(brdf, theta_i=45.0) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """f_r in the plane of incidence (signed theta_r) and out of it (angle s from the mirror)."""
     b = as_brdf(brdf)
-    t_in = np.unique(np.concatenate([np.linspace(-89.5, 89.5, 359),
-                                     np.arange(theta_i - 15, theta_i + 15.001, 0.05)]))
+    t_in = np.unique(
+        np.concatenate(
+            [np.linspace(-89.5, 89.5, 359), np.arange(theta_i - 15, theta_i + 15.001, 0.05)]
+        )
+    )
     t_in = t_in[np.abs(t_in) < 89.9]
     f_in = reflectance(b, theta_i, np.abs(t_in), 180.0, np.where(t_in < 0, 180.0, 0.0))
     s = np.unique(np.concatenate([np.linspace(-89.5, 89.5, 359), np.arange(-15, 15.001, 0.05)]))
@@ -110,13 +114,19 @@ def fig9(brdfs=("BRDF1", "BRDF2"), theta_i=45.0, labels=None) -> Figure:
         for ax in (ax1, ax2):
             _setup_log_polar(ax, lo, hi)
         r_top = hi - lo
-        ax1.annotate("", xy=(0, 0), xytext=(math.radians(-theta_i), r_top),
-                     arrowprops=dict(arrowstyle="->", color="0.3", lw=1.2))
+        ax1.annotate(
+            "",
+            xy=(0, 0),
+            xytext=(math.radians(-theta_i), r_top),
+            arrowprops=dict(arrowstyle="->", color="0.3", lw=1.2),
+        )
         ax1.text(math.radians(-theta_i + 7), r_top * 0.8, "light", color="0.3", ha="center")
         ax1.plot([math.radians(theta_i)] * 2, [0, r_top], color="0.5", lw=0.8, ls=":")
         ax1.set_title("(a) in the plane of incidence\nangle = signed reflection angle θ_r", pad=4)
-        ax2.set_title("(b) out of the plane, through the mirror direction\n"
-                      "angle = from the mirror direction", pad=4)
+        ax2.set_title(
+            "(b) out of the plane, through the mirror direction\nangle = from the mirror direction",
+            pad=4,
+        )
         floor = min(float(np.min(d[1])) for d in data)
         ax3.set_ylim(bottom=10 ** math.floor(math.log10(floor)))
         ax3.set_xlabel("angle from the mirror direction [deg]")
@@ -124,17 +134,23 @@ def fig9(brdfs=("BRDF1", "BRDF2"), theta_i=45.0, labels=None) -> Figure:
         ax3.set_title("(c) close-up: solid in the plane,\ndashed out of the plane")
         ax3.set_xlim(-15, 15)
         ax3.grid(True, which="major", alpha=0.3)
-        fig.legend(handles=handles, loc="lower center", bbox_to_anchor=(0.84, 0.0),
-                   ncol=_legend_columns(handles), frameon=False,
-                   title=f"incidence {theta_i:g}°, radius: f_r [1/sr], log")
+        fig.legend(
+            handles=handles,
+            loc="lower center",
+            bbox_to_anchor=(0.84, 0.0),
+            ncol=_legend_columns(handles),
+            frameon=False,
+            title=f"incidence {theta_i:g}°, radius: f_r [1/sr], log",
+        )
     return fig
 
 
 # --------------------------------------------------------------------------------------
 # fig. 10: transmission lobes
 # --------------------------------------------------------------------------------------
-def transmission_data(medium,
-                      theta_i=45.0) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def transmission_data(
+    medium, theta_i=45.0
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """f_t(I, T) against the propagation direction -T of the transmitted light.
 
     In the plane: beta = signed angle of -T from the downward vertical (beta = theta_i is the
@@ -144,8 +160,11 @@ def transmission_data(medium,
     m = as_btdf(medium)
     v = m.to_vector()
     wi = np.asarray(direction(theta_i, 180.0))
-    beta = np.unique(np.concatenate([np.linspace(-89.5, 89.5, 359),
-                                     np.arange(theta_i - 20, min(theta_i + 20, 89.9), 0.05)]))
+    beta = np.unique(
+        np.concatenate(
+            [np.linspace(-89.5, 89.5, 359), np.arange(theta_i - 20, min(theta_i + 20, 89.9), 0.05)]
+        )
+    )
     beta = beta[np.abs(beta) < 89.9]
     b = np.radians(beta)
     t = np.stack([-np.sin(b), np.zeros_like(b), np.cos(b)], axis=-1)  # T = -(propagation)
@@ -189,19 +208,32 @@ def fig10(media=("BTDF1", "BTDF2", "BTDF3"), theta_i=45.0, labels=None) -> Figur
             _setup_log_polar(ax, lo, hi, zero="S", direction=1)
         r_top = hi - lo
         ax1.plot([math.radians(theta_i)] * 2, [0, r_top], color="0.5", lw=0.8, ls=":")
-        ax1.set_title("(a) in the plane of incidence\n"
-                      "angle = travel direction -T from straight down", pad=4)
-        ax2.set_title("(b) out of the plane\nangle = travel direction -T from the unscattered -I",
-                      pad=4)
+        ax1.set_title(
+            "(a) in the plane of incidence\nangle = travel direction -T from straight down", pad=4
+        )
+        ax2.set_title(
+            "(b) out of the plane\nangle = travel direction -T from the unscattered -I", pad=4
+        )
         ax3.set_xlabel("deflection from the unscattered direction [deg]")
         ax3.set_ylabel("f_t [1/sr] (log scale)")
-        ax3.set_title("(c) close-up" + (": solid in the plane, dashed out of it" if differ
-                                         else " (in and out of the plane coincide)"))
+        ax3.set_title(
+            "(c) close-up"
+            + (
+                ": solid in the plane, dashed out of it"
+                if differ
+                else " (in and out of the plane coincide)"
+            )
+        )
         ax3.set_xlim(-20, 20)
         ax3.grid(True, which="major", alpha=0.3)
-        fig.legend(handles=handles, loc="lower center", bbox_to_anchor=(0.84, 0.0),
-                   ncol=_legend_columns(handles), frameon=False,
-                   title=f"incidence {theta_i:g}°, radius: f_t [1/sr], log")
+        fig.legend(
+            handles=handles,
+            loc="lower center",
+            bbox_to_anchor=(0.84, 0.0),
+            ncol=_legend_columns(handles),
+            frameon=False,
+            title=f"incidence {theta_i:g}°, radius: f_t [1/sr], log",
+        )
     return fig
 
 

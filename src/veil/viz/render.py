@@ -85,13 +85,17 @@ class Rendering:
 
     def summary(self) -> str:
         med = "clear" if self.medium is None else str(self.medium)
-        s = (f"{self.brdf} through {med}: light at theta {self.light_theta:g} deg, "
-             f"phi {self.light_phi:g} deg; peak {self.image.max():.4g}")
+        s = (
+            f"{self.brdf} through {med}: light at theta {self.light_theta:g} deg, "
+            f"phi {self.light_phi:g} deg; peak {self.image.max():.4g}"
+        )
         if self.table_nodes:
-            s += (f"; table {self.table_nodes} nodes; interpolation error at {self.checked} "
-                  f"pixels: {100 * self.max_rel_error:.2g} % (angles <= {ERROR_ANGLE:g} deg), "
-                  f"{100 * self.max_rel_error_all:.2g} % (all), "
-                  f"{100 * self.max_peak_error:.2g} % of the peak")
+            s += (
+                f"; table {self.table_nodes} nodes; interpolation error at {self.checked} "
+                f"pixels: {100 * self.max_rel_error:.2g} % (angles <= {ERROR_ANGLE:g} deg), "
+                f"{100 * self.max_rel_error_all:.2g} % (all), "
+                f"{100 * self.max_peak_error:.2g} % of the peak"
+            )
         return s
 
 
@@ -100,13 +104,18 @@ def _check_args(size, light_theta, light_phi, samples, accuracy):
         if not isinstance(v, (int, float, np.integer, np.floating)) or not math.isfinite(v):
             raise InputError(f"{name} = {v!r} is not a finite number (degrees)")
     if not 0.0 <= light_theta <= MAX_LIGHT_THETA:
-        raise InputError(f"light_theta = {light_theta:g} deg is outside [0, {MAX_LIGHT_THETA:g}]"
-                         f" (a light further behind the sphere lights only a thin crescent at "
-                         f"grazing angles, where the table is not reliable)")
+        raise InputError(
+            f"light_theta = {light_theta:g} deg is outside [0, {MAX_LIGHT_THETA:g}]"
+            f" (a light further behind the sphere lights only a thin crescent at "
+            f"grazing angles, where the table is not reliable)"
+        )
     if not isinstance(size, (int, np.integer)) or isinstance(size, bool) or not 8 <= size <= 4096:
         raise InputError(f"size = {size!r} must be an integer in [8, 4096] pixels")
-    if not isinstance(samples, (int, np.integer)) or isinstance(samples, bool) \
-            or not 1 <= samples <= 8:
+    if (
+        not isinstance(samples, (int, np.integer))
+        or isinstance(samples, bool)
+        or not 1 <= samples <= 8
+    ):
         raise InputError(f"samples = {samples!r} must be an integer in [1, 8] per pixel axis")
     if accuracy not in RULES:
         raise InputError(f"accuracy = {accuracy!r}; expected one of {', '.join(RULES)}")
@@ -160,10 +169,12 @@ def check_memory(size: int, samples: int, names=("size", "samples")) -> None:
     gives the estimate and the options (``names``) to lower."""
     need, have = memory_estimate(size, samples), available_memory()
     if have is not None and need > have:
-        raise InputError(f"rendering {size} x {size} pixels with {samples} x {samples} samples "
-                         f"needs about {need / 2**30:.2f} GiB of memory, more than the "
-                         f"{have / 2**30:.2f} GiB available: lower {names[0]} (the memory "
-                         f"grows with its square) or {names[1]}")
+        raise InputError(
+            f"rendering {size} x {size} pixels with {samples} x {samples} samples "
+            f"needs about {need / 2**30:.2f} GiB of memory, more than the "
+            f"{have / 2**30:.2f} GiB available: lower {names[0]} (the memory "
+            f"grows with its square) or {names[1]}"
+        )
 
 
 def _check_pixels(values, lit, count, rng_seed=20110901):
@@ -175,9 +186,12 @@ def _check_pixels(values, lit, count, rng_seed=20110901):
     bright = idx[values.ravel()[idx] >= np.quantile(values.ravel()[idx], 0.9)]
     top = idx[np.argmax(values.ravel()[idx])]
     n_b = min(bright.size, count // 2)
-    pick = [np.array([top]), rng.choice(bright, n_b, replace=False),
-            rng.choice(idx, min(idx.size, count - n_b - 1), replace=False)]
-    return np.unique(np.concatenate(pick))[:max(count, 1)]
+    pick = [
+        np.array([top]),
+        rng.choice(bright, n_b, replace=False),
+        rng.choice(idx, min(idx.size, count - n_b - 1), replace=False),
+    ]
+    return np.unique(np.concatenate(pick))[: max(count, 1)]
 
 
 def _uw(normal, frame):
@@ -205,8 +219,9 @@ def _shade(b, table, frame, light, normal, inside, padded=None):
     return f, lit, cos_i
 
 
-def _table_errors(b, m, table, image, lit_px, check, light, frame, peak: float,
-                  accuracy: str, bar) -> tuple[int, float, float, float]:
+def _table_errors(
+    b, m, table, image, lit_px, check, light, frame, peak: float, accuracy: str, bar
+) -> tuple[int, float, float, float]:
     """The table's interpolation error against the engine at ``check`` lit pixels: (pixels
     checked, largest relative error with both angles <= ERROR_ANGLE, over all, in units of
     the image's peak)."""
@@ -223,8 +238,9 @@ def _table_errors(b, m, table, image, lit_px, check, light, frame, peak: float,
     return pick.size, max_rel, float(rel.max()), float(np.max(diff) / max(peak, 1e-300))
 
 
-def _shade_bands(b, table, frame, light, size: int, samples: int, rows: int,
-                 bar) -> tuple[np.ndarray, np.ndarray, float]:
+def _shade_bands(
+    b, table, frame, light, size: int, samples: int, rows: int, bar
+) -> tuple[np.ndarray, np.ndarray, float]:
     """The image shaded in bands of ``rows`` pixel rows: (linear image, the pixel centres
     on the lit disk, the largest linear sample value)."""
     per_row = size * samples * samples
@@ -238,8 +254,9 @@ def _shade_bands(b, table, frame, light, size: int, samples: int, rows: int,
         linear = np.where(lit, f * np.where(lit, cos_i, 0.0), 0.0)
         peak = max(peak, float(linear.max()))
         if samples > 1:
-            image[first:stop] = linear.reshape(stop - first, samples, size,
-                                               samples).mean(axis=(1, 3))
+            image[first:stop] = linear.reshape(stop - first, samples, size, samples).mean(
+                axis=(1, 3)
+            )
             centres, on_disk = pixel_normals(size, np.arange(first * size, stop * size))
             lit_px[first:stop] = (on_disk & (centres @ light > 0.0)).reshape(stop - first, size)
         else:
@@ -249,8 +266,19 @@ def _shade_bands(b, table, frame, light, size: int, samples: int, rows: int,
     return image, lit_px, peak
 
 
-def render(brdf, medium=None, light_theta=45.0, light_phi=0.0, size=256, *, accuracy="fast",
-           samples=1, check=64, density=1.0, progress=False) -> Rendering:
+def render(
+    brdf,
+    medium=None,
+    light_theta=45.0,
+    light_phi=0.0,
+    size=256,
+    *,
+    accuracy="fast",
+    samples=1,
+    check=64,
+    density=1.0,
+    progress=False,
+) -> Rendering:
     """Render the sphere (module docstring) and measure the interpolation error.
 
     brdf, medium : models or preset names; ``medium=None`` renders the true f_r directly.
@@ -285,34 +313,64 @@ def render(brdf, medium=None, light_theta=45.0, light_phi=0.0, size=256, *, accu
     with _Progress(progress, f"rendering {size}x{size}") as bar:
         table = None
         if m is not None:
-            n_table = len(u_nodes(peak_width(b, m), density)) \
-                * max(5, int(round((W_NODES - 1) * density)) + 1)
+            n_table = len(u_nodes(peak_width(b, m), density)) * max(
+                5, int(round((W_NODES - 1) * density)) + 1
+            )
             bar.start(n_table + (check if check else 0), len(bands))
-            table = build_table(b, m, light, accuracy=accuracy, density=density,
-                                progress=bar.advance)
+            table = build_table(
+                b, m, light, accuracy=accuracy, density=density, progress=bar.advance
+            )
         else:
             bar.start(0, len(bands))
         image, lit_px, peak = _shade_bands(b, table, frame, light, size, samples, rows, bar)
         checked, max_rel, max_rel_all, max_peak = 0, 0.0, 0.0, 0.0
         if table is not None and check:
             checked, max_rel, max_rel_all, max_peak = _table_errors(
-                b, m, table, image, lit_px, check, light, frame, peak, accuracy, bar)
-    return Rendering(image=image, brdf=b, medium=m, light_theta=float(light_theta),
-                     light_phi=float(light_phi), accuracy=accuracy, samples=int(samples),
-                     table_nodes=0 if table is None else table.nodes, checked=checked,
-                     max_rel_error=max_rel, max_rel_error_all=max_rel_all,
-                     max_peak_error=max_peak,
-                     seconds=time.perf_counter() - t0)
+                b, m, table, image, lit_px, check, light, frame, peak, accuracy, bar
+            )
+    return Rendering(
+        image=image,
+        brdf=b,
+        medium=m,
+        light_theta=float(light_theta),
+        light_phi=float(light_phi),
+        accuracy=accuracy,
+        samples=int(samples),
+        table_nodes=0 if table is None else table.nodes,
+        checked=checked,
+        max_rel_error=max_rel,
+        max_rel_error_all=max_rel_all,
+        max_peak_error=max_peak,
+        seconds=time.perf_counter() - t0,
+    )
 
 
-def render_sphere(brdf, medium=None, light_theta=45.0, light_phi=0.0, size=256, *,
-                  accuracy="fast", samples=1, progress=False) -> np.ndarray:
+def render_sphere(
+    brdf,
+    medium=None,
+    light_theta=45.0,
+    light_phi=0.0,
+    size=256,
+    *,
+    accuracy="fast",
+    samples=1,
+    progress=False,
+) -> np.ndarray:
     """Linear image (size, size) of the sphere under ``brdf`` seen through ``medium``.
 
     See :func:`render` (which also reports the interpolation error) and the module docstring.
     """
-    return render(brdf, medium, light_theta, light_phi, size, accuracy=accuracy,
-                  samples=samples, check=0, progress=progress).image
+    return render(
+        brdf,
+        medium,
+        light_theta,
+        light_phi,
+        size,
+        accuracy=accuracy,
+        samples=samples,
+        check=0,
+        progress=progress,
+    ).image
 
 
 class _Progress:
@@ -333,9 +391,15 @@ class _Progress:
                 TextColumn,
                 TimeElapsedColumn,
             )
-            self._p = Progress(TextColumn("{task.description}"), BarColumn(),
-                               MofNCompleteColumn(), TimeElapsedColumn(),
-                               console=Console(stderr=True), transient=True)
+
+            self._p = Progress(
+                TextColumn("{task.description}"),
+                BarColumn(),
+                MofNCompleteColumn(),
+                TimeElapsedColumn(),
+                console=Console(stderr=True),
+                transient=True,
+            )
             self._p.__enter__()
         return self
 
@@ -344,8 +408,7 @@ class _Progress:
             if total:
                 self._task = self._p.add_task(f"{self.label}: engine evaluations", total=total)
             if bands > 1:
-                self._bands = self._p.add_task(f"{self.label}: bands of pixel rows",
-                                               total=bands)
+                self._bands = self._p.add_task(f"{self.label}: bands of pixel rows", total=bands)
 
     def advance(self, k):
         if self._p is not None and self._task is not None:
@@ -388,8 +451,9 @@ def tone_map(linear, exposure, tone="clip") -> np.ndarray:
     tone "reinhard": x / (1 + x) first (Reinhard's global operator): never clips, compresses
     highlights so that their relative strength stays visible.
     """
-    if not (isinstance(exposure, (int, float, np.floating)) and math.isfinite(exposure)
-            and exposure > 0):
+    if not (
+        isinstance(exposure, (int, float, np.floating)) and math.isfinite(exposure) and exposure > 0
+    ):
         raise InputError(f"exposure = {exposure!r} must be a positive number")
     if tone not in TONES:
         raise InputError(f"tone = {tone!r}; expected one of {', '.join(TONES)}")
@@ -397,10 +461,10 @@ def tone_map(linear, exposure, tone="clip") -> np.ndarray:
     out = np.empty(linear.shape, dtype=np.uint8)
     flat_in, flat_out = linear.reshape(-1), out.reshape(-1)
     for start in range(0, flat_in.size, PIXEL_CHUNK):  # a few temporaries of a band each
-        x = exposure * flat_in[start:start + PIXEL_CHUNK]
+        x = exposure * flat_in[start : start + PIXEL_CHUNK]
         if tone == "reinhard":
             x = x / (1.0 + x)
-        flat_out[start:start + PIXEL_CHUNK] = np.round(255.0 * srgb_encode(x))
+        flat_out[start : start + PIXEL_CHUNK] = np.round(255.0 * srgb_encode(x))
     return out
 
 
@@ -424,13 +488,33 @@ def png_bytes(image_u8, text=None) -> bytes:
     for key, value in (text or {}).items():
         info.add_text(key, str(value))
     buf = io.BytesIO()
-    Image.fromarray(np.ascontiguousarray(image_u8, dtype=np.uint8)).save(buf, format="png",
-                                                                         pnginfo=info)
+    Image.fromarray(np.ascontiguousarray(image_u8, dtype=np.uint8)).save(
+        buf, format="png", pnginfo=info
+    )
     return buf.getvalue()
 
 
-__all__ = ["render", "render_sphere", "Rendering", "evaluate", "auto_exposure", "tone_map",
-           "clipping", "srgb_encode", "highlight_pixel", "build_table", "ApparentTable",
-           "local_angles", "light_direction", "half_vector_frame", "sphere_normals", "png_bytes",
-           "TONES", "memory_estimate", "available_memory", "check_memory", "pixel_normals",
-           "VIEW"]
+__all__ = [
+    "render",
+    "render_sphere",
+    "Rendering",
+    "evaluate",
+    "auto_exposure",
+    "tone_map",
+    "clipping",
+    "srgb_encode",
+    "highlight_pixel",
+    "build_table",
+    "ApparentTable",
+    "local_angles",
+    "light_direction",
+    "half_vector_frame",
+    "sphere_normals",
+    "png_bytes",
+    "TONES",
+    "memory_estimate",
+    "available_memory",
+    "check_memory",
+    "pixel_normals",
+    "VIEW",
+]

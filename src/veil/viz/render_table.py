@@ -31,8 +31,9 @@ def evaluate(brdf, medium, theta_i, theta_r, dphi, *, accuracy="fast", progress=
     through the engine's chunked evaluator in chunks of :data:`CHUNK` configurations.
     ``progress(k)`` is called after each chunk with the number of configurations it did.
     ``medium=None`` is f_r."""
-    ti, tr, dp = (np.ravel(np.asarray(a, dtype=float))
-                  for a in np.broadcast_arrays(theta_i, theta_r, dphi))
+    ti, tr, dp = (
+        np.ravel(np.asarray(a, dtype=float)) for a in np.broadcast_arrays(theta_i, theta_r, dphi)
+    )
     last = [0]
 
     def step(done, total):
@@ -40,8 +41,7 @@ def evaluate(brdf, medium, theta_i, theta_r, dphi, *, accuracy="fast", progress=
             progress(done - last[0])
         last[0] = done
 
-    return chunked(brdf, medium, ti, 0.0, tr, dp, accuracy=accuracy, chunk=CHUNK,
-                   progress=step)
+    return chunked(brdf, medium, ti, 0.0, tr, dp, accuracy=accuracy, chunk=CHUNK, progress=step)
 
 
 # --------------------------------------------------------------------------------------
@@ -58,7 +58,7 @@ def peak_width(brdf, medium) -> float:
     if medium is None:
         return facet
     lobe = min(medium.lobe_half_width(), 60.0)
-    return math.sqrt(facet ** 2 + 0.5 * lobe ** 2)
+    return math.sqrt(facet**2 + 0.5 * lobe**2)
 
 
 def u_nodes(width: float, density: float = 1.0) -> np.ndarray:
@@ -98,32 +98,44 @@ class ApparentTable:
         return np.exp(self.spline.ev(u, np.abs(w))) - self.floor
 
 
-def build_table(brdf, medium, light, *, accuracy="fast", density=1.0,
-                progress=None) -> ApparentTable:
+def build_table(
+    brdf, medium, light, *, accuracy="fast", density=1.0, progress=None
+) -> ApparentTable:
     """Evaluate the engine on the (u, w) grid about H and fit the interpolating spline."""
     h, e1, e2 = half_vector_frame(light)
     u = u_nodes(peak_width(brdf, medium), density)
     w = np.linspace(0.0, 180.0, max(5, int(round((W_NODES - 1) * density)) + 1))
     uu, ww = np.meshgrid(np.radians(u), np.radians(w), indexing="ij")
-    normal = (np.cos(uu)[..., None] * h
-              + np.sin(uu)[..., None] * (np.cos(ww)[..., None] * e1 + np.sin(ww)[..., None] * e2))
+    normal = np.cos(uu)[..., None] * h + np.sin(uu)[..., None] * (
+        np.cos(ww)[..., None] * e1 + np.sin(ww)[..., None] * e2
+    )
     ti, tr, dp = local_angles(normal, light)
     ti, tr = np.minimum(ti, THETA_CLAMP), np.minimum(tr, THETA_CLAMP)
-    values = evaluate(brdf, medium, ti, tr, dp, accuracy=accuracy,
-                      progress=progress).reshape(uu.shape)
+    values = evaluate(brdf, medium, ti, tr, dp, accuracy=accuracy, progress=progress).reshape(
+        uu.shape
+    )
     if not np.all(np.isfinite(values)) or np.any(values < 0):
         raise RuntimeError("the engine returned a negative or non-finite value on the table")
     floor = max(1e-12 * float(values.max()), 1e-300)
     logv = np.log(values + floor)
     # symmetries: f(u, -w) = f(u, w), f(u, 180 + d) = f(u, 180 - d), f(-u, w) = f(u, 180 - w)
     k = 3
-    w_ext = np.concatenate([-w[k:0:-1], w, 360.0 - w[-2:-k - 2:-1]])
-    lw = np.concatenate([logv[:, k:0:-1], logv, logv[:, -2:-k - 2:-1]], axis=1)
+    w_ext = np.concatenate([-w[k:0:-1], w, 360.0 - w[-2 : -k - 2 : -1]])
+    lw = np.concatenate([logv[:, k:0:-1], logv, logv[:, -2 : -k - 2 : -1]], axis=1)
     u_ext = np.concatenate([-u[k:0:-1], u])
     lu = np.concatenate([lw[k:0:-1, ::-1], lw], axis=0)
     spline = RectBivariateSpline(u_ext, w_ext, lu, kx=3, ky=3, s=0)
     return ApparentTable(u, w, values, spline, floor)
 
 
-__all__ = ["CHUNK", "THETA_CLAMP", "W_NODES", "evaluate", "peak_width", "u_nodes",
-           "auto_density", "ApparentTable", "build_table"]
+__all__ = [
+    "CHUNK",
+    "THETA_CLAMP",
+    "W_NODES",
+    "evaluate",
+    "peak_width",
+    "u_nodes",
+    "auto_density",
+    "ApparentTable",
+    "build_table",
+]

@@ -43,8 +43,11 @@ def local_angles(normal, light) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     nl, nv = np.linalg.norm(lt, axis=-1), np.linalg.norm(vt, axis=-1)
     ok = (nl > 1e-12) & (nv > 1e-12)
     cos_d = np.where(ok, np.sum(lt * vt, axis=-1) / np.where(ok, nl * nv, 1.0), -1.0)
-    return (np.degrees(np.arccos(np.clip(cl, -1, 1))), np.degrees(np.arccos(np.clip(cv, -1, 1))),
-            np.degrees(np.arccos(np.clip(cos_d, -1, 1))))
+    return (
+        np.degrees(np.arccos(np.clip(cl, -1, 1))),
+        np.degrees(np.arccos(np.clip(cv, -1, 1))),
+        np.degrees(np.arccos(np.clip(cos_d, -1, 1))),
+    )
 
 
 def sphere_normals(size, samples=1, rows=None) -> tuple[np.ndarray, np.ndarray]:
@@ -56,7 +59,7 @@ def sphere_normals(size, samples=1, rows=None) -> tuple[np.ndarray, np.ndarray]:
     """
     m = size * samples
     c = ((np.arange(m) + 0.5) / m * 2.0 - 1.0) * VIEW
-    r = c if rows is None else c[rows[0] * samples: rows[1] * samples]
+    r = c if rows is None else c[rows[0] * samples : rows[1] * samples]
     x, y = np.meshgrid(c, -r)
     r2 = x * x + y * y
     inside = r2 < 1.0
@@ -83,5 +86,12 @@ def highlight_pixel(size, light_theta, light_phi=0.0) -> tuple[float, float]:
     return float(row), float(col)
 
 
-__all__ = ["VIEW", "light_direction", "half_vector_frame", "local_angles",
-           "sphere_normals", "pixel_normals", "highlight_pixel"]
+__all__ = [
+    "VIEW",
+    "light_direction",
+    "half_vector_frame",
+    "local_angles",
+    "sphere_normals",
+    "pixel_normals",
+    "highlight_pixel",
+]

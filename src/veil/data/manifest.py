@@ -1,0 +1,154 @@
+"""The manifest of a photo stack (docs/ingest.md): one row per photo, its file name in the
+photo directory and its goniometer angles, checked before any photo is read, and the files
+of the directory that it does not list."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from ..errors import InputError, MissingFileError
+from .photo_files import PHOTO_SUFFIXES
+
+#: Columns :func:`ingest` adds to the manifest's (``black``, ``black_sigma`` only with a black ROI).
+ADDED_COLUMNS = ("value", "sigma", "black", "black_sigma", "saturated", "clipped", "n_pixels")
+
+
+def manifest_photos(manifest, photo_dir) -> tuple[pd.DataFrame, list[str], str, list[Path]]:
+    """The manifest read (:func:`read_manifest`) and the paths of its photos:
+    (table, row names, manifest name, paths); MissingFileError naming the rows whose photo is
+    not in ``photo_dir``."""
+    table, rows, name = read_manifest(manifest, photo_dir)
+    paths = [photo_dir / f for f in table["file"]]
+    missing = [(row, f) for row, f, p in zip(rows, table["file"], paths) if not p.is_file()]
+    if missing:
+        shown = "; ".join(f"{f!r} ({row})" for row, f in missing[:10])
+        more = f" and {len(missing) - 10} more" if len(missing) > 10 else ""
+        raise MissingFileError(
+            f"{name}: {len(missing)} photo(s) listed in the manifest are not "
+            f"in {photo_dir}: {shown}{more}"
+        )
+    return table, rows, name, paths
+
+
+def _manifest_table(manifest) -> tuple[pd.DataFrame, list[str], str]:
+    """The manifest (a DataFrame, or a CSV file without its blank lines), a name for each
+    row and its own name."""
+    if isinstance(manifest, pd.DataFrame):
+        name = "the manifest"
+        table = manifest.copy()
+        table.attrs = {"veil_name": name}
+        rows = [f"row {label!r} (index label) of {name}" for label in table.index]
+    else:
+        name = os.fspath(manifest)
+        try:
+            raw = pd.read_csv(
+                name,
+                skipinitialspace=True,
+                keep_default_na=False,
+                na_values=[""],
+                dtype={"file": str},
+                skip_blank_lines=False,
+            )
+        except FileNotFoundError:
+            raise MissingFileError(f"manifest {name}: no such file") from None
+        except pd.errors.EmptyDataError:
+            raise InputError(
+                f"{name}: the manifest is empty; expected a header with 'file' and "
+                f"angle columns, then one row per photo"
+            ) from None
+        except (pd.errors.ParserError, UnicodeDecodeError) as exc:
+            raise InputError(f"{name}: not a readable CSV file ({exc})") from None
+        raw.columns = [str(c).strip() for c in raw.columns]
+        kept = ~raw.isna().all(axis=1).to_numpy()  # blank lines
+        lines = (np.flatnonzero(kept) + 2).tolist()
+        table = raw[kept].reset_index(drop=True)
+        table.attrs = {"veil_source": name, "veil_lines": tuple(lines)}
+        rows = [f"line {line} of {name}" for line in lines]
+    return table, rows, name
+
+
+def _manifest_files(table: pd.DataFrame, rows: list[str], photo_dir) -> list[str]:
+    """The ``file`` column checked: each a path inside ``photo_dir``, none twice."""
+    seen: dict[Path, str] = {}
+    root = Path(photo_dir).resolve()
+    files = []
+    for row, cell in zip(rows, table["file"].tolist()):
+        where = f"{row}, column 'file'"
+        if not isinstance(cell, str) or cell.strip() == "":
+            raise InputError(f"{where}: empty; expected the photo's file name in PHOTO_DIR")
+        rel = Path(cell.strip())
+        if rel.is_absolute() or not (root / rel).resolve().is_relative_to(root):
+            raise InputError(
+                f"{where}: {cell!r} is not a path inside PHOTO_DIR ({photo_dir}); "
+                f"give file names relative to PHOTO_DIR"
+            )
+        key = (root / rel).resolve()
+        if key in seen:
+            raise InputError(
+                f"{where}: {cell!r} is listed again (first on {seen[key]}); each "
+                f"photo has one geometry"
+            )
+        seen[key] = row
+        files.append(cell.strip())
+    return files
+
+
+def read_manifest(manifest, photo_dir) -> tuple[pd.DataFrame, list[str], str]:
+    """The manifest (all its columns; angles as float), a name for each row, its own name.
+
+    Checks the ``file`` column (present, non-empty, unique, inside ``photo_dir``) and the
+    angle columns (one of the three forms of :mod:`veil.measurements`, no configuration twice).
+    Rows of a file are named by their line (header = line 1), as :mod:`veil.measurements` does.
+    """
+    from .measurements import ANGLE_COLUMNS, validate
+
+    table, rows, name = _manifest_table(manifest)
+    if "file" not in table.columns:
+        raise InputError(
+            f"{name}: no column 'file'; the header has "
+            f"{', '.join(map(repr, map(str, table.columns)))}; the manifest names "
+            f"each photo (relative to PHOTO_DIR) in a column 'file'"
+        )
+    if len(table) == 0:
+        raise InputError(f"{name}: no photos listed (no rows after the header)")
+    clash = [c for c in ADDED_COLUMNS if c in table.columns]
+    if clash:
+        raise InputError(
+            f"{name}: column(s) {', '.join(map(repr, clash))} would be "
+            f"overwritten by ingest's results; rename or remove them"
+        )
+    files = _manifest_files(table, rows, photo_dir)
+    table["file"] = files
+    probe = table.assign(value=0.0)
+    probe.attrs = dict(table.attrs)
+    checked = validate(probe)  # angle forms, ranges, duplicate configurations
+    for column in ANGLE_COLUMNS:
+        if column in table.columns:
+            table[column] = checked[column].to_numpy()
+    return table.reset_index(drop=True), rows, name
+
+
+def unlisted_photos(photo_dir: Path, listed: set, ignore: set) -> list[str]:
+    """Photo files in ``photo_dir`` (and the sub-folders the manifest uses) not in ``listed``."""
+    folders = {photo_dir.resolve()} | {p.parent for p in listed}
+    extra = []
+    for folder in sorted(folders):
+        for entry in sorted(folder.iterdir()):
+            if (
+                entry.is_file()
+                and entry.suffix.lower() in PHOTO_SUFFIXES
+                and entry.resolve() not in listed
+                and entry.resolve() not in ignore
+            ):
+                extra.append(os.path.relpath(entry, photo_dir))
+    return extra
+
+
+# -- ingest --------------------------------------------------------------------------------
+
+
+__all__ = ["ADDED_COLUMNS", "manifest_photos", "read_manifest", "unlisted_photos"]
