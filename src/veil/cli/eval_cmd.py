@@ -245,6 +245,35 @@ def _check_angle_options(theta_i, theta_r, phi_i, phi_r, configs, output, as_jso
         )
 
 
+def _option_angles(theta_i, theta_r, phi_i, phi_r) -> tuple:
+    """The one configuration of --theta-i, --theta-r (--phi-i, --phi-r), checked."""
+    phi_i = DEFAULT_PHI_I if phi_i is None else phi_i
+    phi_r = DEFAULT_PHI_R if phi_r is None else phi_r
+    _check_option_angle("--theta-i", theta_i, polar=True)
+    _check_option_angle("--theta-r", theta_r, polar=True)
+    _check_option_angle("--phi-i", phi_i, polar=False)
+    _check_option_angle("--phi-r", phi_r, polar=False)
+    return tuple(np.array([x]) for x in (theta_i, phi_i, theta_r, phi_r))
+
+
+def _evaluate(brdf, medium, ti, tr, pi_, pr, accuracy: str) -> tuple:
+    """(apparent, its error, clear) at the configurations, flat arrays; the object's own
+    f_r on a worker thread, its program loading while the engine's do."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from ..engine.apparent import reflectance
+
+    progress = _Progress()
+    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="veil-clear") as pool:
+        clear_future = pool.submit(reflectance, brdf, ti, tr, pi_, pr)
+        try:
+            value, error = evaluate_configs(brdf, medium, ti, tr, pi_, pr, accuracy, progress)
+        finally:
+            progress.stop()
+        clear = clear_future.result()
+    return tuple(np.asarray(a, dtype=float).reshape(-1) for a in (value, error, clear))
+
+
 @click.command(
     "eval",
     short_help="Apparent reflectance through a medium at given angles "
@@ -315,35 +344,6 @@ def _check_angle_options(theta_i, theta_r, phi_i, phi_r, configs, output, as_jso
     "(1/sr, relative units), one entry per configuration in input order.",
 )
 @model_options()
-def _option_angles(theta_i, theta_r, phi_i, phi_r) -> tuple:
-    """The one configuration of --theta-i, --theta-r (--phi-i, --phi-r), checked."""
-    phi_i = DEFAULT_PHI_I if phi_i is None else phi_i
-    phi_r = DEFAULT_PHI_R if phi_r is None else phi_r
-    _check_option_angle("--theta-i", theta_i, polar=True)
-    _check_option_angle("--theta-r", theta_r, polar=True)
-    _check_option_angle("--phi-i", phi_i, polar=False)
-    _check_option_angle("--phi-r", phi_r, polar=False)
-    return tuple(np.array([x]) for x in (theta_i, phi_i, theta_r, phi_r))
-
-
-def _evaluate(brdf, medium, ti, tr, pi_, pr, accuracy: str) -> tuple:
-    """(apparent, its error, clear) at the configurations, flat arrays; the object's own
-    f_r on a worker thread, its program loading while the engine's do."""
-    from concurrent.futures import ThreadPoolExecutor
-
-    from ..engine.apparent import reflectance
-
-    progress = _Progress()
-    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="veil-clear") as pool:
-        clear_future = pool.submit(reflectance, brdf, ti, tr, pi_, pr)
-        try:
-            value, error = evaluate_configs(brdf, medium, ti, tr, pi_, pr, accuracy, progress)
-        finally:
-            progress.stop()
-        clear = clear_future.result()
-    return tuple(np.asarray(a, dtype=float).reshape(-1) for a in (value, error, clear))
-
-
 def eval_command(
     brdf_text,
     medium_text,
