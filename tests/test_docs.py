@@ -425,3 +425,30 @@ def test_scripts_import_what_veil_has():
     missing = [f"{p.relative_to(ROOT)}:{line}: {name}" for p in scripts
                for line, name in _veil_imports(p) if not _resolves(name)]
     assert not missing, "\n".join(missing)
+
+
+def test_auto_table_writes_the_rows_validity_auto_md_has():
+    """docs/validity-auto.md's table is the one validation/auto_table.py makes of the rows
+    in validation/results/auto_table.json (no fitting: the rows are read); a pick counts as
+    the generating one by family and option."""
+    import importlib.util
+    import json
+
+    with pytest.MonkeyPatch.context() as patch:
+        patch.syspath_prepend(str(ROOT / "benchmarks"))
+        spec = importlib.util.spec_from_file_location("auto_table",
+                                                      ROOT / "validation" / "auto_table.py")
+        auto = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(auto)
+        rows = json.loads((ROOT / "validation" / "results" / "auto_table.json").read_text())
+        text = (ROOT / "docs" / "validity-auto.md").read_text()
+        block = text[text.index("<!-- table:auto"):text.index("<!-- /table:auto -->")]
+        for cells in auto.doc_rows(rows):
+            assert "| " + " | ".join(cells) + " |" in block, cells
+        truth = json.loads((ROOT / "validation" / "data" / "truth.json").read_text())
+        ggx = auto.generating(truth, "target", "ggx")
+        assert auto.is_generating({"family": "rough-plastic",
+                                   "options": {"distribution": "ggx"}}, ggx)
+        assert not auto.is_generating({"family": "rough-plastic", "options": {}}, ggx)
+        assert auto.is_generating({"family": "rough-plastic", "options": {}},
+                                  auto.generating(truth, "target", "target"))

@@ -63,6 +63,12 @@ PLATES = {
     "smooth": {"type": "roughplastic", "distribution": "beckmann", "alpha": 0.03,
                "diffuse_reflectance": 0.1, "specular_reflectance": 1.0,
                "int_ior": ACRYLIC_IOR, "ext_ior": WATER_IOR, "nonlinear": False},
+    # a plate outside every family veil has (issue 29): Mitsuba's principled BSDF with a
+    # clear coat over a rough base, two specular lobes (the coat's GTR1 and the base's GGX)
+    # over a Disney diffuse; eta is the base's index relative to the water around it
+    "clearcoat": {"type": "principled", "base_color": 0.3, "roughness": 0.4,
+                  "metallic": 0.0, "clearcoat": 0.8, "clearcoat_gloss": 0.9,
+                  "eta": ACRYLIC_IOR / WATER_IOR},
     # black cloth: a perfectly black diffuse plate (reflectance 0)
     "black": {"type": "diffuse", "reflectance": 0.0},
 }
@@ -106,6 +112,10 @@ def _sessions():
     # specular peak, docs/validity.md)
     s["m10_smooth_w10"] = dict(object="smooth", medium="m10", half_width=5.0, r_c=R_C)
     s["m10_smooth_r10"] = dict(object="smooth", medium="m10", half_width=HALF_WIDTH, r_c=10.0)
+    # the plate outside every family (issue 29), in clear water and in m05
+    for med in ("water", "m05"):
+        s[f"{med}_clearcoat"] = dict(object="clearcoat", medium=med, half_width=HALF_WIDTH,
+                                     r_c=R_C)
     return s
 
 
@@ -166,6 +176,10 @@ def bsdf_dict(obj):
     p = PLATES[obj]
     if p["type"] == "diffuse":
         return {"type": "diffuse", "reflectance": {"type": "uniform", "value": p["reflectance"]}}
+    if p["type"] == "principled":
+        return {"type": "principled",
+                "base_color": {"type": "uniform", "value": p["base_color"]},
+                **{k: v for k, v in p.items() if k not in ("type", "base_color")}}
     return {"type": "roughplastic", "distribution": p["distribution"], "alpha": p["alpha"],
             "int_ior": p["int_ior"], "ext_ior": p["ext_ior"], "nonlinear": p["nonlinear"],
             "diffuse_reflectance": {"type": "uniform", "value": p["diffuse_reflectance"]},
