@@ -150,95 +150,33 @@ def render_command(
         check_memory(size, samples, names=("--size", "--samples"))
     for note in notes:
         click.echo(note, err=True)
+    from .render_output import RenderSettings, render_rgb
+
+    settings = RenderSettings.of(click.get_current_context().params)
     if None not in b:
-        from .render_output import render_rgb
-
-        render_rgb(
-            b,
-            m,
-            light_theta,
-            light_phi,
-            size,
-            exposure,
-            tone,
-            samples,
-            accuracy,
-            check,
-            linear_path,
-            output,
-            quiet,
-        )
+        render_rgb(b, m, settings)
         return
-    _render_grey(
-        b[None],
-        None if m is None else m[None],
-        light_theta,
-        light_phi,
-        size,
-        exposure,
-        tone,
-        samples,
-        accuracy,
-        check,
-        linear_path,
-        output,
-        quiet,
-    )
+    _render_grey(b[None], None if m is None else m[None], settings)
 
 
-def _render_grey(
-    b,
-    m,
-    light_theta,
-    light_phi,
-    size,
-    exposure,
-    tone,
-    samples,
-    accuracy,
-    check,
-    linear_path,
-    output,
-    quiet,
-) -> None:
+def _render_grey(b, m, settings) -> None:
     """One channel's (grey) render: the PNG (and the linear image), what it printed."""
-    from ..viz.render import auto_exposure, clipping, png_bytes, render, tone_map
-    from .render_output import report, write_images
+    from ..viz.render import auto_exposure, clipping, render
+    from .render_output import write_and_report
 
-    result = render(
-        b,
-        m,
-        light_theta,
-        light_phi,
-        size,
-        accuracy=accuracy,
-        samples=samples,
-        check=check,
-        progress=not quiet,
+    args, kwargs = settings.render_arguments()
+    result = render(b, m, *args, **kwargs)
+    auto = settings.exposure is None
+    exposure = auto_exposure(result.image) if settings.exposure is None else settings.exposure
+    clipped = clipping(result.image, exposure, settings.tone)
+    text = settings.text(
+        str(b),
+        "clear" if m is None else str(m),
+        "f(I,R) cos(theta_i), linear, then exposure, tone curve, sRGB",
+        exposure,
     )
-    auto = exposure is None
-    exp_used = auto_exposure(result.image) if auto else exposure
-    n_clip, frac, peak_fs = clipping(result.image, exp_used, tone)
-    text = {
-        "veil:brdf": str(b),
-        "veil:medium": "clear" if m is None else str(m),
-        "veil:light": f"theta {light_theta:g} deg, phi {light_phi:g} deg",
-        "veil:pixel": "f(I,R) cos(theta_i), linear, then exposure, tone curve, sRGB",
-        "veil:exposure": f"{exp_used:.6g}",
-        "veil:tone": tone,
-    }
-    write_images(
-        output, png_bytes(tone_map(result.image, exp_used, tone), text), linear_path, result.image
-    )
-    click.echo(result.summary())
-    how = "automatic: median lit pixel -> 0.18" if auto else "given"
-    report(
-        f"exposure {exp_used:.6g} ({how})",
-        tone,
-        (n_clip, frac, peak_fs),
-        output,
-        linear_path,
-        result.seconds,
+    write_and_report(
+        settings, result, exposure, "median lit pixel -> 0.18" if auto else None, clipped, text
     )
 
 

@@ -6,6 +6,7 @@ docs/figures.md)."""
 from __future__ import annotations
 
 import io
+from dataclasses import dataclass, fields
 
 import click
 
@@ -41,57 +42,93 @@ def report(exposure: str, tone: str, clipped, output, linear_path, seconds: floa
     )
 
 
-def render_rgb(
-    brdfs,
-    media,
-    light_theta,
-    light_phi,
-    size,
-    exposure,
-    tone,
-    samples,
-    accuracy,
-    check,
-    linear_path,
-    output,
-    quiet,
+@dataclass(frozen=True)
+class RenderSettings:
+    """``veil render``'s options for the render and its files (its --help)."""
+
+    light_theta: float
+    light_phi: float
+    size: int
+    exposure: float | None
+    tone: str
+    samples: int
+    accuracy: str
+    check: bool
+    linear_path: str | None
+    output: str
+    quiet: bool
+
+    @classmethod
+    def of(cls, params: dict) -> RenderSettings:
+        """The settings among a command's parameters (click's ``Context.params``)."""
+        return cls(**{f.name: params[f.name] for f in fields(cls)})
+
+    def render_arguments(self) -> tuple[tuple, dict]:
+        """The arguments after the models of :func:`veil.viz.render.render` and
+        :func:`veil.viz.render_colour.render_colour`."""
+        return (self.light_theta, self.light_phi, self.size), {
+            "accuracy": self.accuracy,
+            "samples": self.samples,
+            "check": self.check,
+            "progress": not self.quiet,
+        }
+
+    def text(self, brdf: str, medium: str, pixel: str, exposure: float) -> dict:
+        """The PNG's text chunks."""
+        return {
+            "veil:brdf": brdf,
+            "veil:medium": medium,
+            "veil:light": f"theta {self.light_theta:g} deg, phi {self.light_phi:g} deg",
+            "veil:pixel": pixel,
+            "veil:exposure": f"{exposure:.6g}",
+            "veil:tone": self.tone,
+        }
+
+
+def write_and_report(
+    settings: RenderSettings, result, exposure: float, auto_rule, clipped, text: dict
 ) -> None:
+    """The tone-mapped PNG (and the linear values) written, the render's summary and what
+    follows it printed; ``auto_rule`` says how an automatic exposure was chosen (None: it
+    was given)."""
+    from ..viz.render import png_bytes, tone_map
+
+    png = png_bytes(tone_map(result.image, exposure, settings.tone), text)
+    write_images(settings.output, png, settings.linear_path, result.image)
+    click.echo(result.summary())
+    how = "given" if auto_rule is None else f"automatic: {auto_rule}"
+    report(
+        f"exposure {exposure:.6g} ({how})",
+        settings.tone,
+        clipped,
+        settings.output,
+        settings.linear_path,
+        result.seconds,
+    )
+
+
+def render_rgb(brdfs, media, settings: RenderSettings) -> None:
     """Render, tone-map and write the colour sphere (an RGB PNG; the linear values as a
     (size, size, 3) float32 .npy with --linear), and print what ``veil render`` prints."""
-    from ..viz.render import png_bytes, tone_map
     from ..viz.render_colour import auto_exposure_colour, clipping_colour, render_colour
 
-    result = render_colour(
-        brdfs,
-        media,
-        light_theta,
-        light_phi,
-        size,
-        accuracy=accuracy,
-        samples=samples,
-        check=check,
-        progress=not quiet,
+    args, kwargs = settings.render_arguments()
+    result = render_colour(brdfs, media, *args, **kwargs)
+    auto = settings.exposure is None
+    exposure = (
+        auto_exposure_colour(result.image) if settings.exposure is None else settings.exposure
     )
-    auto = exposure is None
-    exp_used = auto_exposure_colour(result.image) if auto else exposure
-    clipped = clipping_colour(result.image, exp_used, tone)
-    text = {
-        "veil:brdf": "; ".join(f"{c}: {m}" for c, m in brdfs.items()),
-        "veil:medium": "clear"
-        if media is None
-        else "; ".join(f"{c}: {m}" for c, m in media.items()),
-        "veil:light": f"theta {light_theta:g} deg, phi {light_phi:g} deg",
-        "veil:pixel": "r, g, b: f(I,R) cos(theta_i) of each channel's model, linear, "
-        "then exposure, tone curve, sRGB",
-        "veil:exposure": f"{exp_used:.6g}",
-        "veil:tone": tone,
-    }
-    write_images(
-        output, png_bytes(tone_map(result.image, exp_used, tone), text), linear_path, result.image
+    clipped = clipping_colour(result.image, exposure, settings.tone)
+    text = settings.text(
+        "; ".join(f"{c}: {m}" for c, m in brdfs.items()),
+        "clear" if media is None else "; ".join(f"{c}: {m}" for c, m in media.items()),
+        "r, g, b: f(I,R) cos(theta_i) of each channel's model, linear, then exposure, tone "
+        "curve, sRGB",
+        exposure,
     )
-    click.echo(result.summary())
-    how = "automatic: median lit luminance -> 0.18" if auto else "given"
-    report(f"exposure {exp_used:.6g} ({how})", tone, clipped, output, linear_path, result.seconds)
+    write_and_report(
+        settings, result, exposure, "median lit luminance -> 0.18" if auto else None, clipped, text
+    )
 
 
-__all__ = ["render_rgb", "write_images", "report"]
+__all__ = ["RenderSettings", "render_rgb", "write_and_report", "write_images", "report"]

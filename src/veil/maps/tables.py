@@ -8,7 +8,7 @@ from __future__ import annotations
 import hashlib
 import itertools
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -211,23 +211,8 @@ def build_tables(
     axes = make_axes(brdf_cls, nonlinear, parse_grid([], brdf_cls) | dict(grid or {}))
     angles = tuple(np.ascontiguousarray(a, dtype=float) for a in angles)
     if near is not None:
-        return _build_near(
-            brdf_cls,
-            medium,
-            angles,
-            template,
-            names,
-            base,
-            free_scales,
-            axes,
-            free_parts,
-            known_weight,
-            fixed,
-            accuracy,
-            progress,
-            near,
-            roi,
-        )
+        unknowns = _Unknowns(template, names, base, free_scales, axes, free_parts, known_weight)
+        return _build_near(brdf_cls, medium, angles, unknowns, fixed, accuracy, progress, near, roi)
     engine = ApparentModel(template, medium, angles, RULES[accuracy])
     vm = medium.to_vector()
     rows = row_scales(type(medium), vm)
@@ -239,24 +224,9 @@ def build_tables(
         if progress is not None:
             progress(done + 1, int(np.prod(shape)) if shape else 1)
     coef = _to_coef(values, 0, len(axes))
-    medium_entry = {
-        "model": type(medium).NAME,
-        "params": medium.as_dict(),
-        "options": medium.options(),
-    }
-    return MapTables(
-        brdf_cls.NAME,
-        dict(template.options()),
-        names,
-        base,
-        free_scales,
-        axes,
-        values,
-        np.ascontiguousarray(coef),
-        dict(fixed),
-        medium_entry,
-        accuracy,
-        angles,
+    unknowns = _Unknowns(template, names, base, free_scales, axes, free_parts, known_weight)
+    return _tables(
+        brdf_cls, unknowns, medium, values, np.ascontiguousarray(coef), fixed, accuracy, angles
     )
 
 
@@ -335,22 +305,23 @@ def _field_error(field_values, exact, checks) -> float:
     return error
 
 
+@dataclass(frozen=True)
+class _Unknowns:
+    """What :func:`build_tables` worked out of a family and its fixed and free parameters:
+    the template model, its parameter names and base vector, the free scales, the nonlinear
+    axes, the free parts and the known parts' weight (``_template``, ``_unknowns``)."""
+
+    template: Any
+    names: Any
+    base: Any
+    free_scales: Any
+    axes: Any
+    free_parts: Any
+    known_weight: Any
+
+
 def _build_near(
-    brdf_cls,
-    medium,
-    angles,
-    template,
-    names,
-    base,
-    free_scales,
-    axes,
-    free_parts,
-    known_weight,
-    fixed,
-    accuracy,
-    progress,
-    near,
-    roi,
+    brdf_cls, medium, angles, unknowns: _Unknowns, fixed, accuracy, progress, near, roi
 ):
     """Near-field tables: the columns at every node of a grid of plate points and of the
     nonlinear axes, with the pixel's own angles (docs/maps-geometry.md "Geometry"); the field
@@ -358,6 +329,10 @@ def _build_near(
     from ..engine.evaluator import ApparentModel
     from ..engine.quadrature import RULES
     from .near import apparent_lobe, field_grid
+
+    u = unknowns
+    template, names, base, axes = u.template, u.names, u.base, u.axes
+    free_scales, free_parts, known_weight = u.free_scales, u.free_parts, u.known_weight
 
     if roi is None:
         raise FitError("near-field tables need the region of the photo (roi)")
@@ -389,6 +364,16 @@ def _build_near(
     field_values = np.ascontiguousarray(_to_coef(values, 0, 2))
     coef = np.ascontiguousarray(_to_coef(field_values, 2, len(axes)))
     error = _field_error(field_values, exact, checks)
+    return _tables(
+        brdf_cls, u, medium, values, coef, fixed, accuracy, angles, near=fgrid, field_error=error
+    )
+
+
+def _tables(
+    brdf_cls, u: _Unknowns, medium, values, coef, fixed, accuracy, angles, **near
+) -> MapTables:
+    """The :class:`MapTables` of ``values`` and their ``coef`` (``near``: the field grid
+    and its error, for near-field tables)."""
     medium_entry = {
         "model": type(medium).NAME,
         "params": medium.as_dict(),
@@ -396,19 +381,18 @@ def _build_near(
     }
     return MapTables(
         brdf_cls.NAME,
-        dict(template.options()),
-        names,
-        base,
-        free_scales,
-        axes,
+        dict(u.template.options()),
+        u.names,
+        u.base,
+        u.free_scales,
+        u.axes,
         values,
         coef,
         dict(fixed),
         medium_entry,
         accuracy,
         angles,
-        near=fgrid,
-        field_error=error,
+        **near,
     )
 
 

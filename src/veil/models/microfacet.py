@@ -10,11 +10,25 @@ from typing import TYPE_CHECKING
 
 from .._lazy import jnp
 from ..errors import ParameterError
+from .base import Option, Param
 
 if TYPE_CHECKING:  # the type only: models import JAX on first use (veil._lazy)
     pass
 
 DISTRIBUTIONS = ("beckmann", "ggx")
+#: The microfacet families' specular scale and their distribution option, declared once.
+SPECULAR_SCALE = Param(
+    "ks",
+    0.0,
+    math.inf,
+    "specular scale, relative units (scale of the lobe)",
+    log_scale=True,
+    start=1.0,
+    channels="per-channel",
+)
+DISTRIBUTION_OPTION = Option(
+    "distribution", "beckmann", "microfacet distribution: beckmann or ggx", DISTRIBUTIONS
+)
 HALF_PI = 0.5 * math.pi
 SQRT_PI = math.sqrt(math.pi)
 #: Beckmann's D is set to 0 where tan^2 theta_H / alpha^2 > 200 (exp(-200) = 1.4e-87 of its

@@ -131,6 +131,17 @@ def float_value(name: str, value, colour: bool = False) -> Value:
     return Value(name, "float", value, colour)
 
 
+def require_ggx_for_pbrt(model, family: str) -> None:
+    """Unsupported unless ``model`` (a microfacet family, ``family`` its name) uses the GGX
+    distribution, the only one pbrt-v4 has."""
+    if model.distribution != "ggx":
+        raise Unsupported(
+            f"pbrt-v4 has only the Trowbridge-Reitz (GGX) microfacet "
+            f"distribution; this {family} result uses "
+            f"{model.distribution} (export it to Mitsuba, which has both)"
+        )
+
+
 def intensity_scale(setting: Setting, default: float) -> float:
     """The scale to divide out: the setting's, else ``default`` (when positive), else 1."""
     scale = setting.scale if setting.scale is not None else default
@@ -140,6 +151,7 @@ def intensity_scale(setting: Setting, default: float) -> float:
 
 
 __all__ = [
+    "require_ggx_for_pbrt",
     "RENDERER_NAMES",
     "VALUE_KINDS",
     "Unsupported",

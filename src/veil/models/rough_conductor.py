@@ -22,14 +22,13 @@ possible, leaving alpha and ks to the data. F0 follows from them:
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 from .._lazy import jnp
-from .base import BRDF, Option, Param
-from .microfacet import DISTRIBUTIONS, _safe_sqrt, microfacet_lobe
-from .renderers import Plugin, Unsupported, Value, float_value
+from .base import BRDF, Param
+from .microfacet import DISTRIBUTION_OPTION, SPECULAR_SCALE, _safe_sqrt, microfacet_lobe
+from .renderers import Plugin, Value, float_value, require_ggx_for_pbrt
 from .rough_plastic import MicrofacetFacets, relative_scales
 
 if TYPE_CHECKING:  # the type only: models import JAX on first use (veil._lazy)
@@ -110,12 +109,7 @@ def _conductor_mitsuba(model, setting) -> Plugin:
 
 
 def _conductor_pbrt(model, setting) -> Plugin:
-    if model.distribution != "ggx":
-        raise Unsupported(
-            f"pbrt-v4 has only the Trowbridge-Reitz (GGX) microfacet "
-            f"distribution; this {RoughConductor.NAME} result uses "
-            f"{model.distribution} (export it to Mitsuba, which has both)"
-        )
+    require_ggx_for_pbrt(model, RoughConductor.NAME)
     scale, _, ks, lost = relative_scales(
         model,
         setting,
@@ -185,21 +179,9 @@ class RoughConductor(MicrofacetFacets, BRDF):
             start=3.0,
             channels="per-channel",
         ),
-        Param(
-            "ks",
-            0.0,
-            math.inf,
-            "specular scale, relative units (scale of the lobe)",
-            log_scale=True,
-            start=1.0,
-            channels="per-channel",
-        ),
+        SPECULAR_SCALE,
     )
-    OPTIONS = (
-        Option(
-            "distribution", "beckmann", "microfacet distribution: beckmann or ggx", DISTRIBUTIONS
-        ),
-    )
+    OPTIONS = (DISTRIBUTION_OPTION,)
     #: Starting grids: the roughness widely, a few metals' indices in a clear-water fit; the
     #: index barely shows through a medium, so a target fit starts at one.
     START = {

@@ -35,8 +35,9 @@ from ..errors import ParameterError
 from . import fresnel
 from .base import BRDF, Option, Param, geometric_grid
 from .microfacet import (
-    DISTRIBUTIONS,
+    DISTRIBUTION_OPTION,
     HALF_PI,
+    SPECULAR_SCALE,
     _safe_div,
     _safe_sqrt,
     check_distribution,
@@ -46,7 +47,13 @@ from .microfacet import (
     microfacet_lobe,
     smith_g1,
 )
-from .renderers import Plugin, Unsupported, Value, float_value, intensity_scale
+from .renderers import (
+    Plugin,
+    Value,
+    float_value,
+    intensity_scale,
+    require_ggx_for_pbrt,
+)
 
 if TYPE_CHECKING:  # the types only: models import JAX and numpy on first use (veil._lazy)
     from jax import Array
@@ -332,12 +339,7 @@ def _plastic_mitsuba(model, setting) -> Plugin:
 
 
 def _plastic_pbrt(model, setting) -> Plugin:
-    if model.distribution != "ggx":
-        raise Unsupported(
-            f"pbrt-v4 has only the Trowbridge-Reitz (GGX) microfacet "
-            f"distribution; this {RoughPlastic.NAME} result uses "
-            f"{model.distribution} (export it to Mitsuba, which has both)"
-        )
+    require_ggx_for_pbrt(model, RoughPlastic.NAME)
     scale, rho, ks, lost = relative_scales(
         model,
         setting,
@@ -446,20 +448,10 @@ class RoughPlastic(MicrofacetFacets, BRDF):
             error_scale="bound",
             channels="shared",
         ),
-        Param(
-            "ks",
-            0.0,
-            math.inf,
-            "specular scale, relative units (scale of the lobe)",
-            log_scale=True,
-            start=1.0,
-            channels="per-channel",
-        ),
+        SPECULAR_SCALE,
     )
     OPTIONS = (
-        Option(
-            "distribution", "beckmann", "microfacet distribution: beckmann or ggx", DISTRIBUTIONS
-        ),
+        DISTRIBUTION_OPTION,
         Option(
             "nonlinear",
             False,
