@@ -65,7 +65,7 @@ from .io import check_output_folder, output_folder, write_bytes_atomic, write_te
 from .models import AUTO, model_class
 from .viz.fit_figures import fit_figure
 from .viz.fit_figures_colour import channel_fit_figure
-from .viz.pipeline_report import pipeline_report, ranking_section
+from .viz.pipeline_report import channels_section, pipeline_report, ranking_section
 
 #: Output files, by role.
 FILES = {
@@ -84,12 +84,6 @@ RANKING_FILE = "ranking.json"
 #: With ``keep_candidates``, every candidate's result under this folder, by step.
 CANDIDATES_DIR = "candidates"
 STEP_KEYS = ("reference", "medium", "target")
-#: report.md's section on a pipeline over several channels.
-CHANNELS_NOTE = (
-    "## Channels\n\nEvery step fitted the channels {} at once, the parameters "
-    "declared per channel one per channel and the others tied (docs/channels.md). "
-    "The figures draw every channel in its colour."
-)
 #: The key of ``data`` (:func:`_prepare_sessions`) holding every channel's data.
 CHANNEL_DATA = "by channel"
 
@@ -252,18 +246,6 @@ def _write_channel_figures(folder, datas: dict, ref, med, tgt, direct) -> dict:
     return {key: FILES[key] for key in figs}
 
 
-def _channel_lines(comparison: dict | None) -> str:
-    """report.md's per-channel comparison of the estimate with the direct fit (if any)."""
-    if not comparison or "rms_fr_relative_by_channel" not in comparison:
-        return ""
-    rows = [f"| {c} | {100 * v:.3g} |" for c, v in comparison["rms_fr_relative_by_channel"].items()]
-    return (
-        "\n\nThe estimate against the target measured directly, per channel (rms relative "
-        "difference of f_r over the paper's protocol):\n\n| channel | rms [%] |\n|---|---|\n"
-        + "\n".join(rows)
-    )
-
-
 def _resolve_models(models, brdf_model, medium_model) -> tuple[Any, Any, bool]:
     """``models=`` against ``brdf_model`` / ``medium_model``: (the BRDF family, the medium
     family, whether the data choose them, ``models="auto"``)."""
@@ -414,13 +396,7 @@ def _write_outputs(
         if rankings:
             report = report.rstrip("\n") + "\n\n" + "\n".join(ranking_section(rankings)) + "\n"
         if channels is not None:
-            report = (
-                report.rstrip("\n")
-                + "\n\n"
-                + CHANNELS_NOTE.format(", ".join(channels))
-                + _channel_lines(comparison)
-                + "\n"
-            )
+            report = report.rstrip("\n") + "\n\n" + channels_section(channels, comparison)
         write_text_atomic(folder / FILES["report"], report)
         names["report"] = FILES["report"]
     return names

@@ -175,14 +175,10 @@ def wait_for_compilations() -> None:
 
 
 def _unit_scale_vector(cls, v) -> np.ndarray:
-    """``v`` with the model's scale parameters and gain set to 1 (host-side, as
-    integrator._unit_scales does inside the programs)."""
+    """``v`` with the model's scale parameters and gain at 1, on the host (as the programs
+    see it: integrator.unit_scale_indices)."""
     out = np.array(v, dtype=float)
-    for part in cls.SCALES:
-        out[cls.scale_index(part)] = 1.0
-    gain = getattr(cls, "GAIN", None)
-    if gain is not None:
-        out[cls.param_names().index(gain)] = 1.0
+    out[list(integrator.unit_scale_indices(cls))] = 1.0
     return out
 
 

@@ -283,12 +283,19 @@ def _weighted_rows(medium, vm, rows: dict):
 BRDF_PARTS = ("separable", "lobe")
 
 
-def _unit_scales(model, v):
-    for part in model.SCALES:
-        v = v.at[model.scale_index(part)].set(1.0)
+def unit_scale_indices(model) -> tuple[int, ...]:
+    """The indices of a model's scale parameters and its gain: the term matrices are computed
+    with these at 1 (:func:`_unit_scales`), so they do not depend on them."""
+    out = [model.scale_index(part) for part in model.SCALES]
     gain = getattr(model, "GAIN", None)
     if gain is not None:
-        v = v.at[model.param_names().index(gain)].set(1.0)
+        out.append(model.param_names().index(gain))
+    return tuple(out)
+
+
+def _unit_scales(model, v):
+    for i in unit_scale_indices(model):
+        v = v.at[i].set(1.0)
     return v
 
 
