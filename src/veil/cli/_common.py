@@ -114,6 +114,36 @@ TABLE_FORMS = ("full", "inplane", "goniometer")
 GLOW_LEVEL = 0.03
 
 
+def accuracy_option(help_text: str, default: str = "default"):
+    """``--accuracy``: one of :data:`ACCURACIES`, the engine's quadrature for what
+    ``help_text`` says."""
+    return click.option(
+        "--accuracy",
+        type=click.Choice(list(ACCURACIES)),
+        default=default,
+        show_default=True,
+        help=help_text,
+    )
+
+
+def seed_option(help_text: str):
+    """``--seed``: the noise generator's seed, an integer >= 0 (0 by default)."""
+    return click.option(
+        "--seed", type=click.IntRange(min=0), default=0, show_default=True, help=help_text
+    )
+
+
+def noise_option(help_text: str, positive: bool = False):
+    """``--noise``: a relative noise level, 0.01 by default, >= 0 (> 0 if ``positive``)."""
+    return click.option(
+        "--noise",
+        type=click.FloatRange(min=0.0, min_open=positive),
+        default=0.01,
+        show_default=True,
+        help=help_text,
+    )
+
+
 def rotation_options(candidate: bool = False):
     """The protocol's rotations (veil.data.protocol.rho_values, its defaults): --fine-step,
     --window, --coarse-step and --limit; ``candidate``: the steps of a design's candidates."""

@@ -10,7 +10,14 @@ from pathlib import Path
 
 import click
 
-from ._common import UserError, model_error_option, model_options, parse_fix, propagation_option
+from ._common import (
+    UserError,
+    accuracy_option,
+    model_error_option,
+    model_options,
+    parse_fix,
+    propagation_option,
+)
 
 IN_FILE = click.Path(exists=True, dir_okay=False, path_type=Path)
 OUT_FILE = click.Path(dir_okay=False, path_type=Path)
@@ -20,13 +27,8 @@ def _fix_option(help_text):
     return click.option("--fix", "fix", multiple=True, metavar="NAME=VALUE", help=help_text)
 
 
-_accuracy_option = click.option(
-    "--accuracy",
-    type=click.Choice(["fast", "default", "high"]),
-    default="default",
-    show_default=True,
-    help="Quadrature of the reported result; iterations run at 'fast' and are polished at "
-    "this accuracy.",
+_accuracy_option = accuracy_option(
+    "Quadrature of the reported result; iterations run at 'fast' and are polished at this accuracy."
 )
 _black_option = click.option(
     "--black",

@@ -17,6 +17,7 @@ from pathlib import Path
 import click
 
 from ..models import PRESETS
+from ._common import accuracy_option, noise_option, seed_option
 
 #: The demo's set-up: which preset plays which role.
 SETUP = {"reference": "BRDF2", "medium": "BTDF2", "target": "BRDF1"}
@@ -136,27 +137,9 @@ def summary_table(result):
     "and report.md (created). Written as a whole at the end; an interrupted "
     "run leaves it as it was.",
 )
-@click.option(
-    "--seed",
-    type=click.IntRange(min=0),
-    default=0,
-    show_default=True,
-    help="Seed of the first session's noise (the others use seed+1, +2, +3).",
-)
-@click.option(
-    "--noise",
-    type=click.FloatRange(min=0.0, min_open=True),
-    default=0.01,
-    show_default=True,
-    help="Relative noise of every measurement (0.01 = 1 %).",
-)
-@click.option(
-    "--accuracy",
-    type=click.Choice(["fast", "default", "high"]),
-    default="default",
-    show_default=True,
-    help="Quadrature of the simulation and of the fit results.",
-)
+@seed_option("Seed of the first session's noise (the others use seed+1, +2, +3).")
+@noise_option("Relative noise of every measurement (0.01 = 1 %).", positive=True)
+@accuracy_option("Quadrature of the simulation and of the fit results.")
 @click.pass_context
 def demo_command(ctx, outdir, seed, noise, accuracy):
     """The paper's simulation experiment (figs. 9-12, as `veil reproduce`), then a simulated

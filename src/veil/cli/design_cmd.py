@@ -14,7 +14,14 @@ from pathlib import Path
 
 import click
 
-from ._common import UserError, check_output_path, model_options, rotation_options
+from ._common import (
+    UserError,
+    accuracy_option,
+    check_output_path,
+    model_options,
+    noise_option,
+    rotation_options,
+)
 
 
 def _floats(text, option):
@@ -183,13 +190,7 @@ def _print_design(plan, result: dict, info, mapping: dict) -> None:
     help="Candidate relative angles between light and camera, degrees.",
 )
 @rotation_options(candidate=True)
-@click.option(
-    "--noise",
-    type=click.FloatRange(min=0),
-    default=0.01,
-    show_default=True,
-    help="Relative noise of a measurement (0.01 = 1 %).",
-)
+@noise_option("Relative noise of a measurement (0.01 = 1 %).")
 @click.option(
     "--noise-floor",
     type=click.FloatRange(min=0),
@@ -211,13 +212,7 @@ def _print_design(plan, result: dict, info, mapping: dict) -> None:
     "ratios of the BRDF's scales and its other parameters, Ps/Pd,n,eta for the "
     "paper's).",
 )
-@click.option(
-    "--accuracy",
-    type=click.Choice(["fast", "default", "high"]),
-    default="fast",
-    show_default=True,
-    help="Quadrature of the Jacobians.",
-)
+@accuracy_option("Quadrature of the Jacobians.", default="fast")
 @click.option(
     "-o",
     "--output",

@@ -12,7 +12,7 @@ import click
 
 from .._lazy import np
 from ..io import write_text_atomic
-from ._common import ACCURACIES, UserError, check_output_path, model_options
+from ._common import UserError, accuracy_option, check_output_path, model_options
 
 ANGLES = ("theta_i", "phi_i", "theta_r", "phi_r")  # the --configs columns, degrees
 ADDED = ("apparent", "clear", "error")  # the columns veil eval adds
@@ -326,14 +326,10 @@ def _evaluate(brdf, medium, ti, tr, pi_, pr, accuracy: str) -> tuple:
     help="Write the --configs CSV (or, with --json, the JSON object) to this file "
     "instead of standard output. Written atomically; never the --configs file.",
 )
-@click.option(
-    "--accuracy",
-    type=click.Choice(list(ACCURACIES)),
-    default="default",
-    show_default=True,
-    help="Quadrature level: fast (coarse rule, quick previews), default (about 1e-3 "
+@accuracy_option(
+    "Quadrature level: fast (coarse rule, quick previews), default (about 1e-3 "
     "relative error for the paper's presets at angles below 80 deg), high "
-    "(twice as fine, slower). The error column estimates what is left.",
+    "(twice as fine, slower). The error column estimates what is left."
 )
 @click.option(
     "--json",

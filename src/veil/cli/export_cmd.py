@@ -9,7 +9,7 @@ from pathlib import Path
 
 import click
 
-from ._common import UserError, check_output_path, parse_psi
+from ._common import UserError, accuracy_option, check_output_path, parse_psi
 
 IN_FILE = click.Path(exists=True, dir_okay=False, path_type=Path)
 TARGETS = ("mitsuba", "pbrt", "csv")
@@ -102,13 +102,7 @@ def _positive(name):
     help=f"Samples per configuration of --verify (default 1 for a surface, "
     f"{MEDIUM_SPP} through a medium).",
 )
-@click.option(
-    "--accuracy",
-    type=click.Choice(["fast", "default", "high"]),
-    default="default",
-    show_default=True,
-    help="Quadrature of veil's apparent values (csv, --verify).",
-)
+@accuracy_option("Quadrature of veil's apparent values (csv, --verify).")
 @click.option(
     "--channel",
     default=None,

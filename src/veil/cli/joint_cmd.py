@@ -15,6 +15,7 @@ import click
 
 from ._common import (
     UserError,
+    accuracy_option,
     check_output_path,
     fix_value,
     model_error_option,
@@ -168,13 +169,8 @@ def _names(text, option):
     type=OUT_FILE,
     help="JSON file for the joint result (written atomically).",
 )
-@click.option(
-    "--accuracy",
-    type=click.Choice(["fast", "default", "high"]),
-    default="default",
-    show_default=True,
-    help="Quadrature of the reported result; iterations run at 'fast' and are "
-    "polished at this accuracy.",
+@accuracy_option(
+    "Quadrature of the reported result; iterations run at 'fast' and are polished at this accuracy."
 )
 @click.option(
     "--max-nfev",

@@ -12,7 +12,15 @@ from pathlib import Path
 
 import click
 
-from ._common import UserError, echo_warnings, fit_progress, load_medium, model_options, parse_fix
+from ._common import (
+    UserError,
+    accuracy_option,
+    echo_warnings,
+    fit_progress,
+    load_medium,
+    model_options,
+    parse_fix,
+)
 
 ROI_HELP = "X,Y,W,H in pixels (x to the right, y down, origin top-left)"
 
@@ -122,13 +130,7 @@ def _noise(text):
     help="Tabulated range of a nonlinear parameter [default: the range of the "
     "model's starting grids]; repeatable.",
 )
-@click.option(
-    "--accuracy",
-    type=click.Choice(["fast", "default", "high"]),
-    default="default",
-    show_default=True,
-    help="Quadrature of the tables.",
-)
+@accuracy_option("Quadrature of the tables.")
 @click.option(
     "--tile",
     type=click.IntRange(8, 4096),

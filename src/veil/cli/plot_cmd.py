@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import click
 
-from ._common import UserError, model_options
+from ._common import UserError, accuracy_option, model_options
 from .render_cmd import output_path
 
 FIGURE_SUFFIXES = (".png", ".pdf", ".svg")
@@ -38,19 +38,24 @@ def _save(fig, output):
     click.echo(f"wrote {output}")
 
 
+def _repeatable(name: str, dest: str, help_text: str):
+    """A model option given at least once, repeatable (the models of one figure)."""
+    return click.option(name, dest, multiple=True, required=True, help=help_text)
+
+
+def _draw(figure, models: list, theta_i: float, output) -> None:
+    """``figure(models, theta_i)`` (a lobe figure) checked and saved to ``output``."""
+    _check(theta_i, output)
+    _save(figure(models, theta_i), output)
+
+
 @click.group("plot")
 def plot_command():
     """Single figures: reflection lobe, transmission lobe, observed-value curve."""
 
 
 @plot_command.command("lobe")
-@click.option(
-    "--brdf",
-    "brdfs",
-    multiple=True,
-    required=True,
-    help="Object (repeatable): preset or 'PD,PS,N,ETA'.",
-)
+@_repeatable("--brdf", "brdfs", "Object (repeatable): preset or 'PD,PS,N,ETA'.")
 @_theta_i_option
 @_output_option
 @model_options(("brdf",))
@@ -58,19 +63,11 @@ def lobe(brdfs, theta_i, output, models):
     """Reflection lobe f_r (as the paper's fig. 9): in and out of the plane of incidence."""
     from ..viz.figures import fig9
 
-    models = [models.brdf_model(b) for b in brdfs]
-    _check(theta_i, output)
-    _save(fig9(models, theta_i), output)
+    _draw(fig9, [models.brdf_model(b) for b in brdfs], theta_i, output)
 
 
 @plot_command.command("transmission")
-@click.option(
-    "--medium",
-    "media",
-    multiple=True,
-    required=True,
-    help="Medium (repeatable): preset or 'TD,TT,G,ETA'.",
-)
+@_repeatable("--medium", "media", "Medium (repeatable): preset or 'TD,TT,G,ETA'.")
 @_theta_i_option
 @_output_option
 @model_options(("medium",))
@@ -81,18 +78,11 @@ def transmission(media, theta_i, output, models):
     models = [models.medium_model(m) for m in media]
     if any(m is None for m in models):
         raise UserError("--medium none has no transmission lobe; give a preset or 'TD,TT,G,ETA'")
-    _check(theta_i, output)
-    _save(fig10(models, theta_i), output)
+    _draw(fig10, models, theta_i, output)
 
 
 @plot_command.command("curve")
-@click.option(
-    "--brdf",
-    "brdfs",
-    multiple=True,
-    required=True,
-    help="Object (repeatable): preset or 'PD,PS,N,ETA'.",
-)
+@_repeatable("--brdf", "brdfs", "Object (repeatable): preset or 'PD,PS,N,ETA'.")
 @click.option(
     "--medium",
     "media",
@@ -109,13 +99,7 @@ def transmission(media, theta_i, output, models):
     show_default=True,
     help="y axis: log or linear f; peak: each curve over its own peak; tt2: f / T_t^2.",
 )
-@click.option(
-    "--accuracy",
-    type=click.Choice(["fast", "default", "high"]),
-    default="default",
-    show_default=True,
-    help="Quadrature of the engine.",
-)
+@accuracy_option("Quadrature of the engine.")
 @_output_option
 @model_options()
 def curve(brdfs, media, theta_i, scale, accuracy, output, models):

@@ -8,7 +8,7 @@ import os
 import click
 
 from .._lazy import np
-from ._common import UserError, check_file_target, model_options
+from ._common import UserError, accuracy_option, check_file_target, model_options
 
 
 def output_path(path: str, suffixes: tuple, what: str) -> str:
@@ -83,13 +83,7 @@ def output_path(path: str, suffixes: tuple, what: str) -> str:
     help="k x k samples per pixel, 1 to 8 (1: the pixel centre); the time grows "
     "with k^2, the memory does not.",
 )
-@click.option(
-    "--accuracy",
-    type=click.Choice(["fast", "default", "high"]),
-    default="fast",
-    show_default=True,
-    help="Quadrature of the engine.",
-)
+@accuracy_option("Quadrature of the engine.", default="fast")
 @click.option(
     "--check",
     type=int,

@@ -8,7 +8,7 @@ import time
 
 import click
 
-from ._common import UserError
+from ._common import UserError, accuracy_option
 
 #: Figure files (without suffix) by figure.
 FIGURES = {
@@ -57,13 +57,7 @@ def curves_csv(exp) -> str:
     show_default=True,
     help="Size of the rendered spheres (fig. 12), pixels.",
 )
-@click.option(
-    "--accuracy",
-    type=click.Choice(["fast", "default", "high"]),
-    default="default",
-    show_default=True,
-    help="Quadrature of the fig. 11 curves.",
-)
+@accuracy_option("Quadrature of the fig. 11 curves.")
 @click.option(
     "--render-accuracy",
     type=click.Choice(["fast", "default", "high"]),

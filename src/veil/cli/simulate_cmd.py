@@ -12,10 +12,12 @@ from ._common import (
     GLOW_LEVEL,
     TABLE_FORMS,
     UserError,
+    accuracy_option,
     check_output_path,
     model_options,
     parse_psi,
     rotation_options,
+    seed_option,
 )
 
 
@@ -172,13 +174,7 @@ def _channel_models(model_b, model_m, channels: str | None, per_channel) -> dict
     help="Relative standard deviation of the Gaussian noise (0.01 = 1 % of each "
     "value); written to the sigma column.",
 )
-@click.option(
-    "--seed",
-    type=click.IntRange(min=0),
-    default=0,
-    show_default=True,
-    help="Seed of the noise generator (same seed, same files, bit for bit).",
-)
+@seed_option("Seed of the noise generator (same seed, same files, bit for bit).")
 @click.option(
     "--glow",
     type=float,
@@ -199,13 +195,7 @@ def _channel_models(model_b, model_m, channels: str | None, per_channel) -> dict
     "theta_i,phi_i,theta_r,phi_r. All in degrees.",
 )
 @rotation_options()
-@click.option(
-    "--accuracy",
-    type=click.Choice(["fast", "default", "high"]),
-    default="default",
-    show_default=True,
-    help="Quadrature level of the apparent reflectance.",
-)
+@accuracy_option("Quadrature level of the apparent reflectance.")
 @click.option(
     "--merl",
     "merl",

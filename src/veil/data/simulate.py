@@ -98,7 +98,8 @@ def simulate(
     """Simulated goniometer session of ``brdf`` through ``medium`` (docs/model.md sec. 7).
 
     brdf, medium : models or preset names; ``medium=None`` is clear water (no integral,
-        no glow).
+        no glow). Several colour channels at once: ``brdf`` a dict {channel: (brdf,
+        medium)} and ``medium`` None (:func:`simulate_channels`).
     psi, fine_step, coarse_step, window, limit : the protocol (:func:`veil.protocol.protocol`),
         degrees.
     noise : relative standard deviation of the Gaussian noise (>= 0); ``sigma`` = noise * value.
@@ -114,25 +115,53 @@ def simulate(
     Returns a DataFrame with columns psi, rho, theta_i, phi_i, theta_r, phi_r, value, sigma
     (or a pair (table, black_table) when ``black``).
     """
-    brdf = as_brdf(brdf)
-    if medium is not None:
-        medium = as_btdf(medium)
+    pairs = _pairs(brdf, medium)
     _check_noise(noise, glow, seed, accuracy)
     table = protocol(psi, fine_step=fine_step, coarse_step=coarse_step, window=window, limit=limit)
-    n = len(table)
-    exact, glow_values = _session(brdf, medium, table, glow, accuracy, progress)
+    n, size = len(table), len(table) * len(pairs)
+    parts = []
+    for k, (brdf, medium) in enumerate(pairs.values()):
+        step = None if progress is None else (lambda done, total, k=k: progress(k * n + done, size))
+        parts.append(_session(brdf, medium, table, glow, accuracy, step))
+    exact = np.concatenate([p[0] for p in parts])
+    glow_values = np.concatenate([p[1] for p in parts])
     rng = np.random.default_rng(seed)
-    z_object = rng.standard_normal(n)
-    z_black = rng.standard_normal(n)
-    out = table.copy()
+    z_object = rng.standard_normal(size)
+    z_black = rng.standard_normal(size)
+    rows = _channel_rows(table, list(pairs))
+    out, cloth = rows.copy(), rows.copy()
     out["value"] = exact + noise * exact * z_object
     out["sigma"] = noise * np.abs(exact)
-    if not black:
-        return out
-    cloth = table.copy()
     cloth["value"] = glow_values + noise * glow_values * z_black
     cloth["sigma"] = noise * glow_values
-    return out, cloth
+    return (out, cloth) if black else out
+
+
+def _pairs(brdf, medium) -> dict:
+    """{channel: (brdf, medium)} of :func:`simulate`'s first two arguments; the channel of a
+    single pair is None (a table without a channel column)."""
+    if not isinstance(brdf, dict):
+        return {None: (as_brdf(brdf), None if medium is None else as_btdf(medium))}
+    if not brdf or medium is not None:
+        raise InputError(
+            "channels: expected a dict {channel: (brdf, medium)} with at least one channel "
+            "(and no separate medium)"
+        )
+    return brdf
+
+
+def _channel_rows(table: pd.DataFrame, channels: list) -> pd.DataFrame:
+    """The protocol's ``table`` once per channel, with a ``channel`` column (the table itself
+    for the one unnamed channel of a single pair)."""
+    if channels == [None]:
+        return table
+    import pandas as pd
+
+    from .channels import CHANNEL
+
+    rows = pd.concat([table] * len(channels), ignore_index=True)
+    rows[CHANNEL] = np.repeat(np.array(channels, dtype=object), len(table))
+    return rows
 
 
 def _check_noise(noise, glow, seed, accuracy) -> None:
@@ -173,56 +202,23 @@ def _session(
 
 
 def simulate_channels(
-    channels: dict,
-    psi=PSI,
-    noise: float = 0.01,
-    seed: int = 0,
-    black: bool = False,
-    *,
-    fine_step: float = 1.0,
-    coarse_step: float = 5.0,
-    window: float = 10.0,
-    limit: float = 85.0,
-    glow: float = GLOW_LEVEL,
-    accuracy: str = "default",
-    progress: Callable[[int, int], None] | None = None,
+    channels: dict, *args, **options
 ) -> pd.DataFrame | tuple[pd.DataFrame, pd.DataFrame]:
     """A simulated session of several colour channels (docs/measurements.md, "Channels"):
     ``channels`` maps each channel (``"r"``, ``"g"``, ``"b"`` or a wavelength in nm) to its
     (brdf, medium) pair, as :func:`simulate` takes them. The table has the protocol's
     configurations once per channel, channel after channel, with a ``channel`` column
     before ``value`` and ``sigma``. The noise is drawn from one generator: every channel's
-    object noise first (in the order given), then every channel's black cloth. Other
-    arguments as :func:`simulate`.
+    object noise first (in the order given), then every channel's black cloth. ``args`` and
+    ``options`` are :func:`simulate`'s after its first two (psi, noise, seed, black, the
+    protocol, glow, accuracy, progress): this is ``simulate(channels, None, *args,
+    **options)``.
     """
-    import pandas as pd
-
-    from .channels import CHANNEL
-
-    if not isinstance(channels, dict) or not channels:
+    if not isinstance(channels, dict):
         raise InputError(
             "channels: expected a dict {channel: (brdf, medium)} with at least one channel"
         )
-    _check_noise(noise, glow, seed, accuracy)
-    table = protocol(psi, fine_step=fine_step, coarse_step=coarse_step, window=window, limit=limit)
-    n, size = len(table), len(table) * len(channels)
-    parts = []
-    for k, (brdf, medium) in enumerate(channels.values()):
-        step = None if progress is None else (lambda done, total, k=k: progress(k * n + done, size))
-        parts.append(_session(brdf, medium, table, glow, accuracy, step))
-    exact = np.concatenate([p[0] for p in parts])
-    glow_values = np.concatenate([p[1] for p in parts])
-    rng = np.random.default_rng(seed)
-    z_object = rng.standard_normal(size)
-    z_black = rng.standard_normal(size)
-    rows = pd.concat([table] * len(channels), ignore_index=True)
-    rows[CHANNEL] = np.repeat(np.array(list(channels), dtype=object), n)
-    out, cloth = rows.copy(), rows.copy()
-    out["value"] = exact + noise * exact * z_object
-    out["sigma"] = noise * np.abs(exact)
-    cloth["value"] = glow_values + noise * glow_values * z_black
-    cloth["sigma"] = noise * glow_values
-    return (out, cloth) if black else out
+    return simulate(channels, None, *args, **options)
 
 
 __all__ = [

@@ -2,17 +2,21 @@
 
 One list of blocks (headings, paragraphs, tables, figures) is written twice: as Markdown
 (``report.md``, figures linked) and as a self-contained HTML page (``report.html``, figures
-embedded as base64 PNG). Every number and every verdict in the text is computed from the
+embedded as base64 PNG). The figures' captions are templates in report_captions.toml.
+Every number and every verdict in the text is computed from the
 :class:`veil.figures.Experiment`; nothing is copied from the paper.
 """
 
 from __future__ import annotations
 
 import base64
+import functools
 import html
 import math
 import os
 import re
+import tomllib
+from importlib import resources
 
 import numpy as np
 
@@ -47,6 +51,20 @@ def _trend(values) -> str:
 # --------------------------------------------------------------------------------------
 # content
 # --------------------------------------------------------------------------------------
+@functools.cache
+def _captions() -> dict:
+    """{"fig9": caption template, ...}: the figures' captions, prose kept as data."""
+    text = resources.files(__package__).joinpath("report_captions.toml").read_text("utf-8")
+    return tomllib.loads(text)
+
+
+def _figure(files: dict, number: int, **fields) -> tuple:
+    """The block of fig. ``number``: its PNG (``files["figN"]``) and its caption, whose
+    template's fields are ``fields``."""
+    key = f"fig{number}"
+    return ("img", files[key], f"fig. {number}", _captions()[key].format(**fields))
+
+
 def build_blocks(exp: Experiment, files: dict) -> list:
     """The report as blocks: ("h1"|"h2"|"p", text), ("ul", items), ("table", head, rows),
     ("img", file name, alt text, caption). ``files`` maps "fig9".."fig12" to PNG names."""
@@ -118,8 +136,7 @@ def _parameter_blocks(exp: Experiment, media: list, files: dict) -> list:
 
 def _fig9_blocks(exp: Experiment, media: list, files: dict) -> list:
     """Fig. 9: the objects' reflection lobes."""
-    out: list = []
-    out.append(("h2", "Fig. 9: reflection lobes of the objects"))
+    out: list = [("h2", "Fig. 9: reflection lobes of the objects")]
     widths = []
     for n, b in exp.brdfs.items():
         t_in, f_in, _, _ = lobe_data(b, exp.theta_i)
@@ -129,25 +146,14 @@ def _fig9_blocks(exp: Experiment, media: list, files: dict) -> list:
             f"width at half maximum {cm.fwhm:.2f}°, diffuse level "
             f"{_num(float(np.interp(0.0, t_in, f_in)))} /sr"
         )
-    out.append(
-        (
-            "img",
-            files["fig9"],
-            "fig. 9",
-            f"Fig. 9. f_r of the objects for {exp.theta_i:g}° incidence. (a) In the plane "
-            "of incidence against the signed reflection angle, (b) out of the plane, "
-            "through the mirror direction, against the angle from it; the radius is log10 "
-            "f_r (rings are decades). (c) Close-up of the specular lobe, log scale.",
-        )
-    )
+    out.append(_figure(files, 9, theta_i=exp.theta_i))
     out.append(("ul", widths))
     return out
 
 
 def _fig10_blocks(exp: Experiment, media: list, files: dict) -> list:
     """Fig. 10: the media's transmission lobes."""
-    out: list = []
-    out.append(("h2", "Fig. 10: transmission lobes of the media"))
+    out: list = [("h2", "Fig. 10: transmission lobes of the media")]
     items = []
     for n in media:
         beta, f_in, _, _ = transmission_data(exp.media[n], exp.theta_i)
@@ -159,18 +165,7 @@ def _fig10_blocks(exp: Experiment, media: list, files: dict) -> list:
             f"half maximum {cm.fwhm / 2:.2f}°, isotropic floor "
             f"{_num(float(med.iso(med.to_vector())))} /sr"
         )
-    out.append(
-        (
-            "img",
-            files["fig10"],
-            "fig. 10",
-            f"Fig. 10. f_t(I, T) of the media for {exp.theta_i:g}° incidence against the "
-            "travel direction -T of the transmitted light: (a) in the plane of incidence "
-            "(angle from straight down), (b) out of the plane (angle from the unscattered "
-            "direction); radius log10 f_t. (c) Close-up against the deflection angle, log "
-            "scale.",
-        )
-    )
+    out.append(_figure(files, 10, theta_i=exp.theta_i))
     out.append(("ul", items))
     hw = [curve_metrics(*transmission_data(exp.media[n], exp.theta_i)[:2]).fwhm / 2 for n in media]
     out.append(
@@ -186,22 +181,8 @@ def _fig10_blocks(exp: Experiment, media: list, files: dict) -> list:
 
 def _fig11_blocks(exp: Experiment, media: list, files: dict) -> list:
     """Fig. 11: the observed value against the reflection angle."""
-    out: list = []
-    out.append(("h2", "Fig. 11: observed value against reflection angle"))
-    out.append(
-        (
-            "img",
-            files["fig11"],
-            "fig. 11",
-            f"Fig. 11. Observed value f(I, R) at {exp.theta_i:g}° incidence against the "
-            "reflection angle, in the plane of incidence, each object in a clear medium "
-            "(red, as in the paper) and under each medium. Top: f on a log scale (the "
-            "media differ by four decades). Middle: f / T_t² on a log scale, clear medium "
-            "as is: single-scattered light crosses the medium twice with weight T_t, so "
-            "this compares the shapes at a common strength. Bottom: each curve divided by "
-            "its own peak, linear scale; the dotted line is half maximum.",
-        )
-    )
+    out: list = [("h2", "Fig. 11: observed value against reflection angle")]
+    out.append(_figure(files, 11, theta_i=exp.theta_i))
     head = [
         "object",
         "medium",
@@ -246,23 +227,8 @@ def _fig11_blocks(exp: Experiment, media: list, files: dict) -> list:
 
 def _fig12_blocks(exp: Experiment, media: list, files: dict) -> list:
     """Fig. 12: the spheres, and the rendering's accuracy."""
-    out: list = []
-    out.append(("h2", "Fig. 12: spheres rendered with the true and the apparent BRDFs"))
-    out.append(
-        (
-            "img",
-            files["fig12"],
-            "fig. 12",
-            f"Fig. 12. A unit sphere under a distant point light at {exp.light_theta:g}° "
-            "(from the right), orthographic camera, pixel value f(I, R) cos theta_i with "
-            "the local normal (paper eq. 1). Left column: true BRDF (clear medium); other "
-            "columns: apparent BRDF under each medium. Each panel has its own exposure "
-            f"(the median lit pixel maps to {MID_GREY:g}) because the media scale f by up "
-            "to four decades; the tone curve x/(1+x) (Reinhard) keeps highlights from "
-            "clipping so that their strength relative to the body stays visible; sRGB "
-            f"encoding. The image spans ±{VIEW:g} sphere radii.",
-        )
-    )
+    out: list = [("h2", "Fig. 12: spheres rendered with the true and the apparent BRDFs")]
+    out.append(_figure(files, 12, light_theta=exp.light_theta, mid_grey=MID_GREY, view=VIEW))
     head = [
         "object",
         "medium",
