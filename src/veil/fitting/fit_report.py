@@ -33,9 +33,13 @@ def _header(result: FitResult) -> str:
         models = _layout(result).get("models") or {}
         family = f", models {models['brdf']} / {models['medium']}" if models else ""
         variant = f", variant {result.variant}" if result.variant else ""
+        # a fit over channels lists each session once per channel
+        per = len(result.channels or ()) or 1
+        sessions = len(_layout(result).get("sessions", [])) // per
+        channels = f" in {per} channels" if result.channels else ""
         return (
-            f"[[Joint fit: {len(_layout(result).get('sessions', []))} sessions, "
-            f"{len(_layout(result)['media'])} media{variant}{family}]]"
+            f"[[Joint fit: {sessions} sessions{channels}, "
+            f"{len(cast('JointResult', result).media_labels)} media{variant}{family}]]"
         )
     what = STEP_WORDS.get(result.step or "", "")
     opts = ", ".join(f"{k} {v}" for k, v in result.options.items())
