@@ -114,7 +114,7 @@ def reference_models(reference, channels: list[str]) -> tuple[dict[str, Model], 
     channel's; a fit of one channel or of other channels is a FitError
     (:func:`veil.fitting.channel_steps.given_layout`)."""
     _, _, layout, models = given_layout(
-        reference, "brdf", channels, "the reference", "the sessions"
+        reference, "brdf", channels, "the reference", "each session"
     )
     names = {n: (c, p) for c in channels for p, n in layout[c].items()}
     return models, names

@@ -359,11 +359,15 @@ def _hold(
 
 
 def _datas(sessions, channel, channels) -> list[dict]:
-    """Each session's data by channel ({channel: data}; {None: data} of one channel), one
+    """Each session's data by channel ({channel: data}; {None: data} of one channel, or of
+    the one ``channel`` chosen), one
     weighting for all (a FitError naming the sessions without sigma otherwise), every
     session sharing a configuration with another."""
     picks = channels or [channel]
-    datas = [{c: prepare(s.table, s.black, s.name, channel=c) for c in picks} for s in sessions]
+    datas = [
+        {(c if channels else None): prepare(s.table, s.black, s.name, channel=c) for c in picks}
+        for s in sessions
+    ]
     weighted = {d.sigma is not None for by in datas for d in by.values()}
     if len(weighted) > 1:
         which = [
