@@ -17,6 +17,7 @@ from support.cli import run
 
 import veil
 from veil.analysis.comparison import check_truth, true_values
+from veil.analysis.diagnostics import problem_for
 from veil.data.measurements import save_measurements
 from veil.data.simulate import simulate_channels
 from veil.errors import FitError
@@ -152,6 +153,8 @@ def test_the_joint_result_round_trips_and_gives_each_channels_models(joint, tmp_
         back.medium("m")
     with pytest.raises(FitError, match="no channel 'x'"):
         back.one_model("x")
+    with pytest.raises(FitError, match="the diagnostics take a joint fit of one channel"):
+        problem_for(back, [])
     data = json.loads((tmp_path / "j.json").read_text())
     assert data["channels"]["g"] == {"Pd": "Pd[g]", "Ps": "Ps[g]", "n": "n", "eta": "eta"}
     assert [s["channel"] for s in data["layout"]["sessions"]][:3] == ["r", "g", "b"]

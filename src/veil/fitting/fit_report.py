@@ -52,6 +52,21 @@ def _header(result: FitResult) -> str:
     )
 
 
+def _tied(result: FitResult) -> list[str]:
+    """The names a fit over several channels ties across them (of a joint fit, every
+    object's and medium's), in the order of ``params``."""
+    channels = result.channels or {}
+    if result.JOINT:
+        by_channel = _layout(result)["channels"]
+        names = {
+            c: {n for part in ("objects", "media") for m in maps[part].values() for n in m.values()}
+            for c, maps in by_channel.items()
+        }
+    else:
+        names = {c: set(m.values()) for c, m in channels.items()}
+    return [n for n in result.params if all(n in own for own in names.values())]
+
+
 def _statistics(result: FitResult) -> list[str]:
     free = result.free
     lines = [
@@ -68,8 +83,7 @@ def _statistics(result: FitResult) -> list[str]:
         shared = ", ".join(_layout(result).get("shared", [])) or "-"
         lines.append(f"    shared by the media = {shared}")
     if result.channels:
-        first = next(iter(result.channels.values()))
-        tied = [n for n in first.values() if all(n in c.values() for c in result.channels.values())]
+        tied = _tied(result)
         lines.append(
             f"    channels           = {', '.join(result.channels)} (one fit; tied "
             f"across them: {', '.join(dict.fromkeys(tied)) or '-'})"
