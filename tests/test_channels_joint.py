@@ -160,6 +160,18 @@ def test_the_joint_result_round_trips_and_gives_each_channels_models(joint, tmp_
     assert [s["channel"] for s in data["layout"]["sessions"]][:3] == ["r", "g", "b"]
 
 
+def test_a_reference_fitted_over_the_channels_is_held_with_its_covariance(tables, steps):
+    """The step-0 fit over r, g, b as the joint fit's reference: each channel's model held,
+    its covariance propagated per channel into stderr_total, the given entry per channel."""
+    result = fit_joint(_sessions(tables)[1:], reference=steps[0], accuracy=FAST)
+    assert result.converged and result.n_free == 16  # the target's 8, the medium's 8
+    assert result.given["channels"] == steps[0].channels
+    assert result.given_model("b") == steps[0].as_model(channel="b")
+    for name in ("Pd[r]", "n", "Td[m][b]"):
+        assert result.stderr_total[name] > result.stderr[name], name
+    assert abs(result.params["Pd[g]"] - TGT_PD["g"]) < 3 * result.stderr_total["Pd[g]"]
+
+
 def test_a_one_channel_table_gives_the_joint_fit_of_the_table_without_the_column(tables):
     def green(table, column=True):
         one = table[table["channel"] == "g"].reset_index(drop=True)
