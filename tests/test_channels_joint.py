@@ -13,16 +13,25 @@ import math
 import re
 
 import pytest
-from support.cli import run
 
 import veil
+from support.cli import run
 from veil.analysis.comparison import check_truth, true_values
 from veil.analysis.diagnostics import problem_for
 from veil.data.measurements import save_measurements
 from veil.data.simulate import simulate_channels
 from veil.errors import FitError
-from veil.fitting import (JointResult, Session, build, fit_joint, fit_medium, fit_reference,
-                          fit_target, load_result, selection)
+from veil.fitting import (
+    JointResult,
+    Session,
+    build,
+    fit_joint,
+    fit_medium,
+    fit_reference,
+    fit_target,
+    load_result,
+    selection,
+)
 
 SMALL = dict(psi=(30, 60, 90), fine_step=2, coarse_step=10, accuracy="fast")
 FAST = "fast"
