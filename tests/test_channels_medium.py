@@ -185,16 +185,6 @@ def test_the_pipeline_over_three_channels_and_one_of_them(tmp_path):
         < 3 * green.stderr_total["Tt"]
 
 
-def test_the_pipeline_refuses_auto_models_over_several_channels(tmp_path):
-    p = _write_sessions(tmp_path)
-    out = run("fit", "pipeline", "--reference-clear", p["clear"], "--reference-medium",
-              p["ref_m"], "--target-medium", p["tgt_m"], "--models", "auto",
-              "-o", tmp_path / "out")
-    assert out.exit_code == 2, out.output
-    assert "channels r, g, b" in out.output and "--channel" in out.output
-    assert not (tmp_path / "out").exists()
-
-
 def _channel_problem(medium_by_channel: dict, medium_template):
     """The step-1 problem over channels r, g, b of a reference BRDF2 through the given media
     (fast rule; psi = 60 deg alone, one engine chunk), and its data by channel."""

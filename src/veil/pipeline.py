@@ -20,7 +20,9 @@ Formats and the meaning of the uncertainties: docs/fitting.md.
 More arguments of :func:`run_pipeline`:
 
 - ``truth``: optional true models {"reference": ..., "medium": ..., "target": ...}
-  (simulated data) listed beside the estimates in report.md.
+  (simulated data) listed beside the estimates in report.md; over several channels each
+  one model for every channel, or {channel: model} (a ``ChannelModel``), compared
+  channel by channel (:func:`veil.analysis.comparison.true_values`).
 - ``brdf_model``, ``medium_model``, ``brdf_options``, ``medium_options``: the families of
   the objects and of the medium (registered names; default the paper's) and their options.
 - ``model_error``: the model-discrepancy term of every weighted step ("off", "independent"
@@ -42,10 +44,10 @@ from __future__ import annotations
 
 import json
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
-from .analysis.comparison import compare
+from .analysis.comparison import check_truth, compare
 from .errors import FitError
 from .fitting import (
     FitResult,
@@ -59,7 +61,7 @@ from .fitting import (
 from .fitting.auto import for_family, plan_candidates, select_steps
 from .fitting.model_error import check_kind
 from .fitting.propagation import check_method
-from .fitting.session_data import channels_of
+from .fitting.session_data import channels_of, stack
 from .fitting.steps import prefetch
 from .io import check_output_folder, output_folder, write_bytes_atomic, write_text_atomic
 from .models import AUTO, model_class
@@ -176,17 +178,10 @@ def _prepare_sessions(inputs: dict, channel: str | None = None) -> tuple[dict, l
     return data, channels
 
 
-def _channel_sources(inputs: dict, channels, auto: bool, truth) -> dict | None:
-    """{session: (table, black)} the steps fit over several ``channels`` (None for one);
-    ``models="auto"`` and ``truth`` take one channel (a FitError)."""
+def _channel_sources(inputs: dict, channels) -> dict | None:
+    """{session: (table, black)} the steps fit over several ``channels`` (None for one)."""
     if channels is None:
         return None
-    if auto or truth is not None:
-        raise FitError(
-            f"the tables hold channels {', '.join(channels)}: "
-            f"{'models=auto' if auto else 'truth='} takes one channel; choose one "
-            f"with channel= (--channel NAME)"
-        )
     return {
         k: (inputs[k], inputs["black"] if k.endswith("_medium") else None)
         for k in ("reference_clear", "reference_medium", "target_medium")
@@ -414,11 +409,14 @@ def _pipeline(run: _Run, inputs: dict) -> PipelineResult:
     )
     # read and check every input before the first (long) fit
     data, channels = _prepare_sessions(inputs, run.channel)
-    sources = _channel_sources(inputs, channels, run.auto, run.truth)
+    run = replace(run, truth=check_truth(run.truth, channels, run.channel))
+    sources = _channel_sources(inputs, channels)
     rankings, kept = dict[str, Any](), dict[str, Any]()
     if plan is not None:
+        # of several channels, the candidates are ranked on every channel's data
+        ranked = data if sources is None else {k: stack(v) for k, v in data[CHANNEL_DATA].items()}
         ref, med, tgt, brdf_model, brdf_options, rankings, kept = select_steps(
-            data,
+            ranked,
             plan,
             accuracy=run.accuracy,
             max_nfev=run.max_nfev,
@@ -426,6 +424,7 @@ def _pipeline(run: _Run, inputs: dict) -> PipelineResult:
             model_error=run.model_error,
             propagation=run.propagation,
             keep=run.keep_candidates,
+            sources=sources,
         )
     else:
         ref, med, tgt = _fit_steps(data, run, sources)

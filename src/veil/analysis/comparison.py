@@ -2,7 +2,9 @@
 water (docs/model.md sec. 7; the pipeline's ``--target-clear``): parameter by parameter in
 units of their combined standard error, and f_r's curves over the paper's protocol in
 relative terms and in units of their own standard error, channel by channel for fits over
-several channels (docs/channels.md)."""
+several channels (docs/channels.md). The fits against the true models of simulated data
+(the pipeline's ``truth=``), channel by channel likewise: :func:`check_truth`,
+:func:`true_values`."""
 
 from __future__ import annotations
 
@@ -12,8 +14,14 @@ import numpy as np
 
 from ..data.measurements import CANONICAL
 from ..data.protocol import protocol
+from ..errors import FitError
 from ..fitting.result import FitResult
+from ..models import PRESETS, Model
+from ..models.channel_model import ChannelModel
 from .uncertainty import curve_stderr
+
+#: The steps ``truth=`` gives true models of.
+TRUTH_STEPS = ("reference", "medium", "target")
 
 
 def compare(estimated: FitResult, direct: FitResult) -> dict:
@@ -97,4 +105,65 @@ def _curves(estimated: FitResult, direct: FitResult, configs) -> tuple:
     return f_est, se_est, f_dir, se_dir, {"rms_fr_relative_by_channel": rms}
 
 
-__all__ = ["compare"]
+def _model(entry, where: str) -> Model:
+    """A true model: a model or a preset's name."""
+    if isinstance(entry, str) and entry.upper() in PRESETS:
+        return PRESETS[entry.upper()]
+    if not isinstance(entry, Model):
+        raise FitError(f"{where} = {entry!r}: expected a model or a preset's name")
+    return entry
+
+
+def check_truth(truth, channels: list[str] | None, channel: str | None = None) -> dict | None:
+    """``truth=`` of the pipeline checked before any fit: {step: a true model (every
+    channel's), or {channel: its model} for tables of several ``channels``}. A step's truth
+    is a model or preset, one model for every channel, or per channel a
+    :class:`~veil.models.channel_model.ChannelModel` or a dict {channel: model} naming the
+    tables' channels (of a fit of one ``channel``, that channel's model is taken)."""
+    if truth is None:
+        return None
+    if not isinstance(truth, dict) or set(truth) - set(TRUTH_STEPS):
+        raise FitError(
+            f"truth = {truth!r}; expected a dict by step ({', '.join(TRUTH_STEPS)}) of true models"
+        )
+    out: dict = {}
+    for step, entry in truth.items():
+        where = f"truth[{step!r}]"
+        if entry is None:
+            continue
+        if isinstance(entry, ChannelModel):
+            entry = entry.models
+        if not isinstance(entry, dict):
+            out[step] = _model(entry, where)
+            continue
+        models = {str(c): _model(m, f"{where}[{c!r}]") for c, m in entry.items()}
+        want = list(channels) if channels is not None else [channel]
+        missing = [c for c in want if c not in models]
+        if None in want or missing:
+            have = "one channel" if channels is None else f"channels {', '.join(channels)}"
+            raise FitError(
+                f"{where} gives channels {', '.join(models)} but the tables are fitted "
+                f"in {have if channel is None else f'channel {channel}'}: give every fitted "
+                f"channel's model, or one model for all"
+            )
+        out[step] = models if channels is not None else models[str(channel)]
+    return out
+
+
+def true_values(result: FitResult, truth) -> dict[str, float | None]:
+    """{result parameter: its true value} of ``truth`` (a model, or {channel: model} as
+    :func:`check_truth` gives). Of a fit over several channels channel by channel: a
+    parameter per channel against its channel's truth, a tied one against the value every
+    channel's truth shares (None when they differ: no one true value)."""
+    if not result.channels:
+        model = _model(truth, "truth")
+        return {name: getattr(model, name) for name in result.params}
+    found: dict[str, list[float]] = {}
+    for c, names in result.channels.items():
+        model = truth[c] if isinstance(truth, dict) else truth
+        for p, name in names.items():
+            found.setdefault(name, []).append(float(getattr(model, p)))
+    return {n: v[0] if all(x == v[0] for x in v) else None for n, v in found.items()}
+
+
+__all__ = ["compare", "check_truth", "true_values", "TRUTH_STEPS"]

@@ -212,6 +212,11 @@ def problem_for(
     """
     notes: list[str] = []
     if isinstance(result, JointResult):
+        if result.channels is not None:
+            raise FitError(
+                f"the joint fit fits channels {', '.join(result.channel_names)} at once: the "
+                f"diagnostics take a joint fit of one channel (veil fit joint --channel NAME)"
+            )
         layout = result.layout
         ref = None
         if layout.get("reference_given"):

@@ -132,7 +132,7 @@ def _ranked_fit(ctx, kind: str, step: str, models, data, fit, what: str, fix=(),
     result returned with it in ``stats["selection"]``. Exit 1 with the table when every
     candidate failed."""
     from ..fitting import selection
-    from ..fitting.session_data import prepare
+    from ..fitting.session_data import prepare_all
 
     cands = selection.candidates(
         kind, models.brdf_options if kind == "brdf" else models.medium_options
@@ -140,7 +140,7 @@ def _ranked_fit(ctx, kind: str, step: str, models, data, fit, what: str, fix=(),
     fixes = _per_candidate(fix, cands, parse_fix, "--fix")
     frees = _per_candidate(free, cands, _parse_free, "--free")
     table, black, channel = data
-    prepared = prepare(table, black, what, channel)
+    prepared = prepare_all(table, black, what, channel)  # every channel's, stacked
 
     def one(c):
         return fit(c, fixes[c.label], frees[c.label])

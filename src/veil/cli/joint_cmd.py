@@ -57,8 +57,10 @@ def parse_black(items) -> dict:
 
 
 def load_sessions(target_items, reference_items, black_items) -> tuple[list, list]:
-    """Sessions (black cloth subtracted per medium) and every input path."""
+    """Sessions (black cloth subtracted per medium; from a table with a channel column
+    channel by channel, by the fit) and every input path."""
     from ..data.black_cloth import subtract_black
+    from ..data.channels import CHANNEL
     from ..data.measurements import load_measurements
     from ..fitting.joint import Session
 
@@ -76,9 +78,14 @@ def load_sessions(target_items, reference_items, black_items) -> tuple[list, lis
     for obj, items in (("target", targets), ("reference", refs)):
         for label, path in items:
             table = load_measurements(path)
-            if label in blacks:
-                table = subtract_black(table, load_measurements(blacks[label]))
-            sessions.append(Session(table, label, obj, name=f"{obj} in {label} ({path})"))
+            black = load_measurements(blacks[label]) if label in blacks else None
+            name = f"{obj} in {label} ({path})"
+            if CHANNEL in table.columns:
+                sessions.append(Session(table, label, obj, name, black))
+                continue
+            if black is not None:
+                table = subtract_black(table, black)
+            sessions.append(Session(table, label, obj, name=name))
             inputs.append(path)
     return sessions, inputs + list(blacks.values())
 
@@ -178,6 +185,14 @@ def _names(text, option):
     default=None,
     help="Limit on function evaluations of each least-squares run.",
 )
+@click.option(
+    "--channel",
+    default=None,
+    metavar="NAME",
+    help="The one channel to fit of tables with a channel column (r, g, b or a wavelength "
+    "in nm); without it every channel is fitted at once, the parameters each family "
+    "declares per channel one per channel (docs/channels.md).",
+)
 @model_error_option
 @propagation_option
 @click.pass_context
@@ -194,6 +209,7 @@ def joint_command(
     output,
     accuracy,
     max_nfev,
+    channel,
     model_error,
     propagation,
     models,
@@ -212,6 +228,10 @@ def joint_command(
 
     Without reference sessions fix one scale (e.g. --fix 'Td[low]=1e-3'): the data only
     determine Pd, Ps and Td, Tt up to a common factor.
+
+    Tables with a channel column (r, g, b) are fitted in every channel at once: a
+    parameter per channel is named NAME[channel] after its name ('Pd[r]', 'Td[low][r]'),
+    and --fix 'Td[low]=1e-3' holds it in every channel (docs/channels.md).
     """
     from ._common import echo_warnings, finish_fits, fit_progress, load_reference
 
@@ -246,6 +266,7 @@ def joint_command(
             medium_options=models.medium_options,
             model_error=model_error,
             propagation=propagation,
+            channel=channel,
         )
     result.to_json(output)
     click.echo(result.report())

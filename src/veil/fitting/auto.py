@@ -112,6 +112,8 @@ class _Ranked:
     candidates' results, by step, collected as the steps run."""
 
     data: dict
+    #: {session: (table, black)} fitted over several channels (None: each ``data``'s table)
+    sources: dict | None
     plan: dict
     accuracy: str
     max_nfev: int | None
@@ -123,13 +125,21 @@ class _Ranked:
     rankings: dict = field(default_factory=dict)
     kept: dict = field(default_factory=dict)
 
+    def table(self, session: str) -> tuple:
+        """(table, black) a candidate of ``session`` fits: of every channel when the
+        sessions hold several (the black cloth then subtracted channel by channel), else
+        the checked data's table, its black cloth subtracted."""
+        if self.sources is not None:
+            return self.sources[session]
+        return self.data[session].table, None
+
     def reference(self, curve) -> FitResult:
         """Step 0: every BRDF candidate fitted to the reference in clear water, ranked."""
         fix, free, options = self.plan["fix_b"], self.plan["free_b"], self.plan["brdf_options"]
 
         def one(c):
             return fit_reference(
-                self.data["reference_clear"].table,
+                self.table("reference_clear")[0],
                 fixed=fix[c.label],
                 free=free[c.label],
                 max_nfev=self.max_nfev,
@@ -159,10 +169,13 @@ class _Ranked:
         fix, free = self.plan[f"fix_{key}"], self.plan[f"free_{key}"]
         options = self.plan[f"{kind}_options"]
 
+        table, black = self.table(session)
+
         def one(c, chained=self.screen):
             return fit(
-                self.data[session].table,
+                table,
                 given,
+                black=black,
                 fixed=fix[c.label],
                 free=free[c.label],
                 accuracy=self.accuracy,
@@ -189,15 +202,22 @@ class _Ranked:
 
 
 def select_steps(
-    data, plan, *, accuracy, max_nfev, progress, model_error, propagation, keep
+    data, plan, *, accuracy, max_nfev, progress, model_error, propagation, keep, sources=None
 ) -> tuple[FitResult, FitResult, FitResult, str, dict, dict, dict]:
     """Steps 0-2 with every candidate ranked: (reference, medium, target, the chosen BRDF
-    family, its options, {step: ranking}, {step: {label: result}} when ``keep``)."""
+    family, its options, {step: ranking}, {step: {label: result}} when ``keep``).
+
+    ``data`` {session: the data the candidates are ranked on}; of sessions of several
+    channels every channel's data stacked (:func:`veil.fitting.session_data.stack`), and
+    ``sources`` {session: (table, black)}: each candidate is then fitted over every channel
+    at once, its BIC counting every channel's points and its free parameters (the shared
+    ones once)."""
     # the candidates without the given fit's covariance, the chosen one with it; with
     # ``keep`` (every candidate's result written out) each one with it
     screen = propagation if keep or propagation == "off" else "off"
     run = _Ranked(
         data,
+        sources,
         plan,
         accuracy,
         max_nfev,
@@ -210,7 +230,12 @@ def select_steps(
     angles = tuple(configs[c].to_numpy() for c in CANONICAL)
 
     def fr_curve(result):
-        return model_values(result, None, angles)
+        if not result.channels:
+            return model_values(result, None, angles)
+        # channel after channel, as the comparison's curves (veil.analysis.comparison)
+        return np.concatenate(
+            [model_values(result.as_model(channel=c), None, angles) for c in result.channel_names]
+        )
 
     ref = run.reference(fr_curve)
     med, _ = run.through_medium(

@@ -17,6 +17,7 @@ a fit) is the same in every channel.
 from __future__ import annotations
 
 import warnings
+from collections.abc import Callable
 from typing import cast
 
 import numpy as np
@@ -129,7 +130,7 @@ def through_problem(
     if not free.any():
         raise FitError(f"every parameter of the {what} fit is fixed: nothing to fit")
     blocks = []
-    engines = _shared_engines()
+    engines = shared_engines()
     for c, data in datas.items():
         b_layout, m_layout = (f_layout, g_layout) if cls.KIND == "brdf" else (g_layout, f_layout)
         brdf = cast(BRDF, fitted if cls.KIND == "brdf" else g_models[c])
@@ -153,7 +154,7 @@ def through_problem(
     return problem, f_layout, g_models
 
 
-def _shared_engines():
+def shared_engines() -> Callable[[FitData, BRDF, Medium | None], dict]:
     """A function giving each channel's block its engines: one dict (accuracy -> engine,
     :class:`~veil.fitting.problem.Block`) shared by the channels measured at the same
     configurations with models of the same structure, so that an iteration runs the engine's
@@ -161,13 +162,14 @@ def _shared_engines():
     (``Forward._memo_run``; docs/channels.md, "Cost")."""
     seen: list = []
 
-    def engines(data: FitData, brdf: BRDF, medium: Medium) -> dict:
+    def engines(data: FitData, brdf: BRDF, medium: Medium | None) -> dict:
+        kinds = (brdf.structure(), None if medium is None else medium.structure())
         for angles, structures, shared in seen:
-            if structures == (brdf.structure(), medium.structure()) and all(
+            if structures == kinds and all(
                 np.array_equal(a, b) for a, b in zip(angles, data.angles)
             ):
                 return shared
-        seen.append((data.angles, (brdf.structure(), medium.structure()), {}))
+        seen.append((data.angles, kinds, {}))
         return seen[-1][2]
 
     return engines
@@ -255,7 +257,7 @@ def _rename(names: list[str]):
     return rename
 
 
-def _given_entry(given, g_models: dict) -> dict:
+def given_entry(given, g_models: dict) -> dict:
     """The result's ``given`` key: a model, or a fit of several channels with its layout."""
     if isinstance(given, FitResult) and given.channels is not None:
         first = next(iter(g_models.values()))
@@ -336,7 +338,7 @@ def fit_through(
         step=step,
         weighted=problem.weighted,
         accuracy=outcome.accuracy,
-        given=_given_entry(given, g_models),
+        given=given_entry(given, g_models),
         stderr_total=rep.stderr_total,
         correlation_total=rep.correlation_total,
         stats=stats,
@@ -347,4 +349,11 @@ def fit_through(
     )
 
 
-__all__ = ["given_layout", "through_problem", "through_starts", "fit_through"]
+__all__ = [
+    "given_layout",
+    "through_problem",
+    "through_starts",
+    "fit_through",
+    "shared_engines",
+    "given_entry",
+]

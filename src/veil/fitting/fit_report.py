@@ -33,9 +33,13 @@ def _header(result: FitResult) -> str:
         models = _layout(result).get("models") or {}
         family = f", models {models['brdf']} / {models['medium']}" if models else ""
         variant = f", variant {result.variant}" if result.variant else ""
+        # a fit over channels lists each session once per channel
+        per = len(result.channels or ()) or 1
+        sessions = len(_layout(result).get("sessions", [])) // per
+        channels = f" in {per} channels" if result.channels else ""
         return (
-            f"[[Joint fit: {len(_layout(result).get('sessions', []))} sessions, "
-            f"{len(_layout(result)['media'])} media{variant}{family}]]"
+            f"[[Joint fit: {sessions} sessions{channels}, "
+            f"{len(cast('JointResult', result).media_labels)} media{variant}{family}]]"
         )
     what = STEP_WORDS.get(result.step or "", "")
     opts = ", ".join(f"{k} {v}" for k, v in result.options.items())
@@ -46,6 +50,21 @@ def _header(result: FitResult) -> str:
         + (f" - {what}" if what else "")
         + "]]"
     )
+
+
+def _tied(result: FitResult) -> list[str]:
+    """The names a fit over several channels ties across them (of a joint fit, every
+    object's and medium's), in the order of ``params``."""
+    channels = result.channels or {}
+    if result.JOINT:
+        by_channel = _layout(result)["channels"]
+        names = {
+            c: {n for part in ("objects", "media") for m in maps[part].values() for n in m.values()}
+            for c, maps in by_channel.items()
+        }
+    else:
+        names = {c: set(m.values()) for c, m in channels.items()}
+    return [n for n in result.params if all(n in own for own in names.values())]
 
 
 def _statistics(result: FitResult) -> list[str]:
@@ -64,8 +83,7 @@ def _statistics(result: FitResult) -> list[str]:
         shared = ", ".join(_layout(result).get("shared", [])) or "-"
         lines.append(f"    shared by the media = {shared}")
     if result.channels:
-        first = next(iter(result.channels.values()))
-        tied = [n for n in first.values() if all(n in c.values() for c in result.channels.values())]
+        tied = _tied(result)
         lines.append(
             f"    channels           = {', '.join(result.channels)} (one fit; tied "
             f"across them: {', '.join(dict.fromkeys(tied)) or '-'})"

@@ -34,7 +34,7 @@ from ..errors import FitError
 from ..models import Model, model_class
 from ..models.base import VARIANT_OPTION
 from . import model_error as discrepancy
-from .given import as_given
+from .joint_channels import block_channels, channel_starts, reference_entry, reference_names
 from .joint_problem import OVERLAP_TOL, as_sessions, build, shareable
 from .problem import (
     ITERATION_ACCURACY,
@@ -45,7 +45,7 @@ from .problem import (
 )
 from .propagation import check_method, describe, media_part
 from .reported_uncertainty import Reported, model_floor, reported
-from .result import FitResult, JointResult, load_result, model_entry
+from .result import FitResult, JointResult, load_result, target_channels
 from .solver import (
     check_max_nfev,
     covariance_matrix,
@@ -133,15 +133,20 @@ def _solve(
         else None
     )
     index = {n: k for k, n in enumerate(problem.names)}
-    ref_names = layout["objects"].get("reference", {})
+    ref_names = reference_names(layout, reference)
     ref_cols = [] if given_result is None else [index[ref_names[n]] for n in given_result.free]
     _prepare_engines(problem, ref_cols, accuracy)
-    starts = joint_starts(problem, layout, start, STARTS, _direct_fit(problem), progress)
+    if "channels" in layout:
+        starts = channel_starts(
+            problem,
+            layout,
+            lambda sub, own: joint_starts(sub, own, start, STARTS, _direct_fit(sub), progress),
+        )
+    else:
+        starts = joint_starts(problem, layout, start, STARTS, _direct_fit(problem), progress)
     outcome = run(problem, starts, accuracy=accuracy, max_nfev=max_nfev, progress=progress)
     summary = summarize(problem, outcome)
-    given = (
-        model_entry(as_given(reference, "brdf", "the reference")) if reference is not None else None
-    )
+    given = reference_entry(reference, layout)
     rep = reported(
         problem,
         outcome.solution.x,
@@ -176,6 +181,7 @@ def fit_joint(
     free=None,
     model_error=None,
     propagation=None,
+    channel: str | None = None,
 ) -> JointResult:
     """Fit several sessions of one target under several media at once (module docstring).
 
@@ -202,6 +208,12 @@ def fit_joint(
         ``stderr_total`` to first order (:mod:`veil.fitting.reported_uncertainty`).
     propagation : how the media's uncertainty reaches the objects' ``stderr_total``
         (module docstring).
+    channel : of tables with a ``channel`` column, the one channel to fit; None fits every
+        channel at once when they hold several (:mod:`veil.fitting.joint_channels`: the
+        parameters the families declare per channel one per channel, ``Pd[r]``,
+        ``Td[low][r]``, the others tied; ``fixed`` and ``free`` name a parameter of
+        every channel by its one-channel name, or one channel's; ``reference`` a fit over
+        the same channels or a model of every channel).
     """
     check_accuracy(accuracy)
     model_error = discrepancy.check_kind(model_error)
@@ -220,6 +232,7 @@ def fit_joint(
         brdf_options=brdf_options,
         medium_options=medium_options,
         free=free,
+        channel=channel,
     )
     return _solve(
         problem, layout, reference, start, accuracy, max_nfev, progress, model_error, propagation
@@ -276,7 +289,8 @@ def _result(
     y, values = problem.y, outcome.values
     res = summary.residuals
     sessions = []
-    for b, sl in zip(problem.blocks, problem.slices()):
+    channels = block_channels(problem, layout)
+    for b, sl, c in zip(problem.blocks, problem.slices(), channels):
         r = res[sl]
         v = values[sl]
         nzb = v != 0
@@ -289,6 +303,7 @@ def _result(
                 "n_points": int(b.size),
                 "chi2": float(r @ r) / b.size,
                 "rms_relative": float(np.sqrt(np.mean(relb**2))) if relb.size else None,
+                **({} if c is None else {"channel": c}),
             }
         )
     layout = dict(layout, sessions=sessions)
@@ -328,6 +343,7 @@ def _result(
         stats=stats,
         determined=summary.determined,
         layout=layout,
+        channels=target_channels(layout),
     )
 
 

@@ -14,7 +14,15 @@ from ..engine.angles import direction
 from ..errors import FitError, InputError
 from ..models import default_class, model_class
 from ..models.base import VARIANT_OPTION
+from .channel_steps import shared_engines
 from .given import as_given
+from .joint_channels import (
+    channel_layouts,
+    expand_names,
+    expand_slots,
+    reference_models,
+    session_channels,
+)
 from .problem import OBJECTS, Block, Problem, Session, model_slots
 from .session_data import prepare
 from .solver import as_fixed, check_fixed
@@ -133,9 +141,12 @@ def _check_overlap(sessions, datas) -> None:
             )
 
 
-def _anchor_check(sessions, fixed_names, reference_given, params, brdf_cls, medium_cls) -> None:
+def _anchor_check(
+    sessions, fixed_names, reference_given, params, brdf_cls, medium_cls, channel=None
+) -> None:
     """The overall scale (the BRDF's scales times the medium's, docs/model.md sec. 2-3) must be
-    pinned in every connected set of objects and media, or the fit has an exact degeneracy."""
+    pinned in every connected set of objects and media (of each ``channel``: ``params``
+    that channel's slots), or the fit has an exact degeneracy."""
     parent: dict = {}
 
     def find(a):
@@ -167,7 +178,9 @@ def _anchor_check(sessions, fixed_names, reference_given, params, brdf_cls, medi
             )
             scale_m = next(iter(medium_cls.scale_names() or (medium_cls.GAIN,)))
             raise FitError(
-                f"the overall scale is not determined for {', '.join(members)}: the apparent "
+                f"the overall scale is not determined"
+                f"{'' if channel is None else f' in channel {channel}'} for "
+                f"{', '.join(members)}: the apparent "
                 f"value is proportional to the object's scales "
                 f"({', '.join(brdf_cls.scale_names())}) times the medium's "
                 f"({', '.join(medium_cls.scale_names() or (medium_cls.GAIN,))}), so scaling "
@@ -212,30 +225,36 @@ def _check_sessions(sessions) -> list:
     return media
 
 
-def _reference_of(reference, bcls, sessions):
-    """The reference's given BRDF (None when not given), checked against the sessions."""
+def _reference_of(reference, bcls, sessions, channels=None) -> dict | None:
+    """The reference's given BRDF by channel ({None: model} for a fit of one channel; None
+    when not given), checked against the sessions."""
     ref_sessions = [s for s in sessions if s.object == "reference"]
-    reference_model = None
-    if reference is not None:
-        reference_model = as_given(reference, "brdf", "the reference")
-        if type(reference_model) is not bcls:
+    if reference is None:
+        if ref_sessions and not any(s.clear for s in ref_sessions):
             raise FitError(
-                f"the reference is a {reference_model.NAME} model but the joint fit "
+                "reference sessions in a medium need the reference's f_r: give "
+                "reference= (the step-0 result or a BRDF model) or add its "
+                "clear-water session (object 'reference', medium 'none')"
+            )
+        return None
+    models: dict = (
+        {None: as_given(reference, "brdf", "the reference")}
+        if channels is None
+        else reference_models(reference, channels)[0]
+    )
+    for model in models.values():
+        if type(model) is not bcls:
+            raise FitError(
+                f"the reference is a {model.NAME} model but the joint fit "
                 f"uses the BRDF family {bcls.NAME} for its objects"
             )
-        if not ref_sessions:
-            raise FitError(
-                "reference= given but no session of the reference object: the "
-                "reference's f_r only matters through its sessions (object "
-                "'reference')"
-            )
-    elif ref_sessions and not any(s.clear for s in ref_sessions):
+    if not ref_sessions:
         raise FitError(
-            "reference sessions in a medium need the reference's f_r: give "
-            "reference= (the step-0 result or a BRDF model) or add its "
-            "clear-water session (object 'reference', medium 'none')"
+            "reference= given but no session of the reference object: the "
+            "reference's f_r only matters through its sessions (object "
+            "'reference')"
         )
-    return reference_model
+    return models
 
 
 def _slots(bcls, mcls, sessions, media, shared_names) -> tuple[list, dict, dict]:
@@ -320,11 +339,12 @@ def _hold(
     free: np.ndarray,
     fixed: dict,
     index: dict,
-    objects_layout: dict,
-    reference_model,
+    references: list,
 ) -> None:
-    """Hold the ``fixed`` values and a given reference's parameters (as a whole)."""
-    if reference_model is not None:
+    """Hold the ``fixed`` values and a given reference's parameters (as a whole):
+    ``references`` pairs each objects' map (of a channel) with the reference's model
+    there."""
+    for objects_layout, reference_model in references:
         for pname, gname in objects_layout["reference"].items():
             if gname in fixed:
                 raise FitError(
@@ -336,6 +356,52 @@ def _hold(
     for k, v in fixed.items():
         values[index[k]] = float(v)
         free[index[k]] = False
+
+
+def _datas(sessions, channel, channels) -> list[dict]:
+    """Each session's data by channel ({channel: data}; {None: data} of one channel, or of
+    the one ``channel`` chosen), one
+    weighting for all (a FitError naming the sessions without sigma otherwise), every
+    session sharing a configuration with another."""
+    picks = channels or [channel]
+    datas = [
+        {(c if channels else None): prepare(s.table, s.black, s.name, channel=c) for c in picks}
+        for s in sessions
+    ]
+    weighted = {d.sigma is not None for by in datas for d in by.values()}
+    if len(weighted) > 1:
+        which = [
+            s.name for s, by in zip(sessions, datas) if any(d.sigma is None for d in by.values())
+        ]
+        raise FitError(
+            f"session(s) {', '.join(which)} have no sigma column but the others "
+            f"do: weighted and unweighted residuals cannot be mixed in one fit; "
+            f"give every session a sigma column or none"
+        )
+    _check_overlap(sessions, [next(iter(by.values())) for by in datas])
+    return datas
+
+
+def _blocks(sessions, datas, index, maps, mcls, templates) -> list[Block]:
+    """The blocks: session after session, and of several channels channel after channel,
+    the channels of a session sharing their engines (``maps`` {channel: {"objects",
+    "media"}}, {None: ...} of one channel)."""
+    template_b, template_m = templates
+    blocks = []
+    for s, by_channel in zip(sessions, datas):
+        engines = shared_engines()
+        for c, d in by_channel.items():
+            objects, media = maps[c]["objects"], maps[c]["media"]
+            ib = np.array([index[n] for n in objects[s.object].values()])
+            medium = None if s.clear else template_m
+            im = None if s.clear else np.array([index[media[s.medium][p.key]] for p in mcls.PARAMS])
+            if c is None:  # one channel: the session as given
+                blocks.append(Block(s, d, ib, im, template_b, medium))
+                continue
+            session = Session(d.table, s.medium, s.object, name=f"{s.name}, channel {c}")
+            shared = engines(d, template_b, medium)
+            blocks.append(Block(session, d, ib, im, template_b, medium, shared))
+    return blocks
 
 
 def build(
@@ -351,49 +417,47 @@ def build(
     brdf_options=None,
     medium_options=None,
     free=None,
+    channel: str | None = None,
 ) -> tuple[Problem, dict]:
     """The stacked :class:`Problem` of a joint fit and its layout (see
-    :func:`veil.fitting.joint.fit_joint`)."""
+    :func:`veil.fitting.joint.fit_joint`); of every channel of tables with several, or of
+    ``channel`` (:mod:`veil.fitting.joint_channels`)."""
     bcls, mcls, template_b, template_m = _templates(
         brdf_model, medium_model, brdf_options, medium_options, variant
     )
     sessions = as_sessions(sessions)
     shared_names = _declarations(mcls, bcls, shared, per_medium)
     media = _check_sessions(sessions)
-    reference_model = _reference_of(reference, bcls, sessions)
-
-    datas = [prepare(s.table, None, s.name) for s in sessions]
-    weighted = {d.sigma is not None for d in datas}
-    if len(weighted) > 1:
-        which = [s.name for s, d in zip(sessions, datas) if d.sigma is None]
-        raise FitError(
-            f"session(s) {', '.join(which)} have no sigma column but the others "
-            f"do: weighted and unweighted residuals cannot be mixed in one fit; "
-            f"give every session a sigma column or none"
-        )
-    _check_overlap(sessions, datas)
+    channels = None
+    if channel is None:
+        sessions, channels = session_channels(sessions)
+    references = _reference_of(reference, bcls, sessions, channels)
+    datas = _datas(sessions, channel, channels)
 
     params, objects_layout, media_layout = _slots(bcls, mcls, sessions, media, shared_names)
-    names = [p.name for p in params]
-    index = {n: k for k, n in enumerate(names)}
+    maps: dict = {None: {"objects": objects_layout, "media": media_layout}}
+    if channels is not None:
+        sharing = {"brdf": bcls.channel_sharing(), "medium": mcls.channel_sharing()}
+        params, names = expand_slots(params, sharing, channels)
+        maps = channel_layouts(objects_layout, media_layout, names)
+        fixed = expand_names(fixed, params, names) if isinstance(fixed, dict) else fixed
+        free = expand_names(free, params, names) if free is not None else None
+    index = {p.name: k for k, p in enumerate(params)}
 
     fixed, values, free = _fixed_and_freed(params, fixed, free, mcls, shared_names)
-    _hold(values, free, fixed, index, objects_layout, reference_model)
+    pairs = [(maps[c]["objects"], m) for c, m in (references or {}).items()]
+    _hold(values, free, fixed, index, pairs)
     if not free.any():
         raise FitError("every parameter of the joint fit is fixed: nothing to fit")
     held = {p.name for p, f in zip(params, free) if not f}
-    _anchor_check(sessions, held, reference_model is not None, params, bcls, mcls)
+    for c, m in maps.items():
+        own = {n for part in m.values() for names_ in part.values() for n in names_.values()}
+        mine = params if c is None else [p for p in params if p.name in own]
+        _anchor_check(sessions, held, references is not None, mine, bcls, mcls, c)
 
-    blocks = []
-    for s, d in zip(sessions, datas):
-        ib = np.array([index[n] for n in objects_layout[s.object].values()])
-        im = (
-            None
-            if s.clear
-            else np.array([index[media_layout[s.medium][p.key]] for p in mcls.PARAMS])
-        )
-        blocks.append(Block(s, d, ib, im, template_b, None if s.clear else template_m))
-    problem = Problem(blocks, params, values, free, weighted=weighted.pop())
+    blocks = _blocks(sessions, datas, index, maps, mcls, (template_b, template_m))
+    weighted = next(iter(datas[0].values())).sigma is not None  # one for all (_datas)
+    problem = Problem(blocks, params, values, free, weighted=weighted)
     if problem.n_points <= problem.n_free:
         raise FitError(
             f"the sessions have {problem.n_points} points but the joint fit has "
@@ -403,10 +467,9 @@ def build(
     layout = {
         "models": {"brdf": bcls.NAME, "medium": mcls.NAME},
         "options": {"brdf": template_b.options(), "medium": template_m.options()},
-        "objects": objects_layout,
-        "media": media_layout,
+        **(maps[None] if channels is None else {"channels": maps}),
         "shared": list(shared_names),
-        "reference_given": reference_model is not None,
+        "reference_given": references is not None,
     }
     return problem, layout
 

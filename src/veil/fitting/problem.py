@@ -128,13 +128,15 @@ class SessionModel:
 @dataclass
 class Session:
     """One measured session (docs/model.md sec. 7): a measurement ``table`` (DataFrame or CSV
-    path, black cloth already subtracted), the ``medium`` label it was measured in ("none"
-    for clear water) and the ``object`` measured ("target" or "reference")."""
+    path), the ``medium`` label it was measured in ("none" for clear water) and the
+    ``object`` measured ("target" or "reference"); ``black`` the black-cloth table
+    subtracted from it channel by channel (None: already subtracted, or none)."""
 
     table: object
     medium: str = "none"
     object: str = "target"
     name: str | None = None
+    black: Any = None
 
     def __post_init__(self):
         if not isinstance(self.medium, str) or not self.medium.strip():

@@ -33,7 +33,7 @@ from .result_fields import (
     model_from_entry,
     model_of_channel,
 )
-from .result_reading import STEPS, fit_fields, joint_fields
+from .result_reading import STEPS, fit_fields, joint_fields, target_channels
 from .solver import covariance_matrix
 
 if TYPE_CHECKING:
@@ -290,40 +290,90 @@ class JointResult(FitResult):
             return {VARIANT_OPTION: self.variant}  # veil.joint/1 files
         return {}
 
-    def brdf(self, obj: str = "target") -> Model:
-        names = self.layout["objects"].get(obj)
+    def maps(self, channel: str | None = None) -> dict:
+        """{"objects": {object: {parameter: result name}}, "media": {label: {parameter:
+        result name}}}: of the fit, or of ``channel`` of a fit over several channels
+        (``layout["channels"]``; a FitError naming them when none is named)."""
+        by_channel = self.layout.get("channels")
+        if by_channel is None:
+            if channel is not None:
+                raise FitError(f"channel {channel!r}: this joint fit is of one channel")
+            return self.layout
+        if channel is None:
+            raise FitError(
+                f"this joint fit fits channels {', '.join(by_channel)} at once: name one "
+                f"(channel='{next(iter(by_channel))}')"
+            )
+        if channel not in by_channel:
+            raise FitError(
+                f"the joint fit has no channel {channel!r}; its channels are "
+                f"{', '.join(by_channel)}"
+            )
+        return by_channel[channel]
+
+    @property
+    def object_labels(self) -> tuple[str, ...]:
+        return tuple(self.maps(self._first())["objects"])
+
+    @property
+    def media_labels(self) -> tuple[str, ...]:
+        return tuple(self.maps(self._first())["media"])
+
+    def object_names(self, obj: str) -> set[str]:
+        """Every result name of object ``obj``'s parameters, in every channel."""
+        return {
+            n
+            for c in self.channel_names or (None,)
+            for n in self.maps(c)["objects"].get(obj, {}).values()
+        }
+
+    def _first(self) -> str | None:
+        return next(iter(self.channel_names), None)
+
+    def brdf(self, obj: str = "target", channel: str | None = None) -> Model:
+        """The BRDF of object ``obj`` (of ``channel`` of a fit over several channels)."""
+        names = self.maps(channel)["objects"].get(obj)
         if names is None:
             raise FitError(
-                f"the joint fit has no object {obj!r}; it has {', '.join(self.layout['objects'])}"
+                f"the joint fit has no object {obj!r}; it has {', '.join(self.object_labels)}"
             )
         cls = self._family("brdf")
         return cls.from_params(
             {p.name: self.params[names[p.key]] for p in cls.PARAMS}, self._options("brdf")
         )
 
-    def medium(self, label: str) -> Model:
-        names = self.layout["media"].get(label)
+    def medium(self, label: str, channel: str | None = None) -> Model:
+        """The medium ``label`` (of ``channel`` of a fit over several channels)."""
+        names = self.maps(channel)["media"].get(label)
         if names is None:
             raise FitError(
                 f"the joint fit has no medium {label!r}; it has "
-                f"{', '.join(self.layout['media']) or 'none'}"
+                f"{', '.join(self.media_labels) or 'none'}"
             )
         cls = self._family("medium")
         return cls.from_params(
             {p.name: self.params[names[p.key]] for p in cls.PARAMS}, self._options("medium")
         )
 
-    def as_model(self, channel: str | None = None) -> Model:
-        """The target's BRDF (what :meth:`FitResult.as_model` gives for a step-2 fit)."""
+    @overload
+    def as_model(self, channel: str) -> Model: ...
+    @overload
+    def as_model(self, channel: None = None) -> Model | ChannelModel: ...
+    def as_model(self, channel: str | None = None) -> Model | ChannelModel:
+        """The target's BRDF (what :meth:`FitResult.as_model` gives for a step-2 fit): of a
+        fit over several channels, of ``channel`` or, without one, a
+        :class:`~veil.models.channel_model.ChannelModel` of every channel."""
+        if self.channels is not None and channel is None:
+            return ChannelModel({c: self.brdf("target", c) for c in self.channels})
         return self.one_model(channel)
 
     def one_model(self, channel: str | None = None) -> Model:
-        """The target's BRDF, as :meth:`as_model` (a joint fit is of one channel)."""
-        if channel is not None:
-            raise FitError(f"channel {channel!r}: a joint fit is of one channel")
-        return self.brdf("target")
+        """The target's BRDF, of ``channel`` of a fit over several channels."""
+        return self.brdf("target", channel)
 
     def target_names(self) -> dict:
+        if self.channels is not None:  # the target's names are a step fit's over channels
+            return {n: n for names in self.channels.values() for n in names.values()}
         return dict(self.layout["objects"]["target"])
 
     @property
@@ -342,10 +392,11 @@ class JointResult(FitResult):
         (:func:`veil.fitting.result_reading.joint_fields`)."""
         try:
             result = cls(**joint_fields(data, source))
-            for obj in result.layout["objects"]:
-                result.brdf(obj)
-            for label in result.layout["media"]:
-                result.medium(label)
+            for c in result.channel_names or (None,):
+                for obj in result.maps(c)["objects"]:
+                    result.brdf(obj, c)
+                for label in result.maps(c)["media"]:
+                    result.medium(label, c)
         except InputError as exc:
             raise FitError(f"{source}: {exc}") from None
         except KeyError as exc:
@@ -426,4 +477,5 @@ __all__ = [
     "read_json",
     "load_result",
     "load_model_result",
+    "target_channels",
 ]

@@ -206,10 +206,11 @@ def fit_fields(data: dict, source: str) -> dict:
     )
 
 
-def _check_layout(layout, params, source: str) -> None:
-    """A joint result's layout: objects and media to their parameters' names in ``params``."""
+def _check_maps(layout, source: str, where: str = "layout") -> list[str]:
+    """The ``objects`` and ``media`` maps of a joint result's layout (or of one channel's
+    entry, ``where``) checked; the names they give."""
     if not isinstance(layout, dict) or not {"objects", "media"} <= set(layout):
-        raise FitError(f"{source}: key 'layout' must hold 'objects' and 'media'")
+        raise FitError(f"{source}: key '{where}' must hold 'objects' and 'media'")
     for part in ("objects", "media"):
         entries = layout[part]
         if not isinstance(entries, dict) or not all(
@@ -217,20 +218,45 @@ def _check_layout(layout, params, source: str) -> None:
             for m in entries.values()
         ):
             raise FitError(
-                f"{source}: layout.{part} must map each {part[:-1]} to an object of parameter names"
+                f"{source}: {where}.{part} must map each {part[:-1]} to an object of "
+                f"parameter names"
             )
+    return [n for part in ("objects", "media") for m in layout[part].values() for n in m.values()]
+
+
+def _check_layout(layout, params, source: str) -> None:
+    """A joint result's layout: objects and media to their parameters' names in ``params``
+    (of each channel, ``layout["channels"]``, for a fit over several)."""
+    by_channel = layout.get("channels") if isinstance(layout, dict) else None
+    if by_channel is None:
+        named = _check_maps(layout, source)
+    else:
+        if not isinstance(by_channel, dict) or not by_channel:
+            raise FitError(f"{source}: layout.channels must map each channel to its layout")
+        named = [
+            n
+            for c, maps in by_channel.items()
+            for n in _check_maps(maps, source, f"layout.channels.{c}")
+        ]
     for part in ("models", "options"):
         if layout.get(part) is not None and not isinstance(layout[part], dict):
             raise FitError(f"{source}: layout.{part} must be an object")
     if not isinstance(params, dict):
         raise FitError(f"{source}: key 'params' must map names to numbers")
-    named = [n for names in layout["objects"].values() for n in names.values()]
-    named += [n for names in layout["media"].values() for n in names.values()]
     absent = [n for n in dict.fromkeys(named) if n not in params]
     if absent:
         raise FitError(
             f"{source}: layout names parameter(s) {', '.join(absent)} missing from 'params'"
         )
+
+
+def target_channels(layout: dict) -> dict | None:
+    """A joint fit's ``channels`` ({channel: {parameter: the target's result name}}) from
+    its layout; None for a fit of one channel."""
+    by_channel = layout.get("channels")
+    if by_channel is None:
+        return None
+    return {c: dict(maps["objects"]["target"]) for c, maps in by_channel.items()}
 
 
 def joint_fields(data: dict, source: str) -> dict:
@@ -271,7 +297,8 @@ def joint_fields(data: dict, source: str) -> dict:
         step="joint",
         given=data.get("given"),
         layout=data["layout"],
+        channels=target_channels(data["layout"]),
     )
 
 
-__all__ = ["STEPS", "fit_fields", "joint_fields"]
+__all__ = ["STEPS", "fit_fields", "joint_fields", "target_channels"]

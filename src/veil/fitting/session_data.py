@@ -139,6 +139,35 @@ def prepare(
     return FitData(angles, y, sigma, checked, black is not None)
 
 
+def stack(datas: dict[str, FitData]) -> FitData:
+    """The data of several channels ({channel: its data}, the same configurations) as one
+    session, channel after channel: the order of a fit over the channels' residuals
+    (:mod:`veil.fitting.channel_fit`), for what reads a fit with its data (the ranking of
+    :mod:`veil.fitting.selection`). Its table has the ``channel`` column back."""
+    parts = list(datas.values())
+    sigmas = [d.sigma for d in parts if d.sigma is not None]
+    table = pd.concat([d.table.assign(**{CHANNEL: c}) for c, d in datas.items()], ignore_index=True)
+    return FitData(
+        tuple(np.concatenate(a) for a in zip(*(d.angles for d in parts))),
+        np.concatenate([d.y for d in parts]),
+        np.concatenate(sigmas) if len(sigmas) == len(parts) else None,
+        table,
+        any(d.black for d in parts),
+    )
+
+
+def prepare_all(
+    table, black=None, what: str = "measurement", channel: str | None = None
+) -> FitData:
+    """:func:`prepare`, but of a table of several channels when no ``channel`` is chosen
+    every channel's data :func:`stack` ed: the data a fit over the channels reads."""
+    if channel is None:
+        loaded, channels = channels_of(table, what)
+        if channels is not None and len(channels) > 1:
+            return stack({c: prepare(loaded, black, what, channel=c) for c in channels})
+    return prepare(table, black, what, channel)
+
+
 def _black_channel(black: pd.DataFrame, table: pd.DataFrame, channel: str | None) -> pd.DataFrame:
     """The black-cloth rows of the session's ``channel``: a MeasurementError naming the
     black file when it lacks that channel, or when only one of the two tables has channels."""
@@ -196,4 +225,4 @@ def _check_magnitude(values: np.ndarray, column: str, table: pd.DataFrame) -> No
         )
 
 
-__all__ = ["FitData", "prepare", "channels_of", "one_channel", "SELECT"]
+__all__ = ["FitData", "prepare", "prepare_all", "stack", "channels_of", "one_channel", "SELECT"]

@@ -6,22 +6,19 @@ from __future__ import annotations
 
 import os
 
+from ..analysis.comparison import true_values
 from ..fitting.result import FitResult
-from ..models import PRESETS
 from ..numbers import format_number
 
 
-def _truth_model(truth, key):
-    if not truth or truth.get(key) is None:
-        return None
-    model = truth[key]
-    return PRESETS[model.upper()] if isinstance(model, str) else model
-
-
-def _param_table(result: FitResult, truth_model) -> list[str]:
+def _param_table(result: FitResult, truth) -> list[str]:
+    """The parameters' table; with ``truth`` (the step's true model, or {channel: model}) the
+    true value and the deviation, channel by channel for a fit over several
+    (:func:`veil.analysis.comparison.true_values`)."""
     head = "| parameter | value | stderr | stderr incl. given model |"
     rule = "|---|---:|---:|---:|"
-    if truth_model is not None:
+    trues = None if truth is None else true_values(result, truth)
+    if trues is not None:
         head += " true | (value - true) / stderr |"
         rule += "---:|---:|"
     lines = [head, rule]
@@ -36,11 +33,12 @@ def _param_table(result: FitResult, truth_model) -> list[str]:
                 else "-"
             )
         line = f"| {name} | {format_number(value, 6)} | {se} | {tot} |"
-        if truth_model is not None:
-            true = getattr(truth_model, name)
+        if trues is not None:
+            true = trues.get(name)
             s = (result.stderr_total or result.stderr).get(name)
-            z = (value - true) / s if s else None
-            line += f" {format_number(true, 6)} | {format_number(z, 3)} |"
+            z = (value - true) / s if s and true is not None else None
+            shown = "differs per channel" if true is None else format_number(true, 6)
+            line += f" {shown} | {format_number(z, 3)} |"
         lines.append(line)
     return lines
 
@@ -179,7 +177,7 @@ def pipeline_report(ref, med, tgt, direct, comparison, truth, figures, inputs) -
     ]
     for title, result, key, fig in sections:
         out += [f"## {title}", "", f"Model: {result.model}.", ""]
-        out += _param_table(result, _truth_model(truth, key)) + [""]
+        out += _param_table(result, (truth or {}).get(key)) + [""]
         out += _stats_lines(result) + [""]
         if fig in figures:
             out += [f"![{title}]({figures[fig]})", ""]
