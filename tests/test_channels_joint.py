@@ -12,6 +12,7 @@ import json
 import math
 import re
 
+import pandas as pd
 import pytest
 
 import veil
@@ -301,3 +302,83 @@ def test_truth_channel_by_channel(steps):
         check_truth({"reference": {"r": _ref("r"), "g": _ref("g")}}, ["r", "g", "b"])
     with pytest.raises(FitError, match="expected a dict by step"):
         check_truth({"direct": "BRDF1"}, None)
+
+
+# --------------------------------------------------------------------------------------
+# review mends: inputs kept, channel order, one channel of a reference, truths
+# --------------------------------------------------------------------------------------
+def test_joint_never_writes_over_a_table_with_channels(files, tmp_path):
+    victim = tmp_path / "victim.csv"
+    victim.write_bytes(files["clear"].read_bytes())
+    out = run("fit", "joint", "--reference-session", f"none={victim}", "--reference-session",
+              f"m={files['ref_m']}", "--session", f"m={files['tgt_m']}", "--black",
+              f"m={files['black']}", "--max-nfev", "1", "-o", victim)
+    assert out.exit_code == 2 and "never overwrites an input" in out.output, out.output
+    assert victim.read_bytes() == files["clear"].read_bytes()
+
+
+def test_the_ranking_stacks_each_session_in_its_fits_channel_order(tables, steps):
+    """A session whose rows run b, g, r is fitted channel after channel in that order; the
+    data auto ranks it on are stacked the same way (else the discrepancy term's likelihood
+    pairs one channel's residuals with another's values)."""
+    from veil.fitting.session_data import stack
+    from veil.pipeline import CHANNEL_DATA, _prepare_sessions
+
+    ref_m = tables["ref_m"]
+    reordered = pd.concat([ref_m[ref_m["channel"] == c] for c in "bgr"], ignore_index=True)
+    inputs = {"reference_clear": tables["clear"], "reference_medium": reordered,
+              "target_medium": tables["tgt_m"], "target_clear": None, "black": tables["black"]}
+    data, channels = _prepare_sessions(inputs)
+    assert channels == ["r", "g", "b"]
+    stacked = stack(data[CHANNEL_DATA]["reference_medium"])
+    med = fit_medium(reordered, steps[0], black=tables["black"], accuracy=FAST, max_nfev=2)
+    assert med.channel_names == ("b", "g", "r")
+    assert list(dict.fromkeys(stacked.table["channel"])) == list(med.channel_names)
+    assert len(stacked.y) == len(med.residuals)
+    with pytest.raises(FitError, match="every session needs the same channels"):
+        _prepare_sessions({**inputs, "reference_medium": ref_m[ref_m["channel"] != "b"]})
+
+
+def test_one_channel_of_a_reference_fitted_over_several(tables, steps):
+    problem, _ = build(_sessions(tables)[1:], reference=steps[0].one_model("g"),
+                       channel="g")
+    held = problem.values[problem.index("ref.Pd")]
+    assert held == steps[0].params["Pd[g]"]
+    joint = fit_joint(_sessions(tables)[1:], reference=steps[0], channel="g", accuracy=FAST,
+                      max_nfev=1)
+    assert joint.params["ref.Pd"] == steps[0].params["Pd[g]"]
+
+
+def test_tables_of_different_single_channels_are_refused(tables):
+    clear_g = tables["clear"][tables["clear"]["channel"] == "g"]
+    ref_r = tables["ref_m"][tables["ref_m"]["channel"] == "r"]
+    tgt_r = tables["tgt_m"][tables["tgt_m"]["channel"] == "r"]
+    with pytest.raises(FitError, match="is of channel r but session .* of channel g"):
+        build([Session(clear_g, "none", "reference", name="clear"),
+               Session(ref_r, "m", "reference", name="ref"),
+               Session(tgt_r, "m", "target", name="tgt")])
+
+
+def test_fix_by_a_channels_own_name_wins_in_any_order():
+    from veil.fitting.joint_channels import expand_names
+    from veil.fitting.problem import Slot
+
+    params = [Slot(f"Td[m][{c}]", "medium", "m", 0, None, True) for c in "rgb"]  # type: ignore[arg-type]
+    names = {c: {"Td[m]": f"Td[m][{c}]"} for c in "rgb"}
+    one = expand_names({"Td[m]": 1e-3, "Td[m][r]": 2e-3}, params, names)
+    other = expand_names({"Td[m][r]": 2e-3, "Td[m]": 1e-3}, params, names)
+    assert one == other == {"Td[m][r]": 2e-3, "Td[m][g]": 1e-3, "Td[m][b]": 1e-3}
+
+
+def test_a_truth_of_another_family_or_more_channels(steps):
+    from veil.models import model_class
+    from veil.viz.pipeline_report import _param_table
+
+    plastic = model_class("rough-plastic")(0.5, 0.1, 1.5, 1.0)
+    lines = _param_table(steps[0], {c: plastic for c in DIM})
+    assert "true |" not in lines[0]
+    assert any("The truth is a rough-plastic model and the fit a torrance-sparrow" in x
+               for x in lines)
+    with pytest.raises(FitError, match="gives channels r, g, b, nir"):
+        check_truth({"reference": {**{c: _ref(c) for c in DIM}, "nir": _ref("r")}},
+                    ["r", "g", "b"])

@@ -165,17 +165,32 @@ def _prepare_sessions(inputs: dict, channel: str | None = None) -> tuple[dict, l
         _, channels = channels_of(inputs["reference_clear"], whats["reference_clear"])
         channels = channels if channels is not None and len(channels) > 1 else None
     data: dict = {}
-    picks: list[str | None] = list(channels) if channels else [channel]
     by_channel: dict = {}
     for key in keys:
         session_black = black if key in ("reference_medium", "target_medium") else None
-        for c in picks:
+        for c in _session_channels(inputs[key], whats[key], channels, channel):
             found = prepare(inputs[key], session_black, whats[key], channel=c)
             data.setdefault(key, found)
             by_channel.setdefault(key, {})[c] = found
     if channels:
         data[CHANNEL_DATA] = by_channel
     return data, channels
+
+
+def _session_channels(table, what: str, channels: list | None, channel: str | None) -> list:
+    """The channels of a session in its own table's order (the order of a fit's residuals
+    over them, which the ranking's stacked data must follow); a FitError when the session's
+    channels are not the reference's ``channels``."""
+    if not channels:
+        return [channel]
+    _, own = channels_of(table, what)
+    if own is None or set(own) != set(channels):
+        raise FitError(
+            f"the {what} table has channels {', '.join(own or ['(none)'])} but the reference "
+            f"(clear medium) table has {', '.join(channels)}: every session needs the same "
+            f"channels"
+        )
+    return own
 
 
 def _channel_sources(inputs: dict, channels) -> dict | None:

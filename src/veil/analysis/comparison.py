@@ -139,7 +139,8 @@ def check_truth(truth, channels: list[str] | None, channel: str | None = None) -
         models = {str(c): _model(m, f"{where}[{c!r}]") for c, m in entry.items()}
         want = list(channels) if channels is not None else [channel]
         missing = [c for c in want if c not in models]
-        if None in want or missing:
+        extra = [c for c in models if channels is not None and c not in channels]
+        if None in want or missing or extra:
             have = "one channel" if channels is None else f"channels {', '.join(channels)}"
             raise FitError(
                 f"{where} gives channels {', '.join(models)} but the tables are fitted "
@@ -150,11 +151,20 @@ def check_truth(truth, channels: list[str] | None, channel: str | None = None) -
     return out
 
 
+def truth_family(result: FitResult, truth) -> str | None:
+    """The family of ``truth`` (a model or {channel: model}) when it is not the fitted one
+    (its parameters then have no counterpart in the result), else None."""
+    models = truth.values() if isinstance(truth, dict) else [_model(truth, "truth")]
+    other = next((m for m in models if type(m) is not result.model_class), None)
+    return None if other is None else other.NAME
+
+
 def true_values(result: FitResult, truth) -> dict[str, float | None]:
     """{result parameter: its true value} of ``truth`` (a model, or {channel: model} as
     :func:`check_truth` gives). Of a fit over several channels channel by channel: a
     parameter per channel against its channel's truth, a tied one against the value every
-    channel's truth shares (None when they differ: no one true value)."""
+    channel's truth shares (None when they differ: no one true value). The truth is of
+    the fitted family (:func:`truth_family`)."""
     if not result.channels:
         model = _model(truth, "truth")
         return {name: getattr(model, name) for name in result.params}
@@ -166,4 +176,4 @@ def true_values(result: FitResult, truth) -> dict[str, float | None]:
     return {n: v[0] if all(x == v[0] for x in v) else None for n, v in found.items()}
 
 
-__all__ = ["compare", "check_truth", "true_values", "TRUTH_STEPS"]
+__all__ = ["compare", "check_truth", "true_values", "truth_family", "TRUTH_STEPS"]

@@ -80,13 +80,13 @@ def load_sessions(target_items, reference_items, black_items) -> tuple[list, lis
             table = load_measurements(path)
             black = load_measurements(blacks[label]) if label in blacks else None
             name = f"{obj} in {label} ({path})"
+            inputs.append(path)  # every table is an input, never an output's place
             if CHANNEL in table.columns:
                 sessions.append(Session(table, label, obj, name, black))
                 continue
             if black is not None:
                 table = subtract_black(table, black)
             sessions.append(Session(table, label, obj, name=name))
-            inputs.append(path)
     return sessions, inputs + list(blacks.values())
 
 

@@ -213,13 +213,18 @@ def fit_joint(
         parameters the families declare per channel one per channel, ``Pd[r]``,
         ``Td[low][r]``, the others tied; ``fixed`` and ``free`` name a parameter of
         every channel by its one-channel name, or one channel's; ``reference`` a fit over
-        the same channels or a model of every channel).
+        the same channels or a model of every channel). With ``channel``, a reference
+        fitted over several channels gives its model of that channel.
     """
     check_accuracy(accuracy)
     model_error = discrepancy.check_kind(model_error)
     propagation = check_method(propagation)
     check_max_nfev(max_nfev)
     start = _start_models(start)
+    if channel is not None and isinstance(reference, FitResult) and reference.channels:
+        # one channel of a reference fitted over several: its model of that channel, held
+        # as a model (as fit_medium and fit_target take it)
+        reference = reference.one_model(channel)
     problem, layout = build(
         sessions,
         reference=reference,

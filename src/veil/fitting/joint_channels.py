@@ -39,6 +39,7 @@ def session_channels(sessions: list[Session]) -> tuple[list[Session], list[str] 
         found.append((s, table, channels))
     several = next(((s, c) for s, _, c in found if c is not None and len(c) > 1), None)
     if several is None:
+        _check_one_channel(found)
         return sessions, None
     first, channels = several
     for s, _, own in found:
@@ -52,6 +53,21 @@ def session_channels(sessions: list[Session]) -> tuple[list[Session], list[str] 
             )
     loaded = [Session(t, s.medium, s.object, s.name, s.black) for s, t, _ in found]
     return loaded, channels
+
+
+def _check_one_channel(found: list) -> None:
+    """Tables of one channel each: those that name their channel name the same one (a
+    FitError naming two sessions of different channels; a table without the column is of
+    whichever channel the others name)."""
+    named = [(s, c[0]) for s, _, c in found if c is not None]
+    for s, c in named[1:]:
+        if c != named[0][1]:
+            first = named[0][0]
+            raise FitError(
+                f"session {s.name!r} is of channel {c} but session {first.name!r} of "
+                f"channel {named[0][1]}: the sessions of a joint fit are measured in the "
+                f"same channels"
+            )
 
 
 def expand_slots(
@@ -92,7 +108,8 @@ def expand_names(entries, params: list[Slot], names: dict) -> dict | list | None
     """``fixed`` ({name: value}) or ``free`` (names) of a fit over channels with each
     one-channel name of a parameter per channel replaced by every channel's (``Td[low]``
     holds ``Td[low][r]``, ``Td[low][g]``, ...); a channel's own name (``Td[low][r]``) and
-    a tied name stay; an unknown one is left for the checks to name."""
+    a tied name stay, the own name's value winning over the one-channel name's; an unknown
+    one is left for the checks to name."""
     if entries is None:
         return None
     have = {s.name for s in params}
@@ -104,7 +121,10 @@ def expand_names(entries, params: list[Slot], names: dict) -> dict | list | None
         return found or [name]
 
     if isinstance(entries, dict):
-        return {n: v for name, v in entries.items() for n in each(name)}
+        # a channel's own name wins over its parameter's one-channel name, in any order
+        out = {n: v for name, v in entries.items() if name not in have for n in each(name)}
+        out.update({name: v for name, v in entries.items() if name in have})
+        return out
     return [n for name in entries for n in each(name)]
 
 

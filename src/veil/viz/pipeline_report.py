@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import os
 
-from ..analysis.comparison import true_values
+from ..analysis.comparison import true_values, truth_family
 from ..fitting.result import FitResult
 from ..numbers import format_number
 
@@ -17,7 +17,8 @@ def _param_table(result: FitResult, truth) -> list[str]:
     (:func:`veil.analysis.comparison.true_values`)."""
     head = "| parameter | value | stderr | stderr incl. given model |"
     rule = "|---|---:|---:|---:|"
-    trues = None if truth is None else true_values(result, truth)
+    other = None if truth is None else truth_family(result, truth)
+    trues = None if truth is None or other is not None else true_values(result, truth)
     if trues is not None:
         head += " true | (value - true) / stderr |"
         rule += "---:|---:|"
@@ -40,6 +41,11 @@ def _param_table(result: FitResult, truth) -> list[str]:
             shown = "differs per channel" if true is None else format_number(true, 6)
             line += f" {shown} | {format_number(z, 3)} |"
         lines.append(line)
+    if other is not None:
+        lines.append(
+            f"\nThe truth is a {other} model and the fit a {result.model_class.NAME} model: "
+            f"their parameters are not compared."
+        )
     return lines
 
 
