@@ -416,12 +416,15 @@ def ldl(a: Any, xp: Any) -> tuple[list, list]:
     n = a.shape[0]
     low: list = [[None] * n for _ in range(n)]
     piv: list = []
-    for j in range(n):
-        dj = a[j, j] - sum(low[j][k] ** 2 * piv[k] for k in range(j))
-        dj = xp.where(xp.abs(dj) > 1e-300, dj, 1e-300)
-        piv.append(dj)
-        for i in range(j + 1, n):
-            low[i][j] = (a[i, j] - sum(low[i][k] * low[j][k] * piv[k] for k in range(j))) / dj
+    # a singular matrix overflows here; the callers test what comes out (isfinite), so
+    # numpy's warnings would only repeat on the terminal what the fit reports
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+        for j in range(n):
+            dj = a[j, j] - sum(low[j][k] ** 2 * piv[k] for k in range(j))
+            dj = xp.where(xp.abs(dj) > 1e-300, dj, 1e-300)
+            piv.append(dj)
+            for i in range(j + 1, n):
+                low[i][j] = (a[i, j] - sum(low[i][k] * low[j][k] * piv[k] for k in range(j))) / dj
     return low, piv
 
 
@@ -429,11 +432,12 @@ def ldl_solve(low: list, piv: list, b: Any, xp: Any) -> Any:
     """x with L D L^T x = b, from :func:`ldl`'s factors."""
     n = len(piv)
     z: list = []
-    for i in range(n):
-        z.append(b[i] - sum(low[i][k] * z[k] for k in range(i)))
     x: list = [None] * n
-    for i in reversed(range(n)):
-        x[i] = z[i] / piv[i] - sum(low[k][i] * x[k] for k in range(i + 1, n))
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):  # as in ldl
+        for i in range(n):
+            z.append(b[i] - sum(low[i][k] * z[k] for k in range(i)))
+        for i in reversed(range(n)):
+            x[i] = z[i] / piv[i] - sum(low[k][i] * x[k] for k in range(i + 1, n))
     return xp.stack(x)
 
 
