@@ -25,6 +25,7 @@ from ..engine.integrator import row_scales, unit_scale_indices
 from ..errors import FitError, InputError
 from ..models import Medium, Model
 from .grid import make_axes, parse_grid
+from .photos import stacked_channels
 from .tables import (
     MapTables,
     _nodes,
@@ -48,7 +49,7 @@ def channel_media(medium, channels: tuple[str, ...]) -> dict[str, Medium]:
     return {c: cast(Medium, m) for c, m in models.items()}
 
 
-def one_channel_medium(medium, channel: str):
+def one_channel_medium(medium, channel: str) -> Any:
     """The medium of a map of one ``channel``: that channel's model of a result fitted over
     several (an InputError naming its channels when it has not that one), else ``medium``
     itself (checked by the caller as before channels existed)."""
@@ -62,6 +63,31 @@ def one_channel_medium(medium, channel: str):
             f"(--channel {ALL_RGB}), or give a medium fitted over {channel!r}"
         )
     return medium.one_model(channel)
+
+
+def map_media(medium, channel) -> tuple[Medium, dict[str, Medium] | None]:
+    """(the medium model, {channel: medium model} or None) of a map of ``channel``: over
+    several channels each channel's (:func:`channel_media`), the first as the medium model;
+    of one channel its model (:func:`one_channel_medium`, checked by kind)."""
+    from ..fitting.given import as_given
+
+    channels = stacked_channels(channel)
+    if channels:
+        media = channel_media(medium, channels)
+        return next(iter(media.values())), media
+    return cast(Medium, as_given(one_channel_medium(medium, channel), "medium", "the medium")), None
+
+
+def check_near(near, channel) -> Any:
+    """``near`` (the near-field geometry or None), which maps one channel: an InputError
+    for a map over channels."""
+    channels = stacked_channels(channel)
+    if near is not None and channels:
+        raise InputError(
+            f"near-field geometry maps one channel (--channel gray, r, g or b), not "
+            f"{', '.join(channels)} at once"
+        )
+    return near
 
 
 def check_family(brdf_cls, fixed: dict, freed: set) -> None:
@@ -178,7 +204,9 @@ def media_entry(media: dict[str, Medium]) -> dict[str, Any]:
     }
 
 
-def timed_channel_tables(cls, media, acq, settings: dict, accuracy, progress, say, seconds):
+def timed_channel_tables(
+    cls, media, acq, settings: dict, accuracy, progress, say, seconds
+) -> MapTables:
     """:func:`build_channel_tables` of the acquisition's configurations, timed into
     ``seconds["tables"]`` and described by ``say``."""
     t0 = time.perf_counter()
@@ -199,6 +227,8 @@ __all__ = [
     "ALL_RGB",
     "channel_media",
     "one_channel_medium",
+    "map_media",
+    "check_near",
     "check_family",
     "build_channel_tables",
     "media_entry",

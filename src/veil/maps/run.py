@@ -23,7 +23,8 @@ More arguments of :func:`fit_maps`:
 - ``roi``, ``mask``: the region (``X,Y,W,H``) and an image of the photos' size whose nonzero
   pixels are fitted. ``black_photos``: a folder with a black-cloth photo of each manifest
   row (same name), subtracted pixel by pixel; ``black_frame``: one frame subtracted from
-  every photo (a dark frame). ``channel``, ``saturation``: as ``veil ingest``.
+  every photo (a dark frame). ``channel``, ``saturation``: as ``veil ingest``; ``channel``
+  "rgb" or a tuple of channels maps every channel at once (docs/channels.md "Maps").
 - ``noise``: None (unweighted fit, standard errors from the residuals) or (relative,
   absolute): sigma = sqrt((relative * value)^2 + absolute^2) per sample.
 - ``tile``: tile size in pixels (memory is bounded by it). ``scheduler``: a
@@ -66,14 +67,14 @@ from ..io import (
     write_error,
     write_text_atomic,
 )
-from .channels import channel_media, one_channel_medium, timed_channel_tables
+from .channels import check_near, map_media, timed_channel_tables
 from .geometry_notes import (
     MapsWarning,
     geometry_notes,
     geometry_notes_of,
     near_geometry,
 )
-from .photos import Acquisition, load_acquisition, stacked_channels, stage
+from .photos import Acquisition, load_acquisition, stage
 from .solve import warm_up
 from .solve_channels import warm_up_channels
 from .status import STATUS
@@ -209,22 +210,14 @@ def fit_maps(
     The other arguments (the grid, the region and mask, black photos or frame, noise,
     tiles and scheduler, geometry and near field, reports): the module docstring.
     """
-    from ..fitting.given import as_given
     from ..fitting.problem import check_accuracy
     from ..models import default_class, model_class
     from .grid import parse_grid
 
     check_accuracy(accuracy)
     say = log or (lambda message: None)
-    tile = _tile(tile)
-    noise = _noise(noise)
-    channels = stacked_channels(channel)
-    media = channel_media(medium, channels) if channels else None
-    medium_model = (
-        next(iter(media.values()))
-        if media
-        else as_given(one_channel_medium(medium, channel), "medium", "the medium")
-    )
+    tile, noise = _tile(tile), _noise(noise)
+    medium_model, media = map_media(medium, channel)  # media: {channel: medium} over channels
     cls = default_class("brdf") if brdf_model is None else model_class(brdf_model, "brdf")
     grid_spec = parse_grid(grid, cls) if isinstance(grid, (list, tuple)) else dict(grid or {})
     output = Path(output)
@@ -238,12 +231,7 @@ def fit_maps(
         channel=channel,
         saturation=saturation,
     )
-    near = near_geometry(geometry, near_field, acq)
-    if near is not None and channels:
-        raise InputError(
-            f"near-field geometry maps one channel (--channel gray, r, g or b), not "
-            f"{', '.join(channels)} at once"
-        )
+    near = check_near(near_geometry(geometry, near_field, acq), channel)
     address = scheduler or os.environ.get(SCHEDULER_ENV) or None
     client = connect(address) if address else None
     try:
@@ -252,10 +240,8 @@ def fit_maps(
             existing = _existing_store(output)
             seconds: dict = {}
             build = dict(fixed=fixed, options=options, free=free, grid=grid_spec)
-            tables = (
-                timed_channel_tables(cls, media, acq, build, accuracy, progress, say, seconds)
-                if media
-                else _tables(cls, medium_model, acq, build, accuracy, near, progress, say, seconds)
+            tables = _tables(
+                cls, media or medium_model, acq, build, accuracy, near, progress, say, seconds
             )
             notes = geometry_notes_of(tables, cls, medium_model, acq, geometry)
             info = store_attributes(acq, tables, cls, noise, tile, accuracy, channel, geometry)
@@ -292,8 +278,13 @@ def _tables(
     say,
     seconds: dict,
 ) -> MapTables:
-    """The tables of the photos' configurations (:func:`build_tables` with ``settings``),
-    their time in ``seconds["tables"]``."""
+    """The tables of the photos' configurations (:func:`build_tables` with ``settings``;
+    over channels ``medium_model`` is {channel: medium}, :func:`veil.maps.channels.
+    build_channel_tables`), their time in ``seconds["tables"]``."""
+    if isinstance(medium_model, dict):
+        return timed_channel_tables(
+            cls, medium_model, acq, settings, accuracy, progress, say, seconds
+        )
     t0 = time.perf_counter()
     tables = build_tables(
         cls,

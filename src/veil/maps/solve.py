@@ -259,7 +259,7 @@ class _PixelSolver:
         )
 
 
-def node_scales(nodes, y, w2, q: int):
+def node_scales(nodes, y, w2, q: int) -> tuple:
     """The scales by exact NNLS at every node (N, M, q + 1) for a batch of pixels ``y``
     (P, M) with weights ``w2``, as matrix products over the configurations: (scales (P, N,
     q), costs (P, N))."""

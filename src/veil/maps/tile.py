@@ -22,7 +22,7 @@ from .store import FORMAT, tile_marker
 from .tables import MapTables
 
 
-def solve_tile(block, tables: MapTables, store, iy, ix, tile, noise):
+def solve_tile(block, tables: MapTables, store, iy, ix, tile, noise) -> np.ndarray:
     """One tile: (photos, th, tw) values ((channels, photos, th, tw) over channels) -> its
     chunks of the maps, then its marker; the count of its pixels by status."""
     zarr = require("zarr", "a maps store")
