@@ -169,7 +169,9 @@ def build_channel_tables(
                 )
         if progress is not None:
             progress(done + 1, total)
-    coef = np.ascontiguousarray(_to_coef(values, 0, len(axes)))
+    coef = np.empty((tuple(k + 2 for k in shape)) + values.shape[len(shape) :])
+    for k in range(len(channels)):  # channel by channel: each bit for bit its own tables'
+        coef[(slice(None),) * len(shape) + (k,)] = _to_coef(values[..., k, :, :], 0, len(axes))
     return MapTables(
         brdf_cls.NAME,
         dict(template.options()),
