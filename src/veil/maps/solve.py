@@ -142,8 +142,7 @@ class _PixelSolver:
         Gauss-Newton step is below LM_TOL standard errors is frozen."""
         it, p, lam, cost, val, jac, _ = state
         r = (y - val) * w
-        jw = jac * w[:, None]
-        a, g = jw.T @ jw, jw.T @ r
+        a, g = self.normal(jac, w, r)
         variance = 1.0 if self.weighted else cost / self.dof(w)
         proposed, dec = lsq.lm_step(p, a, g, lam, self.lo, self.hi, jnp)
         now = lsq.stopped(dec, LM_TOL, variance, (y * w) @ (y * w), jnp)
@@ -161,6 +160,18 @@ class _PixelSolver:
             now,
         )
 
+    def normal(self, jac, w, r):
+        """(J^T J, J^T r) of the weighted Jacobian ``jac`` times ``w`` and residuals ``r``."""
+        jw = jac * w[:, None]
+        return jw.T @ jw, jw.T @ r
+
+    def covariance(self, jac, w, r):
+        """(covariance, full rank, J^T r) of the weighted Jacobian
+        (:func:`veil.fitting.least_squares.covariance`)."""
+        jw = jac * w[:, None]
+        cov, rank_ok = lsq.covariance(jw, jnp)
+        return cov, rank_ok, jw.T @ r
+
     def dof(self, w):
         return jnp.maximum(jnp.sum(w > 0) - self.n, 1)
 
@@ -175,14 +186,13 @@ class _PixelSolver:
         )
         iters, p, _, _, val, jac, _ = state
         r = (y - val) * w
-        jw = jac * w[:, None]
-        cov, rank_ok = lsq.covariance(jw, jnp)
+        cov, rank_ok, jtr = self.covariance(jac, w, r)
         chi2 = lsq.residual_variance(r, jnp.sum(w2 > 0) - self.n, jnp)
         if not self.weighted:
             cov = cov * chi2
         se = jnp.sqrt(jnp.maximum(jnp.diag(cov), 0.0))
         # the undamped Gauss-Newton step from the solution, in standard errors
-        gn = cov @ (jw.T @ r)
+        gn = cov @ jtr
         if not self.weighted:
             gn = gn / jnp.where(chi2 > 0, chi2, 1.0)
         proj = lsq.project(p + gn, self.lo, self.hi, jnp) - p

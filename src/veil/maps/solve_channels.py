@@ -29,24 +29,45 @@ from .tables import MapTables
 class _ChannelSolver(_PixelSolver):
     """:class:`veil.maps.solve._PixelSolver` for ``channels`` channels of ``q`` scales each
     and ``d`` shared axes: the data of a pixel are its channels' values one after the other
-    (C * M), its parameters every channel's scales, then the axes."""
+    (C * M), its parameters every channel's scales, then the axes. The Jacobian is kept
+    compact, (C * M, q + d): each row's derivatives by its own channel's scales and by the
+    axes (the others are 0); the normal matrix is assembled from each channel's blocks."""
 
     def __init__(self, channels: int, q: int, d: int, sizes: tuple, weighted: bool) -> None:
         super().__init__(channels * q, d, sizes, weighted, False)
         self.channels, self.per = channels, q
 
     def combine(self, b, db, s):
-        """(value (C * M,), Jacobian (C * M, C * q + d)) from the basis ``b`` (C, M, q + 1)
-        and its derivatives ``db`` (d, C, M, q + 1) at scales ``s`` (C * q,)."""
+        """(value (C * M,), compact Jacobian (C * M, q + d)) from the basis ``b`` (C, M,
+        q + 1) and its derivatives ``db`` (d, C, M, q + 1) at scales ``s`` (C * q,)."""
         c, q = self.channels, self.per
-        m = b.shape[1]
         sc = s.reshape(c, q)
         val = (jnp.einsum("cmk,ck->cm", b[..., :q], sc) + b[..., q]).reshape(-1)
-        jac_s = jnp.einsum("cmk,ce->cmek", b[..., :q], jnp.eye(c)).reshape(c * m, c * q)
-        if not self.d:
-            return val, jac_s
         jac_u = jnp.einsum("acmk,ck->cma", db[..., :q], sc) + jnp.moveaxis(db[..., q], 0, -1)
-        return val, jnp.concatenate([jac_s, jac_u.reshape(c * m, self.d)], axis=1)
+        return val, jnp.concatenate([b[..., :q], jac_u], axis=-1).reshape(-1, q + self.d)
+
+    def normal(self, jac, w, r):
+        """(J^T J, J^T r) over every parameter from the compact Jacobian: each channel's
+        block of its scales, their cross terms with the axes, the axes' sum over channels."""
+        c, q = self.channels, self.per
+        jw = (jac * w[:, None]).reshape(c, -1, q + self.d)
+        blocks = jnp.einsum("cmi,cmj->cij", jw, jw)
+        gv = jnp.einsum("cmi,cm->ci", jw, r.reshape(c, -1))
+        a = jnp.zeros((self.n, self.n))
+        for k in range(c):
+            own = slice(k * q, (k + 1) * q)
+            a = a.at[own, own].set(blocks[k, :q, :q])
+            a = a.at[own, c * q :].set(blocks[k, :q, q:])
+            a = a.at[c * q :, own].set(blocks[k, q:, :q])
+        a = a.at[c * q :, c * q :].set(blocks[:, q:, q:].sum(0))
+        return a, jnp.concatenate([gv[:, :q].reshape(-1), gv[:, q:].sum(0)])
+
+    def covariance(self, jac, w, r):
+        """(covariance, full rank, J^T r) from the assembled normal matrix
+        (:func:`veil.fitting.least_squares.normal_covariance`)."""
+        a, g = self.normal(jac, w, r)
+        cov, full = lsq.normal_covariance(a, jnp.all(jnp.isfinite(jac * w[:, None])), jnp)
+        return cov, full, g
 
     def refit(self, coef, fu, y, w, p):
         """(p with each channel's scales replaced by their non-negative least-squares
@@ -66,25 +87,28 @@ class _ChannelSolver(_PixelSolver):
         return jnp.concatenate([s, u]), val, jac
 
     def node_stage(self, values, y, w2):
-        """Every node: each channel's scales by exact NNLS, the node of the least total
-        cost, for a batch of pixels (P, C * M): (s0 (P, C * q), u0 (P, d))."""
+        """Every node: each channel's scales by exact NNLS (:func:`veil.maps.solve.
+        node_scales`, the one-channel stage), the node of the least total cost, for a batch
+        of pixels (P, C * M): (s0 (P, C * q), u0 (P, d))."""
         c, q, d = self.channels, self.per, self.d
-        nodes = values.reshape((-1,) + values.shape[d:])  # (N, C, M, q + 1)
+        nodes = jnp.moveaxis(values.reshape((-1,) + values.shape[d:]), 1, 0)  # (C, N, M, q+1)
         m = nodes.shape[2]
+        yc = jnp.moveaxis(y.reshape(-1, c, m), 1, 0)
+        wc = jnp.moveaxis(w2.reshape(-1, c, m), 1, 0)
         scales, total = [], 0.0
         for k in range(c):
-            rows = slice(k * m, (k + 1) * m)
-            s_all, cost = node_scales(nodes[:, k], y[:, rows], w2[:, rows], q)
+            s_all, cost = node_scales(nodes[k], yc[k], wc[k], q)
             scales.append(s_all)
             total = total + cost
         best = jnp.argmin(total, axis=1)
         s0 = jnp.concatenate(
             [jnp.take_along_axis(s, best[:, None, None], axis=1)[:, 0, :] for s in scales], axis=1
         )
-        if d:
-            u0 = jnp.stack(jnp.unravel_index(best, self.sizes), axis=1).astype(float)
-        else:
-            u0 = jnp.zeros((y.shape[0], 0))
+        u0 = (
+            jnp.stack(jnp.unravel_index(best, self.sizes), axis=1).astype(float)
+            if d
+            else jnp.zeros((y.shape[0], 0))
+        )
         return s0, u0
 
 
