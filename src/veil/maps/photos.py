@@ -108,17 +108,18 @@ def _check_colour(paths, rows, channels) -> None:
         )
 
 
-def _pixels(photo, channel: str, level, where: str):
+def _pixels(photo, channel: str, level, where: str, linear=None):
     """(linear values (h, w), unusable (h, w)) of a photo read with one ROI: ``channel`` per
     pixel, unusable where a used sample is at or above ``level`` or at the format's floor.
     Camera raw: 2 x 2 colour-filter blocks as superpixels (gray: mean of R, G, B).
     ``channel`` "rgb" or a tuple of channels: (C, h, w) each, channel by channel what each
-    channel alone gives."""
+    channel alone gives (``linear``: the patch's linear values, computed once for them)."""
     if not isinstance(channel, str) or channel == ALL_RGB:
-        parts = [_pixels(photo, c, level, where) for c in stacked_channels(channel)]
+        linear = _linear(photo.patches[0], None, where)
+        parts = [_pixels(photo, c, level, where, linear) for c in stacked_channels(channel)]
         return np.stack([v for v, _ in parts]), np.stack([b for _, b in parts])
     patch = photo.patches[0]
-    values = _linear(patch, None, where)
+    values = _linear(patch, None, where) if linear is None else linear
     raw = patch.values
     if patch.cfa is not None:
         h, w = values.shape
