@@ -22,7 +22,7 @@ configurations) so that several runs, e.g. of two versions of the solver, share 
 
 --channels runs a map of every colour channel (``--channel rgb``) and a one-channel map
 (the green channel) of the same RGB photos side by side, warm, in one process
-(docs/channels.md "Maps"): SIZE x SIZE float32 RGB TIFFs at the 111 configurations,
+(docs/maps-channels.md): SIZE x SIZE float32 RGB TIFFs at the 111 configurations,
 Torrance-Sparrow with per-channel scales through BTDF2 whose T_d and T_t differ per channel
 (a step-1 result over r, g, b), the index fixed; a first round of both compiles, then
 ``--repeat`` alternating rounds (the median is reported): seconds of the tables, staging and

@@ -1,4 +1,4 @@
-"""Maps over colour channels (issue 30 item 4; docs/channels.md "Maps"): every channel of a
+"""Maps over colour channels (issue 30 item 4; docs/maps-channels.md): every channel of a
 pixel one least-squares problem, the scales per channel through each channel's medium and
 the roughness shared; the tables of every channel each channel's own, the engine run once
 for channels whose media differ in scales; the fast solve against the full fit over

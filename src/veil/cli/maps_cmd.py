@@ -85,7 +85,7 @@ def _noise(text):
     show_default=True,
     help="Colour channel; gray = (R + G + B) / 3; rgb = every channel at once, the "
     "scales per channel and the rest shared, through each channel's medium "
-    '(docs/channels.md "Maps").',
+    "(docs/maps-channels.md).",
 )
 @click.option(
     "--saturation",

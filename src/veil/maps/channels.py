@@ -1,4 +1,4 @@
-"""Maps of several colour channels at once (docs/channels.md "Maps"; ``veil fit maps
+"""Maps of several colour channels at once (docs/maps-channels.md; ``veil fit maps
 --channel rgb``): which channels a run fits, the medium of each channel, the family's
 parameters checked for a fit over channels, and the tables of every channel.
 

@@ -24,7 +24,7 @@ More arguments of :func:`fit_maps`:
   pixels are fitted. ``black_photos``: a folder with a black-cloth photo of each manifest
   row (same name), subtracted pixel by pixel; ``black_frame``: one frame subtracted from
   every photo (a dark frame). ``channel``, ``saturation``: as ``veil ingest``; ``channel``
-  "rgb" or a tuple of channels maps every channel at once (docs/channels.md "Maps").
+  "rgb" or a tuple of channels maps every channel at once (docs/maps-channels.md).
 - ``noise``: None (unweighted fit, standard errors from the residuals) or (relative,
   absolute): sigma = sqrt((relative * value)^2 + absolute^2) per sample.
 - ``tile``: tile size in pixels (memory is bounded by it). ``scheduler``: a

@@ -1,4 +1,4 @@
-"""Per-pixel step 2 over several colour channels at once (docs/channels.md "Maps"): every
+"""Per-pixel step 2 over several colour channels at once (docs/maps-channels.md): every
 pixel's channels one least-squares problem, the scales per channel and the nonlinear
 parameters (roughness, index) shared, against tables with a channel axis
 (:func:`veil.maps.channels.build_channel_tables`).

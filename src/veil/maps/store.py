@@ -40,7 +40,7 @@ if TYPE_CHECKING:
 
 FORMAT = "veil.maps/1"
 MAPS = ("params", "stderr", "chi2_reduced", "n_points", "status")
-#: The maps with a channel axis of a store over several channels (docs/channels.md "Maps"):
+#: The maps with a channel axis of a store over several channels (docs/maps-channels.md):
 #: the parameters declared per channel, (parameter, channel, y, x).
 CHANNEL_MAPS = ("channel_params", "channel_stderr")
 #: What status 1 means for a pixel inside the mask.

@@ -50,7 +50,7 @@ class MapTables:
     #: columns (relative to each column's maximum).
     near: FieldGrid | None = None
     field_error: float = float("nan")
-    #: colour channels fitted at once (docs/channels.md "Maps"), empty for one channel.
+    #: colour channels fitted at once (docs/maps-channels.md), empty for one channel.
     #: Then ``values`` and ``coef`` have a channel axis before the configurations'
     #: ((K_1, ..., K_d, C, M, q + 1)): each channel's columns through its own medium, the
     #: free scales per channel (``free_scales`` are then each channel's) and the nonlinear
