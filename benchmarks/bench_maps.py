@@ -20,6 +20,14 @@ with its wall and CPU seconds: CPU is the process's time over all its threads).
 --tables-cache DIR keeps the tables of part 1 in DIR (pickles, keyed by family and
 configurations) so that several runs, e.g. of two versions of the solver, share them.
 
+--channels runs a map of every colour channel (``--channel rgb``) and a one-channel map
+(the green channel) of the same RGB photos side by side, warm, in one process
+(docs/maps-channels.md): SIZE x SIZE float32 RGB TIFFs at the 111 configurations,
+Torrance-Sparrow with per-channel scales through BTDF2 whose T_d and T_t differ per channel
+(a step-1 result over r, g, b), the index fixed; a first round of both compiles, then
+``--repeat`` alternating rounds (the median is reported): seconds of the tables, staging and
+solve, the whole map's wall and CPU seconds, and the engine calls of the tables.
+
 --near D,P runs the near-field comparison alone (docs/maps-geometry.md "Geometry"): a photo of
 NEAR_SIZE x NEAR_SIZE pixels of pitch P seen by a camera at distance D, Torrance-Sparrow
 through BTDF2 at the 111 configurations, index fixed, tables at --near-accuracy (default
@@ -279,6 +287,94 @@ def bench_map(size, configs, root):
     return out, equal
 
 
+def channel_medium():
+    """A step-1 result over r, g, b of BTDF2 with T_d and T_t scaled per channel (a water
+    that dims red), each channel's model as given."""
+    import veil
+    from veil.fitting import FitResult
+    from veil.fitting.channel_fit import channel_layout
+
+    dim = {"r": 0.6, "g": 1.0, "b": 1.5}
+    m, cls = veil.BTDF2, type(veil.BTDF2)
+    slots, layout = channel_layout(cls, list(dim), "medium")
+    params = {}
+    for s in slots:
+        c = "g" if s.owner == "*" else s.owner
+        params[s.name] = float(getattr(m.replace(Td=m.Td * dim[c], Tt=m.Tt * dim[c]),
+                                       s.spec.name))
+    result = FitResult(model=cls.NAME, params=params, stderr={k: 0.0 for k in params},
+                       correlation={}, residuals=(0.0,) * 10, chi2_reduced=1.0,
+                       rms_relative=0.0, n_points=10, converged=True, message="benchmark",
+                       step="medium", options=m.options(), channels=layout)
+    return result, {c: result.one_model(c) for c in dim}
+
+
+def bench_channels(size, configs, root, repeat):
+    """A map of r, g, b and one of g from the same RGB photos, alternating, warm: {kind:
+    [(wall, cpu, run, engine calls of the tables)]}."""
+    import veil
+    from support.maps import write_colour_stack
+    from veil.engine.evaluator import ApparentModel
+    from veil.maps.run import fit_maps
+
+    brdf = veil.BRDF1
+    names = type(brdf).param_names()
+    medium, media = channel_medium()
+    v = brdf.to_vector()
+    maps = {}
+    for c, albedo in zip("rgb", (0.5, 1.0, 2.0)):
+        pm = np.repeat(v[:, None, None], size, 1).repeat(size, 2).copy()
+        pm[2] *= np.round(np.exp(np.linspace(-0.4, 0.4, size)), 2)[None, :]
+        pm[0] *= albedo
+        pm[0, : size // 2] *= 1.5
+        maps[c] = pm
+    manifest = write_colour_stack(root / "photos", brdf, media, configs, maps, noise=0.01)
+    fixed = {names[3]: float(v[3])}
+    calls = [0]
+    real = ApparentModel.terms
+
+    def counted(self, vb, vm):
+        calls[0] += 1
+        return real(self, vb, vm)
+
+    ApparentModel.terms = counted
+    out = {"g": [], "rgb": []}
+    for k in range(repeat + 1):  # round 0 compiles the solvers: not reported
+        for channel in ("g", "rgb"):
+            store = root / f"{channel}{k}.zarr"
+            calls[0] = 0
+            w0, c0 = time.perf_counter(), time.process_time()
+            run = fit_maps(root / "photos", manifest, medium, store, fixed=fixed,
+                           channel=channel)
+            if k:
+                out[channel].append((time.perf_counter() - w0, time.process_time() - c0,
+                                     run, calls[0]))
+            shutil.rmtree(store)
+    ApparentModel.terms = real
+    return out
+
+
+def _channels_table(args, configs, root):
+    runs = bench_channels(args.size, configs, root, args.repeat)
+    med = {kind: sorted(rs, key=lambda r: r[0])[len(rs) // 2] for kind, rs in runs.items()}
+    print(f"\n| map {args.size} x {args.size} from {len(configs)} photos, warm | one channel "
+          f"(g) | three channels (r, g, b) | ratio |")
+    print("|---|---:|---:|---:|")
+    for stage in ("tables", "staging", "solve"):
+        one, three = (med[k][2].seconds.get(stage, 0.0) for k in ("g", "rgb"))
+        print(f"| {stage} (s) | {one:.1f} | {three:.1f} | {three / one:.2f} |")
+    for label, i in (("whole map, wall (s)", 0), ("whole map, CPU (s)", 1)):
+        one, three = med["g"][i], med["rgb"][i]
+        print(f"| {label} | {one:.1f} | {three:.1f} | {three / one:.2f} |")
+    print(f"| engine calls of the tables | {med['g'][3]} | {med['rgb'][3]} | "
+          f"{med['rgb'][3] / med['g'][3]:.2f} |")
+    for kind in ("g", "rgb"):
+        print(f"\n{kind}: rounds (wall s, CPU s): "
+              + "; ".join(f"{w:.1f}, {c:.1f}" for w, c, _, _ in runs[kind])
+              + f"; converged {med[kind][2].summary['converged']} of "
+              f"{med[kind][2].summary['pixels']}")
+
+
 RSS_CHILD = r"""
 import resource, sys, time
 sys.path.insert(0, sys.argv[1])
@@ -363,6 +459,8 @@ def main():
                     help="solves per family in part 1; the median is reported")
     ap.add_argument("--tables-cache", default=None, metavar="DIR",
                     help="keep part 1's tables in DIR and reuse them")
+    ap.add_argument("--channels", action="store_true",
+                    help="only the map of r, g, b against the map of g, side by side")
     ap.add_argument("--near", default=None, metavar="D,P",
                     help="only the near-field comparison: camera distance D, pixel pitch P")
     ap.add_argument("--near-size", type=int, default=200)
@@ -371,6 +469,8 @@ def main():
     from doc_tables import add_options, printed_tables
     add_options(ap, "maps-solve,maps-map,maps-rss")
     args = ap.parse_args()
+    if args.channels and args.doc_table == "maps-solve,maps-map,maps-rss":
+        args.doc_table = "maps-channels"
     doc = printed_tables(args).start()
     import veil  # noqa: F401  (JAX set up by veil before the models)
     from veil.models import model_class
@@ -383,6 +483,12 @@ def main():
         bench_near(distance, pitch, args.near_size, args.pixels, configs, args.near_accuracy,
                    args.step_fraction)
         print(f"\nload average at the end {os.getloadavg()[0]:.1f}")
+        doc.finish()
+        return
+    if args.channels:
+        with tempfile.TemporaryDirectory() as tmp:
+            _channels_table(args, configs, Path(tmp))
+        print(f"\nload average at the end {' / '.join(f'{x:.1f}' for x in os.getloadavg())}")
         doc.finish()
         return
     if args.rss_only:

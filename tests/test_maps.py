@@ -223,7 +223,7 @@ def test_command_maps_outputs_and_resume(stack, tmp_path, monkeypatch):
 
     part = tmp_path / "part.zarr"
     calls = []
-    real = mr._solve_tile
+    real = mr.solve_tile
 
     def flaky(block, tables, store, iy, ix, tile, noise):
         calls.append((iy, ix))
@@ -231,11 +231,11 @@ def test_command_maps_outputs_and_resume(stack, tmp_path, monkeypatch):
             raise KeyboardInterrupt
         return real(block, tables, store, iy, ix, tile, noise)
 
-    monkeypatch.setattr(mr, "_solve_tile", flaky)
+    monkeypatch.setattr(mr, "solve_tile", flaky)
     with pytest.raises(KeyboardInterrupt):
         fit_maps(root / "photos", manifest, MEDIUM, part, fixed=FIX, grid=[GRID], tile=8,
                  saturation=1e8, workers=1)
-    monkeypatch.setattr(mr, "_solve_tile", real)
+    monkeypatch.setattr(mr, "solve_tile", real)
     assert not is_complete(part)
     with pytest.raises(veil.errors.InputError, match="partial"):
         open_maps(part)

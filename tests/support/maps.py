@@ -75,10 +75,25 @@ def render_near(
     return out
 
 
+def write_colour_stack(
+    folder, brdf, media: dict, configs, param_maps: dict, noise=0.01, seed=0
+) -> Path:
+    """RGB photos (float32 TIFFs, one per configuration) of a plate whose BRDF vector at
+    each pixel is ``param_maps[c]`` (n_params, H, W) in channel c of r, g, b, seen through
+    ``media[c]``; relative Gaussian noise. Returns the manifest path."""
+    n, h, w = param_maps["r"].shape
+    values = np.stack(
+        [render(brdf, media[c], configs, param_maps[c].reshape(n, -1).T) for c in "rgb"],
+        axis=-1,
+    )  # (H*W, M, 3)
+    return write_photos(folder, configs, values, (h, w), noise, seed)
+
+
 def write_photos(
     folder, configs, values: np.ndarray, shape, noise=0.01, seed=0, suffix=".tif"
 ) -> Path:
-    """Float32 TIFFs of ``values`` (H*W, M) with relative Gaussian noise, and the manifest."""
+    """Float32 TIFFs of ``values`` (H*W, M), or RGB ones of (H*W, M, 3), with relative
+    Gaussian noise, and the manifest."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     h, w = shape
@@ -87,7 +102,11 @@ def write_photos(
     names = []
     for k in range(len(configs)):
         name = f"photo_{k:03d}{suffix}"
-        tifffile.imwrite(folder / name, values[:, k].reshape(h, w).astype(np.float32))
+        image = values[:, k].reshape((h, w) + values.shape[2:]).astype(np.float32)
+        if image.ndim == 3:
+            tifffile.imwrite(folder / name, image, photometric="rgb")
+        else:
+            tifffile.imwrite(folder / name, image)
         names.append(name)
     manifest = configs.assign(file=names)[["file", "theta_i", "phi_i", "theta_r", "phi_r"]]
     path = folder / "manifest.csv"

@@ -88,10 +88,12 @@ def _noise(text):
 )
 @click.option(
     "--channel",
-    type=click.Choice(["gray", "r", "g", "b"]),
+    type=click.Choice(["gray", "r", "g", "b", "rgb"]),
     default="gray",
     show_default=True,
-    help="Colour channel; gray = (R + G + B) / 3.",
+    help="Colour channel; gray = (R + G + B) / 3; rgb = every channel at once, the "
+    "scales per channel and the rest shared, through each channel's medium "
+    "(docs/maps-channels.md).",
 )
 @click.option(
     "--saturation",
@@ -275,10 +277,10 @@ def _check_options(black_photos, black_frame, camera_distance, pixel_pitch, near
 def _medium(medium, models):
     """The medium result or model of --medium, of the --medium-model family if given."""
     med = load_medium(medium, models)
-    given = med.one_model() if hasattr(med, "as_model") else med
-    if "medium-model" in models.explicit and type(given) is not models.medium:
+    family = med.model_class if hasattr(med, "as_model") else type(med)
+    if "medium-model" in models.explicit and family is not models.medium:
         raise UserError(
-            f"--medium-model {models.medium.NAME} but {medium} is a {given.NAME} medium"
+            f"--medium-model {models.medium.NAME} but {medium} is a {family.NAME} medium"
         )
     return med
 

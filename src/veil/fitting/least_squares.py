@@ -101,6 +101,27 @@ def covariance(jw: Any, xp: Any = np) -> tuple[Any, Any]:
     return inv / xp.outer(scale, scale), full
 
 
+def normal_covariance(a: Any, finite: Any, xp: Any) -> tuple[Any, Any]:
+    """(covariance, full rank) from the normal matrix ``a`` = J^T J of a weighted Jacobian
+    whose entries are all finite when ``finite``: :func:`covariance`'s rule with JAX (the
+    matrix equilibrated to a unit diagonal, the unrolled LDL^T, full rank when the smallest
+    pivot is above SINGULAR^2 x parameters), for a solver that forms J^T J from blocks
+    without J (the maps over channels, :mod:`veil.maps.solve_channels`)."""
+    n = a.shape[0]
+    norm = xp.sqrt(xp.maximum(xp.diag(a), 0.0))
+    ok = finite & xp.all(norm > 0)
+    safe = xp.where(norm > 0, norm, 1.0)
+    low, piv = ldl(xp.where(ok, a / xp.outer(safe, safe), xp.eye(n)), xp)
+    full = ok & (xp.min(xp.stack(piv)) > SINGULAR**2 * n) if n else ok
+    eye = xp.eye(n)
+    inv = (
+        xp.stack([ldl_solve(low, piv, eye[i], xp) for i in range(n)], axis=1)
+        if n
+        else xp.zeros((0, 0))
+    )
+    return inv / xp.outer(safe, safe), full
+
+
 def residual_variance(res: Any, dof: Any, xp: Any = np) -> Any:
     """Reduced chi-square res'res / dof (``dof`` at least 1): the factor of an unweighted
     fit's covariance."""

@@ -15,7 +15,9 @@ from pathlib import Path
 import numpy as np
 
 from .._extras import require
+from ..data.channels import RGB
 from ..data.ingest import CHANNELS, ROI, _linear, manifest_photos, parse_roi, read_photo
+from ..data.ingest_channels import ALL_RGB
 from ..errors import InputError, MissingFileError
 from ..io import COMMIT, write_bytes_atomic
 from .store import marker_dir
@@ -56,12 +58,68 @@ def probe_size(path) -> tuple[int, int]:
     return (h // 2, w // 2) if photo.kind == "raw" else (h, w)
 
 
-def _pixels(photo, channel: str, level, where: str):
+def is_colour_file(path) -> bool:
+    """Whether a photo has colour channels, from its header (PNG, TIFF; camera raw is a
+    colour mosaic) or by decoding it."""
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix in _raw_suffixes():
+        return True
+    if suffix == ".png":
+        with open(path, "rb") as fh:
+            head = fh.read(26)
+        return len(head) == 26 and head[25] in (2, 3, 6)  # RGB, palette, RGBA
+    if suffix in (".tif", ".tiff"):
+        tifffile = require("tifffile", "reading a TIFF photo")
+        try:
+            with tifffile.TiffFile(path) as tif:
+                series = tif.series[0]
+                shape, axes = series.shape, series.axes
+        except Exception as exc:
+            raise InputError(f"{path}: cannot read as TIFF ({type(exc).__name__}: {exc})") from None
+        return "S" in axes and shape[axes.index("S")] >= 3
+    return read_photo(path, []).shape[2] >= 3
+
+
+def stacked_channels(channel) -> tuple[str, ...]:
+    """The channels a map over channels reads of each photo: r, g, b for "rgb", those of a
+    tuple (each once, of r, g, b); empty for one channel ("gray", "r", ...)."""
+    if isinstance(channel, str):
+        return RGB if channel == ALL_RGB else ()
+    names = tuple(str(c) for c in channel)
+    if len(names) < 2 or len(set(names)) != len(names) or not set(names) <= set(RGB):
+        raise InputError(
+            f"channels {', '.join(names) or '(none)'}: expected two or more of "
+            f"{', '.join(RGB)}, each once (or channel={ALL_RGB!r})"
+        )
+    return names
+
+
+def _check_colour(paths, rows, channels) -> None:
+    """An InputError naming the grey (single-channel) photos of a map over channels."""
+    grey = [(p, row) for p, row in zip(paths, rows) if not is_colour_file(p)]
+    if grey:
+        shown = "; ".join(f"{p} ({row})" for p, row in grey[:5])
+        raise InputError(
+            f"a map of channels {', '.join(channels)}: {len(grey)} grey (single-channel) "
+            f"photo(s), which have no colour channels: {shown}; a map of several channels "
+            f"needs colour photos (RGB images or camera raw); a grey stack maps with "
+            f"--channel gray"
+        )
+
+
+def _pixels(photo, channel: str, level, where: str, linear=None):
     """(linear values (h, w), unusable (h, w)) of a photo read with one ROI: ``channel`` per
     pixel, unusable where a used sample is at or above ``level`` or at the format's floor.
-    Camera raw: 2 x 2 colour-filter blocks as superpixels (gray: mean of R, G, B)."""
+    Camera raw: 2 x 2 colour-filter blocks as superpixels (gray: mean of R, G, B).
+    ``channel`` "rgb" or a tuple of channels: (C, h, w) each, channel by channel what each
+    channel alone gives (``linear``: the patch's linear values, computed once for them)."""
+    if not isinstance(channel, str) or channel == ALL_RGB:
+        linear = _linear(photo.patches[0], None, where)
+        parts = [_pixels(photo, c, level, where, linear) for c in stacked_channels(channel)]
+        return np.stack([v for v, _ in parts]), np.stack([b for _, b in parts])
     patch = photo.patches[0]
-    values = _linear(patch, None, where)
+    values = _linear(patch, None, where) if linear is None else linear
     raw = patch.values
     if patch.cfa is not None:
         h, w = values.shape
@@ -113,9 +171,12 @@ def _read_pixels(path, roi: ROI, channel, saturation, where):
     full = ROI(roi.x * scale, roi.y * scale, roi.w * scale, roi.h * scale)
     photo = read_photo(path, [("ROI", full)])
     if channel != "gray" and photo.shape[2] == 1 and photo.kind != "raw":
-        raise InputError(
-            f"{where}: a single-channel (gray) image has no channel {channel!r}; use channel gray"
+        what = (
+            f"channel {channel!r}"
+            if channel in CHANNELS
+            else f"channels {', '.join(stacked_channels(channel))}"
         )
+        raise InputError(f"{where}: a single-channel (gray) image has no {what}; use channel gray")
     level = saturation if saturation is not None else photo.saturation
     return _pixels(photo, channel, level, where)
 
@@ -236,8 +297,12 @@ def load_acquisition(
     photo_dir = Path(photo_dir)
     if not photo_dir.is_dir():
         raise MissingFileError(f"photo directory {photo_dir}: no such directory")
-    if channel not in CHANNELS:
-        raise InputError(f"channel {channel!r}: expected one of {', '.join(CHANNELS)}")
+    if isinstance(channel, str) and channel not in CHANNELS + (ALL_RGB,):
+        raise InputError(
+            f"channel {channel!r}: expected one of {', '.join(CHANNELS)} or {ALL_RGB} (all three)"
+        )
+    if not isinstance(channel, str):
+        channel = tuple(stacked_channels(channel))
     if black_photos is not None and black_frame is not None:
         raise InputError("give black photos (one per manifest row) or one black frame, not both")
     if saturation is not None:
@@ -265,6 +330,14 @@ def load_acquisition(
     canon = canonical_angles(table.assign(value=0.0))
     angles = tuple(canon[c].to_numpy(dtype=float) for c in CANONICAL)
     shape = _common_size(paths, rows, blacks, dark, name)
+    if stacked_channels(channel):
+        _check_colour(
+            list(paths) + list(blacks or []) + ([dark] if dark else []),
+            list(rows)
+            + [f"black photo of {r}" for r in (rows if blacks else [])]
+            + (["the black frame"] if dark else []),
+            stacked_channels(channel),
+        )
     if roi is None:
         roi = ROI(0, 0, shape[1], shape[0])
     else:
@@ -318,10 +391,21 @@ def stage(store, acq: Acquisition, progress=None) -> None:
             bad = bad | ~acq.mask
         staged = np.where(bad, np.nan, values).astype(np.float32)
         with COMMIT:  # an interrupt removes a new store between two photos, not within one
-            arr[k] = staged
+            if stacked_channels(acq.channel):  # the stack of channels: (channels, photos, h, w)
+                arr[:, k] = staged
+            else:
+                arr[k] = staged
         if progress is not None:
             progress("staging photos", k + 1, len(acq.paths))
     write_bytes_atomic(marker_dir(store) / "staged", b"staged\n")
 
 
-__all__ = ["probe_size", "read_mask", "Acquisition", "load_acquisition", "stage"]
+__all__ = [
+    "probe_size",
+    "is_colour_file",
+    "stacked_channels",
+    "read_mask",
+    "Acquisition",
+    "load_acquisition",
+    "stage",
+]

@@ -23,7 +23,8 @@ More arguments of :func:`fit_maps`:
 - ``roi``, ``mask``: the region (``X,Y,W,H``) and an image of the photos' size whose nonzero
   pixels are fitted. ``black_photos``: a folder with a black-cloth photo of each manifest
   row (same name), subtracted pixel by pixel; ``black_frame``: one frame subtracted from
-  every photo (a dark frame). ``channel``, ``saturation``: as ``veil ingest``.
+  every photo (a dark frame). ``channel``, ``saturation``: as ``veil ingest``; ``channel``
+  "rgb" or a tuple of channels maps every channel at once (docs/maps-channels.md).
 - ``noise``: None (unweighted fit, standard errors from the residuals) or (relative,
   absolute): sigma = sqrt((relative * value)^2 + absolute^2) per sample.
 - ``tile``: tile size in pixels (memory is bounded by it). ``scheduler``: a
@@ -40,7 +41,6 @@ More arguments of :func:`fit_maps`:
 from __future__ import annotations
 
 import errno
-import hashlib
 import json
 import math
 import os
@@ -67,15 +67,16 @@ from ..io import (
     write_error,
     write_text_atomic,
 )
+from .channels import check_near, map_media, timed_channel_tables
 from .geometry_notes import (
     MapsWarning,
     geometry_notes,
     geometry_notes_of,
-    geometry_record,
     near_geometry,
 )
 from .photos import Acquisition, load_acquisition, stage
-from .solve import solve_pixels, warm_up
+from .solve import warm_up
+from .solve_channels import warm_up_channels
 from .status import STATUS
 from .store import (
     FORMAT,
@@ -94,6 +95,7 @@ from .store import (
 )
 from .store import tiles as tile_indices
 from .tables import MapTables, build_tables
+from .tile import solve_tile, store_attributes
 
 if TYPE_CHECKING:
     from distributed import Client
@@ -101,36 +103,6 @@ if TYPE_CHECKING:
 DEFAULT_TILE = 128
 SCHEDULER_ENV = "VEIL_DASK_SCHEDULER"
 CONNECT_TIMEOUT = 5.0
-
-
-def _solve_tile(block, tables: MapTables, store, iy, ix, tile, noise):
-    """One tile: (photos, th, tw) values -> its chunks of the maps, then its marker."""
-    zarr = require("zarr", "a maps store")
-
-    block = np.asarray(block, dtype=np.float64)
-    m, th, tw = block.shape
-    y = block.reshape(m, th * tw).T
-    valid = np.isfinite(y)
-    pixels = None
-    if tables.near is not None:  # the tile's pixels in the full photo
-        x0, y0 = tables.near.roi[:2]
-        rows, cols = np.mgrid[0:th, 0:tw]
-        pixels = ((x0 + ix * tile + cols).ravel(), (y0 + iy * tile + rows).ravel())
-    res = solve_pixels(tables, np.where(valid, y, 0.0), valid, noise, pixels=pixels)
-    group = zarr.open_group(os.fspath(store), mode="r+")
-
-    def array(name):  # every chunk written, also one of fill values (veil.maps.store)
-        return group[name].with_config({"write_empty_chunks": True})
-
-    ys, xs = slice(iy * tile, iy * tile + th), slice(ix * tile, ix * tile + tw)
-    n_par = res.params.shape[0]
-    array("params")[:, ys, xs] = res.params.reshape(n_par, th, tw)
-    array("stderr")[:, ys, xs] = res.stderr.reshape(n_par, th, tw)
-    array("chi2_reduced")[ys, xs] = res.chi2.reshape(th, tw)
-    array("n_points")[ys, xs] = res.n_points.reshape(th, tw)
-    array("status")[ys, xs] = res.status.reshape(th, tw)
-    write_bytes_atomic(tile_marker(store, iy, ix), b"done\n")
-    return np.bincount(res.status, minlength=len(STATUS))
 
 
 # --------------------------------------------------------------------------------------
@@ -238,16 +210,14 @@ def fit_maps(
     The other arguments (the grid, the region and mask, black photos or frame, noise,
     tiles and scheduler, geometry and near field, reports): the module docstring.
     """
-    from ..fitting.given import as_given
     from ..fitting.problem import check_accuracy
     from ..models import default_class, model_class
     from .grid import parse_grid
 
     check_accuracy(accuracy)
     say = log or (lambda message: None)
-    tile = _tile(tile)
-    noise = _noise(noise)
-    medium_model = as_given(medium, "medium", "the medium")
+    tile, noise = _tile(tile), _noise(noise)
+    medium_model, media = map_media(medium, channel)  # media: {channel: medium} over channels
     cls = default_class("brdf") if brdf_model is None else model_class(brdf_model, "brdf")
     grid_spec = parse_grid(grid, cls) if isinstance(grid, (list, tuple)) else dict(grid or {})
     output = Path(output)
@@ -261,7 +231,7 @@ def fit_maps(
         channel=channel,
         saturation=saturation,
     )
-    near = near_geometry(geometry, near_field, acq)
+    near = check_near(near_geometry(geometry, near_field, acq), channel)
     address = scheduler or os.environ.get(SCHEDULER_ENV) or None
     client = connect(address) if address else None
     try:
@@ -270,9 +240,11 @@ def fit_maps(
             existing = _existing_store(output)
             seconds: dict = {}
             build = dict(fixed=fixed, options=options, free=free, grid=grid_spec)
-            tables = _tables(cls, medium_model, acq, build, accuracy, near, progress, say, seconds)
+            tables = _tables(
+                cls, media or medium_model, acq, build, accuracy, near, progress, say, seconds
+            )
             notes = geometry_notes_of(tables, cls, medium_model, acq, geometry)
-            info = _store_attributes(acq, tables, cls, noise, tile, accuracy, channel, geometry)
+            info = store_attributes(acq, tables, cls, noise, tile, accuracy, channel, geometry)
             _check_resumable(output, existing, info)
             job = _Job(
                 output, acq, tables, tile, noise, client, progress, workers, say, seconds, notes
@@ -306,8 +278,13 @@ def _tables(
     say,
     seconds: dict,
 ) -> MapTables:
-    """The tables of the photos' configurations (:func:`build_tables` with ``settings``),
-    their time in ``seconds["tables"]``."""
+    """The tables of the photos' configurations (:func:`build_tables` with ``settings``;
+    over channels ``medium_model`` is {channel: medium}, :func:`veil.maps.channels.
+    build_channel_tables`), their time in ``seconds["tables"]``."""
+    if isinstance(medium_model, dict):
+        return timed_channel_tables(
+            cls, medium_model, acq, settings, accuracy, progress, say, seconds
+        )
     t0 = time.perf_counter()
     tables = build_tables(
         cls,
@@ -358,42 +335,6 @@ def _noise(noise) -> tuple[float, float] | None:
     if not (math.isfinite(rel) and math.isfinite(ab) and rel >= 0 and ab >= 0 and rel + ab > 0):
         raise InputError(f"noise {noise!r}: expected RELATIVE[,ABSOLUTE] >= 0, not both 0")
     return float(rel), float(ab)
-
-
-def _store_attributes(acq, tables, cls, noise, tile, accuracy, channel, geometry) -> dict:
-    """The store's attributes (``veil_maps``), with the fingerprint of its inputs."""
-    fingerprint = hashlib.sha256(
-        (acq.fingerprint() + tables.fingerprint() + repr((noise, tile))).encode()
-    ).hexdigest()
-    shape = (acq.roi.h, acq.roi.w)
-    return {
-        "format": FORMAT,
-        "fingerprint": fingerprint,
-        "model": tables.model,
-        "options": tables.options,
-        "params": list(tables.names),
-        "free": list(tables.free_names),
-        "fixed_values": {
-            n: float(tables.base[i])
-            for i, n in enumerate(tables.names)
-            if n not in tables.free_names
-        },
-        "units": {p.name: p.unit for p in cls.PARAMS},
-        "medium": tables.medium,
-        "accuracy": accuracy,
-        "roi": str(acq.roi),
-        "shape": list(shape),
-        "tile": tile,
-        "photos": len(acq.paths),
-        "channel": channel,
-        "noise": list(noise) if noise else None,
-        "weighted": noise is not None,
-        "status_codes": {str(k): v for k, v in STATUS.items()},
-        "grid": [a.describe() for a in tables.axes],
-        "manifest": acq.name,
-        "outside_mask": int(np.count_nonzero(~acq.mask)) if acq.mask is not None else 0,
-        "geometry": geometry_record(tables, geometry),
-    }
 
 
 @dataclass
@@ -525,18 +466,19 @@ def _compute(store, tables, todo, tile, noise, client, progress, workers):
     if not todo:
         return {}
     arr = zarr.open_array(os.fspath(Path(store) / "stack" / "values"), mode="r")
-    stack = da.from_array(arr, chunks=(arr.shape[0], tile, tile))  # all photos of a tile
-    blocks = stack.to_delayed()
+    # all photos of a tile (of every channel, over channels: (channels, photos, h, w))
+    stack = da.from_array(arr, chunks=arr.shape[:-2] + (tile, tile))
+    blocks = stack.to_delayed().reshape(stack.numblocks[-2:])
     if client is None:  # compile the solver once per device, here, before the threads start
-        warm_up(tables, noise)
+        (warm_up_channels if tables.channels else warm_up)(tables, noise)
     if client is not None:
         [shared] = client.scatter([tables], broadcast=True, hash=False)
     else:
         shared = dask.delayed(tables, pure=True)
-    solve = dask.delayed(_solve_tile, pure=False)
+    solve = dask.delayed(solve_tile, pure=False)
     tasks = [
         solve(
-            blocks[0, iy, ix],
+            blocks[iy, ix],
             shared,
             os.fspath(store),
             iy,

@@ -27,12 +27,10 @@ def _panels(maps):
     ok = maps["status"] == CONVERGED
     units = info.get("units", {})
     out = []
-    for k, name in enumerate(info["params"]):
-        if name not in info["free"]:
-            continue
-        unit = units.get(name) or "relative units"
-        value = np.where(ok, maps["params"][k], np.nan)
-        err = np.where(ok, maps["stderr"][k], np.nan)
+    for name, value, err in _free_maps(maps):
+        unit = units.get(name.split("[")[0]) or "relative units"
+        value = np.where(ok, value, np.nan)
+        err = np.where(ok, err, np.nan)
         positive = np.nanmin(value) > 0 if ok.any() else False
         spread = np.nanmax(value) / np.nanmin(value) if positive else 1.0
         out.append((name, value, f"{name} [{unit}]", bool(positive and spread > 30)))
@@ -45,6 +43,24 @@ def _panels(maps):
     out.append(
         ("reduced chi-square" if info.get("weighted") else "residual variance", chi, label, False)
     )
+    return out
+
+
+def _free_maps(maps) -> list:
+    """(name, values, standard errors) of every free parameter's map; over channels each
+    channel's map of a parameter per channel is one, named ``NAME[channel]``."""
+    info = maps["info"]
+    out = [
+        (name, maps["params"][k], maps["stderr"][k])
+        for k, name in enumerate(info["params"])
+        if name in info["free"]
+    ]
+    for k, name in enumerate(info.get("channel_params") or ()):
+        if name in info["free"]:
+            out += [
+                (f"{name}[{c}]", maps["channel_params"][k, j], maps["channel_stderr"][k, j])
+                for j, c in enumerate(info["channels"])
+            ]
     return out
 
 
@@ -122,27 +138,46 @@ def maps_figure(store, path, *, dpi: int = 110) -> Path:
     return path
 
 
-def _exr_bytes(image: np.ndarray) -> bytes:
+def _exr_bytes(image: np.ndarray, channels=()) -> bytes:
+    """An OpenEXR file of ``image`` (H, W): one channel Y; with ``channels`` (C, H, W), one
+    EXR channel per colour channel, named in capitals (R, G, B)."""
     import tempfile
 
     OpenEXR = require("OpenEXR", "writing an EXR map")
 
+    planes = (
+        {
+            c.upper(): np.ascontiguousarray(image[k], dtype=np.float32)
+            for k, c in enumerate(channels)
+        }
+        if channels
+        else {"Y": np.ascontiguousarray(image, dtype=np.float32)}
+    )
     with tempfile.TemporaryDirectory() as tmp:
         name = os.path.join(tmp, "map.exr")
         header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
-        with OpenEXR.File(header, {"Y": np.ascontiguousarray(image, dtype=np.float32)}) as f:
+        with OpenEXR.File(header, planes) as f:
             f.write(name)
         with open(name, "rb") as fh:
             return fh.read()
 
 
-def _tiff_bytes(image: np.ndarray) -> bytes:
+def _tiff_bytes(image: np.ndarray, channels=()) -> bytes:
+    """A float32 TIFF of ``image`` (H, W); with ``channels`` (C, H, W): an RGB image (H, W,
+    3) of the channels r, g, b, else the channels as planes (C, H, W) in their order."""
     import io
 
     tifffile = require("tifffile", "writing a TIFF map")
 
     buf = io.BytesIO()
-    tifffile.imwrite(buf, np.ascontiguousarray(image, dtype=np.float32))
+    if tuple(channels) == ("r", "g", "b"):
+        rgb = np.ascontiguousarray(np.moveaxis(image, 0, -1), dtype=np.float32)
+        tifffile.imwrite(buf, rgb, photometric="rgb")
+    elif channels:
+        planes = np.ascontiguousarray(image, dtype=np.float32)
+        tifffile.imwrite(buf, planes, photometric="minisblack", planarconfig="separate")
+    else:
+        tifffile.imwrite(buf, np.ascontiguousarray(image, dtype=np.float32))
     return buf.getvalue()
 
 
@@ -150,7 +185,8 @@ def export_maps(store, folder, formats=FORMATS) -> list[Path]:
     """Every map of a complete store as float32 images (``formats``: tiff, exr) in
     ``folder``: NAME, NAME_stderr for each free parameter, chi2_reduced, status (0 =
     converged; docs/maps.md), plus summary.json. Unconverged pixels hold 0 in the value
-    maps; the status map says which."""
+    maps; the status map says which. A parameter per channel of a map over channels is one
+    image of every channel: RGB (EXR channels R, G, B; an RGB TIFF)."""
     bad = [f for f in formats if f not in FORMATS]
     if bad:
         raise InputError(f"export format {bad[0]!r}: expected {', '.join(FORMATS)}")
@@ -160,13 +196,18 @@ def export_maps(store, folder, formats=FORMATS) -> list[Path]:
     if folder.exists() and not folder.is_dir():
         raise InputError(f"{folder} exists and is not a directory")
     ok = maps["status"] == CONVERGED
-    images = {}
+    images: dict = {}
     for k, name in enumerate(info["params"]):
         if name in info["free"]:
-            images[name] = np.where(ok, maps["params"][k], 0.0)
-            images[f"{name}_stderr"] = np.where(ok, maps["stderr"][k], 0.0)
-    images["chi2_reduced"] = maps["chi2_reduced"]
-    images["status"] = maps["status"].astype(np.float32)
+            images[name] = (np.where(ok, maps["params"][k], 0.0), ())
+            images[f"{name}_stderr"] = (np.where(ok, maps["stderr"][k], 0.0), ())
+    channels = tuple(info.get("channels") or ())
+    for k, name in enumerate(info.get("channel_params") or ()):
+        if name in info["free"]:  # one image of every channel
+            images[name] = (np.where(ok, maps["channel_params"][k], 0.0), channels)
+            images[f"{name}_stderr"] = (np.where(ok, maps["channel_stderr"][k], 0.0), channels)
+    images["chi2_reduced"] = (maps["chi2_reduced"], ())
+    images["status"] = (maps["status"].astype(np.float32), ())
 
     def file(name, fmt):
         return f"{name}.{'tif' if fmt == 'tiff' else 'exr'}"
@@ -177,11 +218,12 @@ def export_maps(store, folder, formats=FORMATS) -> list[Path]:
     owned = [file(n, f) for n in images for f in FORMATS] + ["summary.json"]
     names = []
     with output_folder(folder, owned=owned) as staging:
-        for name, image in images.items():
+        for name, (image, planes) in images.items():
             for fmt in formats:
                 names.append(file(name, fmt))
                 write_bytes_atomic(
-                    staging / names[-1], _tiff_bytes(image) if fmt == "tiff" else _exr_bytes(image)
+                    staging / names[-1],
+                    _tiff_bytes(image, planes) if fmt == "tiff" else _exr_bytes(image, planes),
                 )
         names.append("summary.json")
         write_text_atomic(

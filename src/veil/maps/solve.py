@@ -142,8 +142,7 @@ class _PixelSolver:
         Gauss-Newton step is below LM_TOL standard errors is frozen."""
         it, p, lam, cost, val, jac, _ = state
         r = (y - val) * w
-        jw = jac * w[:, None]
-        a, g = jw.T @ jw, jw.T @ r
+        a, g = self.normal(jac, w, r)
         variance = 1.0 if self.weighted else cost / self.dof(w)
         proposed, dec = lsq.lm_step(p, a, g, lam, self.lo, self.hi, jnp)
         now = lsq.stopped(dec, LM_TOL, variance, (y * w) @ (y * w), jnp)
@@ -161,6 +160,18 @@ class _PixelSolver:
             now,
         )
 
+    def normal(self, jac, w, r):
+        """(J^T J, J^T r) of the weighted Jacobian ``jac`` times ``w`` and residuals ``r``."""
+        jw = jac * w[:, None]
+        return jw.T @ jw, jw.T @ r
+
+    def covariance(self, jac, w, r):
+        """(covariance, full rank, J^T r) of the weighted Jacobian
+        (:func:`veil.fitting.least_squares.covariance`)."""
+        jw = jac * w[:, None]
+        cov, rank_ok = lsq.covariance(jw, jnp)
+        return cov, rank_ok, jw.T @ r
+
     def dof(self, w):
         return jnp.maximum(jnp.sum(w > 0) - self.n, 1)
 
@@ -175,14 +186,13 @@ class _PixelSolver:
         )
         iters, p, _, _, val, jac, _ = state
         r = (y - val) * w
-        jw = jac * w[:, None]
-        cov, rank_ok = lsq.covariance(jw, jnp)
+        cov, rank_ok, jtr = self.covariance(jac, w, r)
         chi2 = lsq.residual_variance(r, jnp.sum(w2 > 0) - self.n, jnp)
         if not self.weighted:
             cov = cov * chi2
         se = jnp.sqrt(jnp.maximum(jnp.diag(cov), 0.0))
         # the undamped Gauss-Newton step from the solution, in standard errors
-        gn = cov @ (jw.T @ r)
+        gn = cov @ jtr
         if not self.weighted:
             gn = gn / jnp.where(chi2 > 0, chi2, 1.0)
         proj = lsq.project(p + gn, self.lo, self.hi, jnp) - p
@@ -212,17 +222,7 @@ class _PixelSolver:
         batch of pixels as matrix products over the configurations: (s0, u0)."""
         q, d = self.q, self.d
         nodes = values.reshape((-1,) + values.shape[d:])  # (N, M, q + 1)
-        n_nodes, m = nodes.shape[0], nodes.shape[1]
-        bq, c = nodes[..., :q], nodes[..., q]
-        # (P, M) @ (M, ...)
-        prods = jnp.einsum("nmi,nmj->mnij", bq, bq).reshape(m, -1)
-        gram = (w2 @ prods).reshape(-1, n_nodes, q, q)
-        wy = w2 * y
-        vb = jnp.transpose(bq, (1, 0, 2)).reshape(m, -1)
-        vc = jnp.transpose(bq * c[..., None], (1, 0, 2)).reshape(m, -1)
-        rhs = (wy @ vb - w2 @ vc).reshape(-1, n_nodes, q)
-        yy = (wy * y).sum(-1)[:, None] - 2 * wy @ c.T + w2 @ (c * c).T
-        s_all, cost = lsq.nnls_small(gram, rhs, yy, q, jnp)
+        s_all, cost = node_scales(nodes, y, w2, q)
         best = jnp.argmin(cost, axis=1)
         s0 = jnp.take_along_axis(s_all, best[:, None, None], axis=1)[:, 0, :]
         if d:
@@ -269,6 +269,23 @@ class _PixelSolver:
         )
 
 
+def node_scales(nodes, y, w2, q: int) -> tuple:
+    """The scales by exact NNLS at every node (N, M, q + 1) for a batch of pixels ``y``
+    (P, M) with weights ``w2``, as matrix products over the configurations: (scales (P, N,
+    q), costs (P, N))."""
+    n_nodes, m = nodes.shape[0], nodes.shape[1]
+    bq, c = nodes[..., :q], nodes[..., q]
+    # (P, M) @ (M, ...)
+    prods = jnp.einsum("nmi,nmj->mnij", bq, bq).reshape(m, -1)
+    gram = (w2 @ prods).reshape(-1, n_nodes, q, q)
+    wy = w2 * y
+    vb = jnp.transpose(bq, (1, 0, 2)).reshape(m, -1)
+    vc = jnp.transpose(bq * c[..., None], (1, 0, 2)).reshape(m, -1)
+    rhs = (wy @ vb - w2 @ vc).reshape(-1, n_nodes, q)
+    yy = (wy * y).sum(-1)[:, None] - 2 * wy @ c.T + w2 @ (c * c).T
+    return lsq.nnls_small(gram, rhs, yy, q, jnp)
+
+
 def _solver(q: int, d: int, sizes: tuple, weighted: bool, near: bool = False):
     """The jitted (batch, resume) pair of :class:`_PixelSolver`, made once per shape."""
     key = (q, d, sizes, weighted) + ((True,) if near else ())
@@ -300,18 +317,23 @@ def _dispatch(tables, count, call, done):
         done(*pending.pop(0))
 
 
-def warm_up(tables: MapTables, noise=None) -> None:
+def warm_up(tables: MapTables, noise=None, solver=None) -> None:
     """Compile both parts of the solver of ``tables`` on every CPU device (on dark pixels,
-    which stop at once), so that no later call waits for a compilation."""
+    which stop at once), so that no later call waits for a compilation (``solver``: as
+    :func:`_run`'s)."""
     near = tables.near is not None
-    first, rest = _solver(
-        len(tables.free_scales),
-        len(tables.axes),
-        tuple(a.count for a in tables.axes),
-        noise is not None,
-        near,
+    first, rest = (
+        _solver(
+            len(tables.free_scales),
+            len(tables.axes),
+            tuple(a.count for a in tables.axes),
+            noise is not None,
+            near,
+        )
+        if solver is None
+        else solver[:2]
     )
-    y = np.zeros((BATCH, tables.n_configs))
+    y = np.zeros((BATCH, tables.n_configs * (len(tables.channels) or 1)))
     extra = (np.zeros((BATCH, 2)),) if near else ()
     with _CALL_LOCK:
         for dev in jax.devices():
@@ -351,6 +373,15 @@ def solve_pixels(
         fu = tables.field_coords(*pixels)
         if len(fu) != len(y):
             raise FitError(f"{len(fu)} pixel positions for {len(y)} pixels")
+    y, valid, w2 = weights(tables, y, valid, noise)
+    out = _run(tables, y, w2, fu, noise is not None)
+    status = _status(tables, out, y, valid)
+    return _physical(tables, out, status)
+
+
+def weights(tables: MapTables, y, valid, noise) -> tuple:
+    """(values, usable samples, squared weights) of pixels ``y`` (N, M): unusable samples
+    (not ``valid`` or not finite) at 0 with weight 0; ``noise`` as :func:`solve_pixels`'."""
     y = np.asarray(y, dtype=float)
     valid = np.asarray(valid, dtype=bool) & np.isfinite(y)
     if y.shape[1] != tables.n_configs:
@@ -364,18 +395,20 @@ def solve_pixels(
         rel, ab = noise
         sigma2 = (rel * y) ** 2 + ab**2
         w2 = np.where(valid & (sigma2 > 0), 1.0 / np.where(sigma2 > 0, sigma2, 1.0), 0.0)
-    out = _run(tables, y, w2, fu, noise is not None)
-    status = _status(tables, out, y, valid)
-    return _physical(tables, out, status)
+    return y, valid, w2
 
 
-def _run(tables: MapTables, y, w2, fu, weighted: bool) -> dict:
+def _run(tables: MapTables, y, w2, fu, weighted: bool, solver=None) -> dict:
     """The solver's outputs for every pixel: p, se, chi2, npts, rank_ok, step, iters (flat
     arrays over pixels). Pixels still running after FIRST_ITERATIONS are gathered from
-    every batch into full batches of their own for the rest."""
-    q, d = len(tables.free_scales), len(tables.axes)
-    first, rest = _solver(q, d, tuple(a.count for a in tables.axes), weighted, fu is not None)
-    n_pix, n = len(y), q + d
+    every batch into full batches of their own for the rest. ``solver``: (first, rest,
+    parameters) of another solver than the tables' one-channel one (maps over channels)."""
+    if solver is None:
+        q, d = len(tables.free_scales), len(tables.axes)
+        sizes = tuple(a.count for a in tables.axes)
+        solver = _solver(q, d, sizes, weighted, fu is not None) + (q + d,)
+    first, rest, n = solver
+    n_pix = len(y)
     out = {
         "p": np.zeros((n_pix, n)),
         "se": np.zeros((n_pix, n)),
@@ -433,9 +466,11 @@ def _run(tables: MapTables, y, w2, fu, weighted: bool) -> dict:
     return out
 
 
-def _status(tables: MapTables, out: dict, y, valid) -> np.ndarray:
-    """Each pixel's status (:data:`STATUS`), the worst that applies."""
-    q, d = len(tables.free_scales), len(tables.axes)
+def _status(tables: MapTables, out: dict, y, valid, q: int | None = None) -> np.ndarray:
+    """Each pixel's status (:data:`STATUS`), the worst that applies (``q``: the number of
+    free scales, by default the tables')."""
+    q = len(tables.free_scales) if q is None else q
+    d = len(tables.axes)
     n_pix = len(y)
     status = np.full(n_pix, CONVERGED, dtype=np.uint8)
     status[out["step"] > STEP_TOL] = NOT_CONVERGED
@@ -489,6 +524,8 @@ __all__ = [
     "EDGE",
     "NOT_CONVERGED",
     "solve_pixels",
+    "node_scales",
+    "weights",
     "warm_up",
     "PixelFits",
 ]

@@ -40,6 +40,9 @@ if TYPE_CHECKING:
 
 FORMAT = "veil.maps/1"
 MAPS = ("params", "stderr", "chi2_reduced", "n_points", "status")
+#: The maps with a channel axis of a store over several channels (docs/maps-channels.md):
+#: the parameters declared per channel, (parameter, channel, y, x).
+CHANNEL_MAPS = ("channel_params", "channel_stderr")
 #: What status 1 means for a pixel inside the mask.
 FAILED_MASKED = "no usable photo (saturated or clipped in every photo)"
 LOCK_SUFFIX = ".veil-lock"
@@ -91,15 +94,20 @@ def create_store(
     zarr = require("zarr", "a maps store")
 
     group = zarr.open_group(os.fspath(store), mode="w")
-    n_par = len(tables.names)
+    n_par = len(info["params"])
     h, w = shape
-    for name, lead, dtype in (
+    arrays = [
         ("params", (n_par,), "float64"),
         ("stderr", (n_par,), "float64"),
         ("chi2_reduced", (), "float64"),
         ("n_points", (), "int32"),
         ("status", (), "uint8"),
-    ):
+    ]
+    channels = len(info.get("channels") or ())
+    if channels:
+        per = (len(info["channel_params"]), channels)
+        arrays += [(name, per, "float64") for name in CHANNEL_MAPS]
+    for name, lead, dtype in arrays:
         group.create_array(
             name,
             shape=lead + (h, w),
@@ -109,8 +117,8 @@ def create_store(
         )
     group.create_array(
         "stack/values",
-        shape=(n_photos, h, w),
-        chunks=(1, tile, tile),
+        shape=((channels,) if channels else ()) + (n_photos, h, w),
+        chunks=((channels,) if channels else ()) + (1, tile, tile),
         dtype="float32",
         fill_value=float("nan"),
     )
@@ -201,7 +209,14 @@ def store_lock(store, say=None) -> Iterator[None]:
 # --------------------------------------------------------------------------------------
 def _expected_shape(name: str, info: dict) -> tuple:
     h, w = info["shape"]
+    if name in CHANNEL_MAPS:
+        return (len(info["channel_params"]), len(info["channels"]), h, w)
     return (len(info["params"]), h, w) if name in ("params", "stderr") else (h, w)
+
+
+def map_names(info: dict) -> tuple:
+    """The arrays of a store: :data:`MAPS`, and :data:`CHANNEL_MAPS` over channels."""
+    return MAPS + (CHANNEL_MAPS if info.get("channels") else ())
 
 
 def _missing_chunks(arr, where: Path, limit: int = 3) -> list:
@@ -224,8 +239,15 @@ def _is_int(x, low: int = 0) -> bool:
 def _attribute_problem(info: dict) -> str | None:
     """What is wrong with a store's ``veil_maps`` attributes for its readers, or None."""
     params, free = info.get("params"), info.get("free")
-    if not (isinstance(params, list) and params and all(isinstance(p, str) for p in params)):
+    wrong = _channel_problem(info)
+    if wrong:
+        return wrong
+    per = info.get("channel_params") or []
+    if not (
+        isinstance(params, list) and (params or per) and all(isinstance(p, str) for p in params)
+    ):
         return "have no list of parameter names ('params')"
+    params = params + per
     if not (
         isinstance(free, list)
         and all(isinstance(p, str) for p in free)
@@ -264,6 +286,24 @@ def _attribute_problem(info: dict) -> str | None:
     return None
 
 
+def _channel_problem(info: dict) -> str | None:
+    """What is wrong with the channels of a store's attributes, or None (a store of one
+    channel has none)."""
+    channels, per = info.get("channels"), info.get("channel_params")
+    if channels is None and per is None:
+        return None
+    if not (
+        isinstance(channels, list)
+        and len(channels) >= 2
+        and all(isinstance(c, str) for c in channels)
+        and isinstance(per, list)
+        and per
+        and all(isinstance(p, str) for p in per)
+    ):
+        return "have no lists of channels and of parameters per channel ('channel_params')"
+    return None
+
+
 def check_store(store, info: dict, complete: bool) -> None:
     """Raise :class:`DamagedStoreError` (naming the part) when the store's arrays, chunks or
     markers disagree: an array whose metadata cannot be read or whose shape is not the
@@ -282,18 +322,17 @@ def check_store(store, info: dict, complete: bool) -> None:
     wrong = _attribute_problem(info)
     if wrong:
         raise damaged(f"its attributes (zarr.json, veil_maps) {wrong}")
-    shape, tile, names = tuple(info["shape"]), info["tile"], list(info["params"])
-    for name in MAPS:
+    shape, tile = tuple(info["shape"]), info["tile"]
+    for name in map_names(info):
         try:
             arr = zarr.open_array(os.fspath(store / name), mode="r")
         except Exception as exc:
             raise damaged(
                 f"array {name} ({name}/zarr.json) cannot be read ({type(exc).__name__}: {exc})"
             ) from None
-        if tuple(arr.shape) != _expected_shape(name, {"shape": shape, "params": names}):
+        if tuple(arr.shape) != _expected_shape(name, info):
             raise damaged(
-                f"array {name} has shape {tuple(arr.shape)}, expected "
-                f"{_expected_shape(name, {'shape': shape, 'params': names})}"
+                f"array {name} has shape {tuple(arr.shape)}, expected {_expected_shape(name, info)}"
             )
         if complete and info.get("chunks") == "all":
             gone = _missing_chunks(arr, store / name)
@@ -342,7 +381,7 @@ def open_maps(store) -> dict:
         )
     check_store(store, info, complete=True)
     group = zarr.open_group(os.fspath(store), mode="r")
-    out: dict[str, Any] = {name: _read(group, name, store) for name in MAPS}
+    out: dict[str, Any] = {name: _read(group, name, store) for name in map_names(info)}
     out["info"] = info
     return out
 
@@ -379,33 +418,52 @@ def summarize_maps(store, maps: dict | None = None) -> dict:
         "not_converged_fraction": float(np.count_nonzero(~ok) / total),
         "params": {},
     }
-    free = set(info["free"])
     for k, name in enumerate(info["params"]):
-        entry: dict[str, float | bool] = {"free": name in free}
-        if name in free and ok.any():
-            v = maps["params"][k][ok]
-            se = maps["stderr"][k][ok]
-            pct = np.percentile(v, [5, 25, 50, 75, 95])
-            entry.update(
-                median=float(pct[2]),
-                p05=float(pct[0]),
-                p25=float(pct[1]),
-                p75=float(pct[3]),
-                p95=float(pct[4]),
-                median_stderr=float(np.median(se)),
-            )
-        elif name not in free:
-            entry["value"] = float(info["fixed_values"][name])
-        out["params"][name] = entry
+        out["params"][name] = _entry(info, name, maps["params"][k], maps["stderr"][k], ok)
+    out["params"].update(_channel_entries(maps, ok))
     if ok.any():
         pct = np.percentile(maps["chi2_reduced"][ok], [5, 50, 95])
         out["chi2_reduced"] = {"p05": float(pct[0]), "median": float(pct[1]), "p95": float(pct[2])}
     return out
 
 
+def _entry(info: dict, name: str, values, stderr, ok) -> dict:
+    """The summary of one map: its percentiles and median standard error over the
+    converged pixels ``ok`` (a free parameter), or its value (a fixed one)."""
+    entry: dict[str, float | bool] = {"free": name in info["free"]}
+    if name in info["free"] and ok.any():
+        pct = np.percentile(values[ok], [5, 25, 50, 75, 95])
+        entry.update(
+            median=float(pct[2]),
+            p05=float(pct[0]),
+            p25=float(pct[1]),
+            p75=float(pct[3]),
+            p95=float(pct[4]),
+            median_stderr=float(np.median(stderr[ok])),
+        )
+    elif name not in info["free"]:
+        entry["value"] = float(info["fixed_values"][name])
+    return entry
+
+
+def _channel_entries(maps: dict, ok) -> dict:
+    """The summaries of the maps per channel, named as the fits over channels name their
+    parameters (``Pd[r]``); none for a store of one channel."""
+    info = maps["info"]
+    out = {}
+    for k, name in enumerate(info.get("channel_params") or ()):
+        for c, channel in enumerate(info["channels"]):
+            out[f"{name}[{channel}]"] = _entry(
+                info, name, maps["channel_params"][k, c], maps["channel_stderr"][k, c], ok
+            )
+    return out
+
+
 __all__ = [
     "FORMAT",
     "MAPS",
+    "CHANNEL_MAPS",
+    "map_names",
     "FAILED_MASKED",
     "StoreBusyError",
     "DamagedStoreError",

@@ -50,6 +50,12 @@ class MapTables:
     #: columns (relative to each column's maximum).
     near: FieldGrid | None = None
     field_error: float = float("nan")
+    #: colour channels fitted at once (docs/maps-channels.md), empty for one channel.
+    #: Then ``values`` and ``coef`` have a channel axis before the configurations'
+    #: ((K_1, ..., K_d, C, M, q + 1)): each channel's columns through its own medium, the
+    #: free scales per channel (``free_scales`` are then each channel's) and the nonlinear
+    #: axes shared.
+    channels: tuple = ()
 
     @property
     def n_free(self) -> int:
@@ -98,6 +104,8 @@ class MapTables:
             h.update(np.ascontiguousarray(a, dtype=float).tobytes())
         if self.near is not None:  # (distant tables hash as they always did)
             h.update(repr(self.near.as_dict()).encode())
+        if self.channels:  # (tables of one channel hash as they always did)
+            h.update(repr(self.channels).encode())
         h.update(np.ascontiguousarray(self.values).tobytes())
         return h.hexdigest()
 
@@ -113,6 +121,8 @@ class MapTables:
                 f"; {self.near.describe()}, interpolation error "
                 f"{self.field_error:.2g} of a column's maximum"
             )
+        if self.channels:
+            text += f"; channels {', '.join(self.channels)}"
         return text
 
     def basis(self, node_values: dict, pixel=None) -> np.ndarray:
@@ -258,7 +268,12 @@ def smoothest_facet(brdf_cls, names, base, axes, options) -> float:
 
 def _columns(engine, vb, vm, rows, free_parts, known_weight, q):
     """(M, q + 1) basis columns of the engine's configurations at BRDF vector ``vb``."""
-    terms = engine.terms(vb, vm)  # (M, rows, parts), scales at 1
+    return columns_of_terms(engine.terms(vb, vm), rows, free_parts, known_weight, q)
+
+
+def columns_of_terms(terms, rows, free_parts, known_weight, q) -> np.ndarray:
+    """(M, q + 1) basis columns from the term matrices ``terms`` (M, rows, parts; the
+    scales at 1) and the medium's row weights ``rows``."""
     cols = np.einsum("mrb,r->mb", terms, rows)
     out = np.empty(cols.shape[:1] + (q + 1,))
     for c, k in enumerate(free_parts):
@@ -396,4 +411,4 @@ def _tables(
     )
 
 
-__all__ = ["MapTables", "build_tables", "smoothest_facet", "FIELD_CHECKS"]
+__all__ = ["MapTables", "build_tables", "columns_of_terms", "smoothest_facet", "FIELD_CHECKS"]
