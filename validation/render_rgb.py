@@ -25,7 +25,7 @@ channels of the same paths, as one exposure of a colour camera does.
     python validation/render_rgb.py --sessions rgb_cw_ref --jobs 2
     python validation/render_rgb.py --stack --jobs 2              # the photo stack
     python validation/render_rgb.py --quick --jobs 2              # smoke run into /tmp
-    python validation/render_rgb.py --checks                      # clear water vs bsdf.eval
+    python validation/render_rgb.py --checks --doc validation/README.md   # checks, noise table
 """
 
 from __future__ import annotations
@@ -77,7 +77,7 @@ STACK_TILES = 4                    # 4 x 4 tiles, STACK_SIZE / STACK_TILES pixel
 STACK_DISTANCE = 20.0              # pinhole distance from the plate centre (cm): render_lab's meter
 STACK_PSI = (60.0, 30.0)
 STACK_PASSES = 4
-STACK_SPP_PER_PASS = 1024          # per pixel and pass
+STACK_SPP_PER_PASS = 512           # per pixel and pass
 STACK_CHUNK = 512                  # pixels traced in one call (memory)
 TILE_ALPHAS = (0.08, 0.12, 0.18, 0.26)          # per tile column (x)
 TILE_COLOURS = (                                 # per tile (row, column), RGB diffuse reflectance
@@ -290,6 +290,35 @@ def check_bsdf(out):
     return res
 
 
+def noise_rows(out):
+    """Per medium session and channel: the relative standard error of the values (median,
+    at |rho| <= 3 deg, largest)."""
+    import pandas as pd
+    rows = []
+    for name, s in SESSIONS.items():
+        path = os.path.join(out, f"{name}.csv")
+        if s["medium"] == "water" or not os.path.exists(path):
+            continue
+        t = pd.read_csv(path)
+        for ch in CHANNELS:
+            u = t[t["channel"] == ch]
+            rel = u["sigma"] / u["value"]
+            rows.append({"session": name, "channel": ch, "median": float(rel.median()),
+                         "near_peak_median": float(rel[u["rho"].abs() <= 3].median()),
+                         "max": float(rel.max())})
+    return rows
+
+
+def noise_table(rows):
+    sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "benchmarks"))
+    from doc_tables import markdown
+    return markdown(["session", "channel", "median relative se", "median, abs(rho) <= 3 deg",
+                     "largest"],
+                    [[f"`{r['session']}.csv`", r["channel"], f"{100 * r['median']:.2f} %",
+                      f"{100 * r['near_peak_median']:.2f} %", f"{100 * r['max']:.2f} %"]
+                     for r in rows], {2, 3, 4})
+
+
 # ---- the photo stack ----------------------------------------------------------------------
 
 
@@ -414,6 +443,9 @@ def main(argv=None):
     ap.add_argument("--jobs", type=int, default=2, help="Dr.Jit worker threads (default 2)")
     ap.add_argument("--quick", action="store_true", help="psi 60, few samples, into /tmp unless --out")
     ap.add_argument("--checks", action="store_true", help="clear-water tables against bsdf.eval")
+    ap.add_argument("--doc", default=None, metavar="PAGE",
+                    help="with --checks: write the noise table into PAGE between its markers "
+                         "<!-- table:rgb-noise ... --> (benchmarks/doc_tables.py)")
     ap.add_argument("--truth-only", action="store_true", help="only write data/truth_rgb.json")
     a = ap.parse_args(argv)
     here = os.path.dirname(os.path.abspath(__file__))
@@ -426,7 +458,16 @@ def main(argv=None):
         print(msg, flush=True)
 
     if a.checks:
-        log(json.dumps(check_bsdf(out)))
+        res = {"bsdf_eval_vs_clear_water": check_bsdf(out), "relative_sigma": noise_rows(out)}
+        lab.write_atomic(os.path.join(out, "checks_rgb.json"), json.dumps(res, indent=1) + "\n")
+        text = noise_table(res["relative_sigma"])
+        log(json.dumps(res["bsdf_eval_vs_clear_water"]) + "\n\n" + text)
+        if a.doc:
+            from doc_tables import write
+            checks = "; ".join(f"`{o}` {v['max_rel_diff']:.1e}"
+                               for o, v in res["bsdf_eval_vs_clear_water"].items())
+            write(a.doc, "rgb-noise", f"Clear water against bsdf.eval, largest relative "
+                  f"difference over the 333 values: {checks}.\n\n" + text)
         return 0
     if a.stack:
         psis = tuple(float(p) for p in a.stack_psi.split(","))
