@@ -332,18 +332,27 @@ def stack_geometry(size=STACK_SIZE, half_width=lab.HALF_WIDTH):
     return P, p.reshape(-1, 3).astype(np.float64)
 
 
-def stack_tiles(half_width=lab.HALF_WIDTH):
+#: The control stack (--stack --uniform): every tile of this one material (tile (2, 1)'s), so
+#: that the medium's blur across tiles has nothing to mix.
+UNIFORM_TILE = (2, 1)
+
+
+def _tile_of(row, col, uniform):
+    return UNIFORM_TILE if uniform else (row, col)
+
+
+def stack_tiles(half_width=lab.HALF_WIDTH, uniform=False):
     w = 2 * half_width / STACK_TILES
     tiles = {}
     for row in range(STACK_TILES):
         for col in range(STACK_TILES):
             cx = -half_width + (col + 0.5) * w
             cy = half_width - (row + 0.5) * w
-            tiles[f"tile_{row}_{col}"] = (cx, cy, w / 2, tile_plate(row, col))
+            tiles[f"tile_{row}_{col}"] = (cx, cy, w / 2, tile_plate(*_tile_of(row, col, uniform)))
     return tiles
 
 
-def stack_truth_maps(size=STACK_SIZE):
+def stack_truth_maps(size=STACK_SIZE, uniform=False):
     """Per pixel: rho (3, H, W), alpha (H, W), the tile index (H, W)."""
     per = size // STACK_TILES
     rho = np.zeros((3, size, size))
@@ -351,10 +360,10 @@ def stack_truth_maps(size=STACK_SIZE):
     tile = np.zeros((size, size), dtype=int)
     for y in range(size):
         for x in range(size):
-            row, col = y // per, x // per
+            row, col = _tile_of(y // per, x // per, uniform)
             rho[:, y, x] = TILE_COLOURS[row][col]
             alpha[y, x] = TILE_ALPHAS[col]
-            tile[y, x] = row * STACK_TILES + col
+            tile[y, x] = (y // per) * STACK_TILES + x // per
     return rho, alpha, tile
 
 
@@ -362,15 +371,15 @@ def stack_configs(psis=STACK_PSI):
     return lab.protocol(psis)
 
 
-def render_stack(out, passes, spp, psis, log, medium="cw"):
+def render_stack(out, passes, spp, psis, log, medium="cw", uniform=False):
     import tifffile
-    folder = os.path.join(out, STACK_DIR)
+    folder = os.path.join(out, STACK_DIR + ("_uniform" if uniform else ""))
     os.makedirs(os.path.join(folder, "photos"), exist_ok=True)
     os.makedirs(os.path.join(folder, "black"), exist_ok=True)
     P, pts = stack_geometry()
     n = len(pts)
     configs = stack_configs(psis)
-    objs = {"photos": Renderer(scene_dict(None, medium, tiles=stack_tiles())),
+    objs = {"photos": Renderer(scene_dict(None, medium, tiles=stack_tiles(uniform=uniform))),
             "black": Renderer(scene_dict(PLATES["black"], medium))}
     t0 = time.time()
     rel_se = []
@@ -406,8 +415,8 @@ def render_stack(out, passes, spp, psis, log, medium="cw"):
         log(f"  stack {k + 1}/{len(configs)} (psi {psi}, rho {rho}): {time.time() - t0:.0f} s")
     lab.write_atomic(os.path.join(folder, "manifest.csv"), "\n".join(manifest) + "\n")
     rel_se = np.array(rel_se)                        # (configs, 3, n)
-    rho_t, alpha_t, tile = stack_truth_maps()
-    tr = {"size": STACK_SIZE, "tiles": STACK_TILES, "pixel_pitch_cm": P,
+    rho_t, alpha_t, tile = stack_truth_maps(uniform=uniform)
+    tr = {"size": STACK_SIZE, "tiles": STACK_TILES, "uniform": uniform, "pixel_pitch_cm": P,
           "camera_distance_cm": STACK_DISTANCE, "plate_half_width_cm": lab.HALF_WIDTH,
           "path_length_cm": lab.R_C, "medium": dict(MEDIA[medium], name=medium),
           "optical_centre": [STACK_SIZE / 2, STACK_SIZE / 2],
@@ -437,6 +446,9 @@ def main(argv=None):
     ap.add_argument("--out", default=None, help="output folder (default validation/data)")
     ap.add_argument("--sessions", default=None, help="comma-separated (default all): " + ", ".join(SESSIONS))
     ap.add_argument("--stack", action="store_true", help="render the photo stack instead")
+    ap.add_argument("--uniform", action="store_true",
+                    help="with --stack: the control stack, every tile of one material, into "
+                         "data/rgb_stack_uniform")
     ap.add_argument("--stack-psi", default=",".join(str(int(p)) for p in STACK_PSI))
     ap.add_argument("--passes", type=int, default=None)
     ap.add_argument("--spp", type=int, default=None, help="samples per pass (per pixel for --stack)")
@@ -474,7 +486,8 @@ def main(argv=None):
         if a.quick:
             psis = (60.0,)
         render_stack(out, a.passes or (2 if a.quick else STACK_PASSES),
-                     a.spp or (16 if a.quick else STACK_SPP_PER_PASS), psis, log)
+                     a.spp or (16 if a.quick else STACK_SPP_PER_PASS), psis, log,
+                     uniform=a.uniform)
         return 0
     lab.write_atomic(os.path.join(out, "truth_rgb.json"), json.dumps(truth(), indent=1) + "\n")
     if a.truth_only:

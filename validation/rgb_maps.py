@@ -144,11 +144,32 @@ def compare(store: str, truth: dict, channel: str = "rgb") -> dict:
             k = names.index(next(n for n in names if re.fullmatch(rf"rho\[{ch}\]", n)))
             est, se = maps["params"][k], maps["stderr"][k]
         rows.append(one(f"rho[{ch}]", est, se, np.asarray(truth["rho"][ch])))
+        tile = np.asarray(truth["tile"])
+        rt = np.asarray(truth["rho"][ch])
+        rows[-1]["_ratio_by_tile"] = [
+            float(np.median(np.asarray(est)[ok & (tile == t)] / rt[ok & (tile == t)]))
+            if (ok & (tile == t)).any() else math.nan for t in range(int(tile.max()) + 1)]
+    # per tile: the medians of estimate / truth over its converged pixels
+    tile = np.asarray(truth["tile"])
     k = names.index("alpha")
+    tiles = []
+    for t in range(int(tile.max()) + 1):
+        m = ok & (tile == t)
+        rec = {"tile": t, "alpha_true": float(np.asarray(truth["alpha"])[tile == t][0]),
+               "alpha_ratio": float(np.median(maps["params"][k][m] /
+                                              np.asarray(truth["alpha"])[m])) if m.any() else math.nan}
+        for r in rows:
+            ch = r["param"][4]
+            rt = np.asarray(truth["rho"][ch])
+            rec[f"rho_true[{ch}]"] = float(rt[tile == t][0])
+            rec[f"rho_ratio[{ch}]"] = r["_ratio_by_tile"][t]
+        tiles.append(rec)
+    for r in rows:
+        del r["_ratio_by_tile"]
     rows.append(one("alpha" if channel == "rgb" else f"alpha ({channel} alone)",
                     maps["params"][k], maps["stderr"][k], np.asarray(truth["alpha"])))
     chi2 = np.asarray(maps["chi2_reduced"])[ok]
-    return {"rows": rows, "params": names, "converged": int(ok.sum()), "pixels": int(status.size),
+    return {"rows": rows, "tiles": tiles, "params": names, "converged": int(ok.sum()), "pixels": int(status.size),
             "status_counts": {int(s): int((status == s).sum()) for s in np.unique(status)},
             "chi2_median": float(np.median(chi2)) if chi2.size else math.nan}
 
@@ -173,6 +194,27 @@ def table(res: dict) -> str:
                     rows, {1, 2, 3, 5, 6})
 
 
+def tile_table(res: dict) -> str:
+    """Per tile: the truth and the median estimate / truth of every parameter mapped."""
+    from doc_tables import markdown
+
+    tiles = res.get("tiles") or []
+    if not tiles:
+        return ""
+    rho_keys = sorted(k for k in tiles[0] if k.startswith("rho_true["))
+    chans = [k[len("rho_true["):-1] for k in rho_keys]
+    alpha_keys = [k for k in tiles[0] if k.startswith("alpha_ratio")]
+    head = (["tile (row, column)", "rho true (" + ", ".join(chans) + ")"]
+            + [f"rho[{c}] estimate / true" for c in chans] + ["alpha true"]
+            + [k.replace("alpha_ratio", "alpha estimate / true") for k in alpha_keys])
+    n = int(round(len(tiles) ** 0.5))
+    rows = [[f"({t['tile'] // n}, {t['tile'] % n})",
+             ", ".join(f"{t[k]:.2f}" for k in rho_keys)]
+            + [f"{t[f'rho_ratio[{c}]']:.3f}" for c in chans] + [f"{t['alpha_true']:.2f}"]
+            + [f"{t[k]:.3f}" for k in alpha_keys] for t in tiles]
+    return markdown(head, rows, set(range(2, len(head))))
+
+
 def summary(res: dict) -> list[str]:
     bad = [r["param"] for r in res["rows"] if not r["within_3se"] >= 0.95]
     chi2 = ", ".join(f"{c:.2f}" for c in res["chi2_median"])
@@ -184,6 +226,7 @@ def summary(res: dict) -> list[str]:
 
 
 def main(argv=None) -> int:
+    global STACK
     import bench_validity as bv
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
@@ -195,11 +238,15 @@ def main(argv=None) -> int:
                     help="three maps of one channel each (--channel r, g, b), each through its "
                          "channel's medium, instead of one --channel rgb map; json "
                          "results/rgb_maps_per_channel.json, table colour-maps-per-channel")
+    ap.add_argument("--stack", default=None,
+                    help=f"the photo stack (default {os.path.relpath(STACK, ROOT)})")
     ap.add_argument("--channels", default="r,g,b",
                     help="with --per-channel: the channels to map (default %(default)s)")
     ap.add_argument("extra", nargs="*", help="more options for veil fit maps (after --)")
     bv.add_doc_options(ap, "colour-maps")
     args = ap.parse_args(argv)
+    if args.stack:
+        STACK = os.path.abspath(args.stack)
     if args.per_channel:
         args.json = args.json if args.json != JSON else JSON.replace(".json", "_per_channel.json")
         args.doc_table = ("colour-maps-per-channel" if args.doc_table == "colour-maps"
@@ -211,7 +258,7 @@ def main(argv=None) -> int:
             res = json.load(f)
     else:
         rel = truth["render"]["relative_standard_error_after_black"]["all"]["median"]
-        res = {"rows": [], "converged": 0, "pixels": 0, "status_counts": {}, "seconds": 0.0,
+        res = {"rows": [], "tiles": [], "converged": 0, "pixels": 0, "status_counts": {}, "seconds": 0.0,
                "exit": 0, "commands": [], "chi2_median": []}
         with tempfile.TemporaryDirectory() as tmp:
             work = args.keep or tmp
@@ -223,6 +270,12 @@ def main(argv=None) -> int:
                 code, seconds, _ = run_maps(cmd)
                 one = compare(store, truth, channel)
                 res["rows"] += one["rows"]
+                for t, rec in enumerate(one["tiles"]):
+                    if len(res["tiles"]) <= t:
+                        res["tiles"].append({"tile": t, "alpha_true": rec["alpha_true"]})
+                    res["tiles"][t].update({k: v for k, v in rec.items()
+                                            if k.startswith("rho_")})
+                    res["tiles"][t][f"alpha_ratio ({channel})"] = rec["alpha_ratio"]
                 res["converged"] += one["converged"]
                 res["pixels"] += one["pixels"]
                 for k, v in one["status_counts"].items():
@@ -237,6 +290,9 @@ def main(argv=None) -> int:
         os.makedirs(os.path.dirname(os.path.abspath(args.json)), exist_ok=True)
         write_text_atomic(args.json, json.dumps(res, indent=1, default=float) + "\n")
     text = table(res)
+    tt = tile_table(res)
+    if tt:
+        text += "\n\nPer tile, the median over its converged pixels:\n\n" + tt
     notes = summary(res)
     print(text + "\n\n" + "\n".join(notes))
     if args.doc:
