@@ -199,13 +199,14 @@ def _hints(result: FitResult) -> list[str]:
     # parameters measured against their value (the optical depth, what the unscattered
     # beam's e^{-2 tau} pins); one measured against its room to a bound (g near 1) is loose
     # there for other reasons
+    # a fit over channels names a parameter per channel NAME[channel]: its family's NAME
     loose = [
         n
         for n, v in result.params.items()
         if n not in result.fixed
         and n in se
-        and cls.param(n).error_scale != "bound"
-        and cls.param(n).relative_error(v, se[n]) > RELATIVE_LIMIT
+        and cls.param(n.partition("[")[0]).error_scale != "bound"
+        and cls.param(n.partition("[")[0]).relative_error(v, se[n]) > RELATIVE_LIMIT
     ]
     if not loose:
         return []

@@ -1,0 +1,432 @@
+"""Colour maps on a path-traced photo stack (issue 30, item 6): `veil fit maps --channel rgb`
+over validation/data/rgb_stack (validation/render_rgb.py --stack), each pixel against the
+plate's truth.
+
+The stack: a 5 cm plate of 4 x 4 tiles of rough plastic, each its own RGB diffuse reflectance
+and roughness, photographed through the coloured water `cw` by a pinhole camera at distance D
+(one ray from the pinhole to each pixel's plate point: the near-field geometry of
+docs/maps-geometry.md, photos registered to the plate), with the black cloth photographed the
+same way. The maps are the command
+
+    veil fit maps validation/data/rgb_stack/photos \
+        --manifest validation/data/rgb_stack/manifest.csv --medium MEDIUM.json \
+        --black-photos validation/data/rgb_stack/black --channel rgb \
+        --near-field --camera-distance D --pixel-pitch P --brdf-model rough-plastic \
+        --fix eta=ETA --fix ks=1 --noise REL -o OUT/maps.zarr
+
+run as a subprocess with this checkout's veil. D, P, the index ETA (the plates' acrylic in
+water) and ks = 1 (Mitsuba's specular_reflectance) come from the stack's truth.json, REL from
+the render's own Monte Carlo noise (the median relative standard error of a pixel's value after
+the black photo's subtraction over pixels and configurations, truth.json: over every channel
+for --channel rgb, the channel's own for a map of one channel). MEDIUM is
+the coloured water fitted in step 1 of validation/rgb_table.py over the goniometer sessions
+(validation/results/rgb_medium.json): what a user has; `--medium` names another.
+
+Per channel it compares the albedo map rho and the shared roughness alpha with the truth per
+pixel: the share of converged pixels within 3 standard errors (target: 95 %), the error in
+standard errors (mean, sd), the median relative error and standard error; and the same by ring
+(distance of the pixel from the plate centre), since the medium's path lengths through the
+cylinder change across the plate and the model's do not. ``--doc PAGE`` writes the table
+between the page's markers (benchmarks/doc_tables.py); the numbers also go to ``--json``
+(default validation/results/rgb_maps.json).
+
+    PYTHONPATH=src python validation/rgb_maps.py [--per-channel] [--medium FILE] \
+        [--doc docs/validity-colour-maps.md]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import re
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+
+import numpy as np
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+ROOT = os.path.dirname(HERE)
+STACK = os.path.join(HERE, "data", "rgb_stack")
+MEDIUM = os.path.join(HERE, "results", "rgb_medium.json")
+JSON = os.path.join(HERE, "results", "rgb_maps.json")
+sys.path.insert(0, os.path.join(ROOT, "benchmarks"))
+CHANNELS = ("r", "g", "b")
+
+
+def channel_medium(medium: str, channel: str) -> list[str]:
+    """The --medium options of one channel of a step-1 result fitted over channels: its
+    forward-series parameters as a literal list (TAU,OMEGA,G,ETA_U,S) and its options."""
+    from veil.fitting import FitResult
+
+    res = FitResult.from_json(medium)
+    model = res.as_model(channel=channel)
+    values = ",".join(f"{getattr(model, p.name):.6g}" for p in type(model).PARAMS)
+    opts = []
+    for name, value in (res.options or {}).items():
+        if value is not None:
+            opts += [
+                f"--{name.replace('_', '-')}",
+                f"{value:g}" if isinstance(value, float) else str(value),
+            ]
+    return ["--medium", values, "--medium-model", res.model, *opts]
+
+
+def command(
+    truth: dict, medium: str, out: str, rel: float, extra: list[str], channel: str = "rgb"
+) -> list[str]:
+    med = ["--medium", medium] if channel == "rgb" else channel_medium(medium, channel)
+    return [
+        "fit",
+        "maps",
+        os.path.join(STACK, "photos"),
+        "--manifest",
+        os.path.join(STACK, "manifest.csv"),
+        *med,
+        "--black-photos",
+        os.path.join(STACK, "black"),
+        "--channel",
+        channel,
+        "--near-field",
+        "--camera-distance",
+        f"{truth['camera_distance_cm']:g}",
+        "--pixel-pitch",
+        f"{truth['pixel_pitch_cm']:g}",
+        "--brdf-model",
+        "rough-plastic",
+        "--fix",
+        f"eta={truth['eta']:.6g}",
+        "--fix",
+        f"ks={truth['ks']:g}",
+        "--noise",
+        f"{rel:.4g}",
+        *extra,
+        "-o",
+        out,
+    ]
+
+
+def shown(args: list[str]) -> str:
+    return " ".join(
+        ["veil"]
+        + [os.path.relpath(a, ROOT) if os.path.isabs(a) and a.startswith(ROOT) else a for a in args]
+    )
+
+
+def run_maps(args: list[str]) -> tuple[int, float, str]:
+    code = (
+        "import sys; from veil.cli import main; sys.argv = ['veil'] + sys.argv[1:]; "
+        "sys.exit(main())"
+    )
+    t0 = time.perf_counter()
+    proc = subprocess.run([sys.executable, "-c", code, *args], capture_output=True, text=True)
+    seconds = time.perf_counter() - t0
+    sys.stderr.write(proc.stderr[-6000:])
+    if proc.returncode not in (0, 1):
+        raise SystemExit(f"rgb_maps: veil fit maps exited {proc.returncode}")
+    return proc.returncode, seconds, proc.stderr
+
+
+def compare(store: str, truth: dict, channel: str = "rgb") -> dict:
+    import veil
+
+    maps = veil.open_maps(store)
+    names = list(maps["info"]["params"])
+    status = np.asarray(maps["status"])
+    ok = status == 0
+    size = truth["size"]
+    c = size / 2
+    y, x = np.mgrid[0:size, 0:size]
+    radius = np.hypot(x + 0.5 - c, y + 0.5 - c) * truth["pixel_pitch_cm"]
+    rings = [(0.0, 1.0), (1.0, 2.0), (2.0, 4.0)]
+
+    def one(label, est, se, true):
+        est, se, true = (np.asarray(a, dtype=float) for a in (est, se, true))
+        good = ok & (se > 0)
+        z = (est - true) / np.where(good, se, 1.0)
+        rec = {
+            "param": label,
+            "pixels": int(good.sum()),
+            "within_3se": float(np.mean(np.abs(z[good]) <= 3)) if good.any() else math.nan,
+            "within_2se": float(np.mean(np.abs(z[good]) <= 2)) if good.any() else math.nan,
+            "z_mean": float(np.mean(z[good])),
+            "z_sd": float(np.std(z[good])),
+            "median_rel_error": float(np.median(np.abs(est[good] / true[good] - 1))),
+            "median_rel_se": float(np.median(se[good] / true[good])),
+            "by_ring": [],
+        }
+        for lo, hi in rings:
+            m = good & (radius >= lo) & (radius < hi)
+            if m.any():
+                rec["by_ring"].append(
+                    {
+                        "ring_cm": [lo, hi],
+                        "pixels": int(m.sum()),
+                        "within_3se": float(np.mean(np.abs(z[m]) <= 3)),
+                        "z_mean": float(np.mean(z[m])),
+                    }
+                )
+        return rec
+
+    rows = []
+    info = maps["info"]
+    for ch in CHANNELS if channel == "rgb" else (channel,):
+        if channel != "rgb":  # a map of one channel: rho is its albedo
+            k = names.index("rho")
+            est, se = maps["params"][k], maps["stderr"][k]
+        elif "channel_params" in maps:  # (Q, C, H, W): per-channel parameters
+            q, c = list(info["channel_params"]).index("rho"), list(info["channels"]).index(ch)
+            est, se = maps["channel_params"][q, c], maps["channel_stderr"][q, c]
+        else:  # names like rho[r] in params
+            k = names.index(next(n for n in names if re.fullmatch(rf"rho\[{ch}\]", n)))
+            est, se = maps["params"][k], maps["stderr"][k]
+        rows.append(one(f"rho[{ch}]", est, se, np.asarray(truth["rho"][ch])))
+        tile = np.asarray(truth["tile"])
+        rt = np.asarray(truth["rho"][ch])
+        rows[-1]["_ratio_by_tile"] = {
+            int(t): float(np.median(np.asarray(est)[ok & (tile == t)] / rt[ok & (tile == t)]))
+            if (ok & (tile == t)).any()
+            else math.nan
+            for t in np.unique(tile)
+        }
+    # per tile: the medians of estimate / truth over its converged pixels
+    tile = np.asarray(truth["tile"])
+    k = names.index("alpha")
+    tiles = []
+    for t in (int(t) for t in np.unique(tile)):
+        m = ok & (tile == t)
+        rec = {
+            "tile": t,
+            "alpha_true": float(np.asarray(truth["alpha"])[tile == t][0]),
+            "alpha_ratio": float(np.median(maps["params"][k][m] / np.asarray(truth["alpha"])[m]))
+            if m.any()
+            else math.nan,
+        }
+        for r in rows:
+            ch = r["param"][4]
+            rt = np.asarray(truth["rho"][ch])
+            rec[f"rho_true[{ch}]"] = float(rt[tile == t][0])
+            rec[f"rho_ratio[{ch}]"] = r["_ratio_by_tile"][t]
+        tiles.append(rec)
+    for r in rows:
+        del r["_ratio_by_tile"]
+    rows.append(
+        one(
+            "alpha" if channel == "rgb" else f"alpha ({channel} alone)",
+            maps["params"][k],
+            maps["stderr"][k],
+            np.asarray(truth["alpha"]),
+        )
+    )
+    chi2 = np.asarray(maps["chi2_reduced"])[ok]
+    return {
+        "rows": rows,
+        "tiles": tiles,
+        "params": names,
+        "converged": int(ok.sum()),
+        "pixels": int(status.size),
+        "status_counts": {int(s): int((status == s).sum()) for s in np.unique(status)},
+        "chi2_median": float(np.median(chi2)) if chi2.size else math.nan,
+    }
+
+
+def _pct(x, d=0):
+    return "-" if x is None or (isinstance(x, float) and math.isnan(x)) else f"{100 * x:.{d}f} %"
+
+
+def table(res: dict) -> str:
+    from doc_tables import markdown
+
+    rows = []
+    for r in res["rows"]:
+        rings = ", ".join(
+            f"{g['ring_cm'][0]:g}-{g['ring_cm'][1]:g} cm: {_pct(g['within_3se'])} "
+            f"({g['z_mean']:+.2f})"
+            for g in r["by_ring"]
+        )
+        rows.append(
+            [
+                r["param"],
+                str(r["pixels"]),
+                f"**{_pct(r['within_3se'], 1)}**",
+                _pct(r["within_2se"], 1),
+                f"{r['z_mean']:+.2f}, {r['z_sd']:.2f}",
+                _pct(r["median_rel_error"], 1),
+                _pct(r["median_rel_se"], 1),
+                rings,
+            ]
+        )
+    return markdown(
+        [
+            "parameter",
+            "converged pixels",
+            "within 3 se",
+            "within 2 se",
+            "error / se: mean, sd",
+            "median \\|relative error\\|",
+            "median relative se",
+            "within 3 se (mean error / se) by distance from the centre",
+        ],
+        rows,
+        {1, 2, 3, 5, 6},
+    )
+
+
+def tile_table(res: dict) -> str:
+    """Per tile: the truth and the median estimate / truth of every parameter mapped."""
+    from doc_tables import markdown
+
+    tiles = res.get("tiles") or []
+    if not tiles:
+        return ""
+    rho_keys = sorted(
+        (k for k in tiles[0] if k.startswith("rho_true[")),
+        key=lambda k: CHANNELS.index(k[len("rho_true[") : -1]),
+    )
+    chans = [k[len("rho_true[") : -1] for k in rho_keys]
+    alpha_keys = [k for k in tiles[0] if k.startswith("alpha_ratio")]
+    head = (
+        ["tile (row, column)", "rho true (" + ", ".join(chans) + ")"]
+        + [f"rho[{c}] estimate / true" for c in chans]
+        + ["alpha true"]
+        + [k.replace("alpha_ratio", "alpha estimate / true") for k in alpha_keys]
+    )
+    n = int(round(len(tiles) ** 0.5))
+    rows = [
+        [f"({t['tile'] // n}, {t['tile'] % n})", ", ".join(f"{t[k]:.2f}" for k in rho_keys)]
+        + [f"{t[f'rho_ratio[{c}]']:.3f}" for c in chans]
+        + [f"{t['alpha_true']:.2f}"]
+        + [f"{t[k]:.3f}" for k in alpha_keys]
+        for t in tiles
+    ]
+    return markdown(head, rows, set(range(2, len(head))))
+
+
+def summary(res: dict) -> list[str]:
+    bad = [r["param"] for r in res["rows"] if not r["within_3se"] >= 0.95]
+    chi2 = ", ".join(f"{c:.2f}" for c in res["chi2_median"])
+    return [
+        f"- {res['converged']} of {res['pixels']} pixel fits converged (status counts "
+        f"{res['status_counts']}); reduced chi-square median {chi2}",
+        "- within 3 standard errors on at least 95 % of the converged pixels: "
+        + ("every parameter" if not bad else "not " + ", ".join(bad)),
+        f"- `veil fit maps` took {res['seconds']:.0f} s wall (exit status {res['exit']})",
+    ]
+
+
+def main(argv=None) -> int:
+    global STACK
+    import bench_validity as bv
+
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--medium", default=MEDIUM, help="the medium (default: %(default)s)")
+    ap.add_argument("--json", default=JSON)
+    ap.add_argument("--keep", default=None, metavar="DIR", help="write the store here")
+    ap.add_argument("--table-only", action="store_true", help="run nothing: the table of --json")
+    ap.add_argument(
+        "--per-channel",
+        action="store_true",
+        help="three maps of one channel each (--channel r, g, b), each through its "
+        "channel's medium, instead of one --channel rgb map; json "
+        "results/rgb_maps_per_channel.json, table colour-maps-per-channel",
+    )
+    ap.add_argument(
+        "--stack", default=None, help=f"the photo stack (default {os.path.relpath(STACK, ROOT)})"
+    )
+    ap.add_argument(
+        "--channels",
+        default="r,g,b",
+        help="with --per-channel: the channels to map (default %(default)s)",
+    )
+    ap.add_argument("extra", nargs="*", help="more options for veil fit maps (after --)")
+    bv.add_doc_options(ap, "colour-maps")
+    args = ap.parse_args(argv)
+    if args.stack:
+        STACK = os.path.abspath(args.stack)
+    if args.per_channel:
+        args.json = args.json if args.json != JSON else JSON.replace(".json", "_per_channel.json")
+        args.doc_table = (
+            "colour-maps-per-channel" if args.doc_table == "colour-maps" else args.doc_table
+        )
+    with open(os.path.join(STACK, "truth.json")) as f:
+        truth = json.load(f)
+    if args.table_only:
+        with open(args.json) as f:
+            res = json.load(f)
+    else:
+        noise = truth["render"]["relative_standard_error_after_black"]
+        res = {
+            "rows": [],
+            "tiles": [],
+            "noise_rel": {},
+            "converged": 0,
+            "pixels": 0,
+            "status_counts": {},
+            "seconds": 0.0,
+            "exit": 0,
+            "commands": [],
+            "chi2_median": [],
+        }
+        with tempfile.TemporaryDirectory() as tmp:
+            work = args.keep or tmp
+            for channel in args.channels.split(",") if args.per_channel else ("rgb",):
+                os.makedirs(os.path.join(work, channel), exist_ok=True)
+                store = os.path.join(work, channel, "maps.zarr")
+                shutil.rmtree(store, ignore_errors=True)  # this script's own, of an earlier run
+                # the render's noise: over every channel for --channel rgb (one --noise),
+                # the channel's own for a map of one channel
+                rel = noise["all" if channel == "rgb" else channel]["median"]
+                res["noise_rel"][channel] = rel
+                cmd = command(truth, os.path.abspath(args.medium), store, rel, args.extra, channel)
+                code, seconds, _ = run_maps(cmd)
+                one = compare(store, truth, channel)
+                res["rows"] += one["rows"]
+                for t, rec in enumerate(one["tiles"]):
+                    if len(res["tiles"]) <= t:
+                        res["tiles"].append({"tile": t, "alpha_true": rec["alpha_true"]})
+                    res["tiles"][t].update({k: v for k, v in rec.items() if k.startswith("rho_")})
+                    res["tiles"][t][f"alpha_ratio ({channel})"] = rec["alpha_ratio"]
+                res["converged"] += one["converged"]
+                res["pixels"] += one["pixels"]
+                for k, v in one["status_counts"].items():
+                    res["status_counts"][k] = res["status_counts"].get(k, 0) + v
+                res["chi2_median"].append(one["chi2_median"])
+                res["seconds"] += seconds
+                res["exit"] = max(res["exit"], code)
+                res["commands"].append(shown(cmd).replace(work, "OUT"))
+        res.update(load_after=list(os.getloadavg()))
+        from veil.io import write_text_atomic
+
+        os.makedirs(os.path.dirname(os.path.abspath(args.json)), exist_ok=True)
+        write_text_atomic(args.json, json.dumps(res, indent=1, default=float) + "\n")
+    text = table(res)
+    tt = tile_table(res)
+    if tt:
+        text += "\n\nPer tile, the median over its converged pixels:\n\n" + tt
+    notes = summary(res)
+    print(text + "\n\n" + "\n".join(notes))
+    if args.doc:
+        from doc_tables import write
+
+        cmds = "\n".join(f"    {c}" for c in res["commands"])
+        write(
+            args.doc,
+            args.doc_table,
+            "The maps (REL of `--noise` the render's median relative standard error "
+            "after the black photo's subtraction, "
+            + ", ".join(f"{c} {v:.4g}" for c, v in res["noise_rel"].items())
+            + f"):\n\n{cmds}\n\n"
+            f"Load average (1 min) after them: {res['load_after'][0]:.1f}.\n\n"
+            + text
+            + "\n\n"
+            + "\n".join(notes),
+        )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
