@@ -110,6 +110,24 @@ def test_page_shape(page):
     for line in text.splitlines():
         if line.startswith("#"):
             assert not re.search(r"\b20\d\d-\d\d-\d\d\b|\bissue \d+|\bsession\)", line), line
+    levels = heading_levels(text)
+    jumps = [(a, b) for a, b in zip(levels, levels[1:]) if b > a + 1]
+    assert not jumps, f"{page.name}: a heading level skipped (Sphinx's -W fails): {jumps}"
+
+
+def heading_levels(text: str) -> list[int]:
+    """The levels of the Markdown headings outside fenced code blocks."""
+    levels, fenced = [], False
+    for line in text.splitlines():
+        if line.startswith("```"):
+            fenced = not fenced
+        elif not fenced and (m := re.match(r"(#+) ", line)):
+            levels.append(len(m.group(1)))
+    return levels
+
+
+def test_a_skipped_heading_level_is_found():
+    assert heading_levels("# A\n```\n# code\n```\n### C\n## D\n") == [1, 3, 2]
 
 
 def test_readme_is_short():
