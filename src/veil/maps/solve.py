@@ -373,7 +373,7 @@ def solve_pixels(
     return _physical(tables, out, status)
 
 
-def pixel_coords(tables: MapTables, pixels, count: int):
+def pixel_coords(tables: MapTables, pixels, count: int) -> np.ndarray | None:
     """The field-grid coordinates (N, 2) of ``pixels`` (x (N,), y (N,)) of the full photo
     for near-field tables (a FitError without them, or with another number than ``count``);
     None for distant tables."""

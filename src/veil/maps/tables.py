@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import hashlib
 import itertools
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -260,7 +261,7 @@ def engine_key(medium) -> tuple:
     return (type(medium).NAME, repr(sorted(medium.options().items())), v.tobytes())
 
 
-def column_source(u: _Unknowns, medium, angles, accuracy: str):
+def column_source(u: _Unknowns, medium, angles, accuracy: str) -> Callable[[Any], np.ndarray]:
     """The function of a BRDF vector giving the basis columns at ``angles``: (M, q + 1)
     through ``medium``, a medium model; (C, M, q + 1) through each of ``medium`` {channel:
     medium model} in its order, the engine evaluated once per group of channels whose media
@@ -346,17 +347,15 @@ def _to_coef(values, axes_first: int, count: int):
     return values
 
 
-def coef_by_channel(values, axes_first: int, count: int, channels: int):
+def coef_by_channel(values, axes_first: int, count: int, channels: int) -> np.ndarray:
     """:func:`_to_coef` of ``values`` whose third last axis is ``channels`` channels
     (tables over channels), channel by channel: each channel's coefficients bit for bit
     those of its tables alone; of ``values`` of one channel (``channels`` 0) as they are."""
     if not channels:
         return _to_coef(values, axes_first, count)
-    out = None
-    for k in range(channels):
-        one = _to_coef(values[..., k, :, :], axes_first, count)
-        if out is None:
-            out = np.empty(one.shape[:-2] + (channels,) + one.shape[-2:])
+    parts = [_to_coef(values[..., k, :, :], axes_first, count) for k in range(channels)]
+    out = np.empty(parts[0].shape[:-2] + (channels,) + parts[0].shape[-2:])
+    for k, one in enumerate(parts):
         out[..., k, :, :] = one
     return out
 
@@ -406,7 +405,9 @@ class _Unknowns:
     known_weight: Any
 
 
-def build_near(brdf_cls, medium, angles, unknowns: _Unknowns, accuracy, progress, near, roi):
+def build_near(
+    brdf_cls, medium, angles, unknowns: _Unknowns, accuracy, progress, near, roi
+) -> tuple:
     """Near-field tables' (values, coefficients, field grid, interpolation error): the
     columns at every node of a grid of plate points and of the nonlinear axes, with the
     pixel's own angles (docs/maps-geometry.md "Geometry"); the field interpolation checked
