@@ -1,7 +1,8 @@
 """The tables of a per-pixel fit (docs/maps.md): the basis columns of the apparent value at
 every node of the grid of the free nonlinear parameters, built once per acquisition through
 the engine, and their B-spline coefficients; near-field tables add two axes of plate points
-(docs/maps-geometry.md "Geometry")."""
+(docs/maps-geometry.md "Geometry"), tables over channels one of channels (docs/maps-channels.md):
+:func:`tabulate` builds all four kinds."""
 
 from __future__ import annotations
 
@@ -55,7 +56,8 @@ class MapTables:
     #: Then ``values`` and ``coef`` have a channel axis before the configurations'
     #: ((K_1, ..., K_d, C, M, q + 1)): each channel's columns through its own medium, the
     #: free scales per channel (``free_scales`` are then each channel's) and the nonlinear
-    #: axes shared.
+    #: axes shared; near-field tables over channels have the two field axes first
+    #: ((Kx, Ky, K_1, ..., K_d, C, M, q + 1)).
     channels: tuple = ()
 
     @property
