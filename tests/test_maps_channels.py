@@ -310,10 +310,11 @@ def test_bad_input_exits_2_naming_what_and_writes_nothing(rgb_stack, tmp_path):
                         tmp_path / "one.json"))
     assert bad.exit_code == 2 and "a fit of one channel" in bad.output, bad.output
 
-    # near field takes one channel
-    bad = run(*fit_args(root, manifest, out, "--channel", "rgb", "--camera-distance", 1000,
-                        "--pixel-pitch", 0.5, "--near-field"))
-    assert bad.exit_code == 2 and "one channel" in bad.output, bad.output
+    # near field over channels checks its geometry as over one: a camera so close that a
+    # pixel sees it beyond 89 deg from the normal
+    bad = run(*fit_args(root, manifest, out, "--channel", "rgb", "--camera-distance", 0.5,
+                        "--pixel-pitch", 1, "--near-field"))
+    assert bad.exit_code == 2 and "larger than the plate allows" in bad.output, bad.output
     assert not out.exists() and sorted(p.name for p in tmp_path.iterdir()) == [
         "grey", "one.json", "rg.json"]
 

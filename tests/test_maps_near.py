@@ -2,7 +2,8 @@
 camera at a finite distance, tabulated over a grid of plate points. The geometry by hand,
 the interpolated columns against the engine at each pixel's exact angles, a plate
 photographed from close by recovered with the option while the distant approximation is
-biased, the option at a very large distance equal to the distant maps, and bad input."""
+biased, the option at a very large distance equal to the distant maps, bad input, and a
+map of r, g, b at once with per-pixel angles."""
 
 from __future__ import annotations
 
@@ -11,12 +12,22 @@ import math
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
+import tifffile
 
 import veil
 from support.cli import run
-from support.maps import angles_of, configurations, render, render_near, write_photos
+from support.maps import (
+    angles_of,
+    configurations,
+    render,
+    render_near,
+    write_colour_stack,
+    write_photos,
+)
 from veil.data.ingest import ROI
+from veil.maps.channels import build_channel_tables
 from veil.maps.near import NearGeometry
 from veil.maps.solve import CONVERGED, solve_pixels
 from veil.maps.store import open_maps
@@ -261,3 +272,121 @@ def test_near_field_family_without_a_nonlinear_parameter(monkeypatch):
     fits = solve_pixels(tables, y, np.ones_like(y, dtype=bool), pixels=(xs, ys))
     assert np.all(fits.status == CONVERGED)
     assert np.all(np.abs(fits.params[0] - truth) < 4 * fits.stderr[0])
+
+
+# --------------------------------------------------------------------------------------
+# (e) several channels at once: every channel of a pixel at the pixel's own angles, each
+# through its channel's medium
+# --------------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def near_rgb(tmp_path_factory):
+    """RGB photos of the two materials of ``near_photos`` with per-channel scales (a bluish
+    albedo, a less coloured specular scale), each channel through its medium, every pixel
+    at its exact angles, 1 % noise; the medium fitted over r, g, b as a result file."""
+    from test_maps_channels import ALBEDO, SPECULAR, _medium, medium_result
+
+    root = tmp_path_factory.mktemp("near-rgb")
+    v = BRDF.to_vector()
+    base = np.repeat(v[:, None, None], H, 1).repeat(W, 2).copy()
+    base[2, :, W // 2:] = 1.1
+    base[1, :, W // 2:] *= 1.5
+    truth = {}
+    for c in "rgb":
+        truth[c] = base.copy()
+        truth[c][0] *= ALBEDO[c]
+        truth[c][1] *= SPECULAR[c]
+    media = {c: _medium(c) for c in "rgb"}
+    configs = configurations(16)
+    manifest = write_colour_stack(root / "photos", BRDF, media, configs, truth, seed=7,
+                                  geometry=NearGeometry(DISTANCE, PITCH, (H, W)))
+    medium_result().to_json(root / "medium.json")
+    return root, manifest, truth, media, configs
+
+
+def rgb_args(root, manifest, out, *extra):
+    args = fit_args(root, manifest, out, "--channel", "rgb", *extra)
+    args[args.index("--medium") + 1] = root / "medium.json"
+    return args
+
+
+def test_near_field_tables_over_channels_are_each_channels_own(near_rgb):
+    """Near-field tables over r, g, b hold, channel by channel, bit for bit the near-field
+    tables of that channel's medium alone (the same field grid, values, coefficients)."""
+    _, _, _, media, configs = near_rgb
+    angles = angles_of(configs)
+    g, roi = NearGeometry(DISTANCE, PITCH, (H, W)), ROI(0, 0, W, H)
+    kw = dict(fixed=FIX, grid={SHAPE: (0.25, 2.5, 8)}, accuracy="fast")
+    tables = build_channel_tables(CLS, media, angles, near=g, roi=roi, **kw)
+    assert tables.channels == ("r", "g", "b")
+    assert tables.values.shape == tables.near.shape + (8, 3, 16, 3)
+    assert 0 < tables.field_error < FIELD_TOL
+    for k, c in ((0, "r"), (2, "b")):
+        alone = build_tables(CLS, media[c], angles, near=g, roi=roi, **kw)
+        assert alone.near == tables.near
+        assert np.array_equal(tables.values[..., k, :, :], alone.values), c
+        assert np.array_equal(tables.coef[..., k, :, :], alone.coef), c
+    assert not np.array_equal(tables.values[..., 0, :, :], tables.values[..., 2, :, :])
+
+
+def test_near_field_rgb_map_recovered_and_biased_without(near_rgb, tmp_path):
+    """``--channel rgb --near-field``: every channel's Pd and Ps and the shared n within
+    their standard errors (z ~ N(0, 1)); each pixel's scales are, channel by channel, the
+    exact weighted least-squares optimum of the columns at its own position at its n (and
+    not of those of the mirrored pixel); the same stack mapped at the manifest's angles is
+    biased as one channel is."""
+    root, manifest, truth, media, configs = near_rgb
+    out = tmp_path / "near.zarr"
+    result = run(*rgb_args(root, manifest, out, "--near-field", "--camera-distance", DISTANCE,
+                           "--pixel-pitch", PITCH))
+    assert result.exit_code == 0, result.output
+    assert "near field" in result.output and "channels r, g, b" in result.output
+    maps = open_maps(out)
+    info = maps["info"]
+    assert info["channels"] == ["r", "g", "b"] and info["geometry"]["kind"] == "near-field"
+    assert info["geometry"]["camera_distance"] == DISTANCE
+    ok = maps["status"] == CONVERGED
+    assert ok.all()
+    zs = {}
+    for k, c in enumerate("rgb"):
+        for j, name in enumerate(info["channel_params"]):
+            i = NAMES.index(name)
+            zs[f"{name}[{c}]"] = (maps["channel_params"][j, k] - truth[c][i]) / \
+                maps["channel_stderr"][j, k]
+    zs[SHAPE] = (maps["params"][0] - truth["r"][2]) / maps["stderr"][0]
+    for name, z in zs.items():
+        assert np.mean(np.abs(z) < 2) > 0.9, (name, np.abs(z).max())
+        assert abs(z.mean()) < 0.3 and 0.7 < z.std() < 1.3, (name, z.mean(), z.std())
+    assert 0.8 < np.median(maps["chi2_reduced"]) < 1.2
+
+    # the pixel's own columns: the tables the command built, rebuilt here
+    lo, hi, n = GRID
+    tables = build_channel_tables(CLS, media, angles_of(configs), near=NearGeometry(
+        DISTANCE, PITCH, (H, W)), roi=ROI(0, 0, W, H), fixed=FIX, grid={SHAPE: GRID},
+        accuracy="fast")
+    photos = np.stack([tifffile.imread(root / "photos" / f) for f in
+                       pd.read_csv(manifest)["file"]], axis=-1).astype(float)  # (H, W, 3, M)
+    for x, y in ((0, 0), (W - 1, 0), (2, H - 1), (11, 6)):
+        n_hat = maps["params"][0, y, x]
+        for px, want_equal in (((x, y), True), ((W - 1 - x, y), False)):
+            basis = tables.basis({SHAPE: n_hat}, pixel=px)  # (3, M, 3)
+            for k in range(3):
+                yk = photos[y, x, k]
+                w = 1 / (0.01 * yk)
+                s, *_ = np.linalg.lstsq(basis[k, :, :2] * w[:, None],
+                                        (yk - basis[k, :, 2]) * w, rcond=None)
+                got = maps["channel_params"][:, k, y, x]
+                if want_equal:
+                    np.testing.assert_allclose(got, s, rtol=1e-8)
+                else:
+                    assert np.max(np.abs(got / s - 1)) > 1e-4
+
+    # the distant approximation: the shared n biased by several standard errors
+    far = tmp_path / "far.zarr"
+    result = run(*rgb_args(root, manifest, far, "--camera-distance", DISTANCE, "--pixel-pitch",
+                           PITCH))
+    assert result.exit_code == 0 and "--near-field" in result.output, result.output
+    fmaps = open_maps(far)
+    fok = fmaps["status"] == CONVERGED
+    fz = ((fmaps["params"][0] - truth["r"][2]) / fmaps["stderr"][0])[fok]
+    assert np.median(fmaps["chi2_reduced"][fok]) > 10
+    assert abs(fz.mean()) > 3, fz.mean()

@@ -76,16 +76,18 @@ def render_near(
 
 
 def write_colour_stack(
-    folder, brdf, media: dict, configs, param_maps: dict, noise=0.01, seed=0
+    folder, brdf, media: dict, configs, param_maps: dict, noise=0.01, seed=0, geometry=None
 ) -> Path:
     """RGB photos (float32 TIFFs, one per configuration) of a plate whose BRDF vector at
     each pixel is ``param_maps[c]`` (n_params, H, W) in channel c of r, g, b, seen through
-    ``media[c]``; relative Gaussian noise. Returns the manifest path."""
+    ``media[c]``; relative Gaussian noise. ``geometry`` (a NearGeometry): every pixel at
+    its own exact angles (:func:`render_near`). Returns the manifest path."""
     n, h, w = param_maps["r"].shape
-    values = np.stack(
-        [render(brdf, media[c], configs, param_maps[c].reshape(n, -1).T) for c in "rgb"],
-        axis=-1,
-    )  # (H*W, M, 3)
+    if geometry is None:
+        parts = [render(brdf, media[c], configs, param_maps[c].reshape(n, -1).T) for c in "rgb"]
+    else:
+        parts = [render_near(brdf, media[c], configs, param_maps[c], geometry) for c in "rgb"]
+    values = np.stack(parts, axis=-1)  # (H*W, M, 3)
     return write_photos(folder, configs, values, (h, w), noise, seed)
 
 

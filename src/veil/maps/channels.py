@@ -15,25 +15,13 @@ scales (the paper medium's T_d and T_t) share one engine evaluation per node of 
 
 from __future__ import annotations
 
-import time
 from typing import Any, cast
 
-import numpy as np
-
 from ..data.ingest_channels import ALL_RGB
-from ..engine.integrator import row_scales, unit_scale_indices
 from ..errors import FitError, InputError
-from ..models import Medium, Model
-from .grid import make_axes, parse_grid
+from ..models import Medium
 from .photos import stacked_channels
-from .tables import (
-    MapTables,
-    _nodes,
-    _template,
-    _to_coef,
-    _unknowns,
-    columns_of_terms,
-)
+from .tables import MapTables, tabulate
 
 
 def channel_media(medium, channels: tuple[str, ...]) -> dict[str, Medium]:
@@ -78,18 +66,6 @@ def map_media(medium, channel) -> tuple[Medium, dict[str, Medium] | None]:
     return cast(Medium, as_given(one_channel_medium(medium, channel), "medium", "the medium")), None
 
 
-def check_near(near, channel) -> Any:
-    """``near`` (the near-field geometry or None), which maps one channel: an InputError
-    for a map over channels."""
-    channels = stacked_channels(channel)
-    if near is not None and channels:
-        raise InputError(
-            f"near-field geometry maps one channel (--channel gray, r, g or b), not "
-            f"{', '.join(channels)} at once"
-        )
-    return near
-
-
 def check_family(brdf_cls, fixed: dict, freed: set) -> None:
     """A map over channels fits each channel's scales and shares the rest: a free parameter
     declared per channel that is not a scale (a conductor's complex index), or a scale
@@ -112,15 +88,6 @@ def check_family(brdf_cls, fixed: dict, freed: set) -> None:
             )
 
 
-def _engine_key(medium: Model) -> tuple:
-    """What a medium's term matrices depend on: its family, options and its vector with
-    the scales at 1."""
-    v = np.array(medium.to_vector(), dtype=float)
-    for i in unit_scale_indices(medium):
-        v[i] = 1.0
-    return (type(medium).NAME, repr(sorted(medium.options().items())), v.tobytes())
-
-
 def build_channel_tables(
     brdf_cls,
     media: dict[str, Medium],
@@ -132,60 +99,36 @@ def build_channel_tables(
     grid=None,
     accuracy: str = "default",
     progress=None,
+    near=None,
+    roi=None,
 ) -> MapTables:
     """The tables of a map over the channels of ``media`` ({channel: medium model}): as
     :func:`veil.maps.tables.build_tables`, with a channel axis before the configurations'
     (each channel through its medium); the engine runs once per node for every group of
-    channels whose media differ only in scales (module docstring)."""
-    from ..engine.evaluator import ApparentModel
-    from ..engine.quadrature import RULES
-
+    channels whose media differ only in scales (module docstring). ``near`` and ``roi``:
+    near-field tables as :func:`~veil.maps.tables.build_tables`', every channel at the
+    field nodes' angles (docs/maps-geometry.md "Geometry")."""
     fixed = dict(fixed or {})
-    freed = set(free or ())
-    check_family(brdf_cls, fixed, freed)
-    template, base = _template(brdf_cls, fixed, freed, options)
-    free_scales, nonlinear, free_parts, known_weight = _unknowns(brdf_cls, fixed, freed, base)
-    axes = make_axes(brdf_cls, nonlinear, parse_grid([], brdf_cls) | dict(grid or {}))
-    angles = tuple(np.ascontiguousarray(a, dtype=float) for a in angles)
-    channels = tuple(media)
-    groups: dict[tuple, list[str]] = {}
-    for c in channels:
-        groups.setdefault(_engine_key(media[c]), []).append(c)
-    engines = [
-        (ApparentModel(template, media[cs[0]], angles, RULES[accuracy]), cs)
-        for cs in groups.values()
-    ]
-    rows = {c: row_scales(type(media[c]), media[c].to_vector()) for c in channels}
-    shape = tuple(a.count for a in axes)
-    q = len(free_scales)
-    values = np.empty(shape + (len(channels), len(angles[0]), q + 1))
-    total = int(np.prod(shape)) if shape else 1
-    for done, (combo, vb) in enumerate(_nodes(axes, base)):
-        for engine, cs in engines:
-            terms = engine.terms(vb, media[cs[0]].to_vector())  # the scales at 1
-            for c in cs:
-                values[combo + (channels.index(c),)] = columns_of_terms(
-                    terms, rows[c], free_parts, known_weight, q
-                )
-        if progress is not None:
-            progress(done + 1, total)
-    coef = np.empty((tuple(k + 2 for k in shape)) + values.shape[len(shape) :])
-    for k in range(len(channels)):  # channel by channel: each bit for bit its own tables'
-        coef[(slice(None),) * len(shape) + (k,)] = _to_coef(values[..., k, :, :], 0, len(axes))
+    check_family(brdf_cls, fixed, set(free or ()))
+    entry = media_entry(media)
+    u, values, coef, angles, near_entries = tabulate(
+        brdf_cls, dict(media), angles, fixed, options, free, grid, accuracy, progress, near, roi
+    )
     return MapTables(
         brdf_cls.NAME,
-        dict(template.options()),
+        dict(u.template.options()),
         brdf_cls.param_names(),
-        base,
-        free_scales,
-        axes,
+        u.base,
+        u.free_scales,
+        u.axes,
         values,
         coef,
         fixed,
-        media_entry(media),
+        entry,
         accuracy,
         angles,
-        channels=channels,
+        channels=tuple(media),
+        **near_entries,
     )
 
 
@@ -206,33 +149,12 @@ def media_entry(media: dict[str, Medium]) -> dict[str, Any]:
     }
 
 
-def timed_channel_tables(
-    cls, media, acq, settings: dict, accuracy, progress, say, seconds
-) -> MapTables:
-    """:func:`build_channel_tables` of the acquisition's configurations, timed into
-    ``seconds["tables"]`` and described by ``say``."""
-    t0 = time.perf_counter()
-    tables = build_channel_tables(
-        cls,
-        media,
-        acq.angles,
-        accuracy=accuracy,
-        progress=(lambda d, t: progress("tables", d, t)) if progress else None,
-        **settings,
-    )
-    seconds["tables"] = time.perf_counter() - t0
-    say(f"tables: {tables.describe()} in {seconds['tables']:.1f} s")
-    return tables
-
-
 __all__ = [
     "ALL_RGB",
     "channel_media",
     "one_channel_medium",
     "map_media",
-    "check_near",
     "check_family",
     "build_channel_tables",
     "media_entry",
-    "timed_channel_tables",
 ]

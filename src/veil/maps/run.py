@@ -34,7 +34,7 @@ More arguments of :func:`fit_maps`:
   spread across the field and warn when it exceeds a fifth of the narrowest lobe.
 - ``near_field``: with ``geometry``, per-pixel angles (a pinhole camera at that distance
   from the plate centre, collimated light; docs/maps-geometry.md "Geometry") instead of the
-  manifest's angles at every pixel.
+  manifest's angles at every pixel, of one channel or of several.
 - ``progress(stage, done, total)``, ``log(message)``: reports.
 """
 
@@ -67,7 +67,7 @@ from ..io import (
     write_error,
     write_text_atomic,
 )
-from .channels import check_near, map_media, timed_channel_tables
+from .channels import build_channel_tables, map_media
 from .geometry_notes import (
     MapsWarning,
     geometry_notes,
@@ -231,7 +231,7 @@ def fit_maps(
         channel=channel,
         saturation=saturation,
     )
-    near = check_near(near_geometry(geometry, near_field, acq), channel)
+    near = near_geometry(geometry, near_field, acq)
     address = scheduler or os.environ.get(SCHEDULER_ENV) or None
     client = connect(address) if address else None
     try:
@@ -281,12 +281,9 @@ def _tables(
     """The tables of the photos' configurations (:func:`build_tables` with ``settings``;
     over channels ``medium_model`` is {channel: medium}, :func:`veil.maps.channels.
     build_channel_tables`), their time in ``seconds["tables"]``."""
-    if isinstance(medium_model, dict):
-        return timed_channel_tables(
-            cls, medium_model, acq, settings, accuracy, progress, say, seconds
-        )
+    build = build_channel_tables if isinstance(medium_model, dict) else build_tables
     t0 = time.perf_counter()
-    tables = build_tables(
+    tables = build(
         cls,
         medium_model,
         acq.angles,

@@ -366,17 +366,25 @@ def solve_pixels(
     clipped and masked ones False), ``noise`` None (unweighted) or (relative, absolute):
     sigma = sqrt((relative * value)^2 + absolute^2). Near-field tables need ``pixels``
     (x (N,), y (N,)): each pixel's position in the full photo."""
-    fu = None
-    if tables.near is not None:
-        if pixels is None:
-            raise FitError("near-field tables: give each pixel's position (pixels=(x, y))")
-        fu = tables.field_coords(*pixels)
-        if len(fu) != len(y):
-            raise FitError(f"{len(fu)} pixel positions for {len(y)} pixels")
+    fu = pixel_coords(tables, pixels, len(y))
     y, valid, w2 = weights(tables, y, valid, noise)
     out = _run(tables, y, w2, fu, noise is not None)
     status = _status(tables, out, y, valid)
     return _physical(tables, out, status)
+
+
+def pixel_coords(tables: MapTables, pixels, count: int) -> np.ndarray | None:
+    """The field-grid coordinates (N, 2) of ``pixels`` (x (N,), y (N,)) of the full photo
+    for near-field tables (a FitError without them, or with another number than ``count``);
+    None for distant tables."""
+    if tables.near is None:
+        return None
+    if pixels is None:
+        raise FitError("near-field tables: give each pixel's position (pixels=(x, y))")
+    fu = tables.field_coords(*pixels)
+    if len(fu) != count:
+        raise FitError(f"{len(fu)} pixel positions for {count} pixels")
+    return fu
 
 
 def weights(tables: MapTables, y, valid, noise) -> tuple:
@@ -526,6 +534,7 @@ __all__ = [
     "solve_pixels",
     "node_scales",
     "weights",
+    "pixel_coords",
     "warm_up",
     "PixelFits",
 ]

@@ -1,7 +1,8 @@
 """Per-pixel step 2 over several colour channels at once (docs/maps-channels.md): every
 pixel's channels one least-squares problem, the scales per channel and the nonlinear
 parameters (roughness, index) shared, against tables with a channel axis
-(:func:`veil.maps.channels.build_channel_tables`).
+(:func:`veil.maps.channels.build_channel_tables`), distant or near-field (each pixel at
+its own field coordinates, as the one-channel solve).
 
 The solve is :mod:`veil.maps.solve`'s, with the parameters (s_1, ..., s_C, theta): each
 channel's value is sum_k s_ck B_ck(theta) + C_c(theta), its rows of the Jacobian are
@@ -21,7 +22,16 @@ import numpy as np
 from .._jax import jax, jnp
 from ..errors import FitError
 from ..fitting import least_squares as lsq
-from .solve import _SOLVERS, _PixelSolver, _run, _status, node_scales, warm_up, weights
+from .solve import (
+    _SOLVERS,
+    _PixelSolver,
+    _run,
+    _status,
+    node_scales,
+    pixel_coords,
+    warm_up,
+    weights,
+)
 from .status import CONVERGED, FEW_POINTS, MASKED
 from .tables import MapTables
 
@@ -33,8 +43,10 @@ class _ChannelSolver(_PixelSolver):
     compact, (C * M, q + d): each row's derivatives by its own channel's scales and by the
     axes (the others are 0); the normal matrix is assembled from each channel's blocks."""
 
-    def __init__(self, channels: int, q: int, d: int, sizes: tuple, weighted: bool) -> None:
-        super().__init__(channels * q, d, sizes, weighted, False)
+    def __init__(
+        self, channels: int, q: int, d: int, sizes: tuple, weighted: bool, near: bool = False
+    ) -> None:
+        super().__init__(channels * q, d, sizes, weighted, near)
         self.channels, self.per = channels, q
 
     def combine(self, b, db, s):
@@ -87,11 +99,22 @@ class _ChannelSolver(_PixelSolver):
         return jnp.concatenate([s, u]), val, jac
 
     def node_stage(self, values, y, w2):
-        """Every node: each channel's scales by exact NNLS (:func:`veil.maps.solve.
-        node_scales`, the one-channel stage), the node of the least total cost, for a batch
-        of pixels (P, C * M): (s0 (P, C * q), u0 (P, d))."""
+        """Distant tables, every node: each channel's scales by exact NNLS
+        (:func:`veil.maps.solve.node_scales`, the one-channel stage), the node of the least
+        total cost, for a batch of pixels (P, C * M): (s0 (P, C * q), u0 (P, d))."""
+        return self.nodes_stage(values.reshape((-1,) + values.shape[self.d :]), y, w2)
+
+    def best_node(self, nodes, y, w2):
+        """Near-field tables, one pixel (C * M,) at the nodes (N, C, M, q + 1) of its
+        nearest field node: :meth:`nodes_stage` of that one pixel, (s0 (C * q,), u0 (d,))."""
+        s0, u0 = self.nodes_stage(nodes, y[None], w2[None])
+        return s0[0], u0[0]
+
+    def nodes_stage(self, nodes, y, w2):
+        """The best node of ``nodes`` (N, C, M, q + 1) for a batch of pixels (P, C * M):
+        (s0 (P, C * q), u0 (P, d))."""
         c, q, d = self.channels, self.per, self.d
-        nodes = jnp.moveaxis(values.reshape((-1,) + values.shape[d:]), 1, 0)  # (C, N, M, q+1)
+        nodes = jnp.moveaxis(nodes, 1, 0)  # (C, N, M, q+1)
         m = nodes.shape[2]
         yc = jnp.moveaxis(y.reshape(-1, c, m), 1, 0)
         wc = jnp.moveaxis(w2.reshape(-1, c, m), 1, 0)
@@ -117,9 +140,10 @@ def channel_solver(tables: MapTables, weighted: bool) -> tuple:
     ``tables`` over their channels, made once per shape."""
     c, q, d = len(tables.channels), len(tables.free_scales), len(tables.axes)
     sizes = tuple(a.count for a in tables.axes)
-    key = ("channels", c, q, d, sizes, weighted)
+    near = tables.near is not None
+    key = ("channels", c, q, d, sizes, weighted) + (("near",) if near else ())
     if key not in _SOLVERS:
-        solver = _ChannelSolver(c, q, d, sizes, weighted)
+        solver = _ChannelSolver(c, q, d, sizes, weighted, near)
         _SOLVERS[key] = (jax.jit(solver.batch), jax.jit(solver.resume))
     return _SOLVERS[key] + (c * q + d,)
 
@@ -149,14 +173,13 @@ class ChannelFits:
     iterations: np.ndarray
 
 
-def solve_channel_pixels(tables: MapTables, y, valid, noise=None) -> ChannelFits:
+def solve_channel_pixels(tables: MapTables, y, valid, noise=None, pixels=None) -> ChannelFits:
     """Fit every pixel in every channel at once: ``y`` (N, C, M) values in the tables'
-    channels, ``valid`` (N, C, M) usable samples, ``noise`` as
+    channels, ``valid`` (N, C, M) usable samples, ``noise`` and, for near-field tables,
+    ``pixels`` (each pixel's position in the full photo) as
     :func:`veil.maps.solve.solve_pixels`'."""
     if not tables.channels:
         raise FitError("tables of one channel: use veil.maps.solve.solve_pixels")
-    if tables.near is not None:
-        raise FitError("near-field tables take one channel")
     y = np.asarray(y, dtype=float)
     c = len(tables.channels)
     if y.ndim != 3 or y.shape[1] != c:
@@ -164,13 +187,12 @@ def solve_channel_pixels(tables: MapTables, y, valid, noise=None) -> ChannelFits
             f"values of shape {y.shape}: expected (pixels, {c} channels, configurations)"
         )
     n_pix = y.shape[0]
+    fu = pixel_coords(tables, pixels, n_pix)
     flat_y, flat_valid, w2 = weights(
         tables, y.reshape(n_pix * c, -1), np.asarray(valid).reshape(n_pix * c, -1), noise
     )
     flat_y, flat_valid, w2 = (a.reshape(n_pix, -1) for a in (flat_y, flat_valid, w2))
-    out = _run(
-        tables, flat_y, w2, None, noise is not None, channel_solver(tables, noise is not None)
-    )
+    out = _run(tables, flat_y, w2, fu, noise is not None, channel_solver(tables, noise is not None))
     q = c * len(tables.free_scales)
     status = _status(tables, out, flat_y, flat_valid, q)
     return _physical_channels(tables, out, status)

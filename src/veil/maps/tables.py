@@ -1,18 +1,20 @@
 """The tables of a per-pixel fit (docs/maps.md): the basis columns of the apparent value at
 every node of the grid of the free nonlinear parameters, built once per acquisition through
 the engine, and their B-spline coefficients; near-field tables add two axes of plate points
-(docs/maps-geometry.md "Geometry")."""
+(docs/maps-geometry.md "Geometry"), tables over channels one of channels (docs/maps-channels.md):
+:func:`tabulate` builds all four kinds."""
 
 from __future__ import annotations
 
 import hashlib
 import itertools
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ..engine.integrator import BRDF_PARTS, row_scales
+from ..engine.integrator import BRDF_PARTS, row_scales, unit_scale_indices
 from ..errors import FitError
 from .grid import _jnp, bspline_inverse, field_block, interp, interp_near, make_axes, parse_grid
 
@@ -54,7 +56,8 @@ class MapTables:
     #: Then ``values`` and ``coef`` have a channel axis before the configurations'
     #: ((K_1, ..., K_d, C, M, q + 1)): each channel's columns through its own medium, the
     #: free scales per channel (``free_scales`` are then each channel's) and the nonlinear
-    #: axes shared.
+    #: axes shared; near-field tables over channels have the two field axes first
+    #: ((Kx, Ky, K_1, ..., K_d, C, M, q + 1)).
     channels: tuple = ()
 
     @property
@@ -210,34 +213,90 @@ def build_tables(
     after each node. ``near`` (a :class:`veil.maps.near.NearGeometry`) with
     ``roi`` (x, y, w, h of the photo): near-field tables over a grid of plate points
     (:func:`veil.maps.near.field_grid`, docs/maps-geometry.md "Geometry")."""
-    from ..engine.evaluator import ApparentModel
-    from ..engine.quadrature import RULES
-
     fixed = dict(fixed or {})
+    u, values, coef, angles, near_entries = tabulate(
+        brdf_cls, medium, angles, fixed, options, free, grid, accuracy, progress, near, roi
+    )
+    return _tables(brdf_cls, u, medium, values, coef, fixed, accuracy, angles, **near_entries)
+
+
+def tabulate(
+    brdf_cls, medium, angles, fixed: dict, options, free, grid, accuracy, progress, near, roi
+) -> tuple:
+    """What :func:`build_tables` tabulates: (the unknowns, the node values, their
+    coefficients, the angles as float arrays, {"near": the field grid, "field_error": its
+    error} of near-field tables or {}). ``medium``: a medium model, or {channel: medium
+    model} (:func:`veil.maps.channels.build_channel_tables`: a channel axis before the
+    configurations', each channel's columns and coefficients bit for bit its own tables')."""
     freed = set(free or ())
     names = brdf_cls.param_names()
     template, base = _template(brdf_cls, fixed, freed, options)
     free_scales, nonlinear, free_parts, known_weight = _unknowns(brdf_cls, fixed, freed, base)
     axes = make_axes(brdf_cls, nonlinear, parse_grid([], brdf_cls) | dict(grid or {}))
     angles = tuple(np.ascontiguousarray(a, dtype=float) for a in angles)
+    u = _Unknowns(template, names, base, free_scales, axes, free_parts, known_weight)
     if near is not None:
-        unknowns = _Unknowns(template, names, base, free_scales, axes, free_parts, known_weight)
-        return _build_near(brdf_cls, medium, angles, unknowns, fixed, accuracy, progress, near, roi)
-    engine = ApparentModel(template, medium, angles, RULES[accuracy])
-    vm = medium.to_vector()
-    rows = row_scales(type(medium), vm)
+        values, coef, fgrid, error = build_near(
+            brdf_cls, medium, angles, u, accuracy, progress, near, roi
+        )
+        return u, values, coef, angles, {"near": fgrid, "field_error": error}
+    columns = column_source(u, medium, angles, accuracy)
+    channels = len(medium) if isinstance(medium, dict) else 0
     shape = tuple(a.count for a in axes)
-    q = len(free_scales)
-    values = np.empty(shape + (len(angles[0]), q + 1))
+    lead = (channels,) if channels else ()  # the channel axis, before the configurations'
+    values = np.empty(shape + lead + (len(angles[0]), len(free_scales) + 1))
+    total = int(np.prod(shape)) if shape else 1
     for done, (combo, vb) in enumerate(_nodes(axes, base)):
-        values[combo] = _columns(engine, vb, vm, rows, free_parts, known_weight, q)
+        values[combo] = columns(vb)
         if progress is not None:
-            progress(done + 1, int(np.prod(shape)) if shape else 1)
-    coef = _to_coef(values, 0, len(axes))
-    unknowns = _Unknowns(template, names, base, free_scales, axes, free_parts, known_weight)
-    return _tables(
-        brdf_cls, unknowns, medium, values, np.ascontiguousarray(coef), fixed, accuracy, angles
-    )
+            progress(done + 1, total)
+    coef = np.ascontiguousarray(coef_by_channel(values, 0, len(axes), channels))
+    return u, values, coef, angles, {}
+
+
+def engine_key(medium) -> tuple:
+    """What a medium's term matrices depend on: its family, options and its vector with
+    the scales at 1 (media of the same key differ only in their row weights)."""
+    v = np.array(medium.to_vector(), dtype=float)
+    for i in unit_scale_indices(medium):
+        v[i] = 1.0
+    return (type(medium).NAME, repr(sorted(medium.options().items())), v.tobytes())
+
+
+def column_source(u: _Unknowns, medium, angles, accuracy: str) -> Callable[[Any], np.ndarray]:
+    """The function of a BRDF vector giving the basis columns at ``angles``: (M, q + 1)
+    through ``medium``, a medium model; (C, M, q + 1) through each of ``medium`` {channel:
+    medium model} in its order, the engine evaluated once per group of channels whose media
+    differ only in scales (their term matrices are the same, :func:`engine_key`), each
+    channel's columns bit for bit those of its medium alone."""
+    from ..engine.evaluator import ApparentModel
+    from ..engine.quadrature import RULES
+
+    q = len(u.free_scales)
+    if not isinstance(medium, dict):
+        engine = ApparentModel(u.template, medium, angles, RULES[accuracy])
+        vm = medium.to_vector()
+        rows = row_scales(type(medium), vm)
+        return lambda vb: _columns(engine, vb, vm, rows, u.free_parts, u.known_weight, q)
+    channels = list(medium)
+    groups: dict[tuple, list[int]] = {}
+    for k, c in enumerate(channels):
+        groups.setdefault(engine_key(medium[c]), []).append(k)
+    engines = [
+        (ApparentModel(u.template, medium[channels[ks[0]]], angles, RULES[accuracy]), ks)
+        for ks in groups.values()
+    ]
+    rows = [row_scales(type(medium[c]), medium[c].to_vector()) for c in channels]
+
+    def columns(vb):
+        out = np.empty((len(channels), len(angles[0]), q + 1))
+        for engine, ks in engines:
+            terms = engine.terms(vb, medium[channels[ks[0]]].to_vector())  # the scales at 1
+            for k in ks:
+                out[k] = columns_of_terms(terms, rows[k], u.free_parts, u.known_weight, q)
+        return out
+
+    return columns
 
 
 def _nodes(axes, base):
@@ -290,6 +349,19 @@ def _to_coef(values, axes_first: int, count: int):
     return values
 
 
+def coef_by_channel(values, axes_first: int, count: int, channels: int) -> np.ndarray:
+    """:func:`_to_coef` of ``values`` whose third last axis is ``channels`` channels
+    (tables over channels), channel by channel: each channel's coefficients bit for bit
+    those of its tables alone; of ``values`` of one channel (``channels`` 0) as they are."""
+    if not channels:
+        return _to_coef(values, axes_first, count)
+    parts = [_to_coef(values[..., k, :, :], axes_first, count) for k in range(channels)]
+    out = np.empty(parts[0].shape[:-2] + (channels,) + parts[0].shape[-2:])
+    for k, one in enumerate(parts):
+        out[..., k, :, :] = one
+    return out
+
+
 #: the centres of two opposite corner cells, farthest from the nodes in both axes.
 FIELD_CHECKS = ((0.5, 0.5), (-0.5, -0.5))
 
@@ -335,24 +407,24 @@ class _Unknowns:
     known_weight: Any
 
 
-def _build_near(
-    brdf_cls, medium, angles, unknowns: _Unknowns, fixed, accuracy, progress, near, roi
-):
-    """Near-field tables: the columns at every node of a grid of plate points and of the
-    nonlinear axes, with the pixel's own angles (docs/maps-geometry.md "Geometry"); the field
-    interpolation checked against exact columns at :data:`FIELD_CHECKS`."""
-    from ..engine.evaluator import ApparentModel
-    from ..engine.quadrature import RULES
+def build_near(
+    brdf_cls, medium, angles, unknowns: _Unknowns, accuracy, progress, near, roi
+) -> tuple:
+    """Near-field tables' (values, coefficients, field grid, interpolation error): the
+    columns at every node of a grid of plate points and of the nonlinear axes, with the
+    pixel's own angles (docs/maps-geometry.md "Geometry"); the field interpolation checked
+    against exact columns at :data:`FIELD_CHECKS`. ``medium``: a medium model, or {channel:
+    medium model} (tables over channels: a channel axis before the configurations'; the
+    field grid follows the narrowest of the channels' lobes)."""
     from .near import apparent_lobe, field_grid
 
     u = unknowns
-    template, names, base, axes = u.template, u.names, u.base, u.axes
-    free_scales, free_parts, known_weight = u.free_scales, u.free_parts, u.known_weight
-
     if roi is None:
         raise FitError("near-field tables need the region of the photo (roi)")
+    media = list(medium.values()) if isinstance(medium, dict) else [medium]
     lobe = apparent_lobe(
-        smoothest_facet(brdf_cls, names, base, axes, template.options()), medium.lobe_half_width()
+        smoothest_facet(brdf_cls, u.names, u.base, u.axes, u.template.options()),
+        min(m.lobe_half_width() for m in media),
     )
     fgrid = field_grid(near, angles, roi, lobe)
     kx, ky = fgrid.shape
@@ -362,26 +434,25 @@ def _build_near(
     all_angles = tuple(
         np.concatenate([node_angles[j]] + [c[1][j] for c in checks]) for j in range(4)
     )
-    engine = ApparentModel(template, medium, all_angles, RULES[accuracy])
-    vm = medium.to_vector()
-    rows = row_scales(type(medium), vm)
-    shape = tuple(a.count for a in axes)
-    q = len(free_scales)
-    values = np.empty((kx, ky) + shape + (m, q + 1))
-    exact = np.empty((len(checks),) + shape + (m, q + 1))
+    columns = column_source(u, medium, all_angles, accuracy)
+    channels = len(medium) if isinstance(medium, dict) else 0
+    lead = (channels,) if channels else ()  # the channel axis, before the configurations'
+    shape = tuple(a.count for a in u.axes)
+    cols_shape = lead + (m, len(u.free_scales) + 1)
+    values = np.empty((kx, ky) + shape + cols_shape)
+    exact = np.empty((len(checks),) + shape + cols_shape)
     total = int(np.prod(shape)) if shape else 1
-    for done, (combo, vb) in enumerate(_nodes(axes, base)):
-        cols = _columns(engine, vb, vm, rows, free_parts, known_weight, q)
-        values[(slice(None), slice(None)) + combo] = cols[: kx * ky * m].reshape(kx, ky, m, q + 1)
-        exact[(slice(None),) + combo] = cols[kx * ky * m :].reshape(len(checks), m, q + 1)
+    for done, (combo, vb) in enumerate(_nodes(u.axes, u.base)):
+        cols = columns(vb)  # (C,)? (all angles, q + 1): the channels first
+        nodes = cols[..., : kx * ky * m, :].reshape(lead + (kx, ky) + cols_shape[-2:])
+        at_checks = cols[..., kx * ky * m :, :].reshape(lead + (len(checks),) + cols_shape[-2:])
+        values[(slice(None), slice(None)) + combo] = np.moveaxis(nodes, 0, 2) if lead else nodes
+        exact[(slice(None),) + combo] = np.moveaxis(at_checks, 0, 1) if lead else at_checks
         if progress is not None:
             progress(done + 1, total)
-    field_values = np.ascontiguousarray(_to_coef(values, 0, 2))
-    coef = np.ascontiguousarray(_to_coef(field_values, 2, len(axes)))
-    error = _field_error(field_values, exact, checks)
-    return _tables(
-        brdf_cls, u, medium, values, coef, fixed, accuracy, angles, near=fgrid, field_error=error
-    )
+    field_values = np.ascontiguousarray(coef_by_channel(values, 0, 2, channels))
+    coef = np.ascontiguousarray(coef_by_channel(field_values, 2, len(u.axes), channels))
+    return values, coef, fgrid, _field_error(field_values, exact, checks)
 
 
 def _tables(
@@ -411,4 +482,15 @@ def _tables(
     )
 
 
-__all__ = ["MapTables", "build_tables", "columns_of_terms", "smoothest_facet", "FIELD_CHECKS"]
+__all__ = [
+    "MapTables",
+    "build_tables",
+    "build_near",
+    "tabulate",
+    "column_source",
+    "coef_by_channel",
+    "columns_of_terms",
+    "engine_key",
+    "smoothest_facet",
+    "FIELD_CHECKS",
+]

@@ -36,7 +36,7 @@ def solve_tile(block, tables: MapTables, store, iy, ix, tile, noise) -> np.ndarr
 
     ys, xs = slice(iy * tile, iy * tile + th), slice(ix * tile, ix * tile + tw)
     if tables.channels:
-        res = _solve_channels(block, tables, noise)
+        res = _solve_channels(block, tables, iy, ix, tile, noise)
         for name, values in (
             ("channel_params", res.channel_params),
             ("channel_stderr", res.channel_stderr),
@@ -54,26 +54,33 @@ def solve_tile(block, tables: MapTables, store, iy, ix, tile, noise) -> np.ndarr
     return np.bincount(res.status, minlength=len(STATUS))
 
 
+def _tile_pixels(tables: MapTables, iy, ix, tile, th, tw):
+    """Near-field tables: the positions (x, y) of the tile's pixels in the full photo;
+    None for distant tables."""
+    if tables.near is None:
+        return None
+    x0, y0 = tables.near.roi[:2]
+    rows, cols = np.mgrid[0:th, 0:tw]
+    return ((x0 + ix * tile + cols).ravel(), (y0 + iy * tile + rows).ravel())
+
+
 def _solve_one(block, tables: MapTables, iy, ix, tile, noise):
     """The pixels of a tile of one channel (:func:`veil.maps.solve.solve_pixels`)."""
     m, th, tw = block.shape
     y = block.reshape(m, th * tw).T
     valid = np.isfinite(y)
-    pixels = None
-    if tables.near is not None:  # the tile's pixels in the full photo
-        x0, y0 = tables.near.roi[:2]
-        rows, cols = np.mgrid[0:th, 0:tw]
-        pixels = ((x0 + ix * tile + cols).ravel(), (y0 + iy * tile + rows).ravel())
+    pixels = _tile_pixels(tables, iy, ix, tile, th, tw)
     return solve_pixels(tables, np.where(valid, y, 0.0), valid, noise, pixels=pixels)
 
 
-def _solve_channels(block, tables: MapTables, noise):
+def _solve_channels(block, tables: MapTables, iy, ix, tile, noise):
     """The pixels of a tile over channels (:func:`veil.maps.solve_channels.
     solve_channel_pixels`)."""
     c, m, th, tw = block.shape
     y = np.moveaxis(block.reshape(c, m, th * tw), -1, 0)  # (pixels, channels, photos)
     valid = np.isfinite(y)
-    return solve_channel_pixels(tables, np.where(valid, y, 0.0), valid, noise)
+    pixels = _tile_pixels(tables, iy, ix, tile, th, tw)
+    return solve_channel_pixels(tables, np.where(valid, y, 0.0), valid, noise, pixels=pixels)
 
 
 def store_attributes(acq, tables: MapTables, cls, noise, tile, accuracy, channel, geometry) -> dict:
