@@ -30,8 +30,10 @@ cylinder change across the plate and the model's do not. ``--doc PAGE`` writes t
 between the page's markers (benchmarks/doc_tables.py); the numbers also go to ``--json``
 (default validation/results/rgb_maps.json).
 
-    PYTHONPATH=src python validation/rgb_maps.py [--per-channel] [--medium FILE] \
+    PYTHONPATH=src python validation/rgb_maps.py [--medium FILE] \
         [--doc docs/validity-colour-maps.md]
+    PYTHONPATH=src python validation/rgb_maps.py --per-channel \
+        [--doc docs/validity-colour-controls.md]
 """
 
 from __future__ import annotations
