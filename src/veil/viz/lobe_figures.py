@@ -132,15 +132,8 @@ def fig9(brdfs=("BRDF1", "BRDF2"), theta_i=45.0, labels=None) -> Figure:
         ax3.set_xlabel("angle from the mirror direction [deg]")
         ax3.set_ylabel("f_r [1/sr] (log scale)")
         ax3.set_title("(c) close-up: solid in the plane,\ndashed out of the plane")
-        ax3.set_xlim(-15, 15)
-        ax3.grid(True, which="major", alpha=0.3)
-        fig.legend(
-            handles=handles,
-            loc="lower center",
-            bbox_to_anchor=(0.84, 0.0),
-            ncol=_legend_columns(handles),
-            frameon=False,
-            title=f"incidence {theta_i:g}°, radius: f_r [1/sr], log",
+        _close_up_and_legend(
+            fig, ax3, handles, 15, f"incidence {theta_i:g}°, radius: f_r [1/sr], log"
         )
     return fig
 
@@ -224,17 +217,25 @@ def fig10(media=("BTDF1", "BTDF2", "BTDF3"), theta_i=45.0, labels=None) -> Figur
                 else " (in and out of the plane coincide)"
             )
         )
-        ax3.set_xlim(-20, 20)
-        ax3.grid(True, which="major", alpha=0.3)
-        fig.legend(
-            handles=handles,
-            loc="lower center",
-            bbox_to_anchor=(0.84, 0.0),
-            ncol=_legend_columns(handles),
-            frameon=False,
-            title=f"incidence {theta_i:g}°, radius: f_t [1/sr], log",
+        _close_up_and_legend(
+            fig, ax3, handles, 20, f"incidence {theta_i:g}°, radius: f_t [1/sr], log"
         )
     return fig
+
+
+def _close_up_and_legend(fig, ax, handles, half_range: float, title: str) -> None:
+    """The close-up panel's range (+- ``half_range`` deg) and grid, and the figure's legend
+    of ``handles`` below the polar panels under ``title``."""
+    ax.set_xlim(-half_range, half_range)
+    ax.grid(True, which="major", alpha=0.3)
+    fig.legend(
+        handles=handles,
+        loc="lower center",
+        bbox_to_anchor=(0.84, 0.0),
+        ncol=_legend_columns(handles),
+        frameon=False,
+        title=title,
+    )
 
 
 __all__ = ["lobe_data", "transmission_data", "fig9", "fig10"]
