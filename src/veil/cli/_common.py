@@ -144,6 +144,17 @@ def noise_option(help_text: str, positive: bool = False):
     )
 
 
+def photo_channel_option(help_text: str):
+    """``--channel`` of the photo readers: gray, r, g, b or rgb (every channel at once)."""
+    return click.option(
+        "--channel",
+        type=click.Choice(["gray", "r", "g", "b", "rgb"]),
+        default="gray",
+        show_default=True,
+        help=help_text,
+    )
+
+
 def rotation_options(candidate: bool = False):
     """The protocol's rotations (veil.data.protocol.rho_values, its defaults): --fine-step,
     --window, --coarse-step and --limit; ``candidate``: the steps of a design's candidates."""

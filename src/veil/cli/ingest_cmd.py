@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from ._common import UserError, check_output_path
+from ._common import UserError, check_output_path, photo_channel_option
 
 ROI_HELP = (
     "pixel coordinates X,Y,W,H: x to the right, y down, origin at the top-left pixel; "
@@ -37,13 +37,9 @@ ROI_HELP = (
     type=click.Path(exists=True, dir_okay=False),
     help="Dark frame (same camera, format and size; lens capped), subtracted pixel by pixel.",
 )
-@click.option(
-    "--channel",
-    type=click.Choice(["gray", "r", "g", "b", "rgb"]),
-    default="gray",
-    show_default=True,
-    help="Colour channel; gray = (R + G + B) / 3; rgb = r, g and b at once, one "
-    "table with a 'channel' column (one row per photo and channel).",
+@photo_channel_option(
+    "Colour channel; gray = (R + G + B) / 3; rgb = r, g and b at once, one "
+    "table with a 'channel' column (one row per photo and channel)."
 )
 @click.option(
     "--response",

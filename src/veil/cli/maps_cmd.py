@@ -20,6 +20,7 @@ from ._common import (
     load_medium,
     model_options,
     parse_fix,
+    photo_channel_option,
 )
 
 ROI_HELP = "X,Y,W,H in pixels (x to the right, y down, origin top-left)"
@@ -86,14 +87,10 @@ def _noise(text):
     type=click.Path(exists=True, dir_okay=False),
     help="Image of the photos' size; its nonzero pixels are fitted.",
 )
-@click.option(
-    "--channel",
-    type=click.Choice(["gray", "r", "g", "b", "rgb"]),
-    default="gray",
-    show_default=True,
-    help="Colour channel; gray = (R + G + B) / 3; rgb = every channel at once, the "
+@photo_channel_option(
+    "Colour channel; gray = (R + G + B) / 3; rgb = every channel at once, the "
     "scales per channel and the rest shared, through each channel's medium "
-    "(docs/maps-channels.md).",
+    "(docs/maps-channels.md)."
 )
 @click.option(
     "--saturation",
