@@ -14,7 +14,7 @@ from ..errors import InputError, InputTypeError, ParameterError
 from ..models import BRDF, BTDF, preset
 from ..models.channel_model import ChannelModel, channel_member, channels_of
 from .angles import check_angles, direction
-from .forward import Forward, _bucket
+from .forward import Forward
 from .programs import Program, structure_name
 from .quadrature import ERROR_FACTOR, FINER, RULES, Rule  # noqa: F401  (re-exported)
 
@@ -113,11 +113,34 @@ def reflectance(brdf, theta_i, theta_r, phi_i=180.0, phi_r=0.0) -> np.ndarray:
     ti, tr, pi_, pr = (np.broadcast_to(a, shape).ravel() for a in (ti, tr, pi_, pr))
     if ti.size == 0:
         return np.zeros(shape)
-    idx = np.minimum(np.arange(_bucket(ti.size, 1)), ti.size - 1)  # few distinct programs
-    wi, wr = direction(ti[idx], pi_[idx]), direction(tr[idx], pr[idx])
     f, _ = direct_programs(model)
-    value = np.asarray(f(np.asarray(model.to_vector(), dtype=float), wi, wr))[: ti.size]
+    parts = direct_chunks(direction(ti, pi_), direction(tr, pr))
+    value = run_direct(f, model.to_vector(), parts, ti.size)
     return check_finite(value.reshape(shape), "the reflectance f_r", [model])
+
+
+#: Configurations per call of the f_r programs (:func:`direct_programs`): one program per
+#: model structure whatever the number of configurations.
+DIRECT_CHUNK = 256
+
+
+def direct_chunks(wi, wr) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Directions (N, 3) as DIRECT_CHUNK-row pieces, the last padded with its last row."""
+    wi, wr = np.asarray(wi, dtype=float), np.asarray(wr, dtype=float)
+    n = len(wi)
+    idx = np.minimum(np.arange(DIRECT_CHUNK * -(-n // DIRECT_CHUNK)), n - 1)
+    return [
+        (wi[idx[k : k + DIRECT_CHUNK]], wr[idx[k : k + DIRECT_CHUNK]])
+        for k in range(0, idx.size, DIRECT_CHUNK)
+    ]
+
+
+def run_direct(fn, v, parts, size: int) -> np.ndarray:
+    """``fn(v, wi, wr)`` (an f_r program) over the pieces of :func:`direct_chunks`, joined
+    and cut to ``size`` rows."""
+    v = np.asarray(v, dtype=float)
+    outs = [fn(v, wi, wr) for wi, wr in parts]  # dispatched together, then read
+    return np.concatenate([np.asarray(o) for o in outs])[:size]
 
 
 _DIRECT_FNS: dict = {}

@@ -10,17 +10,13 @@ model structure, accuracy and chunk size whatever the number of configurations.
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from ..models import BRDF, BTDF
 from .angles import direction
-from .apparent import apparent, check_finite, direct_programs, reflectance
-from .forward import Forward
+from .apparent import apparent, check_finite, direct_chunks, direct_programs, reflectance, run_direct
+from .forward import CHUNK, Forward
 
-#: Configurations per engine call of fits and simulations (they share one compilation).
-CHUNK = 64
 #: The models a Jacobian can be taken with respect to (ApparentModel.value_and_jacobian).
 WRT = ("brdf", "medium")
 
@@ -133,17 +129,14 @@ class ApparentModel:
 
 
 class DirectModel:
-    """f_r at the data's configurations (docs/model.md sec. 2), padded to a multiple of CHUNK
-    (one compilation per padded length)."""
+    """f_r at the data's configurations (docs/model.md sec. 2), in the f_r programs' chunks
+    (one compilation per model structure)."""
 
     def __init__(self, model, angles):
         self.model = model  # a BRDF instance: its options select the code path
         self.size = len(angles[0])
-        total = CHUNK * math.ceil(self.size / CHUNK)
-        idx = np.minimum(np.arange(total), self.size - 1)
-        ti, pi_, tr, pr = (a[idx] for a in angles)
-        self.wi = np.asarray(direction(ti, pi_))
-        self.wr = np.asarray(direction(tr, pr))
+        ti, pi_, tr, pr = angles
+        self.parts = direct_chunks(direction(ti, pi_), direction(tr, pr))
         self.values_calls = 0
         self.jacobian_calls = 0
 
@@ -151,18 +144,17 @@ class DirectModel:
         """f_r (M,) at the BRDF parameter vector ``v``."""
         self.values_calls += 1
         f, _ = direct_programs(self.model)
-        values = np.asarray(f(np.asarray(v, dtype=float), self.wi, self.wr))[: self.size]
+        values = run_direct(f, v, self.parts, self.size)
         return check_finite(values, "the reflectance f_r", [self.model], [v])
 
     def value_and_jacobian(self, v) -> tuple[np.ndarray, np.ndarray]:
         """f_r (M,) and its Jacobian (M, len(v)) with respect to ``v``."""
         self.jacobian_calls += 1
         f, jf = direct_programs(self.model)
-        vj = np.asarray(v, dtype=float)
-        values = np.asarray(f(vj, self.wi, self.wr))[: self.size]
+        values = run_direct(f, v, self.parts, self.size)
         return (
             check_finite(values, "the reflectance f_r", [self.model], [v]),
-            np.asarray(jf(vj, self.wi, self.wr))[: self.size],
+            run_direct(jf, v, self.parts, self.size),
         )
 
 

@@ -2,7 +2,9 @@
 
 This is what fits and renderers hold on to: the directions are converted, padded and split
 over the CPU devices once, and every evaluation (value, term matrices, Jacobians) reuses the
-compiled engine. Padding to a few bucket sizes keeps the number of compilations small.
+compiled engine. The configurations go through the program CHUNK at a time, the last chunk
+padded with its last row, so that a model pair, accuracy and geometry compile one program
+whatever the number of configurations (docs/performance.md "Compilation").
 """
 
 from __future__ import annotations
@@ -29,14 +31,15 @@ from .quadrature import FINER, RULES, Rule
 _AXIS = "configurations"
 
 
-def _bucket(m: int, n_dev: int) -> int:
-    """Padded size: powers of two up to 64, then multiples of 64, divisible by n_dev."""
-    size = 8
-    while size < min(m, 64):
-        size *= 2
-    if m > 64:
-        size = 64 * math.ceil(m / 64)
-    return n_dev * math.ceil(size / n_dev)
+#: Configurations per program call: every call of every size runs the one program of this
+#: shape (split over the devices), a few calls for more. Smaller programs for smaller calls
+#: (8, 16 and 32 before) each cost a compilation of seconds to save milliseconds per call.
+CHUNK = 64
+
+
+def _chunk(n_dev: int) -> int:
+    """CHUNK rounded up to a multiple of the device count (every device an equal share)."""
+    return n_dev * math.ceil(CHUNK / n_dev)
 
 
 def _devices():
@@ -221,13 +224,14 @@ class Forward:
         wr = np.asarray(direction(tr, pr))
         # in the plane of incidence the integrand is symmetric under y -> -y
         self.half = bool(np.all(np.abs(wi[:, 1]) < 1e-12) and np.all(np.abs(wr[:, 1]) < 1e-12))
-        n_dev = min(len(_devices()), max(1, self.size // 8))
-        self._mesh = _mesh(n_dev)
+        self._mesh = _mesh(len(_devices()))
         self.devices = list(self._mesh.devices.flat)
-        padded = _bucket(self.size, n_dev)
-        idx = np.minimum(np.arange(padded), self.size - 1)
+        chunk = _chunk(len(self.devices))
+        idx = np.minimum(np.arange(chunk * math.ceil(self.size / chunk)), self.size - 1)
         split = NamedSharding(self._mesh, P(_AXIS))
-        self._wi, self._wr = jax.device_put(wi[idx], split), jax.device_put(wr[idx], split)
+        #: the directions, chunk by chunk, on the devices
+        self._wi = [jax.device_put(wi[idx[k : k + chunk]], split) for k in range(0, idx.size, chunk)]
+        self._wr = [jax.device_put(wr[idx[k : k + chunk]], split) for k in range(0, idx.size, chunk)]
         self._kb = integrator.template(brdf).structure()
         self._km = integrator.template(medium).structure()
         # the last output of each program, by its non-scale parameters (see _memo_run)
@@ -235,7 +239,9 @@ class Forward:
 
     # ----------------------------------------------------------------------------------
     def _run(self, fn, vb, vm):
-        return fn(vb, vm, self._wi, self._wr)
+        """``fn``'s outputs over every chunk, joined along the configurations (host arrays)."""
+        outs = [fn(vb, vm, wi, wr) for wi, wr in zip(self._wi, self._wr)]  # dispatched together
+        return jax.tree_util.tree_map(lambda *parts: np.concatenate(parts), *outs)
 
     def _memo_run(self, fn, vb, vm):
         """``fn``'s output at ``vb``, ``vm``, or its last output when only scale parameters
@@ -269,7 +275,7 @@ class Forward:
             if fn is not None and fn not in fns:
                 fns.append(fn)
         vb, vm = self._vectors(self.brdf.to_vector(), self.medium.to_vector())
-        return [_submit(fn, vb, vm, self._wi, self._wr) for fn in fns]
+        return [_submit(fn, vb, vm, self._wi[0], self._wr[0]) for fn in fns]
 
     def _jacobian_fn(self, free_brdf, free_medium):
         bcls, mcls = type(self.brdf), type(self.medium)
