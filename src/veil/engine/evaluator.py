@@ -14,7 +14,14 @@ import numpy as np
 
 from ..models import BRDF, BTDF
 from .angles import direction
-from .apparent import apparent, check_finite, direct_chunks, direct_programs, reflectance, run_direct
+from .apparent import (
+    apparent,
+    check_finite,
+    direct_chunks,
+    direct_programs,
+    reflectance,
+    run_direct,
+)
 from .forward import CHUNK, Forward
 
 #: The models a Jacobian can be taken with respect to (ApparentModel.value_and_jacobian).

@@ -229,9 +229,9 @@ class Forward:
         chunk = _chunk(len(self.devices))
         idx = np.minimum(np.arange(chunk * math.ceil(self.size / chunk)), self.size - 1)
         split = NamedSharding(self._mesh, P(_AXIS))
-        #: the directions, chunk by chunk, on the devices
-        self._wi = [jax.device_put(wi[idx[k : k + chunk]], split) for k in range(0, idx.size, chunk)]
-        self._wr = [jax.device_put(wr[idx[k : k + chunk]], split) for k in range(0, idx.size, chunk)]
+        starts = range(0, idx.size, chunk)  # the directions, chunk by chunk, on the devices
+        self._wi = [jax.device_put(wi[idx[k : k + chunk]], split) for k in starts]
+        self._wr = [jax.device_put(wr[idx[k : k + chunk]], split) for k in starts]
         self._kb = integrator.template(brdf).structure()
         self._km = integrator.template(medium).structure()
         # the last output of each program, by its non-scale parameters (see _memo_run)
