@@ -22,12 +22,11 @@ from veil.engine.quadrature import RULES
 
 
 def make_engine_call():
-    """An engine program (term matrices, 'fast', in-plane configurations) and its inputs (8
-    configurations padded to the program's chunk)."""
+    """An engine program (term matrices, 'fast', 8 in-plane configurations) and its inputs."""
     fw = forward.Forward(veil.BRDF1, veil.BTDF2, np.linspace(10, 70, 8), np.linspace(5, 60, 8),
                          180.0, 0.0, RULES["fast"])
     program = forward._terms_fn(fw._kb, fw._km, fw.rule, fw.half, fw._mesh)
-    args = (*fw._vectors(veil.BRDF1.to_vector(), veil.BTDF2.to_vector()), fw._wi[0], fw._wr[0])
+    args = (*fw._vectors(veil.BRDF1.to_vector(), veil.BTDF2.to_vector()), fw._wi, fw._wr)
     return program, args
 
 

@@ -2,9 +2,9 @@
 
 This is what fits and renderers hold on to: the directions are converted, padded and split
 over the CPU devices once, and every evaluation (value, term matrices, Jacobians) reuses the
-compiled engine. The configurations go through the program CHUNK at a time, the last chunk
-padded with its last row, so that a model pair, accuracy and geometry compile one program
-whatever the number of configurations (docs/performance.md "Compilation").
+compiled engine. Padding to a few sizes keeps the number of compilations small: every call of
+up to CHUNK configurations runs one program, a larger one the program of its multiple of
+CHUNK (docs/engine.md).
 """
 
 from __future__ import annotations
@@ -31,15 +31,19 @@ from .quadrature import FINER, RULES, Rule
 _AXIS = "configurations"
 
 
-#: Configurations per program call: every call of every size runs the one program of this
-#: shape (split over the devices), a few calls for more. Smaller programs for smaller calls
-#: (8, 16 and 32 before) each cost a compilation of seconds to save milliseconds per call.
+#: The fewest configurations a program is compiled for: every smaller call runs the program
+#: of CHUNK (the fits' chunk, veil.engine.evaluator), split over every device. Programs for
+#: 8, 16 and 32 configurations, one device below 16, each cost a compilation of seconds to
+#: save about 3 ms per call (benchmarks/bench_chunks.py).
 CHUNK = 64
 
 
-def _chunk(n_dev: int) -> int:
-    """CHUNK rounded up to a multiple of the device count (every device an equal share)."""
-    return n_dev * math.ceil(CHUNK / n_dev)
+def _bucket(m: int, n_dev: int) -> int:
+    """Padded size: CHUNK, or the multiple of CHUNK above ``m``; divisible by ``n_dev``. (A
+    larger call in chunks of CHUNK ran 1.3 to 2.6 times slower: each call has a fixed cost
+    of about 2.5 ms, the per-call tables on every device.)"""
+    size = CHUNK * max(1, math.ceil(m / CHUNK))
+    return n_dev * math.ceil(size / n_dev)
 
 
 def _devices():
@@ -226,12 +230,10 @@ class Forward:
         self.half = bool(np.all(np.abs(wi[:, 1]) < 1e-12) and np.all(np.abs(wr[:, 1]) < 1e-12))
         self._mesh = _mesh(len(_devices()))
         self.devices = list(self._mesh.devices.flat)
-        chunk = _chunk(len(self.devices))
-        idx = np.minimum(np.arange(chunk * math.ceil(self.size / chunk)), self.size - 1)
+        padded = _bucket(self.size, len(self.devices))
+        idx = np.minimum(np.arange(padded), self.size - 1)
         split = NamedSharding(self._mesh, P(_AXIS))
-        starts = range(0, idx.size, chunk)  # the directions, chunk by chunk, on the devices
-        self._wi = [jax.device_put(wi[idx[k : k + chunk]], split) for k in starts]
-        self._wr = [jax.device_put(wr[idx[k : k + chunk]], split) for k in starts]
+        self._wi, self._wr = jax.device_put(wi[idx], split), jax.device_put(wr[idx], split)
         self._kb = integrator.template(brdf).structure()
         self._km = integrator.template(medium).structure()
         # the last output of each program, by its non-scale parameters (see _memo_run)
@@ -239,9 +241,7 @@ class Forward:
 
     # ----------------------------------------------------------------------------------
     def _run(self, fn, vb, vm):
-        """``fn``'s outputs over every chunk, joined along the configurations (host arrays)."""
-        outs = [fn(vb, vm, wi, wr) for wi, wr in zip(self._wi, self._wr)]  # dispatched together
-        return jax.tree_util.tree_map(lambda *parts: np.concatenate(parts), *outs)
+        return fn(vb, vm, self._wi, self._wr)
 
     def _memo_run(self, fn, vb, vm):
         """``fn``'s output at ``vb``, ``vm``, or its last output when only scale parameters
@@ -275,7 +275,7 @@ class Forward:
             if fn is not None and fn not in fns:
                 fns.append(fn)
         vb, vm = self._vectors(self.brdf.to_vector(), self.medium.to_vector())
-        return [_submit(fn, vb, vm, self._wi[0], self._wr[0]) for fn in fns]
+        return [_submit(fn, vb, vm, self._wi, self._wr) for fn in fns]
 
     def _jacobian_fn(self, free_brdf, free_medium):
         bcls, mcls = type(self.brdf), type(self.medium)
