@@ -3,15 +3,15 @@
     .venv/bin/python benchmarks/bench_chunks.py --src /old/checkout/src [--rounds 2]
 
 The engine runs every call of up to veil.engine.forward.CHUNK configurations with one
-program, and f_r in chunks of veil.engine.apparent.DIRECT_CHUNK, where it used to compile
-a program per padded size (8, 16, 32, then multiples of 64). Each round runs, in fresh
-processes, the other veil first, each with an empty program store and compilation cache
-of its own:
+program, and pads f_r to veil.engine.apparent.DIRECT_CHUNK or the power of two above,
+where it used to compile a program per padded size (8, 16, 32, then multiples of 64).
+Each round runs, in fresh processes, the other veil first, each with an empty program
+store and compilation cache of its own:
 
 - cold: ``veil.apparent`` (Torrance-Sparrow x Henyey-Greenstein, fast rule, in-plane) at
-  5, 12, 40, 64, 111, 200 and 700 configurations, one after the other, and f_r of the rough
-  plastic at 111, 700 and 5000: the engine programs compiled and the seconds of the whole
-  sequence;
+  5, 12, 40, 64, 111, 200 and 700 configurations, one after the other, at the default rule
+  at 1 and 12, and f_r of the rough plastic at 111, 700 and 5000: the engine programs
+  compiled and the seconds of the whole sequence;
 - warm, in the same process: each call again, the median of five (milliseconds).
 
 The table gives both and their ratio (this checkout over --src); on a shared machine
@@ -46,6 +46,10 @@ for n in (5, 12, 40, 64, 111, 200, 700):
     ti, tr = rng.uniform(0, 80, n), rng.uniform(0, 80, n)
     calls.append((f"apparent, {n} configurations",
                   lambda ti=ti, tr=tr: veil.apparent("BRDF1", "BTDF1", ti, tr, accuracy="fast")))
+for n in (1, 12):
+    ti, tr = rng.uniform(0, 80, n), rng.uniform(0, 80, n)
+    calls.append((f"apparent, default rule, {n} configuration{'s' if n > 1 else ''}",
+                  lambda ti=ti, tr=tr: veil.apparent("BRDF1", "BTDF1", ti, tr)))
 for n in (111, 700, 5000):
     ti, tr = rng.uniform(0, 80, n), rng.uniform(0, 80, n)
     calls.append((f"f_r of a rough plastic, {n} configurations",

@@ -13,7 +13,8 @@ first process (everything compiled and traced).
 
 Per step: wall seconds, process CPU seconds (both cores), least-squares runs, function and
 Jacobian evaluations, and engine calls by quadrature ("values/Jacobians", each over the
-session's configurations padded to 64-configuration chunks).
+session's configurations padded to 64-configuration chunks through a medium, and to 256
+or the power of two above in clear water).
 """
 
 from __future__ import annotations

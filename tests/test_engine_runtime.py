@@ -285,3 +285,44 @@ def test_lobe_half_width_compiles_its_phase_once():
     assert k > 0
     assert abs(medium.lobe_half_width() - widths[1]) == 0.0  # deterministic
     assert gamma[k - 1] <= widths[1] <= gamma[k]
+
+
+def test_f_r_padding_keeps_every_row_and_shares_small_programs():
+    """f_r (veil.reflectance, DirectModel) at 0, 1, 256, 257, 1024 and 1025 configurations:
+    every row is that configuration's own value (against one call per configuration, within
+    1e-14; bit for bit up to 256, which all run one program), the Jacobian rows match the
+    values' central differences, and no configurations give empty arrays of the right
+    shape."""
+    from veil.engine.apparent import DIRECT_CHUNK, direct_padded
+    from veil.engine.evaluator import DirectModel
+
+    b = veil.preset("BRDF1")
+    rng = np.random.default_rng(3)
+    ti, tr = rng.uniform(0, 80, 1025), rng.uniform(0, 80, 1025)
+    pr = rng.uniform(0, 360, 1025)
+    single = np.array([veil.reflectance(b, ti[k], tr[k], 180.0, pr[k]) for k in range(0, 1025, 97)])
+    for n in (1, 256, 257, 1024, 1025):
+        got = veil.reflectance(b, ti[:n], tr[:n], 180.0, pr[:n])
+        assert got.shape == (n,)
+        want = single[: len(range(0, n, 97))]
+        if n <= DIRECT_CHUNK:
+            np.testing.assert_array_equal(got[::97], want)
+        np.testing.assert_allclose(got[::97], want, rtol=1e-14)
+        assert direct_padded(np.zeros((n, 3)), np.zeros((n, 3)))[0].shape[0] == \
+            max(DIRECT_CHUNK, 1 << (n - 1).bit_length())
+    angles = (ti[:300], np.full(300, 180.0), tr[:300], pr[:300])
+    direct = DirectModel(b, angles)
+    v = b.to_vector()
+    values, jac = direct.value_and_jacobian(v)
+    np.testing.assert_array_equal(values, direct.values(v))
+    assert jac.shape == (300, len(v))
+    h = 1e-6 * np.abs(v[0])
+    up, down = v.copy(), v.copy()
+    up[0] += h
+    down[0] -= h
+    np.testing.assert_allclose(jac[:, 0], (direct.values(up) - direct.values(down)) / (2 * h),
+                               rtol=1e-6, atol=1e-12)
+    empty = DirectModel(b, tuple(np.zeros(0) for _ in range(4)))
+    values, jac = empty.value_and_jacobian(v)
+    assert values.shape == (0,) and jac.shape == (0, len(v))
+    assert empty.values(v).shape == (0,)

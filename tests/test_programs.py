@@ -22,7 +22,8 @@ from veil.engine.quadrature import RULES
 
 
 def make_engine_call():
-    """An engine program (term matrices, 'fast', 8 in-plane configurations) and its inputs."""
+    """An engine program (term matrices, 'fast', 8 in-plane configurations padded to the
+    64 of the smallest program) and its inputs."""
     fw = forward.Forward(veil.BRDF1, veil.BTDF2, np.linspace(10, 70, 8), np.linspace(5, 60, 8),
                          180.0, 0.0, RULES["fast"])
     program = forward._terms_fn(fw._kb, fw._km, fw.rule, fw.half, fw._mesh)

@@ -114,37 +114,37 @@ def reflectance(brdf, theta_i, theta_r, phi_i=180.0, phi_r=0.0) -> np.ndarray:
     if ti.size == 0:
         return np.zeros(shape)
     f, _ = direct_programs(model)
-    parts = direct_chunks(direction(ti, pi_), direction(tr, pr))
-    value = run_direct(f, model.to_vector(), parts, ti.size)
+    padded = direct_padded(direction(ti, pi_), direction(tr, pr))
+    value = run_direct(f, model.to_vector(), padded, ti.size)
     return check_finite(value.reshape(shape), "the reflectance f_r", [model])
 
 
-#: Configurations per call of the f_r programs (:func:`direct_programs`): up to four chunks
-#: of DIRECT_CHUNK (a session's configurations), more in chunks of DIRECT_CHUNK_LARGE
-#: (curves, images, spheres), so that a model structure compiles at most two programs
-#: whatever the number of configurations. A call costs about 1.3 ms beside its
-#: configurations (rough plastic's per-call tables): 256 at a time, a 512 x 512 sphere
-#: took 19 times as long.
+#: The fewest configurations an f_r program (:func:`direct_programs`) is compiled for: a
+#: call is padded to DIRECT_CHUNK or the power of two above it, in one call, so that the
+#: sessions of up to DIRECT_CHUNK configurations share one program and larger calls have a
+#: program per doubling. (In chunks of 256, each call repeats a rough plastic's per-call
+#: tables, about 1.3 ms: a 512 x 512 sphere took 19 times as long, a step-0 Jacobian of
+#: 1,024 configurations 4 times.)
 DIRECT_CHUNK = 256
-DIRECT_CHUNK_LARGE = 16384
 
 
-def direct_chunks(wi, wr) -> list[tuple[np.ndarray, np.ndarray]]:
-    """Directions (N, 3) as pieces of DIRECT_CHUNK rows (of DIRECT_CHUNK_LARGE for more than
-    four such pieces), the last padded with its last row."""
+def direct_padded(wi, wr) -> tuple[np.ndarray, np.ndarray]:
+    """Directions (N, 3) padded with their last row to DIRECT_CHUNK rows or the power of two
+    above N (no configurations: DIRECT_CHUNK normal directions, for the programs' shapes)."""
     wi, wr = np.asarray(wi, dtype=float), np.asarray(wr, dtype=float)
     n = len(wi)
-    chunk = DIRECT_CHUNK_LARGE if n > 4 * DIRECT_CHUNK else DIRECT_CHUNK
-    idx = np.minimum(np.arange(chunk * -(-n // chunk)), n - 1)
-    return [(wi[idx[k : k + chunk]], wr[idx[k : k + chunk]]) for k in range(0, idx.size, chunk)]
+    if n == 0:
+        normal = np.tile([0.0, 0.0, 1.0], (DIRECT_CHUNK, 1))
+        return normal, normal.copy()
+    size = max(DIRECT_CHUNK, 1 << (n - 1).bit_length())
+    idx = np.minimum(np.arange(size), n - 1)
+    return wi[idx], wr[idx]
 
 
-def run_direct(fn, v, parts, size: int) -> np.ndarray:
-    """``fn(v, wi, wr)`` (an f_r program) over the pieces of :func:`direct_chunks`, joined
-    and cut to ``size`` rows."""
-    v = np.asarray(v, dtype=float)
-    outs = [fn(v, wi, wr) for wi, wr in parts]  # dispatched together, then read
-    return np.concatenate([np.asarray(o) for o in outs])[:size]
+def run_direct(fn, v, padded, size: int) -> np.ndarray:
+    """``fn(v, wi, wr)`` (an f_r program) at the directions of :func:`direct_padded`, cut to
+    ``size`` rows."""
+    return np.asarray(fn(np.asarray(v, dtype=float), *padded))[:size]
 
 
 _DIRECT_FNS: dict = {}

@@ -17,7 +17,7 @@ from .angles import direction
 from .apparent import (
     apparent,
     check_finite,
-    direct_chunks,
+    direct_padded,
     direct_programs,
     reflectance,
     run_direct,
@@ -136,14 +136,15 @@ class ApparentModel:
 
 
 class DirectModel:
-    """f_r at the data's configurations (docs/model.md sec. 2), in the f_r programs' chunks
-    (one compilation per model structure)."""
+    """f_r at the data's configurations (docs/model.md sec. 2), padded as the f_r programs
+    are (:func:`veil.engine.apparent.direct_padded`: one compilation for every session of up
+    to 256 configurations)."""
 
     def __init__(self, model, angles):
         self.model = model  # a BRDF instance: its options select the code path
         self.size = len(angles[0])
         ti, pi_, tr, pr = angles
-        self.parts = direct_chunks(direction(ti, pi_), direction(tr, pr))
+        self.padded = direct_padded(direction(ti, pi_), direction(tr, pr))
         self.values_calls = 0
         self.jacobian_calls = 0
 
@@ -151,17 +152,17 @@ class DirectModel:
         """f_r (M,) at the BRDF parameter vector ``v``."""
         self.values_calls += 1
         f, _ = direct_programs(self.model)
-        values = run_direct(f, v, self.parts, self.size)
+        values = run_direct(f, v, self.padded, self.size)
         return check_finite(values, "the reflectance f_r", [self.model], [v])
 
     def value_and_jacobian(self, v) -> tuple[np.ndarray, np.ndarray]:
         """f_r (M,) and its Jacobian (M, len(v)) with respect to ``v``."""
         self.jacobian_calls += 1
         f, jf = direct_programs(self.model)
-        values = run_direct(f, v, self.parts, self.size)
+        values = run_direct(f, v, self.padded, self.size)
         return (
             check_finite(values, "the reflectance f_r", [self.model], [v]),
-            run_direct(jf, v, self.parts, self.size),
+            run_direct(jf, v, self.padded, self.size),
         )
 
 

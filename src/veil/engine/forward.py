@@ -32,9 +32,10 @@ _AXIS = "configurations"
 
 
 #: The fewest configurations a program is compiled for: every smaller call runs the program
-#: of CHUNK (the fits' chunk, veil.engine.evaluator), split over every device. Programs for
-#: 8, 16 and 32 configurations, one device below 16, each cost a compilation of seconds to
-#: save about 3 ms per call (benchmarks/bench_chunks.py).
+#: of CHUNK (the fits' chunk through a medium, veil.engine.evaluator), split over every
+#: device. Programs for 8, 16 and 32 configurations, one device below 16, each cost a
+#: compilation of seconds to make a call of a few configurations 1.5-5 ms faster at the fast
+#: rule, 10-17 ms at the default and 0.3 s at "high" (benchmarks/bench_chunks.py).
 CHUNK = 64
 
 
