@@ -4,6 +4,7 @@ auto`` on the paper's simulated data, and the bad-input rules."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
@@ -334,6 +335,40 @@ def test_fit_reference_auto_ranks_every_family(sessions, tmp_path):
     weights = [row["weight"] for row in chosen["candidates"]]
     assert sum(weights) == pytest.approx(1.0) and weights[0] == max(weights)
     assert FitResult.from_json(out).as_model().NAME == "torrance-sparrow"
+    # the explorer's fit view lists the candidates beside the fit's parameters, best first
+    from veil.viz.explore_fits import FitView
+    from veil.viz.explore_plots import FitPlots
+
+    view = FitView(FitResult.from_json(out), str(sessions["reference-clear"]), draws=0)
+    table = FitPlots(view, 0).table()
+    assert f"Chosen from {len(labels)} candidates" in table
+    listed = [line.split("|")[1].strip() for line in table.splitlines()
+              if line.startswith("| ") and "|---" not in line][len(result["params"]) + 2:]
+    assert [name.rstrip("*") for name in listed] == labels
+    assert listed[0] == "torrance-sparrow*"
+
+
+def test_fit_view_ranking_says_failures_and_a_close_call():
+    """The explorer's candidate table: failed and unconverged candidates named so, a close
+    call said; a fit without a ranking gets no table."""
+    from veil.viz.explore_fits import ranking_lines
+
+    rows = [dict(label="a", rms_relative=0.01, delta_bic=0.0, weight=0.6, converged=True, chi2=1.0),
+            dict(label="b", rms_relative=0.012, delta_bic=1.2, weight=0.4, converged=True, chi2=1.1),
+            dict(label="c", rms_relative=0.3, delta_bic=None, weight=0.0, converged=False, chi2=9.0),
+            dict(label="d", rms_relative=None, delta_bic=None, weight=0.0, converged=False,
+                 chi2=None)]
+    ranking = dict(candidates=rows, chosen="a", close_call=True, close=["a", "b"],
+                   close_delta_bic=2.0)
+    result = FitResult(model="torrance-sparrow", params={}, stderr={}, correlation={},
+                       residuals=(), chi2_reduced=1.0, rms_relative=0.01, n_points=3,
+                       converged=True, message="", stats={"selection": ranking})
+    lines = ranking_lines(result)
+    assert "| a* | 1 | 0.0 | 0.600 |" in lines
+    assert "| c (not converged) | 30 | - | 0.000 |" in lines
+    assert "| d (failed) | - | - | 0.000 |" in lines
+    assert "Close call: a, b within dBIC 2." in lines
+    assert ranking_lines(dataclasses.replace(result, stats={})) == []
 
 
 def test_single_fit_auto_bad_input(sessions, tmp_path):

@@ -40,6 +40,45 @@ def check_result_kind(result, source: str) -> FitResult:
     return result
 
 
+def ranking_lines(result) -> list[str]:
+    """The candidates a fit with ``--brdf-model auto`` / ``--models auto`` was chosen from
+    (its ``stats["selection"]``, :mod:`veil.fitting.selection`) as a compact Markdown table,
+    best first, the chosen one marked; [] for a fit without a ranking."""
+    ranking = (getattr(result, "stats", None) or {}).get("selection")
+    if not ranking or not ranking.get("candidates"):
+        return []
+
+    def num(v, fmt):
+        return "-" if v is None else format(v, fmt)
+
+    lines = [
+        "",
+        f"**Chosen from {len(ranking['candidates'])} candidates** (BIC, * chosen)",
+        "",
+        "| candidate | RMS % | dBIC | weight |",
+        "|---|---:|---:|---:|",
+    ]
+    for row in ranking["candidates"]:
+        mark = "*" if row["label"] == ranking.get("chosen") else ""
+        rms = None if row.get("rms_relative") is None else 100 * row["rms_relative"]
+        state = (
+            ""
+            if row.get("converged")
+            else (" (failed)" if row.get("chi2") is None else " (not converged)")
+        )
+        lines.append(
+            f"| {row['label']}{mark}{state} | {num(rms, '.3g')} | "
+            f"{num(row.get('delta_bic'), '.1f')} | {num(row.get('weight'), '.3f')} |"
+        )
+    if ranking.get("close_call"):
+        lines += [
+            "",
+            f"Close call: {', '.join(ranking['close'])} within dBIC "
+            f"{ranking['close_delta_bic']:g}.",
+        ]
+    return lines
+
+
 def result_channels(results, sources) -> tuple:
     """The channels of results fitted over several (docs/channels.md), the same in each
     such result; () when every result is of one channel."""
@@ -230,5 +269,6 @@ __all__ = [
     "RESIDUAL_TOLERANCE",
     "check_result_kind",
     "models_of",
+    "ranking_lines",
     "FitView",
 ]

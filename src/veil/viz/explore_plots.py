@@ -352,6 +352,7 @@ class FitPlots:
             f"chi2 reduced {r.chi2_reduced:.4g}, {r.n_points} points, "
             f"{'converged' if r.converged else 'NOT converged'}"
         )
+        rows += fits.ranking_lines(r)
         return "\n".join(rows)
 
     def draw_current(self, brdf, medium) -> None:
