@@ -90,7 +90,16 @@ def covariance(jw: Any, xp: Any = np) -> tuple[Any, Any]:
         _, s, vt = np.linalg.svd(je, full_matrices=False)
         full = bool(np.all(np.isfinite(s)) and s[-1] > s[0] * SINGULAR)
         return ((vt.T / s**2) @ vt) / np.outer(scale, scale), full
-    low, piv = ldl(xp.where(ok, je.T @ je, xp.eye(n)), xp)
+    inv, full = _equilibrated_inverse(je.T @ je, ok, xp)
+    return inv / xp.outer(scale, scale), full
+
+
+def _equilibrated_inverse(a: Any, ok: Any, xp: Any) -> tuple[Any, Any]:
+    """(inverse, full rank) of an equilibrated normal matrix ``a`` by the unrolled LDL^T
+    (the identity's where not ``ok``): full rank when ``ok`` and the smallest pivot is above
+    SINGULAR^2 x parameters."""
+    n = a.shape[0]
+    low, piv = ldl(xp.where(ok, a, xp.eye(n)), xp)
     full = ok & (xp.min(xp.stack(piv)) > SINGULAR**2 * n) if n else ok
     eye = xp.eye(n)
     inv = (
@@ -98,7 +107,7 @@ def covariance(jw: Any, xp: Any = np) -> tuple[Any, Any]:
         if n
         else xp.zeros((0, 0))
     )
-    return inv / xp.outer(scale, scale), full
+    return inv, full
 
 
 def normal_covariance(a: Any, finite: Any, xp: Any) -> tuple[Any, Any]:
@@ -107,18 +116,10 @@ def normal_covariance(a: Any, finite: Any, xp: Any) -> tuple[Any, Any]:
     matrix equilibrated to a unit diagonal, the unrolled LDL^T, full rank when the smallest
     pivot is above SINGULAR^2 x parameters), for a solver that forms J^T J from blocks
     without J (the maps over channels, :mod:`veil.maps.solve_channels`)."""
-    n = a.shape[0]
     norm = xp.sqrt(xp.maximum(xp.diag(a), 0.0))
     ok = finite & xp.all(norm > 0)
     safe = xp.where(norm > 0, norm, 1.0)
-    low, piv = ldl(xp.where(ok, a / xp.outer(safe, safe), xp.eye(n)), xp)
-    full = ok & (xp.min(xp.stack(piv)) > SINGULAR**2 * n) if n else ok
-    eye = xp.eye(n)
-    inv = (
-        xp.stack([ldl_solve(low, piv, eye[i], xp) for i in range(n)], axis=1)
-        if n
-        else xp.zeros((0, 0))
-    )
+    inv, full = _equilibrated_inverse(a / xp.outer(safe, safe), ok, xp)
     return inv / xp.outer(safe, safe), full
 
 

@@ -45,17 +45,23 @@ def probe_size(path) -> tuple[int, int]:
     if suffix == ".png":
         return _png_size(path)
     if suffix in (".tif", ".tiff"):
-        tifffile = require("tifffile", "reading a TIFF photo")
-        try:
-            with tifffile.TiffFile(path) as tif:
-                series = tif.series[0]
-                shape, axes = series.shape, series.axes
-        except Exception as exc:
-            raise InputError(f"{path}: cannot read as TIFF ({type(exc).__name__}: {exc})") from None
+        shape, axes = _tiff_layout(path)
         return int(shape[axes.index("Y")]), int(shape[axes.index("X")])
     photo = read_photo(path, [])
     h, w = photo.shape[:2]
     return (h // 2, w // 2) if photo.kind == "raw" else (h, w)
+
+
+def _tiff_layout(path: Path) -> tuple:
+    """(shape, axes) of a TIFF's first series, from its header; an InputError naming the
+    file if it cannot be read."""
+    tifffile = require("tifffile", "reading a TIFF photo")
+    try:
+        with tifffile.TiffFile(path) as tif:
+            series = tif.series[0]
+            return series.shape, series.axes
+    except Exception as exc:
+        raise InputError(f"{path}: cannot read as TIFF ({type(exc).__name__}: {exc})") from None
 
 
 def is_colour_file(path) -> bool:
@@ -70,13 +76,7 @@ def is_colour_file(path) -> bool:
             head = fh.read(26)
         return len(head) == 26 and head[25] in (2, 3, 6)  # RGB, palette, RGBA
     if suffix in (".tif", ".tiff"):
-        tifffile = require("tifffile", "reading a TIFF photo")
-        try:
-            with tifffile.TiffFile(path) as tif:
-                series = tif.series[0]
-                shape, axes = series.shape, series.axes
-        except Exception as exc:
-            raise InputError(f"{path}: cannot read as TIFF ({type(exc).__name__}: {exc})") from None
+        shape, axes = _tiff_layout(path)
         return "S" in axes and shape[axes.index("S")] >= 3
     return read_photo(path, []).shape[2] >= 3
 
