@@ -12,6 +12,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -48,8 +49,15 @@ def test_candidates_come_from_the_declarations():
     # apparatus options are never ranked: the Fresnel variant, path length, plate width
     for c in selection.candidates("brdf") + media:
         assert not set(c.options) & APPARATUS_OPTIONS
-    orders = {c.options["orders"] for c in media if c.family == "forward-series"}
+    # with a plate width every order weighting is a model of its own; without one the view
+    # side's landing factors are 1, and two pairs of them are one model each, fitted once
+    placed = selection.candidates("medium", {"path_length": 15.0, "plate_width": 5.0})
+    orders = {c.options["orders"] for c in placed if c.family == "forward-series"}
     assert orders == set(registry.REGISTRY["forward-series"].OPTIONS[3].choices)
+    assert not any(c.same for c in placed)
+    folded = {c.options["orders"]: c.same for c in media if c.family == "forward-series"}
+    assert folded == {"poisson": ({"orders": "view-side"},),
+                      "light-side": ({"orders": "cylinder"},)}
     # an option given pins its value; apparatus ones go to every candidate declaring them
     ggx = selection.candidates("brdf", {"distribution": "ggx"})
     assert [c.label for c in ggx if not c.family.endswith("-test")] == \
@@ -62,6 +70,42 @@ def test_candidates_come_from_the_declarations():
                                        "orders": "poisson"}
     assert media[0].model_options(given) == {"variant": "exit"}
     assert "MODEL_SETS" not in dir(veil.models)
+
+
+@pytest.mark.parametrize("apparatus", [{}, {"path_length": 15.0}])
+def test_options_folded_into_one_candidate_make_the_same_medium(apparatus):
+    """Every medium method the engine calls gives the same numbers for the option values
+    Model.same_model folds together (else auto would rank a model it never fitted)."""
+    rng = np.random.default_rng(3)
+    v = jnp.array([0.7, 0.95, 0.9, 1.33, 1.0])
+    cos = jnp.asarray(rng.uniform(0.1, 1.0, 9))
+    omm = jnp.asarray(rng.uniform(0.0, 0.3, 9))
+    r = rng.normal(size=(9, 3))
+    r[:, 2] = np.abs(r[:, 2]) + 0.5
+    r = jnp.asarray(r / np.linalg.norm(r, axis=1, keepdims=True))
+    rp = jnp.asarray(np.roll(np.asarray(r), 1, axis=0))
+    folded = 0
+    for name in registry.names("medium"):
+        cls = registry.REGISTRY[name]
+        seen: dict = {}
+        for c in selection.candidates("medium", dict(apparatus), families=[name]):
+            for opts in (c.options, *c.same):
+                full = {**cls.default_options(), **c.model_options(apparatus), **opts}
+                seen.setdefault(tuple(sorted(cls.same_model(full).items())), []).append(full)
+        for group in seen.values():
+            first, *others = [cls.template(**o) for o in group]
+            folded += len(others)
+            for other in others:
+                for out_a, out_b in (
+                    (first.lobe_weight(v), other.lobe_weight(v)),
+                    (first.delta_weight(v), other.delta_weight(v)),
+                    (first.phase(v, omm), other.phase(v, omm)),
+                    (first.factor_first(v, cos), other.factor_first(v, cos)),
+                    (first.view_weight(v, rp, r[0]), other.view_weight(v, rp, r[0])),
+                ):
+                    np.testing.assert_allclose(out_a, out_b, rtol=1e-13, atol=0)
+                assert first.has_view_weight() == other.has_view_weight()
+    assert folded == 2  # forward-series: view-side is poisson, cylinder is light-side
 
 
 def test_a_registered_plugin_family_becomes_a_candidate():

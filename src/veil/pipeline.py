@@ -199,7 +199,8 @@ def _channel_sources(inputs: dict, channels) -> dict | None:
         return None
     return {
         k: (inputs[k], inputs["black"] if k.endswith("_medium") else None)
-        for k in ("reference_clear", "reference_medium", "target_medium")
+        for k in ("reference_clear", "reference_medium", "target_medium", "target_clear")
+        if inputs[k] is not None
     }
 
 
@@ -430,7 +431,7 @@ def _pipeline(run: _Run, inputs: dict) -> PipelineResult:
     if plan is not None:
         # of several channels, the candidates are ranked on every channel's data
         ranked = data if sources is None else {k: stack(v) for k, v in data[CHANNEL_DATA].items()}
-        ref, med, tgt, brdf_model, brdf_options, rankings, kept = select_steps(
+        ref, med, tgt, direct, brdf_model, brdf_options, rankings, kept = select_steps(
             ranked,
             plan,
             accuracy=run.accuracy,
@@ -443,8 +444,9 @@ def _pipeline(run: _Run, inputs: dict) -> PipelineResult:
         )
     else:
         ref, med, tgt = _fit_steps(data, run, sources)
-    direct = comparison = None
-    if inputs["target_clear"] is not None:
+        direct = None
+    comparison = None
+    if direct is None and inputs["target_clear"] is not None:
         direct = _fit_direct(
             inputs["target_clear"] if channels else data["target_clear"],
             run,
@@ -452,6 +454,7 @@ def _pipeline(run: _Run, inputs: dict) -> PipelineResult:
             brdf_model=brdf_model,
             brdf_options=brdf_options,
         )
+    if direct is not None:
         comparison = compare(tgt, direct)
 
     fits = {"reference": ref, "medium": med, "target": tgt, "direct": direct}

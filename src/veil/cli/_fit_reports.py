@@ -36,8 +36,9 @@ def print_ranking(ranking) -> None:
     """One step's ranking of ``--models auto`` as a table."""
     from ..fitting.selection import table_lines
 
+    on = f" on {ranking.on}" if getattr(ranking, "on", None) else ""
     click.echo(
-        f"[[Candidates of step '{ranking.step}', ranked by BIC with the "
+        f"[[Candidates of step '{ranking.step}', ranked{on} by BIC with the "
         f"model-discrepancy term; * the one used]]"
     )
     for line in table_lines(ranking):

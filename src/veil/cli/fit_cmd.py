@@ -87,7 +87,7 @@ def _fit_through_medium(
     check_output_path(output, [table, black] + ([source] if os.path.exists(source) else []))
     step, what = _THROUGH_MEDIUM[kind]
 
-    def fit(family, options, fixed, freed, progress):
+    def fit(family, options, fixed, freed, progress, screen=False):
         return fit_step(
             table,
             model,
@@ -97,6 +97,7 @@ def _fit_through_medium(
             options=options,
             free=freed,
             channel=channel,
+            screen=screen,
             **{f"{kind}_model": family},
             **fit_options,
         )
@@ -125,12 +126,15 @@ def _per_candidate(items, cands, parse, option: str) -> dict:
     return out
 
 
-def _ranked_fit(ctx, kind: str, step: str, models, data, fit, what: str, fix=(), free=()):
+def _ranked_fit(
+    ctx, kind: str, step: str, models, data, fit, what: str, fix=(), free=(), quick=None
+):
     """``--brdf-model auto`` / ``--medium-model auto``: every registered family of ``kind``
     (with each value of its discrete options) fitted by ``fit(candidate, fixed, freed)`` and
-    ranked by BIC on ``data`` (veil.fitting.selection); the ranking printed and the chosen
-    result returned with it in ``stats["selection"]``. Exit 1 with the table when every
-    candidate failed."""
+    ranked by BIC on ``data`` (veil.fitting.selection), screened by ``quick(candidate,
+    fixed, freed)`` first when given (veil.fitting.screening); the ranking printed and the
+    chosen result returned with it in ``stats["selection"]``. Exit 1 with the table when
+    every candidate failed."""
     from ..fitting import selection
     from ..fitting.session_data import prepare_all
 
@@ -145,10 +149,19 @@ def _ranked_fit(ctx, kind: str, step: str, models, data, fit, what: str, fix=(),
     def one(c):
         return fit(c, fixes[c.label], frees[c.label])
 
+    def first(c):
+        return quick(c, fixes[c.label], frees[c.label])
+
     try:
         with echo_warnings(), fit_progress(step) as progress:
             ranking, results = selection.select(
-                step.rpartition(", ")[2], cands, prepared, one, what, progress
+                step.rpartition(", ")[2],
+                cands,
+                prepared,
+                one,
+                what,
+                progress,
+                None if quick is None else first,
             )
     except selection.NoCandidateError as exc:
         print_ranking(exc.ranking)
@@ -166,6 +179,7 @@ def _fit_step(ctx, kind: str, step: str, models, fit, data, what: str, fix=(), f
     cls = models.brdf if kind == "brdf" else models.medium
     options = models.brdf_options if kind == "brdf" else models.medium_options
     if kind in models.ranked:
+        through = step in {s for s, _ in _THROUGH_MEDIUM.values()}
         return _ranked_fit(
             ctx,
             kind,
@@ -176,6 +190,14 @@ def _fit_step(ctx, kind: str, step: str, models, fit, data, what: str, fix=(), f
             what,
             fix,
             free,
+            # a step through the medium screens its candidates by a quick fit each
+            (
+                lambda c, fixed, freed: fit(
+                    c.family, c.model_options(options), fixed, freed, None, screen=True
+                )
+            )
+            if through
+            else None,
         )
     fixed, freed = parse_fix(fix, cls), _parse_free(free, cls)
     with echo_warnings(), fit_progress(step) as progress:

@@ -9,6 +9,7 @@ chi-square or BIC), the chosen one again with it, unless every candidate's resul
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -21,7 +22,7 @@ from ..models import model_class
 from ..models.base import VARIANT_OPTION
 from . import selection
 from .result import FitResult
-from .steps import fit_medium, fit_reference, fit_target, model_values
+from .steps import fit_direct, fit_medium, fit_reference, fit_target, model_values
 
 
 def for_family(cls, per_step: dict, step: str, what: str, used: set) -> dict | list | None:
@@ -58,15 +59,15 @@ def fitted_curve(result: FitResult, data) -> np.ndarray:
 
 
 def rank_step(
-    step, cands, data, fit_one, progress, curves, what, propagated=None
+    step, cands, data, fit_one, progress, curves, what, propagated=None, quick=None
 ) -> tuple[selection.Ranking, dict]:
-    """Fit and rank one step's candidates (:func:`veil.fitting.selection.select`); a close
-    call's ranking carries the spread of the close candidates' ``curves``. With
-    ``propagated``, the candidates are fitted by ``fit_one`` without the given fit's
-    covariance (which moves no estimate, chi-square or BIC) and the chosen one again by
-    ``propagated``, with it: the derivatives in the given model are compiled and evaluated
-    for that one only."""
-    ranking, results = selection.select(step, cands, data, fit_one, what, progress)
+    """Fit and rank one step's candidates (:func:`veil.fitting.selection.select`, screened
+    by their ``quick`` fits when given); a close call's ranking carries the spread of the
+    close candidates' ``curves``. With ``propagated``, the candidates are fitted by
+    ``fit_one`` without the given fit's covariance (which moves no estimate, chi-square or
+    BIC) and the chosen one again by ``propagated``, with it: the derivatives in the given
+    model are compiled and evaluated for that one only."""
+    ranking, results = selection.select(step, cands, data, fit_one, what, progress, quick)
     if ranking.close_call:
         ranking = ranking.with_spread(
             selection.curve_spread(ranking, {lab: curves(results[lab]) for lab in ranking.close})
@@ -120,10 +121,14 @@ class _Ranked:
     progress: Any
     model_error: Any
     #: the propagation of the candidates' fits, and of the chosen one's refit (None: none)
-    screen: str
+    each: str
     again: str | None
+    #: every candidate fitted in full (its result written out), none screened out
+    keep_all: bool = False
     rankings: dict = field(default_factory=dict)
     kept: dict = field(default_factory=dict)
+    #: {"target": the chosen family's direct fit} when step 2 was ranked on clear data
+    direct: dict = field(default_factory=dict)
 
     def table(self, session: str) -> tuple:
         """(table, black) a candidate of ``session`` fits: of every channel when the
@@ -160,6 +165,51 @@ class _Ranked:
         self.rankings["reference"], self.kept["reference"] = ranking, results
         return selection.with_selection(results[ranking.chosen], ranking)
 
+    def target_on_clear(self, medium: FitResult, curve) -> tuple[FitResult, selection.Ranking]:
+        """Step 2 with the target's clear data: every BRDF candidate fitted to them directly
+        and ranked there (no integral), the chosen one then fitted through ``medium``."""
+        fix, free, options = self.plan["fix_t"], self.plan["free_t"], self.plan["brdf_options"]
+
+        def one(c):
+            return fit_direct(
+                self.table("target_clear")[0],
+                fixed=fix[c.label],
+                free=free[c.label],
+                max_nfev=self.max_nfev,
+                brdf_model=c.family,
+                options=c.model_options(options),
+                model_error=self.model_error,
+            )
+
+        ranking, results = rank_step(
+            "target",
+            self.plan["brdf"],
+            self.data["target_clear"],
+            one,
+            self.progress,
+            curve,
+            "target (clear medium)",
+        )
+        ranking = dataclasses.replace(ranking, on="the target's clear-medium data")
+        chosen = next(c for c in self.plan["brdf"] if c.label == ranking.chosen)
+        table, black = self.table("target_medium")
+        tgt = fit_target(
+            table,
+            medium,
+            black=black,
+            fixed=fix[chosen.label],
+            free=free[chosen.label],
+            accuracy=self.accuracy,
+            max_nfev=self.max_nfev,
+            options=chosen.model_options(options),
+            model_error=self.model_error,
+            propagation=self.again or self.each,
+            brdf_model=chosen.family,
+        )
+        self.rankings["target"], self.kept["target"] = ranking, results
+        self.direct["target"] = results[ranking.chosen]
+        return selection.with_selection(tgt, ranking), ranking
+
     def through_medium(
         self, step, fit, session, given, kind, curve
     ) -> tuple[FitResult, selection.Ranking]:
@@ -171,7 +221,7 @@ class _Ranked:
 
         table, black = self.table(session)
 
-        def one(c, chained=self.screen):
+        def one(c, chained=self.each, screen=False):
             return fit(
                 table,
                 given,
@@ -183,6 +233,7 @@ class _Ranked:
                 options=c.model_options(options),
                 model_error=self.model_error,
                 propagation=chained,
+                screen=screen,
                 **{f"{kind}_model": c.family},
             )
 
@@ -196,6 +247,8 @@ class _Ranked:
             curve,
             step,
             again and (lambda c: one(c, again)),
+            # --compare writes every candidate out: each one fitted in full
+            None if self.keep_all else (lambda c: one(c, screen=True)),
         )
         self.rankings[step], self.kept[step] = ranking, results
         return selection.with_selection(results[ranking.chosen], ranking), ranking
@@ -203,9 +256,11 @@ class _Ranked:
 
 def select_steps(
     data, plan, *, accuracy, max_nfev, progress, model_error, propagation, keep, sources=None
-) -> tuple[FitResult, FitResult, FitResult, str, dict, dict, dict]:
-    """Steps 0-2 with every candidate ranked: (reference, medium, target, the chosen BRDF
-    family, its options, {step: ranking}, {step: {label: result}} when ``keep``).
+) -> tuple[FitResult, FitResult, FitResult, FitResult | None, str, dict, dict, dict]:
+    """Steps 0-2 with every candidate ranked: (reference, medium, target, the target's
+    direct fit when step 2 was ranked on its clear data (``data["target_clear"]``), the
+    chosen BRDF family, its options, {step: ranking}, {step: {label: result}} when
+    ``keep``).
 
     ``data`` {session: the data the candidates are ranked on}; of sessions of several
     channels every channel's data stacked (:func:`veil.fitting.session_data.stack`), and
@@ -214,7 +269,7 @@ def select_steps(
     ones once)."""
     # the candidates without the given fit's covariance, the chosen one with it; with
     # ``keep`` (every candidate's result written out) each one with it
-    screen = propagation if keep or propagation == "off" else "off"
+    each = propagation if keep or propagation == "off" else "off"
     run = _Ranked(
         data,
         sources,
@@ -223,8 +278,9 @@ def select_steps(
         max_nfev,
         progress,
         model_error,
-        screen,
-        None if screen == propagation else propagation,
+        each,
+        None if each == propagation else propagation,
+        keep,
     )
     configs = protocol()
     angles = tuple(configs[c].to_numpy() for c in CANONICAL)
@@ -246,7 +302,12 @@ def select_steps(
         "medium",
         lambda r: fitted_curve(r, data["reference_medium"]),
     )
-    tgt, ranking = run.through_medium("target", fit_target, "target_medium", med, "brdf", fr_curve)
+    if data.get("target_clear") is not None:
+        tgt, ranking = run.target_on_clear(med, fr_curve)
+    else:
+        tgt, ranking = run.through_medium(
+            "target", fit_target, "target_medium", med, "brdf", fr_curve
+        )
     assert ranking.chosen is not None  # select() raised NoCandidateError otherwise
     chosen = ranking.row(ranking.chosen)
     brdf_options = plan["brdf_options"]
@@ -254,7 +315,8 @@ def select_steps(
         k: v for k, v in brdf_options.items() if k in model_class(chosen["family"]).option_names()
     }
     opts.update(chosen["options"])
-    return (ref, med, tgt, chosen["family"], opts, run.rankings, run.kept if keep else {})
+    kept = run.kept if keep else {}
+    return ref, med, tgt, run.direct.get("target"), chosen["family"], opts, run.rankings, kept
 
 
 __all__ = ["plan_candidates", "select_steps", "rank_step", "fitted_curve", "for_family"]

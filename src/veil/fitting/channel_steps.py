@@ -286,10 +286,13 @@ def fit_through(
     starts: int,
     role: str,
     source: str,
+    screen: bool = False,
 ) -> FitResult:
     """Step 1 (``step`` "medium") or 2 ("target") over every channel of ``datas`` (module
     docstring; docs/model.md sec. 7); ``given`` the reference (a fit or a BRDF) or the
-    medium held fixed."""
+    medium held fixed; ``screen`` as :func:`veil.fitting.step_fit.fit_step`."""
+    if screen:
+        accuracy, propagation = ITERATION_ACCURACY, "off"
     cls = type(fitted)
     what = "medium" if step == "medium" else "target"
     problem, layout, g_models = through_problem(
@@ -300,7 +303,13 @@ def fit_through(
         problem, cls.KIND, "medium" if step == "medium" else "target", starts, progress
     )
     outcome = run(
-        problem, begin, accuracy=accuracy, max_nfev=max_nfev, progress=progress, every=False
+        problem,
+        begin,
+        accuracy=accuracy,
+        max_nfev=max_nfev,
+        progress=progress,
+        every=False,
+        screen=screen,
     )
     summary = summarize(problem, outcome)
     x = outcome.solution.x

@@ -64,6 +64,9 @@ class Candidate:
 
     family: str
     options: dict = field(default_factory=dict)
+    #: other values of its ranked options that make the same model with the apparatus
+    #: options given (``Model.same_model``): fitted once, as this one
+    same: tuple = ()
 
     @property
     def kind(self) -> str:
@@ -86,13 +89,19 @@ class Candidate:
 
 def candidates(kind: str, given_options: dict | None = None, families=None) -> list[Candidate]:
     """The candidates of ``kind`` ("brdf" or "medium"); ``given_options`` pin ranked options
-    where a family declares them; ``families`` (names) restricts to those families."""
-    pinned = {k: v for k, v in (given_options or {}).items() if k not in registry.APPARATUS_OPTIONS}
-    found = [
-        Candidate(name, opts)
-        for name, opts in registry.candidates(kind, pinned)
-        if _constructible(name, opts)
-    ]
+    where a family declares them; ``families`` (names) restricts to those families. Values
+    that make the same model with the apparatus options given are one candidate
+    (``Candidate.same``)."""
+    given = dict(given_options or {})
+    pinned = {k: v for k, v in given.items() if k not in registry.APPARATUS_OPTIONS}
+    found = _one_per_model(
+        [
+            Candidate(name, opts)
+            for name, opts in registry.candidates(kind, pinned)
+            if _constructible(name, opts)
+        ],
+        given,
+    )
     # an option left with one value in a family (pinned, or the only one the model makes)
     # does not tell its candidates apart: out of their labels (model_options still sets it)
     out = []
@@ -104,12 +113,30 @@ def candidates(kind: str, given_options: dict | None = None, families=None) -> l
             if any(c2.options.get(k) != v for c2 in same)  # tells them apart
             or (v != _default(c.family, k) and k not in pinned)
         }  # nothing else sets it
-        out.append(Candidate(c.family, keep))
+        out.append(Candidate(c.family, keep, c.same))
     found = out
     if families is not None:
         wanted = [registry.model_class(f, kind).NAME for f in families]
         found = [c for c in found if c.family in wanted]
     return found
+
+
+def _one_per_model(found: list, given: dict) -> list:
+    """``found`` with the candidates that make the same model as an earlier one (its
+    family's ``same_model`` of every option, the ``given`` apparatus ones included) folded
+    into it: the one whose options are that model's own spelling is kept."""
+    groups: dict = {}
+    for c in found:
+        cls = registry.REGISTRY[c.family]
+        full = {**cls.default_options(), **c.model_options(given)}
+        key = (c.family, tuple(sorted(cls.same_model(full).items())))
+        groups.setdefault(key, []).append((c, full == cls.same_model(full)))
+    out = []
+    for members in groups.values():
+        keep = next((c for c, own in members if own), members[0][0])
+        others = tuple(dict(c.options) for c, _ in members if c is not keep)
+        out.append(Candidate(keep.family, keep.options, others))
+    return out
 
 
 def _default(name: str, option: str):
@@ -164,6 +191,19 @@ def workers(n: int) -> int:
     except ValueError:
         raise FitError(f"VEIL_CANDIDATE_THREADS = {env!r}; expected a whole number") from None
     return max(1, min(n, most))
+
+
+def teller(step: str, total: int, progress, what: str = ""):
+    """``tell(label, outcome)`` for :func:`fit_candidates`: ``progress(text, done, total)``
+    with the count of candidates done (``what`` names the kind of fit)."""
+    count = {"done": 0}
+
+    def tell(label, outcome):
+        count["done"] += 1
+        if progress is not None:
+            progress(f"{step}: {label} {what}{outcome}", count["done"], total)
+
+    return tell
 
 
 def fit_candidates(fit, cands, progress=None) -> dict:
@@ -233,8 +273,10 @@ def deviance(result: FitResult, data) -> tuple[float, int]:
 class Ranking:
     """One step's candidates, best first (``rows``: dicts with label, family, options,
     chi2, deviance, rms_relative, n_points, k, aic, bic, delta_bic, weight, converged,
-    error, seconds); ``chosen`` the best label (None when every candidate failed);
-    ``close`` the labels within :data:`CLOSE_DELTA_BIC` of it (itself included);
+    error, seconds, same: the labels it stands for, ``Candidate.same``; a screened-out one
+    also screened and note, :mod:`veil.fitting.screening`); ``chosen`` the best label (None
+    when every candidate failed); ``close`` the labels within :data:`CLOSE_DELTA_BIC` of it
+    (itself included);
     ``spread`` the close call's curve spread (:func:`curve_spread`) or None."""
 
     step: str
@@ -242,6 +284,8 @@ class Ranking:
     chosen: str | None
     close: list
     spread: dict | None = None
+    #: the data it was ranked on when not the step's own (step 2 on the target's clear data)
+    on: str | None = None
 
     @property
     def close_call(self) -> bool:
@@ -265,15 +309,18 @@ class Ranking:
             "close_delta_bic": CLOSE_DELTA_BIC,
             "candidates": [{k: clean(v) for k, v in r.items()} for r in self.rows],
             "spread": self.spread,
+            "ranked_on": self.on,
         }
 
     def with_spread(self, spread: dict | None) -> Ranking:
-        return Ranking(self.step, self.rows, self.chosen, self.close, spread)
+        return dataclasses.replace(self, spread=spread)
 
 
-def rank(step: str, fitted: dict, data, cands=None) -> Ranking:
+def rank(step: str, fitted: dict, data, cands=None, screened=()) -> Ranking:
     """Rank ``fitted`` ({label: (FitResult or exception, seconds)}) on ``data`` (the
-    FitData the fits saw). Failed and unconverged candidates are listed last, unranked."""
+    FitData the fits saw). ``screened``: rows of candidates screened out
+    (:mod:`veil.fitting.screening`), listed after the ranked ones with their dBIC, weight 0.
+    Failed and unconverged candidates are listed last, unranked."""
     by_label = {c.label: c for c in (cands or [])}
     rows = []
     for label, (result, seconds) in fitted.items():
@@ -294,6 +341,7 @@ def rank(step: str, fitted: dict, data, cands=None) -> Ranking:
             "converged": False,
             "error": None,
             "seconds": round(seconds, 3),
+            "same": [Candidate(cand.family, o).label for o in cand.same] if cand else [],
         }
         if isinstance(result, Exception):
             row["error"] = f"{type(result).__name__}: {result}"
@@ -333,24 +381,28 @@ def rank(step: str, fitted: dict, data, cands=None) -> Ranking:
     others = [r for r in rows if r["error"] is not None]
     chosen = ranked[0]["label"] if ranked else None
     close = [r["label"] for r in ranked if r["delta_bic"] <= CLOSE_DELTA_BIC]
-    return Ranking(step, ranked + others, chosen, close)
+    out = [dict(r, delta_bic=r["bic"] - ranked[0]["bic"] if ranked else None) for r in screened]
+    return Ranking(step, ranked + out + others, chosen, close)
 
 
-def select(step: str, cands, data, fit, what: str, progress=None) -> tuple[Ranking, dict]:
+def select(
+    step: str, cands, data, fit, what: str, progress=None, quick_fit=None
+) -> tuple[Ranking, dict]:
     """Fit every candidate (``fit(candidate)``, in threads) and rank them on ``data``:
-    (ranking, {label: FitResult}). A :class:`NoCandidateError` when every candidate failed;
-    the chosen one is warned about when it misses the data (``what`` names them)."""
+    (ranking, {label: FitResult}); with ``quick_fit`` (a step through the medium) the
+    candidates are screened first (:mod:`veil.fitting.screening`). A
+    :class:`NoCandidateError` when every candidate failed; the chosen one is warned about
+    when it misses the data (``what`` names them)."""
     if progress is not None:
         progress(f"{step}: {len(cands)} candidates in {workers(len(cands))} thread(s)", None, None)
-    count = {"done": 0}
+    screened: list = []
+    if quick_fit is not None and len(cands) > 1:
+        from .screening import screen_fits
 
-    def tell(label, outcome):
-        count["done"] += 1
-        if progress is not None:
-            progress(f"{step}: {label} {outcome}", count["done"], len(cands))
-
-    fitted = fit_candidates(fit, cands, tell)
-    ranking = rank(step, fitted, data, cands)
+        fitted, screened = screen_fits(step, cands, data, fit, quick_fit, progress)
+    else:
+        fitted = fit_candidates(fit, cands, teller(step, len(cands), progress))
+    ranking = rank(step, fitted, data, cands, screened)
     results = {lab: res for lab, (res, _) in fitted.items() if isinstance(res, FitResult)}
     if ranking.chosen is None:
         raise NoCandidateError(step, ranking)
@@ -412,10 +464,22 @@ def table_lines(ranking: Ranking, markdown: bool = False) -> list[str]:
                 num(r["bic"], ".2f"),
                 num(r["delta_bic"], ".2f"),
                 num(r["weight"], ".3f"),
-                "yes" if r["converged"] else ("failed" if r["chi2"] is None else "no"),
+                "screened"
+                if r.get("screened")
+                else ("yes" if r["converged"] else ("failed" if r["chi2"] is None else "no")),
             )
         )
-    notes = [f"  {r['label']}: {r['error']}" for r in ranking.rows if r["error"]]
+    notes = [
+        f"  {r['label']}: {r['error'] or r.get('note')}"
+        for r in ranking.rows
+        if r["error"] or r.get("note")
+    ]
+    notes += [
+        f"  {r['label']}: the same model as {', '.join(r['same'])} with the options given; "
+        "fitted once"
+        for r in ranking.rows
+        if r.get("same")
+    ]
     if markdown:
         lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
         lines += ["| " + " | ".join(b) + " |" for b in body]
@@ -458,6 +522,7 @@ __all__ = [
     "candidates",
     "parse_models",
     "workers",
+    "teller",
     "fit_candidates",
     "deviance",
     "Ranking",

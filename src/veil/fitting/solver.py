@@ -54,6 +54,10 @@ from .problem import ITERATION_ACCURACY, Problem
 TOL_ITER = 1e-2
 TOL_POLISH = 1e-2
 TOL_FINAL = 1e-4
+#: The quick fits that screen candidates (:mod:`veil.fitting.screening`): a step of 0.3
+#: standard errors (of the noise, or of the misfit where the reduced chi-square is above 1)
+#: leaves the deviance about 0.1 above its minimum, far inside the screen's margin.
+TOL_SCREEN = 0.3
 #: Reduced chi-square up to which a converged weighted fit inside its search range makes
 #: further starts unnecessary.
 CONVINCING = 2.0
@@ -237,12 +241,18 @@ def run(
     max_nfev=None,
     progress=None,
     every: bool = False,
+    screen: bool = False,
 ) -> Outcome:
     """Least squares from each natural start vector (best first): all of them when
     ``every``, else the next only while the fits so far are not convincing; the best is
-    polished at ``accuracy`` when the problem has a medium (module docstring)."""
+    polished at ``accuracy`` when the problem has a medium (module docstring). A ``screen``
+    runs the first start only, at the "fast" quadrature to TOL_SCREEN, unpolished: a
+    candidate's quick fit for ranking (:mod:`veil.fitting.screening`)."""
     through_medium = any(b.medium is not None for b in problem.blocks)
+    if screen:
+        starts, accuracy, every = list(starts)[:1], ITERATION_ACCURACY, False
     polish = through_medium and accuracy != ITERATION_ACCURACY
+    tol = TOL_SCREEN if screen else (TOL_ITER if polish else TOL_FINAL)
     runs: list[Solution] = []
     skipped = 0
     for s, x0 in enumerate(starts):
@@ -250,11 +260,7 @@ def run(
             skipped = len(starts) - s
             break
         tick = ticker(progress, f"start {s + 1}/{len(starts)}: iteration")
-        runs.append(
-            solve(
-                problem, x0, tol=TOL_ITER if polish else TOL_FINAL, max_nfev=max_nfev, on_eval=tick
-            )
-        )
+        runs.append(solve(problem, x0, tol=tol, max_nfev=max_nfev, on_eval=tick))
     if not runs:
         raise FitError("no starting point: the starting grid gave no finite cost")
     best = min(range(len(runs)), key=lambda r: (runs[r].cost, r))
@@ -288,6 +294,8 @@ def run(
         "runs": run_stats,
         "configurations": problem.n_points,
     }
+    if screen:
+        stats["screen"] = True
     if through_medium:
         stats["engine_calls"] = problem.engine_calls()
     return Outcome(sol, values, final_accuracy, notes, stats)

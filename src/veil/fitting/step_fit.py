@@ -193,11 +193,15 @@ def fit_step(
     freed=(),
     model_error: str = "off",
     propagation: str = "auto",
+    screen: bool = False,
 ) -> FitResult:
     """One step: the ``fitted`` model's parameters free (but ``fixed``, and the held ones not
     ``freed``), ``given`` held; unless ``model_error`` is "off" a weighted fit estimates the
     model-discrepancy term of that kind (:mod:`veil.fitting.model_error`); ``propagation``
-    is how a given fit's covariance enters (:mod:`veil.fitting.propagation`)."""
+    is how a given fit's covariance enters (:mod:`veil.fitting.propagation`); a ``screen``
+    is a candidate's quick fit (:func:`veil.fitting.solver.run`), without propagation."""
+    if screen:
+        accuracy, propagation = ITERATION_ACCURACY, "off"
     cls = type(fitted)
     brdf, medium = (given, fitted) if cls.KIND == "medium" else (fitted, given)
     clash = [n for n in freed if n in fixed]
@@ -226,6 +230,7 @@ def fit_step(
         max_nfev=max_nfev,
         progress=progress,
         every=medium is None,
+        screen=screen,
     )
     summary = summarize(problem, outcome)
     x = outcome.solution.x

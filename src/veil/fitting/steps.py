@@ -223,6 +223,7 @@ def fit_medium(
     model_error=None,
     propagation=None,
     channel: str | None = None,
+    screen: bool = False,
 ) -> FitResult:
     """Step 1 (docs/model.md sec. 7): fit the medium, the reference's f_r fixed.
 
@@ -243,6 +244,8 @@ def fit_medium(
         (:mod:`veil.fitting.channel_steps`): the medium's parameters declared per channel
         one per channel, the others tied, each channel through the reference's model of
         that channel (a fit over the same channels; a BRDF model is every channel's).
+    screen : a candidate's quick fit for ranking it (:mod:`veil.fitting.screening`): the
+        grid's best start only, at the "fast" quadrature, unpolished, not propagated.
     Other arguments as :func:`fit_reference`.
     """
     check_accuracy(accuracy)
@@ -269,6 +272,7 @@ def fit_medium(
             starts=STARTS["medium"],
             role="the reference",
             source=_source(several),
+            screen=screen,
         )
     reference = _of_channel(reference, channel)
     brdf = as_given(reference, "brdf", "the reference")
@@ -286,6 +290,7 @@ def fit_medium(
         _freed(cls, free, "medium"),
         model_error,
         propagation,
+        screen=screen,
     )
 
 
@@ -305,6 +310,7 @@ def fit_target(
     model_error=None,
     propagation=None,
     channel: str | None = None,
+    screen: bool = False,
 ) -> FitResult:
     """Step 2 (docs/model.md sec. 7): fit the target's f_r, the medium fixed.
 
@@ -343,6 +349,7 @@ def fit_target(
             starts=STARTS["target"],
             role="the medium",
             source=_source(several),
+            screen=screen,
         )
     model_m = as_given(_of_channel(medium, channel), "medium", "the medium")
     check_options(model_m, _options(None, variant), "the medium")
@@ -360,6 +367,7 @@ def fit_target(
         _freed(cls, free, "target"),
         model_error,
         propagation,
+        screen=screen,
     )
 
 

@@ -251,6 +251,14 @@ class Model:
         return {o.name: o.default for o in cls.OPTIONS}
 
     @classmethod
+    def same_model(cls, options: dict) -> dict:
+        """``options`` (every declared one) written the one way of the model they make: two
+        sets whose models give equal values map to equal dicts, so model selection fits
+        that model once (docs/choosing-models.md). As given unless a family declares
+        otherwise."""
+        return dict(options)
+
+    @classmethod
     def start_grid(cls, role: str) -> dict:
         """{parameter: values} of the starting grid of a fit in ``role`` (may be empty)."""
         return dict(cls.START.get(role, {}))

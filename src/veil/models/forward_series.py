@@ -398,6 +398,17 @@ class ForwardSeries(Medium):
     #: The renderers' own plugins for it (veil.models.renderers).
     RENDERERS = {"mitsuba": _series_mitsuba, "pbrt": _series_pbrt}
 
+    @classmethod
+    def same_model(cls, options: dict) -> dict:
+        """Without a plate width the view side's landing factors are 1 (``view_weight``):
+        "view-side" is "poisson" and "cylinder" is "light-side"."""
+        out = dict(options)
+        if not out.get("plate_width", 0.0):
+            out["orders"] = {"view-side": "poisson", "cylinder": "light-side"}.get(
+                out.get("orders", "poisson"), out.get("orders", "poisson")
+            )
+        return out
+
     def __post_init__(self) -> None:
         super().__post_init__()
         for name in ("path_length", "plate_width"):

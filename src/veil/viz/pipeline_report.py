@@ -210,11 +210,17 @@ def ranking_section(rankings: dict) -> list[str]:
         "residuals under each fit's model-discrepancy term (the chi-square when it has "
         "none), k its free parameters (with the term's when fitted from its own "
         "residuals); weight exp(-dBIC/2), normalized. * marks the model used. A "
-        "candidate that failed or did not converge is listed and not ranked.",
+        "candidate that failed or did not converge is listed and not ranked; one screened "
+        "out (its quick fit misses by more than the fast quadrature can explain) is listed "
+        "with its quick fit's numbers.",
         "",
     ]
     for step, ranking in rankings.items():
-        out += [f"### {titles.get(step, step)}", ""] + table_lines(ranking, markdown=True) + [""]
+        title = titles.get(step, step)
+        if getattr(ranking, "on", None):
+            title = f"{title.partition(',')[0]}, ranked on {ranking.on}; the chosen one fitted "
+            title += "through the chosen medium"
+        out += [f"### {title}", ""] + table_lines(ranking, markdown=True) + [""]
     return out
 
 

@@ -1,0 +1,120 @@
+"""Screening the candidates of a step through the medium (issue 29; docs/choosing-models.md):
+every candidate's quick fit first, the full fit only for those that could still be chosen.
+
+- **Quick fit** (``screen=True`` of :func:`veil.fitting.fit_medium` / ``fit_target``): the
+  starting grid's best start only, iterated at the "fast" quadrature to the iterations'
+  tolerance, not polished, no covariance propagated.
+- **Its BIC's interval**: the fast quadrature is within :data:`FAST_ERROR` (relative, of the
+  value or of 1e-3 of the largest) of a converged integral at every configuration of every
+  registered family pair (measured at most 7.2e-3 against "high" and 8.9e-3 against
+  "default", rough conductor through the forward series: benchmarks/bench_fast_error.py).
+  Moving every model value that far toward the data and away from it bounds the deviance
+  (the ranking's -2 ln L, :func:`veil.fitting.selection.deviance`) that quadrature error
+  can explain: the interval [lower, upper] of the candidate's BIC.
+- **Who goes on**: a candidate whose lower end lies more than :data:`SCREEN_MARGIN` above the
+  smallest upper end of a converged quick fit is screened out: listed with its quick fit's
+  BIC, not fitted further. Every other one gets the full fit, and the ranking is theirs.
+  What the interval does not bound: a minimum that only a later start would find, and the
+  descent left to a quick fit that stopped without converging (its BIC is where it
+  stopped); a candidate that misses by more than SCREEN_MARGIN from its best start is taken
+  to be out.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+from .result import FitResult
+from .selection import Ranking, deviance, fit_candidates, rank, teller
+
+#: Relative error of the "fast" quadrature that the screen allows for: twice the largest
+#: measured (module docstring).
+FAST_ERROR = 2e-2
+#: BIC by which a candidate's best case must miss the best one's worst case to be screened
+#: out (Kass and Raftery 1995: above 10 is "very strong" evidence).
+SCREEN_MARGIN = 10.0
+
+
+def bic_interval(result: FitResult, data, bic: float) -> tuple[float, float]:
+    """[lower, upper] of a quick fit's ``bic`` when every model value may be off by
+    FAST_ERROR of itself (module docstring)."""
+    r = np.asarray(result.residuals, dtype=float)
+    weighted = result.weighted and data.sigma is not None
+    scale = data.sigma if weighted else 1.0
+    f = np.abs(data.y - r * scale)
+    a = FAST_ERROR * np.maximum(f, 1e-3 * f.max(initial=0.0)) / scale
+    dev, _ = deviance(result, data)
+
+    def moved(res):
+        return deviance(dataclasses.replace(result, residuals=tuple(res.tolist())), data)[0]
+
+    sign = np.where(r < 0, -1.0, 1.0)
+    toward = sign * np.maximum(np.abs(r) - a, 0.0)
+    away = r + sign * a
+    return bic + moved(toward) - dev, bic + moved(away) - dev
+
+
+def survivors(ranking: Ranking, quick: dict, data) -> tuple[list[str], dict]:
+    """(labels that get the full fit, {label: (lower, upper)} of the rest's BIC) from the
+    quick fits' ``ranking`` and results ``quick`` {label: FitResult or exception}."""
+    bounds = {}
+    for row in ranking.rows:
+        result = quick.get(row["label"])
+        if isinstance(result, FitResult) and row["bic"] is not None and math.isfinite(row["bic"]):
+            bounds[row["label"]] = bic_interval(result, data, row["bic"])
+    tops = [bounds[r["label"]][1] for r in ranking.rows if r["converged"] and r["label"] in bounds]
+    limit = min(tops) + SCREEN_MARGIN if tops else math.inf
+    keep, out = [], {}
+    for row in ranking.rows:
+        label, result = row["label"], quick.get(row["label"])
+        if not isinstance(result, FitResult):
+            continue  # it failed: reported as failed
+        if label not in bounds or bounds[label][0] <= limit:
+            keep.append(label)
+        else:
+            out[label] = bounds[label]
+    return keep, out
+
+
+def _screened_rows(quick_ranking: Ranking, out: dict) -> list[dict]:
+    """The screened-out candidates' rows: their quick fit's numbers, weight 0, and what
+    happened (:func:`veil.fitting.selection.rank` sets their dBIC against the best)."""
+    rows = []
+    for label, (lower, _) in out.items():
+        row = dict(quick_ranking.row(label))
+        row.update(
+            screened=True,
+            weight=0.0,
+            error=None,
+            note=(
+                "screened out: its quick fit (best start, fast quadrature"
+                + ("" if row["converged"] else f"; {row['error']}")
+                + f") has BIC {row['bic']:.4g}, at least {lower:.4g} with the quadrature's "
+                f"error, more than {SCREEN_MARGIN:g} above the best; not fitted further"
+            ),
+        )
+        rows.append(row)
+    return sorted(rows, key=lambda r: r["bic"])
+
+
+def screen_fits(step: str, cands, data, fit, quick_fit, progress=None) -> tuple:
+    """Every candidate's ``quick_fit(candidate)``, then ``fit(candidate)`` for the survivors
+    (module docstring), both in threads, ``progress(text, done, total)`` after each:
+    ({label: (full FitResult or the exception of either fit, seconds of both)}, the
+    screened-out candidates' rows)."""
+    quick = fit_candidates(quick_fit, cands, teller(step, len(cands), progress, "quick fit "))
+    quick_ranking = rank(step, quick, data, cands)
+    keep, out = survivors(quick_ranking, {lab: q[0] for lab, q in quick.items()}, data)
+    going = [c for c in cands if c.label in keep]
+    if progress is not None:
+        progress(f"{step}: {len(going)} of {len(cands)} go on to the full fit", None, None)
+    full = fit_candidates(fit, going, teller(step, len(going), progress))
+    fitted = {lab: (res, sec + quick[lab][1]) for lab, (res, sec) in full.items()}
+    fitted.update({lab: q for lab, q in quick.items() if isinstance(q[0], Exception)})
+    return fitted, _screened_rows(quick_ranking, out)
+
+
+__all__ = ["FAST_ERROR", "SCREEN_MARGIN", "bic_interval", "survivors", "screen_fits"]

@@ -1,0 +1,128 @@
+"""Screening the candidates of a step through the medium (veil.fitting.screening): the BIC
+interval a quick fit leaves for the fast quadrature's error, who goes on to the full fit,
+and, end to end, that a screened ranking chooses exactly what the pinned pair fits."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+import veil
+from veil.fitting import FitResult, screening, selection
+from veil.fitting.session_data import FitData
+
+N = 40
+ANGLES = tuple(np.full(N, v) for v in (10.0, 0.0, 10.0, 180.0))
+
+
+def _data(y, sigma) -> FitData:
+    return FitData(ANGLES, np.asarray(y, float), None if sigma is None else np.asarray(sigma),
+                   table=None)  # type: ignore[arg-type]
+
+
+def _fit(residuals, converged=True) -> FitResult:
+    """A fit of two free parameters (Pd, n) with these weighted residuals."""
+    return FitResult(model="torrance-sparrow", params={"Pd": 1.0, "n": 1.0, "Ps": 1.0,
+                                                       "eta": 1.5},
+                     stderr={"Pd": 0.1, "n": 0.1}, correlation={},
+                     residuals=tuple(float(r) for r in residuals), chi2_reduced=1.0,
+                     rms_relative=0.01, n_points=len(residuals), converged=converged,
+                     message="" if converged else "did not converge: test", weighted=True,
+                     fixed={"Ps": 1.0, "eta": 1.5})
+
+
+def test_bic_interval_moves_every_value_by_the_fast_rules_error():
+    """Without a model-error term the deviance is the chi-square: the interval's ends are
+    sum(max(|r| - a, 0)^2) and sum((|r| + a)^2), a = FAST_ERROR f / sigma."""
+    rng = np.random.default_rng(0)
+    y = rng.uniform(50, 150, N)
+    sigma = np.full(N, 1.0)
+    r = rng.normal(0, 2.0, N)
+    fit = _fit(r)
+    data = _data(y, sigma)
+    f = y - r * sigma  # all well above 1e-3 of the largest
+    a = screening.FAST_ERROR * np.abs(f) / sigma
+    chi2 = float(r @ r)
+    bic = chi2 + 2 * math.log(N)
+    lower, upper = screening.bic_interval(fit, data, bic)
+    assert lower == pytest.approx(bic - chi2 + np.sum(np.maximum(np.abs(r) - a, 0) ** 2))
+    assert upper == pytest.approx(bic - chi2 + np.sum((np.abs(r) + a) ** 2))
+    assert lower < bic < upper
+
+
+def _ranked(fits: dict, data) -> tuple[selection.Ranking, dict]:
+    cands = [selection.Candidate(f"family-{k}") for k in fits]
+    fitted = {c.label: (fit, 0.1) for c, fit in zip(cands, fits.values())}
+    ranking = selection.rank("medium", fitted, data, cands)
+    return ranking, {lab: q[0] for lab, q in fitted.items()}
+
+
+def test_only_a_candidate_that_cannot_be_chosen_is_screened_out(monkeypatch):
+    """A fit 30 sigma off every point is out, and so is one that stopped 40 sigma off; one
+    whose chi-square is 15 above the best is within the fast rule's reach (its interval
+    overlaps the best's) and goes on; a quick fit that raised is neither (it is reported as
+    failed)."""
+    y, sigma = np.full(N, 100.0), np.full(N, 1.0)
+    data = _data(y, sigma)
+    base = np.resize([1.0, -1.0], N)
+    fits = {
+        "good": _fit(base),
+        "near": _fit(base * math.sqrt(1 + 15 / N)),
+        "far": _fit(base * 30.0),
+        "stopped-far": _fit(base * 40.0, converged=False),
+    }
+    ranking, results = _ranked(fits, data)
+    results["family-raised"] = RuntimeError("no start")
+    keep, out = screening.survivors(ranking, results, data)
+    assert keep == ["family-good", "family-near"]
+    assert set(out) == {"family-far", "family-stopped-far"}
+    best_upper = screening.bic_interval(fits["good"], data, ranking.row("family-good")["bic"])[1]
+    assert all(lo > best_upper + screening.SCREEN_MARGIN for lo, _ in out.values())
+    # with the margin widened past the far one's interval, it would go on too
+    monkeypatch.setattr(screening, "SCREEN_MARGIN", out["family-far"][0] - best_upper + 1.0)
+    assert "family-far" in screening.survivors(ranking, results, data)[0]
+
+
+@pytest.fixture(scope="module")
+def sessions(tmp_path_factory):
+    """The paper's simulated sessions (test_model_selection.py's, the same coarse grid)."""
+    from test_model_selection import SIM
+
+    d = tmp_path_factory.mktemp("screen")
+    tables = {"reference_clear": veil.simulate(veil.BRDF2, None, noise=0.01, seed=0, **SIM)}
+    tables["reference_medium"], tables["black"] = veil.simulate(
+        veil.BRDF2, veil.BTDF2, noise=0.01, seed=1, black=True, **SIM)
+    tables["target_medium"] = veil.simulate(veil.BRDF1, veil.BTDF2, noise=0.01, seed=2, **SIM)
+    paths = {}
+    for role, table in tables.items():
+        paths[role] = d / f"{role}.csv"
+        table.to_csv(paths[role], index=False)
+    return paths
+
+
+def test_screened_auto_chooses_exactly_what_the_pinned_pair_fits(sessions, tmp_path):
+    """Steps 1 and 2 through the medium, screened: the forward series (which cannot describe
+    the paper's medium) is screened out, and the chosen fits are the pinned pair's, bit for
+    bit (the survivors' full fits are the pinned fits)."""
+    kw = dict(black=sessions["black"], accuracy="fast", figures=False, propagation="off",
+              max_nfev=40)
+    files = [sessions[k] for k in ("reference_clear", "reference_medium", "target_medium")]
+    # one value of each ranked option: every family, fewer programs
+    auto = veil.run_pipeline(*files, outdir=tmp_path / "auto", models="auto",
+                             brdf_options={"distribution": "beckmann"},
+                             medium_options={"orders": "poisson"}, **kw)
+    pinned = veil.run_pipeline(*files, outdir=tmp_path / "pinned", models="paper", **kw)
+    medium = {r["label"]: r for r in auto.rankings["medium"].rows}
+    assert auto.rankings["medium"].chosen == "henyey-greenstein"
+    assert medium["forward-series"].get("screened") is True
+    assert medium["forward-series"]["weight"] == 0.0
+    assert medium["forward-series"]["delta_bic"] > screening.SCREEN_MARGIN
+    lines = "\n".join(selection.table_lines(auto.rankings["medium"]))
+    assert "screened out: its quick fit" in lines
+    assert auto.rankings["target"].chosen == "torrance-sparrow"
+    for step in ("medium", "target"):
+        a, p = getattr(auto, step), getattr(pinned, step)
+        assert a.params == p.params and a.residuals == p.residuals
+    assert "screened out" in (tmp_path / "auto" / "report.md").read_text()
