@@ -205,3 +205,35 @@ def test_cli_joint_not_converged_says_so(tables, tmp_path):
     data = json.loads(out.read_text())
     assert data["converged"] is False and data["message"].startswith("did not converge")
     assert math.isfinite(data["params"]["n"])
+
+
+def test_cli_joint_medium_model_auto_ranks_the_media(tables, joint, tmp_path):
+    """``veil fit joint --medium-model auto``: every medium's joint fit (one order weighting:
+    fewer programs), screened and ranked; the paper's medium made the data and is chosen
+    (the forward series, which cannot describe it, screened out by its quick fit), and its
+    result is the pinned joint fit's, bit for bit."""
+    paths = {}
+    for label, t in tables.items():
+        paths[label] = tmp_path / f"{label}.csv"
+        veil.save_measurements(t, paths[label])
+    out = tmp_path / "j.json"
+    args = ["fit", "joint", "--accuracy", "fast", "--fix", "Td[low]=1e-3", "--medium-model",
+            "auto", "--orders", "poisson", "-o", str(out)]
+    for label, p in paths.items():
+        args += ["--session", f"{label}={p}"]
+    result = CliRunner().invoke(main, args)
+    assert result.exit_code == 0, result.output
+    assert "Candidates of step 'joint'" in result.output
+    saved = json.loads(out.read_text())
+    ranking = saved["stats"]["selection"]
+    assert ranking["chosen"] == "torrance-sparrow + henyey-greenstein"
+    rows = {row["label"]: row for row in ranking["candidates"]}
+    assert set(rows) == {"torrance-sparrow + henyey-greenstein",
+                         "torrance-sparrow + forward-series"}
+    assert rows["torrance-sparrow + forward-series"]["screened"] is True
+    chosen = load_result(out)
+    assert chosen.params == joint.params and chosen.residuals == joint.residuals
+    # a fixed name no candidate declares is an input error, and nothing is written
+    bad = CliRunner().invoke(main, args[:-2] + ["--fix", "nosuch=1", "-o", str(tmp_path / "b")])
+    assert bad.exit_code == 2 and "no candidate model has such a parameter" in bad.output
+    assert not (tmp_path / "b").exists()

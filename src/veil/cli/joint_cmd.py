@@ -113,6 +113,26 @@ def _names(text, option):
     return names
 
 
+def _ranked_joint(ctx, loaded, ranked, kw: dict):
+    """``--brdf-model auto`` / ``--medium-model auto``: every candidate's joint fit ranked
+    (veil.fitting.joint_selection), the table printed; exit 1 with it when every candidate
+    failed."""
+    from ..fitting.joint_selection import fit_joint_ranked
+    from ..fitting.selection import NoCandidateError
+    from ._common import echo_warnings, fit_progress
+    from ._fit_reports import print_ranking
+
+    try:
+        with echo_warnings(), fit_progress("joint fit") as progress:
+            result, ranking = fit_joint_ranked(loaded, ranked, progress=progress, **kw)
+    except NoCandidateError as exc:
+        print_ranking(exc.ranking)
+        click.echo(f"Error: {exc}; nothing was written", err=True)
+        ctx.exit(1)
+    print_ranking(ranking)
+    return result
+
+
 @click.command("joint")
 @click.option(
     "--session",
@@ -196,7 +216,7 @@ def _names(text, option):
 @model_error_option
 @propagation_option
 @click.pass_context
-@model_options()
+@model_options(auto_kinds=("brdf", "medium"))
 def joint_command(
     ctx,
     sessions,
@@ -248,26 +268,28 @@ def joint_command(
         if os.path.exists(reference):
             inputs.append(reference)
     check_output_path(output, inputs)
-    with echo_warnings(), fit_progress("joint fit") as progress:
-        from ..fitting.joint import fit_joint
+    kw = dict(
+        reference=ref,
+        shared=_names(shared, "--shared"),
+        per_medium=_names(per_medium, "--per-medium"),
+        fixed=fixed or None,
+        accuracy=accuracy,
+        max_nfev=max_nfev,
+        brdf_model=models.brdf.NAME,
+        medium_model=models.medium.NAME,
+        brdf_options=models.brdf_options,
+        medium_options=models.medium_options,
+        model_error=model_error,
+        propagation=propagation,
+        channel=channel,
+    )
+    if models.ranked:
+        result = _ranked_joint(ctx, loaded, models.ranked, kw)
+    else:
+        with echo_warnings(), fit_progress("joint fit") as progress:
+            from ..fitting.joint import fit_joint
 
-        result = fit_joint(
-            loaded,
-            reference=ref,
-            shared=_names(shared, "--shared"),
-            per_medium=_names(per_medium, "--per-medium"),
-            fixed=fixed or None,
-            accuracy=accuracy,
-            max_nfev=max_nfev,
-            progress=progress,
-            brdf_model=models.brdf.NAME,
-            medium_model=models.medium.NAME,
-            brdf_options=models.brdf_options,
-            medium_options=models.medium_options,
-            model_error=model_error,
-            propagation=propagation,
-            channel=channel,
-        )
+            result = fit_joint(loaded, progress=progress, **kw)
     result.to_json(output)
     click.echo(result.report())
     finish_fits(ctx, [result], [output])

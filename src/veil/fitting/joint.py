@@ -124,12 +124,18 @@ def _solve(
     progress,
     model_error: str,
     propagation: str,
+    screen: bool = False,
 ) -> JointResult:
     """The joint problem solved from its starts, its uncertainties reported (the given
-    reference's covariance to first order, the media's as ``propagation`` says)."""
+    reference's covariance to first order, the media's as ``propagation`` says); a
+    ``screen`` is a quick fit (:func:`veil.fitting.solver.run`), nothing propagated."""
+    if screen:
+        accuracy, propagation = ITERATION_ACCURACY, "off"
     given_result = (
         reference
-        if isinstance(reference, FitResult) and reference.covariance(total=True) is not None
+        if not screen
+        and isinstance(reference, FitResult)
+        and reference.covariance(total=True) is not None
         else None
     )
     index = {n: k for k, n in enumerate(problem.names)}
@@ -144,7 +150,9 @@ def _solve(
         )
     else:
         starts = joint_starts(problem, layout, start, STARTS, _direct_fit(problem), progress)
-    outcome = run(problem, starts, accuracy=accuracy, max_nfev=max_nfev, progress=progress)
+    outcome = run(
+        problem, starts, accuracy=accuracy, max_nfev=max_nfev, progress=progress, screen=screen
+    )
     summary = summarize(problem, outcome)
     given = reference_entry(reference, layout)
     rep = reported(
@@ -182,6 +190,7 @@ def fit_joint(
     model_error=None,
     propagation=None,
     channel: str | None = None,
+    screen: bool = False,
 ) -> JointResult:
     """Fit several sessions of one target under several media at once (module docstring).
 
@@ -215,6 +224,8 @@ def fit_joint(
         every channel by its one-channel name, or one channel's; ``reference`` a fit over
         the same channels or a model of every channel). With ``channel``, a reference
         fitted over several channels gives its model of that channel.
+    screen : a candidate's quick fit for ranking (:mod:`veil.fitting.joint_selection`): the
+        best start only, at the "fast" quadrature, unpolished, nothing propagated.
     """
     check_accuracy(accuracy)
     model_error = discrepancy.check_kind(model_error)
@@ -240,7 +251,16 @@ def fit_joint(
         channel=channel,
     )
     return _solve(
-        problem, layout, reference, start, accuracy, max_nfev, progress, model_error, propagation
+        problem,
+        layout,
+        reference,
+        start,
+        accuracy,
+        max_nfev,
+        progress,
+        model_error,
+        propagation,
+        screen,
     )
 
 

@@ -1,0 +1,167 @@
+"""``fit_joint`` with the data choosing the model (issue 29; docs/choosing-models.md):
+``--brdf-model auto`` and/or ``--medium-model auto`` of ``veil fit joint``.
+
+Every candidate of the ranked kinds (:func:`veil.fitting.selection.candidates`; both
+ranked: every pair) is one joint fit of all the sessions, screened first by its quick fit
+(:mod:`veil.fitting.screening`), and ranked by BIC with the model-discrepancy term on the
+stacked data of the joint problem (every session's points in the problem's row order).
+A fixed, shared or per-medium name applies to the candidates whose families declare it;
+one that no candidate declares is an error.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from typing import Any
+
+from ..errors import FitError
+from ..models import model_class
+from . import selection
+from .joint import fit_joint
+from .joint_problem import build
+from .result import FitResult
+from .session_data import FitData
+
+
+@dataclass(frozen=True)
+class JointCandidate:
+    """One pair of a joint fit's families: the target's (and reference's) ``brdf`` and the
+    ``medium``, each a :class:`veil.fitting.selection.Candidate`."""
+
+    brdf: selection.Candidate
+    medium: selection.Candidate
+
+    @property
+    def label(self) -> str:
+        return f"{self.brdf.label} + {self.medium.label}"
+
+    @property
+    def family(self) -> str:
+        return f"{self.brdf.family}+{self.medium.family}"
+
+    @property
+    def options(self) -> dict:
+        return {**self.brdf.options, **self.medium.options}
+
+    @property
+    def same(self) -> tuple:
+        return ()
+
+
+def joint_candidates(
+    ranked, brdf_model, medium_model, brdf_options, medium_options
+) -> list[JointCandidate]:
+    """The pairs to fit: every candidate of each kind in ``ranked`` ("brdf", "medium"), the
+    named family (None: the paper's) of the other."""
+
+    def of(kind, name, options):
+        if kind in ranked:
+            return selection.candidates(kind, options)
+        return [selection.Candidate(model_class(name or _paper(kind), kind).NAME)]
+
+    brdfs = of("brdf", brdf_model, brdf_options)
+    media = of("medium", medium_model, medium_options)
+    return [JointCandidate(b, m) for b in brdfs for m in media]
+
+
+def _paper(kind: str) -> str:
+    from ..models import default_class
+
+    return default_class(kind).NAME
+
+
+def _base(name: str) -> str:
+    """A joint fit's parameter name without its object prefix and its medium or channel
+    subscripts: "ref.eta" -> "eta", "Td[low][r]" -> "Td"."""
+    return re.sub(r"\[.*$", "", name.removeprefix("ref."))
+
+
+def _declared(c: JointCandidate) -> set:
+    return set(model_class(c.brdf.family).param_names()) | set(
+        model_class(c.medium.family).param_names()
+    )
+
+
+def per_candidate(cands, names, what: str) -> dict:
+    """{label: the entries of ``names`` (a dict or a list) its families declare}; one that no
+    candidate declares is a FitError."""
+    if not names:
+        return {c.label: names for c in cands}
+    out, used = {}, set()
+    for c in cands:
+        mine = [n for n in names if _base(n) in _declared(c)]
+        used.update(mine)
+        out[c.label] = {n: names[n] for n in mine} if isinstance(names, dict) else mine
+    unused = [n for n in names if n not in used]
+    if unused:
+        raise FitError(f"{what} {', '.join(unused)}: no candidate model has such a parameter")
+    return out
+
+
+def ranking_data(sessions, **build_kw) -> FitData:
+    """The stacked data every candidate's joint fit is ranked on: the joint problem's
+    values, sigma and angles in its row order (the same for every family pair)."""
+    problem, _ = build(sessions, **build_kw)
+    sigma = 1.0 / problem.w if problem.weighted else None
+    return FitData(problem.angles, problem.y, sigma, table=None)  # type: ignore[arg-type]
+
+
+def fit_joint_ranked(
+    sessions,
+    ranked,
+    *,
+    brdf_model=None,
+    medium_model=None,
+    brdf_options=None,
+    medium_options=None,
+    fixed=None,
+    free=None,
+    shared=None,
+    per_medium=None,
+    progress=None,
+    **fit_kw: Any,
+) -> tuple[FitResult, selection.Ranking]:
+    """:func:`veil.fitting.joint.fit_joint` of every candidate (module docstring), ranked:
+    (the chosen one's result, its ranking in ``stats["selection"]``; the ranking). A
+    :class:`veil.fitting.selection.NoCandidateError` when every candidate failed."""
+    brdf_options, medium_options = dict(brdf_options or {}), dict(medium_options or {})
+    cands = joint_candidates(ranked, brdf_model, medium_model, brdf_options, medium_options)
+    entries = {
+        "fixed": per_candidate(cands, fixed, "fixed"),
+        "free": per_candidate(cands, free, "free"),
+        "shared": per_candidate(cands, shared, "shared"),
+        "per_medium": per_candidate(cands, per_medium, "per-medium"),
+    }
+    c0 = cands[0]
+    data = ranking_data(
+        sessions,
+        reference=fit_kw.get("reference"),
+        brdf_model=c0.brdf.family,
+        medium_model=c0.medium.family,
+        brdf_options=c0.brdf.model_options(brdf_options),
+        medium_options=c0.medium.model_options(medium_options),
+        channel=fit_kw.get("channel"),
+        variant=fit_kw.get("variant"),
+        **{k: v[c0.label] for k, v in entries.items()},
+    )
+
+    def one(c: JointCandidate, screen: bool = False) -> FitResult:
+        return fit_joint(
+            sessions,
+            brdf_model=c.brdf.family,
+            medium_model=c.medium.family,
+            brdf_options=c.brdf.model_options(brdf_options),
+            medium_options=c.medium.model_options(medium_options),
+            screen=screen,
+            **{k: v[c.label] for k, v in entries.items()},
+            **fit_kw,
+        )
+
+    ranking, results = selection.select(
+        "joint", cands, data, one, "joint", progress, lambda c: one(c, screen=True)
+    )
+    return selection.with_selection(results[ranking.chosen], ranking), ranking
+
+
+__all__ = ["JointCandidate", "joint_candidates", "per_candidate", "fit_joint_ranked"]
