@@ -104,7 +104,7 @@ def ranking_data(sessions, **build_kw) -> FitData:
     values, sigma and angles in its row order (the same for every family pair)."""
     problem, _ = build(sessions, **build_kw)
     sigma = 1.0 / problem.w if problem.weighted else None
-    return FitData(problem.angles, problem.y, sigma, table=None)  # type: ignore[arg-type]
+    return FitData(problem.angles, problem.y, sigma, table=None)
 
 
 def fit_joint_ranked(
