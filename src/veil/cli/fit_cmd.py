@@ -135,7 +135,7 @@ def _ranked_fit(
     fixed, freed)`` first when given (veil.fitting.screening); the ranking printed and the
     chosen result returned with it in ``stats["selection"]``. Exit 1 with the table when
     every candidate failed."""
-    from ..fitting import selection
+    from ..fitting import screening, selection
     from ..fitting.session_data import prepare_all
 
     cands = selection.candidates(
@@ -154,7 +154,7 @@ def _ranked_fit(
 
     try:
         with echo_warnings(), fit_progress(step) as progress:
-            ranking, results = selection.select(
+            ranking, results = screening.select(
                 step.rpartition(", ")[2],
                 cands,
                 prepared,

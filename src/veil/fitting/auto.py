@@ -20,7 +20,7 @@ from ..data.protocol import protocol
 from ..errors import FitError
 from ..models import model_class
 from ..models.base import VARIANT_OPTION
-from . import selection
+from . import screening, selection
 from .result import FitResult
 from .steps import fit_direct, fit_medium, fit_reference, fit_target, model_values
 
@@ -61,13 +61,13 @@ def fitted_curve(result: FitResult, data) -> np.ndarray:
 def rank_step(
     step, cands, data, fit_one, progress, curves, what, propagated=None, quick=None
 ) -> tuple[selection.Ranking, dict]:
-    """Fit and rank one step's candidates (:func:`veil.fitting.selection.select`, screened
+    """Fit and rank one step's candidates (:func:`veil.fitting.screening.select`, screened
     by their ``quick`` fits when given); a close call's ranking carries the spread of the
     close candidates' ``curves``. With ``propagated``, the candidates are fitted by
     ``fit_one`` without the given fit's covariance (which moves no estimate, chi-square or
     BIC) and the chosen one again by ``propagated``, with it: the derivatives in the given
     model are compiled and evaluated for that one only."""
-    ranking, results = selection.select(step, cands, data, fit_one, what, progress, quick)
+    ranking, results = screening.select(step, cands, data, fit_one, what, progress, quick)
     if ranking.close_call:
         ranking = ranking.with_spread(
             selection.curve_spread(ranking, {lab: curves(results[lab]) for lab in ranking.close})

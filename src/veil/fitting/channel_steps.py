@@ -291,8 +291,7 @@ def fit_through(
     """Step 1 (``step`` "medium") or 2 ("target") over every channel of ``datas`` (module
     docstring; docs/model.md sec. 7); ``given`` the reference (a fit or a BRDF) or the
     medium held fixed; ``screen`` as :func:`veil.fitting.step_fit.fit_step`."""
-    if screen:
-        accuracy, propagation = ITERATION_ACCURACY, "off"
+    accuracy, propagation = (ITERATION_ACCURACY, "off") if screen else (accuracy, propagation)
     cls = type(fitted)
     what = "medium" if step == "medium" else "target"
     problem, layout, g_models = through_problem(
@@ -302,15 +301,8 @@ def fit_through(
     begin, n_grid = through_starts(
         problem, cls.KIND, "medium" if step == "medium" else "target", starts, progress
     )
-    outcome = run(
-        problem,
-        begin,
-        accuracy=accuracy,
-        max_nfev=max_nfev,
-        progress=progress,
-        every=False,
-        screen=screen,
-    )
+    kw = dict(accuracy=accuracy, max_nfev=max_nfev, progress=progress, screen=screen)
+    outcome = run(problem, begin, **kw)
     summary = summarize(problem, outcome)
     x = outcome.solution.x
     mine = [n for n in dict.fromkeys(layout[c][p.name] for p in cls.PARAMS for c in layout)]

@@ -224,13 +224,11 @@ def fit_joint(
         every channel by its one-channel name, or one channel's; ``reference`` a fit over
         the same channels or a model of every channel). With ``channel``, a reference
         fitted over several channels gives its model of that channel.
-    screen : a candidate's quick fit for ranking (:mod:`veil.fitting.joint_selection`): the
-        best start only, at the "fast" quadrature, unpolished, nothing propagated.
+    screen : a candidate's quick fit to rank it (:mod:`veil.fitting.screening`).
     """
     check_accuracy(accuracy)
-    model_error = discrepancy.check_kind(model_error)
-    propagation = check_method(propagation)
     check_max_nfev(max_nfev)
+    model_error, propagation = discrepancy.check_kind(model_error), check_method(propagation)
     start = _start_models(start)
     if channel is not None and isinstance(reference, FitResult) and reference.channels:
         # one channel of a reference fitted over several: its model of that channel, held
@@ -250,18 +248,8 @@ def fit_joint(
         free=free,
         channel=channel,
     )
-    return _solve(
-        problem,
-        layout,
-        reference,
-        start,
-        accuracy,
-        max_nfev,
-        progress,
-        model_error,
-        propagation,
-        screen,
-    )
+    how = (accuracy, max_nfev, progress, model_error, propagation, screen)
+    return _solve(problem, layout, reference, start, *how)
 
 
 def _media_beyond_first_order(problem: Problem, x, rep: Reported, method: str) -> Reported:

@@ -17,7 +17,7 @@ from typing import Any
 
 from ..errors import FitError
 from ..models import model_class
-from . import selection
+from . import screening, selection
 from .joint import fit_joint
 from .joint_problem import build
 from .result import FitResult
@@ -142,7 +142,6 @@ def fit_joint_ranked(
         brdf_options=c0.brdf.model_options(brdf_options),
         medium_options=c0.medium.model_options(medium_options),
         channel=fit_kw.get("channel"),
-        variant=fit_kw.get("variant"),
         **{k: v[c0.label] for k, v in entries.items()},
     )
 
@@ -158,7 +157,7 @@ def fit_joint_ranked(
             **fit_kw,
         )
 
-    ranking, results = selection.select(
+    ranking, results = screening.select(
         "joint", cands, data, one, "joint", progress, lambda c: one(c, screen=True)
     )
     return selection.with_selection(results[ranking.chosen], ranking), ranking

@@ -1,5 +1,6 @@
-"""Screening the candidates of a step through the medium (issue 29; docs/choosing-models.md):
-every candidate's quick fit first, the full fit only for those that could still be chosen.
+"""Fitting one step's candidates and ranking them (:func:`select`, issue 29;
+docs/choosing-models.md); through the medium screened: every candidate's quick fit first,
+the full fit only for those that could still be chosen.
 
 - **Quick fit** (``screen=True`` of :func:`veil.fitting.fit_medium` / ``fit_target``): the
   starting grid's best start only, iterated at the "fast" quadrature to the iterations'
@@ -28,7 +29,16 @@ import math
 import numpy as np
 
 from .result import FitResult
-from .selection import Ranking, deviance, fit_candidates, rank, teller
+from .selection import (
+    NoCandidateError,
+    Ranking,
+    deviance,
+    fit_candidates,
+    rank,
+    teller,
+    workers,
+)
+from .steps import warn_misfit
 
 #: Relative error of the "fast" quadrature that the screen allows for: twice the largest
 #: measured (module docstring).
@@ -117,4 +127,27 @@ def screen_fits(step: str, cands, data, fit, quick_fit, progress=None) -> tuple:
     return fitted, _screened_rows(quick_ranking, out)
 
 
-__all__ = ["FAST_ERROR", "SCREEN_MARGIN", "bic_interval", "survivors", "screen_fits"]
+def select(
+    step: str, cands, data, fit, what: str, progress=None, quick_fit=None
+) -> tuple[Ranking, dict]:
+    """Fit every candidate (``fit(candidate)``, in threads) and rank them on ``data``:
+    (ranking, {label: FitResult}); with ``quick_fit`` (a step through the medium) the
+    candidates are screened first (:func:`screen_fits`). A :class:`NoCandidateError` when
+    every candidate failed; the chosen one is warned about when it misses the data
+    (``what`` names them)."""
+    if progress is not None:
+        progress(f"{step}: {len(cands)} candidates in {workers(len(cands))} thread(s)", None, None)
+    screened: list = []
+    if quick_fit is not None and len(cands) > 1:
+        fitted, screened = screen_fits(step, cands, data, fit, quick_fit, progress)
+    else:
+        fitted = fit_candidates(fit, cands, teller(step, len(cands), progress))
+    ranking = rank(step, fitted, data, cands, screened)
+    results = {lab: res for lab, (res, _) in fitted.items() if isinstance(res, FitResult)}
+    if ranking.chosen is None:
+        raise NoCandidateError(step, ranking)
+    warn_misfit(results[ranking.chosen].chi2_reduced, data, what)
+    return ranking, results
+
+
+__all__ = ["FAST_ERROR", "SCREEN_MARGIN", "bic_interval", "survivors", "screen_fits", "select"]

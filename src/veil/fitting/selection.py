@@ -29,6 +29,7 @@ import os
 import threading
 import time
 import warnings
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
@@ -38,7 +39,7 @@ from ..errors import FitError
 from ..models import registry
 from .model_error import _nll_independent, _nll_spectrum, _spectrum, correlation, distances
 from .result import FitResult
-from .steps import MisfitWarning, warn_misfit
+from .steps import MisfitWarning
 
 #: Candidates whose BIC is within this of the best are a close call (Kass and Raftery 1995:
 #: "not worth more than a bare mention").
@@ -193,7 +194,7 @@ def workers(n: int) -> int:
     return max(1, min(n, most))
 
 
-def teller(step: str, total: int, progress, what: str = ""):
+def teller(step: str, total: int, progress, what: str = "") -> Callable[[str, str], None]:
     """``tell(label, outcome)`` for :func:`fit_candidates`: ``progress(text, done, total)``
     with the count of candidates done (``what`` names the kind of fit)."""
     count = {"done": 0}
@@ -383,31 +384,6 @@ def rank(step: str, fitted: dict, data, cands=None, screened=()) -> Ranking:
     close = [r["label"] for r in ranked if r["delta_bic"] <= CLOSE_DELTA_BIC]
     out = [dict(r, delta_bic=r["bic"] - ranked[0]["bic"] if ranked else None) for r in screened]
     return Ranking(step, ranked + out + others, chosen, close)
-
-
-def select(
-    step: str, cands, data, fit, what: str, progress=None, quick_fit=None
-) -> tuple[Ranking, dict]:
-    """Fit every candidate (``fit(candidate)``, in threads) and rank them on ``data``:
-    (ranking, {label: FitResult}); with ``quick_fit`` (a step through the medium) the
-    candidates are screened first (:mod:`veil.fitting.screening`). A
-    :class:`NoCandidateError` when every candidate failed; the chosen one is warned about
-    when it misses the data (``what`` names them)."""
-    if progress is not None:
-        progress(f"{step}: {len(cands)} candidates in {workers(len(cands))} thread(s)", None, None)
-    screened: list = []
-    if quick_fit is not None and len(cands) > 1:
-        from .screening import screen_fits
-
-        fitted, screened = screen_fits(step, cands, data, fit, quick_fit, progress)
-    else:
-        fitted = fit_candidates(fit, cands, teller(step, len(cands), progress))
-    ranking = rank(step, fitted, data, cands, screened)
-    results = {lab: res for lab, (res, _) in fitted.items() if isinstance(res, FitResult)}
-    if ranking.chosen is None:
-        raise NoCandidateError(step, ranking)
-    warn_misfit(results[ranking.chosen].chi2_reduced, data, what)
-    return ranking, results
 
 
 def with_selection(result: FitResult, ranking: Ranking) -> FitResult:

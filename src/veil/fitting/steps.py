@@ -244,18 +244,13 @@ def fit_medium(
         (:mod:`veil.fitting.channel_steps`): the medium's parameters declared per channel
         one per channel, the others tied, each channel through the reference's model of
         that channel (a fit over the same channels; a BRDF model is every channel's).
-    screen : a candidate's quick fit for ranking it (:mod:`veil.fitting.screening`): the
-        grid's best start only, at the "fast" quadrature, unpolished, not propagated.
+    screen : a candidate's quick fit to rank it (:mod:`veil.fitting.screening`).
     Other arguments as :func:`fit_reference`.
     """
-    check_accuracy(accuracy)
-    check_max_nfev(max_nfev)
-    model_error = discrepancy.check_kind(model_error)
-    propagation = check_method(propagation)
+    model_error, propagation = _checked(accuracy, max_nfev, model_error, propagation)
     cls = _family(medium_model, "medium")
     fitted = _template(cls, _options(options, variant))
-    what = "reference (in the medium)"
-    several = _several(table, black, channel, what)
+    several = _several(table, black, channel, "reference (in the medium)")
     if several is not None:
         return fit_through(
             "medium",
@@ -323,10 +318,7 @@ def fit_target(
     more than a quarter of its scale, as tau at optical depth 0.1, and at most 3 times it:
     beyond, the first order with a note).
     """
-    check_accuracy(accuracy)
-    check_max_nfev(max_nfev)
-    model_error = discrepancy.check_kind(model_error)
-    propagation = check_method(propagation)
+    model_error, propagation = _checked(accuracy, max_nfev, model_error, propagation)
     cls = _family(brdf_model, "brdf")
     fitted = _template(cls, dict(options or {}))
     several = _several(table, black, channel, "target (in the medium)")
@@ -369,6 +361,13 @@ def fit_target(
         propagation,
         screen=screen,
     )
+
+
+def _checked(accuracy, max_nfev, model_error, propagation) -> tuple[str, str]:
+    """The settings of a step through the medium checked: (model_error, propagation)."""
+    check_accuracy(accuracy)
+    check_max_nfev(max_nfev)
+    return discrepancy.check_kind(model_error), check_method(propagation)
 
 
 def _several(table, black, channel: str | None, what: str) -> dict[str, FitData] | None:
