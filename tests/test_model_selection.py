@@ -393,15 +393,17 @@ def test_fit_reference_auto_ranks_every_family(sessions, tmp_path):
 
 
 def test_fit_view_ranking_says_failures_and_a_close_call():
-    """The explorer's candidate table: failed and unconverged candidates named so, a close
-    call said; a fit without a ranking gets no table."""
+    """The explorer's candidate table: failed, unconverged and screened-out candidates named
+    so, a close call said; a fit without a ranking gets no table."""
     from veil.viz.explore_fits import ranking_lines
 
     rows = [dict(label="a", rms_relative=0.01, delta_bic=0.0, weight=0.6, converged=True, chi2=1.0),
             dict(label="b", rms_relative=0.012, delta_bic=1.2, weight=0.4, converged=True, chi2=1.1),
             dict(label="c", rms_relative=0.3, delta_bic=None, weight=0.0, converged=False, chi2=9.0),
             dict(label="d", rms_relative=None, delta_bic=None, weight=0.0, converged=False,
-                 chi2=None)]
+                 chi2=None),
+            dict(label="e", rms_relative=0.29, delta_bic=5040.0, weight=0.0, converged=True,
+                 chi2=1e5, screened=True)]
     ranking = dict(candidates=rows, chosen="a", close_call=True, close=["a", "b"],
                    close_delta_bic=2.0)
     result = FitResult(model="torrance-sparrow", params={}, stderr={}, correlation={},
@@ -411,6 +413,7 @@ def test_fit_view_ranking_says_failures_and_a_close_call():
     assert "| a* | 1 | 0.0 | 0.600 |" in lines
     assert "| c (not converged) | 30 | - | 0.000 |" in lines
     assert "| d (failed) | - | - | 0.000 |" in lines
+    assert "| e (screened out) | 29 | 5040.0 | 0.000 |" in lines
     assert "Close call: a, b within dBIC 2." in lines
     assert ranking_lines(dataclasses.replace(result, stats={})) == []
 

@@ -62,7 +62,9 @@ def ranking_lines(result) -> list[str]:
         mark = "*" if row["label"] == ranking.get("chosen") else ""
         rms = None if row.get("rms_relative") is None else 100 * row["rms_relative"]
         state = (
-            ""
+            " (screened out)"
+            if row.get("screened")
+            else ""
             if row.get("converged")
             else (" (failed)" if row.get("chi2") is None else " (not converged)")
         )
