@@ -12,7 +12,6 @@ import subprocess
 import sys
 from pathlib import Path
 
-import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -77,13 +76,13 @@ def test_options_folded_into_one_candidate_make_the_same_medium(apparatus):
     """Every medium method the engine calls gives the same numbers for the option values
     Model.same_model folds together (else auto would rank a model it never fitted)."""
     rng = np.random.default_rng(3)
-    v = jnp.array([0.7, 0.95, 0.9, 1.33, 1.0])
-    cos = jnp.asarray(rng.uniform(0.1, 1.0, 9))
-    omm = jnp.asarray(rng.uniform(0.0, 0.3, 9))
+    v = np.array([0.7, 0.95, 0.9, 1.33, 1.0])
+    cos = rng.uniform(0.1, 1.0, 9)
+    omm = rng.uniform(0.0, 0.3, 9)
     r = rng.normal(size=(9, 3))
     r[:, 2] = np.abs(r[:, 2]) + 0.5
-    r = jnp.asarray(r / np.linalg.norm(r, axis=1, keepdims=True))
-    rp = jnp.asarray(np.roll(np.asarray(r), 1, axis=0))
+    r = r / np.linalg.norm(r, axis=1, keepdims=True)
+    rp = np.roll(r, 1, axis=0)
     folded = 0
     for name in registry.names("medium"):
         cls = registry.REGISTRY[name]
