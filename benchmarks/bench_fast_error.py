@@ -1,9 +1,11 @@
 """How far the "fast" quadrature is from "default" and "high", every registered pair.
 
-    .venv/bin/python benchmarks/bench_fast_error.py [--doc docs/choosing-models.md]
+    .venv/bin/python benchmarks/bench_fast_error.py [--doc docs/engine.md]
 
 For every registered BRDF family x medium model at their template values (the declared
-starting values, default options) and the paper's six preset pairs: the apparent
+starting values, default options), the paper's six preset pairs, and the rough plastic
+through the forward series in the lab's geometry (path length 15, plate width 5) with each
+of the series' order weightings, at a path-traced session's fitted values: the apparent
 reflectance at the protocol's 111 configurations at each rule, and the largest relative
 difference of "fast" and of "default" from "high", relative to the value or to 1e-3 of the
 largest value, whichever is larger. veil.fitting.screening.FAST_ERROR, the fast rule's
@@ -30,6 +32,14 @@ def pairs() -> list[tuple[str, object, object]]:
            for m in ("BTDF1", "BTDF2", "BTDF3")]
     out += [(f"{b} x {m} (template)", REGISTRY[b].template(), REGISTRY[m].template())
             for b in names("brdf") for m in names("medium")]
+    # session m05's fitted plate and water (validation/data), every order weighting
+    plate = REGISTRY["rough-plastic"].from_params(
+        {"rho": 0.5, "ks": 1.0, "alpha": 0.1, "eta": 1.12})
+    for orders in ("poisson", "light-side", "view-side", "cylinder"):
+        water = REGISTRY["forward-series"].from_params(
+            {"tau": 0.5, "omega": 0.99, "g": 0.93, "eta_u": 1.33, "s": 1.0},
+            {"path_length": 15.0, "plate_width": 5.0, "orders": orders})
+        out.append((f"rough-plastic x forward-series, m05, orders {orders}", plate, water))
     return out
 
 

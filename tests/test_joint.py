@@ -218,10 +218,10 @@ def test_cli_joint_medium_model_auto_ranks_the_media(tables, joint, tmp_path):
         veil.save_measurements(t, paths[label])
     out = tmp_path / "j.json"
     args = ["fit", "joint", "--accuracy", "fast", "--fix", "Td[low]=1e-3", "--medium-model",
-            "auto", "--orders", "poisson", "-o", str(out)]
+            "auto", "--orders", "poisson"]
     for label, p in paths.items():
         args += ["--session", f"{label}={p}"]
-    result = CliRunner().invoke(main, args)
+    result = CliRunner().invoke(main, args + ["-o", str(out)])
     assert result.exit_code == 0, result.output
     assert "Candidates of step 'joint'" in result.output
     saved = json.loads(out.read_text())
@@ -236,6 +236,13 @@ def test_cli_joint_medium_model_auto_ranks_the_media(tables, joint, tmp_path):
         assert chosen.params[name] == pytest.approx(value, rel=1e-9, abs=1e-12), name
     np.testing.assert_allclose(chosen.residuals, joint.residuals, rtol=1e-7, atol=1e-9)
     # a fixed name no candidate declares is an input error, and nothing is written
-    bad = CliRunner().invoke(main, args[:-2] + ["--fix", "nosuch=1", "-o", str(tmp_path / "b")])
+    bad = CliRunner().invoke(main, args + ["--fix", "nosuch=1", "-o", str(tmp_path / "b")])
     assert bad.exit_code == 2 and "no candidate model has such a parameter" in bad.output
     assert not (tmp_path / "b").exists()
+    # a medium parameter named by its slot in a joint fit (the paper's eta is eta_u) applies
+    # to both media
+    from veil.fitting.joint_selection import joint_candidates, per_candidate
+
+    cands = joint_candidates({"medium"}, None, None, {}, {"orders": "poisson"})
+    shared = per_candidate(cands, ["eta_u"], "shared")
+    assert all(v == ["eta_u"] for v in shared.values()) and len(shared) == 2

@@ -35,7 +35,8 @@ def _fit(residuals, converged=True) -> FitResult:
 
 def test_bic_interval_moves_every_value_by_the_fast_rules_error():
     """Without a model-error term the deviance is the chi-square: the interval's ends are
-    sum(max(|r| - a, 0)^2) and sum((|r| + a)^2), a = FAST_ERROR f / sigma."""
+    sum(max(|r| - a, 0)^2) and sum((|r| + a)^2), a = FAST_ERROR f / sigma, widened by the
+    BIC of the term's two parameters."""
     rng = np.random.default_rng(0)
     y = rng.uniform(50, 150, N)
     sigma = np.full(N, 1.0)
@@ -47,12 +48,15 @@ def test_bic_interval_moves_every_value_by_the_fast_rules_error():
     chi2 = float(r @ r)
     bic = chi2 + 2 * math.log(N)
     lower, upper = screening.bic_interval(fit, data, bic)
-    assert lower == pytest.approx(bic - chi2 + np.sum(np.maximum(np.abs(r) - a, 0) ** 2))
-    assert upper == pytest.approx(bic - chi2 + np.sum((np.abs(r) + a) ** 2))
+    term = 2 * math.log(N)  # the discrepancy term's two parameters, switched on or off
+    assert lower == pytest.approx(bic - chi2 + np.sum(np.maximum(np.abs(r) - a, 0) ** 2) - term)
+    assert upper == pytest.approx(bic - chi2 + np.sum((np.abs(r) + a) ** 2) + term)
     assert lower < bic < upper
 
 
 def _ranked(fits: dict, data) -> tuple[selection.Ranking, dict]:
+    """The quick fits' ranking and results (a value that is an exception: a fit that
+    raised)."""
     cands = [selection.Candidate(f"family-{k}") for k in fits]
     fitted = {c.label: (fit, 0.1) for c, fit in zip(cands, fits.values())}
     ranking = selection.rank("medium", fitted, data, cands)
@@ -72,9 +76,10 @@ def test_only_a_candidate_that_cannot_be_chosen_is_screened_out(monkeypatch):
         "near": _fit(base * math.sqrt(1 + 15 / N)),
         "far": _fit(base * 30.0),
         "stopped-far": _fit(base * 40.0, converged=False),
+        "raised": RuntimeError("no start"),
     }
     ranking, results = _ranked(fits, data)
-    results["family-raised"] = RuntimeError("no start")
+    assert ranking.row("family-raised")["error"].startswith("RuntimeError")
     keep, out = screening.survivors(ranking, results, data)
     assert keep == ["family-good", "family-near"]
     assert set(out) == {"family-far", "family-stopped-far"}
@@ -83,6 +88,39 @@ def test_only_a_candidate_that_cannot_be_chosen_is_screened_out(monkeypatch):
     # with the margin widened past the far one's interval, it would go on too
     monkeypatch.setattr(screening, "SCREEN_MARGIN", out["family-far"][0] - best_upper + 1.0)
     assert "family-far" in screening.survivors(ranking, results, data)[0]
+
+
+def test_a_screened_candidate_is_fitted_when_the_best_full_fit_fails():
+    """The quick fits only estimate the best: when the best one's full fit raises, the
+    candidates screened out against it are measured again against the full fits that rank
+    (none here) and fitted in full; the one left is chosen."""
+    y, sigma = np.full(N, 100.0), np.full(N, 1.0)
+    data = _data(y, sigma)
+    base = np.resize([1.0, -1.0], N)
+    quick = {"good": _fit(base), "far": _fit(base * 30.0)}
+    cands = [selection.Candidate(k) for k in quick]
+    calls = []
+
+    def full(c):
+        calls.append(c.label)
+        if c.label == "good":
+            raise RuntimeError("the polish failed")
+        return _fit(base * 29.0)
+
+    fitted, screened = screening.screen_fits("medium", cands, data, full,
+                                             lambda c: quick[c.label])
+    assert calls == ["good", "far"] and screened == []
+    ranking = selection.rank("medium", fitted, data, cands, screened)
+    assert ranking.chosen == "far"
+    assert ranking.row("good")["error"] == "RuntimeError: the polish failed"
+    # with the best full fit as the quick fit said, "far" stays out, its dBIC above the margin
+    calls.clear()
+    fitted, screened = screening.screen_fits("medium", cands, data, lambda c: _fit(base),
+                                             lambda c: quick[c.label])
+    ranking = selection.rank("medium", fitted, data, cands, screened)
+    assert [r["label"] for r in screened] == ["far"]
+    assert ranking.chosen == "good"
+    assert ranking.row("far")["delta_bic"] > screening.SCREEN_MARGIN
 
 
 @pytest.fixture(scope="module")

@@ -170,7 +170,7 @@ def run_case(truth: dict, medium: str, target: str, outdir: str, propagation: st
 def run_clear(truth: dict, plate: str) -> dict:
     """Step 0 alone on one clear-water plate: the BRDF families ranked on it, as the
     pipeline's step 0 ranks them (veil.fitting.selection)."""
-    from veil.fitting import fit_reference, prepare, selection
+    from veil.fitting import fit_reference, prepare, screening, selection
     from veil.fitting.model_error import check_kind
 
     data = prepare(bv.table(f"water_{plate}", True), None, "reference (clear medium)")
@@ -181,7 +181,7 @@ def run_clear(truth: dict, plate: str) -> dict:
                              model_error=error)
 
     t0 = time.perf_counter()
-    ranking, _ = selection.select("reference", selection.candidates("brdf"), data, fit,
+    ranking, _ = screening.select("reference", selection.candidates("brdf"), data, fit,
                                   "reference (clear medium)")
     seconds = time.perf_counter() - t0
     return {"case": f"water:{plate}", "medium": "water", "target": plate,

@@ -78,9 +78,12 @@ def _base(name: str) -> str:
 
 
 def _declared(c: JointCandidate) -> set:
-    return set(model_class(c.brdf.family).param_names()) | set(
-        model_class(c.medium.family).param_names()
-    )
+    """The parameter names a joint fit of the pair takes: each family's own and its slots'
+    (the paper's medium's ``eta`` is ``eta_u`` there)."""
+    out: set = set()
+    for cls in (model_class(c.brdf.family), model_class(c.medium.family)):
+        out |= set(cls.param_names()) | set(cls.keys())
+    return out
 
 
 def per_candidate(cands, names, what: str) -> dict:
@@ -133,17 +136,26 @@ def fit_joint_ranked(
         "shared": per_candidate(cands, shared, "shared"),
         "per_medium": per_candidate(cands, per_medium, "per-medium"),
     }
-    c0 = cands[0]
-    data = ranking_data(
-        sessions,
-        reference=fit_kw.get("reference"),
-        brdf_model=c0.brdf.family,
-        medium_model=c0.medium.family,
-        brdf_options=c0.brdf.model_options(brdf_options),
-        medium_options=c0.medium.model_options(medium_options),
-        channel=fit_kw.get("channel"),
-        **{k: v[c0.label] for k, v in entries.items()},
-    )
+    reference, channel = fit_kw.get("reference"), fit_kw.get("channel")
+    if channel is not None and isinstance(reference, FitResult) and reference.channels:
+        reference = reference.one_model(channel)  # as fit_joint holds it
+    data = None
+    for c in cands:  # the stacked data, from the first pair whose problem builds
+        try:
+            data = ranking_data(
+                sessions,
+                reference=reference,
+                brdf_model=c.brdf.family,
+                medium_model=c.medium.family,
+                brdf_options=c.brdf.model_options(brdf_options),
+                medium_options=c.medium.model_options(medium_options),
+                channel=channel,
+                **{k: v[c.label] for k, v in entries.items()},
+            )
+            break
+        except FitError:
+            if c is cands[-1]:
+                raise
 
     def one(c: JointCandidate, screen: bool = False) -> FitResult:
         return fit_joint(

@@ -11,10 +11,15 @@ the full fit only for those that could still be chosen.
   "default", rough conductor through the forward series: benchmarks/bench_fast_error.py).
   Moving every model value that far toward the data and away from it bounds the deviance
   (the ranking's -2 ln L, :func:`veil.fitting.selection.deviance`) that quadrature error
-  can explain: the interval [lower, upper] of the candidate's BIC.
+  can explain, with the model-discrepancy term's (s, ell) held; 2 ln N either side allows
+  for the full fit switching that term on or off: the interval [lower, upper] of the
+  candidate's BIC.
 - **Who goes on**: a candidate whose lower end lies more than :data:`SCREEN_MARGIN` above the
   smallest upper end of a converged quick fit is screened out: listed with its quick fit's
   BIC, not fitted further. Every other one gets the full fit, and the ranking is theirs.
+  The full fits are the measure then: a screened-out candidate whose lower end is within
+  SCREEN_MARGIN of the best full fit's BIC (every one, when no full fit ranks) is fitted in
+  full too.
   What the interval does not bound: a minimum that only a later start would find, and the
   descent left to a quick fit that stopped without converging (its BIC is where it
   stopped); a candidate that misses by more than SCREEN_MARGIN from its best start is taken
@@ -50,7 +55,9 @@ SCREEN_MARGIN = 10.0
 
 def bic_interval(result: FitResult, data, bic: float) -> tuple[float, float]:
     """[lower, upper] of a quick fit's ``bic`` when every model value may be off by
-    FAST_ERROR of itself (module docstring)."""
+    FAST_ERROR of itself, widened by the BIC of the model-discrepancy term's two parameters
+    (2 ln N) for a weighted fit: the full fit may switch the term on or off (module
+    docstring)."""
     r = np.asarray(result.residuals, dtype=float)
     weighted = result.weighted and data.sigma is not None
     scale = data.sigma if weighted else 1.0
@@ -64,7 +71,8 @@ def bic_interval(result: FitResult, data, bic: float) -> tuple[float, float]:
     sign = np.where(r < 0, -1.0, 1.0)
     toward = sign * np.maximum(np.abs(r) - a, 0.0)
     away = r + sign * a
-    return bic + moved(toward) - dev, bic + moved(away) - dev
+    term = 2.0 * math.log(max(r.size, 1)) if weighted else 0.0
+    return bic + moved(toward) - dev - term, bic + moved(away) - dev + term
 
 
 def survivors(ranking: Ranking, quick: dict, data) -> tuple[list[str], dict]:
@@ -76,7 +84,12 @@ def survivors(ranking: Ranking, quick: dict, data) -> tuple[list[str], dict]:
         if isinstance(result, FitResult) and row["bic"] is not None and math.isfinite(row["bic"]):
             bounds[row["label"]] = bic_interval(result, data, row["bic"])
     tops = [bounds[r["label"]][1] for r in ranking.rows if r["converged"] and r["label"] in bounds]
-    limit = min(tops) + SCREEN_MARGIN if tops else math.inf
+    return _split(ranking, quick, bounds, min(tops) if tops else math.inf)
+
+
+def _split(ranking: Ranking, quick: dict, bounds: dict, best: float) -> tuple[list[str], dict]:
+    """(labels within SCREEN_MARGIN of the ``best`` BIC, {label: bounds} of the others)."""
+    limit = best + SCREEN_MARGIN
     keep, out = [], {}
     for row in ranking.rows:
         label, result = row["label"], quick.get(row["label"])
@@ -117,13 +130,23 @@ def screen_fits(step: str, cands, data, fit, quick_fit, progress=None) -> tuple:
     screened-out candidates' rows)."""
     quick = fit_candidates(quick_fit, cands, teller(step, len(cands), progress, "quick fit "))
     quick_ranking = rank(step, quick, data, cands)
-    keep, out = survivors(quick_ranking, {lab: q[0] for lab, q in quick.items()}, data)
-    going = [c for c in cands if c.label in keep]
-    if progress is not None:
-        progress(f"{step}: {len(going)} of {len(cands)} go on to the full fit", None, None)
-    full = fit_candidates(fit, going, teller(step, len(going), progress))
-    fitted = {lab: (res, sec + quick[lab][1]) for lab, (res, sec) in full.items()}
-    fitted.update({lab: q for lab, q in quick.items() if isinstance(q[0], Exception)})
+    results = {lab: q[0] for lab, q in quick.items()}
+    keep, out = survivors(quick_ranking, results, data)
+    fitted = {lab: q for lab, q in quick.items() if isinstance(q[0], Exception)}
+    while keep:
+        going = [c for c in cands if c.label in keep]
+        if progress is not None:
+            progress(f"{step}: {len(going)} of {len(cands)} go on to the full fit", None, None)
+        full = fit_candidates(fit, going, teller(step, len(going), progress))
+        fitted.update({lab: (res, sec + quick[lab][1]) for lab, (res, sec) in full.items()})
+        # measured against the best full fit, which the quick fits only estimated: a
+        # screened-out candidate now within reach (or every one, when no full fit ranks)
+        # is fitted in full too
+        ranked = [r["bic"] for r in rank(step, fitted, data, cands).rows if r["error"] is None]
+        best = min(ranked) if ranked else math.inf
+        kept = {lab: out[lab] for lab in out}
+        keep, out = _split(quick_ranking, results, kept, best)
+        keep = [lab for lab in keep if lab in kept]
     return fitted, _screened_rows(quick_ranking, out)
 
 
