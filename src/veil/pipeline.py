@@ -33,8 +33,10 @@ More arguments of :func:`run_pipeline`:
 - ``models``: None (``brdf_model`` / ``medium_model`` as given), "paper" (the paper's
   models), "BRDF+MEDIUM" (a pinned pair) or "auto": every registered candidate ranked per
   step by BIC with its model-discrepancy term (:mod:`veil.fitting.selection`,
-  :mod:`veil.fitting.auto`), the best one used; options, ``fixed`` and ``free`` then
-  apply to the candidates that declare them. Rankings in ``ranking.json``, report.md and
+  :mod:`veil.fitting.auto`), the best one used; step 2 ranked on ``target_clear`` when
+  given, the steps through the medium screened (:mod:`veil.fitting.screening`); options,
+  ``fixed`` and ``free`` then apply to the candidates that declare them. Rankings in
+  ``ranking.json``, report.md and
   each chosen result's ``stats["selection"]``; with ``keep_candidates`` every candidate's
   result too, in ``candidates/<step>/``. Every candidate failing raises
   :class:`veil.fitting.selection.NoCandidateError` (with the rankings).

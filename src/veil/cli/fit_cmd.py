@@ -389,7 +389,8 @@ def target_command(ctx, table, medium, output, models, channel, **opts):
 @click.option(
     "--target-clear",
     type=IN_FILE,
-    help="Target object in a clear medium: fitted directly and compared with the estimate.",
+    help="Target object in a clear medium: fitted directly and compared with the estimate "
+    "(with --models auto, step 2's families are ranked on it).",
 )
 @click.option(
     "-o",

@@ -205,8 +205,9 @@ def ranking_section(rankings: dict) -> list[str]:
     out = [
         "## The data choose the model (--models auto)",
         "",
-        "Every registered family with every value of its discrete options, fitted to the "
-        "same data and ranked by BIC = -2 ln L + k ln N, L the likelihood of the weighted "
+        "Every registered family with every value of its discrete options (values that make "
+        "the same model fitted once), fitted to the same data and ranked by "
+        "BIC = -2 ln L + k ln N, L the likelihood of the weighted "
         "residuals under each fit's model-discrepancy term (the chi-square when it has "
         "none), k its free parameters (with the term's when fitted from its own "
         "residuals); weight exp(-dBIC/2), normalized. * marks the model used. A "
