@@ -22,7 +22,7 @@ from ..models import model_class
 from ..models.base import VARIANT_OPTION
 from . import screening, selection
 from .result import FitResult
-from .steps import fit_direct, fit_medium, fit_reference, fit_target, model_values
+from .steps import fit_direct, fit_medium, fit_target, model_values
 
 
 def for_family(cls, per_step: dict, step: str, what: str, used: set) -> dict | list | None:
@@ -138,58 +138,46 @@ class _Ranked:
             return self.sources[session]
         return self.data[session].table, None
 
-    def reference(self, curve) -> FitResult:
-        """Step 0: every BRDF candidate fitted to the reference in clear water, ranked."""
-        fix, free, options = self.plan["fix_b"], self.plan["free_b"], self.plan["brdf_options"]
+    def on_clear(self, step: str, session: str, what: str, curve) -> tuple:
+        """Every BRDF candidate fitted directly to the clear ``session`` (no integral) and
+        ranked, recorded as ``step``'s: (ranking, {label: result})."""
+        key = "b" if step == "reference" else "t"
+        fix, free, options = (
+            self.plan[f"fix_{key}"],
+            self.plan[f"free_{key}"],
+            self.plan["brdf_options"],
+        )
 
         def one(c):
-            return fit_reference(
-                self.table("reference_clear")[0],
+            return fit_direct(
+                self.table(session)[0],
                 fixed=fix[c.label],
                 free=free[c.label],
                 max_nfev=self.max_nfev,
+                step="reference" if step == "reference" else "direct",
                 brdf_model=c.family,
                 options=c.model_options(options),
                 model_error=self.model_error,
             )
 
         ranking, results = rank_step(
-            "reference",
-            self.plan["brdf"],
-            self.data["reference_clear"],
-            one,
-            self.progress,
-            curve,
-            "reference (clear medium)",
+            step, self.plan["brdf"], self.data[session], one, self.progress, curve, what
         )
-        self.rankings["reference"], self.kept["reference"] = ranking, results
+        self.rankings[step], self.kept[step] = ranking, results
+        return ranking, results
+
+    def reference(self, curve) -> FitResult:
+        """Step 0: every BRDF candidate fitted to the reference in clear water, ranked."""
+        ranking, results = self.on_clear(
+            "reference", "reference_clear", "reference (clear medium)", curve
+        )
         return selection.with_selection(results[ranking.chosen], ranking)
 
     def target_on_clear(self, medium: FitResult, curve) -> tuple[FitResult, selection.Ranking]:
         """Step 2 with the target's clear data: every BRDF candidate fitted to them directly
-        and ranked there (no integral), the chosen one then fitted through ``medium``."""
+        and ranked there, the chosen one then fitted through ``medium``."""
         fix, free, options = self.plan["fix_t"], self.plan["free_t"], self.plan["brdf_options"]
-
-        def one(c):
-            return fit_direct(
-                self.table("target_clear")[0],
-                fixed=fix[c.label],
-                free=free[c.label],
-                max_nfev=self.max_nfev,
-                brdf_model=c.family,
-                options=c.model_options(options),
-                model_error=self.model_error,
-            )
-
-        ranking, results = rank_step(
-            "target",
-            self.plan["brdf"],
-            self.data["target_clear"],
-            one,
-            self.progress,
-            curve,
-            "target (clear medium)",
-        )
+        ranking, results = self.on_clear("target", "target_clear", "target (clear medium)", curve)
         ranking = dataclasses.replace(ranking, on="the target's clear-medium data")
         chosen = next(c for c in self.plan["brdf"] if c.label == ranking.chosen)
         table, black = self.table("target_medium")
@@ -206,7 +194,7 @@ class _Ranked:
             propagation=self.again or self.each,
             brdf_model=chosen.family,
         )
-        self.rankings["target"], self.kept["target"] = ranking, results
+        self.rankings["target"] = ranking
         self.direct["target"] = results[ranking.chosen]
         return selection.with_selection(tgt, ranking), ranking
 
