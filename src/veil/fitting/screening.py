@@ -3,8 +3,8 @@ docs/choosing-models.md); through the medium screened: every candidate's quick f
 the full fit only for those that could still be chosen.
 
 - **Quick fit** (``screen=True`` of :func:`veil.fitting.fit_medium` / ``fit_target``): the
-  starting grid's best start only, iterated at the "fast" quadrature to the iterations'
-  tolerance, not polished, no covariance propagated.
+  starting grid's best start only, iterated at the "fast" quadrature to 0.3 standard errors
+  (``solver.TOL_SCREEN``), not polished, no covariance propagated.
 - **Its BIC's interval**: the fast quadrature is within :data:`FAST_ERROR` (relative, of the
   value or of 1e-3 of the largest) of a converged integral at every configuration of every
   registered family pair (measured at most 7.2e-3 against "high" and 8.9e-3 against
