@@ -10,6 +10,7 @@ chi-square or BIC), the chosen one again with it, unless every candidate's resul
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -173,70 +174,55 @@ class _Ranked:
         )
         return selection.with_selection(results[ranking.chosen], ranking)
 
+    def fit_one(self, step, c, given, propagation, screen=False) -> FitResult:
+        """Candidate ``c`` of step 1 ("medium") or 2 ("target") fitted through the ``given``
+        model, with ``propagation``; a quick fit when ``screen``."""
+        medium = step == "medium"
+        key, session = ("m", "reference_medium") if medium else ("t", "target_medium")
+        fit: Callable[..., FitResult] = fit_medium if medium else fit_target
+        kind = "medium" if medium else "brdf"
+        table, black = self.table(session)
+        return fit(
+            table,
+            given,
+            black=black,
+            fixed=self.plan[f"fix_{key}"][c.label],
+            free=self.plan[f"free_{key}"][c.label],
+            accuracy=self.accuracy,
+            max_nfev=self.max_nfev,
+            options=c.model_options(self.plan[f"{kind}_options"]),
+            model_error=self.model_error,
+            propagation=propagation,
+            screen=screen,
+            **{f"{kind}_model": c.family},
+        )
+
     def target_on_clear(self, medium: FitResult, curve) -> tuple[FitResult, selection.Ranking]:
         """Step 2 with the target's clear data: every BRDF candidate fitted to them directly
         and ranked there, the chosen one then fitted through ``medium``."""
-        fix, free, options = self.plan["fix_t"], self.plan["free_t"], self.plan["brdf_options"]
         ranking, results = self.on_clear("target", "target_clear", "target (clear medium)", curve)
         ranking = dataclasses.replace(ranking, on="the target's clear-medium data")
         chosen = next(c for c in self.plan["brdf"] if c.label == ranking.chosen)
-        table, black = self.table("target_medium")
-        tgt = fit_target(
-            table,
-            medium,
-            black=black,
-            fixed=fix[chosen.label],
-            free=free[chosen.label],
-            accuracy=self.accuracy,
-            max_nfev=self.max_nfev,
-            options=chosen.model_options(options),
-            model_error=self.model_error,
-            propagation=self.again or self.each,
-            brdf_model=chosen.family,
-        )
+        tgt = self.fit_one("target", chosen, medium, self.again or self.each)
         self.rankings["target"] = ranking
         self.direct["target"] = results[ranking.chosen]
         return selection.with_selection(tgt, ranking), ranking
 
-    def through_medium(
-        self, step, fit, session, given, kind, curve
-    ) -> tuple[FitResult, selection.Ranking]:
-        """Steps 1 and 2: ``fit`` (fit_medium, fit_target) of every candidate of ``kind``
-        to ``session`` through the ``given`` model, ranked; the chosen result."""
-        key = {"medium": "m", "target": "t"}[step]
-        fix, free = self.plan[f"fix_{key}"], self.plan[f"free_{key}"]
-        options = self.plan[f"{kind}_options"]
-
-        table, black = self.table(session)
-
-        def one(c, chained=self.each, screen=False):
-            return fit(
-                table,
-                given,
-                black=black,
-                fixed=fix[c.label],
-                free=free[c.label],
-                accuracy=self.accuracy,
-                max_nfev=self.max_nfev,
-                options=c.model_options(options),
-                model_error=self.model_error,
-                propagation=chained,
-                screen=screen,
-                **{f"{kind}_model": c.family},
-            )
-
+    def through_medium(self, step, given, curve) -> tuple[FitResult, selection.Ranking]:
+        """Steps 1 ("medium") and 2 ("target"): every candidate fitted through the ``given``
+        model and ranked; the chosen result."""
         again = self.again
         ranking, results = rank_step(
             step,
-            self.plan[kind],
-            self.data[session],
-            one,
+            self.plan["medium" if step == "medium" else "brdf"],
+            self.data["reference_medium" if step == "medium" else "target_medium"],
+            lambda c: self.fit_one(step, c, given, self.each),
             self.progress,
             curve,
             step,
-            again and (lambda c: one(c, again)),
+            again and (lambda c: self.fit_one(step, c, given, again)),
             # --compare writes every candidate out: each one fitted in full
-            None if self.keep_all else (lambda c: one(c, screen=True)),
+            None if self.keep_all else (lambda c: self.fit_one(step, c, given, "off", True)),
         )
         self.rankings[step], self.kept[step] = ranking, results
         return selection.with_selection(results[ranking.chosen], ranking), ranking
@@ -282,20 +268,11 @@ def select_steps(
         )
 
     ref = run.reference(fr_curve)
-    med, _ = run.through_medium(
-        "medium",
-        fit_medium,
-        "reference_medium",
-        ref,
-        "medium",
-        lambda r: fitted_curve(r, data["reference_medium"]),
-    )
+    med, _ = run.through_medium("medium", ref, lambda r: fitted_curve(r, data["reference_medium"]))
     if data.get("target_clear") is not None:
         tgt, ranking = run.target_on_clear(med, fr_curve)
     else:
-        tgt, ranking = run.through_medium(
-            "target", fit_target, "target_medium", med, "brdf", fr_curve
-        )
+        tgt, ranking = run.through_medium("target", med, fr_curve)
     assert ranking.chosen is not None  # select() raised NoCandidateError otherwise
     chosen = ranking.row(ranking.chosen)
     brdf_options = plan["brdf_options"]

@@ -84,12 +84,7 @@ def survivors(ranking: Ranking, quick: dict, data) -> tuple[list[str], dict]:
         if isinstance(result, FitResult) and row["bic"] is not None and math.isfinite(row["bic"]):
             bounds[row["label"]] = bic_interval(result, data, row["bic"])
     tops = [bounds[r["label"]][1] for r in ranking.rows if r["converged"] and r["label"] in bounds]
-    return _split(ranking, quick, bounds, min(tops) if tops else math.inf)
-
-
-def _split(ranking: Ranking, quick: dict, bounds: dict, best: float) -> tuple[list[str], dict]:
-    """(labels within SCREEN_MARGIN of the ``best`` BIC, {label: bounds} of the others)."""
-    limit = best + SCREEN_MARGIN
+    limit = (min(tops) if tops else math.inf) + SCREEN_MARGIN
     keep, out = [], {}
     for row in ranking.rows:
         label, result = row["label"], quick.get(row["label"])
@@ -130,8 +125,7 @@ def screen_fits(step: str, cands, data, fit, quick_fit, progress=None) -> tuple:
     screened-out candidates' rows)."""
     quick = fit_candidates(quick_fit, cands, teller(step, len(cands), progress, "quick fit "))
     quick_ranking = rank(step, quick, data, cands)
-    results = {lab: q[0] for lab, q in quick.items()}
-    keep, out = survivors(quick_ranking, results, data)
+    keep, out = survivors(quick_ranking, {lab: q[0] for lab, q in quick.items()}, data)
     fitted = {lab: q for lab, q in quick.items() if isinstance(q[0], Exception)}
     while keep:
         going = [c for c in cands if c.label in keep]
@@ -143,10 +137,9 @@ def screen_fits(step: str, cands, data, fit, quick_fit, progress=None) -> tuple:
         # screened-out candidate now within reach (or every one, when no full fit ranks)
         # is fitted in full too
         ranked = [r["bic"] for r in rank(step, fitted, data, cands).rows if r["error"] is None]
-        best = min(ranked) if ranked else math.inf
-        kept = {lab: out[lab] for lab in out}
-        keep, out = _split(quick_ranking, results, kept, best)
-        keep = [lab for lab in keep if lab in kept]
+        limit = (min(ranked) if ranked else math.inf) + SCREEN_MARGIN
+        keep = [lab for lab, (lower, _) in out.items() if lower <= limit]
+        out = {lab: b for lab, b in out.items() if lab not in keep}
     return fitted, _screened_rows(quick_ranking, out)
 
 

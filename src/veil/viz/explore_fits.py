@@ -61,13 +61,12 @@ def ranking_lines(result) -> list[str]:
     for row in ranking["candidates"]:
         mark = "*" if row["label"] == ranking.get("chosen") else ""
         rms = None if row.get("rms_relative") is None else 100 * row["rms_relative"]
-        state = (
-            " (screened out)"
-            if row.get("screened")
-            else ""
-            if row.get("converged")
-            else (" (failed)" if row.get("chi2") is None else " (not converged)")
-        )
+        if row.get("screened"):
+            state = " (screened out)"
+        elif row.get("converged"):
+            state = ""
+        else:
+            state = " (failed)" if row.get("chi2") is None else " (not converged)"
         lines.append(
             f"| {row['label']}{mark}{state} | {num(rms, '.3g')} | "
             f"{num(row.get('delta_bic'), '.1f')} | {num(row.get('weight'), '.3f')} |"
