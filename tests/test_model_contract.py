@@ -89,15 +89,41 @@ def _rough_conductor(model, wi, wo):
                                     distribution=model.distribution, smith="exact")
 
 
+def _nonparametric(model, wi, wo):
+    """docs/model.md sec. 8.4 in numpy: the Bernstein diffuse basis in x = (1 - cos)^5 and a
+    Beckmann lobe per width with a Fresnel curve linear in theta_d between its nodes
+    (reference_physical's D and exact Smith G1)."""
+    from veil.models.nonparametric import FRESNEL_DEGREES, WIDTHS
+
+    ci, co = wi[..., 2], wo[..., 2]
+    xi, xo = (1 - np.clip(ci, 0, 1)) ** 5, (1 - np.clip(co, 0, 1)) ** 5
+    d0, d1, d2 = model.d0, model.d1, model.d2
+    diffuse = ci / math.pi * (d0 * (1 - xi) * (1 - xo) + d1 * (xi * (1 - xo) + (1 - xi) * xo)
+                              + d2 * xi * xo)
+    h = wi + wo
+    h /= np.linalg.norm(h, axis=-1, keepdims=True)
+    theta_d = np.degrees(np.arccos(np.clip(np.sum(wo * h, axis=-1), -1, 1)))
+    lobe = 0.0
+    for k, alpha in enumerate(WIDTHS):
+        curve = np.interp(theta_d, FRESNEL_DEGREES,
+                          [getattr(model, f"w{k:02d}_{m}") for m in range(len(FRESNEL_DEGREES))])
+        lobe = lobe + rphys._specular(wi, wo, alpha, "beckmann", "exact", lambda c: curve)
+    return np.where((ci > 0) & (co > 0), diffuse + lobe, 0.0)
+
+
 INDEPENDENT = {"torrance-sparrow": _ts, "henyey-greenstein": _hg,
                "lambertian-test": _lambert, "fisher-test": _fisher,
                "forward-series": _forward_series,
-               "rough-plastic": _rough_plastic, "rough-conductor": _rough_conductor}
+               "rough-plastic": _rough_plastic, "rough-conductor": _rough_conductor,
+               "nonparametric": _nonparametric}
 
 
 #: Instances of families without a preset, away from points where the model is not smooth
 #: (the forward series at eta_u = 1, where total internal reflection starts on one side).
-INSTANCES = {"forward-series": dict(tau=0.8, omega=0.95, g=0.9, eta_u=1.2, s=1.5)}
+INSTANCES = {"forward-series": dict(tau=0.8, omega=0.95, g=0.9, eta_u=1.2, s=1.5),
+             # a narrow lobe and a broad one with rising Fresnel curves, over a diffuse base
+             "nonparametric": dict(d0=0.4, d1=0.2, d2=0.1, w02_0=0.3, w02_1=0.35, w02_3=1.0,
+                                   w09_0=0.05, w09_2=0.2)}
 #: Relative tolerance of the model against its independent value where the model itself
 #: is a quadrature (default 1e-9; a medium's TABLE_ACCURACY if larger): rough-plastic
 #: tabulates t(mu) and F_int (measured worst 6e-6 on these directions, docs/physics.md).
@@ -198,7 +224,8 @@ def test_every_parameter_declares_whether_it_is_per_channel_or_shared(name):
     sharing = cls.channel_sharing()
     for scale in cls.scale_names():  # a linear scale is an albedo: one per channel
         assert sharing[scale] == "per-channel", (name, scale)
-    assert "shared" in sharing.values() or len(cls.PARAMS) == 1, name
+    # a linear family's coefficients are all albedo-like (docs/nonparametric.md)
+    assert "shared" in sharing.values() or len(cls.PARAMS) == 1 or cls.LINEAR, name
 
 
 @pytest.mark.parametrize("name", FAMILIES)
@@ -292,6 +319,12 @@ def _pair(name):
     return brdf, medium
 
 
+#: The coefficients of the linear family whose Jacobian column is checked (a diffuse one, a
+#: narrow and a broad width at three Fresnel nodes, zero and non-zero ones): its 55 columns
+#: run one function per width and node, and all of them took 240 s of the suite.
+LINEAR_CHECKED = ("d1", "w02_0", "w02_3", "w09_1", "w09_2")
+
+
 @pytest.mark.parametrize("name", FAMILIES)
 def test_engine_jacobian_matches_central_differences(name):
     """In every parameter of the family (its partner has its own case: the Jacobian in the
@@ -306,6 +339,8 @@ def test_engine_jacobian_matches_central_differences(name):
     nb, nm = len(vb), len(vm)
     own_b = _instance(name).KIND == "brdf"
     free_b, free_m = (tuple(range(nb)), ()) if own_b else ((), tuple(range(nm)))
+    if brdf.LINEAR:  # every coefficient enters by the same code: two widths, three nodes
+        free_b = tuple(brdf.index(n) for n in LINEAR_CHECKED)
     value, jac = fwd.value_and_jacobian(vb, vm, free_b, free_m)
     assert np.allclose(value, fwd(vb, vm), rtol=1e-12)
     assert jac.shape == (len(ti), len(free_b) + len(free_m))

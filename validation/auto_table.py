@@ -275,6 +275,29 @@ def summary(rows: list[dict]) -> list[str]:
     return lines
 
 
+CANDIDATE_COLUMNS = ["session", "step, ranked on", "candidate", "RMS resid.", "dBIC", "weight",
+                     "df"]
+
+
+def candidate_rows(rows: list[dict]) -> list[list[str]]:
+    """Every candidate of the steps whose plate is in no family (its family's misfit shown,
+    not hidden): RMS residual, delta-BIC, weight and the degrees of freedom counted."""
+    out = []
+    for r in rows:
+        for step, x in r["steps"].items():
+            if not x["generating"].endswith("(no family)"):
+                continue
+            on = "clear data" if r["medium"] == "water" or step == "target" else "medium"
+            for c in x["candidates"]:
+                out.append([r["case"] if not out or out[-1][0] != r["case"] else "",
+                            f"{step}, {on}", _short(c["label"]),
+                            _pct(c["rms_relative"]) if c["rms_relative"] is not None else
+                            (c.get("error") or "")[:40],
+                            _dbic(c["delta_bic"]), f"{c['weight']:.3f}",
+                            "" if c["k"] is None else f"{c['k']:.1f}"])
+    return out
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--cases", default=ALL_CASES, metavar="MEDIUM:TARGET,...",
@@ -289,6 +312,9 @@ def main(argv=None) -> int:
     ap.add_argument("--table-only", action="store_true",
                     help="run nothing: print (and --doc) the table of the rows in --json")
     bv.add_doc_options(ap, "auto")
+    ap.add_argument("--candidates-doc", default=None, metavar="PAGE",
+                    help="write every candidate of the plates in no family (table "
+                         "'nonparametric') into PAGE's markers")
     args = ap.parse_args(argv)
     truth = bv.load_truth()
     rows = []
@@ -349,6 +375,13 @@ def main(argv=None) -> int:
                 if loads else "")
         write(args.doc, args.doc_table,
               f"Sessions covered: {covered}.{load}\n\n" + text + "\n\n" + "\n".join(notes))
+    if args.candidates_doc:
+        from doc_tables import markdown, write
+
+        table = markdown(CANDIDATE_COLUMNS, candidate_rows(rows), {3, 4, 5, 6})
+        print(table)
+        write(args.candidates_doc, "nonparametric",
+              table + "\n\n" + "\n".join(n for n in notes if "outside every family" in n))
     return 0
 
 

@@ -21,7 +21,7 @@ from .problem import ITERATION_ACCURACY, Block, Problem, Session, Slot, model_sl
 from .reported_uncertainty import model_floor, reported
 from .result import FitResult
 from .session_data import FitData, prepare
-from .solver import check_fixed, run, summarize
+from .solver import check_fixed, linear_free, run, summarize
 from .start_values import brdf_scales, grid_points, pick_starts
 
 
@@ -161,6 +161,7 @@ def fit_channels(
     (module docstring; docs/model.md sec. 2), ``step`` "reference" or "direct"."""
     datas = {c: prepare(table, black, f"{what}, channel {c}", channel=c) for c in channels}
     problem, layout = channel_problem(datas, template, fixed, freed, what)
+    linear_free(problem)
     begin, n_grid = channel_starts(problem, "reference", starts, progress)
     outcome = run(
         problem,

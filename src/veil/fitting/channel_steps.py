@@ -31,7 +31,7 @@ from .problem import ITERATION_ACCURACY, Block, Problem, Session, Slot, model_sl
 from .reported_uncertainty import model_floor, reported
 from .result import RESULTS, FitResult, model_entry
 from .session_data import FitData
-from .solver import run, summarize
+from .solver import linear_free, run, summarize
 from .start_values import brdf_scales, column_scales_of, grid_points, medium_scales, pick_starts
 from .step_fit import stats_and_message
 
@@ -297,6 +297,7 @@ def fit_through(
     problem, layout, g_models = through_problem(
         datas, fitted, given, fixed, freed, what, role, source
     )
+    linear_free(problem)
     problem.blocks[0].model(ITERATION_ACCURACY).prepare(values=True, jacobians=[(cls.KIND,)])
     begin, n_grid = through_starts(
         problem, cls.KIND, "medium" if step == "medium" else "target", starts, progress

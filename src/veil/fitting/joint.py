@@ -49,6 +49,7 @@ from .result import FitResult, JointResult, load_result, target_channels
 from .solver import (
     check_max_nfev,
     covariance_matrix,
+    linear_free,
     run,
     summarize,
     uncertainties,
@@ -141,6 +142,7 @@ def _solve(
     index = {n: k for k, n in enumerate(problem.names)}
     ref_names = reference_names(layout, reference)
     ref_cols = [] if given_result is None else [index[ref_names[n]] for n in given_result.free]
+    linear_free(problem)
     _prepare_engines(problem, ref_cols, accuracy)
     if "channels" in layout:
         starts = channel_starts(

@@ -162,16 +162,22 @@ class FitResult:
         return len(self.free)
 
     @property
+    def dof(self) -> float:
+        """The degrees of freedom the criteria count: the free parameters, or a regularized
+        linear fit's effective ones (``stats["effective_dof"]``, docs/nonparametric.md)."""
+        return float(self.stats.get("effective_dof", self.n_free))
+
+    @property
     def aic(self) -> float | None:
         """Akaike's criterion chi^2 + 2 k of a weighted fit (None when unweighted)."""
-        chi2 = self.chi2_reduced * max(self.n_points - self.n_free, 1)
-        return chi2 + 2 * self.n_free if self.weighted else None
+        chi2 = self.chi2_reduced * max(self.n_points - self.dof, 1)
+        return chi2 + 2 * self.dof if self.weighted else None
 
     @property
     def bic(self) -> float | None:
         """The Bayesian criterion chi^2 + k ln N of a weighted fit (None when unweighted)."""
-        chi2 = self.chi2_reduced * max(self.n_points - self.n_free, 1)
-        return chi2 + self.n_free * math.log(max(self.n_points, 1)) if self.weighted else None
+        chi2 = self.chi2_reduced * max(self.n_points - self.dof, 1)
+        return chi2 + self.dof * math.log(max(self.n_points, 1)) if self.weighted else None
 
     def covariance(self, total: bool = True) -> tuple[Sequence[str], np.ndarray] | None:
         """(free names, covariance matrix) from the standard errors and correlations;

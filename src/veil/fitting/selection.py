@@ -349,7 +349,7 @@ def rank(step: str, fitted: dict, data, cands=None, screened=()) -> Ranking:
         else:
             res = np.asarray(result.residuals, dtype=float)
             dev, extra = deviance(result, data)
-            n, k = res.size, result.n_free + extra
+            n, k = res.size, result.dof + extra
             row.update(
                 family=result.model,
                 options=dict(result.options) if cand is None else row["options"],

@@ -233,6 +233,19 @@ class Outcome:
     stats: dict = field(default_factory=dict)
 
 
+def linear_free(problem: Problem) -> None:
+    """A FitError when the problem would fit a linear family's coefficients iteratively:
+    such a family (``LINEAR``, docs/nonparametric.md) is fitted by one linear solve in a
+    step fit of one session and one channel, and held everywhere else."""
+    for b in problem.blocks:
+        if type(b.brdf).LINEAR and any(problem.free[k] for k in b.ib):
+            raise FitError(
+                f"{b.brdf.NAME} is fitted by linear least squares in a step fit of one session "
+                f"and one channel (veil fit reference, target, direct, pipeline); a joint fit, "
+                f"a fit over several channels and a map hold it given (docs/nonparametric.md)"
+            )
+
+
 def run(
     problem: Problem,
     starts,
@@ -248,6 +261,7 @@ def run(
     polished at ``accuracy`` when the problem has a medium (module docstring). A ``screen``
     runs the first start only, at the "fast" quadrature to TOL_SCREEN, unpolished: a
     candidate's quick fit for ranking (:mod:`veil.fitting.screening`)."""
+    linear_free(problem)
     through_medium = any(b.medium is not None for b in problem.blocks)
     if screen:
         starts, accuracy, every = list(starts)[:1], ITERATION_ACCURACY, False

@@ -14,6 +14,7 @@ import numpy as np
 from ..errors import FitError
 from ..models import BRDF, Medium, Model
 from ..models.base import VARIANT_OPTION
+from .linear_fit import fit_linear
 from .problem import ITERATION_ACCURACY, Problem, session_problem
 from .propagation import describe
 from .reported_uncertainty import model_floor, reported
@@ -220,6 +221,19 @@ def fit_step(
             f"({', '.join(cls.param_names())}): nothing to fit"
         )
     problem = _problem(data, cls, brdf, medium, free, fixed, what)
+    if cls.LINEAR:  # one linear problem (docs/nonparametric.md)
+        return fit_linear(
+            step,
+            problem,
+            fitted,
+            given,
+            given_result,
+            accuracy=accuracy,
+            propagation=propagation,
+            what=what,
+            progress=progress,
+            screen=screen,
+        )
     if medium is not None:
         _prepare_engine(problem, cls, given, given_result, accuracy, propagation)
     starts, n_grid = step_starts(problem, cls.KIND, ROLE[step], STARTS[step], progress)

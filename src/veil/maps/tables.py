@@ -169,6 +169,11 @@ def _template(brdf_cls, fixed: dict, freed: set, options) -> tuple:
 def _unknowns(brdf_cls, fixed: dict, freed: set, base) -> tuple:
     """(the free scales, the free nonlinear parameters (indices), the parts of the free
     scales, each part's known weight: 0 for a free scale, else its value)."""
+    if brdf_cls.LINEAR:
+        raise FitError(
+            f"{brdf_cls.NAME} is fitted by linear least squares in a step fit of one session "
+            f"and one channel; maps fit another family per pixel (docs/nonparametric.md)"
+        )
     free_set = [
         i
         for i, p in enumerate(brdf_cls.PARAMS)

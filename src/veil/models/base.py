@@ -185,6 +185,10 @@ class Model:
     #: (veil.fitting.model_error), which the data of one session may be too few to show.
     #: None: no floor (the term comes from the residuals alone).
     MODEL_ERROR_FLOOR: ClassVar[tuple[float, float] | None] = None
+    #: Every parameter enters the model linearly: a step fit solves them as one regularized
+    #: linear problem (veil.fitting.linear_fit; the family then defines ``columns()`` and
+    #: ``lobe_grid()``, docs/nonparametric.md), and iterative fits hold them.
+    LINEAR: ClassVar[bool] = False
     if TYPE_CHECKING:  # every concrete model is a dataclass (what dataclasses.replace needs)
         __dataclass_fields__: ClassVar[dict[str, Any]]
 

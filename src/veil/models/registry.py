@@ -19,6 +19,7 @@ from ..errors import InputError, InputTypeError
 from .base import BRDF, KINDS, ROLES, Medium, Model, Option
 from .forward_series import ForwardSeries
 from .henyey_greenstein import HenyeyGreenstein
+from .nonparametric import NonParametric
 from .rough_conductor import RoughConductor
 from .rough_plastic import RoughPlastic
 from .torrance_sparrow import TorranceSparrow
@@ -30,6 +31,7 @@ FAMILIES = (
     ForwardSeries,
     RoughPlastic,
     RoughConductor,
+    NonParametric,
 )
 #: The paper's models: the default family of each kind.
 DEFAULTS = {"brdf": TorranceSparrow.NAME, "medium": HenyeyGreenstein.NAME}

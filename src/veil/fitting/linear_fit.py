@@ -1,0 +1,304 @@
+"""The step fit of a linear family (``LINEAR = True``: :mod:`veil.models.nonparametric`):
+every coefficient enters the model linearly, so with the other model held the step is one
+non-negative, regularized least-squares problem (docs/nonparametric.md).
+
+- **Columns** (:func:`design`): the engine's values with one coefficient at 1 and the others
+  at 0, through the given medium (or f_r directly in clear water): one column per free
+  coefficient, one compiled program for all of them.
+- **Solve** (:func:`solve`): minimize |W (X c - y)|^2 + lambda |D c|^2 over c >= 0, where D
+  takes second differences of the lobe coefficients across the widths and first differences
+  across the Fresnel nodes (``penalty``); scipy's NNLS on the stacked system.
+- **Smoothness** (:func:`choose`): lambda minimizes generalized cross-validation,
+  GCV = N RSS / (N - df)^2, over a fixed grid; df = trace of the hat matrix on the active set,
+  the effective degrees of freedom that the BIC counts (``stats["effective_dof"]``).
+- **Uncertainty**: the penalized estimator's sandwich covariance on the active set, scaled by
+  the reduced chi-square when it exceeds 1 (the family's own misfit, and the scale of
+  unweighted data); coefficients at 0 are held at the bound (stderr 0). A given fit's
+  covariance is propagated by central differences of the same values program.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import nnls
+
+from ..errors import FitError
+from ..models.base import VARIANT_OPTION
+from .problem import ITERATION_ACCURACY, Problem, session_problem
+from .result import FitResult, model_entry
+from .solver import goodness, uncertainties
+
+#: The smoothness weights tried, relative to trace(X'WX) / trace(D'D).
+LAMBDAS = tuple(10.0 ** (k / 4.0) for k in range(-40, 9))
+#: Relative step of the central differences that propagate a given fit's covariance.
+DIFF_STEP = 1e-4
+
+
+@dataclass(frozen=True)
+class LinearSolution:
+    """A solved linear step: coefficients ``c`` of the free columns, the smoothness
+    ``lam`` (absolute), effective degrees of freedom ``dof``, the ``gcv`` score, the
+    covariance ``cov`` of the free coefficients (noise, scaled by the misfit when > 1), the
+    model ``values``, the weighted residuals and the weighted columns ``xw``."""
+
+    c: np.ndarray
+    lam: float
+    dof: float
+    gcv: float
+    cov: np.ndarray
+    values: np.ndarray
+    residuals: np.ndarray
+    xw: np.ndarray
+
+
+def penalty(cls, free_names: list[str]) -> np.ndarray:
+    """Rows of D over the free coefficients: second differences across the lobe widths (per
+    Fresnel node), first differences across the Fresnel nodes (per width); a difference
+    that reaches a fixed coefficient is left out."""
+    rows = []
+    index = {n: j for j, n in enumerate(free_names)}
+    grid = cls.lobe_grid()  # (K, M) parameter names
+    k_count, m_count = len(grid), len(grid[0])
+    for m in range(m_count):
+        for k in range(1, k_count - 1):
+            rows.append({grid[k - 1][m]: 1.0, grid[k][m]: -2.0, grid[k + 1][m]: 1.0})
+    for k in range(k_count):
+        for m in range(m_count - 1):
+            rows.append({grid[k][m]: -1.0, grid[k][m + 1]: 1.0})
+    out = [[row.get(n, 0.0) for n in free_names] for row in rows if all(n in index for n in row)]
+    return np.array(out, dtype=float).reshape(len(out), len(free_names))
+
+
+def design(problem: Problem, accuracy: str, progress=None) -> tuple[np.ndarray, np.ndarray]:
+    """(columns X (N, F) of the free coefficients, the fixed ones' part of the values (N,))
+    at the problem's held parameters: one engine call per coefficient, each of the family's
+    column model (``columns()``: a basis function alone, sampled as it needs) at
+    ``accuracy``."""
+    block = problem.blocks[0]
+    column_cls, vectors = type(block.brdf).columns()
+    columns = session_problem(
+        None,
+        column_cls.template(),
+        block.medium,
+        free=[column_cls.param_names()[0]],
+        data=block.data,
+    )
+    nb = len(column_cls.PARAMS)
+    base = columns.values.copy()
+    ib = np.asarray(block.ib)
+    names = [problem.names[k] for k in ib]
+
+    def column(name: str) -> np.ndarray:
+        x = base.copy()
+        x[:nb] = vectors[name]
+        return columns.model_values(x, accuracy)
+
+    free = [n for k, n in zip(ib, names) if problem.free[k]]
+    held = np.zeros(problem.n_points)
+    for k, n in zip(ib, names):
+        if not problem.free[k] and problem.values[k] != 0.0:
+            held = held + problem.values[k] * column(n)
+    cols = []
+    for j, name in enumerate(free):
+        cols.append(column(name))
+        if progress:
+            progress("columns", j + 1, len(free))
+    return np.stack(cols, axis=1), held
+
+
+def _stack_solve(xw: np.ndarray, yw: np.ndarray, d: np.ndarray, lam: float) -> np.ndarray:
+    """c >= 0 minimizing |xw c - yw|^2 + lam |d c|^2 (columns equilibrated)."""
+    a = np.concatenate([xw, math.sqrt(lam) * d])
+    b = np.concatenate([yw, np.zeros(d.shape[0])])
+    scale = np.linalg.norm(a, axis=0)
+    scale[scale == 0] = 1.0
+    try:
+        coef, _ = nnls(a / scale, b, maxiter=50 * a.shape[1])
+    except RuntimeError as exc:  # scipy: the iteration limit
+        raise FitError(f"the non-negative least-squares solve did not converge ({exc})") from None
+    return coef / scale
+
+
+def _hat_trace(xw: np.ndarray, d: np.ndarray, lam: float, active: np.ndarray) -> tuple:
+    """(trace of the hat matrix, inverse penalized normal matrix) on the ``active`` columns."""
+    xa, da = xw[:, active], d[:, active]
+    normal = xa.T @ xa + lam * (da.T @ da)
+    inv = np.linalg.pinv(normal, rcond=1e-13, hermitian=True)
+    return float(np.trace(inv @ (xa.T @ xa))), inv
+
+
+def choose(xw: np.ndarray, yw: np.ndarray, d: np.ndarray) -> tuple[float, np.ndarray, float, float]:
+    """(lambda, c, dof, gcv) minimizing GCV over :data:`LAMBDAS` (relative to the ratio of
+    the traces of X'WX and D'D); the first of equal scores (the smoothest is listed last)."""
+    n = xw.shape[0]
+    unit = float(np.sum(xw * xw)) / max(float(np.sum(d * d)), 1e-300)
+    best = None
+    for rel in LAMBDAS:
+        lam = rel * unit
+        c = _stack_solve(xw, yw, d, lam)
+        active = c > 0
+        dof, _ = _hat_trace(xw, d, lam, active) if active.any() else (0.0, None)
+        rss = float(np.sum((xw @ c - yw) ** 2))
+        score = n * rss / max(n - dof, 1e-9) ** 2
+        if best is None or score < best[3]:
+            best = (lam, c, dof, score)
+    assert best is not None
+    return best
+
+
+def solve(problem: Problem, accuracy: str, d: np.ndarray, progress=None) -> LinearSolution:
+    """The step's linear problem solved at ``accuracy`` (module docstring)."""
+    x, held = design(problem, accuracy, progress)
+    w = problem.w
+    xw, yw = x * w[:, None], (problem.y - held) * w
+    lam, c, dof, gcv = choose(xw, yw, d)
+    active = c > 0
+    values = x @ c + held
+    res = (problem.y - values) * w
+    n = problem.n_points
+    chi2_red = float(res @ res) / max(n - dof, 1.0)
+    cov = np.zeros((len(c), len(c)))
+    if active.any():
+        _, inv = _hat_trace(xw, d, lam, active)
+        xa = xw[:, active]
+        sandwich = inv @ (xa.T @ xa) @ inv
+        scale = chi2_red if not problem.weighted else max(chi2_red, 1.0)
+        cov[np.ix_(active, active)] = sandwich * scale
+    return LinearSolution(c, lam, dof, gcv, cov, values, res, xw)
+
+
+def given_influence(
+    problem: Problem, sol: LinearSolution, d: np.ndarray, names: list[str], accuracy: str
+) -> np.ndarray:
+    """d c / d (given parameters ``names``) (F, G) on the active set, the solution held at
+    its active set: -(X'WX + lam D'D)^-1 X'W^2 (d values / d given), the derivative by
+    central differences of the values program."""
+    block = problem.blocks[0]
+    ib = np.asarray(block.ib)
+    free = [k for k in ib if problem.free[k]]
+    x = problem.values.copy()
+    x[free] = sol.c
+    w = problem.w
+    active = sol.c > 0
+    out = np.zeros((len(sol.c), len(names)))
+    if not active.any():
+        return out
+    _, inv = _hat_trace(sol.xw, d, sol.lam, active)
+    for g, name in enumerate(names):
+        k = problem.index(name)
+        h = DIFF_STEP * max(abs(x[k]), 1e-3)
+        up, down = x.copy(), x.copy()
+        up[k] += h
+        down[k] -= h
+        dv = (problem.model_values(up, accuracy) - problem.model_values(down, accuracy)) / (2 * h)
+        out[active, g] = -inv @ (sol.xw[:, active].T @ (dv * w))
+    return out
+
+
+def _given_total(problem, sol, d, given_result, accuracy, propagation) -> tuple[np.ndarray, dict]:
+    """(the covariance with the given fit's propagated, stats on how) or (None, {})."""
+    if given_result is None or propagation == "off":
+        return None, {}
+    got = given_result.covariance(total=True)
+    if got is None:
+        return None, {}
+    names, cov_given = got
+    given_cls = type(given_result.one_model())
+    keys = [given_cls.param(n).key for n in names]
+    infl = given_influence(problem, sol, d, keys, accuracy)
+    how = {"method": "linear", "derivatives": "central differences", "step": DIFF_STEP}
+    return sol.cov + infl @ np.asarray(cov_given) @ infl.T, how
+
+
+def fit_linear(
+    step: str,
+    problem: Problem,
+    fitted,
+    given,
+    given_result,
+    *,
+    accuracy: str,
+    propagation: str,
+    what: str,
+    progress=None,
+    screen: bool = False,
+) -> FitResult:
+    """A linear family's step fit (module docstring) as a :class:`FitResult`; a ``screen``
+    (a candidate's quick fit) uses the iterations' rule and propagates nothing."""
+    cls = type(fitted)
+    accuracy = ITERATION_ACCURACY if screen else accuracy
+    names = problem.names
+    free_index = [k for k in problem.blocks[0].ib if problem.free[k]]
+    free_names = [names[k] for k in free_index]
+    d = penalty(cls, free_names)
+    sol = solve(problem, accuracy, d, progress)
+    x = problem.values.copy()
+    x[free_index] = sol.c
+    res, _, rms = goodness(problem.y, problem.w, sol.values, 0)
+    chi2 = float(res @ res) / max(problem.n_points - sol.dof, 1.0)
+    stderr, corr = uncertainties(sol.cov, names, free_index)
+    total, how = (
+        (None, {}) if screen else _given_total(problem, sol, d, given_result, accuracy, propagation)
+    )
+    se_total, corr_total = (
+        (None, None) if total is None else uncertainties(total, names, free_index)
+    )
+    active = int(np.count_nonzero(sol.c))
+    message = (
+        f"linear least squares: {active} of {len(sol.c)} coefficients above 0, smoothness "
+        f"{sol.lam:.3g} by generalized cross-validation, {sol.dof:.1f} effective degrees of "
+        f"freedom" + ("; uncertainties scaled by the reduced chi-square" if chi2 > 1 else "")
+    )
+    stats = {
+        "effective_dof": sol.dof,
+        "smoothness": sol.lam,
+        "gcv": sol.gcv,
+        "active": active,
+        "columns": len(sol.c),
+        "engine_calls": problem.engine_calls(),
+    }
+    if how:
+        stats["propagation"] = how
+    variant = None if given is None else given.options().get(VARIANT_OPTION)
+    own = {p.key: p.name for p in cls.PARAMS}
+    return FitResult(
+        model=cls.NAME,
+        params={own[k]: float(x[problem.index(k)]) for k in cls.keys()},
+        stderr={own[k]: stderr[k] for k in cls.keys()},
+        correlation={own[a]: {own[b]: r for b, r in row.items()} for a, row in corr.items()},
+        residuals=tuple(float(r) for r in res),
+        chi2_reduced=chi2,
+        rms_relative=rms,
+        n_points=problem.n_points,
+        converged=True,
+        message=message,
+        variant=variant,
+        fixed={own[k]: float(x[problem.index(k)]) for k in cls.keys() if k not in free_names},
+        step=step,
+        weighted=problem.weighted,
+        accuracy=accuracy,
+        given=None if given is None else model_entry(given),
+        stderr_total=None if se_total is None else {own[k]: se_total[k] for k in cls.keys()},
+        correlation_total=None
+        if corr_total is None
+        else {own[a]: {own[b]: r for b, r in row.items()} for a, row in corr_total.items()},
+        stats=stats,
+        options=fitted.options(),
+        determined=True,
+        model_error=None,
+    )
+
+
+__all__ = [
+    "fit_linear",
+    "LinearSolution",
+    "LAMBDAS",
+    "penalty",
+    "design",
+    "choose",
+    "solve",
+    "given_influence",
+]
