@@ -222,7 +222,6 @@ def fit_linear(
     *,
     accuracy: str,
     propagation: str,
-    what: str,
     progress=None,
     screen: bool = False,
 ) -> FitResult:

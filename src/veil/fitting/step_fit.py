@@ -181,6 +181,29 @@ def warn_misfit(chi2_reduced: float, data: FitData, what: str) -> None:
     )
 
 
+#: What each step fits, as messages say.
+WHAT = {
+    "reference": "reference (clear medium)",
+    "direct": "target (clear medium)",
+    "medium": "medium",
+    "target": "target",
+}
+
+
+def _free(cls, fixed: dict, freed, what: str) -> list[str]:
+    """The free slots: every parameter but the ``fixed`` and the held ones not ``freed``."""
+    clash = [n for n in freed if n in fixed]
+    if clash:
+        raise FitError(f"{', '.join(clash)} both fixed and freed")
+    free = [p.key for p in cls.PARAMS if p.name not in fixed and (not p.held or p.name in freed)]
+    if not free:
+        raise FitError(
+            f"every parameter of the {what} fit is fixed "
+            f"({', '.join(cls.param_names())}): nothing to fit"
+        )
+    return free
+
+
 def fit_step(
     step: str,
     data: FitData,
@@ -205,35 +228,12 @@ def fit_step(
         accuracy, propagation = ITERATION_ACCURACY, "off"
     cls = type(fitted)
     brdf, medium = (given, fitted) if cls.KIND == "medium" else (fitted, given)
-    clash = [n for n in freed if n in fixed]
-    if clash:
-        raise FitError(f"{', '.join(clash)} both fixed and freed")
-    free = [p.key for p in cls.PARAMS if p.name not in fixed and (not p.held or p.name in freed)]
-    what = {
-        "reference": "reference (clear medium)",
-        "direct": "target (clear medium)",
-        "medium": "medium",
-        "target": "target",
-    }[step]
-    if not free:
-        raise FitError(
-            f"every parameter of the {what} fit is fixed "
-            f"({', '.join(cls.param_names())}): nothing to fit"
-        )
+    what = WHAT[step]
+    free = _free(cls, fixed, freed, what)
     problem = _problem(data, cls, brdf, medium, free, fixed, what)
     if cls.LINEAR:  # one linear problem (docs/nonparametric.md)
-        return fit_linear(
-            step,
-            problem,
-            fitted,
-            given,
-            given_result,
-            accuracy=accuracy,
-            propagation=propagation,
-            what=what,
-            progress=progress,
-            screen=screen,
-        )
+        kw = dict(accuracy=accuracy, propagation=propagation, progress=progress, screen=screen)
+        return fit_linear(step, problem, fitted, given, given_result, **kw)
     if medium is not None:
         _prepare_engine(problem, cls, given, given_result, accuracy, propagation)
     starts, n_grid = step_starts(problem, cls.KIND, ROLE[step], STARTS[step], progress)
