@@ -181,3 +181,19 @@ def test_iterative_fits_and_maps_refuse_it_with_a_clear_error():
     linear_free(held)  # a medium fitted through it: nothing to refuse
     with pytest.raises(FitError, match="maps fit another family"):
         _unknowns(NonParametric, {}, set(), NonParametric.template().to_vector())
+
+
+def test_warmup_prepares_the_column_programs_not_jacobians_in_55_coefficients():
+    """``veil warmup`` for the family: what its step fits run (the column model's values at
+    the iteration and reported rules) and ``veil eval``; no Jacobian in its 55 coefficients,
+    which no fit takes."""
+    from veil.engine.warmup import tasks
+
+    labels = [t.label for t in tasks(["nonparametric"], ("fast", "default"))]
+    assert labels == [
+        "nonparametric: f_r and its Jacobian (fit step 0)",
+        "nonparametric x henyey-greenstein: step fit columns (fast)",
+        "nonparametric x henyey-greenstein: step fit columns (default)",
+        "nonparametric x henyey-greenstein: veil eval (fast, with its error estimate)",
+        "nonparametric x henyey-greenstein: veil eval (default, with its error estimate)",
+    ]

@@ -73,6 +73,21 @@ def _direct(brdf):
     return run
 
 
+def _linear_tasks(brdf, medium, pair: str, accuracies) -> list[Task]:
+    """A linear family's programs through ``medium``: its column model's values at the
+    iteration rule (a candidate's quick fit) and each reported rule (its step fit), and
+    ``veil eval`` of the family itself."""
+    column = type(brdf).columns()[0].template()
+    out = []
+    for acc in dict.fromkeys((ITERATION, *accuracies)):
+        out.append(Task(f"{pair}: step fit columns ({acc})", _fits(column, medium, acc, False)))
+    for acc in accuracies:
+        out.append(
+            Task(f"{pair}: veil eval ({acc}, with its error estimate)", _eval(brdf, medium, acc))
+        )
+    return out
+
+
 def families(selected=None) -> tuple[list[str], list[str]]:
     """(BRDF families, medium families) to prepare: ``selected`` names (a kind not named
     gets its default, the paper's), ``["all"]`` every registered family; None the paper's
@@ -100,6 +115,9 @@ def tasks(selected=None, accuracies=("fast", "default")) -> list[Task]:
         for mname in media:
             medium = model_class(mname, "medium").template()
             pair = f"{bname} x {mname}"
+            if brdf.LINEAR:  # its step fits evaluate the column model (docs/nonparametric.md)
+                out += _linear_tasks(brdf, medium, pair, accuracies)
+                continue
             out.append(
                 Task(
                     f"{pair}: fit iterations ({ITERATION}, values and Jacobian)",
