@@ -77,6 +77,11 @@ def _statistics(result: FitResult) -> list[str]:
             else "  (UNWEIGHTED: no sigma column; errors scaled by reduced chi-square)"
         ),
         f"    free parameters    = {len(free)}"
+        + (
+            f" ({result.dof:.1f} effective: a regularized linear fit)"
+            if "effective_dof" in result.stats
+            else ""
+        )
         + (f"  (fixed: {', '.join(result.fixed)})" if result.fixed else ""),
     ]
     if result.JOINT:
@@ -103,7 +108,9 @@ def _statistics(result: FitResult) -> list[str]:
     if result.accuracy:
         lines.append(f"    accuracy           = {result.accuracy}")
     stats = result.stats
-    if stats and not result.JOINT:
+    if stats and "columns" in stats:
+        lines.append(f"    evaluations        = {stats['columns']} columns, one engine call each")
+    elif stats and not result.JOINT:
         lines.append(
             f"    evaluations        = {stats.get('nfev', 0)} function, "
             f"{stats.get('njev', 0)} Jacobian"
