@@ -372,7 +372,7 @@ def test_fit_reference_auto_ranks_every_family(sessions, tmp_path):
     assert result["model"] == chosen["chosen"] == "torrance-sparrow"
     labels = [row["label"] for row in chosen["candidates"]]
     families = {row["family"] for row in chosen["candidates"]}
-    assert families == {"torrance-sparrow", "rough-plastic", "rough-conductor"}
+    assert families == {"torrance-sparrow", "rough-plastic", "rough-conductor", "nonparametric"}
     assert len(labels) == len(selection.candidates("brdf")) - len(
         [c for c in selection.candidates("brdf") if c.family.endswith("-test")])
     weights = [row["weight"] for row in chosen["candidates"]]

@@ -429,6 +429,12 @@ def design(
     predicted stderr of the interest parameters with a plan of the same size from that
     condition alone), ``information`` (the :class:`Information`) and ``criterion``.
     """
+    if getattr(brdf, "LINEAR", False):
+        raise InputError(
+            f"{brdf.NAME}: the design's information is that of an iterative fit of the "
+            f"target's parameters, and a linear family is fitted by a regularized linear "
+            f"solve (docs/nonparametric.md); design for the closest parametric family"
+        )
     conds = conditions(media, factors)
     table = candidates(
         conds, psi, fine_step=fine_step, coarse_step=coarse_step, window=window, limit=limit

@@ -204,6 +204,14 @@ class Forward:
     the models given here fix only the code path (class and options such as the variant).
     """
 
+    def __new__(cls, brdf, *args, **kwargs):
+        # a linear family is the sum of its column model's programs (linear_forward.py)
+        if cls is Forward and type(brdf).LINEAR:
+            from .linear_forward import LinearForward
+
+            return super().__new__(LinearForward)
+        return super().__new__(cls)
+
     def __init__(
         self,
         brdf: BRDF,

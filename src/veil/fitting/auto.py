@@ -244,6 +244,8 @@ def select_steps(
     # the candidates without the given fit's covariance, the chosen one with it; with
     # ``keep`` (every candidate's result written out) each one with it
     each = propagation if keep or propagation == "off" else "off"
+    if sources is not None:  # over several channels: no linear family (docs/nonparametric.md)
+        plan = dict(plan, brdf=[c for c in plan["brdf"] if not model_class(c.family).LINEAR])
     run = _Ranked(
         data,
         sources,

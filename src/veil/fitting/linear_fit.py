@@ -52,14 +52,16 @@ class LinearSolution:
     values: np.ndarray
     residuals: np.ndarray
     xw: np.ndarray
+    #: the penalty over the free coefficients
+    d: np.ndarray
 
 
-def penalty(cls, free_names: list[str]) -> np.ndarray:
-    """Rows of D over the free coefficients: second differences across the lobe widths (per
-    Fresnel node), first differences across the Fresnel nodes (per width); a difference
-    that reaches a fixed coefficient is left out."""
+def penalty(cls, names: list[str]) -> np.ndarray:
+    """Rows of D over the coefficients ``names`` (every one of the family's: a fixed
+    coefficient's columns go to the right-hand side, :func:`solve`): second differences
+    across the lobe widths (per Fresnel node), first differences across the Fresnel nodes
+    (per width)."""
     rows = []
-    index = {n: j for j, n in enumerate(free_names)}
     grid = cls.lobe_grid()  # (K, M) parameter names
     k_count, m_count = len(grid), len(grid[0])
     for m in range(m_count):
@@ -68,8 +70,8 @@ def penalty(cls, free_names: list[str]) -> np.ndarray:
     for k in range(k_count):
         for m in range(m_count - 1):
             rows.append({grid[k][m]: -1.0, grid[k][m + 1]: 1.0})
-    out = [[row.get(n, 0.0) for n in free_names] for row in rows if all(n in index for n in row)]
-    return np.array(out, dtype=float).reshape(len(out), len(free_names))
+    out = [[row.get(n, 0.0) for n in names] for row in rows]
+    return np.array(out, dtype=float).reshape(len(out), len(names))
 
 
 def design(problem: Problem, accuracy: str, progress=None) -> tuple[np.ndarray, np.ndarray]:
@@ -109,10 +111,10 @@ def design(problem: Problem, accuracy: str, progress=None) -> tuple[np.ndarray, 
     return np.stack(cols, axis=1), held
 
 
-def _stack_solve(xw: np.ndarray, yw: np.ndarray, d: np.ndarray, lam: float) -> np.ndarray:
-    """c >= 0 minimizing |xw c - yw|^2 + lam |d c|^2 (columns equilibrated)."""
+def _stack_solve(xw: np.ndarray, yw: np.ndarray, d: np.ndarray, lam: float, dr) -> np.ndarray:
+    """c >= 0 minimizing |xw c - yw|^2 + lam |d c - dr|^2 (columns equilibrated)."""
     a = np.concatenate([xw, math.sqrt(lam) * d])
-    b = np.concatenate([yw, np.zeros(d.shape[0])])
+    b = np.concatenate([yw, math.sqrt(lam) * dr])
     scale = np.linalg.norm(a, axis=0)
     scale[scale == 0] = 1.0
     try:
@@ -130,15 +132,19 @@ def _hat_trace(xw: np.ndarray, d: np.ndarray, lam: float, active: np.ndarray) ->
     return float(np.trace(inv @ (xa.T @ xa))), inv
 
 
-def choose(xw: np.ndarray, yw: np.ndarray, d: np.ndarray) -> tuple[float, np.ndarray, float, float]:
+def choose(
+    xw: np.ndarray, yw: np.ndarray, d: np.ndarray, dr=None
+) -> tuple[float, np.ndarray, float, float]:
     """(lambda, c, dof, gcv) minimizing GCV over :data:`LAMBDAS` (relative to the ratio of
-    the traces of X'WX and D'D); the first of equal scores (the smoothest is listed last)."""
+    the traces of X'WX and D'D); the first of equal scores (the smoothest is listed last).
+    ``dr``: the penalty's right-hand side (minus the fixed coefficients' differences)."""
     n = xw.shape[0]
+    dr = np.zeros(d.shape[0]) if dr is None else dr
     unit = float(np.sum(xw * xw)) / max(float(np.sum(d * d)), 1e-300)
     best = None
     for rel in LAMBDAS:
         lam = rel * unit
-        c = _stack_solve(xw, yw, d, lam)
+        c = _stack_solve(xw, yw, d, lam, dr)
         active = c > 0
         dof, _ = _hat_trace(xw, d, lam, active) if active.any() else (0.0, None)
         rss = float(np.sum((xw @ c - yw) ** 2))
@@ -150,11 +156,15 @@ def choose(xw: np.ndarray, yw: np.ndarray, d: np.ndarray) -> tuple[float, np.nda
 
 
 def solve(problem: Problem, accuracy: str, d: np.ndarray, progress=None) -> LinearSolution:
-    """The step's linear problem solved at ``accuracy`` (module docstring)."""
+    """The step's linear problem solved at ``accuracy`` (module docstring); ``d`` the
+    penalty over every coefficient of the family, in order."""
     x, held = design(problem, accuracy, progress)
+    ib = np.asarray(problem.blocks[0].ib)
+    free = problem.free[ib]
+    d, dr = d[:, free], -d[:, ~free] @ problem.values[ib][~free]
     w = problem.w
     xw, yw = x * w[:, None], (problem.y - held) * w
-    lam, c, dof, gcv = choose(xw, yw, d)
+    lam, c, dof, gcv = choose(xw, yw, d, dr)
     active = c > 0
     values = x @ c + held
     res = (problem.y - values) * w
@@ -167,15 +177,16 @@ def solve(problem: Problem, accuracy: str, d: np.ndarray, progress=None) -> Line
         sandwich = inv @ (xa.T @ xa) @ inv
         scale = chi2_red if not problem.weighted else max(chi2_red, 1.0)
         cov[np.ix_(active, active)] = sandwich * scale
-    return LinearSolution(c, lam, dof, gcv, cov, values, res, xw)
+    return LinearSolution(c, lam, dof, gcv, cov, values, res, xw, d)
 
 
 def given_influence(
-    problem: Problem, sol: LinearSolution, d: np.ndarray, names: list[str], accuracy: str
+    problem: Problem, sol: LinearSolution, names: list[str], accuracy: str
 ) -> np.ndarray:
     """d c / d (given parameters ``names``) (F, G) on the active set, the solution held at
-    its active set: -(X'WX + lam D'D)^-1 X'W^2 (d values / d given), the derivative by
-    central differences of the values program."""
+    its active set: -(X'WX + lam D'D)^-1 X'W^2 (d values / d given) (the Gauss-Newton
+    form: the term in d X / d given times the residuals is left out), the derivative by
+    central differences of the values program, one-sided at a parameter's bound."""
     block = problem.blocks[0]
     ib = np.asarray(block.ib)
     free = [k for k in ib if problem.free[k]]
@@ -186,21 +197,23 @@ def given_influence(
     out = np.zeros((len(sol.c), len(names)))
     if not active.any():
         return out
-    _, inv = _hat_trace(sol.xw, d, sol.lam, active)
+    _, inv = _hat_trace(sol.xw, sol.d, sol.lam, active)
     for g, name in enumerate(names):
         k = problem.index(name)
+        spec = problem.params[k].spec
         h = DIFF_STEP * max(abs(x[k]), 1e-3)
         up, down = x.copy(), x.copy()
-        up[k] += h
-        down[k] -= h
-        dv = (problem.model_values(up, accuracy) - problem.model_values(down, accuracy)) / (2 * h)
+        up[k] = x[k] + h if spec.contains(x[k] + h) else x[k]
+        down[k] = x[k] - h if spec.contains(x[k] - h) else x[k]
+        step = up[k] - down[k]
+        dv = (problem.model_values(up, accuracy) - problem.model_values(down, accuracy)) / step
         out[active, g] = -inv @ (sol.xw[:, active].T @ (dv * w))
     return out
 
 
-def _given_total(problem, sol, d, given_result, accuracy, propagation) -> tuple[np.ndarray, dict]:
+def _given_total(problem, sol, given_result, accuracy, propagation) -> tuple[np.ndarray, dict]:
     """(the covariance with the given fit's propagated, stats on how) or (None, {})."""
-    if given_result is None or propagation == "off":
+    if given_result is None or propagation == "off" or not (sol.c > 0).any():
         return None, {}
     got = given_result.covariance(total=True)
     if got is None:
@@ -208,9 +221,34 @@ def _given_total(problem, sol, d, given_result, accuracy, propagation) -> tuple[
     names, cov_given = got
     given_cls = type(given_result.one_model())
     keys = [given_cls.param(n).key for n in names]
-    infl = given_influence(problem, sol, d, keys, accuracy)
-    how = {"method": "linear", "derivatives": "central differences", "step": DIFF_STEP}
+    infl = given_influence(problem, sol, keys, accuracy)
+    how = {
+        "method": "linear",
+        "asked": propagation,
+        "derivatives": "central differences (one-sided at a bound)",
+        "step": DIFF_STEP,
+    }
     return sol.cov + infl @ np.asarray(cov_given) @ infl.T, how
+
+
+def _named(cls, values: dict) -> dict:
+    """A dict by slot name in the family's own names."""
+    own = {p.key: p.name for p in cls.PARAMS}
+    return {own[k]: values[k] for k in cls.keys()}
+
+
+def _message(sol: LinearSolution, chi2: float, model_error: str) -> str:
+    active = int(np.count_nonzero(sol.c))
+    notes = [
+        f"linear least squares: {active} of {len(sol.c)} coefficients above 0 (those at 0 "
+        f"held at the bound), smoothness {sol.lam:.3g} by generalized cross-validation, "
+        f"{sol.dof:.1f} effective degrees of freedom"
+    ]
+    if chi2 > 1:
+        notes.append("uncertainties scaled by the reduced chi-square")
+    if model_error != "off":
+        notes.append(f"no model-discrepancy term ({model_error} asked): the misfit scales them")
+    return "; ".join(notes)
 
 
 def fit_linear(
@@ -222,6 +260,7 @@ def fit_linear(
     *,
     accuracy: str,
     propagation: str,
+    model_error: str = "off",
     progress=None,
     screen: bool = False,
 ) -> FitResult:
@@ -230,57 +269,53 @@ def fit_linear(
     cls = type(fitted)
     accuracy = ITERATION_ACCURACY if screen else accuracy
     names = problem.names
+    sol = solve(problem, accuracy, penalty(cls, list(cls.keys())), progress)
     free_index = [k for k in problem.blocks[0].ib if problem.free[k]]
-    free_names = [names[k] for k in free_index]
-    d = penalty(cls, free_names)
-    sol = solve(problem, accuracy, d, progress)
     x = problem.values.copy()
     x[free_index] = sol.c
+    # the coefficients at 0 are held at the bound: reported as fixed there, no uncertainty
+    held = [k for k, c in zip(free_index, sol.c) if c == 0.0]
+    reported = [k for k in free_index if k not in held]
+    keep = np.array([k not in held for k in free_index])
     res, _, rms = goodness(problem.y, problem.w, sol.values, 0)
     chi2 = float(res @ res) / max(problem.n_points - sol.dof, 1.0)
-    stderr, corr = uncertainties(sol.cov, names, free_index)
+    stderr, corr = uncertainties(sol.cov[np.ix_(keep, keep)], names, reported)
     total, how = (
-        (None, {}) if screen else _given_total(problem, sol, d, given_result, accuracy, propagation)
+        (None, {}) if screen else _given_total(problem, sol, given_result, accuracy, propagation)
     )
     se_total, corr_total = (
-        (None, None) if total is None else uncertainties(total, names, free_index)
-    )
-    active = int(np.count_nonzero(sol.c))
-    message = (
-        f"linear least squares: {active} of {len(sol.c)} coefficients above 0, smoothness "
-        f"{sol.lam:.3g} by generalized cross-validation, {sol.dof:.1f} effective degrees of "
-        f"freedom" + ("; uncertainties scaled by the reduced chi-square" if chi2 > 1 else "")
+        (None, None) if total is None else uncertainties(total[np.ix_(keep, keep)], names, reported)
     )
     stats = {
         "effective_dof": sol.dof,
         "smoothness": sol.lam,
         "gcv": sol.gcv,
-        "active": active,
+        "active": len(reported),
         "columns": len(sol.c),
         "engine_calls": problem.engine_calls(),
     }
     if how:
         stats["propagation"] = how
-    variant = None if given is None else given.options().get(VARIANT_OPTION)
     own = {p.key: p.name for p in cls.PARAMS}
+    free_keys = {names[k] for k in reported}
     return FitResult(
         model=cls.NAME,
-        params={own[k]: float(x[problem.index(k)]) for k in cls.keys()},
-        stderr={own[k]: stderr[k] for k in cls.keys()},
+        params=_named(cls, {k: float(x[problem.index(k)]) for k in cls.keys()}),
+        stderr=_named(cls, stderr),
         correlation={own[a]: {own[b]: r for b, r in row.items()} for a, row in corr.items()},
         residuals=tuple(float(r) for r in res),
         chi2_reduced=chi2,
         rms_relative=rms,
         n_points=problem.n_points,
         converged=True,
-        message=message,
-        variant=variant,
-        fixed={own[k]: float(x[problem.index(k)]) for k in cls.keys() if k not in free_names},
+        message=_message(sol, chi2, model_error),
+        variant=None if given is None else given.options().get(VARIANT_OPTION),
+        fixed={own[k]: float(x[problem.index(k)]) for k in cls.keys() if k not in free_keys},
         step=step,
         weighted=problem.weighted,
         accuracy=accuracy,
         given=None if given is None else model_entry(given),
-        stderr_total=None if se_total is None else {own[k]: se_total[k] for k in cls.keys()},
+        stderr_total=None if se_total is None else _named(cls, se_total),
         correlation_total=None
         if corr_total is None
         else {own[a]: {own[b]: r for b, r in row.items()} for a, row in corr_total.items()},

@@ -7,8 +7,9 @@ the full fit only for those that could still be chosen.
   (``solver.TOL_SCREEN``), not polished, no covariance propagated.
 - **Its BIC's interval**: the fast quadrature is within :data:`FAST_ERROR` (relative, of the
   value or of 1e-3 of the largest) of a converged integral at every configuration of every
-  registered family pair (measured at most 7.2e-3 against "high" and 8.9e-3 against
-  "default", rough conductor through the forward series: benchmarks/bench_fast_error.py).
+  parametric family pair (measured at most 7.2e-3 against "high" and 8.9e-3 against
+  "default", rough conductor through the forward series: benchmarks/bench_fast_error.py; the
+  nonparametric family's columns are single Beckmann lobes, as the rough conductor's).
   Moving every model value that far toward the data and away from it bounds the deviance
   (the ranking's -2 ln L, :func:`veil.fitting.selection.deviance`) that quadrature error
   can explain, with the model-discrepancy term's (s, ell) held; 2 ln N either side allows

@@ -8,16 +8,16 @@ The diffuse basis B_j is the degree-1 Bernstein basis of x = (1 - cos theta)^5 i
 (1 - x_i)(1 - x_r), x_i (1 - x_r) + (1 - x_i) x_r, x_i x_r: a Lambertian base with the retro-
 and grazing factors of Schlick's and Disney's diffuse. The lobes are Beckmann microfacet lobes at
 a fixed ladder of widths alpha_k (``WIDTHS``, a factor sqrt 2 apart), each with a Fresnel curve
-on the Schlick basis H_0 = 1 - x_d, H_1 = x_d of cos theta_d = R.H. A non-negative combination of
-Beckmann widths is the class of completely monotone distributions in tan^2 theta_H, which holds
-GGX, GTR and any sum of lobes; every coefficient is a linear parameter, so with the medium held the
-apparent reflectance is linear in all of them and step 2 is a linear problem
+piecewise linear in theta_d = angle(R, H) between ``FRESNEL_DEGREES``. Non-negative combinations
+of Beckmann widths approximate the completely monotone distributions in tan^2 theta_H (GGX, GTR,
+sums of lobes) within the ladder's range. Every coefficient is a linear parameter, so with the
+medium held the apparent reflectance is linear in all of them and step 2 is a linear problem
 (:mod:`veil.fitting.linear_fit`).
 
-The engine samples half vectors from the mixture of the widths' facet laws weighted by the lobe
-coefficients (with a small floor): a basis function alone is sampled by its own law, as a rough
-conductor's lobe is. The mixture's inverse is found by bisection and one Newton step, whose
-implicit derivative makes the engine's Jacobian exact.
+Through a medium the engine evaluates the family one lobe width at a time with
+:class:`NonParametricColumn` (``column_groups``; veil.engine.linear_forward), each width sampled
+by its own facet law. The family's own facet law, the widths' laws mixed by the coefficients
+(inverted by bisection and one Newton step), serves the sampling of independent checks.
 """
 
 from __future__ import annotations
@@ -61,7 +61,11 @@ def _schlick_x(cos):
 
 def _hats(cos_d):
     """The piecewise-linear hat functions of FRESNEL_DEGREES at theta_d = acos(cos_d): (..., M)."""
-    theta = jnp.degrees(jnp.arccos(jnp.clip(cos_d, 0.0, 1.0)))[..., None]
+    # arccos has no derivative at 1 (theta_d = 0, wi = wo): held there, 0 beyond 1 - 1e-12
+    inside = cos_d < 1.0 - 1e-12
+    theta = jnp.where(
+        inside, jnp.degrees(jnp.arccos(jnp.where(inside, jnp.maximum(cos_d, 0.0), 0.5))), 0.0
+    )[..., None]
     nodes = jnp.asarray(FRESNEL_DEGREES)
     left = jnp.concatenate([nodes[:1] - 1.0, nodes[:-1]])
     right = jnp.concatenate([nodes[1:], nodes[-1:] + 1.0])
@@ -123,8 +127,8 @@ def _params() -> tuple[Param, ...]:
                     lobe_name(k, m),
                     0.0,
                     math.inf,
-                    f"weight of the Beckmann lobe of width {alpha:g} times {basis}, "
-                    f"x_d = (1 - cos theta_d)^5 (relative units)",
+                    f"weight of the Beckmann lobe of width {alpha:g} times {basis} "
+                    f"(relative units)",
                     start=0.0,
                     channels="per-channel",
                 )
@@ -164,6 +168,20 @@ class _Declaration(BRDF):
 
     def separable(self, v, cos_i, cos_r, aux=None) -> list:
         return _diffuse(v, cos_i, cos_r)
+
+    @classmethod
+    def column_groups(cls) -> list[tuple[tuple[float, ...], dict[int, int]]]:
+        """The coefficients that share one sampling law, as the column model's vectors: per
+        lobe width (the diffuse basis with the first), (the column model's vector with the
+        width set and every coefficient 0, {index here: index in the column model})."""
+        first, _ = cls.lobe_slices()
+        out = []
+        for k, alpha in enumerate(WIDTHS):
+            where = {first + k * FRESNEL_NODES + m: 4 + m for m in range(FRESNEL_NODES)}
+            if k == 0:
+                where.update({j: j for j in range(len(DIFFUSE_NAMES))})
+            out.append(((0.0, 0.0, 0.0, alpha) + (0.0,) * FRESNEL_NODES, where))
+        return out
 
     @classmethod
     def columns(cls) -> tuple[type[BRDF], dict[str, tuple[float, ...]]]:
