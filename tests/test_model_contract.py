@@ -508,6 +508,11 @@ MICROFACET_BRUTE_FORCE = {
     # the distribution option reaches the engine's facet sampling and lobe (GGX's long tail)
     "rough-plastic:ggx": (dict(rho=0.5, alpha=0.1, eta=1.12, ks=1.0, distribution="ggx"),
                           1 << 19),
+    # the engine evaluates the family one lobe width at a time by its column model (a
+    # Beckmann lobe with a Fresnel curve linear in theta_d, and the diffuse basis;
+    # engine/linear_forward.py, whose sum tests/test_nonparametric.py checks)
+    "nonparametric": (dict(d0=0.4, d1=0.1, d2=0.2, alpha=0.05, f0=0.3, f1=0.5, f2=0.0, f3=1.0),
+                      1 << 19),
 }
 
 
@@ -521,7 +526,11 @@ def test_microfacet_families_through_btdf2_match_monte_carlo(name):
     from veil.models import PRESETS
 
     params, n = MICROFACET_BRUTE_FORCE[name]
-    brdf, medium = REGISTRY[name.split(":")[0]](**params), PRESETS["BTDF2"]
+    from veil.models.nonparametric import NonParametricColumn
+
+    family = name.split(":")[0]
+    cls = NonParametricColumn if family == "nonparametric" else REGISTRY[family]
+    brdf, medium = cls(**params), PRESETS["BTDF2"]
     ti, tr = np.array([20.0, 30.0, 0.0]), np.array([35.0, 30.0, 60.0])
     got = Forward(brdf, medium, ti, tr, rule=RULES["default"])(brdf.to_vector(),
                                                                  medium.to_vector())

@@ -265,3 +265,28 @@ def test_the_medium_fits_covariance_widens_the_estimate():
     active = [n for n, v in res.params.items() if v > 0]
     assert all(res.stderr_total[n] >= res.stderr[n] for n in active)
     assert any(res.stderr_total[n] > 1.05 * res.stderr[n] for n in active)
+
+
+def test_through_a_medium_the_family_is_the_sum_of_its_columns():
+    """The engine's value of the family (engine/linear_forward.py: one lobe width at a time)
+    against the sum of its 55 columns each evaluated alone (the step fit's columns), at two
+    rules: the same to rounding, whatever the grouping."""
+    from veil.engine.forward import Forward
+    from veil.engine.quadrature import RULES
+    from veil.models.nonparametric import NonParametricColumn
+
+    model = NonParametric.template().replace(d0=0.4, d2=0.3, w01_0=0.2, w01_3=0.6, w06_1=0.1,
+                                             w10_2=0.3, w12_0=0.05)
+    medium = PRESETS["BTDF2"]
+    ti, tr = np.array([20.0, 30.0, 0.0, 50.0]), np.array([35.0, 30.0, 60.0, 10.0])
+    _, vectors = NonParametric.columns()
+    for rule in ("fast", "default"):
+        got = Forward(model, medium, ti, tr, rule=RULES[rule])(model.to_vector(),
+                                                               medium.to_vector())
+        want = 0.0
+        for name, c in model.as_dict().items():
+            if c:
+                col = NonParametricColumn(*vectors[name])
+                fwd = Forward(col, medium, ti, tr, rule=RULES[rule])
+                want = want + c * fwd(col.to_vector(), medium.to_vector())
+        assert np.allclose(got, want, rtol=1e-12, atol=0.0), (rule, got / want - 1)
