@@ -60,7 +60,8 @@ def test_candidates_come_from_the_declarations():
     # an option given pins its value; apparatus ones go to every candidate declaring them
     ggx = selection.candidates("brdf", {"distribution": "ggx"})
     assert [c.label for c in ggx if not c.family.endswith("-test")] == \
-        ["torrance-sparrow", "rough-conductor", "rough-plastic"]  # (a test plugin aside)
+        ["torrance-sparrow", "nonparametric", "rough-conductor", "rough-plastic"]  # (and a
+    # test plugin: no option of its own, the non-parametric one none either)
     assert {c.model_options({"distribution": "ggx"}).get("distribution", "ggx")
             for c in ggx} == {"ggx"}
     fs = next(c for c in media if c.family == "forward-series")

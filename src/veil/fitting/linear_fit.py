@@ -245,9 +245,8 @@ def _message(sol: LinearSolution, chi2: float, model_error: str) -> str:
         f"{sol.dof:.1f} effective degrees of freedom"
     ]
     if chi2 > 1:
-        notes.append("uncertainties scaled by the reduced chi-square")
-    if model_error != "off":
-        notes.append(f"no model-discrepancy term ({model_error} asked): the misfit scales them")
+        term = "" if model_error == "off" else " in place of a model-discrepancy term"
+        notes.append(f"uncertainties scaled by the reduced chi-square{term}")
     return "; ".join(notes)
 
 

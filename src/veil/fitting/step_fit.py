@@ -68,7 +68,7 @@ def _problem(data: FitData, cls, brdf, medium, free: list, fixed: dict, what: st
     )
     for key, value in _fixed_slots(problem, cls, fixed, what).items():
         problem.values[problem.index(key)] = value
-    if data.size <= len(free):
+    if data.size <= len(free) and not cls.LINEAR:  # regularized: df < points (linear_fit)
         raise FitError(
             f"the {what} data have {data.size} point(s) but the fit has "
             f"{len(free)} free parameter(s) ({', '.join(free)}): need more points "
