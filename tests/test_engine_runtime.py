@@ -213,7 +213,9 @@ def test_small_calls_share_one_program():
     b, m = veil.preset("BRDF2"), veil.preset("BTDF1")
     rule = RULES["fast"]
     th = np.linspace(10, 60, 150)
-    made = [Forward(b, m, th[:n], th[::-1][:n], rule=rule) for n in (20, 64, 150)]
+    # out of the plane of incidence: the programs of tests/test_cli_eval.py's azimuths (64)
+    # and of the split over devices below (192), none of their own
+    made = [Forward(b, m, th[:n], th[::-1][:n], 180.0, 30.0, rule=rule) for n in (20, 64, 150)]
     assert [f._wi.shape[0] for f in made] == [forward.CHUNK, forward.CHUNK, 3 * forward.CHUNK]
     assert all(len(f.devices) == len(jax.devices()) for f in made)
     futures = [f.prepare(values=True)[0] for f in made]
