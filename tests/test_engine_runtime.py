@@ -111,7 +111,8 @@ _HASH_SCRIPT = """
     jax.monitoring.register_event_listener(lambda name, **kw: events.append(name))
     jax.monitoring.register_event_duration_secs_listener(
         lambda name, secs, **kw: events.append(name))
-    b, m = veil.preset("BRDF1"), veil.preset("BTDF2")
+    from veil_test_models import FisherTest, LambertianTest  # (a quick compilation)
+    b, m = LambertianTest(rho=0.8), FisherTest(Td=2e-3, Tt=0.2, kappa=150.0)
     th = np.linspace(0.0, 80.0, 24)
     f = Forward(b, m, th, th[::-1], 0.0, 30.0, rule=RULES["fast"])
     v = f(b.to_vector(), m.to_vector())
@@ -135,19 +136,23 @@ _OFF_SCRIPT = """
 
 def test_persistent_cache_fills_loads_and_changes_nothing(tmp_path):
     cache = tmp_path / "cache"
-    first = _child(_HASH_SCRIPT, {"VEIL_CACHE_DIR": str(cache)}).split()
+    # the engine on the test-only families (tests/plugins, on the children's path)
+    env = {"VEIL_CACHE_DIR": str(cache), "PYTHONPATH": os.pathsep.join(
+        [os.path.join(os.path.dirname(os.path.abspath(__file__)), "plugins"),
+         os.environ.get("PYTHONPATH", "")]).rstrip(os.pathsep)}
+    first = _child(_HASH_SCRIPT, env).split()
     assert list((cache / "programs").iterdir()), "the first process stored no program"
     assert first[1] == "0" and int(first[2]) >= 1          # compiled, nothing found
     # a second process loads the stored executables: no compilation, no cache lookup
-    second = _child(_HASH_SCRIPT, {"VEIL_CACHE_DIR": str(cache)}).split()
+    second = _child(_HASH_SCRIPT, env).split()
     assert second[1:] == ["0", "0"]
     # the engine's executables live in the program store, none in JAX's cache (one that
     # JAX loaded from there could not be stored again): without the store they are built
     for entry in (cache / "programs").iterdir():
         entry.unlink()
-    third = _child(_HASH_SCRIPT, {"VEIL_CACHE_DIR": str(cache)}).split()
+    third = _child(_HASH_SCRIPT, env).split()
     assert third[1] == "0" and int(third[2]) >= 1
-    fourth = _child(_HASH_SCRIPT, {"VEIL_CACHE_DIR": str(cache)}).split()
+    fourth = _child(_HASH_SCRIPT, env).split()
     assert fourth[1:] == ["0", "0"]                       # ... and stored again
     # the same executable, loaded or compiled: bit for bit the same values
     assert first[0] == second[0] == third[0] == fourth[0]
