@@ -75,7 +75,9 @@ def test_reflectance_of_every_channel_is_the_stack_of_each_bit_for_bit(rgb_json)
 def test_apparent_of_every_channel_is_the_stack_of_each_bit_for_bit(rgb_json):
     result = FitResult.from_json(rgb_json)
     model = result.as_model()
-    args = (veil.BTDF1, THETA_I, THETA_R)
+    # out of the plane of incidence (phi_r 20 deg): the value and error-estimate programs of
+    # tests/test_cli_eval.py's azimuths, none of this test's own
+    args = (veil.BTDF1, THETA_I, THETA_R, 180.0, 20.0)
     values = veil.apparent(model, *args, accuracy="fast")
     assert values.shape == (2, 3, 3)
     assert same_bits(values, stacked(veil.apparent, result, *args, accuracy="fast"))

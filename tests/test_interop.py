@@ -123,7 +123,9 @@ def test_verify_without_mitsuba_is_an_input_error(tmp_path, monkeypatch):
 
 def test_csv_curves_with_and_without_medium(tmp_path):
     brdf = PLASTIC(rho=0.5, alpha=0.1, eta=1.5, ks=2.0)
-    med = SERIES(tau=0.3, omega=0.99, g=0.9)
+    # the finite plate of the path-traced validation data: tests/test_compare.py's pipeline
+    # compiles this pair's program at "fast" (a plate of infinite width would be another)
+    med = SERIES(tau=0.3, omega=0.99, g=0.9, path_length=15.0, plate_width=5.0)
     target = _result(brdf, tmp_path / "t.json", given=med)
     out = _run("export", target, "--to", "csv", "-o", tmp_path / "c.csv", "--psi", "60",
                "--accuracy", "fast")
