@@ -288,12 +288,11 @@ def candidate_rows(rows: list[dict]) -> list[list[str]]:
             if not x["generating"].endswith("(no family)"):
                 continue
             on = "clear data" if r["medium"] == "water" or step == "target" else "medium"
-            for c in x["candidates"]:
-                out.append([r["case"] if not out or out[-1][0] != r["case"] else "",
-                            f"{step}, {on}", _short(c["label"]),
-                            _pct(c["rms_relative"]) if c["rms_relative"] is not None else
-                            (c.get("error") or "")[:40],
-                            _dbic(c["delta_bic"]), f"{c['weight']:.3f}",
+            for j, c in enumerate(x["candidates"]):
+                fit = (_pct(c["rms_relative"]) if c["converged"] and c["rms_relative"] is not None
+                       else "not converged")
+                out.append([r["case"] if j == 0 else "", f"{step}, {on}", _short(c["label"]),
+                            fit, _dbic(c["delta_bic"]), f"{c['weight']:.3f}",
                             "" if c["k"] is None else f"{c['k']:.1f}"])
     return out
 
