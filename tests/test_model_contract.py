@@ -510,7 +510,7 @@ MICROFACET_BRUTE_FORCE = {
                           1 << 19),
     # the engine evaluates the family one lobe width at a time by its column model (a
     # Beckmann lobe with a Fresnel curve linear in theta_d, and the diffuse basis;
-    # engine/linear_forward.py, whose sum tests/test_nonparametric.py checks)
+    # engine/forward.py LinearForward, whose sum tests/test_nonparametric.py checks)
     "nonparametric": (dict(d0=0.4, d1=0.1, d2=0.2, alpha=0.05, f0=0.3, f1=0.5, f2=0.0, f3=1.0),
                       1 << 19),
 }

@@ -268,7 +268,7 @@ def test_the_medium_fits_covariance_widens_the_estimate():
 
 
 def test_through_a_medium_the_family_is_the_sum_of_its_columns():
-    """The engine's value of the family (engine/linear_forward.py: one lobe width at a time)
+    """The engine's value of the family (engine/forward.py LinearForward: one lobe width at a time)
     against the sum of its 55 columns each evaluated alone (the step fit's columns), at two
     rules: the same to rounding, whatever the grouping."""
     from veil.engine.forward import Forward

@@ -13,8 +13,10 @@ non-negative, regularized least-squares problem (docs/nonparametric.md).
   the effective degrees of freedom that the BIC counts (``stats["effective_dof"]``).
 - **Uncertainty**: the penalized estimator's sandwich covariance on the active set, scaled by
   the reduced chi-square when it exceeds 1 (the family's own misfit, and the scale of
-  unweighted data); coefficients at 0 are held at the bound (stderr 0). A given fit's
-  covariance is propagated by central differences of the same values program.
+  unweighted data); coefficients at 0 are held at the bound (reported as fixed there). A
+  given fit's covariance is propagated to first order by central differences of the
+  family's values (one-sided at a bound). A fixed coefficient's part of the values and of
+  the penalty moves to the right-hand side.
 """
 
 from __future__ import annotations
@@ -211,7 +213,9 @@ def given_influence(
     return out
 
 
-def _given_total(problem, sol, given_result, accuracy, propagation) -> tuple[np.ndarray, dict]:
+def _given_total(
+    problem, sol, given_result, accuracy, propagation
+) -> tuple[np.ndarray | None, dict]:
     """(the covariance with the given fit's propagated, stats on how) or (None, {})."""
     if given_result is None or propagation == "off" or not (sol.c > 0).any():
         return None, {}

@@ -232,9 +232,18 @@ def fit_step(
     free = _free(cls, fixed, freed, what)
     problem = _problem(data, cls, brdf, medium, free, fixed, what)
     if cls.LINEAR:  # one linear problem (docs/nonparametric.md)
-        kw = dict(accuracy=accuracy, propagation=propagation, model_error=model_error)
-        kw.update(progress=progress, screen=screen)
-        return fit_linear(step, problem, fitted, given, given_result, **kw)
+        return fit_linear(
+            step,
+            problem,
+            fitted,
+            given,
+            given_result,
+            accuracy=accuracy,
+            propagation=propagation,
+            model_error=model_error,
+            progress=progress,
+            screen=screen,
+        )
     if medium is not None:
         _prepare_engine(problem, cls, given, given_result, accuracy, propagation)
     starts, n_grid = step_starts(problem, cls.KIND, ROLE[step], STARTS[step], progress)

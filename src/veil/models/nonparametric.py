@@ -2,7 +2,7 @@
 no parametric family describes (docs/model.md sec. 8.4, docs/nonparametric.md).
 
     f_r(I, R) = cos theta_i / pi sum_j d_j B_j(x_i, x_r)
-              + sum_k sum_m w_km H_m(cos theta_d) D_k(H) G1_k(I, H) G1_k(R, H) / (4 cos theta_r)
+              + sum_k sum_m w_km H_m(theta_d) D_k(H) G1_k(I, H) G1_k(R, H) / (4 cos theta_r)
 
 The diffuse basis B_j is the degree-1 Bernstein basis of x = (1 - cos theta)^5 in each direction
 (1 - x_i)(1 - x_r), x_i (1 - x_r) + (1 - x_i) x_r, x_i x_r: a Lambertian base with the retro-
@@ -15,9 +15,10 @@ medium held the apparent reflectance is linear in all of them and step 2 is a li
 (:mod:`veil.fitting.linear_fit`).
 
 Through a medium the engine evaluates the family one lobe width at a time with
-:class:`NonParametricColumn` (``column_groups``; veil.engine.linear_forward), each width sampled
-by its own facet law. The family's own facet law, the widths' laws mixed by the coefficients
-(inverted by bisection and one Newton step), serves the sampling of independent checks.
+:class:`NonParametricColumn` (``column_groups``; veil.engine.forward.LinearForward), each
+width sampled by its own facet law. The family's own facet law, the widths' laws mixed by
+the coefficients (inverted by bisection and one Newton step), serves the sampling of
+independent checks.
 """
 
 from __future__ import annotations
@@ -41,7 +42,7 @@ FRESNEL_DEGREES = (0.0, 30.0, 60.0, 90.0)
 FRESNEL_NODES = len(FRESNEL_DEGREES)
 #: The diffuse basis: degree-1 Bernstein products in x = (1 - cos theta)^5 of both directions.
 DIFFUSE_NAMES = ("d0", "d1", "d2")
-#: Share of the engine's facet nodes spread evenly over the widths, whatever the coefficients.
+#: Share of the family's own facet law spread evenly over the widths, whatever the coefficients.
 FACET_FLOOR = 0.02
 #: Bisection steps of the facet law's inverse (60 halve pi/2 to below 1e-18).
 BISECTIONS = 60
