@@ -282,17 +282,18 @@ def _subprocess(args):
 
 
 def test_every_candidate_failing_exits_1_with_the_table(sessions, tmp_path):
-    """One evaluation per iterative fit: step 0's only converged candidate is the
-    non-parametric family (a linear solve, which --max-nfev does not bound), and every
-    medium fitted through it stops unconverged: exit 1 with the medium step's table."""
-    # one value of each discrete option: fewer programs to compile
+    """One evaluation per iterative fit, and the non-parametric family (a linear solve, which
+    --max-nfev does not bound) held at a coefficient outside its bounds: no candidate of
+    step 0 succeeds; each says why in the table, and nothing is written."""
+    # one value of the distribution: fewer programs to compile
     run = _subprocess(_args(sessions, tmp_path / "o") + ["--models", "auto", "--max-nfev", "1",
                                                          "--distribution", "beckmann",
-                                                         "--orders", "poisson"])
+                                                         "--fix", "reference.d0=-1"])
     assert run.returncode == 1, run.stderr[-3000:]
-    assert "Candidates of step 'medium'" in run.stdout
-    assert "every candidate failed" in run.stdout and "henyey-greenstein" in run.stdout
+    assert "Candidates of step 'reference'" in run.stdout
+    assert "every candidate failed" in run.stdout and "torrance-sparrow" in run.stdout
     assert "did not converge" in run.stdout
+    assert "nonparametric: FitError: fixed NonParametric.d0 = -1 is outside" in run.stdout
     assert not (tmp_path / "o").exists()
 
 
