@@ -290,3 +290,22 @@ def test_through_a_medium_the_family_is_the_sum_of_its_columns():
                 fwd = Forward(col, medium, ti, tr, rule=RULES[rule])
                 want = want + c * fwd(col.to_vector(), medium.to_vector())
         assert np.allclose(got, want, rtol=1e-12, atol=0.0), (rule, got / want - 1)
+
+
+def test_the_explorers_fit_view_draws_a_band_for_it(tmp_path):
+    """The explorer's band over draws from the covariance of a fit through a medium (a
+    coefficient drawn below 0 is held at 0, as the fit holds it): the band exists and holds
+    the fitted curve at most points."""
+    from veil.data.measurements import save_measurements
+    from veil.viz.explore_fits import FitView
+
+    brdf = REGISTRY["rough-plastic"](**GGX_PLASTIC)
+    table = simulate(brdf, PRESETS["BTDF2"], noise=0.01, seed=13, glow=0.0, accuracy="fast")
+    result = fit_target(table, PRESETS["BTDF2"], brdf_model="nonparametric", accuracy="fast")
+    save_measurements(table, tmp_path / "target.csv")
+    view = FitView(result, str(tmp_path / "target.csv"), draws=40)
+    assert view.band is not None
+    lo, hi = view.band
+    assert np.all(lo <= hi) and np.any(hi > lo)
+    inside = (view.fitted >= lo * (1 - 1e-9)) & (view.fitted <= hi * (1 + 1e-9))
+    assert inside.mean() > 0.8

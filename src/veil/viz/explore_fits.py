@@ -225,6 +225,8 @@ class FitView:
             tries += 1
             u = mean_u + root @ rng.standard_normal(len(names))
             x = np.where(logs, np.exp(u), u)
+            if cls.LINEAR:  # a coefficient drawn below 0 is held at 0, as its fit holds it
+                x = np.maximum(x, 0.0)
             params = dict(base.as_dict())
             params.update({n: float(v) for n, v in zip(names, x)})
             if not all(cls.param(n).contains(params[n]) for n in names):
