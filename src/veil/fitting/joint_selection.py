@@ -57,11 +57,7 @@ def joint_candidates(
 
     def of(kind, name, options):
         if kind in ranked:  # a linear family is not fitted jointly (docs/nonparametric.md)
-            return [
-                c
-                for c in selection.candidates(kind, options)
-                if not model_class(c.family, kind).LINEAR
-            ]
+            return selection.candidates(kind, options, linear=False)
         return [selection.Candidate(model_class(name or _paper(kind), kind).NAME)]
 
     brdfs = of("brdf", brdf_model, brdf_options)

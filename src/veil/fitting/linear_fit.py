@@ -56,6 +56,8 @@ class LinearSolution:
     xw: np.ndarray
     #: the penalty over the free coefficients
     d: np.ndarray
+    #: (X'WX + lam D'D)^-1 on the coefficients above 0 (None when there are none)
+    inv: np.ndarray | None
 
 
 def penalty(cls, names: list[str]) -> np.ndarray:
@@ -173,13 +175,14 @@ def solve(problem: Problem, accuracy: str, d: np.ndarray, progress=None) -> Line
     n = problem.n_points
     chi2_red = float(res @ res) / max(n - dof, 1.0)
     cov = np.zeros((len(c), len(c)))
+    inv = None
     if active.any():
         _, inv = _hat_trace(xw, d, lam, active)
         xa = xw[:, active]
         sandwich = inv @ (xa.T @ xa) @ inv
         scale = chi2_red if not problem.weighted else max(chi2_red, 1.0)
         cov[np.ix_(active, active)] = sandwich * scale
-    return LinearSolution(c, lam, dof, gcv, cov, values, res, xw, d)
+    return LinearSolution(c, lam, dof, gcv, cov, values, res, xw, d, inv)
 
 
 def given_influence(
@@ -197,9 +200,9 @@ def given_influence(
     w = problem.w
     active = sol.c > 0
     out = np.zeros((len(sol.c), len(names)))
-    if not active.any():
+    if sol.inv is None:
         return out
-    _, inv = _hat_trace(sol.xw, sol.d, sol.lam, active)
+    inv = sol.inv
     for g, name in enumerate(names):
         k = problem.index(name)
         spec = problem.params[k].spec
@@ -239,6 +242,12 @@ def _named(cls, values: dict) -> dict:
     """A dict by slot name in the family's own names."""
     own = {p.key: p.name for p in cls.PARAMS}
     return {own[k]: values[k] for k in cls.keys()}
+
+
+def _named_matrix(cls, rows: dict) -> dict:
+    """A correlation dict (slot names) in the family's own names."""
+    own = {p.key: p.name for p in cls.PARAMS}
+    return {own[a]: {own[b]: r for b, r in row.items()} for a, row in rows.items()}
 
 
 def _message(sol: LinearSolution, chi2: float, model_error: str) -> str:
@@ -305,7 +314,7 @@ def fit_linear(
         model=cls.NAME,
         params=_named(cls, {k: float(x[problem.index(k)]) for k in cls.keys()}),
         stderr=_named(cls, stderr),
-        correlation={own[a]: {own[b]: r for b, r in row.items()} for a, row in corr.items()},
+        correlation=_named_matrix(cls, corr),
         residuals=tuple(float(r) for r in res),
         chi2_reduced=chi2,
         rms_relative=rms,
@@ -319,9 +328,7 @@ def fit_linear(
         accuracy=accuracy,
         given=None if given is None else model_entry(given),
         stderr_total=None if se_total is None else _named(cls, se_total),
-        correlation_total=None
-        if corr_total is None
-        else {own[a]: {own[b]: r for b, r in row.items()} for a, row in corr_total.items()},
+        correlation_total=None if corr_total is None else _named_matrix(cls, corr_total),
         stats=stats,
         options=fitted.options(),
         determined=True,

@@ -88,11 +88,14 @@ class Candidate:
         return out
 
 
-def candidates(kind: str, given_options: dict | None = None, families=None) -> list[Candidate]:
+def candidates(
+    kind: str, given_options: dict | None = None, families=None, linear: bool = True
+) -> list[Candidate]:
     """The candidates of ``kind`` ("brdf" or "medium"); ``given_options`` pin ranked options
-    where a family declares them; ``families`` (names) restricts to those families. Values
-    that make the same model with the apparatus options given are one candidate
-    (``Candidate.same``)."""
+    where a family declares them; ``families`` (names) restricts to those families;
+    ``linear`` False leaves the linear families out (fits that iterate on every candidate:
+    joint fits, several channels; docs/nonparametric.md). Values that make the same model
+    with the apparatus options given are one candidate (``Candidate.same``)."""
     given = dict(given_options or {})
     pinned = {k: v for k, v in given.items() if k not in registry.APPARATUS_OPTIONS}
     found = _one_per_model(
@@ -119,6 +122,8 @@ def candidates(kind: str, given_options: dict | None = None, families=None) -> l
     if families is not None:
         wanted = [registry.model_class(f, kind).NAME for f in families]
         found = [c for c in found if c.family in wanted]
+    if not linear:
+        found = [c for c in found if not registry.REGISTRY[c.family].LINEAR]
     return found
 
 

@@ -17,8 +17,8 @@ medium held the apparent reflectance is linear in all of them and step 2 is a li
 Through a medium the engine evaluates the family one lobe width at a time with
 :class:`NonParametricColumn` (``column_groups``; veil.engine.forward.LinearForward), each
 width sampled by its own facet law. The family's own facet law, the widths' laws mixed by
-the coefficients (inverted by bisection and one Newton step), serves the sampling of
-independent checks.
+the coefficients (inverted by bisection), serves the sampling of independent checks and
+the facet half-angle of reports.
 """
 
 from __future__ import annotations
@@ -231,23 +231,17 @@ class _Declaration(BRDF):
         from .._jax import jax
 
         y = jnp.clip(jnp.asarray(y, dtype=float), 0.0, 1.0)
-        fixed = jax.lax.stop_gradient(v)
 
         def step(_, bracket):
             lo, hi = bracket
             mid = 0.5 * (lo + hi)
-            below = self.facet_cdf(fixed, mid) < jax.lax.stop_gradient(y)
+            below = self.facet_cdf(v, mid) < y
             return jnp.where(below, mid, lo), jnp.where(below, hi, mid)
 
         lo, hi = jax.lax.fori_loop(
             0, BISECTIONS, step, (jnp.zeros_like(y), jnp.full_like(y, 0.5 * math.pi))
         )
-        theta = jax.lax.stop_gradient(0.5 * (lo + hi))
-        # one Newton step: zero in value, it carries the implicit derivative d theta / d(v, y)
-        slope = 2.0 * math.pi * jnp.sin(theta) * self.facet_weight(v, theta)
-        ok = slope > 1e-300
-        newton = (y - self.facet_cdf(v, theta)) / jnp.where(ok, slope, 1.0)
-        return jnp.where(y >= 1.0, 0.5 * math.pi, theta + jnp.where(ok, newton, 0.0))
+        return jnp.where(y >= 1.0, 0.5 * math.pi, 0.5 * (lo + hi))
 
 
 NonParametric = dataclasses.make_dataclass(
