@@ -87,7 +87,7 @@ def _fit_through_medium(
     check_output_path(output, [table, black] + ([source] if os.path.exists(source) else []))
     step, what = _THROUGH_MEDIUM[kind]
 
-    def fit(family, options, fixed, freed, progress, screen=False):
+    def fit(family, options, fixed, freed, progress, screen=False, start=None):
         return fit_step(
             table,
             model,
@@ -98,6 +98,7 @@ def _fit_through_medium(
             free=freed,
             channel=channel,
             screen=screen,
+            start=start,
             **{f"{kind}_model": family},
             **fit_options,
         )
@@ -132,7 +133,8 @@ def _ranked_fit(
     """``--brdf-model auto`` / ``--medium-model auto``: every registered family of ``kind``
     (with each value of its discrete options) fitted by ``fit(candidate, fixed, freed)`` and
     ranked by BIC on ``data`` (veil.fitting.selection), screened by ``quick(candidate,
-    fixed, freed)`` first when given (veil.fitting.screening); the ranking printed and the
+    fixed, freed, start)`` first when given (veil.fitting.screening; ``fit`` then takes a
+    ``start`` too); the ranking printed and the
     chosen result returned with it in ``stats["selection"]``. Exit 1 with the table when
     every candidate failed."""
     from ..fitting import screening, selection
@@ -146,11 +148,11 @@ def _ranked_fit(
     table, black, channel = data
     prepared = prepare_all(table, black, what, channel)  # every channel's, stacked
 
-    def one(c):
-        return fit(c, fixes[c.label], frees[c.label])
+    def one(c, **start):  # a step through the medium: start= (veil.fitting.screening)
+        return fit(c, fixes[c.label], frees[c.label], **start)
 
-    def first(c):
-        return quick(c, fixes[c.label], frees[c.label])
+    def first(c, start=None):
+        return quick(c, fixes[c.label], frees[c.label], start)
 
     try:
         with echo_warnings(), fit_progress(step) as progress:
@@ -179,25 +181,35 @@ def _fit_step(ctx, kind: str, step: str, models, fit, data, what: str, fix=(), f
     cls = models.brdf if kind == "brdf" else models.medium
     options = models.brdf_options if kind == "brdf" else models.medium_options
     if kind in models.ranked:
-        through = step in {s for s, _ in _THROUGH_MEDIUM.values()}
+        if step not in {s for s, _ in _THROUGH_MEDIUM.values()}:  # on clear data
+            return _ranked_fit(
+                ctx,
+                kind,
+                step,
+                models,
+                data,
+                lambda c, fixed, freed: fit(c.family, c.model_options(options), fixed, freed, None),
+                what,
+                fix,
+                free,
+            )
+
+        # a step through the medium screens its candidates by a quick fit each; the full
+        # fits start from it (veil.fitting.screening)
+        def through(c, fixed, freed, start=None, screen=False):
+            return fit(c.family, c.model_options(options), fixed, freed, None, screen, start)
+
         return _ranked_fit(
             ctx,
             kind,
             step,
             models,
             data,
-            lambda c, fixed, freed: fit(c.family, c.model_options(options), fixed, freed, None),
+            through,
             what,
             fix,
             free,
-            # a step through the medium screens its candidates by a quick fit each
-            (
-                lambda c, fixed, freed: fit(
-                    c.family, c.model_options(options), fixed, freed, None, screen=True
-                )
-            )
-            if through
-            else None,
+            lambda c, fixed, freed, start=None: through(c, fixed, freed, start, True),
         )
     fixed, freed = parse_fix(fix, cls), _parse_free(free, cls)
     with echo_warnings(), fit_progress(step) as progress:

@@ -66,8 +66,9 @@ def rank_step(
     by their ``quick`` fits when given); a close call's ranking carries the spread of the
     close candidates' ``curves``. With ``propagated``, the candidates are fitted by
     ``fit_one`` without the given fit's covariance (which moves no estimate, chi-square or
-    BIC) and the chosen one again by ``propagated``, with it: the derivatives in the given
-    model are compiled and evaluated for that one only."""
+    BIC) and the chosen one again by ``propagated(candidate, start)``, with it, from its
+    estimate: the derivatives in the given model are compiled and evaluated for that one
+    only."""
     ranking, results = screening.select(step, cands, data, fit_one, what, progress, quick)
     if ranking.close_call:
         ranking = ranking.with_spread(
@@ -75,7 +76,7 @@ def rank_step(
         )
     if propagated is not None:
         chosen = next(c for c in cands if c.label == ranking.chosen)
-        results = {**results, ranking.chosen: propagated(chosen)}
+        results = {**results, ranking.chosen: propagated(chosen, results[ranking.chosen])}
     return ranking, results
 
 
@@ -174,9 +175,10 @@ class _Ranked:
         )
         return selection.with_selection(results[ranking.chosen], ranking)
 
-    def fit_one(self, step, c, given, propagation, screen=False) -> FitResult:
+    def fit_one(self, step, c, given, propagation, screen=False, start=None) -> FitResult:
         """Candidate ``c`` of step 1 ("medium") or 2 ("target") fitted through the ``given``
-        model, with ``propagation``; a quick fit when ``screen``."""
+        model, with ``propagation``; a quick fit when ``screen``; from ``start`` (a
+        FitResult of its model) when given."""
         medium = step == "medium"
         key, session = ("m", "reference_medium") if medium else ("t", "target_medium")
         fit: Callable[..., FitResult] = fit_medium if medium else fit_target
@@ -194,6 +196,7 @@ class _Ranked:
             model_error=self.model_error,
             propagation=propagation,
             screen=screen,
+            start=start,
             **{f"{kind}_model": c.family},
         )
 
@@ -216,13 +219,15 @@ class _Ranked:
             step,
             self.plan["medium" if step == "medium" else "brdf"],
             self.data["reference_medium" if step == "medium" else "target_medium"],
-            lambda c: self.fit_one(step, c, given, self.each),
+            lambda c, start=None: self.fit_one(step, c, given, self.each, start=start),
             self.progress,
             curve,
             step,
-            again and (lambda c: self.fit_one(step, c, given, again)),
+            again and (lambda c, start: self.fit_one(step, c, given, again, start=start)),
             # --compare writes every candidate out: each one fitted in full
-            None if self.keep_all else (lambda c: self.fit_one(step, c, given, "off", True)),
+            None
+            if self.keep_all
+            else (lambda c, start=None: self.fit_one(step, c, given, "off", True, start)),
         )
         self.rankings[step], self.kept[step] = ranking, results
         return selection.with_selection(results[ranking.chosen], ranking), ranking

@@ -157,7 +157,9 @@ def fit_joint_ranked(
             if c is cands[-1]:
                 raise
 
-    def one(c: JointCandidate, screen: bool = False) -> FitResult:
+    def one(c: JointCandidate, screen: bool = False, start=None) -> FitResult:
+        # a joint fit starts from its own grid: ``start`` (a sibling's or its quick fit,
+        # veil.fitting.screening) is not used
         return fit_joint(
             sessions,
             brdf_model=c.brdf.family,
@@ -170,7 +172,7 @@ def fit_joint_ranked(
         )
 
     ranking, results = screening.select(
-        "joint", cands, data, one, "joint", progress, lambda c: one(c, screen=True)
+        "joint", cands, data, one, "joint", progress, lambda c, start=None: one(c, True)
     )
     return selection.with_selection(results[ranking.chosen], ranking), ranking
 

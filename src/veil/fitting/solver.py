@@ -255,26 +255,37 @@ def run(
     progress=None,
     every: bool = False,
     screen: bool = False,
+    more: Callable[[], list] | None = None,
 ) -> Outcome:
     """Least squares from each natural start vector (best first): all of them when
-    ``every``, else the next only while the fits so far are not convincing; the best is
-    polished at ``accuracy`` when the problem has a medium (module docstring). A ``screen``
-    runs the first start only, at the "fast" quadrature to TOL_SCREEN, unpolished: a
-    candidate's quick fit for ranking (:mod:`veil.fitting.screening`)."""
+    ``every``, else the next only while the fits so far are not convincing; ``more()``
+    gives further starts after ``starts``, asked for only when they are needed (a fit
+    continued from a candidate's quick fit: the grid's starts). The best is polished at
+    ``accuracy`` when the problem has a medium (module docstring). A ``screen`` runs the
+    first start only, at the "fast" quadrature to TOL_SCREEN, unpolished: a candidate's
+    quick fit for ranking (:mod:`veil.fitting.screening`)."""
     linear_free(problem)
     through_medium = any(b.medium is not None for b in problem.blocks)
-    if screen:
-        starts, accuracy, every = list(starts)[:1], ITERATION_ACCURACY, False
+    starts = list(starts)
+    if screen:  # the first start only
+        if not starts and more is not None:
+            starts = list(more())
+        starts, accuracy, every, more = starts[:1], ITERATION_ACCURACY, False, None
     polish = through_medium and accuracy != ITERATION_ACCURACY
     tol = TOL_SCREEN if screen else (TOL_ITER if polish else TOL_FINAL)
     runs: list[Solution] = []
-    skipped = 0
-    for s, x0 in enumerate(starts):
+    skipped = s = 0
+    while True:
         if runs and not every and any(convincing(problem, r) for r in runs):
             skipped = len(starts) - s
             break
+        if s == len(starts) and more is not None:
+            starts, more = starts + list(more()), None
+        if s == len(starts):
+            break
         tick = ticker(progress, f"start {s + 1}/{len(starts)}: iteration")
-        runs.append(solve(problem, x0, tol=tol, max_nfev=max_nfev, on_eval=tick))
+        runs.append(solve(problem, starts[s], tol=tol, max_nfev=max_nfev, on_eval=tick))
+        s += 1
     if not runs:
         raise FitError("no starting point: the starting grid gave no finite cost")
     best = min(range(len(runs)), key=lambda r: (runs[r].cost, r))

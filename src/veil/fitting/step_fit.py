@@ -78,6 +78,18 @@ def _problem(data: FitData, cls, brdf, medium, free: list, fixed: dict, what: st
     return problem
 
 
+def _start_vector(problem: Problem, cls, start: dict, fixed: dict) -> np.ndarray:
+    """The problem's natural vector with the fitted model's free parameters at ``start``
+    ({name: value}; the held ones and any not named keep their values)."""
+    x = problem.values.copy()
+    for name, value in start.items():
+        if name in cls.param_names() and name not in fixed:
+            k = problem.index(cls.param(name).key)
+            if problem.free[k]:
+                x[k] = float(value)
+    return x
+
+
 def stats_and_message(outcome, summary, rep, given_result, n_grid: int) -> tuple[dict, str]:
     """A step's ``stats`` (the run's, the starting grid's size, how the given fit's
     covariance was propagated) and its message (the solver's, with a note on that)."""
@@ -218,12 +230,16 @@ def fit_step(
     model_error: str = "off",
     propagation: str = "auto",
     screen: bool = False,
+    start: dict | None = None,
 ) -> FitResult:
     """One step: the ``fitted`` model's parameters free (but ``fixed``, and the held ones not
     ``freed``), ``given`` held; unless ``model_error`` is "off" a weighted fit estimates the
     model-discrepancy term of that kind (:mod:`veil.fitting.model_error`); ``propagation``
     is how a given fit's covariance enters (:mod:`veil.fitting.propagation`); a ``screen``
-    is a candidate's quick fit (:func:`veil.fitting.solver.run`), without propagation."""
+    is a candidate's quick fit (:func:`veil.fitting.solver.run`), without propagation.
+    ``start`` ({name: value} of the fitted model) takes the place of the grid's best start,
+    the grid evaluated only when it is not convincing (a candidate's fit continued from its
+    quick fit, or from a sibling's: :mod:`veil.fitting.screening`)."""
     if screen:
         accuracy, propagation = ITERATION_ACCURACY, "off"
     cls = type(fitted)
@@ -246,16 +262,23 @@ def fit_step(
         )
     if medium is not None:
         _prepare_engine(problem, cls, given, given_result, accuracy, propagation)
-    starts, n_grid = step_starts(problem, cls.KIND, ROLE[step], STARTS[step], progress)
+    grid = {"points": 0}
+
+    def from_grid() -> list:
+        starts, grid["points"] = step_starts(problem, cls.KIND, ROLE[step], STARTS[step], progress)
+        return starts if start is None else starts[1:]  # ``start`` in the best one's place
+
     outcome = run(
         problem,
-        starts,
+        [] if start is None else [_start_vector(problem, cls, start, fixed)],
         accuracy=accuracy,
         max_nfev=max_nfev,
         progress=progress,
         every=medium is None,
         screen=screen,
+        more=from_grid,
     )
+    n_grid = grid["points"]
     summary = summarize(problem, outcome)
     x = outcome.solution.x
     own = {p.key: p.name for p in cls.PARAMS}  # slot name -> model's own name

@@ -224,6 +224,7 @@ def fit_medium(
     propagation=None,
     channel: str | None = None,
     screen: bool = False,
+    start=None,
 ) -> FitResult:
     """Step 1 (docs/model.md sec. 7): fit the medium, the reference's f_r fixed.
 
@@ -245,6 +246,9 @@ def fit_medium(
         one per channel, the others tied, each channel through the reference's model of
         that channel (a fit over the same channels; a BRDF model is every channel's).
     screen : a candidate's quick fit to rank it (:mod:`veil.fitting.screening`).
+    start : a :class:`FitResult` of this model (or {name: value}) to start from, the
+        starting grid evaluated only if it is not convincing: a candidate's fit continued
+        from its quick fit. Fits of one channel; several channels start from their grid.
     Other arguments as :func:`fit_reference`.
     """
     model_error, propagation = _checked(accuracy, max_nfev, model_error, propagation)
@@ -286,6 +290,7 @@ def fit_medium(
         model_error,
         propagation,
         screen=screen,
+        start=_start(start),
     )
 
 
@@ -306,6 +311,7 @@ def fit_target(
     propagation=None,
     channel: str | None = None,
     screen: bool = False,
+    start=None,
 ) -> FitResult:
     """Step 2 (docs/model.md sec. 7): fit the target's f_r, the medium fixed.
 
@@ -360,7 +366,15 @@ def fit_target(
         model_error,
         propagation,
         screen=screen,
+        start=_start(start),
     )
+
+
+def _start(start) -> dict | None:
+    """A fit's ``start`` as {name: value} (from a FitResult's parameters)."""
+    if start is None:
+        return None
+    return dict(start.params) if isinstance(start, FitResult) else dict(start)
 
 
 def _checked(accuracy, max_nfev, model_error, propagation) -> tuple[str, str]:
