@@ -78,6 +78,29 @@ def _problem(data: FitData, cls, brdf, medium, free: list, fixed: dict, what: st
     return problem
 
 
+def _run_from(problem, step, cls, start, fixed, accuracy, max_nfev, progress, every, screen):
+    """(the run's outcome, the starting grid's size, 0 if it was not evaluated): from
+    ``start`` in the place of the grid's best start, the grid evaluated only when needed
+    (:func:`fit_step`), else from the grid."""
+    grid = {"points": 0}
+
+    def from_grid() -> list:
+        starts, grid["points"] = step_starts(problem, cls.KIND, ROLE[step], STARTS[step], progress)
+        return starts if start is None else starts[1:]
+
+    outcome = run(
+        problem,
+        [] if start is None else [_start_vector(problem, cls, start, fixed)],
+        accuracy=accuracy,
+        max_nfev=max_nfev,
+        progress=progress,
+        every=every,
+        screen=screen,
+        more=from_grid,
+    )
+    return outcome, grid["points"]
+
+
 def _start_vector(problem: Problem, cls, start: dict, fixed: dict) -> np.ndarray:
     """The problem's natural vector with the fitted model's free parameters at ``start``
     ({name: value}; the held ones and any not named keep their values)."""
@@ -262,23 +285,9 @@ def fit_step(
         )
     if medium is not None:
         _prepare_engine(problem, cls, given, given_result, accuracy, propagation)
-    grid = {"points": 0}
-
-    def from_grid() -> list:
-        starts, grid["points"] = step_starts(problem, cls.KIND, ROLE[step], STARTS[step], progress)
-        return starts if start is None else starts[1:]  # ``start`` in the best one's place
-
-    outcome = run(
-        problem,
-        [] if start is None else [_start_vector(problem, cls, start, fixed)],
-        accuracy=accuracy,
-        max_nfev=max_nfev,
-        progress=progress,
-        every=medium is None,
-        screen=screen,
-        more=from_grid,
+    outcome, n_grid = _run_from(
+        problem, step, cls, start, fixed, accuracy, max_nfev, progress, medium is None, screen
     )
-    n_grid = grid["points"]
     summary = summarize(problem, outcome)
     x = outcome.solution.x
     own = {p.key: p.name for p in cls.PARAMS}  # slot name -> model's own name

@@ -230,25 +230,20 @@ def fit_medium(
 
     table : the reference object measured in the medium (DataFrame or CSV path).
     reference : the step-0 :class:`FitResult` or a BRDF model.
-    medium_model, options : the medium family (default the paper's Henyey-Greenstein
-        medium) and its options; ``variant`` is the shortcut for the Fresnel variant
-        ("paper" or "exit", docs/model.md sec. 3).
+    medium_model, options : the medium family (default Henyey-Greenstein) and its options;
+        ``variant`` the shortcut for the Fresnel variant ("paper" or "exit", sec. 3).
     free : parameters the family holds by default to fit too (the physical medium's ``s``).
     accuracy : quadrature of the reported result ("fast", "default", "high"); iterations
         run at "fast" and are polished at this accuracy.
-    model_error : as :func:`fit_reference`; a step-1 term is also used by step 2 (the
-        same medium model on the target's data).
-    propagation : how the given fit's covariance enters ``stderr_total``: "auto" (the
-        default, None), "linear" or "sigma-points" (:mod:`veil.fitting.propagation`).
-    channel : the one channel of a multi-channel table to fit; the reference of a fit of
-        several channels gives its model of that channel. None fits every channel at once
-        (:mod:`veil.fitting.channel_steps`): the medium's parameters declared per channel
-        one per channel, the others tied, each channel through the reference's model of
-        that channel (a fit over the same channels; a BRDF model is every channel's).
-    screen : a candidate's quick fit to rank it (:mod:`veil.fitting.screening`).
-    start : a :class:`FitResult` of this model (or {name: value}) to start from, the
-        starting grid evaluated only if it is not convincing: a candidate's fit continued
-        from its quick fit. Fits of one channel; several channels start from their grid.
+    model_error, propagation : as :func:`fit_reference` (a step-1 term is used by step 2
+        too); how the given fit's covariance enters ``stderr_total``: "auto" (the default,
+        None), "linear" or "sigma-points" (:mod:`veil.fitting.propagation`).
+    channel : the one channel of a multi-channel table to fit (through the reference's
+        model of that channel); None fits every channel at once, the medium's per-channel
+        parameters one per channel, the others tied (:mod:`veil.fitting.channel_steps`).
+    screen, start : a candidate's quick fit to rank it; a :class:`FitResult` of this model
+        (or {name: value}) to start from, the grid evaluated only if that does not
+        convince (one channel; several start from their grid; veil.fitting.screening).
     Other arguments as :func:`fit_reference`.
     """
     model_error, propagation = _checked(accuracy, max_nfev, model_error, propagation)
