@@ -309,3 +309,12 @@ def test_the_explorers_fit_view_draws_a_band_for_it(tmp_path):
     assert np.all(lo <= hi) and np.any(hi > lo)
     inside = (view.fitted >= lo * (1 - 1e-9)) & (view.fitted <= hi * (1 + 1e-9))
     assert inside.mean() > 0.8
+    # the band's curves are sums of columns: the same as the family evaluated draw by draw
+    names, _ = result.covariance(total=True)
+    base = result.one_model()
+    x0 = np.array([result.params[n] for n in names])
+    xs = np.stack([x0, 1.3 * x0, np.maximum(0.7 * x0 - 1e-3, 0.0)])
+    summed = view._linear_curves(base, names, xs)
+    direct = np.array([view.model_values(*view._with(base, names, x)) for x in xs])
+    assert np.allclose(summed, direct, rtol=1e-10, atol=1e-12 * np.abs(direct).max())
+    assert np.allclose(summed[0], view.fitted, rtol=1e-10, atol=1e-12 * np.abs(direct).max())

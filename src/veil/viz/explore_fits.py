@@ -219,25 +219,50 @@ class FitView:
             w, v = np.linalg.eigh(cov_u)
             root = v * np.sqrt(np.clip(w, 0.0, None))
         base = self.result.one_model()
-        curves: list = []
+        accepted: list = []
         tries = 0
-        while len(curves) < draws and tries < 20 * draws:
+        while len(accepted) < draws and tries < 20 * draws:
             tries += 1
             u = mean_u + root @ rng.standard_normal(len(names))
             x = np.where(logs, np.exp(u), u)
             if cls.LINEAR:  # a coefficient drawn below 0 is held at 0, as its fit holds it
                 x = np.maximum(x, 0.0)
-            params = dict(base.as_dict())
-            params.update({n: float(v) for n, v in zip(names, x)})
-            if not all(cls.param(n).contains(params[n]) for n in names):
-                continue
-            model = cls.from_params(params, base.options())
-            b, m = (model, self.medium) if model.KIND == "brdf" else (self.brdf, model)
-            curves.append(self.model_values(b, m))
-        if len(curves) < 2:
+            if all(cls.param(n).contains(float(v)) for n, v in zip(names, x)):
+                accepted.append(x)
+        if len(accepted) < 2:
             return None
-        lo, hi = np.percentile(np.array(curves), BAND_QUANTILES, axis=0)
+        if cls.LINEAR:
+            curves = self._linear_curves(base, names, np.array(accepted))
+        else:
+            curves = np.array([self.model_values(*self._with(base, names, x)) for x in accepted])
+        lo, hi = np.percentile(curves, BAND_QUANTILES, axis=0)
         return lo, hi
+
+    def _with(self, base, names, x) -> tuple:
+        """(BRDF, medium) with the fitted model's ``names`` at values ``x``."""
+        params = dict(base.as_dict())
+        params.update({n: float(v) for n, v in zip(names, x)})
+        model = type(base).from_params(params, base.options())
+        return (model, self.medium) if model.KIND == "brdf" else (self.brdf, model)
+
+    def _linear_curves(self, base, names, xs) -> np.ndarray:
+        """A linear family's curves at coefficient draws ``xs`` (K, len(names)): each curve
+        the sum of its coefficients times their columns (the column model's values of one
+        basis function, as the fit's design; docs/nonparametric.md), so the engine runs
+        once per coefficient drawn or held at a non-zero value, not once per draw."""
+        column_cls, vectors = type(base).columns()
+        template = column_cls.template()
+
+        def column(name: str) -> np.ndarray:
+            basis = template.replace(**dict(zip(column_cls.param_names(), vectors[name])))
+            return self.model_values(basis, self.medium)
+
+        held = np.zeros(self.data.size)
+        for name, value in base.as_dict().items():
+            if name not in names and value != 0.0:
+                held = held + value * column(name)
+        drawn = np.stack([column(n) for n in names], axis=1)
+        return held[None, :] + np.asarray(xs, dtype=float) @ drawn.T
 
     def param_rows(self) -> list[dict]:
         """One row per parameter: name, value, stderr (None when fixed or undetermined)."""
