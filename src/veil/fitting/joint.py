@@ -92,11 +92,11 @@ def _floor(problem: Problem, layout: dict):
     return model_floor(*(model_class(layout["models"][k], k) for k in ("brdf", "medium")))
 
 
-def _start_models(start) -> dict | None:
+def _start_models(start) -> dict | JointResult | None:
     """The optional starting models {object or medium label: model}, fit results as their
-    models."""
-    if start is None:
-        return None
+    models; a joint fit result as it is (continued from: :func:`_solve`)."""
+    if start is None or isinstance(start, JointResult):
+        return start
     if not isinstance(start, dict):
         raise FitError("start: expected a dict {object or medium label: model}")
     start = {k: (v.one_model() if isinstance(v, FitResult) else v) for k, v in start.items()}
@@ -104,6 +104,16 @@ def _start_models(start) -> dict | None:
         if not isinstance(v, Model):
             raise FitError(f"start[{k!r}]: expected a model or a fit result, got {v!r}")
     return start
+
+
+def _resumed(problem: Problem, result: JointResult) -> np.ndarray:
+    """The problem's natural vector with its free parameters at a joint fit's estimate (of
+    the same families and sessions; parameters it does not name keep their values)."""
+    x = problem.values.copy()
+    for k, name in enumerate(problem.names):
+        if problem.free[k] and name in result.params:
+            x[k] = float(result.params[name])
+    return x
 
 
 def _prepare_engines(problem: Problem, ref_cols: list, accuracy: str) -> None:
@@ -144,16 +154,29 @@ def _solve(
     ref_cols = [] if given_result is None else [index[ref_names[n]] for n in given_result.free]
     linear_free(problem)
     _prepare_engines(problem, ref_cols, accuracy)
-    if "channels" in layout:
-        starts = channel_starts(
-            problem,
-            layout,
-            lambda sub, own: joint_starts(sub, own, start, STARTS, _direct_fit(sub), progress),
-        )
-    else:
-        starts = joint_starts(problem, layout, start, STARTS, _direct_fit(problem), progress)
+    resumed = start if isinstance(start, JointResult) else None
+    models = None if resumed is not None else start
+
+    def grid() -> list:
+        if "channels" in layout:
+            return channel_starts(
+                problem,
+                layout,
+                lambda sub, own: joint_starts(sub, own, models, STARTS, _direct_fit(sub), progress),
+            )
+        return joint_starts(problem, layout, models, STARTS, _direct_fit(problem), progress)
+
+    # a joint fit continued from its quick fit (veil.fitting.screening): its estimate in the
+    # place of the best start, the others only when that run does not convince
+    starts, more = ([_resumed(problem, resumed)], lambda: grid()[1:]) if resumed else (grid(), None)
     outcome = run(
-        problem, starts, accuracy=accuracy, max_nfev=max_nfev, progress=progress, screen=screen
+        problem,
+        starts,
+        accuracy=accuracy,
+        max_nfev=max_nfev,
+        progress=progress,
+        screen=screen,
+        more=more,
     )
     summary = summarize(problem, outcome)
     given = reference_entry(reference, layout)
@@ -207,7 +230,7 @@ def fit_joint(
     fixed : {parameter name: value}, names as in the result (e.g. "eta", "Td[low]", "g").
     free : names (as in the result) of parameters the families hold by default
         (``Param.held``, e.g. the physical medium's ``s[label]``) to fit too.
-    start : optional starting models {object or medium label: model}.
+    start : starting models {object or medium label: model}, or a joint fit to continue.
     brdf_model, medium_model, brdf_options, medium_options : the families (registered
         names, default the paper's) and their options; ``variant`` is the shortcut for the
         medium's Fresnel variant.

@@ -20,7 +20,7 @@ from ..models import model_class
 from . import screening, selection
 from .joint import fit_joint
 from .joint_problem import build
-from .result import FitResult
+from .result import FitResult, JointResult
 from .session_data import FitData
 
 
@@ -158,8 +158,9 @@ def fit_joint_ranked(
                 raise
 
     def one(c: JointCandidate, screen: bool = False, start=None) -> FitResult:
-        # a joint fit starts from its own grid: ``start`` (a sibling's or its quick fit,
-        # veil.fitting.screening) is not used
+        # from ``start``, a joint fit of the family pair (its own quick fit, or a sibling's:
+        # veil.fitting.screening), when given; else from the grid (and fit_kw's start)
+        kw = dict(fit_kw, start=start) if isinstance(start, JointResult) else fit_kw
         return fit_joint(
             sessions,
             brdf_model=c.brdf.family,
@@ -168,11 +169,11 @@ def fit_joint_ranked(
             medium_options=c.medium.model_options(medium_options),
             screen=screen,
             **{k: v[c.label] for k, v in entries.items()},
-            **fit_kw,
+            **kw,
         )
 
     ranking, results = screening.select(
-        "joint", cands, data, one, "joint", progress, lambda c, start=None: one(c, True)
+        "joint", cands, data, one, "joint", progress, lambda c, start=None: one(c, True, start)
     )
     return selection.with_selection(results[ranking.chosen], ranking), ranking
 
