@@ -223,7 +223,8 @@ def test_off_moves_nothing_but_the_totals(chain):
 
 def test_auto_propagates_into_the_chosen_candidate_only():
     """veil.fitting.auto.rank_step: every candidate fitted once by the screening fit, the
-    chosen one (and only it) fitted again by ``propagated``, whose result replaces it."""
+    chosen one (and only it) fitted again by ``propagated``, from its estimate, whose
+    result replaces it."""
     from veil.fitting.auto import rank_step
     from veil.fitting.selection import candidates
 
@@ -240,11 +241,15 @@ def test_auto_propagates_into_the_chosen_candidate_only():
 
     calls = []
 
+    firsts = {}
+
     def screened(c):
         calls.append(("screen", c.label))
-        return result(c.label, "screened")
+        firsts[c.label] = result(c.label, "screened")
+        return firsts[c.label]
 
-    def propagated(c):
+    def propagated(c, start):
+        assert start is firsts[c.label]  # the refit starts from the candidate's estimate
         calls.append(("again", c.label))
         return result(c.label, "propagated")
 

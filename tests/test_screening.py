@@ -127,14 +127,17 @@ def test_a_screened_candidate_is_fitted_when_the_best_full_fit_fails():
 
 def test_a_familys_other_options_start_from_its_first_candidates_quick_fit():
     """The first candidate of each family starts from its grid (start None), the family's
-    other candidates from that one's quick fit; after a first candidate that raised, from
-    their own grid. The results come back in the candidates' order."""
+    other candidates from that one's quick fit; after a first candidate that raised or did
+    not converge, from their own grid. The results come back in the candidates' order."""
     cands = [selection.Candidate("fs", {"orders": "poisson"}),
              selection.Candidate("hg"),
              selection.Candidate("fs", {"orders": "cylinder"}),
              selection.Candidate("rp", {"distribution": "beckmann"}),
-             selection.Candidate("rp", {"distribution": "ggx"})]
-    made = {c.label: _fit(np.full(N, float(k + 1))) for k, c in enumerate(cands)}
+             selection.Candidate("rp", {"distribution": "ggx"}),
+             selection.Candidate("rc", {"distribution": "beckmann"}),
+             selection.Candidate("rc", {"distribution": "ggx"})]
+    made = {c.label: _fit(np.full(N, float(k + 1)), converged=not c.label.startswith("rc"))
+            for k, c in enumerate(cands)}
     starts = {}
 
     def quick(c, start=None):
@@ -149,6 +152,7 @@ def test_a_familys_other_options_start_from_its_first_candidates_quick_fit():
     assert starts["rp[distribution=beckmann]"] is None
     assert starts["fs[orders=cylinder]"] is made["fs[orders=poisson]"]
     assert starts["rp[distribution=ggx]"] is None  # its first candidate raised
+    assert starts["rc[distribution=ggx]"] is None  # its first candidate did not converge
     assert isinstance(out["rp[distribution=beckmann]"][0], RuntimeError)
     assert out["fs[orders=cylinder]"][0] is made["fs[orders=cylinder]"]
 
@@ -224,7 +228,26 @@ def test_a_fit_from_a_start_evaluates_the_grid_only_when_it_is_needed(sessions):
     assert resumed.stats["starts"] == 1 and resumed.stats["nfev"] < from_grid.stats["nfev"]
     for name, se in from_grid.stderr.items():
         assert abs(resumed.params[name] - from_grid.params[name]) <= 1e-3 * se
-    poor = veil.fit_medium(table, veil.BRDF2, start={"g": 0.0}, max_nfev=2, **kw)
+    poor = veil.fit_medium(table, veil.BRDF2, start=dict(from_grid.params, g=0.0), max_nfev=2,
+                           **kw)
     assert not poor.converged
     assert poor.stats["grid_points"] == from_grid.stats["grid_points"]
-    assert poor.stats["starts"] == STARTS["medium"]  # the start, then the grid's second
+    # a start given as values ran none of the grid's: the start, then the grid's best
+    assert poor.stats["starts"] == 1 + STARTS["medium"] and poor.stats["start"] == "given"
+
+
+def test_a_start_that_is_not_this_fits_is_refused(sessions):
+    """start= of another family, without a value of a free parameter, or outside its bounds:
+    a FitError naming it (before anything is fitted)."""
+    kw = dict(black=sessions["black"], accuracy="fast", propagation="off", model_error="off")
+    table = sessions["reference_medium"]
+    other = _fit(np.zeros(N))  # a torrance-sparrow result
+    from veil.errors import FitError
+
+    with pytest.raises(FitError, match="a torrance-sparrow result; this fit's model is"):
+        veil.fit_medium(table, veil.BRDF2, start=other, **kw)
+    with pytest.raises(FitError, match="has no value of"):
+        veil.fit_medium(table, veil.BRDF2, start={"g": 0.9}, **kw)
+    good = {"Td": 0.5, "Tt": 0.5, "g": 0.9, "eta": 1.33}
+    with pytest.raises(FitError, match=r"g = 1\.5 is outside"):
+        veil.fit_medium(table, veil.BRDF2, start=dict(good, g=1.5), **kw)

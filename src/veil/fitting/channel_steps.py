@@ -31,7 +31,7 @@ from .problem import ITERATION_ACCURACY, Block, Problem, Session, Slot, model_sl
 from .reported_uncertainty import model_floor, reported
 from .result import RESULTS, FitResult, model_entry
 from .session_data import FitData
-from .solver import linear_free, run, summarize
+from .solver import linear_free, run, start_vector, summarize
 from .start_values import brdf_scales, column_scales_of, grid_points, medium_scales, pick_starts
 from .step_fit import stats_and_message
 
@@ -270,6 +270,26 @@ def given_entry(given, g_models: dict) -> dict:
     return model_entry(next(iter(g_models.values())))
 
 
+def _run_through(problem, cls, what: str, count: int, start, kw: dict) -> tuple:
+    """(the run's outcome, the grid's size, 0 if not evaluated) of :func:`fit_through`: from
+    ``start`` first when given (the grid after it only when needed, without its best start
+    when the start ran it), else from the grid."""
+    if start is not None and start.model != cls.NAME:
+        raise FitError(f"start: a {start.model} result; this fit's model is {cls.NAME}")
+    first = [] if start is None else [start_vector(problem, start.params, "the start")]
+    ran_best = start is not None and start.stats.get("start") != "given"
+    grid = {"points": 0}
+
+    def from_grid() -> list:
+        begin, grid["points"] = through_starts(problem, cls.KIND, what, count, kw["progress"])
+        return begin[1:] if ran_best else begin
+
+    outcome = run(problem, first, **kw, more=from_grid)
+    if first:
+        outcome.stats["start"] = "given"
+    return outcome, grid["points"]
+
+
 def fit_through(
     step: str,
     datas: dict[str, FitData],
@@ -287,10 +307,12 @@ def fit_through(
     role: str,
     source: str,
     screen: bool = False,
+    start: FitResult | None = None,
 ) -> FitResult:
     """Step 1 (``step`` "medium") or 2 ("target") over every channel of ``datas`` (module
     docstring; docs/model.md sec. 7); ``given`` the reference (a fit or a BRDF) or the
-    medium held fixed; ``screen`` as :func:`veil.fitting.step_fit.fit_step`."""
+    medium held fixed; ``screen`` as :func:`veil.fitting.step_fit.fit_step`, ``start`` a fit
+    of the same model over the same channels to continue from (as its ``start``)."""
     accuracy, propagation = (ITERATION_ACCURACY, "off") if screen else (accuracy, propagation)
     cls = type(fitted)
     what = "medium" if step == "medium" else "target"
@@ -299,11 +321,8 @@ def fit_through(
     )
     linear_free(problem)
     problem.blocks[0].model(ITERATION_ACCURACY).prepare(values=True, jacobians=[(cls.KIND,)])
-    begin, n_grid = through_starts(
-        problem, cls.KIND, "medium" if step == "medium" else "target", starts, progress
-    )
     kw = dict(accuracy=accuracy, max_nfev=max_nfev, progress=progress, screen=screen)
-    outcome = run(problem, begin, **kw)
+    outcome, n_grid = _run_through(problem, cls, what, starts, start, kw)
     summary = summarize(problem, outcome)
     x = outcome.solution.x
     mine = [n for n in dict.fromkeys(layout[c][p.name] for p in cls.PARAMS for c in layout)]

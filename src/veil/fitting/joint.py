@@ -51,6 +51,7 @@ from .solver import (
     covariance_matrix,
     linear_free,
     run,
+    start_vector,
     summarize,
     uncertainties,
 )
@@ -98,22 +99,12 @@ def _start_models(start) -> dict | JointResult | None:
     if start is None or isinstance(start, JointResult):
         return start
     if not isinstance(start, dict):
-        raise FitError("start: expected a dict {object or medium label: model}")
+        raise FitError("start: expected a dict {object or medium label: model} or a joint fit")
     start = {k: (v.one_model() if isinstance(v, FitResult) else v) for k, v in start.items()}
     for k, v in start.items():
         if not isinstance(v, Model):
             raise FitError(f"start[{k!r}]: expected a model or a fit result, got {v!r}")
     return start
-
-
-def _resumed(problem: Problem, result: JointResult) -> np.ndarray:
-    """The problem's natural vector with its free parameters at a joint fit's estimate (of
-    the same families and sessions; parameters it does not name keep their values)."""
-    x = problem.values.copy()
-    for k, name in enumerate(problem.names):
-        if problem.free[k] and name in result.params:
-            x[k] = float(result.params[name])
-    return x
 
 
 def _prepare_engines(problem: Problem, ref_cols: list, accuracy: str) -> None:
@@ -166,9 +157,14 @@ def _solve(
             )
         return joint_starts(problem, layout, models, STARTS, _direct_fit(problem), progress)
 
-    # a joint fit continued from its quick fit (veil.fitting.screening): its estimate in the
-    # place of the best start, the others only when that run does not convince
-    starts, more = ([_resumed(problem, resumed)], lambda: grid()[1:]) if resumed else (grid(), None)
+    # a joint fit continued from a joint result (its quick fit, veil.fitting.screening): the
+    # grid's starts only when that run does not convince
+    if resumed is None:
+        starts, more = grid(), None
+    else:  # without the grid's best start when the result ran it
+        ran_best = resumed.stats.get("start") != "given"
+        starts = [start_vector(problem, resumed.params, "the start (a joint fit)")]
+        more = (lambda: grid()[1:]) if ran_best else grid
     outcome = run(
         problem,
         starts,
@@ -178,6 +174,8 @@ def _solve(
         screen=screen,
         more=more,
     )
+    if resumed is not None:
+        outcome.stats["start"] = "given"
     summary = summarize(problem, outcome)
     given = reference_entry(reference, layout)
     rep = reported(

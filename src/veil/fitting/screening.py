@@ -10,13 +10,13 @@ the full fit only for those that could still be chosen.
   grid, in a second round (:func:`quick_fits`): the options reweigh the same physics, and
   that start is closer (on session m05 the order weights' quick fits took 4 to 9
   evaluations from it against 21 to 39 from the grid).
-- **Full fit**: continues from the candidate's quick optimum, which takes the place of the
-  grid's best start; the grid is evaluated only when that run does not convince
-  (``start`` of ``fit_medium`` / ``fit_target``). The full fit then agrees with a fit from
-  the grid to the fit's tolerance at the "fast" rule, not bit for bit; after a polish at a
-  finer rule, within a fraction of a standard error (up to 0.23 of tau's for m05's
-  light-side weights, whose fast-rule cost is flat to 1e-4 along the tau-g valley, so the
-  polish's frozen Jacobian is taken at another point of it).
+- **Full fit**: continues from the candidate's quick optimum; the grid is evaluated only
+  when that run does not convince, without its best start when the quick fit began there
+  (``start`` of ``fit_medium``, ``fit_target`` and ``fit_joint``). The full fit then
+  agrees with a fit from the grid to the fit's tolerance at the "fast" rule, not bit for
+  bit; after a polish at a finer rule, within a fraction of a standard error (up to 0.23
+  of tau's for m05's light-side weights, whose fast-rule cost is flat to 1e-4 along the
+  tau-g valley, so the polish's frozen Jacobian is taken at another point of it).
 - **Its BIC's interval**: the fast quadrature is within :data:`FAST_ERROR` (relative, of the
   value or of 1e-3 of the largest) of a converged integral at every configuration of every
   parametric family pair (measured at most 7.2e-3 against "high" and 8.9e-3 against
@@ -35,7 +35,7 @@ the full fit only for those that could still be chosen.
   full too.
   What the interval does not bound: a minimum that only a later start would find, and the
   descent left to a quick fit that stopped without converging (its BIC is where it
-  stopped); a candidate that misses by more than SCREEN_MARGIN from its best start is taken
+  stopped); a candidate that misses by more than SCREEN_MARGIN from its first start is taken
   to be out.
 """
 
@@ -121,7 +121,7 @@ def _screened_rows(quick_ranking: Ranking, out: dict) -> list[dict]:
             weight=0.0,
             error=None,
             note=(
-                "screened out: its quick fit (best start, fast quadrature"
+                "screened out: its quick fit (one start, fast quadrature"
                 + ("" if row["converged"] else f"; {row['error']}")
                 + f") has BIC {row['bic']:.4g}, at least {lower:.4g} with the quadrature's "
                 f"error, more than {SCREEN_MARGIN:g} above the best; not fitted further"
@@ -134,8 +134,8 @@ def _screened_rows(quick_ranking: Ranking, out: dict) -> list[dict]:
 def quick_fits(step: str, cands, quick_fit, progress=None) -> dict:
     """Every candidate's ``quick_fit(candidate, start=...)`` in threads: the first candidate
     of each family from its starting grid (``start=None``), the family's other candidates
-    (other values of its ranked options) then from that one's optimum, which is a closer
-    start than the grid's (module docstring). {label: (FitResult or exception, seconds)}
+    (other values of its ranked options) then from that one's optimum when it converged,
+    a closer start than the grid's (module docstring). {label: (FitResult or exception, seconds)}
     in the candidates' order."""
     tell = teller(step, len(cands), progress, "quick fit ")
     heads: dict = {}
@@ -143,9 +143,9 @@ def quick_fits(step: str, cands, quick_fit, progress=None) -> dict:
         heads.setdefault(c.family, c)
     quick = fit_candidates(quick_fit, list(heads.values()), tell)
 
-    def from_sibling(c):
+    def from_sibling(c):  # from its grid when the first candidate raised or did not converge
         head = quick[heads[c.family].label][0]
-        return quick_fit(c, start=head if isinstance(head, FitResult) else None)
+        return quick_fit(c, start=head if isinstance(head, FitResult) and head.converged else None)
 
     siblings = [c for c in cands if heads[c.family] is not c]
     if siblings:

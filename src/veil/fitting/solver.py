@@ -37,6 +37,7 @@ scipy's were: the chord method, not the tolerance, sets that distance.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -231,6 +232,26 @@ class Outcome:
     accuracy: str | None
     notes: list = field(default_factory=list)
     stats: dict = field(default_factory=dict)
+
+
+def start_vector(problem: Problem, named: dict, source: str = "start") -> np.ndarray:
+    """The problem's natural vector with every free parameter at ``named`` {problem name:
+    value} (a fit to continue from: docs/fitting.md "Starting values"); the held ones keep
+    their values. A FitError names a free parameter ``named`` lacks, or a value that is not
+    finite or outside its parameter's bounds."""
+    x = problem.values.copy()
+    for k in np.flatnonzero(problem.free):
+        slot = problem.params[k]
+        if slot.name not in named:
+            raise FitError(
+                f"{source} has no value of {slot.name!r}: give a fit of the same model, "
+                f"sessions and channels"
+            )
+        value = float(named[slot.name])
+        if not (math.isfinite(value) and slot.spec.contains(value)):
+            raise FitError(f"{source}: {slot.name} = {value!r} is outside {slot.spec.interval()}")
+        x[k] = value
+    return x
 
 
 def linear_free(problem: Problem) -> None:

@@ -20,7 +20,7 @@ from .propagation import describe
 from .reported_uncertainty import model_floor, reported
 from .result import FitResult, model_entry
 from .session_data import FitData
-from .solver import check_fixed, run, summarize
+from .solver import check_fixed, run, start_vector, summarize
 from .start_values import step_starts
 
 #: Least-squares runs started from the best distinct grid points, by step.
@@ -78,39 +78,36 @@ def _problem(data: FitData, cls, brdf, medium, free: list, fixed: dict, what: st
     return problem
 
 
-def _run_from(problem, step, cls, start, fixed, accuracy, max_nfev, progress, every, screen):
-    """(the run's outcome, the starting grid's size, 0 if it was not evaluated): from
-    ``start`` in the place of the grid's best start, the grid evaluated only when needed
-    (:func:`fit_step`), else from the grid."""
+def _run_from(problem, step, cls, first, ran_best, accuracy, max_nfev, progress, medium, screen):
+    """(the run's outcome, the starting grid's size, 0 if it was not evaluated): from the
+    ``first`` start vectors, the grid's after them only when needed (without its best one
+    when ``ran_best``; :func:`fit_step`)."""
     grid = {"points": 0}
 
     def from_grid() -> list:
         starts, grid["points"] = step_starts(problem, cls.KIND, ROLE[step], STARTS[step], progress)
-        return starts if start is None else starts[1:]
+        return starts[1:] if ran_best else starts
 
     outcome = run(
         problem,
-        [] if start is None else [_start_vector(problem, cls, start, fixed)],
+        first,
         accuracy=accuracy,
         max_nfev=max_nfev,
         progress=progress,
-        every=every,
+        every=medium is None,
         screen=screen,
         more=from_grid,
     )
+    if first:
+        outcome.stats["start"] = "given"
     return outcome, grid["points"]
 
 
-def _start_vector(problem: Problem, cls, start: dict, fixed: dict) -> np.ndarray:
+def _start_vector(problem: Problem, cls, start: dict) -> np.ndarray:
     """The problem's natural vector with the fitted model's free parameters at ``start``
-    ({name: value}; the held ones and any not named keep their values)."""
-    x = problem.values.copy()
-    for name, value in start.items():
-        if name in cls.param_names() and name not in fixed:
-            k = problem.index(cls.param(name).key)
-            if problem.free[k]:
-                x[k] = float(value)
-    return x
+    ({name: value} in the model's own names; a FitError for a missing or invalid one)."""
+    keys = {cls.param(n).key: v for n, v in start.items() if n in cls.param_names()}
+    return start_vector(problem, keys, f"the start ({cls.NAME})")
 
 
 def stats_and_message(outcome, summary, rep, given_result, n_grid: int) -> tuple[dict, str]:
@@ -254,15 +251,16 @@ def fit_step(
     propagation: str = "auto",
     screen: bool = False,
     start: dict | None = None,
+    start_ran_best: bool = False,
 ) -> FitResult:
     """One step: the ``fitted`` model's parameters free (but ``fixed``, and the held ones not
     ``freed``), ``given`` held; unless ``model_error`` is "off" a weighted fit estimates the
     model-discrepancy term of that kind (:mod:`veil.fitting.model_error`); ``propagation``
     is how a given fit's covariance enters (:mod:`veil.fitting.propagation`); a ``screen``
     is a candidate's quick fit (:func:`veil.fitting.solver.run`), without propagation.
-    ``start`` ({name: value} of the fitted model) takes the place of the grid's best start,
-    the grid evaluated only when it is not convincing (a candidate's fit continued from its
-    quick fit, or from a sibling's: :mod:`veil.fitting.screening`)."""
+    ``start`` ({name: value} of the fitted model) runs first, the grid only when it does not
+    convince, without its best start when ``start_ran_best`` (the start is a fit that began
+    there: a candidate's fit continued from its quick fit, :mod:`veil.fitting.screening`)."""
     if screen:
         accuracy, propagation = ITERATION_ACCURACY, "off"
     cls = type(fitted)
@@ -285,8 +283,9 @@ def fit_step(
         )
     if medium is not None:
         _prepare_engine(problem, cls, given, given_result, accuracy, propagation)
+    first = [] if start is None else [_start_vector(problem, cls, start)]
     outcome, n_grid = _run_from(
-        problem, step, cls, start, fixed, accuracy, max_nfev, progress, medium is None, screen
+        problem, step, cls, first, start_ran_best, accuracy, max_nfev, progress, medium, screen
     )
     summary = summarize(problem, outcome)
     x = outcome.solution.x

@@ -233,8 +233,7 @@ def fit_medium(
     medium_model, options : the medium family (default Henyey-Greenstein) and its options;
         ``variant`` the shortcut for the Fresnel variant ("paper" or "exit", sec. 3).
     free : parameters the family holds by default to fit too (the physical medium's ``s``).
-    accuracy : quadrature of the reported result ("fast", "default", "high"); iterations
-        run at "fast" and are polished at this accuracy.
+    accuracy : of the reported result ("fast", "default", "high"), polished from "fast".
     model_error, propagation : as :func:`fit_reference` (a step-1 term is used by step 2
         too); how the given fit's covariance enters ``stderr_total``: "auto" (the default,
         None), "linear" or "sigma-points" (:mod:`veil.fitting.propagation`).
@@ -242,8 +241,8 @@ def fit_medium(
         model of that channel); None fits every channel at once, the medium's per-channel
         parameters one per channel, the others tied (:mod:`veil.fitting.channel_steps`).
     screen, start : a candidate's quick fit to rank it; a :class:`FitResult` of this model
-        (or {name: value}) to start from, the grid evaluated only if that does not
-        convince (one channel; several start from their grid; veil.fitting.screening).
+        (of one channel: or {name: value}) to start from, the grid evaluated only if that
+        does not convince (veil.fitting.screening).
     Other arguments as :func:`fit_reference`.
     """
     model_error, propagation = _checked(accuracy, max_nfev, model_error, propagation)
@@ -267,6 +266,7 @@ def fit_medium(
             role="the reference",
             source=_source(several),
             screen=screen,
+            start=start,
         )
     reference = _of_channel(reference, channel)
     brdf = as_given(reference, "brdf", "the reference")
@@ -285,7 +285,7 @@ def fit_medium(
         model_error,
         propagation,
         screen=screen,
-        start=_start(start),
+        **_start(start, cls, channel),
     )
 
 
@@ -343,6 +343,7 @@ def fit_target(
             role="the medium",
             source=_source(several),
             screen=screen,
+            start=start,
         )
     model_m = as_given(_of_channel(medium, channel), "medium", "the medium")
     check_options(model_m, _options(None, variant), "the medium")
@@ -361,15 +362,28 @@ def fit_target(
         model_error,
         propagation,
         screen=screen,
-        start=_start(start),
+        **_start(start, cls, channel),
     )
 
 
-def _start(start) -> dict | None:
-    """A fit's ``start`` as {name: value} (from a FitResult's parameters)."""
+def _start(start, cls, channel: str | None) -> dict:
+    """``fit_step``'s start arguments from a fit's ``start``: {name: value} of ``cls`` (a
+    result's, of ``channel`` for a result over several channels) and whether it is a fit
+    that ran the grid's best start (not one started from a given point: its stats have no
+    ``start``); a FitError for a result of another family."""
     if start is None:
-        return None
-    return dict(start.params) if isinstance(start, FitResult) else dict(start)
+        return {}
+    if not isinstance(start, FitResult):
+        return {"start": dict(start)}
+    if start.model != cls.NAME:
+        raise FitError(f"start: a {start.model} result; this fit's model is {cls.NAME}")
+    if start.channels:
+        if channel is None:
+            raise FitError("start: a fit over several channels; name the channel to fit")
+        params = start.one_model(channel).as_dict()
+    else:
+        params = dict(start.params)
+    return {"start": params, "start_ran_best": start.stats.get("start") != "given"}
 
 
 def _checked(accuracy, max_nfev, model_error, propagation) -> tuple[str, str]:
