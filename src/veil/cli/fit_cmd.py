@@ -181,35 +181,29 @@ def _fit_step(ctx, kind: str, step: str, models, fit, data, what: str, fix=(), f
     cls = models.brdf if kind == "brdf" else models.medium
     options = models.brdf_options if kind == "brdf" else models.medium_options
     if kind in models.ranked:
-        if step not in {s for s, _ in _THROUGH_MEDIUM.values()}:  # on clear data
-            return _ranked_fit(
-                ctx,
-                kind,
-                step,
-                models,
-                data,
-                lambda c, fixed, freed: fit(c.family, c.model_options(options), fixed, freed, None),
-                what,
-                fix,
-                free,
-            )
+
+        def on_clear(c, fixed, freed):
+            return fit(c.family, c.model_options(options), fixed, freed, None)
 
         # a step through the medium screens its candidates by a quick fit each; the full
         # fits start from it (veil.fitting.screening)
         def through(c, fixed, freed, start=None, screen=False):
             return fit(c.family, c.model_options(options), fixed, freed, None, screen, start)
 
+        medium_step = step in {s for s, _ in _THROUGH_MEDIUM.values()}
         return _ranked_fit(
             ctx,
             kind,
             step,
             models,
             data,
-            through,
+            through if medium_step else on_clear,
             what,
             fix,
             free,
-            lambda c, fixed, freed, start=None: through(c, fixed, freed, start, True),
+            (lambda c, fixed, freed, start=None: through(c, fixed, freed, start, True))
+            if medium_step
+            else None,
         )
     fixed, freed = parse_fix(fix, cls), _parse_free(free, cls)
     with echo_warnings(), fit_progress(step) as progress:

@@ -31,7 +31,7 @@ from .problem import ITERATION_ACCURACY, Block, Problem, Session, Slot, model_sl
 from .reported_uncertainty import model_floor, reported
 from .result import RESULTS, FitResult, model_entry
 from .session_data import FitData
-from .solver import linear_free, run, start_vector, summarize
+from .solver import linear_free, run_from, start_vector, summarize
 from .start_values import brdf_scales, column_scales_of, grid_points, medium_scales, pick_starts
 from .step_fit import stats_and_message
 
@@ -276,18 +276,15 @@ def _run_through(problem, cls, what: str, count: int, start, kw: dict) -> tuple:
     when the start ran it), else from the grid."""
     if start is not None and start.model != cls.NAME:
         raise FitError(f"start: a {start.model} result; this fit's model is {cls.NAME}")
-    first = [] if start is None else [start_vector(problem, start.params, "the start")]
+    first = None if start is None else start_vector(problem, start.params, "the start")
     ran_best = start is not None and start.stats.get("start") != "given"
     grid = {"points": 0}
 
     def from_grid() -> list:
         begin, grid["points"] = through_starts(problem, cls.KIND, what, count, kw["progress"])
-        return begin[1:] if ran_best else begin
+        return begin
 
-    outcome = run(problem, first, **kw, more=from_grid)
-    if first:
-        outcome.stats["start"] = "given"
-    return outcome, grid["points"]
+    return run_from(problem, first, ran_best, from_grid, **kw), grid["points"]
 
 
 def fit_through(

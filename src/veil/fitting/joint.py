@@ -51,6 +51,7 @@ from .solver import (
     covariance_matrix,
     linear_free,
     run,
+    run_from,
     start_vector,
     summarize,
     uncertainties,
@@ -159,23 +160,10 @@ def _solve(
 
     # a joint fit continued from a joint result (its quick fit, veil.fitting.screening): the
     # grid's starts only when that run does not convince
-    if resumed is None:
-        starts, more = grid(), None
-    else:  # without the grid's best start when the result ran it
-        ran_best = resumed.stats.get("start") != "given"
-        starts = [start_vector(problem, resumed.params, "the start (a joint fit)")]
-        more = (lambda: grid()[1:]) if ran_best else grid
-    outcome = run(
-        problem,
-        starts,
-        accuracy=accuracy,
-        max_nfev=max_nfev,
-        progress=progress,
-        screen=screen,
-        more=more,
-    )
-    if resumed is not None:
-        outcome.stats["start"] = "given"
+    first = None if resumed is None else start_vector(problem, resumed.params, "the start")
+    ran_best = resumed is not None and resumed.stats.get("start") != "given"
+    kw = dict(accuracy=accuracy, max_nfev=max_nfev, progress=progress, screen=screen)
+    outcome = run_from(problem, first, ran_best, grid, **kw)
     summary = summarize(problem, outcome)
     given = reference_entry(reference, layout)
     rep = reported(

@@ -347,6 +347,18 @@ def run(
     return Outcome(sol, values, final_accuracy, notes, stats)
 
 
+def run_from(problem: Problem, start, ran_best: bool, grid: Callable[[], list], **kw) -> Outcome:
+    """:func:`run` from the natural vector ``start`` (a fit to continue from), the starts of
+    ``grid()`` after it only when it does not convince, without the grid's best one when
+    ``ran_best`` (the start is a fit that began there); ``stats["start"]`` = "given". Without
+    a start, :func:`run` from ``grid()``. ``kw`` as :func:`run`'s."""
+    if start is None:
+        return run(problem, [], more=grid, **kw)
+    outcome = run(problem, [start], more=(lambda: grid()[1:]) if ran_best else grid, **kw)
+    outcome.stats["start"] = "given"
+    return outcome
+
+
 # --------------------------------------------------------------------------------------
 # the solution's statistics
 # --------------------------------------------------------------------------------------

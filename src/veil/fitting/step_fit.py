@@ -20,7 +20,7 @@ from .propagation import describe
 from .reported_uncertainty import model_floor, reported
 from .result import FitResult, model_entry
 from .session_data import FitData
-from .solver import check_fixed, run, start_vector, summarize
+from .solver import check_fixed, run_from, start_vector, summarize
 from .start_values import step_starts
 
 #: Least-squares runs started from the best distinct grid points, by step.
@@ -78,29 +78,16 @@ def _problem(data: FitData, cls, brdf, medium, free: list, fixed: dict, what: st
     return problem
 
 
-def _run_from(problem, step, cls, first, ran_best, accuracy, max_nfev, progress, medium, screen):
-    """(the run's outcome, the starting grid's size, 0 if it was not evaluated): from the
-    ``first`` start vectors, the grid's after them only when needed (without its best one
-    when ``ran_best``; :func:`fit_step`)."""
+def _step_grid(problem: Problem, cls, step: str, progress) -> tuple:
+    """(a function giving the step's starts from its grid, a dict whose "points" it sets to
+    the grid's size)."""
     grid = {"points": 0}
 
     def from_grid() -> list:
         starts, grid["points"] = step_starts(problem, cls.KIND, ROLE[step], STARTS[step], progress)
-        return starts[1:] if ran_best else starts
+        return starts
 
-    outcome = run(
-        problem,
-        first,
-        accuracy=accuracy,
-        max_nfev=max_nfev,
-        progress=progress,
-        every=medium is None,
-        screen=screen,
-        more=from_grid,
-    )
-    if first:
-        outcome.stats["start"] = "given"
-    return outcome, grid["points"]
+    return from_grid, grid
 
 
 def _start_vector(problem: Problem, cls, start: dict) -> np.ndarray:
@@ -283,10 +270,11 @@ def fit_step(
         )
     if medium is not None:
         _prepare_engine(problem, cls, given, given_result, accuracy, propagation)
-    first = [] if start is None else [_start_vector(problem, cls, start)]
-    outcome, n_grid = _run_from(
-        problem, step, cls, first, start_ran_best, accuracy, max_nfev, progress, medium, screen
-    )
+    from_grid, grid = _step_grid(problem, cls, step, progress)
+    first = None if start is None else _start_vector(problem, cls, start)
+    kw = dict(accuracy=accuracy, max_nfev=max_nfev, progress=progress, screen=screen)
+    outcome = run_from(problem, first, start_ran_best, from_grid, every=medium is None, **kw)
+    n_grid = grid["points"]
     summary = summarize(problem, outcome)
     x = outcome.solution.x
     own = {p.key: p.name for p in cls.PARAMS}  # slot name -> model's own name
