@@ -318,3 +318,29 @@ def test_the_explorers_fit_view_draws_a_band_for_it(tmp_path):
     direct = np.array([view.model_values(*view._with(base, names, x)) for x in xs])
     assert np.allclose(summed, direct, rtol=1e-10, atol=1e-12 * np.abs(direct).max())
     assert np.allclose(summed[0], view.fitted, rtol=1e-10, atol=1e-12 * np.abs(direct).max())
+
+
+def test_a_groups_terms_are_remembered_and_give_the_same_values(monkeypatch):
+    """LinearForward evaluates a lobe-width group again only when its own coefficients (or
+    the medium, configurations, rule) changed: moving d0 re-evaluates its group alone, and
+    the values are bit for bit those of an evaluation with nothing remembered."""
+    from veil.engine import forward as fw
+    from veil.engine.quadrature import RULES
+
+    model = NonParametric.template().replace(
+        **{"d0": 0.2, lobe_name(3, 0): 0.5, lobe_name(8, 2): 0.3})
+    medium = PRESETS["BTDF2"]
+    f = fw.Forward(model, medium, [30.0, 40.0, 50.0], [30.0, 45.0, 60.0], rule=RULES["fast"])
+    calls = []
+    inner = f._inner.terms
+    monkeypatch.setattr(f._inner, "terms", lambda v, vm: calls.append(v.copy()) or inner(v, vm))
+    vb, vm = model.to_vector(), medium.to_vector()
+    first = f(vb, vm)
+    assert len(calls) == 3  # the diffuse group and two widths
+    moved = model.replace(d0=0.35).to_vector()
+    again = f(moved, vm)
+    assert len(calls) == 4 and calls[-1][0] == 0.35  # only the diffuse group's
+    monkeypatch.setattr(fw, "_GROUP_TERMS", type(fw._GROUP_TERMS)())  # nothing remembered
+    fresh = fw.Forward(model, medium, [30.0, 40.0, 50.0], [30.0, 45.0, 60.0], rule=RULES["fast"])
+    assert np.array_equal(fresh(moved, vm), again) and np.array_equal(fresh(vb, vm), first)
+    assert not np.array_equal(first, again)

@@ -9,10 +9,13 @@ CHUNK (docs/engine.md).
 
 from __future__ import annotations
 
+import functools
+import hashlib
 import math
 import operator
 import os
 import threading
+from collections import OrderedDict
 from concurrent.futures import Future, ThreadPoolExecutor
 from functools import lru_cache
 
@@ -397,6 +400,15 @@ class Forward:
 # eq. (1), each lobe sampled as it needs, and the step fit's columns are its parts.
 
 
+#: Term matrices of a linear family's lobe-width groups already evaluated, by (the
+#: configurations, rule and models, the group's vector, the medium's vector), least recently
+#: used first out beyond GROUP_TERMS_BYTES: a group whose coefficients did not change since
+#: (a slider on one coefficient, the explorer's static states) is not evaluated again.
+_GROUP_TERMS: OrderedDict = OrderedDict()
+GROUP_TERMS_BYTES = 64 << 20
+_GROUP_LOCK = threading.Lock()
+
+
 class LinearForward(Forward):
     """:class:`Forward` of a linear family (module docstring): ``terms``, ``__call__``,
     ``value_and_jacobian`` and ``prepare`` as Forward's, from the column model's Forward."""
@@ -406,6 +418,11 @@ class LinearForward(Forward):
         self.brdf, self.medium = brdf, medium
         self._inner = Forward(column_cls.template(), medium, theta_i, theta_r, phi_i, phi_r, rule)
         self.rule, self.size, self.half = self._inner.rule, self._inner.size, self._inner.half
+        digest = hashlib.sha256()
+        for a in check_angles(theta_i, theta_r, phi_i, phi_r):
+            digest.update(np.ascontiguousarray(a, dtype=float).ravel().tobytes())
+        #: what a group's terms depend on besides its and the medium's vectors
+        self._where = (digest.hexdigest(), self.rule, self._inner._kb, self._inner._km)
         self.devices = self._inner.devices
         #: [(the column model's base vector, {family index: column model index})]
         self._groups = type(brdf).column_groups()
@@ -433,7 +450,23 @@ class LinearForward(Forward):
 
     def terms(self, vb, vm) -> np.ndarray:
         vb, vm = self._vectors(vb, vm)
-        return sum(self._inner.terms(self._vector(g, vb), vm) for g in self._active(vb))
+        groups = (self._group_terms(self._vector(g, vb), vm) for g in self._active(vb))
+        return np.array(functools.reduce(operator.add, groups))  # in order, as sum() added
+
+    def _group_terms(self, v: np.ndarray, vm: np.ndarray) -> np.ndarray:
+        """One group's term matrices at its vector ``v``: remembered (:data:`_GROUP_TERMS`)."""
+        key = (self._where, v.tobytes(), vm.tobytes())
+        with _GROUP_LOCK:
+            if key in _GROUP_TERMS:
+                _GROUP_TERMS.move_to_end(key)
+                return _GROUP_TERMS[key]
+        out = np.array(self._inner.terms(v, vm), dtype=float)
+        out.setflags(write=False)
+        with _GROUP_LOCK:
+            _GROUP_TERMS[key] = out
+            while sum(a.nbytes for a in _GROUP_TERMS.values()) > GROUP_TERMS_BYTES:
+                _GROUP_TERMS.popitem(last=False)
+        return out
 
     def value_and_jacobian(
         self, vb, vm, free_brdf=(), free_medium=()
