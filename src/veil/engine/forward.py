@@ -406,6 +406,7 @@ class Forward:
 #: (a slider on one coefficient, the explorer's static states) is not evaluated again.
 _GROUP_TERMS: OrderedDict = OrderedDict()
 GROUP_TERMS_BYTES = 64 << 20
+_GROUP_HELD = [0]  # bytes in _GROUP_TERMS
 _GROUP_LOCK = threading.Lock()
 
 
@@ -463,9 +464,11 @@ class LinearForward(Forward):
         out = np.array(self._inner.terms(v, vm), dtype=float)
         out.setflags(write=False)
         with _GROUP_LOCK:
-            _GROUP_TERMS[key] = out
-            while sum(a.nbytes for a in _GROUP_TERMS.values()) > GROUP_TERMS_BYTES:
-                _GROUP_TERMS.popitem(last=False)
+            if key not in _GROUP_TERMS:  # (another thread may have put it meanwhile)
+                _GROUP_TERMS[key] = out
+                _GROUP_HELD[0] += out.nbytes
+            while _GROUP_HELD[0] > GROUP_TERMS_BYTES and _GROUP_TERMS:
+                _GROUP_HELD[0] -= _GROUP_TERMS.popitem(last=False)[1].nbytes
         return out
 
     def value_and_jacobian(

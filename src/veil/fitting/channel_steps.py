@@ -31,7 +31,14 @@ from .problem import ITERATION_ACCURACY, Block, Problem, Session, Slot, model_sl
 from .reported_uncertainty import model_floor, reported
 from .result import RESULTS, FitResult, model_entry
 from .session_data import FitData
-from .solver import linear_free, run_from, start_vector, summarize
+from .solver import (
+    began_at_grid,
+    check_start_family,
+    linear_free,
+    run_from,
+    start_vector,
+    summarize,
+)
 from .start_values import brdf_scales, column_scales_of, grid_points, medium_scales, pick_starts
 from .step_fit import stats_and_message
 
@@ -274,10 +281,10 @@ def _run_through(problem, cls, what: str, count: int, start, kw: dict) -> tuple:
     """(the run's outcome, the grid's size, 0 if not evaluated) of :func:`fit_through`: from
     ``start`` first when given (the grid after it only when needed, without its best start
     when the start ran it), else from the grid."""
-    if start is not None and start.model != cls.NAME:
-        raise FitError(f"start: a {start.model} result; this fit's model is {cls.NAME}")
+    if start is not None:
+        check_start_family(start, cls.NAME)
     first = None if start is None else start_vector(problem, start.params, "the start")
-    ran_best = start is not None and start.stats.get("start") != "given"
+    ran_best = start is not None and began_at_grid(start)
     grid = {"points": 0}
 
     def from_grid() -> list:

@@ -47,6 +47,7 @@ from .propagation import check_method, describe, media_part
 from .reported_uncertainty import Reported, model_floor, reported
 from .result import FitResult, JointResult, load_result, target_channels
 from .solver import (
+    began_at_grid,
     check_max_nfev,
     covariance_matrix,
     linear_free,
@@ -161,7 +162,7 @@ def _solve(
     # a joint fit continued from a joint result (its quick fit, veil.fitting.screening): the
     # grid's starts only when that run does not convince
     first = None if resumed is None else start_vector(problem, resumed.params, "the start")
-    ran_best = resumed is not None and resumed.stats.get("start") != "given"
+    ran_best = resumed is not None and began_at_grid(resumed)
     kw = dict(accuracy=accuracy, max_nfev=max_nfev, progress=progress, screen=screen)
     outcome = run_from(problem, first, ran_best, grid, **kw)
     summary = summarize(problem, outcome)

@@ -347,6 +347,18 @@ def run(
     return Outcome(sol, values, final_accuracy, notes, stats)
 
 
+def began_at_grid(result) -> bool:
+    """Whether a fit result ran its grid's best start (:func:`run_from` marks a fit begun
+    from a given start ``stats["start"] = "given"``)."""
+    return result.stats.get("start") != "given"
+
+
+def check_start_family(result, name: str) -> None:
+    """A FitError when the fit ``result`` to start from is not of the family ``name``."""
+    if result.model != name:
+        raise FitError(f"start: a {result.model} result; this fit's model is {name}")
+
+
 def run_from(problem: Problem, start, ran_best: bool, grid: Callable[[], list], **kw) -> Outcome:
     """:func:`run` from the natural vector ``start`` (a fit to continue from), the starts of
     ``grid()`` after it only when it does not convince, without the grid's best one when

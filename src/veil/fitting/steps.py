@@ -40,7 +40,7 @@ from .problem import ITERATION_ACCURACY, check_accuracy
 from .propagation import check_method
 from .result import FitResult
 from .session_data import FitData, channels_of, prepare
-from .solver import as_fixed, check_max_nfev
+from .solver import as_fixed, began_at_grid, check_max_nfev, check_start_family
 from .step_fit import MISFIT_CHI2, ROLE, STARTS, MisfitWarning, fit_step, warn_misfit
 
 
@@ -375,15 +375,14 @@ def _start(start, cls, channel: str | None) -> dict:
         return {}
     if not isinstance(start, FitResult):
         return {"start": dict(start)}
-    if start.model != cls.NAME:
-        raise FitError(f"start: a {start.model} result; this fit's model is {cls.NAME}")
+    check_start_family(start, cls.NAME)
     if start.channels:
         if channel is None:
             raise FitError("start: a fit over several channels; name the channel to fit")
         params = start.one_model(channel).as_dict()
     else:
         params = dict(start.params)
-    return {"start": params, "start_ran_best": start.stats.get("start") != "given"}
+    return {"start": params, "start_ran_best": began_at_grid(start)}
 
 
 def _checked(accuracy, max_nfev, model_error, propagation) -> tuple[str, str]:
