@@ -4,6 +4,7 @@ and, end to end, that a screened ranking chooses exactly what the pinned pair fi
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -52,6 +53,86 @@ def test_bic_interval_moves_every_value_by_the_fast_rules_error():
     assert lower == pytest.approx(bic - chi2 + np.sum(np.maximum(np.abs(r) - a, 0) ** 2) - term)
     assert upper == pytest.approx(bic - chi2 + np.sum((np.abs(r) + a) ** 2) + term)
     assert lower < bic < upper
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_the_measured_interval_brackets_the_refit_at_the_finer_rule(seed):
+    """A linear model y ~ J x, the finer rule's values J x + e: from the fast optimum's
+    residuals r (orthogonal to J) and the rule error e, the interval holds the finer rule's
+    optimum min |y - J x - e|^2 exactly where the refit is a projection, its upper end is
+    the finer rule's deviance at the fast optimum, and it is no wider than |e|^2."""
+    rng = np.random.default_rng(seed)
+    n, p = 60, 3
+    jac = rng.normal(size=(n, p))
+    y = jac @ rng.normal(size=p) + rng.normal(size=n)
+    e = rng.normal(scale=0.3, size=n) + 0.2 * jac @ rng.normal(size=p)  # partly in the span
+    x_fast = np.linalg.lstsq(jac, y, rcond=None)[0]
+    r = y - jac @ x_fast
+    x_fine = np.linalg.lstsq(jac, y - e, rcond=None)[0]
+    fine = float(np.sum((y - e - jac @ x_fine) ** 2))
+
+    def moved(res):
+        return float(res @ res)
+
+    lower, upper = screening.measured_interval(r, e, moved, weighted=True)
+    assert upper == pytest.approx(moved(r - e))
+    assert lower - 1e-9 <= fine <= upper + 1e-9
+    assert fine < upper - 1e-3  # the part of e in J's span is refitted away
+    assert upper - lower == pytest.approx(float(e @ e))
+    # unweighted: the deviance N ln(RSS / N), its ends from the same sums of squares
+    lo, up = screening.measured_interval(r, e, moved, weighted=False)
+    assert lo <= n * math.log(fine / n) <= up
+
+
+def test_a_quick_fit_through_a_medium_measures_its_rule_error(sessions):
+    """A quick fit asked for the "default" rule iterates at "fast" and evaluates its optimum
+    once at "default": stats["rule_error"] is that difference of the model values (checked
+    against veil.apparent at both rules), and the measured BIC interval holds the full
+    fit's chi-square, narrower than FAST_ERROR's."""
+    from veil.fitting.session_data import prepare
+
+    table, black = sessions["reference_medium"], sessions["black"]
+    kw = dict(black=black, accuracy="default", propagation="off", model_error="off")
+    quick = veil.fit_medium(table, veil.BRDF2, screen=True, **kw)
+    assert quick.accuracy == "fast" and quick.converged
+    measured = quick.stats["rule_error"]
+    assert measured["accuracy"] == "default"
+    data = prepare(table, black)
+    medium = veil.BTDF2.replace(**quick.params)
+    angles = [data.table[c].to_numpy() for c in ("theta_i", "theta_r", "phi_i", "phi_r")]
+    rule = {acc: veil.apparent(veil.BRDF2, medium, *angles, accuracy=acc)
+            for acc in ("fast", "default")}
+    assert np.allclose(measured["values"], rule["default"] - rule["fast"], rtol=1e-9,
+                       atol=1e-12 * np.abs(rule["fast"]).max())
+    assert np.abs(measured["values"]).max() > 0  # the rules differ somewhere
+    full = veil.fit_medium(table, veil.BRDF2, start=quick, **kw)
+    chi2 = float(np.sum(np.square(full.residuals)))
+    bic_quick = float(np.sum(np.square(quick.residuals)))  # the interval is relative to it
+    lower, upper = screening.bic_interval(quick, data, bic_quick)
+    term = 2 * math.log(len(quick.residuals))
+    assert lower + term <= chi2 <= upper - term
+    stale = dataclasses.replace(quick, stats={})  # without the measurement: FAST_ERROR
+    wide = screening.bic_interval(stale, data, bic_quick)
+    assert wide[0] < lower and upper < wide[1]
+
+
+def test_two_runs_that_agree_end_the_search_even_at_a_bound():
+    """solver.agreeing: two converged runs within AGREEMENT of each other's deviance, with a
+    plausible chi-square, are one minimum (convincing alone asks for another start when a
+    run ends at a bound); runs apart, unconverged or misfitting are not."""
+    from types import SimpleNamespace as NS
+
+    from veil.fitting import solver
+
+    problem = NS(n_points=104, n_free=4, weighted=True)
+    run = lambda cost, status=1: NS(cost=cost, status=status)  # noqa: E731
+    assert solver.agreeing(problem, [run(50.0), run(50.0 + solver.AGREEMENT / 2 - 1e-9)])
+    assert not solver.agreeing(problem, [run(50.0), run(50.0 + solver.AGREEMENT)])
+    assert not solver.agreeing(problem, [run(50.0), run(50.1, status=0)])
+    assert not solver.agreeing(problem, [run(50.0)])
+    assert not solver.agreeing(problem, [run(150.0), run(150.01)])  # chi-square 3
+    assert not solver.agreeing(NS(n_points=104, n_free=4, weighted=False),
+                               [run(50.0), run(50.0)])
 
 
 def _ranked(fits: dict, data) -> tuple[selection.Ranking, dict]:

@@ -133,6 +133,7 @@ def _solve(
     """The joint problem solved from its starts, its uncertainties reported (the given
     reference's covariance to first order, the media's as ``propagation`` says); a
     ``screen`` is a quick fit (:func:`veil.fitting.solver.run`), nothing propagated."""
+    check = accuracy if screen else None  # the rule a quick fit's error is measured at
     if screen:
         accuracy, propagation = ITERATION_ACCURACY, "off"
     given_result = (
@@ -146,7 +147,7 @@ def _solve(
     ref_names = reference_names(layout, reference)
     ref_cols = [] if given_result is None else [index[ref_names[n]] for n in given_result.free]
     linear_free(problem)
-    _prepare_engines(problem, ref_cols, accuracy)
+    _prepare_engines(problem, ref_cols, check or accuracy)
     resumed = start if isinstance(start, JointResult) else None
     models = None if resumed is not None else start
 
@@ -163,7 +164,7 @@ def _solve(
     # grid's starts only when that run does not convince
     first = None if resumed is None else start_vector(problem, resumed.params, "the start")
     ran_best = resumed is not None and began_at_grid(resumed)
-    kw = dict(accuracy=accuracy, max_nfev=max_nfev, progress=progress, screen=screen)
+    kw = dict(accuracy=accuracy, max_nfev=max_nfev, progress=progress, screen=screen, check=check)
     outcome = run_from(problem, first, ran_best, grid, **kw)
     summary = summarize(problem, outcome)
     given = reference_entry(reference, layout)

@@ -17,16 +17,22 @@ the full fit only for those that could still be chosen.
   bit; after a polish at a finer rule, within a fraction of a standard error (up to 0.23
   of tau's for m05's light-side weights, whose fast-rule cost is flat to 1e-4 along the
   tau-g valley, so the polish's frozen Jacobian is taken at another point of it).
-- **Its BIC's interval**: the fast quadrature is within :data:`FAST_ERROR` (relative, of the
-  value or of 1e-3 of the largest) of a converged integral at every configuration of every
-  parametric family pair (measured at most 7.2e-3 against "high" and 8.9e-3 against
-  "default", rough conductor through the forward series: benchmarks/bench_fast_error.py; the
-  nonparametric family's columns are single Beckmann lobes, as the rough conductor's).
-  Moving every model value that far toward the data and away from it bounds the deviance
-  (the ranking's -2 ln L, :func:`veil.fitting.selection.deviance`) that quadrature error
-  can explain, with the model-discrepancy term's (s, ell) held; 2 ln N either side allows
-  for the full fit switching that term on or off: the interval [lower, upper] of the
-  candidate's BIC.
+- **Its BIC's interval**: a quick fit through a medium also evaluates its model once at
+  the rule its full fit ends at (``stats["rule_error"]``, :func:`veil.fitting.solver.run`).
+  That gives the deviance at the quick optimum under the finer rule, where the full fit
+  starts (the upper end), and how far refitting can lower it: at most the squared norm of
+  the rule error in the residuals' metric, to first order, since the quick optimum's
+  residuals are orthogonal to the Jacobian (the lower end; :func:`measured_interval`).
+  Without that measurement (a linear family, an unconverged quick fit) every model value
+  may be off by :data:`FAST_ERROR` of itself: the fast quadrature is within that of a
+  converged integral at every configuration of every parametric family pair (measured at
+  most 7.2e-3 against "high" and 8.9e-3 against "default", rough conductor through the
+  forward series: benchmarks/bench_fast_error.py; the nonparametric family's columns are
+  single Beckmann lobes, as the rough conductor's), and moving every value that far toward
+  the data and away from it bounds the deviance (the ranking's -2 ln L,
+  :func:`veil.fitting.selection.deviance`) that the quadrature can explain. Either way the
+  model-discrepancy term's (s, ell) are held, and 2 ln N either side allows for the full fit
+  switching that term on or off: the interval [lower, upper] of the candidate's BIC.
 - **Who goes on**: a candidate whose lower end lies more than :data:`SCREEN_MARGIN` above the
   smallest upper end of a converged quick fit is screened out: listed with its quick fit's
   BIC, not fitted further. Every other one gets the full fit, and the ranking is theirs.
@@ -67,25 +73,48 @@ SCREEN_MARGIN = 10.0
 
 
 def bic_interval(result: FitResult, data, bic: float) -> tuple[float, float]:
-    """[lower, upper] of a quick fit's ``bic`` when every model value may be off by
-    FAST_ERROR of itself, widened by the BIC of the model-discrepancy term's two parameters
-    (2 ln N) for a weighted fit: the full fit may switch the term on or off (module
-    docstring)."""
+    """[lower, upper] of a quick fit's ``bic`` (module docstring), widened by the BIC of the
+    model-discrepancy term's two parameters (2 ln N) for a weighted fit: the full fit may
+    switch the term on or off. From the quick fit's measured rule error when it has one
+    (:func:`measured_interval`), else from FAST_ERROR of every model value."""
     r = np.asarray(result.residuals, dtype=float)
     weighted = result.weighted and data.sigma is not None
     scale = data.sigma if weighted else 1.0
-    f = np.abs(data.y - r * scale)
-    a = FAST_ERROR * np.maximum(f, 1e-3 * f.max(initial=0.0)) / scale
+    term = 2.0 * math.log(max(r.size, 1)) if weighted else 0.0
     dev, _ = deviance(result, data)
 
     def moved(res):
         return deviance(dataclasses.replace(result, residuals=tuple(res.tolist())), data)[0]
 
+    measured = result.stats.get("rule_error")
+    if measured is not None and result.converged and len(measured["values"]) == r.size:
+        delta = np.asarray(measured["values"], dtype=float) / scale
+        lower, upper = measured_interval(r, delta, moved, weighted)
+        return bic + lower - dev - term, bic + upper - dev + term
+    f = np.abs(data.y - r * scale)
+    a = FAST_ERROR * np.maximum(f, 1e-3 * f.max(initial=0.0)) / scale
     sign = np.where(r < 0, -1.0, 1.0)
     toward = sign * np.maximum(np.abs(r) - a, 0.0)
     away = r + sign * a
-    term = 2.0 * math.log(max(r.size, 1)) if weighted else 0.0
     return bic + moved(toward) - dev - term, bic + moved(away) - dev + term
+
+
+def measured_interval(r: np.ndarray, delta: np.ndarray, moved, weighted: bool) -> tuple:
+    """(lower, upper) deviance of the full fit from a converged quick fit's residuals ``r``
+    and its rule error ``delta`` (the finer rule's values minus the fast rule's, in the
+    residuals' units); ``moved(residuals)`` is the deviance of other residuals.
+
+    At the quick optimum the finer rule's residuals are r - delta, and their deviance is
+    where the full fit starts: the upper end. The quick optimum is stationary for the fast
+    rule, so r is orthogonal to the Jacobian's columns; refitting to the finer rule lowers
+    the sum of squares by the part of delta in their span, at most |delta|^2 (to first
+    order): the lower end."""
+    upper = moved(r - delta)
+    if weighted:
+        return upper - max(moved(delta) - moved(np.zeros_like(delta)), 0.0), upper
+    rss = float((r - delta) @ (r - delta))
+    n = max(r.size, 1)
+    return n * math.log(max(rss - float(delta @ delta), 1e-300 * n) / n), upper
 
 
 def survivors(ranking: Ranking, quick: dict, data) -> tuple[list[str], dict]:
@@ -212,6 +241,7 @@ __all__ = [
     "FAST_ERROR",
     "SCREEN_MARGIN",
     "bic_interval",
+    "measured_interval",
     "survivors",
     "quick_fits",
     "screen_fits",

@@ -62,6 +62,9 @@ TOL_SCREEN = 0.3
 #: Reduced chi-square up to which a converged weighted fit inside its search range makes
 #: further starts unnecessary.
 CONVINCING = 2.0
+#: Deviance (2 x cost) within which two converged runs found one minimum (:func:`agreeing`):
+#: a quarter of the ranking's close call, veil.fitting.selection.CLOSE_DELTA_BIC.
+AGREEMENT = 0.5
 #: Note of a result whose Jacobian is singular at the solution.
 SINGULAR_NOTE = "Jacobian singular at the solution: uncertainties not determined"
 
@@ -219,6 +222,17 @@ def convincing(problem: Problem, sol: Solution) -> bool:
     )
 
 
+def agreeing(problem: Problem, runs: list) -> bool:
+    """Two runs (from different starts) of a weighted fit that converged with reduced
+    chi-square <= CONVINCING to costs within AGREEMENT: the same minimum, even at a bound
+    (where :func:`convincing` asks for another start)."""
+    dof = problem.n_points - problem.n_free
+    if not problem.weighted or dof <= 0:
+        return False
+    costs = sorted(2 * r.cost for r in runs if r.status > 0 and 2 * r.cost / dof <= CONVINCING)
+    return any(b - a <= AGREEMENT for a, b in zip(costs, costs[1:]))
+
+
 # --------------------------------------------------------------------------------------
 # several starts and the polish
 # --------------------------------------------------------------------------------------
@@ -267,6 +281,29 @@ def linear_free(problem: Problem) -> None:
             )
 
 
+def _starts_run(problem: Problem, starts: list, more, every: bool, tol, max_nfev, progress):
+    """(the runs of :func:`run`, the number of starts skipped): the next start only while
+    no run convinces and no two agree (all when ``every``); ``more()`` adds starts once."""
+    runs: list[Solution] = []
+    skipped = s = 0
+    while True:
+        if (
+            runs
+            and not every
+            and (any(convincing(problem, r) for r in runs) or agreeing(problem, runs))
+        ):
+            skipped = len(starts) - s
+            break
+        if s == len(starts) and more is not None:
+            starts, more = starts + list(more()), None
+        if s == len(starts):
+            break
+        tick = ticker(progress, f"start {s + 1}/{len(starts)}: iteration")
+        runs.append(solve(problem, starts[s], tol=tol, max_nfev=max_nfev, on_eval=tick))
+        s += 1
+    return runs, skipped
+
+
 def run(
     problem: Problem,
     starts,
@@ -277,6 +314,7 @@ def run(
     every: bool = False,
     screen: bool = False,
     more: Callable[[], list] | None = None,
+    check: str | None = None,
 ) -> Outcome:
     """Least squares from each natural start vector (best first): all of them when
     ``every``, else the next only while the fits so far are not convincing; ``more()``
@@ -284,7 +322,9 @@ def run(
     continued from a candidate's quick fit: the grid's starts). The best is polished at
     ``accuracy`` when the problem has a medium (module docstring). A ``screen`` runs the
     first start only, at the "fast" quadrature to TOL_SCREEN, unpolished: a candidate's
-    quick fit for ranking (:mod:`veil.fitting.screening`)."""
+    quick fit for ranking (:mod:`veil.fitting.screening`); with ``check`` (the rule its full
+    fit would end at) through a medium, its values are evaluated there too, once, and
+    ``stats["rule_error"]`` holds that rule's values minus the fast rule's."""
     linear_free(problem)
     through_medium = any(b.medium is not None for b in problem.blocks)
     starts = list(starts)
@@ -294,19 +334,7 @@ def run(
         starts, accuracy, every, more = starts[:1], ITERATION_ACCURACY, False, None
     polish = through_medium and accuracy != ITERATION_ACCURACY
     tol = TOL_SCREEN if screen else (TOL_ITER if polish else TOL_FINAL)
-    runs: list[Solution] = []
-    skipped = s = 0
-    while True:
-        if runs and not every and any(convincing(problem, r) for r in runs):
-            skipped = len(starts) - s
-            break
-        if s == len(starts) and more is not None:
-            starts, more = starts + list(more()), None
-        if s == len(starts):
-            break
-        tick = ticker(progress, f"start {s + 1}/{len(starts)}: iteration")
-        runs.append(solve(problem, starts[s], tol=tol, max_nfev=max_nfev, on_eval=tick))
-        s += 1
+    runs, skipped = _starts_run(problem, starts, more, every, tol, max_nfev, progress)
     if not runs:
         raise FitError("no starting point: the starting grid gave no finite cost")
     best = min(range(len(runs)), key=lambda r: (runs[r].cost, r))
@@ -342,6 +370,9 @@ def run(
     }
     if screen:
         stats["screen"] = True
+        if check is not None and check != ITERATION_ACCURACY and through_medium:
+            checked = problem.model_values(sol.x, check)
+            stats["rule_error"] = {"accuracy": check, "values": (checked - values).tolist()}
     if through_medium:
         stats["engine_calls"] = problem.engine_calls()
     return Outcome(sol, values, final_accuracy, notes, stats)
@@ -547,6 +578,8 @@ __all__ = [
     "TOL_POLISH",
     "TOL_FINAL",
     "CONVINCING",
+    "AGREEMENT",
+    "agreeing",
     "SINGULAR_NOTE",
     "check_max_nfev",
     "as_fixed",

@@ -248,6 +248,7 @@ def fit_step(
     ``start`` ({name: value} of the fitted model) runs first, the grid only when it does not
     convince, without its best start when ``start_ran_best`` (the start is a fit that began
     there: a candidate's fit continued from its quick fit, :mod:`veil.fitting.screening`)."""
+    check = accuracy if screen else None  # the rule a quick fit's error is measured at
     if screen:
         accuracy, propagation = ITERATION_ACCURACY, "off"
     cls = type(fitted)
@@ -269,10 +270,10 @@ def fit_step(
             screen=screen,
         )
     if medium is not None:
-        _prepare_engine(problem, cls, given, given_result, accuracy, propagation)
+        _prepare_engine(problem, cls, given, given_result, check or accuracy, propagation)
     from_grid, grid = _step_grid(problem, cls, step, progress)
     first = None if start is None else _start_vector(problem, cls, start)
-    kw = dict(accuracy=accuracy, max_nfev=max_nfev, progress=progress, screen=screen)
+    kw = dict(accuracy=accuracy, max_nfev=max_nfev, progress=progress, screen=screen, check=check)
     outcome = run_from(problem, first, start_ran_best, from_grid, every=medium is None, **kw)
     n_grid = grid["points"]
     summary = summarize(problem, outcome)
