@@ -344,3 +344,22 @@ def test_a_groups_terms_are_remembered_and_give_the_same_values(monkeypatch):
     fresh = fw.Forward(model, medium, [30.0, 40.0, 50.0], [30.0, 45.0, 60.0], rule=RULES["fast"])
     assert np.array_equal(fresh(moved, vm), again) and np.array_equal(fresh(vb, vm), first)
     assert not np.array_equal(first, again)
+
+
+def test_a_quick_fit_measures_its_rule_error_from_its_active_columns(plastic_through_btdf2):
+    """The screen's quick fit (fit_target(screen=True)) solves at the "fast" rule and records
+    stats["rule_error"]: the family at the "default" rule minus at "fast", with its own
+    coefficients, computed from the active columns alone; the same as the whole family
+    evaluated at both rules (veil.fitting.screening's interval reads it)."""
+    table, _ = plastic_through_btdf2
+    quick = fit_target(table, PRESETS["BTDF2"], brdf_model="nonparametric", screen=True)
+    assert quick.accuracy == "fast"
+    measured = quick.stats["rule_error"]
+    assert measured["accuracy"] == "default"
+    assert quick.stats["active"] < quick.stats["columns"]  # fewer calls than the design's
+    angles = _angles(table)
+    rules = {a: model_values(quick, PRESETS["BTDF2"], angles, accuracy=a)
+             for a in ("fast", "default")}
+    want = rules["default"] - rules["fast"]
+    assert np.abs(want).max() > 0
+    assert np.allclose(measured["values"], want, rtol=1e-9, atol=1e-12 * rules["fast"].max())

@@ -78,11 +78,14 @@ def penalty(cls, names: list[str]) -> np.ndarray:
     return np.array(out, dtype=float).reshape(len(out), len(names))
 
 
-def design(problem: Problem, accuracy: str, progress=None) -> tuple[np.ndarray, np.ndarray]:
+def design(
+    problem: Problem, accuracy: str, progress=None, only=None
+) -> tuple[np.ndarray, np.ndarray]:
     """(columns X (N, F) of the free coefficients, the fixed ones' part of the values (N,))
     at the problem's held parameters: one engine call per coefficient, each of the family's
     column model (``columns()``: a basis function alone, sampled as it needs) at
-    ``accuracy``."""
+    ``accuracy``; with ``only`` (a mask over the free coefficients) those columns alone, the
+    others 0."""
     block = problem.blocks[0]
     column_cls, vectors = type(block.brdf).columns()
     columns = session_problem(
@@ -109,7 +112,7 @@ def design(problem: Problem, accuracy: str, progress=None) -> tuple[np.ndarray, 
             held = held + problem.values[k] * column(n)
     cols = []
     for j, name in enumerate(free):
-        cols.append(column(name))
+        cols.append(column(name) if only is None or only[j] else np.zeros(problem.n_points))
         if progress:
             progress("columns", j + 1, len(free))
     return np.stack(cols, axis=1), held
@@ -157,6 +160,16 @@ def choose(
             best = (lam, c, dof, score)
     assert best is not None
     return best
+
+
+def rule_error(problem: Problem, sol: LinearSolution, check: str) -> dict:
+    """A quick fit's model values at the rule ``check`` minus the fast rule's at its
+    coefficients (``stats["rule_error"]``, :mod:`veil.fitting.screening`): one engine call
+    per active coefficient and per held one, not the whole design."""
+    if check == ITERATION_ACCURACY:  # the quick fit's own rule
+        return {"accuracy": check, "values": [0.0] * problem.n_points}
+    x, held = design(problem, check, only=sol.c > 0)
+    return {"accuracy": check, "values": (x @ sol.c + held - sol.values).tolist()}
 
 
 def solve(problem: Problem, accuracy: str, d: np.ndarray, progress=None) -> LinearSolution:
@@ -279,6 +292,7 @@ def fit_linear(
     """A linear family's step fit (module docstring) as a :class:`FitResult`; a ``screen``
     (a candidate's quick fit) uses the iterations' rule and propagates nothing."""
     cls = type(fitted)
+    check = accuracy if screen else None
     accuracy = ITERATION_ACCURACY if screen else accuracy
     names = problem.names
     sol = solve(problem, accuracy, penalty(cls, list(cls.keys())), progress)
@@ -308,6 +322,8 @@ def fit_linear(
     }
     if how:
         stats["propagation"] = how
+    if check is not None and problem.blocks[0].medium is not None:
+        stats["rule_error"] = rule_error(problem, sol, check)
     own = {p.key: p.name for p in cls.PARAMS}
     free_keys = {names[k] for k in reported}
     return FitResult(

@@ -370,8 +370,8 @@ def run(
     }
     if screen:
         stats["screen"] = True
-        if check is not None and check != ITERATION_ACCURACY and through_medium:
-            checked = problem.model_values(sol.x, check)
+        if check is not None and through_medium:  # none at the fast rule itself
+            checked = values if check == ITERATION_ACCURACY else problem.model_values(sol.x, check)
             stats["rule_error"] = {"accuracy": check, "values": (checked - values).tolist()}
     if through_medium:
         stats["engine_calls"] = problem.engine_calls()

@@ -263,7 +263,7 @@ def fit_step(
             fitted,
             given,
             given_result,
-            accuracy=accuracy,
+            accuracy=check or accuracy,
             propagation=propagation,
             model_error=model_error,
             progress=progress,
