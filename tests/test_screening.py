@@ -111,9 +111,15 @@ def test_a_quick_fit_through_a_medium_measures_its_rule_error(sessions):
     lower, upper = screening.bic_interval(quick, data, bic_quick)
     term = 2 * math.log(len(quick.residuals))
     assert lower + term <= chi2 <= upper - term
+    # the BIC it would start its full fit from: the "default" values at the quick optimum
+    delta = np.asarray(measured["values"]) / data.sigma
+    at_rule = float(np.sum(np.square(np.asarray(quick.residuals) - delta)))
+    assert screening.rule_bic(quick, data, bic_quick) == pytest.approx(at_rule, rel=1e-12)
+    assert upper - term == pytest.approx(at_rule, rel=1e-12)
     stale = dataclasses.replace(quick, stats={})  # without the measurement: FAST_ERROR
     wide = screening.bic_interval(stale, data, bic_quick)
     assert wide[0] < lower and upper < wide[1]
+    assert screening.rule_bic(stale, data, bic_quick) is None
 
 
 def test_two_runs_that_agree_end_the_search_even_at_a_bound():

@@ -55,6 +55,7 @@ import math
 
 import numpy as np
 
+from .problem import ITERATION_ACCURACY
 from .result import FitResult
 from .selection import (
     NoCandidateError,
@@ -75,23 +76,31 @@ FAST_ERROR = 2e-2
 SCREEN_MARGIN = 10.0
 
 
-def bic_interval(result: FitResult, data, bic: float) -> tuple[float, float]:
-    """[lower, upper] of a quick fit's ``bic`` (module docstring), widened by the BIC of the
-    model-discrepancy term's two parameters (2 ln N) for a weighted fit: the full fit may
-    switch the term on or off. From the quick fit's measured rule error when it has one
-    (:func:`measured_interval`), else from FAST_ERROR of every model value."""
+def _measured(result: FitResult, data) -> tuple:
+    """(weighted residuals r, their scale, weighted?, deviance, moved(residuals) -> deviance,
+    the rule error in r's units or None) of a quick fit: what its intervals are made of."""
     r = np.asarray(result.residuals, dtype=float)
     weighted = result.weighted and data.sigma is not None
     scale = data.sigma if weighted else 1.0
-    term = 2.0 * math.log(max(r.size, 1)) if weighted else 0.0
-    dev, _ = deviance(result, data)
 
     def moved(res):
         return deviance(dataclasses.replace(result, residuals=tuple(res.tolist())), data)[0]
 
     measured = result.stats.get("rule_error")
+    delta = None
     if measured is not None and result.converged and len(measured["values"]) == r.size:
         delta = np.asarray(measured["values"], dtype=float) / scale
+    return r, scale, weighted, deviance(result, data)[0], moved, delta
+
+
+def bic_interval(result: FitResult, data, bic: float) -> tuple[float, float]:
+    """[lower, upper] of a quick fit's ``bic`` (module docstring), widened by the BIC of the
+    model-discrepancy term's two parameters (2 ln N) for a weighted fit: the full fit may
+    switch the term on or off. From the quick fit's measured rule error when it has one
+    (:func:`measured_interval`), else from FAST_ERROR of every model value."""
+    r, scale, weighted, dev, moved, delta = _measured(result, data)
+    term = 2.0 * math.log(max(r.size, 1)) if weighted else 0.0
+    if delta is not None:
         lower, upper = measured_interval(r, delta, moved, weighted)
         return bic + lower - dev - term, bic + upper - dev + term
     f = np.abs(data.y - r * scale)
@@ -100,6 +109,13 @@ def bic_interval(result: FitResult, data, bic: float) -> tuple[float, float]:
     toward = sign * np.maximum(np.abs(r) - a, 0.0)
     away = r + sign * a
     return bic + moved(toward) - dev - term, bic + moved(away) - dev + term
+
+
+def rule_bic(result: FitResult, data, bic: float) -> float | None:
+    """A quick fit's ``bic`` with its values at the rule its full fit would end at (its
+    measured rule error; None without one): the BIC it would start from."""
+    r, _, _, dev, moved, delta = _measured(result, data)
+    return None if delta is None else bic + moved(r - delta) - dev
 
 
 def measured_interval(r: np.ndarray, delta: np.ndarray, moved, weighted: bool) -> tuple:
@@ -142,12 +158,17 @@ def survivors(ranking: Ranking, quick: dict, data) -> tuple[list[str], dict]:
     return keep, out
 
 
-def _screened_rows(quick_ranking: Ranking, out: dict) -> list[dict]:
+def _screened_rows(quick_ranking: Ranking, out: dict, quick: dict, data) -> list[dict]:
     """The screened-out candidates' rows: their quick fit's numbers, weight 0, and what
-    happened (:func:`veil.fitting.selection.rank` sets their dBIC against the best)."""
+    happened (:func:`veil.fitting.selection.rank` sets their dBIC against the best);
+    ``quick`` {label: quick FitResult}."""
     rows = []
     for label, (lower, _) in out.items():
         row = dict(quick_ranking.row(label))
+        result = quick[label]
+        at_rule = rule_bic(result, data, row["bic"])
+        rule = result.stats["rule_error"]["accuracy"] if at_rule is not None else ""
+        at_rule = None if rule == ITERATION_ACCURACY else at_rule  # the quick fit's own
         row.update(
             screened=True,
             weight=0.0,
@@ -155,7 +176,9 @@ def _screened_rows(quick_ranking: Ranking, out: dict) -> list[dict]:
             note=(
                 "screened out: its quick fit (one start, fast quadrature"
                 + ("" if row["converged"] else f"; {row['error']}")
-                + f") has BIC {row['bic']:.4g}, at least {lower:.4g} with the quadrature's "
+                + f") has BIC {row['bic']:.4g}"
+                + ("" if at_rule is None else f" ({at_rule:.4g} at the {rule!r} rule)")
+                + f", at least {lower:.4g} with the quadrature's "
                 f"error, more than {SCREEN_MARGIN:g} above the best; not fitted further"
             ),
         )
@@ -213,7 +236,7 @@ def screen_fits(step: str, cands, data, fit, quick_fit, progress=None) -> tuple:
         limit = (min(ranked) if ranked else math.inf) + SCREEN_MARGIN
         keep = [lab for lab, (lower, _) in out.items() if lower <= limit]
         out = {lab: b for lab, b in out.items() if lab not in keep}
-    return fitted, _screened_rows(quick_ranking, out)
+    return fitted, _screened_rows(quick_ranking, out, {k: q[0] for k, q in quick.items()}, data)
 
 
 def select(
@@ -245,6 +268,7 @@ __all__ = [
     "SCREEN_MARGIN",
     "bic_interval",
     "measured_interval",
+    "rule_bic",
     "survivors",
     "quick_fits",
     "screen_fits",
