@@ -78,10 +78,46 @@ def test_the_measured_interval_brackets_the_refit_at_the_finer_rule(seed):
     assert upper == pytest.approx(moved(r - e))
     assert lower - 1e-9 <= fine <= upper + 1e-9
     assert fine < upper - 1e-3  # the part of e in J's span is refitted away
-    assert upper - lower == pytest.approx(float(e @ e))
+    assert lower == pytest.approx(min(moved(r), upper) - float(e @ e))
+    assert screening.measured_interval(r, e, moved, True, slack=2.0)[0] == \
+        pytest.approx(lower - 2.0)
     # unweighted: the deviance N ln(RSS / N), its ends from the same sums of squares
     lo, up = screening.measured_interval(r, e, moved, weighted=False)
     assert lo <= n * math.log(fine / n) <= up
+
+
+def test_with_a_discrepancy_term_the_lower_end_allows_for_its_log_determinant():
+    """A term's covariance grows with the model values, so a finer rule's larger values
+    move the log-determinant too: the lower end allows for that change, and for the descent
+    a quick fit's tolerance leaves (TOL_SCREEN standard errors per parameter, scaled by the
+    misfit), beyond the rule error's |delta|^2."""
+    from veil.fitting.model_error import ModelError
+    from veil.fitting.solver import TOL_SCREEN
+
+    rng = np.random.default_rng(4)
+    y = rng.uniform(50, 150, N)
+    sigma = np.full(N, 1.0)
+    data = _data(y, sigma)
+    r = rng.normal(0, 1.0, N)
+    term = ModelError(sigma=0.05, length=0.0, own=0.05, given=None, source="own residuals",
+                      chi2_threshold=2.0)
+    e = 0.01 * (y - r)  # the finer rule 1 % higher everywhere
+    fit = dataclasses.replace(_fit(r), model_error=term,
+                              stats={"rule_error": {"accuracy": "default",
+                                                    "values": e.tolist()}})
+    dev, _ = selection.deviance(fit, data)
+    lower, upper = screening.bic_interval(fit, data, dev)
+    n_term = 2 * math.log(N)
+    at_rule = selection.deviance(dataclasses.replace(fit, residuals=tuple(r - e)), data)[0]
+    assert upper - n_term == pytest.approx(at_rule)
+    zero = dataclasses.replace(fit, residuals=(0.0,) * N)
+    f = y - r
+    logdet = (selection.deviance(zero, dataclasses.replace(data, y=f + e))[0]
+              - selection.deviance(zero, dataclasses.replace(data, y=f))[0])
+    assert logdet > 0.5  # larger values, a larger covariance
+    slack = TOL_SCREEN**2 * len(fit.stderr) * max(fit.chi2_reduced, 1.0)
+    width = float(e @ e) + slack + logdet
+    assert lower + n_term == pytest.approx(min(dev, at_rule) - width)
 
 
 def test_a_quick_fit_through_a_medium_measures_its_rule_error(sessions):
@@ -139,6 +175,29 @@ def test_two_runs_that_agree_end_the_search_even_at_a_bound():
     assert not solver.agreeing(problem, [run(150.0), run(150.01)])  # chi-square 3
     assert not solver.agreeing(NS(n_points=104, n_free=4, weighted=False),
                                [run(50.0), run(50.0)])
+
+
+def test_starts_stop_once_two_runs_agree_at_a_bound(monkeypatch):
+    """The starts' loop (solver._starts_run): runs that end at a bound do not convince, so
+    the next start runs, until two of them agree; runs at a bound that disagree use every
+    start."""
+    from types import SimpleNamespace as NS
+
+    from veil.fitting import solver
+
+    problem = NS(n_points=104, n_free=4, weighted=True)
+    costs = {}
+
+    def fake_solve(problem, start, **kw):
+        return NS(cost=costs[start], status=1, at_bound=True)
+
+    monkeypatch.setattr(solver, "solve", fake_solve)
+    costs.update({"a": 50.0, "b": 50.1, "c": 40.0})
+    runs, skipped = solver._starts_run(problem, ["a", "b", "c"], None, False, 1e-2, None, None)
+    assert [r.cost for r in runs] == [50.0, 50.1] and skipped == 1
+    costs.update({"b": 55.0})
+    runs, skipped = solver._starts_run(problem, ["a", "b", "c"], None, False, 1e-2, None, None)
+    assert [r.cost for r in runs] == [50.0, 55.0, 40.0] and skipped == 0
 
 
 def _ranked(fits: dict, data) -> tuple[selection.Ranking, dict]:

@@ -24,7 +24,10 @@ the full fit only for those that could still be chosen.
   starts (the upper end), and how far refitting can lower it: at most the squared norm of
   the rule error in the residuals' metric, to first order, since the quick optimum's
   residuals are orthogonal to the Jacobian (the lower end; :func:`measured_interval`; for
-  a linear family to the extent of its penalty and bounds). A full fit at the fast rule
+  a linear family to the extent of its penalty and bounds). The lower end also allows for
+  the descent the quick fit's tolerance leaves (TOL_SCREEN standard errors per parameter,
+  scaled by the misfit) and for the change of a discrepancy term's log-determinant with
+  the model values. A full fit at the fast rule
   itself has no rule error, only the quick fit's tolerance, which the margin covers.
   Without that measurement (an unconverged quick fit) every value
   may be off by :data:`FAST_ERROR` of itself: the fast quadrature is within that of a
@@ -66,6 +69,7 @@ from .selection import (
     teller,
     workers,
 )
+from .solver import TOL_SCREEN
 from .steps import warn_misfit
 
 #: Relative error of the "fast" quadrature that the screen allows for: twice the largest
@@ -101,7 +105,13 @@ def bic_interval(result: FitResult, data, bic: float) -> tuple[float, float]:
     r, scale, weighted, dev, moved, delta = _measured(result, data)
     term = 2.0 * math.log(max(r.size, 1)) if weighted else 0.0
     if delta is not None:
-        lower, upper = measured_interval(r, delta, moved, weighted)
+        # the descent a quick fit's tolerance leaves (a step of TOL_SCREEN standard errors,
+        # scaled by the misfit) and how the discrepancy term's log-determinant moves with
+        # the model values
+        spread = max(result.chi2_reduced, 1.0) if weighted else result.chi2_reduced
+        slack = TOL_SCREEN**2 * max(len(result.stderr), 1) * spread
+        logdet = _logdet_change(result, data, delta * scale) if weighted else 0.0
+        lower, upper = measured_interval(r, delta, moved, weighted, slack + abs(logdet))
         return bic + lower - dev - term, bic + upper - dev + term
     f = np.abs(data.y - r * scale)
     a = FAST_ERROR * np.maximum(f, 1e-3 * f.max(initial=0.0)) / scale
@@ -118,22 +128,40 @@ def rule_bic(result: FitResult, data, bic: float) -> float | None:
     return None if delta is None else bic + moved(r - delta) - dev
 
 
-def measured_interval(r: np.ndarray, delta: np.ndarray, moved, weighted: bool) -> tuple:
+def _logdet_change(result: FitResult, data, change: np.ndarray) -> float:
+    """How much the deviance's log-determinant (the model-discrepancy term's covariance,
+    which scales with the model values) moves when the quick fit's values move by
+    ``change``: 0 without a term."""
+    values = data.y - np.asarray(result.residuals, dtype=float) * data.sigma
+    zero = dataclasses.replace(result, residuals=(0.0,) * values.size)
+
+    def logdet(f):
+        return deviance(zero, dataclasses.replace(data, y=f))[0]
+
+    return logdet(values + change) - logdet(values)
+
+
+def measured_interval(
+    r: np.ndarray, delta: np.ndarray, moved, weighted: bool, slack: float = 0.0
+) -> tuple:
     """(lower, upper) deviance of the full fit from a converged quick fit's residuals ``r``
     and its rule error ``delta`` (the finer rule's values minus the fast rule's, in the
-    residuals' units); ``moved(residuals)`` is the deviance of other residuals.
+    residuals' units); ``moved(residuals)`` is the deviance of other residuals, ``slack``
+    a further allowance (in sums of squares) below the lower end.
 
     At the quick optimum the finer rule's residuals are r - delta, and their deviance is
     where the full fit starts: the upper end. The quick optimum is stationary for the fast
     rule, so r is orthogonal to the Jacobian's columns; refitting to the finer rule lowers
     the sum of squares by the part of delta in their span, at most |delta|^2 (to first
-    order): the lower end."""
+    order; a discrepancy term's covariance is at least the identity, so also in its
+    metric), below the lower of the two rules' deviances: the lower end."""
     upper = moved(r - delta)
+    width = float(delta @ delta) + slack
     if weighted:
-        return upper - max(moved(delta) - moved(np.zeros_like(delta)), 0.0), upper
-    rss = float((r - delta) @ (r - delta))
+        return min(moved(r), upper) - width, upper
+    rss = min(float((r - delta) @ (r - delta)), float(r @ r))
     n = max(r.size, 1)
-    return n * math.log(max(rss - float(delta @ delta), 1e-300 * n) / n), upper
+    return n * math.log(max(rss - width, 1e-300 * n) / n), upper
 
 
 def survivors(ranking: Ranking, quick: dict, data) -> tuple[list[str], dict]:

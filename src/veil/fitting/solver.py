@@ -370,7 +370,7 @@ def run(
     }
     if screen:
         stats["screen"] = True
-        if check is not None and through_medium:  # none at the fast rule itself
+        if check is not None and through_medium and sol.status > 0:  # 0 at the fast rule
             checked = values if check == ITERATION_ACCURACY else problem.model_values(sol.x, check)
             stats["rule_error"] = {"accuracy": check, "values": (checked - values).tolist()}
     if through_medium:
