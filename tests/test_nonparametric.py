@@ -346,14 +346,28 @@ def test_a_groups_terms_are_remembered_and_give_the_same_values(monkeypatch):
     assert not np.array_equal(first, again)
 
 
-def test_a_quick_fit_measures_its_rule_error_from_its_active_columns(plastic_through_btdf2):
+def test_a_quick_fit_measures_its_rule_error_from_its_active_columns(plastic_through_btdf2,
+                                                                   monkeypatch):
     """The screen's quick fit (fit_target(screen=True)) solves at the "fast" rule and records
     stats["rule_error"]: the family at the "default" rule minus at "fast", with its own
     coefficients, computed from the active columns alone; the same as the whole family
     evaluated at both rules (veil.fitting.screening's interval reads it)."""
+    from veil.fitting.problem import Problem
+
     table, _ = plastic_through_btdf2
+    calls = {"fast": 0, "default": 0}
+    plain = Problem.model_values
+
+    def counted(self, x, accuracy="fast"):
+        calls[accuracy] += 1
+        return plain(self, x, accuracy)
+
+    monkeypatch.setattr(Problem, "model_values", counted)
     quick = fit_target(table, PRESETS["BTDF2"], brdf_model="nonparametric", screen=True)
+    monkeypatch.setattr(Problem, "model_values", plain)
     assert quick.accuracy == "fast"
+    # one column call per coefficient at the fast rule, one per active one at "default"
+    assert calls == {"fast": quick.stats["columns"], "default": quick.stats["active"]}
     measured = quick.stats["rule_error"]
     assert measured["accuracy"] == "default"
     assert quick.stats["active"] < quick.stats["columns"]  # fewer calls than the design's
