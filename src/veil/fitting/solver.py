@@ -317,13 +317,13 @@ def run(
     check: str | None = None,
 ) -> Outcome:
     """Least squares from each natural start vector (best first): all of them when
-    ``every``, else the next only while the fits so far are not convincing; ``more()``
+    ``every``, else the next only while none convinces and no two agree; ``more()``
     gives further starts after ``starts``, asked for only when they are needed (a fit
     continued from a candidate's quick fit: the grid's starts). The best is polished at
     ``accuracy`` when the problem has a medium (module docstring). A ``screen`` runs the
     first start only, at the "fast" quadrature to TOL_SCREEN, unpolished: a candidate's
     quick fit for ranking (:mod:`veil.fitting.screening`); with ``check`` (the rule its full
-    fit would end at) through a medium, its values are evaluated there too, once, and
+    fit would end at) through a medium, a converged one's values are evaluated there once, and
     ``stats["rule_error"]`` holds that rule's values minus the fast rule's."""
     linear_free(problem)
     through_medium = any(b.medium is not None for b in problem.blocks)
