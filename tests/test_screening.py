@@ -89,8 +89,8 @@ def test_the_measured_interval_brackets_the_refit_at_the_finer_rule(seed):
 def test_with_a_discrepancy_term_the_lower_end_allows_for_its_log_determinant():
     """A term's covariance grows with the model values, so a finer rule's larger values
     move the log-determinant too: the lower end allows for that change, and for the descent
-    a quick fit's tolerance leaves (TOL_SCREEN standard errors per parameter, scaled by the
-    misfit), beyond the rule error's |delta|^2."""
+    an iterative quick fit's tolerance leaves (TOL_SCREEN standard errors per parameter,
+    scaled by the misfit), beyond the rule error's |delta|^2."""
     from veil.fitting.model_error import ModelError
     from veil.fitting.solver import TOL_SCREEN
 
@@ -106,7 +106,7 @@ def test_with_a_discrepancy_term_the_lower_end_allows_for_its_log_determinant():
                               stats={"rule_error": {"accuracy": "default",
                                                     "values": e.tolist()}})
     dev, _ = selection.deviance(fit, data)
-    lower, upper = screening.bic_interval(fit, data, dev)
+    upper = screening.bic_interval(fit, data, dev)[1]
     n_term = 2 * math.log(N)
     at_rule = selection.deviance(dataclasses.replace(fit, residuals=tuple(r - e)), data)[0]
     assert upper - n_term == pytest.approx(at_rule)
@@ -116,6 +116,11 @@ def test_with_a_discrepancy_term_the_lower_end_allows_for_its_log_determinant():
               - selection.deviance(zero, dataclasses.replace(data, y=f))[0])
     assert logdet > 0.5  # larger values, a larger covariance
     slack = TOL_SCREEN**2 * len(fit.stderr) * max(fit.chi2_reduced, 1.0)
+    # a linear family's quick fit (no iterations in its stats) is its exact solution: no slack
+    linear_lower = screening.bic_interval(fit, data, dev)[0]
+    assert linear_lower + n_term == pytest.approx(min(dev, at_rule) - float(e @ e) - logdet)
+    iterated = dataclasses.replace(fit, stats=dict(fit.stats, nfev=12))
+    lower, upper = screening.bic_interval(iterated, data, dev)
     width = float(e @ e) + slack + logdet
     assert lower + n_term == pytest.approx(min(dev, at_rule) - width)
 

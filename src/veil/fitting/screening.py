@@ -25,8 +25,8 @@ the full fit only for those that could still be chosen.
   the rule error in the residuals' metric, to first order, since the quick optimum's
   residuals are orthogonal to the Jacobian (the lower end; :func:`measured_interval`; for
   a linear family to the extent of its penalty and bounds). The lower end also allows for
-  the descent the quick fit's tolerance leaves (TOL_SCREEN standard errors per parameter,
-  scaled by the misfit) and for the change of a discrepancy term's log-determinant with
+  the descent an iterative quick fit's tolerance leaves (TOL_SCREEN standard errors per
+  parameter, scaled by the misfit; a linear family's quick fit is exact at its rule) and for the change of a discrepancy term's log-determinant with
   the model values. A full fit at the fast rule
   itself has no rule error, only the quick fit's tolerance, which the margin covers.
   Without that measurement (an unconverged quick fit) every value
@@ -105,11 +105,12 @@ def bic_interval(result: FitResult, data, bic: float) -> tuple[float, float]:
     r, scale, weighted, dev, moved, delta = _measured(result, data)
     term = 2.0 * math.log(max(r.size, 1)) if weighted else 0.0
     if delta is not None:
-        # the descent a quick fit's tolerance leaves (a step of TOL_SCREEN standard errors,
-        # scaled by the misfit) and how the discrepancy term's log-determinant moves with
-        # the model values
+        # the descent an iterative quick fit's tolerance leaves (a step of TOL_SCREEN
+        # standard errors, scaled by the misfit; a linear family's is its exact solution)
+        # and how the discrepancy term's log-determinant moves with the model values
         spread = max(result.chi2_reduced, 1.0) if weighted else result.chi2_reduced
-        slack = TOL_SCREEN**2 * max(len(result.stderr), 1) * spread
+        iterative = "nfev" in result.stats
+        slack = TOL_SCREEN**2 * max(len(result.stderr), 1) * spread if iterative else 0.0
         logdet = _logdet_change(result, data, delta * scale) if weighted else 0.0
         lower, upper = measured_interval(r, delta, moved, weighted, slack + abs(logdet))
         return bic + lower - dev - term, bic + upper - dev + term
