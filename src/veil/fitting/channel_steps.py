@@ -317,8 +317,7 @@ def fit_through(
     docstring; docs/model.md sec. 7); ``given`` the reference (a fit or a BRDF) or the
     medium held fixed; ``screen`` as :func:`veil.fitting.step_fit.fit_step`, ``start`` a fit
     of the same model over the same channels to continue from (as its ``start``)."""
-    check = accuracy if screen else None  # the rule a quick fit's error is measured at
-    accuracy, propagation = (ITERATION_ACCURACY, "off") if screen else (accuracy, propagation)
+    propagation = "off" if screen else propagation  # (a screen's rules: solver.run)
     cls = type(fitted)
     what = "medium" if step == "medium" else "target"
     problem, layout, g_models = through_problem(
@@ -326,7 +325,7 @@ def fit_through(
     )
     linear_free(problem)
     problem.blocks[0].model(ITERATION_ACCURACY).prepare(values=True, jacobians=[(cls.KIND,)])
-    kw = dict(accuracy=accuracy, max_nfev=max_nfev, progress=progress, screen=screen, check=check)
+    kw = dict(accuracy=accuracy, max_nfev=max_nfev, progress=progress, screen=screen)
     outcome, n_grid = _run_through(problem, cls, what, starts, start, kw)
     summary = summarize(problem, outcome)
     x = outcome.solution.x

@@ -133,9 +133,8 @@ def _solve(
     """The joint problem solved from its starts, its uncertainties reported (the given
     reference's covariance to first order, the media's as ``propagation`` says); a
     ``screen`` is a quick fit (:func:`veil.fitting.solver.run`), nothing propagated."""
-    check = accuracy if screen else None  # the rule a quick fit's error is measured at
-    if screen:
-        accuracy, propagation = ITERATION_ACCURACY, "off"
+    if screen:  # iterated at the fast rule, its error measured at accuracy (solver.run)
+        propagation = "off"
     given_result = (
         reference
         if not screen
@@ -147,7 +146,7 @@ def _solve(
     ref_names = reference_names(layout, reference)
     ref_cols = [] if given_result is None else [index[ref_names[n]] for n in given_result.free]
     linear_free(problem)
-    _prepare_engines(problem, ref_cols, check or accuracy)
+    _prepare_engines(problem, ref_cols, accuracy)
     resumed = start if isinstance(start, JointResult) else None
     models = None if resumed is not None else start
 
@@ -164,7 +163,7 @@ def _solve(
     # grid's starts only when that run does not convince
     first = None if resumed is None else start_vector(problem, resumed.params, "the start")
     ran_best = resumed is not None and began_at_grid(resumed)
-    kw = dict(accuracy=accuracy, max_nfev=max_nfev, progress=progress, screen=screen, check=check)
+    kw = dict(accuracy=accuracy, max_nfev=max_nfev, progress=progress, screen=screen)
     outcome = run_from(problem, first, ran_best, grid, **kw)
     summary = summarize(problem, outcome)
     given = reference_entry(reference, layout)
@@ -180,7 +179,9 @@ def _solve(
         floor=_floor(problem, layout),
     )
     rep = _media_beyond_first_order(problem, outcome.solution.x, rep, propagation)
-    return _result(problem, layout, outcome, summary, accuracy, given, rep)
+    return _result(
+        problem, layout, outcome, summary, ITERATION_ACCURACY if screen else accuracy, given, rep
+    )
 
 
 def fit_joint(

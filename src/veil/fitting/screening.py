@@ -17,19 +17,18 @@ the full fit only for those that could still be chosen.
   bit; after a polish at a finer rule, within a fraction of a standard error (up to 0.23
   of tau's for m05's light-side weights, whose fast-rule cost is flat to 1e-4 along the
   tau-g valley, so the polish's frozen Jacobian is taken at another point of it).
-- **Its BIC's interval**: a quick fit through a medium also evaluates its model once at
-  the rule its full fit ends at (``stats["rule_error"]``, :func:`veil.fitting.solver.run`;
-  a linear family from its active columns, :func:`veil.fitting.linear_fit.rule_error`).
-  That gives the deviance at the quick optimum under the finer rule, where the full fit
-  starts (the upper end), and how far refitting can lower it: at most the squared norm of
-  the rule error in the residuals' metric, to first order, since the quick optimum's
-  residuals are orthogonal to the Jacobian (the lower end; :func:`measured_interval`; for
-  a linear family to the extent of its penalty and bounds). The lower end also allows for
-  the descent an iterative quick fit's tolerance leaves (TOL_SCREEN standard errors per
-  parameter, scaled by the misfit; a linear family's quick fit is exact at its rule) and for the change of a discrepancy term's log-determinant with
-  the model values. A full fit at the fast rule
-  itself has no rule error, only the quick fit's tolerance, which the margin covers.
-  Without that measurement (an unconverged quick fit) every value
+- **Its BIC's interval**: a quick fit through a medium also evaluates its model once at the
+  rule its full fit ends at (``stats["rule_error"]``, :func:`veil.fitting.solver.run`; a
+  linear family from its active columns, :func:`veil.fitting.linear_fit.rule_error`). That
+  gives the deviance at the quick optimum under the finer rule, where the full fit starts
+  (the upper end), and how far refitting can lower it: at most the squared norm of the rule
+  error in the residuals' metric, to first order, since the quick optimum's residuals are
+  orthogonal to the Jacobian (the lower end; :func:`measured_interval`; for a linear family
+  to the extent of its penalty and bounds). The lower end also allows for the descent an
+  iterative quick fit's tolerance leaves (TOL_SCREEN standard errors per parameter, scaled
+  by the misfit; a linear family's quick fit is exact at its rule) and for the change of a
+  discrepancy term's log-determinant with the model values. A full fit at the fast rule
+  itself has no rule error. Without that measurement (an unconverged quick fit) every value
   may be off by :data:`FAST_ERROR` of itself: the fast quadrature is within that of a
   converged integral at every configuration of every parametric family pair (measured at
   most 7.2e-3 against "high" and 8.9e-3 against "default", rough conductor through the

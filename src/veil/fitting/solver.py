@@ -314,7 +314,6 @@ def run(
     every: bool = False,
     screen: bool = False,
     more: Callable[[], list] | None = None,
-    check: str | None = None,
 ) -> Outcome:
     """Least squares from each natural start vector (best first): all of them when
     ``every``, else the next only while none convinces and no two agree; ``more()``
@@ -322,12 +321,13 @@ def run(
     continued from a candidate's quick fit: the grid's starts). The best is polished at
     ``accuracy`` when the problem has a medium (module docstring). A ``screen`` runs the
     first start only, at the "fast" quadrature to TOL_SCREEN, unpolished: a candidate's
-    quick fit for ranking (:mod:`veil.fitting.screening`); with ``check`` (the rule its full
-    fit would end at) through a medium, a converged one's values are evaluated there once, and
+    quick fit for ranking (:mod:`veil.fitting.screening`); through a medium a converged one's
+    values are then evaluated once at ``accuracy`` (the rule its full fit would end at), and
     ``stats["rule_error"]`` holds that rule's values minus the fast rule's."""
     linear_free(problem)
     through_medium = any(b.medium is not None for b in problem.blocks)
     starts = list(starts)
+    check = accuracy  # a screen's rule error is measured at the rule asked for
     if screen:  # the first start only
         if not starts and more is not None:
             starts = list(more())
@@ -370,7 +370,7 @@ def run(
     }
     if screen:
         stats["screen"] = True
-        if check is not None and through_medium and sol.status > 0:  # 0 at the fast rule
+        if through_medium and sol.status > 0:  # 0 at the fast rule
             checked = values if check == ITERATION_ACCURACY else problem.model_values(sol.x, check)
             stats["rule_error"] = {"accuracy": check, "values": (checked - values).tolist()}
     if through_medium:

@@ -248,9 +248,8 @@ def fit_step(
     ``start`` ({name: value} of the fitted model) runs first, the grid only when it does not
     convince, without its best start when ``start_ran_best`` (the start is a fit that began
     there: a candidate's fit continued from its quick fit, :mod:`veil.fitting.screening`)."""
-    check = accuracy if screen else None  # the rule a quick fit's error is measured at
-    if screen:
-        accuracy, propagation = ITERATION_ACCURACY, "off"
+    if screen:  # iterated at the fast rule, its error measured at accuracy (solver.run)
+        propagation = "off"
     cls = type(fitted)
     brdf, medium = (given, fitted) if cls.KIND == "medium" else (fitted, given)
     what = WHAT[step]
@@ -263,17 +262,17 @@ def fit_step(
             fitted,
             given,
             given_result,
-            accuracy=check or accuracy,
+            accuracy=accuracy,
             propagation=propagation,
             model_error=model_error,
             progress=progress,
             screen=screen,
         )
     if medium is not None:
-        _prepare_engine(problem, cls, given, given_result, check or accuracy, propagation)
+        _prepare_engine(problem, cls, given, given_result, accuracy, propagation)
     from_grid, grid = _step_grid(problem, cls, step, progress)
     first = None if start is None else _start_vector(problem, cls, start)
-    kw = dict(accuracy=accuracy, max_nfev=max_nfev, progress=progress, screen=screen, check=check)
+    kw = dict(accuracy=accuracy, max_nfev=max_nfev, progress=progress, screen=screen)
     outcome = run_from(problem, first, start_ran_best, from_grid, every=medium is None, **kw)
     n_grid = grid["points"]
     summary = summarize(problem, outcome)
