@@ -209,6 +209,9 @@ def test_cli_joint_not_converged_says_so(tables, tmp_path):
     data = json.loads(out.read_text())
     assert data["converged"] is False and data["message"].startswith("did not converge")
     assert math.isfinite(data["params"]["n"])
+    # no sigma points about a point that is not an optimum: the first order, said so
+    how = data["stats"]["propagation"]
+    assert how["method"] == "linear" and "did not converge" in how["fallback"], how
 
 
 def test_cli_joint_medium_model_auto_ranks_the_media(tables, joint, tmp_path):

@@ -250,21 +250,49 @@ def test_the_reported_curve_errors_match_the_spread_over_noise_draws():
     assert 0.6 < ratio < 1.6, ratio
 
 
-def test_the_medium_fits_covariance_widens_the_estimate():
+def test_the_medium_fits_covariance_widens_the_estimate(monkeypatch):
     """Step 2 through a fitted medium: the medium's covariance is propagated (``stats``
-    says how) and every active coefficient's total error is at least its noise error."""
-    from veil.fitting import fit_medium
+    says how) and every active coefficient's total error is at least its noise error. The
+    coefficients' derivative in the medium's parameters (the engine's Jacobian) agrees with
+    central differences of the values at the same rule."""
+    from veil.fitting import fit_medium, linear_fit
+    from veil.fitting.problem import ITERATION_ACCURACY
 
+    seen = {}
+    exact = linear_fit.given_influence
+
+    def kept(problem, sol, names):
+        seen.update(problem=problem, sol=sol, names=names, out=exact(problem, sol, names))
+        return seen["out"]
+
+    monkeypatch.setattr(linear_fit, "given_influence", kept)
     ref = PRESETS["BRDF2"]
     medium_table = simulate(ref, PRESETS["BTDF2"], noise=0.01, seed=21, glow=0.0)
-    medium = fit_medium(medium_table, ref)
+    medium = fit_medium(medium_table, ref, accuracy="fast")
     brdf = REGISTRY["rough-plastic"](**GGX_PLASTIC)
     table = simulate(brdf, PRESETS["BTDF2"], noise=0.01, seed=3, glow=0.0)
-    res = fit_target(table, medium, brdf_model="nonparametric")
+    res = fit_target(table, medium, brdf_model="nonparametric", accuracy="fast")
     assert res.stats["propagation"]["method"] == "linear"
+    assert "Jacobian" in res.stats["propagation"]["derivatives"]
     active = [n for n, v in res.params.items() if v > 0]
     assert all(res.stderr_total[n] >= res.stderr[n] for n in active)
     assert any(res.stderr_total[n] > 1.05 * res.stderr[n] for n in active)
+    # the influence against central differences (the medium's free parameters, inside)
+    problem, sol = seen["problem"], seen["sol"]
+    x = problem.values.copy()
+    x[[k for k in problem.blocks[0].ib if problem.free[k]]] = sol.c
+    on = sol.c > 0
+    assert seen["out"].shape == (len(sol.c), len(seen["names"])) and not seen["out"][~on].any()
+    for g, name in enumerate(seen["names"]):
+        k = problem.index(name)
+        h = 1e-5 * max(abs(x[k]), 1e-3)
+        up, down = x.copy(), x.copy()
+        up[k], down[k] = x[k] + h, x[k] - h
+        dv = (problem.model_values(up, ITERATION_ACCURACY)
+              - problem.model_values(down, ITERATION_ACCURACY)) / (2 * h)
+        want = -sol.inv @ (sol.xw[:, on].T @ (dv * problem.w))
+        got = seen["out"][on, g]
+        assert np.allclose(got, want, rtol=1e-4, atol=1e-6 * np.abs(want).max()), name
 
 
 def test_through_a_medium_the_family_is_the_sum_of_its_columns():

@@ -179,6 +179,31 @@ def test_an_uncertain_medium_goes_through_sigma_points(chain):
     assert all(np.isfinite(ratios)) and max(abs(r - 1) for r in ratios) > 0.02
 
 
+def test_a_fit_that_did_not_converge_keeps_the_first_order_and_says_so(chain):
+    """The same uncertain medium with the target's fit cut short (max_nfev 1): "auto" makes
+    no refits about a point that is not an optimum; the totals are the first order's and the
+    record and the message say why. Asked for by name, sigma points are still made."""
+    r1, target = chain["r1"], chain["target"]
+    names, cov = r1.covariance(total=False)
+    k = names.index("Tt")
+    factor = 0.5 * r1.params["Tt"] / math.sqrt(cov[k, k])
+    wide = dataclasses.replace(
+        r1, stderr={n: (s * factor if n == "Tt" else s) for n, s in r1.stderr.items()},
+        stderr_total=None, correlation_total=None)
+    short = dict(accuracy="fast", max_nfev=1)
+    auto = fit_target(target, wide, **short)
+    assert not auto.converged
+    how = auto.stats["propagation"]
+    assert how["method"] == "linear" and "did not converge" in how["fallback"]
+    assert how["fallback"] in auto.message and "refits" not in how
+    assert auto.stderr_total == fit_target(target, wide, propagation="linear", **short).stderr_total
+    forced = fit_target(target, wide, propagation="sigma-points", **short)
+    assert forced.stats["propagation"]["method"] == "sigma-points"
+    assert "did not converge" not in forced.stats["propagation"].get("fallback", "")
+    assert how_of("auto", {"tau": 1.8}, converged=False)["method"] == "linear"
+    assert how_of("auto", {"tau": 0.01}, converged=False) == how_of("auto", {"tau": 0.01})
+
+
 def test_command_line_propagation(chain, tmp_path):
     """`veil fit target --propagation`: the choices are the module's, a bad one exits 2
     naming the option, and sigma points are recorded in the JSON and the report."""

@@ -178,7 +178,9 @@ def _solve(
         propagation="linear",  # the reference's covariance, to first order
         floor=_floor(problem, layout),
     )
-    rep = _media_beyond_first_order(problem, outcome.solution.x, rep, propagation)
+    rep = _media_beyond_first_order(
+        problem, outcome.solution.x, rep, propagation, summary.converged
+    )
     return _result(
         problem, layout, outcome, summary, ITERATION_ACCURACY if screen else accuracy, given, rep
     )
@@ -266,7 +268,9 @@ def fit_joint(
     return _solve(problem, layout, reference, start, *how)
 
 
-def _media_beyond_first_order(problem: Problem, x, rep: Reported, method: str) -> Reported:
+def _media_beyond_first_order(
+    problem: Problem, x, rep: Reported, method: str, converged: bool = True
+) -> Reported:
     """``rep`` with the objects' block of its total covariance (its own without a total)
     carrying the media's uncertainty through sigma points where :func:`media_part` says so;
     the media's block and the cross terms stay. When the result would not be a covariance
@@ -279,7 +283,7 @@ def _media_beyond_first_order(problem: Problem, x, rep: Reported, method: str) -
     cov = covariance_matrix(se, corr, problem.free_names)
     if cov is None:
         return rep
-    cols_o, delta, how = media_part(problem, x, cov, method)
+    cols_o, delta, how = media_part(problem, x, cov, method, converged)
     if how is None:
         return rep
     if rep.propagation is not None:

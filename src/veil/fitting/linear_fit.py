@@ -14,9 +14,10 @@ non-negative, regularized least-squares problem (docs/nonparametric.md).
 - **Uncertainty**: the penalized estimator's sandwich covariance on the active set, scaled by
   the reduced chi-square when it exceeds 1 (the family's own misfit, and the scale of
   unweighted data); coefficients at 0 are held at the bound (reported as fixed there). A
-  given fit's covariance is propagated to first order by central differences of the
-  family's values (one-sided at a bound). A fixed coefficient's part of the values and of
-  the penalty moves to the right-hand side.
+  given fit's covariance is propagated to first order through the engine's exact
+  derivative of the family's values in the given parameters, at the iterations' rule, as a
+  parametric family's (:mod:`veil.fitting.propagation`). A fixed coefficient's part of the
+  values and of the penalty moves to the right-hand side.
 """
 
 from __future__ import annotations
@@ -35,8 +36,6 @@ from .solver import goodness, uncertainties
 
 #: The smoothness weights tried, relative to trace(X'WX) / trace(D'D).
 LAMBDAS = tuple(10.0 ** (k / 4.0) for k in range(-40, 9))
-#: Relative step of the central differences that propagate a given fit's covariance.
-DIFF_STEP = 1e-4
 
 
 @dataclass(frozen=True)
@@ -198,40 +197,27 @@ def solve(problem: Problem, accuracy: str, d: np.ndarray, progress=None) -> Line
     return LinearSolution(c, lam, dof, gcv, cov, values, res, xw, d, inv)
 
 
-def given_influence(
-    problem: Problem, sol: LinearSolution, names: list[str], accuracy: str
-) -> np.ndarray:
+def given_influence(problem: Problem, sol: LinearSolution, names: list[str]) -> np.ndarray:
     """d c / d (given parameters ``names``) (F, G) on the active set, the solution held at
     its active set: -(X'WX + lam D'D)^-1 X'W^2 (d values / d given) (the Gauss-Newton
-    form: the term in d X / d given times the residuals is left out), the derivative by
-    central differences of the values program, one-sided at a parameter's bound."""
+    form: the term in d X / d given times the residuals is left out), d values / d given
+    the engine's Jacobian at the iterations' rule (one pass over the active groups)."""
     block = problem.blocks[0]
-    ib = np.asarray(block.ib)
-    free = [k for k in ib if problem.free[k]]
+    free = [k for k in np.asarray(block.ib) if problem.free[k]]
     x = problem.values.copy()
     x[free] = sol.c
-    w = problem.w
     active = sol.c > 0
     out = np.zeros((len(sol.c), len(names)))
     if sol.inv is None:
         return out
-    inv = sol.inv
-    for g, name in enumerate(names):
-        k = problem.index(name)
-        spec = problem.params[k].spec
-        h = DIFF_STEP * max(abs(x[k]), 1e-3)
-        up, down = x.copy(), x.copy()
-        up[k] = x[k] + h if spec.contains(x[k] + h) else x[k]
-        down[k] = x[k] - h if spec.contains(x[k] - h) else x[k]
-        step = up[k] - down[k]
-        dv = (problem.model_values(up, accuracy) - problem.model_values(down, accuracy)) / step
-        out[active, g] = -inv @ (sol.xw[:, active].T @ (dv * w))
+    cols = [problem.index(name) for name in names]
+    _, full = problem.value_and_jacobian(x, ITERATION_ACCURACY, cols)
+    dv = full[:, cols] * problem.w[:, None]
+    out[active] = -sol.inv @ (sol.xw[:, active].T @ dv)
     return out
 
 
-def _given_total(
-    problem, sol, given_result, accuracy, propagation
-) -> tuple[np.ndarray | None, dict]:
+def _given_total(problem, sol, given_result, propagation) -> tuple[np.ndarray | None, dict]:
     """(the covariance with the given fit's propagated, stats on how) or (None, {})."""
     if given_result is None or propagation == "off" or not (sol.c > 0).any():
         return None, {}
@@ -241,12 +227,11 @@ def _given_total(
     names, cov_given = got
     given_cls = type(given_result.one_model())
     keys = [given_cls.param(n).key for n in names]
-    infl = given_influence(problem, sol, keys, accuracy)
+    infl = given_influence(problem, sol, keys)
     how = {
         "method": "linear",
         "asked": propagation,
-        "derivatives": "central differences (one-sided at a bound)",
-        "step": DIFF_STEP,
+        "derivatives": f"the engine's Jacobian at the {ITERATION_ACCURACY!r} rule",
     }
     return sol.cov + infl @ np.asarray(cov_given) @ infl.T, how
 
@@ -306,9 +291,7 @@ def fit_linear(
     res, _, rms = goodness(problem.y, problem.w, sol.values, 0)
     chi2 = float(res @ res) / max(problem.n_points - sol.dof, 1.0)
     stderr, corr = uncertainties(sol.cov[np.ix_(keep, keep)], names, reported)
-    total, how = (
-        (None, {}) if screen else _given_total(problem, sol, given_result, accuracy, propagation)
-    )
+    total, how = (None, {}) if screen else _given_total(problem, sol, given_result, propagation)
     se_total, corr_total = (
         (None, None) if total is None else uncertainties(total[np.ix_(keep, keep)], names, reported)
     )

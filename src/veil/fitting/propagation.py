@@ -150,11 +150,19 @@ def choose(method: str, relative: dict) -> str:
     return "sigma-points" if RELATIVE_LIMIT < _worst(relative) <= RELATIVE_MAX else "linear"
 
 
-def how_of(method: str, relative: dict) -> dict:
+def how_of(method: str, relative: dict, converged: bool = True) -> dict:
     """The record of a propagation: the chosen method, the relative uncertainties, the
-    limit, and a note when "auto" kept the first order for an undetermined parameter."""
+    limit, and a note when "auto" kept the first order for an undetermined parameter or
+    for a fit that did not ``converge`` (sigma points refit about an optimum it lacks)."""
     chosen = choose(method, relative)
     how = {"method": chosen, "relative_uncertainty": relative, "limit": RELATIVE_LIMIT}
+    if method == "auto" and not converged and chosen == "sigma-points":
+        how["method"] = "linear"
+        how["fallback"] = (
+            "the fit did not converge: the uncertainty propagated to first order "
+            "(sigma points refit about an optimum), which is then only indicative"
+        )
+        return how
     if method == "auto" and _worst(relative) > RELATIVE_MAX:
         worst = max(relative, key=lambda n: math.inf if relative[n] is None else relative[n])
         size = (
@@ -331,12 +339,18 @@ def _refitted(problem: Problem, x, cols, specs, cov, how: dict):
 
 
 def propagated(
-    problem: Problem, x, given_result, column: Callable[[str], int], method: str = "auto"
+    problem: Problem,
+    x,
+    given_result,
+    column: Callable[[str], int],
+    method: str = "auto",
+    converged: bool = True,
 ) -> tuple[np.ndarray | None, dict | None]:
     """(part, how): the covariance that ``given_result``'s (total) covariance adds to the free
     parameters of the fit at natural ``x``, linearly or through sigma points (``method``;
     "auto" chooses by the given parameters' relative uncertainty); ``column`` maps a name of
-    the given result to its index in the problem. ``how`` records the method, the relative
+    the given result to its index in the problem; a fit that did not ``converge`` keeps the
+    first order under "auto" (:func:`how_of`). ``how`` records the method, the relative
     uncertainties and, for sigma points, the refits. (None, None) when the given result has
     no covariance, or with ``method`` "off" (the totals are then not reported: the ranking of
     candidates, whose estimates, chi-square and BIC the given covariance does not move)."""
@@ -350,7 +364,7 @@ def propagated(
     # per channel, Td[r]; docs/channels.md)
     specs = [problem.params[c].spec for c in cols]
     relative = relative_uncertainty(specs, [x[c] for c in cols], gcov)
-    how = how_of(method, relative)
+    how = how_of(method, relative, converged)
     refits = None if how["method"] == "linear" else _refitted(problem, x, cols, specs, gcov, how)
     if refits is None:
         return linear_part(problem, x, cols, gcov), how
@@ -358,7 +372,7 @@ def propagated(
 
 
 def media_part(
-    problem: Problem, x, cov, method: str = "auto"
+    problem: Problem, x, cov, method: str = "auto", converged: bool = True
 ) -> tuple[list[int], np.ndarray | None, dict | None]:
     """A joint fit's counterpart of sigma points (it estimates the media with the objects):
     by the law of total covariance, E[Cov(o | m)] + Cov(E[o | m]), the media's share of the
@@ -368,7 +382,8 @@ def media_part(
     reference's propagated part - kept as it is). Returns (object columns, delta = sigma part -
     A C_mm A^T, how); delta is None when "auto" (``method``) keeps the first order or
     there is nothing to do (no media or no objects free); how None then too when nothing,
-    and with ``method`` "off" (the first order, which the joint covariance holds, kept)."""
+    and with ``method`` "off" (the first order, which the joint covariance holds, kept). A
+    fit that did not ``converge`` keeps the first order under "auto" (:func:`how_of`)."""
     free = [int(k) for k in problem.free_index]
     cols_m = [k for k in free if problem.params[k].kind == "medium"]
     cols_o = [k for k in free if problem.params[k].kind != "medium"]
@@ -379,7 +394,7 @@ def media_part(
     cmm = np.asarray(cov, dtype=float)[np.ix_(jm, jm)]
     specs = [problem.params[k].spec for k in cols_m]
     relative = relative_uncertainty(specs, x[cols_m], cmm, [problem.names[k] for k in cols_m])
-    how = how_of(method, relative)
+    how = how_of(method, relative, converged)
     if how["method"] == "linear":
         return cols_o, None, how
     cond = problem.with_fixed({problem.names[k]: float(x[k]) for k in cols_m})

@@ -154,7 +154,7 @@ def reported(
     (:func:`veil.fitting.shared_error.shared`). ``floor`` is the fit's models' declared
     error (:func:`model_floor`): the least term of a weighted fit whose ``kind`` is not
     "off" and whose covariance is determined."""
-    totals = _Totals(problem, x, rename, given_column, propagation)
+    totals = _Totals(problem, x, rename, given_column, propagation, summary.converged)
     cov = summary.covariance
     stderr, corr = rename(summary.stderr, summary.correlation)
     # the given fit without any model-discrepancy term (its own or inherited): "off" reports
@@ -208,6 +208,7 @@ class _Totals:
     rename: Callable
     given_column: Callable[[str], int] | None
     propagation: str
+    converged: bool = True
     parts: dict = field(default_factory=dict)
 
     def named(self, c) -> tuple:
@@ -226,7 +227,12 @@ class _Totals:
         if id(given_res) not in self.parts:
             assert self.given_column is not None  # a given fit comes with its columns
             self.parts[id(given_res)] = propagated(
-                self.problem, self.x, given_res, self.given_column, self.propagation
+                self.problem,
+                self.x,
+                given_res,
+                self.given_column,
+                self.propagation,
+                self.converged,
             )
         part, how = self.parts[id(given_res)]
         if part is None:
