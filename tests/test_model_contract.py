@@ -545,12 +545,22 @@ def _mc_apparent(brdf, medium, ti, tr, n=1 << 17, seed=7):
     from its lobe and R' its mirror about a half vector from the facet law; and the reverse.
     The value uses only the models' ``evaluate`` (checked above against docs/model.md); the
     sampling maps only move samples. Returns (values, standard errors)."""
+    import jax
+
     from veil.engine.angles import direction
 
     rng = np.random.default_rng(seed)
     vm = np.asarray(medium.to_vector())
     vb = np.asarray(brdf.to_vector())
     top = float(brdf.facet_cdf(vb, math.pi / 2))
+    # the models' own functions, each compiled once for the samples' shape (evaluated op by
+    # op they compile every primitive for every shape: most of the test's time)
+    phase = jax.jit(lambda omm: medium.phase(vm, omm))
+    phase_inverse = jax.jit(lambda u: medium.phase_inverse_cone_fraction(vm, u))
+    facet_inverse = jax.jit(lambda y: brdf.facet_inverse_cdf(vb, y))
+    facet_weight = jax.jit(lambda alpha: brdf.facet_weight(vb, alpha))
+    f_t = jax.jit(lambda w_in, w_out: medium.evaluate(vm, w_in, w_out))
+    f_r = jax.jit(lambda w_in, w_out: brdf.evaluate(vb, w_in, w_out))
 
     def frame(c):
         t1 = np.cross(c, [0.0, 1.0, 0.0])
@@ -564,16 +574,16 @@ def _mc_apparent(brdf, medium, ti, tr, n=1 << 17, seed=7):
                                                       + np.sin(beta)[:, None] * t2)
 
     def q(c, d):  # mixture density: half lobe about c, half uniform on the sphere
-        return 0.5 * np.asarray(medium.phase(vm, 1.0 - d @ c)) + 0.5 / (4 * math.pi)
+        return 0.5 * np.asarray(phase(1.0 - d @ c)) + 0.5 / (4 * math.pi)
 
     def draw(c, k):
         lobe = rng.random(k) < 0.5
-        omm = np.where(lobe, np.asarray(medium.phase_inverse_cone_fraction(vm, rng.random(k))),
+        omm = np.where(lobe, np.asarray(phase_inverse(rng.random(k))),
                        2.0 * rng.random(k))
         return from_axis(c, omm, 2 * math.pi * rng.random(k))
 
     def facet(k):
-        alpha = np.asarray(brdf.facet_inverse_cdf(vb, rng.random(k) * top))
+        alpha = np.asarray(facet_inverse(rng.random(k) * top))
         phi = 2 * math.pi * rng.random(k)
         h = np.stack([np.sin(alpha) * np.cos(phi), np.sin(alpha) * np.sin(phi),
                       np.cos(alpha)], axis=1)
@@ -581,7 +591,7 @@ def _mc_apparent(brdf, medium, ti, tr, n=1 << 17, seed=7):
 
     def f_h(h):
         alpha = np.arccos(np.clip(h[:, 2], -1, 1))
-        return np.asarray(brdf.facet_weight(vb, alpha)) / top
+        return np.asarray(facet_weight(alpha)) / top
 
     def reflect(d, h):
         return 2 * np.sum(d * h, axis=1)[:, None] * h - d
@@ -605,9 +615,9 @@ def _mc_apparent(brdf, medium, ti, tr, n=1 << 17, seed=7):
             pb = q(a, i2) * fh / (4 * c)
             pc = q(b, r2) * fh / (4 * c)
             ok = (i2[:, 2] > 0) & (r2[:, 2] > 0)
-            fti = np.asarray(medium.evaluate(vm, np.broadcast_to(a, i2.shape), i2))
-            ftr = np.asarray(medium.evaluate(vm, r2, np.broadcast_to(b, r2.shape)))
-            fr = np.asarray(brdf.evaluate(vb, i2, r2))
+            fti = np.asarray(f_t(np.broadcast_to(a, i2.shape), i2))
+            ftr = np.asarray(f_t(r2, np.broadcast_to(b, r2.shape)))
+            fr = np.asarray(f_r(i2, r2))
             samples.append(np.where(ok, fti * fr * ftr / (pa + pb + pc), 0.0))
         x = np.concatenate(samples) * 3  # each strategy holds a third of the samples
         out.append(x.mean())
