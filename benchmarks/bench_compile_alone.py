@@ -5,8 +5,9 @@ compile at once beside the fits: there a program's seconds are its share of two 
 This benchmark asks what one program costs by itself. For each family pair, in a fresh
 process with no program store (``VEIL_CACHE_DIR=off``), it builds the programs the pipeline
 uses on the m05 session's first 64 configurations, the chunk a fit's engine calls are
-made of (the medium's at the validation set-up's geometry) and, one after the other with nothing else running, traces and lowers each
-(StableHLO lines), compiles it (wall and CPU seconds) and runs it (median of 5 calls).
+made of (the medium's at the validation set-up's geometry) and, one after the other with
+nothing else running, traces and lowers each (StableHLO lines), compiles it (wall and CPU
+seconds) and runs it (median of 5 calls).
 
     .venv/bin/python benchmarks/bench_compile_alone.py                  # every pair
     .venv/bin/python benchmarks/bench_compile_alone.py --pairs rough-plastic:forward-series
