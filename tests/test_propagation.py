@@ -159,16 +159,20 @@ def test_sigma_points_agree_with_the_first_order_where_it_holds(chain):
     assert back.stderr_total == forced.stderr_total
 
 
-def test_an_uncertain_medium_goes_through_sigma_points(chain):
-    """A medium result whose Tt is uncertain by half its value: "auto" refits at the sigma
-    points, and the target's totals differ from the first order's."""
-    r1, target = chain["r1"], chain["target"]
+def _uncertain_tt(r1):
+    """The medium result ``r1`` with Tt uncertain by half its value."""
     names, cov = r1.covariance(total=False)
     k = names.index("Tt")
     factor = 0.5 * r1.params["Tt"] / math.sqrt(cov[k, k])
-    wide = dataclasses.replace(
+    return dataclasses.replace(
         r1, stderr={n: (s * factor if n == "Tt" else s) for n, s in r1.stderr.items()},
         stderr_total=None, correlation_total=None)
+
+
+def test_an_uncertain_medium_goes_through_sigma_points(chain):
+    """A medium result whose Tt is uncertain by half its value: "auto" refits at the sigma
+    points, and the target's totals differ from the first order's."""
+    target, wide = chain["target"], _uncertain_tt(chain["r1"])
     auto = fit_target(target, wide, accuracy="fast")
     lin = fit_target(target, wide, accuracy="fast", propagation="linear")
     assert auto.stats["propagation"]["method"] == "sigma-points"
@@ -183,13 +187,7 @@ def test_a_fit_that_did_not_converge_keeps_the_first_order_and_says_so(chain):
     """The same uncertain medium with the target's fit cut short (max_nfev 1): "auto" makes
     no refits about a point that is not an optimum; the totals are the first order's and the
     record and the message say why. Asked for by name, sigma points are still made."""
-    r1, target = chain["r1"], chain["target"]
-    names, cov = r1.covariance(total=False)
-    k = names.index("Tt")
-    factor = 0.5 * r1.params["Tt"] / math.sqrt(cov[k, k])
-    wide = dataclasses.replace(
-        r1, stderr={n: (s * factor if n == "Tt" else s) for n, s in r1.stderr.items()},
-        stderr_total=None, correlation_total=None)
+    target, wide = chain["target"], _uncertain_tt(chain["r1"])
     short = dict(accuracy="fast", max_nfev=1)
     auto = fit_target(target, wide, **short)
     assert not auto.converged
