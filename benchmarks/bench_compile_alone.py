@@ -72,10 +72,12 @@ def _programs(brdf_name: str, medium_name: str) -> list:
 
 def measure_pair(brdf_name: str, medium_name: str) -> list[dict]:
     """Run in a fresh process (``--one``): each program traced, lowered, compiled, run."""
-    import jax
     import numpy as np
 
+    from veil._jax import jax  # first: veil sets up JAX's devices (one per core) as commands do
     from veil.engine.programs import _OWN_KEY
+
+    print(f"{jax.device_count()} devices", file=sys.stderr)
 
     rows = []
     for label, program, args in _programs(brdf_name, medium_name):

@@ -211,7 +211,7 @@ def test_cli_joint_not_converged_says_so(tables, tmp_path):
     assert math.isfinite(data["params"]["n"])
     # no sigma points about a point that is not an optimum: the first order, said so
     how = data["stats"]["propagation"]
-    assert how["method"] == "linear" and "did not converge" in how["fallback"], how
+    assert how["method"] == "linear" and "optimum the fit has not reached" in how["fallback"], how
 
 
 def test_cli_joint_medium_model_auto_ranks_the_media(tables, joint, tmp_path):

@@ -217,8 +217,8 @@ def test_iterative_fits_and_maps_refuse_it_with_a_clear_error():
 
 def test_warmup_prepares_the_column_programs_not_jacobians_in_55_coefficients():
     """``veil warmup`` for the family: what its step fits run (the column model's values at
-    the iteration and reported rules) and ``veil eval``; no Jacobian in its 55 coefficients,
-    which no fit takes."""
+    the iteration and reported rules, its derivative in the medium's parameters) and ``veil
+    eval``; no Jacobian in its 55 coefficients, which no fit takes."""
     from veil.engine.warmup import tasks
 
     labels = [t.label for t in tasks(["nonparametric"], ("fast", "default"))]
@@ -226,6 +226,7 @@ def test_warmup_prepares_the_column_programs_not_jacobians_in_55_coefficients():
         "nonparametric: f_r and its Jacobian (fit step 0)",
         "nonparametric x henyey-greenstein: step fit columns (fast)",
         "nonparametric x henyey-greenstein: step fit columns (default)",
+        "nonparametric x henyey-greenstein: the medium's covariance propagated",
         "nonparametric x henyey-greenstein: veil eval (fast, with its error estimate)",
         "nonparametric x henyey-greenstein: veil eval (default, with its error estimate)",
     ]
@@ -251,10 +252,11 @@ def test_the_reported_curve_errors_match_the_spread_over_noise_draws():
 
 
 def test_the_medium_fits_covariance_widens_the_estimate(monkeypatch):
-    """Step 2 through a fitted medium: the medium's covariance is propagated (``stats``
-    says how) and every active coefficient's total error is at least its noise error. The
-    coefficients' derivative in the medium's parameters (the engine's Jacobian) agrees with
-    central differences of the values at the same rule."""
+    """Step 2 through a fitted medium, at the default rule: the medium's covariance is
+    propagated (``stats`` says how) and every active coefficient's total error is at least
+    its noise error. The coefficients' derivative in the medium's parameters (the engine's
+    Jacobian at the iterations' rule, with the design at the fit's) agrees with central
+    differences of the values at that rule."""
     from veil.fitting import fit_medium, linear_fit
     from veil.fitting.problem import ITERATION_ACCURACY
 
@@ -271,7 +273,7 @@ def test_the_medium_fits_covariance_widens_the_estimate(monkeypatch):
     medium = fit_medium(medium_table, ref, accuracy="fast")
     brdf = REGISTRY["rough-plastic"](**GGX_PLASTIC)
     table = simulate(brdf, PRESETS["BTDF2"], noise=0.01, seed=3, glow=0.0)
-    res = fit_target(table, medium, brdf_model="nonparametric", accuracy="fast")
+    res = fit_target(table, medium, brdf_model="nonparametric")
     assert res.stats["propagation"]["method"] == "linear"
     assert "Jacobian" in res.stats["propagation"]["derivatives"]
     active = [n for n, v in res.params.items() if v > 0]

@@ -172,8 +172,9 @@ propagation_option = click.option(
     "standard errors: 'linear' (first order), 'sigma-points' (the fit repeated at 2n "
     "points of that covariance, in coordinates where it is relative), 'auto' the latter "
     "where a parameter is uncertain by more than 0.25 of its scale (tau at optical "
-    "depth 0.1) and at most 3 (beyond, it is not determined: first order, noted; "
-    "docs/fitting.md); 'off' reports the fit's own standard errors only, faster.",
+    "depth 0.1) and at most 3 (beyond, it is not determined: first order, noted; so too "
+    "for a fit that did not converge; docs/fitting.md); 'off' reports the fit's own "
+    "standard errors only, faster.",
 )
 
 

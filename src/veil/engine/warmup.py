@@ -73,14 +73,27 @@ def _direct(brdf):
     return run
 
 
+def _medium_jacobian(brdf, medium):
+    def run():
+        model = ApparentModel(brdf, medium, _angles(CHUNK), RULES[ITERATION])
+        model.prepare(values=False, jacobians=[("medium",)])
+        model.value_and_jacobian(brdf.to_vector(), medium.to_vector(), ("medium",))
+
+    return run
+
+
 def _linear_tasks(brdf, medium, pair: str, accuracies) -> list[Task]:
     """A linear family's programs through ``medium``: its column model's values at the
-    iteration rule (a candidate's quick fit) and each reported rule (its step fit), and
-    ``veil eval`` of the family itself."""
+    iteration rule (a candidate's quick fit) and each reported rule (its step fit), its
+    derivative in the medium's parameters (the medium's covariance propagated), and ``veil
+    eval`` of the family itself."""
     column = type(brdf).columns()[0].template()
     out = []
     for acc in dict.fromkeys((ITERATION, *accuracies)):
         out.append(Task(f"{pair}: step fit columns ({acc})", _fits(column, medium, acc, False)))
+    out.append(
+        Task(f"{pair}: the medium's covariance propagated", _medium_jacobian(column, medium))
+    )
     for acc in accuracies:
         out.append(
             Task(f"{pair}: veil eval ({acc}, with its error estimate)", _eval(brdf, medium, acc))

@@ -217,14 +217,21 @@ def given_influence(problem: Problem, sol: LinearSolution, names: list[str]) -> 
     return out
 
 
+def _propagates(given_result, propagation: str, problem: Problem) -> bool:
+    """Whether the fit propagates the given (medium) fit's covariance."""
+    return (
+        given_result is not None
+        and propagation != "off"
+        and problem.blocks[0].medium is not None
+        and given_result.covariance(total=True) is not None
+    )
+
+
 def _given_total(problem, sol, given_result, propagation) -> tuple[np.ndarray | None, dict]:
     """(the covariance with the given fit's propagated, stats on how) or (None, {})."""
-    if given_result is None or propagation == "off" or not (sol.c > 0).any():
+    if not _propagates(given_result, propagation, problem) or not (sol.c > 0).any():
         return None, {}
-    got = given_result.covariance(total=True)
-    if got is None:
-        return None, {}
-    names, cov_given = got
+    names, cov_given = given_result.covariance(total=True)
     given_cls = type(given_result.one_model())
     keys = [given_cls.param(n).key for n in names]
     infl = given_influence(problem, sol, keys)
@@ -280,6 +287,10 @@ def fit_linear(
     check = accuracy if screen else None
     accuracy = ITERATION_ACCURACY if screen else accuracy
     names = problem.names
+    if not screen and _propagates(given_result, propagation, problem):
+        # the derivative in the medium's parameters (given_influence), compiled (or loaded)
+        # in the background while the design is made
+        problem.blocks[0].model(ITERATION_ACCURACY).prepare(values=False, jacobians=[("medium",)])
     sol = solve(problem, accuracy, penalty(cls, list(cls.keys())), progress)
     free_index = [k for k in problem.blocks[0].ib if problem.free[k]]
     x = problem.values.copy()

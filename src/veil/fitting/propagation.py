@@ -15,8 +15,9 @@ into step 1's medium.
   1/2n) takes the place of S Cov_theta S^T. For a response linear in u it is the first
   order's exactly; it keeps the response's curvature and its asymmetry (a mean shift counts
   as error). Up to :data:`RELATIVE_MAX`: beyond, a parameter is not determined and the first
-  order is kept with a note. The rule looks at the worst given parameter: all of them go
-  through sigma points, or none (in a joint fit over several media too).
+  order is kept with a note, as it is for a fit that did not converge (the refits would
+  start about a point that is no optimum). The rule looks at the worst given parameter: all
+  of them go through sigma points, or none (in a joint fit over several media too).
 - **a joint fit** (:func:`media_part`) estimates the media with the objects: the first
   order's share of the media in the objects' covariance, A C_mm A^T, is replaced by the
   spread of the objects' estimate over refits with the media held at the sigma points of
@@ -38,7 +39,8 @@ from .problem import ITERATION_ACCURACY, Problem
 from .solver import TOL_ITER, solve
 
 #: The propagation methods: "auto" picks "sigma-points" when the worst given parameter's
-#: relative uncertainty exceeds RELATIVE_LIMIT and not RELATIVE_MAX, else "linear".
+#: relative uncertainty exceeds RELATIVE_LIMIT and not RELATIVE_MAX and the fit converged,
+#: else "linear".
 METHODS = ("auto", "linear", "sigma-points", "off")
 #: Relative uncertainty (stderr over the value or over the room to the nearer bound) of a
 #: given parameter above which "auto" propagates through sigma points.
@@ -159,8 +161,8 @@ def how_of(method: str, relative: dict, converged: bool = True) -> dict:
     if method == "auto" and not converged and chosen == "sigma-points":
         how["method"] = "linear"
         how["fallback"] = (
-            "the fit did not converge: the uncertainty propagated to first order "
-            "(sigma points refit about an optimum), which is then only indicative"
+            "uncertainty propagated to first order, only indicative: sigma points would "
+            "refit about an optimum the fit has not reached"
         )
         return how
     if method == "auto" and _worst(relative) > RELATIVE_MAX:
