@@ -31,6 +31,7 @@ from scipy.optimize import nnls
 from ..errors import FitError
 from ..models.base import VARIANT_OPTION
 from .problem import ITERATION_ACCURACY, Problem, session_problem
+from .propagation import given_covariance
 from .result import FitResult, model_entry
 from .solver import goodness, uncertainties
 
@@ -217,21 +218,14 @@ def given_influence(problem: Problem, sol: LinearSolution, names: list[str]) -> 
     return out
 
 
-def _propagates(given_result, propagation: str, problem: Problem) -> bool:
-    """Whether the fit propagates the given (medium) fit's covariance."""
-    return (
-        given_result is not None
-        and propagation != "off"
-        and problem.blocks[0].medium is not None
-        and given_result.covariance(total=True) is not None
-    )
-
-
-def _given_total(problem, sol, given_result, propagation) -> tuple[np.ndarray | None, dict]:
-    """(the covariance with the given fit's propagated, stats on how) or (None, {})."""
-    if not _propagates(given_result, propagation, problem) or not (sol.c > 0).any():
+def _given_total(
+    problem, sol, given_result, given_cov, propagation
+) -> tuple[np.ndarray | None, dict]:
+    """(the covariance with the given fit's (``given_cov``: names, matrix) propagated, stats
+    on how) or (None, {})."""
+    if given_cov is None or problem.blocks[0].medium is None or not (sol.c > 0).any():
         return None, {}
-    names, cov_given = given_result.covariance(total=True)
+    names, cov_given = given_cov
     given_cls = type(given_result.one_model())
     keys = [given_cls.param(n).key for n in names]
     infl = given_influence(problem, sol, keys)
@@ -287,7 +281,8 @@ def fit_linear(
     check = accuracy if screen else None
     accuracy = ITERATION_ACCURACY if screen else accuracy
     names = problem.names
-    if not screen and _propagates(given_result, propagation, problem):
+    given_cov = None if screen else given_covariance(given_result, propagation)
+    if given_cov is not None and problem.blocks[0].medium is not None:
         # the derivative in the medium's parameters (given_influence), compiled (or loaded)
         # in the background while the design is made
         problem.blocks[0].model(ITERATION_ACCURACY).prepare(values=False, jacobians=[("medium",)])
@@ -302,7 +297,7 @@ def fit_linear(
     res, _, rms = goodness(problem.y, problem.w, sol.values, 0)
     chi2 = float(res @ res) / max(problem.n_points - sol.dof, 1.0)
     stderr, corr = uncertainties(sol.cov[np.ix_(keep, keep)], names, reported)
-    total, how = (None, {}) if screen else _given_total(problem, sol, given_result, propagation)
+    total, how = _given_total(problem, sol, given_result, given_cov, propagation)
     se_total, corr_total = (
         (None, None) if total is None else uncertainties(total[np.ix_(keep, keep)], names, reported)
     )

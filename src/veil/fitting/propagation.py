@@ -340,6 +340,14 @@ def _refitted(problem: Problem, x, cols, specs, cov, how: dict):
     return refits
 
 
+def given_covariance(given_result, method: str) -> tuple | None:
+    """(names, covariance) of ``given_result``'s total covariance when ``method`` propagates
+    it; None with "off", without a given fit, or when it has none."""
+    if given_result is None or method == "off":
+        return None
+    return given_result.covariance(total=True)
+
+
 def propagated(
     problem: Problem,
     x,
@@ -356,7 +364,7 @@ def propagated(
     uncertainties and, for sigma points, the refits. (None, None) when the given result has
     no covariance, or with ``method`` "off" (the totals are then not reported: the ranking of
     candidates, whose estimates, chi-square and BIC the given covariance does not move)."""
-    found = None if method == "off" else given_result.covariance(total=True)
+    found = given_covariance(given_result, method)
     if found is None:
         return None, None
     gnames, gcov = found
@@ -415,6 +423,7 @@ __all__ = [
     "MIN_REACH",
     "REFIT_NFEV",
     "check_method",
+    "given_covariance",
     "Axis",
     "relative_uncertainty",
     "choose",

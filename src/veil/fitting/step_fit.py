@@ -16,7 +16,7 @@ from ..models import BRDF, Medium, Model
 from ..models.base import VARIANT_OPTION
 from .linear_fit import fit_linear
 from .problem import ITERATION_ACCURACY, Problem, session_problem
-from .propagation import describe
+from .propagation import describe, given_covariance
 from .reported_uncertainty import model_floor, reported
 from .result import FitResult, model_entry
 from .session_data import FitData
@@ -48,11 +48,7 @@ def _prepare_engine(problem, cls, given, given_result, accuracy: str, propagatio
     in the fitted model's parameters, and in the given model's to propagate its covariance
     (not with ``propagation`` "off")."""
     block = problem.blocks[0]
-    propagates = (
-        propagation != "off"
-        and given_result is not None
-        and given_result.covariance(total=True) is not None
-    )
+    propagates = given_covariance(given_result, propagation) is not None
     wrt = [(cls.KIND,)] + ([(type(given).KIND,)] if propagates else [])
     block.model(ITERATION_ACCURACY).prepare(values=True, jacobians=wrt)
     if accuracy != ITERATION_ACCURACY:
