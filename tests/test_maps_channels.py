@@ -98,6 +98,35 @@ def test_each_channels_tables_are_its_own_and_scales_share_the_engine(monkeypatc
     assert np.array_equal(tables.values[:, 2], alone.values)
 
 
+def test_waters_differing_in_optical_depth_share_one_program_per_node(monkeypatch):
+    """Forward-series waters whose tau and omega differ per channel: one run of the
+    channels' program per node of the table for all three (veil.engine.channel_programs),
+    each channel's tables within 0.5 % of its water's alone, not another's."""
+    from veil.engine import channel_programs, forward
+    from veil.models import model_class
+
+    series = model_class("forward-series")
+    media = {c: series(tau=t, omega=w, g=0.9, path_length=15.0, plate_width=5.0)
+             for c, t, w in zip("rgb", (0.45, 0.3, 0.15), (0.95, 0.97, 0.99))}
+    angles = angles_of(configurations(12))
+    runs = []
+    real = forward.Forward._run
+
+    def counted(self, fn, vb, vm):
+        runs.append(fn)
+        return real(self, fn, vb, vm)
+
+    monkeypatch.setattr(forward.Forward, "_run", counted)
+    grid = {NAMES[SHAPE]: (0.25, 2.5, 4)}
+    tables = build_channel_tables(CLS, media, angles, fixed=FIX, grid=grid, accuracy="fast")
+    assert len(runs) == 4 and all(channel_programs.is_channel_program(f) for f in runs)
+    for k, c in enumerate("rgb"):
+        alone = build_tables(CLS, media[c], angles, fixed=FIX, grid=grid, accuracy="fast")
+        scale = np.max(np.abs(alone.values))
+        assert np.max(np.abs(tables.values[:, k] - alone.values)) < 5e-3 * scale, c
+    assert np.max(np.abs(tables.values[:, 0] - tables.values[:, 2])) > 0.05 * scale
+
+
 # --------------------------------------------------------------------------------------
 # the solve
 # --------------------------------------------------------------------------------------

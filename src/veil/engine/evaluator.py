@@ -13,6 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..models import BRDF, BTDF
+from . import channel_programs
 from .angles import direction
 from .apparent import (
     apparent,
@@ -85,11 +86,22 @@ class ApparentModel:
         self.values_calls = 0
         self.jacobian_calls = 0
 
-    def prepare(self, values: bool = True, jacobians=()) -> None:
+    def prepare(self, values: bool = True, jacobians=(), channels: int = 1) -> None:
         """Compile (or load) in the background what :meth:`values`/:meth:`terms` and
         :meth:`value_and_jacobian` with each ``wrt`` of ``jacobians`` will need (every chunk
-        shares one compilation)."""
-        self.parts[0][0].prepare(values, [self._free(wrt) for wrt in jacobians])
+        shares one compilation), and :meth:`anticipate` for ``channels`` channels."""
+        frees = [self._free(wrt) for wrt in jacobians]
+        self.parts[0][0].prepare(values, frees)
+        channel_programs.prepare(self.parts[0][0], channels, values, frees)
+
+    def anticipate(self, vbs, vms, wrt=None) -> None:
+        """The channels of one iteration at once (one parameter vector pair per channel):
+        their values, or with ``wrt`` their Jacobians, computed by one program and kept for
+        the calls of each channel that follow (:mod:`veil.engine.channel_programs`)."""
+        free = None if wrt is None else self._free(wrt)
+        for f, _ in self.parts:
+            if not channel_programs.anticipate(f, vbs, vms, free):
+                return
 
     def _free(self, wrt) -> tuple:
         """(BRDF indices, medium indices) differentiated for ``wrt``, a subset of WRT: every

@@ -248,10 +248,20 @@ class Forward:
         self._km = integrator.template(medium).structure()
         # the last output of each program, by its non-scale parameters (see _memo_run)
         self._last: dict = {}
+        # outputs of the channels' program, by (program, non-scale parameters): its last run
+        # (veil.engine.channel_programs.anticipate)
+        self._anticipated: dict = {}
 
     # ----------------------------------------------------------------------------------
     def _run(self, fn, vb, vm):
         return fn(vb, vm, self._wi, self._wr)
+
+    def _key(self, vb, vm) -> bytes:
+        """What a program's output depends on: the non-scale parameters."""
+        return (
+            _unit_scale_vector(type(self.brdf), vb).tobytes()
+            + _unit_scale_vector(type(self.medium), vm).tobytes()
+        )
 
     def _memo_run(self, fn, vb, vm):
         """``fn``'s output at ``vb``, ``vm``, or its last output when only scale parameters
@@ -259,13 +269,13 @@ class Forward:
         program sets them to 1, integrator._unit_scales). Channels whose own parameters are
         all scales (a BRDF's albedos, the paper medium's T_d and T_t) share their shared
         parameters' programs run once per iteration (docs/channels.md, "Cost")."""
-        key = (
-            _unit_scale_vector(type(self.brdf), vb).tobytes()
-            + _unit_scale_vector(type(self.medium), vm).tobytes()
-        )
+        key = self._key(vb, vm)
         last = self._last.get(fn)
         if last is not None and last[0] == key:
             return last[1]
+        known = self._anticipated.get((fn, key))
+        if known is not None:
+            return known
         out = jax.tree_util.tree_map(_read_only, self._run(fn, vb, vm))
         self._last[fn] = (key, out)
         return out

@@ -39,6 +39,7 @@ from . import lobe_terms
 from .nodes import (
     HALF_PI,
     TWO_PI,
+    channel_grid,
     facet_grids,
     half_grid,
     lobe_at,
@@ -146,9 +147,10 @@ def pairs(medium_cls) -> list[tuple[str, str]]:
     return [(a, b) for i, a in enumerate(comps) for b in comps[i:]]
 
 
-def _lobe_parts(brdf, medium, rule, half, vb, vm, maux, facets, wi, wr, grids):
+def _lobe_parts(brdf, medium, rule, half, vb, vm, maux, facets, wi, wr, grids, law=None):
     """The lobe's values of every lobe term of one configuration: the lobe and the phase
-    function evaluated at each term's nodes (:mod:`.lobe_terms`).
+    function evaluated at each term's nodes (:mod:`.lobe_terms`), and the density of the
+    grids' sampling ``law`` there when it is not the phase's own (:func:`apparent_terms_channels`).
     Returns {"lobe": 4D term, "sides": (view side, light side), "delta": lobe(I, R)}."""
     comps = medium.COMPONENTS
     parts = {}
@@ -158,7 +160,7 @@ def _lobe_parts(brdf, medium, rule, half, vb, vm, maux, facets, wi, wr, grids):
         )
     if "delta" in comps:
         h = normalized(wi + wr)
-        parts["delta"] = ([(wi, wr, h, polar(h)[0])], [], lambda lobe, phase: lobe[0])
+        parts["delta"] = ([(wi, wr, h, polar(h)[0])], [], lambda lobe, phase, law: lobe[0])
         if "lobe" in comps:
             parts["sides"] = lobe_terms.lobe_sides(
                 brdf, medium, vb, vm, wi, wr, half, grids[0], grids[1], facets[1], facets[2]
@@ -168,19 +170,22 @@ def _lobe_parts(brdf, medium, rule, half, vb, vm, maux, facets, wi, wr, grids):
     lobes = lobe_at(brdf, vb, [r for req, _, _ in parts.values() for r in req])
     omm = [r for _, req, _ in parts.values() for r in req]
     phases = [medium.phase(vm, o, maux) for o in omm]
+    densities = phases if law is None else [medium.phase(law[0], o, law[1]) for o in omm]
     out = {}
     for name, (req_l, req_p, finish) in parts.items():
-        out[name] = finish(lobes[: len(req_l)], phases[: len(req_p)])
-        lobes, phases = lobes[len(req_l) :], phases[len(req_p) :]
+        k = len(req_p)
+        out[name] = finish(lobes[: len(req_l)], phases[:k], densities[:k])
+        lobes, phases, densities = lobes[len(req_l) :], phases[k:], densities[k:]
     return out
 
 
-def _one_config(brdf, medium, rule, half, vb, vm, shared, maux, wi, wr):
+def _one_config(brdf, medium, rule, half, vb, vm, shared, maux, wi, wr, law=None):
     """Term matrix E (rows, 2) of one configuration with the scale parameters set to 1.
 
     Rows: the medium's component pairs (:func:`pairs`: for the paper's medium T_d^2,
     T_d T_t, T_t^2), each with its components' weights; columns: the separable and lobe
-    parts of f_r.
+    parts of f_r. ``law`` (vm, aux): the phase grids are drawn from it rather than from the
+    medium's own phase (:func:`apparent_terms_channels`).
     """
     c0_sep, c0_lobe, a_tab, b_tab, s_int, t_int, aux, facets = shared
     zero = 0.0 * c0_sep
@@ -194,12 +199,12 @@ def _one_config(brdf, medium, rule, half, vb, vm, shared, maux, wi, wr):
     def albedo(theta, table):
         return _interp_table(table, theta, rule) if brdf.HAS_LOBE else zero
 
-    grids, cos_i, cos_r = _lobe_grids(brdf, medium, rule, half, vm, maux, wi, wr)
+    grids, cos_i, cos_r = _lobe_grids(brdf, medium, rule, half, vm, maux, wi, wr, law)
     # s_k at I and the I' nodes, t_k at R and the R' nodes
     s_at, t_at = separable_at(brdf, vb, aux, cos_i, cos_r)
     s_wi, t_wr = [s[0] for s in s_at], [t[0] for t in t_at]
     lobes = (
-        _lobe_parts(brdf, medium, rule, half, vb, vm, maux, facets, wi, wr, grids)
+        _lobe_parts(brdf, medium, rule, half, vb, vm, maux, facets, wi, wr, grids, law)
         if brdf.HAS_LOBE
         else {}
     )
@@ -249,10 +254,11 @@ def _one_config(brdf, medium, rule, half, vb, vm, shared, maux, wi, wr):
     return _weighted_rows(medium, vm, rows)
 
 
-def _lobe_grids(brdf, medium, rule, half, vm, maux, wi, wr):
+def _lobe_grids(brdf, medium, rule, half, vm, maux, wi, wr, law=None):
     """(grids, cosines at I and its nodes, at R and its nodes) of :func:`_one_config`:
     without the medium's lobe no grids; with it the 2D terms' dense grids about I (I') and
-    about R (R'), and the 4D term's grids."""
+    about R (R'), and the 4D term's grids; drawn from ``law`` when given
+    (:func:`veil.engine.nodes.channel_grid`)."""
     if "lobe" not in medium.COMPONENTS:
         return None, [wi[2]], [wr[2]]
     specs = [
@@ -265,7 +271,13 @@ def _lobe_grids(brdf, medium, rule, half, vm, maux, wi, wr):
             (wr, rule.phase_radial, rule.phase_azimuth, False),
         ]
         specs += [(wr, rule.phase_radial, rule.phase_azimuth, True)] if half else []
-    grids = phase_grids(medium, vm, maux, specs)
+    if law is None:
+        grids = phase_grids(medium, vm, maux, specs)
+    else:
+        grids = [
+            channel_grid(medium, vm, maux, spec[0], grid)
+            for spec, grid in zip(specs, phase_grids(medium, law[0], law[1], specs))
+        ]
     return grids, [wi[2], grids[0][0][:, 2]], [wr[2], grids[1][0][:, 2]]
 
 
@@ -371,6 +383,48 @@ def apparent_terms(
     if batch_size is None:  # keep the live intermediate arrays to a few hundred MB
         batch_size = _batch(wi.shape[0], 1_500_000 // rule.points_per_config)
     return jax.lax.map(f, (wi, wr), batch_size=batch_size)
+
+
+def channel_law(medium_template, vms):
+    """The medium's sampling law (vm, aux) of the channels ``vms`` (C, n), their scale
+    parameters at 1 (``Medium.sampling_law``)."""
+    mcls = type(medium_template)
+    unit = jax.vmap(lambda v: _unit_scales(mcls, v))(jnp.asarray(vms))
+    return medium_template.sampling_law(unit)
+
+
+def apparent_terms_channels(
+    brdf_template, medium_template, rule, vb, vms, wi, wr, half=False, law=None
+):
+    """Term matrices (M, C, rows, 2) of C channels that share the BRDF's non-scale
+    parameters ``vb`` and differ in the medium's (rows of ``vms``), the scale parameters set
+    to 1 (docs/channels.md, "Cost").
+
+    The phase grids of every channel are drawn from one sampling law (``law``, (vm, aux);
+    by default the medium's ``sampling_law`` of the channels), each channel's phase
+    weighting its nodes (:func:`veil.engine.nodes.channel_grid`), so that the BRDF, the
+    expensive factor, is evaluated once at nodes every channel shares; only the medium's
+    factors are per channel. Each channel's terms are the quadrature of eq. (1) with that
+    law in place of its own phase: equal to :func:`apparent_terms` within the rule's error.
+    """
+    brdf, mcls = brdf_template, type(medium_template)
+    vb1 = _unit_scales(type(brdf), jnp.asarray(vb))
+    vms1 = jax.vmap(lambda v: _unit_scales(mcls, v))(jnp.asarray(vms))
+    shared = _shared(brdf, rule, vb1, half)
+    if law is None:
+        law = channel_law(medium_template, vms)
+    mauxs = jax.vmap(medium_template.prepare)(vms1)
+
+    def f(x):
+        def channel(vm1, maux):
+            return _one_config(
+                brdf, medium_template, rule, half, vb1, vm1, shared, maux, x[0], x[1], law
+            )
+
+        return jax.vmap(channel)(vms1, mauxs)
+
+    limit = 1_500_000 // rule.points_per_config
+    return jax.lax.map(f, (wi, wr), batch_size=_batch(wi.shape[0], limit))
 
 
 def _batch(n: int, limit: int) -> int:

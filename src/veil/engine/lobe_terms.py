@@ -10,13 +10,17 @@ values.
 
 A part returns ``(lobe_requests, phase_requests, finish)``: lists of node sets (for
 ``lobe_at``: (wi, wo, h, alpha); for the phase function: 1 - cos of the scattering angle) and
-``finish(lobes, phases)``, which takes the values in the same order.
+``finish(lobes, phases, densities)``, which takes the values in the same order: the phase
+function there, and the density of the phase grids' sampling law there (the same values,
+the same objects, unless the grids were drawn from a law shared by several channels:
+:func:`veil.engine.nodes.channel_grid`; the balance weights take the law's density, the
+integrand the channel's phase).
 """
 
 from __future__ import annotations
 
 from .._jax import jax, jnp
-from .nodes import dot3, half_distance, normalized, polar, reflect
+from .nodes import dot3, half_distance, normalized, phase_ratio, polar, reflect
 
 
 def apart(fn, vm, *args):
@@ -76,7 +80,9 @@ def lobe_lobe(brdf, medium, vb, vm, wi, wr, half: bool, grids, facets, y_full):
     alpha_c, sin_c = polar(h_c)
     phases = [half_distance(r_a, wr), half_distance(i_b, wi)]
 
-    def finish(lobe, phase):
+    def finish(lobe, phase, density):
+        if phase[0] is not density[0]:
+            return finish_law(phase, density)
         # the lobe evaluated in place: fused into the sums, never held at the 4D nodes
         lobe_a = brdf.lobe(vb, i_a, r_a, h, alpha)
         lobe_b = brdf.lobe(vb, i_b, r_b, h, alpha)
@@ -94,6 +100,31 @@ def lobe_lobe(brdf, medium, vb, vm, wi, wr, half: bool, grids, facets, y_full):
         val = _balanced(pi_[:, None], pr[None, :], dot3(i_c, h_c), q_c, lobe_c)
         val = val * bi[:, None] * ar[None, :]
         return total + jnp.sum((ui * fi)[:, None] * (ur * fr)[None, :] * val)
+
+    def finish_law(phase, density):
+        # grids drawn from a law the channels share (the densities q, the channel's phase p):
+        # what does not depend on the channel is computed once and held (the lobe and the
+        # balance weights, divided by the density the channel's phase replaces), then
+        # weighted by each channel's factors
+        (p_r, p_i), (q_r, q_i) = phase, density
+        q_c = brdf.facet_weight(vb, alpha_c, sin_c) / y_full
+        lobe_a = brdf.lobe(vb, i_a, r_a, h, alpha)
+        lobe_b = brdf.lobe(vb, i_b, r_b, h, alpha)
+        lobe_c = brdf.lobe(vb, i_c, r_c, h_c, alpha_c)
+        base_a, base_b, base_c = jax.lax.optimization_barrier(
+            (
+                _balanced(pi_[:, None], q_r, dot3(i_a, h), qh, lobe_a) * phase_ratio(uh, q_r),
+                _balanced(q_i, prb[:, None], dot3(r_b, h), qh, lobe_b) * phase_ratio(uh, q_i),
+                _balanced(pi_[:, None], pr[None, :], dot3(i_c, h_c), q_c, lobe_c),
+            )
+        )
+        val = base_a * p_r * medium.factor_first(vm, r_a[..., 2])
+        if medium.has_view_weight():
+            val = val * medium.view_weight(vm, r_a, wr)
+        total = jnp.sum(ui * fi * bi * jnp.sum(val, axis=-1))
+        val = base_b * p_i * medium.factor_second(vm, i_b[..., 2])
+        total = total + jnp.sum(urb * frb * arb * jnp.sum(val, axis=-1))
+        return total + jnp.einsum("i,ij,j->", ui * fi * bi, base_c, ur * fr * ar)
 
     return [], phases, finish
 
@@ -164,19 +195,25 @@ def lobe_sides(brdf, medium, vb, vm, wi, wr, half: bool, grid_i, grid_r, facets,
             w = w * jnp.where(view, medium.view_weight(vm, free, center), 1.0)
         return w
 
-    def side(center, view, grid, node, lobe_p, lobe_f, p_free):
+    def side(center, view, grid, node, lobe_p, lobe_f, p_free, q_free, own_law):
         g, u, f, _ = grid
         total = jnp.sum(u * f * node["w_phase"] * lobe_p * weight(g, center, view))
         qh, uh = facets[3][0], facets[2][0]
-        den = p_free + qh / (4.0 * jnp.maximum(node["c_free"], 1e-300))
+        q_free = p_free if own_law else q_free  # the density of the phase grid's law
+        den = q_free + qh / (4.0 * jnp.maximum(node["c_free"], 1e-300))
         ok = (node["c_free"] > 0) & (node["free"][..., 2] > 0) & (den > 0)
         val = jnp.where(
             ok, lobe_f * weight(node["free"], center, view) * p_free / jnp.where(ok, den, 1.0), 0.0
         )
         return total + jnp.sum(uh * val)
 
-    def finish(lobe, phase):
-        both = jax.vmap(side)(center, view, grids, nodes, lobe[0], lobe[1], phase[0])
+    def finish(lobe, phase, density):
+        own_law = phase[0] is density[0]
+
+        def one(*args):
+            return side(*args, own_law)
+
+        both = jax.vmap(one)(center, view, grids, nodes, lobe[0], lobe[1], phase[0], density[0])
         return both[0], both[1]
 
     return lobes, phases, finish

@@ -16,7 +16,7 @@ import math
 
 import numpy as np
 
-from .._jax import jnp
+from .._jax import jax, jnp
 from ..models.base import BRDF, BTDF
 from .quadrature import frame, gauss_legendre_unit, horizon_one_minus_mu, periodic_unit
 
@@ -61,6 +61,25 @@ def phase_grid(medium: BTDF, vm, maux, center, n_r: int, n_a: int, half: bool):
         jnp.cos(beta)[:, None] * t1 + jnp.sin(beta)[:, None] * t2
     )
     return d, jnp.asarray(np.outer(wv, wx).ravel()), frac_max, p
+
+
+def phase_ratio(p, q):
+    """p / q where q > 0, else 0: a channel's phase ``p`` over the sampling law's density
+    ``q`` at the law's nodes (docs/channels.md, "Cost")."""
+    ok = q > 0
+    return jnp.where(ok, p / jnp.where(ok, q, 1.0), 0.0)
+
+
+def channel_grid(medium: BTDF, vm, maux, center, grid):
+    """A phase grid about ``center`` drawn from a sampling law (``grid``, as
+    :func:`phase_grid` returns it) seen by one channel of phase p (``vm``, ``maux``):
+    (d, unit, frac_max * p / q, q), so that sum(unit * frac * f(d)) approximates
+    Int p(center . d) f(d) dd, and the last entry stays the density the nodes have (the
+    balance weights of the multiple-importance terms use it)."""
+    d, unit, frac, q = grid
+    p = medium.phase(vm, half_distance(d, center), maux)
+    # held: XLA would evaluate the phase again inside each sum over the grid's products
+    return d, unit, jax.lax.optimization_barrier(frac * phase_ratio(p, q)), q
 
 
 def half_grid(brdf: BRDF, vb, partner, n_r: int, n_a: int, half: bool):

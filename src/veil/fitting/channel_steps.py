@@ -182,17 +182,26 @@ def shared_engines() -> Callable[[FitData, BRDF, Medium | None], dict]:
     return engines
 
 
+def _grid_x(problem: Problem, b: Block, kind: str, v: np.ndarray) -> np.ndarray:
+    """The problem's vector with block ``b``'s free parameters of ``kind`` at ``v``."""
+    idx = b.ib if kind == "brdf" else b.im
+    assert idx is not None  # a block through a medium
+    x = problem.values.copy()
+    own = x[idx].copy()
+    mine = [j for j, k in enumerate(idx) if problem.free[k]]
+    own[mine] = v[mine]
+    x[idx] = own
+    return x
+
+
 def _block_point(problem: Problem, b: Block, kind: str, v: np.ndarray):
     """(cost, the fitted model's vector) of block ``b`` at the grid vector ``v``, its free
     scales solved exactly (:mod:`veil.fitting.start_values`)."""
     idx = b.ib if kind == "brdf" else b.im
     assert idx is not None  # a block through a medium
     cls: type[Model] = type(b.brdf) if kind == "brdf" else type(cast(Medium, b.medium))
-    x = problem.values.copy()
-    own = x[idx].copy()
-    mine = [j for j, k in enumerate(idx) if problem.free[k]]
-    own[mine] = v[mine]
-    x[idx] = own
+    x = _grid_x(problem, b, kind, v)
+    own = x[idx]
     vb, vm = problem.split(b, x)
     held = {cls.PARAMS[j].name for j, k in enumerate(idx) if not problem.free[k]}
     terms = b.model(ITERATION_ACCURACY).terms(vb, vm)
@@ -224,6 +233,9 @@ def through_starts(
     tied = [k for k, j in enumerate(axes) if sharing[cls.PARAMS[j].name] == "shared"]
     found = []
     for k, (_, v) in enumerate(points):
+        together = [b for b in problem.blocks if b.models is first.models]  # shared engine
+        pairs = [problem.split(b, _grid_x(problem, b, kind, v)) for b in together]
+        first.model(ITERATION_ACCURACY).anticipate(pairs)  # the channels at once
         found.append([_block_point(problem, b, kind, v) for b in problem.blocks])
         if progress:
             progress("starting grid", k + 1, len(points))
@@ -324,7 +336,9 @@ def fit_through(
         datas, fitted, given, fixed, freed, what, role, source
     )
     linear_free(problem)
-    problem.blocks[0].model(ITERATION_ACCURACY).prepare(values=True, jacobians=[(cls.KIND,)])
+    problem.blocks[0].model(ITERATION_ACCURACY).prepare(
+        values=True, jacobians=[(cls.KIND,)], channels=len(datas)
+    )
     kw = dict(accuracy=accuracy, max_nfev=max_nfev, progress=progress, screen=screen)
     outcome, n_grid = _run_through(problem, cls, what, starts, start, kw)
     summary = summarize(problem, outcome)

@@ -69,11 +69,21 @@ class SessionModel:
         e = self._direct if self.medium is None else self._engine
         return e.values_calls, e.jacobian_calls
 
-    def prepare(self, values: bool = True, jacobians=()) -> None:
+    def prepare(self, values: bool = True, jacobians=(), channels: int = 1) -> None:
         """Compile (or load) in the background what later calls will need: values, and
-        Jacobians with respect to each ``wrt`` of ``jacobians`` (see Forward.prepare)."""
+        Jacobians with respect to each ``wrt`` of ``jacobians`` (see Forward.prepare), for
+        ``channels`` channels sharing this model (:meth:`anticipate`)."""
         if self.medium is not None:
-            self._engine.prepare(values, jacobians)
+            self._engine.prepare(values, jacobians, channels)
+
+    def anticipate(self, pairs, wrt=None) -> None:
+        """The (vb, vm) of every channel sharing this model at one iteration: their values
+        (or Jacobians in ``wrt``) computed together where the medium lets them
+        (veil.engine.channel_programs), kept for each channel's call."""
+        if self.medium is not None and len(pairs) > 1:
+            vbs = [np.asarray(vb, dtype=float) for vb, _ in pairs]
+            vms = [np.asarray(vm, dtype=float) for _, vm in pairs]
+            self._engine.anticipate(vbs, vms, wrt)
 
     def values(self, vb, vm=None) -> np.ndarray:
         if self.medium is None:
@@ -322,7 +332,21 @@ class Problem:
             return cached[0]
         if self._last is not None and self._last[0] == key:
             return self._last[1]
+        self.anticipate(x, accuracy)
         return np.concatenate([b.model(accuracy).values(*self.split(b, x)) for b in self.blocks])
+
+    def anticipate(self, x, accuracy, wrt=None) -> None:
+        """Announce ``x`` to every engine that several blocks (channels) share, so that it
+        evaluates them together (:meth:`SessionModel.anticipate`); ``wrt`` the models
+        differentiated (None: values)."""
+        groups: dict = {}
+        for b in self.blocks:
+            if b.medium is not None:
+                groups.setdefault(id(b.models), []).append(b)
+        for members in groups.values():
+            if len(members) > 1:
+                pairs = [self.split(b, x) for b in members]
+                members[0].model(accuracy).anticipate(pairs, wrt)
 
     def remember(self, x, accuracy, values) -> None:
         """Keep ``values`` (the model at natural ``x``, ``accuracy``) for the next call of
@@ -363,6 +387,9 @@ class Problem:
         if cached is not None and all(set(w) <= set(h) for w, h in zip(wrt, cached[2])):
             return cached[0], cached[1]
         have = cached[2] if cached is not None else tuple(() for _ in self.blocks)
+        wanted = {tuple(k for k in WRT if k in w and k not in h) for w, h in zip(wrt, have)}
+        if len(wanted) == 1 and wanted != {()}:  # every block the same derivatives
+            self.anticipate(x, accuracy, wanted.pop())
         vals, rows, done = [], [], []
         start = 0
         for b, want, had in zip(self.blocks, wrt, have):

@@ -273,7 +273,10 @@ def column_source(u: _Unknowns, medium, angles, accuracy: str) -> Callable[[Any]
     through ``medium``, a medium model; (C, M, q + 1) through each of ``medium`` {channel:
     medium model} in its order, the engine evaluated once per group of channels whose media
     differ only in scales (their term matrices are the same, :func:`engine_key`), each
-    channel's columns bit for bit those of its medium alone."""
+    channel's columns bit for bit those of its medium alone; groups of a medium that
+    declares a sampling law evaluated together by the channels' program
+    (:mod:`veil.engine.channel_programs`: within the rule's error of each alone)."""
+    from ..engine.channel_programs import shares_nodes
     from ..engine.evaluator import ApparentModel
     from ..engine.quadrature import RULES
 
@@ -287,14 +290,19 @@ def column_source(u: _Unknowns, medium, angles, accuracy: str) -> Callable[[Any]
     groups: dict[tuple, list[int]] = {}
     for k, c in enumerate(channels):
         groups.setdefault(engine_key(medium[c]), []).append(k)
+    firsts = [medium[channels[ks[0]]] for ks in groups.values()]
+    together = len(groups) > 1 and shares_nodes(firsts[0]) and len({k[:2] for k in groups}) == 1
+    one = ApparentModel(u.template, firsts[0], angles, RULES[accuracy]) if together else None
     engines = [
-        (ApparentModel(u.template, medium[channels[ks[0]]], angles, RULES[accuracy]), ks)
-        for ks in groups.values()
+        (one or ApparentModel(u.template, first, angles, RULES[accuracy]), ks)
+        for first, ks in zip(firsts, groups.values())
     ]
     rows = [row_scales(type(medium[c]), medium[c].to_vector()) for c in channels]
 
     def columns(vb):
         out = np.empty((len(channels), len(angles[0]), q + 1))
+        if one is not None:  # every group's terms by one run of the channels' program
+            one.anticipate([vb] * len(firsts), [m.to_vector() for m in firsts])
         for engine, ks in engines:
             terms = engine.terms(vb, medium[channels[ks[0]]].to_vector())  # the scales at 1
             for k in ks:

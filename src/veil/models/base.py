@@ -502,6 +502,12 @@ class Medium(Model):
         passed to the phase functions as ``aux``; None by default."""
         return None
 
+    def sampling_law(self, vs) -> tuple | None:
+        """(v, aux) of one phase law whose grids serve the channels of ``vs`` (C, n) that
+        differ in non-scale parameters (veil.engine.integrator.apparent_terms_channels);
+        None: each channel runs the engine on its own."""
+        return None
+
     def phase(self, v, one_minus_mu, aux=None) -> Array:  # pragma: no cover - interface
         raise NotImplementedError
 

@@ -456,6 +456,13 @@ class ForwardSeries(Medium):
     def prepare(self, v) -> Any:
         return phase.mixture_table(*self.mixture(v))
 
+    def sampling_law(self, vs) -> tuple:
+        """The mean of the channels' scattered lobes (rows of ``vs``), as one mixture of every
+        channel's orders: each channel's phase is at most C times its density."""
+        parts = [self.mixture(vs[c]) for c in range(vs.shape[0])]
+        c = jnp.concatenate([w for w, _ in parts]) / len(parts)
+        return jnp.mean(vs, axis=0), phase.mixture_table(c, jnp.concatenate([g for _, g in parts]))
+
     def phase(self, v, one_minus_mu, aux=None) -> Array:
         return phase.mixture_pdf(self.prepare(v) if aux is None else aux, one_minus_mu)
 
