@@ -12,6 +12,7 @@ seconds) and runs it (median of 5 calls).
     .venv/bin/python benchmarks/bench_compile_alone.py                  # every pair
     .venv/bin/python benchmarks/bench_compile_alone.py --pairs rough-plastic:forward-series
     .venv/bin/python benchmarks/bench_compile_alone.py --doc docs/performance-compile.md
+    .venv/bin/python benchmarks/bench_compile_alone.py --channels 3 --pairs rough-plastic:forward-series
 """
 
 from __future__ import annotations
@@ -33,8 +34,11 @@ SESSION = "m05_target"
 LIMIT = 10.0  # issue 28's target: no program over 10 s to compile
 
 
-def _programs(brdf_name: str, medium_name: str) -> list:
-    """[(label, jitted function, arguments)] of the pipeline's programs for the pair."""
+def _programs(brdf_name: str, medium_name: str, channels: int = 1) -> list:
+    """[(label, jitted function, arguments)] of the pipeline's programs for the pair; with
+    ``channels`` > 1 those of a pipeline over that many colour channels whose media differ
+    in non-scale parameters instead (veil.engine.channel_programs), where the medium has a
+    sampling law."""
     import numpy as np
 
     from veil.engine.angles import direction
@@ -50,6 +54,8 @@ def _programs(brdf_name: str, medium_name: str) -> list:
     brdf = bcls.template()
     medium = mcls.template(**(GEOMETRY if medium_name == "forward-series" else {}))
     out = []
+    if channels > 1:
+        return _channel_programs(brdf, medium, (ti, tr, pi_, pr), channels)
     for rule in ("fast", "default"):
         f = Forward(brdf, medium, ti, tr, pi_, pr, rule=RULES[rule])
         vb, vm = f._vectors(brdf.to_vector(), medium.to_vector())
@@ -70,7 +76,38 @@ def _programs(brdf_name: str, medium_name: str) -> list:
     return out
 
 
-def measure_pair(brdf_name: str, medium_name: str) -> list[dict]:
+def _channel_programs(brdf, medium, angles, channels: int) -> list:
+    """The channels' programs of a colour pipeline: values at both rules, the Jacobians in
+    the BRDF's and in the medium's parameters at the fast rule (each channel's water its
+    own optical depth)."""
+    import numpy as np
+
+    from veil.engine import channel_programs
+    from veil.engine.forward import Forward
+    from veil.engine.quadrature import RULES
+
+    ti, tr, pi_, pr = angles
+    out = []
+    for rule in ("fast", "default"):
+        f = Forward(brdf, medium, ti, tr, pi_, pr, rule=RULES[rule])
+        if not channel_programs.shares_nodes(medium):
+            return []
+        vb, vm = f._vectors(brdf.to_vector(), medium.to_vector())
+        vms = np.tile(vm, (channels, 1))
+        vms[:, 0] *= np.linspace(1.0, 0.5, channels)
+        args = (vb, vms, f._wi, f._wr)
+        frees = [("values", None)] + ([("BRDF", (range(len(brdf.PARAMS)), ())),
+                                       ("medium", ((), range(len(medium.PARAMS))))]
+                                      if rule == "fast" else [])
+        for kind, free in frees:
+            found = channel_programs._programs(f, channels, free)
+            if found is not None:
+                what = "values" if free is None else f"values and d/d({kind})"
+                out.append((f"{what} of {channels} channels, {rule} rule", found[1], args))
+    return out
+
+
+def measure_pair(brdf_name: str, medium_name: str, channels: int = 1) -> list[dict]:
     """Run in a fresh process (``--one``): each program traced, lowered, compiled, run."""
     import numpy as np
 
@@ -80,7 +117,7 @@ def measure_pair(brdf_name: str, medium_name: str) -> list[dict]:
     print(f"{jax.device_count()} devices", file=sys.stderr)
 
     rows = []
-    for label, program, args in _programs(brdf_name, medium_name):
+    for label, program, args in _programs(brdf_name, medium_name, channels):
         t0 = time.perf_counter()
         lowered = program.fn.lower(*args)
         lower = time.perf_counter() - t0
@@ -136,10 +173,13 @@ def main(argv=None) -> int:
     ap.add_argument("--doc", default=None, metavar="PAGE",
                     help="write the table into PAGE between its markers compile-alone "
                          "(benchmarks/doc_tables.py)")
+    ap.add_argument("--channels", type=int, default=1,
+                    help="the programs of a pipeline over this many colour channels whose "
+                         "media differ in non-scale parameters (media with a sampling law)")
     ap.add_argument("--one", default=None, help=argparse.SUPPRESS)  # the child process
     a = ap.parse_args(argv)
     if a.one:
-        print(json.dumps(measure_pair(*a.one.split(":", 1))))
+        print(json.dumps(measure_pair(*a.one.split(":", 1), channels=a.channels)))
         return 0
     if a.pairs == "all":
         from veil.models import names
@@ -155,12 +195,15 @@ def main(argv=None) -> int:
     for pair in pairs:
         load = _load()
         env = {**os.environ, "VEIL_CACHE_DIR": "off"}
-        done = subprocess.run([sys.executable, __file__, "--one", pair], capture_output=True,
-                              text=True, env=env)
+        done = subprocess.run([sys.executable, __file__, "--one", pair, "--channels",
+                               str(a.channels)], capture_output=True, text=True, env=env)
         if done.returncode != 0:
             print(done.stderr[-3000:], file=sys.stderr)
             return 3
         found = json.loads(done.stdout.strip().splitlines()[-1])
+        if not found:  # --channels: a medium without a sampling law has no such programs
+            print(f"{pair}: no channels' programs", flush=True)
+            continue
         results[pair.replace(":", " x ")] = (found, load)
         worst = max(found, key=lambda r: r["compile"])
         print(f"{pair}: largest {worst['program']} {worst['compile']:.1f} s "
