@@ -260,8 +260,9 @@ def test_channels_differing_in_a_non_scale_parameter_run_one_program_together():
     from veil.models import model_class
 
     series = model_class("forward-series")
-    waters = {c: series(tau=t, omega=0.97, g=0.9)
-              for c, t in zip(MEDIUM, (0.45, 0.3, 0.15))}
+    # the waters of tests/test_maps_channels.py (the same programs)
+    waters = {c: series(tau=t, omega=w, g=0.9, path_length=15.0, plate_width=5.0)
+              for c, t, w in zip(MEDIUM, (0.45, 0.3, 0.15), (0.95, 0.97, 0.99))}
     problem, datas = _channel_problem(waters, waters["g"])
     chunks = len(problem.blocks[0].model(FAST)._engine.parts)
     x = problem.values.copy()
