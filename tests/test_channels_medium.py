@@ -232,6 +232,46 @@ def _separately(problem, datas, x):
     return np.concatenate(out)
 
 
+def test_channels_jacobians_run_together_beside_a_clear_session():
+    """A problem of the three waters' channels and a clear-water session (as a joint fit
+    has): each Jacobian call runs the channels' Jacobian program, not each channel's own,
+    also when a second call at the same point adds the other model's derivatives."""
+    from veil.engine import channel_programs, forward
+    from veil.fitting.problem import Block, Problem
+    from veil.models import model_class
+
+    series = model_class("forward-series")
+    waters = {c: series(tau=t, omega=w, g=0.9, path_length=15.0, plate_width=5.0)
+              for c, t, w in zip(MEDIUM, (0.45, 0.3, 0.15), (0.95, 0.97, 0.99))}
+    channels, datas = _channel_problem(waters, waters["g"])
+    first = channels.blocks[0]
+    clear = Block(first.session, first.data, first.ib, None, first.brdf, None)
+    problem = Problem([clear, *channels.blocks], channels.params, channels.values,
+                      channels.free, channels.weighted)
+    x = problem.values.copy()
+    for c, t in zip(MEDIUM, (0.45, 0.3, 0.15)):
+        x[problem.index(f"tau[{c}]")] = t
+    runs = []
+    original = forward.Forward._run
+
+    def counted(self, fn, vb, vm):
+        runs.append(fn)
+        return original(self, fn, vb, vm)
+
+    forward.Forward._run = counted
+    try:
+        medium = [problem.index(f"tau[{c}]") for c in MEDIUM]
+        problem.value_and_jacobian(x, FAST, medium)
+        brdf = list(first.ib)
+        _, jac = problem.value_and_jacobian(x, FAST, medium + brdf)
+    finally:
+        forward.Forward._run = original
+    chunks = len(first.model(FAST)._engine.parts)
+    assert len(runs) == 2 * chunks
+    assert all(channel_programs.is_channel_program(fn) for fn in runs)
+    assert np.all(np.isfinite(jac[:, medium + brdf]))
+
+
 def test_channels_differing_in_scales_run_the_engine_once():
     """The paper medium's per-channel T_d and T_t are scales: the three channels' blocks
     share one engine and its programs run once per evaluation, the values exactly those of

@@ -146,7 +146,7 @@ def anticipate(forward: Forward, vbs: Sequence, vms: Sequence, free=None) -> boo
     forward._anticipated = {
         **{k: v for k, v in forward._anticipated.items() if k[0] is not one},
         **{
-            (one, key): jax.tree_util.tree_map(lambda a, c=c: _read_only(a[:, c]), out)
+            (one, key): jax.tree_util.tree_map(lambda a, c=c: _read_only(np.asarray(a)[:, c]), out)
             for c, key in enumerate(unique)
         },
     }

@@ -91,8 +91,10 @@ class ApparentModel:
         :meth:`value_and_jacobian` with each ``wrt`` of ``jacobians`` will need (every chunk
         shares one compilation), and :meth:`anticipate` for ``channels`` channels."""
         frees = [self._free(wrt) for wrt in jacobians]
-        self.parts[0][0].prepare(values, frees)
-        channel_programs.prepare(self.parts[0][0], channels, values, frees)
+        together = channel_programs.prepare(self.parts[0][0], channels, values, frees)
+        # channels run together need the one-channel values only where they coincide (the
+        # starting grid), and its Jacobians hardly ever: those compile when called
+        self.parts[0][0].prepare(values, [] if together else frees)
 
     def anticipate(self, vbs, vms, wrt=None) -> None:
         """The channels of one iteration at once (one parameter vector pair per channel):

@@ -270,12 +270,12 @@ class Forward:
         all scales (a BRDF's albedos, the paper medium's T_d and T_t) share their shared
         parameters' programs run once per iteration (docs/channels.md, "Cost")."""
         key = self._key(vb, vm)
+        known = self._anticipated.get((fn, key))  # first: the announced channels' program
+        if known is not None:
+            return known
         last = self._last.get(fn)
         if last is not None and last[0] == key:
             return last[1]
-        known = self._anticipated.get((fn, key))
-        if known is not None:
-            return known
         out = jax.tree_util.tree_map(_read_only, self._run(fn, vb, vm))
         self._last[fn] = (key, out)
         return out
@@ -360,7 +360,8 @@ class Forward:
 
         ``free_*`` are parameter indices. Scale parameters (``Model.SCALES``) are
         differentiated analytically from the term matrices; the others by forward-mode
-        automatic differentiation through the quadrature (exact for the discrete rule).
+        automatic differentiation through the quadrature (exact for the discrete rule; for
+        channels announced together, veil.engine.channel_programs, on their law's nodes).
         """
         fn, free_brdf, free_medium, scale_b, scale_m, nl_b, nl_m = self._jacobian_fn(
             free_brdf, free_medium

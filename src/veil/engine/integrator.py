@@ -423,7 +423,8 @@ def apparent_terms_channels(
 
         return jax.vmap(channel)(vms1, mauxs)
 
-    limit = 1_500_000 // rule.points_per_config
+    # the live arrays of C channels per configuration: C times fewer configurations at once
+    limit = 1_500_000 // (rule.points_per_config * vms1.shape[0])
     return jax.lax.map(f, (wi, wr), batch_size=_batch(wi.shape[0], limit))
 
 

@@ -335,18 +335,22 @@ class Problem:
         self.anticipate(x, accuracy)
         return np.concatenate([b.model(accuracy).values(*self.split(b, x)) for b in self.blocks])
 
-    def anticipate(self, x, accuracy, wrt=None) -> None:
+    def anticipate(self, x, accuracy, wrt=None, values: bool = True) -> None:
         """Announce ``x`` to every engine that several blocks (channels) share, so that it
-        evaluates them together (:meth:`SessionModel.anticipate`); ``wrt`` the models
-        differentiated (None: values)."""
+        evaluates them together (:meth:`SessionModel.anticipate`); ``wrt`` the models each
+        block differentiates (as :meth:`wrt`; None: values; blocks that differentiate
+        nothing are evaluated only if ``values``). A group whose blocks differentiate
+        different models is not announced."""
         groups: dict = {}
-        for b in self.blocks:
+        for k, b in enumerate(self.blocks):
             if b.medium is not None:
-                groups.setdefault(id(b.models), []).append(b)
+                groups.setdefault(id(b.models), []).append(k)
         for members in groups.values():
-            if len(members) > 1:
-                pairs = [self.split(b, x) for b in members]
-                members[0].model(accuracy).anticipate(pairs, wrt)
+            kinds = {() if wrt is None else tuple(wrt[k]) for k in members}
+            if len(members) < 2 or len(kinds) > 1 or kinds == {()} and not values:
+                continue
+            pairs = [self.split(self.blocks[k], x) for k in members]
+            self.blocks[members[0]].model(accuracy).anticipate(pairs, kinds.pop() or None)
 
     def remember(self, x, accuracy, values) -> None:
         """Keep ``values`` (the model at natural ``x``, ``accuracy``) for the next call of
@@ -387,9 +391,10 @@ class Problem:
         if cached is not None and all(set(w) <= set(h) for w, h in zip(wrt, cached[2])):
             return cached[0], cached[1]
         have = cached[2] if cached is not None else tuple(() for _ in self.blocks)
-        wanted = {tuple(k for k in WRT if k in w and k not in h) for w, h in zip(wrt, have)}
-        if len(wanted) == 1 and wanted != {()}:  # every block the same derivatives
-            self.anticipate(x, accuracy, wanted.pop())
+        missing_by_block = [
+            tuple(k for k in WRT if k in w and k not in h) for w, h in zip(wrt, have)
+        ]
+        self.anticipate(x, accuracy, missing_by_block, values=cached is None)
         vals, rows, done = [], [], []
         start = 0
         for b, want, had in zip(self.blocks, wrt, have):

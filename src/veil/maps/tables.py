@@ -273,7 +273,7 @@ def column_source(u: _Unknowns, medium, angles, accuracy: str) -> Callable[[Any]
     through ``medium``, a medium model; (C, M, q + 1) through each of ``medium`` {channel:
     medium model} in its order, the engine evaluated once per group of channels whose media
     differ only in scales (their term matrices are the same, :func:`engine_key`), each
-    channel's columns bit for bit those of its medium alone; groups of a medium that
+    such channel's columns bit for bit those of its medium alone; groups of a medium that
     declares a sampling law evaluated together by the channels' program
     (:mod:`veil.engine.channel_programs`: within the rule's error of each alone)."""
     from ..engine.channel_programs import shares_nodes
