@@ -70,9 +70,11 @@ def test_channels_on_one_law_match_the_independent_reference():
             assert abs(got[c][k] - want) <= 4 * se + 1e-3 * want, (c, k, got[c][k], want, se)
 
 
-#: The off-plane configurations of the tests below (the full azimuth range: no symmetry).
+#: Off-plane configurations (the full azimuth range: no symmetry).
 TI, TR = np.full(9, 60.0), np.array([75.0, 60.0, 45.0, 30.0, 10.0, 20.0, 40.0, 55.0, 70.0])
 PR = np.array([0.0, 5.0, 10.0, 30.0, 60.0, 120.0, 160.0, 175.0, 180.0])
+#: In-plane configurations (half the azimuths: the programs of tests/test_channels_medium.py)
+IN_TR, IN_PR = np.array([80.0, 50.0, 20.0, 5.0, 15.0, 45.0, 75.0]), np.array([180.0] * 3 + [0.0] * 4)
 
 
 def test_channels_on_one_law_agree_with_each_channel_alone():
@@ -95,7 +97,8 @@ def test_channels_on_one_law_agree_with_each_channel_alone():
 
 
 def test_channels_jacobian_is_the_derivative_of_their_quadrature():
-    """The channels' Jacobian programs (forward mode through the shared nodes) against
+    """The channels' Jacobian programs (forward mode through the shared nodes; in the plane
+    of incidence, the programs a fit of tests/test_channels_medium.py runs) against
     central differences of the channels' terms: each channel's derivatives in the shared
     BRDF's n and eta (differences of the channels' values program: the law does not depend
     on the BRDF), and in its own tau, omega and the shared g and eta_u (differences of the
@@ -106,13 +109,15 @@ def test_channels_jacobian_is_the_derivative_of_their_quadrature():
     waters = [w.replace(eta_u=1.33) for w in _waters((0.45, 0.3, 0.15), (0.95, 0.97, 0.99),
                                                      **PLATE)]
     rule = RULES["fast"]
-    f = Forward(brdf, waters[0], TI, TR, 180.0, PR, rule)
+    m = IN_TR.size
+    ti = np.full(m, 60.0)
+    f = Forward(brdf, waters[0], ti, IN_TR, 180.0, IN_PR, rule)
+    assert f.half
     vb = np.asarray(brdf.to_vector())
     vms = np.stack([w.to_vector() for w in waters])
-    m = TI.size
     values = channel_programs._programs(f, 3, None)[1]
-    wi = jnp.asarray(np.asarray(direction(TI, np.full(m, 180.0))))
-    wr = jnp.asarray(np.asarray(direction(TR, PR)))
+    wi = jnp.asarray(np.asarray(direction(ti, np.full(m, 180.0))))
+    wr = jnp.asarray(np.asarray(direction(IN_TR, IN_PR)))
     held = _fixed_law_terms(brdf, waters[0], vms, wi, wr, rule)
     for wrt, free in (("brdf", ((2, 3), ())), ("medium", ((), (0, 1, 2, 3)))):
         terms, jac = (np.asarray(a)[:m] for a in f._run(channel_programs._programs(
@@ -142,4 +147,4 @@ def _fixed_law_terms(brdf, water, vms, wi, wr, rule):
     bt, mt = integrator.template(brdf), integrator.template(water)
     law = integrator.channel_law(mt, vms)
     return jax.jit(lambda b, m: integrator.apparent_terms_channels(
-        bt, mt, rule, b, m, wi, wr, False, law))
+        bt, mt, rule, b, m, wi, wr, True, law))

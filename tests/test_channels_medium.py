@@ -6,6 +6,7 @@ channels; a one-channel table exactly as the table without the column."""
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 import re
@@ -201,9 +202,9 @@ def _channel_problem(medium_by_channel: dict, medium_template):
     return problem, datas
 
 
-def _runs_and_values(problem, x, every=False):
-    """(engine program runs, model values) of one evaluation of ``problem`` at ``x``
-    (``every``: the programs run, not their number)."""
+@contextlib.contextmanager
+def _counted_runs():
+    """The engine programs run inside the block, in order."""
     from veil.engine import forward
 
     runs = []
@@ -215,10 +216,27 @@ def _runs_and_values(problem, x, every=False):
 
     forward.Forward._run = counted
     try:
-        values = problem.model_values(x, FAST)
+        yield runs
     finally:
         forward.Forward._run = original
+
+
+def _runs_and_values(problem, x, every=False):
+    """(engine program runs, model values) of one evaluation of ``problem`` at ``x``
+    (``every``: the programs run, not their number)."""
+    with _counted_runs() as runs:
+        values = problem.model_values(x, FAST)
     return (runs if every else len(runs)), values
+
+
+def _waters() -> dict:
+    """Forward-series waters whose tau and omega differ per channel (those of
+    tests/test_maps_channels.py: the same programs)."""
+    from veil.models import model_class
+
+    series = model_class("forward-series")
+    return {c: series(tau=t, omega=w, g=0.9, path_length=15.0, plate_width=5.0)
+            for c, t, w in zip(MEDIUM, (0.45, 0.3, 0.15), (0.95, 0.97, 0.99))}
 
 
 def _separately(problem, datas, x):
@@ -236,14 +254,11 @@ def test_channels_jacobians_run_together_beside_a_clear_session():
     """A problem of the three waters' channels and a clear-water session (as a joint fit
     has): each Jacobian call runs the channels' Jacobian program, not each channel's own,
     also when a second call at the same point adds the other model's derivatives."""
-    from veil.engine import channel_programs, forward
+    from veil.engine import channel_programs
     from veil.fitting.problem import Block, Problem
-    from veil.models import model_class
 
-    series = model_class("forward-series")
-    waters = {c: series(tau=t, omega=w, g=0.9, path_length=15.0, plate_width=5.0)
-              for c, t, w in zip(MEDIUM, (0.45, 0.3, 0.15), (0.95, 0.97, 0.99))}
-    channels, datas = _channel_problem(waters, waters["g"])
+    waters = _waters()
+    channels, _ = _channel_problem(waters, waters["g"])
     first = channels.blocks[0]
     clear = Block(first.session, first.data, first.ib, None, first.brdf, None)
     problem = Problem([clear, *channels.blocks], channels.params, channels.values,
@@ -251,21 +266,11 @@ def test_channels_jacobians_run_together_beside_a_clear_session():
     x = problem.values.copy()
     for c, t in zip(MEDIUM, (0.45, 0.3, 0.15)):
         x[problem.index(f"tau[{c}]")] = t
-    runs = []
-    original = forward.Forward._run
-
-    def counted(self, fn, vb, vm):
-        runs.append(fn)
-        return original(self, fn, vb, vm)
-
-    forward.Forward._run = counted
-    try:
-        medium = [problem.index(f"tau[{c}]") for c in MEDIUM]
+    medium = [problem.index(f"tau[{c}]") for c in MEDIUM]
+    brdf = list(first.ib)
+    with _counted_runs() as runs:
         problem.value_and_jacobian(x, FAST, medium)
-        brdf = list(first.ib)
         _, jac = problem.value_and_jacobian(x, FAST, medium + brdf)
-    finally:
-        forward.Forward._run = original
     chunks = len(first.model(FAST)._engine.parts)
     assert len(runs) == 2 * chunks
     assert all(channel_programs.is_channel_program(fn) for fn in runs)
@@ -297,12 +302,8 @@ def test_channels_differing_in_a_non_scale_parameter_run_one_program_together():
     one sampling law, and each channel's values are its own within the fast rule's error,
     not another channel's."""
     from veil.engine import channel_programs
-    from veil.models import model_class
 
-    series = model_class("forward-series")
-    # the waters of tests/test_maps_channels.py (the same programs)
-    waters = {c: series(tau=t, omega=w, g=0.9, path_length=15.0, plate_width=5.0)
-              for c, t, w in zip(MEDIUM, (0.45, 0.3, 0.15), (0.95, 0.97, 0.99))}
+    waters = _waters()
     problem, datas = _channel_problem(waters, waters["g"])
     chunks = len(problem.blocks[0].model(FAST)._engine.parts)
     x = problem.values.copy()
