@@ -194,13 +194,12 @@ def _grid_x(problem: Problem, b: Block, kind: str, v: np.ndarray) -> np.ndarray:
     return x
 
 
-def _block_point(problem: Problem, b: Block, kind: str, v: np.ndarray):
-    """(cost, the fitted model's vector) of block ``b`` at the grid vector ``v``, its free
-    scales solved exactly (:mod:`veil.fitting.start_values`)."""
+def _block_point(problem: Problem, b: Block, kind: str, x: np.ndarray):
+    """(cost, the fitted model's vector) of block ``b`` at ``x`` (:func:`_grid_x` of a grid
+    vector), its free scales solved exactly (:mod:`veil.fitting.start_values`)."""
     idx = b.ib if kind == "brdf" else b.im
     assert idx is not None  # a block through a medium
     cls: type[Model] = type(b.brdf) if kind == "brdf" else type(cast(Medium, b.medium))
-    x = _grid_x(problem, b, kind, v)
     own = x[idx]
     vb, vm = problem.split(b, x)
     held = {cls.PARAMS[j].name for j, k in enumerate(idx) if not problem.free[k]}
@@ -232,11 +231,12 @@ def through_starts(
     axes = [j for j in free if cls.PARAMS[j].name not in scales and cls.PARAMS[j].name in grid]
     tied = [k for k, j in enumerate(axes) if sharing[cls.PARAMS[j].name] == "shared"]
     found = []
+    shared = [b.models is first.models for b in problem.blocks]  # the first block's engine
     for k, (_, v) in enumerate(points):
-        together = [b for b in problem.blocks if b.models is first.models]  # shared engine
-        pairs = [problem.split(b, _grid_x(problem, b, kind, v)) for b in together]
+        xs = [_grid_x(problem, b, kind, v) for b in problem.blocks]
+        pairs = [problem.split(b, x) for b, x, s in zip(problem.blocks, xs, shared) if s]
         first.model(ITERATION_ACCURACY).anticipate(pairs)  # the channels at once
-        found.append([_block_point(problem, b, kind, v) for b in problem.blocks])
+        found.append([_block_point(problem, b, kind, x) for b, x in zip(problem.blocks, xs)])
         if progress:
             progress("starting grid", k + 1, len(points))
     groups: dict = {}
