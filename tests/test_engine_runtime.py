@@ -275,6 +275,10 @@ def test_jacobian_matches_central_differences():
         assert scale > 0
         np.testing.assert_allclose(jac[:, k], fd, rtol=0, atol=1e-6 * scale,
                                    err_msg=f"column {k}: {which} parameter {i}")
+    # the same free parameters in another order: the same program, its columns permuted
+    assert f._jacobian_fn(free_b, free_m)[0] is f._jacobian_fn((0, 1, 2, 3), (0, 1, 2, 3))[0]
+    _, again = f.value_and_jacobian(vb, vm, (0, 1, 2, 3), (0, 1, 2, 3))
+    np.testing.assert_array_equal(again, jac[:, [1, 3, 2, 0, 6, 7, 5, 4]])
 
 
 def test_lobe_half_width_compiles_its_phase_once():
