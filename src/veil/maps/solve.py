@@ -112,14 +112,16 @@ class _PixelSolver:
         p0 = jnp.concatenate([s0, u0])
         v0, j0 = self.columns(coef, fu, s0, u0)
         r0 = (y - v0) * jnp.sqrt(w2)
+        # typed (not weak) scalars: the state a batch returns is then the state the
+        # gathered slow pixels come back with (numpy), and one resume program serves both
         return (
-            jnp.asarray(0),
+            jnp.asarray(0, dtype=jnp.int64),
             p0,
-            jnp.asarray(lsq.DAMPING_START),
+            jnp.asarray(lsq.DAMPING_START, dtype=jnp.float64),
             r0 @ r0,
             v0,
             j0,
-            jnp.asarray(False),
+            jnp.asarray(False, dtype=bool),
         )
 
     def refit(self, coef, fu, y, w, p):
