@@ -317,3 +317,10 @@ def test_channels_differing_in_a_non_scale_parameter_run_one_program_together():
     sizes = [b.size for b in problem.blocks]
     per_channel = np.split(alone, np.cumsum(sizes)[:-1])
     assert min(np.max(np.abs(a / b - 1)) for a, b in zip(per_channel, per_channel[1:])) > 0.02
+    # two channels at the same water (a fit's channels may start from one grid point): the
+    # same three channels' program, not one compiled for two
+    x[problem.index("tau[r]")] = x[problem.index("tau[g]")]
+    x[problem.index("omega[r]")] = x[problem.index("omega[g]")]
+    again, values = _runs_and_values(problem, x, every=True)
+    assert again == runs
+    assert np.max(np.abs(values / _separately(problem, datas, x) - 1)) < 2e-3

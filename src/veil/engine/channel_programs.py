@@ -135,19 +135,19 @@ def anticipate(forward: Forward, vbs: Sequence, vms: Sequence, free=None) -> boo
     nb = len(type(forward.brdf).PARAMS) * 8
     if len({k[:nb] for k in keys}) != 1 or len(set(keys)) < 2:
         return False
-    unique = list(dict.fromkeys(keys))
-    chosen = [pairs[keys.index(k)] for k in unique]
-    programs = _programs(forward, len(unique), free)
+    # every channel, a repeated medium too: one program per number of channels, not one per
+    # number of distinct media (a fit's channels may start from the same grid point)
+    programs = _programs(forward, len(pairs), free)
     if programs is None:
         return False
     one, many = programs
-    vms_array = np.stack([vm for _, vm in chosen])
-    out = forward._run(many, chosen[0][0], vms_array)
+    out = forward._run(many, pairs[0][0], np.stack([vm for _, vm in pairs]))
+    first = {key: c for c, key in reversed(list(enumerate(keys)))}
     forward._anticipated = {
         **{k: v for k, v in forward._anticipated.items() if k[0] is not one},
         **{
             (one, key): jax.tree_util.tree_map(lambda a, c=c: _read_only(np.asarray(a)[:, c]), out)
-            for c, key in enumerate(unique)
+            for key, c in first.items()
         },
     }
     return True
