@@ -114,3 +114,61 @@ def test_warmup_runs(tmp_path):
                          capture_output=True, text=True, env=env, timeout=900)
     assert run.returncode == 0, run.stderr
     assert "veil warmup: 3 of 3 tasks ready" in run.stderr
+
+
+def test_warmup_prepares_the_geometry_and_the_channels_the_fits_will_run():
+    """``veil warmup`` with a plate's geometry and ``--channels``: the tasks carry the
+    geometry to the programs, and the channels' task of a forward-series water prepares
+    the very program a colour fit's channels then run (nothing left to compile); a medium
+    whose channels run one at a time gets no such task."""
+    from veil.engine import warmup
+    from veil.engine.evaluator import CHUNK, ApparentModel
+    from veil.engine.forward import wait_for_compilations
+    from veil.engine.quadrature import RULES
+    from veil.models import model_class
+
+    geometry = {"path_length": 15.0, "plate_width": 5.0}
+    todo = warmup.tasks(["torrance-sparrow", "forward-series", "henyey-greenstein"],
+                        ("default",), medium_options=geometry, channels=2)
+    labels = [t.label for t in todo]
+    water = "torrance-sparrow x forward-series (path_length=15, plate_width=5)"
+    assert f"{water}: 2 channels together (fast, values and Jacobians)" in labels
+    assert f"{water}: 2 channels together (default, values)" in labels
+    assert not [label for label in labels if "henyey-greenstein: 2 channels" in label]
+    assert "torrance-sparrow x henyey-greenstein: fit iterations (fast, values and Jacobian)" \
+        in labels  # the geometry goes to the families that declare it only
+
+    next(t for t in todo if t.label == f"{water}: 2 channels together (default, values)").run()
+    wait_for_compilations()
+    brdf = model_class("torrance-sparrow", "brdf").template()
+    medium = model_class("forward-series", "medium").template(**geometry)
+    model = ApparentModel(brdf, medium, warmup._angles(CHUNK), RULES["default"])
+    vm = medium.to_vector()
+    waters = [vm, medium.replace(tau=0.5 * medium.tau).to_vector()]
+    compiled = []
+
+    def listen(name, secs, **kw):
+        if name == "/jax/core/compile/backend_compile_duration":
+            compiled.append(kw.get("fun_name"))
+
+    jax.monitoring.register_event_duration_secs_listener(listen)
+    try:
+        model.anticipate([brdf.to_vector()] * 2, waters)
+    finally:
+        jax.monitoring.unregister_event_duration_listener(listen)
+    assert compiled == []
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--path-length", "15"], "--path-length applies to none of the families to prepare"),
+    (["--models", "forward-series", "--channels", "0"], "Invalid value for '--channels'"),
+    (["--models", "forward-series", "--path-length", "-1"], "path_length"),
+])
+def test_warmup_bad_options_exit_2(args, message):
+    from click.testing import CliRunner
+
+    from veil.cli import main
+
+    result = CliRunner().invoke(main, ["warmup", "--quiet", *args])
+    assert result.exit_code == 2, result.output
+    assert message in result.output

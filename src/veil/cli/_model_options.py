@@ -236,11 +236,9 @@ def model_options(kinds=("brdf", "medium"), auto_kinds=()):
     return decorate
 
 
-def _with_options(wrapper, declared: dict, kinds, auto_kinds, known):
-    """``wrapper`` with the click options: one per declared model option (its values, its
-    families' docs and defaults in the help), and ``--brdf-model`` / ``--medium-model``."""
-    from ..models import AUTO, DEFAULTS
-
+def _declared_flags(wrapper, declared: dict):
+    """``wrapper`` with one click option per declared model option (its values, its
+    families' docs and defaults in the help)."""
     for oname, users in reversed(list(declared.items())):
         choices = sorted({str(c) for _, _, o in users for c in o.choices})
         docs = "; ".join(f"{n}: {o.doc}" for _, n, o in users)
@@ -257,6 +255,41 @@ def _with_options(wrapper, declared: dict, kinds, auto_kinds, known):
             type=kind,
             help=f"Option of the model ({docs}); default: the model's ({defaults}).",
         )(wrapper)
+    return wrapper
+
+
+def family_options(fn):
+    """Click options for every option a registered family declares, without a choice of
+    family (``veil warmup``); the command receives ``family_options``, ({option: value}
+    for the BRDF families, the same for the media), each given option converted for the
+    families that declare it."""
+    from ..models import names, registry
+
+    declared: dict = {}
+    for kind in ("brdf", "medium"):
+        try:
+            known = names(kind)
+        except InputError:  # the plugins cannot be loaded: the command says so when it runs
+            known = sorted(n for n, c in registry.REGISTRY.items() if c.KIND == kind)
+        for name in known:
+            for opt in registry.REGISTRY[name].OPTIONS:
+                declared.setdefault(opt.name, []).append((kind, name, opt))
+
+    @functools.wraps(fn)
+    def wrapper(*args, **kwargs):
+        opts = _option_values(declared, {}, ("brdf", "medium"), kwargs, True)
+        kwargs["family_options"] = (opts["brdf"], opts["medium"])
+        return fn(*args, **kwargs)
+
+    return _declared_flags(wrapper, declared)
+
+
+def _with_options(wrapper, declared: dict, kinds, auto_kinds, known):
+    """``wrapper`` with the click options: one per declared model option (its values, its
+    families' docs and defaults in the help), and ``--brdf-model`` / ``--medium-model``."""
+    from ..models import AUTO, DEFAULTS
+
+    wrapper = _declared_flags(wrapper, declared)
     for kind in reversed(kinds):
         word = "BRDF family of the objects" if kind == "brdf" else "medium model"
         auto = (

@@ -8,6 +8,8 @@ import time
 import click
 
 from ._common import ACCURACIES
+from ._errors import UserError
+from ._model_options import family_options
 
 
 @click.command("warmup", short_help="Compile and store the engine programs ahead of time.")
@@ -28,18 +30,32 @@ from ._common import ACCURACIES
     help="Accuracy of the results to prepare for (repeatable; default: fast and "
     "default). The fits iterate at 'fast' whatever they report.",
 )
+@click.option(
+    "--channels",
+    type=click.IntRange(min=1),
+    default=1,
+    show_default=True,
+    help="Also prepare the programs that run this many colour channels together (a "
+    "measurement table with a channel column, fitted through a forward-series water "
+    "whose optical depth or albedo differ per channel; docs/channels.md). Other media "
+    "run each channel with the one-channel programs.",
+)
+@family_options
 @click.option("--quiet", is_flag=True, help="No progress display.")
-def warmup_command(selected, accuracies, quiet):
+def warmup_command(selected, accuracies, channels, family_options, quiet):
     """Compile the engine for the chosen model families and keep it: the lowered programs
     in the program store and the compiled executables in the compilation cache (both under
     VEIL_CACHE_DIR, default ~/.cache/veil; docs/performance-startup.md "Start-up"). Each model pair
     takes a few seconds to a minute or two per program the first time; a second warmup
     only checks the entries and takes seconds. Entries made by another veil, JAX or CPU
-    are built again. Example:
+    are built again. A model option (a plate's --path-length and --plate-width, --orders,
+    --distribution) changes the programs: give the ones the fits will be given. Example:
 
     \b
         veil warmup
         veil warmup --models rough-plastic --models forward-series --accuracy high
+        veil warmup --models rough-plastic --models forward-series \\
+            --path-length 15 --plate-width 5 --channels 3
     """
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
@@ -49,7 +65,13 @@ def warmup_command(selected, accuracies, quiet):
     from ..errors import InputError
     from .compile_display import console as shared_console
 
-    todo = tasks(list(selected) or None, tuple(accuracies) or ("fast", "default"))
+    _check_options(list(selected) or None, family_options)
+    todo = tasks(
+        list(selected) or None,
+        tuple(accuracies) or ("fast", "default"),
+        *family_options,
+        channels=channels,
+    )
     store = programs.directory()
     if store is None:
         click.echo(
@@ -91,3 +113,21 @@ def warmup_command(selected, accuracies, quiet):
         f"({time.perf_counter() - start:.1f} s)",
         err=True,
     )
+
+
+def _check_options(selected, family_options) -> None:
+    """A model option that none of the families to prepare declares is a UserError."""
+    from ..engine.warmup import families
+    from ..models import model_class
+
+    brdfs, media = families(selected)
+    classes = [model_class(n, "brdf") for n in brdfs] + [model_class(n, "medium") for n in media]
+    for given in family_options:
+        for name in given:
+            if not any(name in cls.option_names() for cls in classes):
+                flag = "--" + name.replace("_", "-")
+                raise UserError(
+                    f"{flag} applies to none of the families to prepare "
+                    f"({', '.join(c.NAME for c in classes)}); name one that declares it "
+                    f"with --models"
+                )

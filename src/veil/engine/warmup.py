@@ -20,6 +20,7 @@ import numpy as np
 
 from ..models import DEFAULTS, model_class, names
 from .apparent import apparent, reflectance
+from .channel_programs import shares_nodes
 from .evaluator import CHUNK, WRT, ApparentModel, DirectModel
 from .quadrature import RULES
 
@@ -53,6 +54,23 @@ def _fits(brdf, medium, accuracy: str, jacobian: bool):
         model.terms(vb, vm)
         for wrt in JACOBIANS if jacobian else ():
             model.value_and_jacobian(vb, vm, wrt)
+
+    return run
+
+
+def _channel_fits(brdf, medium, accuracy: str, jacobian: bool, channels: int):
+    """The programs that run ``channels`` channels of ``medium`` together (the fits of a
+    colour table, veil.engine.channel_programs): values, and at the iteration accuracy the
+    fits' Jacobians, each run once."""
+
+    def run():
+        model = ApparentModel(brdf, medium, _angles(CHUNK), RULES[accuracy])
+        model.prepare(values=True, jacobians=JACOBIANS if jacobian else (), channels=channels)
+        vbs = [brdf.to_vector()] * channels
+        vms = [medium.to_vector()] * channels
+        model.anticipate(vbs, vms)
+        for wrt in JACOBIANS if jacobian else ():
+            model.anticipate(vbs, vms, wrt)
 
     return run
 
@@ -117,40 +135,82 @@ def families(selected=None) -> tuple[list[str], list[str]]:
     return (chosen["brdf"] or [DEFAULTS["brdf"]], chosen["medium"] or [DEFAULTS["medium"]])
 
 
-def tasks(selected=None, accuracies=("fast", "default")) -> list[Task]:
-    """Everything to prepare for the families ``selected`` (see :func:`families`) at the
-    reported ``accuracies`` (the fits iterate at "fast" whatever they report)."""
-    brdfs, media = families(selected)
+def _templates(names_: list[str], kind: str, options: dict | None) -> list:
+    """The families' templates with the ``options`` each declares."""
     out = []
-    for bname in brdfs:
-        brdf = model_class(bname, "brdf").template()
-        out.append(Task(f"{bname}: f_r and its Jacobian (fit step 0)", _direct(brdf)))
-        for mname in media:
-            medium = model_class(mname, "medium").template()
-            pair = f"{bname} x {mname}"
-            if brdf.LINEAR:  # its step fits evaluate the column model (docs/nonparametric.md)
-                out += _linear_tasks(brdf, medium, pair, accuracies)
-                continue
+    for name in names_:
+        cls = model_class(name, kind)
+        declared = set(cls.option_names())
+        out.append(cls.template(**{k: v for k, v in (options or {}).items() if k in declared}))
+    return out
+
+
+def _named(model) -> str:
+    """A family's name with the options it was given that differ from the declared defaults."""
+    given = {o.name: model.options()[o.name] for o in model.OPTIONS}
+    shown = [
+        f"{k}={v:g}" if isinstance(v, float) else f"{k}={v}"
+        for k, v in given.items()
+        if v != next(o.default for o in model.OPTIONS if o.name == k)
+    ]
+    return model.NAME + (f" ({', '.join(shown)})" if shown else "")
+
+
+def _pair_tasks(brdf, medium, accuracies, channels: int) -> list[Task]:
+    """The fits', simulations' and ``veil eval``'s programs of one parametric pair, and
+    those of ``channels`` channels run together where the medium's family shares its
+    nodes across channels."""
+    pair = f"{_named(brdf)} x {_named(medium)}"
+    out = [
+        Task(
+            f"{pair}: fit iterations ({ITERATION}, values and Jacobian)",
+            _fits(brdf, medium, ITERATION, True),
+        )
+    ]
+    for acc in accuracies:
+        if acc != ITERATION:
             out.append(
                 Task(
-                    f"{pair}: fit iterations ({ITERATION}, values and Jacobian)",
-                    _fits(brdf, medium, ITERATION, True),
+                    f"{pair}: fit results and simulations ({acc})", _fits(brdf, medium, acc, False)
                 )
             )
-            for acc in accuracies:
-                if acc != ITERATION:
-                    out.append(
-                        Task(
-                            f"{pair}: fit results and simulations ({acc})",
-                            _fits(brdf, medium, acc, False),
-                        )
-                    )
-                out.append(
-                    Task(
-                        f"{pair}: veil eval ({acc}, with its error estimate)",
-                        _eval(brdf, medium, acc),
-                    )
+        out.append(
+            Task(f"{pair}: veil eval ({acc}, with its error estimate)", _eval(brdf, medium, acc))
+        )
+    if channels > 1 and shares_nodes(medium):
+        for acc in dict.fromkeys((ITERATION, *accuracies)):
+            what = "values and Jacobians" if acc == ITERATION else "values"
+            out.append(
+                Task(
+                    f"{pair}: {channels} channels together ({acc}, {what})",
+                    _channel_fits(brdf, medium, acc, acc == ITERATION, channels),
                 )
+            )
+    return out
+
+
+def tasks(
+    selected=None,
+    accuracies=("fast", "default"),
+    brdf_options: dict | None = None,
+    medium_options: dict | None = None,
+    channels: int = 1,
+) -> list[Task]:
+    """Everything to prepare for the families ``selected`` (see :func:`families`) at the
+    reported ``accuracies`` (the fits iterate at "fast" whatever they report), each family
+    with the options of ``brdf_options`` / ``medium_options`` it declares (a plate's
+    geometry changes the programs), and for tables of ``channels`` channels."""
+    brdf_names, medium_names = families(selected)
+    media = _templates(medium_names, "medium", medium_options)
+    out = []
+    for brdf in _templates(brdf_names, "brdf", brdf_options):
+        out.append(Task(f"{_named(brdf)}: f_r and its Jacobian (fit step 0)", _direct(brdf)))
+        for medium in media:
+            if brdf.LINEAR:  # its step fits evaluate the column model (docs/nonparametric.md)
+                pair = f"{_named(brdf)} x {_named(medium)}"
+                out += _linear_tasks(brdf, medium, pair, accuracies)
+            else:
+                out += _pair_tasks(brdf, medium, accuracies, channels)
     return out
 
 
