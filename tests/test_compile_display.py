@@ -13,6 +13,7 @@ import sys
 import numpy as np
 import pytest
 
+from support.compiles import compilations
 from veil._jax import jax
 from veil.cli import compile_display
 from veil.engine import compiling, programs
@@ -145,17 +146,8 @@ def test_warmup_prepares_the_geometry_and_the_channels_the_fits_will_run():
     model = ApparentModel(brdf, medium, warmup._angles(CHUNK), RULES["default"])
     vm = medium.to_vector()
     waters = [vm, medium.replace(tau=0.5 * medium.tau).to_vector()]
-    compiled = []
-
-    def listen(name, secs, **kw):
-        if name == "/jax/core/compile/backend_compile_duration":
-            compiled.append(kw.get("fun_name"))
-
-    jax.monitoring.register_event_duration_secs_listener(listen)
-    try:
+    with compilations() as compiled:
         model.anticipate([brdf.to_vector()] * 2, waters)
-    finally:
-        jax.monitoring.unregister_event_duration_listener(listen)
     assert compiled == []
 
 

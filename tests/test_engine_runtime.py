@@ -7,7 +7,6 @@ nor disturb the user's cache.
 
 from __future__ import annotations
 
-import contextlib
 import os
 import subprocess
 import sys
@@ -17,30 +16,11 @@ import numpy as np
 import pytest
 
 import veil
+from support.compiles import compilations
 from veil._jax import jax
 from veil.engine import forward
 from veil.engine.apparent import RULES
 from veil.engine.forward import Forward, _mesh, _terms_fn, wait_for_compilations
-
-BACKEND_COMPILE = "/jax/core/compile/backend_compile_duration"
-
-
-@contextlib.contextmanager
-def compilations():
-    """The names of the programs XLA compiles (or loads from the cache) inside the block,
-    once the background compilations of earlier tests have finished."""
-    wait_for_compilations()
-    names = []
-
-    def listen(name, secs, **kw):
-        if name == BACKEND_COMPILE:
-            names.append(kw.get("fun_name"))
-
-    jax.monitoring.register_event_duration_secs_listener(listen)
-    try:
-        yield names
-    finally:
-        jax.monitoring.unregister_event_duration_listener(listen)
 
 
 def _child(script: str, env: dict, cwd=None) -> str:

@@ -15,7 +15,7 @@ import tifffile
 from click.testing import CliRunner
 
 import veil
-from veil._jax import jax
+from support.compiles import compilations
 from support.maps import angles_of, configurations, render, write_stack
 from veil.cli import main
 from veil.engine.evaluator import ApparentModel
@@ -157,17 +157,8 @@ def test_iterations_stop_per_pixel_and_a_stopped_pixel_is_frozen(monkeypatch):
     # the warm-up compiles both programs the solve runs, the slow pixels' resume too (its
     # state once came back from numpy typed otherwise, and a second resume was compiled)
     maps.warm_up(tables)
-    compiled = []
-
-    def listen(name, secs, **kw):
-        if name == "/jax/core/compile/backend_compile_duration":
-            compiled.append(kw.get("fun_name"))
-
-    jax.monitoring.register_event_duration_secs_listener(listen)
-    try:
+    with compilations() as compiled:
         same(fits, solve_pixels(tables, y, valid), np.arange(len(y)))
-    finally:
-        jax.monitoring.unregister_event_duration_listener(listen)
     assert not [n for n in compiled if n in ("jit(batch)", "jit(resume)")], compiled
     monkeypatch.setattr(maps, "ITERATIONS", 2 * maps.ITERATIONS)
     monkeypatch.setattr(maps, "_SOLVERS", {})
