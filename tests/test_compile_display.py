@@ -156,7 +156,7 @@ def test_warmup_prepares_the_geometry_and_the_channels_the_fits_will_run():
     (["--models", "forward-series", "--channels", "0"], "Invalid value for '--channels'"),
     (["--models", "forward-series", "--path-length", "-1"], "path_length"),
 ])
-def test_warmup_bad_options_exit_2(args, message):
+def test_bad_options_of_the_ahead_of_time_compilation_exit_2(args, message):
     from click.testing import CliRunner
 
     from veil.cli import main

@@ -259,6 +259,10 @@ def test_jacobian_matches_central_differences():
     assert f._jacobian_fn(free_b, free_m)[0] is f._jacobian_fn((0, 1, 2, 3), (0, 1, 2, 3))[0]
     _, again = f.value_and_jacobian(vb, vm, (0, 1, 2, 3), (0, 1, 2, 3))
     np.testing.assert_array_equal(again, jac[:, [1, 3, 2, 0, 6, 7, 5, 4]])
+    # a parameter named twice: its column twice, from the same program
+    assert f._jacobian_fn((3, 0, 2, 1, 2), free_m)[0] is f._jacobian_fn(free_b, free_m)[0]
+    _, twice = f.value_and_jacobian(vb, vm, (3, 0, 2, 1, 2), free_m)
+    np.testing.assert_array_equal(twice, jac[:, [0, 1, 2, 3, 2, 4, 5, 6, 7]])
 
 
 def test_lobe_half_width_compiles_its_phase_once():

@@ -48,8 +48,9 @@ def warmup_command(selected, accuracies, channels, family_options, quiet):
     VEIL_CACHE_DIR, default ~/.cache/veil; docs/performance-startup.md "Start-up"). Each model pair
     takes a few seconds to a minute or two per program the first time; a second warmup
     only checks the entries and takes seconds. Entries made by another veil, JAX or CPU
-    are built again. A model option (a plate's --path-length and --plate-width, --orders,
-    --distribution) changes the programs: give the ones the fits will be given. Example:
+    are built again. A model option (for example a plate's --path-length and
+    --plate-width, --orders, --distribution) changes the programs: give the ones the fits
+    will be given. Example:
 
     \b
         veil warmup

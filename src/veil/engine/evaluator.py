@@ -86,15 +86,17 @@ class ApparentModel:
         self.values_calls = 0
         self.jacobian_calls = 0
 
-    def prepare(self, values: bool = True, jacobians=(), channels: int = 1) -> None:
+    def prepare(self, values: bool = True, jacobians=(), channels: int = 1) -> list:
         """Compile (or load) in the background what :meth:`values`/:meth:`terms` and
         :meth:`value_and_jacobian` with each ``wrt`` of ``jacobians`` will need (every chunk
-        shares one compilation), and :meth:`anticipate` for ``channels`` channels."""
+        shares one compilation), and :meth:`anticipate` for ``channels`` channels; returns
+        the futures of the channels' programs (none where channels run one at a time)."""
         frees = [self._free(wrt) for wrt in jacobians]
         together = channel_programs.prepare(self.parts[0][0], channels, values, frees)
         # channels run together need the one-channel values only where they coincide (the
         # starting grid), and its Jacobians hardly ever: those compile when called
         self.parts[0][0].prepare(values, [] if together else frees)
+        return together
 
     def anticipate(self, vbs, vms, wrt=None) -> None:
         """The channels of one iteration at once (one parameter vector pair per channel):

@@ -305,10 +305,10 @@ class Forward:
         scale_m = {mcls.scale_index(p): p for p in mcls.SCALES}
         if mcls.GAIN is not None:
             scale_m[mcls.param_names().index(mcls.GAIN)] = "gain"
-        # in the declaration's order, whatever the caller's: one program per set of free
-        # parameters (the columns are found by index below)
-        nl_b = tuple(sorted(i for i in free_brdf if i not in scale_b))
-        nl_m = tuple(sorted(i for i in free_medium if i not in scale_m))
+        # each once, in the declaration's order, whatever the caller's: one program per set
+        # of free parameters (the columns are found by index below)
+        nl_b = tuple(sorted({i for i in free_brdf if i not in scale_b}))
+        nl_m = tuple(sorted({i for i in free_medium if i not in scale_m}))
         fn = (
             _terms_jac_fn(self._kb, self._km, self.rule, self.half, nl_b, nl_m, self._mesh)
             if nl_b or nl_m

@@ -61,16 +61,12 @@ def _fits(brdf, medium, accuracy: str, jacobian: bool):
 def _channel_fits(brdf, medium, accuracy: str, jacobian: bool, channels: int):
     """The programs that run ``channels`` channels of ``medium`` together (the fits of a
     colour table, veil.engine.channel_programs): values, and at the iteration accuracy the
-    fits' Jacobians, each run once."""
+    fits' Jacobians; a compilation that fails raises here."""
 
     def run():
         model = ApparentModel(brdf, medium, _angles(CHUNK), RULES[accuracy])
-        model.prepare(values=True, jacobians=JACOBIANS if jacobian else (), channels=channels)
-        vbs = [brdf.to_vector()] * channels
-        vms = [medium.to_vector()] * channels
-        model.anticipate(vbs, vms)
-        for wrt in JACOBIANS if jacobian else ():
-            model.anticipate(vbs, vms, wrt)
+        for future in model.prepare(True, JACOBIANS if jacobian else (), channels):
+            future.result()
 
     return run
 

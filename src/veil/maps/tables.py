@@ -302,7 +302,8 @@ def column_source(u: _Unknowns, medium, angles, accuracy: str) -> Callable[[Any]
     def columns(vb):
         out = np.empty((len(channels), len(angles[0]), q + 1))
         if one is not None:  # every group's terms by one run of the channels' program
-            one.anticipate([vb] * len(firsts), [m.to_vector() for m in firsts])
+            # (every channel announced, as a fit does: one program per number of channels)
+            one.anticipate([vb] * len(channels), [medium[c].to_vector() for c in channels])
         for engine, ks in engines:
             terms = engine.terms(vb, medium[channels[ks[0]]].to_vector())  # the scales at 1
             for k in ks:
