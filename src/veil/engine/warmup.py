@@ -7,8 +7,10 @@ and the three Jacobians of the fits at the iteration accuracy - in the medium's 
 eval`` of one configuration (:func:`~veil.engine.apparent.apparent` with its error estimate)
 and the object's own f_r (step 0 of the fits) - so that what it stores in the program store
 (:mod:`veil.engine.programs`) and JAX's compilation cache is exactly what those commands
-look up later. Out-of-plane configurations and other chunk sizes are compiled on first use,
-as before.
+look up later. The families get the model options the commands will be given (a plate's
+geometry makes other programs), and a channel count adds the programs that run that many
+channels of a medium together (:mod:`veil.engine.channel_programs`). Out-of-plane
+configurations and other chunk sizes are compiled on first use, as before.
 """
 
 from __future__ import annotations
