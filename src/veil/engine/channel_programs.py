@@ -34,8 +34,8 @@ from .forward import (
     _sharded,
     _submit,
     _terms_fn,
+    jacobian_program,
 )
-from .programs import JACOBIAN_OPTIONS
 from .quadrature import Rule
 
 
@@ -88,14 +88,7 @@ def _channel_jacobian_fn(kb, km, rule: Rule, half: bool, nl_b, nl_m, channels: i
         eye = jnp.eye(nb + len(nl_m), dtype=vb.dtype)
         return jax.vmap(along, out_axes=(None, -1))(eye)
 
-    names = [kb[0].PARAMS[i].name for i in nl_b] + [km[0].PARAMS[i].name for i in nl_m]
-    return Program(
-        _sharded(fn, mesh),
-        _identity(f"terms+jacobian {nl_b} {nl_m} of {channels} channels", kb, km, rule, half, mesh),
-        (kb[0], km[0]),
-        _label(f"values and d/d({', '.join(names)}) of {channels} channels", kb, km, rule),
-        JACOBIAN_OPTIONS,
-    )
+    return jacobian_program(fn, kb, km, rule, half, nl_b, nl_m, mesh, f" of {channels} channels")
 
 
 def is_channel_program(fn) -> bool:

@@ -111,12 +111,19 @@ def _terms_jac_fn(kb, km, rule: Rule, half: bool, nl_b: tuple, nl_m: tuple, mesh
         # the terms do not depend on the direction: computed once, not per column
         return jax.vmap(along, out_axes=(None, -1))(jnp.eye(x.size, dtype=x.dtype))
 
+    return jacobian_program(fn, kb, km, rule, half, nl_b, nl_m, mesh)
+
+
+def jacobian_program(fn, kb, km, rule: Rule, half: bool, nl_b, nl_m, mesh, of: str = ""):
+    """The :class:`Program` of a Jacobian function ``fn`` in the parameters ``nl_b`` and
+    ``nl_m``, named for the store and the compile display (``of``: what else it computes,
+    e.g. " of 3 channels")."""
     names = [kb[0].PARAMS[i].name for i in nl_b] + [km[0].PARAMS[i].name for i in nl_m]
     return Program(
         _sharded(fn, mesh),
-        _identity(f"terms+jacobian {nl_b} {nl_m}", kb, km, rule, half, mesh),
+        _identity(f"terms+jacobian {nl_b} {nl_m}{of}", kb, km, rule, half, mesh),
         (kb[0], km[0]),
-        _label(f"values and d/d({', '.join(names)})", kb, km, rule),
+        _label(f"values and d/d({', '.join(names)}){of}", kb, km, rule),
         JACOBIAN_OPTIONS,
     )
 
