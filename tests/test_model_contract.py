@@ -22,6 +22,7 @@ import veil_test_models  # noqa: F401  (registers the test-only families)
 
 import reference as ref
 import reference_physical as rphys
+from support.held_nodes import held_values
 from veil.engine.evaluator import CHUNK
 from veil.engine.forward import Forward
 from veil.engine.quadrature import RULES
@@ -295,7 +296,7 @@ def test_parts_sum_to_the_independent_value(name):
 
 
 # --------------------------------------------------------------------------------------
-# the engine: exact Jacobians and a brute-force integral
+# the engine: Jacobians and a brute-force integral
 # --------------------------------------------------------------------------------------
 #: The physical families are paired with each other, in the validation data's set-up (one
 #: pass 15, plate 5 wide: validation/README.md), as the physical pipeline fits them: their
@@ -328,7 +329,9 @@ LINEAR_CHECKED = ("d1", "w02_0", "w02_3", "w09_1", "w09_2")
 @pytest.mark.parametrize("name", FAMILIES)
 def test_engine_jacobian_matches_central_differences(name):
     """In every parameter of the family (its partner has its own case: the Jacobian in the
-    partner's parameters too would double the compilation)."""
+    partner's parameters too would double the compilation): the central differences of the
+    quadrature whose phase grids stay where the Jacobian's point put them (docs/engine.md
+    "Derivatives"), and within the rule's error of those of the engine's values, whose grids move."""
     brdf, medium = _pair(name)
     # the fits' chunk (64 configurations in the plane of incidence, "fast"): the program is
     # the one step 1 (a medium family) or step 2 (a BRDF family) iterates with, compiled
@@ -344,29 +347,26 @@ def test_engine_jacobian_matches_central_differences(name):
     value, jac = fwd.value_and_jacobian(vb, vm, free_b, free_m)
     assert np.allclose(value, fwd(vb, vm), rtol=1e-12)
     assert jac.shape == (len(ti), len(free_b) + len(free_m))
+    held = fwd if brdf.LINEAR else held_values(fwd, vm)
+    # the same quadrature at the point its grids were drawn at (p / q = 1 within the phase
+    # table's interpolation, 3e-7 for forward-series)
+    assert np.allclose(held(vb, vm), value, rtol=1e-6)
     for col, k in enumerate(list(free_b) + [nb + i for i in free_m]):
         x = np.concatenate([vb, vm])
         h = 1e-5 * max(abs(x[k]), 1e-3)
         up, down = x.copy(), x.copy()
         up[k] += h
         down[k] -= h
-        f_up, f_down = fwd(up[:nb], up[nb:]), fwd(down[:nb], down[nb:])
-        numeric = (f_up - f_down) / (2 * h)
+        numeric = (held(up[:nb], up[nb:]) - held(down[:nb], down[nb:])) / (2 * h)
         scale = np.max(np.abs(numeric)) + 1e-300
-        central = np.isclose(jac[:, col], numeric, rtol=1e-4, atol=1e-6 * scale)
-        # The finite plate's weight J_v has kinks (the min, max and abs in its plate depth)
-        # that the phase lobe's quadrature nodes cross as g moves them: the engine's value is
-        # piecewise smooth in g, and a central difference straddling a kink (measured: one
-        # of 64 configurations, g = 0.9 +- 9e-6, 1 % off; none with an infinite plate) is
-        # neither side's derivative. Only where a kink shows (the one-sided differences
-        # disagree), at most two configurations per parameter, the Jacobian must be one of
-        # the one-sided derivatives instead.
-        forward_d, backward_d = (f_up - value) / h, (value - f_down) / h
-        kink = ~np.isclose(forward_d, backward_d, rtol=1e-3, atol=1e-5 * scale)
-        one_sided = kink & (np.isclose(jac[:, col], forward_d, rtol=2e-4, atol=1e-6 * scale)
-                            | np.isclose(jac[:, col], backward_d, rtol=2e-4, atol=1e-6 * scale))
-        assert np.all(central | one_sided), (name, k, np.flatnonzero(~(central | one_sided)))
-        assert np.count_nonzero(~central) <= 2, (name, k, np.flatnonzero(~central))
+        close = np.isclose(jac[:, col], numeric, rtol=1e-4, atol=1e-6 * scale)
+        assert np.all(close), (name, k, np.flatnonzero(~close))
+        # the engine's values, grids moving with the parameter: a derivative of the same
+        # integral, different by the quadrature's error of the derivative (the fast rule's
+        # Jacobian differs from the default rule's by up to 3.5 % of a column's scale)
+        moving = (fwd(up[:nb], up[nb:]) - fwd(down[:nb], down[nb:])) / (2 * h)
+        off = np.abs(jac[:, col] - moving) / (np.max(np.abs(moving)) + 1e-300)
+        assert off.max() <= 0.05 and np.median(off) <= 0.02, (name, k, off.max())
 
 
 def _sphere_integral(fn, center, density_cone, n_r=1200, n_a=256):

@@ -88,11 +88,12 @@ def _terms_fn(kb, km, rule: Rule, half: bool, mesh: Mesh):
 @lru_cache(maxsize=128)
 def _terms_jac_fn(kb, km, rule: Rule, half: bool, nl_b: tuple, nl_m: tuple, mesh: Mesh):
     """Terms (M, 3, 2) and their derivatives (M, 3, 2, len(nl_b) + len(nl_m)) with respect
-    to the listed parameters, by forward mode: the tangents of every basis vector carried
-    through the quadrature together, beside one evaluation of the terms (jacfwd). Measured
-    against one linearization with its tangent map applied to each basis vector (rough-plastic
-    x forward-series, fast rule, in the medium's parameters): 26 % fewer lines of program,
-    20 % less compile time, the same run time (docs/performance.md "Compilation")."""
+    to the listed parameters, the phase grids held (docs/engine.md "Derivatives"), by forward
+    mode: the tangents of every basis vector carried through the quadrature together, beside
+    one evaluation of the terms (jacfwd). Measured against one linearization with its tangent
+    map applied to each basis vector (rough-plastic x forward-series, fast rule, in the
+    medium's parameters): 26 % fewer lines of program, 20 % less compile time, the same run
+    time (docs/performance.md "Compilation")."""
     bt, mt = integrator.template_for(kb), integrator.template_for(km)
     ib, im = np.asarray(nl_b, dtype=int), np.asarray(nl_m, dtype=int)
     nb = len(nl_b)
@@ -100,7 +101,15 @@ def _terms_jac_fn(kb, km, rule: Rule, half: bool, nl_b: tuple, nl_m: tuple, mesh
     def fn(vb, vm, wi, wr):
         def g(x):
             return integrator.apparent_terms(
-                bt, mt, rule, vb.at[ib].set(x[:nb]), vm.at[im].set(x[nb:]), wi, wr, half
+                bt,
+                mt,
+                rule,
+                vb.at[ib].set(x[:nb]),
+                vm.at[im].set(x[nb:]),
+                wi,
+                wr,
+                half,
+                hold_phase_grids=bool(nl_m),  # the medium's parameters move them
             )
 
         x = jnp.concatenate([vb[ib], vm[im]])
@@ -369,8 +378,9 @@ class Forward:
 
         ``free_*`` are parameter indices. Scale parameters (``Model.SCALES``) are
         differentiated analytically from the term matrices; the others by forward-mode
-        automatic differentiation through the quadrature (exact for the discrete rule; for
-        channels announced together, veil.engine.channel_programs, on their law's nodes).
+        automatic differentiation through the quadrature, its phase grids held where this
+        point draws them (docs/engine.md "Derivatives"; for channels announced together,
+        veil.engine.channel_programs, on their law's nodes).
         """
         fn, free_brdf, free_medium, scale_b, scale_m, nl_b, nl_m = self._jacobian_fn(
             free_brdf, free_medium

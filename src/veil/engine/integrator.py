@@ -150,7 +150,8 @@ def pairs(medium_cls) -> list[tuple[str, str]]:
 def _lobe_parts(brdf, medium, rule, half, vb, vm, maux, facets, wi, wr, grids, law=None):
     """The lobe's values of every lobe term of one configuration: the lobe and the phase
     function evaluated at each term's nodes (:mod:`.lobe_terms`), and the density of the
-    grids' sampling ``law`` there when it is not the phase's own (:func:`apparent_terms_channels`).
+    grids' sampling ``law`` there when it is not the phase's own (channels sharing a law,
+    :func:`apparent_terms_channels`; the phase held in a Jacobian, :func:`apparent_terms`).
     Returns {"lobe": 4D term, "sides": (view side, light side), "delta": lobe(I, R)}."""
     comps = medium.COMPONENTS
     parts = {}
@@ -185,7 +186,8 @@ def _one_config(brdf, medium, rule, half, vb, vm, shared, maux, wi, wr, law=None
     Rows: the medium's component pairs (:func:`pairs`: for the paper's medium T_d^2,
     T_d T_t, T_t^2), each with its components' weights; columns: the separable and lobe
     parts of f_r. ``law`` (vm, aux): the phase grids are drawn from it rather than from the
-    medium's own phase (:func:`apparent_terms_channels`).
+    medium's own phase (:func:`apparent_terms_channels`); (vm, aux, True): from the
+    medium's own phase held constant (:func:`apparent_terms`).
     """
     c0_sep, c0_lobe, a_tab, b_tab, s_int, t_int, aux, facets = shared
     zero = 0.0 * c0_sep
@@ -275,7 +277,7 @@ def _lobe_grids(brdf, medium, rule, half, vm, maux, wi, wr, law=None):
         grids = phase_grids(medium, vm, maux, specs)
     else:
         grids = [
-            channel_grid(medium, vm, maux, spec[0], grid)
+            channel_grid(medium, vm, maux, spec[0], grid, own=len(law) > 2)
             for spec, grid in zip(specs, phase_grids(medium, law[0], law[1], specs))
         ]
     return grids, [wi[2], grids[0][0][:, 2]], [wr[2], grids[1][0][:, 2]]
@@ -364,25 +366,57 @@ def combine_terms(brdf_cls, medium_cls, terms, vb, vm):
 
 
 def apparent_terms(
-    brdf_template, medium_template, rule, vb, vm, wi, wr, half=False, batch_size=None
+    brdf_template,
+    medium_template,
+    rule,
+    vb,
+    vm,
+    wi,
+    wr,
+    half=False,
+    batch_size=None,
+    hold_phase_grids=False,
+    phase_grids_at=None,
 ):
     """Term matrices (M, rows, 2) for unit direction arrays (M, 3); see :func:`_one_config`.
 
     Pure JAX and differentiable in the non-scale parameters of ``vb`` and ``vm``.
     ``half=True`` is valid only when every configuration lies in the xz plane.
+
+    The phase grids (docs/engine.md "Derivatives") are drawn from the medium's phase at
+    ``vm``, or at the medium vector ``phase_grids_at``, each node then weighted by the phase
+    at ``vm`` over the density it was drawn from. ``hold_phase_grids`` draws them at ``vm``
+    held constant (``stop_gradient``): the values are the default's (within rounding), and
+    derivatives in the medium's parameters are those of the quadrature whose nodes stay
+    where they are (the Jacobian programs).
     """
-    brdf = brdf_template  # its functions read its options (e.g. a microfacet distribution)
+    if hold_phase_grids and phase_grids_at is not None:
+        raise ValueError("hold_phase_grids and phase_grids_at exclude each other")
+    brdf, mcls = brdf_template, type(medium_template)  # options select the code paths
     vb1 = _unit_scales(type(brdf), jnp.asarray(vb))
-    vm1 = _unit_scales(type(medium_template), jnp.asarray(vm))
+    vm1 = _unit_scales(mcls, jnp.asarray(vm))
     shared = _shared(brdf, rule, vb1, half)
     maux = medium_template.prepare(vm1)
+    law = None
+    if hold_phase_grids:  # the medium's own law: p / q taken as exactly 1
+        held = jax.tree.map(lambda a: jax.lax.stop_gradient(a) if _is_array(a) else a, maux)
+        law = (jax.lax.stop_gradient(vm1), held, True)
+    elif phase_grids_at is not None:
+        at = _unit_scales(mcls, jnp.asarray(phase_grids_at))
+        law = (at, medium_template.prepare(at))
 
     def f(x):
-        return _one_config(brdf, medium_template, rule, half, vb1, vm1, shared, maux, x[0], x[1])
+        return _one_config(
+            brdf, medium_template, rule, half, vb1, vm1, shared, maux, x[0], x[1], law
+        )
 
     if batch_size is None:  # keep the live intermediate arrays to a few hundred MB
         batch_size = _batch(wi.shape[0], 1_500_000 // rule.points_per_config)
     return jax.lax.map(f, (wi, wr), batch_size=batch_size)
+
+
+def _is_array(a) -> bool:
+    return isinstance(a, (jax.Array, np.ndarray, float, int))
 
 
 def channel_law(medium_template, vms):

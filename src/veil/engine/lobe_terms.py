@@ -12,9 +12,9 @@ A part returns ``(lobe_requests, phase_requests, finish)``: lists of node sets (
 ``lobe_at``: (wi, wo, h, alpha); for the phase function: 1 - cos of the scattering angle) and
 ``finish(lobes, phases, densities)``, which takes the values in the same order: the phase
 function there, and the density of the phase grids' sampling law there (the same values,
-the same objects, unless the grids were drawn from a law shared by several channels:
-:func:`veil.engine.nodes.channel_grid`; the balance weights take the law's density, the
-integrand the channel's phase).
+the same objects, unless the grids were drawn from another law: one shared by several
+channels, or the medium's own held constant in a Jacobian, :func:`veil.engine.nodes.channel_grid`;
+the balance weights take the law's density, the integrand the channel's phase).
 """
 
 from __future__ import annotations

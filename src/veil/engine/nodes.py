@@ -70,16 +70,23 @@ def phase_ratio(p, q):
     return jnp.where(ok, p / jnp.where(ok, q, 1.0), 0.0)
 
 
-def channel_grid(medium: BTDF, vm, maux, center, grid):
+def channel_grid(medium: BTDF, vm, maux, center, grid, own: bool = False):
     """A phase grid about ``center`` drawn from a sampling law (``grid``, as
     :func:`phase_grid` returns it) seen by one channel of phase p (``vm``, ``maux``):
     (d, unit, frac_max * p / q, q), so that sum(unit * frac * f(d)) approximates
     Int p(center . d) f(d) dd, and the last entry stays the density the nodes have (the
-    balance weights of the multiple-importance terms use it)."""
+    balance weights of the multiple-importance terms use it). ``own``: the law is the
+    channel's own phase held constant (docs/engine.md "Derivatives"): p / q is 1 and is
+    taken as exactly 1, its derivative dp / q kept, so the values are those of the grid
+    drawn at ``vm`` (within rounding)."""
     d, unit, frac, q = grid
     p = medium.phase(vm, half_distance(d, center), maux)
+    if own:
+        ratio = 1.0 + phase_ratio(p - jax.lax.stop_gradient(p), q)
+    else:
+        ratio = phase_ratio(p, q)
     # held: XLA would evaluate the phase again inside each sum over the grid's products
-    return d, unit, jax.lax.optimization_barrier(frac * phase_ratio(p, q)), q
+    return d, unit, jax.lax.optimization_barrier(frac * ratio), q
 
 
 def half_grid(brdf: BRDF, vb, partner, n_r: int, n_a: int, half: bool):

@@ -6,7 +6,8 @@ stopping rule, rank and covariance).
 
 - :func:`solve`: Levenberg-Marquardt (:func:`veil.fitting.least_squares.levenberg_marquardt`)
   in the problem's internal coordinates (log, atanh or plain, :mod:`veil.fitting.coordinates`)
-  within their bounds, with the exact Jacobian of the engine; it stops when the undamped
+  within their bounds, with the engine's Jacobian (in a medium's parameters on its phase
+  grids held: docs/engine.md "Derivatives"); it stops when the undamped
   Gauss-Newton step is below a tolerance in standard errors in every free parameter not held
   at a bound (``TOL_*`` below);
 - :func:`run`: several starts (the next only while the fits so far are not convincing),
@@ -27,12 +28,15 @@ refits of :mod:`veil.fitting.propagation`, about what scipy's relative cost chan
 which these replace, amounted to at a cost of n_points / 2; :data:`TOL_POLISH` = 1e-2, as the
 polish's frozen fast Jacobian leaves a Gauss-Newton step of its own error (1e-3 to 1e-2
 standard errors) at the optimum; :data:`TOL_FINAL` = 1e-4 for every other run (f_r alone,
-fits at "fast", profiles), where the exact Jacobian makes the last steps cheap. Measured
+fits at "fast", profiles), where the Jacobian of the rule makes the last steps cheap. Measured
 against each run's exact optimum on the sessions of benchmarks/bench_fit.py and
 bench_joint.py (the requested rule's optimum found with a central-difference Jacobian): the
 runs at TOL_FINAL end within 1e-4 standard errors of it (scipy's within 7e-5), those at
 TOL_ITER within 3e-3, and the polished estimates 0.9 to 7 % of a standard error from it, as
-scipy's were: the chord method, not the tolerance, sets that distance.
+scipy's were: the chord method, not the tolerance, sets that distance. A medium's fits,
+whose Jacobian holds the phase grids (docs/engine.md "Derivatives"), end within 0.05
+standard errors of the fast rule's optimum and 0.061 of the default rule's
+(benchmarks/bench_optimum.py).
 """
 
 from __future__ import annotations
