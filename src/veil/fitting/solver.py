@@ -23,20 +23,16 @@ stopping rule, rank and covariance).
   cannot determine the model (which then never reads "converged").
 
 The tolerances, in standard errors (the stopping rule of :mod:`veil.fitting.least_squares`):
-:data:`TOL_ITER` = 1e-2 for the iterations at "fast" before a polish and for the sigma-point
-refits of :mod:`veil.fitting.propagation`, about what scipy's relative cost change of 1e-6,
-which these replace, amounted to at a cost of n_points / 2; :data:`TOL_POLISH` = 1e-2, as the
-polish's frozen fast Jacobian leaves a Gauss-Newton step of its own error (1e-3 to 1e-2
-standard errors) at the optimum; :data:`TOL_FINAL` = 1e-4 for every other run (f_r alone,
-fits at "fast", profiles), where the Jacobian of the rule makes the last steps cheap. Measured
-against each run's exact optimum on the sessions of benchmarks/bench_fit.py and
-bench_joint.py (the requested rule's optimum found with a central-difference Jacobian): the
-runs at TOL_FINAL end within 1e-4 standard errors of it (scipy's within 7e-5), those at
-TOL_ITER within 3e-3, and the polished estimates 0.9 to 7 % of a standard error from it, as
-scipy's were: the chord method, not the tolerance, sets that distance. A medium's fits,
-whose Jacobian holds the phase grids (docs/engine.md "Derivatives"), end within 0.05
-standard errors of the fast rule's optimum and 0.061 of the default rule's
-(benchmarks/bench_optimum.py).
+:data:`TOL_ITER` = 1e-2 for the iterations at "fast" before a polish and the sigma-point
+refits of :mod:`veil.fitting.propagation` (scipy's relative cost change of 1e-6 at n_points /
+2); :data:`TOL_POLISH` = 1e-2, as the polish's frozen fast Jacobian leaves a Gauss-Newton step
+of its own error (1e-3 to 1e-2 standard errors) at the optimum; :data:`TOL_FINAL` = 1e-4 for
+every other run (f_r alone, fits at "fast", profiles). Against each run's exact optimum
+(bench_fit.py's and bench_joint.py's sessions, central-difference Jacobians) the runs at
+TOL_FINAL end within 1e-4 standard errors, those at TOL_ITER within 3e-3, the polished
+estimates 0.9 to 7 % of one (the chord method sets that). A medium's fits, whose Jacobian
+holds the phase grids (docs/engine.md "Derivatives"), end within 0.05 standard errors of the
+fast rule's optimum and 0.061 of the default rule's (benchmarks/bench_optimum.py).
 """
 
 from __future__ import annotations
