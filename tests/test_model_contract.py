@@ -439,7 +439,7 @@ def test_forward_series_engine_matches_the_independent_reference(options):
         assert abs(got[k] - want) <= 4 * se + 1e-3 * want, (k, got[k], want, se)
 
 
-@pytest.mark.parametrize("g", [-0.5, 0.3, 0.88, 0.95, 0.99, 0.995])
+@pytest.mark.parametrize("g", [0.0, 0.3, 0.88, 0.95, 0.99, 0.995])
 def test_forward_series_phase_tables_hold_their_accuracy_over_the_parameter_range(g):
     """The tabulated scattered lobe (density, cone fraction, sampling map and the density it
     returns with it) against the closed-form series of docs/model.md 8.1, within TABLE_ACCURACY,

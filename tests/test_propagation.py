@@ -39,9 +39,11 @@ HG = model_class("henyey-greenstein", "medium")
 
 
 def test_axes_follow_the_declared_error_scale():
-    tau, omega, g = FS.param("tau"), FS.param("omega"), FS.param("g")
+    tau, omega = FS.param("tau"), FS.param("omega")
+    g = HG.param("g")  # open at both ends (the forward series' g is closed at 0)
     assert Axis.of(tau, 0.1).kind == "log"            # stderr / value
     assert Axis.of(g, 0.95).kind == "upper"           # stderr / (1 - g)
+    assert Axis.of(FS.param("g"), 0.95).kind == "upper"
     assert Axis.of(g, -0.9).kind == "lower"
     assert Axis.of(omega, 1.0).kind == "log"
     assert Axis.of(HG.param("Td"), 1e-3).kind == "log"  # log_scale

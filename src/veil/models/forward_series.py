@@ -323,10 +323,9 @@ class ForwardSeries(Medium):
         ),
         Param(
             "g",
-            -1.0,
+            0.0,
             1.0,
-            "Henyey-Greenstein asymmetry of one scattering event",
-            lower_open=True,
+            "Henyey-Greenstein asymmetry of one scattering event (forward: 0 to 1)",
             upper_open=True,
             start=0.9,
             share="per-medium",
