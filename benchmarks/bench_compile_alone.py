@@ -136,6 +136,16 @@ def measure_pair(brdf_name: str, medium_name: str, channels: int = 1) -> list[di
     return rows
 
 
+def pairs_of(spec: str) -> list[str]:
+    """The BRDF:MEDIUM pairs of ``--pairs`` ("all": every registered parametric pair; the
+    nonparametric family's programs are its column model's)."""
+    if spec != "all":
+        return spec.split(",")
+    from veil.models import names
+
+    return [f"{b}:{m}" for b in names("brdf") for m in names("medium") if b != "nonparametric"]
+
+
 def _load() -> str:
     one, five, _ = os.getloadavg()
     return f"{one:.1f} (5 min {five:.1f})"
@@ -181,13 +191,7 @@ def main(argv=None) -> int:
     if a.one:
         print(json.dumps(measure_pair(*a.one.split(":", 1), channels=a.channels)))
         return 0
-    if a.pairs == "all":
-        from veil.models import names
-
-        pairs = [f"{b}:{m}" for b in names("brdf") for m in names("medium")
-                 if b != "nonparametric"]  # its programs are its column model's
-    else:
-        pairs = a.pairs.split(",")
+    pairs = pairs_of(a.pairs)
     started = datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d %H:%M UTC")
     print(f"benchmarks/bench_compile_alone.py {' '.join(argv or sys.argv[1:])}: {started}, "
           f"{platform.machine()} with {os.cpu_count()} cores, load {_load()}", flush=True)

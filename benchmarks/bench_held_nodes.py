@@ -163,13 +163,9 @@ def main(argv=None) -> int:
     if a.one:
         print(json.dumps(measure_pair(*a.one.split(":", 1))))
         return 0
-    if a.pairs == "all":
-        from veil.models import names
+    from bench_compile_alone import pairs_of
 
-        pairs = [f"{b}:{m}" for b in names("brdf") for m in names("medium")
-                 if b != "nonparametric"]  # its programs are its column model's
-    else:
-        pairs = a.pairs.split(",")
+    pairs = pairs_of(a.pairs)
     print(f"benchmarks/bench_held_nodes.py, {os.cpu_count()} cores, load {_load()}", flush=True)
     results = {}
     for pair in pairs:
