@@ -28,7 +28,9 @@ import subprocess
 import sys
 import time
 
+import doc_tables
 import numpy as np
+from bench_compile_alone import _load, pairs_of
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 DATA = os.path.join(HERE, "..", "validation", "data")
@@ -39,8 +41,6 @@ SESSION = "m05_target"
 def _jacobian(bt, mt, rule, half, nl_b, nl_m, hold: bool):
     """The jitted Jacobian (terms and d terms / d free) as the engine builds it, with the
     nodes held or moving."""
-    import numpy as np
-
     from veil._jax import jax, jnp
     from veil.engine import integrator
 
@@ -136,7 +136,7 @@ def table(results: dict) -> str:
            "moving | off the default rule's derivative, held: max, median (column) | "
            "moving | standard errors off the default rule's, held / moving |",
            "|---|---|---:|---:|---:|---|---|---:|"]
-    for pair, (found, _) in results.items():
+    for pair, found in results.items():
         h, m = (next(r for r in found if r["held"] is hold) for hold in (True, False))
         out.append(
             f"| {pair} | {h['free']} | {h['lines']} / {m['lines']} | {h['compile']:.1f} / "
@@ -147,44 +147,29 @@ def table(results: dict) -> str:
     return "\n".join(out)
 
 
-def _load() -> str:
-    one, five, _ = os.getloadavg()
-    return f"{one:.1f} (5 min {five:.1f})"
-
-
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--pairs", default="all",
                     help="comma-separated BRDF:MEDIUM pairs (default: every registered pair)")
-    ap.add_argument("--doc", default=None, metavar="PAGE",
-                    help="write the table into PAGE between its markers held-nodes")
+    doc_tables.add_options(ap, "held-nodes")
     ap.add_argument("--one", default=None, help=argparse.SUPPRESS)  # the child process
     a = ap.parse_args(argv)
     if a.one:
         print(json.dumps(measure_pair(*a.one.split(":", 1))))
         return 0
-    from bench_compile_alone import pairs_of
-
-    pairs = pairs_of(a.pairs)
     print(f"benchmarks/bench_held_nodes.py, {os.cpu_count()} cores, load {_load()}", flush=True)
     results = {}
-    for pair in pairs:
-        load = _load()
+    for pair in pairs_of(a.pairs):
         env = {**os.environ, "VEIL_CACHE_DIR": "off"}
         done = subprocess.run([sys.executable, __file__, "--one", pair], capture_output=True,
                               text=True, env=env)
         if done.returncode != 0:
             print(done.stderr[-3000:], file=sys.stderr)
             return 3
-        results[pair.replace(":", " x ")] = (json.loads(done.stdout.strip().splitlines()[-1]),
-                                             load)
+        results[pair.replace(":", " x ")] = json.loads(done.stdout.strip().splitlines()[-1])
         print(f"{pair}: done, load {_load()}", flush=True)
-    text = table(results) + f"\n\nLoad at the end {_load()}."
-    print("\n" + text)
-    if a.doc:
-        from doc_tables import write
-
-        write(a.doc, "held-nodes", text)
+    with doc_tables.printed_tables(a):
+        print("\n" + table(results) + f"\n\nLoad at the end {_load()}.")
     return 0
 
 

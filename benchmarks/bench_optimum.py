@@ -20,6 +20,7 @@ import argparse
 import os
 import sys
 
+import doc_tables
 import numpy as np
 
 
@@ -51,8 +52,7 @@ def distance(table, reference, result, accuracy: str) -> dict:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--doc", default=None, metavar="PAGE",
-                    help="write the table into PAGE between its markers fit-optimum")
+    doc_tables.add_options(ap, "fit-optimum")
     a = ap.parse_args(argv)
     import veil
 
@@ -69,12 +69,8 @@ def main(argv=None) -> int:
                         f"{name} |")
             print(rows[-1], flush=True)
     one, five, _ = os.getloadavg()
-    text = "\n".join(rows) + f"\n\nLoad at the end {one:.1f} (5 min {five:.1f})."
-    print("\n" + text)
-    if a.doc:
-        from doc_tables import write
-
-        write(a.doc, "fit-optimum", text)
+    with doc_tables.printed_tables(a):
+        print("\n" + "\n".join(rows) + f"\n\nLoad at the end {one:.1f} (5 min {five:.1f}).")
     return 0
 
 
