@@ -137,17 +137,23 @@ def jacobian_program(fn, kb, km, rule: Rule, half: bool, nl_b, nl_m, mesh, of: s
     )
 
 
+def non_default_options(classes, items) -> list[str]:
+    """ "name=value" of each (name, value) of ``items`` that differs from its declared default
+    in the models ``classes`` (for people: labels and the warmup's task names)."""
+    defaults = {o.name: o.default for cls in classes for o in cls.OPTIONS}
+    return [
+        f"{k}={v:g}" if isinstance(v, float) else f"{k}={v}"
+        for k, v in items
+        if defaults.get(k, object()) != v
+    ]
+
+
 def _label(what: str, kb, km, rule: Rule) -> str:
     """What a compiled engine function is, for people (the compile display)."""
     named = [f"{name}" for name, r in RULES.items() if r == rule] + [
         f"{name} error-estimate" for name, r in FINER.items() if r == rule
     ]
-    defaults = {o.name: o.default for o in kb[0].OPTIONS + km[0].OPTIONS}
-    options = [
-        f"{k}={v:g}" if isinstance(v, float) else f"{k}={v}"
-        for k, v in kb[1:] + km[1:]
-        if defaults.get(k, object()) != v
-    ]
+    options = non_default_options((kb[0], km[0]), kb[1:] + km[1:])
     models = f"{kb[0].NAME} x {km[0].NAME}" + (f" ({', '.join(options)})" if options else "")
     return f"{models}: {what}, {named[0] if named else 'custom'} rule"
 

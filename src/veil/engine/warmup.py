@@ -24,6 +24,7 @@ from ..models import DEFAULTS, model_class, names
 from .apparent import apparent, reflectance
 from .channel_programs import shares_nodes
 from .evaluator import CHUNK, WRT, ApparentModel, DirectModel
+from .forward import non_default_options
 from .quadrature import RULES
 
 #: The accuracy the fits iterate at (veil.fitting.problem.ITERATION_ACCURACY).
@@ -145,12 +146,8 @@ def _templates(names_: list[str], kind: str, options: dict | None) -> list:
 
 def _named(model) -> str:
     """A family's name with the options it was given that differ from the declared defaults."""
-    given = {o.name: model.options()[o.name] for o in model.OPTIONS}
-    shown = [
-        f"{k}={v:g}" if isinstance(v, float) else f"{k}={v}"
-        for k, v in given.items()
-        if v != next(o.default for o in model.OPTIONS if o.name == k)
-    ]
+    given = [(o.name, model.options()[o.name]) for o in model.OPTIONS]
+    shown = non_default_options((type(model),), given)
     return model.NAME + (f" ({', '.join(shown)})" if shown else "")
 
 
