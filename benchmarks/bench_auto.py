@@ -16,7 +16,9 @@ then ranked on it) and without it (step 2 ranked through the medium). Cases:
   forward-series with the session's path length and plate width.
 
 The table gives the median wall and CPU seconds (this process's children: all threads) of
-each command, auto's ratio to the pinned pair, and what auto chose per step.
+each command, auto's ratio to the pinned pair, the seconds each spent reading its engine
+programs from the store (summed over threads; VEIL_COMPILE_LOG's "load" lines) and how many,
+and what auto chose per step.
 """
 
 from __future__ import annotations
@@ -91,19 +93,22 @@ def command(case: dict, models: str, clear: bool, out: Path) -> list[str]:
     return cmd
 
 
-def timed(cmd: list[str], env: dict) -> tuple[float, float, int]:
-    """(wall s, CPU s of the child, exit status) of one run."""
+def timed(cmd: list[str], env: dict, log: Path) -> tuple[float, float, int, float, int]:
+    """(wall s, CPU s of the child, exit status, seconds and number of the engine programs
+    it read from the store) of one run; ``log`` the VEIL_COMPILE_LOG it writes."""
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
-    done = subprocess.run(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
-                          text=True)
+    done = subprocess.run(cmd, env={**env, "VEIL_COMPILE_LOG": str(log)},
+                          stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     wall = time.perf_counter() - t0
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
     if done.returncode not in (0, 1) or "Traceback" in done.stderr:
         sys.stderr.write(done.stderr[-3000:])
         raise SystemExit(f"bench_auto: {' '.join(cmd)} exited {done.returncode}")
-    return wall, cpu, done.returncode
+    logged = [json.loads(line) for line in log.read_text().splitlines()] if log.exists() else []
+    loads = [e["seconds"] for e in logged if e.get("event") == "load"]
+    return wall, cpu, done.returncode, sum(loads), len(loads)
 
 
 def chosen(out: Path) -> str:
@@ -121,17 +126,19 @@ def run_case(name: str, rounds: int, env: dict, work: Path) -> list[list[str]]:
         times: dict = {"pinned": [], "auto": []}
         picks = ""
         for models in (case["pinned"], "auto"):  # fill the program store, untimed
-            timed(command(case, models, clear, work / "warm"), env)
+            timed(command(case, models, clear, work / "warm"), env, work / "warm.log")
         for r in range(rounds):
             for kind, models in (("pinned", case["pinned"]), ("auto", "auto")):
                 out = work / f"{name}-{kind}-{clear}-{r}"
-                wall, cpu, status = timed(command(case, models, clear, out), env)
-                times[kind].append((wall, cpu, status))
+                wall, cpu, status, load, n = timed(command(case, models, clear, out), env,
+                                                   work / f"{out.name}.log")
+                times[kind].append((wall, cpu, status, load, n))
                 if kind == "auto":
                     picks = chosen(out)
                 print(f"  {name} {'with' if clear else 'without'} target clear, {kind}: "
-                      f"{wall:.1f} s wall, {cpu:.1f} s CPU, exit {status}", file=sys.stderr)
-        med = {k: (statistics.median(t[0] for t in v), statistics.median(t[1] for t in v))
+                      f"{wall:.1f} s wall, {cpu:.1f} s CPU, exit {status}, {n} programs loaded "
+                      f"in {load:.1f} s", file=sys.stderr)
+        med = {k: tuple(statistics.median(t[i] for t in v) for i in (0, 1, 3, 4))
                for k, v in times.items()}
         status = ",".join(str(s) for s in sorted({t[2] for v in times.values() for t in v}))
         rows.append([
@@ -139,13 +146,15 @@ def run_case(name: str, rounds: int, env: dict, work: Path) -> list[list[str]]:
             f"{med['pinned'][0]:.1f}", f"{med['pinned'][1]:.1f}",
             f"{med['auto'][0]:.1f}", f"{med['auto'][1]:.1f}",
             f"{med['auto'][0] / med['pinned'][0]:.2f}", f"{med['auto'][1] / med['pinned'][1]:.2f}",
-            status, picks,
+            f"{med['pinned'][2]:.1f} ({med['pinned'][3]:.0f})",
+            f"{med['auto'][2]:.1f} ({med['auto'][3]:.0f})", status, picks,
         ])
     return rows
 
 
 HEADERS = ["case", "target clear", "pinned pair", "pinned wall s", "pinned CPU s",
-           "auto wall s", "auto CPU s", "wall ratio", "CPU ratio", "exit", "auto chose"]
+           "auto wall s", "auto CPU s", "wall ratio", "CPU ratio", "pinned loads s (programs)",
+           "auto loads s (programs)", "exit", "auto chose"]
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -165,7 +174,7 @@ def main(argv: list[str] | None = None) -> int:
         for name in names:
             rows += run_case(name, args.rounds, env, Path(tmp))
     with doc_tables.printed_tables(args):
-        print(doc_tables.markdown(HEADERS, rows, set(range(3, 9))))
+        print(doc_tables.markdown(HEADERS, rows, set(range(3, 11))))
     return 0
 
 

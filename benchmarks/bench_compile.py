@@ -78,7 +78,9 @@ def run_pipeline(pair, inputs, cache: str, out: str, log: str, src=None) -> dict
     compiled = []
     if os.path.exists(log):
         with open(log, encoding="utf-8") as fh:
-            compiled = [json.loads(line) for line in fh if line.strip()]
+            logged = [json.loads(line) for line in fh if line.strip()]
+        # the log also has a line per program read from the store (event "load")
+        compiled = [e for e in logged if e.get("event", "compile") == "compile"]
         os.unlink(log)
     store = os.path.join(cache, "programs")
     stored = len([f for f in os.listdir(store) if f.endswith(".program")]) \

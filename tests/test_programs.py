@@ -60,16 +60,23 @@ def entries(folder):
 
 def test_stored_program_is_used_and_gives_the_same_numbers(tmp_path, monkeypatch, engine_call):
     program, args = engine_call
-    monkeypatch.setenv("VEIL_CACHE_DIR", str(tmp_path))
+    monkeypatch.setenv("VEIL_CACHE_DIR", str(tmp_path / "store"))
+    log = tmp_path / "log.jsonl"
+    monkeypatch.setenv("VEIL_COMPILE_LOG", str(log))
     first = run(program, args)                       # built and stored
-    store = tmp_path / "programs"
+    store = tmp_path / "store" / "programs"
     [name] = entries(store)
     built = os.path.getmtime(store / name)
     again = run(program, args)                       # read back
     assert os.path.getmtime(store / name) == built
     np.testing.assert_array_equal(first, again)
+    # the log has the compilation, then the read (benchmarks/bench_auto.py sums the reads)
+    logged = [json.loads(line) for line in log.read_text().splitlines()]
+    assert [e["event"] for e in logged] == ["compile", "load"]
+    assert logged[1]["label"] == fresh(program).label and 0 < logged[1]["seconds"] < 60
     monkeypatch.setenv("VEIL_CACHE_DIR", "off")      # no store: the plain jitted function
     np.testing.assert_array_equal(first, run(program, args))
+    assert len(log.read_text().splitlines()) == 3    # compiled for this process, no read
 
 
 def _rewrite(path, edit):

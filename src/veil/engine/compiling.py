@@ -155,19 +155,37 @@ def announced(label: str, identity: str, lowered) -> Iterator[Compilation]:
 def _log(compilation: Compilation, seconds: float) -> None:
     """One JSON line per compilation appended to the file named by ``VEIL_COMPILE_LOG``
     (benchmarks/bench_compile.py reads it); nothing without it."""
-    path = os.environ.get(LOG_VARIABLE)
-    if not path:
-        return
-    line = json.dumps(
+    _append(
         {
+            "event": "compile",
             "label": compilation.label,
             "lines": compilation.lines,
             "estimate": round(compilation.estimate, 2),
             "seconds": round(seconds, 3),
         }
     )
+
+
+def log_load(label: str, seconds: float) -> None:
+    """One JSON line (event "load") for a program read from the store and made ready to
+    run, to the same file (benchmarks/bench_auto.py sums them); nothing without it."""
+    _append({"event": "load", "label": label, "seconds": round(seconds, 3)})
+
+
+def _append(entry: dict) -> None:
+    path = os.environ.get(LOG_VARIABLE)
+    if not path:
+        return
     with _LOCK, contextlib.suppress(OSError), open(path, "a", encoding="utf-8") as fh:
-        fh.write(line + "\n")
+        fh.write(json.dumps(entry) + "\n")
 
 
-__all__ = ["Compilation", "announced", "listen", "seconds_per_line", "program_lines", "kind_of"]
+__all__ = [
+    "Compilation",
+    "announced",
+    "listen",
+    "log_load",
+    "seconds_per_line",
+    "program_lines",
+    "kind_of",
+]

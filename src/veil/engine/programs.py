@@ -46,6 +46,7 @@ import pickle
 import platform
 import sys
 import threading
+import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from functools import cache, lru_cache
@@ -394,7 +395,6 @@ def _acquire(fcntl, fd: int, path: str) -> tuple:
     """(locked, waited): the exclusive lock on ``fd``, polling while another process holds
     it (one line on the command line), up to WAIT_LIMIT seconds."""
     import errno
-    import time
 
     deadline = None
     while True:
@@ -474,8 +474,12 @@ class Program:
             return compile_afresh(self.fn, args, self.label, self.identity, self.options)
         identity = f"{self.identity} | inputs {signature}"
         env = environment(self.classes)
+        started = time.perf_counter()
         compiled = read(identity, env, signature)
         if compiled is not None:
+            from .compiling import log_load
+
+            log_load(self.label, time.perf_counter() - started)
             return compiled
         with building(identity, env) as waited:
             compiled = read(identity, env, signature)  # another process may have built it
