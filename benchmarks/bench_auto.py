@@ -138,8 +138,8 @@ def run_case(name: str, rounds: int, env: dict, work: Path) -> list[list[str]]:
                 print(f"  {name} {'with' if clear else 'without'} target clear, {kind}: "
                       f"{wall:.1f} s wall, {cpu:.1f} s CPU, exit {status}, {n} programs loaded "
                       f"in {load:.1f} s", file=sys.stderr)
-        med = {k: tuple(statistics.median(t[i] for t in v) for i in (0, 1, 3, 4))
-               for k, v in times.items()}
+        med = {k: (*(statistics.median(t[i] for t in v) for i in (0, 1, 3)),
+                   statistics.median_low(t[4] for t in v)) for k, v in times.items()}
         status = ",".join(str(s) for s in sorted({t[2] for v in times.values() for t in v}))
         rows.append([
             name, "yes" if clear else "no", case["pinned"],

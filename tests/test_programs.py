@@ -76,7 +76,8 @@ def test_stored_program_is_used_and_gives_the_same_numbers(tmp_path, monkeypatch
     assert logged[1]["label"] == fresh(program).label and 0 < logged[1]["seconds"] < 60
     monkeypatch.setenv("VEIL_CACHE_DIR", "off")      # no store: the plain jitted function
     np.testing.assert_array_equal(first, run(program, args))
-    assert len(log.read_text().splitlines()) == 3    # compiled for this process, no read
+    # compiled for this process, nothing read
+    assert [json.loads(line)["event"] for line in log.read_text().splitlines()][2:] == ["compile"]
 
 
 def _rewrite(path, edit):
@@ -205,7 +206,8 @@ def test_processes_that_need_the_same_program_build_it_once(tmp_path):
 
     barrier = tmp_path / "barrier"
     barrier.mkdir()
-    env = _child_env(VEIL_CACHE_DIR=str(tmp_path / "cache"))
+    log = tmp_path / "log.jsonl"
+    env = _child_env(VEIL_CACHE_DIR=str(tmp_path / "cache"), VEIL_COMPILE_LOG=str(log))
     procs = [subprocess.Popen([sys.executable, "-c", _BUILD_SCRIPT, str(barrier), str(i)],
                               env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                               text=True) for i in range(2)]
@@ -222,6 +224,9 @@ def test_processes_that_need_the_same_program_build_it_once(tmp_path):
     assert digests[0] == digests[1]
     assert entries(tmp_path / "cache" / "programs") and \
         len(list((tmp_path / "cache" / "programs").glob("*.lock"))) == 1
+    # the waiting process's read of what the other stored is logged as a read
+    events = sorted(json.loads(line)["event"] for line in log.read_text().splitlines())
+    assert events == ["compile", "load"], events
 
 
 def test_store_without_file_locks_builds_as_before(tmp_path, monkeypatch, engine_call):

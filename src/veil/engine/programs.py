@@ -474,19 +474,25 @@ class Program:
             return compile_afresh(self.fn, args, self.label, self.identity, self.options)
         identity = f"{self.identity} | inputs {signature}"
         env = environment(self.classes)
-        started = time.perf_counter()
-        compiled = read(identity, env, signature)
+        compiled = self._read(identity, env, signature)
         if compiled is not None:
-            from .compiling import log_load
-
-            log_load(self.label, time.perf_counter() - started)
             return compiled
         with building(identity, env) as waited:
-            compiled = read(identity, env, signature)  # another process may have built it
+            compiled = self._read(identity, env, signature)  # another process may have built it
             if compiled is None and not waited:
                 compiled = self._compile_and_store(identity, env, args)
         if compiled is None:  # the process waited for stored nothing: no queue behind it
             compiled = self._compile_and_store(identity, env, args)
+        return compiled
+
+    def _read(self, identity, env, signature):
+        """:func:`read`, each program read logged with its seconds (``VEIL_COMPILE_LOG``)."""
+        from .compiling import log_load
+
+        started = time.perf_counter()
+        compiled = read(identity, env, signature)
+        if compiled is not None:
+            log_load(self.label, time.perf_counter() - started)
         return compiled
 
     def _compile_and_store(self, identity, env, args):
