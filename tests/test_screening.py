@@ -163,6 +163,49 @@ def test_a_quick_fit_through_a_medium_measures_its_rule_error(sessions):
     assert screening.rule_bic(stale, data, bic_quick) is None
 
 
+def test_a_quick_fit_reads_the_finer_rules_program_only_if_it_converges(sessions,
+                                                                       monkeypatch):
+    """The finer rule's values (a program of their own) serve only a converged quick fit's
+    rule error: a quick fit that stops without converging neither prepares nor evaluates
+    them (on the paper's data the forward series' two weightings read two programs of
+    several MB for nothing); a converged one evaluates them once, at its optimum."""
+    from veil.engine import evaluator
+    from veil.fitting.problem import RULES
+
+    seen = []
+    init, prepare, values = (evaluator.ApparentModel.__init__, evaluator.ApparentModel.prepare,
+                             evaluator.ApparentModel.values)
+
+    def spy_init(self, brdf, medium, angles, rule):
+        self.spied_rule = rule
+        init(self, brdf, medium, angles, rule)
+
+    def spy_prepare(self, values=True, jacobians=(), channels=1):
+        seen.append(("prepare", self.spied_rule, values))
+        return prepare(self, values, jacobians, channels)
+
+    def spy_values(self, vb, vm):
+        seen.append(("values", self.spied_rule, True))
+        return values(self, vb, vm)
+
+    monkeypatch.setattr(evaluator.ApparentModel, "__init__", spy_init)
+    monkeypatch.setattr(evaluator.ApparentModel, "prepare", spy_prepare)
+    monkeypatch.setattr(evaluator.ApparentModel, "values", spy_values)
+    kw = dict(black=sessions["black"], accuracy="default", propagation="off", model_error="off")
+    table = sessions["reference_medium"]
+    stopped = veil.fit_medium(table, veil.BRDF2, screen=True, max_nfev=1, **kw)
+    assert not stopped.converged and "rule_error" not in stopped.stats
+    assert all(rule == RULES["fast"] for _, rule, _ in seen)
+    assert any(what == "values" for what, _, _ in seen)  # the spies saw the fast rule's
+    seen.clear()
+    quick = veil.fit_medium(table, veil.BRDF2, screen=True, **kw)
+    assert quick.converged and quick.stats["rule_error"]["accuracy"] == "default"
+    assert [s for s in seen if s[1] == RULES["default"]] == [("values", RULES["default"], True)]
+    seen.clear()
+    full = veil.fit_medium(table, veil.BRDF2, start=quick, **kw)  # a full fit reads ahead
+    assert full.converged and ("prepare", RULES["default"], True) in seen
+
+
 def test_two_runs_that_agree_end_the_search_even_at_a_bound():
     """solver.agreeing: two converged runs within AGREEMENT of each other's deviance, with a
     plausible chi-square, are one minimum (convincing alone asks for another start when a

@@ -109,12 +109,13 @@ def _start_models(start) -> dict | JointResult | None:
     return start
 
 
-def _prepare_engines(problem: Problem, ref_cols: list, accuracy: str) -> None:
+def _prepare_engines(problem: Problem, ref_cols: list, accuracy: str, screen: bool) -> None:
     """Compile (or load) side by side what the fit will need: every block's values and its
-    derivatives in the free parameters (and the given reference's ``ref_cols``)."""
+    derivatives in the free parameters (and the given reference's ``ref_cols``); the values
+    at ``accuracy`` but for a ``screen``, which needs them only if it converges."""
     for block, wrt in zip(problem.blocks, problem.wrt(list(problem.free_index) + ref_cols)):
         block.model(ITERATION_ACCURACY).prepare(values=True, jacobians=[wrt])
-        if accuracy != ITERATION_ACCURACY:
+        if accuracy != ITERATION_ACCURACY and not screen:
             block.model(accuracy).prepare(values=True)
 
 
@@ -146,7 +147,7 @@ def _solve(
     ref_names = reference_names(layout, reference)
     ref_cols = [] if given_result is None else [index[ref_names[n]] for n in given_result.free]
     linear_free(problem)
-    _prepare_engines(problem, ref_cols, accuracy)
+    _prepare_engines(problem, ref_cols, accuracy, screen)
     resumed = start if isinstance(start, JointResult) else None
     models = None if resumed is not None else start
 

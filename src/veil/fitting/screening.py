@@ -17,8 +17,8 @@ the full fit only for those that could still be chosen.
   bit; after a polish at a finer rule, within a fraction of a standard error (up to 0.23
   of tau's for m05's light-side weights, whose fast-rule cost is flat to 1e-4 along the
   tau-g valley, so the polish's frozen Jacobian is taken at another point of it).
-- **Its BIC's interval**: a quick fit through a medium also evaluates its model once at the
-  rule its full fit ends at (``stats["rule_error"]``, :func:`veil.fitting.solver.run`; a
+- **Its BIC's interval**: a converged quick fit through a medium also evaluates its model
+  once at the rule its full fit ends at (``stats["rule_error"]``, :func:`veil.fitting.solver.run`; a
   linear family from its active columns, :func:`veil.fitting.linear_fit.rule_error`). That
   gives the deviance at the quick optimum under the finer rule, where the full fit starts
   (the upper end), and how far refitting can lower it: at most the squared norm of the rule

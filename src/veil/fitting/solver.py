@@ -48,10 +48,7 @@ from . import coordinates
 from . import least_squares as lsq
 from .problem import ITERATION_ACCURACY, Problem
 
-#: Stopping tolerances, in standard errors (module docstring): the iterations at the "fast"
-#: quadrature before a polish (and the refits of :mod:`veil.fitting.propagation`), the polish
-#: at the requested quadrature (its frozen Jacobian's own error is about this), and every
-#: other run (f_r alone, the fits at "fast", profiles).
+#: Stopping tolerances in standard errors: iterations, polish, every other run (module docstring).
 TOL_ITER = 1e-2
 TOL_POLISH = 1e-2
 TOL_FINAL = 1e-4
@@ -370,9 +367,11 @@ def run(
     }
     if screen:
         stats["screen"] = True
-        if through_medium and sol.status > 0:  # 0 at the fast rule
-            checked = values if check == ITERATION_ACCURACY else problem.model_values(sol.x, check)
-            stats["rule_error"] = {"accuracy": check, "values": (checked - values).tolist()}
+        if through_medium and sol.status > 0:  # the screen uses a converged one's only
+            cov = covariance(problem, sol.x, values=values)
+            if not _undetermined(problem, sol, cov)[0]:  # undetermined: nothing more read
+                at = values if check == ITERATION_ACCURACY else problem.model_values(sol.x, check)
+                stats["rule_error"] = {"accuracy": check, "values": (at - values).tolist()}
     if through_medium:
         stats["engine_calls"] = problem.engine_calls()
     return Outcome(sol, values, final_accuracy, notes, stats)

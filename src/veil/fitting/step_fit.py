@@ -43,15 +43,18 @@ def _fixed_slots(problem: Problem, cls, fixed: dict, what: str) -> dict:
     return out
 
 
-def _prepare_engine(problem, cls, given, given_result, accuracy: str, propagation: str) -> None:
+def _prepare_engine(
+    problem, cls, given, given_result, accuracy: str, propagation: str, screen: bool
+) -> None:
     """Everything a fit through a medium will compile (or load), side by side: derivatives
     in the fitted model's parameters, and in the given model's to propagate its covariance
-    (not with ``propagation`` "off")."""
+    (not with ``propagation`` "off"); the values at ``accuracy`` but for a ``screen``, which
+    needs them only if it converges (:func:`veil.fitting.solver.run`)."""
     block = problem.blocks[0]
     propagates = given_covariance(given_result, propagation) is not None
     wrt = [(cls.KIND,)] + ([(type(given).KIND,)] if propagates else [])
     block.model(ITERATION_ACCURACY).prepare(values=True, jacobians=wrt)
-    if accuracy != ITERATION_ACCURACY:
+    if accuracy != ITERATION_ACCURACY and not screen:
         block.model(accuracy).prepare(values=True)
 
 
@@ -265,7 +268,7 @@ def fit_step(
             screen=screen,
         )
     if medium is not None:
-        _prepare_engine(problem, cls, given, given_result, accuracy, propagation)
+        _prepare_engine(problem, cls, given, given_result, accuracy, propagation, screen)
     from_grid, grid = _step_grid(problem, cls, step, progress)
     first = None if start is None else _start_vector(problem, cls, start)
     kw = dict(accuracy=accuracy, max_nfev=max_nfev, progress=progress, screen=screen)
