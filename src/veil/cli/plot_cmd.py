@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import click
 
-from ._common import UserError, accuracy_option, model_options
+from ._common import UserError, accuracy_option, echo_warnings, model_options
 from .render_cmd import output_path
 
 FIGURE_SUFFIXES = (".png", ".pdf", ".svg")
@@ -44,9 +44,23 @@ def _repeatable(name: str, dest: str, help_text: str):
 
 
 def _draw(figure, models: list, theta_i: float, output) -> None:
-    """``figure(models, theta_i)`` (a lobe figure) checked and saved to ``output``."""
+    """``figure(models, theta_i)`` (a lobe figure) checked and saved to ``output``; its
+    warnings (a lobe that is 0 everywhere) as "Warning: ..." lines on stderr."""
     _check(theta_i, output)
-    _save(figure(models, theta_i), output)
+    with echo_warnings():
+        _save(figure(models, theta_i), output)
+
+
+def _summary(curve) -> str:
+    """One line on a curve of ``veil plot curve``: its peak, width and off-peak value."""
+    med = "clear" if curve.medium is None else str(curve.medium)
+    mt = curve.metrics
+    if mt.zero:
+        return f"{curve.brdf} / {med}: f = 0 at every angle (no peak or width to measure)"
+    return (
+        f"{curve.brdf} / {med}: peak {mt.peak:.4g} at {mt.peak_angle:.2f} deg, "
+        f"{mt.fwhm_text()}, f({mt.off_angle:g} deg) {mt.off_peak:.4g}"
+    )
 
 
 @click.group("plot")
@@ -111,10 +125,6 @@ def curve(brdfs, media, theta_i, scale, accuracy, output, models):
     _check(theta_i, output)
     curves = [inplane_curve(b, m, theta_i, accuracy=accuracy) for b in b_models for m in m_models]
     for c in curves:
-        med = "clear" if c.medium is None else str(c.medium)
-        mt = c.metrics
-        click.echo(
-            f"{c.brdf} / {med}: peak {mt.peak:.4g} at {mt.peak_angle:.2f} deg, "
-            f"FWHM {mt.fwhm:.2f} deg, f(0 deg) {mt.off_peak:.4g}"
-        )
-    _save(fig_curve(curves, scale), output)
+        click.echo(_summary(c))
+    with echo_warnings():
+        _save(fig_curve(curves, scale), output)

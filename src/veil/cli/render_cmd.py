@@ -95,7 +95,8 @@ def output_path(path: str, suffixes: tuple, what: str) -> str:
     "--linear",
     "linear_path",
     default=None,
-    help="Also save the linear float values (float32) to this .npy file.",
+    help="Also save the linear float values (float32) to this .npy file; values beyond "
+    "float32's range (1.2e-38 to 3.4e38 at the peak) are refused.",
 )
 @click.option(
     "-o",
@@ -169,9 +170,8 @@ def _render_grey(b, m, settings) -> None:
         "f(I,R) cos(theta_i), linear, then exposure, tone curve, sRGB",
         exposure,
     )
-    write_and_report(
-        settings, result, exposure, "median lit pixel -> 0.18" if auto else None, clipped, text
-    )
+    rule = "median lit pixel -> 0.18" if auto else None
+    write_and_report(settings, result, exposure, rule, clipped, text, {None: (b, m)})
 
 
 def _is_file(text: str) -> bool:

@@ -13,8 +13,34 @@ import click
 from .._lazy import np
 
 
+def check_linear_range(image, linear_path, given: str) -> None:
+    """A UserError when the linear values do not fit the --linear file's float32 (docs/
+    figures.md): a value above its largest (3.4e38; it would be written as inf) or a peak
+    below its smallest normal value (1.2e-38; the image would be written as zeros and
+    subnormals). ``given`` names the coefficients that scale the image and their options."""
+    from ._errors import UserError
+
+    largest, tiny = float(np.finfo(np.float32).max), float(np.finfo(np.float32).tiny)
+    finite = np.abs(image[np.isfinite(image)])
+    peak = float(finite.max()) if finite.size else 0.0
+    if peak > largest:
+        where = f"above float32's largest value ({largest:.3g}; they would be written as inf)"
+        how = "smaller"
+    elif 0.0 < peak < tiny:
+        where = f"below float32's smallest normal value ({tiny:.3g}; they would be lost)"
+        how = "larger"
+    else:
+        return
+    raise UserError(
+        f"--linear {linear_path}: the linear values reach {peak:.3g}, {where}, and the "
+        f".npy file holds float32; the image is linear in {given}: give {how} coefficients "
+        f"or leave out --linear"
+    )
+
+
 def write_images(output, png: bytes, linear_path, image) -> None:
-    """The PNG and, when asked, the linear values (float32 .npy): both files or neither."""
+    """The PNG and, when asked, the linear values (float32 .npy; :func:`check_linear_range`
+    says whether they fit): both files or neither."""
     from ..io import write_many_atomic
 
     files = {output: png}
@@ -57,6 +83,8 @@ class RenderSettings:
     linear_path: str | None
     output: str
     quiet: bool
+    brdf: str
+    medium: str
 
     @classmethod
     def of(cls, params: dict) -> RenderSettings:
@@ -73,6 +101,24 @@ class RenderSettings:
             "progress": not self.quiet,
         }
 
+    def models_text(self, models: dict) -> str:
+        """The coefficients that scale the image and the options that gave them: "Pd = 1e+40,
+        Ps = 1e+40 (--brdf 1e40,1e40,0.8,1.5, --medium none)"; ``models`` {channel: (BRDF,
+        medium or None)}, channel None for a grey render."""
+        named: list[str] = []
+        for channel, pair in models.items():
+            for model in pair:
+                if model is None:
+                    continue
+                values = dict(zip(model.param_names(), model.to_vector()))
+                for name in model.SCALES.values():
+                    text = f"{name} = {float(values[name]):.4g}"
+                    named.append(text if channel is None else f"{text} ({channel})")
+        given = f"--brdf {self.brdf}, --medium {self.medium}"
+        if not named:
+            return f"the coefficients of the models ({given})"
+        return f"{', '.join(dict.fromkeys(named))} ({given})"
+
     def text(self, brdf: str, medium: str, pixel: str, exposure: float) -> dict:
         """The PNG's text chunks."""
         return {
@@ -86,13 +132,15 @@ class RenderSettings:
 
 
 def write_and_report(
-    settings: RenderSettings, result, exposure: float, auto_rule, clipped, text: dict
+    settings: RenderSettings, result, exposure: float, auto_rule, clipped, text: dict, models
 ) -> None:
     """The tone-mapped PNG (and the linear values) written, the render's summary and what
     follows it printed; ``auto_rule`` says how an automatic exposure was chosen (None: it
-    was given)."""
+    was given); ``models`` {channel: (BRDF, medium)} rendered (channel None: grey)."""
     from ..viz.render import png_bytes, tone_map
 
+    if settings.linear_path is not None:
+        check_linear_range(result.image, settings.linear_path, settings.models_text(models))
     png = png_bytes(tone_map(result.image, exposure, settings.tone), text)
     write_images(settings.output, png, settings.linear_path, result.image)
     click.echo(result.summary())
@@ -126,9 +174,16 @@ def render_rgb(brdfs, media, settings: RenderSettings) -> None:
         "curve, sRGB",
         exposure,
     )
-    write_and_report(
-        settings, result, exposure, "median lit luminance -> 0.18" if auto else None, clipped, text
-    )
+    rule = "median lit luminance -> 0.18" if auto else None
+    pairs = {c: (b, None if media is None else media.get(c)) for c, b in brdfs.items()}
+    write_and_report(settings, result, exposure, rule, clipped, text, pairs)
 
 
-__all__ = ["RenderSettings", "render_rgb", "write_and_report", "write_images", "report"]
+__all__ = [
+    "RenderSettings",
+    "render_rgb",
+    "write_and_report",
+    "write_images",
+    "report",
+    "check_linear_range",
+]

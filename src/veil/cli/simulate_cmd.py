@@ -277,7 +277,7 @@ def simulate_command(
         if path is not None:
             check_output_path(path)
     from ..data.protocol import protocol
-    from ..data.simulate import simulate, simulate_channels
+    from ..data.simulate import SimulatedOverflowError, simulate, simulate_channels
 
     try:
         configs = protocol(
@@ -301,12 +301,27 @@ def simulate_command(
             accuracy=accuracy,
             progress=lambda done, total: bar.update(task, completed=done, total=total),
         )
-        result = (
-            simulate(model_b, model_m, psis, **protocol_args)
-            if by_channel is None
-            else simulate_channels(by_channel, psis, **protocol_args)
-        )
+        try:
+            result = (
+                simulate(model_b, model_m, psis, **protocol_args)
+                if by_channel is None
+                else simulate_channels(by_channel, psis, **protocol_args)
+            )
+        except SimulatedOverflowError as exc:
+            raise _overflow(exc, _object_options(brdf, merl, per_channel), noise, glow) from None
     _write(result, output, black_path, form, by_channel)
+
+
+def _overflow(exc, given_object: str, noise: float, glow: float) -> UserError:
+    """The UserError of a simulation that overflowed, naming the option to blame."""
+    given = {"brdf": given_object, "noise": f"--noise {noise:g}", "glow": f"--glow {glow:g}"}
+    return UserError(f"{given[exc.argument]}: {exc.detail}")
+
+
+def _object_options(brdf, merl, per_channel) -> str:
+    """The options that gave the object, as typed: --brdf or --merl, and --per-channel."""
+    head = f"--merl {merl}" if merl is not None else f"--brdf {brdf}"
+    return head + "".join(f" --per-channel {item}" for item in per_channel)
 
 
 def _write(result, output, black_path, form: str, by_channel) -> None:

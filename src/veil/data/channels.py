@@ -62,6 +62,16 @@ def channel_label(cell: object) -> str | None:
     return f"{nm:.10g}"
 
 
+def _cell_text(cell: object) -> str:
+    """How a message shows a cell that names no channel: "empty" for an empty cell (read as
+    NaN or None, or only blanks), else the cell's text quoted."""
+    if cell is None or (isinstance(cell, str) and not cell.strip()):
+        return "empty"
+    if isinstance(cell, (float, np.floating)) and math.isnan(cell):
+        return "empty"
+    return repr(str(cell))
+
+
 def channel_labels(column: pd.Series, rows: RowNaming) -> np.ndarray:
     """The channel of every row (labels as :func:`channel_label` writes them), or a
     MeasurementError naming the file, the rows and the column: an empty cell, an unknown
@@ -70,7 +80,8 @@ def channel_labels(column: pd.Series, rows: RowNaming) -> np.ndarray:
     bad = [k for k, lab in enumerate(labels) if lab is None]
     if bad:
         listed = "; ".join(
-            f"{rows(k)}, column {CHANNEL!r}: {str(column.iloc[k])!r}" for k in bad[:_MAX_LISTED]
+            f"{rows(k)}, column {CHANNEL!r}: {_cell_text(column.iloc[k])}"
+            for k in bad[:_MAX_LISTED]
         )
         more = f"; and {len(bad) - _MAX_LISTED} more" if len(bad) > _MAX_LISTED else ""
         lo, hi = WAVELENGTH_RANGE

@@ -347,7 +347,9 @@ def _infer(header, columns, which) -> dict:
     writer.writerow([header[k] for k in which])
     writer.writerows(zip(*(columns[k] for k in which)))
     buf.seek(0)
-    frame = pd.read_csv(buf, dtype=None, keep_default_na=True)
+    # a line of blanks is a row of blank cells, not a line to skip (the rows must stay
+    # aligned with the file's; csv writes a row of one empty cell as "")
+    frame = pd.read_csv(buf, dtype=None, keep_default_na=True, skip_blank_lines=False)
     out = {}
     for k in which:
         h = header[k]

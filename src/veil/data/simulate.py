@@ -113,7 +113,9 @@ def simulate(
     progress : called as progress(done, total) while configurations are evaluated.
 
     Returns a DataFrame with columns psi, rho, theta_i, phi_i, theta_r, phi_r, value, sigma
-    (or a pair (table, black_table) when ``black``).
+    (or a pair (table, black_table) when ``black``). Values beyond float64 (a huge noise,
+    glow or object) raise a :class:`SimulatedOverflowError` (an InputError) naming the
+    argument to change.
     """
     pairs = _pairs(brdf, medium)
     _check_noise(noise, glow, seed, accuracy)
@@ -130,11 +132,76 @@ def simulate(
     z_black = rng.standard_normal(size)
     rows = _channel_rows(table, list(pairs))
     out, cloth = rows.copy(), rows.copy()
-    out["value"] = exact + noise * exact * z_object
-    out["sigma"] = noise * np.abs(exact)
-    cloth["value"] = glow_values + noise * glow_values * z_black
-    cloth["sigma"] = noise * glow_values
+    with np.errstate(over="ignore", invalid="ignore"):  # an overflow is named below
+        out["value"] = exact + noise * exact * z_object
+        out["sigma"] = noise * np.abs(exact)
+        cloth["value"] = glow_values + noise * glow_values * z_black
+        cloth["sigma"] = noise * glow_values
+    # the object's values are mostly its own, or mostly the medium's glow
+    source = "glow" if np.max(glow_values) > 0.5 * np.max(np.abs(exact)) else "brdf"
+    brdfs = {c: as_brdf(b) for c, (b, _) in pairs.items()}
+    _check_noisy(out, exact, noise, source, brdfs, glow)
+    if black:
+        _check_noisy(cloth, glow_values, noise, "glow", brdfs, glow)
     return (out, cloth) if black else out
+
+
+class SimulatedOverflowError(InputError):
+    """Simulated values beyond float64 (above 1.8e308): ``argument`` names the argument of
+    :func:`simulate` to change ("brdf", "noise" or "glow"), ``detail`` says why (the
+    message is "ARGUMENT = VALUE: DETAIL"; the command line names its option instead)."""
+
+    def __init__(self, argument: str, shown: str, detail: str):
+        super().__init__(f"{argument} = {shown}: {detail}")
+        self.argument = argument
+        self.detail = detail
+
+
+def _scales_text(brdfs: dict) -> str:
+    """The scale parameters of the BRDFs ``brdfs`` {channel: BRDF} (``Model.SCALES``: the
+    values are linear in each): "Pd = 1e+40, Ps = 1e+40" for the one channel keyed None,
+    else "channel g: Pd = 1e+40, Ps = 1" per channel."""
+    parts = []
+    for channel, model in brdfs.items():
+        values = dict(zip(model.param_names(), model.to_vector()))
+        text = ", ".join(f"{n} = {float(values[n]):.4g}" for n in model.SCALES.values())
+        parts.append(text if channel is None else f"channel {channel}: {text}")
+    return "; ".join(parts)
+
+
+def _check_noisy(frame, exact, noise: float, source: str, brdfs: dict, glow: float) -> None:
+    """A :class:`SimulatedOverflowError` when a value or sigma of ``frame`` (noise-free values
+    ``exact`` with relative noise ``noise``) overflows float64: blamed on ``noise`` when it is
+    above 1 (the noise dominates), else on the ``source`` of the values: the object
+    ("brdf", ``brdfs`` {channel: BRDF}, the channels' rows one after the other) or the
+    medium's glow ("glow", its level ``glow``)."""
+    bad = ~(np.isfinite(frame["value"].to_numpy()) & np.isfinite(frame["sigma"].to_numpy()))
+    if not bad.any():
+        return
+    peak = float(np.max(np.abs(exact)))
+    overflow = (
+        f"the simulated values, value (1 + noise z) with z standard normal, overflow float64 "
+        f"(they would exceed 1.8e308): the noise-free values reach {peak:.3g}"
+    )
+    if noise > 1:
+        raise SimulatedOverflowError(
+            "noise",
+            f"{noise:g}",
+            f"{overflow}; give a smaller noise (a relative standard deviation: 0.01 is 1 %)",
+        )
+    if source == "glow":
+        raise SimulatedOverflowError(
+            "glow", f"{glow:g}", f"{overflow} with noise = {noise:g}; give a smaller glow"
+        )
+    channels = list(brdfs)
+    n = len(frame) // len(channels)
+    blamed = {channels[k]: brdfs[channels[k]] for k in np.unique(np.flatnonzero(bad) // n)}
+    raise SimulatedOverflowError(
+        "brdf",
+        "; ".join(dict.fromkeys(str(b) for b in blamed.values())),
+        f"{overflow} with noise = {noise:g}; give the object smaller coefficients "
+        f"({_scales_text(blamed)}; they scale its values linearly)",
+    )
 
 
 def _pairs(brdf, medium) -> dict:
@@ -195,10 +262,30 @@ def _session(
         glow_values = np.zeros(n)
     else:
         shape = glow_shape(medium, *angles)
-        glow_values = (
-            glow * glow_scale(medium, accuracy) * shape / glow_shape(medium, *GLOW_REFERENCE)
+        scale = glow_scale(medium, accuracy)
+        with np.errstate(over="ignore", invalid="ignore"):  # an overflow is named below
+            glow_values = glow * scale * shape / glow_shape(medium, *GLOW_REFERENCE)
+        if not np.all(np.isfinite(glow_values)):
+            raise SimulatedOverflowError(
+                "glow",
+                f"{glow:g}",
+                f"the medium's glow overflows float64 (it would exceed 1.8e308): it is glow "
+                f"times the standard object's ({GLOW_STANDARD}'s) signal through the medium, "
+                f"{scale:.3g} at the reference configuration; give a smaller glow (a "
+                f"fraction of that signal: 0.03 is 3 %)",
+            )
+    with np.errstate(over="ignore"):
+        total = truth + glow_values
+    if not np.all(np.isfinite(total)):
+        raise SimulatedOverflowError(
+            "brdf",
+            str(brdf),
+            f"the object's values ({float(np.max(np.abs(truth))):.3g}) plus the medium's "
+            f"glow ({float(np.max(glow_values)):.3g}, glow = {glow:g}) overflow float64 (they "
+            f"would exceed 1.8e308); give the object smaller coefficients "
+            f"({_scales_text({None: brdf})}; they scale its values linearly) or a smaller glow",
         )
-    return truth + glow_values, glow_values
+    return total, glow_values
 
 
 def simulate_channels(
@@ -224,6 +311,7 @@ def simulate_channels(
 __all__ = [
     "simulate",
     "simulate_channels",
+    "SimulatedOverflowError",
     "glow_shape",
     "glow_scale",
     "CHUNK",

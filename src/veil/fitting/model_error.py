@@ -79,6 +79,12 @@ KINDS = ("off", "independent", "correlated")
 #: counted, :func:`~veil.fitting.shared_error.shared`, it covers every path-traced session
 #: at 1.5-5 times the noise's standard errors; the independent one leaves four of ten short).
 DEFAULT = "correlated"
+#: The largest relative model error s a term holds (and a result file may give): s is the
+#: standard deviation of the model's miss in units of its own value, so 1 already says the
+#: model is off by as much as it predicts; beyond a million times its value it says nothing
+#: more, and s^2 times a covariance stays far inside float64. The likelihood's estimate is
+#: capped here (reached only by a model that is about zero where the data are not).
+MAX_SIGMA = 1e6
 #: Where a step's term came from (``ModelError.source``).
 SOURCES = ("none", "own residuals", "given medium", "model's floor")
 
@@ -183,8 +189,8 @@ def estimate(
     parameters' columns) the likelihood is the restricted one (REML): that of the residuals'
     components outside J_w's columns, Q^T r ~ N(0, I + s^2 Q^T A R A Q), since the fit
     absorbs the rest of the error into its parameters - most of a smooth one, which the
-    residuals alone would under-estimate. A FitError when no relative error can explain an
-    excess (every a_i = 0)."""
+    residuals alone would under-estimate. s is at most :data:`MAX_SIGMA`. A FitError when
+    no relative error can explain an excess (every a_i = 0)."""
     r = np.asarray(residuals, dtype=float)
     a = np.asarray(scaled_values, dtype=float)
     dof = int(dof)
@@ -227,7 +233,7 @@ def estimate(
         if best is None or found.fun < best[0]:
             best = (float(found.fun), math.exp(float(found.x)), length)
     assert best is not None  # lengths is never empty
-    return best[1], best[2]
+    return min(best[1], MAX_SIGMA), best[2]
 
 
 def sandwich(
@@ -244,6 +250,10 @@ def sandwich(
     cov = np.asarray(cov, dtype=float)
     if sigma == 0.0:
         return cov
+    if not 0.0 <= sigma <= MAX_SIGMA:
+        raise FitError(
+            f"the model error sigma = {sigma!r}; expected a relative error in [0, {MAX_SIGMA:g}]"
+        )
     m = (
         np.asarray(weighted_jacobian, dtype=float) * np.asarray(scaled_values, dtype=float)[:, None]
     ) @ cov
@@ -324,6 +334,11 @@ class ModelError:
                 or v < 0
             ):
                 raise FitError(f"{source}: model_error.{k} = {v!r}; expected a number >= 0")
+            if k in ("sigma", "own", "given") and v > MAX_SIGMA:
+                raise FitError(
+                    f"{source}: model_error.{k} = {v!r}; expected a relative model error "
+                    f"in [0, {MAX_SIGMA:g}] (the model's miss in units of its own value)"
+                )
         if data["source"] not in SOURCES:
             raise FitError(
                 f"{source}: model_error.source = {data['source']!r}; expected one "
@@ -492,6 +507,7 @@ __all__ = [
     "LENGTHS",
     "KINDS",
     "DEFAULT",
+    "MAX_SIGMA",
     "SOURCES",
     "check_kind",
     "chi2_threshold",

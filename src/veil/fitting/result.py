@@ -29,6 +29,7 @@ from .result_fields import (
     READABLE,
     _json_matrix,
     _json_term,
+    loads_checked,
     model_entry,
     model_from_entry,
     model_of_channel,
@@ -417,7 +418,8 @@ class JointResult(FitResult):
 # --------------------------------------------------------------------------------------
 def read_json(path) -> Any:
     """The JSON data of a result file; errors name the file (a missing file, a directory, not
-    UTF-8, not JSON)."""
+    UTF-8, not JSON, nested too deeply) and the key (NaN, Infinity, a number beyond a
+    float's range: none of them a number veil writes)."""
     name = os.fspath(path)
     try:
         with open(name, encoding="utf-8") as fh:
@@ -430,12 +432,7 @@ def read_json(path) -> Any:
         raise FitError(
             f"{name} is not UTF-8 text ({exc.reason}); expected a JSON fit result"
         ) from None
-    try:
-        return json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise FitError(
-            f"{name}: not valid JSON at line {exc.lineno}, column {exc.colno}: {exc.msg}"
-        ) from None
+    return loads_checked(text, name)
 
 
 def load_result(path) -> FitResult:

@@ -5,17 +5,92 @@ with the checks that name the file and the field."""
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
+import sys
 from typing import Any
+
+import numpy as np
 
 from ..errors import FitError, InputError
 from ..models import Model, model_class
-from ..numbers import from_json_float, json_float
+from ..numbers import json_float
 from .model_error import ModelError
+from .solver import covariance_matrix
 
 #: Value of the "format" key of a result file, and the formats this veil reads.
 FORMAT = "veil.fit/2"
 READABLE = ("veil.fit/1", "veil.joint/1", FORMAT)
+
+#: How far a correlation read back may stray from [-1, 1] or from its transposed entry: the
+#: rounding of what veil writes (a diagonal of 1.0000000000000002), not more.
+CORRELATION_SLACK = 1e-6
+#: The most negative eigenvalue, relative to the largest, that the correlation matrix of a
+#: covariance read back may have (rounding; a covariance is positive semidefinite).
+PSD_SLACK = 1e-9
+#: How deep a result file's JSON may nest (veil writes a handful of levels).
+MAX_DEPTH = 64
+
+
+class _Refused:
+    """A number of a JSON file that no veil file holds (NaN, Infinity, out of a float's
+    range), kept in place by :func:`loads_checked` to name its key."""
+
+    def __init__(self, text: str, why: str) -> None:
+        self.text, self.why = text, why
+
+
+def _refused_int(s: str):
+    digits = len(s.lstrip("-"))
+    if digits > sys.float_info.max_10_exp + 1 or abs(n := int(s)) > sys.float_info.max:
+        return _Refused(f"an integer of {digits} digits", "too large for a number of a result")
+    return n
+
+
+def _refused_float(s: str):
+    x = float(s)
+    return x if math.isfinite(x) else _Refused(s, "out of the range of a number")
+
+
+def _refused_constant(s: str):
+    return _Refused(s, "not a finite number (veil writes a missing or non-finite number as null)")
+
+
+def loads_checked(text: str, name: str) -> Any:
+    """The JSON ``text`` of file ``name``: a FitError naming the file (and the key) for what
+    is not JSON, nests more than :data:`MAX_DEPTH` levels, or holds a number veil never
+    writes (NaN, Infinity, a number beyond a float's range)."""
+    try:
+        data = json.loads(
+            text,
+            parse_int=_refused_int,
+            parse_float=_refused_float,
+            parse_constant=_refused_constant,
+        )
+    except json.JSONDecodeError as exc:
+        raise FitError(
+            f"{name}: not valid JSON at line {exc.lineno}, column {exc.colno}: {exc.msg}"
+        ) from None
+    except RecursionError:
+        raise FitError(f"{name}: the JSON is nested too deeply; not a veil result") from None
+    stack = [(data, "", 0)]
+    while stack:
+        node, key, depth = stack.pop()
+        if isinstance(node, _Refused):
+            raise FitError(f"{name}: key '{key or '(top level)'}' = {node.text}: {node.why}")
+        if depth > MAX_DEPTH:
+            raise FitError(
+                f"{name}: the JSON is nested too deeply (more than {MAX_DEPTH} levels); "
+                f"not a veil result"
+            )
+        if isinstance(node, dict):
+            items = ((f"{key}.{k}" if key else str(k), v) for k, v in node.items())
+        elif isinstance(node, list):
+            items = ((f"{key}[{i}]", v) for i, v in enumerate(node))
+        else:
+            continue
+        stack.extend((v, k, depth + 1) for k, v in reversed(list(items)))
+    return data
 
 
 def model_entry(model: Model) -> dict:
@@ -106,23 +181,58 @@ def _check_format(data: dict, source: str) -> None:
 
 def _check_common(data: dict, source: str) -> None:
     n = data["n_points"]
-    if isinstance(n, bool) or not isinstance(n, int) or n < 0:
+    if isinstance(n, bool) or not isinstance(n, int) or not 0 <= n < 2**63:
         raise FitError(f"{source}: key 'n_points' = {n!r}; expected an integer >= 0")
     if not isinstance(data["converged"], bool):
         raise FitError(f"{source}: key 'converged' = {data['converged']!r}; expected true or false")
+
+
+def finite_number(v) -> bool:
+    """Whether ``v`` is a finite int or float (not a bool, not too large for a float)."""
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        return False
+    try:
+        return math.isfinite(float(v))
+    except OverflowError:
+        return False
+
+
+def read_number(v, source: str, key: str) -> float | None:
+    """A number of a result file: a finite float, or None where the file has null (veil writes
+    a missing or non-finite number as null); a FitError naming ``key`` otherwise."""
+    if v is None:
+        return None
+    if not finite_number(v):
+        raise FitError(f"{source}: key '{key}' = {v!r}; expected a finite number or null")
+    return float(v)
+
+
+def read_stderr(values: dict, names, source: str, key: str) -> dict:
+    """The standard errors ``key`` of a result file over ``names``: each a finite number
+    >= 0, or null (not determined, or not free)."""
+    out: dict[str, float | None] = {}
+    for n in names:
+        v = values.get(n)
+        if v is not None and (not finite_number(v) or v < 0):
+            raise FitError(
+                f"{source}: key '{key}.{n}' = {v!r}; expected a standard error: a finite "
+                f"number >= 0, or null where it is not determined"
+            )
+        out[n] = None if v is None else float(v)
+    return out
 
 
 def _read_residuals(data: dict, source: str) -> tuple:
     res = data.get("residuals") or ()
     if not isinstance(res, list):
         raise FitError(f"{source}: key 'residuals' must be a list of numbers")
-    return tuple(from_json_float(r, source) for r in res)
+    return tuple(read_number(r, source, f"residuals[{i}]") for i, r in enumerate(res))
 
 
-def _read_statistic(value, source: str) -> float:
+def _read_statistic(value, source: str, key: str) -> float:
     """A fit statistic (chi2_reduced, rms_relative) read back: nan where the file has null
     (:func:`veil.numbers.json_float` writes a non-finite one as null)."""
-    number = from_json_float(value, source)
+    number = read_number(value, source, key)
     return math.nan if number is None else number
 
 
@@ -163,15 +273,15 @@ def _read_term(data, names, source: str) -> ModelError | None:
         raise FitError(f"{source}: model_error.noise_only must hold {', '.join(keys)}")
     read: dict[str, Any] = {}
     for k in keys:
-        v = noise.get(k)
+        v, where = noise.get(k), f"model_error.noise_only.{k}"
         if v is None:
             read[k] = None
         elif k.startswith("correlation"):
-            read[k] = _read_matrix(v, source)
+            read[k] = _read_matrix(v, source, where)
         elif not isinstance(v, dict):
-            raise FitError(f"{source}: model_error.noise_only.{k} must be an object or null")
+            raise FitError(f"{source}: {where} must be an object or null")
         else:
-            read[k] = {n: from_json_float(v.get(n), source) for n in names}
+            read[k] = read_stderr(v, names, source, where)
     return dataclasses.replace(term, noise_only=read)
 
 
@@ -179,9 +289,52 @@ def _json_matrix(rows: dict) -> dict:
     return {a: {b: json_float(r) for b, r in row.items()} for a, row in rows.items()}
 
 
-def _read_matrix(rows, source: str) -> dict:
+def _read_matrix(rows, source: str, key: str) -> dict:
+    """The correlation matrix ``key`` of a result file: each entry a finite number in
+    [-1, 1] or null, the same both ways where both are stored."""
     if rows is None:
         return {}
     if not isinstance(rows, dict) or not all(isinstance(r, dict) for r in rows.values()):
-        raise FitError(f"{source}: a correlation matrix must map names to objects of numbers")
-    return {a: {b: from_json_float(r, source) for b, r in row.items()} for a, row in rows.items()}
+        raise FitError(
+            f"{source}: key '{key}': a correlation matrix must map names to objects of numbers"
+        )
+    out = {
+        a: {b: read_number(r, source, f"{key}.{a}.{b}") for b, r in row.items()}
+        for a, row in rows.items()
+    }
+    for a, row in out.items():
+        for b, r in row.items():
+            if r is not None and abs(r) > 1 + CORRELATION_SLACK:
+                raise FitError(
+                    f"{source}: key '{key}.{a}.{b}' = {r!r}; a correlation must lie in "
+                    f"[-1, 1] (or be null)"
+                )
+            back = out.get(b, {}).get(a)
+            if r is not None and back is not None and abs(r - back) > CORRELATION_SLACK:
+                raise FitError(
+                    f"{source}: key '{key}': {a}.{b} = {r!r} but {b}.{a} = {back!r}; a "
+                    f"correlation matrix is symmetric"
+                )
+    return out
+
+
+def check_covariance(stderr, correlation, free, source: str, keys: tuple[str, str]) -> None:
+    """The covariance veil assembles from ``stderr`` and ``correlation`` over the ``free``
+    parameters (:meth:`~veil.fitting.result.FitResult.covariance`) must be positive
+    semidefinite: its correlation matrix (where the standard errors are > 0) has no
+    eigenvalue below -:data:`PSD_SLACK` times the largest. Nothing to check when a standard
+    error is null (veil then uses no covariance)."""
+    if stderr is None or any(stderr.get(n) is None for n in free):
+        return
+    spread = [n for n in free if stderr[n] > 0]
+    if len(spread) < 2:
+        return
+    r = covariance_matrix(dict.fromkeys(spread, 1.0), correlation, spread)
+    assert r is not None  # every standard error is given
+    eig = np.linalg.eigvalsh((r + r.T) / 2)
+    if eig[0] < -PSD_SLACK * max(abs(eig[-1]), abs(eig[0])):
+        raise FitError(
+            f"{source}: keys '{keys[0]}' and '{keys[1]}' of {', '.join(spread)} do not "
+            f"form a covariance (its correlation matrix has eigenvalue {eig[0]:.3g}; a "
+            f"covariance has none below 0): not the uncertainties of a fit"
+        )

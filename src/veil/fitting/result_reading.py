@@ -9,7 +9,6 @@ from ..errors import FitError, InputError
 from ..models import model_class
 from ..models import names as family_names
 from ..models.base import VARIANT_OPTION
-from ..numbers import from_json_float
 from .result_fields import (
     _check_common,
     _check_format,
@@ -18,9 +17,12 @@ from .result_fields import (
     _read_statistic,
     _read_stats,
     _read_term,
+    check_covariance,
     check_given,
+    finite_number,
     model_of_channel,
     read_channels,
+    read_stderr,
 )
 
 #: The steps of the two-step method (docs/model.md sec. 7); results may also say "direct".
@@ -58,19 +60,20 @@ def _variant_of(data: dict, source: str):
     return variant
 
 
-def _common_fields(data: dict, names, source: str) -> dict:
-    """The fields every result file has (``names``: the parameters its stderr covers)."""
+def _common_fields(data: dict, names, fixed: dict, source: str) -> dict:
+    """The fields every result file has (``names``: the parameters its stderr covers,
+    ``fixed`` those held fixed), their covariances checked (:func:`_check_covariances`)."""
     _check_common(data, source)
     for key in ("stderr_total", "correlation_total"):
         if data.get(key) is not None and not isinstance(data[key], dict):
             raise FitError(f"{source}: key {key!r} must be an object or null")
     total = data.get("stderr_total")
-    return dict(
-        stderr={k: from_json_float(data["stderr"].get(k), source) for k in names},
-        correlation=_read_matrix(data["correlation"], source),
+    fields = dict(
+        stderr=read_stderr(data["stderr"], names, source, "stderr"),
+        correlation=_read_matrix(data["correlation"], source, "correlation"),
         residuals=_read_residuals(data, source),
-        chi2_reduced=_read_statistic(data["chi2_reduced"], source),
-        rms_relative=_read_statistic(data["rms_relative"], source),
+        chi2_reduced=_read_statistic(data["chi2_reduced"], source, "chi2_reduced"),
+        rms_relative=_read_statistic(data["rms_relative"], source, "rms_relative"),
         n_points=int(data["n_points"]),
         converged=data["converged"],
         message=str(data["message"]),
@@ -78,14 +81,38 @@ def _common_fields(data: dict, names, source: str) -> dict:
         accuracy=data.get("accuracy"),
         stats=_read_stats(data, source),
         determined=bool(data.get("determined", True)),
-        stderr_total=None
-        if total is None
-        else {k: from_json_float(total.get(k), source) for k in names},
+        stderr_total=None if total is None else read_stderr(total, names, source, "stderr_total"),
         correlation_total=None
         if data.get("correlation_total") is None
-        else _read_matrix(data["correlation_total"], source),
+        else _read_matrix(data["correlation_total"], source, "correlation_total"),
         model_error=_read_term(data.get("model_error"), list(names), source),
     )
+    _check_covariances(fields, [n for n in names if n not in fixed], source)
+    return fields
+
+
+def _check_covariances(fields: dict, free: list, source: str) -> None:
+    """Each pair of standard errors and correlations of a result (``stderr`` and
+    ``correlation``, the totals, those of ``model_error.noise_only``) forms a covariance of
+    the ``free`` parameters (:func:`veil.fitting.result_fields.check_covariance`)."""
+    noise = fields["model_error"].noise_only if fields["model_error"] is not None else None
+    for where, part in (("", fields), ("model_error.noise_only.", noise or {})):
+        for se, corr in (("stderr", "correlation"), ("stderr_total", "correlation_total")):
+            if part.get(se) is not None:
+                keys = (f"{where}{se}", f"{where}{corr}")
+                check_covariance(part[se], part.get(corr) or {}, free, source, keys)
+
+
+def _fixed(data: dict, names, source: str) -> dict:
+    """The ``fixed`` key of a result file: parameter names to finite numbers."""
+    fixed = data.get("fixed") or {}
+    if (
+        not isinstance(fixed, dict)
+        or set(fixed) - set(names)
+        or not all(finite_number(v) for v in fixed.values())
+    ):
+        raise FitError(f"{source}: key 'fixed' must map parameter names to values; got {fixed!r}")
+    return {k: float(v) for k, v in fixed.items()}
 
 
 def _check_keys(data, required: tuple, source: str, what: str, command: str) -> None:
@@ -99,8 +126,8 @@ def _check_keys(data, required: tuple, source: str, what: str, command: str) -> 
 
 def _check_numbers(params: dict, source: str) -> None:
     for k, v in params.items():
-        if isinstance(v, bool) or not isinstance(v, (int, float)):
-            raise FitError(f"{source}: params.{k} = {v!r} is not a number")
+        if not finite_number(v):
+            raise FitError(f"{source}: params.{k} = {v!r} is not a finite number")
 
 
 def _fit_params(data: dict, source: str):
@@ -185,20 +212,18 @@ def fit_fields(data: dict, source: str) -> dict:
             f"{source}: key 'stderr' must map parameter names ({', '.join(names)})"
             f" to numbers or null; got {stderr!r}"
         )
-    fixed = data.get("fixed") or {}
-    if not isinstance(fixed, dict) or set(fixed) - set(names):
-        raise FitError(f"{source}: key 'fixed' must map parameter names to values; got {fixed!r}")
+    fixed = _fixed(data, names, source)
     step = data.get("step")
     if step is not None and step not in STEPS + ("direct",):
         raise FitError(
             f"{source}: key 'step' = {step!r}; expected one of {', '.join(STEPS)}, direct or null"
         )
     return dict(
-        _common_fields(data, names, source),
+        _common_fields(data, names, fixed, source),
         model=data["model"],
         params=values,
         variant=variant,
-        fixed={k: float(v) for k, v in fixed.items()},
+        fixed=fixed,
         step=step,
         given=given,
         options=model.options(),
@@ -288,12 +313,13 @@ def joint_fields(data: dict, source: str) -> dict:
     _check_numbers(params, source)
     if not isinstance(data["stderr"], dict):
         raise FitError(f"{source}: key 'stderr' must map names to numbers or null")
+    fixed = _fixed(data, list(params), source)
     return dict(
-        _common_fields(data, list(params), source),
+        _common_fields(data, list(params), fixed, source),
         model="joint",
         params={k: float(v) for k, v in params.items()},
         variant=data[VARIANT_OPTION],
-        fixed={k: float(v) for k, v in (data.get("fixed") or {}).items()},
+        fixed=fixed,
         step="joint",
         given=data.get("given"),
         layout=data["layout"],

@@ -18,6 +18,7 @@ import math
 import numpy as np
 from scipy.optimize import nnls
 
+from ..engine.apparent import overflow_error
 from ..engine.integrator import BRDF_PARTS, column_scales, pairs
 from ..errors import FitError
 from .problem import ITERATION_ACCURACY, Block, Problem, SessionModel
@@ -30,13 +31,20 @@ GRID_SUBSAMPLE = 64
 # the scales, exactly
 # --------------------------------------------------------------------------------------
 def weighted_nnls(columns: np.ndarray, rhs: np.ndarray, w: np.ndarray) -> np.ndarray:
-    """Coefficients >= 0 minimizing sum(w^2 (columns @ coef - rhs)^2) (columns equilibrated)."""
+    """Coefficients >= 0 minimizing sum(w^2 (columns @ coef - rhs)^2) (columns and
+    right-hand side equilibrated: finite inputs of any magnitude float64 holds)."""
     a = columns * w[:, None]
     b = rhs * w
-    scale = np.linalg.norm(a, axis=0)
+    # each column's norm, and the right-hand side, scaled by their largest entry first: the
+    # sum of squares of entries beyond 1e154 overflows float64
+    big = np.max(np.abs(a), axis=0) if a.size else np.ones(a.shape[1])
+    big[big == 0] = 1.0
+    scale = np.linalg.norm(a / big, axis=0) * big
     scale[scale == 0] = 1.0
-    coef, _ = nnls(a / scale, b)
-    return coef / scale
+    size = float(np.max(np.abs(b))) if b.size else 0.0
+    size = size if size > 0 else 1.0
+    coef, _ = nnls(a / scale, b / size)
+    return coef / scale * size
 
 
 def _floor(value: float, column: np.ndarray, y: np.ndarray, w: np.ndarray) -> float:
@@ -50,28 +58,35 @@ def _floor(value: float, column: np.ndarray, y: np.ndarray, w: np.ndarray) -> fl
 
 def brdf_scales(basis: np.ndarray, x: np.ndarray, cls, fixed, y, w) -> tuple[np.ndarray, float]:
     """Best BRDF scales >= 0 for the part columns ``basis`` (M, parts) at vector ``x``; the
-    scales named in ``fixed`` (and parts without a scale, weight 1) are kept."""
+    scales named in ``fixed`` (and parts without a scale, weight 1) are kept. The cost is
+    inf (``x`` returned as it is) where the model or its misfit overflows float64."""
     x = np.array(x, dtype=float)
     idx = [cls.scale_index(part) for part in BRDF_PARTS]
     names = cls.param_names()
     free = [k for k, i in enumerate(idx) if i is not None and names[i] not in fixed]
     weight = [1.0 if i is None else x[i] for i in idx]
-    rhs = y - sum(basis[:, k] * weight[k] for k in range(len(idx)) if k not in free)
-    if free:
-        coef = weighted_nnls(basis[:, free], rhs, w)
-        for c, k in zip(coef, free):
-            x[idx[k]] = weight[k] = c
-    model = basis @ np.array(weight)
-    cost = float(np.sum(((model - y) * w) ** 2))
-    for k in free:
-        x[idx[k]] = _floor(x[idx[k]], basis[:, k], y, w)
-    return x, cost
+    with np.errstate(over="ignore", invalid="ignore"):
+        rhs = y - sum(basis[:, k] * weight[k] for k in range(len(idx)) if k not in free)
+        if not (np.all(np.isfinite(rhs * w)) and np.all(np.isfinite(basis[:, free] * w[:, None]))):
+            return x, math.inf
+        if free:
+            coef = weighted_nnls(basis[:, free], rhs, w)
+            for c, k in zip(coef, free):
+                x[idx[k]] = weight[k] = c
+        model = basis @ np.array(weight)
+        cost = float(np.sum(((model - y) * w) ** 2))
+        for k in free:
+            x[idx[k]] = _floor(x[idx[k]], basis[:, k], y, w)
+    return x, cost if math.isfinite(cost) else math.inf
 
 
 def quadratic_scale(a, b, c, y, w) -> float:
-    """T >= 0 minimizing sum(w^2 (a T^2 + b T + c - y)^2): roots of the cubic derivative."""
+    """T >= 0 minimizing sum(w^2 (a T^2 + b T + c - y)^2): roots of the cubic derivative
+    (NaN when the cubic's coefficients overflow float64)."""
     a, b, r = a * w, b * w, (c - y) * w
     coeffs = [2 * a @ a, 3 * a @ b, b @ b + 2 * a @ r, b @ r]
+    if not all(math.isfinite(co) for co in coeffs):
+        return math.nan
     cands = [0.0]
     if any(abs(co) > 0 for co in coeffs):
         lead = next(k for k, co in enumerate(coeffs) if co != 0)
@@ -92,7 +107,18 @@ def medium_scales(basis: np.ndarray, x: np.ndarray, cls, fixed, y, w) -> tuple[n
     are products s_a s_b of the components' scales (veil.engine.integrator.pairs; 1 for a
     component without one) times the gain. Two free component scales (the paper's T_d,
     T_t) by a scan over their ratio, one by the roots of a cubic, the gain linearly; the
-    scales named in ``fixed`` are kept."""
+    scales named in ``fixed`` are kept. The cost is inf (``x`` returned as it is) where the
+    model or its misfit overflows float64."""
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+        if np.all(np.isfinite(basis * w[:, None])):
+            out, cost = _medium_scales(basis, x, cls, fixed, y, w)
+            if math.isfinite(cost) and np.all(np.isfinite(out)):
+                return out, cost
+    return np.array(x, dtype=float), math.inf
+
+
+def _medium_scales(basis: np.ndarray, x: np.ndarray, cls, fixed, y, w) -> tuple[np.ndarray, float]:
+    """:func:`medium_scales`, whatever the overflow."""
     names = cls.param_names()
     x = np.array(x, dtype=float)
     prs = pairs(cls)
@@ -218,11 +244,14 @@ def _fixed_names(problem: Problem, block: Block, kind: str) -> set:
 
 
 def step_starts(
-    problem: Problem, kind: str, role: str, count: int, progress=None
+    problem: Problem, kind: str, role: str, count: int, progress=None, explain: bool = True
 ) -> tuple[list[np.ndarray], int]:
     """Starting vectors (natural, best first) of a one-session problem whose ``kind`` model
     is free: the model's grid for ``role``, scales exact at each point. Returns (starts,
-    number of grid points)."""
+    number of grid points). An InputError when the given model's scales make the model
+    overflow float64 (:func:`_step_basis`); when no point has a finite cost and
+    ``explain`` (no other start ran), a FitError naming the fixed or given scales that
+    make it overflow (:func:`_blame_fixed`, :func:`_blame_given`) if any do."""
     block = problem.blocks[0]
     model = block.brdf if kind == "brdf" else block.medium
     cls = type(model)
@@ -232,23 +261,97 @@ def step_starts(
     points = grid_points(cls, role, free, problem.values[idx])
     engine = block.model(ITERATION_ACCURACY)
     y, w = block.data.y, block.data.w
-    scored = []
+    solve = medium_scales if kind == "medium" else brdf_scales
+    scored, bases = [], []
     for k, (combo, v) in enumerate(points):
         x = problem.values.copy()
         x[idx] = v
         vb, vm = problem.split(block, x)
-        terms = engine.terms(vb, vm)
-        if kind == "medium":
-            basis = np.einsum("mkb,b->mk", terms, column_scales_of(block, vb))
-            v, cost = medium_scales(basis, v, cls, fixed, y, w)
-        else:
-            basis = np.einsum("mkb,k->mb", terms, _rows(block, vm))
-            v, cost = brdf_scales(basis, v, cls, fixed, y, w)
+        basis = _step_basis(block, kind, engine.terms(vb, vm), vb, vm)
+        bases.append((basis, v))
+        v, cost = solve(basis, v, cls, fixed, y, w)
         x[idx] = v
         scored.append((cost, combo, x))
         if progress:
             progress("starting grid", k + 1, len(points))
-    return [x for _, _, x in pick_starts(scored, count)], len(points)
+    chosen = pick_starts(scored, count)
+    if not chosen and explain:
+        _blame_fixed(cls, solve, bases, fixed, y, w)
+        vb, vm = problem.split(block, problem.values)
+        given, gv = (block.brdf, vb) if kind == "medium" else (block.medium, vm)
+        _blame_given(given, gv, cls, solve, bases, fixed, y, w)
+    return [x for _, _, x in chosen], len(points)
+
+
+def _step_basis(block: Block, kind: str, terms: np.ndarray, vb, vm) -> np.ndarray:
+    """The columns whose scales the grid of a step fitting the ``kind`` model solves for:
+    the terms times the given model's scales (the medium's rows, or the BRDF's columns for
+    a medium). Where these overflow float64 the model does at every value of the fitted
+    one's: an InputError naming the given model's scales (veil.engine.apparent)."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        if kind == "medium":
+            basis = np.einsum("mkb,b->mk", terms, column_scales_of(block, vb))
+        else:
+            basis = np.einsum("mkb,k->mb", terms, _rows(block, vm))
+    if not np.all(np.isfinite(basis)):
+        given, v = (block.brdf, vb) if kind == "medium" else (block.medium, vm)
+        assert given is not None  # a step through a medium: both models are there
+        what = f"the apparent reflectance with the given {given.NAME} {given.KIND}"
+        raise overflow_error(what, [given], [v])
+    return basis
+
+
+def _blame_fixed(cls, solve, bases: list, fixed: set, y, w) -> None:
+    """When no grid point of a step has a finite cost: a FitError naming the fitted model's
+    fixed scales (and gain) whose values make its values or their misfit overflow float64,
+    those that, freed, give a finite cost somewhere on the grid (``bases``: each point's
+    (basis, vector); ``solve`` the scales' solve). Nothing when freeing them does not help:
+    then something else is the cause, and the solver says there is no starting point."""
+    gain = getattr(cls, "GAIN", None)
+    scalable = [n for n in cls.scale_names() + ((gain,) if gain else ()) if n in fixed]
+
+    def finite_without(names) -> bool:
+        rest = set(fixed) - set(names)
+        return any(math.isfinite(solve(basis, v, cls, rest, y, w)[1]) for basis, v in bases)
+
+    blamed = [n for n in scalable if finite_without([n])]
+    if not blamed and len(scalable) > 1 and finite_without(scalable):
+        blamed = scalable
+    if not blamed:
+        return
+    v = bases[0][1]
+    one = len(blamed) == 1
+    them = "it" if one else "them"
+    values = " and ".join(f"{n} fixed at {v[cls.index(n)]:.4g}" for n in blamed)
+    raise FitError(
+        f"no starting point: with {values} the {cls.NAME} model's values, or their "
+        f"weighted misfit to the data (at most {float(np.max(np.abs(y))):.4g}), overflow "
+        f"float64 at every point of the starting grid, and with {' and '.join(blamed)} free "
+        f"they do not; {'it scales' if one else 'they scale'} the model (relative units): "
+        f"fix {them} at a smaller value ({', '.join(f'--fix {n}=VALUE' for n in blamed)}, "
+        f"fixed={{...}} in Python) or leave {them} free"
+    )
+
+
+def _blame_given(given, v, cls, solve, bases: list, fixed: set, y, w) -> None:
+    """When no grid point of a step has a finite cost and the fitted model's fixed values
+    are not the cause: a FitError naming the ``given`` model's scales (at its vector
+    ``v``) when the grid with the basis scaled to at most 1 has finite costs - the given
+    model's magnitude makes the solves overflow float64. Nothing otherwise."""
+    if given is None or not given.SCALES:
+        return
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+        down = [(basis / max(float(np.max(np.abs(basis))), 1.0), x) for basis, x in bases]
+        if not any(math.isfinite(solve(basis, x, cls, fixed, y, w)[1]) for basis, x in down):
+            return
+    names = given.param_names()
+    named = ", ".join(f"{n} = {v[names.index(n)]:.4g}" for n in given.SCALES.values())
+    raise FitError(
+        f"no starting point: at every point of the starting grid the model's misfit to the "
+        f"data overflows float64 (beyond 1.8e308) with the given {given.NAME} {given.KIND}'s "
+        f"{named}: these coefficients scale the model (relative units) and smaller ones "
+        f"would not overflow; give them smaller values"
+    )
 
 
 def column_scales_of(block: Block, vb) -> np.ndarray:

@@ -77,13 +77,16 @@ def _problem(data: FitData, cls, brdf, medium, free: list, fixed: dict, what: st
     return problem
 
 
-def _step_grid(problem: Problem, cls, step: str, progress) -> tuple:
+def _step_grid(problem: Problem, cls, step: str, progress, explain: bool = True) -> tuple:
     """(a function giving the step's starts from its grid, a dict whose "points" it sets to
-    the grid's size)."""
+    the grid's size); ``explain``: a grid without a finite cost says why, when it can (no
+    start of the user's ran before it: :func:`~veil.fitting.start_values.step_starts`)."""
     grid = {"points": 0}
 
     def from_grid() -> list:
-        starts, grid["points"] = step_starts(problem, cls.KIND, ROLE[step], STARTS[step], progress)
+        starts, grid["points"] = step_starts(
+            problem, cls.KIND, ROLE[step], STARTS[step], progress, explain=explain
+        )
         return starts
 
     return from_grid, grid
@@ -269,7 +272,7 @@ def fit_step(
         )
     if medium is not None:
         _prepare_engine(problem, cls, given, given_result, accuracy, propagation, screen)
-    from_grid, grid = _step_grid(problem, cls, step, progress)
+    from_grid, grid = _step_grid(problem, cls, step, progress, explain=start is None)
     first = None if start is None else _start_vector(problem, cls, start)
     kw = dict(accuracy=accuracy, max_nfev=max_nfev, progress=progress, screen=screen)
     outcome = run_from(problem, first, start_ran_best, from_grid, every=medium is None, **kw)

@@ -271,6 +271,14 @@ def _series_pbrt(model, setting) -> Plugin:
     )
 
 
+#: A given path length or plate width lies in this range (any unit): J_v divides tau by
+#: R_c, multiplies it by ratios of direction cosines up to 1e12 and compares a / R_c with
+#: them; the landing factors square a and R_c times scales up to 1e21. Outside it float64
+#: overflows or underflows there (R_c = 1e308 alone dropped the scattered light); inside,
+#: J_v depends on a / R_c alone (tests/test_tools_extremes.py).
+LENGTH_RANGE = (1e-100, 1e100)
+
+
 @dataclass(frozen=True)
 class ForwardSeries(Medium):
     """Medium (tau, omega, g, eta_u, s): the unscattered beam plus the orders of forward
@@ -419,6 +427,15 @@ class ForwardSeries(Medium):
 
                 raise ParameterError(
                     f"ForwardSeries.{name} = {value!r}: expected a length >= 0 (0: not given)"
+                )
+            lo, hi = LENGTH_RANGE
+            if getattr(self, name) > 0 and not lo <= getattr(self, name) <= hi:
+                from ..errors import ParameterError
+
+                raise ParameterError(
+                    f"ForwardSeries.{name} = {value!r}: expected 0 (not given) or a length "
+                    f"from {lo:g} to {hi:g} (path_length and plate_width in one unit, any); "
+                    f"outside that range the plate's weighting J_v overflows or underflows"
                 )
         if self.plate_width > 0 and self.path_length <= 0:
             from ..errors import ParameterError

@@ -341,7 +341,7 @@ def is_state_file(path) -> bool:
     try:
         with open(path, encoding="utf-8") as fh:
             data = json.load(fh)
-    except (OSError, ValueError):
+    except (OSError, ValueError, RecursionError):  # not a state: read as a fit result then
         return False
     return isinstance(data, dict) and data.get("format") == FORMAT
 

@@ -64,7 +64,27 @@ class CurveMetrics:
 
     @property
     def fwhm(self) -> float:
+        """Full width at half maximum (deg); nan where a crossing is missing (see
+        :meth:`fwhm_text`)."""
         return self.right - self.left
+
+    @property
+    def zero(self) -> bool:
+        """Whether the curve is 0 at every angle (no peak, no width)."""
+        return not self.peak > 0
+
+    def fwhm_text(self) -> str:
+        """The width for a report: "FWHM 3.20 deg", or why the curve has none."""
+        if self.zero:
+            return "FWHM not defined (f = 0 at every angle)"
+        if math.isfinite(self.fwhm):
+            return f"FWHM {self.fwhm:.2f} deg"
+        side = {
+            (True, True): "on either side of the peak",
+            (True, False): "below the peak angle",
+            (False, True): "above the peak angle",
+        }[(math.isnan(self.left), math.isnan(self.right))]
+        return f"FWHM not defined (no half-maximum crossing {side} in the range)"
 
 
 def curve_metrics(theta, values, off_angle=0.0) -> CurveMetrics:
@@ -259,28 +279,71 @@ def _medium_label(curve: Curve, with_brdf=True) -> str:
     return f"{head}{_name(curve.medium)} ({_values(curve.medium.shape_values())})"
 
 
+def _curve_y(curve: Curve, scale: str) -> tuple[np.ndarray | None, str]:
+    """The y values of ``curve`` on ``scale``, or None and why it cannot be drawn there (a
+    curve that is 0 everywhere has no peak and nothing on a log scale; f / T_t^2 needs
+    T_t > 0)."""
+    y = curve.values
+    if scale == "peak":
+        return (None, "f = 0, not drawn") if curve.metrics.zero else (y / curve.metrics.peak, "")
+    if scale == "tt2" and curve.medium is not None:
+        tt2 = as_btdf(curve.medium).lobe_scale() ** 2
+        if not tt2 > 0:
+            return None, "T_t = 0: f / T_t² not defined, not drawn"
+        with np.errstate(over="ignore"):
+            y = y / tt2
+        if not np.all(np.isfinite(y)):
+            return None, "f / T_t² beyond float64, not drawn"
+    if scale in ("log", "tt2") and not np.any(y > 0):
+        return None, "f = 0, not on the log scale"
+    return y, ""
+
+
+def _nothing_drawn(ax, log: bool) -> None:
+    """Limits and a note for an axis where no curve could be drawn."""
+    if log:
+        ax.set_ylim(0.1, 10.0)
+    else:
+        ax.set_ylim(0, 1.05)
+    ax.text(
+        0.5,
+        0.5,
+        "no curve can be drawn on this scale\n(the legend says why)",
+        transform=ax.transAxes,
+        ha="center",
+        va="center",
+        color="0.3",
+    )
+
+
 def draw_curves(ax, curves, scale="log", title=None, with_brdf=True) -> None:
     """Observed value against reflection angle on one axis.
 
     scale: "log" or "linear" (f as is), "peak" (each curve over its own peak, linear) or
     "tt2" (f / T_t^2, log: the medium passes single-scattered light twice, each time with
     weight T_t, so this takes out the media's different strengths; clear medium as is).
+    A curve that cannot be drawn on the scale (:func:`_curve_y`) has a legend entry that
+    says why.
     """
     if scale not in SCALES:
         raise InputError(f"scale = {scale!r}; expected one of {', '.join(SCALES)}")
     k_medium = 0
+    drawn = 0
     for curve in curves:
         if curve.medium is None:
             color, lw = CLEAR_COLOR, 1.8
         else:
             color, lw = MEDIUM_COLORS[k_medium % len(MEDIUM_COLORS)], 1.5
             k_medium += 1
-        y = curve.values
-        if scale == "peak":
-            y = y / curve.metrics.peak
-        elif scale == "tt2" and curve.medium is not None:
-            y = y / curve.medium.lobe_scale() ** 2
-        ax.plot(curve.theta_r, y, color=color, lw=lw, label=_medium_label(curve, with_brdf))
+        y, why = _curve_y(curve, scale)
+        label = _medium_label(curve, with_brdf)
+        if y is None:
+            ax.plot([], [], color=color, lw=lw, label=f"{label}: {why}")
+            continue
+        drawn += 1
+        ax.plot(curve.theta_r, y, color=color, lw=lw, label=label)
+    if not drawn:
+        _nothing_drawn(ax, scale in ("log", "tt2"))
     if scale in ("log", "tt2"):
         ax.set_yscale("log")
         ax.set_ylabel(

@@ -5,12 +5,14 @@ out of it (log-polar) and close up (docs/model.md sec. 2, 3)."""
 from __future__ import annotations
 
 import math
+import sys
+import warnings
 from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..engine.angles import direction
-from ..engine.apparent import as_brdf, as_btdf, reflectance
+from ..engine.apparent import as_brdf, as_btdf, check_finite, reflectance
 from .figure_style import BRDF_COLORS, MEDIUM_COLORS, _name, _style, _values
 
 if TYPE_CHECKING:
@@ -20,13 +22,74 @@ if TYPE_CHECKING:
 # --------------------------------------------------------------------------------------
 # polar helpers (log radius)
 # --------------------------------------------------------------------------------------
-def _decades(values, most=6):
-    """(lo, hi) decades for a log radius: the smallest value sits a little outside the origin."""
-    v = np.asarray(values)
+#: The decades of the log radius when no lobe of a figure has a positive value.
+EMPTY_DECADES = (-1, 1)
+
+
+def _decades(values, most=6) -> tuple[int, int]:
+    """(lo, hi) decades for a log radius: the smallest positive value sits a little outside
+    the origin; :data:`EMPTY_DECADES` when no value is positive (nothing to draw on a log
+    scale)."""
+    v = np.asarray(values, dtype=float)
     v = v[v > 0]
+    if v.size == 0:
+        return EMPTY_DECADES
     hi = math.ceil(math.log10(v.max()) + 1e-9)
     lo = math.floor(math.log10(v.min()) - 0.3)
     return max(lo, hi - most), hi
+
+
+def _power(decade: int) -> float:
+    """10 ** ``decade`` as a float in the normal float64 range (an axis limit)."""
+    return min(max(10.0 ** max(decade, -400), sys.float_info.min), sys.float_info.max)
+
+
+def _close_up_limits(values: list, lo: int, hi: int) -> tuple[float | None, float | None]:
+    """(bottom, top) of a log close-up: the decade below the smallest positive of ``values``
+    (top left to matplotlib); when that is below the polar panels' decade ``lo`` (a lobe
+    that falls to 0 or nearly), the decades ``lo`` to ``hi``, as when no value is positive."""
+    v = np.concatenate([np.ravel(x) for x in values]) if values else np.zeros(0)
+    v = v[v > 0]
+    if v.size and math.floor(math.log10(v.min())) >= lo:
+        return _power(math.floor(math.log10(v.min()))), None
+    return _power(lo), _power(hi)
+
+
+def _zero_lobes(ax, names: list, data: list, quantity: str, theta_i: float) -> set:
+    """The indices of the lobes whose ``quantity`` is 0 in every direction drawn; they get a
+    note on ``ax`` (the close-up) and a warning: a log scale cannot show them."""
+    zero = {k for k, d in enumerate(data) if not (np.any(d[1] > 0) or np.any(d[3] > 0))}
+    for k in sorted(zero):
+        warnings.warn(
+            f"{quantity} of {names[k]} is 0 in every direction at incidence {theta_i:g} deg: "
+            f"nothing to draw on the figure's log scales",
+            UserWarning,
+            stacklevel=3,
+        )
+    if zero and len(zero) == len(names):
+        ax.text(
+            0.5,
+            0.5,
+            f"{quantity} = 0 in every direction:\nnothing to draw on a log scale",
+            transform=ax.transAxes,
+            ha="center",
+            va="center",
+            color="0.3",
+        )
+    return zero
+
+
+def _zero_handle(ax, name: str, quantity: str, color: str):
+    """A legend entry (an empty line on ``ax``) for a lobe that is 0 everywhere."""
+    (line,) = ax.plot([], [], color=color, lw=1.4, label=f"{name}: {quantity} = 0, not drawn")
+    return line
+
+
+def _log_close_up(ax, values: list, lo: int, hi: int) -> None:
+    """Log y scale on the close-up ``ax`` with :func:`_close_up_limits` of ``values``."""
+    bottom, top = _close_up_limits(values, lo, hi)
+    ax.set_yscale("log")
+    ax.set_ylim(bottom=bottom, top=top)
 
 
 def _log_radius(values, lo):
@@ -94,16 +157,22 @@ def _three_panels(plt):
 
 
 def fig9(brdfs=("BRDF1", "BRDF2"), theta_i=45.0, labels=None) -> Figure:
-    """Reflection lobes f_r for incidence theta_i: in plane, out of plane, close-up (log)."""
+    """Reflection lobes f_r for incidence theta_i: in plane, out of plane, close-up (log).
+    A lobe that is 0 everywhere cannot be drawn on the log scales: its legend entry, a note
+    and a warning say so."""
     ctx, plt = _style()
     with ctx:
         fig, ax1, ax2, ax3 = _three_panels(plt)
         data = [lobe_data(b, theta_i) for b in brdfs]
+        names = [labels[k] if labels else _name(as_brdf(b)) for k, b in enumerate(brdfs)]
         lo, hi = _decades(np.concatenate([np.concatenate([d[1], d[3]]) for d in data]))
+        zero = _zero_lobes(ax3, names, data, "f_r", theta_i)
         handles = []
-        for k, (b, (t_in, f_in, s, f_out)) in enumerate(zip(brdfs, data)):
-            name = labels[k] if labels else _name(as_brdf(b))
+        for k, (name, (t_in, f_in, s, f_out)) in enumerate(zip(names, data)):
             c = BRDF_COLORS[k % len(BRDF_COLORS)]
+            if k in zero:
+                handles.append(_zero_handle(ax1, name, "f_r", c))
+                continue
             (line,) = ax1.plot(np.radians(t_in), _log_radius(f_in, lo), color=c, lw=1.4, label=name)
             handles.append(line)
             ax2.plot(np.radians(s), _log_radius(f_out, lo), color=c, lw=1.4)
@@ -127,8 +196,7 @@ def fig9(brdfs=("BRDF1", "BRDF2"), theta_i=45.0, labels=None) -> Figure:
             "(b) out of the plane, through the mirror direction\nangle = from the mirror direction",
             pad=4,
         )
-        floor = min(float(np.min(d[1])) for d in data)
-        ax3.set_ylim(bottom=10 ** math.floor(math.log10(floor)))
+        _log_close_up(ax3, [d[1] for d in data], lo, hi)
         ax3.set_xlabel("angle from the mirror direction [deg]")
         ax3.set_ylabel("f_r [1/sr] (log scale)")
         ax3.set_title("(c) close-up: solid in the plane,\ndashed out of the plane")
@@ -161,31 +229,53 @@ def transmission_data(
     beta = beta[np.abs(beta) < 89.9]
     b = np.radians(beta)
     t = np.stack([-np.sin(b), np.zeros_like(b), np.cos(b)], axis=-1)  # T = -(propagation)
-    f_in = np.asarray(m.evaluate(v, np.broadcast_to(wi, t.shape), t))
+    f_in = np.asarray(m.evaluate(v, np.broadcast_to(wi, t.shape), t), dtype=float)
     s = np.unique(np.concatenate([np.linspace(-89.5, 89.5, 359), np.arange(-20, 20.001, 0.05)]))
     sr = np.radians(s)
     t2 = np.cos(sr)[:, None] * wi + np.sin(sr)[:, None] * np.array([0.0, 1.0, 0.0])
     ok = t2[:, 2] > math.cos(math.radians(89.9))
-    f_out = np.asarray(m.evaluate(v, np.broadcast_to(wi, t2[ok].shape), t2[ok]))
+    f_out = np.asarray(m.evaluate(v, np.broadcast_to(wi, t2[ok].shape), t2[ok]), dtype=float)
+    check_finite(np.concatenate([f_in, f_out]), "the transmission f_t", [m])
     return beta, f_in, s[ok], f_out
 
 
+def _medium_names(media, labels) -> list:
+    """The legend names of ``media``: ``labels`` or the model's name, plus its shape values
+    when the name does not show them."""
+    names = []
+    for k, m in enumerate(media):
+        model = as_btdf(m)
+        name = labels[k] if labels else _name(model)
+        shape = model.shape_values()
+        if not all(f"{p}={v:.3g}" in name for p, v in shape.items()):
+            name = f"{name} ({_values(shape)})"
+        names.append(name)
+    return names
+
+
+def _differ(y_in, y_out) -> bool:
+    """Whether two curves differ by more than 1e-3 relative to ``y_in`` anywhere."""
+    return bool(np.any(np.abs(y_out - y_in) > 1e-3 * np.abs(y_in)))
+
+
 def fig10(media=("BTDF1", "BTDF2", "BTDF3"), theta_i=45.0, labels=None) -> Figure:
-    """Transmission lobes f_t for incidence theta_i: in plane, out of plane, close-up (log)."""
+    """Transmission lobes f_t for incidence theta_i: in plane, out of plane, close-up (log).
+    A lobe that is 0 everywhere cannot be drawn on the log scales: its legend entry, a note
+    and a warning say so."""
     ctx, plt = _style()
     with ctx:
         fig, ax1, ax2, ax3 = _three_panels(plt)
         data = [transmission_data(m, theta_i) for m in media]
+        names = _medium_names(media, labels)
         lo, hi = _decades(np.concatenate([np.concatenate([d[1], d[3]]) for d in data]))
+        zero = _zero_lobes(ax3, names, data, "f_t", theta_i)
         handles = []
         differ = False
-        for k, (m, (beta, f_in, s, f_out)) in enumerate(zip(media, data)):
-            model = as_btdf(m)
-            name = labels[k] if labels else _name(model)
-            shape = model.shape_values()
-            if not all(f"{k}={v:.3g}" in name for k, v in shape.items()):
-                name = f"{name} ({_values(shape)})"
+        for k, (name, (beta, f_in, s, f_out)) in enumerate(zip(names, data)):
             c = MEDIUM_COLORS[k % len(MEDIUM_COLORS)]
+            if k in zero:
+                handles.append(_zero_handle(ax1, name, "f_t", c))
+                continue
             (line,) = ax1.plot(np.radians(beta), _log_radius(f_in, lo), color=c, lw=1.4, label=name)
             handles.append(line)
             ax2.plot(np.radians(s), _log_radius(f_out, lo), color=c, lw=1.4)
@@ -193,10 +283,11 @@ def fig10(media=("BTDF1", "BTDF2", "BTDF3"), theta_i=45.0, labels=None) -> Figur
             x_in, y_in = beta[near] - theta_i, f_in[near]
             ax3.semilogy(x_in, y_in, color=c, lw=1.6)
             near = np.abs(s) <= 20
-            y_out = np.interp(x_in, s, f_out)
-            if np.max(np.abs(y_out / y_in - 1)) > 1e-3:
+            if _differ(y_in, np.interp(x_in, s, f_out)):
                 differ = True
                 ax3.semilogy(s[near], f_out[near], color=c, lw=1.1, ls="--")
+        if len(zero) == len(data):
+            _log_close_up(ax3, [], lo, hi)
         for ax in (ax1, ax2):
             _setup_log_polar(ax, lo, hi, zero="S", direction=1)
         r_top = hi - lo
