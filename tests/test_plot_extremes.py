@@ -81,7 +81,7 @@ def test_transmission_all_zero_medium_is_drawn_with_a_note(tmp_path):
 
 def test_transmission_huge_but_finite_medium(tmp_path):
     out = tmp_path / "t.png"
-    result, escaped = plot("transmission", "--medium", "1e300,1e300,0.93,1.3", "-o", out)
+    result, escaped = plot("transmission", "--medium", "1e200,1e200,0.93,1.3", "-o", out)
     assert_drawn(result, escaped, out)
 
 
@@ -130,14 +130,45 @@ def test_curve_tt2_of_a_medium_without_lobe_weight(tmp_path):
     assert "FWHM 4.18 deg" in result.output
 
 
-def test_curve_tt2_beyond_float64_is_not_drawn(tmp_path):
-    """f / T_t^2 that overflows (huge f, tiny T_t): a legend note, no overflow warning."""
+def test_curve_tt2_beyond_what_the_figures_draw_is_not_drawn():
+    """f / T_t^2 above PLOT_MAX or beyond float64 (T_t of 1e-160: T_t^2 subnormal), or T_t^2
+    that underflows to 0: the curve is not drawn on the tt2 scale and says why; the log
+    scale draws it."""
+    import warnings
+
+    import veil
+    from veil.viz.figures import PLOT_MAX, Curve, _curve_y, curve_metrics
+
+    theta = np.linspace(0.0, 89.0, 90)
+    values = np.exp(-(((theta - 45.0) / 5.0) ** 2)) + 0.1
+    for tt, why in [(1e-160, "above"), (1e-126, "above"), (1e-170, "T_t² = 0")]:
+        medium = veil.HenyeyGreenstein(0.5, tt, 0.93, 1.3)
+        curve = Curve(veil.BRDF1, medium, 45.0, theta, values, curve_metrics(theta, values))
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")  # no overflow or underflow warning escapes
+            y, note = _curve_y(curve, "tt2")
+            assert y is None and why in note and "not drawn" in note, (tt, note)
+            y, note = _curve_y(curve, "log")
+            assert note == "" and np.array_equal(y, values)
+    fine = veil.HenyeyGreenstein(0.5, 1e-100, 0.93, 1.3)  # f / T_t^2 = 1e199 at most
+    curve = Curve(veil.BRDF1, fine, 45.0, theta, values, curve_metrics(theta, values))
+    y, note = _curve_y(curve, "tt2")
+    assert note == "" and np.max(y) <= PLOT_MAX
+
+
+def test_values_above_what_the_figures_draw_are_refused(tmp_path):
+    """A lobe, transmission or curve above PLOT_MAX (matplotlib's log axes overflow near
+    float64's top): exit 2 naming the model, nothing written."""
     out = tmp_path / "p.png"
-    result, escaped = plot(
-        "curve", "--brdf", "1e300,1e300,0.8,1.5", "--medium", "0,1e-10,0.93,1.3",
-        "--scale", "tt2", "--accuracy", "fast", "-o", out,
-    )
-    assert_drawn(result, escaped, out)
+    for args in (["lobe", "--brdf", "0,6e307,5,1.5", "--theta-i", "80"],
+                 ["lobe", "--brdf", "0,1e300,5,1.5"],
+                 ["transmission", "--medium", "1e308,0,0.9,1.33"],
+                 ["curve", "--brdf", "1.7e308,1.7e308,0.8,1.5", "--scale", "linear"]):
+        result, _ = plot(*args, "-o", out)
+        assert result.exit_code == 2, (args, result.output)
+        assert "the largest value the figures draw" in result.output
+        assert ("Ps=" in result.output or "Td=" in result.output), result.output
+        assert not out.exists()
 
 
 def test_curve_regular_output_unchanged(tmp_path):

@@ -18,7 +18,7 @@ import math
 import numpy as np
 from scipy.optimize import nnls
 
-from ..engine.apparent import overflow_error
+from ..engine.apparent import check_finite
 from ..engine.integrator import BRDF_PARTS, column_scales, pairs
 from ..errors import FitError
 from .problem import ITERATION_ACCURACY, Block, Problem, SessionModel
@@ -286,19 +286,19 @@ def step_starts(
 def _step_basis(block: Block, kind: str, terms: np.ndarray, vb, vm) -> np.ndarray:
     """The columns whose scales the grid of a step fitting the ``kind`` model solves for:
     the terms times the given model's scales (the medium's rows, or the BRDF's columns for
-    a medium). Where these overflow float64 the model does at every value of the fitted
-    one's: an InputError naming the given model's scales (veil.engine.apparent)."""
+    a medium). Where they overflow float64 at a grid point: an InputError naming the given
+    model's scales, the values' linear factors (veil.engine.apparent.check_finite)."""
     with np.errstate(over="ignore", invalid="ignore"):
         if kind == "medium":
             basis = np.einsum("mkb,b->mk", terms, column_scales_of(block, vb))
         else:
             basis = np.einsum("mkb,k->mb", terms, _rows(block, vm))
-    if not np.all(np.isfinite(basis)):
-        given, v = (block.brdf, vb) if kind == "medium" else (block.medium, vm)
-        assert given is not None  # a step through a medium: both models are there
-        what = f"the apparent reflectance with the given {given.NAME} {given.KIND}"
-        raise overflow_error(what, [given], [v])
-    return basis
+    given, v = (block.brdf, vb) if kind == "medium" else (block.medium, vm)
+    what = "the apparent reflectance" + (
+        "" if given is None else f" with the given {given.NAME} {given.KIND}"
+    )
+    # the engine's own terms not finite: a bug (FloatingPointError), else the given scales
+    return check_finite(basis, what, [given], [v], terms=terms)
 
 
 def _blame_fixed(cls, solve, bases: list, fixed: set, y, w) -> None:

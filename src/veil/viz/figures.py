@@ -34,7 +34,14 @@ from .figure_style import (
     figure_format,
     save_figure,
 )
-from .lobe_figures import fig9, fig10, lobe_data, transmission_data
+from .lobe_figures import (
+    PLOT_MAX,
+    check_plottable,
+    fig9,
+    fig10,
+    lobe_data,
+    transmission_data,
+)
 from .render import Rendering, auto_exposure, clipping, evaluate, highlight_pixel, render, tone_map
 
 if TYPE_CHECKING:
@@ -135,6 +142,7 @@ def inplane_curve(
         accuracy=accuracy,
         progress=progress,
     )
+    check_plottable(values, "the curve", [b, m])
     return Curve(b, m, float(theta_i), tr, values, curve_metrics(tr, values))
 
 
@@ -287,13 +295,13 @@ def _curve_y(curve: Curve, scale: str) -> tuple[np.ndarray | None, str]:
     if scale == "peak":
         return (None, "f = 0, not drawn") if curve.metrics.zero else (y / curve.metrics.peak, "")
     if scale == "tt2" and curve.medium is not None:
-        tt2 = as_btdf(curve.medium).lobe_scale() ** 2
+        with np.errstate(over="ignore", under="ignore"):
+            tt2 = np.square(np.float64(as_btdf(curve.medium).lobe_scale()))
+            y = y / tt2 if tt2 > 0 else y
         if not tt2 > 0:
-            return None, "T_t = 0: f / T_t² not defined, not drawn"
-        with np.errstate(over="ignore"):
-            y = y / tt2
-        if not np.all(np.isfinite(y)):
-            return None, "f / T_t² beyond float64, not drawn"
+            return None, "T_t² = 0 (or below float64's range): f / T_t² not drawn"
+        if not np.all(np.isfinite(y)) or np.max(np.abs(y)) > PLOT_MAX:
+            return None, f"f / T_t² above {PLOT_MAX:g}, not drawn"
     if scale in ("log", "tt2") and not np.any(y > 0):
         return None, "f = 0, not on the log scale"
     return y, ""

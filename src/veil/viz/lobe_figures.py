@@ -13,6 +13,7 @@ import numpy as np
 
 from ..engine.angles import direction
 from ..engine.apparent import as_brdf, as_btdf, check_finite, reflectance
+from ..errors import InputError
 from .figure_style import BRDF_COLORS, MEDIUM_COLORS, _name, _style, _values
 
 if TYPE_CHECKING:
@@ -41,7 +42,25 @@ def _decades(values, most=6) -> tuple[int, int]:
 
 def _power(decade: int) -> float:
     """10 ** ``decade`` as a float in the normal float64 range (an axis limit)."""
-    return min(max(10.0 ** max(decade, -400), sys.float_info.min), sys.float_info.max)
+    return min(max(10.0 ** min(max(decade, -400), 308), sys.float_info.min), sys.float_info.max)
+
+
+#: The largest value the figures draw: matplotlib's log transforms and tick formatters
+#: overflow float64 near its top (1.8e308), margins and ticks included.
+PLOT_MAX = 1e250
+
+
+def check_plottable(values, what: str, models) -> np.ndarray:
+    """``values``, or an InputError naming the ``models`` when one is above PLOT_MAX."""
+    values = np.asarray(values, dtype=float)
+    top = float(np.max(np.abs(values), initial=0.0))
+    if top > PLOT_MAX:
+        names = ", ".join(str(m) for m in models if m is not None)
+        raise InputError(
+            f"{what} reaches {top:.3g} with {names}: above {PLOT_MAX:g}, the largest value "
+            f"the figures draw; give smaller scale coefficients (the values scale with them)"
+        )
+    return values
 
 
 def _close_up_limits(values: list, lo: int, hi: int) -> tuple[float | None, float | None]:
@@ -141,6 +160,7 @@ def lobe_data(brdf, theta_i=45.0) -> tuple[np.ndarray, np.ndarray, np.ndarray, n
     th, ph = _mirror_cut(theta_i, s)
     ok = th < 89.9
     f_out = reflectance(b, theta_i, th[ok], 180.0, ph[ok])
+    check_plottable(np.concatenate([f_in, f_out]), "f_r", [b])
     return t_in, f_in, s[ok], f_out
 
 
@@ -236,6 +256,7 @@ def transmission_data(
     ok = t2[:, 2] > math.cos(math.radians(89.9))
     f_out = np.asarray(m.evaluate(v, np.broadcast_to(wi, t2[ok].shape), t2[ok]), dtype=float)
     check_finite(np.concatenate([f_in, f_out]), "the transmission f_t", [m])
+    check_plottable(np.concatenate([f_in, f_out]), "the transmission f_t", [m])
     return beta, f_in, s[ok], f_out
 
 
