@@ -199,6 +199,11 @@ def test_simulate_api_brdf_overflow_names_the_coefficients():
     big = veil.TorranceSparrow(Pd=1.7e308, Ps=1.7e308, n=0.8, eta=1.5)
     with pytest.raises(InputError, match=r"^brdf = .*Pd = 1\.7e\+308, Ps = 1\.7e\+308"):
         simulate(big, None, psi=(60,), noise=0.9)
+    # a noise above 1 is not blamed when the noise-free values are already at the top
+    with pytest.raises(InputError, match=r"^brdf = .*give the object smaller coefficients"):
+        simulate(big, None, psi=(60,), noise=2.0)
+    with pytest.raises(InputError, match=r"^noise = 1e\+306: "):
+        simulate(veil.BRDF1, None, psi=(60,), noise=1e306)
 
 
 def test_simulate_large_but_finite_values_are_written(tmp_path):
@@ -239,7 +244,7 @@ def test_empty_channel_cell_of_a_dataframe_is_called_empty():
     from veil.data.measurements import validate
 
     table = pd.DataFrame({"psi": [60.0] * 4, "rho": [0.0, 5.0, 0.0, 5.0],
-                          "channel": ["r", None, "g", float("nan")], "value": [1.0] * 4})
+                          "channel": ["r", None, "g", pd.NA], "value": [1.0] * 4})
     with pytest.raises(MeasurementError) as info:
         validate(table)
     assert "row 1 (index label) of the table, column 'channel': empty" in str(info.value)

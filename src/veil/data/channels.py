@@ -67,7 +67,7 @@ def _cell_text(cell: object) -> str:
     NaN or None, or only blanks), else the cell's text quoted."""
     if cell is None or (isinstance(cell, str) and not cell.strip()):
         return "empty"
-    if isinstance(cell, (float, np.floating)) and math.isnan(cell):
+    if not isinstance(cell, (list, tuple, np.ndarray)) and pd.isna(cell) is True:  # NaN, NA
         return "empty"
     return repr(str(cell))
 
