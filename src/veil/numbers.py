@@ -1,13 +1,12 @@
 """How veil writes numbers: in reports and tables (:func:`format_number`,
-:func:`format_percent`) and in JSON files (:func:`json_float`, :func:`from_json_float`:
-non-finite numbers never reach a file, they become null)."""
+:func:`format_percent`) and in JSON files (:func:`json_float`, :func:`json_clean`:
+non-finite numbers never reach a file, they become null; a result file's are read back by
+:func:`veil.fitting.result_fields.read_number`)."""
 
 from __future__ import annotations
 
 import math
 from typing import Any
-
-from .errors import InputError
 
 
 def format_number(x, digits: int = 6, missing: str = "n/a") -> str:
@@ -49,13 +48,4 @@ def json_clean(obj) -> Any:
     return obj
 
 
-def from_json_float(x, where: str = "a fit result") -> float | None:
-    """A number read from a file: float or None; anything else is an InputError."""
-    if x is None:
-        return None
-    if isinstance(x, bool) or not isinstance(x, (int, float)):
-        raise InputError(f"expected a number or null in {where}, got {x!r}")
-    return float(x)
-
-
-__all__ = ["format_number", "format_percent", "json_float", "json_clean", "from_json_float"]
+__all__ = ["format_number", "format_percent", "json_float", "json_clean"]

@@ -105,14 +105,14 @@ class RenderSettings:
         """The coefficients that scale the image and the options that gave them: "Pd = 1e+40,
         Ps = 1e+40 (--brdf 1e40,1e40,0.8,1.5, --medium none)"; ``models`` {channel: (BRDF,
         medium or None)}, channel None for a grey render."""
+        from ..engine.apparent import scales_text
+
         named: list[str] = []
         for channel, pair in models.items():
             for model in pair:
-                if model is None:
+                if model is None or not model.SCALES:
                     continue
-                values = dict(zip(model.param_names(), model.to_vector()))
-                for name in model.SCALES.values():
-                    text = f"{name} = {float(values[name]):.4g}"
+                for text in scales_text(model).split(", "):
                     named.append(text if channel is None else f"{text} ({channel})")
         given = f"--brdf {self.brdf}, --medium {self.medium}"
         if not named:

@@ -34,7 +34,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..engine.angles import direction
-from ..engine.apparent import RULES, as_brdf, as_btdf
+from ..engine.apparent import RULES, as_brdf, as_btdf, scales_text
 from ..engine.evaluator import CHUNK, evaluate
 from ..errors import InputError
 from ..models.base import compiled_kernel
@@ -161,11 +161,9 @@ def _scales_text(brdfs: dict) -> str:
     """The scale parameters of the BRDFs ``brdfs`` {channel: BRDF} (``Model.SCALES``: the
     values are linear in each): "Pd = 1e+40, Ps = 1e+40" for the one channel keyed None,
     else "channel g: Pd = 1e+40, Ps = 1" per channel."""
-    parts = []
-    for channel, model in brdfs.items():
-        values = dict(zip(model.param_names(), model.to_vector()))
-        text = ", ".join(f"{n} = {float(values[n]):.4g}" for n in model.SCALES.values())
-        parts.append(text if channel is None else f"channel {channel}: {text}")
+    parts = [
+        scales_text(m) if c is None else f"channel {c}: {scales_text(m)}" for c, m in brdfs.items()
+    ]
     return "; ".join(parts)
 
 

@@ -33,17 +33,23 @@ def as_btdf(medium) -> BTDF:
     return model
 
 
+def scales_text(model, vector=None) -> str:
+    """The ``model``'s scale parameters (``Model.SCALES``: its values are linear in each) and
+    their values, "Pd = 1e+40, Ps = 1e+40"; ``vector`` gives values other than its own."""
+    values = model.to_vector() if vector is None else np.asarray(vector, dtype=float)
+    names = model.param_names()
+    return ", ".join(f"{n} = {float(values[names.index(n)]):.4g}" for n in model.SCALES.values())
+
+
 def overflow_error(what: str, models, vectors=None) -> InputError:
     """The InputError for a result that does not fit in a float64 (above 1.8e308): it names
-    the models' scale parameters (``Model.SCALES``; the result is linear in each) and their
-    values; ``vectors`` gives parameter values other than the models' own."""
-    named = []
-    for k, model in enumerate(models):
-        if model is None:
-            continue
-        values = model.to_vector() if vectors is None else np.asarray(vectors[k], dtype=float)
-        names = model.param_names()
-        named += [f"{name} = {values[names.index(name)]:.4g}" for name in model.SCALES.values()]
+    the models' scale parameters (:func:`scales_text`) and their values; ``vectors`` gives
+    parameter values other than the models' own."""
+    named = [
+        scales_text(m, None if vectors is None else vectors[k])
+        for k, m in enumerate(models)
+        if m is not None and m.SCALES
+    ]
     return InputError(
         f"{what} overflows float64 (it would exceed 1.8e308) with "
         f"{', '.join(named)}: these coefficients scale it linearly (relative "

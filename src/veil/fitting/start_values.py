@@ -18,7 +18,7 @@ import math
 import numpy as np
 from scipy.optimize import nnls
 
-from ..engine.apparent import check_finite
+from ..engine.apparent import check_finite, scales_text
 from ..engine.integrator import BRDF_PARTS, column_scales, pairs
 from ..errors import FitError
 from .problem import ITERATION_ACCURACY, Block, Problem, SessionModel
@@ -344,8 +344,7 @@ def _blame_given(given, v, cls, solve, bases: list, fixed: set, y, w) -> None:
         down = [(basis / max(float(np.max(np.abs(basis))), 1.0), x) for basis, x in bases]
         if not any(math.isfinite(solve(basis, x, cls, fixed, y, w)[1]) for basis, x in down):
             return
-    names = given.param_names()
-    named = ", ".join(f"{n} = {v[names.index(n)]:.4g}" for n in given.SCALES.values())
+    named = scales_text(given, v)
     raise FitError(
         f"no starting point: at every point of the starting grid the model's misfit to the "
         f"data overflows float64 (beyond 1.8e308) with the given {given.NAME} {given.KIND}'s "
