@@ -9,7 +9,6 @@ import os
 import numpy as np
 import pytest
 
-import veil
 from veil._jax import jax  # noqa: F401  (float64)
 from veil.models.forward_series import (
     ORDERS,
@@ -184,70 +183,3 @@ def test_landing_factors_against_monte_carlo_of_the_cylinder():
     for k in (2, 3):
         assert ratio[k] < 0.8 and err[k] < 0.04, (k, ratio[k], err[k])
         assert abs(ratio[k] / lam[k - 1] - 1) < 0.08, (k, ratio[k], lam[k - 1])
-
-
-def _traced_sides(model):
-    """The model's vector as the engine passes it: its orders' code appended."""
-    from veil.engine.integrator import option_codes
-
-    return np.concatenate([_vector(model), option_codes(model)])
-
-
-def test_with_a_path_length_the_orders_come_from_the_vector():
-    """With a path length the engine's template of the medium (made from whichever orders came
-    first) reads the orders from the code appended to the vector: its lobe's weight and
-    mixture are each orders' own bit for bit, its view weight to rounding, for every
-    template."""
-    from veil.engine.integrator import RUNTIME, engine_structure
-
-    r = np.array([math.sin(1.0), 0.0, math.cos(1.0)])
-    ang = np.linspace(0.8, 1.3, 7)
-    rp = np.stack([np.sin(ang), 0.05 + 0.0 * ang, np.cos(ang)], axis=1)
-    for geometry in ({"path_length": 15.0}, {"path_length": 15.0, "plate_width": 5.0}):
-        media = [ForwardSeries(tau=0.8, omega=0.97, g=0.9, orders=o, **geometry)
-                 for o in ("poisson", "cylinder", "light-side", "view-side")]
-        assert len({engine_structure(m) for m in media}) == 1
-        assert dict(engine_structure(media[0])[1:])["orders"] == RUNTIME
-        for template in media:
-            for m in media:
-                v, vx = _vector(m), _traced_sides(m)
-                assert float(template.lobe_weight(vx)) == float(m.lobe_weight(v))
-                for a, b in zip(template.mixture(vx), m.mixture(v)):
-                    assert np.array_equal(np.asarray(a), np.asarray(b))
-                # to rounding: two programs of their own may fuse the sums otherwise
-                assert np.allclose(np.asarray(template.view_weight(vx, rp, r)),
-                                   np.asarray(m.view_weight(v, rp, r)), rtol=1e-14, atol=0)
-    # the four differ where they should: the light side's weights, the view side's
-    m = media[0]
-    lobes = {x.orders: float(x.lobe_weight(_vector(x))) for x in media}
-    assert lobes["poisson"] == lobes["view-side"] != lobes["light-side"] == lobes["cylinder"]
-    views = {x.orders: np.asarray(m.view_weight(_traced_sides(x), rp, r)) for x in media}
-    assert not np.allclose(views["view-side"], views["poisson"], rtol=1e-3)
-    # without a path length the orders stay options of the program (no code appended)
-    plain = ForwardSeries(tau=0.8, omega=0.97, g=0.9, orders="cylinder")
-    assert plain.runtime_options() == () and engine_structure(plain) == plain.structure()
-    assert _traced_sides(plain).shape == _vector(plain).shape
-
-
-def test_one_program_serves_the_four_orders_through_the_engine():
-    """The engine runs every orders of a set-up with a path length through one program, and
-    each gives its own values (the template is the first medium seen: here "cylinder")."""
-    from veil.engine.forward import Forward
-    from veil.engine.quadrature import RULES
-
-    brdf = veil.BRDF2
-    ti, tr = np.array([20.0, 45.0, 60.0]), np.array([25.0, 40.0, 10.0])
-    media = {o: ForwardSeries(tau=0.8, omega=0.97, g=0.9, path_length=15.0, plate_width=5.0,
-                              orders=o)
-             for o in ("cylinder", "poisson", "light-side", "view-side")}
-    forwards = {o: Forward(brdf, m, ti, tr, rule=RULES["fast"]) for o, m in media.items()}
-    assert len({f._km for f in forwards.values()}) == 1
-    values = {o: forwards[o](brdf.to_vector(), m.to_vector()) for o, m in media.items()}
-    for a in values:
-        for b in values:
-            if a < b:
-                assert np.max(np.abs(values[a] / values[b] - 1)) > 1e-4, (a, b)
-    # a second engine of one of them: the same program, the same numbers
-    again = Forward(brdf, media["poisson"], ti, tr, rule=RULES["fast"])
-    assert np.array_equal(again(brdf.to_vector(), media["poisson"].to_vector()),
-                          values["poisson"])

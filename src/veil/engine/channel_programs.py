@@ -158,7 +158,7 @@ def prepare(forward: Forward, channels: int, values: bool = True, jacobians=()) 
     for free in wanted:
         programs = _programs(forward, channels, free)
         if programs is not None:
-            futures.append(_submit(programs[1], *forward.inputs(vb, vms), forward._wi, forward._wr))
+            futures.append(_submit(programs[1], vb, vms, forward._wi, forward._wr))
     return futures
 
 

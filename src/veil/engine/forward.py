@@ -144,7 +144,7 @@ def non_default_options(classes, items) -> list[str]:
     return [
         f"{k}={v:g}" if isinstance(v, float) else f"{k}={v}"
         for k, v in items
-        if defaults.get(k, object()) != v and v != integrator.RUNTIME
+        if defaults.get(k, object()) != v
     ]
 
 
@@ -266,10 +266,8 @@ class Forward:
         idx = np.minimum(np.arange(padded), self.size - 1)
         split = NamedSharding(self._mesh, P(_AXIS))
         self._wi, self._wr = jax.device_put(wi[idx], split), jax.device_put(wr[idx], split)
-        self._kb = integrator.engine_structure(integrator.template(brdf))
-        self._km = integrator.engine_structure(integrator.template(medium))
-        #: the values of the options the programs take as inputs (integrator.option_codes)
-        self._codes = (integrator.option_codes(brdf), integrator.option_codes(medium))
+        self._kb = integrator.template(brdf).structure()
+        self._km = integrator.template(medium).structure()
         # the last output of each program, by its non-scale parameters (see _memo_run)
         self._last: dict = {}
         # outputs of the channels' program, by (program, non-scale parameters): its last run
@@ -278,19 +276,7 @@ class Forward:
 
     # ----------------------------------------------------------------------------------
     def _run(self, fn, vb, vm):
-        return fn(*self.inputs(vb, vm), self._wi, self._wr)
-
-    def inputs(self, vb, vm) -> tuple[np.ndarray, np.ndarray]:
-        """The vectors a program takes (or rows of them, the channels'): each model's with
-        the codes of the options its programs take as inputs appended
-        (integrator.engine_structure)."""
-        out = []
-        for v, codes in zip((vb, vm), self._codes):
-            v = np.asarray(v, dtype=float)
-            if codes.size:
-                v = np.concatenate([v, np.broadcast_to(codes, v.shape[:-1] + codes.shape)], -1)
-            out.append(v)
-        return out[0], out[1]
+        return fn(vb, vm, self._wi, self._wr)
 
     def _key(self, vb, vm) -> bytes:
         """What a program's output depends on: the non-scale parameters."""
@@ -330,7 +316,7 @@ class Forward:
             fn = self._jacobian_fn(*free)[0]
             if fn is not None and fn not in fns:
                 fns.append(fn)
-        vb, vm = self.inputs(*self._vectors(self.brdf.to_vector(), self.medium.to_vector()))
+        vb, vm = self._vectors(self.brdf.to_vector(), self.medium.to_vector())
         return [_submit(fn, vb, vm, self._wi, self._wr) for fn in fns]
 
     def _jacobian_fn(self, free_brdf, free_medium):
@@ -473,13 +459,7 @@ class LinearForward(Forward):
         for a in check_angles(theta_i, theta_r, phi_i, phi_r):
             digest.update(np.ascontiguousarray(a, dtype=float).ravel().tobytes())
         #: what a group's terms depend on besides its and the medium's vectors
-        self._where = (
-            digest.hexdigest(),
-            self.rule,
-            self._inner._kb,
-            self._inner._km,
-            tuple(np.concatenate(self._inner._codes)),
-        )
+        self._where = (digest.hexdigest(), self.rule, self._inner._kb, self._inner._km)
         self.devices = self._inner.devices
         #: [(the column model's base vector, {family index: column model index})]
         self._groups = type(brdf).column_groups()

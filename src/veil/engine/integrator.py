@@ -471,34 +471,11 @@ def _batch(n: int, limit: int) -> int:
 _TEMPLATES: dict = {}
 
 
-#: An option the engine's programs take as an input, in their structure (engine_structure).
-RUNTIME = "run-time"
-
-
-def engine_structure(model) -> tuple:
-    """``model.structure()`` with the options of ``model.runtime_options()`` marked
-    :data:`RUNTIME`: the programs read those from the vector (:func:`option_codes`), so one
-    program serves all their values (forward-series' orders with a path length)."""
-    runtime = model.runtime_options()
-    cls, *options = model.structure()
-    return (cls,) + tuple((k, RUNTIME) if k in runtime else (k, v) for k, v in options)
-
-
-def option_codes(model) -> np.ndarray:
-    """The values of ``model.runtime_options()`` as numbers, each one's index among its
-    declared choices: appended to the model's vector in every call of a program
-    (veil.engine.forward.Forward)."""
-    choices = {o.name: o.choices for o in model.OPTIONS}
-    names = model.runtime_options()
-    return np.array([choices[n].index(getattr(model, n)) for n in names], dtype=float)
-
-
 def template(model):
-    """The cached template instance for a model's engine structure (its options but those
-    the programs take as inputs)."""
-    return _TEMPLATES.setdefault(engine_structure(model), model)
+    """The cached template instance for a model's structure (static options only)."""
+    return _TEMPLATES.setdefault(model.structure(), model)
 
 
 def template_for(structure):
-    """The template instance registered for an engine structure (see :func:`template`)."""
+    """The template instance registered for a model structure (see :func:`template`)."""
     return _TEMPLATES[structure]

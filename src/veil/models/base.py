@@ -19,8 +19,7 @@ The class declares
 Construction validates every value, so an invalid model cannot exist. The engine and the
 fits never touch parameter values of instances inside JAX code: they work on the parameter
 *vector* (:meth:`Model.to_vector`) and the methods of a template of the model (which read its
-options only, or from the vector those of ``runtime_options()``), so one compiled function
-serves every parameter value.
+options only), so one compiled function serves every parameter value.
 """
 
 from __future__ import annotations
@@ -257,9 +256,10 @@ class Model:
 
     @classmethod
     def same_model(cls, options: dict) -> dict:
-        """``options`` written the one way of the model they make: sets whose models give
-        equal values map to equal dicts (model selection fits that model once); as given
-        unless a family declares otherwise."""
+        """``options`` (every declared one) written the one way of the model they make: two
+        sets whose models give equal values map to equal dicts, so model selection fits
+        that model once (docs/choosing-models.md). As given unless a family declares
+        otherwise."""
         return dict(options)
 
     @classmethod
@@ -342,10 +342,6 @@ class Model:
     def structure(self) -> tuple:
         """Hashable identity of the model's code path (class and static options)."""
         return (type(self),) + tuple(sorted(self.options().items()))
-
-    def runtime_options(self) -> tuple[str, ...]:
-        """Options the engine's programs take as inputs (integrator.engine_structure)."""
-        return ()
 
     def __str__(self) -> str:
         vals = ", ".join(f"{p.name}={getattr(self, p.name):.6g}" for p in self.PARAMS)
@@ -572,7 +568,9 @@ class Medium(Model):
     def kernel(self, v, one_minus_mu) -> Array:
         """The scattering kernel without boundary factors, iso + weight p, at deflection
         1 - cos(gamma): what a black cloth sees of the medium (veil.data.simulate)."""
-        value = 0.0 * one_minus_mu + (self.iso(v) if self.has("iso") else 0.0)
+        value = 0.0 * one_minus_mu
+        if self.has("iso"):
+            value = value + self.iso(v)
         if self.has("lobe"):
             value = value + self.lobe_weight(v) * self.phase(v, one_minus_mu)
         return value
@@ -582,7 +580,9 @@ class Medium(Model):
         function): the iso part plus the lobe with its boundary factors."""
         from .._jax import jnp
 
-        value = 0.0 * wa[..., 2] + (self.iso(v) if self.has("iso") else 0.0)
+        value = 0.0 * wa[..., 2]
+        if self.has("iso"):
+            value = value + self.iso(v)
         if self.has("lobe"):
             one_minus_mu = jnp.maximum(1.0 - jnp.sum(wa * wb, axis=-1), 0.0)
             value = value + (

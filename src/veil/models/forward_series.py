@@ -46,7 +46,7 @@ import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
-from .._lazy import jax, jnp
+from .._lazy import jnp
 from . import fresnel, phase
 from .base import Medium, Option, Param
 from .renderers import GEOMETRY_HALF_WIDTH, GEOMETRY_LENGTH, Plugin, Unsupported, Value, float_value
@@ -178,14 +178,6 @@ def _path_mixture(v):
     w = s * path_factors(tau, g)
     total = jnp.sum(w)
     return w / total, jnp.cumprod(jnp.full(ORDERS, g)), total
-
-
-def _either(flag, first, second):
-    """``first()`` where ``flag`` holds, else ``second()``: one of them for a Python bool, both
-    and an element-wise choice for a traced one (arrays or tuples of arrays)."""
-    if isinstance(flag, bool):
-        return first() if flag else second()
-    return jax.tree_util.tree_map(lambda a, b: jnp.where(flag, a, b), first(), second())
 
 
 # -- renderers (veil.models.renderers, docs/interop.md) --------------------------------------
@@ -458,28 +450,10 @@ class ForwardSeries(Medium):
     def delta_weight(v) -> Array:
         return jnp.exp(-v[0])
 
-    # -- the orders' weights: static, or with a path length an input of the programs -----
-    def runtime_options(self) -> tuple[str, ...]:
-        """With a path length the orders' weights are read from the vector in the engine's
-        programs: one program for the four (veil.engine.integrator.engine_structure)."""
-        return ("orders",) if self.path_length > 0 else ()
-
-    def _sides(self, v) -> tuple:
-        """(the light side's path factors are in the lobe, the view side's landing factors
-        are in J_v): Python booleans from ``self.orders``, or traced ones from the code
-        that the engine appends to ``v`` (ORDER_WEIGHTS' index)."""
-        if v.shape[-1] > len(self.PARAMS):
-            code = v[len(self.PARAMS)]
-            return (code == 1) | (code == 2), (code == 1) | (code == 3)
-        return self.orders in ("cylinder", "light-side"), self.orders in ("cylinder", "view-side")
-
     def lobe_weight(self, v) -> Array:
-        light = self._sides(v)[0]
-        return _either(
-            light,
-            lambda: jnp.exp(-v[0]) * v[1] * v[0] * _path_mixture(v)[2],
-            lambda: jnp.exp(-v[0]) * jnp.expm1(v[1] * v[0]),
-        )
+        if self.orders in ("cylinder", "light-side"):
+            return jnp.exp(-v[0]) * v[1] * v[0] * _path_mixture(v)[2]
+        return jnp.exp(-v[0]) * jnp.expm1(v[1] * v[0])
 
     def factor_first(self, v, cos_a) -> Array:
         return fresnel.boundary_first(cos_a, v[3], self.variant)
@@ -491,7 +465,9 @@ class ForwardSeries(Medium):
     def mixture(self, v) -> tuple:
         """(c_k, g_k) of the normalized scattered lobe (module docstring; with
         ``orders="cylinder"`` or "light-side" the light side's weights)."""
-        return _either(self._sides(v)[0], lambda: _path_mixture(v)[:2], lambda: _mixture(v))
+        if self.orders in ("cylinder", "light-side"):
+            return _path_mixture(v)[:2]
+        return _mixture(v)
 
     def prepare(self, v) -> Any:
         return phase.mixture_table(*self.mixture(v))
@@ -526,33 +502,19 @@ class ForwardSeries(Medium):
         "cylinder"), V_k those the view side should have (the landing factors lambda_k of
         ``landing_factors`` with "view-side" and "cylinder", else 1)."""
         jv = self._plate_weight(v, r_prime, r)
-        light, view = self._sides(v)
-
-        def ratio():
-            seen, lobe = self._orders_sums(v, r_prime, r, light, view)
-            return seen / lobe
-
-        if isinstance(light, bool):
-            return jv * ratio() if light or view else jv
-        # one branch runs (the code is one number per call, not per configuration)
-        return jv * jax.lax.cond(light | view, ratio, lambda: jnp.ones_like(r_prime[..., 2]))
-
-    def _orders_sums(self, v, r_prime, r, light, view) -> tuple:
-        """(sum_k x^k/k! V_k p(g^k), sum_k x^k/k! M_k p(g^k)) at R'.R (:meth:`view_weight`)."""
+        if self.orders == "poisson":
+            return jv
         tau, omega, g = v[0], v[1], v[2]
         k = jnp.arange(1, ORDERS + 1, dtype=float)
         s = jnp.cumprod(jnp.concatenate([jnp.ones(1), omega * tau / k[1:]]))
         gk = jnp.cumprod(jnp.full(ORDERS, g))
         omm = 0.5 * jnp.sum((r_prime - r) ** 2, axis=-1)  # 1 - R'.R without cancellation
         p = phase.hg_pdf(gk, omm[..., None])
-        lobe = _either(light, lambda: s * path_factors(tau, g), lambda: s)
-        landing = view if self.plate_width > 0 else False
-        seen = _either(
-            landing,
-            lambda: s * landing_factors(g, self.path_length, 0.5 * self.plate_width, r[2]),
-            lambda: s,
-        )
-        return jnp.sum(seen * p, axis=-1), jnp.sum(lobe * p, axis=-1)
+        lobe = s * path_factors(tau, g) if self.orders in ("cylinder", "light-side") else s
+        view = s
+        if self.orders in ("cylinder", "view-side") and self.plate_width > 0:
+            view = s * landing_factors(g, self.path_length, 0.5 * self.plate_width, r[2])
+        return jv * jnp.sum(view * p, axis=-1) / jnp.sum(lobe * p, axis=-1)
 
     def _plate_weight(self, v, r_prime, r):
         """J_v(R', R) (module docstring); 1 without a path length."""
