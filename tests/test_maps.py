@@ -274,6 +274,20 @@ def test_command_maps_outputs_and_resume(stack, tmp_path, monkeypatch):
     assert 0 < summary["undetermined_fraction"] < 0.05
     assert summary["params"][SHAPE]["p05"] <= summary["params"][SHAPE]["median"]
 
+    # the store is an input: neither command writes into it; a figure needs its suffix
+    before = {p: p.stat().st_mtime_ns for p in out.rglob("*")}
+    chunk = next(p for p in sorted(out.rglob("*")) if p.is_file() and "status" in p.parts)
+    for args in (("show", out, "-o", out / "x.png"), ("show", out, "-o", chunk),
+                 ("export", out, "-o", out), ("export", out, "-o", out / "sub")):
+        refused = run("maps", *args)
+        assert refused.exit_code == 2, (args, refused.output)
+        assert "inside the maps store" in refused.output
+    assert {p: p.stat().st_mtime_ns for p in out.rglob("*")} == before
+    for name in ("maps.txt", "maps"):
+        refused = run("maps", "show", out, "-o", tmp_path / name)
+        assert refused.exit_code == 2 and ".png" in refused.output, refused.output
+        assert not (tmp_path / name).exists()
+
 
 def test_pixels_not_fitted_are_flagged_counted_and_exit_1(stack, tmp_path):
     """A pixel saturated in every photo (status 1) and a dark one (status 3) are flagged in

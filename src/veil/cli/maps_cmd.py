@@ -331,6 +331,16 @@ def _print_run(ctx, run) -> None:
         ctx.exit(1)
 
 
+def _outside_store(output, store) -> None:
+    """UserError if ``output`` is the maps store or inside it: veil never modifies an input."""
+    out, root = Path(output).resolve(), Path(store).resolve()
+    if out.is_relative_to(root):
+        raise UserError(
+            f"output {output} is inside the maps store {store}; veil never modifies an "
+            f"input: choose another output path"
+        )
+
+
 @click.group("maps")
 def maps_command():
     """Look at and export the maps of 'veil fit maps' (docs/maps.md)."""
@@ -343,13 +353,17 @@ def maps_command():
     "--output",
     required=True,
     type=click.Path(dir_okay=False),
-    help="Figure to write (PNG, PDF or SVG by its suffix).",
+    help="Figure to write: .png, .pdf or .svg (outside the store).",
 )
 def show_command(store, output):
     """One figure: every fitted parameter, its standard error, the reduced chi-square and
     the status of each pixel."""
     from ..maps.show import maps_figure
+    from .plot_cmd import FIGURE_SUFFIXES
+    from .render_cmd import output_path
 
+    _outside_store(output, store)
+    output_path(output, FIGURE_SUFFIXES, "--output")
     path = maps_figure(store, output)
     click.echo(f"wrote {path}", err=True)
 
@@ -375,6 +389,7 @@ def export_command(store, output, formats):
     undetermined fraction)."""
     from ..maps.show import FORMATS, export_maps
 
+    _outside_store(output, store)
     written = export_maps(store, output, formats or FORMATS)
     click.echo(f"wrote {len(written)} files to {output}", err=True)
     with open(Path(output) / "summary.json") as fh:
