@@ -261,3 +261,31 @@ def test_a_blank_pass_through_cell_keeps_the_rows_aligned(tmp_path):
     table = load_measurements(path)
     assert table["note"].tolist()[0] == "a" and table["note"].tolist()[2] == "c"
     assert table["value"].tolist() == [1.0, 2.0, 3.0]
+
+
+# -- a result that did not converge: exported and rendered with a word, not silently ------
+def test_export_and_render_of_an_unconverged_fit_say_so(tmp_path):
+    import json
+
+    import veil
+
+    table = tmp_path / "ref.csv"
+    veil.save_measurements(veil.simulate(veil.BRDF1, None, fine_step=5, coarse_step=15,
+                                         seed=4), table)
+    fitted = CliRunner().invoke(main, ["fit", "reference", str(table), "-o",
+                                       str(tmp_path / "ref.json")])
+    assert fitted.exit_code == 0, fitted.output
+    data = json.loads((tmp_path / "ref.json").read_text())
+    data["converged"] = False
+    (tmp_path / "bad.json").write_text(json.dumps(data))
+    for name in ("ref", "bad"):
+        out = tmp_path / f"{name}.pbrt"
+        done = CliRunner().invoke(main, ["export", str(tmp_path / f"{name}.json"), "--to",
+                                         "pbrt", "-o", str(out)])
+        assert done.exit_code == 0, done.output
+        said = "did not converge" in done.output
+        written = "not converged" in out.read_text()
+        assert said == written == (name == "bad"), (name, done.output)
+    shown = CliRunner().invoke(main, ["render", "--brdf", str(tmp_path / "bad.json"),
+                                      "--size", "16", "-o", str(tmp_path / "bad.png")])
+    assert shown.exit_code == 0 and "did not converge" in shown.output, shown.output

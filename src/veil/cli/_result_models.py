@@ -104,6 +104,13 @@ def result_models(
     if other_path is None and given:
         brdf, medium = _with_given(loaded[0][1], keys, channel, brdf, medium)
     source = str(result_path) + (f" and {other_path}" if other_path is not None else "")
+    unconverged = [str(path) for path, result in loaded if not getattr(result, "converged", True)]
+    for path in unconverged:
+        notes.append(
+            f"warning: {path} is a fit that did not converge: its values are not estimates"
+        )
+    if unconverged:
+        source += f" (not converged: {', '.join(unconverged)})"
     return ResultModels(brdf, medium, source, keys, notes)
 
 
