@@ -124,10 +124,14 @@ def test_bad_input(info_known):
         (["design", "--brdf", "BRDF1", "--medium", "BTDF9"], "BTDF9"),
         (["design", "--brdf", "BRDF1", "--medium", "BTDF1", "--medium", "btdf1"], "twice"),
         (["design", "--brdf", "BRDF1", "--medium", "BTDF1", "--interest", "g"], "interest"),
+        # the value as a user wrote it, not numpy's repr (was "np.float64(0.0)")
+        (["design", "--brdf", "BRDF1", "--medium", "BTDF1", "--psi", "0"], "psi = 0: expected"),
+        (["design", "--brdf", "BRDF1", "--medium", "BTDF1", "--psi", "nan"], "psi = nan:"),
     ]:
         r = runner.invoke(main, args)
         assert r.exit_code == 2, (args, r.output)
         assert message in r.output and "Traceback" not in r.output
+        assert "np.float64" not in r.output
 
 
 def test_cli_design_writes_plan(tmp_path):

@@ -189,3 +189,16 @@ def test_scale_solves_give_inf_cost_not_a_crash():
     _, cost = medium_scales(np.ones((6, 3)), BTDF2.to_vector(), mcls, set(), y, w)
     assert math.isfinite(cost)
 
+
+
+# --------------------------------------------------------------------------------------
+# a misfit in clear water: the advice does not send the user to a black cloth
+# --------------------------------------------------------------------------------------
+def test_a_clear_water_misfit_points_to_the_fixed_parameters_not_the_black_cloth(tmp_path):
+    table = veil.simulate(veil.BRDF2, None, noise=0.003, seed=5, **SMALL)  # n = 0.5
+    table.to_csv(tmp_path / "ref.csv", index=False)
+    assert "sigma" in table.columns
+    r = run("fit", "reference", tmp_path / "ref.csv", "--fix", "n=50", "-o",
+            tmp_path / "ref.json")
+    assert "reduced chi-square" in r.output, r.output
+    assert "held fixed" in r.output and "measure the medium" not in r.output

@@ -81,7 +81,8 @@ def _floats(name, values, positive=True):
         except (TypeError, ValueError):
             raise InputError(f"{name}: {v!r} is not a number") from None
         if not math.isfinite(x) or (positive and x <= 0):
-            raise InputError(f"{name}: {v!r} must be a finite number{' > 0' if positive else ''}")
+            wanted = "a finite number" + (" > 0" if positive else "")
+            raise InputError(f"{name} = {x:g}: expected {wanted}")
         out.append(x)
     if not out:
         raise InputError(f"{name} is empty")

@@ -287,7 +287,8 @@ def select(
     results = {lab: res for lab, (res, _) in fitted.items() if isinstance(res, FitResult)}
     if ranking.chosen is None:
         raise NoCandidateError(step, ranking)
-    warn_misfit(results[ranking.chosen].chi2_reduced, data, what)
+    chosen = results[ranking.chosen]
+    warn_misfit(chosen.chi2_reduced, data, what, chosen.given is not None)
     return ranking, results
 
 

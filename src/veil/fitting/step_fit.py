@@ -137,7 +137,7 @@ def _result(
     variant = media[0].options().get(VARIANT_OPTION) if media else None
     stats, message = stats_and_message(outcome, summary, rep, given_result, n_grid)
     if summary.converged:  # one that did not converge says so (exit status 1)
-        warn_misfit(summary.chi2_reduced, data, what)
+        warn_misfit(summary.chi2_reduced, data, what, medium is not None)
     return FitResult(
         model=cls.NAME,
         params={own[k]: float(x[problem.index(k)]) for k in cls.keys()},
@@ -177,22 +177,32 @@ class MisfitWarning(UserWarning):
     """A fit that converged but describes its data far worse than their sigma says."""
 
 
-def warn_misfit(chi2_reduced: float, data: FitData, what: str) -> None:
+def warn_misfit(chi2_reduced: float, data: FitData, what: str, medium: bool = True) -> None:
     """Warn (:class:`MisfitWarning`) when a weighted fit's reduced chi-square exceeds
-    :data:`MISFIT_CHI2` (called for converged fits), pointing to the black cloth: glow left
-    in the data (no black session subtracted) or a wrong one is the usual cause; negative
-    values say so."""
+    :data:`MISFIT_CHI2` (called for converged fits), pointing through a ``medium`` to the
+    black cloth: glow left in the data (no black session subtracted) or a wrong one is the
+    usual cause; negative values say so. In clear water: the sigma column and the fixed
+    parameters."""
     if data.sigma is None or not chi2_reduced > MISFIT_CHI2:
         return
     negative = int(np.count_nonzero(data.y < 0))
     seen = f"; {negative} of {data.size} values are negative" if negative else ""
-    cause = (
-        "check the black-cloth session subtracted (same configurations, same medium) "
-        "and the sigma column"
-        if data.black
-        else "no black-cloth session was subtracted: measure the medium with the black cloth "
-        "(docs/measurements.md) and give it with --black (black=...)"
-    )
+    if not medium:
+        cause = (
+            "no medium lies between object and camera here: check the sigma column, any "
+            "parameter held fixed, and an offset in the values (a dark frame to subtract "
+            "with --black)"
+        )
+    elif data.black:
+        cause = (
+            "check the black-cloth session subtracted (same configurations, same medium) "
+            "and the sigma column"
+        )
+    else:
+        cause = (
+            "no black-cloth session was subtracted: measure the medium with the black cloth "
+            "(docs/measurements.md) and give it with --black (black=...)"
+        )
     warnings.warn(
         f"the {what} fit's reduced chi-square is {chi2_reduced:.4g}: the model "
         f"misses the data by about {np.sqrt(chi2_reduced):.3g} standard deviations "
