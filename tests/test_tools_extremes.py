@@ -286,6 +286,7 @@ def test_export_and_render_of_an_unconverged_fit_say_so(tmp_path):
         said = "did not converge" in done.output
         written = "not converged" in out.read_text()
         assert said == written == (name == "bad"), (name, done.output)
+        assert f"wrote pbrt to {out}" in done.output  # (was "wrote pbrt pbrt to")
     shown = CliRunner().invoke(main, ["render", "--brdf", str(tmp_path / "bad.json"),
                                       "--size", "16", "-o", str(tmp_path / "bad.png")])
     assert shown.exit_code == 0 and "did not converge" in shown.output, shown.output

@@ -197,8 +197,9 @@ def _export_one(loaded, target, fmt, setting, output, verify, psis, spp, accurac
     for item in done.items:
         if item.closest is not None:
             click.echo(item.closest.sentence())
+    kind = target if done.format == target else f"{target} {done.format}"
     click.echo(
-        f"wrote {target} {done.format} to {output} "
+        f"wrote {kind} to {output} "
         f"({', '.join(i.plugin.type for i in done.items)}); what the conversion loses "
         f"is written in it as comments",
         err=True,

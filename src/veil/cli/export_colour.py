@@ -39,8 +39,9 @@ def export_rgb(
             if item.closest is not None:
                 click.echo(f"channel {c}: {item.closest.sentence()}")
     kinds = ", ".join(i.plugin.type for i in done.channels["r"])
+    kind = target if done.format == target else f"{target} {done.format}"
     click.echo(
-        f"wrote {target} {done.format} to {output} ({kinds}; channels r, g, b as RGB, "
+        f"wrote {kind} to {output} ({kinds}; channels r, g, b as RGB, "
         f"intensity scales "
         + ", ".join(f"{c} {s:.6g}" for c, s in done.scales.items())
         + "); what the conversion loses is written in it as comments",
