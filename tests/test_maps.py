@@ -388,6 +388,12 @@ def test_bad_input_exits_2(stack, tmp_path):
     t0 = time.perf_counter()
     text = bad("--scheduler", "tcp://127.0.0.1:9")
     assert time.perf_counter() - t0 < 20 and "scheduler" in text
+    # an existing file that is not a store: refused, untouched, no lock file left beside it
+    afile = tmp_path / "afile"
+    afile.write_text("mine")
+    refused = run(*fit_args(root, manifest, afile))
+    assert refused.exit_code == 2, refused.output
+    assert afile.read_text() == "mine" and not (tmp_path / ".afile.veil-lock").exists()
     # a store of another acquisition given to resume
     other = tmp_path / "other.zarr"
     first = run(*fit_args(root, manifest, other, "--roi", "0,0,4,4"))

@@ -195,10 +195,10 @@ def store_lock(store, say=None) -> Iterator[None]:
         yield
     finally:
         with contextlib.suppress(OSError):
-            if os.path.lexists(store):
+            if os.path.isdir(store):
                 with open(path, "r+", encoding="utf-8") as fh:
                     fh.truncate()
-            else:  # no store (a failed first run): leave nothing behind
+            else:  # no store (a failed first run, or a file refused): leave nothing behind
                 os.unlink(path)
         forget_temporary(path)
         lock.release()
