@@ -154,6 +154,9 @@ def test_warmup_prepares_the_geometry_and_the_channels_the_fits_will_run():
 @pytest.mark.parametrize("args, message", [
     (["--path-length", "15"], "--path-length applies to none of the families to prepare"),
     (["--models", "forward-series", "--channels", "0"], "Invalid value for '--channels'"),
+    # a camera has a handful of channels: 100000 used to run away (1.2 GB, killed)
+    (["--models", "forward-series", "--accuracy", "fast", "--channels", "65"],
+     "Invalid value for '--channels': 65 is not in the range 1<=x<=64"),
     (["--models", "forward-series", "--path-length", "-1"], "path_length"),
 ])
 def test_bad_options_of_the_ahead_of_time_compilation_exit_2(args, message):
@@ -164,3 +167,13 @@ def test_bad_options_of_the_ahead_of_time_compilation_exit_2(args, message):
     result = CliRunner().invoke(main, ["warmup", "--quiet", *args])
     assert result.exit_code == 2, result.output
     assert message in result.output
+
+
+def test_warmup_help_gives_the_channels_bound():
+    from click.testing import CliRunner
+
+    from veil.cli import main
+
+    result = CliRunner().invoke(main, ["warmup", "--help"])
+    assert result.exit_code == 0
+    assert "At most 64: a camera has a handful of channels" in " ".join(result.output.split())

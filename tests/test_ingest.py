@@ -469,6 +469,30 @@ def test_manifest_errors(one_photo, tmp_path, table, match):
         run(photos, tmp_path / "m.csv", ROI_TEXT)
 
 
+@pytest.mark.parametrize("header, row, dup", [
+    ("file,theta_i,theta_r,theta_i", "a.png,10,20,10", "'theta_i'"),
+    ("file,psi,rho,file", "a.png,60,0,a.png", "'file'"),
+    ("file, psi,rho ,psi,rho", "a.png,60,0,60,0", "'psi', 'rho'"),
+])
+def test_cli_manifest_duplicate_column_names_exit_2(one_photo, tmp_path, header, row, dup):
+    # pandas renamed the second one (theta_i.1) and ingest wrote it through
+    photos, _ = one_photo
+    manifest, out = tmp_path / "dup.csv", tmp_path / "out.csv"
+    manifest.write_text(f"{header}\n{row}\n")
+    result = CliRunner().invoke(main, ["ingest", str(photos), "--manifest", str(manifest),
+                                       "--roi", ROI_TEXT, "-o", str(out)])
+    assert result.exit_code == 2, result.output
+    assert f"{manifest} has duplicate column names: {dup}" in result.output
+    assert "Traceback" not in result.output and not out.exists()
+
+
+def test_manifest_blank_header_cell_keeps_its_name(one_photo, tmp_path):
+    photos, _ = one_photo
+    (tmp_path / "m2.csv").write_text("file,psi,rho,,note\na.png,60,0,,x\n")
+    table, _ = run(photos, tmp_path / "m2.csv", ROI_TEXT)
+    assert table.columns.tolist()[:5] == ["file", "psi", "rho", "Unnamed: 3", "note"]
+
+
 def test_manifest_signed_inplane_form_and_subfolder(photos, tmp_path):
     (photos / "day1").mkdir()
     write_png(photos / "day1" / "a.png", np.full((H, W), 500, np.uint16))

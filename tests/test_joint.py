@@ -183,12 +183,15 @@ def test_cli_joint_bad_input_exits_2(tmp_path):
         (["fit", "joint", "--session", f"a={path}", "--fix", "Td[a]=1e-3", "-o", str(path)],
          "never overwrites"),
         (["fit", "joint", "-o", str(out)], "no --session"),
+        # there is no `veil fit direct`: f_r in clear water is `veil fit reference`'s
+        (["fit", "joint", "--session", f"none={path}", "--reference-session", f"none={path}",
+          "-o", str(out)], "directly with veil fit reference"),
     ]
     for args, message in cases:
         result = runner.invoke(main, args)
         assert result.exit_code == 2, (args, result.output)
         assert message in result.output, (args, result.output)
-        assert "Traceback" not in result.output
+        assert "Traceback" not in result.output and "fit direct" not in result.output
     assert not out.exists()
     assert path.read_text().startswith("psi,rho")  # the input is untouched
 

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import signal
+
 import numpy as np
 import pytest
 
@@ -63,6 +65,42 @@ def test_custom_steps_by_hand():
 def test_window_clipped_by_limit():
     # psi = 160, limit 85: |rho| < 5, only fine rotations
     assert rho_values(160).tolist() == [-4.0, -3.0, -2.0, -1.0, 0.0, 1.0, 2.0, 3.0, 4.0]
+
+
+def test_huge_window_is_clamped_to_the_limit():
+    # a window past the limit makes the same rotations as one at the limit, at once
+    # (it used to make a rotation per fine step of the window: 1e300 never returned)
+    def late(*_):
+        raise TimeoutError("rho_values iterated over the window")
+
+    old = signal.signal(signal.SIGALRM, late)
+    signal.alarm(10)
+    try:
+        for psi in (30, 90):
+            assert rho_values(psi, window=1e300).tolist() == rho_values(psi, window=90).tolist()
+        pd_huge, pd_90 = protocol(window=1e300), protocol(window=90)
+        assert pd_huge.equals(pd_90) and len(pd_huge) == 327
+        # fine rotations the limit allows are still counted (and refused when too many)
+        with pytest.raises(ValueError, match="configurations"):
+            rho_values(30, fine_step=1e-9, window=1e300)
+    finally:
+        signal.alarm(0)
+        signal.signal(signal.SIGALRM, old)
+
+
+def test_window_past_the_limit_keeps_results():
+    # coarse steps smaller than fine ones: windows at and past the limit agree
+    for window in (68, 70, 71, 72, 73, 75, 1e6):
+        assert rho_values(30, fine_step=3, coarse_step=0.5, window=window).tolist() == [
+            -x for x in reversed(_by_hand(window))] + [0.0] + _by_hand(window)
+
+
+def _by_hand(window):
+    # psi = 30: |rho| < 70; fine 3, 6, ..., then 0.5 apart from the last fine rotation
+    n_fine = int(window // 3)
+    pos = [3.0 * k for k in range(1, n_fine + 1) if 3 * k < 70]
+    last = 3.0 * n_fine
+    return pos + [last + 0.5 * j for j in range(1, 200) if last + 0.5 * j < 70]
 
 
 @pytest.mark.parametrize("kwargs, message", [

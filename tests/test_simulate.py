@@ -209,6 +209,7 @@ def test_cli_with_medium_and_black(tmp_path):
     (["--glow", "-0.5"], "--glow"),
     (["--seed", "-3"], "--seed"),
     (["--fine-step", "0"], "fine_step = 0"),
+    (["--fine-step", "1e-9", "--window", "1e300"], "configurations"),
     (["--limit", "95"], "limit = 95"),
     (["--form", "polar"], "--form"),
 ])
@@ -225,6 +226,17 @@ def test_cli_bad_input_exit_2(tmp_path, args, message):
     assert message in result.output
     assert "Traceback" not in result.output
     assert out.read_text() == "keep"
+
+
+def test_cli_huge_window_is_clamped_to_the_limit(tmp_path):
+    # --window past what --limit allows used to take a rotation per fine step (1e9: > 60 s)
+    huge, at_limit = tmp_path / "huge.csv", tmp_path / "at_limit.csv"
+    for path, window in ((huge, "1e300"), (at_limit, "90")):
+        result = run("--brdf", "BRDF1", "--medium", "none", "--psi", "30", "--window", window,
+                     "-o", str(path))
+        assert result.exit_code == 0, result.output
+    assert huge.read_bytes() == at_limit.read_bytes()
+    assert len(load_measurements(huge)) == 139
 
 
 def test_cli_refuses_same_output_twice_and_missing_directory(tmp_path):

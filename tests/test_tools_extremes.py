@@ -287,6 +287,11 @@ def test_export_and_render_of_an_unconverged_fit_say_so(tmp_path):
         written = "not converged" in out.read_text()
         assert said == written == (name == "bad"), (name, done.output)
         assert f"wrote pbrt to {out}" in done.output  # (was "wrote pbrt pbrt to")
+    # a scale whose reciprocal overflows is the option's fault, not the model's
+    tiny = CliRunner().invoke(main, ["export", str(tmp_path / "ref.json"), "--to", "mitsuba",
+                                     "--scale", "1e-320", "-o", str(tmp_path / "t.xml")])
+    assert tiny.exit_code == 2 and "--scale" in tiny.output, tiny.output
+    assert "counterpart" not in tiny.output and not (tmp_path / "t.xml").exists()
     shown = CliRunner().invoke(main, ["render", "--brdf", str(tmp_path / "bad.json"),
                                       "--size", "16", "-o", str(tmp_path / "bad.png")])
     assert shown.exit_code == 0 and "did not converge" in shown.output, shown.output

@@ -19,10 +19,18 @@ MEDIUM_SPP = 4096
 PASSES = 4
 
 
-def _positive(name):
+def _positive(name, low: float = 0.0, high: float = math.inf):
+    """A callback: None or a finite number > 0 (within [low, high] when given)."""
+
     def check(ctx, param, value):
         if value is not None and not (math.isfinite(value) and value > 0):
             raise click.BadParameter(f"{value!r}: expected a finite number > 0", param_hint=name)
+        if value is not None and not low <= value <= high:
+            raise click.BadParameter(
+                f"{value!r}: expected a number from {low:g} to {high:g} (the values are "
+                f"divided by it)",
+                param_hint=name,
+            )
         return value
 
     return check
@@ -58,7 +66,7 @@ def _positive(name):
     "--scale",
     type=float,
     default=None,
-    callback=_positive("--scale"),
+    callback=_positive("--scale", 1e-300, 1e300),
     help="Intensity scale divided out of the BRDF's relative scales (veil's values "
     "are products with the light and the camera gain). Default: the family's "
     "choice (rough-plastic, rough-conductor: ks, so that the interface is "

@@ -11,6 +11,10 @@ from ._common import ACCURACIES
 from ._errors import UserError
 from ._model_options import family_options
 
+#: Most channels --channels prepares for (a colour camera has 3 or 4; a program's memory
+#: and compile time grow with the channels it runs together).
+MAX_CHANNELS = 64
+
 
 @click.command("warmup", short_help="Compile and store the engine programs ahead of time.")
 @click.option(
@@ -32,13 +36,14 @@ from ._model_options import family_options
 )
 @click.option(
     "--channels",
-    type=click.IntRange(min=1),
+    type=click.IntRange(min=1, max=MAX_CHANNELS),
     default=1,
     show_default=True,
     help="Also prepare the programs that run this many colour channels together (a "
     "measurement table with a channel column, fitted through a forward-series water "
     "whose optical depth or albedo differ per channel; docs/channels.md). Other media "
-    "run each channel with the one-channel programs.",
+    f"run each channel with the one-channel programs. At most {MAX_CHANNELS}: a camera has "
+    "a handful of channels, and the programs' size grows with their number.",
 )
 @family_options
 @click.option("--quiet", is_flag=True, help="No progress display.")

@@ -62,13 +62,25 @@ def _manifest_table(manifest) -> tuple[pd.DataFrame, list[str], str]:
             ) from None
         except (pd.errors.ParserError, UnicodeDecodeError) as exc:
             raise InputError(f"{name}: not a readable CSV file ({exc})") from None
-        raw.columns = [str(c).strip() for c in raw.columns]
+        raw.columns = [str(c).strip() for c in _header(name, raw.columns)]
         kept = ~raw.isna().all(axis=1).to_numpy()  # blank lines
         lines = (np.flatnonzero(kept) + 2).tolist()
         table = raw[kept].reset_index(drop=True)
         table.attrs = {"veil_source": name, "veil_lines": tuple(lines)}
         rows = [f"line {line} of {name}" for line in lines]
     return table, rows, name
+
+
+def _header(name: str, columns) -> list:
+    """The header of CSV file ``name`` as written: pandas renames a repeated column name
+    (``theta_i`` -> ``theta_i.1``), which would hide it from the duplicate check."""
+    first = pd.read_csv(
+        name, header=None, nrows=1, dtype=str, keep_default_na=False, skipinitialspace=True
+    )
+    header = first.iloc[0].tolist() if len(first) else []
+    if len(header) != len(columns):
+        return list(columns)
+    return [h if h.strip() else c for h, c in zip(header, columns)]  # blank: "Unnamed: k"
 
 
 def _manifest_files(table: pd.DataFrame, rows: list[str], photo_dir) -> list[str]:
@@ -100,13 +112,15 @@ def _manifest_files(table: pd.DataFrame, rows: list[str], photo_dir) -> list[str
 def read_manifest(manifest, photo_dir) -> tuple[pd.DataFrame, list[str], str]:
     """The manifest (all its columns; angles as float), a name for each row, its own name.
 
-    Checks the ``file`` column (present, non-empty, unique, inside ``photo_dir``) and the
-    angle columns (one of the three forms of :mod:`veil.measurements`, no configuration twice).
+    Checks the column names (none twice), the ``file`` column (present, non-empty, unique,
+    inside ``photo_dir``) and the angle columns (one of the three forms of
+    :mod:`veil.measurements`, no configuration twice).
     Rows of a file are named by their line (header = line 1), as :mod:`veil.measurements` does.
     """
-    from .measurements import ANGLE_COLUMNS, validate
+    from .measurements import ANGLE_COLUMNS, check_column_names, validate
 
     table, rows, name = _manifest_table(manifest)
+    check_column_names(table.columns, name)
     if "file" not in table.columns:
         raise InputError(
             f"{name}: no column 'file'; the header has "

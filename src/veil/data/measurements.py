@@ -64,10 +64,16 @@ def _check_type(table) -> None:
         )
 
 
-def _check_columns(table: pd.DataFrame, what: str) -> None:
-    dup = table.columns[table.columns.duplicated()].unique().tolist()
+def check_column_names(columns, what: str) -> None:
+    """MeasurementError naming the column names repeated in ``columns`` (of table ``what``)."""
+    columns = pd.Index(columns)
+    dup = columns[columns.duplicated()].unique().tolist()
     if dup:
         raise MeasurementError(f"{what} has duplicate column names: {', '.join(map(repr, dup))}")
+
+
+def _check_columns(table: pd.DataFrame, what: str) -> None:
+    check_column_names(table.columns, what)
     if len(table) == 0:
         raise MeasurementError(f"{what} has no rows: expected one observation a row")
 

@@ -47,7 +47,7 @@ def _count(reach: float, fine_step: float, coarse_step: float, window: float) ->
 
 def _checked(psi, fine_step, coarse_step, window, limit) -> tuple:
     """The protocol's numbers checked: (psi, fine_step, coarse_step, window, reach), reach
-    being the largest |rho| with both |theta| < limit."""
+    being the largest |rho| with both |theta| < limit and window clamped to what it allows."""
     fine_step = _positive("fine_step", fine_step)
     coarse_step = _positive("coarse_step", coarse_step)
     window = _positive("window", window, allow_zero=True)
@@ -62,7 +62,10 @@ def _checked(psi, fine_step, coarse_step, window, limit) -> tuple:
             f"psi = {psi:g} deg gives no configuration with both |theta| < "
             f"{limit:g} deg (the mirror configuration has theta = psi/2)"
         )
-    return psi, fine_step, coarse_step, window, limit - psi / 2
+    reach = limit - psi / 2
+    # Fine rotations past reach are never made: a window beyond reach + fine_step makes
+    # the same rotations as reach + fine_step (all fine, no coarse), so clamp it there.
+    return psi, fine_step, coarse_step, min(window, reach + fine_step), reach
 
 
 def _check_size(count: float, fine_step: float, coarse_step: float) -> None:

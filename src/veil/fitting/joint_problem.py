@@ -203,7 +203,8 @@ def _check_sessions(sessions) -> list:
     if not any(s.object == "target" and not s.clear for s in sessions):
         raise FitError(
             "every target session is in clear water: there is no medium to fit "
-            "jointly; use veil fit direct (f_r directly) instead"
+            "jointly; fit the target's f_r directly with veil fit reference "
+            "(veil.fit_reference) instead"
         )
     seen: dict[tuple, str] = {}
     for s in sessions:
