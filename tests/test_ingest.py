@@ -14,6 +14,7 @@ import pytest
 import tifffile
 from click.testing import CliRunner
 
+import veil
 from veil.cli import main
 from veil.data.ingest import ROI, IngestWarning, ingest, load_response, parse_roi
 
@@ -575,7 +576,8 @@ def invoke(args):
 
 @pytest.mark.parametrize("case", ["roi_outside", "missing_photo", "bad_roi", "no_file_column",
                                   "output_is_manifest", "bad_channel", "unreadable",
-                                  "all_saturated", "output_in_photo_dir"])
+                                  "all_saturated", "output_in_photo_dir",
+                                  "new_output_in_photo_dir"])
 def test_cli_user_errors_exit_2_without_traceback(photos, tmp_path, case):
     write_png(photos / "a.png", np.full((H, W), 500, np.uint16))
     manifest = write_manifest(tmp_path / "m.csv", ["a.png"])
@@ -585,7 +587,8 @@ def test_cli_user_errors_exit_2_without_traceback(photos, tmp_path, case):
               "bad_roi": "expected 4 integers", "no_file_column": "no column 'file'",
               "output_is_manifest": "never overwrites", "bad_channel": "'x' is not one of",
               "unreadable": "cannot decode as PNG", "all_saturated": "were excluded",
-              "output_in_photo_dir": "never modifies PHOTO_DIR"}[case]
+              "output_in_photo_dir": "never modifies PHOTO_DIR",
+              "new_output_in_photo_dir": "never modifies PHOTO_DIR"}[case]
     if case == "roi_outside":
         args[4] = "0,0,61,5"
     elif case == "missing_photo":
@@ -604,8 +607,28 @@ def test_cli_user_errors_exit_2_without_traceback(photos, tmp_path, case):
         args += ["--saturation", "400"]
     elif case == "output_in_photo_dir":
         args[-1] = photos / "a.png"
+    elif case == "new_output_in_photo_dir":  # a new file there too: PHOTO_DIR is read only
+        args[-1] = photos / "new.csv"
     result = invoke(args)
     assert result.exit_code == 2, result.output
     assert expect in result.output
     assert "Traceback" not in result.output
-    assert not out.exists()
+    assert not out.exists() and not (photos / "new.csv").exists()
+
+
+@pytest.mark.parametrize("sep, said", [(";", "';'"), ("\t", "tabs")])
+def test_a_table_separated_otherwise_than_by_commas_is_named(one_photo, tmp_path, sep, said):
+    """A spreadsheet's semicolons (or tabs) read as one column: the error says why."""
+    photos, _ = one_photo
+    manifest, table = tmp_path / "m.csv", tmp_path / "t.csv"
+    manifest.write_text(sep.join(["file", "psi", "rho"]) + "\n" + sep.join(["a.png", "60", "0"]))
+    table.write_text(sep.join(["theta_i", "theta_r", "value"]) + "\n30" + sep + "30" + sep + "1.5\n")
+    hint = f"the header looks separated by {said}"
+    result = CliRunner().invoke(main, ["ingest", str(photos), "--manifest", str(manifest),
+                                       "--roi", ROI_TEXT, "-o", str(tmp_path / "out.csv")])
+    assert result.exit_code == 2 and hint in result.output, result.output
+    with pytest.raises(veil.errors.MeasurementError, match=hint):
+        veil.load_measurements(table)
+    # a comma-separated table whose names hold a semicolon is not taken for one
+    (tmp_path / "ok.csv").write_text("theta_i,theta_r,value,note;x\n30,30,1.5,a\n")
+    assert "note;x" in veil.load_measurements(tmp_path / "ok.csv").columns

@@ -95,10 +95,10 @@ def ingest_command(
         raise UserError(str(exc)) from None
     check_output_path(output, [manifest, dark, response])
     target = Path(output).resolve()
-    if target.exists() and target.is_relative_to(Path(photo_dir).resolve()):
+    if target.is_relative_to(Path(photo_dir).resolve()):
         raise UserError(
-            f"output {output} is an existing file in PHOTO_DIR {photo_dir}; veil "
-            f"never modifies PHOTO_DIR: choose another output path"
+            f"output {output} is inside PHOTO_DIR {photo_dir}; veil never modifies "
+            f"PHOTO_DIR: choose another output path"
         )
     console = shared_console()
 

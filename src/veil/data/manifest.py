@@ -118,6 +118,7 @@ def read_manifest(manifest, photo_dir) -> tuple[pd.DataFrame, list[str], str]:
     Rows of a file are named by their line (header = line 1), as :mod:`veil.measurements` does.
     """
     from .measurements import ANGLE_COLUMNS, check_column_names, validate
+    from .table_angles import separator_hint
 
     table, rows, name = _manifest_table(manifest)
     check_column_names(table.columns, name)
@@ -126,6 +127,7 @@ def read_manifest(manifest, photo_dir) -> tuple[pd.DataFrame, list[str], str]:
             f"{name}: no column 'file'; the header has "
             f"{', '.join(map(repr, map(str, table.columns)))}; the manifest names "
             f"each photo (relative to PHOTO_DIR) in a column 'file'"
+            f"{separator_hint(table.columns)}"
         )
     if len(table) == 0:
         raise InputError(f"{name}: no photos listed (no rows after the header)")

@@ -54,6 +54,7 @@ from .table_angles import (
     _separation,
     _vectors,
     _warn_radians,
+    separator_hint,
 )
 
 
@@ -139,6 +140,7 @@ def _validated(table: pd.DataFrame, rows: RowNames | None = None) -> tuple[pd.Da
         raise MeasurementError(
             f"{rows.what} has no 'value' column (the measured values); "
             f"found columns {', '.join(map(str, table.columns))}"
+            f"{separator_hint(table.columns)}"
         )
     cols, angles = _parse_angles(table, rows)
     cols["value"] = _numbers(table, "value", rows)

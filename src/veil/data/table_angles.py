@@ -104,6 +104,16 @@ def _config_text(angles, k) -> str:
 # --------------------------------------------------------------------------------------
 # checks
 # --------------------------------------------------------------------------------------
+def separator_hint(columns) -> str:
+    """A hint when the header looks separated by another character than the comma (a
+    semicolon, as spreadsheets write with a decimal comma, or a tab); "" otherwise."""
+    names = " ".join(map(str, columns))
+    for sep, said in ((";", "';'"), ("\t", "tabs")):
+        if len(columns) <= 2 and sep in names:
+            return f" (the header looks separated by {said}: veil reads comma-separated values)"
+    return ""
+
+
 def _form(columns, what: str) -> dict:
     """Which angle forms the columns hold; raises for incomplete or contradictory sets."""
     have = set(columns)
@@ -126,7 +136,7 @@ def _form(columns, what: str) -> dict:
         raise MeasurementError(
             f"{what} has no angle columns: expected theta_i,phi_i,theta_r,phi_r (full), "
             f"theta_i,theta_r (signed in-plane) or psi,rho (goniometer), in degrees; "
-            f"found columns {', '.join(map(str, columns))}"
+            f"found columns {', '.join(map(str, columns))}{separator_hint(columns)}"
         )
     return forms
 
