@@ -75,7 +75,9 @@ def test_require_returns_the_module():
 
 def test_a_command_without_its_extra_exits_2_with_the_pip_line(monkeypatch, tmp_path):
     monkeypatch.setitem(sys.modules, "zarr", None)
-    result = CliRunner().invoke(main, ["maps", "show", str(tmp_path), "-o", str(tmp_path / "out")])
+    store = tmp_path / "maps.zarr"  # the arguments are right but for the missing extra
+    store.mkdir()
+    result = CliRunner().invoke(main, ["maps", "show", str(store), "-o", str(tmp_path / "m.png")])
     assert result.exit_code == 2, result.output
     assert "pip install 'veil[maps]'" in result.output
     assert "Traceback" not in result.output
@@ -128,7 +130,7 @@ def test_cli_without_the_extras():
     result = _blocked_run(
         "from veil.cli import main\n"
         "import sys\n"
-        "sys.argv = ['veil', 'maps', 'show', '.', '-o', '/tmp/veil-extras-out']\n"
+        "sys.argv = ['veil', 'maps', 'show', sys.prefix, '-o', '/tmp/veil-extras-out.png']\n"
         "main()\n")
     assert result.returncode == 2, (result.stdout, result.stderr[-3000:])
     assert "pip install 'veil[maps]'" in result.stderr + result.stdout
