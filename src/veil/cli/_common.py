@@ -9,6 +9,7 @@ import importlib
 import os
 import sys
 import warnings
+from pathlib import Path
 
 import click
 
@@ -300,6 +301,21 @@ def finish_fits(ctx, results, written):
 
 
 # -- output files --------------------------------------------------------------------------
+
+
+def check_outside(output, folder, named: str, kept: str = "an input") -> None:
+    """UserError if ``output`` is ``folder`` or inside it (``named`` says what the folder is,
+    ``kept`` what veil never modifies)."""
+    if Path(output).resolve().is_relative_to(Path(folder).resolve()):
+        raise UserError(
+            f"output {output} is inside {named}; veil never modifies {kept}: choose another "
+            f"output path"
+        )
+
+
+def written_kind(target: str, fmt: str) -> str:
+    """What an export wrote, for its last line: the renderer, and its format if another."""
+    return target if fmt == target else f"{target} {fmt}"
 
 
 def check_output_path(output, inputs=()):

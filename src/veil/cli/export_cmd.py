@@ -9,7 +9,7 @@ from pathlib import Path
 
 import click
 
-from ._common import UserError, accuracy_option, check_output_path, parse_psi
+from ._common import UserError, accuracy_option, check_output_path, parse_psi, written_kind
 
 IN_FILE = click.Path(exists=True, dir_okay=False, path_type=Path)
 TARGETS = ("mitsuba", "pbrt", "csv")
@@ -205,9 +205,8 @@ def _export_one(loaded, target, fmt, setting, output, verify, psis, spp, accurac
     for item in done.items:
         if item.closest is not None:
             click.echo(item.closest.sentence())
-    kind = target if done.format == target else f"{target} {done.format}"
     click.echo(
-        f"wrote {kind} to {output} "
+        f"wrote {written_kind(target, done.format)} to {output} "
         f"({', '.join(i.plugin.type for i in done.items)}); what the conversion loses "
         f"is written in it as comments",
         err=True,

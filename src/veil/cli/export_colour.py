@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import click
 
-from ._common import UserError
+from ._common import UserError, written_kind
 
 
 def export_rgb(
@@ -39,9 +39,8 @@ def export_rgb(
             if item.closest is not None:
                 click.echo(f"channel {c}: {item.closest.sentence()}")
     kinds = ", ".join(i.plugin.type for i in done.channels["r"])
-    kind = target if done.format == target else f"{target} {done.format}"
     click.echo(
-        f"wrote {kind} to {output} ({kinds}; channels r, g, b as RGB, "
+        f"wrote {written_kind(target, done.format)} to {output} ({kinds}; channels r, g, b as RGB, "
         f"intensity scales "
         + ", ".join(f"{c} {s:.6g}" for c, s in done.scales.items())
         + "); what the conversion loses is written in it as comments",

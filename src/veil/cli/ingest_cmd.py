@@ -3,11 +3,10 @@
 from __future__ import annotations
 
 import warnings
-from pathlib import Path
 
 import click
 
-from ._common import UserError, check_output_path, photo_channel_option
+from ._common import UserError, check_output_path, check_outside, photo_channel_option
 
 ROI_HELP = (
     "pixel coordinates X,Y,W,H: x to the right, y down, origin at the top-left pixel; "
@@ -94,12 +93,7 @@ def ingest_command(
     except ValueError as exc:
         raise UserError(str(exc)) from None
     check_output_path(output, [manifest, dark, response])
-    target = Path(output).resolve()
-    if target.is_relative_to(Path(photo_dir).resolve()):
-        raise UserError(
-            f"output {output} is inside PHOTO_DIR {photo_dir}; veil never modifies "
-            f"PHOTO_DIR: choose another output path"
-        )
+    check_outside(output, photo_dir, f"PHOTO_DIR {photo_dir}", "PHOTO_DIR")
     console = shared_console()
 
     def show(message, category, filename, lineno, file=None, line=None):

@@ -15,6 +15,7 @@ import click
 from ._common import (
     UserError,
     accuracy_option,
+    check_outside,
     echo_warnings,
     fit_progress,
     load_medium,
@@ -283,13 +284,8 @@ def _medium(medium, models):
 
 
 def _output(output, photo_dir) -> Path:
-    out = Path(output)
-    if out.resolve().is_relative_to(Path(photo_dir).resolve()):
-        raise UserError(
-            f"output {output} is inside PHOTO_DIR {photo_dir}; veil never "
-            f"modifies PHOTO_DIR: choose another output path"
-        )
-    return out
+    check_outside(output, photo_dir, f"PHOTO_DIR {photo_dir}", "PHOTO_DIR")
+    return Path(output)
 
 
 def _print_run(ctx, run) -> None:
@@ -331,16 +327,6 @@ def _print_run(ctx, run) -> None:
         ctx.exit(1)
 
 
-def _outside_store(output, store) -> None:
-    """UserError if ``output`` is the maps store or inside it: veil never modifies an input."""
-    out, root = Path(output).resolve(), Path(store).resolve()
-    if out.is_relative_to(root):
-        raise UserError(
-            f"output {output} is inside the maps store {store}; veil never modifies an "
-            f"input: choose another output path"
-        )
-
-
 @click.group("maps")
 def maps_command():
     """Look at and export the maps of 'veil fit maps' (docs/maps.md)."""
@@ -362,7 +348,7 @@ def show_command(store, output):
     from .plot_cmd import FIGURE_SUFFIXES
     from .render_cmd import output_path
 
-    _outside_store(output, store)
+    check_outside(output, store, f"the maps store {store}")
     output_path(output, FIGURE_SUFFIXES, "--output")
     path = maps_figure(store, output)
     click.echo(f"wrote {path}", err=True)
@@ -389,7 +375,7 @@ def export_command(store, output, formats):
     undetermined fraction)."""
     from ..maps.show import FORMATS, export_maps
 
-    _outside_store(output, store)
+    check_outside(output, store, f"the maps store {store}")
     written = export_maps(store, output, formats or FORMATS)
     click.echo(f"wrote {len(written)} files to {output}", err=True)
     with open(Path(output) / "summary.json") as fh:
