@@ -397,6 +397,18 @@ def test_screened_auto_chooses_exactly_what_the_pinned_pair_fits(sessions, tmp_p
     lines = "\n".join(selection.table_lines(auto.rankings["medium"]))
     assert "screened out: its quick fit" in lines
     assert auto.rankings["target"].chosen == "torrance-sparrow"
+    # step 0 in clear water is screened too: every family but the paper's stops at its
+    # quick fit, which has no quadrature to allow for
+    reference = {r["label"]: r for r in auto.rankings["reference"].rows}
+    assert auto.rankings["reference"].chosen == "torrance-sparrow"
+    out = [lab for lab, r in reference.items() if r.get("screened")]
+    assert out == ["rough-plastic"] and reference["rough-plastic"]["delta_bic"] > 100
+    note = reference["rough-plastic"]["note"]
+    assert "(one start)" in note and "the fit's tolerance" in note and "quadrature" not in note
+    a, p = auto.reference, pinned.reference
+    for name, se in p.stderr.items():
+        assert abs(a.params[name] - p.params[name]) <= 1e-3 * se, ("reference", name)
+    assert a.chi2_reduced == pytest.approx(p.chi2_reduced, rel=1e-6)
     for step in ("medium", "target"):
         a, p = getattr(auto, step), getattr(pinned, step)
         assert a.params.keys() == p.params.keys() and a.stderr.keys() == p.stderr.keys()
@@ -405,6 +417,39 @@ def test_screened_auto_chooses_exactly_what_the_pinned_pair_fits(sessions, tmp_p
         assert a.chi2_reduced == pytest.approx(p.chi2_reduced, rel=1e-4)
         assert a.stats["grid_points"] == 0 < p.stats["grid_points"]  # it needed no grid
     assert "screened out" in (tmp_path / "auto" / "report.md").read_text()
+
+
+def test_a_quick_fit_in_clear_water_is_its_grids_best_start_without_a_rule_error(sessions):
+    """fit_direct(screen=True): the starting grid's best start only (the full fit runs every
+    start), to the screen's tolerance; f_r is evaluated directly, so its rule error is zero
+    and its BIC interval only allows for the descent that tolerance leaves and the
+    discrepancy term's two parameters. The full fit continued from it reaches the fit from
+    the grid."""
+    from veil.fitting.session_data import prepare
+    from veil.fitting.solver import TOL_SCREEN
+    from veil.fitting.step_fit import STARTS
+
+    kw = dict(brdf_model="torrance-sparrow", step="reference", model_error="off")
+    table = sessions["reference_clear"]
+    from veil.fitting.steps import fit_direct
+
+    quick = fit_direct(table, screen=True, **kw)
+    full = fit_direct(table, **kw)
+    assert quick.stats["starts"] == 1 and full.stats["starts"] == STARTS["reference"]
+    assert quick.stats["nfev"] < full.stats["nfev"]
+    assert quick.stats["rule_error"]["values"] == [0.0] * quick.n_points
+    data = prepare(table)
+    chi2 = float(np.sum(np.square(quick.residuals)))
+    lower, upper = screening.bic_interval(quick, data, chi2)
+    term = 2 * math.log(quick.n_points)
+    slack = TOL_SCREEN**2 * len(quick.stderr) * max(quick.chi2_reduced, 1.0)
+    assert upper == pytest.approx(chi2 + term, rel=1e-12)
+    assert lower == pytest.approx(chi2 - slack - term, rel=1e-12)
+    assert lower + term <= float(np.sum(np.square(full.residuals))) <= chi2
+    resumed = fit_direct(table, start=quick, **kw)
+    assert resumed.stats["start"] == "given"
+    for name, se in full.stderr.items():
+        assert abs(resumed.params[name] - full.params[name]) <= 1e-3 * se, name
 
 
 def test_a_fit_from_a_start_evaluates_the_grid_only_when_it_is_needed(sessions):

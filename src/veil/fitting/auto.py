@@ -150,7 +150,7 @@ class _Ranked:
             self.plan["brdf_options"],
         )
 
-        def one(c):
+        def one(c, start=None, screen=False):
             return fit_direct(
                 self.table(session)[0],
                 fixed=fix[c.label],
@@ -160,10 +160,22 @@ class _Ranked:
                 brdf_model=c.family,
                 options=c.model_options(options),
                 model_error=self.model_error,
+                screen=screen,
+                start=start,
             )
 
+        # screened as the steps through the medium are (the quick fit: the grid's best
+        # start only); over several channels, or with every result kept, each in full
+        screened = self.sources is None and not self.keep_all
         ranking, results = rank_step(
-            step, self.plan["brdf"], self.data[session], one, self.progress, curve, what
+            step,
+            self.plan["brdf"],
+            self.data[session],
+            one,
+            self.progress,
+            curve,
+            what,
+            quick=(lambda c, start=None: one(c, start, True)) if screened else None,
         )
         self.rankings[step], self.kept[step] = ranking, results
         return ranking, results

@@ -311,7 +311,7 @@ def fit_linear(
     }
     if how:
         stats["propagation"] = how
-    if check is not None and problem.blocks[0].medium is not None:
+    if check is not None:  # f_r directly: the quick fit's own rule (no error)
         stats["rule_error"] = rule_error(problem, sol, check)
     own = {p.key: p.name for p in cls.PARAMS}
     free_keys = {names[k] for k in reported}

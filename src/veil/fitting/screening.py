@@ -1,6 +1,9 @@
 """Fitting one step's candidates and ranking them (:func:`select`, issue 29;
-docs/choosing-models.md); through the medium screened: every candidate's quick fit first,
-the full fit only for those that could still be chosen.
+docs/choosing-models.md), screened: every candidate's quick fit first, the full fit only
+for those that could still be chosen. In clear water (``fit_direct(screen=True)``) the
+quick fit is the grid's best start to TOL_SCREEN; f_r has no quadrature there, so its rule
+error is zero and its interval only allows for that tolerance's descent and the
+discrepancy term's parameters.
 
 - **Quick fit** (``screen=True`` of :func:`veil.fitting.fit_medium` / ``fit_target``): the
   starting grid's best start only, iterated at the "fast" quadrature to 0.3 standard errors
@@ -202,12 +205,14 @@ def _screened_rows(quick_ranking: Ranking, out: dict, quick: dict, data) -> list
             weight=0.0,
             error=None,
             note=(
-                "screened out: its quick fit (one start, fast quadrature"
+                "screened out: its quick fit (one start"
+                + ("" if result.given is None else ", fast quadrature")
                 + ("" if row["converged"] else f"; {row['error']}")
                 + f") has BIC {row['bic']:.4g}"
                 + ("" if at_rule is None else f" ({at_rule:.4g} at the {rule!r} rule)")
-                + f", at least {lower:.4g} with the quadrature's "
-                f"error, more than {SCREEN_MARGIN:g} above the best; not fitted further"
+                + f", at least {lower:.4g} with the "
+                + ("fit's tolerance" if result.given is None else "quadrature's error")
+                + f", more than {SCREEN_MARGIN:g} above the best; not fitted further"
             ),
         )
         rows.append(row)

@@ -367,6 +367,8 @@ def run(
     }
     if screen:
         stats["screen"] = True
+        if not through_medium and sol.status > 0:  # f_r directly: no rule to differ
+            stats["rule_error"] = {"accuracy": check, "values": [0.0] * problem.n_points}
         if through_medium and sol.status > 0:  # the screen uses a converged one's only
             cov = covariance(problem, sol.x, values=values)
             if not _undetermined(problem, sol, cov)[0]:  # undetermined: nothing more read

@@ -163,10 +163,13 @@ def fit_direct(
     free=None,
     model_error=None,
     channel: str | None = None,
+    screen: bool = False,
+    start=None,
 ) -> FitResult:
     """f_r fitted to clear-medium data (docs/model.md sec. 2); ``step`` labels the result
     ("reference" for step 0, "direct" for a target measured without the medium);
-    ``channel`` as :func:`fit_reference`."""
+    ``channel`` as :func:`fit_reference`; ``screen`` and ``start`` (of one channel) as
+    :func:`fit_medium`'s: a quick fit is its grid's best start only."""
     check_max_nfev(max_nfev)
     model_error = discrepancy.check_kind(model_error)
     if step not in ("reference", "direct"):
@@ -177,6 +180,8 @@ def fit_direct(
     if channel is None:
         table, channels = channels_of(table, f"{what} (clear medium)")
         if channels is not None and len(channels) > 1:
+            if screen or start is not None:
+                raise FitError("screen, start: a clear-water fit of one channel only")
             return fit_channels(
                 table,
                 black,
@@ -204,6 +209,8 @@ def fit_direct(
         progress,
         _freed(cls, free, what),
         model_error,
+        screen=screen,
+        **_start(start, cls, channel),
     )
 
 
