@@ -7,9 +7,8 @@ stopping rule, rank and covariance).
 - :func:`solve`: Levenberg-Marquardt (:func:`veil.fitting.least_squares.levenberg_marquardt`)
   in the problem's internal coordinates (log, atanh or plain, :mod:`veil.fitting.coordinates`)
   within their bounds, with the engine's Jacobian (in a medium's parameters on its phase
-  grids held: docs/engine.md "Derivatives"); it stops when the undamped
-  Gauss-Newton step is below a tolerance in standard errors in every free parameter not held
-  at a bound (``TOL_*`` below);
+  grids held: docs/engine.md "Derivatives"); it stops when the undamped Gauss-Newton step
+  is below a tolerance in standard errors in every free parameter not held at a bound;
 - :func:`run`: several starts (the next only while the fits so far are not convincing),
   iterations at the "fast" quadrature, then a polish at the requested one with the fast
   Jacobian frozen at the fast solution (a chord method: it differs from the polish rule's
@@ -318,9 +317,9 @@ def run(
     continued from a candidate's quick fit: the grid's starts). The best is polished at
     ``accuracy`` when the problem has a medium (module docstring). A ``screen`` runs the
     first start only, at the "fast" quadrature to TOL_SCREEN, unpolished: a candidate's
-    quick fit for ranking (:mod:`veil.fitting.screening`); through a medium a converged one's
-    values are then evaluated once at ``accuracy`` (the rule its full fit would end at), and
-    ``stats["rule_error"]`` holds that rule's values minus the fast rule's."""
+    quick fit for ranking (:mod:`veil.fitting.screening`); a converged one's values are then
+    evaluated at ``accuracy`` (where its full fit would end; in clear water the same rule):
+    ``stats["rule_error"]``, that rule's values minus the fast rule's."""
     linear_free(problem)
     through_medium = any(b.medium is not None for b in problem.blocks)
     starts = list(starts)
@@ -367,13 +366,12 @@ def run(
     }
     if screen:
         stats["screen"] = True
-        if not through_medium and sol.status > 0:  # f_r directly: no rule to differ
-            stats["rule_error"] = {"accuracy": check, "values": [0.0] * problem.n_points}
-        if through_medium and sol.status > 0:  # the screen uses a converged one's only
-            cov = covariance(problem, sol.x, values=values)
-            if not _undetermined(problem, sol, cov)[0]:  # undetermined: nothing more read
-                at = values if check == ITERATION_ACCURACY else problem.model_values(sol.x, check)
-                stats["rule_error"] = {"accuracy": check, "values": (at - values).tolist()}
+        use = sol.status > 0  # a converged one's; undetermined: nothing more read
+        if use and through_medium:
+            use = not _undetermined(problem, sol, covariance(problem, sol.x, values=values))[0]
+        if use:
+            at = values if check == ITERATION_ACCURACY else problem.model_values(sol.x, check)
+            stats["rule_error"] = {"accuracy": check, "values": (at - values).tolist()}
     if through_medium:
         stats["engine_calls"] = problem.engine_calls()
     return Outcome(sol, values, final_accuracy, notes, stats)
