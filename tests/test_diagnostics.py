@@ -97,6 +97,29 @@ def test_bad_input(fits):
         diagnose(fits["r0"], fits["thin"], medium=veil.BTDF1)
 
 
+def test_data_other_than_the_fits_are_refused_naming_them(fits, tmp_path, monkeypatch):
+    """A table that is not the fit's (another number of rows) is an input error naming the
+    table and both counts, before any evaluation: a clear-water fit was diagnosed on any
+    table, and the target fit's error did not name the file."""
+    import veil.analysis.diagnostics as dg
+
+    def evaluated(*args, **kwargs):
+        raise AssertionError("the data were evaluated before they were checked")
+
+    monkeypatch.setattr(dg, "covariance", evaluated)
+    monkeypatch.setattr(dg, "solve", evaluated)
+    with pytest.raises(FitError, match="has 30 points but the fit used 55"):
+        diagnose(fits["r0"], fits["thin"].iloc[:30])
+    res, short, black = tmp_path / "t.json", tmp_path / "short.csv", tmp_path / "black.csv"
+    fits["t_thick"].to_json(res)
+    veil.save_measurements(fits["thick"].iloc[:30], short)
+    veil.save_measurements(fits["thick"].assign(value=0.0, sigma=0.001), black)
+    for extra, said in (([], ""), (["--black", str(black)], f" less the black cloth {black}")):
+        r = CliRunner().invoke(main, ["diagnose", str(res), "--data", str(short), *extra])
+        assert r.exit_code == 2, r.output
+        assert f"the table {short}{said} has 30 points but the fit used 55" in r.output
+
+
 def test_cli_diagnose(fits, tmp_path):
     res, table, med = tmp_path / "t.json", tmp_path / "t.csv", tmp_path / "m.json"
     fits["t_thick"].to_json(res)

@@ -577,7 +577,8 @@ def invoke(args):
 @pytest.mark.parametrize("case", ["roi_outside", "missing_photo", "bad_roi", "no_file_column",
                                   "output_is_manifest", "bad_channel", "unreadable",
                                   "all_saturated", "output_in_photo_dir",
-                                  "new_output_in_photo_dir"])
+                                  "new_output_in_photo_dir", "photo_sizes",
+                                  "negative_saturation"])
 def test_cli_user_errors_exit_2_without_traceback(photos, tmp_path, case):
     write_png(photos / "a.png", np.full((H, W), 500, np.uint16))
     manifest = write_manifest(tmp_path / "m.csv", ["a.png"])
@@ -588,7 +589,12 @@ def test_cli_user_errors_exit_2_without_traceback(photos, tmp_path, case):
               "output_is_manifest": "never overwrites", "bad_channel": "'x' is not one of",
               "unreadable": "cannot decode as PNG", "all_saturated": "were excluded",
               "output_in_photo_dir": "never modifies PHOTO_DIR",
-              "new_output_in_photo_dir": "never modifies PHOTO_DIR"}[case]
+              "new_output_in_photo_dir": "never modifies PHOTO_DIR",
+              # the odd photo, both sizes and the first photo named (accepted before)
+              "photo_sizes": "61 x 40 pixels, but the stack's first photo",
+              # the valid range named (before: every photo excluded as saturated)
+              "negative_saturation": "saturation level -5 (--saturation): expected a code "
+                                     "value > 0"}[case]
     if case == "roi_outside":
         args[4] = "0,0,61,5"
     elif case == "missing_photo":
@@ -609,11 +615,18 @@ def test_cli_user_errors_exit_2_without_traceback(photos, tmp_path, case):
         args[-1] = photos / "a.png"
     elif case == "new_output_in_photo_dir":  # a new file there too: PHOTO_DIR is read only
         args[-1] = photos / "new.csv"
+    elif case == "photo_sizes":
+        write_png(photos / "b.png", np.full((H, W + 1), 500, np.uint16))
+        write_manifest(manifest, ["a.png", "b.png"])
+    elif case == "negative_saturation":
+        args += ["--saturation", "-5"]
     result = invoke(args)
     assert result.exit_code == 2, result.output
     assert expect in result.output
     assert "Traceback" not in result.output
     assert not out.exists() and not (photos / "new.csv").exists()
+    if case == "photo_sizes":
+        assert "b.png" in result.output and "a.png" in result.output
 
 
 @pytest.mark.parametrize("sep, said", [(";", "';'"), ("\t", "tabs")])

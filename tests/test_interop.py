@@ -144,6 +144,15 @@ def test_csv_curves_with_and_without_medium(tmp_path):
     np.testing.assert_allclose(seen["value"], expected, rtol=1e-12)
 
 
+def test_csv_psi_is_echoed_as_given_not_rounded(tmp_path):
+    """--psi 179.9999 leaves no configuration below the 85 deg limit: the error names the
+    angle as given (it said "psi = 180 deg", itself an angle outside (0, 180))."""
+    path = _result(PLASTIC(rho=0.5, alpha=0.1, eta=1.5, ks=2.0), tmp_path / "p.json")
+    out = _run("export", path, "--to", "csv", "-o", tmp_path / "c.csv", "--psi", "179.9999")
+    assert out.exit_code == 2, out.output
+    assert "psi = 179.9999 deg gives no configuration" in out.output
+    assert "180" not in out.output and not (tmp_path / "c.csv").exists()
+
 # -- MERL ------------------------------------------------------------------------------------
 
 def _cells():

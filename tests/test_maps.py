@@ -5,6 +5,7 @@ a real two-worker dask.distributed cluster against the local run, and bad input.
 from __future__ import annotations
 
 import json
+import os
 import shutil
 import time
 from pathlib import Path
@@ -12,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import tifffile
+import zarr
 from click.testing import CliRunner
 
 import veil
@@ -289,6 +291,51 @@ def test_command_maps_outputs_and_resume(stack, tmp_path, monkeypatch):
         assert not (tmp_path / name).exists()
 
 
+def test_a_touched_photo_keeps_the_store_and_a_changed_one_does_not(stack, tmp_path,
+                                                                   monkeypatch):
+    """The store keys each photo by its content (size and SHA-256), not its modification
+    time: a complete store of touched photos is reused (it was refused as "another
+    acquisition"); a photo whose content changed is refused; a store written with the old
+    key (path, size, modification time) still resumes while those are unchanged."""
+    import veil.maps.run as mr
+
+    root, _, _ = stack
+    shutil.copytree(root / "photos", tmp_path / "photos")
+    manifest = tmp_path / "photos" / "manifest.csv"
+    out = tmp_path / "maps.zarr"
+    args = fit_args(tmp_path, manifest, out, "--roi", "2,2,8,8")
+    seen = []
+    real = mr.store_attributes
+
+    def spy(acq, tables, cls, noise, tile, *rest):
+        seen.append((acq, tables, noise, tile))
+        return real(acq, tables, cls, noise, tile, *rest)
+
+    monkeypatch.setattr(mr, "store_attributes", spy)
+    first = run(*args)
+    assert first.exit_code == 0, first.output
+
+    def set_key(key):
+        group = zarr.open_group(str(out), mode="r+")
+        group.attrs["veil_maps"] = dict(group.attrs["veil_maps"], fingerprint=key)
+
+    one = sorted((tmp_path / "photos").glob("*.tif"))[5]
+    later = one.stat().st_mtime_ns + 10**10
+    os.utime(one, ns=(later, later))  # `touch`: the same bytes, another time
+    again = run(*args)
+    assert again.exit_code == 0 and "nothing to compute" in again.output, again.output
+    from veil.maps.tile import store_fingerprint
+
+    key = zarr.open_group(str(out), mode="r").attrs["veil_maps"]["fingerprint"]
+    set_key(store_fingerprint(*seen[0], legacy=True))  # as an earlier veil wrote it
+    old = run(*args)
+    assert old.exit_code == 0 and "nothing to compute" in old.output, old.output
+    set_key(key)
+    tifffile.imwrite(one, tifffile.imread(one) * 1.01)  # another content
+    changed = run(*args)
+    assert changed.exit_code == 2 and "another acquisition" in changed.output, changed.output
+
+
 def test_pixels_not_fitted_are_flagged_counted_and_exit_1(stack, tmp_path):
     """A pixel saturated in every photo (status 1) and a dark one (status 3) are flagged in
     the status map, counted by status on the command line and in summary.json, and make
@@ -402,6 +449,29 @@ def test_bad_input_exits_2(stack, tmp_path):
     second = run(*fit_args(root, manifest, other, "--roi", "0,0,4,5"))
     assert second.exit_code == 2 and "another acquisition" in second.output
     assert sorted(p.name for p in other.rglob("*")) == before
+
+
+def test_an_existing_file_as_output_is_refused_before_any_work(stack, tmp_path, monkeypatch):
+    """-o FILE (a store is a folder) is refused with the message of any path that is not a
+    store, before the medium is loaded, the photos read or the tables built (it was refused
+    only after them)."""
+    import veil.cli.maps_cmd as cmd
+    import veil.maps.run as mr
+
+    def work(*args, **kwargs):
+        raise AssertionError("work done before the output was checked")
+
+    for module, name in ((cmd, "load_medium"), (mr, "load_acquisition"), (mr, "_tables")):
+        monkeypatch.setattr(module, name, work)
+    root, manifest, _ = stack
+    afile = tmp_path / "afile"
+    afile.write_text("mine")
+    refused = run(*fit_args(root, manifest, afile))
+    assert refused.exit_code == 2, refused.output
+    assert f"{afile} exists and is not a veil maps store" in refused.output
+    with pytest.raises(veil.errors.InputError, match="exists and is not a veil maps store"):
+        fit_maps(root / "photos", manifest, MEDIUM, afile, fixed=FIX, grid=[GRID])
+    assert afile.read_text() == "mine" and not (tmp_path / ".afile.veil-lock").exists()
 
 
 def test_any_registered_family_even_without_a_nonlinear_parameter(monkeypatch):

@@ -103,6 +103,15 @@ def test_three_steps_joint_and_diagnose_with_test_models(files):
     r = invoke(["diagnose", d / "joint.json", "--data", f"one={files['target']}", "--data",
                 f"two={files['target_2']}", "--data", f"none={files['target_clear']}"])
     assert r.exit_code == 0, r.output
+    # a session's table other than the fit's: exit 2 naming the session and both counts,
+    # before any work (it ran for minutes without a word)
+    short = d / "short.csv"
+    veil.save_measurements(veil.load_measurements(files["target_2"]).iloc[:40], short)
+    n = len(veil.load_measurements(files["target_2"]))
+    r = invoke(["diagnose", d / "joint.json", "--data", f"one={files['target']}", "--data",
+                f"two={short}", "--data", f"none={files['target_clear']}"])
+    assert r.exit_code == 2, r.output
+    assert f"session 'target in two ({short})' has 40 points but the fit used {n}" in r.output
 
 
 def test_wrong_kinds_and_unknown_names(files):

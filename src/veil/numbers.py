@@ -19,6 +19,14 @@ def format_number(x, digits: int = 6, missing: str = "n/a") -> str:
     return f"{x:.{digits}g}"
 
 
+def format_exact(x) -> str:
+    """``x`` as the shortest text that reads back as the same float (its repr, "30" for
+    30.0): a value echoed in a message, which must not round into another (179.9999 is not
+    180)."""
+    text = repr(float(x))
+    return text[:-2] if text.endswith(".0") else text
+
+
 def format_percent(x, digits: int = 3, missing: str = "-") -> str:
     """A fraction ``x`` as a percentage, e.g. 0.0123 -> "1.23 %"."""
     if x is None or not math.isfinite(float(x)):
@@ -48,4 +56,4 @@ def json_clean(obj) -> Any:
     return obj
 
 
-__all__ = ["format_number", "format_percent", "json_float", "json_clean"]
+__all__ = ["format_number", "format_exact", "format_percent", "json_float", "json_clean"]

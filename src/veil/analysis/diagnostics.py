@@ -23,6 +23,7 @@ where the paper's failure hides. Without it the given model is taken as exact.
 from __future__ import annotations
 
 import math
+import os
 from dataclasses import dataclass, field
 from typing import cast
 
@@ -245,6 +246,7 @@ def problem_for(
                 f"({', '.join(result.params)}); give the same sessions (media "
                 f"labels and objects) as the fit"
             )
+        _check_points(problem, result, "the sessions given", layout.get("sessions") or ())
         problem.values = np.array([result.params[n] for n in problem.names])
         return problem, notes
     step = result.step
@@ -253,21 +255,42 @@ def problem_for(
     if step in ("reference", "direct"):
         if medium is not None or reference is not None:
             raise FitError(f"a {step} fit (clear water) has no medium or reference to include")
-        return session_problem(
+        problem = session_problem(
             data, cast(BRDF, model), None, free=free, black=black, what=f"{step} (clear medium)"
-        ), notes
-    if step in _THROUGH_MEDIUM:
+        )
+    elif step in _THROUGH_MEDIUM:
         problem = _through_medium(
             result, data, step, {"medium": medium, "reference": reference}, free, black, notes
         )
     else:
         raise FitError(f"cannot diagnose a result of step {step!r}")
-    if problem.n_points != result.n_points:
-        raise FitError(
-            f"the data have {problem.n_points} points but the fit used "
-            f"{result.n_points}: give the table (and black cloth) of that fit"
-        )
+    where = f"the table {_name(data)}" + (
+        "" if black is None else f" less the black cloth {_name(black)}"
+    )
+    _check_points(problem, result, where)
     return problem, notes
+
+
+def _name(table) -> str:
+    return os.fspath(table) if isinstance(table, (str, os.PathLike)) else "(a DataFrame)"
+
+
+def _check_points(problem: Problem, result: FitResult, where: str, sessions=()) -> None:
+    """A FitError when the data are not the fit's: another number of points in all (``where``
+    names the data) or, of a joint fit, in a session (``sessions``: the fit's layout's)."""
+    fitted: dict = {}
+    for s in sessions:  # the fit's sessions by object and medium, in order
+        fitted.setdefault((s.get("object"), s.get("medium")), []).append(s.get("n_points"))
+    counts = []
+    for b in problem.blocks:
+        used = fitted.get((b.session.object, b.session.medium)) or [None]
+        counts.append((f"{where}: session {b.session.name!r}", b.size, used.pop(0)))
+    for what, got, used in counts + [(where, problem.n_points, result.n_points)]:
+        if used is not None and got != used:
+            raise FitError(
+                f"{what} has {got} points but the fit used {used}: diagnose reads the data "
+                f"the fit was made from; give the same table(s) (and black cloth), not others"
+            )
 
 
 #: The steps through the medium by their name in a result: (the step's number, the argument
@@ -367,12 +390,17 @@ def diagnose(
     progress=None,
 ) -> Diagnosis:
     """Diagnostics of ``result`` on its ``data`` (module docstring; arguments as
-    :func:`problem_for`). ``profile``: False, True (every free parameter) or a list of names.
-    Names are the problem's: a medium's index is ``eta_u`` (the BRDF has ``eta``)."""
+    :func:`problem_for`; data other than the fit's are a FitError before any evaluation).
+    ``profile``: False, True (every free parameter) or a list of names. Names are the
+    problem's: a medium's index is ``eta_u`` (the BRDF has ``eta``). ``progress(stage,
+    done, total)`` is told each stage."""
     _check_arguments(result, points, max_relative, max_correlation)
     problem, notes = problem_for(result, data, medium=medium, reference=reference, black=black)
     names = problem.free_names
+    say = progress or (lambda stage, done, total: None)
+    say(f"{problem.n_points} points, {len(names)} free parameters: the estimate", None, None)
     x = _optimum(problem, notes, accuracy)
+    say("the covariance and the weighted Jacobian at the estimate", None, None)
     cov = covariance(problem, x, accuracy)
     if cov is None:
         raise FitError(
@@ -407,17 +435,8 @@ def diagnose(
         thresholds={"max_relative": max_relative, "max_correlation": max_correlation, "flat": FLAT},
     )
     if profile:
-        diag.profiles.update(
-            _profiles(
-                problem,
-                x,
-                names if profile is True else list(profile),
-                stderr,
-                points,
-                accuracy,
-                progress,
-            )
-        )
+        which = names if profile is True else list(profile)
+        diag.profiles.update(_profiles(problem, x, which, stderr, points, accuracy, progress))
     _verdicts(diag, max_relative, max_correlation)
     return diag
 

@@ -217,6 +217,7 @@ def fit_maps_command(
     the status map flags them), 2 for input mistakes; a rerun after an interruption
     computes only the missing tiles.
     """
+    out = _output(output, photo_dir)  # before anything is loaded or computed
     from ..maps.grid import parse_grid
     from ..maps.run import fit_maps
 
@@ -224,7 +225,6 @@ def fit_maps_command(
     fixed = parse_fix(fix, models.brdf)
     med = _medium(medium, models)
     grid_spec = parse_grid(grid, models.brdf)
-    out = _output(output, photo_dir)
 
     def log(message):
         click.echo(message, err=True)
@@ -284,7 +284,11 @@ def _medium(medium, models):
 
 
 def _output(output, photo_dir) -> Path:
+    """--output checked: not inside PHOTO_DIR, and no file (a store is a folder)."""
+    from ..maps.store import check_store_path
+
     check_outside(output, photo_dir, f"PHOTO_DIR {photo_dir}", "PHOTO_DIR")
+    check_store_path(output)
     return Path(output)
 
 

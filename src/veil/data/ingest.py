@@ -18,6 +18,7 @@ import numpy as np
 import pandas as pd
 
 from ..errors import InputError, MissingFileError
+from ..numbers import format_exact
 from .ingest_channels import (
     ALL_RGB,
     StackKind,
@@ -233,13 +234,28 @@ def _settings(roi, black_roi, channel: str, saturation, response) -> tuple:
         rois.append(("black ROI", parse_roi(black_roi, "black ROI")))
         if rois[0][1].overlaps(rois[1][1]):
             _warn(f"the ROI {rois[0][1]} and the black ROI {rois[1][1]} overlap")
-    if saturation is not None:
-        saturation = float(saturation)
-        if not math.isfinite(saturation):
-            raise InputError(f"saturation level {saturation!r} is not a finite number")
+    saturation = saturation_level(saturation)
     if response is not None and not isinstance(response, Response):
         response = load_response(response)
     return rois, saturation, response
+
+
+def saturation_level(saturation) -> float | None:
+    """The saturation level (``--saturation``) checked: None, or a finite code value > 0
+    (the format's minimum is 0, so at or below it every sample would count as saturated)."""
+    if saturation is None:
+        return None
+    level = float(saturation)
+    if not math.isfinite(level):
+        raise InputError(f"saturation level {saturation!r} is not a finite number")
+    if level <= 0:
+        raise InputError(
+            f"saturation level {format_exact(level)} (--saturation): expected a code value "
+            f"> 0, in the file's code values, at or above which a sample counts as saturated "
+            f"(e.g. 4095 for 12-bit data in a 16-bit file; the default is the format's "
+            f"maximum); at {format_exact(level)} every sample would be saturated"
+        )
+    return level
 
 
 def ingest(
@@ -467,6 +483,7 @@ def _describe(photo: Photo) -> str:
 
 __all__ = [
     "ingest",
+    "saturation_level",
     "read_manifest",
     "manifest_photos",
     "load_response",

@@ -44,19 +44,28 @@ def is_colour(photo: Photo) -> bool:
 
 
 class StackKind:
-    """The photos of one stack are all colour or all grey: :meth:`check` each in turn."""
+    """The photos of one stack are all colour or all grey, and all of one size (the same
+    ROIs are read in each): :meth:`check` each in turn."""
 
     def __init__(self) -> None:
-        self.first: tuple[bool, str] | None = None
+        self.first: tuple[bool, str, tuple] | None = None
 
     def check(self, photo: Photo, where: str) -> None:
         """An InputError naming ``where`` (the photo) and the first photo when ``photo`` is
-        grey in a colour stack or colour in a grey one."""
+        grey in a colour stack or colour in a grey one, or of another size."""
         colour = is_colour(photo)
+        size = tuple(photo.shape[:2])
         if self.first is None:
-            self.first = (colour, where)
+            self.first = (colour, where, size)
             return
-        first_colour, first_where = self.first
+        first_colour, first_where, first_size = self.first
+        if size != first_size:
+            raise InputError(
+                f"{where}: {size[1]} x {size[0]} pixels, but the stack's first photo "
+                f"{first_where} is {first_size[1]} x {first_size[0]}; every photo of a stack "
+                f"must have the same size (the same ROIs are read in each): ingest photos "
+                f"of another size with a manifest of their own"
+            )
         if colour != first_colour:
             kinds = ("a colour image", "a grey (single-channel) image")
             mine, theirs = (kinds[0], kinds[1]) if colour else (kinds[1], kinds[0])

@@ -16,6 +16,7 @@ import pandas as pd
 
 from ..engine.angles import from_goniometer, from_signed_inplane
 from ..errors import InputError
+from ..numbers import format_exact
 
 PSI = (30.0, 60.0, 90.0)
 
@@ -53,14 +54,16 @@ def _checked(psi, fine_step, coarse_step, window, limit) -> tuple:
     window = _positive("window", window, allow_zero=True)
     limit = _positive("limit", limit)
     if limit > 90:
-        raise InputError(f"limit = {limit:g} deg: polar angles must stay below 90 deg")
+        raise InputError(f"limit = {format_exact(limit)} deg: polar angles must stay below 90 deg")
     psi = float(psi)
     if not (math.isfinite(psi) and 0 < psi < 180):
-        raise InputError(f"psi = {psi:g} deg: expected a relative angle in (0, 180) deg")
+        raise InputError(
+            f"psi = {format_exact(psi)} deg: expected a relative angle in (0, 180) deg"
+        )
     if psi / 2 >= limit:
         raise InputError(
-            f"psi = {psi:g} deg gives no configuration with both |theta| < "
-            f"{limit:g} deg (the mirror configuration has theta = psi/2)"
+            f"psi = {format_exact(psi)} deg gives no configuration with both |theta| < "
+            f"{format_exact(limit)} deg (the mirror configuration has theta = psi/2)"
         )
     reach = limit - psi / 2
     # Fine rotations past reach are never made: a window beyond reach + fine_step makes
@@ -71,7 +74,8 @@ def _checked(psi, fine_step, coarse_step, window, limit) -> tuple:
 def _check_size(count: float, fine_step: float, coarse_step: float) -> None:
     if count > MAX_CONFIGURATIONS:
         raise InputError(
-            f"fine_step = {fine_step:g} deg, coarse_step = {coarse_step:g} deg "
+            f"fine_step = {format_exact(fine_step)} deg, coarse_step = "
+            f"{format_exact(coarse_step)} deg "
             f"would make {count:.3g} configurations; at most "
             f"{MAX_CONFIGURATIONS:g} are allowed (the paper's protocol has "
             f"about 40 per psi): use larger steps"

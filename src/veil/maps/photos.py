@@ -6,7 +6,6 @@ photos or dark frame), and its staging into the store, one photo at a time."""
 from __future__ import annotations
 
 import hashlib
-import math
 import os
 import struct
 from dataclasses import dataclass
@@ -16,7 +15,15 @@ import numpy as np
 
 from .._extras import require
 from ..data.channels import RGB
-from ..data.ingest import CHANNELS, ROI, _linear, manifest_photos, parse_roi, read_photo
+from ..data.ingest import (
+    CHANNELS,
+    ROI,
+    _linear,
+    manifest_photos,
+    parse_roi,
+    read_photo,
+    saturation_level,
+)
 from ..data.ingest_channels import ALL_RGB
 from ..errors import InputError, MissingFileError
 from ..io import COMMIT, write_bytes_atomic
@@ -222,18 +229,36 @@ class Acquisition:
     rows: list
     name: str
 
-    def fingerprint(self) -> str:
+    def fingerprint(self, legacy: bool = False) -> str:
+        """A digest of what the maps are fitted from: each photo's content (its size and
+        the SHA-256 of its bytes, in manifest order; a photo touched but not changed
+        keeps it), the angles, region, mask, channel and saturation level. ``legacy``: the
+        key of stores written before, which took each photo's path, size and modification
+        time instead of its content."""
         h = hashlib.sha256()
         files = list(self.paths) + list(self.blacks or []) + ([self.dark] if self.dark else [])
         for p in files:
-            st = os.stat(p)
-            h.update(f"{os.path.abspath(p)}|{st.st_size}|{st.st_mtime_ns}\n".encode())
+            if legacy:
+                st = os.stat(p)
+                h.update(f"{os.path.abspath(p)}|{st.st_size}|{st.st_mtime_ns}\n".encode())
+            else:
+                h.update(f"{_content_key(p)}\n".encode())
         for a in self.angles:
             h.update(np.ascontiguousarray(a, dtype=float).tobytes())
         h.update(repr((self.shape, str(self.roi), self.channel, self.saturation)).encode())
         if self.mask is not None:
             h.update(np.packbits(self.mask).tobytes())
         return h.hexdigest()
+
+
+def _content_key(path) -> str:
+    """``SIZE|SHA256`` of a file's bytes (an InputError naming a file that cannot be read)."""
+    try:
+        with open(path, "rb") as fh:
+            size = os.fstat(fh.fileno()).st_size
+            return f"{size}|{hashlib.file_digest(fh, 'sha256').hexdigest()}"
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read ({exc.strerror or exc})") from None
 
 
 def _black_photos(black_photos, table, rows: list, name: str) -> list[Path]:
@@ -305,10 +330,7 @@ def load_acquisition(
         channel = tuple(stacked_channels(channel))
     if black_photos is not None and black_frame is not None:
         raise InputError("give black photos (one per manifest row) or one black frame, not both")
-    if saturation is not None:
-        saturation = float(saturation)
-        if not math.isfinite(saturation):
-            raise InputError(f"saturation level {saturation!r} is not a finite number")
+    saturation = saturation_level(saturation)
     table, rows, name, paths = manifest_photos(manifest, photo_dir)
     jpeg = [
         (row, f)

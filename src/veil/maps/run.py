@@ -84,9 +84,11 @@ from .store import (
     DamagedStoreError,
     StoreBusyError,
     check_store,
+    check_store_path,
     create_store,
     is_complete,
     marker_dir,
+    not_a_store,
     open_maps,
     store_info,
     store_lock,
@@ -95,7 +97,7 @@ from .store import (
 )
 from .store import tiles as tile_indices
 from .tables import MapTables, build_tables
-from .tile import solve_tile, store_attributes
+from .tile import solve_tile, store_attributes, store_fingerprint
 
 if TYPE_CHECKING:
     from distributed import Client
@@ -221,6 +223,7 @@ def fit_maps(
     cls = default_class("brdf") if brdf_model is None else model_class(brdf_model, "brdf")
     grid_spec = parse_grid(grid, cls) if isinstance(grid, (list, tuple)) else dict(grid or {})
     output = Path(output)
+    _check_output(output)
     acq = load_acquisition(
         photo_dir,
         manifest,
@@ -235,7 +238,6 @@ def fit_maps(
     address = scheduler or os.environ.get(SCHEDULER_ENV) or None
     client = connect(address) if address else None
     try:
-        _check_output(output)
         with store_lock(output, say):
             existing = _existing_store(output)
             seconds: dict = {}
@@ -245,7 +247,7 @@ def fit_maps(
             )
             notes = geometry_notes_of(tables, cls, medium_model, acq, geometry)
             info = store_attributes(acq, tables, cls, noise, tile, accuracy, channel, geometry)
-            _check_resumable(output, existing, info)
+            _check_resumable(output, existing, info, (acq, tables, noise, tile))
             job = _Job(
                 output, acq, tables, tile, noise, client, progress, workers, say, seconds, notes
             )
@@ -263,8 +265,10 @@ def _tile(tile) -> int:
 
 
 def _check_output(output: Path) -> None:
+    """The output checked before anything is read: its folder exists, and it is no file."""
     if not output.parent.exists():
         raise InputError(f"cannot write {output}: directory {output.parent} does not exist")
+    check_store_path(output)
 
 
 def _tables(
@@ -305,21 +309,29 @@ def _existing_store(output: Path) -> dict | None:
         return None
     existing = store_info(output)
     if existing is None:
-        raise InputError(
-            f"{output} exists and is not a veil maps store; give a new path, or remove it"
-        )
+        raise not_a_store(output)
     return existing
 
 
-def _check_resumable(output: Path, existing: dict | None, info: dict) -> None:
-    """An existing store resumes only with the same inputs (its fingerprint)."""
-    if existing is not None and existing.get("fingerprint") != info["fingerprint"]:
-        raise InputError(
-            f"{output} holds maps of another acquisition or other settings (its "
-            f"photos, manifest, medium, model, fixed parameters, grid, ROI, mask, "
-            f"noise or tile size differ); give a new output path to start afresh, "
-            f"or the same inputs to resume it"
-        )
+def _check_resumable(output: Path, existing: dict | None, info: dict, inputs: tuple) -> None:
+    """An existing store resumes only with the same inputs (its fingerprint), or one written
+    before photos were keyed by content with the old key (:func:`store_fingerprint` of
+    ``inputs``, legacy)."""
+    if existing is None:
+        return
+    stored = existing.get("fingerprint")
+    if stored == info["fingerprint"]:
+        return
+    acq, tables, noise, tile = inputs
+    if stored is not None and stored == store_fingerprint(acq, tables, noise, tile, legacy=True):
+        return
+    raise InputError(
+        f"{output} holds maps of another acquisition or other settings (its "
+        f"photos' contents, manifest, medium, model, fixed parameters, grid, ROI, mask, "
+        f"noise or tile size differ; a store written by a veil that compared photos by "
+        f"modification time also differs once a photo is touched); give a new output "
+        f"path to start afresh, or the same inputs to resume it"
+    )
 
 
 def _noise(noise) -> tuple[float, float] | None:

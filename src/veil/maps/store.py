@@ -76,6 +76,18 @@ def tiles(shape, tile: int) -> list:
     return [(iy, ix) for iy in range(math.ceil(h / tile)) for ix in range(math.ceil(w / tile))]
 
 
+def not_a_store(store) -> InputError:
+    """The error for an output path that holds something other than a veil maps store."""
+    return InputError(f"{store} exists and is not a veil maps store; give a new path, or remove it")
+
+
+def check_store_path(store) -> None:
+    """A store is a folder: any other file at ``store`` is refused (:func:`not_a_store`)
+    before anything is read or computed."""
+    if os.path.lexists(store) and not os.path.isdir(store):
+        raise not_a_store(store)
+
+
 def store_info(store) -> dict | None:
     """The store's veil attributes, or None when ``store`` is not a veil maps store."""
     zarr = require("zarr", "a maps store")

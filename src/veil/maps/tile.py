@@ -83,13 +83,19 @@ def _solve_channels(block, tables: MapTables, iy, ix, tile, noise):
     return solve_channel_pixels(tables, np.where(valid, y, 0.0), valid, noise, pixels=pixels)
 
 
+def store_fingerprint(acq, tables: MapTables, noise, tile, legacy: bool = False) -> str:
+    """The digest of a store's inputs (its attribute ``fingerprint``): the acquisition's
+    (:meth:`veil.maps.photos.Acquisition.fingerprint`, ``legacy`` as there), the tables',
+    the noise and the tile size."""
+    key = acq.fingerprint(legacy=legacy) + tables.fingerprint() + repr((noise, tile))
+    return hashlib.sha256(key.encode()).hexdigest()
+
+
 def store_attributes(acq, tables: MapTables, cls, noise, tile, accuracy, channel, geometry) -> dict:
     """The store's attributes (``veil_maps``), with the fingerprint of its inputs; over
     channels the parameters shared (``params``) and per channel (``channel_params``) and the
     ``channels``."""
-    fingerprint = hashlib.sha256(
-        (acq.fingerprint() + tables.fingerprint() + repr((noise, tile))).encode()
-    ).hexdigest()
+    fingerprint = store_fingerprint(acq, tables, noise, tile)
     shape = (acq.roi.h, acq.roi.w)
     info = {
         "format": FORMAT,
@@ -127,4 +133,4 @@ def store_attributes(acq, tables: MapTables, cls, noise, tile, accuracy, channel
     return info
 
 
-__all__ = ["solve_tile", "store_attributes"]
+__all__ = ["solve_tile", "store_attributes", "store_fingerprint"]
