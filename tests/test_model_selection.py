@@ -382,6 +382,12 @@ def test_fit_reference_auto_ranks_every_family(sessions, tmp_path):
         [c for c in selection.candidates("brdf") if c.family.endswith("-test")])
     weights = [row["weight"] for row in chosen["candidates"]]
     assert sum(weights) == pytest.approx(1.0) and weights[0] == max(weights)
+    # screened as the pipeline's step 0: a candidate far behind keeps its quick fit
+    # (one whose quick fit stopped short, or could not be measured, gets the full fit)
+    screened = [row for row in chosen["candidates"] if row.get("screened")]
+    assert screened and all(row["delta_bic"] > 10 and "(one start)" in row["note"]
+                            for row in screened)
+    assert "screened out: its quick fit (one start)" in run.stdout
     assert FitResult.from_json(out).as_model().NAME == "torrance-sparrow"
     # the explorer's fit view lists the candidates beside the fit's parameters, best first
     from veil.viz.explore_fits import FitView
@@ -392,7 +398,7 @@ def test_fit_reference_auto_ranks_every_family(sessions, tmp_path):
     assert f"Chosen from {len(labels)} candidates" in table
     listed = [line.split("|")[1].strip() for line in table.splitlines()
               if line.startswith("| ") and "|---" not in line][len(result["params"]) + 2:]
-    assert [name.rstrip("*") for name in listed] == labels
+    assert [name.rstrip("*").removesuffix(" (screened out)") for name in listed] == labels
     assert listed[0] == "torrance-sparrow*"
 
 

@@ -181,33 +181,38 @@ def _fit_step(ctx, kind: str, step: str, models, fit, data, what: str, fix=(), f
     cls = models.brdf if kind == "brdf" else models.medium
     options = models.brdf_options if kind == "brdf" else models.medium_options
     if kind in models.ranked:
-
-        def on_clear(c, fixed, freed):
-            return fit(c.family, c.model_options(options), fixed, freed, None)
-
-        # a step through the medium screens its candidates by a quick fit each; the full
-        # fits start from it (veil.fitting.screening)
-        def through(c, fixed, freed, start=None, screen=False):
+        # the candidates screened by a quick fit each, the full fits started from it
+        # (veil.fitting.screening); in clear water of one channel only
+        def each(c, fixed, freed, start=None, screen=False):
             return fit(c.family, c.model_options(options), fixed, freed, None, screen, start)
 
         medium_step = step in {s for s, _ in _THROUGH_MEDIUM.values()}
+        screened = medium_step or _one_channel(data, what)
         return _ranked_fit(
             ctx,
             kind,
             step,
             models,
             data,
-            through if medium_step else on_clear,
+            each,
             what,
             fix,
             free,
-            (lambda c, fixed, freed, start=None: through(c, fixed, freed, start, True))
-            if medium_step
+            (lambda c, fixed, freed, start=None: each(c, fixed, freed, start, True))
+            if screened
             else None,
         )
     fixed, freed = parse_fix(fix, cls), _parse_free(free, cls)
     with echo_warnings(), fit_progress(step) as progress:
         return fit(cls.NAME, options, fixed, freed, progress)
+
+
+def _one_channel(data, what: str) -> bool:
+    """Whether the (table, black, channel) ``data`` are fitted as one channel."""
+    from ..fitting.session_data import channels_of
+
+    table, _, channel = data
+    return channel is not None or len(channels_of(table, what)[1] or ()) <= 1
 
 
 # --------------------------------------------------------------------------------------
@@ -276,7 +281,7 @@ def reference_command(
     one = channel if merl is None else None
     from ..fitting import fit_reference
 
-    def fit(family, options, fixed, _, progress):
+    def fit(family, options, fixed, _, progress, screen=False, start=None):
         return fit_reference(
             data,
             fixed=fixed,
@@ -287,6 +292,8 @@ def reference_command(
             options=options,
             model_error=model_error,
             channel=one,
+            screen=screen,
+            start=start,
         )
 
     result = _fit_step(

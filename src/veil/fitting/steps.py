@@ -116,6 +116,8 @@ def fit_reference(
     free=None,
     model_error=None,
     channel: str | None = None,
+    screen: bool = False,
+    start=None,
 ) -> FitResult:
     """Step 0 (docs/model.md sec. 7): fit the reference's f_r to clear-medium data, directly.
 
@@ -134,6 +136,9 @@ def fit_reference(
         one channel to fit; None fits every channel at once, the parameters the family
         declares shared tied across them (:mod:`veil.fitting.channel_fit`; ``fixed`` names
         a parameter of every channel, or one channel's as ``Pd[r]``).
+    screen, start : of one channel, a candidate's quick fit (the grid's best start only) to
+        rank it; a :class:`FitResult` of this model or {name: value} to start from, the
+        grid's other starts run after it (veil.fitting.screening).
     """
     return fit_direct(
         table,
@@ -147,6 +152,8 @@ def fit_reference(
         free=free,
         model_error=model_error,
         channel=channel,
+        screen=screen,
+        start=start,
     )
 
 
