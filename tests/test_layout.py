@@ -219,6 +219,10 @@ def import_loops(root: pathlib.Path = ROOT) -> list[list[str]]:
     graph = import_graph(root)
     loops, seen = [], set()
     for start in sorted(graph):
+        # a trail through a module of another layer closes no loop of one layer: the
+        # search stays in the start's layer (the same loops, in the same order, without
+        # walking every path of the whole graph)
+        rank = _rank(start)
         stack = [(start, [start])]
         while stack:
             node, trail = stack.pop()
@@ -228,7 +232,7 @@ def import_loops(root: pathlib.Path = ROOT) -> list[list[str]]:
                     if key not in seen and len({_rank(m) for m in trail}) == 1:
                         seen.add(key)
                         loops.append(trail)
-                elif nxt not in trail and nxt > start:
+                elif nxt not in trail and nxt > start and _rank(nxt) == rank:
                     stack.append((nxt, trail + [nxt]))
     return loops
 

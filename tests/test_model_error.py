@@ -286,6 +286,22 @@ def test_shared_term_is_the_kernel_over_both_sessions_written_out():
     assert se.shared(g2, a2, dataclasses.replace(given, influence=None), "abc", sens) is None
 
 
+@functools.cache
+def _two_kernels(n1, n2, length):
+    """The sessions' angles, the correlation over both and the factors :func:`_two_sessions`
+    draws with: the same for every draw, so made once (read-only)."""
+    ang1 = _angles(n1)
+    base = _angles(n2)
+    ang2 = (base[0], base[1], base[2] + 10.0, base[3])
+    union = tuple(np.concatenate([x, y]) for x, y in zip(ang1, ang2))
+    k = me.correlation(me.distances(union), length)
+    chol = np.linalg.cholesky(k + 1e-10 * np.eye(n1 + n2))
+    chol2 = np.linalg.cholesky(k[n1:, n1:] + 1e-10 * np.eye(n2))
+    for a in (*ang1, *ang2, k, chol, chol2):
+        a.setflags(write=False)
+    return ang1, ang2, k, chol, chol2
+
+
 def _two_sessions(rng, share, length=40.0, s=0.01):
     """Two steps on synthetic sessions: step 1 fits three "medium" parameters to 111
     configurations, step 2 four of its own to 90 others (other angles) through the medium
@@ -295,13 +311,7 @@ def _two_sessions(rng, share, length=40.0, s=0.01):
     its residuals) and step 2's residuals, scaled values, Jacobians, angles, error
     covariance and the medium's covariance."""
     n1, n2 = 111, 90
-    ang1 = _angles(n1)
-    base = _angles(n2)
-    ang2 = (base[0], base[1], base[2] + 10.0, base[3])
-    union = tuple(np.concatenate([x, y]) for x, y in zip(ang1, ang2))
-    k = me.correlation(me.distances(union), length)
-    chol = np.linalg.cholesky(k + 1e-10 * np.eye(n1 + n2))
-    chol2 = np.linalg.cholesky(k[n1:, n1:] + 1e-10 * np.eye(n2))
+    ang1, ang2, k, chol, chol2 = _two_kernels(n1, n2, length)
     x1, x2 = np.linspace(-1.0, 1.0, n1), np.linspace(-1.0, 1.0, n2)
     j1 = np.stack([np.ones(n1), x1, x1 ** 2], axis=1) * 40.0
     j2 = np.stack([np.ones(n2), x2 ** 2, x2 ** 3, np.exp(-8.0 * x2 ** 2)], axis=1) * 40.0

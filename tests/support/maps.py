@@ -4,6 +4,7 @@ distinct parameter vector), written as float32 TIFFs with a manifest."""
 
 from __future__ import annotations
 
+import functools
 from pathlib import Path
 
 import numpy as np
@@ -19,14 +20,22 @@ def angles_of(configs: pd.DataFrame) -> tuple:
     return tuple(configs[c].to_numpy(dtype=float) for c in ("theta_i", "phi_i", "theta_r", "phi_r"))
 
 
-def configurations(count: int = 24) -> pd.DataFrame:
-    """``count`` in-plane configurations spread over the paper's protocol (psi = 30, 60,
-    90 deg), denser near the mirror direction."""
+@functools.cache
+def _protocol() -> pd.DataFrame:
+    """The paper's protocol's configurations, in the order of ``veil.simulate``'s table (the
+    simulated values are not used: the table is made once per process)."""
     import veil
 
     table = veil.simulate(veil.BRDF1, veil.BTDF2, noise=0.0, seed=0)
+    return table[["theta_i", "phi_i", "theta_r", "phi_r"]].copy()
+
+
+def configurations(count: int = 24) -> pd.DataFrame:
+    """``count`` in-plane configurations spread over the paper's protocol (psi = 30, 60,
+    90 deg), denser near the mirror direction."""
+    table = _protocol()
     idx = np.unique(np.linspace(0, len(table) - 1, count).round().astype(int))
-    return table.iloc[idx][["theta_i", "phi_i", "theta_r", "phi_r"]].reset_index(drop=True)
+    return table.iloc[idx].reset_index(drop=True).copy()
 
 
 def render(brdf, medium, configs: pd.DataFrame, vectors: np.ndarray) -> np.ndarray:
@@ -36,7 +45,15 @@ def render(brdf, medium, configs: pd.DataFrame, vectors: np.ndarray) -> np.ndarr
     )
     engine = ApparentModel(brdf, medium, angles, RULES["default"])
     uniq, inverse = np.unique(vectors, axis=0, return_inverse=True)
-    values = np.stack([engine.values(v, medium.to_vector()) for v in uniq])
+    # vectors that differ only in scale parameters one after the other: the engine runs
+    # its program once for them (it keeps its last terms, which the scales do not enter)
+    cls = type(brdf)
+    scales = {cls.scale_index(p) for p in cls.SCALES}
+    shape = [k for k in range(uniq.shape[1]) if k not in scales]
+    order = sorted(range(len(uniq)), key=lambda k: (tuple(uniq[k, shape]), k))
+    values = np.empty((len(uniq), len(angles[0])))
+    for k in order:
+        values[k] = engine.values(uniq[k], medium.to_vector())
     return values[inverse.ravel()]
 
 
