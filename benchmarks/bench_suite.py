@@ -44,7 +44,7 @@ def run_suite(pytest_args: list[str], work: Path) -> tuple[float, int, str]:
                PYTHONPATH=os.pathsep.join(filter(None, [str(HERE), os.environ.get("PYTHONPATH")])))
     env.pop("VEIL_COMPILE_LOG", None)
     cmd = [sys.executable, "-m", "pytest", "-p", "suite_census_plugin", "--durations=0",
-           *pytest_args]
+           "--durations-min=0", *pytest_args]
     started = time.perf_counter()
     done = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True,
                           stdin=subprocess.DEVNULL)
@@ -52,7 +52,8 @@ def run_suite(pytest_args: list[str], work: Path) -> tuple[float, int, str]:
 
 
 def durations(output: str) -> dict[str, float]:
-    """{test id: seconds of setup, call and teardown} from pytest's ``--durations=0``."""
+    """{test id: seconds of setup, call and teardown} from pytest's ``--durations=0``
+    (with ``--durations-min=0``, every test's)."""
     out: dict[str, float] = collections.Counter()
     for line in output.splitlines():
         parts = line.split()
