@@ -56,7 +56,7 @@ def durations(output: str) -> dict[str, float]:
     (with ``--durations-min=0``, every test's)."""
     out: dict[str, float] = collections.Counter()
     for line in output.splitlines():
-        parts = line.split()
+        parts = line.split(None, 2)  # (a test's id may hold spaces)
         if len(parts) == 3 and parts[0].endswith("s") and parts[1] in ("setup", "call", "teardown"):
             try:
                 out[parts[2]] += float(parts[0][:-1])
