@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import collections
+import csv
 import glob
 import json
 import os
@@ -133,6 +134,15 @@ def tables(result: dict, wall: float, status: int, top: int) -> str:
                         f"The {top} programs longest to compile:", programs])
 
 
+def write_durations(path: Path, result: dict) -> None:
+    """Every test's seconds and compile seconds, longest first, as CSV."""
+    with path.open("w", newline="") as out:
+        rows = csv.writer(out)
+        rows.writerow(["test", "seconds", "compiling"])
+        rows.writerows([name, f"{s:.2f}", f"{k:.2f}"] for name, s, k in result["tests"])
+    print(f"wrote {len(result['tests'])} tests' durations to {path}")
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     extra = argv[argv.index("--") + 1:] if "--" in argv else None
@@ -140,12 +150,16 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--top", type=int, default=15)
     ap.add_argument("--doc", help="write the tables into this page's table:suite-census")
+    ap.add_argument("--durations", help="write every test's seconds (and compile seconds) "
+                    "to this CSV file")
     args = ap.parse_args(own)
     with tempfile.TemporaryDirectory(prefix="veil-suite-") as tmp:
         wall, status, output = run_suite(extra or MAKE_TEST, Path(tmp))
         result = census(output, logs_of(Path(tmp)))
     text = tables(result, wall, status, args.top)
     print(text)
+    if args.durations:
+        write_durations(Path(args.durations), result)
     if status != 0:
         print(output[-3000:], file=sys.stderr)
     if args.doc:
