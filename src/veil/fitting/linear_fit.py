@@ -5,6 +5,12 @@ non-negative, regularized least-squares problem (docs/nonparametric.md).
 - **Columns** (:func:`design`): the engine's values with one coefficient at 1 and the others
   at 0, through the given medium (or f_r directly in clear water): one column per free
   coefficient, one compiled program for all of them.
+- **Columns at two rules** (:func:`solve`, docs/nonparametric.md "The fit"): at a rule
+  finer than the iterations', every column is first made at the iterations' rule and the
+  problem solved; the columns above 0 are then made at the finer rule and the problem
+  solved again, until every column above 0 is the finer rule's. The values, residuals,
+  degrees of freedom and covariance involve only those; the columns at 0 enter only the
+  conditions that hold them there, at the iterations' rule.
 - **Solve** (:func:`solve`): minimize |W (X c - y)|^2 + lambda |D c|^2 over c >= 0, where D
   takes second differences of the lobe coefficients across the widths and first differences
   across the Fresnel nodes (``penalty``); scipy's NNLS on the stacked system.
@@ -23,7 +29,7 @@ non-negative, regularized least-squares problem (docs/nonparametric.md).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.optimize import nnls
@@ -58,6 +64,8 @@ class LinearSolution:
     d: np.ndarray
     #: (X'WX + lam D'D)^-1 on the coefficients above 0 (None when there are none)
     inv: np.ndarray | None
+    #: {rule: the number of columns computed at it} (:func:`solve`)
+    rules: dict = field(default_factory=dict)
 
 
 def penalty(cls, names: list[str]) -> np.ndarray:
@@ -164,24 +172,59 @@ def choose(
 
 def rule_error(problem: Problem, sol: LinearSolution, check: str) -> dict:
     """A quick fit's model values at the rule ``check`` minus the fast rule's at its
-    coefficients (``stats["rule_error"]``, :mod:`veil.fitting.screening`): one engine call
-    per active coefficient and per held one, not the whole design."""
+    coefficients (``stats["rule_error"]``, :mod:`veil.fitting.screening`): the family
+    evaluated at ``check`` as veil evaluates it through a medium, one engine call per lobe
+    width in use (:class:`veil.engine.forward.LinearForward`), not the whole design."""
     if check == ITERATION_ACCURACY:  # the quick fit's own rule
         return {"accuracy": check, "values": [0.0] * problem.n_points}
-    x, held = design(problem, check, only=sol.c > 0)
-    return {"accuracy": check, "values": (x @ sol.c + held - sol.values).tolist()}
+    x = problem.values.copy()
+    x[[k for k in problem.blocks[0].ib if problem.free[k]]] = sol.c
+    return {"accuracy": check, "values": (problem.model_values(x, check) - sol.values).tolist()}
+
+
+def _columns_at(problem: Problem, accuracy: str, d, dr, progress=None) -> tuple:
+    """(X, held, (lambda, c, dof, gcv), {rule: columns computed at it}): the design at
+    ``accuracy`` where it matters (module docstring, "Columns at two rules"). Every column at
+    the iterations' rule first; those above 0 in its solution, then in each solution that
+    follows, at ``accuracy``, until the solution's active set is all at ``accuracy``. The
+    columns that stay at 0 keep the iterations' rule: they enter neither the values nor the
+    degrees of freedom, only the conditions that keep them at 0."""
+    w = problem.w
+    if accuracy == ITERATION_ACCURACY or problem.blocks[0].medium is None:  # (f_r: no rule)
+        x, held = design(problem, accuracy, progress)
+        return (
+            x,
+            held,
+            choose(x * w[:, None], (problem.y - held) * w, d, dr),
+            {accuracy: x.shape[1]},
+        )
+    x, held = design(problem, ITERATION_ACCURACY, progress)
+    counts = {ITERATION_ACCURACY: x.shape[1]}
+    have = np.zeros(x.shape[1], dtype=bool)
+    chosen = choose(x * w[:, None], (problem.y - held) * w, d, dr)
+    fine_held = None
+    while True:
+        new = (chosen[1] > 0) & ~have
+        if fine_held is not None and not new.any():
+            break
+        # (the first pass also puts the fixed coefficients' part at ``accuracy``)
+        fine, fine_held = design(problem, accuracy, only=new)
+        x = np.where(new[None, :], fine, x)
+        have |= new
+        chosen = choose(x * w[:, None], (problem.y - fine_held) * w, d, dr)
+    counts[accuracy] = int(have.sum())
+    return x, fine_held, chosen, counts
 
 
 def solve(problem: Problem, accuracy: str, d: np.ndarray, progress=None) -> LinearSolution:
     """The step's linear problem solved at ``accuracy`` (module docstring); ``d`` the
     penalty over every coefficient of the family, in order."""
-    x, held = design(problem, accuracy, progress)
     ib = np.asarray(problem.blocks[0].ib)
     free = problem.free[ib]
     d, dr = d[:, free], -d[:, ~free] @ problem.values[ib][~free]
+    x, held, (lam, c, dof, gcv), counts = _columns_at(problem, accuracy, d, dr, progress)
     w = problem.w
-    xw, yw = x * w[:, None], (problem.y - held) * w
-    lam, c, dof, gcv = choose(xw, yw, d, dr)
+    xw = x * w[:, None]
     active = c > 0
     values = x @ c + held
     res = (problem.y - values) * w
@@ -195,7 +238,7 @@ def solve(problem: Problem, accuracy: str, d: np.ndarray, progress=None) -> Line
         sandwich = inv @ (xa.T @ xa) @ inv
         scale = chi2_red if not problem.weighted else max(chi2_red, 1.0)
         cov[np.ix_(active, active)] = sandwich * scale
-    return LinearSolution(c, lam, dof, gcv, cov, values, res, xw, d, inv)
+    return LinearSolution(c, lam, dof, gcv, cov, values, res, xw, d, inv, counts)
 
 
 def given_influence(problem: Problem, sol: LinearSolution, names: list[str]) -> np.ndarray:
@@ -308,6 +351,7 @@ def fit_linear(
         "active": len(reported),
         "columns": len(sol.c),
         "engine_calls": problem.engine_calls(),
+        "columns_at_rule": dict(sol.rules),
     }
     if how:
         stats["propagation"] = how

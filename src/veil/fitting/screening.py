@@ -22,7 +22,7 @@ discrepancy term's parameters.
   tau-g valley, so the polish's frozen Jacobian is taken at another point of it).
 - **Its BIC's interval**: a converged quick fit through a medium also evaluates its model
   once at the rule its full fit ends at (``stats["rule_error"]``, :func:`veil.fitting.solver.run`; a
-  linear family from its active columns, :func:`veil.fitting.linear_fit.rule_error`). That
+  linear family one lobe width in use at a time, :func:`veil.fitting.linear_fit.rule_error`). That
   gives the deviance at the quick optimum under the finer rule, where the full fit starts
   (the upper end), and how far refitting can lower it: at most the squared norm of the rule
   error in the residuals' metric, to first order, since the quick optimum's residuals are
