@@ -273,6 +273,26 @@ def test_unknown_family_in_models_exits_2_listing_the_registered(sessions, tmp_p
     assert not (tmp_path / "o").exists()
 
 
+def test_an_empty_models_value_exits_2_not_auto(sessions, tmp_path):
+    """--models "" is a mistake (an unset variable in a script), not --models auto."""
+    out = invoke(_args(sessions, tmp_path / "o") + ["--models", ""])
+    assert out.exit_code == 2
+    assert "expected auto, paper or FAMILY+MEDIUM" in out.output
+    assert not (tmp_path / "o").exists()
+
+
+def test_an_option_value_no_family_makes_is_named_as_such():
+    """rough-plastic declares nonlinear but makes no model with True: not "no candidate
+    declares" it, which would send the user looking for a typo."""
+    from veil.errors import FitError
+    from veil.fitting.auto import plan_candidates
+
+    with pytest.raises(FitError, match=r"nonlinear = True \(rough-plastic\).*no model"):
+        plan_candidates({}, {}, {"nonlinear": True}, {}, None)
+    with pytest.raises(FitError, match="no BRDF candidate declares them"):
+        plan_candidates({}, {}, {"nosuch": 1}, {}, None)
+
+
 def _subprocess(args):
     """``veil`` in a subprocess, the registry without the test plugins (a family registered
     in this process would be a candidate too)."""

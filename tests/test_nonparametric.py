@@ -181,6 +181,42 @@ def test_fixed_coefficients_stay_fixed_and_an_unknown_one_is_an_error():
         fit_direct(table, brdf_model="nonparametric", fixed={"alpha": 0.1})
 
 
+def test_a_fixed_coefficient_too_large_for_float64_is_a_fit_error_naming_it():
+    """Its part of the values, or their misfit, overflows: an input error (exit 2 from the
+    command line), not inf in the result (a crash writing it)."""
+    from veil.errors import FitError
+
+    table = simulate(REGISTRY["rough-plastic"](**GGX_PLASTIC), None, noise=0.01, seed=7)
+    with pytest.raises(FitError, match="d0 fixed at 1e"):
+        fit_direct(table, brdf_model="nonparametric", fixed={"d0": 1e300})
+
+
+def test_a_table_it_interpolates_is_a_fit_error_and_one_without_signal_not_determined():
+    """Two points: GCV leaves no degree of freedom (chi-square 0), so it is refused as a
+    parametric fit with no more points than parameters; all zero: "not determined", as a
+    parametric family says, never "converged"."""
+    from veil.errors import FitError
+
+    table = simulate(REGISTRY["rough-plastic"](**GGX_PLASTIC), None, noise=0.01, seed=7)
+    with pytest.raises(FitError, match="have 2 point.*interpolates them"):
+        fit_direct(table.head(2), brdf_model="nonparametric")
+    zero = table.assign(value=0.0)
+    res = fit_direct(zero, brdf_model="nonparametric")
+    assert not res.converged and not res.determined
+    assert "not determined" in res.message and "no positive value" in res.message
+
+
+def test_a_fit_far_from_its_data_warns_as_an_iterative_one_does():
+    """A fixed coefficient far too large: the fit converges ~1000 sigma off its data, and
+    says so with the MisfitWarning of the parametric families."""
+    from veil.fitting.step_fit import MisfitWarning
+
+    table = simulate(REGISTRY["rough-plastic"](**GGX_PLASTIC), None, noise=0.01, seed=7)
+    with pytest.warns(MisfitWarning, match="misses the data"):
+        res = fit_direct(table, brdf_model="nonparametric", fixed={"d1": 100.0})
+    assert res.converged and res.chi2_reduced > 100
+
+
 def test_a_result_file_round_trips_to_the_same_curves(fitted, tmp_path, plastic_through_btdf2):
     from veil import FitResult
 

@@ -348,7 +348,7 @@ def _models_mode(spec, compare) -> tuple[str | None, dict]:
     from ..models import AUTO
 
     try:
-        mode = parse_models(spec or AUTO)
+        mode = parse_models(AUTO if spec is None else spec)
     except InputError as exc:
         raise UserError(f"--models: {exc}") from None
     if compare and mode != AUTO:

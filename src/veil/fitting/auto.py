@@ -19,7 +19,7 @@ import numpy as np
 from ..data.measurements import CANONICAL
 from ..data.protocol import protocol
 from ..errors import FitError
-from ..models import model_class
+from ..models import model_class, registry
 from ..models.base import VARIANT_OPTION
 from . import screening, selection
 from .result import FitResult
@@ -80,6 +80,20 @@ def rank_step(
     return ranking, results
 
 
+def _refuse_unused(kind: str, unused: list, opts: dict) -> None:
+    """A FitError for options no candidate of ``kind`` takes: those a registered family
+    declares, but at a value with which it makes no model (no candidate then), say so."""
+    families = registry.names("brdf" if kind == "BRDF" else "medium")
+    owners = {o: [f for f in families if o in model_class(f).option_names()] for o in unused}
+    refused = [f"{o} = {opts[o]} ({', '.join(owners[o])})" for o in unused if owners[o]]
+    if refused:
+        raise FitError(
+            f"option(s) {'; '.join(refused)}: the families that declare them make no "
+            "model with that value, so no candidate takes it"
+        )
+    raise FitError(f"option(s) {', '.join(unused)}: no {kind} candidate declares them")
+
+
 def plan_candidates(fixed, free, brdf_options, medium_options, variant) -> dict:
     """The candidates of ``models="auto"`` and each one's options, fixed and free entries;
     an entry or option no candidate declares is an error."""
@@ -94,7 +108,7 @@ def plan_candidates(fixed, free, brdf_options, medium_options, variant) -> dict:
         declared = {o for c in cands for o in model_class(c.family).option_names()}
         unused = sorted(set(opts) - declared)
         if unused:
-            raise FitError(f"option(s) {', '.join(unused)}: no {kind} candidate declares them")
+            _refuse_unused(kind, unused, opts)
     return {
         "brdf": b_cands,
         "medium": m_cands,

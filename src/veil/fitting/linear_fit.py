@@ -182,6 +182,29 @@ def rule_error(problem: Problem, sol: LinearSolution, check: str) -> dict:
     return {"accuracy": check, "values": (problem.model_values(x, check) - sol.values).tolist()}
 
 
+def _check_held(problem: Problem, held: np.ndarray) -> None:
+    """A FitError naming the fixed coefficients when their part of the values, or its
+    weighted misfit to the data, overflows float64 (a fixed value far too large)."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        misfit = float(np.sum(((problem.y - held) * problem.w) ** 2))
+    if np.all(np.isfinite(held)) and math.isfinite(misfit):
+        return
+    ib = problem.blocks[0].ib
+    fixed = [k for k in ib if not problem.free[k] and problem.values[k] != 0.0]
+    values = ", ".join(f"{problem.names[k]} fixed at {problem.values[k]:.4g}" for k in fixed)
+    if not fixed:
+        raise FitError(
+            "the data's weighted values (value / sigma) overflow float64 when squared: "
+            "rescale the sigma column"
+        )
+    raise FitError(
+        f"with {values} the {type(problem.blocks[0].brdf).NAME} model's values, or their "
+        f"weighted misfit to the data (at most {float(np.max(np.abs(problem.y))):.4g}), "
+        "overflow float64; the coefficients scale the model (relative units): fix them at "
+        "smaller values (--fix NAME=VALUE, fixed={...} in Python) or leave them free"
+    )
+
+
 def _columns_at(problem: Problem, accuracy: str, d, dr, progress=None) -> tuple:
     """(X, held, (lambda, c, dof, gcv), {rule: columns computed at it}): the design at
     ``accuracy`` where it matters (module docstring, "Columns at two rules"). Every column at
@@ -192,6 +215,7 @@ def _columns_at(problem: Problem, accuracy: str, d, dr, progress=None) -> tuple:
     w = problem.w
     if accuracy == ITERATION_ACCURACY or problem.blocks[0].medium is None:  # (f_r: no rule)
         x, held = design(problem, accuracy, progress)
+        _check_held(problem, held)
         return (
             x,
             held,
@@ -199,6 +223,7 @@ def _columns_at(problem: Problem, accuracy: str, d, dr, progress=None) -> tuple:
             {accuracy: x.shape[1]},
         )
     x, held = design(problem, ITERATION_ACCURACY, progress)
+    _check_held(problem, held)
     counts = {ITERATION_ACCURACY: x.shape[1]}
     have = np.zeros(x.shape[1], dtype=bool)
     chosen = choose(x * w[:, None], (problem.y - held) * w, d, dr)
@@ -305,6 +330,48 @@ def _message(sol: LinearSolution, chi2: float, model_error: str) -> str:
     return "; ".join(notes)
 
 
+def _stats(problem: Problem, sol: LinearSolution, active: int, how) -> dict:
+    stats = {
+        "effective_dof": sol.dof,
+        "smoothness": sol.lam,
+        "gcv": sol.gcv,
+        "active": active,
+        "columns": len(sol.c),
+        "engine_calls": problem.engine_calls(),
+        "columns_at_rule": dict(sol.rules),
+    }
+    if how:
+        stats["propagation"] = how
+    return stats
+
+
+def _undetermined(problem: Problem, sol: LinearSolution) -> str | None:
+    """Why the data cannot determine the coefficients (None when they can): no positive
+    value, as a parametric family's "not determined" (:func:`veil.fitting.solver.summarize`).
+    A FitError when the solution interpolates the points (less than one degree of freedom
+    left: GCV degenerates on a handful of points), as a parametric fit with no more points
+    than free parameters."""
+    n, y = problem.n_points, problem.y
+    if not np.any(y > 0):
+        block = problem.blocks[0]
+        return (
+            f"session {block.session.name!r} has no positive value (all "
+            f"{'zero' if np.all(y == 0) else 'zero or negative'}"
+            f"{' after black-cloth subtraction' if block.medium is not None else ''}): it "
+            "carries no signal to fit the coefficients"
+        )
+    if n - sol.dof < 1.0 - 1e-6:  # (less than one left, beyond rounding)
+        raise FitError(
+            f"the {problem.blocks[0].session.name} data have {n} point(s) and the "
+            f"non-parametric fit's smoothness (generalized cross-validation) takes "
+            f"{sol.dof:.4g} effective degrees of freedom, less than one left: it "
+            "interpolates them, and determines neither the lobes nor their uncertainties; "
+            "need more points "
+            "(measure more configurations) or a parametric family (--brdf-model)"
+        )
+    return None
+
+
 def fit_linear(
     step: str,
     problem: Problem,
@@ -330,6 +397,7 @@ def fit_linear(
         # in the background while the design is made
         problem.blocks[0].model(ITERATION_ACCURACY).prepare(values=False, jacobians=[("medium",)])
     sol = solve(problem, accuracy, penalty(cls, list(cls.keys())), progress)
+    why = _undetermined(problem, sol)
     free_index = [k for k in problem.blocks[0].ib if problem.free[k]]
     x = problem.values.copy()
     x[free_index] = sol.c
@@ -344,17 +412,7 @@ def fit_linear(
     se_total, corr_total = (
         (None, None) if total is None else uncertainties(total[np.ix_(keep, keep)], names, reported)
     )
-    stats = {
-        "effective_dof": sol.dof,
-        "smoothness": sol.lam,
-        "gcv": sol.gcv,
-        "active": len(reported),
-        "columns": len(sol.c),
-        "engine_calls": problem.engine_calls(),
-        "columns_at_rule": dict(sol.rules),
-    }
-    if how:
-        stats["propagation"] = how
+    stats = _stats(problem, sol, len(reported), how)
     if check is not None:  # f_r directly: the quick fit's own rule (no error)
         stats["rule_error"] = rule_error(problem, sol, check)
     own = {p.key: p.name for p in cls.PARAMS}
@@ -368,8 +426,9 @@ def fit_linear(
         chi2_reduced=chi2,
         rms_relative=rms,
         n_points=problem.n_points,
-        converged=True,
-        message=_message(sol, chi2, model_error),
+        converged=why is None,
+        message=("" if why is None else f"not determined: {why}; ")
+        + _message(sol, chi2, model_error),
         variant=None if given is None else given.options().get(VARIANT_OPTION),
         fixed={own[k]: float(x[problem.index(k)]) for k in cls.keys() if k not in free_keys},
         step=step,
@@ -380,7 +439,7 @@ def fit_linear(
         correlation_total=None if corr_total is None else _named_matrix(cls, corr_total),
         stats=stats,
         options=fitted.options(),
-        determined=True,
+        determined=why is None,
         model_error=None,
     )
 

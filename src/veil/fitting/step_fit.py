@@ -268,18 +268,13 @@ def fit_step(
     free = _free(cls, fixed, freed, what)
     problem = _problem(data, cls, brdf, medium, free, fixed, what)
     if cls.LINEAR:  # one linear problem (docs/nonparametric.md)
-        return fit_linear(
-            step,
-            problem,
-            fitted,
-            given,
-            given_result,
-            accuracy=accuracy,
-            propagation=propagation,
-            model_error=model_error,
-            progress=progress,
-            screen=screen,
+        lin = dict(accuracy=accuracy, propagation=propagation, model_error=model_error)
+        result = fit_linear(
+            step, problem, fitted, given, given_result, progress=progress, screen=screen, **lin
         )
+        if result.converged:  # as an iterative fit's (_result)
+            warn_misfit(result.chi2_reduced, data, what, medium is not None)
+        return result
     if medium is not None:
         _prepare_engine(problem, cls, given, given_result, accuracy, propagation, screen)
     from_grid, grid = _step_grid(problem, cls, step, progress, explain=start is None)
