@@ -331,6 +331,7 @@ def _message(sol: LinearSolution, chi2: float, model_error: str) -> str:
 
 
 def _stats(problem: Problem, sol: LinearSolution, active: int, how) -> dict:
+    """The result's ``stats`` (docs/nonparametric.md "The fit"); ``how`` the propagation's."""
     stats = {
         "effective_dof": sol.dof,
         "smoothness": sol.lam,
