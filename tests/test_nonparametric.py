@@ -181,14 +181,16 @@ def test_fixed_coefficients_stay_fixed_and_an_unknown_one_is_an_error():
         fit_direct(table, brdf_model="nonparametric", fixed={"alpha": 0.1})
 
 
-def test_a_fixed_coefficient_too_large_for_float64_is_a_fit_error_naming_it():
-    """Its part of the values, or their misfit, overflows: an input error (exit 2 from the
-    command line), not inf in the result (a crash writing it)."""
+@pytest.mark.parametrize("name, value", [("d0", 1e300), ("d0", 1e150), ("w05_1", 1e160)])
+def test_a_fixed_coefficient_too_large_for_float64_is_a_fit_error_naming_it(name, value):
+    """Its part of the values, their misfit, GCV's score (n RSS) or the penalty overflows:
+    an input error (exit 2 from the command line), not inf in the result (a crash writing
+    it); 1e150 passed the first check on the misfit alone and left GCV at inf."""
     from veil.errors import FitError
 
     table = simulate(REGISTRY["rough-plastic"](**GGX_PLASTIC), None, noise=0.01, seed=7)
-    with pytest.raises(FitError, match="d0 fixed at 1e"):
-        fit_direct(table, brdf_model="nonparametric", fixed={"d0": 1e300})
+    with pytest.raises(FitError, match=f"{name} fixed at 1e"):
+        fit_direct(table, brdf_model="nonparametric", fixed={name: value})
 
 
 def test_a_table_it_interpolates_is_a_fit_error_and_one_without_signal_not_determined():

@@ -10,7 +10,7 @@ non-negative, regularized least-squares problem (docs/nonparametric.md).
   problem solved; the columns above 0 are then made at the finer rule and the problem
   solved again, until every column above 0 is the finer rule's. The values, residuals,
   degrees of freedom and covariance involve only those; the columns at 0 enter only the
-  conditions that hold them there, at the iterations' rule.
+  conditions that hold them there and the smoothness grid's scale, at the iterations' rule.
 - **Solve** (:func:`solve`): minimize |W (X c - y)|^2 + lambda |D c|^2 over c >= 0, where D
   takes second differences of the lobe coefficients across the widths and first differences
   across the Fresnel nodes (``penalty``); scipy's NNLS on the stacked system.
@@ -183,23 +183,40 @@ def rule_error(problem: Problem, sol: LinearSolution, check: str) -> dict:
 
 
 def _check_held(problem: Problem, held: np.ndarray) -> None:
-    """A FitError naming the fixed coefficients when their part of the values, or its
-    weighted misfit to the data, overflows float64 (a fixed value far too large)."""
+    """:func:`_overflow` when the fixed coefficients' part of the values, or its weighted
+    misfit to the data times the number of points (GCV's scale), is not finite."""
     with np.errstate(over="ignore", invalid="ignore"):
-        misfit = float(np.sum(((problem.y - held) * problem.w) ** 2))
-    if np.all(np.isfinite(held)) and math.isfinite(misfit):
-        return
+        misfit = float(np.sum(((problem.y - held) * problem.w) ** 2)) * problem.n_points
+    if not (np.all(np.isfinite(held)) and math.isfinite(misfit)):
+        _overflow(problem)
+
+
+def _check_solution(problem: Problem, sol: LinearSolution) -> None:
+    """:func:`_overflow` when anything the result reports is not finite (the penalty of a
+    huge fixed coefficient, a misfit near float64's limit)."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        rss = float(sol.residuals @ sol.residuals) * problem.n_points
+    numbers = (rss, sol.gcv, sol.dof, sol.lam)
+    if not (all(map(math.isfinite, numbers)) and np.all(np.isfinite(sol.values))):
+        _overflow(problem)
+
+
+def _overflow(problem: Problem) -> None:
+    """A FitError naming the fixed coefficients whose values overflow float64 (or, with none
+    fixed, the data's own weighted values)."""
     ib = problem.blocks[0].ib
     fixed = [k for k in ib if not problem.free[k] and problem.values[k] != 0.0]
     values = ", ".join(f"{problem.names[k]} fixed at {problem.values[k]:.4g}" for k in fixed)
+    largest = float(np.max(np.abs(problem.y)))
     if not fixed:
         raise FitError(
-            "the data's weighted values (value / sigma) overflow float64 when squared: "
-            "rescale the sigma column"
+            f"the data's values (the largest |value| is {largest:.4g}) divided by their "
+            "sigma overflow float64 when squared and summed: rescale the table's values "
+            "(relative units) or its sigma column"
         )
     raise FitError(
         f"with {values} the {type(problem.blocks[0].brdf).NAME} model's values, or their "
-        f"weighted misfit to the data (at most {float(np.max(np.abs(problem.y))):.4g}), "
+        f"weighted misfit to the data (the data's largest |value| is {largest:.4g}), "
         "overflow float64; the coefficients scale the model (relative units): fix them at "
         "smaller values (--fix NAME=VALUE, fixed={...} in Python) or leave them free"
     )
@@ -358,7 +375,7 @@ def _undetermined(problem: Problem, sol: LinearSolution) -> str | None:
         return (
             f"session {block.session.name!r} has no positive value (all "
             f"{'zero' if np.all(y == 0) else 'zero or negative'}"
-            f"{' after black-cloth subtraction' if block.medium is not None else ''}): it "
+            f"{' after any black-cloth subtraction' if block.medium is not None else ''}): it "
             "carries no signal to fit the coefficients"
         )
     if n - sol.dof < 1.0 - 1e-6:  # (less than one left, beyond rounding)
@@ -398,6 +415,7 @@ def fit_linear(
         # in the background while the design is made
         problem.blocks[0].model(ITERATION_ACCURACY).prepare(values=False, jacobians=[("medium",)])
     sol = solve(problem, accuracy, penalty(cls, list(cls.keys())), progress)
+    _check_solution(problem, sol)
     why = _undetermined(problem, sol)
     free_index = [k for k in problem.blocks[0].ib if problem.free[k]]
     x = problem.values.copy()
