@@ -518,3 +518,40 @@ def test_a_full_fit_makes_only_the_columns_it_uses_at_the_finer_rule(plastic_thr
     # 7.5e-6, 2.3e-5 and 1.9e-4)
     assert fit.stats["effective_dof"] == pytest.approx(dof, rel=1e-3)
     assert fit.stats["smoothness"] == pytest.approx(lam, rel=1e-2)
+
+
+def test_the_finer_rule_with_fixed_coefficients_matches_the_whole_design(plastic_through_btdf2,
+                                                                         monkeypatch):
+    """A fixed diffuse and a fixed lobe coefficient: their part of the values at "default"
+    (on the right-hand side, as its penalty's) in the two-rule solve, the same solution as
+    the whole design made at "default"."""
+    from veil.fitting import linear_fit
+
+    table = plastic_through_btdf2[0].iloc[::3]
+    plain_solve, seen = linear_fit.solve, {}
+
+    def kept(problem, accuracy, d, progress=None):
+        seen.update(problem=problem, d=d)
+        return plain_solve(problem, accuracy, d, progress)
+
+    monkeypatch.setattr(linear_fit, "solve", kept)
+    fixed = {"d1": 0.2, "w05_1": 0.005}
+    fit = fit_target(table, PRESETS["BTDF2"], brdf_model="nonparametric", fixed=fixed)
+    assert {k: fit.params[k] for k in fixed} == fixed
+    problem, d = seen["problem"], seen["d"]
+    ib = np.asarray(problem.blocks[0].ib)
+    free = problem.free[ib]
+    x, held = linear_fit.design(problem, "default")
+    assert held.any()
+    dr = -d[:, ~free] @ problem.values[ib][~free]
+    w = problem.w
+    _, c, dof, _ = choose(x * w[:, None], (problem.y - held) * w, d[:, free], dr)
+    mine = np.array([fit.params[n] for n, f in zip(NonParametric.param_names(), free) if f])
+    assert np.array_equal(mine > 0, c > 0)
+    assert np.abs(mine - c).max() <= 1e-4 * c.max(), np.abs(mine - c).max() / c.max()
+    off = np.abs(x @ mine - x @ c) * w
+    assert off.max() <= 1e-3, off.max()
+    # the residuals reported: the fixed part at "default" too
+    want = (problem.y - held - x @ c) * w
+    assert np.abs(np.array(fit.residuals) - want).max() <= 1e-3
+    assert fit.stats["effective_dof"] == pytest.approx(dof, rel=1e-3)
