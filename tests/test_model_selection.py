@@ -291,6 +291,9 @@ def test_an_option_value_no_family_makes_is_named_as_such():
         plan_candidates({}, {}, {"nonlinear": True}, {}, None)
     with pytest.raises(FitError, match="no BRDF candidate declares them"):
         plan_candidates({}, {}, {"nosuch": 1}, {}, None)
+    # both kinds at once: each named (the typo is not left for the next run)
+    with pytest.raises(FitError, match=r"nosuch: no BRDF candidate.*nonlinear = True"):
+        plan_candidates({}, {}, {"nonlinear": True, "nosuch": 1}, {}, None)
 
 
 def _subprocess(args):

@@ -526,18 +526,29 @@ def test_the_finer_rule_with_fixed_coefficients_matches_the_whole_design(plastic
     (on the right-hand side, as its penalty's) in the two-rule solve, the same solution as
     the whole design made at "default"."""
     from veil.fitting import linear_fit
+    from veil.fitting.problem import Problem
 
     table = plastic_through_btdf2[0].iloc[::3]
-    plain_solve, seen = linear_fit.solve, {}
+    plain_solve, plain_values, seen = linear_fit.solve, Problem.model_values, {}
+    calls = {"fast": 0, "default": 0}
 
     def kept(problem, accuracy, d, progress=None):
         seen.update(problem=problem, d=d)
         return plain_solve(problem, accuracy, d, progress)
 
+    def counted(self, x, accuracy="fast"):
+        calls[accuracy] += 1
+        return plain_values(self, x, accuracy)
+
     monkeypatch.setattr(linear_fit, "solve", kept)
+    monkeypatch.setattr(Problem, "model_values", counted)
     fixed = {"d1": 0.2, "w05_1": 0.005}
     fit = fit_target(table, PRESETS["BTDF2"], brdf_model="nonparametric", fixed=fixed)
+    monkeypatch.setattr(Problem, "model_values", plain_values)
     assert {k: fit.params[k] for k in fixed} == fixed
+    # the fixed part made once at each rule, whatever the number of passes
+    made = fit.stats["columns_at_rule"]
+    assert calls == {r: made[r] + len(fixed) for r in ("fast", "default")}
     problem, d = seen["problem"], seen["d"]
     ib = np.asarray(problem.blocks[0].ib)
     free = problem.free[ib]

@@ -86,12 +86,14 @@ def _refuse_unused(kind: str, unused: list, opts: dict) -> None:
     families = registry.names("brdf" if kind == "BRDF" else "medium")
     owners = {o: [f for f in families if o in model_class(f).option_names()] for o in unused}
     refused = [f"{o} = {opts[o]} ({', '.join(owners[o])})" for o in unused if owners[o]]
+    unknown = [o for o in unused if not owners[o]]
+    parts = [f"option(s) {', '.join(unknown)}: no {kind} candidate declares them"] * bool(unknown)
     if refused:
-        raise FitError(
+        parts.append(
             f"option(s) {'; '.join(refused)}: the families that declare them make no "
             "model with that value, so no candidate takes it"
         )
-    raise FitError(f"option(s) {', '.join(unused)}: no {kind} candidate declares them")
+    raise FitError("; ".join(parts))
 
 
 def plan_candidates(fixed, free, brdf_options, medium_options, variant) -> dict:

@@ -87,13 +87,13 @@ def penalty(cls, names: list[str]) -> np.ndarray:
 
 
 def design(
-    problem: Problem, accuracy: str, progress=None, only=None
+    problem: Problem, accuracy: str, progress=None, only=None, fixed: bool = True
 ) -> tuple[np.ndarray, np.ndarray]:
     """(columns X (N, F) of the free coefficients, the fixed ones' part of the values (N,))
     at the problem's held parameters: one engine call per coefficient, each of the family's
     column model (``columns()``: a basis function alone, sampled as it needs) at
     ``accuracy``; with ``only`` (a mask over the free coefficients) those columns alone, the
-    others 0."""
+    others 0; without ``fixed`` the fixed ones' part is not made (0)."""
     block = problem.blocks[0]
     column_cls, vectors = type(block.brdf).columns()
     columns = session_problem(
@@ -116,7 +116,7 @@ def design(
     free = [n for k, n in zip(ib, names) if problem.free[k]]
     held = np.zeros(problem.n_points)
     for k, n in zip(ib, names):
-        if not problem.free[k] and problem.values[k] != 0.0:
+        if fixed and not problem.free[k] and problem.values[k] != 0.0:
             held = held + problem.values[k] * column(n)
     cols = []
     for j, name in enumerate(free):
@@ -249,8 +249,9 @@ def _columns_at(problem: Problem, accuracy: str, d, dr, progress=None) -> tuple:
         new = (chosen[1] > 0) & ~have
         if fine_held is not None and not new.any():
             break
-        # (the first pass also puts the fixed coefficients' part at ``accuracy``)
-        fine, fine_held = design(problem, accuracy, only=new)
+        # (the first pass also makes the fixed coefficients' part at ``accuracy``)
+        fine, part = design(problem, accuracy, only=new, fixed=fine_held is None)
+        fine_held = part if fine_held is None else fine_held
         x = np.where(new[None, :], fine, x)
         have |= new
         chosen = choose(x * w[:, None], (problem.y - fine_held) * w, d, dr)
