@@ -87,7 +87,9 @@ def _refuse_unused(kind: str, unused: list, opts: dict) -> None:
     owners = {o: [f for f in families if o in model_class(f).option_names()] for o in unused}
     refused = [f"{o} = {opts[o]} ({', '.join(owners[o])})" for o in unused if owners[o]]
     unknown = [o for o in unused if not owners[o]]
-    parts = [f"option(s) {', '.join(unknown)}: no {kind} candidate declares them"] * bool(unknown)
+    parts = []
+    if unknown:
+        parts.append(f"option(s) {', '.join(unknown)}: no {kind} candidate declares them")
     if refused:
         parts.append(
             f"option(s) {'; '.join(refused)}: the families that declare them make no "

@@ -170,15 +170,13 @@ def choose(
     return best
 
 
-def rule_error(problem: Problem, sol: LinearSolution, check: str) -> dict:
+def rule_error(problem: Problem, sol: LinearSolution, check: str, x: np.ndarray) -> dict:
     """A quick fit's model values at the rule ``check`` minus the fast rule's at its
-    coefficients (``stats["rule_error"]``, :mod:`veil.fitting.screening`): the family
+    parameters ``x`` (``stats["rule_error"]``, :mod:`veil.fitting.screening`): the family
     evaluated at ``check`` as veil evaluates it through a medium, one engine call per lobe
     width in use (:class:`veil.engine.forward.LinearForward`), not the whole design."""
     if check == ITERATION_ACCURACY:  # the quick fit's own rule
         return {"accuracy": check, "values": [0.0] * problem.n_points}
-    x = problem.values.copy()
-    x[[k for k in problem.blocks[0].ib if problem.free[k]]] = sol.c
     return {"accuracy": check, "values": (problem.model_values(x, check) - sol.values).tolist()}
 
 
@@ -385,8 +383,8 @@ def _undetermined(problem: Problem, sol: LinearSolution) -> str | None:
             f"non-parametric fit's smoothness (generalized cross-validation) takes "
             f"{sol.dof:.4g} effective degrees of freedom, less than one left: it "
             "interpolates them, and determines neither the lobes nor their uncertainties; "
-            "need more points "
-            "(measure more configurations) or a parametric family (--brdf-model)"
+            "need more points (measure more configurations) or a parametric family "
+            "(--brdf-model)"
         )
     return None
 
@@ -434,7 +432,7 @@ def fit_linear(
     )
     stats = _stats(problem, sol, len(reported), how)
     if check is not None:  # f_r directly: the quick fit's own rule (no error)
-        stats["rule_error"] = rule_error(problem, sol, check)
+        stats["rule_error"] = rule_error(problem, sol, check, x)
     own = {p.key: p.name for p in cls.PARAMS}
     free_keys = {names[k] for k in reported}
     return FitResult(
