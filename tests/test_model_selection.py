@@ -166,6 +166,24 @@ def test_bic_and_weights_against_hand_computation():
     assert ranking.chosen == min(bic, key=bic.get)
 
 
+def test_the_written_ranking_is_the_same_whatever_the_fits_took():
+    """Two runs differ in their candidates' wall times only: the record (ranking.json, the
+    results, report.md's markdown) is the same; the terminal's table shows the seconds."""
+    rng = np.random.default_rng(3)
+    data = _data(30, rng)
+    r_a, r_b = rng.normal(size=30), 1.2 * rng.normal(size=30)
+    runs = [selection.rank("reference", {"a": (_result(r_a, 3), t), "b": (_result(r_b, 2), 2 * t)},
+                           data) for t in (1.25, 7.5)]
+    assert json.dumps(runs[0].to_dict()) == json.dumps(runs[1].to_dict())
+    assert "seconds" not in json.dumps(runs[0].to_dict())
+    assert selection.table_lines(runs[0], markdown=True) == selection.table_lines(
+        runs[1], markdown=True)
+    text = selection.table_lines(runs[1])
+    assert text[0].split()[-1] == "s"
+    rows = {line.split()[0].rstrip("*"): line.split()[-1] for line in text[1:3]}
+    assert rows == {"a": "7.5", "b": "15.0"}
+
+
 def test_the_discrepancy_term_enters_the_likelihood():
     """An independent term s: -2 ln L = sum ln(1 + s^2 a^2) + r^2 / (1 + s^2 a^2),
     a = f / sigma, and s counts as a parameter when fitted from the fit's own residuals."""

@@ -279,7 +279,8 @@ def deviance(result: FitResult, data) -> tuple[float, int]:
 class Ranking:
     """One step's candidates, best first (``rows``: dicts with label, family, options,
     chi2, deviance, rms_relative, n_points, k, aic, bic, delta_bic, weight, converged,
-    error, seconds, same: the labels it stands for, ``Candidate.same``; a screened-out one
+    error, seconds (the fit's wall time: in the terminal's table, not in :meth:`to_dict`),
+    same: the labels it stands for, ``Candidate.same``; a screened-out one
     also screened and note, :mod:`veil.fitting.screening`); ``chosen`` the best label (None
     when every candidate failed); ``close`` the labels within :data:`CLOSE_DELTA_BIC` of it
     (itself included);
@@ -313,7 +314,10 @@ class Ranking:
             "close_call": self.close_call,
             "close": list(self.close),
             "close_delta_bic": CLOSE_DELTA_BIC,
-            "candidates": [{k: clean(v) for k, v in r.items()} for r in self.rows],
+            # the written record is the same run after run: no candidate's wall time
+            "candidates": [
+                {k: clean(v) for k, v in r.items() if k != "seconds"} for r in self.rows
+            ],
             "spread": self.spread,
             "ranked_on": self.on,
         }
@@ -424,15 +428,25 @@ def curve_spread(ranking: Ranking, curves: dict) -> dict | None:
 
 def table_lines(ranking: Ranking, markdown: bool = False) -> list[str]:
     """The ranking as a table (text or markdown): chi-square, RMS residual, AIC, BIC,
-    delta-BIC, weight, converged, one candidate a line, best first."""
+    delta-BIC, weight, converged, one candidate a line, best first; the text adds each
+    fit's wall time (the markdown goes into report.md, which is the same run after run)."""
 
     def num(v, fmt):
         return (
             "-" if v is None or (isinstance(v, float) and not math.isfinite(v)) else format(v, fmt)
         )
 
-    head = ("candidate", "chi2", "RMS resid. %", "AIC", "BIC", "dBIC", "weight", "converged")
-    body = []
+    head: tuple[str, ...] = (
+        "candidate",
+        "chi2",
+        "RMS resid. %",
+        "AIC",
+        "BIC",
+        "dBIC",
+        "weight",
+        "converged",
+    )
+    body: list[tuple[str, ...]] = []
     for r in ranking.rows:
         mark = "*" if r["label"] == ranking.chosen else ""
         rms = None if r["rms_relative"] is None else 100 * r["rms_relative"]
@@ -461,6 +475,9 @@ def table_lines(ranking: Ranking, markdown: bool = False) -> list[str]:
         for r in ranking.rows
         if r.get("same")
     ]
+    if not markdown:
+        head += ("s",)
+        body = [b + (num(r.get("seconds"), ".1f"),) for b, r in zip(body, ranking.rows)]
     if markdown:
         lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
         lines += ["| " + " | ".join(b) + " |" for b in body]
