@@ -184,6 +184,41 @@ def test_a_repeated_configuration_within_one_channel_is_still_a_duplicate(tmp_pa
         validate(table)
 
 
+def test_a_wavelength_with_an_underscore_is_not_read_as_a_number():
+    """Python's float() reads '6_50' as 650; a table's cell '6_50' names no channel."""
+    table = pd.DataFrame({"theta_i": [10, 10], "theta_r": [40, 40],
+                          "channel": ["6_50", "550"], "value": [1.0, 2.0]})
+    with pytest.raises(MeasurementError, match="column 'channel': '6_50'"):
+        validate(table)
+
+
+def test_a_duplicate_from_two_spellings_of_one_channel_names_them(tmp_path):
+    """'R' and 'r' (any case) name one channel: the duplicate's message says which channel
+    and how the column spells it, not only 'average repeated measurements'."""
+    table = pd.DataFrame({"theta_i": [10, 10, 10, 10], "theta_r": [40, 40, 40, 40],
+                          "channel": ["r", "R", "g", "g"], "value": [1.0, 1.1, 2.0, 2.1]})
+    with pytest.raises(MeasurementError, match="channel 'r' .column 'channel' writes it "
+                       "'R' and 'r': one channel"):
+        validate(table)
+
+
+def test_a_results_channel_is_named_as_a_tables_is(tmp_path, rgb_fit):
+    """A table reads 'R' as channel r ("any case"), so --channel R of a fit over r, g, b is
+    its channel r too (it was refused: "it has no channel 'R'"), in Python and in export."""
+    assert rgb_fit.as_model(channel="R") == rgb_fit.as_model(channel="r")
+    rgb_fit.to_json(tmp_path / "rgb.json")
+    outs = {}
+    for name in ("r", "R"):
+        outs[name] = tmp_path / f"{name}.csv"
+        out = run("export", tmp_path / "rgb.json", "--to", "csv", "--channel", name,
+                  "-o", outs[name])
+        assert out.exit_code == 0, out.output
+    assert outs["r"].read_bytes() == outs["R"].read_bytes()
+    out = run("export", tmp_path / "rgb.json", "--to", "csv", "--channel", "Q",
+              "-o", tmp_path / "q.csv")
+    assert out.exit_code == 2 and "has no channel 'Q'" in out.output, out.output
+
+
 def test_steps_through_a_medium_refuse_a_reference_of_other_channels(tmp_path, rgb_fit):
     """A table of several channels through a medium needs the reference fitted over the same
     channels (tests/test_channels_medium.py fits them): one of other channels, or of one
@@ -252,6 +287,14 @@ def test_simulate_and_fit_three_channels_on_the_command_line(tmp_path):
     (("--channels", "r,g,b", "--per-channel", "zz=1,2,3"), "'zz' is not a parameter"),
     (("--channels", "r,r"), "expected distinct channels"),
     (("--channels", "r,5000"), "expected distinct channels"),
+    # each bad entry named: a forgotten channel, two spellings of one, a mix of both kinds
+    (("--channels", "r,,b"), "--channels 'r,,b': an empty entry"),
+    (("--channels", "r,R"), "'R' names channel r a second time"),
+    (("--channels", "650,650.0"), "'650.0' names channel 650 a second time"),
+    (("--channels", "r,100"), "'100' is not r, g, b or a wavelength from 200 to 2500 nm"),
+    (("--channels", "r,650"), "--channels 'r,650': colour channels mixed with wavelengths"),
+    (("--channels", "r,g,b", "--per-channel", "Pd=1,nan,3"),
+     "--per-channel, channel g: TorranceSparrow.Pd = nan"),
 ])
 def test_simulate_channel_options_are_checked(tmp_path, args, message):
     out = run("simulate", "--brdf", "BRDF1", "--medium", "none", *args,

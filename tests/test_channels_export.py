@@ -294,6 +294,22 @@ def test_merl_channels_table_is_the_three_channels(tmp_path):
         merl.channels_table(brdf, ["r", "450"])
 
 
+def test_a_merl_channel_out_of_range_names_the_file_and_channel(tmp_path):
+    """A MERL file whose blue channel is 1e-150 of the others: the message named neither
+    the file ("row 10 (index label) of the reference (clear medium) table") nor the
+    channel, and told to rescale the whole table."""
+    from veil.data import merl
+
+    data = np.stack([np.full((90, 90, 180), LAMBERT[c]) for c in RGB])
+    data[2] *= 1e-150
+    merl.write_merl(tmp_path / "dim.binary", data)
+    out = run("fit", "reference", "--merl", tmp_path / "dim.binary", "-o", tmp_path / "x.json")
+    assert out.exit_code == 2, out.output
+    text = " ".join(out.output.split())
+    assert "the table sampled from" in text and "dim.binary, column 'value' of channel 'b'" in text
+    assert "rescale the rows of channel 'b'" in text and not (tmp_path / "x.json").exists()
+
+
 def test_fit_reference_from_merl_fits_the_three_channels(tmp_path):
     out = run("fit", "reference", "--merl", _lambert(tmp_path), "--sampling", "inplane",
               "-o", tmp_path / "rgb.json")

@@ -339,6 +339,20 @@ def test_the_ranking_stacks_each_session_in_its_fits_channel_order(tables, steps
         _prepare_sessions({**inputs, "reference_medium": ref_m[ref_m["channel"] != "b"]})
 
 
+def test_a_pipeline_session_of_other_channels_names_its_file(tables, tmp_path):
+    """The refusal named the session's role only ("the target (clear medium) table"), not
+    the file the user gave."""
+    from veil.pipeline import _prepare_sessions
+
+    ref_m = tables["ref_m"]
+    path = tmp_path / "only_rg.csv"
+    save_measurements(ref_m[ref_m["channel"] != "b"], path)
+    inputs = {"reference_clear": tables["clear"], "reference_medium": path,
+              "target_medium": tables["tgt_m"], "target_clear": None, "black": tables["black"]}
+    with pytest.raises(FitError, match=r"table \S*only_rg\.csv has channels r, g but the "):
+        _prepare_sessions(inputs)
+
+
 def test_one_channel_of_a_reference_fitted_over_several(tables, steps):
     problem, _ = build(_sessions(tables)[1:], reference=steps[0].one_model("g"),
                        channel="g")

@@ -10,6 +10,7 @@ from __future__ import annotations
 import errno
 import json
 import os
+import re
 import shutil
 import signal
 import subprocess
@@ -305,6 +306,26 @@ def test_extreme_values_are_refused_naming_the_column(table, tmp_path, column, f
     assert result.exit_code == 2, result.output
     assert expected in result.output and "rescale" in result.output
     assert not (tmp_path / "out.json").exists()
+
+
+@pytest.mark.parametrize("factor", [1e-150, 1e150])
+def test_one_channel_out_of_range_is_named(tmp_path, factor):
+    """One channel of a table scaled far from the others: the message names the channel
+    and says to rescale its rows (rescaling the whole table by one factor cannot help)."""
+    from veil.data.simulate import simulate_channels
+
+    table = simulate_channels({c: (veil.BRDF1, None) for c in "rgb"}, noise=0.01, seed=0)
+    blue = table["channel"] == "b"
+    table.loc[blue, ["value", "sigma"]] *= factor
+    path = tmp_path / "rgb.csv"
+    table.to_csv(path, index=False)
+    result = run("fit", "reference", path, "-o", tmp_path / "out.json")
+    assert result.exit_code == 2, result.output
+    text = " ".join(result.output.split())
+    assert "rgb.csv, column 'value' of channel 'b'" in text
+    lines = [int(k) for k in re.findall(r"line (\d+) of", text)]
+    assert lines and all(224 <= k <= 334 for k in lines)  # channel b's lines
+    assert "rescale the rows of channel 'b'" in text and not (tmp_path / "out.json").exists()
 
 
 def test_export_of_a_result_with_extreme_parameters_names_them(table, tmp_path):

@@ -188,6 +188,31 @@ def test_float_tiff_nan_in_roi_is_an_error(photos, tmp_path):
         run(photos, write_manifest(tmp_path / "m.csv", ["a.tif"]), ROI_TEXT, saturation=10)
 
 
+def test_float_samples_whose_statistics_overflow_name_the_photo(photos, tmp_path):
+    """Finite float64 samples near 1e200 overflow the standard error: the message names the
+    photo and its ROI (it named 'row 0 (index label) of the table', column sigma)."""
+    image = np.full((H, W), 1e200) * (1 + np.random.default_rng(0).random((H, W)))
+    write_tiff(photos / "a.tif", image)
+    with pytest.raises(ValueError, match=r"a\.tif \(line 2 of .*\), ROI: the mean or standard "
+                       r"error of the samples overflows float64"):
+        run(photos, write_manifest(tmp_path / "m.csv", ["a.tif"]), ROI_TEXT, saturation=10)
+
+
+@pytest.mark.parametrize("photometric, shape, named", [
+    ("separated", (H, W, 4), "SEPARATED (ink separations such as CMYK"),
+    ("miniswhite", (H, W), "MINISWHITE (gray inverted, 0 is white)"),
+])
+def test_a_tiff_of_ink_or_inverted_samples_is_refused(photos, tmp_path, photometric, shape,
+                                                      named):
+    """A CMYK TIFF was read as R, G, B (its C, M, Y inks), a min-is-white one as gray
+    values, silently: each is refused naming the photo and its interpretation."""
+    write_tiff(photos / "a.tif", np.full(shape, 1000, np.uint16), photometric=photometric)
+    channel = "rgb" if len(shape) == 3 else "gray"
+    with pytest.raises(veil.errors.InputError) as info:
+        run(photos, write_manifest(tmp_path / "m.csv", ["a.tif"]), ROI_TEXT, channel=channel)
+    assert f"a.tif: TIFF of photometric interpretation {named}" in str(info.value)
+
+
 # -- JPEG and response curves --------------------------------------------------------------
 
 def gamma_curve(path):

@@ -200,6 +200,27 @@ def test_a_stack_mixing_colour_and_grey_photos_is_refused(photos, tmp_path, chan
     assert hash_tree(photos) == before
 
 
+@pytest.mark.parametrize(
+    "odd, samples",
+    [
+        (lambda image: (image // 256).astype(np.uint8), "8-bit integer samples"),
+        (lambda image: image.astype(np.float32), "32-bit float samples"),
+    ],
+)
+@pytest.mark.parametrize("channel", ["gray", "rgb"])
+def test_a_stack_mixing_sample_types_is_warned_about(photos, tmp_path, channel, odd, samples):
+    """An 8-bit or float photo among 16-bit ones may have code values of another scale:
+    averaged into one table they were a silent factor of 257 (or a float's 0..1) off. The
+    ingest says so, naming the photo and the stack's first photo."""
+    manifest = rgb_stack(photos, tmp_path, kind="tiff")
+    image = np.stack([gaussian(v, 40, (H, W), 7 + c) for c, v in enumerate(LEVELS[2])], -1)
+    write_tiff(photos / "p2.tif", odd(image), photometric="rgb")
+    _, msgs = run(photos, manifest, ROI_TEXT, channel=channel, saturation=60000)
+    found = [m for m in msgs if "but the stack's first photo" in m]
+    assert len(found) == 1 and f"p2.tif (line 4 of {manifest}): {samples}" in found[0]
+    assert f"p0.tif (line 2 of {manifest}) has 16-bit integer samples" in found[0]
+
+
 def test_a_manifest_with_a_channel_column_is_refused_for_rgb(photos, tmp_path):
     manifest = rgb_stack(photos, tmp_path)
     write_manifest(manifest, ["p0.png", "p1.png", "p2.png"], {"channel": ["r"] * 3})

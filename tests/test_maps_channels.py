@@ -354,3 +354,25 @@ def test_bad_input_exits_2_naming_what_and_writes_nothing(rgb_stack, tmp_path):
                              angles_of(configurations(8)))
     with pytest.raises(veil.errors.InputError, match="two or more of r, g, b"):
         fit_maps(root / "photos", manifest, medium_result(), out, channel=("r", "r"))
+
+
+def test_a_photo_of_other_samples_is_refused_and_leaves_no_store(rgb_stack, tmp_path):
+    """A 16-bit photo among float32 ones has code values of another scale: the map was
+    fitted (exit 0, reduced chi-square in the hundreds); it is refused naming both photos."""
+    import shutil
+
+    root, manifest, _ = rgb_stack
+    photos = tmp_path / "photos"
+    shutil.copytree(root / "photos", photos)
+    odd = photos / "photo_003.tif"
+    image = tifffile.imread(odd)
+    tifffile.imwrite(odd, (image / image.max() * 60000).astype(np.uint16), photometric="rgb")
+    out = tmp_path / "maps.zarr"
+    args = fit_args(root, photos / "manifest.csv", out, "--channel", "rgb")
+    args[2] = photos
+    bad = run(*args)
+    assert bad.exit_code == 2, bad.output
+    text = " ".join(bad.output.split())
+    assert "photo_003.tif (line 5 of" in text and "16-bit integer samples, but" in text
+    assert "photo_000.tif (line 2 of" in text and "32-bit float samples" in text
+    assert not out.exists()

@@ -187,10 +187,11 @@ def _session_channels(table, what: str, channels: list | None, channel: str | No
         return [channel]
     _, own = channels_of(table, what)
     if own is None or set(own) != set(channels):
+        named = f" {os.fspath(table)}" if isinstance(table, (str, os.PathLike)) else ""
         raise FitError(
-            f"the {what} table has channels {', '.join(own or ['(none)'])} but the reference "
-            f"(clear medium) table has {', '.join(channels)}: every session needs the same "
-            f"channels"
+            f"the {what} table{named} has channels {', '.join(own or ['(none)'])} but the "
+            f"reference (clear medium) table has {', '.join(channels)}: every session needs "
+            f"the same channels"
         )
     return own
 

@@ -45,6 +45,10 @@ def _channels_of(result) -> tuple:
 
 def _keys(loaded, channel: str | None) -> tuple:
     """The channels to use: (None,) for one, else those every multi-channel result has."""
+    from ..data.channels import channel_label
+
+    if channel is not None:
+        channel = channel_label(channel) or channel
     for path, result in loaded:
         names = _channels_of(result)
         if channel is not None and names and channel not in names:

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import click
 
+from ..errors import InputError
 from ._common import (
     GLOW_LEVEL,
     TABLE_FORMS,
@@ -66,17 +67,39 @@ def _merl_model(merl, channel, models, channels=None):
 
 
 def channel_names(channels: str) -> list[str]:
-    """The channels of ``--channels`` (labels as measurement tables write them)."""
-    from ..data.channels import channel_label
+    """The channels of ``--channels`` (labels as measurement tables write them): a
+    UserError naming an empty entry, an unknown name, a wavelength out of range, a
+    channel given twice (``r,R``, ``650,650.0``) or names mixed with wavelengths."""
+    from ..data.channels import WAVELENGTH_RANGE, channel_label
 
-    labels = [channel_label(c) for c in channels.split(",") if c.strip()]
-    names = [str(c) for c in labels]
-    if not names or None in labels or len(set(names)) != len(names):
-        raise UserError(
-            f"--channels {channels!r}: expected distinct channels, comma-separated "
-            f"(r,g,b or wavelengths in nm such as 450,550,650)"
-        )
+    names: list[str] = []
+    for item in channels.split(","):
+        label = channel_label(item)
+        if label is None or label in names:
+            lo, hi = WAVELENGTH_RANGE
+            why = f"{item.strip()!r} is not r, g, b or a wavelength from {lo:g} to {hi:g} nm"
+            if not item.strip():
+                why = "an empty entry"
+            elif label is not None:
+                why = f"{item.strip()!r} names channel {label} a second time"
+            raise UserError(
+                f"--channels {channels!r}: {why}; expected distinct channels, "
+                f"comma-separated (r,g,b or wavelengths in nm such as 450,550,650)"
+            )
+        names.append(label)
     return names
+
+
+def _unmixed(channels: str, names: list[str]) -> None:
+    """A UserError for ``--channels`` mixing colour names with wavelengths (a table's
+    channels are one or the other, docs/measurements.md "Channels")."""
+    from ..data.channels import RGB
+
+    if len({name in RGB for name in names}) > 1:
+        raise UserError(
+            f"--channels {channels!r}: colour channels mixed with wavelengths; expected "
+            f"r, g, b or wavelengths in nm, not both"
+        )
 
 
 def _channel_models(model_b, model_m, channels: str | None, per_channel) -> dict | None:
@@ -88,6 +111,7 @@ def _channel_models(model_b, model_m, channels: str | None, per_channel) -> dict
             raise UserError("--per-channel needs --channels (e.g. --channels r,g,b)")
         return None
     names = channel_names(channels)
+    _unmixed(channels, names)
     by_channel = model_b if isinstance(model_b, dict) else dict.fromkeys(names, model_b)
     model_b = by_channel[names[0]]
     values: dict = {}
@@ -122,7 +146,10 @@ def _channel_models(model_b, model_m, channels: str | None, per_channel) -> dict
                 for kind, own, vals in values.values()
                 if model is not None and kind == model.KIND
             }
-            pair.append(None if model is None else model.replace(**changes))
+            try:
+                pair.append(None if model is None else model.replace(**changes))
+            except InputError as exc:
+                raise UserError(f"--per-channel, channel {channel}: {exc}") from None
         out[channel] = tuple(pair)
     return out
 

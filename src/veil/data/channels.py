@@ -49,6 +49,8 @@ def channel_label(cell: object) -> str | None:
         text = cell.strip().lower()
         if text in RGB:
             return text
+        if "_" in text:  # float() reads "6_50" as 650: not a wavelength as written
+            return None
         try:
             cell = float(text)
         except ValueError:

@@ -213,7 +213,15 @@ def roi_statistics(
                 f"{where}: only {g.size} {what} in the ROI; at least 2 are needed "
                 f"for a standard error - make the ROI larger"
             )
-    return _stats(groups)
+    with np.errstate(over="ignore", invalid="ignore"):
+        value, sigma, n = _stats(groups)
+    if not (math.isfinite(value) and math.isfinite(sigma)):
+        peak = max(float(np.max(np.abs(g))) for g in groups)
+        raise InputError(
+            f"{where}: the mean or standard error of the samples overflows float64 "
+            f"(samples up to {peak:.3g}); rescale the photos' values"
+        )
+    return value, sigma, n
 
 
 # -- the manifest --------------------------------------------------------------------------
@@ -361,7 +369,9 @@ def _read_stack(
         photo = read_photo(path, rois)
         where = f"{path} ({row_name})"
         _check_photo(photo, where, channel, response, saturation, dark, dark_photo, warned)
-        stack.check(photo, where)
+        odd = stack.check(photo, where)
+        if odd is not None:
+            _warn(odd)
         level = saturation if saturation is not None else photo.saturation
         found = {c: _photo_row(photo, rois, c, level, dark_photo, response, where) for c in names}
         message = excluded_message(where, found, level, photo.floor, keep_saturated)

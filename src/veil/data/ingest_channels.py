@@ -43,22 +43,36 @@ def is_colour(photo: Photo) -> bool:
     return photo.kind == "raw" or photo.shape[2] == 3
 
 
+def sample_type(photo: Photo) -> str:
+    """A photo's samples as a message names them: "16-bit integer", "32-bit float",
+    "camera raw"."""
+    if photo.kind == "raw":
+        return "camera raw"
+    dtype = photo.dtype
+    return f"{dtype.itemsize * 8}-bit {'float' if dtype.kind == 'f' else 'integer'}"
+
+
 class StackKind:
     """The photos of one stack are all colour or all grey, and all of one size (the same
-    ROIs are read in each): :meth:`check` each in turn."""
+    ROIs are read in each): :meth:`check` each in turn. Photos of other samples than the
+    first (8-bit among 16-bit, float among integer, camera raw among images) are warned
+    about once: their code values may have another scale."""
 
     def __init__(self) -> None:
-        self.first: tuple[bool, str, tuple] | None = None
+        self.first: tuple[bool, str, tuple, str] | None = None
+        self.odd_samples = False
 
-    def check(self, photo: Photo, where: str) -> None:
+    def check(self, photo: Photo, where: str) -> str | None:
         """An InputError naming ``where`` (the photo) and the first photo when ``photo`` is
-        grey in a colour stack or colour in a grey one, or of another size."""
+        grey in a colour stack or colour in a grey one, or of another size; the warning
+        for the first photo of other samples than the first photo's (None otherwise)."""
         colour = is_colour(photo)
         size = tuple(photo.shape[:2])
+        samples = sample_type(photo)
         if self.first is None:
-            self.first = (colour, where, size)
-            return
-        first_colour, first_where, first_size = self.first
+            self.first = (colour, where, size, samples)
+            return None
+        first_colour, first_where, first_size, first_samples = self.first
         if size != first_size:
             raise InputError(
                 f"{where}: {size[1]} x {size[0]} pixels, but the stack's first photo "
@@ -74,6 +88,14 @@ class StackKind:
                 f"a photo stack is all colour (RGB images or camera raw) or all grey: "
                 f"convert the odd photo(s), or ingest them with a manifest of their own"
             )
+        if samples == first_samples or self.odd_samples:
+            return None
+        self.odd_samples = True
+        return (
+            f"{where}: {samples} samples, but the stack's first photo {first_where} has "
+            f"{first_samples} samples: their code values may have another scale (8-bit "
+            f"values are 1/257 of 16-bit ones); export every photo of a stack alike"
+        )
 
 
 def excluded_message(where: str, rows: dict, level, floor, keep_saturated: bool) -> str | None:

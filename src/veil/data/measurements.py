@@ -95,9 +95,11 @@ def _parse_angles(table: pd.DataFrame, rows: RowNames, warn: bool = True):
     return cols, _check_agreement(_angles_from(cols, forms, rows), rows)
 
 
-def _duplicates(angles, rows: RowNames, positions: np.ndarray | None = None) -> None:
+def _duplicates(
+    angles, rows: RowNames, positions: np.ndarray | None = None, where: str = ""
+) -> None:
     """A MeasurementError for a configuration measured twice (among ``positions``: the rows
-    of one channel; all rows when None)."""
+    of one channel, which ``where`` names; all rows when None)."""
     from scipy.spatial import cKDTree
 
     at = np.arange(len(angles[0])) if positions is None else positions
@@ -124,7 +126,8 @@ def _duplicates(angles, rows: RowNames, positions: np.ndarray | None = None) -> 
         ]
         more = f"; and {len(groups) - _MAX_LISTED} more" if len(groups) > _MAX_LISTED else ""
         raise MeasurementError(
-            f"duplicate configurations in {rows.what} (same angles within {SAME_TOL:g} deg): "
+            f"duplicate configurations in {rows.what}{where} (same angles within "
+            f"{SAME_TOL:g} deg): "
             + "; ".join(listed)
             + more
             + "; average repeated measurements into one row"
@@ -168,8 +171,16 @@ def _check_configurations(table: pd.DataFrame, angles, rows: RowNames) -> None:
         _duplicates(angles, rows)
         return
     labels = channel_labels(table[CHANNEL], rows)
+    cells = table[CHANNEL].astype(str).str.strip()
     for name in channel_order(labels):
-        _duplicates(angles, rows, np.flatnonzero(labels == name))
+        at = np.flatnonzero(labels == name)
+        spelt = sorted(set(cells.iloc[at]))
+        where = f", channel {name!r}" + (
+            f" (column {CHANNEL!r} writes it {' and '.join(map(repr, spelt))}: one channel)"
+            if len(spelt) > 1
+            else ""
+        )
+        _duplicates(angles, rows, at, where)
     check_same_configurations(
         labels, _vectors(angles), rows, lambda a, b: _separation(a, b) <= SAME_TOL, _SAME_RADIUS
     )

@@ -197,6 +197,7 @@ def measurement_table(
     sigma = np.where(sigma > 0, sigma, np.min(sigma[sigma > 0]))
     table["value"] = values
     table["sigma"] = sigma
+    table.attrs["veil_name"] = f"the table sampled from {brdf.path}"
     return table
 
 
@@ -221,7 +222,9 @@ def channels_table(
         part = measurement_table(brdf, c, sampling, relative_sigma)
         part.insert(len(part.columns) - 2, CHANNEL, c)
         parts.append(part)
-    return pd.concat(parts, ignore_index=True)
+    table = pd.concat(parts, ignore_index=True)
+    table.attrs["veil_name"] = f"the table sampled from {brdf.path}"
+    return table
 
 
 def write_merl(path, data) -> None:

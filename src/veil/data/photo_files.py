@@ -137,6 +137,16 @@ def _read_png_jpeg(path: Path, kind: str, rois) -> Photo:
     return _image_patches(path, kind, image, rois)
 
 
+#: TIFF photometric interpretations whose samples are not gray or R, G, B values.
+_NOT_LINEAR_TIFF = {
+    "MINISWHITE": "gray inverted, 0 is white",
+    "SEPARATED": "ink separations such as CMYK, not R, G, B",
+    "CIELAB": "L*a*b* colour, not R, G, B",
+    "ICCLAB": "L*a*b* colour, not R, G, B",
+    "ITULAB": "L*a*b* colour, not R, G, B",
+}
+
+
 def _read_tiff(path: Path, rois) -> Photo:
     tifffile = require("tifffile", "reading a TIFF photo")
 
@@ -147,6 +157,13 @@ def _read_tiff(path: Path, rois) -> Photo:
             if page is not None and page.photometric == tifffile.PHOTOMETRIC.PALETTE:
                 raise InputError(
                     f"{path}: palette (indexed colour) TIFF; expected gray or RGB samples"
+                )
+            photometric = getattr(getattr(page, "photometric", None), "name", "")
+            if photometric in _NOT_LINEAR_TIFF:
+                raise InputError(
+                    f"{path}: TIFF of photometric interpretation "
+                    f"{photometric} ({_NOT_LINEAR_TIFF[photometric]}); "
+                    f"expected gray (min-is-black) or RGB samples: convert the photo"
                 )
             axes = series.axes
             if axes not in ("YX", "YXS", "SYX"):

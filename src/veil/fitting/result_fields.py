@@ -133,7 +133,12 @@ def model_of_channel(
     cls: type[Model], params: dict, channels: dict, channel, options: dict
 ) -> Model:
     """The one-channel model of ``channel`` of a fit of several channels: its parameters
-    taken from ``params`` through the layout ``channels`` ({channel: {parameter: name}})."""
+    taken from ``params`` through the layout ``channels`` ({channel: {parameter: name}});
+    ``channel`` named as a table may name it ("R" for r, "650.0" for 650)."""
+    from ..data.channels import channel_label
+
+    if channel is not None and str(channel) not in channels:
+        channel = channel_label(channel) or channel
     if channel is None or str(channel) not in channels:
         first = next(iter(channels))
         raise FitError(

@@ -135,7 +135,7 @@ def prepare(
             )
     for column, values in (("value", y), ("sigma", sigma)):
         if values is not None:
-            _check_magnitude(values, column, checked)
+            _check_magnitude(values, column, checked, channel)
     return FitData(angles, y, sigma, checked, black is not None)
 
 
@@ -200,27 +200,32 @@ def _black_channel(black: pd.DataFrame, table: pd.DataFrame, channel: str | None
 MAGNITUDE = (1e-100, 1e100)
 
 
-def _check_magnitude(values: np.ndarray, column: str, table: pd.DataFrame) -> None:
+def _check_magnitude(
+    values: np.ndarray, column: str, table: pd.DataFrame, channel: str | None = None
+) -> None:
     """Refuse a column whose values are finite but too large or too small to fit in
-    float64's range (MeasurementError naming the row and column, exit status 2)."""
+    float64's range (MeasurementError naming the row, column and ``channel``, exit
+    status 2)."""
     lo, hi = MAGNITUDE
     size = np.abs(values)
     rows = RowNames(table)
     big = np.flatnonzero(size > hi)
+    scope = "the table" if channel is None else f"the rows of channel {channel!r}"
     how = (
-        f"veil fits values of magnitude {lo:g} to {hi:g}: rescale the table (multiply "
+        f"veil fits values of magnitude {lo:g} to {hi:g}: rescale {scope} (multiply "
         f"'value' and 'sigma' by one factor; the fitted scale coefficients follow it)"
     )
+    named = f"column {column!r}" + ("" if channel is None else f" of channel {channel!r}")
     if big.size:
         k = int(big[np.argmax(size[big])])
         raise MeasurementError(
-            f"{rows(k)}, column {column!r}: {values[k]:.6g} ({big.size} row(s) above {hi:g}); {how}"
+            f"{rows(k)}, {named}: {values[k]:.6g} ({big.size} row(s) above {hi:g}); {how}"
         )
     top = float(size.max()) if size.size else 0.0
     if 0 < top < lo:
         k = int(np.argmax(size))
         raise MeasurementError(
-            f"{rows.what}, column {column!r}: the largest magnitude is "
+            f"{rows.what}, {named}: the largest magnitude is "
             f"{top:.6g} ({rows(k)}), below {lo:g}; {how}"
         )
 

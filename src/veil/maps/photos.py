@@ -24,7 +24,7 @@ from ..data.ingest import (
     read_photo,
     saturation_level,
 )
-from ..data.ingest_channels import ALL_RGB
+from ..data.ingest_channels import ALL_RGB, sample_type
 from ..errors import InputError, MissingFileError
 from ..io import COMMIT, write_bytes_atomic
 from .store import marker_dir
@@ -165,9 +165,25 @@ def _pixels(photo, channel: str, level, where: str, linear=None):
     return out, bad
 
 
-def _read_pixels(path, roi: ROI, channel, saturation, where):
+def _check_samples(photo, where: str, first: list) -> None:
+    """An InputError when ``photo``'s samples differ from those of the first photo read
+    (``first``, filled by the first call): code values of another scale in one map."""
+    samples = sample_type(photo)
+    if not first:
+        first.append((samples, where))
+    elif samples != first[0][0]:
+        raise InputError(
+            f"{where}: {samples} samples, but {first[0][1]} has {first[0][0]} samples; "
+            f"the photos of a map (and its dark frame or black photos) must have code "
+            f"values of one scale (an 8-bit value is 1/257 of the 16-bit one): export "
+            f"every photo alike"
+        )
+
+
+def _read_pixels(path, roi: ROI, channel, saturation, where, first: list | None = None):
     """Linear per-pixel values and the unusable samples of ``roi`` of one photo (for raw
-    the ROI is in superpixels)."""
+    the ROI is in superpixels); with ``first``, its samples checked against the first
+    photo's (:func:`_check_samples`)."""
     path = Path(path)
     if path.suffix.lower() in (".jpg", ".jpeg", ".jpe"):
         raise InputError(
@@ -177,6 +193,8 @@ def _read_pixels(path, roi: ROI, channel, saturation, where):
     scale = 2 if path.suffix.lower() in _raw_suffixes() else 1
     full = ROI(roi.x * scale, roi.y * scale, roi.w * scale, roi.h * scale)
     photo = read_photo(path, [("ROI", full)])
+    if first is not None:
+        _check_samples(photo, where, first)
     if channel != "gray" and photo.shape[2] == 1 and photo.kind != "raw":
         what = (
             f"channel {channel!r}"
@@ -389,11 +407,14 @@ def stage(store, acq: Acquisition, progress=None) -> None:
     )
     roi = acq.roi
     dark = None
+    first: list = []  # the first photo's samples (:func:`_check_samples`)
     if acq.dark is not None:
-        dark = _read_pixels(acq.dark, roi, acq.channel, acq.saturation, f"black frame {acq.dark}")
+        dark = _read_pixels(
+            acq.dark, roi, acq.channel, acq.saturation, f"black frame {acq.dark}", first
+        )
     for k, (path, row) in enumerate(zip(acq.paths, acq.rows)):
         where = f"{path} ({row})"
-        values, bad = _read_pixels(path, roi, acq.channel, acq.saturation, where)
+        values, bad = _read_pixels(path, roi, acq.channel, acq.saturation, where, first)
         if not np.all(np.isfinite(values)):
             raise InputError(f"{where}: non-finite samples (NaN or infinity)")
         if dark is not None:
@@ -406,6 +427,7 @@ def stage(store, acq: Acquisition, progress=None) -> None:
                 acq.channel,
                 acq.saturation,
                 f"black photo {acq.blacks[k]} ({row})",
+                first,
             )
             values = values - bv
             bad = bad | bb
