@@ -10,9 +10,10 @@ fit result (a step of :mod:`veil.fitting` or a joint fit) and its data this modu
   condition number), and the weakest direction (the combination the data barely constrain);
 - relative standard errors (stderr / |value|; for g: stderr / (1 - |g|), the lobe's width
   scale) above ``max_relative``;
-- optionally profile likelihoods: one parameter held on a grid, all others refitted; the
-  rise of chi-square, Delta chi^2, against the held value. A profile that stays below 1
-  over the grid's range is flat: the data do not determine that parameter.
+- optionally profile likelihoods (:mod:`veil.analysis.profiles`): one parameter held on a
+  grid, all others refitted; the rise of chi-square, Delta chi^2, against the held value. A
+  profile that stays below 1 over the grid's range is flat: the data do not determine that
+  parameter.
 
 With the previous step's result (``medium=`` for a target fit, ``reference=`` for a medium
 fit) its parameters become free but tied to that result by a Gaussian prior from its
@@ -36,42 +37,11 @@ from ..fitting.result import FitResult, JointResult
 from ..fitting.solver import covariance, solve, weighted_jacobian
 from ..models import BRDF, REGISTRY, Medium, Model
 from ..numbers import format_number, format_percent
+from .profiles import FLAT, PROFILE_POINTS, Profile, profile_likelihood, profiles
 
 #: Default thresholds.
 MAX_RELATIVE = 0.25
 MAX_CORRELATION = 0.9
-FLAT = 1.0  # Delta chi^2 below which a profile end counts as flat
-#: Largest half-width of a profile grid in fit coordinates (log units for scale parameters,
-#: atanh units for g, plain for indices); otherwise 3 standard errors.
-MAX_SPAN = {"log": math.log(4.0), "atanh": 1.0, "plain": 0.5}
-PROFILE_POINTS = 9
-
-
-@dataclass
-class Profile:
-    """Profile likelihood of one parameter: held ``values`` (natural), ``delta_chi2`` (in
-    noise units; the reduced chi-square scales it for unweighted data), the 1-sigma
-    ``interval`` where Delta chi^2 <= 1 (None on a side that never reaches 1), ``flat`` sides
-    ("lower"/"upper") that stay below :data:`FLAT`, and whether every refit ``converged``."""
-
-    name: str
-    estimate: float
-    values: list
-    delta_chi2: list
-    interval: tuple
-    flat: list
-    converged: bool
-
-    def to_dict(self) -> dict:
-        return {
-            "name": self.name,
-            "estimate": self.estimate,
-            "values": self.values,
-            "delta_chi2": self.delta_chi2,
-            "interval": list(self.interval),
-            "flat": self.flat,
-            "converged": self.converged,
-        }
 
 
 @dataclass
@@ -351,30 +321,6 @@ def _add_prior(problem, other: FitResult, what):
 # --------------------------------------------------------------------------------------
 # the diagnostics
 # --------------------------------------------------------------------------------------
-def _profiles(problem, x, which: list, stderr: dict, points: int, accuracy: str, progress) -> dict:
-    """{name: profile likelihood} of the free parameters ``which``."""
-    names = problem.free_names
-    unknown = [n for n in which if n not in names]
-    if unknown:
-        raise FitError(
-            f"cannot profile {', '.join(map(repr, unknown))}: the free "
-            f"parameters are {', '.join(names)}"
-        )
-    chi2_scale = 1.0
-    if not problem.weighted:
-        dof = problem.n_points - len(names)
-        res = (problem.y - problem.model_values(x, accuracy)) * problem.w
-        chi2_scale = max(float(res @ res) / dof, 1e-300)
-    out = {}
-    for k, n in enumerate(which):
-        out[n] = profile_likelihood(
-            problem, x, n, stderr[n], points=points, scale=chi2_scale, accuracy=accuracy
-        )
-        if progress:
-            progress("profiles", k + 1, len(which))
-    return out
-
-
 def diagnose(
     result: FitResult,
     data,
@@ -393,7 +339,8 @@ def diagnose(
     :func:`problem_for`; data other than the fit's are a FitError before any evaluation).
     ``profile``: False, True (every free parameter) or a list of names. Names are the
     problem's: a medium's index is ``eta_u`` (the BRDF has ``eta``). ``progress(stage,
-    done, total)`` is told each stage."""
+    done, total)`` is told each stage and each refit of the profiles, the stage naming the
+    parameter profiled."""
     _check_arguments(result, points, max_relative, max_correlation)
     problem, notes = problem_for(result, data, medium=medium, reference=reference, black=black)
     names = problem.free_names
@@ -436,7 +383,7 @@ def diagnose(
     )
     if profile:
         which = names if profile is True else list(profile)
-        diag.profiles.update(_profiles(problem, x, which, stderr, points, accuracy, progress))
+        diag.profiles.update(profiles(problem, x, which, stderr, points, accuracy, progress))
     _verdicts(diag, max_relative, max_correlation)
     return diag
 
@@ -505,82 +452,6 @@ def _verdicts(diag: Diagnosis, max_relative: float, max_correlation: float) -> N
 def _cond(a: np.ndarray) -> float:
     s = np.linalg.svd(a, compute_uv=False)
     return float(s[0] / s[-1]) if s[-1] > 0 else math.inf
-
-
-def profile_likelihood(
-    problem,
-    x,
-    name: str,
-    stderr: float,
-    *,
-    points: int = PROFILE_POINTS,
-    scale: float = 1.0,
-    accuracy: str = ITERATION_ACCURACY,
-    max_nfev: int = 30,
-) -> Profile:
-    """Hold ``name`` on a grid about its estimate and refit the rest (warm starts walking
-    outward); Delta chi^2 = (chi^2 - chi^2_min) / ``scale``. The grid spans 3 standard errors
-    each side in fit coordinates, at most :data:`MAX_SPAN`."""
-    k = problem.index(name)
-    p = problem.params[k]
-    u_hat = p.to_u(x[k])
-    _, dxdu = p.to_x(u_hat)
-    se_u = stderr / dxdu if dxdu > 0 and math.isfinite(stderr) else math.inf
-    span = min(3.0 * se_u, MAX_SPAN[p.coordinate])
-    lo, hi = p.bounds(u_hat)
-    half = points // 2
-    offsets = np.linspace(-span, span, 2 * half + 1)
-    grid_u = np.clip(u_hat + offsets, lo, hi)
-    base_cost = _cost(problem, x, accuracy)
-    chi2 = np.empty(grid_u.size)
-    chi2[half] = 0.0
-    converged = True
-    for direction in (1, -1):
-        start = x.copy()
-        for j in range(half + direction, half + direction * (half + 1), direction):
-            v, _ = p.to_x(grid_u[j])
-            sub = problem.with_fixed({name: v})
-            start[k] = v
-            sol = solve(sub, start, accuracy=accuracy, max_nfev=max_nfev)
-            converged &= sol.status > 0
-            start = sol.x
-            chi2[j] = max(2.0 * (sol.cost - base_cost), 0.0) / scale
-    values = [float(p.to_x(u)[0]) for u in grid_u]
-    flat = []
-    if chi2[0] < FLAT:
-        flat.append("lower")
-    if chi2[-1] < FLAT:
-        flat.append("upper")
-    interval = (
-        _crossing(values[: half + 1][::-1], chi2[: half + 1][::-1]),
-        _crossing(values[half:], chi2[half:]),
-    )
-    return Profile(
-        name=name,
-        estimate=float(x[k]),
-        values=values,
-        delta_chi2=[float(c) for c in chi2],
-        interval=interval,
-        flat=flat,
-        converged=bool(converged),
-    )
-
-
-def _cost(problem, x, accuracy) -> float:
-    val = problem.model_values(x, accuracy)
-    r = np.concatenate([(val - problem.y) * problem.w, problem.prior_rows(x)[0]])
-    return 0.5 * float(r @ r)
-
-
-def _crossing(values, chi2):
-    """First value (walking outward from the estimate) where Delta chi^2 reaches 1,
-    interpolating sqrt(Delta chi^2) (linear in the value for a quadratic profile)."""
-    for j in range(1, len(values)):
-        if chi2[j] >= 1.0:
-            a, b = math.sqrt(chi2[j - 1]), math.sqrt(chi2[j])
-            t = (1.0 - a) / (b - a) if b > a else 1.0
-            return float(values[j - 1] + t * (values[j] - values[j - 1]))
-    return None
 
 
 __all__ = [

@@ -246,13 +246,39 @@ def load_medium(text: str, models, option: str = "--medium"):
 # -- progress, warnings and the exit status of fits ---------------------------------------
 
 
+def _count(done, total) -> str:
+    """The progress display's count: "3/14", "120 evaluations" or nothing."""
+    if done is None:
+        return ""
+    return f"{done}/{total}" if total else f"{done} evaluations"
+
+
+def _stage_lines(title: str):
+    """A ``progress(stage, done, total)`` callback that writes one line on stderr per new
+    stage (``veil TITLE: STAGE (COUNT)``), as the compile display does off a terminal."""
+    last: list = [None]
+
+    def progress(stage, done, total):
+        if stage != last[0]:
+            last[0] = stage
+            count = _count(done, total)
+            click.echo(f"veil {title}: {stage}" + (f" ({count})" if count else ""), err=True)
+
+    return progress
+
+
 @contextlib.contextmanager
-def fit_progress(title: str):
-    """A rich progress display on stderr; yields the ``progress(stage, done, total)`` callback."""
+def fit_progress(title: str, lines: bool = False):
+    """A rich progress display on stderr; yields the ``progress(stage, done, total)`` callback.
+    Off a terminal (a log, a pipe, CI) nothing is drawn, or with ``lines`` one line per stage
+    (:func:`_stage_lines`)."""
     from rich.progress import BarColumn, Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
 
     from .compile_display import console
 
+    if lines and not console().is_terminal:
+        yield _stage_lines(title)
+        return
     with Progress(
         SpinnerColumn(),
         TextColumn("{task.description}"),
@@ -265,10 +291,7 @@ def fit_progress(title: str):
         task = bar.add_task(title, total=None, count="")
 
         def progress(stage, done, total):
-            if done is None:
-                count = ""
-            else:
-                count = f"{done}/{total}" if total else f"{done} evaluations"
+            count = _count(done, total)
             bar.update(
                 task, description=f"{title}: {stage}", completed=done or 0, total=total, count=count
             )

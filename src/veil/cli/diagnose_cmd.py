@@ -233,7 +233,7 @@ def diagnose_command(
     prof = list(profile_params) if profile_params else bool(profile)
     from ._common import echo_warnings, fit_progress
 
-    with echo_warnings(), fit_progress("diagnose") as progress:
+    with echo_warnings(), fit_progress("diagnose", lines=True) as progress:
         diag = diagnose(
             result,
             table,

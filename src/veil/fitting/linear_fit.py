@@ -87,13 +87,19 @@ def penalty(cls, names: list[str]) -> np.ndarray:
 
 
 def design(
-    problem: Problem, accuracy: str, progress=None, only=None, fixed: bool = True
+    problem: Problem,
+    accuracy: str,
+    progress=None,
+    only=None,
+    fixed: bool = True,
+    stage: str = "columns",
 ) -> tuple[np.ndarray, np.ndarray]:
     """(columns X (N, F) of the free coefficients, the fixed ones' part of the values (N,))
     at the problem's held parameters: one engine call per coefficient, each of the family's
     column model (``columns()``: a basis function alone, sampled as it needs) at
     ``accuracy``; with ``only`` (a mask over the free coefficients) those columns alone, the
-    others 0; without ``fixed`` the fixed ones' part is not made (0)."""
+    others 0; without ``fixed`` the fixed ones' part is not made (0). ``progress(stage,
+    done, total)`` is told each column made."""
     block = problem.blocks[0]
     column_cls, vectors = type(block.brdf).columns()
     columns = session_problem(
@@ -119,11 +125,22 @@ def design(
         if fixed and not problem.free[k] and problem.values[k] != 0.0:
             held = held + problem.values[k] * column(n)
     cols = []
+    made, total = 0, len(free) if only is None else int(np.count_nonzero(only))
     for j, name in enumerate(free):
-        cols.append(column(name) if only is None or only[j] else np.zeros(problem.n_points))
-        if progress:
-            progress("columns", j + 1, len(free))
+        if only is None or only[j]:
+            cols.append(column(name))
+            made += 1
+            if progress:
+                progress(stage, made, total)
+        else:
+            cols.append(np.zeros(problem.n_points))
     return np.stack(cols, axis=1), held
+
+
+def nonnegative_solve(xw: np.ndarray, yw: np.ndarray) -> np.ndarray:
+    """c >= 0 minimizing |xw c - yw|^2 (columns equilibrated, no penalty): the profile
+    likelihood's refit of a linear family (:mod:`veil.analysis.profiles`)."""
+    return _stack_solve(xw, yw, np.zeros((0, xw.shape[1])), 0.0, np.zeros(0))
 
 
 def _stack_solve(xw: np.ndarray, yw: np.ndarray, d: np.ndarray, lam: float, dr) -> np.ndarray:
@@ -243,12 +260,15 @@ def _columns_at(problem: Problem, accuracy: str, d, dr, progress=None) -> tuple:
     have = np.zeros(x.shape[1], dtype=bool)
     chosen = choose(x * w[:, None], (problem.y - held) * w, d, dr)
     fine_held = None
+    passes = 0
     while True:
         new = (chosen[1] > 0) & ~have
         if fine_held is not None and not new.any():
             break
+        passes += 1
+        stage = f"columns at the {accuracy!r} rule, pass {passes}"
         # (the first pass also makes the fixed coefficients' part at ``accuracy``)
-        fine, part = design(problem, accuracy, only=new, fixed=fine_held is None)
+        fine, part = design(problem, accuracy, progress, new, fine_held is None, stage)
         fine_held = part if fine_held is None else fine_held
         x = np.where(new[None, :], fine, x)
         have |= new
