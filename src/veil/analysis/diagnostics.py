@@ -37,7 +37,7 @@ from ..fitting.result import FitResult, JointResult
 from ..fitting.solver import covariance, solve, weighted_jacobian
 from ..models import BRDF, REGISTRY, Medium, Model
 from ..numbers import format_number, format_percent
-from .profiles import FLAT, PROFILE_POINTS, Profile, profile_likelihood, profiles
+from .profiles import FLAT, PROFILE_POINTS, LinearRefit, Profile, profile_likelihood, profiles
 
 #: Default thresholds.
 MAX_RELATIVE = 0.25
@@ -340,15 +340,19 @@ def diagnose(
     ``profile``: False, True (every free parameter) or a list of names. Names are the
     problem's: a medium's index is ``eta_u`` (the BRDF has ``eta``). ``progress(stage,
     done, total)`` is told each stage and each refit of the profiles, the stage naming the
-    parameter profiled."""
+    parameter profiled. A linear family's covariance and profiles are those of the
+    penalized objective its fit minimized (:func:`_linear_refits`)."""
     _check_arguments(result, points, max_relative, max_correlation)
     problem, notes = problem_for(result, data, medium=medium, reference=reference, black=black)
     names = problem.free_names
     say = progress or (lambda stage, done, total: None)
     say(f"{problem.n_points} points, {len(names)} free parameters: the estimate", None, None)
     x = _optimum(problem, notes, accuracy)
+    linear = _linear_refits(result, problem, accuracy, notes, say)
     say("the covariance and the weighted Jacobian at the estimate", None, None)
     cov = covariance(problem, x, accuracy)
+    if linear is not None and linear.smoothness is not None:
+        cov = linear.covariance(x)[0]  # the fit's own (penalized), not the unpenalized one's
     if cov is None:
         raise FitError(
             "the Jacobian is singular at the estimate: at least one combination of "
@@ -383,9 +387,29 @@ def diagnose(
     )
     if profile:
         which = names if profile is True else list(profile)
-        diag.profiles.update(profiles(problem, x, which, stderr, points, accuracy, progress))
+        diag.profiles.update(
+            profiles(problem, x, which, stderr, points, accuracy, progress, refits=linear)
+        )
     _verdicts(diag, max_relative, max_correlation)
     return diag
+
+
+def _linear_refits(
+    result: FitResult, problem: Problem, accuracy: str, notes: list, say
+) -> LinearRefit | None:
+    """A linear family's columns at the fit's smoothness (:class:`LinearRefit`; None for
+    another problem): its covariance is the fit's (penalized), its profiles those of the
+    objective the fit minimized. A result without its smoothness is said in ``notes``."""
+    if not LinearRefit.of(problem):
+        return None
+    smoothness = (result.stats or {}).get("smoothness")
+    if smoothness is None:
+        notes.append(
+            "the result records no smoothness (stats 'smoothness'): the linear family's "
+            "covariance is the unpenalized least-squares one and its profiles are unpenalized, "
+            "not those of the penalized objective the fit minimized; refit to diagnose them"
+        )
+    return LinearRefit(problem, accuracy, say, smoothness)
 
 
 def _check_arguments(result, points, max_relative, max_correlation) -> None:

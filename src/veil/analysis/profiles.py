@@ -5,9 +5,11 @@ Delta chi^2, against the held value.
 The refits are the solver's (:func:`veil.fitting.solver.solve`, warm starts walking
 outward), or, when every free parameter is a coefficient of a linear family
 (``LINEAR``, docs/nonparametric.md) with the other model held and no prior, one
-non-negative least-squares solve on the family's columns (:class:`LinearRefit`): the
-columns are made once, at the profiles' rule, and each refit solves the same bounded
-problem exactly with no engine call.
+non-negative solve on the family's columns (:class:`LinearRefit`): the columns are made
+once, at the profiles' rule, and each refit solves the objective the fit minimized, with
+the fit's smoothness penalty, exactly and with no engine call. Delta chi^2 is then
+measured from that objective's own minimum on those columns, and the grid spans 3 of its
+standard errors (the penalized normal matrix's) each side, clipped at the bound 0.
 """
 
 from __future__ import annotations
@@ -19,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import FitError
-from ..fitting.linear_fit import design, nonnegative_solve
+from ..fitting.linear_fit import design, nonnegative_solve, penalized_covariance, penalty
 from ..fitting.problem import ITERATION_ACCURACY, Problem
 from ..fitting.solver import solve
 
@@ -28,6 +30,12 @@ FLAT = 1.0  # Delta chi^2 below which a profile end counts as flat
 #: atanh units for g, plain for indices); otherwise 3 standard errors.
 MAX_SPAN = {"log": math.log(4.0), "atanh": 1.0, "plain": 0.5}
 PROFILE_POINTS = 9
+#: A linear family's profile when the result does not record its smoothness.
+NO_SMOOTHNESS = (
+    "the result records no smoothness (stats 'smoothness', written by later versions): "
+    "profiled without the penalty, an objective the estimate does not minimize; refit to "
+    "profile the fit's own"
+)
 
 
 @dataclass
@@ -44,9 +52,11 @@ class Profile:
     interval: tuple
     flat: list
     converged: bool
+    #: what to know in reading it (a linear family's profile without its smoothness)
+    note: str | None = None
 
     def to_dict(self) -> dict:
-        return {
+        out = {
             "name": self.name,
             "estimate": self.estimate,
             "values": self.values,
@@ -55,6 +65,9 @@ class Profile:
             "flat": self.flat,
             "converged": self.converged,
         }
+        if self.note:
+            out["note"] = self.note
+        return out
 
 
 class SolverRefit:
@@ -69,6 +82,10 @@ class SolverRefit:
         r = np.concatenate([(val - self.problem.y) * self.problem.w, self.problem.prior_rows(x)[0]])
         return 0.5 * float(r @ r)
 
+    def base(self, x: np.ndarray) -> float:
+        """The level Delta chi^2 is measured from: the cost at the estimate ``x``."""
+        return self.cost(x)
+
     def refit(self, name: str, value: float, start: np.ndarray) -> tuple[np.ndarray, float, bool]:
         sub = self.problem.with_fixed({name: value})
         sol = solve(sub, start, accuracy=self.accuracy, max_nfev=self.max_nfev)
@@ -78,16 +95,27 @@ class SolverRefit:
 class LinearRefit:
     """Refits of a linear family's coefficients (module docstring): the weighted columns of
     the free coefficients at ``accuracy`` (:func:`veil.fitting.linear_fit.design`, the fixed
-    ones' part on the right-hand side), made once; each refit an exact non-negative
-    least-squares solve, as the solver's bounded problem (coefficients >= 0) without
-    iterating. :meth:`of` says whether a problem is one."""
+    ones' part on the right-hand side), made once; each refit an exact non-negative solve
+    of the objective the fit minimized, |W (X c - y)|^2 + ``smoothness`` |D c|^2 with the
+    family's penalty D (:func:`veil.fitting.linear_fit.penalty`; the fixed coefficients'
+    differences on its right-hand side). Without ``smoothness`` (a result that does not
+    record it) the objective is unpenalized. :meth:`of` says whether a problem is one."""
 
-    def __init__(self, problem: Problem, accuracy: str, progress=None):
+    def __init__(self, problem: Problem, accuracy: str, progress=None, smoothness=None):
         x, held = design(problem, accuracy, progress)
         self.index = problem.free_index
         self.names = problem.free_names
         self.xw = x * problem.w[:, None]
         self.yw = (problem.y - held) * problem.w
+        self.weighted = problem.weighted
+        self.smoothness = None if smoothness is None else float(smoothness)
+        self.lam = self.smoothness or 0.0
+        block = problem.blocks[0]
+        cls = type(block.brdf)
+        ib = np.asarray(block.ib)
+        free = problem.free[ib]
+        d = penalty(cls, list(cls.keys()))
+        self.d, self.dr = d[:, free], -d[:, ~free] @ problem.values[ib][~free]
 
     @staticmethod
     def of(problem: Problem) -> bool:
@@ -101,13 +129,40 @@ class LinearRefit:
         }
 
     def cost(self, x: np.ndarray) -> float:
-        r = self.xw @ np.asarray(x)[self.index] - self.yw
-        return 0.5 * float(r @ r)
+        """Half the objective at natural ``x``."""
+        c = np.asarray(x)[self.index]
+        r, q = self.xw @ c - self.yw, self.d @ c - self.dr
+        return 0.5 * float(r @ r + self.lam * (q @ q))
+
+    def base(self, x: np.ndarray) -> float:
+        """Half the objective's minimum over every free coefficient (>= 0), on these
+        columns: the level Delta chi^2 is measured from (>= 0 by construction), the
+        estimate's own where it is that minimum (the same rule)."""
+        c = nonnegative_solve(self.xw, self.yw, self.d, self.lam, self.dr)
+        moved = np.array(x, dtype=float)
+        moved[self.index] = c
+        return self.cost(moved)
+
+    def covariance(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(the fit's covariance of the free coefficients at ``x``, the penalized normal
+        matrix's inverse (X'WX + lam D'D)^-1 in noise units): the first as the family's
+        fit reports it (:func:`veil.fitting.linear_fit.penalized_covariance`, the sandwich),
+        the second the curvature of the profiled objective (0 where a coefficient is 0)."""
+        c = np.asarray(x, dtype=float)[self.index]
+        res = self.yw - self.xw @ c
+        cov, inv, _ = penalized_covariance(self.xw, self.d, self.lam, c, res, self.weighted)
+        full = np.zeros_like(cov)
+        if inv is not None:
+            full[np.ix_(c > 0, c > 0)] = inv
+        return cov, full
 
     def refit(self, name: str, value: float, start: np.ndarray) -> tuple[np.ndarray, float, bool]:
         j = self.names.index(name)
         rest = np.arange(len(self.names)) != j
-        c = nonnegative_solve(self.xw[:, rest], self.yw - value * self.xw[:, j])
+        d, xw = self.d, self.xw
+        c = nonnegative_solve(
+            xw[:, rest], self.yw - value * xw[:, j], d[:, rest], self.lam, self.dr - value * d[:, j]
+        )
         x = np.array(start, dtype=float)
         x[self.index[rest]] = c
         x[self.index[j]] = value
@@ -122,9 +177,14 @@ def profiles(
     points: int,
     accuracy: str,
     progress=None,
+    refits: SolverRefit | LinearRefit | None = None,
 ) -> dict:
     """{name: profile likelihood} of the free parameters ``which``; ``progress(stage, done,
-    total)`` is told each refit, the stage naming the parameter profiled."""
+    total)`` is told each refit, the stage naming the parameter profiled. ``refits`` by
+    default the solver's, or a linear family's columns (:meth:`LinearRefit.of`; then
+    unpenalized: give a :class:`LinearRefit` with the fit's smoothness). A linear family's
+    grid is in the profiled objective's own standard errors (the penalized normal matrix's,
+    :meth:`LinearRefit.covariance`), not ``stderr``."""
     names = problem.free_names
     unknown = [n for n in which if n not in names]
     if unknown:
@@ -138,9 +198,16 @@ def profiles(
         dof = problem.n_points - len(names)
         res = (problem.y - problem.model_values(x, accuracy)) * problem.w
         chi2_scale = max(float(res @ res) / dof, 1e-300)
-    refits: SolverRefit | LinearRefit = SolverRefit(problem, accuracy)
-    if LinearRefit.of(problem):
-        refits = LinearRefit(problem, accuracy, lambda s, d, t: say(f"profiles: {s}", d, t))
+    if refits is None:
+        refits = SolverRefit(problem, accuracy)
+        if LinearRefit.of(problem):
+            refits = LinearRefit(problem, accuracy, lambda s, d, t: say(f"profiles: {s}", d, t))
+    spread, note = dict(stderr), None
+    if isinstance(refits, LinearRefit):
+        # the grid in the profiled objective's own standard errors (LinearRefit.covariance)
+        inv = np.diag(refits.covariance(x)[1])
+        spread.update({n: math.sqrt(max(v, 0.0) * chi2_scale) for n, v in zip(refits.names, inv)})
+        note = None if refits.smoothness is not None else NO_SMOOTHNESS
     total, done, out = len(which) * 2 * (points // 2), 0, {}
     for k, n in enumerate(which):
         stage = f"profile {k + 1}/{len(which)}: {n}"
@@ -155,13 +222,14 @@ def profiles(
             problem,
             x,
             n,
-            stderr[n],
+            spread[n],
             points=points,
             scale=chi2_scale,
             accuracy=accuracy,
             refits=refits,
             on_point=tick,
         )
+        out[n].note = note
     return out
 
 
@@ -180,8 +248,9 @@ def profile_likelihood(
 ) -> Profile:
     """Hold ``name`` on a grid about its estimate and refit the rest (``refits``: the
     solver's, at most ``max_nfev`` evaluations, warm starts walking outward, by default);
-    Delta chi^2 = (chi^2 - chi^2_min) / ``scale``. The grid spans 3 standard errors each
-    side in fit coordinates, at most :data:`MAX_SPAN`; ``on_point()`` after each refit."""
+    Delta chi^2 = (chi^2 - chi^2_min) / ``scale``, chi^2_min the refits' ``base``. The grid
+    spans 3 standard errors each side in fit coordinates, at most :data:`MAX_SPAN` (a linear
+    family's coefficient: no cap but the bound 0); ``on_point()`` after each refit."""
     refits = refits or SolverRefit(problem, accuracy, max_nfev)
     k = problem.index(name)
     p = problem.params[k]
@@ -189,12 +258,16 @@ def profile_likelihood(
     _, dxdu = p.to_x(u_hat)
     se_u = stderr / dxdu if dxdu > 0 and math.isfinite(stderr) else math.inf
     span = min(3.0 * se_u, MAX_SPAN[p.coordinate])
+    if math.isfinite(se_u) and _linear(problem, k):  # a coefficient: no cap but its bound 0
+        span = 3.0 * se_u
     lo, hi = p.bounds(u_hat)
     half = points // 2
     grid_u = np.clip(u_hat + np.linspace(-span, span, 2 * half + 1), lo, hi)
-    base_cost = refits.cost(x)
+    base_cost = refits.base(x)
     chi2 = np.empty(grid_u.size)
     chi2[half] = 0.0
+    if isinstance(refits, LinearRefit):  # (0 where the estimate is the objective's minimum)
+        chi2[half] = max(2.0 * (refits.refit(name, x[k], x)[1] - base_cost), 0.0) / scale
     converged = True
     for direction in (1, -1):
         start = x.copy()
@@ -223,6 +296,11 @@ def profile_likelihood(
     )
 
 
+def _linear(problem: Problem, k: int) -> bool:
+    """Whether parameter ``k`` is a coefficient of a linear family (docs/nonparametric.md)."""
+    return any(bool(type(b.brdf).LINEAR) and k in {int(i) for i in b.ib} for b in problem.blocks)
+
+
 def _crossing(values, chi2):
     """First value (walking outward from the estimate) where Delta chi^2 reaches 1,
     interpolating sqrt(Delta chi^2) (linear in the value for a quadratic profile)."""
@@ -243,4 +321,5 @@ __all__ = [
     "FLAT",
     "MAX_SPAN",
     "PROFILE_POINTS",
+    "NO_SMOOTHNESS",
 ]

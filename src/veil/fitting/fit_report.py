@@ -67,8 +67,46 @@ def _tied(result: FitResult) -> list[str]:
     return [n for n in result.params if all(n in own for own in names.values())]
 
 
+def _evaluations(stats: dict, fixed: dict) -> str:
+    """A linear fit's engine calls (``stats["columns_at_rule"]``: the columns made at each
+    rule; each nonzero ``fixed`` coefficient's part made once at each rule)."""
+    rules = stats.get("columns_at_rule")
+    if not isinstance(rules, dict) or not rules:  # (a file written before that key)
+        return f"{stats['columns']} columns, one engine call each"
+    part = sum(1 for v in fixed.values() if v != 0.0)
+    calls = sum(rules.values()) + part * len(rules)
+    (first, n), *rest = rules.items()
+    text = f"{calls} engine calls: {n} columns at the {first!r} rule" + "".join(
+        f", {m} again at {rule!r}" for rule, m in rest
+    )
+    if part:
+        each = " at each rule" if rest else ""
+        text += f", {part} for the fixed coefficients' part{each}"
+    return text
+
+
+def _free(result: FitResult) -> list[str]:
+    """The free parameters' line, naming those the user fixed; a linear fit's coefficients
+    the solve holds at 0 on a line of their own (a count, not 40 names)."""
+    fixed = [n for n in result.fixed if n not in result.at_bound]
+    lines = [
+        f"    free parameters    = {len(result.free)}"
+        + (
+            f" ({result.dof:.1f} effective: a regularized linear fit)"
+            if "effective_dof" in result.stats
+            else ""
+        )
+        + (f"  (fixed: {', '.join(fixed)})" if fixed else "")
+    ]
+    if result.at_bound:
+        lines.append(
+            f"    at their bound     = {len(result.at_bound)} coefficients at 0, held there by "
+            f"the non-negative solve"
+        )
+    return lines
+
+
 def _statistics(result: FitResult) -> list[str]:
-    free = result.free
     lines = [
         f"    data points        = {result.n_points}"
         + (
@@ -76,13 +114,7 @@ def _statistics(result: FitResult) -> list[str]:
             if result.weighted
             else "  (UNWEIGHTED: no sigma column; errors scaled by reduced chi-square)"
         ),
-        f"    free parameters    = {len(free)}"
-        + (
-            f" ({result.dof:.1f} effective: a regularized linear fit)"
-            if "effective_dof" in result.stats
-            else ""
-        )
-        + (f"  (fixed: {', '.join(result.fixed)})" if result.fixed else ""),
+        *_free(result),
     ]
     if result.JOINT:
         shared = ", ".join(_layout(result).get("shared", [])) or "-"
@@ -109,7 +141,7 @@ def _statistics(result: FitResult) -> list[str]:
         lines.append(f"    accuracy           = {result.accuracy}")
     stats = result.stats
     if stats and "columns" in stats:
-        lines.append(f"    evaluations        = {stats['columns']} columns, one engine call each")
+        lines.append(f"    evaluations        = {_evaluations(stats, result.fixed)}")
     elif stats and not result.JOINT:
         lines.append(
             f"    evaluations        = {stats.get('nfev', 0)} function, "
@@ -172,7 +204,8 @@ def _variables(result: FitResult) -> list[str]:
     for name, v in result.params.items():
         unit = units.get(name, "")
         if name in result.fixed:
-            lines.append(f"    {name:<{width}}: {format_number(v)}{unit} (fixed)")
+            how = "at its bound" if name in result.at_bound else "fixed"
+            lines.append(f"    {name:<{width}}: {format_number(v)}{unit} ({how})")
             continue
         se = result.stderr.get(name)
         if se is None or not math.isfinite(se):

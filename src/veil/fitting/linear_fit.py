@@ -19,7 +19,8 @@ non-negative, regularized least-squares problem (docs/nonparametric.md).
   the effective degrees of freedom that the BIC counts (``stats["effective_dof"]``).
 - **Uncertainty**: the penalized estimator's sandwich covariance on the active set, scaled by
   the reduced chi-square when it exceeds 1 (the family's own misfit, and the scale of
-  unweighted data); coefficients at 0 are held at the bound (reported as fixed there). A
+  unweighted data); coefficients at 0 are held at the bound (in ``fixed``, and named in
+  ``stats["at_bound"]``: the report says "at its bound", not "fixed"). A
   given fit's covariance is propagated to first order through the engine's exact
   derivative of the family's values in the given parameters, at the iterations' rule, as a
   parametric family's (:mod:`veil.fitting.propagation`). A fixed coefficient's part of the
@@ -137,10 +138,39 @@ def design(
     return np.stack(cols, axis=1), held
 
 
-def nonnegative_solve(xw: np.ndarray, yw: np.ndarray) -> np.ndarray:
-    """c >= 0 minimizing |xw c - yw|^2 (columns equilibrated, no penalty): the profile
-    likelihood's refit of a linear family (:mod:`veil.analysis.profiles`)."""
-    return _stack_solve(xw, yw, np.zeros((0, xw.shape[1])), 0.0, np.zeros(0))
+def nonnegative_solve(
+    xw: np.ndarray,
+    yw: np.ndarray,
+    d: np.ndarray | None = None,
+    lam: float = 0.0,
+    dr: np.ndarray | None = None,
+) -> np.ndarray:
+    """c >= 0 minimizing |xw c - yw|^2 + lam |d c - dr|^2 (columns equilibrated; without
+    ``d`` no penalty): the profile likelihood's refit of a linear family
+    (:mod:`veil.analysis.profiles`), the fit's own objective at its smoothness ``lam``."""
+    if d is None:
+        d, lam = np.zeros((0, xw.shape[1])), 0.0
+    dr = np.zeros(d.shape[0]) if dr is None else dr
+    return _stack_solve(xw, yw, d, lam, dr)
+
+
+def penalized_covariance(
+    xw: np.ndarray, d: np.ndarray, lam: float, c: np.ndarray, res: np.ndarray, weighted: bool
+) -> tuple[np.ndarray, np.ndarray | None, float]:
+    """(covariance of ``c``, (X'WX + lam D'D)^-1 on the coefficients above 0 or None, the
+    effective degrees of freedom): the penalized estimator's sandwich covariance
+    inv X'WX inv on the coefficients above 0 (0 elsewhere), scaled by the reduced
+    chi-square of the weighted residuals ``res`` (module docstring, "Uncertainty")."""
+    active = c > 0
+    cov = np.zeros((len(c), len(c)))
+    if not active.any():
+        return cov, None, 0.0
+    dof, inv = _hat_trace(xw, d, lam, active)
+    xa = xw[:, active]
+    chi2_red = float(res @ res) / max(xw.shape[0] - dof, 1.0)
+    scale = chi2_red if not weighted else max(chi2_red, 1.0)
+    cov[np.ix_(active, active)] = (inv @ (xa.T @ xa) @ inv) * scale
+    return cov, inv, dof
 
 
 def _stack_solve(xw: np.ndarray, yw: np.ndarray, d: np.ndarray, lam: float, dr) -> np.ndarray:
@@ -286,19 +316,9 @@ def solve(problem: Problem, accuracy: str, d: np.ndarray, progress=None) -> Line
     x, held, (lam, c, dof, gcv), counts = _columns_at(problem, accuracy, d, dr, progress)
     w = problem.w
     xw = x * w[:, None]
-    active = c > 0
     values = x @ c + held
     res = (problem.y - values) * w
-    n = problem.n_points
-    chi2_red = float(res @ res) / max(n - dof, 1.0)
-    cov = np.zeros((len(c), len(c)))
-    inv = None
-    if active.any():
-        _, inv = _hat_trace(xw, d, lam, active)
-        xa = xw[:, active]
-        sandwich = inv @ (xa.T @ xa) @ inv
-        scale = chi2_red if not problem.weighted else max(chi2_red, 1.0)
-        cov[np.ix_(active, active)] = sandwich * scale
+    cov, inv, _ = penalized_covariance(xw, d, lam, c, res, problem.weighted)
     return LinearSolution(c, lam, dof, gcv, cov, values, res, xw, d, inv, counts)
 
 
@@ -366,14 +386,17 @@ def _message(sol: LinearSolution, chi2: float, model_error: str) -> str:
     return "; ".join(notes)
 
 
-def _stats(problem: Problem, sol: LinearSolution, active: int, how) -> dict:
-    """The result's ``stats`` (docs/nonparametric.md "The fit"); ``how`` the propagation's."""
+def _stats(problem: Problem, sol: LinearSolution, at_bound: list[str], how) -> dict:
+    """The result's ``stats`` (docs/nonparametric.md "The fit"); ``at_bound`` the free
+    coefficients the solve holds at 0 (in ``fixed`` with the user's, apart from them here);
+    ``how`` the propagation's."""
     stats = {
         "effective_dof": sol.dof,
         "smoothness": sol.lam,
         "gcv": sol.gcv,
-        "active": active,
+        "active": len(sol.c) - len(at_bound),
         "columns": len(sol.c),
+        "at_bound": at_bound,
         "engine_calls": problem.engine_calls(),
         "columns_at_rule": dict(sol.rules),
     }
@@ -439,7 +462,8 @@ def fit_linear(
     free_index = [k for k in problem.blocks[0].ib if problem.free[k]]
     x = problem.values.copy()
     x[free_index] = sol.c
-    # the coefficients at 0 are held at the bound: reported as fixed there, no uncertainty
+    # the coefficients at 0 are held at the bound: in ``fixed``, no uncertainty, named in
+    # stats["at_bound"] (the report's "at its bound", not the user's "fixed")
     held = [k for k, c in zip(free_index, sol.c) if c == 0.0]
     reported = [k for k in free_index if k not in held]
     keep = np.array([k not in held for k in free_index])
@@ -450,10 +474,10 @@ def fit_linear(
     se_total, corr_total = (
         (None, None) if total is None else uncertainties(total[np.ix_(keep, keep)], names, reported)
     )
-    stats = _stats(problem, sol, len(reported), how)
+    own = {p.key: p.name for p in cls.PARAMS}
+    stats = _stats(problem, sol, [own[names[k]] for k in held], how)
     if check is not None:  # f_r directly: the quick fit's own rule (no error)
         stats["rule_error"] = rule_error(problem, sol, check, x)
-    own = {p.key: p.name for p in cls.PARAMS}
     free_keys = {names[k] for k in reported}
     return FitResult(
         model=cls.NAME,
@@ -488,6 +512,8 @@ __all__ = [
     "LAMBDAS",
     "penalty",
     "design",
+    "nonnegative_solve",
+    "penalized_covariance",
     "choose",
     "solve",
     "given_influence",

@@ -153,6 +153,21 @@ class FitResult:
         """Names of the parameters the fit varied (those not held fixed)."""
         return tuple(n for n in self.params if n not in self.fixed)
 
+    @property
+    def at_bound(self) -> tuple[str, ...]:
+        """Names in ``fixed`` that the user left free and a linear fit's non-negative solve
+        holds at their bound 0 (``stats["at_bound"]``, docs/nonparametric.md). A file
+        written before that key: the coefficients fixed at 0, when their number is the
+        columns' at 0 (``stats["columns"] - stats["active"]``: the user fixed none at 0)."""
+        named = self.stats.get("at_bound")
+        if isinstance(named, list):
+            return tuple(n for n in named if n in self.fixed)
+        zero = tuple(n for n, v in self.fixed.items() if v == 0.0)
+        columns, active = self.stats.get("columns"), self.stats.get("active")
+        if isinstance(columns, int) and isinstance(active, int) and len(zero) == columns - active:
+            return zero
+        return ()
+
     def target_names(self) -> dict:
         """{a parameter of the fitted object's model: its name in ``params``}: the same names
         here; a joint fit's target's from its layout."""

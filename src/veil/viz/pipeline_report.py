@@ -25,7 +25,7 @@ def _param_table(result: FitResult, truth) -> list[str]:
     lines = [head, rule]
     for name, value in result.params.items():
         if name in result.fixed:
-            se, tot = "fixed", "fixed"
+            se = tot = "at its bound" if name in result.at_bound else "fixed"
         else:
             se = format_number(result.stderr.get(name), 3)
             tot = (
