@@ -21,13 +21,16 @@ if TYPE_CHECKING:
 @dataclass
 class ResultModels:
     """{channel: model} of the BRDF and of the medium (None: not given), keyed ``None``
-    when one channel is used; ``source`` names the files, ``notes`` says what was shared."""
+    when one channel is used; ``source`` names the files, ``notes`` says what was shared,
+    ``brought`` {kind: the result file whose fit was made through (or against) that model}
+    for a kind no file of its own gave."""
 
     brdf: dict | None
     medium: dict | None
     source: str
     channels: tuple
     notes: list = field(default_factory=list)
+    brought: dict = field(default_factory=dict)
 
     @property
     def colour(self) -> bool:
@@ -105,8 +108,12 @@ def result_models(
             if medium is not None:
                 raise UserError(f"{path}: a second medium result; give one BRDF and one medium")
             medium = models
+    brought = {}
     if other_path is None and given:
+        had = {"brdf": brdf is not None, "medium": medium is not None}
         brdf, medium = _with_given(loaded[0][1], keys, channel, brdf, medium)
+        now = {"brdf": brdf is not None, "medium": medium is not None}
+        brought = {kind: result_path for kind in had if now[kind] and not had[kind]}
     source = str(result_path) + (f" and {other_path}" if other_path is not None else "")
     unconverged = [str(path) for path, result in loaded if not getattr(result, "converged", True)]
     for path in unconverged:
@@ -115,7 +122,7 @@ def result_models(
         )
     if unconverged:
         source += f" (not converged: {', '.join(unconverged)})"
-    return ResultModels(brdf, medium, source, keys, notes)
+    return ResultModels(brdf, medium, source, keys, notes, brought)
 
 
 def _with_given(result, keys, channel, brdf, medium):

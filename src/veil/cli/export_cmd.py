@@ -174,6 +174,7 @@ def export_command(
         _csv(loaded, psis, accuracy, output)
         return
     setting = Setting(scale=scale, ext_ior=ext_ior, path_length=path_length)
+    _check_brought(loaded, target, setting, output)
     if loaded.colour:
         from .export_colour import export_rgb
 
@@ -192,6 +193,33 @@ def export_command(
         )
         return
     _export_one(loaded, target, fmt, setting, output, verify, psis, spp, accuracy)
+
+
+def _check_brought(loaded, target: str, setting, output: Path) -> None:
+    """A model the RESULT brought along (the one its fit held fixed; no file of its own
+    given) that ``target`` cannot express: an error that says where it came from and what
+    to give instead, before any other work of the export."""
+    from ..interop.export import check_exportable
+    from ..models.renderers import Unsupported
+
+    for kind, path in loaded.brought.items():
+        models = loaded.brdf if kind == "brdf" else loaded.medium
+        try:
+            check_exportable(list(models.values()), target, setting)
+        except Unsupported as exc:
+            what, how, arg = (
+                ("medium", "through", "MEDIUM")
+                if kind == "medium"
+                else ("reference BRDF", "with", "BRDF")
+            )
+            name = next(iter(models.values())).NAME
+            raise UserError(
+                f"{path} stores the {what} it was fitted {how} ({name}), and the export "
+                f"takes that {what} along when no {arg} file is given; {exc}. To export "
+                f"{path} with a {what} {target} can express, give its result file as the "
+                f"second argument: veil export {path} {arg}.json --to {target} -o {output} "
+                f"(veil export has no option to leave the stored {what} out)"
+            ) from None
 
 
 def _export_one(loaded, target, fmt, setting, output, verify, psis, spp, accuracy) -> None:

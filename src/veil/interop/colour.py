@@ -27,6 +27,7 @@ from ..models.renderers import Plugin, Setting, Unsupported, Value
 from .export import (
     DEFAULT_SETTING,
     Exported,
+    check_exportable,
     check_format,
     from_closest,
     has_own_plugin,
@@ -215,6 +216,8 @@ def export_colour(
             "every channel needs the same models (a BRDF and/or a medium); got "
             + "; ".join(f"{c}: {', '.join(k)}" for c, k in kinds.items())
         )
+    for c in order:
+        check_exportable(per[c], renderer, setting)
     items: dict[str, list[Exported]] = {c: [] for c in order}
     for k, kind in enumerate(kinds[order[0]]):
         of_kind = {c: per[c][k] for c in order}

@@ -102,6 +102,18 @@ def proxy(model: Model, renderer: str, setting: Setting = DEFAULT_SETTING) -> tu
     )
 
 
+def check_exportable(models, renderer: str, setting: Setting = DEFAULT_SETTING) -> None:
+    """:class:`Unsupported` when ``renderer`` can express one of ``models`` neither by a
+    plugin of its own nor by its closest family: the cheap checks of every model before the
+    closest fit of any (engine work, seconds with its compiling), so that a medium no
+    renderer expresses is refused at once beside a BRDF that needs one."""
+    for model in models:
+        if has_own_plugin(model, renderer):
+            plugin(model, renderer, setting)
+        else:
+            proxy(model, renderer, setting)
+
+
 def has_own_plugin(model: Model, renderer: str) -> bool:
     """Whether ``renderer`` has a plugin of its own for ``model``'s family."""
     return renderer in getattr(type(model), "RENDERERS", {})
@@ -142,6 +154,7 @@ def export(
     """Scene text for ``models`` (a BRDF and/or a medium) in ``renderer``'s format ``fmt``."""
     fmt = check_format(renderer, fmt)
     models = sorted_models(models)
+    check_exportable(models, renderer, setting)
     items = tuple(plugin(m, renderer, setting) for m in models)
     comments = tuple(_comments(items, renderer, source))
     text = scene_text([i.plugin for i in items], comments, renderer, fmt)
@@ -189,6 +202,7 @@ __all__ = [
     "proxy",
     "from_closest",
     "has_own_plugin",
+    "check_exportable",
     "check_renderer",
     "check_format",
     "sorted_models",
