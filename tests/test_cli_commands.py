@@ -207,3 +207,22 @@ def test_command_runs_on_valid_input(name, inputs, tmp_path, monkeypatch):
             if path.suffix == ".json":
                 json.loads(path.read_text())
     assert not list(tmp_path.rglob("*.tmp")) and not list(tmp_path.glob(".*veil-partial*"))
+
+
+def test_a_long_stage_off_a_terminal_says_its_count_again(capsys):
+    """One line per stage, and within a stage one more only when its count moved and the
+    last line is STAGE_LINE_SECONDS old (a fake clock): a log of a long stage is not silent,
+    and a fast one is not flooded."""
+    from veil.cli._common import STAGE_LINE_SECONDS, _stage_lines
+
+    now = [0.0]
+    progress = _stage_lines("maps", clock=lambda: now[0])
+    for t, stage, done in [(0, "tables", 0), (1, "tables", 1), (STAGE_LINE_SECONDS - 1, "tables", 2),
+                           (STAGE_LINE_SECONDS + 0.5, "tables", 3),
+                           (2 * STAGE_LINE_SECONDS + 1, "tables", 3),
+                           (2 * STAGE_LINE_SECONDS + 2, "solving tiles", 0)]:
+        now[0] = t
+        progress(stage, done, 48 if stage == "tables" else 4)
+    lines = capsys.readouterr().err.splitlines()
+    assert lines == ["veil maps: tables (0/48)", "veil maps: tables (3/48)",
+                     "veil maps: solving tiles (0/4)"]

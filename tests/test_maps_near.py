@@ -250,6 +250,40 @@ def test_bad_geometry_exits_2(near_photos, tmp_path):
     assert "positive finite number" in bad("--camera-distance", 0, "--pixel-pitch", 1)
 
 
+# --------------------------------------------------------------------------------------
+# (e) progress: the near-field tables (the engine at every field node, seconds a node)
+# --------------------------------------------------------------------------------------
+def test_near_field_tables_report_each_node_from_the_start():
+    """build_tables(near=...) calls progress(done, total) before its first node (done 0)
+    and after each node of the nonlinear axes, up to the total, as distant tables do."""
+    angles = angles_of(configurations(8))
+    kw = dict(fixed=FIX, grid={SHAPE: (0.25, 2.5, 4)}, accuracy="fast")
+    calls: dict = {"near": [], "far": []}
+    build_tables(CLS, MEDIUM, angles, near=NearGeometry(DISTANCE, PITCH, (H, W)),
+                 roi=ROI(0, 0, 8, 8), progress=lambda d, t: calls["near"].append((d, t)), **kw)
+    build_tables(CLS, MEDIUM, angles, progress=lambda d, t: calls["far"].append((d, t)), **kw)
+    assert calls["near"] == calls["far"] == [(k, 4) for k in range(5)]
+
+
+def test_near_field_fit_says_its_stages_off_a_terminal(near_photos, tmp_path):
+    """Off a terminal (CliRunner's stderr is no tty) `veil fit maps --near-field` writes one
+    line per stage as the stage starts - the tables with their node count first - where it
+    wrote nothing until the tables were done."""
+    root, manifest, _ = near_photos
+    out = tmp_path / "lines.zarr"
+    result = run("fit", "maps", root / "photos", "--manifest", manifest, "--medium", "BTDF2",
+                 "--fix", f"{INDEX}={FIX[INDEX]}", "--grid", f"{SHAPE}=0.25:2.5:4",
+                 "--accuracy", "fast", "--roi", "0,0,8,8", "--tile", 8, "-o", out,
+                 "--near-field", "--camera-distance", DISTANCE, "--pixel-pitch", PITCH)
+    assert result.exit_code in (0, 1), result.output
+    lines = [ln for ln in result.output.splitlines() if ln.startswith("veil maps: ")]
+    assert lines == ["veil maps: tables (0/4)", "veil maps: staging photos (0/16)",
+                     "veil maps: solving tiles (0/1)"], result.output
+    text = result.output
+    assert text.index("veil maps: tables (0/4)") < text.index("tables: ") < text.index(
+        "veil maps: staging photos")
+
+
 def test_near_field_family_without_a_nonlinear_parameter(monkeypatch):
     """No table axis but the two field axes: a plugin family with one scale through a
     plugin medium, pixels rendered at their exact angles, recovered."""

@@ -8,6 +8,7 @@ import contextlib
 import importlib
 import os
 import sys
+import time
 import warnings
 from pathlib import Path
 
@@ -253,14 +254,22 @@ def _count(done, total) -> str:
     return f"{done}/{total}" if total else f"{done} evaluations"
 
 
-def _stage_lines(title: str):
+#: Off a terminal, a stage that has said nothing for this many seconds says its count again.
+STAGE_LINE_SECONDS = 30.0
+
+
+def _stage_lines(title: str, clock=time.monotonic):
     """A ``progress(stage, done, total)`` callback that writes one line on stderr per new
-    stage (``veil TITLE: STAGE (COUNT)``), as the compile display does off a terminal."""
-    last: list = [None]
+    stage (``veil TITLE: STAGE (COUNT)``), as the compile display does off a terminal, and
+    within a long stage one whenever its count moved and :data:`STAGE_LINE_SECONDS` have
+    passed since the last line (a log of a five-minute stage is not silent)."""
+    last: list = [None, 0.0, None]  # stage, time and count of the last line
 
     def progress(stage, done, total):
-        if stage != last[0]:
-            last[0] = stage
+        now = clock()
+        quiet = now - last[1] >= STAGE_LINE_SECONDS and done != last[2]
+        if stage != last[0] or quiet:
+            last[:] = [stage, now, done]
             count = _count(done, total)
             click.echo(f"veil {title}: {stage}" + (f" ({count})" if count else ""), err=True)
 

@@ -399,7 +399,8 @@ def load_acquisition(
 
 
 def stage(store, acq: Acquisition, progress=None) -> None:
-    """Photos (minus dark frame or black photos) into ``stack/values``, one at a time."""
+    """Photos (minus dark frame or black photos) into ``stack/values``, one at a time;
+    ``progress(stage, done, total)`` before the first (done 0) and after each."""
     zarr = require("zarr", "a maps store")
 
     arr = zarr.open_array(os.fspath(Path(store) / "stack" / "values"), mode="r+").with_config(
@@ -412,6 +413,8 @@ def stage(store, acq: Acquisition, progress=None) -> None:
         dark = _read_pixels(
             acq.dark, roi, acq.channel, acq.saturation, f"black frame {acq.dark}", first
         )
+    if progress is not None:
+        progress("staging photos", 0, len(acq.paths))
     for k, (path, row) in enumerate(zip(acq.paths, acq.rows)):
         where = f"{path} ({row})"
         values, bad = _read_pixels(path, roi, acq.channel, acq.saturation, where, first)

@@ -35,7 +35,9 @@ More arguments of :func:`fit_maps`:
 - ``near_field``: with ``geometry``, per-pixel angles (a pinhole camera at that distance
   from the plate centre, collimated light; docs/maps-geometry.md "Geometry") instead of the
   manifest's angles at every pixel, of one channel or of several.
-- ``progress(stage, done, total)``, ``log(message)``: reports.
+- ``progress(stage, done, total)``, ``log(message)``: reports; the stages ("tables",
+  near-field or distant: nodes of the nonlinear axes; "staging photos"; "solving tiles")
+  each start with a call at done 0.
 """
 
 from __future__ import annotations
@@ -478,6 +480,9 @@ def _compute(store, tables, todo, tile, noise, client, progress, workers):
     # all photos of a tile (of every channel, over channels: (channels, photos, h, w))
     stack = da.from_array(arr, chunks=arr.shape[:-2] + (tile, tile))
     blocks = stack.to_delayed().reshape(stack.numblocks[-2:])
+    if progress is not None:  # the stage announced before the solver's warm-up and its
+        # first tile (one tile: its only report would come at the end)
+        progress("solving tiles", 0, len(todo))
     if client is None:  # compile the solver once per device, here, before the threads start
         (warm_up_channels if tables.channels else warm_up)(tables, noise)
     if client is not None:

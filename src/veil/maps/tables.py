@@ -215,7 +215,8 @@ def build_tables(
     model) at ``angles`` (theta_i, phi_i, theta_r, phi_r arrays, degrees). ``fixed``,
     ``free`` (held parameters to fit) and ``options`` as :func:`veil.fit_target`;
     ``grid`` {name: (lo, hi, count)} overrides a nonlinear axis; ``progress(done, total)``
-    after each node. ``near`` (a :class:`veil.maps.near.NearGeometry`) with
+    before the first node (done 0) and after each node of the nonlinear axes, near-field
+    tables as distant ones. ``near`` (a :class:`veil.maps.near.NearGeometry`) with
     ``roi`` (x, y, w, h of the photo): near-field tables over a grid of plate points
     (:func:`veil.maps.near.field_grid`, docs/maps-geometry.md "Geometry")."""
     fixed = dict(fixed or {})
@@ -251,6 +252,8 @@ def tabulate(
     lead = (channels,) if channels else ()  # the channel axis, before the configurations'
     values = np.empty(shape + lead + (len(angles[0]), len(free_scales) + 1))
     total = int(np.prod(shape)) if shape else 1
+    if progress is not None:  # the stage announced before its first node
+        progress(0, total)
     for done, (combo, vb) in enumerate(_nodes(axes, base)):
         values[combo] = columns(vb)
         if progress is not None:
@@ -456,6 +459,9 @@ def build_near(
     values = np.empty((kx, ky) + shape + cols_shape)
     exact = np.empty((len(checks),) + shape + cols_shape)
     total = int(np.prod(shape)) if shape else 1
+    if progress is not None:  # the stage announced before its first node (each node is
+        # the engine at every field node's angles: seconds each)
+        progress(0, total)
     for done, (combo, vb) in enumerate(_nodes(u.axes, u.base)):
         cols = columns(vb)  # (C,)? (all angles, q + 1): the channels first
         nodes = cols[..., : kx * ky * m, :].reshape(lead + (kx, ky) + cols_shape[-2:])
