@@ -132,7 +132,7 @@ def parts(solver, values, coef, y, w2, u, repeat):
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--repeat", type=int, default=20)
-    ap.add_argument("--doc", help="write the table into this page's table:maps-solve-parts")
+    doc_tables.add_options(ap, "maps-solve-parts")
     args = ap.parse_args(argv)
     import jax.numpy as jnp
 
@@ -175,10 +175,8 @@ def main(argv: list[str] | None = None) -> int:
         rows,
         right={1, 2, 3},
     )
-    print(text)
-    if args.doc:
-        doc_tables.write(args.doc, "maps-solve-parts", text)
-        print(f"wrote table maps-solve-parts into {args.doc}")
+    with doc_tables.printed_tables(args):
+        print(text)
     return 0
 
 
