@@ -217,7 +217,8 @@ def test_a_long_stage_off_a_terminal_says_its_count_again(capsys):
 
     now = [0.0]
     progress = _stage_lines("maps", clock=lambda: now[0])
-    for t, stage, done in [(0, "tables", 0), (1, "tables", 1), (STAGE_LINE_SECONDS - 1, "tables", 2),
+    for t, stage, done in [(0, "tables", 0), (1, "tables", 1),
+                           (STAGE_LINE_SECONDS - 1, "tables", 2),
                            (STAGE_LINE_SECONDS + 0.5, "tables", 3),
                            (2 * STAGE_LINE_SECONDS + 1, "tables", 3),
                            (2 * STAGE_LINE_SECONDS + 2, "solving tiles", 0)]:

@@ -33,9 +33,11 @@ def through_btdf2() -> tuple[pd.DataFrame, FitResult]:
     return table, fit_target(table, veil.BTDF2, brdf_model="nonparametric", accuracy="fast")
 
 
-def test_cli_profile_says_each_parameter_off_a_terminal(tmp_path) -> None:
+def test_cli_profile_says_each_parameter_off_a_terminal(tmp_path, monkeypatch) -> None:
     """Off a terminal (CliRunner's output is no tty) `veil diagnose --profile` writes one line
-    per parameter profiled, naming it, with the count of refits done."""
+    per parameter profiled, naming it, with the count of refits done (no repeated line of a
+    long stage: a loaded machine would add one)."""
+    monkeypatch.setattr("veil.cli._common.STAGE_LINE_SECONDS", float("inf"))
     table = veil.simulate(veil.BRDF1, veil.BTDF1, noise=0.01, seed=21, **SMALL)
     fit = fit_target(table, veil.BTDF1, accuracy="fast")
     res, data = tmp_path / "t.json", tmp_path / "t.csv"
@@ -128,7 +130,10 @@ def penalized_profiles(through_btdf2) -> tuple:
     far = [n for n in fit.free if fit.params[n] > 5.0 * fit.stderr[n]]
     d = diagnose(fit, table, profile=far, points=9)
     problem, _ = problem_for(fit, table)
-    return fit, d, problem, LinearRefit(problem, "fast", smoothness=fit.stats["smoothness"])
+    bound = [fit.model_class.param(n).key for n in fit.at_bound]
+    assert bound  # (coefficients the solve held at 0: free in the refits, as in the fit)
+    lin = LinearRefit(problem, "fast", smoothness=fit.stats["smoothness"], bound=bound)
+    return fit, d, problem, lin
 
 
 def test_a_linear_familys_profile_is_the_penalized_objectives(penalized_profiles) -> None:
@@ -136,9 +141,8 @@ def test_a_linear_familys_profile_is_the_penalized_objectives(penalized_profiles
     the fit's lambda (weighted data: Delta chi^2 in noise units). With the others' active
     set unchanged it is exactly quadratic, curvature 1 / [(X'WX + lambda D'D)^-1]_jj, and
     the 1-sigma half-width (sqrt(Delta chi^2) interpolated, exact for a quadratic) is
-    sqrt([...]^-1_jj) to rounding: 1e-6 (measured: 6e-13 at most, on 13 of the 20
-    sides). Where another coefficient's bound 0 binds in a refit the profile only rises
-    faster (a constraint raises a minimum): the half-width is at most that. The fit
+    sqrt([...]^-1_jj) to rounding: 1e-6, on the sides where no other coefficient enters
+    or leaves the active set out to the crossing. The fit
     reports the sandwich covariance inv X'WX inv times max(reduced chi-square, 1), smaller
     than inv by lambda inv D'D inv: the half-width is never below the reported standard
     error over that scale (measured: 1.03 to 8.2 times it, near 1 for the diffuse
@@ -148,36 +152,58 @@ def test_a_linear_familys_profile_is_the_penalized_objectives(penalized_profiles
     fit, d, problem, lin = penalized_profiles
     assert len(d.profiles) >= 6
     x = problem.values
-    a = lin.xw.T @ lin.xw + fit.stats["smoothness"] * lin.d.T @ lin.d
-    inv = np.diag(np.linalg.inv(a))
+    act = x[lin.index] > 0  # the active set, whose curvature the quadratic has
+    xa, da = lin.xw[:, act], lin.d[:, act]
+    inv = np.diag(np.linalg.inv(xa.T @ xa + fit.stats["smoothness"] * da.T @ da))
+    active_names = [n for n, a in zip(lin.names, act) if a]
     s = max(fit.chi2_reduced, 1.0)
     tight = 0
     for n, p in d.profiles.items():
-        j = lin.names.index(n)
+        j = active_names.index(n)
         want, est = float(np.sqrt(inv[j])), p.estimate
         assert not p.flat and None not in p.interval, n
         for side, half in ((-1, est - p.interval[0]), (1, p.interval[1] - est)):
-            if _binds(lin, n, x, p, side):
-                assert half <= want * (1 + 1e-6), (n, side)
-            else:
+            if not _changes(lin, n, x, p, side):
                 assert half == pytest.approx(want, rel=1e-6), (n, side)
+                assert half >= fit.stderr[n] / np.sqrt(s) * (1 - 1e-6), (n, side)
                 tight += 1
-            assert half >= fit.stderr[n] / np.sqrt(s) * (1 - 1e-6), (n, side)
-    assert tight >= len(d.profiles)  # (most sides quadratic: the check above is not vacuous)
+    # (4 of the 20 sides keep the others' active set out to the crossing: a neighbour held
+    # at 0 by the fit usually takes over; the exact check above is not vacuous)
+    assert tight >= 3
 
 
-def _binds(lin: LinearRefit, name: str, x: np.ndarray, p, side: int) -> bool:
-    """Whether another coefficient reaches its bound 0 in a refit of ``p``'s grid on one
-    ``side`` (-1, 1), out to the first point past Delta chi^2 = 1 (those the crossing
-    interpolates between)."""
+def _changes(lin: LinearRefit, name: str, x: np.ndarray, p, side: int) -> bool:
+    """Whether the other coefficients' active set changes (one reaches its bound 0, or one
+    held there by the fit leaves it) in a refit of ``p``'s grid on one ``side`` (-1, 1), out
+    to the first point past Delta chi^2 = 1 (those the crossing interpolates between)."""
     mid = len(p.values) // 2
+    others = np.array([n != name for n in lin.names])
+    before = x[lin.index][others] > 0
     for j in range(mid + side, mid + side * (mid + 1), side):
         moved, _, _ = lin.refit(name, p.values[j], x)
-        if np.any(moved[lin.index] == 0.0):
+        if np.any((moved[lin.index][others] > 0) != before):
             return True
         if p.delta_chi2[j] >= 1.0:
             return False
     return False
+
+
+def test_the_coefficients_held_at_0_are_free_in_the_refits(penalized_profiles) -> None:
+    """The fit's objective lets every coefficient be >= 0, those it left at 0 too: a refit
+    that holds one coefficient may raise a neighbour from 0, so every profile lies at or
+    below the one with those held at 0 (measured from the same minimum), and below it by
+    more than 1 somewhere (the freed neighbours matter; holding them gave narrow intervals
+    and missed flat sides)."""
+    fit, d, problem, lin = penalized_profiles
+    narrow = LinearRefit(problem, "fast", smoothness=fit.stats["smoothness"])
+    x = problem.values
+    base = narrow.base(x)
+    gaps = []
+    for n, p in d.profiles.items():
+        held = [2 * (narrow.refit(n, v, x)[1] - base) for v in p.values]
+        assert np.all(np.asarray(p.delta_chi2) <= np.asarray(held) + 1e-9), n
+        gaps.append(max(np.asarray(held) - np.asarray(p.delta_chi2)))
+    assert max(gaps) > 1.0
 
 
 def test_a_linear_familys_profile_rises_from_its_estimate(penalized_profiles) -> None:
@@ -191,3 +217,26 @@ def test_a_linear_familys_profile_rises_from_its_estimate(penalized_profiles) ->
         assert p.delta_chi2[len(p.values) // 2] == pytest.approx(0.0, abs=1e-9)
         assert p.values[len(p.values) // 2] == p.estimate and min(p.values) >= 0.0
         assert max(p.delta_chi2) > 4.0, n  # (3 standard errors: 9 where quadratic)
+
+
+def test_a_linear_family_is_diagnosed_with_its_medium_held(monkeypatch) -> None:
+    """With the medium's parameters free under its fit's covariance (``medium=``) the
+    problem is neither linear in the coefficients nor the fit's penalized one, and its
+    estimate would be re-solved by the solver in 55 coefficients (minutes a step): refused
+    at once, naming what to do."""
+    from veil.errors import FitError
+    from veil.fitting import fit_medium, fit_reference
+
+    ref_clear = veil.simulate(veil.BRDF2, None, noise=0.01, seed=23, **SMALL)
+    ref_medium = veil.simulate(veil.BRDF2, veil.BTDF2, noise=0.01, seed=24, **SMALL)
+    medium = fit_medium(ref_medium, fit_reference(ref_clear), accuracy="fast")
+    table = veil.simulate(veil.BRDF1, veil.BTDF2, noise=0.01, seed=3, **SMALL)
+    fit = fit_target(table, medium, brdf_model="nonparametric", accuracy="fast")
+    import veil.analysis.diagnostics as diagnostics
+
+    def refused(*args, **kwargs):
+        raise AssertionError("the estimate was re-solved before the refusal")
+
+    monkeypatch.setattr(diagnostics, "solve", refused)
+    with pytest.raises(FitError, match="diagnose it without --medium / --reference"):
+        diagnose(fit, table, medium=medium)

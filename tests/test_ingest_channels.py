@@ -204,7 +204,7 @@ def test_a_stack_mixing_colour_and_grey_photos_is_refused(photos, tmp_path, chan
     "odd, samples",
     [
         (lambda image: (image // 256).astype(np.uint8), "8-bit integer samples"),
-        (lambda image: image.astype(np.float32), "32-bit float samples"),
+        (lambda image: image.astype(np.float32), "float samples"),
     ],
 )
 @pytest.mark.parametrize("channel", ["gray", "rgb"])

@@ -374,5 +374,15 @@ def test_a_photo_of_other_samples_is_refused_and_leaves_no_store(rgb_stack, tmp_
     assert bad.exit_code == 2, bad.output
     text = " ".join(bad.output.split())
     assert "photo_003.tif (line 5 of" in text and "16-bit integer samples, but" in text
-    assert "photo_000.tif (line 2 of" in text and "32-bit float samples" in text
+    assert "photo_000.tif (line 2 of" in text and "has float samples" in text
     assert not out.exists()
+    # floats of another width have the same scale of values: no refusal on that count
+    from veil.data.ingest_channels import sample_type
+    from veil.data.photo_files import read_photo
+    from veil.data.roi import ROI
+
+    tifffile.imwrite(odd, image.astype(np.float64), photometric="rgb")
+    corner = [("ROI", ROI(0, 0, 2, 2))]
+    first = read_photo(photos / "photo_000.tif", corner)
+    assert read_photo(odd, corner).dtype != first.dtype
+    assert sample_type(read_photo(odd, corner)) == sample_type(first) == "float"

@@ -82,7 +82,7 @@ def test_the_evaluations_line_counts_every_engine_call(counted):
     fit, calls = counted
     assert fit.stats["columns_at_rule"] == {"fast": 53}
     assert _line(fit.report(), "evaluations") == (
-        f"evaluations        = {calls} engine calls: 53 columns at the 'fast' rule, 1 for "
+        f"evaluations        = {calls} engine calls for the columns: 53 at the 'fast' rule, 1 for "
         f"the fixed coefficients' part"
     )
     assert calls == 54
@@ -92,7 +92,7 @@ def test_the_evaluations_line_counts_every_engine_call(counted):
         stats={**fit.stats, "columns": 55, "columns_at_rule": {"fast": 55, "default": 19}},
     )
     assert _line(two.report(), "evaluations") == (
-        "evaluations        = 74 engine calls: 55 columns at the 'fast' rule, 19 again at "
+        "evaluations        = 74 engine calls for the columns: 55 at the 'fast' rule, 19 again at "
         "'default'"
     )
 

@@ -344,15 +344,18 @@ def diagnose(
     penalized objective its fit minimized (:func:`_linear_refits`)."""
     _check_arguments(result, points, max_relative, max_correlation)
     problem, notes = problem_for(result, data, medium=medium, reference=reference, black=black)
+    _linear_alone(problem)
     names = problem.free_names
     say = progress or (lambda stage, done, total: None)
     say(f"{problem.n_points} points, {len(names)} free parameters: the estimate", None, None)
     x = _optimum(problem, notes, accuracy)
     linear = _linear_refits(result, problem, accuracy, notes, say)
     say("the covariance and the weighted Jacobian at the estimate", None, None)
-    cov = covariance(problem, x, accuracy)
-    if linear is not None and linear.smoothness is not None:
-        cov = linear.covariance(x)[0]  # the fit's own (penalized), not the unpenalized one's
+    cov: np.ndarray | None = (
+        covariance(problem, x, accuracy)
+        if (linear is None or linear.smoothness is None)
+        else linear.covariance(x)[0]
+    )  # a linear fit's own (penalized), not the unpenalized one
     if cov is None:
         raise FitError(
             "the Jacobian is singular at the estimate: at least one combination of "
@@ -397,9 +400,10 @@ def diagnose(
 def _linear_refits(
     result: FitResult, problem: Problem, accuracy: str, notes: list, say
 ) -> LinearRefit | None:
-    """A linear family's columns at the fit's smoothness (:class:`LinearRefit`; None for
-    another problem): its covariance is the fit's (penalized), its profiles those of the
-    objective the fit minimized. A result without its smoothness is said in ``notes``."""
+    """A linear family's columns at the fit's rule and smoothness, the coefficients its
+    solve held at 0 free as in the fit (:class:`LinearRefit`; None for another problem):
+    its covariance is the fit's (penalized), its profiles those of the objective the fit
+    minimized. A result without its smoothness is said in ``notes``."""
     if not LinearRefit.of(problem):
         return None
     smoothness = (result.stats or {}).get("smoothness")
@@ -409,7 +413,22 @@ def _linear_refits(
             "covariance is the unpenalized least-squares one and its profiles are unpenalized, "
             "not those of the penalized objective the fit minimized; refit to diagnose them"
         )
-    return LinearRefit(problem, accuracy, say, smoothness)
+    bound = [result.model_class.param(n).key for n in result.at_bound]
+    rule = result.accuracy or accuracy  # the fit's own columns: its covariance exactly
+    return LinearRefit(problem, rule, say, smoothness, bound)
+
+
+def _linear_alone(problem: Problem) -> None:
+    """A FitError for a linear family (docs/nonparametric.md) diagnosed with the previous
+    step's parameters free (``--medium``, ``--reference``): its fit holds that model (its
+    uncertainty is propagated into the fit's ``stderr_total``), and with it free the
+    problem is neither linear nor the fit's penalized one; its estimate would be re-solved
+    by the solver in every coefficient, minutes a step."""
+    if problem.prior is not None and any(type(b.brdf).LINEAR for b in problem.blocks):
+        raise FitError(
+            "a linear family's fit holds the model it was fitted through (its uncertainty is "
+            "in the fit's stderr_total): diagnose it without --medium / --reference"
+        )
 
 
 def _check_arguments(result, points, max_relative, max_correlation) -> None:

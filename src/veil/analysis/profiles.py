@@ -38,7 +38,7 @@ NO_SMOOTHNESS = (
 )
 
 
-@dataclass
+@dataclass(frozen=True)
 class Profile:
     """Profile likelihood of one parameter: held ``values`` (natural), ``delta_chi2`` (in
     noise units; the reduced chi-square scales it for unweighted data), the 1-sigma
@@ -98,24 +98,29 @@ class LinearRefit:
     ones' part on the right-hand side), made once; each refit an exact non-negative solve
     of the objective the fit minimized, |W (X c - y)|^2 + ``smoothness`` |D c|^2 with the
     family's penalty D (:func:`veil.fitting.linear_fit.penalty`; the fixed coefficients'
-    differences on its right-hand side). Without ``smoothness`` (a result that does not
+    differences on its right-hand side). ``bound``: the coefficients the fit's solve held at
+    0 (``FitResult.at_bound``), free in every refit as they were in the fit, but neither
+    profiled nor reported (``names`` are all the refits' coefficients, ``reported`` the
+    problem's own free ones among them). Without ``smoothness`` (a result that does not
     record it) the objective is unpenalized. :meth:`of` says whether a problem is one."""
 
-    def __init__(self, problem: Problem, accuracy: str, progress=None, smoothness=None):
-        x, held = design(problem, accuracy, progress)
-        self.index = problem.free_index
-        self.names = problem.free_names
+    def __init__(self, problem: Problem, accuracy: str, progress=None, smoothness=None, bound=()):
+        wide = problem.with_freed(bound)
+        x, held = design(wide, accuracy, progress)
+        self.index = wide.free_index
+        self.names = wide.free_names
+        self.reported = np.isin(self.index, problem.free_index)
         self.xw = x * problem.w[:, None]
         self.yw = (problem.y - held) * problem.w
         self.weighted = problem.weighted
         self.smoothness = None if smoothness is None else float(smoothness)
         self.lam = self.smoothness or 0.0
-        block = problem.blocks[0]
+        block = wide.blocks[0]
         cls = type(block.brdf)
         ib = np.asarray(block.ib)
-        free = problem.free[ib]
+        free = wide.free[ib]
         d = penalty(cls, list(cls.keys()))
-        self.d, self.dr = d[:, free], -d[:, ~free] @ problem.values[ib][~free]
+        self.d, self.dr = d[:, free], -d[:, ~free] @ wide.values[ib][~free]
 
     @staticmethod
     def of(problem: Problem) -> bool:
@@ -144,7 +149,7 @@ class LinearRefit:
         return self.cost(moved)
 
     def covariance(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(the fit's covariance of the free coefficients at ``x``, the penalized normal
+        """(the fit's covariance of the reported coefficients at ``x``, the penalized normal
         matrix's inverse (X'WX + lam D'D)^-1 in noise units): the first as the family's
         fit reports it (:func:`veil.fitting.linear_fit.penalized_covariance`, the sandwich),
         the second the curvature of the profiled objective (0 where a coefficient is 0)."""
@@ -154,7 +159,8 @@ class LinearRefit:
         full = np.zeros_like(cov)
         if inv is not None:
             full[np.ix_(c > 0, c > 0)] = inv
-        return cov, full
+        mine = np.ix_(self.reported, self.reported)
+        return cov[mine], full[mine]
 
     def refit(self, name: str, value: float, start: np.ndarray) -> tuple[np.ndarray, float, bool]:
         j = self.names.index(name)
@@ -206,7 +212,7 @@ def profiles(
     if isinstance(refits, LinearRefit):
         # the grid in the profiled objective's own standard errors (LinearRefit.covariance)
         inv = np.diag(refits.covariance(x)[1])
-        spread.update({n: math.sqrt(max(v, 0.0) * chi2_scale) for n, v in zip(refits.names, inv)})
+        spread.update({n: math.sqrt(max(v, 0.0) * chi2_scale) for n, v in zip(names, inv)})
         note = None if refits.smoothness is not None else NO_SMOOTHNESS
     total, done, out = len(which) * 2 * (points // 2), 0, {}
     for k, n in enumerate(which):
@@ -228,8 +234,8 @@ def profiles(
             accuracy=accuracy,
             refits=refits,
             on_point=tick,
+            note=note,
         )
-        out[n].note = note
     return out
 
 
@@ -245,6 +251,7 @@ def profile_likelihood(
     max_nfev: int = 30,
     refits: SolverRefit | LinearRefit | None = None,
     on_point: Callable[[], None] | None = None,
+    note: str | None = None,
 ) -> Profile:
     """Hold ``name`` on a grid about its estimate and refit the rest (``refits``: the
     solver's, at most ``max_nfev`` evaluations, warm starts walking outward, by default);
@@ -293,6 +300,7 @@ def profile_likelihood(
         interval=interval,
         flat=flat,
         converged=bool(converged),
+        note=note,
     )
 
 

@@ -44,12 +44,12 @@ def is_colour(photo: Photo) -> bool:
 
 
 def sample_type(photo: Photo) -> str:
-    """A photo's samples as a message names them: "16-bit integer", "32-bit float",
-    "camera raw"."""
+    """A photo's samples as a message names them, one name per scale of code values:
+    "16-bit integer", "float" (any width: floats carry no code-value scale), "camera raw"."""
     if photo.kind == "raw":
         return "camera raw"
     dtype = photo.dtype
-    return f"{dtype.itemsize * 8}-bit {'float' if dtype.kind == 'f' else 'integer'}"
+    return "float" if dtype.kind == "f" else f"{dtype.itemsize * 8}-bit integer"
 
 
 class StackKind:

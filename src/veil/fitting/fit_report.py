@@ -68,15 +68,16 @@ def _tied(result: FitResult) -> list[str]:
 
 
 def _evaluations(stats: dict, fixed: dict) -> str:
-    """A linear fit's engine calls (``stats["columns_at_rule"]``: the columns made at each
-    rule; each nonzero ``fixed`` coefficient's part made once at each rule)."""
+    """A linear fit's engine calls for its columns (``stats["columns_at_rule"]``: the columns
+    made at each rule; each nonzero ``fixed`` coefficient's part made once at each rule;
+    the given fit's propagation makes calls of its own, not counted here)."""
     rules = stats.get("columns_at_rule")
     if not isinstance(rules, dict) or not rules:  # (a file written before that key)
         return f"{stats['columns']} columns, one engine call each"
     part = sum(1 for v in fixed.values() if v != 0.0)
     calls = sum(rules.values()) + part * len(rules)
     (first, n), *rest = rules.items()
-    text = f"{calls} engine calls: {n} columns at the {first!r} rule" + "".join(
+    text = f"{calls} engine calls for the columns: {n} at the {first!r} rule" + "".join(
         f", {m} again at {rule!r}" for rule, m in rest
     )
     if part:

@@ -461,6 +461,14 @@ class Problem:
             raise FitError("every parameter is fixed: nothing to fit")
         return out
 
+    def with_freed(self, names) -> Problem:
+        """A copy of the problem with the parameters ``names`` free, at their values (a
+        linear family's coefficients its solve held at 0, in its profiles)."""
+        out = self.with_fixed({})
+        for n in names:
+            out.free[self.index(n)] = True
+        return out
+
 
 def session_problem(
     table,
