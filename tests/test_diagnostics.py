@@ -166,3 +166,19 @@ def test_plot_lays_profiles_out_in_a_grid(tmp_path):
     plot(diag, path)
     height, width = mpimg.imread(path).shape[:2]
     assert 1.1 < width / height < 1.8  # 4 columns x 3 rows of 4.2 x 3.8 in panels
+
+
+def test_a_profile_flat_on_both_sides_names_both_ends():
+    """A profile that stays below Delta chi^2 = 1 on both sides says how far on each: the
+    lower end and the upper end (it named the lower end for both)."""
+    from veil.analysis.diagnostics import Diagnosis, _verdicts
+    from veil.analysis.profiles import Profile
+
+    prof = Profile(name="w03_1", estimate=4.0, values=[0.0, 4.0, 12.5], delta_chi2=[0.2, 0.0, 0.4],
+                   interval=(None, None), flat=["lower", "upper"], converged=True)
+    diag = Diagnosis(names=["w03_1"], values={"w03_1": 4.0}, stderr={"w03_1": 1.0},
+                     relative={"w03_1": 0.25}, correlation=np.eye(1), condition={}, weakest={},
+                     profiles={"w03_1": prof})
+    _verdicts(diag, 0.5, 0.9)
+    assert diag.poorly_determined == [
+        ("w03_1", "flat profile (Delta chi^2 < 1: lower side out to 0; upper side out to 12.5)")]

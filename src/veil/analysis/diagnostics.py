@@ -478,13 +478,9 @@ def _verdicts(diag: Diagnosis, max_relative: float, max_correlation: float) -> N
             )
         prof = diag.profiles.get(n)
         if prof is not None and prof.flat:
-            diag.poorly_determined.append(
-                (
-                    n,
-                    f"flat profile ({' and '.join(prof.flat)} side: Delta chi^2 < {FLAT:g} "
-                    f"out to {_f(prof.values[0] if 'lower' in prof.flat else prof.values[-1])})",
-                )
-            )
+            ends = {"lower": prof.values[0], "upper": prof.values[-1]}
+            sides = "; ".join(f"{side} side out to {_f(ends[side])}" for side in prof.flat)
+            diag.poorly_determined.append((n, f"flat profile (Delta chi^2 < {FLAT:g}: {sides})"))
     for i, a in enumerate(names):
         for j in range(i + 1, len(names)):
             if abs(corr[i, j]) > max_correlation:
