@@ -128,7 +128,7 @@ def test_a_fixed_coefficient_enters_the_penalty_on_the_right_hand_side():
     """With one coefficient fixed at the free solution's value, the others solve to the
     free solution at the same smoothness: its differences moved to the right-hand side,
     not dropped (dropping them frees its neighbours from the penalty)."""
-    from veil.fitting.linear_fit import _stack_solve
+    from veil.fitting.linear_fit import nonnegative_solve
 
     rng = np.random.default_rng(1)
     t = np.linspace(0.0, 1.0, 80)
@@ -137,13 +137,13 @@ def test_a_fixed_coefficient_enters_the_penalty_on_the_right_hand_side():
     y = 1.0 + 0.5 * np.sin(3 * t) + 0.01 * rng.standard_normal(t.size)
     d = np.diff(np.eye(12), 2, axis=0)
     lam = 3.0
-    full = _stack_solve(x, y, d, lam, np.zeros(d.shape[0]))
+    full = nonnegative_solve(x, y, d, lam, np.zeros(d.shape[0]))
     assert np.all(full > 0)
     j = 5
     free = np.arange(12) != j
-    part = _stack_solve(x[:, free], y - x[:, j] * full[j], d[:, free], lam, -d[:, j] * full[j])
+    part = nonnegative_solve(x[:, free], y - x[:, j] * full[j], d[:, free], lam, -d[:, j] * full[j])
     assert np.allclose(part, full[free], rtol=1e-7, atol=1e-10)
-    dropped = _stack_solve(x[:, free], y - x[:, j] * full[j], d[:, free], lam,
+    dropped = nonnegative_solve(x[:, free], y - x[:, j] * full[j], d[:, free], lam,
                            np.zeros(d.shape[0]))
     assert not np.allclose(dropped, full[free], rtol=1e-4)
 

@@ -14,6 +14,7 @@ standard errors (the penalized normal matrix's) each side, clipped at the bound 
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -135,18 +136,22 @@ class LinearRefit:
 
     def cost(self, x: np.ndarray) -> float:
         """Half the objective at natural ``x``."""
-        c = np.asarray(x)[self.index]
+        return self._half_objective(np.asarray(x)[self.index])
+
+    def _half_objective(self, c: np.ndarray) -> float:
         r, q = self.xw @ c - self.yw, self.d @ c - self.dr
         return 0.5 * float(r @ r + self.lam * (q @ q))
 
-    def base(self, x: np.ndarray) -> float:
+    @functools.cached_property
+    def minimum(self) -> float:
         """Half the objective's minimum over every free coefficient (>= 0), on these
-        columns: the level Delta chi^2 is measured from (>= 0 by construction), the
-        estimate's own where it is that minimum (the same rule)."""
-        c = nonnegative_solve(self.xw, self.yw, self.d, self.lam, self.dr)
-        moved = np.array(x, dtype=float)
-        moved[self.index] = c
-        return self.cost(moved)
+        columns (one solve, whichever parameter is profiled)."""
+        return self._half_objective(nonnegative_solve(self.xw, self.yw, self.d, self.lam, self.dr))
+
+    def base(self, x: np.ndarray) -> float:
+        """The level Delta chi^2 is measured from: the objective's :attr:`minimum` (>= 0 by
+        construction), the estimate ``x``'s own where it is that minimum (the same rule)."""
+        return self.minimum
 
     def covariance(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(the fit's covariance of the reported coefficients at ``x``, the penalized normal

@@ -146,12 +146,20 @@ def nonnegative_solve(
     dr: np.ndarray | None = None,
 ) -> np.ndarray:
     """c >= 0 minimizing |xw c - yw|^2 + lam |d c - dr|^2 (columns equilibrated; without
-    ``d`` no penalty): the profile likelihood's refit of a linear family
-    (:mod:`veil.analysis.profiles`), the fit's own objective at its smoothness ``lam``."""
+    ``d`` no penalty): scipy's NNLS on the stacked system, the fit's solve at each lambda
+    (:func:`choose`) and the profile likelihood's refits (:mod:`veil.analysis.profiles`)."""
     if d is None:
         d, lam = np.zeros((0, xw.shape[1])), 0.0
     dr = np.zeros(d.shape[0]) if dr is None else dr
-    return _stack_solve(xw, yw, d, lam, dr)
+    a = np.concatenate([xw, math.sqrt(lam) * d])
+    b = np.concatenate([yw, math.sqrt(lam) * dr])
+    scale = np.linalg.norm(a, axis=0)
+    scale[scale == 0] = 1.0
+    try:
+        coef, _ = nnls(a / scale, b, maxiter=50 * a.shape[1])
+    except RuntimeError as exc:  # scipy: the iteration limit
+        raise FitError(f"the non-negative least-squares solve did not converge ({exc})") from None
+    return coef / scale
 
 
 def penalized_covariance(
@@ -171,19 +179,6 @@ def penalized_covariance(
     scale = chi2_red if not weighted else max(chi2_red, 1.0)
     cov[np.ix_(active, active)] = (inv @ (xa.T @ xa) @ inv) * scale
     return cov, inv, dof
-
-
-def _stack_solve(xw: np.ndarray, yw: np.ndarray, d: np.ndarray, lam: float, dr) -> np.ndarray:
-    """c >= 0 minimizing |xw c - yw|^2 + lam |d c - dr|^2 (columns equilibrated)."""
-    a = np.concatenate([xw, math.sqrt(lam) * d])
-    b = np.concatenate([yw, math.sqrt(lam) * dr])
-    scale = np.linalg.norm(a, axis=0)
-    scale[scale == 0] = 1.0
-    try:
-        coef, _ = nnls(a / scale, b, maxiter=50 * a.shape[1])
-    except RuntimeError as exc:  # scipy: the iteration limit
-        raise FitError(f"the non-negative least-squares solve did not converge ({exc})") from None
-    return coef / scale
 
 
 def _hat_trace(xw: np.ndarray, d: np.ndarray, lam: float, active: np.ndarray) -> tuple:
@@ -206,7 +201,7 @@ def choose(
     best = None
     for rel in LAMBDAS:
         lam = rel * unit
-        c = _stack_solve(xw, yw, d, lam, dr)
+        c = nonnegative_solve(xw, yw, d, lam, dr)
         active = c > 0
         dof, _ = _hat_trace(xw, d, lam, active) if active.any() else (0.0, None)
         rss = float(np.sum((xw @ c - yw) ** 2))
