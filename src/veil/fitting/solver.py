@@ -46,6 +46,7 @@ from ..errors import FitError, InputError
 from . import coordinates
 from . import least_squares as lsq
 from .problem import ITERATION_ACCURACY, Problem
+from .undetermined import held_covariance, no_signal, silent_blocks
 
 #: Stopping tolerances in standard errors: iterations, polish, every other run (module docstring).
 TOL_ITER = 1e-2
@@ -495,7 +496,7 @@ def covariance_matrix(stderr: dict, correlation: dict | None, names) -> np.ndarr
 class Summary:
     """Goodness of fit and uncertainties of an :class:`Outcome` (names: the problem's).
     ``undetermined`` names the free parameters the data cannot determine (empty when they
-    can); their uncertainties are then None."""
+    can); ``covariance`` is then None, and so are their uncertainties (:func:`summarize`)."""
 
     residuals: np.ndarray
     chi2_reduced: float
@@ -512,8 +513,9 @@ class Summary:
 def summarize(problem: Problem, outcome: Outcome, extra_notes=()) -> Summary:
     """The statistics and the message of a solution (module docstring). A fit whose data
     cannot determine its parameters - no positive value, a singular Jacobian, a scale at
-    the floor of its search range - is "not determined", never reads "converged", and
-    reports no uncertainties."""
+    the floor of its search range - is "not determined" and never reads "converged"; it
+    reports no uncertainties but where only sessions without a signal leave parameters
+    undetermined (:mod:`veil.fitting.undetermined`): the others' then, those held."""
     sol = outcome.solution
     res, chi2, rms_rel = goodness(problem.y, problem.w, outcome.values, problem.n_free)
     cov = covariance(problem, sol.x, values=outcome.values)
@@ -524,8 +526,12 @@ def summarize(problem: Problem, outcome: Outcome, extra_notes=()) -> Summary:
         notes.append(f"{', '.join(edge)} at the edge of the search range (uncertainty unreliable)")
     stderr: dict[str, float | None] = {n: None for n in problem.names}
     corr: dict[str, dict[str, float | None]] = {}
-    if why:
-        cov = None
+    if why:  # the determined ones' from the rest, when only silent blocks' are not
+        cov, silent = None, no_signal(problem)[1]
+        if any(silent_blocks(problem)) and set(which) <= set(silent):
+            part = held_covariance(problem, weighted_jacobian(problem, sol.x), which, res)
+            if part is not None:
+                stderr, corr = uncertainties(part[0], problem.names, part[1])
     elif cov is None:
         notes.append(SINGULAR_NOTE)
     else:
@@ -542,17 +548,7 @@ def summarize(problem: Problem, outcome: Outcome, extra_notes=()) -> Summary:
 def _undetermined(problem: Problem, sol: Solution, cov) -> tuple[list[str], list[str]]:
     """(reasons why the data cannot determine the fit, the free parameters concerned); both
     empty when they can."""
-    why, which = [], []
-    for b, sl in zip(problem.blocks, problem.slices()):
-        y = problem.y[sl]
-        if not np.any(y > 0):
-            why.append(
-                f"session {b.session.name!r} has no positive value (all "
-                f"{'zero' if np.all(y == 0) else 'zero or negative'}"
-                f"{' after black-cloth subtraction' if b.medium is not None else ''}): "
-                f"it carries no signal to fit {', '.join(problem.free_names)}"
-            )
-            which += problem.free_names
+    why, which = no_signal(problem)  # a silent block's own parameters
     if cov is None:
         found = undetermined_parameters(problem, sol.x)
         why.append(
