@@ -227,3 +227,19 @@ def test_a_long_stage_off_a_terminal_says_its_count_again(capsys):
     lines = capsys.readouterr().err.splitlines()
     assert lines == ["veil maps: tables (0/48)", "veil maps: tables (3/48)",
                      "veil maps: solving tiles (0/4)"]
+
+
+def test_a_fit_off_a_terminal_says_each_stage_on_a_line(tmp_path, monkeypatch):
+    """A fit run in a log or CI (not a terminal) is not silent: one stderr line per stage of
+    its progress (the starts, each start's iterations), none of them a rich display's."""
+    monkeypatch.setattr("veil.cli._common.STAGE_LINE_SECONDS", float("inf"))
+    table = tmp_path / "clear.csv"
+    assert run("simulate", "--brdf", "BRDF1", "--medium", "none", "-o", table).exit_code == 0
+    result = run("fit", "reference", table, "-o", tmp_path / "ref.json")
+    assert result.exit_code == 0, result.output
+    lines = [ln for ln in result.stderr.splitlines() if ln.startswith("veil ")]
+    stages = [ln.split(": ", 1)[1] for ln in lines]
+    assert stages[0].startswith("starting")
+    assert any(s.startswith("start 1/") for s in stages), stages
+    assert len(stages) == len(set(stages)) >= 3  # a line per stage, not per evaluation
+    assert "\x1b[" not in result.stderr  # no terminal control sequences in a log

@@ -11,6 +11,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import re
 import shutil
 import signal
 import subprocess
@@ -299,7 +300,10 @@ def stop(proc, sig, limit=2.0):
 
 
 def _one_line(err: str) -> str:
-    lines = [line for line in err.splitlines() if line.strip()]
+    """The one line of ``err`` besides the progress lines a fit writes off a terminal
+    ("veil pipeline: step 0, ...")."""
+    lines = [line for line in err.splitlines()
+             if line.strip() and not re.match(r"veil [\w ]+: ", line)]
     assert len(lines) == 1, err
     assert "Traceback" not in err and "Exception ignored" not in err and "Aborted" not in err
     return lines[0]

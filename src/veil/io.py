@@ -49,11 +49,22 @@ def _umask_mode(bits: int = 0o666) -> int:
     return bits & ~umask
 
 
+def no_directory(directory: str) -> str:
+    """Why ``directory``, which is not a directory, cannot hold an output: it does not exist,
+    or it (or a folder above it) is a regular file."""
+    above = directory
+    while above and not os.path.lexists(above) and os.path.dirname(above) != above:
+        above = os.path.dirname(above)
+    if os.path.lexists(above) and not os.path.isdir(above):
+        return f"{above} is a file, not a directory"
+    return f"directory {directory} does not exist"
+
+
 def _unwritable(path: str, exc: OSError) -> UnwritableError:
     directory = os.path.dirname(os.path.abspath(path))
     reason = exc.strerror or str(exc)
     if not os.path.isdir(directory):
-        return UnwritableError(f"cannot write {path}: directory {directory} does not exist")
+        return UnwritableError(f"cannot write {path}: {no_directory(directory)}")
     return UnwritableError(f"cannot write {path}: directory {directory} is not writable ({reason})")
 
 
@@ -181,9 +192,7 @@ def check_output_folder(path) -> str:
         return path
     parent = os.path.dirname(path)
     if not os.path.isdir(parent):
-        raise UnwritableError(
-            f"cannot create the output directory {path}: directory {parent} does not exist"
-        )
+        raise UnwritableError(f"cannot create the output directory {path}: {no_directory(parent)}")
     if not os.access(parent, os.W_OK | os.X_OK):
         raise UnwritableError(
             f"cannot create the output directory {path}: directory {parent} is not writable"

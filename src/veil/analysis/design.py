@@ -47,6 +47,9 @@ MODES = ("joint", "known")
 #: defined; an interest parameter whose predicted stderr is close to it is not identified.
 PRIOR_SD_LOG = 10.0
 PRIOR_SD_PLAIN = 1.0
+#: Smallest relative noise of a measurement: below, 1/sigma^2 swamps the weak prior in
+#: float64 and the information matrix is singular.
+MIN_RELATIVE_NOISE = 1e-6
 
 
 def interest_names(brdf_cls) -> tuple[str, ...]:
@@ -283,12 +286,7 @@ class Information:
             vm = medium.to_vector()
             model = SessionModel(self.brdf, medium, [a[sel] for a in angles_all], accuracy)
             val, jb, jm = model.jacobian(vb, vm)
-            sigma = np.sqrt((self.noise * val) ** 2 + self.floor**2)
-            if np.any(sigma <= 0):
-                raise InputError(
-                    "the model is 0 at some candidate configuration and there is "
-                    "no noise floor: give --noise-floor"
-                )
+            sigma = self._sigma(val)
             # fit coordinates: log for log-scale parameters; a ratio s_j / s_1 moves s_j only,
             # the level s_1 moves every scale together
             r = np.zeros((sel.size, len(names)))
@@ -303,6 +301,33 @@ class Information:
             values[sel] = val
         self.rows = rows
         self.values = values
+
+    def _sigma(self, val: np.ndarray) -> np.ndarray:
+        """Each candidate's noise (relative and floor in quadrature) at model values ``val``:
+        an InputError when it is beyond float64, 0, or so small against the values that the
+        information would swamp the prior."""
+        with np.errstate(over="ignore"):  # beyond float64: refused below
+            sigma = np.hypot(self.noise * val, self.floor)
+        if not np.all(np.isfinite(sigma)):
+            raise InputError(
+                f"noise = {self.noise:g}, noise floor = {self.floor:g}: a measurement's "
+                f"noise would be beyond the range of float64 (model values up to "
+                f"{float(np.max(np.abs(val))):.3g}); give smaller values"
+            )
+        if np.any(sigma <= 0):
+            raise InputError(
+                "the model is 0 at some candidate configuration and there is "
+                "no noise floor: give --noise-floor"
+            )
+        small = float(np.min(sigma / np.maximum(np.abs(val), 1e-300)))
+        if small < MIN_RELATIVE_NOISE:
+            raise InputError(
+                f"noise = {self.noise:g}, noise floor = {self.floor:g}: a measurement "
+                f"would have a relative noise of {small:.3g}, below "
+                f"{MIN_RELATIVE_NOISE:g}; the information would swamp the weak prior "
+                f"in float64 arithmetic; give a larger noise or floor"
+            )
+        return sigma
 
     # ----------------------------------------------------------------------------------
     def matrix(self, selected=()) -> np.ndarray:

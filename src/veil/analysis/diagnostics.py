@@ -344,6 +344,11 @@ def diagnose(
     penalized objective its fit minimized (:func:`_linear_refits`)."""
     _check_arguments(result, points, max_relative, max_correlation)
     problem, notes = problem_for(result, data, medium=medium, reference=reference, black=black)
+    if not getattr(result, "converged", True):
+        notes.append(
+            "the result is a fit that did not converge: its values are not an estimate, "
+            "and the diagnostics are at its last point (refit it to convergence first)"
+        )
     _linear_alone(problem)
     names = problem.free_names
     say = progress or (lambda stage, done, total: None)
@@ -452,6 +457,11 @@ def _optimum(problem: Problem, notes: list, accuracy: str) -> np.ndarray:
         return x
     names = problem.free_names
     sol = solve(problem, x, accuracy=accuracy)
+    if sol.status <= 0:
+        notes.append(
+            f"with the previous step's parameters free under its uncertainty the refit did "
+            f"not converge ({sol.message}): the diagnostics are at its last point"
+        )
     moved = [
         f"{n} {_f(x[problem.index(n)])} -> {_f(sol.x[problem.index(n)])}"
         for n in names

@@ -251,7 +251,7 @@ def _count(done, total) -> str:
     """The progress display's count: "3/14", "120 evaluations" or nothing."""
     if done is None:
         return ""
-    return f"{done}/{total}" if total else f"{done} evaluations"
+    return f"{done}/{total}" if total else f"{done} evaluation{'' if done == 1 else 's'}"
 
 
 #: Off a terminal, a stage that has said nothing for this many seconds says its count again.
@@ -277,10 +277,10 @@ def _stage_lines(title: str, clock=time.monotonic):
 
 
 @contextlib.contextmanager
-def fit_progress(title: str, lines: bool = False):
+def fit_progress(title: str, lines: bool = True):
     """A rich progress display on stderr; yields the ``progress(stage, done, total)`` callback.
-    Off a terminal (a log, a pipe, CI) nothing is drawn, or with ``lines`` one line per stage
-    (:func:`_stage_lines`)."""
+    Off a terminal (a log, a pipe, CI) one line per stage (:func:`_stage_lines`), or nothing
+    without ``lines``."""
     from rich.progress import BarColumn, Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
 
     from .compile_display import console
@@ -369,10 +369,14 @@ def check_output_path(output, inputs=()):
 def check_file_target(path, named: str, written: str) -> None:
     """UserError unless ``path`` names a file in an existing, writable directory; messages
     call it ``named`` ("<named> is a directory") and ``written`` ("cannot write <written>")."""
+    if not os.fspath(path):
+        raise UserError(f"{named.rstrip()}: the path is empty; give a file name")
     if os.path.isdir(path):
         raise UserError(f"{named} is a directory; give a file name")
     directory = os.path.dirname(os.path.abspath(path))
     if not os.path.isdir(directory):
-        raise UserError(f"cannot write {written}: directory {directory} does not exist")
+        from ..io import no_directory
+
+        raise UserError(f"cannot write {written}: {no_directory(directory)}")
     if not os.access(directory, os.W_OK):
         raise UserError(f"cannot write {written}: directory {directory} is not writable")

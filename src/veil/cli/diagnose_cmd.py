@@ -19,6 +19,16 @@ from ._common import ModelChoice, UserError, check_output_path, model_options
 IN_FILE = click.Path(exists=True, dir_okay=False, path_type=Path)
 
 
+def _one_channel(result, named: str) -> None:
+    """A UserError naming the file when ``result`` is a step fit of several channels."""
+    channels = getattr(result, "channels", None)
+    if channels and not getattr(result, "JOINT", False):
+        raise UserError(
+            f"{named}: the file fits channels {', '.join(channels)} at once; "
+            f"veil diagnose takes results of one channel (fit one with --channel NAME)"
+        )
+
+
 def _load_other(text, kind, result, models):
     """--medium / --reference: a fit result of that kind, or a preset / literal of the family
     the result was fitted with (its given model's), else of --brdf-model / --medium-model."""
@@ -27,6 +37,7 @@ def _load_other(text, kind, result, models):
     option = "--medium" if kind == "medium" else "--reference"
     if os.path.exists(text) or text.lower().endswith(".json"):
         other = load_result(text)  # diagnose checks that it fits the result's step
+        _one_channel(other, f"{option} {text}")
         got = getattr(other, "kind", None) if not hasattr(other, "layout") else "joint"
         takes = {"medium": "target", "brdf": "medium"}[kind]  # the step that takes option
         if got != kind and getattr(result, "step", None) == takes:
@@ -201,6 +212,7 @@ def diagnose_command(
     from ..fitting import JointResult, load_result
 
     result = load_result(result_path)
+    _one_channel(result, str(result_path))
     inputs = [result_path, black]
     if isinstance(result, JointResult):
         if black is not None or medium is not None or reference is not None:
@@ -233,7 +245,7 @@ def diagnose_command(
     prof = list(profile_params) if profile_params else bool(profile)
     from ._common import echo_warnings, fit_progress
 
-    with echo_warnings(), fit_progress("diagnose", lines=True) as progress:
+    with echo_warnings(), fit_progress("diagnose") as progress:
         diag = diagnose(
             result,
             table,

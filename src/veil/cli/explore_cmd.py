@@ -66,6 +66,16 @@ def open_browser(url: str, echo) -> bool:
     return opened
 
 
+def _said_unconverged(result, path):
+    """``result``, with a warning when it did not converge (as veil export and render say)."""
+    if not getattr(result, "converged", True):
+        click.echo(
+            f"warning: {path} is a fit that did not converge: its values are not estimates",
+            err=True,
+        )
+    return result
+
+
 def load_inputs(files, data, black):
     """(state, fit views) from the command's files: fit results (each sets the model of its
     kind) or one state file written by the page's share button; ``data`` must be the table
@@ -96,7 +106,7 @@ def load_inputs(files, data, black):
         state = None
     results = []
     for f in files:
-        results.append(fits.check_result_kind(load_result(f), f))
+        results.append(_said_unconverged(fits.check_result_kind(load_result(f), f), f))
     if data is not None and not results:
         raise UserError(f"--data {data}: give the fit result it belongs to (RESULT.json)")
     channels = fits.result_channels(results, files)

@@ -17,6 +17,8 @@ TARGETS = ("mitsuba", "pbrt", "csv")
 MEDIUM_SPP = 4096
 #: Independent passes of a render through a medium (their spread is its standard error).
 PASSES = 4
+#: Most samples per configuration Mitsuba takes (its sample_count is a 32-bit unsigned).
+MAX_SPP = 2**32 - 1
 
 
 def _positive(name, low: float = 0.0, high: float = math.inf):
@@ -105,10 +107,10 @@ def _positive(name, low: float = 0.0, high: float = math.inf):
 )
 @click.option(
     "--spp",
-    type=click.IntRange(min=1),
+    type=click.IntRange(min=1, max=MAX_SPP),
     default=None,
     help=f"Samples per configuration of --verify (default 1 for a surface, "
-    f"{MEDIUM_SPP} through a medium).",
+    f"{MEDIUM_SPP} through a medium; at most {MAX_SPP}, Mitsuba's limit).",
 )
 @accuracy_option("Quadrature of veil's apparent values (csv, --verify).")
 @click.option(
@@ -154,6 +156,8 @@ def export_command(
     from ..models.renderers import Setting
 
     psis = parse_psi(psi)
+    if verify:
+        _verify_configs(psis)  # a bad --psi before anything is written
     check_output_path(output, [result, medium_result])
     if fmt is not None and target != "mitsuba":
         raise UserError(f"--format {fmt} applies to --to mitsuba only")
@@ -264,14 +268,20 @@ def _csv(loaded, psis, accuracy, output) -> None:
     )
 
 
-def _verify(done, brdf, medium, psis, spp, setting, accuracy) -> None:
+def _verify_configs(psis):
+    """The configurations --verify renders: the protocol at ``psis`` (checked)."""
     from ..data.protocol import protocol
+
+    table = protocol(psis, fine_step=2.0, coarse_step=10.0)
+    return table[["theta_i", "theta_r", "phi_i", "phi_r"]].to_numpy()
+
+
+def _verify(done, brdf, medium, psis, spp, setting, accuracy) -> None:
     from ..engine.apparent import apparent, reflectance
     from ..interop.verify import verify
     from ..models.renderers import GEOMETRY_HALF_WIDTH, GEOMETRY_LENGTH
 
-    table = protocol(psis, fine_step=2.0, coarse_step=10.0)
-    configs = table[["theta_i", "theta_r", "phi_i", "phi_r"]].to_numpy()
+    configs = _verify_configs(psis)
     material = done.item("brdf")
     if material is None:
         raise UserError(

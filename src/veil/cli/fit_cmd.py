@@ -500,7 +500,9 @@ def pipeline_command(
     if outdir.exists() and not outdir.is_dir():
         raise UserError(f"--outdir {outdir} exists and is not a directory")
     if not outdir.parent.exists() and not outdir.exists():
-        raise UserError(f"cannot create {outdir}: directory {outdir.parent} does not exist")
+        from ..io import no_directory
+
+        raise UserError(f"cannot create {outdir}: {no_directory(str(outdir.parent))}")
     chosen = (
         {"models": AUTO}
         if auto

@@ -229,7 +229,7 @@ def fit_maps_command(
     def log(message):
         click.echo(message, err=True)
 
-    with echo_warnings(), fit_progress("maps", lines=True) as progress:
+    with echo_warnings(), fit_progress("maps") as progress:
         run = fit_maps(
             photo_dir,
             manifest,

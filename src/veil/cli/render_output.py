@@ -6,6 +6,7 @@ docs/figures.md)."""
 from __future__ import annotations
 
 import io
+import math
 from dataclasses import dataclass, fields
 
 import click
@@ -138,7 +139,13 @@ def write_and_report(
     follows it printed; ``auto_rule`` says how an automatic exposure was chosen (None: it
     was given); ``models`` {channel: (BRDF, medium)} rendered (channel None: grey)."""
     from ..viz.render import png_bytes, tone_map
+    from ._errors import UserError
 
+    if not math.isfinite(clipped[2]):  # exposure x peak beyond float64
+        raise UserError(
+            f"--exposure {exposure:g} times the image's peak {float(result.image.max()):.4g} "
+            f"is beyond the range of float64 (1.8e308): give a smaller --exposure"
+        )
     if settings.linear_path is not None:
         check_linear_range(result.image, settings.linear_path, settings.models_text(models))
     png = png_bytes(tone_map(result.image, exposure, settings.tone), text)

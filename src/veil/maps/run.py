@@ -269,7 +269,9 @@ def _tile(tile) -> int:
 def _check_output(output: Path) -> None:
     """The output checked before anything is read: its folder exists, and it is no file."""
     if not output.parent.exists():
-        raise InputError(f"cannot write {output}: directory {output.parent} does not exist")
+        from ..io import no_directory
+
+        raise InputError(f"cannot write {output}: {no_directory(str(output.parent))}")
     check_store_path(output)
 
 

@@ -33,6 +33,9 @@ VALUE_KINDS = ("float", "boolean", "string", "spectrum", "rgb")
 #: plate's half width.
 GEOMETRY_LENGTH = "path_length"
 GEOMETRY_HALF_WIDTH = "plate_half_width"
+#: Largest magnitude a renderer reads: Mitsuba 3 and pbrt-v4 store their parameters as 32-bit
+#: floats, in which anything above is infinite.
+RENDERER_MAX = 3.4028234663852886e38
 
 
 class Unsupported(InputError):
@@ -82,6 +85,8 @@ class Value:
                     f"{self.name} = {self.value!r}: expected three finite "
                     f"numbers (r, g, b); a renderer cannot take it"
                 )
+            for x in rgb:
+                self._check_range(x)
             object.__setattr__(self, "value", rgb)
         elif self.kind in ("float", "spectrum", "rgb"):
             v = float(cast(SupportsFloat, self.value))  # these kinds hold a number
@@ -90,7 +95,18 @@ class Value:
                     f"{self.name} = {self.value!r} is not a finite number; a "
                     f"renderer cannot take it"
                 )
+            self._check_range(v)
             object.__setattr__(self, "value", v)
+
+    def _check_range(self, v: float) -> None:
+        """Unsupported when ``v`` is beyond a renderer's 32-bit floats (read as infinite)."""
+        if abs(v) > RENDERER_MAX:
+            raise Unsupported(
+                f"{self.name} = {v:.3g} is beyond the 32-bit floats a renderer stores it in "
+                f"(magnitude at most {RENDERER_MAX:.3g}; it would be infinite there): the "
+                f"export's setting makes it so; give a larger intensity scale (--scale), a "
+                f"smaller outside index (--ext-ior) or a longer pass (--path-length)"
+            )
 
     @property
     def colourable(self) -> bool:

@@ -475,8 +475,9 @@ def clipping(linear, exposure, tone="clip") -> tuple[int, float, float]:
     """
     lin = np.asarray(linear)
     n_lit = int(np.count_nonzero(lin > 0))
-    n_clip = int(np.count_nonzero(exposure * lin > 1.0)) if tone == "clip" else 0
-    return n_clip, (n_clip / n_lit if n_lit else 0.0), float(exposure * lin.max())
+    with np.errstate(over="ignore"):  # an overflowing peak: the caller refuses it
+        n_clip = int(np.count_nonzero(exposure * lin > 1.0)) if tone == "clip" else 0
+        return n_clip, (n_clip / n_lit if n_lit else 0.0), float(exposure * lin.max())
 
 
 def png_bytes(image_u8, text=None) -> bytes:

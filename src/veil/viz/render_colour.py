@@ -75,8 +75,9 @@ def clipping_colour(image, exposure: float, tone: str = "clip") -> tuple[int, fl
     of full scale); nothing clips under the "reinhard" tone curve."""
     img = np.asarray(image)
     n_lit = int(np.count_nonzero(img.max(axis=-1) > 0))
-    n_clip = int(np.count_nonzero((exposure * img).max(axis=-1) > 1.0)) if tone == "clip" else 0
-    return n_clip, (n_clip / n_lit if n_lit else 0.0), float(exposure * img.max())
+    with np.errstate(over="ignore"):  # an overflowing peak: the caller refuses it
+        n_clip = int(np.count_nonzero((exposure * img).max(axis=-1) > 1.0)) if tone == "clip" else 0
+        return n_clip, (n_clip / n_lit if n_lit else 0.0), float(exposure * img.max())
 
 
 __all__ = [
