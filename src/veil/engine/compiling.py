@@ -159,6 +159,7 @@ def _log(compilation: Compilation, seconds: float) -> None:
         {
             "event": "compile",
             "label": compilation.label,
+            "identity": compilation.identity,
             "lines": compilation.lines,
             "estimate": round(compilation.estimate, 2),
             "seconds": round(seconds, 3),
