@@ -233,6 +233,9 @@ def test_a_fit_off_a_terminal_says_each_stage_on_a_line(tmp_path, monkeypatch):
     """A fit run in a log or CI (not a terminal) is not silent: one stderr line per stage of
     its progress (the starts, each start's iterations), none of them a rich display's."""
     monkeypatch.setattr("veil.cli._common.STAGE_LINE_SECONDS", float("inf"))
+    for forcing in ("FORCE_COLOR", "TTY_COMPATIBLE", "TTY_INTERACTIVE"):  # (rich's, in CI)
+        monkeypatch.delenv(forcing, raising=False)
+    monkeypatch.setattr("veil.cli.compile_display._CONSOLE", None)  # made afresh, not a tty
     table = tmp_path / "clear.csv"
     assert run("simulate", "--brdf", "BRDF1", "--medium", "none", "-o", table).exit_code == 0
     result = run("fit", "reference", table, "-o", tmp_path / "ref.json")

@@ -1,6 +1,6 @@
 """A linear family's derivative in its coefficients is its values at unit vectors
 (veil.engine.forward.LinearForward): no program of derivatives is compiled or run for it,
-and the columns are those of the linear fit's design (veil.fitting.linear_fit.design)."""
+and each column is the change of the family's values when its coefficient grows by one."""
 
 from __future__ import annotations
 
@@ -36,12 +36,33 @@ def test_the_coefficients_columns_need_no_program_of_derivatives(monkeypatch):
     monkeypatch.setattr(Forward, "_jacobian_fn", refuse)
     assert fwd.prepare(values=False, jacobians=[((0, 1), ())])  # the values program alone
     value, jac = fwd.value_and_jacobian(vb, vm, free, ())
-    assert np.array_equal(value, fwd(vb, vm))
+    assert np.allclose(value, fwd(vb, vm), rtol=1e-12, atol=0.0)
     for k, i in enumerate(free):
-        unit = np.zeros_like(vb)
-        unit[i] = 1.0
-        # linear: the column is the family's values at the unit vector, to rounding
-        assert np.allclose(jac[:, k], fwd(unit, vm), rtol=1e-12, atol=0.0)
+        # linear: the column is the change of the family's values when the coefficient grows
+        # by 1 from the plate's (other group vectors than the column's own unit vector)
+        step = vb.copy()
+        step[i] += 1.0
+        assert np.allclose(jac[:, k], fwd(step, vm) - fwd(vb, vm), rtol=1e-9,
+                           atol=1e-12 * np.max(np.abs(jac[:, k])))
         assert np.all(jac[:, k] >= 0.0) and np.max(jac[:, k]) > 0.0
-    # a coefficient of an inactive width's group (w12_3 is 0 here) still has its column
-    assert np.max(jac[:, 2]) > 0.0
+    assert not np.allclose(jac[:, 0], jac[:, 1], rtol=1e-3)  # distinct basis functions
+
+
+def test_with_the_medium_free_too_the_coefficients_columns_are_the_same():
+    """With the medium's derivatives asked for as well, the value (then from the groups'
+    Jacobian programs) and the coefficients' columns are those without."""
+    fwd = _forward()
+    vb, vm = fwd.brdf.to_vector(), fwd.medium.to_vector()
+    free = (NonParametric.index("d0"), NonParametric.index("w09_2"))
+    alone_value, alone = fwd.value_and_jacobian(vb, vm, free, ())
+    value, jac = fwd.value_and_jacobian(vb, vm, free, (0, 1))
+    assert np.allclose(value, alone_value, rtol=1e-12, atol=0.0)
+    assert np.array_equal(jac[:, :2], alone)
+    # the medium's scales (Td, Tt): the values are quadratic in them (rows Td^2, Td Tt,
+    # Tt^2) and the sampling does not move with them, so a forward difference of 1e-3 of
+    # the scale is its derivative to about 1e-3
+    for k in (0, 1):
+        up = vm.copy()
+        up[k] *= 1.0 + 1e-3
+        moved = (fwd(vb, up) - fwd(vb, vm)) / (vm[k] * 1e-3)
+        assert np.allclose(jac[:, 2 + k], moved, rtol=1e-2, atol=1e-9 * np.max(np.abs(moved)))

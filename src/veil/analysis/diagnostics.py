@@ -344,7 +344,12 @@ def diagnose(
     penalized objective its fit minimized (:func:`_linear_refits`)."""
     _check_arguments(result, points, max_relative, max_correlation)
     problem, notes = problem_for(result, data, medium=medium, reference=reference, black=black)
-    if not getattr(result, "converged", True):
+    if not getattr(result, "determined", True):
+        notes.append(
+            "the result is a fit whose data do not determine every parameter (its message "
+            "says which): the diagnostics are at its last point"
+        )
+    elif not getattr(result, "converged", True):
         notes.append(
             "the result is a fit that did not converge: its values are not an estimate, "
             "and the diagnostics are at its last point (refit it to convergence first)"

@@ -116,13 +116,23 @@ def result_models(
         brought = {kind: result_path for kind in had if now[kind] and not had[kind]}
     source = str(result_path) + (f" and {other_path}" if other_path is not None else "")
     unconverged = [str(path) for path, result in loaded if not getattr(result, "converged", True)]
-    for path in unconverged:
-        notes.append(
-            f"warning: {path} is a fit that did not converge: its values are not estimates"
-        )
+    for path, result in loaded:
+        if not getattr(result, "converged", True):
+            notes.append(unconverged_warning(result, path))
     if unconverged:
         source += f" (not converged: {', '.join(unconverged)})"
     return ResultModels(brdf, medium, source, keys, notes, brought)
+
+
+def unconverged_warning(result, path) -> str:
+    """The warning for a ``result`` that did not converge, or whose data do not determine
+    every parameter (``determined`` False: its other values are estimates)."""
+    if not getattr(result, "determined", True):
+        return (
+            f"warning: {path} is a fit whose data do not determine every parameter (its "
+            f"message says which): those values are not estimates"
+        )
+    return f"warning: {path} is a fit that did not converge: its values are not estimates"
 
 
 def _with_given(result, keys, channel, brdf, medium):

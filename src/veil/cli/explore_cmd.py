@@ -69,10 +69,9 @@ def open_browser(url: str, echo) -> bool:
 def _said_unconverged(result, path):
     """``result``, with a warning when it did not converge (as veil export and render say)."""
     if not getattr(result, "converged", True):
-        click.echo(
-            f"warning: {path} is a fit that did not converge: its values are not estimates",
-            err=True,
-        )
+        from ._result_models import unconverged_warning
+
+        click.echo(unconverged_warning(result, path), err=True)
     return result
 
 

@@ -513,9 +513,10 @@ class Summary:
 def summarize(problem: Problem, outcome: Outcome, extra_notes=()) -> Summary:
     """The statistics and the message of a solution (module docstring). A fit whose data
     cannot determine its parameters - no positive value, a singular Jacobian, a scale at
-    the floor of its search range - is "not determined" and never reads "converged"; it
-    reports no uncertainties but where only sessions without a signal leave parameters
-    undetermined (:mod:`veil.fitting.undetermined`): the others' then, those held."""
+    the floor of its search range - is "not determined" and never reads "converged". It
+    reports no uncertainties, unless the only undetermined parameters are those of sessions
+    without a signal (:mod:`veil.fitting.undetermined`): then the other parameters get theirs,
+    with those held."""
     sol = outcome.solution
     res, chi2, rms_rel = goodness(problem.y, problem.w, outcome.values, problem.n_free)
     cov = covariance(problem, sol.x, values=outcome.values)
@@ -532,6 +533,8 @@ def summarize(problem: Problem, outcome: Outcome, extra_notes=()) -> Summary:
             part = held_covariance(problem, weighted_jacobian(problem, sol.x), which, res)
             if part is not None:
                 stderr, corr = uncertainties(part[0], problem.names, part[1])
+            else:
+                notes.append(SINGULAR_NOTE)
     elif cov is None:
         notes.append(SINGULAR_NOTE)
     else:

@@ -53,7 +53,8 @@ def no_signal(problem: Problem) -> tuple[list[str], list[str]]:
             + (
                 f"it carries no signal to fit {', '.join(own)}"
                 if own
-                else "it carries no signal (its own parameters are held)"
+                else "it carries no signal (the other sessions determine all its parameters; "
+                "its rows are left out of the uncertainties)"
             )
         )
         which += own
