@@ -321,6 +321,21 @@ def _add_prior(problem, other: FitResult, what):
 # --------------------------------------------------------------------------------------
 # the diagnostics
 # --------------------------------------------------------------------------------------
+def _unfinished(result) -> list[str]:
+    """A note when ``result`` is not determined or did not converge (none otherwise)."""
+    if not getattr(result, "determined", True):
+        return [
+            "the result is a fit whose data do not determine every parameter (its message "
+            "says which): the diagnostics are at its last point"
+        ]
+    if not getattr(result, "converged", True):
+        return [
+            "the result is a fit that did not converge: its values are not an estimate, "
+            "and the diagnostics are at its last point (refit it to convergence first)"
+        ]
+    return []
+
+
 def diagnose(
     result: FitResult,
     data,
@@ -344,16 +359,7 @@ def diagnose(
     penalized objective its fit minimized (:func:`_linear_refits`)."""
     _check_arguments(result, points, max_relative, max_correlation)
     problem, notes = problem_for(result, data, medium=medium, reference=reference, black=black)
-    if not getattr(result, "determined", True):
-        notes.append(
-            "the result is a fit whose data do not determine every parameter (its message "
-            "says which): the diagnostics are at its last point"
-        )
-    elif not getattr(result, "converged", True):
-        notes.append(
-            "the result is a fit that did not converge: its values are not an estimate, "
-            "and the diagnostics are at its last point (refit it to convergence first)"
-        )
+    notes += _unfinished(result)
     _linear_alone(problem)
     names = problem.free_names
     say = progress or (lambda stage, done, total: None)
