@@ -33,7 +33,7 @@ import numpy as np
 from ..errors import FitError, InputTypeError
 from ..fitting.joint import build, shareable
 from ..fitting.problem import ITERATION_ACCURACY, Problem, session_problem
-from ..fitting.result import FitResult, JointResult
+from ..fitting.result import FitResult, JointResult, unfinished
 from ..fitting.solver import covariance, solve, weighted_jacobian
 from ..models import BRDF, REGISTRY, Medium, Model
 from ..numbers import format_number, format_percent
@@ -321,21 +321,6 @@ def _add_prior(problem, other: FitResult, what):
 # --------------------------------------------------------------------------------------
 # the diagnostics
 # --------------------------------------------------------------------------------------
-def _unfinished(result) -> list[str]:
-    """A note when ``result`` is not determined or did not converge (none otherwise)."""
-    if not getattr(result, "determined", True):
-        return [
-            "the result is a fit whose data do not determine every parameter (its message "
-            "says which): the diagnostics are at its last point"
-        ]
-    if not getattr(result, "converged", True):
-        return [
-            "the result is a fit that did not converge: its values are not an estimate, "
-            "and the diagnostics are at its last point (refit it to convergence first)"
-        ]
-    return []
-
-
 def diagnose(
     result: FitResult,
     data,
@@ -359,7 +344,9 @@ def diagnose(
     penalized objective its fit minimized (:func:`_linear_refits`)."""
     _check_arguments(result, points, max_relative, max_correlation)
     problem, notes = problem_for(result, data, medium=medium, reference=reference, black=black)
-    notes += _unfinished(result)
+    what = unfinished(result)
+    if what is not None:  # the diagnostics are at its last point, not at an optimum
+        notes.append(f"the result is {what}: the diagnostics are at its last point")
     _linear_alone(problem)
     names = problem.free_names
     say = progress or (lambda stage, done, total: None)

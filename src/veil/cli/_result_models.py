@@ -125,14 +125,12 @@ def result_models(
 
 
 def unconverged_warning(result, path) -> str:
-    """The warning for a ``result`` that did not converge, or whose data do not determine
-    every parameter (``determined`` False: its other values are estimates)."""
-    if not getattr(result, "determined", True):
-        return (
-            f"warning: {path} is a fit whose data do not determine every parameter (its "
-            f"message says which): those values are not estimates"
-        )
-    return f"warning: {path} is a fit that did not converge: its values are not estimates"
+    """The warning for a ``result`` whose values are not all estimates
+    (:func:`veil.fitting.result.unfinished`)."""
+    from ..fitting.result import unfinished
+
+    which = "its" if getattr(result, "determined", True) else "those"
+    return f"warning: {path} is {unfinished(result)}: {which} values are not estimates"
 
 
 def _with_given(result, keys, channel, brdf, medium):

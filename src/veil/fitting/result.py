@@ -483,7 +483,19 @@ def load_model_result(path, kind: str, option: str) -> FitResult:
     return result
 
 
+def unfinished(result) -> str | None:
+    """What ``result`` (a step's or a joint fit's) is when not all its values are estimates:
+    "a fit whose data do not determine every parameter (...)" (``determined`` False: the
+    others are estimates) or "a fit that did not converge"; None when it converged."""
+    if not getattr(result, "determined", True):
+        return "a fit whose data do not determine every parameter (its message says which)"
+    if not getattr(result, "converged", True):
+        return "a fit that did not converge"
+    return None
+
+
 __all__ = [
+    "unfinished",
     "FitResult",
     "JointResult",
     "FORMAT",
