@@ -294,7 +294,7 @@ def test_simulate_and_fit_three_channels_on_the_command_line(tmp_path):
     (("--channels", "r,100"), "'100' is not r, g, b or a wavelength from 200 to 2500 nm"),
     (("--channels", "r,650"), "--channels 'r,650': colour channels mixed with wavelengths"),
     (("--channels", "r,g,b", "--per-channel", "Pd=1,nan,3"),
-     "--per-channel, channel g: TorranceSparrow.Pd = nan"),
+     "--per-channel, channel g: torrance-sparrow Pd = nan"),
 ])
 def test_simulate_channel_options_are_checked(tmp_path, args, message):
     out = run("simulate", "--brdf", "BRDF1", "--medium", "none", *args,

@@ -60,6 +60,25 @@ def no_directory(directory: str) -> str:
     return f"directory {directory} does not exist"
 
 
+def through_link(path: str) -> str:
+    """Where an output ``path`` is written: ``path`` itself, or, when it is a symbolic link
+    (to a file or a folder, or dangling), what it points to, resolved through every link:
+    the link stays and its target gets the new content, written atomically as any output
+    (docs/errors.md). :class:`veil.errors.UnwritableError` for a link whose target's
+    directory does not exist, and for a loop of links."""
+    if not os.path.islink(path):
+        return path
+    target = os.path.realpath(path)
+    if os.path.islink(target):
+        raise UnwritableError(f"cannot write {path}: it is a loop of symbolic links")
+    directory = os.path.dirname(target)
+    if not os.path.isdir(directory):
+        raise UnwritableError(
+            f"cannot write {path}: it is a symbolic link to {target}, and {no_directory(directory)}"
+        )
+    return target
+
+
 def _unwritable(path: str, exc: OSError) -> UnwritableError:
     directory = os.path.dirname(os.path.abspath(path))
     reason = exc.strerror or str(exc)
@@ -155,7 +174,8 @@ def write_many_atomic(files: dict) -> None:
     none is replaced, the temporaries are removed and an
     :class:`veil.errors.UnwritableError` names the path: a command never leaves some of its
     outputs new and others old."""
-    paths = [os.fspath(p) for p in files]
+    given = [os.fspath(p) for p in files]
+    paths = [through_link(p) for p in given]  # a link stays; its target is replaced
     temps: list[str] = []
     committed = 0  # the temporaries renamed into place so far
     try:
@@ -169,7 +189,7 @@ def write_many_atomic(files: dict) -> None:
                     raise write_error(path, exc) from None
                 _temporaries.pop(tmp, None)
                 committed += 1
-                _record(path)
+                _record(given[committed - 1])
     except BaseException:
         _discard(temps[committed:])
         raise
@@ -183,7 +203,7 @@ def write_text_atomic(path, text: str) -> None:
 def check_output_folder(path) -> str:
     """The absolute path of an output folder that can be written (created if missing), or
     :class:`veil.errors.UnwritableError` saying why not."""
-    path = os.path.abspath(os.fspath(path))
+    path = through_link(os.path.abspath(os.fspath(path)))  # a link stays, written through
     if os.path.exists(path):
         if not os.path.isdir(path):
             raise UnwritableError(f"output directory {path} exists and is not a directory")
@@ -429,6 +449,7 @@ __all__ = [
     "write_error",
     "output_folder",
     "check_output_folder",
+    "through_link",
     "COMMIT",
     "written",
     "abandon",

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import contextlib
 import importlib
+import math
 import os
 import sys
 import time
@@ -15,7 +16,7 @@ from pathlib import Path
 import click
 
 from ..errors import InputError
-from ._errors import EXIT_INPUT, UserError, report_bug
+from ._errors import EXIT_INPUT, UserError, family_words, options_named, report_bug
 
 # the model options, imported by the commands from here
 from ._model_options import ModelChoice as ModelChoice
@@ -39,6 +40,36 @@ def parse_psi(text: str) -> tuple[float, ...]:
                 f"comma-separated angles in degrees, e.g. 30,60,90)"
             ) from None
     return tuple(values)
+
+
+def empty_path(what: str = "file") -> str:
+    """The message of an empty output path, which would name the current directory."""
+    return f"the path is empty; give a {what} name"
+
+
+class OutputPath(click.Path):
+    """``click.Path`` of an output: a file, or (``file_okay=False``, or ``what="folder"``) a
+    folder. An empty value is refused at once with status 2, naming the option: it would
+    be the current directory, and a folder's outputs would land among the user's files."""
+
+    def __init__(self, *args, what: str | None = None, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.what = what or ("file" if self.file_okay else "folder")
+
+    def convert(self, value, param, ctx):
+        if isinstance(value, str) and not value:
+            self.fail(empty_path(self.what), param, ctx)
+        return super().convert(value, param, ctx)
+
+
+class FloatRange(click.FloatRange):
+    """``click.FloatRange`` that refuses nan too (nan passes click's comparisons)."""
+
+    def convert(self, value, param, ctx):
+        number = super().convert(value, param, ctx)
+        if math.isnan(number):
+            self.fail(f"{value!r} is not a number; expected {self._describe_range()}", param, ctx)
+        return number
 
 
 class LazyGroup(click.Group):
@@ -87,8 +118,10 @@ class VeilGroup(LazyGroup):
         try:
             with shown():
                 return super().invoke(ctx)
+        except click.ClickException as exc:
+            exc.message = family_words(exc.message)
+            raise
         except (
-            click.ClickException,
             click.exceptions.Exit,
             click.exceptions.Abort,
             KeyboardInterrupt,
@@ -96,7 +129,7 @@ class VeilGroup(LazyGroup):
         ):
             raise
         except InputError as exc:
-            click.echo(f"Error: {exc}", err=True)
+            click.echo(f"Error: {family_words(str(exc))}", err=True)
             sys.exit(EXIT_INPUT)
         except OSError as exc:
             if exc.filename is None:
@@ -139,7 +172,7 @@ def noise_option(help_text: str, positive: bool = False):
     """``--noise``: a relative noise level, 0.01 by default, >= 0 (> 0 if ``positive``)."""
     return click.option(
         "--noise",
-        type=click.FloatRange(min=0.0, min_open=positive),
+        type=FloatRange(min=0.0, min_open=positive),
         default=0.01,
         show_default=True,
         help=help_text,
@@ -155,6 +188,15 @@ def photo_channel_option(help_text: str):
         show_default=True,
         help=help_text,
     )
+
+
+#: The Python keywords of the protocol's rotations (veil.data.protocol) -> their options.
+ROTATION_OPTIONS = {
+    "fine_step": "--fine-step",
+    "coarse_step": "--coarse-step",
+    "window": "--window",
+    "limit": "--limit",
+}
 
 
 def rotation_options(candidate: bool = False):
@@ -193,6 +235,7 @@ def rotation_options(candidate: bool = False):
     )
 
     def decorate(command):
+        command = options_named(ROTATION_OPTIONS)(command)  # the protocol's words
         for option in reversed(options):
             command = option(command)
         return command
@@ -370,10 +413,14 @@ def check_file_target(path, named: str, written: str) -> None:
     """UserError unless ``path`` names a file in an existing, writable directory; messages
     call it ``named`` ("<named> is a directory") and ``written`` ("cannot write <written>")."""
     if not os.fspath(path):
-        raise UserError(f"{named.rstrip()}: the path is empty; give a file name")
+        raise UserError(f"{named.rstrip()}: {empty_path()}")
     if os.path.isdir(path):
         raise UserError(f"{named} is a directory; give a file name")
-    directory = os.path.dirname(os.path.abspath(path))
+    # a symbolic link is written through (veil.io): its target's directory must be writable
+    link = os.path.islink(path)
+    directory = os.path.dirname(os.path.realpath(path) if link else os.path.abspath(path))
+    if link:
+        written = f"{written} (a symbolic link to {os.path.realpath(path)})"
     if not os.path.isdir(directory):
         from ..io import no_directory
 

@@ -4,11 +4,15 @@ status 3, the traceback written to a file)."""
 
 from __future__ import annotations
 
+import contextlib
 import os
+import re
 import sys
 import tempfile
 
 import click
+
+from ..errors import InputError
 
 
 class UserError(click.ClickException):
@@ -16,6 +20,48 @@ class UserError(click.ClickException):
     traceback, exit status 2 (veil's own :class:`veil.errors.InputError` gets the same)."""
 
     exit_code = 2
+
+
+def option_words(text: str, names: dict) -> str:
+    """``text`` (a message of veil's library) with the Python keywords in ``names`` said as
+    the command's options: ``fine_step = 0.1 deg`` -> ``--fine-step 0.1 deg``, ``give
+    reference=`` -> ``give --reference``, ``fixed={...} (--fix 'X=...')`` -> ``--fix 'X=...'``.
+    A keyword followed by "in Python" (the library naming both) is left alone."""
+    for word, option in names.items():
+        w = rf"(?<![\w.\[-]){re.escape(word)}"
+        said = option.replace("\\", "\\\\")  # literal in a replacement
+        text = re.sub(w + r"=\{[^{}]*\}\s*\((--[^()]*)\)", r"\1", text)
+        text = re.sub(w + " = ", said + " ", text)
+        text = re.sub(w + r"=(?=[\s,;)]|$)(?! in Python)", said, text)
+    return text
+
+
+def family_words(text: str) -> str:
+    """``text`` with the Python class names of model families said as the families' names,
+    as the options and ``veil models`` give them: ``TorranceSparrow.Pd = -1`` ->
+    ``torrance-sparrow Pd = -1``. (No model was made if the registry was never imported.)"""
+    registry = sys.modules.get("veil.models.registry")
+    for cls in set(getattr(registry, "REGISTRY", {}).values()):
+        text = text.replace(f"{cls.__name__}.", f"{cls.NAME} ")
+    return text
+
+
+@contextlib.contextmanager
+def options_named(names: dict):
+    """Within the block (or the decorated command), an :class:`veil.errors.InputError` of the
+    library names the command's options (``names``: Python keyword -> option, e.g.
+    ``{"max_relative": "--max-relative"}``) instead of its Python keywords
+    (:func:`option_words`), as does a :class:`UserError` passing one on; the exception is
+    re-raised with the new words."""
+    try:
+        yield
+    except UserError as exc:
+        raise UserError(option_words(exc.message, names)) from exc.__cause__
+    except InputError as exc:
+        text = option_words(str(exc), names)
+        if text != str(exc):
+            exc.args = (text,)
+        raise
 
 
 #: Exit statuses (docs/errors.md): 0 done; 1 done, but a fit did not converge or the data do

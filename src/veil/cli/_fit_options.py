@@ -11,6 +11,7 @@ from pathlib import Path
 import click
 
 from ._common import (
+    OutputPath,
     UserError,
     accuracy_option,
     model_error_option,
@@ -20,7 +21,7 @@ from ._common import (
 )
 
 IN_FILE = click.Path(exists=True, dir_okay=False, path_type=Path)
-OUT_FILE = click.Path(dir_okay=False, path_type=Path)
+OUT_FILE = OutputPath(dir_okay=False, path_type=Path)
 
 
 def _fix_option(help_text):

@@ -17,7 +17,7 @@ from pathlib import Path
 import click
 
 from ..models import PRESETS
-from ._common import accuracy_option, noise_option, seed_option
+from ._common import OutputPath, accuracy_option, noise_option, seed_option
 
 #: The demo's set-up: which preset plays which role.
 SETUP = {"reference": "BRDF2", "medium": "BTDF2", "target": "BRDF1"}
@@ -132,7 +132,7 @@ def summary_table(result):
     "-o",
     "--outdir",
     required=True,
-    type=click.Path(file_okay=False, path_type=Path),
+    type=OutputPath(file_okay=False, path_type=Path),
     help="Directory for the simulated sessions (data/), the fit results, figures "
     "and report.md (created). Written as a whole at the end; an interrupted "
     "run leaves it as it was.",

@@ -15,11 +15,14 @@ from pathlib import Path
 import click
 
 from ._common import (
+    FloatRange,
+    OutputPath,
     UserError,
     accuracy_option,
     check_output_path,
     model_options,
     noise_option,
+    options_named,
     rotation_options,
 )
 
@@ -193,7 +196,7 @@ def _print_design(plan, result: dict, info, mapping: dict) -> None:
 @noise_option("Relative noise of a measurement (0.01 = 1 %).")
 @click.option(
     "--noise-floor",
-    type=click.FloatRange(min=0),
+    type=FloatRange(min=0),
     default=0.0,
     show_default=True,
     help="Absolute noise floor, in value units (added in quadrature).",
@@ -216,10 +219,11 @@ def _print_design(plan, result: dict, info, mapping: dict) -> None:
 @click.option(
     "-o",
     "--output",
-    type=click.Path(dir_okay=False, path_type=Path),
+    type=OutputPath(dir_okay=False, path_type=Path),
     help="CSV file for the plan (written atomically).",
 )
 @model_options()
+@options_named({"noise": "--noise", "noise floor": "--noise-floor", "size": "--size"})
 def design_command(
     brdf,
     media,

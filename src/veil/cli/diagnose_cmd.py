@@ -14,7 +14,15 @@ from pathlib import Path
 
 import click
 
-from ._common import ModelChoice, UserError, check_output_path, model_options
+from ._common import (
+    FloatRange,
+    ModelChoice,
+    OutputPath,
+    UserError,
+    check_output_path,
+    model_options,
+    options_named,
+)
 
 IN_FILE = click.Path(exists=True, dir_okay=False, path_type=Path)
 
@@ -165,7 +173,7 @@ def _print(diag, console) -> None:
 )
 @click.option(
     "--max-relative",
-    type=click.FloatRange(min=0, min_open=True),
+    type=FloatRange(min=0, min_open=True),
     default=0.25,
     show_default=True,
     help="Relative standard error above which a parameter is "
@@ -173,7 +181,7 @@ def _print(diag, console) -> None:
 )
 @click.option(
     "--max-correlation",
-    type=click.FloatRange(0, 1, min_open=True),
+    type=FloatRange(0, 1, min_open=True),
     default=0.9,
     show_default=True,
     help="|correlation| above which a pair trades off.",
@@ -181,11 +189,12 @@ def _print(diag, console) -> None:
 @click.option(
     "-o",
     "--outdir",
-    type=click.Path(file_okay=False, path_type=Path),
+    type=OutputPath(file_okay=False, path_type=Path),
     help="Directory for diagnostics.json and diagnostics.png (created; both are "
     "replaced together, other files in it are left alone).",
 )
 @model_options()
+@options_named({"max_relative": "--max-relative", "max_correlation": "--max-correlation"})
 def diagnose_command(
     result_path,
     data,

@@ -13,7 +13,7 @@ from pathlib import Path
 import click
 
 from .._extras import require
-from ._common import UserError, check_output_path
+from ._common import OutputPath, UserError, check_output_path
 
 IN_FILE = click.Path(exists=True, dir_okay=False, path_type=Path)
 #: Port tried first (Panel's usual one).
@@ -192,7 +192,7 @@ def load_inputs(files, data, black):
 @click.option(
     "-o",
     "--output",
-    type=click.Path(dir_okay=False, path_type=Path),
+    type=OutputPath(dir_okay=False, path_type=Path),
     help="The page --static writes (HTML).",
 )
 @click.option(

@@ -9,7 +9,14 @@ from pathlib import Path
 
 import click
 
-from ._common import UserError, accuracy_option, check_output_path, parse_psi, written_kind
+from ._common import (
+    OutputPath,
+    UserError,
+    accuracy_option,
+    check_output_path,
+    parse_psi,
+    written_kind,
+)
 
 IN_FILE = click.Path(exists=True, dir_okay=False, path_type=Path)
 TARGETS = ("mitsuba", "pbrt", "csv")
@@ -53,7 +60,7 @@ def _positive(name, low: float = 0.0, high: float = math.inf):
     "-o",
     "--output",
     required=True,
-    type=click.Path(dir_okay=False, path_type=Path),
+    type=OutputPath(dir_okay=False, path_type=Path),
     help="File to write (atomically).",
 )
 @click.option(

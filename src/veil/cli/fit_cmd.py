@@ -15,6 +15,7 @@ import click
 
 from ._common import (
     LazyGroup,
+    OutputPath,
     UserError,
     check_output_path,
     echo_warnings,
@@ -409,7 +410,7 @@ def target_command(ctx, table, medium, output, models, channel, **opts):
     "-o",
     "--outdir",
     required=True,
-    type=click.Path(file_okay=False, path_type=Path),
+    type=OutputPath(file_okay=False, path_type=Path),
     help="Directory for the JSON results, figures and report.md (created).",
 )
 @_fix_option(

@@ -14,16 +14,18 @@ from pathlib import Path
 import click
 
 from ._common import (
+    OutputPath,
     UserError,
     accuracy_option,
     check_output_path,
     fix_value,
     model_error_option,
     model_options,
+    options_named,
     propagation_option,
 )
 
-OUT_FILE = click.Path(dir_okay=False, path_type=Path)
+OUT_FILE = OutputPath(dir_okay=False, path_type=Path)
 
 
 def parse_sessions(items, option: str) -> list[tuple[str, str]]:
@@ -217,6 +219,7 @@ def _ranked_joint(ctx, loaded, ranked, kw: dict):
 @propagation_option
 @click.pass_context
 @model_options(auto_kinds=("brdf", "medium"))
+@options_named({"reference": "--reference", "fixed": "--fix"})
 def joint_command(
     ctx,
     sessions,

@@ -13,6 +13,7 @@ from pathlib import Path
 import click
 
 from ._common import (
+    OutputPath,
     UserError,
     accuracy_option,
     check_outside,
@@ -67,7 +68,7 @@ def _noise(text):
     "-o",
     "--output",
     required=True,
-    type=click.Path(file_okay=True),
+    type=OutputPath(what="folder"),
     help="Zarr store for the maps (a folder; an existing partial store of the same "
     "inputs is resumed).",
 )
@@ -342,7 +343,7 @@ def maps_command():
     "-o",
     "--output",
     required=True,
-    type=click.Path(dir_okay=False),
+    type=OutputPath(dir_okay=False),
     help="Figure to write: .png, .pdf or .svg (outside the store).",
 )
 def show_command(store, output):
@@ -364,7 +365,7 @@ def show_command(store, output):
     "-o",
     "--output",
     required=True,
-    type=click.Path(file_okay=False),
+    type=OutputPath(file_okay=False),
     help="Folder for the images and summary.json (created).",
 )
 @click.option(

@@ -8,7 +8,13 @@ import os
 import click
 
 from .._lazy import np
-from ._common import UserError, accuracy_option, check_file_target, model_options
+from ._common import (
+    UserError,
+    accuracy_option,
+    check_file_target,
+    model_options,
+    options_named,
+)
 
 
 def output_path(path: str, suffixes: tuple, what: str) -> str:
@@ -106,6 +112,7 @@ def output_path(path: str, suffixes: tuple, what: str) -> str:
 )
 @click.option("--quiet", is_flag=True, help="No progress display.")
 @model_options()
+@options_named({"light_theta": "--light-theta", "light_phi": "--light-phi"})
 def render_command(
     brdf,
     medium,

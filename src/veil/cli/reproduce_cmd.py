@@ -8,7 +8,7 @@ import time
 
 import click
 
-from ._common import UserError, accuracy_option
+from ._common import OutputPath, UserError, accuracy_option
 
 #: Figure files (without suffix) by figure.
 FIGURES = {
@@ -46,6 +46,7 @@ def curves_csv(exp) -> str:
     "--output",
     "outdir",
     required=True,
+    type=OutputPath(file_okay=False),
     help="Output directory (created if missing). Written as a whole at the end: "
     "veil's files in it are replaced together, other files are left alone; "
     "an interrupted run leaves it as it was.",

@@ -12,6 +12,7 @@ from ..errors import InputError
 from ._common import (
     GLOW_LEVEL,
     TABLE_FORMS,
+    OutputPath,
     UserError,
     accuracy_option,
     check_output_path,
@@ -175,13 +176,13 @@ def _channel_models(model_b, model_m, channels: str | None, per_channel) -> dict
     "-o",
     "--output",
     required=True,
-    type=click.Path(dir_okay=False, path_type=Path),
+    type=OutputPath(dir_okay=False, path_type=Path),
     help="CSV file to write the session to (written atomically).",
 )
 @click.option(
     "--black",
     "black_path",
-    type=click.Path(dir_okay=False, path_type=Path),
+    type=OutputPath(dir_okay=False, path_type=Path),
     help="Also write the black-cloth (medium-only glow) session, same "
     "configurations, to this CSV file.",
 )

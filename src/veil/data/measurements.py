@@ -54,6 +54,7 @@ from .table_angles import (
     _separation,
     _vectors,
     _warn_radians,
+    check_header_text,
     separator_hint,
 )
 
@@ -325,6 +326,7 @@ def load_measurements(path) -> pd.DataFrame:
             f"{name} has no header: every line is blank; expected a CSV header line naming "
             f"the columns (value and angle columns in degrees, e.g. psi,rho,value)"
         )
+    check_header_text(header, name)
     for k, h in enumerate(header):
         if not h:
             raise MeasurementError(

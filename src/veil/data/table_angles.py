@@ -114,15 +114,51 @@ def separator_hint(columns) -> str:
     return ""
 
 
+#: What a measurement table's header should name, for messages.
+EXPECTED_HEADER = (
+    "expected column names such as psi,rho,value or theta_i,theta_r,value (docs/measurements.md)"
+)
+
+
+def check_header_text(columns, what: str) -> None:
+    """A :class:`MeasurementError` naming ``what`` (the file) when a column name of its
+    header holds characters no column name has: a byte-order mark (U+FEFF) after the first
+    (an editor that adds one to a file that had one), a control character, stray bytes."""
+    for k, name in enumerate(map(str, columns)):
+        stray = [c for c in name if c == "\ufeff" or not c.isprintable()]
+        if stray:
+            kind = (
+                "a repeated byte-order mark (U+FEFF)"
+                if "\ufeff" in stray
+                else "bytes that are not text"
+            )
+            clean = "".join(c for c in name if c not in stray)
+            raise MeasurementError(
+                f"the header of {what} has stray bytes in column {k + 1} ({name!r}: "
+                f"{kind}; without them it reads {clean!r}): remove them; {EXPECTED_HEADER}"
+            )
+
+
+def _stray_hint(columns, missing: str) -> str:
+    """A note for a column that ends with the ``missing`` name ("column 'xxpsi' looks like
+    'psi' with stray characters before it"), or ""."""
+    for c in map(str, columns):
+        if c != missing and c.endswith(missing):
+            return f" (column {c!r} looks like {missing!r} with stray characters before it)"
+    return ""
+
+
 def _form(columns, what: str) -> dict:
     """Which angle forms the columns hold; raises for incomplete or contradictory sets."""
+    check_header_text(columns, what)
     have = set(columns)
     pairs = (("psi", "rho"), ("theta_i", "theta_r"), ("phi_i", "phi_r"))
     for a, b in pairs:
         if (a in have) != (b in have):
             present, missing = (a, b) if a in have else (b, a)
             raise MeasurementError(
-                f"{what} has column {present!r} but not {missing!r}: angle columns come in "
+                f"{what} has column {present!r} but not {missing!r}"
+                f"{_stray_hint(columns, missing)}: angle columns come in "
                 f"pairs (theta_i,phi_i,theta_r,phi_r or theta_i,theta_r or psi,rho)"
             )
     if "phi_i" in have and "theta_i" not in have:

@@ -1,0 +1,233 @@
+"""Hostile use of the command line, third round: messages that named the library's Python
+keywords instead of the command's options, an empty output path of a command writing a
+folder, an output path that is a symbolic link, a measurement table whose header has stray
+bytes (a doubled byte-order mark), nan given to an option with a range. Each is refused with
+status 2 and a message naming the option or the file, or (a link) written through."""
+
+from __future__ import annotations
+
+import os
+import stat
+
+import pytest
+
+from support.cli import run_checked
+from test_hostile_tools import PLASTIC, _refused, _result
+
+#: A small measurement table (goniometer form), enough for the checks before any fit.
+TABLE = "psi,rho,value,sigma\n" + "".join(
+    f"{psi},{rho},{1.0 + 0.01 * rho},0.01\n" for psi in (30, 90) for rho in (-20, -5, 0, 5, 20)
+)
+
+
+@pytest.fixture
+def plastic(tmp_path):
+    return _result(PLASTIC(rho=0.5, alpha=0.1, eta=1.5, ks=2.0), tmp_path / "p.json")
+
+
+@pytest.fixture
+def table(tmp_path):
+    path = tmp_path / "t.csv"
+    path.write_text(TABLE)
+    return path
+
+
+def _said(r) -> str:
+    return " ".join(r.output.split())
+
+
+# -- 1. the command's options, not the library's Python keywords --------------------------
+@pytest.mark.parametrize("args, option, keyword", [
+    # was "fine_step = 0.0001 deg, coarse_step = 5 deg would make 6e+05 configurations"
+    (["simulate", "--brdf", "BRDF1", "--medium", "none", "--fine-step", "0.0001"],
+     "--fine-step 0.0001 deg, --coarse-step 5 deg", "fine_step"),
+    (["simulate", "--brdf", "BRDF1", "--medium", "none", "--window", "nan"],  # "window = nan"
+     "--window nan deg", "window ="),
+    (["design", "--brdf", "BRDF1", "--medium", "BTDF2", "--fine-step", "0.00001"],
+     "--fine-step 1e-05 deg", "fine_step"),
+    (["design", "--brdf", "BRDF1", "--medium", "BTDF2", "--noise", "inf"],  # "noise = inf"
+     "--noise inf", "noise ="),
+    (["design", "--brdf", "BRDF1", "--medium", "BTDF2", "--noise-floor", "inf"],
+     "--noise-floor inf", "noise floor ="),
+    (["render", "--brdf", "BRDF1", "--light-theta", "nan"],  # was "light_theta = nan"
+     "--light-theta nan", "light_theta"),
+    (["render", "--brdf", "BRDF1", "--light-phi", "inf"], "--light-phi inf", "light_phi"),
+])
+def test_library_checks_name_the_commands_options(tmp_path, args, option, keyword):
+    out = tmp_path / ("x.png" if args[0] == "render" else "x.csv")
+    r = _refused([*args, "-o", out], option)
+    assert keyword not in r.output and not out.exists()
+
+
+@pytest.mark.parametrize("option", ["--max-relative", "--max-correlation"])
+def test_diagnose_thresholds_of_nan_name_the_option(plastic, table, tmp_path, option):
+    # was "max_relative = nan; expected a number in (0, inf]" (nan passes click's FloatRange)
+    r = _refused(["diagnose", plastic, "--data", table, option, "nan", "-o", tmp_path / "d"],
+                 option, "not a number")
+    assert "max_" not in r.output and not (tmp_path / "d").exists()
+
+
+@pytest.mark.parametrize("option", ["--noise", "--noise-floor"])
+def test_design_noise_of_nan_is_refused_by_the_option(tmp_path, option):
+    _refused(["design", "--brdf", "BRDF1", "--medium", "BTDF2", option, "nan", "-o",
+              tmp_path / "p.csv"], option, "not a number")
+    assert not (tmp_path / "p.csv").exists()
+
+
+@pytest.mark.parametrize("extra, said", [
+    # was "reference= given but no session of the reference object"
+    (["--reference", "BRDF2"], "--reference given but no session"),
+    # was "... give reference= (the step-0 result or a BRDF model) ..."
+    (["--reference-session", "low={table}"], "give --reference (the step-0 result"),
+    # was "... give reference=, or fix one scale, e.g. fixed={'Td[label]': ...} (--fix ...)"
+    ([], "give --reference, or fix one scale, e.g. --fix 'Td[label]=...'"),
+])
+def test_joint_says_its_reference_and_fix_options(table, tmp_path, extra, said):
+    extra = [e.format(table=table) for e in extra]
+    out = tmp_path / "j.json"
+    r = _refused(["fit", "joint", "--session", f"low={table}", *extra, "--accuracy", "fast",
+                  "-o", out])
+    assert said in _said(r), r.output
+    assert "reference=" not in r.output and "fixed=" not in r.output and not out.exists()
+
+
+def test_option_words_keep_what_the_library_says_for_python():
+    from veil.cli._errors import option_words
+
+    names = {"channel": "--channel", "reference": "--reference"}
+    text = "fit one channel with --channel NAME (channel= in Python); (reference=) given"
+    assert option_words(text, names) == (
+        "fit one channel with --channel NAME (channel= in Python); (--reference) given")
+
+
+@pytest.mark.parametrize("args, said", [
+    # was "--brdf '-1,1,1,1': TorranceSparrow.Pd = -1 is outside [0, inf]"
+    (["simulate", "--brdf=-1,1,1,1", "--medium", "none"], "torrance-sparrow Pd = -1 is outside"),
+    (["simulate", "--brdf", "BRDF1", "--medium=1,1,2,1"], "henyey-greenstein g = 2 is outside"),
+])
+def test_model_messages_name_the_family_not_its_python_class(tmp_path, args, said):
+    r = _refused([*args, "-o", tmp_path / "x.csv"], said)
+    assert "TorranceSparrow" not in r.output and "HenyeyGreenstein" not in r.output
+
+
+def test_a_result_file_with_a_bad_parameter_names_the_family(plastic, tmp_path):
+    import json
+
+    data = json.loads(plastic.read_text())
+    data["params"]["rho"] = -1
+    plastic.write_text(json.dumps(data))
+    r = _refused(["export", plastic, "--to", "csv", "-o", tmp_path / "x.csv"], "p.json",
+                 "rough-plastic rho = -1")  # was "RoughPlastic.rho = -1"
+    assert "RoughPlastic" not in r.output
+
+
+# -- 2. an empty output path of a command writing a folder -------------------------------
+@pytest.mark.parametrize("args", [
+    ["fit", "pipeline", "--reference-clear", "{table}", "--reference-medium", "{table}",
+     "--target-medium", "{table}", "--accuracy", "fast"],
+    ["fit", "maps", "{table}", "{table}"],
+    ["maps", "export", "{table}"],
+    ["diagnose", "{plastic}", "--data", "{table}"],
+    ["demo", "--accuracy", "fast"],
+    ["reproduce", "--accuracy", "fast"],
+])
+def test_empty_output_folder_is_refused_up_front(tmp_path, monkeypatch, plastic, table, args):
+    # each wrote its files into the current directory (fit pipeline, diagnose, demo,
+    # reproduce: status 0, among the user's files)
+    work = tmp_path / "cwd"
+    work.mkdir()
+    monkeypatch.chdir(work)
+    args = [a.format(table=table, plastic=plastic) for a in args]
+    r = _refused([*args, "-o", ""], "-o", "the path is empty; give a folder name")
+    assert os.listdir(work) == [], r.output
+
+
+def test_empty_output_file_says_empty_not_a_directory(plastic, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)  # was "output . is a directory; give a file name"
+    _refused(["export", plastic, "--to", "csv", "-o", ""], "--output",
+             "the path is empty; give a file name")
+
+
+# -- 3. an output path that is a symbolic link: written through, the link kept -----------
+def test_output_file_that_is_a_link_is_written_through(plastic, tmp_path):
+    real = tmp_path / "real.csv"
+    real.write_text("old\n")
+    real.chmod(0o640)
+    link = tmp_path / "link.csv"
+    link.symlink_to("real.csv")
+    r = run_checked(["export", plastic, "--to", "csv", "-o", link])
+    assert r.exit_code == 0, r.output
+    assert link.is_symlink() and os.readlink(link) == "real.csv"  # was a regular file
+    assert real.read_text().startswith("brdf_model,") and stat.S_IMODE(real.stat().st_mode) == 0o640
+
+
+def test_output_file_that_is_a_dangling_link_creates_its_target(plastic, tmp_path):
+    link = tmp_path / "link.csv"
+    link.symlink_to("new.csv")
+    r = run_checked(["export", plastic, "--to", "csv", "-o", link])
+    assert r.exit_code == 0, r.output
+    assert link.is_symlink() and (tmp_path / "new.csv").read_text().startswith("brdf_model,")
+
+
+def test_output_link_into_a_missing_directory_is_refused(plastic, tmp_path):
+    link = tmp_path / "link.csv"
+    link.symlink_to(tmp_path / "gone" / "x.csv")
+    r = _refused(["export", plastic, "--to", "csv", "-o", link], "link.csv",
+                 "a symbolic link to", "does not exist")
+    assert link.is_symlink() and not (tmp_path / "gone").exists(), r.output
+
+
+def test_output_link_to_an_input_is_refused(table, tmp_path):
+    link = tmp_path / "out.json"
+    link.symlink_to(table)
+    _refused(["fit", "reference", table, "-o", link], "never overwrites an input")
+    assert link.is_symlink() and table.read_text() == TABLE
+
+
+@pytest.mark.parametrize("dangling", [False, True])
+def test_output_folder_that_is_a_link_is_written_through(tmp_path, dangling):
+    from veil.io import output_folder, write_text_atomic
+
+    real = tmp_path / "real"
+    if not dangling:
+        real.mkdir()
+        (real / "mine.txt").write_text("mine")
+    link = tmp_path / "link"
+    link.symlink_to("real")
+    with output_folder(link, owned=["a.txt"]) as folder:  # dangling: was NotADirectoryError
+        write_text_atomic(folder / "a.txt", "new")
+    assert link.is_symlink() and (real / "a.txt").read_text() == "new"
+    assert dangling or (real / "mine.txt").read_text() == "mine"
+
+
+def test_output_folder_link_into_a_missing_directory_is_refused(tmp_path):
+    from veil.errors import UnwritableError
+    from veil.io import output_folder
+
+    link = tmp_path / "link"
+    link.symlink_to(tmp_path / "gone" / "d")
+    with pytest.raises(UnwritableError, match="link.* is a symbolic link to .*does not exist"):
+        with output_folder(link):
+            pass
+
+
+# -- 4. a header with stray bytes: a doubled byte-order mark, control bytes ---------------
+@pytest.mark.parametrize("prefix, said", [
+    (b"\xef\xbb\xbf\xef\xbb\xbf", "repeated byte-order mark"),  # was status 3 (KeyError)
+    (b"\x00\x01", "bytes that are not text"),  # was "has column 'rho' but not 'psi'"
+])
+def test_header_with_stray_bytes_names_the_file(tmp_path, prefix, said):
+    path = tmp_path / "bom.csv"
+    path.write_bytes(prefix + TABLE.encode())
+    r = _refused(["fit", "reference", path, "-o", tmp_path / "r.json"], "bom.csv",
+                 "stray bytes in column 1", said, "psi,rho,value")
+    assert not (tmp_path / "r.json").exists(), r.output
+    _refused(["eval", "--brdf", "BRDF1", "--medium", "none", "--configs", path], "bom.csv",
+             "stray bytes", said)
+
+
+def test_header_with_stray_text_before_a_column_says_so(tmp_path):
+    path = tmp_path / "x.csv"
+    path.write_bytes(b"\xef\xbb\xbfxx" + TABLE.encode())
+    _refused(["fit", "reference", path, "-o", tmp_path / "r.json"], "x.csv",
+             "column 'xxpsi' looks like 'psi' with stray characters before it")
