@@ -1,8 +1,10 @@
 """Hostile use of the command line, third round: messages that named the library's Python
 keywords instead of the command's options, an empty output path of a command writing a
 folder, an output path that is a symbolic link, a measurement table whose header has stray
-bytes (a doubled byte-order mark), nan given to an option with a range. Each is refused with
-status 2 and a message naming the option or the file, or (a link) written through."""
+bytes (a doubled byte-order mark), nan given to an option with a range; then the joint fit's
+sessions said in the library's words, a step's ``fixed=``, nan and inf given to any number
+option, a table saved as UTF-16. Each is refused with status 2 and a message naming the
+option or the file, or (a link) written through."""
 
 from __future__ import annotations
 
@@ -41,17 +43,16 @@ def _said(r) -> str:
     # was "fine_step = 0.0001 deg, coarse_step = 5 deg would make 6e+05 configurations"
     (["simulate", "--brdf", "BRDF1", "--medium", "none", "--fine-step", "0.0001"],
      "--fine-step 0.0001 deg, --coarse-step 5 deg", "fine_step"),
-    (["simulate", "--brdf", "BRDF1", "--medium", "none", "--window", "nan"],  # "window = nan"
-     "--window nan deg", "window ="),
+    (["simulate", "--brdf", "BRDF1", "--medium", "none", "--window", "-1"],  # "window = -1"
+     "--window -1.0 deg", "window ="),
     (["design", "--brdf", "BRDF1", "--medium", "BTDF2", "--fine-step", "0.00001"],
      "--fine-step 1e-05 deg", "fine_step"),
     (["design", "--brdf", "BRDF1", "--medium", "BTDF2", "--noise", "inf"],  # "noise = inf"
      "--noise inf", "noise ="),
     (["design", "--brdf", "BRDF1", "--medium", "BTDF2", "--noise-floor", "inf"],
      "--noise-floor inf", "noise floor ="),
-    (["render", "--brdf", "BRDF1", "--light-theta", "nan"],  # was "light_theta = nan"
-     "--light-theta nan", "light_theta"),
-    (["render", "--brdf", "BRDF1", "--light-phi", "inf"], "--light-phi inf", "light_phi"),
+    (["render", "--brdf", "BRDF1", "--light-theta", "130"],  # was "light_theta = 130"
+     "--light-theta 130", "light_theta"),
 ])
 def test_library_checks_name_the_commands_options(tmp_path, args, option, keyword):
     out = tmp_path / ("x.png" if args[0] == "render" else "x.csv")
@@ -231,3 +232,132 @@ def test_header_with_stray_text_before_a_column_says_so(tmp_path):
     path.write_bytes(b"\xef\xbb\xbfxx" + TABLE.encode())
     _refused(["fit", "reference", path, "-o", tmp_path / "r.json"], "x.csv",
              "column 'xxpsi' looks like 'psi' with stray characters before it")
+
+
+# -- 5. the joint fit's sessions, a step's --fix, a joint result's channel ----------------
+@pytest.mark.parametrize("extra, said", [
+    # was "(object 'reference', medium 'none')" and "for medium low, object target"
+    ([], ["(--reference-session none=PATH)", "for medium low, the target (--session)"]),
+    (["--reference-session", "low={table}"],
+     ["add its clear-water session (--reference-session none=PATH)"]),
+    # was "medium 'mid' has a reference session but no target session"
+    (["--reference-session", "mid={table}", "--reference-session", "none={table}"],
+     ["medium 'mid' has a session of the reference (--reference-session mid=PATH) but none "
+      "of the target (--session mid=PATH)"]),
+    (["--session", "low={table}"], ["two sessions of the target in medium 'low' "
+                                    "(--session low=PATH)"]),
+    (["--reference", "BRDF2"], ["its sessions (--reference-session LABEL=PATH)"]),
+])
+def test_joint_names_sessions_by_their_options(table, tmp_path, extra, said):
+    extra = [e.format(table=table) for e in extra]
+    out = tmp_path / "j.json"
+    r = _refused(["fit", "joint", "--session", f"low={table}", *extra, "--accuracy", "fast",
+                  "-o", out])
+    for words in said:
+        assert words in _said(r), r.output
+    assert "object '" not in r.output and "object target" not in r.output and not out.exists()
+
+
+def test_joint_in_python_keeps_the_sessions_python_form(table):
+    from veil.errors import FitError
+    from veil.fitting import Session, build
+
+    with pytest.raises(FitError, match=r"\(object 'reference', medium 'none'\)"):
+        build([Session(str(table), "low", "target")])
+
+
+def test_a_step_short_of_points_says_fix_on_the_command_line(tmp_path):
+    import veil
+    from veil.errors import FitError
+
+    path = tmp_path / "few.csv"
+    path.write_text("psi,rho,value,sigma\n30,0,1,0.01\n30,5,0.9,0.01\n90,0,1,0.01\n")
+    # was "fix some with fixed=... / --fix NAME=VALUE"
+    r = _refused(["fit", "reference", path, "-o", tmp_path / "r.json"],
+                 "fix some with --fix NAME=VALUE, or measure")
+    assert "fixed=" not in r.output
+    with pytest.raises(FitError, match=r"fixed=\{'NAME': VALUE\}"):
+        veil.fitting.fit_reference(str(path))
+
+
+def _joint_of_channels():
+    """A joint result over channels r, g, b (the target and medium 'm'), made by hand."""
+    import veil
+    from veil.fitting import JointResult
+
+    params, layout = {}, {}
+    for c in "rgb":
+        target = {p.key: f"{p.name}[{c}]" for p in type(veil.BRDF1).PARAMS}
+        medium = {p.key: f"{p.name}[m][{c}]" for p in type(veil.BTDF2).PARAMS}
+        params.update({f"{k}[{c}]": v for k, v in veil.BRDF1.as_dict().items()})
+        params.update({f"{k}[m][{c}]": v for k, v in veil.BTDF2.as_dict().items()})
+        layout[c] = {"objects": {"target": target}, "media": {"m": medium}}
+    return JointResult(
+        model="joint", params=params, stderr=dict.fromkeys(params), correlation={},
+        residuals=(0.0,), chi2_reduced=1.0, rms_relative=0.01, n_points=10, converged=True,
+        message="", options={}, step="joint", channels={c: m["objects"]["target"]
+                                                         for c, m in layout.items()},
+        layout={"models": {"brdf": veil.BRDF1.NAME, "medium": veil.BTDF2.NAME},
+                "channels": layout})
+
+
+def test_a_joint_result_of_channels_names_the_channel_option_and_keyword():
+    from veil.errors import FitError
+
+    # was "name one (channel='r')"
+    with pytest.raises(FitError, match=r"name one \(--channel r at the command line, "
+                                       r"channel='r' in Python\)"):
+        _joint_of_channels().medium("m")
+
+
+# -- 6. number options: finite numbers only, as the command line is read ------------------
+#: Number options where nan or inf means something: none has a plain float type today (a
+#: ranged option, veil.cli._common.FloatRange, refuses nan and says its own range).
+FLOATS_MEANING_INF: set = set()
+
+
+def _float_options():
+    import click
+
+    from veil.cli import main
+
+    def walk(command, path):
+        if isinstance(command, click.Group):
+            for name in command.list_commands(None):
+                yield from walk(command.get_command(None, name), [*path, name])
+        else:
+            for p in command.params:
+                if isinstance(p.type, click.types.FloatParamType):
+                    yield path, p
+
+    return list(walk(main, []))
+
+
+def test_every_number_option_refuses_nan_and_inf_by_its_name():
+    from click import FloatRange
+
+    options = _float_options()
+    assert len(options) > 40  # every command's, the model options included
+    for path, param in options:
+        flag = param.opts[-1]
+        if (" ".join(path), flag) in FLOATS_MEANING_INF:
+            continue
+        values = ("nan",) if isinstance(param.type, FloatRange) else ("nan", "inf", "-1e400")
+        for value in values:
+            r = run_checked([*path, f"{flag}={value}"])  # read before any missing argument
+            assert r.exit_code == 2 and f"Invalid value for '{flag}'" in r.output, (path, r.output)
+            assert ("not a finite number" if len(values) > 1 else "not a number") in r.output
+
+
+# -- 7. a table saved as UTF-16 or UTF-32 -------------------------------------------------
+@pytest.mark.parametrize("encoding, said", [("utf-16", "UTF-16"), ("utf-32", "UTF-32")])
+def test_a_utf16_table_says_so_and_how_to_save_it(tmp_path, plastic, encoding, said):
+    path = tmp_path / "t.csv"
+    path.write_text(TABLE, encoding=encoding)
+    # was "line 1 of t.csv is not UTF-8 text (byte 0); expected a CSV text file"
+    text = f"is {said} text (it begins with the {said} byte-order mark), not UTF-8: save it"
+    _refused(["fit", "reference", path, "-o", tmp_path / "r.json"], "t.csv", text)
+    _refused(["eval", "--brdf", "BRDF1", "--medium", "none", "--configs", path], "t.csv", text)
+    result = tmp_path / "u.json"
+    result.write_text(plastic.read_text(), encoding=encoding)
+    _refused(["export", result, "--to", "csv", "-o", tmp_path / "x.csv"], "u.json", text)

@@ -137,7 +137,8 @@ def test_medium_session_without_target_session_is_rejected():
     t = joint_tables_small()
     with pytest.raises(FitError, match="no session of the target"):
         build([Session(t, "none", "reference"), Session(t, "a", "reference")])
-    with pytest.raises(FitError, match="medium 'b' has a reference session but no target"):
+    with pytest.raises(FitError, match="medium 'b' has a session of the reference "
+                       r"\(object 'reference', medium 'b'\) but none of the target"):
         build([Session(t, "none", "reference"), Session(t, "a", "target"),
                Session(t, "b", "reference")])
     with pytest.raises(FitError, match="no sessions"):

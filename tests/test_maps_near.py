@@ -239,7 +239,7 @@ def test_bad_geometry_exits_2(near_photos, tmp_path):
 
     for d, p in ((0, 1), (-5, 1), ("nan", 1), (100, 0), (100, "inf"), (100, -1)):
         text = bad("--near-field", "--camera-distance", d, "--pixel-pitch", p)
-        assert "positive finite number" in text, text
+        assert "finite number" in text, text
     assert "--camera-distance" in bad("--near-field")
     assert "go together" in bad("--near-field", "--camera-distance", 100)
     # a camera so close that a pixel sees the camera of the 80 deg configuration beyond

@@ -60,6 +60,36 @@ def no_directory(directory: str) -> str:
     return f"directory {directory} does not exist"
 
 
+#: Byte-order marks of the encodings a text file that is not UTF-8 most often has (a
+#: spreadsheet's or Windows editor's "Unicode text"); the longer ones first.
+_BYTE_ORDER_MARKS = (
+    (b"\xff\xfe\x00\x00", "UTF-32"),
+    (b"\x00\x00\xfe\xff", "UTF-32"),
+    (b"\xff\xfe", "UTF-16"),
+    (b"\xfe\xff", "UTF-16"),
+)
+
+
+def other_encoding(name, head: bytes | None = None) -> str | None:
+    """The message for a file ``name`` that is not UTF-8 but begins (``head``, read from the
+    file when not given) with the byte-order mark of UTF-16 or UTF-32: which one, and how to
+    save it as UTF-8; None for any other bytes (each reader says its own "not UTF-8")."""
+    if head is None:
+        try:
+            with open(name, "rb") as fh:
+                head = fh.read(4)
+        except OSError:
+            return None
+    for mark, encoding in _BYTE_ORDER_MARKS:
+        if head.startswith(mark):
+            return (
+                f"{name} is {encoding} text (it begins with the {encoding} byte-order mark), "
+                f"not UTF-8: save it as UTF-8 (a spreadsheet's 'CSV UTF-8', an editor's "
+                f"UTF-8 encoding, or iconv -f {encoding} -t UTF-8)"
+            )
+    return None
+
+
 def through_link(path: str) -> str:
     """Where an output ``path`` is written: ``path`` itself, or, when it is a symbolic link
     (to a file or a folder, or dangling), what it points to, resolved through every link:

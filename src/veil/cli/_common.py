@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import contextlib
 import importlib
-import math
 import os
 import sys
 import time
@@ -17,6 +16,11 @@ import click
 
 from ..errors import InputError
 from ._errors import EXIT_INPUT, UserError, family_words, options_named, report_bug
+
+# the number types of options, imported by the commands from here
+from ._floats import FINITE as FINITE
+from ._floats import FiniteFloat as FiniteFloat
+from ._floats import FloatRange as FloatRange
 
 # the model options, imported by the commands from here
 from ._model_options import ModelChoice as ModelChoice
@@ -60,16 +64,6 @@ class OutputPath(click.Path):
         if isinstance(value, str) and not value:
             self.fail(empty_path(self.what), param, ctx)
         return super().convert(value, param, ctx)
-
-
-class FloatRange(click.FloatRange):
-    """``click.FloatRange`` that refuses nan too (nan passes click's comparisons)."""
-
-    def convert(self, value, param, ctx):
-        number = super().convert(value, param, ctx)
-        if math.isnan(number):
-            self.fail(f"{value!r} is not a number; expected {self._describe_range()}", param, ctx)
-        return number
 
 
 class LazyGroup(click.Group):
@@ -206,28 +200,28 @@ def rotation_options(candidate: bool = False):
     options = (
         click.option(
             "--fine-step",
-            type=float,
+            type=FINITE,
             default=1.0,
             show_default=True,
             help=f"{step} near the mirror configuration, degrees.",
         ),
         click.option(
             "--window",
-            type=float,
+            type=FINITE,
             default=10.0,
             show_default=True,
             help="Half-width of the dense region around rho = 0, degrees.",
         ),
         click.option(
             "--coarse-step",
-            type=float,
+            type=FINITE,
             default=5.0,
             show_default=True,
             help=f"{step} outside the window, degrees.",
         ),
         click.option(
             "--limit",
-            type=float,
+            type=FINITE,
             default=85.0,
             show_default=True,
             help="Keep configurations with both |theta_i| and |theta_r| below this, degrees.",

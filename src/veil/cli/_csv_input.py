@@ -44,7 +44,11 @@ def _read_cells(path: str, required, expected):
             ) from None
         raise UserError(f"{path}: not a well-formed CSV file ({text})") from None
     except UnicodeDecodeError as exc:
-        raise UserError(f"{path}: not UTF-8 text ({exc.reason}); save the file as UTF-8") from None
+        from ..io import other_encoding
+
+        raise UserError(
+            other_encoding(path) or f"{path}: not UTF-8 text ({exc.reason}); save the file as UTF-8"
+        ) from None
 
 
 def read_csv_table(path, required, *, unit="a number", expected=None):

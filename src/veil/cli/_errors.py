@@ -47,18 +47,24 @@ def family_words(text: str) -> str:
 
 
 @contextlib.contextmanager
-def options_named(names: dict):
+def options_named(names: dict, words=None):
     """Within the block (or the decorated command), an :class:`veil.errors.InputError` of the
     library names the command's options (``names``: Python keyword -> option, e.g.
     ``{"max_relative": "--max-relative"}``) instead of its Python keywords
-    (:func:`option_words`), as does a :class:`UserError` passing one on; the exception is
+    (:func:`option_words`), then says what else ``words`` (text -> text) says in the
+    command's terms, as does a :class:`UserError` passing one on; the exception is
     re-raised with the new words."""
+
+    def said(text: str) -> str:
+        text = option_words(text, names)
+        return words(text) if words else text
+
     try:
         yield
     except UserError as exc:
-        raise UserError(option_words(exc.message, names)) from exc.__cause__
+        raise UserError(said(exc.message)) from exc.__cause__
     except InputError as exc:
-        text = option_words(str(exc), names)
+        text = said(str(exc))
         if text != str(exc):
             exc.args = (text,)
         raise

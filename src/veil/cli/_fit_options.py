@@ -16,6 +16,7 @@ from ._common import (
     accuracy_option,
     model_error_option,
     model_options,
+    options_named,
     parse_fix,
     propagation_option,
 )
@@ -25,7 +26,9 @@ OUT_FILE = OutputPath(dir_okay=False, path_type=Path)
 
 
 def _fix_option(help_text):
-    return click.option("--fix", "fix", multiple=True, metavar="NAME=VALUE", help=help_text)
+    """``--fix``, which the library's messages then call by its name, not ``fixed=``."""
+    option = click.option("--fix", "fix", multiple=True, metavar="NAME=VALUE", help=help_text)
+    return lambda command: option(options_named({"fixed": "--fix"})(command))
 
 
 _accuracy_option = accuracy_option(

@@ -14,6 +14,7 @@ import click
 
 from ..errors import InputError
 from ._errors import UserError
+from ._floats import FINITE
 
 if TYPE_CHECKING:  # the type only: the command line imports the models when it needs them
     from ..models.base import Model
@@ -238,7 +239,8 @@ def model_options(kinds=("brdf", "medium"), auto_kinds=()):
 
 def _declared_flags(wrapper, declared: dict):
     """``wrapper`` with one click option per declared model option (its values, its
-    families' docs and defaults in the help)."""
+    families' docs and defaults in the help); a number is finite (no family's means nan
+    or inf: forward-series says "infinite" with 0)."""
     for oname, users in reversed(list(declared.items())):
         choices = sorted({str(c) for _, _, o in users for c in o.choices})
         docs = "; ".join(f"{n}: {o.doc}" for _, n, o in users)
@@ -246,7 +248,7 @@ def _declared_flags(wrapper, declared: dict):
             isinstance(o.default, (int, float)) and not isinstance(o.default, bool)
             for _, _, o in users
         )
-        kind = click.Choice(choices) if choices else (click.FLOAT if numeric else str)
+        kind = click.Choice(choices) if choices else (FINITE if numeric else str)
         defaults = ", ".join(str(o.default) for _, _, o in users)
         wrapper = click.option(
             _option_flag(oname),

@@ -12,7 +12,7 @@ import click
 
 from .._lazy import np
 from ..io import write_text_atomic
-from ._common import UserError, accuracy_option, check_output_path, model_options
+from ._common import FINITE, UserError, accuracy_option, check_output_path, model_options
 
 ANGLES = ("theta_i", "phi_i", "theta_r", "phi_r")  # the --configs columns, degrees
 ADDED = ("apparent", "clear", "error")  # the columns veil eval adds
@@ -283,28 +283,28 @@ def _evaluate(brdf, medium, ti, tr, pi_, pr, accuracy: str) -> tuple:
 @click.option("--medium", "medium_text", required=True, metavar="MODEL", help=MEDIUM_HELP)
 @click.option(
     "--theta-i",
-    type=float,
+    type=FINITE,
     metavar="DEG",
     help="Polar angle of the light direction I from the surface normal, in degrees, "
     "in [0, 90). Required unless --configs is given.",
 )
 @click.option(
     "--theta-r",
-    type=float,
+    type=FINITE,
     metavar="DEG",
     help="Polar angle of the camera direction R from the surface normal, in degrees, "
     "in [0, 90). Required unless --configs is given.",
 )
 @click.option(
     "--phi-i",
-    type=float,
+    type=FINITE,
     metavar="DEG",
     help="Azimuth of the light direction I, in degrees. [default: 180, the light "
     "opposite the camera in the plane of incidence]",
 )
 @click.option(
     "--phi-r",
-    type=float,
+    type=FINITE,
     metavar="DEG",
     help="Azimuth of the camera direction R, in degrees. [default: 0]",
 )

@@ -10,6 +10,7 @@ from pathlib import Path
 import click
 
 from ._common import (
+    FINITE,
     OutputPath,
     UserError,
     accuracy_option,
@@ -73,7 +74,7 @@ def _positive(name, low: float = 0.0, high: float = math.inf):
 )
 @click.option(
     "--scale",
-    type=float,
+    type=FINITE,
     default=None,
     callback=_positive("--scale", 1e-300, 1e300),
     help="Intensity scale divided out of the BRDF's relative scales (veil's values "
@@ -83,7 +84,7 @@ def _positive(name, low: float = 0.0, high: float = math.inf):
 )
 @click.option(
     "--ext-ior",
-    type=float,
+    type=FINITE,
     default=1.0,
     show_default=True,
     callback=_positive("--ext-ior"),
@@ -92,7 +93,7 @@ def _positive(name, low: float = 0.0, high: float = math.inf):
 )
 @click.option(
     "--path-length",
-    type=float,
+    type=FINITE,
     default=None,
     callback=_positive("--path-length"),
     help="Length of one pass through the medium in scene units: sigma_t = tau / "

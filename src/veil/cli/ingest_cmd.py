@@ -6,7 +6,7 @@ import warnings
 
 import click
 
-from ._common import UserError, check_output_path, check_outside, photo_channel_option
+from ._common import FINITE, UserError, check_output_path, check_outside, photo_channel_option
 
 ROI_HELP = (
     "pixel coordinates X,Y,W,H: x to the right, y down, origin at the top-left pixel; "
@@ -49,7 +49,7 @@ ROI_HELP = (
 )
 @click.option(
     "--saturation",
-    type=float,
+    type=FINITE,
     default=None,
     help="Code value at or above which a pixel is saturated [default: the format's "
     "maximum: 255, 65535, the raw white level; float TIFF: not checked].",

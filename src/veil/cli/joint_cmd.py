@@ -9,6 +9,7 @@ mistakes.
 from __future__ import annotations
 
 import os
+import re
 from pathlib import Path
 
 import click
@@ -26,6 +27,28 @@ from ._common import (
 )
 
 OUT_FILE = OutputPath(dir_okay=False, path_type=Path)
+
+#: The options giving the sessions of each object (veil.fitting.Session's ``object``).
+SESSION_OPTIONS = {"target": "--session", "reference": "--reference-session"}
+
+
+def session_words(text: str) -> str:
+    """``text`` (a message of the joint fit) with its sessions said as the options that give
+    them: ``(object 'reference', medium 'none')`` -> ``(--reference-session none=PATH)``,
+    ``object 'reference'`` -> ``--reference-session LABEL=PATH``, ``object target`` (a
+    list of what the data tie together) -> ``the target (--session)``."""
+    obj = "object '?(target|reference)'?"
+    text = re.sub(
+        obj + r", medium '([^']*)'", lambda m: f"{SESSION_OPTIONS[m[1]]} {m[2]}=PATH", text
+    )
+    text = re.sub(rf"\b{obj}(?=[\s,:;)]|$)", lambda m: _object_said(m[0], m[1]), text)
+    return text
+
+
+def _object_said(said: str, obj: str) -> str:
+    if "'" in said:  # object 'target': a session to add
+        return f"{SESSION_OPTIONS[obj]} LABEL=PATH"
+    return f"the {obj} ({SESSION_OPTIONS[obj]})"
 
 
 def parse_sessions(items, option: str) -> list[tuple[str, str]]:
@@ -219,7 +242,7 @@ def _ranked_joint(ctx, loaded, ranked, kw: dict):
 @propagation_option
 @click.pass_context
 @model_options(auto_kinds=("brdf", "medium"))
-@options_named({"reference": "--reference", "fixed": "--fix"})
+@options_named({"reference": "--reference", "fixed": "--fix"}, session_words)
 def joint_command(
     ctx,
     sessions,

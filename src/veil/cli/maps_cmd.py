@@ -13,6 +13,7 @@ from pathlib import Path
 import click
 
 from ._common import (
+    FINITE,
     OutputPath,
     UserError,
     accuracy_option,
@@ -96,7 +97,7 @@ def _noise(text):
 )
 @click.option(
     "--saturation",
-    type=float,
+    type=FINITE,
     default=None,
     help="Code value at or above which a sample is saturated [default: the "
     "format's maximum]; saturated samples are left out of that pixel's fit.",
@@ -155,7 +156,7 @@ def _noise(text):
 )
 @click.option(
     "--camera-distance",
-    type=float,
+    type=FINITE,
     default=None,
     help="Camera distance to the plate centre, in the units of --pixel-pitch: with "
     "it the angular spread across the field is reported and checked (distant "
@@ -163,7 +164,7 @@ def _noise(text):
 )
 @click.option(
     "--pixel-pitch",
-    type=float,
+    type=FINITE,
     default=None,
     help="Size of one pixel on the plate (same units as --camera-distance).",
 )

@@ -5,14 +5,14 @@ from __future__ import annotations
 
 import click
 
-from ._common import UserError, accuracy_option, echo_warnings, model_options
+from ._common import FINITE, UserError, accuracy_option, echo_warnings, model_options
 from .render_cmd import output_path
 
 FIGURE_SUFFIXES = (".png", ".pdf", ".svg")
 
 
 _theta_i_option = click.option(
-    "--theta-i", type=float, default=45.0, show_default=True, help="Incidence angle, degrees."
+    "--theta-i", type=FINITE, default=45.0, show_default=True, help="Incidence angle, degrees."
 )
 _output_option = click.option(
     "-o", "--output", required=True, help="Output figure (.png, .pdf or .svg)."

@@ -9,6 +9,7 @@ import click
 
 from .._lazy import np
 from ._common import (
+    FINITE,
     UserError,
     accuracy_option,
     check_file_target,
@@ -48,14 +49,14 @@ def output_path(path: str, suffixes: tuple, what: str) -> str:
 )
 @click.option(
     "--light-theta",
-    type=float,
+    type=FINITE,
     default=45.0,
     show_default=True,
     help="Light's polar angle from the viewing direction, degrees, in [0, 120].",
 )
 @click.option(
     "--light-phi",
-    type=float,
+    type=FINITE,
     default=0.0,
     show_default=True,
     help="Light's azimuth, degrees (0: from the right, 90: from the top).",
@@ -69,7 +70,7 @@ def output_path(path: str, suffixes: tuple, what: str) -> str:
 )
 @click.option(
     "--exposure",
-    type=float,
+    type=FINITE,
     default=None,
     help="Scale from linear value to display (1 = white). Default: automatic, the "
     "median lit pixel maps to 0.18.",

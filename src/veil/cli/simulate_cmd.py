@@ -10,6 +10,7 @@ import click
 
 from ..errors import InputError
 from ._common import (
+    FINITE,
     GLOW_LEVEL,
     TABLE_FORMS,
     OutputPath,
@@ -195,7 +196,7 @@ def _channel_models(model_b, model_m, channels: str | None, per_channel) -> dict
 )
 @click.option(
     "--noise",
-    type=float,
+    type=FINITE,
     default=0.01,
     show_default=True,
     callback=_nonneg("--noise"),
@@ -205,7 +206,7 @@ def _channel_models(model_b, model_m, channels: str | None, per_channel) -> dict
 @seed_option("Seed of the noise generator (same seed, same files, bit for bit).")
 @click.option(
     "--glow",
-    type=float,
+    type=FINITE,
     default=GLOW_LEVEL,
     show_default=True,
     callback=_nonneg("--glow"),

@@ -18,6 +18,7 @@ import numpy as np
 import pandas as pd
 
 from ..errors import InputError, MissingFileError
+from ..io import other_encoding
 from ..numbers import format_exact
 from .ingest_channels import (
     ALL_RGB,
@@ -85,7 +86,8 @@ def load_response(path) -> Response:
             f"'code,linear' and one row per code value"
         ) from None
     except (pd.errors.ParserError, UnicodeDecodeError) as exc:
-        raise InputError(f"{path}: not a readable CSV file ({exc})") from None
+        said = isinstance(exc, UnicodeDecodeError) and other_encoding(path)
+        raise InputError(said or f"{path}: not a readable CSV file ({exc})") from None
     raw.columns = [str(c).strip() for c in raw.columns]
     missing = [c for c in ("code", "linear") if c not in raw.columns]
     if missing:

@@ -11,6 +11,7 @@ import numpy as np
 import pandas as pd
 
 from ..errors import InputError, MissingFileError
+from ..io import other_encoding
 from .photo_files import PHOTO_SUFFIXES
 
 #: Columns :func:`ingest` adds to the manifest's (``black``, ``black_sigma`` only with a black ROI).
@@ -61,7 +62,8 @@ def _manifest_table(manifest) -> tuple[pd.DataFrame, list[str], str]:
                 f"angle columns, then one row per photo"
             ) from None
         except (pd.errors.ParserError, UnicodeDecodeError) as exc:
-            raise InputError(f"{name}: not a readable CSV file ({exc})") from None
+            said = isinstance(exc, UnicodeDecodeError) and other_encoding(name)
+            raise InputError(said or f"{name}: not a readable CSV file ({exc})") from None
         raw.columns = [str(c).strip() for c in _header(name, raw.columns)]
         kept = ~raw.isna().all(axis=1).to_numpy()  # blank lines
         lines = (np.flatnonzero(kept) + 2).tolist()

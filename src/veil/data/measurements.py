@@ -32,7 +32,7 @@ from ..engine.angles import (
     to_signed_inplane,
 )
 from ..errors import InputError, InputTypeError, MeasurementError, MissingFileError, NotAFileError
-from ..io import write_text_atomic
+from ..io import other_encoding, write_text_atomic
 from .channels import CHANNEL, channel_labels, channel_order, check_same_configurations
 from .table_angles import (
     _MAX_LISTED,
@@ -279,6 +279,20 @@ def _inplane(theta, phi, positive_at, tol=1e-6):
 # --------------------------------------------------------------------------------------
 # files
 # --------------------------------------------------------------------------------------
+def _decoded(raw: bytes, name: str) -> str:
+    """The text of a measurement file's bytes: UTF-8, with or without a byte-order mark; a
+    MeasurementError naming the line otherwise (UTF-16 or UTF-32 said as such)."""
+    try:
+        return raw.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        line = raw[: exc.start].count(b"\n") + 1
+        raise MeasurementError(
+            other_encoding(name, raw[:4])
+            or f"line {line} of {name} is not UTF-8 text (byte {exc.start}); expected a CSV "
+            f"text file"
+        ) from None
+
+
 def load_measurements(path) -> pd.DataFrame:
     """Read and check a measurement CSV (docs/model.md sec. 7; format in docs/measurements.md).
 
@@ -294,13 +308,7 @@ def load_measurements(path) -> pd.DataFrame:
         raise MissingFileError(f"measurement file {name} does not exist") from None
     except IsADirectoryError:
         raise NotAFileError(f"measurement file {name} is a directory, not a CSV file") from None
-    try:
-        text = raw.decode("utf-8-sig")
-    except UnicodeDecodeError as exc:
-        line = raw[: exc.start].count(b"\n") + 1
-        raise MeasurementError(
-            f"line {line} of {name} is not UTF-8 text (byte {exc.start}); expected a CSV text file"
-        ) from None
+    text = _decoded(raw, name)
     if not text.strip():
         raise MeasurementError(
             f"{name} is empty: expected a CSV header line naming the columns (value and angle "

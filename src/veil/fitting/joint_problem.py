@@ -211,15 +211,17 @@ def _check_sessions(sessions) -> list:
         key = (s.object, s.medium)
         if key in seen:
             raise FitError(
-                f"two sessions of the {s.object} in medium {s.medium!r} "
-                f"({seen[key]!r} and {s.name!r}): merge them into one table"
+                f"two sessions of the {s.object} in medium {s.medium!r} (object "
+                f"{s.object!r}, medium {s.medium!r}): {seen[key]!r} and {s.name!r}; merge "
+                f"them into one table"
             )
         seen[key] = s.name
     media = list(dict.fromkeys(s.medium for s in sessions if not s.clear))
     for m in media:
         if not any(s.medium == m and s.object == "target" for s in sessions):
             raise FitError(
-                f"medium {m!r} has a reference session but no target session: "
+                f"medium {m!r} has a session of the reference (object 'reference', medium "
+                f"{m!r}) but none of the target (object 'target', medium {m!r}): "
                 f"every medium of a joint fit must have a session of the target "
                 f"(fit that medium alone with veil fit medium)"
             )

@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, ClassVar, overload
 
 from ..errors import FitError, InputError, MissingFileError, NotAFileError
-from ..io import write_bytes_atomic
+from ..io import other_encoding, write_bytes_atomic
 from ..models import Model, default_class, model_class
 from ..models.base import VARIANT_OPTION
 from ..models.channel_model import ChannelModel
@@ -322,9 +322,10 @@ class JointResult(FitResult):
                 raise FitError(f"channel {channel!r}: this joint fit is of one channel")
             return self.layout
         if channel is None:
+            first = next(iter(by_channel))
             raise FitError(
                 f"this joint fit fits channels {', '.join(by_channel)} at once: name one "
-                f"(channel='{next(iter(by_channel))}')"
+                f"(--channel {first} at the command line, channel={first!r} in Python)"
             )
         if channel not in by_channel:
             raise FitError(
@@ -445,7 +446,8 @@ def read_json(path) -> Any:
         raise NotAFileError(f"fit result {name} is a directory, not a JSON file") from None
     except UnicodeDecodeError as exc:
         raise FitError(
-            f"{name} is not UTF-8 text ({exc.reason}); expected a JSON fit result"
+            other_encoding(name)
+            or f"{name} is not UTF-8 text ({exc.reason}); expected a JSON fit result"
         ) from None
     return loads_checked(text, name)
 

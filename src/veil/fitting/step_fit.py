@@ -71,7 +71,7 @@ def _problem(data: FitData, cls, brdf, medium, free: list, fixed: dict, what: st
         raise FitError(
             f"the {what} data have {data.size} point(s) but the fit has "
             f"{len(free)} free parameter(s) ({', '.join(free)}): need more points "
-            f"than free parameters (fix some with fixed=... / --fix NAME=VALUE, "
+            f"than free parameters (fix some with fixed={{'NAME': VALUE}} (--fix NAME=VALUE), "
             f"or measure more configurations)"
         )
     return problem
