@@ -219,7 +219,7 @@ def test_cli_render_given_exposure_and_reinhard(tmp_path):
 @pytest.mark.parametrize("args, message", [
     (["--brdf", "BRDF9"], "neither a preset"),
     (["--brdf", "BRDF1", "--medium", "BTDF1", "--size", "2"], "size"),
-    (["--brdf", "BRDF1", "--light-theta", "200"], "light_theta"),
+    (["--brdf", "BRDF1", "--light-theta", "200"], "--light-theta 200"),
     (["--brdf", "BRDF1", "--exposure", "-1"], "--exposure"),
     (["--brdf", "BRDF1", "--medium", "0.001,0.1,1.5,1.3"], "outside"),
     (["--brdf", "BTDF1"], "not a BRDF"),

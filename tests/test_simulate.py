@@ -208,9 +208,9 @@ def test_cli_with_medium_and_black(tmp_path):
     (["--noise", "-1"], "--noise"),
     (["--glow", "-0.5"], "--glow"),
     (["--seed", "-3"], "--seed"),
-    (["--fine-step", "0"], "fine_step = 0"),
+    (["--fine-step", "0"], "--fine-step 0"),
     (["--fine-step", "1e-9", "--window", "1e300"], "configurations"),
-    (["--limit", "95"], "limit = 95"),
+    (["--limit", "95"], "--limit 95"),
     (["--form", "polar"], "--form"),
 ])
 def test_cli_bad_input_exit_2(tmp_path, args, message):

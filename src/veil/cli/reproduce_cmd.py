@@ -46,7 +46,7 @@ def curves_csv(exp) -> str:
     "--output",
     "outdir",
     required=True,
-    type=OutputPath(file_okay=False),
+    type=OutputPath(what="folder"),  # a file there is named by veil's own check
     help="Output directory (created if missing). Written as a whole at the end: "
     "veil's files in it are replaced together, other files are left alone; "
     "an interrupted run leaves it as it was.",

@@ -125,7 +125,8 @@ def check_header_text(columns, what: str) -> None:
     header holds characters no column name has: a byte-order mark (U+FEFF) after the first
     (an editor that adds one to a file that had one), a control character, stray bytes."""
     for k, name in enumerate(map(str, columns)):
-        stray = [c for c in name if c == "\ufeff" or not c.isprintable()]
+        # (a tab is a separator other than the comma: separator_hint names it)
+        stray = [c for c in name if c == "\ufeff" or not (c.isprintable() or c == "\t")]
         if stray:
             kind = (
                 "a repeated byte-order mark (U+FEFF)"
