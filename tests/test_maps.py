@@ -19,6 +19,7 @@ from click.testing import CliRunner
 import veil
 from support.compiles import compilations
 from support.maps import angles_of, configurations, render, write_stack
+from veil._jax import jax
 from veil.cli import main
 from veil.engine.evaluator import ApparentModel
 from veil.engine.quadrature import RULES
@@ -157,11 +158,16 @@ def test_iterations_stop_per_pixel_and_a_stopped_pixel_is_frozen(monkeypatch):
     monkeypatch.setattr(maps, "FIRST_ITERATIONS", 1)
     monkeypatch.setattr(maps, "_SOLVERS", {})
     # the warm-up compiles both programs the solve runs, the slow pixels' resume too (its
-    # state once came back from numpy typed otherwise, and a second resume was compiled)
-    maps.warm_up(tables)
+    # state once came back from numpy typed otherwise, and a second resume was compiled):
+    # the start and the iterations, whose limit is an input, so that a batch's first
+    # iterations and the slow pixels' rest are one program per device, not two
+    with compilations() as warmed:
+        maps.warm_up(tables)
+    assert sorted(set(warmed)) == ["jit(resume)", "jit(start)"], warmed
+    assert warmed.count("jit(resume)") == len(jax.devices()), warmed
     with compilations() as compiled:
         same(fits, solve_pixels(tables, y, valid), np.arange(len(y)))
-    assert not [n for n in compiled if n in ("jit(batch)", "jit(resume)")], compiled
+    assert not [n for n in compiled if n in ("jit(start)", "jit(resume)")], compiled
     monkeypatch.setattr(maps, "ITERATIONS", 2 * maps.ITERATIONS)
     monkeypatch.setattr(maps, "_SOLVERS", {})
     same(fits, solve_pixels(tables, y, valid), np.arange(len(y)))

@@ -75,9 +75,10 @@ class _PixelSolver:
     """The per-pixel solve for q scales and d axes of ``sizes`` nodes (``weighted``: data
     with noise weights; ``near``: tables with two field axes first, each pixel at its own
     field coordinates, docs/maps.md "Geometry"). Its functions are of one pixel (or a batch:
-    :meth:`batch`, :meth:`resume`, which :func:`_solver` compiles). The step and the rules -
-    damping, bounds, stopping, covariance and rank - are :mod:`veil.fitting.least_squares`'
-    (:func:`~veil.fitting.least_squares.lm_step`, the single fits' step too)."""
+    :meth:`start` and :meth:`resume`, which :func:`compiled` compiles). The step and the
+    rules - damping, bounds, stopping, covariance and rank - are those of
+    :mod:`veil.fitting.least_squares` (:func:`~veil.fitting.least_squares.lm_step`, the
+    single fits' step too)."""
 
     def __init__(self, q: int, d: int, sizes: tuple, weighted: bool, near: bool) -> None:
         self.q, self.d, self.sizes, self.weighted, self.near = q, d, sizes, weighted, near
@@ -241,9 +242,9 @@ class _PixelSolver:
         nodes = values[ix, iy]
         return self.best_node(nodes.reshape((-1,) + nodes.shape[self.d :]), y, w2)
 
-    def batch(self, values, coef, y, w2, fu=None):
-        """1. every node: the scales by exact NNLS; 2. the best node; 3. Levenberg-Marquardt
-        on the spline, FIRST_ITERATIONS at most."""
+    def start(self, values, coef, y, w2, fu=None):
+        """1. every node: the scales by exact NNLS; 2. the best node: the iterations' state
+        there, for a batch of pixels."""
         if self.near:  # per pixel, NEAR_GROUP pixels at a time (memory: their node values)
 
             def group(a):
@@ -257,18 +258,40 @@ class _PixelSolver:
         else:
             s0, u0 = self.node_stage(values, y, w2)
             fu = jnp.zeros((y.shape[0], 0))
-        state = jax.vmap(self.initial, in_axes=(None, 0, 0, 0, 0, 0))(coef, fu, u0, s0, y, w2)
-        return jax.vmap(self.one_pixel, in_axes=(None, 0, 0, 0, 0, None))(
-            coef, fu, y, w2, state, min(FIRST_ITERATIONS, ITERATIONS)
-        )
+        return jax.vmap(self.initial, in_axes=(None, 0, 0, 0, 0, 0))(coef, fu, u0, s0, y, w2)
 
-    def resume(self, coef, y, w2, state, fu=None):
-        """The pixels still running after FIRST_ITERATIONS, gathered from several batches."""
+    def resume(self, coef, y, w2, state, limit, fu=None):
+        """Levenberg-Marquardt on the spline from ``state`` until each pixel stops or has
+        had ``limit`` iterations (a number the program takes, not part of it), then the
+        statistics: (results, state)."""
         if fu is None:
             fu = jnp.zeros((y.shape[0], 0))
         return jax.vmap(self.one_pixel, in_axes=(None, 0, 0, 0, 0, None))(
-            coef, fu, y, w2, state, ITERATIONS
+            coef, fu, y, w2, state, limit
         )
+
+    def batch(self, values, coef, y, w2, fu=None):
+        """:meth:`start`, then FIRST_ITERATIONS at most of :meth:`resume` (as one function;
+        :func:`compiled` runs them as two programs)."""
+        state = self.start(values, coef, y, w2, fu)
+        return self.resume(coef, y, w2, state, min(FIRST_ITERATIONS, ITERATIONS), fu)
+
+
+def compiled(solver) -> tuple:
+    """(first, rest) of a solver: ``first(values, coef, y, w2, *fu)`` a batch's start and
+    its first iterations, ``rest(coef, y, w2, state, *fu)`` the gathered slow pixels' other
+    iterations. Two programs: the start and the iterations, whose limit is an input, so the
+    first iterations and the rest are one program (compiled once, not twice)."""
+    start, iterations = jax.jit(solver.start), jax.jit(solver.resume)
+    first_limit = np.int64(min(FIRST_ITERATIONS, ITERATIONS))
+
+    def first(values, coef, y, w2, *fu):
+        return iterations(coef, y, w2, start(values, coef, y, w2, *fu), first_limit, *fu)
+
+    def rest(coef, y, w2, state, *fu):
+        return iterations(coef, y, w2, state, np.int64(ITERATIONS), *fu)
+
+    return first, rest
 
 
 def node_scales(nodes, y, w2, q: int) -> tuple:
@@ -289,11 +312,11 @@ def node_scales(nodes, y, w2, q: int) -> tuple:
 
 
 def _solver(q: int, d: int, sizes: tuple, weighted: bool, near: bool = False):
-    """The jitted (batch, resume) pair of :class:`_PixelSolver`, made once per shape."""
+    """The (first, rest) pair of :class:`_PixelSolver` (:func:`compiled`), made once per
+    shape."""
     key = (q, d, sizes, weighted) + ((True,) if near else ())
     if key not in _SOLVERS:
-        solver = _PixelSolver(q, d, sizes, weighted, near)
-        _SOLVERS[key] = (jax.jit(solver.batch), jax.jit(solver.resume))
+        _SOLVERS[key] = compiled(_PixelSolver(q, d, sizes, weighted, near))
     return _SOLVERS[key]
 
 

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._jax import jax, jnp
+from .._jax import jnp
 from ..errors import FitError
 from ..fitting import least_squares as lsq
 from .solve import (
@@ -27,6 +27,7 @@ from .solve import (
     _PixelSolver,
     _run,
     _status,
+    compiled,
     node_scales,
     pixel_coords,
     warm_up,
@@ -136,15 +137,14 @@ class _ChannelSolver(_PixelSolver):
 
 
 def channel_solver(tables: MapTables, weighted: bool) -> tuple:
-    """(the jitted batch and resume functions, the number of parameters) of the solve of
-    ``tables`` over their channels, made once per shape."""
+    """(the first and rest functions of :func:`veil.maps.solve.compiled`, the number of
+    parameters) of the solve of ``tables`` over their channels, made once per shape."""
     c, q, d = len(tables.channels), len(tables.free_scales), len(tables.axes)
     sizes = tuple(a.count for a in tables.axes)
     near = tables.near is not None
     key = ("channels", c, q, d, sizes, weighted) + (("near",) if near else ())
     if key not in _SOLVERS:
-        solver = _ChannelSolver(c, q, d, sizes, weighted, near)
-        _SOLVERS[key] = (jax.jit(solver.batch), jax.jit(solver.resume))
+        _SOLVERS[key] = compiled(_ChannelSolver(c, q, d, sizes, weighted, near))
     return _SOLVERS[key] + (c * q + d,)
 
 

@@ -1,0 +1,116 @@
+"""What compiling a map's per-pixel solve costs: the start and the iterations as two programs
+(veil.maps.solve.compiled, the limit of iterations an input of the second) against a
+program per stage, a batch's (start and first iterations) and the slow pixels' rest (each
+with its own copy of the iterations), the arrangement before (docs/performance-maps.md).
+
+    .venv/bin/python benchmarks/bench_maps_solve_compile.py [--rounds 3] [--doc PAGE]
+
+The solvers are bench_maps_solve_parts.py's: one channel (green) and three channels (r, g,
+b) of Torrance-Sparrow through BTDF2 at the paper's 111 configurations. Each program is
+traced and lowered first, then compiled by XLA with JAX's compilation cache off; the CPU
+seconds of the compilations are reported (the best of ``--rounds``, the arrangements
+alternating), and the run time of one batch of 512 pixels through each arrangement (CPU ms,
+best of five rounds of 20 calls).
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ["JAX_ENABLE_COMPILATION_CACHE"] = "false"
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE))
+
+import doc_tables  # noqa: E402
+from bench_maps_solve_parts import pixels, tables  # noqa: E402
+
+
+def compile_cpu(fn, *args) -> tuple[float, object]:
+    """(CPU seconds of XLA's compilation of ``fn`` at ``args``, the executable)."""
+    import jax
+
+    lowered = jax.jit(fn).lower(*args)
+    t0 = time.process_time()
+    executable = lowered.compile()
+    return time.process_time() - t0, executable
+
+
+def run_ms(fn, args, calls: int = 20) -> float:
+    """CPU milliseconds of one call, best of five rounds of ``calls``."""
+    import jax
+
+    jax.block_until_ready(fn(*args))
+    best = []
+    for _ in range(5):
+        t0 = time.process_time()
+        for _ in range(calls):
+            jax.block_until_ready(fn(*args))
+        best.append((time.process_time() - t0) / calls * 1e3)
+    return min(best)
+
+
+def measure(make, values, coef, y, w2) -> dict:
+    """Compile seconds and batch run time of both arrangements of the solver ``make()``."""
+    from veil.maps.solve import ITERATIONS, compiled
+
+    solver = make()  # a new solver: nothing of it compiled in this process
+    per_stage, batch = compile_cpu(solver.batch, values, coef, y, w2)
+    _, state = batch(values, coef, y, w2)
+    rest, _ = compile_cpu(lambda c, yy, ww, st: solver.resume(c, yy, ww, st, ITERATIONS),
+                          coef, y, w2, state)
+    start, _ = compile_cpu(solver.start, values, coef, y, w2)
+    iterations, _ = compile_cpu(solver.resume, coef, y, w2, state, np.int64(ITERATIONS))
+    first, _ = compiled(solver)
+    return {"before": per_stage + rest, "now": start + iterations,
+            "run before": run_ms(batch, (values, coef, y, w2)),
+            "run now": run_ms(first, (values, coef, y, w2))}
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--rounds", type=int, default=3)
+    doc_tables.add_options(ap, "maps-solve-compile")
+    args = ap.parse_args(argv)
+    import jax.numpy as jnp
+
+    from veil.maps.solve import _PixelSolver
+    from veil.maps.solve_channels import _ChannelSolver
+
+    three, one = tables()
+    y, w2, _ = pixels(three)
+    m, q = three.n_configs, len(three.free_scales)
+    sizes = tuple(a.count for a in three.axes)
+    cases = {
+        "one channel (g)": (lambda: _PixelSolver(q, 1, sizes, True, False), one,
+                            y[:, 1], w2[:, 1]),
+        "three channels (r, g, b)": (lambda: _ChannelSolver(3, q, 1, sizes, True), three,
+                                     y.reshape(-1, 3 * m), w2.reshape(-1, 3 * m)),
+    }
+    rows = []
+    for name, (make, tab, yy, ww) in cases.items():
+        values, coef = (jnp.asarray(a) for a in tab.solver_arrays)
+        got = [measure(make, values, coef, jnp.asarray(yy), jnp.asarray(ww))
+               for _ in range(args.rounds)]
+        best = {k: min(g[k] for g in got) for k in got[0]}
+        rows.append([name, f"{best['before']:.2f}", f"{best['now']:.2f}",
+                     f"{best['now'] / best['before']:.2f}", f"{best['run before']:.1f}",
+                     f"{best['run now']:.1f}"])
+    text = doc_tables.markdown(
+        ["solver, 111 configurations", "compile CPU s: a program per stage",
+         "start + iterations", "ratio", "batch CPU ms: before", "now"],
+        rows, right={1, 2, 3, 4, 5})
+    with doc_tables.printed_tables(args):
+        print(text)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
