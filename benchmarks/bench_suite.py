@@ -8,8 +8,10 @@ Runs the suite as `make test` does (``pytest -n 2 --dist worksteal``, or the pyt
 arguments after ``--``) with an empty program store in a temporary folder, as a clean clone
 has, and with benchmarks/suite_census_plugin.py, which gives each test a compile log of its
 own. It prints the wall time, the worker-seconds (the tests' durations summed), the seconds
-veil spent compiling programs and reading them from the store, the tests that take longest
-beside the part of it that was compilation, and the programs that took longest to compile
+veil spent compiling programs and reading them from the store, the seconds JAX spent
+compiling anything (tracing, lowering and XLA's compilation of every jit, the engine's
+programs among them: "all JAX compiling"), the tests that take longest beside the part of
+it that was compilation, and the programs that took longest to compile
 with the number of tests that used them. A test that waits for a program another worker is
 compiling counts that wait as its own execution.
 """
@@ -83,7 +85,22 @@ def logs_of(folder: Path) -> dict[str, list[dict]]:
     return out
 
 
-def census(output: str, logs: dict[str, list[dict]]) -> dict:
+def jax_seconds(folder: Path) -> dict[str, float]:
+    """{test id: seconds JAX spent compiling in it (tracing, lowering and XLA, every jit)}
+    from the plugin's records of each test."""
+    out: dict[str, float] = {}
+    for path in glob.glob(str(folder / "logs" / "_tests_*.jsonl")):
+        for line in Path(path).read_text().splitlines():
+            try:
+                entry = json.loads(line)
+            except json.JSONDecodeError:
+                continue
+            spent = entry.get("jax", {})
+            out[entry["test"]] = sum(spent.get(k, 0.0) for k in ("trace", "lower", "xla"))
+    return out
+
+
+def census(output: str, logs: dict[str, list[dict]], jax: dict[str, float]) -> dict:
     """The totals, the tests and the programs of one run."""
     spent = durations(output)
     compiled = {name: sum(e["seconds"] for e in es if e["event"] == "compile")
@@ -101,10 +118,11 @@ def census(output: str, logs: dict[str, list[dict]]) -> dict:
                 readers[e["label"]].add(name)
     for label, row in programs.items():  # a read's label lacks the compile's chunk size
         row[2] |= readers.get(label.rsplit(",", 1)[0], set())
-    tests = sorted(((t, s, compiled.get(log_name(t), 0.0)) for t, s in spent.items()),
-                   key=lambda r: -r[1])
+    tests = sorted(((t, s, compiled.get(log_name(t), 0.0), jax.get(t, 0.0))
+                    for t, s in spent.items()), key=lambda r: -r[1])
     return {
         "worker_seconds": sum(spent.values()),
+        "jax": sum(jax.values()),
         "compile": sum(compiled.values()),
         "compiles": sum(row[1] for row in programs.values()),
         "reads": sum(e["seconds"] for es in logs.values() for e in es if e["event"] == "load"),
@@ -118,14 +136,15 @@ def tables(result: dict, wall: float, status: int, top: int) -> str:
     c = result
     totals = doc_tables.markdown(
         ["wall s", "exit", "tests", "worker-seconds", "compiling s (programs)", "reading s",
-         "the rest s"],
+         "the rest s", "all JAX compiling s"],
         [[f"{wall:.0f}", str(status), str(len(c["tests"])), f"{c['worker_seconds']:.0f}",
           f"{c['compile']:.0f} ({c['compiles']})", f"{c['reads']:.0f}",
-          f"{c['worker_seconds'] - c['compile'] - c['reads']:.0f}"]],
-        right=set(range(7)))
+          f"{c['worker_seconds'] - c['compile'] - c['reads']:.0f}", f"{c['jax']:.0f}"]],
+        right=set(range(8)))
     tests = doc_tables.markdown(
-        ["test", "seconds", "of which compiling"],
-        [[f"`{t}`", f"{s:.1f}", f"{k:.1f}"] for t, s, k in c["tests"][:top]], right={1, 2})
+        ["test", "seconds", "of which compiling", "all JAX compiling"],
+        [[f"`{t}`", f"{s:.1f}", f"{k:.1f}", f"{j:.1f}"] for t, s, k, j in c["tests"][:top]],
+        right={1, 2, 3})
     programs = doc_tables.markdown(
         ["program", "compile s", "compiled", "tests using it"],
         [[label, f"{row[0]:.1f}", str(row[1]), str(len(row[2]))]
@@ -138,8 +157,9 @@ def write_durations(path: Path, result: dict) -> None:
     """Every test's seconds and compile seconds, longest first, as CSV."""
     with path.open("w", newline="") as out:
         rows = csv.writer(out)
-        rows.writerow(["test", "seconds", "compiling"])
-        rows.writerows([name, f"{s:.2f}", f"{k:.2f}"] for name, s, k in result["tests"])
+        rows.writerow(["test", "seconds", "compiling", "jax_compiling"])
+        rows.writerows([name, f"{s:.2f}", f"{k:.2f}", f"{j:.2f}"]
+                       for name, s, k, j in result["tests"])
     print(f"wrote {len(result['tests'])} tests' durations to {path}")
 
 
@@ -155,7 +175,7 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(own)
     with tempfile.TemporaryDirectory(prefix="veil-suite-") as tmp:
         wall, status, output = run_suite(extra or MAKE_TEST, Path(tmp))
-        result = census(output, logs_of(Path(tmp)))
+        result = census(output, logs_of(Path(tmp)), jax_seconds(Path(tmp)))
     text = tables(result, wall, status, args.top)
     print(text)
     if args.durations:
