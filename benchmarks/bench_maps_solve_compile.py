@@ -1,7 +1,9 @@
 """What compiling a map's per-pixel solve costs: the start and the iterations as two programs
 (veil.maps.solve.compiled, the limit of iterations an input of the second) against a
 program per stage, a batch's (start and first iterations) and the slow pixels' rest (each
-with its own copy of the iterations), the arrangement before (docs/performance-maps.md).
+with its own copy of the iterations), the arrangement before; and the small matrices'
+LDL^T unrolled against a loop over the columns above veil.fitting.least_squares.UNROLLED_MAX
+rows (docs/performance-maps.md).
 
     .venv/bin/python benchmarks/bench_maps_solve_compile.py [--rounds 3] [--doc PAGE]
 
@@ -57,8 +59,9 @@ def run_ms(fn, args, calls: int = 20) -> float:
     return min(best)
 
 
-def measure(make, values, coef, y, w2) -> dict:
-    """Compile seconds and batch run time of both arrangements of the solver ``make()``."""
+def arrangements(make, values, coef, y, w2) -> dict:
+    """Compile seconds of both arrangements of a new solver ``make()``, and the run time of a
+    batch through each."""
     from veil.maps.solve import ITERATIONS, compiled
 
     solver = make()  # a new solver: nothing of it compiled in this process
@@ -69,9 +72,26 @@ def measure(make, values, coef, y, w2) -> dict:
     start, _ = compile_cpu(solver.start, values, coef, y, w2)
     iterations, _ = compile_cpu(solver.resume, coef, y, w2, state, np.int64(ITERATIONS))
     first, _ = compiled(solver)
-    return {"before": per_stage + rest, "now": start + iterations,
-            "run before": run_ms(batch, (values, coef, y, w2)),
-            "run now": run_ms(first, (values, coef, y, w2))}
+    return {"per stage": per_stage + rest, "split": start + iterations,
+            "run per stage": run_ms(batch, (values, coef, y, w2)),
+            "run split": run_ms(first, (values, coef, y, w2))}
+
+
+def measure(make, values, coef, y, w2) -> dict:
+    """Before: a program per stage, every LDL^T unrolled; now: start and iterations, the
+    LDL^T a loop above UNROLLED_MAX rows (and the split alone, unrolled)."""
+    from veil.fitting import least_squares as lsq
+
+    now = lsq.UNROLLED_MAX
+    try:
+        lsq.UNROLLED_MAX = 1 << 30
+        unrolled = arrangements(make, values, coef, y, w2)
+    finally:
+        lsq.UNROLLED_MAX = now
+    looped = arrangements(make, values, coef, y, w2)
+    return {"before": unrolled["per stage"], "split": unrolled["split"],
+            "now": looped["split"], "run before": unrolled["run per stage"],
+            "run now": looped["run split"]}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -100,13 +120,14 @@ def main(argv: list[str] | None = None) -> int:
         got = [measure(make, values, coef, jnp.asarray(yy), jnp.asarray(ww))
                for _ in range(args.rounds)]
         best = {k: min(g[k] for g in got) for k in got[0]}
-        rows.append([name, f"{best['before']:.2f}", f"{best['now']:.2f}",
-                     f"{best['now'] / best['before']:.2f}", f"{best['run before']:.1f}",
-                     f"{best['run now']:.1f}"])
+        rows.append([name, f"{best['before']:.2f}", f"{best['split']:.2f}",
+                     f"{best['now']:.2f}", f"{best['now'] / best['before']:.2f}",
+                     f"{best['run before']:.1f}", f"{best['run now']:.1f}"])
     text = doc_tables.markdown(
-        ["solver, 111 configurations", "compile CPU s: a program per stage",
-         "start + iterations", "ratio", "batch CPU ms: before", "now"],
-        rows, right={1, 2, 3, 4, 5})
+        ["solver, 111 configurations", "compile CPU s: a program per stage, LDL unrolled",
+         "start + iterations", "and the LDL a loop", "ratio",
+         "batch CPU ms: a program per stage, LDL unrolled", "start + iterations, LDL a loop"],
+        rows, right={1, 2, 3, 4, 5, 6})
     with doc_tables.printed_tables(args):
         print(text)
     return 0

@@ -195,6 +195,38 @@ def test_numpy_and_jax_take_the_same_step():
         assert float(dec) == pytest.approx(g[0] ** 2 / a[0, 0], rel=1e-12)
 
 
+
+@pytest.mark.parametrize("n", [lsq.UNROLLED_MAX + 1, 7, 9])
+def test_the_looped_ldl_of_a_larger_matrix_solves_it(n):
+    """With JAX, a matrix of more than UNROLLED_MAX rows is factored by a loop over its
+    columns (the maps over channels: 7 parameters): its solves, inverse and rank against
+    numpy's dense algebra, for one and several right-hand sides, and the same step as the
+    unrolled factorization of the single fits."""
+    from veil._jax import jax, jnp
+
+    rng = np.random.default_rng(n)
+    jm = rng.normal(size=(n + 4, n)) * np.exp(rng.normal(size=n))  # columns of many scales
+    a, b = jm.T @ jm, rng.normal(size=(n, 3))
+    low, piv = lsq.ldl(jnp.asarray(a), jnp)
+    assert not isinstance(low, list)  # the loop, not the unrolled code
+    for rhs in (b[:, 0], b):
+        x = np.asarray(lsq.ldl_solve(low, piv, jnp.asarray(rhs), jnp))
+        assert np.allclose(x, np.linalg.solve(a, rhs), rtol=1e-9, atol=0)
+    cov, full = lsq.normal_covariance(jnp.asarray(a), True, jnp)
+    assert bool(full) and np.allclose(np.asarray(cov), np.linalg.inv(a), rtol=1e-9, atol=0)
+    singular = a.copy()
+    singular[:, -1], singular[-1, :] = singular[:, 0], singular[0, :]  # two equal columns
+    assert not bool(lsq.normal_covariance(jnp.asarray(singular), True, jnp)[1])
+    # the step of the maps' batched iterations (vmapped) is the single fits' numpy step
+    g, p = jm.T @ rng.normal(size=n + 4), np.full(n, 0.5)
+    lo, hi = np.zeros(n), np.ones(n)
+    trial, dec = lsq.lm_step(p, a, g, 1e-3, lo, hi, np)
+    batched = jax.vmap(lambda aa: lsq.lm_step(jnp.asarray(p), aa, jnp.asarray(g), 1e-3,
+                                              jnp.asarray(lo), jnp.asarray(hi), jnp))
+    trial_j, dec_j = batched(jnp.stack([jnp.asarray(a)] * 2))
+    assert np.allclose(np.asarray(trial_j), trial, rtol=1e-10, atol=1e-14)
+    assert np.allclose(np.asarray(dec_j), dec, rtol=1e-10)
+
 # --------------------------------------------------------------------------------------
 # solve(): the single fits' use of the core, on a problem shaped like veil's Problem
 # --------------------------------------------------------------------------------------

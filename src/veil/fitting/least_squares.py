@@ -102,11 +102,12 @@ def _equilibrated_inverse(a: Any, ok: Any, xp: Any) -> tuple[Any, Any]:
     low, piv = ldl(xp.where(ok, a, xp.eye(n)), xp)
     full = ok & (xp.min(xp.stack(piv)) > SINGULAR**2 * n) if n else ok
     eye = xp.eye(n)
-    inv = (
-        xp.stack([ldl_solve(low, piv, eye[i], xp) for i in range(n)], axis=1)
-        if n
-        else xp.zeros((0, 0))
-    )
+    if not isinstance(low, list):  # factored by a loop: every column at once
+        inv = _ldl_loop_solve(low, piv, eye)
+    elif n:
+        inv = xp.stack([ldl_solve(low, piv, eye[i], xp) for i in range(n)], axis=1)
+    else:
+        inv = xp.zeros((0, 0))
     return inv, full
 
 
@@ -431,11 +432,20 @@ def nnls_small(gram: Any, b: Any, yy: Any, q: int, xp: Any) -> tuple[Any, Any]:
     return xp.stack([best_s0, best_s1], axis=-1), best_cost
 
 
-def ldl(a: Any, xp: Any) -> tuple[list, list]:
-    """Unrolled LDL^T of a small symmetric matrix (n <= 5): (L as nested lists, pivots D).
-    A handful of fused arithmetic ops, where a batched LAPACK call on tiny matrices is slow
-    in XLA."""
+#: The largest matrix :func:`ldl` unrolls with JAX; a larger one is factored by a loop over
+#: its columns (the unrolled code grows as n^3: the seven parameters of a map over three
+#: channels made 2,400 of its iterations program's 3,700 lines, docs/performance-maps.md).
+UNROLLED_MAX = 5
+
+
+def ldl(a: Any, xp: Any) -> tuple[Any, Any]:
+    """LDL^T of a small symmetric matrix: (L, pivots D). Unrolled (L as nested lists, D a
+    list): a handful of fused arithmetic ops, where a batched LAPACK call on tiny matrices is
+    slow in XLA; with JAX above :data:`UNROLLED_MAX` rows, a loop over the columns (L an
+    array, unit lower triangular, D an array: :func:`_ldl_loop`)."""
     n = a.shape[0]
+    if xp is not np and n > UNROLLED_MAX:
+        return _ldl_loop(a)
     low: list = [[None] * n for _ in range(n)]
     piv: list = []
     # a singular matrix overflows here; the callers test what comes out (isfinite), so
@@ -450,8 +460,55 @@ def ldl(a: Any, xp: Any) -> tuple[list, list]:
     return low, piv
 
 
-def ldl_solve(low: list, piv: list, b: Any, xp: Any) -> Any:
+def _ldl_loop(a: Any) -> tuple[Any, Any]:
+    """:func:`ldl` by a loop over the columns (JAX): (L (n, n), pivots (n,)), each pivot
+    kept away from 0 as the unrolled factorization keeps it."""
+    from .._jax import jax, jnp
+
+    n = a.shape[0]
+    ks = jnp.arange(n)
+
+    def column(j, factors):
+        low, piv = factors
+        before = jnp.where(ks < j, low[j] * piv, 0.0)  # L[j, k] D[k], k < j
+        dj = a[j, j] - before @ low[j]
+        dj = jnp.where(jnp.abs(dj) > 1e-300, dj, 1e-300)
+        below = (a[:, j] - low @ before) / dj
+        return jnp.where(ks > j, below, low[:, j]), piv.at[j].set(dj)
+
+    def step(j, factors):
+        col, piv = column(j, factors)
+        return factors[0].at[:, j].set(col), piv
+
+    start = (jnp.eye(n, dtype=a.dtype), jnp.zeros(n, a.dtype))
+    return jax.lax.fori_loop(0, n, step, start)
+
+
+def _ldl_loop_solve(low: Any, piv: Any, b: Any) -> Any:
+    """x with L D L^T x = b (b of n rows, one or more columns) from :func:`_ldl_loop`'s
+    factors: forward and back substitution as loops over the rows."""
+    from .._jax import jax, jnp
+
+    n = piv.shape[0]
+    ks = jnp.arange(n)
+
+    def forward(i, z):  # z_i = b_i - sum_{k<i} L[i, k] z_k
+        lower = jnp.where(ks < i, low[i], 0.0)
+        return z.at[i].set(b[i] - jnp.tensordot(lower, z, axes=1))
+
+    def back(k, x):  # x_i = z_i / D_i - sum_{k>i} L[k, i] x_k, i from the last row up
+        i = n - 1 - k
+        upper = jnp.where(ks > i, low[:, i], 0.0)
+        return x.at[i].set(x[i] / piv[i] - jnp.tensordot(upper, x, axes=1))
+
+    z = jax.lax.fori_loop(0, n, forward, jnp.zeros_like(b))
+    return jax.lax.fori_loop(0, n, back, z)
+
+
+def ldl_solve(low: Any, piv: Any, b: Any, xp: Any) -> Any:
     """x with L D L^T x = b, from :func:`ldl`'s factors."""
+    if not isinstance(low, list):
+        return _ldl_loop_solve(low, piv, b)
     n = len(piv)
     z: list = []
     x: list = [None] * n
