@@ -1,8 +1,8 @@
 """A pytest plugin for benchmarks/bench_suite.py: each test's engine compilations and program
 reads logged to a file of its own (veil appends to the file ``VEIL_COMPILE_LOG`` names,
 looked up at every entry), and each test's start, end and the seconds JAX reported for every
-compilation in it (its monitoring events: tracing, lowering, XLA's compile, reads from JAX's
-own cache; veil's engine programs and every other jit alike).
+compilation in it (its monitoring events: tracing, lowering, and XLA's compile, which counts
+a read from JAX's own cache as one; veil's engine programs and every other jit alike).
 
     pytest -p suite_census_plugin ...   (benchmarks/ on PYTHONPATH, CENSUS_DIR set)
 """

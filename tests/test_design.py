@@ -125,8 +125,8 @@ def test_bad_input(info_known):
         (["design", "--brdf", "BRDF1", "--medium", "BTDF1", "--medium", "btdf1"], "twice"),
         (["design", "--brdf", "BRDF1", "--medium", "BTDF1", "--interest", "g"], "interest"),
         # the value as a user wrote it, not numpy's repr (was "np.float64(0.0)")
-        (["design", "--brdf", "BRDF1", "--medium", "BTDF1", "--psi", "0"], "psi = 0: expected"),
-        (["design", "--brdf", "BRDF1", "--medium", "BTDF1", "--psi", "nan"], "psi = nan:"),
+        (["design", "--brdf", "BRDF1", "--medium", "BTDF1", "--psi", "0"], "--psi 0: expected"),
+        (["design", "--brdf", "BRDF1", "--medium", "BTDF1", "--psi", "nan"], "--psi nan:"),
     ]:
         r = runner.invoke(main, args)
         assert r.exit_code == 2, (args, r.output)

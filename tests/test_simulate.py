@@ -203,7 +203,7 @@ def test_cli_with_medium_and_black(tmp_path):
     (["--brdf", "1,2,3"], "must have 4 numbers"),
     (["--medium", "BRDF1"], "not a BTDF preset"),
     (["--psi", "30,abc"], "'abc' is not a number"),
-    (["--psi", "200"], "psi = 200 deg"),
+    (["--psi", "200"], "--psi 200 deg"),
     (["--psi", "30,30"], "repeated"),
     (["--noise", "-1"], "--noise"),
     (["--glow", "-0.5"], "--glow"),

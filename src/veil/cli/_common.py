@@ -410,11 +410,21 @@ def check_file_target(path, named: str, written: str) -> None:
         raise UserError(f"{named.rstrip()}: {empty_path()}")
     if os.path.isdir(path):
         raise UserError(f"{named} is a directory; give a file name")
-    # a symbolic link is written through (veil.io): its target's directory must be writable
+    # a symbolic link is written through (veil.io): its target must be a file (or nothing
+    # yet) in a writable directory, and a loop of links is refused before any work
     link = os.path.islink(path)
     directory = os.path.dirname(os.path.realpath(path) if link else os.path.abspath(path))
     if link:
-        written = f"{written} (a symbolic link to {os.path.realpath(path)})"
+        from ..errors import UnwritableError
+        from ..io import through_link
+
+        try:
+            target = through_link(os.fspath(path))
+        except UnwritableError as exc:
+            raise UserError(str(exc)) from None
+        written = f"{written} (a symbolic link to {target})"
+        if os.path.exists(target) and not os.path.isfile(target):
+            raise UserError(f"cannot write {written}: it is not a regular file")
     if not os.path.isdir(directory):
         from ..io import no_directory
 

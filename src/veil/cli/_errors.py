@@ -28,10 +28,12 @@ def option_words(text: str, names: dict) -> str:
     reference=`` -> ``give --reference``, ``fixed={...} (--fix 'X=...')`` -> ``--fix 'X=...'``.
     A keyword followed by "in Python" (the library naming both) is left alone."""
     for word, option in names.items():
-        w = rf"(?<![\w.\[-]){re.escape(word)}"
+        # not inside a path, a quoted name or a longer word
+        w = rf"(?<![\w.\[/\\'\"-]){re.escape(word)}"
         said = option.replace("\\", "\\\\")  # literal in a replacement
         text = re.sub(w + r"=\{[^{}]*\}\s*\((--[^()]*)\)", r"\1", text)
-        text = re.sub(w + " = ", said + " ", text)
+        # "word = value" said as "--option value", unless the option follows already
+        text = re.sub(w + r" = (?![^()\s]*\s*\(" + re.escape(option) + r"\))", said + " ", text)
         text = re.sub(w + r"=(?=[\s,;)]|$)(?! in Python)", said, text)
     return text
 
@@ -42,7 +44,10 @@ def family_words(text: str) -> str:
     ``torrance-sparrow Pd = -1``. (No model was made if the registry was never imported.)"""
     registry = sys.modules.get("veil.models.registry")
     for cls in set(getattr(registry, "REGISTRY", {}).values()):
-        text = text.replace(f"{cls.__name__}.", f"{cls.NAME} ")
+        params = "|".join(map(re.escape, cls.param_names()))
+        if params:  # ClassName.parameter only: never a file named after the class
+            pattern = rf"(?<![\w/\\.-]){re.escape(cls.__name__)}\.(?=(?:{params})\b)"
+            text = re.sub(pattern, f"{cls.NAME} ", text)
     return text
 
 

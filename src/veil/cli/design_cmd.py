@@ -223,7 +223,9 @@ def _print_design(plan, result: dict, info, mapping: dict) -> None:
     help="CSV file for the plan (written atomically).",
 )
 @model_options()
-@options_named({"noise": "--noise", "noise floor": "--noise-floor", "size": "--size"})
+@options_named(
+    {"noise": "--noise", "noise floor": "--noise-floor", "size": "--size", "psi": "--psi"}
+)
 def design_command(
     brdf,
     media,

@@ -113,7 +113,14 @@ def output_path(path: str, suffixes: tuple, what: str) -> str:
 )
 @click.option("--quiet", is_flag=True, help="No progress display.")
 @model_options()
-@options_named({"light_theta": "--light-theta", "light_phi": "--light-phi"})
+@options_named(
+    {
+        "light_theta": "--light-theta",
+        "light_phi": "--light-phi",
+        "size": "--size",
+        "samples": "--samples",
+    }
+)
 def render_command(
     brdf,
     medium,

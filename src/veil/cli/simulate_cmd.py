@@ -18,6 +18,7 @@ from ._common import (
     accuracy_option,
     check_output_path,
     model_options,
+    options_named,
     parse_psi,
     rotation_options,
     seed_option,
@@ -260,6 +261,7 @@ def _channel_models(model_b, model_m, channels: str | None, per_channel) -> dict
     "--brdf and --medium in every channel.",
 )
 @model_options()
+@options_named({"psi": "--psi", "noise": "--noise", "glow": "--glow"})
 def simulate_command(
     brdf,
     medium,

@@ -144,7 +144,8 @@ def _stray_hint(columns, missing: str) -> str:
     """A note for a column that ends with the ``missing`` name ("column 'xxpsi' looks like
     'psi' with stray characters before it"), or ""."""
     for c in map(str, columns):
-        if c != missing and c.endswith(missing):
+        # ('sigma_theta_r' is a column of its own, not 'theta_r' with something before it)
+        if c != missing and c.endswith(missing) and "_" not in c[: -len(missing)]:
             return f" (column {c!r} looks like {missing!r} with stray characters before it)"
     return ""
 

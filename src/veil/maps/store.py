@@ -30,7 +30,7 @@ import numpy as np
 
 from .._extras import require
 from ..errors import InputError, MissingFileError, UnwritableError
-from ..io import forget_temporary, register_temporary, write_error
+from ..io import as_path, forget_temporary, register_temporary, write_error
 from .status import CONVERGED, MASKED, STATUS
 
 if TYPE_CHECKING:
@@ -84,6 +84,11 @@ def not_a_store(store) -> InputError:
 def check_store_path(store) -> None:
     """A store is a folder: any other file at ``store`` is refused (:func:`not_a_store`)
     before anything is read or computed."""
+    if os.path.islink(store):
+        raise InputError(
+            f"{store} is a symbolic link: give the maps store's own path (a store is not "
+            f"written through a link)"
+        )
     if os.path.lexists(store) and not os.path.isdir(store):
         raise not_a_store(store)
 
@@ -380,7 +385,7 @@ def open_maps(store) -> dict:
     """The maps of a complete, undamaged store as numpy arrays plus its attributes."""
     zarr = require("zarr", "a maps store")
 
-    store = Path(store)
+    store = Path(as_path(store, "store"))
     if not store.exists():
         raise MissingFileError(f"{store}: no such maps store")
     info = store_info(store)
