@@ -27,7 +27,7 @@ import threading
 from collections.abc import Iterator
 from pathlib import Path
 
-from .errors import NotAFileError, UnwritableError
+from .errors import InputTypeError, NotAFileError, UnwritableError
 
 #: Held while outputs are renamed into place; the interrupt handler acquires it (and never
 #: releases it) before it removes the temporaries and exits.
@@ -41,6 +41,25 @@ _partial: dict[str, str] = {}  # resumable outputs kept on interrupt -> what to 
 COMMIT_LOCK_WAIT = 60.0
 _STAGING = ".veil-partial-"
 _BACKUP = ".veil-replaced-"
+
+
+def as_path(path, what: str) -> str:
+    """``path`` as a string (``os.fspath``) when it is a ``str`` or an ``os.PathLike``; an
+    InputTypeError naming ``what`` (the argument) otherwise: None, a number, a table."""
+    if isinstance(path, (str, os.PathLike)):
+        name = os.fspath(path)
+        if isinstance(name, str):
+            return name
+    raise InputTypeError(
+        f"{what} = {_shown(path)}: expected a path (a str or pathlib.Path), got "
+        f"{type(path).__name__}"
+    )
+
+
+def _shown(value) -> str:
+    """``repr(value)``, cut to 60 characters (a DataFrame's repr runs to many lines)."""
+    text = " ".join(repr(value).split())
+    return text if len(text) <= 60 else text[:57] + "..."
 
 
 def _umask_mode(bits: int = 0o666) -> int:
@@ -473,6 +492,7 @@ def abandon() -> str:
 
 
 __all__ = [
+    "as_path",
     "write_bytes_atomic",
     "write_text_atomic",
     "write_many_atomic",

@@ -65,7 +65,7 @@ from .fitting.model_error import check_kind
 from .fitting.propagation import check_method
 from .fitting.session_data import channels_of, stack
 from .fitting.steps import prefetch
-from .io import check_output_folder, output_folder, write_bytes_atomic, write_text_atomic
+from .io import as_path, check_output_folder, output_folder, write_bytes_atomic, write_text_atomic
 from .models import AUTO, model_class
 from .viz.fit_figures import fit_figure
 from .viz.fit_figures_colour import channel_fit_figure
@@ -519,7 +519,7 @@ def run_pipeline(
     keep_candidates: the module docstring. Other arguments as :func:`veil.fit_medium`.
     """
     model_error, propagation = check_kind(model_error), check_method(propagation)
-    fixed, free, outdir = _check_fixed(fixed), _check_fixed(free, "free"), os.fspath(outdir)
+    fixed, free, outdir = _check_fixed(fixed), _check_fixed(free, "free"), as_path(outdir, "outdir")
     inputs = {
         "reference_clear": reference_clear,
         "reference_medium": reference_medium,

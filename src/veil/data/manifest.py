@@ -11,7 +11,7 @@ import numpy as np
 import pandas as pd
 
 from ..errors import InputError, MissingFileError
-from ..io import other_encoding
+from ..io import as_path, other_encoding
 from .photo_files import PHOTO_SUFFIXES
 
 #: Columns :func:`ingest` adds to the manifest's (``black``, ``black_sigma`` only with a black ROI).
@@ -44,7 +44,7 @@ def _manifest_table(manifest) -> tuple[pd.DataFrame, list[str], str]:
         table.attrs = {"veil_name": name}
         rows = [f"row {label!r} (index label) of {name}" for label in table.index]
     else:
-        name = os.fspath(manifest)
+        name = as_path(manifest, "manifest")
         try:
             raw = pd.read_csv(
                 name,

@@ -32,7 +32,7 @@ from ..engine.angles import (
     to_signed_inplane,
 )
 from ..errors import InputError, InputTypeError, MeasurementError, MissingFileError, NotAFileError
-from ..io import other_encoding, write_text_atomic
+from ..io import as_path, other_encoding, write_text_atomic
 from .channels import CHANNEL, channel_labels, channel_order, check_same_configurations
 from .table_angles import (
     _MAX_LISTED,
@@ -300,7 +300,7 @@ def load_measurements(path) -> pd.DataFrame:
     as float64 (exactly the decimal numbers written), other columns as pandas infers them.
     Errors name the line of the file (the header is line 1). See :func:`validate`.
     """
-    path = Path(path)
+    path = Path(as_path(path, "path"))
     name = str(path)
     try:
         raw = path.read_bytes()
@@ -403,7 +403,8 @@ def save_measurements(table: pd.DataFrame, path) -> None:
     :func:`load_measurements` returns an equal table (same columns, same order, same
     floats). Rows and columns are written as they are; the index is not written.
     """
-    write_text_atomic(path, measurements_text(table))
+    text = measurements_text(table)
+    write_text_atomic(as_path(path, "path"), text)
 
 
 def measurements_text(table: pd.DataFrame) -> str:

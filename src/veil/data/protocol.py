@@ -17,6 +17,7 @@ import pandas as pd
 from ..engine.angles import from_goniometer, from_signed_inplane
 from ..errors import InputError
 from ..numbers import format_exact
+from .table_angles import _warn_radians
 
 PSI = (30.0, 60.0, 90.0)
 
@@ -129,6 +130,7 @@ def protocol(
         raise InputError("psi is empty: give at least one relative angle (degrees)")
     if len(set(psis)) != len(psis):
         raise InputError(f"psi = {psis}: a relative angle is repeated")
+    _warn_radians({"psi": np.array(psis)}, f"psi = {psis}")
     checked = [_checked(p, fine_step, coarse_step, window, limit) for p in psis]
     _check_size(sum(_count(c[4], *c[1:4]) for c in checked), *checked[0][1:3])
     blocks = []

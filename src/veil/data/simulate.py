@@ -34,8 +34,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..engine.angles import direction
-from ..engine.apparent import RULES, as_brdf, as_btdf, scales_text
-from ..engine.evaluator import CHUNK, evaluate
+from ..engine.apparent import as_brdf, as_btdf, scales_text
+from ..engine.evaluator import CHUNK, check_accuracy, check_progress, evaluate
 from ..errors import InputError
 from ..models.base import compiled_kernel
 from .protocol import PSI, protocol
@@ -118,7 +118,8 @@ def simulate(
     argument to change.
     """
     pairs = _pairs(brdf, medium)
-    _check_noise(noise, glow, seed, accuracy)
+    noise, glow = _check_noise(noise, glow, seed, accuracy)
+    check_progress(progress)
     table = protocol(psi, fine_step=fine_step, coarse_step=coarse_step, window=window, limit=limit)
     n, size = len(table), len(table) * len(pairs)
     parts = []
@@ -213,7 +214,34 @@ def _pairs(brdf, medium) -> dict:
             "channels: expected a dict {channel: (brdf, medium)} with at least one channel "
             "(and no separate medium)"
         )
+    _check_channel_names(list(brdf))
+    for c, pair in brdf.items():
+        if not isinstance(pair, (tuple, list)) or len(pair) != 2:
+            raise InputError(f"channels[{c!r}] = {pair!r}: expected a pair (brdf, medium)")
     return brdf
+
+
+def _check_channel_names(names: list) -> None:
+    """An InputError unless every name is a channel a table may hold (docs/measurements.md,
+    "Channels": r, g, b or a wavelength in nm), each once, not both kinds."""
+    from .channels import RGB, WAVELENGTH_RANGE, channel_label
+
+    labels = [channel_label(c) for c in names]
+    lo, hi = WAVELENGTH_RANGE
+    for c, label in zip(names, labels):
+        if label is None:
+            raise InputError(
+                f"channels: {c!r} is not a channel; expected r, g or b, or a wavelength "
+                f"in nm from {lo:g} to {hi:g}"
+            )
+    twice = [c for c, label in zip(names, labels) if labels.count(label) > 1]
+    if twice:
+        raise InputError(f"channels: {', '.join(map(repr, twice))} name one channel")
+    if len({label in RGB for label in labels}) > 1:
+        raise InputError(
+            f"channels: {', '.join(map(repr, names))} mix colour channels and "
+            f"wavelengths; a table's channels are r, g, b or wavelengths, not both"
+        )
 
 
 def _channel_rows(table: pd.DataFrame, channels: list) -> pd.DataFrame:
@@ -230,20 +258,21 @@ def _channel_rows(table: pd.DataFrame, channels: list) -> pd.DataFrame:
     return rows
 
 
-def _check_noise(noise, glow, seed, accuracy) -> None:
-    """An InputError for a noise or glow level, a seed or an accuracy out of place."""
+def _check_noise(noise, glow, seed, accuracy) -> tuple[float, float]:
+    """(noise, glow) as floats; an InputError for a noise or glow level, a seed or an
+    accuracy out of place. Numpy's numbers are numbers (a float32 noise too)."""
     for name, val in (("noise", noise), ("glow", glow)):
         if (
-            isinstance(val, bool)
-            or not isinstance(val, (int, float))
+            isinstance(val, (bool, np.bool_))
+            or not isinstance(val, (int, float, np.integer, np.floating))
             or not math.isfinite(val)
             or val < 0
         ):
             raise InputError(f"{name} = {val!r}: expected a finite number >= 0 (relative)")
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise InputError(f"seed = {seed!r}: expected an integer >= 0")
-    if accuracy not in RULES:
-        raise InputError(f"accuracy = {accuracy!r}; expected one of {', '.join(RULES)}")
+    check_accuracy(accuracy)
+    return float(noise), float(glow)
 
 
 def _session(

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..errors import InputError
 from ..models import BRDF, BTDF
 from . import channel_programs
 from .angles import direction
@@ -24,9 +25,23 @@ from .apparent import (
     run_direct,
 )
 from .forward import CHUNK, Forward
+from .quadrature import RULES
 
 #: The models a Jacobian can be taken with respect to (ApparentModel.value_and_jacobian).
 WRT = ("brdf", "medium")
+
+
+def check_accuracy(accuracy, name: str = "accuracy", error: type[InputError] = InputError) -> None:
+    """An ``error`` (an InputError) unless ``accuracy`` names a quadrature rule: one of
+    :data:`RULES` ("fast", "default", "high"); ``name`` is the argument it was given as."""
+    if not isinstance(accuracy, str) or accuracy not in RULES:
+        raise error(f"{name} = {accuracy!r}; expected one of {', '.join(RULES)}")
+
+
+def check_progress(progress, name: str = "progress") -> None:
+    """An InputError unless ``progress`` (a callback) is None or callable."""
+    if progress is not None and not callable(progress):
+        raise InputError(f"{name} = {progress!r}: expected a function to call, or None")
 
 
 def chunks(size: int, chunk: int = CHUNK):

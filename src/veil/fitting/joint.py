@@ -30,6 +30,7 @@ import dataclasses
 
 import numpy as np
 
+from ..engine.evaluator import check_progress
 from ..errors import FitError
 from ..models import Model, model_class
 from ..models.base import VARIANT_OPTION
@@ -93,6 +94,14 @@ def _floor(problem: Problem, layout: dict):
     if any(b.medium is None for b in problem.blocks):
         return None
     return model_floor(*(model_class(layout["models"][k], k) for k in ("brdf", "medium")))
+
+
+def _checked(accuracy, max_nfev, progress, model_error, propagation) -> tuple[str, str]:
+    """The settings of the joint fit checked: (model_error, propagation)."""
+    check_accuracy(accuracy)
+    check_max_nfev(max_nfev)
+    check_progress(progress)
+    return discrepancy.check_kind(model_error), check_method(propagation)
 
 
 def _start_models(start) -> dict | JointResult | None:
@@ -243,9 +252,7 @@ def fit_joint(
         fitted over several channels gives its model of that channel.
     screen : a candidate's quick fit to rank it (:mod:`veil.fitting.screening`).
     """
-    check_accuracy(accuracy)
-    check_max_nfev(max_nfev)
-    model_error, propagation = discrepancy.check_kind(model_error), check_method(propagation)
+    model_error, propagation = _checked(accuracy, max_nfev, progress, model_error, propagation)
     start = _start_models(start)
     if channel is not None and isinstance(reference, FitResult) and reference.channels:
         # one channel of a reference fitted over several: its model of that channel, held

@@ -14,6 +14,7 @@ from ..engine.angles import direction
 from ..errors import FitError, InputError
 from ..models import default_class, model_class
 from ..models.base import VARIANT_OPTION
+from .arguments import as_names, as_options
 from .channel_steps import shared_engines
 from .given import as_given
 from .joint_channels import (
@@ -73,11 +74,9 @@ def _declarations(medium_cls, brdf_cls, shared, per_medium) -> tuple[str, ...]:
     able = shareable(medium_cls)
 
     def names(arg, what):
+        arg = as_names(arg, what)
         if arg is None:
             return None
-        if isinstance(arg, str):
-            arg = [a for a in arg.replace(" ", "").split(",") if a]
-        arg = list(arg)
         for a in arg:
             spec = next((p for p in medium_cls.PARAMS if a in (p.name, p.key)), None)
             if spec is not None and spec.key != a and a in brdf_cls.param_names():
@@ -323,14 +322,14 @@ def _templates(brdf_model, medium_model, brdf_options, medium_options, variant) 
     options."""
     bcls = default_class("brdf") if brdf_model is None else model_class(brdf_model, "brdf")
     mcls = default_class("medium") if medium_model is None else model_class(medium_model, "medium")
-    medium_options = dict(medium_options or {})
+    medium_options = as_options(medium_options, "medium_options")
     if variant is not None:
         medium_options[VARIANT_OPTION] = variant
     try:
         return (
             bcls,
             mcls,
-            bcls.template(**dict(brdf_options or {})),
+            bcls.template(**as_options(brdf_options, "brdf_options")),
             mcls.template(**medium_options),
         )
     except InputError as exc:
@@ -425,6 +424,7 @@ def build(
     """The stacked :class:`Problem` of a joint fit and its layout (see
     :func:`veil.fitting.joint.fit_joint`); of every channel of tables with several, or of
     ``channel`` (:mod:`veil.fitting.joint_channels`)."""
+    free = as_names(free, "free")
     bcls, mcls, template_b, template_m = _templates(
         brdf_model, medium_model, brdf_options, medium_options, variant
     )

@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, ClassVar, overload
 
 from ..errors import FitError, InputError, MissingFileError, NotAFileError
-from ..io import other_encoding, write_bytes_atomic
+from ..io import as_path, other_encoding, write_bytes_atomic
 from ..models import Model, default_class, model_class
 from ..models.base import VARIANT_OPTION
 from ..models.channel_model import ChannelModel
@@ -436,7 +436,7 @@ def read_json(path) -> Any:
     """The JSON data of a result file; errors name the file (a missing file, a directory, not
     UTF-8, not JSON, nested too deeply) and the key (NaN, Infinity, a number beyond a
     float's range: none of them a number veil writes)."""
-    name = os.fspath(path)
+    name = as_path(path, "path")
     try:
         with open(name, encoding="utf-8") as fh:
             text = fh.read()

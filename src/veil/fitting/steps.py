@@ -27,12 +27,13 @@ from typing import cast
 import numpy as np
 
 from ..data.measurements import RowNames
-from ..engine.evaluator import ApparentModel, DirectModel
+from ..engine.evaluator import ApparentModel, DirectModel, check_progress
 from ..engine.quadrature import RULES
 from ..errors import FitError, InputError
 from ..models import BRDF, Medium, Model, default_class, model_class
 from ..models.base import VARIANT_OPTION
 from . import model_error as discrepancy
+from .arguments import as_names, as_options, as_start
 from .channel_fit import fit_channels
 from .channel_steps import fit_through
 from .given import as_given, check_options
@@ -58,7 +59,7 @@ def _template(cls, options: dict) -> Model:
 
 def _options(options, variant) -> dict:
     """Options as given, the ``variant`` shortcut of the medium's Fresnel factor added."""
-    options = dict(options or {})
+    options = as_options(options)
     if variant is not None:
         options[VARIANT_OPTION] = variant
     return options
@@ -66,7 +67,7 @@ def _options(options, variant) -> dict:
 
 def _freed(cls, free, what: str) -> set:
     """Names of held parameters (``Param.held``) that ``free`` asks to fit."""
-    free = set(free or ())
+    free = set(as_names(free, "free") or ())
     unknown = [n for n in free if n not in cls.param_names()]
     if unknown:
         raise FitError(
@@ -91,7 +92,7 @@ def prefetch(
     rule, values at ``accuracy``), so that a first run compiles them while step 0 fits the
     clear reference. A model or option the steps will refuse is left to them to report."""
     try:
-        brdf = _template(_family(brdf_model, "brdf"), dict(brdf_options or {}))
+        brdf = _template(_family(brdf_model, "brdf"), as_options(brdf_options, "brdf_options"))
         medium = _template(_family(medium_model, "medium"), _options(medium_options, variant))
     except (InputError, FitError):
         return
@@ -178,11 +179,12 @@ def fit_direct(
     ``channel`` as :func:`fit_reference`; ``screen`` and ``start`` (of one channel) as
     :func:`fit_medium`'s: a quick fit is its grid's best start only."""
     check_max_nfev(max_nfev)
+    check_progress(progress)
     model_error = discrepancy.check_kind(model_error)
     if step not in ("reference", "direct"):
         raise FitError(f"step = {step!r}; a clear-water fit is step 'reference' or 'direct'")
     cls = _family(brdf_model, "brdf")
-    fitted = _template(cls, dict(options or {}))
+    fitted = _template(cls, as_options(options))
     what = "reference" if step == "reference" else "target"
     if channel is None:
         table, channels = channels_of(table, f"{what} (clear medium)")
@@ -259,7 +261,7 @@ def fit_medium(
         does not convince (veil.fitting.screening).
     Other arguments as :func:`fit_reference`.
     """
-    model_error, propagation = _checked(accuracy, max_nfev, model_error, propagation)
+    model_error, propagation = _checked(accuracy, max_nfev, progress, model_error, propagation)
     cls = _family(medium_model, "medium")
     fitted = _template(cls, _options(options, variant))
     several = _several(table, black, channel, "reference (in the medium)")
@@ -333,9 +335,9 @@ def fit_target(
     more than a quarter of its scale, as tau at optical depth 0.1, and at most 3 times it:
     beyond, the first order with a note).
     """
-    model_error, propagation = _checked(accuracy, max_nfev, model_error, propagation)
+    model_error, propagation = _checked(accuracy, max_nfev, progress, model_error, propagation)
     cls = _family(brdf_model, "brdf")
-    fitted = _template(cls, dict(options or {}))
+    fitted = _template(cls, as_options(options))
     several = _several(table, black, channel, "target (in the medium)")
     if several is not None:
         model_m = _given_of(medium, next(iter(several)))
@@ -388,7 +390,7 @@ def _start(start, cls, channel: str | None) -> dict:
     if start is None:
         return {}
     if not isinstance(start, FitResult):
-        return {"start": dict(start)}
+        return {"start": as_start(start, cls.param_names(), cls.NAME)}
     check_start_family(start, cls.NAME)
     if start.channels:
         if channel is None:
@@ -399,10 +401,11 @@ def _start(start, cls, channel: str | None) -> dict:
     return {"start": params, "start_ran_best": began_at_grid(start)}
 
 
-def _checked(accuracy, max_nfev, model_error, propagation) -> tuple[str, str]:
+def _checked(accuracy, max_nfev, progress, model_error, propagation) -> tuple[str, str]:
     """The settings of a step through the medium checked: (model_error, propagation)."""
     check_accuracy(accuracy)
     check_max_nfev(max_nfev)
+    check_progress(progress)
     return discrepancy.check_kind(model_error), check_method(propagation)
 
 

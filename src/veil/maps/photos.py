@@ -26,7 +26,7 @@ from ..data.ingest import (
 )
 from ..data.ingest_channels import ALL_RGB, sample_type
 from ..errors import InputError, MissingFileError
-from ..io import COMMIT, write_bytes_atomic
+from ..io import COMMIT, as_path, write_bytes_atomic
 from .store import marker_dir
 
 
@@ -337,7 +337,7 @@ def load_acquisition(
     from ..data.measurements import canonical_angles
     from ..fitting.session_data import CANONICAL
 
-    photo_dir = Path(photo_dir)
+    photo_dir = Path(as_path(photo_dir, "photo_dir"))
     if not photo_dir.is_dir():
         raise MissingFileError(f"photo directory {photo_dir}: no such directory")
     if isinstance(channel, str) and channel not in CHANNELS + (ALL_RGB,):

@@ -61,6 +61,7 @@ from ..data.ingest import IngestWarning
 from ..errors import InputError
 from ..io import (
     COMMIT,
+    as_path,
     forget_partial,
     forget_temporary,
     register_partial,
@@ -224,7 +225,7 @@ def fit_maps(
     medium_model, media = map_media(medium, channel)  # media: {channel: medium} over channels
     cls = default_class("brdf") if brdf_model is None else model_class(brdf_model, "brdf")
     grid_spec = parse_grid(grid, cls) if isinstance(grid, (list, tuple)) else dict(grid or {})
-    output = Path(output)
+    output = Path(as_path(output, "output"))
     _check_output(output)
     acq = load_acquisition(
         photo_dir,

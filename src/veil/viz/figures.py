@@ -19,7 +19,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..engine.apparent import RULES, as_brdf, as_btdf
+from ..engine.apparent import as_brdf, as_btdf
+from ..engine.evaluator import check_accuracy
 from ..errors import InputError
 from ..io import write_bytes_atomic
 from ..models import Model
@@ -221,8 +222,7 @@ def run_experiment(
     ``progress(message, done, total)`` is called as the work advances (optional).
     """
     for name, acc in (("accuracy", accuracy), ("render_accuracy", render_accuracy)):
-        if acc not in RULES:
-            raise InputError(f"{name} = {acc!r}; expected one of {', '.join(RULES)}")
+        check_accuracy(acc, name)
     exp = Experiment(
         {b if isinstance(b, str) else _name(b): as_brdf(b) for b in brdfs},
         {m if isinstance(m, str) else _name(m): as_btdf(m) for m in media},

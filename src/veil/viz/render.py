@@ -30,7 +30,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..engine.apparent import RULES, as_brdf, as_btdf
+from ..engine.apparent import as_brdf, as_btdf
+from ..engine.evaluator import check_accuracy
 from ..errors import InputError
 from .render_table import (
     W_NODES,
@@ -117,8 +118,7 @@ def _check_args(size, light_theta, light_phi, samples, accuracy):
         or not 1 <= samples <= 8
     ):
         raise InputError(f"samples = {samples!r} must be an integer in [1, 8] per pixel axis")
-    if accuracy not in RULES:
-        raise InputError(f"accuracy = {accuracy!r}; expected one of {', '.join(RULES)}")
+    check_accuracy(accuracy)
 
 
 # --------------------------------------------------------------------------------------
