@@ -12,7 +12,7 @@ b) of Torrance-Sparrow through BTDF2 at the paper's 111 configurations. Each pro
 traced and lowered first, then compiled by XLA with JAX's compilation cache off; the CPU
 seconds of the compilations are reported (the best of ``--rounds``, the arrangements
 alternating), and the run time of one batch of 512 pixels through each arrangement (CPU ms,
-best of five rounds of 20 calls).
+best of three rounds of 20 calls).
 """
 
 from __future__ import annotations
@@ -32,7 +32,7 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 
 import doc_tables  # noqa: E402
-from bench_maps_solve_parts import pixels, tables  # noqa: E402
+from bench_maps_solve_parts import cpu_ms, solver_cases  # noqa: E402
 
 
 def compile_cpu(fn, *args) -> tuple[float, object]:
@@ -43,20 +43,6 @@ def compile_cpu(fn, *args) -> tuple[float, object]:
     t0 = time.process_time()
     executable = lowered.compile()
     return time.process_time() - t0, executable
-
-
-def run_ms(fn, args, calls: int = 20) -> float:
-    """CPU milliseconds of one call, best of five rounds of ``calls``."""
-    import jax
-
-    jax.block_until_ready(fn(*args))
-    best = []
-    for _ in range(5):
-        t0 = time.process_time()
-        for _ in range(calls):
-            jax.block_until_ready(fn(*args))
-        best.append((time.process_time() - t0) / calls * 1e3)
-    return min(best)
 
 
 def arrangements(make, values, coef, y, w2) -> dict:
@@ -73,8 +59,8 @@ def arrangements(make, values, coef, y, w2) -> dict:
     iterations, _ = compile_cpu(solver.resume, coef, y, w2, state, np.int64(ITERATIONS))
     first, _ = compiled(solver)
     return {"per stage": per_stage + rest, "split": start + iterations,
-            "run per stage": run_ms(batch, (values, coef, y, w2)),
-            "run split": run_ms(first, (values, coef, y, w2))}
+            "run per stage": cpu_ms(batch, (values, coef, y, w2), 20),
+            "run split": cpu_ms(first, (values, coef, y, w2), 20)}
 
 
 def measure(make, values, coef, y, w2) -> dict:
@@ -101,19 +87,8 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     import jax.numpy as jnp
 
-    from veil.maps.solve import _PixelSolver
-    from veil.maps.solve_channels import _ChannelSolver
-
-    three, one = tables()
-    y, w2, _ = pixels(three)
-    m, q = three.n_configs, len(three.free_scales)
-    sizes = tuple(a.count for a in three.axes)
-    cases = {
-        "one channel (g)": (lambda: _PixelSolver(q, 1, sizes, True, False), one,
-                            y[:, 1], w2[:, 1]),
-        "three channels (r, g, b)": (lambda: _ChannelSolver(3, q, 1, sizes, True), three,
-                                     y.reshape(-1, 3 * m), w2.reshape(-1, 3 * m)),
-    }
+    found, _ = solver_cases()
+    cases = {"one channel (g)": found["one"], "three channels (r, g, b)": found["three"]}
     rows = []
     for name, (make, tab, yy, ww) in cases.items():
         values, coef = (jnp.asarray(a) for a in tab.solver_arrays)

@@ -129,13 +129,10 @@ def parts(solver, values, coef, y, w2, u, repeat):
     return {name: cpu_ms(fn, args, repeat) for name, (fn, args) in calls.items()}
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--repeat", type=int, default=20)
-    doc_tables.add_options(ap, "maps-solve-parts")
-    args = ap.parse_args(argv)
-    import jax.numpy as jnp
-
+def solver_cases() -> tuple[dict, np.ndarray]:
+    """({"one": ..., "three": ...}: (a function making a new solver, its tables, pixels,
+    weights) of the green channel alone and of the three channels, each pixel's channels one
+    after the other; the pixels' roughness coordinates)."""
     from veil.maps.solve import _PixelSolver
     from veil.maps.solve_channels import _ChannelSolver
 
@@ -144,18 +141,30 @@ def main(argv: list[str] | None = None) -> int:
     m = three.n_configs
     q, sizes = len(three.free_scales), tuple(a.count for a in three.axes)
     cases = {
-        "one": (_PixelSolver(q, 1, sizes, True, False), one, y[:, 1], w2[:, 1]),
+        "one": (lambda: _PixelSolver(q, 1, sizes, True, False), one, y[:, 1], w2[:, 1]),
         "three": (
-            _ChannelSolver(3, q, 1, sizes, True),
+            lambda: _ChannelSolver(3, q, 1, sizes, True),
             three,
             y.reshape(-1, 3 * m),
             w2.reshape(-1, 3 * m),
         ),
     }
+    return cases, u
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--repeat", type=int, default=20)
+    doc_tables.add_options(ap, "maps-solve-parts")
+    args = ap.parse_args(argv)
+    import jax.numpy as jnp
+
+    cases, u = solver_cases()
+    n, m = len(u), cases["one"][1].n_configs
     ms = {}
-    for kind, (solver, tab, yy, ww) in cases.items():
+    for kind, (make, tab, yy, ww) in cases.items():
         values, coef = (jnp.asarray(a) for a in tab.solver_arrays)
-        ms[kind] = parts(solver, values, coef, jnp.asarray(yy), jnp.asarray(ww), u, args.repeat)
+        ms[kind] = parts(make(), values, coef, jnp.asarray(yy), jnp.asarray(ww), u, args.repeat)
     rows = [
         [
             name,
@@ -167,7 +176,7 @@ def main(argv: list[str] | None = None) -> int:
     ]
     text = doc_tables.markdown(
         [
-            f"a batch of {len(y)} pixels, {m} configurations: CPU ms on one core",
+            f"a batch of {n} pixels, {m} configurations: CPU ms on one core",
             "one channel (g)",
             "three channels (r, g, b)",
             "ratio",
