@@ -43,6 +43,9 @@ def test_accuracy_in_a_list_is_refused_by_simulate_and_the_fits(clear):
     _refused(FitError, lambda: veil.fit_target(clear, veil.BTDF2, accuracy=["fast"]), said)
     _refused(FitError, lambda: veil.fit_joint({"low": clear}, reference=veil.BRDF1,
                                               accuracy=["fast"]), said)
+    # veil.apparent reads the same check (was TypeError: unhashable type: 'list')
+    _refused(InputError, lambda: veil.apparent(veil.BRDF1, veil.BTDF2, 45, 45,
+                                               accuracy=["fast"]), said)
 
 
 # -- options that are no dict (was ValueError: dictionary update sequence ...) ------------

@@ -16,7 +16,7 @@ from ..models.channel_model import ChannelModel, channel_member, channels_of
 from .angles import check_angles, direction
 from .forward import Forward
 from .programs import Program, structure_name
-from .quadrature import ERROR_FACTOR, FINER, RULES, Rule  # noqa: F401  (re-exported)
+from .quadrature import ERROR_FACTOR, FINER, RULES, Rule, check_accuracy  # noqa: F401  (re-exported)
 
 
 def as_brdf(brdf) -> BRDF:
@@ -247,8 +247,7 @@ def apparent(
     its one-channel models; the channels share one set of configurations, and those whose
     parameters differ only in their scales one run of the quadrature.
     """
-    if accuracy not in RULES:
-        raise InputError(f"accuracy = {accuracy!r}; expected one of {', '.join(RULES)}")
+    check_accuracy(accuracy)
     if medium is None:
         value = reflectance(brdf, theta_i, theta_r, phi_i, phi_r)
         return (value, np.zeros_like(value)) if return_error else value

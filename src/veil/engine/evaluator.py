@@ -25,17 +25,10 @@ from .apparent import (
     run_direct,
 )
 from .forward import CHUNK, Forward
-from .quadrature import RULES
+from .quadrature import check_accuracy as check_accuracy
 
 #: The models a Jacobian can be taken with respect to (ApparentModel.value_and_jacobian).
 WRT = ("brdf", "medium")
-
-
-def check_accuracy(accuracy, name: str = "accuracy", error: type[InputError] = InputError) -> None:
-    """An ``error`` (an InputError) unless ``accuracy`` names a quadrature rule: one of
-    :data:`RULES` ("fast", "default", "high"); ``name`` is the argument it was given as."""
-    if not isinstance(accuracy, str) or accuracy not in RULES:
-        raise error(f"{name} = {accuracy!r}; expected one of {', '.join(RULES)}")
 
 
 def check_progress(progress, name: str = "progress") -> None:

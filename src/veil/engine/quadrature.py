@@ -152,9 +152,18 @@ RULES = {
 FINER = {name: rule.scaled(1.3) for name, rule in RULES.items()}
 ERROR_FACTOR = 2.0
 
+
+def check_accuracy(accuracy, name: str = "accuracy", error: type[InputError] = InputError) -> None:
+    """An ``error`` (an InputError) unless ``accuracy`` names a quadrature rule: one of
+    :data:`RULES` ("fast", "default", "high"); ``name`` is the argument it was given as."""
+    if not isinstance(accuracy, str) or accuracy not in RULES:
+        raise error(f"{name} = {accuracy!r}; expected one of {', '.join(RULES)}")
+
+
 __all__ = [
     "Rule",
     "RULES",
+    "check_accuracy",
     "FINER",
     "ERROR_FACTOR",
     "gauss_legendre_unit",

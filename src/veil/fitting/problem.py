@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from ..engine import evaluator
+from ..engine import quadrature
 from ..engine.evaluator import WRT, ApparentModel, DirectModel
 from ..engine.integrator import BRDF_PARTS, row_scales
 from ..engine.quadrature import RULES
@@ -39,7 +39,7 @@ OBJECTS = ("target", "reference")
 
 def check_accuracy(accuracy) -> None:
     """A FitError unless ``accuracy`` names a quadrature rule ("fast", "default", "high")."""
-    evaluator.check_accuracy(accuracy, error=FitError)
+    quadrature.check_accuracy(accuracy, error=FitError)
 
 
 class SessionModel:
