@@ -63,3 +63,20 @@ class MissingExtraError(InputError, ImportError):
 
 
 __all__ += ["MissingExtraError"]
+
+
+def as_flag(value, name: str, error: type[InputError] = InputError) -> bool:
+    """An on/off argument ``name`` as a bool: True, False or a numpy bool; an ``error`` (an
+    InputError) naming it for anything else (the string "no" or the number 2 would be true)."""
+    if isinstance(value, bool):
+        return value
+    import numpy as np  # here: importing veil.errors stays cheap
+
+    if isinstance(value, np.bool_):
+        return bool(value)
+    raise error(
+        f"{name} = {value!r}: expected True or False (an on/off flag), got {type(value).__name__}"
+    )
+
+
+__all__ += ["as_flag"]

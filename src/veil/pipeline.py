@@ -50,7 +50,7 @@ from dataclasses import dataclass, field, replace
 from typing import Any
 
 from .analysis.comparison import check_truth, compare
-from .errors import FitError
+from .errors import FitError, as_flag
 from .fitting import (
     FitResult,
     fit_direct,
@@ -64,6 +64,7 @@ from .fitting.auto import for_family, plan_candidates, select_steps
 from .fitting.model_error import check_kind
 from .fitting.propagation import check_method
 from .fitting.session_data import channels_of, stack
+from .fitting.step_fit import fixes_of_step
 from .fitting.steps import prefetch
 from .io import as_path, check_output_folder, output_folder, write_bytes_atomic, write_text_atomic
 from .models import AUTO, model_class
@@ -325,37 +326,40 @@ def _fit_steps(data: dict, run: _Run, sources=None) -> tuple[FitResult, FitResul
         variant=run.variant,
         accuracy=run.accuracy,
     )
-    ref = fit_reference(
-        table["reference_clear"],
-        fixed=fixed.get("reference"),
-        max_nfev=run.max_nfev,
-        progress=_stage(progress, "step 0, reference"),
-        free=free.get("reference"),
-        **brdf,
-    )
-    med = fit_medium(
-        table["reference_medium"],
-        ref,
-        fixed=fixed.get("medium"),
-        black=black["reference_medium"],
-        variant=run.variant,
-        progress=_stage(progress, "step 1, medium"),
-        medium_model=run.medium_model,
-        options=run.medium_options,
-        free=free.get("medium"),
-        **chained,
-    )
-    tgt = fit_target(
-        table["target_medium"],
-        med,
-        fixed=fixed.get("target"),
-        black=black["target_medium"],
-        progress=_stage(progress, "step 2, target"),
-        free=free.get("target"),
-        brdf_model=run.brdf_model,
-        options=run.brdf_options,
-        **chained,
-    )
+    with fixes_of_step("reference"):
+        ref = fit_reference(
+            table["reference_clear"],
+            fixed=fixed.get("reference"),
+            max_nfev=run.max_nfev,
+            progress=_stage(progress, "step 0, reference"),
+            free=free.get("reference"),
+            **brdf,
+        )
+    with fixes_of_step("medium"):
+        med = fit_medium(
+            table["reference_medium"],
+            ref,
+            fixed=fixed.get("medium"),
+            black=black["reference_medium"],
+            variant=run.variant,
+            progress=_stage(progress, "step 1, medium"),
+            medium_model=run.medium_model,
+            options=run.medium_options,
+            free=free.get("medium"),
+            **chained,
+        )
+    with fixes_of_step("target"):
+        tgt = fit_target(
+            table["target_medium"],
+            med,
+            fixed=fixed.get("target"),
+            black=black["target_medium"],
+            progress=_stage(progress, "step 2, target"),
+            free=free.get("target"),
+            brdf_model=run.brdf_model,
+            options=run.brdf_options,
+            **chained,
+        )
     return ref, med, tgt
 
 
@@ -368,16 +372,17 @@ def _fit_direct(session, run: _Run, *, chosen: bool, brdf_model, brdf_options) -
         fix_d = for_family(cls, run.fixed, "target", "fixed", set())
         free_d = for_family(cls, run.free, "target", "free", set())
     table = session if isinstance(session, (str, os.PathLike)) else session.table
-    return fit_direct(
-        table,
-        fixed=fix_d,
-        max_nfev=run.max_nfev,
-        free=free_d,
-        progress=_stage(run.progress, "target, clear medium"),
-        brdf_model=brdf_model,
-        options=brdf_options,
-        model_error=run.model_error,
-    )
+    with fixes_of_step("target"):  # the target's entries hold in the direct fit too
+        return fit_direct(
+            table,
+            fixed=fix_d,
+            max_nfev=run.max_nfev,
+            free=free_d,
+            progress=_stage(run.progress, "target, clear medium"),
+            brdf_model=brdf_model,
+            options=brdf_options,
+            model_error=run.model_error,
+        )
 
 
 def _write_outputs(
@@ -538,7 +543,7 @@ def run_pipeline(
         max_nfev,
         progress,
         truth,
-        figures,
+        as_flag(figures, "figures", FitError),
         brdf_model,
         medium_model,
         brdf_options,
@@ -546,7 +551,7 @@ def run_pipeline(
         model_error,
         propagation,
         auto,
-        keep_candidates,
+        as_flag(keep_candidates, "keep_candidates", FitError),
         channel,
     )
     return _pipeline(run, inputs)

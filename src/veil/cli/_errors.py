@@ -31,7 +31,8 @@ def option_words(text: str, names: dict) -> str:
         # not inside a path, a quoted name or a longer word
         w = rf"(?<![\w.\[/\\'\"-]){re.escape(word)}"
         said = option.replace("\\", "\\\\")  # literal in a replacement
-        text = re.sub(w + r"=\{[^{}]*\}\s*\((--[^()]*)\)", r"\1", text)
+        # fixed={...} (--fix ...), its dict of one level of dicts at most (the pipeline's)
+        text = re.sub(w + r"=\{(?:[^{}]|\{[^{}]*\})*\}\s*\((--[^()]*)\)", r"\1", text)
         # "word = value" said as "--option value", unless the option follows already
         text = re.sub(w + r" = (?![^()\s]*\s*\(" + re.escape(option) + r"\))", said + " ", text)
         text = re.sub(w + r"=(?=[\s,;)]|$)(?! in Python)", said, text)

@@ -36,7 +36,7 @@ import numpy as np
 from ..engine.angles import direction
 from ..engine.apparent import as_brdf, as_btdf, scales_text
 from ..engine.evaluator import CHUNK, check_accuracy, check_progress, evaluate
-from ..errors import InputError
+from ..errors import InputError, as_flag
 from ..models.base import compiled_kernel
 from .protocol import PSI, protocol
 
@@ -120,6 +120,7 @@ def simulate(
     pairs = _pairs(brdf, medium)
     noise, glow = _check_noise(noise, glow, seed, accuracy)
     check_progress(progress)
+    black = as_flag(black, "black")
     table = protocol(psi, fine_step=fine_step, coarse_step=coarse_step, window=window, limit=limit)
     n, size = len(table), len(table) * len(pairs)
     parts = []

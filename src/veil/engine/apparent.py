@@ -10,7 +10,7 @@ from typing import Literal, overload
 import numpy as np
 
 from .._jax import jax, jnp
-from ..errors import InputError, InputTypeError, ParameterError
+from ..errors import InputError, InputTypeError, ParameterError, as_flag
 from ..models import BRDF, BTDF, preset
 from ..models.channel_model import ChannelModel, channel_member, channels_of
 from .angles import check_angles, direction
@@ -248,6 +248,7 @@ def apparent(
     parameters differ only in their scales one run of the quadrature.
     """
     check_accuracy(accuracy)
+    return_error = as_flag(return_error, "return_error")
     if medium is None:
         value = reflectance(brdf, theta_i, theta_r, phi_i, phi_r)
         return (value, np.zeros_like(value)) if return_error else value

@@ -23,6 +23,7 @@ from ..models import model_class, registry
 from ..models.base import VARIANT_OPTION
 from . import screening, selection
 from .result import FitResult
+from .step_fit import fixes_of_step
 from .steps import fit_direct, fit_medium, fit_target, model_values
 
 
@@ -169,18 +170,19 @@ class _Ranked:
         )
 
         def one(c, start=None, screen=False):
-            return fit_direct(
-                self.table(session)[0],
-                fixed=fix[c.label],
-                free=free[c.label],
-                max_nfev=self.max_nfev,
-                step="reference" if step == "reference" else "direct",
-                brdf_model=c.family,
-                options=c.model_options(options),
-                model_error=self.model_error,
-                screen=screen,
-                start=start,
-            )
+            with fixes_of_step(step):
+                return fit_direct(
+                    self.table(session)[0],
+                    fixed=fix[c.label],
+                    free=free[c.label],
+                    max_nfev=self.max_nfev,
+                    step="reference" if step == "reference" else "direct",
+                    brdf_model=c.family,
+                    options=c.model_options(options),
+                    model_error=self.model_error,
+                    screen=screen,
+                    start=start,
+                )
 
         # screened as the steps through the medium are (the quick fit: the grid's best
         # start only); over several channels, or with every result kept, each in full
@@ -214,21 +216,22 @@ class _Ranked:
         fit: Callable[..., FitResult] = fit_medium if medium else fit_target
         kind = "medium" if medium else "brdf"
         table, black = self.table(session)
-        return fit(
-            table,
-            given,
-            black=black,
-            fixed=self.plan[f"fix_{key}"][c.label],
-            free=self.plan[f"free_{key}"][c.label],
-            accuracy=self.accuracy,
-            max_nfev=self.max_nfev,
-            options=c.model_options(self.plan[f"{kind}_options"]),
-            model_error=self.model_error,
-            propagation=propagation,
-            screen=screen,
-            start=start,
-            **{f"{kind}_model": c.family},
-        )
+        with fixes_of_step(step):
+            return fit(
+                table,
+                given,
+                black=black,
+                fixed=self.plan[f"fix_{key}"][c.label],
+                free=self.plan[f"free_{key}"][c.label],
+                accuracy=self.accuracy,
+                max_nfev=self.max_nfev,
+                options=c.model_options(self.plan[f"{kind}_options"]),
+                model_error=self.model_error,
+                propagation=propagation,
+                screen=screen,
+                start=start,
+                **{f"{kind}_model": c.family},
+            )
 
     def target_on_clear(self, medium: FitResult, curve) -> tuple[FitResult, selection.Ranking]:
         """Step 2 with the target's clear data: every BRDF candidate fitted to them directly

@@ -31,7 +31,7 @@ import dataclasses
 import numpy as np
 
 from ..engine.evaluator import check_progress
-from ..errors import FitError
+from ..errors import FitError, as_flag
 from ..models import Model, model_class
 from ..models.base import VARIANT_OPTION
 from . import model_error as discrepancy
@@ -253,6 +253,7 @@ def fit_joint(
     screen : a candidate's quick fit to rank it (:mod:`veil.fitting.screening`).
     """
     model_error, propagation = _checked(accuracy, max_nfev, progress, model_error, propagation)
+    as_flag(screen, "screen", FitError)
     start = _start_models(start)
     if channel is not None and isinstance(reference, FitResult) and reference.channels:
         # one channel of a reference fitted over several: its model of that channel, held

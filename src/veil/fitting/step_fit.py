@@ -6,7 +6,9 @@ weighted fit that misses its data far warns (:class:`MisfitWarning`)."""
 
 from __future__ import annotations
 
+import contextlib
 import warnings
+from collections.abc import Iterator
 from typing import cast
 
 import numpy as np
@@ -27,6 +29,26 @@ from .start_values import step_starts
 STARTS = {"reference": 3, "direct": 3, "medium": 2, "target": 2}
 #: The fit role (starting grid of the model's declaration) of each step.
 ROLE = {"reference": "reference", "direct": "reference", "medium": "medium", "target": "target"}
+
+
+@contextlib.contextmanager
+def fixes_of_step(step: str) -> Iterator[None]:
+    """Within the block (a pipeline's ``step``: "reference", "medium" or "target"), a
+    FitError's hint to hold parameters says it as the pipeline takes them:
+    ``fixed={'medium': {'NAME': VALUE}} (--fix medium.NAME=VALUE)``."""
+    try:
+        yield
+    except FitError as exc:
+        text = str(exc)
+        for generic, of_step in (
+            ("fixed={'NAME': VALUE}", f"fixed={{'{step}': {{'NAME': VALUE}}}}"),
+            ("fixed={...}", f"fixed={{'{step}': {{...}}}}"),
+            ("--fix NAME=VALUE", f"--fix {step}.NAME=VALUE"),
+        ):
+            text = text.replace(generic, of_step)
+        if text != str(exc):
+            exc.args = (text,)
+        raise
 
 
 def _fixed_slots(problem: Problem, cls, fixed: dict, what: str) -> dict:
@@ -313,6 +335,7 @@ def fit_step(
 
 __all__ = [
     "fit_step",
+    "fixes_of_step",
     "stats_and_message",
     "warn_misfit",
     "MisfitWarning",

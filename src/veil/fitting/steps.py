@@ -29,7 +29,7 @@ import numpy as np
 from ..data.measurements import RowNames
 from ..engine.evaluator import ApparentModel, DirectModel, check_progress
 from ..engine.quadrature import RULES
-from ..errors import FitError, InputError
+from ..errors import FitError, InputError, as_flag
 from ..models import BRDF, Medium, Model, default_class, model_class
 from ..models.base import VARIANT_OPTION
 from . import model_error as discrepancy
@@ -180,6 +180,7 @@ def fit_direct(
     :func:`fit_medium`'s: a quick fit is its grid's best start only."""
     check_max_nfev(max_nfev)
     check_progress(progress)
+    as_flag(screen, "screen", FitError)
     model_error = discrepancy.check_kind(model_error)
     if step not in ("reference", "direct"):
         raise FitError(f"step = {step!r}; a clear-water fit is step 'reference' or 'direct'")
@@ -258,10 +259,10 @@ def fit_medium(
         parameters one per channel, the others tied (:mod:`veil.fitting.channel_steps`).
     screen, start : a candidate's quick fit to rank it; a :class:`FitResult` of this model
         (of one channel: or {name: value}) to start from, the grid evaluated only if that
-        does not convince (veil.fitting.screening).
-    Other arguments as :func:`fit_reference`.
+        does not convince (veil.fitting.screening). Other arguments as :func:`fit_reference`.
     """
     model_error, propagation = _checked(accuracy, max_nfev, progress, model_error, propagation)
+    as_flag(screen, "screen", FitError)
     cls = _family(medium_model, "medium")
     fitted = _template(cls, _options(options, variant))
     several = _several(table, black, channel, "reference (in the medium)")
@@ -336,6 +337,7 @@ def fit_target(
     beyond, the first order with a note).
     """
     model_error, propagation = _checked(accuracy, max_nfev, progress, model_error, propagation)
+    as_flag(screen, "screen", FitError)
     cls = _family(brdf_model, "brdf")
     fitted = _template(cls, as_options(options))
     several = _several(table, black, channel, "target (in the medium)")

@@ -58,7 +58,7 @@ import numpy as np
 
 from .._extras import require
 from ..data.ingest import IngestWarning
-from ..errors import InputError
+from ..errors import InputError, as_flag
 from ..io import (
     COMMIT,
     as_path,
@@ -220,6 +220,7 @@ def fit_maps(
     from .grid import parse_grid
 
     check_accuracy(accuracy)
+    near_field = as_flag(near_field, "near_field")
     say = log or (lambda message: None)
     tile, noise = _tile(tile), _noise(noise)
     medium_model, media = map_media(medium, channel)  # media: {channel: medium} over channels

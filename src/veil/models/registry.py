@@ -51,7 +51,16 @@ _plugin_error: InputError | None = None
 
 def register(cls: type[Model]) -> type[Model]:
     """Add a model family to the registry (usable as a class decorator); its declaration is
-    checked here, so a family with an inconsistent declaration never runs."""
+    checked here, so a family with an inconsistent declaration never runs; an
+    InputTypeError for anything but a subclass of :class:`BRDF` or :class:`Medium`."""
+    expected = "expected a model class, a subclass of veil.BRDF or veil.Medium"
+    if not isinstance(cls, type):
+        shown = repr(cls) if len(repr(cls)) <= 60 else repr(cls)[:57] + "..."
+        raise InputTypeError(
+            f"register({shown}): {expected}, got {type(cls).__name__} (an object, not a class)"
+        )
+    if not issubclass(cls, (BRDF, Medium)):
+        raise InputTypeError(f"register({cls.__name__}): {expected}; {cls.__name__} is neither")
     name = getattr(cls, "NAME", None)
     if not isinstance(name, str) or not name or name != name.strip().lower():
         raise ValueError(
@@ -253,11 +262,19 @@ PRESETS: dict[str, Model] = {
 
 
 def preset(name: str, kind: str | None = None) -> Model:
-    """A preset model by name (case-insensitive), of ``kind`` when given."""
+    """A preset model by name (case-insensitive), of ``kind`` ("brdf" or "medium") when
+    given; an InputError listing the presets (of that kind), or the kinds."""
+    if kind is not None and kind not in KINDS:
+        raise InputError(
+            f"preset kind = {kind!r}; expected one of {', '.join(map(repr, KINDS))}, or "
+            f"None for any kind"
+        )
     model = PRESETS.get(name.upper()) if isinstance(name, str) else None
     if model is None or (kind is not None and model.KIND != kind):
         known = [k for k, m in PRESETS.items() if kind is None or m.KIND == kind]
-        raise InputError(f"unknown preset {name!r}; known: {', '.join(known)}")
+        hint = f" ({name!r} is a {model.KIND} preset)" if model is not None else ""
+        of = f" {kind}" if kind is not None else ""
+        raise InputError(f"unknown{of} preset {name!r}{hint}; known: {', '.join(known)}")
     return model
 
 
