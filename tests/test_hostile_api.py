@@ -164,6 +164,16 @@ def test_psi_in_radians_warns():
         veil.simulate(veil.BRDF1, None, psi=(np.pi / 6, np.pi / 3, np.pi / 2), **STEP)
 
 
+def test_psi_zero_is_refused_without_being_taken_for_radians():
+    """psi = 0 is 0 in either unit: its error alone, no "written in radians?" before it."""
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(ValueError, match=r"psi = 0 deg: expected a relative angle"):
+            veil.simulate(veil.BRDF1, None, psi=(0.0,), **STEP)
+
+
 def test_results_still_read_and_fit_as_before(clear, tmp_path):
     """The checks refuse nothing veil writes or the documented forms."""
     result = veil.fit_reference(clear, free=["eta"], options={}, start=veil.BRDF1.as_dict())

@@ -347,7 +347,9 @@ def _check_agreement(found: dict, rows: RowNames) -> tuple:
 
 def _warn_radians(cols: dict, what: str) -> bool:
     present = [c for c in _RADIAN_LIMITS if c in cols]
-    if present and all(np.all(np.abs(cols[c]) < _RADIAN_LIMITS[c]) for c in present):
+    small = all(np.all(np.abs(cols[c]) < _RADIAN_LIMITS[c]) for c in present)
+    # angles that are all 0 (psi = 0, the plane of incidence) are 0 in either unit
+    if present and small and any(np.any(np.asarray(cols[c]) != 0) for c in present):
         warnings.warn(
             f"every angle in {what} is small (|theta|, |rho| < 1.6, |psi| < 3.2, |phi| < 6.3): "
             f"were they written in radians? veil reads angles in degrees (docs/model.md sec. 1)",
