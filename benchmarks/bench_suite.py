@@ -2,7 +2,7 @@
 per test and per program (issue 28: `make test` within 10 minutes on 2 cores).
 
     .venv/bin/python benchmarks/bench_suite.py [--top 15] [--doc docs/performance-suite.md]
-        [-- PYTEST ARGS]
+        [--durations CSV] [--programs CSV] [--keep DIR] [-- PYTEST ARGS]
 
 Runs the suite as `make test` does (``pytest -n 2 --dist worksteal``, or the pytest
 arguments after ``--``) with an empty program store in a temporary folder, as a clean clone
@@ -24,6 +24,7 @@ import csv
 import glob
 import json
 import os
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -163,6 +164,18 @@ def write_durations(path: Path, result: dict) -> None:
     print(f"wrote {len(result['tests'])} tests' durations to {path}")
 
 
+def write_programs(path: Path, result: dict) -> None:
+    """Every program compiled, longest first, with the tests (their log names) that
+    compiled or read it, as CSV: where a test could use a program another one compiles."""
+    with path.open("w", newline="") as out:
+        rows = csv.writer(out)
+        rows.writerow(["program", "compile_seconds", "compiled", "tests"])
+        rows.writerows([label, f"{row[0]:.2f}", row[1],
+                        " ".join(sorted(n.removesuffix(".jsonl") for n in row[2]))]
+                       for label, row in result["programs"])
+    print(f"wrote {len(result['programs'])} programs to {path}")
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     extra = argv[argv.index("--") + 1:] if "--" in argv else None
@@ -172,14 +185,21 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--doc", help="write the tables into this page's table:suite-census")
     ap.add_argument("--durations", help="write every test's seconds (and compile seconds) "
                     "to this CSV file")
+    ap.add_argument("--programs", help="write every compiled program, its compile seconds "
+                    "and the tests that used it to this CSV file")
+    ap.add_argument("--keep", help="copy the tests' compile logs into this new folder")
     args = ap.parse_args(own)
     with tempfile.TemporaryDirectory(prefix="veil-suite-") as tmp:
         wall, status, output = run_suite(extra or MAKE_TEST, Path(tmp))
         result = census(output, logs_of(Path(tmp)), jax_seconds(Path(tmp)))
+        if args.keep:
+            shutil.copytree(Path(tmp) / "logs", args.keep)
     text = tables(result, wall, status, args.top)
     print(text)
     if args.durations:
         write_durations(Path(args.durations), result)
+    if args.programs:
+        write_programs(Path(args.programs), result)
     if status != 0:
         print(output[-3000:], file=sys.stderr)
     if args.doc:
