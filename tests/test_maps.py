@@ -179,6 +179,38 @@ def test_iterations_stop_per_pixel_and_a_stopped_pixel_is_frozen(monkeypatch):
 H, W = 12, 10
 
 
+def test_an_axis_that_cannot_move_the_model_is_held_and_the_pixel_stops():
+    """A pixel whose specular scale is 0 at its best node (a matte patch: a lobe of zero
+    height has no width): the roughness column is rounding noise (these numbers are such a
+    pixel's, benchmarks/bench_maps_solve_parts.py's pixels), whose ratio to itself predicts
+    a decrease of 2.2 that no step finds; such a pixel damped its way through every
+    iteration. Held as at a bound, it stops at its first test; an axis that moves the model
+    is left as it is."""
+    from veil.fitting import least_squares as lsq
+    from veil.maps import solve as maps
+    from veil.maps.solve import _PixelSolver
+
+    solver = _PixelSolver(2, 1, (48,), True, False)
+    p = np.array([0.72306626, 0.0, 0.0])  # diffuse, specular at its bound 0, roughness
+    a = np.array([[2.12287048e06, 1.27332485e05, -1.70575200e-09],
+                  [1.27332485e05, 9.29060545e03, -1.02444757e-10],
+                  [-1.70575200e-09, -1.02444757e-10, 1.40058589e-24]])
+    g = np.array([-1.62269459e-09, -3.72980305e01, 2.55482824e-13])
+
+    def step(a, g):
+        trial, dec = lsq.lm_step(p, a, g, 1e-3, solver.lo, solver.hi, np)
+        return trial, bool(lsq.stopped(dec, maps.LM_TOL, 1.0, 1e4, np))
+
+    assert step(a, g)[1] is False  # as the iterations saw it
+    held_a, held_g = (np.asarray(x) for x in solver.without_silent_axes(a, g, 1.0))
+    trial, stop = step(held_a, held_g)
+    assert stop and trial[2] == p[2]
+    # a roughness that moves the model by a standard error over its range stays free
+    a[2, 2] = (1.0 / 47) ** 2
+    kept_a, kept_g = (np.asarray(x) for x in solver.without_silent_axes(a, g, 1.0))
+    assert np.array_equal(kept_a, a) and np.array_equal(kept_g, g)
+
+
 @pytest.fixture(scope="module")
 def stack(tmp_path_factory):
     root = tmp_path_factory.mktemp("maps")

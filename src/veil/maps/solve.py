@@ -147,6 +147,7 @@ class _PixelSolver:
         r = (y - val) * w
         a, g = self.normal(jac, w, r)
         variance = 1.0 if self.weighted else cost / self.dof(w)
+        a, g = self.without_silent_axes(a, g, variance)
         proposed, dec = lsq.lm_step(p, a, g, lam, self.lo, self.hi, jnp)
         now = lsq.stopped(dec, LM_TOL, variance, (y * w) @ (y * w), jnp)
         trial, tval, tjac = self.refit(coef, fu, y, w, proposed)
@@ -162,6 +163,20 @@ class _PixelSolver:
             jnp.where(better, tjac, jac),
             now,
         )
+
+    def without_silent_axes(self, a, g, variance):
+        """(a, g) with the axes that cannot move the model by LM_TOL standard errors over
+        their whole tabulated range (at the pixel's scales: a lobe of zero height has no
+        width) held as a bound holds a parameter: no step, no part of the stopping rule's
+        decrease. Their columns are rounding noise; its ratio to itself would otherwise
+        predict a decrease that no step finds, and the pixel would spend every iteration
+        there."""
+        if not self.d:
+            return a, g
+        span = jnp.concatenate([jnp.full(self.q, jnp.inf), self.top])
+        silent = jnp.diag(a) * span**2 < LM_TOL**2 * variance
+        pair = silent[:, None] | silent[None, :]
+        return jnp.where(pair, jnp.eye(self.n), a), jnp.where(silent, 0.0, g)
 
     def normal(self, jac, w, r):
         """(J^T J, J^T r) of the weighted Jacobian ``jac`` times ``w`` and residuals ``r``."""
