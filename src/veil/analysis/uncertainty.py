@@ -99,23 +99,20 @@ def _medium_map(medium_result: FitResult, names) -> list[str]:
     return [cls.param(n).key for n in names]
 
 
+def _step_fit(result, kind: str) -> bool:
+    """Whether ``result`` is one step's fit (not a joint fit) of a model of ``kind``."""
+    single = isinstance(result, FitResult) and not isinstance(result, JointResult)
+    return single and result.kind == kind
+
+
 def _check_pair(target_result, medium_result, reference_result):
     """Results of the right steps, chained (the target fitted through this medium...)."""
-    if (
-        not isinstance(target_result, FitResult)
-        or isinstance(target_result, JointResult)
-        or target_result.kind != "brdf"
-        or target_result.step != "target"
-    ):
+    if not _step_fit(target_result, "brdf") or target_result.step != "target":
         raise FitError(
             "target_result must be a step-2 fit (veil fit target: a BRDF fitted "
             "through a medium, step 'target')"
         )
-    if (
-        not isinstance(medium_result, FitResult)
-        or isinstance(medium_result, JointResult)
-        or medium_result.kind != "medium"
-    ):
+    if not _step_fit(medium_result, "medium"):
         raise FitError("medium_result must be a step-1 fit (veil fit medium: a medium model)")
     given = target_result.given or {}
     if given.get("params"):
@@ -133,11 +130,7 @@ def _check_pair(target_result, medium_result, reference_result):
                     f"with the medium result the target fit used"
                 )
     if reference_result is not None:
-        if (
-            not isinstance(reference_result, FitResult)
-            or isinstance(reference_result, JointResult)
-            or reference_result.kind != "brdf"
-        ):
+        if not _step_fit(reference_result, "brdf"):
             raise FitError("reference_result must be a step-0 fit (veil fit reference)")
         given = medium_result.given or {}
         for k, v in reference_result.params.items():

@@ -28,6 +28,19 @@ from .result_fields import (
 #: The steps of the two-step method (docs/model.md sec. 7); results may also say "direct".
 STEPS = ("reference", "medium", "target")
 
+#: The keys of every result file, a step's (after "model") and a joint fit's (before "layout").
+_KEYS = (
+    "params",
+    "stderr",
+    "correlation",
+    "chi2_reduced",
+    "rms_relative",
+    "n_points",
+    "converged",
+    "message",
+    VARIANT_OPTION,
+)
+
 
 def _model_class_of(name, source: str):
     """The family a result file names, or a FitError naming the file."""
@@ -172,24 +185,7 @@ def fit_fields(data: dict, source: str) -> dict:
             f"got {type(data).__name__}"
         )
     _check_format(data, source)
-    _check_keys(
-        data,
-        (
-            "model",
-            "params",
-            "stderr",
-            "correlation",
-            "chi2_reduced",
-            "rms_relative",
-            "n_points",
-            "converged",
-            "message",
-            VARIANT_OPTION,
-        ),
-        source,
-        "fit result",
-        "veil fit ...",
-    )
+    _check_keys(data, ("model", *_KEYS), source, "fit result", "veil fit ...")
     mcls, names, channels = _fit_params(data, source)
     variant = _variant_of(data, source)
     options = _fit_options(data, mcls, variant, source)
@@ -290,24 +286,7 @@ def joint_fields(data: dict, source: str) -> dict:
     if not isinstance(data, dict) or data.get("model") != "joint":
         raise FitError(f"{source}: not a joint fit result (expected key 'model' = 'joint')")
     _check_format(data, source)
-    _check_keys(
-        data,
-        (
-            "params",
-            "stderr",
-            "correlation",
-            "chi2_reduced",
-            "rms_relative",
-            "n_points",
-            "converged",
-            "message",
-            VARIANT_OPTION,
-            "layout",
-        ),
-        source,
-        "joint fit result",
-        "veil fit joint",
-    )
+    _check_keys(data, (*_KEYS, "layout"), source, "joint fit result", "veil fit joint")
     params = data["params"]
     _check_layout(data["layout"], params, source)
     _check_numbers(params, source)

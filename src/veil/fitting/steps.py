@@ -261,48 +261,11 @@ def fit_medium(
         (of one channel: or {name: value}) to start from, the grid evaluated only if that
         does not convince (veil.fitting.screening). Other arguments as :func:`fit_reference`.
     """
-    model_error, propagation = _checked(accuracy, max_nfev, progress, model_error, propagation)
-    as_flag(screen, "screen", FitError)
+    settings = _settings(accuracy, max_nfev, progress, model_error, propagation, screen)
     cls = _family(medium_model, "medium")
     fitted = _template(cls, _options(options, variant))
-    several = _several(table, black, channel, "reference (in the medium)")
-    if several is not None:
-        return fit_through(
-            "medium",
-            several,
-            fitted,
-            reference,
-            fixed=as_fixed(fixed),
-            freed=_freed(cls, free, "medium"),
-            accuracy=accuracy,
-            max_nfev=max_nfev,
-            progress=progress,
-            model_error=model_error,
-            propagation=propagation,
-            starts=STARTS["medium"],
-            role="the reference",
-            source=_source(several),
-            screen=screen,
-            start=start,
-        )
-    reference = _of_channel(reference, channel)
-    brdf = as_given(reference, "brdf", "the reference")
-    data = prepare(table, black, "reference (in the medium)", channel)
-    return fit_step(
-        "medium",
-        data,
-        fitted,
-        brdf,
-        reference if isinstance(reference, FitResult) else None,
-        as_fixed(fixed),
-        accuracy,
-        max_nfev,
-        progress,
-        _freed(cls, free, "medium"),
-        model_error,
-        propagation,
-        screen=screen,
-        **_start(start, cls, channel),
+    return _through_medium(
+        "medium", table, reference, fitted, None, fixed, black, free, channel, start, **settings
     )
 
 
@@ -336,50 +299,78 @@ def fit_target(
     more than a quarter of its scale, as tau at optical depth 0.1, and at most 3 times it:
     beyond, the first order with a note).
     """
-    model_error, propagation = _checked(accuracy, max_nfev, progress, model_error, propagation)
-    as_flag(screen, "screen", FitError)
+    settings = _settings(accuracy, max_nfev, progress, model_error, propagation, screen)
     cls = _family(brdf_model, "brdf")
     fitted = _template(cls, as_options(options))
-    several = _several(table, black, channel, "target (in the medium)")
+    checked = _options(None, variant)  # the variant asked for: the medium's own or none
+    return _through_medium(
+        "target", table, medium, fitted, checked, fixed, black, free, channel, start, **settings
+    )
+
+
+#: Of a step through the medium: the kind of the model it holds fixed, how errors name
+#: that model, and how they name the step's table.
+_THROUGH = {
+    "medium": ("brdf", "the reference", "reference (in the medium)"),
+    "target": ("medium", "the medium", "target (in the medium)"),
+}
+
+
+def _through_medium(
+    step: str,
+    table,
+    given,
+    fitted: Model,
+    given_options: dict | None,
+    fixed,
+    black,
+    free,
+    channel: str | None,
+    start,
+    **settings,
+) -> FitResult:
+    """Step 1 (``step`` "medium") or 2 ("target") of ``fitted`` (its family's template)
+    through ``given`` held fixed: every channel of a table of several at once, else the one
+    ``channel``; ``given_options`` (step 2's) must agree with the given model's own;
+    ``settings`` as :func:`_settings` returns them. Other arguments as :func:`fit_medium`."""
+    kind, role, what = _THROUGH[step]
+    cls = type(fitted)
+    several = _several(table, black, channel, what)
     if several is not None:
-        model_m = _given_of(medium, next(iter(several)))
-        if isinstance(model_m, Model):
-            check_options(model_m, _options(None, variant), "the medium")
+        if given_options is not None:
+            model = _given_of(given, next(iter(several)))
+            if isinstance(model, Model):
+                check_options(model, given_options, role)
         return fit_through(
-            "target",
+            step,
             several,
             fitted,
-            medium,
+            given,
             fixed=as_fixed(fixed),
-            freed=_freed(cls, free, "target"),
-            accuracy=accuracy,
-            max_nfev=max_nfev,
-            progress=progress,
-            model_error=model_error,
-            propagation=propagation,
-            starts=STARTS["target"],
-            role="the medium",
+            freed=_freed(cls, free, step),
+            starts=STARTS[step],
+            role=role,
             source=_source(several),
-            screen=screen,
             start=start,
+            **settings,
         )
-    model_m = as_given(_of_channel(medium, channel), "medium", "the medium")
-    check_options(model_m, _options(None, variant), "the medium")
-    data = prepare(table, black, "target (in the medium)", channel)
+    one = _of_channel(given, channel)
+    model = as_given(one, kind, role)
+    if given_options is not None:
+        check_options(model, given_options, role)
+    data = prepare(table, black, what, channel)
+    # the fit whose covariance enters stderr_total: step 1's the reference's fit of one
+    # channel (none when a fit of several gave this channel's model), step 2's as given
+    given_result = one if step == "medium" else given
     return fit_step(
-        "target",
+        step,
         data,
         fitted,
-        model_m,
-        medium if isinstance(medium, FitResult) else None,
+        model,
+        given_result if isinstance(given_result, FitResult) else None,
         as_fixed(fixed),
-        accuracy,
-        max_nfev,
-        progress,
-        _freed(cls, free, "target"),
-        model_error,
-        propagation,
-        screen=screen,
+        freed=_freed(cls, free, step),
+        **settings,
         **_start(start, cls, channel),
     )
 
@@ -403,12 +394,23 @@ def _start(start, cls, channel: str | None) -> dict:
     return {"start": params, "start_ran_best": began_at_grid(start)}
 
 
-def _checked(accuracy, max_nfev, progress, model_error, propagation) -> tuple[str, str]:
-    """The settings of a step through the medium checked: (model_error, propagation)."""
+def _settings(accuracy, max_nfev, progress, model_error, propagation, screen) -> dict:
+    """The settings of a step through the medium, checked: the keywords that
+    :func:`veil.fitting.step_fit.fit_step` and
+    :func:`veil.fitting.channel_steps.fit_through` take alike."""
     check_accuracy(accuracy)
     check_max_nfev(max_nfev)
     check_progress(progress)
-    return discrepancy.check_kind(model_error), check_method(propagation)
+    model_error, propagation = discrepancy.check_kind(model_error), check_method(propagation)
+    as_flag(screen, "screen", FitError)
+    return dict(
+        accuracy=accuracy,
+        max_nfev=max_nfev,
+        progress=progress,
+        model_error=model_error,
+        propagation=propagation,
+        screen=screen,
+    )
 
 
 def _several(table, black, channel: str | None, what: str) -> dict[str, FitData] | None:

@@ -389,16 +389,7 @@ class Curves:
         from ..engine.apparent import RULES
         from ..engine.forward import Forward
 
-        self.key = (
-            type(brdf),
-            tuple(sorted(brdf.options().items())),
-            None if medium is None else type(medium),
-            None if medium is None else tuple(sorted(medium.options().items())),
-            curve,
-            float(theta_i),
-            float(psi),
-            accuracy,
-        )
+        self.key = self.key_of(brdf, medium, curve, theta_i, psi, accuracy)
         self.x, self.xlabel = curve_axis(curve, theta_i, psi)
         self.angles = curve_angles(curve, theta_i, psi, self.x)
         self.accuracy = accuracy
