@@ -9,6 +9,7 @@ Result files carry ``"format": "veil.fit/2"``; files of the earlier formats ("ve
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import json
 import math
@@ -29,6 +30,7 @@ from .result_fields import (
     READABLE,
     _json_matrix,
     _json_term,
+    channel_layout,
     loads_checked,
     model_entry,
     model_from_entry,
@@ -140,6 +142,33 @@ class FitResult:
                 )
             return self.model_class.from_params(self.params, self.options)
         return model_of_channel(self.model_class, self.params, self.channels, channel, self.options)
+
+    def of_channel(self, channel: str | None) -> FitResult:
+        """A fit of several channels seen as the fit of ``channel`` alone (what a step of
+        one channel holds fixed, its covariance propagated): that channel's parameters and
+        the tied ones in the model's own names, with their standard errors and
+        correlations; a fit of one channel is itself."""
+        if self.channels is None:
+            return self
+        names = channel_layout(self.channels, channel)
+        back = {name: p for p, name in names.items()}
+
+        def own(d):
+            return None if d is None else {back[n]: v for n, v in d.items() if n in back}
+
+        def own_rows(c):
+            return None if c is None else {back[a]: own(row) for a, row in c.items() if a in back}
+
+        return dataclasses.replace(
+            self,
+            params={p: self.params[names[p]] for p in self.model_class.param_names()},
+            fixed=own(self.fixed) or {},
+            stderr=own(self.stderr) or {},
+            correlation=own_rows(self.correlation) or {},
+            stderr_total=own(self.stderr_total),
+            correlation_total=own_rows(self.correlation_total),
+            channels=None,
+        )
 
     def given_model(self, channel: str | None = None) -> Model | None:
         """The model the fit held fixed (``given``), or None; of ``channel`` when it is a

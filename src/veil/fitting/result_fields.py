@@ -135,6 +135,14 @@ def model_of_channel(
     """The one-channel model of ``channel`` of a fit of several channels: its parameters
     taken from ``params`` through the layout ``channels`` ({channel: {parameter: name}});
     ``channel`` named as a table may name it ("R" for r, "650.0" for 650)."""
+    names = channel_layout(channels, channel)
+    return cls.from_params({p: params[names[p]] for p in cls.param_names()}, options)
+
+
+def channel_layout(channels: dict, channel) -> dict:
+    """{model parameter: its name in ``params``} of ``channel`` of a fit of several channels
+    (the layout ``channels``); ``channel`` named as a table may name it ("R" for r, "650.0"
+    for 650); a FitError naming the channels when none or an unknown one is named."""
     from ..data.channels import channel_label
 
     if channel is not None and str(channel) not in channels:
@@ -148,8 +156,7 @@ def model_of_channel(
             f"channel={first!r} in Python); the other commands take results of "
             f"one channel" + ("" if channel is None else f" (it has no channel {channel!r})")
         )
-    names = channels[str(channel)]
-    return cls.from_params({p: params[names[p]] for p in cls.param_names()}, options)
+    return channels[str(channel)]
 
 
 def read_channels(data: dict, cls: type[Model], source: str) -> dict | None:

@@ -359,9 +359,9 @@ def _through_medium(
     if given_options is not None:
         check_options(model, given_options, role)
     data = prepare(table, black, what, channel)
-    # the fit whose covariance enters stderr_total: step 1's the reference's fit of one
-    # channel (none when a fit of several gave this channel's model), step 2's as given
-    given_result = one if step == "medium" else given
+    # the fit whose covariance enters stderr_total: of a fit of several channels, the one
+    # channel's part (its parameters and the tied ones)
+    given_result = given.of_channel(channel) if isinstance(given, FitResult) else given
     return fit_step(
         step,
         data,
