@@ -22,6 +22,7 @@ import errno
 import hashlib
 import os
 import shutil
+import stat
 import tempfile
 import threading
 from collections.abc import Iterator
@@ -109,6 +110,38 @@ def other_encoding(name, head: bytes | None = None) -> str | None:
     return None
 
 
+def not_a_regular_file(path: str) -> str | None:
+    """What ``path`` is when it exists but is neither a regular file nor a directory (``a
+    character device``, ``a named pipe (FIFO)``, ...), else None. An output is replaced
+    whole by a renamed temporary file, which would put a regular file in place of a device
+    such as /dev/null or a pipe another program reads: such a path is refused."""
+    try:
+        mode = os.stat(path).st_mode
+    except (OSError, ValueError):
+        return None
+    if stat.S_ISREG(mode) or stat.S_ISDIR(mode):
+        return None
+    kinds = (
+        (stat.S_ISCHR, "a character device"),
+        (stat.S_ISBLK, "a block device"),
+        (stat.S_ISFIFO, "a named pipe (FIFO)"),
+        (stat.S_ISSOCK, "a socket"),
+    )
+    return next((said for test, said in kinds if test(mode)), "not a regular file")
+
+
+def special_file(path: str) -> str | None:
+    """Why an output ``path`` that :func:`not_a_regular_file` finds cannot be written,
+    said after "cannot write PATH: ", or None for a path that may be written."""
+    kind = not_a_regular_file(path)
+    if kind is None:
+        return None
+    return (
+        f"it is {kind}, not a regular file; veil writes an output as a new file renamed "
+        f"over the old one, which would replace it: give the path of a regular file"
+    )
+
+
 def through_link(path: str) -> str:
     """Where an output ``path`` is written: ``path`` itself, or, when it is a symbolic link
     (to a file or a folder, or dangling), what it points to, resolved through every link:
@@ -176,6 +209,11 @@ def _temporary(path: str, data: bytes) -> str:
     have (registered; removed again if anything fails)."""
     if os.path.isdir(path):
         raise NotAFileError(f"cannot write {path}: it is a directory")
+    special = special_file(path)
+    if path.endswith(("/", os.sep)):
+        special = "the path ends in '/', which names a folder; give a file name"
+    if special:
+        raise NotAFileError(f"cannot write {path}: {special}")
     directory = os.path.dirname(os.path.abspath(path))
     try:
         mode = os.stat(path).st_mode & 0o7777

@@ -63,7 +63,23 @@ class OutputPath(click.Path):
     def convert(self, value, param, ctx):
         if isinstance(value, str) and not value:
             self.fail(empty_path(self.what), param, ctx)
+        if isinstance(value, str) and self.what == "file":
+            wrong = file_path_problem(value)
+            if wrong:
+                self.fail(f"cannot write {value}: {wrong}", param, ctx)
         return super().convert(value, param, ctx)
+
+
+def file_path_problem(path: str) -> str | None:
+    """Why ``path`` cannot be an output file, said after "cannot write PATH: ", before
+    anything is computed: it ends in a separator (a folder's name: ``-o results/`` would
+    write a file ``results``), or it is a device, a pipe or a socket (``-o /dev/null`` would
+    be replaced by a regular file); None for a path that may be one."""
+    from ..io import special_file
+
+    if path.endswith(("/", os.sep)) and not os.path.isdir(path):
+        return "the path ends in '/', which names a folder; give a file name"
+    return special_file(path)
 
 
 class LazyGroup(click.Group):
@@ -387,6 +403,20 @@ def written_kind(target: str, fmt: str) -> str:
     return target if fmt == target else f"{target} {fmt}"
 
 
+def check_black_apart(black, sessions: dict) -> None:
+    """UserError if the --black table is one of the ``sessions`` ({what: path}): subtracted
+    from itself, a session would be all zero, a fit with nothing to fit."""
+    if black is None:
+        return
+    for what, path in sessions.items():
+        if path is not None and os.path.exists(path) and os.path.samefile(path, black):
+            raise UserError(
+                f"--black {black} is {what} ({path}) itself: the black cloth is a session of "
+                f"its own (the medium over black cloth, same configurations); subtracted from "
+                f"itself the data would be all zero"
+            )
+
+
 def check_output_path(output, inputs=()):
     """Fail early (UserError) if ``output`` cannot be written or is one of the ``inputs``."""
     output = os.fspath(output)
@@ -410,6 +440,9 @@ def check_file_target(path, named: str, written: str) -> None:
         raise UserError(f"{named.rstrip()}: {empty_path()}")
     if os.path.isdir(path):
         raise UserError(f"{named} is a directory; give a file name")
+    wrong = None if os.path.islink(path) else file_path_problem(os.fspath(path))
+    if wrong:
+        raise UserError(f"cannot write {written}: {wrong}")
     # a symbolic link is written through (veil.io): its target must be a file (or nothing
     # yet) in a writable directory, and a loop of links is refused before any work
     link = os.path.islink(path)

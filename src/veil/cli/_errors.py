@@ -42,10 +42,12 @@ def option_words(text: str, names: dict) -> str:
 def family_words(text: str) -> str:
     """``text`` with the Python class names of model families said as the families' names,
     as the options and ``veil models`` give them: ``TorranceSparrow.Pd = -1`` ->
-    ``torrance-sparrow Pd = -1``. (No model was made if the registry was never imported.)"""
+    ``torrance-sparrow Pd = -1``, ``HenyeyGreenstein.variant`` -> ``henyey-greenstein
+    variant``. (No model was made if the registry was never imported.)"""
     registry = sys.modules.get("veil.models.registry")
     for cls in set(getattr(registry, "REGISTRY", {}).values()):
-        params = "|".join(map(re.escape, cls.param_names()))
+        names = (*cls.param_names(), *cls.option_names())  # a parameter or an option
+        params = "|".join(map(re.escape, names))
         if params:  # ClassName.parameter only: never a file named after the class
             pattern = rf"(?<![\w/\\.-]){re.escape(cls.__name__)}\.(?=(?:{params})\b)"
             text = re.sub(pattern, f"{cls.NAME} ", text)

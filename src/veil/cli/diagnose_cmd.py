@@ -19,6 +19,7 @@ from ._common import (
     ModelChoice,
     OutputPath,
     UserError,
+    check_black_apart,
     check_output_path,
     model_options,
     options_named,
@@ -236,6 +237,7 @@ def diagnose_command(
         table = data[0]
         if not os.path.isfile(table):
             raise UserError(f"--data {table}: file does not exist")
+        check_black_apart(black, {"--data": table})
         inputs.append(table)
     med = _load_other(medium, "medium", result, models) if medium else None
     ref = _load_other(reference, "brdf", result, models) if reference else None

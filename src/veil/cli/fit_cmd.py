@@ -17,6 +17,7 @@ from ._common import (
     LazyGroup,
     OutputPath,
     UserError,
+    check_black_apart,
     check_output_path,
     echo_warnings,
     finish_fits,
@@ -86,6 +87,7 @@ def _fit_through_medium(
     model error and the propagation, as the command received them."""
     model, source = given
     check_output_path(output, [table, black] + ([source] if os.path.exists(source) else []))
+    check_black_apart(black, {"the measurement TABLE": table})
     step, what = _THROUGH_MEDIUM[kind]
 
     def fit(family, options, fixed, freed, progress, screen=False, start=None):
@@ -274,6 +276,7 @@ def reference_command(
     if merl is not None and black is not None:
         raise UserError("--black applies to a measurement table, not to --merl")
     check_output_path(output, [table, black, merl])
+    check_black_apart(black, {"the measurement TABLE": table})
     if merl is not None and channel not in (None,) + MERL_CHANNELS:
         raise UserError(
             f"--channel {channel!r}: a MERL file has channels {', '.join(MERL_CHANNELS)}"
@@ -498,6 +501,9 @@ def pipeline_command(
     else:
         fixed = _parse_step_fix(fix, models)
         freed = _parse_step_free(free, models)
+    sessions = {"--reference-clear": reference_clear, "--reference-medium": reference_medium}
+    sessions |= {"--target-medium": target_medium, "--target-clear": target_clear}
+    check_black_apart(black, sessions)
     if outdir.exists() and not outdir.is_dir():
         raise UserError(f"--outdir {outdir} exists and is not a directory")
     if not outdir.parent.exists() and not outdir.exists():

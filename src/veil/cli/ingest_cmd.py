@@ -132,8 +132,26 @@ def ingest_command(
             keep_saturated=keep_saturated,
             progress=progress,
         )
+        _warn_zero_sigma(table, show)
     save_measurements(table, output)
     _say_written(table, output, channel == ingest_mod.ALL_RGB)
+
+
+def _warn_zero_sigma(table, show) -> None:
+    """A warning naming the photos whose ROI samples are all equal (sigma 0): a fit refuses
+    a row of zero sigma (docs/measurements.md), so they are said here, where they come from."""
+    flat = table[table["sigma"].to_numpy() == 0]
+    if len(flat) == 0:
+        return
+    names = ", ".join(dict.fromkeys(map(str, flat["file"])))
+    show(
+        f"{len(flat)} row(s) have sigma 0, every sample in the ROI the same value ({names}): "
+        f"a flat, synthetic or clipped image; veil fit refuses a zero sigma, so check these "
+        f"photos (or fit without the sigma column)",
+        UserWarning,
+        "",
+        0,
+    )
 
 
 def _say_written(table, output, rgb: bool) -> None:

@@ -18,7 +18,6 @@ import numpy as np
 import pandas as pd
 
 from ..errors import InputError, MissingFileError
-from ..io import other_encoding
 from ..numbers import format_exact
 from .ingest_channels import (
     ALL_RGB,
@@ -30,7 +29,13 @@ from .ingest_channels import (
     is_colour,
     photo_balance,
 )
-from .manifest import ADDED_COLUMNS, manifest_photos, read_manifest, unlisted_photos
+from .manifest import (
+    ADDED_COLUMNS,
+    manifest_photos,
+    read_csv_file,
+    read_manifest,
+    unlisted_photos,
+)
 from .photo_files import (
     JPEG_SUFFIXES,
     PHOTO_SUFFIXES,
@@ -76,18 +81,15 @@ class Response:
 def load_response(path) -> Response:
     """Read a response CSV: columns ``code`` (strictly increasing) and ``linear``."""
     path = os.fspath(path)
-    try:
-        raw = pd.read_csv(
-            path, dtype=str, keep_default_na=False, skipinitialspace=True, skip_blank_lines=False
-        )
-    except pd.errors.EmptyDataError:
-        raise InputError(
-            f"{path}: the response curve file is empty; expected a header "
-            f"'code,linear' and one row per code value"
-        ) from None
-    except (pd.errors.ParserError, UnicodeDecodeError) as exc:
-        said = isinstance(exc, UnicodeDecodeError) and other_encoding(path)
-        raise InputError(said or f"{path}: not a readable CSV file ({exc})") from None
+    raw = read_csv_file(
+        path,
+        f"{path}: the response curve file is empty; expected a header "
+        f"'code,linear' and one row per code value",
+        dtype=str,
+        keep_default_na=False,
+        skipinitialspace=True,
+        skip_blank_lines=False,
+    )
     raw.columns = [str(c).strip() for c in raw.columns]
     missing = [c for c in ("code", "linear") if c not in raw.columns]
     if missing:
@@ -304,6 +306,7 @@ def ingest(
     ignore = set()
     if dark is not None:
         ignore.add(Path(dark).resolve())
+        _check_dark_not_listed(dark, rows, table["file"], paths)
     extra = unlisted_photos(photo_dir, {p.resolve() for p in paths}, ignore)
     if extra:
         shown = ", ".join(extra[:10]) + (f" and {len(extra) - 10} more" if len(extra) > 10 else "")
@@ -388,6 +391,19 @@ def _read_stack(
             progress(i + 1, len(paths), str(table["file"].iloc[i]))
         del photo
     return keep, results, balances
+
+
+def _check_dark_not_listed(dark, rows: list[str], files, paths: list[Path]) -> None:
+    """InputError if the dark frame is one of the photos the manifest lists: subtracted from
+    itself, that photo would read 0 +- 0, a row no fit can weigh."""
+    if not os.path.exists(dark):
+        return  # said where the dark frame is read
+    for row, file, photo in zip(rows, files, paths):
+        if os.path.samefile(photo, dark):
+            raise InputError(
+                f"dark frame {dark} is the photo {file!r} of {row}; the dark frame is a "
+                f"frame of its own (lens capped, same exposure), not one of the photos measured"
+            )
 
 
 def _dark_frame(dark, rois, channel: str, response, saturation) -> Photo | None:

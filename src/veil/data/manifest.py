@@ -4,14 +4,16 @@ of the directory that it does not list."""
 
 from __future__ import annotations
 
+import io
 import os
+import re
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
 from ..errors import InputError, MissingFileError
-from ..io import as_path, other_encoding
+from ..io import as_path, not_a_regular_file, other_encoding
 from .photo_files import PHOTO_SUFFIXES
 
 #: Columns :func:`ingest` adds to the manifest's (``black``, ``black_sigma`` only with a black ROI).
@@ -25,6 +27,13 @@ def manifest_photos(manifest, photo_dir) -> tuple[pd.DataFrame, list[str], str, 
     table, rows, name = read_manifest(manifest, photo_dir)
     paths = [photo_dir / f for f in table["file"]]
     missing = [(row, f) for row, f, p in zip(rows, table["file"], paths) if not p.is_file()]
+    for row, f in missing:
+        path = os.fspath(photo_dir / f)
+        kind = "a directory" if os.path.isdir(path) else not_a_regular_file(path)
+        if kind:
+            raise InputError(
+                f"{row}, column 'file': {f!r} is {kind} in {photo_dir}, not a photo file"
+            )
     if missing:
         shown = "; ".join(f"{f!r} ({row})" for row, f in missing[:10])
         more = f" and {len(missing) - 10} more" if len(missing) > 10 else ""
@@ -33,6 +42,54 @@ def manifest_photos(manifest, photo_dir) -> tuple[pd.DataFrame, list[str], str, 
             f"in {photo_dir}: {shown}{more}"
         )
     return table, rows, name, paths
+
+
+def read_csv_file(path, empty: str, data: bytes | None = None, **options) -> pd.DataFrame:
+    """``pd.read_csv`` of the file ``path``, read once (``data``: its bytes, when read
+    already), so that a pipe (``--manifest <(...)``) reads as a file does; an InputError
+    saying ``empty`` for an empty file, or that it is not a readable CSV file (or which
+    UTF-16/32 it is, not UTF-8)."""
+    if data is None:
+        with open(path, "rb") as fh:
+            data = fh.read()
+    try:
+        return pd.read_csv(io.BytesIO(data), **options)
+    except pd.errors.EmptyDataError:
+        raise InputError(empty) from None
+    except (pd.errors.ParserError, UnicodeDecodeError) as exc:
+        said = isinstance(exc, UnicodeDecodeError) and other_encoding(path, data[:4])
+        raise InputError(said or _unreadable(path, exc, data)) from None
+
+
+def _unreadable(path, exc: Exception, data: bytes) -> str:
+    """Why the CSV file ``path`` could not be read, in the file's lines: a row with more
+    cells than the header, or the first byte that is not UTF-8 text."""
+    text = " ".join(str(exc).split())
+    found = re.search(r"Expected (\d+) fields in line (\d+), saw (\d+)", text)
+    if found:
+        wanted, line, seen = found.groups()
+        return (
+            f"line {line} of {path} has {seen} cells, but the header has {wanted} columns; "
+            f"quote a cell that holds a comma, or add the missing column names to the header"
+        )
+    found = re.search(r"EOF inside string starting at row (\d+)", text)
+    if found:
+        line = int(found.group(1)) + 1  # pandas counts rows from 0, the header's included
+        return (
+            f'line {line} of {path} opens a quoted cell (") that is never closed; close the '
+            f"quote or remove it"
+        )
+    if isinstance(exc, UnicodeDecodeError):
+        try:
+            data.decode("utf-8")
+        except UnicodeDecodeError as bad:
+            line = data.count(b"\n", 0, bad.start) + 1
+            return (
+                f"{path} is not UTF-8 text: line {line} holds the byte 0x{data[bad.start]:02x}, "
+                f"which is not UTF-8 ({bad.reason}); save the file as UTF-8 (a spreadsheet's "
+                f"'CSV UTF-8'; Latin-1 text: iconv -f LATIN1 -t UTF-8)"
+            )
+    return f"{path}: not a readable CSV file ({text})"
 
 
 def _manifest_table(manifest) -> tuple[pd.DataFrame, list[str], str]:
@@ -46,25 +103,22 @@ def _manifest_table(manifest) -> tuple[pd.DataFrame, list[str], str]:
     else:
         name = as_path(manifest, "manifest")
         try:
-            raw = pd.read_csv(
-                name,
-                skipinitialspace=True,
-                keep_default_na=False,
-                na_values=[""],
-                dtype={"file": str},
-                skip_blank_lines=False,
-            )
+            with open(name, "rb") as fh:
+                data = fh.read()
         except FileNotFoundError:
             raise MissingFileError(f"manifest {name}: no such file") from None
-        except pd.errors.EmptyDataError:
-            raise InputError(
-                f"{name}: the manifest is empty; expected a header with 'file' and "
-                f"angle columns, then one row per photo"
-            ) from None
-        except (pd.errors.ParserError, UnicodeDecodeError) as exc:
-            said = isinstance(exc, UnicodeDecodeError) and other_encoding(name)
-            raise InputError(said or f"{name}: not a readable CSV file ({exc})") from None
-        raw.columns = [str(c).strip() for c in _header(name, raw.columns)]
+        raw = read_csv_file(
+            name,
+            f"{name}: the manifest is empty; expected a header with 'file' and "
+            f"angle columns, then one row per photo",
+            data,
+            skipinitialspace=True,
+            keep_default_na=False,
+            na_values=[""],
+            dtype={"file": str},
+            skip_blank_lines=False,
+        )
+        raw.columns = [str(c).strip() for c in _header(data, raw.columns)]
         kept = ~raw.isna().all(axis=1).to_numpy()  # blank lines
         lines = (np.flatnonzero(kept) + 2).tolist()
         table = raw[kept].reset_index(drop=True)
@@ -73,11 +127,16 @@ def _manifest_table(manifest) -> tuple[pd.DataFrame, list[str], str]:
     return table, rows, name
 
 
-def _header(name: str, columns) -> list:
-    """The header of CSV file ``name`` as written: pandas renames a repeated column name
-    (``theta_i`` -> ``theta_i.1``), which would hide it from the duplicate check."""
+def _header(data: bytes, columns) -> list:
+    """The header of a CSV file (its bytes ``data``) as written: pandas renames a repeated
+    column name (``theta_i`` -> ``theta_i.1``), which would hide it from the duplicate check."""
     first = pd.read_csv(
-        name, header=None, nrows=1, dtype=str, keep_default_na=False, skipinitialspace=True
+        io.BytesIO(data),
+        header=None,
+        nrows=1,
+        dtype=str,
+        keep_default_na=False,
+        skipinitialspace=True,
     )
     header = first.iloc[0].tolist() if len(first) else []
     if len(header) != len(columns):
@@ -94,11 +153,18 @@ def _manifest_files(table: pd.DataFrame, rows: list[str], photo_dir) -> list[str
         where = f"{row}, column 'file'"
         if not isinstance(cell, str) or cell.strip() == "":
             raise InputError(f"{where}: empty; expected the photo's file name in PHOTO_DIR")
+        if "\x00" in cell:
+            raise InputError(
+                f"{where}: {cell!r} holds a NUL byte (\\x00), which no file name can hold; "
+                f"expected the photo's file name in PHOTO_DIR (is the manifest a text file?)"
+            )
         rel = Path(cell.strip())
         if rel.is_absolute() or not (root / rel).resolve().is_relative_to(root):
+            link = os.path.islink(root / rel)
             raise InputError(
-                f"{where}: {cell!r} is not a path inside PHOTO_DIR ({photo_dir}); "
-                f"give file names relative to PHOTO_DIR"
+                f"{where}: {cell!r} is not a path inside PHOTO_DIR ({photo_dir})"
+                + (f": a symbolic link to {(root / rel).resolve()}" if link else "")
+                + "; give file names relative to PHOTO_DIR"
             )
         key = (root / rel).resolve()
         if key in seen:
@@ -109,6 +175,19 @@ def _manifest_files(table: pd.DataFrame, rows: list[str], photo_dir) -> list[str
         seen[key] = row
         files.append(cell.strip())
     return files
+
+
+def _mark_hint(columns) -> str:
+    """A note for a header that holds a byte-order mark after the first (an editor that adds
+    one to a file that had one): pandas keeps the second in the first column's name."""
+    for name in map(str, columns):
+        if "\ufeff" in name:
+            clean = name.replace("\ufeff", "")
+            return (
+                f" (column {name!r} is {clean!r} after a repeated byte-order mark, U+FEFF: "
+                f"remove it, saving the file as UTF-8 once)"
+            )
+    return ""
 
 
 def read_manifest(manifest, photo_dir) -> tuple[pd.DataFrame, list[str], str]:
@@ -129,7 +208,7 @@ def read_manifest(manifest, photo_dir) -> tuple[pd.DataFrame, list[str], str]:
             f"{name}: no column 'file'; the header has "
             f"{', '.join(map(repr, map(str, table.columns)))}; the manifest names "
             f"each photo (relative to PHOTO_DIR) in a column 'file'"
-            f"{separator_hint(table.columns)}"
+            f"{separator_hint(table.columns)}{_mark_hint(table.columns)}"
         )
     if len(table) == 0:
         raise InputError(f"{name}: no photos listed (no rows after the header)")
@@ -169,4 +248,10 @@ def unlisted_photos(photo_dir: Path, listed: set, ignore: set) -> list[str]:
 # -- ingest --------------------------------------------------------------------------------
 
 
-__all__ = ["ADDED_COLUMNS", "manifest_photos", "read_manifest", "unlisted_photos"]
+__all__ = [
+    "ADDED_COLUMNS",
+    "manifest_photos",
+    "read_csv_file",
+    "read_manifest",
+    "unlisted_photos",
+]

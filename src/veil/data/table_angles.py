@@ -216,7 +216,8 @@ def _numbers(table: pd.DataFrame, column: str, rows: RowNames) -> np.ndarray:
                 int(k),
                 "is empty or NaN"
                 if np.isnan(values[k])
-                else f"{values[k]!r} is not a finite number",
+                else f"{float(values[k])!r} is not a finite number (beyond float64's "
+                f"range, magnitude above 1.8e308)",
             )
         )
     if problems:

@@ -56,16 +56,36 @@ def _refused_constant(s: str):
     return _Refused(s, "not a finite number (veil writes a missing or non-finite number as null)")
 
 
+def _object_once(pairs: list) -> Any:
+    """A JSON object as a dict; a :class:`_Refused` when it names a key twice (JSON keeps the
+    last value, silently: which one was meant is not known)."""
+    seen: set = set()
+    for key, _ in pairs:
+        if key in seen:
+            return _Refused(
+                f"an object naming {key!r} twice", "veil writes each key once (which was meant?)"
+            )
+        seen.add(key)
+    return dict(pairs)
+
+
 def loads_checked(text: str, name: str) -> Any:
     """The JSON ``text`` of file ``name``: a FitError naming the file (and the key) for what
     is not JSON, nests more than :data:`MAX_DEPTH` levels, or holds a number veil never
     writes (NaN, Infinity, a number beyond a float's range)."""
+    if not text.strip():
+        raise FitError(
+            f"{name} is empty"
+            + (f" (only {len(text)} characters of white space)" if text else "")
+            + ": expected a fit result written by veil (veil fit ... -o FILE.json)"
+        )
     try:
         data = json.loads(
             text,
             parse_int=_refused_int,
             parse_float=_refused_float,
             parse_constant=_refused_constant,
+            object_pairs_hook=_object_once,
         )
     except json.JSONDecodeError as exc:
         raise FitError(
