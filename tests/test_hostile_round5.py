@@ -310,3 +310,18 @@ def test_diagnose_with_black_that_is_its_data_is_refused(tmp_path):
     _refused(["diagnose", result, "--data", table, "--black", table, "-o", tmp_path / "d"],
              "--black", "is --data", "all zero")
     assert not (tmp_path / "d").exists()
+
+
+# -- '-' as an output ------------------------------------------------------------------------
+def test_a_dash_as_an_output_is_refused_not_a_file_named_dash(plastic, tmp_path, monkeypatch):
+    """``-o -`` wrote a file named '-' (click's standard output is not what veil writes:
+    each output whole or not at all); ``veil eval``, which writes to standard output
+    without -o, takes it as that."""
+    monkeypatch.chdir(tmp_path)
+    _refused(["export", plastic, "--to", "csv", "-o", "-"], "'-'", "not standard output")
+    _refused(["simulate", "--brdf", "BRDF1", "--medium", "none", "-o", "-"], "'-'")
+    _refused(["fit", "reference", plastic, "-o", "-"], "'-'")
+    assert not (tmp_path / "-").exists()
+    r = run_checked(["eval", "--brdf", "BRDF1", "--medium", "none", "--theta-i", "30",
+                     "--theta-r", "30", "-o", "-"])
+    assert r.exit_code == 0 and "apparent" in r.output and not (tmp_path / "-").exists()

@@ -63,6 +63,13 @@ class OutputPath(click.Path):
     def convert(self, value, param, ctx):
         if isinstance(value, str) and not value:
             self.fail(empty_path(self.what), param, ctx)
+        if value == "-":  # (click's convention for standard output, which veil does not take)
+            self.fail(
+                f"'-' would be a {self.what} named '-', not standard output: veil writes "
+                f"each output to a {self.what} of its own, whole or not at all; give its name",
+                param,
+                ctx,
+            )
         if isinstance(value, str) and self.what == "file":
             wrong = file_path_problem(value)
             if wrong:

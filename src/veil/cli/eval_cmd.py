@@ -324,7 +324,8 @@ def _evaluate(brdf, medium, ti, tr, pi_, pr, accuracy: str) -> tuple:
     type=click.Path(dir_okay=False),
     metavar="OUT",
     help="Write the --configs CSV (or, with --json, the JSON object) to this file "
-    "instead of standard output. Written atomically; never the --configs file.",
+    "instead of standard output ('-': standard output). Written atomically; never the "
+    "--configs file.",
 )
 @accuracy_option(
     "Quadrature level: fast (coarse rule, quick previews), default (about 1e-3 "
@@ -367,6 +368,8 @@ def eval_command(
       veil eval --brdf 200,5e5,0.8,1.55 --medium none --theta-i 30 --theta-r 30 --json
       veil eval --brdf BRDF2 --medium BTDF3 --configs angles.csv -o result.csv
     """
+    if output == "-":  # click's convention: standard output, where eval writes without -o
+        output = None
     _check_angle_options(theta_i, theta_r, phi_i, phi_r, configs, output, as_json)
     brdf, medium = _parse_models(brdf_text, medium_text, models)
     if output is not None:
