@@ -141,8 +141,9 @@ class _PixelSolver:
 
     def iterate(self, coef, fu, y, w, state):
         """One Levenberg-Marquardt iteration of a pixel (one evaluation of the spline), by
-        :func:`veil.fitting.least_squares.lm_step` and ``lm_accept``; a pixel whose reduced
-        Gauss-Newton step is below LM_TOL standard errors is frozen."""
+        :func:`veil.fitting.least_squares.lm_step` and ``lm_accept`` (the damping by the
+        gain, the actual decrease over the predicted one, as the single fits'); a pixel whose
+        reduced Gauss-Newton step is below LM_TOL standard errors is frozen."""
         it, p, lam, cost, val, jac, _ = state
         r = (y - val) * w
         a, g = self.normal(jac, w, r)
@@ -153,7 +154,8 @@ class _PixelSolver:
         trial, tval, tjac = self.refit(coef, fu, y, w, proposed)
         tr = (y - tval) * w
         tcost = tr @ tr
-        better, lam = lsq.lm_accept(cost, tcost, lam, now, jnp)
+        step = proposed - p  # its decrease as the linear model predicts it: the damping's gain
+        better, lam = lsq.lm_accept(cost, tcost, lam, now, jnp, 2 * g @ step - step @ a @ step)
         return (
             it + jnp.where(now, 0, 1),
             jnp.where(better, trial, p),
