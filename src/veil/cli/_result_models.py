@@ -31,10 +31,24 @@ class ResultModels:
     channels: tuple
     notes: list = field(default_factory=list)
     brought: dict = field(default_factory=dict)
+    #: {kind: (file, key of its parameters in it or None, its channels layout or None)}
+    origin: dict = field(default_factory=dict)
+    #: the channel of --channel (as a table names it), or None
+    chosen: str | None = None
 
     @property
     def colour(self) -> bool:
         return self.channels != (None,)
+
+    def where(self, kind: str, key, param: str) -> str:
+        """Where parameter ``param`` of the ``kind`` model of channel ``key`` (a key of
+        :attr:`brdf`, :attr:`medium`) is in its file: "FILE: key 'params.Ps[r]'"."""
+        path, prefix, layout = self.origin[kind]
+        channel = self.chosen if key is None else key
+        if prefix is None:  # a joint fit's target: its parameters' names are its layout's
+            return f"{path}: parameter {param}" + (f" of channel {channel}" if channel else "")
+        name = (layout or {}).get(channel, {}).get(param, param)
+        return f"{path}: key '{prefix}.{name}'"
 
     def one(self, kind: str) -> Model | None:
         """The one-channel model of ``kind`` (None when not given)."""
@@ -60,6 +74,7 @@ def _keys(loaded, channel: str | None) -> tuple:
                 f"{', '.join(names)}; it has no channel {channel!r}"
             )
     if channel is not None:
+        _check_some_channels(loaded, channel)
         return (None,)
     multi = [(path, _channels_of(r)) for path, r in loaded if _channels_of(r)]
     if not multi:
@@ -73,6 +88,21 @@ def _keys(loaded, channel: str | None) -> tuple:
                 f"(or one channel of both with --channel NAME)"
             )
     return first
+
+
+def _check_some_channels(loaded, channel: str) -> None:
+    """A UserError for ``--channel`` when no result is a fit of several channels (nor
+    brings a model of several along, its ``given`` entry): there is no channel to choose."""
+    for _, result in loaded:
+        given = getattr(result, "given", None)
+        if _channels_of(result) or (isinstance(given, dict) and given.get("channels")):
+            return
+    files = " and ".join(str(path) for path, _ in loaded)
+    one = "is a fit" if len(loaded) == 1 else "are fits"
+    raise UserError(
+        f"--channel {channel}: {files} {one} of one channel, with no channels to choose "
+        f"from; leave --channel out (it takes one channel of a result fitted over several)"
+    )
 
 
 def _model(result, key, channel):
@@ -95,8 +125,12 @@ def result_models(
     keys = _keys(loaded, channel)
     brdf = medium = None
     notes = []
+    origin = {}
     for path, result in loaded:
         models = {k: _model(result, k, channel) for k in keys}
+        origin[next(iter(models.values())).KIND] = (
+            (path, None, None) if result.JOINT else (path, "params", result.channels)
+        )
         if keys != (None,) and not _channels_of(result):
             notes.append(f"{path} is a fit of one channel: its model is every channel's")
         kind = next(iter(models.values())).KIND
@@ -114,6 +148,10 @@ def result_models(
         brdf, medium = _with_given(loaded[0][1], keys, channel, brdf, medium)
         now = {"brdf": brdf is not None, "medium": medium is not None}
         brought = {kind: result_path for kind in had if now[kind] and not had[kind]}
+        stored = loaded[0][1].given or {}
+        origin.update(
+            (kind, (result_path, "given.params", stored.get("channels"))) for kind in brought
+        )
     source = str(result_path) + (f" and {other_path}" if other_path is not None else "")
     unconverged = [str(path) for path, result in loaded if not getattr(result, "converged", True)]
     for path, result in loaded:
@@ -121,7 +159,10 @@ def result_models(
             notes.append(unconverged_warning(result, path))
     if unconverged:
         source += f" (not converged: {', '.join(unconverged)})"
-    return ResultModels(brdf, medium, source, keys, notes, brought)
+    from ..data.channels import channel_label
+
+    chosen = None if channel is None else channel_label(channel) or channel
+    return ResultModels(brdf, medium, source, keys, notes, brought, origin, chosen)
 
 
 def unconverged_warning(result, path) -> str:

@@ -368,8 +368,7 @@ def eval_command(
       veil eval --brdf 200,5e5,0.8,1.55 --medium none --theta-i 30 --theta-r 30 --json
       veil eval --brdf BRDF2 --medium BTDF3 --configs angles.csv -o result.csv
     """
-    if output == "-":  # click's convention: standard output, where eval writes without -o
-        output = None
+    output = None if output == "-" else output  # '-': standard output, as without -o
     _check_angle_options(theta_i, theta_r, phi_i, phi_r, configs, output, as_json)
     brdf, medium = _parse_models(brdf_text, medium_text, models)
     if output is not None:

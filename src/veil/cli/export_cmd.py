@@ -187,6 +187,7 @@ def export_command(
         return
     setting = Setting(scale=scale, ext_ior=ext_ior, path_length=path_length)
     _check_brought(loaded, target, setting, output)
+    _check_closest(loaded, target)
     if loaded.colour:
         from .export_colour import export_rgb
 
@@ -232,6 +233,34 @@ def _check_brought(loaded, target: str, setting, output: Path) -> None:
                 f"second argument: veil export {path} {arg}.json --to {target} -o {output} "
                 f"(veil export has no option to leave the stored {what} out)"
             ) from None
+
+
+def _check_closest(loaded, target: str) -> None:
+    """A BRDF that ``target`` has no plugin for is exported as its closest family (the
+    family's ``PROXIES``), fitted to its f_r: one whose f_r that fit cannot handle is refused
+    here, naming its file and the parameter(s) to look at
+    (:func:`veil.interop.closest.check_source`)."""
+    from ..errors import InputError
+    from ..interop.closest import MagnitudeError, check_source
+
+    for key, model in (loaded.brdf or {}).items():
+        if target not in getattr(type(model), "PROXIES", {}):  # its own plugin, or none
+            continue
+        try:
+            check_source(model)
+        except MagnitudeError as exc:
+            lo, hi = exc.limits
+            named = "; ".join(
+                f"{loaded.where('brdf', key, n)} = {v:.3g}" for n, v in exc.params.items()
+            ) or str(loaded.origin["brdf"][0])
+            raise UserError(
+                f"{named}: the {model.NAME} model's {exc.reach}, beyond the magnitudes "
+                f"({lo:g} to {hi:g}) of the closest fit that exports it to {target}; "
+                f"rescale the data the result was fitted to (value and sigma by one factor) "
+                f"and fit it again"
+            ) from None
+        except InputError as exc:
+            raise UserError(f"{loaded.origin['brdf'][0]}: {exc}") from None
 
 
 def _export_one(loaded, target, fmt, setting, output, verify, psis, spp, accuracy) -> None:

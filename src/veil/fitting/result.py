@@ -442,8 +442,8 @@ class JointResult(FitResult):
     def from_dict(cls, data: dict, source: str = "the joint fit result") -> JointResult:
         """Check and convert a dictionary written by :meth:`to_dict`
         (:func:`veil.fitting.result_reading.joint_fields`)."""
+        result = cls(**joint_fields(data, source))  # (its errors name the source)
         try:
-            result = cls(**joint_fields(data, source))
             for c in result.channel_names or (None,):
                 for obj in result.maps(c)["objects"]:
                     result.brdf(obj, c)

@@ -179,9 +179,51 @@ def channel_layout(channels: dict, channel) -> dict:
     return channels[str(channel)]
 
 
+def json_kind(value) -> str:
+    """What a JSON value is, in JSON's words ("null", "a number", "an array", ...), for
+    messages about a file that holds another kind of value than expected."""
+    if value is None:
+        return "null"
+    if isinstance(value, bool):
+        return f"{str(value).lower()} (a boolean)"
+    if isinstance(value, (int, float)):
+        return "a number"
+    if isinstance(value, str):
+        return "a string"
+    return "an array" if isinstance(value, list) else "an object"
+
+
+def check_channel_names(names, source: str, key: str) -> None:
+    """The channels of a result's ``key`` (its ``channels`` layout, a joint fit's
+    ``layout.channels``) must be those a measurement table gives (docs/measurements.md,
+    "Channels"): r, g, b or wavelengths in nm as the table's labels are written
+    (:func:`veil.data.channels.channel_label`: "650", not "650.0"), each once, not both
+    kinds. So colour names are at most three; a FitError naming the key otherwise."""
+    from ..data.channels import RGB, WAVELENGTH_RANGE, channel_label
+
+    lo, hi = WAVELENGTH_RANGE
+    for c in names:
+        if not isinstance(c, str) or channel_label(c) != c:
+            raise FitError(
+                f"{source}: key '{key}' names channel {c!r}, which no measurement table "
+                f"gives; expected r, g, b or wavelengths in nm from {lo:g} to {hi:g} "
+                f"(written as a table's channel labels are: 650, not 650.0)"
+            )
+    kinds = {c in RGB for c in names}
+    if len(kinds) > 1:
+        named = ", ".join(c for c in names if c in RGB)
+        nm = next(c for c in names if c not in RGB)
+        raise FitError(
+            f"{source}: key '{key}' mixes colour channels ({named}) with wavelengths "
+            f"({nm}, ...); a measurement table's channels are r, g, b or wavelengths, "
+            f"not both, so no fit has both"
+        )
+
+
 def read_channels(data: dict, cls: type[Model], source: str) -> dict | None:
     """The ``channels`` layout of a result file (absent: a fit of one channel), checked:
-    each channel maps every parameter of ``cls`` to a name in ``params``."""
+    each channel maps every parameter of ``cls`` to a name in ``params``, the channels
+    those a table gives (:func:`check_channel_names`)."""
     channels = data.get("channels")
     if channels is None:
         return None
@@ -198,6 +240,7 @@ def read_channels(data: dict, cls: type[Model], source: str) -> dict | None:
             f"{source}: key 'channels' must map each channel to an object naming "
             f"every parameter of {cls.NAME} ({', '.join(cls.param_names())})"
         )
+    check_channel_names(list(channels), source, "channels")
     return {str(c): dict(m) for c, m in channels.items()}
 
 
@@ -212,11 +255,29 @@ def _check_format(data: dict, source: str) -> None:
 
 
 def _check_common(data: dict, source: str) -> None:
-    n = data["n_points"]
-    if isinstance(n, bool) or not isinstance(n, int) or not 0 <= n < 2**63:
-        raise FitError(f"{source}: key 'n_points' = {n!r}; expected an integer >= 0")
+    """The keys of every result file that veil writes as one of few values: ``n_points``,
+    ``converged``, ``message`` and ``accuracy``."""
+    from ..engine.quadrature import RULES
+
+    check_count(data["n_points"], source, "n_points")
     if not isinstance(data["converged"], bool):
         raise FitError(f"{source}: key 'converged' = {data['converged']!r}; expected true or false")
+    if not isinstance(data["message"], str):
+        raise FitError(
+            f"{source}: key 'message' = {data['message']!r} ({json_kind(data['message'])}); "
+            f"expected a string (the fit's message)"
+        )
+    accuracy = data.get("accuracy")
+    if accuracy is not None and (not isinstance(accuracy, str) or accuracy not in RULES):
+        raise FitError(
+            f"{source}: key 'accuracy' = {accuracy!r}; expected one of {', '.join(RULES)} or null"
+        )
+
+
+def check_count(n, source: str, key: str) -> None:
+    """A count of points (``n_points``): an integer >= 0; a FitError naming ``key``."""
+    if isinstance(n, bool) or not isinstance(n, int) or not 0 <= n < 2**63:
+        raise FitError(f"{source}: key '{key}' = {n!r}; expected an integer >= 0")
 
 
 def finite_number(v) -> bool:
@@ -255,16 +316,23 @@ def read_stderr(values: dict, names, source: str, key: str) -> dict:
 
 
 def _read_residuals(data: dict, source: str) -> tuple:
-    res = data.get("residuals") or ()
+    res = data.get("residuals")
+    res = [] if res is None else res  # (an empty list is a list: not `or ()`)
     if not isinstance(res, list):
         raise FitError(f"{source}: key 'residuals' must be a list of numbers")
     return tuple(read_number(r, source, f"residuals[{i}]") for i, r in enumerate(res))
 
 
 def _read_statistic(value, source: str, key: str) -> float:
-    """A fit statistic (chi2_reduced, rms_relative) read back: nan where the file has null
-    (:func:`veil.numbers.json_float` writes a non-finite one as null)."""
+    """A fit statistic (chi2_reduced, rms_relative: a sum of squares, never negative) read
+    back: nan where the file has null (:func:`veil.numbers.json_float` writes a non-finite
+    one as null)."""
     number = read_number(value, source, key)
+    if number is not None and number < 0:
+        raise FitError(
+            f"{source}: key '{key}' = {value!r}; expected a number >= 0 or null (a fit's "
+            f"{key} is never negative)"
+        )
     return math.nan if number is None else number
 
 

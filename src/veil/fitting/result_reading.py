@@ -17,9 +17,12 @@ from .result_fields import (
     _read_statistic,
     _read_stats,
     _read_term,
+    check_channel_names,
+    check_count,
     check_covariance,
     check_given,
     finite_number,
+    json_kind,
     model_of_channel,
     read_channels,
     read_stderr,
@@ -27,6 +30,9 @@ from .result_fields import (
 
 #: The steps of the two-step method (docs/model.md sec. 7); results may also say "direct".
 STEPS = ("reference", "medium", "target")
+#: The kind of model ("brdf" or "medium") each step fits: step 0 and a clear-water fit
+#: ("direct") the object's f_r, step 1 the medium, step 2 the target's f_r.
+STEP_KINDS = {"reference": "brdf", "medium": "medium", "target": "brdf", "direct": "brdf"}
 
 #: The keys of every result file, a step's (after "model") and a joint fit's (before "layout").
 _KEYS = (
@@ -181,8 +187,8 @@ def fit_fields(data: dict, source: str) -> dict:
     (written by its ``to_dict``), every key checked; errors name ``source``."""
     if not isinstance(data, dict):
         raise FitError(
-            f"{source}: expected a JSON object with keys model, params, ...; "
-            f"got {type(data).__name__}"
+            f"{source}: the file holds {json_kind(data)}; expected a JSON object with keys "
+            f"model, params, ... (a fit result written by veil: veil fit ... -o FILE.json)"
         )
     _check_format(data, source)
     _check_keys(data, ("model", *_KEYS), source, "fit result", "veil fit ...")
@@ -209,11 +215,7 @@ def fit_fields(data: dict, source: str) -> dict:
             f" to numbers or null; got {stderr!r}"
         )
     fixed = _fixed(data, names, source)
-    step = data.get("step")
-    if step is not None and step not in STEPS + ("direct",):
-        raise FitError(
-            f"{source}: key 'step' = {step!r}; expected one of {', '.join(STEPS)}, direct or null"
-        )
+    step = _step_of(data, mcls, source)
     return dict(
         _common_fields(data, names, fixed, source),
         model=data["model"],
@@ -225,6 +227,24 @@ def fit_fields(data: dict, source: str) -> dict:
         options=model.options(),
         channels=channels,
     )
+
+
+def _step_of(data: dict, mcls, source: str) -> str | None:
+    """The result's step: one of :data:`STEP_KINDS` that fits a model of the kind of
+    ``mcls`` (a medium's fit is step medium, a BRDF's any other), or None."""
+    step = data.get("step")
+    if step is not None and (not isinstance(step, str) or step not in STEP_KINDS):
+        raise FitError(
+            f"{source}: key 'step' = {step!r}; expected one of {', '.join(STEPS)}, direct or null"
+        )
+    if step is not None and STEP_KINDS[step] != mcls.KIND:
+        fitting = [s for s, kind in STEP_KINDS.items() if kind == mcls.KIND]
+        raise FitError(
+            f"{source}: key 'step' = {step!r}, but step {step} fits a "
+            f"{STEP_KINDS[step]} model and key 'model' = {mcls.NAME!r} is a {mcls.KIND} "
+            f"model; expected {', '.join(fitting)} or null for a {mcls.KIND} fit"
+        )
+    return step
 
 
 def _check_maps(layout, source: str, where: str = "layout") -> list[str]:
@@ -254,6 +274,7 @@ def _check_layout(layout, params, source: str) -> None:
     else:
         if not isinstance(by_channel, dict) or not by_channel:
             raise FitError(f"{source}: layout.channels must map each channel to its layout")
+        check_channel_names(list(by_channel), source, "layout.channels")
         named = [
             n
             for c, maps in by_channel.items()
@@ -262,6 +283,7 @@ def _check_layout(layout, params, source: str) -> None:
     for part in ("models", "options"):
         if layout.get(part) is not None and not isinstance(layout[part], dict):
             raise FitError(f"{source}: layout.{part} must be an object")
+    _check_sessions(layout.get("sessions"), source)
     if not isinstance(params, dict):
         raise FitError(f"{source}: key 'params' must map names to numbers")
     absent = [n for n in dict.fromkeys(named) if n not in params]
@@ -269,6 +291,18 @@ def _check_layout(layout, params, source: str) -> None:
         raise FitError(
             f"{source}: layout names parameter(s) {', '.join(absent)} missing from 'params'"
         )
+
+
+def _check_sessions(sessions, source: str) -> None:
+    """A joint result's ``layout.sessions`` (absent in files of earlier veils): a list of
+    objects, each with its count of points (``n_points``) an integer >= 0."""
+    if sessions is None:
+        return
+    if not isinstance(sessions, list) or not all(isinstance(s, dict) for s in sessions):
+        raise FitError(f"{source}: layout.sessions must be a list of objects, one per session")
+    for k, session in enumerate(sessions):
+        if "n_points" in session:
+            check_count(session["n_points"], source, f"layout.sessions[{k}].n_points")
 
 
 def target_channels(layout: dict) -> dict | None:
@@ -283,7 +317,12 @@ def target_channels(layout: dict) -> dict | None:
 def joint_fields(data: dict, source: str) -> dict:
     """The fields of a :class:`~veil.fitting.result.JointResult` from the data of its file,
     every key checked; errors name ``source``."""
-    if not isinstance(data, dict) or data.get("model") != "joint":
+    if not isinstance(data, dict):
+        raise FitError(
+            f"{source}: the file holds {json_kind(data)}; expected a JSON object with keys "
+            f"model, params, layout, ... (a joint fit result: veil fit joint -o FILE.json)"
+        )
+    if data.get("model") != "joint":
         raise FitError(f"{source}: not a joint fit result (expected key 'model' = 'joint')")
     _check_format(data, source)
     _check_keys(data, (*_KEYS, "layout"), source, "joint fit result", "veil fit joint")
@@ -306,4 +345,4 @@ def joint_fields(data: dict, source: str) -> dict:
     )
 
 
-__all__ = ["STEPS", "fit_fields", "joint_fields", "target_channels"]
+__all__ = ["STEPS", "STEP_KINDS", "fit_fields", "joint_fields", "target_channels"]

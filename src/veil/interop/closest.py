@@ -49,8 +49,33 @@ class Closest:
         )
 
 
+class MagnitudeError(InputError):
+    """A BRDF whose f_r a closest fit cannot handle (beyond :data:`MAGNITUDE`): ``reach`` is
+    what its f_r reaches, ``params`` {name: value} of the parameters beyond that range
+    (those to look at), ``limits`` the range."""
+
+    def __init__(self, message: str, reach: str, params: dict, limits: tuple) -> None:
+        super().__init__(message)
+        self.reach, self.params, self.limits = reach, params, limits
+
+
 def configurations() -> pd.DataFrame:
     return protocol(CLOSEST_PSI)
+
+
+def _angles() -> list:
+    table = configurations()
+    return [table[c].to_numpy() for c in ("theta_i", "theta_r", "phi_i", "phi_r")]
+
+
+def _values_text(source: Model) -> str:
+    return ", ".join(f"{n} = {v:.6g}" for n, v in zip(source.param_names(), source.to_vector()))
+
+
+def check_source(source: Model) -> None:
+    """What :func:`closest` checks of ``source`` before its fit (a :class:`MagnitudeError`
+    for an f_r beyond what it handles): for a caller that names where ``source`` came from."""
+    _source_values(source, _angles())
 
 
 def _source_values(source: Model, angles) -> np.ndarray:
@@ -61,16 +86,25 @@ def _source_values(source: Model, angles) -> np.ndarray:
     lo, hi = MAGNITUDE
     if np.all(np.isfinite(values)) and not lo <= float(np.max(np.abs(values))) <= hi:
         params = dict(zip(source.param_names(), source.to_vector()))
-        large = [n for n, v in params.items() if v != 0 and not lo <= abs(v) <= hi]
-        raise InputError(
-            f"{source}: f_r reaches {float(np.max(np.abs(values))):.3g}, outside "
-            f"the magnitudes a closest fit handles ({lo:g} to {hi:g})"
-            + (f"; parameter(s) {', '.join(large)}" if large else "")
-            + ": rescale the data the result was fitted to"
+        large = {n: float(v) for n, v in params.items() if v != 0 and not lo <= abs(v) <= hi}
+        reach = f"f_r reaches {float(np.max(np.abs(values))):.3g}"
+        raise MagnitudeError(
+            f"{source.NAME}: {reach}, outside the magnitudes a closest fit handles "
+            f"({lo:g} to {hi:g})"
+            + (
+                f"; parameter(s) {', '.join(f'{n} = {v:.3g}' for n, v in large.items())}"
+                if large
+                else ""
+            )
+            + ": rescale the data the result was fitted to",
+            reach,
+            large,
+            (lo, hi),
         )
     if not np.all(values > 0):
         raise InputError(
-            f"{source}: f_r is not positive at every configuration, so the "
+            f"{source.NAME} ({_values_text(source)}): f_r is not positive at every "
+            f"configuration, so the "
             f"relative difference of a closest fit is undefined"
         )
     return values
@@ -93,7 +127,7 @@ def closest(source: Model, family: str, options: dict | None = None) -> Closest:
     least squares over :func:`configurations`."""
     cls = model_class(family, "brdf")
     table = configurations()
-    angles = [table[c].to_numpy() for c in ("theta_i", "theta_r", "phi_i", "phi_r")]
+    angles = _angles()
     values = _source_values(source, angles)
     data = table[["theta_i", "phi_i", "theta_r", "phi_r"]].copy()
     data["value"] = values
@@ -131,4 +165,12 @@ def closest_channels(sources: dict, family: str, options: dict | None = None) ->
     }
 
 
-__all__ = ["Closest", "closest", "closest_channels", "configurations", "CLOSEST_PSI"]
+__all__ = [
+    "Closest",
+    "MagnitudeError",
+    "check_source",
+    "closest",
+    "closest_channels",
+    "configurations",
+    "CLOSEST_PSI",
+]
