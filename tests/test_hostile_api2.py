@@ -16,23 +16,14 @@ import pytest
 
 import veil
 from support.cli import run
+from test_hostile_api import STEP, _refused
 from veil.errors import FitError, InputError, InputTypeError
-
-STEP = {"fine_step": 10, "coarse_step": 20}
 
 
 @pytest.fixture(scope="module")
 def clear():
     """A small clear-water session of BRDF1 (19 configurations)."""
     return veil.simulate(veil.BRDF1, None, seed=1, **STEP)
-
-
-def _refused(error, call, *said):
-    with pytest.raises(error) as info:
-        call()
-    for words in said:
-        assert words in str(info.value), (words, str(info.value))
-    return info.value
 
 
 # -- angles that are no angles -------------------------------------------------------------
