@@ -381,10 +381,10 @@ class ForwardSeries(Medium):
             "orders",
             "poisson",
             "weights of the scattering orders: poisson = "
-            "(omega tau)^k/k! on both sides; light = the light side's with the cylinder's "
-            "path factors M_k(tau, g), the view side's unchanged; view = the view side's "
-            "with the plate's landing factors lambda_k (docs/physics-orders.md sec. 8), "
-            "the light side's unchanged; cylinder = both",
+            "(omega tau)^k/k! on both sides; light-side = the light side's with the "
+            "cylinder's path factors M_k(tau, g), the view side's unchanged; view-side = the "
+            "view side's with the plate's landing factors lambda_k (docs/physics-orders.md "
+            "sec. 8), the light side's unchanged; cylinder = both",
             ORDER_WEIGHTS,
         ),
     )
