@@ -120,6 +120,30 @@ def test_data_other_than_the_fits_are_refused_naming_them(fits, tmp_path, monkey
         assert f"the table {short}{said} has 30 points but the fit used 55" in r.output
 
 
+def test_data_without_the_fits_black_cloth_are_refused(fits, tmp_path, monkeypatch):
+    """The same table without the black cloth the fit subtracted (or with one it did not
+    subtract) has the fit's number of points but is another problem: diagnose analysed it
+    and reported the estimate 'moving' far (Pd 199.8 -> 228.6 in docs/cli.md's example)."""
+    import veil.analysis.diagnostics as dg
+
+    def evaluated(*args, **kwargs):
+        raise AssertionError("the data were evaluated before they were checked")
+
+    table, black = veil.simulate(veil.BRDF1, veil.BTDF3, noise=0.01, seed=25, black=True,
+                                 **SMALL)
+    with_black = fit_target(table, fits["r1"], black=black, accuracy="fast")
+    assert with_black.stats["black_subtracted"] is True
+    assert fits["t_thick"].stats["black_subtracted"] is False
+    monkeypatch.setattr(dg, "covariance", evaluated)
+    monkeypatch.setattr(dg, "solve", evaluated)
+    with pytest.raises(FitError, match="subtracted a black-cloth session and none is given"):
+        diagnose(with_black, table)
+    with pytest.raises(FitError, match="subtracted no black-cloth session and one is given"):
+        diagnose(fits["t_thick"], fits["thick"], black=black)
+    monkeypatch.undo()
+    assert diagnose(with_black, table, black=black).names  # the fit's own data: diagnosed
+
+
 def test_cli_diagnose(fits, tmp_path):
     res, table, med = tmp_path / "t.json", tmp_path / "t.csv", tmp_path / "m.json"
     fits["t_thick"].to_json(res)

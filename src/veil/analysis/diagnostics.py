@@ -238,7 +238,26 @@ def problem_for(
         "" if black is None else f" less the black cloth {_name(black)}"
     )
     _check_points(problem, result, where)
+    _check_black(result, black, where)
     return problem, notes
+
+
+def _check_black(result: FitResult, black, where: str) -> None:
+    """A FitError when the fit subtracted a black-cloth session and none is given, or the
+    other way round (``stats["black_subtracted"]``; results of earlier veils do not say):
+    the same number of points, other data, and the diagnostics of another problem."""
+    subtracted = result.stats.get("black_subtracted")
+    if not isinstance(subtracted, bool) or subtracted == (black is not None):
+        return
+    said = (
+        "subtracted a black-cloth session and none is given: give it (--black FILE, black=)"
+        if subtracted
+        else "subtracted no black-cloth session and one is given: leave it out"
+    )
+    raise FitError(
+        f"{where}: the fit {said}; diagnose reads the data the fit was made from, and "
+        f"other data would give the diagnostics of another problem"
+    )
 
 
 def _name(table) -> str:

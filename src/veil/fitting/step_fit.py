@@ -158,6 +158,7 @@ def _result(
     media = [m for m in (medium,) if m is not None]
     variant = media[0].options().get(VARIANT_OPTION) if media else None
     stats, message = stats_and_message(outcome, summary, rep, given_result, n_grid)
+    stats["black_subtracted"] = bool(data.black)  # (diagnose asks for the same data)
     if summary.converged:  # one that did not converge says so (exit status 1)
         warn_misfit(summary.chi2_reduced, data, what, medium is not None)
     return FitResult(
