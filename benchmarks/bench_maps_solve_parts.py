@@ -152,6 +152,17 @@ def solver_cases() -> tuple[dict, np.ndarray]:
     return cases, u
 
 
+def iterations(solver, values, coef, y, w2) -> str:
+    """The batch solved as a map solves it (the first iterations, then the slow pixels'
+    rest): its pixels' iteration counts, the mean and the largest."""
+    from veil.maps.solve import compiled
+
+    first, rest = compiled(solver)
+    _, state = first(values, coef, y, w2)
+    counts = np.asarray(rest(coef, y, w2, state)[0][6])
+    return f"iterations per pixel: mean {counts.mean():.2f}, largest {counts.max()}"
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--repeat", type=int, default=20)
@@ -165,6 +176,7 @@ def main(argv: list[str] | None = None) -> int:
     for kind, (make, tab, yy, ww) in cases.items():
         values, coef = (jnp.asarray(a) for a in tab.solver_arrays)
         ms[kind] = parts(make(), values, coef, jnp.asarray(yy), jnp.asarray(ww), u, args.repeat)
+        print(kind, iterations(make(), values, coef, jnp.asarray(yy), jnp.asarray(ww)))
     rows = [
         [
             name,

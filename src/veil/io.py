@@ -130,6 +130,15 @@ def not_a_regular_file(path: str) -> str | None:
     return next((said for test, said in kinds if test(mode)), "not a regular file")
 
 
+def output_file_problem(path: str) -> str | None:
+    """Why ``path`` cannot be an output file, said after "cannot write PATH: ": it ends in
+    a separator (a folder's name: it would be written as a file of that name), or it is a
+    device, a pipe or a socket (:func:`special_file`); None for a path that may be one."""
+    if path.endswith(("/", os.sep)) and not os.path.isdir(path):
+        return "the path ends in '/', which names a folder; give a file name"
+    return special_file(path)
+
+
 def special_file(path: str) -> str | None:
     """Why an output ``path`` that :func:`not_a_regular_file` finds cannot be written,
     said after "cannot write PATH: ", or None for a path that may be written."""
@@ -209,9 +218,7 @@ def _temporary(path: str, data: bytes) -> str:
     have (registered; removed again if anything fails)."""
     if os.path.isdir(path):
         raise NotAFileError(f"cannot write {path}: it is a directory")
-    special = special_file(path)
-    if path.endswith(("/", os.sep)):
-        special = "the path ends in '/', which names a folder; give a file name"
+    special = output_file_problem(path)
     if special:
         raise NotAFileError(f"cannot write {path}: {special}")
     directory = os.path.dirname(os.path.abspath(path))

@@ -71,22 +71,12 @@ class OutputPath(click.Path):
                 ctx,
             )
         if isinstance(value, str) and self.what == "file":
-            wrong = file_path_problem(value)
+            from ..io import output_file_problem  # (here: the command line starts fast)
+
+            wrong = output_file_problem(value)
             if wrong:
                 self.fail(f"cannot write {value}: {wrong}", param, ctx)
         return super().convert(value, param, ctx)
-
-
-def file_path_problem(path: str) -> str | None:
-    """Why ``path`` cannot be an output file, said after "cannot write PATH: ", before
-    anything is computed: it ends in a separator (a folder's name: ``-o results/`` would
-    write a file ``results``), or it is a device, a pipe or a socket (``-o /dev/null`` would
-    be replaced by a regular file); None for a path that may be one."""
-    from ..io import special_file
-
-    if path.endswith(("/", os.sep)) and not os.path.isdir(path):
-        return "the path ends in '/', which names a folder; give a file name"
-    return special_file(path)
 
 
 class LazyGroup(click.Group):
@@ -447,7 +437,9 @@ def check_file_target(path, named: str, written: str) -> None:
         raise UserError(f"{named.rstrip()}: {empty_path()}")
     if os.path.isdir(path):
         raise UserError(f"{named} is a directory; give a file name")
-    wrong = None if os.path.islink(path) else file_path_problem(os.fspath(path))
+    from ..io import output_file_problem
+
+    wrong = None if os.path.islink(path) else output_file_problem(os.fspath(path))
     if wrong:
         raise UserError(f"cannot write {written}: {wrong}")
     # a symbolic link is written through (veil.io): its target must be a file (or nothing

@@ -86,6 +86,7 @@ class _PixelSolver:
         self.top = jnp.asarray([float(k - 1) for k in sizes])
         self.lo = jnp.zeros(self.n)
         self.hi = jnp.concatenate([jnp.full(q, jnp.inf), self.top]) if d else jnp.full(q, jnp.inf)
+        self.span = self.hi - self.lo  # each parameter's range (a scale's unbounded)
 
     def interp(self, coef, fu, u):
         if self.near:
@@ -175,8 +176,7 @@ class _PixelSolver:
         there."""
         if not self.d:
             return a, g
-        span = jnp.concatenate([jnp.full(self.q, jnp.inf), self.top])
-        silent = jnp.diag(a) * span**2 < LM_TOL**2 * variance
+        silent = jnp.diag(a) * self.span**2 < LM_TOL**2 * variance
         pair = silent[:, None] | silent[None, :]
         return jnp.where(pair, jnp.eye(self.n), a), jnp.where(silent, 0.0, g)
 
