@@ -278,6 +278,26 @@ def table(res: dict) -> str:
     )
 
 
+def rounds_table(rounds: list) -> str:
+    """One row per round of the blur: each parameter's share within 3 standard errors and
+    median relative error, the converged pixels, the reduced chi-square, the time."""
+    from doc_tables import markdown
+
+    params = [r["param"] for r in rounds[0]["rows"]]
+    rows = [
+        [str(k), str(r["converged"])]
+        + [f"{_pct(x['within_3se'], 1)} ({_pct(x['median_rel_error'], 1)})" for x in r["rows"]]
+        + [f"{r['chi2_median']:.2f}", f"{r['seconds']:.0f}"]
+        for k, r in enumerate(rounds)
+    ]
+    head = (
+        ["round", "converged pixels"]
+        + [f"{p} within 3 se (median \\|relative error\\|)" for p in params]
+        + ["reduced chi-square, median", "seconds"]
+    )
+    return markdown(head, rows, set(range(1, len(head))))
+
+
 def tile_table(res: dict) -> str:
     """Per tile: the truth and the median estimate / truth of every parameter mapped."""
     from doc_tables import markdown
@@ -344,9 +364,20 @@ def main(argv=None) -> int:
         default="r,g,b",
         help="with --per-channel: the channels to map (default %(default)s)",
     )
+    ap.add_argument(
+        "--blur-rounds",
+        type=int,
+        default=0,
+        help="then N maps more, each with --blur-from the one before (docs/maps-blur.md): "
+        "json results/rgb_maps_blur.json, table colour-maps-blur, the last round's table "
+        "and one row per round",
+    )
     ap.add_argument("extra", nargs="*", help="more options for veil fit maps (after --)")
     bv.add_doc_options(ap, "colour-maps")
     args = ap.parse_args(argv)
+    if args.blur_rounds:
+        args.json = args.json if args.json != JSON else JSON.replace(".json", "_blur.json")
+        args.doc_table = "colour-maps-blur" if args.doc_table == "colour-maps" else args.doc_table
     if args.stack:
         STACK = os.path.abspath(args.stack)
     if args.per_channel:
@@ -386,6 +417,19 @@ def main(argv=None) -> int:
                 cmd = command(truth, os.path.abspath(args.medium), store, rel, args.extra, channel)
                 code, seconds, _ = run_maps(cmd)
                 one = compare(store, truth, channel)
+                res["commands"].append(shown(cmd).replace(work, "OUT"))
+                if args.blur_rounds and channel == "rgb":
+                    res["rounds"] = [dict(one, seconds=seconds, exit=code)]
+                for k in range(1, args.blur_rounds + 1 if channel == "rgb" else 1):
+                    prior, store = store, os.path.join(work, channel, f"maps-blur{k}.zarr")
+                    shutil.rmtree(store, ignore_errors=True)
+                    extra = [*args.extra, "--blur-from", prior]
+                    cmd = command(truth, os.path.abspath(args.medium), store, rel, extra, channel)
+                    code, more, _ = run_maps(cmd)
+                    seconds += more
+                    one = compare(store, truth, channel)
+                    res["rounds"].append(dict(one, seconds=more, exit=code))
+                    res["commands"].append(shown(cmd).replace(work, "OUT"))
                 res["rows"] += one["rows"]
                 for t, rec in enumerate(one["tiles"]):
                     if len(res["tiles"]) <= t:
@@ -399,13 +443,20 @@ def main(argv=None) -> int:
                 res["chi2_median"].append(one["chi2_median"])
                 res["seconds"] += seconds
                 res["exit"] = max(res["exit"], code)
-                res["commands"].append(shown(cmd).replace(work, "OUT"))
         res.update(load_after=list(os.getloadavg()))
         from veil.io import write_text_atomic
 
         os.makedirs(os.path.dirname(os.path.abspath(args.json)), exist_ok=True)
         write_text_atomic(args.json, json.dumps(res, indent=1, default=float) + "\n")
     text = table(res)
+    if res.get("rounds"):
+        text = (
+            "Round by round (round 0: the map without the blur; round k: --blur-from round "
+            "k - 1), the share of converged pixels within 3 standard errors:\n\n"
+            + rounds_table(res["rounds"])
+            + "\n\nThe last round:\n\n"
+            + text
+        )
     tt = tile_table(res)
     if tt:
         text += "\n\nPer tile, the median over its converged pixels:\n\n" + tt

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import math
+from functools import partial
 from pathlib import Path
 
 import click
@@ -177,33 +178,26 @@ def _noise(text):
     '(docs/maps.md "Geometry") [default: distant light and camera, every '
     "pixel at the manifest's angles].",
 )
+@click.option(
+    "--blur-from",
+    type=click.Path(),
+    default=None,
+    help="A maps store of these photos: correct the photos for the medium's blur across "
+    "the plate at that map's parameters, then fit (near field, forward-series medium; "
+    "run it again from its own result for a further round; docs/maps-blur.md).",
+)
+@click.option(
+    "--blur-rounds",
+    type=click.IntRange(0, 8),
+    default=0,
+    show_default=True,
+    help="Correct for the medium's blur in N rounds in one run: a map (or --blur-from's), "
+    "then N maps each from the photos corrected at the one before, the tables built once; "
+    "-o gets the last (docs/maps-blur.md).",
+)
 @model_options()
 @click.pass_context
-def fit_maps_command(
-    ctx,
-    photo_dir,
-    manifest,
-    medium,
-    output,
-    black_photos,
-    black_frame,
-    roi,
-    mask,
-    channel,
-    saturation,
-    noise,
-    fix,
-    free,
-    grid,
-    accuracy,
-    tile,
-    scheduler,
-    workers,
-    camera_distance,
-    pixel_pitch,
-    near_field,
-    models,
-):
+def fit_maps_command(ctx, photo_dir, manifest, medium, output, models, **opts):
     """Per-pixel step 2: the target's BRDF at every pixel of a photo stack, through the
     fitted medium, with standard errors, reduced chi-square and a status per pixel, into a
     Zarr store (docs/maps.md).
@@ -223,41 +217,29 @@ def fit_maps_command(
     from ..maps.grid import parse_grid
     from ..maps.run import fit_maps
 
-    _check_options(black_photos, black_frame, camera_distance, pixel_pitch, near_field)
-    fixed = parse_fix(fix, models.brdf)
+    distance, pitch = opts.pop("camera_distance"), opts.pop("pixel_pitch")
+    _check_options(opts["black_photos"], opts["black_frame"], distance, pitch, opts["near_field"])
+    settings = dict(
+        brdf_model=models.brdf.NAME,
+        options=models.brdf_options,
+        fixed=parse_fix(opts.pop("fix"), models.brdf),
+        free=list(opts.pop("free")),
+        grid=parse_grid(opts.pop("grid"), models.brdf),
+        noise=_noise(opts.pop("noise")),
+        geometry=(distance, pitch) if distance is not None else None,
+    )
     med = _medium(medium, models)
-    grid_spec = parse_grid(grid, models.brdf)
 
     def log(message):
         click.echo(message, err=True)
 
+    fit, rounds = fit_maps, opts.pop("blur_rounds")
+    if rounds:
+        from ..maps.blur_rounds import fit_maps_rounds
+
+        fit = partial(fit_maps_rounds, rounds=rounds)
     with echo_warnings(), fit_progress("maps") as progress:
-        run = fit_maps(
-            photo_dir,
-            manifest,
-            med,
-            out,
-            brdf_model=models.brdf.NAME,
-            options=models.brdf_options,
-            fixed=fixed,
-            free=list(free),
-            grid=grid_spec,
-            roi=roi,
-            mask=mask,
-            black_photos=black_photos,
-            black_frame=black_frame,
-            channel=channel,
-            saturation=saturation,
-            noise=_noise(noise),
-            tile=tile,
-            accuracy=accuracy,
-            scheduler=scheduler,
-            workers=workers,
-            progress=progress,
-            log=log,
-            geometry=((camera_distance, pixel_pitch) if camera_distance is not None else None),
-            near_field=near_field,
-        )
+        run = fit(photo_dir, manifest, med, out, progress=progress, log=log, **settings, **opts)
     _print_run(ctx, run)
 
 

@@ -246,6 +246,9 @@ class Acquisition:
     saturation: float | None
     rows: list
     name: str
+    #: subtracted from the photos after the black: the medium's blur correction
+    #: (docs/maps-blur.md), (channels, photos, h, w) over the ROI, or None.
+    correction: np.ndarray | None = None
 
     def fingerprint(self, legacy: bool = False) -> str:
         """A digest of what the maps are fitted from: each photo's content (its size and
@@ -266,6 +269,8 @@ class Acquisition:
         h.update(repr((self.shape, str(self.roi), self.channel, self.saturation)).encode())
         if self.mask is not None:
             h.update(np.packbits(self.mask).tobytes())
+        if self.correction is not None:  # (stores without one hash as they always did)
+            h.update(b"blur" + np.ascontiguousarray(self.correction, dtype=np.float64).tobytes())
         return h.hexdigest()
 
 
@@ -434,6 +439,8 @@ def stage(store, acq: Acquisition, progress=None) -> None:
             )
             values = values - bv
             bad = bad | bb
+        if acq.correction is not None:  # (channels, photos, h, w)
+            values = values - (acq.correction[:, k] if values.ndim == 3 else acq.correction[0, k])
         if acq.mask is not None:
             bad = bad | ~acq.mask
         staged = np.where(bad, np.nan, values).astype(np.float32)

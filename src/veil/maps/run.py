@@ -49,7 +49,8 @@ import os
 import shutil
 import time
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -59,6 +60,7 @@ import numpy as np
 from .._extras import require
 from ..data.ingest import IngestWarning
 from ..errors import InputError, as_flag
+from ..fitting.problem import check_accuracy
 from ..io import (
     COMMIT,
     as_path,
@@ -70,6 +72,8 @@ from ..io import (
     write_error,
     write_text_atomic,
 )
+from ..models import default_class, model_class
+from .blur import corrected, prior_maps
 from .channels import build_channel_tables, map_media
 from .geometry_notes import (
     MapsWarning,
@@ -77,6 +81,7 @@ from .geometry_notes import (
     geometry_notes_of,
     near_geometry,
 )
+from .grid import parse_grid
 from .photos import Acquisition, load_acquisition, stage
 from .solve import warm_up
 from .solve_channels import warm_up_channels
@@ -205,6 +210,9 @@ def fit_maps(
     log=None,
     geometry=None,
     near_field: bool = False,
+    blur_from=None,
+    tables_cache: dict | None = None,
+    blur_record: str | None = None,
 ) -> MapsRun:
     """Per-pixel step 2 (docs/maps.md): the target's BRDF at every pixel of the photos
     listed in ``manifest`` (as ``veil ingest`` reads it) through ``medium`` (a step-1
@@ -212,13 +220,11 @@ def fit_maps(
 
     brdf_model, options, fixed, free : the BRDF family and its options, parameters held
         at values, held parameters to fit (as :func:`veil.fit_target`).
+    blur_from, blur_record, tables_cache : the medium's blur (docs/maps-blur.md;
+        :func:`veil.maps.blur_rounds.fit_maps_rounds`).
     The other arguments (the grid, the region and mask, black photos or frame, noise,
     tiles and scheduler, geometry and near field, reports): the module docstring.
     """
-    from ..fitting.problem import check_accuracy
-    from ..models import default_class, model_class
-    from .grid import parse_grid
-
     check_accuracy(accuracy)
     near_field = as_flag(near_field, "near_field")
     say = log or (lambda message: None)
@@ -226,8 +232,7 @@ def fit_maps(
     medium_model, media = map_media(medium, channel)  # media: {channel: medium} over channels
     cls = default_class("brdf") if brdf_model is None else model_class(brdf_model, "brdf")
     grid_spec = parse_grid(grid, cls) if isinstance(grid, (list, tuple)) else dict(grid or {})
-    output = Path(as_path(output, "output"))
-    _check_output(output)
+    output = _check_output(Path(as_path(output, "output")))
     acq = load_acquisition(
         photo_dir,
         manifest,
@@ -239,26 +244,50 @@ def fit_maps(
         saturation=saturation,
     )
     near = near_geometry(geometry, near_field, acq)
+    prior = None if blur_from is None else prior_maps(blur_from, media or medium_model, near, acq)
+    with _client(scheduler) as client, store_lock(output, say):
+        existing = _existing_store(output)
+        seconds: dict = {}
+        build = dict(fixed=fixed, options=options, free=free, grid=grid_spec)
+
+        def tables_of(medium, times=seconds):
+            reports = (progress, say, times, tables_cache)
+            return _tables(cls, medium, acq, build, accuracy, near, reports)
+
+        tables = tables_of(media or medium_model)
+        notes = geometry_notes_of(tables, cls, medium_model, acq, geometry)
+        acq, blur = _blur(prior, media or medium_model, acq, tables, tables_of, seconds, say)
+        info = store_attributes(acq, tables, cls, noise, tile, accuracy, channel, geometry)
+        if blur is not None:
+            info["blur_from"] = dict(blur, store=blur_record or blur["store"])
+        _check_resumable(output, existing, info, (acq, tables, noise, tile))
+        job = _Job(output, acq, tables, tile, noise, client, progress, workers, say, seconds, notes)
+        return _fill(job, info, existing)
+
+
+@contextmanager
+def _client(scheduler) -> Iterator[Any]:
+    """A dask.distributed client of ``scheduler`` or ``$VEIL_DASK_SCHEDULER`` (closed
+    afterwards), or None to run locally."""
     address = scheduler or os.environ.get(SCHEDULER_ENV) or None
     client = connect(address) if address else None
     try:
-        with store_lock(output, say):
-            existing = _existing_store(output)
-            seconds: dict = {}
-            build = dict(fixed=fixed, options=options, free=free, grid=grid_spec)
-            tables = _tables(
-                cls, media or medium_model, acq, build, accuracy, near, progress, say, seconds
-            )
-            notes = geometry_notes_of(tables, cls, medium_model, acq, geometry)
-            info = store_attributes(acq, tables, cls, noise, tile, accuracy, channel, geometry)
-            _check_resumable(output, existing, info, (acq, tables, noise, tile))
-            job = _Job(
-                output, acq, tables, tile, noise, client, progress, workers, say, seconds, notes
-            )
-            return _fill(job, info, existing)
+        yield client
     finally:
         if client is not None:
             client.close()
+
+
+def _blur(prior, medium, acq, tables, tables_of, seconds: dict, say) -> tuple:
+    """(``acq``, None), or with ``prior`` (:func:`veil.maps.blur.prior_maps`) the
+    acquisition corrected for the medium's blur and the store's record of it
+    (:func:`veil.maps.blur.corrected`; the two more tables' times not counted as the fit's)."""
+    if prior is None:
+        return acq, None
+    acq, blur = corrected(prior, medium, acq, tables, lambda m: tables_of(m, {}))
+    seconds["blur"] = blur.pop("seconds")
+    say(f"the medium's blur from {blur['store']}: photos corrected ({seconds['blur']:.1f} s)")
+    return acq, blur
 
 
 def _tile(tile) -> int:
@@ -268,13 +297,14 @@ def _tile(tile) -> int:
     return tile
 
 
-def _check_output(output: Path) -> None:
-    """The output checked before anything is read: its folder exists, and it is no file."""
+def _check_output(output: Path) -> Path:
+    """``output``, checked before anything is read: its folder exists, and it is no file."""
     if not output.parent.exists():
         from ..io import no_directory
 
         raise InputError(f"cannot write {output}: {no_directory(str(output.parent))}")
     check_store_path(output)
+    return output
 
 
 def _tables(
@@ -284,13 +314,16 @@ def _tables(
     settings: dict,
     accuracy: str,
     near,
-    progress,
-    say,
-    seconds: dict,
+    reports: tuple,
 ) -> MapTables:
     """The tables of the photos' configurations (:func:`build_tables` with ``settings``;
     over channels ``medium_model`` is {channel: medium}, :func:`veil.maps.channels.
-    build_channel_tables`), their time in ``seconds["tables"]``."""
+    build_channel_tables`), their time in ``seconds["tables"]``; ``reports``: (progress,
+    say, seconds, a dict keeping tables by medium or None)."""
+    progress, say, seconds, cache = reports
+    key = (repr(medium_model), accuracy)
+    if cache is not None and key in cache:
+        return cache[key]
     build = build_channel_tables if isinstance(medium_model, dict) else build_tables
     t0 = time.perf_counter()
     tables = build(
@@ -305,6 +338,8 @@ def _tables(
     )
     seconds["tables"] = time.perf_counter() - t0
     say(f"tables: {tables.describe()} in {seconds['tables']:.1f} s")
+    if cache is not None:
+        cache[key] = tables
     return tables
 
 

@@ -492,6 +492,17 @@ class ForwardSeries(Medium):
         return phase.mixture_inverse_with_pdf(self.prepare(v) if aux is None else aux, frac)
 
     # -- the finite plate ----------------------------------------------------------------
+    def view_lobes(self) -> tuple[list[float], list[float], float]:
+        """The view side's scattered light by order k = 1 .. ORDERS (eq. 8.1a): the weights
+        (omega tau)^k / k!, the lobes' asymmetries g^k, and the extinction coefficient
+        tau / R_c along the pass (0 without a path length); for the medium's blur across
+        a plate (docs/maps-blur.md)."""
+        x = float(self.omega * self.tau)
+        weights = [x**k / math.factorial(k) for k in range(1, ORDERS + 1)]
+        lobes = [float(self.g) ** k for k in range(1, ORDERS + 1)]
+        rc = float(self.path_length)
+        return weights, lobes, (float(self.tau) / rc if rc > 0 else 0.0)
+
     def has_view_weight(self) -> bool:
         return self.path_length > 0 or self.orders in ("cylinder", "light-side")
 
