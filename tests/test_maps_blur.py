@@ -174,8 +174,9 @@ BRDF = veil.BRDF1
 NAMES = type(BRDF).param_names()
 INDEX, SHAPE = NAMES[3], NAMES[2]
 ETA = float(BRDF.to_vector()[3])
+#: a plate 1.5 wide: 6 of the stack's 8 pixels of 0.25, pixels 1 to 7 about the centre (4, 4)
 FORWARD = ["--medium-model", "forward-series", "--medium", "0.9,0.95,0.9,1,1", "--path-length",
-           15, "--plate-width", 3]
+           15, "--plate-width", 1.5]
 DISTANCE, PITCH = 100.0, 0.25
 NEAR = ["--near-field", "--camera-distance", DISTANCE, "--pixel-pitch", PITCH]
 
@@ -237,17 +238,42 @@ def test_bad_blur_input_exits_2(small_stack, tmp_path):
 
 
 def test_prior_of_another_region_exits_2(small_stack, tmp_path):
-    """A prior map of the region 0,0,8,8 for a fit of 0,0,6,6: refused naming both regions
-    before any table is built, nothing written."""
+    """A prior map of the region 0,0,8,8 for a fit of 1,1,6,6 (which covers the plate):
+    refused naming both regions before any table is built, nothing written."""
     root, manifest, prior = small_stack
     out = tmp_path / "shape.zarr"
     result = run(*maps_args(root, manifest, out, FORWARD, *NEAR, "--blur-from", prior,
-                            "--roi", "0,0,6,6"))
+                            "--roi", "1,1,6,6"))
     assert result.exit_code == 2, result.output
     assert "roi" in result.output and "'0,0,8,8'" in result.output, result.output
-    assert "'0,0,6,6'" in result.output, result.output
+    assert "'1,1,6,6'" in result.output, result.output
     assert "tables" not in result.output, result.output  # refused before any table
     assert not out.exists()
+
+
+def test_region_short_of_the_plate_and_rounds_checked_first(small_stack, tmp_path):
+    """A region that leaves part of the plate out (2,2,4,4 of a plate over pixels 1 to 7):
+    exit 2 naming the plate's pixels, before any table. --blur-rounds without the near
+    field, or through the paper's medium, exits 2 before its first map is fitted; a prior
+    whose pixels all stopped at the table's edge (the fixture's) has nothing to correct
+    from."""
+    root, manifest, prior = small_stack
+    out = tmp_path / "short.zarr"
+    result = run(*maps_args(root, manifest, out, FORWARD, *NEAR, "--blur-from", prior,
+                            "--roi", "2,2,4,4"))
+    assert result.exit_code == 2, result.output
+    assert "does not cover the plate" in result.output and "1 to 7" in result.output
+    assert "tables" not in result.output and not out.exists()
+    for medium, extra in ((FORWARD, []), (["--medium", "BTDF2"], NEAR)):
+        result = run(*maps_args(root, manifest, out, medium, *extra, "--blur-rounds", 1))
+        assert result.exit_code == 2, result.output
+        assert "--blur-rounds" in result.output, result.output
+        assert "tables" not in result.output and not out.exists()
+    assert not np.any(open_maps(prior)["status"] == 0)
+    result = run(*maps_args(root, manifest, out, FORWARD, *NEAR, "--blur-from", prior))
+    assert result.exit_code == 2, result.output
+    assert "no converged pixel" in result.output and "tables" not in result.output
+    assert not [p.name for p in tmp_path.iterdir() if p.name != "short.zarr"]
 
 
 # --------------------------------------------------------------------------------------
@@ -336,8 +362,9 @@ def test_blur_rounds_remove_the_boundary_bias(tmp_path):
     assert "round 2 of 2" in result.output
     same = open_maps(out)
     np.testing.assert_array_equal(same["params"], open_maps(prior)["params"])
-    assert same["info"]["blur_from"]["store"] == "round 1"
-    assert not [p.name for p in root.iterdir() if "blur-round" in p.name]
+    assert same["info"]["blur_from"]["store"] == "round 1 of 2 in this run"
+    left = [p.name for p in root.iterdir() if p.name.startswith(".rounds.zarr.")]
+    assert left == [".rounds.zarr.veil-lock"], left  # the output's own lock, as every map's
 
 
 def test_uniform_plate_needs_no_correction_at_its_centre():

@@ -78,6 +78,21 @@ def channel_medium(medium: str, channel: str) -> list[str]:
     return ["--medium", values, "--medium-model", res.model, *opts]
 
 
+def truth_medium(medium: str, truth: dict, path: str) -> str:
+    """``medium``'s result file with the stack's own medium (truth.json) as its parameters,
+    written to ``path``."""
+    with open(medium) as f:
+        res = json.load(f)
+    med = truth["medium"]
+    for k, c in enumerate(CHANNELS):
+        res["params"][f"tau[{c}]"] = med["tau"][k]
+        res["params"][f"omega[{c}]"] = med["albedo"][k]
+    res["params"]["g"] = med["g"]
+    with open(path, "w") as f:
+        json.dump(res, f)
+    return path
+
+
 def command(
     truth: dict, medium: str, out: str, rel: float, extra: list[str], channel: str = "rgb"
 ) -> list[str]:
@@ -372,19 +387,28 @@ def main(argv=None) -> int:
         "json results/rgb_maps_blur.json, table colour-maps-blur, the last round's table "
         "and one row per round",
     )
+    ap.add_argument(
+        "--truth-medium",
+        action="store_true",
+        help="map through the stack's own medium (truth.json's tau, albedo, g written into "
+        "--medium's result file) instead of the fitted one: what the maps reach when the "
+        "medium is right",
+    )
     ap.add_argument("extra", nargs="*", help="more options for veil fit maps (after --)")
     bv.add_doc_options(ap, "colour-maps")
     args = ap.parse_args(argv)
-    if args.blur_rounds:
-        args.json = args.json if args.json != JSON else JSON.replace(".json", "_blur.json")
-        args.doc_table = "colour-maps-blur" if args.doc_table == "colour-maps" else args.doc_table
     if args.stack:
         STACK = os.path.abspath(args.stack)
-    if args.per_channel:
-        args.json = args.json if args.json != JSON else JSON.replace(".json", "_per_channel.json")
-        args.doc_table = (
-            "colour-maps-per-channel" if args.doc_table == "colour-maps" else args.doc_table
-        )
+    # the defaults of --json and --doc-table by what is run (given ones are kept)
+    kinds = [
+        (args.per_channel, "_per_channel", "-per-channel"),
+        (args.blur_rounds, "_blur", "-blur"),
+        (args.truth_medium, "_truth_medium", "-truth-medium"),
+    ]
+    if args.json == JSON:
+        args.json = JSON.replace(".json", "".join(j for on, j, _ in kinds if on) + ".json")
+    if args.doc_table == "colour-maps":
+        args.doc_table += "".join(t for on, _, t in kinds if on)
     with open(os.path.join(STACK, "truth.json")) as f:
         truth = json.load(f)
     if args.table_only:
@@ -406,6 +430,8 @@ def main(argv=None) -> int:
         }
         with tempfile.TemporaryDirectory() as tmp:
             work = args.keep or tmp
+            if args.truth_medium:
+                args.medium = truth_medium(args.medium, truth, os.path.join(tmp, "medium.json"))
             for channel in args.channels.split(",") if args.per_channel else ("rgb",):
                 os.makedirs(os.path.join(work, channel), exist_ok=True)
                 store = os.path.join(work, channel, "maps.zarr")

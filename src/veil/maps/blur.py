@@ -125,31 +125,39 @@ def view_kernels(theta_r, phi_r, media: list, pitch: float, half: int) -> np.nda
                     weight = np.exp(-beta[:, None] * ts[None, :]) * weights[k]
                     totals[c] += weight.sum()
                     out[c, j] += np.bincount(index, weights=weight[inside], minlength=side * side)
-        out[:, j] /= totals[:, None]
+        out[:, j] /= np.where(totals > 0, totals, 1.0)[:, None]  # no scattering: no kernel
     return out.reshape(len(media), len(theta_r), side, side)
 
 
-def check_medium(media: list, near) -> None:
-    """The blur needs the near-field geometry (the pixel pitch on the plate) and a
-    forward-series medium with its path length and plate width (eq. 8.1b)."""
-    if near is None:
+def check_medium(media: list, near: bool) -> None:
+    """The blur needs the near-field geometry (``near``: the pixel pitch on the plate) and
+    a forward-series medium with its path length and plate width (eq. 8.1b), the same in
+    every channel."""
+    if not near:
         raise InputError(
-            "the medium's blur (--blur-from) needs the near-field geometry: give "
+            "the medium's blur (--blur-from, --blur-rounds) needs the near-field geometry: give "
             "--near-field with --camera-distance and --pixel-pitch (the pixel pitch places "
             "each pixel on the plate)"
         )
     lengths = {float(m.path_length) for m in media if callable(getattr(m, "view_lobes", None))}
     if len(lengths) > 1:
         raise InputError(
-            "the medium's blur (--blur-from): the channels' media have different path "
-            f"lengths ({', '.join(f'{x:g}' for x in sorted(lengths))}); one apparatus has one"
+            "the medium's blur: the channels' media have different path lengths "
+            f"({', '.join(f'{x:g}' for x in sorted(lengths))}); one apparatus has one"
+        )
+    widths = {float(m.plate_width) for m in media if callable(getattr(m, "view_lobes", None))}
+    if len(widths) > 1:
+        raise InputError(
+            "the medium's blur: the channels' media have different plate widths "
+            f"({', '.join(f'{x:g}' for x in sorted(widths))}); one plate has one"
         )
     for m in media:
         lobes = callable(getattr(m, "view_lobes", None))
         if not lobes or not (m.path_length > 0 and m.plate_width > 0):
             raise InputError(
-                "the medium's blur (--blur-from) needs a forward-series medium with its "
-                "path length and plate width (docs/model.md sec. 8.1); this medium is "
+                "the medium's blur (--blur-from, --blur-rounds) needs a forward-series "
+                "medium with its path length and plate width (docs/model.md sec. 8.1); this "
+                "medium is "
                 f"{type(m).NAME}"
                 + (
                     f" with path_length {m.path_length:g}, plate_width {m.plate_width:g}"
@@ -169,13 +177,17 @@ def with_plate_width(medium, width: float) -> Any:
 def prior_maps(prior, medium, near, acq) -> tuple:
     """(``prior``, its arrays, :func:`veil.maps.store.open_maps`) of a map the photos are
     corrected from, read before anything is computed: the geometry and the medium (a
-    model or {channel: model}) must allow the blur (:func:`check_medium`), and the map
-    must be of the same photos (their number and manifest), region and channels."""
+    model or {channel: model}) must allow the blur (:func:`check_medium`), the region must
+    cover the plate (:func:`check_region`), and the map must be of the same photos (their
+    number and manifest), region and channels, with a converged pixel."""
     from .photos import stacked_channels
     from .store import open_maps
 
-    check_medium(list(medium.values()) if isinstance(medium, dict) else [medium], near)
+    media = list(medium.values()) if isinstance(medium, dict) else [medium]
+    check_medium(media, near is not None)
+    check_region(acq.roi, near, float(media[0].plate_width))
     maps = open_maps(prior)
+    channel = acq.channel if isinstance(acq.channel, str) else ",".join(acq.channel)
     _same(
         prior,
         maps["info"],
@@ -183,15 +195,45 @@ def prior_maps(prior, medium, near, acq) -> tuple:
             "roi": str(acq.roi),
             "photos": len(acq.paths),
             "manifest": acq.name,
+            "channel": channel,
             "channels": list(stacked_channels(acq.channel)) or None,
         },
     )
+    if not np.any(maps["status"] == CONVERGED):
+        raise InputError(f"--blur-from {prior}: that map has no converged pixel to correct from")
     return prior, maps
 
 
+def check_region(roi, near, plate_width: float) -> None:
+    """The mapped region must cover the plate (the medium's plate width, centred on the
+    optical centre): the correction takes the plate's reflectance from the map, and a part
+    of the plate outside the region would count as dark."""
+    cx, cy = near.centre
+    half = 0.5 * plate_width / near.pitch  # in pixels
+    lo_x, hi_x, lo_y, hi_y = cx - half, cx + half, cy - half, cy + half
+    if (
+        roi.x > lo_x + 0.5
+        or roi.x + roi.w < hi_x - 0.5
+        or roi.y > lo_y + 0.5
+        or roi.y + roi.h < hi_y - 0.5
+    ):
+        raise InputError(
+            f"the medium's blur: the region {roi} (x, y, width, height in pixels) does not "
+            f"cover the plate, {plate_width:g} wide, which spans pixels {lo_x:g} to {hi_x:g} "
+            f"in x and {lo_y:g} to {hi_y:g} in y at a pixel pitch of {near.pitch:g} about "
+            f"the optical centre ({cx:g}, {cy:g}); map the whole plate (the correction takes "
+            f"every part of the plate's reflectance from the map), or check --pixel-pitch "
+            f"and the medium's plate width"
+        )
+
+
 def check_prior(prior, maps: dict, tables) -> None:
-    """The prior map refused unless it has the family and free parameters of ``tables``."""
-    _same(prior, maps["info"], {"model": tables.model, "free": list(tables.free_names)})
+    """The prior map refused unless it has the family, free parameters and grid of
+    ``tables``."""
+    grid = [a.describe() for a in tables.axes]
+    _same(
+        prior, maps["info"], {"model": tables.model, "free": list(tables.free_names), "grid": grid}
+    )
 
 
 def _same(prior, info: dict, mine: dict) -> None:
@@ -207,7 +249,8 @@ def _same(prior, info: dict, mine: dict) -> None:
 def _grid_coord(axis, value) -> np.ndarray:
     """Grid coordinate (0 .. count - 1) of physical values along a table's axis."""
     with np.errstate(invalid="ignore", divide="ignore"):
-        return (np.asarray(axis.coord(value)) - float(axis.coord(axis.lo))) / axis.step
+        u = (np.asarray(axis.coord(value)) - float(axis.coord(axis.lo))) / axis.step
+    return np.clip(u, 0.0, axis.count - 1.0)
 
 
 def prior_parameters(maps: dict, tables) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -316,14 +359,24 @@ def blur_correction(trio: tuple, maps: dict, media: list, pitch: float) -> np.nd
     _, _, theta_r, phi_r = geometry.angles(plate.angles, cx - 0.5, cy - 0.5)  # the centre
     half_width = 0.5 * float(media[0].plate_width)
     half = max(h, w, int(math.ceil(half_width / pitch)) + 1)
-    kernels = view_kernels(theta_r, phi_r, media, pitch, half)
-    return correction_of(f_plate, f_none, f_end, kernels, plate_share(kernels, half_width, pitch))
+    x0, y0 = plate.near.roi[:2]
+    rows, cols = np.mgrid[0:h, 0:w]
+    p = geometry.plate_points(x0 + cols, y0 + rows)
+    on_plate = (np.abs(p[..., 0]) <= half_width) & (np.abs(p[..., 1]) <= half_width)
+    out = np.empty(f_plate.shape, dtype=np.float32)
+    for m in range(f_plate.shape[1]):  # one configuration's kernels at a time
+        k = view_kernels(theta_r[m : m + 1], phi_r[m : m + 1], media, pitch, half)
+        one = [f[:, m : m + 1] for f in (f_plate, f_none, f_end)]
+        share = plate_share(k, half_width, pitch)
+        out[:, m : m + 1] = correction_of(*one, k, share, on_plate)
+    return out
 
 
-def correction_of(f_plate, f_none, f_end, kernels, shares) -> np.ndarray:
+def correction_of(f_plate, f_none, f_end, kernels, shares, on_plate=None) -> np.ndarray:
     """(B.3) from the model's values (C, M, h, w) with the plate (``f_plate``), without
     view-side scattering (``f_none``) and with an endless plate (``f_end``), the kernels
-    (C, M, k, k) and their shares on the plate (C, M) (:func:`plate_share`)."""
+    (C, M, k, k) and their shares on the plate (C, M) (:func:`plate_share`); pixels off
+    ``on_plate`` (h, w) send no light (default: every pixel is on the plate)."""
     from scipy.signal import correlate
 
     endless = f_end - f_none  # S_inf: the view side's part of an endless plate
@@ -331,7 +384,8 @@ def correction_of(f_plate, f_none, f_end, kernels, shares) -> np.ndarray:
     out = np.zeros_like(f_plate)
     for c in range(f_plate.shape[0]):
         for m in range(f_plate.shape[1]):
-            blurred = correlate(endless[c, m], kernels[c, m], mode="same", method="fft")
+            source = endless[c, m] if on_plate is None else np.where(on_plate, endless[c, m], 0.0)
+            blurred = correlate(source, kernels[c, m], mode="same", method="fft")
             s_inf = endless[c, m]
             ok = s_inf > 1e-12 * max(float(np.abs(s_inf).max()), 1e-300)
             ratio = blurred / np.where(ok, shares[c, m] * s_inf, 1.0)

@@ -1,12 +1,13 @@
-"""Rounds of the medium's blur correction in one run (docs/maps-blur.md "Rounds";
-``veil fit maps --blur-rounds N``): a map, then N maps each fitted from the photos
-corrected at the one before, every table built once. The maps before the last are kept in
-temporary stores beside the output and removed when the last is written (or the run
-fails)."""
+"""Rounds of the medium's blur correction in one run (docs/maps-blur.md "The correction and
+its rounds"; ``veil fit maps --blur-rounds N``): a map, then N maps each fitted from the
+photos corrected at the one before, every table built once. The maps before the last are
+kept in a temporary folder beside the output, removed when the last is written, when the
+run fails and when it is interrupted."""
 
 from __future__ import annotations
 
 import shutil
+import tempfile
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -32,29 +33,41 @@ def fit_maps_rounds(photo_dir, manifest, medium, output, rounds: int, **kwargs) 
     """:func:`veil.fit_maps` ``rounds`` times more after a first map (after ``blur_from``
     when given, which then counts as the first), each from the photos corrected for the
     medium's blur at the map before; returns the last run's :class:`~veil.maps.run.MapsRun`
-    (its ``seconds["rounds"]``: every round's seconds) written to ``output``."""
+    (its ``seconds["rounds"]``: every round's seconds) written to ``output``. The geometry
+    and the medium are checked (:func:`veil.maps.blur.check_medium`) before the first map."""
+    from .blur import check_medium
+    from .channels import map_media
     from .run import fit_maps
-    from .store import lock_path
 
     rounds = check_rounds(rounds)
     say = kwargs.get("log") or (lambda message: None)
     output = Path(as_path(output, "output"))
+    media = map_media(medium, kwargs.get("channel", "gray"))
+    near = bool(kwargs.get("near_field")) and kwargs.get("geometry") is not None
+    check_medium(list(media[1].values()) if media[1] else [media[0]], near)
     prior = kwargs.pop("blur_from", None)
-    first = 1 if prior is not None else 0
+    given = prior
     cache: dict = {}
-    temporaries: list[Path] = []
     times = []
+    folder = None
     try:
-        for k in range(first, rounds + 1):
-            last = k == rounds
-            target = output if last else output.parent / f".{output.name}.blur-round-{k}"
-            if not last:
-                shutil.rmtree(target, ignore_errors=True)
-                register_temporary(target, "folder")
-                temporaries.append(target)
-            what = " (the map to correct)" if k == 0 else ""
-            say(f"the medium's blur: round {k} of {rounds}{what}")
-            record = None if prior is None or prior not in temporaries else f"round {k - 1}"
+        for k in range(1 if prior is not None else 0, rounds + 1):
+            if k == rounds:
+                target = output
+            else:
+                if folder is None and output.parent.is_dir():
+                    folder = Path(tempfile.mkdtemp(prefix=f".{output.name}.", dir=output.parent))
+                    register_temporary(folder, "folder")
+                target = (folder or output.parent) / f"round-{k}.zarr"
+            say(
+                f"the medium's blur: round {k} of {rounds}"
+                + (" (the map to correct)" if k == 0 else "")
+            )
+            record = None
+            if k and (k > 1 or given is None):
+                record = f"round {k - 1} of {rounds} in this run" + (
+                    f", from {given}" if given else ""
+                )
             run = fit_maps(
                 photo_dir,
                 manifest,
@@ -70,10 +83,9 @@ def fit_maps_rounds(photo_dir, manifest, medium, output, rounds: int, **kwargs) 
         run.seconds["rounds"] = sum(times)
         return run
     finally:
-        for path in temporaries:
-            shutil.rmtree(path, ignore_errors=True)
-            lock_path(path).unlink(missing_ok=True)
-            forget_temporary(path)
+        if folder is not None:
+            shutil.rmtree(folder, ignore_errors=True)
+            forget_temporary(folder)
 
 
 __all__ = ["fit_maps_rounds", "check_rounds", "MAX_ROUNDS"]

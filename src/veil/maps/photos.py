@@ -270,7 +270,7 @@ class Acquisition:
         if self.mask is not None:
             h.update(np.packbits(self.mask).tobytes())
         if self.correction is not None:  # (stores without one hash as they always did)
-            h.update(b"blur" + np.ascontiguousarray(self.correction, dtype=np.float64).tobytes())
+            h.update(b"blur" + np.ascontiguousarray(self.correction).tobytes())
         return h.hexdigest()
 
 

@@ -369,9 +369,9 @@ def _check_resumable(output: Path, existing: dict | None, info: dict, inputs: tu
     raise InputError(
         f"{output} holds maps of another acquisition or other settings (its "
         f"photos' contents, manifest, medium, model, fixed parameters, grid, ROI, mask, "
-        f"noise or tile size differ; a store written by a veil that compared photos by "
-        f"modification time also differs once a photo is touched); give a new output "
-        f"path to start afresh, or the same inputs to resume it"
+        f"noise, tile size or blur correction differ; a store written by a veil that "
+        f"compared photos by modification time also differs once a photo is touched); "
+        f"give a new output path to start afresh, or the same inputs to resume it"
     )
 
 
