@@ -366,9 +366,9 @@ def blur_correction(trio: tuple, maps: dict, media: list, pitch: float) -> np.nd
     out = np.empty(f_plate.shape, dtype=np.float32)
     for m in range(f_plate.shape[1]):  # one configuration's kernels at a time
         k = view_kernels(theta_r[m : m + 1], phi_r[m : m + 1], media, pitch, half)
-        one = [f[:, m : m + 1] for f in (f_plate, f_none, f_end)]
+        fp, fn, fe = (f[:, m : m + 1] for f in (f_plate, f_none, f_end))
         share = plate_share(k, half_width, pitch)
-        out[:, m : m + 1] = correction_of(*one, k, share, on_plate)
+        out[:, m : m + 1] = correction_of(fp, fn, fe, k, share, on_plate)
     return out
 
 
