@@ -392,7 +392,8 @@ def main(argv=None) -> int:
         action="store_true",
         help="map through the stack's own medium (truth.json's tau, albedo, g written into "
         "--medium's result file) instead of the fitted one: what the maps reach when the "
-        "medium is right",
+        "medium is right (json and table names end in truth_medium; with --blur-rounds the "
+        "table colour-maps-blur-truth-medium)",
     )
     ap.add_argument("extra", nargs="*", help="more options for veil fit maps (after --)")
     bv.add_doc_options(ap, "colour-maps")
@@ -483,7 +484,7 @@ def main(argv=None) -> int:
             + "\n\nThe last round:\n\n"
             + text
         )
-    tt = tile_table(res)
+    tt = tile_table(res) if not res.get("rounds") else ""  # (the rounds: their table only)
     if tt:
         text += "\n\nPer tile, the median over its converged pixels:\n\n" + tt
     notes = summary(res)
