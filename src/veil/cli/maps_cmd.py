@@ -13,6 +13,7 @@ from pathlib import Path
 
 import click
 
+from ..maps.blur_rounds import MAX_ROUNDS
 from ._common import (
     FINITE,
     OutputPath,
@@ -188,7 +189,7 @@ def _noise(text):
 )
 @click.option(
     "--blur-rounds",
-    type=click.IntRange(0, 8),
+    type=click.IntRange(0, MAX_ROUNDS),
     default=0,
     show_default=True,
     help="Correct for the medium's blur in N rounds in one run: a map (or --blur-from's), "
