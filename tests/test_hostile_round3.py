@@ -14,17 +14,12 @@ import stat
 import pytest
 
 from support.cli import run_checked
-from test_hostile_tools import PLASTIC, _refused, _result
+from test_hostile_tools import _refused, plastic  # noqa: F401 (plastic: a fixture)
 
 #: A small measurement table (goniometer form), enough for the checks before any fit.
 TABLE = "psi,rho,value,sigma\n" + "".join(
     f"{psi},{rho},{1.0 + 0.01 * rho},0.01\n" for psi in (30, 90) for rho in (-20, -5, 0, 5, 20)
 )
-
-
-@pytest.fixture
-def plastic(tmp_path):
-    return _result(PLASTIC(rho=0.5, alpha=0.1, eta=1.5, ks=2.0), tmp_path / "p.json")
 
 
 @pytest.fixture

@@ -16,18 +16,13 @@ import numpy as np
 import pytest
 
 from support.cli import run_checked
-from test_hostile_tools import PLASTIC, _refused, _result
+from test_hostile_tools import _refused, _result, plastic  # noqa: F401 (plastic: a fixture)
 from test_ingest import write_manifest, write_png
 from veil.errors import NotAFileError
 from veil.io import write_text_atomic
 
 H, W = 20, 30
 ROI = "5,5,10,8"
-
-
-@pytest.fixture
-def plastic(tmp_path):
-    return _result(PLASTIC(rho=0.5, alpha=0.1, eta=1.5, ks=2.0), tmp_path / "p.json")
 
 
 @pytest.fixture

@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import time
 from typing import Any
 
 import numpy as np
@@ -139,18 +140,6 @@ def check_medium(media: list, near: bool) -> None:
             "--near-field with --camera-distance and --pixel-pitch (the pixel pitch places "
             "each pixel on the plate)"
         )
-    lengths = {float(m.path_length) for m in media if callable(getattr(m, "view_lobes", None))}
-    if len(lengths) > 1:
-        raise InputError(
-            "the medium's blur: the channels' media have different path lengths "
-            f"({', '.join(f'{x:g}' for x in sorted(lengths))}); one apparatus has one"
-        )
-    widths = {float(m.plate_width) for m in media if callable(getattr(m, "view_lobes", None))}
-    if len(widths) > 1:
-        raise InputError(
-            "the medium's blur: the channels' media have different plate widths "
-            f"({', '.join(f'{x:g}' for x in sorted(widths))}); one plate has one"
-        )
     for m in media:
         lobes = callable(getattr(m, "view_lobes", None))
         if not lobes or not (m.path_length > 0 and m.plate_width > 0):
@@ -165,6 +154,20 @@ def check_medium(media: list, near: bool) -> None:
                     else ""
                 )
             )
+    for what, values in (
+        ("path lengths", {float(m.path_length) for m in media}),
+        ("plate widths", {float(m.plate_width) for m in media}),
+    ):
+        if len(values) > 1:
+            raise InputError(
+                f"the medium's blur: the channels' media have different {what} "
+                f"({', '.join(f'{x:g}' for x in sorted(values))}); one apparatus has one"
+            )
+
+
+def media_of(medium) -> list:
+    """The medium models of ``medium`` (a model, or {channel: model}), in channel order."""
+    return list(medium.values()) if isinstance(medium, dict) else [medium]
 
 
 def with_plate_width(medium, width: float) -> Any:
@@ -183,7 +186,7 @@ def prior_maps(prior, medium, near, acq) -> tuple:
     from .photos import stacked_channels
     from .store import open_maps
 
-    media = list(medium.values()) if isinstance(medium, dict) else [medium]
+    media = media_of(medium)
     check_medium(media, near is not None)
     check_region(acq.roi, near, float(media[0].plate_width))
     maps = open_maps(prior)
@@ -247,10 +250,9 @@ def _same(prior, info: dict, mine: dict) -> None:
 
 
 def _grid_coord(axis, value) -> np.ndarray:
-    """Grid coordinate (0 .. count - 1) of physical values along a table's axis."""
+    """Grid coordinate of physical values along a table's axis, held inside the table."""
     with np.errstate(invalid="ignore", divide="ignore"):
-        u = (np.asarray(axis.coord(value)) - float(axis.coord(axis.lo))) / axis.step
-    return np.clip(u, 0.0, axis.count - 1.0)
+        return np.clip(axis.grid(value), 0.0, axis.count - 1.0)
 
 
 def prior_parameters(maps: dict, tables) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -318,14 +320,11 @@ def corrected(prior: tuple, medium, acq, tables, tables_of) -> tuple:
     :func:`prior_maps`), the store's record of it with the seconds taken): ``medium`` a
     model or {channel: model}, ``tables`` the fit's, ``tables_of(medium)`` the tables of
     another medium (without view-side scattering, of the endless plate)."""
-    import time
-
     path, maps = prior
     check_prior(path, maps, tables)
     t0 = time.perf_counter()
     trio = (tables,) + tuple(tables_of(with_plate_width(medium, w)) for w in (NO_VIEW, ENDLESS))
-    media = list(medium.values()) if isinstance(medium, dict) else [medium]
-    correction = blur_correction(trio, maps, media, tables.near.geometry.pitch)
+    correction = blur_correction(trio, maps, media_of(medium), tables.near.geometry.pitch)
     record = {
         "store": str(path),
         "fingerprint": maps["info"]["fingerprint"],

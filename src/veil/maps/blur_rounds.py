@@ -35,16 +35,16 @@ def fit_maps_rounds(photo_dir, manifest, medium, output, rounds: int, **kwargs) 
     medium's blur at the map before; returns the last run's :class:`~veil.maps.run.MapsRun`
     (its ``seconds["rounds"]``: every round's seconds) written to ``output``. The geometry
     and the medium are checked (:func:`veil.maps.blur.check_medium`) before the first map."""
-    from .blur import check_medium
+    from .blur import check_medium, media_of
     from .channels import map_media
     from .run import fit_maps
 
     rounds = check_rounds(rounds)
     say = kwargs.get("log") or (lambda message: None)
     output = Path(as_path(output, "output"))
-    media = map_media(medium, kwargs.get("channel", "gray"))
+    model, media = map_media(medium, kwargs.get("channel", "gray"))
     near = bool(kwargs.get("near_field")) and kwargs.get("geometry") is not None
-    check_medium(list(media[1].values()) if media[1] else [media[0]], near)
+    check_medium(media_of(media or model), near)
     prior = kwargs.pop("blur_from", None)
     given = prior
     cache: dict = {}

@@ -43,6 +43,11 @@ class Axis:
         c = np.linspace(float(self.coord(self.lo)), float(self.coord(self.hi)), self.count)
         return np.exp(c) if self.log else c
 
+    def grid(self, value) -> np.ndarray:
+        """Grid coordinate (0 .. count - 1 inside the table) of physical values; the
+        inverse of :meth:`physical`."""
+        return (np.asarray(self.coord(value)) - float(self.coord(self.lo))) / self.step
+
     def physical(self, u) -> np.ndarray | Array | float:
         """Physical value at grid coordinate ``u`` (0 .. count - 1); numpy or JAX."""
         c = float(self.coord(self.lo)) + u * self.step

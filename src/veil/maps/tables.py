@@ -132,7 +132,7 @@ class MapTables:
         """(M, q + 1) columns at physical values of the nonlinear parameters, by the
         spline (numpy; for checks); near-field tables at ``pixel`` (x, y) of the photo."""
         jnp = _jnp()
-        u = np.array([(a.coord(node_values[a.name]) - a.coord(a.lo)) / a.step for a in self.axes])
+        u = np.array([a.grid(node_values[a.name]) for a in self.axes])
         if self.near is None:
             b, _ = interp(jnp.asarray(self.coef), jnp.asarray(u), len(self.axes))
         else:
