@@ -271,11 +271,11 @@ def test_command_maps_outputs_and_resume(stack, tmp_path, monkeypatch):
     calls = []
     real = mr.solve_tile
 
-    def flaky(block, tables, store, iy, ix, tile, noise):
+    def flaky(block, tables, store, iy, ix, *rest):
         calls.append((iy, ix))
         if len(calls) > 3:
             raise KeyboardInterrupt
-        return real(block, tables, store, iy, ix, tile, noise)
+        return real(block, tables, store, iy, ix, *rest)
 
     monkeypatch.setattr(mr, "solve_tile", flaky)
     with pytest.raises(KeyboardInterrupt):

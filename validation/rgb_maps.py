@@ -161,11 +161,12 @@ def compare(store: str, truth: dict, channel: str = "rgb") -> dict:
     radius = np.hypot(x + 0.5 - c, y + 0.5 - c) * truth["pixel_pitch_cm"]
     rings = [(0.0, 1.0), (1.0, 2.0), (2.0, 4.0)]
 
-    def one(label, est, se, true):
+    def one(label, est, se, true, se_noise=None):
         est, se, true = (np.asarray(a, dtype=float) for a in (est, se, true))
         good = ok & (se > 0)
         z = (est - true) / np.where(good, se, 1.0)
-        rec = {
+        rec = {} if se_noise is None else noise_alone(est, np.asarray(se_noise), true, good)
+        rec |= {
             "param": label,
             "pixels": int(good.sum()),
             "within_3se": float(np.mean(np.abs(z[good]) <= 3)) if good.any() else math.nan,
@@ -192,16 +193,21 @@ def compare(store: str, truth: dict, channel: str = "rgb") -> dict:
     rows = []
     info = maps["info"]
     for ch in CHANNELS if channel == "rgb" else (channel,):
+        se_noise = None
         if channel != "rgb":  # a map of one channel: rho is its albedo
             k = names.index("rho")
             est, se = maps["params"][k], maps["stderr"][k]
+            if "stderr_noise" in maps:
+                se_noise = maps["stderr_noise"][k]
         elif "channel_params" in maps:  # (Q, C, H, W): per-channel parameters
             q, c = list(info["channel_params"]).index("rho"), list(info["channels"]).index(ch)
             est, se = maps["channel_params"][q, c], maps["channel_stderr"][q, c]
+            if "channel_stderr_noise" in maps:
+                se_noise = maps["channel_stderr_noise"][q, c]
         else:  # names like rho[r] in params
             k = names.index(next(n for n in names if re.fullmatch(rf"rho\[{ch}\]", n)))
             est, se = maps["params"][k], maps["stderr"][k]
-        rows.append(one(f"rho[{ch}]", est, se, np.asarray(truth["rho"][ch])))
+        rows.append(one(f"rho[{ch}]", est, se, np.asarray(truth["rho"][ch]), se_noise))
         tile = np.asarray(truth["tile"])
         rt = np.asarray(truth["rho"][ch])
         rows[-1]["_ratio_by_tile"] = {
@@ -237,6 +243,7 @@ def compare(store: str, truth: dict, channel: str = "rgb") -> dict:
             maps["params"][k],
             maps["stderr"][k],
             np.asarray(truth["alpha"]),
+            maps["stderr_noise"][k] if "stderr_noise" in maps else None,
         )
     )
     chi2 = np.asarray(maps["chi2_reduced"])[ok]
@@ -251,6 +258,16 @@ def compare(store: str, truth: dict, channel: str = "rgb") -> dict:
     }
 
 
+def noise_alone(est, se, true, good) -> dict:
+    """A store with the model's error (docs/maps-model-error.md): the share within 3 of
+    the standard errors of the noise alone and their median relative size."""
+    z = (est - true) / np.where(good & (se > 0), se, 1.0)
+    return {
+        "within_3se_noise": float(np.mean(np.abs(z[good]) <= 3)) if good.any() else math.nan,
+        "median_rel_se_noise": float(np.median(se[good] / true[good])),
+    }
+
+
 def _pct(x, d=0):
     return "-" if x is None or (isinstance(x, float) and math.isnan(x)) else f"{100 * x:.{d}f} %"
 
@@ -259,6 +276,7 @@ def table(res: dict) -> str:
     from doc_tables import markdown
 
     rows = []
+    noise = all("within_3se_noise" in r for r in res["rows"])
     for r in res["rows"]:
         rings = ", ".join(
             f"{g['ring_cm'][0]:g}-{g['ring_cm'][1]:g} cm: {_pct(g['within_3se'])} "
@@ -276,21 +294,19 @@ def table(res: dict) -> str:
                 _pct(r["median_rel_se"], 1),
                 rings,
             ]
+            + ([_pct(r["within_3se_noise"], 1), _pct(r["median_rel_se_noise"], 1)] if noise else [])
         )
-    return markdown(
-        [
-            "parameter",
-            "converged pixels",
-            "within 3 se",
-            "within 2 se",
-            "error / se: mean, sd",
-            "median \\|relative error\\|",
-            "median relative se",
-            "within 3 se (mean error / se) by distance from the centre",
-        ],
-        rows,
-        {1, 2, 3, 5, 6},
-    )
+    head = [
+        "parameter",
+        "converged pixels",
+        "within 3 se",
+        "within 2 se",
+        "error / se: mean, sd",
+        "median \\|relative error\\|",
+        "median relative se",
+        "within 3 se (mean error / se) by distance from the centre",
+    ] + (["within 3 se of the noise alone", "median relative se, noise alone"] if noise else [])
+    return markdown(head, rows, {1, 2, 3, 5, 6} | ({8, 9} if noise else set()))
 
 
 def rounds_table(rounds: list) -> str:
@@ -395,6 +411,13 @@ def main(argv=None) -> int:
         "medium is right (json and table names end in truth_medium; with --blur-rounds the "
         "table colour-maps-blur-truth-medium)",
     )
+    ap.add_argument(
+        "--model-error",
+        default="off",
+        choices=("off", "independent", "correlated"),
+        help="the last map with --model-error KIND (docs/maps-model-error.md): json and "
+        "table names end in model_error; the table gains the noise-only columns",
+    )
     ap.add_argument("extra", nargs="*", help="more options for veil fit maps (after --)")
     bv.add_doc_options(ap, "colour-maps")
     args = ap.parse_args(argv)
@@ -405,6 +428,7 @@ def main(argv=None) -> int:
         (args.per_channel, "_per_channel", "-per-channel"),
         (args.blur_rounds, "_blur", "-blur"),
         (args.truth_medium, "_truth_medium", "-truth-medium"),
+        (args.model_error != "off", "_model_error", "-model-error"),
     ]
     if args.json == JSON:
         args.json = JSON.replace(".json", "".join(j for on, j, _ in kinds if on) + ".json")
@@ -441,16 +465,19 @@ def main(argv=None) -> int:
                 # the channel's own for a map of one channel
                 rel = noise["all" if channel == "rgb" else channel]["median"]
                 res["noise_rel"][channel] = rel
-                cmd = command(truth, os.path.abspath(args.medium), store, rel, args.extra, channel)
+                last = ["--model-error", args.model_error] if args.model_error != "off" else []
+                rounds = args.blur_rounds if channel == "rgb" else 0
+                extra = [*args.extra, *(last if not rounds else [])]
+                cmd = command(truth, os.path.abspath(args.medium), store, rel, extra, channel)
                 code, seconds, _ = run_maps(cmd)
                 one = compare(store, truth, channel)
                 res["commands"].append(shown(cmd).replace(work, "OUT"))
                 if args.blur_rounds and channel == "rgb":
                     res["rounds"] = [dict(one, seconds=seconds, exit=code)]
-                for k in range(1, args.blur_rounds + 1 if channel == "rgb" else 1):
+                for k in range(1, rounds + 1):
                     prior, store = store, os.path.join(work, channel, f"maps-blur{k}.zarr")
                     shutil.rmtree(store, ignore_errors=True)
-                    extra = [*args.extra, "--blur-from", prior]
+                    extra = [*args.extra, "--blur-from", prior, *(last if k == rounds else [])]
                     cmd = command(truth, os.path.abspath(args.medium), store, rel, extra, channel)
                     code, more, _ = run_maps(cmd)
                     seconds += more

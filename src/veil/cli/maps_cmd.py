@@ -196,6 +196,16 @@ def _noise(text):
     "then N maps each from the photos corrected at the one before, the tables built once; "
     "-o gets the last (docs/maps-blur.md).",
 )
+@click.option(
+    "--model-error",
+    "model_error",
+    type=click.Choice(["off", "independent", "correlated"]),
+    default="off",
+    show_default=True,
+    help="Add the model's own error to each pixel's standard errors (weighted maps, "
+    "--noise): a relative error per pixel and channel from its residuals, 'correlated' "
+    "with a correlation length over the angles chosen per tile (docs/maps-model-error.md).",
+)
 @model_options()
 @click.pass_context
 def fit_maps_command(ctx, photo_dir, manifest, medium, output, models, **opts):
@@ -299,6 +309,7 @@ def _print_run(ctx, run) -> None:
                 f"    {name}: median {entry['median']:.6g} (5-95 %: {entry['p05']:.4g}"
                 f" .. {entry['p95']:.4g}), median stderr {entry['median_stderr']:.3g}"
             )
+    _print_model_error(run)
     for stage, sec in run.seconds.items():
         click.echo(f"    {stage}: {sec:.1f} s", err=True)
     if s["failed"]:
@@ -314,6 +325,36 @@ def _print_run(ctx, run) -> None:
             err=True,
         )
         ctx.exit(1)
+
+
+def _print_model_error(run) -> None:
+    """The model's error of the map, or, for a weighted map without it whose residuals
+    exceed the noise, that its standard errors count the noise alone."""
+    from ..fitting.model_error import chi2_threshold
+    from ..maps.store import store_info
+
+    s, info = run.summary, store_info(run.store) or {}
+    term = s.get("model_error")
+    if term:
+        for name, c in term["channels"].items():
+            lengths = ", ".join(f"{v:g}" for v in c["lengths"]) or "-"
+            click.echo(
+                f"    model error ({term['kind']}, {name}): on "
+                f"{100 * c['share_with_term']:.0f} % of the converged pixels, median s "
+                f"{c['median_sigma']:.3g}, ell {lengths} deg"
+            )
+        return
+    chi2 = s.get("chi2_reduced", {}).get("median")
+    points = int(info.get("photos", 0)) * max(1, len(info.get("channels") or ()))
+    dof = points - len(info.get("free") or ())
+    if info.get("weighted") and chi2 is not None and dof > 0 and chi2 > chi2_threshold(dof):
+        click.echo(
+            f"note: the reduced chi-square's median {chi2:.3g} is above "
+            f"{chi2_threshold(dof):.3g}: the model misses the data by more than the noise, "
+            f"and the standard errors count the noise alone; --model-error correlated adds "
+            f"the model's error (docs/maps-model-error.md)",
+            err=True,
+        )
 
 
 @click.group("maps")

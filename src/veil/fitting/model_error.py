@@ -203,10 +203,17 @@ def estimate(
             "the residuals exceed the noise where the model is zero: no relative "
             "model error explains them"
         )
+    best = min(_profile(r, a, dof, dist, lengths, weighted_jacobian), key=lambda t: t[0])
+    return min(best[1], MAX_SIGMA), best[2]
+
+
+def _profile(r, a, dof: int, dist, lengths, weighted_jacobian) -> list[tuple[float, float, float]]:
+    """(minus the restricted log-likelihood at its best s, that s, ell) for each ell of
+    ``lengths`` (:func:`estimate`'s likelihood, without its chi-square test)."""
     # s^2 a^2 of the order of the excess per point: search log s around it, wide
     guess = math.sqrt(max(float(r @ r) / dof - 1.0, 1e-6) / float(np.mean(a**2)))
     basis = _complement(weighted_jacobian, r.size)
-    best = None
+    out = []
     for length in lengths:
         if length == 0.0 and basis is None:
 
@@ -230,10 +237,25 @@ def estimate(
             method="bounded",
             options={"xatol": 1e-6},
         )
-        if best is None or found.fun < best[0]:
-            best = (float(found.fun), math.exp(float(found.x)), length)
-    assert best is not None  # lengths is never empty
-    return min(best[1], MAX_SIGMA), best[2]
+        out.append((float(found.fun), math.exp(float(found.x)), float(length)))
+    return out
+
+
+def length_profile(
+    residuals, scaled_values, dof: int, dist, lengths=LENGTHS, weighted_jacobian=None
+) -> np.ndarray | None:
+    """Minus the restricted log-likelihood of :func:`estimate` at its best s for each ell
+    of ``lengths`` (one fit's part of a likelihood summed over several fits that share ell:
+    the maps' pixels, docs/maps-model-error.md); None when the fit's reduced chi-square
+    does not show a model error (:func:`estimate` would give s = 0)."""
+    r = np.asarray(residuals, dtype=float)
+    a = np.asarray(scaled_values, dtype=float)
+    dof = int(dof)
+    if dof < 1 or r.size == 0 or not np.all(np.isfinite(r)) or not np.all(np.isfinite(a)):
+        return None
+    if float(r @ r) / dof <= chi2_threshold(dof) or not np.any(a != 0):
+        return None
+    return np.array([f for f, _, _ in _profile(r, a, dof, dist, lengths, weighted_jacobian)])
 
 
 def sandwich(
@@ -438,6 +460,7 @@ def step_term(
     kind: str = DEFAULT,
     weighted_jacobian=None,
     floor=None,
+    lengths=LENGTHS,
 ) -> ModelError:
     """The term of one step (module docstring): its own (s, ell) from ``residuals``
     (weighted), the model ``values``, the ``weights`` 1/sigma and the configurations'
@@ -447,9 +470,10 @@ def step_term(
     (s, ell) (``Model.MODEL_ERROR_FLOOR``): the term's s and ell are each at least the
     floor's (ell only when ``kind`` is "correlated"; source "model's floor" where its s
     decides). A shorter length with a larger s would average out over the configurations
-    and report less than the floor's own process."""
+    and report less than the floor's own process. ``lengths``: the ells a correlated term
+    chooses from (the maps give the one their tile chose)."""
     correlated = check_kind(kind) == "correlated"
-    lengths = LENGTHS if correlated else (0.0,)
+    lengths = lengths if correlated else (0.0,)
     own, length = estimate(
         residuals,
         np.asarray(values) * np.asarray(weights),
@@ -514,6 +538,7 @@ __all__ = [
     "distances",
     "correlation",
     "estimate",
+    "length_profile",
     "sandwich",
     "ModelError",
     "step_term",

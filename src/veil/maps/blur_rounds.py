@@ -68,6 +68,7 @@ def fit_maps_rounds(photo_dir, manifest, medium, output, rounds: int, **kwargs) 
                 record = f"round {k - 1} of {rounds} in this run" + (
                     f", from {given}" if given else ""
                 )
+            # the rounds before the last give their parameters only: no model error
             run = fit_maps(
                 photo_dir,
                 manifest,
@@ -76,7 +77,7 @@ def fit_maps_rounds(photo_dir, manifest, medium, output, rounds: int, **kwargs) 
                 blur_from=prior,
                 tables_cache=cache,
                 blur_record=record,
-                **kwargs,
+                **(kwargs if k == rounds else dict(kwargs, model_error="off")),
             )
             times.append(sum(run.seconds.values()))
             prior = target

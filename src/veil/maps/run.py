@@ -26,7 +26,9 @@ More arguments of :func:`fit_maps`:
   every photo (a dark frame). ``channel``, ``saturation``: as ``veil ingest``; ``channel``
   "rgb" or a tuple of channels maps every channel at once (docs/maps-channels.md).
 - ``noise``: None (unweighted fit, standard errors from the residuals) or (relative,
-  absolute): sigma = sqrt((relative * value)^2 + absolute^2) per sample.
+  absolute): sigma = sqrt((relative * value)^2 + absolute^2) per sample. ``model_error``
+  "off", "independent" or "correlated": the model's own error in the standard errors of
+  weighted maps (docs/maps-model-error.md).
 - ``tile``: tile size in pixels (memory is bounded by it). ``scheduler``: a
   dask.distributed address (default ``$VEIL_DASK_SCHEDULER``; none: local threads,
   ``workers``).
@@ -51,7 +53,7 @@ import time
 import warnings
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -60,7 +62,9 @@ import numpy as np
 from .._extras import require
 from ..data.ingest import IngestWarning
 from ..errors import InputError, as_flag
+from ..fitting.model_error import given_term
 from ..fitting.problem import check_accuracy
+from ..fitting.reported_uncertainty import model_floor
 from ..io import (
     COMMIT,
     as_path,
@@ -82,6 +86,7 @@ from .geometry_notes import (
     near_geometry,
 )
 from .grid import parse_grid
+from .model_error import Discrepancy, discrepancy
 from .photos import Acquisition, load_acquisition, stage
 from .solve import warm_up
 from .solve_channels import warm_up_channels
@@ -213,6 +218,7 @@ def fit_maps(
     blur_from=None,
     tables_cache: dict | None = None,
     blur_record: str | None = None,
+    model_error: str = "off",
 ) -> MapsRun:
     """Per-pixel step 2 (docs/maps.md): the target's BRDF at every pixel of the photos
     listed in ``manifest`` (as ``veil ingest`` reads it) through ``medium`` (a step-1
@@ -222,15 +228,15 @@ def fit_maps(
         at values, held parameters to fit (as :func:`veil.fit_target`).
     blur_from, blur_record, tables_cache : the medium's blur (docs/maps-blur.md;
         :func:`veil.maps.blur_rounds.fit_maps_rounds`).
-    The other arguments (the grid, the region and mask, black photos or frame, noise,
-    tiles and scheduler, geometry and near field, reports): the module docstring.
+    The other arguments (the grid, the region and mask, black photos or frame, noise and
+    model_error, tiles and scheduler, geometry and near field, reports): the module docstring.
     """
     check_accuracy(accuracy)
     near_field = as_flag(near_field, "near_field")
-    say = log or (lambda message: None)
-    tile, noise = _tile(tile), _noise(noise)
+    say, tile, noise = log or (lambda message: None), _tile(tile), _noise(noise)
     medium_model, media = map_media(medium, channel)  # media: {channel: medium} over channels
     cls = default_class("brdf") if brdf_model is None else model_class(brdf_model, "brdf")
+    setting = discrepancy(model_error, noise, model_floor(cls, medium_model), given_term(medium))
     grid_spec = parse_grid(grid, cls) if isinstance(grid, (list, tuple)) else dict(grid or {})
     output = _check_output(Path(as_path(output, "output")))
     acq = load_acquisition(
@@ -257,12 +263,12 @@ def fit_maps(
         tables = tables_of(media or medium_model)
         notes = geometry_notes_of(tables, cls, medium_model, acq, geometry)
         acq, blur = _blur(prior, media or medium_model, acq, tables, tables_of, seconds, say)
-        info = store_attributes(acq, tables, cls, noise, tile, accuracy, channel, geometry)
+        info = store_attributes(acq, tables, cls, noise, tile, accuracy, channel, geometry, setting)
         if blur is not None:
             info["blur_from"] = dict(blur, store=blur_record or blur["store"])
         _check_resumable(output, existing, info, (acq, tables, noise, tile))
         job = _Job(output, acq, tables, tile, noise, client, progress, workers, say, seconds, notes)
-        return _fill(job, info, existing)
+        return _fill(replace(job, setting=setting), info, existing)
 
 
 @contextmanager
@@ -369,8 +375,9 @@ def _check_resumable(output: Path, existing: dict | None, info: dict, inputs: tu
     raise InputError(
         f"{output} holds maps of another acquisition or other settings (its "
         f"photos' contents, manifest, medium, model, fixed parameters, grid, ROI, mask, "
-        f"noise, tile size or blur correction differ; a store written by a veil that "
-        f"compared photos by modification time also differs once a photo is touched); "
+        f"noise, tile size, blur correction or model error differ; a store written by a "
+        f"veil that compared photos by modification time also differs once a photo is "
+        f"touched); "
         f"give a new output path to start afresh, or the same inputs to resume it"
     )
 
@@ -402,6 +409,7 @@ class _Job:
     say: Callable[[str], None]
     seconds: dict
     notes: list
+    setting: Discrepancy | None = None
 
 
 #: Errors of the system while writing (no space, a quota, an I/O error, read-only).
@@ -484,9 +492,7 @@ def _solve(job: _Job, tiles) -> MapsRun:
             f"the {len(todo)} missing"
         )
     t0 = time.perf_counter()
-    counts = _compute(
-        output, job.tables, todo, job.tile, job.noise, job.client, job.progress, job.workers
-    )
+    counts = _compute(output, job, todo)
     job.seconds["solve"] = time.perf_counter() - t0
     missing = [t for t in tiles if not tile_marker(output, *t).is_file()]
     if missing:
@@ -508,7 +514,14 @@ def _solve(job: _Job, tiles) -> MapsRun:
     )
 
 
-def _compute(store, tables, todo, tile, noise, client, progress, workers):
+def _compute(store, job: _Job, todo):
+    tables, tile, noise, client, progress = (
+        job.tables,
+        job.tile,
+        job.noise,
+        job.client,
+        job.progress,
+    )
     dask = require("dask", "veil maps")
     da = require("dask.array", "veil maps")
     zarr = require("zarr", "a maps store")
@@ -538,6 +551,7 @@ def _compute(store, tables, todo, tile, noise, client, progress, workers):
             ix,
             tile,
             noise,
+            job.setting,
             dask_key_name=f"veil-maps-tile-{iy}-{ix}",
         )
         for iy, ix in todo
@@ -545,7 +559,7 @@ def _compute(store, tables, todo, tile, noise, client, progress, workers):
     results = (
         _run_distributed(client, tasks, progress)
         if client is not None
-        else _run_local(tasks, progress, workers)
+        else _run_local(tasks, progress, job.workers)
     )
     total = np.sum(results, axis=0)
     return {STATUS[k].split(" (")[0]: int(total[k]) for k in STATUS}

@@ -43,6 +43,11 @@ MAPS = ("params", "stderr", "chi2_reduced", "n_points", "status")
 #: The maps with a channel axis of a store over several channels (docs/maps-channels.md):
 #: the parameters declared per channel, (parameter, channel, y, x).
 CHANNEL_MAPS = ("channel_params", "channel_stderr")
+#: The maps of a store with the model's error (docs/maps-model-error.md): the relative
+#: error s and its correlation length ell per channel (channel or 1, y, x), the standard
+#: errors of the noise alone; over channels also those of the parameters per channel.
+ERROR_MAPS = ("model_error", "model_error_length", "stderr_noise")
+CHANNEL_ERROR_MAPS = ("channel_stderr_noise",)
 #: What status 1 means for a pixel inside the mask.
 FAILED_MASKED = "no usable photo (saturated or clipped in every photo)"
 LOCK_SUFFIX = ".veil-lock"
@@ -124,6 +129,10 @@ def create_store(
     if channels:
         per = (len(info["channel_params"]), channels)
         arrays += [(name, per, "float64") for name in CHANNEL_MAPS]
+    if info.get("model_error"):
+        arrays += [(name, _expected_shape(name, info)[:-2], "float64") for name in ERROR_MAPS]
+        if channels:
+            arrays += [("channel_stderr_noise", per, "float64")]
     for name, lead, dtype in arrays:
         group.create_array(
             name,
@@ -226,14 +235,21 @@ def store_lock(store, say=None) -> Iterator[None]:
 # --------------------------------------------------------------------------------------
 def _expected_shape(name: str, info: dict) -> tuple:
     h, w = info["shape"]
-    if name in CHANNEL_MAPS:
+    if name in CHANNEL_MAPS + CHANNEL_ERROR_MAPS:
         return (len(info["channel_params"]), len(info["channels"]), h, w)
-    return (len(info["params"]), h, w) if name in ("params", "stderr") else (h, w)
+    if name in ("model_error", "model_error_length"):
+        return (max(1, len(info.get("channels") or ())), h, w)
+    return (len(info["params"]), h, w) if name in ("params", "stderr", "stderr_noise") else (h, w)
 
 
 def map_names(info: dict) -> tuple:
-    """The arrays of a store: :data:`MAPS`, and :data:`CHANNEL_MAPS` over channels."""
-    return MAPS + (CHANNEL_MAPS if info.get("channels") else ())
+    """The arrays of a store: :data:`MAPS`, :data:`CHANNEL_MAPS` over channels, with the
+    model's error :data:`ERROR_MAPS` (and :data:`CHANNEL_ERROR_MAPS` over channels)."""
+    channels = bool(info.get("channels"))
+    names = MAPS + (CHANNEL_MAPS if channels else ())
+    if info.get("model_error"):
+        names += ERROR_MAPS + (CHANNEL_ERROR_MAPS if channels else ())
+    return names
 
 
 def _missing_chunks(arr, where: Path, limit: int = 3) -> list:
@@ -300,6 +316,9 @@ def _attribute_problem(info: dict) -> str | None:
         info.get("geometry") or {}, dict
     ):
         return "have units or a geometry that are not records"
+    term = info.get("model_error")
+    if term is not None and not (isinstance(term, dict) and isinstance(term.get("kind"), str)):
+        return "have a model error ('model_error') that is not a record with its kind"
     return None
 
 
@@ -441,7 +460,26 @@ def summarize_maps(store, maps: dict | None = None) -> dict:
     if ok.any():
         pct = np.percentile(maps["chi2_reduced"][ok], [5, 50, 95])
         out["chi2_reduced"] = {"p05": float(pct[0]), "median": float(pct[1]), "p95": float(pct[2])}
+    if info.get("model_error"):
+        out["model_error"] = _error_entry(maps, ok)
     return out
+
+
+def _error_entry(maps: dict, ok) -> dict:
+    """The summary of the model's error: its kind and, per channel, the share of converged
+    pixels with a term, the median s over those and the lengths ell used."""
+    info = maps["info"]
+    names = info.get("channels") or [info.get("channel", "gray")]
+    entry: dict = {"kind": info["model_error"]["kind"], "channels": {}}
+    for c, name in enumerate(names):
+        s, ell = maps["model_error"][c][ok], maps["model_error_length"][c][ok]
+        on = s > 0
+        entry["channels"][name] = {
+            "share_with_term": float(np.mean(on)) if s.size else 0.0,
+            "median_sigma": float(np.median(s[on])) if on.any() else 0.0,
+            "lengths": sorted({float(v) for v in ell[on]}),
+        }
+    return entry
 
 
 def _entry(info: dict, name: str, values, stderr, ok) -> dict:
@@ -480,6 +518,8 @@ __all__ = [
     "FORMAT",
     "MAPS",
     "CHANNEL_MAPS",
+    "ERROR_MAPS",
+    "CHANNEL_ERROR_MAPS",
     "map_names",
     "FAILED_MASKED",
     "StoreBusyError",

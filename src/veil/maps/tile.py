@@ -9,12 +9,14 @@ from __future__ import annotations
 
 import hashlib
 import os
+from typing import Any
 
 import numpy as np
 
 from .._extras import require
 from ..io import write_bytes_atomic
 from .geometry_notes import geometry_record
+from .model_error import with_term
 from .solve import solve_pixels
 from .solve_channels import solve_channel_pixels
 from .status import STATUS
@@ -22,9 +24,11 @@ from .store import FORMAT, tile_marker
 from .tables import MapTables
 
 
-def solve_tile(block, tables: MapTables, store, iy, ix, tile, noise) -> np.ndarray:
+def solve_tile(block, tables: MapTables, store, iy, ix, tile, noise, setting=None) -> np.ndarray:
     """One tile: (photos, th, tw) values ((channels, photos, th, tw) over channels) -> its
-    chunks of the maps, then its marker; the count of its pixels by status."""
+    chunks of the maps, then its marker; the count of its pixels by status. ``setting``:
+    the model's error to add to the standard errors
+    (:class:`veil.maps.model_error.Discrepancy`), or None."""
     zarr = require("zarr", "a maps store")
 
     block = np.asarray(block, dtype=np.float64)
@@ -34,22 +38,28 @@ def solve_tile(block, tables: MapTables, store, iy, ix, tile, noise) -> np.ndarr
     def array(name):  # every chunk written, also one of fill values (veil.maps.store)
         return group[name].with_config({"write_empty_chunks": True})
 
+    def put(name, values):  # (..., pixels) into the tile's chunk of a (..., h, w) map
+        array(name)[..., ys, xs] = values.reshape(values.shape[:-1] + (th, tw))
+
     ys, xs = slice(iy * tile, iy * tile + th), slice(ix * tile, ix * tile + tw)
+    res, noise_only, terms = _fits(block, tables, iy, ix, tile, noise, setting)
     if tables.channels:
-        res = _solve_channels(block, tables, iy, ix, tile, noise)
-        for name, values in (
-            ("channel_params", res.channel_params),
-            ("channel_stderr", res.channel_stderr),
-        ):
-            array(name)[:, :, ys, xs] = values.reshape(values.shape[:2] + (th, tw))
-    else:
-        res = _solve_one(block, tables, iy, ix, tile, noise)
-    n_par = res.params.shape[0]
-    array("params")[:, ys, xs] = res.params.reshape(n_par, th, tw)
-    array("stderr")[:, ys, xs] = res.stderr.reshape(n_par, th, tw)
-    array("chi2_reduced")[ys, xs] = res.chi2.reshape(th, tw)
-    array("n_points")[ys, xs] = res.n_points.reshape(th, tw)
-    array("status")[ys, xs] = res.status.reshape(th, tw)
+        put("channel_params", res.channel_params)
+        put("channel_stderr", res.channel_stderr)
+    for name, values in (
+        ("params", res.params),
+        ("stderr", res.stderr),
+        ("chi2_reduced", res.chi2),
+        ("n_points", res.n_points),
+        ("status", res.status),
+    ):
+        put(name, values)
+    if terms is not None:
+        put("model_error", terms[0])
+        put("model_error_length", terms[1])
+        put("stderr_noise", noise_only.stderr)
+        if tables.channels:
+            put("channel_stderr_noise", noise_only.channel_stderr)
     write_bytes_atomic(tile_marker(store, iy, ix), b"done\n")
     return np.bincount(res.status, minlength=len(STATUS))
 
@@ -64,38 +74,49 @@ def _tile_pixels(tables: MapTables, iy, ix, tile, th, tw):
     return ((x0 + ix * tile + cols).ravel(), (y0 + iy * tile + rows).ravel())
 
 
-def _solve_one(block, tables: MapTables, iy, ix, tile, noise):
-    """The pixels of a tile of one channel (:func:`veil.maps.solve.solve_pixels`)."""
-    m, th, tw = block.shape
-    y = block.reshape(m, th * tw).T
+def _fits(block, tables: MapTables, iy, ix, tile, noise, setting) -> tuple:
+    """The tile's pixels solved (:func:`veil.maps.solve.solve_pixels`, over channels
+    :func:`veil.maps.solve_channels.solve_channel_pixels`): (fits, None, None), or with a
+    ``setting`` (fits with the model's error, the fits without it, (s, ell) per channel
+    and pixel) (:func:`veil.maps.model_error.with_term`)."""
+    th, tw = block.shape[-2:]
+    solve: Any
+    if tables.channels:  # (pixels, channels, photos)
+        y = np.moveaxis(block.reshape(block.shape[0], block.shape[1], th * tw), -1, 0)
+        solve = solve_channel_pixels
+    else:  # (pixels, photos)
+        y = block.reshape(block.shape[0], th * tw).T
+        solve = solve_pixels
     valid = np.isfinite(y)
+    y = np.where(valid, y, 0.0)
     pixels = _tile_pixels(tables, iy, ix, tile, th, tw)
-    return solve_pixels(tables, np.where(valid, y, 0.0), valid, noise, pixels=pixels)
+    res = solve(tables, y, valid, noise, pixels=pixels)
+    if setting is None:
+        return res, None, None
+    with_error, sigma, length = with_term(tables, res, y, valid, noise, pixels, setting)
+    return with_error, res, (sigma, length)
 
 
-def _solve_channels(block, tables: MapTables, iy, ix, tile, noise):
-    """The pixels of a tile over channels (:func:`veil.maps.solve_channels.
-    solve_channel_pixels`)."""
-    c, m, th, tw = block.shape
-    y = np.moveaxis(block.reshape(c, m, th * tw), -1, 0)  # (pixels, channels, photos)
-    valid = np.isfinite(y)
-    pixels = _tile_pixels(tables, iy, ix, tile, th, tw)
-    return solve_channel_pixels(tables, np.where(valid, y, 0.0), valid, noise, pixels=pixels)
-
-
-def store_fingerprint(acq, tables: MapTables, noise, tile, legacy: bool = False) -> str:
+def store_fingerprint(
+    acq, tables: MapTables, noise, tile, legacy: bool = False, setting=None
+) -> str:
     """The digest of a store's inputs (its attribute ``fingerprint``): the acquisition's
     (:meth:`veil.maps.photos.Acquisition.fingerprint`, ``legacy`` as there), the tables',
-    the noise and the tile size."""
+    the noise, the tile size and the model's error (``setting``, when there is one)."""
     key = acq.fingerprint(legacy=legacy) + tables.fingerprint() + repr((noise, tile))
+    if setting is not None:
+        key += repr(setting)
     return hashlib.sha256(key.encode()).hexdigest()
 
 
-def store_attributes(acq, tables: MapTables, cls, noise, tile, accuracy, channel, geometry) -> dict:
+def store_attributes(
+    acq, tables: MapTables, cls, noise, tile, accuracy, channel, geometry, setting=None
+) -> dict:
     """The store's attributes (``veil_maps``), with the fingerprint of its inputs; over
     channels the parameters shared (``params``) and per channel (``channel_params``) and the
-    ``channels``."""
-    fingerprint = store_fingerprint(acq, tables, noise, tile)
+    ``channels``; with the model's error (``setting``) its kind, floor and given term
+    (``model_error``)."""
+    fingerprint = store_fingerprint(acq, tables, noise, tile, setting=setting)
     shape = (acq.roi.h, acq.roi.w)
     info = {
         "format": FORMAT,
@@ -130,6 +151,12 @@ def store_attributes(acq, tables: MapTables, cls, noise, tile, accuracy, channel
         info["params"] = [n for n in tables.names if sharing[n] == "shared"]
         info["channel_params"] = [n for n in tables.names if sharing[n] != "shared"]
         info["channels"] = list(tables.channels)
+    if setting is not None:
+        info["model_error"] = {
+            "kind": setting.kind,
+            "floor": None if setting.floor is None else list(setting.floor),
+            "given": [setting.given_sigma, setting.given_length],
+        }
     return info
 
 

@@ -1,0 +1,273 @@
+"""The model's own error in the maps (docs/maps-model-error.md): every converged pixel's
+standard errors with the relative model error its residuals show, channel by channel, as a
+single fit adds it (docs/uncertainty.md, "The model's own error";
+:mod:`veil.fitting.model_error`).
+
+For each pixel and channel c the model's values f (the tables at the pixel's solution) are
+off by s_c f d, d a Gaussian process over the configurations with correlation
+R = exp(-D / ell). s_c comes from the pixel's own residuals in that channel by the
+restricted likelihood (:func:`veil.fitting.model_error.step_term`, with its chi-square test:
+s_c = 0 where the residuals show no excess, the model's declared floor and the given
+medium's term as in step 2). ell is one number per tile and channel: the length of
+:data:`veil.fitting.model_error.LENGTHS` that maximizes the likelihood summed over up to
+:data:`SAMPLE` of the tile's converged pixels (each at its own best s), since one pixel's
+residuals say little about it. The covariance of the pixel's estimate becomes
+
+    C + sum_c s_c^2 (A_c J_w,c C)^T R_c (A_c J_w,c C),
+
+C the noise's covariance, J_w,c and A_c = diag(f / sigma) the channel's rows
+(:func:`veil.fitting.model_error.sandwich`): the channels' errors are independent of each
+other. The estimates do not move.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+import numpy as np
+
+from .._jax import jax, jnp
+from ..errors import InputError
+from ..fitting import least_squares as lsq
+from ..fitting.model_error import (
+    LENGTHS,
+    ModelError,
+    check_kind,
+    correlation,
+    distances,
+    length_profile,
+    sandwich,
+    step_term,
+)
+from .solve import _CALL_LOCK, BATCH, _PixelSolver, pixel_coords, weights
+from .solve_channels import _ChannelSolver
+from .status import CONVERGED
+from .tables import MapTables
+
+#: The converged pixels of a tile (evenly spaced among them) whose summed likelihood
+#: chooses the tile's correlation length in each channel.
+SAMPLE = 64
+_PROGRAMS: dict = {}
+
+
+@dataclass(frozen=True)
+class Discrepancy:
+    """What the maps' term is made of: ``kind`` ("independent" or "correlated"), the
+    models' declared ``floor`` (s, ell) or None, the given medium's term (``given_sigma``,
+    ``given_length``; 0 without one)."""
+
+    kind: str
+    floor: tuple | None = None
+    given_sigma: float = 0.0
+    given_length: float = 0.0
+
+
+def discrepancy(kind, noise, floor=None, given=None) -> Discrepancy | None:
+    """The maps' setting for ``kind`` (None for "off"): an InputError without ``noise``
+    (unweighted maps scale their errors by the residuals already); ``given`` the medium
+    result's :class:`~veil.fitting.model_error.ModelError` or None."""
+    kind = check_kind(kind) if kind is not None else "off"
+    if kind == "off":
+        return None
+    if noise is None:
+        raise InputError(
+            f"model error {kind!r} needs weighted maps (--noise REL): without the noise "
+            f"the standard errors are scaled by each pixel's residuals already"
+        )
+    return Discrepancy(
+        kind,
+        None if floor is None else (float(floor[0]), float(floor[1])),
+        0.0 if given is None else float(given.sigma),
+        0.0 if given is None else float(given.length),
+    )
+
+
+def _program(tables: MapTables):
+    """The jitted (values (N, C * M), compact Jacobian (N, C * M, q + d)) of the tables
+    at pixels' solver parameters, made once per shape."""
+    c, q, d = len(tables.channels), len(tables.free_scales), len(tables.axes)
+    sizes = tuple(a.count for a in tables.axes)
+    near = tables.near is not None
+    key = (c, q, d, sizes, near)
+    if key not in _PROGRAMS:
+        solver = (
+            _ChannelSolver(c, q, d, sizes, True, near)
+            if c
+            else _PixelSolver(q, d, sizes, True, near)
+        )
+
+        def columns(coef, fu, p):
+            return solver.columns(coef, fu, p[: solver.q], p[solver.q :])
+
+        _PROGRAMS[key] = jax.jit(jax.vmap(columns, in_axes=(None, 0 if near else None, 0)))
+    return _PROGRAMS[key]
+
+
+def _at_solution(tables: MapTables, fu, p, idx) -> tuple:
+    """(values (K, C * M), compact Jacobian (K, C * M, q + d)) of the pixels ``idx`` at
+    their parameters ``p``, in batches of the solve's size (one program whatever the
+    count; the last batch padded), one call at a time as the solve's."""
+    run, coef = _program(tables), jnp.asarray(tables.coef)
+    values, jacobians = [], []
+    for start in range(0, len(idx), BATCH):
+        part = idx[start : start + BATCH]
+        rows = np.concatenate([part, np.full(BATCH - len(part), part[0])])
+        with _CALL_LOCK:
+            v, j = run(coef, None if fu is None else jnp.asarray(fu[rows]), jnp.asarray(p[rows]))
+            values.append(np.asarray(v)[: len(part)])
+            jacobians.append(np.asarray(j)[: len(part)])
+    return np.concatenate(values), np.concatenate(jacobians)
+
+
+def _full_jacobian(compact: np.ndarray, channels: int, q: int) -> np.ndarray:
+    """(N, C * M, C * q + d) from the compact (N, C * M, q + d): each channel's rows have
+    its own scales' columns."""
+    n, rows, width = compact.shape
+    if channels <= 1:
+        return compact
+    m, d = rows // channels, width - q
+    full = np.zeros((n, rows, channels * q + d))
+    for c in range(channels):
+        full[:, c * m : (c + 1) * m, c * q : (c + 1) * q] = compact[:, c * m : (c + 1) * m, :q]
+    full[:, :, channels * q :] = compact[:, :, q:]
+    return full
+
+
+def _pixel_angles(tables: MapTables, pixels, i: int) -> tuple:
+    """The canonical angles of pixel ``i``'s configurations (near field: its own)."""
+    if tables.near is None:
+        return tuple(np.asarray(a, dtype=float) for a in tables.angles)
+    return tables.near.geometry.angles(tables.angles, pixels[0][i], pixels[1][i])
+
+
+def pixel_terms(tables: MapTables, y, w2, p, fu, pixels, ok, setting: Discrepancy) -> tuple:
+    """The term of every pixel (module docstring): (s (C', N), ell (C', N), standard
+    errors (N, n) of the solver's parameters with it), for ``y`` and ``w2`` (N, C * M)
+    the values and squared weights the solve used, ``p`` (N, n) its parameters in the
+    solver's coordinates, ``fu`` the near field's pixel coordinates (else None),
+    ``pixels`` their positions, ``ok`` the converged pixels; zeros elsewhere."""
+    channels, q = max(1, len(tables.channels)), len(tables.free_scales)
+    m = tables.n_configs
+    n_pix, n = p.shape
+    sigma, length = np.zeros((channels, n_pix)), np.zeros((channels, n_pix))
+    se = np.zeros((n_pix, n))
+    idx = np.flatnonzero(ok)
+    if not idx.size:
+        return sigma, length, se
+    f, compact = _at_solution(tables, fu, p, idx)
+    jac = _full_jacobian(compact, len(tables.channels), q)
+    w = np.sqrt(w2[idx])
+    r, a = (y[idx] - f) * w, f * w
+    jw = jac * w[:, :, None]
+    axes = list(range(channels * q, n))
+    parts = [
+        (slice(c * m, (c + 1) * m), list(range(c * q, (c + 1) * q)) + axes) for c in range(channels)
+    ]
+    ells = _tile_lengths(tables, pixels, idx, r, a, jw, w, parts, setting)
+    given = (
+        ModelError(setting.given_sigma, setting.given_length, setting.given_sigma, None, "", 0.0)
+        if setting.given_sigma > 0
+        else None
+    )
+    for k, i in enumerate(idx):
+        ang = _pixel_angles(tables, pixels, int(i))
+        dist = distances(ang)
+        cov, _ = lsq.covariance(jw[k], np)
+        total = cov
+        for c, (rows, cols) in enumerate(parts):
+            term = step_term(
+                r[k, rows],
+                f[k, rows],
+                w[k, rows],
+                int(np.count_nonzero(w[k, rows])) - len(cols),
+                ang,
+                given=given,
+                kind=setting.kind,
+                weighted_jacobian=jw[k, rows][:, cols],
+                floor=setting.floor,
+                lengths=(ells[c],),
+            )
+            sigma[c, i], length[c, i] = term.sigma, term.length
+            if term.sigma > 0:
+                corr = None if term.length == 0 else correlation(dist, term.length)
+                total = total + (sandwich(cov, jw[k, rows], a[k, rows], term.sigma, corr) - cov)
+        se[i] = np.sqrt(np.maximum(np.diag(total), 0.0))
+    return sigma, length, se
+
+
+def _tile_lengths(tables, pixels, idx, r, a, jw, w, parts, setting: Discrepancy) -> list:
+    """Each channel's ell for the tile: 0 for an independent term, else the length whose
+    likelihood summed over up to :data:`SAMPLE` converged pixels (evenly spaced) is the
+    largest (:data:`~veil.fitting.model_error.LENGTHS`; the first when no sampled pixel
+    shows an excess)."""
+    if setting.kind != "correlated":
+        return [0.0] * len(parts)
+    sample = np.unique(np.linspace(0, len(idx) - 1, min(SAMPLE, len(idx))).round().astype(int))
+    totals = [np.zeros(len(LENGTHS)) for _ in parts]
+    for k in sample:
+        dist = distances(_pixel_angles(tables, pixels, int(idx[k])))
+        for c, (rows, cols) in enumerate(parts):
+            dof = int(np.count_nonzero(w[k, rows])) - len(cols)
+            nll = length_profile(r[k, rows], a[k, rows], dof, dist, LENGTHS, jw[k, rows][:, cols])
+            if nll is not None:
+                totals[c] += nll
+    return [float(LENGTHS[int(np.argmin(t))]) for t in totals]
+
+
+def solver_parameters(tables: MapTables, fits) -> np.ndarray:
+    """(N, n) the solver's parameters of a tile's fits (:class:`veil.maps.solve.PixelFits`
+    or :class:`veil.maps.solve_channels.ChannelFits`): the scales, channel after channel,
+    then the axes' grid coordinates."""
+    if tables.channels:
+        per, shared = list(fits.per_channel), list(fits.shared)
+        scales = [
+            fits.channel_params[per.index(i), c]
+            for c in range(len(tables.channels))
+            for i in tables.free_scales
+        ]
+        axes = [a.grid(fits.params[shared.index(a.index)]) for a in tables.axes]
+    else:
+        scales = [fits.params[i] for i in tables.free_scales]
+        axes = [a.grid(fits.params[a.index]) for a in tables.axes]
+    return np.stack(scales + axes, axis=1)
+
+
+def with_term(tables: MapTables, fits, y, valid, noise, pixels, setting: Discrepancy) -> tuple:
+    """(``fits`` with every converged pixel's standard errors including its term, where it
+    has one; s (C', N); ell (C', N)), ``y`` and ``valid`` a tile's values as its solve
+    took them ((N, M), over channels (N, C, M)), ``pixels`` their positions (near field)."""
+    n_pix = len(fits.status)
+    flat = (n_pix * len(tables.channels), -1) if tables.channels else (n_pix, -1)
+    yf, _, w2 = weights(tables, np.reshape(y, flat), np.reshape(valid, flat), noise)
+    fu = pixel_coords(tables, pixels, n_pix)
+    ok = fits.status == CONVERGED
+    p = solver_parameters(tables, fits)
+    sigma, length, se = pixel_terms(
+        tables, yf.reshape(n_pix, -1), w2.reshape(n_pix, -1), p, fu, pixels, ok, setting
+    )
+    moved = ok & np.any(sigma > 0, axis=0)
+    q = len(tables.free_scales)
+    stderr = np.array(fits.stderr, copy=True)
+    if tables.channels:
+        per, shared = list(fits.per_channel), list(fits.shared)
+        channel_stderr = np.array(fits.channel_stderr, copy=True)
+        for c in range(len(tables.channels)):
+            for k, i in enumerate(tables.free_scales):
+                channel_stderr[per.index(i), c, moved] = se[moved, c * q + k]
+        rows = [shared.index(a.index) for a in tables.axes]
+        first = len(tables.channels) * q
+    else:
+        for k, i in enumerate(tables.free_scales):
+            stderr[i, moved] = se[moved, k]
+        rows, first = [a.index for a in tables.axes], q
+    for k, (row, a) in enumerate(zip(rows, tables.axes)):
+        phys = fits.params[row, moved]
+        stderr[row, moved] = se[moved, first + k] * a.step * (phys if a.log else 1.0)
+    out = dataclasses.replace(fits, stderr=stderr)
+    if tables.channels:
+        out = dataclasses.replace(out, channel_stderr=channel_stderr)
+    return out, sigma, length
+
+
+__all__ = ["SAMPLE", "Discrepancy", "discrepancy", "pixel_terms", "solver_parameters", "with_term"]
