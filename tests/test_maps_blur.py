@@ -251,6 +251,27 @@ def test_prior_of_another_region_exits_2(small_stack, tmp_path):
     assert not out.exists()
 
 
+def test_the_priors_manifest_by_another_path_is_the_same(tmp_path, monkeypatch):
+    """A prior map whose manifest was given as an absolute path, refitted with the same
+    manifest by a relative one (or through a symbolic link): accepted; another file of the
+    same name elsewhere: refused, naming both."""
+    from veil.errors import InputError
+    from veil.maps.blur import _same
+
+    (tmp_path / "a").mkdir()
+    (tmp_path / "a" / "manifest.csv").write_text("file,psi,rho\n")
+    (tmp_path / "link").symlink_to(tmp_path / "a")
+    monkeypatch.chdir(tmp_path)
+    stored = {"manifest": str(tmp_path / "a" / "manifest.csv"), "photos": 3}
+    _same("prior.zarr", stored, {"manifest": "a/manifest.csv", "photos": 3})
+    _same("prior.zarr", stored, {"manifest": "link/manifest.csv", "photos": 3})
+    with pytest.raises(InputError, match="manifest") as err:
+        _same("prior.zarr", stored, {"manifest": "b/manifest.csv", "photos": 3})
+    assert "'b/manifest.csv'" in str(err.value) and str(tmp_path / "a") in str(err.value)
+    with pytest.raises(InputError, match="photos"):
+        _same("prior.zarr", stored, {"manifest": "a/manifest.csv", "photos": 4})
+
+
 def test_region_short_of_the_plate_and_rounds_checked_first(small_stack, tmp_path):
     """A region that leaves part of the plate out (2,2,4,4 of a plate over pixels 1 to 7):
     exit 2 naming the plate's pixels, before any table. --blur-rounds without the near

@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
 import time
 from typing import Any
 
@@ -240,8 +241,15 @@ def check_prior(prior, maps: dict, tables) -> None:
 
 
 def _same(prior, info: dict, mine: dict) -> None:
+    """An InputError naming the first of ``mine`` that the prior map's ``info`` differs in
+    (a manifest the same file by another path is the same)."""
     for key in mine:
-        if mine[key] != info.get(key):
+        theirs = info.get(key)
+        if key == "manifest" and isinstance(theirs, str):
+            same = os.path.realpath(theirs) == os.path.realpath(mine[key])
+        else:
+            same = mine[key] == theirs
+        if not same:
             raise InputError(
                 f"--blur-from {prior}: that map's {key} is {info.get(key)!r}, this one's "
                 f"{mine[key]!r}; give a map of the same photos, region, family, free "
