@@ -370,7 +370,8 @@ def _check_resumable(output: Path, existing: dict | None, info: dict, inputs: tu
     if stored == info["fingerprint"]:
         return
     acq, tables, noise, tile = inputs
-    if stored is not None and stored == store_fingerprint(acq, tables, noise, tile, legacy=True):
+    legacy = store_fingerprint(acq, tables, noise, tile, legacy=True)
+    if stored is not None and "model_error" not in info and stored == legacy:  # no term then
         return
     raise InputError(
         f"{output} holds maps of another acquisition or other settings (its "
