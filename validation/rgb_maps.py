@@ -416,7 +416,8 @@ def main(argv=None) -> int:
         default="off",
         choices=("off", "independent", "correlated"),
         help="the last map with --model-error KIND (docs/maps-model-error.md): json and "
-        "table names end in model_error; the table gains the noise-only columns",
+        "table names end in model_error (with --blur-rounds the table "
+        "colour-maps-blur-model-error); the table gains the noise-only columns",
     )
     ap.add_argument("extra", nargs="*", help="more options for veil fit maps (after --)")
     bv.add_doc_options(ap, "colour-maps")
