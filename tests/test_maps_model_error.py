@@ -568,3 +568,29 @@ def test_an_interrupted_map_with_a_term_resumes_to_the_same_bits(grey, erred_cor
         chunk.unlink()
         with pytest.raises(DamagedStoreError, match=name):
             open_maps(damaged)
+
+
+def test_the_term_is_exported_and_drawn(erred_correlated, erred_off, tmp_path):
+    """`veil maps export` writes the relative error s and each free parameter's noise-only
+    standard errors beside the others (those of a map without a term: not written); the
+    figure has a panel of s, NaN where a pixel did not converge."""
+    from veil.maps.show import _panels, export_maps, maps_figure
+
+    out, maps = erred_correlated
+    ok = maps["status"] == CONVERGED
+    written = {p.name for p in export_maps(out, tmp_path / "exp", formats=("tiff",))}
+    s = tifffile.imread(tmp_path / "exp" / "model_error.tif")
+    assert np.array_equal(s, np.where(ok, maps["model_error"][0], 0.0).astype(np.float32))
+    for k in FREE:
+        noise = tifffile.imread(tmp_path / "exp" / f"{NAMES[k]}_stderr_noise.tif")
+        want = np.where(ok, maps["stderr_noise"][k], 0.0).astype(np.float32)
+        assert np.array_equal(noise, want), NAMES[k]
+        with_term = tifffile.imread(tmp_path / "exp" / f"{NAMES[k]}_stderr.tif")
+        assert np.all(with_term[ok] >= noise[ok]) and np.any(with_term[ok] > noise[ok])
+    plain = {p.name for p in export_maps(erred_off[0], tmp_path / "plain", formats=("tiff",))}
+    assert written - plain == {"model_error.tif"} | {f"{NAMES[k]}_stderr_noise.tif" for k in FREE}
+    [(title, image, _, _)] = [p for p in _panels(maps) if p[0].startswith("model error")]
+    assert title == "model error s"
+    assert np.array_equal(image[ok], maps["model_error"][0][ok]) and np.all(np.isnan(image[~ok]))
+    assert not [p for p in _panels(erred_off[1]) if p[0].startswith("model error")]
+    assert maps_figure(out, tmp_path / "maps.png").stat().st_size > 0

@@ -43,6 +43,12 @@ def _panels(maps):
     out.append(
         ("reduced chi-square" if info.get("weighted") else "residual variance", chi, label, False)
     )
+    if "model_error" in maps:  # docs/maps-model-error.md: s per channel
+        names = info.get("channels") or [""]
+        for j, c in enumerate(names):
+            title = f"model error s[{c}]" if c else "model error s"
+            image = np.where(ok, maps["model_error"][j], np.nan)
+            out.append((title, image, "relative model error s", False))
     return out
 
 
@@ -184,7 +190,8 @@ def _tiff_bytes(image: np.ndarray, channels=()) -> bytes:
 def export_maps(store, folder, formats=FORMATS) -> list[Path]:
     """Every map of a complete store as float32 images (``formats``: tiff, exr) in
     ``folder``: NAME, NAME_stderr for each free parameter, chi2_reduced, status (0 =
-    converged; docs/maps.md), plus summary.json. Unconverged pixels hold 0 in the value
+    converged; docs/maps.md), plus summary.json; with the model's error also model_error
+    and NAME_stderr_noise. Unconverged pixels hold 0 in the value
     maps; the status map says which. A parameter per channel of a map over channels is one
     image of every channel: RGB (EXR channels R, G, B; an RGB TIFF)."""
     bad = [f for f in formats if f not in FORMATS]
@@ -208,6 +215,8 @@ def export_maps(store, folder, formats=FORMATS) -> list[Path]:
             images[f"{name}_stderr"] = (np.where(ok, maps["channel_stderr"][k], 0.0), channels)
     images["chi2_reduced"] = (maps["chi2_reduced"], ())
     images["status"] = (maps["status"].astype(np.float32), ())
+    if "model_error" in maps:
+        images.update(_error_images(maps, ok))
 
     def file(name, fmt):
         return f"{name}.{'tif' if fmt == 'tiff' else 'exr'}"
@@ -230,6 +239,24 @@ def export_maps(store, folder, formats=FORMATS) -> list[Path]:
             staging / "summary.json", json.dumps(summarize_maps(store, maps), indent=2) + "\n"
         )
     return [folder / n for n in names]
+
+
+def _error_images(maps: dict, ok) -> dict:
+    """A store with the model's error (docs/maps-model-error.md): ``model_error`` (s; RGB
+    over channels) and NAME_stderr_noise, the standard errors of the noise alone, for each
+    free parameter."""
+    info = maps["info"]
+    channels = tuple(info.get("channels") or ())
+    s = maps["model_error"] if channels else maps["model_error"][0]
+    images = {"model_error": (np.where(ok, s, 0.0), channels)}
+    for k, name in enumerate(info["params"]):
+        if name in info["free"]:
+            images[f"{name}_stderr_noise"] = (np.where(ok, maps["stderr_noise"][k], 0.0), ())
+    for k, name in enumerate(info.get("channel_params") or ()):
+        if name in info["free"]:
+            noise = np.where(ok, maps["channel_stderr_noise"][k], 0.0)
+            images[f"{name}_stderr_noise"] = (noise, channels)
+    return images
 
 
 __all__ = ["maps_figure", "export_maps", "FORMATS"]
