@@ -144,15 +144,23 @@ def _option_flag(name: str) -> str:
     return "--" + name.replace("_", "-")
 
 
-# the kinds and default of veil.fitting.model_error (KINDS, DEFAULT; not imported: help
-# stays free of the fitting stack; tests/test_model_error.py checks they agree)
-model_error_option = click.option(
-    "--model-error",
-    "model_error",
-    type=click.Choice(["off", "independent", "correlated"]),
-    default="correlated",
-    show_default=True,
-    help="The model-discrepancy term of a weighted fit whose reduced chi-square exceeds "
+def model_error_choice(default: str, help: str):
+    """``--model-error`` over the kinds of veil.fitting.model_error (KINDS; not imported:
+    help stays free of the fitting stack; tests/test_model_error.py checks they agree)."""
+    return click.option(
+        "--model-error",
+        "model_error",
+        type=click.Choice(["off", "independent", "correlated"]),
+        default=default,
+        show_default=True,
+        help=help,
+    )
+
+
+# the fits' default is veil.fitting.model_error.DEFAULT (checked as above)
+model_error_option = model_error_choice(
+    "correlated",
+    "The model-discrepancy term of a weighted fit whose reduced chi-square exceeds "
     "1 + 2 sqrt(2/dof): a relative model error estimated from the residuals and added "
     "to the covariance (the estimates are not moved); 'correlated' lets the likelihood "
     "choose a correlation length over the angles (docs/validity.md), 'independent' "

@@ -27,6 +27,7 @@ from ._common import (
     parse_fix,
     photo_channel_option,
 )
+from ._model_options import model_error_choice
 
 ROI_HELP = "X,Y,W,H in pixels (x to the right, y down, origin top-left)"
 
@@ -196,13 +197,9 @@ def _noise(text):
     "then N maps each from the photos corrected at the one before, the tables built once; "
     "-o gets the last (docs/maps-blur.md).",
 )
-@click.option(
-    "--model-error",
-    "model_error",
-    type=click.Choice(["off", "independent", "correlated"]),
-    default="off",
-    show_default=True,
-    help="Add the model's own error to each pixel's standard errors (weighted maps, "
+@model_error_choice(
+    "off",
+    "Add the model's own error to each pixel's standard errors (weighted maps, "
     "--noise): a relative error per pixel and channel from its residuals, 'correlated' "
     "with a correlation length over the angles chosen per tile (docs/maps-model-error.md).",
 )
