@@ -93,7 +93,7 @@ def covered(tables, fits, p) -> float:
         scale_se = [fits.stderr[i] for i in tables.free_scales]
         rows = [a.index for a in tables.axes]
     axis_se = [
-        fits.stderr[r] / (a.step * (fits.params[r] if a.log else 1.0))
+        fits.stderr[r] / a.physical_stderr(1.0, fits.params[r])
         for r, a in zip(rows, tables.axes)
     ]
     se = np.stack(scale_se + axis_se, axis=1)

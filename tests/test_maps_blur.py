@@ -251,6 +251,18 @@ def test_prior_of_another_region_exits_2(small_stack, tmp_path):
     assert not out.exists()
 
 
+def test_blur_rounds_check_the_last_rounds_model_error_first(small_stack, tmp_path):
+    """--blur-rounds with --model-error but no --noise: refused (exit 2) before the first
+    round's tables, not after every round but the last."""
+    root, manifest, _ = small_stack
+    out = tmp_path / "rounds.zarr"
+    result = run(*maps_args(root, manifest, out, FORWARD, *NEAR, "--blur-rounds", 2,
+                            "--model-error", "correlated"))
+    assert result.exit_code == 2, result.output
+    assert "--noise" in result.output and "tables" not in result.output, result.output
+    assert not out.exists()
+
+
 def test_the_priors_manifest_by_another_path_is_the_same(tmp_path, monkeypatch):
     """A prior map whose manifest was given as an absolute path, refitted with the same
     manifest by a relative one (or through a symbolic link): accepted; another file of the

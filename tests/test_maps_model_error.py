@@ -594,3 +594,21 @@ def test_the_term_is_exported_and_drawn(erred_correlated, erred_off, tmp_path):
     assert np.array_equal(image[ok], maps["model_error"][0][ok]) and np.all(np.isnan(image[~ok]))
     assert not [p for p in _panels(erred_off[1]) if p[0].startswith("model error")]
     assert maps_figure(out, tmp_path / "maps.png").stat().st_size > 0
+
+
+def test_an_independent_term_takes_no_length_from_a_correlated_given_one():
+    """step_term with kind "independent" and a given medium's correlated term larger than
+    its own: the given s, and ell 0 (the kind's promise), where a correlated kind keeps the
+    given length."""
+    rng = np.random.default_rng(3)
+    angles = angles_of(_configs())
+    m = len(angles[0])
+    values = np.ones(m)
+    residuals = 0.2 * rng.standard_normal(m)  # no excess: the own s is 0
+    given = me.ModelError(0.05, 40.0, 0.05, None, "own residuals", 1.2)
+    term = me.step_term(residuals, values, 1 / NOISE * values, m - 3, angles, given=given,
+                        kind="independent")
+    assert (term.sigma, term.length, term.source) == (0.05, 0.0, "given medium")
+    term = me.step_term(residuals, values, 1 / NOISE * values, m - 3, angles, given=given,
+                        kind="correlated")
+    assert (term.sigma, term.length) == (0.05, 40.0)

@@ -247,7 +247,7 @@ def compare(store: str, truth: dict, channel: str = "rgb") -> dict:
         )
     )
     chi2 = np.asarray(maps["chi2_reduced"])[ok]
-    return {
+    out = {
         "rows": rows,
         "tiles": tiles,
         "params": names,
@@ -256,6 +256,16 @@ def compare(store: str, truth: dict, channel: str = "rgb") -> dict:
         "status_counts": {int(s): int((status == s).sum()) for s in np.unique(status)},
         "chi2_median": float(np.median(chi2)) if chi2.size else math.nan,
     }
+    if "model_error" in maps:  # docs/maps-model-error.md: the summary, s per tile
+        from veil.maps.store import summarize_maps
+
+        out["model_error"] = summarize_maps(store, maps)["model_error"]
+        chans = list(info.get("channels") or [channel])
+        for rec in tiles:
+            m = ok & (tile == rec["tile"])
+            for c, ch in enumerate(chans):
+                rec[f"s_median[{ch}]"] = float(np.median(maps["model_error"][c][m]))
+    return out
 
 
 def noise_alone(est, se, true, good) -> dict:
@@ -368,7 +378,29 @@ def summary(res: dict) -> list[str]:
         "- within 3 standard errors on at least 95 % of the converged pixels: "
         + ("every parameter" if not bad else "not " + ", ".join(bad)),
         f"- `veil fit maps` took {res['seconds']:.0f} s wall (exit status {res['exit']})",
-    ]
+    ] + model_error_notes(res)
+
+
+def model_error_notes(res: dict) -> list[str]:
+    """The last map's model error (docs/maps-model-error.md): per channel the median s and
+    the lengths, and the tiles of the largest and smallest median s in each channel."""
+    last = (res.get("rounds") or [res])[-1]
+    term = last.get("model_error")
+    if not term:
+        return []
+    notes = []
+    for ch, c in term["channels"].items():
+        key = f"s_median[{ch}]"
+        tiles = sorted(last["tiles"], key=lambda t: t[key])
+        lo, hi = tiles[0], tiles[-1]
+        notes.append(
+            f"- the model's error in {ch}: median s {c['median_sigma']:.3g} over the pixels "
+            f"with a term ({100 * c['share_with_term']:.0f} %), lengths "
+            + ", ".join(f"{v:g}" for v in c["lengths"])
+            + f" deg; by tile from {lo[key]:.3g} (true albedo {lo[f'rho_true[{ch}]']:.2f}) to "
+            f"{hi[key]:.3g} (true albedo {hi[f'rho_true[{ch}]']:.2f})"
+        )
+    return notes
 
 
 def main(argv=None) -> int:
@@ -486,10 +518,14 @@ def main(argv=None) -> int:
                     res["rounds"].append(dict(one, seconds=more, exit=code))
                     res["commands"].append(shown(cmd).replace(work, "OUT"))
                 res["rows"] += one["rows"]
+                if "model_error" in one:
+                    res["model_error"] = one["model_error"]
                 for t, rec in enumerate(one["tiles"]):
                     if len(res["tiles"]) <= t:
                         res["tiles"].append({"tile": t, "alpha_true": rec["alpha_true"]})
-                    res["tiles"][t].update({k: v for k, v in rec.items() if k.startswith("rho_")})
+                    res["tiles"][t].update(
+                        {k: v for k, v in rec.items() if k.startswith(("rho_", "s_median"))}
+                    )
                     res["tiles"][t][f"alpha_ratio ({channel})"] = rec["alpha_ratio"]
                 res["converged"] += one["converged"]
                 res["pixels"] += one["pixels"]

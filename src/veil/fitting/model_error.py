@@ -461,6 +461,7 @@ def step_term(
     weighted_jacobian=None,
     floor=None,
     lengths=LENGTHS,
+    dist=None,
 ) -> ModelError:
     """The term of one step (module docstring): its own (s, ell) from ``residuals``
     (weighted), the model ``values``, the ``weights`` 1/sigma and the configurations'
@@ -471,20 +472,21 @@ def step_term(
     floor's (ell only when ``kind`` is "correlated"; source "model's floor" where its s
     decides). A shorter length with a larger s would average out over the configurations
     and report less than the floor's own process. ``lengths``: the ells a correlated term
-    chooses from (the maps give the one their tile chose)."""
+    chooses from (the maps give the one their tile chose); ``dist``: the configurations'
+    distances (or a callable returning them) when the caller has them."""
     correlated = check_kind(kind) == "correlated"
     lengths = lengths if correlated else (0.0,)
     own, length = estimate(
         residuals,
         np.asarray(values) * np.asarray(weights),
         dof,
-        lambda: distances(angles),
+        (lambda: distances(angles)) if dist is None else dist,
         lengths,
         weighted_jacobian,
     )
     sigma, source = own, "own residuals" if own > 0 else "none"
-    if given is not None and given.sigma > own:
-        sigma, length, source = given.sigma, given.length, "given medium"
+    if given is not None and given.sigma > own:  # its length only for a correlated term
+        sigma, length, source = given.sigma, given.length if correlated else 0.0, "given medium"
     if floor is not None:
         floor_sigma, floor_length = float(floor[0]), (float(floor[1]) if correlated else 0.0)
         if floor_sigma > sigma:

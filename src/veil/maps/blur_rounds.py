@@ -37,7 +37,8 @@ def fit_maps_rounds(photo_dir, manifest, medium, output, rounds: int, **kwargs) 
     and the medium are checked (:func:`veil.maps.blur.check_medium`) before the first map."""
     from .blur import check_medium, media_of
     from .channels import map_media
-    from .run import fit_maps
+    from .model_error import discrepancy
+    from .run import check_noise, fit_maps
 
     rounds = check_rounds(rounds)
     say = kwargs.get("log") or (lambda message: None)
@@ -45,6 +46,8 @@ def fit_maps_rounds(photo_dir, manifest, medium, output, rounds: int, **kwargs) 
     model, media = map_media(medium, kwargs.get("channel", "gray"))
     near = bool(kwargs.get("near_field")) and kwargs.get("geometry") is not None
     check_medium(media_of(media or model), near)
+    # the last round's model error, checked before the first round
+    discrepancy(kwargs.get("model_error", "off"), check_noise(kwargs.get("noise")))
     prior = kwargs.pop("blur_from", None)
     given = prior
     cache: dict = {}

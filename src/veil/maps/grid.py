@@ -55,6 +55,11 @@ class Axis:
             return np.exp(c) if isinstance(c, (float, np.ndarray)) else _jnp().exp(c)
         return c
 
+    def physical_stderr(self, se_u, value):
+        """The standard error of the physical value ``value`` from ``se_u``, that of its
+        grid coordinate (first order: d value / du = step, times the value on a log axis)."""
+        return se_u * self.step * (value if self.log else 1.0)
+
     def describe(self) -> str:
         kind = "log-spaced" if self.log else "evenly spaced"
         return f"{self.name} {self.lo:.6g}..{self.hi:.6g} ({self.count} nodes, {kind})"

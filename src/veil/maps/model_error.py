@@ -23,17 +23,21 @@ other. The estimates do not move.
 from __future__ import annotations
 
 import dataclasses
+import threading
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 import numpy as np
 
 from .._jax import jax, jnp
-from ..errors import InputError
+from ..errors import FitError, InputError
 from ..fitting import least_squares as lsq
 from ..fitting.model_error import (
     LENGTHS,
     ModelError,
     check_kind,
+    chi2_threshold,
     correlation,
     distances,
     length_profile,
@@ -49,6 +53,32 @@ from .tables import MapTables
 #: chooses the tile's correlation length in each channel.
 SAMPLE = 64
 _PROGRAMS: dict = {}
+#: Tiles inside :func:`one_blas_thread` and the limit they share (the limit is the
+#: process's, not a thread's: set by the first tile in, restored by the last out).
+_BLAS = threading.Lock()
+_INSIDE: list = [0, None]
+
+
+@contextmanager
+def one_blas_thread() -> Iterator[None]:
+    """One BLAS thread while the terms are computed: their matrices are of the size of a
+    pixel's configurations, where OpenBLAS's threads cost more than they give (an
+    eigendecomposition of 108 x 108: 1.3 ms on one thread, 8.8 ms on two beside other
+    work; benchmarks/bench_maps_model_error.py), and tiles run side by side on threads."""
+    from threadpoolctl import threadpool_limits
+
+    with _BLAS:
+        if _INSIDE[0] == 0:
+            _INSIDE[1] = threadpool_limits(limits=1, user_api="blas")
+        _INSIDE[0] += 1
+    try:
+        yield
+    finally:
+        with _BLAS:
+            _INSIDE[0] -= 1
+            if _INSIDE[0] == 0:
+                _INSIDE[1].restore_original_limits()
+                _INSIDE[1] = None
 
 
 @dataclass(frozen=True)
@@ -67,7 +97,10 @@ def discrepancy(kind, noise, floor=None, given=None) -> Discrepancy | None:
     """The maps' setting for ``kind`` (None for "off"): an InputError without ``noise``
     (unweighted maps scale their errors by the residuals already); ``given`` the medium
     result's :class:`~veil.fitting.model_error.ModelError` or None."""
-    kind = check_kind(kind) if kind is not None else "off"
+    try:
+        kind = check_kind(kind) if kind is not None else "off"
+    except FitError as exc:
+        raise InputError(str(exc)) from None
     if kind == "off":
         return None
     if noise is None:
@@ -83,6 +116,25 @@ def discrepancy(kind, noise, floor=None, given=None) -> Discrepancy | None:
     )
 
 
+def record(setting: Discrepancy) -> dict:
+    """The store's record of ``setting`` (its attribute ``model_error``)."""
+    return {
+        "kind": setting.kind,
+        "floor": None if setting.floor is None else list(setting.floor),
+        "given": [setting.given_sigma, setting.given_length],
+    }
+
+
+def fingerprint_key(setting: Discrepancy) -> str:
+    """What a store's fingerprint takes of ``setting``: its record, the sample's size and
+    the lengths (they change the terms)."""
+    import json
+
+    return json.dumps(
+        record(setting) | {"sample": SAMPLE, "lengths": list(LENGTHS)}, sort_keys=True
+    )
+
+
 def _program(tables: MapTables):
     """The jitted (values (N, C * M), compact Jacobian (N, C * M, q + d)) of the tables
     at pixels' solver parameters, made once per shape."""
@@ -90,18 +142,20 @@ def _program(tables: MapTables):
     sizes = tuple(a.count for a in tables.axes)
     near = tables.near is not None
     key = (c, q, d, sizes, near)
-    if key not in _PROGRAMS:
-        solver = (
-            _ChannelSolver(c, q, d, sizes, True, near)
-            if c
-            else _PixelSolver(q, d, sizes, True, near)
-        )
+    with _CALL_LOCK:
+        return _PROGRAMS.get(key) or _PROGRAMS.setdefault(key, _made(c, q, d, sizes, near))
 
-        def columns(coef, fu, p):
-            return solver.columns(coef, fu, p[: solver.q], p[solver.q :])
 
-        _PROGRAMS[key] = jax.jit(jax.vmap(columns, in_axes=(None, 0 if near else None, 0)))
-    return _PROGRAMS[key]
+def _made(c: int, q: int, d: int, sizes: tuple, near: bool):
+    """:func:`_program`'s jitted function for one shape."""
+    solver = (
+        _ChannelSolver(c, q, d, sizes, True, near) if c else _PixelSolver(q, d, sizes, True, near)
+    )
+
+    def columns(coef, fu, p):
+        return solver.columns(coef, fu, p[: solver.q], p[solver.q :])
+
+    return jax.jit(jax.vmap(columns, in_axes=(None, 0 if near else None, 0)))
 
 
 def _at_solution(tables: MapTables, fu, p, idx) -> tuple:
@@ -164,36 +218,70 @@ def pixel_terms(tables: MapTables, y, w2, p, fu, pixels, ok, setting: Discrepanc
     parts = [
         (slice(c * m, (c + 1) * m), list(range(c * q, (c + 1) * q)) + axes) for c in range(channels)
     ]
+    with one_blas_thread():
+        _terms(tables, pixels, idx, (r, a, f, w, jw), parts, setting, (sigma, length, se))
+    return sigma, length, se
+
+
+def _terms(tables, pixels, idx, rows_of, parts, setting: Discrepancy, out) -> None:
+    """:func:`pixel_terms`' loop over the converged pixels ``idx``: their weighted residuals,
+    scaled values, values, weights and weighted Jacobians (``rows_of``) into ``out`` (s,
+    ell, standard errors)."""
+    r, a, f, w, jw = rows_of
+    sigma, length, se = out
     ells = _tile_lengths(tables, pixels, idx, r, a, jw, w, parts, setting)
     given = (
         ModelError(setting.given_sigma, setting.given_length, setting.given_sigma, None, "", 0.0)
         if setting.given_sigma > 0
         else None
     )
+    shared = None if tables.near is not None else _Distances(tables, pixels, idx[0])
     for k, i in enumerate(idx):
-        ang = _pixel_angles(tables, pixels, int(i))
-        dist = distances(ang)
-        cov, _ = lsq.covariance(jw[k], np)
+        dist = shared or _Distances(tables, pixels, i)
+        cov, full = lsq.covariance(jw[k], np)
+        terms = []
+        try:
+            for c, (rows, cols) in enumerate(parts):
+                term = step_term(
+                    r[k, rows],
+                    f[k, rows],
+                    w[k, rows],
+                    int(np.count_nonzero(w[k, rows])) - len(cols),
+                    dist.angles,
+                    given=given,
+                    kind=setting.kind,
+                    weighted_jacobian=jw[k, rows][:, cols],
+                    floor=setting.floor,
+                    lengths=(ells[c],),
+                    dist=lambda d=dist: d.matrix,
+                )
+                terms.append((rows, term.sigma, term.length))
+        except FitError:  # no relative error explains the channel's excess (a = 0)
+            continue
         total = cov
-        for c, (rows, cols) in enumerate(parts):
-            term = step_term(
-                r[k, rows],
-                f[k, rows],
-                w[k, rows],
-                int(np.count_nonzero(w[k, rows])) - len(cols),
-                ang,
-                given=given,
-                kind=setting.kind,
-                weighted_jacobian=jw[k, rows][:, cols],
-                floor=setting.floor,
-                lengths=(ells[c],),
-            )
-            sigma[c, i], length[c, i] = term.sigma, term.length
-            if term.sigma > 0:
-                corr = None if term.length == 0 else correlation(dist, term.length)
-                total = total + (sandwich(cov, jw[k, rows], a[k, rows], term.sigma, corr) - cov)
-        se[i] = np.sqrt(np.maximum(np.diag(total), 0.0))
-    return sigma, length, se
+        for rows, s, ell in terms:
+            if s > 0:
+                corr = None if ell == 0 else correlation(dist.matrix, ell)
+                total = total + (sandwich(cov, jw[k, rows], a[k, rows], s, corr) - cov)
+        stderr = np.sqrt(np.maximum(np.diag(total), 0.0))
+        if full and np.all(np.isfinite(stderr)):  # else the noise's errors, no term
+            se[i] = stderr
+            for c, (_, s, ell) in enumerate(terms):
+                sigma[c, i], length[c, i] = s, ell
+
+
+class _Distances:
+    """A pixel's configurations' angles and, when first asked for, their distances D."""
+
+    def __init__(self, tables, pixels, i) -> None:
+        self.angles = _pixel_angles(tables, pixels, int(i))
+        self._matrix: np.ndarray | None = None
+
+    @property
+    def matrix(self) -> np.ndarray:
+        if self._matrix is None:
+            self._matrix = distances(self.angles)
+        return self._matrix
 
 
 def _tile_lengths(tables, pixels, idx, r, a, jw, w, parts, setting: Discrepancy) -> list:
@@ -203,16 +291,22 @@ def _tile_lengths(tables, pixels, idx, r, a, jw, w, parts, setting: Discrepancy)
     shows an excess)."""
     if setting.kind != "correlated":
         return [0.0] * len(parts)
-    sample = np.unique(np.linspace(0, len(idx) - 1, min(SAMPLE, len(idx))).round().astype(int))
-    totals = [np.zeros(len(LENGTHS)) for _ in parts]
-    for k in sample:
-        dist = distances(_pixel_angles(tables, pixels, int(idx[k])))
-        for c, (rows, cols) in enumerate(parts):
-            dof = int(np.count_nonzero(w[k, rows])) - len(cols)
-            nll = length_profile(r[k, rows], a[k, rows], dof, dist, LENGTHS, jw[k, rows][:, cols])
+    ells = []
+    for rows, cols in parts:
+        dof = np.count_nonzero(w[:, rows], axis=1) - len(cols)
+        chi2 = np.sum(r[:, rows] ** 2, axis=1) / np.maximum(dof, 1)
+        excess = np.flatnonzero((dof >= 1) & (chi2 > [chi2_threshold(v) for v in dof]))
+        take = np.linspace(0, len(excess) - 1, min(SAMPLE, len(excess))).round().astype(int)
+        total = np.zeros(len(LENGTHS))
+        for k in excess[np.unique(take)]:
+            dist = distances(_pixel_angles(tables, pixels, int(idx[k])))
+            nll = length_profile(
+                r[k, rows], a[k, rows], int(dof[k]), dist, LENGTHS, jw[k, rows][:, cols]
+            )
             if nll is not None:
-                totals[c] += nll
-    return [float(LENGTHS[int(np.argmin(t))]) for t in totals]
+                total += nll
+        ells.append(float(LENGTHS[int(np.argmin(total))]))
+    return ells
 
 
 def solver_parameters(tables: MapTables, fits) -> np.ndarray:
@@ -263,11 +357,21 @@ def with_term(tables: MapTables, fits, y, valid, noise, pixels, setting: Discrep
         rows, first = [a.index for a in tables.axes], q
     for k, (row, a) in enumerate(zip(rows, tables.axes)):
         phys = fits.params[row, moved]
-        stderr[row, moved] = se[moved, first + k] * a.step * (phys if a.log else 1.0)
+        stderr[row, moved] = a.physical_stderr(se[moved, first + k], phys)
     out = dataclasses.replace(fits, stderr=stderr)
     if tables.channels:
         out = dataclasses.replace(out, channel_stderr=channel_stderr)
     return out, sigma, length
 
 
-__all__ = ["SAMPLE", "Discrepancy", "discrepancy", "pixel_terms", "solver_parameters", "with_term"]
+__all__ = [
+    "SAMPLE",
+    "Discrepancy",
+    "discrepancy",
+    "record",
+    "fingerprint_key",
+    "one_blas_thread",
+    "pixel_terms",
+    "solver_parameters",
+    "with_term",
+]

@@ -233,7 +233,7 @@ def fit_maps(
     """
     check_accuracy(accuracy)
     near_field = as_flag(near_field, "near_field")
-    say, tile, noise = log or (lambda message: None), _tile(tile), _noise(noise)
+    say, tile, noise = log or (lambda message: None), _tile(tile), check_noise(noise)
     medium_model, media = map_media(medium, channel)  # media: {channel: medium} over channels
     cls = default_class("brdf") if brdf_model is None else model_class(brdf_model, "brdf")
     setting = discrepancy(model_error, noise, model_floor(cls, medium_model), given_term(medium))
@@ -383,7 +383,7 @@ def _check_resumable(output: Path, existing: dict | None, info: dict, inputs: tu
     )
 
 
-def _noise(noise) -> tuple[float, float] | None:
+def check_noise(noise) -> tuple[float, float] | None:
     """``noise`` (RELATIVE or (RELATIVE, ABSOLUTE)) checked: (relative, absolute) or None."""
     if noise is None:
         return None

@@ -554,7 +554,7 @@ def _physical(tables: MapTables, out: dict, status) -> PixelFits:
     for c, a in enumerate(tables.axes):
         phys = a.physical(out["p"][:, q + c])
         params[a.index] = phys
-        stderr[a.index] = out["se"][:, q + c] * a.step * (phys if a.log else 1.0)
+        stderr[a.index] = a.physical_stderr(out["se"][:, q + c], phys)
     reported = status == CONVERGED
     good_numbers = np.all(np.isfinite(params), axis=0) & np.all(np.isfinite(stderr), axis=0)
     params = np.where(good_numbers[None, :], params, tables.base[:, None])

@@ -213,7 +213,7 @@ def _physical_channels(tables: MapTables, out: dict, status) -> ChannelFits:
     for k, a in enumerate(tables.axes):
         phys = a.physical(out["p"][:, c * q + k])
         params[a.index] = phys
-        stderr[a.index] = out["se"][:, c * q + k] * a.step * (phys if a.log else 1.0)
+        stderr[a.index] = a.physical_stderr(out["se"][:, c * q + k], phys)
     good = np.all(np.isfinite(params), axis=(0, 1)) & np.all(np.isfinite(stderr), axis=(0, 1))
     params = np.where(good, params, tables.base[:, None, None])
     stderr = np.where(good & (status == CONVERGED), stderr, 0.0)

@@ -16,7 +16,7 @@ import numpy as np
 from .._extras import require
 from ..io import write_bytes_atomic
 from .geometry_notes import geometry_record
-from .model_error import with_term
+from .model_error import fingerprint_key, record, with_term
 from .solve import solve_pixels
 from .solve_channels import solve_channel_pixels
 from .status import STATUS
@@ -105,7 +105,7 @@ def store_fingerprint(
     the noise, the tile size and the model's error (``setting``, when there is one)."""
     key = acq.fingerprint(legacy=legacy) + tables.fingerprint() + repr((noise, tile))
     if setting is not None:
-        key += repr(setting)
+        key += fingerprint_key(setting)
     return hashlib.sha256(key.encode()).hexdigest()
 
 
@@ -152,11 +152,7 @@ def store_attributes(
         info["channel_params"] = [n for n in tables.names if sharing[n] != "shared"]
         info["channels"] = list(tables.channels)
     if setting is not None:
-        info["model_error"] = {
-            "kind": setting.kind,
-            "floor": None if setting.floor is None else list(setting.floor),
-            "given": [setting.given_sigma, setting.given_length],
-        }
+        info["model_error"] = record(setting)
     return info
 
 
