@@ -342,8 +342,10 @@ def _print_model_error(run) -> None:
             )
         return
     chi2 = s.get("chi2_reduced", {}).get("median")
-    points = int(info.get("photos", 0)) * max(1, len(info.get("channels") or ()))
-    dof = points - len(info.get("free") or ())
+    channels = max(1, len(info.get("channels") or ()))
+    per = set(info.get("channel_params") or ())  # fitted in every channel
+    fitted = sum(channels if name in per else 1 for name in info.get("free") or ())
+    dof = int(info.get("photos", 0)) * channels - fitted
     if info.get("weighted") and chi2 is not None and dof > 0 and chi2 > chi2_threshold(dof):
         click.echo(
             f"note: the reduced chi-square's median {chi2:.3g} is above "
