@@ -612,3 +612,18 @@ def test_an_independent_term_takes_no_length_from_a_correlated_given_one():
     term = me.step_term(residuals, values, 1 / NOISE * values, m - 3, angles, given=given,
                         kind="correlated")
     assert (term.sigma, term.length) == (0.05, 40.0)
+
+
+def test_a_weighted_map_without_the_term_says_when_the_model_misses(grey, tmp_path):
+    """Without --model-error the command notes a median reduced chi-square above the test's
+    limit (the photos with the injected error) and says how to add the term; on photos with
+    the noise alone it says nothing; with the term it prints the term's line instead."""
+    note = "standard errors count the noise alone"
+    erred = run(*_cli_args(grey["erred"], tmp_path / "e.zarr", "--noise", NOISE))
+    assert erred.exit_code in (0, 1) and note in erred.output, erred.output
+    assert "--model-error correlated" in erred.output
+    plain = run(*_cli_args(grey["plain"], tmp_path / "p.zarr", "--noise", NOISE))
+    assert plain.exit_code in (0, 1) and note not in plain.output, plain.output
+    term = run(*_cli_args(grey["erred"], tmp_path / "t.zarr", "--noise", NOISE,
+                          "--model-error", "correlated"))
+    assert note not in term.output and "model error (correlated" in term.output, term.output
