@@ -142,7 +142,7 @@ def store_attributes(
         "weighted": noise is not None,
         "status_codes": {str(k): v for k, v in STATUS.items()},
         "grid": [a.describe() for a in tables.axes],
-        "manifest": acq.name,
+        "manifest": os.path.abspath(acq.name),  # --blur-from compares it from anywhere
         "outside_mask": int(np.count_nonzero(~acq.mask)) if acq.mask is not None else 0,
         "geometry": geometry_record(tables, geometry),
     }
