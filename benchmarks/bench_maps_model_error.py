@@ -79,25 +79,9 @@ def block_of(tables, y, size: int) -> np.ndarray:
 def covered(tables, fits, p) -> float:
     """The share of converged pixels whose true scales and axis values (solver coordinates)
     all lie within 2 of their standard errors."""
-    from veil.maps.model_error import solver_parameters
+    from veil.maps.model_error import solver_parameters, solver_stderr
 
-    est = solver_parameters(tables, fits)
-    if tables.channels:
-        shared, per = list(fits.shared), list(fits.per_channel)
-        scale_se = [
-            fits.channel_stderr[per.index(i), c]
-            for c in range(len(tables.channels))
-            for i in tables.free_scales
-        ]
-        rows = [shared.index(a.index) for a in tables.axes]
-    else:
-        scale_se = [fits.stderr[i] for i in tables.free_scales]
-        rows = [a.index for a in tables.axes]
-    axis_se = [
-        fits.stderr[r] / a.physical_stderr(1.0, fits.params[r])
-        for r, a in zip(rows, tables.axes)
-    ]
-    se = np.stack(scale_se + axis_se, axis=1)
+    est, se = solver_parameters(tables, fits), solver_stderr(tables, fits)
     inside = np.all(np.abs(est - p) <= 2 * np.where(se > 0, se, np.inf), axis=1)
     return float(np.mean(inside[fits.status == 0]))
 

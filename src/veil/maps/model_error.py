@@ -313,17 +313,33 @@ def solver_parameters(tables: MapTables, fits) -> np.ndarray:
     """(N, n) the solver's parameters of a tile's fits (:class:`veil.maps.solve.PixelFits`
     or :class:`veil.maps.solve_channels.ChannelFits`): the scales, channel after channel,
     then the axes' grid coordinates."""
+    per = getattr(fits, "channel_params", None)
+    return _solver_order(tables, fits, per, fits.params, lambda a, v, phys: a.grid(v))
+
+
+def solver_stderr(tables: MapTables, fits) -> np.ndarray:
+    """(N, n) the standard errors of :func:`solver_parameters` (0 where not reported)."""
+    per = getattr(fits, "channel_stderr", None)
+    return _solver_order(
+        tables, fits, per, fits.stderr, lambda a, se, phys: se / a.physical_stderr(1.0, phys)
+    )
+
+
+def _solver_order(tables: MapTables, fits, per_values, values, axis) -> np.ndarray:
+    """``per_values`` (the parameters per channel's arrays) and ``values`` (the others')
+    in the solver's order, each axis's through ``axis(axis, value, physical value)``."""
     if tables.channels:
         per, shared = list(fits.per_channel), list(fits.shared)
         scales = [
-            fits.channel_params[per.index(i), c]
+            per_values[per.index(i), c]
             for c in range(len(tables.channels))
             for i in tables.free_scales
         ]
-        axes = [a.grid(fits.params[shared.index(a.index)]) for a in tables.axes]
+        rows = [shared.index(a.index) for a in tables.axes]
     else:
-        scales = [fits.params[i] for i in tables.free_scales]
-        axes = [a.grid(fits.params[a.index]) for a in tables.axes]
+        scales = [values[i] for i in tables.free_scales]
+        rows = [a.index for a in tables.axes]
+    axes = [axis(a, values[r], fits.params[r]) for r, a in zip(rows, tables.axes)]
     return np.stack(scales + axes, axis=1)
 
 
@@ -373,5 +389,6 @@ __all__ = [
     "one_blas_thread",
     "pixel_terms",
     "solver_parameters",
+    "solver_stderr",
     "with_term",
 ]
