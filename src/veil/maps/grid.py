@@ -55,7 +55,7 @@ class Axis:
             return np.exp(c) if isinstance(c, (float, np.ndarray)) else _jnp().exp(c)
         return c
 
-    def physical_stderr(self, se_u, value):
+    def physical_stderr(self, se_u, value) -> np.ndarray | float:
         """The standard error of the physical value ``value`` from ``se_u``, that of its
         grid coordinate (first order: d value / du = step, times the value on a log axis)."""
         return se_u * self.step * (value if self.log else 1.0)
