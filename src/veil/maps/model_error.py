@@ -286,9 +286,10 @@ class _Distances:
 
 def _tile_lengths(tables, pixels, idx, r, a, jw, w, parts, setting: Discrepancy) -> list:
     """Each channel's ell for the tile: 0 for an independent term, else the length whose
-    likelihood summed over up to :data:`SAMPLE` converged pixels (evenly spaced) is the
-    largest (:data:`~veil.fitting.model_error.LENGTHS`; the first when no sampled pixel
-    shows an excess)."""
+    likelihood summed over up to :data:`SAMPLE` converged pixels whose residuals in the
+    channel show an excess (evenly spaced among them) is the largest
+    (:data:`~veil.fitting.model_error.LENGTHS`; the first when none does, and then no pixel
+    has a term of its own)."""
     if setting.kind != "correlated":
         return [0.0] * len(parts)
     ells = []
