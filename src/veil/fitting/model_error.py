@@ -94,6 +94,16 @@ def chi2_threshold(dof: int) -> float:
     return 1.0 + CHI2_Z * math.sqrt(2.0 / max(int(dof), 1))
 
 
+def shows_excess(residuals, dof: int) -> bool:
+    """Whether finite weighted ``residuals`` with ``dof`` degrees of freedom have a reduced
+    chi-square above :func:`chi2_threshold`: the test before any term is estimated."""
+    r = np.asarray(residuals, dtype=float)
+    dof = int(dof)
+    if dof < 1 or r.size == 0 or not np.all(np.isfinite(r)):
+        return False
+    return float(r @ r) / dof > chi2_threshold(dof)
+
+
 def _unit(theta, phi) -> np.ndarray:
     t, p = np.radians(theta), np.radians(phi)
     return np.stack([np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), np.cos(t)], axis=-1)
@@ -194,9 +204,7 @@ def estimate(
     r = np.asarray(residuals, dtype=float)
     a = np.asarray(scaled_values, dtype=float)
     dof = int(dof)
-    if dof < 1 or r.size == 0 or not np.all(np.isfinite(r)) or not np.all(np.isfinite(a)):
-        return 0.0, 0.0
-    if float(r @ r) / dof <= chi2_threshold(dof):
+    if not np.all(np.isfinite(a)) or not shows_excess(r, dof):
         return 0.0, 0.0
     if not np.any(a != 0):
         raise FitError(
@@ -251,9 +259,7 @@ def length_profile(
     r = np.asarray(residuals, dtype=float)
     a = np.asarray(scaled_values, dtype=float)
     dof = int(dof)
-    if dof < 1 or r.size == 0 or not np.all(np.isfinite(r)) or not np.all(np.isfinite(a)):
-        return None
-    if float(r @ r) / dof <= chi2_threshold(dof) or not np.any(a != 0):
+    if not np.all(np.isfinite(a)) or not shows_excess(r, dof) or not np.any(a != 0):
         return None
     return np.array([f for f, _, _ in _profile(r, a, dof, dist, lengths, weighted_jacobian)])
 
@@ -537,6 +543,7 @@ __all__ = [
     "SOURCES",
     "check_kind",
     "chi2_threshold",
+    "shows_excess",
     "distances",
     "correlation",
     "estimate",

@@ -37,11 +37,11 @@ from ..fitting.model_error import (
     LENGTHS,
     ModelError,
     check_kind,
-    chi2_threshold,
     correlation,
     distances,
     length_profile,
     sandwich,
+    shows_excess,
     step_term,
 )
 from .solve import _CALL_LOCK, BATCH, _PixelSolver, pixel_coords, weights
@@ -295,8 +295,7 @@ def _tile_lengths(tables, pixels, idx, r, a, jw, w, parts, setting: Discrepancy)
     ells = []
     for rows, cols in parts:
         dof = np.count_nonzero(w[:, rows], axis=1) - len(cols)
-        chi2 = np.sum(r[:, rows] ** 2, axis=1) / np.maximum(dof, 1)
-        excess = np.flatnonzero((dof >= 1) & (chi2 > [chi2_threshold(v) for v in dof]))
+        excess = np.flatnonzero([shows_excess(r[k, rows], dof[k]) for k in range(len(idx))])
         take = np.linspace(0, len(excess) - 1, min(SAMPLE, len(excess))).round().astype(int)
         total = np.zeros(len(LENGTHS))
         for k in excess[np.unique(take)]:
