@@ -161,11 +161,14 @@ def compare(store: str, truth: dict, channel: str = "rgb") -> dict:
     radius = np.hypot(x + 0.5 - c, y + 0.5 - c) * truth["pixel_pitch_cm"]
     rings = [(0.0, 1.0), (1.0, 2.0), (2.0, 4.0)]
 
-    def one(label, est, se, true, se_noise=None):
+    def one(label, est, se, true, se_noise=None, se_medium=None):
         est, se, true = (np.asarray(a, dtype=float) for a in (est, se, true))
         good = ok & (se > 0)
         z = (est - true) / np.where(good, se, 1.0)
         rec = {} if se_noise is None else noise_alone(est, np.asarray(se_noise), true, good)
+        if se_medium is not None:  # docs/maps-medium-error.md: with and without its part
+            part = np.asarray(se_medium, dtype=float)
+            rec |= without_medium(est, np.sqrt(np.maximum(se**2 - part**2, 0.0)), part, true, good)
         rec |= {
             "param": label,
             "pixels": int(good.sum()),
@@ -193,21 +196,25 @@ def compare(store: str, truth: dict, channel: str = "rgb") -> dict:
     rows = []
     info = maps["info"]
     for ch in CHANNELS if channel == "rgb" else (channel,):
-        se_noise = None
+        se_noise = se_medium = None
         if channel != "rgb":  # a map of one channel: rho is its albedo
             k = names.index("rho")
             est, se = maps["params"][k], maps["stderr"][k]
             if "stderr_noise" in maps:
                 se_noise = maps["stderr_noise"][k]
+            if "stderr_medium" in maps:
+                se_medium = maps["stderr_medium"][k]
         elif "channel_params" in maps:  # (Q, C, H, W): per-channel parameters
             q, c = list(info["channel_params"]).index("rho"), list(info["channels"]).index(ch)
             est, se = maps["channel_params"][q, c], maps["channel_stderr"][q, c]
             if "channel_stderr_noise" in maps:
                 se_noise = maps["channel_stderr_noise"][q, c]
+            if "channel_stderr_medium" in maps:
+                se_medium = maps["channel_stderr_medium"][q, c]
         else:  # names like rho[r] in params
             k = names.index(next(n for n in names if re.fullmatch(rf"rho\[{ch}\]", n)))
             est, se = maps["params"][k], maps["stderr"][k]
-        rows.append(one(f"rho[{ch}]", est, se, np.asarray(truth["rho"][ch]), se_noise))
+        rows.append(one(f"rho[{ch}]", est, se, np.asarray(truth["rho"][ch]), se_noise, se_medium))
         tile = np.asarray(truth["tile"])
         rt = np.asarray(truth["rho"][ch])
         rows[-1]["_ratio_by_tile"] = {
@@ -244,6 +251,7 @@ def compare(store: str, truth: dict, channel: str = "rgb") -> dict:
             maps["stderr"][k],
             np.asarray(truth["alpha"]),
             maps["stderr_noise"][k] if "stderr_noise" in maps else None,
+            maps["stderr_medium"][k] if "stderr_medium" in maps else None,
         )
     )
     chi2 = np.asarray(maps["chi2_reduced"])[ok]
@@ -256,6 +264,10 @@ def compare(store: str, truth: dict, channel: str = "rgb") -> dict:
         "status_counts": {int(s): int((status == s).sum()) for s in np.unique(status)},
         "chi2_median": float(np.median(chi2)) if chi2.size else math.nan,
     }
+    if "stderr_medium" in maps:  # docs/maps-medium-error.md: the summary
+        from veil.maps.store import summarize_maps
+
+        out["propagation"] = summarize_maps(store, maps)["propagation"]
     if "model_error" in maps:  # docs/maps-model-error.md: the summary, s per tile
         from veil.maps.store import summarize_maps
 
@@ -278,6 +290,19 @@ def noise_alone(est, se, true, good) -> dict:
     }
 
 
+def without_medium(est, se_rest, part, true, good) -> dict:
+    """A store with the medium's uncertainty (docs/maps-medium-error.md): the share within
+    3 of the standard errors without the medium's part, and that part's median relative
+    size."""
+    z = (est - true) / np.where(good & (se_rest > 0), se_rest, 1.0)
+    return {
+        "within_3se_without_medium": float(np.mean(np.abs(z[good]) <= 3))
+        if good.any()
+        else math.nan,
+        "median_rel_se_medium": float(np.median(part[good] / true[good])),
+    }
+
+
 def _pct(x, d=0):
     return "-" if x is None or (isinstance(x, float) and math.isnan(x)) else f"{100 * x:.{d}f} %"
 
@@ -287,6 +312,7 @@ def table(res: dict) -> str:
 
     rows = []
     noise = all("within_3se_noise" in r for r in res["rows"])
+    medium = all("within_3se_without_medium" in r for r in res["rows"])
     for r in res["rows"]:
         rings = ", ".join(
             f"{g['ring_cm'][0]:g}-{g['ring_cm'][1]:g} cm: {_pct(g['within_3se'])} "
@@ -305,6 +331,11 @@ def table(res: dict) -> str:
                 rings,
             ]
             + ([_pct(r["within_3se_noise"], 1), _pct(r["median_rel_se_noise"], 1)] if noise else [])
+            + (
+                [_pct(r["within_3se_without_medium"], 1), _pct(r["median_rel_se_medium"], 1)]
+                if medium
+                else []
+            )
         )
     head = [
         "parameter",
@@ -315,8 +346,14 @@ def table(res: dict) -> str:
         "median \\|relative error\\|",
         "median relative se",
         "within 3 se (mean error / se) by distance from the centre",
-    ] + (["within 3 se of the noise alone", "median relative se, noise alone"] if noise else [])
-    return markdown(head, rows, {1, 2, 3, 5, 6} | ({8, 9} if noise else set()))
+    ]
+    head += ["within 3 se of the noise alone", "median relative se, noise alone"] if noise else []
+    head += (
+        ["within 3 se without the medium's part", "median relative se, the medium's part"]
+        if medium
+        else []
+    )
+    return markdown(head, rows, set(range(1, len(head))) - {4, 7})
 
 
 def rounds_table(rounds: list) -> str:
@@ -372,13 +409,31 @@ def tile_table(res: dict) -> str:
 def summary(res: dict) -> list[str]:
     bad = [r["param"] for r in res["rows"] if not r["within_3se"] >= 0.95]
     chi2 = ", ".join(f"{c:.2f}" for c in res["chi2_median"])
+    return (
+        [
+            f"- {res['converged']} of {res['pixels']} pixel fits converged (status counts "
+            f"{res['status_counts']}); reduced chi-square median {chi2}",
+            "- within 3 standard errors on at least 95 % of the converged pixels: "
+            + ("every parameter" if not bad else "not " + ", ".join(bad)),
+            f"- `veil fit maps` took {res['seconds']:.0f} s wall (exit status {res['exit']})",
+        ]
+        + model_error_notes(res)
+        + propagation_notes(res)
+    )
+
+
+def propagation_notes(res: dict) -> list[str]:
+    """The last map's medium uncertainty (docs/maps-medium-error.md): the medium's
+    parameters and each map parameter's median share of the standard error."""
+    last = (res.get("rounds") or [res])[-1]
+    entry = last.get("propagation")
+    if not entry:
+        return []
+    shares = ", ".join(f"{n} {100 * m['median_share']:.0f} %" for n, m in entry["maps"].items())
     return [
-        f"- {res['converged']} of {res['pixels']} pixel fits converged (status counts "
-        f"{res['status_counts']}); reduced chi-square median {chi2}",
-        "- within 3 standard errors on at least 95 % of the converged pixels: "
-        + ("every parameter" if not bad else "not " + ", ".join(bad)),
-        f"- `veil fit maps` took {res['seconds']:.0f} s wall (exit status {res['exit']})",
-    ] + model_error_notes(res)
+        f"- the medium's uncertainty ({', '.join(entry['parameters'])}, first order): its "
+        f"median share of the standard error {shares}"
+    ]
 
 
 def model_error_notes(res: dict) -> list[str]:
@@ -451,6 +506,15 @@ def main(argv=None) -> int:
         "table names end in model_error (with --blur-rounds the table "
         "colour-maps-blur-model-error); the table gains the noise-only columns",
     )
+    ap.add_argument(
+        "--propagation",
+        default="off",
+        choices=("off", "linear"),
+        help="the last map with --propagation KIND (docs/maps-medium-error.md): json and "
+        "table names end in propagation (with --blur-rounds and --model-error correlated "
+        "the table colour-maps-blur-model-error-propagation); the table gains the columns "
+        "without the medium's part",
+    )
     ap.add_argument("extra", nargs="*", help="more options for veil fit maps (after --)")
     bv.add_doc_options(ap, "colour-maps")
     args = ap.parse_args(argv)
@@ -462,6 +526,7 @@ def main(argv=None) -> int:
         (args.blur_rounds, "_blur", "-blur"),
         (args.truth_medium, "_truth_medium", "-truth-medium"),
         (args.model_error != "off", "_model_error", "-model-error"),
+        (args.propagation != "off", "_propagation", "-propagation"),
     ]
     if args.json == JSON:
         args.json = JSON.replace(".json", "".join(j for on, j, _ in kinds if on) + ".json")
@@ -499,6 +564,7 @@ def main(argv=None) -> int:
                 rel = noise["all" if channel == "rgb" else channel]["median"]
                 res["noise_rel"][channel] = rel
                 last = ["--model-error", args.model_error] if args.model_error != "off" else []
+                last += ["--propagation", args.propagation] if args.propagation != "off" else []
                 rounds = args.blur_rounds if channel == "rgb" else 0
                 extra = [*args.extra, *(last if not rounds else [])]
                 cmd = command(truth, os.path.abspath(args.medium), store, rel, extra, channel)
@@ -518,8 +584,9 @@ def main(argv=None) -> int:
                     res["rounds"].append(dict(one, seconds=more, exit=code))
                     res["commands"].append(shown(cmd).replace(work, "OUT"))
                 res["rows"] += one["rows"]
-                if "model_error" in one:
-                    res["model_error"] = one["model_error"]
+                for key in ("model_error", "propagation"):
+                    if key in one:
+                        res[key] = one[key]
                 for t, rec in enumerate(one["tiles"]):
                     if len(res["tiles"]) <= t:
                         res["tiles"].append({"tile": t, "alpha_true": rec["alpha_true"]})

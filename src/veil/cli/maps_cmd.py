@@ -203,6 +203,15 @@ def _noise(text):
     "--noise): a relative error per pixel and channel from its residuals, 'correlated' "
     "with a correlation length over the angles chosen per tile (docs/maps-model-error.md).",
 )
+@click.option(
+    "--propagation",
+    type=click.Choice(["off", "linear"]),  # veil.maps.medium_error.METHODS (test_maps_medium_error)
+    default="off",
+    show_default=True,
+    help="Add the step-1 medium's uncertainty (its result's total covariance, to first "
+    "order) to each pixel's standard errors: the tables are built once more per medium "
+    "parameter, so this costs that many tables' time (docs/maps-medium-error.md).",
+)
 @model_options()
 @click.pass_context
 def fit_maps_command(ctx, photo_dir, manifest, medium, output, models, **opts):
@@ -307,6 +316,7 @@ def _print_run(ctx, run) -> None:
                 f" .. {entry['p95']:.4g}), median stderr {entry['median_stderr']:.3g}"
             )
     _print_model_error(run)
+    _print_propagation(run.summary.get("propagation"))
     for stage, sec in run.seconds.items():
         click.echo(f"    {stage}: {sec:.1f} s", err=True)
     if s["failed"]:
@@ -354,6 +364,19 @@ def _print_model_error(run) -> None:
             f"the model's error (docs/maps-model-error.md)",
             err=True,
         )
+
+
+def _print_propagation(entry) -> None:
+    """The medium's part of the standard errors (``summary["propagation"]``), if any."""
+    if not entry:
+        return
+    parts = ", ".join(
+        f"{name} {100 * m['median_share']:.0f} %" for name, m in entry["maps"].items()
+    )
+    click.echo(
+        f"    the medium's uncertainty ({', '.join(entry['parameters']) or 'none'}): "
+        f"median share of the standard error {parts or '-'}"
+    )
 
 
 @click.group("maps")

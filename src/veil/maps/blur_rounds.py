@@ -37,6 +37,7 @@ def fit_maps_rounds(photo_dir, manifest, medium, output, rounds: int, **kwargs) 
     and the medium are checked (:func:`veil.maps.blur.check_medium`) before the first map."""
     from .blur import check_medium, media_of
     from .channels import map_media
+    from .medium_error import check_method
     from .model_error import discrepancy
     from .run import check_noise, fit_maps
 
@@ -46,8 +47,9 @@ def fit_maps_rounds(photo_dir, manifest, medium, output, rounds: int, **kwargs) 
     model, media = map_media(medium, kwargs.get("channel", "gray"))
     near = bool(kwargs.get("near_field")) and kwargs.get("geometry") is not None
     check_medium(media_of(media or model), near)
-    # the last round's model error, checked before the first round
+    # the last round's model error and propagation, checked before the first round
     discrepancy(kwargs.get("model_error", "off"), check_noise(kwargs.get("noise")))
+    check_method(kwargs.get("propagation", "off"), medium)
     prior = kwargs.pop("blur_from", None)
     given = prior
     cache: dict = {}
@@ -71,7 +73,8 @@ def fit_maps_rounds(photo_dir, manifest, medium, output, rounds: int, **kwargs) 
                 record = f"round {k - 1} of {rounds} in this run" + (
                     f", from {given}" if given else ""
                 )
-            # the rounds before the last give their parameters only: no model error
+            # the rounds before the last give their parameters only: no model error, no
+            # propagation
             run = fit_maps(
                 photo_dir,
                 manifest,
@@ -80,7 +83,7 @@ def fit_maps_rounds(photo_dir, manifest, medium, output, rounds: int, **kwargs) 
                 blur_from=prior,
                 tables_cache=cache,
                 blur_record=record,
-                **(kwargs if k == rounds else dict(kwargs, model_error="off")),
+                **(kwargs if k == rounds else dict(kwargs, model_error="off", propagation="off")),
             )
             times.append(sum(run.seconds.values()))
             prior = target

@@ -101,18 +101,30 @@ def build_channel_tables(
     progress=None,
     near=None,
     roi=None,
+    field=None,
 ) -> MapTables:
     """The tables of a map over the channels of ``media`` ({channel: medium model}): as
     :func:`veil.maps.tables.build_tables`, with a channel axis before the configurations'
     (each channel through its medium); the engine runs once per node for every group of
     channels whose media differ only in scales (module docstring). ``near`` and ``roi``:
     near-field tables as :func:`~veil.maps.tables.build_tables`', every channel at the
-    field nodes' angles (docs/maps-geometry.md "Geometry")."""
+    field nodes' angles (docs/maps-geometry.md "Geometry"), over ``field`` when given."""
     fixed = dict(fixed or {})
     check_family(brdf_cls, fixed, set(free or ()))
     entry = media_entry(media)
     u, values, coef, angles, near_entries = tabulate(
-        brdf_cls, dict(media), angles, fixed, options, free, grid, accuracy, progress, near, roi
+        brdf_cls,
+        dict(media),
+        angles,
+        fixed,
+        options,
+        free,
+        grid,
+        accuracy,
+        progress,
+        near,
+        roi,
+        field,
     )
     return MapTables(
         brdf_cls.NAME,

@@ -27,6 +27,7 @@ import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -158,11 +159,13 @@ def _made(c: int, q: int, d: int, sizes: tuple, near: bool):
     return jax.jit(jax.vmap(columns, in_axes=(None, 0 if near else None, 0)))
 
 
-def _at_solution(tables: MapTables, fu, p, idx) -> tuple:
+def at_solution(tables: MapTables, fu, p, idx, coef=None) -> tuple:
     """(values (K, C * M), compact Jacobian (K, C * M, q + d)) of the pixels ``idx`` at
     their parameters ``p``, in batches of the solve's size (one program whatever the
-    count; the last batch padded), one call at a time as the solve's."""
-    run, coef = _program(tables), jnp.asarray(tables.coef)
+    count; the last batch padded), one call at a time as the solve's; of the tables'
+    coefficients or of ``coef`` of their shape (the values are linear in them)."""
+    run = _program(tables)
+    coef = jnp.asarray(tables.coef if coef is None else coef)
     values, jacobians = [], []
     for start in range(0, len(idx), BATCH):
         part = idx[start : start + BATCH]
@@ -174,7 +177,7 @@ def _at_solution(tables: MapTables, fu, p, idx) -> tuple:
     return np.concatenate(values), np.concatenate(jacobians)
 
 
-def _full_jacobian(compact: np.ndarray, channels: int, q: int) -> np.ndarray:
+def full_jacobian(compact: np.ndarray, channels: int, q: int) -> np.ndarray:
     """(N, C * M, C * q + d) from the compact (N, C * M, q + d): each channel's rows have
     its own scales' columns."""
     n, rows, width = compact.shape
@@ -209,8 +212,8 @@ def pixel_terms(tables: MapTables, y, w2, p, fu, pixels, ok, setting: Discrepanc
     idx = np.flatnonzero(ok)
     if not idx.size:
         return sigma, length, se
-    f, compact = _at_solution(tables, fu, p, idx)
-    jac = _full_jacobian(compact, len(tables.channels), q)
+    f, compact = at_solution(tables, fu, p, idx)
+    jac = full_jacobian(compact, len(tables.channels), q)
     w = np.sqrt(w2[idx])
     r, a = (y[idx] - f) * w, f * w
     jw = jac * w[:, :, None]
@@ -357,6 +360,13 @@ def with_term(tables: MapTables, fits, y, valid, noise, pixels, setting: Discrep
         tables, yf.reshape(n_pix, -1), w2.reshape(n_pix, -1), p, fu, pixels, ok, setting
     )
     moved = ok & np.any(sigma > 0, axis=0)
+    return with_solver_stderr(tables, fits, se, moved), sigma, length
+
+
+def with_solver_stderr(tables: MapTables, fits, se, moved) -> Any:
+    """``fits`` with the standard errors of the pixels ``moved`` (a mask) replaced by
+    ``se`` (N, n), those of :func:`solver_parameters`, in the fits' units (the axes'
+    through :meth:`veil.maps.grid.Axis.physical_stderr`)."""
     q = len(tables.free_scales)
     stderr = np.array(fits.stderr, copy=True)
     if tables.channels:
@@ -377,7 +387,7 @@ def with_term(tables: MapTables, fits, y, valid, noise, pixels, setting: Discrep
     out = dataclasses.replace(fits, stderr=stderr)
     if tables.channels:
         out = dataclasses.replace(out, channel_stderr=channel_stderr)
-    return out, sigma, length
+    return out
 
 
 __all__ = [
@@ -388,7 +398,10 @@ __all__ = [
     "fingerprint_key",
     "one_blas_thread",
     "pixel_terms",
+    "at_solution",
+    "full_jacobian",
     "solver_parameters",
     "solver_stderr",
     "with_term",
+    "with_solver_stderr",
 ]

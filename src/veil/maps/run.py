@@ -51,11 +51,11 @@ import os
 import shutil
 import time
 import warnings
-from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
+from functools import partial
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
@@ -86,8 +86,10 @@ from .geometry_notes import (
     near_geometry,
 )
 from .grid import parse_grid
+from .medium_error import MediumSpread, plan_spread, with_differences
 from .model_error import Discrepancy, discrepancy
 from .photos import Acquisition, load_acquisition, stage
+from .scheduling import SCHEDULER_ENV, client_of, connect, run_distributed, run_local
 from .solve import warm_up
 from .solve_channels import warm_up_channels
 from .status import STATUS
@@ -112,62 +114,7 @@ from .store import tiles as tile_indices
 from .tables import MapTables, build_tables
 from .tile import solve_tile, store_attributes, store_fingerprint
 
-if TYPE_CHECKING:
-    from distributed import Client
-
 DEFAULT_TILE = 128
-SCHEDULER_ENV = "VEIL_DASK_SCHEDULER"
-CONNECT_TIMEOUT = 5.0
-
-
-# --------------------------------------------------------------------------------------
-# scheduling
-# --------------------------------------------------------------------------------------
-def connect(address, timeout: float = CONNECT_TIMEOUT) -> Client:
-    """A dask.distributed client for ``address``; an InputError within ``timeout`` seconds
-    when no scheduler answers there."""
-    Client = require("distributed", "a Dask cluster").Client
-
-    try:
-        return Client(address, timeout=timeout, set_as_default=False)
-    except (OSError, TimeoutError, ValueError) as exc:
-        raise InputError(
-            f"dask scheduler {address!r}: cannot connect within {timeout:g} s "
-            f"({type(exc).__name__}: {exc}); nothing was written. Start the "
-            f"scheduler, correct --scheduler / ${SCHEDULER_ENV}, or leave both "
-            f"out to run locally"
-        ) from None
-
-
-def _run_local(tasks, progress, workers):
-    dask = require("dask", "veil maps")
-    from dask.callbacks import Callback
-
-    keys = {t.key for t in tasks}
-    done = [0]
-
-    class Ticker(Callback):
-        def _posttask(self, key, result, dsk, state, id):
-            if key in keys:
-                done[0] += 1
-                if progress is not None:
-                    progress("solving tiles", done[0], len(tasks))
-
-    with Ticker():
-        return list(dask.compute(*tasks, scheduler="threads", num_workers=workers))
-
-
-def _run_distributed(client, tasks, progress):
-    as_completed = require("distributed", "a Dask cluster").as_completed
-
-    out = []
-    with client.as_current():
-        futures = client.compute(tasks)
-        for k, future in enumerate(as_completed(futures), 1):
-            out.append(future.result())
-            if progress is not None:
-                progress("solving tiles", k, len(futures))
-    return out
 
 
 # --------------------------------------------------------------------------------------
@@ -219,6 +166,7 @@ def fit_maps(
     tables_cache: dict | None = None,
     blur_record: str | None = None,
     model_error: str = "off",
+    propagation: str = "off",
 ) -> MapsRun:
     """Per-pixel step 2 (docs/maps.md): the target's BRDF at every pixel of the photos
     listed in ``manifest`` (as ``veil ingest`` reads it) through ``medium`` (a step-1
@@ -228,8 +176,8 @@ def fit_maps(
         at values, held parameters to fit (as :func:`veil.fit_target`).
     blur_from, blur_record, tables_cache : the medium's blur (docs/maps-blur.md;
         :func:`veil.maps.blur_rounds.fit_maps_rounds`).
-    The other arguments (the grid, the region and mask, black photos or frame, noise and
-    model_error, tiles and scheduler, geometry and near field, reports): the module docstring.
+    The others (the grid, region and mask, black photos or frame, noise, model_error and
+    propagation, tiles and scheduler, geometry and near field, reports): the module docstring.
     """
     check_accuracy(accuracy)
     near_field = as_flag(near_field, "near_field")
@@ -237,51 +185,33 @@ def fit_maps(
     medium_model, media = map_media(medium, channel)  # media: {channel: medium} over channels
     cls = default_class("brdf") if brdf_model is None else model_class(brdf_model, "brdf")
     setting = discrepancy(model_error, noise, model_floor(cls, medium_model), given_term(medium))
+    spread = plan_spread(propagation, medium, channel)
     grid_spec = parse_grid(grid, cls) if isinstance(grid, (list, tuple)) else dict(grid or {})
     output = _check_output(Path(as_path(output, "output")))
-    acq = load_acquisition(
-        photo_dir,
-        manifest,
-        roi=roi,
-        mask=mask,
-        black_photos=black_photos,
-        black_frame=black_frame,
-        channel=channel,
-        saturation=saturation,
-    )
+    sources = dict(roi=roi, mask=mask, black_photos=black_photos, black_frame=black_frame)
+    acq = load_acquisition(photo_dir, manifest, channel=channel, saturation=saturation, **sources)
     near = near_geometry(geometry, near_field, acq)
     prior = None if blur_from is None else prior_maps(blur_from, media or medium_model, near, acq)
-    with _client(scheduler) as client, store_lock(output, say):
+    with client_of(scheduler) as client, store_lock(output, say):
         existing = _existing_store(output)
         seconds: dict = {}
         build = dict(fixed=fixed, options=options, free=free, grid=grid_spec)
 
-        def tables_of(medium, times=seconds):
+        def tables_of(medium, times=seconds, field=None):
             reports = (progress, say, times, tables_cache)
-            return _tables(cls, medium, acq, build, accuracy, near, reports)
+            return _tables(cls, medium, acq, build | {"field": field}, accuracy, near, reports)
 
         tables = tables_of(media or medium_model)
         notes = geometry_notes_of(tables, cls, medium_model, acq, geometry)
         acq, blur = _blur(prior, media or medium_model, acq, tables, tables_of, seconds, say)
-        info = store_attributes(acq, tables, cls, noise, tile, accuracy, channel, geometry, setting)
+        errors = (setting, spread)  # the model's error, the medium's uncertainty
+        info = store_attributes(acq, tables, cls, noise, tile, accuracy, channel, geometry, errors)
         if blur is not None:
             info["blur_from"] = dict(blur, store=blur_record or blur["store"])
         _check_resumable(output, existing, info, (acq, tables, noise, tile))
         job = _Job(output, acq, tables, tile, noise, client, progress, workers, say, seconds, notes)
-        return _fill(replace(job, setting=setting), info, existing)
-
-
-@contextmanager
-def _client(scheduler) -> Iterator[Any]:
-    """A dask.distributed client of ``scheduler`` or ``$VEIL_DASK_SCHEDULER`` (closed
-    afterwards), or None to run locally."""
-    address = scheduler or os.environ.get(SCHEDULER_ENV) or None
-    client = connect(address) if address else None
-    try:
-        yield client
-    finally:
-        if client is not None:
-            client.close()
+        rebuild = partial(tables_of, times={}, field=tables.near)  # the medium moved
+        return _fill(replace(job, setting=setting, spread=spread, rebuild=rebuild), info, existing)
 
 
 def _blur(prior, medium, acq, tables, tables_of, seconds: dict, say) -> tuple:
@@ -327,7 +257,7 @@ def _tables(
     build_channel_tables`), their time in ``seconds["tables"]``; ``reports``: (progress,
     say, seconds, a dict keeping tables by medium or None)."""
     progress, say, seconds, cache = reports
-    key = (repr(medium_model), accuracy)
+    key = (repr(medium_model), accuracy, repr(settings.get("field")))
     if cache is not None and key in cache:
         return cache[key]
     build = build_channel_tables if isinstance(medium_model, dict) else build_tables
@@ -371,12 +301,13 @@ def _check_resumable(output: Path, existing: dict | None, info: dict, inputs: tu
         return
     acq, tables, noise, tile = inputs
     legacy = store_fingerprint(acq, tables, noise, tile, legacy=True)
-    if stored is not None and "model_error" not in info and stored == legacy:  # no term then
+    if stored is not None and not {"model_error", "propagation"} & set(info) and stored == legacy:
         return
     raise InputError(
         f"{output} holds maps of another acquisition or other settings (its "
         f"photos' contents, manifest, medium, model, fixed parameters, grid, ROI, mask, "
-        f"noise, tile size, blur correction or model error differ; a store written by a "
+        f"noise, tile size, blur correction, model error or propagation differ; a store "
+        f"written by a "
         f"veil that compared photos by modification time also differs once a photo is "
         f"touched); "
         f"give a new output path to start afresh, or the same inputs to resume it"
@@ -411,6 +342,8 @@ class _Job:
     seconds: dict
     notes: list
     setting: Discrepancy | None = None
+    spread: MediumSpread | None = None
+    rebuild: Callable[[Any], MapTables] | None = None
 
 
 #: Errors of the system while writing (no space, a quota, an I/O error, read-only).
@@ -515,6 +448,17 @@ def _solve(job: _Job, tiles) -> MapsRun:
     )
 
 
+def _spread(job: _Job) -> MediumSpread | None:
+    """The job's medium spread with its tables' differences (built now: tiles are to be
+    computed), their time in ``seconds["propagation"]``."""
+    if job.spread is None or job.rebuild is None:
+        return None
+    t0 = time.perf_counter()
+    spread = with_differences(job.spread, job.tables, job.rebuild, job.say)
+    job.seconds["propagation"] = time.perf_counter() - t0
+    return spread
+
+
 def _compute(store, job: _Job, todo):
     tables, tile, noise, client, progress = (
         job.tables,
@@ -536,12 +480,13 @@ def _compute(store, job: _Job, todo):
     if progress is not None:  # the stage announced before the solver's warm-up and its
         # first tile (one tile: its only report would come at the end)
         progress("solving tiles", 0, len(todo))
+    errors = (job.setting, _spread(job))
     if client is None:  # compile the solver once per device, here, before the threads start
         (warm_up_channels if tables.channels else warm_up)(tables, noise)
     if client is not None:
-        [shared] = client.scatter([tables], broadcast=True, hash=False)
+        [shared, errors] = client.scatter([tables, errors], broadcast=True, hash=False)
     else:
-        shared = dask.delayed(tables, pure=True)
+        shared, errors = dask.delayed(tables, pure=True), dask.delayed(errors, pure=True)
     solve = dask.delayed(solve_tile, pure=False)
     tasks = [
         solve(
@@ -552,15 +497,15 @@ def _compute(store, job: _Job, todo):
             ix,
             tile,
             noise,
-            job.setting,
+            errors,
             dask_key_name=f"veil-maps-tile-{iy}-{ix}",
         )
         for iy, ix in todo
     ]
     results = (
-        _run_distributed(client, tasks, progress)
+        run_distributed(client, tasks, progress)
         if client is not None
-        else _run_local(tasks, progress, job.workers)
+        else run_local(tasks, progress, job.workers)
     )
     total = np.sum(results, axis=0)
     return {STATUS[k].split(" (")[0]: int(total[k]) for k in STATUS}

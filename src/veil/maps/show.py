@@ -191,7 +191,8 @@ def export_maps(store, folder, formats=FORMATS) -> list[Path]:
     """Every map of a complete store as float32 images (``formats``: tiff, exr) in
     ``folder``: NAME, NAME_stderr for each free parameter, chi2_reduced, status (0 =
     converged; docs/maps.md), plus summary.json; with the model's error also model_error
-    and NAME_stderr_noise. Unconverged pixels hold 0 in the value
+    and NAME_stderr_noise, with the medium's uncertainty NAME_stderr_medium (its part of
+    NAME_stderr). Unconverged pixels hold 0 in the value
     maps; the status map says which. A parameter per channel of a map over channels is one
     image of every channel: RGB (EXR channels R, G, B; an RGB TIFF)."""
     bad = [f for f in formats if f not in FORMATS]
@@ -217,6 +218,8 @@ def export_maps(store, folder, formats=FORMATS) -> list[Path]:
     images["status"] = (maps["status"].astype(np.float32), ())
     if "model_error" in maps:
         images.update(_error_images(maps, ok))
+    if "stderr_medium" in maps:  # docs/maps-medium-error.md
+        images.update(_part_images(maps, ok, "medium"))
 
     def file(name, fmt):
         return f"{name}.{'tif' if fmt == 'tiff' else 'exr'}"
@@ -245,17 +248,24 @@ def _error_images(maps: dict, ok) -> dict:
     """A store with the model's error (docs/maps-model-error.md): ``model_error`` (s; RGB
     over channels) and NAME_stderr_noise, the standard errors of the noise alone, for each
     free parameter."""
+    channels = tuple(maps["info"].get("channels") or ())
+    s = maps["model_error"] if channels else maps["model_error"][0]
+    return {"model_error": (np.where(ok, s, 0.0), channels)} | _part_images(maps, ok, "noise")
+
+
+def _part_images(maps: dict, ok, part: str) -> dict:
+    """NAME_stderr_PART of each free parameter: the part (``noise``, ``medium``) of its
+    standard errors a store holds (``stderr_PART``, over channels ``channel_stderr_PART``)."""
     info = maps["info"]
     channels = tuple(info.get("channels") or ())
-    s = maps["model_error"] if channels else maps["model_error"][0]
-    images = {"model_error": (np.where(ok, s, 0.0), channels)}
+    images = {}
     for k, name in enumerate(info["params"]):
         if name in info["free"]:
-            images[f"{name}_stderr_noise"] = (np.where(ok, maps["stderr_noise"][k], 0.0), ())
+            images[f"{name}_stderr_{part}"] = (np.where(ok, maps[f"stderr_{part}"][k], 0.0), ())
     for k, name in enumerate(info.get("channel_params") or ()):
         if name in info["free"]:
-            noise = np.where(ok, maps["channel_stderr_noise"][k], 0.0)
-            images[f"{name}_stderr_noise"] = (noise, channels)
+            image = np.where(ok, maps[f"channel_stderr_{part}"][k], 0.0)
+            images[f"{name}_stderr_{part}"] = (image, channels)
     return images
 
 

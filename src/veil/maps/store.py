@@ -48,6 +48,10 @@ CHANNEL_MAPS = ("channel_params", "channel_stderr")
 #: errors of the noise alone; over channels also those of the parameters per channel.
 ERROR_MAPS = ("model_error", "model_error_length", "stderr_noise")
 CHANNEL_ERROR_MAPS = ("channel_stderr_noise",)
+#: The maps of a store with the medium's uncertainty propagated (docs/maps-medium-error.md):
+#: the medium's part of the standard errors alone, of the shared parameters and per channel.
+MEDIUM_MAPS = ("stderr_medium",)
+CHANNEL_MEDIUM_MAPS = ("channel_stderr_medium",)
 #: What status 1 means for a pixel inside the mask.
 FAILED_MASKED = "no usable photo (saturated or clipped in every photo)"
 LOCK_SUFFIX = ".veil-lock"
@@ -133,6 +137,9 @@ def create_store(
         arrays += [(name, _expected_shape(name, info)[:-2], "float64") for name in ERROR_MAPS]
         if channels:
             arrays += [("channel_stderr_noise", per, "float64")]
+    if info.get("propagation"):
+        arrays += [("stderr_medium", (n_par,), "float64")]
+        arrays += [("channel_stderr_medium", per, "float64")] if channels else []
     for name, lead, dtype in arrays:
         group.create_array(
             name,
@@ -235,20 +242,24 @@ def store_lock(store, say=None) -> Iterator[None]:
 # --------------------------------------------------------------------------------------
 def _expected_shape(name: str, info: dict) -> tuple:
     h, w = info["shape"]
-    if name in CHANNEL_MAPS + CHANNEL_ERROR_MAPS:
+    if name in CHANNEL_MAPS + CHANNEL_ERROR_MAPS + CHANNEL_MEDIUM_MAPS:
         return (len(info["channel_params"]), len(info["channels"]), h, w)
     if name in ("model_error", "model_error_length"):
         return (max(1, len(info.get("channels") or ())), h, w)
-    return (len(info["params"]), h, w) if name in ("params", "stderr", "stderr_noise") else (h, w)
+    with_params = ("params", "stderr", "stderr_noise", "stderr_medium")
+    return (len(info["params"]), h, w) if name in with_params else (h, w)
 
 
 def map_names(info: dict) -> tuple:
     """The arrays of a store: :data:`MAPS`, :data:`CHANNEL_MAPS` over channels, with the
-    model's error :data:`ERROR_MAPS` (and :data:`CHANNEL_ERROR_MAPS` over channels)."""
+    model's error :data:`ERROR_MAPS` (and :data:`CHANNEL_ERROR_MAPS` over channels), with
+    the medium's uncertainty :data:`MEDIUM_MAPS` (and :data:`CHANNEL_MEDIUM_MAPS`)."""
     channels = bool(info.get("channels"))
     names = MAPS + (CHANNEL_MAPS if channels else ())
     if info.get("model_error"):
         names += ERROR_MAPS + (CHANNEL_ERROR_MAPS if channels else ())
+    if info.get("propagation"):
+        names += MEDIUM_MAPS + (CHANNEL_MEDIUM_MAPS if channels else ())
     return names
 
 
@@ -319,6 +330,11 @@ def _attribute_problem(info: dict) -> str | None:
     term = info.get("model_error")
     if term is not None and not (isinstance(term, dict) and isinstance(term.get("kind"), str)):
         return "have a model error ('model_error') that is not a record with its kind"
+    spread = info.get("propagation")
+    if spread is not None and not (
+        isinstance(spread, dict) and isinstance(spread.get("parameters"), list)
+    ):
+        return "have a propagation ('propagation') that is not a record of its parameters"
     return None
 
 
@@ -462,7 +478,32 @@ def summarize_maps(store, maps: dict | None = None) -> dict:
         out["chi2_reduced"] = {"p05": float(pct[0]), "median": float(pct[1]), "p95": float(pct[2])}
     if info.get("model_error"):
         out["model_error"] = _error_entry(maps, ok)
+    if info.get("propagation"):
+        out["propagation"] = _medium_entry(maps, ok)
     return out
+
+
+def _medium_entry(maps: dict, ok) -> dict:
+    """The summary of the medium's uncertainty: the medium's parameters and, per map
+    parameter (free ones, per channel ``rho[r]``), the median over the converged pixels of
+    its part of the standard error and of that part's share of the standard error."""
+    info = maps["info"]
+    parts = [(n, maps["stderr_medium"][k], maps["stderr"][k]) for k, n in enumerate(info["params"])]
+    for k, name in enumerate(info.get("channel_params") or ()):
+        for c, channel in enumerate(info["channels"]):
+            part, total = maps["channel_stderr_medium"][k, c], maps["channel_stderr"][k, c]
+            parts.append((f"{name}[{channel}]", part, total))
+    entry: dict = {"parameters": list(info["propagation"]["parameters"]), "maps": {}}
+    for name, part, total in parts:
+        if name.split("[")[0] in info["free"] and ok.any():
+            share = np.divide(
+                part[ok], total[ok], out=np.zeros(part[ok].shape), where=total[ok] > 0
+            )
+            entry["maps"][name] = {
+                "median_stderr_medium": float(np.median(part[ok])),
+                "median_share": float(np.median(share)),
+            }
+    return entry
 
 
 def _error_entry(maps: dict, ok) -> dict:
@@ -520,6 +561,8 @@ __all__ = [
     "CHANNEL_MAPS",
     "ERROR_MAPS",
     "CHANNEL_ERROR_MAPS",
+    "MEDIUM_MAPS",
+    "CHANNEL_MEDIUM_MAPS",
     "map_names",
     "FAILED_MASKED",
     "StoreBusyError",

@@ -210,6 +210,7 @@ def build_tables(
     progress=None,
     near=None,
     roi=None,
+    field=None,
 ) -> MapTables:
     """The tables of a per-pixel target fit: ``brdf_cls`` through ``medium`` (a medium
     model) at ``angles`` (theta_i, phi_i, theta_r, phi_r arrays, degrees). ``fixed``,
@@ -218,16 +219,28 @@ def build_tables(
     before the first node (done 0) and after each node of the nonlinear axes, near-field
     tables as distant ones. ``near`` (a :class:`veil.maps.near.NearGeometry`) with
     ``roi`` (x, y, w, h of the photo): near-field tables over a grid of plate points
-    (:func:`veil.maps.near.field_grid`, docs/maps-geometry.md "Geometry")."""
+    (:func:`veil.maps.near.field_grid`, docs/maps-geometry.md "Geometry"), or over
+    ``field``, a :class:`veil.maps.near.FieldGrid` (another table's, to compare with it)."""
     fixed = dict(fixed or {})
     u, values, coef, angles, near_entries = tabulate(
-        brdf_cls, medium, angles, fixed, options, free, grid, accuracy, progress, near, roi
+        brdf_cls, medium, angles, fixed, options, free, grid, accuracy, progress, near, roi, field
     )
     return _tables(brdf_cls, u, medium, values, coef, fixed, accuracy, angles, **near_entries)
 
 
 def tabulate(
-    brdf_cls, medium, angles, fixed: dict, options, free, grid, accuracy, progress, near, roi
+    brdf_cls,
+    medium,
+    angles,
+    fixed: dict,
+    options,
+    free,
+    grid,
+    accuracy,
+    progress,
+    near,
+    roi,
+    field=None,
 ) -> tuple:
     """What :func:`build_tables` tabulates: (the unknowns, the node values, their
     coefficients, the angles as float arrays, {"near": the field grid, "field_error": its
@@ -243,7 +256,7 @@ def tabulate(
     u = _Unknowns(template, names, base, free_scales, axes, free_parts, known_weight)
     if near is not None:
         values, coef, fgrid, error = build_near(
-            brdf_cls, medium, angles, u, accuracy, progress, near, roi
+            brdf_cls, medium, angles, u, accuracy, progress, near, roi, field
         )
         return u, values, coef, angles, {"near": fgrid, "field_error": error}
     columns = column_source(u, medium, angles, accuracy)
@@ -425,14 +438,14 @@ class _Unknowns:
 
 
 def build_near(
-    brdf_cls, medium, angles, unknowns: _Unknowns, accuracy, progress, near, roi
+    brdf_cls, medium, angles, unknowns: _Unknowns, accuracy, progress, near, roi, field=None
 ) -> tuple:
     """Near-field tables' (values, coefficients, field grid, interpolation error): the
     columns at every node of a grid of plate points and of the nonlinear axes, with the
     pixel's own angles (docs/maps-geometry.md "Geometry"); the field interpolation checked
     against exact columns at :data:`FIELD_CHECKS`. ``medium``: a medium model, or {channel:
     medium model} (tables over channels: a channel axis before the configurations'; the
-    field grid follows the narrowest of the channels' lobes)."""
+    field grid follows the narrowest of the channels' lobes, or is ``field``)."""
     from .near import apparent_lobe, field_grid
 
     u = unknowns
@@ -443,7 +456,7 @@ def build_near(
         smoothest_facet(brdf_cls, u.names, u.base, u.axes, u.template.options()),
         min(m.lobe_half_width() for m in media),
     )
-    fgrid = field_grid(near, angles, roi, lobe)
+    fgrid = field_grid(near, angles, roi, lobe) if field is None else field
     kx, ky = fgrid.shape
     m = len(angles[0])
     node_angles = tuple(np.ascontiguousarray(a.reshape(-1)) for a in fgrid.node_angles(angles))

@@ -7,6 +7,7 @@ channel axis."""
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import os
 from typing import Any
@@ -16,19 +17,23 @@ import numpy as np
 from .._extras import require
 from ..io import write_bytes_atomic
 from .geometry_notes import geometry_record
-from .model_error import fingerprint_key, record, with_term
+from .medium_error import fingerprint_key as spread_key
+from .medium_error import medium_variance
+from .medium_error import record as spread_record
+from .model_error import fingerprint_key, record, solver_stderr, with_solver_stderr, with_term
 from .solve import solve_pixels
 from .solve_channels import solve_channel_pixels
-from .status import STATUS
+from .status import CONVERGED, STATUS
 from .store import FORMAT, tile_marker
 from .tables import MapTables
 
 
-def solve_tile(block, tables: MapTables, store, iy, ix, tile, noise, setting=None) -> np.ndarray:
+def solve_tile(block, tables: MapTables, store, iy, ix, tile, noise, errors=None) -> np.ndarray:
     """One tile: (photos, th, tw) values ((channels, photos, th, tw) over channels) -> its
-    chunks of the maps, then its marker; the count of its pixels by status. ``setting``:
-    the model's error to add to the standard errors
-    (:class:`veil.maps.model_error.Discrepancy`), or None."""
+    chunks of the maps, then its marker; the count of its pixels by status. ``errors``:
+    (the model's error, the medium's spread) to add to the standard errors
+    (:class:`veil.maps.model_error.Discrepancy`, :class:`veil.maps.medium_error.
+    MediumSpread`, each or both None), or None."""
     zarr = require("zarr", "a maps store")
 
     block = np.asarray(block, dtype=np.float64)
@@ -42,7 +47,13 @@ def solve_tile(block, tables: MapTables, store, iy, ix, tile, noise, setting=Non
         array(name)[..., ys, xs] = values.reshape(values.shape[:-1] + (th, tw))
 
     ys, xs = slice(iy * tile, iy * tile + th), slice(ix * tile, ix * tile + tw)
+    setting, spread = errors or (None, None)
     res, noise_only, terms = _fits(block, tables, iy, ix, tile, noise, setting)
+    if spread is not None:
+        res, medium_part = _with_medium(block, tables, res, (iy, ix, tile), noise, spread)
+        put("stderr_medium", medium_part.stderr)
+        if tables.channels:
+            put("channel_stderr_medium", medium_part.channel_stderr)
     if tables.channels:
         put("channel_params", res.channel_params)
         put("channel_stderr", res.channel_stderr)
@@ -74,21 +85,41 @@ def _tile_pixels(tables: MapTables, iy, ix, tile, th, tw):
     return ((x0 + ix * tile + cols).ravel(), (y0 + iy * tile + rows).ravel())
 
 
+def _values(block, tables: MapTables) -> tuple:
+    """A tile's (values, usable samples) as its solve takes them: (pixels, photos), over
+    channels (pixels, channels, photos); unusable ones at 0."""
+    th, tw = block.shape[-2:]
+    if tables.channels:
+        y = np.moveaxis(block.reshape(block.shape[0], block.shape[1], th * tw), -1, 0)
+    else:
+        y = block.reshape(block.shape[0], th * tw).T
+    valid = np.isfinite(y)
+    return np.where(valid, y, 0.0), valid
+
+
+def _with_medium(block, tables: MapTables, fits, where, noise, spread) -> tuple:
+    """(``fits`` with the medium's part in every converged pixel's standard errors, the
+    fits with that part alone as their standard errors; :mod:`veil.maps.medium_error`)."""
+    y, valid = _values(block, tables)
+    pixels = _tile_pixels(tables, *where, *block.shape[-2:])
+    var = medium_variance(tables, spread, fits, y, valid, noise, pixels)
+    ok = fits.status == CONVERGED
+    total = np.sqrt(solver_stderr(tables, fits) ** 2 + var)
+    zero = dataclasses.replace(fits, stderr=np.zeros_like(fits.stderr))
+    if tables.channels:
+        zero = dataclasses.replace(zero, channel_stderr=np.zeros_like(fits.channel_stderr))
+    part = with_solver_stderr(tables, zero, np.sqrt(var), ok)
+    return with_solver_stderr(tables, fits, total, ok), part
+
+
 def _fits(block, tables: MapTables, iy, ix, tile, noise, setting) -> tuple:
     """The tile's pixels solved (:func:`veil.maps.solve.solve_pixels`, over channels
     :func:`veil.maps.solve_channels.solve_channel_pixels`): (fits, None, None), or with a
     ``setting`` (fits with the model's error, the fits without it, (s, ell) per channel
     and pixel) (:func:`veil.maps.model_error.with_term`)."""
     th, tw = block.shape[-2:]
-    solve: Any
-    if tables.channels:  # (pixels, channels, photos)
-        y = np.moveaxis(block.reshape(block.shape[0], block.shape[1], th * tw), -1, 0)
-        solve = solve_channel_pixels
-    else:  # (pixels, photos)
-        y = block.reshape(block.shape[0], th * tw).T
-        solve = solve_pixels
-    valid = np.isfinite(y)
-    y = np.where(valid, y, 0.0)
+    solve: Any = solve_channel_pixels if tables.channels else solve_pixels
+    y, valid = _values(block, tables)
     pixels = _tile_pixels(tables, iy, ix, tile, th, tw)
     res = solve(tables, y, valid, noise, pixels=pixels)
     if setting is None:
@@ -98,25 +129,31 @@ def _fits(block, tables: MapTables, iy, ix, tile, noise, setting) -> tuple:
 
 
 def store_fingerprint(
-    acq, tables: MapTables, noise, tile, legacy: bool = False, setting=None
+    acq, tables: MapTables, noise, tile, legacy: bool = False, errors=None
 ) -> str:
     """The digest of a store's inputs (its attribute ``fingerprint``): the acquisition's
     (:meth:`veil.maps.photos.Acquisition.fingerprint`, ``legacy`` as there), the tables',
-    the noise, the tile size and the model's error (``setting``, when there is one)."""
+    the noise, the tile size, the model's error and the medium's spread (``errors`` as
+    :func:`solve_tile`'s, when there are)."""
+    setting, spread = errors or (None, None)
     key = acq.fingerprint(legacy=legacy) + tables.fingerprint() + repr((noise, tile))
     if setting is not None:
         key += fingerprint_key(setting)
+    if spread is not None:
+        key += spread_key(spread)
     return hashlib.sha256(key.encode()).hexdigest()
 
 
 def store_attributes(
-    acq, tables: MapTables, cls, noise, tile, accuracy, channel, geometry, setting=None
+    acq, tables: MapTables, cls, noise, tile, accuracy, channel, geometry, errors=None
 ) -> dict:
     """The store's attributes (``veil_maps``), with the fingerprint of its inputs; over
     channels the parameters shared (``params``) and per channel (``channel_params``) and the
-    ``channels``; with the model's error (``setting``) its kind, floor and given term
-    (``model_error``)."""
-    fingerprint = store_fingerprint(acq, tables, noise, tile, setting=setting)
+    ``channels``; with the model's error its kind, floor and given term (``model_error``),
+    with the medium's spread its parameters, values, errors and steps (``propagation``;
+    ``errors`` as :func:`solve_tile`'s)."""
+    setting, spread = errors or (None, None)
+    fingerprint = store_fingerprint(acq, tables, noise, tile, errors=errors)
     shape = (acq.roi.h, acq.roi.w)
     info = {
         "format": FORMAT,
@@ -153,6 +190,8 @@ def store_attributes(
         info["channels"] = list(tables.channels)
     if setting is not None:
         info["model_error"] = record(setting)
+    if spread is not None:
+        info["propagation"] = spread_record(spread)
     return info
 
 
