@@ -249,6 +249,33 @@ def test_the_parts_add_in_quadrature_and_the_estimates_do_not_move(grey_off, gre
     assert lin["info"]["fingerprint"] != off["info"]["fingerprint"]
 
 
+def test_with_the_models_error_and_unweighted_the_parts_still_add(grey, grey_linear):
+    """With the model's error (correlated) the medium's part is the same, bit for bit (it
+    does not depend on the term: the estimator's weights are the noise's), and the terms
+    add in quadrature to it; an unweighted map (no --noise) gets its part too, its
+    estimates and residual-scaled errors those of its map without, the parts adding."""
+    _, linear, _ = grey_linear
+    _, term, _ = _grey_map(grey, "term", propagation="linear", model_error="correlated")
+    _, term_off, _ = _grey_map(grey, "term-off", propagation="off", model_error="correlated")
+    ok = term["status"] == CONVERGED
+    assert np.array_equal(term["stderr_medium"], linear["stderr_medium"])
+    assert np.array_equal(term["params"], term_off["params"])
+    np.testing.assert_allclose(term["stderr"][:, ok] ** 2, term_off["stderr"][:, ok] ** 2
+                               + term["stderr_medium"][:, ok] ** 2, rtol=1e-9)
+    assert {"model_error", "stderr_noise", "stderr_medium"} <= set(term)
+    _, plain, _ = _grey_map(grey, "plain", propagation="linear", noise=None)
+    _, plain_off, _ = _grey_map(grey, "plain-off", propagation="off", noise=None)
+    ok = plain["status"] == CONVERGED
+    assert ok.mean() > 0.9 and np.array_equal(plain["params"], plain_off["params"])
+    np.testing.assert_allclose(plain["stderr"][:, ok] ** 2, plain_off["stderr"][:, ok] ** 2
+                               + plain["stderr_medium"][:, ok] ** 2, rtol=1e-9)
+    free = [k for k, n in enumerate(NAMES) if n in plain["info"]["free"]]
+    part = plain["stderr_medium"][free][:, ok]
+    # unweighted, S weighs every photo alike: near the weighted map's part, not equal
+    ratio = np.median(part / linear["stderr_medium"][free][:, ok], axis=1)
+    assert np.all(part > 0) and np.all((ratio > 0.5) & (ratio < 2.0)), ratio
+
+
 def test_the_summary_the_export_and_the_command(grey, grey_off, grey_linear, tmp_path):
     """summary.json and summarize_maps: the parameters and, per free map parameter, the
     median over converged pixels of stderr_medium and of its share of stderr (none for the
@@ -296,7 +323,7 @@ def test_the_summary_the_export_and_the_command(grey, grey_off, grey_linear, tmp
                             "--roi", "0,0,8,8"))
     assert result.exit_code in (0, 1), result.output
     [line] = [t for t in result.output.splitlines()
-              if "the medium's uncertainty" in t and "share" in t]
+              if "the medium's uncertainty" in t and "part of the standard error" in t]
     for name in PROPAGATED:
         assert name in line, line
     shares = summarize_maps(out)["propagation"]["maps"]

@@ -374,8 +374,8 @@ def _print_propagation(entry) -> None:
         f"{name} {100 * m['median_share']:.0f} %" for name, m in entry["maps"].items()
     )
     click.echo(
-        f"    the medium's uncertainty ({', '.join(entry['parameters']) or 'none'}): "
-        f"median share of the standard error {parts or '-'}"
+        f"    the medium's uncertainty ({', '.join(entry['parameters']) or 'none'}): its part "
+        f"of the standard error, median over the converged pixels: {parts or '-'}"
     )
 
 

@@ -18,6 +18,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -25,6 +26,7 @@ import numpy as np
 
 from ..errors import InputError
 from .channels import map_media
+from .geometry_notes import MapsWarning
 from .model_error import at_solution, full_jacobian, solver_parameters
 from .solve import pixel_coords, weights
 from .status import CONVERGED
@@ -69,18 +71,19 @@ def check_method(method, medium) -> str:
             f"--propagation {method} needs the medium's covariance, and --medium is a medium "
             f"model given by its values; give the JSON file of 'veil fit medium'"
         )
-    if getattr(medium, "kind", None) != "medium" or getattr(medium, "JOINT", False):
+    se = medium.stderr_total if medium.stderr_total is not None else medium.stderr
+    lost = [n for n in medium.free if not _finite(se.get(n))]
+    if lost or medium.covariance(total=True) is None:
         raise InputError(
-            f"--propagation {method} takes the medium's covariance from a result of 'veil "
-            f"fit medium'; --medium is another kind of result (a joint fit's media are not "
-            f"propagated into maps)"
-        )
-    if medium.covariance(total=True) is None:
-        raise InputError(
-            f"--propagation {method}: the medium result has no standard errors (its fit "
-            f"did not determine them); propagate from a medium fit that has them"
+            f"--propagation {method}: the medium result's "
+            f"{', '.join(lost) or 'covariance'} has no finite standard error (not "
+            f"determined); fix it in step 1, or map without propagation"
         )
     return method
+
+
+def _finite(value) -> bool:
+    return value is not None and math.isfinite(float(value))
 
 
 def _media_key(media) -> dict:
@@ -117,12 +120,7 @@ def plan_spread(method, medium, channel) -> MediumSpread | None:
     if check_method(method, medium) == "off":
         return None
     names, cov = medium.covariance(total=True)
-    lost = [n for n, v in zip(names, np.diag(cov)) if not np.isfinite(v)]
-    if lost:
-        raise InputError(
-            f"--propagation {method}: the medium result's {', '.join(lost)} has no finite "
-            f"standard error (not determined); fix it in step 1, or map without propagation"
-        )
+    _warn_first_order(medium, names, cov)
     base = _media_key(map_media(medium, channel))
     kept, values, steps, media, changed = [], [], [], [], []
     for k, name in enumerate(names):
@@ -147,6 +145,37 @@ def plan_spread(method, medium, channel) -> MediumSpread | None:
         tuple(media),
         tuple(changed),
     )
+
+
+def _warn_first_order(medium, names, cov) -> None:
+    """A :class:`~veil.maps.geometry_notes.MapsWarning` when a medium parameter is
+    uncertain by more than :data:`veil.fitting.propagation.RELATIVE_LIMIT` of its scale,
+    where the single fits leave the first order for sigma points (the maps keep it)."""
+    from ..fitting.propagation import RELATIVE_LIMIT, RELATIVE_MAX, relative_uncertainty
+
+    pairs = [(n, _spec(medium, n), k) for k, n in enumerate(names)]
+    pairs = [(n, p, k) for n, p, k in pairs if p is not None]
+    if not pairs:
+        return
+    rows = [k for _, _, k in pairs]
+    values = [float(medium.params[n]) for n, _, _ in pairs]
+    rel = relative_uncertainty(
+        [p for _, p, _ in pairs], values, cov[np.ix_(rows, rows)], [n for n, _, _ in pairs]
+    )
+    wide = {n: r for n, r in rel.items() if r is None or r > RELATIVE_LIMIT}
+    if wide:
+        said = ", ".join(
+            f"{n} by {r:.2g}" if r is not None and r <= RELATIVE_MAX else f"{n} (at a bound)"
+            for n, r in wide.items()
+        )
+        warnings.warn(
+            MapsWarning(
+                f"the medium's uncertainty is propagated to first order, which is only "
+                f"indicative where a parameter is uncertain by more than {RELATIVE_LIMIT:g} "
+                f"of its scale (the value, or the room to a bound): {said}"
+            ),
+            stacklevel=2,
+        )
 
 
 def with_differences(
@@ -210,7 +239,9 @@ def medium_variance(
         for d, h in zip(spread.differences, spread.steps)
     ]
     jt = np.stack(cols, axis=-1) * w[:, :, None]
-    sens = -np.linalg.pinv(jw) @ jt
+    norms = np.linalg.norm(jw, axis=1)  # columns equilibrated, as the solver's covariance
+    norms = np.where(norms > 0, norms, 1.0)
+    sens = -(np.linalg.pinv(jw / norms[:, None, :]) @ jt) / norms[:, :, None]
     out[idx] = np.einsum("pik,kl,pil->pi", sens, spread.covariance, sens)
     return np.maximum(out, 0.0)
 

@@ -28,7 +28,9 @@ More arguments of :func:`fit_maps`:
 - ``noise``: None (unweighted fit, standard errors from the residuals) or (relative,
   absolute): sigma = sqrt((relative * value)^2 + absolute^2) per sample. ``model_error``
   "off", "independent" or "correlated": the model's own error in the standard errors of
-  weighted maps (docs/maps-model-error.md).
+  weighted maps (docs/maps-model-error.md). ``propagation`` "off" or "linear": the step-1
+  medium's covariance in them (docs/maps-medium-error.md; ``seconds["propagation"]`` the
+  tables at the moved media).
 - ``tile``: tile size in pixels (memory is bounded by it). ``scheduler``: a
   dask.distributed address (default ``$VEIL_DASK_SCHEDULER``; none: local threads,
   ``workers``).
@@ -38,8 +40,9 @@ More arguments of :func:`fit_maps`:
   from the plate centre, collimated light; docs/maps-geometry.md "Geometry") instead of the
   manifest's angles at every pixel, of one channel or of several.
 - ``progress(stage, done, total)``, ``log(message)``: reports; the stages ("tables",
-  near-field or distant: nodes of the nonlinear axes; "staging photos"; "solving tiles")
-  each start with a call at done 0.
+  near-field or distant: nodes of the nonlinear axes; "staging photos"; with the
+  propagation :data:`MOVED`, once per medium parameter; "solving tiles") each start with
+  a call at done 0.
 """
 
 from __future__ import annotations
@@ -115,6 +118,8 @@ from .tables import MapTables, build_tables
 from .tile import solve_tile, store_attributes, store_fingerprint
 
 DEFAULT_TILE = 128
+#: The progress stage of the tables at the moved media (``propagation``).
+MOVED = "tables at the moved media"
 
 
 # --------------------------------------------------------------------------------------
@@ -197,20 +202,21 @@ def fit_maps(
         seconds: dict = {}
         build = dict(fixed=fixed, options=options, free=free, grid=grid_spec)
 
-        def tables_of(medium, times=seconds, field=None):
-            reports = (progress, say, times, tables_cache)
-            return _tables(cls, medium, acq, build | {"field": field}, accuracy, near, reports)
+        def tables_of(media, times=seconds, field=None, stage="tables", cache=tables_cache):
+            shown = progress and (lambda done, total: progress(stage, done, total))
+            reports = (shown, say, times, cache)
+            return _tables(cls, media, acq, build | {"field": field}, accuracy, near, reports)
 
         tables = tables_of(media or medium_model)
         notes = geometry_notes_of(tables, cls, medium_model, acq, geometry)
         acq, blur = _blur(prior, media or medium_model, acq, tables, tables_of, seconds, say)
-        errors = (setting, spread)  # the model's error, the medium's uncertainty
-        info = store_attributes(acq, tables, cls, noise, tile, accuracy, channel, geometry, errors)
+        added = (setting, spread)  # the model's error, the medium's uncertainty
+        info = store_attributes(acq, tables, cls, noise, tile, accuracy, channel, geometry, added)
         if blur is not None:
             info["blur_from"] = dict(blur, store=blur_record or blur["store"])
         _check_resumable(output, existing, info, (acq, tables, noise, tile))
         job = _Job(output, acq, tables, tile, noise, client, progress, workers, say, seconds, notes)
-        rebuild = partial(tables_of, times={}, field=tables.near)  # the medium moved
+        rebuild = partial(tables_of, times={}, field=tables.near, stage=MOVED, cache=None)
         return _fill(replace(job, setting=setting, spread=spread, rebuild=rebuild), info, existing)
 
 
@@ -254,9 +260,10 @@ def _tables(
 ) -> MapTables:
     """The tables of the photos' configurations (:func:`build_tables` with ``settings``;
     over channels ``medium_model`` is {channel: medium}, :func:`veil.maps.channels.
-    build_channel_tables`), their time in ``seconds["tables"]``; ``reports``: (progress,
-    say, seconds, a dict keeping tables by medium or None)."""
-    progress, say, seconds, cache = reports
+    build_channel_tables`), their time in ``seconds["tables"]``; ``reports``: (progress of
+    the stage (done, total) or None, say, seconds, a dict keeping tables by medium or
+    None)."""
+    shown, say, seconds, cache = reports
     key = (repr(medium_model), accuracy, repr(settings.get("field")))
     if cache is not None and key in cache:
         return cache[key]
@@ -269,7 +276,7 @@ def _tables(
         roi=acq.roi,
         accuracy=accuracy,
         near=near,
-        progress=(lambda d, t: progress("tables", d, t)) if progress else None,
+        progress=shown,
         **settings,
     )
     seconds["tables"] = time.perf_counter() - t0
@@ -427,7 +434,7 @@ def _solve(job: _Job, tiles) -> MapsRun:
         )
     t0 = time.perf_counter()
     counts = _compute(output, job, todo)
-    job.seconds["solve"] = time.perf_counter() - t0
+    job.seconds["solve"] = time.perf_counter() - t0 - job.seconds.get("propagation", 0.0)
     missing = [t for t in tiles if not tile_marker(output, *t).is_file()]
     if missing:
         raise RuntimeError(f"{len(missing)} tiles have no marker after the run")
@@ -477,16 +484,16 @@ def _compute(store, job: _Job, todo):
     # all photos of a tile (of every channel, over channels: (channels, photos, h, w))
     stack = da.from_array(arr, chunks=arr.shape[:-2] + (tile, tile))
     blocks = stack.to_delayed().reshape(stack.numblocks[-2:])
+    added = (job.setting, _spread(job))  # the tables at the moved media: their own stage
     if progress is not None:  # the stage announced before the solver's warm-up and its
         # first tile (one tile: its only report would come at the end)
         progress("solving tiles", 0, len(todo))
-    errors = (job.setting, _spread(job))
     if client is None:  # compile the solver once per device, here, before the threads start
         (warm_up_channels if tables.channels else warm_up)(tables, noise)
     if client is not None:
-        [shared, errors] = client.scatter([tables, errors], broadcast=True, hash=False)
+        [shared, added] = client.scatter([tables, added], broadcast=True, hash=False)
     else:
-        shared, errors = dask.delayed(tables, pure=True), dask.delayed(errors, pure=True)
+        shared, added = dask.delayed(tables, pure=True), dask.delayed(added, pure=True)
     solve = dask.delayed(solve_tile, pure=False)
     tasks = [
         solve(
@@ -497,7 +504,7 @@ def _compute(store, job: _Job, todo):
             ix,
             tile,
             noise,
-            errors,
+            added,
             dask_key_name=f"veil-maps-tile-{iy}-{ix}",
         )
         for iy, ix in todo

@@ -28,12 +28,12 @@ from .store import FORMAT, tile_marker
 from .tables import MapTables
 
 
-def solve_tile(block, tables: MapTables, store, iy, ix, tile, noise, errors=None) -> np.ndarray:
+def solve_tile(block, tables: MapTables, store, iy, ix, tile, noise, added=None) -> np.ndarray:
     """One tile: (photos, th, tw) values ((channels, photos, th, tw) over channels) -> its
-    chunks of the maps, then its marker; the count of its pixels by status. ``errors``:
-    (the model's error, the medium's spread) to add to the standard errors
-    (:class:`veil.maps.model_error.Discrepancy`, :class:`veil.maps.medium_error.
-    MediumSpread`, each or both None), or None."""
+    chunks of the maps, then its marker; the count of its pixels by status. ``added``:
+    what the standard errors take beyond the noise, (the model's error, the medium's
+    spread), each or both None (:class:`veil.maps.model_error.Discrepancy`,
+    :class:`veil.maps.medium_error.MediumSpread`), or None."""
     zarr = require("zarr", "a maps store")
 
     block = np.asarray(block, dtype=np.float64)
@@ -47,7 +47,7 @@ def solve_tile(block, tables: MapTables, store, iy, ix, tile, noise, errors=None
         array(name)[..., ys, xs] = values.reshape(values.shape[:-1] + (th, tw))
 
     ys, xs = slice(iy * tile, iy * tile + th), slice(ix * tile, ix * tile + tw)
-    setting, spread = errors or (None, None)
+    setting, spread = added or (None, None)
     res, noise_only, terms = _fits(block, tables, iy, ix, tile, noise, setting)
     if spread is not None:
         res, medium_part = _with_medium(block, tables, res, (iy, ix, tile), noise, spread)
@@ -128,14 +128,12 @@ def _fits(block, tables: MapTables, iy, ix, tile, noise, setting) -> tuple:
     return with_error, res, (sigma, length)
 
 
-def store_fingerprint(
-    acq, tables: MapTables, noise, tile, legacy: bool = False, errors=None
-) -> str:
+def store_fingerprint(acq, tables: MapTables, noise, tile, legacy: bool = False, added=None) -> str:
     """The digest of a store's inputs (its attribute ``fingerprint``): the acquisition's
     (:meth:`veil.maps.photos.Acquisition.fingerprint`, ``legacy`` as there), the tables',
-    the noise, the tile size, the model's error and the medium's spread (``errors`` as
+    the noise, the tile size, the model's error and the medium's spread (``added`` as
     :func:`solve_tile`'s, when there are)."""
-    setting, spread = errors or (None, None)
+    setting, spread = added or (None, None)
     key = acq.fingerprint(legacy=legacy) + tables.fingerprint() + repr((noise, tile))
     if setting is not None:
         key += fingerprint_key(setting)
@@ -145,15 +143,15 @@ def store_fingerprint(
 
 
 def store_attributes(
-    acq, tables: MapTables, cls, noise, tile, accuracy, channel, geometry, errors=None
+    acq, tables: MapTables, cls, noise, tile, accuracy, channel, geometry, added=None
 ) -> dict:
     """The store's attributes (``veil_maps``), with the fingerprint of its inputs; over
     channels the parameters shared (``params``) and per channel (``channel_params``) and the
     ``channels``; with the model's error its kind, floor and given term (``model_error``),
     with the medium's spread its parameters, values, errors and steps (``propagation``;
-    ``errors`` as :func:`solve_tile`'s)."""
-    setting, spread = errors or (None, None)
-    fingerprint = store_fingerprint(acq, tables, noise, tile, errors=errors)
+    ``added`` as :func:`solve_tile`'s)."""
+    setting, spread = added or (None, None)
+    fingerprint = store_fingerprint(acq, tables, noise, tile, added=added)
     shape = (acq.roi.h, acq.roi.w)
     info = {
         "format": FORMAT,
