@@ -23,8 +23,32 @@ import tifffile
 import veil
 from support.cli import run
 from support.maps import angles_of, configurations, write_photos
-from test_maps_channels import _medium, _vector, medium_result
-from test_maps_model_error import _material_maps, _photos, _render, _snapshot
+from test_maps_channels import _medium, medium_result
+
+# the grey stack of the model's error's tests: BRDF1 through BTDF2, Pd, Ps, n free, eta
+# fixed, 24 configurations, 1 % noise, 12 x 12 pixels in four tiles of at most 8 x 8
+from test_maps_model_error import (
+    BRDF,
+    CLS,
+    CONFIGS,
+    FIX,
+    FREE,
+    GRID,
+    INDEX,
+    MEDIUM,
+    NAMES,
+    NOISE,
+    PD,
+    SHAPE,
+    TILE,
+    H,
+    W,
+    _channel_materials,
+    _material_maps,
+    _photos,
+    _render,
+    _snapshot,
+)
 from veil.errors import InputError
 from veil.fitting import FitResult
 from veil.maps.run import open_maps
@@ -32,17 +56,6 @@ from veil.maps.solve import CONVERGED
 from veil.maps.store import summarize_maps
 from veil.maps.tables import build_tables
 
-BRDF, MEDIUM = veil.BRDF1, veil.BTDF2
-CLS = type(BRDF)
-NAMES = CLS.param_names()                   # Pd, Ps, n, eta
-PD, PS, SHAPE, INDEX = range(4)
-FREE = (PD, PS, SHAPE)
-FIX = {NAMES[INDEX]: float(BRDF.to_vector()[INDEX])}
-GRID = f"{NAMES[SHAPE]}=0.25:2.5:16"
-NOISE = 0.01
-CONFIGS = 24
-TILE = 8
-H = W = 12                                  # four tiles (8x8, 8x4, 4x8, 4x4)
 BASE_KEYS = {"params", "stderr", "chi2_reduced", "n_points", "status", "info"}
 
 #: the medium's parameters (Td, Tt, g, eta) and the step-1 result's total standard errors,
@@ -507,7 +520,6 @@ def test_blur_rounds_propagate_in_the_last_round_only(tmp_path, monkeypatch):
 # over channels, and one channel of a medium fitted over several
 # --------------------------------------------------------------------------------------
 HC = WC = 8
-MATERIALS = ((1.0, 0.6), (1.5, 0.9), (0.8, 1.3), (1.2, 0.45))
 
 
 @pytest.fixture(scope="module")
@@ -517,14 +529,8 @@ def rgb(tmp_path_factory):
     root = tmp_path_factory.mktemp("medium_error_rgb")
     configs = configurations(CONFIGS)
     angles = angles_of(configs)
-    values = []
-    for c in "rgb":
-        pm = np.stack([_vector(c, 1.0)] * (HC * WC), axis=1).reshape(len(NAMES), HC, WC)
-        for x in range(WC):
-            pd, n = MATERIALS[x % len(MATERIALS)]
-            pm[PD, :, x] *= pd
-            pm[SHAPE, :, x] = n
-        values.append(_render(_medium(c), angles, pm.reshape(len(NAMES), -1).T))
+    values = [_render(_medium(c), angles, _channel_materials(c, HC, WC).reshape(len(NAMES), -1).T)
+              for c in "rgb"]
     manifest = write_photos(root / "photos", configs, np.stack(values, axis=-1), (HC, WC),
                             NOISE, seed=3)
     return root, manifest

@@ -95,6 +95,17 @@ def _coverage(maps: dict, truth: np.ndarray, ok) -> list:
     return out
 
 
+def _channel_materials(c: str, h: int = 8, w: int = 8) -> np.ndarray:
+    """(4, h, w) BRDF vectors of channel ``c`` of the RGB stacks (tests/test_maps_channels.py
+    ``_vector``): the materials by column."""
+    pm = np.stack([_vector(c, 1.0)] * (h * w), axis=1).reshape(len(NAMES), h, w)
+    for x in range(w):
+        pd, n = MATERIALS[x % len(MATERIALS)]
+        pm[PD, :, x] *= pd
+        pm[SHAPE, :, x] = n
+    return pm
+
+
 def _kind(info: dict) -> str:
     """The store's record of the kind: the kind itself, or a record whose "kind" it is."""
     record = info["model_error"]
@@ -455,14 +466,7 @@ def test_over_channels_one_term_per_channel(tmp_path_factory):
     root = tmp_path_factory.mktemp("model_error_rgb")
     configs = _configs()
     angles = angles_of(configs)
-    maps = {}
-    for c in "rgb":
-        pm = np.stack([_vector(c, 1.0)] * (HC * WC), axis=1).reshape(len(NAMES), HC, WC)
-        for x in range(WC):
-            pd, n = MATERIALS[x % len(MATERIALS)]
-            pm[PD, :, x] *= pd
-            pm[SHAPE, :, x] = n
-        maps[c] = pm
+    maps = {c: _channel_materials(c) for c in "rgb"}
     values = np.stack([_render(_medium(c), angles, maps[c].reshape(len(NAMES), -1).T)
                        for c in "rgb"], axis=-1)                         # (H*W, M, 3)
     values[:, :, 0] *= 1 + _draws(angles, HC * WC, np.random.default_rng(7))

@@ -112,20 +112,8 @@ def build_channel_tables(
     fixed = dict(fixed or {})
     check_family(brdf_cls, fixed, set(free or ()))
     entry = media_entry(media)
-    u, values, coef, angles, near_entries = tabulate(
-        brdf_cls,
-        dict(media),
-        angles,
-        fixed,
-        options,
-        free,
-        grid,
-        accuracy,
-        progress,
-        near,
-        roi,
-        field,
-    )
+    settings = (fixed, options, free, grid, accuracy, progress, near, roi, field)
+    u, values, coef, angles, near_entries = tabulate(brdf_cls, dict(media), angles, *settings)
     return MapTables(
         brdf_cls.NAME,
         dict(u.template.options()),
