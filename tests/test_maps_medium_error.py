@@ -602,3 +602,19 @@ def test_one_channel_leaves_out_the_other_channels_parameters(rgb):
         assert np.array_equal(both[name], alone[name]), name
     ok = both["status"] == CONVERGED
     assert np.all(both["stderr_medium"][list(FREE)][:, ok] > 0)
+
+
+def test_the_figure_draws_the_medium_s_share_of_each_standard_error(grey_linear, tmp_path):
+    """`veil maps show` of a store with the propagation: one panel per free parameter, its
+    image the medium's part over the standard error at converged pixels (NaN elsewhere)."""
+    from veil.maps.show import _panels, maps_figure
+
+    store, maps, _ = grey_linear
+    ok = maps["status"] == CONVERGED
+    panels = {title: image for title, image, _, _ in _panels(maps)}
+    for k in FREE:
+        image = panels[f"medium's share of stderr of {NAMES[k]}"]
+        np.testing.assert_allclose(image[ok], maps["stderr_medium"][k][ok] / maps["stderr"][k][ok],
+                                   rtol=1e-12)
+        assert np.all(np.isnan(image[~ok])) and np.all((image[ok] > 0) & (image[ok] <= 1))
+    assert maps_figure(store, tmp_path / "maps.png").stat().st_size > 10_000

@@ -360,8 +360,9 @@ def _print_model_error(run) -> None:
         click.echo(
             f"note: the reduced chi-square's median {chi2:.3g} is above "
             f"{chi2_threshold(dof):.3g}: the model misses the data by more than the noise, "
-            f"and the standard errors count the noise alone; --model-error correlated adds "
-            f"the model's error (docs/maps-model-error.md)",
+            f"and the standard errors count the noise "
+            + ("and the medium's uncertainty only" if info.get("propagation") else "alone")
+            + "; --model-error correlated adds the model's error (docs/maps-model-error.md)",
             err=True,
         )
 

@@ -49,22 +49,28 @@ def _panels(maps):
             title = f"model error s[{c}]" if c else "model error s"
             image = np.where(ok, maps["model_error"][j], np.nan)
             out.append((title, image, "relative model error s", False))
+    if "stderr_medium" in maps:  # docs/maps-medium-error.md: its share of each stderr
+        parts = _free_maps(maps, ("stderr_medium", "channel_stderr_medium"))
+        for (name, _, err), (_, _, part) in zip(_free_maps(maps), parts):
+            share = np.where(ok & (err > 0), part / np.where(err > 0, err, 1.0), np.nan)
+            out.append((f"medium's share of stderr of {name}", share, "part / stderr", False))
     return out
 
 
-def _free_maps(maps) -> list:
+def _free_maps(maps, keys=("stderr", "channel_stderr")) -> list:
     """(name, values, standard errors) of every free parameter's map; over channels each
-    channel's map of a parameter per channel is one, named ``NAME[channel]``."""
+    channel's map of a parameter per channel is one, named ``NAME[channel]``. ``keys``:
+    the arrays taken as the standard errors (a part of them: ``stderr_medium``, ...)."""
     info = maps["info"]
     out = [
-        (name, maps["params"][k], maps["stderr"][k])
+        (name, maps["params"][k], maps[keys[0]][k])
         for k, name in enumerate(info["params"])
         if name in info["free"]
     ]
     for k, name in enumerate(info.get("channel_params") or ()):
         if name in info["free"]:
             out += [
-                (f"{name}[{c}]", maps["channel_params"][k, j], maps["channel_stderr"][k, j])
+                (f"{name}[{c}]", maps["channel_params"][k, j], maps[keys[1]][k, j])
                 for j, c in enumerate(info["channels"])
             ]
     return out
@@ -72,7 +78,9 @@ def _free_maps(maps) -> list:
 
 def maps_figure(store, path, *, dpi: int = 110) -> Path:
     """One figure of a complete maps store: every free parameter, its standard error, the
-    reduced chi-square and the status map; written atomically as PNG/PDF/SVG."""
+    reduced chi-square and the status map (with the model's error its s per channel, with
+    the medium's uncertainty its share of each standard error); written atomically as
+    PNG/PDF/SVG."""
     import matplotlib
 
     matplotlib.use("Agg")
