@@ -426,3 +426,49 @@ def test_near_field_rgb_map_recovered_and_biased_without(near_rgb, tmp_path):
     fz = ((fmaps["params"][0] - truth["r"][2]) / fmaps["stderr"][0])[fok]
     assert np.median(fmaps["chi2_reduced"][fok]) > 10
     assert abs(fz.mean()) > 3, fz.mean()
+
+
+def test_near_field_propagation_over_channels_is_the_refits_response(near_rgb):
+    """The medium's uncertainty in a near-field map over r, g, b (docs/maps-medium-error.md):
+    with only g uncertain (shared by the channels), each parameter's medium part is
+    |d estimate / d g| times g's standard error, the derivative taken by refitting the map
+    through the media at g +- 0.05 % (central differences): the median ratio within 5 % for
+    the shared roughness and the red albedo. The tables at a moved medium are built on the
+    map's own field grid (``field=``), which a medium of another lobe would not choose."""
+    import dataclasses
+
+    from test_maps_channels import medium_result
+
+    root, manifest, _, _, _ = near_rgb
+    base = medium_result()
+    se_g = 1e-3 * base.params["g"]
+    result = dataclasses.replace(base, stderr={k: se_g if k == "g" else 0.0 for k in base.stderr})
+    kw = dict(fixed=FIX, grid=[f"{SHAPE}=0.25:2.5:8"], accuracy="fast", tile=8, roi="4,4,8,8",
+              channel="rgb", geometry=(DISTANCE, PITCH), near_field=True, noise=(0.01, 0.0))
+    veil.fit_maps(root / "photos", manifest, result, root / "prop.zarr", propagation="linear",
+                  **kw)
+    maps = open_maps(root / "prop.zarr")
+    assert maps["info"]["propagation"]["parameters"] == ["g"]
+    moved = []
+    d = 5e-4 * base.params["g"]
+    for sign in (1, -1):
+        at = dataclasses.replace(base, params={**base.params, "g": base.params["g"] + sign * d})
+        out = root / f"g{sign:+d}.zarr"
+        veil.fit_maps(root / "photos", manifest, at, out, **kw)
+        moved.append(open_maps(out))
+    ok = maps["status"] == CONVERGED
+    assert ok.mean() > 0.9
+    shape = maps["info"]["params"].index(SHAPE)
+    slope = (moved[0]["params"][shape] - moved[1]["params"][shape]) / (2 * d)
+    ratio = maps["stderr_medium"][shape][ok] / (np.abs(slope[ok]) * se_g)
+    assert abs(np.median(ratio) - 1) < 0.05, np.median(ratio)
+    angles, g = angles_of(configurations(16)), NearGeometry(DISTANCE, PITCH, (H, W))
+    own = build_tables(CLS, MEDIUM, angles, near=g, roi=ROI(0, 0, W, H), **KW)
+    wide = MEDIUM.replace(g=0.6)  # a wider lobe: a coarser grid of its own
+    assert build_tables(CLS, wide, angles, near=g, roi=ROI(0, 0, W, H), **KW).near != own.near
+    pinned = build_tables(CLS, wide, angles, near=g, roi=ROI(0, 0, W, H), field=own.near, **KW)
+    assert pinned.near == own.near and pinned.coef.shape == own.coef.shape
+    pd_ = maps["info"]["channel_params"].index(NAMES[0])
+    slope = (moved[0]["channel_params"][pd_, 0] - moved[1]["channel_params"][pd_, 0]) / (2 * d)
+    ratio = maps["channel_stderr_medium"][pd_, 0][ok] / (np.abs(slope[ok]) * se_g)
+    assert abs(np.median(ratio) - 1) < 0.05, np.median(ratio)
