@@ -21,19 +21,27 @@ import math
 import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..errors import InputError
 from .channels import map_media
 from .geometry_notes import MapsWarning
+from .grid import field_block
 from .model_error import at_solution, full_jacobian, solver_parameters
 from .solve import pixel_coords, weights
 from .status import CONVERGED
-from .tables import MapTables
+from .tables import MapTables, coef_by_channel
+
+if TYPE_CHECKING:
+    from .near import FieldGrid
 
 #: The maps' propagation methods: "off" (the noise alone, as before) or "linear".
 METHODS = ("off", "linear")
+#: How much coarser the field grid of near-field tables' differences is than the tables'
+#: own: the medium's effect changes across the field more slowly than the columns do.
+COARSE = 3
 #: The step h_k of a medium parameter's difference quotient, as a fraction of its standard
 #: error: small enough for the derivative (a secant over a whole standard error missed it
 #: by up to 14 % for g at 0.93 +- 0.05), large against the tables' rounding.
@@ -55,6 +63,7 @@ class MediumSpread:
     covariance: np.ndarray
     media: tuple = dataclasses.field(repr=False)
     changed: tuple[tuple[str, ...], ...]
+    base: object = dataclasses.field(default=None, repr=False)
     differences: tuple[np.ndarray, ...] = dataclasses.field(default=(), repr=False)
 
 
@@ -121,7 +130,8 @@ def plan_spread(method, medium, channel) -> MediumSpread | None:
         return None
     names, cov = medium.covariance(total=True)
     _warn_first_order(medium, names, cov)
-    base = _media_key(map_media(medium, channel))
+    here = map_media(medium, channel)
+    base = _media_key(here)
     kept, values, steps, media, changed = [], [], [], [], []
     for k, name in enumerate(names):
         spec, value, se = _spec(medium, name), float(medium.params[name]), math.sqrt(cov[k, k])
@@ -144,6 +154,7 @@ def plan_spread(method, medium, channel) -> MediumSpread | None:
         np.asarray(cov, dtype=float)[np.ix_(kept, kept)],
         tuple(media),
         tuple(changed),
+        here[1] if here[1] is not None else here[0],
     )
 
 
@@ -181,21 +192,63 @@ def _warn_first_order(medium, names, cov) -> None:
 def with_differences(
     spread: MediumSpread, tables: MapTables, rebuild: Callable, say
 ) -> MediumSpread:
-    """``spread`` with its ``differences``: ``rebuild(media)`` builds the tables through
-    each step's media on ``tables``' grids; ``say`` reports each build."""
+    """``spread`` with its ``differences``: ``rebuild(media, field=...)`` builds the tables
+    through each step's media on ``tables``' grids; near-field tables' differences over a
+    field grid :data:`COARSE` times coarser (:func:`coarse_field`, the base medium's tables
+    built there once more), interpolated onto the tables' field nodes. ``say`` reports each
+    build."""
     order = list(tables.channels) or [""]
+    coarse = None if tables.near is None else coarse_field(tables.near)
+    base = None
+    if coarse is not None:
+        say(f"the medium's uncertainty: the differences over a {coarse.describe()}")
+        base = rebuild(spread.base, field=coarse)
     diffs = []
     for k, (name, media) in enumerate(zip(spread.names, spread.media)):
         say(
             f"the medium's uncertainty: tables at {name} {spread.values[k]:.6g} "
             f"{spread.steps[k]:+.3g} ({k + 1} of {len(spread.names)})"
         )
-        diff = rebuild(media).coef - tables.coef
+        if base is None:
+            diff = rebuild(media).coef - tables.coef
+        else:
+            moved = rebuild(media, field=coarse).values - base.values
+            diff = _on_field(moved, coarse, tables)
         for j, c in enumerate(order):  # a channel the step leaves alone: no column
             if c not in spread.changed[k]:
                 diff[..., j, :, :] = 0.0
         diffs.append(np.ascontiguousarray(diff))
     return dataclasses.replace(spread, differences=tuple(diffs))
+
+
+def coarse_field(field: FieldGrid) -> FieldGrid | None:
+    """A field grid over ``field``'s region with :data:`COARSE` times fewer nodes per axis
+    (at least :data:`veil.maps.near.MIN_NODES`), or None when that is ``field`` itself."""
+    from .near import MIN_NODES
+
+    counts = [max(MIN_NODES, math.ceil(len(v) / COARSE)) for v in (field.xs, field.ys)]
+    if tuple(counts) == field.shape:
+        return None
+    xs, ys = (
+        tuple(float(v) for v in np.linspace(a[0], a[-1], n))
+        for a, n in zip((field.xs, field.ys), counts)
+    )
+    return dataclasses.replace(field, xs=xs, ys=ys, step_deg=field.step_deg * COARSE)
+
+
+def _on_field(values, coarse, tables: MapTables) -> np.ndarray:
+    """The coefficients of ``tables``' layout of node ``values`` tabulated over the field
+    grid ``coarse``: its spline evaluated at ``tables``' field nodes, then fitted there."""
+    channels = len(tables.channels)
+    spline = coef_by_channel(values, 0, 2, channels)
+    fine = tables.near
+    assert fine is not None  # near-field tables
+    fx, fy = coarse.coords(np.asarray(fine.xs), np.asarray(fine.ys))
+    nodes = np.stack(
+        [np.stack([field_block(spline, (x, y)) for y in fy]) for x in fx]
+    )  # (Kx, Ky, ...) on the tables' field nodes
+    field_values = coef_by_channel(nodes, 0, 2, channels)
+    return np.array(coef_by_channel(field_values, 2, len(tables.axes), channels))
 
 
 def record(spread: MediumSpread) -> dict:
@@ -249,6 +302,8 @@ def medium_variance(
 __all__ = [
     "METHODS",
     "STEP",
+    "COARSE",
+    "coarse_field",
     "MediumSpread",
     "check_method",
     "plan_spread",
