@@ -618,3 +618,25 @@ def test_the_figure_draws_the_medium_s_share_of_each_standard_error(grey_linear,
                                    rtol=1e-12)
         assert np.all(np.isnan(image[~ok])) and np.all((image[ok] > 0) & (image[ok] <= 1))
     assert maps_figure(store, tmp_path / "maps.png").stat().st_size > 10_000
+
+
+def test_a_wide_uncertainty_warns_only_for_the_map_s_own_parameters():
+    """A medium parameter uncertain by more than a quarter of its value (the single fits'
+    limit for sigma points): a MapsWarning naming it when the map propagates it (channel
+    b), none for a map of another channel (r), which does not."""
+    import warnings
+
+    from veil.maps.geometry_notes import MapsWarning
+    from veil.maps.medium_error import plan_spread
+
+    base = medium_result()
+    errors = {"Td[b]": 0.5, "Td[r]": 0.01}
+    result = dataclasses.replace(
+        base, stderr={k: errors.get(k, 0.0) * v for k, v in base.params.items()})
+    for channel, expect in (("r", None), ("b", "Td[b] by 0.5")):
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            spread = plan_spread("linear", result, channel)
+        assert spread.names == (f"Td[{channel}]",)
+        said = [str(w.message) for w in caught if issubclass(w.category, MapsWarning)]
+        assert said == [] if expect is None else (len(said) == 1 and expect in said[0]), said

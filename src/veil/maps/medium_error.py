@@ -129,7 +129,6 @@ def plan_spread(method, medium, channel) -> MediumSpread | None:
     if check_method(method, medium) == "off":
         return None
     names, cov = medium.covariance(total=True)
-    _warn_first_order(medium, names, cov)
     here = map_media(medium, channel)
     base = _media_key(here)
     kept, values, steps, media, changed = [], [], [], [], []
@@ -147,6 +146,7 @@ def plan_spread(method, medium, channel) -> MediumSpread | None:
             steps.append(h)
             media.append(moved[1] if moved[1] is not None else moved[0])
             changed.append(which)
+    _warn_first_order(medium, [names[k] for k in kept], cov[np.ix_(kept, kept)])
     return MediumSpread(
         tuple(names[k] for k in kept),
         tuple(values),
@@ -159,8 +159,9 @@ def plan_spread(method, medium, channel) -> MediumSpread | None:
 
 
 def _warn_first_order(medium, names, cov) -> None:
-    """A :class:`~veil.maps.geometry_notes.MapsWarning` when a medium parameter is
-    uncertain by more than :data:`veil.fitting.propagation.RELATIVE_LIMIT` of its scale,
+    """A :class:`~veil.maps.geometry_notes.MapsWarning` when a medium parameter ``names``
+    (those that move the map's media) is uncertain by more than
+    :data:`veil.fitting.propagation.RELATIVE_LIMIT` of its scale,
     where the single fits leave the first order for sigma points (the maps keep it)."""
     from ..fitting.propagation import RELATIVE_LIMIT, RELATIVE_MAX, relative_uncertainty
 
