@@ -29,9 +29,7 @@ from ..errors import InputError
 from .channels import map_media
 from .geometry_notes import MapsWarning
 from .grid import field_block
-from .model_error import at_solution, full_jacobian, solver_parameters
-from .solve import pixel_coords, weights
-from .status import CONVERGED
+from .model_error import at_solution, full_jacobian, solution_rows
 from .tables import MapTables, coef_by_channel
 
 if TYPE_CHECKING:
@@ -276,16 +274,12 @@ def medium_variance(
     solver's coordinates (:func:`veil.maps.model_error.solver_parameters`), zero where a
     pixel did not converge; ``y``, ``valid``, ``noise`` and ``pixels`` as the solve took
     them."""
-    n_pix = len(fits.status)
-    flat = (n_pix * len(tables.channels), -1) if tables.channels else (n_pix, -1)
-    _, _, w2 = weights(tables, np.reshape(y, flat), np.reshape(valid, flat), noise)
-    fu = pixel_coords(tables, pixels, n_pix)
-    p = solver_parameters(tables, fits)
+    _, w2, p, fu, ok = solution_rows(tables, fits, y, valid, noise, pixels)
     out = np.zeros(p.shape)
-    idx = np.flatnonzero(fits.status == CONVERGED)
+    idx = np.flatnonzero(ok)
     if not idx.size or not spread.names:
         return out
-    w = np.sqrt(w2.reshape(n_pix, -1)[idx])
+    w = np.sqrt(w2[idx])
     _, compact = at_solution(tables, fu, p, idx)
     jw = full_jacobian(compact, len(tables.channels), len(tables.free_scales)) * w[:, :, None]
     cols = [

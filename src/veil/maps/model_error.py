@@ -346,19 +346,25 @@ def _solver_order(tables: MapTables, fits, per_values, values, axis) -> np.ndarr
     return np.stack(scales + axes, axis=1)
 
 
-def with_term(tables: MapTables, fits, y, valid, noise, pixels, setting: Discrepancy) -> tuple:
-    """(``fits`` with every converged pixel's standard errors including its term, where it
-    has one; s (C', N); ell (C', N)), ``y`` and ``valid`` a tile's values as its solve
-    took them ((N, M), over channels (N, C, M)), ``pixels`` their positions (near field)."""
+def solution_rows(tables: MapTables, fits, y, valid, noise, pixels) -> tuple:
+    """What a tile's fits are evaluated with after the solve: (values (N, C * M), squared
+    weights (N, C * M), the solver's parameters (N, n), the near field's pixel coordinates
+    or None, the converged pixels), ``y``, ``valid``, ``noise`` and ``pixels`` as the solve
+    took them ((N, M), over channels (N, C, M))."""
     n_pix = len(fits.status)
     flat = (n_pix * len(tables.channels), -1) if tables.channels else (n_pix, -1)
     yf, _, w2 = weights(tables, np.reshape(y, flat), np.reshape(valid, flat), noise)
     fu = pixel_coords(tables, pixels, n_pix)
-    ok = fits.status == CONVERGED
     p = solver_parameters(tables, fits)
-    sigma, length, se = pixel_terms(
-        tables, yf.reshape(n_pix, -1), w2.reshape(n_pix, -1), p, fu, pixels, ok, setting
-    )
+    return yf.reshape(n_pix, -1), w2.reshape(n_pix, -1), p, fu, fits.status == CONVERGED
+
+
+def with_term(tables: MapTables, fits, y, valid, noise, pixels, setting: Discrepancy) -> tuple:
+    """(``fits`` with every converged pixel's standard errors including its term, where it
+    has one; s (C', N); ell (C', N)), ``y`` and ``valid`` a tile's values as its solve
+    took them ((N, M), over channels (N, C, M)), ``pixels`` their positions (near field)."""
+    yf, w2, p, fu, ok = solution_rows(tables, fits, y, valid, noise, pixels)
+    sigma, length, se = pixel_terms(tables, yf, w2, p, fu, pixels, ok, setting)
     moved = ok & np.any(sigma > 0, axis=0)
     return with_solver_stderr(tables, fits, se, moved), sigma, length
 
@@ -399,6 +405,7 @@ __all__ = [
     "one_blas_thread",
     "pixel_terms",
     "at_solution",
+    "solution_rows",
     "full_jacobian",
     "solver_parameters",
     "solver_stderr",

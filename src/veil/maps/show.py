@@ -16,7 +16,7 @@ from ..io import output_folder, write_bytes_atomic, write_text_atomic
 from .status import CONVERGED, STATUS
 from .status import FEW_POINTS as STATUS_FEW
 from .status import MASKED as STATUS_MASKED
-from .store import open_maps, summarize_maps
+from .store import free_maps, open_maps, summarize_maps
 
 FORMATS = ("tiff", "exr")
 
@@ -27,7 +27,7 @@ def _panels(maps):
     ok = maps["status"] == CONVERGED
     units = info.get("units", {})
     out = []
-    for name, value, err in _free_maps(maps):
+    for name, value, err in free_maps(maps):
         unit = units.get(name.split("[")[0]) or "relative units"
         value = np.where(ok, value, np.nan)
         err = np.where(ok, err, np.nan)
@@ -50,29 +50,10 @@ def _panels(maps):
             image = np.where(ok, maps["model_error"][j], np.nan)
             out.append((title, image, "relative model error s", False))
     if "stderr_medium" in maps:  # docs/maps-medium-error.md: its share of each stderr
-        parts = _free_maps(maps, ("stderr_medium", "channel_stderr_medium"))
-        for (name, _, err), (_, _, part) in zip(_free_maps(maps), parts):
+        parts = free_maps(maps, ("stderr_medium", "channel_stderr_medium"))
+        for (name, _, err), (_, _, part) in zip(free_maps(maps), parts):
             share = np.where(ok & (err > 0), part / np.where(err > 0, err, 1.0), np.nan)
             out.append((f"medium's share of stderr of {name}", share, "part / stderr", False))
-    return out
-
-
-def _free_maps(maps, keys=("stderr", "channel_stderr")) -> list:
-    """(name, values, standard errors) of every free parameter's map; over channels each
-    channel's map of a parameter per channel is one, named ``NAME[channel]``. ``keys``:
-    the arrays taken as the standard errors (a part of them: ``stderr_medium``, ...)."""
-    info = maps["info"]
-    out = [
-        (name, maps["params"][k], maps[keys[0]][k])
-        for k, name in enumerate(info["params"])
-        if name in info["free"]
-    ]
-    for k, name in enumerate(info.get("channel_params") or ()):
-        if name in info["free"]:
-            out += [
-                (f"{name}[{c}]", maps["channel_params"][k, j], maps[keys[1]][k, j])
-                for j, c in enumerate(info["channels"])
-            ]
     return out
 
 

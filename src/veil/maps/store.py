@@ -487,15 +487,10 @@ def _medium_entry(maps: dict, ok) -> dict:
     """The summary of the medium's uncertainty: the medium's parameters and, per map
     parameter (free ones, per channel ``rho[r]``), the median over the converged pixels of
     its part of the standard error and of that part's share of the standard error."""
-    info = maps["info"]
-    parts = [(n, maps["stderr_medium"][k], maps["stderr"][k]) for k, n in enumerate(info["params"])]
-    for k, name in enumerate(info.get("channel_params") or ()):
-        for c, channel in enumerate(info["channels"]):
-            part, total = maps["channel_stderr_medium"][k, c], maps["channel_stderr"][k, c]
-            parts.append((f"{name}[{channel}]", part, total))
-    entry: dict = {"parameters": list(info["propagation"]["parameters"]), "maps": {}}
-    for name, part, total in parts:
-        if name.split("[")[0] in info["free"] and ok.any():
+    entry: dict = {"parameters": list(maps["info"]["propagation"]["parameters"]), "maps": {}}
+    parts = free_maps(maps, ("stderr_medium", "channel_stderr_medium"))
+    for (name, _, total), (_, _, part) in zip(free_maps(maps), parts):
+        if ok.any():
             share = np.divide(
                 part[ok], total[ok], out=np.zeros(part[ok].shape), where=total[ok] > 0
             )
@@ -504,6 +499,25 @@ def _medium_entry(maps: dict, ok) -> dict:
                 "median_share": float(np.median(share)),
             }
     return entry
+
+
+def free_maps(maps: dict, keys=("stderr", "channel_stderr")) -> list:
+    """(name, values, standard errors) of every free parameter's map; over channels each
+    channel's map of a parameter per channel is one, named ``NAME[channel]``. ``keys``:
+    the arrays taken as the standard errors (a part of them: ``stderr_medium``, ...)."""
+    info = maps["info"]
+    out = [
+        (name, maps["params"][k], maps[keys[0]][k])
+        for k, name in enumerate(info["params"])
+        if name in info["free"]
+    ]
+    for k, name in enumerate(info.get("channel_params") or ()):
+        if name in info["free"]:
+            out += [
+                (f"{name}[{c}]", maps["channel_params"][k, j], maps[keys[1]][k, j])
+                for j, c in enumerate(info["channels"])
+            ]
+    return out
 
 
 def _error_entry(maps: dict, ok) -> dict:
@@ -564,6 +578,7 @@ __all__ = [
     "MEDIUM_MAPS",
     "CHANNEL_MEDIUM_MAPS",
     "map_names",
+    "free_maps",
     "FAILED_MASKED",
     "StoreBusyError",
     "DamagedStoreError",

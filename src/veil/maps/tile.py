@@ -48,9 +48,10 @@ def solve_tile(block, tables: MapTables, store, iy, ix, tile, noise, added=None)
 
     ys, xs = slice(iy * tile, iy * tile + th), slice(ix * tile, ix * tile + tw)
     setting, spread = added or (None, None)
-    res, noise_only, terms = _fits(block, tables, iy, ix, tile, noise, setting)
+    tile_rows = (*_values(block, tables), _tile_pixels(tables, iy, ix, tile, th, tw))
+    res, noise_only, terms = _fits(tile_rows, tables, noise, setting)
     if spread is not None:
-        res, medium_part = _with_medium(block, tables, res, (iy, ix, tile), noise, spread)
+        res, medium_part = _with_medium(tile_rows, tables, res, noise, spread)
         put("stderr_medium", medium_part.stderr)
         if tables.channels:
             put("channel_stderr_medium", medium_part.channel_stderr)
@@ -97,11 +98,11 @@ def _values(block, tables: MapTables) -> tuple:
     return np.where(valid, y, 0.0), valid
 
 
-def _with_medium(block, tables: MapTables, fits, where, noise, spread) -> tuple:
+def _with_medium(tile_rows, tables: MapTables, fits, noise, spread) -> tuple:
     """(``fits`` with the medium's part in every converged pixel's standard errors, the
-    fits with that part alone as their standard errors; :mod:`veil.maps.medium_error`)."""
-    y, valid = _values(block, tables)
-    pixels = _tile_pixels(tables, *where, *block.shape[-2:])
+    fits with that part alone as their standard errors; :mod:`veil.maps.medium_error`);
+    ``tile_rows``: the tile's values, usable samples and pixel positions."""
+    y, valid, pixels = tile_rows
     var = medium_variance(tables, spread, fits, y, valid, noise, pixels)
     ok = fits.status == CONVERGED
     total = np.sqrt(solver_stderr(tables, fits) ** 2 + var)
@@ -112,15 +113,14 @@ def _with_medium(block, tables: MapTables, fits, where, noise, spread) -> tuple:
     return with_solver_stderr(tables, fits, total, ok), part
 
 
-def _fits(block, tables: MapTables, iy, ix, tile, noise, setting) -> tuple:
+def _fits(tile_rows, tables: MapTables, noise, setting) -> tuple:
     """The tile's pixels solved (:func:`veil.maps.solve.solve_pixels`, over channels
     :func:`veil.maps.solve_channels.solve_channel_pixels`): (fits, None, None), or with a
     ``setting`` (fits with the model's error, the fits without it, (s, ell) per channel
-    and pixel) (:func:`veil.maps.model_error.with_term`)."""
-    th, tw = block.shape[-2:]
+    and pixel) (:func:`veil.maps.model_error.with_term`); ``tile_rows`` as
+    :func:`_with_medium`'s."""
+    y, valid, pixels = tile_rows
     solve: Any = solve_channel_pixels if tables.channels else solve_pixels
-    y, valid = _values(block, tables)
-    pixels = _tile_pixels(tables, iy, ix, tile, th, tw)
     res = solve(tables, y, valid, noise, pixels=pixels)
     if setting is None:
         return res, None, None
