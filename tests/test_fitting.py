@@ -437,3 +437,17 @@ def test_cli_exit_codes(files):
     r = invoke(["fit", "medium", d / "medium.csv", "--reference", d / "m.json", "-o",
                 d / "x.json", "--accuracy", "fast"])
     assert r.exit_code == 2 and "reference must be a BRDF fit" in r.output
+
+
+@pytest.mark.parametrize("starts, said", [(1, "from 1 start"), (3, "over 3 starts")])
+def test_the_report_counts_the_starts_in_words(starts, said):
+    """The evaluations line names the starts in plain English (not "1 start(s)")."""
+    names = veil.BRDF1.param_names()
+    params = dict(zip(names, veil.BRDF1.to_vector().tolist()))
+    result = FitResult(model=veil.BRDF1.NAME, params=params, stderr={n: 0.01 for n in names},
+                       correlation={a: {b: float(a == b) for b in names} for a in names},
+                       residuals=(0.0,) * 8, chi2_reduced=1.0, rms_relative=0.01, n_points=8,
+                       converged=True, message="ok", variant=None,
+                       stats={"nfev": 12, "njev": 5, "starts": starts})
+    line = next(x for x in result.report().splitlines() if "evaluations" in x)
+    assert line.strip() == f"evaluations        = 12 function, 5 Jacobian {said}", line

@@ -67,6 +67,11 @@ def _tied(result: FitResult) -> list[str]:
     return [n for n in result.params if all(n in own for own in names.values())]
 
 
+def _over_starts(starts: int) -> str:
+    """The end of a fit's evaluations line: over N starts, or from 1 start."""
+    return " from 1 start" if starts == 1 else f" over {starts} starts"
+
+
 def _evaluations(stats: dict, fixed: dict) -> str:
     """A linear fit's engine calls for its columns (``stats["columns_at_rule"]``: the columns
     made at each rule; each nonzero ``fixed`` coefficient's part made once at each rule;
@@ -147,7 +152,7 @@ def _statistics(result: FitResult) -> list[str]:
         lines.append(
             f"    evaluations        = {stats.get('nfev', 0)} function, "
             f"{stats.get('njev', 0)} Jacobian"
-            + (f" over {stats.get('starts', 1)} start(s)" if stats.get("starts") else "")
+            + (_over_starts(stats["starts"]) if stats.get("starts") else "")
         )
     how = (stats or {}).get("propagation")
     if how and result.stderr_total is not None:
