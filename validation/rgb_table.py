@@ -89,6 +89,11 @@ def command(files: dict, out: str, truth: dict, orders: str | None = None) -> li
     ]
 
 
+def medium_path(orders: str | None) -> str:
+    """Where step 1's medium is kept for validation/rgb_maps.py (per orders option)."""
+    return MEDIUM if not orders else MEDIUM.replace(".json", f"_{orders}.json")
+
+
 def load_truth() -> dict:
     with open(os.path.join(DATA, "truth_rgb.json")) as f:
         t = json.load(f)
@@ -336,8 +341,9 @@ def main(argv=None) -> int:
     ap.add_argument(
         "--orders",
         default=None,
-        help="forward-series' orders option (default: "
-        "the family's); step 1's medium is kept for rgb_maps.py only without it",
+        help="forward-series' orders option (default: the family's); step 1's medium is "
+        "kept for rgb_maps.py in results/rgb_medium.json, with --orders in "
+        "results/rgb_medium_ORDERS.json",
     )
     ap.add_argument("--table-only", action="store_true", help="run nothing: the table of --json")
     ap.add_argument("--keep", default=None, metavar="DIR", help="keep the pipeline's output here")
@@ -363,8 +369,7 @@ def main(argv=None) -> int:
 
         os.makedirs(os.path.dirname(os.path.abspath(args.json)), exist_ok=True)
         write_text_atomic(args.json, json.dumps(res, indent=1, default=float) + "\n")
-        if not args.orders:
-            write_text_atomic(MEDIUM, medium_text)
+        write_text_atomic(medium_path(args.orders), medium_text)
     text = tables(res)
     notes = summary(res)
     print(text + "\n\n" + "\n".join(notes))
