@@ -251,7 +251,8 @@ def test_random_damage_to_a_store_is_read_or_refused(tmp_path, good_store, data)
 @settings(SETTINGS, max_examples=80)
 @given(edits=st.lists(st.tuples(st.sampled_from(
     ["params", "free", "fixed_values", "shape", "tile", "outside_mask", "photos", "model",
-     "medium", "units", "geometry", "weighted", "format", "status_codes", "noise"]),
+     "medium", "units", "geometry", "weighted", "noise_of", "format", "status_codes",
+     "noise"]),
     st.one_of(st.just("delete"), JSON_VALUES)), min_size=1, max_size=2))
 def test_random_store_attributes_are_read_or_refused(tmp_path, good_store, edits):
     """The store's own attributes (root zarr.json, ``veil_maps``) edited: every reader,

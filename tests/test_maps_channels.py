@@ -302,7 +302,8 @@ def test_one_channel_of_a_medium_fitted_over_channels(rgb_stack, tmp_path):
     assert set(ma["info"]) == {
         "format", "fingerprint", "model", "options", "params", "free", "fixed_values",
         "units", "medium", "accuracy", "roi", "shape", "tile", "photos", "channel", "noise",
-        "weighted", "status_codes", "grid", "manifest", "outside_mask", "geometry", "chunks"}
+        "weighted", "noise_of", "status_codes", "grid", "manifest", "outside_mask", "geometry",
+        "chunks"}
     assert ma["info"]["params"] == list(NAMES) and ma["params"].shape == (4, H, W)
 
 

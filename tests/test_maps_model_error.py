@@ -28,7 +28,7 @@ from veil.engine.quadrature import RULES
 from veil.errors import InputError
 from veil.fitting import model_error as me
 from veil.maps.run import fit_maps, open_maps
-from veil.maps.solve import CONVERGED
+from veil.maps.solve import CONVERGED, solve_pixels
 from veil.maps.store import summarize_maps
 from veil.maps.tables import build_tables
 
@@ -156,17 +156,21 @@ def erred_off(grey):
 @pytest.fixture(scope="module")
 def erred_default(grey):
     """The map without the keyword, and the fingerprint veil computed before the option
-    (the acquisition's, the tables' and (noise, tile), as the run passes them)."""
+    (the acquisition's, the tables' and (noise, tile), as the run passes them, and since
+    the noise is of the model's values that with its words, docs/maps-noise.md; "old" the
+    legacy key without them, as a veil before that wrote it)."""
     import veil.maps.run as mr
 
     seen = []
     real = mr.store_attributes
+    words = "relative noise of the model's values"
 
     def spy(acq, tables, cls, noise, tile, *rest, **kw):
-        seen.append({legacy: hashlib.sha256((acq.fingerprint(legacy=legacy)
-                                             + tables.fingerprint()
-                                             + repr((noise, tile))).encode()).hexdigest()
-                     for legacy in (False, True)})
+        def key(legacy, of):
+            text = acq.fingerprint(legacy=legacy) + tables.fingerprint() + repr((noise, tile))
+            return hashlib.sha256((text + of).encode()).hexdigest()
+
+        seen.append({False: key(False, words), True: key(True, words), "old": key(True, "")})
         return real(acq, tables, cls, noise, tile, *rest, **kw)
 
     with pytest.MonkeyPatch.context() as mp:
@@ -251,7 +255,9 @@ def _photos(manifest) -> np.ndarray:
 
 def _pixel(maps, photos, tables, py, px, usable=None) -> tuple:
     """(weighted residuals, f / sigma, J_w, C = (J_w^T J_w)^-1) of a pixel at its estimate
-    over its ``usable`` samples (all by default); J_w of its free Pd, Ps and n."""
+    over its ``usable`` samples (all by default), sigma = NOISE f_1, f_1 the model's values
+    at the first solution (:func:`solve_pixels` of the samples' own noise); J_w of its free
+    Pd, Ps and n."""
     pd, ps, n = maps["params"][list(FREE), py, px]
     h = 1e-5 * n
     b, bp, bm = (tables.basis({NAMES[SHAPE]: v}) for v in (n, n + h, n - h))
@@ -263,7 +269,13 @@ def _pixel(maps, photos, tables, py, px, usable=None) -> tuple:
     jac = np.stack([b[:, 0], b[:, 1], (model(bp) - model(bm)) / (2 * h)], axis=1)
     y = photos[:, py, px]
     keep = np.ones(len(y), bool) if usable is None else usable
-    w = 1 / (NOISE * y[keep])
+    # the noise of the model's values at a first solution, that of the samples' own
+    # (docs/maps-noise.md)
+    first = solve_pixels(tables, y[None, :], keep[None, :], noise=(NOISE, 0.0))
+    assert first.status[0] == CONVERGED
+    fd, fs, fn = first.params[list(FREE), 0]
+    b1 = tables.basis({NAMES[SHAPE]: fn})
+    w = 1 / (NOISE * (fd * b1[:, 0] + fs * b1[:, 1] + b1[:, 2])[keep])
     jw = jac[keep] * w[:, None]
     return (y[keep] - f[keep]) * w, f[keep] * w, jw, np.linalg.inv(jw.T @ jw)
 
@@ -487,8 +499,9 @@ def test_over_channels_one_term_per_channel(tmp_path_factory):
     s = cor["model_error"]
     assert np.mean(s[0][ok] > 0) >= 0.9, s[0]
     assert SIGMA / 1.5 <= np.median(s[0][ok]) <= SIGMA * 1.5, np.median(s[0][ok])
-    for k in (1, 2):
-        assert np.mean(s[k][ok] == 0) >= 0.9, ("rgb"[k], s[k])
+    for k in (1, 2):  # (measured 0.89 in green: the residuals of the noise of the model's
+        # values, docs/maps-noise.md, are not damped as those of the samples' own were)
+        assert np.mean(s[k][ok] == 0) >= 0.85, ("rgb"[k], s[k])
     # red's scales and the shared n carry the term
     red = cor["channel_stderr"][:, 0][:, ok] / cor["channel_stderr_noise"][:, 0][:, ok]
     assert np.all(np.median(red, axis=1) >= 1.5), np.median(red, axis=1)
@@ -528,6 +541,12 @@ def test_a_store_of_an_earlier_veil_is_not_resumed_with_a_term(grey, erred_defau
     before = _snapshot(store)
     refused = run(*_cli_args(manifest, store, "--noise", NOISE, "--model-error", "correlated"))
     assert refused.exit_code == 2, refused.output
+    assert _snapshot(store) == before
+    # a store weighted by the samples' values (a veil before docs/maps-noise.md) is refused
+    group.attrs["veil_maps"] = dict(group.attrs["veil_maps"], fingerprint=keys["old"])
+    before = _snapshot(store)
+    older = run(*_cli_args(manifest, store, "--noise", NOISE))
+    assert older.exit_code == 2 and "other settings" in older.output, older.output
     assert _snapshot(store) == before
 
 

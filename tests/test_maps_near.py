@@ -407,14 +407,17 @@ def test_near_field_rgb_map_recovered_and_biased_without(near_rgb, tmp_path):
             basis = tables.basis({SHAPE: n_hat}, pixel=px)  # (3, M, 3)
             for k in range(3):
                 yk = photos[y, x, k]
-                w = 1 / (0.01 * yk)
+                got = maps["channel_params"][:, k, y, x]
+                # the noise of the model's values (docs/maps-noise.md), here at the map's
+                # solution, there at a first one: the two differ by O(noise^2) of them
+                f = basis[k, :, :2] @ got + basis[k, :, 2]
+                w = 1 / (0.01 * f)
                 s, *_ = np.linalg.lstsq(basis[k, :, :2] * w[:, None],
                                         (yk - basis[k, :, 2]) * w, rcond=None)
-                got = maps["channel_params"][:, k, y, x]
                 if want_equal:
-                    np.testing.assert_allclose(got, s, rtol=1e-8)
+                    np.testing.assert_allclose(got, s, rtol=1e-5)
                 else:
-                    assert np.max(np.abs(got / s - 1)) > 1e-4
+                    assert np.max(np.abs(got / s - 1)) > 1e-3
 
     # the distant approximation: the shared n biased by several standard errors
     far = tmp_path / "far.zarr"

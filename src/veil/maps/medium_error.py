@@ -268,13 +268,13 @@ def fingerprint_key(spread: MediumSpread) -> str:
 
 
 def medium_variance(
-    tables: MapTables, spread: MediumSpread, fits, y, valid, noise, pixels
+    tables: MapTables, spread: MediumSpread, fits, y, valid, noise, pixels, basis=None
 ) -> np.ndarray:
     """(N, n) the diagonal of S Cov_theta S^T (module docstring) of a tile's pixels in the
     solver's coordinates (:func:`veil.maps.model_error.solver_parameters`), zero where a
-    pixel did not converge; ``y``, ``valid``, ``noise`` and ``pixels`` as the solve took
-    them."""
-    _, w2, p, fu, ok = solution_rows(tables, fits, y, valid, noise, pixels)
+    pixel did not converge; ``y``, ``valid``, ``noise``, ``pixels`` and ``basis`` as the
+    solve took them."""
+    _, w2, p, fu, ok = solution_rows(tables, fits, y, valid, noise, pixels, basis)
     out = np.zeros(p.shape)
     idx = np.flatnonzero(ok)
     if not idx.size or not spread.names:

@@ -346,27 +346,48 @@ def _solver_order(tables: MapTables, fits, per_values, values, axis) -> np.ndarr
     return np.stack(scales + axes, axis=1)
 
 
-def solution_rows(tables: MapTables, fits, y, valid, noise, pixels) -> tuple:
+def solution_rows(tables: MapTables, fits, y, valid, noise, pixels, basis=None) -> tuple:
     """What a tile's fits are evaluated with after the solve: (values (N, C * M), squared
     weights (N, C * M), the solver's parameters (N, n), the near field's pixel coordinates
-    or None, the converged pixels), ``y``, ``valid``, ``noise`` and ``pixels`` as the solve
-    took them ((N, M), over channels (N, C, M))."""
+    or None, the converged pixels), ``y``, ``valid``, ``noise``, ``pixels`` and ``basis``
+    as the solve took them ((N, M), over channels (N, C, M))."""
     n_pix = len(fits.status)
     flat = (n_pix * len(tables.channels), -1) if tables.channels else (n_pix, -1)
-    yf, _, w2 = weights(tables, np.reshape(y, flat), np.reshape(valid, flat), noise)
+    of = None if basis is None else np.reshape(basis, flat)
+    yf, _, w2 = weights(tables, np.reshape(y, flat), np.reshape(valid, flat), noise, of)
     fu = pixel_coords(tables, pixels, n_pix)
     p = solver_parameters(tables, fits)
     return yf.reshape(n_pix, -1), w2.reshape(n_pix, -1), p, fu, fits.status == CONVERGED
 
 
-def with_term(tables: MapTables, fits, y, valid, noise, pixels, setting: Discrepancy) -> tuple:
+def with_term(
+    tables: MapTables, fits, y, valid, noise, pixels, setting: Discrepancy, basis=None
+) -> tuple:
     """(``fits`` with every converged pixel's standard errors including its term, where it
     has one; s (C', N); ell (C', N)), ``y`` and ``valid`` a tile's values as its solve
-    took them ((N, M), over channels (N, C, M)), ``pixels`` their positions (near field)."""
-    yf, w2, p, fu, ok = solution_rows(tables, fits, y, valid, noise, pixels)
+    took them ((N, M), over channels (N, C, M)), ``pixels`` their positions (near field),
+    ``basis`` the values its noise was taken of (:func:`noise_basis`)."""
+    yf, w2, p, fu, ok = solution_rows(tables, fits, y, valid, noise, pixels, basis)
     sigma, length, se = pixel_terms(tables, yf, w2, p, fu, pixels, ok, setting)
     moved = ok & np.any(sigma > 0, axis=0)
     return with_solver_stderr(tables, fits, se, moved), sigma, length
+
+
+def noise_basis(tables: MapTables, fits, y, pixels) -> np.ndarray:
+    """The values a weighted solve takes its relative noise of (docs/maps-noise.md),
+    shaped as ``y``: the model's at each converged pixel's solution (``fits``), where
+    positive, and the samples ``y`` elsewhere."""
+    y = np.asarray(y, dtype=float)
+    n_pix = len(fits.status)
+    out = y.reshape(n_pix, -1).copy()
+    idx = np.flatnonzero(fits.status == CONVERGED)
+    if idx.size:
+        values, _ = at_solution(
+            tables, pixel_coords(tables, pixels, n_pix), solver_parameters(tables, fits), idx
+        )
+        good = np.isfinite(values) & (values > 0)
+        out[idx] = np.where(good, values, out[idx])
+    return out.reshape(y.shape)
 
 
 def with_solver_stderr(tables: MapTables, fits, se, moved) -> Any:
@@ -406,6 +427,7 @@ __all__ = [
     "pixel_terms",
     "at_solution",
     "solution_rows",
+    "noise_basis",
     "full_jacobian",
     "solver_parameters",
     "solver_stderr",

@@ -173,10 +173,12 @@ class ChannelFits:
     iterations: np.ndarray
 
 
-def solve_channel_pixels(tables: MapTables, y, valid, noise=None, pixels=None) -> ChannelFits:
+def solve_channel_pixels(
+    tables: MapTables, y, valid, noise=None, pixels=None, basis=None
+) -> ChannelFits:
     """Fit every pixel in every channel at once: ``y`` (N, C, M) values in the tables'
-    channels, ``valid`` (N, C, M) usable samples, ``noise`` and, for near-field tables,
-    ``pixels`` (each pixel's position in the full photo) as
+    channels, ``valid`` (N, C, M) usable samples, ``noise``, ``basis`` (N, C, M) and, for
+    near-field tables, ``pixels`` (each pixel's position in the full photo) as
     :func:`veil.maps.solve.solve_pixels`'."""
     if not tables.channels:
         raise FitError("tables of one channel: use veil.maps.solve.solve_pixels")
@@ -189,7 +191,11 @@ def solve_channel_pixels(tables: MapTables, y, valid, noise=None, pixels=None) -
     n_pix = y.shape[0]
     fu = pixel_coords(tables, pixels, n_pix)
     flat_y, flat_valid, w2 = weights(
-        tables, y.reshape(n_pix * c, -1), np.asarray(valid).reshape(n_pix * c, -1), noise
+        tables,
+        y.reshape(n_pix * c, -1),
+        np.asarray(valid).reshape(n_pix * c, -1),
+        noise,
+        None if basis is None else np.reshape(basis, (n_pix * c, -1)),
     )
     flat_y, flat_valid, w2 = (a.reshape(n_pix, -1) for a in (flat_y, flat_valid, w2))
     out = _run(tables, flat_y, w2, fu, noise is not None, channel_solver(tables, noise is not None))

@@ -20,7 +20,14 @@ from .geometry_notes import geometry_record
 from .medium_error import fingerprint_key as spread_key
 from .medium_error import medium_variance
 from .medium_error import record as spread_record
-from .model_error import fingerprint_key, record, solver_stderr, with_solver_stderr, with_term
+from .model_error import (
+    fingerprint_key,
+    noise_basis,
+    record,
+    solver_stderr,
+    with_solver_stderr,
+    with_term,
+)
 from .solve import solve_pixels
 from .solve_channels import solve_channel_pixels
 from .status import CONVERGED, STATUS
@@ -49,9 +56,9 @@ def solve_tile(block, tables: MapTables, store, iy, ix, tile, noise, added=None)
     ys, xs = slice(iy * tile, iy * tile + th), slice(ix * tile, ix * tile + tw)
     setting, spread = added or (None, None)
     tile_rows = (*_values(block, tables), _tile_pixels(tables, iy, ix, tile, th, tw))
-    res, noise_only, terms = _fits(tile_rows, tables, noise, setting)
+    res, noise_only, terms, basis = _fits(tile_rows, tables, noise, setting)
     if spread is not None:
-        res, medium_part = _with_medium(tile_rows, tables, res, noise, spread)
+        res, medium_part = _with_medium(tile_rows, tables, res, noise, spread, basis)
         put("stderr_medium", medium_part.stderr)
         if tables.channels:
             put("channel_stderr_medium", medium_part.channel_stderr)
@@ -98,12 +105,13 @@ def _values(block, tables: MapTables) -> tuple:
     return np.where(valid, y, 0.0), valid
 
 
-def _with_medium(tile_rows, tables: MapTables, fits, noise, spread) -> tuple:
+def _with_medium(tile_rows, tables: MapTables, fits, noise, spread, basis) -> tuple:
     """(``fits`` with the medium's part in every converged pixel's standard errors, the
     fits with that part alone as their standard errors; :mod:`veil.maps.medium_error`);
-    ``tile_rows``: the tile's values, usable samples and pixel positions."""
+    ``tile_rows``: the tile's values, usable samples and pixel positions; ``basis`` the
+    values the noise was taken of."""
     y, valid, pixels = tile_rows
-    var = medium_variance(tables, spread, fits, y, valid, noise, pixels)
+    var = medium_variance(tables, spread, fits, y, valid, noise, pixels, basis)
     ok = fits.status == CONVERGED
     total = np.sqrt(solver_stderr(tables, fits) ** 2 + var)
     zero = dataclasses.replace(fits, stderr=np.zeros_like(fits.stderr))
@@ -115,17 +123,23 @@ def _with_medium(tile_rows, tables: MapTables, fits, noise, spread) -> tuple:
 
 def _fits(tile_rows, tables: MapTables, noise, setting) -> tuple:
     """The tile's pixels solved (:func:`veil.maps.solve.solve_pixels`, over channels
-    :func:`veil.maps.solve_channels.solve_channel_pixels`): (fits, None, None), or with a
-    ``setting`` (fits with the model's error, the fits without it, (s, ell) per channel
-    and pixel) (:func:`veil.maps.model_error.with_term`); ``tile_rows`` as
-    :func:`_with_medium`'s."""
+    :func:`veil.maps.solve_channels.solve_channel_pixels`): (fits, None, None, basis), or
+    with a ``setting`` (fits with the model's error, the fits without it, (s, ell) per
+    channel and pixel, basis) (:func:`veil.maps.model_error.with_term`); ``tile_rows`` as
+    :func:`_with_medium`'s. With a relative noise the pixels are solved twice, the second
+    time with the noise of the first solution's values (``basis``,
+    :func:`veil.maps.model_error.noise_basis`; docs/maps-noise.md); else basis is None."""
     y, valid, pixels = tile_rows
     solve: Any = solve_channel_pixels if tables.channels else solve_pixels
     res = solve(tables, y, valid, noise, pixels=pixels)
+    basis = None
+    if noise is not None and noise[0] > 0:
+        basis = noise_basis(tables, res, y, pixels)
+        res = solve(tables, y, valid, noise, pixels=pixels, basis=basis)
     if setting is None:
-        return res, None, None
-    with_error, sigma, length = with_term(tables, res, y, valid, noise, pixels, setting)
-    return with_error, res, (sigma, length)
+        return res, None, None, basis
+    with_error, sigma, length = with_term(tables, res, y, valid, noise, pixels, setting, basis)
+    return with_error, res, (sigma, length), basis
 
 
 def store_fingerprint(acq, tables: MapTables, noise, tile, legacy: bool = False, added=None) -> str:
@@ -135,6 +149,8 @@ def store_fingerprint(acq, tables: MapTables, noise, tile, legacy: bool = False,
     :func:`solve_tile`'s, when there are)."""
     setting, spread = added or (None, None)
     key = acq.fingerprint(legacy=legacy) + tables.fingerprint() + repr((noise, tile))
+    if noise is not None and noise[0] > 0:  # of the model's values since 2026-12-07
+        key += "relative noise of the model's values"
     if setting is not None:
         key += fingerprint_key(setting)
     if spread is not None:
@@ -175,6 +191,9 @@ def store_attributes(
         "channel": channel if isinstance(channel, str) else ",".join(channel),
         "noise": list(noise) if noise else None,
         "weighted": noise is not None,
+        "noise_of": None
+        if not noise or noise[0] <= 0
+        else "the model's values at a first solution",
         "status_codes": {str(k): v for k, v in STATUS.items()},
         "grid": [a.describe() for a in tables.axes],
         "manifest": os.path.abspath(acq.name),  # --blur-from compares it from anywhere
