@@ -21,6 +21,7 @@ import argparse
 import platform
 import sys
 import time
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -72,6 +73,7 @@ def scale_ratio(tables, fits, s_true):
 def main(argv=None) -> int:
     import bench_maps as bm
     import doc_tables
+
     import veil
     from veil.maps.model_error import noise_basis
     from veil.maps.solve import solve_pixels
@@ -106,8 +108,8 @@ def main(argv=None) -> int:
             basis = noise_basis(tables, first, y, None)
             return solve_pixels(tables, y, valid, noise, basis=basis)
 
-        plain, w_plain, c_plain = timed(lambda: solve_pixels(tables, y, valid), args.repeat)
-        old, w_old, c_old = timed(lambda: solve_pixels(tables, y, valid, noise), args.repeat)
+        plain, w_plain, c_plain = timed(partial(solve_pixels, tables, y, valid), args.repeat)
+        old, w_old, c_old = timed(partial(solve_pixels, tables, y, valid, noise), args.repeat)
         new, w_new, c_new = timed(two_pass, args.repeat)
         r_plain, _ = scale_ratio(tables, plain, s_true)
         r_old, _ = scale_ratio(tables, old, s_true)
