@@ -101,11 +101,12 @@ def run(colour: bool, size: int, repeat: int) -> list:
     import contextlib
 
     import veil.maps.model_error as me
-    from veil.maps.tile import _fits
+    from veil.maps.tile import _fits, _tile_pixels, _values
 
     tables = tables_of(colour)
     y, p = pixels_of(tables, size * size)
     block = block_of(tables, y, size)
+    tile_rows = (*_values(block, tables), _tile_pixels(tables, 0, 0, size, size, size))
     noise = (0.01, 0.0)
     kinds = [k for k, _ in KINDS]
     times: dict = {k: [] for k in kinds}
@@ -116,7 +117,7 @@ def run(colour: bool, size: int, repeat: int) -> list:
             setting = me.discrepancy(kind.split(",")[0], noise)
             me.one_blas_thread = one if single else contextlib.nullcontext
             w0, c0 = time.perf_counter(), time.process_time()
-            fits, _, terms = _fits(block, tables, 0, 0, size, noise, setting)
+            fits, _, terms, _ = _fits(tile_rows, tables, noise, setting)
             me.one_blas_thread = one
             if r:
                 times[kind].append((time.perf_counter() - w0, time.process_time() - c0))
