@@ -24,7 +24,8 @@ configurations) so that several runs, e.g. of two versions of the solver, share 
 (the green channel) of the same RGB photos side by side, warm, in one process
 (docs/maps-channels.md): SIZE x SIZE float32 RGB TIFFs at the 111 configurations,
 Torrance-Sparrow with per-channel scales through BTDF2 whose T_d and T_t differ per channel
-(a step-1 result over r, g, b), the index fixed; a first round of both compiles, then
+(a step-1 result over r, g, b), the index fixed, unweighted or with ``--noise REL``; a
+first round of both compiles, then
 ``--repeat`` alternating rounds (the median is reported): seconds of the tables, staging and
 solve, the whole map's wall and CPU seconds, and the engine calls of the tables.
 
@@ -309,9 +310,10 @@ def channel_medium():
     return result, {c: result.one_model(c) for c in dim}
 
 
-def bench_channels(size, configs, root, repeat):
+def bench_channels(size, configs, root, repeat, noise=None):
     """A map of r, g, b and one of g from the same RGB photos, alternating, warm: {kind:
-    [(wall, cpu, run, engine calls of the tables)]}."""
+    [(wall, cpu, run, engine calls of the tables)]}; ``noise`` (relative, absolute) weights
+    both maps (veil fit maps --noise; docs/maps-noise.md), None leaves them unweighted."""
     import veil
     from support.maps import write_colour_stack
     from veil.engine.evaluator import ApparentModel
@@ -345,7 +347,7 @@ def bench_channels(size, configs, root, repeat):
             calls[0] = 0
             w0, c0 = time.perf_counter(), time.process_time()
             run = fit_maps(root / "photos", manifest, medium, store, fixed=fixed,
-                           channel=channel)
+                           channel=channel, noise=noise)
             if k:
                 out[channel].append((time.perf_counter() - w0, time.process_time() - c0,
                                      run, calls[0]))
@@ -355,10 +357,12 @@ def bench_channels(size, configs, root, repeat):
 
 
 def _channels_table(args, configs, root):
-    runs = bench_channels(args.size, configs, root, args.repeat)
+    noise = None if args.noise is None else (args.noise, 0.0)
+    runs = bench_channels(args.size, configs, root, args.repeat, noise)
     med = {kind: sorted(rs, key=lambda r: r[0])[len(rs) // 2] for kind, rs in runs.items()}
-    print(f"\n| map {args.size} x {args.size} from {len(configs)} photos, warm | one channel "
-          f"(g) | three channels (r, g, b) | ratio |")
+    weighted = "" if noise is None else f", --noise {args.noise:g}"
+    print(f"\n| map {args.size} x {args.size} from {len(configs)} photos, warm{weighted} | "
+          f"one channel (g) | three channels (r, g, b) | ratio |")
     print("|---|---:|---:|---:|")
     for stage in ("tables", "staging", "solve"):
         one, three = (med[k][2].seconds.get(stage, 0.0) for k in ("g", "rgb"))
@@ -461,6 +465,9 @@ def main():
                     help="keep part 1's tables in DIR and reuse them")
     ap.add_argument("--channels", action="store_true",
                     help="only the map of r, g, b against the map of g, side by side")
+    ap.add_argument("--noise", type=float, default=None, metavar="REL",
+                    help="with --channels: both maps weighted by a relative noise REL "
+                         "(solved twice, docs/maps-noise.md); default unweighted")
     ap.add_argument("--near", default=None, metavar="D,P",
                     help="only the near-field comparison: camera distance D, pixel pitch P")
     ap.add_argument("--near-size", type=int, default=200)
