@@ -431,6 +431,13 @@ def pixel_coords(tables: MapTables, pixels, count: int) -> np.ndarray | None:
     return fu
 
 
+def has_relative_noise(noise) -> bool:
+    """Whether a noise model (None or (relative, absolute)) has a relative part: then a map
+    solves its pixels twice, the second time with the noise of the model's values
+    (docs/maps-noise.md)."""
+    return noise is not None and noise[0] > 0
+
+
 def weights(tables: MapTables, y, valid, noise, basis=None) -> tuple:
     """(values, usable samples, squared weights) of pixels ``y`` (N, M): unusable samples
     (not ``valid`` or not finite) at 0 with weight 0; ``noise`` as :func:`solve_pixels`',
@@ -584,6 +591,7 @@ __all__ = [
     "solve_pixels",
     "node_scales",
     "weights",
+    "has_relative_noise",
     "pixel_coords",
     "warm_up",
     "PixelFits",

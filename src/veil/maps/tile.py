@@ -28,7 +28,7 @@ from .model_error import (
     with_solver_stderr,
     with_term,
 )
-from .solve import solve_pixels
+from .solve import has_relative_noise, solve_pixels
 from .solve_channels import solve_channel_pixels
 from .status import CONVERGED, STATUS
 from .store import FORMAT, tile_marker
@@ -133,7 +133,7 @@ def _fits(tile_rows, tables: MapTables, noise, setting) -> tuple:
     solve: Any = solve_channel_pixels if tables.channels else solve_pixels
     res = solve(tables, y, valid, noise, pixels=pixels)
     basis = None
-    if noise is not None and noise[0] > 0:
+    if has_relative_noise(noise):
         basis = noise_basis(tables, res, y, pixels)
         res = solve(tables, y, valid, noise, pixels=pixels, basis=basis)
     if setting is None:
@@ -149,7 +149,7 @@ def store_fingerprint(acq, tables: MapTables, noise, tile, legacy: bool = False,
     :func:`solve_tile`'s, when there are)."""
     setting, spread = added or (None, None)
     key = acq.fingerprint(legacy=legacy) + tables.fingerprint() + repr((noise, tile))
-    if noise is not None and noise[0] > 0:  # of the model's values since 2026-12-07
+    if has_relative_noise(noise):  # of the model's values since 2026-12-07
         key += "relative noise of the model's values"
     if setting is not None:
         key += fingerprint_key(setting)
@@ -191,9 +191,7 @@ def store_attributes(
         "channel": channel if isinstance(channel, str) else ",".join(channel),
         "noise": list(noise) if noise else None,
         "weighted": noise is not None,
-        "noise_of": None
-        if not noise or noise[0] <= 0
-        else "the model's values at a first solution",
+        "noise_of": "the model's values at a first solution" if has_relative_noise(noise) else None,
         "status_codes": {str(k): v for k, v in STATUS.items()},
         "grid": [a.describe() for a in tables.axes],
         "manifest": os.path.abspath(acq.name),  # --blur-from compares it from anywhere
