@@ -72,8 +72,9 @@ def angles_of(configs):
                  for c in ("theta_i", "phi_i", "theta_r", "phi_r"))
 
 
-def synthetic(tables, n, seed=0):
-    """Pixels from the tables' own spline at random nonlinear values and scales, 1 % noise."""
+def synthetic(tables, n, seed=0, rel=0.01, with_scales=False):
+    """Pixels from the tables' own spline at random nonlinear values and scales, relative
+    Gaussian noise ``rel``; with ``with_scales`` (pixels, their true scales)."""
     import jax.numpy as jnp
 
     from veil.maps.grid import interp as _interp
@@ -89,7 +90,8 @@ def synthetic(tables, n, seed=0):
     size = 1.0 / np.maximum(np.median(np.abs(basis[..., :q]).sum(1), axis=0), 1e-300)
     s = size * np.exp(rng.uniform(-0.5, 0.5, (n, q)))
     y = np.einsum("nmk,nk->nm", basis[..., :q], s) + basis[..., q]
-    return y * (1 + 0.01 * rng.standard_normal(y.shape))
+    y = y * (1 + rel * rng.standard_normal(y.shape))
+    return (y, s) if with_scales else y
 
 
 def bench_solve(family, fixed, n_pixels, configs, repeat=1, cache=None):
@@ -222,7 +224,8 @@ def synthetic_at(tables, xs, ys, n, seed=0):
     size = 1.0 / np.maximum(np.median(np.abs(basis[..., :q]).sum(1), axis=0), 1e-300)
     s = size * np.exp(rng.uniform(-0.5, 0.5, (n, q)))
     y = np.einsum("nmk,nk->nm", basis[..., :q], s) + basis[..., q]
-    return y * (1 + 0.01 * rng.standard_normal(y.shape))
+    y = y * (1 + rel * rng.standard_normal(y.shape))
+    return (y, s) if with_scales else y
 
 
 def bench_full(configs, n=2):

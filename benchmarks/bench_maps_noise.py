@@ -30,25 +30,6 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 
 
-def truth_pixels(tables, n, rel, seed=0):
-    """(y, true scales): pixels of the tables' spline at random nonlinear values and
-    scales, relative Gaussian noise ``rel``."""
-    import jax.numpy as jnp
-
-    from veil.maps.grid import interp
-
-    rng = np.random.default_rng(seed)
-    d, q = len(tables.axes), len(tables.free_scales)
-    us = np.stack([rng.uniform(0.15 * (a.count - 1), 0.85 * (a.count - 1), n)
-                   for a in tables.axes], axis=1)
-    basis = np.stack([np.asarray(interp(jnp.asarray(tables.coef), jnp.asarray(u), d)[0])
-                      for u in us[:256]])[np.arange(n) % 256]
-    size = 1.0 / np.maximum(np.median(np.abs(basis[..., :q]).sum(1), axis=0), 1e-300)
-    s = size * np.exp(rng.uniform(-0.5, 0.5, (n, q)))
-    y = np.einsum("nmk,nk->nm", basis[..., :q], s) + basis[..., q]
-    return y * (1 + rel * rng.standard_normal(y.shape)), s
-
-
 def timed(fn, repeat):
     """(result of the last run, median wall seconds, median CPU seconds)."""
     runs, out = [], None
@@ -97,7 +78,7 @@ def main(argv=None) -> int:
     t_tables = time.perf_counter() - t0
     rows = []
     for rel in (float(r) for r in args.noise.split(",")):
-        y, s_true = truth_pixels(tables, args.pixels, rel)
+        y, s_true = bm.synthetic(tables, args.pixels, rel=rel, with_scales=True)
         valid = np.ones_like(y, dtype=bool)
         noise = (rel, 0.0)
         solve_pixels(tables, y[:512], valid[:512], noise)  # compile the weighted program
