@@ -67,6 +67,33 @@ def _compilation(label="rough-plastic x forward-series: values, fast rule", esti
     return compiling.Compilation(label, label, 1000, estimate, 0.0)
 
 
+def test_the_programs_of_the_plane_of_incidence_are_named_apart():
+    """Configurations all in the plane of incidence run programs of their own (half the
+    azimuths, docs/engine.md); their labels say so, so that the display and the suite's
+    census do not show one program compiled twice."""
+    from veil.engine.apparent import RULES
+    from veil.engine.channel_programs import _channel_terms_fn
+    from veil.engine.forward import Forward, _terms_fn, jacobian_program
+    from veil_test_models import FisherTest, LambertianTest
+
+    b, m = LambertianTest(rho=0.8), FisherTest(Td=2e-3, Tt=0.2, kappa=150.0)
+    th = np.linspace(10.0, 70.0, 5)
+    labels = {}
+    for psi in (0.0, 10.0):
+        f = Forward(b, m, th, th, 180.0, psi, rule=RULES["fast"])
+        labels[f.half] = [
+            _terms_fn(f._kb, f._km, f.rule, f.half, f._mesh).label,
+            jacobian_program(None, f._kb, f._km, f.rule, f.half, (), (2,), f._mesh).label,
+            _channel_terms_fn(f._kb, f._km, f.rule, f.half, 3, f._mesh).label,
+        ]
+    assert sorted(labels) == [False, True]
+    assert labels[True][0] == ("lambertian-test x fisher-test: values, fast rule, in the plane "
+                               "of incidence")
+    assert labels[True][1].endswith("values and d/d(kappa), fast rule, in the plane of incidence")
+    assert labels[True][2].endswith("values of 3 channels, fast rule, in the plane of incidence")
+    assert [label + ", in the plane of incidence" for label in labels[False]] == labels[True]
+
+
 def test_lines_when_not_on_a_terminal(capsys):
     display = compile_display.CompileDisplay(live=False)
     c = _compilation()

@@ -57,7 +57,7 @@ def _channel_terms_fn(kb, km, rule: Rule, half: bool, channels: int, mesh):
         _sharded(fn, mesh),
         _identity(f"terms of {channels} channels", kb, km, rule, half, mesh),
         (kb[0], km[0]),
-        _label(f"values of {channels} channels", kb, km, rule),
+        _label(f"values of {channels} channels", kb, km, rule, half),
     )
 
 

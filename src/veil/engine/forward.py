@@ -81,7 +81,7 @@ def _terms_fn(kb, km, rule: Rule, half: bool, mesh: Mesh):
         _sharded(fn, mesh),
         _identity("terms", kb, km, rule, half, mesh),
         (kb[0], km[0]),
-        _label("values", kb, km, rule),
+        _label("values", kb, km, rule, half),
     )
 
 
@@ -132,7 +132,7 @@ def jacobian_program(fn, kb, km, rule: Rule, half: bool, nl_b, nl_m, mesh, of: s
         _sharded(fn, mesh),
         _identity(f"terms+jacobian {nl_b} {nl_m}{of}", kb, km, rule, half, mesh),
         (kb[0], km[0]),
-        _label(f"values and d/d({', '.join(names)}){of}", kb, km, rule),
+        _label(f"values and d/d({', '.join(names)}){of}", kb, km, rule, half),
         JACOBIAN_OPTIONS,
     )
 
@@ -148,14 +148,16 @@ def non_default_options(classes, items) -> list[str]:
     ]
 
 
-def _label(what: str, kb, km, rule: Rule) -> str:
-    """What a compiled engine function is, for people (the compile display)."""
+def _label(what: str, kb, km, rule: Rule, half: bool = False) -> str:
+    """What a compiled engine function is, for people (the compile display): ``half``, the
+    program of configurations in the plane of incidence (its own, docs/engine.md), says so."""
     named = [f"{name}" for name, r in RULES.items() if r == rule] + [
         f"{name} error-estimate" for name, r in FINER.items() if r == rule
     ]
     options = non_default_options((kb[0], km[0]), kb[1:] + km[1:])
     models = f"{kb[0].NAME} x {km[0].NAME}" + (f" ({', '.join(options)})" if options else "")
-    return f"{models}: {what}, {named[0] if named else 'custom'} rule"
+    plane = ", in the plane of incidence" if half else ""
+    return f"{models}: {what}, {named[0] if named else 'custom'} rule{plane}"
 
 
 def _identity(what: str, kb, km, rule: Rule, half: bool, mesh: Mesh) -> str:
