@@ -1,0 +1,50 @@
+"""Hostile use of ``veil fit maps``, ``veil maps`` and ``veil ingest``, sixth round: a grey
+dark frame for one colour channel of colour photos (``ingest --channel g``: an IndexError,
+status 3), ... Each is status 2 naming the file or option, nothing written."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from support.cli import run_checked
+from test_ingest import write_manifest, write_png
+
+H, W = 12, 16
+ROI = "2,2,8,6"
+
+
+def _said(r) -> str:
+    return " ".join(r.output.split())
+
+
+@pytest.fixture
+def colour_stack(tmp_path):
+    """Three 16-bit RGB photos of noise, their manifest, and a grey and a colour dark frame."""
+    photos = tmp_path / "photos"
+    photos.mkdir()
+    rng = np.random.default_rng(6)
+    names = [f"p{k}.png" for k in range(3)]
+    for k, name in enumerate(names):
+        write_png(photos / name, rng.normal(500 + 50 * k, 10, (H, W, 3)).astype(np.uint16))
+    write_png(tmp_path / "dark_grey.png", rng.normal(20, 2, (H, W)).astype(np.uint16))
+    write_png(tmp_path / "dark_rgb.png", rng.normal(20, 2, (H, W, 3)).astype(np.uint16))
+    return photos, write_manifest(tmp_path / "m.csv", names)
+
+
+# -- 1. ingest: a grey dark frame for one channel of colour photos -------------------------
+@pytest.mark.parametrize("channel", ["r", "g", "b"])
+def test_a_grey_dark_frame_for_one_colour_channel_is_named(colour_stack, tmp_path, channel):
+    """Its hot pixels were counted in the channel it does not have: IndexError, status 3."""
+    photos, manifest = colour_stack
+    out = tmp_path / "out.csv"
+    r = run_checked(["ingest", photos, "--manifest", manifest, "--roi", ROI, "--channel",
+                     channel, "--dark", tmp_path / "dark_grey.png", "-o", out])
+    assert r.exit_code == 2, r.output
+    said = _said(r)
+    assert "dark frame" in said and "dark_grey.png" in said, said
+    assert f"no channel '{channel}'" in said and "channel gray" in said, said
+    assert not out.exists()
+    ok = run_checked(["ingest", photos, "--manifest", manifest, "--roi", ROI, "--channel",
+                      channel, "--dark", tmp_path / "dark_rgb.png", "-o", out])
+    assert ok.exit_code == 0, ok.output
