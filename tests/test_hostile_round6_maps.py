@@ -48,3 +48,35 @@ def test_a_grey_dark_frame_for_one_colour_channel_is_named(colour_stack, tmp_pat
     ok = run_checked(["ingest", photos, "--manifest", manifest, "--roi", ROI, "--channel",
                       channel, "--dark", tmp_path / "dark_rgb.png", "-o", out])
     assert ok.exit_code == 0, ok.output
+
+
+# -- 2. fit maps: -o an existing folder that is no maps store ------------------------------
+@pytest.mark.parametrize("rounds", [[], ["--blur-rounds", "2"]])
+def test_a_folder_that_is_no_store_is_refused_first_and_no_lock_left(tmp_path, monkeypatch,
+                                                                     rounds):
+    """It was refused only once the photos were read (with --blur-rounds N: after N maps
+    fitted into a temporary folder), leaving a lock file .NAME.veil-lock beside it."""
+    import veil.cli.maps_cmd as cmd
+    import veil.maps.run as mr
+    from veil.errors import InputError
+    from veil.maps.blur_rounds import fit_maps_rounds
+
+    def work(*args, **kwargs):
+        raise AssertionError("work done before the output was checked")
+
+    for module, name in ((cmd, "load_medium"), (mr, "load_acquisition"), (mr, "_tables"),
+                         (mr, "fit_maps")):
+        monkeypatch.setattr(module, name, work)
+    (tmp_path / "photos").mkdir()
+    (tmp_path / "m.csv").write_text("file,theta_i,phi_i,theta_r,phi_r\n")
+    folder = tmp_path / "mine"
+    folder.mkdir()
+    (folder / "notes.txt").write_text("mine")
+    r = run_checked(["fit", "maps", tmp_path / "photos", "--manifest", tmp_path / "m.csv",
+                     "--medium", "BTDF2", "-o", folder, *rounds])
+    assert r.exit_code == 2, r.output
+    assert f"{folder} exists and is not a veil maps store" in _said(r), r.output
+    with pytest.raises(InputError, match="exists and is not a veil maps store"):
+        fit_maps_rounds(tmp_path / "photos", tmp_path / "m.csv", None, folder, rounds=2)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["m.csv", "mine", "photos"]
+    assert [p.name for p in folder.iterdir()] == ["notes.txt"]
