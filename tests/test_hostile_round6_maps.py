@@ -80,3 +80,26 @@ def test_a_folder_that_is_no_store_is_refused_first_and_no_lock_left(tmp_path, m
         fit_maps_rounds(tmp_path / "photos", tmp_path / "m.csv", None, folder, rounds=2)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["m.csv", "mine", "photos"]
     assert [p.name for p in folder.iterdir()] == ["notes.txt"]
+
+
+# -- 3. fit maps: a noise whose square is no float -----------------------------------------
+@pytest.mark.parametrize("noise", ["1e200", "0.01,1e300", "1e-160", "0,1e-300"])
+def test_a_noise_beyond_a_floats_square_is_refused_by_the_option(tmp_path, noise):
+    """--noise 1e200: (1e200)^2 raised an OverflowError in the weights (status 3) after the
+    tables and the staging; 1e-160 gave every pixel weight 0 ("too few points", status 1)."""
+    from veil.errors import InputError
+    from veil.maps.run import check_noise
+
+    (tmp_path / "photos").mkdir()
+    (tmp_path / "m.csv").write_text("file,theta_i,phi_i,theta_r,phi_r\n")
+    out = tmp_path / "o.zarr"
+    r = run_checked(["fit", "maps", tmp_path / "photos", "--manifest", tmp_path / "m.csv",
+                     "--medium", "BTDF2", "--noise", noise, "-o", out])
+    assert r.exit_code == 2, r.output
+    said = _said(r)
+    assert f"--noise '{noise}'" in said and "0 or from 1e-150 to 1e+150" in said, said
+    assert not out.exists()
+    parts = tuple(float(v) for v in noise.split(","))
+    with pytest.raises(InputError, match="each part 0 or from 1e-150 to 1e"):
+        check_noise(parts)
+    assert check_noise((0.01, 1e-6)) == (0.01, 1e-6)
