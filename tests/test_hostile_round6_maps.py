@@ -103,3 +103,45 @@ def test_a_noise_beyond_a_floats_square_is_refused_by_the_option(tmp_path, noise
     with pytest.raises(InputError, match="each part 0 or from 1e-150 to 1e"):
         check_noise(parts)
     assert check_noise((0.01, 1e-6)) == (0.01, 1e-6)
+
+
+# -- 4. fit maps: values beyond float32 ----------------------------------------------------
+@pytest.mark.parametrize("where", ["photo", "black frame"])
+def test_values_beyond_float32_are_named_not_taken_for_saturated(tmp_path, where):
+    """A float64 photo (or a black frame) with values beyond float32's range: staged as
+    infinities, its pixels came out "no usable photo (saturated or clipped in every photo)"
+    with an "overflow encountered in cast" warning per photo; now the photo is named, status
+    2, and no store is left."""
+    import tifffile
+
+    from support.maps import configurations
+
+    configs = configurations(4)
+    photos = tmp_path / "photos"
+    photos.mkdir()
+    names = []
+    for k in range(len(configs)):
+        image = np.full((8, 8), 2.0 + k)
+        if where == "photo" and k == 2:
+            image[3, 4] = 1e39
+        names.append(f"p{k}.tif")
+        tifffile.imwrite(photos / names[-1], image)
+    manifest = tmp_path / "m.csv"
+    configs.assign(file=names)[["file", "theta_i", "phi_i", "theta_r", "phi_r"]].to_csv(
+        manifest, index=False)
+    dark = np.zeros((8, 8))
+    dark[1, 1] = -1e300 if where == "black frame" else 0.0
+    tifffile.imwrite(tmp_path / "dark.tif", dark)
+    out = tmp_path / "o.zarr"
+    r = run_checked(["fit", "maps", photos, "--manifest", manifest, "--medium", "BTDF2",
+                     "--fix", "eta=1.5", "--grid", "n=0.25:2.5:4", "--accuracy", "fast",
+                     "--black-frame", tmp_path / "dark.tif", "-o", out])
+    assert r.exit_code == 2, r.output
+    said = _said(r)
+    assert "1 value(s)" in said and "beyond float32's range" in said, said
+    if where == "photo":
+        assert "p2.tif (line 4 of" in said and "largest 1e+39" in said, said
+    else:
+        assert "p0.tif (line 2 of" in said and "after the black's subtraction" in said, said
+    assert "overflow" not in said
+    assert not out.exists()
