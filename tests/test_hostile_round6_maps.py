@@ -1,6 +1,9 @@
-"""Hostile use of ``veil fit maps``, ``veil maps`` and ``veil ingest``, sixth round: a grey
-dark frame for one colour channel of colour photos (``ingest --channel g``: an IndexError,
-status 3), ... Each is status 2 naming the file or option, nothing written."""
+"""Hostile use of ``veil fit maps`` and ``veil ingest``, sixth round: a grey dark frame for
+one colour channel of colour photos (``ingest --channel g``: an IndexError, status 3); -o a
+folder that is no maps store (a lock file left beside it; with --blur-rounds refused after
+every round but the last); a --noise whose square is no float (an OverflowError, status 3,
+or every pixel "too few points"); photo values beyond float32 (read as saturated). Each is
+status 2 naming the file or option, nothing written."""
 
 from __future__ import annotations
 
