@@ -48,6 +48,13 @@ def _noise(text):
         or sum(values) <= 0
     ):
         raise UserError(f"--noise {text!r}: expected RELATIVE[,ABSOLUTE] >= 0, not both 0")
+    from ..maps.run import NOISE_RANGE
+
+    lo, hi = NOISE_RANGE
+    if any(v != 0 and not lo <= v <= hi for v in values):
+        raise UserError(
+            f"--noise {text!r}: each of RELATIVE and ABSOLUTE is 0 or from {lo:g} to {hi:g}"
+        )
     return tuple(values + [0.0])[:2]
 
 

@@ -416,6 +416,12 @@ def _dark_frame(dark, rois, channel: str, response, saturation) -> Photo | None:
             f"dark frame {dark}: camera raw is already linear; a response "
             f"curve applies to JPEG/PNG/TIFF code values only"
         )
+    if channel != "gray" and dark_photo.shape[2] == 1 and dark_photo.kind != "raw":
+        raise InputError(
+            f"dark frame {dark}: a single-channel (gray) image has no channel {channel!r}; "
+            f"a dark frame is of the photos' kind (a colour one for colour photos), or use "
+            f"channel gray"
+        )
     level = saturation if saturation is not None else dark_photo.saturation
     hot = sum(_clip_counts(p, channel, level, None)[0] for p in dark_photo.patches)
     if hot:

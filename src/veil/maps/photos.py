@@ -403,6 +403,21 @@ def load_acquisition(
     )
 
 
+def _check_float32(values, bad, where: str, subtracted: bool) -> None:
+    """An InputError when a usable value is beyond float32's range: the stack holds float32,
+    where it would be an infinity, read as an unusable sample ("saturated or clipped")."""
+    top = float(np.finfo(np.float32).max)
+    big = np.abs(np.where(bad, 0.0, values)) > top
+    if big.any():
+        largest = float(np.max(np.abs(values[big])))
+        raise InputError(
+            f"{where}: {int(np.count_nonzero(big))} value(s) "
+            + ("after the black's subtraction " if subtracted else "")
+            + f"beyond float32's range (largest {largest:.4g}, at most {top:.4g}); the maps "
+            f"keep the photos as float32: give them in smaller units"
+        )
+
+
 def stage(store, acq: Acquisition, progress=None) -> None:
     """Photos (minus dark frame or black photos) into ``stack/values``, one at a time;
     ``progress(stage, done, total)`` before the first (done 0) and after each."""
@@ -443,6 +458,7 @@ def stage(store, acq: Acquisition, progress=None) -> None:
             values = values - (acq.correction[:, k] if values.ndim == 3 else acq.correction[0, k])
         if acq.mask is not None:
             bad = bad | ~acq.mask
+        _check_float32(values, bad, where, acq.dark is not None or acq.blacks is not None)
         staged = np.where(bad, np.nan, values).astype(np.float32)
         with COMMIT:  # an interrupt removes a new store between two photos, not within one
             if stacked_channels(acq.channel):  # the stack of channels: (channels, photos, h, w)

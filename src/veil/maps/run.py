@@ -321,6 +321,12 @@ def _check_resumable(output: Path, existing: dict | None, info: dict, inputs: tu
     )
 
 
+#: Each part of a noise model (relative, absolute) is 0 or in this range: its square, the
+#: weights' denominator, is then a normal float (a sigma of 1e200 overflowed to an
+#: OverflowError; of 1e-160 its weights were 0, every pixel "too few points").
+NOISE_RANGE = (1e-150, 1e150)
+
+
 def check_noise(noise) -> tuple[float, float] | None:
     """``noise`` (RELATIVE or (RELATIVE, ABSOLUTE)) checked: (relative, absolute) or None."""
     if noise is None:
@@ -330,6 +336,12 @@ def check_noise(noise) -> tuple[float, float] | None:
     )
     if not (math.isfinite(rel) and math.isfinite(ab) and rel >= 0 and ab >= 0 and rel + ab > 0):
         raise InputError(f"noise {noise!r}: expected RELATIVE[,ABSOLUTE] >= 0, not both 0")
+    lo, hi = NOISE_RANGE
+    if any(v != 0 and not lo <= v <= hi for v in (rel, ab)):
+        raise InputError(
+            f"noise {noise!r}: each part 0 or from {lo:g} to {hi:g} (a sigma whose square "
+            f"is a float: a weight of 1 / sigma^2)"
+        )
     return float(rel), float(ab)
 
 

@@ -91,14 +91,18 @@ def not_a_store(store) -> InputError:
 
 
 def check_store_path(store) -> None:
-    """A store is a folder: any other file at ``store`` is refused (:func:`not_a_store`)
-    before anything is read or computed."""
+    """A store is a folder: any other file at ``store``, or a folder that is no veil maps
+    store, is refused (:func:`not_a_store`) before anything is read or computed (and before
+    its lock file is made beside it). A folder without the store's attributes whose lock
+    file is there may be a store another run is making: the lock decides."""
     if os.path.islink(store):
         raise InputError(
             f"{store} is a symbolic link: give the maps store's own path (a store is not "
             f"written through a link)"
         )
     if os.path.lexists(store) and not os.path.isdir(store):
+        raise not_a_store(store)
+    if os.path.isdir(store) and not lock_path(store).exists() and store_info(store) is None:
         raise not_a_store(store)
 
 
