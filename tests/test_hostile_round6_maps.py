@@ -148,3 +148,46 @@ def test_values_beyond_float32_are_named_not_taken_for_saturated(tmp_path, where
         assert "p0.tif (line 2 of" in said and "after the black's subtraction" in said, said
     assert "overflow" not in said
     assert not out.exists()
+
+
+# -- 5. maps export: a map beyond float32 --------------------------------------------------
+def test_an_export_keeps_values_beyond_float32_finite_and_says_so(tmp_path):
+    """A map weighted by --noise 0,1e-150 (in the range, far below the photos' own noise):
+    its reduced chi-square is about 1e300, which the float32 files held as infinity (with a
+    raw "overflow encountered in cast"); now float32's largest, with a warning naming the
+    map, and the store keeps the value."""
+    import tifffile
+
+    from veil.maps.run import open_maps
+
+    from support.maps import configurations
+
+    configs = configurations(6)
+    photos = tmp_path / "photos"
+    photos.mkdir()
+    rng = np.random.default_rng(3)
+    names = []
+    for k in range(len(configs)):
+        names.append(f"p{k}.tif")
+        tifffile.imwrite(photos / names[-1], rng.normal(2.0 + k, 0.1, (8, 8)))
+    manifest = tmp_path / "m.csv"
+    configs.assign(file=names)[["file", "theta_i", "phi_i", "theta_r", "phi_r"]].to_csv(
+        manifest, index=False)
+    out = tmp_path / "o.zarr"
+    r = run_checked(["fit", "maps", photos, "--manifest", manifest, "--medium", "BTDF2",
+                     "--fix", "eta=1.5", "--grid", "n=0.25:2.5:4", "--accuracy", "fast",
+                     "--noise", "0,1e-150", "-o", out])
+    assert r.exit_code in (0, 1), r.output
+    folder = tmp_path / "export"
+    shown = run_checked(["maps", "export", out, "-o", folder])
+    assert shown.exit_code == 0, shown.output
+    said = _said(shown)
+    assert "Warning: chi2_reduced:" in said and "beyond float32's range" in said, said
+    assert "overflow" not in said
+    top = float(np.finfo(np.float32).max)
+    for path in folder.glob("*.tif"):
+        image = tifffile.imread(path)
+        assert np.all(np.isfinite(image)), path.name
+    chi2 = tifffile.imread(folder / "chi2_reduced.tif")
+    assert chi2.max() == np.float32(top)
+    assert np.max(open_maps(out)["chi2_reduced"]) > 1e100

@@ -436,7 +436,8 @@ def export_command(store, output, formats):
     from ..maps.show import FORMATS, export_maps
 
     check_outside(output, store, f"the maps store {store}")
-    written = export_maps(store, output, formats or FORMATS)
+    with echo_warnings():
+        written = export_maps(store, output, formats or FORMATS)
     click.echo(f"wrote {len(written)} files to {output}", err=True)
     with open(Path(output) / "summary.json") as fh:
         summary = json.load(fh)

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import os
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -13,6 +14,7 @@ import numpy as np
 from .._extras import require
 from ..errors import InputError
 from ..io import output_folder, write_bytes_atomic, write_text_atomic
+from .geometry_notes import MapsWarning
 from .status import CONVERGED, STATUS
 from .status import FEW_POINTS as STATUS_FEW
 from .status import MASKED as STATUS_MASKED
@@ -210,6 +212,8 @@ def export_maps(store, folder, formats=FORMATS) -> list[Path]:
     if "stderr_medium" in maps:  # docs/maps-medium-error.md
         images.update(_part_images(maps, ok, "medium"))
 
+    images = {name: (_in_float32(name, image), planes) for name, (image, planes) in images.items()}
+
     def file(name, fmt):
         return f"{name}.{'tif' if fmt == 'tiff' else 'exr'}"
 
@@ -231,6 +235,26 @@ def export_maps(store, folder, formats=FORMATS) -> list[Path]:
             staging / "summary.json", json.dumps(summarize_maps(store, maps), indent=2) + "\n"
         )
     return [folder / n for n in names]
+
+
+def _in_float32(name: str, image: np.ndarray) -> np.ndarray:
+    """``image`` within float32's range, as the files hold it: a value beyond (a reduced
+    chi-square of a noise far below the data's) is written as float32's largest of its sign,
+    not as an infinity, with a MapsWarning naming the map; the store keeps the value."""
+    top = float(np.finfo(np.float32).max)
+    image = np.asarray(image, dtype=float)
+    big = np.abs(image) > top
+    if big.any():
+        warnings.warn(
+            MapsWarning(
+                f"{name}: {int(np.count_nonzero(big))} pixel(s) beyond float32's range "
+                f"(largest {float(np.max(np.abs(image[big]))):.4g}) written as {top:.4g}, "
+                f"float32's largest; the store keeps the values"
+            ),
+            stacklevel=3,
+        )
+        image = np.clip(image, -top, top)
+    return image
 
 
 def _error_images(maps: dict, ok) -> dict:
