@@ -191,3 +191,23 @@ def test_an_export_keeps_values_beyond_float32_finite_and_says_so(tmp_path):
     chi2 = tifffile.imread(folder / "chi2_reduced.tif")
     assert chi2.max() == np.float32(top)
     assert np.max(open_maps(out)["chi2_reduced"]) > 1e100
+
+
+# -- 6. fit maps: --blur-from the output itself --------------------------------------------
+def test_blur_from_the_output_is_refused_before_anything_is_read(tmp_path, monkeypatch):
+    """It was refused (as a store of other settings) only after the photos were read and
+    corrected for the blur of the store it was about to replace."""
+    import veil.maps.run as mr
+
+    def work(*args, **kwargs):
+        raise AssertionError("work done before the output was checked")
+
+    monkeypatch.setattr(mr, "load_acquisition", work)
+    (tmp_path / "photos").mkdir()
+    (tmp_path / "m.csv").write_text("file,theta_i,phi_i,theta_r,phi_r\n")
+    out = tmp_path / "o.zarr"
+    r = run_checked(["fit", "maps", tmp_path / "photos", "--manifest", tmp_path / "m.csv",
+                     "--medium", "BTDF2", "--blur-from", out, "-o", out])
+    assert r.exit_code == 2, r.output
+    assert f"--blur-from {out} is the output: write the map to a new store" in _said(r), r.output
+    assert not out.exists()

@@ -193,6 +193,9 @@ def fit_maps(
     spread = plan_spread(propagation, medium, channel)
     grid_spec = parse_grid(grid, cls) if isinstance(grid, (list, tuple)) else dict(grid or {})
     output = _check_output(Path(as_path(output, "output")))
+    prior_path = blur_from is not None and Path(as_path(blur_from, "blur_from")).resolve()
+    if prior_path == output.resolve():
+        raise InputError(f"--blur-from {blur_from} is the output: write the map to a new store")
     sources = dict(roi=roi, mask=mask, black_photos=black_photos, black_frame=black_frame)
     acq = load_acquisition(photo_dir, manifest, channel=channel, saturation=saturation, **sources)
     near = near_geometry(geometry, near_field, acq)
