@@ -127,7 +127,7 @@ def summary_table(result):
     return table
 
 
-@click.command("demo")
+@click.command("demo", short_help="The paper's simulation experiment, then a whole estimation.")
 @click.option(
     "-o",
     "--outdir",

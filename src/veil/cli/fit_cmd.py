@@ -221,7 +221,7 @@ def _one_channel(data, what: str) -> bool:
 # --------------------------------------------------------------------------------------
 # commands
 # --------------------------------------------------------------------------------------
-@click.group("fit", cls=LazyGroup)
+@click.group("fit", cls=LazyGroup, short_help="Estimate f_r and f_t from measurement tables.")
 def fit_command():
     """Estimate f_r and f_t from measurement tables (docs/model.md sec. 7, docs/fitting.md).
 

@@ -158,7 +158,7 @@ def _ranked_joint(ctx, loaded, ranked, kw: dict):
     return result
 
 
-@click.command("joint")
+@click.command("joint", short_help="Fit the target (and the reference) over several media at once.")
 @click.option(
     "--session",
     "sessions",

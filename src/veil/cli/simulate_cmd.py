@@ -157,7 +157,7 @@ def _channel_models(model_b, model_m, channels: str | None, per_channel) -> dict
     return out
 
 
-@click.command("simulate")
+@click.command("simulate", short_help="Simulate a measurement session of the paper's protocol.")
 @click.option(
     "--brdf",
     default=None,
