@@ -670,3 +670,24 @@ def test_a_table_separated_otherwise_than_by_commas_is_named(one_photo, tmp_path
     # a comma-separated table whose names hold a semicolon is not taken for one
     (tmp_path / "ok.csv").write_text("theta_i,theta_r,value,note;x\n30,30,1.5,a\n")
     assert "note;x" in veil.load_measurements(tmp_path / "ok.csv").columns
+
+
+def test_a_fit_warns_of_a_black_column_it_does_not_subtract(tmp_path):
+    """A table of `veil ingest --black-roi` has the black cloth's light beside the object in
+    its column `black`; a fit without a black-cloth table fitted the values as they are, the
+    medium's glow in them, without a word. It now says so; with the black cloth given, or a
+    black column of zeros, nothing is said."""
+    from veil.fitting.session_data import prepare
+
+    table = pd.DataFrame({"theta_i": [30.0, 30.0, 45.0], "theta_r": [20.0, 40.0, 45.0],
+                          "value": [2.0, 3.0, 5.0], "black": [0.5, 0.4, 0.6]})
+    path = tmp_path / "meas.csv"
+    table.to_csv(path, index=False)
+    with pytest.warns(UserWarning, match=r"meas\.csv has a 'black' column .* which the fit "
+                                         r"does not subtract: subtract it .*--black"):
+        prepare(str(path))
+    black = table[["theta_i", "theta_r"]].assign(value=0.5)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        prepare(str(path), black=black)
+        prepare(table.assign(black=0.0))

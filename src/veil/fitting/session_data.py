@@ -4,6 +4,7 @@ validates a table (black cloth subtracted) into a :class:`FitData`."""
 from __future__ import annotations
 
 import os
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -103,6 +104,23 @@ def one_channel(
     return channel_rows(table, labels, name), name
 
 
+def _warn_unsubtracted_black(table: pd.DataFrame) -> None:
+    """A UserWarning when a table fitted without a black-cloth table has a nonzero ``black``
+    column (``veil ingest --black-roi``: the black cloth beside the object): the fit does
+    not subtract it (docs/ingest.md)."""
+    if "black" not in table.columns:
+        return
+    black = pd.to_numeric(table["black"], errors="coerce").to_numpy(dtype=float)
+    if np.any(np.isfinite(black) & (black != 0)):
+        warnings.warn(
+            f"{RowNames(table).what} has a 'black' column (the black cloth beside the object, "
+            f"veil ingest --black-roi), which the fit does not subtract: subtract it "
+            f"(docs/ingest.md) or give the black cloth's table (--black)",
+            UserWarning,
+            stacklevel=3,
+        )
+
+
 def prepare(
     table, black=None, what: str = "measurement", channel: str | None = None, several: str = ""
 ) -> FitData:
@@ -119,6 +137,7 @@ def prepare(
         checked = subtract_black(table, black)
     else:
         checked = validate(table)
+        _warn_unsubtracted_black(checked)
     canon = canonical_angles(checked)
     angles = tuple(canon[c].to_numpy(dtype=float) for c in CANONICAL)
     y = checked["value"].to_numpy(dtype=float)
