@@ -13,6 +13,8 @@ import sys
 import numpy as np
 import pytest
 
+import veil
+
 from support.compiles import compilations
 from veil._jax import jax
 from veil.cli import compile_display
@@ -92,6 +94,11 @@ def test_the_programs_of_the_plane_of_incidence_are_named_apart():
     assert labels[True][1].endswith("values and d/d(kappa), fast rule, in the plane of incidence")
     assert labels[True][2].endswith("values of 3 channels, fast rule, in the plane of incidence")
     assert [label + ", in the plane of incidence" for label in labels[False]] == labels[True]
+    # the medium's parameter of a name the BRDF's has too is named as the medium's
+    tp, hg = veil.preset("BRDF1"), veil.preset("BTDF1")
+    f = Forward(tp, hg, th, th, 180.0, 10.0, rule=RULES["fast"])
+    both = jacobian_program(None, f._kb, f._km, f.rule, f.half, (2, 3), (2, 3), f._mesh).label
+    assert "values and d/d(n, eta, g, medium's eta), fast rule" in both, both
 
 
 def test_lines_when_not_on_a_terminal(capsys):

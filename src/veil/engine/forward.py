@@ -127,7 +127,11 @@ def jacobian_program(fn, kb, km, rule: Rule, half: bool, nl_b, nl_m, mesh, of: s
     """The :class:`Program` of a Jacobian function ``fn`` in the parameters ``nl_b`` and
     ``nl_m``, named for the store and the compile display (``of``: what else it computes,
     e.g. " of 3 channels")."""
-    names = [kb[0].PARAMS[i].name for i in nl_b] + [km[0].PARAMS[i].name for i in nl_m]
+    own = {p.name for p in kb[0].PARAMS}  # a medium's name the BRDF has too says whose it is
+    names = [kb[0].PARAMS[i].name for i in nl_b] + [
+        f"medium's {km[0].PARAMS[i].name}" if km[0].PARAMS[i].name in own else km[0].PARAMS[i].name
+        for i in nl_m
+    ]
     return Program(
         _sharded(fn, mesh),
         _identity(f"terms+jacobian {nl_b} {nl_m}{of}", kb, km, rule, half, mesh),
