@@ -121,7 +121,20 @@ def _per_candidate(items, cands, parse, option: str) -> dict:
         cls = model_class(c.family)
         mine = [i for i in items if i.partition("=")[0].strip() in cls.param_names()]
         used.update(mine)
-        out[c.label] = parse(mine, cls)
+        try:
+            out[c.label] = parse(mine, cls)
+        except UserError as exc:  # a value this family cannot hold, though others can
+            named = {i.partition("=")[0].strip() for i in mine if repr(i) in exc.message}
+            if not named:  # not a value (a name given twice)
+                raise
+            owners = dict.fromkeys(
+                d.family for d in cands if named & set(model_class(d.family).param_names())
+            )
+            raise UserError(
+                f"{exc.message}; with auto {option} applies to every candidate family that "
+                f"has the parameter ({', '.join(owners)}): give a value they all take, or "
+                f"choose the family (--{cls.KIND}-model FAMILY)"
+            ) from None
     unused = [i for i in items if i not in used]
     if unused:
         raise UserError(

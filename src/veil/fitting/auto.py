@@ -23,6 +23,7 @@ from ..models import model_class, registry
 from ..models.base import VARIANT_OPTION
 from . import screening, selection
 from .result import FitResult
+from .solver import check_fixed
 from .step_fit import fixes_of_step
 from .steps import fit_direct, fit_medium, fit_target, model_values
 
@@ -43,15 +44,48 @@ def for_family(cls, per_step: dict, step: str, what: str, used: set) -> dict | l
     return kept
 
 
+#: The command-line option of each keyword of the pipeline, for the messages.
+_OPTION = {"fixed": "--fix", "free": "--free"}
+
+
 def _per_family(cands, per_step: dict, step: str, what: str) -> dict:
     """{label: the ``fixed`` / ``free`` entries of ``step`` its family declares}; an entry no
-    candidate declares is an error."""
+    candidate declares is an error, and so is a fixed value outside the bounds of a family
+    that declares it (:func:`_check_fixed_values`)."""
     used: set = set()
     out = {c.label: for_family(model_class(c.family), per_step, step, what, used) for c in cands}
     unused = [f"{step}.{k}" for k in (per_step.get(step) or []) if (step, k) not in used]
     if unused:
-        raise FitError(f"{what} {', '.join(unused)}: no candidate model has such a parameter")
+        raise FitError(
+            f"{what}={{...}} ({_OPTION[what]} {', '.join(unused)}): no candidate model has "
+            "such a parameter"
+        )
+    if what == "fixed":
+        _check_fixed_values(cands, out, step)
     return out
+
+
+def _check_fixed_values(cands, fixes: dict, step: str) -> None:
+    """A FitError, before any fit, for a value of ``fixes`` ({label: {name: value}} of
+    ``step``) outside the bounds of a candidate's family: the value holds in every candidate
+    that has the parameter (docs/choosing-models.md), and one it cannot hold would fail
+    (all of them: the value silently unused)."""
+    for c in cands:
+        cls = model_class(c.family)
+        for name, value in (fixes[c.label] or {}).items():
+            try:
+                check_fixed(name, value, cls.param(name), cls.__name__)
+            except FitError as exc:
+                owners = [x.family for x in cands if name in model_class(x.family).param_names()]
+                said = f"{value:g}" if isinstance(value, (int, float)) else repr(value)
+                raise FitError(
+                    f"fixed={{'{step}': {{'{name}': {value!r}}}}} (--fix {step}.{name}={said}): "
+                    f"{str(exc).removeprefix('fixed ')}; when the models are chosen by the data "
+                    f"(auto) a fixed value holds in every candidate family that has the parameter "
+                    f"({', '.join(dict.fromkeys(owners))}): give one they all take, or pin "
+                    "the families (--models FAMILY+MEDIUM; brdf_model= and medium_model= in "
+                    "Python)"
+                ) from None
 
 
 def fitted_curve(result: FitResult, data) -> np.ndarray:
