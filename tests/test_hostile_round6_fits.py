@@ -95,3 +95,60 @@ def test_auto_step_fit_says_the_fix_holds_in_every_family_having_it(sessions, tm
     assert "every candidate family that has the parameter (torrance-sparrow, rough-conductor)" \
         in text and "--brdf-model FAMILY" in text
     assert not (tmp_path / "r.json").exists()
+
+
+# -- 2. a fit result where the forward model takes a model ---------------------------------
+@pytest.fixture(scope="module")
+def fitted():
+    """A fit of the paper's surface in clear water and a medium's fit result (HG, BTDF2)."""
+    table = veil.simulate("BRDF1", None, **SCREEN)
+    brdf = veil.fit_reference(table)
+    medium = veil.FitResult(model="henyey-greenstein", params=veil.BTDF2.as_dict(),
+                            stderr={k: None for k in veil.BTDF2.as_dict()}, correlation={},
+                            residuals=tuple(range(2000)), chi2_reduced=1.0, rms_relative=0.01,
+                            n_points=2000, converged=True, message="", step="medium")
+    return brdf, medium
+
+
+@pytest.mark.parametrize("call, family", [
+    (lambda b, m: veil.reflectance(b, 45, [40, 45]), "torrance-sparrow"),
+    (lambda b, m: veil.apparent(b, "BTDF2", 45, 45, accuracy="fast"), "torrance-sparrow"),
+    (lambda b, m: veil.apparent("BRDF1", m, 45, 45, accuracy="fast"), "henyey-greenstein"),
+    (lambda b, m: veil.simulate(b, "BTDF2", accuracy="fast"), "torrance-sparrow"),
+    (lambda b, m: veil.simulate("BRDF1", m, accuracy="fast"), "henyey-greenstein"),
+])
+def test_a_fit_result_given_as_a_model_says_as_model(fitted, call, family):
+    """The message held the result's repr: every parameter, correlation and residual (a
+    thousand lines for a session's fit)."""
+    with pytest.raises(InputError) as caught:
+        call(*fitted)
+    text = str(caught.value)
+    assert f"got FitResult({family} fit, step " in text
+    assert text.endswith("converged; its model: .as_model())")
+    assert len(text) < 300 and "residuals" not in text and "\n" not in text
+
+
+def test_the_repr_of_a_result_of_many_parameters_is_one_short_line(fitted):
+    brdf, _ = fitted
+    table = veil.simulate("BRDF1", None, **SCREEN)
+    lobes = veil.fit_reference(table, brdf_model="nonparametric")
+    for result in (brdf, lobes):
+        text = repr(result)
+        assert "\n" not in text and len(text) < 250 and "residuals" not in text
+    assert "... (55 parameters)" in repr(lobes)
+
+
+def test_a_joint_result_file_reads_as_one_by_fit_result_from_json(tmp_path):
+    """FitResult.from_json of a joint fit's file said "key 'model' = 'joint' is not a known
+    model", though veil wrote it; load_result read it."""
+    from veil.fitting import JointResult, load_result
+
+    sessions = [(veil.simulate(brdf, medium, **SCREEN), label, obj)
+                for label, medium in (("none", None), ("m", "BTDF2"))
+                for obj, brdf in (("reference", "BRDF2"), ("target", "BRDF1"))]
+    joint = veil.fit_joint(sessions, accuracy="fast")
+    joint.to_json(tmp_path / "joint.json")
+    read = veil.FitResult.from_json(tmp_path / "joint.json")
+    assert isinstance(read, JointResult)
+    assert read.params == load_result(tmp_path / "joint.json").params == joint.params
+    assert repr(read).endswith("its model: .as_model(), .brdf(object), .medium(label))")
