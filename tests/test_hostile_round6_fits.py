@@ -152,3 +152,27 @@ def test_a_joint_result_file_reads_as_one_by_fit_result_from_json(tmp_path):
     assert isinstance(read, JointResult)
     assert read.params == load_result(tmp_path / "joint.json").params == joint.params
     assert repr(read).endswith("its model: .as_model(), .brdf(object), .medium(label))")
+
+
+# -- 3. a grey reference in clear water, the sessions in the medium in colour ---------------
+def test_a_grey_clear_reference_with_colour_sessions_says_the_channels_differ(sessions,
+                                                                              tmp_path):
+    """The message was the single-step fits' ("the reference (in the medium) fit does not
+    fit several channels at once; select one with --channel NAME in veil fit reference,
+    medium or target"), though the pipeline fits several channels and has --channel."""
+    colour = {c: ("BRDF2", "BTDF2") for c in "rgb"}
+    table, black = veil.simulate(colour, None, black=True, **SCREEN)
+    table.to_csv(tmp_path / "rgb.csv", index=False)
+    black.to_csv(tmp_path / "rgb_black.csv", index=False)
+    args = ["fit", "pipeline", "--no-figures", "--accuracy", "fast", "-o", tmp_path / "out",
+            "--reference-clear", sessions["reference-clear"],
+            "--reference-medium", tmp_path / "rgb.csv", "--target-medium", tmp_path / "rgb.csv",
+            "--black", tmp_path / "rgb_black.csv"]
+    r = run_checked(args)
+    assert r.exit_code == 2, r.output
+    text = _said(r)
+    assert f"the reference (in the medium) table {tmp_path / 'rgb.csv'} has channels r, g, b " \
+        "but the reference (clear medium) table has one channel: every session needs the " \
+        "same channels (or fit one: channel='NAME', --channel NAME)" in text
+    assert "veil fit reference, medium or target" not in text
+    assert not (tmp_path / "out").exists()
