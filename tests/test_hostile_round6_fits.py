@@ -176,3 +176,24 @@ def test_a_grey_clear_reference_with_colour_sessions_says_the_channels_differ(se
         "same channels (or fit one: channel='NAME', --channel NAME)" in text
     assert "veil fit reference, medium or target" not in text
     assert not (tmp_path / "out").exists()
+
+
+# -- 4. a non-parametric result of no signal exported -------------------------------------
+@pytest.mark.parametrize("to", ["mitsuba", "pbrt"])
+def test_exporting_a_result_whose_f_r_is_zero_says_so_not_rescale(tmp_path, to):
+    """All-zero data give the non-parametric fit every coefficient 0 (written, not
+    converged); its export said f_r "reaches 0, beyond the magnitudes (1e-100 to 1e+100)"
+    and asked to rescale the data: no factor makes zero data fit."""
+    table = veil.simulate("BRDF1", None, **SCREEN)
+    table["value"] = 0.0
+    table["sigma"] = 1.0
+    lobes = veil.fit_reference(table, brdf_model="nonparametric")
+    assert not lobes.converged and not any(lobes.params.values())
+    lobes.to_json(tmp_path / "zero.json")
+    r = run_checked(["export", tmp_path / "zero.json", "--to", to, "-o", tmp_path / "m.out"])
+    assert r.exit_code == 2, r.output
+    text = _said(r)
+    assert f"{tmp_path / 'zero.json'}: nonparametric: f_r is 0 at every configuration " \
+        "(every coefficient 0), so there is no reflectance to export" in text
+    assert "rescale" not in text and "internal error" not in text
+    assert not (tmp_path / "m.out").exists()
