@@ -197,3 +197,33 @@ def test_exporting_a_result_whose_f_r_is_zero_says_so_not_rescale(tmp_path, to):
         "(every coefficient 0), so there is no reflectance to export" in text
     assert "rescale" not in text and "internal error" not in text
     assert not (tmp_path / "m.out").exists()
+
+
+# -- 5. a parameter both fixed and freed ---------------------------------------------------
+@pytest.mark.parametrize("args, said", [
+    (["fit", "target", "{ref}", "--medium", "BTDF2", "--fix", "n=0.5", "--free", "n"],
+     "--fix n=0.5 and --free n: a parameter is held at a value (--fix) or fitted"),
+    (["fit", "target", "{ref}", "--medium", "BTDF2", "--brdf-model", "auto", "--fix",
+      "eta=1.5", "--free", "eta"],
+     "--fix eta=1.5 and --free eta: a parameter is held"),
+    (["fit", "pipeline", "--reference-clear", "{ref}", "--reference-medium", "{ref}",
+      "--target-medium", "{ref}", "--fix", "target.n=0.5", "--free", "target.n"],
+     "--fix target.n=0.5 and --free target.n: a parameter is held"),
+    (["fit", "pipeline", "--reference-clear", "{ref}", "--reference-medium", "{ref}",
+      "--target-medium", "{ref}", "--models", "auto", "--fix", "medium.g=0.5", "--free",
+      "medium.g"],
+     "--fix medium.g=0.5 and --free medium.g: a parameter is held"),
+])
+def test_a_parameter_both_fixed_and_freed_names_both_options(sessions, tmp_path, args, said):
+    """The message was "n both fixed and freed", naming neither option nor step."""
+    ref = str(sessions["reference-clear"])
+    r = run_checked([a.format(ref=ref) for a in args] + ["-o", tmp_path / "out"])
+    assert r.exit_code == 2, r.output
+    assert said in _said(r) and "give one of the two" in _said(r)
+    assert not (tmp_path / "out").exists()
+
+
+def test_a_parameter_both_fixed_and_freed_in_python_says_why(sessions):
+    with pytest.raises(FitError, match="n both fixed and freed: a parameter is held at its "
+                                       "fixed value or fitted"):
+        veil.fit_reference(str(sessions["reference-clear"]), fixed={"n": 0.5}, free=["n"])

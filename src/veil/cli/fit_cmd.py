@@ -47,6 +47,7 @@ from ._fit_options import (
     _sampling_option,
     _step_entries,
     _step_through_medium_options,
+    refuse_fixed_and_freed,
 )
 from ._fit_reports import print_pipeline, print_ranking
 
@@ -194,6 +195,7 @@ def _fit_step(ctx, kind: str, step: str, models, fit, data, what: str, fix=(), f
     progress)`` with the chosen family, or every candidate ranked (:func:`_ranked_fit`)
     when it is ``auto``. ``data`` are the (table, black, channel) the fit reads, ``what``
     names them."""
+    refuse_fixed_and_freed(fix, free)
     cls = models.brdf if kind == "brdf" else models.medium
     options = models.brdf_options if kind == "brdf" else models.medium_options
     if kind in models.ranked:
@@ -508,6 +510,7 @@ def pipeline_command(
     from ..pipeline import run_pipeline
 
     auto = models.mode == AUTO
+    refuse_fixed_and_freed(fix, free, by_step=True)
     if auto:
         fixed = _raw_step_fix(fix)
         freed = _step_entries(free, "--free")
