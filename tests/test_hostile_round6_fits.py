@@ -1,6 +1,7 @@
 """Hostile use of the fits and of model selection, sixth round: a ``--fix`` under ``--models
-auto`` that no candidate family can hold (the pipeline dropped those candidates as failed
-and exited 0 with a model that ignored the fix), a fit result handed to ``veil.apparent``,
+auto`` that no candidate family can hold (the pipeline listed those candidates as failed
+and exited 0 with a model that ignored the fix), an option no candidate takes given to a
+single step's auto (the family dropped without a word), a fit result handed to ``veil.apparent``,
 ``veil.reflectance`` or ``veil.simulate`` in place of its model (the message printed the
 whole result), a grey clear-water reference with colour sessions in the medium (the message
 sent the user to the single-step commands), a non-parametric result of no signal exported
@@ -52,30 +53,26 @@ def _said(result) -> str:
     return " ".join(result.output.split())
 
 
-# -- 1. --fix under --models auto that a candidate family cannot hold ----------------------
-@pytest.mark.parametrize("fix, said", [
-    # tau is the forward series' alone: every candidate having it failed, the fix unused,
-    # and the paper's medium was chosen with status 0
-    ("medium.tau=-0.5", "--fix medium.tau=-0.5: forward-series tau = -0.5 is outside [0, 3]"),
-    # n is Torrance-Sparrow's smoothness (up to 50 1/deg) and rough-conductor's index (to 10)
-    ("reference.n=20", "--fix reference.n=20: rough-conductor n = 20 is outside (0, 10]"),
-])
-def test_auto_pipeline_refuses_a_fixed_value_a_candidate_cannot_hold(sessions, tmp_path, fix,
-                                                                      said):
-    r = _pipeline(sessions, tmp_path / "out", "--models", "auto", "--fix", fix)
+# -- 1. --fix under --models auto that no candidate family can hold ----------------------
+def test_auto_pipeline_refuses_a_fixed_value_no_candidate_could_hold(sessions, tmp_path):
+    """tau is the forward series' alone: -0.5 made every such candidate fail, and the
+    paper's medium was chosen, exit 0, the fix unused (only a row of the table said why)."""
+    r = _pipeline(sessions, tmp_path / "out", "--models", "auto", "--fix", "medium.tau=-0.5")
     assert r.exit_code == 2, r.output
     text = _said(r)
-    assert said in text
-    assert "holds in every candidate family that has the parameter" in text
-    assert "--models FAMILY+MEDIUM" in text and "internal error" not in text
+    assert "--fix medium.tau=-0.5: no candidate could hold it (fixed forward-series tau = " \
+        "-0.5 is outside [0, 3]" in text
+    assert "the one chosen (henyey-greenstein) has no tau: the value would go unused" in text
+    assert "internal error" not in text
     assert not (tmp_path / "out").exists()
 
 
 def test_auto_pipeline_in_python_names_the_keyword(sessions, tmp_path):
-    with pytest.raises(FitError, match=r"fixed=\{'medium': \{'tau': -0.5\}\}.*outside \[0, 3\]"):
+    with pytest.raises(FitError, match=r"fixed=\{'medium': \{'tau': -0.5\}\}.*no candidate "
+                                       r"could hold it"):
         veil.run_pipeline(str(sessions["reference-clear"]), str(sessions["reference-medium"]),
                           str(sessions["target-medium"]), black=str(sessions["black"]),
-                          outdir=tmp_path / "out", models="auto",
+                          outdir=tmp_path / "out", models="auto", accuracy="fast",
                           fixed={"medium": {"tau": -0.5}}, figures=False)
     assert not (tmp_path / "out").exists()
 
@@ -227,3 +224,16 @@ def test_a_parameter_both_fixed_and_freed_in_python_says_why(sessions):
     with pytest.raises(FitError, match="n both fixed and freed: a parameter is held at its "
                                        "fixed value or fitted"):
         veil.fit_reference(str(sessions["reference-clear"]), fixed={"n": 0.5}, free=["n"])
+
+
+# -- 6. an option no candidate takes, given to a single step's auto ------------------------
+def test_auto_step_fit_refuses_an_option_no_candidate_takes(sessions, tmp_path):
+    """rough-plastic declares --nonlinear True but makes no model with it: under auto the
+    family was dropped from the candidates without a word and the fit exited 0 with the
+    option unused (the pipeline's auto refused it)."""
+    r = run_checked(["fit", "reference", sessions["reference-clear"], "--brdf-model", "auto",
+                     "--nonlinear", "True", "-o", tmp_path / "r.json"])
+    assert r.exit_code == 2, r.output
+    assert "option(s) nonlinear = True (rough-plastic): the families that declare them make " \
+        "no model with that value, so no candidate takes it" in _said(r)
+    assert not (tmp_path / "r.json").exists()

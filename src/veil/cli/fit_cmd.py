@@ -155,11 +155,12 @@ def _ranked_fit(
     chosen result returned with it in ``stats["selection"]``. Exit 1 with the table when
     every candidate failed."""
     from ..fitting import screening, selection
+    from ..fitting.auto import check_candidates
     from ..fitting.session_data import prepare_all
 
-    cands = selection.candidates(
-        kind, models.brdf_options if kind == "brdf" else models.medium_options
-    )
+    options = models.brdf_options if kind == "brdf" else models.medium_options
+    cands = selection.candidates(kind, options)
+    check_candidates("BRDF" if kind == "brdf" else "medium", cands, options)
     fixes = _per_candidate(fix, cands, parse_fix, "--fix")
     frees = _per_candidate(free, cands, _parse_free, "--free")
     table, black, channel = data

@@ -23,7 +23,6 @@ from ..models import model_class, registry
 from ..models.base import VARIANT_OPTION
 from . import screening, selection
 from .result import FitResult
-from .solver import check_fixed
 from .step_fit import fixes_of_step
 from .steps import fit_direct, fit_medium, fit_target, model_values
 
@@ -50,8 +49,7 @@ _OPTION = {"fixed": "--fix", "free": "--free"}
 
 def _per_family(cands, per_step: dict, step: str, what: str) -> dict:
     """{label: the ``fixed`` / ``free`` entries of ``step`` its family declares}; an entry no
-    candidate declares is an error, and so is a fixed value outside the bounds of a family
-    that declares it (:func:`_check_fixed_values`)."""
+    candidate declares is an error."""
     used: set = set()
     out = {c.label: for_family(model_class(c.family), per_step, step, what, used) for c in cands}
     unused = [f"{step}.{k}" for k in (per_step.get(step) or []) if (step, k) not in used]
@@ -60,32 +58,24 @@ def _per_family(cands, per_step: dict, step: str, what: str) -> dict:
             f"{what}={{...}} ({_OPTION[what]} {', '.join(unused)}): no candidate model has "
             "such a parameter"
         )
-    if what == "fixed":
-        _check_fixed_values(cands, out, step)
     return out
 
 
-def _check_fixed_values(cands, fixes: dict, step: str) -> None:
-    """A FitError, before any fit, for a value of ``fixes`` ({label: {name: value}} of
-    ``step``) outside the bounds of a candidate's family: the value holds in every candidate
-    that has the parameter (docs/choosing-models.md), and one it cannot hold would fail
-    (all of them: the value silently unused)."""
-    for c in cands:
-        cls = model_class(c.family)
-        for name, value in (fixes[c.label] or {}).items():
-            try:
-                check_fixed(name, value, cls.param(name), cls.__name__)
-            except FitError as exc:
-                owners = [x.family for x in cands if name in model_class(x.family).param_names()]
-                said = f"{value:g}" if isinstance(value, (int, float)) else repr(value)
-                raise FitError(
-                    f"fixed={{'{step}': {{'{name}': {value!r}}}}} (--fix {step}.{name}={said}): "
-                    f"{str(exc).removeprefix('fixed ')}; when the models are chosen by the data "
-                    f"(auto) a fixed value holds in every candidate family that has the parameter "
-                    f"({', '.join(dict.fromkeys(owners))}): give one they all take, or pin "
-                    "the families (--models FAMILY+MEDIUM; brdf_model= and medium_model= in "
-                    "Python)"
-                ) from None
+def refuse_unheld(step: str, ranking, fixes: dict | None) -> None:
+    """A FitError when a fixed value of ``step`` ({label: {name: value}}) was held by no
+    candidate of the ``ranking``: every one that has the parameter failed (a value outside
+    its family's bounds), so the one chosen fits without it and the value went unused."""
+    held = {n: v for f in (fixes or {}).values() for n, v in (f or {}).items()}
+    for name, value in held.items():
+        errors = [ranking.row(lab)["error"] for lab, f in fixes.items() if f and name in f]
+        if errors and all(errors):
+            said = f"{value:g}" if isinstance(value, (int, float)) else repr(value)
+            raise FitError(
+                f"fixed={{'{step}': {{'{name}': {value!r}}}}} (--fix {step}.{name}={said}): "
+                f"no candidate could hold it ({errors[0].removeprefix('FitError: ')}), and "
+                f"the one chosen ({ranking.chosen}) has no {name}: the value would go unused; "
+                "give one a family that has the parameter takes, or drop it"
+            )
 
 
 def fitted_curve(result: FitResult, data) -> np.ndarray:
@@ -95,7 +85,7 @@ def fitted_curve(result: FitResult, data) -> np.ndarray:
 
 
 def rank_step(
-    step, cands, data, fit_one, progress, curves, what, propagated=None, quick=None
+    step, cands, data, fit_one, progress, curves, what, propagated=None, quick=None, fixes=None
 ) -> tuple[selection.Ranking, dict]:
     """Fit and rank one step's candidates (:func:`veil.fitting.screening.select`, screened
     by their ``quick`` fits when given); a close call's ranking carries the spread of the
@@ -103,8 +93,10 @@ def rank_step(
     ``fit_one`` without the given fit's covariance (which moves no estimate, chi-square or
     BIC) and the chosen one again by ``propagated(candidate, start)``, with it, from its
     estimate: the derivatives in the given model are compiled and evaluated for that one
-    only."""
+    only. ``fixes`` ({label: fixed}) that no candidate could hold are refused
+    (:func:`refuse_unheld`)."""
     ranking, results = screening.select(step, cands, data, fit_one, what, progress, quick)
+    refuse_unheld(step, ranking, fixes)
     if ranking.close_call:
         ranking = ranking.with_spread(
             selection.curve_spread(ranking, {lab: curves(results[lab]) for lab in ranking.close})
@@ -133,6 +125,18 @@ def _refuse_unused(kind: str, unused: list, opts: dict) -> None:
     raise FitError("; ".join(parts))
 
 
+def check_candidates(kind: str, cands: list, opts: dict) -> None:
+    """A FitError when no family of ``kind`` ("BRDF" or "medium") is a candidate, or when
+    ``opts`` hold an option no candidate takes (:func:`_refuse_unused`): a family that makes
+    no model with the value given is no candidate, and the option would go unused."""
+    if not cands:
+        raise FitError(f"no registered {kind} family is a candidate with options {opts}")
+    declared = {o for c in cands for o in model_class(c.family).option_names()}
+    unused = sorted(set(opts) - declared)
+    if unused:
+        _refuse_unused(kind, unused, opts)
+
+
 def plan_candidates(fixed, free, brdf_options, medium_options, variant) -> dict:
     """The candidates of ``models="auto"`` and each one's options, fixed and free entries;
     an entry or option no candidate declares is an error."""
@@ -141,13 +145,8 @@ def plan_candidates(fixed, free, brdf_options, medium_options, variant) -> dict:
         medium_options.setdefault(VARIANT_OPTION, variant)
     b_cands = selection.candidates("brdf", brdf_options)
     m_cands = selection.candidates("medium", medium_options)
-    for kind, cands, opts in (("BRDF", b_cands, brdf_options), ("medium", m_cands, medium_options)):
-        if not cands:
-            raise FitError(f"no registered {kind} family is a candidate with options {opts}")
-        declared = {o for c in cands for o in model_class(c.family).option_names()}
-        unused = sorted(set(opts) - declared)
-        if unused:
-            _refuse_unused(kind, unused, opts)
+    check_candidates("BRDF", b_cands, brdf_options)
+    check_candidates("medium", m_cands, medium_options)
     return {
         "brdf": b_cands,
         "medium": m_cands,
@@ -230,6 +229,7 @@ class _Ranked:
             curve,
             what,
             quick=(lambda c, start=None: one(c, start, True)) if screened else None,
+            fixes=fix,
         )
         self.rankings[step], self.kept[step] = ranking, results
         return ranking, results
@@ -295,6 +295,7 @@ class _Ranked:
             None
             if self.keep_all
             else (lambda c, start=None: self.fit_one(step, c, given, "off", True, start)),
+            self.plan["fix_m" if step == "medium" else "fix_t"],
         )
         self.rankings[step], self.kept[step] = ranking, results
         return selection.with_selection(results[ranking.chosen], ranking), ranking
@@ -358,4 +359,11 @@ def select_steps(
     return ref, med, tgt, run.direct.get("target"), chosen["family"], opts, run.rankings, kept
 
 
-__all__ = ["plan_candidates", "select_steps", "rank_step", "fitted_curve", "for_family"]
+__all__ = [
+    "check_candidates",
+    "plan_candidates",
+    "select_steps",
+    "rank_step",
+    "fitted_curve",
+    "for_family",
+]
