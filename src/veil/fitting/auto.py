@@ -65,10 +65,11 @@ def refuse_unheld(step: str, ranking, fixes: dict | None) -> None:
     """A FitError when a fixed value of ``step`` ({label: {name: value}}) was held by no
     candidate of the ``ranking``: every one that has the parameter failed (a value outside
     its family's bounds), so the one chosen fits without it and the value went unused."""
-    held = {n: v for f in (fixes or {}).values() for n, v in (f or {}).items()}
+    fixes = fixes or {}
+    held = {n: v for f in fixes.values() for n, v in (f or {}).items()}
     for name, value in held.items():
-        errors = [ranking.row(lab)["error"] for lab, f in fixes.items() if f and name in f]
-        if errors and all(errors):
+        errors = [ranking.row(lab)["error"] or "" for lab, f in fixes.items() if f and name in f]
+        if errors and all(f".{name} = " in e for e in errors):  # each failed on the value
             said = f"{value:g}" if isinstance(value, (int, float)) else repr(value)
             raise FitError(
                 f"fixed={{'{step}': {{'{name}': {value!r}}}}} (--fix {step}.{name}={said}): "
