@@ -183,16 +183,16 @@ def _prepare_sessions(inputs: dict, channel: str | None = None) -> tuple[dict, l
 def _session_channels(table, what: str, channels: list | None, channel: str | None) -> list:
     """The channels of a session in its own table's order (the order of a fit's residuals
     over them, which the ranking's stacked data must follow); a FitError when the session's
-    channels are not the reference's ``channels``."""
-    if not channels:
+    channels are not the reference's ``channels`` (or one, when it has one)."""
+    own = None if channel else channels_of(table, what)[1]
+    if not channels and len(own or ()) < 2:
         return [channel]
-    _, own = channels_of(table, what)
-    if own is None or set(own) != set(channels):
+    if own is None or set(own) != set(channels or ()):
         named = f" {os.fspath(table)}" if isinstance(table, (str, os.PathLike)) else ""
         raise FitError(
             f"the {what} table{named} has channels {', '.join(own or ['(none)'])} but the "
-            f"reference (clear medium) table has {', '.join(channels)}: every session needs "
-            f"the same channels"
+            f"reference (clear medium) table has {', '.join(channels or ['one channel'])}: every "
+            f"session needs the same channels (or fit one: channel='NAME', --channel NAME)"
         )
     return own
 

@@ -168,6 +168,26 @@ def _parse_free(items, cls, option="--free") -> list:
     return out
 
 
+def refuse_fixed_and_freed(fix, free, step: str | None = None, by_step: bool = False) -> None:
+    """A UserError for a parameter given to both ``--fix`` (``NAME=VALUE`` items, or of
+    ``step`` of the pipeline; ``by_step``: the pipeline's ``STEP.NAME=VALUE`` items) and
+    ``--free`` (``NAME`` items, or ``STEP.NAME``): held at a value or fitted, not both."""
+    if by_step:
+        for step, names in _step_entries(free, "--free").items():
+            held = [i.partition(".")[2] for i in fix if i.partition(".")[0].strip() == step]
+            refuse_fixed_and_freed(held, names, step)
+        return
+    fixed = {i.partition("=")[0].strip(): i.partition("=")[2].strip() for i in fix}
+    both = [n.strip() for n in free if n.strip() in fixed]
+    if both:
+        name = both[0] if step is None else f"{step}.{both[0]}"
+        raise UserError(
+            f"--fix {name}={fixed[both[0]]} and --free {name}: a parameter is held at a "
+            f"value (--fix) or fitted (--free, for one its family holds by default), not "
+            f"both; give one of the two"
+        )
+
+
 def _parse_step_free(items, models) -> dict:
     """``STEP.NAME`` strings of ``fit pipeline --free`` -> {step: [name, ...]}, checked
     against the chosen families."""

@@ -47,6 +47,7 @@ from ._fit_options import (
     _sampling_option,
     _step_entries,
     _step_through_medium_options,
+    refuse_fixed_and_freed,
 )
 from ._fit_reports import print_pipeline, print_ranking
 
@@ -121,7 +122,20 @@ def _per_candidate(items, cands, parse, option: str) -> dict:
         cls = model_class(c.family)
         mine = [i for i in items if i.partition("=")[0].strip() in cls.param_names()]
         used.update(mine)
-        out[c.label] = parse(mine, cls)
+        try:
+            out[c.label] = parse(mine, cls)
+        except UserError as exc:  # a value this family cannot hold, though others can
+            named = {i.partition("=")[0].strip() for i in mine if repr(i) in exc.message}
+            if not named:  # not a value (a name given twice)
+                raise
+            owners = dict.fromkeys(
+                d.family for d in cands if named & set(model_class(d.family).param_names())
+            )
+            raise UserError(
+                f"{exc.message}; with auto {option} applies to every candidate family that "
+                f"has the parameter ({', '.join(owners)}): give a value they all take, or "
+                f"choose the family (--{cls.KIND}-model FAMILY)"
+            ) from None
     unused = [i for i in items if i not in used]
     if unused:
         raise UserError(
@@ -141,11 +155,12 @@ def _ranked_fit(
     chosen result returned with it in ``stats["selection"]``. Exit 1 with the table when
     every candidate failed."""
     from ..fitting import screening, selection
+    from ..fitting.auto import check_candidates
     from ..fitting.session_data import prepare_all
 
-    cands = selection.candidates(
-        kind, models.brdf_options if kind == "brdf" else models.medium_options
-    )
+    options = models.brdf_options if kind == "brdf" else models.medium_options
+    cands = selection.candidates(kind, options)
+    check_candidates("BRDF" if kind == "brdf" else "medium", cands, options)
     fixes = _per_candidate(fix, cands, parse_fix, "--fix")
     frees = _per_candidate(free, cands, _parse_free, "--free")
     table, black, channel = data
@@ -181,6 +196,7 @@ def _fit_step(ctx, kind: str, step: str, models, fit, data, what: str, fix=(), f
     progress)`` with the chosen family, or every candidate ranked (:func:`_ranked_fit`)
     when it is ``auto``. ``data`` are the (table, black, channel) the fit reads, ``what``
     names them."""
+    refuse_fixed_and_freed(fix, free)
     cls = models.brdf if kind == "brdf" else models.medium
     options = models.brdf_options if kind == "brdf" else models.medium_options
     if kind in models.ranked:
@@ -495,6 +511,7 @@ def pipeline_command(
     from ..pipeline import run_pipeline
 
     auto = models.mode == AUTO
+    refuse_fixed_and_freed(fix, free, by_step=True)
     if auto:
         fixed = _raw_step_fix(fix)
         freed = _step_entries(free, "--free")

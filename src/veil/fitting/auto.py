@@ -43,6 +43,10 @@ def for_family(cls, per_step: dict, step: str, what: str, used: set) -> dict | l
     return kept
 
 
+#: The command-line option of each keyword of the pipeline, for the messages.
+_OPTION = {"fixed": "--fix", "free": "--free"}
+
+
 def _per_family(cands, per_step: dict, step: str, what: str) -> dict:
     """{label: the ``fixed`` / ``free`` entries of ``step`` its family declares}; an entry no
     candidate declares is an error."""
@@ -50,8 +54,29 @@ def _per_family(cands, per_step: dict, step: str, what: str) -> dict:
     out = {c.label: for_family(model_class(c.family), per_step, step, what, used) for c in cands}
     unused = [f"{step}.{k}" for k in (per_step.get(step) or []) if (step, k) not in used]
     if unused:
-        raise FitError(f"{what} {', '.join(unused)}: no candidate model has such a parameter")
+        raise FitError(
+            f"{what}={{...}} ({_OPTION[what]} {', '.join(unused)}): no candidate model has "
+            "such a parameter"
+        )
     return out
+
+
+def refuse_unheld(step: str, ranking, fixes: dict | None) -> None:
+    """A FitError when a fixed value of ``step`` ({label: {name: value}}) was held by no
+    candidate of the ``ranking``: every one that has the parameter failed (a value outside
+    its family's bounds), so the one chosen fits without it and the value went unused."""
+    fixes = fixes or {}
+    held = {n: v for f in fixes.values() for n, v in (f or {}).items()}
+    for name, value in held.items():
+        errors = [ranking.row(lab)["error"] or "" for lab, f in fixes.items() if f and name in f]
+        if errors and all(f".{name} = " in e for e in errors):  # each failed on the value
+            said = f"{value:g}" if isinstance(value, (int, float)) else repr(value)
+            raise FitError(
+                f"fixed={{'{step}': {{'{name}': {value!r}}}}} (--fix {step}.{name}={said}): "
+                f"no candidate could hold it ({errors[0].removeprefix('FitError: ')}), and "
+                f"the one chosen ({ranking.chosen}) has no {name}: the value would go unused; "
+                "give one a family that has the parameter takes, or drop it"
+            )
 
 
 def fitted_curve(result: FitResult, data) -> np.ndarray:
@@ -61,7 +86,7 @@ def fitted_curve(result: FitResult, data) -> np.ndarray:
 
 
 def rank_step(
-    step, cands, data, fit_one, progress, curves, what, propagated=None, quick=None
+    step, cands, data, fit_one, progress, curves, what, propagated=None, quick=None, fixes=None
 ) -> tuple[selection.Ranking, dict]:
     """Fit and rank one step's candidates (:func:`veil.fitting.screening.select`, screened
     by their ``quick`` fits when given); a close call's ranking carries the spread of the
@@ -69,8 +94,10 @@ def rank_step(
     ``fit_one`` without the given fit's covariance (which moves no estimate, chi-square or
     BIC) and the chosen one again by ``propagated(candidate, start)``, with it, from its
     estimate: the derivatives in the given model are compiled and evaluated for that one
-    only."""
+    only. ``fixes`` ({label: fixed}) that no candidate could hold are refused
+    (:func:`refuse_unheld`)."""
     ranking, results = screening.select(step, cands, data, fit_one, what, progress, quick)
+    refuse_unheld(step, ranking, fixes)
     if ranking.close_call:
         ranking = ranking.with_spread(
             selection.curve_spread(ranking, {lab: curves(results[lab]) for lab in ranking.close})
@@ -99,6 +126,18 @@ def _refuse_unused(kind: str, unused: list, opts: dict) -> None:
     raise FitError("; ".join(parts))
 
 
+def check_candidates(kind: str, cands: list, opts: dict) -> None:
+    """A FitError when no family of ``kind`` ("BRDF" or "medium") is a candidate, or when
+    ``opts`` hold an option no candidate takes (:func:`_refuse_unused`): a family that makes
+    no model with the value given is no candidate, and the option would go unused."""
+    if not cands:
+        raise FitError(f"no registered {kind} family is a candidate with options {opts}")
+    declared = {o for c in cands for o in model_class(c.family).option_names()}
+    unused = sorted(set(opts) - declared)
+    if unused:
+        _refuse_unused(kind, unused, opts)
+
+
 def plan_candidates(fixed, free, brdf_options, medium_options, variant) -> dict:
     """The candidates of ``models="auto"`` and each one's options, fixed and free entries;
     an entry or option no candidate declares is an error."""
@@ -107,13 +146,8 @@ def plan_candidates(fixed, free, brdf_options, medium_options, variant) -> dict:
         medium_options.setdefault(VARIANT_OPTION, variant)
     b_cands = selection.candidates("brdf", brdf_options)
     m_cands = selection.candidates("medium", medium_options)
-    for kind, cands, opts in (("BRDF", b_cands, brdf_options), ("medium", m_cands, medium_options)):
-        if not cands:
-            raise FitError(f"no registered {kind} family is a candidate with options {opts}")
-        declared = {o for c in cands for o in model_class(c.family).option_names()}
-        unused = sorted(set(opts) - declared)
-        if unused:
-            _refuse_unused(kind, unused, opts)
+    check_candidates("BRDF", b_cands, brdf_options)
+    check_candidates("medium", m_cands, medium_options)
     return {
         "brdf": b_cands,
         "medium": m_cands,
@@ -196,6 +230,7 @@ class _Ranked:
             curve,
             what,
             quick=(lambda c, start=None: one(c, start, True)) if screened else None,
+            fixes=fix,
         )
         self.rankings[step], self.kept[step] = ranking, results
         return ranking, results
@@ -261,6 +296,7 @@ class _Ranked:
             None
             if self.keep_all
             else (lambda c, start=None: self.fit_one(step, c, given, "off", True, start)),
+            self.plan["fix_m" if step == "medium" else "fix_t"],
         )
         self.rankings[step], self.kept[step] = ranking, results
         return selection.with_selection(results[ranking.chosen], ranking), ranking
@@ -324,4 +360,11 @@ def select_steps(
     return ref, med, tgt, run.direct.get("target"), chosen["family"], opts, run.rankings, kept
 
 
-__all__ = ["plan_candidates", "select_steps", "rank_step", "fitted_curve", "for_family"]
+__all__ = [
+    "check_candidates",
+    "plan_candidates",
+    "select_steps",
+    "rank_step",
+    "fitted_curve",
+    "for_family",
+]

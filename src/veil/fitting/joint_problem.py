@@ -312,7 +312,10 @@ def _fixed_and_freed(
         )
     clash = [n for n in freed if n in fixed]
     if clash:
-        raise FitError(f"{', '.join(clash)} both fixed and freed")
+        raise FitError(
+            f"{', '.join(clash)} both fixed and freed: a parameter is held at its fixed "
+            "value or fitted (freed: one its family holds by default), not both; give one"
+        )
     free = np.array([not p.spec.held or p.name in freed for p in params], dtype=bool)
     return fixed, values, free
 

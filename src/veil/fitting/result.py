@@ -281,7 +281,10 @@ class FitResult:
     @classmethod
     def from_dict(cls, data: dict, source: str = "the fit result") -> FitResult:
         """Check and convert a dictionary written by :meth:`to_dict`
-        (:func:`veil.fitting.result_reading.fit_fields`)."""
+        (:func:`veil.fitting.result_reading.fit_fields`); a joint fit's (model "joint") is
+        read as the :class:`JointResult` it is."""
+        if cls is FitResult and isinstance(data, dict) and data.get("model") == "joint":
+            return JointResult.from_dict(data, source)
         return cls(**fit_fields(data, source))
 
     @classmethod
@@ -314,8 +317,21 @@ class FitResult:
     def __str__(self) -> str:
         return self.report()
 
+    def __repr__(self) -> str:
+        """One line: the family, step, first parameters and convergence, and where its
+        model is (the dataclass's listed every residual and correlation, and a function
+        given a result for a model printed them all)."""
+        shown = ", ".join(f"{k}={v:.4g}" for k, v in list(self.params.items())[:6])
+        more = f", ... ({len(self.params)} parameters)" if len(self.params) > 6 else ""
+        state = "converged" if self.converged else "not converged"
+        where = ".as_model()" + (", .brdf(object), .medium(label)" if self.JOINT else "")
+        return (
+            f"{type(self).__name__}({self.model} fit, step {self.step!r}: {shown}{more}; "
+            f"{state}; its model: {where})"
+        )
 
-@dataclass(frozen=True)
+
+@dataclass(frozen=True, repr=False)
 class JointResult(FitResult):
     """A joint fit (docs/model.md sec. 7): a :class:`FitResult` whose ``params`` span several
     models and whose ``layout`` says which: ``models`` {"brdf": family, "medium": family}

@@ -248,7 +248,10 @@ def _free(cls, fixed: dict, freed, what: str) -> list[str]:
     """The free slots: every parameter but the ``fixed`` and the held ones not ``freed``."""
     clash = [n for n in freed if n in fixed]
     if clash:
-        raise FitError(f"{', '.join(clash)} both fixed and freed")
+        raise FitError(
+            f"{', '.join(clash)} both fixed and freed: a parameter is held at its fixed "
+            "value or fitted (freed: one its family holds by default), not both; give one"
+        )
     free = [p.key for p in cls.PARAMS if p.name not in fixed and (not p.held or p.name in freed)]
     if not free:
         raise FitError(

@@ -83,6 +83,12 @@ def _source_values(source: Model, angles) -> np.ndarray:
     if not isinstance(source, BRDF):
         raise InputError(f"a closest fit needs a BRDF; {source.NAME} is a {source.KIND} model")
     values = reflectance(source, *angles)
+    if not np.any(values):  # no rescaling makes a closest fit of nothing
+        raise InputError(
+            f"{source.NAME}: f_r is 0 at every configuration (every coefficient 0), so there "
+            f"is no reflectance to export; a fit gives that to data with no signal above the "
+            f"black cloth (its message says so): check the measurements and fit them again"
+        )
     lo, hi = MAGNITUDE
     if np.all(np.isfinite(values)) and not lo <= float(np.max(np.abs(values))) <= hi:
         params = dict(zip(source.param_names(), source.to_vector()))
