@@ -21,6 +21,16 @@ def _said(r) -> str:
     return " ".join(r.output.split())
 
 
+def _maps_of_no_photos(tmp_path, *options, out=None):
+    """``veil fit maps`` of an empty photo folder and manifest, with ``options`` and -o
+    ``out`` (o.zarr by default): for refusals that come before any photo is read."""
+    (tmp_path / "photos").mkdir()
+    (tmp_path / "m.csv").write_text("file,theta_i,phi_i,theta_r,phi_r\n")
+    out = tmp_path / "o.zarr" if out is None else out
+    return run_checked(["fit", "maps", tmp_path / "photos", "--manifest", tmp_path / "m.csv",
+                        "--medium", "BTDF2", *options, "-o", out])
+
+
 @pytest.fixture
 def colour_stack(tmp_path):
     """Three 16-bit RGB photos of noise, their manifest, and a grey and a colour dark frame."""
@@ -70,13 +80,10 @@ def test_a_folder_that_is_no_store_is_refused_first_and_no_lock_left(tmp_path, m
     for module, name in ((cmd, "load_medium"), (mr, "load_acquisition"), (mr, "_tables"),
                          (mr, "fit_maps")):
         monkeypatch.setattr(module, name, work)
-    (tmp_path / "photos").mkdir()
-    (tmp_path / "m.csv").write_text("file,theta_i,phi_i,theta_r,phi_r\n")
     folder = tmp_path / "mine"
     folder.mkdir()
     (folder / "notes.txt").write_text("mine")
-    r = run_checked(["fit", "maps", tmp_path / "photos", "--manifest", tmp_path / "m.csv",
-                     "--medium", "BTDF2", "-o", folder, *rounds])
+    r = _maps_of_no_photos(tmp_path, *rounds, out=folder)
     assert r.exit_code == 2, r.output
     assert f"{folder} exists and is not a veil maps store" in _said(r), r.output
     with pytest.raises(InputError, match="exists and is not a veil maps store"):
@@ -93,11 +100,8 @@ def test_a_noise_beyond_a_floats_square_is_refused_by_the_option(tmp_path, noise
     from veil.errors import InputError
     from veil.maps.run import check_noise
 
-    (tmp_path / "photos").mkdir()
-    (tmp_path / "m.csv").write_text("file,theta_i,phi_i,theta_r,phi_r\n")
     out = tmp_path / "o.zarr"
-    r = run_checked(["fit", "maps", tmp_path / "photos", "--manifest", tmp_path / "m.csv",
-                     "--medium", "BTDF2", "--noise", noise, "-o", out])
+    r = _maps_of_no_photos(tmp_path, "--noise", noise)
     assert r.exit_code == 2, r.output
     said = _said(r)
     assert f"--noise '{noise}'" in said and "0 or from 1e-150 to 1e+150" in said, said
@@ -203,11 +207,8 @@ def test_blur_from_the_output_is_refused_before_anything_is_read(tmp_path, monke
         raise AssertionError("work done before the output was checked")
 
     monkeypatch.setattr(mr, "load_acquisition", work)
-    (tmp_path / "photos").mkdir()
-    (tmp_path / "m.csv").write_text("file,theta_i,phi_i,theta_r,phi_r\n")
     out = tmp_path / "o.zarr"
-    r = run_checked(["fit", "maps", tmp_path / "photos", "--manifest", tmp_path / "m.csv",
-                     "--medium", "BTDF2", "--blur-from", out, "-o", out])
+    r = _maps_of_no_photos(tmp_path, "--blur-from", out)
     assert r.exit_code == 2, r.output
     assert f"--blur-from {out} is the output: write the map to a new store" in _said(r), r.output
     assert not out.exists()
