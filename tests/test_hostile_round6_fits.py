@@ -94,6 +94,36 @@ def test_auto_step_fit_says_the_fix_holds_in_every_family_having_it(sessions, tm
     assert not (tmp_path / "r.json").exists()
 
 
+def test_a_fix_of_a_candidate_left_out_of_the_ranking_is_not_looked_up():
+    """Over several channels the linear family is left out of the ranking, its fixes kept
+    in the plan: looking its row up raised StopIteration (an internal error). Its fix is
+    passed over; the ranked candidates' own failures still refuse the value."""
+    from types import SimpleNamespace
+
+    from veil.fitting.auto import refuse_unheld
+
+    rows = [{"label": "henyey-greenstein", "error": None},
+            {"label": "forward-series", "error": "FitError: fixed forward-series.tau = -0.5 "
+                                                 "is outside [0, 3]"}]
+    ranking = SimpleNamespace(rows=rows, chosen="henyey-greenstein",
+                              row=lambda lab: next(r for r in rows if r["label"] == lab))
+    refuse_unheld("target", ranking, {"nonparametric": {"d0": 0.5}})
+    with pytest.raises(FitError, match="no candidate could hold it"):
+        refuse_unheld("medium", ranking, {"forward-series": {"tau": -0.5},
+                                          "nonparametric": {"tau": -0.5}})
+
+
+def test_a_malformed_fix_under_auto_gets_no_hint_about_values(sessions, tmp_path):
+    """A --fix that does not parse was given the out-of-bounds hint ("give a value they all
+    take"), which does not apply to it."""
+    for item, said in (("n=abc", "'abc' is not a number"), ("n", "expected NAME=VALUE")):
+        r = run_checked(["fit", "reference", sessions["reference-clear"], "--brdf-model",
+                         "auto", "--fix", item, "-o", tmp_path / "r.json"])
+        assert r.exit_code == 2, r.output
+        assert f"--fix '{item}': {said}" in _said(r), r.output
+        assert "give a value they all take" not in _said(r), r.output
+
+
 # -- 2. a fit result where the forward model takes a model ---------------------------------
 @pytest.fixture(scope="module")
 def fitted():

@@ -116,7 +116,14 @@ def _per_candidate(items, cands, parse, option: str) -> dict:
     fit: each NAME=VALUE (or NAME) applies to the candidates that declare the parameter; one
     that no candidate declares is a UserError."""
     from ..models import model_class
+    from ._model_options import fix_value
 
+    if option == "--fix":  # a VALUE that is no number is said so, without the hint below
+        for item in items:
+            name, sep, text = item.partition("=")
+            if not sep or not name.strip():
+                raise UserError(f"{option} {item!r}: expected NAME=VALUE, e.g. n=0.5")
+            fix_value(option, item, name.strip(), text, {})
     used, out = set(), {}
     for c in cands:
         cls = model_class(c.family)
@@ -124,7 +131,7 @@ def _per_candidate(items, cands, parse, option: str) -> dict:
         used.update(mine)
         try:
             out[c.label] = parse(mine, cls)
-        except UserError as exc:  # a value this family cannot hold, though others can
+        except UserError as exc:  # a value this family cannot hold (its bounds), others can
             named = {i.partition("=")[0].strip() for i in mine if repr(i) in exc.message}
             if not named:  # not a value (a name given twice)
                 raise

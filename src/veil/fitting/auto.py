@@ -64,18 +64,21 @@ def _per_family(cands, per_step: dict, step: str, what: str) -> dict:
 def refuse_unheld(step: str, ranking, fixes: dict | None) -> None:
     """A FitError when a fixed value of ``step`` ({label: {name: value}}) was held by no
     candidate of the ``ranking``: every one that has the parameter failed (a value outside
-    its family's bounds), so the one chosen fits without it and the value went unused."""
-    fixes = fixes or {}
-    held = {n: v for f in fixes.values() for n, v in (f or {}).items()}
+    its family's bounds), so the one chosen fits without it and the value went unused. The
+    fixes of a candidate the ranking does not hold (a linear family left out over channels)
+    are not looked at."""
+    ranked = {r["label"] for r in ranking.rows}
+    fixes = {lab: f for lab, f in (fixes or {}).items() if f and lab in ranked}
+    held = {n: v for f in fixes.values() for n, v in f.items()}
     for name, value in held.items():
-        errors = [ranking.row(lab)["error"] or "" for lab, f in fixes.items() if f and name in f]
+        errors = [ranking.row(lab)["error"] or "" for lab, f in fixes.items() if name in f]
         if errors and all(f".{name} = " in e for e in errors):  # each failed on the value
             said = f"{value:g}" if isinstance(value, (int, float)) else repr(value)
             raise FitError(
                 f"fixed={{'{step}': {{'{name}': {value!r}}}}} (--fix {step}.{name}={said}): "
                 f"no candidate could hold it ({errors[0].removeprefix('FitError: ')}), and "
                 f"the one chosen ({ranking.chosen}) has no {name}: the value would go unused; "
-                "give one a family that has the parameter takes, or drop it"
+                "give a value that a family having the parameter takes, or drop it"
             )
 
 
