@@ -105,20 +105,26 @@ def one_channel(
 
 
 def _warn_unsubtracted_black(table: pd.DataFrame) -> None:
-    """A UserWarning when a table fitted without a black-cloth table has a nonzero ``black``
-    column (``veil ingest --black-roi``: the black cloth beside the object): the fit does
-    not subtract it (docs/ingest.md)."""
-    if "black" not in table.columns:
+    """A UserWarning, once per table, when a table fitted without a black-cloth table has a
+    nonzero ``black`` column (``veil ingest --black-roi``: the black cloth beside the
+    object): the fit does not subtract it (docs/ingest.md). The table is marked, so that
+    the fits that prepare it again (every candidate of a ranking) do not say it again."""
+    if "black" not in table.columns or table.attrs.get(_BLACK_SAID):
         return
+    table.attrs[_BLACK_SAID] = True
     black = pd.to_numeric(table["black"], errors="coerce").to_numpy(dtype=float)
     if np.any(np.isfinite(black) & (black != 0)):
         warnings.warn(
             f"{RowNames(table).what} has a 'black' column (the black cloth beside the object, "
-            f"veil ingest --black-roi), which the fit does not subtract: subtract it "
-            f"(docs/ingest.md) or give the black cloth's table (--black)",
+            f"veil ingest --black-roi), which the fit does not subtract: subtract it first "
+            f"(docs/ingest.md); through a medium, a black-cloth table (--black) does that",
             UserWarning,
             stacklevel=3,
         )
+
+
+#: The attribute that marks a table whose ``black`` column was warned of.
+_BLACK_SAID = "veil_black_column_said"
 
 
 def prepare(
