@@ -211,4 +211,11 @@ def test_blur_from_the_output_is_refused_before_anything_is_read(tmp_path, monke
     r = _maps_of_no_photos(tmp_path, "--blur-from", out)
     assert r.exit_code == 2, r.output
     assert f"--blur-from {out} is the output: write the map to a new store" in _said(r), r.output
-    assert not out.exists()
+    # with rounds too: the first rounds' maps were fitted before the last one was refused
+    monkeypatch.setattr(mr, "fit_maps", work)
+    again = run_checked(["fit", "maps", tmp_path / "photos", "--manifest", tmp_path / "m.csv",
+                         "--medium", "BTDF2", "--blur-from", out, "--blur-rounds", "2",
+                         "-o", out])
+    assert again.exit_code == 2, again.output
+    assert f"--blur-from {out} is the output" in _said(again), again.output
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["m.csv", "photos"]

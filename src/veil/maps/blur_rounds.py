@@ -39,13 +39,12 @@ def fit_maps_rounds(photo_dir, manifest, medium, output, rounds: int, **kwargs) 
     from .channels import map_media
     from .medium_error import check_method
     from .model_error import discrepancy
-    from .run import check_noise, fit_maps
-    from .store import check_store_path
+    from .run import check_noise, check_output, fit_maps
 
     rounds = check_rounds(rounds)
     say = kwargs.get("log") or (lambda message: None)
-    output = Path(as_path(output, "output"))
-    check_store_path(output)  # not after every round but the last
+    # before the first round, not after every round but the last
+    output = check_output(Path(as_path(output, "output")), kwargs.get("blur_from"))
     model, media = map_media(medium, kwargs.get("channel", "gray"))
     near = bool(kwargs.get("near_field")) and kwargs.get("geometry") is not None
     check_medium(media_of(media or model), near)

@@ -192,10 +192,7 @@ def fit_maps(
     setting = discrepancy(model_error, noise, model_floor(cls, medium_model), given_term(medium))
     spread = plan_spread(propagation, medium, channel)
     grid_spec = parse_grid(grid, cls) if isinstance(grid, (list, tuple)) else dict(grid or {})
-    output = _check_output(Path(as_path(output, "output")))
-    prior_path = blur_from is not None and Path(as_path(blur_from, "blur_from")).resolve()
-    if prior_path == output.resolve():
-        raise InputError(f"--blur-from {blur_from} is the output: write the map to a new store")
+    output = check_output(Path(as_path(output, "output")), blur_from)
     sources = dict(roi=roi, mask=mask, black_photos=black_photos, black_frame=black_frame)
     acq = load_acquisition(photo_dir, manifest, channel=channel, saturation=saturation, **sources)
     near = near_geometry(geometry, near_field, acq)
@@ -242,13 +239,19 @@ def _tile(tile) -> int:
     return tile
 
 
-def _check_output(output: Path) -> Path:
-    """``output``, checked before anything is read: its folder exists, and it is no file."""
+def check_output(output: Path, blur_from=None) -> Path:
+    """``output``, checked before anything is read: its folder exists, it is no file and no
+    folder of other things (:func:`veil.maps.store.check_store_path`), and it is not the
+    store ``blur_from`` whose blur the map corrects."""
     if not output.parent.exists():
         from ..io import no_directory
 
         raise InputError(f"cannot write {output}: {no_directory(str(output.parent))}")
     check_store_path(output)
+    if blur_from is not None and Path(as_path(blur_from, "blur_from")).resolve() == (
+        output.resolve()
+    ):
+        raise InputError(f"--blur-from {blur_from} is the output: write the map to a new store")
     return output
 
 
@@ -535,6 +538,7 @@ def _compute(store, job: _Job, todo):
 
 __all__ = [
     "fit_maps",
+    "check_output",
     "open_maps",
     "MapsWarning",
     "geometry_notes",
