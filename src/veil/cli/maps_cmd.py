@@ -7,7 +7,6 @@ fast."""
 from __future__ import annotations
 
 import json
-import math
 from functools import partial
 from pathlib import Path
 
@@ -42,19 +41,15 @@ def _noise(text):
         raise UserError(
             f"--noise {text!r}: expected RELATIVE[,ABSOLUTE], e.g. 0.01 or 0.01,0.5"
         ) from None
-    if (
-        len(values) not in (1, 2)
-        or not all(math.isfinite(v) and v >= 0 for v in values)
-        or sum(values) <= 0
-    ):
+    if len(values) not in (1, 2):
         raise UserError(f"--noise {text!r}: expected RELATIVE[,ABSOLUTE] >= 0, not both 0")
-    from ..maps.run import NOISE_RANGE
+    from ..errors import InputError
+    from ..maps.run import check_noise
 
-    lo, hi = NOISE_RANGE
-    if any(v != 0 and not lo <= v <= hi for v in values):
-        raise UserError(
-            f"--noise {text!r}: each of RELATIVE and ABSOLUTE is 0 or from {lo:g} to {hi:g}"
-        )
+    try:  # the maps' own check (veil.maps.run.check_noise), in the option's words
+        check_noise(tuple(values))
+    except InputError as exc:
+        raise UserError(f"--noise {text!r}: {str(exc).partition(': ')[2]}") from None
     return tuple(values + [0.0])[:2]
 
 
