@@ -26,7 +26,7 @@ from .joint_channels import (
 )
 from .problem import OBJECTS, Block, Problem, Session, model_slots
 from .session_data import prepare
-from .solver import as_fixed, check_fixed
+from .solver import as_fixed, check_fixed, refuse_fixed_and_freed
 
 #: Two configurations closer than this (deg, for both I and R) are the same one when
 #: checking that sessions overlap (the black-cloth matching tolerance).
@@ -310,12 +310,7 @@ def _fixed_and_freed(
             f"cannot free {', '.join(map(repr, unknown))}: the joint fit's "
             f"parameters are {', '.join(names)}"
         )
-    clash = [n for n in freed if n in fixed]
-    if clash:
-        raise FitError(
-            f"{', '.join(clash)} both fixed and freed: a parameter is held at its fixed "
-            "value or fitted (freed: one its family holds by default), not both; give one"
-        )
+    refuse_fixed_and_freed(fixed, freed)
     free = np.array([not p.spec.held or p.name in freed for p in params], dtype=bool)
     return fixed, values, free
 

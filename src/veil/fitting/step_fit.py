@@ -22,7 +22,7 @@ from .propagation import describe, given_covariance
 from .reported_uncertainty import model_floor, reported
 from .result import FitResult, model_entry
 from .session_data import FitData
-from .solver import check_fixed, run_from, start_vector, summarize
+from .solver import check_fixed, refuse_fixed_and_freed, run_from, start_vector, summarize
 from .start_values import step_starts
 
 #: Least-squares runs started from the best distinct grid points, by step.
@@ -246,12 +246,7 @@ WHAT = {
 
 def _free(cls, fixed: dict, freed, what: str) -> list[str]:
     """The free slots: every parameter but the ``fixed`` and the held ones not ``freed``."""
-    clash = [n for n in freed if n in fixed]
-    if clash:
-        raise FitError(
-            f"{', '.join(clash)} both fixed and freed: a parameter is held at its fixed "
-            "value or fitted (freed: one its family holds by default), not both; give one"
-        )
+    refuse_fixed_and_freed(fixed, freed)
     free = [p.key for p in cls.PARAMS if p.name not in fixed and (not p.held or p.name in freed)]
     if not free:
         raise FitError(
