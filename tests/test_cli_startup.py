@@ -130,11 +130,11 @@ def test_every_command_of_the_table_loads():
             assert f"  {name} " in r.output
 
 
-
 def test_every_short_help_is_a_whole_sentence():
     """click cuts a docstring's first line at its first ". ", so `veil --help` listed demo as
     "The paper's simulation experiment (figs." (and fit, fit joint, simulate at "sec."):
-    every command's short help, read at any width, closes its parentheses."""
+    every command's short help, as click takes it before fitting it to a width, closes its
+    parentheses."""
     import click
 
     from veil.cli import COMMANDS, main
@@ -146,6 +146,7 @@ def test_every_short_help_is_a_whole_sentence():
             cmd = cmd.get_command(ctx, word)
         short = cmd.get_short_help_str(limit=300)
         assert short.count("(") == short.count(")"), f"veil {name}: {short!r}"
+
 
 def test_ingest_imports_no_jax(tmp_path):
     """veil ingest does no numerics of the engine: photographs in, a table out, no JAX."""
