@@ -1,8 +1,8 @@
 """The fits' arguments that name things, checked where they enter: a family's ``options``
 (a dict), parameter names (``free=``, the joint fit's ``shared=`` and ``per_medium=``) and a
 fit's ``start`` given as {name: value}. Each is a :class:`~veil.errors.FitError` naming the
-argument and what it takes; ``fixed=`` and ``max_nfev=`` are checked in
-:mod:`veil.fitting.solver`."""
+argument and what it takes (and a parameter both fixed and freed); ``fixed=`` and
+``max_nfev=`` are checked in :mod:`veil.fitting.solver`."""
 
 from __future__ import annotations
 
@@ -65,4 +65,15 @@ def as_start(start, names: list[str], family: str) -> dict:
     return {k: float(v) for k, v in start.items()}
 
 
-__all__ = ["as_options", "as_names", "as_start"]
+def refuse_fixed_and_freed(fixed, freed) -> None:
+    """A FitError naming the parameters both in ``fixed`` and in ``freed``: a parameter is
+    held at its fixed value or fitted, not both."""
+    clash = [n for n in freed if n in fixed]
+    if clash:
+        raise FitError(
+            f"{', '.join(clash)} both fixed and freed: a parameter is held at its fixed "
+            "value or fitted (freed: one its family holds by default), not both; give one"
+        )
+
+
+__all__ = ["as_options", "as_names", "as_start", "refuse_fixed_and_freed"]

@@ -14,7 +14,7 @@ from ..engine.angles import direction
 from ..errors import FitError, InputError
 from ..models import default_class, model_class
 from ..models.base import VARIANT_OPTION
-from .arguments import as_names, as_options
+from .arguments import as_names, as_options, refuse_fixed_and_freed
 from .channel_steps import shared_engines
 from .given import as_given
 from .joint_channels import (
@@ -26,7 +26,7 @@ from .joint_channels import (
 )
 from .problem import OBJECTS, Block, Problem, Session, model_slots
 from .session_data import prepare
-from .solver import as_fixed, check_fixed, refuse_fixed_and_freed
+from .solver import as_fixed, check_fixed
 
 #: Two configurations closer than this (deg, for both I and R) are the same one when
 #: checking that sessions overlap (the black-cloth matching tolerance).

@@ -98,17 +98,6 @@ def check_fixed(name: str, value, param, owner: str) -> None:
         raise FitError(f"fixed {exc}") from None
 
 
-def refuse_fixed_and_freed(fixed, freed) -> None:
-    """A FitError naming the parameters both in ``fixed`` and in ``freed``: a parameter is
-    held at its fixed value or fitted, not both."""
-    clash = [n for n in freed if n in fixed]
-    if clash:
-        raise FitError(
-            f"{', '.join(clash)} both fixed and freed: a parameter is held at its fixed "
-            "value or fitted (freed: one its family holds by default), not both; give one"
-        )
-
-
 def ticker(progress, stage: str) -> Callable[..., None]:
     """A callback for each evaluation of a least-squares run: calls progress(stage, n, None)
     at the n-th call (nothing when ``progress`` is None or false)."""

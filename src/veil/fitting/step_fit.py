@@ -16,13 +16,14 @@ import numpy as np
 from ..errors import FitError
 from ..models import BRDF, Medium, Model
 from ..models.base import VARIANT_OPTION
+from .arguments import refuse_fixed_and_freed
 from .linear_fit import fit_linear
 from .problem import ITERATION_ACCURACY, Problem, session_problem
 from .propagation import describe, given_covariance
 from .reported_uncertainty import model_floor, reported
 from .result import FitResult, model_entry
 from .session_data import FitData
-from .solver import check_fixed, refuse_fixed_and_freed, run_from, start_vector, summarize
+from .solver import check_fixed, run_from, start_vector, summarize
 from .start_values import step_starts
 
 #: Least-squares runs started from the best distinct grid points, by step.
