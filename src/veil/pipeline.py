@@ -163,16 +163,19 @@ def _prepare_sessions(inputs: dict, channel: str | None = None) -> tuple[dict, l
         "target_clear": "target (clear medium)",
     }
     keys = [k for k in whats if inputs[k] is not None]
-    channels = None
-    if channel is None:
-        _, channels = channels_of(inputs["reference_clear"], whats["reference_clear"])
-        channels = channels if channels is not None and len(channels) > 1 else None
+    # each session read once: with no channel chosen, with its channels
+    loaded = {
+        k: channels_of(inputs[k], whats[k]) if channel is None else (inputs[k], None) for k in keys
+    }
+    channels = loaded["reference_clear"][1]
+    channels = channels if channels is not None and len(channels) > 1 else None
     data: dict = {}
     by_channel: dict = {}
     for key in keys:
         session_black = black if key in ("reference_medium", "target_medium") else None
-        for c in _session_channels(inputs[key], whats[key], channels, channel):
-            found = prepare(inputs[key], session_black, whats[key], channel=c)
+        table, own = loaded[key]
+        for c in _session_channels(inputs[key], own, whats[key], channels, channel):
+            found = prepare(table, session_black, whats[key], channel=c)
             data.setdefault(key, found)
             by_channel.setdefault(key, {})[c] = found
     if channels:
@@ -180,11 +183,10 @@ def _prepare_sessions(inputs: dict, channel: str | None = None) -> tuple[dict, l
     return data, channels
 
 
-def _session_channels(table, what: str, channels: list | None, channel: str | None) -> list:
-    """The channels of a session in its own table's order (the order of a fit's residuals
-    over them, which the ranking's stacked data must follow); a FitError when the session's
-    channels are not the reference's ``channels`` (or one, when it has one)."""
-    own = None if channel else channels_of(table, what)[1]
+def _session_channels(table, own: list | None, what: str, channels, channel) -> list:
+    """The channels of the session ``table`` in its own order ``own`` (the order of a fit's
+    residuals over them, which the ranking's stacked data must follow); a FitError when
+    they are not the reference's ``channels`` (or one, when it has one)."""
     if not channels and len(own or ()) < 2:
         return [channel]
     if own is None or set(own) != set(channels or ()):
